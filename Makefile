@@ -1,0 +1,51 @@
+# Two set-up commands: `make demo` and `make test`. Both create .venv, install the package and
+# the system packages it needs (apt-get, only what is missing), then do their job.
+SHELL := /bin/bash
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+# libusb: open3d's import; EGL/Mesa: open3d's offscreen OpenGL on the CPU (llvmpipe);
+# Vulkan: open3d's Filament renderer on the CPU
+SYSTEM_PACKAGES := libusb-1.0-0 libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libvulkan1 mesa-vulkan-drivers
+OUT ?= out
+
+.PHONY: demo test test-all bench lint system-deps venv clean
+
+demo: venv
+	$(VENV)/bin/studyctl sim run --scene protocols/scenes/brain_pull.toml --frames $(OUT)/demo
+	@echo "pictures: $(OUT)/demo/frame_*.png, force plot: $(OUT)/demo/force.png"
+
+test: venv
+	$(PY) -m pytest -q
+
+test-all: venv
+	$(PY) -m pytest -q -m "slow or not slow"
+
+bench: venv
+	$(PY) -m bench
+
+lint: venv
+	$(VENV)/bin/ruff check sim studyctl analysis tests bench scripts
+
+venv: system-deps $(STAMP)
+
+system-deps:
+	@missing=""; for p in $(SYSTEM_PACKAGES); do \
+	  dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q "install ok installed" || missing="$$missing $$p"; \
+	done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing system packages:$$missing"; \
+	  SUDO=""; [ "$$(id -u)" = 0 ] || SUDO=sudo; \
+	  $$SUDO apt-get update -qq && \
+	  DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
+	fi
+
+$(STAMP): pyproject.toml
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade "pip>=25.1"
+	$(PY) -m pip install -q -e . --group dev
+	@touch $(STAMP)
+
+clean:
+	rm -rf $(VENV) $(OUT) .pytest_cache .hypothesis

@@ -1,0 +1,1 @@
+"""Statistics, Table 1, accuracy and stability reports, plots."""

@@ -1,0 +1,20 @@
+"""Haptic devices behind one interface (`sim.devices.base.HapticDevice`).
+
+Backends are imported only when a scene opens a device of that kind.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+BACKENDS = {
+    "simulated": "sim.devices.simulated",
+}
+
+
+def backend_module(name: str):
+    from sim.errors import SceneError
+
+    if name not in BACKENDS:
+        raise SceneError(f"device: unknown backend {name!r}; available: {', '.join(sorted(BACKENDS))}")
+    return importlib.import_module(BACKENDS[name])

@@ -1,0 +1,127 @@
+"""A simulated PHANTOM Omni held by a scripted operator whose hand has an impedance.
+
+The operator's hand is a mass-spring-damper pulled towards a scripted target; the force the
+device renders acts on that hand, so a stiff tissue holds the hand back. The device reports
+the hand position quantised to 0.055 mm and confined to the 160 x 120 x 70 mm workspace, and
+its motors saturate at the peak force.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.devices.base import DeviceState, OmniSpec
+from sim.models.base import Vec3
+
+
+@dataclass(frozen=True)
+class HandImpedance:
+    """Operator hand + stylus as seen by the device (typical arm values, Hogan 1985 range)."""
+
+    mass_kg: float = 0.2
+    stiffness_n_per_m: float = 300.0
+    damping_ns_per_m: float = 11.0  # ~0.7 of critical for the mass and stiffness above
+
+
+def min_jerk(tau: float) -> float:
+    """Minimum-jerk position profile (Flash and Hogan 1985) for tau in [0, 1]."""
+    if tau <= 0.0:
+        return 0.0
+    if tau >= 1.0:
+        return 1.0
+    return tau**3 * (10.0 - 15.0 * tau + 6.0 * tau * tau)
+
+
+@dataclass(frozen=True)
+class PullScript:
+    """Grasp at `start`, pull by `pull` (a vector, m) with a minimum-jerk profile, release."""
+
+    start: Vec3
+    pull: Vec3
+    grasp_at: float  # s, button pressed
+    pull_start: float  # s
+    pull_time: float  # s, duration of the pull
+    release_at: float  # s, button released
+
+    def target(self, t: float) -> Vec3:
+        s = min_jerk((t - self.pull_start) / self.pull_time) if self.pull_time > 0 else float(t >= self.pull_start)
+        return (
+            self.start[0] + s * self.pull[0],
+            self.start[1] + s * self.pull[1],
+            self.start[2] + s * self.pull[2],
+        )
+
+    def button(self, t: float) -> bool:
+        return self.grasp_at <= t < self.release_at
+
+
+class SimulatedOmni:
+    """An Omni model. `read(t)` advances the hand dynamics to time t in 1 ms steps."""
+
+    opened = 0  # devices opened in this process (tests check a one-hand scene opens one)
+
+    def __init__(
+        self,
+        script: PullScript,
+        name: str = "simulated",
+        spec: OmniSpec = OmniSpec(),
+        origin: Vec3 | None = None,
+        impedance: HandImpedance = HandImpedance(),
+        step: float = 1e-3,
+    ):
+        self.spec = spec
+        self.name = name
+        self.script = script
+        self.impedance = impedance
+        self.origin = np.asarray(origin if origin is not None else script.start, dtype=np.float64)
+        self._half = np.asarray(spec.workspace_m) / 2.0
+        self._x = np.asarray(script.start, dtype=np.float64).copy()
+        self._v = np.zeros(3)
+        self._t = 0.0
+        self._step = step
+        self._force = np.zeros(3)
+        self.max_force_applied = 0.0
+        SimulatedOmni.opened += 1
+
+    def _advance(self, t: float) -> None:
+        imp = self.impedance
+        while self._t + 1e-12 < t:
+            h = min(self._step, t - self._t)
+            target = np.asarray(self.script.target(self._t + h))
+            a = (imp.stiffness_n_per_m * (target - self._x) - imp.damping_ns_per_m * self._v + self._force) / imp.mass_kg
+            self._v += h * a  # semi-implicit Euler: velocity first
+            self._x += h * self._v
+            # the stylus cannot leave the mechanical workspace
+            rel = self._x - self.origin
+            out = np.abs(rel) > self._half
+            if out.any():
+                self._x = self.origin + np.clip(rel, -self._half, self._half)
+                self._v[out] = 0.0
+            self._t += h
+
+    def read(self, t: float) -> DeviceState:
+        self._advance(t)
+        r = self.spec.resolution_m
+        q = self.origin + np.round((self._x - self.origin) / r) * r  # encoder quantisation
+        return DeviceState(position=(float(q[0]), float(q[1]), float(q[2])), button=self.script.button(t))
+
+    def write_force(self, force: Vec3) -> None:
+        f = np.asarray(force, dtype=np.float64)
+        mag = float(np.linalg.norm(f))
+        if not math.isfinite(mag):
+            f = np.zeros(3)
+        elif mag > self.spec.peak_force_n:  # the motors saturate
+            f = f * (self.spec.peak_force_n / mag)
+        self._force = f
+        self.max_force_applied = max(self.max_force_applied, float(np.linalg.norm(f)))
+
+    def close(self) -> None:
+        self._force = np.zeros(3)
+
+
+def open_device(hand, mesh) -> SimulatedOmni:
+    """Open a simulated device for a scene's hand spec (`sim.scene.HandSpec`)."""
+    return SimulatedOmni(hand.script(mesh), name=f"{hand.name} (simulated)")

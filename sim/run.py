@@ -1,0 +1,286 @@
+"""Run a scene: the servo loop at its rate, the visual step at its rate, statistics, outputs.
+
+Two clocks:
+
+- real time (``time_scale > 0``): the servo loop runs in its own thread, paced by
+  sleep-then-spin on the wall clock (scaled by `time_scale`); the visual step (grasps,
+  deformation, snapshots) runs in the calling thread. Tick intervals are wall-clock intervals.
+- lockstep (``time_scale == 0``): one thread, simulated time only, as fast as the machine
+  allows; deterministic for the same scene. Used by tests and synthetic studies.
+
+Pictures are rendered after the run from the snapshots, so rendering never competes with the
+servo thread in this process.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from sim.servo import Event, Hand, ServoLoop
+
+
+@dataclass
+class Snapshot:
+    t: float
+    displacement: np.ndarray  # (n_vertices, 3) float32
+    hand_positions: list[tuple]
+    forces: list[tuple]
+    grasped: list[bool]
+
+
+@dataclass
+class VisualStep:
+    """Grasps requested by the servo, the deformation of the surface, snapshots for pictures."""
+
+    model: object
+    hands: list[Hand]
+    events: list[Event]
+    snapshot_period: float | None = None  # simulated seconds between pictures; None: none
+    deformation_s: list[float] = field(default_factory=list)
+    grasp_s: list[float] = field(default_factory=list)
+    snapshots: list[Snapshot] = field(default_factory=list)
+    _next_snapshot: float = 0.0
+
+    def __call__(self, t: float) -> None:
+        for h in self.hands:
+            request = h.grasp_request
+            if request is not None and h.contact is None:
+                start = time.perf_counter()
+                contact = self.model.grasp(request, h.index)
+                self.grasp_s.append(time.perf_counter() - start)
+                h.grasp_request = None
+                if h.button:  # still held: publish (time first, so the ramp starts right)
+                    h.contact_t = t
+                    h.contact = contact
+                    self.events.append(Event(t, h.index, "grasp", f"vertex {contact.vertex}"))
+        contacts, displacements = [], []
+        for h in self.hands:
+            c = h.contact
+            if c is not None:
+                p = h.position
+                contacts.append(c)
+                displacements.append((p[0] - c.point[0], p[1] - c.point[1], p[2] - c.point[2]))
+        start = time.perf_counter()
+        u = self.model.deformation(contacts, displacements)
+        self.deformation_s.append(time.perf_counter() - start)
+        if self.snapshot_period is not None and t + 1e-9 >= self._next_snapshot:
+            self._next_snapshot += self.snapshot_period
+            self.snapshots.append(
+                Snapshot(
+                    t=t,
+                    displacement=u.astype(np.float32),
+                    hand_positions=[h.position for h in self.hands],
+                    forces=[h.force for h in self.hands],
+                    grasped=[h.contact is not None for h in self.hands],
+                )
+            )
+
+
+@dataclass
+class RunResult:
+    scene_name: str
+    model: str
+    mode: str
+    time_scale: float
+    duration: float
+    rate_hz: float  # nominal servo rate
+    hand_names: list[str]
+    times: np.ndarray  # (ticks,) simulated s
+    positions: np.ndarray  # (ticks, hands, 3)
+    forces: np.ndarray  # (ticks, hands, 3)
+    compute_s: np.ndarray  # (ticks,)
+    intervals_s: np.ndarray  # (ticks - 1,) wall clock between tick starts
+    deadline_misses: int
+    wall_s: float
+    deformation_s: np.ndarray
+    grasp_s: np.ndarray
+    events: list[Event]
+    snapshots: list[Snapshot]
+
+    def stats(self) -> dict:
+        """The summary `studyctl sim run --json` prints."""
+        fmag = np.linalg.norm(self.forces, axis=2) if len(self.forces) else np.zeros((0, len(self.hand_names)))
+        ticks = len(self.times)
+        return {
+            "scene": self.scene_name,
+            "model": self.model,
+            "mode": self.mode,
+            "time_scale": self.time_scale,
+            "duration_s": self.duration,
+            "ticks": ticks,
+            "rate_hz": ticks / self.wall_s if self.wall_s > 0 else math.nan,
+            # lockstep runs as fast as it can: wall-clock intervals there measure nothing
+            "tick_interval_us": _percentiles(self.intervals_s * 1e6 if self.mode == "realtime" else np.zeros(0), (50, 99), with_max=True),
+            "tick_compute_us": _percentiles(self.compute_s * 1e6, (50, 99), with_max=True),
+            "deadline_misses": self.deadline_misses,
+            "max_force_n": float(fmag.max()) if fmag.size else 0.0,
+            "max_force_per_hand_n": {n: float(fmag[:, i].max()) if ticks else 0.0 for i, n in enumerate(self.hand_names)},
+            "deformation_ms": _percentiles(self.deformation_s * 1e3, (50, 99), with_max=True),
+            "grasp_ms": _percentiles(self.grasp_s * 1e3, (50,), with_max=True),
+            "visual_frames": len(self.deformation_s),
+            "frames": 0,
+            "events": dict(Counter(e.kind for e in self.events)),
+        }
+
+
+def _percentiles(values: np.ndarray, qs, with_max=False) -> dict:
+    if len(values) == 0:
+        out = {f"p{q}": None for q in qs}
+        if with_max:
+            out["max"] = None
+        return out
+    out = {f"p{q}": float(np.percentile(values, q)) for q in qs}
+    if with_max:
+        out["max"] = float(np.max(values))
+    return out
+
+
+def run_scene(
+    scene,
+    duration: float | None = None,
+    time_scale: float = 1.0,
+    snapshots: bool = False,
+    on_tick: Callable[[float], None] | None = None,
+) -> RunResult:
+    """Run `scene` (a `sim.scene.Scene`) for `duration` simulated seconds."""
+    spec = scene.spec
+    duration = spec.duration if duration is None else duration
+    rate = spec.servo_rate_hz
+    model = scene.model
+    devices = scene.open_devices()
+    hands = [Hand(index=i, name=h.name, device=d) for i, (h, d) in enumerate(zip(spec.hands, devices))]
+    peak = min(d.spec.peak_force_n for d in devices)
+    servo = ServoLoop(model=model, hands=hands, peak_force=peak)
+    snapshot_period = 1.0 / spec.renderer.fps if snapshots else None
+    visual = VisualStep(model=model, hands=hands, events=servo.events, snapshot_period=snapshot_period)
+    n_ticks = int(round(duration * rate))
+    try:
+        if time_scale <= 0:
+            mode = "lockstep"
+            starts, misses, wall = _run_lockstep(servo, visual, n_ticks, rate, spec.visual_rate_hz)
+        else:
+            mode = "realtime"
+            starts, misses, wall = _run_realtime(servo, visual, n_ticks, rate, spec.visual_rate_hz, time_scale)
+    finally:
+        for d in devices:
+            d.close()
+    rows = np.asarray(servo.rows, dtype=np.float64).reshape(len(servo.rows), -1)
+    nh = len(hands)
+    per_hand = rows[:, 2:].reshape(len(rows), nh, 6) if len(rows) else np.zeros((0, nh, 6))
+    return RunResult(
+        scene_name=spec.name,
+        model=scene.model_spec.name,
+        mode=mode,
+        time_scale=time_scale,
+        duration=duration,
+        rate_hz=rate,
+        hand_names=[h.name for h in hands],
+        times=rows[:, 0] if len(rows) else np.zeros(0),
+        positions=per_hand[:, :, :3],
+        forces=per_hand[:, :, 3:],
+        compute_s=rows[:, 1] if len(rows) else np.zeros(0),
+        intervals_s=np.diff(starts),
+        deadline_misses=misses,
+        wall_s=wall,
+        deformation_s=np.asarray(visual.deformation_s),
+        grasp_s=np.asarray(visual.grasp_s),
+        events=servo.events,
+        snapshots=visual.snapshots,
+    )
+
+
+def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: float, visual_rate: float):
+    starts = np.empty(n_ticks)
+    clock = time.perf_counter
+    begin = clock()
+    next_visual = 0.0
+    frame = 1.0 / visual_rate
+    for k in range(n_ticks):
+        t = k / rate
+        starts[k] = clock()
+        servo.tick(t)
+        if t + 1e-9 >= next_visual:
+            visual(t)
+            next_visual += frame
+    return starts, 0, clock() - begin
+
+
+def _run_realtime(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: float, visual_rate: float, time_scale: float):
+    period = 1.0 / (rate * time_scale)
+    starts = np.empty(n_ticks)
+    state = {"misses": 0, "tick": 0, "error": None}
+    done = threading.Event()
+    clock = time.perf_counter
+    begin = clock()
+
+    def servo_thread() -> None:
+        deadline = begin
+        try:
+            for k in range(n_ticks):
+                while True:  # sleep most of the wait, spin the last 0.2 ms
+                    remaining = deadline - clock()
+                    if remaining <= 0:
+                        break
+                    if remaining > 3e-4:
+                        time.sleep(remaining - 2e-4)
+                now = clock()
+                starts[k] = now
+                if now > deadline + 0.5 * period:
+                    state["misses"] += 1
+                servo.tick(k / rate)
+                state["tick"] = k
+                deadline += period
+                if clock() > deadline + period:  # far behind: resynchronise, never burst
+                    deadline = clock()
+        except BaseException as exc:  # surfaced in the calling thread
+            state["error"] = exc
+        finally:
+            done.set()
+
+    old_switch = sys.getswitchinterval()
+    sys.setswitchinterval(5e-4)  # shorter interpreter-lock slices: less jitter for the servo
+    thread = threading.Thread(target=servo_thread, name="servo", daemon=True)
+    thread.start()
+    try:
+        frame = 1.0 / (visual_rate * time_scale)
+        next_frame = begin
+        while not done.is_set():
+            remaining = next_frame - clock()
+            if remaining > 0:
+                done.wait(remaining)
+                continue
+            visual(state["tick"] / rate)
+            next_frame += frame
+            if clock() > next_frame + frame:
+                next_frame = clock()
+        thread.join()
+    finally:
+        sys.setswitchinterval(old_switch)
+    if state["error"] is not None:
+        raise state["error"]
+    return starts, state["misses"], clock() - begin
+
+
+def write_outputs(result: RunResult, scene, out_dir: Path, progress: Callable[[int, int], None] | None = None) -> int:
+    """Pictures (one PNG per snapshot), the force-time plot and the trace CSV. Returns frames written."""
+    from sim.plots import force_plot, write_trace
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_trace(result, out_dir / "trace.csv")
+    force_plot(result, out_dir / "force.png")
+    written = 0
+    if scene.spec.renderer.kind == "offscreen" and result.snapshots:
+        from sim.render import render_snapshots
+
+        written = render_snapshots(result, scene, out_dir, progress=progress)
+    return written

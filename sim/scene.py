@@ -1,0 +1,339 @@
+"""Scene files (TOML) -> frozen specs -> a Scene that builds only what it asks for.
+
+A scene names a mesh, a material, the fixed region, the tissue models it can run (one is the
+default), one or two hands with their device backend and scripted pull, the servo and visual
+rates, and a renderer (``none`` or ``offscreen``). See docs/scenes.md.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sim.errors import ParameterError, SceneError
+from sim.models.base import Vec3
+
+RENDERERS = ("none", "offscreen")
+AXES = {"x": 0, "y": 1, "z": 2}
+_REQUIRED = object()
+
+
+@dataclass(frozen=True)
+class MaterialSpec:
+    young: float  # Pa
+    poisson: float
+    density: float  # kg/m3
+
+
+@dataclass(frozen=True)
+class FixedSpec:
+    """Vertices within `from_bottom` metres of the mesh's lowest point along `axis` are clamped."""
+
+    axis: str
+    from_bottom: float
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    name: str
+    variant: str = "continuous"
+    plate_spring: Any = None  # PlateSpringParams for the plate-spring model
+    options: dict = field(default_factory=dict, compare=False)
+
+
+@dataclass(frozen=True)
+class HandSpec:
+    name: str
+    device: str
+    start: Vec3  # grasp target, snapped to the nearest surface vertex
+    pull: Vec3  # pull direction, projected on the surface's tangent plane
+    distance: float  # m
+    grasp_at: float
+    pull_start: float
+    pull_time: float
+    release_at: float
+
+    def script(self, mesh):
+        """The scripted pull on `mesh`: start on the surface, pull along the tangent plane."""
+        from sim.devices.simulated import PullScript
+
+        v = mesh.nearest_vertex(self.start)
+        p = mesh.vertices[v]
+        n = mesh.vertex_normals[v]
+        d = np.asarray(self.pull, dtype=np.float64)
+        d = d - np.dot(d, n) * n
+        norm = np.linalg.norm(d)
+        if norm < 1e-9:
+            raise SceneError(f"hands.{self.name}.pull: direction is normal to the surface at the grasp point")
+        d = d / norm * self.distance
+        return PullScript(
+            start=tuple(float(c) for c in p),
+            pull=tuple(float(c) for c in d),
+            grasp_at=self.grasp_at,
+            pull_start=self.pull_start,
+            pull_time=self.pull_time,
+            release_at=self.release_at,
+        )
+
+
+@dataclass(frozen=True)
+class RendererSpec:
+    kind: str = "none"
+    width: int = 640
+    height: int = 480
+    fps: float = 10.0  # frames written per simulated second
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    path: Path
+    name: str
+    description: str
+    mesh_path: Path
+    material: MaterialSpec
+    fixed: FixedSpec
+    model: str  # the default model
+    models: dict[str, ModelSpec]
+    hands: tuple[HandSpec, ...]
+    servo_rate_hz: float
+    visual_rate_hz: float
+    duration: float
+    renderer: RendererSpec
+
+    def model_spec(self, name: str | None = None) -> ModelSpec:
+        name = name or self.model
+        if name not in self.models:
+            configured = ", ".join(sorted(self.models))
+            raise SceneError(f"{self.path}: models.{name}: not configured in this scene; configured: {configured}")
+        return self.models[name]
+
+
+# -- parsing -------------------------------------------------------------------------------
+
+
+class _Reader:
+    """Typed access to a TOML table with errors naming the file and the dotted field."""
+
+    def __init__(self, path: Path, data: dict, prefix: str = ""):
+        self.path, self.data, self.prefix = path, data, prefix
+
+    def error(self, key: str, message: str) -> SceneError:
+        return SceneError(f"{self.path}: {self.prefix}{key}: {message}")
+
+    def table(self, key: str, required: bool = True) -> "_Reader":
+        value = self.data.get(key, _REQUIRED)
+        if value is _REQUIRED:
+            if required:
+                raise self.error(key, "missing section")
+            value = {}
+        if not isinstance(value, dict):
+            raise self.error(key, "must be a table")
+        return _Reader(self.path, value, f"{self.prefix}{key}.")
+
+    def number(self, key: str, default=_REQUIRED, lo: float = -math.inf, hi: float = math.inf, lo_open=False) -> float:
+        value = self.data.get(key, default)
+        if value is _REQUIRED:
+            raise self.error(key, "missing")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise self.error(key, f"{value!r} is not a finite number")
+        below = value <= lo if lo_open else value < lo
+        if below or value > hi:
+            left = "(" if lo_open else "["
+            raise self.error(key, f"{value!r} is out of range; allowed: {left}{lo:g}, {hi:g}]")
+        return float(value)
+
+    def integer(self, key: str, default=_REQUIRED, lo: int = 1, hi: int = 1 << 30) -> int:
+        value = self.data.get(key, default)
+        if value is _REQUIRED:
+            raise self.error(key, "missing")
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.error(key, f"{value!r} is not an integer")
+        if not lo <= value <= hi:
+            raise self.error(key, f"{value!r} is out of range; allowed: {lo}..{hi}")
+        return value
+
+    def string(self, key: str, default=_REQUIRED, choices: tuple[str, ...] | None = None) -> str:
+        value = self.data.get(key, default)
+        if value is _REQUIRED:
+            raise self.error(key, "missing")
+        if not isinstance(value, str):
+            raise self.error(key, f"{value!r} is not a string")
+        if choices is not None and value not in choices:
+            raise self.error(key, f"{value!r} is not one of {', '.join(choices)}")
+        return value
+
+    def vector(self, key: str, default=_REQUIRED) -> Vec3:
+        value = self.data.get(key, default)
+        if value is _REQUIRED:
+            raise self.error(key, "missing")
+        ok = isinstance(value, list) and len(value) == 3
+        ok = ok and all(not isinstance(c, bool) and isinstance(c, (int, float)) and math.isfinite(c) for c in value)
+        if not ok:
+            raise self.error(key, f"{value!r} is not a list of three numbers (metres)")
+        return (float(value[0]), float(value[1]), float(value[2]))
+
+    def path_value(self, key: str) -> Path:
+        p = Path(self.string(key))
+        return p if p.is_absolute() else (self.path.parent / p).resolve()
+
+
+def load_scene(path: str | Path) -> SceneSpec:
+    """Read and validate a scene file."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read: {exc.strerror}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path}: invalid TOML: {exc}") from None
+    root = _Reader(path, data)
+    scene = root.table("scene", required=False)
+    mesh = root.table("mesh")
+    material = root.table("material")
+    fixed = root.table("fixed")
+    model = root.table("model")
+    servo = root.table("servo", required=False)
+    visual = root.table("visual", required=False)
+    renderer = root.table("renderer", required=False)
+
+    models_table = root.table("models")
+    models: dict[str, ModelSpec] = {}
+    for name in models_table.data:
+        models[name] = _model_spec(models_table.table(name), name)
+    if not models:
+        raise models_table.error("", "no model configured")
+    default_model = model.string("name")
+    if default_model not in models:
+        raise model.error("name", f"{default_model!r} has no [models.{default_model}] section")
+
+    hands_data = data.get("hands", _REQUIRED)
+    if hands_data is _REQUIRED:
+        raise root.error("hands", "missing: a scene needs one or two [[hands]]")
+    if not isinstance(hands_data, list) or not 1 <= len(hands_data) <= 2:
+        raise root.error("hands", "a scene needs one or two [[hands]] tables")
+    hands = tuple(_hand_spec(_Reader(path, h, f"hands[{k}].")) for k, h in enumerate(hands_data))
+    if len({h.name for h in hands}) != len(hands):
+        raise root.error("hands", "hand names must be distinct")
+
+    mesh_path = mesh.path_value("path")
+    if not mesh_path.exists():
+        raise mesh.error("path", f"{mesh_path} does not exist")
+
+    return SceneSpec(
+        path=path,
+        name=scene.string("name", default=path.stem),
+        description=scene.string("description", default=""),
+        mesh_path=mesh_path,
+        material=MaterialSpec(
+            young=material.number("young", lo=0.0, lo_open=True),
+            poisson=material.number("poisson", lo=0.0, hi=0.5, lo_open=False),
+            density=material.number("density", lo=0.0, lo_open=True),
+        ),
+        fixed=FixedSpec(axis=fixed.string("axis", choices=tuple(AXES)), from_bottom=fixed.number("from_bottom", lo=0.0)),
+        model=default_model,
+        models=models,
+        hands=hands,
+        servo_rate_hz=servo.number("rate_hz", default=1000.0, lo=100.0, hi=10000.0),
+        visual_rate_hz=visual.number("rate_hz", default=30.0, lo=1.0, hi=240.0),
+        duration=scene.number("duration", default=3.0, lo=0.0, lo_open=True),
+        renderer=RendererSpec(
+            kind=renderer.string("kind", default="none", choices=RENDERERS),
+            width=renderer.integer("width", default=640, lo=16, hi=4096),
+            height=renderer.integer("height", default=480, lo=16, hi=4096),
+            fps=renderer.number("fps", default=10.0, lo=0.0, hi=240.0, lo_open=True),
+        ),
+    )
+
+
+def _model_spec(table: _Reader, name: str) -> ModelSpec:
+    from sim.models import MODELS
+
+    if name not in MODELS:
+        raise table.error("", f"unknown model {name!r}; available: {', '.join(sorted(MODELS))}")
+    if name == "plate_spring":
+        from sim.models.plate_spring import VARIANTS, PlateSpringParams, load_params
+
+        variant = table.string("variant", default="continuous", choices=VARIANTS)
+        if "params" in table.data and isinstance(table.data["params"], str):
+            params = load_params(table.path_value("params"))
+        else:
+            try:
+                params = PlateSpringParams.from_mapping(table.table("params").data, source=f"{table.path}: {table.prefix}params")
+            except ParameterError as exc:
+                raise SceneError(str(exc)) from None
+        return ModelSpec(name=name, variant=variant, plate_spring=params)
+    return ModelSpec(name=name, options=dict(table.data))
+
+
+def _hand_spec(h: _Reader) -> HandSpec:
+    from sim.devices import BACKENDS
+
+    name = h.string("name")
+    grasp_at = h.number("grasp_at", default=0.2, lo=0.0)
+    pull_start = h.number("pull_start", default=grasp_at + 0.2, lo=grasp_at)
+    pull_time = h.number("pull_time", default=1.0, lo=0.0, lo_open=True)
+    release_at = h.number("release_at", default=pull_start + pull_time + 0.5, lo=grasp_at, lo_open=True)
+    return HandSpec(
+        name=name,
+        device=h.string("device", default="simulated", choices=tuple(BACKENDS)),
+        start=h.vector("start"),
+        pull=h.vector("pull"),
+        distance=h.number("distance", lo=0.0, hi=0.2),
+        grasp_at=grasp_at,
+        pull_start=pull_start,
+        pull_time=pull_time,
+        release_at=release_at,
+    )
+
+
+# -- the runtime scene ---------------------------------------------------------------------
+
+
+class Scene:
+    """What a scene file asks for, built on demand: mesh, one model, one device per hand."""
+
+    def __init__(self, spec: SceneSpec, model: str | None = None):
+        self.spec = spec
+        self.model_spec = spec.model_spec(model)
+
+    @cached_property
+    def mesh(self):
+        from sim.mesh import load_mesh
+
+        return load_mesh(self.spec.mesh_path)
+
+    @cached_property
+    def fixed_mask(self) -> np.ndarray:
+        axis = AXES[self.spec.fixed.axis]
+        z = self.mesh.vertices[:, axis]
+        return z <= z.min() + self.spec.fixed.from_bottom
+
+    @cached_property
+    def model(self):
+        from sim.models import model_module
+
+        return model_module(self.model_spec.name).build(self.mesh, self.model_spec)
+
+    def open_devices(self) -> list:
+        from sim.devices import backend_module
+
+        return [backend_module(h.device).open_device(h, self.mesh) for h in self.spec.hands]
+
+    def make_renderer(self):
+        """The offscreen renderer; importing it loads open3d, so only call when rendering."""
+        from sim.render import BrainRenderer
+
+        r = self.spec.renderer
+        return BrainRenderer(self.mesh, r.width, r.height)
+
+
+def build_scene(path: str | Path, model: str | None = None) -> Scene:
+    return Scene(load_scene(path), model)

@@ -1,0 +1,108 @@
+"""The servo tick: read devices, force from the contact state, safety, write, record.
+
+A tick touches only precomputed contact state; grasping (which may take tens of ms) is
+requested here and done by the visual step (`sim.run`). Safety rules for every force sent:
+zero on NaN or infinity, a linear ramp over `ramp_s` after a grasp, never above the device's
+peak force. Every intervention is an event with its time.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+from sim.models.base import Contact
+
+NO_FORCE = (0.0, 0.0, 0.0)
+
+
+@dataclass
+class Event:
+    t: float
+    hand: int
+    kind: str
+    detail: str = ""
+
+
+@dataclass
+class Hand:
+    """Mutable per-hand runtime state shared by the servo and visual steps.
+
+    The servo writes `position`, `force`, `button` and `grasp_request`; the visual step writes
+    `contact` and `contact_t`. Each field has a single writer, and rebinding an attribute is
+    atomic in CPython, so the two threads need no lock.
+    """
+
+    index: int
+    name: str
+    device: object
+    position: tuple = NO_FORCE
+    force: tuple = NO_FORCE
+    button: bool = False
+    grasp_request: tuple | None = None
+    contact: Contact | None = None
+    contact_t: float = 0.0
+    max_force: float = 0.0
+    safety: str | None = None  # the safety rule acting on the last tick, if any
+
+
+def limit_force(force, peak: float) -> tuple[tuple[float, float, float], str | None]:
+    """Clamp to `peak`; zero for non-finite input. Returns (force, event kind or None)."""
+    fx, fy, fz = force
+    mag = math.sqrt(fx * fx + fy * fy + fz * fz)
+    if not math.isfinite(mag):
+        return NO_FORCE, "nan_force"
+    if mag > peak:
+        s = peak / mag
+        return (fx * s, fy * s, fz * s), "force_clamped"
+    return (fx, fy, fz), None
+
+
+@dataclass
+class ServoLoop:
+    model: object
+    hands: list[Hand]
+    peak_force: float
+    ramp_s: float = 0.05
+    events: list[Event] = field(default_factory=list)
+    rows: list[tuple] = field(default_factory=list)  # (t, compute_s, then per hand px py pz fx fy fz)
+
+    def tick(self, t: float) -> None:
+        start = time.perf_counter()
+        row: list[float] = [t, 0.0]
+        model = self.model
+        for h in self.hands:
+            state = h.device.read(t)
+            pos = state.position
+            h.position = pos
+            if state.button and not h.button:
+                h.grasp_request = pos
+                self.events.append(Event(t, h.index, "grasp_request"))
+            elif not state.button and h.button:
+                h.grasp_request = None
+                h.contact = None
+                self.events.append(Event(t, h.index, "release"))
+            h.button = state.button
+            contact = h.contact
+            force = NO_FORCE
+            if contact is not None:
+                a = contact.point
+                fx, fy, fz = model.force(contact, (pos[0] - a[0], pos[1] - a[1], pos[2] - a[2]))
+                ramp = (t - h.contact_t) / self.ramp_s
+                if ramp < 1.0:
+                    ramp = max(ramp, 0.0)
+                    fx, fy, fz = fx * ramp, fy * ramp, fz * ramp
+                force, kind = limit_force((fx, fy, fz), self.peak_force)
+                if kind is not None and kind != h.safety:  # log when a rule starts acting
+                    self.events.append(Event(t, h.index, kind))
+                h.safety = kind
+            h.device.write_force(force)
+            h.force = force
+            mag = math.sqrt(force[0] ** 2 + force[1] ** 2 + force[2] ** 2)
+            if mag > h.max_force:
+                h.max_force = mag
+            row.extend(pos)
+            row.extend(force)
+        row[1] = time.perf_counter() - start
+        self.rows.append(tuple(row))

@@ -1,0 +1,1 @@
+"""Study management library and the `studyctl` CLI."""

@@ -1,0 +1,245 @@
+"""The `studyctl` command line: parse options, call one library function, print.
+
+Library exceptions (`sim.errors.SimError`) become one-line errors with exit status 1; usage
+mistakes are click's (exit status 2). No traceback reaches the user for either.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import click
+
+from sim.errors import SimError
+
+DEFAULT_SCENE = Path(__file__).resolve().parents[1] / "protocols" / "scenes" / "brain_pull.toml"
+
+
+class _Group(click.Group):
+    """Turns library errors into clean CLI errors."""
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except SimError as exc:
+            raise click.ClickException(str(exc)) from None
+
+
+def _console():
+    from rich.console import Console
+
+    console = Console()
+    if not console.is_terminal:  # pipes and tests: wide, stable layout
+        console = Console(width=120)
+    return console
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):  # numpy scalars
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _print_json(obj) -> None:
+    click.echo(json.dumps(_jsonable(obj), indent=2))
+
+
+@click.group(cls=_Group)
+@click.version_option(package_name="brainsim-study", prog_name="studyctl")
+def cli():
+    """Haptic brain-surgery simulator: experiments, user studies and reports."""
+
+
+def main() -> None:
+    cli(prog_name="studyctl")
+
+
+# -- model ---------------------------------------------------------------------------------
+
+
+@cli.group(cls=_Group)
+def model():
+    """Inspect and exercise the tissue models."""
+
+
+@model.command("plate-spring")
+@click.option("--params", "params_file", required=True, type=click.Path(dir_okay=False, path_type=Path), help="Parameter file (TOML, SI units).")
+@click.option("--variant", type=click.Choice(["paper", "continuous"]), default="continuous", show_default=True)
+@click.option("--force", "force", type=float, default=None, help="Tension F in newtons: print the deformation.")
+@click.option("--displacement", "displacement", type=float, default=None, help="Displacement X in metres: print the force.")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+def model_plate_spring(params_file: Path, variant: str, force, displacement, as_json: bool):
+    """The paper's plate-spring model: layer table, X(F), or its inverse F(X).
+
+    Without --force or --displacement it prints the layer table, the jumps of X(F) and the
+    delay budget.
+    """
+    from sim.models.plate_spring import PlateSpring, load_params
+
+    if force is not None and displacement is not None:
+        raise click.UsageError("give --force or --displacement, not both")
+    stack = PlateSpring(load_params(params_file), variant)
+    if force is not None:
+        sol = stack.deformation(force)
+        out = {
+            "variant": variant,
+            "force": sol.force,
+            "dcl": sol.dcl,
+            "deformation": sol.deformation,
+            "layer_deformation": list(sol.layer_deformation),
+            "plate_deformation": sol.plate_deformation,
+            "overstretched": sol.overstretched,
+            "saturated": sol.saturated,
+        }
+        if as_json:
+            _print_json(out)
+        else:
+            _print_solution(out)
+        return
+    if displacement is not None:
+        f = stack.force(displacement)
+        sol = stack.deformation(f)
+        out = {"variant": variant, "displacement": displacement, "force": f, "dcl": sol.dcl, "saturated": displacement > stack.capacity_x}
+        if as_json:
+            _print_json(out)
+        else:
+            click.echo(f"force {f:.6g} N at displacement {displacement:.6g} m ({variant}; DCL layer {sol.dcl}"
+                       + (", beyond the stack's capacity" if out["saturated"] else "") + ")")
+        return
+    table = {
+        "variant": variant,
+        "layers": stack.layer_table(),
+        "jumps": [
+            {"layer": j.layer, "force": j.force, "x_before": j.x_before, "x_after": j.x_after, "size": j.size, "kind": j.kind}
+            for j in stack.jumps
+        ],
+        "capacity": {"deformation": stack.capacity_x, "force": stack.capacity_f},
+        "delay_budget": {"period_s": 1e-3, "layers_in_budget": stack.layers_in_budget()},
+    }
+    if as_json:
+        _print_json(table)
+    else:
+        _print_layer_table(table)
+
+
+def _print_solution(out: dict) -> None:
+    from rich.table import Table
+
+    t = Table(title=f"Plate-spring stack under F = {out['force']:.6g} N ({out['variant']})")
+    t.add_column("layer", justify="right")
+    t.add_column("deformation (m)", justify="right")
+    for i, x in enumerate(out["layer_deformation"], start=1):
+        t.add_row(str(i) + (" (DCL)" if i == out["dcl"] else ""), f"{x:.6g}")
+    console = _console()
+    console.print(t)
+    console.print(
+        f"X = {out['deformation']:.6g} m, DCL = layer {out['dcl']}, per-plate deformation {out['plate_deformation']:.6g} m, "
+        f"overstretched: {'yes' if out['overstretched'] else 'no'}, saturated: {'yes' if out['saturated'] else 'no'}"
+    )
+
+
+def _print_layer_table(table: dict) -> None:
+    from rich.table import Table
+
+    t = Table(title=f"Plate-spring layers ({table['variant']})")
+    for col in ("layer", "plates", "L (m)", "H (m)", "P (N/m)", "Pc (N/m)", "F consumed (N)", "starts at F (N)", "starts at X (m)", "T_i (ms)"):
+        t.add_column(col, justify="right")
+    for r in table["layers"]:
+        t.add_row(
+            str(r["layer"]), str(r["plates"]), f"{r['length_m']:.4g}", f"{r['thickness_m']:.4g}",
+            f"{r['stiffness_n_per_m']:.4g}", f"{r['corrected_stiffness_n_per_m']:.4g}", f"{r['consumed_force_n']:.4g}",
+            f"{r['start_force_n']:.4g}", f"{r['start_deformation_m']:.4g}",
+            f"{r['cumulative_delay_s'] * 1e3:.3g}" + ("" if r["fits_haptic_period"] else " (over)"),
+        )
+    console = _console()
+    console.print(t)
+    if table["jumps"]:
+        for j in table["jumps"]:
+            console.print(
+                f"jump at layer {j['layer']} -> {j['layer'] + 1}: X(F) jumps {j['kind']} by {abs(j['size']):.4g} m "
+                f"at F = {j['force']:.4g} N"
+            )
+    else:
+        console.print("X(F) is continuous: no jumps at layer transitions")
+    cap = table["capacity"]
+    console.print(
+        f"capacity: X = {cap['deformation']:.4g} m at F = {cap['force']:.4g} N; "
+        f"layers within the 1 ms haptic period: {table['delay_budget']['layers_in_budget']} of {len(table['layers'])}"
+    )
+
+
+# -- sim -----------------------------------------------------------------------------------
+
+
+@cli.group(cls=_Group)
+def sim():
+    """Run scenes on the simulator."""
+
+
+@sim.command("run")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--model", "model_name", default=None, help="A model configured in the scene (default: the scene's).")
+@click.option("--duration", type=click.FloatRange(min=0.0, min_open=True), default=None, help="Simulated seconds (default: the scene's).")
+@click.option("--frames", "frames_dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Write pictures, the force plot and the trace here.")
+@click.option("--time-scale", type=click.FloatRange(min=0.0), default=1.0, show_default=True, help="1 = real time; 0 = as fast as possible (lockstep, deterministic).")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable statistics.")
+def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: float, as_json: bool):
+    """Scripted simulated Omni hands grasp and pull the brain; the servo loop runs at 1 kHz."""
+    from sim.run import run_scene, write_outputs
+    from sim.scene import build_scene
+
+    scene = build_scene(scene_file, model_name)
+    result = run_scene(scene, duration=duration, time_scale=time_scale, snapshots=frames_dir is not None and scene.spec.renderer.kind == "offscreen")
+    stats = result.stats()
+    if frames_dir is not None:
+        if as_json:
+            stats["frames"] = write_outputs(result, scene, frames_dir)
+        else:
+            from rich.progress import Progress
+
+            with Progress(transient=True) as progress:
+                task = progress.add_task("rendering frames", total=max(len(result.snapshots), 1))
+                stats["frames"] = write_outputs(result, scene, frames_dir, progress=lambda k, n: progress.update(task, completed=k))
+        stats["frames_dir"] = str(frames_dir)
+    if as_json:
+        _print_json(stats)
+    else:
+        _print_run(stats)
+
+
+def _print_run(s: dict) -> None:
+    from rich.table import Table
+
+    def us(d, k):
+        return "-" if d.get(k) is None else f"{d[k]:.0f}"
+
+    t = Table(title=f"{s['scene']}: {s['model']}, {s['duration_s']:g} s ({s['mode']})")
+    t.add_column("measure")
+    t.add_column("value", justify="right")
+    t.add_row("servo ticks", f"{s['ticks']} at {s['rate_hz']:.0f} Hz")
+    iv = s["tick_interval_us"]
+    t.add_row("tick interval p50 / p99 / max (us)", f"{us(iv, 'p50')} / {us(iv, 'p99')} / {us(iv, 'max')}")
+    tc = s["tick_compute_us"]
+    t.add_row("tick compute p50 / p99 (us)", f"{us(tc, 'p50')} / {us(tc, 'p99')}")
+    t.add_row("deadline misses", str(s["deadline_misses"]))
+    dm = s["deformation_ms"]
+    t.add_row("deformation per frame p50 / p99 (ms)", "-" if dm["p50"] is None else f"{dm['p50']:.3f} / {dm['p99']:.3f}")
+    for name, f in s["max_force_per_hand_n"].items():
+        t.add_row(f"max force, {name} hand (N)", f"{f:.3f}")
+    t.add_row("events", ", ".join(f"{k} {v}" for k, v in sorted(s["events"].items())) or "none")
+    if "frames_dir" in s:
+        t.add_row("pictures", f"{s['frames']} in {s['frames_dir']}")
+    _console().print(t)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,27 @@
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / "protocols" / "scenes" / "brain_pull.toml"
+BRAIN_PARAMS = ROOT / "protocols" / "models" / "plate_spring_brain.toml"
+
+
+@pytest.fixture
+def root() -> Path:
+    return ROOT
+
+
+def write_params(path: Path, **overrides) -> Path:
+    """A plate-spring parameter file: the brain defaults with `overrides` (None drops a key)."""
+    import tomllib
+
+    data = tomllib.loads(BRAIN_PARAMS.read_text())
+    data.update(overrides)
+    lines = []
+    for k, v in data.items():
+        if v is None:
+            continue
+        lines.append(f"{k} = {v!r}" if not isinstance(v, str) else f'{k} = "{v}"')
+    path.write_text("\n".join(lines) + "\n")
+    return path
