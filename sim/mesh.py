@@ -69,7 +69,7 @@ class SurfaceMesh:
     def geodesic_within(self, vertex: int, radius: float) -> tuple[np.ndarray, np.ndarray]:
         """Vertices whose edge-path distance from `vertex` is at most `radius`, and the distances.
 
-        Edge paths overestimate true geodesics by a few percent on a regular mesh; they never
+        Edge paths overestimate true geodesics (median ~10%, at most ~17% on an icosphere); they never
         cross a sulcus or the gap between hemispheres, which straight-line distance would.
         """
         from scipy.sparse.csgraph import dijkstra
@@ -129,20 +129,20 @@ def icosphere(radius: float = 0.05, subdivisions: int = 2, center=(0.0, 0.0, 0.0
          [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]],
     )
     verts = list(v / np.linalg.norm(v, axis=1, keepdims=True))
+
+    def mid(a: int, b: int, cache: dict) -> int:
+        key = (min(a, b), max(a, b))
+        if key not in cache:
+            m = verts[a] + verts[b]
+            verts.append(m / np.linalg.norm(m))
+            cache[key] = len(verts) - 1
+        return cache[key]
+
     for _ in range(subdivisions):
         cache: dict[tuple[int, int], int] = {}
-
-        def mid(a: int, b: int) -> int:
-            key = (min(a, b), max(a, b))
-            if key not in cache:
-                m = verts[a] + verts[b]
-                verts.append(m / np.linalg.norm(m))
-                cache[key] = len(verts) - 1
-            return cache[key]
-
         nf = []
         for a, b, c in f:
-            ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
+            ab, bc, ca = mid(a, b, cache), mid(b, c, cache), mid(c, a, cache)
             nf += [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
         f = np.array(nf)
     return SurfaceMesh(np.array(verts) * radius + np.asarray(center), f.astype(np.int32))

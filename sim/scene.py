@@ -126,7 +126,7 @@ class _Reader:
     def error(self, key: str, message: str) -> SceneError:
         return SceneError(f"{self.path}: {self.prefix}{key}: {message}")
 
-    def table(self, key: str, required: bool = True) -> "_Reader":
+    def table(self, key: str, required: bool = True) -> _Reader:
         value = self.data.get(key, _REQUIRED)
         if value is _REQUIRED:
             if required:

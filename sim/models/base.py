@@ -14,8 +14,9 @@ surface vertex, ``(n_vertices, 3)``. Two hands are two contacts passed together.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 

@@ -20,9 +20,9 @@ from __future__ import annotations
 import bisect
 import math
 import tomllib
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -79,7 +79,7 @@ class PlateSpringParams:
             )
 
     @classmethod
-    def from_mapping(cls, data: dict, source: str = "parameters") -> "PlateSpringParams":
+    def from_mapping(cls, data: dict, source: str = "parameters") -> PlateSpringParams:
         """Build from a mapping (e.g. a parsed TOML file), with errors naming `source`."""
         unknown = sorted(set(data) - set(_KEYS))
         if unknown:
@@ -98,9 +98,12 @@ class PlateSpringParams:
             raise ParameterError(f"{source}: layers: {layers!r} is not an integer; allowed: an integer >= 1")
         values["layers"] = layers
         try:
-            return cls(**values)
+            params = cls(**values)
+            for variant in VARIANTS:  # the derived layer table must be finite too
+                PlateSpring(params, variant)
         except ParameterError as exc:
             raise ParameterError(f"{source}: {exc}") from None
+        return params
 
     def as_dict(self) -> dict:
         return asdict(self)

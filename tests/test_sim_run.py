@@ -1,0 +1,112 @@
+"""Whole runs of the brain scene: lockstep (deterministic) and real time, pictures."""
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from sim.run import run_scene, write_outputs
+from sim.scene import build_scene
+from studyctl.cli import cli
+from tests.conftest import SCENE
+
+
+@pytest.fixture(scope="module")
+def lockstep():
+    scene = build_scene(SCENE)
+    return scene, run_scene(scene, duration=2.0, time_scale=0)
+
+
+def test_both_hands_grasp_pull_and_feel_the_plate_spring_force(lockstep):
+    scene, r = lockstep
+    assert len(r.times) == 2000 and r.mode == "lockstep"
+    kinds = [e.kind for e in r.events]
+    assert kinds.count("grasp") == 2
+    fmag = np.linalg.norm(r.forces, axis=2)
+    assert fmag.max() <= 3.3
+    # at the end of the pull (1.7 s) each hand is about 12 mm from its grasp point minus the
+    # lag of its impedance; the force sent equals the stack's force at that displacement
+    model = scene.model
+    k = int(1.9 * 1000)
+    for e in (x for x in r.events if x.kind == "grasp"):
+        contact_vertex = int(e.detail.split()[1])
+        anchor = scene.mesh.vertices[contact_vertex]
+        d = np.linalg.norm(r.positions[k, e.hand] - anchor)
+        assert 0.008 < d < 0.0125
+        assert fmag[k, e.hand] == pytest.approx(model.stack.force(d), rel=1e-9)
+    # the force opposes the displacement: the tissue pulls the hand back
+    d = r.positions[k, 0] - scene.mesh.vertices[scene.mesh.nearest_vertex(scene.spec.hands[0].start)]
+    assert np.dot(d, r.forces[k, 0]) < 0
+
+
+def test_lockstep_is_deterministic(lockstep):
+    scene, r = lockstep
+    again = run_scene(build_scene(SCENE), duration=2.0, time_scale=0)
+    assert np.array_equal(r.forces, again.forces) and np.array_equal(r.positions, again.positions)
+
+
+def test_deformation_field_follows_the_hand(lockstep):
+    scene, _ = lockstep
+    model = scene.model
+    mesh = scene.mesh
+    c = model.grasp(scene.spec.hands[0].start, 0)
+    d = np.array([0.01, 0.0, 0.002])
+    u = model.deformation([c], [d])
+    assert np.allclose(u[c.vertex], d)  # the grasp point moves with the hand
+    moved = np.flatnonzero(np.linalg.norm(u, axis=1) > 0)
+    assert set(moved) <= set(c.data.vertices.tolist())  # nothing beyond the outer ring moves
+    # magnitude falls with geodesic distance
+    mag = np.linalg.norm(u[c.data.vertices], axis=1)
+    order = np.argsort(c.data.distance)
+    assert np.all(np.diff(mag[order]) <= 1e-12)
+    # two contacts superpose; a second call does not keep the first call's field
+    c2 = model.grasp(scene.spec.hands[1].start, 1)
+    u2 = model.deformation([c, c2], [d, -d]).copy()
+    alone = model.deformation([c2], [-d]).copy()
+    assert np.allclose(u2, model.deformation([c], [d]) + alone)
+    assert np.allclose(model.deformation([], []), 0.0)
+    assert mesh.n_vertices == len(u)
+
+
+def test_realtime_run_uses_the_servo_thread():
+    scene = build_scene(SCENE)
+    r = run_scene(scene, duration=0.3, time_scale=1.0)
+    s = r.stats()
+    assert s["mode"] == "realtime" and s["ticks"] == 300
+    assert s["tick_interval_us"]["p50"] is not None and s["tick_compute_us"]["p50"] > 0
+    assert len(r.intervals_s) == 299
+
+
+def test_pictures_and_force_plot(tmp_path):
+    scene = build_scene(SCENE)
+    r = run_scene(scene, duration=1.2, time_scale=0, snapshots=True)
+    n = write_outputs(r, scene, tmp_path)
+    assert n == 12 and len(list(tmp_path.glob("frame_*.png"))) == 12
+    import matplotlib.image as mpimg
+
+    img = mpimg.imread(tmp_path / "frame_0011.png")[..., :3]
+    assert img.std() > 0.05  # not blank
+    # the deforming region is coloured: hot pixels exist once the pull has started
+    hot = (img[..., 0] > 0.8) & (img[..., 2] < 0.3)
+    assert hot.sum() > 50
+    assert (tmp_path / "force.png").stat().st_size > 10_000
+    lines = (tmp_path / "trace.csv").read_text().splitlines()
+    assert lines[0] == "t_s,hand,x_m,y_m,z_m,fx_n,fy_n,fz_n" and len(lines) == 1 + 2 * 1200
+
+
+def test_cli_sim_run_json():
+    res = CliRunner().invoke(cli, ["sim", "run", "--duration", "0.5", "--time-scale", "0", "--json"])
+    assert res.exit_code == 0, res.output
+    s = json.loads(res.output)
+    for key in ("ticks", "rate_hz", "tick_interval_us", "tick_compute_us", "max_force_n", "deformation_ms", "frames"):
+        assert key in s
+    assert set(s["tick_interval_us"]) == {"p50", "p99", "max"} and {"p50", "p99"} <= set(s["tick_compute_us"])
+    assert s["ticks"] == 500 and s["frames"] == 0
+
+
+def test_cli_unknown_model_is_a_clean_error():
+    res = CliRunner().invoke(cli, ["sim", "run", "--model", "fem", "--duration", "0.1", "--time-scale", "0"])
+    assert res.exit_code == 1
+    assert res.output.strip().startswith("Error: ") and "models.fem: not configured" in res.output
+    assert len(res.output.strip().splitlines()) == 1
