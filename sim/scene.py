@@ -20,6 +20,7 @@ from sim.errors import ParameterError, SceneError
 from sim.models.base import Vec3
 
 RENDERERS = ("none", "offscreen")
+DEFAULT_SCENE = Path(__file__).resolve().parents[1] / "protocols" / "scenes" / "brain_pull.toml"
 AXES = {"x": 0, "y": 1, "z": 2}
 _REQUIRED = object()
 

@@ -14,8 +14,7 @@ from pathlib import Path
 import click
 
 from sim.errors import SimError
-
-DEFAULT_SCENE = Path(__file__).resolve().parents[1] / "protocols" / "scenes" / "brain_pull.toml"
+from sim.scene import DEFAULT_SCENE
 
 
 class _Group(click.Group):
