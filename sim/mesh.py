@@ -59,7 +59,13 @@ class SurfaceMesh:
         return cKDTree(self.vertices)
 
     def prepare_queries(self) -> None:
-        """Build the nearest-vertex tree, edge graph and normals ahead of the first grasp."""
+        """Build the nearest-vertex tree, edge graph and normals ahead of the first grasp.
+
+        Also imports SciPy's graph module now: an import inside a run holds the interpreter
+        lock for tens of milliseconds, which the servo thread would feel.
+        """
+        import scipy.sparse.csgraph  # noqa: F401
+
         _ = self._kdtree, self._graph, self.vertex_normals
 
     def nearest_vertex(self, point) -> int:
