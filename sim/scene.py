@@ -271,6 +271,10 @@ def _model_spec(table: _Reader, name: str) -> ModelSpec:
             except ParameterError as exc:
                 raise SceneError(str(exc)) from None
         return ModelSpec(name=name, variant=variant, plate_spring=params)
+    if name == "fem":
+        resolution = table.number("resolution", default=0.004, lo=0.003, hi=0.008)
+        formulation = table.string("formulation", default="linear", choices=("linear",))
+        return ModelSpec(name=name, options={"resolution": resolution, "formulation": formulation})
     return ModelSpec(name=name, options=dict(table.data))
 
 
@@ -321,7 +325,7 @@ class Scene:
     def model(self):
         from sim.models import model_module
 
-        return model_module(self.model_spec.name).build(self.mesh, self.model_spec)
+        return model_module(self.model_spec.name).build(self.mesh, self.model_spec, self)
 
     def open_devices(self) -> list:
         from sim.devices import backend_module

@@ -71,24 +71,36 @@ class ServoLoop:
     def tick(self, t: float) -> None:
         start = time.perf_counter()
         row: list[float] = [t, 0.0]
-        model = self.model
-        for h in self.hands:
+        hands = self.hands
+        # 1. read every device (so coupled contacts see the same instant)
+        for h in hands:
             state = h.device.read(t)
-            pos = state.position
-            h.position = pos
+            h.position = state.position
             if state.button and not h.button:
-                h.grasp_request = pos
+                h.grasp_request = state.position
                 self.events.append(Event(t, h.index, "grasp_request"))
             elif not state.button and h.button:
                 h.grasp_request = None
                 h.contact = None
                 self.events.append(Event(t, h.index, "release"))
             h.button = state.button
-            contact = h.contact
+        # 2. forces from the precomputed contacts
+        held = [h for h in hands if h.contact is not None]
+        raw: list = []
+        if held:
+            contacts = [h.contact for h in held]
+            disps = []
+            for h, c in zip(held, contacts):
+                p, a = h.position, c.point
+                disps.append((p[0] - a[0], p[1] - a[1], p[2] - a[2]))
+            raw = self._forces(contacts, disps)
+        # 3. safety, write, record
+        k = 0
+        for h in hands:
             force = NO_FORCE
-            if contact is not None:
-                a = contact.point
-                fx, fy, fz = model.force(contact, (pos[0] - a[0], pos[1] - a[1], pos[2] - a[2]))
+            if k < len(held) and held[k] is h:
+                fx, fy, fz = raw[k]
+                k += 1
                 ramp = (t - h.contact_t) / self.ramp_s
                 if ramp < 1.0:
                     ramp = max(ramp, 0.0)
@@ -102,7 +114,14 @@ class ServoLoop:
             mag = math.sqrt(force[0] ** 2 + force[1] ** 2 + force[2] ** 2)
             if mag > h.max_force:
                 h.max_force = mag
-            row.extend(pos)
+            row.extend(h.position)
             row.extend(force)
         row[1] = time.perf_counter() - start
         self.rows.append(tuple(row))
+
+    def _forces(self, contacts, disps):
+        batch = getattr(self.model, "forces", None)
+        if batch is not None:  # models whose contacts are coupled (two grasps on one FEM)
+            return batch(contacts, disps)
+        force = self.model.force
+        return [force(c, d) for c, d in zip(contacts, disps)]

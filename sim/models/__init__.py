@@ -10,6 +10,7 @@ import importlib
 
 MODELS = {
     "plate_spring": "sim.models.plate_spring",
+    "fem": "sim.models.fem",
 }
 
 

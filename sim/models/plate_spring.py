@@ -427,6 +427,6 @@ class PlateSpringModel:
         return out
 
 
-def build(mesh, spec) -> PlateSpringModel:
+def build(mesh, spec, scene=None) -> PlateSpringModel:
     """Construct from a scene's model spec (`sim.scene.ModelSpec`)."""
     return PlateSpringModel(mesh, spec.plate_spring, spec.variant)

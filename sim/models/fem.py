@@ -1,0 +1,447 @@
+"""Finite element tissue model on linear tetrahedra.
+
+- `LinearFem`: small-strain isotropic linear elasticity, vectorised assembly, Dirichlet
+  condition on the fixed nodes, a sparse Cholesky factorisation (cholespy, CHOLMOD-style with a
+  fill-reducing ordering) reused for every solve.
+- The haptic contract (`FemModel`): a grasp precomputes the condensed compliance of the grasp
+  point, ``C = W K^-1 W^T`` (3 solves), where ``W`` interpolates nodal displacements at the
+  embedded grasp point; a servo tick is ``f = C^-1 d`` (3x3), two grasps are coupled through
+  the 6x6 block matrix; the deformation of a frame is ``u = K^-1 W^T f`` from the same
+  precomputed responses, mapped to the surface by the embedding.
+- `neo_hookean_solve`: the nonlinear reference (compressible neo-Hookean, load stepping,
+  Newton iterations with the same grasp constraint), for accuracy comparisons.
+
+Degrees of freedom are node-major: dof ``3 i + c`` is component c of node i. SI units.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from sim.errors import ParameterError, SimError
+
+
+class SingularSystemError(SimError):
+    """The stiffness cannot be factorised (no Dirichlet condition, or not positive definite)."""
+
+
+ASSEMBLIES = 0  # stiffness assemblies in this process (tests: a scene without FEM makes none)
+LOCKING_POISSON = 0.49  # above this, linear tetrahedra lock: results are reported as too stiff
+
+
+def lame(young: float, poisson: float) -> tuple[float, float]:
+    lam = young * poisson / ((1 + poisson) * (1 - 2 * poisson))
+    mu = young / (2 * (1 + poisson))
+    return lam, mu
+
+
+def check_material(young: float, poisson: float) -> None:
+    if not (math.isfinite(young) and young > 0):
+        raise ParameterError(f"young: {young!r} is out of range; allowed: a finite number > 0 Pa")
+    if not (math.isfinite(poisson) and -1.0 < poisson < 0.5):
+        raise ParameterError(f"poisson: {poisson!r} is out of range; allowed: (-1, 0.5)")
+
+
+def shape_gradients(nodes: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gradients of the four linear shape functions, (m, 4, 3), and signed volumes (m,)."""
+    x0 = nodes[tets[:, 0]]
+    J = np.stack([nodes[tets[:, k]] - x0 for k in (1, 2, 3)], axis=2)  # columns: edge vectors
+    det = np.linalg.det(J)
+    vol = det / 6.0
+    if np.any(~np.isfinite(vol)) or np.any(np.abs(vol) <= 1e-30):
+        bad = int(np.flatnonzero(~(np.abs(vol) > 1e-30))[0])
+        raise ParameterError(f"tets: element {bad} is degenerate (zero volume)")
+    inv = np.linalg.inv(J)  # rows: gradients of N1, N2, N3
+    g = np.empty((len(tets), 4, 3))
+    g[:, 1:, :] = inv
+    g[:, 0, :] = -inv.sum(axis=1)
+    return g, vol
+
+
+def element_stiffness(grads: np.ndarray, vol: np.ndarray, lam: float, mu: float) -> np.ndarray:
+    """Element matrices (m, 12, 12): K[a i, b j] = V (lam g_ai g_bj + mu (g_aj g_bi + d_ij g_a.g_b))."""
+    gg = np.einsum("mak,mbk->mab", grads, grads)
+    K = np.empty((len(grads), 4, 3, 4, 3))
+    for i in range(3):  # nine (m, 4, 4) blocks: 6x faster than one 5-index einsum
+        for j in range(3):
+            blk = lam * grads[:, :, i, None] * grads[:, None, :, j] + mu * grads[:, :, j, None] * grads[:, None, :, i]
+            if i == j:
+                blk += mu * gg
+            K[:, :, i, :, j] = blk
+    K *= np.abs(vol)[:, None, None, None, None]
+    return K.reshape(len(grads), 12, 12)
+
+
+def element_dofs(tets: np.ndarray) -> np.ndarray:
+    return (3 * tets[:, :, None] + np.arange(3)).reshape(len(tets), 12)
+
+
+def assemble(element_matrices: np.ndarray, tets: np.ndarray, n_nodes: int) -> sp.csr_matrix:
+    global ASSEMBLIES
+    ASSEMBLIES += 1
+    dofs = element_dofs(tets)
+    rows = np.repeat(dofs, 12, axis=1).ravel()
+    cols = np.tile(dofs, (1, 12)).ravel()
+    return sp.coo_matrix((element_matrices.ravel(), (rows, cols)), shape=(3 * n_nodes, 3 * n_nodes)).tocsr()
+
+
+class Factor:
+    """A Cholesky factor of a sparse SPD matrix (cholespy), with checks that it worked."""
+
+    def __init__(self, A: sp.spmatrix):
+        from cholespy import CholeskySolverD, MatrixType
+
+        A = sp.csr_matrix(A)
+        self.n = A.shape[0]
+        A.sort_indices()
+        try:
+            self._solver = CholeskySolverD(self.n, A.indptr.astype(np.int32), A.indices.astype(np.int32), A.data.astype(np.float64), MatrixType.CSR)
+        except (RuntimeError, ValueError) as exc:
+            raise SingularSystemError(f"stiffness factorisation failed: {exc}") from None
+        # cholespy does not report a failed (non-positive-definite) factor: check one solve
+        probe = np.ones(self.n)
+        x = self.solve(probe)
+        if not np.all(np.isfinite(x)) or np.linalg.norm(A @ x - probe) > 1e-6 * np.linalg.norm(probe):
+            raise SingularSystemError("stiffness is singular or not positive definite")
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        b = np.ascontiguousarray(b, dtype=np.float64)
+        x = np.empty_like(b)
+        self._solver.solve(b, x)
+        return x
+
+
+@dataclass
+class Timings:
+    assembly_s: float = 0.0
+    factorisation_s: float = 0.0
+
+
+class LinearFem:
+    """Small-strain linear elasticity on linear tetrahedra with nodes `fixed` clamped.
+
+    ``LinearFem(nodes, tets, young, poisson, fixed).solve(forces)`` returns the static nodal
+    displacements (n, 3) for nodal forces (n, 3).
+    """
+
+    def __init__(self, nodes, tets, young: float, poisson: float, fixed):
+        nodes = np.asarray(nodes, dtype=np.float64)
+        tets = np.asarray(tets, dtype=np.int64)
+        fixed = np.asarray(fixed, dtype=bool)
+        if nodes.ndim != 2 or nodes.shape[1] != 3 or tets.ndim != 2 or tets.shape[1] != 4:
+            raise ParameterError("nodes must be (n, 3) and tets (m, 4)")
+        if fixed.shape != (len(nodes),):
+            raise ParameterError(f"fixed: must be a boolean mask over the {len(nodes)} nodes")
+        if len(tets) == 0 or tets.min() < 0 or tets.max() >= len(nodes):
+            raise ParameterError(f"tets: indices must be in 0..{len(nodes) - 1}")
+        check_material(young, poisson)
+        if not fixed.any():
+            raise SingularSystemError("fixed: no fixed nodes; the stiffness is singular (rigid-body motion is free)")
+        self.nodes, self.tets, self.fixed = nodes, tets, fixed
+        self.young, self.poisson = float(young), float(poisson)
+        self.lam, self.mu = lame(young, poisson)
+        self.timings = Timings()
+        start = time.perf_counter()
+        self.grads, vol = shape_gradients(nodes, tets)
+        if np.any(vol < 0):
+            raise ParameterError(f"tets: {int(np.sum(vol < 0))} elements are inverted (negative volume)")
+        self.volumes = vol
+        self.stiffness = assemble(element_stiffness(self.grads, vol, self.lam, self.mu), tets, len(nodes))
+        self.timings.assembly_s = time.perf_counter() - start
+        fixed_dofs = np.repeat(fixed, 3)
+        self.free = np.flatnonzero(~fixed_dofs)  # free dof -> global dof
+        self.reduced = self.stiffness[self.free][:, self.free].tocsr()
+        self._factor: Factor | None = None
+
+    @property
+    def locking(self) -> bool:
+        """Linear tetrahedra lock (are too stiff) for nearly incompressible materials."""
+        return self.poisson > LOCKING_POISSON
+
+    @property
+    def factor(self) -> Factor:
+        if self._factor is None:
+            start = time.perf_counter()
+            self._factor = Factor(self.reduced)
+            self.timings.factorisation_s = time.perf_counter() - start
+        return self._factor
+
+    def solve_free(self, b: np.ndarray) -> np.ndarray:
+        return self.factor.solve(b)
+
+    def solve(self, forces) -> np.ndarray:
+        f = np.asarray(forces, dtype=np.float64).reshape(-1)
+        if f.shape != (3 * len(self.nodes),):
+            raise ParameterError(f"forces: must be ({len(self.nodes)}, 3)")
+        u = np.zeros(3 * len(self.nodes))
+        u[self.free] = self.solve_free(f[self.free])
+        return u.reshape(-1, 3)
+
+    def to_free(self, u_nodes: np.ndarray) -> np.ndarray:
+        return np.asarray(u_nodes).reshape(-1)[self.free]
+
+    def from_free(self, u_free: np.ndarray) -> np.ndarray:
+        u = np.zeros(3 * len(self.nodes))
+        u[self.free] = u_free
+        return u.reshape(-1, 3)
+
+
+# -- grasp constraint ----------------------------------------------------------------------
+
+
+def constraint_matrix(fem: LinearFem, tet_nodes: np.ndarray, weights: np.ndarray) -> sp.csr_matrix:
+    """W (3, n_free): the displacement of the embedded point = W u_free."""
+    col_of = -np.ones(3 * len(fem.nodes), dtype=np.int64)
+    col_of[fem.free] = np.arange(len(fem.free))
+    rows, cols, vals = [], [], []
+    for node, w in zip(tet_nodes, weights):
+        for c in range(3):
+            j = col_of[3 * node + c]
+            if j >= 0:  # fixed nodes do not move
+                rows.append(c)
+                cols.append(j)
+                vals.append(w)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(3, len(fem.free)))
+
+
+@dataclass
+class FemContact:
+    part: int  # which independent system (hemisphere) the grasp point is in
+    W: sp.csr_matrix  # (3, n_free of that part)
+    U: np.ndarray  # (n_free, 3): K^-1 W^T
+    C: np.ndarray  # (3, 3) compliance at the grasp point
+    K: tuple  # C^-1 as 9 floats, row-major (the per-tick stiffness)
+
+
+class FemModel:
+    """The linear FEM under the tissue-model contract (see module docstring).
+
+    Each connected component of the volume (each hemisphere) is its own system with its own
+    factorisation: they share no node, so grasps on different hemispheres are uncoupled, and
+    two factorisations of half the size cost less than one of the whole.
+    """
+
+    name = "fem"
+
+    def __init__(self, surface, volume, young: float, poisson: float, fixed_nodes: np.ndarray, formulation: str = "linear"):
+        from sim.volume import embed
+
+        if formulation not in ("linear",):
+            raise ParameterError(f"formulation: {formulation!r} is not available for the haptic model; allowed: linear")
+        self.surface = surface
+        self.volume = volume
+        self.formulation = formulation
+        self.parts: list[LinearFem] = []
+        self.part_nodes: list[np.ndarray] = []  # global node indices of each part
+        self.node_part = np.empty(volume.n_nodes, dtype=np.int64)
+        self.node_local = np.empty(volume.n_nodes, dtype=np.int64)
+        tet_comp = volume.component[volume.tets[:, 0]]
+        for k, label in enumerate(np.unique(volume.component)):
+            nodes = np.flatnonzero(volume.component == label)
+            self.node_part[nodes] = k
+            self.node_local[nodes] = np.arange(len(nodes))
+            tets = self.node_local[volume.tets[tet_comp == label]]
+            self.parts.append(LinearFem(volume.nodes[nodes], tets, young, poisson, fixed_nodes[nodes]))
+            self.part_nodes.append(nodes)
+        start = time.perf_counter()
+        self.embedding = embed(volume, surface.vertices, surface.labels)
+        self.embed_s = time.perf_counter() - start
+        for part in self.parts:  # factorise now, not in the first grasp (two threads: no faster)
+            _ = part.factor
+        surface.prepare_queries()
+        self._pairs: dict[tuple[int, int], np.ndarray] = {}
+        self._out = np.zeros_like(surface.vertices)
+
+    @property
+    def timings(self) -> dict:
+        return {
+            "assembly_s": sum(p.timings.assembly_s for p in self.parts),
+            "factorisation_s": sum(p.timings.factorisation_s for p in self.parts),
+            "embedding_s": self.embed_s,
+        }
+
+    @property
+    def locking(self) -> bool:
+        return self.parts[0].locking
+
+    def grasp(self, point, hand: int = 0):
+        from sim.models.base import Contact
+
+        v = self.surface.nearest_vertex(point)
+        tet_nodes = self.volume.tets[self.embedding.tet[v]]
+        part = int(self.node_part[tet_nodes[0]])
+        fem = self.parts[part]
+        W = constraint_matrix(fem, self.node_local[tet_nodes], self.embedding.weights[v])
+        if W.nnz == 0:
+            raise SingularSystemError("grasp point lies in a clamped element: it cannot move")
+        U = fem.solve_free(np.ascontiguousarray(W.T.toarray()))
+        C = W @ U
+        C = 0.5 * (C + C.T)
+        Kc = np.linalg.inv(C)
+        data = FemContact(part=part, W=W, U=U, C=C, K=tuple(float(x) for x in Kc.ravel()))
+        anchor = tuple(float(c) for c in self.surface.vertices[v])
+        normal = tuple(float(c) for c in self.surface.vertex_normals[v])
+        return Contact(hand=hand, vertex=int(v), point=anchor, normal=normal, data=data)
+
+    def _pair(self, a, b) -> np.ndarray:
+        key = (id(a.data), id(b.data))
+        K = self._pairs.get(key)
+        if K is None:
+            C12 = a.data.W @ b.data.U if a.data.part == b.data.part else np.zeros((3, 3))
+            C = np.block([[a.data.C, C12], [C12.T, b.data.C]])
+            K = np.linalg.inv(0.5 * (C + C.T))
+            self._pairs = {key: K}  # only the current pair is ever needed
+        return K
+
+    def force(self, contact, displacement):
+        k = contact.data.K
+        dx, dy, dz = displacement
+        # the hand feels the reaction: minus the force that holds the grasp point at d
+        return (
+            -(k[0] * dx + k[1] * dy + k[2] * dz),
+            -(k[3] * dx + k[4] * dy + k[5] * dz),
+            -(k[6] * dx + k[7] * dy + k[8] * dz),
+        )
+
+    def forces(self, contacts, displacements):
+        if len(contacts) == 2 and contacts[0].data.part == contacts[1].data.part:
+            K = self._pair(contacts[0], contacts[1])
+            f = -(K @ np.concatenate((displacements[0], displacements[1])))
+            return [tuple(float(x) for x in f[:3]), tuple(float(x) for x in f[3:])]
+        return [self.force(c, d) for c, d in zip(contacts, displacements)]
+
+    def grasp_forces(self, contacts, displacements) -> np.ndarray:
+        """Forces on the tissue at the grasp points that hold them at `displacements`, (3k,)."""
+        if len(contacts) == 2:
+            return self._pair(contacts[0], contacts[1]) @ np.concatenate(displacements)
+        return np.concatenate([np.asarray(c.data.K).reshape(3, 3) @ np.asarray(d) for c, d in zip(contacts, displacements)]) if contacts else np.zeros(0)
+
+    def nodal_displacement(self, contacts, displacements) -> np.ndarray:
+        """Displacement of every volume node, (n_nodes, 3)."""
+        f = self.grasp_forces(contacts, displacements)
+        u = np.zeros((self.volume.n_nodes, 3))
+        for k, c in enumerate(contacts):
+            part = self.parts[c.data.part]
+            u[self.part_nodes[c.data.part]] += part.from_free(c.data.U @ f[3 * k : 3 * k + 3])
+        return u
+
+    def deformation(self, contacts, displacements) -> np.ndarray:
+        if not contacts:
+            self._out[:] = 0.0
+            return self._out
+        u = self.nodal_displacement(contacts, [np.asarray(d, dtype=np.float64) for d in displacements])
+        self._out[:] = self.embedding.matrix @ u
+        return self._out
+
+
+def fixed_nodes(volume, surface, fixed_surface_mask: np.ndarray, axis: int) -> np.ndarray:
+    """Volume nodes at or below the highest clamped surface height (the scene's fixed region)."""
+    limit = surface.vertices[fixed_surface_mask, axis].max() if fixed_surface_mask.any() else -np.inf
+    return volume.nodes[:, axis] <= limit
+
+
+def build(mesh, spec, scene=None):
+    """Construct from a scene's model spec (`sim.scene.ModelSpec`)."""
+    from sim.scene import AXES
+    from sim.volume import voxel_volume
+
+    opts = spec.options
+    resolution = float(opts.get("resolution", 0.004))
+    volume = voxel_volume(mesh, resolution)
+    material = scene.spec.material
+    axis = AXES[scene.spec.fixed.axis]
+    fixed = fixed_nodes(volume, mesh, scene.fixed_mask, axis)
+    return FemModel(mesh, volume, material.young, material.poisson, fixed, opts.get("formulation", "linear"))
+
+
+# -- nonlinear reference -------------------------------------------------------------------
+
+
+@dataclass
+class NewtonReport:
+    load_steps: int
+    iterations: list[int] = field(default_factory=list)  # per load step
+    residuals: list[list[float]] = field(default_factory=list)  # relative residual per iteration
+    converged: bool = True
+    min_jacobian: float = 1.0  # smallest det(F) seen: <= 0 means an inverted element
+
+
+def neo_hookean_solve(fem: LinearFem, W: sp.csr_matrix, target: np.ndarray, steps: int = 10, tol: float = 1e-8, max_iter: int = 25):
+    """Static compressible neo-Hookean solve with the grasp point held at `target` (3,).
+
+    Energy density ``mu/2 (I1 - 3) - mu ln J + lam/2 (ln J)^2``; the constraint ``W u = d`` is
+    imposed with a Lagrange multiplier (Schur complement, 3 extra solves per iteration). The
+    displacement is applied in `steps` equal increments, each solved by Newton's method to a
+    relative residual below `tol`. Returns (nodal displacements, force holding the grasp
+    point (3,), NewtonReport).
+    """
+    lam, mu = fem.lam, fem.mu
+    g = fem.grads  # reference gradients (m, 4, 3)
+    V = np.abs(fem.volumes)
+    tets = fem.tets
+    free = fem.free
+    n = len(fem.nodes)
+    dofs = element_dofs(tets)
+    rows = np.repeat(dofs, 12, axis=1).ravel()
+    cols = np.tile(dofs, (1, 12)).ravel()
+    u = np.zeros(3 * n)
+    Wt = W.T.toarray()
+    report = NewtonReport(load_steps=steps)
+    lam_mult = np.zeros(3)
+    scale = max(float(np.linalg.norm(target)), 1e-12)
+    for step in range(1, steps + 1):
+        d = target * step / steps
+        res_hist: list[float] = []
+        for it in range(max_iter):
+            ue = u[dofs].reshape(-1, 4, 3)
+            F = np.eye(3) + np.einsum("mai,maj->mij", ue, g)  # F_ij = d_ij + sum_a u_ai g_aj
+            J = np.linalg.det(F)
+            report.min_jacobian = min(report.min_jacobian, float(J.min()))
+            if np.any(J <= 0):
+                report.converged = False
+                report.iterations.append(it)
+                report.residuals.append(res_hist)
+                return u.reshape(-1, 3), lam_mult, report
+            Finv = np.linalg.inv(F)
+            FinvT = np.transpose(Finv, (0, 2, 1))
+            lnJ = np.log(J)
+            P = mu * (F - FinvT) + (lam * lnJ)[:, None, None] * FinvT
+            fe = V[:, None, None] * np.einsum("mij,maj->mai", P, g)  # (m, 4, 3)
+            f_int = np.bincount(dofs.ravel(), weights=fe.ravel(), minlength=3 * n)
+            # tangent A_iJkL = mu d_ik d_JL + (mu - lam lnJ) Finv_Li Finv_Jk + lam Finv_Ji Finv_Lk
+            c1 = (mu - lam * lnJ)
+            GA = np.einsum("mLi,maL->mai", Finv, g)  # g_a . Finv  -> (m, 4, 3), index i
+            GB = np.einsum("mJk,mbJ->mbk", Finv, g)  # same contraction for b, index k
+            Ke = (
+                mu * np.einsum("maJ,mbJ->mab", g, g)[:, :, None, :, None] * np.eye(3)[None, None, :, None, :]
+                + c1[:, None, None, None, None] * np.einsum("mbi,mak->maibk", GA, GB)
+                + lam * np.einsum("mai,mbk->maibk", GA, GB)
+            ) * V[:, None, None, None, None]
+            Kt = sp.coo_matrix((Ke.reshape(-1, 12, 12).ravel(), (rows, cols)), shape=(3 * n, 3 * n)).tocsr()
+            Kff = Kt[free][:, free]
+            r = f_int[free] - Wt @ lam_mult  # residual: internal force minus the grasp force
+            gap = W @ u[free] - d
+            res = float(np.linalg.norm(r)) / max(float(np.linalg.norm(f_int[free])), float(np.linalg.norm(Wt @ lam_mult)), 1e-30)
+            res_hist.append(max(res, float(np.linalg.norm(gap)) / scale))
+            if it > 0 and res_hist[-1] < tol:
+                break
+            factor = Factor(0.5 * (Kff + Kff.T))
+            # [K  -W^T] [du ]   [-r  ]
+            # [W   0  ] [dl ] = [-gap]
+            Kr = factor.solve(-r)
+            KW = factor.solve(Wt)
+            S = W @ KW  # (3, 3)
+            dl = np.linalg.solve(S, -gap - W @ Kr)
+            du = Kr + KW @ dl
+            u[free] += du
+            lam_mult += dl
+        else:
+            report.converged = False
+        report.iterations.append(len(res_hist))
+        report.residuals.append(res_hist)
+    return u.reshape(-1, 3), lam_mult, report
