@@ -130,6 +130,62 @@ def model_plate_spring(params_file: Path, variant: str, force, displacement, as_
         _print_layer_table(table)
 
 
+def _vector(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        parts = [float(x) for x in value.split(",")]
+    except ValueError:
+        parts = []
+    if len(parts) != 3:
+        raise click.BadParameter(f"{value!r} is not three comma-separated numbers (metres)")
+    return tuple(parts)
+
+
+@model.command("fem")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--resolution", type=float, default=None, help="Grid spacing in millimetres, 3..8 (default: the scene's, else 4).")
+@click.option("--formulation", type=click.Choice(["linear", "corotational", "neo-hookean"]), default="linear", show_default=True)
+@click.option("--grasp", required=True, callback=_vector, help="Grasp point X,Y,Z in metres (snapped to the surface).")
+@click.option("--displacement", required=True, callback=_vector, help="Displacement DX,DY,DZ of the grasp point in metres.")
+@click.option("--steps", type=click.IntRange(1, 200), default=5, show_default=True, help="Load steps of the nonlinear solves.")
+@click.option("--json", "as_json", is_flag=True)
+def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacement, steps: int, as_json: bool):
+    """Pull the brain once with the finite element model: force, displacement, phase times."""
+    from sim.models.fem import static_pull
+    from sim.scene import build_scene
+
+    scene = build_scene(scene_file)
+    out = static_pull(scene, grasp, displacement, None if resolution is None else resolution / 1e3, formulation, steps)
+    if as_json:
+        _print_json(out)
+        return
+    console = _console()
+    f = out["force_n"]
+    console.print(
+        f"FEM ({out['formulation']}, {out['resolution_mm']:g} mm: {out['volume']['nodes']} nodes, {out['volume']['tets']} tetrahedra; "
+        f"grasped hemisphere {out['part']['free_dofs']} unknowns)"
+    )
+    console.print(f"force on the hand: ({f[0]:.4g}, {f[1]:.4g}, {f[2]:.4g}) N, |F| = {out['force_magnitude_n']:.4g} N")
+    console.print(f"largest displacement: {out['max_displacement_m'] * 1e3:.3f} mm")
+    if out["locking"]:
+        console.print("warning: Poisson ratio above 0.49: linear tetrahedra lock, forces are overestimated")
+    if formulation != "linear":
+        console.print(
+            f"converged: {'yes' if out['converged'] else 'NO'}; iterations per load step {out['iterations']}; "
+            f"final residuals {', '.join(f'{r:.1e}' for r in out['final_residuals'] if r is not None)}"
+            + ("; inverted elements" if out["inverted_elements"] else "")
+        )
+    from rich.table import Table
+
+    t = Table(title="phase times")
+    t.add_column("phase")
+    t.add_column("ms", justify="right")
+    for k, v in out["times_ms"].items():
+        t.add_row(k, f"{v:.4g}")
+    console.print(t)
+
+
 def _print_solution(out: dict) -> None:
     from rich.table import Table
 

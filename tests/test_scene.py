@@ -39,7 +39,7 @@ def _scene_text(**replace) -> str:
         ('kind = "offscreen"', 'kind = "window"', r"renderer.kind: 'window' is not one of none, offscreen"),
         ("young = 3000.0", "young = -3.0", r"material.young: -3.0 is out of range; allowed: \(0, inf\]"),
         ("poisson = 0.45", "poisson = 0.7", r"material.poisson: 0.7 is out of range; allowed: \[0, 0.5\]"),
-        ('name = "plate_spring"', 'name = "fem"', r"model.name: 'fem' has no \[models.fem\] section"),
+        ('name = "plate_spring"', 'name = "rubber"', r"model.name: 'rubber' has no \[models.rubber\] section"),
         ("[models.plate_spring]", "[models.rubber]", r"models.rubber.: unknown model 'rubber'"),
         ("distance = 0.012\ngrasp_at = 0.3\npull_start = 0.5\npull_time = 1.2\nrelease_at = 2.6\n\n[[hands]]",
          'distance = "far"\ngrasp_at = 0.3\npull_start = 0.5\npull_time = 1.2\nrelease_at = 2.6\n\n[[hands]]',
@@ -87,6 +87,7 @@ def _run_python(code: str) -> dict:
 
 
 def test_headless_plate_spring_scene_never_imports_open3d_or_other_models(tmp_path):
+    # the FEM module is never imported, so no stiffness matrix is ever assembled
     scene = tmp_path / "headless.toml"
     scene.write_text(_localise(SCENE.read_text().replace('kind = "offscreen"', 'kind = "none"')))
     got = _run_python(f"""
@@ -120,3 +121,20 @@ def test_one_hand_scene_opens_one_device(tmp_path):
         print(json.dumps({{"opened": SimulatedOmni.opened, "hands": result.hand_names}}))
     """)
     assert got == {"opened": 1, "hands": ["left"]}
+
+
+def test_headless_fem_scene_meshes_in_a_child_and_assembles_once_per_hemisphere(tmp_path):
+    scene = tmp_path / "fem.toml"
+    text = _localise(SCENE.read_text().replace('kind = "offscreen"', 'kind = "none"'))
+    scene.write_text(text.replace('name = "plate_spring"               #', 'name = "fem"  #').replace("resolution = 0.004", "resolution = 0.008"))
+    got = _run_python(f"""
+        import json, sys
+        from sim.scene import build_scene
+        from sim.run import run_scene
+        scene = build_scene({str(scene)!r})
+        result = run_scene(scene, duration=0.3, time_scale=0)
+        import sim.models.fem as fem
+        print(json.dumps({{"open3d": any(m.startswith("open3d") for m in sys.modules), "assemblies": fem.ASSEMBLIES,
+                          "render": "sim.render" in sys.modules}}))
+    """)
+    assert got == {"open3d": False, "assemblies": 2, "render": False}

@@ -106,7 +106,7 @@ def test_cli_sim_run_json():
 
 
 def test_cli_unknown_model_is_a_clean_error():
-    res = CliRunner().invoke(cli, ["sim", "run", "--model", "fem", "--duration", "0.1", "--time-scale", "0"])
+    res = CliRunner().invoke(cli, ["sim", "run", "--model", "rubber", "--duration", "0.1", "--time-scale", "0"])
     assert res.exit_code == 1
-    assert res.output.strip().startswith("Error: ") and "models.fem: not configured" in res.output
+    assert res.output.strip().startswith("Error: ") and "models.rubber: not configured" in res.output
     assert len(res.output.strip().splitlines()) == 1

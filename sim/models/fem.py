@@ -151,7 +151,8 @@ class LinearFem:
         if np.any(vol < 0):
             raise ParameterError(f"tets: {int(np.sum(vol < 0))} elements are inverted (negative volume)")
         self.volumes = vol
-        self.stiffness = assemble(element_stiffness(self.grads, vol, self.lam, self.mu), tets, len(nodes))
+        self.element_matrices = element_stiffness(self.grads, vol, self.lam, self.mu)  # kept for the corotational update
+        self.stiffness = assemble(self.element_matrices, tets, len(nodes))
         self.timings.assembly_s = time.perf_counter() - start
         fixed_dofs = np.repeat(fixed, 3)
         self.free = np.flatnonzero(~fixed_dofs)  # free dof -> global dof
@@ -228,7 +229,7 @@ class FemModel:
 
     name = "fem"
 
-    def __init__(self, surface, volume, young: float, poisson: float, fixed_nodes: np.ndarray, formulation: str = "linear"):
+    def __init__(self, surface, volume, young: float, poisson: float, fixed_nodes: np.ndarray, formulation: str = "linear", grasp_radius: float = 0.005):
         from sim.volume import embed
 
         if formulation not in ("linear",):
@@ -236,6 +237,7 @@ class FemModel:
         self.surface = surface
         self.volume = volume
         self.formulation = formulation
+        self.grasp_radius = grasp_radius
         self.parts: list[LinearFem] = []
         self.part_nodes: list[np.ndarray] = []  # global node indices of each part
         self.node_part = np.empty(volume.n_nodes, dtype=np.int64)
@@ -273,10 +275,12 @@ class FemModel:
         from sim.models.base import Contact
 
         v = self.surface.nearest_vertex(point)
-        tet_nodes = self.volume.tets[self.embedding.tet[v]]
-        part = int(self.node_part[tet_nodes[0]])
+        patch = self.grasp_patch(v)
+        tet_nodes = self.volume.tets[self.embedding.tet[patch]]  # (k, 4)
+        part = int(self.node_part[tet_nodes[0, 0]])
         fem = self.parts[part]
-        W = constraint_matrix(fem, self.node_local[tet_nodes], self.embedding.weights[v])
+        weights = self.embedding.weights[patch] / len(patch)  # the patch's mean displacement
+        W = constraint_matrix(fem, self.node_local[tet_nodes.ravel()], weights.ravel())
         if W.nnz == 0:
             raise SingularSystemError("grasp point lies in a clamped element: it cannot move")
         U = fem.solve_free(np.ascontiguousarray(W.T.toarray()))
@@ -287,6 +291,18 @@ class FemModel:
         anchor = tuple(float(c) for c in self.surface.vertices[v])
         normal = tuple(float(c) for c in self.surface.vertex_normals[v])
         return Contact(hand=hand, vertex=int(v), point=anchor, normal=normal, data=data)
+
+    def grasp_patch(self, vertex: int) -> np.ndarray:
+        """Surface vertices held by a grasp: within `grasp_radius` of `vertex`, same hemisphere.
+
+        A grasp holds the mean displacement of this patch at the hand: a finite contact area.
+        (Holding a single point would make the force vanish as the mesh is refined, since the
+        compliance of a point load in 3D elasticity is unbounded.)
+        """
+        patch = np.asarray(self.surface._kdtree.query_ball_point(self.surface.vertices[vertex], self.grasp_radius), dtype=np.int64)
+        if self.surface.labels is not None:
+            patch = patch[self.surface.labels[patch] == self.surface.labels[vertex]]
+        return patch if len(patch) else np.array([vertex])
 
     def _pair(self, a, b) -> np.ndarray:
         key = (id(a.data), id(b.data))
@@ -356,7 +372,97 @@ def build(mesh, spec, scene=None):
     material = scene.spec.material
     axis = AXES[scene.spec.fixed.axis]
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, axis)
-    return FemModel(mesh, volume, material.young, material.poisson, fixed, opts.get("formulation", "linear"))
+    return FemModel(mesh, volume, material.young, material.poisson, fixed, opts.get("formulation", "linear"), opts.get("grasp_radius", 0.005))
+
+
+# -- corotational (stiffness warping) ------------------------------------------------------
+
+
+def element_rotations(fem: LinearFem, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation of each element's polar decomposition F = R S, and det F, for nodal u (3n,)."""
+    ue = u[element_dofs(fem.tets)].reshape(-1, 4, 3)
+    F = np.eye(3) + np.einsum("mai,maj->mij", ue, fem.grads)
+    Uf, _, Vt = np.linalg.svd(F)
+    flip = np.linalg.det(Uf) * np.linalg.det(Vt) < 0  # a reflection: make it the nearest rotation
+    Uf[flip, :, 2] *= -1.0
+    return Uf @ Vt, np.linalg.det(F)
+
+
+def corotational_internal_force(fem: LinearFem, u: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """f = sum_e R_e K_e (R_e^T x_e - X_e): linear elasticity in each element's rotated frame."""
+    dofs = element_dofs(fem.tets)
+    X = fem.nodes[fem.tets]  # (m, 4, 3)
+    x = X + u[dofs].reshape(-1, 4, 3)
+    local = np.einsum("mji,maj->mai", R, x) - X  # R^T x - X
+    fl = np.einsum("mij,mj->mi", fem.element_matrices, local.reshape(-1, 12)).reshape(-1, 4, 3)
+    fe = np.einsum("mij,maj->mai", R, fl)
+    return np.bincount(dofs.ravel(), weights=fe.ravel(), minlength=3 * len(fem.nodes))
+
+
+def warped_stiffness(fem: LinearFem, R: np.ndarray) -> sp.csr_matrix:
+    """sum_e R_e K_e R_e^T on the free dofs (the stiffness-warping tangent, dR ignored)."""
+    Rb = np.zeros((len(R), 12, 12))
+    for a in range(4):
+        Rb[:, 3 * a : 3 * a + 3, 3 * a : 3 * a + 3] = R
+    Kw = np.einsum("mij,mjk,mlk->mil", Rb, fem.element_matrices, Rb)
+    return assemble(Kw, fem.tets, len(fem.nodes))[fem.free][:, fem.free]
+
+
+@dataclass
+class _Precond:
+    solve: object  # callable: b -> K^-1 b on the free dofs
+    U: np.ndarray  # K^-1 W^T
+    C: np.ndarray  # W K^-1 W^T
+
+
+def corotational_step(fem: LinearFem, W, pre: _Precond, u: np.ndarray, lam_mult: np.ndarray, d: np.ndarray):
+    """One preconditioned step towards corotational equilibrium with W u = d.
+    Returns (u, lam_mult, relative residual, min det F, rotations)."""
+    R, J = element_rotations(fem, u)
+    f_int = corotational_internal_force(fem, u, R)[fem.free]
+    r = f_int - (W.T @ lam_mult)
+    gap = W @ u[fem.free] - d
+    res = max(float(np.linalg.norm(r)) / max(float(np.linalg.norm(f_int)), 1e-30), float(np.linalg.norm(gap)) / max(float(np.linalg.norm(d)), 1e-12))
+    Kr = pre.solve(-r)
+    dl = np.linalg.solve(pre.C, -gap - W @ Kr)
+    u = u.copy()
+    u[fem.free] += Kr + pre.U @ dl
+    return u, lam_mult + dl, res, float(J.min()), R
+
+
+def corotational_solve(fem: LinearFem, W, U: np.ndarray, target: np.ndarray, steps: int = 5, tol: float = 1e-8, max_iter: int = 60):
+    """Static corotational solve with the grasp point held at `target` (3,).
+
+    Load steps, each iterated to a relative residual below `tol`. The steps are preconditioned
+    by the linear stiffness (already factorised, so cheap); when that stalls (less than a
+    halving of the residual over four steps) the warped stiffness at the current state is
+    factorised and used instead (a modified Newton method). Returns (nodal displacements,
+    force holding the grasp point, NewtonReport).
+    """
+    pre = _Precond(solve=fem.solve_free, U=U, C=W @ U)
+    u = np.zeros(3 * len(fem.nodes))
+    lam_mult = np.zeros(3)
+    report = NewtonReport(load_steps=steps)
+    Wt = np.ascontiguousarray(W.T.toarray())
+    for step in range(1, steps + 1):
+        d = np.asarray(target, dtype=np.float64) * step / steps
+        hist: list[float] = []
+        for _ in range(max_iter):
+            u, lam_mult, res, jmin, R = corotational_step(fem, W, pre, u, lam_mult, d)
+            report.min_jacobian = min(report.min_jacobian, jmin)
+            hist.append(res)
+            if len(hist) > 1 and res < tol:
+                break
+            if len(hist) >= 5 and hist[-1] > 0.5 * hist[-5]:
+                factor = Factor(warped_stiffness(fem, R))
+                Uw = factor.solve(Wt)
+                pre = _Precond(solve=factor.solve, U=Uw, C=W @ Uw)
+                report.tangent_updates += 1
+        else:
+            report.converged = False
+        report.iterations.append(len(hist))
+        report.residuals.append(hist)
+    return u.reshape(-1, 3), lam_mult, report
 
 
 # -- nonlinear reference -------------------------------------------------------------------
@@ -369,6 +475,7 @@ class NewtonReport:
     residuals: list[list[float]] = field(default_factory=list)  # relative residual per iteration
     converged: bool = True
     min_jacobian: float = 1.0  # smallest det(F) seen: <= 0 means an inverted element
+    tangent_updates: int = 0  # refactorisations (corotational solver)
 
 
 def neo_hookean_solve(fem: LinearFem, W: sp.csr_matrix, target: np.ndarray, steps: int = 10, tol: float = 1e-8, max_iter: int = 25):
@@ -445,3 +552,98 @@ def neo_hookean_solve(fem: LinearFem, W: sp.csr_matrix, target: np.ndarray, step
         report.iterations.append(len(res_hist))
         report.residuals.append(res_hist)
     return u.reshape(-1, 3), lam_mult, report
+
+
+# -- one static pull, the `studyctl model fem` command ------------------------------------
+
+FORMULATIONS = ("linear", "corotational", "neo-hookean")
+
+
+def static_pull(scene, grasp, displacement, resolution: float | None = None, formulation: str = "linear", steps: int = 5) -> dict:
+    """Grasp the scene's brain at `grasp` and hold the grasp point at `displacement` (m).
+
+    Returns the force on the hand, the largest displacement, the phase times, and for the
+    nonlinear formulations the convergence history.
+    """
+    from sim.scene import AXES
+    from sim.volume import describe, voxel_volume
+
+    if formulation not in FORMULATIONS:
+        raise ParameterError(f"formulation: {formulation!r} is not one of {', '.join(FORMULATIONS)}")
+    d = np.asarray(displacement, dtype=np.float64)
+    spec = scene.model_spec if scene.model_spec.name == "fem" else None
+    if resolution is None:
+        resolution = float(spec.options["resolution"]) if spec else 0.004
+    if not 0.003 <= resolution <= 0.008:
+        raise ParameterError(f"resolution: {resolution * 1e3:g} mm is out of range; allowed: 3..8 mm")
+    times: dict[str, float] = {}
+    t0 = time.perf_counter()
+    mesh = scene.mesh
+    volume = voxel_volume(mesh, resolution)
+    times["mesh_s"] = time.perf_counter() - t0
+    material = scene.spec.material
+    fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])
+    model = FemModel(mesh, volume, material.young, material.poisson, fixed, grasp_radius=spec.options.get("grasp_radius", 0.005) if spec else 0.005)
+    times.update({k: v for k, v in model.timings.items()})
+    t0 = time.perf_counter()
+    contact = model.grasp(grasp, 0)
+    times["grasp_s"] = time.perf_counter() - t0
+    reps = 20000
+    t0 = time.perf_counter()
+    dt = tuple(float(x) for x in d)
+    for _ in range(reps):
+        model.force(contact, dt)
+    times["tick_s"] = (time.perf_counter() - t0) / reps
+    t0 = time.perf_counter()
+    model.deformation([contact], [d])
+    times["frame_s"] = time.perf_counter() - t0
+    part = model.parts[contact.data.part]
+    out = {
+        "formulation": formulation,
+        "resolution_mm": resolution * 1e3,
+        "volume": describe(volume),
+        "part": {"nodes": int(len(part.nodes)), "tets": int(len(part.tets)), "free_dofs": int(len(part.free))},
+        "grasp_vertex": contact.vertex,
+        "grasp_point": list(contact.point),
+        "displacement": d.tolist(),
+        "locking": model.locking,
+    }
+    if formulation == "linear":
+        force = -np.asarray(model.force(contact, dt))
+        u = model.nodal_displacement([contact], [d])
+        out["converged"] = True
+    elif formulation == "neo-hookean":
+        t0 = time.perf_counter()
+        u_part, lam_mult, rep = neo_hookean_solve(part, contact.data.W, d, steps=steps)
+        times["solve_s"] = time.perf_counter() - t0
+        force = lam_mult
+        u = np.zeros((volume.n_nodes, 3))
+        u[model.part_nodes[contact.data.part]] = u_part
+        out.update(_report(rep))
+    else:
+        t0 = time.perf_counter()
+        u_part, lam_mult, rep = corotational_solve(part, contact.data.W, contact.data.U, d, steps=steps)
+        times["solve_s"] = time.perf_counter() - t0
+        force = lam_mult
+        u = np.zeros((volume.n_nodes, 3))
+        u[model.part_nodes[contact.data.part]] = u_part
+        out.update(_report(rep))
+    # the hand feels minus the force that holds the tissue at d
+    out["force_n"] = (-np.asarray(force)).tolist()
+    out["force_magnitude_n"] = float(np.linalg.norm(force))
+    out["max_displacement_m"] = float(np.linalg.norm(u, axis=1).max())
+    out["times_ms"] = {k.removesuffix("_s"): v * 1e3 for k, v in times.items()}
+    out["times_ms"]["tick"] = times["tick_s"] * 1e3
+    return out
+
+
+def _report(rep: NewtonReport) -> dict:
+    return {
+        "converged": rep.converged,
+        "load_steps": rep.load_steps,
+        "iterations": rep.iterations,
+        "final_residuals": [r[-1] if r else None for r in rep.residuals],
+        "min_jacobian": rep.min_jacobian,
+        "inverted_elements": rep.min_jacobian <= 0,
+        "tangent_updates": rep.tangent_updates,
+    }

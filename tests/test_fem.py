@@ -1,0 +1,200 @@
+"""Linear FEM against exact solutions, beam theory, scikit-fem; extreme cases; the reference solver."""
+
+import numpy as np
+import pytest
+
+from sim.errors import ParameterError
+from sim.models.fem import LinearFem, SingularSystemError, constraint_matrix, lame, neo_hookean_solve
+from sim.volume import grid_tets, tet_volumes
+
+
+def box(nx, ny, nz, h, origin=(0.0, 0.0, 0.0)):
+    return grid_tets(np.ones((nx, ny, nz), bool), np.asarray(origin, float), h)
+
+
+def test_kuhn_tets_are_positive_and_fill_the_box():
+    nodes, tets = box(3, 2, 4, 0.01)
+    vol = tet_volumes(nodes, tets)
+    assert np.all(vol > 0) and vol.sum() == pytest.approx(3 * 2 * 4 * 1e-6)
+
+
+def test_patch_test_uniform_strain_is_exact():
+    nodes, tets = box(4, 3, 3, 0.01)
+    A = np.array([[1e-3, 2e-4, -3e-4], [5e-4, -5e-4, 3e-4], [1e-4, 7e-4, 2e-3]])
+    exact = nodes @ A.T
+    boundary = np.any((nodes < 1e-9) | (nodes > nodes.max(axis=0) - 1e-9), axis=1)
+    fem = LinearFem(nodes, tets, 3000.0, 0.45, boundary)
+    ub = np.where(boundary[:, None], exact, 0.0)
+    u = fem.solve(-(fem.stiffness @ ub.ravel()).reshape(-1, 3))  # K_ff u_f = -K_fb u_b
+    assert (~boundary).sum() == 12
+    assert np.abs(u[~boundary] - exact[~boundary]).max() < 1e-14 * np.abs(exact).max() * 1e3
+    # a uniform strain has no internal force: K u = 0 away from the boundary
+    r = (fem.stiffness @ exact.ravel()).reshape(-1, 3)
+    assert np.abs(r[~boundary]).max() < 1e-12
+
+
+def _cantilever(n, L=0.1, h=0.01, E=1e6, nu=0.3, P=1e-3):
+    nodes, tets = box(10 * n, n, n, h / n)
+    fixed = nodes[:, 0] < 1e-12
+    tip = nodes[:, 0] > L - 1e-12
+    fem = LinearFem(nodes, tets, E, nu, fixed)
+    f = np.zeros_like(nodes)
+    f[tip, 2] = -P / tip.sum()
+    return -fem.solve(f)[tip, 2].mean(), fem
+
+
+def test_cantilever_converges_to_beam_theory():
+    # 100 x 10 x 10 mm, clamped at x = 0, 1 mN down at the tip; Timoshenko beam theory
+    L, h, E, nu, P = 0.1, 0.01, 1e6, 0.3, 1e-3
+    inertia = h**4 / 12
+    G = E / (2 * (1 + nu))
+    timoshenko = P * L**3 / (3 * E * inertia) + P * L / (5 / 6 * G * h * h)
+    levels = (1, 2, 4, 8)  # elements across the thickness
+    d = np.array([_cantilever(n)[0] for n in levels])
+    errors = np.abs(d - timoshenko) / timoshenko
+    rates = np.log2(errors[:-1] / errors[1:])
+    print(f"tip deflection {d} vs Timoshenko {timoshenko:.6g}: errors {errors.round(4)}, observed rates {rates.round(2)}")
+    assert np.all(np.diff(errors) < 0) and np.all(d < timoshenko)  # P1 tetrahedra are too stiff, less so when refined
+    # shear locking makes the coarse levels pre-asymptotic; the rate climbs towards 2 (h^2 for P1)
+    assert np.all(np.diff(rates) > 0) and 1.4 < rates[-1] < 2.2
+    assert errors[-1] < 0.1
+
+
+def test_agrees_with_scikit_fem():
+    skfem = pytest.importorskip("skfem")
+    from skfem.helpers import ddot, sym_grad, trace
+    from skfem.models.elasticity import lame_parameters
+
+    nodes, tets = box(4, 3, 2, 0.01)
+    E, nu = 3000.0, 0.45
+    fixed = nodes[:, 2] < 1e-12
+    ours = LinearFem(nodes, tets, E, nu, fixed)
+    mesh = skfem.MeshTet(nodes.T.copy(), tets.T.copy())
+    basis = skfem.Basis(mesh, skfem.ElementVector(skfem.ElementTetP1()))
+    lam, mu = lame_parameters(E, nu)
+    assert (lam, mu) == pytest.approx(lame(E, nu))
+
+    @skfem.BilinearForm
+    def elasticity(u, v, w):
+        eu, ev = sym_grad(u), sym_grad(v)
+        return 2 * mu * ddot(eu, ev) + lam * trace(eu) * trace(ev)
+
+    K = elasticity.assemble(basis)
+    order = basis.nodal_dofs.T.ravel()  # our dof 3 i + c is their nodal_dofs[c, i]
+    Ks = K[order][:, order]
+    diff = abs(Ks - ours.stiffness).max()
+    assert diff <= 1e-8 * abs(ours.stiffness).max()
+    # same load, same solution
+    f = np.zeros_like(nodes)
+    f[nodes[:, 2] > 0.02 - 1e-12, 0] = 1e-3
+    D = basis.get_dofs(lambda x: x[2] < 1e-12).all()
+    x = skfem.solve(*skfem.condense(K, f.ravel()[np.argsort(order)], D=D))
+    u_sk = x[order].reshape(-1, 3)
+    u = ours.solve(f)
+    assert np.abs(u - u_sk).max() <= 1e-8 * np.abs(u_sk).max()
+
+
+def test_reduced_stiffness_is_symmetric_positive_definite():
+    nodes, tets = box(3, 2, 2, 0.01)
+    fem = LinearFem(nodes, tets, 3000.0, 0.45, nodes[:, 2] < 1e-12)
+    K = fem.reduced.toarray()
+    assert np.abs(K - K.T).max() <= 1e-12 * np.abs(K).max()
+    assert np.linalg.eigvalsh(K).min() > 0
+    full = np.linalg.eigvalsh(fem.stiffness.toarray())
+    assert np.sum(np.abs(full) < 1e-9 * full.max()) == 6  # six rigid-body modes when unclamped
+
+
+def test_nearly_incompressible_locks_and_is_reported():
+    d_ok, fem_ok = _cantilever(2, nu=0.3)
+    d_lock, fem_lock = _cantilever(2, nu=0.499)
+    beam = 1e-3 * 0.1**3 / (3 * 1e6 * 0.01**4 / 12)
+    assert not fem_ok.locking and fem_lock.locking
+    assert d_lock < 0.5 * beam < d_ok  # volumetric locking: far too stiff in bending
+
+
+def test_modulus_range_scales_exactly():
+    nodes, tets = box(3, 2, 2, 0.01)
+    fixed = nodes[:, 2] < 1e-12
+    f = np.zeros_like(nodes)
+    f[-1] = (1e-3, 0, 0)
+    ref = None
+    for E in (1.0, 3e3, 1e9):
+        u = LinearFem(nodes, tets, E, 0.45, fixed).solve(f)
+        assert np.all(np.isfinite(u))
+        ref = u * E if ref is None else ref
+        assert np.allclose(u * E, ref, rtol=1e-7, atol=0)
+
+
+def test_bad_input():
+    nodes, tets = box(2, 2, 2, 0.01)
+    with pytest.raises(SingularSystemError, match="no fixed nodes"):
+        LinearFem(nodes, tets, 3000.0, 0.45, np.zeros(len(nodes), bool))
+    with pytest.raises(ParameterError, match=r"poisson: 0.5 is out of range; allowed: \(-1, 0.5\)"):
+        LinearFem(nodes, tets, 3000.0, 0.5, nodes[:, 2] < 1e-12)
+    with pytest.raises(ParameterError, match="young"):
+        LinearFem(nodes, tets, 0.0, 0.45, nodes[:, 2] < 1e-12)
+    flipped = tets.copy()
+    flipped[0, [0, 1]] = flipped[0, [1, 0]]
+    with pytest.raises(ParameterError, match="inverted"):
+        LinearFem(nodes, flipped, 3000.0, 0.45, nodes[:, 2] < 1e-12)
+
+
+def _block_pull(d):
+    nodes, tets = box(4, 4, 3, 0.01)
+    fixed = nodes[:, 2] < 1e-12
+    fem = LinearFem(nodes, tets, 3000.0, 0.45, fixed)
+    top = int(np.argmin(np.linalg.norm(nodes - (0.02, 0.02, 0.03), axis=1)))
+    W = constraint_matrix(fem, np.array([top]), np.array([1.0]))
+    return fem, W, np.asarray(d, float)
+
+
+def test_neo_hookean_matches_linear_for_small_pulls_and_converges():
+    fem, W, d = _block_pull((1e-5, 0.0, 0.0))
+    Kc = np.linalg.inv(W @ fem.solve_free(W.T.toarray()))
+    lin = Kc @ d
+    u, force, rep = neo_hookean_solve(fem, W, d, steps=2)
+    assert rep.converged and all(r[-1] < 1e-8 for r in rep.residuals)
+    assert force == pytest.approx(lin, rel=1e-3, abs=1e-9 * np.abs(lin).max())
+    # Newton converges quadratically: the last residuals fall fast
+    last = rep.residuals[-1]
+    assert len(last) <= 6
+
+
+def test_neo_hookean_large_pull_differs_from_linear():
+    fem, W, d = _block_pull((0.008, 0.0, 0.006))
+    Kc = np.linalg.inv(W @ fem.solve_free(W.T.toarray()))
+    u, force, rep = neo_hookean_solve(fem, W, d, steps=8)
+    assert rep.converged and rep.min_jacobian > 0
+    assert np.allclose(W @ u.ravel()[fem.free], d, atol=1e-10)  # the grasp point is where the hand is
+    rel = np.linalg.norm(force - Kc @ d) / np.linalg.norm(Kc @ d)
+    assert 0.01 < rel < 0.8  # geometric and material nonlinearity at 25-35% strain
+
+
+def test_corotational_small_pull_matches_linear_and_large_rotation_is_invariant():
+    from sim.models.fem import corotational_internal_force, corotational_solve, element_rotations
+
+    fem, W, d = _block_pull((1e-5, 0.0, 0.0))
+    U = fem.solve_free(W.T.toarray())
+    Kc = np.linalg.inv(W @ U)
+    u, force, rep = corotational_solve(fem, W, U, d, steps=1)
+    assert rep.converged and force == pytest.approx(Kc @ d, rel=1e-3, abs=1e-3 * np.linalg.norm(Kc @ d))
+    # a rigid rotation of the whole block produces no corotational force (linear FEM would)
+    th = 0.6
+    Rz = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]])
+    u_rot = (fem.nodes @ Rz.T - fem.nodes).ravel()
+    R, J = element_rotations(fem, u_rot)
+    assert np.allclose(R, Rz, atol=1e-12) and np.allclose(J, 1.0)
+    assert np.abs(corotational_internal_force(fem, u_rot, R)).max() < 1e-12 * np.abs(fem.stiffness @ u_rot).max()
+
+
+def test_corotational_large_pull_converges_and_flags_inversion():
+    from sim.models.fem import corotational_solve
+
+    fem, W, d = _block_pull((0.008, 0.0, 0.006))
+    U = fem.solve_free(W.T.toarray())
+    u, force, rep = corotational_solve(fem, W, U, d, steps=4)
+    assert rep.converged and rep.min_jacobian > 0
+    assert np.allclose(W @ u.ravel()[fem.free], d, atol=1e-10)
+    # pushing the grasp point 4 cm down into a 3 cm block inverts elements: flagged, not NaN
+    u, force, rep = corotational_solve(fem, W, U, np.array([0.0, 0.0, -0.04]), steps=2, max_iter=30)
+    assert rep.min_jacobian <= 0 and np.all(np.isfinite(u)) and np.all(np.isfinite(force))

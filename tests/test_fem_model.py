@@ -1,0 +1,103 @@
+"""The FEM under the tissue-model contract on the brain: condensation, coupling, embedding, runs."""
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from sim.models.fem import FemModel, fixed_nodes
+from sim.run import run_scene
+from sim.scene import build_scene
+from sim.volume import embed, voxel_volume
+from studyctl.cli import cli
+from tests.conftest import SCENE
+
+LEFT, LEFT2, RIGHT = (-0.0313, -0.0186, 0.0723), (-0.045, 0.0, 0.06), (0.0315, -0.0172, 0.0716)
+
+
+@pytest.fixture(scope="module")
+def model():
+    scene = build_scene(SCENE)
+    volume = voxel_volume(scene.mesh, 0.008)
+    fixed = fixed_nodes(volume, scene.mesh, scene.fixed_mask, 2)
+    return FemModel(scene.mesh, volume, 3000.0, 0.45, fixed)
+
+
+def test_condensed_stiffness_reproduces_a_direct_solve(model):
+    c = model.grasp(LEFT, 0)
+    part = model.parts[c.data.part]
+    f = np.array([0.05, -0.02, 0.03])  # force on the tissue, spread over the grasp patch
+    u = part.solve_free(c.data.W.T @ f)
+    d = c.data.W @ u  # where the patch's mean point goes
+    assert np.allclose(model.force(c, tuple(d)), -f, rtol=1e-9, atol=1e-12)
+    # and the deformation field of the frame is that solution, embedded on the surface
+    field = model.deformation([c], [d])
+    nodal = np.zeros((model.volume.n_nodes, 3))
+    nodal[model.part_nodes[c.data.part]] = part.from_free(u)
+    assert np.allclose(field, model.embedding.matrix @ nodal, atol=1e-15)
+    patch = model.grasp_patch(c.vertex)
+    assert np.allclose(field[patch].mean(axis=0), d, atol=1e-3 * np.linalg.norm(d))
+
+
+def test_two_grasps_on_one_hemisphere_are_coupled_and_on_two_are_not(model):
+    a, b, r = model.grasp(LEFT, 0), model.grasp(LEFT2, 1), model.grasp(RIGHT, 1)
+    part = model.parts[a.data.part]
+    fa, fb = np.array([0.03, 0.0, 0.01]), np.array([-0.02, 0.01, 0.0])
+    u = part.solve_free(a.data.W.T @ fa + b.data.W.T @ fb)
+    da, db = a.data.W @ u, b.data.W @ u
+    got = model.forces([a, b], [tuple(da), tuple(db)])
+    assert np.allclose(got[0], -fa, atol=1e-9) and np.allclose(got[1], -fb, atol=1e-9)
+    # pulling b alone moves a's grasp point: the 6x6 coupling is not block diagonal
+    alone = model.forces([a, b], [(0.0, 0.0, 0.0), (0.01, 0.0, 0.0)])
+    assert np.linalg.norm(alone[0]) > 1e-4
+    # different hemispheres share no node: no coupling
+    sep = model.forces([a, r], [(0.0, 0.0, 0.0), (0.01, 0.0, 0.0)])
+    assert sep[0] == (0.0, 0.0, 0.0) or np.allclose(sep[0], 0.0)
+
+
+def test_embedding_reproduces_linear_fields(model):
+    vol = model.volume
+    A = np.array([[1e-3, 2e-3, 0.0], [0.0, 1e-3, -1e-3], [5e-4, 0.0, 2e-3]])
+    nodal = vol.nodes @ A.T
+    emb = embed(vol, model.surface.vertices, model.surface.labels)
+    assert np.allclose(emb.matrix @ nodal, model.surface.vertices @ A.T, atol=1e-12)
+    assert np.allclose(emb.weights.sum(axis=1), 1.0)
+    assert emb.weights.min() > -1.0  # outside vertices are close to their element
+
+
+def test_sim_run_with_fem_lockstep():
+    scene = build_scene(SCENE, "fem")
+    r = run_scene(scene, duration=2.0, time_scale=0)
+    fmag = np.linalg.norm(r.forces, axis=2)
+    assert 0.03 < fmag.max() < 1.0 and fmag.max() <= 3.3
+    assert [e.kind for e in r.events].count("grasp") == 2
+    k = 1900  # end of the pull: force against the displacement, for each hand
+    for i in range(2):
+        grasp = next(e for e in r.events if e.kind == "grasp" and e.hand == i)
+        d = r.positions[k, i] - scene.mesh.vertices[int(grasp.detail.split()[1])]
+        assert np.dot(d, r.forces[k, i]) < 0
+    s = r.stats()
+    assert s["deformation_ms"]["p50"] is not None
+
+
+def test_cli_model_fem_json_and_errors():
+    res = CliRunner().invoke(cli, ["model", "fem", "--resolution", "8", "--grasp", ",".join(map(str, LEFT)), "--displacement", "-0.005,0,0", "--json"])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.output)
+    assert out["force_n"][0] > 0 and out["converged"] and not out["locking"]
+    assert {"mesh", "assembly", "factorisation", "grasp", "tick", "frame"} <= set(out["times_ms"])
+    res = CliRunner().invoke(cli, ["model", "fem", "--resolution", "9", "--grasp", "0,0,0", "--displacement", "0,0,0"])
+    assert res.exit_code == 1 and "resolution: 9 mm is out of range; allowed: 3..8 mm" in res.output
+    res = CliRunner().invoke(cli, ["model", "fem", "--grasp", "0,0", "--displacement", "0,0,0"])
+    assert res.exit_code == 2 and "three comma-separated numbers" in res.output
+
+
+@pytest.mark.parametrize("formulation", ["corotational", "neo-hookean"])
+def test_cli_nonlinear_formulations_converge_and_agree_for_small_pulls(formulation):
+    args = ["model", "fem", "--resolution", "8", "--grasp", ",".join(map(str, LEFT)), "--json"]
+    lin = json.loads(CliRunner().invoke(cli, [*args, "--displacement", "-0.0005,0,0"]).output)
+    res = CliRunner().invoke(cli, [*args, "--displacement", "-0.0005,0,0", "--formulation", formulation, "--steps", "1"])
+    out = json.loads(res.output)
+    assert out["converged"] and out["final_residuals"][-1] < 1e-8
+    assert np.allclose(out["force_n"], lin["force_n"], rtol=0.02, atol=0.02 * lin["force_magnitude_n"])
