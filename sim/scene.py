@@ -273,7 +273,7 @@ def _model_spec(table: _Reader, name: str) -> ModelSpec:
         return ModelSpec(name=name, variant=variant, plate_spring=params)
     if name == "fem":
         resolution = table.number("resolution", default=0.004, lo=0.003, hi=0.008)
-        formulation = table.string("formulation", default="linear", choices=("linear",))
+        formulation = table.string("formulation", default="linear", choices=("linear", "corotational"))
         grasp_radius = table.number("grasp_radius", default=0.005, lo=0.0, hi=0.02)
         return ModelSpec(name=name, options={"resolution": resolution, "formulation": formulation, "grasp_radius": grasp_radius})
     return ModelSpec(name=name, options=dict(table.data))

@@ -232,8 +232,8 @@ class FemModel:
     def __init__(self, surface, volume, young: float, poisson: float, fixed_nodes: np.ndarray, formulation: str = "linear", grasp_radius: float = 0.005):
         from sim.volume import embed
 
-        if formulation not in ("linear",):
-            raise ParameterError(f"formulation: {formulation!r} is not available for the haptic model; allowed: linear")
+        if formulation not in ("linear", "corotational"):
+            raise ParameterError(f"formulation: {formulation!r} is not available for the haptic model; allowed: linear, corotational")
         self.surface = surface
         self.volume = volume
         self.formulation = formulation
@@ -258,6 +258,13 @@ class FemModel:
         surface.prepare_queries()
         self._pairs: dict[tuple[int, int], np.ndarray] = {}
         self._out = np.zeros_like(surface.vertices)
+        # corotational state, per part: (contact ids, free-dof displacement, multipliers)
+        self._corot: dict[int, tuple] = {}
+        # published for the servo by each corotational frame: contact id -> (force on tissue, d)
+        self._linearised: dict[int, tuple] = {}
+        self.inverted_frames = 0  # frames in which an element was inverted (det F <= 0)
+        self.tangent_updates = 0  # warped-stiffness refactorisations
+        self.restarts = 0  # corotational iterations that diverged and restarted from linear
 
     @property
     def timings(self) -> dict:
@@ -317,6 +324,16 @@ class FemModel:
     def force(self, contact, displacement):
         k = contact.data.K
         dx, dy, dz = displacement
+        lin = self._linearised.get(id(contact.data))
+        if lin is not None:
+            # corotational: the state of the last frame, plus the linear tangent for the motion since
+            (fx, fy, fz), (ex, ey, ez) = lin
+            dx, dy, dz = dx - ex, dy - ey, dz - ez
+            return (
+                -(fx + k[0] * dx + k[1] * dy + k[2] * dz),
+                -(fy + k[3] * dx + k[4] * dy + k[5] * dz),
+                -(fz + k[6] * dx + k[7] * dy + k[8] * dz),
+            )
         # the hand feels the reaction: minus the force that holds the grasp point at d
         return (
             -(k[0] * dx + k[1] * dy + k[2] * dz),
@@ -325,7 +342,7 @@ class FemModel:
         )
 
     def forces(self, contacts, displacements):
-        if len(contacts) == 2 and contacts[0].data.part == contacts[1].data.part:
+        if len(contacts) == 2 and contacts[0].data.part == contacts[1].data.part and self.formulation == "linear":
             K = self._pair(contacts[0], contacts[1])
             f = -(K @ np.concatenate((displacements[0], displacements[1])))
             return [tuple(float(x) for x in f[:3]), tuple(float(x) for x in f[3:])]
@@ -349,10 +366,86 @@ class FemModel:
     def deformation(self, contacts, displacements) -> np.ndarray:
         if not contacts:
             self._out[:] = 0.0
+            self._corot.clear()
+            self._linearised = {}
             return self._out
-        u = self.nodal_displacement(contacts, [np.asarray(d, dtype=np.float64) for d in displacements])
+        displacements = [np.asarray(d, dtype=np.float64) for d in displacements]
+        if self.formulation == "corotational":
+            u = self._corotational_frame(contacts, displacements)
+        else:
+            u = self.nodal_displacement(contacts, displacements)
         self._out[:] = self.embedding.matrix @ u
         return self._out
+
+    def _corotational_frame(self, contacts, displacements) -> np.ndarray:
+        """Advance each grasped part's corotational state by one preconditioned step
+        (warm-started from the last frame), publish the linearisation for the servo, and
+        return the nodal displacement. Two grasps on one part are solved together.
+
+        The step is preconditioned by the linear stiffness until that stops reducing the
+        residual; then the warped stiffness at the current state is factorised and used (a
+        modified Newton method spread over frames: a refactorisation costs a few frames).
+        """
+        u_nodes = np.zeros((self.volume.n_nodes, 3))
+        published = {}
+        for part_id in sorted({c.data.part for c in contacts}):
+            idx = [k for k, c in enumerate(contacts) if c.data.part == part_id]
+            cs = [contacts[k] for k in idx]
+            d = np.concatenate([displacements[k] for k in idx])
+            fem = self.parts[part_id]
+            W = sp.vstack([c.data.W for c in cs]).tocsr()
+            key = tuple(id(c.data) for c in cs)
+            state = self._corot.get(part_id)
+            if state is None or state["key"] != key:  # new grasp set: start from the linear solution
+                U = np.hstack([c.data.U for c in cs])
+                pre = _Precond(solve=fem.solve_free, U=U, C=W @ U)
+                lam = np.linalg.solve(pre.C, d)
+                u = np.zeros(3 * len(fem.nodes))
+                u[fem.free] = U @ lam
+                state = {"key": key, "u": u, "lam": lam, "active": np.zeros(0, dtype=np.int64), "pre": pre, "res": math.inf, "W": W}
+            if len(state["active"]) == 0:
+                # corotate the elements that move: those touching a node displaced by more than
+                # 5% of the largest displacement; the rest rotate negligibly and stay linear
+                mag = np.linalg.norm(state["u"].reshape(-1, 3), axis=1)
+                if mag.max() > 1e-6:
+                    state["active"] = np.flatnonzero((mag > 0.05 * mag.max())[fem.tets].any(axis=1))
+            if len(state["active"]):
+                u, lam, res, jmin, R = corotational_step(fem, W, state["pre"], state["u"], state["lam"], d, state["active"])
+                if jmin <= 0:
+                    self.inverted_frames += 1
+                if not (res < 1.0 and np.all(np.isfinite(u))):  # diverged: restart from linear with a fresh tangent
+                    self._corot.pop(part_id, None)
+                    u, lam = state["u"], state["lam"]
+                    self.restarts += 1
+                else:
+                    if res > 0.7 * state["res"] and res > 1e-6:  # stalled: refactorise the warped tangent
+                        self.tangent_updates += 1
+                        factor = Factor(_warped_active(fem, R, state["active"]))
+                        Uw = factor.solve(np.ascontiguousarray(W.T.toarray()))
+                        state["pre"] = _Precond(solve=factor.solve, U=Uw, C=W @ Uw)
+                    state.update(u=u, lam=lam, res=res)
+                    self._corot[part_id] = state
+            else:  # nothing moves yet: the linear solution for the current d
+                pre = state["pre"]
+                lam = np.linalg.solve(pre.C, d)
+                u = np.zeros(3 * len(fem.nodes))
+                u[fem.free] = pre.U @ lam
+                state.update(u=u, lam=lam)
+                self._corot[part_id] = state
+            for j, c in enumerate(cs):
+                published[id(c.data)] = (tuple(float(x) for x in lam[3 * j : 3 * j + 3]), tuple(float(x) for x in d[3 * j : 3 * j + 3]))
+            u_nodes[self.part_nodes[part_id]] = u.reshape(-1, 3)
+        self._linearised = published  # one rebinding: the servo sees the old or the new state
+        return u_nodes
+
+
+def _warped_active(fem: LinearFem, R: np.ndarray, active: np.ndarray) -> sp.csr_matrix:
+    """Warped stiffness on the free dofs with only the `active` elements rotated: the linear
+    reduced stiffness plus the change of those elements (cheap next to a full assembly)."""
+    K5 = fem.element_matrices[active].reshape(-1, 4, 3, 4, 3)
+    Kw = np.einsum("mij,majbk,mlk->maibl", R, K5, R)  # R K_ab R^T for every 3x3 block
+    delta = assemble((Kw - K5).reshape(-1, 12, 12), fem.tets[active], len(fem.nodes))
+    return (fem.reduced + delta[fem.free][:, fem.free]).tocsr()
 
 
 def fixed_nodes(volume, surface, fixed_surface_mask: np.ndarray, axis: int) -> np.ndarray:
@@ -378,34 +471,44 @@ def build(mesh, spec, scene=None):
 # -- corotational (stiffness warping) ------------------------------------------------------
 
 
-def element_rotations(fem: LinearFem, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def element_rotations(fem: LinearFem, u: np.ndarray, elements: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Rotation of each element's polar decomposition F = R S, and det F, for nodal u (3n,)."""
-    ue = u[element_dofs(fem.tets)].reshape(-1, 4, 3)
-    F = np.eye(3) + np.einsum("mai,maj->mij", ue, fem.grads)
+    tets = fem.tets if elements is None else fem.tets[elements]
+    grads = fem.grads if elements is None else fem.grads[elements]
+    ue = u[element_dofs(tets)].reshape(-1, 4, 3)
+    F = np.eye(3) + np.einsum("mai,maj->mij", ue, grads)
     Uf, _, Vt = np.linalg.svd(F)
     flip = np.linalg.det(Uf) * np.linalg.det(Vt) < 0  # a reflection: make it the nearest rotation
     Uf[flip, :, 2] *= -1.0
     return Uf @ Vt, np.linalg.det(F)
 
 
-def corotational_internal_force(fem: LinearFem, u: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """f = sum_e R_e K_e (R_e^T x_e - X_e): linear elasticity in each element's rotated frame."""
-    dofs = element_dofs(fem.tets)
-    X = fem.nodes[fem.tets]  # (m, 4, 3)
-    x = X + u[dofs].reshape(-1, 4, 3)
-    local = np.einsum("mji,maj->mai", R, x) - X  # R^T x - X
-    fl = np.einsum("mij,mj->mi", fem.element_matrices, local.reshape(-1, 12)).reshape(-1, 4, 3)
+def corotational_internal_force(fem: LinearFem, u: np.ndarray, R: np.ndarray, elements: np.ndarray | None = None) -> np.ndarray:
+    """f = sum_e R_e K_e (R_e^T x_e - X_e): linear elasticity in each element's rotated frame.
+
+    With `elements`, only those are corotated (R given for them); the others stay linear,
+    which is what they are when their rotation is negligible.
+    """
+    tets = fem.tets if elements is None else fem.tets[elements]
+    Ke = fem.element_matrices if elements is None else fem.element_matrices[elements]
+    dofs = element_dofs(tets)
+    X = fem.nodes[tets]  # (m, 4, 3)
+    ue = u[dofs].reshape(-1, 4, 3)
+    local = np.einsum("mji,maj->mai", R, X + ue) - X  # R^T x - X
+    fl = np.einsum("mij,mj->mi", Ke, local.reshape(-1, 12)).reshape(-1, 4, 3)
     fe = np.einsum("mij,maj->mai", R, fl)
-    return np.bincount(dofs.ravel(), weights=fe.ravel(), minlength=3 * len(fem.nodes))
+    n = 3 * len(fem.nodes)
+    if elements is None:
+        return np.bincount(dofs.ravel(), weights=fe.ravel(), minlength=n)
+    linear = np.einsum("mij,mj->mi", Ke, ue.reshape(-1, 12))
+    return fem.stiffness @ u + np.bincount(dofs.ravel(), weights=(fe.reshape(-1, 12) - linear).ravel(), minlength=n)
 
 
 def warped_stiffness(fem: LinearFem, R: np.ndarray) -> sp.csr_matrix:
     """sum_e R_e K_e R_e^T on the free dofs (the stiffness-warping tangent, dR ignored)."""
-    Rb = np.zeros((len(R), 12, 12))
-    for a in range(4):
-        Rb[:, 3 * a : 3 * a + 3, 3 * a : 3 * a + 3] = R
-    Kw = np.einsum("mij,mjk,mlk->mil", Rb, fem.element_matrices, Rb)
-    return assemble(Kw, fem.tets, len(fem.nodes))[fem.free][:, fem.free]
+    K5 = fem.element_matrices.reshape(-1, 4, 3, 4, 3)
+    Kw = np.einsum("mij,majbk,mlk->maibl", R, K5, R)  # R K_ab R^T for every 3x3 block
+    return assemble(Kw.reshape(-1, 12, 12), fem.tets, len(fem.nodes))[fem.free][:, fem.free]
 
 
 @dataclass
@@ -415,11 +518,11 @@ class _Precond:
     C: np.ndarray  # W K^-1 W^T
 
 
-def corotational_step(fem: LinearFem, W, pre: _Precond, u: np.ndarray, lam_mult: np.ndarray, d: np.ndarray):
+def corotational_step(fem: LinearFem, W, pre: _Precond, u: np.ndarray, lam_mult: np.ndarray, d: np.ndarray, elements=None):
     """One preconditioned step towards corotational equilibrium with W u = d.
     Returns (u, lam_mult, relative residual, min det F, rotations)."""
-    R, J = element_rotations(fem, u)
-    f_int = corotational_internal_force(fem, u, R)[fem.free]
+    R, J = element_rotations(fem, u, elements)
+    f_int = corotational_internal_force(fem, u, R, elements)[fem.free]
     r = f_int - (W.T @ lam_mult)
     gap = W @ u[fem.free] - d
     res = max(float(np.linalg.norm(r)) / max(float(np.linalg.norm(f_int)), 1e-30), float(np.linalg.norm(gap)) / max(float(np.linalg.norm(d)), 1e-12))
@@ -430,14 +533,16 @@ def corotational_step(fem: LinearFem, W, pre: _Precond, u: np.ndarray, lam_mult:
     return u, lam_mult + dl, res, float(J.min()), R
 
 
-def corotational_solve(fem: LinearFem, W, U: np.ndarray, target: np.ndarray, steps: int = 5, tol: float = 1e-8, max_iter: int = 60):
+def corotational_solve(fem: LinearFem, W, U: np.ndarray, target: np.ndarray, steps: int = 5, tol: float = 1e-7, max_iter: int = 100):
     """Static corotational solve with the grasp point held at `target` (3,).
 
     Load steps, each iterated to a relative residual below `tol`. The steps are preconditioned
     by the linear stiffness (already factorised, so cheap); when that stalls (less than a
     halving of the residual over four steps) the warped stiffness at the current state is
-    factorised and used instead (a modified Newton method). Returns (nodal displacements,
-    force holding the grasp point, NewtonReport).
+    factorised and used instead (a modified Newton method). The warped stiffness omits the
+    derivative of the rotations, so convergence is linear, not quadratic: at large pulls
+    expect tens of iterations per step. Returns (nodal displacements, force holding the grasp
+    point, NewtonReport).
     """
     pre = _Precond(solve=fem.solve_free, U=U, C=W @ U)
     u = np.zeros(3 * len(fem.nodes))
