@@ -74,30 +74,33 @@ def main() -> None:
         t = model.timings
         print(f"  {label}: model built in {build:.2f} s (assembly {t['assembly_s']:.2f} s, factorisation {t['factorisation_s']:.2f} s, "
               f"embedding {t['embedding_s']:.2f} s; unknowns {[len(p.free) for p in model.parts]})")
-        hands = [h.start for h in scene.spec.hands]
-        report(f"  grasp ({label})", each_call(lambda: model.grasp(hands[0], 0), 20), "ms", target=50.0)
-        c0, c1 = model.grasp(hands[0], 0), model.grasp(hands[1], 1)
-        c2 = model.grasp((-0.045, 0.0, 0.06), 1)
-        rng = np.random.default_rng(0)
-        ds = [tuple(float(x) for x in rng.uniform(-0.01, 0.01, 3)) for _ in range(256)]
-        k = [0]
+        _haptics(label, model, [h.start for h in scene.spec.hands])
 
-        def tick_one():
-            model.force(c0, ds[k[0] & 255])
-            k[0] += 1
 
-        def tick_coupled():
-            model.forces([c0, c2], [ds[k[0] & 255], ds[(k[0] + 7) & 255]])
-            k[0] += 1
+def _haptics(label: str, model, hands) -> None:
+    report(f"  grasp ({label})", each_call(lambda: model.grasp(hands[0], 0), 20), "ms", target=50.0)
+    c0, c1 = model.grasp(hands[0], 0), model.grasp(hands[1], 1)
+    c2 = model.grasp((-0.045, 0.0, 0.06), 1)
+    rng = np.random.default_rng(0)
+    ds = [tuple(float(x) for x in rng.uniform(-0.01, 0.01, 3)) for _ in range(256)]
+    k = [0]
 
-        report(f"  force per tick, one hand ({label})", per_call(tick_one, 100_000), "us", target=10.0)
-        report(f"  force per tick, two hands coupled 6x6 ({label})", per_call(tick_coupled, 20_000), "us", target=10.0)
-        dd = [np.asarray(d) for d in ds]
-        report(
-            f"  deformation per frame, two hands ({label})",
-            each_call(lambda: model.deformation([c0, c1], [dd[k[0] & 255], dd[(k[0] + 3) & 255]]), 300),
-            "ms", target=2.0, reference=("paper FEM", 21.35),
-        )
+    def tick_one():
+        model.force(c0, ds[k[0] & 255])
+        k[0] += 1
+
+    def tick_coupled():
+        model.forces([c0, c2], [ds[k[0] & 255], ds[(k[0] + 7) & 255]])
+        k[0] += 1
+
+    report(f"  force per tick, one hand ({label})", per_call(tick_one, 100_000), "us", target=10.0)
+    report(f"  force per tick, two hands coupled 6x6 ({label})", per_call(tick_coupled, 20_000), "us", target=10.0)
+    dd = [np.asarray(d) for d in ds]
+    report(
+        f"  deformation per frame, two hands ({label})",
+        each_call(lambda: model.deformation([c0, c1], [dd[k[0] & 255], dd[(k[0] + 3) & 255]]), 300),
+        "ms", target=2.0, reference=("paper FEM", 21.35),
+    )
 
 
 if __name__ == "__main__":
