@@ -106,6 +106,7 @@ class RunResult:
     grasp_s: np.ndarray
     events: list[Event]
     snapshots: list[Snapshot]
+    model_diagnostics: dict = field(default_factory=dict)
 
     def stats(self) -> dict:
         """The summary `studyctl sim run --json` prints."""
@@ -130,6 +131,7 @@ class RunResult:
             "visual_frames": len(self.deformation_s),
             "frames": 0,
             "events": dict(Counter(e.kind for e in self.events)),
+            "model_diagnostics": self.model_diagnostics,
         }
 
 
@@ -196,6 +198,7 @@ def run_scene(
         grasp_s=np.asarray(visual.grasp_s),
         events=servo.events,
         snapshots=visual.snapshots,
+        model_diagnostics=model.diagnostics() if hasattr(model, "diagnostics") else {},
     )
 
 

@@ -278,6 +278,16 @@ class FemModel:
     def locking(self) -> bool:
         return self.parts[0].locking
 
+    def diagnostics(self) -> dict:
+        """Counts a run reports: numerical trouble is visible, never silent."""
+        return {
+            "formulation": self.formulation,
+            "locking": self.locking,
+            "inverted_frames": self.inverted_frames,
+            "tangent_updates": self.tangent_updates,
+            "restarts": self.restarts,
+        }
+
     def grasp(self, point, hand: int = 0):
         from sim.models.base import Contact
 
@@ -402,7 +412,7 @@ class FemModel:
                 lam = np.linalg.solve(pre.C, d)
                 u = np.zeros(3 * len(fem.nodes))
                 u[fem.free] = U @ lam
-                state = {"key": key, "u": u, "lam": lam, "active": np.zeros(0, dtype=np.int64), "pre": pre, "res": math.inf, "W": W}
+                state = {"key": key, "u": u, "lam": lam, "active": np.zeros(0, dtype=np.int64), "pre": pre, "hist": [], "since": 0}
             if len(state["active"]) == 0:
                 # corotate the elements that move: those touching a node displaced by more than
                 # 5% of the largest displacement; the rest rotate negligibly and stay linear
@@ -418,12 +428,17 @@ class FemModel:
                     u, lam = state["u"], state["lam"]
                     self.restarts += 1
                 else:
-                    if res > 0.7 * state["res"] and res > 1e-6:  # stalled: refactorise the warped tangent
+                    hist = (state["hist"] + [res])[-6:]
+                    state["since"] += 1
+                    # far from equilibrium (the hand moves, or the preconditioner has aged) and no
+                    # refresh in the last 3 frames: refactorise the warped tangent at this state
+                    if res > 1e-3 and state["since"] >= 3:
                         self.tangent_updates += 1
                         factor = Factor(_warped_active(fem, R, state["active"]))
                         Uw = factor.solve(np.ascontiguousarray(W.T.toarray()))
                         state["pre"] = _Precond(solve=factor.solve, U=Uw, C=W @ Uw)
-                    state.update(u=u, lam=lam, res=res)
+                        state["since"] = 0
+                    state.update(u=u, lam=lam, hist=hist)
                     self._corot[part_id] = state
             else:  # nothing moves yet: the linear solution for the current d
                 pre = state["pre"]
