@@ -78,7 +78,8 @@ def element_stiffness(grads: np.ndarray, vol: np.ndarray, lam: float, mu: float)
 
 
 def element_dofs(tets: np.ndarray) -> np.ndarray:
-    return (3 * tets[:, :, None] + np.arange(3)).reshape(len(tets), 12)
+    # int32 halves the memory traffic of assembly (dof counts stay far below 2**31)
+    return (3 * tets[:, :, None].astype(np.int32) + np.arange(3, dtype=np.int32)).reshape(len(tets), 12)
 
 
 def assemble(element_matrices: np.ndarray, tets: np.ndarray, n_nodes: int) -> sp.csr_matrix:
