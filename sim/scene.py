@@ -276,6 +276,18 @@ def _model_spec(table: _Reader, name: str) -> ModelSpec:
         formulation = table.string("formulation", default="linear", choices=("linear", "corotational"))
         grasp_radius = table.number("grasp_radius", default=0.005, lo=0.0, hi=0.02)
         return ModelSpec(name=name, options={"resolution": resolution, "formulation": formulation, "grasp_radius": grasp_radius})
+    if name == "mass_spring":
+        from sim.models.mass_spring import INTEGRATORS, OMNI_MAX_STIFFNESS
+
+        return ModelSpec(name=name, options={
+            "resolution": table.number("resolution", default=0.004, lo=0.003, hi=0.008),
+            "integrator": table.string("integrator", default="local-global", choices=INTEGRATORS),
+            "dt": table.number("dt", default=1 / 60, lo=1e-5, hi=0.05),
+            "damping": table.number("damping", default=5.0, lo=0.0, hi=1e4),
+            "coupling": table.number("coupling", default=300.0, lo=0.0, hi=OMNI_MAX_STIFFNESS, lo_open=True),
+            "grasp_radius": table.number("grasp_radius", default=0.005, lo=0.0, hi=0.02),
+            "iterations": table.integer("iterations", default=10, lo=1, hi=1000),
+        })
     return ModelSpec(name=name, options=dict(table.data))
 
 

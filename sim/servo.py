@@ -2,8 +2,9 @@
 
 A tick touches only precomputed contact state; grasping (which may take tens of ms) is
 requested here and done by the visual step (`sim.run`). Safety rules for every force sent:
-zero on NaN or infinity, a linear ramp over `ramp_s` after a grasp, never above the device's
-peak force. Every intervention is an event with its time.
+zero on NaN or infinity, zero while the model reports itself unstable, a linear ramp over
+`ramp_s` after a grasp, never above the device's peak force. Every intervention is an event
+with its time.
 """
 
 from __future__ import annotations
@@ -95,6 +96,7 @@ class ServoLoop:
                 disps.append((p[0] - a[0], p[1] - a[1], p[2] - a[2]))
             raw = self._forces(contacts, disps)
         # 3. safety, write, record
+        unstable = bool(getattr(self.model, "unstable", False))
         k = 0
         for h in hands:
             force = NO_FORCE
@@ -106,6 +108,8 @@ class ServoLoop:
                     ramp = max(ramp, 0.0)
                     fx, fy, fz = fx * ramp, fy * ramp, fz * ramp
                 force, kind = limit_force((fx, fy, fz), self.peak_force)
+                if unstable:  # the model says its state blew up: render nothing
+                    force, kind = NO_FORCE, "model_unstable"
                 if kind is not None and kind != h.safety:  # log when a rule starts acting
                     self.events.append(Event(t, h.index, kind))
                 h.safety = kind

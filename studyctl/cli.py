@@ -186,6 +186,36 @@ def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacemen
     console.print(t)
 
 
+@model.command("mass-spring")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--resolution", type=float, default=None, help="Grid spacing in millimetres, 3..8 (default: the scene's).")
+@click.option("--integrator", type=click.Choice(["explicit", "implicit", "local-global"]), required=True)
+@click.option("--dt", type=float, required=True, help="Step in seconds.")
+@click.option("--steps", type=int, default=100, show_default=True)
+@click.option("--substep", is_flag=True, help="Split explicit steps above the critical step instead of refusing them.")
+@click.option("--grasp", callback=_vector, default=None, help="Grasp point X,Y,Z (default: the scene's first hand).")
+@click.option("--displacement", callback=_vector, default=None, help="Hand displacement DX,DY,DZ (default: that hand's pull).")
+@click.option("--json", "as_json", is_flag=True)
+def model_mass_spring(scene_file, resolution, integrator, dt, steps, substep, grasp, displacement, as_json):
+    """Hold a pull on the mass-spring brain and step it: stability, displacement, cost."""
+    from sim.models.mass_spring import hold_pull
+    from sim.scene import build_scene
+
+    out = hold_pull(build_scene(scene_file), integrator, dt, steps, None if resolution is None else resolution / 1e3, substep, grasp, displacement)
+    if as_json:
+        _print_json(out)
+        return
+    console = _console()
+    console.print(f"mass-spring ({out['nodes']} nodes, {out['springs']} springs), {integrator}, dt = {dt:g} s, {out['steps']} steps")
+    console.print(f"critical_dt {out['critical_dt']:.4g} s with the coupling spring ({out['critical_dt_without_coupling']:.4g} s without)")
+    if out["stable"]:
+        f = out["force_on_hand_n"]
+        console.print(f"stable; max displacement {out['max_displacement'] * 1e3:.3f} mm; force on the hand ({f[0]:.3g}, {f[1]:.3g}, {f[2]:.3g}) N")
+    else:
+        console.print(f"UNSTABLE (energy monitor) at t = {out['unstable_at']:.4g} s; no force is sent to a device")
+    console.print(f"{out['ms_per_step']:.3f} ms per step" if out["ms_per_step"] is not None else "no step completed")
+
+
 def _print_solution(out: dict) -> None:
     from rich.table import Table
 

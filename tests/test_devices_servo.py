@@ -104,3 +104,17 @@ def test_servo_zeroes_nan_from_a_model():
         servo.tick(k / 1000)
         assert hand.force == (0.0, 0.0, 0.0)
     assert [e.kind for e in servo.events].count("nan_force") == 1  # logged once, when it starts
+
+
+def test_servo_zeroes_force_while_the_model_is_unstable():
+    model = _Stiff(100.0)
+    servo, hand = _servo(model, pull=(0.01, 0.0, 0.0))
+    servo.tick(0.0)
+    hand.contact = Contact(hand=0, vertex=0, point=(0.0, 0.0, -0.001), normal=(0.0, 0.0, 1.0))
+    servo.tick(0.1)
+    assert hand.force != (0.0, 0.0, 0.0)
+    model.unstable = True
+    for k in range(2, 50):
+        servo.tick(k / 10)
+        assert hand.force == (0.0, 0.0, 0.0)
+    assert [e.kind for e in servo.events].count("model_unstable") == 1

@@ -11,6 +11,7 @@ import importlib
 MODELS = {
     "plate_spring": "sim.models.plate_spring",
     "fem": "sim.models.fem",
+    "mass_spring": "sim.models.mass_spring",
 }
 
 

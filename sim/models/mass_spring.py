@@ -1,0 +1,555 @@
+"""Mass-spring tissue model: springs along the volume mesh's edges, three integrators.
+
+- explicit symplectic Euler (stable only for ``dt <= critical_dt() = 2 / omega_max``);
+- implicit Euler (Baraff and Witkin 1998: one Newton step, one sparse solve per step);
+- local/global (Liu, Bargteil, O'Brien and Kavan 2013, "Fast simulation of mass-spring
+  systems"): per step, alternate a local projection of every spring to its rest length with a
+  global solve of a constant matrix ``M + h^2 L``, factorised once per step size.
+
+Damping is mass-proportional: ``f = -damping * m * v`` (damping in 1/s). An energy monitor
+flags blow-up; an unstable model renders zero force. See docs/mass_spring.md.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from sim.errors import ParameterError, SimError
+
+INTEGRATORS = ("explicit", "implicit", "local-global")
+OMNI_MAX_STIFFNESS = 700.0  # N/m: stable closed-loop stiffness of a PHANTOM Omni at 1 kHz
+SUBSTEP_FRACTION = 0.5  # explicit sub-steps are this fraction of critical_dt()
+
+
+class StabilityError(SimError):
+    """An explicit step larger than the critical step was asked for."""
+
+
+def _per_item(value, n: int, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 0:
+        arr = np.full(n, float(arr))
+    if arr.shape != (n,):
+        raise ParameterError(f"{name}: must be a scalar or an array of {n} values")
+    if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+        raise ParameterError(f"{name}: values must be finite and > 0")
+    return arr
+
+
+@dataclass
+class StepReport:
+    dt: float
+    substeps: int
+    integrator: str
+    energy: float
+    unstable: bool
+
+
+class MassSpring:
+    """``MassSpring(positions, springs, stiffness, masses, fixed=None, damping=0.0)``."""
+
+    def __init__(self, positions, springs, stiffness, masses, fixed=None, damping: float = 0.0):
+        x = np.asarray(positions, dtype=np.float64)
+        e = np.asarray(springs, dtype=np.int64)
+        if x.ndim != 2 or x.shape[1] != 3:
+            raise ParameterError("positions: must be (n, 3)")
+        if e.ndim != 2 or e.shape[1] != 2 or len(e) == 0 or e.min() < 0 or e.max() >= len(x):
+            raise ParameterError(f"springs: must be (e, 2) node indices in 0..{len(x) - 1}")
+        self.n = len(x)
+        self.rest_positions = x.copy()
+        self.x = x.copy()
+        self.v = np.zeros_like(x)
+        self.springs = e
+        self.k = _per_item(stiffness, len(e), "stiffness")
+        self.m = _per_item(masses, self.n, "masses")
+        self.fixed = np.zeros(self.n, bool) if fixed is None else np.asarray(fixed, dtype=bool)
+        if self.fixed.shape != (self.n,):
+            raise ParameterError(f"fixed: must be a boolean mask over the {self.n} nodes")
+        if not (math.isfinite(damping) and damping >= 0):
+            raise ParameterError(f"damping: {damping!r} is out of range; allowed: >= 0 (1/s)")
+        self.damping = float(damping)
+        self.rest = np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1)
+        if np.any(self.rest <= 0):
+            raise ParameterError("springs: a spring joins two nodes at the same position")
+        self.free = np.flatnonzero(~self.fixed)
+        self.external = np.zeros_like(x)  # forces from outside, applied explicitly
+        # anchors: springs (stiffness k) pulling the mean of some nodes towards a target; treated
+        # implicitly by the implicit and local/global integrators (a hand's coupling spring)
+        self.anchors: list[tuple[np.ndarray, float, np.ndarray]] = []
+        self.t = 0.0
+        self.unstable = False
+        self.unstable_at: float | None = None
+        self.energy_peak = 0.0
+        self._critical: float | None = None
+        self._critical_key: tuple = ()
+        self._lg_cache: dict[float, object] = {}
+        # A: signed incidence (e, n); L = A^T diag(k) A is the graph Laplacian of the springs
+        rows = np.repeat(np.arange(len(e)), 2)
+        self._A = sp.csr_matrix((np.tile([1.0, -1.0], len(e)), (rows, e.ravel())), shape=(len(e), self.n))
+
+    # -- forces and energy ------------------------------------------------------------------
+    def set_anchors(self, anchors) -> None:
+        """[(nodes, k, target (3,))]: energy k/2 |mean(x[nodes]) - target|^2 each."""
+        self.anchors = [(np.asarray(n, dtype=np.int64), float(k), np.asarray(t, dtype=np.float64)) for n, k, t in anchors]
+
+    def anchor_forces(self, x: np.ndarray) -> np.ndarray:
+        f = np.zeros_like(x)
+        for nodes, k, target in self.anchors:
+            f[nodes] -= k * (x[nodes].mean(axis=0) - target) / len(nodes)
+        return f
+
+    def spring_forces(self, x: np.ndarray) -> np.ndarray:
+        e = self.springs
+        d = x[e[:, 0]] - x[e[:, 1]]
+        length = np.linalg.norm(d, axis=1)
+        mag = self.k * (length - self.rest) / np.where(length > 0, length, 1.0)
+        fij = -mag[:, None] * d  # force on node i
+        f = np.zeros_like(x)
+        np.add.at(f, e[:, 0], fij)
+        np.add.at(f, e[:, 1], -fij)
+        return f
+
+    def energy(self) -> float:
+        e = self.springs
+        stretch = np.linalg.norm(self.x[e[:, 0]] - self.x[e[:, 1]], axis=1) - self.rest
+        return float(0.5 * np.sum(self.k * stretch**2) + 0.5 * np.sum(self.m[:, None] * self.v**2))
+
+    # -- stability ----------------------------------------------------------------------------
+    def stiffness_at_rest(self) -> sp.csr_matrix:
+        """K linearised at rest (3n x 3n): sum_s k_s (n n^T) on the spring's two nodes."""
+        e = self.springs
+        d = self.rest_positions[e[:, 0]] - self.rest_positions[e[:, 1]]
+        nn = d / self.rest[:, None]
+        blocks = self.k[:, None, None] * nn[:, :, None] * nn[:, None, :]  # (e, 3, 3)
+        i3 = (3 * e[:, :, None] + np.arange(3)).reshape(len(e), 6)
+        B = np.zeros((len(e), 6, 6))
+        B[:, :3, :3] = blocks
+        B[:, 3:, 3:] = blocks
+        B[:, :3, 3:] = -blocks
+        B[:, 3:, :3] = -blocks
+        rows = np.repeat(i3, 6, axis=1).ravel()
+        cols = np.tile(i3, (1, 6)).ravel()
+        return sp.coo_matrix((B.ravel(), (rows, cols)), shape=(3 * self.n, 3 * self.n)).tocsr()
+
+    def _anchor_matrix(self) -> sp.csr_matrix:
+        """The anchors' stiffness (3n x 3n): k w w^T per component, w = 1/|nodes| on the nodes."""
+        rows, cols, vals = [], [], []
+        for nodes, k, _ in self.anchors:
+            w = k / len(nodes) ** 2
+            for c in range(3):
+                ii = 3 * nodes + c
+                rows.append(np.repeat(ii, len(ii)))
+                cols.append(np.tile(ii, len(ii)))
+                vals.append(np.full(len(ii) ** 2, w))
+        if not rows:
+            return sp.csr_matrix((3 * self.n, 3 * self.n))
+        return sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(3 * self.n, 3 * self.n)).tocsr()
+
+    def critical_dt(self) -> float:
+        """2 / omega_max, omega_max^2 the largest eigenvalue of M^-1 K at rest (fixed removed;
+        anchors included: a stiff coupling on a light patch can dominate)."""
+        key = tuple((len(n), k) for n, k, _ in self.anchors)
+        if self._critical is not None and self._critical_key != key:
+            self._critical = None
+        self._critical_key = key
+        if self._critical is None:
+            from scipy.sparse.linalg import eigsh
+
+            free3 = (3 * self.free[:, None] + np.arange(3)).ravel()
+            K = (self.stiffness_at_rest() + self._anchor_matrix())[free3][:, free3]
+            s = sp.diags(1.0 / np.sqrt(np.repeat(self.m[self.free], 3)))
+            S = (s @ K @ s).tocsr()  # similar to M^-1 K, symmetric
+            if S.shape[0] <= 200:
+                lam = float(np.linalg.eigvalsh(S.toarray()).max())
+            else:
+                lam = float(eigsh(S, k=1, which="LA", return_eigenvectors=False, tol=1e-6)[0])
+            self._critical = 2.0 / math.sqrt(lam) if lam > 0 else math.inf
+        return self._critical
+
+    # -- stepping -----------------------------------------------------------------------------
+    def step(self, dt: float, integrator: str = "explicit", substep: bool = False, iterations: int = 10) -> StepReport:
+        """Advance by `dt` seconds. Explicit steps above `critical_dt()` are refused, or split
+        into stable substeps when `substep` is true."""
+        if integrator not in INTEGRATORS:
+            raise ParameterError(f"integrator: {integrator!r} is not one of {', '.join(INTEGRATORS)}")
+        if not (math.isfinite(dt) and dt > 0):
+            raise ParameterError(f"dt: {dt!r} is out of range; allowed: > 0 s")
+        n_sub = 1
+        if integrator == "explicit":
+            crit = self.critical_dt()
+            if dt > crit:
+                if not substep:
+                    raise StabilityError(
+                        f"dt: {dt:.4g} s is above the critical step {crit:.4g} s of explicit integration "
+                        f"(2 / omega_max); use dt <= {crit:.4g} s, sub-stepping, or an implicit integrator"
+                    )
+                # half the critical step: it is the rest linearisation's, and stretched springs
+                # (a hand pulling a light patch) raise omega_max above it
+                n_sub = math.ceil(dt / (SUBSTEP_FRACTION * crit))
+        if self.unstable:
+            return StepReport(dt, 0, integrator, math.nan, True)
+        h = dt / n_sub
+        for _ in range(n_sub):
+            if integrator == "explicit":
+                self._explicit(h)
+            elif integrator == "implicit":
+                self._implicit(h)
+            else:
+                self._local_global(h, iterations)
+            self.t += h
+        energy = self._monitor()
+        return StepReport(dt, n_sub, integrator, energy, self.unstable)
+
+    def _accel(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        f = self.spring_forces(x) + self.anchor_forces(x) + self.external - self.damping * self.m[:, None] * v
+        return f / self.m[:, None]
+
+    def _explicit(self, h: float) -> None:
+        a = self._accel(self.x, self.v)
+        a[self.fixed] = 0.0
+        self.v += h * a  # symplectic Euler: velocity first, then position with the new velocity
+        self.v[self.fixed] = 0.0
+        self.x += h * self.v
+
+    def _spring_jacobian(self, x: np.ndarray) -> sp.csr_matrix:
+        """d f / d x (3n x 3n), with the transverse term clamped at zero so it stays definite."""
+        e = self.springs
+        d = x[e[:, 0]] - x[e[:, 1]]
+        length = np.linalg.norm(d, axis=1)
+        nn = d / length[:, None]
+        outer = nn[:, :, None] * nn[:, None, :]
+        trans = np.clip(1.0 - self.rest / length, 0.0, None)
+        blocks = self.k[:, None, None] * (outer + trans[:, None, None] * (np.eye(3) - outer))
+        i3 = (3 * e[:, :, None] + np.arange(3)).reshape(len(e), 6)
+        B = np.zeros((len(e), 6, 6))
+        B[:, :3, :3] = blocks
+        B[:, 3:, 3:] = blocks
+        B[:, :3, 3:] = -blocks
+        B[:, 3:, :3] = -blocks
+        rows = np.repeat(i3, 6, axis=1).ravel()
+        cols = np.tile(i3, (1, 6)).ravel()
+        return -sp.coo_matrix((B.ravel(), (rows, cols)), shape=(3 * self.n, 3 * self.n)).tocsr()
+
+    def _implicit(self, h: float) -> None:
+        """(M - h^2 df/dx + h c M) dv = h (f + h df/dx v): one linearised backward-Euler step."""
+        from sim.models.fem import Factor
+
+        free3 = (3 * self.free[:, None] + np.arange(3)).ravel()
+        J = (self._spring_jacobian(self.x) - self._anchor_matrix())[free3][:, free3]
+        mass = np.repeat(self.m[self.free], 3)
+        A = sp.diags(mass * (1.0 + h * self.damping)) - h * h * J
+        f = (self.spring_forces(self.x) + self.anchor_forces(self.x) + self.external - self.damping * self.m[:, None] * self.v).ravel()[free3]
+        rhs = h * (f + h * (J @ self.v.ravel()[free3]))
+        dv = Factor(A.tocsr()).solve(rhs)
+        v = self.v.ravel().copy()
+        v[free3] += dv
+        self.v = v.reshape(-1, 3)
+        self.x += h * self.v
+
+    def _local_global(self, h: float, iterations: int) -> None:
+        """Liu et al. 2013: minimise |x - y|_M^2 / (2 h^2) + sum k/2 |x_i - x_j - d_ij|^2."""
+        solver = self._lg_solver(h)
+        m = self.m[:, None]
+        y = self.x + h * self.v + h * h * self.external / m
+        x = y.copy()
+        x[self.fixed] = self.rest_positions[self.fixed]
+        free = self.free
+        Ak = self._A.T.multiply(self.k[None, :]).tocsr()  # A^T diag(k): (n, e)
+        fixed_part = solver["L_fixed"] @ x[self.fixed] if self.fixed.any() else 0.0
+        wood = self._woodbury(solver, free)
+        for _ in range(iterations):
+            dvec = self._A @ x  # spring vectors x_i - x_j
+            length = np.linalg.norm(dvec, axis=1)
+            dvec *= (self.rest / np.where(length > 0, length, 1.0))[:, None]  # local: projected
+            rhs = (m * y / (h * h) + Ak @ dvec)[free] - fixed_part  # global: (M / h^2 + L) x = ...
+            if wood is None:
+                x[free] = solver["factor"].solve(np.ascontiguousarray(rhs))
+            else:  # anchors: (Q + W diag(k) W^T) x = rhs + W diag(k) T, by Woodbury
+                Wm, Z, Sinv, kt = wood
+                b = rhs + Wm @ kt
+                xb = solver["factor"].solve(np.ascontiguousarray(b))
+                x[free] = xb - Z @ (Sinv @ (Wm.T @ xb))
+        v = (x - self.x) / h
+        v[self.fixed] = 0.0
+        self.v = v / (1.0 + h * self.damping)  # mass-proportional damping, implicitly
+        self.x = x
+
+    def _woodbury(self, solver: dict, free: np.ndarray):
+        """Precomputed pieces for the anchors' low-rank update of the global matrix."""
+        if not self.anchors:
+            return None
+        key = tuple((id(n), k) for n, k, _ in self.anchors)
+        cached = solver.get("wood")
+        pos = -np.ones(self.n, dtype=np.int64)
+        pos[free] = np.arange(len(free))
+        if cached is None or cached[0] != key:
+            cols = []
+            for nodes, _, _ in self.anchors:
+                w = np.zeros(len(free))
+                p = pos[nodes]
+                w[p[p >= 0]] = 1.0 / len(nodes)
+                cols.append(w)
+            Wm = np.stack(cols, axis=1)  # (n_free, m)
+            Z = solver["factor"].solve(np.ascontiguousarray(Wm))
+            ks = np.array([k for _, k, _ in self.anchors])
+            Sinv = np.linalg.inv(np.diag(1.0 / ks) + Wm.T @ Z)
+            solver["wood"] = cached = (key, Wm, Z, Sinv)
+        _, Wm, Z, Sinv = cached
+        kt = np.stack([k * t for _, k, t in self.anchors])  # (m, 3)
+        return Wm, Z, Sinv, kt
+
+    def _lg_solver(self, h: float) -> dict:
+        if h not in self._lg_cache:
+            from sim.models.fem import Factor
+
+            L = (self._A.T @ sp.diags(self.k) @ self._A).tocsr()  # (n, n) spring Laplacian
+            M = sp.diags(self.m / (h * h))
+            free, fixed = self.free, np.flatnonzero(self.fixed)
+            Q = (M + L).tocsr()
+            self._lg_cache = {h: {"factor": Factor(Q[free][:, free]), "L_fixed": L[free][:, fixed]}}  # one step size at a time
+        return self._lg_cache[h]
+
+    def _monitor(self) -> float:
+        """Energy monitor: NaN, runaway velocities or an energy jump of 1000x flag blow-up."""
+        energy = self.energy()
+        for nodes, k, target in self.anchors:
+            energy += 0.5 * k * float(np.sum((self.x[nodes].mean(axis=0) - target) ** 2))
+        finite = math.isfinite(energy) and np.all(np.isfinite(self.x))
+        runaway = finite and float(np.abs(self.v).max(initial=0.0)) > 100.0  # m/s: no tissue moves so
+        jump = finite and self.energy_peak > 1e-12 and energy > 1e3 * self.energy_peak and energy > 1e-3
+        if not finite or runaway or jump:
+            if not self.unstable:
+                self.unstable = True
+                self.unstable_at = self.t
+        else:
+            self.energy_peak = max(self.energy_peak, energy)
+        return energy
+
+
+# -- construction from a volume mesh --------------------------------------------------------
+
+
+def edges_of(tets: np.ndarray) -> np.ndarray:
+    pairs = tets[:, [0, 0, 0, 1, 1, 2]], tets[:, [1, 2, 3, 2, 3, 3]]
+    e = np.stack([pairs[0].ravel(), pairs[1].ravel()], axis=1)
+    e.sort(axis=1)
+    return np.unique(e, axis=0)
+
+
+def from_tets(nodes: np.ndarray, tets: np.ndarray, young: float, density: float, fixed=None, damping: float = 0.0) -> MassSpring:
+    """Springs on the tetrahedra's edges with ``k = 6 E V_e / L_e^2``, where ``V_e`` is the
+    volume assigned to the edge (each tetrahedron gives a sixth of its volume to each of its six
+    edges), and lumped masses ``rho V / 4`` per tetrahedron node.
+
+    Why 6: a central-force lattice has the elasticity tensor ``C_ijkl = sum k L^2 n_i n_j n_k
+    n_l / V``; with spring directions spread evenly, ``<n_x^4> = 1/5`` and ``<n_x^2 n_y^2> =
+    1/15`` give ``lambda = mu = c E / 15``, a Young's modulus ``c E / 6`` and Poisson's ratio
+    1/4 (a spring lattice cannot have another). ``c = 6`` makes the lattice's modulus E."""
+    from sim.volume import tet_volumes
+
+    vol = np.abs(tet_volumes(nodes, tets))
+    e6 = np.stack([tets[:, [0, 0, 0, 1, 1, 2]].ravel(), tets[:, [1, 2, 3, 2, 3, 3]].ravel()], axis=1)
+    e6.sort(axis=1)
+    edges, inverse = np.unique(e6, axis=0, return_inverse=True)
+    edge_volume = np.bincount(inverse.ravel(), weights=np.repeat(vol / 6.0, 6), minlength=len(edges))
+    length = np.linalg.norm(nodes[edges[:, 0]] - nodes[edges[:, 1]], axis=1)
+    k = 6.0 * young * edge_volume / length**2
+    masses = np.bincount(tets.ravel(), weights=np.repeat(density * vol / 4.0, 4), minlength=len(nodes))
+    return MassSpring(nodes, edges, k, masses, fixed=fixed, damping=damping)
+
+
+# -- the tissue model ------------------------------------------------------------------------
+
+
+@dataclass
+class _Grasp:
+    nodes: np.ndarray  # volume nodes held (the patch)
+    anchor: np.ndarray  # their mean rest position
+
+
+class MassSpringModel:
+    """The mass-spring model under the tissue-model contract.
+
+    A grasp attaches a virtual-coupling spring (stiffness `coupling`, at most the Omni's
+    700 N/m) between the hand and the mean position of the volume nodes within `grasp_radius`
+    of the grasp point. The servo reads the coupling force at 1 kHz from the patch position the
+    simulation last published; the visual step advances the system at its own rate with the
+    chosen integrator, applying the coupling force to the patch.
+    """
+
+    name = "mass_spring"
+
+    def __init__(self, surface, volume, system: MassSpring, integrator: str = "local-global", dt: float = 1 / 60,
+                 coupling: float = 300.0, grasp_radius: float = 0.005, substep: bool = True, iterations: int = 10):
+        from sim.volume import embed
+
+        if not 0 < coupling <= OMNI_MAX_STIFFNESS:
+            raise ParameterError(f"coupling: {coupling!r} N/m is out of range; allowed: (0, {OMNI_MAX_STIFFNESS:g}] N/m (Omni's stable stiffness at 1 kHz)")
+        if integrator not in INTEGRATORS:
+            raise ParameterError(f"integrator: {integrator!r} is not one of {', '.join(INTEGRATORS)}")
+        self.surface, self.volume, self.system = surface, volume, system
+        self.integrator, self.dt, self.coupling = integrator, dt, coupling
+        self.grasp_radius, self.substep, self.iterations = grasp_radius, substep, iterations
+        self.embedding = embed(volume, surface.vertices, surface.labels)
+        surface.prepare_queries()
+        from scipy.spatial import cKDTree
+
+        self._tree = cKDTree(volume.nodes)
+        self._patch_pos: dict[int, tuple] = {}  # grasp id -> published patch position
+        self._out = np.zeros_like(surface.vertices)
+        self.step_s: list[float] = []
+        if integrator == "explicit" and not substep and dt > system.critical_dt():
+            raise StabilityError(f"dt: {dt:.4g} s is above the critical step {system.critical_dt():.4g} s; enable substep or lower dt")
+
+    @property
+    def unstable(self) -> bool:
+        return self.system.unstable
+
+    def grasp(self, point, hand: int = 0):
+        from sim.models.base import Contact
+
+        v = self.surface.nearest_vertex(point)
+        p = self.surface.vertices[v]
+        nodes = np.asarray(self._tree.query_ball_point(p, max(self.grasp_radius, self.volume.resolution)), dtype=np.int64)
+        comp = self.volume.component[self._tree.query(p)[1]]
+        nodes = nodes[(self.volume.component[nodes] == comp) & ~self.system.fixed[nodes]]
+        if len(nodes) == 0:
+            nodes = np.array([self._tree.query(p)[1]])
+        g = _Grasp(nodes=nodes, anchor=self.system.rest_positions[nodes].mean(axis=0))
+        # the contact point is the surface vertex; the coupling acts on the patch's displacement
+        self._patch_pos[id(g)] = tuple(float(c) for c in p + (self.system.x[nodes].mean(axis=0) - g.anchor))
+        return Contact(hand=hand, vertex=int(v), point=tuple(float(c) for c in p), normal=tuple(float(c) for c in self.surface.vertex_normals[v]), data=g)
+
+    def force(self, contact, displacement):
+        if self.system.unstable:
+            return (0.0, 0.0, 0.0)  # the servo never sees a blown-up model's force
+        px, py, pz = self._patch_pos.get(id(contact.data), contact.point)
+        a = contact.point
+        k = self.coupling
+        # hand at a + d, patch (mapped to the surface point) at p: the spring pulls the hand back
+        return (
+            -k * (a[0] + displacement[0] - px),
+            -k * (a[1] + displacement[1] - py),
+            -k * (a[2] + displacement[2] - pz),
+        )
+
+    def deformation(self, contacts, displacements) -> np.ndarray:
+        sysm = self.system
+        # the coupling spring pulls the patch's mean towards where the hand puts it
+        sysm.set_anchors([(c.data.nodes, self.coupling, c.data.anchor + np.asarray(d, dtype=np.float64)) for c, d in zip(contacts, displacements)])
+        start = time.perf_counter()
+        if not sysm.unstable:
+            sysm.step(self.dt, self.integrator, substep=self.substep, iterations=self.iterations)
+        self.step_s.append(time.perf_counter() - start)
+        published = {}
+        for c in contacts:
+            g = c.data
+            published[id(g)] = tuple(float(x) for x in np.asarray(c.point) + sysm.x[g.nodes].mean(axis=0) - g.anchor)
+        self._patch_pos = published
+        u = sysm.x - sysm.rest_positions
+        if not np.all(np.isfinite(u)):
+            u = np.zeros_like(u)
+        self._out[:] = self.embedding.matrix @ u
+        return self._out
+
+    def diagnostics(self) -> dict:
+        s = self.system
+        return {
+            "integrator": self.integrator,
+            "dt": self.dt,
+            "critical_dt": s.critical_dt(),
+            "unstable": s.unstable,
+            "unstable_at": s.unstable_at,
+            "step_ms_p50": float(np.median(self.step_s) * 1e3) if self.step_s else None,
+        }
+
+
+def build(mesh, spec, scene=None) -> MassSpringModel:
+    from sim.models.fem import fixed_nodes
+    from sim.scene import AXES
+    from sim.volume import voxel_volume
+
+    o = spec.options
+    volume = voxel_volume(mesh, o["resolution"])
+    material = scene.spec.material
+    fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])
+    system = from_tets(volume.nodes, volume.tets, material.young, material.density, fixed=fixed, damping=o["damping"])
+    return MassSpringModel(mesh, volume, system, integrator=o["integrator"], dt=o["dt"], coupling=o["coupling"],
+                           grasp_radius=o["grasp_radius"], substep=True, iterations=o["iterations"])
+
+
+def hold_pull(scene, integrator: str, dt: float, steps: int, resolution: float | None = None, substep: bool = False,
+              grasp=None, displacement=None) -> dict:
+    """Grasp the scene's brain (default: its first hand's start), hold the hand displaced (default:
+    that hand's scripted pull) and step the mass-spring system `steps` times."""
+    from sim.models.base import Contact  # noqa: F401
+    from sim.models.fem import fixed_nodes
+    from sim.scene import AXES
+    from sim.volume import voxel_volume
+
+    spec = scene.spec.models.get("mass_spring")
+    opts = spec.options if spec else {"resolution": 0.004, "damping": 5.0, "coupling": 300.0, "grasp_radius": 0.005, "iterations": 10}
+    resolution = opts["resolution"] if resolution is None else resolution
+    if not 0.003 <= resolution <= 0.008:
+        raise ParameterError(f"resolution: {resolution * 1e3:g} mm is out of range; allowed: 3..8 mm")
+    if not (isinstance(steps, int) and steps >= 1):
+        raise ParameterError(f"steps: {steps!r} is out of range; allowed: an integer >= 1")
+    hand = scene.spec.hands[0]
+    if grasp is None:
+        grasp = hand.start
+    if displacement is None:
+        displacement = np.asarray(hand.script(scene.mesh).pull)
+    mesh = scene.mesh
+    volume = voxel_volume(mesh, resolution)
+    material = scene.spec.material
+    fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])
+    system = from_tets(volume.nodes, volume.tets, material.young, material.density, fixed=fixed, damping=opts["damping"])
+    model = MassSpringModel(mesh, volume, system, integrator=integrator, dt=dt, coupling=opts["coupling"],
+                            grasp_radius=opts["grasp_radius"], substep=True, iterations=opts["iterations"])
+    contact = model.grasp(grasp, 0)
+    d = np.asarray(displacement, dtype=np.float64)
+    system.set_anchors([(contact.data.nodes, model.coupling, contact.data.anchor + d)])
+    crit_rest = None
+    crit = system.critical_dt()
+    error = None
+    times = []
+    for _ in range(steps):
+        start = time.perf_counter()
+        try:
+            system.step(dt, integrator, substep=substep, iterations=opts["iterations"])
+        except StabilityError as exc:
+            error = str(exc)
+            break
+        times.append(time.perf_counter() - start)
+        if system.unstable:
+            break
+    if error is not None:
+        raise StabilityError(error)
+    u = system.x - system.rest_positions
+    patch = system.x[contact.data.nodes].mean(axis=0) - contact.data.anchor
+    force = -model.coupling * (d - patch)  # on the hand
+    finite = bool(np.all(np.isfinite(u)))
+    system.set_anchors([])
+    crit_rest = system.critical_dt()
+    return {
+        "integrator": integrator,
+        "dt": dt,
+        "steps": len(times),
+        "substep": substep,
+        "critical_dt": crit,
+        "critical_dt_without_coupling": crit_rest,
+        "stable": (not system.unstable) and finite,
+        "unstable_at": system.unstable_at,
+        "max_displacement": float(np.linalg.norm(u, axis=1).max()) if finite else None,
+        "grasp_displacement": patch.tolist() if finite else None,
+        "force_on_hand_n": force.tolist() if finite else None,
+        "energy": system.energy() if finite else None,
+        "ms_per_step": float(np.median(times) * 1e3) if times else None,
+        "nodes": int(system.n),
+        "springs": int(len(system.springs)),
+    }

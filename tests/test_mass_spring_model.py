@@ -1,0 +1,57 @@
+"""The mass-spring model on the brain: CLI, runs, coupling limits."""
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from sim.errors import ParameterError
+from sim.run import run_scene
+from sim.scene import build_scene
+from studyctl.cli import cli
+from tests.conftest import SCENE
+
+
+def test_cli_mass_spring_reports_stability_and_cost():
+    base = ["model", "mass-spring", "--resolution", "8", "--steps", "30"]
+    out = json.loads(CliRunner().invoke(cli, [*base, "--integrator", "local-global", "--dt", "0.02", "--json"]).output)
+    for key in ("critical_dt", "stable", "max_displacement", "ms_per_step"):
+        assert key in out
+    assert out["stable"] and 0.0 < out["max_displacement"] < 0.05
+    assert out["critical_dt"] < out["critical_dt_without_coupling"]  # the coupling spring stiffens the patch
+    res = CliRunner().invoke(cli, [*base, "--integrator", "explicit", "--dt", "0.02"])
+    assert res.exit_code == 1 and "above the critical step" in res.output and len(res.output.strip().splitlines()) == 1
+    res = CliRunner().invoke(cli, [*base, "--integrator", "explicit", "--dt", "0.02", "--substep", "--json"])
+    sub = json.loads(res.output)
+    assert sub["stable"] and 0.0 < sub["max_displacement"] < 3 * out["max_displacement"]
+
+
+def test_sim_run_with_mass_spring(tmp_path):
+    scene = build_scene(SCENE, "mass_spring")
+    r = run_scene(scene, duration=2.0, time_scale=0)
+    fmag = np.linalg.norm(r.forces, axis=2)
+    assert np.all(np.isfinite(r.forces)) and 0.02 < fmag.max() <= 3.3
+    assert r.model_diagnostics["unstable"] is False
+    k = 1900
+    for i in range(2):
+        grasp = next(e for e in r.events if e.kind == "grasp" and e.hand == i)
+        d = r.positions[k, i] - scene.mesh.vertices[int(grasp.detail.split()[1])]
+        assert np.dot(d, r.forces[k, i]) < 0
+
+
+def test_coupling_above_the_omni_limit_is_refused(tmp_path):
+    from tests.test_scene import _localise
+
+    text = _localise(SCENE.read_text()).replace("coupling = 300.0", "coupling = 900.0")
+    path = tmp_path / "s.toml"
+    path.write_text(text)
+    from sim.errors import SceneError
+    from sim.scene import load_scene
+
+    with pytest.raises(SceneError, match=r"models.mass_spring.coupling: 900.0 is out of range; allowed: \(0, 700\]"):
+        load_scene(path)
+    from sim.models.mass_spring import MassSpringModel
+
+    with pytest.raises(ParameterError, match="Omni's stable stiffness"):
+        MassSpringModel.__init__(object.__new__(MassSpringModel), None, None, None, coupling=800.0)
