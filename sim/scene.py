@@ -277,7 +277,10 @@ def _model_spec(table: _Reader, name: str) -> ModelSpec:
         grasp_radius = table.number("grasp_radius", default=0.005, lo=0.0, hi=0.02)
         return ModelSpec(name=name, options={"resolution": resolution, "formulation": formulation, "grasp_radius": grasp_radius})
     if name == "mass_spring":
-        from sim.models.mass_spring import INTEGRATORS, OMNI_MAX_STIFFNESS
+        from sim.devices.base import OmniSpec
+        from sim.models import MASS_SPRING_INTEGRATORS as INTEGRATORS
+
+        OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m
 
         return ModelSpec(name=name, options={
             "resolution": table.number("resolution", default=0.004, lo=0.003, hi=0.008),

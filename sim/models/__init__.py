@@ -15,6 +15,10 @@ MODELS = {
 }
 
 
+# Options that scene files validate without importing the model modules
+MASS_SPRING_INTEGRATORS = ("explicit", "implicit", "local-global")
+
+
 def model_module(name: str):
     """Import and return the module implementing model `name`."""
     from sim.errors import SceneError

@@ -19,10 +19,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from sim.devices.base import OmniSpec
 from sim.errors import ParameterError, SimError
+from sim.models import MASS_SPRING_INTEGRATORS as INTEGRATORS
 
-INTEGRATORS = ("explicit", "implicit", "local-global")
-OMNI_MAX_STIFFNESS = 700.0  # N/m: stable closed-loop stiffness of a PHANTOM Omni at 1 kHz
+OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m  # 700 N/m: stable closed-loop stiffness at 1 kHz
 SUBSTEP_FRACTION = 0.5  # explicit sub-steps are this fraction of critical_dt()
 
 
