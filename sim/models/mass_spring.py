@@ -94,6 +94,14 @@ class MassSpring:
         self._A = sp.csr_matrix((np.tile([1.0, -1.0], len(e)), (rows, e.ravel())), shape=(len(e), self.n))
 
     # -- forces and energy ------------------------------------------------------------------
+    def state(self) -> tuple:
+        return self.x.copy(), self.v.copy(), self.t
+
+    def set_state(self, state: tuple) -> None:
+        x, v, t = state
+        self.x, self.v, self.t = x.copy(), v.copy(), t
+        self.unstable, self.unstable_at = False, None
+
     def set_anchors(self, anchors) -> None:
         """[(nodes, k, target (3,))]: energy k/2 |mean(x[nodes]) - target|^2 each."""
         self.anchors = [(np.asarray(n, dtype=np.int64), float(k), np.asarray(t, dtype=np.float64)) for n, k, t in anchors]
@@ -109,11 +117,9 @@ class MassSpring:
         d = x[e[:, 0]] - x[e[:, 1]]
         length = np.linalg.norm(d, axis=1)
         mag = self.k * (length - self.rest) / np.where(length > 0, length, 1.0)
-        fij = -mag[:, None] * d  # force on node i
-        f = np.zeros_like(x)
-        np.add.at(f, e[:, 0], fij)
-        np.add.at(f, e[:, 1], -fij)
-        return f
+        fij = -mag[:, None] * d  # force on node i, minus it on node j
+        # A^T fij sums each spring's force into its two nodes (a sparse product, not np.add.at)
+        return self._A.T @ fij
 
     def energy(self) -> float:
         e = self.springs
