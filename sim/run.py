@@ -29,6 +29,10 @@ import numpy as np
 from sim.servo import Event, Hand, ServoLoop
 
 
+MISS_STREAK = 3  # consecutive late ticks that suspend force output
+SUSPEND_S = 0.1  # for this long
+
+
 @dataclass
 class Snapshot:
     t: float
@@ -228,6 +232,7 @@ def _run_realtime(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
 
     def servo_thread() -> None:
         deadline = begin
+        streak = 0
         try:
             for k in range(n_ticks):
                 while True:  # sleep most of the wait, spin the last 0.2 ms
@@ -240,6 +245,11 @@ def _run_realtime(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
                 starts[k] = now
                 if now > deadline + 0.5 * period:
                     state["misses"] += 1
+                    streak += 1
+                    if streak >= MISS_STREAK:  # the loop cannot keep time: stop rendering forces
+                        servo.suspend(k / rate, SUSPEND_S, "deadline_streak")
+                else:
+                    streak = 0
                 servo.tick(k / rate)
                 state["tick"] = k
                 deadline += period

@@ -2,8 +2,10 @@
 
 A tick touches only precomputed contact state; grasping (which may take tens of ms) is
 requested here and done by the visual step (`sim.run`). Safety rules for every force sent:
-zero on NaN or infinity, zero while the model reports itself unstable, a linear ramp over
-`ramp_s` after a grasp, never above the device's peak force. Every intervention is an event
+zero on NaN or infinity, zero while the model reports itself unstable or the loop is suspended
+after missed deadlines, a linear ramp over `ramp_s` after a grasp, never above the device's
+peak force. A device that raises, reports a fault, returns a non-finite position or jumps more
+than `jump_m` in one tick gets zero force and loses its grasp. Every intervention is an event
 with its time.
 """
 
@@ -46,6 +48,8 @@ class Hand:
     contact_t: float = 0.0
     max_force: float = 0.0
     safety: str | None = None  # the safety rule acting on the last tick, if any
+    fault: str | None = None  # the device fault of the last tick, if any
+    ticks: int = 0
 
 
 def limit_force(force, peak: float) -> tuple[tuple[float, float, float], str | None]:
@@ -66,8 +70,16 @@ class ServoLoop:
     hands: list[Hand]
     peak_force: float
     ramp_s: float = 0.05
+    jump_m: float = 0.02  # a larger move in one tick (20 m/s) is a glitch, not a hand
     events: list[Event] = field(default_factory=list)
     rows: list[tuple] = field(default_factory=list)  # (t, compute_s, then per hand px py pz fx fy fz)
+    suspended_until: float = -math.inf
+
+    def suspend(self, t: float, duration: float, reason: str) -> None:
+        """Send zero force to every device until t + duration (e.g. after missed deadlines)."""
+        if t >= self.suspended_until:
+            self.events.append(Event(t, -1, reason))
+        self.suspended_until = max(self.suspended_until, t + duration)
 
     def tick(self, t: float) -> None:
         start = time.perf_counter()
@@ -75,7 +87,35 @@ class ServoLoop:
         hands = self.hands
         # 1. read every device (so coupled contacts see the same instant)
         for h in hands:
-            state = h.device.read(t)
+            fault = None
+            try:
+                state = h.device.read(t)
+            except Exception as exc:  # a disconnected or failing device: zero force, never a crash
+                state, fault = None, f"device_fault: {exc}"
+            if state is not None and state.fault:
+                fault = f"device_fault: {state.fault}"
+            if state is not None and fault is None:
+                p = state.position
+                if not all(math.isfinite(c) for c in p):
+                    fault = "nan_position"
+                else:
+                    q = h.position
+                    step = math.sqrt((p[0] - q[0]) ** 2 + (p[1] - q[1]) ** 2 + (p[2] - q[2]) ** 2)
+                    if h.ticks > 0 and step > self.jump_m:
+                        fault = "position_jump"
+            h.ticks += 1
+            if fault is not None:
+                kind = fault.split(":")[0]
+                if kind != h.fault:
+                    self.events.append(Event(t, h.index, kind, fault))
+                h.fault = kind
+                # drop the grasp: after a fault the participant must grasp again
+                h.contact, h.grasp_request = None, None
+                if state is not None and all(math.isfinite(c) for c in state.position):
+                    h.position = state.position
+                    h.button = state.button
+                continue
+            h.fault = None
             h.position = state.position
             if state.button and not h.button:
                 h.grasp_request = state.position
@@ -97,6 +137,7 @@ class ServoLoop:
             raw = self._forces(contacts, disps)
         # 3. safety, write, record
         unstable = bool(getattr(self.model, "unstable", False))
+        suspended = t < self.suspended_until
         k = 0
         for h in hands:
             force = NO_FORCE
@@ -110,10 +151,19 @@ class ServoLoop:
                 force, kind = limit_force((fx, fy, fz), self.peak_force)
                 if unstable:  # the model says its state blew up: render nothing
                     force, kind = NO_FORCE, "model_unstable"
+                elif suspended:  # the loop missed its deadlines: render nothing for a while
+                    force, kind = NO_FORCE, "suspended"
                 if kind is not None and kind != h.safety:  # log when a rule starts acting
                     self.events.append(Event(t, h.index, kind))
                 h.safety = kind
-            h.device.write_force(force)
+            try:
+                h.device.write_force(force)
+            except Exception as exc:
+                if h.fault != "device_fault":
+                    self.events.append(Event(t, h.index, "device_fault", f"device_fault: {exc}"))
+                h.fault = "device_fault"
+                h.contact = None
+                force = NO_FORCE
             h.force = force
             mag = math.sqrt(force[0] ** 2 + force[1] ** 2 + force[2] ** 2)
             if mag > h.max_force:
