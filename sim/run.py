@@ -28,7 +28,6 @@ import numpy as np
 
 from sim.servo import Event, Hand, ServoLoop
 
-
 MISS_STREAK = 3  # consecutive late ticks that suspend force output
 SUSPEND_S = 0.1  # for this long
 
