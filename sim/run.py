@@ -169,8 +169,12 @@ def run_scene(
     snapshot_period = 1.0 / spec.renderer.fps if snapshots else None
     visual = VisualStep(model=model, hands=hands, events=servo.events, snapshot_period=snapshot_period)
     n_ticks = int(round(duration * rate))
+    rig = getattr(devices[0], "rig", None)
     try:
-        if time_scale <= 0:
+        if rig is not None:  # real devices: the HD scheduler sets the pace
+            mode = "scheduled"
+            starts, misses, wall = _run_scheduled(rig, servo, visual, n_ticks, rate, spec.visual_rate_hz)
+        elif time_scale <= 0:
             mode = "lockstep"
             starts, misses, wall = _run_lockstep(servo, visual, n_ticks, rate, spec.visual_rate_hz)
         else:
@@ -219,6 +223,39 @@ def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
             visual(t)
             next_visual += frame
     return starts, 0, clock() - begin
+
+
+def _run_scheduled(rig, servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: float, visual_rate: float):
+    """Real devices: the OpenHaptics scheduler calls the servo tick; this thread runs visuals."""
+    starts = np.empty(n_ticks)
+    count = [0]
+    done = threading.Event()
+    clock = time.perf_counter
+
+    def tick(t: float) -> None:
+        k = count[0]
+        if k >= n_ticks:
+            done.set()
+            for h in servo.hands:  # the run is over: no force
+                h.device.write_force((0.0, 0.0, 0.0))
+            return
+        starts[k] = clock()
+        servo.tick(k / rate)
+        count[0] = k + 1
+
+    begin = clock()
+    rig.start(tick)
+    try:
+        frame = 1.0 / visual_rate
+        while not done.wait(frame):
+            visual(count[0] / rate)
+    finally:
+        rig.stop()
+    n = count[0]
+    misses = int(np.sum(np.diff(starts[:n]) > 1.5 / rate)) if n > 1 else 0
+    for e in rig.errors:
+        servo.events.append(Event(n / rate, -1, "hd_error", str(e)))
+    return starts[:n], misses, clock() - begin
 
 
 def _run_realtime(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: float, visual_rate: float, time_scale: float):

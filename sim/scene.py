@@ -59,6 +59,7 @@ class HandSpec:
     pull_start: float
     pull_time: float
     release_at: float
+    device_name: str | None = None  # OpenHaptics device name, e.g. "Left Device"
 
     def script(self, mesh):
         """The scripted pull on `mesh`: start on the surface, pull along the tangent plane."""
@@ -312,6 +313,7 @@ def _hand_spec(h: _Reader) -> HandSpec:
         pull_start=pull_start,
         pull_time=pull_time,
         release_at=release_at,
+        device_name=h.string("device_name", default=None) if "device_name" in h.data else None,
     )
 
 
@@ -344,9 +346,16 @@ class Scene:
         return model_module(self.model_spec.name).build(self.mesh, self.model_spec, self)
 
     def open_devices(self) -> list:
+        """One device per hand; hands on the same backend open together (one OpenHaptics rig)."""
         from sim.devices import backend_module
 
-        return [backend_module(h.device).open_device(h, self.mesh) for h in self.spec.hands]
+        devices: list = [None] * len(self.spec.hands)
+        for backend in dict.fromkeys(h.device for h in self.spec.hands):
+            idx = [i for i, h in enumerate(self.spec.hands) if h.device == backend]
+            opened = backend_module(backend).open_devices([self.spec.hands[i] for i in idx], self.mesh)
+            for i, d in zip(idx, opened):
+                devices[i] = d
+        return devices
 
     def make_renderer(self):
         """The offscreen renderer; importing it loads open3d, so only call when rendering."""

@@ -9,6 +9,7 @@ import importlib
 
 BACKENDS = {
     "simulated": "sim.devices.simulated",
+    "openhaptics": "sim.devices.openhaptics",
 }
 
 

@@ -122,6 +122,6 @@ class SimulatedOmni:
         self._force = np.zeros(3)
 
 
-def open_device(hand, mesh) -> SimulatedOmni:
-    """Open a simulated device for a scene's hand spec (`sim.scene.HandSpec`)."""
-    return SimulatedOmni(hand.script(mesh), name=f"{hand.name} (simulated)")
+def open_devices(hands, mesh) -> list[SimulatedOmni]:
+    """Open a simulated device for each of a scene's hand specs (`sim.scene.HandSpec`)."""
+    return [SimulatedOmni(h.script(mesh), name=f"{h.name} (simulated)") for h in hands]
