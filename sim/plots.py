@@ -43,12 +43,15 @@ def force_plot(result, path: Path) -> None:
     plt.close(fig)
 
 
+TRACE_COLUMNS = ["t_s", "hand", "x_m", "y_m", "z_m", "fx_n", "fy_n", "fz_n", "button"]
+
+
 def write_trace(result, path: Path) -> None:
     """One row per tick and hand: time, position and force (SI units)."""
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["t_s", "hand", "x_m", "y_m", "z_m", "fx_n", "fy_n", "fz_n"])
+        w.writerow(TRACE_COLUMNS)
         for k, t in enumerate(result.times):
             for i, name in enumerate(result.hand_names):
                 p, f = result.positions[k, i], result.forces[k, i]
-                w.writerow([f"{t:.4f}", name, *(f"{c:.6g}" for c in p), *(f"{c:.6g}" for c in f)])
+                w.writerow([f"{t:.4f}", name, *(f"{c:.9g}" for c in p), *(f"{c:.6g}" for c in f), int(result.buttons[k, i])])

@@ -101,6 +101,7 @@ class RunResult:
     times: np.ndarray  # (ticks,) simulated s
     positions: np.ndarray  # (ticks, hands, 3)
     forces: np.ndarray  # (ticks, hands, 3)
+    buttons: np.ndarray  # (ticks, hands) bool
     compute_s: np.ndarray  # (ticks,)
     intervals_s: np.ndarray  # (ticks - 1,) wall clock between tick starts
     deadline_misses: int
@@ -185,7 +186,7 @@ def run_scene(
             d.close()
     rows = np.asarray(servo.rows, dtype=np.float64).reshape(len(servo.rows), -1)
     nh = len(hands)
-    per_hand = rows[:, 2:].reshape(len(rows), nh, 6) if len(rows) else np.zeros((0, nh, 6))
+    per_hand = rows[:, 2:].reshape(len(rows), nh, 7) if len(rows) else np.zeros((0, nh, 7))
     return RunResult(
         scene_name=spec.name,
         model=scene.model_spec.name,
@@ -196,7 +197,8 @@ def run_scene(
         hand_names=[h.name for h in hands],
         times=rows[:, 0] if len(rows) else np.zeros(0),
         positions=per_hand[:, :, :3],
-        forces=per_hand[:, :, 3:],
+        forces=per_hand[:, :, 3:6],
+        buttons=per_hand[:, :, 6] > 0.5,
         compute_s=rows[:, 1] if len(rows) else np.zeros(0),
         intervals_s=np.diff(starts),
         deadline_misses=misses,

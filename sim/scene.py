@@ -60,6 +60,8 @@ class HandSpec:
     pull_time: float
     release_at: float
     device_name: str | None = None  # OpenHaptics device name, e.g. "Left Device"
+    trace: Path | None = None  # replay: a recorded run's trace.csv
+    trace_hand: str | None = None  # replay: the recorded hand to follow (default: this name)
 
     def script(self, mesh):
         """The scripted pull on `mesh`: start on the surface, pull along the tangent plane."""
@@ -314,6 +316,8 @@ def _hand_spec(h: _Reader) -> HandSpec:
         pull_time=pull_time,
         release_at=release_at,
         device_name=h.string("device_name", default=None) if "device_name" in h.data else None,
+        trace=h.path_value("trace") if "trace" in h.data else None,
+        trace_hand=h.string("trace_hand") if "trace_hand" in h.data else None,
     )
 
 

@@ -72,7 +72,7 @@ class ServoLoop:
     ramp_s: float = 0.05
     jump_m: float = 0.02  # a larger move in one tick (20 m/s) is a glitch, not a hand
     events: list[Event] = field(default_factory=list)
-    rows: list[tuple] = field(default_factory=list)  # (t, compute_s, then per hand px py pz fx fy fz)
+    rows: list[tuple] = field(default_factory=list)  # (t, compute_s, then per hand px py pz fx fy fz button)
     suspended_until: float = -math.inf
 
     def suspend(self, t: float, duration: float, reason: str) -> None:
@@ -170,6 +170,7 @@ class ServoLoop:
                 h.max_force = mag
             row.extend(h.position)
             row.extend(force)
+            row.append(1.0 if h.button else 0.0)
         row[1] = time.perf_counter() - start
         self.rows.append(tuple(row))
 

@@ -10,6 +10,7 @@ import importlib
 BACKENDS = {
     "simulated": "sim.devices.simulated",
     "openhaptics": "sim.devices.openhaptics",
+    "replay": "sim.devices.replay",
 }
 
 

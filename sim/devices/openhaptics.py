@@ -183,7 +183,7 @@ class OpenHapticsRig:
         self._check(f"enabling force output on {name!r}")
         return _DeviceSlot(name=name, handle=handle, max_force=min(peak.value or OmniSpec().peak_force_n, OmniSpec().peak_force_n))
 
-    def devices(self) -> list["OpenHapticsDevice"]:
+    def devices(self) -> list[OpenHapticsDevice]:
         return [OpenHapticsDevice(self, k) for k in range(len(self.slots))]
 
     def start(self, tick) -> None:
