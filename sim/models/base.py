@@ -10,6 +10,11 @@
 returns the force on the hand in newtons as a 3-tuple of floats (plain floats keep the
 per-tick path free of array allocations). ``deformation`` returns the displacement of every
 surface vertex, ``(n_vertices, 3)``. Two hands are two contacts passed together.
+
+Every contact carries a `law` (sim/laws.py): the small picklable state a servo tick
+evaluates, which `force` delegates to and which a servo in another process receives. Models
+whose contacts couple also give ``pair_law(contacts)``; models whose laws change between frames
+update them in ``deformation``.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ class Contact:
     point: Vec3
     normal: Vec3
     data: Any = field(default=None, compare=False, repr=False)
+    law: Any = field(default=None, compare=False, repr=False)  # sim.laws: what a servo tick evaluates
 
 
 class TissueModel(Protocol):

@@ -24,6 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from sim.errors import ParameterError, SimError
+from sim.laws import Linearised, PairTable
 
 
 class SingularSystemError(SimError):
@@ -261,8 +262,6 @@ class FemModel:
         self._out = np.zeros_like(surface.vertices)
         # corotational state, per part: (contact ids, free-dof displacement, multipliers)
         self._corot: dict[int, tuple] = {}
-        # published for the servo by each corotational frame: contact id -> (force on tissue, d)
-        self._linearised: dict[int, tuple] = {}
         self.inverted_frames = 0  # frames in which an element was inverted (det F <= 0)
         self.tangent_updates = 0  # warped-stiffness refactorisations
         self.restarts = 0  # corotational iterations that diverged and restarted from linear
@@ -308,7 +307,7 @@ class FemModel:
         data = FemContact(part=part, W=W, U=U, C=C, K=tuple(float(x) for x in Kc.ravel()))
         anchor = tuple(float(c) for c in self.surface.vertices[v])
         normal = tuple(float(c) for c in self.surface.vertex_normals[v])
-        return Contact(hand=hand, vertex=int(v), point=anchor, normal=normal, data=data)
+        return Contact(hand=hand, vertex=int(v), point=anchor, normal=normal, data=data, law=Linearised(K=data.K))
 
     def grasp_patch(self, vertex: int) -> np.ndarray:
         """Surface vertices held by a grasp: within `grasp_radius` of `vertex`, same hemisphere.
@@ -333,31 +332,20 @@ class FemModel:
         return K
 
     def force(self, contact, displacement):
-        k = contact.data.K
-        dx, dy, dz = displacement
-        lin = self._linearised.get(id(contact.data))
-        if lin is not None:
-            # corotational: the state of the last frame, plus the linear tangent for the motion since
-            (fx, fy, fz), (ex, ey, ez) = lin
-            dx, dy, dz = dx - ex, dy - ey, dz - ez
-            return (
-                -(fx + k[0] * dx + k[1] * dy + k[2] * dz),
-                -(fy + k[3] * dx + k[4] * dy + k[5] * dz),
-                -(fz + k[6] * dx + k[7] * dy + k[8] * dz),
-            )
-        # the hand feels the reaction: minus the force that holds the grasp point at d
-        return (
-            -(k[0] * dx + k[1] * dy + k[2] * dz),
-            -(k[3] * dx + k[4] * dy + k[5] * dz),
-            -(k[6] * dx + k[7] * dy + k[8] * dz),
-        )
+        # linear: -K d; corotational: the last frame's state plus the linear tangent since
+        return contact.law.force(displacement)
+
+    def pair_law(self, contacts):
+        """The coupled 6x6 law of two grasps on one hemisphere (linear formulation), else None."""
+        if len(contacts) == 2 and contacts[0].data.part == contacts[1].data.part and self.formulation == "linear":
+            return PairTable(K=[float(x) for x in self._pair(contacts[0], contacts[1]).ravel()])
+        return None
 
     def forces(self, contacts, displacements):
-        if len(contacts) == 2 and contacts[0].data.part == contacts[1].data.part and self.formulation == "linear":
-            K = self._pair(contacts[0], contacts[1])
-            f = -(K @ np.concatenate((displacements[0], displacements[1])))
-            return [tuple(float(x) for x in f[:3]), tuple(float(x) for x in f[3:])]
-        return [self.force(c, d) for c, d in zip(contacts, displacements)]
+        pair = self.pair_law(contacts)
+        if pair is not None:
+            return pair.forces(displacements[0], displacements[1])
+        return [c.law.force(d) for c, d in zip(contacts, displacements)]
 
     def grasp_forces(self, contacts, displacements) -> np.ndarray:
         """Forces on the tissue at the grasp points that hold them at `displacements`, (3k,)."""
@@ -378,7 +366,6 @@ class FemModel:
         if not contacts:
             self._out[:] = 0.0
             self._corot.clear()
-            self._linearised = {}
             return self._out
         displacements = [np.asarray(d, dtype=np.float64) for d in displacements]
         if self.formulation == "corotational":
@@ -398,7 +385,6 @@ class FemModel:
         modified Newton method spread over frames: a refactorisation costs a few frames).
         """
         u_nodes = np.zeros((self.volume.n_nodes, 3))
-        published = {}
         for part_id in sorted({c.data.part for c in contacts}):
             idx = [k for k, c in enumerate(contacts) if c.data.part == part_id]
             cs = [contacts[k] for k in idx]
@@ -448,10 +434,9 @@ class FemModel:
                 u[fem.free] = pre.U @ lam
                 state.update(u=u, lam=lam)
                 self._corot[part_id] = state
-            for j, c in enumerate(cs):
-                published[id(c.data)] = (tuple(float(x) for x in lam[3 * j : 3 * j + 3]), tuple(float(x) for x in d[3 * j : 3 * j + 3]))
+            for j, c in enumerate(cs):  # publish for the servo: this frame's state and where it was
+                c.law.update(f_frame=tuple(float(x) for x in lam[3 * j : 3 * j + 3]), d_frame=tuple(float(x) for x in d[3 * j : 3 * j + 3]))
             u_nodes[self.part_nodes[part_id]] = u.reshape(-1, 3)
-        self._linearised = published  # one rebinding: the servo sees the old or the new state
         return u_nodes
 
 

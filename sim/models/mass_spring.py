@@ -21,6 +21,7 @@ import scipy.sparse as sp
 
 from sim.devices.base import OmniSpec
 from sim.errors import ParameterError, SimError
+from sim.laws import Coupling
 from sim.models import MASS_SPRING_INTEGRATORS as INTEGRATORS
 
 OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m  # 700 N/m: stable closed-loop stiffness at 1 kHz
@@ -407,7 +408,6 @@ class MassSpringModel:
         from scipy.spatial import cKDTree
 
         self._tree = cKDTree(volume.nodes)
-        self._patch_pos: dict[int, tuple] = {}  # grasp id -> published patch position
         self._out = np.zeros_like(surface.vertices)
         self.step_s: list[float] = []
         if integrator == "explicit" and not substep and dt > system.critical_dt():
@@ -429,21 +429,16 @@ class MassSpringModel:
             nodes = np.array([self._tree.query(p)[1]])
         g = _Grasp(nodes=nodes, anchor=self.system.rest_positions[nodes].mean(axis=0))
         # the contact point is the surface vertex; the coupling acts on the patch's displacement
-        self._patch_pos[id(g)] = tuple(float(c) for c in p + (self.system.x[nodes].mean(axis=0) - g.anchor))
-        return Contact(hand=hand, vertex=int(v), point=tuple(float(c) for c in p), normal=tuple(float(c) for c in self.surface.vertex_normals[v]), data=g)
+        point = tuple(float(c) for c in p)
+        patch = tuple(float(c) for c in p + (self.system.x[nodes].mean(axis=0) - g.anchor))
+        law = Coupling(k=self.coupling, anchor=point, patch=patch)
+        return Contact(hand=hand, vertex=int(v), point=point, normal=tuple(float(c) for c in self.surface.vertex_normals[v]), data=g, law=law)
 
     def force(self, contact, displacement):
         if self.system.unstable:
             return (0.0, 0.0, 0.0)  # the servo never sees a blown-up model's force
-        px, py, pz = self._patch_pos.get(id(contact.data), contact.point)
-        a = contact.point
-        k = self.coupling
-        # hand at a + d, patch (mapped to the surface point) at p: the spring pulls the hand back
-        return (
-            -k * (a[0] + displacement[0] - px),
-            -k * (a[1] + displacement[1] - py),
-            -k * (a[2] + displacement[2] - pz),
-        )
+        # hand at anchor + d, patch (mapped to the surface point) where the simulation left it
+        return contact.law.force(displacement)
 
     def deformation(self, contacts, displacements) -> np.ndarray:
         sysm = self.system
@@ -453,11 +448,9 @@ class MassSpringModel:
         if not sysm.unstable:
             sysm.step(self.dt, self.integrator, substep=self.substep, iterations=self.iterations)
         self.step_s.append(time.perf_counter() - start)
-        published = {}
-        for c in contacts:
+        for c in contacts:  # publish the patch for the servo
             g = c.data
-            published[id(g)] = tuple(float(x) for x in np.asarray(c.point) + sysm.x[g.nodes].mean(axis=0) - g.anchor)
-        self._patch_pos = published
+            c.law.update(patch=tuple(float(x) for x in np.asarray(c.point) + sysm.x[g.nodes].mean(axis=0) - g.anchor))
         u = sysm.x - sysm.rest_positions
         if not np.all(np.isfinite(u)):
             u = np.zeros_like(u)

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.errors import ParameterError
+from sim.laws import RadialTable
 from sim.models.base import Contact, Vec3
 
 VARIANTS = ("paper", "continuous")
@@ -393,15 +394,11 @@ class PlateSpringModel:
         idx, dist = self.mesh.geodesic_within(v, float(self.radii[-1]))
         anchor = tuple(float(c) for c in self.mesh.vertices[v])
         normal = tuple(float(c) for c in self.mesh.vertex_normals[v])
-        return Contact(hand=hand, vertex=int(v), point=anchor, normal=normal, data=_ContactField(idx, dist))
+        law = RadialTable(list(self.stack._x0), list(self.stack._f0), list(self.stack._slope))
+        return Contact(hand=hand, vertex=int(v), point=anchor, normal=normal, data=_ContactField(idx, dist), law=law)
 
     def force(self, contact: Contact, displacement: Sequence[float]) -> Vec3:
-        dx, dy, dz = displacement
-        x = math.sqrt(dx * dx + dy * dy + dz * dz)
-        if x == 0.0:
-            return (0.0, 0.0, 0.0)
-        s = -self.stack.force_fast(x) / x
-        return (s * dx, s * dy, s * dz)
+        return contact.law.force(displacement)
 
     def profile(self, x: float) -> np.ndarray:
         """Displacement magnitude at the ring borders R_0..R_N for a stack stretched by x."""

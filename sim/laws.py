@@ -1,0 +1,103 @@
+"""Force laws: the small, picklable part of a contact that a servo tick evaluates.
+
+Each tissue model hands the servo a law per contact (and, for coupled grasps, a pair law):
+a few numbers fixed at grasp time, plus a state the visual step may refresh each frame. A law
+can be evaluated in the model's process or sent to a servo process (sim/servo_process.py),
+where the interpreter lock of the rendering and deformation work cannot delay it.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass, field
+
+
+@dataclass
+class RadialTable:
+    """Plate-spring: magnitude from a piecewise-linear table of |d|, against d."""
+
+    x0: list[float]
+    f0: list[float]
+    slope: list[float]
+
+    def force(self, d) -> tuple[float, float, float]:
+        dx, dy, dz = d
+        x = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if x == 0.0:
+            return (0.0, 0.0, 0.0)
+        k = bisect.bisect_right(self.x0, x) - 1
+        s = -(self.f0[k] + self.slope[k] * (x - self.x0[k])) / x
+        return (s * dx, s * dy, s * dz)
+
+    def update(self, **state) -> None:  # nothing changes between frames
+        pass
+
+
+@dataclass
+class Linearised:
+    """FEM: f = -(f_frame + K (d - d_frame)); f_frame = 0, d_frame = 0 for linear elasticity,
+    refreshed each frame by the corotational update."""
+
+    K: tuple  # 9 floats, row-major
+    f_frame: tuple = (0.0, 0.0, 0.0)
+    d_frame: tuple = (0.0, 0.0, 0.0)
+
+    def force(self, d) -> tuple[float, float, float]:
+        k = self.K
+        fx, fy, fz = self.f_frame
+        dx, dy, dz = d[0] - self.d_frame[0], d[1] - self.d_frame[1], d[2] - self.d_frame[2]
+        return (
+            -(fx + k[0] * dx + k[1] * dy + k[2] * dz),
+            -(fy + k[3] * dx + k[4] * dy + k[5] * dz),
+            -(fz + k[6] * dx + k[7] * dy + k[8] * dz),
+        )
+
+    def update(self, f_frame=None, d_frame=None, **_) -> None:
+        if f_frame is not None:
+            self.f_frame, self.d_frame = tuple(f_frame), tuple(d_frame)
+
+
+@dataclass
+class Coupling:
+    """Mass-spring: a spring of stiffness k between the hand and the patch the simulation
+    published last: f = -k (anchor + d - patch)."""
+
+    k: float
+    anchor: tuple
+    patch: tuple
+
+    def force(self, d) -> tuple[float, float, float]:
+        a, p, k = self.anchor, self.patch, self.k
+        return (-k * (a[0] + d[0] - p[0]), -k * (a[1] + d[1] - p[1]), -k * (a[2] + d[2] - p[2]))
+
+    def update(self, patch=None, **_) -> None:
+        if patch is not None:
+            self.patch = tuple(patch)
+
+
+@dataclass
+class Zero:
+    """A model that reported itself unstable: no force."""
+
+    def force(self, d) -> tuple[float, float, float]:
+        return (0.0, 0.0, 0.0)
+
+    def update(self, **_) -> None:
+        pass
+
+
+@dataclass
+class PairTable:
+    """Two coupled grasps (FEM on one hemisphere): forces = -K6 [d1; d2]."""
+
+    K: list = field(default_factory=list)  # 36 floats, row-major
+
+    def forces(self, d1, d2):
+        k = self.K
+        d = (d1[0], d1[1], d1[2], d2[0], d2[1], d2[2])
+        out = []
+        for r in range(6):
+            row = k[6 * r : 6 * r + 6]
+            out.append(-(row[0] * d[0] + row[1] * d[1] + row[2] * d[2] + row[3] * d[3] + row[4] * d[4] + row[5] * d[5]))
+        return [(out[0], out[1], out[2]), (out[3], out[4], out[5])]
