@@ -3,7 +3,7 @@
 import importlib
 import sys
 
-ALL = ["plate_spring", "fem", "mass_spring", "render"]
+ALL = ["plate_spring", "fem", "mass_spring", "render", "servo"]
 
 if __name__ == "__main__":
     for name in sys.argv[1:] or ALL:

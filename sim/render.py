@@ -59,6 +59,8 @@ class BrainRenderer:
         import matplotlib
 
         o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+        # Mesa's software rasteriser would take every core; leave one to the servo process
+        os.environ.setdefault("LP_NUM_THREADS", "1")
         if not os.environ.get("XDG_RUNTIME_DIR"):  # Mesa's EGL complains without one
             os.environ["XDG_RUNTIME_DIR"] = tempfile.mkdtemp(prefix="xdg-")
         self.mesh = mesh

@@ -52,6 +52,7 @@ class VisualStep:
     deformation_s: list[float] = field(default_factory=list)
     grasp_s: list[float] = field(default_factory=list)
     snapshots: list[Snapshot] = field(default_factory=list)
+    last: np.ndarray | None = None
     _next_snapshot: float = 0.0
 
     def __call__(self, t: float) -> None:
@@ -76,6 +77,7 @@ class VisualStep:
         start = time.perf_counter()
         u = self.model.deformation(contacts, displacements)
         self.deformation_s.append(time.perf_counter() - start)
+        self.last = u  # the latest surface displacement, for live drawing
         if self.snapshot_period is not None and t + 1e-9 >= self._next_snapshot:
             self._next_snapshot += self.snapshot_period
             self.snapshots.append(
@@ -125,7 +127,7 @@ class RunResult:
             "ticks": ticks,
             "rate_hz": ticks / self.wall_s if self.wall_s > 0 else math.nan,
             # lockstep runs as fast as it can: wall-clock intervals there measure nothing
-            "tick_interval_us": _percentiles(self.intervals_s * 1e6 if self.mode == "realtime" else np.zeros(0), (50, 99), with_max=True),
+            "tick_interval_us": _percentiles(self.intervals_s * 1e6 if self.mode != "lockstep" else np.zeros(0), (50, 99, 99.9), with_max=True),
             "tick_compute_us": _percentiles(self.compute_s * 1e6, (50, 99), with_max=True),
             "deadline_misses": self.deadline_misses,
             "max_force_n": float(fmag.max()) if fmag.size else 0.0,
@@ -156,45 +158,72 @@ def run_scene(
     duration: float | None = None,
     time_scale: float = 1.0,
     snapshots: bool = False,
-    on_tick: Callable[[float], None] | None = None,
+    servo: str = "process",
+    render: Callable[[VisualStep], None] | None = None,
 ) -> RunResult:
-    """Run `scene` (a `sim.scene.Scene`) for `duration` simulated seconds."""
+    """Run `scene` (a `sim.scene.Scene`) for `duration` simulated seconds.
+
+    In real time (`time_scale > 0`) the servo runs in its own process by default
+    (``servo="process"``, sim/servo_process.py); ``servo="thread"`` keeps it in a thread of
+    this process. `render(visual)`, if given, is called after every visual step (e.g. to draw
+    the latest frame live). OpenHaptics devices run on their library's scheduler in this process.
+    """
     spec = scene.spec
     duration = spec.duration if duration is None else duration
     rate = spec.servo_rate_hz
     model = scene.model
+    if servo not in ("process", "thread"):
+        raise ValueError(f"servo: {servo!r} is not process or thread")
+    if time_scale > 0 and servo == "process" and all(h.device != "openhaptics" for h in spec.hands):
+        return _run_process(scene, model, duration, rate, time_scale, snapshots, render)
     devices = scene.open_devices()
     hands = [Hand(index=i, name=h.name, device=d) for i, (h, d) in enumerate(zip(spec.hands, devices))]
     peak = min(d.spec.peak_force_n for d in devices)
-    servo = ServoLoop(model=model, hands=hands, peak_force=peak)
+    servo_loop = ServoLoop(model=model, hands=hands, peak_force=peak)
     snapshot_period = 1.0 / spec.renderer.fps if snapshots else None
-    visual = VisualStep(model=model, hands=hands, events=servo.events, snapshot_period=snapshot_period)
+    visual = VisualStep(model=model, hands=hands, events=servo_loop.events, snapshot_period=snapshot_period)
     n_ticks = int(round(duration * rate))
     rig = getattr(devices[0], "rig", None)
     try:
         if rig is not None:  # real devices: the HD scheduler sets the pace
             mode = "scheduled"
-            starts, misses, wall = _run_scheduled(rig, servo, visual, n_ticks, rate, spec.visual_rate_hz)
+            starts, misses, wall = _run_scheduled(rig, servo_loop, visual, n_ticks, rate, spec.visual_rate_hz)
         elif time_scale <= 0:
             mode = "lockstep"
-            starts, misses, wall = _run_lockstep(servo, visual, n_ticks, rate, spec.visual_rate_hz)
+            starts, misses, wall = _run_lockstep(servo_loop, visual, n_ticks, rate, spec.visual_rate_hz)
         else:
             mode = "realtime"
-            starts, misses, wall = _run_realtime(servo, visual, n_ticks, rate, spec.visual_rate_hz, time_scale)
+            starts, misses, wall = _run_realtime(servo_loop, visual, n_ticks, rate, spec.visual_rate_hz, time_scale, render)
     finally:
         for d in devices:
             d.close()
-    rows = np.asarray(servo.rows, dtype=np.float64).reshape(len(servo.rows), -1)
-    nh = len(hands)
+    return _result(scene, model, mode, time_scale, duration, rate, [h.name for h in hands], servo_loop.rows, starts, misses, wall, visual, servo_loop.events)
+
+
+def _run_process(scene, model, duration, rate, time_scale, snapshots, render) -> RunResult:
+    from sim.servo_process import run_in_process
+
+    spec = scene.spec
+    n_ticks = int(round(duration * rate))
+    snapshot_period = 1.0 / spec.renderer.fps if snapshots else None
+    visual = VisualStep(model=model, hands=[], events=[], snapshot_period=snapshot_period)
+    out, events = run_in_process(scene, visual, n_ticks, rate, spec.visual_rate_hz, time_scale, render)
+    names = [h.name for h in spec.hands]
+    return _result(scene, model, "realtime-process", time_scale, duration, rate, names, out["rows"], out["starts"], out["misses"], out["wall"], visual, events)
+
+
+def _result(scene, model, mode, time_scale, duration, rate, names, rows_list, starts, misses, wall, visual, events) -> RunResult:
+    rows = np.asarray(rows_list, dtype=np.float64).reshape(len(rows_list), -1)
+    nh = len(names)
     per_hand = rows[:, 2:].reshape(len(rows), nh, 7) if len(rows) else np.zeros((0, nh, 7))
     return RunResult(
-        scene_name=spec.name,
+        scene_name=scene.spec.name,
         model=scene.model_spec.name,
         mode=mode,
         time_scale=time_scale,
         duration=duration,
         rate_hz=rate,
-        hand_names=[h.name for h in hands],
+        hand_names=names,
         times=rows[:, 0] if len(rows) else np.zeros(0),
         positions=per_hand[:, :, :3],
         forces=per_hand[:, :, 3:6],
@@ -205,7 +234,7 @@ def run_scene(
         wall_s=wall,
         deformation_s=np.asarray(visual.deformation_s),
         grasp_s=np.asarray(visual.grasp_s),
-        events=servo.events,
+        events=events,
         snapshots=visual.snapshots,
         model_diagnostics=model.diagnostics() if hasattr(model, "diagnostics") else {},
     )
@@ -260,7 +289,7 @@ def _run_scheduled(rig, servo: ServoLoop, visual: VisualStep, n_ticks: int, rate
     return starts[:n], misses, clock() - begin
 
 
-def _run_realtime(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: float, visual_rate: float, time_scale: float):
+def _run_realtime(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: float, visual_rate: float, time_scale: float, render=None):
     period = 1.0 / (rate * time_scale)
     starts = np.empty(n_ticks)
     state = {"misses": 0, "tick": 0, "error": None}
@@ -313,6 +342,8 @@ def _run_realtime(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
                 done.wait(remaining)
                 continue
             visual(state["tick"] / rate)
+            if render is not None:
+                render(visual)
             next_frame += frame
             if clock() > next_frame + frame:
                 next_frame = clock()
