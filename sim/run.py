@@ -53,16 +53,38 @@ class VisualStep:
     grasp_s: list[float] = field(default_factory=list)
     snapshots: list[Snapshot] = field(default_factory=list)
     last: np.ndarray | None = None
+    grasp_reach: float = 0.01  # a button press farther than this from the surface grasps nothing
     _next_snapshot: float = 0.0
+    _tree: object = None
+
+    def _surface_tree(self):
+        """Closest-point structure of the surface as it is now (rebuilt at most once a frame,
+        and only when a grasp needs it)."""
+        if self._tree is None:
+            from scipy.spatial import cKDTree
+
+            mesh = self.model_mesh()
+            positions = mesh.vertices if self.last is None else mesh.vertices + self.last
+            self._tree = cKDTree(positions)
+        return self._tree
+
+    def model_mesh(self):
+        return getattr(self.model, "surface", None) or self.model.mesh
 
     def __call__(self, t: float) -> None:
+        self._tree = None  # the surface moved since the last frame
         for h in self.hands:
             request = h.grasp_request
             if request is not None and h.contact is None:
                 start = time.perf_counter()
-                contact = self.model.grasp(request, h.index)
-                self.grasp_s.append(time.perf_counter() - start)
                 h.grasp_request = None
+                # collide with the deformed surface; the model grasps that vertex at rest
+                dist, vertex = self._surface_tree().query(request)
+                if dist > self.grasp_reach:
+                    self.events.append(Event(t, h.index, "grasp_missed", f"surface {dist * 1e3:.1f} mm away"))
+                    continue
+                contact = self.model.grasp(self.model_mesh().vertices[vertex], h.index)
+                self.grasp_s.append(time.perf_counter() - start)
                 if h.button:  # still held: publish (time first, so the ramp starts right)
                     h.contact_t = t
                     h.contact = contact
@@ -105,6 +127,7 @@ class RunResult:
     forces: np.ndarray  # (ticks, hands, 3)
     buttons: np.ndarray  # (ticks, hands) bool
     compute_s: np.ndarray  # (ticks,)
+    io_latency_s: np.ndarray  # (ticks,) device read to force out, worst hand
     intervals_s: np.ndarray  # (ticks - 1,) wall clock between tick starts
     deadline_misses: int
     wall_s: float
@@ -129,6 +152,7 @@ class RunResult:
             # lockstep runs as fast as it can: wall-clock intervals there measure nothing
             "tick_interval_us": _percentiles(self.intervals_s * 1e6 if self.mode != "lockstep" else np.zeros(0), (50, 99, 99.9), with_max=True),
             "tick_compute_us": _percentiles(self.compute_s * 1e6, (50, 99), with_max=True),
+            "read_to_force_us": _percentiles(self.io_latency_s * 1e6, (50, 99), with_max=True),
             "deadline_misses": self.deadline_misses,
             "max_force_n": float(fmag.max()) if fmag.size else 0.0,
             "max_force_per_hand_n": {n: float(fmag[:, i].max()) if ticks else 0.0 for i, n in enumerate(self.hand_names)},
@@ -215,7 +239,7 @@ def _run_process(scene, model, duration, rate, time_scale, snapshots, render) ->
 def _result(scene, model, mode, time_scale, duration, rate, names, rows_list, starts, misses, wall, visual, events) -> RunResult:
     rows = np.asarray(rows_list, dtype=np.float64).reshape(len(rows_list), -1)
     nh = len(names)
-    per_hand = rows[:, 2:].reshape(len(rows), nh, 7) if len(rows) else np.zeros((0, nh, 7))
+    per_hand = rows[:, 3:].reshape(len(rows), nh, 7) if len(rows) else np.zeros((0, nh, 7))
     return RunResult(
         scene_name=scene.spec.name,
         model=scene.model_spec.name,
@@ -229,6 +253,7 @@ def _result(scene, model, mode, time_scale, duration, rate, names, rows_list, st
         forces=per_hand[:, :, 3:6],
         buttons=per_hand[:, :, 6] > 0.5,
         compute_s=rows[:, 1] if len(rows) else np.zeros(0),
+        io_latency_s=rows[:, 2] if len(rows) else np.zeros(0),
         intervals_s=np.diff(starts),
         deadline_misses=misses,
         wall_s=wall,

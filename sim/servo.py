@@ -72,7 +72,7 @@ class ServoLoop:
     ramp_s: float = 0.05
     jump_m: float = 0.02  # a larger move in one tick (20 m/s) is a glitch, not a hand
     events: list[Event] = field(default_factory=list)
-    rows: list[tuple] = field(default_factory=list)  # (t, compute_s, then per hand px py pz fx fy fz button)
+    rows: list[tuple] = field(default_factory=list)  # (t, compute_s, io_s, then per hand px py pz fx fy fz button)
     suspended_until: float = -math.inf
 
     def suspend(self, t: float, duration: float, reason: str) -> None:
@@ -82,14 +82,17 @@ class ServoLoop:
         self.suspended_until = max(self.suspended_until, t + duration)
 
     def tick(self, t: float) -> None:
-        start = time.perf_counter()
-        row: list[float] = [t, 0.0]
+        clock = time.perf_counter
+        start = clock()
+        row: list[float] = [t, 0.0, 0.0]
         hands = self.hands
+        read_at = [start] * len(hands)
         # 1. read every device (so coupled contacts see the same instant)
-        for h in hands:
+        for i, h in enumerate(hands):
             fault = None
             try:
                 state = h.device.read(t)
+                read_at[i] = clock()
             except Exception as exc:  # a disconnected or failing device: zero force, never a crash
                 state, fault = None, f"device_fault: {exc}"
             if state is not None and state.fault:
@@ -139,7 +142,8 @@ class ServoLoop:
         unstable = bool(getattr(self.model, "unstable", False))
         suspended = t < self.suspended_until
         k = 0
-        for h in hands:
+        io = 0.0
+        for i, h in enumerate(hands):
             force = NO_FORCE
             if k < len(held) and held[k] is h:
                 fx, fy, fz = raw[k]
@@ -164,6 +168,7 @@ class ServoLoop:
                 h.fault = "device_fault"
                 h.contact = None
                 force = NO_FORCE
+            io = max(io, clock() - read_at[i])  # device read to force out, this hand
             h.force = force
             mag = math.sqrt(force[0] ** 2 + force[1] ** 2 + force[2] ** 2)
             if mag > h.max_force:
@@ -171,7 +176,8 @@ class ServoLoop:
             row.extend(h.position)
             row.extend(force)
             row.append(1.0 if h.button else 0.0)
-        row[1] = time.perf_counter() - start
+        row[1] = clock() - start
+        row[2] = io
         self.rows.append(tuple(row))
 
     def _forces(self, contacts, disps):

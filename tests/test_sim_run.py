@@ -149,3 +149,31 @@ def test_servo_process_run_matches_the_lockstep_run():
     # whose timing differs by up to a frame between the two clocks)
     fp, fl = np.linalg.norm(proc.forces, axis=2).max(axis=0), np.linalg.norm(lock.forces, axis=2).max(axis=0)
     assert fp == pytest.approx(fl, rel=0.02)
+
+
+def test_grasp_collides_with_the_deformed_surface_and_misses_when_far():
+    from sim.run import VisualStep
+    from sim.servo import Hand
+
+    scene = build_scene(SCENE)
+    model, mesh = scene.model, scene.mesh
+    hand = Hand(index=0, name="h", device=None, button=True)
+    visual = VisualStep(model=model, hands=[hand], events=[])
+    v = mesh.nearest_vertex(scene.spec.hands[0].start)
+    moved = np.zeros_like(mesh.vertices)
+    moved[v] = (0.0, 0.0, 0.03)  # this vertex has been pulled 3 cm up
+    visual.last = moved
+    hand.grasp_request = tuple(mesh.vertices[v] + moved[v])  # the hand is where the tissue is now
+    visual(0.5)
+    assert hand.contact is not None and hand.contact.vertex == v
+    # a press 5 cm above the surface grasps nothing
+    hand2 = Hand(index=1, name="g", device=None, button=True, grasp_request=tuple(mesh.vertices[v] + (0.0, 0.0, 0.08)))
+    visual.hands = [hand2]
+    visual(0.6)
+    assert hand2.contact is None and visual.events[-1].kind == "grasp_missed"
+
+
+def test_read_to_force_latency_is_reported(lockstep):
+    _, r = lockstep
+    s = r.stats()["read_to_force_us"]
+    assert 0 < s["p50"] <= s["p99"] <= s["max"]

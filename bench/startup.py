@@ -1,0 +1,61 @@
+"""What a scene costs to start: time and imported modules, one-hand plate-spring headless
+against two-hand FEM with rendering (each in a fresh interpreter)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from sim.scene import DEFAULT_SCENE
+
+CHILD = r"""
+import json, resource, sys, time
+t0 = time.perf_counter()
+from sim.scene import build_scene
+from sim.run import run_scene
+scene = build_scene(sys.argv[1])
+model = scene.model
+t_ready = time.perf_counter() - t0
+r = run_scene(scene, duration=0.2, time_scale=0, snapshots=scene.spec.renderer.kind == "offscreen")
+if scene.spec.renderer.kind == "offscreen":
+    from sim.render import BrainRenderer
+    BrainRenderer(scene.mesh, 320, 240).render(scene.mesh.vertices, r.snapshots[-1].displacement[:, 0] * 0, [])
+total = time.perf_counter() - t0
+mods = sorted(sys.modules)
+watch = ["open3d", "sim.render", "sim.models.fem", "sim.models.mass_spring", "sim.models.plate_spring",
+         "cholespy", "scipy.sparse.linalg", "matplotlib", "sim.devices.simulated"]
+print(json.dumps({"ready_s": t_ready, "total_s": total, "modules": len(mods),
+                  "loaded": {w: w in sys.modules for w in watch},
+                  "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+"""
+
+
+def _scene(text: str, tmp: Path, name: str) -> Path:
+    root = DEFAULT_SCENE.parents[2]
+    text = text.replace('"../../data/', f'"{root}/data/').replace('"../models/', f'"{root}/protocols/models/')
+    path = tmp / name
+    path.write_text(text)
+    return path
+
+
+def main() -> None:
+    base = DEFAULT_SCENE.read_text()
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        one = base.replace('kind = "offscreen"', 'kind = "none"')
+        one = one[: one.rindex("[[hands]]")]
+        fem = base.replace('name = "plate_spring"               #', 'name = "fem"  #')
+        cases = {"one-hand plate-spring, headless": _scene(one, tmp, "one.toml"), "two-hand FEM, rendering": _scene(fem, tmp, "fem.toml")}
+        for label, path in cases.items():
+            out = subprocess.run([sys.executable, "-c", CHILD, str(path)], capture_output=True, text=True, check=True)
+            r = json.loads(out.stdout.strip().splitlines()[-1])
+            loaded = ", ".join(k for k, v in r["loaded"].items() if v)
+            print(f"{label:<34} ready {r['ready_s']:6.2f} s, total {r['total_s']:6.2f} s, {r['modules']:5d} modules, "
+                  f"max RSS {r['max_rss_mb']:6.0f} MB; loaded: {loaded}")
+
+
+if __name__ == "__main__":
+    main()
