@@ -85,6 +85,9 @@ def _realtime_priority() -> str:
     else a higher nice level, else nothing. Returns what was granted."""
     import os
 
+    cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    if len(cpus) > 1:  # a core of its own: the last one (the parent keeps off it during the run)
+        os.sched_setaffinity(0, {cpus[-1]})
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
         return "SCHED_FIFO"
@@ -278,11 +281,31 @@ class ServoProcess:
         self.shm.unlink()
 
 
+def _set_all_threads_affinity(cpus: set) -> None:
+    """sched_setaffinity(0) moves only the calling thread; BLAS and renderer pools exist already."""
+    import os
+
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = [0]
+    for tid in tids:
+        try:
+            os.sched_setaffinity(tid, cpus)
+        except OSError:
+            pass
+
+
 def run_in_process(scene, visual, n_ticks: int, rate: float, visual_rate: float, time_scale: float, render=None):
     """Run the servo in a child process; this process runs the visual step (and `render`, a
     callable run after each visual step, e.g. drawing a frame). Returns (servo log, events)."""
+    import os
+
     sp = ServoProcess(scene, n_ticks, time_scale)
     visual.hands = sp.hands  # the visual step works on the mirrors
+    own = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    if len(own) > 1:  # leave the servo's core to the servo: every thread of this process
+        _set_all_threads_affinity(set(own[:-1]))
     frame = 1.0 / (visual_rate * time_scale)
     try:
         next_frame = time.perf_counter()
@@ -304,6 +327,8 @@ def run_in_process(scene, visual, n_ticks: int, rate: float, visual_rate: float,
                 next_frame = time.perf_counter()
     finally:
         out = sp.finish()
+        if len(own) > 1:
+            _set_all_threads_affinity(set(own))
     events = list(out["events"]) + [e for e in visual.events if e.kind == "grasp"]
     events.sort(key=lambda e: e.t)
     return out, events
