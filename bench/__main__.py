@@ -1,11 +1,13 @@
-"""Run the benchmarks: `python -m bench` (all) or `python -m bench plate_spring render`."""
+"""Run the benchmarks: `python -m bench` (all) or `python -m bench plate_spring servo 10`
+(a number is an argument for the benchmark before it: seconds, for servo)."""
 
 import importlib
 import sys
 
-ALL = ["plate_spring", "fem", "mass_spring", "render", "servo"]
+ALL = ["plate_spring", "fem", "mass_spring", "render", "servo", "startup"]
 
 if __name__ == "__main__":
-    for name in sys.argv[1:] or ALL:
-        print(f"== bench.{name}")
+    names = [a for a in sys.argv[1:] if not a.replace(".", "", 1).isdigit()]
+    for name in names or ALL:
+        print(f"== bench.{name}", flush=True)
         importlib.import_module(f"bench.{name}").main()

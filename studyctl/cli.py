@@ -276,14 +276,16 @@ def sim():
 @click.option("--duration", type=click.FloatRange(min=0.0, min_open=True), default=None, help="Simulated seconds (default: the scene's).")
 @click.option("--frames", "frames_dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Write pictures, the force plot and the trace here.")
 @click.option("--time-scale", type=click.FloatRange(min=0.0), default=1.0, show_default=True, help="1 = real time; 0 = as fast as possible (lockstep, deterministic).")
+@click.option("--servo", type=click.Choice(["process", "thread"]), default="process", show_default=True, help="Real time: run the servo loop in its own process or in a thread.")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable statistics.")
-def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: float, as_json: bool):
+def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: float, servo: str, as_json: bool):
     """Scripted simulated Omni hands grasp and pull the brain; the servo loop runs at 1 kHz."""
     from sim.run import run_scene, write_outputs
     from sim.scene import build_scene
 
     scene = build_scene(scene_file, model_name)
-    result = run_scene(scene, duration=duration, time_scale=time_scale, snapshots=frames_dir is not None and scene.spec.renderer.kind == "offscreen")
+    result = run_scene(scene, duration=duration, time_scale=time_scale, servo=servo,
+                       snapshots=frames_dir is not None and scene.spec.renderer.kind == "offscreen")
     stats = result.stats()
     if frames_dir is not None:
         if as_json:
@@ -315,6 +317,8 @@ def _print_run(s: dict) -> None:
     t.add_row("tick interval p50 / p99 / max (us)", f"{us(iv, 'p50')} / {us(iv, 'p99')} / {us(iv, 'max')}")
     tc = s["tick_compute_us"]
     t.add_row("tick compute p50 / p99 (us)", f"{us(tc, 'p50')} / {us(tc, 'p99')}")
+    rf = s["read_to_force_us"]
+    t.add_row("device read to force out p50 / p99 (us)", f"{us(rf, 'p50')} / {us(rf, 'p99')}")
     t.add_row("deadline misses", str(s["deadline_misses"]))
     dm = s["deformation_ms"]
     t.add_row("deformation per frame p50 / p99 (ms)", "-" if dm["p50"] is None else f"{dm['p50']:.3f} / {dm['p99']:.3f}")
