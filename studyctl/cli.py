@@ -15,6 +15,7 @@ import click
 
 from sim.errors import SimError
 from sim.scene import DEFAULT_SCENE
+from studyctl.errors import StudyError
 
 
 class _Group(click.Group):
@@ -23,7 +24,7 @@ class _Group(click.Group):
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
-        except SimError as exc:
+        except (SimError, StudyError) as exc:
             raise click.ClickException(str(exc)) from None
 
 
@@ -328,6 +329,161 @@ def _print_run(s: dict) -> None:
     if "frames_dir" in s:
         t.add_row("pictures", f"{s['frames']} in {s['frames_dir']}")
     _console().print(t)
+
+
+# -- study management ----------------------------------------------------------------------
+
+DB = click.option("--db", envvar="STUDYCTL_DB", required=True, type=click.Path(dir_okay=False, path_type=Path),
+                  help="Study database (or the STUDYCTL_DB environment variable).")
+
+
+@cli.group(cls=_Group)
+def protocol():
+    """Study protocol files."""
+
+
+@protocol.command("validate")
+@click.argument("file", type=click.Path(dir_okay=False, path_type=Path))
+def protocol_validate(file: Path):
+    """Check a protocol file; print every problem as FILE:LINE: field: message."""
+    from studyctl.protocol import check_protocol
+
+    p, problems = check_protocol(file)
+    if problems:
+        for line in problems:
+            click.echo(line, err=True)
+        raise SystemExit(1)
+    click.echo(f"{file}: ok ({p.name}: {len(p.conditions)} conditions, {len(p.questions)} questions, "
+               f"{p.trials_per_condition} trials per condition, target {p.target_participants} participants)")
+
+
+@cli.group(cls=_Group)
+def study():
+    """Study databases."""
+
+
+@study.command("init")
+@click.option("--protocol", "protocol_file", required=True, type=click.Path(dir_okay=False, path_type=Path))
+@DB
+def study_init(protocol_file: Path, db: Path):
+    """Create a study database for a protocol."""
+    from studyctl.store import init_study
+
+    out = init_study(db, protocol_file)
+    click.echo(f"created {out['db']}: study {out['study']} (schema {out['schema_version']})")
+
+
+@cli.group(cls=_Group)
+def participants():
+    """Participants (pseudonymous codes)."""
+
+
+@participants.command("add")
+@click.argument("code")
+@click.option("--age", type=int, default=None)
+@click.option("--name", default=None, help="Kept in a separate table that no export or report includes.")
+@click.option("--contact", default=None, help="Kept in a separate table that no export or report includes.")
+@DB
+def participants_add(code, age, name, contact, db):
+    """Register a participant under a pseudonymous CODE."""
+    from studyctl.study import add_participant
+
+    out = add_participant(db, code, age, name, contact)
+    click.echo(f"added {out['code']}")
+
+
+@participants.command("import")
+@click.argument("csv_file", type=click.Path(dir_okay=False, path_type=Path))
+@DB
+def participants_import(csv_file, db):
+    """Register participants from a CSV (code, then optional age, name, contact): all or none."""
+    from studyctl.study import import_participants
+
+    click.echo(f"imported {import_participants(db, csv_file)['imported']} participants")
+
+
+@cli.command("schedule", cls=click.Command)
+@DB
+@click.option("--start", required=True, help="First day, YYYY-MM-DD.")
+@click.option("--end", required=True, help="Last day, YYYY-MM-DD.")
+@click.option("--hours", default="09:00-17:00", show_default=True)
+@click.option("--session-minutes", type=int, default=45, show_default=True)
+@click.option("--availability", type=click.Path(dir_okay=False, path_type=Path), default=None, help="CSV: code,date,start,end.")
+@click.option("--ics", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Write an iCalendar file.")
+@click.option("--json", "as_json", is_flag=True)
+def schedule_cmd(db, start, end, hours, session_minutes, availability, ics, as_json):
+    """Give each waiting participant a slot on the rig and a counterbalanced order."""
+    from studyctl.study import schedule_study
+
+    try:
+        rows = schedule_study(db, start, end, hours, session_minutes, availability, ics)
+    except StudyError as exc:
+        raise click.ClickException(str(exc)) from None
+    if as_json:
+        _print_json(rows)
+        return
+    from rich.table import Table
+
+    t = Table(title=f"Schedule ({len([r for r in rows if r['slot_start']])} of {len(rows)} participants have a slot)")
+    for col in ("participant", "start", "end", "order"):
+        t.add_column(col)
+    for r in rows:
+        t.add_row(r["code"], r["slot_start"] or "-", (r["slot_end"] or "-")[11:16], " > ".join(json.loads(r["conditions"])))
+    _console().print(t)
+    if ics:
+        click.echo(f"calendar: {ics}")
+
+
+@cli.group(cls=_Group)
+def session():
+    """Run sessions."""
+
+
+@session.command("run")
+@DB
+@click.option("--participant", required=True)
+@click.option("--device", type=click.Choice(["simulated", "openhaptics"]), default="simulated", show_default=True)
+@click.option("--synthetic", is_flag=True, help="A synthetic participant answers (data labelled synthetic).")
+@click.option("--resume", is_flag=True, help="Continue an interrupted session after its last committed trial.")
+@click.option("--time-scale", type=click.FloatRange(min=0.0), default=None, help="1 = real time (default for people); synthetic default 0 = as fast as possible.")
+@click.option("--seed", type=int, default=0, show_default=True)
+def session_run(db, participant, device, synthetic, resume, time_scale, seed):
+    """Training, then each condition in the assigned order: trials, then the questionnaire."""
+    from studyctl.session import run_session
+
+    out = run_session(db, participant, device, synthetic, resume, time_scale, seed=seed, progress=lambda m: click.echo(m, err=True))
+    click.echo(f"session {out['session']} of {out['participant']} complete: {' > '.join(out['order'])}, {out['answers']} answers"
+               + (" (SYNTHETIC)" if out["synthetic"] else ""))
+
+
+@cli.group(cls=_Group)
+def answers():
+    """Answers collected outside the simulator."""
+
+
+@answers.command("import")
+@DB
+@click.argument("csv_file", type=click.Path(dir_okay=False, path_type=Path))
+def answers_import(db, csv_file):
+    """Import participant,model,item,answer rows (yes/no); any unknown value rejects the file."""
+    from studyctl.study import import_answers
+
+    click.echo(f"imported {import_answers(db, csv_file)['imported']} answers")
+
+
+@cli.command("export", cls=click.Command)
+@DB
+@click.option("--format", "fmt", type=click.Choice(["csv", "parquet"]), default="csv", show_default=True)
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path))
+def export_cmd(db, fmt, out_dir):
+    """Export the pseudonymous tables (never the identifying one)."""
+    from studyctl.study import export
+
+    try:
+        files = export(db, out_dir, fmt)
+    except StudyError as exc:
+        raise click.ClickException(str(exc)) from None
+    click.echo(f"wrote {len(files)} files to {out_dir}")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,0 +1,231 @@
+"""Study protocol files (TOML) -> frozen dataclasses, with every problem reported.
+
+`load_protocol` raises `ProtocolError` listing all problems, each as ``FILE:LINE: field:
+message``; `check_protocol` returns them without raising (for ``studyctl protocol validate``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from studyctl.errors import ProtocolError
+
+KNOWN_MODELS = ("fem", "mass_spring", "plate_spring")
+DESIGNS = ("williams",)
+LATENCY_MEASURES = ("deformation_ms", "tick_interval_p99_us", "read_to_force_us", "tick_compute_us")
+ID_RE = re.compile(r"^[a-z][a-z0-9_]*$")
+
+
+@dataclass(frozen=True)
+class Question:
+    id: str
+    text: str
+
+
+@dataclass(frozen=True)
+class Protocol:
+    path: Path
+    name: str
+    title: str
+    version: int
+    target_participants: int
+    scene: Path
+    conditions: tuple[str, ...]
+    counterbalancing: str
+    training_minutes: float
+    trials_per_condition: int
+    trial_seconds: float
+    age_min: int
+    age_max: int
+    latency_measures: tuple[str, ...]
+    questions: tuple[Question, ...]
+    text: str  # the file's content, stored with every session
+
+    @property
+    def sha256(self) -> str:
+        return hashlib.sha256(self.text.encode()).hexdigest()
+
+    @property
+    def items(self) -> tuple[str, ...]:
+        return tuple(q.id for q in self.questions)
+
+
+class _Locator:
+    """Line numbers of tables and keys in a TOML text (for error messages)."""
+
+    def __init__(self, text: str):
+        self.lines: dict[str, int] = {}
+        table = ""
+        counts: dict[str, int] = {}
+        for n, raw in enumerate(text.splitlines(), start=1):
+            line = raw.split("#", 1)[0].strip()
+            m = re.match(r"^\[\[([A-Za-z0-9_.]+)\]\]$", line)
+            if m:
+                name = m.group(1)
+                k = counts.get(name, 0)
+                counts[name] = k + 1
+                table = f"{name}[{k}]"
+                self.lines.setdefault(table, n)
+                continue
+            m = re.match(r"^\[([A-Za-z0-9_.]+)\]$", line)
+            if m:
+                table = m.group(1)
+                self.lines.setdefault(table, n)
+                continue
+            m = re.match(r"^([A-Za-z0-9_]+)\s*=", line)
+            if m:
+                self.lines.setdefault(f"{table}.{m.group(1)}" if table else m.group(1), n)
+
+    def line(self, field: str) -> int:
+        while field:
+            if field in self.lines:
+                return self.lines[field]
+            field = field.rsplit(".", 1)[0] if "." in field else ""
+        return 1
+
+
+def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol | None, list[str]]:
+    """Parse and validate; returns (protocol or None, problems as 'FILE:LINE: field: message').
+
+    `text` overrides the file's content (a protocol stored in a study database)."""
+    path = Path(path)
+    if text is None:
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            return None, [f"{path}:1: cannot read: {exc.strerror}"]
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        m = re.search(r"line (\d+)", str(exc))
+        return None, [f"{path}:{m.group(1) if m else 1}: syntax: {exc}"]
+    loc = _Locator(text)
+    problems: list[str] = []
+
+    def bad(field: str, message: str) -> None:
+        problems.append(f"{path}:{loc.line(field)}: {field}: {message}")
+
+    def table(name: str) -> dict:
+        t = data.get(name)
+        if t is None:
+            bad(name, "missing section")
+            return {}
+        if not isinstance(t, dict):
+            bad(name, "must be a table")
+            return {}
+        return t
+
+    def get(t: dict, section: str, key: str, kind, default=None, lo=None, hi=None, required=True):
+        field = f"{section}.{key}"
+        if key not in t:
+            if required and default is None:
+                bad(field, "missing")
+            return default
+        v = t[key]
+        if kind is int:
+            ok = isinstance(v, int) and not isinstance(v, bool)
+        elif kind is float:
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        else:
+            ok = isinstance(v, kind)
+        if not ok:
+            bad(field, f"{v!r} is not {'an integer' if kind is int else 'a number' if kind is float else 'a ' + kind.__name__}")
+            return default
+        if lo is not None and v < lo or hi is not None and v > hi:
+            bad(field, f"{v!r} is out of range; allowed: {lo if lo is not None else '-inf'}..{hi if hi is not None else 'inf'}")
+            return default
+        return float(v) if kind is float else v
+
+    for key in data:
+        if key not in ("study", "design", "inclusion", "latency", "questions"):
+            bad(key, "unknown section; allowed: study, design, inclusion, latency, questions")
+    study, design, inclusion, latency = table("study"), table("design"), table("inclusion"), table("latency")
+    name = get(study, "study", "name", str)
+    title = get(study, "study", "title", str, default="", required=False)
+    version = get(study, "study", "version", int, default=1, lo=1, required=False)
+    target = get(study, "study", "target_participants", int, lo=1, hi=10000)
+    scene_rel = get(study, "study", "scene", str)
+    scene = None
+    if scene_rel is not None:
+        scene = (path.parent / scene_rel).resolve()
+        if not scene.exists():
+            bad("study.scene", f"{scene} does not exist")
+
+    conditions = get(design, "design", "conditions", list)
+    if conditions is not None:
+        if not conditions:
+            bad("design.conditions", "at least one condition")
+        for c in conditions:
+            if c not in KNOWN_MODELS:
+                bad("design.conditions", f"unknown model {c!r}; allowed: {', '.join(KNOWN_MODELS)}")
+        if len(set(map(str, conditions))) != len(conditions):
+            bad("design.conditions", "a condition appears twice")
+    cb = get(design, "design", "counterbalancing", str)
+    if cb is not None and cb not in DESIGNS:
+        bad("design.counterbalancing", f"{cb!r} is not one of {', '.join(DESIGNS)}")
+    training = get(design, "design", "training_minutes", float, lo=0.0, hi=120.0)
+    trials = get(design, "design", "trials_per_condition", int, lo=1, hi=100)
+    trial_s = get(design, "design", "trial_seconds", float, lo=0.5, hi=600.0)
+
+    age_min = get(inclusion, "inclusion", "age_min", int, lo=0, hi=120)
+    age_max = get(inclusion, "inclusion", "age_max", int, lo=0, hi=120)
+    if age_min is not None and age_max is not None and age_min > age_max:
+        bad("inclusion.age_max", f"{age_max} is below age_min {age_min}")
+
+    measures = get(latency, "latency", "measures", list, default=[], required=False)
+    for m in measures or []:
+        if m not in LATENCY_MEASURES:
+            bad("latency.measures", f"unknown measure {m!r}; allowed: {', '.join(LATENCY_MEASURES)}")
+
+    questions = []
+    qs = data.get("questions")
+    if qs is None:
+        bad("questions", "missing section: at least one [[questions]]")
+    elif not isinstance(qs, list):
+        bad("questions", "must be an array of tables ([[questions]])")
+    else:
+        seen: dict[str, int] = {}
+        for k, q in enumerate(qs):
+            sec = f"questions[{k}]"
+            qid = get(q, sec, "id", str)
+            qtext = get(q, sec, "text", str)
+            if qid is not None:
+                if not ID_RE.match(qid):
+                    bad(f"{sec}.id", f"{qid!r} must be lower-case letters, digits and _ (starting with a letter)")
+                elif qid in seen:
+                    bad(f"{sec}.id", f"duplicate item id {qid!r} (also questions[{seen[qid]}])")
+                else:
+                    seen[qid] = k
+            if qid is not None and qtext is not None:
+                questions.append(Question(qid, qtext))
+    if problems:
+        return None, problems
+    return (
+        Protocol(
+            path=path, name=name, title=title, version=version, target_participants=target, scene=scene,
+            conditions=tuple(conditions), counterbalancing=cb, training_minutes=training, trials_per_condition=trials,
+            trial_seconds=trial_s, age_min=age_min, age_max=age_max, latency_measures=tuple(measures),
+            questions=tuple(questions), text=text,
+        ),
+        [],
+    )
+
+
+def load_protocol(path: str | Path) -> Protocol:
+    protocol, problems = check_protocol(path)
+    if problems:
+        raise ProtocolError(problems)
+    return protocol
+
+
+def protocol_from_text(text: str, path: str | Path) -> Protocol:
+    """Rebuild a stored protocol; relative paths resolve against its original location."""
+    protocol, problems = check_protocol(path, text)
+    if problems:
+        raise ProtocolError(problems)
+    return protocol

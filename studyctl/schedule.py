@@ -1,0 +1,129 @@
+"""Counterbalancing (Williams design), slot allocation on one rig, iCalendar export."""
+
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import json
+from pathlib import Path
+
+from studyctl.errors import InputError
+
+
+def williams(n: int) -> list[list[int]]:
+    """Williams (1949) orders of n conditions: each condition precedes every other equally
+    often. n rows for even n; for odd n the square and its mirror (2n rows)."""
+    first = [0]
+    lo, hi = 1, n - 1
+    for k in range(1, n):  # 0, 1, n-1, 2, n-2, ...
+        if k % 2 == 1:
+            first.append(lo)
+            lo += 1
+        else:
+            first.append(hi)
+            hi -= 1
+    rows = [[(c + r) % n for c in first] for r in range(n)]
+    if n % 2 == 1:
+        rows += [list(reversed(r)) for r in rows]
+    return rows
+
+
+def next_order(conditions: tuple[str, ...], completed_orders: list[int], assigned: list[int]) -> int:
+    """The Williams row with the fewest completed sessions (then fewest assigned): a withdrawal
+    does not unbalance the design, its row is simply given again."""
+    rows = williams(len(conditions))
+    def key(i):
+        return (completed_orders.count(i), assigned.count(i), i)
+    return min(range(len(rows)), key=key)
+
+
+def _parse_hours(hours: str) -> tuple[dt.time, dt.time]:
+    try:
+        a, b = hours.split("-")
+        start, end = dt.time.fromisoformat(a), dt.time.fromisoformat(b)
+    except ValueError:
+        raise InputError(f"--hours: {hours!r} is not HH:MM-HH:MM") from None
+    if start >= end:
+        raise InputError(f"--hours: {hours!r} ends before it starts")
+    return start, end
+
+
+def read_availability(path: str | Path) -> dict[str, list[tuple[dt.datetime, dt.datetime]]]:
+    """CSV with columns code, date, start, end (local times); all rows valid or none used."""
+    path = Path(path)
+    out: dict[str, list] = {}
+    try:
+        with open(path, newline="") as fh:
+            reader = csv.DictReader(fh)
+            missing = {"code", "date", "start", "end"} - set(reader.fieldnames or [])
+            if missing:
+                raise InputError(f"{path}: missing column {sorted(missing)[0]!r} (need code, date, start, end)")
+            for line, row in enumerate(reader, start=2):
+                try:
+                    day = dt.date.fromisoformat(row["date"])
+                    a = dt.datetime.combine(day, dt.time.fromisoformat(row["start"]))
+                    b = dt.datetime.combine(day, dt.time.fromisoformat(row["end"]))
+                except (ValueError, TypeError):
+                    raise InputError(f"{path}: line {line}: date must be YYYY-MM-DD and start/end HH:MM") from None
+                if a >= b:
+                    raise InputError(f"{path}: line {line}: end is not after start")
+                out.setdefault(row["code"], []).append((a, b))
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read: {exc.strerror}") from None
+    return out
+
+
+def allocate(codes: list[str], start: dt.date, end: dt.date, hours: str = "09:00-17:00", minutes: int = 45,
+             availability: dict | None = None, taken: list[tuple[dt.datetime, dt.datetime]] | None = None) -> dict[str, tuple[dt.datetime, dt.datetime]]:
+    """Greedy: each participant (in order) gets the earliest free slot on the rig within the
+    working hours (weekdays) and, if given, their availability. No two slots overlap."""
+    if end < start:
+        raise InputError("--end: before --start")
+    if not 5 <= minutes <= 480:
+        raise InputError(f"--session-minutes: {minutes} is out of range; allowed: 5..480")
+    h0, h1 = _parse_hours(hours)
+    length = dt.timedelta(minutes=minutes)
+    busy = sorted(taken or [])
+    slots: dict[str, tuple] = {}
+    day = start
+    candidates = []
+    while day <= end:
+        if day.weekday() < 5:
+            t = dt.datetime.combine(day, h0)
+            while t + length <= dt.datetime.combine(day, h1):
+                candidates.append((t, t + length))
+                t += length
+        day += dt.timedelta(days=1)
+    for code in codes:
+        for a, b in candidates:
+            if any(a < y and x < b for x, y in busy):
+                continue
+            if availability is not None:
+                windows = availability.get(code, [])
+                if not any(x <= a and b <= y for x, y in windows):
+                    continue
+            slots[code] = (a, b)
+            busy.append((a, b))
+            break
+    return slots
+
+
+def to_ics(slots: list[dict], study: str) -> str:
+    """An iCalendar file with one event per session slot (floating local times)."""
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+    lines = ["BEGIN:VCALENDAR", "VERSION:2.0", "PRODID:-//brainsim-study//studyctl//EN", "CALSCALE:GREGORIAN"]
+    for s in slots:
+        a = dt.datetime.fromisoformat(s["slot_start"]).strftime("%Y%m%dT%H%M%S")
+        b = dt.datetime.fromisoformat(s["slot_end"]).strftime("%Y%m%dT%H%M%S")
+        lines += [
+            "BEGIN:VEVENT",
+            f"UID:{study}-{s['code']}@studyctl",
+            f"DTSTAMP:{stamp}",
+            f"DTSTART:{a}",
+            f"DTEND:{b}",
+            f"SUMMARY:{study}: session {s['code']}",
+            "DESCRIPTION:order " + " > ".join(json.loads(s["conditions"])),
+            "END:VEVENT",
+        ]
+    lines.append("END:VCALENDAR")
+    return "\r\n".join(lines) + "\r\n"

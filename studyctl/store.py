@@ -1,0 +1,164 @@
+"""The study database: SQLite through sqlite-utils, versioned schema, WAL, one commit per event.
+
+Every answer and every trial is committed when it happens, so a crash loses at most the trial
+in flight. Participants are stored under a pseudonymous code; identifying details (name,
+contact) live only in the `identities` table, which no export and no report reads.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+import json
+import sqlite3
+from pathlib import Path
+
+import sqlite_utils
+
+from studyctl.errors import StoreError
+
+SCHEMA_VERSION = 1
+EXPORT_TABLES = ("participants", "schedule", "sessions", "conditions", "trials", "answers", "latency", "events")
+IDENTIFYING_TABLES = ("identities",)
+
+
+def now() -> str:
+    return dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
+
+
+def _migration_1(db: sqlite_utils.Database) -> None:
+    db["study"].create({"id": int, "name": str, "protocol_path": str, "protocol_text": str, "protocol_sha256": str, "created_at": str}, pk="id")
+    db["participants"].create({"code": str, "age": int, "synthetic": int, "created_at": str}, pk="code")
+    db["identities"].create({"code": str, "name": str, "contact": str}, pk="code", foreign_keys=[("code", "participants", "code")])
+    db["schedule"].create(
+        {"code": str, "slot_start": str, "slot_end": str, "order_index": int, "conditions": str},
+        pk="code", foreign_keys=[("code", "participants", "code")],
+    )
+    db["sessions"].create(
+        {"id": int, "code": str, "started_at": str, "finished_at": str, "status": str, "synthetic": int,
+         "device": str, "protocol_sha256": str, "scene_sha256": str, "software_version": str, "conditions": str},
+        pk="id", foreign_keys=[("code", "participants", "code")],
+    )
+    db["conditions"].create(
+        {"session_id": int, "position": int, "model": str, "status": str},
+        pk=("session_id", "position"), foreign_keys=[("session_id", "sessions", "id")],
+    )
+    db["trials"].create(
+        {"session_id": int, "model": str, "trial": int, "started_at": str, "ended_at": str, "max_force_n": float,
+         "deformation_ms_mean": float, "deformation_ms_p99": float, "tick_interval_p99_us": float,
+         "read_to_force_us": float, "tick_compute_us": float, "events": str},
+        pk=("session_id", "model", "trial"), foreign_keys=[("session_id", "sessions", "id")],
+    )
+    db["answers"].create(
+        {"code": str, "model": str, "item": str, "answer": int, "session_id": int, "source": str, "answered_at": str},
+        pk=("code", "model", "item"), foreign_keys=[("code", "participants", "code")],
+    )
+    db["latency"].create(
+        {"session_id": int, "model": str, "trial": int, "measure": str, "value": float},
+        pk=("session_id", "model", "trial", "measure"),
+    )
+    db["events"].create({"id": int, "session_id": int, "at": str, "kind": str, "detail": str}, pk="id")
+
+
+MIGRATIONS = {1: _migration_1}
+
+
+class Store:
+    """An open study database."""
+
+    def __init__(self, path: str | Path, create: bool = False):
+        self.path = Path(path)
+        if not create and not self.path.exists():
+            raise StoreError(f"{self.path}: no such study database; create it with `studyctl study init`")
+        try:
+            conn = sqlite3.connect(str(self.path), timeout=30.0, isolation_level=None)
+            conn.execute("PRAGMA busy_timeout = 30000")  # wait for another writer rather than fail
+            conn.execute("PRAGMA foreign_keys = ON")
+            self.db = sqlite_utils.Database(conn)
+            self.db.enable_wal()
+            self._migrate()
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{self.path}: not a study database ({exc})") from None
+
+    def _migrate(self) -> None:
+        db = self.db
+        if "meta" not in db.table_names():
+            db["meta"].create({"key": str, "value": str}, pk="key")
+        row = db.execute("select value from meta where key = 'schema_version'").fetchone()
+        version = int(row[0]) if row else 0
+        if version > SCHEMA_VERSION:
+            raise StoreError(f"{self.path}: schema version {version} is newer than this software's ({SCHEMA_VERSION})")
+        for v in range(version + 1, SCHEMA_VERSION + 1):
+            db.conn.execute("BEGIN IMMEDIATE")  # one transaction per migration (DDL included)
+            try:
+                MIGRATIONS[v](db)
+                db.conn.execute("insert or replace into meta (key, value) values ('schema_version', ?)", (str(v),))
+                db.conn.execute("COMMIT")
+            except BaseException:
+                db.conn.execute("ROLLBACK")
+                raise
+
+    def close(self) -> None:
+        self.db.conn.close()
+
+    # -- one committed write per event ------------------------------------------------------
+    def write(self, table: str, record: dict, pk=None, replace: bool = False) -> None:
+        """One row, committed now (sqlite-utils runs each insert in its own transaction)."""
+        if replace:
+            self.db[table].upsert(record, pk=pk)
+        else:
+            self.db[table].insert(record, pk=pk)
+
+    def write_many(self, table: str, records: list[dict], pk=None) -> None:
+        """All rows or none, in one transaction."""
+        self.db.conn.execute("BEGIN IMMEDIATE")
+        try:
+            self.db[table].insert_all(records, pk=pk)
+            self.db.conn.execute("COMMIT")
+        except BaseException:
+            self.db.conn.execute("ROLLBACK")
+            raise
+
+    def rows(self, sql: str, params=()) -> list[dict]:
+        cur = self.db.execute(sql, params)
+        cols = [c[0] for c in cur.description]
+        return [dict(zip(cols, r)) for r in cur.fetchall()]
+
+    # -- study ------------------------------------------------------------------------------
+    def study(self) -> dict:
+        rows = self.rows("select * from study order by id limit 1")
+        if not rows:
+            raise StoreError(f"{self.path}: no study in this database; run `studyctl study init`")
+        return rows[0]
+
+    def protocol(self):
+        from studyctl.protocol import protocol_from_text
+
+        s = self.study()
+        return protocol_from_text(s["protocol_text"], s["protocol_path"])
+
+    def event(self, session_id: int | None, kind: str, detail: str = "") -> None:
+        self.write("events", {"session_id": session_id, "at": now(), "kind": kind, "detail": detail}, pk="id")
+
+
+def sha256_file(path: str | Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def init_study(db_path: str | Path, protocol_path: str | Path) -> dict:
+    from studyctl.protocol import load_protocol
+
+    protocol = load_protocol(protocol_path)
+    store = Store(db_path, create=True)
+    try:
+        if store.rows("select id from study"):
+            raise StoreError(f"{db_path}: already holds a study ({store.study()['name']})")
+        store.write("study", {"name": protocol.name, "protocol_path": str(Path(protocol_path).resolve()), "protocol_text": protocol.text,
+                              "protocol_sha256": protocol.sha256, "created_at": now()}, pk="id")
+        return {"db": str(db_path), "study": protocol.name, "protocol_sha256": protocol.sha256, "schema_version": SCHEMA_VERSION}
+    finally:
+        store.close()
+
+
+def dumps(obj) -> str:
+    return json.dumps(obj, separators=(",", ":"))

@@ -1,0 +1,209 @@
+"""Participants, scheduling, paper answers and exports of a study database."""
+
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import json
+from pathlib import Path
+
+from studyctl.errors import InputError, StoreError
+from studyctl.schedule import allocate, next_order, read_availability, to_ics, williams
+from studyctl.store import EXPORT_TABLES, Store, now
+
+CODE_CHARS = set("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_")
+
+
+def _check_code(code: str, where: str) -> str:
+    code = (code or "").strip()
+    if not code or len(code) > 32 or not set(code) <= CODE_CHARS:
+        raise InputError(f"{where}: code {code!r} must be 1-32 letters, digits, '-' or '_' (a pseudonym, not a name)")
+    return code
+
+
+def _check_age(age, protocol, where: str):
+    if age is None or age == "":
+        return None
+    try:
+        age = int(age)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: age {age!r} is not an integer") from None
+    if not protocol.age_min <= age <= protocol.age_max:
+        raise InputError(f"{where}: age {age} is outside the inclusion range {protocol.age_min}..{protocol.age_max}")
+    return age
+
+
+def add_participant(db: str | Path, code: str, age=None, name: str | None = None, contact: str | None = None, synthetic: bool = False) -> dict:
+    store = Store(db)
+    try:
+        protocol = store.protocol()
+        code = _check_code(code, "participant")
+        age = _check_age(age, protocol, f"participant {code}")
+        if store.rows("select code from participants where code = ?", (code,)):
+            raise InputError(f"participant {code}: already registered")
+        store.write("participants", {"code": code, "age": age, "synthetic": int(synthetic), "created_at": now()}, pk="code")
+        if name or contact:  # identifying details, kept apart; never exported or reported
+            store.write("identities", {"code": code, "name": name, "contact": contact}, pk="code")
+        return {"code": code, "age": age}
+    finally:
+        store.close()
+
+
+def import_participants(db: str | Path, csv_path: str | Path) -> dict:
+    """CSV with a `code` column, then optional `age`, `name`, `contact`: all rows or none."""
+    csv_path = Path(csv_path)
+    store = Store(db)
+    try:
+        protocol = store.protocol()
+        try:
+            with open(csv_path, newline="") as fh:
+                reader = csv.DictReader(fh)
+                cols = reader.fieldnames or []
+                if not cols or cols[0] != "code":
+                    raise InputError(f"{csv_path}: the first column must be 'code'")
+                unknown = set(cols) - {"code", "age", "name", "contact"}
+                if unknown:
+                    raise InputError(f"{csv_path}: unknown column {sorted(unknown)[0]!r}; allowed: code, age, name, contact")
+                rows = list(reader)
+        except OSError as exc:
+            raise InputError(f"{csv_path}: cannot read: {exc.strerror}") from None
+        existing = {r["code"] for r in store.rows("select code from participants")}
+        people, identities, seen = [], [], set()
+        for line, row in enumerate(rows, start=2):
+            where = f"{csv_path}: line {line}"
+            code = _check_code(row.get("code"), where)
+            if code in seen or code in existing:
+                raise InputError(f"{where}: code {code!r} appears twice or is already registered")
+            seen.add(code)
+            people.append({"code": code, "age": _check_age(row.get("age"), protocol, where), "synthetic": 0, "created_at": now()})
+            if row.get("name") or row.get("contact"):
+                identities.append({"code": code, "name": row.get("name") or None, "contact": row.get("contact") or None})
+        if not people:
+            raise InputError(f"{csv_path}: no participants")
+        store.db.conn.execute("BEGIN IMMEDIATE")
+        try:
+            store.db["participants"].insert_all(people, pk="code")
+            if identities:
+                store.db["identities"].insert_all(identities, pk="code")
+            store.db.conn.execute("COMMIT")
+        except BaseException:
+            store.db.conn.execute("ROLLBACK")
+            raise
+        return {"imported": len(people)}
+    finally:
+        store.close()
+
+
+def assign_order(store: Store, protocol, code: str) -> list[str]:
+    """The participant's condition order: the stored one, else the next Williams row."""
+    row = store.rows("select conditions from schedule where code = ?", (code,))
+    if row and row[0]["conditions"]:
+        return json.loads(row[0]["conditions"])
+    completed = [r["order_index"] for r in store.rows(
+        "select s.order_index from schedule s join sessions x on x.code = s.code where x.status = 'done'")]
+    assigned = [r["order_index"] for r in store.rows("select order_index from schedule")]
+    k = next_order(protocol.conditions, completed, assigned)
+    order = [protocol.conditions[i] for i in williams(len(protocol.conditions))[k]]
+    store.write("schedule", {"code": code, "slot_start": None, "slot_end": None, "order_index": k, "conditions": json.dumps(order)}, pk="code", replace=True)
+    return order
+
+
+def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:00", minutes: int = 45,
+                   availability: str | Path | None = None, ics: str | Path | None = None) -> list[dict]:
+    try:
+        d0, d1 = dt.date.fromisoformat(start), dt.date.fromisoformat(end)
+    except ValueError:
+        raise InputError("--start/--end: dates must be YYYY-MM-DD") from None
+    avail = read_availability(availability) if availability else None
+    store = Store(db)
+    try:
+        protocol = store.protocol()
+        waiting = [r["code"] for r in store.rows(
+            "select p.code from participants p left join schedule s on s.code = p.code "
+            "where s.slot_start is null and p.code not in (select code from sessions where status = 'done') order by p.code")]
+        taken = [(dt.datetime.fromisoformat(r["slot_start"]), dt.datetime.fromisoformat(r["slot_end"]))
+                 for r in store.rows("select slot_start, slot_end from schedule where slot_start is not null")]
+        slots = allocate(waiting, d0, d1, hours, minutes, avail, taken)
+        for code in waiting:
+            assign_order(store, protocol, code)  # counterbalanced order, kept with the slot
+            if code in slots:
+                a, b = slots[code]
+                store.db.conn.execute("update schedule set slot_start = ?, slot_end = ? where code = ?", (a.isoformat(), b.isoformat(), code))
+        out = store.rows("select code, slot_start, slot_end, order_index, conditions from schedule order by slot_start is null, slot_start, code")
+        if ics:
+            Path(ics).write_text(to_ics([r for r in out if r["slot_start"]], protocol.name))
+        return out
+    finally:
+        store.close()
+
+
+def import_answers(db: str | Path, csv_path: str | Path) -> dict:
+    """Long format participant,model,item,answer (yes/no), e.g. a study run on paper. Unknown
+    participants, models or items, or a bad answer, reject the whole file."""
+    csv_path = Path(csv_path)
+    store = Store(db)
+    try:
+        protocol = store.protocol()
+        codes = {r["code"] for r in store.rows("select code from participants")}
+        try:
+            with open(csv_path, newline="") as fh:
+                reader = csv.DictReader(fh)
+                need = ["participant", "model", "item", "answer"]
+                if (reader.fieldnames or [])[:4] != need:
+                    raise InputError(f"{csv_path}: columns must be {','.join(need)}")
+                rows = list(reader)
+        except OSError as exc:
+            raise InputError(f"{csv_path}: cannot read: {exc.strerror}") from None
+        records, seen = [], set()
+        for line, r in enumerate(rows, start=2):
+            where = f"{csv_path}: line {line}"
+            if r["participant"] not in codes:
+                raise InputError(f"{where}: unknown participant {r['participant']!r}")
+            if r["model"] not in protocol.conditions:
+                raise InputError(f"{where}: unknown model {r['model']!r}; allowed: {', '.join(protocol.conditions)}")
+            if r["item"] not in protocol.items:
+                raise InputError(f"{where}: unknown item {r['item']!r}; allowed: {', '.join(protocol.items)}")
+            ans = (r["answer"] or "").strip().lower()
+            if ans not in ("yes", "no"):
+                raise InputError(f"{where}: answer {r['answer']!r} must be yes or no")
+            key = (r["participant"], r["model"], r["item"])
+            if key in seen:
+                raise InputError(f"{where}: a second answer for {'/'.join(key)}")
+            seen.add(key)
+            records.append({"code": key[0], "model": key[1], "item": key[2], "answer": int(ans == "yes"),
+                            "session_id": None, "source": "import", "answered_at": now()})
+        existing = {(r["code"], r["model"], r["item"]) for r in store.rows("select code, model, item from answers")}
+        clash = seen & existing
+        if clash:
+            raise InputError(f"{csv_path}: {'/'.join(sorted(clash)[0])} is already answered in the database")
+        store.write_many("answers", records, pk=("code", "model", "item"))
+        return {"imported": len(records)}
+    finally:
+        store.close()
+
+
+def export(db: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[str]:
+    """Every pseudonymous table, one file each. The identities table is never exported."""
+    import pandas as pd
+
+    if fmt not in ("csv", "parquet"):
+        raise InputError(f"--format: {fmt!r} is not csv or parquet")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    store = Store(db)
+    written = []
+    try:
+        for table in EXPORT_TABLES:
+            df = pd.DataFrame(store.rows(f"select * from {table}"))
+            path = out_dir / f"{table}.{fmt}"
+            if fmt == "csv":
+                df.to_csv(path, index=False)
+            else:
+                try:
+                    df.to_parquet(path, index=False)
+                except ImportError:
+                    raise StoreError("--format parquet needs pyarrow (pip install pyarrow)") from None
+            written.append(str(path))
+    finally:
+        store.close()
+    return written
