@@ -57,6 +57,19 @@ class CoinAnswers:
         return self.rng.random() < self.p
 
 
+def _scene(protocol, model: str, device: str):
+    """The protocol's scene for `model`, with every hand on `device`."""
+    import dataclasses
+
+    from sim.scene import build_scene
+
+    scene = build_scene(protocol.scene, model)
+    if any(h.device != device for h in scene.spec.hands):
+        hands = tuple(dataclasses.replace(h, device=device) for h in scene.spec.hands)
+        scene.spec = dataclasses.replace(scene.spec, hands=hands)
+    return scene
+
+
 def _trial_record(session_id: int, model: str, trial: int, started: str, result) -> tuple[dict, list[dict]]:
     s = result.stats()
     d = result.deformation_s * 1e3
@@ -81,7 +94,6 @@ def _trial_record(session_id: int, model: str, trial: int, started: str, result)
 def run_session(db, code: str, device: str = "simulated", synthetic: bool = False, resume: bool = False,
                 time_scale: float | None = None, answers=None, seed: int = 0, progress: Callable[[str], None] | None = None) -> dict:
     from sim.run import run_scene
-    from sim.scene import build_scene
     from studyctl.study import assign_order
 
     store = Store(db)
@@ -119,8 +131,7 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
             seconds = protocol.training_minutes * 60.0
             if time_scale > 0 and seconds > 0:
                 say(f"training: {protocol.training_minutes:g} minutes of free pulling")
-                scene = build_scene(protocol.scene, "plate_spring")
-                run_scene(scene, duration=seconds, time_scale=time_scale)
+                run_scene(_scene(protocol, "plate_spring", device), duration=seconds, time_scale=time_scale)
             store.event(session_id, "training_done", f"{seconds:g} s at time scale {time_scale:g}")
         for pos, model in enumerate(order):
             done_trials = {r["trial"] for r in store.rows("select trial from trials where session_id = ? and model = ?", (session_id, model))}
@@ -129,7 +140,7 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
             for trial in range(protocol.trials_per_condition):
                 if trial in done_trials:
                     continue
-                scene = scene or build_scene(protocol.scene, model)
+                scene = scene or _scene(protocol, model, device)
                 say(f"{model}: trial {trial + 1} of {protocol.trials_per_condition}")
                 started = now()
                 result = run_scene(scene, duration=protocol.trial_seconds, time_scale=time_scale)

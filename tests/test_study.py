@@ -241,3 +241,12 @@ def test_terminal_questionnaire_through_a_real_pty(tmp_path):
     got = dict(sqlite3.connect(db).execute("select item, answer from answers").fetchall())
     assert len(got) == 9 and got["natural"] == 1 and got["behaviour"] == 0 and got["stable"] == 1
     assert "complete" in text
+
+
+def test_session_on_openhaptics_without_the_library_is_a_clean_error(tmp_path, monkeypatch):
+    db = tmp_path / "s.db"
+    studyctl("study", "init", "--protocol", fast_protocol(tmp_path, conditions=("plate_spring",), trials=1), "--db", db)
+    studyctl("participants", "add", "P01", "--db", db)
+    monkeypatch.setenv("BRAINSIM_LIBHD", str(tmp_path / "none" / "libHD.so"))
+    res = studyctl("session", "run", "--db", db, "--participant", "P01", "--device", "openhaptics", "--time-scale", "0")
+    assert res.exit_code == 1 and "libHD.so) was not found" in res.output
