@@ -198,6 +198,8 @@ def run_scene(
     model = scene.model
     if servo not in ("process", "thread"):
         raise ValueError(f"servo: {servo!r} is not process or thread")
+    if hasattr(model, "reset"):  # every run starts from undeformed tissue
+        model.reset()
     if time_scale > 0 and servo == "process" and all(h.device != "openhaptics" for h in spec.hands):
         return _run_process(scene, model, duration, rate, time_scale, snapshots, render)
     devices = scene.open_devices()

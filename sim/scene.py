@@ -330,6 +330,13 @@ class Scene:
     def __init__(self, spec: SceneSpec, model: str | None = None):
         self.spec = spec
         self.model_spec = spec.model_spec(model)
+        self.operators = None  # optional PullScripts replacing the scripted hands (simulated devices)
+
+    def script(self, i: int):
+        """The scripted operator of hand i: the scene's, or the one set in `operators`."""
+        if self.operators is not None:
+            return self.operators[i]
+        return self.spec.hands[i].script(self.mesh)
 
     @cached_property
     def mesh(self):
@@ -356,7 +363,11 @@ class Scene:
         devices: list = [None] * len(self.spec.hands)
         for backend in dict.fromkeys(h.device for h in self.spec.hands):
             idx = [i for i, h in enumerate(self.spec.hands) if h.device == backend]
-            opened = backend_module(backend).open_devices([self.spec.hands[i] for i in idx], self.mesh)
+            hands = [self.spec.hands[i] for i in idx]
+            if backend == "simulated":
+                opened = backend_module(backend).open_devices(hands, self.mesh, [self.script(i) for i in idx])
+            else:
+                opened = backend_module(backend).open_devices(hands, self.mesh)
             for i, d in zip(idx, opened):
                 devices[i] = d
         return devices

@@ -196,7 +196,7 @@ def device_recipes(scene) -> list[tuple]:
     names = ("Left Device", "Right Device")
     for i, h in enumerate(scene.spec.hands):
         if h.device == "simulated":
-            out.append(("simulated", h.script(scene.mesh), f"{h.name} (simulated)"))
+            out.append(("simulated", scene.script(i), f"{h.name} (simulated)"))
         elif h.device == "replay":
             out.append(("replay", str(h.trace), h.trace_hand or h.name))
         else:

@@ -456,6 +456,28 @@ def session_run(db, participant, device, synthetic, resume, time_scale, seed):
                + (" (SYNTHETIC)" if out["synthetic"] else ""))
 
 
+@cli.command("synth", cls=click.Command)
+@DB
+@click.option("--participants", type=int, required=True, help="How many synthetic participants.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--jobs", type=int, default=1, show_default=True, help="Sessions run in parallel processes.")
+@click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Create the database for this protocol if it does not exist.")
+def synth_cmd(db, participants, seed, jobs, protocol_file):
+    """Run whole sessions with SYNTHETIC participants on the simulator (labelled synthetic)."""
+    from rich.progress import Progress
+
+    from studyctl.synthetic import run_synthetic_study
+
+    try:
+        with Progress(transient=True) as progress:
+            task = progress.add_task("synthetic sessions", total=participants)
+            out = run_synthetic_study(db, participants, seed, jobs, protocol_file, progress=lambda k, n: progress.update(task, completed=k))
+    except StudyError as exc:
+        raise click.ClickException(str(exc)) from None
+    click.echo(f"ran {out['participants']} SYNTHETIC sessions (seed {seed}, {jobs} jobs) in {out['seconds']:.1f} s")
+
+
 @cli.group(cls=_Group)
 def answers():
     """Answers collected outside the simulator."""

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import random
 from collections.abc import Callable
 
 from studyctl.errors import StoreError
@@ -40,34 +39,29 @@ class TerminalAnswers:
             self.echo("Please answer y or n.")
 
 
-class CoinAnswers:
-    """SYNTHETIC placeholder answers: yes with probability `p`, seeded per participant. Not a
-    model of anyone; stands in until the synthetic-participant answer model exists."""
-
-    source = "synthetic"
-
-    def __init__(self, code: str, p: float = 0.75, seed: int = 0):
-        self.rng = random.Random(f"{seed}:{code}")
-        self.p = p
-
-    def begin(self, model_label: str) -> None:
-        pass
-
-    def __call__(self, question, model: str, measured: dict) -> bool:
-        return self.rng.random() < self.p
+_SCENES: dict = {}  # (scene file, model) -> Scene: models are built once per process
 
 
 def _scene(protocol, model: str, device: str):
-    """The protocol's scene for `model`, with every hand on `device`."""
+    """The protocol's scene for `model`, with every hand on `device` (built once, reused)."""
     import dataclasses
 
     from sim.scene import build_scene
 
+    key = (str(protocol.scene), model, device)
+    if key in _SCENES:
+        return _SCENES[key]
     scene = build_scene(protocol.scene, model)
     if any(h.device != device for h in scene.spec.hands):
         hands = tuple(dataclasses.replace(h, device=device) for h in scene.spec.hands)
         scene.spec = dataclasses.replace(scene.spec, hands=hands)
+    _SCENES[key] = scene
     return scene
+
+
+def reference_model(protocol):
+    """The linear FEM on the protocol's scene: the force reference of the answer model."""
+    return _scene(protocol, "fem", "simulated").model
 
 
 def _trial_record(session_id: int, model: str, trial: int, started: str, result) -> tuple[dict, list[dict]]:
@@ -92,7 +86,8 @@ def _trial_record(session_id: int, model: str, trial: int, started: str, result)
 
 
 def run_session(db, code: str, device: str = "simulated", synthetic: bool = False, resume: bool = False,
-                time_scale: float | None = None, answers=None, seed: int = 0, progress: Callable[[str], None] | None = None) -> dict:
+                time_scale: float | None = None, answers=None, seed: int = 0, progress: Callable[[str], None] | None = None,
+                session_id: int | None = None) -> dict:
     from sim.run import run_scene
     from studyctl.study import assign_order
 
@@ -119,13 +114,21 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
             say(f"resuming session {session_id} of {code}")
         else:
             store.write("sessions", {
+                **({"id": session_id} if session_id is not None else {}),
                 "code": code, "started_at": now(), "finished_at": None, "status": "running", "synthetic": int(synthetic),
                 "device": device, "protocol_sha256": protocol.sha256, "scene_sha256": sha256_file(protocol.scene),
                 "software_version": SOFTWARE_VERSION, "conditions": json.dumps(order)}, pk="id")
-            session_id = store.rows("select max(id) as id from sessions where code = ?", (code,))[0]["id"]
+            session_id = store.rows("select max(id) as id from sessions where code = ?", (code,))[0]["id"]  # the row just written
             for pos, model in enumerate(order):
                 store.write("conditions", {"session_id": session_id, "position": pos, "model": model, "status": "pending"}, pk=("session_id", "position"))
-        answerer = answers or (CoinAnswers(code, seed=seed) if synthetic else TerminalAnswers())
+        participant = None
+        if answers is None and synthetic:
+            from studyctl.synthetic import SyntheticAnswers, SyntheticParticipant
+
+            participant = SyntheticParticipant.draw(code, seed)
+            ref_scene = _scene(protocol, "fem", "simulated")
+            answers = SyntheticAnswers(participant, ref_scene.model, ref_scene.mesh)
+        answerer = answers or TerminalAnswers()
         done_events = {r["kind"] for r in store.rows("select kind from events where session_id = ?", (session_id,))}
         if "training_done" not in done_events:
             seconds = protocol.training_minutes * 60.0
@@ -136,16 +139,19 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
         for pos, model in enumerate(order):
             done_trials = {r["trial"] for r in store.rows("select trial from trials where session_id = ? and model = ?", (session_id, model))}
             scene = None
-            measured = []
+            measured, results = [], []
             for trial in range(protocol.trials_per_condition):
                 if trial in done_trials:
                     continue
                 scene = scene or _scene(protocol, model, device)
                 say(f"{model}: trial {trial + 1} of {protocol.trials_per_condition}")
                 started = now()
+                scene.operators = participant.operators(scene, trial, model) if participant else None
                 result = run_scene(scene, duration=protocol.trial_seconds, time_scale=time_scale)
+                scene.operators = None
                 rec, lat = _trial_record(session_id, model, trial, started, result)
                 measured.append(rec)
+                results.append(result)
                 # latency rows first, the trial row last: a trial row means the trial is complete
                 if lat:
                     store.write_many("latency", lat, pk=("session_id", "model", "trial", "measure"))
@@ -156,7 +162,7 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
             for q in protocol.questions:
                 if q.id in answered:
                     continue
-                yes = answerer(q, model, {"trials": measured})
+                yes = answerer(q, model, {"trials": measured, "results": results})
                 store.write("answers", {"code": code, "model": model, "item": q.id, "answer": int(bool(yes)), "session_id": session_id,
                                         "source": answerer.source, "answered_at": now()}, pk=("code", "model", "item"))
             store.db.conn.execute("update conditions set status = 'done' where session_id = ? and position = ?", (session_id, pos))
@@ -167,4 +173,4 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
         store.close()
 
 
-__all__ = ["run_session", "TerminalAnswers", "CoinAnswers"]
+__all__ = ["run_session", "TerminalAnswers"]

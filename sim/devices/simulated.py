@@ -45,14 +45,19 @@ class PullScript:
     pull_start: float  # s
     pull_time: float  # s, duration of the pull
     release_at: float  # s, button released
+    tremor_m: float = 0.0  # physiological tremor amplitude per axis, m
+    tremor_hz: float = 10.0  # its frequency (8-12 Hz in healthy adults)
+    tremor_phase: Vec3 = (0.0, 0.0, 0.0)
+    impedance: HandImpedance | None = None  # the operator's hand; default HandImpedance()
 
     def target(self, t: float) -> Vec3:
         s = min_jerk((t - self.pull_start) / self.pull_time) if self.pull_time > 0 else float(t >= self.pull_start)
-        return (
-            self.start[0] + s * self.pull[0],
-            self.start[1] + s * self.pull[1],
-            self.start[2] + s * self.pull[2],
-        )
+        x = [self.start[k] + s * self.pull[k] for k in range(3)]
+        if self.tremor_m:
+            w = 2.0 * math.pi * self.tremor_hz * t
+            for k in range(3):
+                x[k] += self.tremor_m * math.sin(w + self.tremor_phase[k])
+        return (x[0], x[1], x[2])
 
     def button(self, t: float) -> bool:
         return self.grasp_at <= t < self.release_at
@@ -75,7 +80,7 @@ class SimulatedOmni:
         self.spec = spec
         self.name = name
         self.script = script
-        self.impedance = impedance
+        self.impedance = script.impedance or impedance
         self.origin = np.asarray(origin if origin is not None else script.start, dtype=np.float64)
         self._half = np.asarray(spec.workspace_m) / 2.0
         self._x = np.asarray(script.start, dtype=np.float64).copy()
@@ -122,6 +127,8 @@ class SimulatedOmni:
         self._force = np.zeros(3)
 
 
-def open_devices(hands, mesh) -> list[SimulatedOmni]:
-    """Open a simulated device for each of a scene's hand specs (`sim.scene.HandSpec`)."""
-    return [SimulatedOmni(h.script(mesh), name=f"{h.name} (simulated)") for h in hands]
+def open_devices(hands, mesh, scripts=None) -> list[SimulatedOmni]:
+    """Open a simulated device for each of a scene's hand specs (`sim.scene.HandSpec`);
+    `scripts` replaces their scripted operators (e.g. synthetic participants)."""
+    scripts = scripts or [h.script(mesh) for h in hands]
+    return [SimulatedOmni(sc, name=f"{h.name} (simulated)") for h, sc in zip(hands, scripts)]

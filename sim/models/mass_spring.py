@@ -417,6 +417,14 @@ class MassSpringModel:
     def unstable(self) -> bool:
         return self.system.unstable
 
+    def reset(self) -> None:
+        """Back to rest (a new trial starts from undeformed tissue)."""
+        s = self.system
+        s.set_state((s.rest_positions, np.zeros_like(s.rest_positions), 0.0))
+        s.set_anchors([])
+        s.energy_peak = 0.0
+        self.step_s = []
+
     def grasp(self, point, hand: int = 0):
         from sim.models.base import Contact
 

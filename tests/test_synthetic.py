@@ -1,0 +1,59 @@
+"""Synthetic participants: determinism, dependence on what the simulator measured."""
+
+import sqlite3
+
+import numpy as np
+import pytest
+
+from studyctl.synthetic import SyntheticParticipant, latency_category, p_yes, run_synthetic_study
+from tests.test_study import fast_protocol
+
+
+def _content(db):
+    con = sqlite3.connect(db)
+    answers = con.execute("select code, model, item, answer, session_id, source from answers order by code, model, item").fetchall()
+    trials = con.execute("select session_id, model, trial, round(max_force_n, 9) from trials order by session_id, model, trial").fetchall()
+    orders = con.execute("select code, conditions from schedule order by code").fetchall()
+    return answers, trials, orders
+
+
+def test_same_seed_same_database_different_seed_different_answers(tmp_path):
+    protocol = fast_protocol(tmp_path, trials=1)
+    runs = {}
+    for name, seed, jobs in (("a", 7, 1), ("b", 7, 2), ("c", 8, 1)):
+        db = tmp_path / f"{name}.db"
+        run_synthetic_study(db, 3, seed=seed, jobs=jobs, protocol_path=protocol)
+        runs[name] = _content(db)
+    assert runs["a"] == runs["b"]  # same seed: same answers, trials and orders, even in parallel
+    assert runs["a"][0] != runs["c"][0]  # another seed: other participants, other answers
+    answers = runs["a"][0]
+    assert len(answers) == 3 * 3 * 9 and all(r[5] == "synthetic" for r in answers)
+    assert len({r[1] for r in runs["a"][2]}) == 3  # three participants, three Williams orders
+
+
+def test_answers_follow_the_measurements_not_the_model_name():
+    fast = {"latency_ms": 1.0, "within_jnd": 0.95, "jitter": 0.0, "events": 0}
+    slow = dict(fast, latency_ms=80.0)
+    rough = dict(fast, within_jnd=0.1, jitter=0.05, events=2)
+    assert latency_category(10) == 0 and latency_category(30) == 1 and latency_category(80) == 2
+    assert p_yes("realtime", slow) < p_yes("realtime", fast) - 0.3
+    assert p_yes("texture", slow) == pytest.approx(p_yes("texture", fast))  # texture ignores latency
+    assert p_yes("stable", rough) < p_yes("stable", fast) - 0.3
+    assert p_yes("feedback", rough) < p_yes("feedback", fast)
+    assert p_yes("natural", fast, bias=1.0) > p_yes("natural", fast)
+
+
+def test_motor_model_varies_per_participant_and_trial():
+    from sim.scene import build_scene
+    from tests.conftest import SCENE
+
+    scene = build_scene(SCENE)
+    a, b = SyntheticParticipant.draw("S001", 0), SyntheticParticipant.draw("S002", 0)
+    assert a != b and SyntheticParticipant.draw("S001", 0) == a
+    pa = a.operators(scene, 0, "fem")
+    assert pa[0].tremor_m > 0 and 8 <= pa[0].tremor_hz <= 12
+    assert pa[0].pull != a.operators(scene, 1, "fem")[0].pull  # each trial differs a little
+    # tremor is in the target: at the end of the pull the hand oscillates about the goal
+    t = np.linspace(pa[0].pull_start + pa[0].pull_time + 0.1, pa[0].pull_start + pa[0].pull_time + 0.3, 200)
+    xs = np.array([pa[0].target(x)[0] for x in t])
+    assert 0.5 * pa[0].tremor_m < xs.std() * np.sqrt(2) < 1.5 * pa[0].tremor_m
