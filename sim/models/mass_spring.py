@@ -387,13 +387,15 @@ class MassSpringModel:
     700 N/m) between the hand and the mean position of the volume nodes within `grasp_radius`
     of the grasp point. The servo reads the coupling force at 1 kHz from the patch position the
     simulation last published; the visual step advances the system at its own rate with the
-    chosen integrator, applying the coupling force to the patch.
+    chosen integrator (as many steps of `dt` as a visual frame lasts), applying the coupling
+    force to the patch.
     """
 
     name = "mass_spring"
 
     def __init__(self, surface, volume, system: MassSpring, integrator: str = "local-global", dt: float = 1 / 60,
-                 coupling: float = 300.0, grasp_radius: float = 0.005, substep: bool = True, iterations: int = 10):
+                 coupling: float = 300.0, grasp_radius: float = 0.005, substep: bool = True, iterations: int = 10,
+                 frame_dt: float | None = None):
         from sim.volume import embed
 
         if not 0 < coupling <= OMNI_MAX_STIFFNESS:
@@ -403,6 +405,8 @@ class MassSpringModel:
         self.surface, self.volume, self.system = surface, volume, system
         self.integrator, self.dt, self.coupling = integrator, dt, coupling
         self.grasp_radius, self.substep, self.iterations = grasp_radius, substep, iterations
+        # a frame advances the tissue by the frame's simulated time, in steps of dt
+        self.steps_per_frame = max(1, round((frame_dt or dt) / dt))
         self.embedding = embed(volume, surface.vertices, surface.labels)
         surface.prepare_queries()
         from scipy.spatial import cKDTree
@@ -453,7 +457,9 @@ class MassSpringModel:
         # the coupling spring pulls the patch's mean towards where the hand puts it
         sysm.set_anchors([(c.data.nodes, self.coupling, c.data.anchor + np.asarray(d, dtype=np.float64)) for c, d in zip(contacts, displacements)])
         start = time.perf_counter()
-        if not sysm.unstable:
+        for _ in range(self.steps_per_frame):
+            if sysm.unstable:
+                break
             sysm.step(self.dt, self.integrator, substep=self.substep, iterations=self.iterations)
         self.step_s.append(time.perf_counter() - start)
         for c in contacts:  # publish the patch for the servo
@@ -488,7 +494,8 @@ def build(mesh, spec, scene=None) -> MassSpringModel:
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])
     system = from_tets(volume.nodes, volume.tets, material.young, material.density, fixed=fixed, damping=o["damping"])
     return MassSpringModel(mesh, volume, system, integrator=o["integrator"], dt=o["dt"], coupling=o["coupling"],
-                           grasp_radius=o["grasp_radius"], substep=True, iterations=o["iterations"])
+                           grasp_radius=o["grasp_radius"], substep=True, iterations=o["iterations"],
+                           frame_dt=1.0 / scene.spec.visual_rate_hz)
 
 
 def hold_pull(scene, integrator: str, dt: float, steps: int, resolution: float | None = None, substep: bool = False,
