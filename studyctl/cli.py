@@ -478,6 +478,53 @@ def synth_cmd(db, participants, seed, jobs, protocol_file):
     click.echo(f"ran {out['participants']} SYNTHETIC sessions (seed {seed}, {jobs} jobs) in {out['seconds']:.1f} s")
 
 
+def _range(ctx, param, value):
+    try:
+        a, b = (int(x) for x in value.split(".."))
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not a range such as 12..60") from None
+    if not 3 <= a <= b <= 1000:
+        raise click.BadParameter(f"{value!r}: need 3 <= from <= to <= 1000")
+    return a, b
+
+
+@cli.command("plan", cls=click.Command)
+@click.option("--participants", "span", default="12..60", show_default=True, callback=_range, help="Range of N, e.g. 12..60.")
+@click.option("--step", type=click.IntRange(1, 100), default=6, show_default=True)
+@click.option("--simulations", type=click.IntRange(10, 100000), default=200, show_default=True)
+@click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path),
+              default=Path(__file__).resolve().parents[1] / "protocols" / "brain_pull_2015.toml", show_default="protocols/brain_pull_2015.toml")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--pilots", type=click.IntRange(1, 50), default=4, show_default=True, help="Synthetic pilot runs per model.")
+@click.option("--plot", "plot_file", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Write the power curves (PNG or SVG).")
+@click.option("--json", "as_json", is_flag=True)
+def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, as_json):
+    """Monte Carlo power of Cochran's Q per question under the SYNTHETIC model, to choose N."""
+    from studyctl.plan import plot_power, power_table
+    from studyctl.protocol import load_protocol
+
+    protocol = load_protocol(protocol_file)
+    ns = list(range(span[0], span[1] + 1, step))
+    table = power_table(protocol, ns, simulations, seed, pilots)
+    if plot_file:
+        plot_power(table, plot_file)
+    if as_json:
+        _print_json({"synthetic": True, "rows": table.to_dict(orient="records")})
+        return
+    from rich.table import Table
+
+    wide = table.pivot(index="n", columns="item", values="power")[list(protocol.items)]
+    t = Table(title=f"SYNTHETIC power of Cochran's Q (p < 0.05), {simulations} simulated studies per N")
+    t.add_column("N", justify="right")
+    for q in protocol.items:
+        t.add_column(q, justify="right")
+    for n, row in wide.iterrows():
+        t.add_row(str(n), *(f"{v:.2f}" for v in row))
+    _console().print(t)
+    if plot_file:
+        click.echo(f"plot: {plot_file}")
+
+
 @cli.group(cls=_Group)
 def answers():
     """Answers collected outside the simulator."""

@@ -57,3 +57,28 @@ def test_motor_model_varies_per_participant_and_trial():
     t = np.linspace(pa[0].pull_start + pa[0].pull_time + 0.1, pa[0].pull_start + pa[0].pull_time + 0.3, 200)
     xs = np.array([pa[0].target(x)[0] for x in t])
     assert 0.5 * pa[0].tremor_m < xs.std() * np.sqrt(2) < 1.5 * pa[0].tremor_m
+
+
+def test_plan_power_grows_with_n_and_is_labelled_synthetic(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from studyctl.cli import cli
+    from studyctl.plan import power_table
+    from studyctl.protocol import load_protocol
+
+    protocol = load_protocol(fast_protocol(tmp_path, trials=1))
+    # fixed pilot features: a clearly worse model and two similar ones
+    good = {"latency_ms": 1.0, "within_jnd": 0.9, "jitter": 0.0, "events": 0}
+    bad = {"latency_ms": 80.0, "within_jnd": 0.2, "jitter": 0.0, "events": 0}
+    feats = {"plate_spring": [good], "fem": [good], "mass_spring": [bad]}
+    t = power_table(protocol, [6, 24, 48], simulations=100, seed=3, feats=feats)
+    assert list(t.columns) == ["n", "item", "power", "simulations", "alpha"]
+    rt = t[t["item"] == "realtime"].set_index("n")["power"]
+    assert rt[6] < rt[24] <= rt[48] and rt[48] > 0.9  # a large effect: power rises to ~1
+    res = CliRunner().invoke(cli, ["plan", "--protocol", str(fast_protocol(tmp_path, trials=1)), "--participants", "12..18",
+                                   "--step", "6", "--simulations", "20", "--pilots", "1", "--json", "--plot", str(tmp_path / "p.png")])
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.output)
+    assert out["synthetic"] is True and len(out["rows"]) == 2 * 9 and (tmp_path / "p.png").stat().st_size > 5000

@@ -267,14 +267,15 @@ class MassSpring:
         x = y.copy()
         x[self.fixed] = self.rest_positions[self.fixed]
         free = self.free
-        Ak = self._A.T.multiply(self.k[None, :]).tocsr()  # A^T diag(k): (n, e)
+        A_act, Ak, rest_act = solver["A_act"], solver["Ak"], solver["rest_act"]
         fixed_part = solver["L_fixed"] @ x[self.fixed] if self.fixed.any() else 0.0
         wood = self._woodbury(solver, free)
+        inertia = (m * y / (h * h))[free]
         for _ in range(iterations):
-            dvec = self._A @ x  # spring vectors x_i - x_j
+            dvec = A_act @ x  # vectors x_i - x_j of the springs that touch a free node
             length = np.linalg.norm(dvec, axis=1)
-            dvec *= (self.rest / np.where(length > 0, length, 1.0))[:, None]  # local: projected
-            rhs = (m * y / (h * h) + Ak @ dvec)[free] - fixed_part  # global: (M / h^2 + L) x = ...
+            dvec *= (rest_act / np.where(length > 0, length, 1.0))[:, None]  # local: projected
+            rhs = inertia + Ak @ dvec - fixed_part  # global: (M / h^2 + L) x = ...
             if wood is None:
                 x[free] = solver["factor"].solve(np.ascontiguousarray(rhs))
             else:  # anchors: (Q + W diag(k) W^T) x = rhs + W diag(k) T, by Woodbury
@@ -319,7 +320,12 @@ class MassSpring:
             M = sp.diags(self.m / (h * h))
             free, fixed = self.free, np.flatnonzero(self.fixed)
             Q = (M + L).tocsr()
-            self._lg_cache = {h: {"factor": Factor(Q[free][:, free]), "L_fixed": L[free][:, fixed]}}  # one step size at a time
+            # springs between two clamped nodes never move: leave them out of the iterations
+            active = np.flatnonzero(~(self.fixed[self.springs[:, 0]] & self.fixed[self.springs[:, 1]]))
+            A_act = self._A[active].tocsr()
+            Ak = (A_act.T.multiply(self.k[active][None, :])).tocsr()[free]  # (A^T diag(k)) on free rows
+            self._lg_cache = {h: {"factor": Factor(Q[free][:, free]), "L_fixed": L[free][:, fixed],  # one step size at a time
+                                  "A_act": A_act, "Ak": Ak, "rest_act": self.rest[active]}}
         return self._lg_cache[h]
 
     def _monitor(self) -> float:
