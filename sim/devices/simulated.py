@@ -11,8 +11,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
 from sim.devices.base import DeviceState, OmniSpec
 from sim.models.base import Vec3
 
@@ -81,50 +79,54 @@ class SimulatedOmni:
         self.name = name
         self.script = script
         self.impedance = script.impedance or impedance
-        self.origin = np.asarray(origin if origin is not None else script.start, dtype=np.float64)
-        self._half = np.asarray(spec.workspace_m) / 2.0
-        self._x = np.asarray(script.start, dtype=np.float64).copy()
-        self._v = np.zeros(3)
+        # plain floats, not arrays: this runs 1000 times a second per hand, on 3-vectors
+        self.origin = tuple(float(c) for c in (origin if origin is not None else script.start))
+        self._half = tuple(w / 2.0 for w in spec.workspace_m)
+        self._x = [float(c) for c in script.start]
+        self._v = [0.0, 0.0, 0.0]
         self._t = 0.0
         self._step = step
-        self._force = np.zeros(3)
+        self._force = (0.0, 0.0, 0.0)
         self.max_force_applied = 0.0
         SimulatedOmni.opened += 1
 
     def _advance(self, t: float) -> None:
         imp = self.impedance
+        k, c, m = imp.stiffness_n_per_m, imp.damping_ns_per_m, imp.mass_kg
+        x, v, f, o, half = self._x, self._v, self._force, self.origin, self._half
         while self._t + 1e-12 < t:
             h = min(self._step, t - self._t)
-            target = np.asarray(self.script.target(self._t + h))
-            a = (imp.stiffness_n_per_m * (target - self._x) - imp.damping_ns_per_m * self._v + self._force) / imp.mass_kg
-            self._v += h * a  # semi-implicit Euler: velocity first
-            self._x += h * self._v
-            # the stylus cannot leave the mechanical workspace
-            rel = self._x - self.origin
-            out = np.abs(rel) > self._half
-            if out.any():
-                self._x = self.origin + np.clip(rel, -self._half, self._half)
-                self._v[out] = 0.0
+            target = self.script.target(self._t + h)
+            for i in range(3):
+                a = (k * (target[i] - x[i]) - c * v[i] + f[i]) / m
+                v[i] += h * a  # semi-implicit Euler: velocity first
+                x[i] += h * v[i]
+                rel = x[i] - o[i]  # the stylus cannot leave the mechanical workspace
+                if rel > half[i] or rel < -half[i]:
+                    x[i] = o[i] + max(-half[i], min(half[i], rel))
+                    v[i] = 0.0
             self._t += h
 
     def read(self, t: float) -> DeviceState:
         self._advance(t)
         r = self.spec.resolution_m
-        q = self.origin + np.round((self._x - self.origin) / r) * r  # encoder quantisation
-        return DeviceState(position=(float(q[0]), float(q[1]), float(q[2])), button=self.script.button(t))
+        o, x = self.origin, self._x
+        q = tuple(o[i] + round((x[i] - o[i]) / r) * r for i in range(3))  # encoder quantisation
+        return DeviceState(position=q, button=self.script.button(t))
 
     def write_force(self, force: Vec3) -> None:
-        f = np.asarray(force, dtype=np.float64)
-        mag = float(np.linalg.norm(f))
+        fx, fy, fz = (float(c) for c in force)
+        mag = math.sqrt(fx * fx + fy * fy + fz * fz)
         if not math.isfinite(mag):
-            f = np.zeros(3)
+            fx = fy = fz = mag = 0.0
         elif mag > self.spec.peak_force_n:  # the motors saturate
-            f = f * (self.spec.peak_force_n / mag)
-        self._force = f
-        self.max_force_applied = max(self.max_force_applied, float(np.linalg.norm(f)))
+            s = self.spec.peak_force_n / mag
+            fx, fy, fz, mag = fx * s, fy * s, fz * s, self.spec.peak_force_n
+        self._force = (fx, fy, fz)
+        self.max_force_applied = max(self.max_force_applied, mag)
 
     def close(self) -> None:
-        self._force = np.zeros(3)
+        self._force = (0.0, 0.0, 0.0)
 
 
 def open_devices(hands, mesh, scripts=None) -> list[SimulatedOmni]:

@@ -79,6 +79,7 @@ class MassSpring:
         if np.any(self.rest <= 0):
             raise ParameterError("springs: a spring joins two nodes at the same position")
         self.free = np.flatnonzero(~self.fixed)
+        self._moving = np.flatnonzero(~(self.fixed[e[:, 0]] & self.fixed[e[:, 1]]))  # springs that can stretch
         self.external = np.zeros_like(x)  # forces from outside, applied explicitly
         # anchors: springs (stiffness k) pulling the mean of some nodes towards a target; treated
         # implicitly by the implicit and local/global integrators (a hand's coupling spring)
@@ -123,9 +124,10 @@ class MassSpring:
         return self._A.T @ fij
 
     def energy(self) -> float:
-        e = self.springs
-        stretch = np.linalg.norm(self.x[e[:, 0]] - self.x[e[:, 1]], axis=1) - self.rest
-        return float(0.5 * np.sum(self.k * stretch**2) + 0.5 * np.sum(self.m[:, None] * self.v**2))
+        a = self._moving  # springs between two clamped nodes keep their rest length
+        d = self.x[self.springs[a, 0]] - self.x[self.springs[a, 1]]
+        stretch = np.sqrt(np.einsum("ij,ij->i", d, d)) - self.rest[a]
+        return float(0.5 * np.sum(self.k[a] * stretch**2) + 0.5 * np.sum(self.m[:, None] * self.v**2))
 
     # -- stability ----------------------------------------------------------------------------
     def stiffness_at_rest(self) -> sp.csr_matrix:
@@ -273,7 +275,7 @@ class MassSpring:
         inertia = (m * y / (h * h))[free]
         for _ in range(iterations):
             dvec = A_act @ x  # vectors x_i - x_j of the springs that touch a free node
-            length = np.linalg.norm(dvec, axis=1)
+            length = np.sqrt(np.einsum("ij,ij->i", dvec, dvec))
             dvec *= (rest_act / np.where(length > 0, length, 1.0))[:, None]  # local: projected
             rhs = inertia + Ak @ dvec - fixed_part  # global: (M / h^2 + L) x = ...
             if wood is None:
@@ -320,8 +322,7 @@ class MassSpring:
             M = sp.diags(self.m / (h * h))
             free, fixed = self.free, np.flatnonzero(self.fixed)
             Q = (M + L).tocsr()
-            # springs between two clamped nodes never move: leave them out of the iterations
-            active = np.flatnonzero(~(self.fixed[self.springs[:, 0]] & self.fixed[self.springs[:, 1]]))
+            active = self._moving  # springs between two clamped nodes never move: leave them out
             A_act = self._A[active].tocsr()
             Ak = (A_act.T.multiply(self.k[active][None, :])).tocsr()[free]  # (A^T diag(k)) on free rows
             self._lg_cache = {h: {"factor": Factor(Q[free][:, free]), "L_fixed": L[free][:, fixed],  # one step size at a time
