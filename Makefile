@@ -14,7 +14,10 @@ OUT ?= out
 
 demo: venv
 	$(VENV)/bin/studyctl sim run --scene protocols/scenes/brain_pull.toml --frames $(OUT)/demo
-	@echo "pictures: $(OUT)/demo/frame_*.png, force plot: $(OUT)/demo/force.png"
+	rm -f $(OUT)/demo/study.db $(OUT)/demo/study.db-wal $(OUT)/demo/study.db-shm
+	$(VENV)/bin/studyctl synth --db $(OUT)/demo/study.db --protocol protocols/brain_pull_2015.toml --participants 35 --seed 1 --jobs 2
+	$(VENV)/bin/studyctl report table1 --db $(OUT)/demo/study.db --out $(OUT)/demo/table1.md
+	@echo "pictures: $(OUT)/demo/frame_*.png, force plot: $(OUT)/demo/force.png, SYNTHETIC study: $(OUT)/demo/study.db, Table 1: $(OUT)/demo/table1.md"
 
 test: venv
 	$(PY) -m pytest -q

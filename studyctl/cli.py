@@ -526,6 +526,34 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, as
 
 
 @cli.group(cls=_Group)
+def report():
+    """Reports made from a study database."""
+
+
+@report.command("table1")
+@DB
+@click.option("--format", "fmt", type=click.Choice(["md", "csv", "json"]), default="md", show_default=True)
+@click.option("--out", "out_file", type=click.Path(dir_okay=False, path_type=Path), default=None)
+def report_table1(db, fmt, out_file):
+    """The seed paper's Table 1 with Wilson intervals, Cochran's Q and deformation times."""
+    from analysis import table1
+
+    if fmt == "md":
+        text = table1.markdown(db)
+    elif fmt == "csv":
+        text = table1.rates(db).to_csv(index=False)
+    else:
+        text = json.dumps(_jsonable({"facts": table1.study_facts(db), "rates": table1.rates(db).to_dict(orient="records"),
+                                     "cochran": table1.cochran(db).to_dict(orient="records"),
+                                     "deformation": table1.deformation(db).to_dict(orient="records")}), indent=2)
+    if out_file:
+        Path(out_file).write_text(text)
+        click.echo(f"wrote {out_file}")
+    else:
+        click.echo(text, nl=False)
+
+
+@cli.group(cls=_Group)
 def answers():
     """Answers collected outside the simulator."""
 

@@ -1,0 +1,145 @@
+"""Table 1 of the seed paper from a study database, with the statistics it left out.
+
+Tidy DataFrames with stable column names (documented in docs/analysis.md):
+
+- `rates(db)`: one row per item and model: ``item, question, model, yes, no, n, rate,
+  wilson_low, wilson_high`` (Wilson 95% interval);
+- `cochran(db)`: one row per item: ``item, cochran_q, df, p_value, n_complete`` (participants
+  who answered the item for every model);
+- `deformation(db)`: one row per model: ``model, n_trials, mean_ms, sd_ms, median_ms, p95_ms``.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+
+def _connect(db) -> sqlite3.Connection:
+    from studyctl.errors import StoreError
+
+    if not Path(db).exists():
+        raise StoreError(f"{db}: no such study database")
+    return sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+
+
+def _protocol(db):
+    from studyctl.store import Store
+
+    store = Store(db)
+    try:
+        return store.protocol()
+    finally:
+        store.close()
+
+
+def wilson(yes: int, n: int, alpha: float = 0.05) -> tuple[float, float]:
+    from statsmodels.stats.proportion import proportion_confint
+
+    if n == 0:
+        return (float("nan"), float("nan"))
+    lo, hi = proportion_confint(yes, n, alpha=alpha, method="wilson")  # the default is the normal interval
+    return float(lo), float(hi)
+
+
+def rates(db) -> pd.DataFrame:
+    protocol = _protocol(db)
+    con = _connect(db)
+    try:
+        counts = pd.read_sql_query("select item, model, sum(answer) as yes, count(*) as n from answers group by item, model", con)
+    finally:
+        con.close()
+    text = {q.id: q.text for q in protocol.questions}
+    rows = []
+    for q in protocol.items:
+        for m in protocol.conditions:
+            c = counts[(counts["item"] == q) & (counts["model"] == m)]
+            yes = int(c["yes"].iloc[0]) if len(c) else 0
+            n = int(c["n"].iloc[0]) if len(c) else 0
+            lo, hi = wilson(yes, n)
+            rows.append({"item": q, "question": text[q], "model": m, "yes": yes, "no": n - yes, "n": n,
+                         "rate": yes / n if n else float("nan"), "wilson_low": lo, "wilson_high": hi})
+    return pd.DataFrame(rows, columns=["item", "question", "model", "yes", "no", "n", "rate", "wilson_low", "wilson_high"])
+
+
+def cochran(db) -> pd.DataFrame:
+    from statsmodels.stats.contingency_tables import cochrans_q
+
+    protocol = _protocol(db)
+    con = _connect(db)
+    try:
+        answers = pd.read_sql_query("select code, model, item, answer from answers", con)
+    finally:
+        con.close()
+    rows = []
+    for q in protocol.items:
+        wide = answers[answers["item"] == q].pivot(index="code", columns="model", values="answer")
+        wide = wide.reindex(columns=list(protocol.conditions)).dropna()
+        if len(wide) >= 2 and len(protocol.conditions) >= 2:
+            r = cochrans_q(wide.to_numpy(dtype=int))
+            q_stat, p = float(r.statistic), float(r.pvalue)
+            if not np.isfinite(q_stat):  # every participant answered alike across models
+                q_stat, p = 0.0, 1.0
+            rows.append({"item": q, "cochran_q": q_stat, "df": len(protocol.conditions) - 1, "p_value": p, "n_complete": len(wide)})
+        else:
+            rows.append({"item": q, "cochran_q": float("nan"), "df": len(protocol.conditions) - 1, "p_value": float("nan"), "n_complete": len(wide)})
+    return pd.DataFrame(rows, columns=["item", "cochran_q", "df", "p_value", "n_complete"])
+
+
+def deformation(db) -> pd.DataFrame:
+    protocol = _protocol(db)
+    con = _connect(db)
+    try:
+        lat = pd.read_sql_query("select model, value from latency where measure = 'deformation_ms'", con)
+    finally:
+        con.close()
+    rows = []
+    for m in protocol.conditions:
+        v = lat.loc[lat["model"] == m, "value"].to_numpy()
+        rows.append({"model": m, "n_trials": len(v), "mean_ms": float(v.mean()) if len(v) else float("nan"),
+                     "sd_ms": float(v.std(ddof=1)) if len(v) > 1 else float("nan"),
+                     "median_ms": float(np.median(v)) if len(v) else float("nan"),
+                     "p95_ms": float(np.percentile(v, 95)) if len(v) else float("nan")})
+    return pd.DataFrame(rows, columns=["model", "n_trials", "mean_ms", "sd_ms", "median_ms", "p95_ms"])
+
+
+def study_facts(db) -> dict:
+    protocol = _protocol(db)
+    con = _connect(db)
+    try:
+        n = con.execute("select count(distinct code) from answers").fetchone()[0]
+        synthetic = con.execute("select count(*) from participants p where p.synthetic = 1 and p.code in (select code from answers)").fetchone()[0]
+        sources = [r[0] for r in con.execute("select distinct source from answers")]
+    finally:
+        con.close()
+    return {"study": protocol.name, "participants": n, "synthetic_participants": synthetic,
+            "synthetic": synthetic > 0 or "synthetic" in sources,
+            "design": f"within-subject, {len(protocol.conditions)} models, {protocol.counterbalancing} counterbalancing"}
+
+
+def markdown(db) -> str:
+    """Table 1 as Markdown: counts, rate [Wilson 95%] per model, Cochran's Q per item, and the
+    deformation-time row, headed by N, the design and a synthetic-data flag."""
+    facts, r, q, d = study_facts(db), rates(db), cochran(db), deformation(db)
+    models = list(d["model"])
+    flag = "SYNTHETIC DATA (simulated participants): not evidence about people. " if facts["synthetic"] else ""
+    lines = [
+        f"**Table 1: {facts['study']}.** {flag}N = {facts['participants']} participants; {facts['design']}.",
+        "",
+        "| Question | " + " | ".join(f"{m}: yes/no, rate [95% CI]" for m in models) + " | Cochran's Q (p) |",
+        "|---|" + "---|" * len(models) + "---|",
+    ]
+    for item, g in r.groupby("item", sort=False):
+        cells = []
+        for m in models:
+            row = g[g["model"] == m].iloc[0]
+            cells.append(f"{row['yes']}/{row['no']}, {row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]")
+        qrow = q[q["item"] == item].iloc[0]
+        lines.append(f"| {g['question'].iloc[0]} | " + " | ".join(cells) + f" | {qrow['cochran_q']:.2f} ({qrow['p_value']:.3g}) |")
+    cells = [f"{row['mean_ms']:.2f} +- {row['sd_ms']:.2f} (median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f})" for _, row in d.iterrows()]
+    lines.append("| Time for real-time deformation of the model, ms | " + " | ".join(cells) + " | |")
+    lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models for participants who answered all of them."]
+    return "\n".join(lines) + "\n"
