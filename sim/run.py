@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.servo import Event, Hand, ServoLoop
+from sim.servo import Event, Hand, ServoLoop, wait_until
 
 MISS_STREAK = 3  # consecutive late ticks that suspend force output
 SUSPEND_S = 0.1  # for this long
@@ -329,12 +329,7 @@ def _run_realtime(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
         streak = 0
         try:
             for k in range(n_ticks):
-                while True:  # sleep most of the wait, spin the last 0.2 ms
-                    remaining = deadline - clock()
-                    if remaining <= 0:
-                        break
-                    if remaining > 3e-4:
-                        time.sleep(remaining - 2e-4)
+                wait_until(deadline, 2e-4)
                 now = clock()
                 starts[k] = now
                 if now > deadline + 0.5 * period:

@@ -20,6 +20,17 @@ from sim.models.base import Contact
 NO_FORCE = (0.0, 0.0, 0.0)
 
 
+def wait_until(deadline: float, spin: float) -> None:
+    """Sleep until `spin` seconds before `deadline` on perf_counter, then spin: sleep alone
+    wakes up late by a fraction of a millisecond."""
+    while True:
+        remaining = deadline - time.perf_counter()
+        if remaining <= 0:
+            return
+        if remaining > spin + 1e-4:
+            time.sleep(remaining - spin)
+
+
 @dataclass
 class Event:
     t: float

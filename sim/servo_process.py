@@ -24,7 +24,7 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
-from sim.servo import Event, Hand, ServoLoop
+from sim.servo import Event, Hand, ServoLoop, wait_until
 
 # per-hand slots in shared memory (float64)
 P, BUTTON, F, GRASP_SEQ, GRASP_AT, FAULT, HELD = 0, 3, 4, 7, 8, 11, 12
@@ -146,12 +146,7 @@ def _child(conn, shm_name: str, recipes, hand_names, rate: float, n_ticks: int, 
                     stop = True
             if stop:
                 break
-            while True:  # sleep most of the wait, spin the last 0.5 ms (wake-ups run late under load)
-                remaining = deadline - clock()
-                if remaining <= 0:
-                    break
-                if remaining > 6e-4:
-                    time.sleep(remaining - 5e-4)
+            wait_until(deadline, 5e-4)  # spin the last 0.5 ms: wake-ups run late under load
             now = clock()
             starts[k] = now
             if now > deadline + 0.5 * period:

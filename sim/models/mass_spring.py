@@ -135,7 +135,11 @@ class MassSpring:
         e = self.springs
         d = self.rest_positions[e[:, 0]] - self.rest_positions[e[:, 1]]
         nn = d / self.rest[:, None]
-        blocks = self.k[:, None, None] * nn[:, :, None] * nn[:, None, :]  # (e, 3, 3)
+        return self._spring_matrix(self.k[:, None, None] * nn[:, :, None] * nn[:, None, :])
+
+    def _spring_matrix(self, blocks: np.ndarray) -> sp.csr_matrix:
+        """Assemble one 3x3 block per spring (e, 3, 3) as [[B, -B], [-B, B]] on its two nodes."""
+        e = self.springs
         i3 = (3 * e[:, :, None] + np.arange(3)).reshape(len(e), 6)
         B = np.zeros((len(e), 6, 6))
         B[:, :3, :3] = blocks
@@ -235,15 +239,7 @@ class MassSpring:
         outer = nn[:, :, None] * nn[:, None, :]
         trans = np.clip(1.0 - self.rest / length, 0.0, None)
         blocks = self.k[:, None, None] * (outer + trans[:, None, None] * (np.eye(3) - outer))
-        i3 = (3 * e[:, :, None] + np.arange(3)).reshape(len(e), 6)
-        B = np.zeros((len(e), 6, 6))
-        B[:, :3, :3] = blocks
-        B[:, 3:, 3:] = blocks
-        B[:, :3, 3:] = -blocks
-        B[:, 3:, :3] = -blocks
-        rows = np.repeat(i3, 6, axis=1).ravel()
-        cols = np.tile(i3, (1, 6)).ravel()
-        return -sp.coo_matrix((B.ravel(), (rows, cols)), shape=(3 * self.n, 3 * self.n)).tocsr()
+        return -self._spring_matrix(blocks)
 
     def _implicit(self, h: float) -> None:
         """(M - h^2 df/dx + h c M) dv = h (f + h df/dx v): one linearised backward-Euler step."""
