@@ -553,6 +553,49 @@ def report_table1(db, fmt, out_file):
         click.echo(text, nl=False)
 
 
+@report.command("stats")
+@DB
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable (the default output is a summary).")
+def report_stats(db, as_json):
+    """Per question Cochran's Q, rates with Wilson intervals, exact McNemar pairs (Holm);
+    for latency Friedman and Wilcoxon pairs (Holm); effect sizes."""
+    from analysis.stats import study_stats
+
+    out = study_stats(db)
+    if as_json:
+        _print_json(out)
+        return
+    flag = " (SYNTHETIC DATA)" if out["facts"]["synthetic"] else ""
+    click.echo(f"{out['facts']['study']}: N = {out['facts']['participants']}{flag}")
+    for item, v in out["items"].items():
+        pairs = ", ".join(f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" for p in v["pairs"])
+        click.echo(f"{item}: Q = {v['cochran_q']:.2f}, p = {v['p_value']:.3g}; {pairs}")
+    if out["latency"]:
+        lat = out["latency"]
+        click.echo(f"deformation time: Friedman {lat['statistic']:.2f}, p = {lat['p_value']:.3g}, Kendall's W {lat['kendall_w']:.2f}")
+
+
+@report.command("published")
+@click.option("--table", "table_file", required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--json", "as_json", is_flag=True)
+def report_published(table_file, as_json):
+    """Check a published Table 1: printed rates against their counts, and what counts allow."""
+    from analysis.stats import published
+
+    out = published(table_file)
+    if as_json:
+        _print_json(out)
+        return
+    if out["flags"]:
+        for f in out["flags"]:
+            click.echo(f"{f['item']} / {f['model']}: printed {f['printed']}, counts {f['yes']}/{f['yes'] + f['no']} give {f['computed']}")
+    else:
+        click.echo("every printed rate agrees with its counts")
+    for h in out["homogeneity"]:
+        click.echo(f"{h['item']}: chi2({h['df']}) = {h['chi2']:.2f}, p = {h['p_value']:.3g} (ignores the pairing)")
+    click.echo(out["not_computable"])
+
+
 @cli.group(cls=_Group)
 def answers():
     """Answers collected outside the simulator."""

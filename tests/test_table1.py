@@ -43,3 +43,59 @@ def test_small_synthetic_study_through_to_table1(tmp_path):
     for r in out["rates"]:
         assert r["yes"] + r["no"] == 6 and r["wilson_low"] <= r["rate"] <= r["wilson_high"]
     assert {c["item"] for c in out["cochran"]} == {r["item"] for r in out["rates"]}
+
+
+def test_mcnemar_with_continuity_correction_matches_the_published_example():
+    from statsmodels.stats.contingency_tables import mcnemar
+
+    r = mcnemar([[48, 86], [150, 510]], exact=False, correction=True)
+    assert round(r.statistic, 3) == 16.818 and r.pvalue == pytest.approx(4.115e-05, rel=1e-3)
+
+
+def test_friedman_with_and_without_tie_correction_matches_nag_g08aef():
+    import numpy as np
+
+    from analysis.stats import friedman
+
+    t1 = [1, 2, 1, 1, 3, 2, 3, 1, 3, 3, 2, 2, 3, 2, 2.5, 3, 3, 2]
+    t2 = [3, 3, 3, 2, 1, 3, 2, 3, 1, 1, 3, 3, 2, 3, 2.5, 2, 2, 3]
+    t3 = [2, 1, 2, 3, 2, 1, 1, 2, 2, 2, 1, 1, 1, 1, 1, 1, 1, 1]
+    f = friedman(np.array([t1, t2, t3]).T)
+    assert round(f["statistic_uncorrected"], 3) == 8.583 and round(f["p_value_uncorrected"], 4) == 0.0137
+    assert round(f["statistic"], 3) == 8.704 and round(f["p_value"], 4) == 0.0129
+
+
+def test_wilcoxon_signed_rank_matches_hollander_and_wolfe():
+    from scipy import stats
+
+    x = [1.83, 0.50, 1.62, 2.48, 1.68, 1.88, 1.55, 3.06, 1.30]
+    y = [0.878, 0.647, 0.598, 2.05, 1.06, 1.29, 1.06, 3.14, 1.29]
+    r = stats.wilcoxon(x, y, alternative="greater")
+    assert r.statistic == 40 and round(r.pvalue, 5) == 0.01953
+
+
+def test_published_table_is_flagged_exactly_where_counts_and_rates_disagree():
+    import json
+
+    from tests.conftest import ROOT
+
+    res = CliRunner().invoke(cli, ["report", "published", "--table", str(ROOT / "data" / "paper_table1.csv"), "--json"])
+    out = json.loads(res.output)
+    assert [(f["item"], f["model"], f["printed"], f["computed"]) for f in out["flags"]] == [("realtime", "mass_spring", "8.6%", "68.6%")]
+    assert len(out["homogeneity"]) == 9 and all("ignores" in h["note"] for h in out["homogeneity"])
+    assert "paired" in out["not_computable"]
+
+
+def test_report_stats_json_keys(tmp_path):
+    import json
+
+    db = tmp_path / "s.db"
+    run_synthetic_study(db, 6, seed=4, protocol_path=fast_protocol(tmp_path, trials=1))
+    out = json.loads(CliRunner().invoke(cli, ["report", "stats", "--db", str(db), "--json"]).output)
+    item = out["items"]["natural"]
+    assert {"cochran_q", "p_value", "rates", "pairs"} <= set(item)
+    assert {"yes", "no", "rate", "wilson_low", "wilson_high"} <= set(item["rates"]["fem"])
+    assert len(item["pairs"]) == 3 and {"a", "b", "p_value", "p_holm"} <= set(item["pairs"][0])
+    assert all(p["p_holm"] >= p["p_value"] for p in item["pairs"])
+    lat = out["latency"]
+    assert {"statistic", "p_value", "kendall_w", "pairs"} <= set(lat) and len(lat["pairs"]) == 3
