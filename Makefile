@@ -17,12 +17,15 @@ demo: venv
 	rm -f $(OUT)/demo/study.db $(OUT)/demo/study.db-wal $(OUT)/demo/study.db-shm
 	$(VENV)/bin/studyctl synth --db $(OUT)/demo/study.db --protocol protocols/brain_pull_2015.toml --participants 35 --seed 1 --jobs 2
 	$(VENV)/bin/studyctl report table1 --db $(OUT)/demo/study.db --out $(OUT)/demo/table1.md
-	@echo "pictures: $(OUT)/demo/frame_*.png, force plot: $(OUT)/demo/force.png, SYNTHETIC study: $(OUT)/demo/study.db, Table 1: $(OUT)/demo/table1.md"
+	$(VENV)/bin/studyctl report table1 --db $(OUT)/demo/study.db --format html --out $(OUT)/demo/report.html
+	@echo "pictures: $(OUT)/demo/frame_*.png, force plot: $(OUT)/demo/force.png, SYNTHETIC study: $(OUT)/demo/study.db,"
+	@echo "Table 1: $(OUT)/demo/table1.md, report with statistics and plots: $(OUT)/demo/report.html"
 
 test: venv
 	$(PY) -m pytest -q
 
 test-all: venv
+	@command -v chromium >/dev/null || { SUDO=""; [ "$$(id -u)" = 0 ] || SUDO=sudo; $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends chromium >/dev/null; }
 	$(PY) -m pytest -q -m "slow or not slow"
 
 bench: venv

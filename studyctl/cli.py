@@ -532,14 +532,23 @@ def report():
 
 @report.command("table1")
 @DB
-@click.option("--format", "fmt", type=click.Choice(["md", "csv", "json"]), default="md", show_default=True)
+@click.option("--format", "fmt", type=click.Choice(["md", "csv", "latex", "html", "json"]), default="md", show_default=True)
 @click.option("--out", "out_file", type=click.Path(dir_okay=False, path_type=Path), default=None)
 def report_table1(db, fmt, out_file):
-    """The seed paper's Table 1 with Wilson intervals, Cochran's Q and deformation times."""
+    """The seed paper's Table 1 with Wilson intervals, Cochran's Q and deformation times
+    (html: one self-contained file with the statistics and plots)."""
     from analysis import table1
 
     if fmt == "md":
         text = table1.markdown(db)
+    elif fmt == "latex":
+        from analysis.report import latex
+
+        text = latex(db)
+    elif fmt == "html":
+        from analysis.report import html
+
+        text = html(db)
     elif fmt == "csv":
         text = table1.rates(db).to_csv(index=False)
     else:
@@ -551,6 +560,17 @@ def report_table1(db, fmt, out_file):
         click.echo(f"wrote {out_file}")
     else:
         click.echo(text, nl=False)
+
+
+@report.command("plots")
+@DB
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path))
+def report_plots(db, out_dir):
+    """Rates with intervals, deformation times, and force traces against the FEM (PNG and SVG)."""
+    from analysis.report import write_plots
+
+    files = write_plots(db, out_dir)
+    click.echo(f"wrote {len(files)} files to {out_dir}")
 
 
 @report.command("stats")

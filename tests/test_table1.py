@@ -99,3 +99,48 @@ def test_report_stats_json_keys(tmp_path):
     assert all(p["p_holm"] >= p["p_value"] for p in item["pairs"])
     lat = out["latency"]
     assert {"statistic", "p_value", "kendall_w", "pairs"} <= set(lat) and len(lat["pairs"]) == 3
+
+
+@pytest.fixture(scope="module")
+def small_study(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("study")
+    db = tmp / "s.db"
+    run_synthetic_study(db, 6, seed=5, protocol_path=fast_protocol(tmp, trials=1))
+    return db
+
+
+def test_latex_html_and_plots(small_study, tmp_path):
+    db = small_study
+    tex = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "latex"]).output
+    assert tex.startswith("\\begin{table}") and "SYNTHETIC DATA" in tex and tex.count("\\\\") == 10
+    res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "html", "--out", str(tmp_path / "r.html")])
+    assert res.exit_code == 0, res.output
+    page = (tmp_path / "r.html").read_text()
+    assert "SYNTHETIC DATA" in page and page.count("data:image/png;base64,") == 3 and "Friedman" in page
+    assert "http" not in page.split("<body>")[1]  # self-contained: nothing fetched
+    res = CliRunner().invoke(cli, ["report", "plots", "--db", str(db), "--out", str(tmp_path / "plots")])
+    assert res.exit_code == 0
+    names = sorted(p.name for p in (tmp_path / "plots").iterdir())
+    assert names == ["deformation.png", "deformation.svg", "force.png", "force.svg", "rates.png", "rates.svg"]
+
+
+@pytest.mark.slow
+def test_html_report_renders_in_headless_chromium(small_study, tmp_path):
+    import shutil
+    import subprocess
+
+    browser = shutil.which("chromium")
+    if browser is None:
+        pytest.skip("Debian's chromium is not installed (apt-get install chromium)")
+    CliRunner().invoke(cli, ["report", "table1", "--db", str(small_study), "--format", "html", "--out", str(tmp_path / "r.html")])
+    shot = tmp_path / "shot.png"
+    subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                    f"--user-data-dir={tmp_path / 'profile'}", "--window-size=1300,1600", f"--screenshot={shot}",
+                    f"file://{tmp_path / 'r.html'}"], capture_output=True, timeout=120, check=True)
+    import matplotlib.image as mpimg
+
+    img = mpimg.imread(shot)[..., :3]
+    assert img.std() > 0.05  # not blank
+    red = (img[..., 0] > 0.6) & (img[..., 1] < 0.1) & (img[..., 2] < 0.2)
+    assert red.sum() > 500  # the synthetic-data banner is there

@@ -1,0 +1,110 @@
+"""Report documents: LaTeX Table 1, and one self-contained HTML file with tables and plots."""
+
+from __future__ import annotations
+
+import base64
+import html as _html
+import tempfile
+from pathlib import Path
+
+from analysis import plots, table1
+
+
+def _protocol_scene(db):
+    from studyctl.store import Store
+
+    store = Store(db)
+    try:
+        return store.protocol().scene
+    finally:
+        store.close()
+
+
+def write_plots(db, out_dir, force_traces: bool = True) -> list[Path]:
+    """rates, deformation and force plots as PNG and SVG in `out_dir`."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    synthetic = table1.study_facts(db)["synthetic"]
+    r = table1.rates(db)
+    traces = plots.force_traces(_protocol_scene(db)) if force_traces else None
+    written = []
+    for ext in ("png", "svg"):
+        plots.rates_plot(r, out_dir / f"rates.{ext}", synthetic)
+        plots.deformation_plot(db, out_dir / f"deformation.{ext}", synthetic)
+        written += [out_dir / f"rates.{ext}", out_dir / f"deformation.{ext}"]
+        if traces is not None:
+            plots.force_plot(traces, out_dir / f"force.{ext}")
+            written.append(out_dir / f"force.{ext}")
+    return written
+
+
+def latex(db) -> str:
+    facts, r, q = table1.study_facts(db), table1.rates(db), table1.cochran(db)
+    models = list(dict.fromkeys(r["model"]))
+
+    def esc(s: str) -> str:
+        return s.replace("\\", r"\textbackslash{}").replace("&", r"\&").replace("%", r"\%").replace("_", r"\_").replace("#", r"\#")
+
+    lines = [r"\begin{table}", r"\centering", r"\small",
+             r"\caption{" + esc(("SYNTHETIC DATA. " if facts["synthetic"] else "") + f"{facts['study']}: N = {facts['participants']}; {facts['design']}.") + "}",
+             r"\begin{tabular}{l" + "c" * len(models) + "c}", r"\hline",
+             "Question & " + " & ".join(esc(m) for m in models) + r" & Cochran's $Q$ ($p$) \\", r"\hline"]
+    for item, g in r.groupby("item", sort=False):
+        cells = []
+        for m in models:
+            row = g[g["model"] == m].iloc[0]
+            cells.append(f"{row['yes']}/{row['no']}, {100 * row['rate']:.1f}\\% [{100 * row['wilson_low']:.1f}, {100 * row['wilson_high']:.1f}]")
+        qrow = q[q["item"] == item].iloc[0]
+        lines.append(esc(g["question"].iloc[0]) + " & " + " & ".join(cells) + f" & {qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})" + r" \\")
+    lines += [r"\hline", r"\end{tabular}", r"\end{table}"]
+    return "\n".join(lines) + "\n"
+
+
+def html(db, force_traces: bool = True) -> str:
+    """One self-contained HTML file: facts, Table 1, statistics, plots (PNG inlined)."""
+    from analysis.stats import study_stats
+
+    facts, r, q, d = table1.study_facts(db), table1.rates(db), table1.cochran(db), table1.deformation(db)
+    st = study_stats(db)
+    with tempfile.TemporaryDirectory() as tmp:
+        write_plots(db, tmp, force_traces)
+        images = {name: base64.b64encode((Path(tmp) / f"{name}.png").read_bytes()).decode()
+                  for name in ("rates", "deformation", "force") if (Path(tmp) / f"{name}.png").exists()}
+    esc = _html.escape
+    banner = ('<p class="synthetic">SYNTHETIC DATA: simulated participants; not evidence about people.</p>' if facts["synthetic"] else "")
+    rows = []
+    models = list(d["model"])
+    for item, g in r.groupby("item", sort=False):
+        cells = "".join(
+            f"<td>{row['yes']}/{row['no']}<br>{row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]</td>"
+            for _, row in g.set_index("model").loc[models].reset_index().iterrows())
+        qrow = q[q["item"] == item].iloc[0]
+        pairs = "; ".join(f"{p['a']} vs {p['b']}: {p['p_holm']:.3g}" for p in st["items"][item]["pairs"])
+        rows.append(f"<tr><td>{esc(g['question'].iloc[0])}</td>{cells}<td>{qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})</td><td>{esc(pairs)}</td></tr>")
+    dcells = "".join(f"<td>{row['mean_ms']:.2f} &plusmn; {row['sd_ms']:.2f}<br>median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f}</td>" for _, row in d.iterrows())
+    lat = st["latency"]
+    lat_text = (f"Friedman &chi;&sup2;({lat['df']}) = {lat['statistic']:.2f}, p = {lat['p_value']:.3g}, Kendall's W = {lat['kendall_w']:.2f}; "
+                + "; ".join(f"{esc(p['a'])} vs {esc(p['b'])}: Wilcoxon p<sub>Holm</sub> = {p['p_holm']:.3g}, r = {p['rank_biserial']:.2f}" for p in lat["pairs"])) if lat else ""
+    figs = "".join(f'<figure><img alt="{k}" src="data:image/png;base64,{v}"></figure>' for k, v in images.items())
+    head = "".join(f"<th>{esc(m)}</th>" for m in models)
+    return f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>{esc(facts['study'])}: Table 1</title>
+<style>
+body {{ font-family: sans-serif; margin: 2em; color: #222; }}
+table {{ border-collapse: collapse; font-size: 13px; }}
+th, td {{ border: 1px solid #bbb; padding: 4px 8px; vertical-align: top; }}
+th {{ background: #eee; }}
+.synthetic {{ background: #b00020; color: white; padding: 6px 10px; font-weight: bold; display: inline-block; }}
+figure {{ display: inline-block; margin: 1em; }}
+img {{ max-width: 900px; }}
+</style></head><body>
+<h1>{esc(facts['study'])}: Table 1</h1>
+{banner}
+<p>N = {facts['participants']} participants; {esc(facts['design'])}. Rates with Wilson 95% intervals; Cochran's Q across models; pairwise exact McNemar tests with Holm adjustment.</p>
+<table><tr><th>Question</th>{head}<th>Cochran's Q (p)</th><th>McNemar p (Holm)</th></tr>
+{''.join(rows)}
+<tr><td>Time for real-time deformation of the model, ms</td>{dcells}<td colspan="2">{lat_text}</td></tr>
+</table>
+{figs}
+</body></html>
+"""
