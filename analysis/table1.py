@@ -123,14 +123,17 @@ def study_facts(db) -> dict:
 def markdown(db) -> str:
     """Table 1 as Markdown: counts, rate [Wilson 95%] per model, Cochran's Q per item, and the
     deformation-time row, headed by N, the design and a synthetic-data flag."""
+    from analysis.stats import study_stats
+
     facts, r, q, d = study_facts(db), rates(db), cochran(db), deformation(db)
+    pairs = {item: v["pairs"] for item, v in study_stats(db)["items"].items()}
     models = list(d["model"])
     flag = "SYNTHETIC DATA (simulated participants): not evidence about people. " if facts["synthetic"] else ""
     lines = [
         f"**Table 1: {facts['study']}.** {flag}N = {facts['participants']} participants; {facts['design']}.",
         "",
-        "| Question | " + " | ".join(f"{m}: yes/no, rate [95% CI]" for m in models) + " | Cochran's Q (p) |",
-        "|---|" + "---|" * len(models) + "---|",
+        "| Question | " + " | ".join(f"{m}: yes/no, rate [95% CI]" for m in models) + " | Cochran's Q (p) | McNemar p, Holm |",
+        "|---|" + "---|" * len(models) + "---|---|",
     ]
     for item, g in r.groupby("item", sort=False):
         cells = []
@@ -138,8 +141,10 @@ def markdown(db) -> str:
             row = g[g["model"] == m].iloc[0]
             cells.append(f"{row['yes']}/{row['no']}, {row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]")
         qrow = q[q["item"] == item].iloc[0]
-        lines.append(f"| {g['question'].iloc[0]} | " + " | ".join(cells) + f" | {qrow['cochran_q']:.2f} ({qrow['p_value']:.3g}) |")
+        mc = "; ".join(f"{p['a']}-{p['b']} {p['p_holm']:.3g}" for p in pairs.get(item, []))
+        lines.append(f"| {g['question'].iloc[0]} | " + " | ".join(cells) + f" | {qrow['cochran_q']:.2f} ({qrow['p_value']:.3g}) | {mc} |")
     cells = [f"{row['mean_ms']:.2f} +- {row['sd_ms']:.2f} (median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f})" for _, row in d.iterrows()]
-    lines.append("| Time for real-time deformation of the model, ms | " + " | ".join(cells) + " | |")
-    lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models for participants who answered all of them."]
+    lines.append("| Time for real-time deformation of the model, ms | " + " | ".join(cells) + " | | |")
+    lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models for participants who answered all of them; "
+              "pairwise exact McNemar tests, Holm-adjusted."]
     return "\n".join(lines) + "\n"

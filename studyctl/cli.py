@@ -549,8 +549,9 @@ def report_table1(db, fmt, out_file):
         from analysis.report import html
 
         text = html(db)
-    elif fmt == "csv":
-        text = table1.rates(db).to_csv(index=False)
+    elif fmt == "csv":  # the flag and N travel with the table
+        facts = table1.study_facts(db)
+        text = table1.rates(db).assign(participants=facts["participants"], synthetic=facts["synthetic"]).to_csv(index=False)
     else:
         text = json.dumps(_jsonable({"facts": table1.study_facts(db), "rates": table1.rates(db).to_dict(orient="records"),
                                      "cochran": table1.cochran(db).to_dict(orient="records"),
