@@ -45,16 +45,10 @@ def rates_plot(rates, path: Path, synthetic: bool) -> None:
 
 def deformation_plot(db, path: Path, synthetic: bool) -> None:
     """Distribution of the deformation time per frame (trial means) per model, log scale."""
-    import sqlite3
-
-    import pandas as pd
+    from analysis.table1 import _query
 
     plt = _plt()
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    try:
-        lat = pd.read_sql_query("select model, value from latency where measure = 'deformation_ms'", con)
-    finally:
-        con.close()
+    lat = _query(db, "select model, value from latency where measure = 'deformation_ms'")
     models = list(dict.fromkeys(lat["model"]))
     fig, ax = plt.subplots(figsize=(6, 3.6), dpi=100)
     data = [lat.loc[lat["model"] == m, "value"].to_numpy() for m in models]

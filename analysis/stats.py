@@ -76,25 +76,16 @@ def pairwise_wilcoxon(wide: pd.DataFrame) -> pd.DataFrame:
 
 def study_stats(db) -> dict:
     """Everything `studyctl report stats --json` prints."""
-    import sqlite3
+    from analysis.table1 import _query, answers_wide, cochran, rates, study_facts
 
-    from analysis.table1 import cochran, rates, study_facts
-
-    protocol_models = None
     r, q = rates(db), cochran(db)
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    try:
-        answers = pd.read_sql_query("select code, model, item, answer from answers", con)
-        lat = pd.read_sql_query(
-            "select s.code, l.model, avg(l.value) as value from latency l join sessions s on s.id = l.session_id "
-            "where l.measure = 'deformation_ms' group by s.code, l.model", con)
-    finally:
-        con.close()
+    answers = _query(db, "select code, model, item, answer from answers")
+    lat = _query(db, "select s.code, l.model, avg(l.value) as value from latency l join sessions s on s.id = l.session_id "
+                     "where l.measure = 'deformation_ms' group by s.code, l.model")
     protocol_models = list(dict.fromkeys(r["model"]))
     items = {}
     for item, g in r.groupby("item", sort=False):
-        wide = answers[answers["item"] == item].pivot(index="code", columns="model", values="answer")
-        wide = wide.reindex(columns=protocol_models).dropna()
+        wide = answers_wide(answers, item, protocol_models)
         pairs = pairwise_mcnemar(wide) if len(wide) else pd.DataFrame(columns=["a", "b", "p_value", "p_holm"])
         qrow = q[q["item"] == item].iloc[0]
         items[item] = {

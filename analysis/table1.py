@@ -26,6 +26,20 @@ def _connect(db) -> sqlite3.Connection:
     return sqlite3.connect(f"file:{db}?mode=ro", uri=True)
 
 
+def _query(db, sql: str) -> pd.DataFrame:
+    con = _connect(db)
+    try:
+        return pd.read_sql_query(sql, con)
+    finally:
+        con.close()
+
+
+def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.DataFrame:
+    """0/1 answers to one item: a row per participant who answered it for every model."""
+    wide = answers[answers["item"] == item].pivot(index="code", columns="model", values="answer")
+    return wide.reindex(columns=models).dropna()
+
+
 def _protocol(db):
     from studyctl.store import Store
 
@@ -47,11 +61,7 @@ def wilson(yes: int, n: int, alpha: float = 0.05) -> tuple[float, float]:
 
 def rates(db) -> pd.DataFrame:
     protocol = _protocol(db)
-    con = _connect(db)
-    try:
-        counts = pd.read_sql_query("select item, model, sum(answer) as yes, count(*) as n from answers group by item, model", con)
-    finally:
-        con.close()
+    counts = _query(db, "select item, model, sum(answer) as yes, count(*) as n from answers group by item, model")
     text = {q.id: q.text for q in protocol.questions}
     rows = []
     for q in protocol.items:
@@ -69,15 +79,10 @@ def cochran(db) -> pd.DataFrame:
     from statsmodels.stats.contingency_tables import cochrans_q
 
     protocol = _protocol(db)
-    con = _connect(db)
-    try:
-        answers = pd.read_sql_query("select code, model, item, answer from answers", con)
-    finally:
-        con.close()
+    answers = _query(db, "select code, model, item, answer from answers")
     rows = []
     for q in protocol.items:
-        wide = answers[answers["item"] == q].pivot(index="code", columns="model", values="answer")
-        wide = wide.reindex(columns=list(protocol.conditions)).dropna()
+        wide = answers_wide(answers, q, list(protocol.conditions))
         if len(wide) >= 2 and len(protocol.conditions) >= 2:
             r = cochrans_q(wide.to_numpy(dtype=int))
             q_stat, p = float(r.statistic), float(r.pvalue)
@@ -91,11 +96,7 @@ def cochran(db) -> pd.DataFrame:
 
 def deformation(db) -> pd.DataFrame:
     protocol = _protocol(db)
-    con = _connect(db)
-    try:
-        lat = pd.read_sql_query("select model, value from latency where measure = 'deformation_ms'", con)
-    finally:
-        con.close()
+    lat = _query(db, "select model, value from latency where measure = 'deformation_ms'")
     rows = []
     for m in protocol.conditions:
         v = lat.loc[lat["model"] == m, "value"].to_numpy()
