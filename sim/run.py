@@ -1,15 +1,17 @@
 """Run a scene: the servo loop at its rate, the visual step at its rate, statistics, outputs.
 
-Two clocks:
+Clocks:
 
-- real time (``time_scale > 0``): the servo loop runs in its own thread, paced by
-  sleep-then-spin on the wall clock (scaled by `time_scale`); the visual step (grasps,
-  deformation, snapshots) runs in the calling thread. Tick intervals are wall-clock intervals.
+- real time (``time_scale > 0``): by default the servo loop runs in its own process
+  (sim/servo_process.py); with ``servo="thread"`` in a thread of this one, paced by
+  sleep-then-spin on the wall clock (scaled by `time_scale`). The visual step (grasps,
+  deformation, snapshots, optional live drawing) runs in the calling thread. Tick intervals
+  are wall-clock intervals.
+- scheduled: OpenHaptics devices; the HD library's scheduler calls the tick.
 - lockstep (``time_scale == 0``): one thread, simulated time only, as fast as the machine
   allows; deterministic for the same scene. Used by tests and synthetic studies.
 
-Pictures are rendered after the run from the snapshots, so rendering never competes with the
-servo thread in this process.
+`--frames` pictures are rendered after the run from the snapshots.
 """
 
 from __future__ import annotations
