@@ -86,7 +86,7 @@ def force_traces(scene_path, models=("plate_spring", "fem", "mass_spring"), dura
 def force_plot(traces: dict, path: Path) -> None:
     """Fig. 5-style: force of each model and the FEM reference for the same pull, and the
     relative difference against the force JND."""
-    from studyctl.synthetic import jnd
+    from sim.calibrate import jnd
 
     plt = _plt()
     fig, (ax, bx) = plt.subplots(2, 1, figsize=(7, 5.4), dpi=100, sharex=True)

@@ -217,6 +217,45 @@ def model_mass_spring(scene_file, resolution, integrator, dt, steps, substep, gr
     console.print(f"{out['ms_per_step']:.3f} ms per step" if out["ms_per_step"] is not None else "no step completed")
 
 
+@cli.group(cls=_Group)
+def calibrate():
+    """Fit model parameters to a reference."""
+
+
+@calibrate.command("plate-spring")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--reference", default="fem", show_default=True, help="fem (the scene's FEM) or a CSV with displacement_m, force_n.")
+@click.option("--max-displacement", type=click.FloatRange(min=0.001, max=0.1), default=0.02, show_default=True)
+@click.option("--out", "out_file", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Write the fitted parameter file.")
+@click.option("--json", "as_json", is_flag=True)
+def calibrate_plate_spring(scene_file, reference, max_displacement, out_file, as_json):
+    """Fit h1, alpha, q and x_c1 (within their bounds) to the reference force-displacement curve."""
+    import numpy as np
+
+    from sim.calibrate import fem_curve, fit, read_curve, to_toml
+    from sim.scene import load_scene
+
+    spec = load_scene(scene_file)
+    ps = spec.model_spec("plate_spring")
+    if reference == "fem":
+        xs = np.linspace(max_displacement / 20, max_displacement, 20)
+        forces = fem_curve(scene_file, xs)
+    else:
+        xs, forces = read_curve(reference)
+    params, rep = fit(ps.plate_spring, xs, forces, ps.variant)
+    if out_file:
+        Path(out_file).write_text(to_toml(params, f"Plate-spring parameters fitted by `studyctl calibrate plate-spring` to {reference}\n"
+                                                  f"({rep['points']} points up to {xs.max() * 1e3:.0f} mm; {rep['within_jnd']:.0%} within the force JND)"))
+    if as_json:
+        _print_json(rep | {"reference": reference, "out": str(out_file) if out_file else None})
+        return
+    f = rep["fitted"]
+    click.echo(f"fitted to {reference}: h1 {f['h1']:.5g} m, alpha {f['alpha']:.4g}, q {f['q']:.4g}, x_c1 {f['x_c1']:.5g} m")
+    click.echo(f"{rep['within_jnd']:.0%} of {rep['points']} points within the force JND; worst {rep['max_jnd_units']:.2f} JND, rms {rep['rms_jnd_units']:.2f} JND")
+    if out_file:
+        click.echo(f"wrote {out_file}")
+
+
 def _print_solution(out: dict) -> None:
     from rich.table import Table
 

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.calibrate import jnd
+
 # question -> weights on (latency, accuracy, smoothness, stability); a base logit of 1.0 is
 # about 73% yes, near the paper's overall rate
 WEIGHTS = {
@@ -86,11 +88,6 @@ class SyntheticParticipant:
                 impedance=HandImpedance(mass_kg=mass, stiffness_n_per_m=self.stiffness, damping_ns_per_m=damping),
             ))
         return out
-
-
-def jnd(force: np.ndarray) -> np.ndarray:
-    """Force discrimination threshold (the seed paper): 10% at or above 0.5 N, 25% below."""
-    return np.where(force >= 0.5, 0.10, 0.25)
 
 
 def reference_forces(result, reference, mesh) -> np.ndarray:
