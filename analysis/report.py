@@ -65,7 +65,7 @@ def html(db, force_traces: bool = True) -> str:
     from analysis.stats import study_stats
 
     facts, r, q, d = table1.study_facts(db), table1.rates(db), table1.cochran(db), table1.deformation(db)
-    st = study_stats(db)
+    st = study_stats(db, r, q)
     with tempfile.TemporaryDirectory() as tmp:
         write_plots(db, tmp, force_traces)
         images = {name: base64.b64encode((Path(tmp) / f"{name}.png").read_bytes()).decode()

@@ -74,11 +74,13 @@ def pairwise_wilcoxon(wide: pd.DataFrame) -> pd.DataFrame:
     return df
 
 
-def study_stats(db) -> dict:
-    """Everything `studyctl report stats --json` prints."""
+def study_stats(db, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None) -> dict:
+    """Everything `studyctl report stats --json` prints (`r`, `q`: rates and cochran already
+    computed by the caller, so a report does not compute them twice)."""
     from analysis.table1 import _query, answers_wide, cochran, rates, study_facts
 
-    r, q = rates(db), cochran(db)
+    r = rates(db) if r is None else r
+    q = cochran(db) if q is None else q
     answers = _query(db, "select code, model, item, answer from answers")
     lat = _query(db, "select s.code, l.model, avg(l.value) as value from latency l join sessions s on s.id = l.session_id "
                      "where l.measure = 'deformation_ms' group by s.code, l.model")

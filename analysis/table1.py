@@ -127,7 +127,7 @@ def markdown(db) -> str:
     from analysis.stats import study_stats
 
     facts, r, q, d = study_facts(db), rates(db), cochran(db), deformation(db)
-    pairs = {item: v["pairs"] for item, v in study_stats(db)["items"].items()}
+    pairs = {item: v["pairs"] for item, v in study_stats(db, r, q)["items"].items()}
     models = list(d["model"])
     flag = "SYNTHETIC DATA (simulated participants): not evidence about people. " if facts["synthetic"] else ""
     lines = [

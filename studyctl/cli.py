@@ -454,10 +454,7 @@ def schedule_cmd(db, start, end, hours, session_minutes, availability, ics, as_j
     """Give each waiting participant a slot on the rig and a counterbalanced order."""
     from studyctl.study import schedule_study
 
-    try:
-        rows = schedule_study(db, start, end, hours, session_minutes, availability, ics)
-    except StudyError as exc:
-        raise click.ClickException(str(exc)) from None
+    rows = schedule_study(db, start, end, hours, session_minutes, availability, ics)
     if as_json:
         _print_json(rows)
         return
@@ -508,12 +505,9 @@ def synth_cmd(db, participants, seed, jobs, protocol_file):
 
     from studyctl.synthetic import run_synthetic_study
 
-    try:
-        with Progress(transient=True) as progress:
-            task = progress.add_task("synthetic sessions", total=participants)
-            out = run_synthetic_study(db, participants, seed, jobs, protocol_file, progress=lambda k, n: progress.update(task, completed=k))
-    except StudyError as exc:
-        raise click.ClickException(str(exc)) from None
+    with Progress(transient=True) as progress:
+        task = progress.add_task("synthetic sessions", total=participants)
+        out = run_synthetic_study(db, participants, seed, jobs, protocol_file, progress=lambda k, n: progress.update(task, completed=k))
     click.echo(f"ran {out['participants']} SYNTHETIC sessions (seed {seed}, {jobs} jobs) in {out['seconds']:.1f} s")
 
 
@@ -679,10 +673,7 @@ def export_cmd(db, fmt, out_dir):
     """Export the pseudonymous tables (never the identifying one)."""
     from studyctl.study import export
 
-    try:
-        files = export(db, out_dir, fmt)
-    except StudyError as exc:
-        raise click.ClickException(str(exc)) from None
+    files = export(db, out_dir, fmt)
     click.echo(f"wrote {len(files)} files to {out_dir}")
 
 
