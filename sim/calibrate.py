@@ -25,20 +25,32 @@ def jnd(force: np.ndarray) -> np.ndarray:
     return np.where(force >= 0.5, 0.10, 0.25)
 
 
-def fem_curve(scene_path, displacements: np.ndarray) -> np.ndarray:
-    """FEM reaction force magnitude at each displacement along each hand's pull, averaged."""
-    from sim.scene import build_scene
+def fem_curve(scene_path, displacements: np.ndarray, formulation: str = "neo-hookean", resolution: float = 0.003) -> tuple[np.ndarray, np.ndarray]:
+    """The scene's FEM force magnitude along each hand's scripted pull: (displacements, forces),
+    the hands' curves concatenated. `neo-hookean` is the nonlinear reference (sim/reference.py,
+    cached); `linear` the haptic FEM's stiffness at `resolution`."""
+    from sim.reference import hand_pulls, reference_pull, scene_with
 
-    scene = build_scene(scene_path, "fem")
-    model = scene.model
+    scene = scene_with(scene_path)
+    xs = np.asarray(displacements, dtype=np.float64)
+    if formulation not in ("neo-hookean", "linear"):
+        raise ParameterError(f"formulation: {formulation!r} is not one of neo-hookean, linear")
+    if not 0.003 <= resolution <= 0.008:
+        raise ParameterError(f"resolution: {resolution * 1e3:g} mm is out of range; allowed: 3..8 mm")
     curves = []
-    for i, h in enumerate(scene.spec.hands):
-        c = model.grasp(h.start, i)
-        pull = np.asarray(h.script(scene.mesh).pull)
-        u = pull / np.linalg.norm(pull)
-        K = np.asarray(c.law.K).reshape(3, 3)
-        curves.append([float(np.linalg.norm(K @ (u * x))) for x in displacements])
-    return np.mean(curves, axis=0)
+    if formulation == "neo-hookean":
+        for pull in hand_pulls(scene):
+            ref = reference_pull(scene_path, resolution, pull, xs)
+            curves.append(np.linalg.norm(ref["force_per_pa"], axis=1) * scene.spec.material.young)
+    else:
+        from sim.models.fem import build
+        from sim.scene import ModelSpec
+
+        model = build(scene.mesh, ModelSpec(name="fem", options={"resolution": resolution}), scene)
+        for pull in hand_pulls(scene):
+            K = np.asarray(model.grasp(pull.point, 0).law.K).reshape(3, 3)
+            curves.append([float(np.linalg.norm(K @ (np.asarray(pull.direction) * x))) for x in xs])
+    return np.tile(xs, len(curves)), np.concatenate(curves)
 
 
 def read_curve(path) -> tuple[np.ndarray, np.ndarray]:

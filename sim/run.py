@@ -85,7 +85,11 @@ class VisualStep:
                 if dist > self.grasp_reach:
                     self.events.append(Event(t, h.index, "grasp_missed", f"surface {dist * 1e3:.1f} mm away"))
                     continue
-                contact = self.model.grasp(self.model_mesh().vertices[vertex], h.index)
+                try:
+                    contact = self.model.grasp(self.model_mesh().vertices[vertex], h.index)
+                except Exception as exc:  # e.g. a singular system: no grasp, never a crash
+                    self.events.append(Event(t, h.index, "model_fault", f"model_fault: grasp: {exc}"))
+                    continue
                 self.grasp_s.append(time.perf_counter() - start)
                 if h.button:  # still held: publish (time first, so the ramp starts right)
                     h.contact_t = t
@@ -99,7 +103,13 @@ class VisualStep:
                 contacts.append(c)
                 displacements.append((p[0] - c.point[0], p[1] - c.point[1], p[2] - c.point[2]))
         start = time.perf_counter()
-        u = self.model.deformation(contacts, displacements)
+        try:
+            u = self.model.deformation(contacts, displacements)
+        except Exception as exc:  # the model failed: drop the grasps (zero force), keep running
+            self.events.append(Event(t, -1, "model_fault", f"model_fault: deformation: {exc}"))
+            for h in self.hands:
+                h.contact = None
+            u = np.zeros_like(self.model_mesh().vertices)
         self.deformation_s.append(time.perf_counter() - start)
         self.last = u  # the latest surface displacement, for live drawing
         if self.snapshot_period is not None and t + 1e-9 >= self._next_snapshot:

@@ -85,6 +85,7 @@ class ServoLoop:
     events: list[Event] = field(default_factory=list)
     rows: list[tuple] = field(default_factory=list)  # (t, compute_s, io_s, then per hand px py pz fx fy fz button)
     suspended_until: float = -math.inf
+    model_fault: bool = False  # the model raised in a force call (logged once)
 
     def suspend(self, t: float, duration: float, reason: str) -> None:
         """Send zero force to every device until t + duration (e.g. after missed deadlines)."""
@@ -148,7 +149,13 @@ class ServoLoop:
             for h, c in zip(held, contacts):
                 p, a = h.position, c.point
                 disps.append((p[0] - a[0], p[1] - a[1], p[2] - a[2]))
-            raw = self._forces(contacts, disps)
+            try:
+                raw = self._forces(contacts, disps)
+            except Exception as exc:  # a model that throws renders nothing: never a crash in the loop
+                raw = [NO_FORCE] * len(held)
+                if not self.model_fault:
+                    self.events.append(Event(t, -1, "model_fault", f"model_fault: force: {exc}"))
+                self.model_fault = True
         # 3. safety, write, record
         unstable = bool(getattr(self.model, "unstable", False))
         suspended = t < self.suspended_until

@@ -225,10 +225,13 @@ def calibrate():
 @calibrate.command("plate-spring")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--reference", default="fem", show_default=True, help="fem (the scene's FEM) or a CSV with displacement_m, force_n.")
-@click.option("--max-displacement", type=click.FloatRange(min=0.001, max=0.1), default=0.02, show_default=True)
+@click.option("--formulation", type=click.Choice(["neo-hookean", "linear"]), default="neo-hookean", show_default=True, help="FEM reference formulation.")
+@click.option("--resolution", type=click.FloatRange(3, 8), default=3.0, show_default=True, help="FEM reference mesh spacing, mm.")
+@click.option("--max-displacement", type=click.FloatRange(min=0.001, max=0.1), default=0.024, show_default=True, help="m, the longest pull.")
+@click.option("--samples", type=click.IntRange(3, 100), default=6, show_default=True, help="Points per pull.")
 @click.option("--out", "out_file", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Write the fitted parameter file.")
 @click.option("--json", "as_json", is_flag=True)
-def calibrate_plate_spring(scene_file, reference, max_displacement, out_file, as_json):
+def calibrate_plate_spring(scene_file, reference, formulation, resolution, max_displacement, samples, out_file, as_json):
     """Fit h1, alpha, q and x_c1 (within their bounds) to the reference force-displacement curve."""
     import numpy as np
 
@@ -238,8 +241,8 @@ def calibrate_plate_spring(scene_file, reference, max_displacement, out_file, as
     spec = load_scene(scene_file)
     ps = spec.model_spec("plate_spring")
     if reference == "fem":
-        xs = np.linspace(max_displacement / 20, max_displacement, 20)
-        forces = fem_curve(scene_file, xs)
+        xs, forces = fem_curve(scene_file, max_displacement * np.arange(1, samples + 1) / samples, formulation, resolution / 1000)
+        reference = f"fem ({formulation}, {resolution:g} mm, the scene's {len(spec.hands)} scripted pulls)"
     else:
         xs, forces = read_curve(reference)
     params, rep = fit(ps.plate_spring, xs, forces, ps.variant)

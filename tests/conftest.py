@@ -4,7 +4,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "protocols" / "scenes" / "brain_pull.toml"
-BRAIN_PARAMS = ROOT / "protocols" / "models" / "plate_spring_brain.toml"
+BRAIN_PARAMS = ROOT / "protocols" / "models" / "plate_spring_handset.toml"  # hand-set values the tests rely on
 
 
 @pytest.fixture

@@ -53,7 +53,7 @@ def _scene_text(**replace) -> str:
 def test_broken_scenes(tmp_path, old, new, message):
     if old == "x_c1":  # plate-spring parameter errors surface with the parameter file's name
         params = tmp_path / "p.toml"
-        params.write_text((ROOT / "protocols/models/plate_spring_brain.toml").read_text().replace("alpha = 1.25", "alpha = 3.0"))
+        params.write_text((ROOT / "protocols/models/plate_spring_handset.toml").read_text().replace("alpha = 1.25", "alpha = 3.0"))
         text = _scene_text(**{'"../models/plate_spring_brain.toml"': f'"{params}"'})
         message = r"p.toml: alpha: 3.0 is out of range; allowed: \[1, 2\]"
     else:

@@ -16,6 +16,7 @@ Degrees of freedom are node-major: dof ``3 i + c`` is component c of node i. SI 
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from dataclasses import dataclass, field
@@ -584,14 +585,49 @@ class NewtonReport:
     tangent_updates: int = 0  # refactorisations (corotational solver)
 
 
-def neo_hookean_solve(fem: LinearFem, W: sp.csr_matrix, target: np.ndarray, steps: int = 10, tol: float = 1e-8, max_iter: int = 25):
+def _shifted_factor(K: sp.csr_matrix) -> Factor:
+    """Factor K, or K + tau * mean(diag K) * I with the smallest tau in 1e-6..1 that is positive
+    definite: near a buckling load the tangent can be indefinite, and the shifted (modified)
+    Newton step still converges to the same equilibrium, only more slowly."""
+    with _quiet_stderr():  # CHOLMOD prints a warning for every failed attempt
+        try:
+            return Factor(K)
+        except SingularSystemError:
+            scale = float(np.mean(K.diagonal()))
+            for tau in (1e-6, 1e-4, 1e-2, 1.0):
+                try:
+                    return Factor(K + sp.identity(K.shape[0], format="csr") * (tau * scale))
+                except SingularSystemError:
+                    continue
+            raise
+
+
+@contextlib.contextmanager
+def _quiet_stderr():
+    import os
+    import sys
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def neo_hookean_solve(fem: LinearFem, W: sp.csr_matrix, target: np.ndarray, steps: int = 10, tol: float = 1e-8, max_iter: int = 25,
+                      on_step=None):
     """Static compressible neo-Hookean solve with the grasp point held at `target` (3,).
 
     Energy density ``mu/2 (I1 - 3) - mu ln J + lam/2 (ln J)^2``; the constraint ``W u = d`` is
     imposed with a Lagrange multiplier (Schur complement, 3 extra solves per iteration). The
     displacement is applied in `steps` equal increments, each solved by Newton's method to a
     relative residual below `tol`. Returns (nodal displacements, force holding the grasp
-    point (3,), NewtonReport).
+    point (3,), NewtonReport). `on_step(step, u (n, 3), force (3,))`, if given, sees each
+    converged load step (a whole force-displacement curve from one solve).
     """
     lam, mu = fem.lam, fem.mu
     g = fem.grads  # reference gradients (m, 4, 3)
@@ -643,7 +679,7 @@ def neo_hookean_solve(fem: LinearFem, W: sp.csr_matrix, target: np.ndarray, step
             res_hist.append(max(res, float(np.linalg.norm(gap)) / scale))
             if it > 0 and res_hist[-1] < tol:
                 break
-            factor = Factor(0.5 * (Kff + Kff.T))
+            factor = _shifted_factor(0.5 * (Kff + Kff.T))
             # [K  -W^T] [du ]   [-r  ]
             # [W   0  ] [dl ] = [-gap]
             Kr = factor.solve(-r)
@@ -657,6 +693,8 @@ def neo_hookean_solve(fem: LinearFem, W: sp.csr_matrix, target: np.ndarray, step
             report.converged = False
         report.iterations.append(len(res_hist))
         report.residuals.append(res_hist)
+        if on_step is not None:
+            on_step(step, u.reshape(-1, 3).copy(), lam_mult.copy())
     return u.reshape(-1, 3), lam_mult, report
 
 
