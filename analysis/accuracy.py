@@ -16,6 +16,7 @@ forces beyond 1 N and the JND's 10% band; relative errors are those at the scene
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -232,3 +233,45 @@ def pareto(rows: list[dict]) -> list[bool]:
         out.append(not any(o is not r and o["force_error"] <= r["force_error"] and o["frame_ms"] <= r["frame_ms"]
                            and (o["force_error"] < r["force_error"] or o["frame_ms"] < r["frame_ms"]) for o in rows))
     return out
+
+
+COLUMNS = ("model", "setting", "force_error", "force_error_max", "within_jnd", "angle_deg", "grasp_error_mm",
+           "surface_rms_mm", "tick_us", "frame_ms")
+
+
+def markdown(result: dict) -> str:
+    """The accuracy table as Markdown, with what it was measured against."""
+    m = result["meta"]
+    ref = m["reference"]
+    lines = [f"Reference: {ref['setting']} ({ref['nodes']} nodes in the largest part, converged: {'yes' if ref['converged'] else 'NO'}); "
+             f"{len(m['pulls'])} pulls to {m['max_pull_m'] * 1e3:g} mm at {m['pull_speed_m_per_s'] * 1e3:g} mm/s, "
+             f"{m['samples_per_pull']} samples each; E = {m['young_pa'] / 1e3:g} kPa (scene: {m['scene_young_pa'] / 1e3:g} kPa)"
+             + (" (quick bench)" if m["quick"] else "") + ".", "",
+             "| model | setting | force error (mean / max) | within JND | direction error | grasp error | surface RMS error | tick | frame |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        lines.append(f"| {r['model']} | {r['setting']} | {r['force_error']:.1%} / {r['force_error_max']:.1%} | {r['within_jnd']:.0%} | "
+                     f"{r['angle_deg']:.1f} deg | {r['grasp_error_mm']:.2f} mm | {r['surface_rms_mm']:.2f} mm | "
+                     f"{r['tick_us']:.2f} us | {r['frame_ms']:.3g} ms |")
+    lines += ["", "Seed paper, deformation time per frame on its 2014 PC: plate-spring 14.69 ms, FEM 21.35 ms, mass-spring 23.08 ms."]
+    return "\n".join(lines) + "\n"
+
+
+def write_outputs(result: dict, out_dir) -> list[Path]:
+    """accuracy.json, accuracy.csv, samples.csv, accuracy.md, pareto.png and .svg."""
+    import pandas as pd
+
+    from analysis.plots import pareto_plot
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files = [out / "accuracy.json", out / "accuracy.csv", out / "samples.csv", out / "accuracy.md"]
+    files[0].write_text(json.dumps(result, indent=2, default=float))
+    pd.DataFrame(result["rows"]).to_csv(files[1], index=False)
+    pd.DataFrame(result["samples"]).to_csv(files[2], index=False)
+    files[3].write_text(markdown(result))
+    for ext in ("png", "svg"):
+        pareto_plot(result["rows"], out / f"pareto.{ext}",
+                    title=f"Force error vs deformation time (reference {result['meta']['reference']['setting']})")
+        files.append(out / f"pareto.{ext}")
+    return files

@@ -113,3 +113,67 @@ def force_plot(traces: dict, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+PAPER_MS = {"plate_spring": 14.69, "fem": 21.35, "mass_spring": 23.08}  # seed paper, Table 1 (its 2014 PC)
+
+
+def pareto_plot(rows: list[dict], path: Path, title: str = "") -> None:
+    """Log-log: mean relative force error against deformation time per frame, one point per
+    model setting; the Pareto front joined; the paper's deformation times as vertical marks."""
+    from analysis.accuracy import pareto
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(9, 5.5), dpi=100)
+    front = pareto(rows)
+    for r, on in zip(rows, front):
+        ax.scatter(r["frame_ms"], max(r["force_error"], 1e-4), color=COLORS.get(r["model"], "grey"), s=50 if on else 25,
+                   edgecolor="black" if on else "none", zorder=3)
+        ax.annotate(f"{r['setting']}", (r["frame_ms"], max(r["force_error"], 1e-4)), fontsize=7, xytext=(4, 3), textcoords="offset points")
+    pts = sorted((r["frame_ms"], max(r["force_error"], 1e-4)) for r, on in zip(rows, front) if on)
+    if pts:
+        ax.step([p[0] for p in pts], [p[1] for p in pts], where="post", color="black", lw=0.8, zorder=2, label="Pareto front")
+    for model, ms in PAPER_MS.items():
+        ax.axvline(ms, color=COLORS[model], ls=":", lw=1)
+        ax.text(ms, 1.0, f" paper {model}\n {ms} ms", color=COLORS[model], fontsize=7, va="top",
+                transform=ax.get_xaxis_transform())
+    for model, color in COLORS.items():
+        ax.scatter([], [], color=color, label=model)
+    ax.axhline(0.10, color="grey", ls="--", lw=0.8)
+    ax.text(ax.get_xlim()[0], 0.10, " force JND 10%", fontsize=7, va="bottom", color="grey")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("deformation time per visual frame, ms (median, this machine)")
+    ax.set_ylabel("mean relative force error vs reference")
+    ax.set_title(title or "Model error against run time")
+    ax.legend(fontsize=8, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def stability_heatmap(cases: list[dict], path: Path, title: str = "") -> None:
+    """Outcome per model (rows) and case (columns): stable, refused, unstable, or n/a."""
+    from matplotlib.colors import ListedColormap
+
+    from analysis.stability import outcome_grid
+
+    plt = _plt()
+    rows, cols, grid = outcome_grid(cases)
+    fig, ax = plt.subplots(figsize=(max(8, 0.32 * len(cols) + 3), 0.45 * len(rows) + 2.4), dpi=100)
+    cmap = ListedColormap(["#2ca02c", "#9e9e9e", "#d62728"])
+    cmap.set_bad("white")
+    ax.imshow(np.ma.masked_invalid(grid), cmap=cmap, vmin=-0.5, vmax=2.5, aspect="auto")
+    ax.set_xticks(range(len(cols)), cols, rotation=70, ha="right", fontsize=7)
+    ax.set_yticks(range(len(rows)), rows, fontsize=8)
+    for i in range(len(rows)):
+        for j in range(len(cols)):
+            if not np.isnan(grid[i, j]):
+                ax.text(j, i, "SRU"[int(grid[i, j])], ha="center", va="center", fontsize=6, color="white")
+    for label, color in (("stable", "#2ca02c"), ("refused", "#9e9e9e"), ("unstable", "#d62728")):
+        ax.scatter([], [], marker="s", color=color, label=label)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    ax.set_title(title or "Stability sweep")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

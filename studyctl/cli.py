@@ -13,6 +13,7 @@ from pathlib import Path
 
 import click
 
+from analysis.sweep import SweepError
 from sim.errors import SimError
 from sim.scene import DEFAULT_SCENE
 from studyctl.errors import StudyError
@@ -24,7 +25,7 @@ class _Group(click.Group):
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
-        except (SimError, StudyError) as exc:
+        except (SimError, StudyError, SweepError) as exc:
             raise click.ClickException(str(exc)) from None
 
 
@@ -57,6 +58,97 @@ def _print_json(obj) -> None:
 @click.version_option(package_name="brainsim-study", prog_name="studyctl")
 def cli():
     """Haptic brain-surgery simulator: experiments, user studies and reports."""
+
+
+# -- benches: model error against run time, stability sweeps ------------------------------
+
+@cli.group(cls=_Group)
+def bench():
+    """Model error against run time, and stability on stiff and extreme cases."""
+
+
+def _sweep_options(f):
+    f = click.option("--scheduler", default=None, metavar="ADDRESS", help="Run the cases on a Dask cluster (tcp://host:8786).")(f)
+    f = click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Local worker processes (default: every core).")(f)
+    f = click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Write tables, JSON and plots here.")(f)
+    f = click.option("--json", "as_json", is_flag=True)(f)
+    f = click.option("--quick", is_flag=True, help="The small sweep (CI, make demo).")(f)
+    return f
+
+
+def _with_progress(label, fn):
+    from rich.progress import Progress
+
+    with Progress(transient=True, console=_console()) as progress:
+        task = progress.add_task(label, total=None)
+        return fn(lambda k, n: progress.update(task, completed=k, total=n))
+
+
+@bench.command("accuracy")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--young", type=click.FloatRange(1.0, 1e9), default=15000.0, show_default=True, help="Young's modulus of the bench tissue, Pa (forces beyond 1 N).")
+@_sweep_options
+def bench_accuracy(scene_file, young, quick, as_json, out_dir, jobs, scheduler):
+    """The same pulls for every model and setting against the neo-Hookean FEM reference:
+    force error, JND fraction, displacement errors, time per servo tick and per frame."""
+    from analysis import accuracy
+
+    cfg = accuracy.quick_config(scene=scene_file, young=young) if quick else accuracy.AccuracyConfig(scene=scene_file, young=young)
+    result = _with_progress("accuracy pulls", lambda p: accuracy.run_accuracy(cfg, jobs=jobs, scheduler=scheduler, progress=p))
+    if out_dir:
+        accuracy.write_outputs(result, out_dir)
+    if as_json:
+        _print_json(result | {"samples": result["samples"]})
+        return
+    from rich.table import Table
+
+    ref = result["meta"]["reference"]
+    t = Table(title=f"Force error against run time (reference: {ref['setting']}, E = {young / 1e3:g} kPa)")
+    for col in ("model", "setting", "force error", "max", "within JND", "grasp err mm", "surface RMS mm", "tick us", "frame ms"):
+        t.add_column(col, justify="left" if col in ("model", "setting") else "right")
+    for r in result["rows"]:
+        t.add_row(r["model"], r["setting"], f"{r['force_error']:.1%}", f"{r['force_error_max']:.1%}", f"{r['within_jnd']:.0%}",
+                  f"{r['grasp_error_mm']:.2f}", f"{r['surface_rms_mm']:.2f}", f"{r['tick_us']:.2f}", f"{r['frame_ms']:.3g}")
+    console = _console()
+    console.print(t)
+    console.print("seed paper, ms per deformation frame (2014 PC): plate-spring 14.69, FEM 21.35, mass-spring 23.08")
+    if out_dir:
+        console.print(f"wrote {out_dir}/accuracy.md, accuracy.json, accuracy.csv, samples.csv, pareto.png")
+
+
+@bench.command("stability")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@_sweep_options
+def bench_stability(scene_file, quick, as_json, out_dir, jobs, scheduler):
+    """Sweep E, nu, time step, spring stiffness, plate-spring parameters, far pulls and 5 cm
+    jumps for every model: stable, refused (with the reason) or unstable (with the time)."""
+    from analysis import stability
+
+    result = _with_progress("stability cases", lambda p: stability.run_stability(quick, scene_file, jobs=jobs, scheduler=scheduler, progress=p))
+    if out_dir:
+        stability.write_outputs(result, out_dir)
+    if as_json:
+        _print_json(result)
+    else:
+        from rich.table import Table
+
+        _, cols, _ = stability.outcome_grid(result["cases"])
+        t = Table(title="Stability sweep: S stable, R refused, U unstable, . not applicable")
+        t.add_column("model")
+        t.add_column("cases: " + " ".join(cols), overflow="fold")
+        by = {}
+        for c in result["cases"]:
+            by.setdefault(c["model"], {})[c["case"]] = c["outcome"][0].upper()
+        for model, row in by.items():
+            t.add_row(model, " ".join(row.get(c, ".") for c in cols))
+        console = _console()
+        console.print(t)
+        console.print(stability.markdown(result).split("\n")[0])
+        if out_dir:
+            console.print(f"wrote {out_dir}/stability.md, stability.json, stability.csv, heatmap.png")
+    m = result["meta"]
+    if m["nan_sent"] or m["over_limit_sent"]:  # the safety promise broke: fail loudly
+        raise click.ClickException(f"{m['nan_sent']} cases sent a NaN and {m['over_limit_sent']} an over-limit force to a device")
 
 
 def main() -> None:

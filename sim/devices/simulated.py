@@ -47,10 +47,17 @@ class PullScript:
     tremor_hz: float = 10.0  # its frequency (8-12 Hz in healthy adults)
     tremor_phase: Vec3 = (0.0, 0.0, 0.0)
     impedance: HandImpedance | None = None  # the operator's hand; default HandImpedance()
+    # a sudden jump (stability tests): at `jump_at` the operator's target steps by `jump`, or
+    # with `glitch` the stylus itself is displaced by it within one step (a slip, a bad reading)
+    jump_at: float | None = None
+    jump: Vec3 = (0.0, 0.0, 0.0)
+    glitch: bool = False
 
     def target(self, t: float) -> Vec3:
         s = min_jerk((t - self.pull_start) / self.pull_time) if self.pull_time > 0 else float(t >= self.pull_start)
         x = [self.start[k] + s * self.pull[k] for k in range(3)]
+        if self.jump_at is not None and not self.glitch and t >= self.jump_at:
+            x = [x[k] + self.jump[k] for k in range(3)]
         if self.tremor_m:
             w = 2.0 * math.pi * self.tremor_hz * t
             for k in range(3):
@@ -94,9 +101,13 @@ class SimulatedOmni:
         imp = self.impedance
         k, c, m = imp.stiffness_n_per_m, imp.damping_ns_per_m, imp.mass_kg
         x, v, f, o, half = self._x, self._v, self._force, self.origin, self._half
+        sc = self.script
         while self._t + 1e-12 < t:
             h = min(self._step, t - self._t)
-            target = self.script.target(self._t + h)
+            if sc.glitch and sc.jump_at is not None and self._t < sc.jump_at <= self._t + h:
+                for i in range(3):
+                    x[i] += sc.jump[i]
+            target = sc.target(self._t + h)
             for i in range(3):
                 a = (k * (target[i] - x[i]) - c * v[i] + f[i]) / m
                 v[i] += h * a  # semi-implicit Euler: velocity first

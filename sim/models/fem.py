@@ -589,7 +589,7 @@ def _shifted_factor(K: sp.csr_matrix) -> Factor:
     """Factor K, or K + tau * mean(diag K) * I with the smallest tau in 1e-6..1 that is positive
     definite: near a buckling load the tangent can be indefinite, and the shifted (modified)
     Newton step still converges to the same equilibrium, only more slowly."""
-    with _quiet_stderr():  # CHOLMOD prints a warning for every failed attempt
+    with _quiet_c_output():  # CHOLMOD prints a warning for every failed attempt
         try:
             return Factor(K)
         except SingularSystemError:
@@ -603,19 +603,26 @@ def _shifted_factor(K: sp.csr_matrix) -> Factor:
 
 
 @contextlib.contextmanager
-def _quiet_stderr():
+def _quiet_c_output():
+    """Silence C-level output (CHOLMOD writes its warnings to stdout)."""
     import os
     import sys
 
+    sys.stdout.flush()
     sys.stderr.flush()
-    saved = os.dup(2)
+    saved = [os.dup(1), os.dup(2)]
     try:
         with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
             os.dup2(null.fileno(), 2)
             yield
     finally:
-        os.dup2(saved, 2)
-        os.close(saved)
+        import ctypes
+
+        ctypes.CDLL(None).fflush(None)  # C stdio buffers what CHOLMOD wrote: drop it into /dev/null
+        for fd, old in zip((1, 2), saved):
+            os.dup2(old, fd)
+            os.close(old)
 
 
 def neo_hookean_solve(fem: LinearFem, W: sp.csr_matrix, target: np.ndarray, steps: int = 10, tol: float = 1e-8, max_iter: int = 25,

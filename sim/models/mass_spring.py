@@ -26,6 +26,7 @@ from sim.models import MASS_SPRING_INTEGRATORS as INTEGRATORS
 
 OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m  # 700 N/m: stable closed-loop stiffness at 1 kHz
 SUBSTEP_FRACTION = 0.5  # explicit sub-steps are this fraction of critical_dt()
+MAX_SUBSTEPS = 2000  # more explicit sub-steps per step than this cannot serve a visual frame
 
 
 class StabilityError(SimError):
@@ -205,6 +206,11 @@ class MassSpring:
                 # half the critical step: it is the rest linearisation's, and stretched springs
                 # (a hand pulling a light patch) raise omega_max above it
                 n_sub = math.ceil(dt / (SUBSTEP_FRACTION * crit))
+                if n_sub > MAX_SUBSTEPS:
+                    raise StabilityError(
+                        f"dt: explicit integration would need {n_sub} sub-steps per {dt:.4g} s step (critical step "
+                        f"{crit:.3g} s); at most {MAX_SUBSTEPS}: use the implicit or local-global integrator"
+                    )
         if self.unstable:
             return StepReport(dt, 0, integrator, math.nan, True)
         h = dt / n_sub
@@ -417,8 +423,13 @@ class MassSpringModel:
         self._tree = cKDTree(volume.nodes)
         self._out = np.zeros_like(surface.vertices)
         self.step_s: list[float] = []
-        if integrator == "explicit" and not substep and dt > system.critical_dt():
-            raise StabilityError(f"dt: {dt:.4g} s is above the critical step {system.critical_dt():.4g} s; enable substep or lower dt")
+        if integrator == "explicit":  # refuse now what the first frame would refuse
+            crit = system.critical_dt()
+            if not substep and dt > crit:
+                raise StabilityError(f"dt: {dt:.4g} s is above the critical step {crit:.4g} s; enable substep or lower dt")
+            if substep and dt > crit and math.ceil(dt / (SUBSTEP_FRACTION * crit)) > MAX_SUBSTEPS:
+                raise StabilityError(f"dt: explicit integration would need {math.ceil(dt / (SUBSTEP_FRACTION * crit))} sub-steps "
+                                     f"per {dt:.4g} s step (critical step {crit:.3g} s); at most {MAX_SUBSTEPS}: use the implicit or local-global integrator")
 
     @property
     def unstable(self) -> bool:
