@@ -16,10 +16,11 @@ demo: venv
 	$(VENV)/bin/studyctl sim run --scene protocols/scenes/brain_pull.toml --frames $(OUT)/demo
 	rm -f $(OUT)/demo/study.db $(OUT)/demo/study.db-wal $(OUT)/demo/study.db-shm
 	$(VENV)/bin/studyctl synth --db $(OUT)/demo/study.db --protocol protocols/brain_pull_2015.toml --participants 35 --seed 1 --jobs 2
-	$(VENV)/bin/studyctl report table1 --db $(OUT)/demo/study.db --out $(OUT)/demo/table1.md
-	$(VENV)/bin/studyctl report table1 --db $(OUT)/demo/study.db --format html --out $(OUT)/demo/report.html
+	$(VENV)/bin/studyctl bench accuracy --quick --out $(OUT)/demo/accuracy
+	$(VENV)/bin/studyctl report table1 --db $(OUT)/demo/study.db --accuracy $(OUT)/demo/accuracy/accuracy.json --out $(OUT)/demo/table1.md
+	$(VENV)/bin/studyctl report table1 --db $(OUT)/demo/study.db --accuracy $(OUT)/demo/accuracy/accuracy.json --format html --out $(OUT)/demo/report.html
 	@echo "pictures: $(OUT)/demo/frame_*.png, force plot: $(OUT)/demo/force.png, SYNTHETIC study: $(OUT)/demo/study.db,"
-	@echo "Table 1: $(OUT)/demo/table1.md, report with statistics and plots: $(OUT)/demo/report.html"
+	@echo "Table 1: $(OUT)/demo/table1.md, report with statistics, plots, model error vs run time: $(OUT)/demo/report.html"
 
 test: venv
 	$(PY) -m pytest -q

@@ -60,8 +60,32 @@ def latex(db) -> str:
     return "\n".join(lines) + "\n"
 
 
-def html(db, force_traces: bool = True) -> str:
-    """One self-contained HTML file: facts, Table 1, statistics, plots (PNG inlined)."""
+def accuracy_html(result: dict) -> str:
+    """The accuracy bench's table and Pareto plot (analysis/accuracy.py) as an HTML section."""
+    from analysis.accuracy import markdown
+    from analysis.plots import pareto_plot
+
+    esc = _html.escape
+    with tempfile.TemporaryDirectory() as tmp:
+        pareto_plot(result["rows"], Path(tmp) / "pareto.png", title=f"Force error vs deformation time (reference {result['meta']['reference']['setting']})")
+        img = base64.b64encode((Path(tmp) / "pareto.png").read_bytes()).decode()
+    intro = markdown(result).split("\n")[0]
+    head = "".join(f"<th>{h}</th>" for h in ("model", "setting", "force error (mean / max)", "within JND", "direction error",
+                                             "grasp error", "surface RMS error", "servo tick", "deformation frame"))
+    rows = "".join(
+        f"<tr><td>{esc(r['model'])}</td><td>{esc(r['setting'])}</td><td>{r['force_error']:.1%} / {r['force_error_max']:.1%}</td>"
+        f"<td>{r['within_jnd']:.0%}</td><td>{r['angle_deg']:.1f}&deg;</td><td>{r['grasp_error_mm']:.2f} mm</td>"
+        f"<td>{r['surface_rms_mm']:.2f} mm</td><td>{r['tick_us']:.2f} &micro;s</td><td>{r['frame_ms']:.3g} ms</td></tr>"
+        for r in result["rows"])
+    return (f"<h2>Model error against run time</h2><p>{esc(intro)} Simulated pulls, not participants. "
+            "Seed paper (its 2014 PC): plate-spring 14.69 ms, FEM 21.35 ms, mass-spring 23.08 ms per deformation.</p>"
+            f"<table><tr>{head}</tr>{rows}</table>"
+            f'<figure><img alt="pareto" src="data:image/png;base64,{img}"></figure>')
+
+
+def html(db, force_traces: bool = True, accuracy: dict | None = None) -> str:
+    """One self-contained HTML file: facts, Table 1, statistics, plots (PNG inlined), and the
+    accuracy bench's table and Pareto plot when given."""
     from analysis.stats import study_stats
 
     facts, r, q, d = table1.study_facts(db), table1.rates(db), table1.cochran(db), table1.deformation(db)
@@ -106,5 +130,6 @@ img {{ max-width: 900px; }}
 <tr><td>Time for real-time deformation of the model, ms</td>{dcells}<td colspan="2">{lat_text}</td></tr>
 </table>
 {figs}
+{accuracy_html(accuracy) if accuracy else ""}
 </body></html>
 """

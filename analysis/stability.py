@@ -188,10 +188,11 @@ def classify(result, peak: float) -> dict:
 
 
 def run_stability(quick: bool = False, scene_path=DEFAULT_SCENE, jobs: int | None = None, scheduler: str | None = None,
-                  progress=None) -> dict:
+                  progress=None, cases: list[Case] | None = None) -> dict:
+    """Run the sweep (or the given `cases`) on local processes or a Dask cluster."""
     from analysis.sweep import run_tasks
 
-    cases = make_cases(quick)
+    cases = make_cases(quick) if cases is None else cases
     results = run_tasks(_task, [(c, str(scene_path)) for c in cases], jobs=jobs, scheduler=scheduler, progress=progress)
     counts = {k: sum(r["outcome"] == k for r in results) for k in ("stable", "refused", "unstable")}
     return {"cases": results, "meta": {"quick": quick, "resolution_m": RESOLUTION, "duration_s": DURATION,

@@ -662,13 +662,20 @@ def report():
 @DB
 @click.option("--format", "fmt", type=click.Choice(["md", "csv", "latex", "html", "json"]), default="md", show_default=True)
 @click.option("--out", "out_file", type=click.Path(dir_okay=False, path_type=Path), default=None)
-def report_table1(db, fmt, out_file):
+@click.option("--accuracy", "accuracy_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="accuracy.json from `studyctl bench accuracy --out`: add its table (md, html) and Pareto plot (html).")
+def report_table1(db, fmt, out_file, accuracy_file):
     """The seed paper's Table 1 with Wilson intervals, Cochran's Q and deformation times
     (html: one self-contained file with the statistics and plots)."""
     from analysis import table1
 
+    accuracy = _load_accuracy(accuracy_file) if accuracy_file else None
     if fmt == "md":
         text = table1.markdown(db)
+        if accuracy:
+            from analysis.accuracy import markdown
+
+            text += "\n## Model error against run time\n\n" + markdown(accuracy)
     elif fmt == "latex":
         from analysis.report import latex
 
@@ -676,7 +683,7 @@ def report_table1(db, fmt, out_file):
     elif fmt == "html":
         from analysis.report import html
 
-        text = html(db)
+        text = html(db, accuracy=accuracy)
     elif fmt == "csv":  # the flag and N travel with the table
         facts = table1.study_facts(db)
         text = table1.rates(db).assign(participants=facts["participants"], synthetic=facts["synthetic"]).to_csv(index=False)
@@ -689,6 +696,16 @@ def report_table1(db, fmt, out_file):
         click.echo(f"wrote {out_file}")
     else:
         click.echo(text, nl=False)
+
+
+def _load_accuracy(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise click.ClickException(f"{path}: not an accuracy.json ({exc})") from None
+    if not isinstance(data, dict) or not {"rows", "meta"} <= set(data):
+        raise click.ClickException(f"{path}: not an accuracy.json (needs rows and meta; write it with `studyctl bench accuracy --out DIR`)")
+    return data
 
 
 @report.command("plots")
