@@ -168,11 +168,14 @@ def classify(result, peak: float) -> dict:
            "over_limit_sent": bool(np.nanmax(mag, initial=0.0) > peak * (1 + 1e-9)),
            "max_force_n": float(np.nanmax(mag, initial=0.0)),
            "events": {k: sum(1 for e in result.events if e.kind == k) for k in sorted({e.kind for e in result.events})}}
-    bad = [e for e in result.events if e.kind in ("model_unstable", "model_fault", "nan_force")]
+    bad = [e for e in result.events if e.kind in ("model_unstable", "model_fault", "nan_force", "force_chatter")]
     diag = result.model_diagnostics or {}
     if bad:
         e = bad[0]
-        return out | {"outcome": "unstable", "reason": e.detail or e.kind, "detected_at_s": float(e.t)}
+        reason = e.detail or e.kind
+        if e.kind == "force_chatter":
+            reason = "force_chatter: the rendered force flipped direction 10 times in 50 ms (contact too stiff for the device at 1 kHz); grasp dropped"
+        return out | {"outcome": "unstable", "reason": reason, "detected_at_s": float(e.t)}
     if diag.get("unstable"):
         return out | {"outcome": "unstable", "reason": "model reported instability", "detected_at_s": diag.get("unstable_at")}
     f = forces[:, 0, :]

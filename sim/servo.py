@@ -61,6 +61,7 @@ class Hand:
     safety: str | None = None  # the safety rule acting on the last tick, if any
     fault: str | None = None  # the device fault of the last tick, if any
     ticks: int = 0
+    reversals: list = field(default_factory=list)  # times the rendered force flipped direction (chatter monitor)
 
 
 def limit_force(force, peak: float) -> tuple[tuple[float, float, float], str | None]:
@@ -86,6 +87,10 @@ class ServoLoop:
     rows: list[tuple] = field(default_factory=list)  # (t, compute_s, io_s, then per hand px py pz fx fy fz button)
     suspended_until: float = -math.inf
     model_fault: bool = False  # the model raised in a force call (logged once)
+    # a limit cycle: the force flips direction (both sides above 0.05 N) this many times within
+    # the window; a contact stiffer than the device renders at this rate does this
+    chatter_reversals: int = 10
+    chatter_window_s: float = 0.05
 
     def suspend(self, t: float, duration: float, reason: str) -> None:
         """Send zero force to every device until t + duration (e.g. after missed deadlines)."""
@@ -171,6 +176,9 @@ class ServoLoop:
                     ramp = max(ramp, 0.0)
                     fx, fy, fz = fx * ramp, fy * ramp, fz * ramp
                 force, kind = limit_force((fx, fy, fz), self.peak_force)
+                if self._chatter(h, t, force):  # a limit cycle: drop the grasp, zero force until grasped again
+                    force, kind = NO_FORCE, "force_chatter"
+                    h.contact = None
                 if unstable:  # the model says its state blew up: render nothing
                     force, kind = NO_FORCE, "model_unstable"
                 elif suspended:  # the loop missed its deadlines: render nothing for a while
@@ -197,6 +205,19 @@ class ServoLoop:
         row[1] = clock() - start
         row[2] = io
         self.rows.append(tuple(row))
+
+    def _chatter(self, h: Hand, t: float, force) -> bool:
+        p = h.force
+        if p[0] * force[0] + p[1] * force[1] + p[2] * force[2] < 0.0 and \
+                p[0] ** 2 + p[1] ** 2 + p[2] ** 2 > 0.0025 and force[0] ** 2 + force[1] ** 2 + force[2] ** 2 > 0.0025:
+            r = h.reversals
+            r.append(t)
+            while r and r[0] < t - self.chatter_window_s:
+                r.pop(0)
+            if len(r) >= self.chatter_reversals:
+                r.clear()
+                return True
+        return False
 
     def _forces(self, contacts, disps):
         batch = getattr(self.model, "forces", None)

@@ -46,6 +46,7 @@ def test_outcomes_follow_the_physics(quick_sweep):
     # a rigid FEM contact rendered directly chatters at the force limit: flagged with a time
     rigid = by[("fem/linear", "E=1e+09Pa")]
     assert rigid["outcome"] == "unstable" and "chatter" in rigid["reason"] and 0 < rigid["detected_at_s"] < 0.4
+    assert rigid["events"].get("force_chatter") == 1  # the servo saw it live and dropped the grasp
     # a one-tick 5 cm glitch drops the grasp (logged); a far pull saturates at the peak
     assert by[("fem/linear", "glitch=5cm")]["events"].get("position_jump") == 1
     assert by[("mass_spring/implicit", "pull=200mm")]["max_force_n"] == pytest.approx(3.3)
