@@ -269,6 +269,9 @@ def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacemen
             f"final residuals {', '.join(f'{r:.1e}' for r in out['final_residuals'] if r is not None)}"
             + ("; inverted elements" if out["inverted_elements"] else "")
         )
+        if out.get("completed_steps") is not None and out["completed_steps"] < out["load_steps"]:
+            console.print(f"warning: the solve diverged after {out['completed_steps']} of {out['load_steps']} load steps; "
+                          "the force and displacements above are those it reached, not the requested pull's")
     from rich.table import Table
 
     t = Table(title="phase times")

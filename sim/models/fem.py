@@ -551,13 +551,22 @@ def corotational_solve(fem: LinearFem, W, U: np.ndarray, target: np.ndarray, ste
     lam_mult = np.zeros(3)
     report = NewtonReport(load_steps=steps)
     Wt = np.ascontiguousarray(W.T.toarray())
+    report.completed_steps = 0
     for step in range(1, steps + 1):
         d = np.asarray(target, dtype=np.float64) * step / steps
         hist: list[float] = []
+        good = (u, lam_mult)
         for _ in range(max_iter):
             u, lam_mult, res, jmin, R = corotational_step(fem, W, pre, u, lam_mult, d)
             report.min_jacobian = min(report.min_jacobian, jmin)
             hist.append(res)
+            if not math.isfinite(res) or jmin <= 0 or res > 1e3 * min(hist):
+                # diverging (or an element turned inside out): return the state before this load step
+                u, lam_mult = good
+                report.converged = False
+                report.iterations.append(len(hist))
+                report.residuals.append(hist)
+                return u.reshape(-1, 3), lam_mult, report
             if len(hist) > 1 and res < tol:
                 break
             if len(hist) >= 5 and hist[-1] > 0.5 * hist[-5]:
@@ -567,6 +576,8 @@ def corotational_solve(fem: LinearFem, W, U: np.ndarray, target: np.ndarray, ste
                 report.tangent_updates += 1
         else:
             report.converged = False
+        if report.converged:
+            report.completed_steps = step
         report.iterations.append(len(hist))
         report.residuals.append(hist)
     return u.reshape(-1, 3), lam_mult, report
@@ -583,6 +594,7 @@ class NewtonReport:
     converged: bool = True
     min_jacobian: float = 1.0  # smallest det(F) seen: <= 0 means an inverted element
     tangent_updates: int = 0  # refactorisations (corotational solver)
+    completed_steps: int | None = None  # load steps solved; fewer than load_steps when the solve diverged
 
 
 def _shifted_factor(K: sp.csr_matrix) -> Factor:
@@ -797,4 +809,6 @@ def _report(rep: NewtonReport) -> dict:
         "min_jacobian": rep.min_jacobian,
         "inverted_elements": rep.min_jacobian <= 0,
         "tangent_updates": rep.tangent_updates,
+        # a solve that stopped early returns the state of its last solved load step
+        "completed_steps": rep.completed_steps,
     }
