@@ -17,8 +17,11 @@ demo: venv
 	rm -f $(OUT)/demo/study.db $(OUT)/demo/study.db-wal $(OUT)/demo/study.db-shm
 	$(VENV)/bin/studyctl synth --db $(OUT)/demo/study.db --protocol protocols/brain_pull_2015.toml --participants 35 --seed 1 --jobs 2
 	$(VENV)/bin/studyctl bench accuracy --quick --out $(OUT)/demo/accuracy
-	$(VENV)/bin/studyctl report table1 --db $(OUT)/demo/study.db --accuracy $(OUT)/demo/accuracy/accuracy.json --out $(OUT)/demo/table1.md
-	$(VENV)/bin/studyctl report table1 --db $(OUT)/demo/study.db --accuracy $(OUT)/demo/accuracy/accuracy.json --format html --out $(OUT)/demo/report.html
+	$(VENV)/bin/studyctl bench stability --quick --out $(OUT)/demo/stability
+	$(VENV)/bin/studyctl report table1 --db $(OUT)/demo/study.db --accuracy $(OUT)/demo/accuracy/accuracy.json \
+	    --stability $(OUT)/demo/stability/stability.json --out $(OUT)/demo/table1.md
+	$(VENV)/bin/studyctl report table1 --db $(OUT)/demo/study.db --accuracy $(OUT)/demo/accuracy/accuracy.json \
+	    --stability $(OUT)/demo/stability/stability.json --format html --out $(OUT)/demo/report.html
 	@echo "pictures: $(OUT)/demo/frame_*.png, force plot: $(OUT)/demo/force.png, SYNTHETIC study: $(OUT)/demo/study.db,"
 	@echo "Table 1: $(OUT)/demo/table1.md, report with statistics, plots, model error vs run time: $(OUT)/demo/report.html"
 

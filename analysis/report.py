@@ -83,9 +83,28 @@ def accuracy_html(result: dict) -> str:
             f'<figure><img alt="pareto" src="data:image/png;base64,{img}"></figure>')
 
 
-def html(db, force_traces: bool = True, accuracy: dict | None = None) -> str:
+def stability_html(result: dict) -> str:
+    """The stability sweep's heat map and the cases that were not stable, as an HTML section."""
+    from analysis.plots import stability_heatmap
+    from analysis.stability import markdown
+
+    esc = _html.escape
+    with tempfile.TemporaryDirectory() as tmp:
+        stability_heatmap(result["cases"], Path(tmp) / "heatmap.png")
+        img = base64.b64encode((Path(tmp) / "heatmap.png").read_bytes()).decode()
+    def at(c):
+        return "" if c["detected_at_s"] is None else f"{c['detected_at_s']:.3f} s"
+
+    rows = "".join(f"<tr><td>{esc(c['model'])}</td><td>{esc(c['case'])}</td><td>{esc(c['outcome'])}</td><td>{at(c)}</td>"
+                   f"<td>{esc(c['reason'])}</td></tr>" for c in result["cases"] if c["outcome"] != "stable")
+    return (f"<h2>Numerical stability</h2><p>{esc(markdown(result).splitlines()[0])}</p>"
+            f'<figure><img alt="stability" src="data:image/png;base64,{img}"></figure>'
+            f"<table><tr><th>model</th><th>case</th><th>outcome</th><th>at</th><th>reason</th></tr>{rows}</table>")
+
+
+def html(db, force_traces: bool = True, accuracy: dict | None = None, stability: dict | None = None) -> str:
     """One self-contained HTML file: facts, Table 1, statistics, plots (PNG inlined), and the
-    accuracy bench's table and Pareto plot when given."""
+    accuracy bench's table and Pareto plot and the stability sweep's heat map when given."""
     from analysis.stats import study_stats
 
     facts, r, q, d = table1.study_facts(db), table1.rates(db), table1.cochran(db), table1.deformation(db)
@@ -131,5 +150,6 @@ img {{ max-width: 900px; }}
 </table>
 {figs}
 {accuracy_html(accuracy) if accuracy else ""}
+{stability_html(stability) if stability else ""}
 </body></html>
 """

@@ -667,18 +667,25 @@ def report():
 @click.option("--out", "out_file", type=click.Path(dir_okay=False, path_type=Path), default=None)
 @click.option("--accuracy", "accuracy_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="accuracy.json from `studyctl bench accuracy --out`: add its table (md, html) and Pareto plot (html).")
-def report_table1(db, fmt, out_file, accuracy_file):
+@click.option("--stability", "stability_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="stability.json from `studyctl bench stability --out`: add its heat map and unstable cases (md, html).")
+def report_table1(db, fmt, out_file, accuracy_file, stability_file):
     """The seed paper's Table 1 with Wilson intervals, Cochran's Q and deformation times
     (html: one self-contained file with the statistics and plots)."""
     from analysis import table1
 
-    accuracy = _load_accuracy(accuracy_file) if accuracy_file else None
+    accuracy = _load_bench(accuracy_file, "accuracy", "rows") if accuracy_file else None
+    stability = _load_bench(stability_file, "stability", "cases") if stability_file else None
     if fmt == "md":
         text = table1.markdown(db)
         if accuracy:
             from analysis.accuracy import markdown
 
             text += "\n## Model error against run time\n\n" + markdown(accuracy)
+        if stability:
+            from analysis.stability import markdown as stability_md
+
+            text += "\n## Numerical stability\n\n" + stability_md(stability)
     elif fmt == "latex":
         from analysis.report import latex
 
@@ -686,7 +693,7 @@ def report_table1(db, fmt, out_file, accuracy_file):
     elif fmt == "html":
         from analysis.report import html
 
-        text = html(db, accuracy=accuracy)
+        text = html(db, accuracy=accuracy, stability=stability)
     elif fmt == "csv":  # the flag and N travel with the table
         facts = table1.study_facts(db)
         text = table1.rates(db).assign(participants=facts["participants"], synthetic=facts["synthetic"]).to_csv(index=False)
@@ -701,13 +708,14 @@ def report_table1(db, fmt, out_file, accuracy_file):
         click.echo(text, nl=False)
 
 
-def _load_accuracy(path: Path) -> dict:
+def _load_bench(path: Path, kind: str, key: str) -> dict:
+    """A bench's JSON (`studyctl bench KIND --out DIR` writes DIR/KIND.json)."""
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
-        raise click.ClickException(f"{path}: not an accuracy.json ({exc})") from None
-    if not isinstance(data, dict) or not {"rows", "meta"} <= set(data):
-        raise click.ClickException(f"{path}: not an accuracy.json (needs rows and meta; write it with `studyctl bench accuracy --out DIR`)")
+        raise click.ClickException(f"{path}: not a `studyctl bench {kind}` result ({exc})") from None
+    if not isinstance(data, dict) or not {key, "meta"} <= set(data):
+        raise click.ClickException(f"{path}: not a `studyctl bench {kind}` result (needs {key} and meta; write one with `studyctl bench {kind} --out DIR`)")
     return data
 
 

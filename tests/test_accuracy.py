@@ -130,4 +130,4 @@ def test_report_carries_the_accuracy_table_and_pareto_plot(small_bench, tmp_path
     assert "| fem | linear-8mm |" in md and "14.69" in md
     (tmp_path / "bad.json").write_text("{}")
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--accuracy", str(tmp_path / "bad.json")])
-    assert res.exit_code == 1 and "bad.json: not an accuracy.json" in res.output
+    assert res.exit_code == 1 and "bad.json: not a `studyctl bench accuracy` result" in res.output

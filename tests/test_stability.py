@@ -86,3 +86,19 @@ def test_unreachable_scheduler_is_a_one_line_error():
     res = CliRunner().invoke(cli, ["bench", "stability", "--quick", "--scheduler", "tcp://127.0.0.1:1"])
     assert res.exit_code == 1 and "scheduler tcp://127.0.0.1:1: cannot connect" in res.output
     assert "Traceback" not in res.output
+
+
+def test_report_carries_the_heat_map(quick_sweep, tmp_path):
+    from studyctl.synthetic import run_synthetic_study
+    from tests.test_study import fast_protocol
+
+    _, d = quick_sweep
+    db = tmp_path / "s.db"
+    run_synthetic_study(db, 3, seed=2, protocol_path=fast_protocol(tmp_path, trials=1))
+    res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "html", "--stability", str(d / "stability.json"),
+                                   "--out", str(tmp_path / "r.html")])
+    assert res.exit_code == 0, res.output
+    page = (tmp_path / "r.html").read_text()
+    assert "Numerical stability" in page and 'alt="stability"' in page and "force_chatter" in page
+    md = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--stability", str(d / "stability.json")]).output
+    assert "## Numerical stability" in md and "| mass_spring/implicit | k=1e+06N/m | refused |" in md
