@@ -4,7 +4,7 @@
 import importlib
 import sys
 
-ALL = ["plate_spring", "fem", "mass_spring", "render", "servo", "startup", "synthetic"]
+ALL = ["plate_spring", "fem", "mass_spring", "render", "servo", "startup", "synthetic", "accuracy"]
 
 if __name__ == "__main__":
     names = [a for a in sys.argv[1:] if not a.replace(".", "", 1).isdigit()]

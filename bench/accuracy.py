@@ -1,0 +1,22 @@
+"""The quick accuracy bench (studyctl bench accuracy --quick) in one process: per model row,
+force error against the reference and frame time as a ratio to the seed paper's."""
+
+from __future__ import annotations
+
+from analysis.accuracy import quick_config, run_accuracy
+from analysis.plots import PAPER_MS
+
+
+def main() -> None:
+    out = run_accuracy(quick_config(), jobs=1)  # one process: timings without a neighbour on the other core
+    ref = out["meta"]["reference"]
+    print(f"reference {ref['setting']} (converged: {ref['converged']}); E = {out['meta']['young_pa'] / 1e3:g} kPa; quick bench")
+    for r in out["rows"]:
+        paper = PAPER_MS[r["model"]]
+        print(f"  {r['model'] + '/' + r['setting']:32s} force error {r['force_error']:6.1%} (max {r['force_error_max']:6.1%}), "
+              f"within JND {r['within_jnd']:4.0%}; tick {r['tick_us']:.2f} us; frame p50 {r['frame_ms']:.3g} ms, "
+              f"p99 {r['frame_ms_p99']:.3g} ms = {r['frame_ms'] / paper:.3g} x paper's {paper} ms")
+
+
+if __name__ == "__main__":
+    main()
