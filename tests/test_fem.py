@@ -200,7 +200,7 @@ def test_corotational_large_pull_converges_and_flags_inversion():
     assert rep.min_jacobian <= 0 and np.all(np.isfinite(u)) and np.all(np.isfinite(force))
 
 
-def _block_pull(mode: str, frac: float):
+def _block_force_ratios(mode: str, frac: float):
     """A 4 x 4 x 12 cm block clamped at its base, its top face's mean displacement held."""
     import scipy.sparse as sp
 
@@ -228,7 +228,7 @@ def test_corotational_is_linear_in_stretch_and_follows_neo_hookean_in_bending():
     """Independent physics: the corotational model is linear elasticity in the rotated frame, so
     a 10% stretch gives the linear force (a Biot material), where the neo-Hookean softens; a
     10% sideways pull of the block bends it, and both nonlinear models stiffen alike."""
-    corot, nh = _block_pull("stretch", 0.10)
+    corot, nh = _block_force_ratios("stretch", 0.10)
     assert abs(corot - 1) < 0.01 and 0.88 < nh < 0.95
-    corot, nh = _block_pull("shear", 0.10)
+    corot, nh = _block_force_ratios("shear", 0.10)
     assert corot > 1.3 and nh > 1.3 and abs(corot / nh - 1) < 0.08
