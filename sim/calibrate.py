@@ -25,7 +25,7 @@ def jnd(force: np.ndarray) -> np.ndarray:
     return np.where(force >= 0.5, 0.10, 0.25)
 
 
-def fem_curve(scene_path, displacements: np.ndarray, formulation: str = "neo-hookean", resolution: float = 0.003) -> tuple[np.ndarray, np.ndarray]:
+def fem_curve(scene_path, displacements: np.ndarray, formulation: str = "neo-hookean", resolution: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
     """The scene's FEM force magnitude along each hand's scripted pull: (displacements, forces),
     the hands' curves concatenated. `neo-hookean` is the nonlinear reference (sim/reference.py,
     cached); `linear` the haptic FEM's stiffness at `resolution`."""
@@ -35,8 +35,8 @@ def fem_curve(scene_path, displacements: np.ndarray, formulation: str = "neo-hoo
     xs = np.asarray(displacements, dtype=np.float64)
     if formulation not in ("neo-hookean", "linear"):
         raise ParameterError(f"formulation: {formulation!r} is not one of neo-hookean, linear")
-    if not 0.003 <= resolution <= 0.008:
-        raise ParameterError(f"resolution: {resolution * 1e3:g} mm is out of range; allowed: 3..8 mm")
+    if not 0.002 <= resolution <= 0.008:
+        raise ParameterError(f"resolution: {resolution * 1e3:g} mm is out of range; allowed: 2..8 mm")
     curves = []
     if formulation == "neo-hookean":
         for pull in hand_pulls(scene):

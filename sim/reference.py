@@ -4,8 +4,8 @@ The accuracy bench (analysis/accuracy.py) compares every model with these, and t
 calibration (sim/calibrate.py) fits to them. A pull grasps a surface vertex and moves it along
 a tangent direction; the solve takes one load step (or more) per sampled displacement and
 records the force on the hand, the grasp point's displacement and the surface displacement of
-the grasped hemisphere at each. Results are cached on disk: the 3 mm solve takes about a
-minute per pull on a 2-core machine.
+the grasped hemisphere at each. Results are cached on disk: the 2 mm solve takes about 8
+minutes and 5 GB per pull on a 2-core machine.
 """
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ def reference_pull(scene_path, resolution: float, pull: Pull, xs, use_cache: boo
 
     Forces are returned per pascal of Young's modulus (the neo-Hookean energy is proportional to
     E at a fixed Poisson ratio, so the force at a given displacement is too): multiply by E.
-    Cached on disk (the 3 mm solve takes about a minute per pull).
+    Cached on disk (the 2 mm solve takes about 8 minutes per pull).
     """
     from sim.errors import ParameterError
     from sim.models.fem import FemModel, fixed_nodes, neo_hookean_solve

@@ -6,6 +6,7 @@ mistakes are click's (exit status 2). No traceback reaches the user for either.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sys
@@ -87,13 +88,17 @@ def _with_progress(label, fn):
 @bench.command("accuracy")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--young", type=click.FloatRange(1.0, 1e9), default=15000.0, show_default=True, help="Young's modulus of the bench tissue, Pa (forces beyond 1 N).")
+@click.option("--reference-resolution", type=click.FloatRange(2, 8), default=None,
+              help="Mesh spacing of the neo-Hookean reference, mm [default: 2, --quick: 6].")
 @_sweep_options
-def bench_accuracy(scene_file, young, quick, as_json, out_dir, jobs, scheduler):
+def bench_accuracy(scene_file, young, reference_resolution, quick, as_json, out_dir, jobs, scheduler):
     """The same pulls for every model and setting against the neo-Hookean FEM reference:
     force error, JND fraction, displacement errors, time per servo tick and per frame."""
     from analysis import accuracy
 
     cfg = accuracy.quick_config(scene=scene_file, young=young) if quick else accuracy.AccuracyConfig(scene=scene_file, young=young)
+    if reference_resolution is not None:
+        cfg = dataclasses.replace(cfg, reference_resolution=reference_resolution / 1000)
     result = _with_progress("accuracy pulls", lambda p: accuracy.run_accuracy(cfg, jobs=jobs, scheduler=scheduler, progress=p))
     if out_dir:
         accuracy.write_outputs(result, out_dir)
@@ -321,7 +326,7 @@ def calibrate():
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--reference", default="fem", show_default=True, help="fem (the scene's FEM) or a CSV with displacement_m, force_n.")
 @click.option("--formulation", type=click.Choice(["neo-hookean", "linear"]), default="neo-hookean", show_default=True, help="FEM reference formulation.")
-@click.option("--resolution", type=click.FloatRange(3, 8), default=3.0, show_default=True, help="FEM reference mesh spacing, mm.")
+@click.option("--resolution", type=click.FloatRange(2, 8), default=2.0, show_default=True, help="FEM reference mesh spacing, mm (2 mm: about 8 min and 5 GB per pull the first time).")
 @click.option("--max-displacement", type=click.FloatRange(min=0.001, max=0.1), default=0.024, show_default=True, help="m, the longest pull.")
 @click.option("--samples", type=click.IntRange(3, 100), default=6, show_default=True, help="Points per pull.")
 @click.option("--out", "out_file", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Write the fitted parameter file.")
