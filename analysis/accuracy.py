@@ -45,7 +45,7 @@ class AccuracyConfig:
     young: float = 15000.0  # Pa, see the module docstring
     max_pull: float = 0.024  # m
     samples: int = 6
-    reference_resolution: float = 0.002  # m: about 5 GB and 8 min per pull; 3 mm is 15-18% stiffer (docs/accuracy.md)
+    reference_resolution: float = 0.003  # m: every pull solves here; 2 mm is 14-23% softer still (docs/accuracy.md)
     settings: tuple[Setting, ...] = field(default_factory=lambda: default_settings(False))
     handset: Path = HANDSET_PARAMS  # the uncalibrated plate-spring parameters
     quick: bool = False

@@ -25,7 +25,7 @@ def jnd(force: np.ndarray) -> np.ndarray:
     return np.where(force >= 0.5, 0.10, 0.25)
 
 
-def fem_curve(scene_path, displacements: np.ndarray, formulation: str = "neo-hookean", resolution: float = 0.002) -> tuple[np.ndarray, np.ndarray]:
+def fem_curve(scene_path, displacements: np.ndarray, formulation: str = "neo-hookean", resolution: float = 0.003) -> tuple[np.ndarray, np.ndarray]:
     """The scene's FEM force magnitude along each hand's scripted pull: (displacements, forces),
     the hands' curves concatenated. `neo-hookean` is the nonlinear reference (sim/reference.py,
     cached); `linear` the haptic FEM's stiffness at `resolution`."""

@@ -89,7 +89,7 @@ def _with_progress(label, fn):
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--young", type=click.FloatRange(1.0, 1e9), default=15000.0, show_default=True, help="Young's modulus of the bench tissue, Pa (forces beyond 1 N).")
 @click.option("--reference-resolution", type=click.FloatRange(2, 8), default=None,
-              help="Mesh spacing of the neo-Hookean reference, mm [default: 2, --quick: 6].")
+              help="Mesh spacing of the neo-Hookean reference, mm [default: 3, --quick: 6].")
 @_sweep_options
 def bench_accuracy(scene_file, young, reference_resolution, quick, as_json, out_dir, jobs, scheduler):
     """The same pulls for every model and setting against the neo-Hookean FEM reference:
@@ -326,7 +326,7 @@ def calibrate():
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--reference", default="fem", show_default=True, help="fem (the scene's FEM) or a CSV with displacement_m, force_n.")
 @click.option("--formulation", type=click.Choice(["neo-hookean", "linear"]), default="neo-hookean", show_default=True, help="FEM reference formulation.")
-@click.option("--resolution", type=click.FloatRange(2, 8), default=2.0, show_default=True, help="FEM reference mesh spacing, mm (2 mm: about 8 min and 5 GB per pull the first time).")
+@click.option("--resolution", type=click.FloatRange(2, 8), default=3.0, show_default=True, help="FEM reference mesh spacing, mm (2 mm: about 8 min and 5 GB per pull the first time).")
 @click.option("--max-displacement", type=click.FloatRange(min=0.001, max=0.1), default=0.024, show_default=True, help="m, the longest pull.")
 @click.option("--samples", type=click.IntRange(3, 100), default=6, show_default=True, help="Points per pull.")
 @click.option("--out", "out_file", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Write the fitted parameter file.")

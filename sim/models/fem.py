@@ -110,6 +110,7 @@ class Factor:
         probe = np.ones(self.n)
         x = self.solve(probe)
         if not np.all(np.isfinite(x)) or np.linalg.norm(A @ x - probe) > 1e-6 * np.linalg.norm(probe):
+            del self._solver  # free the failed factor now, not when the exception dies
             raise SingularSystemError("stiffness is singular or not positive definite")
 
     def solve(self, b: np.ndarray) -> np.ndarray:
@@ -598,20 +599,17 @@ class NewtonReport:
 
 
 def _shifted_factor(K: sp.csr_matrix) -> Factor:
-    """Factor K, or K + tau * mean(diag K) * I with the smallest tau in 1e-6..1 that is positive
+    """Factor K, or K + tau * mean(diag K) * I with the smallest tau in 1e-6..100 that is positive
     definite: near a buckling load the tangent can be indefinite, and the shifted (modified)
     Newton step still converges to the same equilibrium, only more slowly."""
+    scale = float(np.mean(K.diagonal()))
     with _quiet_c_output():  # CHOLMOD prints a warning for every failed attempt
-        try:
-            return Factor(K)
-        except SingularSystemError:
-            scale = float(np.mean(K.diagonal()))
-            for tau in (1e-6, 1e-4, 1e-2, 1.0):
-                try:
-                    return Factor(K + sp.identity(K.shape[0], format="csr") * (tau * scale))
-                except SingularSystemError:
-                    continue
-            raise
+        for tau in (0.0, 1e-6, 1e-4, 1e-2, 1.0, 10.0, 100.0):
+            try:  # (no exception kept alive across attempts: a failed factor can hold gigabytes)
+                return Factor(K + sp.identity(K.shape[0], format="csr") * (tau * scale) if tau else K)
+            except SingularSystemError:
+                pass
+    raise SingularSystemError("tangent stiffness is not positive definite even shifted by 100 times its mean diagonal")
 
 
 @contextlib.contextmanager
