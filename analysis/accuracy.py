@@ -78,7 +78,7 @@ def sample_displacements(cfg: AccuracyConfig) -> np.ndarray:
 
 # -- a model on the same pulls -------------------------------------------------------------
 
-def _build_model(scene, setting: Setting, handset: Path):
+def _build_model(scene, setting: Setting, handset: Path, e_ratio: float):
     from sim.models import model_module
     from sim.models.plate_spring import load_params
     from sim.scene import ModelSpec
@@ -89,20 +89,21 @@ def _build_model(scene, setting: Setting, handset: Path):
         scene_ps = scene.spec.models["plate_spring"].plate_spring
         params = load_params(handset) if opts["params"] == "handset" else scene_ps
         # the stack's modulus is the tissue's: scale it with the bench's modulus
-        ratio = scene.spec.material.young / scene_with(scene.spec.path).spec.material.young
-        params = dataclasses.replace(params, E=params.E * ratio)
+        params = dataclasses.replace(params, E=params.E * e_ratio)
         spec = ModelSpec(name="plate_spring", variant=opts["variant"], plate_spring=params)
     else:
         spec = ModelSpec(name=setting.model, options=dict(base.options if base else {}) | opts)
     return model_module(setting.model).build(scene.mesh, spec, scene)
 
 
-def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], xs, handset: Path = HANDSET_PARAMS) -> dict:
-    """Run every pull as a ramp of visual frames; sample force, grasp and surface displacement."""
+def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], xs, handset: Path = HANDSET_PARAMS,
+                e_ratio: float = 1.0) -> dict:
+    """Run every pull as a ramp of visual frames; sample force, grasp and surface displacement.
+    `e_ratio` is `young` over the scene's own modulus (it scales the plate-spring stack's E)."""
     scene = scene_with(scene_path, young)
     xs = np.asarray(xs, dtype=np.float64)
     start = time.perf_counter()
-    model = _build_model(scene, setting, handset)
+    model = _build_model(scene, setting, handset, e_ratio)
     build_s = time.perf_counter() - start
     frame_hz = scene.spec.visual_rate_hz
     per_sample = max(1, round((xs[0]) / PULL_SPEED * frame_hz))
@@ -160,8 +161,8 @@ def _task(task):
     if kind == "reference":
         _, scene_path, resolution, pull, xs = task
         return reference_pull(scene_path, resolution, pull, xs)
-    _, scene_path, young, setting, pulls, xs, handset = task
-    return model_pulls(scene_path, young, setting, pulls, xs, handset)
+    _, scene_path, young, setting, pulls, xs, handset, e_ratio = task
+    return model_pulls(scene_path, young, setting, pulls, xs, handset, e_ratio)
 
 
 def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | None = None, progress=None) -> dict:
@@ -171,9 +172,10 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
     scene = scene_with(cfg.scene)
     pulls = make_pulls(scene)
     xs = sample_displacements(cfg)
+    # the references (the slowest tasks) first, so the pool is not left waiting on one at the end
     tasks = [("reference", str(cfg.scene), cfg.reference_resolution, p, xs) for p in pulls]
-    # the slow settings first, so the pool is not left waiting on one at the end
-    tasks += [("model", str(cfg.scene), cfg.young, s, pulls, xs, cfg.handset) for s in cfg.settings]
+    e_ratio = cfg.young / scene.spec.material.young
+    tasks += [("model", str(cfg.scene), cfg.young, s, pulls, xs, cfg.handset, e_ratio) for s in cfg.settings]
     results = run_tasks(_task, tasks, jobs=jobs, scheduler=scheduler, progress=progress)
     refs, models = results[: len(pulls)], results[len(pulls):]
     rows, samples = compare(refs, models, pulls, xs, cfg.young)
@@ -271,7 +273,6 @@ def write_outputs(result: dict, out_dir) -> list[Path]:
     pd.DataFrame(result["samples"]).to_csv(files[2], index=False)
     files[3].write_text(markdown(result))
     for ext in ("png", "svg"):
-        pareto_plot(result["rows"], out / f"pareto.{ext}",
-                    title=f"Force error vs deformation time (reference {result['meta']['reference']['setting']})")
+        pareto_plot(result["rows"], out / f"pareto.{ext}", reference=result["meta"]["reference"]["setting"])
         files.append(out / f"pareto.{ext}")
     return files

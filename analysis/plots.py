@@ -118,7 +118,7 @@ def force_plot(traces: dict, path: Path) -> None:
 PAPER_MS = {"plate_spring": 14.69, "fem": 21.35, "mass_spring": 23.08}  # seed paper, Table 1 (its 2014 PC)
 
 
-def pareto_plot(rows: list[dict], path: Path, title: str = "") -> None:
+def pareto_plot(rows: list[dict], path: Path, reference: str = "") -> None:
     """Log-log: mean relative force error against deformation time per frame, one point per
     model setting; the Pareto front joined; the paper's deformation times as vertical marks."""
     from analysis.accuracy import pareto
@@ -145,7 +145,7 @@ def pareto_plot(rows: list[dict], path: Path, title: str = "") -> None:
     ax.set_yscale("log")
     ax.set_xlabel("deformation time per visual frame, ms (median, this machine)")
     ax.set_ylabel("mean relative force error vs reference")
-    ax.set_title(title or "Model error against run time")
+    ax.set_title("Force error vs deformation time" + (f" (reference {reference})" if reference else ""))
     ax.legend(fontsize=8, loc="lower left")
     fig.tight_layout()
     fig.savefig(path)

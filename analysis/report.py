@@ -49,15 +49,19 @@ def latex(db) -> str:
              r"\caption{" + esc(("SYNTHETIC DATA. " if facts["synthetic"] else "") + f"{facts['study']}: N = {facts['participants']}; {facts['design']}.") + "}",
              r"\begin{tabular}{l" + "c" * len(models) + "c}", r"\hline",
              "Question & " + " & ".join(esc(m) for m in models) + r" & Cochran's $Q$ ($p$) \\", r"\hline"]
-    for item, g in r.groupby("item", sort=False):
-        cells = []
-        for m in models:
-            row = g[g["model"] == m].iloc[0]
-            cells.append(f"{row['yes']}/{row['no']}, {100 * row['rate']:.1f}\\% [{100 * row['wilson_low']:.1f}, {100 * row['wilson_high']:.1f}]")
-        qrow = q[q["item"] == item].iloc[0]
-        lines.append(esc(g["question"].iloc[0]) + " & " + " & ".join(cells) + f" & {qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})" + r" \\")
+    for _, question, rows, qrow in table1.item_rows(r, q, models):
+        cells = [f"{row['yes']}/{row['no']}, {100 * row['rate']:.1f}\\% [{100 * row['wilson_low']:.1f}, {100 * row['wilson_high']:.1f}]" for row in rows]
+        lines.append(esc(question) + " & " + " & ".join(cells) + f" & {qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})" + r" \\")
     lines += [r"\hline", r"\end{tabular}", r"\end{table}"]
     return "\n".join(lines) + "\n"
+
+
+def _inline_png(draw) -> str:
+    """Base64 PNG of what `draw(path)` writes (a report is one self-contained file)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "plot.png"
+        draw(path)
+        return base64.b64encode(path.read_bytes()).decode()
 
 
 def accuracy_html(result: dict) -> str:
@@ -66,9 +70,7 @@ def accuracy_html(result: dict) -> str:
     from analysis.plots import pareto_plot
 
     esc = _html.escape
-    with tempfile.TemporaryDirectory() as tmp:
-        pareto_plot(result["rows"], Path(tmp) / "pareto.png", title=f"Force error vs deformation time (reference {result['meta']['reference']['setting']})")
-        img = base64.b64encode((Path(tmp) / "pareto.png").read_bytes()).decode()
+    img = _inline_png(lambda path: pareto_plot(result["rows"], path, reference=result["meta"]["reference"]["setting"]))
     intro = markdown(result).split("\n")[0]
     head = "".join(f"<th>{h}</th>" for h in ("model", "setting", "force error (mean / max)", "within JND", "direction error",
                                              "grasp error", "surface RMS error", "servo tick", "deformation frame"))
@@ -89,9 +91,8 @@ def stability_html(result: dict) -> str:
     from analysis.stability import markdown
 
     esc = _html.escape
-    with tempfile.TemporaryDirectory() as tmp:
-        stability_heatmap(result["cases"], Path(tmp) / "heatmap.png")
-        img = base64.b64encode((Path(tmp) / "heatmap.png").read_bytes()).decode()
+    img = _inline_png(lambda path: stability_heatmap(result["cases"], path))
+
     def at(c):
         return "" if c["detected_at_s"] is None else f"{c['detected_at_s']:.3f} s"
 
@@ -117,13 +118,11 @@ def html(db, force_traces: bool = True, accuracy: dict | None = None, stability:
     banner = ('<p class="synthetic">SYNTHETIC DATA: simulated participants; not evidence about people.</p>' if facts["synthetic"] else "")
     rows = []
     models = list(d["model"])
-    for item, g in r.groupby("item", sort=False):
-        cells = "".join(
-            f"<td>{row['yes']}/{row['no']}<br>{row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]</td>"
-            for _, row in g.set_index("model").loc[models].reset_index().iterrows())
-        qrow = q[q["item"] == item].iloc[0]
+    for item, question, item_rows, qrow in table1.item_rows(r, q, models):
+        cells = "".join(f"<td>{row['yes']}/{row['no']}<br>{row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]</td>"
+                        for row in item_rows)
         pairs = "; ".join(f"{p['a']} vs {p['b']}: {p['p_holm']:.3g}" for p in st["items"][item]["pairs"])
-        rows.append(f"<tr><td>{esc(g['question'].iloc[0])}</td>{cells}<td>{qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})</td><td>{esc(pairs)}</td></tr>")
+        rows.append(f"<tr><td>{esc(question)}</td>{cells}<td>{qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})</td><td>{esc(pairs)}</td></tr>")
     dcells = "".join(f"<td>{row['mean_ms']:.2f} &plusmn; {row['sd_ms']:.2f}<br>median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f}</td>" for _, row in d.iterrows())
     lat = st["latency"]
     lat_text = (f"Friedman &chi;&sup2;({lat['df']}) = {lat['statistic']:.2f}, p = {lat['p_value']:.3g}, Kendall's W = {lat['kendall_w']:.2f}; "

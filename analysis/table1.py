@@ -121,6 +121,14 @@ def study_facts(db) -> dict:
             "design": f"within-subject, {len(protocol.conditions)} models, {protocol.counterbalancing} counterbalancing"}
 
 
+def item_rows(r, q, models):
+    """Per question, in table order: (item, question text, its rate row for each of `models`,
+    its Cochran's Q row). The Markdown, LaTeX and HTML tables all render these."""
+    for item, g in r.groupby("item", sort=False):
+        g = g.set_index("model")
+        yield item, g["question"].iloc[0], [g.loc[m] for m in models], q[q["item"] == item].iloc[0]
+
+
 def markdown(db) -> str:
     """Table 1 as Markdown: counts, rate [Wilson 95%] per model, Cochran's Q per item, and the
     deformation-time row, headed by N, the design and a synthetic-data flag."""
@@ -136,14 +144,10 @@ def markdown(db) -> str:
         "| Question | " + " | ".join(f"{m}: yes/no, rate [95% CI]" for m in models) + " | Cochran's Q (p) | McNemar p, Holm |",
         "|---|" + "---|" * len(models) + "---|---|",
     ]
-    for item, g in r.groupby("item", sort=False):
-        cells = []
-        for m in models:
-            row = g[g["model"] == m].iloc[0]
-            cells.append(f"{row['yes']}/{row['no']}, {row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]")
-        qrow = q[q["item"] == item].iloc[0]
+    for item, question, rows, qrow in item_rows(r, q, models):
+        cells = [f"{row['yes']}/{row['no']}, {row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]" for row in rows]
         mc = "; ".join(f"{p['a']}-{p['b']} {p['p_holm']:.3g}" for p in pairs.get(item, []))
-        lines.append(f"| {g['question'].iloc[0]} | " + " | ".join(cells) + f" | {qrow['cochran_q']:.2f} ({qrow['p_value']:.3g}) | {mc} |")
+        lines.append(f"| {question} | " + " | ".join(cells) + f" | {qrow['cochran_q']:.2f} ({qrow['p_value']:.3g}) | {mc} |")
     cells = [f"{row['mean_ms']:.2f} +- {row['sd_ms']:.2f} (median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f})" for _, row in d.iterrows()]
     lines.append("| Time for real-time deformation of the model, ms | " + " | ".join(cells) + " | | |")
     lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models for participants who answered all of them; "

@@ -103,7 +103,7 @@ def bench_accuracy(scene_file, young, reference_resolution, quick, as_json, out_
     if out_dir:
         accuracy.write_outputs(result, out_dir)
     if as_json:
-        _print_json(result | {"samples": result["samples"]})
+        _print_json(result)
         return
     from rich.table import Table
 

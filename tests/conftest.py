@@ -12,6 +12,18 @@ def root() -> Path:
     return ROOT
 
 
+@pytest.fixture(scope="session")
+def small_study(tmp_path_factory):
+    """A small SYNTHETIC study database, shared by the report tests."""
+    from studyctl.synthetic import run_synthetic_study
+    from tests.test_study import fast_protocol
+
+    tmp = tmp_path_factory.mktemp("study")
+    db = tmp / "s.db"
+    run_synthetic_study(db, 6, seed=5, protocol_path=fast_protocol(tmp, trials=1))
+    return db
+
+
 def write_params(path: Path, **overrides) -> Path:
     """A plate-spring parameter file: the brain defaults with `overrides` (None drops a key)."""
     import tomllib

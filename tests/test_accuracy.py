@@ -114,13 +114,9 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
     assert sorted(p.name for p in d.iterdir()) == ["accuracy.csv", "accuracy.json", "accuracy.md", "pareto.png", "pareto.svg", "samples.csv"]
 
 
-def test_report_carries_the_accuracy_table_and_pareto_plot(small_bench, tmp_path):
-    from studyctl.synthetic import run_synthetic_study
-    from tests.test_study import fast_protocol
-
+def test_report_carries_the_accuracy_table_and_pareto_plot(small_bench, small_study, tmp_path):
     _, d = small_bench
-    db = tmp_path / "s.db"
-    run_synthetic_study(db, 3, seed=2, protocol_path=fast_protocol(tmp_path, trials=1))
+    db = small_study
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "html", "--accuracy", str(d / "accuracy.json"),
                                    "--out", str(tmp_path / "r.html")])
     assert res.exit_code == 0, res.output

@@ -88,13 +88,9 @@ def test_unreachable_scheduler_is_a_one_line_error():
     assert "Traceback" not in res.output
 
 
-def test_report_carries_the_heat_map(quick_sweep, tmp_path):
-    from studyctl.synthetic import run_synthetic_study
-    from tests.test_study import fast_protocol
-
+def test_report_carries_the_heat_map(quick_sweep, small_study, tmp_path):
     _, d = quick_sweep
-    db = tmp_path / "s.db"
-    run_synthetic_study(db, 3, seed=2, protocol_path=fast_protocol(tmp_path, trials=1))
+    db = small_study
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "html", "--stability", str(d / "stability.json"),
                                    "--out", str(tmp_path / "r.html")])
     assert res.exit_code == 0, res.output

@@ -101,14 +101,6 @@ def test_report_stats_json_keys(tmp_path):
     assert {"statistic", "p_value", "kendall_w", "pairs"} <= set(lat) and len(lat["pairs"]) == 3
 
 
-@pytest.fixture(scope="module")
-def small_study(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("study")
-    db = tmp / "s.db"
-    run_synthetic_study(db, 6, seed=5, protocol_path=fast_protocol(tmp, trials=1))
-    return db
-
-
 def test_latex_html_and_plots(small_study, tmp_path):
     db = small_study
     tex = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "latex"]).output
