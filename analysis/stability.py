@@ -152,7 +152,7 @@ def run_case(case: Case, scene_path=DEFAULT_SCENE) -> dict:
                    wall_s=time.perf_counter() - start)
         return out
     try:
-        result = run_scene(scene, duration=DURATION, time_scale=0.0, servo="thread")
+        result = run_scene(scene, duration=DURATION, time_scale=0.0)
     except Exception as exc:  # the loop itself must never crash: if it does, the sweep says so
         out.update(outcome="unstable", reason=f"crash in the loop: {type(exc).__name__}: {exc}", wall_s=time.perf_counter() - start)
         return out

@@ -19,3 +19,7 @@ class MeshError(SimError):
 
 class DeviceError(SimError):
     """A haptic device cannot be opened or has failed."""
+
+
+class ViewError(SimError):
+    """The participant view cannot open its window."""

@@ -1,24 +1,25 @@
 """Run a scene: the servo loop at its rate, the visual step at its rate, statistics, outputs.
 
-Clocks:
+Two clocks, one path each:
 
-- real time (``time_scale > 0``): by default the servo loop runs in its own process
-  (sim/servo_process.py); with ``servo="thread"`` in a thread of this one, paced by
-  sleep-then-spin on the wall clock (scaled by `time_scale`). The visual step (grasps,
-  deformation, snapshots, optional live drawing) runs in the calling thread. Tick intervals
-  are wall-clock intervals.
-- scheduled: OpenHaptics devices; the HD library's scheduler calls the tick.
+- real time (``time_scale > 0``): the servo loop runs in its own process
+  (sim/servo_process.py) for simulated, mouse and replay devices, paced by sleep-then-spin on
+  the wall clock (scaled by `time_scale`). The visual step (grasps, deformation, snapshots)
+  and the participant view (`Pacing`: drawing, pointer, keys, on-screen text) run in the
+  calling process and cannot delay the servo. A paced run can wait for the first grasp (or a
+  start key) before its clock starts, and a stop key ends it early. Tick intervals are
+  wall-clock intervals.
 - lockstep (``time_scale == 0``): one thread, simulated time only, as fast as the machine
-  allows; deterministic for the same scene. Used by tests and synthetic studies.
+  allows; deterministic for the same scene. Used by tests, replays and synthetic studies.
 
-`--frames` pictures are rendered after the run from the snapshots.
+OpenHaptics devices still run on the HD library's scheduler in this process ("scheduled");
+moving them into the servo process is issue 14. `--frames` pictures are rendered after the run
+from the snapshots.
 """
 
 from __future__ import annotations
 
-import gc
 import math
-import sys
 import threading
 import time
 from collections import Counter
@@ -28,10 +29,19 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.servo import Event, Hand, ServoLoop, wait_until
+from sim.servo import Event, Hand, ServoLoop
 
-MISS_STREAK = 3  # consecutive late ticks that suspend force output
-SUSPEND_S = 0.1  # for this long
+
+@dataclass
+class Pacing:
+    """A real-time run with a person: what it shows, when its clock starts, what ends it."""
+
+    view: object | None = None  # a sim.view.ParticipantView, drawn after every visual step
+    wait_for_grasp: bool = False  # the clock starts at the first grasp, or a start key
+    start_keys: tuple[str, ...] = ("space", "enter")
+    stop_keys: tuple[str, ...] = ()
+    caption: Callable[[str, float], dict] | None = None  # (phase "waiting"/"running", seconds left) -> view text
+    keys: Callable[[], list[str]] | None = None  # another key source (the experimenter's terminal)
 
 
 @dataclass
@@ -148,6 +158,10 @@ class RunResult:
     events: list[Event]
     snapshots: list[Snapshot]
     model_diagnostics: dict = field(default_factory=dict)
+    started_by: str = "clock"  # a paced run: "grasp" or "key"
+    waited_s: float = 0.0  # a paced run: seconds before its clock started
+    ended_early: str | None = None  # a paced run: the key (or "window closed") that ended it
+    view: dict | None = None  # the participant view's statistics
 
     def stats(self) -> dict:
         """The summary `studyctl sim run --json` prints."""
@@ -174,6 +188,9 @@ class RunResult:
             "frames": 0,
             "events": dict(Counter(e.kind for e in self.events)),
             "model_diagnostics": self.model_diagnostics,
+            "started_by": self.started_by,
+            "ended_early": self.ended_early,
+            **({"view": self.view} if self.view is not None else {}),
         }
 
 
@@ -189,31 +206,30 @@ def _percentiles(values: np.ndarray, qs, with_max=False) -> dict:
     return out
 
 
-def run_scene(
-    scene,
-    duration: float | None = None,
-    time_scale: float = 1.0,
-    snapshots: bool = False,
-    servo: str = "process",
-    render: Callable[[VisualStep], None] | None = None,
-) -> RunResult:
+def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, snapshots: bool = False,
+              pacing: Pacing | None = None) -> RunResult:
     """Run `scene` (a `sim.scene.Scene`) for `duration` simulated seconds.
 
-    In real time (`time_scale > 0`) the servo runs in its own process by default
-    (``servo="process"``, sim/servo_process.py); ``servo="thread"`` keeps it in a thread of
-    this process. `render(visual)`, if given, is called after every visual step (e.g. to draw
-    the latest frame live). OpenHaptics devices run on their library's scheduler in this process.
+    In real time (`time_scale > 0`) the servo runs in its own process; `pacing` adds the
+    participant view, waiting for a grasp and stop keys. `time_scale == 0` is lockstep.
+    OpenHaptics devices run on their library's scheduler in this process.
     """
+    from sim.errors import ParameterError
+
     spec = scene.spec
     duration = spec.duration if duration is None else duration
     rate = spec.servo_rate_hz
     model = scene.model
-    if servo not in ("process", "thread"):
-        raise ValueError(f"servo: {servo!r} is not process or thread")
+    if not (math.isfinite(duration) and 0 < duration <= 24 * 3600):
+        raise ParameterError(f"duration: {duration!r} is out of range; allowed: (0, 86400] s")
+    if not (math.isfinite(time_scale) and 0 <= time_scale <= 1000):
+        raise ParameterError(f"time scale: {time_scale!r} is out of range; allowed: 0 (lockstep) or (0, 1000]")
+    if time_scale <= 0 and pacing is not None:
+        raise ParameterError("the participant view and paced trials need real time (time scale > 0)")
     if hasattr(model, "reset"):  # every run starts from undeformed tissue
         model.reset()
-    if time_scale > 0 and servo == "process" and all(h.device != "openhaptics" for h in spec.hands):
-        return _run_process(scene, model, duration, rate, time_scale, snapshots, render)
+    if time_scale > 0 and all(h.device != "openhaptics" for h in spec.hands):
+        return _run_process(scene, model, duration, rate, time_scale, snapshots, pacing)
     devices = scene.open_devices()
     hands = [Hand(index=i, name=h.name, device=d) for i, (h, d) in enumerate(zip(spec.hands, devices))]
     peak = min(d.spec.peak_force_n for d in devices)
@@ -225,33 +241,85 @@ def run_scene(
     try:
         if rig is not None:  # real devices: the HD scheduler sets the pace
             mode = "scheduled"
-            starts, misses, wall = _run_scheduled(rig, servo_loop, visual, n_ticks, rate, spec.visual_rate_hz)
-        elif time_scale <= 0:
+            starts, misses, wall = _run_scheduled(rig, servo_loop, visual, n_ticks, rate, spec.visual_rate_hz, pacing)
+        else:
             mode = "lockstep"
             starts, misses, wall = _run_lockstep(servo_loop, visual, n_ticks, rate, spec.visual_rate_hz)
-        else:
-            mode = "realtime"
-            starts, misses, wall = _run_realtime(servo_loop, visual, n_ticks, rate, spec.visual_rate_hz, time_scale, render)
     finally:
         for d in devices:
             d.close()
-    return _result(scene, model, mode, time_scale, duration, rate, [h.name for h in hands], servo_loop.rows, starts, misses, wall, visual, servo_loop.events)
+    result = _result(scene, model, mode, time_scale, duration, rate, [h.name for h in hands], servo_loop.rows.array(), starts, misses, wall,
+                     visual, servo_loop.events)
+    if pacing is not None and pacing.view is not None:
+        result.view = pacing.view.stats()
+    return result
 
 
-def _run_process(scene, model, duration, rate, time_scale, snapshots, render) -> RunResult:
+def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing) -> RunResult:
     from sim.servo_process import run_in_process
 
     spec = scene.spec
     n_ticks = int(round(duration * rate))
     snapshot_period = 1.0 / spec.renderer.fps if snapshots else None
     visual = VisualStep(model=model, hands=[], events=[], snapshot_period=snapshot_period)
-    out, events = run_in_process(scene, visual, n_ticks, rate, spec.visual_rate_hz, time_scale, render)
+    state: dict = {"ended_early": None}
+    frame = _paced_frame(pacing, duration, rate, state) if pacing is not None else None
+    if pacing is not None and pacing.view is not None:
+        pacing.view.reset_stats()
+    out, events = run_in_process(scene, visual, n_ticks, rate, spec.visual_rate_hz, time_scale, frame, wait=bool(pacing and pacing.wait_for_grasp))
     names = [h.name for h in spec.hands]
-    return _result(scene, model, "realtime-process", time_scale, duration, rate, names, out["rows"], out["starts"], out["misses"], out["wall"], visual, events)
+    result = _result(scene, model, "realtime-process", time_scale, duration, rate, names, out["rows"], out["starts"], out["misses"], out["wall"],
+                     visual, events)
+    result.started_by = out.get("started_by") or "clock"
+    result.waited_s = float(out.get("waited_s", 0.0))
+    result.ended_early = state["ended_early"]
+    if pacing is not None and pacing.view is not None:
+        result.view = pacing.view.stats()
+    return result
 
 
-def _result(scene, model, mode, time_scale, duration, rate, names, rows_list, starts, misses, wall, visual, events) -> RunResult:
-    rows = np.asarray(rows_list, dtype=np.float64).reshape(len(rows_list), -1)
+def hand_states(hands) -> list:
+    """What the participant view draws of the visual step's hands."""
+    from sim.view import HandState
+
+    return [HandState(h.position, h.force, h.contact.vertex if h.contact is not None else None) for h in hands]
+
+
+def _paced_frame(pacing: Pacing, duration: float, rate: float, state: dict):
+    """Called after every visual step of a paced run: pointer to the mouse devices, caption,
+    drawing, keys. Returns "start", "stop" or None."""
+
+    def frame(sp, visual):
+        view = pacing.view
+        keys = []
+        if view is not None:
+            for i, (target, pressed) in view.pointer_inputs().items():
+                sp.set_input(i, target, pressed)
+            keys += view.take_keys()
+        if pacing.keys is not None:
+            keys += pacing.keys()
+        started = sp.started()
+        if view is not None:
+            if pacing.caption is not None:
+                left = duration - sp.ticks() / rate if started else duration
+                view.set_text(**pacing.caption("running" if started else "waiting", max(left, 0.0)))
+            view.draw(visual.last, hand_states(visual.hands), sp.read_t)
+            if view.closed:
+                state["ended_early"] = "window closed"
+                return "stop"
+        stop = [k for k in keys if k in pacing.stop_keys]
+        if stop:
+            state["ended_early"] = stop[0]
+            return "stop"
+        if not started and any(k in pacing.start_keys for k in keys):
+            return "start"
+        return None
+
+    return frame
+
+
+def _result(scene, model, mode, time_scale, duration, rate, names, rows, starts, misses, wall, visual, events) -> RunResult:
+    rows = np.asarray(rows, dtype=np.float64).reshape(len(rows), -1)
     nh = len(names)
     per_hand = rows[:, 3:].reshape(len(rows), nh, 7) if len(rows) else np.zeros((0, nh, 7))
     return RunResult(
@@ -295,8 +363,9 @@ def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
     return starts, 0, clock() - begin
 
 
-def _run_scheduled(rig, servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: float, visual_rate: float):
-    """Real devices: the OpenHaptics scheduler calls the servo tick; this thread runs visuals."""
+def _run_scheduled(rig, servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: float, visual_rate: float, pacing: Pacing | None = None):
+    """Real devices: the OpenHaptics scheduler calls the servo tick; this thread runs visuals
+    (and draws the participant view, if any)."""
     starts = np.empty(n_ticks)
     count = [0]
     done = threading.Event()
@@ -319,6 +388,8 @@ def _run_scheduled(rig, servo: ServoLoop, visual: VisualStep, n_ticks: int, rate
         frame = 1.0 / visual_rate
         while not done.wait(frame):
             visual(count[0] / rate)
+            if pacing is not None and pacing.view is not None:
+                pacing.view.draw(visual.last, hand_states(visual.hands), starts[max(count[0] - 1, 0)])
     finally:
         rig.stop()
     n = count[0]
@@ -326,69 +397,6 @@ def _run_scheduled(rig, servo: ServoLoop, visual: VisualStep, n_ticks: int, rate
     for e in rig.errors:
         servo.events.append(Event(n / rate, -1, "hd_error", str(e)))
     return starts[:n], misses, clock() - begin
-
-
-def _run_realtime(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: float, visual_rate: float, time_scale: float, render=None):
-    period = 1.0 / (rate * time_scale)
-    starts = np.empty(n_ticks)
-    state = {"misses": 0, "tick": 0, "error": None}
-    done = threading.Event()
-    clock = time.perf_counter
-    begin = clock()
-
-    def servo_thread() -> None:
-        deadline = begin
-        streak = 0
-        try:
-            for k in range(n_ticks):
-                wait_until(deadline, 2e-4)
-                now = clock()
-                starts[k] = now
-                if now > deadline + 0.5 * period:
-                    state["misses"] += 1
-                    streak += 1
-                    if streak >= MISS_STREAK:  # the loop cannot keep time: stop rendering forces
-                        servo.suspend(k / rate, SUSPEND_S, "deadline_streak")
-                else:
-                    streak = 0
-                servo.tick(k / rate)
-                state["tick"] = k
-                deadline += period
-                if clock() > deadline + period:  # far behind: resynchronise, never burst
-                    deadline = clock()
-        except BaseException as exc:  # surfaced in the calling thread
-            state["error"] = exc
-        finally:
-            done.set()
-
-    old_switch = sys.getswitchinterval()
-    sys.setswitchinterval(5e-4)  # shorter interpreter-lock slices: less jitter for the servo
-    gc_was_enabled = gc.isenabled()
-    gc.disable()  # a full collection mid-run is a multi-millisecond pause; the run allocates little
-    thread = threading.Thread(target=servo_thread, name="servo", daemon=True)
-    thread.start()
-    try:
-        frame = 1.0 / (visual_rate * time_scale)
-        next_frame = begin
-        while not done.is_set():
-            remaining = next_frame - clock()
-            if remaining > 0:
-                done.wait(remaining)
-                continue
-            visual(state["tick"] / rate)
-            if render is not None:
-                render(visual)
-            next_frame += frame
-            if clock() > next_frame + frame:
-                next_frame = clock()
-        thread.join()
-    finally:
-        sys.setswitchinterval(old_switch)
-        if gc_was_enabled:
-            gc.enable()
-    if state["error"] is not None:
-        raise state["error"]
-    return starts, state["misses"], clock() - begin
 
 
 def write_outputs(result: RunResult, scene, out_dir: Path, progress: Callable[[int, int], None] | None = None) -> int:

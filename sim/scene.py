@@ -332,6 +332,17 @@ class Scene:
         self.model_spec = spec.model_spec(model)
         self.operators = None  # optional PullScripts replacing the scripted hands (simulated devices)
 
+    def with_device(self, device: str | None) -> Scene:
+        """Every hand on `device` (this scene, changed in place; None keeps the file's)."""
+        import dataclasses
+
+        if device is not None and any(h.device != device for h in self.spec.hands):
+            if device not in __import__("sim.devices", fromlist=["BACKENDS"]).BACKENDS:
+                raise SceneError(f"device: {device!r} is not one of simulated, mouse, openhaptics, replay")
+            hands = tuple(dataclasses.replace(h, device=device) for h in self.spec.hands)
+            self.spec = dataclasses.replace(self.spec, hands=hands)
+        return self
+
     def script(self, i: int):
         """The scripted operator of hand i: the scene's, or the one set in `operators`."""
         if self.operators is not None:

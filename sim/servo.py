@@ -15,6 +15,8 @@ import math
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from sim.models.base import Contact
 
 NO_FORCE = (0.0, 0.0, 0.0)
@@ -76,6 +78,37 @@ def limit_force(force, peak: float) -> tuple[tuple[float, float, float], str | N
     return (fx, fy, fz), None
 
 
+class TickLog:
+    """The per-tick rows of a run in preallocated float64 blocks: a tuple per tick would cost
+    about 600 bytes (a 5-minute live run: 180 MB); a row here costs 8 bytes a column."""
+
+    BLOCK = 8192
+
+    def __init__(self) -> None:
+        self._blocks: list[np.ndarray] = []
+        self._n = 0  # rows in the last block
+        self.width = 0
+
+    def append(self, row) -> None:
+        if not self._blocks or self._n == self.BLOCK:
+            self.width = len(row)
+            self._blocks.append(np.empty((self.BLOCK, self.width)))
+            self._n = 0
+        self._blocks[-1][self._n] = row
+        self._n += 1
+
+    def __len__(self) -> int:
+        return (len(self._blocks) - 1) * self.BLOCK + self._n if self._blocks else 0
+
+    def clear(self) -> None:
+        self._blocks, self._n = [], 0
+
+    def array(self) -> np.ndarray:
+        if not self._blocks:
+            return np.zeros((0, self.width))
+        return np.concatenate(self._blocks[:-1] + [self._blocks[-1][: self._n]])
+
+
 @dataclass
 class ServoLoop:
     model: object
@@ -84,7 +117,8 @@ class ServoLoop:
     ramp_s: float = 0.05
     jump_m: float = 0.02  # a larger move in one tick (20 m/s) is a glitch, not a hand
     events: list[Event] = field(default_factory=list)
-    rows: list[tuple] = field(default_factory=list)  # (t, compute_s, io_s, then per hand px py pz fx fy fz button)
+    rows: TickLog = field(default_factory=TickLog)  # (t, compute_s, io_s, then per hand px py pz fx fy fz button)
+    device_offset: float = 0.0  # devices read at t + this: a paced run's clock starts at its first grasp
     suspended_until: float = -math.inf
     model_fault: bool = False  # the model raised in a force call (logged once)
     # a limit cycle: the force flips direction (both sides above 0.05 N) this many times within
@@ -98,6 +132,23 @@ class ServoLoop:
             self.events.append(Event(t, -1, reason))
         self.suspended_until = max(self.suspended_until, t + duration)
 
+    def restart(self, device_t: float, keep_last: bool) -> None:
+        """A paced run's clock starts now (at the first grasp, or a start key): the waiting
+        ticks are dropped, the tick just run (kept with `keep_last`: the grasp) becomes t = 0,
+        and devices go on reading their own clock (`device_t` is where t = 0 falls on it)."""
+        last = self.rows.array()[-1].copy() if keep_last and len(self.rows) else None
+        t_last = float(last[0]) if last is not None else math.nan
+        self.rows.clear()
+        self.events[:] = [Event(0.0, e.hand, e.kind, e.detail) for e in self.events if e.t == t_last]
+        if last is not None:
+            last[0] = 0.0
+            self.rows.append(last)
+        self.device_offset = device_t
+        self.suspended_until = -math.inf
+        for h in self.hands:
+            h.reversals.clear()
+            h.contact_t = 0.0
+
     def tick(self, t: float) -> None:
         clock = time.perf_counter
         start = clock()
@@ -108,7 +159,7 @@ class ServoLoop:
         for i, h in enumerate(hands):
             fault = None
             try:
-                state = h.device.read(t)
+                state = h.device.read(t + self.device_offset)
                 read_at[i] = clock()
             except Exception as exc:  # a disconnected or failing device: zero force, never a crash
                 state, fault = None, f"device_fault: {exc}"
@@ -204,7 +255,7 @@ class ServoLoop:
             row.append(1.0 if h.button else 0.0)
         row[1] = clock() - start
         row[2] = io
-        self.rows.append(tuple(row))
+        self.rows.append(row)
 
     def _chatter(self, h: Hand, t: float, force) -> bool:
         p = h.force

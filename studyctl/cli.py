@@ -416,19 +416,28 @@ def sim():
 @sim.command("run")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--model", "model_name", default=None, help="A model configured in the scene (default: the scene's).")
-@click.option("--duration", type=click.FloatRange(min=0.0, min_open=True), default=None, help="Simulated seconds (default: the scene's).")
+@click.option("--duration", type=click.FloatRange(min=0.0, min_open=True, max=86400.0), default=None, help="Simulated seconds (default: the scene's).")
 @click.option("--frames", "frames_dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Write pictures, the force plot and the trace here.")
-@click.option("--time-scale", type=click.FloatRange(min=0.0), default=1.0, show_default=True, help="1 = real time; 0 = as fast as possible (lockstep, deterministic).")
-@click.option("--servo", type=click.Choice(["process", "thread"]), default="process", show_default=True, help="Real time: run the servo loop in its own process or in a thread.")
+@click.option("--time-scale", type=click.FloatRange(min=0.0, max=1000.0), default=1.0, show_default=True, help="1 = real time; 0 = as fast as possible (lockstep, deterministic).")
+@click.option("--view", type=click.Choice(["none", "offscreen", "window"]), default=None,
+              help="window: draw the run live in the participant view; offscreen: pictures after the run (--frames); default: the scene's renderer.")
+@click.option("--screenshot", type=click.Path(dir_okay=False, path_type=Path), default=None, help="With --view window: save the last frame shown (PNG).")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable statistics.")
-def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: float, servo: str, as_json: bool):
+def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: float, view, screenshot, as_json: bool):
     """Scripted simulated Omni hands grasp and pull the brain; the servo loop runs at 1 kHz."""
     from sim.run import run_scene, write_outputs
     from sim.scene import build_scene
 
     scene = build_scene(scene_file, model_name)
-    result = run_scene(scene, duration=duration, time_scale=time_scale, servo=servo,
-                       snapshots=frames_dir is not None and scene.spec.renderer.kind == "offscreen")
+    view = view or scene.spec.renderer.kind
+    if screenshot is not None and view != "window":
+        raise click.UsageError("--screenshot needs --view window")
+    if view == "window":
+        from sim.live import run_view
+
+        result = run_view(scene, "window", duration=duration, time_scale=time_scale, screenshot=screenshot)
+    else:
+        result = run_scene(scene, duration=duration, time_scale=time_scale, snapshots=frames_dir is not None and view == "offscreen")
     stats = result.stats()
     if frames_dir is not None:
         if as_json:
@@ -440,6 +449,29 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
                 task = progress.add_task("rendering frames", total=max(len(result.snapshots), 1))
                 stats["frames"] = write_outputs(result, scene, frames_dir, progress=lambda k, n: progress.update(task, completed=k))
         stats["frames_dir"] = str(frames_dir)
+    if screenshot is not None:
+        stats["screenshot"] = str(screenshot)
+    if as_json:
+        _print_json(stats)
+    else:
+        _print_run(stats)
+
+
+@sim.command("live")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--model", "model_name", default=None, help="A model configured in the scene (default: the scene's).")
+@click.option("--device", type=click.Choice(["mouse", "simulated", "openhaptics"]), default="mouse", show_default=True)
+@click.option("--duration", type=click.FloatRange(min=0.0, min_open=True, max=86400.0), default=600.0, show_default=True, help="Seconds at most; Q, Escape or closing the window ends it sooner.")
+@click.option("--screenshot", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Save the last frame shown (PNG).")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable statistics.")
+def sim_live(scene_file: Path, model_name, device, duration, screenshot, as_json: bool):
+    """Open the participant view and pull the brain (mouse: grasp under the cursor, drag, wheel)."""
+    from sim.live import run_view
+    from sim.scene import build_scene
+
+    scene = build_scene(scene_file, model_name).with_device(device)
+    result = run_view(scene, "window", duration=duration, screenshot=screenshot, live=True)
+    stats = result.stats()
     if as_json:
         _print_json(stats)
     else:
@@ -468,6 +500,11 @@ def _print_run(s: dict) -> None:
     for name, f in s["max_force_per_hand_n"].items():
         t.add_row(f"max force, {name} hand (N)", f"{f:.3f}")
     t.add_row("events", ", ".join(f"{k} {v}" for k, v in sorted(s["events"].items())) or "none")
+    if "view" in s:
+        v = s["view"]
+        m2p = v["motion_to_photon_ms"]
+        t.add_row("view: frames shown, fps", f"{v['frames_shown']}, {v['fps'] or 0:.1f}")
+        t.add_row("view: motion to photon p50 / p99 (ms)", "-" if m2p["p50"] is None else f"{m2p['p50']:.1f} / {m2p['p99']:.1f}")
     if "frames_dir" in s:
         t.add_row("pictures", f"{s['frames']} in {s['frames_dir']}")
     _console().print(t)
@@ -581,18 +618,54 @@ def session():
 @session.command("run")
 @DB
 @click.option("--participant", required=True)
-@click.option("--device", type=click.Choice(["simulated", "openhaptics"]), default="simulated", show_default=True)
+@click.option("--device", type=click.Choice(["simulated", "mouse", "openhaptics"]), default="simulated", show_default=True,
+              help="mouse: pilot a session without hardware (needs --view window).")
 @click.option("--synthetic", is_flag=True, help="A synthetic participant answers (data labelled synthetic).")
 @click.option("--resume", is_flag=True, help="Continue an interrupted session after its last committed trial.")
-@click.option("--time-scale", type=click.FloatRange(min=0.0), default=None, help="1 = real time (default for people); synthetic default 0 = as fast as possible.")
+@click.option("--time-scale", type=click.FloatRange(min=0.0, max=1000.0), default=None, help="1 = real time (default for people); synthetic default 0 = as fast as possible.")
+@click.option("--view", type=click.Choice(["none", "window"]), default=None,
+              help="The participant view (default: window for a person in real time, else none).")
+@click.option("--answers", "answer_with", type=click.Choice(["terminal", "window"]), default="terminal", show_default=True,
+              help="Where a person answers the questionnaire (window: Y and N keys).")
 @click.option("--seed", type=int, default=0, show_default=True)
-def session_run(db, participant, device, synthetic, resume, time_scale, seed):
+def session_run(db, participant, device, synthetic, resume, time_scale, view, answer_with, seed):
     """Training, then each condition in the assigned order: trials, then the questionnaire."""
     from studyctl.session import run_session
 
-    out = run_session(db, participant, device, synthetic, resume, time_scale, seed=seed, progress=lambda m: click.echo(m, err=True))
-    click.echo(f"session {out['session']} of {out['participant']} complete: {' > '.join(out['order'])}, {out['answers']} answers"
+    if view is None:
+        view = "window" if not synthetic and (time_scale is None or time_scale > 0) else "none"
+    out = run_session(db, participant, device, synthetic, resume, time_scale, seed=seed, progress=lambda m: click.echo(m, err=True),
+                      view=view, answer_with=answer_with)
+    click.echo(f"session {out['session']} of {out['participant']} complete: conditions {' > '.join(out['order'])}, {out['answers']} answers"
                + (" (SYNTHETIC)" if out["synthetic"] else ""))
+
+
+@cli.command("replay", cls=click.Command)
+@DB
+@click.option("--session", "session_id", type=click.IntRange(min=1), required=True)
+@click.option("--trial", type=click.IntRange(min=1), required=True, help="The session's K-th trial, in the order run (1 = the first).")
+@click.option("--view", type=click.Choice(["none", "window"]), default="none", show_default=True, help="window: play it back in real time.")
+@click.option("--frames", "frames_dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Write pictures, the force plot and the trace.")
+@click.option("--json", "as_json", is_flag=True)
+def replay_cmd(db, session_id, trial, view, frames_dir, as_json):
+    """Play a stored trial back: its recorded hand motion through the same model and scene."""
+    from studyctl.replay import replay_trial
+
+    out = replay_trial(db, session_id, trial, view=view, frames_dir=frames_dir)
+    if as_json:
+        _print_json(out)
+        return
+    from rich.table import Table
+
+    t = Table(title=f"replay of session {session_id}, trial {trial} (condition {out['label']}, {out['model']})")
+    t.add_column("measure")
+    t.add_column("value", justify="right")
+    t.add_row("ticks", str(out["ticks"]))
+    t.add_row("mode", out["mode"])
+    t.add_row("largest force difference from the recording (N)", "-" if out["max_force_difference_n"] is None else f"{out['max_force_difference_n']:.3g}")
+    if frames_dir is not None:
+        t.add_row("pictures", f"{out['frames']} in {frames_dir}")
+    _console().print(t)
 
 
 @cli.command("synth", cls=click.Command)

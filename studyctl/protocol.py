@@ -40,6 +40,7 @@ class Protocol:
     training_minutes: float
     trials_per_condition: int
     trial_seconds: float
+    rest_seconds: float  # the rest screen between trials of a person's session
     age_min: int
     age_max: int
     latency_measures: tuple[str, ...]
@@ -171,6 +172,7 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     training = get(design, "design", "training_minutes", float, lo=0.0, hi=120.0)
     trials = get(design, "design", "trials_per_condition", int, lo=1, hi=100)
     trial_s = get(design, "design", "trial_seconds", float, lo=0.5, hi=600.0)
+    rest_s = get(design, "design", "rest_seconds", float, default=5.0, lo=0.0, hi=600.0, required=False)
 
     age_min = get(inclusion, "inclusion", "age_min", int, lo=0, hi=120)
     age_max = get(inclusion, "inclusion", "age_max", int, lo=0, hi=120)
@@ -209,7 +211,7 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
         Protocol(
             path=path, name=name, title=title, version=version, target_participants=target, scene=scene,
             conditions=tuple(conditions), counterbalancing=cb, training_minutes=training, trials_per_condition=trials,
-            trial_seconds=trial_s, age_min=age_min, age_max=age_max, latency_measures=tuple(measures),
+            trial_seconds=trial_s, rest_seconds=rest_s, age_min=age_min, age_max=age_max, latency_measures=tuple(measures),
             questions=tuple(questions), text=text,
         ),
         [],

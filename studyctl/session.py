@@ -1,6 +1,19 @@
 """A session: training, then each condition in the participant's order (trials on the
 simulator, then the questionnaire), every trial and answer committed when it happens.
 
+Blind: each session labels its conditions A, B, C in a random order (stored with the
+conditions; exports and reports show it). Nothing a participant sees or the terminal prints
+names a model or a parameter: only "condition 2 of 3" and the label.
+
+A person's session (real time) is paced by the participant: training with a visible countdown
+that the experimenter may end early (E in the window, Enter in the terminal); a trial starts at
+the first grasp (or the experimenter's SPACE / Enter), lasts the protocol's trial time, and a
+rest screen follows. Synthetic sessions run in lockstep at full speed.
+
+Every trial's per-tick trace is written durably before its row (studyctl/traces.py). Answers
+computed from a condition's trials (the synthetic answer model) read every stored trace of that
+condition, so a resumed session answers as an uninterrupted one would.
+
 `--resume` continues an interrupted session after its last committed trial or answer: nothing
 is lost (beyond the trial in flight) and nothing is done twice.
 """
@@ -9,29 +22,94 @@ from __future__ import annotations
 
 import json
 import math
+import random
+import string
+import sys
+import time
 from collections.abc import Callable
 
-from studyctl.errors import StoreError
+from studyctl.errors import InputError, StoreError
 from studyctl.store import Store, dumps, now, sha256_file
 
 SOFTWARE_VERSION = "brainsim-study 0.1.0"
+TRAINING_MODEL = "plate_spring"  # free exploration before the first condition (never named on screen)
+
+
+def _stdin_tty() -> bool:
+    try:
+        return sys.stdin.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
+def flush_input() -> None:
+    """Discard whatever was typed and not yet read (e.g. keys pressed during training)."""
+    if _stdin_tty():
+        import termios
+
+        termios.tcflush(sys.stdin.fileno(), termios.TCIFLUSH)
+
+
+def terminal_keys() -> list[str]:
+    """Lines typed in the terminal since the last call, without blocking ("enter" for an empty
+    one): the experimenter's keys during a run when no window has the focus."""
+    if not _stdin_tty():
+        return []
+    import select
+
+    out = []
+    while select.select([sys.stdin], [], [], 0)[0]:
+        line = sys.stdin.readline()
+        if not line:
+            break
+        out.append(line.strip().lower() or "enter")
+    return out
+
+
+def _read_line(prompt: str, idle: Callable[[], None] | None) -> str:
+    """input(), but a window stays alive while the terminal waits."""
+    if idle is None or not _stdin_tty():
+        return input(prompt)
+    import select
+
+    sys.stdout.write(prompt)
+    sys.stdout.flush()
+    while not select.select([sys.stdin], [], [], 0.05)[0]:
+        idle()
+    line = sys.stdin.readline()
+    if not line:
+        raise EOFError
+    return line.rstrip("\n")
 
 
 class TerminalAnswers:
-    """Asks each question in the terminal: y/yes or n/no, until one is given."""
+    """Asks each question in the terminal: y/yes or n/no, until one is given. Input typed
+    before a question appears is discarded."""
 
     source = "terminal"
 
-    def __init__(self, prompt: Callable[[str], str] | None = None, echo: Callable[[str], None] = print):
-        self.prompt = prompt or input
+    def __init__(self, prompt: Callable[[str], str] | None = None, echo: Callable[[str], None] = print, view=None):
+        self.prompt = prompt
         self.echo = echo
+        self.view = view
 
-    def begin(self, model_label: str) -> None:
-        self.echo(f"\nQuestions about the tissue you just pulled ({model_label}). Answer y or n.")
+    def begin(self, label: str) -> None:
+        if self.view is not None:
+            self.view.set_text(top=label, center="Please answer the questions in the terminal", bottom="", question="", corner="")
+            self.view.idle()
+        self.echo(f"\nQuestions about the tissue you just pulled ({label}). Answer y or n.")
 
     def __call__(self, question, model: str, measured: dict) -> bool:
         while True:
-            reply = self.prompt(f"{question.text} [y/n] ").strip().lower()
+            flush_input()
+            try:
+                if self.prompt is not None:
+                    reply = self.prompt(f"{question.text} [y/n] ")
+                else:
+                    reply = _read_line(f"{question.text} [y/n] ", self.view.idle if self.view is not None else None)
+            except EOFError:
+                raise StoreError("the questionnaire got no answer (input closed); continue later with --resume") from None
+            reply = reply.strip().lower()
             if reply in ("y", "yes"):
                 return True
             if reply in ("n", "no"):
@@ -39,29 +117,55 @@ class TerminalAnswers:
             self.echo("Please answer y or n.")
 
 
-_SCENES: dict = {}  # (scene file, model) -> Scene: models are built once per process
+class WindowAnswers:
+    """Asks each question in the participant view: Y for yes, N for no."""
+
+    source = "window"
+
+    def __init__(self, view):
+        self.view = view
+
+    def begin(self, label: str) -> None:
+        self.view.set_text(top=label, center="Please answer the questions", bottom="Y = yes     N = no", question="", corner="")
+        self.view.idle()
+
+    def __call__(self, question, model: str, measured: dict) -> bool:
+        view = self.view
+        view.take_keys()  # keys pressed before the question appeared answer nothing
+        view.set_text(question=question.text, center="")
+        while True:
+            view.idle()
+            if view.closed:
+                raise StoreError("the window was closed during the questionnaire; continue with --resume")
+            for k in view.take_keys():
+                if k in ("y", "n"):
+                    view.set_text(question="")
+                    return k == "y"
+
+
+_SCENES: dict = {}  # (scene file, model, device) -> Scene: models are built once per process
 
 
 def _scene(protocol, model: str, device: str):
     """The protocol's scene for `model`, with every hand on `device` (built once, reused)."""
-    import dataclasses
-
     from sim.scene import build_scene
 
     key = (str(protocol.scene), model, device)
-    if key in _SCENES:
-        return _SCENES[key]
-    scene = build_scene(protocol.scene, model)
-    if any(h.device != device for h in scene.spec.hands):
-        hands = tuple(dataclasses.replace(h, device=device) for h in scene.spec.hands)
-        scene.spec = dataclasses.replace(scene.spec, hands=hands)
-    _SCENES[key] = scene
-    return scene
+    if key not in _SCENES:
+        _SCENES[key] = build_scene(protocol.scene, model).with_device(device)
+    return _SCENES[key]
 
 
 def reference_model(protocol):
     """The linear FEM on the protocol's scene: the force reference of the answer model."""
     return _scene(protocol, "fem", "simulated").model
+
+
+def condition_labels(models, rng) -> dict[str, str]:
+    """A blind label per condition: A, B, C... in a random order."""
+    letters = list(string.ascii_uppercase[: len(models)])
+    rng.shuffle(letters)
+    return dict(zip(models, letters))
 
 
 def _trial_record(session_id: int, model: str, trial: int, started: str, result) -> tuple[dict, list[dict]]:
@@ -75,7 +179,10 @@ def _trial_record(session_id: int, model: str, trial: int, started: str, result)
         "tick_interval_p99_us": s["tick_interval_us"]["p99"],
         "read_to_force_us": s["read_to_force_us"]["p50"],
         "tick_compute_us": s["tick_compute_us"]["p50"],
-        "events": dumps(s["events"]),
+        "events": dumps(s["events"] | ({"ended_early": result.ended_early} if result.ended_early else {})),
+        "grasped": int(any(e.kind == "grasp" for e in result.events)),
+        "started_by": result.started_by,
+        "waited_s": result.waited_s,
     }
     lat = []
     for measure, value in (("deformation_ms", rec["deformation_ms_mean"]), ("tick_interval_p99_us", rec["tick_interval_p99_us"]),
@@ -85,20 +192,54 @@ def _trial_record(session_id: int, model: str, trial: int, started: str, result)
     return rec, lat
 
 
+class _Screens:
+    """The participant-facing text of a paced session (no model, no parameter)."""
+
+    def __init__(self, view, say):
+        self.view, self.say = view, say
+
+    def rest(self, seconds: float, status: str, message: str = "Rest", keys=None) -> None:
+        """A rest screen with a countdown; SPACE / Enter skips it."""
+        end = time.monotonic() + seconds
+        while (left := end - time.monotonic()) > 0:
+            if self.view is not None:
+                self.view.set_text(top=status, center=f"{message}: {math.ceil(left)} s", bottom="", question="", corner="")
+                self.view.idle()
+                pressed = self.view.take_keys()
+            else:
+                time.sleep(min(left, 0.1))
+                pressed = []
+            pressed += keys() if keys is not None else []
+            if any(k in ("space", "enter") for k in pressed):
+                return
+
+
 def run_session(db, code: str, device: str = "simulated", synthetic: bool = False, resume: bool = False,
                 time_scale: float | None = None, answers=None, seed: int = 0, progress: Callable[[str], None] | None = None,
-                session_id: int | None = None) -> dict:
-    from sim.run import run_scene
+                session_id: int | None = None, view: str = "none", answer_with: str = "terminal") -> dict:
+    from sim.run import Pacing, run_scene
     from studyctl.study import assign_order
+    from studyctl.traces import trial_traces, write_trace
 
+    if time_scale is not None and not (math.isfinite(time_scale) and 0 <= time_scale <= 1000):
+        raise InputError(f"--time-scale: {time_scale!r} is out of range; allowed: 0..1000")
+    if time_scale is None:
+        time_scale = 0.0 if synthetic else 1.0
+    if view not in ("none", "window"):
+        raise InputError(f"--view: {view!r} is not none or window")
+    if view == "window" and time_scale <= 0:
+        raise InputError("--view window: the participant view needs real time (--time-scale > 0)")
+    if device == "mouse" and view != "window":
+        raise InputError("--device mouse: the mouse drives the hands in the participant view; add --view window")
+    if answer_with == "window" and view != "window":
+        raise InputError("--answers window: answering with keys in the window needs --view window")
     store = Store(db)
     say = progress or (lambda msg: None)
+    shown = None
     try:
         protocol = store.protocol()
         if not store.rows("select code from participants where code = ?", (code,)):
             raise StoreError(f"participant {code}: not registered; add with `studyctl participants add`")
-        if time_scale is None:
-            time_scale = 0.0 if synthetic else 1.0
         sessions = store.rows("select * from sessions where code = ? order by id", (code,))
         if any(s["status"] == "done" for s in sessions):
             raise StoreError(f"participant {code}: the session is already complete")
@@ -113,6 +254,8 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
             store.event(session_id, "resumed")
             say(f"resuming session {session_id} of {code}")
         else:
+            rng = random.Random(f"labels:{seed}:{code}") if synthetic else random.SystemRandom()
+            labels = condition_labels(order, rng)
             store.write("sessions", {
                 **({"id": session_id} if session_id is not None else {}),
                 "code": code, "started_at": now(), "finished_at": None, "status": "running", "synthetic": int(synthetic),
@@ -120,7 +263,10 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
                 "software_version": SOFTWARE_VERSION, "conditions": json.dumps(order)}, pk="id")
             session_id = store.rows("select max(id) as id from sessions where code = ?", (code,))[0]["id"]  # the row just written
             for pos, model in enumerate(order):
-                store.write("conditions", {"session_id": session_id, "position": pos, "model": model, "status": "pending"}, pk=("session_id", "position"))
+                store.write("conditions", {"session_id": session_id, "position": pos, "model": model, "status": "pending",
+                                           "label": labels[model]}, pk=("session_id", "position"))
+        labels = {r["model"]: r["label"] or chr(ord("A") + r["position"])
+                  for r in store.rows("select model, position, label from conditions where session_id = ?", (session_id,))}
         participant = None
         if answers is None and synthetic:
             from studyctl.synthetic import SyntheticAnswers, SyntheticParticipant
@@ -128,49 +274,89 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
             participant = SyntheticParticipant.draw(code, seed)
             ref_scene = _scene(protocol, "fem", "simulated")
             answers = SyntheticAnswers(participant, ref_scene.model, ref_scene.mesh)
-        answerer = answers or TerminalAnswers()
+        paced = time_scale > 0 and not synthetic  # a person sets the pace
+        if view == "window":
+            from sim.view import open_view
+
+            shown = open_view("window", _scene(protocol, order[0], device), show_force=device == "mouse")
+        answerer = answers or (WindowAnswers(shown) if answer_with == "window" else TerminalAnswers(view=shown))
+        screens = _Screens(shown, say)
+        keys = terminal_keys if paced else None
+        n_cond = len(order)
         done_events = {r["kind"] for r in store.rows("select kind from events where session_id = ?", (session_id,))}
         if "training_done" not in done_events:
             seconds = protocol.training_minutes * 60.0
+            ran, early = 0.0, None
             if time_scale > 0 and seconds > 0:
-                say(f"training: {protocol.training_minutes:g} minutes of free pulling")
-                run_scene(_scene(protocol, "plate_spring", device), duration=seconds, time_scale=time_scale)
-            store.event(session_id, "training_done", f"{seconds:g} s at time scale {time_scale:g}")
+                say(f"training: {protocol.training_minutes:g} minutes of free pulling; the experimenter ends it early with "
+                    + ("E in the window or " if shown is not None else "") + "Enter in the terminal")
+
+                def training_caption(phase, left):
+                    return {"top": "Training", "center": f"Pull the brain freely: {int(left) // 60}:{int(left) % 60:02d} left",
+                            "bottom": "Experimenter: E ends the training", "question": ""}
+
+                pacing = Pacing(view=shown, caption=training_caption, stop_keys=("e", "enter"), keys=keys) if paced or shown else None
+                flush_input()
+                result = run_scene(_scene(protocol, TRAINING_MODEL, device), duration=seconds, time_scale=time_scale, pacing=pacing)
+                ran, early = (result.times[-1] if len(result.times) else 0.0), result.ended_early
+            store.event(session_id, "training_done", dumps({"planned_s": seconds, "ran_s": round(float(ran), 3), "time_scale": time_scale,
+                                                            "ended_early": early is not None, "by": early}))
         for pos, model in enumerate(order):
+            label = labels[model]
+            status = f"Condition {label} ({pos + 1} of {n_cond})"
             done_trials = {r["trial"] for r in store.rows("select trial from trials where session_id = ? and model = ?", (session_id, model))}
             scene = None
-            measured, results = [], []
             for trial in range(protocol.trials_per_condition):
                 if trial in done_trials:
                     continue
                 scene = scene or _scene(protocol, model, device)
-                say(f"{model}: trial {trial + 1} of {protocol.trials_per_condition}")
+                n_trials = protocol.trials_per_condition
+                say(f"condition {label} ({pos + 1} of {n_cond}): trial {trial + 1} of {n_trials}")
+                if paced and (trial > 0 or pos > 0):
+                    screens.rest(protocol.rest_seconds, status, "Rest" if trial > 0 else "Next condition in", keys)
+
+                def caption(phase, left, trial=trial, n_trials=n_trials, status=status):
+                    head = f"{status} - trial {trial + 1} of {n_trials}"
+                    if phase == "waiting":
+                        return {"top": head, "center": "Grasp the brain to start", "bottom": "Experimenter: SPACE starts the trial", "question": ""}
+                    return {"top": head, "center": f"{math.ceil(left)} s", "bottom": "Pull the tissue", "question": ""}
+
+                pacing = Pacing(view=shown, wait_for_grasp=paced, caption=caption, keys=keys) if (paced or shown) else None
                 started = now()
                 scene.operators = participant.operators(scene, trial, model) if participant else None
-                result = run_scene(scene, duration=protocol.trial_seconds, time_scale=time_scale)
-                scene.operators = None
+                try:
+                    result = run_scene(scene, duration=protocol.trial_seconds, time_scale=time_scale, pacing=pacing)
+                finally:
+                    scene.operators = None
                 rec, lat = _trial_record(session_id, model, trial, started, result)
-                measured.append(rec)
-                results.append(result)
+                rec |= write_trace(db, session_id, pos, trial, result)  # durable before the trial's row
+                if not rec["grasped"]:
+                    say(f"condition {label}: trial {trial + 1}: nothing was grasped (recorded)")
                 # latency rows first, the trial row last: a trial row means the trial is complete
                 if lat:
                     store.write_many("latency", lat, pk=("session_id", "model", "trial", "measure"))
                 store.write("trials", rec, pk=("session_id", "model", "trial"))
             answered = {r["item"] for r in store.rows("select item from answers where code = ? and model = ?", (code, model))}
             if len(answered) < len(protocol.questions):
-                answerer.begin(f"condition {pos + 1} of {len(order)}")
-            for q in protocol.questions:
-                if q.id in answered:
-                    continue
-                yes = answerer(q, model, {"trials": measured, "results": results})
-                store.write("answers", {"code": code, "model": model, "item": q.id, "answer": int(bool(yes)), "session_id": session_id,
-                                        "source": answerer.source, "answered_at": now()}, pk=("code", "model", "item"))
+                results = trial_traces(store, session_id, model)  # every stored trial of the condition, resumed or not
+                answerer.begin(f"condition {label} ({pos + 1} of {n_cond})")
+                for q in protocol.questions:
+                    if q.id in answered:
+                        continue
+                    yes = answerer(q, model, {"results": results})
+                    store.write("answers", {"code": code, "model": model, "item": q.id, "answer": int(bool(yes)), "session_id": session_id,
+                                            "source": answerer.source, "answered_at": now()}, pk=("code", "model", "item"))
             store.db.conn.execute("update conditions set status = 'done' where session_id = ? and position = ?", (session_id, pos))
         store.db.conn.execute("update sessions set status = 'done', finished_at = ? where id = ?", (now(), session_id))
+        if shown is not None:
+            shown.set_text(top="", center="Thank you: the session is complete", bottom="", question="", corner="")
+            shown.idle()
         n = store.rows("select count(*) as n from answers where code = ?", (code,))[0]["n"]
-        return {"session": session_id, "participant": code, "order": order, "answers": n, "synthetic": synthetic}
+        return {"session": session_id, "participant": code, "order": [labels[m] for m in order], "answers": n, "synthetic": synthetic}
     finally:
+        if shown is not None:
+            shown.close()
         store.close()
 
 
-__all__ = ["run_session", "TerminalAnswers"]
+__all__ = ["run_session", "TerminalAnswers", "WindowAnswers"]

@@ -17,7 +17,7 @@ import sqlite_utils
 
 from studyctl.errors import StoreError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 EXPORT_TABLES = ("participants", "schedule", "sessions", "conditions", "trials", "answers", "latency", "events")
 IDENTIFYING_TABLES = ("identities",)
 
@@ -60,7 +60,14 @@ def _migration_1(db: sqlite_utils.Database) -> None:
     db["events"].create({"id": int, "session_id": int, "at": str, "kind": str, "detail": str}, pk="id")
 
 
-MIGRATIONS = {1: _migration_1}
+def _migration_2(db: sqlite_utils.Database) -> None:
+    """Blind condition labels; what started each trial; the per-tick trace file of each trial."""
+    db["conditions"].add_column("label", str)
+    for col, kind in (("grasped", int), ("started_by", str), ("waited_s", float), ("trace_path", str), ("trace_sha256", str), ("trace_ticks", int)):
+        db["trials"].add_column(col, kind)
+
+
+MIGRATIONS = {1: _migration_1, 2: _migration_2}
 
 
 class Store:

@@ -204,6 +204,15 @@ def export(db: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[str]:
                 except ImportError:
                     raise StoreError("--format parquet needs pyarrow (pip install pyarrow)") from None
             written.append(str(path))
+        from studyctl.traces import traces_frame
+
+        df = traces_frame(store)  # every trial's per-tick trace, checked against its SHA-256
+        path = out_dir / f"traces.{fmt}"
+        if fmt == "csv":
+            df.to_csv(path, index=False)
+        else:
+            df.to_parquet(path, index=False)
+        written.append(str(path))
     finally:
         store.close()
     return written

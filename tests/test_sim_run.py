@@ -69,13 +69,13 @@ def test_deformation_field_follows_the_hand(lockstep):
     assert mesh.n_vertices == len(u)
 
 
-def test_realtime_run_uses_the_servo_thread():
+def test_realtime_run_goes_through_the_servo_process():
     scene = build_scene(SCENE)
-    r = run_scene(scene, duration=0.3, time_scale=1.0, servo="thread")
+    r = run_scene(scene, duration=0.3, time_scale=1.0)
     s = r.stats()
-    assert s["mode"] == "realtime" and s["ticks"] == 300
+    assert s["mode"] == "realtime-process" and s["ticks"] == 300
     assert s["tick_interval_us"]["p50"] is not None and s["tick_compute_us"]["p50"] > 0
-    assert len(r.intervals_s) == 299
+    assert len(r.intervals_s) == 299 and s["started_by"] == "clock"
 
 
 def test_pictures_and_force_plot(tmp_path):
@@ -140,7 +140,7 @@ def test_replay_of_a_missing_trace_is_a_clean_error(tmp_path):
 
 def test_servo_process_run_matches_the_lockstep_run():
     scene = build_scene(SCENE)
-    proc = run_scene(scene, duration=2.0, time_scale=1.0, servo="process")
+    proc = run_scene(scene, duration=2.0, time_scale=1.0)
     lock = run_scene(build_scene(SCENE), duration=2.0, time_scale=0)
     s = proc.stats()
     assert s["mode"] == "realtime-process" and s["ticks"] == 2000

@@ -11,6 +11,7 @@ BACKENDS = {
     "simulated": "sim.devices.simulated",
     "openhaptics": "sim.devices.openhaptics",
     "replay": "sim.devices.replay",
+    "mouse": "sim.devices.mouse",
 }
 
 

@@ -19,6 +19,8 @@ from sim.errors import DeviceError
 
 def read_trace(path: str | Path, hand: str) -> tuple[list[float], list[tuple], list[bool]]:
     path = Path(path)
+    if path.suffix == ".npz":
+        return _read_npz(path, hand)
     times, positions, buttons = [], [], []
     try:
         with open(path, newline="") as fh:
@@ -45,6 +47,24 @@ def read_trace(path: str | Path, hand: str) -> tuple[list[float], list[tuple], l
     if not times:
         raise DeviceError(f"{path}: no samples for hand {hand!r}")
     return times, positions, buttons
+
+
+def _read_npz(path: Path, hand: str):
+    """A trial trace stored by a study session (studyctl/traces.py)."""
+    import numpy as np
+
+    try:
+        z = np.load(path, allow_pickle=False)
+        names = [str(n) for n in z["hand_names"]]
+        times, positions, buttons = z["times"], z["positions"], z["buttons"]
+    except (OSError, KeyError, ValueError) as exc:
+        raise DeviceError(f"{path}: not a trial trace: {exc}") from None
+    if hand not in names:
+        raise DeviceError(f"{path}: no hand {hand!r}; recorded: {', '.join(names)}")
+    i = names.index(hand)
+    if len(times) == 0:
+        raise DeviceError(f"{path}: no samples for hand {hand!r}")
+    return times.tolist(), [tuple(p) for p in positions[:, i].tolist()], buttons[:, i].tolist()
 
 
 class ReplayDevice:

@@ -1,0 +1,353 @@
+"""The participant view: a real window with the deforming brain, both virtual hands, the grasped
+patch, and on-screen text (instructions, condition and trial, countdowns, rest screens).
+
+Which renderer: open3d's classic OpenGL `Visualizer` (with key and mouse callbacks) opens a real
+window under Xvfb or on a lab display and draws the whole brain at 1280x720 in about 50-75 ms
+per frame on Mesa's CPU driver here; the Filament renderer took 2-30 s per frame on the CPU.
+The classic renderer has no 2D text overlay, so text is drawn as flat glyph meshes
+(`open3d.t.geometry.TriangleMesh.create_text`) laid in a plane just in front of the fixed
+camera, sized in pixels: no second window or compositing pass, and one renderer for all.
+
+The view never names a tissue model: callers give it only participant-facing text. It is drawn
+by the visual side of a run (sim/run.py); the servo runs in its own process and never waits for
+it. With a mouse device, the pointer drives the hands (left button: left hand, right button:
+right hand; drag in the view plane, wheel in depth) and the force that would be felt is drawn
+as an arrow and a number.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.errors import ViewError
+
+TISSUE = np.array([0.88, 0.80, 0.78])
+PATCH = np.array([0.20, 0.55, 0.95])  # the grasped patch
+TEXT = (0.05, 0.05, 0.12)
+ACCENT = (0.70, 0.10, 0.05)
+ARROW = (0.85, 0.15, 0.10)
+# GLFW key codes -> names the callers use
+KEYS = {32: "space", 257: "enter", 256: "escape", **{ord(c): c.lower() for c in "ABCDEFGHIJKLMNOPQRSTUVWXYZ"}}
+HEAT_FULL_M = 0.012  # displacement drawn at full heat colour
+FORCE_ARROW_M_PER_N = 0.03
+WHEEL_M = 0.002  # depth per wheel step
+
+
+@dataclass
+class HandState:
+    """What the view draws of one hand."""
+
+    position: tuple
+    force: tuple = (0.0, 0.0, 0.0)
+    grasped_vertex: int | None = None
+
+
+class ParticipantView:
+    """One window reused for a whole session (or an offscreen one with `visible=False`)."""
+
+    def __init__(self, mesh, pulls=((-1.0, 0.0, 0.0), (1.0, 0.0, 0.0)), width: int = 1280, height: int = 720,
+                 visible: bool = True, title: str = "Brain surgery simulator", show_force: bool = False,
+                 grasp_radius: float = 0.005):
+        import open3d as o3d
+
+        from sim.render import hand_mesh
+
+        self.o3d = o3d
+        o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+        # Mesa's CPU rasteriser: a thread per core but one, which the servo process keeps
+        os.environ.setdefault("LP_NUM_THREADS", str(max(1, len(os.sched_getaffinity(0)) - 1)))
+        if not os.environ.get("XDG_RUNTIME_DIR"):
+            os.environ["XDG_RUNTIME_DIR"] = tempfile.mkdtemp(prefix="xdg-")
+        if visible and not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
+            raise ViewError("--view window: no display (DISPLAY is not set); run on a desktop, or under xvfb-run")
+        self.mesh = mesh
+        self.width, self.height = width, height
+        self.show_force = show_force
+        self.vis = o3d.visualization.VisualizerWithKeyCallback()
+        if not self.vis.create_window(window_name=title, width=width, height=height, visible=visible):
+            raise ViewError(f"--view window: open3d could not open a {width}x{height} OpenGL window on display "
+                            f"{os.environ.get('DISPLAY')!r}")
+        opt = self.vis.get_render_option()
+        opt.background_color = np.array([1.0, 1.0, 1.0])
+        opt.mesh_show_back_face = False  # culling halves the fill work of Mesa's CPU rasteriser
+        opt.light_on = True
+        self.brain = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(mesh.vertices), o3d.utility.Vector3iVector(mesh.triangles))
+        self.brain.vertex_colors = o3d.utility.Vector3dVector(np.tile(TISSUE, (mesh.n_vertices, 1)))
+        self.brain.compute_vertex_normals()
+        self.vis.add_geometry(self.brain)
+        lo, hi = mesh.bounds()
+        self.center = (lo + hi) / 2.0
+        self.radius = float(np.linalg.norm(hi - lo)) / 2.0
+        ctr = self.vis.get_view_control()
+        ctr.set_lookat(self.center)
+        ctr.set_front([0.0, -0.42, 0.91])  # from above and behind, like the surgeon's view
+        ctr.set_up([0.0, 0.0, 1.0])
+        ctr.set_zoom(0.7)
+        self.vis.poll_events()
+        self.vis.update_renderer()
+        cam = ctr.convert_to_pinhole_camera_parameters()
+        self.K = np.asarray(cam.intrinsic.intrinsic_matrix, dtype=np.float64)
+        E = np.asarray(cam.extrinsic, dtype=np.float64)
+        # open3d reports the up vector as set, not orthogonalised as OpenGL's look-at uses it:
+        # rebuild the camera's orthonormal frame (x right, y down the image, z forward)
+        self.eye = -np.linalg.solve(E[:3, :3], E[:3, 3])
+        forward = self.center - self.eye
+        forward /= np.linalg.norm(forward)
+        right = np.cross(forward, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        self.R = np.stack([right, np.cross(forward, right), forward])
+        self.t = -self.R @ self.eye
+        # text lies in a plane between the camera and everything else, so nothing hides it
+        self.text_depth = 0.3 * max(float(np.linalg.norm(self.eye - self.center)) - self.radius, 0.02)
+        self._hand_rest = hand_mesh()
+        self._hand_rest.scale(0.6, center=(0.0, 0.0, 0.0))  # the surgeon's view is closer than the pictures' 
+        self._hand_vertices = np.asarray(self._hand_rest.vertices).copy()
+        self.pulls = [np.asarray(p, dtype=np.float64) for p in pulls]
+        self.hands = []
+        self.arrows = []
+        arrow = o3d.geometry.TriangleMesh.create_arrow(cylinder_radius=0.0012, cone_radius=0.0026, cylinder_height=0.8, cone_height=0.2)
+        arrow.paint_uniform_color(ARROW)
+        self._arrow_vertices = np.asarray(arrow.vertices).copy()  # along +z, length 1
+        self._arrow_rest = arrow
+        from scipy.spatial import cKDTree
+
+        self._rest_tree = cKDTree(mesh.vertices)
+        self.grasp_radius = grasp_radius
+        self._texts: dict[str, tuple[str, object]] = {}
+        self._positions = mesh.vertices
+        self.keys: list[str] = []
+        for code, name in KEYS.items():
+            self.vis.register_key_callback(code, lambda vis, name=name: self.keys.append(name) or False)
+        self.vis.register_mouse_button_callback(self._on_button)
+        self.vis.register_mouse_move_callback(self._on_move)
+        self.vis.register_mouse_scroll_callback(self._on_scroll)
+        self.pointer = (width / 2.0, height / 2.0)
+        self.inputs: dict[int, list] = {}  # hand -> [target, pressed, depth]
+        self.n_hands = len(pulls)
+        self.closed = False
+        self.frames = 0
+        self.frame_s: list[float] = []
+        self.motion_to_photon_s: list[float] = []
+        self.first_frame_at: float | None = None
+        self.last_frame_at: float | None = None
+
+    # -- text --------------------------------------------------------------------------------
+    def set_text(self, **slots: str | None) -> None:
+        """Slots: top (status line), center (the main message, large), question (a question of
+        the questionnaire), bottom (instructions), corner (bottom right: forces). '' or None
+        clears a slot."""
+        layout = {"top": (24, 34, 22, TEXT, "left"), "center": (self.width / 2, 92, 34, ACCENT, "center"),
+                  "bottom": (self.width / 2, self.height - 30, 20, TEXT, "center"),
+                  "corner": (self.width - 24, self.height - 62, 18, ARROW, "right"),
+                  "question": (self.width / 2, 92, 24, TEXT, "center")}
+        for slot, text in slots.items():
+            text = text or ""
+            old = self._texts.get(slot)
+            if old is not None and old[0] == text:
+                continue
+            if old is not None:
+                self.vis.remove_geometry(old[1], reset_bounding_box=False)
+                del self._texts[slot]
+            if text:
+                u, v, px, colour, align = layout[slot]
+                m = self._text_mesh(text, u, v, px, colour, align)
+                self.vis.add_geometry(m, reset_bounding_box=False)
+                self._texts[slot] = (text, m)
+
+    def text(self) -> dict[str, str]:
+        """What the window shows as text now (tests read it to check no model is named)."""
+        return {k: v[0] for k, v in self._texts.items()}
+
+    def _text_mesh(self, text: str, u: float, v: float, px: float, colour, align: str):
+        o3d = self.o3d
+        m = o3d.t.geometry.TriangleMesh.create_text(text.encode("ascii", "replace").decode()).to_legacy()
+        V = np.asarray(m.vertices, dtype=np.float64)
+        if len(V) == 0:
+            return m
+        scale_px = px / 16.0  # glyph units (a 16-unit cell) to pixels
+        width_px = V[:, 0].max() * scale_px
+        lines = text.count("\n") + 1
+        u0 = u - (width_px / 2 if align == "center" else width_px if align == "right" else 0.0)
+        z = self.text_depth
+        origin = self.R.T @ (z * np.linalg.solve(self.K, [u0, v - (lines - 1) * px * 1.2, 1.0]) - self.t)
+        metre = z / self.K[1, 1] * scale_px  # one glyph unit at that depth, in metres
+        right, up = self.R[0], -self.R[1]  # camera y points down the image
+        m.vertices = o3d.utility.Vector3dVector(origin + metre * (V[:, 0:1] * right + V[:, 1:2] * up))
+        m.triangles = o3d.utility.Vector3iVector(np.asarray(m.triangles)[:, ::-1].copy())  # glyphs wind away from +z: face the camera
+        m.paint_uniform_color(colour)
+        m.compute_vertex_normals()
+        return m
+
+    # -- drawing -----------------------------------------------------------------------------
+    def draw(self, displacement, hands: list[HandState], read_t: float | None = None) -> None:
+        """Draw one frame and present it. `read_t` (perf_counter) is when the devices were read
+        for this state: motion-to-photon is measured from there to the presented frame."""
+        o3d = self.o3d
+        start = time.perf_counter()
+        u = np.zeros_like(self.mesh.vertices) if displacement is None else np.asarray(displacement, dtype=np.float64)
+        self._positions = self.mesh.vertices + u
+        mag = np.linalg.norm(u, axis=1)
+        w = np.clip(mag / HEAT_FULL_M, 0.0, 1.0)[:, None]
+        colours = (1 - w) * TISSUE + w * np.array([0.80, 0.25, 0.15])
+        for h in hands:
+            if h.grasped_vertex is not None:
+                patch = self._rest_tree.query_ball_point(self.mesh.vertices[h.grasped_vertex], max(self.grasp_radius, 0.004))
+                colours[patch] = PATCH
+        self.brain.vertices = o3d.utility.Vector3dVector(self._positions)
+        self.brain.vertex_colors = o3d.utility.Vector3dVector(colours)
+        self.brain.compute_vertex_normals()
+        self.vis.update_geometry(self.brain)
+        from sim.render import _pose
+
+        while len(self.hands) < len(hands):
+            m = o3d.geometry.TriangleMesh(self._hand_rest)
+            self.vis.add_geometry(m, reset_bounding_box=False)
+            self.hands.append(m)
+        for k, (m, h) in enumerate(zip(self.hands, hands)):
+            T = _pose(h.position, self.pulls[k % len(self.pulls)])
+            m.vertices = o3d.utility.Vector3dVector(self._hand_vertices @ T[:3, :3].T + T[:3, 3])
+            m.compute_vertex_normals()
+            self.vis.update_geometry(m)
+        if self.show_force:
+            self._draw_forces(hands)
+        self._present()
+        now = time.perf_counter()
+        self.frames += 1
+        self.frame_s.append(now - start)
+        if read_t is not None and read_t > 0:
+            self.motion_to_photon_s.append(now - read_t)
+        self.first_frame_at = self.first_frame_at or now
+        self.last_frame_at = now
+
+    def _draw_forces(self, hands) -> None:
+        o3d = self.o3d
+        while len(self.arrows) < len(hands):
+            m = o3d.geometry.TriangleMesh(self._arrow_rest)
+            self.vis.add_geometry(m, reset_bounding_box=False)
+            self.arrows.append(m)
+        parts = []
+        for k, (m, h) in enumerate(zip(self.arrows, hands)):
+            f = np.asarray(h.force, dtype=np.float64)
+            n = float(np.linalg.norm(f))
+            length = n * FORCE_ARROW_M_PER_N
+            if length < 1e-4:
+                V = np.zeros_like(self._arrow_vertices)
+            else:
+                z = f / n
+                x = np.cross([0.0, 0.0, 1.0], z) if abs(z[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
+                x /= np.linalg.norm(x)
+                y = np.cross(z, x)
+                R = np.stack([x, y, z], axis=1)
+                V = (self._arrow_vertices * [1.0, 1.0, length]) @ R.T + np.asarray(h.position)
+            m.vertices = o3d.utility.Vector3dVector(V)
+            m.compute_vertex_normals()
+            self.vis.update_geometry(m)
+            parts.append(f"{n:.2f} N")
+        self.set_text(corner="force  " + "   ".join(parts))
+
+    def _present(self) -> None:
+        if not self.vis.poll_events():
+            self.closed = True
+        self.vis.update_renderer()
+
+    def idle(self) -> None:
+        """Keep the window alive (events, redraw) while nothing moves, e.g. on a rest screen."""
+        self._present()
+
+    def take_keys(self) -> list[str]:
+        keys, self.keys = self.keys, []
+        return keys
+
+    def screenshot(self, path) -> None:
+        self.vis.capture_screen_image(str(path), do_render=True)
+
+    def image(self) -> np.ndarray:
+        img = np.asarray(self.vis.capture_screen_float_buffer(do_render=True))
+        return (np.clip(img, 0.0, 1.0) * 255).astype(np.uint8)
+
+    def stats(self) -> dict:
+        span = (self.last_frame_at or 0.0) - (self.first_frame_at or 0.0)
+        m2p = np.asarray(self.motion_to_photon_s) * 1e3
+        ft = np.asarray(self.frame_s) * 1e3
+        return {
+            "frames_shown": self.frames,
+            "fps": (self.frames - 1) / span if self.frames > 1 and span > 0 else None,
+            "frame_ms": {"p50": float(np.percentile(ft, 50)) if len(ft) else None, "p99": float(np.percentile(ft, 99)) if len(ft) else None},
+            "motion_to_photon_ms": {"p50": float(np.percentile(m2p, 50)) if len(m2p) else None,
+                                    "p99": float(np.percentile(m2p, 99)) if len(m2p) else None},
+            "size": f"{self.width}x{self.height}",
+        }
+
+    def reset_stats(self) -> None:
+        self.frames, self.frame_s, self.motion_to_photon_s = 0, [], []
+        self.first_frame_at = self.last_frame_at = None
+
+    def close(self) -> None:
+        if not self.closed:
+            self.vis.destroy_window()
+            self.closed = True
+
+    # -- the pointer (mouse device) ---------------------------------------------------------
+    def _ray(self, u: float, v: float) -> np.ndarray:
+        d = self.R.T @ np.linalg.solve(self.K, [u, v, 1.0])
+        return d / np.linalg.norm(d)
+
+    def pick(self, u: float, v: float) -> np.ndarray | None:
+        """The point of the brain surface (as drawn now) under pixel (u, v), or None."""
+        o3d = self.o3d
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(self._positions.astype(np.float32), self.mesh.triangles.astype(np.uint32))
+        d = self._ray(u, v)
+        rays = o3d.core.Tensor([[*self.eye, *d]], dtype=o3d.core.Dtype.Float32)
+        hit = float(scene.cast_rays(rays)["t_hit"].numpy()[0])
+        return None if not np.isfinite(hit) else self.eye + hit * d
+
+    def _depth(self, p) -> float:
+        return float((self.R @ np.asarray(p) + self.t)[2])
+
+    def _at_depth(self, u: float, v: float, depth: float) -> np.ndarray:
+        return self.R.T @ (depth * np.linalg.solve(self.K, [u, v, 1.0]) - self.t)
+
+    def _on_button(self, vis, button: int, action: int, mods: int) -> bool:
+        hand = min(button, self.n_hands - 1) if button in (0, 1) else None
+        if hand is None:
+            return False
+        if action == 1:  # press: grasp the surface under the pointer
+            p = self.pick(*self.pointer)
+            if p is not None:
+                self.inputs[hand] = [p, True, self._depth(p)]
+        elif action == 0 and hand in self.inputs:
+            self.inputs[hand][1] = False
+        return False
+
+    def _on_move(self, vis, x: float, y: float) -> bool:
+        self.pointer = (float(x), float(y))
+        for state in self.inputs.values():
+            if state[1]:
+                state[0] = self._at_depth(x, y, state[2])
+        return False
+
+    def _on_scroll(self, vis, dx: float, dy: float) -> bool:
+        for state in self.inputs.values():
+            if state[1]:
+                state[2] = max(state[2] - dy * WHEEL_M, 0.01)  # wheel up: towards the viewer
+                state[0] = self._at_depth(*self.pointer, state[2])
+        return False
+
+    def pointer_inputs(self) -> dict[int, tuple]:
+        """hand -> (target point, pressed) from the pointer, for mouse devices."""
+        return {i: (tuple(float(c) for c in s[0]), bool(s[1])) for i, s in self.inputs.items()}
+
+
+def open_view(kind: str, scene, show_force: bool = False):
+    """The participant view for `--view window` (None for none)."""
+    if kind == "none":
+        return None
+    pulls = [h.pull for h in scene.spec.hands]
+    # one patch size for every model: a model-specific one would be a cue in a blind study
+    return ParticipantView(scene.mesh, pulls=pulls, visible=(kind == "window"), show_force=show_force)

@@ -1,0 +1,62 @@
+"""Play a stored trial back: the recorded hand motion of each hand drives a replay device in the
+same scene and model, in lockstep (deterministic: the forces of a lockstep trial come out
+exactly as recorded) or in real time in the participant view."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from studyctl.errors import InputError
+from studyctl.store import Store
+from studyctl.traces import read_trace
+
+
+def session_trials(store, session_id: int) -> list[dict]:
+    """A session's trials in the order they were run (condition position, then trial)."""
+    return store.rows(
+        "select t.*, c.position, c.label from trials t join conditions c on c.session_id = t.session_id and c.model = t.model "
+        "where t.session_id = ? order by c.position, t.trial", (session_id,))
+
+
+def replay_trial(db, session_id: int, k: int, view: str = "none", frames_dir: Path | None = None) -> dict:
+    from sim.run import run_scene, write_outputs
+    from sim.scene import build_scene
+
+    store = Store(db)
+    try:
+        if not store.rows("select id from sessions where id = ?", (session_id,)):
+            raise InputError(f"--session: {db}: no session {session_id}")
+        trials = session_trials(store, session_id)
+        if not 1 <= k <= len(trials):
+            raise InputError(f"--trial: {k} is out of range; session {session_id} has {len(trials)} stored trials (allowed: 1..{len(trials)})")
+        row = trials[k - 1]
+        if not row["trace_path"]:
+            raise InputError(f"--trial: trial {k} of session {session_id} was stored without a trace (before schema 2)")
+        trace = read_trace(db, row["trace_path"], row["trace_sha256"])  # checks the SHA-256
+        protocol = store.protocol()
+    finally:
+        store.close()
+    path = (Path(db).parent / row["trace_path"]).resolve()
+    scene = build_scene(protocol.scene, row["model"])
+    hands = tuple(dataclasses.replace(h, device="replay", trace=path, trace_hand=name)
+                  for h, name in zip(scene.spec.hands, trace.hand_names))
+    scene.spec = dataclasses.replace(scene.spec, hands=hands)
+    duration = len(trace.times) / scene.spec.servo_rate_hz
+    if view == "window":
+        from sim.live import run_view
+
+        result = run_view(scene, "window", duration=duration)
+    else:
+        result = run_scene(scene, duration=duration, time_scale=0.0, snapshots=frames_dir is not None)
+    n = min(len(result.forces), len(trace.forces))
+    diff = float(np.max(np.abs(result.forces[:n] - trace.forces[:n]))) if n else None
+    out = {"session": session_id, "trial": k, "model": row["model"], "label": row["label"], "ticks": int(len(result.times)),
+           "recorded_ticks": int(len(trace.times)), "mode": result.mode, "max_force_difference_n": diff}
+    if frames_dir is not None:
+        out["frames"] = write_outputs(result, scene, frames_dir)
+    if result.view is not None:
+        out["view"] = result.view
+    return out

@@ -1,0 +1,125 @@
+"""Every movement of every trial: the per-tick trace (time; per hand position, force, button;
+events; the frames' deformation times) in a side file next to the study database.
+
+A trace is written durably (temporary file, fsync, rename, fsync of the folder) before its
+trial's row is committed, and the row holds its path (relative to the database's folder) and
+SHA-256, so a crash leaves at worst an unreferenced file that the re-run trial replaces. Files
+are compressed NumPy archives named by session, condition position and trial, never by model.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from studyctl.errors import StoreError
+
+
+def trace_dir(db: str | Path) -> Path:
+    db = Path(db)
+    return db.parent / f"{db.name}.traces"
+
+
+@dataclass
+class Trace:
+    """A stored trial's trace, with the attributes of a `sim.run.RunResult` that analyses use."""
+
+    hand_names: list[str]
+    times: np.ndarray  # (ticks,) s from the trial's start
+    positions: np.ndarray  # (ticks, hands, 3) m
+    forces: np.ndarray  # (ticks, hands, 3) N, as sent to the devices
+    buttons: np.ndarray  # (ticks, hands) bool
+    deformation_s: np.ndarray
+    events: list = field(default_factory=list)  # sim.servo.Event
+
+
+def encode(result) -> bytes:
+    events = [[e.t, e.hand, e.kind, e.detail] for e in result.events]
+    buf = io.BytesIO()
+    np.savez_compressed(
+        buf, times=np.asarray(result.times, dtype=np.float64), positions=np.asarray(result.positions, dtype=np.float64),
+        forces=np.asarray(result.forces, dtype=np.float64), buttons=np.asarray(result.buttons, dtype=bool),
+        deformation_s=np.asarray(result.deformation_s, dtype=np.float64), hand_names=np.asarray(result.hand_names, dtype=str),
+        events=np.asarray(json.dumps(events)),
+    )
+    return buf.getvalue()
+
+
+def write_trace(db: str | Path, session_id: int, position: int, trial: int, result) -> dict:
+    """Write the trial's trace durably; returns the trial row's trace fields."""
+    data = encode(result)
+    folder = trace_dir(db) / f"session-{session_id:04d}"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"condition-{position + 1}-trial-{trial + 1}.npz"
+        tmp = path.with_suffix(".npz.tmp")
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+        for d in (folder, folder.parent):  # the rename and the new folder survive a power cut
+            fd = os.open(d, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+    except OSError as exc:
+        raise StoreError(f"{folder}: cannot write the trial's trace: {exc.strerror}") from None
+    return {"trace_path": str(path.relative_to(Path(db).parent)), "trace_sha256": hashlib.sha256(data).hexdigest(),
+            "trace_ticks": int(len(result.times))}
+
+
+def read_trace(db: str | Path, rel: str, sha256: str) -> Trace:
+    """The stored trace, checked against the SHA-256 its trial row holds."""
+    from sim.servo import Event
+
+    path = Path(db).parent / rel
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise StoreError(f"{path}: cannot read the trial's trace: {exc.strerror}") from None
+    if hashlib.sha256(data).hexdigest() != sha256:
+        raise StoreError(f"{path}: the trace does not match the SHA-256 stored with its trial (changed or damaged)")
+    z = np.load(io.BytesIO(data), allow_pickle=False)
+    events = [Event(float(t), int(h), str(k), str(d)) for t, h, k, d in json.loads(str(z["events"]))]
+    return Trace(hand_names=[str(n) for n in z["hand_names"]], times=z["times"], positions=z["positions"], forces=z["forces"],
+                 buttons=z["buttons"], deformation_s=z["deformation_s"], events=events)
+
+
+def trial_traces(store, session_id: int, model: str) -> list[Trace]:
+    """Every stored trace of one condition of a session, in trial order."""
+    rows = store.rows("select trace_path, trace_sha256 from trials where session_id = ? and model = ? and trace_path is not null order by trial",
+                      (session_id, model))
+    return [read_trace(store.path, r["trace_path"], r["trace_sha256"]) for r in rows]
+
+
+TRACE_COLUMNS = ["session_id", "model", "trial", "t", "hand", "x", "y", "z", "fx", "fy", "fz", "button"]
+
+
+def traces_frame(store):
+    """Every stored trace as one tidy table (TRACE_COLUMNS), one row per tick and hand."""
+    import pandas as pd
+
+    frames = []
+    rows = store.rows("select session_id, model, trial, trace_path, trace_sha256 from trials where trace_path is not null "
+                      "order by session_id, model, trial")
+    for r in rows:
+        tr = read_trace(store.path, r["trace_path"], r["trace_sha256"])
+        n, h = tr.positions.shape[:2]
+        frames.append(pd.DataFrame({
+            "session_id": r["session_id"], "model": r["model"], "trial": r["trial"],
+            "t": np.repeat(tr.times, h), "hand": np.tile(np.asarray(tr.hand_names, dtype=object), n),
+            "x": tr.positions[:, :, 0].ravel(), "y": tr.positions[:, :, 1].ravel(), "z": tr.positions[:, :, 2].ravel(),
+            "fx": tr.forces[:, :, 0].ravel(), "fy": tr.forces[:, :, 1].ravel(), "fz": tr.forces[:, :, 2].ravel(),
+            "button": tr.buttons.ravel().astype(int),
+        }))
+    if not frames:
+        return pd.DataFrame({c: [] for c in TRACE_COLUMNS})
+    return pd.concat(frames, ignore_index=True)[TRACE_COLUMNS]
