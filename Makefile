@@ -6,8 +6,9 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 # libusb: open3d's import; EGL/Mesa: open3d's offscreen OpenGL on the CPU (llvmpipe);
-# Vulkan: open3d's Filament renderer on the CPU
-SYSTEM_PACKAGES := libusb-1.0-0 libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libvulkan1 mesa-vulkan-drivers
+# Vulkan: open3d's Filament renderer on the CPU; xvfb: a real X display for the participant
+# view's window in tests and headless runs; xdotool: the tests' real X key and mouse events
+SYSTEM_PACKAGES := libusb-1.0-0 libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libvulkan1 mesa-vulkan-drivers xvfb xdotool
 OUT ?= out
 
 .PHONY: demo test test-all bench lint system-deps venv clean

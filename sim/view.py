@@ -52,7 +52,7 @@ class ParticipantView:
 
     def __init__(self, mesh, pulls=((-1.0, 0.0, 0.0), (1.0, 0.0, 0.0)), width: int = 1280, height: int = 720,
                  visible: bool = True, title: str = "Brain surgery simulator", show_force: bool = False,
-                 grasp_radius: float = 0.005):
+                 grasp_radius: float = 0.005, heat: bool = False):
         import open3d as o3d
 
         from sim.render import hand_mesh
@@ -68,6 +68,7 @@ class ParticipantView:
         self.mesh = mesh
         self.width, self.height = width, height
         self.show_force = show_force
+        self.heat = heat  # colour by displacement (an analyst's aid; a participant sees plain tissue)
         self.vis = o3d.visualization.VisualizerWithKeyCallback()
         if not self.vis.create_window(window_name=title, width=width, height=height, visible=visible):
             raise ViewError(f"--view window: open3d could not open a {width}x{height} OpenGL window on display "
@@ -105,7 +106,7 @@ class ParticipantView:
         # text lies in a plane between the camera and everything else, so nothing hides it
         self.text_depth = 0.3 * max(float(np.linalg.norm(self.eye - self.center)) - self.radius, 0.02)
         self._hand_rest = hand_mesh()
-        self._hand_rest.scale(0.6, center=(0.0, 0.0, 0.0))  # the surgeon's view is closer than the pictures' 
+        self._hand_rest.scale(0.6, center=(0.0, 0.0, 0.0))  # the surgeon's view is closer than the pictures'
         self._hand_vertices = np.asarray(self._hand_rest.vertices).copy()
         self.pulls = [np.asarray(p, dtype=np.float64) for p in pulls]
         self.hands = []
@@ -191,9 +192,11 @@ class ParticipantView:
         start = time.perf_counter()
         u = np.zeros_like(self.mesh.vertices) if displacement is None else np.asarray(displacement, dtype=np.float64)
         self._positions = self.mesh.vertices + u
-        mag = np.linalg.norm(u, axis=1)
-        w = np.clip(mag / HEAT_FULL_M, 0.0, 1.0)[:, None]
-        colours = (1 - w) * TISSUE + w * np.array([0.80, 0.25, 0.15])
+        if self.heat:
+            w = np.clip(np.linalg.norm(u, axis=1) / HEAT_FULL_M, 0.0, 1.0)[:, None]
+            colours = (1 - w) * TISSUE + w * np.array([0.80, 0.25, 0.15])
+        else:
+            colours = np.tile(TISSUE, (len(u), 1))
         for h in hands:
             if h.grasped_vertex is not None:
                 patch = self._rest_tree.query_ball_point(self.mesh.vertices[h.grasped_vertex], max(self.grasp_radius, 0.004))
@@ -215,6 +218,7 @@ class ParticipantView:
             self.vis.update_geometry(m)
         if self.show_force:
             self._draw_forces(hands)
+        self._last_hands = hands
         self._present()
         now = time.perf_counter()
         self.frames += 1
@@ -231,7 +235,7 @@ class ParticipantView:
             self.vis.add_geometry(m, reset_bounding_box=False)
             self.arrows.append(m)
         parts = []
-        for k, (m, h) in enumerate(zip(self.arrows, hands)):
+        for m, h in zip(self.arrows, hands):
             f = np.asarray(h.force, dtype=np.float64)
             n = float(np.linalg.norm(f))
             length = n * FORCE_ARROW_M_PER_N
@@ -254,6 +258,13 @@ class ParticipantView:
         if not self.vis.poll_events():
             self.closed = True
         self.vis.update_renderer()
+
+    def at_rest(self) -> None:
+        """Between runs: the tissue undeformed, nothing grasped, the hands where they were."""
+        hands = [HandState(h.position) for h in getattr(self, "_last_hands", [])]
+        self.draw(None, hands)
+        self.frames -= 1  # not a frame of any run
+        self.frame_s.pop()
 
     def idle(self) -> None:
         """Keep the window alive (events, redraw) while nothing moves, e.g. on a rest screen."""

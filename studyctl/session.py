@@ -298,6 +298,8 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
                 pacing = Pacing(view=shown, caption=training_caption, stop_keys=("e", "enter"), keys=keys) if paced or shown else None
                 flush_input()
                 result = run_scene(_scene(protocol, TRAINING_MODEL, device), duration=seconds, time_scale=time_scale, pacing=pacing)
+                if shown is not None:
+                    shown.at_rest()
                 ran, early = (result.times[-1] if len(result.times) else 0.0), result.ended_early
             store.event(session_id, "training_done", dumps({"planned_s": seconds, "ran_s": round(float(ran), 3), "time_scale": time_scale,
                                                             "ended_early": early is not None, "by": early}))
@@ -328,6 +330,8 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
                     result = run_scene(scene, duration=protocol.trial_seconds, time_scale=time_scale, pacing=pacing)
                 finally:
                     scene.operators = None
+                    if shown is not None:
+                        shown.at_rest()
                 rec, lat = _trial_record(session_id, model, trial, started, result)
                 rec |= write_trace(db, session_id, pos, trial, result)  # durable before the trial's row
                 if not rec["grasped"]:

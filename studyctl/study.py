@@ -183,36 +183,32 @@ def import_answers(db: str | Path, csv_path: str | Path) -> dict:
 
 
 def export(db: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[str]:
-    """Every pseudonymous table, one file each. The identities table is never exported."""
+    """Every pseudonymous table, one file each, and every trial's per-tick trace (traces.csv or
+    .parquet). The identities table is never exported. Everything is read (and every trace
+    checked against its SHA-256) before anything is written."""
     import pandas as pd
+
+    from studyctl.traces import traces_frame
 
     if fmt not in ("csv", "parquet"):
         raise InputError(f"--format: {fmt!r} is not csv or parquet")
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     store = Store(db)
-    written = []
     try:
-        for table in EXPORT_TABLES:
-            df = pd.DataFrame(store.rows(f"select * from {table}"))
-            path = out_dir / f"{table}.{fmt}"
-            if fmt == "csv":
-                df.to_csv(path, index=False)
-            else:
-                try:
-                    df.to_parquet(path, index=False)
-                except ImportError:
-                    raise StoreError("--format parquet needs pyarrow (pip install pyarrow)") from None
-            written.append(str(path))
-        from studyctl.traces import traces_frame
-
-        df = traces_frame(store)  # every trial's per-tick trace, checked against its SHA-256
-        path = out_dir / f"traces.{fmt}"
+        frames = {table: pd.DataFrame(store.rows(f"select * from {table}")) for table in EXPORT_TABLES}
+        frames["traces"] = traces_frame(store)
+    finally:
+        store.close()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for table, df in frames.items():
+        path = out_dir / f"{table}.{fmt}"
         if fmt == "csv":
             df.to_csv(path, index=False)
         else:
-            df.to_parquet(path, index=False)
+            try:
+                df.to_parquet(path, index=False)
+            except ImportError:
+                raise StoreError("--format parquet needs pyarrow (pip install pyarrow)") from None
         written.append(str(path))
-    finally:
-        store.close()
     return written

@@ -1,0 +1,147 @@
+"""A person in the chair: every movement recorded, replays, blind labels, the terminal
+questionnaire in real time through a real pseudo-terminal, and kills mid-trial."""
+
+import os
+import re
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+
+from studyctl.store import Store
+from studyctl.traces import read_trace
+from tests.test_study import fast_protocol, studyctl
+
+MODEL_WORDS = re.compile(r"plate.?spring|mass.?spring|\bfem\b|finite|element|corotational|neo.?hookean|young|poisson", re.I)
+
+
+def _protocol(tmp_path, trial_seconds=3.0, rest=0.5, **kw):
+    p = fast_protocol(tmp_path, **kw)
+    text = p.read_text().replace("trial_seconds = 1.0", f"trial_seconds = {trial_seconds}").replace("rest_seconds = 5.0", f"rest_seconds = {rest}")
+    p.write_text(text)
+    return p
+
+
+def _synthetic_db(tmp_path, name="s.db", code="P01"):
+    db = tmp_path / name
+    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=3), "--db", db)
+    studyctl("participants", "add", code, "--age", "24", "--db", db)
+    return db
+
+
+def test_export_has_every_tick_of_every_trial_and_replay_reproduces_the_forces(tmp_path):
+    db = _synthetic_db(tmp_path)
+    res = studyctl("session", "run", "--db", db, "--participant", "P01", "--synthetic")
+    assert res.exit_code == 0, res.output
+    res = studyctl("export", "--db", db, "--out", tmp_path / "ex")
+    assert res.exit_code == 0, res.output
+    tr = pd.read_csv(tmp_path / "ex" / "traces.csv")
+    assert list(tr.columns) == ["session_id", "model", "trial", "t", "hand", "x", "y", "z", "fx", "fy", "fz", "button"]
+    counts = tr.groupby(["model", "trial", "hand"]).size()
+    assert len(counts) == 9 * 2 and (counts == 3000).all()  # 9 trials, 3 s at 1 kHz, per hand
+    cond = pd.read_csv(tmp_path / "ex" / "conditions.csv")
+    assert sorted(cond["label"]) == ["A", "B", "C"]  # blind labels, shown in exports
+    store = Store(db)
+    rows = store.rows("select * from trials order by model, trial")
+    store.close()
+    assert all(r["grasped"] == 1 and r["started_by"] == "clock" and len(r["trace_sha256"]) == 64 for r in rows)
+    # the trace file holds exactly what the trial summary says
+    for r in rows:
+        t = read_trace(db, r["trace_path"], r["trace_sha256"])
+        assert abs(np.linalg.norm(t.forces, axis=2).max() - r["max_force_n"]) < 1e-12
+    # a lockstep replay of the recorded motion gives the recorded forces, bit for bit, for every model
+    for k in (1, 4, 7):
+        res = studyctl("replay", "--db", db, "--session", 1, "--trial", k, "--json")
+        assert res.exit_code == 0, res.output
+        out = __import__("json").loads(res.output)
+        assert out["ticks"] == out["recorded_ticks"] == 3000 and out["max_force_difference_n"] == 0.0
+    # a changed trace file is refused, by name
+    path = db.parent / rows[0]["trace_path"]
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    path.write_bytes(bytes(data))
+    res = studyctl("export", "--db", db, "--out", tmp_path / "ex2")
+    assert res.exit_code == 1 and "does not match the SHA-256" in res.output and str(path) in res.output
+    assert not (tmp_path / "ex2").exists()  # nothing half-written
+    res = studyctl("replay", "--db", db, "--session", 1, "--trial", 10)
+    assert res.exit_code == 1 and "allowed: 1..9" in res.output
+
+
+def _trials(db):
+    try:
+        return sqlite3.connect(db, timeout=10).execute("select count(*) from trials").fetchone()[0]
+    except sqlite3.OperationalError:
+        return 0
+
+
+def test_sigkill_mid_trial_loses_only_that_trial_and_resumed_answers_use_every_trace(tmp_path):
+    db = _synthetic_db(tmp_path, "killed.db")
+    cmd = [sys.executable, "-m", "studyctl.cli", "session", "run", "--db", str(db), "--participant", "P01", "--synthetic"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while _trials(db) < 2 and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.01)
+    time.sleep(0.3)  # into the next trial
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    before = _trials(db)
+    assert 2 <= before < 9
+    res = studyctl("session", "run", "--db", db, "--participant", "P01", "--synthetic", "--resume")
+    assert res.exit_code == 0, res.output
+    con = sqlite3.connect(db)
+    rows = con.execute("select model, trial, trace_path, trace_sha256 from trials").fetchall()
+    assert len(rows) == 9 and len({(m, t) for m, t, _, _ in rows}) == 9
+    for _, _, path, sha in rows:
+        read_trace(db, path, sha)  # every trace there, matching its hash
+    assert not list((tmp_path / "killed.db.traces").rglob("*.tmp"))
+    # the same participant and seed, never interrupted: the same answers (they are computed from
+    # every stored trace of a condition, also those run before the kill)
+    fresh = _synthetic_db(tmp_path, "fresh.db")
+    assert studyctl("session", "run", "--db", fresh, "--participant", "P01", "--synthetic").exit_code == 0
+    q = "select model, item, answer from answers order by model, item"
+    assert con.execute(q).fetchall() == sqlite3.connect(fresh).execute(q).fetchall()
+
+
+def test_real_time_session_through_a_pty_discards_keys_typed_during_training_and_names_no_model(tmp_path):
+    import pty
+
+    db = tmp_path / "s.db"
+    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, trial_seconds=1.0, training=0.05), "--db", db)
+    studyctl("participants", "add", "P01", "--db", db)
+    pid, fd = pty.fork()
+    if pid == 0:  # a person's session on a terminal, real time, no window
+        os.execv(sys.executable, [sys.executable, "-m", "studyctl.cli", "session", "run", "--db", str(db), "--participant", "P01", "--view", "none"])
+    out = b""
+    typed_early = False
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        try:
+            chunk = os.read(fd, 4096)
+        except OSError:
+            break
+        if not chunk:
+            break
+        out += chunk
+        if not typed_early and b"training:" in out:
+            time.sleep(0.5)
+            os.write(fd, b"n")  # a key typed during training, no Enter: must not answer anything
+            typed_early = True
+        if out.rstrip().endswith(b"[y/n]"):
+            os.write(fd, b"y\n")
+            out += b"<sent>"
+    os.waitpid(pid, 0)
+    text = out.decode(errors="replace")
+    assert typed_early and "complete" in text, text
+    assert "Please answer y or n." not in text  # the early "n" never reached a question
+    assert not MODEL_WORDS.search(text), MODEL_WORDS.search(text)
+    con = sqlite3.connect(db)
+    answers = con.execute("select answer, source from answers").fetchall()
+    assert len(answers) == 27 and all(a == (1, "terminal") for a in answers)
+    trials = con.execute("select started_by, grasped, waited_s from trials").fetchall()
+    assert len(trials) == 3 and all(t[0] == "grasp" and t[1] == 1 and t[2] > 0.2 for t in trials)
+    training = con.execute("select detail from events where kind = 'training_done'").fetchone()[0]
+    assert '"ended_early":false' in training

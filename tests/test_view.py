@@ -1,0 +1,238 @@
+"""The participant view in a real window (Xvfb), driven as a person would: X key and mouse
+events through xdotool, screenshots looked at pixel by pixel."""
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.test_participant import MODEL_WORDS, _protocol
+from tests.test_study import studyctl
+
+PATCH = np.array([0.20, 0.55, 0.95]) * 255
+
+
+def _xdotool(*args):
+    return subprocess.run(["xdotool", *map(str, args)], capture_output=True, text=True, timeout=10)
+
+
+def _window():
+    out = _xdotool("search", "--name", "Brain surgery simulator").stdout.split()
+    return out[0] if out else None
+
+
+@pytest.fixture
+def xdotool(display):
+    if shutil.which("xdotool") is None:
+        pytest.fail("xdotool is not installed: run `make test`, which installs it")
+    return display
+
+
+class Recorder:
+    """Wraps the view: every text it shows, and a screenshot at each change of its main message."""
+
+    def __init__(self, monkeypatch):
+        from sim.view import ParticipantView
+
+        self.texts, self.shots, self.views = [], [], []
+        rec = self
+        set_text, draw, idle = ParticipantView.set_text, ParticipantView.draw, ParticipantView.idle
+
+        def set_text_spy(view, **slots):
+            set_text(view, **slots)
+            rec.texts.extend(t for t in slots.values() if t)
+
+        def shoot(view, hands, displacement):
+            text = view.text()
+            key = (text.get("center", "") or text.get("question", ""), text.get("top", ""))
+            if not rec.shots or rec.shots[-1][0] != key:
+                rec.shots.append((key, view.image(), [h.position for h in hands], [h.grasped_vertex for h in hands], displacement))
+                if os.environ.get("BRAINSIM_SHOTS"):  # keep them to look at (docs/img comes from here)
+                    view.screenshot(Path(os.environ["BRAINSIM_SHOTS"]) / f"shot_{len(rec.shots):03d}.png")
+
+        def draw_spy(view, displacement, hands, read_t=None):
+            draw(view, displacement, hands, read_t)
+            rec.hands = hands
+            shoot(view, hands, displacement)
+
+        def idle_spy(view):
+            idle(view)
+            shoot(view, getattr(rec, "hands", []), None)
+
+        monkeypatch.setattr(ParticipantView, "idle", idle_spy)
+
+        monkeypatch.setattr(ParticipantView, "set_text", set_text_spy)
+        monkeypatch.setattr(ParticipantView, "draw", draw_spy)
+
+
+def _brain_pixels(img):
+    return int(np.sum(np.all(img < 245, axis=2)))
+
+
+def _patch_pixels(img):
+    return int(np.sum(np.linalg.norm(img.astype(float) - PATCH, axis=2) < 60))
+
+
+def test_sim_run_in_a_window_reports_the_view_and_saves_the_last_frame(display, tmp_path):
+    shot = tmp_path / "last.png"
+    res = studyctl("sim", "run", "--view", "window", "--duration", "2", "--screenshot", shot, "--json")
+    assert res.exit_code == 0, res.output
+    s = json.loads(res.output)
+    v = s["view"]
+    assert v["frames_shown"] >= 3 and v["fps"] > 0 and v["size"] == "1280x720"
+    assert 0 < v["motion_to_photon_ms"]["p50"] <= v["motion_to_photon_ms"]["p99"] < 5000
+    assert s["events"]["grasp"] == 2 and s["ticks"] == 2000
+    import matplotlib.image as mpimg
+
+    img = (mpimg.imread(shot)[:, :, :3] * 255).astype(np.uint8)
+    assert img.shape == (720, 1280, 3) and _brain_pixels(img) > 50_000 and _patch_pixels(img) > 30  # the brain, the grasped patches
+
+
+def test_a_paced_session_in_the_window_shows_instructions_countdown_hands_and_deformation(xdotool, tmp_path, monkeypatch):
+    """Simulated (scripted) hands pilot a session; the questionnaire is answered with Y/N keys in
+    the window (real X key events). Looks at the screenshots of each screen."""
+    from studyctl.session import run_session
+
+    db = tmp_path / "s.db"
+    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=2, trial_seconds=2.0, training=0.05, rest=1.0,
+                                                       conditions=("plate_spring", "fem")), "--db", db)
+    studyctl("participants", "add", "P01", "--db", db)
+    rec = Recorder(monkeypatch)
+    done = threading.Event()
+
+    def person():  # presses Y now and then: only keys pressed while a question is shown count
+        while not done.is_set():
+            w = _window()
+            if w:
+                _xdotool("key", "--window", w, "y")
+            time.sleep(0.4)
+
+    t = threading.Thread(target=person, daemon=True)
+    t.start()
+    try:
+        out = run_session(db, "P01", view="window", answer_with="window", time_scale=1.0)
+    finally:
+        done.set()
+        t.join()
+    assert out["answers"] == 18 and out["order"] in (["A", "B"], ["B", "A"])
+    # nothing participant-facing names a model or a parameter
+    assert rec.texts and not [x for x in rec.texts if MODEL_WORDS.search(x)]
+    joined = "\n".join(rec.texts)
+    for expected in ("Training", "Pull the brain freely", "Grasp the brain to start", "Experimenter: SPACE starts the trial",
+                     "Rest: 1 s", "Please answer the questions", "Is interaction real and natural?", "Condition A (", "trial 2 of 2",
+                     "Thank you"):
+        assert expected in joined, expected
+    assert any(re.fullmatch(r"\d s", x) for x in rec.texts)  # the trial countdown
+    waiting = [(img, hands) for k, img, hands, _, _ in rec.shots if k[0] == "Grasp the brain to start"]
+    running = [(k, img, h, g, u) for k, img, h, g, u in rec.shots if re.fullmatch(r"\d s", k[0])]
+    assert waiting and running and any(k[0].startswith("Rest: ") for k, *_ in rec.shots)
+    img0 = waiting[0][0]
+    assert _brain_pixels(img0) > 50_000
+    # while a trial runs: a grasped, highlighted patch; the hands have moved since the first screen
+    late = running[-1]
+    assert any(g is not None for g in late[3]) and _patch_pixels(late[1]) > 30
+    moved = max(np.linalg.norm(np.subtract(a, b)) for a, b in zip(late[2], waiting[0][1]))
+    assert moved > 0.004
+    # the tissue deforms where it is grasped: the surface drawn there has moved, and so have its pixels
+    g = next(v for v in late[3] if v is not None)
+    assert np.linalg.norm(late[4][g]) > 0.003
+    assert np.mean(np.abs(late[1].astype(int) - img0.astype(int))[150:620, 300:980]) > 1.0
+    # the text is on the screen: dark glyph pixels in the status line and the instruction line
+    assert np.sum(img0[10:45, 10:700].min(axis=2) < 80) > 200 and np.sum(img0[660:700, 300:980].min(axis=2) < 80) > 100
+    import sqlite3
+
+    con = sqlite3.connect(db)
+    assert con.execute("select count(*) from answers where source = 'window'").fetchone()[0] == 18
+    assert all(r == ("grasp", 1) for r in con.execute("select started_by, grasped from trials"))
+
+
+def test_the_mouse_grasps_and_pulls_the_brain_in_sim_live(xdotool, tmp_path):
+    """A person with a mouse: press on the left hemisphere, drag, release, Q. The force that
+    would be felt is drawn and recorded."""
+    shot = tmp_path / "live.png"
+    proc = subprocess.Popen([sys.executable, "-m", "studyctl.cli", "sim", "live", "--duration", "60", "--screenshot", str(shot), "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.time() + 60
+        while _window() is None and time.time() < deadline:
+            time.sleep(0.2)
+        w = _window()
+        assert w, proc.stderr.read() if proc.poll() is not None else "no window"
+        time.sleep(2.0)
+        _xdotool("mousemove", "--window", w, 560, 420)
+        time.sleep(0.5)
+        _xdotool("mousedown", 1)
+        time.sleep(1.0)
+        for k in range(1, 11):  # drag 60 px to the left over a second
+            _xdotool("mousemove", "--window", w, 560 - 6 * k, 420)
+            time.sleep(0.1)
+        time.sleep(1.0)
+        _xdotool("key", "--window", w, "q")  # quit while still holding: the screenshot shows the pull
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    _xdotool("mouseup", 1)
+    assert proc.returncode == 0, err
+    s = json.loads(out)
+    assert s["events"].get("grasp", 0) >= 1 and s["ended_early"] == "q"
+    assert s["max_force_per_hand_n"]["left"] > 0.02 and s["max_force_per_hand_n"]["right"] == 0.0
+    import matplotlib.image as mpimg
+
+    img = (mpimg.imread(shot)[:, :, :3] * 255).astype(np.uint8)
+    red = np.sum((img[:, :, 0] > 170) & (img[:, :, 1] < 90) & (img[:, :, 2] < 80))
+    assert red > 40 and _patch_pixels(img) > 30  # the force arrow and number; the grasped patch
+
+
+def test_a_whole_session_piloted_with_the_mouse(xdotool, tmp_path, monkeypatch):
+    from studyctl.session import run_session
+
+    db = tmp_path / "s.db"
+    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, trial_seconds=1.5, conditions=("plate_spring",)), "--db", db)
+    studyctl("participants", "add", "P01", "--db", db)
+    rec = Recorder(monkeypatch)
+    done = threading.Event()
+
+    def person():
+        grasped = False
+        while not done.is_set():
+            w = _window()
+            if w and not grasped and any("Grasp the brain" in x for x in rec.texts):
+                time.sleep(0.5)
+                _xdotool("mousemove", "--window", w, 560, 420)
+                _xdotool("mousedown", 1)
+                time.sleep(0.6)
+                for k in range(1, 6):
+                    _xdotool("mousemove", "--window", w, 560 - 8 * k, 420)
+                    time.sleep(0.1)
+                time.sleep(1.5)
+                _xdotool("mouseup", 1)
+                grasped = True
+            elif w and grasped:
+                _xdotool("key", "--window", w, "n")
+            time.sleep(0.3)
+
+    t = threading.Thread(target=person, daemon=True)
+    t.start()
+    try:
+        out = run_session(db, "P01", device="mouse", view="window", answer_with="window", time_scale=1.0)
+    finally:
+        done.set()
+        t.join()
+    assert out["answers"] == 9
+    import sqlite3
+
+    con = sqlite3.connect(db)
+    assert con.execute("select started_by, grasped, max_force_n > 0.01 from trials").fetchall() == [("grasp", 1, 1)]
+    assert con.execute("select device from sessions").fetchone()[0] == "mouse"
+    assert not [x for x in rec.texts if MODEL_WORDS.search(x)]
+    assert any(x.startswith("force ") for x in rec.texts)  # the force is shown as a number
+
