@@ -1,67 +1,116 @@
-"""The servo loop under load: 10 s, two hands, each model, frames drawn live.
+"""The servo loop while the participant view draws: 1280x720 window, two hands, each model.
 
-For every model, the scene runs in real time twice: with the servo in a thread of this
-process and in its own process (the default), while this process draws every visual frame
-with open3d. Prints tick-interval percentiles, deadline misses and compute percentiles.
-Usage: python -m bench servo [SECONDS]
+For every model the scene runs in real time (servo in its own process) twice: headless, and
+with the participant view drawing every visual frame in a real window (Xvfb is started if there
+is no display). Prints servo tick-interval percentiles (target p99 <= 1.1 ms), deadline misses
+per 10 000 ticks and miss streaks (target: none), the view's frames per second and frame time,
+and motion-to-photon (device read to the presented frame that shows it) p50/p99.
+Usage: python -m bench servo [SECONDS] [--json]
 """
 
 from __future__ import annotations
 
+import json
+import os
+import shutil
+import subprocess
 import sys
+import tempfile
+from pathlib import Path
 
-import numpy as np
-
-from sim.run import run_scene
+from sim.run import Pacing, run_scene
 from sim.scene import DEFAULT_SCENE, build_scene
 
-
-def _drawer(renderer, mesh, state):
-    def draw(visual):
-        u = visual.last
-        if u is None:
-            return
-        mag = np.linalg.norm(u, axis=1)
-        hands = [(np.asarray(h.position), np.array([1.0, 0.0, 0.0])) for h in visual.hands]
-        renderer.render(mesh.vertices + u, mag / max(float(mag.max()), 1e-3), hands)
-        state["frames"] += 1
-
-    return draw
+TARGET_P99_US = 1100.0
 
 
-def main(seconds: float | None = None) -> None:
-    if seconds is None:
-        seconds = float(sys.argv[2]) if len(sys.argv) > 2 and sys.argv[1] == "servo" else 10.0
-    from sim.render import BrainRenderer
+def _display():
+    if os.environ.get("DISPLAY"):
+        return None
+    xvfb = shutil.which("Xvfb")
+    if xvfb is None:
+        sys.exit("bench servo: no DISPLAY and no Xvfb (make test installs it)")
+    r, w = os.pipe()
+    proc = subprocess.Popen([xvfb, "-displayfd", str(w), "-screen", "0", "1600x900x24", "-nolisten", "tcp"], pass_fds=(w,),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.close(w)
+    with os.fdopen(r) as fh:
+        os.environ["DISPLAY"] = ":" + fh.readline().strip()
+    return proc
 
-    renderer = None
-    print(f"{seconds:g} s per run, two simulated hands, every visual frame drawn live (640x480)")
-    print(f"{'model':<13} {'servo':<8} {'ticks':>6} {'p50 us':>8} {'p99 us':>8} {'p99.9 us':>9} {'max us':>9} {'misses':>7} "
-          f"{'compute p50/p99 us':>19} {'streaks':>7} {'frames':>7} {'deform p99 ms':>13}")
-    import tempfile
-    from pathlib import Path
 
+def _scene_file(seconds: float) -> Path:
     root = DEFAULT_SCENE.parents[2]
     text = DEFAULT_SCENE.read_text().replace('"../../data/', f'"{root}/data/').replace('"../models/', f'"{root}/protocols/models/')
     # hold the pull for the whole run, so the tissue deforms and frames are drawn throughout
     text = text.replace("pull_time = 1.2", f"pull_time = {seconds / 2:g}").replace("release_at = 2.6", f"release_at = {seconds - 0.2:g}")
-    tmp = Path(tempfile.mkdtemp()) / "bench_scene.toml"
-    tmp.write_text(text)
-    for model in ("plate_spring", "fem", "mass_spring"):
-        for servo in ("thread", "process"):
-            scene = build_scene(tmp, model)
-            if renderer is None:
-                renderer = BrainRenderer(scene.mesh, 640, 480)
-            state = {"frames": 0}
+    path = Path(tempfile.mkdtemp()) / "bench_scene.toml"
+    path.write_text(text)
+    return path
 
-            draw = _drawer(renderer, scene.mesh, state)
 
-            r = run_scene(scene, duration=seconds, time_scale=1.0, servo=servo, render=draw)
-            s = r.stats()
-            iv, tc = s["tick_interval_us"], s["tick_compute_us"]
-            print(f"{model:<13} {servo:<8} {s['ticks']:>6} {iv['p50']:>8.0f} {iv['p99']:>8.0f} {iv['p99.9']:>9.0f} {iv['max']:>9.0f} "
-                  f"{s['deadline_misses']:>7} {tc['p50']:>9.0f}/{tc['p99']:<9.0f} {s['events'].get('deadline_streak', 0):>7} {state['frames']:>7} "
-                  f"{s['deformation_ms']['p99']:>13.2f}")
+def run(seconds: float = 10.0) -> list[dict]:
+    from sim.view import ParticipantView
+
+    xvfb = _display()
+    path = _scene_file(seconds)
+    rows = []
+    view = None
+    try:
+        for model in ("plate_spring", "fem", "mass_spring"):
+            for kind in ("none", "window"):
+                scene = build_scene(path, model)
+                pacing = None
+                if kind == "window":
+                    if view is None:
+                        view = ParticipantView(scene.mesh, pulls=[h.pull for h in scene.spec.hands], width=1280, height=720)
+                    view.set_text(top="Condition B (2 of 3) - trial 1 of 3", bottom="Pull the tissue")
+                    pacing = Pacing(view=view, caption=lambda phase, left: {"center": f"{int(left) + 1} s"})
+                r = run_scene(scene, duration=seconds, time_scale=1.0, pacing=pacing)
+                s = r.stats()
+                v = s.get("view") or {}
+                iv = s["tick_interval_us"]
+                rows.append({
+                    "model": model, "view": kind, "ticks": s["ticks"],
+                    "tick_interval_us": iv, "p99_ratio_to_target": TARGET_P99_US / iv["p99"],
+                    "misses_per_10k": 1e4 * s["deadline_misses"] / max(s["ticks"], 1),
+                    "miss_streaks": s["events"].get("deadline_streak", 0),
+                    "fps": v.get("fps"), "frame_ms": v.get("frame_ms"), "prepare_ms": v.get("prepare_ms"),
+                    "motion_to_photon_ms": v.get("motion_to_photon_ms"),
+                    "deformation_ms_p99": s["deformation_ms"]["p99"],
+                })
+    finally:
+        if view is not None:
+            view.close()
+        if xvfb is not None:
+            xvfb.terminate()
+    return rows
+
+
+def main(seconds: float | None = None) -> None:
+    args = [a for a in sys.argv[1:] if a != "servo"]
+    as_json = "--json" in args
+    nums = [a for a in args if a.replace(".", "", 1).isdigit()]
+    seconds = seconds or (float(nums[0]) if nums else 10.0)
+    rows = run(seconds)
+    if as_json:
+        print(json.dumps({"seconds": seconds, "target_tick_p99_us": TARGET_P99_US, "rows": rows}, indent=2))
+        return
+    print(f"{seconds:g} s per run, two simulated hands pulling, servo in its own process; window 1280x720 (Mesa CPU driver here)")
+    print(f"{'model':<13} {'view':<7} {'p50 us':>7} {'p99 us':>7} {'p99.9':>7} {'max us':>8} {'p99 vs 1.1 ms':>13} {'miss/10k':>8} "
+          f"{'streaks':>7} {'fps':>5} {'frame p50/p99 ms':>17} {'prepare p50 ms':>14} {'m2p p50/p99 ms':>15}")
+    for r in rows:
+        iv = r["tick_interval_us"]
+        ratio = r["p99_ratio_to_target"]
+        verdict = f"{ratio:.2f}x {'ok' if ratio >= 1 else 'MISSED'}"
+        fps = "-" if r["fps"] is None else f"{r['fps']:.1f}"
+        ft = "-" if not r["frame_ms"] else f"{r['frame_ms']['p50']:.0f}/{r['frame_ms']['p99']:.0f}"
+        prep = "-" if not r["prepare_ms"] else f"{r['prepare_ms']['p50']:.1f}"
+        m2p = "-" if not r["motion_to_photon_ms"] else f"{r['motion_to_photon_ms']['p50']:.0f}/{r['motion_to_photon_ms']['p99']:.0f}"
+        print(f"{r['model']:<13} {r['view']:<7} {iv['p50']:>7.0f} {iv['p99']:>7.0f} {iv['p99.9']:>7.0f} {iv['max']:>8.0f} {verdict:>13} "
+              f"{r['misses_per_10k']:>8.0f} {r['miss_streaks']:>7} {fps:>5} {ft:>17} {prep:>14} {m2p:>15}")
+    print("fps target on a lab machine with a GPU: 60. Here Mesa's llvmpipe rasterises the 41k-triangle brain on the one core the")
+    print("servo leaves to drawing; 'prepare' is the frame's own CPU work (geometry, normals, colours), what a GPU would not take over.")
 
 
 if __name__ == "__main__":

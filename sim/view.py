@@ -133,6 +133,7 @@ class ParticipantView:
         self.closed = False
         self.frames = 0
         self.frame_s: list[float] = []
+        self.prepare_s: list[float] = []
         self.motion_to_photon_s: list[float] = []
         self.first_frame_at: float | None = None
         self.last_frame_at: float | None = None
@@ -219,6 +220,7 @@ class ParticipantView:
         if self.show_force:
             self._draw_forces(hands)
         self._last_hands = hands
+        self.prepare_s.append(time.perf_counter() - start)  # this process's own work, before the rasteriser
         self._present()
         now = time.perf_counter()
         self.frames += 1
@@ -265,6 +267,7 @@ class ParticipantView:
         self.draw(None, hands)
         self.frames -= 1  # not a frame of any run
         self.frame_s.pop()
+        self.prepare_s.pop()
 
     def idle(self) -> None:
         """Keep the window alive (events, redraw) while nothing moves, e.g. on a rest screen."""
@@ -285,17 +288,20 @@ class ParticipantView:
         span = (self.last_frame_at or 0.0) - (self.first_frame_at or 0.0)
         m2p = np.asarray(self.motion_to_photon_s) * 1e3
         ft = np.asarray(self.frame_s) * 1e3
+        pt = np.asarray(self.prepare_s) * 1e3
         return {
             "frames_shown": self.frames,
             "fps": (self.frames - 1) / span if self.frames > 1 and span > 0 else None,
             "frame_ms": {"p50": float(np.percentile(ft, 50)) if len(ft) else None, "p99": float(np.percentile(ft, 99)) if len(ft) else None},
+            # geometry, colours and normals for the frame: what is left of a frame with a GPU
+            "prepare_ms": {"p50": float(np.percentile(pt, 50)) if len(pt) else None, "p99": float(np.percentile(pt, 99)) if len(pt) else None},
             "motion_to_photon_ms": {"p50": float(np.percentile(m2p, 50)) if len(m2p) else None,
                                     "p99": float(np.percentile(m2p, 99)) if len(m2p) else None},
             "size": f"{self.width}x{self.height}",
         }
 
     def reset_stats(self) -> None:
-        self.frames, self.frame_s, self.motion_to_photon_s = 0, [], []
+        self.frames, self.frame_s, self.prepare_s, self.motion_to_photon_s = 0, [], [], []
         self.first_frame_at = self.last_frame_at = None
 
     def close(self) -> None:
