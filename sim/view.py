@@ -34,7 +34,7 @@ ARROW = (0.85, 0.15, 0.10)
 # GLFW key codes -> names the callers use
 KEYS = {32: "space", 257: "enter", 256: "escape", **{ord(c): c.lower() for c in "ABCDEFGHIJKLMNOPQRSTUVWXYZ"}}
 HEAT_FULL_M = 0.012  # displacement drawn at full heat colour
-FORCE_ARROW_M_PER_N = 0.03
+FORCE_ARROW_M_PER_N = 0.08
 WHEEL_M = 0.002  # depth per wheel step
 
 
@@ -111,7 +111,7 @@ class ParticipantView:
         self.pulls = [np.asarray(p, dtype=np.float64) for p in pulls]
         self.hands = []
         self.arrows = []
-        arrow = o3d.geometry.TriangleMesh.create_arrow(cylinder_radius=0.0012, cone_radius=0.0026, cylinder_height=0.8, cone_height=0.2)
+        arrow = o3d.geometry.TriangleMesh.create_arrow(cylinder_radius=0.0016, cone_radius=0.0035, cylinder_height=0.75, cone_height=0.25)
         arrow.paint_uniform_color(ARROW)
         self._arrow_vertices = np.asarray(arrow.vertices).copy()  # along +z, length 1
         self._arrow_rest = arrow
@@ -237,7 +237,7 @@ class ParticipantView:
             self.vis.add_geometry(m, reset_bounding_box=False)
             self.arrows.append(m)
         parts = []
-        for m, h in zip(self.arrows, hands):
+        for k, (m, h) in enumerate(zip(self.arrows, hands)):
             f = np.asarray(h.force, dtype=np.float64)
             n = float(np.linalg.norm(f))
             length = n * FORCE_ARROW_M_PER_N
@@ -253,8 +253,8 @@ class ParticipantView:
             m.vertices = o3d.utility.Vector3dVector(V)
             m.compute_vertex_normals()
             self.vis.update_geometry(m)
-            parts.append(f"{n:.2f} N")
-        self.set_text(corner="force  " + "   ".join(parts))
+            parts.append(f"{('left', 'right')[k] if len(hands) == 2 else 'hand'} {n:.2f} N")
+        self.set_text(corner="force:  " + "   ".join(parts))
 
     def _present(self) -> None:
         if not self.vis.poll_events():

@@ -234,5 +234,5 @@ def test_a_whole_session_piloted_with_the_mouse(xdotool, tmp_path, monkeypatch):
     assert con.execute("select started_by, grasped, max_force_n > 0.01 from trials").fetchall() == [("grasp", 1, 1)]
     assert con.execute("select device from sessions").fetchone()[0] == "mouse"
     assert not [x for x in rec.texts if MODEL_WORDS.search(x)]
-    assert any(x.startswith("force ") for x in rec.texts)  # the force is shown as a number
+    assert any(x.startswith("force: ") for x in rec.texts)  # the force is shown as a number
 
