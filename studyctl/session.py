@@ -238,6 +238,10 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
     shown = None
     try:
         protocol = store.protocol()
+        if view == "window":  # before anything is written: no display is a clean error, not a half-made session
+            from sim.view import open_view
+
+            shown = open_view("window", _scene(protocol, protocol.conditions[0], device), show_force=device == "mouse")
         if not store.rows("select code from participants where code = ?", (code,)):
             raise StoreError(f"participant {code}: not registered; add with `studyctl participants add`")
         sessions = store.rows("select * from sessions where code = ? order by id", (code,))
@@ -275,10 +279,6 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
             ref_scene = _scene(protocol, "fem", "simulated")
             answers = SyntheticAnswers(participant, ref_scene.model, ref_scene.mesh)
         paced = time_scale > 0 and not synthetic  # a person sets the pace
-        if view == "window":
-            from sim.view import open_view
-
-            shown = open_view("window", _scene(protocol, order[0], device), show_force=device == "mouse")
         answerer = answers or (WindowAnswers(shown) if answer_with == "window" else TerminalAnswers(view=shown))
         screens = _Screens(shown, say)
         keys = terminal_keys if paced else None

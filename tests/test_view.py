@@ -37,13 +37,21 @@ def xdotool(display):
 
 
 class Recorder:
-    """Wraps the view: every text it shows, and a screenshot at each change of its main message."""
+    """Wraps the view: every text it shows, and a screenshot at each change of its main message.
+    A watchdog closes the views after `limit_s`, so a lost X event fails the test, never hangs it."""
 
-    def __init__(self, monkeypatch):
+    def __init__(self, monkeypatch, limit_s: float = 150.0):
         from sim.view import ParticipantView
 
         self.texts, self.shots, self.views = [], [], []
         rec = self
+
+        def watchdog():
+            time.sleep(limit_s)
+            for v in rec.views:
+                v.closed = True  # paced runs stop, the window questionnaire raises
+
+        threading.Thread(target=watchdog, daemon=True).start()
         set_text, draw, idle = ParticipantView.set_text, ParticipantView.draw, ParticipantView.idle
 
         def set_text_spy(view, **slots):
@@ -60,6 +68,8 @@ class Recorder:
 
         def draw_spy(view, displacement, hands, read_t=None):
             draw(view, displacement, hands, read_t)
+            if view not in rec.views:
+                rec.views.append(view)
             rec.hands = hands
             shoot(view, hands, displacement)
 
@@ -236,3 +246,61 @@ def test_a_whole_session_piloted_with_the_mouse(xdotool, tmp_path, monkeypatch):
     assert not [x for x in rec.texts if MODEL_WORDS.search(x)]
     assert any(x.startswith("force: ") for x in rec.texts)  # the force is shown as a number
 
+
+
+def test_the_experimenter_ends_training_early_and_starts_a_trial_in_which_nothing_is_grasped(xdotool, tmp_path, monkeypatch):
+    from studyctl.session import run_session
+
+    db = tmp_path / "s.db"
+    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, trial_seconds=1.0, training=1.0, conditions=("fem",)), "--db", db)
+    studyctl("participants", "add", "P01", "--db", db)
+    rec = Recorder(monkeypatch)
+    done = threading.Event()
+
+    def experimenter():
+        pressed = set()
+        while not done.is_set():
+            w = _window()
+            text = rec.views[-1].text() if rec.views else {}
+            if w and text.get("top") == "Training" and "e" not in pressed:
+                time.sleep(1.0)
+                _xdotool("key", "--window", w, "e")
+                pressed.add("e")
+            elif w and text.get("center") == "Grasp the brain to start" and "space" not in pressed:
+                _xdotool("key", "--window", w, "space")
+                pressed.add("space")
+            elif w and "space" in pressed:
+                _xdotool("key", "--window", w, "n")
+            time.sleep(0.3)
+
+    t = threading.Thread(target=experimenter, daemon=True)
+    t.start()
+    try:
+        out = run_session(db, "P01", device="mouse", view="window", answer_with="window", time_scale=1.0)
+    finally:
+        done.set()
+        t.join()
+    assert out["answers"] == 9
+    import sqlite3
+
+    con = sqlite3.connect(db)
+    detail = json.loads(con.execute("select detail from events where kind = 'training_done'").fetchone()[0])
+    assert detail["ended_early"] and detail["by"] == "e" and 0.5 < detail["ran_s"] < 30 and detail["planned_s"] == 60
+    assert con.execute("select started_by, grasped, trace_ticks from trials").fetchall() == [("key", 0, 1000)]
+    assert con.execute("select count(*) from answers where answer = 0").fetchone()[0] == 9
+
+
+def test_clean_errors_for_a_window_without_a_display_and_a_mouse_without_a_window(tmp_path, monkeypatch):
+    db = tmp_path / "s.db"
+    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, conditions=("fem",)), "--db", db)
+    studyctl("participants", "add", "P01", "--db", db)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    res = studyctl("session", "run", "--db", db, "--participant", "P01")
+    assert res.exit_code == 1 and "no display" in res.output and len(res.output.strip().splitlines()) == 1
+    res = studyctl("session", "run", "--db", db, "--participant", "P01", "--device", "mouse", "--view", "none")
+    assert res.exit_code == 1 and "--device mouse" in res.output and "--view window" in res.output
+    res = studyctl("sim", "live")
+    assert res.exit_code == 1 and "no display" in res.output
+    import sqlite3
+
+    assert sqlite3.connect(db).execute("select count(*) from sessions").fetchone()[0] == 0  # nothing half-written
