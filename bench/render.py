@@ -1,4 +1,5 @@
-"""Offscreen rendering of the brain (open3d legacy OpenGL on EGL): ms per frame."""
+"""Offscreen rendering of the brain (the participant view's renderer, open3d's classic OpenGL
+on EGL, no window): ms per 640x480 frame."""
 
 from __future__ import annotations
 
@@ -9,15 +10,21 @@ from sim.mesh import load_mesh
 
 
 def main() -> None:
-    from sim.render import BrainRenderer
+    from sim.view import HandState, ParticipantView
 
     mesh = load_mesh()
-    r = BrainRenderer(mesh, 640, 480)
+    r = ParticipantView(mesh, width=640, height=480, visible=False)
     rng = np.random.default_rng(1)
     mags = rng.uniform(0, 1, mesh.n_vertices)
-    hands = [(mesh.vertices[3386], np.array([-1.0, 0, 0])), (mesh.vertices[13629], np.array([1.0, 0, 0]))]
-    r.render(mesh.vertices, mags, hands)  # warm-up
-    report("render 640x480, brain + two hands", each_call(lambda: r.render(mesh.vertices, mags, hands), 30), "ms", target=33.0)
+    hands = [HandState(tuple(mesh.vertices[3386])), HandState(tuple(mesh.vertices[13629]))]
+    u = np.zeros_like(mesh.vertices)
+
+    def frame():
+        r.draw(u, hands, heat01=mags)
+        r.image()
+
+    frame()  # warm-up
+    report("render 640x480, brain + two hands", each_call(frame, 30), "ms", target=33.0)
     r.close()
 
 

@@ -21,8 +21,8 @@ model = scene.model
 t_ready = time.perf_counter() - t0
 r = run_scene(scene, duration=0.2, time_scale=0, snapshots=scene.spec.renderer.kind == "offscreen")
 if scene.spec.renderer.kind == "offscreen":
-    from sim.render import BrainRenderer
-    BrainRenderer(scene.mesh, 320, 240).render(scene.mesh.vertices, r.snapshots[-1].displacement[:, 0] * 0, [])
+    from sim.view import ParticipantView
+    ParticipantView(scene.mesh, width=320, height=240, visible=False).draw(None, [])
 total = time.perf_counter() - t0
 mods = sorted(sys.modules)
 watch = ["open3d", "sim.render", "sim.models.fem", "sim.models.mass_spring", "sim.models.plate_spring",

@@ -383,13 +383,6 @@ class Scene:
                 devices[i] = d
         return devices
 
-    def make_renderer(self):
-        """The offscreen renderer; importing it loads open3d, so only call when rendering."""
-        from sim.render import BrainRenderer
-
-        r = self.spec.renderer
-        return BrainRenderer(self.mesh, r.width, r.height)
-
 
 def build_scene(path: str | Path, model: str | None = None) -> Scene:
     return Scene(load_scene(path), model)

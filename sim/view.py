@@ -26,6 +26,7 @@ import numpy as np
 
 from sim.errors import ViewError
 
+SKIN = (0.93, 0.76, 0.63)
 TISSUE = np.array([0.88, 0.80, 0.78])
 PATCH = np.array([0.20, 0.55, 0.95])  # the grasped patch
 TEXT = (0.05, 0.05, 0.12)
@@ -36,6 +37,48 @@ KEYS = {32: "space", 257: "enter", 256: "escape", **{ord(c): c.lower() for c in 
 HEAT_FULL_M = 0.012  # displacement drawn at full heat colour
 FORCE_ARROW_M_PER_N = 0.08
 WHEEL_M = 0.002  # depth per wheel step
+
+
+def hand_mesh():
+    """A stylised pinching hand, fingertips at the origin, +x along the pull, +z up (metres)."""
+    import open3d as o3d
+
+    parts = []
+    for k, y in enumerate((-0.013, -0.0045, 0.0045, 0.013)):  # four fingers
+        length = 0.036 - 0.003 * abs(k - 1.5)
+        f = o3d.geometry.TriangleMesh.create_cylinder(radius=0.0042, height=length, resolution=12)
+        f.translate((0.0, y, length / 2 + 0.003))
+        parts.append(f)
+        tip = o3d.geometry.TriangleMesh.create_sphere(radius=0.0042, resolution=8)
+        tip.translate((0.0, y, 0.003))
+        parts.append(tip)
+    palm = o3d.geometry.TriangleMesh.create_box(width=0.016, height=0.040, depth=0.032)
+    palm.translate((-0.008, -0.020, 0.036))
+    parts.append(palm)
+    thumb = o3d.geometry.TriangleMesh.create_cylinder(radius=0.0048, height=0.034, resolution=12)
+    thumb.rotate(o3d.geometry.get_rotation_matrix_from_xyz((0.0, -0.6, 0.0)), center=(0, 0, 0))
+    thumb.translate((-0.012, 0.0, 0.018))
+    parts.append(thumb)
+    wrist = o3d.geometry.TriangleMesh.create_cylinder(radius=0.012, height=0.040, resolution=16)
+    wrist.translate((0.0, 0.0, 0.088))
+    parts.append(wrist)
+    mesh = parts[0]
+    for p in parts[1:]:
+        mesh += p
+    mesh.scale(0.7, center=(0.0, 0.0, 0.0))
+    mesh.paint_uniform_color(SKIN)
+    return mesh
+
+
+def hand_pose(point, direction) -> np.ndarray:
+    x = np.asarray(direction, dtype=np.float64)
+    x = x - x[2] * np.array([0.0, 0.0, 1.0])
+    x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-9 else np.array([1.0, 0.0, 0.0])
+    z = np.array([0.0, 0.0, 1.0])
+    y = np.cross(z, x)
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, point
+    return T
 
 
 @dataclass
@@ -54,8 +97,6 @@ class ParticipantView:
                  visible: bool = True, title: str = "Brain surgery simulator", show_force: bool = False,
                  grasp_radius: float = 0.005, heat: bool = False):
         import open3d as o3d
-
-        from sim.render import hand_mesh
 
         self.o3d = o3d
         o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
@@ -118,6 +159,9 @@ class ParticipantView:
         from scipy.spatial import cKDTree
 
         self._rest_tree = cKDTree(mesh.vertices)
+        import matplotlib
+
+        self.cmap = matplotlib.colormaps["inferno"]
         self.grasp_radius = grasp_radius
         self._texts: dict[str, tuple[str, object]] = {}
         self._positions = mesh.vertices
@@ -186,16 +230,20 @@ class ParticipantView:
         return m
 
     # -- drawing -----------------------------------------------------------------------------
-    def draw(self, displacement, hands: list[HandState], read_t: float | None = None) -> None:
+    def draw(self, displacement, hands: list[HandState], read_t: float | None = None, heat01=None) -> None:
         """Draw one frame and present it. `read_t` (perf_counter) is when the devices were read
-        for this state: motion-to-photon is measured from there to the presented frame."""
+        for this state: motion-to-photon is measured from there to the presented frame.
+        `heat01` (per vertex, 0..1) colours the tissue by it (the analyst's pictures)."""
         o3d = self.o3d
         start = time.perf_counter()
         u = np.zeros_like(self.mesh.vertices) if displacement is None else np.asarray(displacement, dtype=np.float64)
         self._positions = self.mesh.vertices + u
-        if self.heat:
-            w = np.clip(np.linalg.norm(u, axis=1) / HEAT_FULL_M, 0.0, 1.0)[:, None]
-            colours = (1 - w) * TISSUE + w * np.array([0.80, 0.25, 0.15])
+        if heat01 is None and self.heat:
+            heat01 = np.linalg.norm(u, axis=1) / HEAT_FULL_M
+        if heat01 is not None:  # tissue colour where nothing moves, then the inferno map
+            heat = np.asarray(heat01, dtype=np.float64)
+            w = np.clip(heat * 4.0, 0.0, 1.0)[:, None]
+            colours = (1 - w) * TISSUE + w * self.cmap(0.25 + 0.7 * np.clip(heat, 0.0, 1.0))[:, :3]
         else:
             colours = np.tile(TISSUE, (len(u), 1))
         for h in hands:
@@ -206,14 +254,12 @@ class ParticipantView:
         self.brain.vertex_colors = o3d.utility.Vector3dVector(colours)
         self.brain.compute_vertex_normals()
         self.vis.update_geometry(self.brain)
-        from sim.render import _pose
-
         while len(self.hands) < len(hands):
             m = o3d.geometry.TriangleMesh(self._hand_rest)
             self.vis.add_geometry(m, reset_bounding_box=False)
             self.hands.append(m)
         for k, (m, h) in enumerate(zip(self.hands, hands)):
-            T = _pose(h.position, self.pulls[k % len(self.pulls)])
+            T = hand_pose(h.position, self.pulls[k % len(self.pulls)])
             m.vertices = o3d.utility.Vector3dVector(self._hand_vertices @ T[:3, :3].T + T[:3, 3])
             m.compute_vertex_normals()
             self.vis.update_geometry(m)

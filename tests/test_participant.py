@@ -14,7 +14,7 @@ import pandas as pd
 
 from studyctl.store import Store
 from studyctl.traces import read_trace
-from tests.test_study import fast_protocol, studyctl
+from tests.test_study import fast_protocol, pty_session, studyctl
 
 MODEL_WORDS = re.compile(r"plate.?spring|mass.?spring|\bfem\b|finite|element|corotational|neo.?hookean|young|poisson", re.I)
 
@@ -107,34 +107,20 @@ def test_sigkill_mid_trial_loses_only_that_trial_and_resumed_answers_use_every_t
 
 
 def test_real_time_session_through_a_pty_discards_keys_typed_during_training_and_names_no_model(tmp_path):
-    import pty
-
     db = tmp_path / "s.db"
     studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, trial_seconds=1.0, training=0.05), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
-    pid, fd = pty.fork()
-    if pid == 0:  # a person's session on a terminal, real time, no window
-        os.execv(sys.executable, [sys.executable, "-m", "studyctl.cli", "session", "run", "--db", str(db), "--participant", "P01", "--view", "none"])
-    out = b""
-    typed_early = False
-    deadline = time.time() + 120
-    while time.time() < deadline:
-        try:
-            chunk = os.read(fd, 4096)
-        except OSError:
-            break
-        if not chunk:
-            break
-        out += chunk
-        if not typed_early and b"training:" in out:
+    typed = []
+
+    def during_training(fd, out):
+        if not typed and b"training:" in out:
             time.sleep(0.5)
             os.write(fd, b"n")  # a key typed during training, no Enter: must not answer anything
-            typed_early = True
-        if out.rstrip().endswith(b"[y/n]"):
-            os.write(fd, b"y\n")
-            out += b"<sent>"
-    os.waitpid(pid, 0)
-    text = out.decode(errors="replace")
+            typed.append(True)
+
+    text = pty_session(["session", "run", "--db", db, "--participant", "P01", "--view", "none"], lambda: "y", timeout=120,
+                       on_output=during_training)
+    typed_early = bool(typed)
     assert typed_early and "complete" in text, text
     assert "Please answer y or n." not in text  # the early "n" never reached a question
     assert not MODEL_WORDS.search(text), MODEL_WORDS.search(text)

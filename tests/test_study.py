@@ -212,18 +212,17 @@ def test_exports_never_contain_identifying_fields(tmp_path):
     assert "P01" in (tmp_path / "csv" / "answers.csv").read_text()
 
 
-def test_terminal_questionnaire_through_a_real_pty(tmp_path):
+def pty_session(argv, answer, timeout=60.0, on_output=None) -> str:
+    """Run `studyctl ARGV` on a real pseudo-terminal; each time the output ends with a "[y/n]"
+    prompt, type `answer()` and Enter. `on_output(fd, text so far)` may type more. Returns all
+    the terminal showed."""
     import pty
 
-    db = tmp_path / "s.db"
-    studyctl("study", "init", "--protocol", fast_protocol(tmp_path, conditions=("plate_spring",), trials=1), "--db", db)
-    studyctl("participants", "add", "P01", "--db", db)
     pid, fd = pty.fork()
-    if pid == 0:  # the child: a real session on a terminal, simulator at full speed
-        os.execv(sys.executable, [sys.executable, "-m", "studyctl.cli", "session", "run", "--db", str(db), "--participant", "P01", "--time-scale", "0"])
+    if pid == 0:  # the child: a real session on a terminal
+        os.execv(sys.executable, [sys.executable, "-m", "studyctl.cli", *map(str, argv)])
     out = b""
-    answers = iter(["y", "maybe", "n"] + ["y"] * 8)
-    deadline = time.time() + 60
+    deadline = time.time() + timeout
     while time.time() < deadline:
         try:
             chunk = os.read(fd, 4096)
@@ -232,11 +231,21 @@ def test_terminal_questionnaire_through_a_real_pty(tmp_path):
         if not chunk:
             break
         out += chunk
+        if on_output is not None:
+            on_output(fd, out)
         if out.rstrip().endswith(b"[y/n]"):
-            os.write(fd, (next(answers) + "\n").encode())
+            os.write(fd, (answer() + "\n").encode())
             out += b"<sent>"
     os.waitpid(pid, 0)
-    text = out.decode(errors="replace")
+    return out.decode(errors="replace")
+
+
+def test_terminal_questionnaire_through_a_real_pty(tmp_path):
+    db = tmp_path / "s.db"
+    studyctl("study", "init", "--protocol", fast_protocol(tmp_path, conditions=("plate_spring",), trials=1), "--db", db)
+    studyctl("participants", "add", "P01", "--db", db)
+    answers = iter(["y", "maybe", "n"] + ["y"] * 8)
+    text = pty_session(["session", "run", "--db", db, "--participant", "P01", "--time-scale", "0"], lambda: next(answers))
     assert "Is interaction real and natural? [y/n]" in text and "Please answer y or n." in text
     got = dict(sqlite3.connect(db).execute("select item, answer from answers").fetchall())
     assert len(got) == 9 and got["natural"] == 1 and got["behaviour"] == 0 and got["stable"] == 1

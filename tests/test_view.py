@@ -83,6 +83,23 @@ class Recorder:
         monkeypatch.setattr(ParticipantView, "draw", draw_spy)
 
 
+def _window_session(db, actor, tmp_path, protocol_kw, **session_kw):
+    """A study with one participant, its session run in the window while `actor(done)` (a
+    person or an experimenter at the keyboard and mouse) acts in a thread."""
+    from studyctl.session import run_session
+
+    studyctl("study", "init", "--protocol", _protocol(tmp_path, **protocol_kw), "--db", db)
+    studyctl("participants", "add", "P01", "--db", db)
+    done = threading.Event()
+    t = threading.Thread(target=actor, args=(done,), daemon=True)
+    t.start()
+    try:
+        return run_session(db, "P01", view="window", answer_with="window", time_scale=1.0, **session_kw)
+    finally:
+        done.set()
+        t.join()
+
+
 def _brain_pixels(img):
     return int(np.sum(np.all(img < 245, axis=2)))
 
@@ -109,29 +126,17 @@ def test_sim_run_in_a_window_reports_the_view_and_saves_the_last_frame(display, 
 def test_a_paced_session_in_the_window_shows_instructions_countdown_hands_and_deformation(xdotool, tmp_path, monkeypatch):
     """Simulated (scripted) hands pilot a session; the questionnaire is answered with Y/N keys in
     the window (real X key events). Looks at the screenshots of each screen."""
-    from studyctl.session import run_session
-
     db = tmp_path / "s.db"
-    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=2, trial_seconds=2.0, training=0.05, rest=1.0,
-                                                       conditions=("plate_spring", "fem")), "--db", db)
-    studyctl("participants", "add", "P01", "--db", db)
     rec = Recorder(monkeypatch)
-    done = threading.Event()
 
-    def person():  # presses Y now and then: only keys pressed while a question is shown count
+    def person(done):  # presses Y now and then: only keys pressed while a question is shown count
         while not done.is_set():
             w = _window()
             if w:
                 _xdotool("key", "--window", w, "y")
             time.sleep(0.4)
 
-    t = threading.Thread(target=person, daemon=True)
-    t.start()
-    try:
-        out = run_session(db, "P01", view="window", answer_with="window", time_scale=1.0)
-    finally:
-        done.set()
-        t.join()
+    out = _window_session(db, person, tmp_path, dict(trials=2, trial_seconds=2.0, training=0.05, rest=1.0, conditions=("plate_spring", "fem")))
     assert out["answers"] == 18 and out["order"] in (["A", "B"], ["B", "A"])
     # nothing participant-facing names a model or a parameter
     assert rec.texts and not [x for x in rec.texts if MODEL_WORDS.search(x)]
@@ -203,15 +208,10 @@ def test_the_mouse_grasps_and_pulls_the_brain_in_sim_live(xdotool, tmp_path):
 
 
 def test_a_whole_session_piloted_with_the_mouse(xdotool, tmp_path, monkeypatch):
-    from studyctl.session import run_session
-
     db = tmp_path / "s.db"
-    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, trial_seconds=1.5, conditions=("plate_spring",)), "--db", db)
-    studyctl("participants", "add", "P01", "--db", db)
     rec = Recorder(monkeypatch)
-    done = threading.Event()
 
-    def person():
+    def person(done):
         grasped = False
         while not done.is_set():
             w = _window()
@@ -230,13 +230,7 @@ def test_a_whole_session_piloted_with_the_mouse(xdotool, tmp_path, monkeypatch):
                 _xdotool("key", "--window", w, "n")
             time.sleep(0.3)
 
-    t = threading.Thread(target=person, daemon=True)
-    t.start()
-    try:
-        out = run_session(db, "P01", device="mouse", view="window", answer_with="window", time_scale=1.0)
-    finally:
-        done.set()
-        t.join()
+    out = _window_session(db, person, tmp_path, dict(trials=1, trial_seconds=1.5, conditions=("plate_spring",)), device="mouse")
     assert out["answers"] == 9
     import sqlite3
 
@@ -249,15 +243,10 @@ def test_a_whole_session_piloted_with_the_mouse(xdotool, tmp_path, monkeypatch):
 
 
 def test_the_experimenter_ends_training_early_and_starts_a_trial_in_which_nothing_is_grasped(xdotool, tmp_path, monkeypatch):
-    from studyctl.session import run_session
-
     db = tmp_path / "s.db"
-    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, trial_seconds=1.0, training=1.0, conditions=("fem",)), "--db", db)
-    studyctl("participants", "add", "P01", "--db", db)
     rec = Recorder(monkeypatch)
-    done = threading.Event()
 
-    def experimenter():
+    def experimenter(done):
         pressed = set()
         while not done.is_set():
             w = _window()
@@ -273,13 +262,7 @@ def test_the_experimenter_ends_training_early_and_starts_a_trial_in_which_nothin
                 _xdotool("key", "--window", w, "n")
             time.sleep(0.3)
 
-    t = threading.Thread(target=experimenter, daemon=True)
-    t.start()
-    try:
-        out = run_session(db, "P01", device="mouse", view="window", answer_with="window", time_scale=1.0)
-    finally:
-        done.set()
-        t.join()
+    out = _window_session(db, experimenter, tmp_path, dict(trials=1, trial_seconds=1.0, training=1.0, conditions=("fem",)), device="mouse")
     assert out["answers"] == 9
     import sqlite3
 
