@@ -11,7 +11,7 @@ LIVE_HELP = "Left button: grasp with the left hand. Right button: the right hand
 
 
 def run_view(scene, view: str = "window", duration: float | None = None, time_scale: float = 1.0,
-             screenshot: Path | None = None, live: bool = False) -> RunResult:
+             screenshot: Path | None = None, live: bool = False, snapshots: bool = False) -> RunResult:
     """Run `scene` in real time while the participant view draws every visual frame. With
     `live`, the run lasts until Q, Escape or the window is closed (or `duration`)."""
     from sim.errors import ParameterError
@@ -31,7 +31,7 @@ def run_view(scene, view: str = "window", duration: float | None = None, time_sc
             def caption(phase, left):
                 return {"top": f"{left:4.1f} s left", "bottom": "", "center": ""}
         pacing = Pacing(view=shown, caption=caption, stop_keys=("q", "escape"))
-        result = run_scene(scene, duration=duration, time_scale=time_scale, pacing=pacing)
+        result = run_scene(scene, duration=duration, time_scale=time_scale, pacing=pacing, snapshots=snapshots)
         if screenshot is not None and shown is not None:
             shown.screenshot(screenshot)
         return result

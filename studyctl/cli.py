@@ -435,7 +435,8 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
     if view == "window":
         from sim.live import run_view
 
-        result = run_view(scene, "window", duration=duration, time_scale=time_scale, screenshot=screenshot)
+        result = run_view(scene, "window", duration=duration, time_scale=time_scale, screenshot=screenshot,
+                          snapshots=frames_dir is not None and scene.spec.renderer.kind == "offscreen")
     else:
         result = run_scene(scene, duration=duration, time_scale=time_scale, snapshots=frames_dir is not None and view == "offscreen")
     stats = result.stats()
