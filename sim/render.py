@@ -29,7 +29,8 @@ def render_snapshots(result, scene, out_dir: Path, progress: Callable[[int, int]
 
     mesh = scene.mesh
     r = scene.spec.renderer
-    renderer = ParticipantView(mesh, pulls=[h.pull for h in scene.spec.hands], width=r.width, height=r.height, visible=False)
+    renderer = ParticipantView(mesh, pulls=[h.pull for h in scene.spec.hands], width=r.width, height=r.height, visible=False,
+                               camera=scene.spec.view)
     scale = max(float(np.linalg.norm(s.displacement, axis=1).max()) for s in result.snapshots) or 1e-3
     total = len(result.snapshots)
     norm = matplotlib.colors.Normalize(0.0, scale * 1e3)

@@ -3,8 +3,10 @@
 Two clocks, one path each:
 
 - real time (``time_scale > 0``): the servo loop runs in its own process
-  (sim/servo_process.py) for simulated, mouse and replay devices, paced by sleep-then-spin on
-  the wall clock (scaled by `time_scale`). The visual step (grasps, deformation, snapshots)
+  (sim/servo_process.py) for every device: simulated, mouse and replay devices paced by
+  sleep-then-spin on the wall clock (scaled by `time_scale`), real OpenHaptics devices by the
+  HD library's scheduler thread in that process. A session keeps one servo process (and its
+  devices) for all its runs (`servo=`). The visual step (grasps, deformation, snapshots)
   and the participant view (`Pacing`: drawing, pointer, keys, on-screen text) run in the
   calling process and cannot delay the servo. A paced run can wait for the first grasp (or a
   start key) before its clock starts, and a stop key ends it early. Tick intervals are
@@ -12,15 +14,12 @@ Two clocks, one path each:
 - lockstep (``time_scale == 0``): one thread, simulated time only, as fast as the machine
   allows; deterministic for the same scene. Used by tests, replays and synthetic studies.
 
-OpenHaptics devices still run on the HD library's scheduler in this process ("scheduled");
-moving them into the servo process is issue 14. `--frames` pictures are rendered after the run
-from the snapshots.
+`--frames` pictures are rendered after the run from the snapshots.
 """
 
 from __future__ import annotations
 
 import math
-import threading
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -42,6 +41,7 @@ class Pacing:
     stop_keys: tuple[str, ...] = ()
     caption: Callable[[str, float], dict] | None = None  # (phase "waiting"/"running", seconds left) -> view text
     keys: Callable[[], list[str]] | None = None  # another key source (the experimenter's terminal)
+    notify: Callable[[str], None] | None = None  # the devices' notices (calibration, warm motors) for the experimenter
 
 
 @dataclass
@@ -162,6 +162,7 @@ class RunResult:
     waited_s: float = 0.0  # a paced run: seconds before its clock started
     ended_early: str | None = None  # a paced run: the key (or "window closed") that ended it
     view: dict | None = None  # the participant view's statistics
+    pacer: str | None = None  # real time: "process" (its own clock) or "hd-scheduler" (real devices)
 
     def stats(self) -> dict:
         """The summary `studyctl sim run --json` prints."""
@@ -189,6 +190,7 @@ class RunResult:
             "events": dict(Counter(e.kind for e in self.events)),
             "model_diagnostics": self.model_diagnostics,
             "started_by": self.started_by,
+            "pacer": self.pacer,
             "ended_early": self.ended_early,
             **({"view": self.view} if self.view is not None else {}),
         }
@@ -207,12 +209,13 @@ def _percentiles(values: np.ndarray, qs, with_max=False) -> dict:
 
 
 def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, snapshots: bool = False,
-              pacing: Pacing | None = None) -> RunResult:
+              pacing: Pacing | None = None, servo=None) -> RunResult:
     """Run `scene` (a `sim.scene.Scene`) for `duration` simulated seconds.
 
-    In real time (`time_scale > 0`) the servo runs in its own process; `pacing` adds the
-    participant view, waiting for a grasp and stop keys. `time_scale == 0` is lockstep.
-    OpenHaptics devices run on their library's scheduler in this process.
+    In real time (`time_scale > 0`) the servo runs in its own process: `servo`, a
+    `sim.servo_process.ServoProcess` kept open across runs (a session's), or one opened for
+    this run; `pacing` adds the participant view, waiting for a grasp and stop keys.
+    `time_scale == 0` is lockstep (not for real devices).
     """
     from sim.errors import ParameterError
 
@@ -228,35 +231,30 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
         raise ParameterError("the participant view and paced trials need real time (time scale > 0)")
     if hasattr(model, "reset"):  # every run starts from undeformed tissue
         model.reset()
-    if time_scale > 0 and all(h.device != "openhaptics" for h in spec.hands):
-        return _run_process(scene, model, duration, rate, time_scale, snapshots, pacing)
+    if time_scale > 0:
+        return _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, servo)
+    if any(h.device in ("openhaptics", "mouse") for h in spec.hands):
+        raise ParameterError(f"device {next(h.device for h in spec.hands if h.device in ('openhaptics', 'mouse'))}: "
+                             "a person's device runs in real time only (time scale > 0)")
     devices = scene.open_devices()
     hands = [Hand(index=i, name=h.name, device=d) for i, (h, d) in enumerate(zip(spec.hands, devices))]
     peak = min(d.spec.peak_force_n for d in devices)
-    servo_loop = ServoLoop(model=model, hands=hands, peak_force=peak)
+    continuous = min(d.spec.continuous_force_n for d in devices)
+    servo_loop = ServoLoop(model=model, hands=hands, peak_force=peak, continuous_force=continuous, dt=1.0 / rate)
     snapshot_period = 1.0 / spec.renderer.fps if snapshots else None
     visual = VisualStep(model=model, hands=hands, events=servo_loop.events, snapshot_period=snapshot_period)
     n_ticks = int(round(duration * rate))
-    rig = getattr(devices[0], "rig", None)
     try:
-        if rig is not None:  # real devices: the HD scheduler sets the pace
-            mode = "scheduled"
-            starts, misses, wall = _run_scheduled(rig, servo_loop, visual, n_ticks, rate, spec.visual_rate_hz, pacing)
-        else:
-            mode = "lockstep"
-            starts, misses, wall = _run_lockstep(servo_loop, visual, n_ticks, rate, spec.visual_rate_hz)
+        starts, misses, wall = _run_lockstep(servo_loop, visual, n_ticks, rate, spec.visual_rate_hz)
     finally:
         for d in devices:
             d.close()
-    result = _result(scene, model, mode, time_scale, duration, rate, [h.name for h in hands], servo_loop.rows.array(), starts, misses, wall,
-                     visual, servo_loop.events)
-    if pacing is not None and pacing.view is not None:
-        result.view = pacing.view.stats()
-    return result
+    return _result(scene, model, "lockstep", time_scale, duration, rate, [h.name for h in hands], servo_loop.rows.array(), starts, misses,
+                   wall, visual, servo_loop.events)
 
 
-def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing) -> RunResult:
-    from sim.servo_process import run_in_process
+def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, servo) -> RunResult:
+    from sim.servo_process import ServoProcess
 
     spec = scene.spec
     n_ticks = int(round(duration * rate))
@@ -266,12 +264,19 @@ def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing) ->
     frame = _paced_frame(pacing, duration, rate, state) if pacing is not None else None
     if pacing is not None and pacing.view is not None:
         pacing.view.reset_stats()
-    out, events = run_in_process(scene, visual, n_ticks, rate, spec.visual_rate_hz, time_scale, frame, wait=bool(pacing and pacing.wait_for_grasp))
+    own = servo is None
+    sp = ServoProcess(scene, time_scale) if own else servo
+    try:
+        out, events = sp.run(scene, visual, n_ticks, spec.visual_rate_hz, frame, wait=bool(pacing and pacing.wait_for_grasp))
+    finally:
+        if own:
+            sp.close()
     names = [h.name for h in spec.hands]
     result = _result(scene, model, "realtime-process", time_scale, duration, rate, names, out["rows"], out["starts"], out["misses"], out["wall"],
                      visual, events)
     result.started_by = out.get("started_by") or "clock"
     result.waited_s = float(out.get("waited_s", 0.0))
+    result.pacer = out.get("pacer")
     result.ended_early = state["ended_early"]
     if pacing is not None and pacing.view is not None:
         result.view = pacing.view.stats()
@@ -299,7 +304,12 @@ def _paced_frame(pacing: Pacing, duration: float, rate: float, state: dict):
         if pacing.keys is not None:
             keys += pacing.keys()
         started = sp.started()
+        while sp.notices:  # e.g. "Right Device needs calibration: put the stylus in its inkwell"
+            state["notice"] = sp.notices.pop(0)
+            if pacing.notify is not None:
+                pacing.notify(state["notice"])
         if view is not None:
+            view.set_text(notice=state.get("notice", ""))
             if pacing.caption is not None:
                 left = duration - sp.ticks() / rate if started else duration
                 view.set_text(**pacing.caption("running" if started else "waiting", max(left, 0.0)))
@@ -361,42 +371,6 @@ def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
             visual(t)
             next_visual += frame
     return starts, 0, clock() - begin
-
-
-def _run_scheduled(rig, servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: float, visual_rate: float, pacing: Pacing | None = None):
-    """Real devices: the OpenHaptics scheduler calls the servo tick; this thread runs visuals
-    (and draws the participant view, if any)."""
-    starts = np.empty(n_ticks)
-    count = [0]
-    done = threading.Event()
-    clock = time.perf_counter
-
-    def tick(t: float) -> None:
-        k = count[0]
-        if k >= n_ticks:
-            done.set()
-            for h in servo.hands:  # the run is over: no force
-                h.device.write_force((0.0, 0.0, 0.0))
-            return
-        starts[k] = clock()
-        servo.tick(k / rate)
-        count[0] = k + 1
-
-    begin = clock()
-    rig.start(tick)
-    try:
-        frame = 1.0 / visual_rate
-        while not done.wait(frame):
-            visual(count[0] / rate)
-            if pacing is not None and pacing.view is not None:
-                pacing.view.draw(visual.last, hand_states(visual.hands), starts[max(count[0] - 1, 0)])
-    finally:
-        rig.stop()
-    n = count[0]
-    misses = int(np.sum(np.diff(starts[:n]) > 1.5 / rate)) if n > 1 else 0
-    for e in rig.errors:
-        servo.events.append(Event(n / rate, -1, "hd_error", str(e)))
-    return starts[:n], misses, clock() - begin
 
 
 def write_outputs(result: RunResult, scene, out_dir: Path, progress: Callable[[int, int], None] | None = None) -> int:

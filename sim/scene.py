@@ -59,7 +59,9 @@ class HandSpec:
     pull_start: float
     pull_time: float
     release_at: float
-    device_name: str | None = None  # OpenHaptics device name, e.g. "Left Device"
+    device_name: str | None = None  # OpenHaptics device name, e.g. "Default Device" or the configured one
+    device_scale: float = 1.0  # scene metres per device metre (the Omni's 160 x 120 x 70 mm workspace)
+    device_origin: Vec3 | None = None  # where the device's origin lies in the scene (default: the grasp target)
     trace: Path | None = None  # replay: a recorded run's trace.csv
     trace_hand: str | None = None  # replay: the recorded hand to follow (default: this name)
 
@@ -87,6 +89,16 @@ class HandSpec:
 
 
 @dataclass(frozen=True)
+class ViewSpec:
+    """The participant's camera: it looks along -front with `up` at the brain's centre; real
+    devices are aligned with it (device right/up/toward the user = screen right/up/out)."""
+
+    front: Vec3 = (0.0, -0.42, 0.91)  # from above and behind, like the surgeon's view
+    up: Vec3 = (0.0, 0.0, 1.0)
+    zoom: float = 0.7
+
+
+@dataclass(frozen=True)
 class RendererSpec:
     kind: str = "none"
     width: int = 640
@@ -109,6 +121,7 @@ class SceneSpec:
     visual_rate_hz: float
     duration: float
     renderer: RendererSpec
+    view: ViewSpec = ViewSpec()
 
     def model_spec(self, name: str | None = None) -> ModelSpec:
         name = name or self.model
@@ -207,6 +220,7 @@ def load_scene(path: str | Path) -> SceneSpec:
     servo = root.table("servo", required=False)
     visual = root.table("visual", required=False)
     renderer = root.table("renderer", required=False)
+    view = root.table("view", required=False)
 
     models_table = root.table("models")
     models: dict[str, ModelSpec] = {}
@@ -248,6 +262,7 @@ def load_scene(path: str | Path) -> SceneSpec:
         servo_rate_hz=servo.number("rate_hz", default=1000.0, lo=100.0, hi=10000.0),
         visual_rate_hz=visual.number("rate_hz", default=30.0, lo=1.0, hi=240.0),
         duration=scene.number("duration", default=3.0, lo=0.0, lo_open=True),
+        view=_view_spec(view),
         renderer=RendererSpec(
             kind=renderer.string("kind", default="none", choices=RENDERERS),
             width=renderer.integer("width", default=640, lo=16, hi=4096),
@@ -255,6 +270,14 @@ def load_scene(path: str | Path) -> SceneSpec:
             fps=renderer.number("fps", default=10.0, lo=0.0, hi=240.0, lo_open=True),
         ),
     )
+
+
+def _view_spec(view: _Reader) -> ViewSpec:
+    d = ViewSpec()
+    front, up = view.vector("front", default=list(d.front)), view.vector("up", default=list(d.up))
+    if np.linalg.norm(front) < 1e-9 or np.linalg.norm(np.cross(front, up)) < 1e-6 * np.linalg.norm(front) * max(np.linalg.norm(up), 1e-9):
+        raise view.error("up", f"{list(up)} must not be zero or parallel to front {list(front)}")
+    return ViewSpec(front=front, up=up, zoom=view.number("zoom", default=d.zoom, lo=0.05, hi=5.0))
 
 
 def _model_spec(table: _Reader, name: str) -> ModelSpec:
@@ -316,6 +339,8 @@ def _hand_spec(h: _Reader) -> HandSpec:
         pull_time=pull_time,
         release_at=release_at,
         device_name=h.string("device_name", default=None) if "device_name" in h.data else None,
+        device_scale=h.number("device_scale", default=1.0, lo=0.1, hi=10.0),
+        device_origin=h.vector("device_origin") if "device_origin" in h.data else None,
         trace=h.path_value("trace") if "trace" in h.data else None,
         trace_hand=h.string("trace_hand") if "trace_hand" in h.data else None,
     )
@@ -331,6 +356,7 @@ class Scene:
         self.spec = spec
         self.model_spec = spec.model_spec(model)
         self.operators = None  # optional PullScripts replacing the scripted hands (simulated devices)
+        self.device_names: list[str] | None = None  # OpenHaptics names given on the command line
 
     def with_device(self, device: str | None) -> Scene:
         """Every hand on `device` (this scene, changed in place; None keeps the file's)."""
@@ -342,6 +368,26 @@ class Scene:
             hands = tuple(dataclasses.replace(h, device=device) for h in self.spec.hands)
             self.spec = dataclasses.replace(self.spec, hands=hands)
         return self
+
+    def device_name(self, i: int) -> str:
+        """The OpenHaptics device name of hand i: set with `devices` (the CLI's --devices), the
+        scene's `device_name`, else "Default Device" for a one-hand scene or the names the
+        vendor's configuration tool suggests for two ("Left Device", "Right Device")."""
+        if self.device_names is not None:
+            return self.device_names[i]
+        h = self.spec.hands[i]
+        if h.device_name:
+            return h.device_name
+        return "Default Device" if len(self.spec.hands) == 1 else ("Left Device", "Right Device")[i]
+
+    def device_frame(self, i: int):
+        """Hand i's real device in the scene: aligned with the view, scaled, its origin at the
+        hand's `device_origin` (default: its grasp target on the surface)."""
+        from sim.devices.base import DeviceFrame, view_rotation
+
+        h = self.spec.hands[i]
+        origin = h.device_origin if h.device_origin is not None else self.script(i).start
+        return DeviceFrame(rotation=view_rotation(self.spec.view.front, self.spec.view.up), scale=h.device_scale, origin=tuple(origin))
 
     def script(self, i: int):
         """The scripted operator of hand i: the scene's, or the one set in `operators`."""

@@ -64,6 +64,8 @@ class Hand:
     fault: str | None = None  # the device fault of the last tick, if any
     ticks: int = 0
     reversals: list = field(default_factory=list)  # times the rendered force flipped direction (chatter monitor)
+    mean_square: float = 0.0  # moving mean of |force|^2 over `budget_tau_s` (the continuous-force budget)
+    over_budget: bool = False
 
 
 def limit_force(force, peak: float) -> tuple[tuple[float, float, float], str | None]:
@@ -118,13 +120,18 @@ class ServoLoop:
     jump_m: float = 0.02  # a larger move in one tick (20 m/s) is a glitch, not a hand
     events: list[Event] = field(default_factory=list)
     rows: TickLog = field(default_factory=TickLog)  # (t, compute_s, io_s, then per hand px py pz fx fy fz button)
-    device_offset: float = 0.0  # devices read at t + this: a paced run's clock starts at its first grasp
     suspended_until: float = -math.inf
     model_fault: bool = False  # the model raised in a force call (logged once)
     # a limit cycle: the force flips direction (both sides above 0.05 N) this many times within
     # the window; a contact stiffer than the device renders at this rate does this
     chatter_reversals: int = 10
     chatter_window_s: float = 0.05
+    # the continuous-force budget: when the force's moving root-mean-square (time constant
+    # budget_tau_s) passes the device's nominal continuous force, the force is held at that
+    # force until the mean falls below 80% of it (the Omni: 0.88 N; motors heat with |F|^2)
+    continuous_force: float = math.inf
+    budget_tau_s: float = 5.0
+    dt: float = 1e-3
 
     def suspend(self, t: float, duration: float, reason: str) -> None:
         """Send zero force to every device until t + duration (e.g. after missed deadlines)."""
@@ -132,10 +139,10 @@ class ServoLoop:
             self.events.append(Event(t, -1, reason))
         self.suspended_until = max(self.suspended_until, t + duration)
 
-    def restart(self, device_t: float, keep_last: bool) -> None:
+    def restart(self, keep_last: bool) -> None:
         """A paced run's clock starts now (at the first grasp, or a start key): the waiting
-        ticks are dropped, the tick just run (kept with `keep_last`: the grasp) becomes t = 0,
-        and devices go on reading their own clock (`device_t` is where t = 0 falls on it)."""
+        ticks are dropped and the tick just run (kept with `keep_last`: the grasp) becomes t = 0.
+        Devices keep their own clock (`tick`'s `device_t`)."""
         last = self.rows.array()[-1].copy() if keep_last and len(self.rows) else None
         t_last = float(last[0]) if last is not None else math.nan
         self.rows.clear()
@@ -143,13 +150,13 @@ class ServoLoop:
         if last is not None:
             last[0] = 0.0
             self.rows.append(last)
-        self.device_offset = device_t
         self.suspended_until = -math.inf
         for h in self.hands:
             h.reversals.clear()
             h.contact_t = 0.0
 
-    def tick(self, t: float) -> None:
+    def tick(self, t: float, device_t: float | None = None) -> None:
+        """One tick at run time `t`; devices read at `device_t` (default `t`)."""
         clock = time.perf_counter
         start = clock()
         row: list[float] = [t, 0.0, 0.0]
@@ -159,7 +166,7 @@ class ServoLoop:
         for i, h in enumerate(hands):
             fault = None
             try:
-                state = h.device.read(t + self.device_offset)
+                state = h.device.read(t if device_t is None else device_t)
                 read_at[i] = clock()
             except Exception as exc:  # a disconnected or failing device: zero force, never a crash
                 state, fault = None, f"device_fault: {exc}"
@@ -227,6 +234,7 @@ class ServoLoop:
                     ramp = max(ramp, 0.0)
                     fx, fy, fz = fx * ramp, fy * ramp, fz * ramp
                 force, kind = limit_force((fx, fy, fz), self.peak_force)
+                force, kind = self._budget(h, force, kind)
                 if self._chatter(h, t, force):  # a limit cycle: drop the grasp, zero force until grasped again
                     force, kind = NO_FORCE, "force_chatter"
                     h.contact = None
@@ -247,7 +255,9 @@ class ServoLoop:
                 force = NO_FORCE
             io = max(io, clock() - read_at[i])  # device read to force out, this hand
             h.force = force
-            mag = math.sqrt(force[0] ** 2 + force[1] ** 2 + force[2] ** 2)
+            m2 = force[0] ** 2 + force[1] ** 2 + force[2] ** 2
+            self._heat(h, m2)
+            mag = math.sqrt(m2)
             if mag > h.max_force:
                 h.max_force = mag
             row.extend(h.position)
@@ -256,6 +266,24 @@ class ServoLoop:
         row[1] = clock() - start
         row[2] = io
         self.rows.append(row)
+
+    def _budget(self, h: Hand, force, kind):
+        """Hold the force at the continuous force while the hand is over its budget."""
+        m2 = force[0] ** 2 + force[1] ** 2 + force[2] ** 2
+        c = self.continuous_force
+        if h.over_budget and m2 > c * c:
+            s = c / math.sqrt(m2)
+            return (force[0] * s, force[1] * s, force[2] * s), "force_budget"
+        return force, kind
+
+    def _heat(self, h: Hand, m2: float) -> None:
+        """The moving mean of |F|^2 (motors heat with it, and cool when the force drops)."""
+        c2 = self.continuous_force ** 2
+        h.mean_square += (m2 - h.mean_square) * self.dt / self.budget_tau_s
+        if not h.over_budget and h.mean_square > c2:
+            h.over_budget = True
+        elif h.over_budget and h.mean_square < 0.64 * c2:
+            h.over_budget = False
 
     def _chatter(self, h: Hand, t: float, force) -> bool:
         p = h.force

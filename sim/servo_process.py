@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import multiprocessing as mp
+import threading
 import time
 from dataclasses import dataclass
 from multiprocessing import shared_memory
@@ -61,36 +62,43 @@ class LawModel:
         return [c.law.force(d) for c, d in zip(contacts, disps)]
 
 
+def _open_device(r, board, rig):
+    if r[0] == "simulated":
+        from sim.devices.simulated import SimulatedOmni
+
+        return SimulatedOmni(r[1], name=r[2])
+    if r[0] == "replay":
+        from sim.devices.replay import ReplayDevice
+
+        return ReplayDevice(r[1], r[2])
+    if r[0] == "mouse":
+        from sim.devices.mouse import MouseDevice
+
+        base = GLOBAL + SLOT * r[1]
+
+        def source(base=base):
+            return (board[base + IN_P], board[base + IN_P + 1], board[base + IN_P + 2]), board[base + IN_BUTTON] > 0.5
+
+        return MouseDevice(source, r[3], name=r[2])
+    from sim.devices.openhaptics import OpenHapticsDevice
+
+    return OpenHapticsDevice(rig, r[4], frame=r[3])
+
+
 def _open_devices(recipes, board=None):
-    devices = []
-    rig_hands = [r for r in recipes if r[0] == "openhaptics"]
-    rig_devices = []
-    if rig_hands:
-        from sim.devices.openhaptics import OpenHapticsDevice, OpenHapticsRig
+    """The devices of `recipes`; real ones share one rig (opened here, started by the runner)."""
+    rig = None
+    names = [r[2] for r in recipes if r[0] == "openhaptics"]
+    if names:
+        from sim.devices.openhaptics import OpenHapticsRig
 
-        rig = OpenHapticsRig([r[2] for r in rig_hands])
-        rig_devices = [OpenHapticsDevice(rig, i, origin=r[3]) for i, r in enumerate(rig_hands)]
-    for r in recipes:
-        if r[0] == "simulated":
-            from sim.devices.simulated import SimulatedOmni
-
-            devices.append(SimulatedOmni(r[1], name=r[2]))
-        elif r[0] == "replay":
-            from sim.devices.replay import ReplayDevice
-
-            devices.append(ReplayDevice(r[1], r[2]))
-        elif r[0] == "mouse":
-            from sim.devices.mouse import MouseDevice
-
-            base = GLOBAL + SLOT * r[1]
-
-            def source(base=base):
-                return (board[base + IN_P], board[base + IN_P + 1], board[base + IN_P + 2]), board[base + IN_BUTTON] > 0.5
-
-            devices.append(MouseDevice(source, r[3], name=r[2]))
-        else:
-            devices.append(rig_devices.pop(0))
-    return devices
+        rig = OpenHapticsRig(names, library=next(r[5] for r in recipes if r[0] == "openhaptics"))
+    try:
+        return [_open_device(r, board, rig) for r in recipes], rig
+    except Exception:
+        if rig is not None:
+            rig.close()
+        raise
 
 
 def _realtime_priority() -> str:
@@ -113,86 +121,130 @@ def _realtime_priority() -> str:
         return "default"
 
 
-def _child(conn, shm_name: str, recipes, hand_names, rate: float, n_ticks: int, time_scale: float, peak: float,
-           miss_streak: int, suspend_s: float, wait: bool):
-    """The servo process. With `wait`, the run's clock starts at the first grasp request (or a
-    "start" message) and runs `n_ticks` from there; waiting ticks render forces as usual but are
-    not kept."""
-    import gc
+class _Runner:
+    """The servo process's state: its devices (opened once, kept across runs), the servo loop,
+    and the current run. `tick` is called at 1 kHz by a pacer: this process's own clock, or the
+    HD library's scheduler thread for real devices; `handle` runs messages from the parent. Both
+    take the lock, so a message never lands in the middle of a tick."""
 
-    shm = shared_memory.SharedMemory(name=shm_name)
-    try:
-        board = np.ndarray((GLOBAL + SLOT * len(recipes),), dtype=np.float64, buffer=shm.buf)
-        try:
-            devices = _open_devices(recipes, board)
-        except Exception as exc:  # reported to the parent as a clean error
-            conn.send(("error", str(exc)))
-            return
-        hands = [Hand(index=i, name=n, device=d) for i, (n, d) in enumerate(zip(hand_names, devices))]
-        model = LawModel()
-        servo = ServoLoop(model=model, hands=hands, peak_force=peak)
-        grasp_seq = [0] * len(hands)
-        starts = np.empty(n_ticks)
-        misses = 0
-        streak = 0
-        priority = _realtime_priority()
-        conn.send(("ready", None))
-        period = 1.0 / (rate * time_scale)
-        gc.disable()
-        clock = time.perf_counter
-        begin = clock()
-        deadline = begin
-        started = not wait
-        started_by = "clock" if started else None
-        stop = False
-        k = 0  # ticks since the process began; the run's clock is k - k0
-        k0 = 0
-        board[STARTED] = 1.0 if started else 0.0
-        while True:
-            while conn.poll():  # contacts and law updates from the visual side
-                msg = conn.recv()
-                kind = msg[0]
-                if kind == "contact":
-                    _, i, point, law, t_contact = msg
-                    if hands[i].button:
-                        hands[i].contact_t = t_contact
-                        hands[i].contact = RemoteContact(i, point, law)
-                elif kind == "laws":
-                    _, laws, pair, unstable = msg
-                    for i, law in laws.items():
-                        c = hands[i].contact
-                        if c is not None:
-                            c.law = law
-                    model.pair, model.unstable = pair, unstable
-                elif kind == "start" and not started:  # the experimenter's key
-                    started, started_by, k0 = True, "key", k
-                    servo.restart(k / rate, keep_last=False)
-                    misses = streak = 0
-                    board[STARTED], board[WAITED] = 1.0, k
-                elif kind == "stop":
-                    stop = True
-            if stop or (started and k - k0 >= n_ticks):
-                break
-            wait_until(deadline, 5e-4)  # spin the last 0.5 ms: wake-ups run late under load
-            now = clock()
-            if started:
-                starts[k - k0] = now
-            if now > deadline + 0.5 * period:
-                misses += 1
-                streak += 1
-                if streak >= miss_streak:
-                    servo.suspend((k - k0) / rate, suspend_s, "deadline_streak")
-            else:
-                streak = 0
-            servo.tick((k - k0) / rate)
+    def __init__(self, conn, board, recipes, hand_names, rate, time_scale, miss_streak, suspend_s):
+        self.conn, self.board, self.rate = conn, board, rate
+        self.period = 1.0 / (rate * time_scale)
+        self.miss_streak, self.suspend_s = miss_streak, suspend_s
+        self.devices, self.rig = _open_devices(recipes, board)
+        self.recipes = list(recipes)
+        self.hands = [Hand(index=i, name=n, device=d) for i, (n, d) in enumerate(zip(hand_names, self.devices))]
+        self.model = LawModel()
+        peak = min(d.spec.peak_force_n for d in self.devices)
+        continuous = min(d.spec.continuous_force_n for d in self.devices)
+        self.servo = ServoLoop(model=self.model, hands=self.hands, peak_force=peak, continuous_force=continuous, dt=1.0 / rate)
+        self.lock = threading.Lock()
+        self.grasp_seq = [0] * len(self.hands)
+        self.k = 0  # ticks since the process began
+        self.k_device = 0  # the devices' clock starts here (each run's begin)
+        self.run: dict | None = None  # the current run; None between runs
+        self.done: dict | None = None  # a finished run's log, sent by the pacer's thread
+        self.closing = False
+        self.last_start = None
+
+    # -- messages ------------------------------------------------------------------------------
+    def handle(self, msg) -> None:
+        with self.lock:
+            kind = msg[0]
+            hands = self.hands
+            if kind == "contact":
+                _, i, point, law, t_contact = msg
+                if self.run is not None and hands[i].button:
+                    hands[i].contact_t = t_contact
+                    hands[i].contact = RemoteContact(i, point, law)
+            elif kind == "laws":
+                _, laws, pair, unstable = msg
+                for i, law in laws.items():
+                    c = hands[i].contact
+                    if c is not None:
+                        c.law = law
+                self.model.pair, self.model.unstable = pair, unstable
+            elif kind == "run":
+                self._begin(*msg[1:])
+            elif kind == "start" and self.run is not None and not self.run["started"]:  # the experimenter's key
+                self._start("key", keep_last=False)
+            elif kind == "stop" and self.run is not None:
+                self._finish()
+            elif kind == "close":
+                if self.run is not None:
+                    self._finish()
+                self.closing = True
+
+    def _begin(self, n_ticks: int, wait: bool, recipes) -> None:
+        """A new run. Scripted and replayed devices are re-made from the run's recipes; mouse and
+        real devices are kept (a rig is opened once per servo process)."""
+        for i, r in enumerate(recipes):
+            if r[0] in ("simulated", "replay") and r != self.recipes[i]:
+                self.devices[i] = self.hands[i].device = _open_device(r, self.board, self.rig)
+                self.hands[i].ticks = 0
+                self.recipes[i] = r
+        self._drop_contacts()
+        self.run = {"n": n_ticks, "wait": wait, "started": False, "started_by": None, "k0": self.k, "k_begin": self.k,
+                    "starts": np.empty(n_ticks), "misses": 0, "streak": 0, "begin": time.perf_counter(), "waited_s": 0.0}
+        self.k_device = self.k  # scripted devices start their script with the run
+        self.board[TICKS], self.board[STARTED] = 0, 0.0
+        if not wait:
+            self._start("clock", keep_last=False)
+
+    def _start(self, by: str, keep_last: bool) -> None:
+        """The run's clock starts at tick `self.k`: the one running now (a grasp, kept) or the next
+        (a key, or a run that does not wait)."""
+        run = self.run
+        run.update(started=True, started_by=by, k0=self.k, misses=0, streak=0, waited_s=(self.k - run["k_begin"]) / self.rate)
+        self.servo.restart(keep_last=keep_last)
+        if keep_last:
+            run["starts"][0] = self.last_start
+        self.board[STARTED] = 1.0
+
+    def _finish(self) -> None:
+        run = self.run
+        n = self.k - run["k0"] if run["started"] else 0
+        rows = self.servo.rows.array() if run["started"] else np.zeros((0, self.servo.rows.width))
+        self.done = {"rows": rows, "events": list(self.servo.events) if run["started"] else [], "starts": run["starts"][:n],
+                     "misses": run["misses"], "wall": time.perf_counter() - run["begin"], "started_by": run["started_by"],
+                     "waited_s": run.get("waited_s", 0.0), "pacer": "hd-scheduler" if self.rig is not None else "process"}
+        self.run = None
+        self._drop_contacts()
+        self.servo.rows.clear()
+        self.servo.events.clear()
+
+    def _drop_contacts(self) -> None:
+        for h in self.hands:
+            h.contact, h.grasp_request = None, None
+
+    # -- the tick ------------------------------------------------------------------------------
+    def tick(self, now: float, late: bool) -> None:
+        with self.lock:
+            run, servo, hands, board = self.run, self.servo, self.hands, self.board
+            self.last_start = now
+            started = run is not None and run["started"]
+            if run is not None:
+                if started:
+                    run["starts"][self.k - run["k0"]] = now
+                if late:
+                    run["misses"] += 1
+                    run["streak"] += 1
+                    if run["streak"] >= self.miss_streak:  # the loop cannot keep time: no force for a while
+                        servo.suspend((self.k - run["k0"]) / self.rate, self.suspend_s, "deadline_streak")
+                else:
+                    run["streak"] = 0
+            t = (self.k - run["k0"]) / self.rate if run is not None else 0.0
+            servo.tick(t, (self.k - self.k_device) / self.rate)
             board[READ_T] = now
-            if not started:
+            if run is None:  # between runs: hands are shown, nothing is grasped or kept
+                for h in hands:
+                    h.grasp_request = None
+                if len(servo.rows) >= 4096:
+                    servo.rows.clear()
+                    servo.events.clear()
+            elif not started:
                 if any(h.grasp_request is not None for h in hands):  # a grasp starts the clock
-                    started, started_by, k0 = True, "grasp", k
-                    servo.restart(k / rate, keep_last=True)
-                    starts[0] = now
-                    misses = streak = 0
-                    board[STARTED], board[WAITED] = 1.0, k
+                    self._start("grasp", keep_last=True)
                 elif len(servo.rows) >= 4096:  # nothing kept while waiting
                     servo.rows.clear()
                     servo.events.clear()
@@ -205,34 +257,104 @@ def _child(conn, shm_name: str, recipes, hand_names, rate: float, n_ticks: int, 
                 board[base + HELD] = 1.0 if h.contact is not None else 0.0
                 if h.grasp_request is not None:
                     board[base + GRASP_AT : base + GRASP_AT + 3] = h.grasp_request
-                    grasp_seq[i] += 1
-                    board[base + GRASP_SEQ] = grasp_seq[i]  # written after the position
+                    self.grasp_seq[i] += 1
+                    board[base + GRASP_SEQ] = self.grasp_seq[i]  # written after the position
                     h.grasp_request = None
-            k += 1
-            board[TICKS] = k - k0 if started else 0
+            self.k += 1
+            run = self.run
+            if run is not None and run["started"]:
+                board[TICKS] = self.k - run["k0"]
+                if self.k - run["k0"] >= run["n"]:
+                    self._finish()
+
+    def send_pending(self) -> None:
+        done, self.done = self.done, None
+        if done is not None:
+            self.conn.send(("done", done))
+        if self.rig is not None:
+            for notice in self.rig.take_notices():  # calibration guidance, warm motors
+                self.conn.send(("notice", notice))
+
+    # -- pacers --------------------------------------------------------------------------------
+    def serve_self_paced(self) -> None:
+        clock, period, conn = time.perf_counter, self.period, self.conn
+        deadline = clock()
+        while not self.closing:
+            while conn.poll():
+                self.handle(conn.recv())
+            if self.closing:
+                break
+            wait_until(deadline, 5e-4)  # spin the last 0.5 ms: wake-ups run late under load
+            now = clock()
+            self.tick(now, now > deadline + 0.5 * period)
+            self.send_pending()
             deadline += period
             if clock() > deadline + period:  # far behind: resynchronise, never burst
                 deadline = clock()
+
+    def serve_hd_paced(self) -> None:
+        """Real devices: the HD scheduler's thread calls the tick; this thread only handles
+        messages (it waits in the pipe's poll, without the interpreter lock)."""
+        clock, period = time.perf_counter, self.period
+        last = [None]
+
+        def hd_tick(_t: float) -> None:
+            now = clock()
+            late = last[0] is not None and now - last[0] > 1.5 * period
+            last[0] = now
+            self.tick(now, late)
+
+        self.rig.start(hd_tick)
+        try:
+            while not self.closing:
+                if self.conn.poll(0.002):
+                    self.handle(self.conn.recv())
+                self.send_pending()
+        finally:
+            self.rig.stop()
+
+
+def _child(conn, shm_name: str, recipes, hand_names, rate: float, time_scale: float, miss_streak: int, suspend_s: float):
+    """The servo process: opens the devices once, then serves runs until told to close."""
+    import gc
+    import sys
+
+    shm = shared_memory.SharedMemory(name=shm_name)
+    runner = None
+    try:
+        board = np.ndarray((GLOBAL + SLOT * len(recipes),), dtype=np.float64, buffer=shm.buf)
+        try:
+            runner = _Runner(conn, board, recipes, hand_names, rate, time_scale, miss_streak, suspend_s)
+        except Exception as exc:  # reported to the parent as a clean error
+            conn.send(("error", str(exc)))
+            return
+        priority = _realtime_priority()
+        sys.setswitchinterval(2e-4)  # the HD thread and the message thread share the interpreter lock
+        conn.send(("ready", priority))
+        gc.disable()  # a full collection is a multi-millisecond pause; the loop allocates little
+        if runner.rig is not None:
+            runner.serve_hd_paced()
+        else:
+            runner.serve_self_paced()
         gc.enable()
-        for h in hands:
-            h.device.write_force((0.0, 0.0, 0.0))
-        for d in devices:
-            d.close()
-        rig = getattr(devices[0], "rig", None) if devices else None
-        if rig is not None:
-            rig.close()
-        n = k - k0 if started else 0
-        rows = servo.rows.array() if started else np.zeros((0, servo.rows.width))
-        conn.send(("done", {"rows": rows, "events": servo.events if started else [], "starts": starts[:n], "misses": misses,
-                            "wall": clock() - begin, "priority": priority, "started_by": started_by, "waited_s": k0 / rate}))
+        runner.send_pending()
     finally:
+        if runner is not None:
+            for h in runner.hands:
+                try:
+                    h.device.write_force((0.0, 0.0, 0.0))
+                    h.device.close()
+                except Exception:
+                    pass
+            if runner.rig is not None:
+                runner.rig.close()
         shm.close()
 
 
-def device_recipes(scene) -> list[tuple]:
+def device_recipes(scene, library: str | None = None) -> list[tuple]:
     """Picklable descriptions of the scene's devices, opened in the servo process."""
     out = []
-    names = ("Left Device", "Right Device")
+    rig_index = 0
     for i, h in enumerate(scene.spec.hands):
         if h.device == "simulated":
             out.append(("simulated", scene.script(i), f"{h.name} (simulated)"))
@@ -241,20 +363,23 @@ def device_recipes(scene) -> list[tuple]:
         elif h.device == "mouse":
             out.append(("mouse", i, f"{h.name} (mouse)", scene.script(i).start))
         else:
-            out.append(("openhaptics", None, h.device_name or names[i], h.script(scene.mesh).start))
+            out.append(("openhaptics", None, scene.device_name(i), scene.device_frame(i), rig_index, library))
+            rig_index += 1
     return out
 
 
 class ServoProcess:
-    """Parent side: start the child, mirror its hands, send contacts and laws, collect the log."""
+    """Parent side of the servo process: start it (devices open once), then serve runs: mirror
+    its hands, send contacts and laws, collect each run's log. Close it when done."""
 
-    def __init__(self, scene, n_ticks: int, time_scale: float = 1.0, peak: float = 3.3, miss_streak: int = 3,
-                 suspend_s: float = 0.1, wait: bool = False):
+    def __init__(self, scene, time_scale: float = 1.0, miss_streak: int = 3, suspend_s: float = 0.1):
         from sim.errors import DeviceError
 
+        self.closed = False
         recipes = device_recipes(scene)
         self.n = len(recipes)
         self.rate = scene.spec.servo_rate_hz
+        self.time_scale = time_scale
         size = GLOBAL + SLOT * self.n
         self.shm = shared_memory.SharedMemory(create=True, size=8 * size)
         self.board = np.ndarray((size,), dtype=np.float64, buffer=self.shm.buf)
@@ -266,18 +391,20 @@ class ServoProcess:
         self.conn, child_conn = ctx.Pipe()
         self.proc = ctx.Process(
             target=_child,
-            args=(child_conn, self.shm.name, recipes, [h.name for h in scene.spec.hands], self.rate, n_ticks, time_scale, peak,
-                  miss_streak, suspend_s, wait),
+            args=(child_conn, self.shm.name, recipes, [h.name for h in scene.spec.hands], self.rate, time_scale, miss_streak, suspend_s),
             daemon=True,
         )
         self.proc.start()
-        kind, payload = self.conn.recv()
+        kind, payload = self.conn.recv() if self.conn.poll(120) else ("error", "the servo process did not start within 120 s")
         if kind == "error":
             self.close()
             raise DeviceError(payload)
+        self.priority = payload
         self.hands = [Hand(index=i, name=h.name, device=None) for i, h in enumerate(scene.spec.hands)]
         self._grasp_seen = [0] * self.n
         self.read_t = 0.0  # when the devices were read for the state last synced
+        self.notices: list[str] = []  # from the devices (calibration, warm motors), for the experimenter
+        self._done = None
 
     def ticks(self) -> int:
         return int(self.board[TICKS])
@@ -285,8 +412,17 @@ class ServoProcess:
     def started(self) -> bool:
         return bool(self.board[STARTED])
 
+    def _receive(self) -> None:
+        while self.conn.poll():
+            kind, payload = self.conn.recv()
+            if kind == "done":
+                self._done = payload
+            elif kind == "notice":
+                self.notices.append(payload)
+
     def sync(self) -> None:
         """Copy the child's latest hand state into the mirrors (and new grasp requests)."""
+        self._receive()
         b = self.board
         self.read_t = float(b[READ_T])
         for i, h in enumerate(self.hands):
@@ -326,21 +462,77 @@ class ServoProcess:
             pair = (held[0].index, held[1].index, p) if p is not None else None
         self.send("laws", laws, pair, bool(getattr(model, "unstable", False)))
 
-    def finish(self, timeout: float = 30.0) -> dict:
-        self.send("stop")
-        result = None
-        if self.conn.poll(timeout):
-            kind, result = self.conn.recv()
-        self.close()
-        return result or {"rows": np.zeros((0, 3)), "events": [], "starts": np.zeros(0), "misses": 0, "wall": math.nan,
-                          "started_by": None, "waited_s": 0.0}
+    def run(self, scene, visual, n_ticks: int, visual_rate: float, frame=None, wait: bool = False) -> tuple[dict, list]:
+        """One run: this process runs the visual step and then `frame(sp, visual)` (the
+        participant view: pointer, drawing, keys), which may return "start" (start a waiting
+        run's clock) or "stop". Returns (the run's servo log, events)."""
+        import os
+
+        self._done = None
+        for h in self.hands:
+            h.contact, h.grasp_request = None, None
+        self.board[TICKS], self.board[STARTED] = 0, 0.0
+        self.send("run", n_ticks, wait, device_recipes(scene))
+        visual.hands = self.hands  # the visual step works on the mirrors
+        own = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+        if len(own) > 1:  # leave the servo's core to the servo: every thread of this process
+            _set_all_threads_affinity(set(own[:-1]))
+        period = 1.0 / (visual_rate * self.time_scale)
+        try:
+            next_frame = time.perf_counter()
+            while self.proc.is_alive() and self._done is None:
+                remaining = next_frame - time.perf_counter()
+                if remaining > 0:
+                    time.sleep(remaining)
+                self.sync()
+                if self._done is not None:
+                    break
+                before = {h.index: h.contact for h in self.hands}
+                visual(self.ticks() / self.rate)
+                for h in self.hands:  # new contacts go to the servo
+                    if h.contact is not None and before[h.index] is not h.contact:
+                        self.send_contact(h.index, h.contact, h.contact_t)
+                self.send_laws(visual.model)
+                if frame is not None:
+                    command = frame(self, visual)
+                    if command == "stop":
+                        break
+                    if command == "start":
+                        self.send("start")
+                next_frame += period
+                if time.perf_counter() > next_frame + period:
+                    next_frame = time.perf_counter()
+            if self._done is None:
+                self.send("stop")
+                deadline = time.perf_counter() + 30.0
+                while self._done is None and self.proc.is_alive() and time.perf_counter() < deadline:
+                    if self.conn.poll(0.05):
+                        self._receive()
+        finally:
+            if len(own) > 1:
+                _set_all_threads_affinity(set(own))
+        out = self._done or {"rows": np.zeros((0, 3)), "events": [], "starts": np.zeros(0), "misses": 0, "wall": math.nan,
+                             "started_by": None, "waited_s": 0.0, "pacer": None}
+        grasps = [e for e in visual.events if e.kind == "grasp" and e.t >= 0.0]
+        events = sorted(list(out["events"]) + grasps, key=lambda e: e.t)
+        return out, events
 
     def close(self) -> None:
-        self.proc.join(timeout=5)
+        if self.closed:
+            return
+        self.closed = True
+        self.send("close")
+        self.proc.join(timeout=10)
         if self.proc.is_alive():
             self.proc.terminate()
         self.shm.close()
         self.shm.unlink()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
 
 
 def _set_all_threads_affinity(cpus: set) -> None:
@@ -358,48 +550,4 @@ def _set_all_threads_affinity(cpus: set) -> None:
             pass
 
 
-def run_in_process(scene, visual, n_ticks: int, rate: float, visual_rate: float, time_scale: float, frame=None, wait: bool = False):
-    """Run the servo in a child process; this process runs the visual step and then
-    `frame(sp, visual)` (the participant view: pointer input, drawing, keys), which may return
-    "start" (start a waiting run's clock) or "stop". Returns (servo log, events)."""
-    import os
-
-    sp = ServoProcess(scene, n_ticks, time_scale, wait=wait)
-    visual.hands = sp.hands  # the visual step works on the mirrors
-    own = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
-    if len(own) > 1:  # leave the servo's core to the servo: every thread of this process
-        _set_all_threads_affinity(set(own[:-1]))
-    period = 1.0 / (visual_rate * time_scale)
-    try:
-        next_frame = time.perf_counter()
-        while sp.proc.is_alive() and not (sp.started() and sp.ticks() >= n_ticks):
-            remaining = next_frame - time.perf_counter()
-            if remaining > 0:
-                time.sleep(remaining)
-            sp.sync()
-            before = {h.index: h.contact for h in sp.hands}
-            visual(sp.ticks() / rate)
-            for h in sp.hands:  # new contacts go to the servo
-                if h.contact is not None and before[h.index] is not h.contact:
-                    sp.send_contact(h.index, h.contact, h.contact_t)
-            sp.send_laws(visual.model)
-            if frame is not None:
-                command = frame(sp, visual)
-                if command == "stop":
-                    break
-                if command == "start":
-                    sp.send("start")
-            next_frame += period
-            if time.perf_counter() > next_frame + period:
-                next_frame = time.perf_counter()
-    finally:
-        out = sp.finish()
-        if len(own) > 1:
-            _set_all_threads_affinity(set(own))
-    grasps = [e for e in visual.events if e.kind == "grasp" and e.t >= 0.0]
-    events = list(out["events"]) + grasps
-    events.sort(key=lambda e: e.t)
-    return out, events
-
-
-__all__ = ["ServoProcess", "run_in_process", "Event"]
+__all__ = ["ServoProcess", "Event"]

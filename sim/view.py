@@ -95,7 +95,7 @@ class ParticipantView:
 
     def __init__(self, mesh, pulls=((-1.0, 0.0, 0.0), (1.0, 0.0, 0.0)), width: int = 1280, height: int = 720,
                  visible: bool = True, title: str = "Brain surgery simulator", show_force: bool = False,
-                 grasp_radius: float = 0.005, heat: bool = False):
+                 grasp_radius: float = 0.005, heat: bool = False, camera=None):
         import open3d as o3d
 
         self.o3d = o3d
@@ -127,9 +127,12 @@ class ParticipantView:
         self.radius = float(np.linalg.norm(hi - lo)) / 2.0
         ctr = self.vis.get_view_control()
         ctr.set_lookat(self.center)
-        ctr.set_front([0.0, -0.42, 0.91])  # from above and behind, like the surgeon's view
-        ctr.set_up([0.0, 0.0, 1.0])
-        ctr.set_zoom(0.7)
+        from sim.scene import ViewSpec
+
+        camera = camera or ViewSpec()  # front, up, zoom: the scene's [view]
+        ctr.set_front(list(camera.front))
+        ctr.set_up(list(camera.up))
+        ctr.set_zoom(camera.zoom)
         self.vis.poll_events()
         self.vis.update_renderer()
         cam = ctr.convert_to_pinhole_camera_parameters()
@@ -140,7 +143,7 @@ class ParticipantView:
         self.eye = -np.linalg.solve(E[:3, :3], E[:3, 3])
         forward = self.center - self.eye
         forward /= np.linalg.norm(forward)
-        right = np.cross(forward, [0.0, 0.0, 1.0])
+        right = np.cross(forward, np.asarray(camera.up, dtype=np.float64))
         right /= np.linalg.norm(right)
         self.R = np.stack([right, np.cross(forward, right), forward])
         self.t = -self.R @ self.eye
@@ -190,7 +193,8 @@ class ParticipantView:
         layout = {"top": (24, 34, 22, TEXT, "left"), "center": (self.width / 2, 92, 34, ACCENT, "center"),
                   "bottom": (self.width / 2, self.height - 30, 20, TEXT, "center"),
                   "corner": (self.width - 24, self.height - 62, 18, ARROW, "right"),
-                  "question": (self.width / 2, 92, 24, TEXT, "center")}
+                  "question": (self.width / 2, 92, 24, TEXT, "center"),
+                  "notice": (24, self.height - 62, 18, ACCENT, "left")}
         for slot, text in slots.items():
             text = text or ""
             old = self._texts.get(slot)
@@ -413,4 +417,4 @@ def open_view(kind: str, scene, show_force: bool = False):
         return None
     pulls = [h.pull for h in scene.spec.hands]
     # one patch size for every model: a model-specific one would be a cue in a blind study
-    return ParticipantView(scene.mesh, pulls=pulls, visible=(kind == "window"), show_force=show_force)
+    return ParticipantView(scene.mesh, pulls=pulls, visible=(kind == "window"), show_force=show_force, camera=scene.spec.view)

@@ -216,7 +216,7 @@ class _Screens:
 
 def run_session(db, code: str, device: str = "simulated", synthetic: bool = False, resume: bool = False,
                 time_scale: float | None = None, answers=None, seed: int = 0, progress: Callable[[str], None] | None = None,
-                session_id: int | None = None, view: str = "none", answer_with: str = "terminal") -> dict:
+                session_id: int | None = None, view: str = "none", answer_with: str = "terminal", device_names: list[str] | None = None) -> dict:
     from sim.run import Pacing, run_scene
     from studyctl.study import assign_order
     from studyctl.traces import trial_traces, write_trace
@@ -229,19 +229,29 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
         raise InputError(f"--view: {view!r} is not none or window")
     if view == "window" and time_scale <= 0:
         raise InputError("--view window: the participant view needs real time (--time-scale > 0)")
+    if device in ("openhaptics", "mouse") and time_scale <= 0:
+        raise InputError(f"--device {device}: a person's device runs in real time only; leave out --time-scale 0")
     if device == "mouse" and view != "window":
         raise InputError("--device mouse: the mouse drives the hands in the participant view; add --view window")
     if answer_with == "window" and view != "window":
         raise InputError("--answers window: answering with keys in the window needs --view window")
     store = Store(db)
     say = progress or (lambda msg: None)
-    shown = None
+    shown = servo = None
     try:
         protocol = store.protocol()
-        if view == "window":  # before anything is written: no display is a clean error, not a half-made session
+        first = _scene(protocol, protocol.conditions[0], device)
+        if device_names is not None:
+            first.device_names = device_names
+        # before anything is written: no display or no device is a clean error, not a half-made session
+        if view == "window":
             from sim.view import open_view
 
-            shown = open_view("window", _scene(protocol, protocol.conditions[0], device), show_force=device == "mouse")
+            shown = open_view("window", first, show_force=device == "mouse")
+        if time_scale > 0:  # one servo process for the session: devices opened once, kept across trials
+            from sim.servo_process import ServoProcess
+
+            servo = ServoProcess(first, time_scale)
         if not store.rows("select code from participants where code = ?", (code,)):
             raise StoreError(f"participant {code}: not registered; add with `studyctl participants add`")
         sessions = store.rows("select * from sessions where code = ? order by id", (code,))
@@ -295,9 +305,9 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
                     return {"top": "Training", "center": f"Pull the brain freely: {int(left) // 60}:{int(left) % 60:02d} left",
                             "bottom": "Experimenter: E ends the training", "question": ""}
 
-                pacing = Pacing(view=shown, caption=training_caption, stop_keys=("e", "enter"), keys=keys) if paced or shown else None
+                pacing = Pacing(view=shown, caption=training_caption, stop_keys=("e", "enter"), keys=keys, notify=say) if paced or shown else None
                 flush_input()
-                result = run_scene(_scene(protocol, TRAINING_MODEL, device), duration=seconds, time_scale=time_scale, pacing=pacing)
+                result = run_scene(_scene(protocol, TRAINING_MODEL, device), duration=seconds, time_scale=time_scale, pacing=pacing, servo=servo)
                 if shown is not None:
                     shown.at_rest()
                 ran, early = (result.times[-1] if len(result.times) else 0.0), result.ended_early
@@ -323,11 +333,11 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
                         return {"top": head, "center": "Grasp the brain to start", "bottom": "Experimenter: SPACE starts the trial", "question": ""}
                     return {"top": head, "center": f"{math.ceil(left)} s", "bottom": "Pull the tissue", "question": ""}
 
-                pacing = Pacing(view=shown, wait_for_grasp=paced, caption=caption, keys=keys) if (paced or shown) else None
+                pacing = Pacing(view=shown, wait_for_grasp=paced, caption=caption, keys=keys, notify=say) if (paced or shown) else None
                 started = now()
                 scene.operators = participant.operators(scene, trial, model) if participant else None
                 try:
-                    result = run_scene(scene, duration=protocol.trial_seconds, time_scale=time_scale, pacing=pacing)
+                    result = run_scene(scene, duration=protocol.trial_seconds, time_scale=time_scale, pacing=pacing, servo=servo)
                 finally:
                     scene.operators = None
                     if shown is not None:
@@ -358,6 +368,8 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
         n = store.rows("select count(*) as n from answers where code = ?", (code,))[0]["n"]
         return {"session": session_id, "participant": code, "order": [labels[m] for m in order], "answers": n, "synthetic": synthetic}
     finally:
+        if servo is not None:
+            servo.close()
         if shown is not None:
             shown.close()
         store.close()

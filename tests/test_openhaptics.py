@@ -27,24 +27,90 @@ def libhd(tmp_path):
 
 
 def test_missing_library_says_what_to_install(tmp_path):
+    """(A missing dependency of an existing libHD is named instead: see below.)"""
     with pytest.raises(DeviceError, match="OpenHaptics toolkit .* BRAINSIM_LIBHD"):
         load_library(str(tmp_path / "nope.so"))
 
 
 def test_unknown_device_name_raises_with_the_error_name(libhd):
-    with pytest.raises(HDError, match="opening 'Middle Device': HD_COMM_CONFIG_ERROR") as exc:
+    with pytest.raises(HDError, match=r"opening 'Middle Device' \(the names are set .*--devices.*\): HD_COMM_CONFIG_ERROR") as exc:
         OpenHapticsRig(["Left Device", "Middle Device"], library=libhd)
     assert exc.value.code == 0x0303
 
 
-def test_calibration_is_checked(libhd):
+def _run_rig(rig, seconds):
+    rig.start(lambda t: None)
+    time.sleep(seconds)
+    rig.stop()
+
+
+def test_calibration_is_done_inside_frames_after_the_scheduler_starts_with_one_style(libhd):
     fake = ctypes.CDLL(libhd)
+    fake.fakehd_set_calibration(0, 0x5001)  # needs an automatic update
     fake.fakehd_set_calibration(1, 0x5002)  # the right device needs the inkwell
-    with pytest.raises(DeviceError, match="'Right Device' needs calibration"):
-        OpenHapticsRig(["Right Device"], library=libhd)
-    fake.fakehd_set_calibration(1, 0x5001)  # needs an automatic update: done, then fine
-    rig = OpenHapticsRig(["Right Device"], library=libhd)
+    rig = OpenHapticsRig(["Left Device", "Right Device"], library=libhd)  # opening does not touch calibration
+    assert rig.slots[0].style == 1 << 1  # auto, of auto | inkwell
+    _run_rig(rig, 0.1)
+    assert rig.errors == [] and fake.fakehd_pending_errors() == 0  # the strict fake saw nothing out of order
+    assert rig.slots[0].calibrated and not rig.slots[1].calibrated
+    assert rig.slots[1].fault == "needs calibration"
+    notices = rig.take_notices()
+    assert "Left Device: calibrated" in notices and "Right Device needs calibration: put the stylus in its inkwell" in notices
+    fake.fakehd_set_calibration(1, 0x5000)  # the experimenter puts the stylus in the inkwell
+    _run_rig(rig, 0.05)
+    assert rig.slots[1].calibrated and rig.slots[1].fault is None and rig.take_notices() == ["Right Device: calibrated"]
     rig.close()
+
+
+def test_the_strict_fake_refuses_what_the_vendor_forbids(libhd):
+    lib = load_library(libhd)
+    handle = lib.hdInitDevice(b"Default Device")  # the first configured device
+    assert handle == 0
+    assert lib.hdCheckCalibration() == 0 and lib.hdGetError().errorCode == 0x0102  # not before the scheduler, not outside a frame
+    lib.hdUpdateCalibration(0b110)
+    assert lib.hdGetError().errorCode == 0x0102  # not before the scheduler
+    assert lib.hdInitDevice(b"Left Device") == 0xFFFFFFFF and lib.hdGetError().errorCode == 0x0301  # already open
+    lib.hdDisableDevice(handle)
+
+
+def test_a_rig_flushes_old_errors_before_opening(libhd):
+    lib = load_library(libhd)
+    lib.hdInitDevice(b"Nobody")  # leaves HD_COMM_CONFIG_ERROR on the stack
+    rig = OpenHapticsRig(["Left Device"], library=libhd)  # not mistaken for an error of this rig
+    assert rig.slots[0].name == "Left Device"
+    fake = ctypes.CDLL(libhd)
+    assert fake.fakehd_soft_limit(0) and fake.fakehd_ramping(0) and fake.fakehd_force_enabled(0)
+    rig.close()
+
+
+def test_a_missing_dependency_of_libhd_is_named(tmp_path):
+    if shutil.which("gcc") is None:
+        pytest.skip("gcc is needed")
+    dep = tmp_path / "dep"
+    dep.mkdir()
+    (dep / "x.c").write_text("int dep_fn(void) { return 1; }\n")
+    subprocess.run(["gcc", "-shared", "-fPIC", "-Wl,-soname,libncursesfake.so.5", "-o", str(dep / "libncursesfake.so.5"), str(dep / "x.c")],
+                   check=True)
+    (dep / "libncursesfake.so").symlink_to(dep / "libncursesfake.so.5")
+    lib = tmp_path / "libHD.so"
+    subprocess.run(["gcc", "-shared", "-fPIC", "-O2", "-o", str(lib), str(SOURCE), f"-L{dep}", "-Wl,--no-as-needed", "-lncursesfake",
+                    "-lpthread", "-lm"], check=True)
+    shutil.rmtree(dep)  # libHD is there; what it needs is not
+    with pytest.raises(DeviceError, match=r"libHD.so was found but needs libncursesfake.so.5, which is missing") as exc:
+        load_library(str(lib))
+    assert "\n" not in str(exc.value)
+
+
+def test_warm_motors_bring_the_force_down_to_the_continuous_force():
+    from sim.devices.openhaptics import _WarmMotors
+
+    guard = _WarmMotors(0.88)
+    f = (2.0, 0.0, 0.0)
+    assert guard(f, 0.5) == f  # cool: untouched
+    out = [guard(f, 0.8)[0] for _ in range(3000)]  # warm: the clamp shrinks 0.1% a tick
+    assert out[0] <= 2.0 and out[500] < 1.3 and abs(out[-1] - 0.88) < 1e-9
+    back = [guard((0.5, 0.0, 0.0), 0.4)[0] for _ in range(10)]  # cooled and under the clamp: lifted
+    assert back[-1] == 0.5 and guard.clamp == math.inf
 
 
 def test_one_callback_serves_both_devices_with_frames_and_clamped_forces(libhd):
@@ -129,7 +195,7 @@ def test_sim_run_on_the_rig_is_paced_by_the_hd_scheduler(libhd, tmp_path, monkey
     monkeypatch.setenv("BRAINSIM_LIBHD", libhd)
     r = run_scene(build_scene(_openhaptics_scene(tmp_path)), duration=1.2)
     s = r.stats()
-    assert s["mode"] == "scheduled" and s["ticks"] == 1200
+    assert s["mode"] == "realtime-process" and s["pacer"] == "hd-scheduler" and s["ticks"] == 1200  # the rig lives in the servo process
     assert s["rate_hz"] > 0  # paced by the fake scheduler (about 1 kHz; no timing assertion here)
     kinds = [e.kind for e in r.events]
     assert "grasp" in kinds and "release" in kinds  # the fake's button toggles every 0.5 s
@@ -146,3 +212,71 @@ def test_cli_without_the_library_is_one_clean_line(tmp_path, monkeypatch):
     res = CliRunner().invoke(cli, ["sim", "run", "--scene", str(_openhaptics_scene(tmp_path)), "--duration", "0.1"])
     assert res.exit_code == 1 and len(res.output.strip().splitlines()) == 1
     assert "OpenHaptics HD library (libHD.so) was not found" in res.output
+
+
+def test_device_frame_follows_the_view_and_forces_go_back_along_the_pull(tmp_path):
+    """A stylus moved right / up / toward the user moves the hand right / up / out of the
+    screen (checked with open3d's own camera for the scene's view), and the tissue's force on a
+    grasped pull points back along the pull in device coordinates."""
+    import numpy as np
+
+    from sim.scene import build_scene
+    from sim.view import ParticipantView
+
+    scene = build_scene(_openhaptics_scene(tmp_path), "plate_spring")
+    frame = scene.device_frame(0)
+    view = ParticipantView(scene.mesh, visible=False, width=640, height=480, camera=scene.spec.view)
+    cam = view.vis.get_view_control().convert_to_pinhole_camera_parameters()
+    E, K = np.asarray(cam.extrinsic), np.asarray(cam.intrinsic.intrinsic_matrix)
+    view.close()
+
+    def pixel(p):
+        c = E[:3, :3] @ np.asarray(p) + E[:3, 3]
+        return (K @ c)[:2] / c[2], c[2]
+
+    p0 = frame.to_scene((0.0, 0.0, 0.0))
+    (u0, v0), z0 = pixel(p0)
+    (u, v), z = pixel(frame.to_scene((0.01, 0.0, 0.0)))
+    assert u > u0 + 5 and abs(v - v0) < 0.3 * (u - u0)  # right on the screen
+    (u, v), z = pixel(frame.to_scene((0.0, 0.01, 0.0)))
+    assert v < v0 - 5 and abs(u - u0) < 0.3 * (v0 - v)  # up on the screen
+    (u, v), z = pixel(frame.to_scene((0.0, 0.0, 0.01)))
+    assert z < z0 - 0.005  # toward the viewer: out of the screen
+    # a pull to the user's right, 8 mm in device coordinates, on the grasped tissue
+    model = scene.model
+    contact = model.grasp(p0, 0)
+    d_scene = np.asarray(frame.to_scene((0.008, 0.0, 0.0))) - np.asarray(p0)
+    f_device = np.asarray(frame.force_to_device(model.force(contact, tuple(d_scene))))
+    assert f_device[0] < -0.01 and abs(f_device[0]) > 2 * np.hypot(f_device[1], f_device[2])
+
+
+def test_a_continuous_force_above_the_budget_is_reduced_and_logged():
+    from sim.devices.base import OmniSpec
+    from sim.models.base import Contact
+
+    class Steady:
+        def force(self, contact, d):
+            return (1.5, 0.0, 0.0)
+
+    class Still:
+        spec = OmniSpec()
+
+        def read(self, t):
+            from sim.devices.base import DeviceState
+
+            return DeviceState(position=(0.0, 0.0, 0.0), button=True)
+
+        def write_force(self, f):
+            pass
+
+    h = Hand(index=0, name="h", device=Still())
+    servo = ServoLoop(model=Steady(), hands=[h], peak_force=3.3, continuous_force=0.88, budget_tau_s=1.0, ramp_s=0.001)
+    servo.tick(0.0)
+    h.contact = Contact(hand=0, vertex=0, point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0))
+    forces = []
+    for k in range(1, 5000):
+        servo.tick(k * 1e-3)
+        forces.append(math.sqrt(sum(c * c for c in h.force)))
+    assert forces[100] == pytest.approx(1.5)  # within the budget at first
+    assert max(forces[-1000:]) <= 0.88 + 1e-12  # then held at the continuous force
+    assert [e.kind for e in servo.events].count("force_budget") >= 1

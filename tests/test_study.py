@@ -257,5 +257,8 @@ def test_session_on_openhaptics_without_the_library_is_a_clean_error(tmp_path, m
     studyctl("study", "init", "--protocol", fast_protocol(tmp_path, conditions=("plate_spring",), trials=1), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
     monkeypatch.setenv("BRAINSIM_LIBHD", str(tmp_path / "none" / "libHD.so"))
-    res = studyctl("session", "run", "--db", db, "--participant", "P01", "--device", "openhaptics", "--time-scale", "0")
+    res = studyctl("session", "run", "--db", db, "--participant", "P01", "--device", "openhaptics", "--view", "none")
     assert res.exit_code == 1 and "libHD.so) was not found" in res.output
+    assert sqlite3.connect(db).execute("select count(*) from sessions").fetchone()[0] == 0  # nothing half-written
+    res = studyctl("session", "run", "--db", db, "--participant", "P01", "--device", "openhaptics", "--time-scale", "0")
+    assert res.exit_code == 1 and "real time only" in res.output

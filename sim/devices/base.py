@@ -20,6 +20,40 @@ class OmniSpec:
 
 
 @dataclass(frozen=True)
+class DeviceFrame:
+    """Where a real device sits in the scene: a point p (metres) in the device's frame (the
+    Omni's: x to the user's right, y up, z toward the user) is `origin + scale * R p` in the
+    scene; a force goes back as R^T f (forces are not scaled). With the participant view's
+    camera, R maps device right/up/toward-the-user to screen right/up/out of the screen."""
+
+    rotation: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))  # rows; columns are the device axes in the scene
+    scale: float = 1.0
+    origin: Vec3 = (0.0, 0.0, 0.0)
+
+    def to_scene(self, p) -> Vec3:
+        R, s, o = self.rotation, self.scale, self.origin
+        return tuple(o[i] + s * (R[i][0] * p[0] + R[i][1] * p[1] + R[i][2] * p[2]) for i in range(3))
+
+    def force_to_device(self, f) -> Vec3:
+        R = self.rotation
+        return tuple(R[0][j] * f[0] + R[1][j] * f[1] + R[2][j] * f[2] for j in range(3))
+
+
+def view_rotation(front, up) -> tuple:
+    """The rotation whose columns are the screen's right, up and out-of-the-screen directions
+    for a camera looking along -front with `up` (open3d's look-at convention)."""
+    import numpy as np
+
+    out = np.asarray(front, dtype=np.float64)
+    out /= np.linalg.norm(out)
+    right = np.cross(-out, np.asarray(up, dtype=np.float64))
+    right /= np.linalg.norm(right)
+    true_up = np.cross(right, -out)
+    R = np.stack([right, true_up, out], axis=1)
+    return tuple(tuple(float(c) for c in row) for row in R)
+
+
+@dataclass(frozen=True)
 class DeviceState:
     position: Vec3  # scene coordinates, m
     button: bool
