@@ -33,7 +33,7 @@ P, BUTTON, F, GRASP_SEQ, GRASP_AT, FAULT, HELD, IN_P, IN_BUTTON = 0, 3, 4, 7, 8,
 SLOT = 17
 # global slots: ticks since the run's clock started, when the latest tick read its devices
 # (perf_counter, one clock for both processes on Linux), whether the clock has started, ticks waited
-TICKS, READ_T, STARTED, WAITED = 0, 1, 2, 3
+TICKS, READ_T, STARTED, RUN_SEQ = 0, 1, 2, 3  # RUN_SEQ: the run whose state the board shows
 GLOBAL = 4
 
 
@@ -142,6 +142,7 @@ class _Runner:
         self.grasp_seq = [0] * len(self.hands)
         self.k = 0  # ticks since the process began
         self.k_device = 0  # the devices' clock starts here (each run's begin)
+        self.run_seq = 0
         self.run: dict | None = None  # the current run; None between runs
         self.done: dict | None = None  # a finished run's log, sent by the pacer's thread
         self.closing = False
@@ -165,7 +166,8 @@ class _Runner:
                         c.law = law
                 self.model.pair, self.model.unstable = pair, unstable
             elif kind == "run":
-                self._begin(*msg[1:])
+                self.run_seq = msg[1]
+                self._begin(*msg[2:])
             elif kind == "start" and self.run is not None and not self.run["started"]:  # the experimenter's key
                 self._start("key", keep_last=False)
             elif kind == "stop" and self.run is not None:
@@ -179,7 +181,7 @@ class _Runner:
         """A new run. Scripted and replayed devices are re-made from the run's recipes; mouse and
         real devices are kept (a rig is opened once per servo process)."""
         for i, r in enumerate(recipes):
-            if r[0] in ("simulated", "replay") and r != self.recipes[i]:
+            if r[0] in ("simulated", "replay"):  # a script or recording plays from its start each run
                 self.devices[i] = self.hands[i].device = _open_device(r, self.board, self.rig)
                 self.hands[i].ticks = 0
                 self.recipes[i] = r
@@ -260,6 +262,7 @@ class _Runner:
                     self.grasp_seq[i] += 1
                     board[base + GRASP_SEQ] = self.grasp_seq[i]  # written after the position
                     h.grasp_request = None
+            board[RUN_SEQ] = self.run_seq  # after the hands: the parent then sees this run's state
             self.k += 1
             run = self.run
             if run is not None and run["started"]:
@@ -405,6 +408,7 @@ class ServoProcess:
         self.read_t = 0.0  # when the devices were read for the state last synced
         self.notices: list[str] = []  # from the devices (calibration, warm motors), for the experimenter
         self._done = None
+        self.run_seq = 0
 
     def ticks(self) -> int:
         return int(self.board[TICKS])
@@ -471,8 +475,11 @@ class ServoProcess:
         self._done = None
         for h in self.hands:
             h.contact, h.grasp_request = None, None
-        self.board[TICKS], self.board[STARTED] = 0, 0.0
-        self.send("run", n_ticks, wait, device_recipes(scene))
+        self.run_seq += 1
+        self.send("run", self.run_seq, n_ticks, wait, device_recipes(scene))
+        deadline = time.perf_counter() + 10.0
+        while self.board[RUN_SEQ] != self.run_seq and self.proc.is_alive() and time.perf_counter() < deadline:
+            time.sleep(0.0005)  # the first frame shows this run's devices, not the last run's
         visual.hands = self.hands  # the visual step works on the mirrors
         own = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
         if len(own) > 1:  # leave the servo's core to the servo: every thread of this process
