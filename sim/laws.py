@@ -88,6 +88,19 @@ class Zero:
 
 
 @dataclass
+class Constant:
+    """A fixed force, whatever the displacement: the device check's gentle pulse."""
+
+    f: tuple
+
+    def force(self, d) -> tuple[float, float, float]:
+        return self.f
+
+    def update(self, **_) -> None:
+        pass
+
+
+@dataclass
 class PairTable:
     """Two coupled grasps (FEM on one hemisphere): forces = -K6 [d1; d2]."""
 

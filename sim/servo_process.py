@@ -143,6 +143,7 @@ class _Runner:
         self.k = 0  # ticks since the process began
         self.k_device = 0  # the devices' clock starts here (each run's begin)
         self.run_seq = 0
+        self.pulse_end: dict[int, int] = {}
         self.run: dict | None = None  # the current run; None between runs
         self.done: dict | None = None  # a finished run's log, sent by the pacer's thread
         self.closing = False
@@ -165,6 +166,13 @@ class _Runner:
                     if c is not None:
                         c.law = law
                 self.model.pair, self.model.unstable = pair, unstable
+            elif kind == "pulse" and self.run is not None:  # the device check: a short, gentle force
+                _, i, force, seconds = msg
+                from sim.laws import Constant
+
+                hands[i].contact_t = (self.k - self.run["k0"]) / self.rate
+                hands[i].contact = RemoteContact(i, hands[i].position, Constant(tuple(force)))
+                self.pulse_end[i] = self.k + int(seconds * self.rate)
             elif kind == "run":
                 self.run_seq = msg[1]
                 self._begin(*msg[2:])
@@ -235,6 +243,10 @@ class _Runner:
                         servo.suspend((self.k - run["k0"]) / self.rate, self.suspend_s, "deadline_streak")
                 else:
                     run["streak"] = 0
+            for i, end in list(self.pulse_end.items()):
+                if self.k >= end:
+                    hands[i].contact = None
+                    del self.pulse_end[i]
             t = (self.k - run["k0"]) / self.rate if run is not None else 0.0
             servo.tick(t, (self.k - self.k_device) / self.rate)
             board[READ_T] = now

@@ -55,6 +55,19 @@ def _print_json(obj) -> None:
     click.echo(json.dumps(_jsonable(obj), indent=2))
 
 
+def _names(ctx, param, value):
+    if value is None:
+        return None
+    names = [n.strip() for n in value.split(",")]
+    if not all(names) or len(names) > 2:
+        raise click.BadParameter(f"{value!r}: one or two device names, comma-separated")
+    return names
+
+
+DEVICES = click.option("--devices", "device_names", callback=_names, default=None,
+                       help='OpenHaptics device names, comma-separated, e.g. "PHANToM 1,PHANToM 2" (default: the scene\'s).')
+
+
 @click.group(cls=_Group)
 @click.version_option(package_name="brainsim-study", prog_name="studyctl")
 def cli():
@@ -464,13 +477,15 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
 @click.option("--device", type=click.Choice(["mouse", "simulated", "openhaptics"]), default="mouse", show_default=True)
 @click.option("--duration", type=click.FloatRange(min=0.0, min_open=True, max=86400.0), default=600.0, show_default=True, help="Seconds at most; Q, Escape or closing the window ends it sooner.")
 @click.option("--screenshot", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Save the last frame shown (PNG).")
+@DEVICES
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable statistics.")
-def sim_live(scene_file: Path, model_name, device, duration, screenshot, as_json: bool):
+def sim_live(scene_file: Path, model_name, device, duration, screenshot, device_names, as_json: bool):
     """Open the participant view and pull the brain (mouse: grasp under the cursor, drag, wheel)."""
     from sim.live import run_view
     from sim.scene import build_scene
 
     scene = build_scene(scene_file, model_name).with_device(device)
+    scene.device_names = device_names
     result = run_view(scene, "window", duration=duration, screenshot=screenshot, live=True)
     stats = result.stats()
     if as_json:
@@ -509,6 +524,69 @@ def _print_run(s: dict) -> None:
     if "frames_dir" in s:
         t.add_row("pictures", f"{s['frames']} in {s['frames_dir']}")
     _console().print(t)
+
+
+@cli.group(cls=_Group)
+def devices():
+    """Real haptic devices (OpenHaptics): find them and check the rig before a session."""
+
+
+@devices.command("list")
+@DEVICES
+@click.option("--json", "as_json", is_flag=True)
+def devices_list(device_names, as_json):
+    """Try the configured device names (and "Default Device"); say what the library reports."""
+    from sim.devices.check import candidate_names, list_devices
+
+    out = list_devices(candidate_names(device_names or ()))
+    if as_json:
+        _print_json(out)
+        return
+    from rich.table import Table
+
+    t = Table(title="OpenHaptics devices")
+    for c in ("name", "found", "peak / continuous force (N)", "calibration"):
+        t.add_column(c)
+    for d in out:
+        t.add_row(d["name"], "yes" if d["found"] else f"no ({d['error']})",
+                  f"{d['peak_force_n']:.2f} / {d['continuous_force_n']:.2f}" if d["found"] else "-", ", ".join(d.get("calibration", [])))
+    _console().print(t)
+
+
+@devices.command("check")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@DEVICES
+@click.option("--seconds", type=click.FloatRange(1.0, 600.0), default=5.0, show_default=True, help="How long to watch the styluses.")
+@click.option("--view", type=click.Choice(["none", "window"]), default="none", show_default=True, help="window: show both styluses live.")
+@click.option("--yes", is_flag=True, help="Apply the force pulse without asking.")
+@click.option("--json", "as_json", is_flag=True)
+def devices_check(scene_file, device_names, seconds, view, yes, as_json):
+    """Calibration, both styluses live, buttons, a gentle force pulse: exit 1 with the fix if anything is wrong."""
+    from sim.devices.check import check_rig
+    from sim.scene import build_scene
+
+    scene = build_scene(scene_file).with_device("openhaptics")
+    scene.device_names = device_names
+    shown = None
+    if view == "window":
+        from sim.view import open_view
+
+        shown = open_view("window", scene)
+    try:
+        confirm = (lambda q: True) if yes else (lambda q: click.confirm(q, default=False, err=True))
+        report = check_rig(scene, seconds, view=shown, confirm=confirm, say=lambda m: click.echo(m, err=True))
+    finally:
+        if shown is not None:
+            shown.close()
+    if as_json:
+        _print_json(report)
+    else:
+        for d in report["devices"]:
+            click.echo(f"{d['name']}: " + ("not found" if not d["found"] else
+                       f"calibrated {'yes' if d.get('calibrated') else 'no'}, moved {d.get('moved_mm', 0):.0f} mm, "
+                       f"button {'seen' if d.get('button_seen') else 'not pressed'}, pulse {d.get('pulse_n', 0):.2f} N"))
+    if report["problems"]:
+        raise click.ClickException("; ".join(report["problems"]))
 
 
 # -- study management ----------------------------------------------------------------------
@@ -629,14 +707,15 @@ def session():
 @click.option("--answers", "answer_with", type=click.Choice(["terminal", "window"]), default="terminal", show_default=True,
               help="Where a person answers the questionnaire (window: Y and N keys).")
 @click.option("--seed", type=int, default=0, show_default=True)
-def session_run(db, participant, device, synthetic, resume, time_scale, view, answer_with, seed):
+@DEVICES
+def session_run(db, participant, device, synthetic, resume, time_scale, view, answer_with, seed, device_names):
     """Training, then each condition in the assigned order: trials, then the questionnaire."""
     from studyctl.session import run_session
 
     if view is None:
         view = "window" if not synthetic and (time_scale is None or time_scale > 0) else "none"
     out = run_session(db, participant, device, synthetic, resume, time_scale, seed=seed, progress=lambda m: click.echo(m, err=True),
-                      view=view, answer_with=answer_with)
+                      view=view, answer_with=answer_with, device_names=device_names)
     click.echo(f"session {out['session']} of {out['participant']} complete: conditions {' > '.join(out['order'])}, {out['answers']} answers"
                + (" (SYNTHETIC)" if out["synthetic"] else ""))
 

@@ -144,8 +144,8 @@ def test_one_callback_serves_both_devices_with_frames_and_clamped_forces(libhd):
     assert not any(fake.fakehd_in_frame(i) for i in range(2))  # every begin had its end
     assert all(0.5 < fake.fakehd_max_force(i) <= 3.3 + 1e-12 for i in range(2))  # clamped, never above the peak
     assert rig.errors == []
-    # positions arrive in metres: the fake's stylus circles at x = -20 mm +- 10 mm
-    assert -0.031 < hands[0].position[0] < -0.009 and 0.009 < hands[1].position[0] < 0.031
+    # positions arrive in metres: the fake's stylus circles 3 mm about its origin
+    assert all(abs(h.position[0]) <= 0.0031 and -0.0041 <= h.position[1] <= 1e-9 for h in hands)
     rig.close()
 
 
@@ -280,3 +280,58 @@ def test_a_continuous_force_above_the_budget_is_reduced_and_logged():
     assert forces[100] == pytest.approx(1.5)  # within the budget at first
     assert max(forces[-1000:]) <= 0.88 + 1e-12  # then held at the continuous force
     assert [e.kind for e in servo.events].count("force_budget") >= 1
+
+
+def test_devices_check_on_the_fake_rig(libhd, tmp_path, monkeypatch):
+    import json
+
+    from click.testing import CliRunner
+
+    from studyctl.cli import cli
+
+    monkeypatch.setenv("BRAINSIM_LIBHD", libhd)
+    res = CliRunner().invoke(cli, ["devices", "check", "--yes", "--seconds", "2", "--json"])
+    assert res.exit_code == 0, res.output
+    report = json.loads(res.output[res.output.index("{"):])
+    assert report["problems"] == [] and report["pacer"] == "hd-scheduler"
+    assert all(d["calibrated"] and d["moved_mm"] > 5 and d["button_seen"] and 0.45 < d["pulse_n"] <= 0.5 + 1e-9 for d in report["devices"])
+    # the right device needs the inkwell: exit 1, and the fix is said
+    monkeypatch.setenv("FAKEHD_CALIBRATION", "0x5000,0x5002")
+    res = CliRunner().invoke(cli, ["devices", "check", "--seconds", "1"])
+    assert res.exit_code == 1 and "Right Device: not calibrated: put the stylus in its inkwell" in res.output
+    res = CliRunner().invoke(cli, ["devices", "check", "--devices", "PHANToM 1,PHANToM 2", "--seconds", "1"])
+    assert res.exit_code == 1 and "PHANToM 1: not found (HD_COMM_CONFIG_ERROR)" in res.output and "--devices" in res.output
+    monkeypatch.setenv("FAKEHD_NAMES", "PHANToM 1,PHANToM 2")  # the names the configuration tool saved
+    monkeypatch.delenv("FAKEHD_CALIBRATION")
+    fresh = tmp_path / "fresh" / "libHD.so"  # a new copy: the loaded one has read its names already
+    fresh.parent.mkdir()
+    shutil.copy(libhd, fresh)
+    monkeypatch.setenv("BRAINSIM_LIBHD", str(fresh))
+    res = CliRunner().invoke(cli, ["devices", "check", "--devices", "PHANToM 1,PHANToM 2", "--seconds", "1", "--yes", "--json"])
+    assert res.exit_code == 0, res.output
+
+
+def test_a_persons_session_on_two_fake_omnis_in_the_window(libhd, display, tmp_path, monkeypatch):
+    """The whole path with real-device code: the strict fake libHD in the servo process, the
+    participant view in a real window, answers typed on a pseudo-terminal."""
+    import sqlite3
+
+    from tests.test_participant import _protocol
+    from tests.test_study import pty_session, studyctl
+
+    db = tmp_path / "s.db"
+    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, trial_seconds=1.0, training=0.05), "--db", db)
+    studyctl("participants", "add", "P01", "--db", db)
+    log = tmp_path / "hd.log"
+    monkeypatch.setenv("BRAINSIM_LIBHD", libhd)
+    monkeypatch.setenv("FAKEHD_LOG", str(log))
+    text = pty_session(["session", "run", "--db", db, "--participant", "P01", "--device", "openhaptics", "--view", "window"],
+                       lambda: "y", timeout=180)
+    assert "complete" in text, text
+    con = sqlite3.connect(db)
+    assert con.execute("select count(*) from answers").fetchone()[0] == 27
+    trials = con.execute("select started_by, grasped, tick_interval_p99_us from trials").fetchall()
+    assert len(trials) == 3 and all(t[0] == "grasp" and t[1] == 1 and t[2] is not None for t in trials)  # the fake's button grasps
+    lines = log.read_text().splitlines()
+    assert sorted(ln for ln in lines if ln.startswith("init")) == ["init Left Device", "init Right Device"]  # once per session
+    assert not [ln for ln in lines if ln.startswith("error")]  # the strict fake saw nothing out of order

@@ -6,7 +6,8 @@
  * deadlines, motor temperatures, the software force limit.
  * Build: gcc -shared -fPIC -O2 -o libHD.so fake_libhd.c -lpthread -lm
  * Environment: FAKEHD_NAMES="Left Device,Right Device" (the configured names, default those),
- * FAKEHD_LOG=file (appends a line per hdInitDevice / hdDisableDevice / error).
+ * FAKEHD_LOG=file (appends a line per hdInitDevice / hdDisableDevice / error),
+ * FAKEHD_CALIBRATION="0x5000,0x5002" (the devices' calibration status when first opened).
  * Control functions (fakehd_*) let a test inject faults, move a stylus and read what was sent. */
 #include <math.h>
 #include <pthread.h>
@@ -59,6 +60,8 @@ static void set_error(HDerror code, int internal) {
 static void read_names(void) {
   if (names_read) return;
   names_read = 1;
+  const char *cal = getenv("FAKEHD_CALIBRATION"); /* initial statuses, e.g. "0x5000,0x5002" */
+  if (cal) { char *end; dev[0].calibration = (int)strtol(cal, &end, 0); if (*end == ',') dev[1].calibration = (int)strtol(end + 1, NULL, 0); }
   const char *env = getenv("FAKEHD_NAMES");
   if (!env) return;
   char copy[256]; strncpy(copy, env, sizeof copy - 1); copy[sizeof copy - 1] = 0;
@@ -97,11 +100,11 @@ void hdBeginFrame(HHD h) {
   dev[h].in_frame = 1; current = (int)h;
   if (dev[h].pinned) {
     memcpy(dev[h].position, dev[h].pin, sizeof(double) * 3);
-  } else { /* the stylus moves on a slow circle, in millimetres */
-    double t = ticks * 1e-3;
-    dev[h].position[0] = (h == 0 ? -20.0 : 20.0) + 10.0 * sin(t);
-    dev[h].position[1] = 5.0 * cos(t);
-    dev[h].position[2] = 1.0 * h;
+  } else { /* the stylus moves on a 3 mm circle about the device's origin (2 s a turn), in millimetres */
+    double t = ticks * 1e-3 * 3.14159265;
+    dev[h].position[0] = (h == 0 ? -3.0 : 3.0) * sin(t);
+    dev[h].position[1] = 2.0 * cos(t) - 2.0;
+    dev[h].position[2] = 0.0;
   }
   if (dev[h].fault) set_error(0x0300, 42);
 }
