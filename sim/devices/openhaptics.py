@@ -98,6 +98,11 @@ CALLBACK = ctypes.CFUNCTYPE(ctypes.c_uint, ctypes.c_void_p)
 
 
 def load_library(path: str | None = None) -> ctypes.CDLL:
+    import locale
+
+    # the vendor's libraries read their configuration files with the C library's number
+    # parsing: a decimal-comma locale (de_DE, fr_FR...) must not reach them
+    locale.setlocale(locale.LC_NUMERIC, "C")
     path = path or os.environ.get("BRAINSIM_LIBHD") or "libHD.so"
     try:
         lib = ctypes.CDLL(path)
