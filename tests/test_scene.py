@@ -37,6 +37,10 @@ def _scene_text(**replace) -> str:
     "old, new, message",
     [
         ('kind = "offscreen"', 'kind = "window"', r"renderer.kind: 'window' is not one of none, offscreen"),
+        ("[servo]", "[view]\nfront = [0.0, 0.0, 1.0]\nup = [0.0, 0.0, 2.0]\n\n[servo]", r"view.up: \[0.0, 0.0, 2.0\] must not be zero or parallel to front"),
+        ("[servo]", "[view]\nzoom = 9.0\n\n[servo]", r"view.zoom: 9.0 is out of range; allowed: \[0.05, 5\]"),
+        ('device = "simulated"\nstart = [-0.0313', 'device = "openhaptics"\ndevice_scale = 20.0\nstart = [-0.0313',
+         r"hands\[0\].device_scale: 20.0 is out of range; allowed: \[0.1, 10\]"),
         ("young = 3000.0", "young = -3.0", r"material.young: -3.0 is out of range; allowed: \(0, inf\]"),
         ("poisson = 0.45", "poisson = 0.7", r"material.poisson: 0.7 is out of range; allowed: \[0, 0.5\]"),
         ('name = "plate_spring"', 'name = "rubber"', r"model.name: 'rubber' has no \[models.rubber\] section"),
