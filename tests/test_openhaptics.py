@@ -290,7 +290,7 @@ def test_devices_check_on_the_fake_rig(libhd, tmp_path, monkeypatch):
     from studyctl.cli import cli
 
     monkeypatch.setenv("BRAINSIM_LIBHD", libhd)
-    res = CliRunner().invoke(cli, ["devices", "check", "--yes", "--seconds", "2", "--json"])
+    res = CliRunner().invoke(cli, ["devices", "check", "--yes", "--seconds", "3", "--json"])
     assert res.exit_code == 0, res.output
     report = json.loads(res.output[res.output.index("{"):])
     assert report["problems"] == [] and report["pacer"] == "hd-scheduler"
@@ -307,7 +307,7 @@ def test_devices_check_on_the_fake_rig(libhd, tmp_path, monkeypatch):
     fresh.parent.mkdir()
     shutil.copy(libhd, fresh)
     monkeypatch.setenv("BRAINSIM_LIBHD", str(fresh))
-    res = CliRunner().invoke(cli, ["devices", "check", "--devices", "PHANToM 1,PHANToM 2", "--seconds", "1", "--yes", "--json"])
+    res = CliRunner().invoke(cli, ["devices", "check", "--devices", "PHANToM 1,PHANToM 2", "--seconds", "3", "--yes", "--json"])
     assert res.exit_code == 0, res.output
 
 
