@@ -15,7 +15,7 @@ OUT ?= out
 
 demo: venv
 	$(VENV)/bin/studyctl sim run --scene protocols/scenes/brain_pull.toml --frames $(OUT)/demo
-	rm -f $(OUT)/demo/study.db $(OUT)/demo/study.db-wal $(OUT)/demo/study.db-shm
+	rm -rf $(OUT)/demo/study.db $(OUT)/demo/study.db-wal $(OUT)/demo/study.db-shm $(OUT)/demo/study.db.traces $(OUT)/demo/study.db.locks
 	$(VENV)/bin/studyctl synth --db $(OUT)/demo/study.db --protocol protocols/brain_pull_2015.toml --participants 35 --seed 1 --jobs 2
 	$(VENV)/bin/studyctl bench accuracy --quick --out $(OUT)/demo/accuracy
 	$(VENV)/bin/studyctl bench stability --quick --out $(OUT)/demo/stability

@@ -214,7 +214,17 @@ class _Screens:
                 return
 
 
-def run_session(db, code: str, device: str = "simulated", synthetic: bool = False, resume: bool = False,
+def run_session(db, code: str, *args, **kwargs) -> dict:
+    """Run (or with `resume`, continue) participant `code`'s session; see `_run_session`. One
+    process at a time drives a participant's session (studyctl/lock.py)."""
+    from studyctl.lock import session_lock
+
+    Store(db).close()  # a missing or foreign database is reported before any lock file is made
+    with session_lock(db, code):
+        return _run_session(db, code, *args, **kwargs)
+
+
+def _run_session(db, code: str, device: str = "simulated", synthetic: bool = False, resume: bool = False,
                 time_scale: float | None = None, answers=None, seed: int = 0, progress: Callable[[str], None] | None = None,
                 session_id: int | None = None, view: str = "none", answer_with: str = "terminal", device_names: list[str] | None = None) -> dict:
     from sim.run import Pacing, run_scene

@@ -131,3 +131,30 @@ def test_real_time_session_through_a_pty_discards_keys_typed_during_training_and
     assert len(trials) == 3 and all(t[0] == "grasp" and t[1] == 1 and t[2] > 0.2 for t in trials)
     training = con.execute("select detail from events where kind = 'training_done'").fetchone()[0]
     assert '"ended_early":false' in training
+
+
+def test_a_second_process_cannot_drive_a_live_session_and_is_told_so(tmp_path):
+    db = tmp_path / "s.db"
+    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=2, trial_seconds=1.0), "--db", db)
+    studyctl("participants", "add", "P05", "--db", db)
+    cmd = [sys.executable, "-m", "studyctl.cli", "session", "run", "--db", str(db), "--participant", "P05", "--synthetic", "--time-scale", "1"]
+    first = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.time() + 60
+        while _trials(db) < 1 and time.time() < deadline and first.poll() is None:
+            time.sleep(0.05)
+        before = sqlite3.connect(db).execute("select count(*) from events").fetchone()[0]
+        for extra in ([], ["--resume"]):  # neither a new start nor a resume may touch the live session
+            res = studyctl("session", "run", "--db", db, "--participant", "P05", "--synthetic", *extra)
+            assert res.exit_code == 1 and "the session is running now (pid" in res.output, res.output
+            assert len(res.output.strip().splitlines()) == 1
+        assert sqlite3.connect(db).execute("select count(*) from events").fetchone()[0] == before  # no false "resumed"
+        out, err = first.communicate(timeout=120)
+    finally:
+        if first.poll() is None:
+            first.kill()
+    assert first.returncode == 0, err
+    con = sqlite3.connect(db)
+    assert con.execute("select count(*) from answers").fetchone()[0] == 27
+    assert con.execute("select count(*) from trials").fetchone()[0] == 6
+    assert con.execute("select status from sessions").fetchall() == [("done",)]
