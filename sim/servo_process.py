@@ -532,8 +532,9 @@ class ServoProcess:
                 _set_all_threads_affinity(set(own))
         out = self._done or {"rows": np.zeros((0, 3)), "events": [], "starts": np.zeros(0), "misses": 0, "wall": math.nan,
                              "started_by": None, "waited_s": 0.0, "pacer": None}
-        grasps = [e for e in visual.events if e.kind == "grasp" and e.t >= 0.0]
-        events = sorted(list(out["events"]) + grasps, key=lambda e: e.t)
+        # the visual side's events (grasps, misses, model faults) of this run's clock
+        seen = [e for e in visual.events if e.t >= 0.0]
+        events = sorted(list(out["events"]) + seen, key=lambda e: e.t)
         return out, events
 
     def close(self) -> None:
