@@ -55,6 +55,16 @@ def _print_json(obj) -> None:
     click.echo(json.dumps(_jsonable(obj), indent=2))
 
 
+class Finite(click.FloatRange):
+    """A float range that also refuses NaN (click's ranges let it through: NaN compares false)."""
+
+    def convert(self, value, param, ctx):
+        v = super().convert(value, param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return v
+
+
 def _names(ctx, param, value):
     if value is None:
         return None
@@ -304,8 +314,8 @@ def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacemen
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--resolution", type=float, default=None, help="Grid spacing in millimetres, 3..8 (default: the scene's).")
 @click.option("--integrator", type=click.Choice(["explicit", "implicit", "local-global"]), required=True)
-@click.option("--dt", type=float, required=True, help="Step in seconds.")
-@click.option("--steps", type=int, default=100, show_default=True)
+@click.option("--dt", type=Finite(min=0.0, min_open=True, max=0.1), required=True, help="Step in seconds, (0, 0.1].")
+@click.option("--steps", type=click.IntRange(1, 1_000_000), default=100, show_default=True)
 @click.option("--substep", is_flag=True, help="Split explicit steps above the critical step instead of refusing them.")
 @click.option("--grasp", callback=_vector, default=None, help="Grasp point X,Y,Z (default: the scene's first hand).")
 @click.option("--displacement", callback=_vector, default=None, help="Hand displacement DX,DY,DZ (default: that hand's pull).")
@@ -429,9 +439,9 @@ def sim():
 @sim.command("run")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--model", "model_name", default=None, help="A model configured in the scene (default: the scene's).")
-@click.option("--duration", type=click.FloatRange(min=0.0, min_open=True, max=86400.0), default=None, help="Simulated seconds (default: the scene's).")
+@click.option("--duration", type=Finite(min=0.0, min_open=True, max=86400.0), default=None, help="Simulated seconds (default: the scene's).")
 @click.option("--frames", "frames_dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Write pictures, the force plot and the trace here.")
-@click.option("--time-scale", type=click.FloatRange(min=0.0, max=1000.0), default=1.0, show_default=True, help="1 = real time; 0 = as fast as possible (lockstep, deterministic).")
+@click.option("--time-scale", type=Finite(min=0.0, max=1000.0), default=1.0, show_default=True, help="1 = real time; 0 = as fast as possible (lockstep, deterministic).")
 @click.option("--view", type=click.Choice(["none", "offscreen", "window"]), default=None,
               help="window: draw the run live in the participant view; offscreen: pictures after the run (--frames); default: the scene's renderer.")
 @click.option("--screenshot", type=click.Path(dir_okay=False, path_type=Path), default=None, help="With --view window: save the last frame shown (PNG).")
@@ -475,7 +485,7 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--model", "model_name", default=None, help="A model configured in the scene (default: the scene's).")
 @click.option("--device", type=click.Choice(["mouse", "simulated", "openhaptics"]), default="mouse", show_default=True)
-@click.option("--duration", type=click.FloatRange(min=0.0, min_open=True, max=86400.0), default=600.0, show_default=True, help="Seconds at most; Q, Escape or closing the window ends it sooner.")
+@click.option("--duration", type=Finite(min=0.0, min_open=True, max=86400.0), default=600.0, show_default=True, help="Seconds at most; Q, Escape or closing the window ends it sooner.")
 @click.option("--screenshot", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Save the last frame shown (PNG).")
 @DEVICES
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable statistics.")
@@ -701,7 +711,7 @@ def session():
               help="mouse: pilot a session without hardware (needs --view window).")
 @click.option("--synthetic", is_flag=True, help="A synthetic participant answers (data labelled synthetic).")
 @click.option("--resume", is_flag=True, help="Continue an interrupted session after its last committed trial.")
-@click.option("--time-scale", type=click.FloatRange(min=0.0, max=1000.0), default=None, help="1 = real time (default for people); synthetic default 0 = as fast as possible.")
+@click.option("--time-scale", type=Finite(min=0.0, max=1000.0), default=None, help="1 = real time (default for people); synthetic default 0 = as fast as possible.")
 @click.option("--view", type=click.Choice(["none", "window"]), default=None,
               help="The participant view (default: window for a person in real time, else none).")
 @click.option("--answers", "answer_with", type=click.Choice(["terminal", "window"]), default="terminal", show_default=True,
@@ -783,7 +793,7 @@ def _range(ctx, param, value):
 @click.option("--simulations", type=click.IntRange(10, 100000), default=200, show_default=True)
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path),
               default=Path(__file__).resolve().parents[1] / "protocols" / "brain_pull_2015.toml", show_default="protocols/brain_pull_2015.toml")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=0, show_default=True)
 @click.option("--pilots", type=click.IntRange(1, 50), default=4, show_default=True, help="Synthetic pilot runs per model.")
 @click.option("--plot", "plot_file", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Write the power curves (PNG or SVG).")
 @click.option("--json", "as_json", is_flag=True)

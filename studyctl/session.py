@@ -214,23 +214,8 @@ class _Screens:
                 return
 
 
-def run_session(db, code: str, *args, **kwargs) -> dict:
-    """Run (or with `resume`, continue) participant `code`'s session; see `_run_session`. One
-    process at a time drives a participant's session (studyctl/lock.py)."""
-    from studyctl.lock import session_lock
-
-    Store(db).close()  # a missing or foreign database is reported before any lock file is made
-    with session_lock(db, code):
-        return _run_session(db, code, *args, **kwargs)
-
-
-def _run_session(db, code: str, device: str = "simulated", synthetic: bool = False, resume: bool = False,
-                time_scale: float | None = None, answers=None, seed: int = 0, progress: Callable[[str], None] | None = None,
-                session_id: int | None = None, view: str = "none", answer_with: str = "terminal", device_names: list[str] | None = None) -> dict:
-    from sim.run import Pacing, run_scene
-    from studyctl.study import assign_order
-    from studyctl.traces import trial_traces, write_trace
-
+def _check_options(device: str, synthetic: bool, time_scale: float | None, view: str, answer_with: str) -> float:
+    """Refuse impossible combinations before anything is opened or written; the time scale."""
     if time_scale is not None and not (math.isfinite(time_scale) and 0 <= time_scale <= 1000):
         raise InputError(f"--time-scale: {time_scale!r} is out of range; allowed: 0..1000")
     if time_scale is None:
@@ -245,6 +230,28 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
         raise InputError("--device mouse: the mouse drives the hands in the participant view; add --view window")
     if answer_with == "window" and view != "window":
         raise InputError("--answers window: answering with keys in the window needs --view window")
+    return time_scale
+
+
+def run_session(db, code: str, device: str = "simulated", synthetic: bool = False, resume: bool = False,
+                time_scale: float | None = None, *args, view: str = "none", answer_with: str = "terminal", **kwargs) -> dict:
+    """Run (or with `resume`, continue) participant `code`'s session; see `_run_session`. One
+    process at a time drives a participant's session (studyctl/lock.py)."""
+    from studyctl.lock import session_lock
+
+    time_scale = _check_options(device, synthetic, time_scale, view, answer_with)
+    Store(db).close()  # a missing or foreign database is reported before any lock file is made
+    with session_lock(db, code):
+        return _run_session(db, code, device, synthetic, resume, time_scale, *args, view=view, answer_with=answer_with, **kwargs)
+
+
+def _run_session(db, code: str, device: str = "simulated", synthetic: bool = False, resume: bool = False,
+                time_scale: float | None = None, answers=None, seed: int = 0, progress: Callable[[str], None] | None = None,
+                session_id: int | None = None, view: str = "none", answer_with: str = "terminal", device_names: list[str] | None = None) -> dict:
+    from sim.run import Pacing, run_scene
+    from studyctl.study import assign_order
+    from studyctl.traces import trial_traces, write_trace
+
     store = Store(db)
     say = progress or (lambda msg: None)
     shown = servo = None

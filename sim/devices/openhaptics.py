@@ -77,7 +77,7 @@ ERROR_NAMES = {
 INSTALL_HINT = (
     "the OpenHaptics HD library (libHD.so) was not found: install the OpenHaptics toolkit and the "
     "PHANTOM device driver from 3D Systems, or set BRAINSIM_LIBHD to the library's path; "
-    "use device = \"simulated\" to run without a device"
+    "to run without a device use --device simulated (or --device mouse), or device = \"simulated\" in the scene"
 )
 
 

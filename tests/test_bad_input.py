@@ -1,0 +1,41 @@
+"""Bad input on the command line: one line naming the option and the allowed range, exit status
+1 or 2, no traceback, nothing written (a first part of issue 15's corpus)."""
+
+import sqlite3
+
+import pytest
+from click.testing import CliRunner
+
+from studyctl.cli import cli
+from tests.test_study import fast_protocol, studyctl
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["sim", "run", "--duration", "nan", "--time-scale", "0"], "'nan' is not a finite number"),
+    (["sim", "run", "--duration", "inf", "--time-scale", "0"], "--duration"),
+    (["sim", "run", "--duration", "1e12", "--time-scale", "0"], "--duration"),
+    (["sim", "run", "--time-scale", "nan"], "'nan' is not a finite number"),
+    (["sim", "live", "--duration", "nan"], "'nan' is not a finite number"),
+    (["model", "mass-spring", "--integrator", "explicit", "--dt", "nan"], "'nan' is not a finite number"),
+    (["model", "mass-spring", "--integrator", "explicit", "--dt", "inf"], "--dt"),
+    (["model", "mass-spring", "--integrator", "explicit", "--dt", "1e9"], "--dt"),
+    (["plan", "--seed", "-1"], "--seed"),
+])
+def test_bad_numbers_are_one_clean_line(args, needle):
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 2 and needle in res.output and "Traceback" not in res.output, res.output
+
+
+def test_session_options_refused_before_anything_is_written(tmp_path):
+    db = tmp_path / "s.db"
+    studyctl("study", "init", "--protocol", fast_protocol(tmp_path, trials=1), "--db", db)
+    studyctl("participants", "add", "P01", "--db", db)
+    before = db.read_bytes()
+    for args in (["--synthetic", "--time-scale", "nan"], ["--device", "mouse", "--view", "none"], ["--answers", "window", "--view", "none"],
+                 ["--device", "openhaptics", "--time-scale", "0"]):
+        res = CliRunner().invoke(cli, ["session", "run", "--db", str(db), "--participant", "P01", *args])
+        last = res.output.strip().splitlines()[-1]  # click's usage errors (exit 2) print the usage line first
+        assert res.exit_code in (1, 2) and last.startswith("Error: ") and "Traceback" not in res.output, res.output
+        assert res.exit_code == 2 or len(res.output.strip().splitlines()) == 1
+    assert db.read_bytes() == before  # nothing written
+    assert not (tmp_path / "s.db.locks").exists() and sqlite3.connect(db).execute("select count(*) from sessions").fetchone()[0] == 0
