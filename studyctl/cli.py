@@ -65,6 +65,39 @@ class Finite(click.FloatRange):
         return v
 
 
+class OutFile(click.Path):
+    """A file to write: its folder must exist and the suffix be one of `suffixes`, checked
+    before any work is done (so a typo never costs a long run or leaves half a result)."""
+
+    def __init__(self, suffixes: tuple[str, ...] | None = None):
+        super().__init__(dir_okay=False, path_type=Path)
+        self.suffixes = suffixes
+
+    def convert(self, value, param, ctx):
+        path = super().convert(value, param, ctx)
+        if not path.parent.is_dir():
+            self.fail(f"{path.parent} is not an existing folder", param, ctx)
+        if self.suffixes and path.suffix.lower() not in self.suffixes:
+            self.fail(f"{path.name}: allowed suffixes: {', '.join(self.suffixes)}", param, ctx)
+        return path
+
+
+class OutDir(click.Path):
+    """A folder to write into (made if missing): nothing on its way may be a file."""
+
+    def __init__(self):
+        super().__init__(file_okay=False, path_type=Path)
+
+    def convert(self, value, param, ctx):
+        path = super().convert(value, param, ctx)
+        for p in (path, *path.parents):
+            if p.exists():
+                if not p.is_dir():
+                    self.fail(f"{p} is a file, not a folder", param, ctx)
+                break
+        return path
+
+
 def _names(ctx, param, value):
     if value is None:
         return None
@@ -94,7 +127,7 @@ def bench():
 def _sweep_options(f):
     f = click.option("--scheduler", default=None, metavar="ADDRESS", help="Run the cases on a Dask cluster (tcp://host:8786).")(f)
     f = click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Local worker processes (default: every core).")(f)
-    f = click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Write tables, JSON and plots here.")(f)
+    f = click.option("--out", "out_dir", type=OutDir(), default=None, help="Write tables, JSON and plots here.")(f)
     f = click.option("--json", "as_json", is_flag=True)(f)
     f = click.option("--quick", is_flag=True, help="The small sweep (CI, make demo).")(f)
     return f
@@ -352,7 +385,7 @@ def calibrate():
 @click.option("--resolution", type=click.FloatRange(2, 8), default=3.0, show_default=True, help="FEM reference mesh spacing, mm (2 mm: about 8 min and 5 GB per pull the first time).")
 @click.option("--max-displacement", type=click.FloatRange(min=0.001, max=0.1), default=0.024, show_default=True, help="m, the longest pull.")
 @click.option("--samples", type=click.IntRange(3, 100), default=6, show_default=True, help="Points per pull.")
-@click.option("--out", "out_file", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Write the fitted parameter file.")
+@click.option("--out", "out_file", type=OutFile((".toml",)), default=None, help="Write the fitted parameter file (.toml).")
 @click.option("--json", "as_json", is_flag=True)
 def calibrate_plate_spring(scene_file, reference, formulation, resolution, max_displacement, samples, out_file, as_json):
     """Fit h1, alpha, q and x_c1 (within their bounds) to the reference force-displacement curve."""
@@ -440,11 +473,11 @@ def sim():
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--model", "model_name", default=None, help="A model configured in the scene (default: the scene's).")
 @click.option("--duration", type=Finite(min=0.0, min_open=True, max=86400.0), default=None, help="Simulated seconds (default: the scene's).")
-@click.option("--frames", "frames_dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Write pictures, the force plot and the trace here.")
+@click.option("--frames", "frames_dir", type=OutDir(), default=None, help="Write pictures, the force plot and the trace here.")
 @click.option("--time-scale", type=Finite(min=0.0, max=1000.0), default=1.0, show_default=True, help="1 = real time; 0 = as fast as possible (lockstep, deterministic).")
 @click.option("--view", type=click.Choice(["none", "offscreen", "window"]), default=None,
               help="window: draw the run live in the participant view; offscreen: pictures after the run (--frames); default: the scene's renderer.")
-@click.option("--screenshot", type=click.Path(dir_okay=False, path_type=Path), default=None, help="With --view window: save the last frame shown (PNG).")
+@click.option("--screenshot", type=OutFile((".png",)), default=None, help="With --view window: save the last frame shown (PNG).")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable statistics.")
 def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: float, view, screenshot, as_json: bool):
     """Scripted simulated Omni hands grasp and pull the brain; the servo loop runs at 1 kHz."""
@@ -486,7 +519,7 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
 @click.option("--model", "model_name", default=None, help="A model configured in the scene (default: the scene's).")
 @click.option("--device", type=click.Choice(["mouse", "simulated", "openhaptics"]), default="mouse", show_default=True)
 @click.option("--duration", type=Finite(min=0.0, min_open=True, max=86400.0), default=600.0, show_default=True, help="Seconds at most; Q, Escape or closing the window ends it sooner.")
-@click.option("--screenshot", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Save the last frame shown (PNG).")
+@click.option("--screenshot", type=OutFile((".png",)), default=None, help="Save the last frame shown (PNG).")
 @DEVICES
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable statistics.")
 def sim_live(scene_file: Path, model_name, device, duration, screenshot, device_names, as_json: bool):
@@ -677,7 +710,7 @@ def participants_import(csv_file, db):
 @click.option("--hours", default="09:00-17:00", show_default=True)
 @click.option("--session-minutes", type=int, default=45, show_default=True)
 @click.option("--availability", type=click.Path(dir_okay=False, path_type=Path), default=None, help="CSV: code,date,start,end.")
-@click.option("--ics", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Write an iCalendar file.")
+@click.option("--ics", type=OutFile((".ics",)), default=None, help="Write an iCalendar file (.ics).")
 @click.option("--json", "as_json", is_flag=True)
 def schedule_cmd(db, start, end, hours, session_minutes, availability, ics, as_json):
     """Give each waiting participant a slot on the rig and a counterbalanced order."""
@@ -735,7 +768,7 @@ def session_run(db, participant, device, synthetic, resume, time_scale, view, an
 @click.option("--session", "session_id", type=click.IntRange(min=1), required=True)
 @click.option("--trial", type=click.IntRange(min=1), required=True, help="The session's K-th trial, in the order run (1 = the first).")
 @click.option("--view", type=click.Choice(["none", "window"]), default="none", show_default=True, help="window: play it back in real time.")
-@click.option("--frames", "frames_dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Write pictures, the force plot and the trace.")
+@click.option("--frames", "frames_dir", type=OutDir(), default=None, help="Write pictures, the force plot and the trace.")
 @click.option("--json", "as_json", is_flag=True)
 def replay_cmd(db, session_id, trial, view, frames_dir, as_json):
     """Play a stored trial back: its recorded hand motion through the same model and scene."""
@@ -795,7 +828,7 @@ def _range(ctx, param, value):
               default=Path(__file__).resolve().parents[1] / "protocols" / "brain_pull_2015.toml", show_default="protocols/brain_pull_2015.toml")
 @click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=0, show_default=True)
 @click.option("--pilots", type=click.IntRange(1, 50), default=4, show_default=True, help="Synthetic pilot runs per model.")
-@click.option("--plot", "plot_file", type=click.Path(dir_okay=False, path_type=Path), default=None, help="Write the power curves (PNG or SVG).")
+@click.option("--plot", "plot_file", type=OutFile((".png", ".svg", ".pdf")), default=None, help="Write the power curves (PNG, SVG or PDF).")
 @click.option("--json", "as_json", is_flag=True)
 def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, as_json):
     """Monte Carlo power of Cochran's Q per question under the SYNTHETIC model, to choose N."""
@@ -832,7 +865,7 @@ def report():
 @report.command("table1")
 @DB
 @click.option("--format", "fmt", type=click.Choice(["md", "csv", "latex", "html", "json"]), default="md", show_default=True)
-@click.option("--out", "out_file", type=click.Path(dir_okay=False, path_type=Path), default=None)
+@click.option("--out", "out_file", type=OutFile(), default=None)
 @click.option("--accuracy", "accuracy_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="accuracy.json from `studyctl bench accuracy --out`: add its table (md, html) and Pareto plot (html).")
 @click.option("--stability", "stability_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
@@ -889,7 +922,7 @@ def _load_bench(path: Path, kind: str, key: str) -> dict:
 
 @report.command("plots")
 @DB
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--out", "out_dir", required=True, type=OutDir())
 def report_plots(db, out_dir):
     """Rates with intervals, deformation times, and force traces against the FEM (PNG and SVG)."""
     from analysis.report import write_plots
@@ -959,7 +992,7 @@ def answers_import(db, csv_file):
 @cli.command("export", cls=click.Command)
 @DB
 @click.option("--format", "fmt", type=click.Choice(["csv", "parquet"]), default="csv", show_default=True)
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--out", "out_dir", required=True, type=OutDir())
 def export_cmd(db, fmt, out_dir):
     """Export the pseudonymous tables (never the identifying one)."""
     from studyctl.study import export

@@ -39,3 +39,23 @@ def test_session_options_refused_before_anything_is_written(tmp_path):
         assert res.exit_code == 2 or len(res.output.strip().splitlines()) == 1
     assert db.read_bytes() == before  # nothing written
     assert not (tmp_path / "s.db.locks").exists() and sqlite3.connect(db).execute("select count(*) from sessions").fetchone()[0] == 0
+
+
+def test_outputs_into_missing_folders_or_with_wrong_suffixes_are_refused_before_any_work(tmp_path):
+    db = tmp_path / "s.db"
+    studyctl("study", "init", "--protocol", fast_protocol(tmp_path, trials=1), "--db", db)
+    studyctl("participants", "add", "P01", "--db", db)
+    before = db.read_bytes()
+    (tmp_path / "afile").write_text("x")
+    cases = [
+        (["schedule", "--db", db, "--start", "2026-12-01", "--end", "2026-12-05", "--ics", tmp_path / "missing" / "s.ics"], "is not an existing folder"),
+        (["report", "table1", "--db", db, "--out", tmp_path / "missing" / "t.md"], "is not an existing folder"),
+        (["export", "--db", db, "--out", tmp_path / "afile" / "ex"], "is a file, not a folder"),
+        (["calibrate", "plate-spring", "--out", tmp_path / "missing" / "p.toml"], "is not an existing folder"),
+        (["plan", "--plot", tmp_path / "x.txt"], "allowed suffixes: .png, .svg, .pdf"),
+        (["sim", "run", "--view", "window", "--screenshot", tmp_path / "shot.jpg"], "allowed suffixes: .png"),
+    ]
+    for args, needle in cases:
+        res = CliRunner().invoke(cli, [str(a) for a in args])
+        assert res.exit_code == 2 and needle in res.output and "Traceback" not in res.output, (args, res.output)
+    assert db.read_bytes() == before  # the schedule stored no slot
