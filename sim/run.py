@@ -42,6 +42,7 @@ class Pacing:
     caption: Callable[[str, float], dict] | None = None  # (phase "waiting"/"running", seconds left) -> view text
     keys: Callable[[], list[str]] | None = None  # another key source (the experimenter's terminal)
     notify: Callable[[str], None] | None = None  # the devices' notices (calibration, warm motors) for the experimenter
+    on_frame: Callable[[object], None] | None = None  # called with the ServoProcess each frame (e.g. a device check's pulse)
 
 
 @dataclass
@@ -238,9 +239,7 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
                              "a person's device runs in real time only (time scale > 0)")
     devices = scene.open_devices()
     hands = [Hand(index=i, name=h.name, device=d) for i, (h, d) in enumerate(zip(spec.hands, devices))]
-    peak = min(d.spec.peak_force_n for d in devices)
-    continuous = min(d.spec.continuous_force_n for d in devices)
-    servo_loop = ServoLoop(model=model, hands=hands, peak_force=peak, continuous_force=continuous, dt=1.0 / rate)
+    servo_loop = ServoLoop.for_devices(model, hands, rate)
     snapshot_period = 1.0 / spec.renderer.fps if snapshots else None
     visual = VisualStep(model=model, hands=hands, events=servo_loop.events, snapshot_period=snapshot_period)
     n_ticks = int(round(duration * rate))
@@ -295,6 +294,8 @@ def _paced_frame(pacing: Pacing, duration: float, rate: float, state: dict):
     drawing, keys. Returns "start", "stop" or None."""
 
     def frame(sp, visual):
+        if pacing.on_frame is not None:
+            pacing.on_frame(sp)
         view = pacing.view
         keys = []
         if view is not None:

@@ -133,6 +133,14 @@ class ServoLoop:
     budget_tau_s: float = 5.0
     dt: float = 1e-3
 
+    @classmethod
+    def for_devices(cls, model, hands: list[Hand], rate: float) -> ServoLoop:
+        """The loop for `hands` (their devices opened): the devices' peak and continuous force
+        limits, one tick of 1 / `rate` seconds."""
+        specs = [h.device.spec for h in hands]
+        return cls(model=model, hands=hands, peak_force=min(s.peak_force_n for s in specs),
+                   continuous_force=min(s.continuous_force_n for s in specs), dt=1.0 / rate)
+
     def suspend(self, t: float, duration: float, reason: str) -> None:
         """Send zero force to every device until t + duration (e.g. after missed deadlines)."""
         if t >= self.suspended_until:

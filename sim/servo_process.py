@@ -32,8 +32,9 @@ from sim.servo import Event, Hand, ServoLoop, wait_until
 P, BUTTON, F, GRASP_SEQ, GRASP_AT, FAULT, HELD, IN_P, IN_BUTTON = 0, 3, 4, 7, 8, 11, 12, 13, 16
 SLOT = 17
 # global slots: ticks since the run's clock started, when the latest tick read its devices
-# (perf_counter, one clock for both processes on Linux), whether the clock has started, ticks waited
-TICKS, READ_T, STARTED, RUN_SEQ = 0, 1, 2, 3  # RUN_SEQ: the run whose state the board shows
+# (perf_counter, one clock for both processes on Linux), whether the clock has started, and the
+# run whose state the board shows
+TICKS, READ_T, STARTED, RUN_SEQ = 0, 1, 2, 3
 GLOBAL = 4
 
 
@@ -132,12 +133,9 @@ class _Runner:
         self.period = 1.0 / (rate * time_scale)
         self.miss_streak, self.suspend_s = miss_streak, suspend_s
         self.devices, self.rig = _open_devices(recipes, board)
-        self.recipes = list(recipes)
         self.hands = [Hand(index=i, name=n, device=d) for i, (n, d) in enumerate(zip(hand_names, self.devices))]
         self.model = LawModel()
-        peak = min(d.spec.peak_force_n for d in self.devices)
-        continuous = min(d.spec.continuous_force_n for d in self.devices)
-        self.servo = ServoLoop(model=self.model, hands=self.hands, peak_force=peak, continuous_force=continuous, dt=1.0 / rate)
+        self.servo = ServoLoop.for_devices(self.model, self.hands, rate)
         self.lock = threading.Lock()
         self.grasp_seq = [0] * len(self.hands)
         self.k = 0  # ticks since the process began
@@ -192,11 +190,10 @@ class _Runner:
             if r[0] in ("simulated", "replay"):  # a script or recording plays from its start each run
                 self.devices[i] = self.hands[i].device = _open_device(r, self.board, self.rig)
                 self.hands[i].ticks = 0
-                self.recipes[i] = r
         self._drop_contacts()
-        self.run = {"n": n_ticks, "wait": wait, "started": False, "started_by": None, "k0": self.k, "k_begin": self.k,
-                    "starts": np.empty(n_ticks), "misses": 0, "streak": 0, "begin": time.perf_counter(), "waited_s": 0.0}
-        self.k_device = self.k  # scripted devices start their script with the run
+        self.run = {"n": n_ticks, "started": False, "started_by": None, "k0": self.k, "starts": np.empty(n_ticks), "misses": 0,
+                    "streak": 0, "begin": time.perf_counter(), "waited_s": 0.0}
+        self.k_device = self.k  # the run begins: scripted devices start their script, waiting is counted from here
         self.board[TICKS], self.board[STARTED] = 0, 0.0
         if not wait:
             self._start("clock", keep_last=False)
@@ -205,7 +202,7 @@ class _Runner:
         """The run's clock starts at tick `self.k`: the one running now (a grasp, kept) or the next
         (a key, or a run that does not wait)."""
         run = self.run
-        run.update(started=True, started_by=by, k0=self.k, misses=0, streak=0, waited_s=(self.k - run["k_begin"]) / self.rate)
+        run.update(started=True, started_by=by, k0=self.k, misses=0, streak=0, waited_s=(self.k - self.k_device) / self.rate)
         self.servo.restart(keep_last=keep_last)
         if keep_last:
             run["starts"][0] = self.last_start
@@ -217,7 +214,7 @@ class _Runner:
         rows = self.servo.rows.array() if run["started"] else np.zeros((0, self.servo.rows.width))
         self.done = {"rows": rows, "events": list(self.servo.events) if run["started"] else [], "starts": run["starts"][:n],
                      "misses": run["misses"], "wall": time.perf_counter() - run["begin"], "started_by": run["started_by"],
-                     "waited_s": run.get("waited_s", 0.0), "pacer": "hd-scheduler" if self.rig is not None else "process"}
+                     "waited_s": run["waited_s"], "pacer": "hd-scheduler" if self.rig is not None else "process"}
         self.run = None
         self._drop_contacts()
         self.servo.rows.clear()
@@ -311,13 +308,10 @@ class _Runner:
         """Real devices: the HD scheduler's thread calls the tick; this thread only handles
         messages (it waits in the pipe's poll, without the interpreter lock)."""
         clock, period = time.perf_counter, self.period
-        last = [None]
 
         def hd_tick(_t: float) -> None:
             now = clock()
-            late = last[0] is not None and now - last[0] > 1.5 * period
-            last[0] = now
-            self.tick(now, late)
+            self.tick(now, self.last_start is not None and now - self.last_start > 1.5 * period)
 
         self.rig.start(hd_tick)
         try:

@@ -34,7 +34,6 @@ ACCENT = (0.70, 0.10, 0.05)
 ARROW = (0.85, 0.15, 0.10)
 # GLFW key codes -> names the callers use
 KEYS = {32: "space", 257: "enter", 256: "escape", **{ord(c): c.lower() for c in "ABCDEFGHIJKLMNOPQRSTUVWXYZ"}}
-HEAT_FULL_M = 0.012  # displacement drawn at full heat colour
 FORCE_ARROW_M_PER_N = 0.08
 WHEEL_M = 0.002  # depth per wheel step
 
@@ -95,7 +94,7 @@ class ParticipantView:
 
     def __init__(self, mesh, pulls=((-1.0, 0.0, 0.0), (1.0, 0.0, 0.0)), width: int = 1280, height: int = 720,
                  visible: bool = True, title: str = "Brain surgery simulator", show_force: bool = False,
-                 grasp_radius: float = 0.005, heat: bool = False, camera=None):
+                 grasp_radius: float = 0.005, camera=None):
         import open3d as o3d
 
         self.o3d = o3d
@@ -109,7 +108,6 @@ class ParticipantView:
         self.mesh = mesh
         self.width, self.height = width, height
         self.show_force = show_force
-        self.heat = heat  # colour by displacement (an analyst's aid; a participant sees plain tissue)
         self.vis = o3d.visualization.VisualizerWithKeyCallback()
         if not self.vis.create_window(window_name=title, width=width, height=height, visible=visible):
             raise ViewError(f"--view window: open3d could not open a {width}x{height} OpenGL window on display "
@@ -242,9 +240,7 @@ class ParticipantView:
         start = time.perf_counter()
         u = np.zeros_like(self.mesh.vertices) if displacement is None else np.asarray(displacement, dtype=np.float64)
         self._positions = self.mesh.vertices + u
-        if heat01 is None and self.heat:
-            heat01 = np.linalg.norm(u, axis=1) / HEAT_FULL_M
-        if heat01 is not None:  # tissue colour where nothing moves, then the inferno map
+        if heat01 is not None:  # the analyst's pictures (a participant sees plain tissue): tissue colour, then inferno
             heat = np.asarray(heat01, dtype=np.float64)
             w = np.clip(heat * 4.0, 0.0, 1.0)[:, None]
             colours = (1 - w) * TISSUE + w * self.cmap(0.25 + 0.7 * np.clip(heat, 0.0, 1.0))[:, :3]

@@ -192,26 +192,20 @@ def _trial_record(session_id: int, model: str, trial: int, started: str, result)
     return rec, lat
 
 
-class _Screens:
-    """The participant-facing text of a paced session (no model, no parameter)."""
-
-    def __init__(self, view, say):
-        self.view, self.say = view, say
-
-    def rest(self, seconds: float, status: str, message: str = "Rest", keys=None) -> None:
-        """A rest screen with a countdown; SPACE / Enter skips it."""
-        end = time.monotonic() + seconds
-        while (left := end - time.monotonic()) > 0:
-            if self.view is not None:
-                self.view.set_text(top=status, center=f"{message}: {math.ceil(left)} s", bottom="", question="", corner="")
-                self.view.idle()
-                pressed = self.view.take_keys()
-            else:
-                time.sleep(min(left, 0.1))
-                pressed = []
-            pressed += keys() if keys is not None else []
-            if any(k in ("space", "enter") for k in pressed):
-                return
+def _rest_screen(view, seconds: float, status: str, message: str, keys=None) -> None:
+    """A rest screen with a countdown (text in the view, if any); SPACE / Enter skips it."""
+    end = time.monotonic() + seconds
+    while (left := end - time.monotonic()) > 0:
+        if view is not None:
+            view.set_text(top=status, center=f"{message}: {math.ceil(left)} s", bottom="", question="", corner="")
+            view.idle()
+            pressed = view.take_keys()
+        else:
+            time.sleep(min(left, 0.1))
+            pressed = []
+        pressed += keys() if keys is not None else []
+        if any(k in ("space", "enter") for k in pressed):
+            return
 
 
 def _check_options(device: str, synthetic: bool, time_scale: float | None, view: str, answer_with: str) -> float:
@@ -307,7 +301,6 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
             answers = SyntheticAnswers(participant, ref_scene.model, ref_scene.mesh)
         paced = time_scale > 0 and not synthetic  # a person sets the pace
         answerer = answers or (WindowAnswers(shown) if answer_with == "window" else TerminalAnswers(view=shown))
-        screens = _Screens(shown, say)
         keys = terminal_keys if paced else None
         n_cond = len(order)
         done_events = {r["kind"] for r in store.rows("select kind from events where session_id = ?", (session_id,))}
@@ -342,7 +335,7 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                 n_trials = protocol.trials_per_condition
                 say(f"condition {label} ({pos + 1} of {n_cond}): trial {trial + 1} of {n_trials}")
                 if paced and (trial > 0 or pos > 0):
-                    screens.rest(protocol.rest_seconds, status, "Rest" if trial > 0 else "Next condition in", keys)
+                    _rest_screen(shown, protocol.rest_seconds, status, "Rest" if trial > 0 else "Next condition in", keys)
 
                 def caption(phase, left, trial=trial, n_trials=n_trials, status=status):
                     head = f"{status} - trial {trial + 1} of {n_trials}"

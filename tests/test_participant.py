@@ -14,7 +14,7 @@ import pandas as pd
 
 from studyctl.store import Store
 from studyctl.traces import read_trace
-from tests.test_study import fast_protocol, pty_session, studyctl
+from tests.test_study import count_rows, fast_protocol, pty_session, studyctl
 
 MODEL_WORDS = re.compile(r"plate.?spring|mass.?spring|\bfem\b|finite|element|corotational|neo.?hookean|young|poisson", re.I)
 
@@ -71,24 +71,17 @@ def test_export_has_every_tick_of_every_trial_and_replay_reproduces_the_forces(t
     assert res.exit_code == 1 and "allowed: 1..9" in res.output
 
 
-def _trials(db):
-    try:
-        return sqlite3.connect(db, timeout=10).execute("select count(*) from trials").fetchone()[0]
-    except sqlite3.OperationalError:
-        return 0
-
-
 def test_sigkill_mid_trial_loses_only_that_trial_and_resumed_answers_use_every_trace(tmp_path):
     db = _synthetic_db(tmp_path, "killed.db")
     cmd = [sys.executable, "-m", "studyctl.cli", "session", "run", "--db", str(db), "--participant", "P01", "--synthetic"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 120
-    while _trials(db) < 2 and time.time() < deadline and proc.poll() is None:
+    while count_rows(db, "trials") < 2 and time.time() < deadline and proc.poll() is None:
         time.sleep(0.01)
     time.sleep(0.3)  # into the next trial
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
-    before = _trials(db)
+    before = count_rows(db, "trials")
     assert 2 <= before < 9
     res = studyctl("session", "run", "--db", db, "--participant", "P01", "--synthetic", "--resume")
     assert res.exit_code == 0, res.output
@@ -141,7 +134,7 @@ def test_a_second_process_cannot_drive_a_live_session_and_is_told_so(tmp_path):
     first = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.time() + 60
-        while _trials(db) < 1 and time.time() < deadline and first.poll() is None:
+        while count_rows(db, "trials") < 1 and time.time() < deadline and first.poll() is None:
             time.sleep(0.05)
         before = sqlite3.connect(db).execute("select count(*) from events").fetchone()[0]
         for extra in ([], ["--resume"]):  # neither a new start nor a resume may touch the live session

@@ -133,9 +133,10 @@ def test_participants_schedule_and_ics(tmp_path):
     assert ics.count("BEGIN:VEVENT") == 4 and "DTSTART:20261201T133000" in ics
 
 
-def _count_answers(db):
+def count_rows(db, table: str = "answers") -> int:
+    """Rows in `table` of a database another process may be writing (0 before it exists)."""
     try:
-        return sqlite3.connect(db, timeout=10).execute("select count(*) from answers").fetchone()[0]
+        return sqlite3.connect(db, timeout=10).execute(f"select count(*) from {table}").fetchone()[0]
     except sqlite3.OperationalError:
         return 0
 
@@ -147,11 +148,11 @@ def test_session_killed_with_sigkill_resumes_with_every_answer_exactly_once(tmp_
     cmd = [sys.executable, "-m", "studyctl.cli", "session", "run", "--db", str(db), "--participant", "P01", "--synthetic"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 120
-    while _count_answers(db) < 5 and time.time() < deadline and proc.poll() is None:
+    while count_rows(db) < 5 and time.time() < deadline and proc.poll() is None:
         time.sleep(0.05)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
-    before = _count_answers(db)
+    before = count_rows(db)
     assert 5 <= before < 27
     res = studyctl("session", "run", "--db", db, "--participant", "P01", "--synthetic")
     assert res.exit_code == 1 and "--resume" in res.output

@@ -9,7 +9,6 @@ each device. Every problem comes back with its fix.
 
 from __future__ import annotations
 
-import ctypes
 import glob
 import math
 import os
@@ -41,35 +40,29 @@ def list_devices(names, library: str | None = None) -> list[dict]:
         HD_CALIBRATION_AUTO,
         HD_CALIBRATION_ENCODER_RESET,
         HD_CALIBRATION_INKWELL,
-        HD_CALIBRATION_STYLE,
         HD_INVALID_HANDLE,
-        HD_NOMINAL_MAX_CONTINUOUS_FORCE,
-        HD_NOMINAL_MAX_FORCE,
         HD_SUCCESS,
         HDError,
+        flush_errors,
         load_library,
+        nominal_limits,
     )
 
     lib = load_library(library)
     out = []
     for name in names:
-        for _ in range(64):  # flush: an old error is not this device's
-            if lib.hdGetError().errorCode == HD_SUCCESS:
-                break
+        flush_errors(lib)  # an old error is not this device's
         handle = lib.hdInitDevice(name.encode())
         err = lib.hdGetError()
         if err.errorCode != HD_SUCCESS or handle == HD_INVALID_HANDLE:
             out.append({"name": name, "found": False, "error": HDError(err.errorCode, err.internalErrorCode).name})
             continue
         lib.hdMakeCurrentDevice(handle)
-        peak, cont, styles = ctypes.c_double(0.0), ctypes.c_double(0.0), ctypes.c_int(0)
-        lib.hdGetDoublev(HD_NOMINAL_MAX_FORCE, ctypes.byref(peak))
-        lib.hdGetDoublev(HD_NOMINAL_MAX_CONTINUOUS_FORCE, ctypes.byref(cont))
-        lib.hdGetIntegerv(HD_CALIBRATION_STYLE, ctypes.byref(styles))
+        peak, cont, styles = nominal_limits(lib)
         lib.hdDisableDevice(handle)
         kinds = [k for bit, k in ((HD_CALIBRATION_AUTO, "auto"), (HD_CALIBRATION_INKWELL, "inkwell"),
-                                  (HD_CALIBRATION_ENCODER_RESET, "encoder reset")) if styles.value & bit]
-        out.append({"name": name, "found": True, "peak_force_n": peak.value, "continuous_force_n": cont.value, "calibration": kinds})
+                                  (HD_CALIBRATION_ENCODER_RESET, "encoder reset")) if styles & bit]
+        out.append({"name": name, "found": True, "peak_force_n": peak, "continuous_force_n": cont, "calibration": kinds})
     return out
 
 
@@ -112,35 +105,23 @@ def check_rig(scene, seconds: float = 5.0, view=None, confirm=None, say=print) -
                                 "check the cable and the device's power")
         report["pacer"] = result.pacer
         if not problems and confirm is not None and confirm(f"apply a gentle {PULSE_N:g} N pulse for {PULSE_S:g} s on each device?"):
-            up = [scene.device_frame(i).to_scene((0.0, 1.0, 0.0)) for i in range(len(names))]
-            sent = {"done": False}
+            sent = []
 
-            def pulse(sp_, visual):
-                if not sent["done"]:
+            def pulse(sp_) -> None:  # once, on the first frame: device +y (up), in the scene
+                if not sent:
                     for i in range(len(names)):
-                        o = scene.device_frame(i).origin
-                        direction = [up[i][k] - o[k] for k in range(3)]  # device +y: up, in the scene
-                        sp_.send("pulse", i, tuple(PULSE_N * c for c in direction), PULSE_S)
-                    sent["done"] = True
+                        frame = scene.device_frame(i)
+                        up = np.subtract(frame.to_scene((0.0, 1.0, 0.0)), frame.origin)
+                        sp_.send("pulse", i, tuple(float(c) for c in PULSE_N * up), PULSE_S)
+                    sent.append(True)
 
-            from sim.run import _paced_frame
+            def pulse_caption(phase, left):
+                return {"top": "Device check", "center": "Force pulse"}
 
-            frame_state: dict = {}
-            inner = _paced_frame(Pacing(view=view, caption=lambda ph, left: {"top": "Device check", "center": "Force pulse"}), 1.0,
-                                 scene.spec.servo_rate_hz, frame_state) if view is not None else None
-
-            def frame(sp_, visual):
-                pulse(sp_, visual)
-                return inner(sp_, visual) if inner is not None else None
-
-            from sim.run import VisualStep
-
-            visual = VisualStep(model=scene.model, hands=[], events=[])
-            out, _ = sp.run(scene, visual, int(scene.spec.servo_rate_hz), scene.spec.visual_rate_hz, frame)
-            rows = out["rows"]
+            pulsed = run_scene(scene, duration=1.0, pacing=Pacing(view=view, caption=pulse_caption, on_frame=pulse), servo=sp)
+            peaks = np.linalg.norm(pulsed.forces, axis=2).max(axis=0) if len(pulsed.forces) else np.zeros(len(names))
             for i in range(len(names)):
-                f = rows[:, 3 + 7 * i + 3 : 3 + 7 * i + 6] if len(rows) else rows
-                report["devices"][i]["pulse_n"] = float((f ** 2).sum(axis=1).max() ** 0.5) if len(f) else 0.0
-                if report["devices"][i]["pulse_n"] < 0.5 * PULSE_N:
+                report["devices"][i]["pulse_n"] = float(peaks[i])
+                if peaks[i] < 0.5 * PULSE_N:
                     problems.append(f"{names[i]}: the force pulse was not sent (a safety rule held it: see the events)")
     return report

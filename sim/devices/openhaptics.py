@@ -152,6 +152,22 @@ def _load_error(path: str, message: str) -> str:
     return f"{path} cannot be loaded: {message.strip()}"
 
 
+def flush_errors(lib) -> None:
+    """Empty the library's error stack: an old error must not be read as the next call's."""
+    for _ in range(64):
+        if lib.hdGetError().errorCode == HD_SUCCESS:
+            return
+
+
+def nominal_limits(lib) -> tuple[float, float, int]:
+    """The current device's nominal peak and continuous force (N) and its supported calibration styles."""
+    peak, continuous, styles = ctypes.c_double(0.0), ctypes.c_double(0.0), ctypes.c_int(0)
+    lib.hdGetDoublev(HD_NOMINAL_MAX_FORCE, ctypes.byref(peak))
+    lib.hdGetDoublev(HD_NOMINAL_MAX_CONTINUOUS_FORCE, ctypes.byref(continuous))
+    lib.hdGetIntegerv(HD_CALIBRATION_STYLE, ctypes.byref(styles))
+    return peak.value, continuous.value, styles.value
+
+
 def choose_calibration_style(supported: int) -> int:
     """One style, as the vendor's sample picks it: auto if supported, else inkwell, else encoder reset."""
     for style in (HD_CALIBRATION_AUTO, HD_CALIBRATION_INKWELL, HD_CALIBRATION_ENCODER_RESET):
@@ -231,24 +247,15 @@ class OpenHapticsRig:
         if err.errorCode != HD_SUCCESS:
             raise HDError(err.errorCode, err.internalErrorCode, where)
 
-    def _flush_errors(self) -> None:
-        """Empty the library's error stack: an old error must not be read as this call's."""
-        for _ in range(64):
-            if self.lib.hdGetError().errorCode == HD_SUCCESS:
-                return
-
     def _open(self, name: str) -> _DeviceSlot:
         lib = self.lib
-        self._flush_errors()
+        flush_errors(lib)
         handle = lib.hdInitDevice(name.encode())
         self._check(f"opening {name!r} (the names are set in the vendor's configuration tool; --devices picks them)")
         if handle == HD_INVALID_HANDLE:
             raise DeviceError(f"opening {name!r}: invalid handle")
         lib.hdMakeCurrentDevice(handle)
-        peak, continuous, supported = ctypes.c_double(0.0), ctypes.c_double(0.0), ctypes.c_int(0)
-        lib.hdGetDoublev(HD_NOMINAL_MAX_FORCE, ctypes.byref(peak))
-        lib.hdGetDoublev(HD_NOMINAL_MAX_CONTINUOUS_FORCE, ctypes.byref(continuous))
-        lib.hdGetIntegerv(HD_CALIBRATION_STYLE, ctypes.byref(supported))
+        peak, continuous, supported = nominal_limits(lib)
         self._check(f"reading {name!r}")
         lib.hdEnable(HD_FORCE_OUTPUT)
         lib.hdEnable(HD_FORCE_RAMPING)  # the library ramps force up after enabling
@@ -256,9 +263,9 @@ class OpenHapticsRig:
         lib.hdEnable(HD_SOFTWARE_FORCE_LIMIT)  # and refuses forces the device cannot render safely
         self._check(f"enabling force output on {name!r}")
         spec = OmniSpec()
-        cont = min(continuous.value or spec.continuous_force_n, spec.continuous_force_n)
-        return _DeviceSlot(name=name, handle=handle, max_force=min(peak.value or spec.peak_force_n, spec.peak_force_n),
-                           continuous_force=cont, style=choose_calibration_style(supported.value), warm=_WarmMotors(cont))
+        cont = min(continuous or spec.continuous_force_n, spec.continuous_force_n)
+        return _DeviceSlot(name=name, handle=handle, max_force=min(peak or spec.peak_force_n, spec.peak_force_n),
+                           continuous_force=cont, style=choose_calibration_style(supported), warm=_WarmMotors(cont))
 
     def take_notices(self) -> list[str]:
         out, self.notices = self.notices, []
