@@ -234,9 +234,9 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
         model.reset()
     if time_scale > 0:
         return _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, servo)
-    if any(h.device in ("openhaptics", "mouse") for h in spec.hands):
-        raise ParameterError(f"device {next(h.device for h in spec.hands if h.device in ('openhaptics', 'mouse'))}: "
-                             "a person's device runs in real time only (time scale > 0)")
+    person = [h.device for h in spec.hands if h.device in ("openhaptics", "mouse")]
+    if person:
+        raise ParameterError(f"device {person[0]}: a person's device runs in real time only (time scale > 0)")
     devices = scene.open_devices()
     hands = [Hand(index=i, name=h.name, device=d) for i, (h, d) in enumerate(zip(spec.hands, devices))]
     servo_loop = ServoLoop.for_devices(model, hands, rate)

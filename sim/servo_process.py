@@ -7,11 +7,16 @@ in a child process (started with "spawn": a clean interpreter that imports only 
 modules), and the two sides talk through
 
 - shared memory, written by the child every tick and read by the parent each frame: per hand
-  the position, button, force sent, fault, and a grasp request (position + counter);
-- a pipe from the parent: contacts (their force laws, sim/laws.py) when grasped, law updates
-  after every frame, and stop; and from the child at the end: the tick log and the events.
+  the position, button, force sent, fault, and a grasp request (position + counter); the
+  pointer's target for mouse devices (written by the parent); the run's clock and state;
+- a pipe from the parent: "run" (a new run and its device recipes), contacts (their force laws,
+  sim/laws.py) when grasped, law updates after every frame, "start", "stop", "pulse", "close";
+  and from the child: each run's tick log and events when it ends, and the devices' notices.
 
-The child polls the pipe once per tick (a microsecond or two when nothing is waiting).
+The child opens its devices once and serves run after run (a session's training and trials)
+until closed; between runs it keeps reading the devices and sends no force. Simulated devices
+tick on the child's own clock; real ones on the HD library's scheduler thread. The child polls
+the pipe once per tick (a microsecond or two when nothing is waiting).
 """
 
 from __future__ import annotations
