@@ -145,10 +145,27 @@ def test_servo_process_run_matches_the_lockstep_run():
     s = proc.stats()
     assert s["mode"] == "realtime-process" and s["ticks"] == 2000
     assert [e.kind for e in proc.events].count("grasp") == 2
-    # same simulated hands, same model: the forces agree (the grasp lands on a visual frame,
-    # whose timing differs by up to a frame between the two clocks)
-    fp, fl = np.linalg.norm(proc.forces, axis=2).max(axis=0), np.linalg.norm(lock.forces, axis=2).max(axis=0)
-    assert fp == pytest.approx(fl, rel=0.02)
+    # same simulated hands, same model: the same vertices are grasped and every force the
+    # process rendered lies on the lockstep run's force-displacement curve. (Peak forces are no
+    # test: a loaded machine's missed deadlines suspend the force, the hand runs ahead and the
+    # force overshoots when it resumes; CI saw a 2.3% higher peak that way.)
+    vertices = [[e.detail for e in r.events if e.kind == "grasp"] for r in (proc, lock)]
+    assert vertices[0] == vertices[1]
+    for h, detail in enumerate(vertices[0]):
+        anchor = scene.mesh.vertices[int(detail.split()[-1])]
+        curves = []
+        for r in (proc, lock):
+            t_grasp = min(e.t for e in r.events if e.kind == "grasp" and e.hand == h)
+            t = np.arange(len(r.forces)) / 1000.0
+            f = np.linalg.norm(r.forces[:, h], axis=1)
+            x = np.linalg.norm(r.positions[:, h] - anchor, axis=1)
+            keep = (t > t_grasp + 0.06) & (f > 0.0)  # past the grasp ramp, not suspended
+            curves.append((x[keep], f[keep]))
+        (xp, fp), (xl, fl) = curves
+        order = np.argsort(xl)
+        inside = (xp > 0.002) & (xp <= xl.max())
+        assert inside.sum() > 500
+        assert fp[inside] == pytest.approx(np.interp(xp[inside], xl[order], fl[order]), rel=0.02, abs=1e-4)
 
 
 def test_grasp_collides_with_the_deformed_surface_and_misses_when_far():
