@@ -13,7 +13,7 @@ from analysis import plots, table1
 def _protocol_scene(db):
     from studyctl.store import Store
 
-    store = Store(db)
+    store = Store(db, mode="read")
     try:
         return store.protocol().scene
     finally:

@@ -4,7 +4,6 @@ and the check of a published table. Tidy DataFrames with stable columns (docs/an
 
 from __future__ import annotations
 
-import csv
 import itertools
 from pathlib import Path
 
@@ -111,24 +110,25 @@ def _percent(text: str) -> float:
 def published(path: str | Path) -> dict:
     """Check a published table (columns item, question, model, yes, no, printed_rate): every
     printed rate recomputed from its counts; what aggregated counts allow, and what not."""
+    from studyctl.csvfiles import read_csv
     from studyctl.errors import InputError
 
     path = Path(path)
-    try:
-        with open(path, newline="") as fh:
-            reader = csv.DictReader(fh)
-            need = {"item", "model", "yes", "no", "printed_rate"}
-            if not need <= set(reader.fieldnames or []):
-                raise InputError(f"{path}: need columns item, model, yes, no, printed_rate")
-            rows = list(reader)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read: {exc.strerror}") from None
+    rows = read_csv(path, ("item", "question", "model", "yes", "no", "printed_rate"), ("item", "model", "yes", "no", "printed_rate"))
+    if not rows:
+        raise InputError(f"{path}: no rows (only a header)")
     flags, table = [], {}
-    for line, r in enumerate(rows, start=2):
+    for line, r in rows:
         try:
             yes, no, printed = int(r["yes"]), int(r["no"]), _percent(r["printed_rate"])
         except ValueError:
             raise InputError(f"{path}: line {line}: yes/no must be integers and printed_rate a percentage") from None
+        if yes < 0 or no < 0 or yes + no == 0:
+            raise InputError(f"{path}: line {line}: yes {yes}, no {no}: counts must be >= 0 with at least one answer")
+        if not 0.0 <= printed <= 1.0:
+            raise InputError(f"{path}: line {line}: printed_rate {r['printed_rate']!r} is out of range; allowed: 0%..100%")
+        if (r["item"], r["model"]) in {(i, m) for i, ms in table.items() for m in ms}:
+            raise InputError(f"{path}: line {line}: {r['item']}/{r['model']} appears twice")
         computed = yes / (yes + no)
         # printed to 0.1%: anything further than half a unit of the last digit disagrees
         decimals = len(r["printed_rate"].strip().rstrip("%").partition(".")[2])
@@ -139,9 +139,13 @@ def published(path: str | Path) -> dict:
     homogeneity = []
     for item, by_model in table.items():
         counts = np.array([[y, n] for y, n in by_model.values()])
+        note = "chi-square homogeneity of the models' yes rates; ignores that the same participants rated every model"
+        if len(counts) < 2 or (counts.sum(axis=0) == 0).any():  # one model, or every answer alike: nothing to test
+            homogeneity.append({"item": item, "chi2": float("nan"), "df": max(len(counts) - 1, 0), "p_value": float("nan"),
+                                "note": "not computable: " + ("one model" if len(counts) < 2 else "every answer was the same")})
+            continue
         chi2, p, dof, _ = stats.chi2_contingency(counts, correction=False)
-        homogeneity.append({"item": item, "chi2": float(chi2), "df": int(dof), "p_value": float(p),
-                            "note": "chi-square homogeneity of the models' yes rates; ignores that the same participants rated every model"})
+        homogeneity.append({"item": item, "chi2": float(chi2), "df": int(dof), "p_value": float(p), "note": note})
     return {
         "table": str(path), "rows": len(rows), "flags": flags, "homogeneity": homogeneity,
         "not_computable": "Cochran's Q and McNemar tests need each participant's answers to every model (paired data); "

@@ -12,18 +12,15 @@ Tidy DataFrames with stable column names (documented in docs/analysis.md):
 from __future__ import annotations
 
 import sqlite3
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 
 def _connect(db) -> sqlite3.Connection:
-    from studyctl.errors import StoreError
+    from studyctl.store import connect_read
 
-    if not Path(db).exists():
-        raise StoreError(f"{db}: no such study database")
-    return sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+    return connect_read(db)
 
 
 def _query(db, sql: str) -> pd.DataFrame:
@@ -43,7 +40,7 @@ def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.Data
 def _protocol(db):
     from studyctl.store import Store
 
-    store = Store(db)
+    store = Store(db, mode="read")
     try:
         return store.protocol()
     finally:
@@ -112,12 +109,14 @@ def study_facts(db) -> dict:
     con = _connect(db)
     try:
         n = con.execute("select count(distinct code) from answers").fetchone()[0]
-        synthetic = con.execute("select count(*) from participants p where p.synthetic = 1 and p.code in (select code from answers)").fetchone()[0]
-        sources = [r[0] for r in con.execute("select distinct source from answers")]
+        # counted from the answers' own source, not from a participant flag that could drift
+        synthetic = con.execute("select count(distinct code) from answers where source = 'synthetic'").fetchone()[0]
+        mixed = [r[0] for r in con.execute(
+            "select code from answers group by code having sum(source = 'synthetic') > 0 and sum(source != 'synthetic') > 0 order by code")]
     finally:
         con.close()
-    return {"study": protocol.name, "participants": n, "synthetic_participants": synthetic,
-            "synthetic": synthetic > 0 or "synthetic" in sources,
+    return {"study": protocol.name, "participants": n, "synthetic_participants": synthetic, "mixed_source_participants": mixed,
+            "synthetic": synthetic > 0,
             "design": f"within-subject, {len(protocol.conditions)} models, {protocol.counterbalancing} counterbalancing"}
 
 
@@ -138,6 +137,8 @@ def markdown(db) -> str:
     pairs = {item: v["pairs"] for item, v in study_stats(db, r, q)["items"].items()}
     models = list(d["model"])
     flag = "SYNTHETIC DATA (simulated participants): not evidence about people. " if facts["synthetic"] else ""
+    if facts["mixed_source_participants"]:
+        flag += f"WARNING: {', '.join(facts['mixed_source_participants'])} answered both as a person and synthetically. "
     lines = [
         f"**Table 1: {facts['study']}.** {flag}N = {facts['participants']} participants; {facts['design']}.",
         "",

@@ -1,4 +1,5 @@
-"""Exceptions of the simulation library; the CLI turns them into one-line errors."""
+"""Exceptions of the simulation library; the CLI turns them into clean errors (one line each;
+a SceneError, one line per problem)."""
 
 
 class SimError(Exception):
@@ -10,7 +11,14 @@ class ParameterError(SimError):
 
 
 class SceneError(SimError):
-    """A scene file is unreadable or invalid."""
+    """A scene file is unreadable or invalid; `problems` lists every problem found, one
+    'FILE:LINE: field: message' each (str(exc) is them joined by newlines)."""
+
+    def __init__(self, problems: str | list[str]):
+        if isinstance(problems, str):
+            problems = problems.splitlines() or [problems]
+        self.problems = list(problems)
+        super().__init__("\n".join(self.problems))
 
 
 class MeshError(SimError):

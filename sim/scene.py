@@ -8,7 +8,6 @@ rates, and a renderer (``none`` or ``offscreen``). See docs/scenes.md.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -17,7 +16,8 @@ from typing import Any
 import numpy as np
 
 from sim.errors import ParameterError, SceneError
-from sim.models.base import Vec3
+from sim.models.base import POISSON_MAX, POISSON_MIN, Vec3
+from sim.tomlfile import Locator, TomlFileError, read_toml
 
 RENDERERS = ("none", "offscreen")
 DEFAULT_SCENE = Path(__file__).resolve().parents[1] / "protocols" / "scenes" / "brain_pull.toml"
@@ -133,132 +133,183 @@ class SceneSpec:
 
 # -- parsing -------------------------------------------------------------------------------
 
+SECTIONS = ("scene", "mesh", "material", "fixed", "model", "models", "servo", "visual", "renderer", "view", "hands")
+MODEL_KEYS = {
+    "plate_spring": ("variant", "params"),
+    "fem": ("resolution", "formulation", "grasp_radius"),
+    "mass_spring": ("resolution", "integrator", "dt", "damping", "coupling", "grasp_radius", "iterations"),
+}
+HAND_KEYS = ("name", "device", "start", "pull", "distance", "grasp_at", "pull_start", "pull_time", "release_at",
+             "device_name", "device_scale", "device_origin", "trace", "trace_hand")
+
 
 class _Reader:
-    """Typed access to a TOML table with errors naming the file and the dotted field."""
+    """Typed access to a TOML table. A problem is recorded as 'FILE:LINE: field: message' (the
+    line of the key, else of its table) and the accessor returns None (a section: empty), so
+    loading goes on and finds every problem; `load_scene` raises them together."""
 
-    def __init__(self, path: Path, data: dict, prefix: str = ""):
-        self.path, self.data, self.prefix = path, data, prefix
+    def __init__(self, path: Path, data: dict, prefix: str, loc: Locator, problems: list, refused: bool = False):
+        self.path, self.data, self.prefix, self.loc, self.problems = path, data, prefix, loc, problems
+        self.refused = refused  # the table itself is missing or not a table (reported once): not its keys
 
-    def error(self, key: str, message: str) -> SceneError:
-        return SceneError(f"{self.path}: {self.prefix}{key}: {message}")
+    def error(self, key: str, message: str) -> None:
+        field = f"{self.prefix}{key}" if key else self.prefix.rstrip(".")
+        line = self.loc.line(field)
+        where = f"{self.path}:{line}"
+        self.problems.append((self.path, line, f"{where}: {field}: {message}" if field else f"{where}: {message}"))
 
-    def table(self, key: str, required: bool = True) -> _Reader:
-        value = self.data.get(key, _REQUIRED)
+    def keys(self, allowed: tuple[str, ...]) -> None:
+        for key in self.data:
+            if key not in allowed:
+                self.error(key, f"unknown key; allowed: {', '.join(allowed)}")
+
+    def table(self, key: str, required: bool = True, allowed: tuple[str, ...] | None = None) -> _Reader:
+        value, refused = self.data.get(key, _REQUIRED), self.refused
         if value is _REQUIRED:
-            if required:
-                raise self.error(key, "missing section")
-            value = {}
-        if not isinstance(value, dict):
-            raise self.error(key, "must be a table")
-        return _Reader(self.path, value, f"{self.prefix}{key}.")
+            if required and not refused:
+                self.error(key, "missing section")
+            value, refused = {}, refused or required
+        elif not isinstance(value, dict):
+            self.error(key, "must be a table")
+            value, refused = {}, True
+        table = _Reader(self.path, value, f"{self.prefix}{key}.", self.loc, self.problems, refused)
+        if allowed is not None:
+            table.keys(allowed)
+        return table
 
-    def number(self, key: str, default=_REQUIRED, lo: float = -math.inf, hi: float = math.inf, lo_open=False) -> float:
+    def _value(self, key: str, default):
         value = self.data.get(key, default)
         if value is _REQUIRED:
-            raise self.error(key, "missing")
+            if not self.refused:
+                self.error(key, "missing")
+            return None
+        return value  # None: absent, and its default depends on a value already refused
+
+    def number(self, key: str, default=_REQUIRED, lo: float = -math.inf, hi: float = math.inf, lo_open=False,
+               hi_open=False) -> float | None:
+        value = self._value(key, default)
+        if value is None:
+            return None
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise self.error(key, f"{value!r} is not a finite number")
+            return self.error(key, f"{value!r} is not a finite number")
         below = value <= lo if lo_open else value < lo
-        if below or value > hi:
-            left = "(" if lo_open else "["
-            raise self.error(key, f"{value!r} is out of range; allowed: {left}{lo:g}, {hi:g}]")
+        above = value >= hi if hi_open else value > hi
+        if below or above:
+            left, right = "(" if lo_open else "[", ")" if hi_open else "]"
+            return self.error(key, f"{value!r} is out of range; allowed: {left}{lo:g}, {hi:g}{right}")
         return float(value)
 
-    def integer(self, key: str, default=_REQUIRED, lo: int = 1, hi: int = 1 << 30) -> int:
-        value = self.data.get(key, default)
-        if value is _REQUIRED:
-            raise self.error(key, "missing")
+    def integer(self, key: str, default=_REQUIRED, lo: int = 1, hi: int = 1 << 30) -> int | None:
+        value = self._value(key, default)
+        if value is None:
+            return None
         if isinstance(value, bool) or not isinstance(value, int):
-            raise self.error(key, f"{value!r} is not an integer")
+            return self.error(key, f"{value!r} is not an integer")
         if not lo <= value <= hi:
-            raise self.error(key, f"{value!r} is out of range; allowed: {lo}..{hi}")
+            return self.error(key, f"{value!r} is out of range; allowed: {lo}..{hi}")
         return value
 
-    def string(self, key: str, default=_REQUIRED, choices: tuple[str, ...] | None = None) -> str:
-        value = self.data.get(key, default)
-        if value is _REQUIRED:
-            raise self.error(key, "missing")
+    def string(self, key: str, default=_REQUIRED, choices: tuple[str, ...] | None = None) -> str | None:
+        value = self._value(key, default)
+        if value is None:
+            return None
         if not isinstance(value, str):
-            raise self.error(key, f"{value!r} is not a string")
+            return self.error(key, f"{value!r} is not a string")
         if choices is not None and value not in choices:
-            raise self.error(key, f"{value!r} is not one of {', '.join(choices)}")
+            return self.error(key, f"{value!r} is not one of {', '.join(choices)}")
         return value
 
-    def vector(self, key: str, default=_REQUIRED) -> Vec3:
-        value = self.data.get(key, default)
-        if value is _REQUIRED:
-            raise self.error(key, "missing")
+    def vector(self, key: str, default=_REQUIRED) -> Vec3 | None:
+        value = self._value(key, default)
+        if value is None:
+            return None
         ok = isinstance(value, list) and len(value) == 3
         ok = ok and all(not isinstance(c, bool) and isinstance(c, (int, float)) and math.isfinite(c) for c in value)
         if not ok:
-            raise self.error(key, f"{value!r} is not a list of three numbers (metres)")
+            return self.error(key, f"{value!r} is not a list of three numbers (metres)")
         return (float(value[0]), float(value[1]), float(value[2]))
 
-    def path_value(self, key: str) -> Path:
-        p = Path(self.string(key))
+    def path_value(self, key: str) -> Path | None:
+        s = self.string(key)
+        if s is None:
+            return None
+        p = Path(s)
         return p if p.is_absolute() else (self.path.parent / p).resolve()
 
 
 def load_scene(path: str | Path) -> SceneSpec:
-    """Read and validate a scene file."""
+    """Read and validate a scene file (and the parameter files it names). Raises one SceneError
+    whose `problems` are every problem found, each 'FILE:LINE: field: message'."""
     path = Path(path)
     try:
-        text = path.read_text()
-    except OSError as exc:
-        raise SceneError(f"{path}: cannot read: {exc.strerror}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{path}: invalid TOML: {exc}") from None
-    root = _Reader(path, data)
-    scene = root.table("scene", required=False)
-    mesh = root.table("mesh")
-    material = root.table("material")
-    fixed = root.table("fixed")
-    model = root.table("model")
-    servo = root.table("servo", required=False)
-    visual = root.table("visual", required=False)
-    renderer = root.table("renderer", required=False)
-    view = root.table("view", required=False)
+        data, loc = read_toml(path)
+    except TomlFileError as exc:
+        raise SceneError(str(exc)) from None
+    problems: list = []
+    root = _Reader(path, data, "", loc, problems)
+    for key, value in data.items():
+        if key not in SECTIONS:
+            what = "section" if isinstance(value, (dict, list)) else "key"
+            root.error(key, f"unknown {what}; allowed: {', '.join(SECTIONS)}")
+    scene = root.table("scene", required=False, allowed=("name", "description", "duration"))
+    mesh = root.table("mesh", allowed=("path",))
+    material = root.table("material", allowed=("young", "poisson", "density"))
+    fixed = root.table("fixed", allowed=("axis", "from_bottom"))
+    model = root.table("model", allowed=("name",))
+    servo = root.table("servo", required=False, allowed=("rate_hz",))
+    visual = root.table("visual", required=False, allowed=("rate_hz",))
+    renderer = root.table("renderer", required=False, allowed=("kind", "width", "height", "fps"))
+    view = root.table("view", required=False, allowed=("front", "up", "zoom"))
 
     models_table = root.table("models")
     models: dict[str, ModelSpec] = {}
     for name in models_table.data:
-        models[name] = _model_spec(models_table.table(name), name)
-    if not models:
-        raise models_table.error("", "no model configured")
+        spec = _model_spec(models_table, name)
+        if spec is not None:
+            models[name] = spec
+    if not models_table.data and isinstance(data.get("models"), dict):
+        models_table.error("", "no model configured")
     default_model = model.string("name")
-    if default_model not in models:
-        raise model.error("name", f"{default_model!r} has no [models.{default_model}] section")
+    if default_model is not None and models_table.data and default_model not in models_table.data:
+        model.error("name", f"{default_model!r} has no [models.{default_model}] section")
 
     hands_data = data.get("hands", _REQUIRED)
+    hands: list[HandSpec] = []
     if hands_data is _REQUIRED:
-        raise root.error("hands", "missing: a scene needs one or two [[hands]]")
-    if not isinstance(hands_data, list) or not 1 <= len(hands_data) <= 2:
-        raise root.error("hands", "a scene needs one or two [[hands]] tables")
-    hands = tuple(_hand_spec(_Reader(path, h, f"hands[{k}].")) for k, h in enumerate(hands_data))
-    if len({h.name for h in hands}) != len(hands):
-        raise root.error("hands", "hand names must be distinct")
+        root.error("hands", "missing: a scene needs one or two [[hands]]")
+    elif not isinstance(hands_data, list) or not hands_data:
+        root.error("hands", "a scene needs one or two [[hands]] tables")
+    else:
+        if len(hands_data) > 2:
+            root.error("hands[2]", f"a scene needs one or two [[hands]] tables, not {len(hands_data)}")
+        for k, h in enumerate(hands_data):
+            if not isinstance(h, dict):
+                root.error(f"hands[{k}]", "must be a table")
+                continue
+            hand = _Reader(path, h, f"hands[{k}].", loc, problems)
+            hands.append(_hand_spec(hand))
+            earlier = [j for j, other in enumerate(hands[:-1]) if hands[-1].name is not None and other.name == hands[-1].name]
+            if earlier:
+                hand.error("name", f"{hands[-1].name!r} is also the name of hands[{earlier[0]}]; hand names must be distinct")
 
     mesh_path = mesh.path_value("path")
-    if not mesh_path.exists():
-        raise mesh.error("path", f"{mesh_path} does not exist")
+    if mesh_path is not None and not mesh_path.exists():
+        mesh.error("path", f"{mesh_path} does not exist")
 
-    return SceneSpec(
+    spec = SceneSpec(
         path=path,
         name=scene.string("name", default=path.stem),
         description=scene.string("description", default=""),
         mesh_path=mesh_path,
         material=MaterialSpec(
             young=material.number("young", lo=0.0, lo_open=True),
-            poisson=material.number("poisson", lo=0.0, hi=0.5, lo_open=False),
+            poisson=material.number("poisson", lo=POISSON_MIN, hi=POISSON_MAX, hi_open=True),
             density=material.number("density", lo=0.0, lo_open=True),
         ),
         fixed=FixedSpec(axis=fixed.string("axis", choices=tuple(AXES)), from_bottom=fixed.number("from_bottom", lo=0.0)),
         model=default_model,
         models=models,
-        hands=hands,
+        hands=tuple(hands),
         servo_rate_hz=servo.number("rate_hz", default=1000.0, lo=100.0, hi=10000.0),
         visual_rate_hz=visual.number("rate_hz", default=30.0, lo=1.0, hi=240.0),
         duration=scene.number("duration", default=3.0, lo=0.0, lo_open=True),
@@ -270,32 +321,43 @@ def load_scene(path: str | Path) -> SceneSpec:
             fps=renderer.number("fps", default=10.0, lo=0.0, hi=240.0, lo_open=True),
         ),
     )
+    if problems:  # the scene file's in line order, then those of the files it names
+        problems.sort(key=lambda p: (p[0] != path, str(p[0]), p[1]))
+        raise SceneError([text for _, _, text in problems])
+    return spec
 
 
 def _view_spec(view: _Reader) -> ViewSpec:
     d = ViewSpec()
     front, up = view.vector("front", default=list(d.front)), view.vector("up", default=list(d.up))
-    if np.linalg.norm(front) < 1e-9 or np.linalg.norm(np.cross(front, up)) < 1e-6 * np.linalg.norm(front) * max(np.linalg.norm(up), 1e-9):
-        raise view.error("up", f"{list(up)} must not be zero or parallel to front {list(front)}")
+    if front is not None and up is not None and (
+        np.linalg.norm(front) < 1e-9 or np.linalg.norm(np.cross(front, up)) < 1e-6 * np.linalg.norm(front) * max(np.linalg.norm(up), 1e-9)
+    ):
+        view.error("up", f"{list(up)} must not be zero or parallel to front {list(front)}")
     return ViewSpec(front=front, up=up, zoom=view.number("zoom", default=d.zoom, lo=0.05, hi=5.0))
 
 
-def _model_spec(table: _Reader, name: str) -> ModelSpec:
+def _model_spec(models: _Reader, name: str) -> ModelSpec | None:
     from sim.models import MODELS
 
     if name not in MODELS:
-        raise table.error("", f"unknown model {name!r}; available: {', '.join(sorted(MODELS))}")
+        models.error(name, f"unknown model {name!r}; available: {', '.join(sorted(MODELS))}")
+        return None
+    table = models.table(name, allowed=MODEL_KEYS.get(name))
     if name == "plate_spring":
-        from sim.models.plate_spring import VARIANTS, PlateSpringParams, load_params
+        from sim.models.plate_spring import VARIANTS
 
         variant = table.string("variant", default="continuous", choices=VARIANTS)
-        if "params" in table.data and isinstance(table.data["params"], str):
-            params = load_params(table.path_value("params"))
+        raw = table.data.get("params", _REQUIRED)
+        params = None
+        if isinstance(raw, str):
+            params = _params_file(table, table.path_value("params"))
+        elif isinstance(raw, dict):
+            params = _plate_spring_params(table.table("params"))
+        elif raw is _REQUIRED:
+            table.error("params", "missing: a parameter file (a path) or an inline table")
         else:
-            try:
-                params = PlateSpringParams.from_mapping(table.table("params").data, source=f"{table.path}: {table.prefix}params")
-            except ParameterError as exc:
-                raise SceneError(str(exc)) from None
+            table.error("params", f"{raw!r} is neither a parameter file (a path) nor a table")
         return ModelSpec(name=name, variant=variant, plate_spring=params)
     if name == "fem":
         resolution = table.number("resolution", default=0.004, lo=0.003, hi=0.008)
@@ -320,14 +382,70 @@ def _model_spec(table: _Reader, name: str) -> ModelSpec:
     return ModelSpec(name=name, options=dict(table.data))
 
 
+def _params_file(table: _Reader, path: Path | None):
+    """The plate-spring parameter file a scene names, its problems named by that file's lines."""
+    if path is None:
+        return None
+    if not path.is_file():
+        return table.error("params", f"{path} does not exist" if not path.exists() else f"{path} is not a file")
+    try:
+        data, loc = read_toml(path)
+    except TomlFileError as exc:
+        table.problems.append((path, 0, str(exc)))
+        return None
+    return _plate_spring_params(_Reader(path, data, "", loc, table.problems))
+
+
+def _plate_spring_params(r: _Reader):
+    """PlateSpringParams from a table (a parameter file or an inline table): unknown, missing
+    and non-numeric keys are all reported; then the first value out of range (the checks of
+    PlateSpringParams, some of which relate several keys)."""
+    import dataclasses
+
+    from sim.models.plate_spring import PlateSpringParams
+
+    keys = tuple(f.name for f in dataclasses.fields(PlateSpringParams))
+    r.keys(keys)
+    values, missing = {}, [key for key in keys if key not in r.data]
+    if missing:
+        r.error("", f"missing key{'s' if len(missing) > 1 else ''} {', '.join(missing)}; required: {', '.join(keys)}")
+    ok = not missing
+    for key in keys:
+        v = values[key] = r.data.get(key, _REQUIRED)
+        if v is _REQUIRED:
+            continue
+        if key == "layers" and (isinstance(v, bool) or not isinstance(v, int)):
+            r.error(key, f"{v!r} is not an integer")
+        elif key != "layers" and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
+            r.error(key, f"{v!r} is not a finite number")
+        else:
+            continue
+        ok = False
+    if not ok:
+        return None
+    try:
+        return PlateSpringParams.from_mapping(values, source="")
+    except ParameterError as exc:
+        message = str(exc).removeprefix(": ")
+        key, sep, rest = message.partition(": ")
+        if sep and key in keys:
+            r.error(key, rest)
+        else:
+            r.error("", message)
+        return None
+
+
 def _hand_spec(h: _Reader) -> HandSpec:
     from sim.devices import BACKENDS
 
+    h.keys(HAND_KEYS)
     name = h.string("name")
     grasp_at = h.number("grasp_at", default=0.2, lo=0.0)
-    pull_start = h.number("pull_start", default=grasp_at + 0.2, lo=grasp_at)
+    after_grasp = 0.0 if grasp_at is None else grasp_at  # bound of the later times (grasp_at refused: 0)
+    pull_start = h.number("pull_start", default=None if grasp_at is None else grasp_at + 0.2, lo=after_grasp)
     pull_time = h.number("pull_time", default=1.0, lo=0.0, lo_open=True)
-    release_at = h.number("release_at", default=pull_start + pull_time + 0.5, lo=grasp_at, lo_open=True)
+    release_default = None if pull_start is None or pull_time is None else pull_start + pull_time + 0.5
+    release_at = h.number("release_at", default=release_default, lo=after_grasp, lo_open=True)
     return HandSpec(
         name=name,
         device=h.string("device", default="simulated", choices=tuple(BACKENDS)),

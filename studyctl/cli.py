@@ -1,6 +1,7 @@
 """The `studyctl` command line: parse options, call one library function, print.
 
-Library exceptions (`sim.errors.SimError`) become one-line errors with exit status 1; usage
+Library exceptions (`sim.errors.SimError`, `studyctl.errors.StudyError`) become one-line errors
+(a file with several problems: one line each) with exit status 1; usage
 mistakes are click's (exit status 2). No traceback reaches the user for either.
 """
 
@@ -16,6 +17,8 @@ import click
 
 from analysis.sweep import SweepError
 from sim.errors import SimError
+from sim.models.base import MAX_PULL_M, pull_problem
+from sim.run import MAX_DURATION_S, VisualStep
 from sim.scene import DEFAULT_SCENE
 from studyctl.errors import StudyError
 
@@ -227,8 +230,9 @@ def model():
 @model.command("plate-spring")
 @click.option("--params", "params_file", required=True, type=click.Path(dir_okay=False, path_type=Path), help="Parameter file (TOML, SI units).")
 @click.option("--variant", type=click.Choice(["paper", "continuous"]), default="continuous", show_default=True)
-@click.option("--force", "force", type=float, default=None, help="Tension F in newtons: print the deformation.")
-@click.option("--displacement", "displacement", type=float, default=None, help="Displacement X in metres: print the force.")
+@click.option("--force", "force", type=Finite(), default=None, help="Tension F in newtons, >= 0: print the deformation.")
+@click.option("--displacement", "displacement", type=Finite(min=0.0, max=MAX_PULL_M), default=None,
+              help=f"Displacement X in metres, 0..{MAX_PULL_M:g} (the longest pull the tissue models are meant for): print the force.")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 def model_plate_spring(params_file: Path, variant: str, force, displacement, as_json: bool):
     """The paper's plate-spring model: layer table, X(F), or its inverse F(X).
@@ -293,15 +297,45 @@ def _vector(ctx, param, value):
         parts = []
     if len(parts) != 3:
         raise click.BadParameter(f"{value!r} is not three comma-separated numbers (metres)")
+    names = ("DX", "DY", "DZ") if param is not None and param.name == "displacement" else ("X", "Y", "Z")
+    bad = [name for name, x in zip(names, parts) if not math.isfinite(x)]
+    if bad:
+        raise click.BadParameter(f"{value!r}: {', '.join(bad)} {'is not a finite number' if len(bad) == 1 else 'are not finite numbers'}; "
+                                 "allowed: three finite numbers (metres)")
     return tuple(parts)
+
+
+def _pull(ctx, param, value):
+    """A displacement vector no longer than the models are meant for (`MAX_PULL_M`)."""
+    vec = _vector(ctx, param, value)
+    if vec is not None and (problem := pull_problem(vec)) is not None:
+        raise click.BadParameter(f"{value!r} {problem}")
+    return vec
+
+
+def _check_grasp(grasp, mesh) -> None:
+    """Refuse a grasp point farther from the brain surface than the simulator's grasp reach
+    (a button press that far away grasps nothing in a run)."""
+    if grasp is None:
+        return
+    import numpy as np
+
+    p = np.asarray(grasp, dtype=np.float64)
+    dist = float(np.linalg.norm(mesh.vertices[mesh.nearest_vertex(p)] - p))
+    reach = VisualStep.grasp_reach
+    if dist > reach:
+        ctx = click.get_current_context()
+        param = next(q for q in ctx.command.params if q.name == "grasp")
+        raise click.BadParameter(f"{','.join(f'{x:g}' for x in grasp)} is {dist * 1e3:.4g} mm from the brain surface; "
+                                 f"allowed: within {reach * 1e3:g} mm of it (the simulator's grasp reach)", ctx, param)
 
 
 @model.command("fem")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--resolution", type=float, default=None, help="Grid spacing in millimetres, 3..8 (default: the scene's, else 4).")
 @click.option("--formulation", type=click.Choice(["linear", "corotational", "neo-hookean"]), default="linear", show_default=True)
-@click.option("--grasp", required=True, callback=_vector, help="Grasp point X,Y,Z in metres (snapped to the surface).")
-@click.option("--displacement", required=True, callback=_vector, help="Displacement DX,DY,DZ of the grasp point in metres.")
+@click.option("--grasp", required=True, callback=_vector, help=f"Grasp point X,Y,Z in metres, within the grasp reach ({VisualStep.grasp_reach * 1e3:g} mm) of the brain surface (snapped to it).")
+@click.option("--displacement", required=True, callback=_pull, help=f"Displacement DX,DY,DZ of the grasp point in metres, at most {MAX_PULL_M:g} m long.")
 @click.option("--steps", type=click.IntRange(1, 200), default=5, show_default=True, help="Load steps of the nonlinear solves.")
 @click.option("--json", "as_json", is_flag=True)
 def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacement, steps: int, as_json: bool):
@@ -310,9 +344,11 @@ def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacemen
     from sim.scene import build_scene
 
     scene = build_scene(scene_file)
+    _check_grasp(grasp, scene.mesh)
     out = static_pull(scene, grasp, displacement, None if resolution is None else resolution / 1e3, formulation, steps)
     if as_json:
         _print_json(out)
+        _check_converged(out)
         return
     console = _console()
     f = out["force_n"]
@@ -341,6 +377,19 @@ def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacemen
     for k, v in out["times_ms"].items():
         t.add_row(k, f"{v:.4g}")
     console.print(t)
+    _check_converged(out)
+
+
+def _check_converged(out: dict) -> None:
+    """A nonlinear solve that did not converge is a failure (exit status 1), not a result."""
+    if out["converged"]:
+        return
+    n, done = out["load_steps"], out.get("completed_steps")
+    where = f"diverged after {done} of {n} load steps" if done is not None and done < n else f"did not converge in {n} load step{'s' * (n != 1)}"
+    raise click.ClickException(
+        f"the {out['formulation']} solve {where}" + (" (elements inverted)" if out.get("inverted_elements") else "")
+        + ": the force is not the requested pull's; try more --steps or a shorter --displacement"
+    )
 
 
 @model.command("mass-spring")
@@ -350,15 +399,19 @@ def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacemen
 @click.option("--dt", type=Finite(min=0.0, min_open=True, max=0.1), required=True, help="Step in seconds, (0, 0.1].")
 @click.option("--steps", type=click.IntRange(1, 1_000_000), default=100, show_default=True)
 @click.option("--substep", is_flag=True, help="Split explicit steps above the critical step instead of refusing them.")
-@click.option("--grasp", callback=_vector, default=None, help="Grasp point X,Y,Z (default: the scene's first hand).")
-@click.option("--displacement", callback=_vector, default=None, help="Hand displacement DX,DY,DZ (default: that hand's pull).")
+@click.option("--grasp", callback=_vector, default=None,
+              help=f"Grasp point X,Y,Z in metres, within the grasp reach ({VisualStep.grasp_reach * 1e3:g} mm) of the brain surface (default: the scene's first hand).")
+@click.option("--displacement", callback=_pull, default=None,
+              help=f"Hand displacement DX,DY,DZ in metres, at most {MAX_PULL_M:g} m long (default: that hand's pull).")
 @click.option("--json", "as_json", is_flag=True)
 def model_mass_spring(scene_file, resolution, integrator, dt, steps, substep, grasp, displacement, as_json):
     """Hold a pull on the mass-spring brain and step it: stability, displacement, cost."""
     from sim.models.mass_spring import hold_pull
     from sim.scene import build_scene
 
-    out = hold_pull(build_scene(scene_file), integrator, dt, steps, None if resolution is None else resolution / 1e3, substep, grasp, displacement)
+    scene = build_scene(scene_file)
+    _check_grasp(grasp, scene.mesh)
+    out = hold_pull(scene, integrator, dt, steps, None if resolution is None else resolution / 1e3, substep, grasp, displacement)
     if as_json:
         _print_json(out)
         return
@@ -472,7 +525,7 @@ def sim():
 @sim.command("run")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--model", "model_name", default=None, help="A model configured in the scene (default: the scene's).")
-@click.option("--duration", type=Finite(min=0.0, min_open=True, max=86400.0), default=None, help="Simulated seconds (default: the scene's).")
+@click.option("--duration", type=Finite(min=0.0, min_open=True, max=MAX_DURATION_S), default=None, help="Simulated seconds (default: the scene's).")
 @click.option("--frames", "frames_dir", type=OutDir(), default=None, help="Write pictures, the force plot and the trace here.")
 @click.option("--time-scale", type=Finite(min=0.0, max=1000.0), default=1.0, show_default=True, help="1 = real time; 0 = as fast as possible (lockstep, deterministic).")
 @click.option("--view", type=click.Choice(["none", "offscreen", "window"]), default=None,
@@ -518,7 +571,7 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--model", "model_name", default=None, help="A model configured in the scene (default: the scene's).")
 @click.option("--device", type=click.Choice(["mouse", "simulated", "openhaptics"]), default="mouse", show_default=True)
-@click.option("--duration", type=Finite(min=0.0, min_open=True, max=86400.0), default=600.0, show_default=True, help="Seconds at most; Q, Escape or closing the window ends it sooner.")
+@click.option("--duration", type=Finite(min=0.0, min_open=True, max=MAX_DURATION_S), default=600.0, show_default=True, help="Seconds at most; Q, Escape or closing the window ends it sooner.")
 @click.option("--screenshot", type=OutFile((".png",)), default=None, help="Save the last frame shown (PNG).")
 @DEVICES
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable statistics.")
@@ -679,57 +732,177 @@ def participants():
     """Participants (pseudonymous codes)."""
 
 
+DRY_RUN = click.option("--dry-run", is_flag=True, help="Check and show what would be done; write nothing.")
+
+
+def _done(out: dict, text: str) -> None:
+    click.echo(("dry run, nothing written: would have " if out.get("dry_run") else "") + text)
+
+
 @participants.command("add")
 @click.argument("code")
-@click.option("--age", type=int, default=None)
+@click.option("--age", type=click.IntRange(0, 120), default=None)
 @click.option("--name", default=None, help="Kept in a separate table that no export or report includes.")
 @click.option("--contact", default=None, help="Kept in a separate table that no export or report includes.")
+@click.option("--synthetic", is_flag=True, help="A SYNTHETIC participant (run only with `session run --synthetic`).")
 @DB
-def participants_add(code, age, name, contact, db):
+@DRY_RUN
+def participants_add(code, age, name, contact, synthetic, db, dry_run):
     """Register a participant under a pseudonymous CODE."""
     from studyctl.study import add_participant
 
-    out = add_participant(db, code, age, name, contact)
-    click.echo(f"added {out['code']}")
+    out = add_participant(db, code, age, name, contact, synthetic=synthetic, dry_run=dry_run)
+    _done(out, f"added {out['code']}" + (" (SYNTHETIC)" if synthetic else ""))
 
 
 @participants.command("import")
 @click.argument("csv_file", type=click.Path(dir_okay=False, path_type=Path))
 @DB
-def participants_import(csv_file, db):
-    """Register participants from a CSV (code, then optional age, name, contact): all or none."""
+@DRY_RUN
+def participants_import(csv_file, db, dry_run):
+    """Register participants from a CSV (code, then optional age, name, contact): all or none.
+    UTF-8 with or without BOM, ',' or ';' separated, headers in any case."""
     from studyctl.study import import_participants
 
-    click.echo(f"imported {import_participants(db, csv_file)['imported']} participants")
+    out = import_participants(db, csv_file, dry_run=dry_run)
+    _done(out, f"imported {out['imported']} participants")
 
 
-@cli.command("schedule", cls=click.Command)
+def _table(rows: list[dict], title: str, columns: list[str]) -> None:
+    from rich.table import Table
+
+    t = Table(title=title)
+    for c in columns:
+        t.add_column(c)
+    for r in rows:
+        t.add_row(*("-" if r[c] is None else str(r[c]) for c in columns))
+    _console().print(t)
+
+
+@participants.command("list")
 @DB
-@click.option("--start", required=True, help="First day, YYYY-MM-DD.")
-@click.option("--end", required=True, help="Last day, YYYY-MM-DD.")
+@click.option("--json", "as_json", is_flag=True)
+def participants_list(db, as_json):
+    """Every participant (codes only, never names): kind, consent, slot, session, answers."""
+    from studyctl.participants import list_participants
+
+    rows = list_participants(db)
+    if as_json:
+        _print_json(rows)
+    elif not rows:
+        click.echo(f"{db}: no participants yet")
+    else:
+        _table(rows, f"{len(rows)} participants", ["code", "kind", "age", "consent", "slot", "session", "answers", "withdrawn"])
+
+
+@participants.command("consent")
+@click.argument("code")
+@click.option("--date", "given_on", default=None, help="The day the form was signed, YYYY-MM-DD (default: today).")
+@click.option("--version", default=None, help="The consent form's version (default and only allowed: the protocol's).")
+@DB
+@DRY_RUN
+def participants_consent(code, given_on, version, db, dry_run):
+    """Record that a person signed the consent form (needed before their session)."""
+    from studyctl.participants import record_consent
+
+    out = record_consent(db, code, given_on, version, dry_run=dry_run)
+    _done(out, f"recorded consent of {code}: form {out['version']}, signed {out['given_on']}")
+
+
+@participants.command("withdraw")
+@click.argument("code")
+@click.option("--reason", default="", help="Kept in the event log (optional; a person need not give one).")
+@DB
+@DRY_RUN
+def participants_withdraw(code, reason, db, dry_run):
+    """A participant withdraws: no more sessions; their data kept or deleted as the protocol says
+    (ethics.withdrawal); their contact details deleted; logged."""
+    from studyctl.participants import withdraw
+
+    out = withdraw(db, code, reason, dry_run=dry_run)
+    _done(out, f"withdrawn {code}: {out['sessions']} sessions and {out['answers']} answers {out['data']}"
+          + (f", {out['traces']} trace files deleted" if out["traces"] else "") + "; contact details deleted")
+
+
+@participants.command("contacts")
+@DB
+@click.option("--out", "out_file", required=True, type=OutFile((".csv",)), help="A new CSV file (never overwritten).")
+def participants_contacts(db, out_file):
+    """EXPERIMENTER ONLY: names and contact details (the identifying table) to a CSV marked as such."""
+    from studyctl.participants import export_contacts
+
+    out = export_contacts(db, out_file)
+    click.echo(f"wrote {out['file']}: IDENTIFYING names and contacts of {out['participants']} participants (readable by you only)")
+
+
+@cli.group("schedule", cls=_Group, invoke_without_command=True)
+@click.option("--db", envvar="STUDYCTL_DB", type=click.Path(dir_okay=False, path_type=Path), help="Study database (or STUDYCTL_DB).")
+@click.option("--start", help="First day, YYYY-MM-DD (today or later).")
+@click.option("--end", help="Last day, YYYY-MM-DD.")
 @click.option("--hours", default="09:00-17:00", show_default=True)
-@click.option("--session-minutes", type=int, default=45, show_default=True)
+@click.option("--session-minutes", type=click.IntRange(5, 480), default=45, show_default=True)
 @click.option("--availability", type=click.Path(dir_okay=False, path_type=Path), default=None, help="CSV: code,date,start,end.")
 @click.option("--ics", type=OutFile((".ics",)), default=None, help="Write an iCalendar file (.ics).")
 @click.option("--json", "as_json", is_flag=True)
-def schedule_cmd(db, start, end, hours, session_minutes, availability, ics, as_json):
-    """Give each waiting participant a slot on the rig and a counterbalanced order."""
+@DRY_RUN
+@click.pass_context
+def schedule_cmd(ctx, db, start, end, hours, session_minutes, availability, ics, as_json, dry_run):
+    """Give each waiting participant a slot on the rig and a counterbalanced order
+    (`schedule cancel CODE` frees a slot; scheduling again gives a new one)."""
+    if ctx.invoked_subcommand is not None:
+        return
+    for name, value in (("--db", db), ("--start", start), ("--end", end)):
+        if value is None:
+            raise click.UsageError(f"Missing option '{name}'.")
     from studyctl.study import schedule_study
 
-    rows = schedule_study(db, start, end, hours, session_minutes, availability, ics)
+    rows = schedule_study(db, start, end, hours, session_minutes, availability, ics, dry_run=dry_run)
     if as_json:
         _print_json(rows)
         return
     from rich.table import Table
 
-    t = Table(title=f"Schedule ({len([r for r in rows if r['slot_start']])} of {len(rows)} participants have a slot)")
+    with_slot = len([r for r in rows if r["slot_start"]])
+    t = Table(title=("DRY RUN, nothing stored: " if dry_run else "") + f"Schedule ({with_slot} of {len(rows)} participants have a slot)")
     for col in ("participant", "start", "end", "order"):
         t.add_column(col)
     for r in rows:
         t.add_row(r["code"], r["slot_start"] or "-", (r["slot_end"] or "-")[11:16], " > ".join(json.loads(r["conditions"])))
     _console().print(t)
-    if ics:
+    if ics and not dry_run:
         click.echo(f"calendar: {ics}")
+
+
+@schedule_cmd.command("cancel")
+@click.argument("code")
+@DB
+@DRY_RUN
+def schedule_cancel(code, db, dry_run):
+    """Free CODE's slot (their condition order is kept); run `schedule` again to reschedule."""
+    from studyctl.participants import cancel_slot
+
+    out = cancel_slot(db, code, dry_run=dry_run)
+    _done(out, f"cancelled {code}'s slot at {out['cancelled']}; `studyctl schedule` gives a new one")
+
+
+@cli.command("status", cls=click.Command)
+@DB
+@click.option("--json", "as_json", is_flag=True)
+def status_cmd(db, as_json):
+    """Where the study stands: participants, sessions by state, progress to the target N, who is next."""
+    from studyctl.participants import status
+
+    out = status(db)
+    if as_json:
+        _print_json(out)
+        return
+    p, c = out["participants"], out["complete"]
+    click.echo(f"{out['study']}: {c['persons']} of {out['target_participants']} people complete"
+               + (f" (and {c['synthetic']} SYNTHETIC)" if c["synthetic"] else ""))
+    click.echo(f"participants: {p['persons']} people ({p['consented']} consented, {p['withdrawn']} withdrawn), {p['synthetic']} synthetic")
+    click.echo("sessions: " + (", ".join(f"{n} {k}" for k, n in sorted(out["sessions"].items())) or "none yet"))
+    click.echo(f"answers: {out['answers']}")
+    click.echo("next: " + ("; ".join(f"{r['code']} {r['slot_start'].replace('T', ' ')}" for r in out["next"]) or "nobody scheduled"))
 
 
 @cli.group(cls=_Group)
@@ -763,6 +936,25 @@ def session_run(db, participant, device, synthetic, resume, time_scale, view, an
                + (" (SYNTHETIC)" if out["synthetic"] else ""))
 
 
+@session.command("list")
+@DB
+@click.option("--json", "as_json", is_flag=True)
+def session_list(db, as_json):
+    """Every session: participant, state, device, person or synthetic, trials and answers."""
+    from studyctl.participants import list_sessions
+
+    rows = list_sessions(db)
+    if as_json:
+        _print_json(rows)
+    elif not rows:
+        click.echo(f"{db}: no sessions yet")
+    else:
+        _table(rows, f"{len(rows)} sessions", ["session", "code", "status", "device", "kind", "started_at", "finished_at", "trials", "answers"])
+
+
+cli.add_command(_Group("sessions", commands={"list": session_list}, help="Alias: `sessions list` is `session list`.", hidden=True))
+
+
 @cli.command("replay", cls=click.Command)
 @DB
 @click.option("--session", "session_id", type=click.IntRange(min=1), required=True)
@@ -793,9 +985,9 @@ def replay_cmd(db, session_id, trial, view, frames_dir, as_json):
 
 @cli.command("synth", cls=click.Command)
 @DB
-@click.option("--participants", type=int, required=True, help="How many synthetic participants.")
+@click.option("--participants", type=click.IntRange(1, 1000), required=True, help="How many synthetic participants (1..1000).")
 @click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--jobs", type=int, default=1, show_default=True, help="Sessions run in parallel processes.")
+@click.option("--jobs", type=click.IntRange(1, 64), default=1, show_default=True, help="Sessions run in parallel processes.")
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Create the database for this protocol if it does not exist.")
 def synth_cmd(db, participants, seed, jobs, protocol_file):
@@ -875,6 +1067,8 @@ def report_table1(db, fmt, out_file, accuracy_file, stability_file):
     (html: one self-contained file with the statistics and plots)."""
     from analysis import table1
 
+    if _no_answers(db, fmt == "json"):
+        return
     accuracy = _load_bench(accuracy_file, "accuracy", "rows") if accuracy_file else None
     stability = _load_bench(stability_file, "stability", "cases") if stability_file else None
     if fmt == "md":
@@ -909,6 +1103,20 @@ def report_table1(db, fmt, out_file, accuracy_file, stability_file):
         click.echo(text, nl=False)
 
 
+def _no_answers(db, as_json: bool) -> bool:
+    """An empty study: say so (exit 0) instead of tables of 0/0 and NaN; nothing is written."""
+    from analysis.table1 import study_facts
+
+    facts = study_facts(db)
+    if facts["participants"]:
+        return False
+    if as_json:
+        _print_json({"facts": facts, "message": "no answers yet"})
+    else:
+        click.echo(f"{facts['study']}: no answers yet; nothing to report")
+    return True
+
+
 def _load_bench(path: Path, kind: str, key: str) -> dict:
     """A bench's JSON (`studyctl bench KIND --out DIR` writes DIR/KIND.json)."""
     try:
@@ -927,6 +1135,8 @@ def report_plots(db, out_dir):
     """Rates with intervals, deformation times, and force traces against the FEM (PNG and SVG)."""
     from analysis.report import write_plots
 
+    if _no_answers(db, False):
+        return
     files = write_plots(db, out_dir)
     click.echo(f"wrote {len(files)} files to {out_dir}")
 
@@ -939,6 +1149,8 @@ def report_stats(db, as_json):
     for latency Friedman and Wilcoxon pairs (Holm); effect sizes."""
     from analysis.stats import study_stats
 
+    if _no_answers(db, as_json):
+        return
     out = study_stats(db)
     if as_json:
         _print_json(out)
@@ -970,7 +1182,10 @@ def report_published(table_file, as_json):
     else:
         click.echo("every printed rate agrees with its counts")
     for h in out["homogeneity"]:
-        click.echo(f"{h['item']}: chi2({h['df']}) = {h['chi2']:.2f}, p = {h['p_value']:.3g} (ignores the pairing)")
+        if math.isnan(h["chi2"]):
+            click.echo(f"{h['item']}: {h['note']}")
+        else:
+            click.echo(f"{h['item']}: chi2({h['df']}) = {h['chi2']:.2f}, p = {h['p_value']:.3g} (ignores the pairing)")
     click.echo(out["not_computable"])
 
 
@@ -982,11 +1197,30 @@ def answers():
 @answers.command("import")
 @DB
 @click.argument("csv_file", type=click.Path(dir_okay=False, path_type=Path))
-def answers_import(db, csv_file):
-    """Import participant,model,item,answer rows (yes/no); any unknown value rejects the file."""
+@DRY_RUN
+def answers_import(db, csv_file, dry_run):
+    """Import participant,model,item,answer rows (yes/no, y/n, 1/0); any unknown value rejects the file."""
     from studyctl.study import import_answers
 
-    click.echo(f"imported {import_answers(db, csv_file)['imported']} answers")
+    out = import_answers(db, csv_file, dry_run=dry_run)
+    _done(out, f"imported {out['imported']} answers")
+
+
+@answers.command("correct")
+@DB
+@click.option("--participant", required=True)
+@click.option("--model", required=True, help="The model the answer is about (as stored, e.g. fem).")
+@click.option("--item", required=True, help="The question's id, e.g. natural.")
+@click.option("--answer", required=True, help="The right answer: yes or no.")
+@click.option("--reason", required=True, help="Why (kept in the audit trail with the old value and your login).")
+@DRY_RUN
+def answers_correct(db, participant, model, item, answer, reason, dry_run):
+    """Correct one stored answer; the old value, reason and who did it go to the `corrections` table."""
+    from studyctl.participants import correct_answer
+
+    out = correct_answer(db, participant, model, item, answer, reason, dry_run=dry_run)
+    word = {0: "no", 1: "yes"}
+    _done(out, f"corrected {participant}/{model}/{item}: {word[out['old']]} -> {word[out['new']]} (audit trail kept)")
 
 
 @cli.command("export", cls=click.Command)

@@ -46,6 +46,8 @@ class Protocol:
     latency_measures: tuple[str, ...]
     questions: tuple[Question, ...]
     text: str  # the file's content, stored with every session
+    consent_version: str = "1"  # the consent form a person must have signed before a session
+    withdrawal: str = "keep"  # a withdrawn participant's data: "keep" (pseudonymous) or "delete"
 
     @property
     def sha256(self) -> str:
@@ -97,9 +99,14 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     path = Path(path)
     if text is None:
         try:
-            text = path.read_text()
+            raw = path.read_bytes()
         except OSError as exc:
             return None, [f"{path}:1: cannot read: {exc.strerror}"]
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            line = raw[:exc.start].count(b"\n") + 1
+            return None, [f"{path}:{line}: not UTF-8 text (byte 0x{raw[exc.start]:02x}); save it as UTF-8"]
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -142,10 +149,27 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
             return default
         return float(v) if kind is float else v
 
+    sections = {"study": ("name", "title", "version", "target_participants", "scene"),
+                "design": ("conditions", "counterbalancing", "training_minutes", "trials_per_condition", "trial_seconds", "rest_seconds"),
+                "inclusion": ("age_min", "age_max"), "latency": ("measures",), "ethics": ("consent_version", "withdrawal"),
+                "questions": ("id", "text")}
     for key in data:
-        if key not in ("study", "design", "inclusion", "latency", "questions"):
-            bad(key, "unknown section; allowed: study, design, inclusion, latency, questions")
+        if key not in sections:
+            bad(key, f"unknown section; allowed: {', '.join(sections)}")
+    for sec, keys in sections.items():
+        tables = data.get(sec)
+        tables = [(sec, tables)] if isinstance(tables, dict) else \
+            [(f"{sec}[{k}]", t) for k, t in enumerate(tables)] if isinstance(tables, list) else []
+        for where, t in tables:
+            for key in t if isinstance(t, dict) else ():
+                if key not in keys:
+                    bad(f"{where}.{key}", f"unknown key; allowed: {', '.join(keys)}")
     study, design, inclusion, latency = table("study"), table("design"), table("inclusion"), table("latency")
+    ethics = data.get("ethics", {}) if isinstance(data.get("ethics", {}), dict) else {}
+    consent_version = get(ethics, "ethics", "consent_version", str, default="1", required=False)
+    withdrawal = get(ethics, "ethics", "withdrawal", str, default="keep", required=False)
+    if withdrawal not in ("keep", "delete"):
+        bad("ethics.withdrawal", f"{withdrawal!r} is not keep or delete")
     name = get(study, "study", "name", str)
     title = get(study, "study", "title", str, default="", required=False)
     version = get(study, "study", "version", int, default=1, lo=1, required=False)
@@ -212,7 +236,7 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
             path=path, name=name, title=title, version=version, target_participants=target, scene=scene,
             conditions=tuple(conditions), counterbalancing=cb, training_minutes=training, trials_per_condition=trials,
             trial_seconds=trial_s, rest_seconds=rest_s, age_min=age_min, age_max=age_max, latency_measures=tuple(measures),
-            questions=tuple(questions), text=text,
+            questions=tuple(questions), text=text, consent_version=consent_version, withdrawal=withdrawal,
         ),
         [],
     )

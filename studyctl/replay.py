@@ -25,7 +25,7 @@ def replay_trial(db, session_id: int, k: int, view: str = "none", frames_dir: Pa
     from sim.run import run_scene, write_outputs
     from sim.scene import build_scene
 
-    store = Store(db)
+    store = Store(db, mode="read")
     try:
         if not store.rows("select id from sessions where id = ?", (session_id,)):
             raise InputError(f"--session: {db}: no session {session_id}")

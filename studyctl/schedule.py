@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import csv
 import datetime as dt
 import json
 from pathlib import Path
 
+from studyctl.csvfiles import read_csv
 from studyctl.errors import InputError
 
 
@@ -52,24 +52,16 @@ def read_availability(path: str | Path) -> dict[str, list[tuple[dt.datetime, dt.
     """CSV with columns code, date, start, end (local times); all rows valid or none used."""
     path = Path(path)
     out: dict[str, list] = {}
-    try:
-        with open(path, newline="") as fh:
-            reader = csv.DictReader(fh)
-            missing = {"code", "date", "start", "end"} - set(reader.fieldnames or [])
-            if missing:
-                raise InputError(f"{path}: missing column {sorted(missing)[0]!r} (need code, date, start, end)")
-            for line, row in enumerate(reader, start=2):
-                try:
-                    day = dt.date.fromisoformat(row["date"])
-                    a = dt.datetime.combine(day, dt.time.fromisoformat(row["start"]))
-                    b = dt.datetime.combine(day, dt.time.fromisoformat(row["end"]))
-                except (ValueError, TypeError):
-                    raise InputError(f"{path}: line {line}: date must be YYYY-MM-DD and start/end HH:MM") from None
-                if a >= b:
-                    raise InputError(f"{path}: line {line}: end is not after start")
-                out.setdefault(row["code"], []).append((a, b))
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read: {exc.strerror}") from None
+    for line, row in read_csv(path, ("code", "date", "start", "end"), ("code", "date", "start", "end")):
+        try:
+            day = dt.date.fromisoformat(row["date"])
+            a = dt.datetime.combine(day, dt.time.fromisoformat(row["start"]))
+            b = dt.datetime.combine(day, dt.time.fromisoformat(row["end"]))
+        except (ValueError, TypeError):
+            raise InputError(f"{path}: line {line}: date must be YYYY-MM-DD and start/end HH:MM") from None
+        if a >= b:
+            raise InputError(f"{path}: line {line}: end is not after start")
+        out.setdefault(row["code"], []).append((a, b))
     return out
 
 

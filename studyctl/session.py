@@ -227,6 +227,33 @@ def _check_options(device: str, synthetic: bool, time_scale: float | None, view:
     return time_scale
 
 
+def _check_participant(store: Store, protocol, code: str, synthetic: bool) -> None:
+    """Registered, not withdrawn, not done; a person or synthetic, never both; answers from one
+    source; a person has signed the protocol's consent form."""
+    from studyctl.participants import has_consent
+
+    person = store.rows("select synthetic, withdrawn_at from participants where code = ?", (code,))
+    if not person:
+        raise StoreError(f"participant {code}: not registered; add with `studyctl participants add`")
+    if person[0]["withdrawn_at"]:
+        raise StoreError(f"participant {code}: withdrew on {person[0]['withdrawn_at'][:10]}; no further sessions")
+    if store.rows("select id from sessions where code = ? and status = 'done'", (code,)):
+        raise StoreError(f"participant {code}: the session is already complete")
+    registered_synthetic = bool(person[0]["synthetic"])
+    if synthetic and not registered_synthetic:
+        raise StoreError(f"participant {code}: registered as a person; --synthetic runs only participants registered "
+                         "as synthetic (`studyctl synth`, or `participants add --synthetic`)")
+    if not synthetic and registered_synthetic:
+        raise StoreError(f"participant {code}: registered as synthetic; a person's session needs a person's code (or add --synthetic)")
+    imported = store.rows("select count(*) as n from answers where code = ? and source = 'import'", (code,))[0]["n"]
+    if imported:
+        raise StoreError(f"participant {code}: already has {imported} answers imported from another source; "
+                         "a simulator session would mix sources")
+    if not synthetic and not has_consent(store, code, protocol.consent_version):
+        raise StoreError(f"participant {code}: no consent recorded for consent form {protocol.consent_version!r}; "
+                         f"record it with `studyctl participants consent {code}`")
+
+
 def run_session(db, code: str, device: str = "simulated", synthetic: bool = False, resume: bool = False,
                 time_scale: float | None = None, *args, view: str = "none", answer_with: str = "terminal", **kwargs) -> dict:
     """Run (or with `resume`, continue) participant `code`'s session; see `_run_session`. One
@@ -234,7 +261,13 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
     from studyctl.lock import session_lock
 
     time_scale = _check_options(device, synthetic, time_scale, view, answer_with)
-    Store(db).close()  # a missing or foreign database is reported before any lock file is made
+    store = Store(db, mode="read")  # a missing or foreign database, or the wrong participant: no lock file made
+    try:
+        _check_participant(store, store.protocol(), code, synthetic)
+        if resume and not store.rows("select id from sessions where code = ? and status = 'running'", (code,)):
+            raise StoreError(f"participant {code}: no interrupted session to resume")
+    finally:
+        store.close()
     with session_lock(db, code):
         return _run_session(db, code, device, synthetic, resume, time_scale, *args, view=view, answer_with=answer_with, **kwargs)
 
@@ -263,17 +296,18 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
             from sim.servo_process import ServoProcess
 
             servo = ServoProcess(first, time_scale)
-        if not store.rows("select code from participants where code = ?", (code,)):
-            raise StoreError(f"participant {code}: not registered; add with `studyctl participants add`")
+        _check_participant(store, protocol, code, synthetic)  # again, now that this process holds the lock
         sessions = store.rows("select * from sessions where code = ? order by id", (code,))
-        if any(s["status"] == "done" for s in sessions):
-            raise StoreError(f"participant {code}: the session is already complete")
         running = [s for s in sessions if s["status"] == "running"]
         if running and not resume:
             raise StoreError(f"participant {code}: a session was interrupted; continue it with --resume")
         if resume and not running:
             raise StoreError(f"participant {code}: no interrupted session to resume")
         order = assign_order(store, protocol, code)
+        if running and (bool(running[0]["synthetic"]), running[0]["device"]) != (synthetic, device):
+            was = running[0]
+            raise StoreError(f"participant {code}: session {was['id']} was started with --device {was['device']}"
+                             f"{' --synthetic' if was['synthetic'] else ''}; resume it with the same options")
         if running:
             session_id = running[0]["id"]
             store.event(session_id, "resumed")

@@ -17,8 +17,8 @@ import sqlite_utils
 
 from studyctl.errors import StoreError
 
-SCHEMA_VERSION = 2
-EXPORT_TABLES = ("participants", "schedule", "sessions", "conditions", "trials", "answers", "latency", "events")
+SCHEMA_VERSION = 3
+EXPORT_TABLES = ("participants", "schedule", "sessions", "conditions", "trials", "answers", "latency", "events", "consent", "corrections")
 IDENTIFYING_TABLES = ("identities",)
 
 
@@ -67,25 +67,128 @@ def _migration_2(db: sqlite_utils.Database) -> None:
         db["trials"].add_column(col, kind)
 
 
-MIGRATIONS = {1: _migration_1, 2: _migration_2}
+def _migration_3(db: sqlite_utils.Database) -> None:
+    """Withdrawal, consent records, and the audit trail of corrected answers."""
+    db["participants"].add_column("withdrawn_at", str)
+    db["participants"].add_column("withdrawal", str)  # what was done with their data: kept or deleted
+    db["consent"].create({"code": str, "version": str, "given_on": str, "recorded_at": str, "recorded_by": str},
+                         pk="code", foreign_keys=[("code", "participants", "code")])
+    db["corrections"].create({"id": int, "code": str, "model": str, "item": str, "old_answer": int, "new_answer": int,
+                              "reason": str, "corrected_at": str, "corrected_by": str}, pk="id")
+
+
+MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3}
+
+
+STUDY_TABLES = ("meta", "study")  # what makes a file a study database (with meta.schema_version)
+
+
+def _tables(conn: sqlite3.Connection) -> list[str]:
+    return [r[0] for r in conn.execute("select name from sqlite_master where type = 'table' order by name")]
+
+
+def _open_read(path: Path) -> sqlite3.Connection:
+    """A connection that only reads. Read-write with `query_only` where the file allows it, so
+    closing it removes the WAL side files as a writer would (a read-only connection leaves them
+    behind); read-only where the file or folder is read-only; immutable where even the WAL index
+    cannot be made (a read-only mount: nobody can write there while we read)."""
+    uri = path.resolve().as_uri()
+    for mode in ("rw", "ro", "immutable"):
+        try:
+            conn = sqlite3.connect(uri + ("?immutable=1" if mode == "immutable" else f"?mode={mode}"), uri=True, isolation_level=None)
+            conn.execute("PRAGMA query_only = ON")
+            conn.execute("select count(*) from sqlite_master").fetchone()
+            return conn
+        except sqlite3.OperationalError:
+            if mode == "immutable":
+                raise
+    raise AssertionError("unreachable")
+
+
+def inspect(path: str | Path) -> tuple[str, list[str]]:
+    """('missing' | 'empty' | 'study' | 'foreign', tables) of a file, read without changing it."""
+    path = Path(path)
+    if not path.exists():
+        return "missing", []
+    if path.is_dir():
+        raise StoreError(f"{path}: is a folder, not a study database")
+    if path.stat().st_size == 0:
+        return "empty", []
+    try:
+        conn = _open_read(path)
+    except sqlite3.DatabaseError as exc:
+        raise StoreError(f"{path}: not a study database ({exc})") from None
+    try:
+        tables = _tables(conn)
+        if not tables:
+            return "empty", []
+        if set(STUDY_TABLES) <= set(tables) and conn.execute("select value from meta where key = 'schema_version'").fetchone():
+            return "study", tables
+        return "foreign", tables
+    except sqlite3.DatabaseError as exc:
+        raise StoreError(f"{path}: not a study database ({exc})") from None
+    finally:
+        conn.close()
+
+
+def connect_read(path: str | Path) -> sqlite3.Connection:
+    """A read-only connection to a study database (reports read through pandas with it)."""
+    return Store(path, mode="read").db.conn
 
 
 class Store:
-    """An open study database."""
+    """An open study database.
 
-    def __init__(self, path: str | Path, create: bool = False):
+    mode "write" (the default) opens an existing study database for writing (WAL, migrations);
+    "read" opens it read-only and changes nothing, so reports work on a read-only copy;
+    "create" may also start a new one in a new or empty file. A file that is not a study
+    database is never changed: it is inspected read-only first.
+    """
+
+    def __init__(self, path: str | Path, create: bool = False, mode: str = "write"):
         self.path = Path(path)
-        if not create and not self.path.exists():
+        mode = "create" if create else mode
+        self.read_only = mode == "read"
+        kind, tables = inspect(self.path)
+        if kind == "missing" and mode != "create":
             raise StoreError(f"{self.path}: no such study database; create it with `studyctl study init`")
+        if kind == "missing" and not self.path.parent.is_dir():
+            raise StoreError(f"{self.path}: cannot create: {self.path.parent} is not an existing folder")
+        if kind == "empty" and mode != "create":
+            raise StoreError(f"{self.path}: an empty file, not a study database; run `studyctl study init`")
+        if kind == "foreign":
+            shown = ", ".join(tables[:5]) + (", ..." if len(tables) > 5 else "")
+            raise StoreError(f"{self.path}: not a study database (it holds other tables: {shown}); nothing was changed")
         try:
-            conn = sqlite3.connect(str(self.path), timeout=30.0, isolation_level=None)
+            if self.read_only:
+                conn = _open_read(self.path)
+            else:
+                conn = sqlite3.connect(str(self.path), timeout=30.0, isolation_level=None)
             conn.execute("PRAGMA busy_timeout = 30000")  # wait for another writer rather than fail
-            conn.execute("PRAGMA foreign_keys = ON")
             self.db = sqlite_utils.Database(conn)
-            self.db.enable_wal()
-            self._migrate()
+            try:
+                if self.read_only:
+                    self._check_version()
+                else:
+                    conn.execute("PRAGMA foreign_keys = ON")
+                    self.db.enable_wal()
+                    self._migrate()
+            except BaseException:
+                conn.close()  # now, so the WAL side files go with it
+                raise
+        except sqlite3.OperationalError as exc:
+            if "readonly" in str(exc) or "unable to open" in str(exc):
+                raise StoreError(f"{self.path}: cannot write here ({exc}); reports and exports still work on it") from None
+            raise StoreError(f"{self.path}: not a study database ({exc})") from None
         except sqlite3.DatabaseError as exc:
             raise StoreError(f"{self.path}: not a study database ({exc})") from None
+
+    def _check_version(self) -> None:
+        row = self.db.execute("select value from meta where key = 'schema_version'").fetchone()
+        version = int(row[0]) if row else 0
+        if version != SCHEMA_VERSION:
+            raise StoreError(f"{self.path}: schema version {version}, this software reads {SCHEMA_VERSION}; "
+                             "any writing command (e.g. `studyctl participants add`) upgrades it")
 
     def _migrate(self) -> None:
         db = self.db

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import csv
 import datetime as dt
 import json
 from pathlib import Path
 
+from studyctl.csvfiles import read_csv, yes_no
 from studyctl.errors import InputError, StoreError
 from studyctl.schedule import allocate, next_order, read_availability, to_ics, williams
 from studyctl.store import EXPORT_TABLES, Store, now
@@ -33,7 +33,8 @@ def _check_age(age, protocol, where: str):
     return age
 
 
-def add_participant(db: str | Path, code: str, age=None, name: str | None = None, contact: str | None = None, synthetic: bool = False) -> dict:
+def add_participant(db: str | Path, code: str, age=None, name: str | None = None, contact: str | None = None,
+                    synthetic: bool = False, dry_run: bool = False) -> dict:
     store = Store(db)
     try:
         protocol = store.protocol()
@@ -41,35 +42,38 @@ def add_participant(db: str | Path, code: str, age=None, name: str | None = None
         age = _check_age(age, protocol, f"participant {code}")
         if store.rows("select code from participants where code = ?", (code,)):
             raise InputError(f"participant {code}: already registered")
-        store.write("participants", {"code": code, "age": age, "synthetic": int(synthetic), "created_at": now()}, pk="code")
-        if name or contact:  # identifying details, kept apart; never exported or reported
-            store.write("identities", {"code": code, "name": name, "contact": contact}, pk="code")
-        return {"code": code, "age": age}
+        if synthetic and (name or contact):
+            raise InputError(f"participant {code}: a synthetic participant has no name or contact")
+        _insert(store, [{"code": code, "age": age, "synthetic": int(synthetic), "created_at": now()}],
+                [{"code": code, "name": name, "contact": contact}] if name or contact else [], dry_run)
+        return {"code": code, "age": age, "synthetic": synthetic, "dry_run": dry_run}
     finally:
         store.close()
 
 
-def import_participants(db: str | Path, csv_path: str | Path) -> dict:
+def _insert(store: Store, people: list[dict], identities: list[dict], dry_run: bool) -> None:
+    """Participants and their identifying details (kept apart; never exported or reported), all or none."""
+    conn = store.db.conn
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        conn.executemany("insert into participants (code, age, synthetic, created_at) values (:code, :age, :synthetic, :created_at)", people)
+        conn.executemany("insert into identities (code, name, contact) values (:code, :name, :contact)", identities)
+        conn.execute("ROLLBACK" if dry_run else "COMMIT")
+    except BaseException:
+        conn.execute("ROLLBACK")
+        raise
+
+
+def import_participants(db: str | Path, csv_path: str | Path, dry_run: bool = False) -> dict:
     """CSV with a `code` column, then optional `age`, `name`, `contact`: all rows or none."""
     csv_path = Path(csv_path)
     store = Store(db)
     try:
         protocol = store.protocol()
-        try:
-            with open(csv_path, newline="") as fh:
-                reader = csv.DictReader(fh)
-                cols = reader.fieldnames or []
-                if not cols or cols[0] != "code":
-                    raise InputError(f"{csv_path}: the first column must be 'code'")
-                unknown = set(cols) - {"code", "age", "name", "contact"}
-                if unknown:
-                    raise InputError(f"{csv_path}: unknown column {sorted(unknown)[0]!r}; allowed: code, age, name, contact")
-                rows = list(reader)
-        except OSError as exc:
-            raise InputError(f"{csv_path}: cannot read: {exc.strerror}") from None
+        rows = read_csv(csv_path, ("code", "age", "name", "contact"), ("code",))
         existing = {r["code"] for r in store.rows("select code from participants")}
         people, identities, seen = [], [], set()
-        for line, row in enumerate(rows, start=2):
+        for line, row in rows:
             where = f"{csv_path}: line {line}"
             code = _check_code(row.get("code"), where)
             if code in seen or code in existing:
@@ -79,17 +83,9 @@ def import_participants(db: str | Path, csv_path: str | Path) -> dict:
             if row.get("name") or row.get("contact"):
                 identities.append({"code": code, "name": row.get("name") or None, "contact": row.get("contact") or None})
         if not people:
-            raise InputError(f"{csv_path}: no participants")
-        store.db.conn.execute("BEGIN IMMEDIATE")
-        try:
-            store.db["participants"].insert_all(people, pk="code")
-            if identities:
-                store.db["identities"].insert_all(identities, pk="code")
-            store.db.conn.execute("COMMIT")
-        except BaseException:
-            store.db.conn.execute("ROLLBACK")
-            raise
-        return {"imported": len(people)}
+            raise InputError(f"{csv_path}: no participants (only a header)")
+        _insert(store, people, identities, dry_run)
+        return {"imported": len(people), "dry_run": dry_run}
     finally:
         store.close()
 
@@ -104,40 +100,63 @@ def assign_order(store: Store, protocol, code: str) -> list[str]:
     assigned = [r["order_index"] for r in store.rows("select order_index from schedule")]
     k = next_order(protocol.conditions, completed, assigned)
     order = [protocol.conditions[i] for i in williams(len(protocol.conditions))[k]]
-    store.write("schedule", {"code": code, "slot_start": None, "slot_end": None, "order_index": k, "conditions": json.dumps(order)}, pk="code", replace=True)
+    # plain SQL, so the caller's transaction (if any) holds it
+    store.db.conn.execute("insert or replace into schedule (code, slot_start, slot_end, order_index, conditions) values (?, null, null, ?, ?)",
+                          (code, k, json.dumps(order)))
     return order
 
 
 def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:00", minutes: int = 45,
-                   availability: str | Path | None = None, ics: str | Path | None = None) -> list[dict]:
+                   availability: str | Path | None = None, ics: str | Path | None = None, dry_run: bool = False,
+                   today: dt.date | None = None) -> list[dict]:
+    """Slots and counterbalanced orders for every waiting participant, all stored or none
+    (`dry_run`: none, the proposal is returned)."""
     try:
         d0, d1 = dt.date.fromisoformat(start), dt.date.fromisoformat(end)
     except ValueError:
         raise InputError("--start/--end: dates must be YYYY-MM-DD") from None
+    today = today or dt.date.today()
+    if d0 < today:
+        raise InputError(f"--start: {d0} is in the past; allowed: today ({today}) or later")
+    if (d1 - d0).days > 366:
+        raise InputError(f"--end: {d1} is more than a year after --start; allowed: at most 366 days")
     avail = read_availability(availability) if availability else None
     store = Store(db)
     try:
         protocol = store.protocol()
+        codes = {r["code"] for r in store.rows("select code from participants")}
+        if avail is not None and set(avail) - codes:
+            raise InputError(f"{availability}: unknown participant {sorted(set(avail) - codes)[0]!r}")
         waiting = [r["code"] for r in store.rows(
-            "select p.code from participants p left join schedule s on s.code = p.code "
-            "where s.slot_start is null and p.code not in (select code from sessions where status = 'done') order by p.code")]
+            "select p.code from participants p left join schedule s on s.code = p.code where s.slot_start is null "
+            "and p.withdrawn_at is null and p.code not in (select code from sessions where status = 'done') order by p.code")]
         taken = [(dt.datetime.fromisoformat(r["slot_start"]), dt.datetime.fromisoformat(r["slot_end"]))
                  for r in store.rows("select slot_start, slot_end from schedule where slot_start is not null")]
         slots = allocate(waiting, d0, d1, hours, minutes, avail, taken)
-        for code in waiting:
-            assign_order(store, protocol, code)  # counterbalanced order, kept with the slot
-            if code in slots:
-                a, b = slots[code]
-                store.db.conn.execute("update schedule set slot_start = ?, slot_end = ? where code = ?", (a.isoformat(), b.isoformat(), code))
-        out = store.rows("select code, slot_start, slot_end, order_index, conditions from schedule order by slot_start is null, slot_start, code")
-        if ics:
-            Path(ics).write_text(to_ics([r for r in out if r["slot_start"]], protocol.name))
+        if waiting and not slots:
+            why = "their availability" if avail is not None else "free rig time"
+            raise InputError(f"no slot for any of the {len(waiting)} waiting participants: {start}..{end}, weekdays {hours}, "
+                             f"{minutes} min each, has no {why} left; widen --start/--end or --hours")
+        store.db.conn.execute("BEGIN IMMEDIATE")
+        try:
+            for code in waiting:
+                assign_order(store, protocol, code)  # counterbalanced order, kept with the slot
+                if code in slots:
+                    a, b = slots[code]
+                    store.db.conn.execute("update schedule set slot_start = ?, slot_end = ? where code = ?", (a.isoformat(), b.isoformat(), code))
+            out = store.rows("select code, slot_start, slot_end, order_index, conditions from schedule order by slot_start is null, slot_start, code")
+            if ics and not dry_run:
+                Path(ics).write_text(to_ics([r for r in out if r["slot_start"]], protocol.name))
+            store.db.conn.execute("ROLLBACK" if dry_run else "COMMIT")
+        except BaseException:
+            store.db.conn.execute("ROLLBACK")
+            raise
         return out
     finally:
         store.close()
 
 
-def import_answers(db: str | Path, csv_path: str | Path) -> dict:
+def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) -> dict:
     """Long format participant,model,item,answer (yes/no), e.g. a study run on paper. Unknown
     participants, models or items, or a bad answer, reject the whole file."""
     csv_path = Path(csv_path)
@@ -145,39 +164,39 @@ def import_answers(db: str | Path, csv_path: str | Path) -> dict:
     try:
         protocol = store.protocol()
         codes = {r["code"] for r in store.rows("select code from participants")}
-        try:
-            with open(csv_path, newline="") as fh:
-                reader = csv.DictReader(fh)
-                need = ["participant", "model", "item", "answer"]
-                if (reader.fieldnames or [])[:4] != need:
-                    raise InputError(f"{csv_path}: columns must be {','.join(need)}")
-                rows = list(reader)
-        except OSError as exc:
-            raise InputError(f"{csv_path}: cannot read: {exc.strerror}") from None
+        synthetic = {r["code"] for r in store.rows("select code from participants where synthetic = 1")}
+        in_sessions = {r["code"] for r in store.rows("select distinct code from sessions")}
+        need = ("participant", "model", "item", "answer")
+        rows = read_csv(csv_path, need, need)
         records, seen = [], set()
-        for line, r in enumerate(rows, start=2):
+        for line, r in rows:
             where = f"{csv_path}: line {line}"
             if r["participant"] not in codes:
                 raise InputError(f"{where}: unknown participant {r['participant']!r}")
+            if r["participant"] in synthetic:
+                raise InputError(f"{where}: participant {r['participant']} is synthetic; imported answers are a person's")
+            if r["participant"] in in_sessions:
+                raise InputError(f"{where}: participant {r['participant']} has a simulator session; importing would mix sources")
             if r["model"] not in protocol.conditions:
                 raise InputError(f"{where}: unknown model {r['model']!r}; allowed: {', '.join(protocol.conditions)}")
             if r["item"] not in protocol.items:
                 raise InputError(f"{where}: unknown item {r['item']!r}; allowed: {', '.join(protocol.items)}")
-            ans = (r["answer"] or "").strip().lower()
-            if ans not in ("yes", "no"):
-                raise InputError(f"{where}: answer {r['answer']!r} must be yes or no")
+            ans = yes_no(r["answer"], where)
             key = (r["participant"], r["model"], r["item"])
             if key in seen:
                 raise InputError(f"{where}: a second answer for {'/'.join(key)}")
             seen.add(key)
-            records.append({"code": key[0], "model": key[1], "item": key[2], "answer": int(ans == "yes"),
+            records.append({"code": key[0], "model": key[1], "item": key[2], "answer": ans,
                             "session_id": None, "source": "import", "answered_at": now()})
         existing = {(r["code"], r["model"], r["item"]) for r in store.rows("select code, model, item from answers")}
         clash = seen & existing
         if clash:
             raise InputError(f"{csv_path}: {'/'.join(sorted(clash)[0])} is already answered in the database")
-        store.write_many("answers", records, pk=("code", "model", "item"))
-        return {"imported": len(records)}
+        if not records:
+            raise InputError(f"{csv_path}: no answers (only a header)")
+        if not dry_run:
+            store.write_many("answers", records, pk=("code", "model", "item"))
+        return {"imported": len(records), "dry_run": dry_run}
     finally:
         store.close()
 
@@ -193,9 +212,11 @@ def export(db: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[str]:
     if fmt not in ("csv", "parquet"):
         raise InputError(f"--format: {fmt!r} is not csv or parquet")
     out_dir = Path(out_dir)
-    store = Store(db)
+    store = Store(db, mode="read")
     try:
-        frames = {table: pd.DataFrame(store.rows(f"select * from {table}")) for table in EXPORT_TABLES}
+        # the columns from the schema, so an empty table still exports its header
+        frames = {table: pd.DataFrame(store.rows(f"select * from {table}"), columns=list(store.db[table].columns_dict))
+                  for table in EXPORT_TABLES}
         frames["traces"] = traces_frame(store)
     finally:
         store.close()

@@ -39,6 +39,7 @@ WEIGHTS = {
 }
 DEFAULT_WEIGHTS = (0.5, 0.8, 0.5, 0.5)
 BASE_LOGIT = 1.0
+MAX_SYNTHETIC = 1000  # participants per `synth` call: a study, not a stress test (the paper had 35)
 # Deformation latency enters as a perceived category, from the literature's thresholds: haptic
 # task performance degrades from about 25 ms, visual-haptic asynchrony is detected from about
 # 45 ms. Categories (0, 1, 2) also keep answers independent of small timing noise, so the same
@@ -184,8 +185,8 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
     from studyctl.store import Store, init_study, now
     from studyctl.study import assign_order
 
-    if participants < 1:
-        raise InputError(f"--participants: {participants} is out of range; allowed: >= 1")
+    if not 1 <= participants <= MAX_SYNTHETIC:
+        raise InputError(f"--participants: {participants} is out of range; allowed: 1..{MAX_SYNTHETIC}")
     if not 1 <= jobs <= 64:
         raise InputError(f"--jobs: {jobs} is out of range; allowed: 1..64")
     if not Path(db).exists():
@@ -200,13 +201,20 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
         rng = random.Random(f"ages:{seed}")
         start = store.rows("select count(*) as n from participants where synthetic = 1")[0]["n"]
         first_id = (store.rows("select max(id) as m from sessions")[0]["m"] or 0) + 1
-        codes = []
-        for k in range(participants):
-            code = f"S{start + k + 1:03d}"
-            store.write("participants", {"code": code, "age": rng.randint(protocol.age_min, protocol.age_max),
-                                         "synthetic": 1, "created_at": now()}, pk="code")
-            assign_order(store, protocol, code)
-            codes.append(code)
+        codes = [f"S{start + k + 1:03d}" for k in range(participants)]
+        taken = {r["code"] for r in store.rows("select code from participants")} & set(codes)
+        if taken:
+            raise InputError(f"participant {sorted(taken)[0]}: already registered (synthetic codes are S001, S002, ...)")
+        store.db.conn.execute("BEGIN IMMEDIATE")  # all registered or none
+        try:
+            for code in codes:
+                store.db.conn.execute("insert into participants (code, age, synthetic, created_at) values (?, ?, 1, ?)",
+                                      (code, rng.randint(protocol.age_min, protocol.age_max), now()))
+                assign_order(store, protocol, code)
+            store.db.conn.execute("COMMIT")
+        except BaseException:
+            store.db.conn.execute("ROLLBACK")
+            raise
     finally:
         store.close()
     tasks = [(str(db), code, seed, first_id + k) for k, code in enumerate(codes)]

@@ -48,7 +48,7 @@ def test_outputs_into_missing_folders_or_with_wrong_suffixes_are_refused_before_
     before = db.read_bytes()
     (tmp_path / "afile").write_text("x")
     cases = [
-        (["schedule", "--db", db, "--start", "2026-12-01", "--end", "2026-12-05", "--ics", tmp_path / "missing" / "s.ics"], "is not an existing folder"),
+        (["schedule", "--db", db, "--start", "2037-12-01", "--end", "2037-12-05", "--ics", tmp_path / "missing" / "s.ics"], "is not an existing folder"),
         (["report", "table1", "--db", db, "--out", tmp_path / "missing" / "t.md"], "is not an existing folder"),
         (["export", "--db", db, "--out", tmp_path / "afile" / "ex"], "is a file, not a folder"),
         (["calibrate", "plate-spring", "--out", tmp_path / "missing" / "p.toml"], "is not an existing folder"),

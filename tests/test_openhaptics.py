@@ -322,6 +322,7 @@ def test_a_persons_session_on_two_fake_omnis_in_the_window(libhd, display, tmp_p
     db = tmp_path / "s.db"
     studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, trial_seconds=1.0, training=0.05), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
+    studyctl("participants", "consent", "P01", "--db", db)
     log = tmp_path / "hd.log"
     monkeypatch.setenv("BRAINSIM_LIBHD", libhd)
     monkeypatch.setenv("FAKEHD_LOG", str(log))

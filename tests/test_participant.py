@@ -29,7 +29,7 @@ def _protocol(tmp_path, trial_seconds=3.0, rest=0.5, **kw):
 def _synthetic_db(tmp_path, name="s.db", code="P01"):
     db = tmp_path / name
     studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=3), "--db", db)
-    studyctl("participants", "add", code, "--age", "24", "--db", db)
+    studyctl("participants", "add", code, "--age", "24", "--synthetic", "--db", db)
     return db
 
 
@@ -103,6 +103,7 @@ def test_real_time_session_through_a_pty_discards_keys_typed_during_training_and
     db = tmp_path / "s.db"
     studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, trial_seconds=1.0, training=0.05), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
+    studyctl("participants", "consent", "P01", "--db", db)
     typed = []
 
     def during_training(fd, out):
@@ -129,7 +130,7 @@ def test_real_time_session_through_a_pty_discards_keys_typed_during_training_and
 def test_a_second_process_cannot_drive_a_live_session_and_is_told_so(tmp_path):
     db = tmp_path / "s.db"
     studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=2, trial_seconds=1.0), "--db", db)
-    studyctl("participants", "add", "P05", "--db", db)
+    studyctl("participants", "add", "P05", "--synthetic", "--db", db)
     cmd = [sys.executable, "-m", "studyctl.cli", "session", "run", "--db", str(db), "--participant", "P05", "--synthetic", "--time-scale", "1"]
     first = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

@@ -42,9 +42,9 @@ def _scene_text(**replace) -> str:
         ('device = "simulated"\nstart = [-0.0313', 'device = "openhaptics"\ndevice_scale = 20.0\nstart = [-0.0313',
          r"hands\[0\].device_scale: 20.0 is out of range; allowed: \[0.1, 10\]"),
         ("young = 3000.0", "young = -3.0", r"material.young: -3.0 is out of range; allowed: \(0, inf\]"),
-        ("poisson = 0.45", "poisson = 0.7", r"material.poisson: 0.7 is out of range; allowed: \[0, 0.5\]"),
+        ("poisson = 0.45", "poisson = 0.7", r"material.poisson: 0.7 is out of range; allowed: \[0, 0.5\)"),
         ('name = "plate_spring"', 'name = "rubber"', r"model.name: 'rubber' has no \[models.rubber\] section"),
-        ("[models.plate_spring]", "[models.rubber]", r"models.rubber.: unknown model 'rubber'"),
+        ("[models.plate_spring]", "[models.rubber]", r"models.rubber: unknown model 'rubber'"),
         ("distance = 0.012\ngrasp_at = 0.3\npull_start = 0.5\npull_time = 1.2\nrelease_at = 2.6\n\n[[hands]]",
          'distance = "far"\ngrasp_at = 0.3\npull_start = 0.5\npull_time = 1.2\nrelease_at = 2.6\n\n[[hands]]',
          r"hands\[0\].distance: 'far' is not a finite number"),
@@ -59,7 +59,7 @@ def test_broken_scenes(tmp_path, old, new, message):
         params = tmp_path / "p.toml"
         params.write_text((ROOT / "protocols/models/plate_spring_handset.toml").read_text().replace("alpha = 1.25", "alpha = 3.0"))
         text = _scene_text(**{'"../models/plate_spring_brain.toml"': f'"{params}"'})
-        message = r"p.toml: alpha: 3.0 is out of range; allowed: \[1, 2\]"
+        message = r"p.toml:\d+: alpha: 3.0 is out of range; allowed: \[1, 2\]"
     else:
         text = _scene_text(**{old: new})
     text = _localise(text)
@@ -73,7 +73,9 @@ def test_broken_scenes(tmp_path, old, new, message):
     import re
 
     assert re.search(message, str(exc.value)), str(exc.value)
-    assert "\n" not in str(exc.value)
+    lines = str(exc.value).splitlines()  # every problem on its own line, FILE:LINE: field: message
+    assert isinstance(exc.value, SceneError) and exc.value.problems == lines
+    assert all(re.match(r"\S+\.toml:\d+: \S", line) for line in lines), lines
 
 
 def test_three_hands_refused(tmp_path):
@@ -142,3 +144,139 @@ def test_headless_fem_scene_meshes_in_a_child_and_assembles_once_per_hemisphere(
                           "render": "sim.render" in sys.modules}}))
     """)
     assert got == {"open3d": False, "assemblies": 2, "render": False}
+
+
+# -- every problem at once, each as FILE:LINE: field: message ---------------------------------
+
+
+def _line_of(text: str, needle: str) -> int:
+    """The 1-based number of the first line containing `needle`."""
+    return next(i for i, ln in enumerate(text.splitlines(), start=1) if needle in ln)
+
+
+def _write_scene(tmp_path, text: str, name: str = "s.toml"):
+    path = tmp_path / name
+    path.write_text(_localise(text))
+    return path, path.read_text()
+
+
+def _problems(path) -> list[str]:
+    with pytest.raises(SceneError) as exc:
+        load_scene(path)
+    assert str(exc.value) == "\n".join(exc.value.problems)
+    return exc.value.problems
+
+
+def test_three_independent_problems_all_reported_with_their_lines(tmp_path):
+    path, text = _write_scene(tmp_path, _scene_text(**{
+        "poisson = 0.45": "poisson = 0.7",
+        'kind = "offscreen"': 'kind = "window"',
+        "pull = [1.0, 0.0, 0.0]\ndistance = 0.012": "pull = [1.0, 0.0, 0.0]\ndistance = 0.5",
+    }))
+    assert _problems(path) == [
+        f"{path}:{_line_of(text, 'poisson = 0.7')}: material.poisson: 0.7 is out of range; allowed: [0, 0.5)",
+        f"{path}:{_line_of(text, 'kind = ')}: renderer.kind: 'window' is not one of none, offscreen",
+        f"{path}:{_line_of(text, 'distance = 0.5')}: hands[1].distance: 0.5 is out of range; allowed: [0, 0.2]",
+    ]
+    assert _line_of(text, "poisson = 0.7") == 14  # the shipped scene's layout, checked once by hand
+
+
+@pytest.mark.parametrize(
+    "old, new, needle, field, allowed",
+    [
+        ("young = 3000.0", "youngs = 3000.0", "youngs", "material.youngs", "young, poisson, density"),
+        ("rate_hz = 1000\n", "rate_hz = 1000\nrate = 2\n", "rate = 2", "servo.rate", "rate_hz"),
+        ("grasp_radius = 0.005                # a grasp", "grasp_radius = 0.005\nradius = 0.01  # a grasp", "radius = 0.01",
+         "models.fem.radius", "resolution, formulation, grasp_radius"),
+        ('name = "right"\n', 'name = "right"\nspeed = 2.0\n', "speed", "hands[1].speed",
+         "name, device, start, pull, distance, grasp_at, pull_start, pull_time, release_at, device_name, device_scale, "
+         "device_origin, trace, trace_hand"),
+        ("[servo]", "[sevro]\nrate_hz = 1000\n\n[servo]", "[sevro]", "sevro",
+         "scene, mesh, material, fixed, model, models, servo, visual, renderer, view, hands"),
+    ],
+)
+def test_unknown_keys_refused_with_the_allowed_ones(tmp_path, old, new, needle, field, allowed):
+    path, text = _write_scene(tmp_path, _scene_text(**{old: new}))
+    what = "section" if field == "sevro" else "key"
+    expected = f"{path}:{_line_of(text, needle)}: {field}: unknown {what}; allowed: {allowed}"
+    problems = _problems(path)
+    assert expected in problems
+    if field == "material.youngs":  # a misspelt key: its correct spelling is missing too
+        assert problems == [f"{path}:{_line_of(text, '[material]')}: material.young: missing", expected]
+    else:
+        assert problems == [expected]
+
+
+def test_unknown_and_missing_keys_of_the_parameter_file_named_by_its_lines(tmp_path):
+    params = tmp_path / "p.toml"
+    params.write_text((ROOT / "protocols/models/plate_spring_brain.toml").read_text()
+                      .replace("layers = 6", "layers = 6\nstiffness = 3.0").replace("omega = 1.2", ""))
+    path, _ = _write_scene(tmp_path, _scene_text(**{'"../models/plate_spring_brain.toml"': f'"{params}"'}))
+    ptext = params.read_text()
+    assert _problems(path) == [
+        f"{params}:1: missing key omega; required: b, h1, l1, alpha, q, layers, B, E, x_c1, delta, t1, omega",
+        f"{params}:{_line_of(ptext, 'stiffness')}: stiffness: unknown key; allowed: b, h1, l1, alpha, q, layers, B, E, x_c1, delta, t1, omega",
+    ]
+
+
+def test_poisson_bound_is_the_fems(tmp_path):
+    path, text = _write_scene(tmp_path, _scene_text(**{"poisson = 0.45": "poisson = 0.5"}))
+    assert _problems(path) == [f"{path}:{_line_of(text, 'poisson =')}: material.poisson: 0.5 is out of range; allowed: [0, 0.5)"]
+    ok, _ = _write_scene(tmp_path, _scene_text(**{"poisson = 0.45": "poisson = 0.499"}), "ok.toml")
+    assert load_scene(ok).material.poisson == 0.499
+    neg, _ = _write_scene(tmp_path, _scene_text(**{"poisson = 0.45": "poisson = -0.1"}), "neg.toml")
+    assert _problems(neg)[0].endswith("material.poisson: -0.1 is out of range; allowed: [0, 0.5)")
+    from sim.errors import ParameterError
+    from sim.models.fem import check_material
+
+    check_material(3000.0, 0.499)
+    for nu in (0.5, -0.1):  # the FEM refuses what the scene refuses, in the same words
+        with pytest.raises(ParameterError, match=rf"^poisson: {nu} is out of range; allowed: \[0, 0.5\)$"):
+            check_material(3000.0, nu)
+
+
+def test_file_problems_are_one_line_naming_the_file(tmp_path):
+    bad = tmp_path / "latin1.toml"
+    bad.write_bytes(_localise(SCENE.read_text()).replace('"Two simulated', '"Zw\xf6lf simulated').encode("latin-1"))
+    assert _problems(bad) == [f"{bad}:6: not UTF-8: byte 0xf6 at column 18; TOML files must be UTF-8"]
+
+    syntax, text = _write_scene(tmp_path, _scene_text(**{"rate_hz = 1000": "rate_hz = 1000 ="}), "syntax.toml")
+    (problem,) = _problems(syntax)
+    assert problem.startswith(f"{syntax}:{_line_of(text, 'rate_hz = 1000 =')}: invalid TOML: ")
+
+    missing = tmp_path / "none.toml"
+    assert _problems(missing) == [f"{missing}: cannot read: No such file or directory"]
+
+    # the parameter file a scene names: the same, with that file's name and line
+    params = tmp_path / "p.toml"
+    params.write_bytes(b"b = 0.01\nh1 = \xff\n")
+    path, _ = _write_scene(tmp_path, _scene_text(**{'"../models/plate_spring_brain.toml"': f'"{params}"'}))
+    assert _problems(path) == [f"{params}:2: not UTF-8: byte 0xff at column 6; TOML files must be UTF-8"]
+    params.write_text("b = 0.01\nh1 = = 2\n")
+    (problem,) = _problems(path)
+    assert problem.startswith(f"{params}:2: invalid TOML: ")
+    params.unlink()
+    path, text = _write_scene(tmp_path, _scene_text(**{'"../models/plate_spring_brain.toml"': f'"{params}"'}))
+    assert _problems(path) == [f"{path}:{_line_of(text, 'params =')}: models.plate_spring.params: {params} does not exist"]
+
+
+def test_cli_prints_every_problem_without_a_traceback(tmp_path):
+    from click.testing import CliRunner
+
+    from studyctl.cli import cli
+
+    path, text = _write_scene(tmp_path, _scene_text(**{
+        "poisson = 0.45": "poisson = 0.5", "young = 3000.0": "youngs = 3000.0", "pull_start = 0.5": "pull_start = 0.1"}))
+    problems = _problems(path)
+    assert len(problems) == 5  # young missing, youngs unknown, poisson, and both hands' pull_start
+    for scene in (path, tmp_path / "none.toml"):
+        res = CliRunner().invoke(cli, ["sim", "run", "--scene", str(scene), "--duration", "0.1", "--time-scale", "0"])
+        assert res.exit_code == 1, res.output
+        assert "Traceback" not in res.output and not isinstance(res.exception, SceneError)
+        expected = problems if scene == path else [f"{scene}: cannot read: No such file or directory"]
+        assert res.output.removeprefix("Error: ").splitlines() == expected
+    bad = tmp_path / "bytes.toml"
+    bad.write_bytes(b"[scene]\nname = \"\xff\"\n")
+    res = CliRunner().invoke(cli, ["sim", "run", "--scene", str(bad), "--duration", "0.1", "--time-scale", "0"])
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert res.output == f"Error: {bad}:2: not UTF-8: byte 0xff at column 9; TOML files must be UTF-8\n"

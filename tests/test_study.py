@@ -115,22 +115,22 @@ def test_participants_schedule_and_ics(tmp_path):
     res = studyctl("participants", "import", tmp_path / "bad.csv", env=env)
     assert res.exit_code == 1 and "line 3" in res.output
     assert [r[0] for r in sqlite3.connect(db).execute("select code from participants order by code")] == ["P01", "P02", "P03", "P04"]  # all or none
-    (tmp_path / "avail.csv").write_text("code,date,start,end\nP01,2026-12-01,13:00,17:00\nP02,2026-12-01,09:00,12:00\n"
-                                        "P03,2026-12-01,09:00,12:00\nP04,2026-12-02,09:00,10:00\n")
-    res = studyctl("schedule", "--start", "2026-12-01", "--end", "2026-12-02", "--availability", tmp_path / "avail.csv",
+    (tmp_path / "avail.csv").write_text("code,date,start,end\nP01,2037-12-01,13:00,17:00\nP02,2037-12-01,09:00,12:00\n"
+                                        "P03,2037-12-01,09:00,12:00\nP04,2037-12-02,09:00,10:00\n")
+    res = studyctl("schedule", "--start", "2037-12-01", "--end", "2037-12-02", "--availability", tmp_path / "avail.csv",
                    "--ics", tmp_path / "s.ics", "--json", env=env)
     assert res.exit_code == 0, res.output
     rows = json.loads(res.output)
     slots = {r["code"]: (r["slot_start"], r["slot_end"]) for r in rows}
     # on the 45-minute grid from 09:00, within each participant's availability
-    assert slots["P01"] == ("2026-12-01T13:30:00", "2026-12-01T14:15:00") and slots["P04"] == ("2026-12-02T09:00:00", "2026-12-02T09:45:00")
-    assert slots["P02"][1] <= "2026-12-01T12:00:00" and slots["P03"][1] <= "2026-12-01T12:00:00"
+    assert slots["P01"] == ("2037-12-01T13:30:00", "2037-12-01T14:15:00") and slots["P04"] == ("2037-12-02T09:00:00", "2037-12-02T09:45:00")
+    assert slots["P02"][1] <= "2037-12-01T12:00:00" and slots["P03"][1] <= "2037-12-01T12:00:00"
     spans = sorted(slots.values())
     assert all(a[1] <= b[0] for a, b in zip(spans, spans[1:]))  # one rig: no overlap
     orders = [tuple(json.loads(r["conditions"])) for r in rows]
     assert len(set(orders)) == 4  # four participants, four different Williams rows
     ics = (tmp_path / "s.ics").read_text()
-    assert ics.count("BEGIN:VEVENT") == 4 and "DTSTART:20261201T133000" in ics
+    assert ics.count("BEGIN:VEVENT") == 4 and "DTSTART:20371201T133000" in ics
 
 
 def count_rows(db, table: str = "answers") -> int:
@@ -144,7 +144,7 @@ def count_rows(db, table: str = "answers") -> int:
 def test_session_killed_with_sigkill_resumes_with_every_answer_exactly_once(tmp_path):
     db = tmp_path / "s.db"
     studyctl("study", "init", "--protocol", fast_protocol(tmp_path), "--db", db)
-    studyctl("participants", "add", "P01", "--age", "24", "--db", db)
+    studyctl("participants", "add", "P01", "--age", "24", "--synthetic", "--db", db)
     cmd = [sys.executable, "-m", "studyctl.cli", "session", "run", "--db", str(db), "--participant", "P01", "--synthetic"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 120
@@ -170,8 +170,8 @@ def test_session_killed_with_sigkill_resumes_with_every_answer_exactly_once(tmp_
 def test_a_session_and_an_import_write_at_once(tmp_path):
     db = tmp_path / "s.db"
     studyctl("study", "init", "--protocol", fast_protocol(tmp_path, conditions=("plate_spring",), trials=3), "--db", db)
-    for c in ("P01", "P02"):
-        studyctl("participants", "add", c, "--db", db)
+    studyctl("participants", "add", "P01", "--synthetic", "--db", db)
+    studyctl("participants", "add", "P02", "--db", db)
     session = subprocess.Popen([sys.executable, "-m", "studyctl.cli", "session", "run", "--db", str(db), "--participant", "P01", "--synthetic"],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines = ["participant,model,item,answer"] + [f"P02,plate_spring,{q},yes" for q in load_protocol(PROTOCOL).items]
@@ -245,6 +245,7 @@ def test_terminal_questionnaire_through_a_real_pty(tmp_path):
     db = tmp_path / "s.db"
     studyctl("study", "init", "--protocol", fast_protocol(tmp_path, conditions=("plate_spring",), trials=1), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
+    studyctl("participants", "consent", "P01", "--db", db)
     answers = iter(["y", "maybe", "n"] + ["y"] * 8)
     text = pty_session(["session", "run", "--db", db, "--participant", "P01", "--time-scale", "0"], lambda: next(answers))
     assert "Is interaction real and natural? [y/n]" in text and "Please answer y or n." in text
@@ -257,6 +258,7 @@ def test_session_on_openhaptics_without_the_library_is_a_clean_error(tmp_path, m
     db = tmp_path / "s.db"
     studyctl("study", "init", "--protocol", fast_protocol(tmp_path, conditions=("plate_spring",), trials=1), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
+    studyctl("participants", "consent", "P01", "--db", db)
     monkeypatch.setenv("BRAINSIM_LIBHD", str(tmp_path / "none" / "libHD.so"))
     res = studyctl("session", "run", "--db", db, "--participant", "P01", "--device", "openhaptics", "--view", "none")
     assert res.exit_code == 1 and "libHD.so) was not found" in res.output

@@ -90,6 +90,7 @@ def _window_session(db, actor, tmp_path, protocol_kw, **session_kw):
 
     studyctl("study", "init", "--protocol", _protocol(tmp_path, **protocol_kw), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
+    studyctl("participants", "consent", "P01", "--db", db)
     done = threading.Event()
     t = threading.Thread(target=actor, args=(done,), daemon=True)
     t.start()
@@ -277,6 +278,7 @@ def test_clean_errors_for_a_window_without_a_display_and_a_mouse_without_a_windo
     db = tmp_path / "s.db"
     studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, conditions=("fem",)), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
+    studyctl("participants", "consent", "P01", "--db", db)
     monkeypatch.delenv("DISPLAY", raising=False)
     res = studyctl("session", "run", "--db", db, "--participant", "P01")
     assert res.exit_code == 1 and "no display" in res.output and len(res.output.strip().splitlines()) == 1

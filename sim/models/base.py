@@ -27,6 +27,30 @@ import numpy as np
 
 Vec3 = tuple[float, float, float]
 
+# Poisson's ratio, one bound for scene files and the FEM: POISSON_MIN <= nu < POISSON_MAX
+# (nu = 0.5 is incompressible: linear elasticity's Lame lambda is infinite there).
+POISSON_MIN, POISSON_MAX = 0.0, 0.5
+
+# The longest pull (hand displacement from its grasp point, m) the tissue models are meant for.
+# The scene's scripted pulls are 12 mm and the plate-spring calibration reaches 24 mm
+# (protocols/scenes/brain_pull.toml, protocols/models/plate_spring_brain.toml), and only the
+# brain's top 47 mm above the skull clamp are free to move: 50 mm is four scripted pulls and
+# about that free height. Longer pulls are outside what the models were built and checked for
+# (the corotational FEM already inverts elements near 50 mm on the coarse mesh).
+MAX_PULL_M = 0.05
+
+
+def pull_problem(displacement) -> str | None:
+    """Why `displacement` (a pull vector or magnitude, m) is not a pull the models are meant
+    for, or None when it is one."""
+    d = np.atleast_1d(np.asarray(displacement, dtype=np.float64))
+    if not np.all(np.isfinite(d)):
+        return "is not finite; allowed: finite numbers (metres)"
+    length = float(np.linalg.norm(d))
+    if length > MAX_PULL_M:
+        return f"is {length:.4g} m long; allowed: at most {MAX_PULL_M:g} m ({MAX_PULL_M * 1e3:g} mm, the longest pull the tissue models are meant for)"
+    return None
+
 
 @dataclass(frozen=True)
 class Contact:

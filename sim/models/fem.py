@@ -26,6 +26,7 @@ import scipy.sparse as sp
 
 from sim.errors import ParameterError, SimError
 from sim.laws import Linearised, PairTable
+from sim.models.base import POISSON_MAX, POISSON_MIN, pull_problem
 
 
 class SingularSystemError(SimError):
@@ -45,8 +46,8 @@ def lame(young: float, poisson: float) -> tuple[float, float]:
 def check_material(young: float, poisson: float) -> None:
     if not (math.isfinite(young) and young > 0):
         raise ParameterError(f"young: {young!r} is out of range; allowed: a finite number > 0 Pa")
-    if not (math.isfinite(poisson) and -1.0 < poisson < 0.5):
-        raise ParameterError(f"poisson: {poisson!r} is out of range; allowed: (-1, 0.5)")
+    if not (math.isfinite(poisson) and POISSON_MIN <= poisson < POISSON_MAX):
+        raise ParameterError(f"poisson: {poisson!r} is out of range; allowed: [{POISSON_MIN:g}, {POISSON_MAX:g})")
 
 
 def shape_gradients(nodes: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -731,6 +732,8 @@ def static_pull(scene, grasp, displacement, resolution: float | None = None, for
 
     if formulation not in FORMULATIONS:
         raise ParameterError(f"formulation: {formulation!r} is not one of {', '.join(FORMULATIONS)}")
+    if (problem := pull_problem(displacement)) is not None:
+        raise ParameterError(f"displacement: {problem}")
     d = np.asarray(displacement, dtype=np.float64)
     spec = scene.model_spec if scene.model_spec.name == "fem" else None
     if resolution is None:

@@ -23,6 +23,7 @@ from sim.devices.base import OmniSpec
 from sim.errors import ParameterError, SimError
 from sim.laws import Coupling
 from sim.models import MASS_SPRING_INTEGRATORS as INTEGRATORS
+from sim.models.base import pull_problem
 
 OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m  # 700 N/m: stable closed-loop stiffness at 1 kHz
 SUBSTEP_FRACTION = 0.5  # explicit sub-steps are this fraction of critical_dt()
@@ -533,6 +534,8 @@ def hold_pull(scene, integrator: str, dt: float, steps: int, resolution: float |
         grasp = hand.start
     if displacement is None:
         displacement = np.asarray(hand.script(scene.mesh).pull)
+    if (problem := pull_problem(displacement)) is not None:
+        raise ParameterError(f"displacement: {problem}")
     mesh = scene.mesh
     volume = voxel_volume(mesh, resolution)
     material = scene.spec.material

@@ -1,0 +1,249 @@
+"""The experimenter's everyday records: consent, withdrawal, the participant and session lists,
+the study's status, corrected answers, cancelled slots, and the contact list.
+
+Every function that writes takes `dry_run`: it checks and returns what it would do, writing
+nothing. Writes are one transaction each, and each is logged in `events`.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import getpass
+import io
+from pathlib import Path
+
+from studyctl.csvfiles import yes_no
+from studyctl.errors import InputError, StoreError
+from studyctl.store import Store, now
+
+
+def _person(store: Store, code: str) -> dict:
+    rows = store.rows("select * from participants where code = ?", (code,))
+    if not rows:
+        raise InputError(f"participant {code}: not registered")
+    return rows[0]
+
+
+def _transaction(store: Store, dry_run: bool, work) -> None:
+    conn = store.db.conn
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        work(conn)
+        conn.execute("ROLLBACK" if dry_run else "COMMIT")
+    except BaseException:
+        conn.execute("ROLLBACK")
+        raise
+
+
+def record_consent(db, code: str, given_on: str | None = None, version: str | None = None, dry_run: bool = False) -> dict:
+    """Record that a person signed the protocol's consent form (version and date)."""
+    store = Store(db)
+    try:
+        protocol = store.protocol()
+        p = _person(store, code)
+        if p["synthetic"]:
+            raise InputError(f"participant {code}: synthetic participants give no consent")
+        if p["withdrawn_at"]:
+            raise InputError(f"participant {code}: withdrew on {p['withdrawn_at'][:10]}")
+        version = version or protocol.consent_version
+        if version != protocol.consent_version:
+            raise InputError(f"--version: {version!r} is not the protocol's consent form ({protocol.consent_version!r})")
+        try:
+            day = dt.date.fromisoformat(given_on) if given_on else dt.date.today()
+        except ValueError:
+            raise InputError(f"--date: {given_on!r} is not a date (YYYY-MM-DD)") from None
+        if day > dt.date.today():
+            raise InputError(f"--date: {day} is in the future; allowed: today or earlier")
+        row = {"code": code, "version": version, "given_on": day.isoformat(), "recorded_at": now(), "recorded_by": getpass.getuser()}
+
+        def work(conn):
+            conn.execute("insert or replace into consent (code, version, given_on, recorded_at, recorded_by) values (?, ?, ?, ?, ?)",
+                         tuple(row.values()))
+            conn.execute("insert into events (session_id, at, kind, detail) values (null, ?, 'consent', ?)",
+                         (now(), f"{code}: consent form {version} signed {day}"))
+
+        _transaction(store, dry_run, work)
+        return {**row, "dry_run": dry_run}
+    finally:
+        store.close()
+
+
+def has_consent(store: Store, code: str, version: str) -> bool:
+    return bool(store.rows("select code from consent where code = ? and version = ?", (code, version)))
+
+
+def withdraw(db, code: str, reason: str = "", dry_run: bool = False) -> dict:
+    """A participant withdraws: no further sessions or slots; their pseudonymous data is kept or
+    deleted as the protocol's `ethics.withdrawal` says; their contact details are deleted."""
+    from studyctl.traces import trace_dir
+
+    store = Store(db)
+    try:
+        protocol = store.protocol()
+        p = _person(store, code)
+        if p["withdrawn_at"]:
+            raise InputError(f"participant {code}: already withdrew on {p['withdrawn_at'][:10]}")
+        sessions = [r["id"] for r in store.rows("select id from sessions where code = ?", (code,))]
+        traces = [r["trace_path"] for r in store.rows(
+            "select trace_path from trials where trace_path is not null and session_id in (select id from sessions where code = ?)", (code,))]
+        counts = {t: store.rows(f"select count(*) as n from {t} where code = ?", (code,))[0]["n"] for t in ("answers", "sessions")}
+        delete = protocol.withdrawal == "delete"
+
+        def work(conn):
+            ids = ",".join(str(i) for i in sessions) or "null"
+            if delete:
+                for table in ("latency", "trials", "conditions"):
+                    conn.execute(f"delete from {table} where session_id in ({ids})")
+                conn.execute(f"delete from events where session_id in ({ids})")
+                conn.execute("delete from answers where code = ?", (code,))
+                conn.execute("delete from corrections where code = ?", (code,))
+                conn.execute("delete from sessions where code = ?", (code,))
+            else:  # an interrupted session will not be resumed
+                conn.execute("update sessions set status = 'withdrawn' where code = ? and status = 'running'", (code,))
+            conn.execute("delete from schedule where code = ?", (code,))
+            conn.execute("delete from identities where code = ?", (code,))
+            conn.execute("update participants set withdrawn_at = ?, withdrawal = ? where code = ?",
+                         (now(), "deleted" if delete else "kept", code))
+            conn.execute("insert into events (session_id, at, kind, detail) values (null, ?, 'withdrawn', ?)",
+                         (now(), f"{code}: data {'deleted' if delete else 'kept'} ({protocol.withdrawal} in the protocol)"
+                                 + (f"; reason: {reason}" if reason else "")))
+
+        _transaction(store, dry_run, work)
+        if delete and not dry_run:  # the files after the rows: a crash between leaves files no row names
+            for rel in traces:
+                (store.path.parent / rel).unlink(missing_ok=True)
+            for sid in sessions:
+                folder = trace_dir(store.path) / f"session-{sid:04d}"
+                if folder.is_dir() and not any(folder.iterdir()):
+                    folder.rmdir()
+        return {"code": code, "data": ("deleted" if delete else "kept"), "sessions": counts["sessions"], "answers": counts["answers"],
+                "traces": len(traces) if delete else 0, "dry_run": dry_run}
+    finally:
+        store.close()
+
+
+def cancel_slot(db, code: str, dry_run: bool = False) -> dict:
+    """Free a participant's slot (keeping their condition order); `schedule` gives a new one."""
+    store = Store(db)
+    try:
+        _person(store, code)
+        row = store.rows("select slot_start from schedule where code = ? and slot_start is not null", (code,))
+        if not row:
+            raise InputError(f"participant {code}: has no slot to cancel")
+
+        def work(conn):
+            conn.execute("update schedule set slot_start = null, slot_end = null where code = ?", (code,))
+            conn.execute("insert into events (session_id, at, kind, detail) values (null, ?, 'slot_cancelled', ?)",
+                         (now(), f"{code}: {row[0]['slot_start']}"))
+
+        _transaction(store, dry_run, work)
+        return {"code": code, "cancelled": row[0]["slot_start"], "dry_run": dry_run}
+    finally:
+        store.close()
+
+
+def correct_answer(db, code: str, model: str, item: str, answer: str, reason: str, dry_run: bool = False) -> dict:
+    """Change one stored answer, keeping the old value, the reason and who did it in `corrections`."""
+    if not reason.strip():
+        raise InputError("--reason: say why the answer is corrected (it is kept in the audit trail)")
+    new = yes_no(answer, "--answer")
+    store = Store(db)
+    try:
+        _person(store, code)
+        rows = store.rows("select answer from answers where code = ? and model = ? and item = ?", (code, model, item))
+        if not rows:
+            raise InputError(f"participant {code}: no stored answer for model {model!r}, item {item!r}")
+        old = rows[0]["answer"]
+        if old == new:
+            raise InputError(f"--answer: {code}/{model}/{item} is already {'yes' if new else 'no'}")
+
+        def work(conn):
+            conn.execute("update answers set answer = ? where code = ? and model = ? and item = ?", (new, code, model, item))
+            conn.execute("insert into corrections (code, model, item, old_answer, new_answer, reason, corrected_at, corrected_by) "
+                         "values (?, ?, ?, ?, ?, ?, ?, ?)", (code, model, item, old, new, reason.strip(), now(), getpass.getuser()))
+
+        _transaction(store, dry_run, work)
+        return {"code": code, "model": model, "item": item, "old": old, "new": new, "dry_run": dry_run}
+    finally:
+        store.close()
+
+
+def list_participants(db) -> list[dict]:
+    """One row per participant (no identifying details): kind, age, consent, slot, session state."""
+    store = Store(db, mode="read")
+    try:
+        return store.rows(
+            "select p.code, case when p.synthetic = 1 then 'synthetic' else 'person' end as kind, p.age, "
+            "c.version as consent, s.slot_start as slot, "
+            "(select status from sessions x where x.code = p.code order by x.id desc limit 1) as session, "
+            "(select count(*) from answers a where a.code = p.code) as answers, p.withdrawn_at as withdrawn "
+            "from participants p left join consent c on c.code = p.code left join schedule s on s.code = p.code order by p.code")
+    finally:
+        store.close()
+
+
+def list_sessions(db) -> list[dict]:
+    store = Store(db, mode="read")
+    try:
+        return store.rows(
+            "select x.id as session, x.code, x.status, x.device, case when x.synthetic = 1 then 'synthetic' else 'person' end as kind, "
+            "x.started_at, x.finished_at, (select count(*) from trials t where t.session_id = x.id) as trials, "
+            "(select count(*) from answers a where a.session_id = x.id) as answers from sessions x order by x.id")
+    finally:
+        store.close()
+
+
+def status(db, today: dt.datetime | None = None) -> dict:
+    """Where the study stands: participants, sessions by state, progress to the target N, the
+    next scheduled sessions."""
+    store = Store(db, mode="read")
+    try:
+        protocol = store.protocol()
+        count = lambda sql: store.rows(sql)[0]["n"]  # noqa: E731
+        people = {
+            "persons": count("select count(*) as n from participants where synthetic = 0"),
+            "synthetic": count("select count(*) as n from participants where synthetic = 1"),
+            "withdrawn": count("select count(*) as n from participants where withdrawn_at is not null"),
+            "consented": count("select count(*) as n from consent"),
+        }
+        sessions = {r["status"]: r["n"] for r in store.rows("select status, count(*) as n from sessions group by status")}
+        done = {r["kind"]: r["n"] for r in store.rows(
+            "select case when synthetic = 1 then 'synthetic' else 'person' end as kind, count(distinct code) as n "
+            "from sessions where status = 'done' group by kind")}
+        moment = (today or dt.datetime.now()).isoformat(timespec="minutes")
+        upcoming = store.rows("select code, slot_start, slot_end from schedule where slot_start >= ? order by slot_start limit 5", (moment,))
+        return {"study": protocol.name, "target_participants": protocol.target_participants, "participants": people,
+                "sessions": sessions, "complete": {"persons": done.get("person", 0), "synthetic": done.get("synthetic", 0)},
+                "answers": count("select count(*) as n from answers"), "next": upcoming}
+    finally:
+        store.close()
+
+
+CONTACTS_NOTE = ("# IDENTIFYING DATA: names and contact details of study participants, for the experimenter only.\n"
+                 "# Keep it under the study's data-protection rules; never share it with the pseudonymous data.\n")
+
+
+def export_contacts(db, out: str | Path) -> dict:
+    """The identifying table (code, name, contact) to a CSV whose first lines say what it is.
+    Withdrawn participants' details were deleted when they withdrew."""
+    store = Store(db, mode="read")
+    try:
+        rows = store.rows("select i.code, i.name, i.contact from identities i join participants p on p.code = i.code "
+                          "where p.withdrawn_at is null order by i.code")
+    finally:
+        store.close()
+    buf = io.StringIO()
+    buf.write(CONTACTS_NOTE)
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["code", "name", "contact"])
+    w.writerows([r["code"], r["name"] or "", r["contact"] or ""] for r in rows)
+    path = Path(out)
+    try:
+        fd = path.open("x")  # never overwrite (an older list may hold people who since withdrew)
+    except FileExistsError:
+        raise StoreError(f"{path}: exists; the contact list is never overwritten") from None
+    with fd:
+        fd.write(buf.getvalue())
+    path.chmod(0o600)  # readable by the experimenter's account only
+    return {"file": str(path), "participants": len(rows)}
