@@ -101,21 +101,22 @@ def allocate(codes: list[str], start: dt.date, end: dt.date, hours: str = "09:00
 
 
 def to_ics(slots: list[dict], study: str) -> str:
-    """An iCalendar file with one event per session slot (floating local times)."""
-    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-    lines = ["BEGIN:VCALENDAR", "VERSION:2.0", "PRODID:-//brainsim-study//studyctl//EN", "CALSCALE:GREGORIAN"]
+    """An iCalendar file (RFC 5545, written by the `icalendar` library: escaping, line folding)
+    with one event per session slot, in floating local times (the lab's clock)."""
+    import icalendar
+
+    cal = icalendar.Calendar()
+    cal.add("prodid", "-//brainsim-study//studyctl//EN")
+    cal.add("version", "2.0")
+    cal.add("calscale", "GREGORIAN")
+    stamp = dt.datetime.now(dt.UTC)
     for s in slots:
-        a = dt.datetime.fromisoformat(s["slot_start"]).strftime("%Y%m%dT%H%M%S")
-        b = dt.datetime.fromisoformat(s["slot_end"]).strftime("%Y%m%dT%H%M%S")
-        lines += [
-            "BEGIN:VEVENT",
-            f"UID:{study}-{s['code']}@studyctl",
-            f"DTSTAMP:{stamp}",
-            f"DTSTART:{a}",
-            f"DTEND:{b}",
-            f"SUMMARY:{study}: session {s['code']}",
-            "DESCRIPTION:order " + " > ".join(json.loads(s["conditions"])),
-            "END:VEVENT",
-        ]
-    lines.append("END:VCALENDAR")
-    return "\r\n".join(lines) + "\r\n"
+        ev = icalendar.Event()
+        ev.add("uid", f"{study}-{s['code']}@studyctl")
+        ev.add("dtstamp", stamp)
+        ev.add("dtstart", dt.datetime.fromisoformat(s["slot_start"]))
+        ev.add("dtend", dt.datetime.fromisoformat(s["slot_end"]))
+        ev.add("summary", f"{study}: session {s['code']}")
+        ev.add("description", "order " + " > ".join(json.loads(s["conditions"])))
+        cal.add_component(ev)
+    return cal.to_ical().decode()

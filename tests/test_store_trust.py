@@ -5,7 +5,6 @@ contacts, --dry-run), CSVs as spreadsheets save them, and reports on an empty st
 import csv
 import hashlib
 import json
-import os
 import sqlite3
 import stat
 import subprocess
@@ -74,11 +73,15 @@ def read_only_copy(tmp_path):
     studyctl("study", "init", "--protocol", fast_protocol(tmp_path, conditions=("plate_spring",), trials=1), "--db", db)
     studyctl("participants", "add", "S01", "--synthetic", "--db", db)
     assert studyctl("session", "run", "--participant", "S01", "--synthetic", "--db", db).exit_code == 0
-    ok = subprocess.run(["mount", "--bind", "-o", "ro", str(src), str(mnt)], capture_output=True).returncode == 0
-    if not ok or os.access(mnt, os.W_OK) and _writable(mnt):
-        pytest.skip("cannot make a read-only mount here")
-    yield mnt / "s.db"
-    subprocess.run(["umount", str(mnt)], check=False)
+    if subprocess.run(["mount", "--bind", "-o", "ro", str(src), str(mnt)], capture_output=True).returncode != 0:
+        pytest.skip("cannot make a read-only mount here (needs root or CAP_SYS_ADMIN)")
+    try:
+        if _writable(mnt):
+            pytest.skip("the bind mount is not read-only here")
+        yield mnt / "s.db"
+    finally:
+        if subprocess.run(["umount", str(mnt)], capture_output=True).returncode != 0:
+            subprocess.run(["umount", "-l", str(mnt)], check=False)  # busy: detach now, gone when released
 
 
 def _writable(d: Path) -> bool:
