@@ -768,6 +768,15 @@ def participants_import(csv_file, db, dry_run):
     _done(out, f"imported {out['imported']} participants")
 
 
+def _listing(rows: list[dict], as_json: bool, db, what: str, columns: list[str]) -> None:
+    if as_json:
+        _print_json(rows)
+    elif not rows:
+        click.echo(f"{db}: no {what} yet")
+    else:
+        _table(rows, f"{len(rows)} {what}", columns)
+
+
 def _table(rows: list[dict], title: str, columns: list[str]) -> None:
     from rich.table import Table
 
@@ -786,13 +795,7 @@ def participants_list(db, as_json):
     """Every participant (codes only, never names): kind, consent, slot, session, answers."""
     from studyctl.participants import list_participants
 
-    rows = list_participants(db)
-    if as_json:
-        _print_json(rows)
-    elif not rows:
-        click.echo(f"{db}: no participants yet")
-    else:
-        _table(rows, f"{len(rows)} participants", ["code", "kind", "age", "consent", "slot", "session", "answers", "withdrawn"])
+    _listing(list_participants(db), as_json, db, "participants", ["code", "kind", "age", "consent", "slot", "session", "answers", "withdrawn"])
 
 
 @participants.command("consent")
@@ -943,13 +946,7 @@ def session_list(db, as_json):
     """Every session: participant, state, device, person or synthetic, trials and answers."""
     from studyctl.participants import list_sessions
 
-    rows = list_sessions(db)
-    if as_json:
-        _print_json(rows)
-    elif not rows:
-        click.echo(f"{db}: no sessions yet")
-    else:
-        _table(rows, f"{len(rows)} sessions", ["session", "code", "status", "device", "kind", "started_at", "finished_at", "trials", "answers"])
+    _listing(list_sessions(db), as_json, db, "sessions", ["session", "code", "status", "device", "kind", "started_at", "finished_at", "trials", "answers"])
 
 
 cli.add_command(_Group("sessions", commands={"list": session_list}, help="Alias: `sessions list` is `session list`.", hidden=True))

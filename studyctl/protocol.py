@@ -13,6 +13,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+from sim.tomlfile import Locator, TomlFileError, read_toml
 from studyctl.errors import ProtocolError
 
 KNOWN_MODELS = ("fem", "mass_spring", "plate_spring")
@@ -58,61 +59,22 @@ class Protocol:
         return tuple(q.id for q in self.questions)
 
 
-class _Locator:
-    """Line numbers of tables and keys in a TOML text (for error messages)."""
-
-    def __init__(self, text: str):
-        self.lines: dict[str, int] = {}
-        table = ""
-        counts: dict[str, int] = {}
-        for n, raw in enumerate(text.splitlines(), start=1):
-            line = raw.split("#", 1)[0].strip()
-            m = re.match(r"^\[\[([A-Za-z0-9_.]+)\]\]$", line)
-            if m:
-                name = m.group(1)
-                k = counts.get(name, 0)
-                counts[name] = k + 1
-                table = f"{name}[{k}]"
-                self.lines.setdefault(table, n)
-                continue
-            m = re.match(r"^\[([A-Za-z0-9_.]+)\]$", line)
-            if m:
-                table = m.group(1)
-                self.lines.setdefault(table, n)
-                continue
-            m = re.match(r"^([A-Za-z0-9_]+)\s*=", line)
-            if m:
-                self.lines.setdefault(f"{table}.{m.group(1)}" if table else m.group(1), n)
-
-    def line(self, field: str) -> int:
-        while field:
-            if field in self.lines:
-                return self.lines[field]
-            field = field.rsplit(".", 1)[0] if "." in field else ""
-        return 1
-
-
 def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol | None, list[str]]:
     """Parse and validate; returns (protocol or None, problems as 'FILE:LINE: field: message').
 
     `text` overrides the file's content (a protocol stored in a study database)."""
     path = Path(path)
-    if text is None:
-        try:
-            raw = path.read_bytes()
-        except OSError as exc:
-            return None, [f"{path}:1: cannot read: {exc.strerror}"]
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            line = raw[:exc.start].count(b"\n") + 1
-            return None, [f"{path}:{line}: not UTF-8 text (byte 0x{raw[exc.start]:02x}); save it as UTF-8"]
     try:
-        data = tomllib.loads(text)
+        if text is None:
+            data, loc = read_toml(path)
+            text = path.read_text(encoding="utf-8")
+        else:
+            data, loc = tomllib.loads(text), Locator(text)
+    except TomlFileError as exc:
+        return None, [str(exc)]
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"line (\d+)", str(exc))
-        return None, [f"{path}:{m.group(1) if m else 1}: syntax: {exc}"]
-    loc = _Locator(text)
+        return None, [f"{path}:{m.group(1) if m else 1}: invalid TOML: {exc}"]
     problems: list[str] = []
 
     def bad(field: str, message: str) -> None:

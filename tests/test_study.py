@@ -60,7 +60,7 @@ def test_williams_design_balances_first_order_carry_over():
 
 
 BROKEN = {
-    "syntax": ("[study\nname = 1", r"protocol.toml:1: syntax:"),
+    "syntax": ("[study\nname = 1", r"protocol.toml:1: invalid TOML:"),
     "unknown_model": ('conditions = ["fem", "mass_spring", "plate_spring"]', 'conditions = ["fem", "rubber"]',
                       r"protocol.toml:\d+: design.conditions: unknown model 'rubber'"),
     "wrong_type": ("trials_per_condition = 3", 'trials_per_condition = "three"', r":\d+: design.trials_per_condition: 'three' is not an integer"),
