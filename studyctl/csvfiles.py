@@ -46,7 +46,7 @@ def read_csv(path: str | Path, columns: tuple[str, ...], required: tuple[str, ..
         line = reader.line_num
         if not any(c.strip() for c in cells):
             continue  # blank lines, e.g. at the end of a spreadsheet's file
-        if len(cells) > len(header):
+        if len(cells) > len(header) and any(c.strip() for c in cells[len(header):]):  # empty trailing cells are fine
             raise InputError(f"{path}: line {line}: {len(cells)} cells, the header has {len(header)}")
         rows.append((line, {k: (cells[i].strip() if i < len(cells) else "") for i, k in enumerate(header)}))
     return rows

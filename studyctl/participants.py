@@ -11,6 +11,7 @@ import csv
 import datetime as dt
 import getpass
 import io
+import os
 from pathlib import Path
 
 from studyctl.csvfiles import yes_no
@@ -55,6 +56,12 @@ def record_consent(db, code: str, given_on: str | None = None, version: str | No
             raise InputError(f"--date: {given_on!r} is not a date (YYYY-MM-DD)") from None
         if day > dt.date.today():
             raise InputError(f"--date: {day} is in the future; allowed: today or earlier")
+        created = dt.date.fromisoformat(store.study()["created_at"][:10])
+        if day < created - dt.timedelta(days=366):
+            raise InputError(f"--date: {day} is more than a year before the study was created ({created})")
+        earlier = store.rows("select given_on, version from consent where code = ?", (code,))
+        if earlier:
+            raise InputError(f"participant {code}: consent form {earlier[0]['version']} already recorded, signed {earlier[0]['given_on']}")
         row = {"code": code, "version": version, "given_on": day.isoformat(), "recorded_at": now(), "recorded_by": getpass.getuser()}
 
         def work(conn):
@@ -75,7 +82,27 @@ def has_consent(store: Store, code: str, version: str) -> bool:
 
 def withdraw(db, code: str, reason: str = "", dry_run: bool = False) -> dict:
     """A participant withdraws: no further sessions or slots; their pseudonymous data is kept or
-    deleted as the protocol's `ethics.withdrawal` says; their contact details are deleted."""
+    deleted as the protocol's `ethics.withdrawal` says; their contact details are deleted.
+    Refused while their session runs (it holds the session lock)."""
+    from studyctl.lock import session_lock
+
+    store = Store(db, mode="read")  # a missing or foreign database, an unknown code: no lock file made
+    try:
+        _person(store, code)
+    finally:
+        store.close()
+    if dry_run:  # writes nothing, so needs no lock
+        return _withdraw(db, code, reason, dry_run)
+    try:
+        with session_lock(db, code):
+            return _withdraw(db, code, reason, dry_run)
+    except StoreError as exc:
+        if "the session is running now" in str(exc):
+            raise StoreError(f"participant {code}: their session is running now; stop it first, then withdraw") from None
+        raise
+
+
+def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
     from studyctl.traces import trace_dir
 
     store = Store(db)
@@ -150,7 +177,11 @@ def correct_answer(db, code: str, model: str, item: str, answer: str, reason: st
     new = yes_no(answer, "--answer")
     store = Store(db)
     try:
-        _person(store, code)
+        p = _person(store, code)
+        if p["withdrawn_at"]:
+            raise InputError(f"participant {code}: withdrew on {p['withdrawn_at'][:10]}; their answers are no longer corrected")
+        if p["synthetic"]:
+            raise InputError(f"participant {code}: synthetic answers come from the simulator and are not corrected by hand")
         rows = store.rows("select answer from answers where code = ? and model = ? and item = ?", (code, model, item))
         if not rows:
             raise InputError(f"participant {code}: no stored answer for model {model!r}, item {item!r}")
@@ -204,13 +235,16 @@ def status(db, today: dt.datetime | None = None) -> dict:
         people = {
             "persons": count("select count(*) as n from participants where synthetic = 0"),
             "synthetic": count("select count(*) as n from participants where synthetic = 1"),
-            "withdrawn": count("select count(*) as n from participants where withdrawn_at is not null"),
+            "withdrawn": count("select count(*) as n from participants where synthetic = 0 and withdrawn_at is not null"),
             "consented": count("select count(*) as n from consent"),
         }
         sessions = {r["status"]: r["n"] for r in store.rows("select status, count(*) as n from sessions group by status")}
+        # complete: every question answered for every condition, in a session or imported from paper
+        full = len(protocol.conditions) * len(protocol.items)
         done = {r["kind"]: r["n"] for r in store.rows(
-            "select case when synthetic = 1 then 'synthetic' else 'person' end as kind, count(distinct code) as n "
-            "from sessions where status = 'done' group by kind")}
+            "select kind, count(*) as n from (select case when p.synthetic = 1 then 'synthetic' else 'person' end as kind "
+            "from participants p join answers a on a.code = p.code where p.withdrawn_at is null group by p.code having count(*) >= ?) "
+            "group by kind", (full,))}
         moment = (today or dt.datetime.now()).isoformat(timespec="minutes")
         upcoming = store.rows("select code, slot_start, slot_end from schedule where slot_start >= ? order by slot_start limit 5", (moment,))
         return {"study": protocol.name, "target_participants": protocol.target_participants, "participants": people,
@@ -239,11 +273,10 @@ def export_contacts(db, out: str | Path) -> dict:
     w.writerow(["code", "name", "contact"])
     w.writerows([r["code"], r["name"] or "", r["contact"] or ""] for r in rows)
     path = Path(out)
-    try:
-        fd = path.open("x")  # never overwrite (an older list may hold people who since withdrew)
+    try:  # never overwrite (an older list may hold people who since withdrew); 0600 from the start
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     except FileExistsError:
         raise StoreError(f"{path}: exists; the contact list is never overwritten") from None
-    with fd:
-        fd.write(buf.getvalue())
-    path.chmod(0o600)  # readable by the experimenter's account only
+    with os.fdopen(fd, "w") as fh:
+        fh.write(buf.getvalue())
     return {"file": str(path), "participants": len(rows)}

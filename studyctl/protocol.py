@@ -130,6 +130,8 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     ethics = data.get("ethics", {}) if isinstance(data.get("ethics", {}), dict) else {}
     consent_version = get(ethics, "ethics", "consent_version", str, default="1", required=False)
     withdrawal = get(ethics, "ethics", "withdrawal", str, default="keep", required=False)
+    if consent_version is not None and not consent_version.strip():
+        bad("ethics.consent_version", "empty; name the consent form's version, e.g. \"1\"")
     if withdrawal not in ("keep", "delete"):
         bad("ethics.withdrawal", f"{withdrawal!r} is not keep or delete")
     name = get(study, "study", "name", str)

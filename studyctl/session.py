@@ -227,6 +227,26 @@ def _check_options(device: str, synthetic: bool, time_scale: float | None, view:
     return time_scale
 
 
+def _never_started(store: Store, session_id: int) -> bool:
+    return not any(store.rows(f"select 1 from {t} where session_id = ? limit 1", (session_id,)) for t in ("trials", "answers"))
+
+
+def _discard(store: Store, session_id: int) -> None:
+    conn = store.db.conn
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        conn.execute("delete from latency where session_id = ?", (session_id,))
+        conn.execute("delete from conditions where session_id = ?", (session_id,))
+        conn.execute("update events set session_id = null where session_id = ?", (session_id,))
+        conn.execute("delete from sessions where id = ?", (session_id,))
+        conn.execute("insert into events (session_id, at, kind, detail) values (null, ?, 'session_discarded', ?)",
+                     (now(), f"session {session_id}: stopped before its first trial"))
+        conn.execute("COMMIT")
+    except BaseException:
+        conn.execute("ROLLBACK")
+        raise
+
+
 def _check_participant(store: Store, protocol, code: str, synthetic: bool) -> None:
     """Registered, not withdrawn, not done; a person or synthetic, never both; answers from one
     source; a person has signed the protocol's consent form."""
@@ -299,6 +319,11 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
         _check_participant(store, protocol, code, synthetic)  # again, now that this process holds the lock
         sessions = store.rows("select * from sessions where code = ? order by id", (code,))
         running = [s for s in sessions if s["status"] == "running"]
+        if running and not resume and _never_started(store, running[0]["id"]):
+            # interrupted before its first trial (e.g. in training): nothing of it is kept, start afresh
+            _discard(store, running[0]["id"])
+            say(f"discarded session {running[0]['id']} of {code}: it stopped before its first trial")
+            running = []
         if running and not resume:
             raise StoreError(f"participant {code}: a session was interrupted; continue it with --resume")
         if resume and not running:
@@ -313,6 +338,13 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
             store.event(session_id, "resumed")
             say(f"resuming session {session_id} of {code}")
         else:
+            from studyctl.traces import trace_dir
+
+            folder = trace_dir(db)
+            try:  # where the traces go, checked before the session is recorded
+                folder.mkdir(exist_ok=True)
+            except OSError as exc:
+                raise StoreError(f"{folder}: cannot hold the trial traces: {exc.strerror}") from None
             rng = random.Random(f"labels:{seed}:{code}") if synthetic else random.SystemRandom()
             labels = condition_labels(order, rng)
             store.write("sessions", {

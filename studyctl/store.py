@@ -83,6 +83,11 @@ MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3}
 STUDY_TABLES = ("meta", "study")  # what makes a file a study database (with meta.schema_version)
 
 
+class _Outdated(Exception):
+    def __init__(self, version: int):
+        self.version = version
+
+
 def _tables(conn: sqlite3.Connection) -> list[str]:
     return [r[0] for r in conn.execute("select name from sqlite_master where type = 'table' order by name")]
 
@@ -94,6 +99,9 @@ def _open_read(path: Path) -> sqlite3.Connection:
     cannot be made (a read-only mount: nobody can write there while we read)."""
     uri = path.resolve().as_uri()
     for mode in ("rw", "ro", "immutable"):
+        if mode == "immutable" and _has_wal(path):  # immutable would read it without its last writes
+            raise StoreError(f"{path}: its last writes are still in {path.name}-wal, which cannot be read here (a read-only "
+                             "disk); copy the database with its -wal file to a writable folder")
         try:
             conn = sqlite3.connect(uri + ("?immutable=1" if mode == "immutable" else f"?mode={mode}"), uri=True, isolation_level=None)
             conn.execute("PRAGMA query_only = ON")
@@ -105,8 +113,17 @@ def _open_read(path: Path) -> sqlite3.Connection:
     raise AssertionError("unreachable")
 
 
+def _has_wal(path: Path) -> bool:
+    wal = path.with_name(path.name + "-wal")
+    return wal.exists() and wal.stat().st_size > 0
+
+
 def inspect(path: str | Path) -> tuple[str, list[str]]:
-    """('missing' | 'empty' | 'study' | 'foreign', tables) of a file, read without changing it."""
+    """('missing' | 'empty' | 'study' | 'foreign', tables) of a file, read without changing it.
+
+    The first look is `immutable`: no lock, no side file, no checkpoint, so another program's
+    file (even one with a WAL it has not merged) is left exactly as it was. Only a file whose
+    main part shows no tables but has a WAL is looked at again, read-only."""
     path = Path(path)
     if not path.exists():
         return "missing", []
@@ -114,21 +131,24 @@ def inspect(path: str | Path) -> tuple[str, list[str]]:
         raise StoreError(f"{path}: is a folder, not a study database")
     if path.stat().st_size == 0:
         return "empty", []
+    uri = path.resolve().as_uri()
     try:
-        conn = _open_read(path)
+        conn = sqlite3.connect(uri + "?immutable=1", uri=True, isolation_level=None)
+        try:
+            tables = _tables(conn)
+            if not tables and _has_wal(path):
+                conn.close()
+                conn = sqlite3.connect(uri + "?mode=ro", uri=True, isolation_level=None)
+                tables = _tables(conn)
+            if not tables:
+                return "empty", []
+            if set(STUDY_TABLES) <= set(tables) and conn.execute("select value from meta where key = 'schema_version'").fetchone():
+                return "study", tables
+            return "foreign", tables
+        finally:
+            conn.close()
     except sqlite3.DatabaseError as exc:
         raise StoreError(f"{path}: not a study database ({exc})") from None
-    try:
-        tables = _tables(conn)
-        if not tables:
-            return "empty", []
-        if set(STUDY_TABLES) <= set(tables) and conn.execute("select value from meta where key = 'schema_version'").fetchone():
-            return "study", tables
-        return "foreign", tables
-    except sqlite3.DatabaseError as exc:
-        raise StoreError(f"{path}: not a study database ({exc})") from None
-    finally:
-        conn.close()
 
 
 def connect_read(path: str | Path) -> sqlite3.Connection:
@@ -146,6 +166,18 @@ class Store:
     """
 
     def __init__(self, path: str | Path, create: bool = False, mode: str = "write"):
+        try:
+            self._open(path, create, mode)
+        except _Outdated as old:
+            # a database of older software: upgrade it once (its data unchanged), then read
+            try:
+                Store(path).close()
+            except StoreError:
+                raise StoreError(f"{path}: schema version {old.version} needs an upgrade to {SCHEMA_VERSION}, which cannot be "
+                                 "written here; copy it to a writable folder and run `studyctl status` there") from None
+            self._open(path, create, mode)
+
+    def _open(self, path: str | Path, create: bool, mode: str) -> None:
         self.path = Path(path)
         mode = "create" if create else mode
         self.read_only = mode == "read"
@@ -170,6 +202,8 @@ class Store:
                 if self.read_only:
                     self._check_version()
                 else:
+                    if kind == "study" and self._version() > SCHEMA_VERSION:  # refused before WAL is switched on
+                        self._check_version()
                     conn.execute("PRAGMA foreign_keys = ON")
                     self.db.enable_wal()
                     self._migrate()
@@ -183,12 +217,16 @@ class Store:
         except sqlite3.DatabaseError as exc:
             raise StoreError(f"{self.path}: not a study database ({exc})") from None
 
-    def _check_version(self) -> None:
+    def _version(self) -> int:
         row = self.db.execute("select value from meta where key = 'schema_version'").fetchone()
-        version = int(row[0]) if row else 0
-        if version != SCHEMA_VERSION:
-            raise StoreError(f"{self.path}: schema version {version}, this software reads {SCHEMA_VERSION}; "
-                             "any writing command (e.g. `studyctl participants add`) upgrades it")
+        return int(row[0]) if row else 0
+
+    def _check_version(self) -> None:
+        version = self._version()
+        if version > SCHEMA_VERSION:
+            raise StoreError(f"{self.path}: schema version {version} is newer than this software's ({SCHEMA_VERSION}); update studyctl")
+        if version < SCHEMA_VERSION:
+            raise _Outdated(version)
 
     def _migrate(self) -> None:
         db = self.db

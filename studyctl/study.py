@@ -127,13 +127,19 @@ def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:
         codes = {r["code"] for r in store.rows("select code from participants")}
         if avail is not None and set(avail) - codes:
             raise InputError(f"{availability}: unknown participant {sorted(set(avail) - codes)[0]!r}")
+        # people who still need the rig: no slot, not withdrawn, no finished session, no answers from paper
         waiting = [r["code"] for r in store.rows(
             "select p.code from participants p left join schedule s on s.code = p.code where s.slot_start is null "
-            "and p.withdrawn_at is null and p.code not in (select code from sessions where status = 'done') order by p.code")]
+            "and p.synthetic = 0 and p.withdrawn_at is null and p.code not in (select code from sessions where status = 'done') "
+            "and p.code not in (select code from answers where source = 'import') order by p.code")]
+        if not waiting:
+            raise InputError("nobody is waiting for a slot (every person has one, has finished, or withdrew)")
         taken = [(dt.datetime.fromisoformat(r["slot_start"]), dt.datetime.fromisoformat(r["slot_end"]))
                  for r in store.rows("select slot_start, slot_end from schedule where slot_start is not null")]
+        if d0 == today:  # the part of today that has passed is taken too
+            taken.append((dt.datetime.combine(today, dt.time(0)), dt.datetime.now().replace(second=0, microsecond=0)))
         slots = allocate(waiting, d0, d1, hours, minutes, avail, taken)
-        if waiting and not slots:
+        if not slots:
             why = "their availability" if avail is not None else "free rig time"
             raise InputError(f"no slot for any of the {len(waiting)} waiting participants: {start}..{end}, weekdays {hours}, "
                              f"{minutes} min each, has no {why} left; widen --start/--end or --hours")
@@ -166,6 +172,8 @@ def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) 
         codes = {r["code"] for r in store.rows("select code from participants")}
         synthetic = {r["code"] for r in store.rows("select code from participants where synthetic = 1")}
         in_sessions = {r["code"] for r in store.rows("select distinct code from sessions")}
+        withdrawn = {r["code"] for r in store.rows("select code from participants where withdrawn_at is not null")}
+        consented = {r["code"] for r in store.rows("select code from consent where version = ?", (protocol.consent_version,))}
         need = ("participant", "model", "item", "answer")
         rows = read_csv(csv_path, need, need)
         records, seen = [], set()
@@ -175,6 +183,10 @@ def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) 
                 raise InputError(f"{where}: unknown participant {r['participant']!r}")
             if r["participant"] in synthetic:
                 raise InputError(f"{where}: participant {r['participant']} is synthetic; imported answers are a person's")
+            if r["participant"] in withdrawn:
+                raise InputError(f"{where}: participant {r['participant']} withdrew; no answers are added for them")
+            if r["participant"] not in consented:
+                raise InputError(f"{where}: participant {r['participant']}: no consent recorded; `studyctl participants consent {r['participant']}` first")
             if r["participant"] in in_sessions:
                 raise InputError(f"{where}: participant {r['participant']} has a simulator session; importing would mix sources")
             if r["model"] not in protocol.conditions:

@@ -182,6 +182,7 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
     from pathlib import Path
 
     from studyctl.errors import InputError
+    from studyctl.protocol import load_protocol
     from studyctl.store import Store, init_study, now
     from studyctl.study import assign_order
 
@@ -199,12 +200,15 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
     try:
         protocol = store.protocol()
         rng = random.Random(f"ages:{seed}")
-        start = store.rows("select count(*) as n from participants where synthetic = 1")[0]["n"]
+        if protocol_path is not None and load_protocol(protocol_path).sha256 != protocol.sha256:
+            raise InputError(f"--protocol: {protocol_path} is not the protocol {db} was created with; leave --protocol out")
         first_id = (store.rows("select max(id) as m from sessions")[0]["m"] or 0) + 1
-        codes = [f"S{start + k + 1:03d}" for k in range(participants)]
-        taken = {r["code"] for r in store.rows("select code from participants")} & set(codes)
-        if taken:
-            raise InputError(f"participant {sorted(taken)[0]}: already registered (synthetic codes are S001, S002, ...)")
+        registered = {r["code"] for r in store.rows("select code from participants")}
+        codes, k = [], 0
+        while len(codes) < participants:  # S001, S002, ... skipping codes already in use
+            k += 1
+            if f"S{k:03d}" not in registered:
+                codes.append(f"S{k:03d}")
         store.db.conn.execute("BEGIN IMMEDIATE")  # all registered or none
         try:
             for code in codes:

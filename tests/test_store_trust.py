@@ -175,6 +175,7 @@ def test_dry_run_writes_nothing_and_says_so(tmp_path):
     (tmp_path / "p.csv").write_text("code\nP02\nP03\n")
     studyctl("schedule", "--start", "2037-12-01", "--end", "2037-12-04", "--db", db)
     assert studyctl("answers", "import", tmp_path / "none.csv", "--db", db).exit_code == 1  # (a missing file: nothing)
+    studyctl("participants", "add", "P04", "--db", db)  # waiting for a slot
     before = _files(tmp_path)
     for args in (["participants", "add", "P09"], ["participants", "import", tmp_path / "p.csv"], ["participants", "consent", "P01"],
                  ["participants", "withdraw", "P01"], ["schedule", "cancel", "P01"],
@@ -224,6 +225,7 @@ def test_cancel_and_reschedule_keep_the_order(tmp_path):
 def test_answers_correct_keeps_an_audit_trail(tmp_path):
     db = _study(tmp_path)
     studyctl("participants", "add", "P01", "--db", db)
+    studyctl("participants", "consent", "P01", "--db", db)
     (tmp_path / "a.csv").write_text("participant,model,item,answer\nP01,plate_spring,natural,yes\n")
     studyctl("answers", "import", tmp_path / "a.csv", "--db", db)
     res = studyctl("answers", "correct", "--participant", "P01", "--model", "plate_spring", "--item", "natural", "--answer", "no",
@@ -276,6 +278,8 @@ def test_csvs_as_spreadsheets_save_them(tmp_path):
     assert res.exit_code == 0, res.output
     assert _q(db, "select code, age from participants order by code") == [("P01", 24), ("P02", 25)]
     assert _q(db, "select name from identities") == [("Zoë Müller",)]
+    for c in ("P01", "P02"):
+        studyctl("participants", "consent", c, "--db", db)
     (tmp_path / "a.csv").write_text("Participant,Model,Item,Answer\r\nP01,plate_spring,natural,Y\r\nP01,plate_spring,texture,0\r\n"
                                     "P02,plate_spring,natural,yes\r\nP02,plate_spring,texture,N\r\nP02,plate_spring,stable, TRUE \r\n")
     assert studyctl("answers", "import", tmp_path / "a.csv", "--db", db).exit_code == 0
@@ -298,3 +302,74 @@ def test_reports_on_an_empty_study_say_so(tmp_path):
     header = (tmp_path / "ex" / "answers.csv").read_text()
     assert header == "code,model,item,answer,session_id,source,answered_at\n"  # a header, even with no rows
     assert (tmp_path / "ex" / "traces.csv").read_text().startswith("session_id,model,trial,t,hand,")
+
+
+def test_a_foreign_file_with_an_unmerged_wal_is_left_as_it_was(tmp_path):
+    """Another program killed with its WAL not merged: even a read-write open would merge it."""
+    import sys
+
+    db = tmp_path / "w.db"
+    code = (f"import sqlite3, os; c = sqlite3.connect({str(db)!r}, isolation_level=None); c.execute('pragma journal_mode=wal'); "
+            "c.execute('pragma wal_autocheckpoint=0'); c.execute('create table foo (a)'); c.execute('insert into foo values (1)'); "
+            "os._exit(0)")
+    subprocess.run([sys.executable, "-c", code], check=True)
+    assert (tmp_path / "w.db-wal").stat().st_size > 0
+    # the database and its WAL stay byte-identical; the -shm file is SQLite's shared-memory
+    # index of the WAL, rebuilt by any reader (it holds no data)
+    before = {k: v for k, v in _files(tmp_path).items() if not k.endswith("-shm")}
+    for args in (["status"], ["participants", "add", "P01"], ["report", "table1"], ["study", "init", "--protocol", PROTOCOL]):
+        res = studyctl(*args, "--db", db)
+        assert res.exit_code == 1 and "not a study database (it holds other tables: foo)" in res.output, (args, res.output)
+    assert {k: v for k, v in _files(tmp_path).items() if not k.endswith("-shm")} == before
+
+
+def test_withdrawal_waits_for_a_running_session(tmp_path):
+    from studyctl.lock import session_lock
+
+    db = _study(tmp_path)
+    studyctl("participants", "add", "S01", "--synthetic", "--db", db)
+    with session_lock(db, "S01"):  # as a running `session run` holds it
+        res = studyctl("participants", "withdraw", "S01", "--db", db)
+    assert res.exit_code == 1 and "their session is running now; stop it first" in res.output
+    assert _q(db, "select withdrawn_at from participants") == [(None,)]
+    assert studyctl("participants", "withdraw", "S01", "--db", db).exit_code == 0
+
+
+def test_a_session_stopped_before_its_first_trial_is_discarded(tmp_path):
+    db = _study(tmp_path)
+    studyctl("participants", "add", "S01", "--synthetic", "--db", db)
+    con = sqlite3.connect(db)
+    con.execute("insert into sessions (id, code, started_at, status, synthetic, device) values (7, 'S01', '', 'running', 1, 'simulated')")
+    con.execute("insert into conditions (session_id, position, model, status, label) values (7, 0, 'plate_spring', 'pending', 'A')")
+    con.commit()
+    con.close()
+    res = studyctl("session", "run", "--participant", "S01", "--synthetic", "--db", db)
+    assert res.exit_code == 0 and "discarded session 7 of S01: it stopped before its first trial" in res.output
+    assert _q(db, "select status from sessions") == [("done",)] and _q(db, "select count(*) from conditions where session_id = 7") == [(0,)]
+    assert _q(db, "select kind from events where kind = 'session_discarded'") == [("session_discarded",)]
+
+
+def test_synth_skips_codes_in_use_and_refuses_another_protocol(tmp_path):
+    db = _study(tmp_path)
+    studyctl("participants", "add", "S001", "--synthetic", "--db", db)
+    res = studyctl("synth", "--participants", "1", "--db", db)
+    assert res.exit_code == 0, res.output
+    assert [c for (c,) in _q(db, "select code from participants order by code")] == ["S001", "S002"]
+    res = studyctl("synth", "--participants", "1", "--protocol", PROTOCOL, "--db", db)
+    assert res.exit_code == 1 and "is not the protocol" in res.output
+
+
+def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
+    db = _study(tmp_path)
+    studyctl("participants", "add", "P01", "--db", db)
+    con = sqlite3.connect(db)  # back to schema 2: no withdrawal, consent or corrections
+    con.execute("drop table consent")
+    con.execute("drop table corrections")
+    con.execute("alter table participants drop column withdrawn_at")
+    con.execute("alter table participants drop column withdrawal")
+    con.execute("update meta set value = '2' where key = 'schema_version'")
+    con.commit()
+    con.close()
+    res = studyctl("participants", "list", "--json", "--db", db)
+    assert res.exit_code == 0 and json.loads(res.output)[0]["code"] == "P01"
+    assert _q(db, "select value from meta where key = 'schema_version'") == [("3",)]

@@ -172,6 +172,7 @@ def test_a_session_and_an_import_write_at_once(tmp_path):
     studyctl("study", "init", "--protocol", fast_protocol(tmp_path, conditions=("plate_spring",), trials=3), "--db", db)
     studyctl("participants", "add", "P01", "--synthetic", "--db", db)
     studyctl("participants", "add", "P02", "--db", db)
+    studyctl("participants", "consent", "P02", "--db", db)
     session = subprocess.Popen([sys.executable, "-m", "studyctl.cli", "session", "run", "--db", str(db), "--participant", "P01", "--synthetic"],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines = ["participant,model,item,answer"] + [f"P02,plate_spring,{q},yes" for q in load_protocol(PROTOCOL).items]
@@ -190,6 +191,7 @@ def test_answers_import_rejects_the_whole_file(tmp_path):
     db = tmp_path / "s.db"
     studyctl("study", "init", "--protocol", PROTOCOL, "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
+    studyctl("participants", "consent", "P01", "--db", db)
     (tmp_path / "a.csv").write_text("participant,model,item,answer\nP01,fem,natural,yes\nP01,fem,colour,no\n")
     res = studyctl("answers", "import", "--db", db, tmp_path / "a.csv")
     assert res.exit_code == 1 and "line 3: unknown item 'colour'" in res.output
@@ -202,6 +204,7 @@ def test_exports_never_contain_identifying_fields(tmp_path):
     db = tmp_path / "s.db"
     studyctl("study", "init", "--protocol", PROTOCOL, "--db", db)
     studyctl("participants", "add", "P01", "--age", "24", "--name", "Ann Secretname", "--contact", "ann@example.org", "--db", db)
+    studyctl("participants", "consent", "P01", "--db", db)
     (tmp_path / "a.csv").write_text("participant,model,item,answer\nP01,fem,natural,yes\n")
     studyctl("answers", "import", "--db", db, tmp_path / "a.csv")
     for fmt in ("csv", "parquet"):
