@@ -7,8 +7,10 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 # libusb: open3d's import; EGL/Mesa: open3d's offscreen OpenGL on the CPU (llvmpipe);
 # Vulkan: open3d's Filament renderer on the CPU; xvfb: a real X display for the participant
-# view's window in tests and headless runs; xdotool: the tests' real X key and mouse events
-SYSTEM_PACKAGES := libusb-1.0-0 libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libvulkan1 mesa-vulkan-drivers xvfb xdotool
+# view's window in tests and headless runs; xdotool: the tests' real X key and mouse events;
+# SuiteSparse (headers, CHOLMOD) and a threaded OpenBLAS: scikit-sparse's CHOLMOD, the sparse Cholesky
+SYSTEM_PACKAGES := libusb-1.0-0 libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libvulkan1 mesa-vulkan-drivers xvfb xdotool \
+	libsuitesparse-dev libopenblas0-pthread
 OUT ?= out
 
 .PHONY: demo test test-all bench lint system-deps venv clean

@@ -3,18 +3,28 @@
 Two configurations: the issue's reference problem (one hemisphere clamped over its lowest
 15 mm: about 11k nodes, 47k tetrahedra, 32k unknowns) and the shipped scene (both
 hemispheres, clamped below the craniotomy). Assembly is also compared with scikit-fem's on the
-same mesh, when scikit-fem is installed (dev dependency).
+same mesh, when scikit-fem is installed (dev dependency). The factorisation of the matrices the
+FEM condenses (the shipped scene's reduced stiffness per hemisphere at its 4 mm resolution, and
+the reference problem's) is timed with CHOLMOD (`sim.linalg.Factor`, what the simulator uses) and
+with cholespy, on the same matrix.
+Usage: python -m bench fem [--json]  (--json: one JSON object instead of the lines)
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
+import json
+import os
+import sys
 import time
 
 import numpy as np
 
 from bench.common import each_call, per_call, report
+from sim.linalg import Factor
 from sim.models.fem import FemModel, LinearFem, fixed_nodes
-from sim.scene import DEFAULT_SCENE, build_scene
+from sim.scene import AXES, DEFAULT_SCENE, build_scene
 from sim.volume import voxel_volume
 
 
@@ -26,7 +36,58 @@ def _hemisphere(volume, label=0):
     return volume.nodes[nodes], tets
 
 
+def _cholespy(A):
+    """cholespy's factor of A (the simulator's factoriser before CHOLMOD): the comparison only."""
+    import scipy.sparse as sp
+    from cholespy import CholeskySolverD, MatrixType
+
+    A = sp.csr_matrix(A)
+    A.sort_indices()
+    solver = CholeskySolverD(A.shape[0], A.indptr.astype(np.int32), A.indices.astype(np.int32), A.data.astype(np.float64), MatrixType.CSR)
+
+    def solve(b):
+        b = np.ascontiguousarray(b, dtype=np.float64)
+        x = np.empty_like(b)
+        solver.solve(b, x)
+        return x
+
+    return solve
+
+
+def factorisations(matrices: dict, runs: int = 3) -> list[dict]:
+    """Median factorisation time of each matrix with CHOLMOD (`sim.linalg.Factor`, including its
+    check solve) and with cholespy, and how far apart their solutions are."""
+    rows = []
+    for label, A in matrices.items():
+        b = np.random.default_rng(0).standard_normal(A.shape[0])
+        times = {"cholmod": [], "cholespy": []}
+        for _ in range(runs):
+            start = time.perf_counter()
+            factor = Factor(A)
+            times["cholmod"].append(time.perf_counter() - start)
+            start = time.perf_counter()
+            solve = _cholespy(A)
+            times["cholespy"].append(time.perf_counter() - start)
+        x, y = factor.solve(b), solve(b)
+        cm, cs = (float(np.median(times[k])) for k in ("cholmod", "cholespy"))
+        row = {"matrix": label, "unknowns": int(A.shape[0]), "nnz": int(A.nnz), "runs": runs, "cholmod_s": cm, "cholespy_s": cs,
+               "cholespy_over_cholmod": cs / cm, "solution_rel_diff": float(np.linalg.norm(x - y) / np.linalg.norm(y))}
+        print(f"  {label}: {row['unknowns']} unknowns, {row['nnz']} nonzeros; median of {runs}: CHOLMOD {cm * 1e3:8.1f} ms, "
+              f"cholespy {cs * 1e3:8.1f} ms, cholespy / CHOLMOD = {cs / cm:.1f}x (solutions agree to {row['solution_rel_diff']:.1e})")
+        rows.append(row)
+    return rows
+
+
 def main() -> None:
+    as_json = "--json" in sys.argv[1:]
+    with contextlib.redirect_stdout(io.StringIO()) if as_json else contextlib.nullcontext():
+        result = run()
+    if as_json:
+        print(json.dumps(result, indent=2))
+
+
+def run() -> dict:
+    result: dict = {"cpus": os.cpu_count()}
     scene = build_scene(DEFAULT_SCENE)
     mesh = scene.mesh
     volume = voxel_volume(mesh, 0.004)
@@ -41,6 +102,7 @@ def main() -> None:
     print(f"reference problem: left hemisphere at 4 mm, {len(nodes)} nodes, {len(tets)} tetrahedra, {len(fem.free)} unknowns")
     print(f"  assembly       median of 3: {a * 1e3:8.1f} ms   | target 500 ms: {'met' if a < 0.5 else 'MISSED'} ({0.5 / a:.2f}x)")
     print(f"  factorisation  median of 3: {f * 1e3:8.1f} ms   | target 3000 ms: {'met' if f < 3.0 else 'MISSED'} ({3.0 / f:.2f}x)")
+    result["reference_problem"] = {"nodes": len(nodes), "tets": len(tets), "unknowns": len(fem.free), "assembly_s": a, "factorisation_s": f}
     try:
         import skfem
         from skfem.helpers import ddot, sym_grad, trace
@@ -60,12 +122,29 @@ def main() -> None:
             times.append(time.perf_counter() - start)
         sk = float(np.median(times))
         print(f"  scikit-fem assembly (basis + form), median of 3: {sk * 1e3:8.1f} ms; ours / scikit-fem = {a / sk:.2f}")
+        result["reference_problem"]["scikit_fem_assembly_s"] = sk
     except ImportError:
         print("  scikit-fem not installed: no comparison")
+
+    # the factorisation of the matrices the FEM condenses: the shipped scene's (its material, clamp
+    # and resolution), one per hemisphere as FemModel builds them, and the reference problem's
+    spec = scene.spec.models["fem"].options
+    material = scene.spec.material
+    scene_volume = voxel_volume(mesh, float(spec["resolution"]))
+    scene_fixed_nodes = fixed_nodes(scene_volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])
+    matrices = {}
+    for label, name in ((0, "left"), (1, "right")):
+        hn, ht = _hemisphere(scene_volume, label)
+        part = LinearFem(hn, ht, material.young, material.poisson, scene_fixed_nodes[scene_volume.component == label])
+        matrices[f"shipped scene, {name} hemisphere at {float(spec['resolution']) * 1e3:g} mm"] = part.reduced
+    matrices["reference problem (left hemisphere, lowest 15 mm clamped)"] = fem.reduced
+    print(f"factorisation of the reduced stiffness, CHOLMOD (the simulator's) against cholespy ({os.cpu_count()} CPUs):")
+    result["factorisation"] = factorisations(matrices)
 
     # the haptic contract on the reference problem, through FemModel on the scene's surface
     scene_fixed = scene.fixed_mask
     print("shipped scene (both hemispheres, clamped below the craniotomy):")
+    result["haptics"] = {}
     for label, fixed_surface in (("reference clamp (lowest 15 mm)", mesh.vertices[:, 2] <= mesh.vertices[:, 2].min() + 0.015), ("scene clamp", scene_fixed)):
         fx = fixed_nodes(volume, mesh, fixed_surface, 2)
         start = time.perf_counter()
@@ -74,11 +153,13 @@ def main() -> None:
         t = model.timings
         print(f"  {label}: model built in {build:.2f} s (assembly {t['assembly_s']:.2f} s, factorisation {t['factorisation_s']:.2f} s, "
               f"embedding {t['embedding_s']:.2f} s; unknowns {[len(p.free) for p in model.parts]})")
-        _haptics(label, model, [h.start for h in scene.spec.hands])
+        result["haptics"][label] = {"build_s": build, **t, "unknowns": [len(p.free) for p in model.parts],
+                                    "timings": _haptics(label, model, [h.start for h in scene.spec.hands])}
+    return result
 
 
-def _haptics(label: str, model, hands) -> None:
-    report(f"  grasp ({label})", each_call(lambda: model.grasp(hands[0], 0), 20), "ms", target=50.0)
+def _haptics(label: str, model, hands) -> list[dict]:
+    out = [report(f"  grasp ({label})", each_call(lambda: model.grasp(hands[0], 0), 20), "ms", target=50.0)]
     c0, c1 = model.grasp(hands[0], 0), model.grasp(hands[1], 1)
     c2 = model.grasp((-0.045, 0.0, 0.06), 1)
     rng = np.random.default_rng(0)
@@ -93,14 +174,15 @@ def _haptics(label: str, model, hands) -> None:
         model.forces([c0, c2], [ds[k[0] & 255], ds[(k[0] + 7) & 255]])
         k[0] += 1
 
-    report(f"  force per tick, one hand ({label})", per_call(tick_one, 100_000), "us", target=10.0)
-    report(f"  force per tick, two hands coupled 6x6 ({label})", per_call(tick_coupled, 20_000), "us", target=10.0)
+    out.append(report(f"  force per tick, one hand ({label})", per_call(tick_one, 100_000), "us", target=10.0))
+    out.append(report(f"  force per tick, two hands coupled 6x6 ({label})", per_call(tick_coupled, 20_000), "us", target=10.0))
     dd = [np.asarray(d) for d in ds]
-    report(
+    out.append(report(
         f"  deformation per frame, two hands ({label})",
         each_call(lambda: model.deformation([c0, c1], [dd[k[0] & 255], dd[(k[0] + 3) & 255]]), 300),
         "ms", target=2.0, reference=("paper FEM", 21.35),
-    )
+    ))
+    return out
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ if scene.spec.renderer.kind == "offscreen":
 total = time.perf_counter() - t0
 mods = sorted(sys.modules)
 watch = ["open3d", "sim.render", "sim.models.fem", "sim.models.mass_spring", "sim.models.plate_spring",
-         "cholespy", "scipy.sparse.linalg", "matplotlib", "sim.devices.simulated"]
+         "sksparse.cholmod", "cholespy", "scipy.sparse.linalg", "matplotlib", "sim.devices.simulated"]
 print(json.dumps({"ready_s": t_ready, "total_s": total, "modules": len(mods),
                   "loaded": {w: w in sys.modules for w in watch},
                   "max_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))

@@ -136,7 +136,7 @@ class SceneSpec:
 SECTIONS = ("scene", "mesh", "material", "fixed", "model", "models", "servo", "visual", "renderer", "view", "hands")
 MODEL_KEYS = {
     "plate_spring": ("variant", "params"),
-    "fem": ("resolution", "formulation", "grasp_radius"),
+    "fem": ("resolution", "formulation", "grasp_radius", "order"),
     "mass_spring": ("resolution", "integrator", "dt", "damping", "coupling", "grasp_radius", "iterations"),
 }
 HAND_KEYS = ("name", "device", "start", "pull", "distance", "grasp_at", "pull_start", "pull_time", "release_at",
@@ -363,7 +363,11 @@ def _model_spec(models: _Reader, name: str) -> ModelSpec | None:
         resolution = table.number("resolution", default=0.004, lo=0.003, hi=0.008)
         formulation = table.string("formulation", default="linear", choices=("linear", "corotational"))
         grasp_radius = table.number("grasp_radius", default=0.005, lo=0.0, hi=0.02)
-        return ModelSpec(name=name, options={"resolution": resolution, "formulation": formulation, "grasp_radius": grasp_radius})
+        order = table.integer("order", default=1, lo=1, hi=2)
+        if order == 2 and formulation == "corotational":
+            table.error("order", "quadratic tetrahedra (order 2) run the linear formulation only")
+        return ModelSpec(name=name, options={"resolution": resolution, "formulation": formulation, "grasp_radius": grasp_radius,
+                                             "order": order})
     if name == "mass_spring":
         from sim.devices.base import OmniSpec
         from sim.models import MASS_SPRING_INTEGRATORS as INTEGRATORS

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import sqlite3
 import sys
 from pathlib import Path
 
@@ -31,6 +32,8 @@ class _Group(click.Group):
             return super().invoke(ctx)
         except (SimError, StudyError, SweepError) as exc:
             raise click.ClickException(str(exc)) from None
+        except sqlite3.OperationalError as exc:  # e.g. another process held the database for over 30 s
+            raise click.ClickException(f"the study database: {exc} (another process may be writing to it; try again)") from None
 
 
 def _console():
@@ -215,6 +218,64 @@ def bench_stability(scene_file, quick, as_json, out_dir, jobs, scheduler):
         raise click.ClickException(f"{m['nan_sent']} cases sent a NaN and {m['over_limit_sent']} an over-limit force to a device")
 
 
+def _sizes_mm(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        sizes = tuple(float(s) for s in value.split(","))
+    except ValueError:
+        raise click.BadParameter(f"{value!r}: two or three edge lengths in mm, comma-separated") from None
+    if len(sizes) not in (2, 3) or len(set(sizes)) != len(sizes) or not all(2.0 <= s <= 30.0 for s in sizes):
+        raise click.BadParameter(f"{value!r}: two or three different edge lengths in 2..30 mm, comma-separated")
+    return sizes
+
+
+@bench.command("reference")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--young", type=Finite(1.0, 1e9), default=None, help="Young's modulus, Pa (forces are proportional to it) [default: the scene's].")
+@click.option("--sizes", callback=_sizes_mm, default=None, help="fTetWild target edge lengths, mm, comma-separated [default: 8,5.5,4; --quick: 20,16].")
+@click.option("--functional", type=click.Choice(["area", "vertices"]), default="area", show_default=True,
+              help="The grasp: mean displacement of the surface area within the grasp radius, or of its vertices (FemModel's; does not converge).")
+@click.option("--quick", is_flag=True, help="Two coarse meshes, the left hand's pulls, two samples (CI).")
+@click.option("--json", "as_json", is_flag=True)
+@click.option("--out", "out_dir", type=OutDir(), default=None, help="Write reference.json and reference.md here.")
+def bench_reference(scene_file, young, sizes, functional, quick, as_json, out_dir):
+    """A converged reference: P2 tetrahedra on body-fitted (fTetWild) meshes of each hemisphere at
+    three sizes, Richardson extrapolation and the grid convergence index for every bench pull."""
+    from analysis import reference
+
+    kw = {"scene": scene_file, "young": young, "functional": functional}
+    if sizes is not None:
+        kw["sizes_mm"] = sizes
+    cfg = reference.quick_config(**kw) if quick else reference.ReferenceConfig(**kw)
+    result = _with_progress("reference meshes", lambda p: reference.run_reference(cfg, progress=p))
+    if out_dir:
+        reference.write_outputs(result, out_dir)
+    if as_json:
+        _print_json(result)
+        return
+    from rich.table import Table
+
+    m = result["meta"]
+    t = Table(title=f"Converged reference: P2 linear elasticity on fTetWild meshes, E = {m['young_pa'] / 1e3:g} kPa, "
+                    f"nu = {m['poisson']:g}, grasp functional: {m['functional']}")
+    for col in ("pull", "d mm", *(f"F {s:g}mm N" for s in m["sizes_mm"]), "order", "status", "extrap. N", "GCI band", "< JND rel", "< 0.05 N"):
+        t.add_column(col, justify="left" if col in ("pull", "status") else "right")
+    for s in result["samples"]:
+        order = "-" if s["order"] is None or not math.isfinite(s["order"]) else f"{s['order']:.2f}"
+        t.add_row(s["pull"], f"{s['displacement_mm']:g}", *(f"{f:.4f}" for f in s["forces_n"]), order, s["status"],
+                  f"{s['force_ext_n']:.4f}", f"+-{s['gci']:.1%}", "yes" if s["within_jnd_rel"] else "NO", "yes" if s["within_jnd_abs"] else "NO")
+    console = _console()
+    console.print(t)
+    console.print("meshes: " + "; ".join(f"hemisphere {g['hemisphere']} {g['target_edge_mm']:g} mm: {g['nodes']} nodes, {g['tets']} tets, "
+                                         f"h {g['h_mm']:.2f} mm, {g['mesh_s']:.0f} s{' (cached)' if g['cached'] else ''}" for g in result["meshes"]))
+    console.print("band: Roache's GCI on the finest mesh (Fs = 1.25 with a monotone three-mesh order in 0.5..4; otherwise Fs = 3, order 2, "
+                  "and at least the spread of the meshes, no extrapolation). '< JND rel': half-band below the JND fraction of the force "
+                  "(10% at >= 0.5 N, 25% below); '< 0.05 N': half-band below 10% of 0.5 N.")
+    if out_dir:
+        console.print(f"wrote {out_dir}/reference.json, reference.md")
+
+
 def main() -> None:
     cli(prog_name="studyctl")
 
@@ -337,15 +398,16 @@ def _check_grasp(grasp, mesh) -> None:
 @click.option("--grasp", required=True, callback=_vector, help=f"Grasp point X,Y,Z in metres, within the grasp reach ({VisualStep.grasp_reach * 1e3:g} mm) of the brain surface (snapped to it).")
 @click.option("--displacement", required=True, callback=_pull, help=f"Displacement DX,DY,DZ of the grasp point in metres, at most {MAX_PULL_M:g} m long.")
 @click.option("--steps", type=click.IntRange(1, 200), default=5, show_default=True, help="Load steps of the nonlinear solves.")
+@click.option("--order", type=click.IntRange(1, 2), default=None, help="Element order: 1 linear, 2 quadratic tetrahedra (default: the scene's, else 1).")
 @click.option("--json", "as_json", is_flag=True)
-def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacement, steps: int, as_json: bool):
+def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacement, steps: int, order, as_json: bool):
     """Pull the brain once with the finite element model: force, displacement, phase times."""
     from sim.models.fem import static_pull
     from sim.scene import build_scene
 
     scene = build_scene(scene_file)
     _check_grasp(grasp, scene.mesh)
-    out = static_pull(scene, grasp, displacement, None if resolution is None else resolution / 1e3, formulation, steps)
+    out = static_pull(scene, grasp, displacement, None if resolution is None else resolution / 1e3, formulation, steps, order)
     if as_json:
         _print_json(out)
         _check_converged(out)
@@ -353,13 +415,15 @@ def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacemen
     console = _console()
     f = out["force_n"]
     console.print(
-        f"FEM ({out['formulation']}, {out['resolution_mm']:g} mm: {out['volume']['nodes']} nodes, {out['volume']['tets']} tetrahedra; "
+        f"FEM ({out['formulation']}, {'quadratic' if out['order'] == 2 else 'linear'} tetrahedra, {out['resolution_mm']:g} mm: "
+        f"{out['volume']['nodes']} corner nodes, {out['volume']['tets']} tetrahedra; "
         f"grasped hemisphere {out['part']['free_dofs']} unknowns)"
     )
     console.print(f"force on the hand: ({f[0]:.4g}, {f[1]:.4g}, {f[2]:.4g}) N, |F| = {out['force_magnitude_n']:.4g} N")
     console.print(f"largest displacement: {out['max_displacement_m'] * 1e3:.3f} mm")
     if out["locking"]:
-        console.print("warning: Poisson ratio above 0.49: linear tetrahedra lock, forces are overestimated")
+        console.print("warning: the elements lock at this Poisson ratio (linear tetrahedra from 0.4, quadratic from 0.49): "
+                      "forces are overestimated; try --order 2")
     if formulation != "linear":
         console.print(
             f"converged: {'yes' if out['converged'] else 'NO'}; iterations per load step {out['iterations']}; "

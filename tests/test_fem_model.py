@@ -85,7 +85,7 @@ def test_cli_model_fem_json_and_errors():
     res = CliRunner().invoke(cli, ["model", "fem", "--resolution", "8", "--grasp", ",".join(map(str, LEFT)), "--displacement", "-0.005,0,0", "--json"])
     assert res.exit_code == 0, res.output
     out = json.loads(res.output)
-    assert out["force_n"][0] > 0 and out["converged"] and not out["locking"]
+    assert out["force_n"][0] > 0 and out["converged"] and out["locking"]  # linear tetrahedra at Poisson 0.45
     assert {"mesh", "assembly", "factorisation", "grasp", "tick", "frame"} <= set(out["times_ms"])
     res = CliRunner().invoke(cli, ["model", "fem", "--resolution", "9", "--grasp", "0,0,0", "--displacement", "0,0,0"])
     assert res.exit_code == 1 and "resolution: 9 mm is out of range; allowed: 3..8 mm" in res.output

@@ -187,7 +187,7 @@ def test_three_independent_problems_all_reported_with_their_lines(tmp_path):
         ("young = 3000.0", "youngs = 3000.0", "youngs", "material.youngs", "young, poisson, density"),
         ("rate_hz = 1000\n", "rate_hz = 1000\nrate = 2\n", "rate = 2", "servo.rate", "rate_hz"),
         ("grasp_radius = 0.005                # a grasp", "grasp_radius = 0.005\nradius = 0.01  # a grasp", "radius = 0.01",
-         "models.fem.radius", "resolution, formulation, grasp_radius"),
+         "models.fem.radius", "resolution, formulation, grasp_radius, order"),
         ('name = "right"\n', 'name = "right"\nspeed = 2.0\n', "speed", "hands[1].speed",
          "name, device, start, pull, distance, grasp_at, pull_start, pull_time, release_at, device_name, device_scale, "
          "device_origin, trace, trace_hand"),

@@ -1,8 +1,8 @@
 """Finite element tissue model on linear tetrahedra.
 
 - `LinearFem`: small-strain isotropic linear elasticity, vectorised assembly, Dirichlet
-  condition on the fixed nodes, a sparse Cholesky factorisation (cholespy, CHOLMOD-style with a
-  fill-reducing ordering) reused for every solve.
+  condition on the fixed nodes, a sparse Cholesky factorisation (CHOLMOD, `sim.linalg.Factor`,
+  with a fill-reducing ordering) reused for every solve.
 - The haptic contract (`FemModel`): a grasp precomputes the condensed compliance of the grasp
   point, ``C = W K^-1 W^T`` (3 solves), where ``W`` interpolates nodal displacements at the
   embedded grasp point; a servo tick is ``f = C^-1 d`` (3x3), two grasps are coupled through
@@ -16,7 +16,6 @@ Degrees of freedom are node-major: dof ``3 i + c`` is component c of node i. SI 
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time
 from dataclasses import dataclass, field
@@ -24,17 +23,19 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from sim.errors import ParameterError, SimError
+from sim.errors import ParameterError
 from sim.laws import Linearised, PairTable
+from sim.linalg import Factor, SingularSystemError, shifted_factor
 from sim.models.base import POISSON_MAX, POISSON_MIN, pull_problem
 
-
-class SingularSystemError(SimError):
-    """The stiffness cannot be factorised (no Dirichlet condition, or not positive definite)."""
-
+__all__ = ["Factor", "SingularSystemError"]  # re-exported: they live in sim.linalg
 
 ASSEMBLIES = 0  # stiffness assemblies in this process (tests: a scene without FEM makes none)
-LOCKING_POISSON = 0.49  # above this, linear tetrahedra lock: results are reported as too stiff
+# Locking follows the element. Linear tetrahedra are already far too stiff at the brain's
+# Poisson 0.45: on the scene's meshes a 10 mm pull needed 1.63-1.70x the force of quadratic
+# tetrahedra (8, 6 and 4 mm). The P1 error grows like 1/(1 - 2 nu), so P1 is flagged from 0.4
+# on; quadratic tetrahedra only close to incompressibility.
+LOCKING_POISSON = {1: 0.4, 2: 0.49}
 
 
 def lame(young: float, poisson: float) -> tuple[float, float]:
@@ -80,45 +81,68 @@ def element_stiffness(grads: np.ndarray, vol: np.ndarray, lam: float, mu: float)
     return K.reshape(len(grads), 12, 12)
 
 
+# -- quadratic (P2) tetrahedra -------------------------------------------------------------
+# Ten nodes: the four corners, then the mid-points of the edges in this order (local corners).
+P2_EDGES = np.array([(0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3)])
+# Degree-2 Gauss rule on the tetrahedron (exact for the P2 stiffness of a straight element):
+# barycentric points (a, b, b, b) and permutations, each weighing a quarter of the volume.
+_A, _B = 0.5854101966249685, 0.1381966011250105
+P2_POINTS = np.array([[_A, _B, _B, _B], [_B, _A, _B, _B], [_B, _B, _A, _B], [_B, _B, _B, _A]])
+
+
+def p2_mesh(nodes: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(nodes with the edge mid-points appended, (m, 10) tets, (n_edges, 2) corner pairs)."""
+    pairs = np.sort(tets[:, P2_EDGES], axis=2).reshape(-1, 2)
+    edges, inverse = np.unique(pairs, axis=0, return_inverse=True)
+    mids = 0.5 * (nodes[edges[:, 0]] + nodes[edges[:, 1]])
+    tets10 = np.hstack([tets, len(nodes) + inverse.reshape(len(tets), 6)])
+    return np.vstack([nodes, mids]), tets10, edges
+
+
+def p2_gradients(grads: np.ndarray) -> np.ndarray:
+    """Gradients of the ten quadratic shape functions at the four quadrature points, (m, 4, 10, 3),
+    from the (constant) gradients of the barycentric coordinates `grads` (m, 4, 3).
+
+    Corners N_i = L_i (2 L_i - 1): grad = (4 L_i - 1) grad L_i; edges N_ij = 4 L_i L_j:
+    grad = 4 (L_j grad L_i + L_i grad L_j)."""
+    out = np.empty((len(grads), len(P2_POINTS), 10, 3))
+    for q, L in enumerate(P2_POINTS):
+        out[:, q, :4] = (4.0 * L - 1.0)[None, :, None] * grads
+        for e, (i, j) in enumerate(P2_EDGES):
+            out[:, q, 4 + e] = 4.0 * (L[j] * grads[:, i] + L[i] * grads[:, j])
+    return out
+
+
+def p2_element_stiffness(grads: np.ndarray, vol: np.ndarray, lam: float, mu: float) -> np.ndarray:
+    """P2 element matrices (m, 30, 30): the P1 formula summed over the quadrature points.
+
+    With T[(a i), (b j)] = sum_q G_qai G_qbj (one batched matrix product), K[a i, b j] =
+    V/4 (lam T[ai, bj] + mu T[aj, bi] + mu d_ij sum_k T[ak, bk])."""
+    m = len(grads)
+    G = p2_gradients(grads)  # (m, q, 10, 3)
+    A = G.transpose(0, 2, 3, 1).reshape(m, 30, len(P2_POINTS))
+    T = np.matmul(A, A.transpose(0, 2, 1)).reshape(m, 10, 3, 10, 3)
+    gg = np.einsum("maibi->mab", T)
+    K = lam * T + mu * T.transpose(0, 1, 4, 3, 2)
+    K += mu * gg[:, :, None, :, None] * np.eye(3)[None, None, :, None, :]
+    K *= (np.abs(vol) / len(P2_POINTS))[:, None, None, None, None]
+    return K.reshape(m, 30, 30)
+
+
 def element_dofs(tets: np.ndarray) -> np.ndarray:
     # int32 halves the memory traffic of assembly (dof counts stay far below 2**31)
-    return (3 * tets[:, :, None].astype(np.int32) + np.arange(3, dtype=np.int32)).reshape(len(tets), 12)
+    k = tets.shape[1]
+    return (3 * tets[:, :, None].astype(np.int32) + np.arange(3, dtype=np.int32)).reshape(len(tets), 3 * k)
 
 
 def assemble(element_matrices: np.ndarray, tets: np.ndarray, n_nodes: int) -> sp.csr_matrix:
     global ASSEMBLIES
     ASSEMBLIES += 1
     dofs = element_dofs(tets)
-    rows = np.repeat(dofs, 12, axis=1).ravel()
-    cols = np.tile(dofs, (1, 12)).ravel()
+    k = dofs.shape[1]
+    rows = np.repeat(dofs, k, axis=1).ravel()
+    cols = np.tile(dofs, (1, k)).ravel()
     return sp.coo_matrix((element_matrices.ravel(), (rows, cols)), shape=(3 * n_nodes, 3 * n_nodes)).tocsr()
-
-
-class Factor:
-    """A Cholesky factor of a sparse SPD matrix (cholespy), with checks that it worked."""
-
-    def __init__(self, A: sp.spmatrix):
-        from cholespy import CholeskySolverD, MatrixType
-
-        A = sp.csr_matrix(A)
-        self.n = A.shape[0]
-        A.sort_indices()
-        try:
-            self._solver = CholeskySolverD(self.n, A.indptr.astype(np.int32), A.indices.astype(np.int32), A.data.astype(np.float64), MatrixType.CSR)
-        except (RuntimeError, ValueError) as exc:
-            raise SingularSystemError(f"stiffness factorisation failed: {exc}") from None
-        # cholespy does not report a failed (non-positive-definite) factor: check one solve
-        probe = np.ones(self.n)
-        x = self.solve(probe)
-        if not np.all(np.isfinite(x)) or np.linalg.norm(A @ x - probe) > 1e-6 * np.linalg.norm(probe):
-            del self._solver  # free the failed factor now, not when the exception dies
-            raise SingularSystemError("stiffness is singular or not positive definite")
-
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        b = np.ascontiguousarray(b, dtype=np.float64)
-        x = np.empty_like(b)
-        self._solver.solve(b, x)
-        return x
 
 
 @dataclass
@@ -128,13 +152,16 @@ class Timings:
 
 
 class LinearFem:
-    """Small-strain linear elasticity on linear tetrahedra with nodes `fixed` clamped.
+    """Small-strain linear elasticity on linear (order 1) or quadratic (order 2) tetrahedra
+    with nodes `fixed` clamped.
 
     ``LinearFem(nodes, tets, young, poisson, fixed).solve(forces)`` returns the static nodal
-    displacements (n, 3) for nodal forces (n, 3).
+    displacements (n, 3) for nodal forces (n, 3). With ``order=2`` the quadratic elements are
+    built from the corner mesh: forces and displacements stay on the n corner nodes, the
+    mid-edge nodes are internal (a mid-edge node is clamped when both its corners are).
     """
 
-    def __init__(self, nodes, tets, young: float, poisson: float, fixed):
+    def __init__(self, nodes, tets, young: float, poisson: float, fixed, order: int = 1):
         nodes = np.asarray(nodes, dtype=np.float64)
         tets = np.asarray(tets, dtype=np.int64)
         fixed = np.asarray(fixed, dtype=bool)
@@ -145,6 +172,8 @@ class LinearFem:
         if len(tets) == 0 or tets.min() < 0 or tets.max() >= len(nodes):
             raise ParameterError(f"tets: indices must be in 0..{len(nodes) - 1}")
         check_material(young, poisson)
+        if order not in (1, 2):
+            raise ParameterError(f"order: {order!r} is not an element order; allowed: 1 (linear), 2 (quadratic tetrahedra)")
         if not fixed.any():
             raise SingularSystemError("fixed: no fixed nodes; the stiffness is singular (rigid-body motion is free)")
         self.nodes, self.tets, self.fixed = nodes, tets, fixed
@@ -156,8 +185,16 @@ class LinearFem:
         if np.any(vol < 0):
             raise ParameterError(f"tets: {int(np.sum(vol < 0))} elements are inverted (negative volume)")
         self.volumes = vol
-        self.element_matrices = element_stiffness(self.grads, vol, self.lam, self.mu)  # kept for the corotational update
-        self.stiffness = assemble(self.element_matrices, tets, len(nodes))
+        self.order = order
+        self.n_all = len(nodes)  # corners, then (order 2) the mid-edge nodes
+        if order == 1:
+            self.element_matrices = element_stiffness(self.grads, vol, self.lam, self.mu)  # kept for the corotational update
+            self.stiffness = assemble(self.element_matrices, tets, len(nodes))
+        else:
+            all_nodes, tets10, edges = p2_mesh(nodes, tets)
+            self.n_all = len(all_nodes)
+            self.stiffness = assemble(p2_element_stiffness(self.grads, vol, self.lam, self.mu), tets10, self.n_all)
+            fixed = np.concatenate([fixed, fixed[edges].all(axis=1)])
         self.timings.assembly_s = time.perf_counter() - start
         fixed_dofs = np.repeat(fixed, 3)
         self.free = np.flatnonzero(~fixed_dofs)  # free dof -> global dof
@@ -166,8 +203,8 @@ class LinearFem:
 
     @property
     def locking(self) -> bool:
-        """Linear tetrahedra lock (are too stiff) for nearly incompressible materials."""
-        return self.poisson > LOCKING_POISSON
+        """The element locks (is too stiff) at this Poisson ratio (see LOCKING_POISSON)."""
+        return self.poisson >= LOCKING_POISSON[self.order]
 
     @property
     def factor(self) -> Factor:
@@ -184,17 +221,22 @@ class LinearFem:
         f = np.asarray(forces, dtype=np.float64).reshape(-1)
         if f.shape != (3 * len(self.nodes),):
             raise ParameterError(f"forces: must be ({len(self.nodes)}, 3)")
-        u = np.zeros(3 * len(self.nodes))
-        u[self.free] = self.solve_free(f[self.free])
-        return u.reshape(-1, 3)
+        full = np.zeros(3 * self.n_all)
+        full[: len(f)] = f  # loads on the corners; mid-edge nodes carry none
+        u = np.zeros(3 * self.n_all)
+        u[self.free] = self.solve_free(full[self.free])
+        return u[: 3 * len(self.nodes)].reshape(-1, 3)
 
     def to_free(self, u_nodes: np.ndarray) -> np.ndarray:
+        if self.order != 1:
+            raise ParameterError("order: the corotational and neo-Hookean solvers need linear (order 1) tetrahedra")
         return np.asarray(u_nodes).reshape(-1)[self.free]
 
     def from_free(self, u_free: np.ndarray) -> np.ndarray:
-        u = np.zeros(3 * len(self.nodes))
+        """Corner displacements (n, 3) of a free-dof vector."""
+        u = np.zeros(3 * self.n_all)
         u[self.free] = u_free
-        return u.reshape(-1, 3)
+        return u[: 3 * len(self.nodes)].reshape(-1, 3)
 
 
 # -- grasp constraint ----------------------------------------------------------------------
@@ -202,7 +244,7 @@ class LinearFem:
 
 def constraint_matrix(fem: LinearFem, tet_nodes: np.ndarray, weights: np.ndarray) -> sp.csr_matrix:
     """W (3, n_free): the displacement of the embedded point = W u_free."""
-    col_of = -np.ones(3 * len(fem.nodes), dtype=np.int64)
+    col_of = -np.ones(3 * fem.n_all, dtype=np.int64)
     col_of[fem.free] = np.arange(len(fem.free))
     rows, cols, vals = [], [], []
     for node, w in zip(tet_nodes, weights):
@@ -234,11 +276,14 @@ class FemModel:
 
     name = "fem"
 
-    def __init__(self, surface, volume, young: float, poisson: float, fixed_nodes: np.ndarray, formulation: str = "linear", grasp_radius: float = 0.005):
+    def __init__(self, surface, volume, young: float, poisson: float, fixed_nodes: np.ndarray, formulation: str = "linear", grasp_radius: float = 0.005,
+                 order: int = 1):
         from sim.volume import embed
 
         if formulation not in ("linear", "corotational"):
             raise ParameterError(f"formulation: {formulation!r} is not available for the haptic model; allowed: linear, corotational")
+        if order == 2 and formulation != "linear":
+            raise ParameterError("order: quadratic tetrahedra (order 2) run the linear formulation only")
         self.surface = surface
         self.volume = volume
         self.formulation = formulation
@@ -253,7 +298,7 @@ class FemModel:
             self.node_part[nodes] = k
             self.node_local[nodes] = np.arange(len(nodes))
             tets = self.node_local[volume.tets[tet_comp == label]]
-            self.parts.append(LinearFem(volume.nodes[nodes], tets, young, poisson, fixed_nodes[nodes]))
+            self.parts.append(LinearFem(volume.nodes[nodes], tets, young, poisson, fixed_nodes[nodes], order=order))
             self.part_nodes.append(nodes)
         start = time.perf_counter()
         self.embedding = embed(volume, surface.vertices, surface.labels)
@@ -285,6 +330,7 @@ class FemModel:
         """Counts a run reports: numerical trouble is visible, never silent."""
         return {
             "formulation": self.formulation,
+            "order": self.parts[0].order,
             "locking": self.locking,
             "inverted_frames": self.inverted_frames,
             "tangent_updates": self.tangent_updates,
@@ -469,7 +515,8 @@ def build(mesh, spec, scene=None):
     material = scene.spec.material
     axis = AXES[scene.spec.fixed.axis]
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, axis)
-    return FemModel(mesh, volume, material.young, material.poisson, fixed, opts.get("formulation", "linear"), opts.get("grasp_radius", 0.005))
+    return FemModel(mesh, volume, material.young, material.poisson, fixed, opts.get("formulation", "linear"), opts.get("grasp_radius", 0.005),
+                    order=int(opts.get("order", 1)))
 
 
 # -- corotational (stiffness warping) ------------------------------------------------------
@@ -599,47 +646,11 @@ class NewtonReport:
     completed_steps: int | None = None  # load steps solved; fewer than load_steps when the solve diverged
 
 
-def _shifted_factor(K: sp.csr_matrix) -> Factor:
-    """Factor K, or K + tau * mean(diag K) * I with the smallest tau in 1e-6..100 that is positive
-    definite: near a buckling load the tangent can be indefinite, and the shifted (modified)
-    Newton step still converges to the same equilibrium, only more slowly."""
-    scale = float(np.mean(K.diagonal()))
-    with _quiet_c_output():  # CHOLMOD prints a warning for every failed attempt
-        for tau in (0.0, 1e-6, 1e-4, 1e-2, 1.0, 10.0, 100.0):
-            try:  # (no exception kept alive across attempts: a failed factor can hold gigabytes)
-                return Factor(K + sp.identity(K.shape[0], format="csr") * (tau * scale) if tau else K)
-            except SingularSystemError:
-                pass
-    raise SingularSystemError("tangent stiffness is not positive definite even shifted by 100 times its mean diagonal")
-
-
-@contextlib.contextmanager
-def _quiet_c_output():
-    """Silence C-level output (CHOLMOD writes its warnings to stdout)."""
-    import os
-    import sys
-
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(1), os.dup(2)]
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 1)
-            os.dup2(null.fileno(), 2)
-            yield
-    finally:
-        import ctypes
-
-        ctypes.CDLL(None).fflush(None)  # C stdio buffers what CHOLMOD wrote: drop it into /dev/null
-        for fd, old in zip((1, 2), saved):
-            os.dup2(old, fd)
-            os.close(old)
-
-
 def neo_hookean_solve(fem: LinearFem, W: sp.csr_matrix, target: np.ndarray, steps: int = 10, tol: float = 1e-8, max_iter: int = 25,
                       on_step=None):
     """Static compressible neo-Hookean solve with the grasp point held at `target` (3,).
 
+    Linear tetrahedra (order 1) only.
     Energy density ``mu/2 (I1 - 3) - mu ln J + lam/2 (ln J)^2``; the constraint ``W u = d`` is
     imposed with a Lagrange multiplier (Schur complement, 3 extra solves per iteration). The
     displacement is applied in `steps` equal increments, each solved by Newton's method to a
@@ -647,6 +658,8 @@ def neo_hookean_solve(fem: LinearFem, W: sp.csr_matrix, target: np.ndarray, step
     point (3,), NewtonReport). `on_step(step, u (n, 3), force (3,))`, if given, sees each
     converged load step (a whole force-displacement curve from one solve).
     """
+    if fem.order != 1:
+        raise ParameterError("order: the neo-Hookean solve runs on linear (order 1) tetrahedra")
     lam, mu = fem.lam, fem.mu
     g = fem.grads  # reference gradients (m, 4, 3)
     V = np.abs(fem.volumes)
@@ -697,7 +710,7 @@ def neo_hookean_solve(fem: LinearFem, W: sp.csr_matrix, target: np.ndarray, step
             res_hist.append(max(res, float(np.linalg.norm(gap)) / scale))
             if it > 0 and res_hist[-1] < tol:
                 break
-            factor = _shifted_factor(0.5 * (Kff + Kff.T))
+            factor = shifted_factor(0.5 * (Kff + Kff.T))  # indefinite tangent: shifted, see sim.linalg
             # [K  -W^T] [du ]   [-r  ]
             # [W   0  ] [dl ] = [-gap]
             Kr = factor.solve(-r)
@@ -721,7 +734,8 @@ def neo_hookean_solve(fem: LinearFem, W: sp.csr_matrix, target: np.ndarray, step
 FORMULATIONS = ("linear", "corotational", "neo-hookean")
 
 
-def static_pull(scene, grasp, displacement, resolution: float | None = None, formulation: str = "linear", steps: int = 5) -> dict:
+def static_pull(scene, grasp, displacement, resolution: float | None = None, formulation: str = "linear", steps: int = 5,
+                order: int | None = None) -> dict:
     """Grasp the scene's brain at `grasp` and hold the grasp point at `displacement` (m).
 
     Returns the force on the hand, the largest displacement, the phase times, and for the
@@ -747,7 +761,12 @@ def static_pull(scene, grasp, displacement, resolution: float | None = None, for
     times["mesh_s"] = time.perf_counter() - t0
     material = scene.spec.material
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])
-    model = FemModel(mesh, volume, material.young, material.poisson, fixed, grasp_radius=spec.options.get("grasp_radius", 0.005) if spec else 0.005)
+    if order is None:
+        order = int(spec.options.get("order", 1)) if spec else 1
+    if order == 2 and formulation != "linear":
+        raise ParameterError(f"order: quadratic tetrahedra (order 2) run the linear formulation only, not {formulation}")
+    model = FemModel(mesh, volume, material.young, material.poisson, fixed, grasp_radius=spec.options.get("grasp_radius", 0.005) if spec else 0.005,
+                     order=order)
     times.update({k: v for k, v in model.timings.items()})
     t0 = time.perf_counter()
     contact = model.grasp(grasp, 0)
@@ -764,9 +783,10 @@ def static_pull(scene, grasp, displacement, resolution: float | None = None, for
     part = model.parts[contact.data.part]
     out = {
         "formulation": formulation,
+        "order": order,
         "resolution_mm": resolution * 1e3,
         "volume": describe(volume),
-        "part": {"nodes": int(len(part.nodes)), "tets": int(len(part.tets)), "free_dofs": int(len(part.free))},
+        "part": {"nodes": int(part.n_all), "tets": int(len(part.tets)), "free_dofs": int(len(part.free))},
         "grasp_vertex": contact.vertex,
         "grasp_point": list(contact.point),
         "displacement": d.tolist(),

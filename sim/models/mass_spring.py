@@ -250,7 +250,7 @@ class MassSpring:
 
     def _implicit(self, h: float) -> None:
         """(M - h^2 df/dx + h c M) dv = h (f + h df/dx v): one linearised backward-Euler step."""
-        from sim.models.fem import Factor
+        from sim.linalg import Factor
 
         free3 = (3 * self.free[:, None] + np.arange(3)).ravel()
         J = (self._spring_jacobian(self.x) - self._anchor_matrix())[free3][:, free3]
@@ -319,7 +319,7 @@ class MassSpring:
 
     def _lg_solver(self, h: float) -> dict:
         if h not in self._lg_cache:
-            from sim.models.fem import Factor
+            from sim.linalg import Factor
 
             L = (self._A.T @ sp.diags(self.k) @ self._A).tocsr()  # (n, n) spring Laplacian
             M = sp.diags(self.m / (h * h))
@@ -328,7 +328,7 @@ class MassSpring:
             active = self._moving  # springs between two clamped nodes never move: leave them out
             A_act = self._A[active].tocsr()
             Ak = (A_act.T.multiply(self.k[active][None, :])).tocsr()[free]  # (A^T diag(k)) on free rows
-            self._lg_cache = {h: {"factor": Factor(Q[free][:, free]), "L_fixed": L[free][:, fixed],  # one step size at a time
+            self._lg_cache = {h: {"factor": Factor(Q[free][:, free], simplicial=True), "L_fixed": L[free][:, fixed],  # one step size at a time
                                   "A_act": A_act, "Ak": Ak, "rest_act": self.rest[active]}}
         return self._lg_cache[h]
 
