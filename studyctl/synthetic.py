@@ -175,9 +175,9 @@ class SyntheticAnswers:
 def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, protocol_path=None, progress=None) -> dict:
     """Register N synthetic participants, give them counterbalanced orders, run their sessions.
 
-    Codes, ages, orders and session ids are assigned up front and in order, so the database
-    content is the same for the same seed whatever `jobs` is (timestamps and measured times
-    aside)."""
+    Codes, ages, orders and session ids are assigned up front and in order, so orders, trials
+    and forces are the same for the same seed whatever `jobs` is, and so are the answers where
+    the measured latency falls in the same category (measured times are wall-clock)."""
     import time as _time
     from pathlib import Path
 
