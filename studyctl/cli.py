@@ -236,17 +236,23 @@ def _sizes_mm(ctx, param, value):
 @click.option("--sizes", callback=_sizes_mm, default=None, help="fTetWild target edge lengths, mm, comma-separated [default: 8,5.5,4; --quick: 20,16].")
 @click.option("--functional", type=click.Choice(["area", "vertices"]), default="area", show_default=True,
               help="The grasp: mean displacement of the surface area within the grasp radius, or of its vertices (FemModel's; does not converge).")
+@click.option("--formulation", type=click.Choice(["linear", "neo-hookean"]), default="linear", show_default=True,
+              help="Small-strain linear elasticity (one solve per pull), or compressible neo-Hookean (Newton; minutes per pull and mesh).")
+@click.option("--pulls", "pull_names", default=None, help="Only these bench pulls, comma-separated (e.g. left-lateral,extra1-anterior).")
+@click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Meshes made at once (default: every core).")
 @click.option("--quick", is_flag=True, help="Two coarse meshes, the left hand's pulls, two samples (CI).")
 @click.option("--json", "as_json", is_flag=True)
 @click.option("--out", "out_dir", type=OutDir(), default=None, help="Write reference.json and reference.md here.")
-def bench_reference(scene_file, young, sizes, functional, quick, as_json, out_dir):
+def bench_reference(scene_file, young, sizes, functional, formulation, pull_names, jobs, quick, as_json, out_dir):
     """A converged reference: P2 tetrahedra on body-fitted (fTetWild) meshes of each hemisphere at
     three sizes, Richardson extrapolation and the grid convergence index for every bench pull."""
     from analysis import reference
 
-    kw = {"scene": scene_file, "young": young, "functional": functional}
+    kw = {"scene": scene_file, "young": young, "functional": functional, "formulation": formulation, "jobs": jobs}
     if sizes is not None:
         kw["sizes_mm"] = sizes
+    if pull_names:
+        kw["pulls"] = tuple(n.strip() for n in pull_names.split(","))
     cfg = reference.quick_config(**kw) if quick else reference.ReferenceConfig(**kw)
     result = _with_progress("reference meshes", lambda p: reference.run_reference(cfg, progress=p))
     if out_dir:
@@ -257,14 +263,16 @@ def bench_reference(scene_file, young, sizes, functional, quick, as_json, out_di
     from rich.table import Table
 
     m = result["meta"]
-    t = Table(title=f"Converged reference: P2 linear elasticity on fTetWild meshes, E = {m['young_pa'] / 1e3:g} kPa, "
+    t = Table(title=f"Converged reference: P2 {m['formulation']} on fTetWild meshes, E = {m['young_pa'] / 1e3:g} kPa, "
                     f"nu = {m['poisson']:g}, grasp functional: {m['functional']}")
     for col in ("pull", "d mm", *(f"F {s:g}mm N" for s in m["sizes_mm"]), "order", "status", "extrap. N", "GCI band", "< JND rel", "< 0.05 N"):
-        t.add_column(col, justify="left" if col in ("pull", "status") else "right")
+        t.add_column(col, justify="left" if col in ("pull", "status") else "right", no_wrap=col == "pull")
     for s in result["samples"]:
         order = "-" if s["order"] is None or not math.isfinite(s["order"]) else f"{s['order']:.2f}"
-        t.add_row(s["pull"], f"{s['displacement_mm']:g}", *(f"{f:.4f}" for f in s["forces_n"]), order, s["status"],
-                  f"{s['force_ext_n']:.4f}", f"+-{s['gci']:.1%}", "yes" if s["within_jnd_rel"] else "NO", "yes" if s["within_jnd_abs"] else "NO")
+        ext = "-" if s["force_ext_n"] is None or not math.isfinite(s["force_ext_n"]) else f"{s['force_ext_n']:.4f}"
+        band = "-" if s["gci"] is None or not math.isfinite(s["gci"]) else f"+-{s['gci']:.1%}"
+        t.add_row(s["pull"], f"{s['displacement_mm']:g}", *(f"{f:.4f}" for f in s["forces_n"]), order, s["status"], ext, band,
+                  "yes" if s["within_jnd_rel"] else "NO", "yes" if s["within_jnd_abs"] else "NO")
     console = _console()
     console.print(t)
     console.print("meshes: " + "; ".join(f"hemisphere {g['hemisphere']} {g['target_edge_mm']:g} mm: {g['nodes']} nodes, {g['tets']} tets, "

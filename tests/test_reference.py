@@ -1,0 +1,158 @@
+"""The converged reference (analysis/reference.py): Richardson extrapolation and the GCI worked
+on analytic sequences, the body-fitted (fTetWild) hemisphere mesh, P2 forces on two sizes, and
+`studyctl bench reference --quick` end to end. The meshes are cached on disk: the first run of
+this file meshes one hemisphere twice (about 35 s on 2 cores), later runs read them back."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from analysis import reference
+from analysis.reference import (
+    QUICK_SIZES_MM,
+    build_problem,
+    enclosed_volume,
+    hemisphere_surface,
+    mesh_hemisphere,
+    patch_area_points,
+    pull_stiffness,
+    richardson,
+    richardson2,
+    tet_volumes,
+)
+from sim.mesh import icosphere
+from sim.reference import make_pulls, scene_with
+from sim.scene import DEFAULT_SCENE
+from studyctl.cli import cli
+
+# -- Richardson and the GCI ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("hs", [(1.0, 1.5, 2.25), (1.0, 1.3, 1.9), (0.0017, 0.0021, 0.0026)])
+@pytest.mark.parametrize("C", [0.7, -2.0])
+def test_richardson_recovers_an_exact_second_order_sequence(hs, C):
+    f0 = 3.25
+    C = C / hs[0] ** 2  # differences of order 1 whatever the unit of h (else round-off limits p to ~1e-9)
+    f = [f0 + C * h**2 for h in hs]
+    r = richardson(*f, *hs)
+    assert r["status"] == "monotone" and r["extrapolated"]
+    assert abs(r["p"] - 2.0) < 1e-10
+    assert abs(r["f_ext"] - f0) < 1e-10
+    # Roache: GCI = 1.25 |e21| / (r21^p - 1), relative to the finest value
+    r21 = hs[1] / hs[0]
+    assert r["gci"] == pytest.approx(1.25 * abs((f[1] - f[0]) / f[0]) / (r21**2 - 1), rel=1e-9)
+    assert r["band"][0] < f0 < r["band"][1]  # the band covers the exact value (Fs = 1.25 > 1)
+
+
+def test_richardson_other_orders_and_two_meshes():
+    hs = (1.0, 1.4, 2.0)
+    f = [1.0 + 0.3 * h**1.5 for h in hs]
+    r = richardson(*f, *hs)
+    assert abs(r["p"] - 1.5) < 1e-10 and abs(r["f_ext"] - 1.0) < 1e-10
+    r2 = richardson2(1.0 + 0.3 * 1.0**2, 1.0 + 0.3 * 1.6**2, 1.0, 1.6)  # two meshes: assumed order 2, Fs = 3
+    assert r2["f_ext"] == pytest.approx(1.0, abs=1e-12) and r2["fs"] == 3.0 and r2["status"] == "two meshes"
+    assert reference.converge([3.0, 2.0, 1.5], [3e-3, 2e-3, 1.5e-3])["f1"] == 1.5  # any order in, finest first
+    with pytest.raises(ValueError):
+        richardson(1, 2, 3, 2.0, 1.0, 3.0)
+
+
+@pytest.mark.parametrize("f, status", [((1.00, 1.02, 0.99), "oscillatory"), ((1.00, 1.03, 1.04), "diverging"),
+                                       ((1.0, 1.0 + 1e-6, 1.2), "order out of range")])
+def test_richardson_falls_back_to_a_conservative_band(f, status):
+    hs = (1.0, 1.25, 1.5)
+    r = richardson(*f, *hs)
+    assert r["status"] == status and not r["extrapolated"] and r["f_ext"] == f[0]
+    spread = max(abs(f[1] - f[0]), abs(f[2] - f[0])) / f[0]
+    assert r["gci"] >= spread - 1e-15
+    assert r["gci"] >= 3.0 * abs(f[1] - f[0]) / f[0] / (1.25**2 - 1) - 1e-15
+
+
+def test_richardson_on_identical_values():
+    r = richardson(2.0, 2.0, 2.0, 1.0, 2.0, 3.0)
+    assert r["status"] == "converged" and r["gci"] == 0.0
+
+
+# -- meshes and P2 forces --------------------------------------------------------------------
+
+
+def test_enclosed_volume_of_a_sphere():
+    s = icosphere(radius=0.05, subdivisions=4)
+    v = enclosed_volume(s.vertices, s.triangles)
+    assert v == pytest.approx(4 / 3 * math.pi * 0.05**3, rel=0.01)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return scene_with(DEFAULT_SCENE)
+
+
+@pytest.fixture(scope="module")
+def left(scene):
+    verts, tris, _ = hemisphere_surface(scene.mesh, 0)
+    reference._premesh(scene.mesh, [0], QUICK_SIZES_MM, threads=1, jobs=None)  # both at once, into the cache
+    return verts, tris, [mesh_hemisphere(verts, tris, s * 1e-3) for s in QUICK_SIZES_MM]
+
+
+def test_body_fitted_hemisphere_mesh_is_closed_and_right_sized(left):
+    verts, tris, meshes = left
+    surface = enclosed_volume(verts, tris)
+    assert 4e-4 < surface < 6e-4  # one hemisphere: about half a litre
+    for m in meshes:
+        vol = tet_volumes(m.nodes, m.tets)
+        assert np.all(vol > 0)
+        assert abs(vol.sum() / surface - 1) < 0.03  # the envelope is 10% of the edge length
+        # every node is used and every triangle face is shared by two tets or on the boundary
+        assert len(np.unique(m.tets)) == len(m.nodes)
+        faces = np.sort(m.tets[:, [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]]].reshape(-1, 3), axis=1)
+        _, counts = np.unique(faces, axis=0, return_counts=True)
+        assert counts.max() == 2
+    assert len(meshes[1].tets) > len(meshes[0].tets) and meshes[1].h < meshes[0].h
+
+
+def test_p2_pull_forces_agree_between_two_mesh_sizes(scene, left):
+    _, _, meshes = left
+    pull = next(p for p in make_pulls(scene) if p.name == "left-lateral")
+    pts, w = patch_area_points(scene.mesh, pull.vertex, 0.005)
+    assert w.sum() == pytest.approx(1.0) and np.all(np.linalg.norm(pts - scene.mesh.vertices[pull.vertex], axis=1) <= 0.005)
+    forces = []
+    for m in meshes:
+        prob = build_problem(scene, 0, m)
+        # the clamp: the scene's plane, and only nodes below it
+        axis, limit = reference.clamp_limit(scene)
+        assert prob.fixed_nodes == int(np.sum(m.nodes[:, axis] <= limit)) > 0
+        K = pull_stiffness(prob, pts, w)
+        assert np.allclose(K, K.T) and np.all(np.linalg.eigvalsh(K) > 0)
+        forces.append(np.linalg.norm(K @ np.asarray(pull.direction)))
+    assert abs(forces[1] / forces[0] - 1) < 0.10
+    # the scene's modulus and a 24 mm pull: tenths of a newton, as the voxel FEMs give
+    assert 0.05 < forces[1] * scene.spec.material.young * 0.024 < 0.5
+
+
+def test_cli_bench_reference_quick(tmp_path):
+    out = tmp_path / "ref"
+    res = CliRunner().invoke(cli, ["bench", "reference", "--quick", "--json", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    data = json.loads(res.output)
+    assert {s["pull"] for s in data["samples"]} == {"left-lateral", "left-anterior"}
+    assert len(data["samples"]) == 4 and len(data["meshes"]) == 2
+    for s in data["samples"]:
+        assert s["status"] == "two meshes" and len(s["forces_n"]) == 2 and all(f > 0 for f in s["forces_n"])
+        assert s["band_n"][0] < s["forces_n"][-1] < s["band_n"][1]
+    assert json.loads((out / "reference.json").read_text())["meta"]["element"].startswith("P2")
+    assert "| pull |" in (out / "reference.md").read_text()
+    table = CliRunner().invoke(cli, ["bench", "reference", "--quick"])
+    assert table.exit_code == 0 and "left-lateral" in table.output and "GCI band" in table.output
+    bad = CliRunner().invoke(cli, ["bench", "reference", "--sizes", "8"])
+    assert bad.exit_code == 2
+
+
+@pytest.mark.slow
+def test_three_mesh_reference_band_is_within_the_jnd():
+    cfg = reference.ReferenceConfig(pulls=("left-lateral",), samples=1)
+    data = reference.run_reference(cfg)
+    (s,) = data["samples"]
+    assert len(s["forces_n"]) == 3 and s["status"] in ("monotone", "oscillatory", "diverging", "order out of range")
+    assert s["gci"] < 0.10 and s["within_jnd_rel"]
