@@ -648,7 +648,7 @@ def run_reference(cfg: ReferenceConfig, progress=None) -> dict:
     # per pull and size: force per pascal at each sampled displacement, (n_xs, 3)
     F: dict[str, list[np.ndarray]] = {p.name: [] for p in pulls}
     solves: dict[str, list[dict]] = {p.name: [] for p in pulls}
-    _premesh(mesh, labels, sizes, cfg.threads, cfg.jobs)
+    made = _premesh(mesh, labels, sizes, cfg.threads, cfg.jobs)
     meshes = []
     n_steps, step = len(labels) * len(sizes), 0
     for label in labels:
@@ -670,7 +670,7 @@ def run_reference(cfg: ReferenceConfig, progress=None) -> dict:
                     K = pull_stiffness(prob, *patches[p.name], interpolation=cfg.interpolation)
                     F[p.name].append(np.outer(xs, K @ direction))  # linear: proportional to the displacement
             solve_s = time.perf_counter() - t0
-            meshes.append(bm.describe() | {"hemisphere": int(label), "surface_volume_cm3": surf_vol * 1e6,
+            meshes.append(bm.describe() | {"cached": bm.cached and (label, size) not in made, "hemisphere": int(label), "surface_volume_cm3": surf_vol * 1e6,
                                            "volume_error": bm.volume / surf_vol - 1.0,
                                            "p2_nodes": int(prob.fem.n_all), "free_dofs": int(len(prob.fem.free)),
                                            "fixed_corner_nodes": prob.fixed_nodes, "assembly_s": prob.build_s,
@@ -701,7 +701,7 @@ def run_reference(cfg: ReferenceConfig, progress=None) -> dict:
             half = conv["gci"] * f_fine
             samples.append({"pull": p.name, "displacement_mm": float(x) * 1e3, "forces_n": f, "h_mm": [h * 1e3 for h in hs],
                             "target_edge_mm": sizes, "order": conv["p"], "order_used": conv["p_used"], "status": conv["status"],
-                            "fs": conv["fs"], "extrapolated": conv["extrapolated"], "force_ext_n": conv["f_ext"],
+                            "R": conv["R"], "fs": conv["fs"], "extrapolated": conv["extrapolated"], "force_ext_n": conv["f_ext"],
                             "gci": conv["gci"], "band_n": [f_fine - half, f_fine + half], "band_half_n": half}
                            | jnd_verdict(f_fine, half))
     meta = {"scene": str(cfg.scene), "young_pa": young, "scene_young_pa": scene.spec.material.young, "poisson": scene.spec.material.poisson,
@@ -720,24 +720,29 @@ def _mesh_task(args) -> None:
     mesh_hemisphere(verts, tris, size * 1e-3, threads=threads)
 
 
-def _premesh(mesh, labels, sizes, threads: int, jobs: int | None) -> None:
+def _premesh(mesh, labels, sizes, threads: int, jobs: int | None) -> set:
     """Make the meshes missing from the cache, several at once: fTetWild uses about one core
-    whatever its thread count, so two hemispheres mesh in the time of one on 2 cores."""
+    whatever its thread count, so two hemispheres mesh in the time of one on 2 cores.
+    Returns the (label, size) pairs it made."""
     jobs = jobs or os.cpu_count() or 1
-    tasks = []
+    tasks, made = [], set()
     for label in labels:
         verts, tris, _ = hemisphere_surface(mesh, label)
-        tasks += [(verts, tris, s, threads) for s in sizes if not _mesh_path(verts, tris, s * 1e-3, ENVELOPE_FRACTION * s * 1e-3).exists()]
+        for s in sizes:
+            if not _mesh_path(verts, tris, s * 1e-3, ENVELOPE_FRACTION * s * 1e-3).exists():
+                tasks.append((verts, tris, s, threads))
+                made.add((label, s))
     tasks.sort(key=lambda t: t[2])  # the finest (slowest) first
     if jobs <= 1 or len(tasks) <= 1:
         for t in tasks:
             _mesh_task(t)
-        return
+        return made
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=multiprocessing.get_context("spawn")) as pool:
         list(pool.map(_mesh_task, tasks))
+    return made
 
 
 def markdown(result: dict) -> str:

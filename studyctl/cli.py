@@ -266,12 +266,13 @@ def bench_reference(scene_file, young, sizes, functional, formulation, pull_name
     t = Table(title=f"Converged reference: P2 {m['formulation']} on fTetWild meshes, E = {m['young_pa'] / 1e3:g} kPa, "
                     f"nu = {m['poisson']:g}, grasp functional: {m['functional']}")
     for col in ("pull", "d mm", *(f"F {s:g}mm N" for s in m["sizes_mm"]), "order", "status", "extrap. N", "GCI band", "< JND rel", "< 0.05 N"):
-        t.add_column(col, justify="left" if col in ("pull", "status") else "right", no_wrap=col == "pull")
+        t.add_column(col, justify="left" if col in ("pull", "status") else "right", no_wrap=col in ("pull", "status"))
     for s in result["samples"]:
         order = "-" if s["order"] is None or not math.isfinite(s["order"]) else f"{s['order']:.2f}"
         ext = "-" if s["force_ext_n"] is None or not math.isfinite(s["force_ext_n"]) else f"{s['force_ext_n']:.4f}"
         band = "-" if s["gci"] is None or not math.isfinite(s["gci"]) else f"+-{s['gci']:.1%}"
-        t.add_row(s["pull"], f"{s['displacement_mm']:g}", *(f"{f:.4f}" for f in s["forces_n"]), order, s["status"], ext, band,
+        status = {"order out of range": "p out of range", "oscillatory": "oscillating"}.get(s["status"], s["status"])
+        t.add_row(s["pull"], f"{s['displacement_mm']:g}", *(f"{f:.4f}" for f in s["forces_n"]), order, status, ext, band,
                   "yes" if s["within_jnd_rel"] else "NO", "yes" if s["within_jnd_abs"] else "NO")
     console = _console()
     console.print(t)
