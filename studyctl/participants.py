@@ -26,17 +26,6 @@ def _person(store: Store, code: str) -> dict:
     return rows[0]
 
 
-def _transaction(store: Store, dry_run: bool, work) -> None:
-    conn = store.db.conn
-    conn.execute("BEGIN IMMEDIATE")
-    try:
-        work(conn)
-        conn.execute("ROLLBACK" if dry_run else "COMMIT")
-    except BaseException:
-        conn.execute("ROLLBACK")
-        raise
-
-
 def record_consent(db, code: str, given_on: str | None = None, version: str | None = None, dry_run: bool = False) -> dict:
     """Record that a person signed the protocol's consent form (version and date)."""
     store = Store(db)
@@ -64,13 +53,11 @@ def record_consent(db, code: str, given_on: str | None = None, version: str | No
             raise InputError(f"participant {code}: consent form {earlier[0]['version']} already recorded, signed {earlier[0]['given_on']}")
         row = {"code": code, "version": version, "given_on": day.isoformat(), "recorded_at": now(), "recorded_by": getpass.getuser()}
 
-        def work(conn):
+        with store.transaction(dry_run) as conn:
             conn.execute("insert or replace into consent (code, version, given_on, recorded_at, recorded_by) values (?, ?, ?, ?, ?)",
                          tuple(row.values()))
             conn.execute("insert into events (session_id, at, kind, detail) values (null, ?, 'consent', ?)",
                          (now(), f"{code}: consent form {version} signed {day}"))
-
-        _transaction(store, dry_run, work)
         return {**row, "dry_run": dry_run}
     finally:
         store.close()
@@ -117,7 +104,7 @@ def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
         counts = {t: store.rows(f"select count(*) as n from {t} where code = ?", (code,))[0]["n"] for t in ("answers", "sessions")}
         delete = protocol.withdrawal == "delete"
 
-        def work(conn):
+        with store.transaction(dry_run) as conn:
             ids = ",".join(str(i) for i in sessions) or "null"
             if delete:
                 for table in ("latency", "trials", "conditions"):
@@ -135,8 +122,6 @@ def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
             conn.execute("insert into events (session_id, at, kind, detail) values (null, ?, 'withdrawn', ?)",
                          (now(), f"{code}: data {'deleted' if delete else 'kept'} ({protocol.withdrawal} in the protocol)"
                                  + (f"; reason: {reason}" if reason else "")))
-
-        _transaction(store, dry_run, work)
         if delete and not dry_run:  # the files after the rows: a crash between leaves files no row names
             for rel in traces:
                 (store.path.parent / rel).unlink(missing_ok=True)
@@ -159,12 +144,10 @@ def cancel_slot(db, code: str, dry_run: bool = False) -> dict:
         if not row:
             raise InputError(f"participant {code}: has no slot to cancel")
 
-        def work(conn):
+        with store.transaction(dry_run) as conn:
             conn.execute("update schedule set slot_start = null, slot_end = null where code = ?", (code,))
             conn.execute("insert into events (session_id, at, kind, detail) values (null, ?, 'slot_cancelled', ?)",
                          (now(), f"{code}: {row[0]['slot_start']}"))
-
-        _transaction(store, dry_run, work)
         return {"code": code, "cancelled": row[0]["slot_start"], "dry_run": dry_run}
     finally:
         store.close()
@@ -189,12 +172,10 @@ def correct_answer(db, code: str, model: str, item: str, answer: str, reason: st
         if old == new:
             raise InputError(f"--answer: {code}/{model}/{item} is already {'yes' if new else 'no'}")
 
-        def work(conn):
+        with store.transaction(dry_run) as conn:
             conn.execute("update answers set answer = ? where code = ? and model = ? and item = ?", (new, code, model, item))
             conn.execute("insert into corrections (code, model, item, old_answer, new_answer, reason, corrected_at, corrected_by) "
                          "values (?, ?, ?, ?, ?, ?, ?, ?)", (code, model, item, old, new, reason.strip(), now(), getpass.getuser()))
-
-        _transaction(store, dry_run, work)
         return {"code": code, "model": model, "item": item, "old": old, "new": new, "dry_run": dry_run}
     finally:
         store.close()

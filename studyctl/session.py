@@ -232,19 +232,13 @@ def _never_started(store: Store, session_id: int) -> bool:
 
 
 def _discard(store: Store, session_id: int) -> None:
-    conn = store.db.conn
-    conn.execute("BEGIN IMMEDIATE")
-    try:
+    with store.transaction() as conn:
         conn.execute("delete from latency where session_id = ?", (session_id,))
         conn.execute("delete from conditions where session_id = ?", (session_id,))
         conn.execute("update events set session_id = null where session_id = ?", (session_id,))
         conn.execute("delete from sessions where id = ?", (session_id,))
         conn.execute("insert into events (session_id, at, kind, detail) values (null, ?, 'session_discarded', ?)",
                      (now(), f"session {session_id}: stopped before its first trial"))
-        conn.execute("COMMIT")
-    except BaseException:
-        conn.execute("ROLLBACK")
-        raise
 
 
 def _check_participant(store: Store, protocol, code: str, synthetic: bool) -> None:

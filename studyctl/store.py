@@ -7,6 +7,7 @@ contact) live only in the `identities` table, which no export and no report read
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import hashlib
 import json
@@ -237,14 +238,9 @@ class Store:
         if version > SCHEMA_VERSION:
             raise StoreError(f"{self.path}: schema version {version} is newer than this software's ({SCHEMA_VERSION})")
         for v in range(version + 1, SCHEMA_VERSION + 1):
-            db.conn.execute("BEGIN IMMEDIATE")  # one transaction per migration (DDL included)
-            try:
+            with self.transaction() as conn:  # one transaction per migration (DDL included)
                 MIGRATIONS[v](db)
-                db.conn.execute("insert or replace into meta (key, value) values ('schema_version', ?)", (str(v),))
-                db.conn.execute("COMMIT")
-            except BaseException:
-                db.conn.execute("ROLLBACK")
-                raise
+                conn.execute("insert or replace into meta (key, value) values ('schema_version', ?)", (str(v),))
 
     def close(self) -> None:
         self.db.conn.close()
@@ -257,15 +253,22 @@ class Store:
         else:
             self.db[table].insert(record, pk=pk)
 
+    @contextlib.contextmanager
+    def transaction(self, dry_run: bool = False):
+        """Everything written inside is committed together, or (on an error, or `dry_run`) none of it."""
+        conn = self.db.conn
+        conn.execute("BEGIN IMMEDIATE")
+        try:
+            yield conn
+        except BaseException:
+            conn.execute("ROLLBACK")
+            raise
+        conn.execute("ROLLBACK" if dry_run else "COMMIT")
+
     def write_many(self, table: str, records: list[dict], pk=None) -> None:
         """All rows or none, in one transaction."""
-        self.db.conn.execute("BEGIN IMMEDIATE")
-        try:
+        with self.transaction():
             self.db[table].insert_all(records, pk=pk)
-            self.db.conn.execute("COMMIT")
-        except BaseException:
-            self.db.conn.execute("ROLLBACK")
-            raise
 
     def rows(self, sql: str, params=()) -> list[dict]:
         cur = self.db.execute(sql, params)

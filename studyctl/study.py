@@ -53,15 +53,9 @@ def add_participant(db: str | Path, code: str, age=None, name: str | None = None
 
 def _insert(store: Store, people: list[dict], identities: list[dict], dry_run: bool) -> None:
     """Participants and their identifying details (kept apart; never exported or reported), all or none."""
-    conn = store.db.conn
-    conn.execute("BEGIN IMMEDIATE")
-    try:
+    with store.transaction(dry_run) as conn:
         conn.executemany("insert into participants (code, age, synthetic, created_at) values (:code, :age, :synthetic, :created_at)", people)
         conn.executemany("insert into identities (code, name, contact) values (:code, :name, :contact)", identities)
-        conn.execute("ROLLBACK" if dry_run else "COMMIT")
-    except BaseException:
-        conn.execute("ROLLBACK")
-        raise
 
 
 def import_participants(db: str | Path, csv_path: str | Path, dry_run: bool = False) -> dict:
@@ -143,20 +137,15 @@ def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:
             why = "their availability" if avail is not None else "free rig time"
             raise InputError(f"no slot for any of the {len(waiting)} waiting participants: {start}..{end}, weekdays {hours}, "
                              f"{minutes} min each, has no {why} left; widen --start/--end or --hours")
-        store.db.conn.execute("BEGIN IMMEDIATE")
-        try:
+        with store.transaction(dry_run) as conn:
             for code in waiting:
                 assign_order(store, protocol, code)  # counterbalanced order, kept with the slot
                 if code in slots:
                     a, b = slots[code]
-                    store.db.conn.execute("update schedule set slot_start = ?, slot_end = ? where code = ?", (a.isoformat(), b.isoformat(), code))
+                    conn.execute("update schedule set slot_start = ?, slot_end = ? where code = ?", (a.isoformat(), b.isoformat(), code))
             out = store.rows("select code, slot_start, slot_end, order_index, conditions from schedule order by slot_start is null, slot_start, code")
             if ics and not dry_run:
                 Path(ics).write_text(to_ics([r for r in out if r["slot_start"]], protocol.name))
-            store.db.conn.execute("ROLLBACK" if dry_run else "COMMIT")
-        except BaseException:
-            store.db.conn.execute("ROLLBACK")
-            raise
         return out
     finally:
         store.close()

@@ -209,16 +209,11 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
             k += 1
             if f"S{k:03d}" not in registered:
                 codes.append(f"S{k:03d}")
-        store.db.conn.execute("BEGIN IMMEDIATE")  # all registered or none
-        try:
+        with store.transaction() as conn:  # all registered or none
             for code in codes:
-                store.db.conn.execute("insert into participants (code, age, synthetic, created_at) values (?, ?, 1, ?)",
-                                      (code, rng.randint(protocol.age_min, protocol.age_max), now()))
+                conn.execute("insert into participants (code, age, synthetic, created_at) values (?, ?, 1, ?)",
+                             (code, rng.randint(protocol.age_min, protocol.age_max), now()))
                 assign_order(store, protocol, code)
-            store.db.conn.execute("COMMIT")
-        except BaseException:
-            store.db.conn.execute("ROLLBACK")
-            raise
     finally:
         store.close()
     tasks = [(str(db), code, seed, first_id + k) for k, code in enumerate(codes)]
