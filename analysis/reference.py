@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.jsonable import jsonable
 from sim.scene import DEFAULT_SCENE
 
 MESHER_VERSION = 1  # part of the mesh cache key: bump when the meshing rule changes
@@ -775,21 +776,7 @@ def write_outputs(result: dict, out_dir) -> list[Path]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files = [out / "reference.json", out / "reference.md"]
-    files[0].write_text(json.dumps(_finite(result), indent=2))
+    files[0].write_text(json.dumps(jsonable(result), indent=2))
     files[1].write_text(markdown(result))
     return files
-
-
-def _finite(obj):
-    if isinstance(obj, dict):
-        return {str(k): _finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    if isinstance(obj, Path):
-        return str(obj)
-    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
 

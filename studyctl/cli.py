@@ -18,6 +18,7 @@ import click
 
 from analysis.sweep import SweepError
 from sim.errors import SimError
+from sim.jsonable import jsonable
 from sim.models.base import MAX_PULL_M, pull_problem
 from sim.run import MAX_DURATION_S, VisualStep
 from sim.scene import DEFAULT_SCENE
@@ -45,20 +46,8 @@ def _console():
     return console
 
 
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):  # numpy scalars
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
 def _print_json(obj) -> None:
-    click.echo(json.dumps(_jsonable(obj), indent=2))
+    click.echo(json.dumps(jsonable(obj), indent=2))
 
 
 class Finite(click.FloatRange):
@@ -1163,7 +1152,7 @@ def report_table1(db, fmt, out_file, accuracy_file, stability_file):
         facts = table1.study_facts(db)
         text = table1.rates(db).assign(participants=facts["participants"], synthetic=facts["synthetic"]).to_csv(index=False)
     else:
-        text = json.dumps(_jsonable({"facts": table1.study_facts(db), "rates": table1.rates(db).to_dict(orient="records"),
+        text = json.dumps(jsonable({"facts": table1.study_facts(db), "rates": table1.rates(db).to_dict(orient="records"),
                                      "cochran": table1.cochran(db).to_dict(orient="records"),
                                      "deformation": table1.deformation(db).to_dict(orient="records")}), indent=2)
     if out_file:

@@ -1,0 +1,21 @@
+"""JSON-ready copies of results: numpy scalars as Python numbers, NaN and infinities as null
+(JSON has neither), paths as strings, tuples as lists, keys as strings."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+
+def jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, Path):
+        return str(obj)
+    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):  # numpy scalars
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
