@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.jsonable import jsonable
+from sim.patch import patch_area_points
 from sim.scene import DEFAULT_SCENE
 
 MESHER_VERSION = 1  # part of the mesh cache key: bump when the meshing rule changes
@@ -258,51 +259,13 @@ def build_problem(scene, label: int, mesh: BodyMesh) -> Problem:
 
 
 def patch_vertices(mesh, vertex: int, radius: float) -> np.ndarray:
-    """Surface vertices held by a grasp, as `FemModel.grasp_patch`: within `radius` of
-    `vertex`, same hemisphere."""
+    """Surface vertices within `radius` of `vertex`, same hemisphere: the grasp of the voxel
+    FEM before the area mean (`--functional vertices`, to show why it cannot converge)."""
     mesh.prepare_queries()
     patch = np.asarray(mesh._kdtree.query_ball_point(mesh.vertices[vertex], radius), dtype=np.int64)
     if mesh.labels is not None:
         patch = patch[mesh.labels[patch] == mesh.labels[vertex]]
     return patch if len(patch) else np.array([vertex], dtype=np.int64)
-
-
-def patch_area_points(mesh, vertex: int, radius: float, subdivisions: int = 16) -> tuple[np.ndarray, np.ndarray]:
-    """Quadrature of the surface within `radius` of `vertex` (same hemisphere): (points (q, 3),
-    weights (q,) summing to 1) for the mean displacement over that area.
-
-    Each triangle of the surface near the vertex is split into subdivisions^2 similar
-    triangles; those whose centroid lies within the radius are kept, each weighing its area
-    (the midpoint rule on a disc cut out of the surface at 1/subdivisions of an edge)."""
-    mesh.prepare_queries()
-    v = mesh.vertices
-    tri = np.asarray(mesh.triangles, dtype=np.int64)
-    centre = v[vertex]
-    reach = radius + float(np.linalg.norm(v[tri[:, 1]] - v[tri[:, 0]], axis=1).max())
-    near = np.zeros(len(v), dtype=bool)
-    near[mesh._kdtree.query_ball_point(centre, reach)] = True
-    sel = tri[near[tri].any(axis=1)]
-    if mesh.labels is not None:
-        sel = sel[np.all(mesh.labels[sel] == mesh.labels[vertex], axis=1)]
-    n = int(subdivisions)
-    # barycentric centroids and orientation of the n^2 sub-triangles (n(n+1)/2 up, n(n-1)/2 down)
-    bc = []
-    for i in range(n):
-        for j in range(n - i):
-            bc.append(((i + 1 / 3) / n, (j + 1 / 3) / n))
-            if j < n - i - 1:
-                bc.append(((i + 2 / 3) / n, (j + 2 / 3) / n))
-    bc = np.array(bc)
-    lam = np.column_stack([1.0 - bc.sum(axis=1), bc])  # (s, 3)
-    a, b, c = (v[sel[:, k]] for k in range(3))
-    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1) / (n * n)  # each sub-triangle's
-    pts = lam[None, :, 0, None] * a[:, None] + lam[None, :, 1, None] * b[:, None] + lam[None, :, 2, None] * c[:, None]
-    w = np.repeat(area[:, None], len(lam), axis=1)
-    keep = np.linalg.norm(pts - centre, axis=2) <= radius
-    pts, w = pts[keep], w[keep]
-    if len(pts) == 0:
-        return centre[None, :], np.ones(1)
-    return pts, w / w.sum()
 
 
 def grasp_matrix(problem: Problem, points: np.ndarray, weights: np.ndarray | None = None, interpolation: str = "p2"):
@@ -456,6 +419,132 @@ def neo_hookean_pull(problem: Problem, points, weights, direction, xs, min_steps
     _, _, log = p2_neo_hookean_solve(problem, W, np.asarray(direction) * xs[-1], steps=sub * len(xs), tol=tol, on_step=on_step)
     return {"force_per_pa": forces, "converged": log.converged, "iterations": log.iterations, "shifts": log.shifts,
             "min_jacobian": log.min_jacobian, "seconds": time.perf_counter() - t0}
+
+
+NONLINEAR_CACHE_VERSION = 1
+
+
+def _nonlinear_path(mesh_path: Path, scene, radius: float, pull, xs) -> Path:
+    axis, limit = clamp_limit(scene)
+    key = json.dumps([NONLINEAR_CACHE_VERSION, mesh_path.stem, scene.spec.material.poisson, axis, round(limit, 9), radius,
+                      pull.vertex, [round(c, 12) for c in pull.direction], [round(float(x), 9) for x in xs]])
+    return _cache_root() / f"neohookean-{hashlib.sha256(key.encode()).hexdigest()[:20]}.npz"
+
+
+def _nonlinear_task(args) -> dict:
+    """One neo-Hookean pull on one mesh (a worker process): cached on disk per pull."""
+    scene_path, label, size_mm, pull, xs, radius = args
+    from sim.reference import scene_with
+
+    scene = scene_with(scene_path)
+    verts, tris, _ = hemisphere_surface(scene.mesh, label)
+    edge = size_mm * 1e-3
+    path = _nonlinear_path(_mesh_path(verts, tris, edge, ENVELOPE_FRACTION * edge), scene, radius, pull, xs)
+    if path.exists():
+        with np.load(path) as z:
+            return {k: (z[k] if z[k].ndim else z[k].item()) for k in z.files} | {"cached": True}
+    problem = build_problem(scene, label, mesh_hemisphere(verts, tris, edge))
+    r = neo_hookean_pull(problem, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs)
+    out = {"force_per_pa": r["force_per_pa"], "converged": bool(r["converged"]), "iterations": int(sum(r["iterations"])),
+           "shifts": int(r["shifts"]), "min_jacobian": float(r["min_jacobian"]), "seconds": float(r["seconds"])}
+    if r["converged"]:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
+        np.savez(tmp, **out)
+        os.replace(tmp, path)
+    return out | {"cached": False}
+
+
+def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, nonlinear_mm: float | None = None,
+                    threads: int = 1, jobs: int | None = None, progress=None) -> dict:
+    """The reference of every pull in `pulls` (any, not only the bench's): per pull
+    ``{"h_m": [coarse..fine], "linear_per_pa": (sizes, n, 3), "nonlinear_per_pa": (n, 3) or None,
+    "nonlinear": solve info}``, plus ``"meshes"``.
+
+    Linear P2 on every size (one condensed 3 x 3 stiffness per pull and mesh); with
+    `nonlinear_mm`, the compressible neo-Hookean pull on that mesh too (worker processes, cached
+    per pull: about 1.7 minutes per pull on the 8 mm mesh on this 2-core machine)."""
+    from sim.reference import scene_with
+
+    scene = scene_with(scene_path)
+    mesh = scene.mesh
+    xs = np.asarray(xs, dtype=np.float64)
+    fem_spec = scene.spec.models.get("fem")
+    radius = float(fem_spec.options.get("grasp_radius", 0.005)) if fem_spec else 0.005
+    sizes = sorted((float(x) for x in sizes_mm), reverse=True)
+    labels = sorted({p.hemisphere for p in pulls})
+    patches = {p.name: patch_area_points(mesh, p.vertex, radius) for p in pulls}
+    _premesh(mesh, labels, sorted(set(sizes) | ({float(nonlinear_mm)} if nonlinear_mm else set())), threads, jobs)
+    out = {p.name: {"h_m": [], "linear_per_pa": [], "nonlinear_per_pa": None, "nonlinear": None} for p in pulls}
+    n_steps = len(labels) * len(sizes) + (len(pulls) if nonlinear_mm else 0)
+    step = 0
+    if nonlinear_mm:
+        tasks = [(str(scene_path), p.hemisphere, float(nonlinear_mm), p, xs, radius) for p in pulls]
+        jobs = max(1, min(jobs or os.cpu_count() or 1, len(tasks)))
+        if jobs == 1:
+            results = []
+            for t in tasks:
+                results.append(_nonlinear_task(t))
+                step += 1
+                if progress is not None:
+                    progress(step, n_steps)
+        else:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            results = []
+            with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+                for r in pool.map(_nonlinear_task, tasks):
+                    results.append(r)
+                    step += 1
+                    if progress is not None:
+                        progress(step, n_steps)
+        for p, r in zip(pulls, results):
+            out[p.name]["nonlinear_per_pa"] = np.asarray(r.pop("force_per_pa"))
+            out[p.name]["nonlinear"] = r | {"mesh_mm": float(nonlinear_mm)}
+    meshes = []
+    for label in labels:
+        verts, tris, _ = hemisphere_surface(mesh, label)
+        for size in sizes:
+            bm = mesh_hemisphere(verts, tris, size * 1e-3, threads=threads)
+            prob = build_problem(scene, label, bm)
+            for p in pulls:
+                if p.hemisphere == label:
+                    K = pull_stiffness(prob, *patches[p.name])
+                    out[p.name]["linear_per_pa"].append(np.outer(xs, K @ np.asarray(p.direction)))
+                    out[p.name]["h_m"].append(bm.h)
+            meshes.append(bm.describe() | {"hemisphere": int(label), "free_dofs": int(len(prob.fem.free)),
+                                           "assembly_s": prob.build_s, "factor_s": prob.factor_s})
+            del prob
+            step += 1
+            if progress is not None:
+                progress(step, n_steps)
+    for r in out.values():
+        r["linear_per_pa"] = np.stack(r["linear_per_pa"])
+    return {"pulls": out, "meshes": meshes, "grasp_radius_m": radius, "sizes_mm": sizes,
+            "patch_points": {k: int(len(v[0])) for k, v in patches.items()}}
+
+
+def combined_sample(linear_forces, hs, nonlinear_force=None, nonlinear_index: int = 0) -> dict:
+    """The reference at one sample: Richardson on the linear magnitudes (`converge`); with a
+    neo-Hookean force on mesh `nonlinear_index` (into `linear_forces`, coarse to fine), the
+    neo-Hookean value corrected by the linear sequence's discretisation error:
+    F = F_nh(mesh) x F_lin,ext / F_lin(mesh) (a correction factor: the mesh error is taken to
+    be the same fraction for both formulations). Returns the force vector, its magnitude, the
+    GCI half-band (N, relative to the magnitude) and the convergence record."""
+    mags = [float(np.linalg.norm(f)) for f in linear_forces]
+    conv = converge(mags, hs)
+    finest = mags[int(np.argmin(hs))]
+    if nonlinear_force is None:
+        vec = np.asarray(linear_forces[int(np.argmin(hs))], dtype=np.float64) * conv["f_ext"] / finest
+        formulation = "linear"
+    else:
+        nl = np.asarray(nonlinear_force, dtype=np.float64)
+        vec = nl * conv["f_ext"] / mags[nonlinear_index]
+        formulation = "neo-hookean"
+    mag = float(np.linalg.norm(vec))
+    return {"force": vec, "force_n": mag, "band_rel": conv["gci"], "band_half_n": conv["gci"] * mag, "status": conv["status"],
+            "order": conv["p"], "extrapolated": conv["extrapolated"], "linear_forces_n": mags, "formulation": formulation}
 
 
 # -- Richardson extrapolation and the grid convergence index -------------------------------

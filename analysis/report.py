@@ -66,20 +66,22 @@ def _inline_png(draw) -> str:
 
 def accuracy_html(result: dict) -> str:
     """The accuracy bench's table and Pareto plot (analysis/accuracy.py) as an HTML section."""
-    from analysis.accuracy import markdown
+    from analysis.accuracy import intro
     from analysis.plots import pareto_plot
 
     esc = _html.escape
-    img = _inline_png(lambda path: pareto_plot(result["rows"], path, reference=result["meta"]["reference"]["setting"]))
-    intro = markdown(result).split("\n")[0]
-    head = "".join(f"<th>{h}</th>" for h in ("model", "setting", "force error (mean / max)", "within JND", "direction error",
-                                             "grasp error", "surface RMS error", "servo tick", "deformation frame"))
+    raw = [r for r in result["rows"] if r["calibration"] == "raw"]
+    img = _inline_png(lambda path: pareto_plot(raw, path, reference=result["meta"]["reference"]["setting"]))
+    head = "".join(f"<th>{h}</th>" for h in ("model", "setting", "calibration", "scale", "force error (mean / max)", "within JND [95% CI]",
+                                             "within / outside / undecided", "direction error", "servo tick", "deformation frame"))
     rows = "".join(
-        f"<tr><td>{esc(r['model'])}</td><td>{esc(r['setting'])}</td><td>{r['force_error']:.1%} / {r['force_error_max']:.1%}</td>"
-        f"<td>{r['within_jnd']:.0%}</td><td>{r['angle_deg']:.1f}&deg;</td><td>{r['grasp_error_mm']:.2f} mm</td>"
-        f"<td>{r['surface_rms_mm']:.2f} mm</td><td>{r['tick_us']:.2f} &micro;s</td><td>{r['frame_ms']:.3g} ms</td></tr>"
+        f"<tr><td>{esc(r['model'])}</td><td>{esc(r['setting'])}</td><td>{esc(r['calibration'])}</td><td>{r['scale']:.3g}</td>"
+        f"<td>{r['force_error']:.1%} / {r['force_error_max']:.1%}</td>"
+        f"<td>{r['within_jnd']:.0%} [{r['within_jnd_low']:.0%}, {r['within_jnd_high']:.0%}]</td>"
+        f"<td>{r['within']} / {r['outside']} / {r['undecided']}</td><td>{r['angle_deg']:.1f}&deg;</td>"
+        f"<td>{r['tick_us']:.2f} &micro;s</td><td>{r['frame_ms']:.3g} ms</td></tr>"
         for r in result["rows"])
-    return (f"<h2>Model error against run time</h2><p>{esc(intro)} Simulated pulls, not participants. "
+    return (f"<h2>Model error against run time</h2><p>{esc(intro(result))} Simulated pulls, not participants. "
             "Seed paper (its 2014 PC): plate-spring 14.69 ms, FEM 21.35 ms, mass-spring 23.08 ms per deformation.</p>"
             f"<table><tr>{head}</tr>{rows}</table>"
             f'<figure><img alt="pareto" src="data:image/png;base64,{img}"></figure>')

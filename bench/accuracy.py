@@ -1,5 +1,6 @@
 """The quick accuracy bench (studyctl bench accuracy --quick) in one process: per model row,
-force error against the reference and frame time as a ratio to the seed paper's."""
+force error on the held-out pulls against the reference and frame time as a ratio to the seed
+paper's."""
 
 from __future__ import annotations
 
@@ -13,8 +14,9 @@ def main() -> None:
     print(f"reference {ref['setting']} (converged: {ref['converged']}); E = {out['meta']['young_pa'] / 1e3:g} kPa; quick bench")
     for r in out["rows"]:
         paper = PAPER_MS[r["model"]]
-        print(f"  {r['model'] + '/' + r['setting']:32s} force error {r['force_error']:6.1%} (max {r['force_error_max']:6.1%}), "
-              f"within JND {r['within_jnd']:4.0%}; tick {r['tick_us']:.2f} us; frame p50 {r['frame_ms']:.3g} ms, "
+        print(f"  {r['model'] + '/' + r['setting'] + '/' + r['calibration']:42s} force error {r['force_error']:6.1%} "
+              f"(max {r['force_error_max']:6.1%}), within JND {r['within_jnd']:4.0%} [{r['within_jnd_low']:.0%}, {r['within_jnd_high']:.0%}]; "
+              f"tick {r['tick_us']:.2f} us; frame p50 {r['frame_ms']:.3g} ms, "
               f"p99 {r['frame_ms_p99']:.3g} ms = {r['frame_ms'] / paper:.3g} x paper's {paper} ms")
 
 

@@ -35,6 +35,32 @@ class RadialTable:
 
 
 @dataclass
+class TensorTable:
+    """Location-aware plate-spring: the stack's curve shapes the force, a 3 x 3 stiffness of
+    the grasped place sets its size and direction: f = -(f(|d|) / (k0 |d|)) S d."""
+
+    x0: list[float]
+    f0: list[float]
+    slope: list[float]
+    k0: float  # the stack's initial slope, N/m
+    S: tuple  # 9 floats, row-major, N/m
+
+    def force(self, d) -> tuple[float, float, float]:
+        dx, dy, dz = d
+        x = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if x == 0.0:
+            return (0.0, 0.0, 0.0)
+        k = bisect.bisect_right(self.x0, x) - 1
+        s = -(self.f0[k] + self.slope[k] * (x - self.x0[k])) / (self.k0 * x)
+        m = self.S
+        return (s * (m[0] * dx + m[1] * dy + m[2] * dz), s * (m[3] * dx + m[4] * dy + m[5] * dz),
+                s * (m[6] * dx + m[7] * dy + m[8] * dz))
+
+    def update(self, **state) -> None:  # nothing changes between frames
+        pass
+
+
+@dataclass
 class Linearised:
     """FEM: f = -(f_frame + K (d - d_frame)); f_frame = 0, d_frame = 0 for linear elasticity,
     refreshed each frame by the corotational update."""

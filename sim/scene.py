@@ -135,7 +135,7 @@ class SceneSpec:
 
 SECTIONS = ("scene", "mesh", "material", "fixed", "model", "models", "servo", "visual", "renderer", "view", "hands")
 MODEL_KEYS = {
-    "plate_spring": ("variant", "params"),
+    "plate_spring": ("variant", "params", "field"),
     "fem": ("resolution", "formulation", "grasp_radius", "order"),
     "mass_spring": ("resolution", "integrator", "dt", "damping", "coupling", "grasp_radius", "iterations"),
 }
@@ -345,9 +345,14 @@ def _model_spec(models: _Reader, name: str) -> ModelSpec | None:
         return None
     table = models.table(name, allowed=MODEL_KEYS.get(name))
     if name == "plate_spring":
-        from sim.models.plate_spring import VARIANTS
+        from sim.models.plate_spring import MODEL_VARIANTS
 
-        variant = table.string("variant", default="continuous", choices=VARIANTS)
+        variant = table.string("variant", default="continuous", choices=MODEL_VARIANTS)
+        options = {}
+        if "field" in table.data:
+            options["field"] = table.path_value("field")
+            if options["field"] is not None and not options["field"].is_file():
+                table.error("field", f"{options['field']}: no such file (a stiffness field: `studyctl calibrate field`)")
         raw = table.data.get("params", _REQUIRED)
         params = None
         if isinstance(raw, str):
@@ -358,7 +363,7 @@ def _model_spec(models: _Reader, name: str) -> ModelSpec | None:
             table.error("params", "missing: a parameter file (a path) or an inline table")
         else:
             table.error("params", f"{raw!r} is neither a parameter file (a path) nor a table")
-        return ModelSpec(name=name, variant=variant, plate_spring=params)
+        return ModelSpec(name=name, variant=variant, plate_spring=params, options=options)
     if name == "fem":
         resolution = table.number("resolution", default=0.004, lo=0.003, hi=0.008)
         formulation = table.string("formulation", default="linear", choices=("linear", "corotational"))

@@ -7,7 +7,6 @@ mistakes are click's (exit status 2). No traceback reaches the user for either.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import sqlite3
@@ -138,19 +137,19 @@ def _with_progress(label, fn):
 
 @bench.command("accuracy")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
-@click.option("--young", type=click.FloatRange(1.0, 1e9), default=15000.0, show_default=True, help="Young's modulus of the bench tissue, Pa (forces beyond 1 N).")
-@click.option("--reference-resolution", type=click.FloatRange(2, 8), default=None,
-              help="Mesh spacing of the neo-Hookean reference, mm [default: 3, --quick: 6].")
+@click.option("--young", type=click.FloatRange(1.0, 1e9), default=None, help="Young's modulus of the bench tissue, Pa [default: the scene's].")
+@click.option("--test-places", type=click.IntRange(2, 20), default=None, help="Held-out grasp places, two directions each [default: 6, --quick: 2].")
 @_sweep_options
-def bench_accuracy(scene_file, young, reference_resolution, quick, as_json, out_dir, jobs, scheduler):
-    """The same pulls for every model and setting against the neo-Hookean FEM reference:
-    force error, JND fraction, displacement errors, time per servo tick and per frame."""
+def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, jobs, scheduler):
+    """Every model and setting on the same pulls against the converged reference (P2 on
+    body-fitted meshes, neo-Hookean, Richardson): calibrated with one stiffness scale on the
+    calibration pulls, judged raw and calibrated on held-out pulls (within the JND with
+    Wilson intervals, against the reference's band, direction error), time per tick and frame."""
     from analysis import accuracy
 
-    cfg = accuracy.quick_config(scene=scene_file, young=young) if quick else accuracy.AccuracyConfig(scene=scene_file, young=young)
-    if reference_resolution is not None:
-        cfg = dataclasses.replace(cfg, reference_resolution=reference_resolution / 1000)
-    result = _with_progress("accuracy pulls", lambda p: accuracy.run_accuracy(cfg, jobs=jobs, scheduler=scheduler, progress=p))
+    kw = {"scene": scene_file, "young": young} | ({"test_places": test_places} if test_places else {})
+    cfg = accuracy.quick_config(**kw) if quick else accuracy.AccuracyConfig(**kw)
+    result = _with_progress("accuracy: reference, then models", lambda p: accuracy.run_accuracy(cfg, jobs=jobs, scheduler=scheduler, progress=p))
     if out_dir:
         accuracy.write_outputs(result, out_dir)
     if as_json:
@@ -158,13 +157,15 @@ def bench_accuracy(scene_file, young, reference_resolution, quick, as_json, out_
         return
     from rich.table import Table
 
-    ref = result["meta"]["reference"]
-    t = Table(title=f"Force error against run time (reference: {ref['setting']}, E = {young / 1e3:g} kPa)")
-    for col in ("model", "setting", "force error", "max", "within JND", "grasp err mm", "surface RMS mm", "tick us", "frame ms"):
-        t.add_column(col, justify="left" if col in ("model", "setting") else "right")
+    t = Table(title=f"Force error on held-out pulls against run time (E = {result['meta']['young_pa'] / 1e3:g} kPa)", caption=accuracy.intro(result))
+    for col in ("model", "setting", "calibration", "scale", "force error", "max", "within JND [95% CI]", "in/out/undecided", "pulls",
+                "direction deg", "tick us", "frame ms"):
+        t.add_column(col, justify="left" if col in ("model", "setting", "calibration") else "right")
     for r in result["rows"]:
-        t.add_row(r["model"], r["setting"], f"{r['force_error']:.1%}", f"{r['force_error_max']:.1%}", f"{r['within_jnd']:.0%}",
-                  f"{r['grasp_error_mm']:.2f}", f"{r['surface_rms_mm']:.2f}", f"{r['tick_us']:.2f}", f"{r['frame_ms']:.3g}")
+        t.add_row(r["model"], r["setting"], r["calibration"], f"{r['scale']:.3g}", f"{r['force_error']:.1%}", f"{r['force_error_max']:.1%}",
+                  f"{r['within_jnd']:.0%} [{r['within_jnd_low']:.0%}, {r['within_jnd_high']:.0%}]",
+                  f"{r['within']}/{r['outside']}/{r['undecided']}", f"{r['pulls_within']}/{r['n_test_pulls']}",
+                  f"{r['angle_deg']:.1f}", f"{r['tick_us']:.2f}", f"{r['frame_ms']:.3g}")
     console = _console()
     console.print(t)
     console.print("seed paper, ms per deformation frame (2014 PC): plate-spring 14.69, FEM 21.35, mass-spring 23.08")
@@ -528,6 +529,43 @@ def calibrate_plate_spring(scene_file, reference, formulation, resolution, max_d
     click.echo(f"{rep['within_jnd']:.0%} of {rep['points']} points within the force JND; worst {rep['max_jnd_units']:.2f} JND, rms {rep['rms_jnd_units']:.2f} JND")
     if out_file:
         click.echo(f"wrote {out_file}")
+
+
+@calibrate.command("field")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--out", "out_file", type=OutFile((".npz",)), default=None, show_default="data/plate_spring_field.npz", help="The stiffness field.")
+@click.option("--params-out", type=OutFile((".toml",)), default=None, help="Also write the located stack's curve here.")
+@click.option("--formulation", type=click.Choice(["linear", "neo-hookean"]), default="linear", show_default=True,
+              help="The curve: straight (the bench's linear reference) or fitted to the neo-Hookean / linear ratio of the calibration pulls.")
+@click.option("--json", "as_json", is_flag=True)
+def calibrate_field(scene_file, out_file, params_out, formulation, as_json):
+    """The location-aware plate-spring's stiffness field: the reference's 3 x 3 grasp stiffness
+    at the ico4 sites of both hemispheres (P2, 8 mm body-fitted mesh, area-mean grasp),
+    interpolated to every vertex; with --params-out, the stack's curve too."""
+    from analysis import field
+    from analysis.accuracy import AccuracyConfig, sample_displacements
+    from sim.calibrate import to_toml
+    from sim.scene import load_scene
+
+    rep = _with_progress("stiffness field sites", lambda p: field.build_field(scene_file, out_file or field.FIELD_FILE, progress=p))
+    if params_out:
+        start = load_scene(scene_file).model_spec("plate_spring").plate_spring
+        xs = sample_displacements(AccuracyConfig())
+        params, fit_rep = field.fit_shape(scene_file, start, xs, formulation)
+        how = ("a one-layer stack: a straight curve, so the force is E K(v) d, as the bench's linear reference" if formulation == "linear" else
+               f"fitted to the neo-Hookean / linear force ratio ({', '.join(f'{r:.3f}' for r in fit_rep['nonlinear_over_linear'])})\n"
+               f"of the calibration pulls {', '.join(fit_rep['pulls'])} on the field's 8 mm P2 mesh; {fit_rep['within_jnd']:.0%} within the JND")
+        Path(params_out).write_text(to_toml(params, (
+            "Plate-spring stack for the location-aware model (variant \"located\"): only the curve's shape matters,\n"
+            "the stiffness field (data/plate_spring_field.npz) sets its size and direction at each vertex.\n"
+            f"Written by `studyctl calibrate field --params-out FILE --formulation {formulation}`:\n{how}.")))
+        rep |= {"params_out": str(params_out), "shape_fit": fit_rep}
+    if as_json:
+        _print_json(rep)
+        return
+    click.echo(f"wrote {rep['path']}: {rep['sites']} sites, {rep['vertices']} vertices ({rep['seconds']:.0f} s)")
+    if params_out:
+        click.echo(f"wrote {params_out} ({formulation} curve)")
 
 
 def _print_solution(out: dict) -> None:

@@ -1,5 +1,6 @@
-"""Accuracy bench: the neo-Hookean reference against linear FEM, the error and JND arithmetic
-worked by hand, a small bench end to end through the CLI and into the report."""
+"""Accuracy bench: the voxel neo-Hookean reference against linear FEM; the calibration, error,
+JND, band and Wilson arithmetic worked by hand; the held-out pulls; a small bench end to end
+through the CLI and into the report."""
 
 import json
 
@@ -52,25 +53,58 @@ def test_reference_needs_equal_load_steps(scene):
         reference_pull(DEFAULT_SCENE, 0.008, make_pulls(scene)[0], [0.001, 0.005])
 
 
-def _pull():
-    return Pull("p", 0, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 0)
+def _pull(name="p"):
+    return Pull(name, 0, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 0)
 
 
-def test_errors_and_jnd_bands_by_hand():
-    """0.4 N reference, model 20% high: inside the 25% band; 1.0 N, 20% high: outside the 10%."""
-    ref = {"force_per_pa": np.array([[0.4, 0, 0], [1.0, 0, 0]]), "grasp": np.zeros((2, 3)),
-           "surface": np.zeros((2, 4, 3), dtype=np.float32)}
-    surf = np.zeros((2, 4, 3), dtype=np.float32)
-    surf[:, :, 2] = 0.002  # every vertex 2 mm off: RMS 2 mm
-    model = {"model": "m", "setting": "s", "force": np.array([[[0.48, 0, 0], [0.0, 1.2, 0]]]),
-             "grasp": np.array([[[0.001, 0, 0], [0, 0, 0]]]), "surface": [surf],
+def _ref(f, half=0.0):
+    f = np.asarray(f, dtype=float)
+    return {"force": f, "force_n": float(np.linalg.norm(f)), "band_half_n": half}
+
+
+def test_calibration_scale_errors_verdicts_and_wilson_by_hand():
+    """Calibration pull: reference 0.4 and 1.0 N, model half of it: scale 2. Test pull: model
+    0.24 N against 0.4 N (raw 40% off; calibrated 0.48 N, 20%: inside the 25% band) and 0.6 N
+    against 1.0 N (calibrated 1.2 N, 20%: outside the 10% band)."""
+    ref = [[_ref([0.4, 0, 0]), _ref([1.0, 0, 0])],
+           [_ref([0.4, 0, 0], half=0.05), _ref([1.0, 0, 0], half=0.01)]]
+    model = {"model": "m", "setting": "s", "force": np.array([[[-0.2, 0, 0], [-0.5, 0, 0]], [[-0.24, 0, 0], [0.0, -0.6, 0]]]),
              "tick_us": 1.0, "frame_ms": 2.0, "frame_ms_p99": 3.0, "build_s": 0.0, "unstable": False}
-    rows, samples = compare([ref], [model], [_pull()], np.array([0.01, 0.02]), young=1.0)
-    r = rows[0]
-    assert r["force_error"] == pytest.approx(0.2) and r["within_jnd"] == 0.5
-    assert [s["within_jnd"] for s in samples] == [True, False]
-    assert r["angle_deg"] == pytest.approx(45.0)  # 0 and 90 degrees
-    assert r["grasp_error_mm"] == pytest.approx(0.5) and r["surface_rms_mm"] == pytest.approx(2.0, rel=1e-6)
+    rows, samples = compare(ref, [model], [_pull("c"), _pull("t")], 1, np.array([0.01, 0.02]))
+    raw, cal = rows
+    assert raw["calibration"] == "raw" and raw["scale"] == 1.0 and cal["scale"] == pytest.approx(2.0)
+    assert raw["force_error"] == pytest.approx(0.4) and raw["within_jnd"] == 0.0 and raw["n_test"] == 2
+    assert cal["force_error"] == pytest.approx(0.2) and cal["within_jnd"] == 0.5 and cal["calibration_error"] == pytest.approx(0.0)
+    # 0.48 vs 0.4 +- 0.05: the band reaches past the JND on one side, not the other: undecided;
+    # 1.2 vs 1.0 +- 0.01: outside for every value in the band
+    assert (cal["within"], cal["outside"], cal["undecided"]) == (0, 1, 1)
+    assert raw["angle_deg"] == pytest.approx(45.0)  # 0 and 90 degrees (the force on the hand is minus the tissue's)
+    # Wilson's interval for 1 of 2 at 95%, worked by hand: (k + z^2/2) / (n + z^2) -+ z / (n + z^2) sqrt(k (n - k) / n + z^2 / 4)
+    z = 1.959964
+    centre, half = (1 + z * z / 2) / (2 + z * z), z / (2 + z * z) * np.sqrt(0.5 + z * z / 4)
+    assert (cal["within_jnd_low"], cal["within_jnd_high"]) == pytest.approx((centre - half, centre + half), abs=1e-6)
+    assert [s["set"] for s in samples if s["calibration"] == "raw"] == ["calibration"] * 2 + ["test"] * 2
+
+
+def test_verdict_against_the_band():
+    assert accuracy.verdict(0.45, 0.4, 0.0) == "within"  # 12.5% of 0.4 N, band 25%
+    assert accuracy.verdict(0.45, 0.4, 0.06) == "undecided"
+    assert accuracy.verdict(1.2, 1.0, 0.05) == "outside"  # 20% off, 10% band, 5% reference band
+    assert accuracy.verdict(1.08, 1.0, 0.01) == "within"
+
+
+def test_test_pulls_are_held_out(scene):
+    calib, test = make_pulls(scene), accuracy.test_pulls(scene)
+    places = {p.vertex for p in test}
+    assert len(places) == 6 and len(test) == 12 and {p.hemisphere for p in test} == {0, 1}
+    for p in test:
+        n = scene.mesh.vertex_normals[p.vertex]
+        assert abs(np.linalg.norm(p.direction) - 1) < 1e-12 and abs(np.dot(p.direction, n)) < 1e-9
+        assert min(np.linalg.norm(np.subtract(p.point, c.point)) for c in calib) >= 0.020
+        # not a site of the located model's field (the ico4 subset: first 2562 of each hemisphere)
+        assert p.vertex % 10242 >= 2562
+    a, b = test[0], test[1]
+    assert a.vertex == b.vertex and abs(np.dot(a.direction, b.direction)) < 1e-9  # two orthogonal tangents
 
 
 def test_pareto_front():
@@ -81,9 +115,11 @@ def test_pareto_front():
 
 @pytest.fixture(scope="module")
 def small_bench(tmp_path_factory, monkeypatch_module):
-    """Three settings, 8 mm reference, two 4 mm samples: the bench end to end in seconds."""
-    tiny = accuracy.AccuracyConfig(samples=2, max_pull=0.008, reference_resolution=0.008, quick=True, settings=(
-        Setting("plate_spring", "calibrated", (("variant", "continuous"), ("params", "scene"))),
+    """Three settings, 20/16 mm reference (neo-Hookean on 20 mm), two 4 mm samples, two test
+    places: the bench end to end in seconds."""
+    tiny = accuracy.AccuracyConfig(samples=2, max_pull=0.008, reference_sizes_mm=(20.0, 16.0), nonlinear_mm=20.0, test_places=2,
+                                   quick=True, settings=(
+        Setting("plate_spring", "scene-fit", (("variant", "continuous"), ("params", "scene"))),
         Setting("fem", "linear-8mm", (("formulation", "linear"), ("resolution", 0.008))),
         Setting("mass_spring", "local-global-8mm", (("integrator", "local-global"), ("resolution", 0.008)))))
     monkeypatch_module.setattr(accuracy, "quick_config", lambda **kw: tiny)
@@ -102,15 +138,21 @@ def monkeypatch_module():
 
 def test_bench_accuracy_cli_rows_and_files(small_bench):
     out, d = small_bench
-    rows = {r["setting"]: r for r in out["rows"]}
-    assert set(rows) == {"calibrated", "linear-8mm", "local-global-8mm"}
+    rows = {(r["setting"], r["calibration"]): r for r in out["rows"]}
+    assert set(rows) == {(s, c) for s in ("scene-fit", "linear-8mm", "local-global-8mm") for c in ("raw", "calibrated")}
     for r in rows.values():
-        assert {"model", "setting", "force_error", "within_jnd", "tick_us", "frame_ms"} <= set(r)
-        assert 0.0 <= r["within_jnd"] <= 1.0 and r["tick_us"] > 0 and r["frame_ms"] > 0
-    # same mesh, pulls of 4-8 mm: linear and neo-Hookean differ by a few percent only
-    assert rows["linear-8mm"]["force_error"] < 0.1
-    assert out["meta"]["reference"]["setting"] == "neo-hookean-8mm" and out["meta"]["reference"]["converged"]
-    assert len(out["samples"]) == 3 * 6 * 2
+        assert 0.0 <= r["within_jnd_low"] <= r["within_jnd"] <= r["within_jnd_high"] <= 1.0
+        assert r["within"] + r["outside"] + r["undecided"] == r["n_test"] == 4 * 2 and r["n_test_pulls"] == 4
+        assert r["tick_us"] > 0 and r["frame_ms"] > 0 and 0 <= r["angle_deg"] <= 180
+    ref = out["meta"]["reference"]
+    assert ref["converged"] and ref["nonlinear_mm"] == 20.0 and ref["sizes_mm"] == [20.0, 16.0]
+    assert len(out["meta"]["calibration_pulls"]) == 6 and len(out["meta"]["test_pulls"]) == 4
+    assert len(out["samples"]) == 3 * 2 * 10 * 2
+    # the calibrated scale is the geometric mean of reference over model force on the calibration samples
+    for (setting, cal), r in rows.items():
+        if cal == "calibrated":
+            c = [s for s in out["samples"] if s["setting"] == setting and s["calibration"] == "raw" and s["set"] == "calibration"]
+            assert r["scale"] == pytest.approx(np.exp(np.mean([np.log(s["reference_force_n"] / s["force_n"]) for s in c])))
     assert sorted(p.name for p in d.iterdir()) == ["accuracy.csv", "accuracy.json", "accuracy.md", "pareto.png", "pareto.svg", "samples.csv"]
 
 
@@ -123,7 +165,7 @@ def test_report_carries_the_accuracy_table_and_pareto_plot(small_bench, small_st
     page = (tmp_path / "r.html").read_text()
     assert "Model error against run time" in page and 'alt="pareto"' in page and "linear-8mm" in page
     md = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--accuracy", str(d / "accuracy.json")]).output
-    assert "| fem | linear-8mm |" in md and "14.69" in md
+    assert "| fem | linear-8mm | raw |" in md and "| fem | linear-8mm | calibrated |" in md and "14.69" in md
     (tmp_path / "bad.json").write_text("{}")
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--accuracy", str(tmp_path / "bad.json")])
     assert res.exit_code == 1 and "bad.json: not a `studyctl bench accuracy` result" in res.output

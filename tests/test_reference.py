@@ -156,3 +156,19 @@ def test_three_mesh_reference_band_is_within_the_jnd():
     (s,) = data["samples"]
     assert len(s["forces_n"]) == 3 and s["status"] in ("monotone", "oscillatory", "diverging", "order out of range")
     assert s["gci"] < 0.10 and s["within_jnd_rel"]
+
+
+def test_combined_sample_by_hand():
+    """Linear magnitudes 1.00 / 0.95 / 0.94 N at h = 4 / 2 / 1 mm (ratio 2): R = 0.2, p = log2(5),
+    extrapolated 0.94 - 0.01 / 4 = 0.9375 N, GCI 1.25 x (0.01 / 0.94) / 4. A neo-Hookean 0.90 N on
+    the coarsest mesh is corrected by the same fraction: 0.90 x 0.9375 / 1.00."""
+    lin = [np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.95, 0.0]), np.array([0.0, 0.94, 0.0])]
+    hs = [0.004, 0.002, 0.001]
+    c = reference.combined_sample(lin, hs)
+    assert c["formulation"] == "linear" and c["status"] == "monotone"
+    assert c["order"] == pytest.approx(np.log(5) / np.log(2))
+    assert c["force_n"] == pytest.approx(0.9375) and np.allclose(c["force"], [0.0, 0.9375, 0.0])
+    assert c["band_rel"] == pytest.approx(1.25 * (0.01 / 0.94) / 4)
+    nl = reference.combined_sample(lin, hs, np.array([0.0, 0.9, 0.1]), nonlinear_index=0)
+    assert nl["formulation"] == "neo-hookean"
+    assert np.allclose(nl["force"], np.array([0.0, 0.9, 0.1]) * 0.9375)

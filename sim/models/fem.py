@@ -341,11 +341,11 @@ class FemModel:
         from sim.models.base import Contact
 
         v = self.surface.nearest_vertex(point)
-        patch = self.grasp_patch(v)
+        patch, share = self.grasp_patch(v)
         tet_nodes = self.volume.tets[self.embedding.tet[patch]]  # (k, 4)
         part = int(self.node_part[tet_nodes[0, 0]])
         fem = self.parts[part]
-        weights = self.embedding.weights[patch] / len(patch)  # the patch's mean displacement
+        weights = self.embedding.weights[patch] * share[:, None]  # the patch's mean displacement
         W = constraint_matrix(fem, self.node_local[tet_nodes.ravel()], weights.ravel())
         if W.nnz == 0:
             raise SingularSystemError("grasp point lies in a clamped element: it cannot move")
@@ -358,17 +358,17 @@ class FemModel:
         normal = tuple(float(c) for c in self.surface.vertex_normals[v])
         return Contact(hand=hand, vertex=int(v), point=anchor, normal=normal, data=data, law=Linearised(K=data.K))
 
-    def grasp_patch(self, vertex: int) -> np.ndarray:
-        """Surface vertices held by a grasp: within `grasp_radius` of `vertex`, same hemisphere.
+    def grasp_patch(self, vertex: int) -> tuple[np.ndarray, np.ndarray]:
+        """(surface vertices, weights): the mean displacement of the surface area within
+        `grasp_radius` of `vertex`, same hemisphere (`sim.patch`): a finite contact area.
 
-        A grasp holds the mean displacement of this patch at the hand: a finite contact area.
-        (Holding a single point would make the force vanish as the mesh is refined, since the
-        compliance of a point load in 3D elasticity is unbounded.)
+        (Holding a single point, or the few vertices inside the radius, would make the force
+        fall without limit as the mesh is refined: the compliance of a point load in 3D
+        elasticity is unbounded.)
         """
-        patch = np.asarray(self.surface._kdtree.query_ball_point(self.surface.vertices[vertex], self.grasp_radius), dtype=np.int64)
-        if self.surface.labels is not None:
-            patch = patch[self.surface.labels[patch] == self.surface.labels[vertex]]
-        return patch if len(patch) else np.array([vertex])
+        from sim.patch import patch_vertex_weights
+
+        return patch_vertex_weights(self.surface, vertex, self.grasp_radius)
 
     def _pair(self, a, b) -> np.ndarray:
         key = (id(a.data), id(b.data))

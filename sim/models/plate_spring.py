@@ -27,10 +27,11 @@ from pathlib import Path
 import numpy as np
 
 from sim.errors import ParameterError
-from sim.laws import RadialTable
+from sim.laws import RadialTable, TensorTable
 from sim.models.base import Contact, Vec3
 
-VARIANTS = ("paper", "continuous")
+VARIANTS = ("paper", "continuous")  # of the stack
+MODEL_VARIANTS = VARIANTS + ("located",)  # of the tissue model: "located" is the continuous stack with a stiffness field
 HAPTIC_PERIOD_S = 1e-3  # 1 kHz servo rate: the T of Eq. (18)
 
 # The paper bounds B by "b <= B <= b + 0.1" with no unit; we read the 0.1 as millimetres
@@ -383,9 +384,19 @@ class PlateSpringModel:
 
     name = "plate_spring"
 
-    def __init__(self, mesh, params: PlateSpringParams, variant: str = "continuous"):
+    def __init__(self, mesh, params: PlateSpringParams, variant: str = "continuous", field=None):
+        """`variant` "located" (beyond the paper, `analysis.field`): the continuous stack's curve
+        gives the shape, `field` ((n, 3, 3) stiffness per pascal at every vertex, scaled by the
+        stack's E, the tissue's modulus) the size and direction of the force at the grasp."""
+        if variant not in MODEL_VARIANTS:
+            raise ParameterError(f"variant: {variant!r} is not one of {', '.join(MODEL_VARIANTS)}")
+        if variant == "located" and field is None:
+            raise ParameterError("variant: 'located' needs a stiffness field (`field` in the scene)")
         self.mesh = mesh
-        self.stack = PlateSpring(params, variant)
+        self.variant = variant
+        self.stack = PlateSpring(params, "continuous" if variant == "located" else variant)
+        self.field = field
+        self.k0 = self.stack.force(1e-7) / 1e-7 if field is not None else math.nan
         self.radii = np.concatenate(([0.0], self.stack.ring_radii()))
         self._out = np.zeros_like(mesh.vertices)
         self._touched: list[np.ndarray] = []
@@ -396,7 +407,12 @@ class PlateSpringModel:
         idx, dist = self.mesh.geodesic_within(v, float(self.radii[-1]))
         anchor = tuple(float(c) for c in self.mesh.vertices[v])
         normal = tuple(float(c) for c in self.mesh.vertex_normals[v])
-        law = RadialTable(list(self.stack._x0), list(self.stack._f0), list(self.stack._slope))
+        if self.field is not None:
+            S = self.stack.params.E * self.field[v]
+            law = TensorTable(list(self.stack._x0), list(self.stack._f0), list(self.stack._slope), float(self.k0),
+                              tuple(float(c) for c in S.ravel()))
+        else:
+            law = RadialTable(list(self.stack._x0), list(self.stack._f0), list(self.stack._slope))
         return Contact(hand=hand, vertex=int(v), point=anchor, normal=normal, data=_ContactField(idx, dist), law=law)
 
     def force(self, contact: Contact, displacement: Sequence[float]) -> Vec3:
@@ -428,4 +444,9 @@ class PlateSpringModel:
 
 def build(mesh, spec, scene=None) -> PlateSpringModel:
     """Construct from a scene's model spec (`sim.scene.ModelSpec`)."""
-    return PlateSpringModel(mesh, spec.plate_spring, spec.variant)
+    field = None
+    if spec.variant == "located":
+        from analysis.field import FIELD_FILE, load_field
+
+        field = load_field(spec.options.get("field", FIELD_FILE), mesh)
+    return PlateSpringModel(mesh, spec.plate_spring, spec.variant, field)
