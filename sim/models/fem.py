@@ -313,6 +313,9 @@ class FemModel:
         self.inverted_frames = 0  # frames in which an element was inverted (det F <= 0)
         self.tangent_updates = 0  # warped-stiffness refactorisations
         self.restarts = 0  # corotational iterations that diverged and restarted from linear
+        # a corotational state with an inverted element has no physical meaning (measured: the
+        # next frames' force grows to 1e4 N); the servo renders nothing until the grasp is released
+        self.unstable = False
 
     @property
     def timings(self) -> dict:
@@ -335,6 +338,7 @@ class FemModel:
             "inverted_frames": self.inverted_frames,
             "tangent_updates": self.tangent_updates,
             "restarts": self.restarts,
+            "unstable": self.unstable,
         }
 
     def grasp(self, point, hand: int = 0):
@@ -381,6 +385,8 @@ class FemModel:
         return K
 
     def force(self, contact, displacement):
+        if self.unstable:
+            return (0.0, 0.0, 0.0)
         # linear: -K d; corotational: the last frame's state plus the linear tangent since
         return contact.law.force(displacement)
 
@@ -415,6 +421,7 @@ class FemModel:
         if not contacts:
             self._out[:] = 0.0
             self._corot.clear()
+            self.unstable = False  # released: the next grasp starts from the linear solution
             return self._out
         displacements = [np.asarray(d, dtype=np.float64) for d in displacements]
         if self.formulation == "corotational":
@@ -459,6 +466,7 @@ class FemModel:
                 u, lam, res, jmin, R = corotational_step(fem, W, state["pre"], state["u"], state["lam"], d, state["active"])
                 if jmin <= 0:
                     self.inverted_frames += 1
+                    self.unstable = True
                 if not (res < 1.0 and np.all(np.isfinite(u))):  # diverged: restart from linear with a fresh tangent
                     self._corot.pop(part_id, None)
                     u, lam = state["u"], state["lam"]
