@@ -46,6 +46,7 @@ class TensorTable:
     S: tuple  # 9 floats, row-major, N/m
 
     def force(self, d) -> tuple[float, float, float]:
+        # RadialTable's lookup, inlined: a shared helper would add a call to every servo tick
         dx, dy, dz = d
         x = math.sqrt(dx * dx + dy * dy + dz * dz)
         if x == 0.0:
