@@ -87,20 +87,35 @@ class Linearised:
 
 @dataclass
 class Coupling:
-    """Mass-spring: a spring of stiffness k between the hand and the patch the simulation
-    published last: f = -k (anchor + d - patch)."""
+    """Mass-spring: a spring of stiffness k between the hand and the patch:
+    f = -k (anchor + d - patch(d)).
+
+    The simulation publishes the patch at the visual rate (30 Hz). Held fixed between frames,
+    it jumps at each frame by what the tissue moved in 33 ms (in a steady 10 mm/s pull, about
+    0.1-0.2 N at 300 N/m, 30 times a second: a felt ripple). Between frames the patch is
+    therefore carried along with the hand by the gain the last frames measured:
+    patch(d) = patch + gain (d - d_frame), gain = how far the patch moved per metre of hand
+    motion (0..1, along the hand's motion). In a steady pull the next published patch lands
+    where this prediction put it, so the force has no step."""
 
     k: float
     anchor: tuple
     patch: tuple
+    d_frame: tuple = (0.0, 0.0, 0.0)
+    gain: float = 0.0
 
     def force(self, d) -> tuple[float, float, float]:
-        a, p, k = self.anchor, self.patch, self.k
-        return (-k * (a[0] + d[0] - p[0]), -k * (a[1] + d[1] - p[1]), -k * (a[2] + d[2] - p[2]))
+        a, p, k, g, f = self.anchor, self.patch, self.k, self.gain, self.d_frame
+        return (-k * (a[0] + d[0] - p[0] - g * (d[0] - f[0])), -k * (a[1] + d[1] - p[1] - g * (d[1] - f[1])),
+                -k * (a[2] + d[2] - p[2] - g * (d[2] - f[2])))
 
-    def update(self, patch=None, **_) -> None:
+    def update(self, patch=None, d_frame=None, gain=None, **_) -> None:
         if patch is not None:
             self.patch = tuple(patch)
+        if d_frame is not None:
+            self.d_frame = tuple(d_frame)
+        if gain is not None:
+            self.gain = float(gain)
 
 
 @dataclass

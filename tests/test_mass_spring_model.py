@@ -55,3 +55,32 @@ def test_coupling_above_the_omni_limit_is_refused(tmp_path):
 
     with pytest.raises(ParameterError, match="Omni's stable stiffness"):
         MassSpringModel.__init__(object.__new__(MassSpringModel), None, None, None, coupling=800.0)
+
+
+def test_steady_pull_renders_no_force_steps():
+    """Issue 17: the patch is published at 30 Hz; held fixed between frames it made the
+    rendered force jump by about 0.09 N at every frame of a steady 10 mm/s pull (measured here
+    before the change: 0.094 N per 1 ms tick at 8 mm). Carried along with the hand by the
+    measured gain, the force changes by at most 0.01 N per millisecond."""
+    import numpy as np
+
+    from analysis.accuracy import HANDSET_PARAMS, Setting, _build_model
+    from sim.reference import make_pulls, scene_with
+    from sim.scene import DEFAULT_SCENE
+
+    scene = scene_with(DEFAULT_SCENE)
+    model = _build_model(scene, Setting("mass_spring", "lg", (("integrator", "local-global"), ("resolution", 0.008))), HANDSET_PARAMS, 1.0)
+    pull = make_pulls(scene)[0]
+    c = model.grasp(pull.point, 0)
+    u = np.asarray(pull.direction)
+    forces = []
+    for tick in range(1500):  # 1.5 s of servo ticks at 1 kHz; a visual frame every 33 ticks
+        d = tuple(float(x) for x in u * 0.010 * tick / 1000)
+        if tick % 33 == 0:
+            model.deformation([c], [d])
+        forces.append(model.force(c, d))
+    f = np.array(forces)
+    steps = np.linalg.norm(np.diff(f, axis=0), axis=1)[300:]  # after the first 0.3 s
+    assert steps.max() <= 0.01
+    assert np.linalg.norm(f[-1]) > 0.05  # and the pull is felt: a tenth of a newton after 15 mm
+    assert 0.5 < c.law.gain <= 1.0  # the patch follows the hand

@@ -53,10 +53,12 @@ def test_outcomes_follow_the_physics(quick_sweep):
     assert lin["events"].get("force_clamped", 0) > 0 and lin["max_force_n"] == pytest.approx(3.3)
     # a 200 mm pull inverts corotational elements: the model gives up and the servo renders nothing
     assert by[("fem/corotational", "pull=200mm")]["events"].get("model_unstable") == 1
-    # a one-tick 5 cm glitch drops the grasp (logged); a far pull saturates at the peak
+    # a one-tick 5 cm glitch drops the grasp (logged)
     assert by[("fem/linear", "glitch=5cm")]["events"].get("position_jump") == 1
-    assert by[("mass_spring/implicit", "pull=200mm")]["max_force_n"] == pytest.approx(3.3)
-    assert by[("mass_spring/implicit", "pull=200mm")]["events"].get("force_clamped", 0) >= 1
+    # a 200 mm pull in 250 ms: the mass-spring's force is of the linear FEM's size (1.3 N), not the
+    # 3.3 N limit its stale 30 Hz patch used to reach between frames (the hand moves 26 mm per frame)
+    far = by[("mass_spring/implicit", "pull=200mm")]["max_force_n"]
+    assert 0.5 * by[("fem/linear", "pull=200mm")]["max_force_n"] < far < 3.3
     # the implicit integrators survive the stiffest springs and the longest steps
     for model in ("mass_spring/implicit", "mass_spring/local-global"):
         assert by[(model, "E=1e+09Pa")]["outcome"] == "stable"

@@ -477,9 +477,16 @@ class MassSpringModel:
                 break
             sysm.step(self.dt, self.integrator, substep=self.substep, iterations=self.iterations)
         self.step_s.append(time.perf_counter() - start)
-        for c in contacts:  # publish the patch for the servo
+        for c, d in zip(contacts, displacements):  # publish the patch for the servo, and how it follows the hand
             g = c.data
-            c.law.update(patch=tuple(float(x) for x in np.asarray(c.point) + sysm.x[g.nodes].mean(axis=0) - g.anchor))
+            patch = np.asarray(c.point) + sysm.x[g.nodes].mean(axis=0) - g.anchor
+            d = np.asarray(d, dtype=np.float64)
+            step = d - np.asarray(c.law.d_frame)
+            moved = float(step @ step)
+            gain = c.law.gain
+            if moved > 1e-12:  # the hand moved since the last frame: the patch's share of that motion
+                gain = min(1.0, max(0.0, float((patch - np.asarray(c.law.patch)) @ step) / moved))
+            c.law.update(patch=tuple(float(x) for x in patch), d_frame=tuple(float(x) for x in d), gain=gain)
         u = sysm.x - sysm.rest_positions
         if not np.all(np.isfinite(u)):
             u = np.zeros_like(u)
