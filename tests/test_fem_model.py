@@ -130,8 +130,8 @@ def test_corotational_haptic_frames_converge_to_the_static_corotational_solution
 def test_corotational_fem_gives_up_when_an_element_inverts():
     """Measured by the accuracy bench: pulled 24 mm along the surface at an occipital place,
     the 6 mm corotational FEM inverts elements after about 20 mm and its force then grows to
-    1e4 N. An inverted corotational state has no physical meaning: the model reports itself
-    unstable, renders no force, and starts afresh at the next grasp."""
+    1e4 N. Once its force passes 3x the linear one the model reports itself unstable, renders
+    no force, and starts afresh at the next grasp."""
     from analysis.accuracy import HANDSET_PARAMS, Setting, _build_model
     from sim.reference import scene_with, test_pulls
     from sim.scene import DEFAULT_SCENE
