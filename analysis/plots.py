@@ -67,37 +67,39 @@ def deformation_plot(db, path: Path, synthetic: bool) -> None:
 
 
 def force_traces(scene_path, models=("plate_spring", "fem", "mass_spring"), duration: float = 3.0) -> dict:
-    """The scene's scripted pull, run with every model (lockstep); the FEM reference force for
-    each run's own hand motion. Returns {model: (t, force, reference)} for the first hand."""
+    """The scene's scripted pull, run with every model (lockstep); the converged reference's
+    force (the synthetic observer's truth, studyctl/truth.py) for each run's own hand motion.
+    Returns {model: (t, force, reference)} for the first hand."""
     from sim.run import run_scene
     from sim.scene import build_scene
-    from studyctl.synthetic import reference_forces
+    from studyctl.observer import truth_forces
+    from studyctl.truth import load_truth
 
-    ref = build_scene(scene_path, "fem")
     out = {}
+    truth = None
     for m in models:
         scene = build_scene(scene_path, m)
+        truth = truth or load_truth(scene)
         r = run_scene(scene, duration=duration, time_scale=0)
         f = np.linalg.norm(r.forces[:, 0], axis=1)
-        out[m] = (r.times, f, reference_forces(r, ref.model, ref.mesh)[:, 0])
+        out[m] = (r.times, f, truth_forces(r, truth, scene.mesh)[:, 0])
     return out
 
 
 def force_plot(traces: dict, path: Path) -> None:
-    """Fig. 5-style: force of each model and the FEM reference for the same pull, and the
-    relative difference against the force JND."""
+    """Fig. 5-style: force of each model and the converged reference for the same pull, and
+    the relative difference against the force JND."""
     from sim.calibrate import jnd
 
     plt = _plt()
     fig, (ax, bx) = plt.subplots(2, 1, figsize=(7, 5.4), dpi=100, sharex=True)
     for m, (t, f, ref) in traces.items():
         ax.plot(t, f, color=COLORS.get(m), lw=1.3, label=m)
-        if m != "fem":
-            ax.plot(t, ref, color=COLORS.get(m), lw=0.8, ls="--")
-            mask = ref > 0.01
-            bx.plot(t[mask], (f[mask] - ref[mask]) / ref[mask], color=COLORS.get(m), lw=1.0, label=f"{m} vs FEM")
+        ax.plot(t, ref, color=COLORS.get(m), lw=0.8, ls="--")
+        mask = ref > 0.01
+        bx.plot(t[mask], (f[mask] - ref[mask]) / ref[mask], color=COLORS.get(m), lw=1.0, label=f"{m} vs reference")
     ax.set_ylabel("force on the hand (N)")
-    ax.set_title("the scene's pull with each model; dashed: linear FEM for the same hand motion", fontsize=9)
+    ax.set_title("the scene's pull with each model; dashed: converged P2 reference for the same hand motion", fontsize=9)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     tt = np.linspace(0, max(t.max() for t, _, _ in traces.values()), 2)

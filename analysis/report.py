@@ -117,6 +117,8 @@ def html(db, force_traces: bool = True, accuracy: dict | None = None, stability:
         images = {name: base64.b64encode((Path(tmp) / f"{name}.png").read_bytes()).decode()
                   for name in ("rates", "deformation", "force") if (Path(tmp) / f"{name}.png").exists()}
     esc = _html.escape
+    listed = ", ".join("{} ({}/{})".format(x["code"], x["answers"], x["of"]) for x in facts["incomplete_participants"])
+    incomplete = f" Left out (incomplete): {listed}." if listed else ""
     banner = ('<p class="synthetic">SYNTHETIC DATA: simulated participants; not evidence about people.</p>' if facts["synthetic"] else "")
     rows = []
     models = list(d["model"])
@@ -126,9 +128,9 @@ def html(db, force_traces: bool = True, accuracy: dict | None = None, stability:
         pairs = "; ".join(f"{p['a']} vs {p['b']}: {p['p_holm']:.3g}" for p in st["items"][item]["pairs"])
         rows.append(f"<tr><td>{esc(question)}</td>{cells}<td>{qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})</td><td>{esc(pairs)}</td></tr>")
     dcells = "".join(f"<td>{row['mean_ms']:.2f} &plusmn; {row['sd_ms']:.2f}<br>median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f}</td>" for _, row in d.iterrows())
-    lat = st["latency"]
-    lat_text = (f"Friedman &chi;&sup2;({lat['df']}) = {lat['statistic']:.2f}, p = {lat['p_value']:.3g}, Kendall's W = {lat['kendall_w']:.2f}; "
-                + "; ".join(f"{esc(p['a'])} vs {esc(p['b'])}: Wilcoxon p<sub>Holm</sub> = {p['p_holm']:.3g}, r = {p['rank_biserial']:.2f}" for p in lat["pairs"])) if lat else ""
+    lat_text = "benchmark of this machine: each participant's mean, mean &plusmn; sd over participants (no test: CPU time is not about people)"
+    gee = esc(table1._gee_line(st["gee"]).replace("`", ""))
+    n_pairs = sum(len(v["pairs"]) for v in st["items"].values())
     figs = "".join(f'<figure><img alt="{k}" src="data:image/png;base64,{v}"></figure>' for k, v in images.items())
     head = "".join(f"<th>{esc(m)}</th>" for m in models)
     return f"""<!doctype html>
@@ -144,11 +146,12 @@ img {{ max-width: 900px; }}
 </style></head><body>
 <h1>{esc(facts['study'])}: Table 1</h1>
 {banner}
-<p>N = {facts['participants']} participants; {esc(facts['design'])}. Rates with Wilson 95% intervals; Cochran's Q across models; pairwise exact McNemar tests with Holm adjustment.</p>
-<table><tr><th>Question</th>{head}<th>Cochran's Q (p)</th><th>McNemar p (Holm)</th></tr>
+<p>N = {facts['participants']} participants with every answer; {esc(facts['design'])}.{esc(incomplete)} Rates with Wilson 95% intervals; Cochran's Q across models; pairwise exact McNemar tests with Holm over all {n_pairs} pairs.</p>
+<table><tr><th>Question</th>{head}<th>Cochran's Q (p)</th><th>McNemar p (Holm, all {n_pairs} pairs)</th></tr>
 {''.join(rows)}
 <tr><td>Time for real-time deformation of the model, ms</td>{dcells}<td colspan="2">{lat_text}</td></tr>
 </table>
+<p>{gee}</p>
 {figs}
 {accuracy_html(accuracy) if accuracy else ""}
 {stability_html(stability) if stability else ""}

@@ -73,21 +73,101 @@ def pairwise_wilcoxon(wide: pd.DataFrame) -> pd.DataFrame:
     return df
 
 
-def study_stats(db, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None) -> dict:
-    """Everything `studyctl report stats --json` prints (`r`, `q`: rates and cochran already
-    computed by the caller, so a report does not compute them twice)."""
-    from analysis.table1 import _query, answers_wide, cochran, rates, study_facts
+HOLM_SCOPES = ("family", "question")
 
+
+def periods(db) -> pd.DataFrame:
+    """Each participant's position (0-based) of each model in their session: the period
+    factor of the GEE. From the session's conditions, else the assigned order (schedule)."""
+    import json
+
+    from analysis.table1 import _query
+
+    rows = []
+    done = set()
+    for r in _query(db, "select code, conditions from sessions order by id").itertuples():
+        if r.code not in done and r.conditions:
+            done.add(r.code)
+            rows += [{"code": r.code, "model": m, "period": k} for k, m in enumerate(json.loads(r.conditions))]
+    for r in _query(db, "select code, conditions from schedule").itertuples():
+        if r.code not in done and r.conditions:
+            done.add(r.code)
+            rows += [{"code": r.code, "model": m, "period": k} for k, m in enumerate(json.loads(r.conditions))]
+    return pd.DataFrame(rows, columns=["code", "model", "period"])
+
+
+def gee_fit(df: pd.DataFrame, models: list[str], with_period: bool = True, with_item: bool = False) -> dict:
+    """Logistic GEE (statsmodels): answer ~ model [+ period] [+ item], participants as
+    clusters, exchangeable working correlation, robust (sandwich) covariance. Returns the
+    odds ratio of every pair of models (b vs a: the odds of yes with b over those with a) with
+    its 95% interval and Wald p-value, the working correlation, and whether it converged."""
+    import warnings
+
+    import statsmodels.api as sm
+    import statsmodels.formula.api as smf
+
+    data = df.copy()
+    data["model"] = pd.Categorical(data["model"], categories=models)
+    terms = ["C(model)"] + (["C(period)"] if with_period else []) + (["C(item)"] if with_item else [])
+    data = data.sort_values(["code"]).reset_index(drop=True)
+    out = {"formula": "answer ~ " + " + ".join(terms), "n_participants": int(data["code"].nunique()), "n_answers": int(len(data)),
+           "correlation": "exchangeable", "covariance": "robust (sandwich)"}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            model = smf.gee(out["formula"], groups="code", data=data, family=sm.families.Binomial(), cov_struct=sm.cov_struct.Exchangeable())
+            res = model.fit(maxiter=100)
+        except (ValueError, np.linalg.LinAlgError) as exc:  # e.g. every answer alike
+            return out | {"converged": False, "error": str(exc), "pairs": []}
+    names = list(res.params.index)
+    cov = res.cov_params().to_numpy()
+    beta = res.params.to_numpy()
+
+    def coef(m):
+        v = np.zeros(len(names))
+        if m != models[0]:
+            v[names.index(f"C(model)[T.{m}]")] = 1.0
+        return v
+
+    pairs = []
+    for a, b in itertools.combinations(models, 2):
+        c = coef(b) - coef(a)
+        est, se = float(c @ beta), float(np.sqrt(max(c @ cov @ c, 0.0)))
+        z = est / se if se > 0 else float("nan")
+        p = float(2 * stats.norm.sf(abs(z))) if np.isfinite(z) else float("nan")
+        with np.errstate(over="ignore"):  # separation in small data: huge log-odds, an infinite odds ratio
+            pairs.append({"a": a, "b": b, "log_odds_ratio": est, "se": se, "odds_ratio": float(np.exp(est)),
+                          "ci_low": float(np.exp(est - 1.959963984540054 * se)), "ci_high": float(np.exp(est + 1.959963984540054 * se)),
+                          "p_value": p})
+    converged = bool(getattr(res, "converged", True)) and not any("converge" in str(w.message).lower() for w in caught)
+    return out | {"converged": converged, "working_correlation": float(res.cov_struct.dep_params), "pairs": pairs}
+
+
+def study_stats(db, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None, holm_scope: str = "family") -> dict:
+    """Everything `studyctl report stats --json` prints (`r`, `q`: rates and cochran already
+    computed by the caller, so a report does not compute them twice). Complete cases only
+    (`analysis.table1.complete_answers`). `holm_scope`: "family" (default: Holm over every
+    pairwise McNemar test of every question) or "question" (within each question's pairs)."""
+    from analysis.table1 import (
+        DEFORMATION_LABEL,
+        answers_wide,
+        cochran,
+        complete_answers,
+        deformation,
+        rates,
+        study_facts,
+    )
+
+    if holm_scope not in HOLM_SCOPES:
+        raise ValueError(f"holm_scope: {holm_scope!r}; allowed: {', '.join(HOLM_SCOPES)}")
     r = rates(db) if r is None else r
     q = cochran(db) if q is None else q
-    answers = _query(db, "select code, model, item, answer from answers")
-    lat = _query(db, "select s.code, l.model, avg(l.value) as value from latency l join sessions s on s.id = l.session_id "
-                     "where l.measure = 'deformation_ms' group by s.code, l.model")
+    answers, _ = complete_answers(db)
     protocol_models = list(dict.fromkeys(r["model"]))
     items = {}
     for item, g in r.groupby("item", sort=False):
         wide = answers_wide(answers, item, protocol_models)
-        pairs = pairwise_mcnemar(wide) if len(wide) else pd.DataFrame(columns=["a", "b", "p_value", "p_holm"])
+        pairs = pairwise_mcnemar(wide) if len(wide) else pd.DataFrame(columns=["a", "b", "n01", "n10", "p_value", "p_holm", "odds_ratio"])
         qrow = q[q["item"] == item].iloc[0]
         items[item] = {
             "question": g["question"].iloc[0],
@@ -95,11 +175,101 @@ def study_stats(db, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None
             "rates": {row["model"]: {k: row[k] for k in ("yes", "no", "rate", "wilson_low", "wilson_high")} for _, row in g.iterrows()},
             "pairs": pairs.to_dict(orient="records"),
         }
-    latency = None
-    wide = lat.pivot(index="code", columns="model", values="value").reindex(columns=protocol_models).dropna()
-    if len(wide) >= 2 and len(protocol_models) >= 2:
-        latency = {"measure": "deformation_ms", **friedman(wide.to_numpy()), "pairs": pairwise_wilcoxon(wide).to_dict(orient="records")}
-    return {"facts": study_facts(db), "items": items, "latency": latency}
+    _holm_family(items, holm_scope)
+    return {"facts": study_facts(db), "holm": holm_scope, "items": items, "gee": study_gee(db, answers, protocol_models),
+            "deformation": {"label": DEFORMATION_LABEL, "rows": deformation(db).to_dict(orient="records")}}
+
+
+def _holm_family(items: dict, scope: str) -> None:
+    """Set each pair's `p_holm`: over the whole family of pairwise tests, or per question
+    (`p_holm_question` is kept either way)."""
+    flat = [(item, k) for item, v in items.items() for k in range(len(v["pairs"]))]
+    fam = holm([items[i]["pairs"][k]["p_value"] for i, k in flat])
+    for (i, k), p in zip(flat, fam):
+        pair = items[i]["pairs"][k]
+        pair["p_holm_question"] = pair["p_holm"]
+        pair["p_holm_family"] = p
+        pair["p_holm"] = p if scope == "family" else pair["p_holm_question"]
+
+
+def study_gee(db, answers: pd.DataFrame, models: list[str]) -> dict:
+    """The primary analysis across questions: a logistic GEE with model and period (and, for
+    the composite over all questions, item) as factors; then one per question, with Holm over
+    the family of their pairwise contrasts."""
+    if answers.empty or len(models) < 2:
+        return {"composite": None, "items": {}}
+    per = periods(db)
+    df = answers.merge(per, on=["code", "model"], how="left")
+    with_period = bool(df["period"].notna().all())
+    if with_period:
+        df["period"] = df["period"].astype(int)
+    composite = gee_fit(df, models, with_period, with_item=True)
+    items = {item: gee_fit(g, models, with_period) for item, g in df.groupby("item", sort=False)}
+    flat = [(i, k) for i, v in items.items() for k in range(len(v["pairs"]))]
+    fam = holm([items[i]["pairs"][k]["p_value"] if np.isfinite(items[i]["pairs"][k]["p_value"]) else 1.0 for i, k in flat])
+    for (i, k), p in zip(flat, fam):
+        items[i]["pairs"][k]["p_holm"] = p
+    cp = composite["pairs"]
+    for pair, p in zip(cp, holm([x["p_value"] if np.isfinite(x["p_value"]) else 1.0 for x in cp])):
+        pair["p_holm"] = p
+    return {"composite": composite, "items": items, "period_factor": with_period}
+
+
+def max_cochran_q(yes: list[int], n: int) -> float:
+    """The largest Cochran's Q that any pairing of `n` participants' answers can give with
+    these yes counts per model (the margins). Q = (k-1)(k sum C_j^2 - T^2) / (k T - sum R_i^2)
+    has fixed column totals C_j and total T, so it is largest when sum R_i^2 is: the row
+    totals most spread out that the margins allow, the conjugate of the column totals
+    (participant i says yes to model j when i <= C_j; Gale-Ryser: every feasible row-sum
+    vector is majorised by it, and sum R^2 is Schur-convex)."""
+    k, T = len(yes), int(sum(yes))
+    rows = [sum(1 for c in yes if c >= i) for i in range(1, n + 1)]
+    den = k * T - sum(r * r for r in rows)
+    num = (k - 1) * (k * sum(c * c for c in yes) - T * T)
+    if den == 0:
+        return 0.0 if num == 0 else float("inf")
+    return num / den
+
+
+def min_mcnemar_p(a: int, b: int, n: int) -> float:
+    """The smallest exact McNemar p-value any pairing can give two models with `a` and `b`
+    yes of `n` (searched over every feasible number of discordant pairs)."""
+    from scipy.stats import binomtest
+
+    best = 1.0
+    for n01 in range(0, min(n - a, b) + 1):  # a no, b yes
+        n10 = a - b + n01
+        if n10 < 0 or n10 > min(a, n - b):
+            continue
+        m = n01 + n10
+        if m:
+            best = min(best, float(binomtest(min(n01, n10), m, 0.5).pvalue))
+    return best
+
+
+def margin_bounds(table: dict[str, dict[str, tuple[int, int]]]) -> dict:
+    """What the margins (yes/no per question and model) allow, whatever the pairing: the
+    smallest possible Cochran's Q p-value per question, and the smallest possible exact
+    McNemar p-value per pair, with Holm over the whole family of pairs (Holm is monotone in
+    every p-value, so these bound the adjusted p-values from below)."""
+    cochran_rows, pairs = [], []
+    for item, by_model in table.items():
+        ns = {y + no for y, no in by_model.values()}
+        if len(by_model) < 2 or len(ns) != 1:
+            cochran_rows.append({"item": item, "q_max": float("nan"), "p_min": float("nan"),
+                                 "note": "not computable: " + ("one model" if len(by_model) < 2 else "models answered by different numbers")})
+            continue
+        n = ns.pop()
+        yes = [y for y, _ in by_model.values()]
+        q = max_cochran_q(yes, n)
+        cochran_rows.append({"item": item, "n": n, "q_max": q, "df": len(yes) - 1, "p_min": float(stats.chi2.sf(q, len(yes) - 1)), "note": ""})
+        for (ma, (ya, _)), (mb, (yb, _)) in itertools.combinations(by_model.items(), 2):
+            pairs.append({"item": item, "a": ma, "b": mb, "yes_a": ya, "yes_b": yb, "n": n, "p_min": min_mcnemar_p(ya, yb, n)})
+    for pair, p in zip(pairs, holm([x["p_min"] for x in pairs])):
+        pair["p_min_holm"] = p
+    return {"cochran": cochran_rows, "mcnemar": pairs,
+            "note": "bounds over every pairing of the participants' answers consistent with the printed counts: the smallest "
+                    "p-values the paired tests could have given; Holm over all pairwise tests of the table"}
 
 
 def _percent(text: str) -> float:
@@ -148,9 +318,10 @@ def published(path: str | Path) -> dict:
         homogeneity.append({"item": item, "chi2": float(chi2), "df": int(dof), "p_value": float(p), "note": note})
     return {
         "table": str(path), "rows": len(rows), "flags": flags, "homogeneity": homogeneity,
-        "not_computable": "Cochran's Q and McNemar tests need each participant's answers to every model (paired data); "
-                          "aggregated counts do not give them, and intervals for differences between models need them too.",
+        "bounds": margin_bounds(table),
+        "not_computable": "the exact Cochran's Q and McNemar p-values and intervals for differences between models need each "
+                          "participant's paired answers; the counts bound them (`bounds`): no pairing gives smaller p-values.",
     }
 
 
-__all__ = ["holm", "pairwise_mcnemar", "friedman", "pairwise_wilcoxon", "study_stats", "published"]
+__all__ = ["holm", "pairwise_mcnemar", "friedman", "pairwise_wilcoxon", "gee_fit", "study_stats", "margin_bounds", "published"]

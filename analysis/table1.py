@@ -56,9 +56,24 @@ def wilson(yes: int, n: int, alpha: float = 0.05) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
+def complete_answers(db) -> tuple[pd.DataFrame, list[dict]]:
+    """The one N rule: a participant counts when they answered every question for every model
+    (complete cases). Returns their answers (code, model, item, answer) and the others, each
+    as {code, answers, of}: everything in a report is computed on the complete ones."""
+    protocol = _protocol(db)
+    answers = _query(db, "select code, model, item, answer from answers")
+    answers = answers[answers["item"].isin(protocol.items) & answers["model"].isin(protocol.conditions)]
+    need = len(protocol.items) * len(protocol.conditions)
+    counts = answers.groupby("code").size()
+    complete = set(counts[counts == need].index)
+    incomplete = [{"code": str(c), "answers": int(n), "of": need} for c, n in counts.items() if c not in complete]
+    return answers[answers["code"].isin(complete)].reset_index(drop=True), incomplete
+
+
 def rates(db) -> pd.DataFrame:
     protocol = _protocol(db)
-    counts = _query(db, "select item, model, sum(answer) as yes, count(*) as n from answers group by item, model")
+    answers, _ = complete_answers(db)
+    counts = answers.groupby(["item", "model"])["answer"].agg(yes="sum", n="count").reset_index()
     text = {q.id: q.text for q in protocol.questions}
     rows = []
     for q in protocol.items:
@@ -76,7 +91,7 @@ def cochran(db) -> pd.DataFrame:
     from statsmodels.stats.contingency_tables import cochrans_q
 
     protocol = _protocol(db)
-    answers = _query(db, "select code, model, item, answer from answers")
+    answers, _ = complete_answers(db)
     rows = []
     for q in protocol.items:
         wide = answers_wide(answers, q, list(protocol.conditions))
@@ -91,31 +106,44 @@ def cochran(db) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["item", "cochran_q", "df", "p_value", "n_complete"])
 
 
+DEFORMATION_LABEL = "benchmark of this machine (wall-clock deformation time per frame), not a measure of the participants"
+
+
 def deformation(db) -> pd.DataFrame:
+    """Deformation time per frame, one value per participant (the mean of their trials) for
+    the complete participants: a benchmark of the machine the sessions ran on, summarised
+    over participants (no test: CPU timings are not about people)."""
     protocol = _protocol(db)
-    lat = _query(db, "select model, value from latency where measure = 'deformation_ms'")
+    answers, _ = complete_answers(db)
+    lat = _query(db, "select s.code, l.model, avg(l.value) as value, count(*) as trials from latency l join sessions s on s.id = l.session_id "
+                     "where l.measure = 'deformation_ms' group by s.code, l.model")
+    lat = lat[lat["code"].isin(set(answers["code"]))]
     rows = []
     for m in protocol.conditions:
-        v = lat.loc[lat["model"] == m, "value"].to_numpy()
-        rows.append({"model": m, "n_trials": len(v), "mean_ms": float(v.mean()) if len(v) else float("nan"),
+        sel = lat["model"] == m
+        v = lat.loc[sel, "value"].to_numpy()
+        rows.append({"model": m, "n_participants": len(v), "n_trials": int(lat.loc[sel, "trials"].sum()),
+                     "mean_ms": float(v.mean()) if len(v) else float("nan"),
                      "sd_ms": float(v.std(ddof=1)) if len(v) > 1 else float("nan"),
                      "median_ms": float(np.median(v)) if len(v) else float("nan"),
                      "p95_ms": float(np.percentile(v, 95)) if len(v) else float("nan")})
-    return pd.DataFrame(rows, columns=["model", "n_trials", "mean_ms", "sd_ms", "median_ms", "p95_ms"])
+    return pd.DataFrame(rows, columns=["model", "n_participants", "n_trials", "mean_ms", "sd_ms", "median_ms", "p95_ms"])
 
 
 def study_facts(db) -> dict:
     protocol = _protocol(db)
+    answers, incomplete = complete_answers(db)
+    n = int(answers["code"].nunique())
     con = _connect(db)
     try:
-        n = con.execute("select count(distinct code) from answers").fetchone()[0]
         # counted from the answers' own source, not from a participant flag that could drift
         synthetic = con.execute("select count(distinct code) from answers where source = 'synthetic'").fetchone()[0]
         mixed = [r[0] for r in con.execute(
             "select code from answers group by code having sum(source = 'synthetic') > 0 and sum(source != 'synthetic') > 0 order by code")]
     finally:
         con.close()
-    return {"study": protocol.name, "participants": n, "synthetic_participants": synthetic, "mixed_source_participants": mixed,
+    return {"study": protocol.name, "participants": n, "incomplete_participants": incomplete,
+            "synthetic_participants": synthetic, "mixed_source_participants": mixed,
             "synthetic": synthetic > 0,
             "design": f"within-subject, {len(protocol.conditions)} models, {protocol.counterbalancing} counterbalancing"}
 
@@ -128,21 +156,40 @@ def item_rows(r, q, models):
         yield item, g["question"].iloc[0], [g.loc[m] for m in models], q[q["item"] == item].iloc[0]
 
 
-def markdown(db) -> str:
-    """Table 1 as Markdown: counts, rate [Wilson 95%] per model, Cochran's Q per item, and the
-    deformation-time row, headed by N, the design and a synthetic-data flag."""
+def _gee_line(gee: dict) -> str:
+    c = gee.get("composite") if gee else None
+    if not c or not c.get("pairs"):
+        return ""
+    pairs = "; ".join(f"{p['b']} vs {p['a']} OR {p['odds_ratio']:.2f} [{p['ci_low']:.2f}, {p['ci_high']:.2f}], p_Holm {p['p_holm']:.3g}"
+                      for p in c["pairs"])
+    return (f"Primary analysis, all questions: logistic GEE `{c['formula']}`, participants as clusters, exchangeable "
+            f"working correlation ({c.get('working_correlation', float('nan')):.2f}), robust standard errors"
+            f"{'' if c.get('converged') else ' (DID NOT CONVERGE)'}: {pairs}.")
+
+
+def markdown(db, holm_scope: str = "family") -> str:
+    """Table 1 as Markdown: counts, rate [Wilson 95%] per model, Cochran's Q per item, McNemar
+    pairs with Holm (over the family by default), the deformation-time row (a benchmark of
+    this machine), headed by N (complete cases), the design and a synthetic-data flag; the
+    GEE across questions below."""
     from analysis.stats import study_stats
 
     facts, r, q, d = study_facts(db), rates(db), cochran(db), deformation(db)
-    pairs = {item: v["pairs"] for item, v in study_stats(db, r, q)["items"].items()}
+    st = study_stats(db, r, q, holm_scope=holm_scope)
+    pairs = {item: v["pairs"] for item, v in st["items"].items()}
+    n_pairs = sum(len(v) for v in pairs.values())
     models = list(d["model"])
     flag = "SYNTHETIC DATA (simulated participants): not evidence about people. " if facts["synthetic"] else ""
     if facts["mixed_source_participants"]:
         flag += f"WARNING: {', '.join(facts['mixed_source_participants'])} answered both as a person and synthetically. "
+    incomplete = facts["incomplete_participants"]
+    listed = ", ".join("{} ({}/{})".format(x["code"], x["answers"], x["of"]) for x in incomplete)
+    left_out = f" Left out (incomplete): {listed}." if incomplete else ""
+    scope = f"Holm over all {n_pairs} pairs" if holm_scope == "family" else "Holm within each question"
     lines = [
-        f"**Table 1: {facts['study']}.** {flag}N = {facts['participants']} participants; {facts['design']}.",
+        f"**Table 1: {facts['study']}.** {flag}N = {facts['participants']} participants with every answer; {facts['design']}.{left_out}",
         "",
-        "| Question | " + " | ".join(f"{m}: yes/no, rate [95% CI]" for m in models) + " | Cochran's Q (p) | McNemar p, Holm |",
+        "| Question | " + " | ".join(f"{m}: yes/no, rate [95% CI]" for m in models) + f" | Cochran's Q (p) | McNemar p, {scope} |",
         "|---|" + "---|" * len(models) + "---|---|",
     ]
     for item, question, rows, qrow in item_rows(r, q, models):
@@ -150,7 +197,11 @@ def markdown(db) -> str:
         mc = "; ".join(f"{p['a']}-{p['b']} {p['p_holm']:.3g}" for p in pairs.get(item, []))
         lines.append(f"| {question} | " + " | ".join(cells) + f" | {qrow['cochran_q']:.2f} ({qrow['p_value']:.3g}) | {mc} |")
     cells = [f"{row['mean_ms']:.2f} +- {row['sd_ms']:.2f} (median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f})" for _, row in d.iterrows()]
-    lines.append("| Time for real-time deformation of the model, ms | " + " | ".join(cells) + " | | |")
-    lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models for participants who answered all of them; "
-              "pairwise exact McNemar tests, Holm-adjusted."]
-    return "\n".join(lines) + "\n"
+    lines.append("| Time for real-time deformation of the model, ms: benchmark of this machine | " + " | ".join(cells) + " | | |")
+    lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models; pairwise exact McNemar tests, "
+              f"{scope}. Deformation time: each participant's mean over their trials, mean +- sd over participants: "
+              "wall-clock time of this machine, not a measure of the participants (no test).", ""]
+    gee = _gee_line(st["gee"])
+    if gee:
+        lines += [gee, ""]
+    return "\n".join(lines)

@@ -5,7 +5,7 @@ those that support it print JSON)."""
 import importlib
 import sys
 
-ALL = ["plate_spring", "fem", "mass_spring", "render", "servo", "startup", "synthetic", "accuracy"]
+ALL = ["plate_spring", "fem", "mass_spring", "render", "servo", "startup", "synthetic", "accuracy", "observer"]
 
 if __name__ == "__main__":
     names = [a for a in sys.argv[1:] if not a.replace(".", "", 1).isdigit() and not a.startswith("--")]

@@ -123,6 +123,23 @@ class Factor:
             del self._solver  # free the failed factor now, not when the exception dies
             raise SingularSystemError("stiffness is singular or not positive definite (check solve failed)")
 
+    @property
+    def nnz_L(self) -> int:
+        """Entries of the factor L: a solve is about 4 nnz_L flops per right-hand side (the
+        observer's deterministic cost of a frame, studyctl/observer.py)."""
+        if not hasattr(self, "_nnz_L"):
+            L = self._solver.L()
+            counts = np.diff(L.indptr).astype(np.float64)  # entries per column of L (CSC)
+            self._nnz_L = int(L.nnz)
+            self._factor_flops = float(np.sum(counts**2))  # multiply-adds of a column Cholesky
+        return self._nnz_L
+
+    @property
+    def factor_flops(self) -> float:
+        """About the flops it took to factorise: the sum of squared column counts of L."""
+        _ = self.nnz_L
+        return self._factor_flops
+
     def solve(self, b: np.ndarray) -> np.ndarray:
         """A^-1 b for b of shape (n,) or (n, k)."""
         b = np.asarray(b, dtype=np.float64)

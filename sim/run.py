@@ -67,6 +67,9 @@ class VisualStep:
     events: list[Event]
     snapshot_period: float | None = None  # simulated seconds between pictures; None: none
     deformation_s: list[float] = field(default_factory=list)
+    # the model's own count of the floating-point work of each frame (`frame_flops`): a cost
+    # that, unlike the measured time, does not change with the machine's load
+    frame_flops: list[float] = field(default_factory=list)
     grasp_s: list[float] = field(default_factory=list)
     snapshots: list[Snapshot] = field(default_factory=list)
     last: np.ndarray | None = None
@@ -126,6 +129,7 @@ class VisualStep:
                 h.contact = None
             u = np.zeros_like(self.model_mesh().vertices)
         self.deformation_s.append(time.perf_counter() - start)
+        self.frame_flops.append(float(getattr(self.model, "frame_flops", math.nan)))
         self.last = u  # the latest surface displacement, for live drawing
         if self.snapshot_period is not None and t + 1e-9 >= self._next_snapshot:
             self._next_snapshot += self.snapshot_period
@@ -168,6 +172,7 @@ class RunResult:
     ended_early: str | None = None  # a paced run: the key (or "window closed") that ended it
     view: dict | None = None  # the participant view's statistics
     pacer: str | None = None  # real time: "process" (its own clock) or "hd-scheduler" (real devices)
+    frame_flops: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per visual frame, the model's count
 
     def stats(self) -> dict:
         """The summary `studyctl sim run --json` prints."""
@@ -355,6 +360,7 @@ def _result(scene, model, mode, time_scale, duration, rate, names, rows, starts,
         deadline_misses=misses,
         wall_s=wall,
         deformation_s=np.asarray(visual.deformation_s),
+        frame_flops=np.asarray(visual.frame_flops, dtype=np.float64),
         grasp_s=np.asarray(visual.grasp_s),
         events=events,
         snapshots=visual.snapshots,

@@ -21,7 +21,7 @@ from sim.jsonable import jsonable
 from sim.models.base import MAX_PULL_M, pull_problem
 from sim.run import MAX_DURATION_S, VisualStep
 from sim.scene import DEFAULT_SCENE
-from studyctl.errors import StudyError
+from studyctl.errors import InputError, StudyError
 
 
 class _Group(click.Group):
@@ -1101,16 +1101,17 @@ def synth_cmd(db, participants, seed, jobs, protocol_file):
 
 def _range(ctx, param, value):
     try:
-        a, b = (int(x) for x in value.split(".."))
+        a, b = (int(x) for x in value.split("..")) if ".." in value else (int(value), int(value))
     except ValueError:
-        raise click.BadParameter(f"{value!r} is not a range such as 12..60") from None
+        raise click.BadParameter(f"{value!r} is not a number or a range such as 12..60") from None
     if not 3 <= a <= b <= 1000:
         raise click.BadParameter(f"{value!r}: need 3 <= from <= to <= 1000")
     return a, b
 
 
 @cli.command("plan", cls=click.Command)
-@click.option("--participants", "span", default="12..60", show_default=True, callback=_range, help="Range of N, e.g. 12..60.")
+@click.option("--participants", "span", default=None, callback=lambda c, p, v: None if v is None else _range(c, p, v),
+              help="N, or a range of N such as 12..60  [default: 12..60; with --null 35]")
 @click.option("--step", type=click.IntRange(1, 100), default=6, show_default=True)
 @click.option("--simulations", type=click.IntRange(10, 100000), default=200, show_default=True)
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path),
@@ -1118,13 +1119,22 @@ def _range(ctx, param, value):
 @click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=0, show_default=True)
 @click.option("--pilots", type=click.IntRange(1, 50), default=4, show_default=True, help="Synthetic pilot runs per model.")
 @click.option("--plot", "plot_file", type=OutFile((".png", ".svg", ".pdf")), default=None, help="Write the power curves (PNG, SVG or PDF).")
+@click.option("--null", "null", is_flag=True, help="The observer's fairness test: one model under every label; false-positive rates.")
+@click.option("--model", "null_model", default=None, help="With --null: the model to repeat  [default: the protocol's first condition]")
 @click.option("--json", "as_json", is_flag=True)
-def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, as_json):
-    """Monte Carlo power of Cochran's Q per question under the SYNTHETIC model, to choose N."""
+def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, null, null_model, as_json):
+    """Monte Carlo power of Cochran's Q per question under the SYNTHETIC model, to choose N;
+    with --null, the false-positive rate of each question when every condition is one model."""
     from studyctl.plan import plot_power, power_table
     from studyctl.protocol import load_protocol
 
     protocol = load_protocol(protocol_file)
+    if null:
+        _plan_null(protocol, span, simulations, seed, pilots, null_model, as_json)
+        return
+    if null_model is not None:
+        raise InputError("--model: only with --null")
+    span = span or (12, 60)
     ns = list(range(span[0], span[1] + 1, step))
     table = power_table(protocol, ns, simulations, seed, pilots)
     if plot_file:
@@ -1146,20 +1156,50 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, as
         click.echo(f"plot: {plot_file}")
 
 
+def _plan_null(protocol, span, simulations, seed, pilots, model, as_json) -> None:
+    from studyctl.plan import null_table
+
+    if span is not None and span[0] != span[1]:
+        raise InputError("--participants: with --null give one N (e.g. 35), not a range")
+    if model is not None:
+        model = model.replace("-", "_")
+        if model not in protocol.conditions:
+            raise InputError(f"--model: {model!r} is not a condition of {protocol.name}; allowed: {', '.join(protocol.conditions)}")
+    n = span[0] if span else 35
+    table = null_table(protocol, model, n, simulations, seed, pilots)
+    if as_json:
+        _print_json({"synthetic": True, "null": True, "model": table["model"].iloc[0], "participants": n,
+                     "items": table[["item", "false_positive_rate", "mc_error", "simulations", "alpha"]].to_dict(orient="records")})
+        return
+    from rich.table import Table
+
+    t = Table(title=f"SYNTHETIC null test: {table['model'].iloc[0]} under every label, N = {n}, {simulations} simulated studies")
+    for c in ("question", "false-positive rate", "alpha", "Monte Carlo s.e."):
+        t.add_column(c, justify="right" if c != "question" else "left")
+    for _, r in table.iterrows():
+        t.add_row(r["item"], f"{r['false_positive_rate']:.3f}", f"{r['alpha']:.2f}", f"{r['mc_error']:.3f}")
+    _console().print(t)
+
+
 @cli.group(cls=_Group)
 def report():
     """Reports made from a study database."""
 
 
+HOLM = click.option("--holm", "holm_scope", type=click.Choice(["family", "question"]), default="family", show_default=True,
+                    help="Holm over every pairwise test of every question (family), or within each question.")
+
+
 @report.command("table1")
 @DB
+@HOLM
 @click.option("--format", "fmt", type=click.Choice(["md", "csv", "latex", "html", "json"]), default="md", show_default=True)
 @click.option("--out", "out_file", type=OutFile(), default=None)
 @click.option("--accuracy", "accuracy_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="accuracy.json from `studyctl bench accuracy --out`: add its table (md, html) and Pareto plot (html).")
 @click.option("--stability", "stability_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="stability.json from `studyctl bench stability --out`: add its heat map and unstable cases (md, html).")
-def report_table1(db, fmt, out_file, accuracy_file, stability_file):
+def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
     """The seed paper's Table 1 with Wilson intervals, Cochran's Q and deformation times
     (html: one self-contained file with the statistics and plots)."""
     from analysis import table1
@@ -1169,7 +1209,7 @@ def report_table1(db, fmt, out_file, accuracy_file, stability_file):
     accuracy = _load_bench(accuracy_file, "accuracy", "rows") if accuracy_file else None
     stability = _load_bench(stability_file, "stability", "cases") if stability_file else None
     if fmt == "md":
-        text = table1.markdown(db)
+        text = table1.markdown(db, holm_scope)
         if accuracy:
             from analysis.accuracy import markdown
 
@@ -1207,10 +1247,16 @@ def _no_answers(db, as_json: bool) -> bool:
     facts = study_facts(db)
     if facts["participants"]:
         return False
+    incomplete = facts["incomplete_participants"]
+    message = "no answers yet" if not incomplete else "no participant has answered every question for every model yet"
     if as_json:
-        _print_json({"facts": facts, "message": "no answers yet"})
-    else:
-        click.echo(f"{facts['study']}: no answers yet; nothing to report")
+        _print_json({"facts": facts, "message": message})
+        return True
+    flag = "SYNTHETIC DATA. " if facts["synthetic"] else ""
+    if facts["mixed_source_participants"]:
+        flag += f"WARNING: {', '.join(facts['mixed_source_participants'])} answered both as a person and synthetically. "
+    listed = "; incomplete: " + ", ".join(f"{x['code']} ({x['answers']}/{x['of']})" for x in incomplete) if incomplete else ""
+    click.echo(f"{flag}{facts['study']}: {message}{listed}; nothing to report")
     return True
 
 
@@ -1240,15 +1286,18 @@ def report_plots(db, out_dir):
 
 @report.command("stats")
 @DB
+@HOLM
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable (the default output is a summary).")
-def report_stats(db, as_json):
-    """Per question Cochran's Q, rates with Wilson intervals, exact McNemar pairs (Holm);
-    for latency Friedman and Wilcoxon pairs (Holm); effect sizes."""
+def report_stats(db, holm_scope, as_json):
+    """The primary analysis (logistic GEE across questions: odds ratios with 95% intervals),
+    per question Cochran's Q, rates with Wilson intervals, exact McNemar pairs with Holm, the
+    GEE per question; the deformation-time benchmark. Complete cases only."""
     from analysis.stats import study_stats
+    from analysis.table1 import _gee_line
 
     if _no_answers(db, as_json):
         return
-    out = study_stats(db)
+    out = study_stats(db, holm_scope=holm_scope)
     if as_json:
         _print_json(out)
         return
@@ -1257,9 +1306,15 @@ def report_stats(db, as_json):
     for item, v in out["items"].items():
         pairs = ", ".join(f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" for p in v["pairs"])
         click.echo(f"{item}: Q = {v['cochran_q']:.2f}, p = {v['p_value']:.3g}; {pairs}")
-    if out["latency"]:
-        lat = out["latency"]
-        click.echo(f"deformation time: Friedman {lat['statistic']:.2f}, p = {lat['p_value']:.3g}, Kendall's W {lat['kendall_w']:.2f}")
+    incomplete = out["facts"]["incomplete_participants"]
+    if incomplete:
+        click.echo("left out (incomplete): " + ", ".join(f"{x['code']} ({x['answers']}/{x['of']})" for x in incomplete))
+    gee = _gee_line(out["gee"])
+    if gee:
+        click.echo(gee.replace("`", ""))
+    for row in out["deformation"]["rows"]:
+        click.echo(f"deformation time, {row['model']}: {row['mean_ms']:.2f} +- {row['sd_ms']:.2f} ms over {row['n_participants']} participants "
+                   f"({out['deformation']['label']})")
 
 
 @report.command("published")

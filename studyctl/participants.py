@@ -112,6 +112,7 @@ def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
                 conn.execute(f"delete from events where session_id in ({ids})")
                 conn.execute("delete from answers where code = ?", (code,))
                 conn.execute("delete from corrections where code = ?", (code,))
+                conn.execute("delete from observer_features where code = ?", (code,))
                 conn.execute("delete from sessions where code = ?", (code,))
             else:  # an interrupted session will not be resumed
                 conn.execute("update sessions set status = 'withdrawn' where code = ? and status = 'running'", (code,))

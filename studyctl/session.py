@@ -355,10 +355,10 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
         participant = None
         if answers is None and synthetic:
             from studyctl.synthetic import SyntheticAnswers, SyntheticParticipant
+            from studyctl.truth import load_truth
 
             participant = SyntheticParticipant.draw(code, seed)
-            ref_scene = _scene(protocol, "fem", "simulated")
-            answers = SyntheticAnswers(participant, ref_scene.model, ref_scene.mesh)
+            answers = SyntheticAnswers(participant, load_truth(first), first.mesh)
         paced = time_scale > 0 and not synthetic  # a person sets the pace
         answerer = answers or (WindowAnswers(shown) if answer_with == "window" else TerminalAnswers(view=shown))
         keys = terminal_keys if paced else None
@@ -421,6 +421,16 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                     store.write_many("latency", lat, pk=("session_id", "model", "trial", "measure"))
                 store.write("trials", rec, pk=("session_id", "model", "trial"))
             answered = {r["item"] for r in store.rows("select item from answers where code = ? and model = ?", (code, model))}
+            observes = hasattr(answerer, "features_of")
+            if observes and (len(answered) < len(protocol.questions)
+                             or not store.rows("select 1 from observer_features where code = ? and model = ? limit 1", (code, model))):
+                # what the observer perceived, from every stored trace of the condition (after a
+                # resume too), kept before the answers drawn from it
+                feats = answerer.features_of(model, trial_traces(store, session_id, model))
+                at = now()
+                with store.transaction() as conn:
+                    conn.executemany("insert or replace into observer_features (code, model, feature, value, session_id, computed_at) "
+                                     "values (?, ?, ?, ?, ?, ?)", [(code, model, k, float(v), session_id, at) for k, v in feats.items()])
             if len(answered) < len(protocol.questions):
                 results = trial_traces(store, session_id, model)  # every stored trial of the condition, resumed or not
                 answerer.begin(f"condition {label} ({pos + 1} of {n_cond})")

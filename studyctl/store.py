@@ -18,8 +18,9 @@ import sqlite_utils
 
 from studyctl.errors import StoreError
 
-SCHEMA_VERSION = 3
-EXPORT_TABLES = ("participants", "schedule", "sessions", "conditions", "trials", "answers", "latency", "events", "consent", "corrections")
+SCHEMA_VERSION = 4
+EXPORT_TABLES = ("participants", "schedule", "sessions", "conditions", "trials", "answers", "latency", "events", "consent", "corrections",
+                 "observer_features")
 IDENTIFYING_TABLES = ("identities",)
 
 
@@ -78,7 +79,13 @@ def _migration_3(db: sqlite_utils.Database) -> None:
                               "reason": str, "corrected_at": str, "corrected_by": str}, pk="id")
 
 
-MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3}
+def _migration_4(db: sqlite_utils.Database) -> None:
+    """What the synthetic observer perceived of each participant's condition (studyctl/observer.py)."""
+    db["observer_features"].create({"code": str, "model": str, "feature": str, "value": float, "session_id": int, "computed_at": str},
+                                   pk=("code", "model", "feature"), foreign_keys=[("code", "participants", "code")])
+
+
+MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3, 4: _migration_4}
 
 
 STUDY_TABLES = ("meta", "study")  # what makes a file a study database (with meta.schema_version)

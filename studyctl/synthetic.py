@@ -7,10 +7,10 @@ synthetic. See docs/synthetic.md for the model and its parameters.
   scripted pull, scaled per participant in distance and duration), physiological tremor
   (8-12 Hz, 0.1-0.4 mm per axis), and the participant's own hand impedance, which the
   rendered force acts on.
-- Answer model: P(yes) for a question after a condition is a logistic function of what the
-  simulator measured for this participant's trials of that condition: deformation latency,
-  the fraction of force samples within the JND of the FEM reference on the same hand motion,
-  force jitter, and safety events, plus a per-participant bias. No outcome is set per model.
+- Answer model: the observer (studyctl/observer.py): P(yes) for a question after a condition
+  is a logistic function of what this participant perceived of its trials against the
+  converged reference (force within their JND of what they expect, deformation latency,
+  vibration, safety events) and their bias. No outcome is set per model.
 """
 
 from __future__ import annotations
@@ -20,32 +20,9 @@ import math
 import random
 from dataclasses import dataclass
 
-import numpy as np
+from studyctl.observer import DEFAULT, ObserverParams, ObserverTraits, features, p_yes, summarise
 
-from sim.calibrate import jnd
-
-# question -> weights on (latency, accuracy, smoothness, stability); a base logit of 1.0 is
-# about 73% yes, near the paper's overall rate
-WEIGHTS = {
-    "natural": (0.3, 1.2, 0.5, 0.3),
-    "behaviour": (0.3, 1.0, 0.5, 0.3),
-    "texture": (0.0, 1.5, 0.3, 0.0),
-    "comfortable": (0.3, 0.3, 1.0, 0.5),
-    "guidance": (0.3, 1.0, 0.3, 0.3),
-    "realtime": (1.5, 0.0, 0.3, 0.3),
-    "feedback": (0.0, 1.5, 0.5, 0.3),
-    "deformation": (0.5, 1.0, 0.3, 0.0),
-    "stable": (0.3, 0.0, 1.0, 1.5),
-}
-DEFAULT_WEIGHTS = (0.5, 0.8, 0.5, 0.5)
-BASE_LOGIT = 1.0
 MAX_SYNTHETIC = 1000  # participants per `synth` call: a study, not a stress test (the paper had 35)
-# Deformation latency enters as a perceived category, from the literature's thresholds: haptic
-# task performance degrades from about 25 ms, visual-haptic asynchrony is detected from about
-# 45 ms. Categories (0, 1, 2) also keep answers independent of small timing noise, so the same
-# seed gives the same answers on the same machine.
-LATENCY_THRESHOLDS_MS = (25.0, 45.0)
-SAFETY_EVENTS = ("force_clamped", "nan_force", "model_unstable", "deadline_streak", "device_fault", "position_jump", "nan_position")
 
 
 @dataclass(frozen=True)
@@ -57,7 +34,7 @@ class SyntheticParticipant:
     tremor_m: float
     tremor_hz: float
     stiffness: float  # hand stiffness, N/m
-    bias: float  # logit offset: some people say yes more
+    traits: ObserverTraits  # how they perceive (studyctl/observer.py)
 
     @classmethod
     def draw(cls, code: str, seed: int) -> SyntheticParticipant:
@@ -66,7 +43,7 @@ class SyntheticParticipant:
             code=code, seed=seed,
             pull_scale=rng.uniform(0.8, 1.2), time_scale=rng.uniform(0.8, 1.3),
             tremor_m=rng.uniform(0.1e-3, 0.4e-3), tremor_hz=rng.uniform(8.0, 12.0),
-            stiffness=rng.uniform(200.0, 500.0), bias=rng.gauss(0.0, 0.6),
+            stiffness=rng.uniform(200.0, 500.0), traits=ObserverTraits.draw(code, seed),
         )
 
     def operators(self, scene, trial: int, model: str) -> list:
@@ -91,83 +68,29 @@ class SyntheticParticipant:
         return out
 
 
-def reference_forces(result, reference, mesh) -> np.ndarray:
-    """The FEM reference's force magnitude for the same hand motion and grasps, per tick and hand."""
-    out = np.zeros(result.positions.shape[:2])
-    grasps = {}
-    for e in result.events:
-        if e.kind == "grasp":
-            grasps.setdefault(e.hand, []).append((e.t, int(e.detail.split()[1])))
-    for hand, items in grasps.items():
-        for k, (t0, vertex) in enumerate(items):
-            t1 = items[k + 1][0] if k + 1 < len(items) else math.inf
-            sel = (result.times >= t0) & (result.times < t1) & result.buttons[:, hand]
-            if not sel.any():
-                continue
-            contact = reference.grasp(mesh.vertices[vertex], hand)
-            K = np.asarray(contact.law.K).reshape(3, 3)
-            d = result.positions[sel, hand] - np.asarray(contact.point)
-            out[sel, hand] = np.linalg.norm(d @ K.T, axis=1)
-    return out
-
-
-def features(results: list, reference, mesh) -> dict:
-    """What a participant felt in one condition, from its trials' runs."""
-    lat, within, jitter, events = [], [], [], 0
-    for r in results:
-        if len(r.deformation_s):
-            lat.append(float(np.mean(r.deformation_s)) * 1e3)
-        f = np.linalg.norm(r.forces, axis=2)
-        ref = reference_forces(r, reference, mesh) if reference is not None else f
-        mask = (ref > 0.01) & (f > 0)
-        if mask.any():
-            within.append(float(np.mean(np.abs(f[mask] - ref[mask]) <= jnd(ref[mask]) * ref[mask])))
-        for i in range(f.shape[1]):
-            fi = f[:, i][f[:, i] > 0.01]
-            if len(fi) > 10:
-                jitter.append(float(np.std(np.diff(fi, 2)) / max(np.mean(fi), 1e-3)))
-        events += sum(1 for e in r.events if e.kind in SAFETY_EVENTS)
-    return {
-        "latency_ms": float(np.mean(lat)) if lat else 0.0,
-        "within_jnd": float(np.mean(within)) if within else 1.0,
-        "jitter": float(np.mean(jitter)) if jitter else 0.0,
-        "events": events / max(len(results), 1),
-    }
-
-
-def latency_category(ms: float) -> int:
-    return sum(ms >= t for t in LATENCY_THRESHOLDS_MS)
-
-
-def p_yes(item: str, feats: dict, bias: float = 0.0) -> float:
-    w_lat, w_acc, w_smooth, w_stab = WEIGHTS.get(item, DEFAULT_WEIGHTS)
-    z = (
-        BASE_LOGIT + bias
-        - w_lat * latency_category(feats["latency_ms"])
-        + w_acc * 2.0 * (feats["within_jnd"] - 0.5)
-        - w_smooth * min(feats["jitter"] / 0.01, 3.0)
-        - w_stab * min(feats["events"], 3.0)
-    )
-    return 1.0 / (1.0 + math.exp(-z))
-
-
 class SyntheticAnswers:
-    """Answers from the answer model, drawn with a seeded generator (labelled synthetic)."""
+    """Answers from the observer (studyctl/observer.py), drawn with a seeded generator
+    (labelled synthetic). `features_of(model)` gives what was perceived, for the database."""
 
     source = "synthetic"
 
-    def __init__(self, participant: SyntheticParticipant, reference=None, mesh=None):
+    def __init__(self, participant: SyntheticParticipant, truth, mesh, params: ObserverParams = DEFAULT):
         self.participant = participant
-        self.reference, self.mesh = reference, mesh
+        self.truth, self.mesh, self.params = truth, mesh, params
         self._feats: dict[str, dict] = {}
 
     def begin(self, label: str) -> None:
         pass
 
-    def __call__(self, question, model: str, measured: dict) -> bool:
+    def features_of(self, model: str, results: list) -> dict:
         if model not in self._feats:
-            self._feats[model] = features(measured.get("results", []), self.reference, self.mesh)
-        p = p_yes(question.id, self._feats[model], self.participant.bias)
+            summaries = [summarise(r, self.truth, self.mesh, self.params) for r in results]
+            self._feats[model] = features(summaries, self.participant.traits, self.params)
+        return self._feats[model]
+
+    def __call__(self, question, model: str, measured: dict) -> bool:
+        feats = self.features_of(model, measured.get("results", []))
+        p = p_yes(question.id, feats, self.participant.traits, self.params)
         rng = random.Random(f"answer:{self.participant.seed}:{self.participant.code}:{model}:{question.id}")
         return rng.random() < p
 
@@ -175,9 +98,9 @@ class SyntheticAnswers:
 def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, protocol_path=None, progress=None) -> dict:
     """Register N synthetic participants, give them counterbalanced orders, run their sessions.
 
-    Codes, ages, orders and session ids are assigned up front and in order, so orders, trials
-    and forces are the same for the same seed whatever `jobs` is, and so are the answers where
-    the measured latency falls in the same category (measured times are wall-clock)."""
+    Codes, ages, orders and session ids are assigned up front and in order, so orders, trials,
+    forces and answers are the same for the same seed whatever `jobs` is and however busy the
+    machine (the observer reads no wall-clock time); measured times differ."""
     import time as _time
     from pathlib import Path
 

@@ -37,6 +37,7 @@ class Trace:
     buttons: np.ndarray  # (ticks, hands) bool
     deformation_s: np.ndarray
     events: list = field(default_factory=list)  # sim.servo.Event
+    frame_flops: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per frame, the model's count (older traces: none)
 
 
 def encode(result) -> bytes:
@@ -45,7 +46,8 @@ def encode(result) -> bytes:
     np.savez_compressed(
         buf, times=np.asarray(result.times, dtype=np.float64), positions=np.asarray(result.positions, dtype=np.float64),
         forces=np.asarray(result.forces, dtype=np.float64), buttons=np.asarray(result.buttons, dtype=bool),
-        deformation_s=np.asarray(result.deformation_s, dtype=np.float64), hand_names=np.asarray(result.hand_names, dtype=str),
+        deformation_s=np.asarray(result.deformation_s, dtype=np.float64),
+        frame_flops=np.asarray(getattr(result, "frame_flops", np.zeros(0)), dtype=np.float64), hand_names=np.asarray(result.hand_names, dtype=str),
         events=np.asarray(json.dumps(events)),
     )
     return buf.getvalue()
@@ -90,7 +92,8 @@ def read_trace(db: str | Path, rel: str, sha256: str) -> Trace:
     z = np.load(io.BytesIO(data), allow_pickle=False)
     events = [Event(float(t), int(h), str(k), str(d)) for t, h, k, d in json.loads(str(z["events"]))]
     return Trace(hand_names=[str(n) for n in z["hand_names"]], times=z["times"], positions=z["positions"], forces=z["forces"],
-                 buttons=z["buttons"], deformation_s=z["deformation_s"], events=events)
+                 buttons=z["buttons"], deformation_s=z["deformation_s"], events=events,
+                 frame_flops=z["frame_flops"] if "frame_flops" in z.files else np.zeros(0))
 
 
 def trial_traces(store, session_id: int, model: str) -> list[Trace]:

@@ -97,6 +97,10 @@ def test_sigkill_mid_trial_loses_only_that_trial_and_resumed_answers_use_every_t
     assert studyctl("session", "run", "--db", fresh, "--participant", "P01", "--synthetic").exit_code == 0
     q = "select model, item, answer from answers order by model, item"
     assert con.execute(q).fetchall() == sqlite3.connect(fresh).execute(q).fetchall()
+    # and the same perceived features, recomputed from the stored traces after the resume
+    q = "select model, feature, value from observer_features order by model, feature"
+    feats = con.execute(q).fetchall()
+    assert len(feats) >= 3 * 8 and feats == sqlite3.connect(fresh).execute(q).fetchall()
 
 
 def test_real_time_session_through_a_pty_discards_keys_typed_during_training_and_names_no_model(tmp_path):

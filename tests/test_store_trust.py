@@ -362,7 +362,8 @@ def test_synth_skips_codes_in_use_and_refuses_another_protocol(tmp_path):
 def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
     db = _study(tmp_path)
     studyctl("participants", "add", "P01", "--db", db)
-    con = sqlite3.connect(db)  # back to schema 2: no withdrawal, consent or corrections
+    con = sqlite3.connect(db)  # back to schema 2: no withdrawal, consent, corrections or observer features
+    con.execute("drop table observer_features")
     con.execute("drop table consent")
     con.execute("drop table corrections")
     con.execute("alter table participants drop column withdrawn_at")
@@ -372,4 +373,5 @@ def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
     con.close()
     res = studyctl("participants", "list", "--json", "--db", db)
     assert res.exit_code == 0 and json.loads(res.output)[0]["code"] == "P01"
-    assert _q(db, "select value from meta where key = 'schema_version'") == [("3",)]
+    assert _q(db, "select value from meta where key = 'schema_version'") == [("4",)]
+    assert _q(db, "select count(*) from observer_features") == [(0,)]

@@ -1,12 +1,31 @@
-"""Synthetic participants: determinism, dependence on what the simulator measured."""
+"""Synthetic participants: determinism whatever the jobs and the load, the observer worked by
+hand, the features kept in the database, the null and swap tests of the observer's fairness."""
 
+import math
+import multiprocessing as mp
 import sqlite3
 
 import numpy as np
 import pytest
+from scipy.stats import norm
 
-from studyctl.synthetic import SyntheticParticipant, latency_category, p_yes, run_synthetic_study
+from studyctl.observer import (
+    P_WITHIN_PERFECT,
+    ObserverParams,
+    ObserverTraits,
+    TrialSummary,
+    features,
+    frame_ms,
+    p_yes,
+    ripple_level,
+    vibration_threshold_n,
+    weber_at,
+    within_jnd,
+)
+from studyctl.synthetic import SyntheticParticipant, run_synthetic_study
 from tests.test_study import fast_protocol
+
+MEDIAN = ObserverTraits(weber=0.10, prior=1.0, latency_ms=40.0, vibration=1.0, bias=0.0)
 
 
 def _content(db):
@@ -14,50 +33,100 @@ def _content(db):
     answers = con.execute("select code, model, item, answer, session_id, source from answers order by code, model, item").fetchall()
     trials = con.execute("select session_id, model, trial, round(max_force_n, 9) from trials order by session_id, model, trial").fetchall()
     orders = con.execute("select code, conditions from schedule order by code").fetchall()
-    return answers, trials, orders
+    feats = con.execute("select code, model, feature, value from observer_features order by code, model, feature").fetchall()
+    con.close()
+    return answers, trials, orders, feats
 
 
-def _latency_categories(db) -> dict:
-    """The latency a synthetic participant perceives in each condition: measured wall-clock
-    time, so it may differ between runs on a loaded machine (and then so may the answers)."""
-    con = sqlite3.connect(db)
-    rows = con.execute("select s.code, t.model, avg(t.deformation_ms_mean) from trials t join sessions s on s.id = t.session_id "
-                       "group by s.code, t.model").fetchall()
-    return {(code, model): latency_category(ms) for code, model, ms in rows}
+def _spin(stop):
+    x = 0
+    while not stop.is_set():
+        x += 1
 
 
-def test_same_seed_same_database_different_seed_different_answers(tmp_path):
+def test_same_seed_same_answers_with_any_jobs_and_load(tmp_path):
     protocol = fast_protocol(tmp_path, trials=1)
-    runs, cats = {}, {}
-    for name, seed, jobs in (("a", 7, 1), ("b", 7, 2), ("c", 8, 1)):
+    runs = {}
+    for name, seed, jobs, load in (("a", 7, 1, False), ("b", 7, 2, False), ("c", 7, 1, True), ("d", 8, 1, False)):
         db = tmp_path / f"{name}.db"
-        run_synthetic_study(db, 3, seed=seed, jobs=jobs, protocol_path=protocol)
+        stop = mp.Event()
+        hogs = [mp.Process(target=_spin, args=(stop,)) for _ in range(2 if load else 0)]  # another process loads both cores
+        for h in hogs:
+            h.start()
+        try:
+            run_synthetic_study(db, 3, seed=seed, jobs=jobs, protocol_path=protocol)
+        finally:
+            stop.set()
+            for h in hogs:
+                h.join()
         runs[name] = _content(db)
-        cats[name] = _latency_categories(db)
-    # same seed: same trials and orders, even in parallel; the same answers wherever the measured
-    # latency fell in the same category (two jobs on a loaded 2-core machine can push a model's
-    # frame time over a threshold, and a participant would notice that)
-    assert runs["a"][1:] == runs["b"][1:]
-    same = {key for key in cats["a"] if cats["a"][key] == cats["b"].get(key)}
-    assert len(same) >= len(cats["a"]) // 2
-    pick = lambda answers: [r for r in answers if (r[0], r[1]) in same]  # noqa: E731
-    assert pick(runs["a"][0]) == pick(runs["b"][0])
-    assert runs["a"][0] != runs["c"][0]  # another seed: other participants, other answers
-    answers = runs["a"][0]
+    # same seed: the same trials, orders, perceived features and answers, in parallel or on a
+    # busy machine (the observer reads no wall-clock time)
+    assert runs["a"] == runs["b"] == runs["c"]
+    assert runs["a"][0] != runs["d"][0]  # another seed: other participants, other answers
+    answers, _, orders, feats = runs["a"]
     assert len(answers) == 3 * 3 * 9 and all(r[5] == "synthetic" for r in answers)
-    assert len({r[1] for r in runs["a"][2]}) == 3  # three participants, three Williams orders
+    assert len({r[1] for r in orders}) == 3  # three participants, three Williams orders
+    names = {r[2] for r in feats}
+    assert {"within_jnd", "latency_ms", "p_latency", "ripple", "p_vibration", "events", "force_log_ratio", "samples"} <= names
+    assert len(feats) == 3 * 3 * len(names)
 
 
-def test_answers_follow_the_measurements_not_the_model_name():
-    fast = {"latency_ms": 1.0, "within_jnd": 0.95, "jitter": 0.0, "events": 0}
-    slow = dict(fast, latency_ms=80.0)
-    rough = dict(fast, within_jnd=0.1, jitter=0.05, events=2)
-    assert latency_category(10) == 0 and latency_category(30) == 1 and latency_category(80) == 2
-    assert p_yes("realtime", slow) < p_yes("realtime", fast) - 0.3
-    assert p_yes("texture", slow) == pytest.approx(p_yes("texture", fast))  # texture ignores latency
-    assert p_yes("stable", rough) < p_yes("stable", fast) - 0.3
-    assert p_yes("feedback", rough) < p_yes("feedback", fast)
-    assert p_yes("natural", fast, bias=1.0) > p_yes("natural", fast)
+def test_within_jnd_worked_by_hand():
+    truth = np.array([1.0, 1.0, 2.0])
+    # the rendered force equals the expected one: P(|N(0, w)| <= w) = Phi(1) - Phi(-1)
+    assert within_jnd(truth.copy(), truth, MEDIAN) == pytest.approx(norm.cdf(1) - norm.cdf(-1), abs=1e-12)
+    assert P_WITHIN_PERFECT == pytest.approx(0.682689, abs=1e-6)
+    # one JND too strong (log ratio w): Phi(0) - Phi(-2)
+    assert within_jnd(truth * math.exp(0.1), truth, MEDIAN) == pytest.approx(0.5 - norm.cdf(-2), abs=1e-12)
+    # a participant who expects the brain 20% stiffer judges against 1.2 x truth
+    stiff = ObserverTraits(weber=0.10, prior=1.2, latency_ms=40.0, vibration=1.0, bias=0.0)
+    assert within_jnd(1.2 * truth, truth, stiff) == pytest.approx(P_WITHIN_PERFECT, abs=1e-12)
+    # below 0.5 N the paper's 25%: a 10% error is well within
+    low = np.array([0.1])
+    r = math.log(1.1)
+    assert within_jnd(1.1 * low, low, MEDIAN) == pytest.approx(norm.cdf(1 - r / 0.25) - norm.cdf(-1 - r / 0.25), abs=1e-12)
+
+
+def test_weber_fraction_is_the_papers_10_and_25_percent_made_continuous():
+    w = weber_at(np.array([0.1, 0.3, 0.5, 0.7, 2.0]), MEDIAN)
+    assert w[0] == pytest.approx(0.25) and w[1] == pytest.approx(0.25) and w[3] == pytest.approx(0.10) and w[4] == pytest.approx(0.10)
+    assert w[2] == pytest.approx(0.175)  # halfway
+    assert np.all(np.diff(w) <= 0)
+
+
+def test_ripple_level_of_a_tone_at_threshold_is_one():
+    rate, t = 1000.0, np.arange(3000) / 1000.0
+    for f in (40.0, 125.0, 250.0):
+        amp = float(vibration_threshold_n(np.array([f]))[0])
+        force = 0.5 + 0.1 * t + amp * np.sin(2 * math.pi * f * t)  # a pull plus a tone at threshold
+        assert ripple_level(force, rate) == pytest.approx(1.0, rel=0.05)
+    # the pull alone and a 10 Hz tremor are not vibration
+    assert ripple_level(0.5 + 0.1 * t + 0.05 * np.sin(2 * math.pi * 10 * t), rate) < 0.05
+    assert vibration_threshold_n(np.array([250.0]))[0] == pytest.approx(1000.0 * 0.6e-6)
+
+
+def _summary(ratio, flops=1e4, ripple=0.0, events=0):
+    truth = np.linspace(0.05, 1.0, 40)
+    return TrialSummary(rendered=ratio * truth, truth=truth, ripple=ripple, events=events, frame_flops=flops)
+
+
+def test_answers_follow_what_was_perceived_not_the_model_name():
+    good = features([_summary(1.0)], MEDIAN)
+    stiff = features([_summary(2.0)], MEDIAN)
+    slow = features([_summary(1.0, flops=ObserverParams().flops_per_ms * 80)], MEDIAN)
+    shaky = features([_summary(1.0, ripple=4.0, events=2)], MEDIAN)
+    assert good["within_jnd"] == pytest.approx(P_WITHIN_PERFECT, abs=0.02) and stiff["within_jnd"] < 0.05
+    assert slow["latency_ms"] == pytest.approx(frame_ms(ObserverParams().flops_per_ms * 80)) and slow["p_latency"] > 0.99
+    assert p_yes("feedback", stiff, MEDIAN) < p_yes("feedback", good, MEDIAN) - 0.3
+    assert p_yes("realtime", slow, MEDIAN) < p_yes("realtime", good, MEDIAN) - 0.3
+    assert p_yes("texture", slow, MEDIAN) == pytest.approx(p_yes("texture", good, MEDIAN))  # texture ignores latency
+    assert p_yes("stable", shaky, MEDIAN) < p_yes("stable", good, MEDIAN) - 0.3
+    keen = ObserverTraits(weber=0.10, prior=1.0, latency_ms=40.0, vibration=1.0, bias=1.0)
+    assert p_yes("natural", good, keen) > p_yes("natural", good, MEDIAN)
+    # nothing judged (the truth never reached a judged force): the accuracy term is neutral
+    empty = features([TrialSummary(np.zeros(0), np.zeros(0), 0.0, 0, 1e4)], MEDIAN)
+    assert math.isnan(empty["within_jnd"]) and p_yes("texture", empty, MEDIAN) == pytest.approx(1 / (1 + math.exp(-1.0)))
 
 
 def test_motor_model_varies_per_participant_and_trial():
@@ -67,6 +136,7 @@ def test_motor_model_varies_per_participant_and_trial():
     scene = build_scene(SCENE)
     a, b = SyntheticParticipant.draw("S001", 0), SyntheticParticipant.draw("S002", 0)
     assert a != b and SyntheticParticipant.draw("S001", 0) == a
+    assert a.traits != b.traits and 0.03 < a.traits.weber < 0.3
     pa = a.operators(scene, 0, "fem")
     assert pa[0].tremor_m > 0 and 8 <= pa[0].tremor_hz <= 12
     assert pa[0].pull != a.operators(scene, 1, "fem")[0].pull  # each trial differs a little
@@ -86,11 +156,10 @@ def test_plan_power_grows_with_n_and_is_labelled_synthetic(tmp_path):
     from studyctl.protocol import load_protocol
 
     protocol = load_protocol(fast_protocol(tmp_path, trials=1))
-    # fixed pilot features: a clearly worse model and two similar ones
-    good = {"latency_ms": 1.0, "within_jnd": 0.9, "jitter": 0.0, "events": 0}
-    bad = {"latency_ms": 80.0, "within_jnd": 0.2, "jitter": 0.0, "events": 0}
-    feats = {"plate_spring": [good], "fem": [good], "mass_spring": [bad]}
-    t = power_table(protocol, [6, 24, 48], simulations=100, seed=3, feats=feats)
+    # fixed pilot summaries: a clearly worse model (slow) and two alike
+    slow = _summary(1.0, flops=ObserverParams().flops_per_ms * 80)
+    summaries = {"plate_spring": [_summary(1.0)], "fem": [_summary(1.0)], "mass_spring": [slow]}
+    t = power_table(protocol, [6, 24, 48], simulations=100, seed=3, summaries=summaries)
     assert list(t.columns) == ["n", "item", "power", "simulations", "alpha"]
     rt = t[t["item"] == "realtime"].set_index("n")["power"]
     assert rt[6] < rt[24] <= rt[48] and rt[48] > 0.9  # a large effect: power rises to ~1
@@ -99,3 +168,55 @@ def test_plan_power_grows_with_n_and_is_labelled_synthetic(tmp_path):
     assert res.exit_code == 0, res.output
     out = json.loads(res.output)
     assert out["synthetic"] is True and len(out["rows"]) == 2 * 9 and (tmp_path / "p.png").stat().st_size > 5000
+
+
+def test_null_study_rejects_at_about_alpha():
+    """One model under three labels: Cochran's Q's false-positive rate is alpha within Monte
+    Carlo error for every question (pilot summaries that differ per label, as trials do)."""
+    from studyctl.plan import null_table
+    from studyctl.protocol import load_protocol
+    from tests.test_study import PROTOCOL
+
+    protocol = load_protocol(PROTOCOL)
+    rng = np.random.default_rng(0)
+    pool = [_summary(r, flops=f) for r, f in zip(rng.uniform(0.8, 1.6, 12), rng.uniform(1e6, 6e7, 12))]
+    summaries = {c: pool[4 * k:4 * k + 4] for k, c in enumerate(protocol.conditions)}
+    t = null_table(protocol, participants=35, simulations=400, seed=1, summaries=summaries)
+    assert list(t.columns) == ["item", "false_positive_rate", "mc_error", "simulations", "alpha", "model", "participants"]
+    se = t["mc_error"].iloc[0]
+    assert se == pytest.approx(math.sqrt(0.05 * 0.95 / 400))
+    assert (t["false_positive_rate"] <= 0.05 + 3 * se).all()  # never above alpha beyond Monte Carlo error
+    assert abs(t["false_positive_rate"].mean() - 0.05) < 3 * se / 3  # and on average near it (9 questions)
+
+
+@pytest.fixture(scope="module")
+def swap_pilots(tmp_path_factory):
+    """Pilot trials on the simulator (8 mm brain, 3 s pulls), with the models in their own
+    conditions and swapped round."""
+    from studyctl.plan import pilot_summaries
+    from studyctl.protocol import load_protocol
+
+    tmp = tmp_path_factory.mktemp("swap")
+    path = fast_protocol(tmp, trials=1)
+    path.write_text(path.read_text().replace("trial_seconds = 1.0", "trial_seconds = 3.0"))
+    protocol = load_protocol(path)
+    swap = {"plate_spring": "mass_spring", "fem": "plate_spring", "mass_spring": "fem"}
+    return protocol, swap, pilot_summaries(protocol, 3, seed=2), pilot_summaries(protocol, 3, seed=2, mapping=swap)
+
+
+def test_swapping_which_model_plays_which_condition_leaves_the_rates(swap_pilots):
+    from studyctl.plan import expected_rates
+
+    protocol, swap, own, swapped = swap_pilots
+    a = expected_rates(protocol, own, simulations=300, seed=4).set_index(["label", "item"])
+    b = expected_rates(protocol, swapped, simulations=300, seed=5).set_index(["label", "item"])
+    gaps = []
+    for label, model in swap.items():  # `model` plays `label` in the swapped run
+        for q in protocol.items:
+            x, y = a.loc[(model, q)], b.loc[(label, q)]
+            gaps.append(abs(x["rate"] - y["rate"]) / math.hypot(x["mc_error"], y["mc_error"]))
+    # pilots differ per label (as a session's trials do): allow their spread beyond the draws
+    assert max(gaps) < 6 and float(np.median(gaps)) < 2.5
+    # and the models do differ, so the test could fail
+    spread = a["rate"].groupby("item").agg(lambda r: r.max() - r.min())
+    assert spread.max() > 0.1

@@ -1,7 +1,11 @@
 """Table 1 statistics against published values, and a synthetic study through to the report."""
 
+import math
+
+import numpy as np
 import pytest
 from click.testing import CliRunner
+from scipy.stats import norm
 
 from analysis.table1 import wilson
 from studyctl.cli import cli
@@ -84,6 +88,150 @@ def test_published_table_is_flagged_exactly_where_counts_and_rates_disagree():
     assert [(f["item"], f["model"], f["printed"], f["computed"]) for f in out["flags"]] == [("realtime", "mass_spring", "8.6%", "68.6%")]
     assert len(out["homogeneity"]) == 9 and all("ignores" in h["note"] for h in out["homogeneity"])
     assert "paired" in out["not_computable"]
+    # what the margins allow under any pairing (worked out in test_margin_bounds_*)
+    p_min = {r["item"]: r["p_min"] for r in out["bounds"]["cochran"]}
+    assert min(p_min.values()) == pytest.approx(0.0015, abs=5e-5) and max(p_min.values()) == pytest.approx(0.0498, abs=5e-5)
+    assert len(out["bounds"]["mcnemar"]) == 27 and min(p["p_min_holm"] for p in out["bounds"]["mcnemar"]) == pytest.approx(0.2109375)
+
+
+def _all_pairings(yes, n):
+    """Every 0/1 answer matrix (n participants x models) with these column sums, up to row order."""
+    import itertools
+
+    k = len(yes)
+    rows = list(itertools.product((0, 1), repeat=k))
+    for combo in itertools.combinations_with_replacement(range(len(rows)), n):
+        x = np.array([rows[i] for i in combo])
+        if tuple(x.sum(axis=0)) == tuple(yes):
+            yield x
+
+
+@pytest.mark.parametrize("yes, n", [((5, 2, 3), 6), ((4, 4, 1), 5), ((6, 1, 6), 7), ((3, 3, 3), 5)])
+def test_margin_bounds_match_brute_force_over_every_pairing(yes, n):
+    from scipy.stats import binomtest
+    from statsmodels.stats.contingency_tables import cochrans_q
+
+    from analysis.stats import max_cochran_q, min_mcnemar_p
+
+    qs, mc = [], {}
+    for x in _all_pairings(yes, n):
+        if not np.all(x == x[:, :1]):
+            qs.append(float(cochrans_q(x).statistic))
+        for a, b in ((0, 1), (0, 2), (1, 2)):
+            n01, n10 = int(np.sum((x[:, a] == 0) & (x[:, b] == 1))), int(np.sum((x[:, a] == 1) & (x[:, b] == 0)))
+            p = float(binomtest(min(n01, n10), n01 + n10, 0.5).pvalue) if n01 + n10 else 1.0
+            mc[(a, b)] = min(mc.get((a, b), 1.0), p)
+    assert max_cochran_q(list(yes), n) == pytest.approx(max(qs))
+    for (a, b), p in mc.items():
+        assert min_mcnemar_p(yes[a], yes[b], n) == pytest.approx(p)
+
+
+def _answers_db(tmp_path, answers: dict, orders: dict | None = None):
+    """A study database holding these answers {code: {model: [0/1 per item]}} (imported, so no
+    simulator runs); `orders` {code: [models]} recorded as their schedule."""
+    import json
+
+    from studyctl.store import Store, init_study
+    from tests.test_study import PROTOCOL
+
+    db = tmp_path / "a.db"
+    init_study(db, PROTOCOL)
+    store = Store(db)
+    items = store.protocol().items
+    with store.transaction() as conn:
+        for code, by_model in answers.items():
+            conn.execute("insert into participants (code, age, synthetic, created_at) values (?, 24, 0, 'x')", (code,))
+            if orders:
+                conn.execute("insert into schedule (code, conditions) values (?, ?)", (code, json.dumps(orders[code])))
+            for model, values in by_model.items():
+                for item, v in zip(items, values):
+                    conn.execute("insert into answers (code, model, item, answer, session_id, source, answered_at) "
+                                 "values (?, ?, ?, ?, null, 'import', 'x')", (code, model, item, int(v)))
+    store.close()
+    return db
+
+
+def test_one_n_rule_complete_cases_everywhere_and_the_rest_listed(tmp_path):
+    from analysis.stats import study_stats
+    from analysis.table1 import markdown, rates, study_facts
+
+    rng = np.random.default_rng(1)
+    models = ["fem", "mass_spring", "plate_spring"]
+    answers = {f"P{i:02d}": {m: rng.integers(0, 2, 9).tolist() for m in models} for i in range(8)}
+    answers["P98"] = {"fem": [1] * 9}  # stopped after one condition
+    answers["P99"] = {m: [1] * 9 for m in models[:2]} | {"plate_spring": [1] * 4}  # stopped mid-questionnaire
+    db = _answers_db(tmp_path, answers)
+    facts = study_facts(db)
+    assert facts["participants"] == 8
+    assert facts["incomplete_participants"] == [{"code": "P98", "answers": 9, "of": 27}, {"code": "P99", "answers": 22, "of": 27}]
+    r = rates(db)
+    assert (r["n"] == 8).all()  # the rates use the same 8 as the tests
+    st = study_stats(db)
+    assert all(v["n_complete"] == 8 for v in st["items"].values()) and st["gee"]["composite"]["n_participants"] == 8
+    assert "N = 8 participants" in markdown(db) and "P98 (9/27), P99 (22/27)" in markdown(db)
+
+
+def test_holm_over_the_family_of_27_pairs_by_default(tmp_path):
+    from analysis.stats import holm, study_stats
+
+    rng = np.random.default_rng(2)
+    answers = {f"P{i:02d}": {"fem": rng.binomial(1, 0.9, 9).tolist(), "mass_spring": rng.binomial(1, 0.3, 9).tolist(),
+                             "plate_spring": rng.binomial(1, 0.6, 9).tolist()} for i in range(20)}
+    db = _answers_db(tmp_path, answers)
+    fam, per = study_stats(db), study_stats(db, holm_scope="question")
+    raw = [p["p_value"] for v in fam["items"].values() for p in v["pairs"]]
+    assert len(raw) == 27 and fam["holm"] == "family"
+    assert [p["p_holm"] for v in fam["items"].values() for p in v["pairs"]] == pytest.approx(holm(raw))
+    for v in per["items"].values():
+        assert [p["p_holm"] for p in v["pairs"]] == pytest.approx(holm([p["p_value"] for p in v["pairs"]]))
+    assert all(a["p_holm"] >= b["p_holm"] for va, vb in zip(fam["items"].values(), per["items"].values())
+               for a, b in zip(va["pairs"], vb["pairs"]))
+
+
+def test_gee_matches_the_hand_built_saturated_case():
+    """A balanced design with the model as the only factor is saturated: whatever the working
+    correlation, the GEE's marginal log-odds are the logits of the sample proportions and its
+    robust covariance is (1/N^2) D^-1 (sum_i r_i r_i^T) D^-1, D = diag(p (1 - p)) (the
+    sandwich with A = N D V^-1 D, B = D V^-1 (sum r r^T) V^-1 D)."""
+    import pandas as pd
+
+    from analysis.stats import gee_fit
+
+    rng = np.random.default_rng(3)
+    n, models = 40, ["a", "b", "c"]
+    person = rng.normal(0, 1.0, n)  # correlated answers within a participant
+    y = (rng.random((n, 3)) < 1 / (1 + np.exp(-(np.array([1.2, -0.3, 0.4]) + person[:, None])))).astype(int)
+    df = pd.DataFrame([{"code": f"P{i:02d}", "model": m, "answer": int(y[i, j])} for i in range(n) for j, m in enumerate(models)])
+    out = gee_fit(df, models, with_period=False)
+    p = y.mean(axis=0)
+    logit = np.log(p / (1 - p))
+    r = y - p
+    D = np.diag(1 / (p * (1 - p)))
+    cov = D @ (r.T @ r) @ D / n**2
+    for pair in out["pairs"]:
+        i, j = models.index(pair["a"]), models.index(pair["b"])
+        est = logit[j] - logit[i]
+        se = math.sqrt(cov[i, i] + cov[j, j] - 2 * cov[i, j])
+        assert pair["log_odds_ratio"] == pytest.approx(est, abs=1e-6)
+        assert pair["odds_ratio"] == pytest.approx(math.exp(est), rel=1e-6)
+        assert pair["se"] == pytest.approx(se, rel=1e-4)
+        assert pair["ci_low"] == pytest.approx(math.exp(est - 1.959963984540054 * se), rel=1e-4)
+        assert pair["p_value"] == pytest.approx(2 * norm.sf(abs(est / se)), rel=1e-3)
+    assert out["converged"] and out["n_participants"] == n and out["n_answers"] == 3 * n
+
+
+def test_gee_has_the_period_factor_and_a_composite(tmp_path):
+    from analysis.stats import study_stats
+
+    rng = np.random.default_rng(4)
+    models = ["fem", "mass_spring", "plate_spring"]
+    orders = {f"P{i:02d}": [models[(i + k) % 3] for k in range(3)] for i in range(18)}
+    answers = {c: {m: rng.binomial(1, 0.7, 9).tolist() for m in models} for c in orders}
+    gee = study_stats(_answers_db(tmp_path, answers, orders))["gee"]
+    assert gee["period_factor"] is True
+    assert gee["composite"]["formula"] == "answer ~ C(model) + C(period) + C(item)" and gee["composite"]["n_answers"] == 18 * 27
+    assert set(gee["items"]) == {"natural", "behaviour", "texture", "comfortable", "guidance", "realtime", "feedback", "deformation", "stable"}
+    assert all(len(v["pairs"]) == 3 and {"odds_ratio", "ci_low", "ci_high", "p_value", "p_holm"} <= set(v["pairs"][0]) for v in gee["items"].values())
 
 
 def test_report_stats_json_keys(tmp_path):
@@ -97,8 +245,11 @@ def test_report_stats_json_keys(tmp_path):
     assert {"yes", "no", "rate", "wilson_low", "wilson_high"} <= set(item["rates"]["fem"])
     assert len(item["pairs"]) == 3 and {"a", "b", "p_value", "p_holm"} <= set(item["pairs"][0])
     assert all(p["p_holm"] >= p["p_value"] for p in item["pairs"])
-    lat = out["latency"]
-    assert {"statistic", "p_value", "kendall_w", "pairs"} <= set(lat) and len(lat["pairs"]) == 3
+    assert out["holm"] == "family" and {"p_holm_family", "p_holm_question"} <= set(item["pairs"][0])
+    comp = out["gee"]["composite"]
+    assert {"odds_ratio", "ci_low", "ci_high", "p_value", "p_holm"} <= set(comp["pairs"][0]) and len(comp["pairs"]) == 3
+    assert "benchmark of this machine" in out["deformation"]["label"] and len(out["deformation"]["rows"]) == 3
+    assert out["deformation"]["rows"][0]["n_participants"] == 6
 
 
 def test_latex_html_and_plots(small_study, tmp_path):
@@ -108,7 +259,7 @@ def test_latex_html_and_plots(small_study, tmp_path):
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "html", "--out", str(tmp_path / "r.html")])
     assert res.exit_code == 0, res.output
     page = (tmp_path / "r.html").read_text()
-    assert "SYNTHETIC DATA" in page and page.count("data:image/png;base64,") == 3 and "Friedman" in page
+    assert "SYNTHETIC DATA" in page and page.count("data:image/png;base64,") == 3 and "benchmark of this machine" in page and "logistic GEE" in page
     assert "http" not in page.split("<body>")[1]  # self-contained: nothing fetched
     res = CliRunner().invoke(cli, ["report", "plots", "--db", str(db), "--out", str(tmp_path / "plots")])
     assert res.exit_code == 0

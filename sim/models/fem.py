@@ -319,6 +319,7 @@ class FemModel:
         # its force exceeds COROT_FORCE_LIMIT times the linear force for the same grasp; the servo
         # then renders nothing until the grasp is released
         self.unstable = False
+        self.frame_flops = math.nan  # the last frame's counted work
 
     @property
     def timings(self) -> dict:
@@ -427,6 +428,10 @@ class FemModel:
             self.unstable = False  # released: the next grasp starts from the linear solution
             return self._out
         displacements = [np.asarray(d, dtype=np.float64) for d in displacements]
+        # counted work of the frame (studyctl/observer.py): dense products with the grasps'
+        # responses (6 flops per free dof and grasp), the embedding (6 per entry), zeroing
+        self.frame_flops = float(6 * self.embedding.matrix.nnz + 3 * self.volume.n_nodes
+                                 + sum(6 * len(self.parts[c.data.part].free) for c in contacts) + 72 * len(contacts))
         if self.formulation == "corotational":
             u = self._corotational_frame(contacts, displacements)
         else:
@@ -467,6 +472,8 @@ class FemModel:
                     state["active"] = np.flatnonzero((mag > 0.05 * mag.max())[fem.tets].any(axis=1))
             if len(state["active"]):
                 u, lam, res, jmin, R = corotational_step(fem, W, state["pre"], state["u"], state["lam"], d, state["active"])
+                # approximate count: rotation and 12x12 product per active element, two solves
+                self.frame_flops += 600 * len(state["active"]) + 8 * fem.factor.nnz_L
                 if jmin <= 0:
                     self.inverted_frames += 1
                 if not (res < 1.0 and np.all(np.isfinite(u))):  # diverged: restart from linear with a fresh tangent
@@ -482,6 +489,7 @@ class FemModel:
                         self.tangent_updates += 1
                         factor = Factor(_warped_active(fem, R, state["active"]))
                         Uw = factor.solve(np.ascontiguousarray(W.T.toarray()))
+                        self.frame_flops += factor.factor_flops + 4 * factor.nnz_L * W.shape[0]
                         state["pre"] = _Precond(solve=factor.solve, U=Uw, C=W @ Uw)
                         state["since"] = 0
                     state.update(u=u, lam=lam, hist=hist)

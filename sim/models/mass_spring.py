@@ -93,6 +93,7 @@ class MassSpring:
         self._critical: float | None = None
         self._critical_key: tuple = ()
         self._lg_cache: dict[float, object] = {}
+        self._flops_cache: dict[str, tuple] = {}
         # A: signed incidence (e, n); L = A^T diag(k) A is the graph Laplacian of the springs
         rows = np.repeat(np.arange(len(e)), 2)
         self._A = sp.csr_matrix((np.tile([1.0, -1.0], len(e)), (rows, e.ravel())), shape=(len(e), self.n))
@@ -225,6 +226,36 @@ class MassSpring:
             self.t += h
         energy = self._monitor()
         return StepReport(dt, n_sub, integrator, energy, self.unstable)
+
+    def step_flops(self, dt: float, integrator: str, iterations: int = 10) -> float:
+        """The floating-point work of `step(dt, integrator)` counted from the system's sizes:
+        a deterministic cost (studyctl/observer.py turns it into a latency). Counts the
+        dominant kernels: per-spring work, sparse products (2 flops per entry and column),
+        triangular solves (4 per factor entry and column) and, for the implicit integrator, the
+        factorisation (sum of squared column counts of L)."""
+        n, e, nf = self.n, len(self.springs), len(self.free)
+        m = len(self.anchors)
+        if integrator == "explicit":
+            crit = self.critical_dt()
+            n_sub = math.ceil(dt / (SUBSTEP_FRACTION * crit)) if dt > crit else 1
+            return float(n_sub * (30 * e + 20 * n))
+        if integrator == "implicit":
+            key = "implicit"
+            if key not in self._flops_cache:
+                from sim.linalg import Factor
+
+                free3 = (3 * self.free[:, None] + np.arange(3)).ravel()
+                J = (self._spring_jacobian(self.rest_positions))[free3][:, free3]
+                A = sp.diags(np.repeat(self.m[self.free], 3)) - dt * dt * J
+                f = Factor(A.tocsr())
+                self._flops_cache[key] = (f.nnz_L, f.factor_flops, J.nnz)
+            nnz_L, fac, nnz_J = self._flops_cache[key]
+            return float(100 * e + 6 * nnz_J + fac + 4 * nnz_L + 20 * n)
+        solver = self._lg_solver(dt)
+        nnz_L = solver["factor"].nnz_L
+        m_act = len(self._moving)
+        per_iter = 6 * solver["A_act"].nnz + 10 * m_act + 6 * solver["Ak"].nnz + 6 * nf + 12 * nnz_L + (18 * nf * m if m else 0)
+        return float(iterations * per_iter + 6 * solver["L_fixed"].nnz + 20 * n)
 
     def _accel(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         f = self.spring_forces(x) + self.anchor_forces(x) + self.external - self.damping * self.m[:, None] * v
@@ -424,6 +455,7 @@ class MassSpringModel:
         self._tree = cKDTree(volume.nodes)
         self._out = np.zeros_like(surface.vertices)
         self.step_s: list[float] = []
+        self.frame_flops = math.nan  # the last frame's counted work (MassSpring.step_flops)
         if integrator == "explicit":  # refuse now what the first frame would refuse
             crit = system.critical_dt()
             if not substep and dt > crit:
@@ -477,6 +509,7 @@ class MassSpringModel:
                 break
             sysm.step(self.dt, self.integrator, substep=self.substep, iterations=self.iterations)
         self.step_s.append(time.perf_counter() - start)
+        self.frame_flops = self.steps_per_frame * sysm.step_flops(self.dt, self.integrator, self.iterations) + 6 * self.embedding.matrix.nnz
         for c, d in zip(contacts, displacements):  # publish the patch for the servo, and how it follows the hand
             g = c.data
             patch = np.asarray(c.point) + sysm.x[g.nodes].mean(axis=0) - g.anchor

@@ -400,6 +400,7 @@ class PlateSpringModel:
         self.radii = np.concatenate(([0.0], self.stack.ring_radii()))
         self._out = np.zeros_like(mesh.vertices)
         self._touched: list[np.ndarray] = []
+        self.frame_flops = math.nan  # the last frame's counted work
         mesh.prepare_queries()  # build search structures now, not inside the first grasp
 
     def grasp(self, point: Sequence[float], hand: int = 0) -> Contact:
@@ -426,6 +427,10 @@ class PlateSpringModel:
 
     def deformation(self, contacts: Sequence[Contact], displacements) -> np.ndarray:
         out = self._out
+        # counted work (studyctl/observer.py): per patch vertex, interpolation and the
+        # multiply-add along the pull, and the stack's split per layer (not the zeroing of the
+        # last frame's patches: that depends on what ran before, and the count must not)
+        self.frame_flops = 0.0
         for idx in self._touched:
             out[idx] = 0.0
         self._touched = []
@@ -437,6 +442,7 @@ class PlateSpringModel:
             f = contact.data
             # profile(x)[0] == x: the grasp point follows the hand exactly
             mag = np.interp(f.distance, self.radii, self.profile(x))
+            self.frame_flops += 12 * len(f.vertices) + 20 * len(self.radii)
             out[f.vertices] += mag[:, None] * (d / x)
             self._touched.append(f.vertices)
         return out

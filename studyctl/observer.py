@@ -1,0 +1,222 @@
+"""The synthetic participant's observer: what a person would perceive of a condition, and the
+probability of each yes.
+
+Symmetric by construction: every condition is judged by the same functions of what the
+simulator did (the trials' traces) against a truth that is none of the compared models (the
+converged P2 reference, studyctl/truth.py). Nothing depends on a model's name. Parameters and
+their sources: `ObserverParams` and docs/synthetic.md.
+
+Two stages, so that planning can reuse simulator runs:
+
+- `summarise(trace, truth, mesh)`: what a trial offers any observer (participant-independent):
+  the rendered and the true force at the judged samples, the force ripple on the vibration
+  threshold scale, safety events, and the frame's counted work;
+- `features(summaries, traits, params)`: what this participant perceives of a condition
+  (their Weber fraction, expectation, latency and vibration thresholds), and `p_yes`.
+
+Determinism: every input is a function of the lockstep traces. Latency enters as the
+deformation time the model's counted work takes on the reference machine (`frame_ms`), not the
+wall-clock time measured on a possibly busy machine, so the same seed gives the same answers
+with any number of jobs and any load.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import ndtr
+
+# question -> weights on (accuracy, latency, vibration, safety); the base logit 1.0 is about
+# 73% yes, near the paper's overall rate
+WEIGHTS = {
+    "natural": (1.2, 0.3, 0.5, 0.3),
+    "behaviour": (1.0, 0.3, 0.5, 0.3),
+    "texture": (1.5, 0.0, 0.3, 0.0),
+    "comfortable": (0.3, 0.3, 1.0, 0.5),
+    "guidance": (1.0, 0.3, 0.3, 0.3),
+    "realtime": (0.0, 1.5, 0.3, 0.3),
+    "feedback": (1.5, 0.0, 0.5, 0.3),
+    "deformation": (1.0, 0.5, 0.3, 0.0),
+    "stable": (0.0, 0.3, 1.0, 1.5),
+}
+DEFAULT_WEIGHTS = (0.8, 0.5, 0.5, 0.5)
+SAFETY_EVENTS = ("force_clamped", "nan_force", "model_unstable", "deadline_streak", "device_fault", "position_jump", "nan_position")
+P_WITHIN_PERFECT = float(ndtr(1.0) - ndtr(-1.0))  # a rendered force equal to the expected one: 0.683
+
+
+@dataclass(frozen=True)
+class ObserverParams:
+    """Population values (medians) and spreads (log-sd across people); sources in docs/synthetic.md."""
+
+    weber: float = 0.10  # force JND at or above 0.5 N: the seed paper; Allin et al. 2002 (about 10%)
+    weber_sd: float = 0.25  # 7-15% for the hand-arm system (Pang, Tan and Durlach 1991: 7%) as +-1.5 sd
+    weber_low: float = 0.25  # below 0.5 N: the seed paper's 25%
+    low_force_n: tuple[float, float] = (0.3, 0.7)  # the paper's step at 0.5 N, made continuous over this band
+    judged_force_n: float = 0.02  # truth below this: nothing to judge (below the Omni's force resolution)
+    prior_sd: float = 0.20  # how stiff a brain should feel, across people (assumption: about one stiffness JND, 15-22%)
+    latency_ms: float = 40.0  # deformation latency noticed by half of people (25 ms task performance, 30-50 ms asynchrony)
+    latency_slope: float = 0.25  # log-units per sd of the psychometric function
+    latency_sd: float = 0.20  # thresholds across people
+    frame_overhead_ms: float = 0.2  # the reference machine: fixed cost of a frame (the plate-spring's frame here) ...
+    flops_per_ms: float = 1.1e6  # ... and its rate on the counted work (the mass-spring's here; `python -m bench observer`)
+    fingertip_stiffness: float = 1000.0  # N/m: finger pad, turns displacement thresholds into force (Serina et al. 1997)
+    vibration_sd: float = 0.35  # vibrotactile thresholds across people (about +-3 dB)
+    vibration_slope: float = 0.35  # log-units per sd of the detection function
+    bias_sd: float = 0.6  # some people say yes more (logit)
+    base_logit: float = 1.0
+    sample_every: int = 10  # judge the force at 100 Hz (ticks are 1 kHz)
+
+
+DEFAULT = ObserverParams()
+
+# vibrotactile detection threshold at the fingertip, displacement amplitude (m) by frequency:
+# the U-shaped Pacinian curve, lowest near 250 Hz (read from Verrillo 1963 and Gescheider et al.
+# 2002, rounded); interpolated log-log, flat outside
+VIBRATION_THRESHOLD = ((10.0, 50e-6), (30.0, 20e-6), (100.0, 3e-6), (250.0, 0.6e-6), (500.0, 3e-6))
+RIPPLE_BAND_HZ = (20.0, 500.0)  # below: the pull and the hand's tremor (8-12 Hz), not vibration
+
+
+@dataclass(frozen=True)
+class ObserverTraits:
+    """One participant's perception."""
+
+    weber: float  # force JND at or above 0.5 N
+    prior: float  # expected force / true force
+    latency_ms: float  # deformation latency they notice half of the time
+    vibration: float  # their threshold / the population's
+    bias: float
+
+    @classmethod
+    def draw(cls, code: str, seed: int, params: ObserverParams = DEFAULT) -> ObserverTraits:
+        rng = random.Random(f"observer:{seed}:{code}")
+        return cls(weber=params.weber * math.exp(rng.gauss(0.0, params.weber_sd)), prior=math.exp(rng.gauss(0.0, params.prior_sd)),
+                   latency_ms=params.latency_ms * math.exp(rng.gauss(0.0, params.latency_sd)),
+                   vibration=math.exp(rng.gauss(0.0, params.vibration_sd)), bias=rng.gauss(0.0, params.bias_sd))
+
+
+@dataclass(frozen=True)
+class TrialSummary:
+    """What one trial offers any observer."""
+
+    rendered: np.ndarray  # (k,) N, force magnitude sent to the device at the judged samples
+    truth: np.ndarray  # (k,) N, the reference's force for the same hand motion and grasp
+    ripple: float  # force ripple on the population's vibration threshold scale (1: at threshold)
+    events: int  # safety events
+    frame_flops: float  # mean counted work per deformation frame (NaN: not recorded)
+
+
+def frame_ms(flops: float, params: ObserverParams = DEFAULT) -> float:
+    """Deformation time of a frame of `flops` counted work on the reference machine."""
+    return params.frame_overhead_ms + flops / params.flops_per_ms
+
+
+def vibration_threshold_n(freq: np.ndarray, params: ObserverParams = DEFAULT) -> np.ndarray:
+    f, d = np.log(np.array(VIBRATION_THRESHOLD)).T
+    return params.fingertip_stiffness * np.exp(np.interp(np.log(np.maximum(freq, 1e-3)), f, d))
+
+
+def ripple_level(force: np.ndarray, rate_hz: float, params: ObserverParams = DEFAULT) -> float:
+    """Force ripple in units of the vibration threshold: the amplitude spectrum (Hann window)
+    of the force magnitude in the ripple band, each component over its threshold, summed in
+    energy (Parseval: independent of the record's length)."""
+    from scipy.signal import detrend
+
+    x = np.asarray(force, dtype=np.float64)
+    if len(x) < 64:
+        return 0.0
+    w = np.hanning(len(x))
+    spec = np.fft.rfft(detrend(x) * w)
+    amp = 2.0 * np.abs(spec) / w.sum()
+    freq = np.fft.rfftfreq(len(x), 1.0 / rate_hz)
+    band = (freq >= RIPPLE_BAND_HZ[0]) & (freq <= RIPPLE_BAND_HZ[1])
+    # the Hann window spreads a line over bins; its noise bandwidth (1.5 bins) undoes that in energy
+    return float(np.sqrt(np.sum((amp[band] / vibration_threshold_n(freq[band], params)) ** 2) / 1.5))
+
+
+def truth_forces(trace, truth, mesh) -> np.ndarray:
+    """The truth's force magnitude for the trace's hand motion and grasps, per tick and hand."""
+    out = np.zeros(trace.positions.shape[:2])
+    grasps: dict[int, list] = {}
+    for e in trace.events:
+        if e.kind == "grasp":
+            grasps.setdefault(e.hand, []).append((e.t, int(e.detail.split()[1])))
+    for hand, items in grasps.items():
+        for k, (t0, vertex) in enumerate(items):
+            t1 = items[k + 1][0] if k + 1 < len(items) else math.inf
+            sel = (trace.times >= t0) & (trace.times < t1) & trace.buttons[:, hand]
+            if not sel.any():
+                continue
+            d = trace.positions[sel, hand] - mesh.vertices[vertex]
+            out[sel, hand] = np.linalg.norm(d @ truth.K(vertex).T, axis=1)
+    return out
+
+
+def summarise(trace, truth, mesh, params: ObserverParams = DEFAULT) -> TrialSummary:
+    f = np.linalg.norm(trace.forces, axis=2)
+    ref = truth_forces(trace, truth, mesh)
+    rate = 1.0 / float(np.median(np.diff(trace.times))) if len(trace.times) > 1 else 1000.0
+    judged = ref >= params.judged_force_n
+    judged[np.arange(len(judged)) % params.sample_every != 0] = False
+    ripple = 0.0
+    for i in range(f.shape[1]):
+        held = np.flatnonzero(ref[:, i] > 0)
+        if len(held):
+            ripple = max(ripple, ripple_level(f[held[0]:held[-1] + 1, i], rate, params))
+    flops = np.asarray(getattr(trace, "frame_flops", np.zeros(0)), dtype=np.float64)
+    return TrialSummary(rendered=f[judged], truth=ref[judged], ripple=ripple,
+                        events=sum(1 for e in trace.events if e.kind in SAFETY_EVENTS),
+                        frame_flops=float(np.nanmean(flops)) if len(flops) and np.isfinite(flops).any() else math.nan)
+
+
+def weber_at(force: np.ndarray, traits: ObserverTraits, params: ObserverParams = DEFAULT) -> np.ndarray:
+    """The participant's JND (relative) at each force: theirs above 0.5 N, the paper's ratio
+    25/10 times theirs below, continuous over `low_force_n`."""
+    lo, hi = params.low_force_n
+    t = np.clip((np.asarray(force) - lo) / (hi - lo), 0.0, 1.0)
+    return traits.weber * (params.weber_low / params.weber * (1.0 - t) + t)
+
+
+def within_jnd(rendered: np.ndarray, truth: np.ndarray, traits: ObserverTraits, params: ObserverParams = DEFAULT) -> float:
+    """Mean probability that a force sample feels as expected: the log ratio of the rendered
+    force to the expected one (truth x the participant's prior), perceived with Gaussian noise
+    of one JND, falls within one JND. A perfect model scores 0.683, not 1."""
+    if len(truth) == 0:
+        return math.nan
+    w = weber_at(traits.prior * truth, traits, params)
+    r = np.log(np.maximum(rendered, 1e-3) / (traits.prior * truth))
+    return float(np.mean(ndtr(1.0 - r / w) - ndtr(-1.0 - r / w)))
+
+
+def features(summaries: list[TrialSummary], traits: ObserverTraits, params: ObserverParams = DEFAULT) -> dict:
+    """What the participant perceived of one condition (its trials' summaries)."""
+    rendered = np.concatenate([s.rendered for s in summaries]) if summaries else np.zeros(0)
+    truth = np.concatenate([s.truth for s in summaries]) if summaries else np.zeros(0)
+    flops = [s.frame_flops for s in summaries if math.isfinite(s.frame_flops)]
+    latency = frame_ms(float(np.mean(flops)), params) if flops else math.nan
+    within = within_jnd(rendered, truth, traits, params)
+    p_vib = [float(ndtr(math.log(s.ripple / traits.vibration) / params.vibration_slope)) if s.ripple > 0 else 0.0 for s in summaries]
+    return {
+        "within_jnd": within,  # NaN: the truth never reached a judged force (nothing to judge)
+        "force_log_ratio": float(np.median(np.log(np.maximum(rendered, 1e-3) / truth))) if len(truth) else math.nan,
+        "latency_ms": latency,
+        "p_latency": float(ndtr(math.log(latency / traits.latency_ms) / params.latency_slope)) if math.isfinite(latency) else 0.0,
+        "ripple": float(np.mean([s.ripple for s in summaries])) if summaries else 0.0,
+        "p_vibration": float(np.mean(p_vib)) if p_vib else 0.0,
+        "events": sum(s.events for s in summaries) / max(len(summaries), 1),
+        "samples": int(len(truth)),
+    }
+
+
+def logit(item: str, feats: dict, traits: ObserverTraits, params: ObserverParams = DEFAULT) -> float:
+    w_acc, w_lat, w_vib, w_safe = WEIGHTS.get(item, DEFAULT_WEIGHTS)
+    within = feats["within_jnd"]
+    accuracy = min(within / P_WITHIN_PERFECT, 1.0) if math.isfinite(within) else 0.5  # nothing judged: neutral
+    return (params.base_logit + traits.bias + w_acc * 2.0 * (accuracy - 0.5) - w_lat * 2.0 * feats["p_latency"]
+            - w_vib * 3.0 * feats["p_vibration"] - w_safe * min(feats["events"], 3.0))
+
+
+def p_yes(item: str, feats: dict, traits: ObserverTraits, params: ObserverParams = DEFAULT) -> float:
+    return 1.0 / (1.0 + math.exp(-logit(item, feats, traits, params)))
