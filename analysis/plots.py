@@ -59,7 +59,7 @@ def deformation_plot(db, path: Path, synthetic: bool) -> None:
     ax.set_xticks(range(1, len(models) + 1), models)
     ax.set_yscale("log")
     ax.set_ylabel("deformation time per frame (ms)")
-    ax.set_title(("SYNTHETIC DATA: " if synthetic else "") + "time for real-time deformation (trial means)", fontsize=10)
+    ax.set_title(("SYNTHETIC DATA: " if synthetic else "") + "time for real-time deformation (trial means): benchmark of this machine", fontsize=10)
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path)

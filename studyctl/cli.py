@@ -568,6 +568,34 @@ def calibrate_field(scene_file, out_file, params_out, formulation, as_json):
         click.echo(f"wrote {params_out} ({formulation} curve)")
 
 
+def _vertex_ids(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        return [int(x) for x in value.split(",") if x.strip()]
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not a comma-separated list of surface vertex ids") from None
+
+
+@calibrate.command("truth")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--vertices", default=None, callback=_vertex_ids, help="Surface vertex ids, e.g. 3386,13629  [default: within 10 mm of the scene's hands]")
+@click.option("--out", "out_file", type=OutFile((".npz",)), default=None, help="[default: the cache folder, where sessions find it]")
+@click.option("--json", "as_json", is_flag=True)
+def calibrate_truth(scene_file, vertices, out_file, as_json):
+    """The synthetic observer's truth at grasp places: the converged P2 reference's grasp
+    stiffness (body-fitted 8 / 5.5 / 4 mm meshes, Richardson). Needed for a scene, or grasp
+    places, that the shipped table (data/observer_truth.npz) does not cover."""
+    from studyctl.truth import build_truth
+
+    rep = build_truth(scene_file, out_file, vertices, progress=None if as_json else click.echo)
+    if as_json:
+        _print_json(rep)
+        return
+    click.echo(f"wrote {rep['out']}: {rep['vertices']} grasp places ({rep['seconds']:.0f} s); GCI median {rep['gci_median']:.1%}, "
+               f"max {rep['gci_max']:.1%}")
+
+
 def _print_solution(out: dict) -> None:
     from rich.table import Table
 

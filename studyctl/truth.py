@@ -11,7 +11,8 @@ Only grasp places are needed, so the truth is a table: the condensed stiffness p
 (3 x 3) at the surface vertices within `TRUTH_RADIUS` of the scene's hands, shipped in
 `data/observer_truth.npz` (fTetWild is not deterministic: a rebuilt table differs by up to
 about 1.5%, which is why it is shipped rather than rebuilt on each machine). Another scene or
-another grasp place needs `studyctl calibrate truth`.
+another grasp place needs `studyctl calibrate truth` (about 3.5 minutes on 2 cores), which
+writes a table to the cache folder that `load_truth` reads next to the shipped one.
 """
 
 from __future__ import annotations
@@ -61,23 +62,49 @@ def truth_key(scene) -> dict:
             "grasp_radius": float(fem.options.get("grasp_radius", 0.005)) if fem else 0.005}
 
 
-def load_truth(scene, path: Path | str | None = None) -> Truth:
-    """The table for this scene (its surface, clamp, Poisson's ratio and grasp radius must
-    match the table's: a table made for something else is refused by name)."""
-    path = Path(path) if path is not None else TRUTH_FILE
+def user_truth_path(scene) -> Path:
+    """Where `studyctl calibrate truth` puts a table for a scene the shipped one does not cover."""
+    import hashlib
+    import json
+
+    from sim.volume import cache_dir
+
+    key = json.dumps(truth_key(scene), sort_keys=True)
+    return cache_dir() / f"truth-{hashlib.sha256(key.encode()).hexdigest()[:20]}.npz"
+
+
+def _read(path: Path, key: dict):
+    """The table at `path` if it was made for `key`, else None (with why)."""
     try:
         z = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
         raise InputError(f"{path}: cannot read the observer truth table: {exc}") from None
-    key = truth_key(scene)
     for name, want in key.items():
         have = z[name].item() if z[name].shape == () else z[name]
         same = have == want if isinstance(want, str) else math.isclose(float(have), float(want), rel_tol=1e-9, abs_tol=1e-12)
         if not same:
-            raise InputError(f"{path}: the observer truth was made for another scene ({name}: {have} here {want}); "
-                             "make one with `studyctl calibrate truth --scene FILE`")
-    return Truth(vertices=z["vertices"], K_per_pa=z["K_per_pa"], young=float(scene.spec.material.young), digest=key["digest"],
-                 grasp_radius=key["grasp_radius"])
+            return None, f"{name}: {have} there, {want} here"
+    return z, ""
+
+
+def load_truth(scene, path: Path | str | None = None) -> Truth:
+    """The truth for this scene: `path`, else the shipped table and the one `calibrate truth`
+    made for this scene (their grasp places together). A table made for another surface,
+    clamp, Poisson's ratio or grasp radius is refused by name."""
+    key = truth_key(scene)
+    paths = [Path(path)] if path is not None else [p for p in (TRUTH_FILE, user_truth_path(scene)) if p.exists()]
+    vertices, K, why = [], [], []
+    for p in paths:
+        z, reason = _read(p, key)
+        if z is None:
+            why.append(f"{p}: made for another scene ({reason})")
+            continue
+        vertices.append(z["vertices"])
+        K.append(z["K_per_pa"])
+    if not vertices:
+        raise InputError(("; ".join(why) or "no observer truth table") + "; make one with `studyctl calibrate truth --scene FILE`")
+    return Truth(vertices=np.concatenate(vertices), K_per_pa=np.concatenate(K), young=float(scene.spec.material.young),
+                 digest=key["digest"], grasp_radius=key["grasp_radius"])
 
 
 def hand_vertices(scene, radius: float = TRUTH_RADIUS) -> np.ndarray:
@@ -94,7 +121,7 @@ def hand_vertices(scene, radius: float = TRUTH_RADIUS) -> np.ndarray:
     return np.unique(np.concatenate(out)) if out else np.zeros(0, dtype=np.int64)
 
 
-def build_truth(scene_path, out: Path | str = TRUTH_FILE, vertices=None, sizes_mm=TRUTH_SIZES_MM, progress=None) -> dict:
+def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_mm=TRUTH_SIZES_MM, progress=None) -> dict:
     """Solve the P2 reference at `vertices` (default: around the scene's hands) on each mesh
     size, extrapolate the compliance with the order observed on its trace (Richardson; no
     extrapolation where the order cannot be trusted), and write the table."""
@@ -115,6 +142,8 @@ def build_truth(scene_path, out: Path | str = TRUTH_FILE, vertices=None, sizes_m
     scene = scene_with(scene_path)
     mesh = scene.mesh
     key = truth_key(scene)
+    out = Path(out) if out is not None else user_truth_path(scene)
+    out.parent.mkdir(parents=True, exist_ok=True)
     vertices = hand_vertices(scene) if vertices is None else np.unique(np.asarray(vertices, dtype=np.int64))
     labels = mesh.labels if mesh.labels is not None else np.zeros(len(mesh.vertices), dtype=np.int64)
     if len(vertices) == 0 or vertices.min() < 0 or vertices.max() >= len(mesh.vertices):
@@ -154,8 +183,10 @@ def build_truth(scene_path, out: Path | str = TRUTH_FILE, vertices=None, sizes_m
         K[k] = np.linalg.inv(0.5 * (Ck + Ck.T))
         orders[k], gci[k] = conv["p_used"], conv["gci"]
         status.append(conv["status"])
-    np.savez_compressed(out, vertices=vertices, K_per_pa=K, K_per_pa_meshes=np.linalg.inv(C), h_m=hs, sizes_mm=np.asarray(sizes_mm),
+    tmp = out.with_name(out.name + ".tmp.npz")  # whole or not at all
+    np.savez_compressed(tmp, vertices=vertices, K_per_pa=K, K_per_pa_meshes=np.linalg.inv(C), h_m=hs, sizes_mm=np.asarray(sizes_mm),
                         order=orders, gci=gci, status=np.asarray(status), **{k: np.asarray(v) for k, v in key.items()})
+    tmp.replace(out)
     return {"out": str(out), "vertices": int(len(vertices)), "sizes_mm": list(sizes_mm), "seconds": time.perf_counter() - start,
             "status": {s: status.count(s) for s in sorted(set(status))}, "gci_median": float(np.median(gci)), "gci_max": float(np.max(gci)),
             "order_median": float(np.median(orders))}

@@ -220,3 +220,37 @@ def test_swapping_which_model_plays_which_condition_leaves_the_rates(swap_pilots
     # and the models do differ, so the test could fail
     spread = a["rate"].groupby("item").agg(lambda r: r.max() - r.min())
     assert spread.max() > 0.1
+
+
+def test_the_shipped_truth_covers_the_scenes_grasps_and_is_the_references_solution(tmp_path):
+    from analysis.field import FIELD_FILE
+    from sim.reference import scene_with
+    from studyctl.errors import InputError
+    from studyctl.truth import TRUTH_FILE, hand_vertices, load_truth
+    from tests.conftest import SCENE
+
+    scene = scene_with(SCENE)
+    truth = load_truth(scene)
+    assert set(hand_vertices(scene)) <= set(truth.vertices.tolist())
+    assert np.all(np.linalg.eigvalsh(truth.K_per_pa) > 0)
+    assert np.allclose(truth.K(int(truth.vertices[0])), 3000.0 * truth.K_per_pa[0])
+    # the 8 mm column is what the stiffness field's own code path (analysis/field.py, built
+    # separately) solved at the ico4 sites the two share
+    z, f = np.load(TRUTH_FILE), np.load(FIELD_FILE)
+    site = {int(v): k for k, v in enumerate(f["sites"])}
+    iu = np.triu_indices(3)
+    shared = [(k, site[int(v)]) for k, v in enumerate(z["vertices"]) if int(v) in site]
+    assert len(shared) >= 10
+    for k, j in shared:
+        assert np.allclose(z["K_per_pa_meshes"][0, k][iu], f["K_sites_per_pa"][j], rtol=1e-5, atol=1e-9)
+    # refinement softens the grasp (P2 converges from above in stiffness); the truth is at most the finest mesh's
+    fine, coarse = np.trace(z["K_per_pa_meshes"][2], axis1=1, axis2=2), np.trace(z["K_per_pa_meshes"][0], axis1=1, axis2=2)
+    assert np.median(fine / coarse) < 1.0 and np.all(np.trace(z["K_per_pa"], axis1=1, axis2=2) <= fine * (1 + 1e-9))
+    # a table made for another scene is refused by name
+    other = tmp_path / "scene.toml"
+    other.write_text(SCENE.read_text().replace("poisson = 0.45", "poisson = 0.49").replace('"../../data/', f'"{SCENE.parents[2]}/data/')
+                     .replace('"../models/', f'"{SCENE.parents[1]}/models/'))
+    with pytest.raises(InputError, match="poisson"):
+        load_truth(scene_with(other))
+    with pytest.raises(InputError, match="calibrate truth"):
+        truth.K(len(scene.mesh.vertices) - 1 if len(scene.mesh.vertices) - 1 not in truth.vertices else -5)
