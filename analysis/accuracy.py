@@ -34,12 +34,13 @@ from pathlib import Path
 
 import numpy as np
 
+from brainsim_assets import path as _asset
 from sim.calibrate import jnd
 from sim.reference import TEST_PLACES, Pull, make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE
 
-HANDSET_PARAMS = Path(__file__).resolve().parents[1] / "protocols" / "models" / "plate_spring_handset.toml"
-LOCATED_PARAMS = Path(__file__).resolve().parents[1] / "protocols" / "models" / "plate_spring_located.toml"
+HANDSET_PARAMS = _asset("protocols/models/plate_spring_handset.toml")
+LOCATED_PARAMS = _asset("protocols/models/plate_spring_located.toml")
 PULL_SPEED = 0.010  # m/s, a careful surgical pull (the scene's: 12 mm in 1.2 s)
 
 

@@ -31,13 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
+from brainsim_assets import path as _asset
 from sim.reference import ICO4_VERTICES
 
 FIELD_SIZE_MM = 8.0  # the reference mesh the field is solved on (the coarsest of the reference's three)
 FIELD_SIGMA = 0.003  # m, Gaussian width of the interpolation between sites
 FIELD_REACH = 0.008  # m, sites farther than this do not contribute
 BLOCK = 240  # right-hand sides per CHOLMOD solve (memory: n_free x BLOCK doubles)
-FIELD_FILE = Path(__file__).resolve().parents[1] / "data" / "plate_spring_field.npz"
+FIELD_FILE = _asset("data/plate_spring_field.npz")
 
 
 def mesh_digest(mesh) -> str:

@@ -38,22 +38,35 @@ def write_plots(db, out_dir, force_traces: bool = True) -> list[Path]:
     return written
 
 
-def latex(db) -> str:
-    facts, r, q = table1.study_facts(db), table1.rates(db), table1.cochran(db)
-    models = list(dict.fromkeys(r["model"]))
+def latex(db, holm_scope: str = "family") -> str:
+    """Table 1 as a LaTeX `table` (booktabs rules): the same columns and rows as the Markdown
+    and HTML tables (rates with Wilson intervals, Cochran's Q, McNemar p with Holm, the
+    deformation-time benchmark row). Every cell and the caption are escaped by pandas' Styler
+    (`escape="latex"`: & % $ # _ { } ~ ^ and backslash)."""
+    import pandas as pd
+    from pandas.io.formats.style_render import _escape_latex
 
-    def esc(s: str) -> str:
-        return s.replace("\\", r"\textbackslash{}").replace("&", r"\&").replace("%", r"\%").replace("_", r"\_").replace("#", r"\#")
+    from analysis.stats import study_stats
 
-    lines = [r"\begin{table}", r"\centering", r"\small",
-             r"\caption{" + esc(("SYNTHETIC DATA. " if facts["synthetic"] else "") + f"{facts['study']}: N = {facts['participants']}; {facts['design']}.") + "}",
-             r"\begin{tabular}{l" + "c" * len(models) + "c}", r"\hline",
-             "Question & " + " & ".join(esc(m) for m in models) + r" & Cochran's $Q$ ($p$) \\", r"\hline"]
-    for _, question, rows, qrow in table1.item_rows(r, q, models):
-        cells = [f"{row['yes']}/{row['no']}, {100 * row['rate']:.1f}\\% [{100 * row['wilson_low']:.1f}, {100 * row['wilson_high']:.1f}]" for row in rows]
-        lines.append(esc(question) + " & " + " & ".join(cells) + f" & {qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})" + r" \\")
-    lines += [r"\hline", r"\end{tabular}", r"\end{table}"]
-    return "\n".join(lines) + "\n"
+    facts, r, q, d = table1.study_facts(db), table1.rates(db), table1.cochran(db), table1.deformation(db)
+    st = study_stats(db, r, q, holm_scope=holm_scope)
+    models = list(d["model"])
+    n_pairs = sum(len(v["pairs"]) for v in st["items"].values())
+    scope = f"Holm over all {n_pairs} pairs" if holm_scope == "family" else "Holm within each question"
+    rows = []
+    for item, question, item_rows, qrow in table1.item_rows(r, q, models):
+        rows.append([question] + [f"{x['yes']}/{x['no']}, {100 * x['rate']:.1f}% [{100 * x['wilson_low']:.1f}, {100 * x['wilson_high']:.1f}]"
+                                  for x in item_rows]
+                    + [f"{qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})", "; ".join(f"{p['a']}-{p['b']} {p['p_holm']:.3g}" for p in st["items"][item]["pairs"])])
+    rows.append(["Time for real-time deformation, ms (benchmark of this machine)"]
+                + [f"{x['mean_ms']:.2f} +- {x['sd_ms']:.2f}" for _, x in d.iterrows()] + ["", ""])
+    df = pd.DataFrame(rows, columns=["Question", *models, "Cochran's Q (p)", f"McNemar p ({scope})"])
+    listed = ", ".join("{} ({}/{})".format(x["code"], x["answers"], x["of"]) for x in facts["incomplete_participants"])
+    caption = (("SYNTHETIC DATA (simulated participants). " if facts["synthetic"] else "")
+               + f"{facts['study']}: N = {facts['participants']} participants with every answer; {facts['design']}."
+               + (f" Left out (incomplete): {listed}." if listed else ""))
+    styler = df.style.format(escape="latex").format_index(escape="latex", axis=1).hide(axis="index")
+    return styler.to_latex(hrules=True, caption=_escape_latex(caption), column_format="l" + "c" * (len(df.columns) - 1), position_float="centering")
 
 
 def _inline_png(draw) -> str:

@@ -50,8 +50,8 @@ def run_tasks(fn: Callable, tasks: Sequence, jobs: int | None = None, scheduler:
 def _run_dask(fn, tasks, scheduler, report):
     try:
         from distributed import Client, as_completed
-    except ImportError:  # pragma: no cover - a dependency, but say so if it is missing
-        raise SweepError("--scheduler needs dask.distributed: pip install distributed") from None
+    except ImportError:
+        raise SweepError("--scheduler needs the dask extra: pip install 'brainsim-study[dask]'") from None
     try:
         client = Client(scheduler, timeout="10s")
     except (OSError, TimeoutError) as exc:

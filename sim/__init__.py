@@ -4,4 +4,6 @@ Modules are imported lazily by what a scene asks for, so a headless plate-spring
 neither open3d nor any finite element code.
 """
 
-__version__ = "0.1.0"
+from brainsim_assets import version as _version
+
+__version__ = _version()

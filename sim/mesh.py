@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
+from brainsim_assets import path as _asset
 from sim.errors import MeshError
 
-ROOT = Path(__file__).resolve().parents[1]
-BRAIN_MESH = ROOT / "data" / "brain_fsaverage5.npz"
+BRAIN_MESH = _asset("data/brain_fsaverage5.npz")
 
 
 @dataclass(frozen=True, eq=False)

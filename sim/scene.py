@@ -15,12 +15,13 @@ from typing import Any
 
 import numpy as np
 
+from brainsim_assets import path as _asset
 from sim.errors import ParameterError, SceneError
 from sim.models.base import POISSON_MAX, POISSON_MIN, Vec3
 from sim.tomlfile import Locator, TomlFileError, read_toml
 
 RENDERERS = ("none", "offscreen")
-DEFAULT_SCENE = Path(__file__).resolve().parents[1] / "protocols" / "scenes" / "brain_pull.toml"
+DEFAULT_SCENE = _asset("protocols/scenes/brain_pull.toml")
 AXES = {"x": 0, "y": 1, "z": 2}
 _REQUIRED = object()
 

@@ -16,6 +16,7 @@ from pathlib import Path
 import click
 
 from analysis.sweep import SweepError
+from brainsim_assets import path as _asset
 from sim.errors import SimError
 from sim.jsonable import jsonable
 from sim.models.base import MAX_PULL_M, pull_problem
@@ -23,9 +24,16 @@ from sim.run import MAX_DURATION_S, VisualStep
 from sim.scene import DEFAULT_SCENE
 from studyctl.errors import InputError, StudyError
 
+DEFAULT_PROTOCOL = _asset("protocols/brain_pull_2015.toml")
+PAPER_TABLE = _asset("data/paper_table1.csv")
+
 
 class _Group(click.Group):
-    """Turns library errors into clean CLI errors."""
+    """Turns library errors into clean CLI errors; a subcommand named with hyphens also answers
+    to underscores (`model plate_spring`, as models are spelt in files and `--model`)."""
+
+    def get_command(self, ctx, cmd_name):
+        return super().get_command(ctx, cmd_name) or super().get_command(ctx, cmd_name.replace("_", "-"))
 
     def invoke(self, ctx: click.Context):
         try:
@@ -105,7 +113,7 @@ DEVICES = click.option("--devices", "device_names", callback=_names, default=Non
                        help='OpenHaptics device names, comma-separated, e.g. "PHANToM 1,PHANToM 2" (default: the scene\'s).')
 
 
-@click.group(cls=_Group)
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="brainsim-study", prog_name="studyctl")
 def cli():
     """Haptic brain-surgery simulator: experiments, user studies and reports."""
@@ -652,7 +660,8 @@ def sim():
 
 @sim.command("run")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
-@click.option("--model", "model_name", default=None, help="A model configured in the scene (default: the scene's).")
+@click.option("--model", "model_name", default=None, callback=lambda c, p, v: _model_name(v),
+              help="A model configured in the scene, e.g. plate_spring or plate-spring  [default: the scene's]")
 @click.option("--duration", type=Finite(min=0.0, min_open=True, max=MAX_DURATION_S), default=None, help="Simulated seconds (default: the scene's).")
 @click.option("--frames", "frames_dir", type=OutDir(), default=None, help="Write pictures, the force plot and the trace here.")
 @click.option("--time-scale", type=Finite(min=0.0, max=1000.0), default=1.0, show_default=True, help="1 = real time; 0 = as fast as possible (lockstep, deterministic).")
@@ -697,7 +706,8 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
 
 @sim.command("live")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
-@click.option("--model", "model_name", default=None, help="A model configured in the scene (default: the scene's).")
+@click.option("--model", "model_name", default=None, callback=lambda c, p, v: _model_name(v),
+              help="A model configured in the scene, e.g. plate_spring or plate-spring  [default: the scene's]")
 @click.option("--device", type=click.Choice(["mouse", "simulated", "openhaptics"]), default="mouse", show_default=True)
 @click.option("--duration", type=Finite(min=0.0, min_open=True, max=MAX_DURATION_S), default=600.0, show_default=True, help="Seconds at most; Q, Escape or closing the window ends it sooner.")
 @click.option("--screenshot", type=OutFile((".png",)), default=None, help="Save the last frame shown (PNG).")
@@ -815,8 +825,9 @@ def devices_check(scene_file, device_names, seconds, view, yes, as_json):
 
 # -- study management ----------------------------------------------------------------------
 
-DB = click.option("--db", envvar="STUDYCTL_DB", required=True, type=click.Path(dir_okay=False, path_type=Path),
-                  help="Study database (or the STUDYCTL_DB environment variable).")
+DB = click.option("--db", envvar="STUDYCTL_DB", show_envvar=True, required=True, type=click.Path(dir_okay=False, path_type=Path),
+                  help="Study database; required unless the STUDYCTL_DB environment variable names one.")
+JSON = click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 
 
 @cli.group(cls=_Group)
@@ -826,11 +837,19 @@ def protocol():
 
 @protocol.command("validate")
 @click.argument("file", type=click.Path(dir_okay=False, path_type=Path))
-def protocol_validate(file: Path):
+@JSON
+def protocol_validate(file: Path, as_json: bool):
     """Check a protocol file; print every problem as FILE:LINE: field: message."""
     from studyctl.protocol import check_protocol
 
     p, problems = check_protocol(file)
+    if as_json:
+        _print_json({"file": str(file), "ok": not problems, "problems": problems,
+                     **({"study": p.name, "conditions": list(p.conditions), "questions": len(p.questions),
+                         "trials_per_condition": p.trials_per_condition, "target_participants": p.target_participants} if not problems else {})})
+        if problems:
+            raise SystemExit(1)
+        return
     if problems:
         for line in problems:
             click.echo(line, err=True)
@@ -845,13 +864,18 @@ def study():
 
 
 @study.command("init")
-@click.option("--protocol", "protocol_file", required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              show_default="the shipped protocols/brain_pull_2015.toml")
 @DB
-def study_init(protocol_file: Path, db: Path):
+@JSON
+def study_init(protocol_file: Path, db: Path, as_json: bool):
     """Create a study database for a protocol."""
     from studyctl.store import init_study
 
-    out = init_study(db, protocol_file)
+    out = init_study(db, protocol_file or DEFAULT_PROTOCOL)
+    if as_json:
+        _print_json(out)
+        return
     click.echo(f"created {out['db']}: study {out['study']} (schema {out['schema_version']})")
 
 
@@ -863,7 +887,10 @@ def participants():
 DRY_RUN = click.option("--dry-run", is_flag=True, help="Check and show what would be done; write nothing.")
 
 
-def _done(out: dict, text: str) -> None:
+def _done(out: dict, text: str, as_json: bool = False) -> None:
+    if as_json:
+        _print_json(out)
+        return
     click.echo(("dry run, nothing written: would have " if out.get("dry_run") else "") + text)
 
 
@@ -875,25 +902,27 @@ def _done(out: dict, text: str) -> None:
 @click.option("--synthetic", is_flag=True, help="A SYNTHETIC participant (run only with `session run --synthetic`).")
 @DB
 @DRY_RUN
-def participants_add(code, age, name, contact, synthetic, db, dry_run):
+@JSON
+def participants_add(code, age, name, contact, synthetic, db, dry_run, as_json):
     """Register a participant under a pseudonymous CODE."""
     from studyctl.study import add_participant
 
     out = add_participant(db, code, age, name, contact, synthetic=synthetic, dry_run=dry_run)
-    _done(out, f"added {out['code']}" + (" (SYNTHETIC)" if synthetic else ""))
+    _done(out, f"added {out['code']}" + (" (SYNTHETIC)" if synthetic else ""), as_json)
 
 
 @participants.command("import")
 @click.argument("csv_file", type=click.Path(dir_okay=False, path_type=Path))
 @DB
 @DRY_RUN
-def participants_import(csv_file, db, dry_run):
+@JSON
+def participants_import(csv_file, db, dry_run, as_json):
     """Register participants from a CSV (code, then optional age, name, contact): all or none.
     UTF-8 with or without BOM, ',' or ';' separated, headers in any case."""
     from studyctl.study import import_participants
 
     out = import_participants(db, csv_file, dry_run=dry_run)
-    _done(out, f"imported {out['imported']} participants")
+    _done(out, f"imported {out['imported']} participants", as_json)
 
 
 def _listing(rows: list[dict], as_json: bool, db, what: str, columns: list[str]) -> None:
@@ -932,12 +961,13 @@ def participants_list(db, as_json):
 @click.option("--version", default=None, help="The consent form's version (default and only allowed: the protocol's).")
 @DB
 @DRY_RUN
-def participants_consent(code, given_on, version, db, dry_run):
+@JSON
+def participants_consent(code, given_on, version, db, dry_run, as_json):
     """Record that a person signed the consent form (needed before their session)."""
     from studyctl.participants import record_consent
 
     out = record_consent(db, code, given_on, version, dry_run=dry_run)
-    _done(out, f"recorded consent of {code}: form {out['version']}, signed {out['given_on']}")
+    _done(out, f"recorded consent of {code}: form {out['version']}, signed {out['given_on']}", as_json)
 
 
 @participants.command("withdraw")
@@ -945,24 +975,29 @@ def participants_consent(code, given_on, version, db, dry_run):
 @click.option("--reason", default="", help="Kept in the event log (optional; a person need not give one).")
 @DB
 @DRY_RUN
-def participants_withdraw(code, reason, db, dry_run):
+@JSON
+def participants_withdraw(code, reason, db, dry_run, as_json):
     """A participant withdraws: no more sessions; their data kept or deleted as the protocol says
     (ethics.withdrawal); their contact details deleted; logged."""
     from studyctl.participants import withdraw
 
     out = withdraw(db, code, reason, dry_run=dry_run)
     _done(out, f"withdrawn {code}: {out['sessions']} sessions and {out['answers']} answers {out['data']}"
-          + (f", {out['traces']} trace files deleted" if out["traces"] else "") + "; contact details deleted")
+          + (f", {out['traces']} trace files deleted" if out["traces"] else "") + "; contact details deleted", as_json)
 
 
 @participants.command("contacts")
 @DB
 @click.option("--out", "out_file", required=True, type=OutFile((".csv",)), help="A new CSV file (never overwritten).")
-def participants_contacts(db, out_file):
+@JSON
+def participants_contacts(db, out_file, as_json):
     """EXPERIMENTER ONLY: names and contact details (the identifying table) to a CSV marked as such."""
     from studyctl.participants import export_contacts
 
     out = export_contacts(db, out_file)
+    if as_json:
+        _print_json(out)
+        return
     click.echo(f"wrote {out['file']}: IDENTIFYING names and contacts of {out['participants']} participants (readable by you only)")
 
 
@@ -1055,7 +1090,8 @@ def session():
               help="Where a person answers the questionnaire (window: Y and N keys).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @DEVICES
-def session_run(db, participant, device, synthetic, resume, time_scale, view, answer_with, seed, device_names):
+@JSON
+def session_run(db, participant, device, synthetic, resume, time_scale, view, answer_with, seed, device_names, as_json):
     """Training, then each condition in the assigned order: trials, then the questionnaire."""
     from studyctl.session import run_session
 
@@ -1063,6 +1099,9 @@ def session_run(db, participant, device, synthetic, resume, time_scale, view, an
         view = "window" if not synthetic and (time_scale is None or time_scale > 0) else "none"
     out = run_session(db, participant, device, synthetic, resume, time_scale, seed=seed, progress=lambda m: click.echo(m, err=True),
                       view=view, answer_with=answer_with, device_names=device_names)
+    if as_json:
+        _print_json(out)
+        return
     click.echo(f"session {out['session']} of {out['participant']} complete: conditions {' > '.join(out['order'])}, {out['answers']} answers"
                + (" (SYNTHETIC)" if out["synthetic"] else ""))
 
@@ -1114,17 +1153,27 @@ def replay_cmd(db, session_id, trial, view, frames_dir, as_json):
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--jobs", type=click.IntRange(1, 64), default=1, show_default=True, help="Sessions run in parallel processes.")
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Create the database for this protocol if it does not exist.")
-def synth_cmd(db, participants, seed, jobs, protocol_file):
+              help="Create the database for this protocol if it does not exist  [default: the shipped protocols/brain_pull_2015.toml]")
+@JSON
+def synth_cmd(db, participants, seed, jobs, protocol_file, as_json):
     """Run whole sessions with SYNTHETIC participants on the simulator (labelled synthetic)."""
+    from rich.console import Console
     from rich.progress import Progress
 
     from studyctl.synthetic import run_synthetic_study
 
-    with Progress(transient=True) as progress:
+    with Progress(transient=True, console=Console(stderr=True)) as progress:
         task = progress.add_task("synthetic sessions", total=participants)
         out = run_synthetic_study(db, participants, seed, jobs, protocol_file, progress=lambda k, n: progress.update(task, completed=k))
+    if as_json:
+        _print_json(out | {"synthetic": True})
+        return
     click.echo(f"ran {out['participants']} SYNTHETIC sessions (seed {seed}, {jobs} jobs) in {out['seconds']:.1f} s")
+
+
+def _model_name(value):
+    """Models are spelt plate_spring in files; plate-spring (the subcommand's spelling) is accepted too."""
+    return None if value is None else value.replace("-", "_")
 
 
 def _range(ctx, param, value):
@@ -1143,7 +1192,7 @@ def _range(ctx, param, value):
 @click.option("--step", type=click.IntRange(1, 100), default=6, show_default=True)
 @click.option("--simulations", type=click.IntRange(10, 100000), default=200, show_default=True)
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path),
-              default=Path(__file__).resolve().parents[1] / "protocols" / "brain_pull_2015.toml", show_default="protocols/brain_pull_2015.toml")
+              default=DEFAULT_PROTOCOL, show_default="the shipped protocols/brain_pull_2015.toml")
 @click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=0, show_default=True)
 @click.option("--pilots", type=click.IntRange(1, 50), default=4, show_default=True, help="Synthetic pilot runs per model.")
 @click.option("--plot", "plot_file", type=OutFile((".png", ".svg", ".pdf")), default=None, help="Write the power curves (PNG, SVG or PDF).")
@@ -1190,7 +1239,7 @@ def _plan_null(protocol, span, simulations, seed, pilots, model, as_json) -> Non
     if span is not None and span[0] != span[1]:
         raise InputError("--participants: with --null give one N (e.g. 35), not a range")
     if model is not None:
-        model = model.replace("-", "_")
+        model = _model_name(model)
         if model not in protocol.conditions:
             raise InputError(f"--model: {model!r} is not a condition of {protocol.name}; allowed: {', '.join(protocol.conditions)}")
     n = span[0] if span else 35
@@ -1301,14 +1350,18 @@ def _load_bench(path: Path, kind: str, key: str) -> dict:
 
 @report.command("plots")
 @DB
-@click.option("--out", "out_dir", required=True, type=OutDir())
-def report_plots(db, out_dir):
-    """Rates with intervals, deformation times, and force traces against the FEM (PNG and SVG)."""
+@click.option("--out", "out_dir", required=True, type=OutDir(), help="A folder (made if missing) for the PNG and SVG files.")
+@JSON
+def report_plots(db, out_dir, as_json):
+    """Rates with intervals, deformation times, and force traces against the converged reference (PNG and SVG)."""
     from analysis.report import write_plots
 
-    if _no_answers(db, False):
+    if _no_answers(db, as_json):
         return
     files = write_plots(db, out_dir)
+    if as_json:
+        _print_json({"out": str(out_dir), "files": [str(f) for f in files]})
+        return
     click.echo(f"wrote {len(files)} files to {out_dir}")
 
 
@@ -1346,7 +1399,8 @@ def report_stats(db, holm_scope, as_json):
 
 
 @report.command("published")
-@click.option("--table", "table_file", required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--table", "table_file", type=click.Path(dir_okay=False, path_type=Path), default=PAPER_TABLE,
+              show_default="the seed paper's Table 1, data/paper_table1.csv")
 @click.option("--json", "as_json", is_flag=True)
 def report_published(table_file, as_json):
     """Check a published Table 1: printed rates against their counts, and what counts allow."""
@@ -1378,40 +1432,46 @@ def answers():
 @DB
 @click.argument("csv_file", type=click.Path(dir_okay=False, path_type=Path))
 @DRY_RUN
-def answers_import(db, csv_file, dry_run):
+@JSON
+def answers_import(db, csv_file, dry_run, as_json):
     """Import participant,model,item,answer rows (yes/no, y/n, 1/0); any unknown value rejects the file."""
     from studyctl.study import import_answers
 
     out = import_answers(db, csv_file, dry_run=dry_run)
-    _done(out, f"imported {out['imported']} answers")
+    _done(out, f"imported {out['imported']} answers", as_json)
 
 
 @answers.command("correct")
 @DB
 @click.option("--participant", required=True)
-@click.option("--model", required=True, help="The model the answer is about (as stored, e.g. fem).")
+@click.option("--model", required=True, callback=lambda c, p, v: _model_name(v), help="The model the answer is about, e.g. fem or mass_spring.")
 @click.option("--item", required=True, help="The question's id, e.g. natural.")
 @click.option("--answer", required=True, help="The right answer: yes or no.")
 @click.option("--reason", required=True, help="Why (kept in the audit trail with the old value and your login).")
 @DRY_RUN
-def answers_correct(db, participant, model, item, answer, reason, dry_run):
+@JSON
+def answers_correct(db, participant, model, item, answer, reason, dry_run, as_json):
     """Correct one stored answer; the old value, reason and who did it go to the `corrections` table."""
     from studyctl.participants import correct_answer
 
     out = correct_answer(db, participant, model, item, answer, reason, dry_run=dry_run)
     word = {0: "no", 1: "yes"}
-    _done(out, f"corrected {participant}/{model}/{item}: {word[out['old']]} -> {word[out['new']]} (audit trail kept)")
+    _done(out, f"corrected {participant}/{model}/{item}: {word[out['old']]} -> {word[out['new']]} (audit trail kept)", as_json)
 
 
 @cli.command("export", cls=click.Command)
 @DB
 @click.option("--format", "fmt", type=click.Choice(["csv", "parquet"]), default="csv", show_default=True)
-@click.option("--out", "out_dir", required=True, type=OutDir())
-def export_cmd(db, fmt, out_dir):
+@click.option("--out", "out_dir", required=True, type=OutDir(), help="A folder (made if missing) for one file per table.")
+@JSON
+def export_cmd(db, fmt, out_dir, as_json):
     """Export the pseudonymous tables (never the identifying one)."""
     from studyctl.study import export
 
     files = export(db, out_dir, fmt)
+    if as_json:
+        _print_json({"out": str(out_dir), "format": fmt, "files": [str(f) for f in files]})
+        return
     click.echo(f"wrote {len(files)} files to {out_dir}")
 
 

@@ -49,6 +49,7 @@ class Protocol:
     text: str  # the file's content, stored with every session
     consent_version: str = "1"  # the consent form a person must have signed before a session
     withdrawal: str = "keep"  # a withdrawn participant's data: "keep" (pseudonymous) or "delete"
+    timezone: str | None = None  # the lab's IANA time zone (session slots); None: floating local times
 
     @property
     def sha256(self) -> str:
@@ -111,7 +112,7 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
             return default
         return float(v) if kind is float else v
 
-    sections = {"study": ("name", "title", "version", "target_participants", "scene"),
+    sections = {"study": ("name", "title", "version", "target_participants", "scene", "timezone"),
                 "design": ("conditions", "counterbalancing", "training_minutes", "trials_per_condition", "trial_seconds", "rest_seconds"),
                 "inclusion": ("age_min", "age_max"), "latency": ("measures",), "ethics": ("consent_version", "withdrawal"),
                 "questions": ("id", "text")}
@@ -136,6 +137,14 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
         bad("ethics.withdrawal", f"{withdrawal!r} is not keep or delete")
     name = get(study, "study", "name", str)
     title = get(study, "study", "title", str, default="", required=False)
+    timezone = get(study, "study", "timezone", str, default=None, required=False)
+    if timezone is not None:
+        from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
+
+        try:
+            ZoneInfo(timezone)
+        except (ZoneInfoNotFoundError, ValueError):
+            bad("study.timezone", f"{timezone!r} is not an IANA time zone, e.g. \"Asia/Shanghai\" or \"Europe/Berlin\"")
     version = get(study, "study", "version", int, default=1, lo=1, required=False)
     target = get(study, "study", "target_participants", int, lo=1, hi=10000)
     scene_rel = get(study, "study", "scene", str)
@@ -200,7 +209,7 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
             path=path, name=name, title=title, version=version, target_participants=target, scene=scene,
             conditions=tuple(conditions), counterbalancing=cb, training_minutes=training, trials_per_condition=trials,
             trial_seconds=trial_s, rest_seconds=rest_s, age_min=age_min, age_max=age_max, latency_measures=tuple(measures),
-            questions=tuple(questions), text=text, consent_version=consent_version, withdrawal=withdrawal,
+            questions=tuple(questions), text=text, consent_version=consent_version, withdrawal=withdrawal, timezone=timezone,
         ),
         [],
     )

@@ -100,23 +100,33 @@ def allocate(codes: list[str], start: dt.date, end: dt.date, hours: str = "09:00
     return slots
 
 
-def to_ics(slots: list[dict], study: str) -> str:
-    """An iCalendar file (RFC 5545, written by the `icalendar` library: escaping, line folding)
-    with one event per session slot, in floating local times (the lab's clock)."""
+def to_ics(slots: list[dict], study: str, timezone: str | None = None, title: str = "") -> str:
+    """An iCalendar file (RFC 5545, written by the `icalendar` library: escaping of , ; \\ and
+    newlines, line folding at 75 octets) with one event per session slot: in the study's time
+    zone (with its VTIMEZONE) when the protocol names one, else in floating local times (the
+    lab's clock)."""
     import icalendar
 
+    tz = None
+    if timezone is not None:
+        from zoneinfo import ZoneInfo
+
+        tz = ZoneInfo(timezone)
     cal = icalendar.Calendar()
     cal.add("prodid", "-//brainsim-study//studyctl//EN")
     cal.add("version", "2.0")
     cal.add("calscale", "GREGORIAN")
+    cal.add("x-wr-calname", study)
     stamp = dt.datetime.now(dt.UTC)
     for s in slots:
         ev = icalendar.Event()
         ev.add("uid", f"{study}-{s['code']}@studyctl")
         ev.add("dtstamp", stamp)
-        ev.add("dtstart", dt.datetime.fromisoformat(s["slot_start"]))
-        ev.add("dtend", dt.datetime.fromisoformat(s["slot_end"]))
+        ev.add("dtstart", dt.datetime.fromisoformat(s["slot_start"]).replace(tzinfo=tz))
+        ev.add("dtend", dt.datetime.fromisoformat(s["slot_end"]).replace(tzinfo=tz))
         ev.add("summary", f"{study}: session {s['code']}")
-        ev.add("description", "order " + " > ".join(json.loads(s["conditions"])))
+        ev.add("description", (f"{title}\n" if title else "") + "order " + " > ".join(json.loads(s["conditions"])))
         cal.add_component(ev)
+    if tz is not None:
+        cal.add_missing_timezones()
     return cal.to_ical().decode()

@@ -28,10 +28,11 @@ import sys
 import time
 from collections.abc import Callable
 
+from brainsim_assets import version as _version
 from studyctl.errors import InputError, StoreError
 from studyctl.store import Store, dumps, now, sha256_file
 
-SOFTWARE_VERSION = "brainsim-study 0.1.0"
+SOFTWARE_VERSION = f"brainsim-study {_version()}"  # stored with each session
 TRAINING_MODEL = "plate_spring"  # free exploration before the first condition (never named on screen)
 
 

@@ -145,7 +145,7 @@ def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:
                     conn.execute("update schedule set slot_start = ?, slot_end = ? where code = ?", (a.isoformat(), b.isoformat(), code))
             out = store.rows("select code, slot_start, slot_end, order_index, conditions from schedule order by slot_start is null, slot_start, code")
             if ics and not dry_run:
-                Path(ics).write_text(to_ics([r for r in out if r["slot_start"]], protocol.name))
+                Path(ics).write_text(to_ics([r for r in out if r["slot_start"]], protocol.name, protocol.timezone, protocol.title))
         return out
     finally:
         store.close()
@@ -213,6 +213,11 @@ def export(db: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[str]:
     if fmt not in ("csv", "parquet"):
         raise InputError(f"--format: {fmt!r} is not csv or parquet")
     out_dir = Path(out_dir)
+    if fmt == "parquet":
+        import importlib.util
+
+        if importlib.util.find_spec("pyarrow") is None:  # checked before anything is written
+            raise StoreError("--format parquet needs the parquet extra: pip install 'brainsim-study[parquet]'")
     store = Store(db, mode="read")
     try:
         # the columns from the schema, so an empty table still exports its header
@@ -228,9 +233,6 @@ def export(db: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[str]:
         if fmt == "csv":
             df.to_csv(path, index=False)
         else:
-            try:
-                df.to_parquet(path, index=False)
-            except ImportError:
-                raise StoreError("--format parquet needs pyarrow (pip install pyarrow)") from None
+            df.to_parquet(path, index=False)
         written.append(str(path))
     return written

@@ -113,12 +113,10 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
         raise InputError(f"--participants: {participants} is out of range; allowed: 1..{MAX_SYNTHETIC}")
     if not 1 <= jobs <= 64:
         raise InputError(f"--jobs: {jobs} is out of range; allowed: 1..64")
-    if not Path(db).exists():
-        if protocol_path is None:
-            from studyctl.errors import StoreError
+    if not Path(db).exists():  # a new study: the protocol given, else the shipped one
+        from brainsim_assets import path as asset
 
-            raise StoreError(f"{db}: no such study database; give --protocol to create it")
-        init_study(db, protocol_path)
+        init_study(db, protocol_path or asset("protocols/brain_pull_2015.toml"))
     store = Store(db)
     try:
         protocol = store.protocol()

@@ -24,9 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
+from brainsim_assets import path as _asset
 from studyctl.errors import InputError
 
-TRUTH_FILE = Path(__file__).resolve().parents[1] / "data" / "observer_truth.npz"
+TRUTH_FILE = _asset("data/observer_truth.npz")
 TRUTH_RADIUS = 0.010  # m around each hand's start: the motor model's grasps land within a few mm
 TRUTH_SIZES_MM = (8.0, 5.5, 4.0)
 

@@ -268,3 +268,37 @@ def test_session_on_openhaptics_without_the_library_is_a_clean_error(tmp_path, m
     assert sqlite3.connect(db).execute("select count(*) from sessions").fetchone()[0] == 0  # nothing half-written
     res = studyctl("session", "run", "--db", db, "--participant", "P01", "--device", "openhaptics", "--time-scale", "0")
     assert res.exit_code == 1 and "real time only" in res.output
+
+
+def test_ics_round_trips_through_icalendar_with_escapes_folding_and_the_time_zone():
+    import icalendar
+
+    from studyctl.schedule import to_ics
+
+    name, title = "Pull, study; A\\B", "A long description, with; every\\special character " + "x" * 150
+    assert len(title) >= 200
+    slots = [{"code": "P01", "slot_start": "2037-12-01T13:30:00", "slot_end": "2037-12-01T14:15:00",
+              "conditions": json.dumps(["fem", "mass_spring", "plate_spring"])}]
+    text = to_ics(slots, name, "Asia/Shanghai", title)
+    assert all(len(line.encode()) <= 75 for line in text.split("\r\n"))  # RFC 5545 folding
+    assert "SUMMARY:Pull\\, study\\; A\\\\B: session P01" in text  # RFC 5545 escaping
+    cal = icalendar.Calendar.from_ical(text)
+    (ev,) = cal.walk("VEVENT")
+    assert str(ev["summary"]) == f"{name}: session P01"
+    assert str(ev["description"]) == f"{title}\norder fem > mass_spring > plate_spring"
+    start = ev.decoded("dtstart")
+    assert start.isoformat() == "2037-12-01T13:30:00+08:00" and str(start.tzinfo) == "Asia/Shanghai"
+    assert [str(tz["tzid"]) for tz in cal.walk("VTIMEZONE")] == ["Asia/Shanghai"]
+    # no time zone in the protocol: floating local times, as before
+    floating = icalendar.Calendar.from_ical(to_ics(slots, name))
+    assert floating.walk("VEVENT")[0].decoded("dtstart").tzinfo is None
+
+
+def test_protocol_time_zone_is_checked(tmp_path):
+    from studyctl.protocol import check_protocol
+
+    text = PROTOCOL.read_text().replace('version = 1\n', 'version = 1\ntimezone = "Mars/Olympus"\n', 1)
+    path = tmp_path / "p.toml"
+    path.write_text(text.replace('scene = "scenes/brain_pull.toml"', f'scene = "{ROOT}/protocols/scenes/brain_pull.toml"'))
+    _, problems = check_protocol(path)
+    assert any("study.timezone" in p and "IANA" in p for p in problems)

@@ -126,7 +126,7 @@ def test_margin_bounds_match_brute_force_over_every_pairing(yes, n):
         assert min_mcnemar_p(yes[a], yes[b], n) == pytest.approx(p)
 
 
-def _answers_db(tmp_path, answers: dict, orders: dict | None = None):
+def _answers_db(tmp_path, answers: dict, orders: dict | None = None, protocol=None):
     """A study database holding these answers {code: {model: [0/1 per item]}} (imported, so no
     simulator runs); `orders` {code: [models]} recorded as their schedule."""
     import json
@@ -135,7 +135,7 @@ def _answers_db(tmp_path, answers: dict, orders: dict | None = None):
     from tests.test_study import PROTOCOL
 
     db = tmp_path / "a.db"
-    init_study(db, PROTOCOL)
+    init_study(db, protocol or PROTOCOL)
     store = Store(db)
     items = store.protocol().items
     with store.transaction() as conn:
@@ -255,7 +255,8 @@ def test_report_stats_json_keys(tmp_path):
 def test_latex_html_and_plots(small_study, tmp_path):
     db = small_study
     tex = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "latex"]).output
-    assert tex.startswith("\\begin{table}") and "SYNTHETIC DATA" in tex and tex.count("\\\\") == 10
+    assert tex.startswith("\\begin{table}") and "SYNTHETIC DATA" in tex and tex.count("\\\\") == 11  # header, 9 questions, deformation
+    assert "McNemar p (Holm over all 27 pairs)" in tex and "benchmark of this machine" in tex
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "html", "--out", str(tmp_path / "r.html")])
     assert res.exit_code == 0, res.output
     page = (tmp_path / "r.html").read_text()
@@ -287,3 +288,31 @@ def test_html_report_renders_in_headless_chromium(small_study, tmp_path):
     assert img.std() > 0.05  # not blank
     red = (img[..., 0] > 0.6) & (img[..., 1] < 0.1) & (img[..., 2] < 0.2)
     assert red.sum() > 500  # the synthetic-data banner is there
+
+
+def test_latex_table_escapes_every_special_character_and_has_the_other_formats_columns(tmp_path):
+    import re
+
+    from analysis.report import latex
+    from tests.test_study import PROTOCOL, ROOT
+
+    special = "Is {it} $5^2 ~ & 50% of_the #1 \\ case?"
+    text = PROTOCOL.read_text().replace("Is interaction real and natural?", special.replace("\\", "\\\\"))
+    text = text.replace('scene = "scenes/brain_pull.toml"', f'scene = "{ROOT}/protocols/scenes/brain_pull.toml"')
+    protocol = tmp_path / "p.toml"
+    protocol.write_text(text)
+    rng = np.random.default_rng(5)
+    answers = {f"P{i:02d}": {m: rng.integers(0, 2, 9).tolist() for m in ("fem", "mass_spring", "plate_spring")} for i in range(6)}
+    tex = latex(_answers_db(tmp_path, answers, protocol=protocol))
+    row = next(line for line in tex.splitlines() if line.startswith("Is \\{it"))
+    question = row.split(" & ")[0]
+    assert question == ("Is \\{it\\} \\$5\\textasciicircum 2 \\textasciitilde \\space \\& 50\\% of\\_the \\#1 "
+                        "\\textbackslash \\space case?")
+    # nothing special is left unescaped in any cell: drop the escapes, then look for the characters
+    for line in [x for x in tex.splitlines() if x.endswith(" \\\\")]:
+        body = line.removesuffix(" \\\\")
+        cells = re.split(r"(?<!\\)&", body)
+        assert len(cells) == 6, line  # question, three models, Cochran's Q, McNemar
+        rest = re.sub(r"\\(textasciicircum|textasciitilde|textbackslash|space)|\\[{}$&%_#]", "", body.replace(" & ", " "))
+        assert not re.search(r"[{}$^~%_#\\]", rest), line
+    assert tex.count("\\\\") == 11 and "\\toprule" in tex and "\\bottomrule" in tex

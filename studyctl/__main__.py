@@ -1,0 +1,5 @@
+"""`python -m studyctl`: the same as the `studyctl` command."""
+
+from studyctl.cli import main
+
+main()
