@@ -1,8 +1,10 @@
 # Two set-up commands: `make demo` and `make test`. Both create .venv, install the package and
 # the system packages it needs (apt-get, only what is missing), then do their job.
 SHELL := /bin/bash
+# `make test PYTHON=python3.12` (3.11, 3.12 and 3.13 are supported): another Python gets its own .venv-3.X
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
-VENV := .venv
+PYVER := $(shell $(PYTHON) -c 'import sys; print("%d.%d" % sys.version_info[:2])' 2>/dev/null)
+VENV := $(if $(filter 3.11,$(PYVER)),.venv,.venv-$(PYVER))
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 # libusb: open3d's import; EGL/Mesa: open3d's offscreen OpenGL on the CPU (llvmpipe);
@@ -57,6 +59,9 @@ system-deps:
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade "pip>=25.1"
+	@# open3d-cpu replaces open3d on Linux x86_64 (same module): a venv made before holds the full one
+	@if [ "$$(uname -sm)" = "Linux x86_64" ] && ! $(PY) -m pip show -q open3d-cpu >/dev/null 2>&1; then \
+	  $(PY) -m pip uninstall -y -q open3d >/dev/null 2>&1 || true; fi
 	$(PY) -m pip install -q -e . --group dev
 	@touch $(STAMP)
 

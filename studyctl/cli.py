@@ -1002,7 +1002,8 @@ def participants_contacts(db, out_file, as_json):
 
 
 @cli.group("schedule", cls=_Group, invoke_without_command=True)
-@click.option("--db", envvar="STUDYCTL_DB", type=click.Path(dir_okay=False, path_type=Path), help="Study database (or STUDYCTL_DB).")
+@click.option("--db", envvar="STUDYCTL_DB", show_envvar=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Study database; required unless the STUDYCTL_DB environment variable names one.")
 @click.option("--start", help="First day, YYYY-MM-DD (today or later).")
 @click.option("--end", help="Last day, YYYY-MM-DD.")
 @click.option("--hours", default="09:00-17:00", show_default=True)
@@ -1043,12 +1044,13 @@ def schedule_cmd(ctx, db, start, end, hours, session_minutes, availability, ics,
 @click.argument("code")
 @DB
 @DRY_RUN
-def schedule_cancel(code, db, dry_run):
+@JSON
+def schedule_cancel(code, db, dry_run, as_json):
     """Free CODE's slot (their condition order is kept); run `schedule` again to reschedule."""
     from studyctl.participants import cancel_slot
 
     out = cancel_slot(db, code, dry_run=dry_run)
-    _done(out, f"cancelled {code}'s slot at {out['cancelled']}; `studyctl schedule` gives a new one")
+    _done(out, f"cancelled {code}'s slot at {out['cancelled']}; `studyctl schedule` gives a new one", as_json)
 
 
 @cli.command("status", cls=click.Command)

@@ -302,3 +302,56 @@ def test_protocol_time_zone_is_checked(tmp_path):
     path.write_text(text.replace('scene = "scenes/brain_pull.toml"', f'scene = "{ROOT}/protocols/scenes/brain_pull.toml"'))
     _, problems = check_protocol(path)
     assert any("study.timezone" in p and "IANA" in p for p in problems)
+
+
+def _commands(group, prefix=()):
+    import click
+
+    for name, cmd in group.commands.items():
+        if getattr(cmd, "hidden", False):
+            continue
+        if isinstance(cmd, click.Group):
+            if cmd.invoke_without_command:
+                yield (*prefix, name), cmd
+            yield from _commands(cmd, (*prefix, name))
+        else:
+            yield (*prefix, name), cmd
+
+
+def test_cli_conventions_hold_for_every_command():
+    """-h everywhere; --json wherever something is reported; the study database's environment
+    variable shown; models spelt either way; python -m studyctl."""
+    import subprocess
+    import sys
+
+    missing = []
+    for path, cmd in _commands(cli):
+        res = CliRunner().invoke(cli, [*path, "-h"])
+        assert res.exit_code == 0 and "Usage:" in res.output, path
+        names = {o for p in cmd.params for o in getattr(p, "opts", [])}
+        fmt = next((p for p in cmd.params if "--format" in getattr(p, "opts", [])), None)
+        if "--json" not in names and not (fmt is not None and "json" in getattr(fmt.type, "choices", ())):
+            missing.append(path)
+        if "--db" in names:
+            assert "STUDYCTL_DB" in res.output, path
+    assert missing == []
+    assert "The paper's plate-spring model" in CliRunner().invoke(cli, ["model", "plate_spring", "-h"]).output
+    out = subprocess.run([sys.executable, "-m", "studyctl", "--version"], capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 0 and out.stdout.startswith("studyctl, version ")
+
+
+def test_a_missing_extra_is_a_one_line_error_naming_it(tmp_path, monkeypatch):
+    import importlib.util
+
+    from analysis.sweep import SweepError, _run_dask
+
+    db = tmp_path / "s.db"
+    studyctl("study", "init", "--db", db)  # the shipped protocol
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "pyarrow" else real(name, *a))
+    res = studyctl("export", "--db", db, "--format", "parquet", "--out", tmp_path / "out")
+    assert res.exit_code == 1 and "brainsim-study[parquet]" in res.output and len(res.output.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()  # nothing written
+    monkeypatch.setitem(sys.modules, "distributed", None)  # as if not installed
+    with pytest.raises(SweepError, match=r"brainsim-study\[dask\]"):
+        _run_dask(lambda x: x, [1], "tcp://127.0.0.1:1", lambda *a: None)
