@@ -190,8 +190,22 @@ def within_jnd(rendered: np.ndarray, truth: np.ndarray, traits: ObserverTraits, 
     return float(np.mean(ndtr(1.0 - r / w) - ndtr(-1.0 - r / w)))
 
 
+def _round(x: float, digits: int = 9) -> float:
+    """`x` to `digits` significant digits: the FEM's grasp solves run on a threaded OpenBLAS
+    (CHOLMOD) whose sums can differ in the last bit between processes (seen once in the suite:
+    a ripple of 0.4448188315920225 against ...227); rounded, such noise cannot reach an answer."""
+    if not math.isfinite(x) or x == 0.0:
+        return x
+    return round(x, digits - 1 - int(math.floor(math.log10(abs(x)))))
+
+
 def features(summaries: list[TrialSummary], traits: ObserverTraits, params: ObserverParams = DEFAULT) -> dict:
-    """What the participant perceived of one condition (its trials' summaries)."""
+    """What the participant perceived of one condition (its trials' summaries), to 9
+    significant digits."""
+    return {k: _round(float(v)) if isinstance(v, float) else v for k, v in _features(summaries, traits, params).items()}
+
+
+def _features(summaries: list[TrialSummary], traits: ObserverTraits, params: ObserverParams = DEFAULT) -> dict:
     rendered = np.concatenate([s.rendered for s in summaries]) if summaries else np.zeros(0)
     truth = np.concatenate([s.truth for s in summaries]) if summaries else np.zeros(0)
     flops = [s.frame_flops for s in summaries if math.isfinite(s.frame_flops)]
