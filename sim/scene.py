@@ -138,7 +138,7 @@ SECTIONS = ("scene", "mesh", "material", "fixed", "model", "models", "servo", "v
 MODEL_KEYS = {
     "plate_spring": ("variant", "params", "field"),
     "fem": ("resolution", "formulation", "grasp_radius", "order"),
-    "mass_spring": ("resolution", "integrator", "dt", "damping", "coupling", "grasp_radius", "iterations"),
+    "mass_spring": ("resolution", "integrator", "dt", "damping", "coupling", "grasp_radius", "iterations", "acceleration"),
 }
 HAND_KEYS = ("name", "device", "start", "pull", "distance", "grasp_at", "pull_start", "pull_time", "release_at",
              "device_name", "device_scale", "device_origin", "trace", "trace_hand")
@@ -388,6 +388,7 @@ def _model_spec(models: _Reader, name: str) -> ModelSpec | None:
             "coupling": table.number("coupling", default=300.0, lo=0.0, hi=OMNI_MAX_STIFFNESS, lo_open=True),
             "grasp_radius": table.number("grasp_radius", default=0.005, lo=0.0, hi=0.02),
             "iterations": table.integer("iterations", default=10, lo=1, hi=1000),
+            "acceleration": table.string("acceleration", default="none", choices=("none", "chebyshev")),
         })
     return ModelSpec(name=name, options=dict(table.data))
 

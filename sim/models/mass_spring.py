@@ -30,6 +30,19 @@ SUBSTEP_FRACTION = 0.5  # explicit sub-steps are this fraction of critical_dt()
 MAX_SUBSTEPS = 2000  # more explicit sub-steps per step than this cannot serve a visual frame
 
 
+ACCELERATIONS = ("none", "chebyshev")
+RHO_ITERATIONS = 120  # plain iterations that estimate the spectral radius (once per step size)
+
+
+def _spring_rhs():
+    """The compiled local step (sim/kernels.py), or None without numba."""
+    try:
+        from sim.kernels import spring_rhs
+    except ImportError:
+        return None
+    return spring_rhs
+
+
 class StabilityError(SimError):
     """An explicit step larger than the critical step was asked for."""
 
@@ -57,7 +70,10 @@ class StepReport:
 class MassSpring:
     """``MassSpring(positions, springs, stiffness, masses, fixed=None, damping=0.0)``."""
 
-    def __init__(self, positions, springs, stiffness, masses, fixed=None, damping: float = 0.0):
+    def __init__(self, positions, springs, stiffness, masses, fixed=None, damping: float = 0.0, acceleration: str = "none"):
+        if acceleration not in ACCELERATIONS:
+            raise ParameterError(f"acceleration: {acceleration!r} is not one of {', '.join(ACCELERATIONS)}")
+        self.acceleration = acceleration
         x = np.asarray(positions, dtype=np.float64)
         e = np.asarray(springs, dtype=np.int64)
         if x.ndim != 2 or x.shape[1] != 3:
@@ -296,33 +312,78 @@ class MassSpring:
         self.x += h * self.v
 
     def _local_global(self, h: float, iterations: int) -> None:
-        """Liu et al. 2013: minimise |x - y|_M^2 / (2 h^2) + sum k/2 |x_i - x_j - d_ij|^2."""
+        """Liu et al. 2013: minimise |x - y|_M^2 / (2 h^2) + sum k/2 |x_i - x_j - d_ij|^2.
+
+        With `acceleration = "chebyshev"` (Wang 2015), iterate k+1 is
+        ``omega_k+1 (xhat_k+1 - x_k-1) + x_k-1`` from the second on, omega from the spectral
+        radius of the plain iteration (`lg_rho`, estimated once per step size)."""
         solver = self._lg_solver(h)
         m = self.m[:, None]
         y = self.x + h * self.v + h * h * self.external / m
         x = y.copy()
         x[self.fixed] = self.rest_positions[self.fixed]
         free = self.free
-        A_act, Ak, rest_act = solver["A_act"], solver["Ak"], solver["rest_act"]
         fixed_part = solver["L_fixed"] @ x[self.fixed] if self.fixed.any() else 0.0
         wood = self._woodbury(solver, free)
         inertia = (m * y / (h * h))[free]
-        for _ in range(iterations):
-            dvec = A_act @ x  # vectors x_i - x_j of the springs that touch a free node
-            length = np.sqrt(np.einsum("ij,ij->i", dvec, dvec))
-            dvec *= (rest_act / np.where(length > 0, length, 1.0))[:, None]  # local: projected
-            rhs = inertia + Ak @ dvec - fixed_part  # global: (M / h^2 + L) x = ...
-            if wood is None:
-                x[free] = solver["factor"].solve(np.ascontiguousarray(rhs))
-            else:  # anchors: (Q + W diag(k) W^T) x = rhs + W diag(k) T, by Woodbury
-                Wm, Z, Sinv, kt = wood
-                b = rhs + Wm @ kt
-                xb = solver["factor"].solve(np.ascontiguousarray(b))
-                x[free] = xb - Z @ (Sinv @ (Wm.T @ xb))
+        rho = self.lg_rho(h) if self.acceleration == "chebyshev" else None
+        prev, omega = None, 1.0
+        for k in range(iterations):
+            xf = self._lg_global(solver, wood, inertia - fixed_part + self._lg_local(solver, x))
+            if rho is not None and k >= 1:  # Chebyshev semi-iteration on the free nodes
+                omega = 2.0 / (2.0 - rho * rho) if k == 1 else 4.0 / (4.0 - rho * rho * omega)
+                xf = omega * (xf - prev) + prev
+            prev = x[free].copy() if rho is not None else None
+            x[free] = xf
         v = (x - self.x) / h
         v[self.fixed] = 0.0
         self.v = v / (1.0 + h * self.damping)  # mass-proportional damping, implicitly
         self.x = x
+
+    def _lg_local(self, solver: dict, x: np.ndarray) -> np.ndarray:
+        """The local step and its share of the right-hand side, A^T diag(k) d (free rows): each
+        moving spring's vector projected to its rest length. One pass over the springs
+        (compiled, `sim/kernels.py`) where numba is installed, else sparse products."""
+        kernel = _spring_rhs()
+        if kernel is not None:
+            return kernel(x, solver["act_i"], solver["act_j"], solver["act_k"], solver["rest_act"], solver["free_pos"], len(self.free))
+        dvec = solver["A_act"] @ x  # vectors x_i - x_j of the springs that touch a free node
+        length = np.sqrt(np.einsum("ij,ij->i", dvec, dvec))
+        dvec *= (solver["rest_act"] / np.where(length > 0, length, 1.0))[:, None]
+        return solver["Ak"] @ dvec
+
+    @staticmethod
+    def _lg_global(solver: dict, wood, rhs: np.ndarray) -> np.ndarray:
+        """The global step: (M / h^2 + L) x = rhs on the free nodes (prefactored)."""
+        if wood is None:
+            return solver["factor"].solve(np.ascontiguousarray(rhs))
+        Wm, Z, Sinv, kt = wood  # anchors: (Q + W diag(k) W^T) x = rhs + W diag(k) T, by Woodbury
+        xb = solver["factor"].solve(np.ascontiguousarray(rhs + Wm @ kt))
+        return xb - Z @ (Sinv @ (Wm.T @ xb))
+
+    def lg_rho(self, h: float) -> float:
+        """Spectral radius of the plain local/global iteration at step `h`: estimated once,
+        from the decay of successive updates over plain iterations from the rest state pulled
+        by a unit-scale random displacement (the iteration matrix depends on the step and the
+        springs, barely on the state). Capped at 0.9999."""
+        solver = self._lg_solver(h)
+        if "rho" not in solver:
+            # a smooth start (the whole tissue shifted and sheared): the slow modes that
+            # decide the rate; the fast ones have died out by the iterations measured
+            x = self.rest_positions.copy()
+            c = x[self.free] - x[self.free].mean(axis=0)
+            x[self.free] += 0.05 * c[:, [1, 2, 0]] + 1e-3
+            inertia = (self.m[:, None] * self.rest_positions / (h * h))[self.free]
+            fixed_part = solver["L_fixed"] @ x[self.fixed] if self.fixed.any() else 0.0
+            steps = []
+            for _ in range(RHO_ITERATIONS):
+                xf = self._lg_global(solver, None, inertia - fixed_part + self._lg_local(solver, x))
+                steps.append(float(np.linalg.norm(xf - x[self.free])))
+                x[self.free] = xf
+            tail = RHO_ITERATIONS // 2
+            ratios = np.array(steps[tail + 1:]) / np.array(steps[tail:-1])
+            solver["rho"] = float(min(np.exp(np.mean(np.log(ratios))), 0.9999))
+        return solver["rho"]
 
     def _woodbury(self, solver: dict, free: np.ndarray):
         """Precomputed pieces for the anchors' low-rank update of the global matrix."""
@@ -359,8 +420,13 @@ class MassSpring:
             active = self._moving  # springs between two clamped nodes never move: leave them out
             A_act = self._A[active].tocsr()
             Ak = (A_act.T.multiply(self.k[active][None, :])).tocsr()[free]  # (A^T diag(k)) on free rows
+            free_pos = -np.ones(self.n, dtype=np.int64)
+            free_pos[free] = np.arange(len(free))
+            e = self.springs[active]
             self._lg_cache = {h: {"factor": Factor(Q[free][:, free], simplicial=True), "L_fixed": L[free][:, fixed],  # one step size at a time
-                                  "A_act": A_act, "Ak": Ak, "rest_act": self.rest[active]}}
+                                  "A_act": A_act, "Ak": Ak, "rest_act": self.rest[active],
+                                  "act_i": np.ascontiguousarray(e[:, 0]), "act_j": np.ascontiguousarray(e[:, 1]),
+                                  "act_k": np.ascontiguousarray(self.k[active]), "free_pos": free_pos}}
         return self._lg_cache[h]
 
     def _monitor(self) -> float:
@@ -548,6 +614,7 @@ def build(mesh, spec, scene=None) -> MassSpringModel:
     material = scene.spec.material
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])
     system = from_tets(volume.nodes, volume.tets, material.young, material.density, fixed=fixed, damping=o["damping"])
+    system.acceleration = o.get("acceleration", "none")
     return MassSpringModel(mesh, volume, system, integrator=o["integrator"], dt=o["dt"], coupling=o["coupling"],
                            grasp_radius=o["grasp_radius"], substep=True, iterations=o["iterations"],
                            frame_dt=1.0 / scene.spec.visual_rate_hz)
