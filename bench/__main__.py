@@ -1,6 +1,6 @@
 """Run the benchmarks: `python -m bench` (all) or `python -m bench plate_spring servo 10`
 (a number is an argument for the benchmark before it: seconds, for servo; `--json` makes
-those that support it print JSON)."""
+those that support it print JSON with stable keys: mass_spring, synthetic, observer)."""
 
 import importlib
 import sys
@@ -10,5 +10,6 @@ ALL = ["plate_spring", "fem", "mass_spring", "render", "servo", "startup", "synt
 if __name__ == "__main__":
     names = [a for a in sys.argv[1:] if not a.replace(".", "", 1).isdigit() and not a.startswith("--")]
     for name in names or ALL:
-        print(f"== bench.{name}", flush=True)
+        if "--json" not in sys.argv:  # --json: nothing but the benchmark's JSON on stdout
+            print(f"== bench.{name}", flush=True)
         importlib.import_module(f"bench.{name}").main()

@@ -95,6 +95,13 @@ def measure() -> dict:
             out[f"local_step_ms_{name}"] = (time.perf_counter() - start) / 200 * 1e3
         finally:
             msm._spring_rhs = saved
+    from bench.warp_peer import local_step_ms
+
+    peer = local_step_ms(x, solver["act_i"], solver["act_j"], solver["act_k"], solver["rest_act"], solver["free_pos"], len(base.free))
+    if peer is not None:
+        out["local_step_ms_warp_cpu"] = peer["ms"]
+        out["warp_compile_s"] = peer["compile_s"]
+        out["warp_max_difference"] = peer["max_difference"]
     b = np.ones((len(base.free), 3))
     start = time.perf_counter()
     for _ in range(100):
@@ -125,13 +132,21 @@ def main() -> None:
         keys["mass_spring.local_global_ms_per_frame_4mm.target"] = TARGET_MS
         keys["mass_spring.local_global_ms_per_frame_4mm.ratio_to_target"] = out["local_global_ms_per_frame_4mm"] / TARGET_MS
         keys["mass_spring.local_step.ratio_numpy_to_numba"] = out["local_step_ms_numpy"] / out["local_step_ms_numba"]
+        if "local_step_ms_warp_cpu" in out:  # the peer, same springs, same step: > 1 means ours is faster
+            keys["mass_spring.local_step.ratio_warp_to_numba"] = out["local_step_ms_warp_cpu"] / out["local_step_ms_numba"]
         print(json.dumps(keys, indent=2))
         return
     print(f"brain at 4 mm: {out['nodes']} nodes, {out['springs']} springs, {out['free_nodes']} free nodes")
-    for k in ("explicit", "implicit", "local_global_10it"):
-        print(f"  {k:<13} {out[f'{k}_ms_per_frame_4mm']:9.1f} ms per 1/30 s frame (local/global: the scene's 10 plain iterations)")
+    for k, what in (("explicit", "stable sub-steps"), ("implicit", "one Newton step"), ("local_global_10it", "the scene's 10 plain iterations")):
+        print(f"  {k:<18} {out[f'{k}_ms_per_frame_4mm']:9.1f} ms per 1/30 s frame ({what})")
     print(f"  local step: numba {out['local_step_ms_numba']:.3f} ms, NumPy {out['local_step_ms_numpy']:.3f} ms "
           f"({out['local_step_ms_numpy'] / out['local_step_ms_numba']:.1f}x); global solve (CHOLMOD, 3 columns) {out['global_solve_ms']:.3f} ms")
+    if "local_step_ms_warp_cpu" in out:
+        print(f"  peer: NVIDIA Warp (CPU device), the same local step as a kernel: {out['local_step_ms_warp_cpu']:.3f} ms "
+              f"({out['local_step_ms_warp_cpu'] / out['local_step_ms_numba']:.2f}x ours; first compile {out['warp_compile_s']:.1f} s; "
+              f"largest difference {out['warp_max_difference']:.2g})")
+    else:
+        print("  peer: warp-lang is not installed (pip install warp-lang), no comparison")
     for key in ("plain", "chebyshev"):
         print(f"  to 1% of backward Euler, {key:<9}: {out[f'iterations_to_1pct_{key}']:4d} iterations, {out[f'ms_to_1pct_{key}']:8.1f} ms per frame")
     ms = out["local_global_ms_per_frame_4mm"]
