@@ -489,7 +489,8 @@ class FemModel:
                         self.tangent_updates += 1
                         factor = Factor(_warped_active(fem, R, state["active"]))
                         Uw = factor.solve(np.ascontiguousarray(W.T.toarray()))
-                        self.frame_flops += factor.factor_flops + 4 * factor.nnz_L * W.shape[0]
+                        # the warped stiffness has the linear one's pattern: the same factor size (no L copied here)
+                        self.frame_flops += fem.factor.factor_flops + 4 * fem.factor.nnz_L * W.shape[0]
                         state["pre"] = _Precond(solve=factor.solve, U=Uw, C=W @ Uw)
                         state["since"] = 0
                     state.update(u=u, lam=lam, hist=hist)
