@@ -30,3 +30,64 @@ def spring_rhs(x, ei, ej, k, rest, free_pos, n_free):
             out[fj, 1] -= c * d1
             out[fj, 2] -= c * d2
     return out
+
+
+@numba.njit(cache=True)
+def _inv3(a, out):
+    """out = a^-1 for a 3 x 3 matrix; returns det a."""
+    c00 = a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]
+    c01 = a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2]
+    c02 = a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]
+    det = a[0, 0] * c00 + a[0, 1] * c01 + a[0, 2] * c02
+    inv = 1.0 / det
+    out[0, 0] = c00 * inv
+    out[1, 0] = c01 * inv
+    out[2, 0] = c02 * inv
+    out[0, 1] = (a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2]) * inv
+    out[1, 1] = (a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]) * inv
+    out[2, 1] = (a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1]) * inv
+    out[0, 2] = (a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]) * inv
+    out[1, 2] = (a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]) * inv
+    out[2, 2] = (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]) * inv
+    return det
+
+
+@numba.njit(cache=True)
+def polar_rotations(F, R, det, tol=1e-13, max_iter=40):
+    """The rotation of the polar decomposition F = R S of every 3 x 3 F with det F > 0 (scaled
+    Newton iteration, Higham 1986: R <- (g R + R^-T / g) / 2); R of the others is left for the
+    caller (an inverted element: SVD with the reflection removed). Fills det. Returns the
+    indices left over, as a boolean mask."""
+    left = np.zeros(F.shape[0], dtype=np.bool_)
+    X = np.empty((3, 3))
+    Y = np.empty((3, 3))
+    for e in range(F.shape[0]):
+        for i in range(3):
+            for j in range(3):
+                X[i, j] = F[e, i, j]
+        d = _inv3(X, Y)
+        det[e] = d
+        if not d > 0.0:
+            left[e] = True
+            continue
+        for _ in range(max_iter):
+            nx = 0.0
+            ny = 0.0
+            for i in range(3):
+                for j in range(3):
+                    nx += X[i, j] * X[i, j]
+                    ny += Y[i, j] * Y[i, j]
+            g = np.sqrt(np.sqrt(ny / nx))
+            change = 0.0
+            for i in range(3):
+                for j in range(3):
+                    v = 0.5 * (g * X[i, j] + Y[j, i] / g)  # Y^T: R^-T
+                    change += (v - X[i, j]) * (v - X[i, j])
+                    X[i, j] = v
+            if change < tol * tol * 3.0:
+                break
+            _inv3(X, Y)
+        for i in range(3):
+            for j in range(3):
+                R[e, i, j] = X[i, j]
+    return left

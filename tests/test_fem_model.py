@@ -154,3 +154,18 @@ def test_corotational_fem_gives_up_when_an_element_inverts():
     c = model.grasp(pull.point, 0)
     model.deformation([c], [(0.0, 0.001, 0.0)])
     assert 0 < np.linalg.norm(model.force(c, (0.0, 0.001, 0.0))) < 0.1
+
+
+def test_compiled_polar_rotations_equal_the_svd_ones():
+    pytest.importorskip("numba")
+    from sim.kernels import polar_rotations
+    from sim.models.fem import _svd_rotations
+
+    rng = np.random.default_rng(1)
+    F = np.eye(3) + 0.4 * rng.normal(size=(5000, 3, 3))
+    R, det = np.empty_like(F), np.empty(len(F))
+    left = polar_rotations(F, R, det)
+    assert np.array_equal(left, np.linalg.det(F) <= 0) and left.any()
+    assert np.allclose(det, np.linalg.det(F), rtol=1e-12, atol=1e-14)
+    assert np.allclose(R[~left], _svd_rotations(F[~left]), atol=1e-12)
+    assert np.allclose(np.einsum("mji,mjk->mik", R[~left], R[~left]), np.eye(3), atol=1e-12)  # orthonormal
