@@ -83,7 +83,23 @@ def main() -> None:
     with contextlib.redirect_stdout(io.StringIO()) if as_json else contextlib.nullcontext():
         result = run()
     if as_json:
-        print(json.dumps(result, indent=2))
+        print(json.dumps(flat_keys(result) | {"fem.details": result}, indent=2))
+
+
+def flat_keys(result: dict) -> dict:
+    """Stable keys (fem.*) for machines, with targets and the peers' ratios where they ran."""
+    ref = result["reference_problem"]
+    fac = next(r for r in result["factorisation"] if r["matrix"].startswith("reference problem"))
+    out = {"fem.assembly_s": ref["assembly_s"], "fem.assembly_s.target": 0.5, "fem.factor_s": fac["cholmod_s"],
+           "fem.factor_s.target": 3.0, "fem.factor_s_cholespy": fac["cholespy_s"], "fem.factor.ratio_cholespy_to_cholmod": fac["cholespy_over_cholmod"]}
+    if "scikit_fem_assembly_s" in ref:
+        out["fem.assembly.ratio_to_scikit_fem"] = ref["assembly_s"] / ref["scikit_fem_assembly_s"]
+    rows = result["haptics"]["scene clamp"]["timings"]
+    tick = next(r for r in rows if "two hands coupled" in r["name"])
+    frame = next(r for r in rows if "deformation per frame" in r["name"])
+    out |= {"fem.tick_two_hands_us_p50": tick["p50"], "fem.tick_two_hands_us_p99": tick["p99"], "fem.tick_two_hands_us.target": 10.0,
+            "fem.frame_two_hands_ms_p50": frame["p50"], "fem.frame_two_hands_ms_p99": frame["p99"]}
+    return out
 
 
 def run() -> dict:

@@ -109,7 +109,16 @@ def main(seconds: float | None = None) -> None:
     seconds = seconds or (float(nums[0]) if nums else 10.0)
     rows = run(seconds)
     if as_json:
-        print(json.dumps({"seconds": seconds, "target_tick_p99_us": TARGET_P99_US, "rows": rows}, indent=2))
+        # stable flat keys, e.g. servo.process.p99_us (the worst p99 over every case) and per case
+        # servo.<model>.<view>.<device>.p99_us, next to the rows as measured
+        keys = {"servo.process.p99_us": max(r["tick_interval_us"]["p99"] for r in rows), "servo.process.p99_us.target": TARGET_P99_US}
+        keys["servo.process.p99_us.ratio_to_target"] = keys["servo.process.p99_us"] / TARGET_P99_US
+        for r in rows:
+            case = f"servo.{r['model']}.{r['view']}.{r['device'].split()[0]}"
+            keys |= {f"{case}.p99_us": r["tick_interval_us"]["p99"], f"{case}.misses_per_10k": r["misses_per_10k"]}
+            if r["fps"] is not None:
+                keys[f"{case}.fps"] = r["fps"]
+        print(json.dumps(keys | {"servo.seconds": seconds, "servo.rows": rows}, indent=2))
         return
     print(f"{seconds:g} s per run, two simulated hands pulling, servo in its own process; window 1280x720 (Mesa CPU driver here)")
     print(f"{'model':<13} {'device':<12} {'view':<7} {'p50 us':>7} {'p99 us':>7} {'p99.9':>7} {'max us':>8} {'p99 vs 1.1 ms':>13} {'miss/10k':>8} "
