@@ -74,6 +74,7 @@ def pairwise_wilcoxon(wide: pd.DataFrame) -> pd.DataFrame:
 
 
 HOLM_SCOPES = ("family", "question")
+MIN_GEE_PARTICIPANTS = 5  # a sandwich covariance from fewer clusters is not worth printing
 
 
 def periods(db) -> pd.DataFrame:
@@ -118,7 +119,7 @@ def gee_fit(df: pd.DataFrame, models: list[str], with_period: bool = True, with_
             model = smf.gee(out["formula"], groups="code", data=data, family=sm.families.Binomial(), cov_struct=sm.cov_struct.Exchangeable())
             res = model.fit(maxiter=100)
         except (ValueError, np.linalg.LinAlgError) as exc:  # e.g. every answer alike
-            return out | {"converged": False, "error": str(exc), "pairs": []}
+            return out | {"converged": False, "estimable": False, "problems": [str(exc)], "pairs": []}
     names = list(res.params.index)
     cov = res.cov_params().to_numpy()
     beta = res.params.to_numpy()
@@ -140,7 +141,25 @@ def gee_fit(df: pd.DataFrame, models: list[str], with_period: bool = True, with_
                           "ci_low": float(np.exp(est - 1.959963984540054 * se)), "ci_high": float(np.exp(est + 1.959963984540054 * se)),
                           "p_value": p})
     converged = bool(getattr(res, "converged", True)) and not any("converge" in str(w.message).lower() for w in caught)
-    return out | {"converged": converged, "working_correlation": float(res.cov_struct.dep_params), "pairs": pairs}
+    # not estimable: a model whose answers are all yes or all no (separation: the odds ratio is
+    # infinite and the Wald test meaningless), a zero or non-finite standard error, |log OR| > 10,
+    # or too few participants for a sandwich covariance
+    constant = {m for m, g in data.groupby("model", observed=True)["answer"] if g.nunique() < 2}
+    problems = []
+    if out["n_participants"] < MIN_GEE_PARTICIPANTS:
+        problems.append(f"fewer than {MIN_GEE_PARTICIPANTS} participants")
+    if constant:
+        problems.append("every answer alike for " + ", ".join(sorted(constant)))
+    for pair in pairs:
+        bad = problems or pair["a"] in constant or pair["b"] in constant or not (pair["se"] > 0 and np.isfinite(pair["se"])) \
+            or not abs(pair["log_odds_ratio"]) <= 10.0
+        pair["estimable"] = not bad
+        if bad:
+            pair |= {"ci_low": float("nan"), "ci_high": float("nan"), "p_value": float("nan")}
+    if any(not p["estimable"] for p in pairs) and not problems:
+        problems.append("separation or a zero standard error")
+    return out | {"converged": converged and not problems, "estimable": not problems, "problems": problems,
+                  "working_correlation": float(res.cov_struct.dep_params), "pairs": pairs}
 
 
 def study_stats(db, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None, holm_scope: str = "family") -> dict:

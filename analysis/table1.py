@@ -161,10 +161,10 @@ def _gee_line(gee: dict) -> str:
     if not c or not c.get("pairs"):
         return ""
     pairs = "; ".join(f"{p['b']} vs {p['a']} OR {p['odds_ratio']:.2f} [{p['ci_low']:.2f}, {p['ci_high']:.2f}], p_Holm {p['p_holm']:.3g}"
-                      for p in c["pairs"])
+                      if p.get("estimable", True) else f"{p['b']} vs {p['a']} not estimable" for p in c["pairs"])
     return (f"Primary analysis, all questions: logistic GEE `{c['formula']}`, participants as clusters, exchangeable "
             f"working correlation ({c.get('working_correlation', float('nan')):.2f}), robust standard errors"
-            f"{'' if c.get('converged') else ' (DID NOT CONVERGE)'}: {pairs}.")
+            f"{'' if c.get('converged') else ' (NOT ESTIMABLE OR NOT CONVERGED: ' + '; '.join(c.get('problems') or ['no convergence']) + ')'}: {pairs}.")
 
 
 def markdown(db, holm_scope: str = "family") -> str:

@@ -121,15 +121,17 @@ class VisualStep:
                 contacts.append(c)
                 displacements.append((p[0] - c.point[0], p[1] - c.point[1], p[2] - c.point[2]))
         start = time.perf_counter()
+        flops = math.nan
         try:
             u = self.model.deformation(contacts, displacements)
+            flops = float(getattr(self.model, "frame_flops", math.nan))
         except Exception as exc:  # the model failed: drop the grasps (zero force), keep running
             self.events.append(Event(t, -1, "model_fault", f"model_fault: deformation: {exc}"))
             for h in self.hands:
                 h.contact = None
             u = np.zeros_like(self.model_mesh().vertices)
         self.deformation_s.append(time.perf_counter() - start)
-        self.frame_flops.append(float(getattr(self.model, "frame_flops", math.nan)))
+        self.frame_flops.append(flops)  # a failed frame: no count (never the last frame's)
         self.last = u  # the latest surface displacement, for live drawing
         if self.snapshot_period is not None and t + 1e-9 >= self._next_snapshot:
             self._next_snapshot += self.snapshot_period

@@ -580,9 +580,12 @@ def _vertex_ids(ctx, param, value):
     if value is None:
         return None
     try:
-        return [int(x) for x in value.split(",") if x.strip()]
+        ids = [int(x) for x in value.split(",") if x.strip()]
     except ValueError:
         raise click.BadParameter(f"{value!r} is not a comma-separated list of surface vertex ids") from None
+    if not ids or not all(0 <= v < 2**31 for v in ids):
+        raise click.BadParameter(f"{value!r}: surface vertex ids are whole numbers from 0")
+    return ids
 
 
 @calibrate.command("truth")
@@ -1090,7 +1093,7 @@ def session():
               help="The participant view (default: window for a person in real time, else none).")
 @click.option("--answers", "answer_with", type=click.Choice(["terminal", "window"]), default="terminal", show_default=True,
               help="Where a person answers the questionnaire (window: Y and N keys).")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=int, default=None, help="A synthetic participant's seed  [default: 0; on --resume, the session's]")
 @DEVICES
 @JSON
 def session_run(db, participant, device, synthetic, resume, time_scale, view, answer_with, seed, device_names, as_json):
@@ -1209,6 +1212,10 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, nu
 
     protocol = load_protocol(protocol_file)
     if null:
+        ctx = click.get_current_context()
+        for name, opt in (("step", "--step"), ("plot_file", "--plot")):
+            if ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT:
+                raise InputError(f"{opt}: not with --null (it reports false-positive rates at one N)")
         _plan_null(protocol, span, simulations, seed, pilots, null_model, as_json)
         return
     if null_model is not None:

@@ -43,7 +43,8 @@ WEIGHTS = {
     "stable": (0.0, 0.3, 1.0, 1.5),
 }
 DEFAULT_WEIGHTS = (0.8, 0.5, 0.5, 0.5)
-SAFETY_EVENTS = ("force_clamped", "nan_force", "model_unstable", "deadline_streak", "device_fault", "position_jump", "nan_position")
+SAFETY_EVENTS = ("force_clamped", "nan_force", "model_unstable", "model_fault", "force_chatter", "deadline_streak", "device_fault",
+                 "position_jump", "nan_position")
 P_WITHIN_PERFECT = float(ndtr(1.0) - ndtr(-1.0))  # a rendered force equal to the expected one: 0.683
 
 
@@ -193,7 +194,8 @@ def within_jnd(rendered: np.ndarray, truth: np.ndarray, traits: ObserverTraits, 
 def _round(x: float, digits: int = 9) -> float:
     """`x` to `digits` significant digits: the FEM's grasp solves run on a threaded OpenBLAS
     (CHOLMOD) whose sums can differ in the last bit between processes (seen once in the suite:
-    a ripple of 0.4448188315920225 against ...227); rounded, such noise cannot reach an answer."""
+    a ripple of 0.4448188315920225 against ...227); rounded, such noise reaches an answer only
+    if a value sits within a last-bit of a rounding boundary (about 1e-7 per feature)."""
     if not math.isfinite(x) or x == 0.0:
         return x
     return round(x, digits - 1 - int(math.floor(math.log10(abs(x)))))

@@ -288,7 +288,7 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
 
 
 def _run_session(db, code: str, device: str = "simulated", synthetic: bool = False, resume: bool = False,
-                time_scale: float | None = None, answers=None, seed: int = 0, progress: Callable[[str], None] | None = None,
+                time_scale: float | None = None, answers=None, seed: int | None = None, progress: Callable[[str], None] | None = None,
                 session_id: int | None = None, view: str = "none", answer_with: str = "terminal", device_names: list[str] | None = None) -> dict:
     from sim.run import Pacing, run_scene
     from studyctl.study import assign_order
@@ -330,6 +330,12 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                              f"{' --synthetic' if was['synthetic'] else ''}; resume it with the same options")
         if running:
             session_id = running[0]["id"]
+            stored = running[0].get("seed")
+            if synthetic and stored is not None:
+                if seed is not None and seed != stored:
+                    raise StoreError(f"participant {code}: session {session_id} was started with --seed {stored}; "
+                                     f"resume it with the same seed (or leave --seed out)")
+                seed = stored
             store.event(session_id, "resumed")
             say(f"resuming session {session_id} of {code}")
         else:
@@ -340,19 +346,21 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                 folder.mkdir(exist_ok=True)
             except OSError as exc:
                 raise StoreError(f"{folder}: cannot hold the trial traces: {exc.strerror}") from None
+            seed = 0 if seed is None else seed
             rng = random.Random(f"labels:{seed}:{code}") if synthetic else random.SystemRandom()
             labels = condition_labels(order, rng)
             store.write("sessions", {
                 **({"id": session_id} if session_id is not None else {}),
                 "code": code, "started_at": now(), "finished_at": None, "status": "running", "synthetic": int(synthetic),
                 "device": device, "protocol_sha256": protocol.sha256, "scene_sha256": sha256_file(protocol.scene),
-                "software_version": SOFTWARE_VERSION, "conditions": json.dumps(order)}, pk="id")
+                "software_version": SOFTWARE_VERSION, "conditions": json.dumps(order), "seed": seed if synthetic else None}, pk="id")
             session_id = store.rows("select max(id) as id from sessions where code = ?", (code,))[0]["id"]  # the row just written
             for pos, model in enumerate(order):
                 store.write("conditions", {"session_id": session_id, "position": pos, "model": model, "status": "pending",
                                            "label": labels[model]}, pk=("session_id", "position"))
         labels = {r["model"]: r["label"] or chr(ord("A") + r["position"])
                   for r in store.rows("select model, position, label from conditions where session_id = ?", (session_id,))}
+        seed = 0 if seed is None else seed  # a session from before seeds were stored: the old default
         participant = None
         if answers is None and synthetic:
             from studyctl.synthetic import SyntheticAnswers, SyntheticParticipant

@@ -81,6 +81,7 @@ def _migration_3(db: sqlite_utils.Database) -> None:
 
 def _migration_4(db: sqlite_utils.Database) -> None:
     """What the synthetic observer perceived of each participant's condition (studyctl/observer.py)."""
+    db["sessions"].add_column("seed", int)  # a synthetic session's seed: a resume must draw the same participant
     db["observer_features"].create({"code": str, "model": str, "feature": str, "value": float, "session_id": int, "computed_at": str},
                                    pk=("code", "model", "feature"), foreign_keys=[("code", "participants", "code")])
 

@@ -85,6 +85,11 @@ class SyntheticAnswers:
     def features_of(self, model: str, results: list) -> dict:
         if model not in self._feats:
             summaries = [summarise(r, self.truth, self.mesh, self.params) for r in results]
+            if any(math.isnan(s.frame_flops) for s in summaries):  # a trace from before work counts: no latency to judge
+                from studyctl.errors import StoreError
+
+                raise StoreError(f"condition {model}: a stored trial has no frame work counts (recorded by an older version); "
+                                 "the synthetic observer cannot judge its latency; start the participant's session afresh")
             self._feats[model] = features(summaries, self.participant.traits, self.params)
         return self._feats[model]
 

@@ -364,6 +364,7 @@ def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
     studyctl("participants", "add", "P01", "--db", db)
     con = sqlite3.connect(db)  # back to schema 2: no withdrawal, consent, corrections or observer features
     con.execute("drop table observer_features")
+    con.execute("alter table sessions drop column seed")
     con.execute("drop table consent")
     con.execute("drop table corrections")
     con.execute("alter table participants drop column withdrawn_at")
@@ -375,3 +376,16 @@ def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
     assert res.exit_code == 0 and json.loads(res.output)[0]["code"] == "P01"
     assert _q(db, "select value from meta where key = 'schema_version'") == [("4",)]
     assert _q(db, "select count(*) from observer_features") == [(0,)]
+
+
+def test_a_synthetic_session_resumes_with_its_own_seed(tmp_path):
+    db = _study(tmp_path)
+    studyctl("participants", "add", "S01", "--synthetic", "--db", db)
+    con = sqlite3.connect(db)  # a session that stopped after it started, with seed 3
+    con.execute("insert into sessions (id, code, started_at, status, synthetic, device, seed, conditions) "
+                "values (5, 'S01', '', 'running', 1, 'simulated', 3, ?)", (json.dumps(["plate_spring", "fem", "mass_spring"]),))
+    con.execute("insert into trials (session_id, model, trial, started_at) values (5, 'zz', 0, '')")  # it had started
+    con.commit()
+    con.close()
+    res = studyctl("session", "run", "--participant", "S01", "--synthetic", "--resume", "--seed", "4", "--db", db)
+    assert res.exit_code == 1 and "started with --seed 3" in res.output

@@ -316,3 +316,18 @@ def test_latex_table_escapes_every_special_character_and_has_the_other_formats_c
         rest = re.sub(r"\\(textasciicircum|textasciitilde|textbackslash|space)|\\[{}$&%_#]", "", body.replace(" & ", " "))
         assert not re.search(r"[{}$^~%_#\\]", rest), line
     assert tex.count("\\\\") == 11 and "\\toprule" in tex and "\\bottomrule" in tex
+
+
+def test_gee_says_not_estimable_when_a_model_answers_alike_throughout(tmp_path):
+    from analysis.stats import study_stats
+    from analysis.table1 import markdown
+
+    rng = np.random.default_rng(6)
+    answers = {f"P{i:02d}": {"fem": rng.integers(0, 2, 9).tolist(), "mass_spring": [0] * 9, "plate_spring": rng.integers(0, 2, 9).tolist()}
+               for i in range(8)}
+    db = _answers_db(tmp_path, answers)
+    comp = study_stats(db)["gee"]["composite"]
+    assert comp["estimable"] is False and not comp["converged"] and "mass_spring" in comp["problems"][0]
+    bad = [p for p in comp["pairs"] if "mass_spring" in (p["a"], p["b"])]
+    assert bad and all(not p["estimable"] and math.isnan(p["p_value"]) for p in bad)
+    assert "not estimable" in markdown(db) and "NOT ESTIMABLE" in markdown(db)

@@ -423,6 +423,7 @@ class FemModel:
 
     def deformation(self, contacts, displacements) -> np.ndarray:
         if not contacts:
+            self.frame_flops = float(3 * len(self._out))  # zeroing: every call sets its count (none is left over)
             self._out[:] = 0.0
             self._corot.clear()
             self.unstable = False  # released: the next grasp starts from the linear solution
