@@ -61,7 +61,7 @@ def latex(db, holm_scope: str = "family") -> str:
     rows.append(["Time for real-time deformation, ms (benchmark of this machine)"]
                 + [f"{x['mean_ms']:.2f} +- {x['sd_ms']:.2f}" for _, x in d.iterrows()] + ["", ""])
     df = pd.DataFrame(rows, columns=["Question", *models, "Cochran's Q (p)", f"McNemar p ({scope})"])
-    listed = ", ".join("{} ({}/{})".format(x["code"], x["answers"], x["of"]) for x in facts["incomplete_participants"])
+    listed = table1.incomplete_text(facts)
     caption = (("SYNTHETIC DATA (simulated participants). " if facts["synthetic"] else "")
                + f"{facts['study']}: N = {facts['participants']} participants with every answer; {facts['design']}."
                + (f" Left out (incomplete): {listed}." if listed else ""))
@@ -130,7 +130,7 @@ def html(db, force_traces: bool = True, accuracy: dict | None = None, stability:
         images = {name: base64.b64encode((Path(tmp) / f"{name}.png").read_bytes()).decode()
                   for name in ("rates", "deformation", "force") if (Path(tmp) / f"{name}.png").exists()}
     esc = _html.escape
-    listed = ", ".join("{} ({}/{})".format(x["code"], x["answers"], x["of"]) for x in facts["incomplete_participants"])
+    listed = table1.incomplete_text(facts)
     incomplete = f" Left out (incomplete): {listed}." if listed else ""
     banner = ('<p class="synthetic">SYNTHETIC DATA: simulated participants; not evidence about people.</p>' if facts["synthetic"] else "")
     rows = []

@@ -84,16 +84,10 @@ def periods(db) -> pd.DataFrame:
 
     from analysis.table1 import _query
 
-    rows = []
-    done = set()
-    for r in _query(db, "select code, conditions from sessions order by id").itertuples():
-        if r.code not in done and r.conditions:
-            done.add(r.code)
-            rows += [{"code": r.code, "model": m, "period": k} for k, m in enumerate(json.loads(r.conditions))]
-    for r in _query(db, "select code, conditions from schedule").itertuples():
-        if r.code not in done and r.conditions:
-            done.add(r.code)
-            rows += [{"code": r.code, "model": m, "period": k} for k, m in enumerate(json.loads(r.conditions))]
+    orders = pd.concat([_query(db, "select code, conditions from sessions order by id"),
+                        _query(db, "select code, conditions from schedule")])
+    orders = orders[orders["conditions"].notna()].drop_duplicates("code")  # the first session's order wins
+    rows = [{"code": r.code, "model": m, "period": k} for r in orders.itertuples() for k, m in enumerate(json.loads(r.conditions))]
     return pd.DataFrame(rows, columns=["code", "model", "period"])
 
 
@@ -199,16 +193,21 @@ def study_stats(db, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None
             "deformation": {"label": DEFORMATION_LABEL, "rows": deformation(db).to_dict(orient="records")}}
 
 
+def _set_holm(pairs: list[dict], key: str = "p_holm") -> None:
+    """Holm over these pairs' `p_value` (NaN, a test that could not be made, counts as 1), into `key`."""
+    for pair, p in zip(pairs, holm([x["p_value"] if np.isfinite(x["p_value"]) else 1.0 for x in pairs])):
+        pair[key] = p
+
+
 def _holm_family(items: dict, scope: str) -> None:
     """Set each pair's `p_holm`: over the whole family of pairwise tests, or per question
     (`p_holm_question` is kept either way)."""
-    flat = [(item, k) for item, v in items.items() for k in range(len(v["pairs"]))]
-    fam = holm([items[i]["pairs"][k]["p_value"] for i, k in flat])
-    for (i, k), p in zip(flat, fam):
-        pair = items[i]["pairs"][k]
+    family = [pair for v in items.values() for pair in v["pairs"]]
+    for pair in family:
         pair["p_holm_question"] = pair["p_holm"]
-        pair["p_holm_family"] = p
-        pair["p_holm"] = p if scope == "family" else pair["p_holm_question"]
+    _set_holm(family, "p_holm_family")
+    for pair in family:
+        pair["p_holm"] = pair["p_holm_family"] if scope == "family" else pair["p_holm_question"]
 
 
 def study_gee(db, answers: pd.DataFrame, models: list[str]) -> dict:
@@ -224,13 +223,8 @@ def study_gee(db, answers: pd.DataFrame, models: list[str]) -> dict:
         df["period"] = df["period"].astype(int)
     composite = gee_fit(df, models, with_period, with_item=True)
     items = {item: gee_fit(g, models, with_period) for item, g in df.groupby("item", sort=False)}
-    flat = [(i, k) for i, v in items.items() for k in range(len(v["pairs"]))]
-    fam = holm([items[i]["pairs"][k]["p_value"] if np.isfinite(items[i]["pairs"][k]["p_value"]) else 1.0 for i, k in flat])
-    for (i, k), p in zip(flat, fam):
-        items[i]["pairs"][k]["p_holm"] = p
-    cp = composite["pairs"]
-    for pair, p in zip(cp, holm([x["p_value"] if np.isfinite(x["p_value"]) else 1.0 for x in cp])):
-        pair["p_holm"] = p
+    _set_holm([pair for v in items.values() for pair in v["pairs"]])
+    _set_holm(composite["pairs"])
     return {"composite": composite, "items": items, "period_factor": with_period}
 
 

@@ -148,6 +148,11 @@ def study_facts(db) -> dict:
             "design": f"within-subject, {len(protocol.conditions)} models, {protocol.counterbalancing} counterbalancing"}
 
 
+def incomplete_text(facts: dict) -> str:
+    """The participants left out of every statistic, as reports print them: "P98 (9/27), ..."."""
+    return ", ".join("{} ({}/{})".format(x["code"], x["answers"], x["of"]) for x in facts["incomplete_participants"])
+
+
 def item_rows(r, q, models):
     """Per question, in table order: (item, question text, its rate row for each of `models`,
     its Cochran's Q row). The Markdown, LaTeX and HTML tables all render these."""
@@ -182,9 +187,8 @@ def markdown(db, holm_scope: str = "family") -> str:
     flag = "SYNTHETIC DATA (simulated participants): not evidence about people. " if facts["synthetic"] else ""
     if facts["mixed_source_participants"]:
         flag += f"WARNING: {', '.join(facts['mixed_source_participants'])} answered both as a person and synthetically. "
-    incomplete = facts["incomplete_participants"]
-    listed = ", ".join("{} ({}/{})".format(x["code"], x["answers"], x["of"]) for x in incomplete)
-    left_out = f" Left out (incomplete): {listed}." if incomplete else ""
+    listed = incomplete_text(facts)
+    left_out = f" Left out (incomplete): {listed}." if listed else ""
     scope = f"Holm over all {n_pairs} pairs" if holm_scope == "family" else "Holm within each question"
     lines = [
         f"**Table 1: {facts['study']}.** {flag}N = {facts['participants']} participants with every answer; {facts['design']}.{left_out}",

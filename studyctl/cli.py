@@ -1328,7 +1328,7 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
 
 def _no_answers(db, as_json: bool) -> bool:
     """An empty study: say so (exit 0) instead of tables of 0/0 and NaN; nothing is written."""
-    from analysis.table1 import study_facts
+    from analysis.table1 import incomplete_text, study_facts
 
     facts = study_facts(db)
     if facts["participants"]:
@@ -1341,7 +1341,7 @@ def _no_answers(db, as_json: bool) -> bool:
     flag = "SYNTHETIC DATA. " if facts["synthetic"] else ""
     if facts["mixed_source_participants"]:
         flag += f"WARNING: {', '.join(facts['mixed_source_participants'])} answered both as a person and synthetically. "
-    listed = "; incomplete: " + ", ".join(f"{x['code']} ({x['answers']}/{x['of']})" for x in incomplete) if incomplete else ""
+    listed = "; incomplete: " + incomplete_text(facts) if incomplete else ""
     click.echo(f"{flag}{facts['study']}: {message}{listed}; nothing to report")
     return True
 
@@ -1383,7 +1383,7 @@ def report_stats(db, holm_scope, as_json):
     per question Cochran's Q, rates with Wilson intervals, exact McNemar pairs with Holm, the
     GEE per question; the deformation-time benchmark. Complete cases only."""
     from analysis.stats import study_stats
-    from analysis.table1 import _gee_line
+    from analysis.table1 import _gee_line, incomplete_text
 
     if _no_answers(db, as_json):
         return
@@ -1396,9 +1396,8 @@ def report_stats(db, holm_scope, as_json):
     for item, v in out["items"].items():
         pairs = ", ".join(f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" for p in v["pairs"])
         click.echo(f"{item}: Q = {v['cochran_q']:.2f}, p = {v['p_value']:.3g}; {pairs}")
-    incomplete = out["facts"]["incomplete_participants"]
-    if incomplete:
-        click.echo("left out (incomplete): " + ", ".join(f"{x['code']} ({x['answers']}/{x['of']})" for x in incomplete))
+    if out["facts"]["incomplete_participants"]:
+        click.echo("left out (incomplete): " + incomplete_text(out["facts"]))
     gee = _gee_line(out["gee"])
     if gee:
         click.echo(gee.replace("`", ""))

@@ -93,9 +93,15 @@ class ObserverTraits:
     @classmethod
     def draw(cls, code: str, seed: int, params: ObserverParams = DEFAULT) -> ObserverTraits:
         rng = random.Random(f"observer:{seed}:{code}")
-        return cls(weber=params.weber * math.exp(rng.gauss(0.0, params.weber_sd)), prior=math.exp(rng.gauss(0.0, params.prior_sd)),
-                   latency_ms=params.latency_ms * math.exp(rng.gauss(0.0, params.latency_sd)),
-                   vibration=math.exp(rng.gauss(0.0, params.vibration_sd)), bias=rng.gauss(0.0, params.bias_sd))
+        return cls.from_normals([rng.gauss(0.0, 1.0) for _ in range(5)], params)
+
+    @classmethod
+    def from_normals(cls, z, params: ObserverParams = DEFAULT) -> ObserverTraits:
+        """The traits for five standard normal draws (the population's log-normal spreads)."""
+        a, b, c, d, e = (float(x) for x in z)
+        return cls(weber=params.weber * math.exp(params.weber_sd * a), prior=math.exp(params.prior_sd * b),
+                   latency_ms=params.latency_ms * math.exp(params.latency_sd * c), vibration=math.exp(params.vibration_sd * d),
+                   bias=params.bias_sd * e)
 
 
 @dataclass(frozen=True)

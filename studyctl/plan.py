@@ -45,23 +45,14 @@ def pilot_summaries(protocol, pilots: int = 4, seed: int = 0, mapping: dict[str,
     return out
 
 
-def _draw_traits(rng: np.random.Generator, n: int, params) -> list:
-    from studyctl.observer import ObserverTraits
-
-    z = rng.normal(size=(n, 5))
-    return [ObserverTraits(weber=params.weber * np.exp(params.weber_sd * a), prior=np.exp(params.prior_sd * b),
-                           latency_ms=params.latency_ms * np.exp(params.latency_sd * c), vibration=np.exp(params.vibration_sd * d),
-                           bias=params.bias_sd * e) for a, b, c, d, e in z]
-
-
 def simulate_answers(protocol, summaries: dict[str, list], n: int, rng: np.random.Generator, params=None) -> dict[str, np.ndarray]:
     """One simulated study of `n` participants: per question, answers (n, conditions) drawn
     from the observer, each participant's condition perceived from a random pilot trial."""
-    from studyctl.observer import DEFAULT, features, p_yes
+    from studyctl.observer import DEFAULT, ObserverTraits, features, p_yes
 
     params = params or DEFAULT
     labels = list(protocol.conditions)
-    traits = _draw_traits(rng, n, params)
+    traits = [ObserverTraits.from_normals(z, params) for z in rng.normal(size=(n, 5))]
     feats = [[features([summaries[c][rng.integers(len(summaries[c]))]], t, params) for c in labels] for t in traits]
     return {q: (rng.random((n, len(labels))) < np.array([[p_yes(q, f, t, params) for f in row] for row, t in zip(feats, traits)])).astype(int)
             for q in protocol.items}

@@ -328,14 +328,15 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
             was = running[0]
             raise StoreError(f"participant {code}: session {was['id']} was started with --device {was['device']}"
                              f"{' --synthetic' if was['synthetic'] else ''}; resume it with the same options")
+        stored = running[0].get("seed") if running and synthetic else None
+        if stored is not None and seed is not None and seed != stored:
+            raise StoreError(f"participant {code}: session {running[0]['id']} was started with --seed {stored}; "
+                             f"resume it with the same seed (or leave --seed out)")
+        # the session's own seed on a resume; else the one given; else 0 (also a session from
+        # before seeds were stored)
+        seed = stored if stored is not None else (0 if seed is None else seed)
         if running:
             session_id = running[0]["id"]
-            stored = running[0].get("seed")
-            if synthetic and stored is not None:
-                if seed is not None and seed != stored:
-                    raise StoreError(f"participant {code}: session {session_id} was started with --seed {stored}; "
-                                     f"resume it with the same seed (or leave --seed out)")
-                seed = stored
             store.event(session_id, "resumed")
             say(f"resuming session {session_id} of {code}")
         else:
@@ -346,7 +347,6 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                 folder.mkdir(exist_ok=True)
             except OSError as exc:
                 raise StoreError(f"{folder}: cannot hold the trial traces: {exc.strerror}") from None
-            seed = 0 if seed is None else seed
             rng = random.Random(f"labels:{seed}:{code}") if synthetic else random.SystemRandom()
             labels = condition_labels(order, rng)
             store.write("sessions", {
@@ -360,7 +360,6 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                                            "label": labels[model]}, pk=("session_id", "position"))
         labels = {r["model"]: r["label"] or chr(ord("A") + r["position"])
                   for r in store.rows("select model, position, label from conditions where session_id = ?", (session_id,))}
-        seed = 0 if seed is None else seed  # a session from before seeds were stored: the old default
         participant = None
         if answers is None and synthetic:
             from studyctl.synthetic import SyntheticAnswers, SyntheticParticipant
@@ -430,18 +429,20 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                     store.write_many("latency", lat, pk=("session_id", "model", "trial", "measure"))
                 store.write("trials", rec, pk=("session_id", "model", "trial"))
             answered = {r["item"] for r in store.rows("select item from answers where code = ? and model = ?", (code, model))}
+            results = None  # every stored trial of the condition, resumed or not: read once, when needed
             observes = hasattr(answerer, "features_of")
             if observes and (len(answered) < len(protocol.questions)
                              or not store.rows("select 1 from observer_features where code = ? and model = ? limit 1", (code, model))):
                 # what the observer perceived, from every stored trace of the condition (after a
                 # resume too), kept before the answers drawn from it
-                feats = answerer.features_of(model, trial_traces(store, session_id, model))
+                results = trial_traces(store, session_id, model)
+                feats = answerer.features_of(model, results)
                 at = now()
                 with store.transaction() as conn:
                     conn.executemany("insert or replace into observer_features (code, model, feature, value, session_id, computed_at) "
                                      "values (?, ?, ?, ?, ?, ?)", [(code, model, k, float(v), session_id, at) for k, v in feats.items()])
             if len(answered) < len(protocol.questions):
-                results = trial_traces(store, session_id, model)  # every stored trial of the condition, resumed or not
+                results = results if results is not None else trial_traces(store, session_id, model)
                 answerer.begin(f"condition {label} ({pos + 1} of {n_cond})")
                 for q in protocol.questions:
                     if q.id in answered:

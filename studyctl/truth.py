@@ -110,15 +110,10 @@ def load_truth(scene, path: Path | str | None = None) -> Truth:
 
 def hand_vertices(scene, radius: float = TRUTH_RADIUS) -> np.ndarray:
     """Surface vertices within `radius` of where each hand grasps (same hemisphere)."""
+    from analysis.reference import patch_vertices
+
     mesh = scene.mesh
-    mesh.prepare_queries()
-    out = []
-    for hand in scene.spec.hands:
-        v = mesh.nearest_vertex(hand.script(mesh).start)
-        near = np.asarray(mesh._kdtree.query_ball_point(mesh.vertices[v], radius), dtype=np.int64)
-        if mesh.labels is not None:
-            near = near[mesh.labels[near] == mesh.labels[v]]
-        out.append(near)
+    out = [patch_vertices(mesh, mesh.nearest_vertex(hand.script(mesh).start), radius) for hand in scene.spec.hands]
     return np.unique(np.concatenate(out)) if out else np.zeros(0, dtype=np.int64)
 
 
