@@ -91,3 +91,13 @@ def polar_rotations(F, R, det, tol=1e-13, max_iter=40):
             for j in range(3):
                 R[e, i, j] = X[i, j]
     return left
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) every kernel for the argument types the models pass,
+    on tiny inputs: about 1.5 s in a fresh process, spent when a model is built rather than in
+    the first deformation frame of a trial (where it stalled the participant's view)."""
+    x = np.zeros((2, 3))
+    idx = np.array([0], dtype=np.int64)
+    spring_rhs(x, idx, idx + 1, np.ones(1), np.ones(1), np.array([0, 1], dtype=np.int64), 2)
+    polar_rotations(np.eye(3)[None].copy(), np.empty((1, 3, 3)), np.empty(1))

@@ -320,6 +320,13 @@ class FemModel:
         # then renders nothing until the grasp is released
         self.unstable = False
         self.frame_flops = math.nan  # the last frame's counted work
+        if formulation == "corotational":
+            try:
+                from sim.kernels import warm_up
+            except ImportError:  # the SVD path needs no compiling
+                pass
+            else:
+                warm_up()  # compiled now, not in the first frame of a trial
 
     @property
     def timings(self) -> dict:

@@ -518,6 +518,10 @@ class MassSpringModel:
         self._out = np.zeros_like(surface.vertices)
         self.step_s: list[float] = []
         self.frame_flops = math.nan  # the last frame's counted work (MassSpring.step_flops)
+        if integrator == "local-global" and _spring_rhs() is not None:
+            from sim.kernels import warm_up
+
+            warm_up()  # compiled now, not in the first frame of a trial
         if integrator == "explicit":  # refuse now what the first frame would refuse
             crit = system.critical_dt()
             if not substep and dt > crit:
