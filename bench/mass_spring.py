@@ -116,12 +116,13 @@ def measure() -> dict:
     ref = base.x.copy()
     moved = float(np.linalg.norm(ref - s0[0]))
     out["chebyshev_rho"] = base.lg_rho(FRAME)
-    for acc in ("none", "chebyshev"):
+    for acc in ("none", "chebyshev", "anderson"):
         r = _to_one_percent(base, s0, ref, moved, acc)
         key = "plain" if acc == "none" else acc
         out[f"iterations_to_1pct_{key}"] = r["iterations"]
         out[f"ms_to_1pct_{key}"] = r["ms"]
-    out["local_global_ms_per_frame_4mm"] = out["ms_to_1pct_chebyshev"]  # the issue's figure: a frame at 1% of BE
+    # the issue's figure: a frame at 1% of BE, by the faster acceleration
+    out["local_global_ms_per_frame_4mm"] = min(out["ms_to_1pct_chebyshev"], out["ms_to_1pct_anderson"])
     return out
 
 
@@ -147,7 +148,7 @@ def main() -> None:
               f"largest difference {out['warp_max_difference']:.2g})")
     else:
         print("  peer: warp-lang is not installed (pip install warp-lang), no comparison")
-    for key in ("plain", "chebyshev"):
+    for key in ("plain", "chebyshev", "anderson"):
         print(f"  to 1% of backward Euler, {key:<9}: {out[f'iterations_to_1pct_{key}']:4d} iterations, {out[f'ms_to_1pct_{key}']:8.1f} ms per frame")
     ms = out["local_global_ms_per_frame_4mm"]
     print(f"  target {TARGET_MS:g} ms per frame at 1%: {'met' if ms <= TARGET_MS else f'MISSED ({ms / TARGET_MS:.1f}x over)'}; "

@@ -32,6 +32,21 @@ def spring_rhs(x, ei, ej, k, rest, free_pos, n_free):
     return out
 
 
+@numba.njit(cache=True, fastmath=False)
+def spring_energy(x, ei, ej, k, rest):
+    """sum over springs of k/2 (|x_i - x_j| - rest)^2: the springs' part of the local/global
+    objective, for Anderson acceleration's energy safeguard."""
+    total = 0.0
+    for s in range(ei.shape[0]):
+        i, j = ei[s], ej[s]
+        d0 = x[i, 0] - x[j, 0]
+        d1 = x[i, 1] - x[j, 1]
+        d2 = x[i, 2] - x[j, 2]
+        stretch = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - rest[s]
+        total += 0.5 * k[s] * stretch * stretch
+    return total
+
+
 @numba.njit(cache=True)
 def _inv3(a, out):
     """out = a^-1 for a 3 x 3 matrix; returns det a."""
@@ -100,4 +115,5 @@ def warm_up() -> None:
     x = np.zeros((2, 3))
     idx = np.array([0], dtype=np.int64)
     spring_rhs(x, idx, idx + 1, np.ones(1), np.ones(1), np.array([0, 1], dtype=np.int64), 2)
+    spring_energy(x, idx, idx + 1, np.ones(1), np.ones(1))
     polar_rotations(np.eye(3)[None].copy(), np.empty((1, 3, 3)), np.empty(1))

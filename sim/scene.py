@@ -388,7 +388,7 @@ def _model_spec(models: _Reader, name: str) -> ModelSpec | None:
             "coupling": table.number("coupling", default=300.0, lo=0.0, hi=OMNI_MAX_STIFFNESS, lo_open=True),
             "grasp_radius": table.number("grasp_radius", default=0.005, lo=0.0, hi=0.02),
             "iterations": table.integer("iterations", default=10, lo=1, hi=1000),
-            "acceleration": table.string("acceleration", default="none", choices=("none", "chebyshev")),
+            "acceleration": table.string("acceleration", default="none", choices=("none", "chebyshev", "anderson")),
         })
     return ModelSpec(name=name, options=dict(table.data))
 

@@ -30,8 +30,9 @@ SUBSTEP_FRACTION = 0.5  # explicit sub-steps are this fraction of critical_dt()
 MAX_SUBSTEPS = 2000  # more explicit sub-steps per step than this cannot serve a visual frame
 
 
-ACCELERATIONS = ("none", "chebyshev")
+ACCELERATIONS = ("none", "chebyshev", "anderson")
 RHO_ITERATIONS = 120  # plain iterations that estimate the spectral radius (once per step size)
+ANDERSON_DEPTH = 5  # past iterates Anderson acceleration combines (Peng et al. 2018 use 5-6)
 
 
 def _spring_rhs():
@@ -322,6 +323,9 @@ class MassSpring:
         fixed_part = solver["L_fixed"] @ x[self.fixed] if self.fixed.any() else 0.0
         wood = self._woodbury(solver, free)
         inertia = (m * y / (h * h))[free]
+        if self.acceleration == "anderson":
+            x = self._anderson(solver, wood, inertia - fixed_part, x, y, h, iterations)
+            iterations = 0
         rho = self.lg_rho(h) if self.acceleration == "chebyshev" else None
         prev, omega = None, 1.0
         for k in range(iterations):
@@ -335,6 +339,61 @@ class MassSpring:
         v[self.fixed] = 0.0
         self.v = v / (1.0 + h * self.damping)  # mass-proportional damping, implicitly
         self.x = x
+
+    def _anderson(self, solver: dict, wood, base: np.ndarray, x: np.ndarray, y: np.ndarray, h: float, iterations: int) -> np.ndarray:
+        """Anderson-accelerated local/global (Peng, Deng, Zhang and Liu 2018): each iterate
+        combines the last `ANDERSON_DEPTH` local/global updates, least squares on their
+        residuals (normal equations of at most ANDERSON_DEPTH columns); one that raises the
+        step's objective is replaced by the plain update and the history cleared (their
+        safeguard), so the objective still falls every iteration."""
+        free = self.free
+        size = 3 * len(free)
+        F = np.empty((ANDERSON_DEPTH, size))  # rows: differences of successive residuals (a ring)
+        G = np.empty((ANDERSON_DEPTH, size))  # and of successive updates
+        used, head = 0, 0
+        f_prev = g_prev = None
+        yf = y[free]
+        mass = self.m[free, None] / (h * h)
+        energy = self._lg_objective(solver, x, x[free], yf, mass)
+        for _ in range(iterations):
+            g = self._lg_global(solver, wood, base + self._lg_local(solver, x))
+            f = g - x[free]
+            if f_prev is not None:
+                np.subtract(f.ravel(), f_prev.ravel(), out=F[head])
+                np.subtract(g.ravel(), g_prev.ravel(), out=G[head])
+                head, used = (head + 1) % ANDERSON_DEPTH, min(used + 1, ANDERSON_DEPTH)
+            f_prev, g_prev = f, g
+            if used:
+                dF = F[:used]
+                gram = dF @ dF.T
+                # a tiny ridge keeps nearly parallel residual differences solvable
+                theta = np.linalg.solve(gram + 1e-12 * np.trace(gram) * np.eye(used), dF @ f.ravel())
+                cand = g - (theta @ G[:used]).reshape(g.shape)
+                trial = self._lg_objective(solver, x, cand, yf, mass)
+                if trial <= energy:
+                    x[free] = cand
+                    energy = trial
+                    continue
+                used = head = 0
+            x[free] = g
+            energy = self._lg_objective(solver, x, g, yf, mass)
+        return x
+
+    def _lg_objective(self, solver: dict, x: np.ndarray, xf: np.ndarray, yf: np.ndarray, mass: np.ndarray) -> float:
+        """The step's objective sum m |x - y|^2 / (2 h^2) + springs + anchors at x with its free
+        nodes at `xf` (x is changed: its free rows become xf). `mass` is m / h^2 on the free
+        rows; springs between two clamped nodes are left out (they are constant)."""
+        x[self.free] = xf
+        d = xf - yf
+        total = 0.5 * float(np.sum(mass * d * d))
+        for nodes, k, target in self.anchors:
+            total += 0.5 * k * float(np.sum((x[nodes].mean(axis=0) - target) ** 2))
+        try:
+            from sim.kernels import spring_energy
+        except ImportError:
+            dv = solver["A_act"] @ x
+            return total + float(0.5 * np.sum(solver["act_k"] * (np.sqrt(np.einsum("ij,ij->i", dv, dv)) - solver["rest_act"]) ** 2))
+        return total + spring_energy(x, solver["act_i"], solver["act_j"], solver["act_k"], solver["rest_act"])
 
     def _lg_local(self, solver: dict, x: np.ndarray) -> np.ndarray:
         """The local step and its share of the right-hand side, A^T diag(k) d (free rows): each
