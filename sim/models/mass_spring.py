@@ -144,10 +144,18 @@ class MassSpring:
         return self._A.T @ fij
 
     def energy(self) -> float:
+        kinetic = 0.5 * float(np.sum(self.m[:, None] * self.v**2))
         a = self._moving  # springs between two clamped nodes keep their rest length
-        d = self.x[self.springs[a, 0]] - self.x[self.springs[a, 1]]
-        stretch = np.sqrt(np.einsum("ij,ij->i", d, d)) - self.rest[a]
-        return float(0.5 * np.sum(self.k[a] * stretch**2) + 0.5 * np.sum(self.m[:, None] * self.v**2))
+        try:
+            from sim.kernels import spring_energy
+        except ImportError:
+            d = self.x[self.springs[a, 0]] - self.x[self.springs[a, 1]]
+            stretch = np.sqrt(np.einsum("ij,ij->i", d, d)) - self.rest[a]
+            return float(0.5 * np.sum(self.k[a] * stretch**2)) + kinetic
+        if not hasattr(self, "_moving_arrays"):  # one compiled pass (the monitor runs every step)
+            self._moving_arrays = (np.ascontiguousarray(self.springs[a, 0]), np.ascontiguousarray(self.springs[a, 1]),
+                                   np.ascontiguousarray(self.k[a]), np.ascontiguousarray(self.rest[a]))
+        return spring_energy(self.x, *self._moving_arrays) + kinetic
 
     # -- stability ----------------------------------------------------------------------------
     def stiffness_at_rest(self) -> sp.csr_matrix:
@@ -412,8 +420,8 @@ class MassSpring:
         """The global step: (M / h^2 + L) x = rhs on the free nodes (prefactored)."""
         if wood is None:
             return solver["factor"].solve(np.ascontiguousarray(rhs))
-        Wm, Z, Sinv, kt = wood  # anchors: (Q + W diag(k) W^T) x = rhs + W diag(k) T, by Woodbury
-        xb = solver["factor"].solve(np.ascontiguousarray(rhs + Wm @ kt))
+        Wm, Z, Sinv, Wkt = wood  # anchors: (Q + W diag(k) W^T) x = rhs + W diag(k) T, by Woodbury
+        xb = solver["factor"].solve(np.ascontiguousarray(rhs + Wkt))
         return xb - Z @ (Sinv @ (Wm.T @ xb))
 
     def lg_rho(self, h: float) -> float:
@@ -462,7 +470,7 @@ class MassSpring:
             solver["wood"] = cached = (key, Wm, Z, Sinv)
         _, Wm, Z, Sinv = cached
         kt = np.stack([k * t for _, k, t in self.anchors])  # (m, 3)
-        return Wm, Z, Sinv, kt
+        return Wm, Z, Sinv, Wm @ kt  # W diag(k) T: the same for every iteration of the step
 
     def _lg_solver(self, h: float) -> dict:
         if h not in self._lg_cache:
