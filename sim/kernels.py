@@ -108,6 +108,62 @@ def polar_rotations(F, R, det, tol=1e-13, max_iter=40):
     return left
 
 
+@numba.njit(cache=True)
+def deformation_gradients(u, tets, grads, F):
+    """F = I + sum_a u_a (x) grad N_a for each linear tetrahedron (u: (3n,) nodal displacements)."""
+    for e in range(tets.shape[0]):
+        for i in range(3):
+            for j in range(3):
+                F[e, i, j] = 1.0 if i == j else 0.0
+        for a in range(4):
+            base = 3 * tets[e, a]
+            for i in range(3):
+                ui = u[base + i]
+                for j in range(3):
+                    F[e, i, j] += ui * grads[e, a, j]
+
+
+@numba.njit(cache=True)
+def corotated_minus_linear(u, nodes, tets, Ke, R, out):
+    """out += sum_e R_e K_e (R_e^T x_e - X_e) - K_e u_e over the given elements, scattered to
+    their dofs: the corotational internal force's change from the linear one (x = X + u)."""
+    local = np.empty(12)
+    ue = np.empty(12)
+    for e in range(tets.shape[0]):
+        for a in range(4):
+            n = tets[e, a]
+            for i in range(3):
+                ue[3 * a + i] = u[3 * n + i]
+            for i in range(3):  # (R^T x - X)_i = sum_k R_ki x_k - X_i
+                acc = 0.0
+                for k in range(3):
+                    acc += R[e, k, i] * (nodes[n, k] + u[3 * n + k])
+                local[3 * a + i] = acc - nodes[n, i]
+        for a in range(4):
+            fl0 = 0.0
+            fl1 = 0.0
+            fl2 = 0.0
+            lin0 = 0.0
+            lin1 = 0.0
+            lin2 = 0.0
+            r0 = 3 * a
+            for c in range(12):
+                lc = local[c]
+                uc = ue[c]
+                fl0 += Ke[e, r0, c] * lc
+                fl1 += Ke[e, r0 + 1, c] * lc
+                fl2 += Ke[e, r0 + 2, c] * lc
+                lin0 += Ke[e, r0, c] * uc
+                lin1 += Ke[e, r0 + 1, c] * uc
+                lin2 += Ke[e, r0 + 2, c] * uc
+            n = tets[e, a]
+            for i in range(3):
+                out[3 * n + i] += R[e, i, 0] * fl0 + R[e, i, 1] * fl1 + R[e, i, 2] * fl2
+            out[3 * n] -= lin0
+            out[3 * n + 1] -= lin1
+            out[3 * n + 2] -= lin2
+
+
 def warm_up() -> None:
     """Compile (or load from numba's cache) every kernel for the argument types the models pass,
     on tiny inputs: about 1.5 s in a fresh process, spent when a model is built rather than in
@@ -117,3 +173,7 @@ def warm_up() -> None:
     spring_rhs(x, idx, idx + 1, np.ones(1), np.ones(1), np.array([0, 1], dtype=np.int64), 2)
     spring_energy(x, idx, idx + 1, np.ones(1), np.ones(1))
     polar_rotations(np.eye(3)[None].copy(), np.empty((1, 3, 3)), np.empty(1))
+    tets = np.arange(4, dtype=np.int64)[None]
+    F = np.empty((1, 3, 3))
+    deformation_gradients(np.zeros(12), tets, np.zeros((1, 4, 3)), F)
+    corotated_minus_linear(np.zeros(12), np.zeros((4, 3)), tets, np.zeros((1, 12, 12)), F, np.zeros(12))

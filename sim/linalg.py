@@ -123,6 +123,23 @@ class Factor:
             del self._solver  # free the failed factor now, not when the exception dies
             raise SingularSystemError("stiffness is singular or not positive definite (check solve failed)")
 
+    def with_values(self, A) -> Factor:
+        """The factor of A, a matrix with this one's pattern (or part of it), reusing this
+        factor's ordering and symbolic analysis: only the numeric factorisation is done (the
+        corotational FEM's warped stiffness, refactorised while the hand moves)."""
+        A = _csc(A)
+        cholmod = _cholmod()
+        factor, problem = None, ""
+        try:
+            factor = self._solver.cholesky(A)
+        except cholmod.CholmodNotPositiveDefiniteError as exc:
+            problem = f"pivot {exc.column} of {A.shape[0]} is not positive"
+        except cholmod.CholmodError as exc:
+            problem = f"CHOLMOD failed: {exc}"
+        if factor is None:  # raised here, not in the except block: nothing holds the failed factor
+            raise SingularSystemError(f"stiffness is singular or not positive definite: {problem}")
+        return Factor(A, _factor=factor)
+
     @property
     def nnz_L(self) -> int:
         """Entries of the factor L: a solve is about 4 nnz_L flops per right-hand side (the

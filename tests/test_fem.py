@@ -187,6 +187,54 @@ def test_corotational_small_pull_matches_linear_and_large_rotation_is_invariant(
     assert np.abs(corotational_internal_force(fem, u_rot, R)).max() < 1e-12 * np.abs(fem.stiffness @ u_rot).max()
 
 
+def test_compiled_corotational_passes_equal_the_numpy_ones(monkeypatch):
+    """The compiled rotations and force (a subset of elements, as the haptic frame uses) equal
+    the batched NumPy products on a large, rotating displacement."""
+    import sim.models.fem as fm
+
+    pytest.importorskip("numba")
+    fem, _, _ = _block_pull((0.008, 0.0, 0.006))
+    rng = np.random.default_rng(3)
+    th = 0.4
+    Rz = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]])
+    u = (fem.nodes @ Rz.T - fem.nodes).ravel() + rng.normal(0, 5e-4, 3 * len(fem.nodes))
+    elements = np.sort(rng.choice(len(fem.tets), len(fem.tets) // 3, replace=False))
+    R, J = fm.element_rotations(fem, u, elements)
+    f = fm.corotational_internal_force(fem, u, R, elements)
+    monkeypatch.setattr(fm, "_kernels", lambda: None)
+    R0, J0 = fm.element_rotations(fem, u, elements)
+    f0 = fm.corotational_internal_force(fem, u, R0, elements)
+    assert np.allclose(R, R0, atol=1e-12) and np.allclose(J, J0, rtol=1e-12)
+    assert np.allclose(f, f0, rtol=1e-10, atol=1e-11 * np.abs(f0).max())
+    assert np.abs(f - fem.stiffness @ u).max() > 1e-3 * np.abs(f0).max()  # the rotation matters here
+
+
+def test_warped_stiffness_of_the_active_elements_is_the_full_warp_with_the_others_unrotated():
+    """The frame's warped tangent (values added into the linear pattern, factorised on the
+    linear factor's analysis) equals `warped_stiffness` assembled from scratch with identity
+    rotations outside the active set, and solves like a fresh factorisation of it."""
+    import sim.models.fem as fm
+
+    fem, W, d = _block_pull((0.008, 0.0, 0.006))
+    U = fem.solve_free(W.T.toarray())
+    u, _, _ = fm.corotational_solve(fem, W, U, d, steps=2)
+    u = u.ravel()
+    mag = np.linalg.norm(u.reshape(-1, 3), axis=1)
+    active = np.flatnonzero((mag > 0.3 * mag.max())[fem.tets].any(axis=1))
+    assert 0 < len(active) < len(fem.tets)
+    R, _ = fm.element_rotations(fem, u, active)
+    Rall = np.broadcast_to(np.eye(3), (len(fem.tets), 3, 3)).copy()
+    Rall[active] = R
+    full = fm.warped_stiffness(fem, Rall)
+    fast = fm._warped_active(fem, R, active)
+    assert abs(fast - full).max() <= 1e-12 * abs(full).max()
+    assert abs(fast - fem.reduced).max() > 1e-3 * abs(full).max()
+    b = np.random.default_rng(0).normal(size=fast.shape[0])
+    from sim.linalg import Factor
+
+    assert np.allclose(fem.factor.with_values(fast).solve(b), Factor(full).solve(b), rtol=1e-9, atol=1e-12)
+
+
 def test_corotational_large_pull_converges_and_flags_inversion():
     from sim.models.fem import corotational_solve
 

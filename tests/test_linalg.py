@@ -67,3 +67,16 @@ def test_shifted_factor():
     assert np.linalg.norm(K @ x + f.shift * x - b) < 1e-10
     with pytest.raises(SingularSystemError, match="even shifted"):
         shifted_factor(sp.diags([1.0] * 499 + [-1e9]))  # 100 x the mean |diagonal| is 2e8
+
+
+def test_with_values_reuses_the_analysis_and_refuses_what_is_not_positive_definite():
+    """New values on the same pattern (the warped FEM tangent): the same answer as a fresh
+    factorisation; an indefinite matrix raises the project's error, nothing chained."""
+    K = fem_stiffness()
+    f = Factor(K)
+    K2 = (1.7 * K + sp.diags(np.random.default_rng(1).random(K.shape[0]) * K.diagonal())).tocsr()
+    b = np.ones(K.shape[0])
+    assert np.allclose(f.with_values(K2).solve(b), spsolve(K2.tocsc(), b), rtol=1e-9)
+    with pytest.raises(SingularSystemError, match="not positive definite") as info:
+        f.with_values(-K)
+    assert info.value.__cause__ is None and info.value.__context__ is None

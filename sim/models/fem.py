@@ -495,7 +495,7 @@ class FemModel:
                     # refresh in the last 3 frames: refactorise the warped tangent at this state
                     if res > 1e-3 and state["since"] >= 3:
                         self.tangent_updates += 1
-                        factor = Factor(_warped_active(fem, R, state["active"]))
+                        factor = fem.factor.with_values(_warped_active(fem, R, state["active"]))  # the linear factor's analysis
                         Uw = factor.solve(np.ascontiguousarray(W.T.toarray()))
                         # the warped stiffness has the linear one's pattern: the same factor size (no L copied here)
                         self.frame_flops += fem.factor.factor_flops + 4 * fem.factor.nnz_L * W.shape[0]
@@ -520,13 +520,37 @@ class FemModel:
         return u_nodes
 
 
-def _warped_active(fem: LinearFem, R: np.ndarray, active: np.ndarray) -> sp.csr_matrix:
+def _warped_active(fem: LinearFem, R: np.ndarray, active: np.ndarray) -> sp.csc_matrix:
     """Warped stiffness on the free dofs with only the `active` elements rotated: the linear
-    reduced stiffness plus the change of those elements (cheap next to a full assembly)."""
+    reduced stiffness plus the change of those elements, added straight into a copy of its
+    values (where each element entry lands is found once per active set; the matrix is
+    symmetric, so its CSR arrays serve as CSC)."""
+    cached = getattr(fem, "_warp_map", None)
+    if cached is None or cached[0] is not active:
+        Kr = fem.reduced
+        Kr.sum_duplicates()  # canonical: sorted indices, so keys below increase
+        n = Kr.shape[0]
+        where = -np.ones(3 * len(fem.nodes), dtype=np.int64)
+        where[fem.free] = np.arange(len(fem.free))
+        dofs = where[element_dofs(fem.tets[active])]  # (m, 12) free index or -1
+        rows = np.repeat(dofs, 12, axis=1).ravel()
+        cols = np.tile(dofs, (1, 12)).ravel()
+        valid = (rows >= 0) & (cols >= 0)
+        keys = np.repeat(np.arange(n, dtype=np.int64), np.diff(Kr.indptr)) * n + Kr.indices
+        query = rows[valid] * n + cols[valid]
+        pos = np.minimum(np.searchsorted(keys, query), len(keys) - 1)
+        if not np.array_equal(keys[pos], query):  # an entry outside the pattern (a dropped zero): assemble
+            pos = None
+        fem._warp_map = cached = (active, valid, pos)
+    _, valid, pos = cached
     K5 = fem.element_matrices[active].reshape(-1, 4, 3, 4, 3)
     Kw = np.einsum("mij,majbk,mlk->maibl", R, K5, R, optimize=True)  # R K_ab R^T for every 3x3 block
-    delta = assemble((Kw - K5).reshape(-1, 12, 12), fem.tets[active], len(fem.nodes))
-    return (fem.reduced + delta[fem.free][:, fem.free]).tocsr()
+    Kr = fem.reduced
+    if pos is None:
+        delta = assemble((Kw - K5).reshape(-1, 12, 12), fem.tets[active], len(fem.nodes))
+        return (Kr + delta[fem.free][:, fem.free]).tocsc()
+    data = Kr.data + np.bincount(pos, weights=(Kw - K5).ravel()[valid], minlength=len(Kr.data))
+    return sp.csc_matrix((data, Kr.indices, Kr.indptr), shape=Kr.shape)
 
 
 def fixed_nodes(volume, surface, fixed_surface_mask: np.ndarray, axis: int) -> np.ndarray:
@@ -553,16 +577,40 @@ def build(mesh, spec, scene=None):
 # -- corotational (stiffness warping) ------------------------------------------------------
 
 
+def _element_arrays(fem: LinearFem, elements: np.ndarray | None) -> tuple:
+    """Contiguous tets, gradients and element matrices of `elements` (all when None) for the
+    compiled kernels; kept for the last set asked for (a grasp's active elements, every frame)."""
+    cached = getattr(fem, "_element_arrays", None)
+    if cached is not None and cached[0] is elements:
+        return cached[1]
+    sel = slice(None) if elements is None else elements
+    arrays = (np.ascontiguousarray(fem.tets[sel], dtype=np.int64), np.ascontiguousarray(fem.grads[sel]),
+              np.ascontiguousarray(fem.element_matrices[sel]))
+    fem._element_arrays = (elements, arrays)
+    return arrays
+
+
+def _kernels():
+    try:
+        import sim.kernels as kernels
+    except ImportError:
+        return None
+    return kernels
+
+
 def element_rotations(fem: LinearFem, u: np.ndarray, elements: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Rotation of each element's polar decomposition F = R S, and det F, for nodal u (3n,)."""
-    tets = fem.tets if elements is None else fem.tets[elements]
-    grads = fem.grads if elements is None else fem.grads[elements]
-    ue = u[element_dofs(tets)].reshape(-1, 4, 3)
-    F = np.eye(3) + np.einsum("mai,maj->mij", ue, grads)
-    try:  # compiled polar iteration (sim/kernels.py): 16x the batched SVD, the same R to 1e-14
-        from sim.kernels import polar_rotations
-    except ImportError:
+    kernels = _kernels()
+    if kernels is None:
+        tets = fem.tets if elements is None else fem.tets[elements]
+        grads = fem.grads if elements is None else fem.grads[elements]
+        ue = u[element_dofs(tets)].reshape(-1, 4, 3)
+        F = np.eye(3) + np.einsum("mai,maj->mij", ue, grads)
         return _svd_rotations(F), np.linalg.det(F)
+    tets, grads, _ = _element_arrays(fem, elements)
+    F = np.empty((len(tets), 3, 3))
+    kernels.deformation_gradients(np.ascontiguousarray(u, dtype=np.float64), tets, grads, F)
+    polar_rotations = kernels.polar_rotations  # compiled scaled-Newton polar iteration: 16x the batched SVD, the same R to 1e-14
     R, det = np.empty_like(F), np.empty(len(F))
     left = polar_rotations(np.ascontiguousarray(F), R, det)
     if left.any():  # inverted (det F <= 0): the SVD's nearest rotation
@@ -583,6 +631,12 @@ def corotational_internal_force(fem: LinearFem, u: np.ndarray, R: np.ndarray, el
     With `elements`, only those are corotated (R given for them); the others stay linear,
     which is what they are when their rotation is negligible.
     """
+    kernels = _kernels()
+    if kernels is not None and elements is not None:  # one compiled pass over the elements
+        tets, _, Ke = _element_arrays(fem, elements)
+        out = fem.stiffness @ u
+        kernels.corotated_minus_linear(np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(fem.nodes, dtype=np.float64), tets, Ke, np.ascontiguousarray(R), out)
+        return out
     tets = fem.tets if elements is None else fem.tets[elements]
     Ke = fem.element_matrices if elements is None else fem.element_matrices[elements]
     dofs = element_dofs(tets)
