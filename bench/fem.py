@@ -7,6 +7,8 @@ same mesh, when scikit-fem is installed (dev dependency). The factorisation of t
 FEM condenses (the shipped scene's reduced stiffness per hemisphere at its 4 mm resolution, and
 the reference problem's) is timed with CHOLMOD (`sim.linalg.Factor`, what the simulator uses) and
 with cholespy, on the same matrix.
+The corotational formulation runs the scene's 3 s two-hand pull (lockstep) for its frame
+times (target 16 ms: a study condition at 30-60 Hz).
 Usage: python -m bench fem [--json]  (--json: one JSON object instead of the lines)
 """
 
@@ -99,7 +101,47 @@ def flat_keys(result: dict) -> dict:
     frame = next(r for r in rows if "deformation per frame" in r["name"])
     out |= {"fem.tick_two_hands_us_p50": tick["p50"], "fem.tick_two_hands_us_p99": tick["p99"], "fem.tick_two_hands_us.target": 10.0,
             "fem.frame_two_hands_ms_p50": frame["p50"], "fem.frame_two_hands_ms_p99": frame["p99"]}
+    corot = result["corotational"]
+    out |= {f"fem.corotational.frame_ms_{k}": v for k, v in corot["frame_ms"].items()}
+    out |= {"fem.corotational.frame_ms.target": COROT_TARGET_MS, "fem.corotational.frame_ms_p50.ratio_to_target": corot["frame_ms"]["p50"] / COROT_TARGET_MS,
+            "fem.corotational.refactorisations": corot["tangent_updates"], "fem.corotational.refactorisation_ms_p50": corot["refactorisation_ms_p50"]}
     return out
+
+
+COROT_TARGET_MS = 16.0  # issue 19: corotational FEM at 30-60 Hz
+
+
+def corotational_pull() -> dict:
+    """The scene's 3 s two-hand pull with `formulation = "corotational"` (lockstep): frame times,
+    refactorisations of the warped tangent, and the frames that had one."""
+    import dataclasses
+
+    from sim.run import run_scene
+
+    scene = build_scene(DEFAULT_SCENE, "fem")
+    scene.model_spec = dataclasses.replace(scene.model_spec, options={**scene.model_spec.options, "formulation": "corotational"})
+    model = scene.model
+    updates = []
+    deformation = model.deformation
+
+    def counted(contacts, displacements):  # which frames refactorised
+        before = model.tangent_updates
+        start = time.perf_counter()
+        out = deformation(contacts, displacements)
+        if model.tangent_updates > before:
+            updates.append((time.perf_counter() - start) * 1e3)
+        return out
+
+    model.deformation = counted
+    result = run_scene(scene, time_scale=0)
+    ms = np.asarray(result.deformation_s) * 1e3
+    row = {"frames": len(ms), "frame_ms": {f"p{q}": float(np.percentile(ms, q)) for q in (50, 90, 99)} | {"max": float(ms.max())},
+           "tangent_updates": model.tangent_updates, "restarts": model.restarts, "refactorisation_ms_p50": float(np.median(updates)) if updates else None}
+    print(f"corotational, the scene's two-hand pull at {float(scene.model_spec.options['resolution']) * 1e3:g} mm ({row['frames']} frames): "
+          f"frame p50 {row['frame_ms']['p50']:.1f} ms, p90 {row['frame_ms']['p90']:.1f}, p99 {row['frame_ms']['p99']:.1f} "
+          f"(target {COROT_TARGET_MS:g} ms: {'met' if row['frame_ms']['p99'] <= COROT_TARGET_MS else 'MISSED'}); "
+          f"{row['tangent_updates']} refactorising frames, p50 {row['refactorisation_ms_p50'] or 0:.0f} ms; {row['restarts']} restarts")
+    return row
 
 
 def run() -> dict:
@@ -171,6 +213,7 @@ def run() -> dict:
               f"embedding {t['embedding_s']:.2f} s; unknowns {[len(p.free) for p in model.parts]})")
         result["haptics"][label] = {"build_s": build, **t, "unknowns": [len(p.free) for p in model.parts],
                                     "timings": _haptics(label, model, [h.start for h in scene.spec.hands])}
+    result["corotational"] = corotational_pull()
     return result
 
 

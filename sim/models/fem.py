@@ -457,7 +457,8 @@ class FemModel:
         modified Newton method spread over frames: a refactorisation costs a few frames).
         """
         u_nodes = np.zeros((self.volume.n_nodes, 3))
-        for part_id in sorted({c.data.part for c in contacts}):
+        refreshed = False
+        for part_id in sorted({c.data.part for c in contacts}, key=lambda p: (-self._corot.get(p, {}).get("since", 0), p)):
             idx = [k for k, c in enumerate(contacts) if c.data.part == part_id]
             cs = [contacts[k] for k in idx]
             d = np.concatenate([displacements[k] for k in idx])
@@ -493,7 +494,10 @@ class FemModel:
                     state["since"] += 1
                     # far from equilibrium (the hand moves, or the preconditioner has aged) and no
                     # refresh in the last 3 frames: refactorise the warped tangent at this state
-                    if res > 1e-3 and state["since"] >= 3:
+                    # and at most one part per frame (two hands on two hemispheres: the second
+                    # part waits a frame instead of doubling this frame's time)
+                    if res > 1e-3 and state["since"] >= 3 and not refreshed:
+                        refreshed = True
                         self.tangent_updates += 1
                         factor = fem.factor.with_values(_warped_active(fem, R, state["active"]))  # the linear factor's analysis
                         Uw = factor.solve(np.ascontiguousarray(W.T.toarray()))
