@@ -1,6 +1,6 @@
 """Run the benchmarks: `python -m bench` (all) or `python -m bench plate_spring servo 10`
 (a number is an argument for the benchmark before it: seconds, for servo; `--json` makes
-those that support it print JSON with stable keys: fem, mass_spring, servo, synthetic, observer)."""
+each benchmark print only JSON with stable keys, one object per benchmark)."""
 
 import importlib
 import sys

@@ -1,14 +1,15 @@
 """The quick accuracy bench (studyctl bench accuracy --quick) in one process: per model row,
 force error on the held-out pulls against the reference and frame time as a ratio to the seed
-paper's."""
+paper's. `python -m bench accuracy [--json]` (keys `accuracy.<model>.<setting>.<calibration>.*`)."""
 
 from __future__ import annotations
 
 from analysis.accuracy import quick_config, run_accuracy
 from analysis.plots import PAPER_MS
+from bench.common import main_with_json
 
 
-def main() -> None:
+def measure() -> dict:
     out = run_accuracy(quick_config(), jobs=1)  # one process: timings without a neighbour on the other core
     ref = out["meta"]["reference"]
     print(f"reference {ref['setting']} (converged: {ref['converged']}); E = {out['meta']['young_pa'] / 1e3:g} kPa; quick bench")
@@ -18,6 +19,21 @@ def main() -> None:
               f"(max {r['force_error_max']:6.1%}), within JND {r['within_jnd']:4.0%} [{r['within_jnd_low']:.0%}, {r['within_jnd_high']:.0%}]; "
               f"tick {r['tick_us']:.2f} us; frame p50 {r['frame_ms']:.3g} ms, "
               f"p99 {r['frame_ms_p99']:.3g} ms = {r['frame_ms'] / paper:.3g} x paper's {paper} ms")
+    return out
+
+
+def flat(out: dict) -> dict:
+    keys = {}
+    for r in out["rows"]:
+        name = f"accuracy.{r['model']}.{r['setting']}.{r['calibration']}"
+        for k in ("force_error", "force_error_max", "within_jnd", "tick_us", "frame_ms", "frame_ms_p99"):
+            keys[f"{name}.{k}"] = r[k]
+        keys[f"{name}.frame_ms.ratio_to_paper"] = r["frame_ms"] / PAPER_MS[r["model"]]
+    return keys
+
+
+def main() -> None:
+    main_with_json(measure, flat)
 
 
 if __name__ == "__main__":

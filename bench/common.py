@@ -40,3 +40,27 @@ def report(name: str, seconds: np.ndarray, unit: str, target: float | None = Non
         line += f"  | {reference[0]} {reference[1]:g} {unit} = {reference[1] / p50:.0f}x p50"
     print(line)
     return {"name": name, "unit": unit, "p50": p50, "p95": p95, "p99": p99, "max": float(v.max())}
+
+
+def main_with_json(measure, flat) -> None:
+    """Run `measure()` (prints its lines, returns a dict). With `--json` on the command line its
+    lines are swallowed and only `flat(result)`, a dict of stable keys, is printed as JSON."""
+    import contextlib
+    import io
+    import json
+    import sys
+
+    as_json = "--json" in sys.argv[1:]
+    with contextlib.redirect_stdout(io.StringIO()) if as_json else contextlib.nullcontext():
+        result = measure()
+    if as_json:
+        print(json.dumps(flat(result), indent=2))
+
+
+def percentile_keys(prefix: str, row: dict, target: float | None = None) -> dict:
+    """`prefix_p50`, `_p95`, `_p99`, `_max` of a `report` row, and `prefix.target` with the p99's ratio to it."""
+    out = {f"{prefix}_{k}": float(row[k]) for k in ("p50", "p95", "p99", "max")}
+    if target is not None:
+        out[f"{prefix}.target"] = target
+        out[f"{prefix}_p99.ratio_to_target"] = float(row["p99"]) / target
+    return out

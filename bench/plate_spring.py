@@ -1,15 +1,16 @@
-"""Plate-spring costs on the shipped brain: force per servo tick, deformation per frame."""
+"""Plate-spring costs on the shipped brain: force per servo tick, deformation per frame.
+`python -m bench plate_spring [--json]` (keys `plate_spring.*`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from bench.common import each_call, per_call, report
+from bench.common import each_call, main_with_json, per_call, percentile_keys, report
 from sim.scene import DEFAULT_SCENE as SCENE
 from sim.scene import build_scene
 
 
-def main() -> None:
+def measure() -> dict:
     scene = build_scene(SCENE)
     model = scene.model
     mesh = scene.mesh
@@ -26,8 +27,8 @@ def main() -> None:
         model.force(contacts[0], d)
         model.force(contacts[1], d)
 
-    report("force, both hands, per servo tick (batched)", per_call(tick, 200_000), "us", target=10.0)
-    report("force, both hands, per servo tick (each)", each_call(tick, 50_000), "us", target=10.0)
+    rows = {"tick_both_hands_batched_us": report("force, both hands, per servo tick (batched)", per_call(tick, 200_000), "us", target=10.0),
+            "tick_both_hands_us": report("force, both hands, per servo tick (each)", each_call(tick, 50_000), "us", target=10.0)}
     dd = [[rng.uniform(-0.015, 0.015, 3) for _ in range(2)] for _ in range(64)]
     j = [0]
 
@@ -35,13 +36,30 @@ def main() -> None:
         model.deformation(contacts, dd[j[0] & 63])
         j[0] += 1
 
-    report("deformation, whole brain, two hands, per frame", each_call(frame, 3000), "ms", target=1.0,
-           reference=("paper (2014 PC)", 14.69))
-    report("grasp (nearest vertex + geodesic ring)", each_call(lambda: model.grasp(scene.spec.hands[0].start, 0), 200), "ms", target=50.0)
-    located_tick(scene, disp)
+    rows["frame_two_hands_ms"] = report("deformation, whole brain, two hands, per frame", each_call(frame, 3000), "ms", target=1.0,
+                                        reference=("paper (2014 PC)", 14.69))
+    rows["grasp_ms"] = report("grasp (nearest vertex + geodesic ring)", each_call(lambda: model.grasp(scene.spec.hands[0].start, 0), 200), "ms", target=50.0)
+    return {"rows": rows, "located_over_paper_tick": located_tick(scene, disp)}
 
 
-def located_tick(scene, disp) -> None:
+TARGETS = {"tick_both_hands_batched_us": 10.0, "tick_both_hands_us": 10.0, "frame_two_hands_ms": 1.0, "grasp_ms": 50.0}
+
+
+def flat(result: dict) -> dict:
+    keys = {}
+    for name, row in result["rows"].items():
+        keys |= percentile_keys(f"plate_spring.{name}", row, TARGETS[name])
+    keys["plate_spring.frame_two_hands_ms_p50.ratio_to_paper"] = result["rows"]["frame_two_hands_ms"]["p50"] / 14.69
+    keys["plate_spring.located.tick_p50.ratio_to_paper_model"] = result["located_over_paper_tick"]
+    keys["plate_spring.located.tick_p50.ratio_to_paper_model.target"] = 2.0
+    return keys
+
+
+def main() -> None:
+    main_with_json(measure, flat)
+
+
+def located_tick(scene, disp) -> float:
     """The location-aware model (issue 16's goal: a tick within 2x of the paper's model's)."""
     from analysis.accuracy import LOCATED_PARAMS
     from analysis.field import FIELD_FILE, load_field
@@ -61,7 +79,9 @@ def located_tick(scene, disp) -> None:
             b.force(d)
 
         out[name] = report(f"law, both hands, per tick ({name})", per_call(tick, 200_000), "us", target=10.0)
-    print(f"located / paper tick, p50: {out['located']['p50'] / out['paper']['p50']:.2f}x (goal: at most 2x)")
+    ratio = out["located"]["p50"] / out["paper"]["p50"]
+    print(f"located / paper tick, p50: {ratio:.2f}x (goal: at most 2x)")
+    return float(ratio)
 
 
 if __name__ == "__main__":

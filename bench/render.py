@@ -1,15 +1,17 @@
 """Offscreen rendering of the brain (the participant view's renderer, open3d's classic OpenGL
-on EGL, no window): ms per 640x480 frame."""
+on EGL, no window): ms per 640x480 frame. `python -m bench render [--json]` (keys `render.*`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from bench.common import each_call, report
+from bench.common import each_call, main_with_json, percentile_keys, report
 from sim.mesh import load_mesh
 
+TARGET_MS = 33.0  # a 30 Hz visual frame
 
-def main() -> None:
+
+def measure() -> dict:
     from sim.view import HandState, ParticipantView
 
     mesh = load_mesh()
@@ -24,8 +26,13 @@ def main() -> None:
         r.image()
 
     frame()  # warm-up
-    report("render 640x480, brain + two hands", each_call(frame, 30), "ms", target=33.0)
+    row = report("render 640x480, brain + two hands", each_call(frame, 30), "ms", target=TARGET_MS)
     r.close()
+    return row
+
+
+def main() -> None:
+    main_with_json(measure, lambda row: percentile_keys("render.frame_ms", row, TARGET_MS))
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
 """What a scene costs to start: time and imported modules, one-hand plate-spring headless
-against two-hand FEM with rendering (each in a fresh interpreter)."""
+against two-hand FEM with rendering (each in a fresh interpreter).
+`python -m bench startup [--json]` (keys `startup.<case>.*`)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from bench.common import main_with_json
 from sim.scene import DEFAULT_SCENE
 
 CHILD = r"""
@@ -41,8 +43,12 @@ def _scene(text: str, tmp: Path, name: str) -> Path:
     return path
 
 
-def main() -> None:
+CASES = {"one-hand plate-spring, headless": "plate_spring_one_hand_headless", "two-hand FEM, rendering": "fem_two_hands_rendering"}
+
+
+def measure() -> dict:
     base = DEFAULT_SCENE.read_text()
+    results = {}
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         one = base.replace('kind = "offscreen"', 'kind = "none"')
@@ -55,6 +61,16 @@ def main() -> None:
             loaded = ", ".join(k for k, v in r["loaded"].items() if v)
             print(f"{label:<34} ready {r['ready_s']:6.2f} s, total {r['total_s']:6.2f} s, {r['modules']:5d} modules, "
                   f"max RSS {r['max_rss_mb']:6.0f} MB; loaded: {loaded}")
+            results[CASES[label]] = r
+    return results
+
+
+def flat(results: dict) -> dict:
+    return {f"startup.{case}.{k}": r[k] for case, r in results.items() for k in ("ready_s", "total_s", "modules", "max_rss_mb")}
+
+
+def main() -> None:
+    main_with_json(measure, flat)
 
 
 if __name__ == "__main__":
