@@ -40,6 +40,19 @@ def _pulled(scene):
     return base
 
 
+def _copy_bandwidth() -> float:
+    """This machine's memory bandwidth for a streaming copy (read + write of 64 MB), GB/s: what a
+    solve that streams its factor can at best reach."""
+    a = np.ones(8_000_000)
+    b = np.empty_like(a)
+    times = []
+    for _ in range(10):
+        start = time.perf_counter()
+        np.copyto(b, a)
+        times.append(time.perf_counter() - start)
+    return 2 * a.nbytes / min(times) / 1e9
+
+
 def _to_one_percent(base, s0, ref, moved, acceleration: str) -> dict:
     """Fewest iterations (of a doubling-then-bisecting search) whose step is within 1% of the
     converged backward-Euler step, and the median time of that step."""
@@ -107,6 +120,11 @@ def measure() -> dict:
     for _ in range(100):
         solver["factor"].solve(b)
     out["global_solve_ms"] = (time.perf_counter() - start) / 100 * 1e3
+    # the solve reads the factor twice (forward, backward): 8-byte values and 4-byte row indices
+    nnz_L = solver["factor"].nnz_L
+    out["global_solve_factor_mb"] = nnz_L * 12 / 1e6
+    out["global_solve_gb_per_s"] = 2 * nnz_L * 12 / (out["global_solve_ms"] * 1e-3) / 1e9
+    out["memory_copy_gb_per_s"] = _copy_bandwidth()
     # towards the backward-Euler step of a frame in the middle of the pull
     base.set_state(start_state)
     for _ in range(10):
@@ -142,6 +160,8 @@ def main() -> None:
         print(f"  {k:<18} {out[f'{k}_ms_per_frame_4mm']:9.1f} ms per 1/30 s frame ({what})")
     print(f"  local step: numba {out['local_step_ms_numba']:.3f} ms, NumPy {out['local_step_ms_numpy']:.3f} ms "
           f"({out['local_step_ms_numpy'] / out['local_step_ms_numba']:.1f}x); global solve (CHOLMOD, 3 columns) {out['global_solve_ms']:.3f} ms")
+    print(f"  the solve streams its {out['global_solve_factor_mb']:.1f} MB factor twice: {out['global_solve_gb_per_s']:.1f} GB/s; "
+          f"a plain memory copy here: {out['memory_copy_gb_per_s']:.1f} GB/s")
     if "local_step_ms_warp_cpu" in out:
         print(f"  peer: NVIDIA Warp (CPU device), the same local step as a kernel: {out['local_step_ms_warp_cpu']:.3f} ms "
               f"({out['local_step_ms_warp_cpu'] / out['local_step_ms_numba']:.2f}x ours; first compile {out['warp_compile_s']:.1f} s; "

@@ -362,10 +362,11 @@ class MassSpring:
         f_prev = g_prev = None
         yf = y[free]
         mass = self.m[free, None] / (h * h)
-        energy = self._lg_objective(solver, x, x[free], yf, mass)
+        xf = x[free]  # the free rows of x, kept alongside it (x's free rows are written by _lg_objective)
+        energy = self._lg_objective(solver, x, xf, yf, mass)
         for _ in range(iterations):
             g = self._lg_global(solver, wood, base + self._lg_local(solver, x))
-            f = g - x[free]
+            f = g - xf
             if f_prev is not None:
                 np.subtract(f.ravel(), f_prev.ravel(), out=F[head])
                 np.subtract(g.ravel(), g_prev.ravel(), out=G[head])
@@ -379,12 +380,10 @@ class MassSpring:
                 cand = g - (theta @ G[:used]).reshape(g.shape)
                 trial = self._lg_objective(solver, x, cand, yf, mass)
                 if trial <= energy:
-                    x[free] = cand
-                    energy = trial
+                    energy, xf = trial, cand
                     continue
                 used = head = 0
-            x[free] = g
-            energy = self._lg_objective(solver, x, g, yf, mass)
+            energy, xf = self._lg_objective(solver, x, g, yf, mass), g
         return x
 
     def _lg_objective(self, solver: dict, x: np.ndarray, xf: np.ndarray, yf: np.ndarray, mass: np.ndarray) -> float:
