@@ -326,25 +326,28 @@ class MassSpring:
         m = self.m[:, None]
         y = self.x + h * self.v + h * h * self.external / m
         x = y.copy()
-        x[self.fixed] = self.rest_positions[self.fixed]
+        fixed = solver["fixed_idx"]
+        x[fixed] = self.rest_positions[fixed]
         free = self.free
-        fixed_part = solver["L_fixed"] @ x[self.fixed] if self.fixed.any() else 0.0
+        if "fixed_part" not in solver:  # the clamped nodes sit at rest: their pull is the same every step
+            solver["fixed_part"] = solver["L_fixed"] @ self.rest_positions[fixed] if len(fixed) else 0.0
         wood = self._woodbury(solver, free)
-        inertia = (m * y / (h * h))[free]
+        # the right-hand side's fixed part, once per step (the same sums as inside the loop)
+        base = self.m[free, None] * y[free] / (h * h) - solver["fixed_part"]
         if self.acceleration == "anderson":
-            x = self._anderson(solver, wood, inertia - fixed_part, x, y, h, iterations)
+            x = self._anderson(solver, wood, base, x, y, h, iterations)
             iterations = 0
         rho = self.lg_rho(h) if self.acceleration == "chebyshev" else None
         prev, omega = None, 1.0
         for k in range(iterations):
-            xf = self._lg_global(solver, wood, inertia - fixed_part + self._lg_local(solver, x))
+            xf = self._lg_global(solver, wood, base + self._lg_local(solver, x))
             if rho is not None and k >= 1:  # Chebyshev semi-iteration on the free nodes
                 omega = 2.0 / (2.0 - rho * rho) if k == 1 else 4.0 / (4.0 - rho * rho * omega)
                 xf = omega * (xf - prev) + prev
             prev = x[free].copy() if rho is not None else None
             x[free] = xf
         v = (x - self.x) / h
-        v[self.fixed] = 0.0
+        v[fixed] = 0.0
         self.v = v / (1.0 + h * self.damping)  # mass-proportional damping, implicitly
         self.x = x
 
@@ -488,7 +491,7 @@ class MassSpring:
             self._lg_cache = {h: {"factor": Factor(Q[free][:, free], simplicial=True), "L_fixed": L[free][:, fixed],  # one step size at a time
                                   "A_act": A_act, "Ak": Ak, "rest_act": self.rest[active],
                                   "act_i": np.ascontiguousarray(e[:, 0]), "act_j": np.ascontiguousarray(e[:, 1]),
-                                  "act_k": np.ascontiguousarray(self.k[active]), "free_pos": free_pos}}
+                                  "act_k": np.ascontiguousarray(self.k[active]), "free_pos": free_pos, "fixed_idx": fixed}}
         return self._lg_cache[h]
 
     def _monitor(self) -> float:
