@@ -289,3 +289,44 @@ def test_clean_errors_for_a_window_without_a_display_and_a_mouse_without_a_windo
     import sqlite3
 
     assert sqlite3.connect(db).execute("select count(*) from sessions").fetchone()[0] == 0  # nothing half-written
+
+
+_OFFSCREEN_FRAMES = r"""
+import json, sys
+import numpy as np
+from sim.mesh import load_mesh
+from sim.view import HandState, ParticipantView
+mesh = load_mesh()
+fast = ParticipantView(mesh, width=320, height=240, visible=False)
+slow = ParticipantView(mesh, width=320, height=240, visible=False)
+slow._read_ok = False  # always a fresh render: the reference
+hands = [HandState(tuple(mesh.vertices[3386])), HandState(tuple(mesh.vertices[13629]))]
+worst = 0
+for k in range(4):
+    u = np.zeros_like(mesh.vertices)
+    u[:, 0] = 0.004 * k
+    for v in (fast, slow):
+        v.draw(u, hands[: 1 + k % 2], heat01=np.linspace(0, 1, mesh.n_vertices) * (k % 3) / 2)
+    a, b = fast.image(), slow.image()
+    worst = max(worst, int((np.abs(a.astype(int) - b).max(axis=2) > 1).sum()))
+print(json.dumps({"read_ok": fast._read_ok, "worst": worst, "pixels": 320 * 240}))
+"""
+
+
+@pytest.mark.parametrize("where", ["headless", "xvfb"])
+def test_offscreen_pictures_equal_a_fresh_render(where, request):
+    """`image()` reads the presented frame without a second render only where that is the
+    frame (EGL without a display); under Xvfb it renders again. Either way every picture of a
+    changing scene equals a fresh render but for 1-level differences."""
+    env = dict(os.environ)
+    if where == "xvfb":
+        env["DISPLAY"] = request.getfixturevalue("display")
+    else:
+        env.pop("DISPLAY", None)
+        env.pop("WAYLAND_DISPLAY", None)
+    out = subprocess.run([sys.executable, "-c", _OFFSCREEN_FRAMES], capture_output=True, text=True, env=env, timeout=300,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert out.returncode == 0, out.stderr[-2000:]
+    r = json.loads(out.stdout.strip().splitlines()[-1])
+    assert r["worst"] <= 0.001 * r["pixels"], r
+    assert r["read_ok"] is (where == "headless"), r
