@@ -28,13 +28,3 @@ def test_text_mode_prints_the_lines(monkeypatch, capsys):
     out = capsys.readouterr().out
     assert "human-readable" in out and "never" not in out
 
-
-def test_every_benchmark_has_a_json_mode():
-    import importlib
-
-    from bench.__main__ import ALL
-
-    for name in ALL:
-        source = importlib.util.find_spec(f"bench.{name}").origin
-        text = open(source).read()
-        assert "--json" in text or "main_with_json" in text, name

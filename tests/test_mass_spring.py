@@ -209,3 +209,14 @@ def test_anderson_never_raises_the_steps_objective():
         x = ms.x.copy()
         values.append(ms._lg_objective(solver, x, x[ms.free].copy(), y[ms.free], mass))
     assert np.all(np.diff(values) <= 1e-12 * abs(values[0])), values
+
+
+def test_anderson_at_rest_converged_to_the_last_bit_does_not_fail():
+    """Review finding: with every residual difference exactly zero the least-squares system was
+    singular (LinAlgError). Three nodes at rest: the step converges at once and stays at rest."""
+    from sim.models.mass_spring import MassSpring
+
+    x = np.array([[0, 0, 0], [0, 0, 0.01], [0.01, 0, 0.01]], float)
+    ms = MassSpring(x, [[0, 1], [1, 2], [0, 2]], 10.0, 0.001, fixed=[True, False, False], acceleration="anderson")
+    ms.step(1 / 30, "local-global", iterations=10)
+    assert np.allclose(ms.x, x, atol=1e-12)

@@ -378,6 +378,7 @@ class MassSpring:
             if used:
                 dF = F[:used]
                 gram = dF @ dF.T
+            if used and np.trace(gram) > 0.0:  # all-zero differences: converged to the last bit, plain update
                 # a tiny ridge keeps nearly parallel residual differences solvable
                 theta = np.linalg.solve(gram + 1e-12 * np.trace(gram) * np.eye(used), dF @ f.ravel())
                 cand = g - (theta @ G[:used]).reshape(g.shape)
@@ -454,11 +455,11 @@ class MassSpring:
         """Precomputed pieces for the anchors' low-rank update of the global matrix."""
         if not self.anchors:
             return None
-        key = tuple((id(n), k) for n, k, _ in self.anchors)
+        key = tuple((n, k) for n, k, _ in self.anchors)  # the arrays themselves: an id could be reused
         cached = solver.get("wood")
         pos = -np.ones(self.n, dtype=np.int64)
         pos[free] = np.arange(len(free))
-        if cached is None or cached[0] != key:
+        if cached is None or len(cached[0]) != len(key) or any(a is not b or ka != kb for (a, ka), (b, kb) in zip(cached[0], key)):
             cols = []
             for nodes, _, _ in self.anchors:
                 w = np.zeros(len(free))
