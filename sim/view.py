@@ -103,14 +103,13 @@ class ParticipantView:
         os.environ.setdefault("LP_NUM_THREADS", str(max(1, len(os.sched_getaffinity(0)) - 1)))
         if not os.environ.get("XDG_RUNTIME_DIR"):
             os.environ["XDG_RUNTIME_DIR"] = tempfile.mkdtemp(prefix="xdg-")
-        if visible and not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
+        headless = not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY")
+        if visible and headless:
             raise ViewError("--view window: no display (DISPLAY is not set); run on a desktop, or under xvfb-run")
         self.mesh = mesh
-        self.visible = visible
         self._fresh = False  # the framebuffer holds the scene as it is now (rendered since the last change)
-        # reading that framebuffer gives the frame: only without a display (EGL's offscreen
-        # surface), and checked once (`image`); a window's back buffer is undefined after a swap
-        headless = not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY")
+        # reading that framebuffer gives the frame: only offscreen without a display (EGL), and
+        # checked once (`image`); a window's back buffer is undefined after a swap
         self._read_ok: bool | None = None if headless and not visible else False
         self.width, self.height = width, height
         self.show_force = show_force
@@ -341,7 +340,7 @@ class ParticipantView:
         (they agree but for 1-level differences in a few dozen pixels). A hidden window under Xvfb
         always renders: its back buffer is undefined after the swap (measured: every pixel differed)."""
         capture = self.vis.capture_screen_float_buffer
-        if self._fresh and not self.visible and self._read_ok is not False:
+        if self._fresh and self._read_ok is not False:
             img = np.asarray(capture(do_render=False))
             if self._read_ok is None:
                 again = np.asarray(capture(do_render=True))

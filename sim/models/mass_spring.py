@@ -144,18 +144,23 @@ class MassSpring:
         return self._A.T @ fij
 
     def energy(self) -> float:
-        kinetic = 0.5 * float(np.sum(self.m[:, None] * self.v**2))
-        a = self._moving  # springs between two clamped nodes keep their rest length
+        return self._spring_energy(self.x) + 0.5 * float(np.sum(self.m[:, None] * self.v**2))
+
+    def _spring_energy(self, x: np.ndarray) -> float:
+        """sum k/2 (|x_i - x_j| - rest)^2 over the springs that can stretch (between two clamped
+        nodes they keep their rest length): one compiled pass where numba is installed (the
+        monitor runs it every step, Anderson every iteration)."""
+        a = self._moving
         try:
             from sim.kernels import spring_energy
         except ImportError:
-            d = self.x[self.springs[a, 0]] - self.x[self.springs[a, 1]]
+            d = x[self.springs[a, 0]] - x[self.springs[a, 1]]
             stretch = np.sqrt(np.einsum("ij,ij->i", d, d)) - self.rest[a]
-            return float(0.5 * np.sum(self.k[a] * stretch**2)) + kinetic
-        if not hasattr(self, "_moving_arrays"):  # one compiled pass (the monitor runs every step)
+            return float(0.5 * np.sum(self.k[a] * stretch**2))
+        if not hasattr(self, "_moving_arrays"):
             self._moving_arrays = (np.ascontiguousarray(self.springs[a, 0]), np.ascontiguousarray(self.springs[a, 1]),
                                    np.ascontiguousarray(self.k[a]), np.ascontiguousarray(self.rest[a]))
-        return spring_energy(self.x, *self._moving_arrays) + kinetic
+        return spring_energy(x, *self._moving_arrays)
 
     # -- stability ----------------------------------------------------------------------------
     def stiffness_at_rest(self) -> sp.csr_matrix:
@@ -375,10 +380,9 @@ class MassSpring:
                 np.subtract(g.ravel(), g_prev.ravel(), out=G[head])
                 head, used = (head + 1) % ANDERSON_DEPTH, min(used + 1, ANDERSON_DEPTH)
             f_prev, g_prev = f, g
-            if used:
-                dF = F[:used]
-                gram = dF @ dF.T
-            if used and np.trace(gram) > 0.0:  # all-zero differences: converged to the last bit, plain update
+            dF = F[:used]
+            gram = dF @ dF.T
+            if np.trace(gram) > 0.0:  # no history, or all-zero differences (converged to the last bit): plain update
                 # a tiny ridge keeps nearly parallel residual differences solvable
                 theta = np.linalg.solve(gram + 1e-12 * np.trace(gram) * np.eye(used), dF @ f.ravel())
                 cand = g - (theta @ G[:used]).reshape(g.shape)
@@ -399,12 +403,7 @@ class MassSpring:
         total = 0.5 * float(np.sum(mass * d * d))
         for nodes, k, target in self.anchors:
             total += 0.5 * k * float(np.sum((x[nodes].mean(axis=0) - target) ** 2))
-        try:
-            from sim.kernels import spring_energy
-        except ImportError:
-            dv = solver["A_act"] @ x
-            return total + float(0.5 * np.sum(solver["act_k"] * (np.sqrt(np.einsum("ij,ij->i", dv, dv)) - solver["rest_act"]) ** 2))
-        return total + spring_energy(x, solver["act_i"], solver["act_j"], solver["act_k"], solver["rest_act"])
+        return total + self._spring_energy(x)
 
     def _lg_local(self, solver: dict, x: np.ndarray) -> np.ndarray:
         """The local step and its share of the right-hand side, A^T diag(k) d (free rows): each
