@@ -113,9 +113,11 @@ def stability_html(result: dict) -> str:
 
     rows = "".join(f"<tr><td>{esc(c['model'])}</td><td>{esc(c['case'])}</td><td>{esc(c['outcome'])}</td><td>{at(c)}</td>"
                    f"<td>{esc(c['reason'])}</td></tr>" for c in result["cases"] if c["outcome"] != "stable")
-    return (f"<h2>Numerical stability</h2><p>{esc(markdown(result).splitlines()[0])}</p>"
+    md = markdown(result).splitlines()
+    near = "".join(f"<p>{esc(line)}</p>" for line in md if line.startswith("Stable but near"))
+    return (f"<h2>Numerical stability</h2><p>{esc(md[0])}</p>"
             f'<figure><img alt="stability" src="data:image/png;base64,{img}"></figure>'
-            f"<table><tr><th>model</th><th>case</th><th>outcome</th><th>at</th><th>reason</th></tr>{rows}</table>")
+            f"<table><tr><th>model</th><th>case</th><th>outcome</th><th>at</th><th>reason</th></tr>{rows}</table>{near}")
 
 
 def html(db, force_traces: bool = True, accuracy: dict | None = None, stability: dict | None = None) -> str:

@@ -7,6 +7,7 @@ Results come back in task order whatever order they finish in.
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Callable, Sequence
 
@@ -21,8 +22,12 @@ def default_jobs() -> int:
 
 def run_tasks(fn: Callable, tasks: Sequence, jobs: int | None = None, scheduler: str | None = None,
               progress: Callable[[int, int], None] | None = None) -> list:
-    """`[fn(t) for t in tasks]`, in parallel; `progress(done, total)` after each task."""
+    """`[fn(t) for t in tasks]`, in parallel; `progress(done, total)` after each task.
+
+    Each task runs with one BLAS thread (`sim.linalg.one_blas_thread`) wherever it runs, so a
+    task gives the same bits here, in a local pool and on a Dask worker."""
     tasks = list(tasks)
+    fn = functools.partial(_pinned, fn)
     total = len(tasks)
     report = progress or (lambda done, total: None)
     if scheduler:
@@ -45,6 +50,13 @@ def run_tasks(fn: Callable, tasks: Sequence, jobs: int | None = None, scheduler:
             results[futures[fut]] = fut.result()
             report(done, total)
     return results
+
+
+def _pinned(fn, task):
+    from sim.linalg import one_blas_thread
+
+    with one_blas_thread():
+        return fn(task)
 
 
 def _run_dask(fn, tasks, scheduler, report):

@@ -13,6 +13,8 @@ read: A must be symmetric.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -55,6 +57,25 @@ def _one_blas_pool() -> None:
     for lib in ThreadpoolController().lib_controllers:
         if lib.internal_api == "openblas" and lib.prefix.startswith("libscipy_openblas"):
             lib.set_num_threads(1)
+
+
+@contextmanager
+def one_blas_thread():
+    """Run the block with every BLAS and OpenMP pool at one thread, CHOLMOD's included.
+
+    CHOLMOD's supernodal factorisation splits its dense work across OpenBLAS threads, and the
+    thread count and the CPU's kernels change the last bits of every FEM and mass-spring result
+    (measured: a factor computed with 1 and with 2 threads differs from the 15th digit; a rigid
+    contact's chatter can then go either way). Work that must give the same bits in whatever
+    process runs it uses this: a sweep's tasks (in this process, a local pool or a Dask
+    worker, whose nanny sets one thread anyway) and synthetic sessions (`--jobs 1` or N). One
+    thread per task is also what a pool of one task per core wants.
+    """
+    from threadpoolctl import threadpool_limits
+
+    _cholmod()  # load CHOLMOD's OpenBLAS now: threadpoolctl limits only the libraries loaded
+    with threadpool_limits(limits=1):
+        yield
 
 
 def _csc(A) -> sp.csc_matrix:

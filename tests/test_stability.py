@@ -2,11 +2,18 @@
 way their physics says, and a Dask cluster gives the same answers as local processes."""
 
 import json
+import math
+import re
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from analysis.stability import Case, make_cases, run_case
+from analysis.stability import CHATTER_REVERSALS, Case, _scene_for, make_cases, markdown, peak_reversals, run_case
+from sim.devices.simulated import PullScript, SimulatedOmni
+from sim.models.base import Contact
+from sim.run import run_scene
+from sim.servo import Hand, ServoLoop
 from studyctl.cli import cli
 
 
@@ -43,14 +50,20 @@ def test_outcomes_follow_the_physics(quick_sweep):
     # E = 1 GPa: explicit integration would need tens of thousands of sub-steps: refused
     assert by[("mass_spring/explicit", "E=1e+09Pa")]["outcome"] == "refused"
     assert "sub-steps" in by[("mass_spring/explicit", "E=1e+09Pa")]["reason"]
-    # a rigid FEM contact rendered directly chatters at the force limit: flagged with a time
-    rigid = by[("fem/corotational", "E=1e+09Pa")]
-    assert rigid["outcome"] == "unstable" and "chatter" in rigid["reason"] and 0 < rigid["detected_at_s"] < 0.4
-    assert rigid["events"].get("force_chatter") == 1  # the servo saw it live and dropped the grasp
-    # the linear one (since the area-mean grasp, a different 3 x 3 stiffness) is held at the
-    # device's limit by the simulated hand without a limit cycle: clamped, never beyond
-    lin = by[("fem/linear", "E=1e+09Pa")]
-    assert lin["events"].get("force_clamped", 0) > 0 and lin["max_force_n"] == pytest.approx(3.3)
+    # a rigid FEM contact (1 GPa) is held at the device's limit: clamped, never beyond, and its
+    # force reverses as the hand leaves the grasp point. Whether it reaches the chatter limit is
+    # marginal (a peak of 6 or 9 reversals of 10 in 50 ms, by BLAS threads and kernels: issue 25),
+    # so what is asserted is what holds on every machine; test_rigid_fem_contact_is_flagged_
+    # exactly_when_its_trace_chatters checks the flag against the trace
+    for model in ("fem/linear", "fem/corotational"):
+        rigid = by[(model, "E=1e+09Pa")]
+        assert rigid["events"].get("force_clamped", 0) > 0 and rigid["max_force_n"] == pytest.approx(3.3)
+        assert rigid["peak_reversals"] > 0
+        chattered = rigid["events"].get("force_chatter", 0) == 1
+        assert rigid["outcome"] == ("unstable" if chattered else "stable")
+        assert ("chatter" in rigid["reason"] and 0 < rigid["detected_at_s"] < 0.4) if chattered else rigid["reason"] == ""
+    # a soft tissue is nowhere near the chatter limit
+    assert by[("fem/linear", "E=1Pa")]["peak_reversals"] == 0
     # a 200 mm pull inverts corotational elements: the model gives up and the servo renders nothing
     assert by[("fem/corotational", "pull=200mm")]["events"].get("model_unstable") == 1
     # a one-tick 5 cm glitch drops the grasp (logged)
@@ -80,14 +93,18 @@ def test_a_model_that_throws_is_unstable_not_a_crash(monkeypatch):
 def test_dask_cluster_gives_the_local_answers():
     from distributed import LocalCluster
 
-    cases = [c for c in make_cases(quick=True) if c.model == "plate_spring/continuous"]
-    local = [run_case(c) for c in cases]
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        import analysis.stability as st
+    import analysis.stability as st
 
+    # the FEM's rigid rows too: CHOLMOD's bits depend on the BLAS thread count, which Dask's
+    # nanny sets to one; every task runs with one thread wherever it runs (sim.linalg.one_blas_thread)
+    cases = [c for c in make_cases(quick=True) if c.model == "plate_spring/continuous"
+             or (c.model.startswith("fem/") and c.case == "E=1e+09Pa")]
+    here = st.run_stability(quick=True, jobs=1, cases=cases)["cases"]
+    pool = st.run_stability(quick=True, jobs=2, cases=cases)["cases"]
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         remote = st.run_stability(quick=True, scheduler=cluster.scheduler_address, cases=cases)["cases"]
     strip = lambda r: {k: v for k, v in r.items() if k != "wall_s"}  # noqa: E731
-    assert [strip(r) for r in remote] == [strip(r) for r in local]
+    assert [strip(r) for r in remote] == [strip(r) for r in here] == [strip(r) for r in pool]
 
 
 def test_unreachable_scheduler_is_a_one_line_error():
@@ -103,6 +120,104 @@ def test_report_carries_the_heat_map(quick_sweep, small_study, tmp_path):
                                    "--out", str(tmp_path / "r.html")])
     assert res.exit_code == 0, res.output
     page = (tmp_path / "r.html").read_text()
-    assert "Numerical stability" in page and 'alt="stability"' in page and "force_chatter" in page
+    assert "Numerical stability" in page and 'alt="stability"' in page
+    # non-stable rows with their reasons (cases decisive on every machine: 11 019 sub-steps
+    # against at most 2000; a 200 mm pull inverts corotational elements)
+    assert "sub-steps per 0.03333 s step" in page and "<td>fem/corotational</td><td>pull=200mm</td><td>unstable</td>" in page
     md = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--stability", str(d / "stability.json")]).output
     assert "## Numerical stability" in md and "| mass_spring/implicit | k=1e+06N/m | refused |" in md
+
+
+def _monitor_on_the_trace(times, forces, events, window=0.05, limit=10):
+    """The chatter monitor's definition, worked on a recorded trace with a plain loop (not the
+    servo's code, nor `peak_reversals`): a reversal is two consecutive sent forces pointing
+    apart, both above 0.05 N; `limit` of them within `window` s, ends included, is chatter. At a
+    logged `force_chatter` the trace holds the zero sent instead of the force that made the last
+    reversal, which the event carries. Returns (the ticks where the definition is met, the peak
+    count in a window)."""
+    withheld = {}
+    for e in events:
+        if e.kind == "force_chatter":
+            m = re.search(r"withheld force \((\S+), (\S+), (\S+)\) N", e.detail)
+            withheld[e.t] = tuple(float(x) for x in m.groups())
+    reversals, met, peak = [], [], 0
+    for i in range(1, len(times)):
+        a, b = forces[i - 1], withheld.get(times[i], forces[i])
+        strong = sum(x * x for x in a) > 0.0025 and sum(x * x for x in b) > 0.0025
+        if strong and sum(x * y for x, y in zip(a, b)) < 0.0:
+            reversals.append(times[i])
+            n = sum(1 for r in reversals if r >= times[i] - window)
+            peak = max(peak, n)
+            if n >= limit:
+                met.append(times[i])
+                reversals = []  # the monitor starts counting again after it fires
+    return met, peak
+
+
+def _check_flag_against_trace(times, forces, events):
+    flagged = [e.t for e in events if e.kind == "force_chatter"]
+    met, peak = _monitor_on_the_trace([float(t) for t in times], [tuple(map(float, f)) for f in forces], events)
+    assert flagged == met  # flagged exactly where the trace meets the definition, nowhere else
+    return met, peak
+
+
+@pytest.mark.parametrize("model", ["fem/linear", "fem/corotational"])
+def test_rigid_fem_contact_is_flagged_exactly_when_its_trace_chatters(model):
+    # the marginal case of issue 25: whichever way it goes on this machine, the flag and the
+    # trace agree, the reported margin is the trace's, and no force is NaN or over the limit
+    scene = _scene_for(Case(model, "E=1e+09Pa", "young", 1e9), "protocols/scenes/brain_pull.toml")
+    result = run_scene(scene, duration=0.4, time_scale=0.0)
+    forces = result.forces.reshape(len(result.forces), -1, 3)[:, 0, :]
+    assert np.all(np.isfinite(forces)) and np.linalg.norm(forces, axis=1).max() <= 3.3 * (1 + 1e-9)
+    met, peak = _check_flag_against_trace(result.times, forces, result.events)
+    assert peak > 0  # the rigid contact reverses the force as the hand leaves the grasp point
+    assert peak_reversals(result.times, forces) == (peak if not met else peak - 1)  # the withheld one is not in the trace
+
+
+class _RigidPoint:
+    """A rigid point contact, f = -k d with k = 1e7 N/m in every direction: no BLAS, no mesh."""
+
+    def force(self, contact, d):
+        return (-1e7 * d[0], -1e7 * d[1], -1e7 * d[2])
+
+
+# (pull direction, grasp point's offset from the hand's start, m): any real grasp point lies off
+# the encoder's 0.055 mm lattice. Measured over 360 random such geometries: every one flagged,
+# peak 10 to 32 reversals in 50 ms; these peak at 18 to 25.
+RIGID_GEOMETRIES = [((1.0, 0.0, 0.0), (2e-5, 2e-5, -2e-5)), ((0.0, 1.0, 0.0), (2e-5, 2e-5, -2e-5)),
+                    ((0.0, 0.0, 1.0), (2e-5, 2e-5, -2e-5)), ((1.0, 0.0, 0.0), (1e-5, -2e-5, 1.3e-5))]
+
+
+@pytest.mark.parametrize("direction, offset", RIGID_GEOMETRIES)
+def test_a_rigid_contact_held_below_the_force_limit_chatters_and_is_flagged(direction, offset):
+    # The hand pulls 1 mm away (0.3 N on its 300 N/m arm, far below the Omni's 3.3 N): the
+    # rigid contact holds it at the grasp point, where the clamped force flips with every
+    # encoder step, a limit cycle at the quantum that a 1 kHz loop cannot render. Decisive on
+    # every machine: plain float arithmetic, and twice the limit at its peaks.
+    dev = SimulatedOmni(PullScript(start=(0.0, 0.0, 0.0), pull=tuple(1e-3 * c for c in direction), grasp_at=0.0,
+                                   pull_start=0.0, pull_time=0.05, release_at=10.0))
+    hand = Hand(index=0, name="h", device=dev)
+    servo = ServoLoop(model=_RigidPoint(), hands=[hand], peak_force=3.3, ramp_s=0.01)
+    servo.tick(0.0)
+    hand.contact = Contact(hand=0, vertex=0, point=offset, normal=(0.0, 0.0, 1.0))
+    for i in range(1, 400):
+        servo.tick(i / 1000)
+    rows = servo.rows.array()
+    times, forces = rows[:, 0], rows[:, 6:9]
+    assert [e.kind for e in servo.events].count("force_chatter") == 1  # the servo saw it live
+    met, _ = _check_flag_against_trace(times, forces, servo.events)
+    at = int(np.flatnonzero(times == met[0])[0])
+    assert hand.contact is None and np.all(forces[at:] == 0.0)  # grasp dropped: nothing more is rendered
+    assert np.linalg.norm(forces, axis=1).max() <= 3.3 * (1 + 1e-12) and math.isfinite(forces.sum())
+
+
+def test_markdown_lists_the_stable_cases_near_the_chatter_limit():
+    def case(name, peak):
+        return {"model": "fem/linear", "case": name, "outcome": "stable", "reason": "", "detected_at_s": None, "peak_reversals": peak}
+
+    result = {"cases": [case("E=1e+09Pa", CHATTER_REVERSALS - 1), case("E=1Pa", 2)],
+              "meta": {"quick": True, "resolution_m": 0.008, "duration_s": 0.4, "counts": {"stable": 2, "refused": 0, "unstable": 0},
+                       "nan_sent": 0, "over_limit_sent": 0}}
+    md = markdown(result)
+    assert "Stable but near the chatter limit (10 force reversals within 50 ms): fem/linear E=1e+09Pa (9)." in md
+    assert "E=1Pa" not in md
