@@ -7,7 +7,6 @@ Results come back in task order whatever order they finish in.
 
 from __future__ import annotations
 
-import functools
 import os
 from collections.abc import Callable, Sequence
 
@@ -24,10 +23,9 @@ def run_tasks(fn: Callable, tasks: Sequence, jobs: int | None = None, scheduler:
               progress: Callable[[int, int], None] | None = None) -> list:
     """`[fn(t) for t in tasks]`, in parallel; `progress(done, total)` after each task.
 
-    Each task runs with one BLAS thread (`sim.linalg.one_blas_thread`) wherever it runs, so a
-    task gives the same bits here, in a local pool and on a Dask worker."""
+    A task gives the same bits here, in a local pool and on a Dask worker: every process that
+    factorises runs its BLAS on one thread (`sim.linalg._one_thread_pools`)."""
     tasks = list(tasks)
-    fn = functools.partial(_pinned, fn)
     total = len(tasks)
     report = progress or (lambda done, total: None)
     if scheduler:
@@ -50,13 +48,6 @@ def run_tasks(fn: Callable, tasks: Sequence, jobs: int | None = None, scheduler:
             results[futures[fut]] = fut.result()
             report(done, total)
     return results
-
-
-def _pinned(fn, task):
-    from sim.linalg import one_blas_thread
-
-    with one_blas_thread():
-        return fn(task)
 
 
 def _run_dask(fn, tasks, scheduler, report):

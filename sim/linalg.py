@@ -13,8 +13,6 @@ read: A must be symmetric.
 
 from __future__ import annotations
 
-from contextlib import contextmanager
-
 import numpy as np
 import scipy.sparse as sp
 
@@ -30,52 +28,39 @@ _CHOLMOD = None
 
 def _cholmod():
     """scikit-sparse's CHOLMOD module, loaded on first use (a scene without FEM or mass-spring
-    never loads it)."""
+    never loads it); the thread pools are pinned as it loads (`_one_thread_pools`)."""
     global _CHOLMOD
     if _CHOLMOD is None:
         import sksparse.cholmod
 
-        _one_blas_pool()
+        _one_thread_pools()
         _CHOLMOD = sksparse.cholmod
     return _CHOLMOD
 
 
-def _one_blas_pool() -> None:
-    """Give numpy's own OpenBLAS (and scipy's, if loaded by then) one thread, leaving the cores to CHOLMOD's.
+def _one_thread_pools() -> None:
+    """Run every OpenBLAS pool (numpy's wheel's and the system's, which CHOLMOD uses) and the
+    system's OpenMP runtime (CHOLMOD links it) on one thread, in every process that factorises.
 
-    CHOLMOD runs on Debian's OpenBLAS, numpy on the one in its wheel: two thread pools. An
-    OpenBLAS worker spins for about 0.1 s after each call before it sleeps, so a CHOLMOD solve
-    right after a numpy BLAS call (the norm of a long vector) fights numpy's spinning workers:
-    130 ms instead of 3 ms on 2 cores (measured; the neo-Hookean solve's solves averaged 42 ms,
-    6 ms with this). The simulator's numpy BLAS work is small (products with 3 to 6 columns),
-    which one thread does as fast.
+    - The same bits wherever the simulator runs on one machine. CHOLMOD's supernodal factor
+      splits its dense blocks across the threads, and the thread count changes the last bits of
+      every FEM and mass-spring result (measured: forces differ from the 15th digit between 1 and
+      2 threads; a rigid contact's chatter then went either way, issue 25). With one thread a
+      case gives the same bits in this process, a local pool, a Dask worker (whose nanny sets
+      one thread anyway), a session and its replay.
+    - Speed. Two pools spinning on 2 cores fight: a CHOLMOD solve right after a numpy BLAS call
+      took 130 ms instead of 3 ms (numpy's OpenBLAS workers spin for about 0.1 s after each
+      call). One thread solves as fast or faster (32k unknowns, 3 right-hand sides: 24 ms
+      against 32 ms with two) and factorises 13-27% slower (0.74 s against 0.64 s at 32k, 2.3
+      against 1.7 s at 72k unknowns); the frames' work is solves and small products.
+    Across CPUs the bits may still differ (each CPU has its own OpenBLAS kernels).
     """
-    try:
-        from threadpoolctl import ThreadpoolController
-    except ImportError:  # the limit is a speed-up, not a requirement
-        return
+    from threadpoolctl import ThreadpoolController
+
     for lib in ThreadpoolController().lib_controllers:
-        if lib.internal_api == "openblas" and lib.prefix.startswith("libscipy_openblas"):
+        # open3d and others ship OpenMP runtimes of their own: only the system's is CHOLMOD's
+        if lib.internal_api == "openblas" or (lib.user_api == "openmp" and "site-packages" not in lib.filepath):
             lib.set_num_threads(1)
-
-
-@contextmanager
-def one_blas_thread():
-    """Run the block with every BLAS and OpenMP pool at one thread, CHOLMOD's included.
-
-    CHOLMOD's supernodal factorisation splits its dense work across OpenBLAS threads, and the
-    thread count and the CPU's kernels change the last bits of every FEM and mass-spring result
-    (measured: a factor computed with 1 and with 2 threads differs from the 15th digit; a rigid
-    contact's chatter can then go either way). Work that must give the same bits in whatever
-    process runs it uses this: a sweep's tasks (in this process, a local pool or a Dask
-    worker, whose nanny sets one thread anyway) and synthetic sessions (`--jobs 1` or N). One
-    thread per task is also what a pool of one task per core wants.
-    """
-    from threadpoolctl import threadpool_limits
-
-    _cholmod()  # load CHOLMOD's OpenBLAS now: threadpoolctl limits only the libraries loaded
-    with threadpool_limits(limits=1):
-        yield
 
 
 def _csc(A) -> sp.csc_matrix:

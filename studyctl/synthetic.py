@@ -160,10 +160,8 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
 
 
 def _run_one(task) -> str:
-    from sim.linalg import one_blas_thread
     from studyctl.session import run_session
 
     db, code, seed, session_id = task
-    with one_blas_thread():  # the same bits with --jobs 1 or N, whatever the BLAS pools default to
-        run_session(db, code, synthetic=True, seed=seed, time_scale=0.0, session_id=session_id)
+    run_session(db, code, synthetic=True, seed=seed, time_scale=0.0, session_id=session_id)
     return code

@@ -80,3 +80,17 @@ def test_with_values_reuses_the_analysis_and_refuses_what_is_not_positive_defini
     with pytest.raises(SingularSystemError, match="not positive definite") as info:
         f.with_values(-K)
     assert info.value.__cause__ is None and info.value.__context__ is None
+
+
+def test_every_blas_pool_runs_one_thread_once_cholmod_is_loaded():
+    # the same bits in any process (issue 25): CHOLMOD's factor depends on the BLAS thread count
+    from threadpoolctl import threadpool_info
+
+    from sim.linalg import _cholmod
+
+    _cholmod()
+    pools = [p for p in threadpool_info() if p["internal_api"] == "openblas"]
+    assert {p["prefix"] for p in pools} >= {"libopenblas", "libscipy_openblas"}  # CHOLMOD's and numpy's
+    assert all(p["num_threads"] == 1 for p in pools), pools
+    omp = [p for p in threadpool_info() if p["user_api"] == "openmp" and "site-packages" not in p["filepath"]]
+    assert all(p["num_threads"] == 1 for p in omp), omp
