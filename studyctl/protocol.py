@@ -63,8 +63,12 @@ class Protocol:
 def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol | None, list[str]]:
     """Parse and validate; returns (protocol or None, problems as 'FILE:LINE: field: message').
 
-    `text` overrides the file's content (a protocol stored in a study database)."""
+    `text` overrides the file's content (a protocol stored in a study database). A protocol read
+    from its file also has its scene validated and each condition checked against it; a stored
+    one was checked when its study was made, and its reports must not fail because the scene
+    file was edited since."""
     path = Path(path)
+    from_file = text is None
     try:
         if text is None:
             data, loc = read_toml(path)
@@ -163,6 +167,8 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
                 bad("design.conditions", f"unknown model {c!r}; allowed: {', '.join(KNOWN_MODELS)}")
         if len(set(map(str, conditions))) != len(conditions):
             bad("design.conditions", "a condition appears twice")
+    if from_file and scene is not None and scene.exists():
+        problems += _scene_problems(scene, conditions or [], lambda message: bad("design.conditions", message))
     cb = get(design, "design", "counterbalancing", str)
     if cb is not None and cb not in DESIGNS:
         bad("design.counterbalancing", f"{cb!r} is not one of {', '.join(DESIGNS)}")
@@ -213,6 +219,22 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
         ),
         [],
     )
+
+
+def _scene_problems(scene: Path, conditions: list, bad) -> list[str]:
+    """The scene file's own problems (each 'FILE:LINE: field: message'); then, for a valid scene,
+    each condition it does not configure, through `bad`."""
+    from sim.errors import SceneError
+    from sim.scene import load_scene
+
+    try:
+        spec = load_scene(scene)
+    except SceneError as exc:
+        return list(exc.problems)
+    for c in conditions:
+        if c in KNOWN_MODELS and c not in spec.models:
+            bad(f"{c!r} is not configured in the scene {scene}; configured: {', '.join(sorted(spec.models))}")
+    return []
 
 
 def load_protocol(path: str | Path) -> Protocol:

@@ -15,6 +15,11 @@ from tests.test_study import fast_protocol, studyctl
 BAD_UTF8 = "code,age\nP0\xe9,23\n".encode("latin-1")
 
 
+def _without_section(text: str, header: str) -> str:
+    a = text.index(header)
+    return text[:a] + text[text.index("\n[", a + 1) + 1:]
+
+
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):
     """A study with a consenting person P01 (answers imported), a person P02 without consent and
@@ -55,6 +60,11 @@ def study(tmp_path_factory):
         "proto_utf8": protocol.read_text().replace("Virtual brain", "Virtual br\xe4in").encode("latin-1"),
         "proto_key": protocol.read_text().replace("[inclusion]", "[inclusion]\nage_mni = 3"),
         "proto_section": protocol.read_text() + "\n[extras]\nx = 1\n",
+        # a scene that is any text file; a scene without the FEM that the protocol's conditions name
+        "notes.txt": "the lab's notes, not a scene\n",
+        "proto_scene_text": protocol.read_text().replace(str(d / "scene.toml"), str(d / "notes.txt")),
+        "scene_nofem.toml": _without_section((d / "scene.toml").read_text(), "[models.fem]"),
+        "proto_scene_model": protocol.read_text().replace(str(d / "scene.toml"), str(d / "scene_nofem.toml")),
         "text_db": "this is not a database\n", "empty_db": "",
     }
     for name, content in f.items():
@@ -111,6 +121,10 @@ CASES = [
     (["protocol", "validate", "{d}/proto_utf8"], "not UTF-8"),
     (["study", "init", "--db", "{d}/new1.db", "--protocol", "{d}/proto_key"], "inclusion.age_mni: unknown key"),
     (["study", "init", "--db", "{d}/new2.db", "--protocol", "{d}/proto_section"], "extras: unknown section"),
+    (["protocol", "validate", "{d}/proto_scene_text"], "notes.txt:1: invalid TOML"),
+    (["study", "init", "--db", "{d}/new3.db", "--protocol", "{d}/proto_scene_text"], "notes.txt:1: invalid TOML"),
+    (["protocol", "validate", "{d}/proto_scene_model"], "design.conditions: 'fem' is not configured in the scene"),
+    (["study", "init", "--db", "{d}/new4.db", "--protocol", "{d}/proto_scene_model"], "configured: mass_spring, plate_spring"),
     (["study", "init", "--db", "{d}/missing/new.db", "--protocol", "{d}/protocol.toml"], "is not an existing folder"),
     (["study", "init", "--db", DB, "--protocol", "{d}/protocol.toml"], "already holds a study"),
     # schedule
