@@ -168,8 +168,11 @@ def peak_reversals(times, forces, window: float = CHATTER_WINDOW_S) -> int:
     `window` seconds, ends included, in one hand's sent forces (n, 3): how close a run came
     to the chatter monitor's limit."""
     f = np.asarray(forces, dtype=np.float64)
-    strong = np.einsum("ij,ij->i", f, f) > 0.0025
-    at = np.asarray(times)[1:][(np.einsum("ij,ij->i", f[1:], f[:-1]) < 0.0) & strong[1:] & strong[:-1]]
+    x, y, z = f[:, 0], f[:, 1], f[:, 2]
+    # the servo's sums, term by term in its order, so that each comparison comes out the same
+    strong = x * x + y * y + z * z > 0.0025
+    apart = x[:-1] * x[1:] + y[:-1] * y[1:] + z[:-1] * z[1:] < 0.0
+    at = np.asarray(times)[1:][apart & strong[1:] & strong[:-1]]
     if not len(at):
         return 0
     return int(np.max(np.arange(1, len(at) + 1) - np.searchsorted(at, at - window, side="left")))
@@ -252,7 +255,7 @@ def markdown(result: dict) -> str:
     if near:
         lines += ["", f"Stable but near the chatter limit ({CHATTER_REVERSALS} force reversals within {CHATTER_WINDOW_S * 1e3:g} ms): "
                   + ", ".join(f"{r['model']} {r['case']} ({r['peak_reversals']})" for r in near)
-                  + ". Whether such a contact chatters can turn on the last bits of the arithmetic (thread count, CPU)."]
+                  + ". Whether such a contact chatters can turn on the last bits of the arithmetic (the CPU's BLAS kernels)."]
     return "\n".join(lines) + "\n"
 
 

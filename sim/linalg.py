@@ -31,6 +31,8 @@ def _cholmod():
     never loads it); the thread pools are pinned as it loads (`_one_thread_pools`)."""
     global _CHOLMOD
     if _CHOLMOD is None:
+        import scipy.linalg  # noqa: F401 - scipy's own OpenBLAS, loaded now so that the pin reaches it
+        import scipy.sparse.linalg  # noqa: F401
         import sksparse.cholmod
 
         _one_thread_pools()
@@ -39,8 +41,9 @@ def _cholmod():
 
 
 def _one_thread_pools() -> None:
-    """Run every OpenBLAS pool (numpy's wheel's and the system's, which CHOLMOD uses) and the
-    system's OpenMP runtime (CHOLMOD links it) on one thread, in every process that factorises.
+    """Run every OpenBLAS pool loaded by then (numpy's, scipy's, and the system's, which CHOLMOD
+    uses) on one thread, in every process that factorises; and the system's OpenMP runtime
+    (CHOLMOD links it) in the calling thread (an OpenMP setting is per thread).
 
     - The same bits wherever the simulator runs on one machine. CHOLMOD's supernodal factor
       splits its dense blocks across the threads, and the thread count changes the last bits of

@@ -244,17 +244,18 @@ class ServoLoop:
                 force, kind = limit_force((fx, fy, fz), self.peak_force)
                 force, kind = self._budget(h, force, kind)
                 detail = ""
-                if self._chatter(h, t, force):  # a limit cycle: drop the grasp, zero force until grasped again
+                if unstable:  # the model says its state blew up: render nothing
+                    force, kind = NO_FORCE, "model_unstable"
+                elif suspended:  # the loop missed its deadlines: render nothing for a while
+                    force, kind = NO_FORCE, "suspended"
+                # the monitor sees the force that would be sent, after every other rule
+                elif self._chatter(h, t, force):  # a limit cycle: drop the grasp, zero force until grasped again
                     # the withheld force (exact reprs) completes the last reversal, which the
                     # recorded trace, holding the zero sent instead, cannot show
                     detail = (f"force_chatter: {self.chatter_reversals} reversals within {self.chatter_window_s * 1e3:g} ms; "
                               f"withheld force ({force[0]!r}, {force[1]!r}, {force[2]!r}) N")
                     force, kind = NO_FORCE, "force_chatter"
                     h.contact = None
-                if unstable:  # the model says its state blew up: render nothing
-                    force, kind = NO_FORCE, "model_unstable"
-                elif suspended:  # the loop missed its deadlines: render nothing for a while
-                    force, kind = NO_FORCE, "suspended"
                 if kind is not None and kind != h.safety:  # log when a rule starts acting
                     self.events.append(Event(t, h.index, kind, detail if kind == "force_chatter" else ""))
                 h.safety = kind
@@ -303,8 +304,9 @@ class ServoLoop:
         reversals within `chatter_window_s` (ends included). A reversal: this force and the
         last one sent point apart (negative dot product), both above 0.05 N."""
         p = h.force
+        # products summed in this order (analysis.stability.peak_reversals repeats it on a trace)
         if p[0] * force[0] + p[1] * force[1] + p[2] * force[2] < 0.0 and \
-                p[0] ** 2 + p[1] ** 2 + p[2] ** 2 > 0.0025 and force[0] ** 2 + force[1] ** 2 + force[2] ** 2 > 0.0025:
+                p[0] * p[0] + p[1] * p[1] + p[2] * p[2] > 0.0025 and force[0] * force[0] + force[1] * force[1] + force[2] * force[2] > 0.0025:
             r = h.reversals
             r.append(t)
             while r and r[0] < t - self.chatter_window_s:
