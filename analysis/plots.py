@@ -18,6 +18,12 @@ def _plt():
 
 
 COLORS = {"fem": "#1f77b4", "mass_spring": "#ff7f0e", "plate_spring": "#2ca02c"}
+OTHER_COLORS = ("#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf", "#393b79")
+
+
+def color(name: str, k: int) -> str:
+    """A model's own colour; a named condition (studyctl/conditions.py) the k-th of the others."""
+    return COLORS.get(name) or OTHER_COLORS[k % len(OTHER_COLORS)]
 
 
 def rates_plot(rates, path: Path, synthetic: bool) -> None:
@@ -31,7 +37,7 @@ def rates_plot(rates, path: Path, synthetic: bool) -> None:
         g = rates[rates["model"] == m].set_index("item").loc[items]
         x = np.arange(len(items)) + (j - (len(models) - 1) / 2) * width
         ax.errorbar(x, g["rate"], yerr=[g["rate"] - g["wilson_low"], g["wilson_high"] - g["rate"]], fmt="o", ms=5, capsize=3,
-                    color=COLORS.get(m), label=m)
+                    color=color(m, j), label=m)
     ax.set_xticks(np.arange(len(items)), items, rotation=30, ha="right")
     ax.set_ylim(0, 1.02)
     ax.set_ylabel("favourable rate (Wilson 95% CI)")
@@ -66,19 +72,21 @@ def deformation_plot(db, path: Path, synthetic: bool) -> None:
     plt.close(fig)
 
 
-def force_traces(scene_path, models=("plate_spring", "fem", "mass_spring"), duration: float = 3.0) -> dict:
-    """The scene's scripted pull, run with every model (lockstep); the converged reference's
-    force (the synthetic observer's truth, studyctl/truth.py) for each run's own hand motion.
-    Returns {model: (t, force, reference)} for the first hand."""
+def force_traces(protocol, duration: float = 3.0) -> dict:
+    """The scene's scripted pull, run with each of the study's conditions (lockstep); the
+    converged reference's force (the synthetic observer's truth, studyctl/truth.py) for each
+    run's own hand motion. Returns {condition: (t, force, reference)} for the first hand."""
     from sim.run import run_scene
-    from sim.scene import build_scene
+    from sim.scene import Scene, load_scene
+    from studyctl.conditions import condition_scene_spec
     from studyctl.observer import truth_forces
     from studyctl.truth import load_truth
 
     out = {}
     truth = None
-    for m in models:
-        scene = build_scene(scene_path, m)
+    spec = load_scene(protocol.scene)
+    for m in protocol.conditions:
+        scene = Scene(condition_scene_spec(protocol, m, spec))
         truth = truth or load_truth(scene)
         r = run_scene(scene, duration=duration, time_scale=0)
         f = np.linalg.norm(r.forces[:, 0], axis=1)
@@ -93,11 +101,11 @@ def force_plot(traces: dict, path: Path) -> None:
 
     plt = _plt()
     fig, (ax, bx) = plt.subplots(2, 1, figsize=(7, 5.4), dpi=100, sharex=True)
-    for m, (t, f, ref) in traces.items():
-        ax.plot(t, f, color=COLORS.get(m), lw=1.3, label=m)
-        ax.plot(t, ref, color=COLORS.get(m), lw=0.8, ls="--")
+    for k, (m, (t, f, ref)) in enumerate(traces.items()):
+        ax.plot(t, f, color=color(m, k), lw=1.3, label=m)
+        ax.plot(t, ref, color=color(m, k), lw=0.8, ls="--")
         mask = ref > 0.01
-        bx.plot(t[mask], (f[mask] - ref[mask]) / ref[mask], color=COLORS.get(m), lw=1.0, label=f"{m} vs reference")
+        bx.plot(t[mask], (f[mask] - ref[mask]) / ref[mask], color=color(m, k), lw=1.0, label=f"{m} vs reference")
     ax.set_ylabel("force on the hand (N)")
     ax.set_title("the scene's pull with each model; dashed: converged P2 reference for the same hand motion", fontsize=9)
     ax.legend(fontsize=8)

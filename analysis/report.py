@@ -10,12 +10,12 @@ from pathlib import Path
 from analysis import plots, table1
 
 
-def _protocol_scene(db):
+def _protocol(db):
     from studyctl.store import Store
 
     store = Store(db, mode="read")
     try:
-        return store.protocol().scene
+        return store.protocol()
     finally:
         store.close()
 
@@ -26,7 +26,7 @@ def write_plots(db, out_dir, force_traces: bool = True) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     synthetic = table1.study_facts(db)["synthetic"]
     r = table1.rates(db)
-    traces = plots.force_traces(_protocol_scene(db)) if force_traces else None
+    traces = plots.force_traces(_protocol(db)) if force_traces else None
     written = []
     for ext in ("png", "svg"):
         plots.rates_plot(r, out_dir / f"rates.{ext}", synthetic)
@@ -167,6 +167,8 @@ img {{ max-width: 900px; }}
 <tr><td>Time for real-time deformation of the model, ms</td>{dcells}<td colspan="2">{lat_text}</td></tr>
 </table>
 <p>{gee}</p>
+<h2>Conditions</h2><p>What each condition ran (participants saw only their labels; the full configuration is in the export's conditions.csv):</p>
+<ul>{"".join(f"<li>{esc(table1.condition_text(c))}</li>" for c in facts["conditions"])}</ul>
 {figs}
 {accuracy_html(accuracy) if accuracy else ""}
 {stability_html(stability) if stability else ""}

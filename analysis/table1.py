@@ -11,6 +11,7 @@ Tidy DataFrames with stable column names (documented in docs/analysis.md):
 
 from __future__ import annotations
 
+import json
 import sqlite3
 
 import numpy as np
@@ -145,7 +146,35 @@ def study_facts(db) -> dict:
     return {"study": protocol.name, "participants": n, "incomplete_participants": incomplete,
             "synthetic_participants": synthetic, "mixed_source_participants": mixed,
             "synthetic": synthetic > 0,
-            "design": f"within-subject, {len(protocol.conditions)} models, {protocol.counterbalancing} counterbalancing"}
+            "design": f"within-subject, {len(protocol.conditions)} conditions, {protocol.counterbalancing} counterbalancing",
+            "conditions": conditions(db)}
+
+
+def conditions(db) -> list[dict]:
+    """What each condition ran: its resolved configuration (studyctl/conditions.py) and hash,
+    with the sessions that ran it. A condition that ran under two configurations (its scene or
+    protocol changed mid-study) has two rows; sessions before schema 5 recorded none."""
+    rows = _query(db, "select model as condition, config, config_sha256, count(distinct session_id) as sessions "
+                      "from conditions group by model, config_sha256 order by min(session_id)")
+    order = list(_protocol(db).conditions)
+    rows = rows.iloc[sorted(range(len(rows)), key=lambda i: (order.index(rows["condition"][i]) if rows["condition"][i] in order else len(order), i))]
+    out = []
+    for r in rows.to_dict(orient="records"):
+        config = json.loads(r["config"]) if isinstance(r["config"], str) else None
+        out.append({"condition": r["condition"], "model": config["model"] if config else None, "config": config,
+                    "config_sha256": r["config_sha256"] if config else None, "sessions": int(r["sessions"])})
+    return out
+
+
+def condition_text(c: dict) -> str:
+    """One line of what a condition ran: model, variant and options, the tissue's modulus."""
+    cfg = c["config"]
+    if cfg is None:
+        return f"{c['condition']}: the scene's own configuration (not recorded before schema 5)"
+    opts = dict(cfg["options"]) | ({"variant": cfg["variant"]} if "variant" in cfg else {})
+    shown = ", ".join(f"{k} {v['file'] if isinstance(v, dict) and 'file' in v else v}" for k, v in sorted(opts.items()))
+    young = f"; E {cfg['material']['young']:g} Pa" if cfg["model"] != "plate_spring" else ""
+    return f"{c['condition']}: {cfg['model']} ({shown}{young}), configuration {c['config_sha256'][:12]}"
 
 
 def incomplete_text(facts: dict) -> str:
@@ -208,4 +237,6 @@ def markdown(db, holm_scope: str = "family") -> str:
     gee = _gee_line(st["gee"])
     if gee:
         lines += [gee, ""]
+    lines += ["Conditions (what each ran; participants saw only their labels): "
+              + "; ".join(condition_text(c) for c in facts["conditions"]) + ".", ""]
     return "\n".join(lines)

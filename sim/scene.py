@@ -7,6 +7,7 @@ rates, and a renderer (``none`` or ``offscreen``). See docs/scenes.md.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -344,7 +345,45 @@ def _model_spec(models: _Reader, name: str) -> ModelSpec | None:
     if name not in MODELS:
         models.error(name, f"unknown model {name!r}; available: {', '.join(sorted(MODELS))}")
         return None
-    table = models.table(name, allowed=MODEL_KEYS.get(name))
+    return _model_options(models.table(name, allowed=MODEL_KEYS.get(name)), name)
+
+
+# a FEM or mass-spring condition may also change the tissue's material (the plate-spring's
+# stiffness is in its fitted `params`, whose E is the plates', not the tissue's)
+CONDITION_KEYS = ("young", "poisson")
+
+
+def configure(spec: SceneSpec, model: str, overrides: dict, path: Path, loc: Locator, prefix: str) -> SceneSpec:
+    """The scene with `model` as configured by a study condition: the scene's [models.MODEL]
+    with `overrides` (a protocol's [conditions.NAME] table, less its `model` key) on top, and
+    `young` / `poisson` on the material. Every override is checked as the scene's own keys are,
+    its problems named with the protocol's `path` and lines (`prefix`: "conditions.NAME.");
+    raises one SceneError with all of them."""
+    problems: list = []
+    reader = _Reader(path, overrides, prefix, loc, problems)
+    material_keys = CONDITION_KEYS if model != "plate_spring" else ()
+    reader.keys(("model",) + MODEL_KEYS[model] + material_keys)
+    if model not in spec.models:
+        reader.error("model", f"{model!r} is not configured in the scene {spec.path}; configured: {', '.join(sorted(spec.models))}")
+        raise SceneError([text for _, _, text in problems])
+    data, _ = read_toml(spec.path)
+    base = dict(data["models"][model])
+    for key in ("params", "field"):  # the scene's relative paths stay relative to the scene
+        if isinstance(base.get(key), str) and not Path(base[key]).is_absolute():
+            base[key] = str((spec.path.parent / base[key]).resolve())
+    merged = _Reader(path, base | {k: v for k, v in overrides.items() if k in MODEL_KEYS[model]}, prefix, loc, problems)
+    model_spec = _model_options(merged, model)
+    material = spec.material
+    young = reader.number("young", default=material.young, lo=0.0, lo_open=True)
+    poisson = reader.number("poisson", default=material.poisson, lo=POISSON_MIN, hi=POISSON_MAX, hi_open=True)
+    if problems:
+        problems.sort(key=lambda p: (p[0] != path, str(p[0]), p[1]))
+        raise SceneError([text for _, _, text in problems])
+    material = dataclasses.replace(material, young=young, poisson=poisson)
+    return dataclasses.replace(spec, material=material, model=model, models={**spec.models, model: model_spec})
+
+
+def _model_options(table: _Reader, name: str) -> ModelSpec | None:
     if name == "plate_spring":
         from sim.models.plate_spring import MODEL_VARIANTS
 

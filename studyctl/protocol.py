@@ -10,13 +10,14 @@ import hashlib
 import math
 import re
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from sim.tomlfile import Locator, TomlFileError, read_toml
 from studyctl.errors import ProtocolError
 
 KNOWN_MODELS = ("fem", "mass_spring", "plate_spring")
+MAX_CONDITIONS = 8
 DESIGNS = ("williams",)
 LATENCY_MEASURES = ("deformation_ms", "tick_interval_p99_us", "read_to_force_us", "tick_compute_us")
 ID_RE = re.compile(r"^[a-z][a-z0-9_]*$")
@@ -50,6 +51,9 @@ class Protocol:
     consent_version: str = "1"  # the consent form a person must have signed before a session
     withdrawal: str = "keep"  # a withdrawn participant's data: "keep" (pseudonymous) or "delete"
     timezone: str | None = None  # the lab's IANA time zone (session slots); None: floating local times
+    # [conditions.NAME] tables (model and options) by name; a condition not here is a model
+    # name, the scene's own configuration (studyctl/conditions.py)
+    condition_tables: dict = field(default_factory=dict, compare=False)
 
     @property
     def sha256(self) -> str:
@@ -119,11 +123,13 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     sections = {"study": ("name", "title", "version", "target_participants", "scene", "timezone"),
                 "design": ("conditions", "counterbalancing", "training_minutes", "trials_per_condition", "trial_seconds", "rest_seconds"),
                 "inclusion": ("age_min", "age_max"), "latency": ("measures",), "ethics": ("consent_version", "withdrawal"),
-                "questions": ("id", "text")}
+                "questions": ("id", "text"), "conditions": None}
     for key in data:
         if key not in sections:
             bad(key, f"unknown section; allowed: {', '.join(sections)}")
     for sec, keys in sections.items():
+        if keys is None:  # [conditions.NAME]: names of the protocol's choosing, checked below
+            continue
         tables = data.get(sec)
         tables = [(sec, tables)] if isinstance(tables, dict) else \
             [(f"{sec}[{k}]", t) for k, t in enumerate(tables)] if isinstance(tables, list) else []
@@ -158,17 +164,24 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
         if not scene.exists():
             bad("study.scene", f"{scene} does not exist")
 
+    tables = _condition_tables(data.get("conditions", {}), bad)
     conditions = get(design, "design", "conditions", list)
     if conditions is not None:
         if not conditions:
             bad("design.conditions", "at least one condition")
+        if len(conditions) > MAX_CONDITIONS:
+            bad("design.conditions", f"{len(conditions)} conditions; allowed: 1..{MAX_CONDITIONS}")
         for c in conditions:
-            if c not in KNOWN_MODELS:
-                bad("design.conditions", f"unknown model {c!r}; allowed: {', '.join(KNOWN_MODELS)}")
+            if c not in KNOWN_MODELS and c not in tables:
+                named = f"a [conditions.NAME] table ({', '.join(tables)})" if tables else "a [conditions.NAME] table"
+                bad("design.conditions", f"unknown condition {c!r}; allowed: {named} or a model name ({', '.join(KNOWN_MODELS)})")
         if len(set(map(str, conditions))) != len(conditions):
             bad("design.conditions", "a condition appears twice")
+        for declared in tables:
+            if declared not in conditions:
+                bad(f"conditions.{declared}", "not listed in design.conditions")
     if from_file and scene is not None and scene.exists():
-        problems += _scene_problems(scene, conditions or [], lambda message: bad("design.conditions", message))
+        problems += _scene_problems(scene, path, text, conditions or [], tables, lambda message: bad("design.conditions", message))
     cb = get(design, "design", "counterbalancing", str)
     if cb is not None and cb not in DESIGNS:
         bad("design.counterbalancing", f"{cb!r} is not one of {', '.join(DESIGNS)}")
@@ -216,25 +229,57 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
             conditions=tuple(conditions), counterbalancing=cb, training_minutes=training, trials_per_condition=trials,
             trial_seconds=trial_s, rest_seconds=rest_s, age_min=age_min, age_max=age_max, latency_measures=tuple(measures),
             questions=tuple(questions), text=text, consent_version=consent_version, withdrawal=withdrawal, timezone=timezone,
+            condition_tables=tables,
         ),
         [],
     )
 
 
-def _scene_problems(scene: Path, conditions: list, bad) -> list[str]:
+def _condition_tables(raw, bad) -> dict[str, dict]:
+    """The [conditions.NAME] tables: a name as item ids are, a `model` among the known ones; the
+    options are checked against the scene (`_scene_problems`)."""
+    if not isinstance(raw, dict):
+        bad("conditions", "must be tables, one per condition: [conditions.NAME] with model = ...")
+        return {}
+    tables = {}
+    for name, t in raw.items():
+        if not isinstance(t, dict):
+            bad(f"conditions.{name}", "must be a table: [conditions.NAME] with model = ...")
+        elif not ID_RE.match(name):
+            bad(f"conditions.{name}", f"{name!r} must be lower-case letters, digits and _ (starting with a letter)")
+        elif t.get("model") not in KNOWN_MODELS:
+            what = "missing" if "model" not in t else f"{t['model']!r} is not a model"
+            bad(f"conditions.{name}.model", f"{what}; allowed: {', '.join(KNOWN_MODELS)}")
+        else:
+            tables[name] = t
+    return tables
+
+
+def _scene_problems(scene: Path, path: Path, text: str, conditions: list, tables: dict, bad) -> list[str]:
     """The scene file's own problems (each 'FILE:LINE: field: message'); then, for a valid scene,
-    each condition it does not configure, through `bad`."""
-    from sim.errors import SceneError
-    from sim.scene import load_scene
+    each condition's: a model the scene does not configure, an option it does not take or out
+    of its range (named at the protocol's lines)."""
+    from sim.errors import SceneError, SimError
+    from sim.scene import configure, load_scene
+    from sim.tomlfile import Locator
 
     try:
         spec = load_scene(scene)
     except SceneError as exc:
         return list(exc.problems)
+    out: list[str] = []
     for c in conditions:
-        if c in KNOWN_MODELS and c not in spec.models:
+        if c in tables:
+            try:
+                configure(spec, tables[c]["model"], {k: v for k, v in tables[c].items() if k != "model"}, path, Locator(text),
+                          f"conditions.{c}.")
+            except SceneError as exc:
+                out += exc.problems
+            except SimError as exc:  # e.g. plate-spring parameters that fail the paper's bounds
+                out.append(f"{path}:{Locator(text).line(f'conditions.{c}')}: conditions.{c}: {exc}")
+        elif c in KNOWN_MODELS and c not in spec.models:
             bad(f"{c!r} is not configured in the scene {scene}; configured: {', '.join(sorted(spec.models))}")
-    return []
+    return out
 
 
 def load_protocol(path: str | Path) -> Protocol:

@@ -17,13 +17,14 @@ from studyctl.traces import read_trace
 def session_trials(store, session_id: int) -> list[dict]:
     """A session's trials in the order they were run (condition position, then trial)."""
     return store.rows(
-        "select t.*, c.position, c.label from trials t join conditions c on c.session_id = t.session_id and c.model = t.model "
+        "select t.*, c.position, c.label, c.config_sha256 from trials t join conditions c on c.session_id = t.session_id and c.model = t.model "
         "where t.session_id = ? order by c.position, t.trial", (session_id,))
 
 
 def replay_trial(db, session_id: int, k: int, view: str = "none", frames_dir: Path | None = None) -> dict:
     from sim.run import run_scene, write_outputs
-    from sim.scene import build_scene
+    from sim.scene import Scene
+    from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
 
     store = Store(db, mode="read")
     try:
@@ -40,7 +41,11 @@ def replay_trial(db, session_id: int, k: int, view: str = "none", frames_dir: Pa
     finally:
         store.close()
     path = (Path(db).parent / row["trace_path"]).resolve()
-    scene = build_scene(protocol.scene, row["model"])
+    spec = condition_scene_spec(protocol, row["model"])
+    if row["config_sha256"] and config_sha256(resolved_config(row["model"], spec)) != row["config_sha256"]:
+        raise InputError(f"--trial: condition {row['model']!r} of session {session_id} ran configuration {row['config_sha256'][:12]}; "
+                         f"the protocol's scene now gives another (its scene or parameter files changed): cannot replay it")
+    scene = Scene(spec)
     hands = tuple(dataclasses.replace(h, device="replay", trace=path, trace_hand=name)
                   for h, name in zip(scene.spec.hands, trace.hand_names))
     scene.spec = dataclasses.replace(scene.spec, hands=hands)

@@ -144,17 +144,30 @@ class WindowAnswers:
                     return k == "y"
 
 
-_SCENES: dict = {}  # (scene file, model, device) -> Scene: models are built once per process
+_SCENES: dict = {}  # (scene file, resolved configuration's hash, device) -> Scene: models are built once per process
 
 
-def _scene(protocol, model: str, device: str):
-    """The protocol's scene for `model`, with every hand on `device` (built once, reused)."""
-    from sim.scene import build_scene
+def _scene(protocol, condition: str, device: str):
+    """The protocol's scene for `condition` (its model as the protocol configures it), with every
+    hand on `device` (built once, reused)."""
+    from sim.scene import Scene
+    from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
 
-    key = (str(protocol.scene), model, device)
+    spec = condition_scene_spec(protocol, condition)
+    key = (str(protocol.scene), config_sha256(resolved_config(condition, spec)), device)
     if key not in _SCENES:
-        _SCENES[key] = build_scene(protocol.scene, model).with_device(device)
+        _SCENES[key] = Scene(spec).with_device(device)
     return _SCENES[key]
+
+
+def condition_configs(protocol, names) -> dict[str, dict]:
+    """Each condition's fully resolved configuration (studyctl/conditions.py), stored with the
+    session: exports and reports show it, the participant never."""
+    from sim.scene import load_scene
+    from studyctl.conditions import condition_scene_spec, resolved_config
+
+    spec = load_scene(protocol.scene)
+    return {c: resolved_config(c, condition_scene_spec(protocol, c, spec)) for c in names}
 
 
 def reference_model(protocol):
@@ -355,9 +368,13 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                 "device": device, "protocol_sha256": protocol.sha256, "scene_sha256": sha256_file(protocol.scene),
                 "software_version": SOFTWARE_VERSION, "conditions": json.dumps(order), "seed": seed if synthetic else None}, pk="id")
             session_id = store.rows("select max(id) as id from sessions where code = ?", (code,))[0]["id"]  # the row just written
+            from studyctl.conditions import config_json, config_sha256
+
+            configs = condition_configs(protocol, order)
             for pos, model in enumerate(order):
                 store.write("conditions", {"session_id": session_id, "position": pos, "model": model, "status": "pending",
-                                           "label": labels[model]}, pk=("session_id", "position"))
+                                           "label": labels[model], "config": config_json(configs[model]),
+                                           "config_sha256": config_sha256(configs[model])}, pk=("session_id", "position"))
         labels = {r["model"]: r["label"] or chr(ord("A") + r["position"])
                   for r in store.rows("select model, position, label from conditions where session_id = ?", (session_id,))}
         participant = None

@@ -18,7 +18,7 @@ import sqlite_utils
 
 from studyctl.errors import StoreError
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 EXPORT_TABLES = ("participants", "schedule", "sessions", "conditions", "trials", "answers", "latency", "events", "consent", "corrections",
                  "observer_features")
 IDENTIFYING_TABLES = ("identities",)
@@ -86,7 +86,14 @@ def _migration_4(db: sqlite_utils.Database) -> None:
                                    pk=("code", "model", "feature"), foreign_keys=[("code", "participants", "code")])
 
 
-MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3, 4: _migration_4}
+def _migration_5(db: sqlite_utils.Database) -> None:
+    """Conditions are named model configurations: each session's conditions keep the resolved one
+    (JSON) and its SHA-256 (studyctl/conditions.py). Older sessions ran the scene's own."""
+    db["conditions"].add_column("config", str)
+    db["conditions"].add_column("config_sha256", str)
+
+
+MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3, 4: _migration_4, 5: _migration_5}
 
 
 STUDY_TABLES = ("meta", "study")  # what makes a file a study database (with meta.schema_version)

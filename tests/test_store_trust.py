@@ -369,13 +369,16 @@ def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
     con.execute("drop table corrections")
     con.execute("alter table participants drop column withdrawn_at")
     con.execute("alter table participants drop column withdrawal")
+    con.execute("alter table conditions drop column config")
+    con.execute("alter table conditions drop column config_sha256")
     con.execute("update meta set value = '2' where key = 'schema_version'")
     con.commit()
     con.close()
     res = studyctl("participants", "list", "--json", "--db", db)
     assert res.exit_code == 0 and json.loads(res.output)[0]["code"] == "P01"
-    assert _q(db, "select value from meta where key = 'schema_version'") == [("4",)]
+    assert _q(db, "select value from meta where key = 'schema_version'") == [("5",)]
     assert _q(db, "select count(*) from observer_features") == [(0,)]
+    assert {"config", "config_sha256"} <= {r[1] for r in _q(db, "pragma table_info(conditions)")}
 
 
 def test_a_synthetic_session_resumes_with_its_own_seed(tmp_path):

@@ -62,7 +62,7 @@ def test_williams_design_balances_first_order_carry_over():
 BROKEN = {
     "syntax": ("[study\nname = 1", r"protocol.toml:1: invalid TOML:"),
     "unknown_model": ('conditions = ["fem", "mass_spring", "plate_spring"]', 'conditions = ["fem", "rubber"]',
-                      r"protocol.toml:\d+: design.conditions: unknown model 'rubber'"),
+                      r"protocol.toml:\d+: design.conditions: unknown condition 'rubber'; allowed: a \[conditions.NAME\] table or a model name \(fem, mass_spring, plate_spring\)"),
     "wrong_type": ("trials_per_condition = 3", 'trials_per_condition = "three"', r":\d+: design.trials_per_condition: 'three' is not an integer"),
     "out_of_range": ("age_max = 28", "age_max = 200", r":\d+: inclusion.age_max: 200 is out of range; allowed: 0..120"),
     "duplicate_id": ('id = "texture"', 'id = "natural"', r":\d+: questions\[2\].id: duplicate item id 'natural' \(also questions\[0\]\)"),

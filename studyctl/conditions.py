@@ -1,0 +1,55 @@
+"""A study's conditions: the scene's model as each `[conditions.NAME]` table of the protocol
+configures it, and the fully resolved configuration stored with every session (JSON and its
+SHA-256). A condition listed by a model name alone (`design.conditions = ["fem", ...]`, the
+old form) is the scene's own configuration of that model."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from pathlib import Path
+
+from sim.tomlfile import Locator
+
+
+def condition_scene_spec(protocol, name: str, spec=None):
+    """The scene spec (`sim.scene.SceneSpec`) whose default model is condition `name`; `spec`:
+    the protocol's scene, already loaded. Raises SceneError naming the protocol's lines."""
+    from sim.scene import configure, load_scene
+
+    spec = spec if spec is not None else load_scene(protocol.scene)
+    table = protocol.condition_tables.get(name)
+    if table is None:  # the old form: the scene's own configuration of the model
+        spec.model_spec(name)  # raises, naming what the scene configures
+        return dataclasses.replace(spec, model=name)
+    overrides = {k: v for k, v in table.items() if k != "model"}
+    return configure(spec, table["model"], overrides, protocol.path, Locator(protocol.text), f"conditions.{name}.")
+
+
+def _plain(value):
+    if isinstance(value, Path):  # a file's content, not where it lies on this machine
+        return {"file": value.name, "sha256": hashlib.sha256(value.read_bytes()).hexdigest()}
+    if dataclasses.is_dataclass(value):
+        return {k: _plain(v) for k, v in dataclasses.asdict(value).items()}
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in sorted(value.items())}
+    return value
+
+
+def resolved_config(name: str, spec) -> dict:
+    """What condition `name` runs: the model with every option, the material (JSON-able)."""
+    m = spec.model_spec()
+    out = {"condition": name, "model": m.name, "options": _plain(m.options), "material": _plain(spec.material)}
+    if m.name == "plate_spring":
+        out["variant"] = m.variant
+        out["plate_spring"] = _plain(m.plate_spring)
+    return out
+
+
+def config_json(config: dict) -> str:
+    return json.dumps(config, sort_keys=True, separators=(",", ":"))
+
+
+def config_sha256(config: dict) -> str:
+    return hashlib.sha256(config_json(config).encode()).hexdigest()

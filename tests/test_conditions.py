@@ -1,0 +1,156 @@
+"""Conditions as named model configurations (issue 26, item 1): validated against the scene at
+the protocol's own lines, resolved and stored with each session, shown in exports and reports."""
+
+import json
+import re
+import sqlite3
+
+import pandas as pd
+import pytest
+
+from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
+from studyctl.protocol import check_protocol, load_protocol
+from studyctl.synthetic import run_synthetic_study
+from tests.test_study import fast_protocol, studyctl
+
+VARIANTS = """
+[conditions.paper]
+model = "plate_spring"
+variant = "paper"
+
+[conditions.located]
+model = "plate_spring"
+variant = "located"
+
+[conditions.stiff_fem]
+model = "fem"
+young = 6000.0
+"""
+
+
+def _protocol(tmp_path, conditions=("paper", "located", "stiff_fem"), tables=VARIANTS, trials=1):
+    path = fast_protocol(tmp_path, conditions=conditions, trials=trials)
+    text = path.read_text().replace("[inclusion]", tables + "\n[inclusion]")
+    path.write_text(text)
+    return path
+
+
+def test_named_conditions_resolve_over_the_scenes_configuration(tmp_path):
+    p = load_protocol(_protocol(tmp_path))
+    assert p.conditions == ("paper", "located", "stiff_fem")
+    configs = {c: resolved_config(c, condition_scene_spec(p, c)) for c in p.conditions}
+    assert configs["paper"]["variant"] == "paper" and configs["located"]["variant"] == "located"
+    # what a condition leaves out is the scene's: its plate parameters, the FEM's 8 mm mesh
+    assert configs["paper"]["plate_spring"] == configs["located"]["plate_spring"]
+    assert configs["stiff_fem"]["options"]["resolution"] == 0.008 and configs["stiff_fem"]["options"]["formulation"] == "linear"
+    assert configs["stiff_fem"]["material"]["young"] == 6000.0
+    # the old form (a model name) is the scene's own configuration
+    fem = resolved_config("fem", condition_scene_spec(p, "fem"))
+    assert fem["material"]["young"] == 3000.0 and fem["options"] == configs["stiff_fem"]["options"]
+    hashes = {config_sha256(c) for c in configs.values()}
+    assert len(hashes) == 3 and all(re.fullmatch(r"[0-9a-f]{64}", h) for h in hashes)
+    # the same configuration, found again, has the same hash; paths enter as file contents
+    assert config_sha256(resolved_config("paper", condition_scene_spec(p, "paper"))) == config_sha256(configs["paper"])
+
+
+REFUSED = {
+    "an option the model does not take": ('variant = "paper"\n', 'variant = "paper"\nformulation = "linear"\n',
+                                          r":(\d+): conditions.paper.formulation: unknown key; allowed: model, variant, params, field"),
+    "a value out of range": ("young = 6000.0", "young = -1.0", r":(\d+): conditions.stiff_fem.young: -1.0 is out of range; allowed: \(0, inf\]"),
+    "a value not among the allowed": ('variant = "located"', 'variant = "locatd"',
+                                      r":(\d+): conditions.located.variant: 'locatd' is not one of paper, continuous, located"),
+    "an unknown model": ('model = "fem"', 'model = "sph"', r":(\d+): conditions.stiff_fem.model: 'sph' is not a model; allowed: fem, mass_spring, plate_spring"),
+    "a condition listed twice": ('conditions = ["paper", "located", "stiff_fem"]', 'conditions = ["paper", "paper", "stiff_fem", "located"]',
+                                 r":(\d+): design.conditions: a condition appears twice"),
+    "a table not listed": ('conditions = ["paper", "located", "stiff_fem"]', 'conditions = ["paper", "located"]',
+                           r":(\d+): conditions.stiff_fem: not listed in design.conditions"),
+    "an undeclared name": ('conditions = ["paper", "located", "stiff_fem"]', 'conditions = ["paper", "located", "stiff_fem", "soft"]',
+                           r":(\d+): design.conditions: unknown condition 'soft'; allowed: a \[conditions.NAME\] table \(paper, located, stiff_fem\)"),
+    "nine conditions": ('conditions = ["paper", "located", "stiff_fem"]',
+                        'conditions = ["paper", "located", "stiff_fem", "fem", "mass_spring", "plate_spring", "a", "b", "c"]',
+                        r":(\d+): design.conditions: 9 conditions; allowed: 1..8"),
+}
+
+
+@pytest.mark.parametrize("case", REFUSED)
+def test_bad_conditions_are_refused_at_their_line(tmp_path, case):
+    old, new, pattern = REFUSED[case]
+    path = _protocol(tmp_path)
+    text = path.read_text()
+    assert old in text
+    path.write_text(text.replace(old, new, 1))
+    _, problems = check_protocol(path)
+    hit = next((p for p in problems if re.search(pattern, p)), None)
+    assert hit, problems
+    line, field = int(re.search(pattern, hit).group(1)), re.search(r"\.toml:\d+: ([a-z_.]+):", hit).group(1)
+    text = path.read_text().splitlines()[line - 1].strip()
+    # the line of the key at fault, or of the table when the table itself is
+    assert text == f"[{field}]" if field.count(".") == 1 and field.startswith("conditions.") else text.startswith(field.split(".")[-1] + " ="), (hit, text)
+    res = studyctl("protocol", "validate", path)
+    assert res.exit_code == 1 and "Traceback" not in res.output
+
+
+def test_a_condition_whose_model_the_scene_lacks_is_refused(tmp_path):
+    path = _protocol(tmp_path)
+    scene = tmp_path / "scene.toml"
+    text = scene.read_text()
+    a = text.index("[models.fem]")
+    scene.write_text(text[:a] + text[text.index("\n[", a + 1) + 1:])
+    _, problems = check_protocol(path)
+    assert any(re.search(r"protocol.toml:\d+: conditions.stiff_fem.model: 'fem' is not configured in the scene .*; configured: mass_spring, plate_spring", p)
+               for p in problems), problems
+
+
+def test_sessions_store_what_each_condition_ran_and_reports_show_it(tmp_path):
+    db = tmp_path / "s.db"
+    run_synthetic_study(db, 2, seed=3, jobs=1, protocol_path=_protocol(tmp_path))
+    con = sqlite3.connect(db)
+    rows = con.execute("select session_id, model, label, config, config_sha256 from conditions order by session_id, position").fetchall()
+    forces = dict(con.execute("select model, max(max_force_n) from trials group by model").fetchall())
+    con.close()
+    assert len(rows) == 6 and {r[1] for r in rows} == {"paper", "located", "stiff_fem"}
+    for _, name, label, config, sha in rows:
+        cfg = json.loads(config)
+        assert cfg["condition"] == name and config_sha256(cfg) == sha and label in "ABC"
+    # two configurations of one model render different forces
+    assert forces["paper"] != forces["located"]
+    # the export carries the configuration; the reports name it, by condition
+    assert studyctl("export", "--db", db, "--out", tmp_path / "ex").exit_code == 0
+    cond = pd.read_csv(tmp_path / "ex" / "conditions.csv")
+    assert {"config", "config_sha256"} <= set(cond.columns) and cond["config"].map(lambda c: json.loads(c)["model"]).tolist().count("fem") == 2
+    md = studyctl("report", "table1", "--db", db).output
+    assert "| Question | paper: yes/no" in md and "3 conditions" in md
+    assert re.search(r"paper: plate_spring \(variant paper\), configuration [0-9a-f]{12}; located: plate_spring \(variant located\)", md)
+    assert "stiff_fem: fem (formulation linear, grasp_radius 0.005, order 1, resolution 0.008; E 6000 Pa)" in md
+    res = studyctl("report", "table1", "--db", db, "--format", "html", "--out", tmp_path / "r.html")
+    assert res.exit_code == 0 and "<h2>Conditions</h2>" in (tmp_path / "r.html").read_text()
+    facts = json.loads(studyctl("report", "table1", "--db", db, "--format", "json").output)["facts"]
+    assert [c["condition"] for c in facts["conditions"]] == ["paper", "located", "stiff_fem"]
+    assert all(c["sessions"] == 2 and len(c["config_sha256"]) == 64 for c in facts["conditions"])
+
+
+def test_the_shipped_variants_protocol_validates():
+    from tests.conftest import ROOT
+
+    res = studyctl("protocol", "validate", ROOT / "protocols/plate_spring_variants.toml")
+    assert res.exit_code == 0 and "3 conditions" in res.output, res.output
+    p = load_protocol(ROOT / "protocols/plate_spring_variants.toml")
+    variants = [resolved_config(c, condition_scene_spec(p, c)).get("variant") for c in p.conditions]
+    assert variants == ["paper", "located", None]
+
+
+def test_a_replay_runs_what_the_session_ran_or_refuses(tmp_path):
+    db = tmp_path / "s.db"
+    run_synthetic_study(db, 1, seed=5, jobs=1, protocol_path=_protocol(tmp_path))
+    for k in (1, 2, 3):  # one trial per condition: the recorded forces, bit for bit
+        out = json.loads(studyctl("replay", "--db", db, "--session", 1, "--trial", k, "--json").output)
+        assert out["max_force_difference_n"] == 0.0 and out["ticks"] == out["recorded_ticks"], out
+    # the scene changed since: the FEM condition now resolves to another configuration
+    scene = tmp_path / "scene.toml"
+    scene.write_text(scene.read_text().replace("resolution = 0.008", "resolution = 0.006", 1))
+    con = sqlite3.connect(db)
+    k = 1 + [r[0] for r in con.execute("select model from conditions where session_id = 1 order by position")].index("stiff_fem")
+    con.close()
+    res = studyctl("replay", "--db", db, "--session", 1, "--trial", k)
+    assert res.exit_code == 1 and "condition 'stiff_fem' of session 1 ran configuration" in res.output and "cannot replay it" in res.output
+    assert "Traceback" not in res.output
