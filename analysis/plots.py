@@ -78,7 +78,7 @@ def force_traces(protocol, duration: float = 3.0) -> dict:
     run's own hand motion. Returns {condition: (t, force, reference)} for the first hand."""
     from sim.run import run_scene
     from sim.scene import Scene, load_scene
-    from studyctl.conditions import condition_scene_spec
+    from studyctl.conditions import condition_scene_spec, scene_itself
     from studyctl.observer import truth_forces
     from studyctl.truth import load_truth
 
@@ -87,7 +87,7 @@ def force_traces(protocol, duration: float = 3.0) -> dict:
     spec = load_scene(protocol.scene)
     for m in protocol.conditions:
         scene = Scene(condition_scene_spec(protocol, m, spec))
-        truth = truth or load_truth(scene)
+        truth = truth or load_truth(scene_itself(protocol))  # the scene's own, whatever a condition changes
         r = run_scene(scene, duration=duration, time_scale=0)
         f = np.linalg.norm(r.forces[:, 0], axis=1)
         out[m] = (r.times, f, truth_forces(r, truth, scene.mesh)[:, 0])

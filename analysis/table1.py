@@ -173,7 +173,8 @@ def condition_text(c: dict) -> str:
         return f"{c['condition']}: the scene's own configuration (not recorded before schema 5)"
     opts = dict(cfg["options"]) | ({"variant": cfg["variant"]} if "variant" in cfg else {})
     shown = ", ".join(f"{k} {v['file'] if isinstance(v, dict) and 'file' in v else v}" for k, v in sorted(opts.items()))
-    young = f"; E {cfg['material']['young']:g} Pa" if cfg["model"] != "plate_spring" else ""
+    mat = cfg["material"]
+    young = {"fem": f"; E {mat['young']:g} Pa, nu {mat['poisson']:g}", "mass_spring": f"; E {mat['young']:g} Pa"}.get(cfg["model"], "")
     return f"{c['condition']}: {cfg['model']} ({shown}{young}), configuration {c['config_sha256'][:12]}"
 
 

@@ -348,9 +348,10 @@ def _model_spec(models: _Reader, name: str) -> ModelSpec | None:
     return _model_options(models.table(name, allowed=MODEL_KEYS.get(name)), name)
 
 
-# a FEM or mass-spring condition may also change the tissue's material (the plate-spring's
-# stiffness is in its fitted `params`, whose E is the plates', not the tissue's)
-CONDITION_KEYS = ("young", "poisson")
+# the material keys a condition of each model may change: those the model uses (the
+# plate-spring's stiffness is in its fitted `params`, whose E is the plates', not the tissue's;
+# the mass-spring's springs follow E alone)
+CONDITION_KEYS = {"fem": ("young", "poisson"), "mass_spring": ("young",), "plate_spring": ()}
 
 
 def configure(spec: SceneSpec, model: str, overrides: dict, path: Path, loc: Locator, prefix: str) -> SceneSpec:
@@ -361,8 +362,7 @@ def configure(spec: SceneSpec, model: str, overrides: dict, path: Path, loc: Loc
     raises one SceneError with all of them."""
     problems: list = []
     reader = _Reader(path, overrides, prefix, loc, problems)
-    material_keys = CONDITION_KEYS if model != "plate_spring" else ()
-    reader.keys(("model",) + MODEL_KEYS[model] + material_keys)
+    reader.keys(("model",) + MODEL_KEYS[model] + CONDITION_KEYS[model])
     if model not in spec.models:
         reader.error("model", f"{model!r} is not configured in the scene {spec.path}; configured: {', '.join(sorted(spec.models))}")
         raise SceneError([text for _, _, text in problems])
@@ -371,8 +371,14 @@ def configure(spec: SceneSpec, model: str, overrides: dict, path: Path, loc: Loc
     for key in ("params", "field"):  # the scene's relative paths stay relative to the scene
         if isinstance(base.get(key), str) and not Path(base[key]).is_absolute():
             base[key] = str((spec.path.parent / base[key]).resolve())
-    merged = _Reader(path, base | {k: v for k, v in overrides.items() if k in MODEL_KEYS[model]}, prefix, loc, problems)
+    merged_problems: list = []
+    merged = _Reader(path, base | {k: v for k, v in overrides.items() if k in MODEL_KEYS[model]}, prefix, loc, merged_problems)
     model_spec = _model_options(merged, model)
+    for file, line, text in merged_problems:  # a key the condition left to the scene: say so
+        key = text.split(": ")[1].rsplit(".", 1)[-1] if text.count(": ") >= 2 else ""
+        if key in base and key not in overrides:
+            text += f" (the scene's {key} = {base[key]!r}, with this condition's options)"
+        problems.append((file, line, text))
     material = spec.material
     young = reader.number("young", default=material.young, lo=0.0, lo_open=True)
     poisson = reader.number("poisson", default=material.poisson, lo=POISSON_MIN, hi=POISSON_MAX, hi_open=True)

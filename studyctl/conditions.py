@@ -27,6 +27,14 @@ def condition_scene_spec(protocol, name: str, spec=None):
     return configure(spec, table["model"], overrides, protocol.path, Locator(protocol.text), f"conditions.{name}.")
 
 
+def scene_itself(protocol):
+    """The protocol's scene as its file configures it, no condition applied: what the synthetic
+    observer's truth (studyctl/truth.py) and the force reference are made for."""
+    from sim.scene import Scene, load_scene
+
+    return Scene(load_scene(protocol.scene))
+
+
 def _plain(value):
     if isinstance(value, Path):  # a file's content, not where it lies on this machine
         return {"file": value.name, "sha256": hashlib.sha256(value.read_bytes()).hexdigest()}
@@ -40,10 +48,18 @@ def _plain(value):
 def resolved_config(name: str, spec) -> dict:
     """What condition `name` runs: the model with every option, the material (JSON-able)."""
     m = spec.model_spec()
-    out = {"condition": name, "model": m.name, "options": _plain(m.options), "material": _plain(spec.material)}
+    out = {"condition": name, "model": m.name, "options": _plain(m.options), "material": _plain(spec.material),
+           # what else the forces depend on: the scene file itself (any edit is a new configuration),
+           # the surface, the clamp, the loop rates
+           "scene": _plain(spec.path), "mesh": _plain(spec.mesh_path), "fixed": _plain(spec.fixed),
+           "servo_rate_hz": spec.servo_rate_hz, "visual_rate_hz": spec.visual_rate_hz}
     if m.name == "plate_spring":
         out["variant"] = m.variant
         out["plate_spring"] = _plain(m.plate_spring)
+        if m.variant == "located" and "field" not in m.options:  # the shipped stiffness field it loads
+            from analysis.field import FIELD_FILE
+
+            out["field"] = _plain(Path(FIELD_FILE)) if Path(FIELD_FILE).exists() else None
     return out
 
 

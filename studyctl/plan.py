@@ -20,6 +20,7 @@ def pilot_summaries(protocol, pilots: int = 4, seed: int = 0, mapping: dict[str,
     play another's condition (the null and swap tests); the pilots' hand motions are drawn per
     label, as a session draws them per condition."""
     from sim.run import run_scene
+    from studyctl.conditions import scene_itself
     from studyctl.observer import summarise
     from studyctl.session import _scene
     from studyctl.synthetic import SyntheticParticipant
@@ -32,7 +33,7 @@ def pilot_summaries(protocol, pilots: int = 4, seed: int = 0, mapping: dict[str,
     for label in protocol.conditions:
         model = mapping.get(label, label)
         scene = scenes.get(model) or scenes.setdefault(model, _scene(protocol, model, "simulated"))
-        truth = truth or load_truth(scene)
+        truth = truth or load_truth(scene_itself(protocol))  # the scene's own, whatever a condition changes
         out[label] = []
         for k in range(pilots):
             p = SyntheticParticipant.draw(f"PILOT{k + 1:02d}", seed)

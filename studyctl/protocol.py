@@ -172,7 +172,9 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
         if len(conditions) > MAX_CONDITIONS:
             bad("design.conditions", f"{len(conditions)} conditions; allowed: 1..{MAX_CONDITIONS}")
         for c in conditions:
-            if c not in KNOWN_MODELS and c not in tables:
+            if not isinstance(c, str):
+                bad("design.conditions", f"{c!r} is not a condition's name")
+            elif c not in KNOWN_MODELS and c not in tables:
                 named = f"a [conditions.NAME] table ({', '.join(tables)})" if tables else "a [conditions.NAME] table"
                 bad("design.conditions", f"unknown condition {c!r}; allowed: {named} or a model name ({', '.join(KNOWN_MODELS)})")
         if len(set(map(str, conditions))) != len(conditions):
@@ -247,6 +249,8 @@ def _condition_tables(raw, bad) -> dict[str, dict]:
             bad(f"conditions.{name}", "must be a table: [conditions.NAME] with model = ...")
         elif not ID_RE.match(name):
             bad(f"conditions.{name}", f"{name!r} must be lower-case letters, digits and _ (starting with a letter)")
+        elif name in KNOWN_MODELS:  # a model's name alone means the scene's own configuration
+            bad(f"conditions.{name}", f"{name!r} is a model's name, which means the scene's own configuration; name the condition otherwise")
         elif t.get("model") not in KNOWN_MODELS:
             what = "missing" if "model" not in t else f"{t['model']!r} is not a model"
             bad(f"conditions.{name}.model", f"{what}; allowed: {', '.join(KNOWN_MODELS)}")
@@ -269,6 +273,8 @@ def _scene_problems(scene: Path, path: Path, text: str, conditions: list, tables
         return list(exc.problems)
     out: list[str] = []
     for c in conditions:
+        if not isinstance(c, str):  # refused above
+            continue
         if c in tables:
             try:
                 configure(spec, tables[c]["model"], {k: v for k, v in tables[c].items() if k != "model"}, path, Locator(text),

@@ -147,14 +147,14 @@ class WindowAnswers:
 _SCENES: dict = {}  # (scene file, resolved configuration's hash, device) -> Scene: models are built once per process
 
 
-def _scene(protocol, condition: str, device: str):
-    """The protocol's scene for `condition` (its model as the protocol configures it), with every
-    hand on `device` (built once, reused)."""
-    from sim.scene import Scene
+def _scene(protocol, condition: str | None, device: str):
+    """The protocol's scene for `condition` (its model as the protocol configures it; None: the
+    scene's own configuration), with every hand on `device` (built once, reused)."""
+    from sim.scene import Scene, load_scene
     from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
 
-    spec = condition_scene_spec(protocol, condition)
-    key = (str(protocol.scene), config_sha256(resolved_config(condition, spec)), device)
+    spec = condition_scene_spec(protocol, condition) if condition is not None else load_scene(protocol.scene)
+    key = (str(protocol.scene), config_sha256(resolved_config(condition or "", spec)), device)
     if key not in _SCENES:
         _SCENES[key] = Scene(spec).with_device(device)
     return _SCENES[key]
@@ -348,8 +348,17 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
         # the session's own seed on a resume; else the one given; else 0 (also a session from
         # before seeds were stored)
         seed = stored if stored is not None else (0 if seed is None else seed)
+        from studyctl.conditions import config_json, config_sha256
+
+        configs = condition_configs(protocol, order)  # before anything is written: a condition that fails is a clean error
         if running:
             session_id = running[0]["id"]
+            for r in store.rows("select model, config_sha256 from conditions where session_id = ?", (session_id,)):
+                now_sha = config_sha256(configs[r["model"]]) if r["model"] in configs else None
+                if r["config_sha256"] and now_sha != r["config_sha256"]:
+                    raise StoreError(f"participant {code}: condition {r['model']!r} of session {session_id} ran configuration "
+                                     f"{r['config_sha256'][:12]}; the protocol's scene now gives another (its scene or parameter "
+                                     f"files changed): resuming would mix the two")
             store.event(session_id, "resumed")
             say(f"resuming session {session_id} of {code}")
         else:
@@ -368,9 +377,6 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                 "device": device, "protocol_sha256": protocol.sha256, "scene_sha256": sha256_file(protocol.scene),
                 "software_version": SOFTWARE_VERSION, "conditions": json.dumps(order), "seed": seed if synthetic else None}, pk="id")
             session_id = store.rows("select max(id) as id from sessions where code = ?", (code,))[0]["id"]  # the row just written
-            from studyctl.conditions import config_json, config_sha256
-
-            configs = condition_configs(protocol, order)
             for pos, model in enumerate(order):
                 store.write("conditions", {"session_id": session_id, "position": pos, "model": model, "status": "pending",
                                            "label": labels[model], "config": config_json(configs[model]),
@@ -383,7 +389,8 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
             from studyctl.truth import load_truth
 
             participant = SyntheticParticipant.draw(code, seed)
-            answers = SyntheticAnswers(participant, load_truth(first), first.mesh)
+            base = _scene(protocol, None, "simulated")  # the scene's own configuration, whatever the conditions change
+            answers = SyntheticAnswers(participant, load_truth(base), base.mesh)
         paced = time_scale > 0 and not synthetic  # a person sets the pace
         answerer = answers or (WindowAnswers(shown) if answer_with == "window" else TerminalAnswers(view=shown))
         keys = terminal_keys if paced else None

@@ -66,6 +66,12 @@ REFUSED = {
                            r":(\d+): conditions.stiff_fem: not listed in design.conditions"),
     "an undeclared name": ('conditions = ["paper", "located", "stiff_fem"]', 'conditions = ["paper", "located", "stiff_fem", "soft"]',
                            r":(\d+): design.conditions: unknown condition 'soft'; allowed: a \[conditions.NAME\] table \(paper, located, stiff_fem\)"),
+    "a model's name as a condition's": ("[conditions.stiff_fem]", "[conditions.fem]",
+                                         r":(\d+): conditions.fem: 'fem' is a model's name, which means the scene's own configuration"),
+    "a list among the names": ('conditions = ["paper", "located", "stiff_fem"]', 'conditions = ["paper", "located", "stiff_fem", ["fem"]]',
+                               r":(\d+): design.conditions: \['fem'\] is not a condition's name"),
+    "a material key the model ignores": ('model = "fem"\nyoung = 6000.0', 'model = "mass_spring"\npoisson = 0.3',
+                                         r":(\d+): conditions.stiff_fem.poisson: unknown key; allowed: model, resolution, integrator"),
     "nine conditions": ('conditions = ["paper", "located", "stiff_fem"]',
                         'conditions = ["paper", "located", "stiff_fem", "fem", "mass_spring", "plate_spring", "a", "b", "c"]',
                         r":(\d+): design.conditions: 9 conditions; allowed: 1..8"),
@@ -111,7 +117,7 @@ def test_sessions_store_what_each_condition_ran_and_reports_show_it(tmp_path):
     assert len(rows) == 6 and {r[1] for r in rows} == {"paper", "located", "stiff_fem"}
     for _, name, label, config, sha in rows:
         cfg = json.loads(config)
-        assert cfg["condition"] == name and config_sha256(cfg) == sha and label in "ABC"
+        assert cfg["condition"] == name and config_sha256(cfg) == sha and label in ("A", "B", "C")
     # two configurations of one model render different forces
     assert forces["paper"] != forces["located"]
     # the export carries the configuration; the reports name it, by condition
@@ -121,7 +127,7 @@ def test_sessions_store_what_each_condition_ran_and_reports_show_it(tmp_path):
     md = studyctl("report", "table1", "--db", db).output
     assert "| Question | paper: yes/no" in md and "3 conditions" in md
     assert re.search(r"paper: plate_spring \(variant paper\), configuration [0-9a-f]{12}; located: plate_spring \(variant located\)", md)
-    assert "stiff_fem: fem (formulation linear, grasp_radius 0.005, order 1, resolution 0.008; E 6000 Pa)" in md
+    assert "stiff_fem: fem (formulation linear, grasp_radius 0.005, order 1, resolution 0.008; E 6000 Pa, nu 0.45)" in md
     res = studyctl("report", "table1", "--db", db, "--format", "html", "--out", tmp_path / "r.html")
     assert res.exit_code == 0 and "<h2>Conditions</h2>" in (tmp_path / "r.html").read_text()
     facts = json.loads(studyctl("report", "table1", "--db", db, "--format", "json").output)["facts"]
@@ -154,3 +160,74 @@ def test_a_replay_runs_what_the_session_ran_or_refuses(tmp_path):
     res = studyctl("replay", "--db", db, "--session", 1, "--trial", k)
     assert res.exit_code == 1 and "condition 'stiff_fem' of session 1 ran configuration" in res.output and "cannot replay it" in res.output
     assert "Traceback" not in res.output
+
+
+def test_young_scales_the_linear_fems_grasp_stiffness(tmp_path):
+    # linear elasticity: the stiffness is proportional to Young's modulus (6000 against 3000 Pa)
+    import numpy as np
+
+    from sim.scene import Scene
+
+    p = load_protocol(_protocol(tmp_path))
+    K = {}
+    for c in ("fem", "stiff_fem"):
+        scene = Scene(condition_scene_spec(p, c))
+        K[c] = np.asarray(scene.model.grasp(scene.script(0).start, 0).data.K)
+    assert np.allclose(K["stiff_fem"], 2.0 * K["fem"], rtol=1e-9, atol=0.0)
+
+
+def test_a_scene_value_that_clashes_with_a_condition_says_where_it_comes_from(tmp_path):
+    tables = '[conditions.paper]\nmodel = "plate_spring"\nvariant = "paper"\n\n[conditions.corot]\nmodel = "fem"\nformulation = "corotational"\n'
+    path = _protocol(tmp_path, conditions=("paper", "corot"), tables=tables)
+    scene = tmp_path / "scene.toml"
+    scene.write_text(scene.read_text().replace('formulation = "linear"', 'formulation = "linear"\norder = 2', 1))
+    _, problems = check_protocol(path)
+    assert any("conditions.corot.order: quadratic tetrahedra (order 2) run the linear formulation only (the scene's order = 2, "
+               "with this condition's options)" in p for p in problems), problems
+
+
+def test_the_observers_truth_is_the_scenes_whatever_the_conditions_order(tmp_path):
+    # Review finding: the truth came from the first condition's scene (a stiffer FEM listed first
+    # made the observer judge every condition against E = 6000 Pa)
+    feats = {}
+    for order in (("stiff_fem", "paper"), ("paper", "stiff_fem")):
+        d = tmp_path / "_".join(order)
+        d.mkdir()
+        tables = '[conditions.paper]\nmodel = "plate_spring"\nvariant = "paper"\n\n[conditions.stiff_fem]\nmodel = "fem"\nyoung = 6000.0\n'
+        run_synthetic_study(d / "s.db", 1, seed=2, jobs=1, protocol_path=_protocol(d, conditions=order, tables=tables))
+        con = sqlite3.connect(d / "s.db")
+        feats[order] = sorted(con.execute("select model, feature, value from observer_features").fetchall())
+        con.close()
+    assert feats[("stiff_fem", "paper")] == feats[("paper", "stiff_fem")]
+
+
+def test_a_changed_configuration_is_not_resumed_and_a_failing_one_writes_nothing(tmp_path):
+    db = tmp_path / "s.db"
+    protocol = _protocol(tmp_path)
+    assert studyctl("study", "init", "--protocol", protocol, "--db", db).exit_code == 0
+    assert studyctl("participants", "add", "S01", "--synthetic", "--db", db).exit_code == 0
+    scene = tmp_path / "scene.toml"
+    original = scene.read_text()
+    # the scene changed after the study was made, so that the FEM condition no longer builds
+    scene.write_text(original.replace('formulation = "linear"', 'formulation = "corotational"\norder = 2', 1))
+    res = studyctl("session", "run", "--participant", "S01", "--synthetic", "--db", db)
+    assert res.exit_code == 1 and "order" in res.output and "Traceback" not in res.output, res.output
+    con = sqlite3.connect(db)
+    assert con.execute("select count(*) from sessions").fetchone()[0] == 0  # nothing half-made
+    con.close()
+    # a session interrupted, then its scene edited: its conditions would mix two configurations
+    scene.write_text(original)
+    from studyctl.session import run_session
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_first_trial(msg):
+        if "trial 1 of 1" in msg and "(2 of 3)" in msg:
+            raise Stop
+
+    with pytest.raises(Stop):
+        run_session(db, "S01", synthetic=True, seed=1, time_scale=0.0, progress=stop_after_first_trial)
+    scene.write_text(original.replace("rate_hz = 30", "rate_hz = 60", 1))  # the visual rate: a mass-spring's frame step
+    res = studyctl("session", "run", "--participant", "S01", "--synthetic", "--resume", "--db", db)
+    assert res.exit_code == 1 and "ran configuration" in res.output and "resuming would mix the two" in res.output, res.output
