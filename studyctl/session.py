@@ -147,14 +147,14 @@ class WindowAnswers:
 _SCENES: dict = {}  # (scene file, resolved configuration's hash, device) -> Scene: models are built once per process
 
 
-def _scene(protocol, condition: str | None, device: str):
-    """The protocol's scene for `condition` (its model as the protocol configures it; None: the
-    scene's own configuration), with every hand on `device` (built once, reused)."""
-    from sim.scene import Scene, load_scene
+def _scene(protocol, condition: str, device: str):
+    """The protocol's scene for `condition` (its model as the protocol configures it), with every
+    hand on `device` (built once, reused)."""
+    from sim.scene import Scene
     from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
 
-    spec = condition_scene_spec(protocol, condition) if condition is not None else load_scene(protocol.scene)
-    key = (str(protocol.scene), config_sha256(resolved_config(condition or "", spec)), device)
+    spec = condition_scene_spec(protocol, condition)
+    key = (str(protocol.scene), config_sha256(resolved_config(condition, spec)), device)
     if key not in _SCENES:
         _SCENES[key] = Scene(spec).with_device(device)
     return _SCENES[key]
@@ -385,11 +385,12 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                   for r in store.rows("select model, position, label from conditions where session_id = ?", (session_id,))}
         participant = None
         if answers is None and synthetic:
+            from studyctl.conditions import scene_itself
             from studyctl.synthetic import SyntheticAnswers, SyntheticParticipant
             from studyctl.truth import load_truth
 
             participant = SyntheticParticipant.draw(code, seed)
-            base = _scene(protocol, None, "simulated")  # the scene's own configuration, whatever the conditions change
+            base = scene_itself(protocol)  # the scene's own configuration, whatever the conditions change
             answers = SyntheticAnswers(participant, load_truth(base), base.mesh)
         paced = time_scale > 0 and not synthetic  # a person sets the pace
         answerer = answers or (WindowAnswers(shown) if answer_with == "window" else TerminalAnswers(view=shown))
