@@ -83,11 +83,10 @@ def force_traces(protocol, duration: float = 3.0) -> dict:
     from studyctl.truth import load_truth
 
     out = {}
-    truth = None
+    truth = load_truth(scene_itself(protocol))  # the scene's own, whatever a condition changes
     spec = load_scene(protocol.scene)
     for m in protocol.conditions:
         scene = Scene(condition_scene_spec(protocol, m, spec))
-        truth = truth or load_truth(scene_itself(protocol))  # the scene's own, whatever a condition changes
         r = run_scene(scene, duration=duration, time_scale=0)
         f = np.linalg.norm(r.forces[:, 0], axis=1)
         out[m] = (r.times, f, truth_forces(r, truth, scene.mesh)[:, 0])

@@ -156,10 +156,9 @@ def conditions(db) -> list[dict]:
     protocol changed mid-study) has two rows; sessions before schema 5 recorded none."""
     rows = _query(db, "select model as condition, config, config_sha256, count(distinct session_id) as sessions "
                       "from conditions group by model, config_sha256 order by min(session_id)")
-    order = list(_protocol(db).conditions)
-    rows = rows.iloc[sorted(range(len(rows)), key=lambda i: (order.index(rows["condition"][i]) if rows["condition"][i] in order else len(order), i))]
-    out = []
-    for r in rows.to_dict(orient="records"):
+    order = _protocol(db).conditions
+    out = []  # the protocol's order; a stable sort keeps each condition's configurations by first session
+    for r in sorted(rows.to_dict(orient="records"), key=lambda r: order.index(r["condition"]) if r["condition"] in order else len(order)):
         config = json.loads(r["config"]) if isinstance(r["config"], str) else None
         out.append({"condition": r["condition"], "model": config["model"] if config else None, "config": config,
                     "config_sha256": r["config_sha256"] if config else None, "sessions": int(r["sessions"])})

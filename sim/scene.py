@@ -354,12 +354,14 @@ def _model_spec(models: _Reader, name: str) -> ModelSpec | None:
 CONDITION_KEYS = {"fem": ("young", "poisson"), "mass_spring": ("young",), "plate_spring": ()}
 
 
-def configure(spec: SceneSpec, model: str, overrides: dict, path: Path, loc: Locator, prefix: str) -> SceneSpec:
-    """The scene with `model` as configured by a study condition: the scene's [models.MODEL]
-    with `overrides` (a protocol's [conditions.NAME] table, less its `model` key) on top, and
-    `young` / `poisson` on the material. Every override is checked as the scene's own keys are,
-    its problems named with the protocol's `path` and lines (`prefix`: "conditions.NAME.");
-    raises one SceneError with all of them."""
+def configure(spec: SceneSpec, table: dict, path: Path, loc: Locator, prefix: str) -> SceneSpec:
+    """The scene with a study condition's model as the condition configures it: the scene's
+    [models.MODEL] with the condition's `table` (a protocol's [conditions.NAME]: `model` and the
+    keys to change) on top, and `young` / `poisson` on the material. Every key is checked as the
+    scene's own are, its problems named with the protocol's `path` and lines (`prefix`:
+    "conditions.NAME."); raises one SceneError with all of them."""
+    model = table["model"]
+    overrides = {k: v for k, v in table.items() if k != "model"}
     problems: list = []
     reader = _Reader(path, overrides, prefix, loc, problems)
     reader.keys(("model",) + MODEL_KEYS[model] + CONDITION_KEYS[model])

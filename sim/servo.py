@@ -257,7 +257,7 @@ class ServoLoop:
                     force, kind = NO_FORCE, "force_chatter"
                     h.contact = None
                 if kind is not None and kind != h.safety:  # log when a rule starts acting
-                    self.events.append(Event(t, h.index, kind, detail if kind == "force_chatter" else ""))
+                    self.events.append(Event(t, h.index, kind, detail))  # detail: set for chatter only
                 h.safety = kind
             try:
                 h.device.write_force(force)

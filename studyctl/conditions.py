@@ -23,8 +23,7 @@ def condition_scene_spec(protocol, name: str, spec=None):
     if table is None:  # the old form: the scene's own configuration of the model
         spec.model_spec(name)  # raises, naming what the scene configures
         return dataclasses.replace(spec, model=name)
-    overrides = {k: v for k, v in table.items() if k != "model"}
-    return configure(spec, table["model"], overrides, protocol.path, Locator(protocol.text), f"conditions.{name}.")
+    return configure(spec, table, protocol.path, Locator(protocol.text), f"conditions.{name}.")
 
 
 def scene_itself(protocol):

@@ -28,12 +28,11 @@ def pilot_summaries(protocol, pilots: int = 4, seed: int = 0, mapping: dict[str,
 
     mapping = mapping or {}
     scenes: dict[str, object] = {}
-    truth = None
+    truth = load_truth(scene_itself(protocol))  # the scene's own, whatever a condition changes
     out: dict[str, list] = {}
     for label in protocol.conditions:
         model = mapping.get(label, label)
         scene = scenes.get(model) or scenes.setdefault(model, _scene(protocol, model, "simulated"))
-        truth = truth or load_truth(scene_itself(protocol))  # the scene's own, whatever a condition changes
         out[label] = []
         for k in range(pilots):
             p = SyntheticParticipant.draw(f"PILOT{k + 1:02d}", seed)

@@ -277,8 +277,7 @@ def _scene_problems(scene: Path, path: Path, text: str, conditions: list, tables
             continue
         if c in tables:
             try:
-                configure(spec, tables[c]["model"], {k: v for k, v in tables[c].items() if k != "model"}, path, Locator(text),
-                          f"conditions.{c}.")
+                configure(spec, tables[c], path, Locator(text), f"conditions.{c}.")
             except SceneError as exc:
                 out += exc.problems
             except SimError as exc:  # e.g. plate-spring parameters that fail the paper's bounds
