@@ -1442,7 +1442,8 @@ def answers():
 @DRY_RUN
 @JSON
 def answers_import(db, csv_file, dry_run, as_json):
-    """Import participant,model,item,answer rows (yes/no, y/n, 1/0); any unknown value rejects the file."""
+    """Import participant,model,item,answer[,trial] rows, each answer as its question's kind allows
+    (yes/no; a rating; 0-100; a condition's name; text); any unknown value rejects the file."""
     from studyctl.study import import_answers
 
     out = import_answers(db, csv_file, dry_run=dry_run)
@@ -1452,19 +1453,21 @@ def answers_import(db, csv_file, dry_run, as_json):
 @answers.command("correct")
 @DB
 @click.option("--participant", required=True)
-@click.option("--model", required=True, callback=lambda c, p, v: _model_name(v), help="The model the answer is about, e.g. fem or mass_spring.")
+@click.option("--model", default="", callback=lambda c, p, v: _model_name(v),
+              help="The condition the answer is about, e.g. fem; left out for a question asked once at the end.")
 @click.option("--item", required=True, help="The question's id, e.g. natural.")
-@click.option("--answer", required=True, help="The right answer: yes or no.")
+@click.option("--trial", type=int, default=None, help="The trial (0-based) of a question asked after every trial.")
+@click.option("--answer", required=True, help="The right answer, as the question's kind allows: yes/no, a rating, 0-100, a condition, text.")
 @click.option("--reason", required=True, help="Why (kept in the audit trail with the old value and your login).")
 @DRY_RUN
 @JSON
-def answers_correct(db, participant, model, item, answer, reason, dry_run, as_json):
+def answers_correct(db, participant, model, item, trial, answer, reason, dry_run, as_json):
     """Correct one stored answer; the old value, reason and who did it go to the `corrections` table."""
     from studyctl.participants import correct_answer
 
-    out = correct_answer(db, participant, model, item, answer, reason, dry_run=dry_run)
-    word = {0: "no", 1: "yes"}
-    _done(out, f"corrected {participant}/{model}/{item}: {word[out['old']]} -> {word[out['new']]} (audit trail kept)", as_json)
+    out = correct_answer(db, participant, model, item, answer, reason, dry_run=dry_run, trial=trial)
+    where = "/".join(x for x in (participant, out["model"], item) if x) + (f" trial {out['trial']}" if out["trial"] >= 0 else "")
+    _done(out, f"corrected {where}: {out['old_shown']} -> {out['new_shown']} (audit trail kept)", as_json)
 
 
 @cli.command("export", cls=click.Command)

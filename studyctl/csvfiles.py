@@ -8,9 +8,6 @@ from pathlib import Path
 
 from studyctl.errors import InputError
 
-YES = frozenset({"yes", "y", "1", "true", "ja", "oui", "si", "sí"})
-NO = frozenset({"no", "n", "0", "false", "nein", "non"})
-
 
 def read_csv(path: str | Path, columns: tuple[str, ...], required: tuple[str, ...]) -> list[tuple[int, dict]]:
     """(line, row) pairs of a CSV as people save them: UTF-8 with or without a BOM, CRLF or LF,
@@ -50,12 +47,3 @@ def read_csv(path: str | Path, columns: tuple[str, ...], required: tuple[str, ..
             raise InputError(f"{path}: line {line}: {len(cells)} cells, the header has {len(header)}")
         rows.append((line, {k: (cells[i].strip() if i < len(cells) else "") for i, k in enumerate(header)}))
     return rows
-
-
-def yes_no(value: str, where: str) -> int:
-    v = (value or "").strip().lower()
-    if v in YES:
-        return 1
-    if v in NO:
-        return 0
-    raise InputError(f"{where}: answer {value!r} must be yes or no (also y/n, 1/0, true/false)")

@@ -43,6 +43,18 @@ WEIGHTS = {
     "stable": (0.0, 0.3, 1.0, 1.5),
 }
 DEFAULT_WEIGHTS = (0.8, 0.5, 0.5, 0.5)
+# the standard questionnaires (studyctl/instruments.py): SUS's items from one latent ease
+# (agreeing with its odd items, disagreeing with its even ones); each NASA-TLX subscale a
+# workload that rises as the condition falls short (assumed weights, docs/synthetic.md)
+EASE_WEIGHTS = (0.8, 0.8, 0.8, 1.0)
+TLX_WEIGHTS = {
+    "tlx_mental": (1.0, 0.5, 0.3, 0.3),
+    "tlx_physical": (0.3, 0.3, 1.0, 0.5),
+    "tlx_temporal": (0.0, 1.5, 0.3, 0.3),
+    "tlx_performance": (1.5, 0.3, 0.3, 0.5),
+    "tlx_effort": (0.8, 0.5, 0.8, 0.3),
+    "tlx_frustration": (0.5, 0.8, 0.8, 1.0),
+}
 SAFETY_EVENTS = ("force_clamped", "nan_force", "model_unstable", "model_fault", "force_chatter", "deadline_streak", "device_fault",
                  "position_jump", "nan_position")
 P_WITHIN_PERFECT = float(ndtr(1.0) - ndtr(-1.0))  # a rendered force equal to the expected one: 0.683
@@ -233,12 +245,43 @@ def _features(summaries: list[TrialSummary], traits: ObserverTraits, params: Obs
 
 
 def logit(item: str, feats: dict, traits: ObserverTraits, params: ObserverParams = DEFAULT) -> float:
-    w_acc, w_lat, w_vib, w_safe = WEIGHTS.get(item, DEFAULT_WEIGHTS)
+    """The participant's latent judgement of a condition on `item` (logit of agreeing, or of a
+    rating above the scale's middle): a yes/no question's P(yes) is its logistic function."""
+    sign, weights = 1.0, WEIGHTS.get(item, DEFAULT_WEIGHTS)
+    if item.startswith("sus_") and item[4:].isdigit():
+        sign, weights = (1.0 if int(item[4:]) % 2 else -1.0), EASE_WEIGHTS
+    elif item in TLX_WEIGHTS:
+        sign, weights = -1.0, TLX_WEIGHTS[item]
+    w_acc, w_lat, w_vib, w_safe = weights
     within = feats["within_jnd"]
     accuracy = min(within / P_WITHIN_PERFECT, 1.0) if math.isfinite(within) else 0.5  # nothing judged: neutral
-    return (params.base_logit + traits.bias + w_acc * 2.0 * (accuracy - 0.5) - w_lat * 2.0 * feats["p_latency"]
-            - w_vib * 3.0 * feats["p_vibration"] - w_safe * min(feats["events"], 3.0))
+    return sign * (params.base_logit + traits.bias + w_acc * 2.0 * (accuracy - 0.5) - w_lat * 2.0 * feats["p_latency"]
+                   - w_vib * 3.0 * feats["p_vibration"] - w_safe * min(feats["events"], 3.0))
 
 
 def p_yes(item: str, feats: dict, traits: ObserverTraits, params: ObserverParams = DEFAULT) -> float:
     return 1.0 / (1.0 + math.exp(-logit(item, feats, traits, params)))
+
+
+LIKERT_SPREAD = 3.0  # the outer thresholds of a rating scale on the logit scale (assumption, docs/synthetic.md)
+VAS_NOISE_SD = 0.5  # logit units: where on a line a person marks the same judgement (assumption)
+
+
+def likert_thresholds(points: int) -> np.ndarray:
+    """Symmetric cut points of a `points`-point scale on the latent logit: evenly spaced over
+    +-LIKERT_SPREAD, so the middle of the scale is the yes/no boundary (latent 0)."""
+    k = np.arange(1, points)
+    return LIKERT_SPREAD * (k - points / 2.0) / (points / 2.0)
+
+
+def likert_answer(eta: float, points: int, u: float) -> int:
+    """A rating 1..points: the latent judgement plus logistic noise (inverse CDF at `u`), cut
+    at the scale's thresholds (an ordered logit, whose P(above the middle) = P(yes))."""
+    u = min(max(u, 1e-12), 1.0 - 1e-12)
+    latent = eta + math.log(u / (1.0 - u))
+    return 1 + int(np.sum(likert_thresholds(points) < latent))
+
+
+def vas_answer(eta: float, z: float) -> float:
+    """A mark on a 0..100 line: the logistic of the judgement plus normal noise (`z`), to 0.1."""
+    return round(100.0 / (1.0 + math.exp(-(eta + VAS_NOISE_SD * z))), 1)

@@ -14,7 +14,6 @@ import io
 import os
 from pathlib import Path
 
-from studyctl.csvfiles import yes_no
 from studyctl.errors import InputError, StoreError
 from studyctl.store import Store, now
 
@@ -154,30 +153,40 @@ def cancel_slot(db, code: str, dry_run: bool = False) -> dict:
         store.close()
 
 
-def correct_answer(db, code: str, model: str, item: str, answer: str, reason: str, dry_run: bool = False) -> dict:
-    """Change one stored answer, keeping the old value, the reason and who did it in `corrections`."""
+def correct_answer(db, code: str, model: str, item: str, answer: str, reason: str, dry_run: bool = False, trial=None) -> dict:
+    """Change one stored answer (a value its question's kind allows; `model` empty for one
+    asked at the end, `trial` for one asked after every trial), keeping the old value, the
+    reason and who did it in `corrections`."""
+    from studyctl.questions import shown
+    from studyctl.study import answer_key
+
     if not reason.strip():
         raise InputError("--reason: say why the answer is corrected (it is kept in the audit trail)")
-    new = yes_no(answer, "--answer")
     store = Store(db)
     try:
+        protocol = store.protocol()
+        model, trial, new = answer_key(protocol, item, model, trial, answer, "--answer")
+        q = protocol.question(item)
         p = _person(store, code)
         if p["withdrawn_at"]:
             raise InputError(f"participant {code}: withdrew on {p['withdrawn_at'][:10]}; their answers are no longer corrected")
         if p["synthetic"]:
             raise InputError(f"participant {code}: synthetic answers come from the simulator and are not corrected by hand")
-        rows = store.rows("select answer from answers where code = ? and model = ? and item = ?", (code, model, item))
+        key = (code, model, item, trial)
+        rows = store.rows("select answer from answers where code = ? and model = ? and item = ? and trial = ?", key)
         if not rows:
-            raise InputError(f"participant {code}: no stored answer for model {model!r}, item {item!r}")
+            raise InputError(f"participant {code}: no stored answer for model {model!r}, item {item!r}"
+                             + (f", trial {trial}" if q.when == "trial" else ""))
         old = rows[0]["answer"]
         if old == new:
-            raise InputError(f"--answer: {code}/{model}/{item} is already {'yes' if new else 'no'}")
+            raise InputError(f"--answer: {code}/{model}/{item} is already {shown(q, new)}")
 
         with store.transaction(dry_run) as conn:
-            conn.execute("update answers set answer = ? where code = ? and model = ? and item = ?", (new, code, model, item))
-            conn.execute("insert into corrections (code, model, item, old_answer, new_answer, reason, corrected_at, corrected_by) "
-                         "values (?, ?, ?, ?, ?, ?, ?, ?)", (code, model, item, old, new, reason.strip(), now(), getpass.getuser()))
-        return {"code": code, "model": model, "item": item, "old": old, "new": new, "dry_run": dry_run}
+            conn.execute("update answers set answer = ? where code = ? and model = ? and item = ? and trial = ?", (new, *key))
+            conn.execute("insert into corrections (code, model, item, trial, old_answer, new_answer, reason, corrected_at, corrected_by) "
+                         "values (?, ?, ?, ?, ?, ?, ?, ?, ?)", (*key, old, new, reason.strip(), now(), getpass.getuser()))
+        return {"code": code, "model": model, "item": item, "trial": trial, "old": old, "new": new,
+                "old_shown": shown(q, old), "new_shown": shown(q, new), "dry_run": dry_run}
     finally:
         store.close()
 

@@ -15,18 +15,13 @@ from pathlib import Path
 
 from sim.tomlfile import Locator, TomlFileError, read_toml
 from studyctl.errors import ProtocolError
+from studyctl.questions import KINDS, LIKERT_POINTS, WHENS, Question
 
 KNOWN_MODELS = ("fem", "mass_spring", "plate_spring")
 MAX_CONDITIONS = 8
 DESIGNS = ("williams",)
 LATENCY_MEASURES = ("deformation_ms", "tick_interval_p99_us", "read_to_force_us", "tick_compute_us")
 ID_RE = re.compile(r"^[a-z][a-z0-9_]*$")
-
-
-@dataclass(frozen=True)
-class Question:
-    id: str
-    text: str
 
 
 @dataclass(frozen=True)
@@ -54,6 +49,7 @@ class Protocol:
     # [conditions.NAME] tables (model and options) by name; a condition not here is a model
     # name, the scene's own configuration (studyctl/conditions.py)
     condition_tables: dict = field(default_factory=dict, compare=False)
+    instruments: tuple[tuple[str, str], ...] = ()  # (name, when) of each [[instruments]]; their items are in `questions`
 
     @property
     def sha256(self) -> str:
@@ -62,6 +58,13 @@ class Protocol:
     @property
     def items(self) -> tuple[str, ...]:
         return tuple(q.id for q in self.questions)
+
+    def asked(self, when: str) -> tuple[Question, ...]:
+        """The questions asked at `when` (condition, trial or end), in protocol order."""
+        return tuple(q for q in self.questions if q.when == when)
+
+    def question(self, item: str) -> Question:
+        return next(q for q in self.questions if q.id == item)
 
 
 def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol | None, list[str]]:
@@ -123,7 +126,7 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     sections = {"study": ("name", "title", "version", "target_participants", "scene", "timezone"),
                 "design": ("conditions", "counterbalancing", "training_minutes", "trials_per_condition", "trial_seconds", "rest_seconds"),
                 "inclusion": ("age_min", "age_max"), "latency": ("measures",), "ethics": ("consent_version", "withdrawal"),
-                "questions": ("id", "text"), "conditions": None}
+                "questions": ("id", "text", "kind", "points", "anchors", "when"), "instruments": ("name", "when"), "conditions": None}
     for key in data:
         if key not in sections:
             bad(key, f"unknown section; allowed: {', '.join(sections)}")
@@ -202,27 +205,7 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
         if m not in LATENCY_MEASURES:
             bad("latency.measures", f"unknown measure {m!r}; allowed: {', '.join(LATENCY_MEASURES)}")
 
-    questions = []
-    qs = data.get("questions")
-    if qs is None:
-        bad("questions", "missing section: at least one [[questions]]")
-    elif not isinstance(qs, list):
-        bad("questions", "must be an array of tables ([[questions]])")
-    else:
-        seen: dict[str, int] = {}
-        for k, q in enumerate(qs):
-            sec = f"questions[{k}]"
-            qid = get(q, sec, "id", str)
-            qtext = get(q, sec, "text", str)
-            if qid is not None:
-                if not ID_RE.match(qid):
-                    bad(f"{sec}.id", f"{qid!r} must be lower-case letters, digits and _ (starting with a letter)")
-                elif qid in seen:
-                    bad(f"{sec}.id", f"duplicate item id {qid!r} (also questions[{seen[qid]}])")
-                else:
-                    seen[qid] = k
-            if qid is not None and qtext is not None:
-                questions.append(Question(qid, qtext))
+    questions = _questions(data, get, bad, len(conditions or []))
     if problems:
         return None, problems
     return (
@@ -232,9 +215,91 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
             trial_seconds=trial_s, rest_seconds=rest_s, age_min=age_min, age_max=age_max, latency_measures=tuple(measures),
             questions=tuple(questions), text=text, consent_version=consent_version, withdrawal=withdrawal, timezone=timezone,
             condition_tables=tables,
+            instruments=tuple(dict.fromkeys((q.instrument, q.when) for q in questions if q.instrument)),
         ),
         [],
     )
+
+
+def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
+    """[[questions]] and [[instruments]] as questions, in file order (instruments' items after
+    the questions): a kind, when it is asked, and what the kind needs (docs/study.md)."""
+    from studyctl import instruments
+
+    out: list[Question] = []
+    seen: dict[str, str] = {}
+
+    def add(q: Question, where: str) -> None:
+        if q.id in seen:
+            bad(where, f"duplicate item id {q.id!r} (also {seen[q.id].rpartition('.')[0]})")
+        else:
+            seen[q.id] = where
+            out.append(q)
+
+    qs = data.get("questions")
+    if qs is None and "instruments" not in data:
+        bad("questions", "missing section: at least one [[questions]] or [[instruments]]")
+    elif qs is not None and not isinstance(qs, list):
+        bad("questions", "must be an array of tables ([[questions]])")
+    for k, q in enumerate(qs if isinstance(qs, list) else []):
+        sec = f"questions[{k}]"
+        if not isinstance(q, dict):
+            bad(sec, "must be a table")
+            continue
+        qid, qtext = get(q, sec, "id", str), get(q, sec, "text", str)
+        kind = get(q, sec, "kind", str, default="yes_no", required=False)
+        when = get(q, sec, "when", str, default="condition", required=False)
+        if kind not in KINDS:
+            bad(f"{sec}.kind", f"{kind!r} is not a kind; allowed: {', '.join(KINDS)}")
+        if when not in WHENS:
+            bad(f"{sec}.when", f"{when!r} is not allowed; allowed: {', '.join(WHENS)}")
+        elif kind == "choice" and when != "end":
+            bad(f"{sec}.when", f"{when!r}: a choice among the conditions is asked once, after the last; allowed: end")
+        if kind == "choice" and n_conditions < 2:
+            bad(f"{sec}.kind", "a choice needs at least 2 conditions in design.conditions")
+        points = None
+        if kind == "likert":
+            points = get(q, sec, "points", int, lo=LIKERT_POINTS[0], hi=LIKERT_POINTS[1])
+        elif "points" in q:
+            bad(f"{sec}.points", f"only a likert question has points; this one is {kind}")
+        anchors = None
+        if "anchors" in q and kind not in ("likert", "vas"):
+            bad(f"{sec}.anchors", f"only a likert or vas question has anchors; this one is {kind}")
+        elif "anchors" in q:
+            a = q["anchors"]
+            if not (isinstance(a, list) and len(a) == 2 and all(isinstance(x, str) and x.strip() for x in a)):
+                bad(f"{sec}.anchors", f"{a!r}: two non-empty texts, [low, high], e.g. [\"Not at all\", \"Completely\"]")
+            else:
+                anchors = (a[0].strip(), a[1].strip())
+        elif kind == "likert":
+            bad(f"{sec}.anchors", "missing: a likert question names its two ends, anchors = [low, high]")
+        if qid is not None and not ID_RE.match(qid):
+            bad(f"{sec}.id", f"{qid!r} must be lower-case letters, digits and _ (starting with a letter)")
+        elif qid is not None and qtext is not None and kind in KINDS and when in WHENS:
+            add(Question(qid, qtext, kind=kind, when=when, points=points, anchors=anchors), f"{sec}.id")
+    ins = data.get("instruments", [])
+    if not isinstance(ins, list):
+        bad("instruments", "must be an array of tables ([[instruments]] with name = ...)")
+        ins = []
+    named: set[str] = set()
+    for k, t in enumerate(ins):
+        sec = f"instruments[{k}]"
+        if not isinstance(t, dict):
+            bad(sec, "must be a table")
+            continue
+        name = get(t, sec, "name", str)
+        when = get(t, sec, "when", str, default="condition", required=False)
+        if name is not None and name not in instruments.NAMES:
+            bad(f"{sec}.name", f"{name!r} is not an instrument; allowed: {', '.join(instruments.NAMES)}")
+        elif when not in WHENS:
+            bad(f"{sec}.when", f"{when!r} is not allowed; allowed: {', '.join(WHENS)}")
+        elif name in named:
+            bad(f"{sec}.name", f"{name!r} appears twice")
+        elif name is not None:
+            named.add(name)
+            for q in instruments.questions(name, when):
+                add(q, f"{sec}.name")
+    return out
 
 
 def _condition_tables(raw, bad) -> dict[str, dict]:

@@ -24,124 +24,18 @@ import json
 import math
 import random
 import string
-import sys
 import time
 from collections.abc import Callable
 
 from brainsim_assets import version as _version
+from studyctl.asking import TerminalAnswers, flush_input, terminal_keys
 from studyctl.errors import InputError, StoreError
+from studyctl.questions import NOT_PER_TRIAL, SESSION
 from studyctl.store import Store, dumps, now, sha256_file
+from studyctl.window_answers import WindowAnswers
 
 SOFTWARE_VERSION = f"brainsim-study {_version()}"  # stored with each session
 TRAINING_MODEL = "plate_spring"  # free exploration before the first condition (never named on screen)
-
-
-def _stdin_tty() -> bool:
-    try:
-        return sys.stdin.isatty()
-    except (AttributeError, ValueError):
-        return False
-
-
-def flush_input() -> None:
-    """Discard whatever was typed and not yet read (e.g. keys pressed during training)."""
-    if _stdin_tty():
-        import termios
-
-        termios.tcflush(sys.stdin.fileno(), termios.TCIFLUSH)
-
-
-def terminal_keys() -> list[str]:
-    """Lines typed in the terminal since the last call, without blocking ("enter" for an empty
-    one): the experimenter's keys during a run when no window has the focus."""
-    if not _stdin_tty():
-        return []
-    import select
-
-    out = []
-    while select.select([sys.stdin], [], [], 0)[0]:
-        line = sys.stdin.readline()
-        if not line:
-            break
-        out.append(line.strip().lower() or "enter")
-    return out
-
-
-def _read_line(prompt: str, idle: Callable[[], None] | None) -> str:
-    """input(), but a window stays alive while the terminal waits."""
-    if idle is None or not _stdin_tty():
-        return input(prompt)
-    import select
-
-    sys.stdout.write(prompt)
-    sys.stdout.flush()
-    while not select.select([sys.stdin], [], [], 0.05)[0]:
-        idle()
-    line = sys.stdin.readline()
-    if not line:
-        raise EOFError
-    return line.rstrip("\n")
-
-
-class TerminalAnswers:
-    """Asks each question in the terminal: y/yes or n/no, until one is given. Input typed
-    before a question appears is discarded."""
-
-    source = "terminal"
-
-    def __init__(self, prompt: Callable[[str], str] | None = None, echo: Callable[[str], None] = print, view=None):
-        self.prompt = prompt
-        self.echo = echo
-        self.view = view
-
-    def begin(self, label: str) -> None:
-        if self.view is not None:
-            self.view.set_text(top=label, center="Please answer the questions in the terminal", bottom="", question="", corner="")
-            self.view.idle()
-        self.echo(f"\nQuestions about the tissue you just pulled ({label}). Answer y or n.")
-
-    def __call__(self, question, model: str, measured: dict) -> bool:
-        while True:
-            flush_input()
-            try:
-                if self.prompt is not None:
-                    reply = self.prompt(f"{question.text} [y/n] ")
-                else:
-                    reply = _read_line(f"{question.text} [y/n] ", self.view.idle if self.view is not None else None)
-            except EOFError:
-                raise StoreError("the questionnaire got no answer (input closed); continue later with --resume") from None
-            reply = reply.strip().lower()
-            if reply in ("y", "yes"):
-                return True
-            if reply in ("n", "no"):
-                return False
-            self.echo("Please answer y or n.")
-
-
-class WindowAnswers:
-    """Asks each question in the participant view: Y for yes, N for no."""
-
-    source = "window"
-
-    def __init__(self, view):
-        self.view = view
-
-    def begin(self, label: str) -> None:
-        self.view.set_text(top=label, center="Please answer the questions", bottom="Y = yes     N = no", question="", corner="")
-        self.view.idle()
-
-    def __call__(self, question, model: str, measured: dict) -> bool:
-        view = self.view
-        view.take_keys()  # keys pressed before the question appeared answer nothing
-        view.set_text(question=question.text, center="")
-        while True:
-            view.idle()
-            if view.closed:
-                raise StoreError("the window was closed during the questionnaire; continue with --resume")
-            for k in view.take_keys():
-                if k in ("y", "n"):
-                    view.set_text(question="")
-                    return k == "y"
 
 
 _SCENES: dict = {}  # (scene file, resolved configuration's hash, device) -> Scene: models are built once per process
@@ -158,6 +52,26 @@ def _scene(protocol, condition: str, device: str):
     if key not in _SCENES:
         _SCENES[key] = Scene(spec).with_device(device)
     return _SCENES[key]
+
+
+def _unasked(store: Store, questions, code: str, model: str, trial: int) -> list:
+    """Those of `questions` not yet answered for this condition (and trial)."""
+    done = {r["item"] for r in store.rows("select item from answers where code = ? and model = ? and trial = ?", (code, model, trial))}
+    return [q for q in questions if q.id not in done]
+
+
+def _ask(store: Store, answerer, questions, code: str, model: str, trial: int, session_id: int, context: dict, about: str) -> None:
+    """Ask what is still unanswered of `questions`, each answer committed as it is given, in its
+    kind's type (a yes/no as 0/1)."""
+    todo = _unasked(store, questions, code, model, trial)
+    if not todo:
+        return
+    answerer.begin(about)
+    for q in todo:
+        value = answerer(q, model, context)
+        store.write("answers", {"code": code, "model": model, "item": q.id, "trial": trial,
+                                "answer": int(bool(value)) if q.kind == "yes_no" else value, "session_id": session_id,
+                                "source": answerer.source, "answered_at": now()}, pk=("code", "model", "item", "trial"))
 
 
 def condition_configs(protocol, names) -> dict[str, dict]:
@@ -421,8 +335,16 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
             status = f"Condition {label} ({pos + 1} of {n_cond})"
             done_trials = {r["trial"] for r in store.rows("select trial from trials where session_id = ? and model = ?", (session_id, model))}
             scene = None
+
+            def ask_after(trial, model=model, status=status):  # the questions asked after every trial
+                if _unasked(store, protocol.asked("trial"), code, model, trial):
+                    _ask(store, answerer, protocol.asked("trial"), code, model, trial, session_id,
+                         {"labels": labels, "trial": trial, "results": trial_traces(store, session_id, model, trial)},
+                         f"{status}, after trial {trial + 1}")
+
             for trial in range(protocol.trials_per_condition):
                 if trial in done_trials:
+                    ask_after(trial)  # a resume asks what an interruption left unasked
                     continue
                 scene = scene or _scene(protocol, model, device)
                 n_trials = protocol.trials_per_condition
@@ -453,11 +375,10 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                 if lat:
                     store.write_many("latency", lat, pk=("session_id", "model", "trial", "measure"))
                 store.write("trials", rec, pk=("session_id", "model", "trial"))
-            answered = {r["item"] for r in store.rows("select item from answers where code = ? and model = ?", (code, model))}
+                ask_after(trial)
             results = None  # every stored trial of the condition, resumed or not: read once, when needed
-            observes = hasattr(answerer, "features_of")
-            if observes and (len(answered) < len(protocol.questions)
-                             or not store.rows("select 1 from observer_features where code = ? and model = ? limit 1", (code, model))):
+            if hasattr(answerer, "features_of") and not store.rows(
+                    "select 1 from observer_features where code = ? and model = ? limit 1", (code, model)):
                 # what the observer perceived, from every stored trace of the condition (after a
                 # resume too), kept before the answers drawn from it
                 results = trial_traces(store, session_id, model)
@@ -466,16 +387,17 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                 with store.transaction() as conn:
                     conn.executemany("insert or replace into observer_features (code, model, feature, value, session_id, computed_at) "
                                      "values (?, ?, ?, ?, ?, ?)", [(code, model, k, float(v), session_id, at) for k, v in feats.items()])
-            if len(answered) < len(protocol.questions):
+            if _unasked(store, protocol.asked("condition"), code, model, NOT_PER_TRIAL):
                 results = results if results is not None else trial_traces(store, session_id, model)
-                answerer.begin(f"condition {label} ({pos + 1} of {n_cond})")
-                for q in protocol.questions:
-                    if q.id in answered:
-                        continue
-                    yes = answerer(q, model, {"results": results})
-                    store.write("answers", {"code": code, "model": model, "item": q.id, "answer": int(bool(yes)), "session_id": session_id,
-                                            "source": answerer.source, "answered_at": now()}, pk=("code", "model", "item"))
+                _ask(store, answerer, protocol.asked("condition"), code, model, NOT_PER_TRIAL, session_id,
+                     {"labels": labels, "trial": None, "results": results}, f"condition {label} ({pos + 1} of {n_cond})")
             store.db.conn.execute("update conditions set status = 'done' where session_id = ? and position = ?", (session_id, pos))
+        if _unasked(store, protocol.asked("end"), code, SESSION, NOT_PER_TRIAL):  # once, about the whole session
+            feats = {}
+            for r in store.rows("select model, feature, value from observer_features where code = ?", (code,)):
+                feats.setdefault(r["model"], {})[r["feature"]] = math.nan if r["value"] is None else r["value"]  # NaN is stored as NULL
+            _ask(store, answerer, protocol.asked("end"), code, SESSION, NOT_PER_TRIAL, session_id,
+                 {"labels": labels, "trial": None, "results": None, "features": feats}, "all the conditions you tried")
         store.db.conn.execute("update sessions set status = 'done', finished_at = ? where id = ?", (now(), session_id))
         if shown is not None:
             shown.set_text(top="", center="Thank you: the session is complete", bottom="", question="", corner="")

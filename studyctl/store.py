@@ -18,7 +18,7 @@ import sqlite_utils
 
 from studyctl.errors import StoreError
 
-SCHEMA_VERSION = 5
+SCHEMA_VERSION = 6
 EXPORT_TABLES = ("participants", "schedule", "sessions", "conditions", "trials", "answers", "latency", "events", "consent", "corrections",
                  "observer_features")
 IDENTIFYING_TABLES = ("identities",)
@@ -93,7 +93,25 @@ def _migration_5(db: sqlite_utils.Database) -> None:
     db["conditions"].add_column("config_sha256", str)
 
 
-MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3, 4: _migration_4, 5: _migration_5}
+def _migration_6(db: sqlite_utils.Database) -> None:
+    """Question kinds (studyctl/questions.py): an answer keeps its type (integer, real or text:
+    the column has no type affinity) and may follow a trial (`trial`, -1 when it does not); a
+    session's answers (when = "end") have condition "". Corrections likewise."""
+    db.execute("create table answers_6 (code text references participants(code), model text, item text, "
+               "trial integer not null default -1, answer, session_id integer, source text, answered_at text, "
+               "primary key (code, model, item, trial))")
+    db.execute("insert into answers_6 select code, model, item, -1, answer, session_id, source, answered_at from answers")
+    db.execute("drop table answers")
+    db.execute("alter table answers_6 rename to answers")
+    db.execute("create table corrections_6 (id integer primary key, code text, model text, item text, trial integer not null default -1, "
+               "old_answer, new_answer, reason text, corrected_at text, corrected_by text)")
+    db.execute("insert into corrections_6 select id, code, model, item, -1, old_answer, new_answer, reason, corrected_at, corrected_by "
+               "from corrections")
+    db.execute("drop table corrections")
+    db.execute("alter table corrections_6 rename to corrections")
+
+
+MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3, 4: _migration_4, 5: _migration_5, 6: _migration_6}
 
 
 STUDY_TABLES = ("meta", "study")  # what makes a file a study database (with meta.schema_version)

@@ -6,7 +6,7 @@ import datetime as dt
 import json
 from pathlib import Path
 
-from studyctl.csvfiles import read_csv, yes_no
+from studyctl.csvfiles import read_csv
 from studyctl.errors import InputError, StoreError
 from studyctl.schedule import allocate, next_order, read_availability, to_ics, williams
 from studyctl.store import EXPORT_TABLES, Store, now
@@ -152,8 +152,10 @@ def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:
 
 
 def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) -> dict:
-    """Long format participant,model,item,answer (yes/no), e.g. a study run on paper. Unknown
-    participants, models or items, or a bad answer, reject the whole file."""
+    """Long format participant,model,item,answer[,trial], e.g. a study run on paper: each answer
+    as its question's kind allows (yes/no, a rating, 0..100, a condition's name, text); `model`
+    empty for a question asked once at the end, `trial` (0-based) only for one asked after every
+    trial. Unknown participants, models or items, or a bad answer, reject the whole file."""
     csv_path = Path(csv_path)
     store = Store(db)
     try:
@@ -163,8 +165,7 @@ def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) 
         in_sessions = {r["code"] for r in store.rows("select distinct code from sessions")}
         withdrawn = {r["code"] for r in store.rows("select code from participants where withdrawn_at is not null")}
         consented = {r["code"] for r in store.rows("select code from consent where version = ?", (protocol.consent_version,))}
-        need = ("participant", "model", "item", "answer")
-        rows = read_csv(csv_path, need, need)
+        rows = read_csv(csv_path, ("participant", "model", "item", "answer", "trial"), ("participant", "model", "item", "answer"))
         records, seen = [], set()
         for line, r in rows:
             where = f"{csv_path}: line {line}"
@@ -178,28 +179,56 @@ def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) 
                 raise InputError(f"{where}: participant {r['participant']}: no consent recorded; `studyctl participants consent {r['participant']}` first")
             if r["participant"] in in_sessions:
                 raise InputError(f"{where}: participant {r['participant']} has a simulator session; importing would mix sources")
-            if r["model"] not in protocol.conditions:
-                raise InputError(f"{where}: unknown model {r['model']!r}; allowed: {', '.join(protocol.conditions)}")
-            if r["item"] not in protocol.items:
-                raise InputError(f"{where}: unknown item {r['item']!r}; allowed: {', '.join(protocol.items)}")
-            ans = yes_no(r["answer"], where)
-            key = (r["participant"], r["model"], r["item"])
+            model, trial, value = answer_key(protocol, r["item"], r["model"], r.get("trial"), r["answer"], where)
+            key = (r["participant"], model, r["item"], trial)
             if key in seen:
-                raise InputError(f"{where}: a second answer for {'/'.join(key)}")
+                raise InputError(f"{where}: a second answer for {'/'.join(map(str, key))}")
             seen.add(key)
-            records.append({"code": key[0], "model": key[1], "item": key[2], "answer": ans,
+            records.append({"code": key[0], "model": model, "item": key[2], "trial": trial, "answer": value,
                             "session_id": None, "source": "import", "answered_at": now()})
-        existing = {(r["code"], r["model"], r["item"]) for r in store.rows("select code, model, item from answers")}
+        existing = {(r["code"], r["model"], r["item"], r["trial"]) for r in store.rows("select code, model, item, trial from answers")}
         clash = seen & existing
         if clash:
-            raise InputError(f"{csv_path}: {'/'.join(sorted(clash)[0])} is already answered in the database")
+            raise InputError(f"{csv_path}: {'/'.join(map(str, sorted(clash)[0]))} is already answered in the database")
         if not records:
             raise InputError(f"{csv_path}: no answers (only a header)")
         if not dry_run:
-            store.write_many("answers", records, pk=("code", "model", "item"))
+            store.write_many("answers", records, pk=("code", "model", "item", "trial"))
         return {"imported": len(records), "dry_run": dry_run}
     finally:
         store.close()
+
+
+def answer_key(protocol, item: str, model: str, trial, raw, where: str) -> tuple[str, int, object]:
+    """(condition, trial, typed value) of an answer given by hand (an import or a correction),
+    checked against the question: its kind's values, a condition unless it is asked at the
+    end (then none), a trial (0-based) only if it is asked after every trial."""
+    from studyctl.questions import NOT_PER_TRIAL, SESSION, AnswerError, allowed, parse_answer
+
+    if item not in protocol.items:
+        raise InputError(f"{where}: unknown item {item!r}; allowed: {', '.join(protocol.items)}")
+    q = protocol.question(item)
+    model = (model or "").strip()
+    if q.when == "end" and model:
+        raise InputError(f"{where}: item {item} is asked once at the end, about no one condition; leave the model empty (got {model!r})")
+    if q.when != "end" and model not in protocol.conditions:
+        raise InputError(f"{where}: unknown model {model!r}; allowed: {', '.join(protocol.conditions)}")
+    trial = (str(trial).strip() if trial is not None else "")
+    if q.when == "trial":
+        last = protocol.trials_per_condition - 1
+        if not (trial.isdigit() and int(trial) <= last):
+            raise InputError(f"{where}: item {item} is asked after every trial; trial {trial!r} is not allowed; allowed: 0..{last}")
+        trial = int(trial)
+    elif trial not in ("", str(NOT_PER_TRIAL)):
+        raise InputError(f"{where}: item {item} is not asked per trial; leave trial empty (got {trial!r})")
+    else:
+        trial = NOT_PER_TRIAL
+    try:
+        value = parse_answer(q, raw, by_name=protocol.conditions)
+    except AnswerError:
+        raise InputError(f"{where}: answer {str(raw).strip()!r} to {item} ({q.kind}) is not allowed; allowed: "
+                         + (", ".join(protocol.conditions) if q.kind == "choice" else allowed(q))) from None
+    return (SESSION if q.when == "end" else model), trial, value
 
 
 def export(db: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[str]:

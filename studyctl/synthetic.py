@@ -20,7 +20,17 @@ import math
 import random
 from dataclasses import dataclass
 
-from studyctl.observer import DEFAULT, ObserverParams, ObserverTraits, features, p_yes, summarise
+from studyctl.observer import (
+    DEFAULT,
+    ObserverParams,
+    ObserverTraits,
+    features,
+    likert_answer,
+    logit,
+    p_yes,
+    summarise,
+    vas_answer,
+)
 
 MAX_SYNTHETIC = 1000  # participants per `synth` call: a study, not a stress test (the paper had 35)
 
@@ -93,11 +103,33 @@ class SyntheticAnswers:
             self._feats[model] = features(summaries, self.participant.traits, self.params)
         return self._feats[model]
 
-    def __call__(self, question, model: str, measured: dict) -> bool:
-        feats = self.features_of(model, measured.get("results", []))
-        p = p_yes(question.id, feats, self.participant.traits, self.params)
-        rng = random.Random(f"answer:{self.participant.seed}:{self.participant.code}:{model}:{question.id}")
-        return rng.random() < p
+    def __call__(self, question, model: str, context: dict):
+        """An answer of the question's kind from this participant's latent judgement of the
+        condition (`studyctl.observer.logit`): yes/no with P(yes) its logistic; a rating its
+        ordered-logit category; a VAS its noisy logistic; a choice the condition judged best
+        with Gumbel noise (a multinomial logit over the conditions' judgements)."""
+        who = self.participant
+        trial = context.get("trial")
+        key = f"answer:{who.seed}:{who.code}:{model}:{question.id}" + (f":{trial}" if trial is not None else "")
+        rng = random.Random(key)
+        if question.kind == "text":
+            return "(synthetic participant: no comment)"
+        if question.kind == "choice":
+            feats = context["features"]
+            utility = {c: logit(question.id, feats[c], who.traits, self.params) - math.log(-math.log(max(rng.random(), 1e-300)))
+                       for c in sorted(context["labels"]) if c in feats}
+            return max(utility, key=utility.get)
+        if trial is not None:  # judged on that trial alone
+            summaries = [summarise(r, self.truth, self.mesh, self.params) for r in context.get("results", [])]
+            feats = features(summaries, who.traits, self.params)
+        else:
+            feats = self.features_of(model, context.get("results", []))
+        if question.kind == "yes_no":
+            return rng.random() < p_yes(question.id, feats, who.traits, self.params)
+        eta = logit(question.id, feats, who.traits, self.params)
+        if question.kind == "likert":
+            return likert_answer(eta, question.points, rng.random())
+        return vas_answer(eta, rng.gauss(0.0, 1.0))
 
 
 def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, protocol_path=None, progress=None) -> dict:

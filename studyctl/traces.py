@@ -96,10 +96,10 @@ def read_trace(db: str | Path, rel: str, sha256: str) -> Trace:
                  frame_flops=z["frame_flops"] if "frame_flops" in z.files else np.zeros(0))
 
 
-def trial_traces(store, session_id: int, model: str) -> list[Trace]:
-    """Every stored trace of one condition of a session, in trial order."""
-    rows = store.rows("select trace_path, trace_sha256 from trials where session_id = ? and model = ? and trace_path is not null order by trial",
-                      (session_id, model))
+def trial_traces(store, session_id: int, model: str, trial: int | None = None) -> list[Trace]:
+    """Every stored trace of one condition of a session (or of its one `trial`), in trial order."""
+    rows = store.rows("select trace_path, trace_sha256 from trials where session_id = ? and model = ? and trace_path is not null "
+                      "and (? is null or trial = ?) order by trial", (session_id, model, trial, trial))
     return [read_trace(store.path, r["trace_path"], r["trace_sha256"]) for r in rows]
 
 

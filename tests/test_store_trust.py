@@ -300,7 +300,7 @@ def test_reports_on_an_empty_study_say_so(tmp_path):
     assert "nan" not in studyctl("status", "--db", db).output
     studyctl("export", "--out", tmp_path / "ex", "--db", db)
     header = (tmp_path / "ex" / "answers.csv").read_text()
-    assert header == "code,model,item,answer,session_id,source,answered_at\n"  # a header, even with no rows
+    assert header == "code,model,item,trial,answer,session_id,source,answered_at\n"  # a header, even with no rows
     assert (tmp_path / "ex" / "traces.csv").read_text().startswith("session_id,model,trial,t,hand,")
 
 
@@ -376,7 +376,7 @@ def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
     con.close()
     res = studyctl("participants", "list", "--json", "--db", db)
     assert res.exit_code == 0 and json.loads(res.output)[0]["code"] == "P01"
-    assert _q(db, "select value from meta where key = 'schema_version'") == [("5",)]
+    assert _q(db, "select value from meta where key = 'schema_version'") == [("6",)]
     assert _q(db, "select count(*) from observer_features") == [(0,)]
     assert {"config", "config_sha256"} <= {r[1] for r in _q(db, "pragma table_info(conditions)")}
 

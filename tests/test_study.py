@@ -251,7 +251,7 @@ def test_terminal_questionnaire_through_a_real_pty(tmp_path):
     studyctl("participants", "consent", "P01", "--db", db)
     answers = iter(["y", "maybe", "n"] + ["y"] * 8)
     text = pty_session(["session", "run", "--db", db, "--participant", "P01", "--time-scale", "0"], lambda: next(answers))
-    assert "Is interaction real and natural? [y/n]" in text and "Please answer y or n." in text
+    assert "Is interaction real and natural? [y/n]" in text and "Please answer yes or no (y/n, 1/0)." in text
     got = dict(sqlite3.connect(db).execute("select item, answer from answers").fetchall())
     assert len(got) == 9 and got["natural"] == 1 and got["behaviour"] == 0 and got["stable"] == 1
     assert "complete" in text
