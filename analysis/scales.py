@@ -67,6 +67,15 @@ def _design(data: pd.DataFrame, present: list[str], with_period: bool, with_item
     return pd.concat(parts, axis=1)
 
 
+SINGULAR = "the design is singular: model confounded with period or item (e.g. every participant in one order)"
+
+
+def _singular(X: pd.DataFrame) -> bool:
+    """Whether the fixed effects (with an intercept, the thresholds' role in the ordinal model) are not identifiable."""
+    A = np.column_stack([np.ones(len(X)), X.drop(columns="Intercept", errors="ignore").to_numpy()])
+    return bool(np.linalg.matrix_rank(A) < A.shape[1])
+
+
 def _model_vector(names: list[str], present: list[str], m: str) -> np.ndarray:
     """The coefficient vector picking model m's effect against the reference (the first present model)."""
     v = np.zeros(len(names))
@@ -135,9 +144,13 @@ def ordinal_gee(df: pd.DataFrame, models: list[str], with_period: bool = True, w
         problems.append("every answer alike" if len(data) else "no answers")
     if absent := [m for m in models if m not in present]:
         problems.append("no answers for " + ", ".join(absent))
+    if constant and data["answer"].nunique() > 1:
+        problems.append("every answer one category for " + ", ".join(m for m in models if m in constant))
     if data["answer"].nunique() < 2 or len(present) < 2:
         return out | {"converged": False, "estimable": False, "problems": problems, "pairs": _nan_pairs(models, ORDINAL_PAIR_KEYS)}
     X = _design(data, present, with_period, with_item, intercept=False)
+    if _singular(X):
+        return out | {"converged": False, "estimable": False, "problems": problems + [SINGULAR], "pairs": _nan_pairs(models, ORDINAL_PAIR_KEYS)}
     res, caught, error = _fit_ordinal(data, X, dependence)
     if dependence == "global_odds_ratio" and (res is None or not _fit_ok(res, caught)):
         why = error or ("no convergence" if res is not None and caught else "non-finite estimates")
@@ -161,8 +174,6 @@ def ordinal_gee(df: pd.DataFrame, models: list[str], with_period: bool = True, w
             pairs.append({"a": a, "b": b, "log_odds_ratio": est, "se": se, "odds_ratio": float(np.exp(est)),
                           "ci_low": float(np.exp(est - Z95 * se)), "ci_high": float(np.exp(est + Z95 * se)),
                           "p_value": float(2 * stats.norm.sf(abs(est / se))) if se > 0 else NAN})
-    if constant:
-        problems.append("every answer one category for " + ", ".join(m for m in models if m in constant))
     for pair in pairs:
         if problems or pair["a"] in constant or pair["b"] in constant or not (pair["se"] > 0) or not abs(pair["log_odds_ratio"]) <= MAX_LOG_OR:
             pair |= {"ci_low": NAN, "ci_high": NAN, "p_value": NAN, "estimable": False}
@@ -225,13 +236,15 @@ def mixed_model(df: pd.DataFrame, models: list[str], with_period: bool = True) -
         problems.append("every answer alike")
     if absent := [m for m in models if m not in present]:
         problems.append("no answers for " + ", ".join(absent))
-    empty = {"converged": False, "problems": problems, "variance_participant": NAN, "variance_residual": NAN,
+    empty = {"converged": False, "estimable": False, "problems": problems, "variance_participant": NAN, "variance_residual": NAN,
              "model_test": dict.fromkeys(("chi2", "df", "p_value", "f", "df_denominator", "p_value_f"), NAN),
              "means": {m: {"mean": NAN, "se": NAN, "ci_low": NAN, "ci_high": NAN} for m in models},
              "pairs": _nan_pairs(models, MIXED_PAIR_KEYS)}
     if out["n_participants"] < 2 or len(present) < 2 or data["answer"].nunique() < 2:
         return out | empty
     X = _design(data, present, with_period, False, intercept=True)
+    if _singular(X):
+        return out | empty | {"problems": problems + [SINGULAR]}
     res, caught, error = _fit_mixed(data, X)
     if res is None:
         return out | empty | {"problems": problems + [f"fit failed: {error}"]}
@@ -239,10 +252,10 @@ def mixed_model(df: pd.DataFrame, models: list[str], with_period: bool = True) -
     beta = np.asarray(res.fe_params, dtype=float)
     cov = np.asarray(res.cov_params(), dtype=float)[:k, :k]
     df_den = out["n_answers"] - out["n_participants"] - (k - 1)
-    boundary = [str(w.message) for w in caught if "boundary" in str(w.message).lower()]
-    if boundary:
+    if any("boundary" in str(w.message).lower() for w in caught):
         notes.append("participant variance on the boundary (0): the fit is an ordinary regression")
-    out |= {"converged": bool(res.converged) and not any(_is_convergence_warning(w) for w in caught) and not problems,
+    # statsmodels warns as it retries other optimisers; res.converged is the final fit's word
+    out |= {"converged": bool(res.converged) and bool(np.isfinite(cov).all()) and not problems,
             "variance_participant": float(np.asarray(res.cov_re).squeeze()), "variance_residual": float(res.scale),
             "model_test": _wald([_model_vector(names, present, m) for m in present[1:]], beta, cov, df_den)}
     period_mix = np.zeros(k)  # equal weights over the period levels: each period dummy's mean
@@ -271,7 +284,7 @@ def mixed_model(df: pd.DataFrame, models: list[str], with_period: bool = True) -
         pairs.append({"a": a, "b": b, "difference": est, "se": se,
                       "ci_low": est - t_pair * se if ok else NAN, "ci_high": est + t_pair * se if ok else NAN,
                       "p_value": float(2 * stats.t.sf(abs(est / se), df_den)) if ok else NAN, "estimable": bool(ok)})
-    return out | {"problems": problems, "means": means, "pairs": pairs}
+    return out | {"estimable": not problems, "problems": problems, "means": means, "pairs": pairs}
 
 
 def _fit_mixed(data: pd.DataFrame, X: pd.DataFrame):

@@ -161,9 +161,12 @@ def study_stats(db, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None
     computed by the caller, so a report does not compute them twice). Complete cases only
     (`analysis.table1.complete_answers`). `holm_scope`: "family" (default: Holm over every
     pairwise McNemar test of every question) or "question" (within each question's pairs)."""
+    from analysis.kinds import family_pairs, kind_stats
     from analysis.table1 import (
         DEFORMATION_LABEL,
+        _protocol,
         answers_wide,
+        binary_answers,
         cochran,
         complete_answers,
         deformation,
@@ -175,8 +178,10 @@ def study_stats(db, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None
         raise ValueError(f"holm_scope: {holm_scope!r}; allowed: {', '.join(HOLM_SCOPES)}")
     r = rates(db) if r is None else r
     q = cochran(db) if q is None else q
-    answers, _ = complete_answers(db)
-    protocol_models = list(dict.fromkeys(r["model"]))
+    protocol = _protocol(db)
+    every, _ = complete_answers(db)
+    answers = binary_answers(db)
+    protocol_models = list(protocol.conditions)
     items = {}
     for item, g in r.groupby("item", sort=False):
         wide = answers_wide(answers, item, protocol_models)
@@ -188,9 +193,10 @@ def study_stats(db, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None
             "rates": {row["model"]: {k: row[k] for k in ("yes", "no", "rate", "wilson_low", "wilson_high")} for _, row in g.iterrows()},
             "pairs": pairs.to_dict(orient="records"),
         }
-    _holm_family(items, holm_scope)
+    kinds = kind_stats(db, protocol, every)
+    _holm_family(items, holm_scope, family_pairs(kinds))
     return {"facts": study_facts(db), "holm": holm_scope, "items": items, "gee": study_gee(db, answers, protocol_models),
-            "deformation": {"label": DEFORMATION_LABEL, "rows": deformation(db).to_dict(orient="records")}}
+            "kinds": kinds, "deformation": {"label": DEFORMATION_LABEL, "rows": deformation(db).to_dict(orient="records")}}
 
 
 def _set_holm(pairs: list[dict], key: str = "p_holm") -> None:
@@ -199,12 +205,14 @@ def _set_holm(pairs: list[dict], key: str = "p_holm") -> None:
         pair[key] = p
 
 
-def _holm_family(items: dict, scope: str) -> None:
-    """Set each pair's `p_holm`: over the whole family of pairwise tests, or per question
-    (`p_holm_question` is kept either way)."""
-    family = [pair for v in items.values() for pair in v["pairs"]]
-    for pair in family:
-        pair["p_holm_question"] = pair["p_holm"]
+def _holm_family(items: dict, scope: str, others: list[list[dict]] = ()) -> None:
+    """Set each pair's `p_holm`: over the whole family of pairwise tests (the yes/no questions'
+    McNemar pairs and `others`: every other kind's pairs, a list per question or score), or per
+    question (`p_holm_question` is kept either way)."""
+    per_question = [v["pairs"] for v in items.values()] + list(others)
+    for pairs in per_question:
+        _set_holm(pairs, "p_holm_question")
+    family = [pair for pairs in per_question for pair in pairs]
     _set_holm(family, "p_holm_family")
     for pair in family:
         pair["p_holm"] = pair["p_holm_family"] if scope == "family" else pair["p_holm_question"]

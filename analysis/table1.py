@@ -57,27 +57,51 @@ def wilson(yes: int, n: int, alpha: float = 0.05) -> tuple[float, float]:
     return float(lo), float(hi)
 
 
+def expected_answers(protocol) -> int:
+    """How many analysed answers a complete participant gives: each question asked after a
+    condition once per condition, after a trial once per trial, at the end once (free text
+    is never analysed, so it is not needed)."""
+    per = {"condition": len(protocol.conditions), "trial": len(protocol.conditions) * protocol.trials_per_condition, "end": 1}
+    return sum(per[q.when] for q in protocol.questions if q.analysed)
+
+
 def complete_answers(db) -> tuple[pd.DataFrame, list[dict]]:
-    """The one N rule: a participant counts when they answered every question for every model
-    (complete cases). Returns their answers (code, model, item, answer) and the others, each
-    as {code, answers, of}: everything in a report is computed on the complete ones."""
+    """The one N rule: a participant counts when they answered every analysed question for
+    every condition (complete cases). Returns their answers (code, model, item, trial,
+    answer: each in its kind's type) and the others, each as {code, answers, of}: everything
+    in a report is computed on the complete ones."""
     protocol = _protocol(db)
-    answers = _query(db, "select code, model, item, answer from answers")
-    answers = answers[answers["item"].isin(protocol.items) & answers["model"].isin(protocol.conditions)]
-    need = len(protocol.items) * len(protocol.conditions)
+    answers = _query(db, "select code, model, item, trial, answer from answers")
+    when = {q.id: q.when for q in protocol.questions if q.analysed}
+    w = answers["item"].map(when)
+    ok = w.notna() & ((w == "end") == (answers["model"] == "")) & ((w == "end") | answers["model"].isin(protocol.conditions))
+    answers = answers[ok]
+    need = expected_answers(protocol)
     counts = answers.groupby("code").size()
     complete = set(counts[counts == need].index)
     incomplete = [{"code": str(c), "answers": int(n), "of": need} for c, n in counts.items() if c not in complete]
     return answers[answers["code"].isin(complete)].reset_index(drop=True), incomplete
 
 
+def binary_items(protocol) -> list[str]:
+    """The yes/no questions asked after each condition: the rows of the paper-style Table 1."""
+    return [q.id for q in protocol.asked("condition") if q.kind == "yes_no"]
+
+
+def binary_answers(db) -> pd.DataFrame:
+    """The complete participants' answers to `binary_items`, as 0/1 integers."""
+    answers, _ = complete_answers(db)
+    sel = answers[answers["item"].isin(binary_items(_protocol(db))) & (answers["trial"] < 0)]
+    return sel.astype({"answer": int}).reset_index(drop=True)
+
+
 def rates(db) -> pd.DataFrame:
     protocol = _protocol(db)
-    answers, _ = complete_answers(db)
+    answers = binary_answers(db)
     counts = answers.groupby(["item", "model"])["answer"].agg(yes="sum", n="count").reset_index()
     text = {q.id: q.text for q in protocol.questions}
     rows = []
-    for q in protocol.items:
+    for q in binary_items(protocol):
         for m in protocol.conditions:
             c = counts[(counts["item"] == q) & (counts["model"] == m)]
             yes = int(c["yes"].iloc[0]) if len(c) else 0
@@ -92,9 +116,9 @@ def cochran(db) -> pd.DataFrame:
     from statsmodels.stats.contingency_tables import cochrans_q
 
     protocol = _protocol(db)
-    answers, _ = complete_answers(db)
+    answers = binary_answers(db)
     rows = []
-    for q in protocol.items:
+    for q in binary_items(protocol):
         wide = answers_wide(answers, q, list(protocol.conditions))
         if len(wide) >= 2 and len(protocol.conditions) >= 2:
             r = cochrans_q(wide.to_numpy(dtype=int))
@@ -190,6 +214,13 @@ def item_rows(r, q, models):
         yield item, g["question"].iloc[0], [g.loc[m] for m in models], q[q["item"] == item].iloc[0]
 
 
+def family_size(st: dict) -> int:
+    """How many pairwise tests Holm adjusts over (every kind's)."""
+    from analysis.kinds import family_pairs
+
+    return sum(len(v["pairs"]) for v in st["items"].values()) + sum(len(g) for g in family_pairs(st["kinds"]))
+
+
 def _gee_line(gee: dict) -> str:
     c = gee.get("composite") if gee else None
     if not c or not c.get("pairs"):
@@ -206,12 +237,13 @@ def markdown(db, holm_scope: str = "family") -> str:
     pairs with Holm (over the family by default), the deformation-time row (a benchmark of
     this machine), headed by N (complete cases), the design and a synthetic-data flag; the
     GEE across questions below."""
+    from analysis.kinds import kind_tables, table_markdown
     from analysis.stats import study_stats
 
     facts, r, q, d = study_facts(db), rates(db), cochran(db), deformation(db)
     st = study_stats(db, r, q, holm_scope=holm_scope)
     pairs = {item: v["pairs"] for item, v in st["items"].items()}
-    n_pairs = sum(len(v) for v in pairs.values())
+    n_pairs = family_size(st)
     models = list(d["model"])
     flag = "SYNTHETIC DATA (simulated participants): not evidence about people. " if facts["synthetic"] else ""
     if facts["mixed_source_participants"]:
@@ -219,21 +251,24 @@ def markdown(db, holm_scope: str = "family") -> str:
     listed = incomplete_text(facts)
     left_out = f" Left out (incomplete): {listed}." if listed else ""
     scope = f"Holm over all {n_pairs} pairs" if holm_scope == "family" else "Holm within each question"
-    lines = [
-        f"**Table 1: {facts['study']}.** {flag}N = {facts['participants']} participants with every answer; {facts['design']}.{left_out}",
-        "",
-        "| Question | " + " | ".join(f"{m}: yes/no, rate [95% CI]" for m in models) + f" | Cochran's Q (p) | McNemar p, {scope} |",
-        "|---|" + "---|" * len(models) + "---|---|",
-    ]
-    for item, question, rows, qrow in item_rows(r, q, models):
-        cells = [f"{row['yes']}/{row['no']}, {row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]" for row in rows]
-        mc = "; ".join(f"{p['a']}-{p['b']} {p['p_holm']:.3g}" for p in pairs.get(item, []))
-        lines.append(f"| {question} | " + " | ".join(cells) + f" | {qrow['cochran_q']:.2f} ({qrow['p_value']:.3g}) | {mc} |")
-    cells = [f"{row['mean_ms']:.2f} +- {row['sd_ms']:.2f} (median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f})" for _, row in d.iterrows()]
-    lines.append("| Time for real-time deformation of the model, ms: benchmark of this machine | " + " | ".join(cells) + " | | |")
-    lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models; pairwise exact McNemar tests, "
-              f"{scope}. Deformation time: each participant's mean over their trials, mean +- sd over participants: "
-              "wall-clock time of this machine, not a measure of the participants (no test).", ""]
+    lines = [f"**Table 1: {facts['study']}.** {flag}N = {facts['participants']} participants with every answer; {facts['design']}.{left_out}", ""]
+    deform = [f"{row['mean_ms']:.2f} +- {row['sd_ms']:.2f} (median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f})" for _, row in d.iterrows()]
+    if len(r):  # the yes/no questions: the paper's table
+        lines += ["| Question | " + " | ".join(f"{m}: yes/no, rate [95% CI]" for m in models) + f" | Cochran's Q (p) | McNemar p, {scope} |",
+                  "|---|" + "---|" * len(models) + "---|---|"]
+        for item, question, rows, qrow in item_rows(r, q, models):
+            cells = [f"{row['yes']}/{row['no']}, {row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]" for row in rows]
+            mc = "; ".join(f"{p['a']}-{p['b']} {p['p_holm']:.3g}" for p in pairs.get(item, []))
+            lines.append(f"| {question} | " + " | ".join(cells) + f" | {qrow['cochran_q']:.2f} ({qrow['p_value']:.3g}) | {mc} |")
+        lines.append("| Time for real-time deformation of the model, ms: benchmark of this machine | " + " | ".join(deform) + " | | |")
+        lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models; pairwise exact McNemar tests, "
+                  f"{scope}. Deformation time: each participant's mean over their trials, mean +- sd over participants: "
+                  "wall-clock time of this machine, not a measure of the participants (no test).", ""]
+    for t in kind_tables(st["kinds"], models, scope):
+        lines += table_markdown(t)
+    if not len(r):
+        lines += ["| Time for real-time deformation, ms: benchmark of this machine | " + " | ".join(models) + " |",
+                  "|---|" + "---|" * len(models), "| mean +- sd (median, p95) | " + " | ".join(deform) + " |", ""]
     gee = _gee_line(st["gee"])
     if gee:
         lines += [gee, ""]

@@ -1,0 +1,297 @@
+"""The statistics that fit each kind of answer (docs/analysis.md), beside the yes/no Table 1:
+
+- ratings (Likert items asked after each condition): median [IQR] and the distribution per
+  condition; Friedman with Kendall's W [95% CI]; Wilcoxon signed-rank pairs with the
+  rank-biserial correlation [95% CI]; across the items, a proportional-odds GEE;
+- scores (VAS items, the SUS and raw NASA-TLX scores, and every question asked after each
+  trial, as each participant's mean over the trials): mean [95% CI] per condition; a linear
+  mixed model with condition and period (its pairs in the Holm family); Friedman as the
+  non-parametric check;
+- choices (one condition picked at the end): counts and shares [Wilson 95%], the exact
+  multinomial test of equal chances, exact binomial pairs;
+- other questions asked once at the end: described, not tested (there is no condition to compare).
+
+Instrument items are not tested one by one: they enter through their instrument's score. Free
+text is exported, never analysed. Complete cases only (analysis.table1.complete_answers).
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pandas as pd
+
+from analysis import scales
+
+TRIAL_MEAN = " (mean over trials)"
+
+
+def _rating_items(protocol) -> list:
+    return [q for q in protocol.asked("condition") if q.kind == "likert" and q.instrument is None]
+
+
+def _score_questions(protocol) -> list:
+    return [q for q in protocol.asked("condition") if q.kind == "vas" and q.instrument is None]
+
+
+def primary(protocol) -> dict:
+    """The protocol's primary analysis (what `plan` powers and reports lead with): the
+    proportional-odds GEE across its rating items, else the logistic GEE across its yes/no
+    questions, else the mixed model of its first score, else the test of its choice."""
+    from studyctl import instruments
+
+    ratings = _rating_items(protocol)
+    if ratings:
+        return {"analysis": "ordinal_gee", "items": [q.id for q in ratings],
+                "text": "proportional-odds GEE across the rating items (answer ~ condition + period + item)"}
+    binary = [q.id for q in protocol.asked("condition") if q.kind == "yes_no"]
+    if binary:
+        return {"analysis": "logistic_gee", "items": binary, "text": "logistic GEE across the yes/no questions (answer ~ condition + period + item)"}
+    scores = [q.id for q in _score_questions(protocol)] + [name for name, when in protocol.instruments if when == "condition"]
+    if scores:
+        what = instruments.SCORES.get(scores[0], scores[0])
+        return {"analysis": "mixed_model", "items": scores[:1], "text": f"linear mixed model of {what} (answer ~ condition + period + (1 | participant))"}
+    choice = [q.id for q in protocol.asked("end") if q.kind == "choice"]
+    if choice:
+        return {"analysis": "choice", "items": choice[:1], "text": "exact multinomial test of the final choice"}
+    return {"analysis": "none", "items": [], "text": "no question compares the conditions"}
+
+
+def measures(protocol, answers: pd.DataFrame, per: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Each participant's value per condition and measure (tidy: code, model, item, kind,
+    answer, period): rating items (kind ordinal); VAS items and instrument scores, and the
+    mean over trials of every question asked after each trial (kind continuous)."""
+    from studyctl import instruments
+
+    rows = []
+    cond = answers[answers["model"].isin(protocol.conditions)]
+    for q in _rating_items(protocol):
+        sel = cond[(cond["item"] == q.id) & (cond["trial"] < 0)]
+        rows += [(r.code, r.model, q.id, "ordinal", float(r.answer)) for r in sel.itertuples()]
+    for q in _score_questions(protocol):
+        sel = cond[(cond["item"] == q.id) & (cond["trial"] < 0)]
+        rows += [(r.code, r.model, q.id, "continuous", float(r.answer)) for r in sel.itertuples()]
+    for name, when in protocol.instruments:
+        if when != "condition":
+            continue
+        items = [q.id for q in instruments.questions(name)]
+        sel = cond[cond["item"].isin(items) & (cond["trial"] < 0)]
+        for (code, model), g in sel.groupby(["code", "model"], sort=False):
+            by_item = dict(zip(g["item"], g["answer"].astype(float)))
+            if len(by_item) == len(items):
+                rows.append((code, model, name, "continuous", instruments.score(name, by_item)))
+    for q in protocol.asked("trial"):
+        if q.analysed and q.kind != "choice":
+            sel = cond[cond["item"] == q.id]
+            for (code, model), g in sel.groupby(["code", "model"], sort=False):
+                rows.append((code, model, q.id + TRIAL_MEAN, "continuous", float(g["answer"].astype(float).mean())))
+    out = pd.DataFrame(rows, columns=["code", "model", "item", "kind", "answer"])
+    if per is not None and len(out):
+        out = out.merge(per, on=["code", "model"], how="left")
+    return out
+
+
+def _wide(df: pd.DataFrame, item: str, models: list[str]) -> pd.DataFrame:
+    return df[df["item"] == item].pivot(index="code", columns="model", values="answer").reindex(columns=models).dropna()
+
+
+def _label(item: str, protocol) -> str:
+    from studyctl import instruments
+
+    if item in instruments.SCORES:
+        return instruments.SCORES[item]
+    base = item.removesuffix(TRIAL_MEAN)
+    text = next((q.text for q in protocol.questions if q.id == base), item)
+    return text + (TRIAL_MEAN if item.endswith(TRIAL_MEAN) else "")
+
+
+def ratings(protocol, meas: pd.DataFrame) -> dict:
+    """Per rating item: each condition's median [IQR], mean and distribution (count per point);
+    Friedman with Kendall's W [95% CI]; Wilcoxon pairs with rank-biserial [95% CI]."""
+    models = list(protocol.conditions)
+    out = {}
+    for q in _rating_items(protocol):
+        wide = _wide(meas, q.id, models)
+        per_model = {}
+        for m in models:
+            v = wide[m].to_numpy() if len(wide) else np.zeros(0)
+            per_model[m] = scales.median_iqr(v) | {"mean": float(v.mean()) if len(v) else float("nan"),
+                                                   "counts": [int(np.sum(v == k)) for k in range(1, q.points + 1)]}
+        tests = _tests(wide, len(models))
+        out[q.id] = {"question": q.text, "points": q.points, "anchors": list(q.anchors), "n": int(len(wide)), "conditions": per_model} | tests
+    return out
+
+
+def _tests(wide: pd.DataFrame, k: int) -> dict:
+    """Friedman [W with CI] and Wilcoxon pairs [rank-biserial with CI] on a complete wide table."""
+    if len(wide) >= 2 and k >= 2 and np.ptp(wide.to_numpy()) > 0:
+        fr = scales.friedman_with_ci(wide.to_numpy())
+        pairs = scales.wilcoxon_with_ci(wide).to_dict(orient="records")
+    else:  # fewer than two participants, or every answer alike: nothing to rank
+        fr = {"statistic": 0.0 if len(wide) >= 2 else float("nan"), "p_value": 1.0 if len(wide) >= 2 else float("nan"),
+              "df": k - 1, "n": int(len(wide)), "kendall_w": float("nan"), "kendall_w_low": float("nan"), "kendall_w_high": float("nan")}
+        pairs = [{"a": a, "b": b, "statistic": 0.0, "p_value": 1.0, "p_holm": 1.0, "rank_biserial": 0.0,
+                  "rb_ci_low": float("nan"), "rb_ci_high": float("nan")} for a, b in itertools.combinations(wide.columns, 2)]
+    return {"friedman": fr, "pairs": pairs}
+
+
+def scores(protocol, meas: pd.DataFrame) -> dict:
+    """Per score (VAS items, instrument scores, per-trial means): mean [95% CI] per condition;
+    the linear mixed model (condition + period) with its pairs; Friedman as the check."""
+    models = list(protocol.conditions)
+    out = {}
+    cont = meas[meas["kind"] == "continuous"] if len(meas) else meas
+    for item in dict.fromkeys(cont["item"]) if len(cont) else []:
+        data = cont[cont["item"] == item]
+        wide = _wide(data, item, models)
+        with_period = "period" in data and bool(data["period"].notna().all())
+        mm = scales.mixed_model(data.assign(period=data["period"].astype(int)) if with_period else data.drop(columns="period", errors="ignore"),
+                                models, with_period)
+        fr = _tests(wide, len(models))["friedman"]
+        out[item] = {"label": _label(item, protocol), "n": int(len(wide)),
+                     "conditions": {m: scales.mean_ci(wide[m]) | scales.median_iqr(wide[m]) for m in models},
+                     "mixed_model": mm, "friedman": fr, "pairs": [dict(p) for p in mm["pairs"]]}
+    return out
+
+
+def choices(protocol, answers: pd.DataFrame) -> dict:
+    out = {}
+    for q in protocol.asked("end"):
+        if q.kind == "choice":
+            sel = answers[answers["item"] == q.id].set_index("code")["answer"]
+            res = scales.choice_analysis(sel, list(protocol.conditions))
+            out[q.id] = {"question": q.text} | res
+    return out
+
+
+def session_questions(protocol, answers: pd.DataFrame) -> dict:
+    """Questions asked once at the end, other than choices: described only."""
+    out = {}
+    for q in protocol.asked("end"):
+        if not q.analysed or q.kind == "choice":
+            continue
+        v = answers.loc[answers["item"] == q.id, "answer"].astype(float).to_numpy()
+        if q.kind == "yes_no":
+            from analysis.table1 import wilson
+
+            lo, hi = wilson(int(v.sum()), len(v))
+            out[q.id] = {"question": q.text, "kind": q.kind, "n": len(v), "yes": int(v.sum()), "rate": float(v.mean()) if len(v) else float("nan"),
+                         "wilson_low": lo, "wilson_high": hi}
+        else:
+            out[q.id] = {"question": q.text, "kind": q.kind} | scales.mean_ci(v) | scales.median_iqr(v)
+    return out
+
+
+def ordinal_primary(protocol, meas: pd.DataFrame) -> dict | None:
+    """The proportional-odds GEE across the rating items, Holm over its pairs."""
+    from analysis.stats import _set_holm
+
+    items = [q.id for q in _rating_items(protocol)]
+    if not items or len(protocol.conditions) < 2:
+        return None
+    data = meas[meas["item"].isin(items)]
+    with_period = "period" in data and bool(data["period"].notna().all())
+    if with_period:
+        data = data.assign(period=data["period"].astype(int))
+    res = scales.ordinal_gee(data, list(protocol.conditions), with_period=with_period, with_item=len(items) > 1)
+    _set_holm(res["pairs"])
+    return res
+
+
+def kind_stats(db, protocol, answers: pd.DataFrame) -> dict:
+    """Everything beyond yes/no: ratings, scores, choices, end questions, and the ordinal primary."""
+    from analysis.stats import periods
+
+    meas = measures(protocol, answers, periods(db))
+    return {"primary": primary(protocol), "ratings": ratings(protocol, meas), "scores": scores(protocol, meas),
+            "choices": choices(protocol, answers), "session": session_questions(protocol, answers),
+            "ordinal_gee": ordinal_primary(protocol, meas)}
+
+
+def family_pairs(kinds: dict) -> list[list[dict]]:
+    """Every pairwise test of the kinds beyond yes/no, a list per question or score, for Holm
+    over the study's whole family: the ratings' Wilcoxon pairs, the scores' mixed-model pairs,
+    the choices' binomial pairs."""
+    return [v["pairs"] for part in ("ratings", "scores", "choices") for v in kinds[part].values()]
+
+
+def _p(x) -> str:
+    return "n/a" if x is None or not np.isfinite(x) else f"{x:.3g}"
+
+
+def _ci(lo, hi, fmt="{:.2f}") -> str:
+    return "" if lo is None or not (np.isfinite(lo) and np.isfinite(hi)) else f" [{fmt.format(lo)}, {fmt.format(hi)}]"
+
+
+def ordinal_gee_line(res: dict | None) -> str:
+    """The primary analysis of the ratings, as a sentence."""
+    if not res or not res.get("pairs"):
+        return ""
+    pairs = "; ".join(f"{p['b']} vs {p['a']} OR {p['odds_ratio']:.2f}{_ci(p['ci_low'], p['ci_high'])}, p_Holm {_p(p.get('p_holm'))}"
+                      if p.get("estimable") else f"{p['b']} vs {p['a']} not estimable" for p in res["pairs"])
+    state = "" if res.get("converged") else " (NOT ESTIMABLE OR NOT CONVERGED: " + "; ".join(res.get("problems") or ["no convergence"]) + ")"
+    return (f"Primary analysis, all rating items: proportional-odds GEE {res['formula']}, participants as clusters, "
+            f"{res.get('working_dependence', '')} working dependence, robust standard errors{state}: {pairs} "
+            "(odds of a higher rating with the second condition).")
+
+
+def kind_tables(kinds: dict, models: list[str], scope: str) -> list[dict]:
+    """The tables of every kind beyond yes/no, each {title, columns, rows (lists of text),
+    note}: what the Markdown, LaTeX and HTML reports render alike."""
+    out = []
+    if kinds["ratings"]:
+        rows = []
+        for v in kinds["ratings"].values():
+            fr = v["friedman"]
+            cells = [f"{c['median']:g} [{c['q1']:g}, {c['q3']:g}]" for c in (v["conditions"][m] for m in models)]
+            pairs = "; ".join(f"{p['a']}-{p['b']} {_p(p['p_holm'])} (r {p['rank_biserial']:.2f}{_ci(p['rb_ci_low'], p['rb_ci_high'])})"
+                              for p in v["pairs"])
+            rows.append([v["question"], *cells, f"{fr['statistic']:.2f} ({_p(fr['p_value'])}), W {fr['kendall_w']:.2f}"
+                         f"{_ci(fr['kendall_w_low'], fr['kendall_w_high'])}", pairs])
+        points = sorted({v["points"] for v in kinds["ratings"].values()})
+        out.append({"title": "Ratings", "columns": ["Question", *(f"{m}: median [IQR]" for m in models), "Friedman chi2 (p), Kendall's W [95% CI]",
+                                                  f"Wilcoxon p, {scope} (rank-biserial r [95% CI])"], "rows": rows,
+                    "note": f"{'/'.join(map(str, points))}-point ratings (1 = the low anchor). Friedman across the conditions (tie-corrected); "
+                            "Wilcoxon signed-rank pairs; intervals of W and r: BCa bootstrap over participants. "
+                            + ordinal_gee_line(kinds.get("ordinal_gee"))})
+    if kinds["scores"]:
+        rows = []
+        for v in kinds["scores"].values():
+            mm, fr = v["mixed_model"], v["friedman"]
+            cells = [f"{c['mean']:.1f}{_ci(c['ci_low'], c['ci_high'], '{:.1f}')}" for c in (v["conditions"][m] for m in models)]
+            test = mm["model_test"]
+            pairs = "; ".join(f"{p['b']}-{p['a']} {p['difference']:+.1f}{_ci(p['ci_low'], p['ci_high'], '{:+.1f}')}, p {_p(p.get('p_holm'))}"
+                              if p.get("estimable") else f"{p['b']}-{p['a']} not estimable" for p in v["pairs"])
+            rows.append([v["label"], *cells, f"chi2({test['df']}) = {test['chi2']:.2f} ({_p(test['p_value'])})" if np.isfinite(test["chi2"]) else "n/a",
+                         pairs, f"{fr['statistic']:.2f} ({_p(fr['p_value'])})"])
+        out.append({"title": "Scores", "columns": ["Score", *(f"{m}: mean [95% CI]" for m in models), "Mixed model: condition (p)",
+                                                 f"Difference [95% CI], p {scope}", "Friedman chi2 (p)"], "rows": rows,
+                    "note": "Linear mixed model (REML) answer ~ condition + period + (1 | participant): the condition's Wald test and "
+                            "pairwise differences (t intervals); Friedman as the non-parametric check. SUS: Brooke (1996), 0-100; "
+                            "raw NASA-TLX: the mean of its six subscales, 0-100 (Hart 2006)."})
+    for v in kinds["choices"].values():
+        ov = v["overall"]
+        rows = [[m, f"{s['count']}", f"{s['share']:.0%}{_ci(s['wilson_low'], s['wilson_high'], '{:.0%}')}"] for m, s in v["shares"].items()]
+        pairs = "; ".join(f"{p['a']}-{p['b']} {p['n_a']}:{p['n_b']}, p {_p(p.get('p_holm'))}" for p in v["pairs"])
+        out.append({"title": f"Choice: {v['question']}", "columns": ["Condition", "Chosen by", "Share [Wilson 95%]"], "rows": rows,
+                    "note": f"{ov['test']}: p = {_p(ov['p_value'])} (chi2 = {ov['statistic']:.2f}, {ov['df']} df; equal chances); "
+                            f"exact binomial pairs, {scope}: {pairs}."})
+    if kinds["session"]:
+        rows = []
+        for v in kinds["session"].values():
+            if v["kind"] == "yes_no":
+                rows.append([v["question"], f"{v['yes']}/{v['n']} yes, {v['rate']:.0%}{_ci(v['wilson_low'], v['wilson_high'], '{:.0%}')}"])
+            else:
+                rows.append([v["question"], f"mean {v['mean']:.2f}{_ci(v['ci_low'], v['ci_high'])}, median {v['median']:g} [{v['q1']:g}, {v['q3']:g}]"])
+        out.append({"title": "Asked once at the end", "columns": ["Question", "Answers"], "rows": rows,
+                    "note": "About the whole session, not one condition: described, not tested."})
+    return out
+
+
+def table_markdown(t: dict) -> list[str]:
+    def cell(x: str) -> str:
+        return str(x).replace("|", "\\|").replace("\n", " ")
+
+    return [f"**{t['title']}**", "", "| " + " | ".join(map(cell, t["columns"])) + " |", "|" + "---|" * len(t["columns"]),
+            *("| " + " | ".join(map(cell, r)) + " |" for r in t["rows"]), "", t["note"], ""]
