@@ -263,12 +263,13 @@ def kind_tables(kinds: dict, models: list[str], scope: str) -> list[dict]:
             test = mm["model_test"]
             pairs = "; ".join(f"{p['b']}-{p['a']} {p['difference']:+.1f}{_ci(p['ci_low'], p['ci_high'], '{:+.1f}')}, p {_p(p.get('p_holm'))}"
                               if p.get("estimable") else f"{p['b']}-{p['a']} not estimable" for p in v["pairs"])
-            rows.append([v["label"], *cells, f"chi2({test['df']}) = {test['chi2']:.2f} ({_p(test['p_value'])})" if np.isfinite(test["chi2"]) else "n/a",
+            rows.append([v["label"], *cells, f"F({test['df']}, {test['df_denominator']}) = {test['f']:.2f} ({_p(test['p_value_f'])})"
+                         if np.isfinite(test["f"]) else "n/a",
                          pairs, f"{fr['statistic']:.2f} ({_p(fr['p_value'])})"])
         out.append({"title": "Scores", "columns": ["Score", *(f"{m}: mean [95% CI]" for m in models), "Mixed model: condition (p)",
                                                  f"Difference [95% CI], p {scope}", "Friedman chi2 (p)"], "rows": rows,
-                    "note": "Linear mixed model (REML) answer ~ condition + period + (1 | participant): the condition's Wald test and "
-                            "pairwise differences (t intervals); Friedman as the non-parametric check. SUS: Brooke (1996), 0-100; "
+                    "note": "Linear mixed model (REML) answer ~ condition + period + (1 | participant): the condition's Wald F test and "
+                            "pairwise differences (t intervals, between-within df); Friedman as the non-parametric check. SUS: Brooke (1996), 0-100; "
                             "raw NASA-TLX: the mean of its six subscales, 0-100 (Hart 2006)."})
     for v in kinds["choices"].values():
         ov = v["overall"]

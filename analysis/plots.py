@@ -185,3 +185,71 @@ def stability_heatmap(cases: list[dict], path: Path, title: str = "") -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+def likert_plot(ratings: dict, models: list[str], path: Path, synthetic: bool) -> None:
+    """Diverging stacked bars (the field's convention for Likert items; Heiberger and Robbins
+    2014): per item and condition, the share of each point, disagreeing points left of zero,
+    agreeing ones right, the middle point split across zero."""
+    plt = _plt()
+    rows = [(v["question"], m, np.asarray(v["conditions"][m]["counts"], dtype=float)) for v in ratings.values() for m in models]
+    points = max(len(c) for _, _, c in rows)
+    cmap = plt.get_cmap("RdBu", points)
+    fig, ax = plt.subplots(figsize=(10, 0.32 * len(rows) + 1.6), dpi=100)
+    for y, (_, _, counts) in enumerate(rows):
+        share = counts / counts.sum() if counts.sum() else counts
+        k = len(share)
+        mid = k // 2
+        left = -(share[:mid].sum() + (share[mid] / 2 if k % 2 else 0.0))
+        for j, s in enumerate(share):
+            ax.barh(y, s, left=left, color=cmap(j * (points - 1) // max(k - 1, 1)), edgecolor="#888", linewidth=0.4, height=0.8,
+                    label=str(j + 1) if y == 0 else None)
+            left += s
+    ax.axvline(0, color="#333", lw=0.8)
+    ax.set_yticks(range(len(rows)), [f"{q[:38]}{'...' if len(q) > 38 else ''} | {m}" for q, m, _ in rows], fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xlim(-1, 1)
+    ax.set_xlabel("share of participants (left: below the middle of the scale; right: above)")
+    ax.legend(title="rating", fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    ax.set_title("Ratings per condition" + (" (SYNTHETIC DATA)" if synthetic else ""))
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def scores_plot(scores: dict, meas, models: list[str], path: Path, synthetic: bool) -> None:
+    """Each score per condition: a box plot with every participant's value as a point."""
+    plt = _plt()
+    items = list(scores)
+    fig, axes = plt.subplots(1, len(items), figsize=(3.2 * len(items) + 1, 3.8), dpi=100, squeeze=False)
+    rng = np.random.default_rng(0)  # horizontal jitter only: the values are drawn as they are
+    for ax, item in zip(axes[0], items):
+        data = [meas[(meas["item"] == item) & (meas["model"] == m)]["answer"].to_numpy(float) for m in models]
+        ax.boxplot(data, tick_labels=models, showfliers=False, widths=0.5)
+        for j, (m, v) in enumerate(zip(models, data)):
+            ax.scatter(j + 1 + rng.uniform(-0.12, 0.12, len(v)), v, s=12, color=color(m, j), alpha=0.8, zorder=3)
+        ax.set_title(scores[item]["label"], fontsize=9)
+        ax.tick_params(axis="x", labelsize=8, rotation=20)
+    fig.suptitle("Scores per condition" + (" (SYNTHETIC DATA)" if synthetic else ""))
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def choice_plot(choice: dict, models: list[str], path: Path, synthetic: bool) -> None:
+    """Share of participants choosing each condition, with Wilson 95% intervals."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5, 3.4), dpi=100)
+    s = [choice["shares"][m] for m in models]
+    share = np.array([x["share"] for x in s])
+    ax.bar(range(len(models)), share, color=[color(m, j) for j, m in enumerate(models)])
+    ax.errorbar(range(len(models)), share, yerr=[share - [x["wilson_low"] for x in s], np.array([x["wilson_high"] for x in s]) - share],
+                fmt="none", color="#333", capsize=4)
+    ax.axhline(1 / len(models), color="#999", ls="--", lw=0.8)
+    ax.set_xticks(range(len(models)), models)
+    ax.set_ylim(0, 1)
+    ax.set_ylabel("share chosen")
+    ax.set_title(choice["question"][:60] + (" (SYNTHETIC)" if synthetic else ""), fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

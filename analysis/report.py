@@ -24,14 +24,33 @@ def write_plots(db, out_dir, force_traces: bool = True) -> list[Path]:
     """rates, deformation and force plots as PNG and SVG in `out_dir`."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    from analysis.kinds import kind_stats, measures
+    from analysis.stats import periods
+
     synthetic = table1.study_facts(db)["synthetic"]
     r = table1.rates(db)
-    traces = plots.force_traces(_protocol(db)) if force_traces else None
+    protocol = _protocol(db)
+    models = list(protocol.conditions)
+    answers, _ = table1.complete_answers(db)
+    kinds = kind_stats(db, protocol, answers)
+    meas = measures(protocol, answers, periods(db))
+    traces = plots.force_traces(protocol) if force_traces else None
     written = []
     for ext in ("png", "svg"):
-        plots.rates_plot(r, out_dir / f"rates.{ext}", synthetic)
+        if len(r):
+            plots.rates_plot(r, out_dir / f"rates.{ext}", synthetic)
+            written.append(out_dir / f"rates.{ext}")
+        if kinds["ratings"]:
+            plots.likert_plot(kinds["ratings"], models, out_dir / f"ratings.{ext}", synthetic)
+            written.append(out_dir / f"ratings.{ext}")
+        if kinds["scores"]:
+            plots.scores_plot(kinds["scores"], meas, models, out_dir / f"scores.{ext}", synthetic)
+            written.append(out_dir / f"scores.{ext}")
+        for item, choice in kinds["choices"].items():
+            plots.choice_plot(choice, models, out_dir / f"choice_{item}.{ext}", synthetic)
+            written.append(out_dir / f"choice_{item}.{ext}")
         plots.deformation_plot(db, out_dir / f"deformation.{ext}", synthetic)
-        written += [out_dir / f"rates.{ext}", out_dir / f"deformation.{ext}"]
+        written.append(out_dir / f"deformation.{ext}")
         if traces is not None:
             plots.force_plot(traces, out_dir / f"force.{ext}")
             written.append(out_dir / f"force.{ext}")
@@ -44,14 +63,14 @@ def latex(db, holm_scope: str = "family") -> str:
     deformation-time benchmark row). Every cell and the caption are escaped by pandas' Styler
     (`escape="latex"`: & % $ # _ { } ~ ^ and backslash)."""
     import pandas as pd
-    from pandas.io.formats.style_render import _escape_latex
 
+    from analysis.kinds import kind_tables
     from analysis.stats import study_stats
 
     facts, r, q, d = table1.study_facts(db), table1.rates(db), table1.cochran(db), table1.deformation(db)
     st = study_stats(db, r, q, holm_scope=holm_scope)
     models = list(d["model"])
-    n_pairs = sum(len(v["pairs"]) for v in st["items"].values())
+    n_pairs = table1.family_size(st)
     scope = f"Holm over all {n_pairs} pairs" if holm_scope == "family" else "Holm within each question"
     rows = []
     for item, question, item_rows, qrow in table1.item_rows(r, q, models):
@@ -65,8 +84,34 @@ def latex(db, holm_scope: str = "family") -> str:
     caption = (("SYNTHETIC DATA (simulated participants). " if facts["synthetic"] else "")
                + f"{facts['study']}: N = {facts['participants']} participants with every answer; {facts['design']}."
                + (f" Left out (incomplete): {listed}." if listed else ""))
+    tables = [(df, caption)] if len(r) else []
+    tables += [(pd.DataFrame(t["rows"], columns=t["columns"]), f"{t['title']}. {caption} {t['note']}")
+               for t in kind_tables(st["kinds"], models, scope)]
+    if not len(r):  # the deformation row had no yes/no table to sit in
+        tables.append((df.iloc[[-1], : len(models) + 1], f"Deformation time (benchmark of this machine). {caption}"))
+    return "\n".join(_latex_table(t, c) for t, c in tables)
+
+
+def _latex_table(df, caption: str) -> str:
+    from pandas.io.formats.style_render import _escape_latex
+
     styler = df.style.format(escape="latex").format_index(escape="latex", axis=1).hide(axis="index")
     return styler.to_latex(hrules=True, caption=_escape_latex(caption), column_format="l" + "c" * (len(df.columns) - 1), position_float="centering")
+
+
+FIGURES = ("rates", "ratings", "scores", "choice", "deformation", "force")
+
+
+def _figure_order(path: Path) -> int:
+    return next((k for k, name in enumerate(FIGURES) if path.stem.startswith(name)), len(FIGURES))
+
+
+def _table_html(t: dict) -> str:
+    """One of analysis.kinds.kind_tables as an HTML section (every cell escaped)."""
+    esc = _html.escape
+    head = "".join(f"<th>{esc(c)}</th>" for c in t["columns"])
+    rows = "".join("<tr>" + "".join(f"<td>{esc(str(c))}</td>" for c in r) + "</tr>" for r in t["rows"])
+    return f"<h2>{esc(t['title'])}</h2><table><tr>{head}</tr>{rows}</table><p>{esc(t['note'])}</p>"
 
 
 def _inline_png(draw) -> str:
@@ -123,14 +168,14 @@ def stability_html(result: dict) -> str:
 def html(db, force_traces: bool = True, accuracy: dict | None = None, stability: dict | None = None) -> str:
     """One self-contained HTML file: facts, Table 1, statistics, plots (PNG inlined), and the
     accuracy bench's table and Pareto plot and the stability sweep's heat map when given."""
+    from analysis.kinds import kind_tables
     from analysis.stats import study_stats
 
     facts, r, q, d = table1.study_facts(db), table1.rates(db), table1.cochran(db), table1.deformation(db)
     st = study_stats(db, r, q)
     with tempfile.TemporaryDirectory() as tmp:
         write_plots(db, tmp, force_traces)
-        images = {name: base64.b64encode((Path(tmp) / f"{name}.png").read_bytes()).decode()
-                  for name in ("rates", "deformation", "force") if (Path(tmp) / f"{name}.png").exists()}
+        images = {f.stem: base64.b64encode(f.read_bytes()).decode() for f in sorted(Path(tmp).glob("*.png"), key=_figure_order)}
     esc = _html.escape
     listed = table1.incomplete_text(facts)
     incomplete = f" Left out (incomplete): {listed}." if listed else ""
@@ -145,9 +190,13 @@ def html(db, force_traces: bool = True, accuracy: dict | None = None, stability:
     dcells = "".join(f"<td>{row['mean_ms']:.2f} &plusmn; {row['sd_ms']:.2f}<br>median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f}</td>" for _, row in d.iterrows())
     lat_text = "benchmark of this machine: each participant's mean, mean &plusmn; sd over participants (no test: CPU time is not about people)"
     gee = esc(table1._gee_line(st["gee"]).replace("`", ""))
-    n_pairs = sum(len(v["pairs"]) for v in st["items"].values())
-    figs = "".join(f'<figure><img alt="{k}" src="data:image/png;base64,{v}"></figure>' for k, v in images.items())
+    n_pairs = table1.family_size(st)
     head = "".join(f"<th>{esc(m)}</th>" for m in models)
+    binary = (f"<h2>Yes/no questions</h2><p>Rates with Wilson 95% intervals; Cochran's Q across models; pairwise exact McNemar tests.</p>"
+              f"<table><tr><th>Question</th>{head}<th>Cochran's Q (p)</th><th>McNemar p (Holm, all {n_pairs} pairs)</th></tr>"
+              f"{''.join(rows)}</table><p>{gee}</p>") if len(r) else ""
+    kind_html = "".join(_table_html(t) for t in kind_tables(st["kinds"], models, f"Holm over all {n_pairs} pairs"))
+    figs = "".join(f'<figure><img alt="{k}" src="data:image/png;base64,{v}"></figure>' for k, v in images.items())
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{esc(facts['study'])}: Table 1</title>
 <style>
@@ -161,12 +210,12 @@ img {{ max-width: 900px; }}
 </style></head><body>
 <h1>{esc(facts['study'])}: Table 1</h1>
 {banner}
-<p>N = {facts['participants']} participants with every answer; {esc(facts['design'])}.{esc(incomplete)} Rates with Wilson 95% intervals; Cochran's Q across models; pairwise exact McNemar tests with Holm over all {n_pairs} pairs.</p>
-<table><tr><th>Question</th>{head}<th>Cochran's Q (p)</th><th>McNemar p (Holm, all {n_pairs} pairs)</th></tr>
-{''.join(rows)}
-<tr><td>Time for real-time deformation of the model, ms</td>{dcells}<td colspan="2">{lat_text}</td></tr>
-</table>
-<p>{gee}</p>
+<p>N = {facts['participants']} participants with every answer; {esc(facts['design'])}.{esc(incomplete)} Holm over all {n_pairs} pairwise tests of the study.</p>
+{binary}
+{kind_html}
+<h2>Deformation time</h2>
+<table><tr><th></th>{head}<th></th></tr>
+<tr><td>Time for real-time deformation of the model, ms</td>{dcells}<td>{lat_text}</td></tr></table>
 <h2>Conditions</h2><p>What each condition ran (participants saw only their labels; the full configuration is in the export's conditions.csv):</p>
 <ul>{"".join(f"<li>{esc(table1.condition_text(c))}</li>" for c in facts["conditions"])}</ul>
 {figs}

@@ -160,7 +160,7 @@ def ordinal_gee(df: pd.DataFrame, models: list[str], with_period: bool = True, w
         return out | {"converged": False, "estimable": False, "problems": problems + [f"fit failed: {error}"],
                       "pairs": _nan_pairs(models, ORDINAL_PAIR_KEYS)}
     if out["working_dependence"] == DEPENDENCE["global_odds_ratio"]:
-        out["global_odds_ratio"] = float(np.squeeze(res.model.cov_struct.dep_params))
+        out["global_odds_ratio"] = float(np.squeeze(res.cov_struct.dep_params))
     names, beta, cov = list(res.params.index), res.params.to_numpy(), res.cov_params().to_numpy()
     pairs = []
     for a, b in itertools.combinations(models, 2):
@@ -356,10 +356,12 @@ def _bootstrap(data: tuple, statistic, n_resamples: int, seed: int) -> tuple[flo
 def rank_biserial_ci(x, y, n_resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOOTSTRAP_SEED) -> dict:
     """Matched-pairs rank-biserial correlation of x - y (positive: x higher, as in
     analysis.stats.pairwise_wilcoxon) with a 95% BCa bootstrap interval over participants.
-    Why the bootstrap: the analytic intervals in use (a Fisher z with the Wilcoxon statistic's
-    NULL variance, e.g. R's effectsize) are built for r = 0 and are wrong away from it; resampling
-    participants needs no such assumption and keeps the interval inside [-1, 1]. Why BCa: it
-    corrects the bias and skew of a bounded statistic near +-1. The seed is fixed so the interval
+    Why the bootstrap: r is a U-statistic-like rank measure whose standard error has no simple
+    closed form away from r = 0 (the Wilcoxon statistic's variance is known under no effect
+    only, so a Fisher-z interval built on it is centred on the wrong spread); resampling
+    participants, the independent units, needs no such assumption, handles ties and zero
+    differences as the estimate does, and stays inside [-1, 1]. Why BCa rather than the
+    percentile interval: it corrects the bias and skew of a bounded statistic near +-1. The seed is fixed so the interval
     is reproducible. Pairs with a missing value are dropped. NaN interval: fewer than 3 pairs or
     a degenerate bootstrap distribution (all differences of one sign: r = +-1 in every resample)."""
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)

@@ -1316,8 +1316,11 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
         facts = table1.study_facts(db)
         text = table1.rates(db).assign(participants=facts["participants"], synthetic=facts["synthetic"]).to_csv(index=False)
     else:
-        text = json.dumps(jsonable({"facts": table1.study_facts(db), "rates": table1.rates(db).to_dict(orient="records"),
-                                     "cochran": table1.cochran(db).to_dict(orient="records"),
+        from analysis.stats import study_stats
+
+        r, q = table1.rates(db), table1.cochran(db)
+        text = json.dumps(jsonable({"facts": table1.study_facts(db), "rates": r.to_dict(orient="records"),
+                                     "cochran": q.to_dict(orient="records"), "kinds": study_stats(db, r, q, holm_scope)["kinds"],
                                      "deformation": table1.deformation(db).to_dict(orient="records")}), indent=2)
     if out_file:
         Path(out_file).write_text(text)
@@ -1393,9 +1396,28 @@ def report_stats(db, holm_scope, as_json):
         return
     flag = " (SYNTHETIC DATA)" if out["facts"]["synthetic"] else ""
     click.echo(f"{out['facts']['study']}: N = {out['facts']['participants']}{flag}")
+    kinds = out["kinds"]
+    click.echo(f"primary analysis: {kinds['primary']['text']}")
+    if kinds["ordinal_gee"]:
+        from analysis.kinds import ordinal_gee_line
+
+        click.echo(ordinal_gee_line(kinds["ordinal_gee"]))
+    elif out["gee"].get("composite"):
+        click.echo(_gee_line(out["gee"]))
     for item, v in out["items"].items():
         pairs = ", ".join(f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" for p in v["pairs"])
         click.echo(f"{item}: Q = {v['cochran_q']:.2f}, p = {v['p_value']:.3g}; {pairs}")
+    for item, v in kinds["ratings"].items():
+        fr = v["friedman"]
+        pairs = ", ".join(f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" for p in v["pairs"])
+        click.echo(f"{item}: Friedman chi2 = {fr['statistic']:.2f}, p = {fr['p_value']:.3g}, W = {fr['kendall_w']:.2f}; {pairs}")
+    for v in kinds["scores"].values():
+        t = v["mixed_model"]["model_test"]
+        means = ", ".join(f"{m} {c['mean']:.1f}" for m, c in v["conditions"].items())
+        click.echo(f"{v['label']}: {means}; mixed model F({t['df']}, {t['df_denominator']}) = {t['f']:.2f}, p = {t['p_value_f']:.3g}")
+    for item, v in kinds["choices"].items():
+        shares = ", ".join(f"{m} {s['count']}" for m, s in v["shares"].items())
+        click.echo(f"{item}: {shares}; {v['overall']['test']} p = {v['overall']['p_value']:.3g}")
     if out["facts"]["incomplete_participants"]:
         click.echo("left out (incomplete): " + incomplete_text(out["facts"]))
     gee = _gee_line(out["gee"])

@@ -1,15 +1,34 @@
-"""Asking in the participant view (`--answers window`): keys for yes/no, ratings and choices;
-free text falls back to the terminal (the window has no text entry)."""
+"""Asking in the participant view (`--answers window`): keys and the mouse for every kind but
+free text, which falls back to the terminal (the window has no text entry).
+
+- yes/no: Y or N;
+- likert: a rating scale (sim/view.py `show_scale`): with up to 9 points a number key answers at
+  once; with any number of points the Left/Right arrows (or a click on a point) choose one and
+  Enter (or a second click on the chosen point) confirms; Backspace takes the choice back;
+- vas: a line from 0 to 100 (`show_slider`) with no mark until the person sets one with a click
+  or a drag on it; the arrows move a mark by 1; Enter confirms a mark (without one it does
+  nothing); Backspace takes the mark away;
+- choice: one box per blind label; the label's letter answers at once, or a click / the arrows
+  and Enter as for a rating. The answer is the chosen condition's name; the window shows only
+  the labels.
+
+While a question is shown the mouse never grasps the brain (the view's questionnaire mode), and
+keys pressed and clicks made before a question appears answer nothing.
+"""
 
 from __future__ import annotations
+
+import textwrap
 
 from studyctl.asking import TerminalAnswers
 from studyctl.errors import StoreError
 
+GLYPH_WIDTH = 0.5  # a character of the question's text, in units of its height in pixels
+QUESTION_PX = 24
+
 
 class WindowAnswers:
-    """Y / N for yes-no; the number keys for a rating (1..points, points up to 9); a blind
-    label's letter for a choice. Keys pressed before a question appears answer nothing."""
+    """Answers typed with keys (and the mouse) in the participant view."""
 
     source = "window"
 
@@ -18,6 +37,7 @@ class WindowAnswers:
         self.terminal = TerminalAnswers(view=view)
 
     def begin(self, label: str) -> None:
+        self.view.set_questionnaire(True)
         self.view.set_text(top=label, center="Please answer the questions", bottom="", question="", corner="")
         self.view.idle()
 
@@ -28,28 +48,72 @@ class WindowAnswers:
             raise StoreError("the window was closed during the questionnaire; continue with --resume")
         return view.take_keys()
 
+    def _wrapped(self, text: str) -> str:
+        return textwrap.fill(text, width=max(20, int((self.view.width - 80) / (GLYPH_WIDTH * QUESTION_PX))))
+
     def __call__(self, question, model: str, context: dict):
         view = self.view
-        if question.kind == "text":  # no text entry in the window
-            view.set_text(question=question.text, center="", bottom="Please type your answer in the terminal")
-            try:
+        view.set_questionnaire(True)
+        try:
+            if question.kind == "text":  # no text entry in the window
+                view.set_text(question=self._wrapped(question.text), center="", bottom="Please type your answer in the terminal")
                 return self.terminal(question, model, context)
-            finally:
-                view.set_text(question="", bottom="")
-        labels = context.get("labels") or {}
-        keys = {"yes_no": {"y": 1, "n": 0},
-                "likert": {str(k): k for k in range(1, (question.points or 0) + 1)},
-                "choice": {label.lower(): c for c, label in labels.items()}}.get(question.kind)
-        if keys is None:
-            raise StoreError(f"question {question.id}: a {question.kind} question cannot be answered in the window yet")
-        hint = {"yes_no": "Y = yes     N = no",
-                "likert": f"1 = {question.anchors[0]}   ...   {question.points} = {question.anchors[1]}     (press a number)"
-                if question.anchors else "",
-                "choice": "Press " + " / ".join(sorted(labels.values()))}[question.kind]
-        view.take_keys()
-        view.set_text(question=question.text, center="", bottom=hint)
+            return self._ask(question, context.get("labels") or {})
+        finally:
+            view.clear_widget()
+            view.set_text(question="", bottom="")
+            view.set_questionnaire(False)
+
+    def _ask(self, q, labels: dict[str, str]):
+        view = self.view
+        values: list = []  # what each box of a scale answers
+        letters: dict = {}  # key -> answer at once
+        if q.kind == "yes_no":
+            letters = {"y": 1, "n": 0}
+            hint = "Y = yes     N = no"
+        elif q.kind == "likert":
+            values = list(range(1, q.points + 1))
+            view.show_scale([str(v) for v in values], q.anchors)
+            if q.points <= 9:
+                letters = {str(v): v for v in values}
+                hint = f"Press 1-{q.points}, or choose with the Left/Right arrows or a click, then Enter"
+            else:
+                hint = "Choose with the Left/Right arrows or a click, then press Enter"
+        elif q.kind == "vas":
+            view.show_slider(q.anchors)
+            hint = "Click or drag on the line to set your mark (Left/Right arrows move it), then press Enter"
+        elif q.kind == "choice":
+            if not labels:
+                raise StoreError(f"question {q.id}: a choice needs the conditions' labels")
+            shown = sorted(labels.items(), key=lambda cl: cl[1])  # (condition, label), as the person knows them
+            values = [c for c, _ in shown]
+            view.show_scale([label for _, label in shown])
+            letters = {label.lower(): c for c, label in shown}
+            hint = f"Press {' / '.join(label for _, label in shown)}, or click one, then press Enter"
+        else:
+            raise StoreError(f"question {q.id}: a {q.kind} question cannot be answered in the window")
+        view.set_text(question=self._wrapped(q.text), center="", bottom=hint)
+        self._keys()  # what was pressed or clicked before the question appeared answers nothing
+        w = view.widget
+        if w is not None:
+            view.select(None)
+            view.set_value(None)
+            w.confirmed = w.dragging = False
         while True:
             for k in self._keys():
-                if k in keys:
-                    view.set_text(question="", bottom="")
-                    return keys[k]
+                if k in letters:
+                    return letters[k]
+                if w is None:
+                    continue
+                if k in ("left", "right"):
+                    view.move(-1 if k == "left" else 1)
+                elif k == "backspace":
+                    view.select(None)
+                    view.set_value(None)
+                elif k == "enter":
+                    if w.kind == "scale" and w.selected is not None:
+                        return values[w.selected]
+                    if w.kind == "slider" and w.value is not None:
+                        return float(w.value)
+            if w is not None and w.kind == "scale" and w.confirmed and w.selected is not None:
+                return values[w.selected]
