@@ -126,7 +126,9 @@ def ratings(protocol, meas: pd.DataFrame) -> dict:
 def _tests(wide: pd.DataFrame, k: int) -> dict:
     """Friedman [W with CI] and Wilcoxon pairs [rank-biserial with CI] on a complete wide table."""
     if len(wide) >= 2 and k >= 2 and np.ptp(wide.to_numpy()) > 0:
-        fr = scales.friedman_with_ci(wide.to_numpy())
+        fr = scales.friedman_with_ci(wide.to_numpy()) if k >= 3 else \
+            {"statistic": float("nan"), "p_value": float("nan"), "df": 1, "n": int(len(wide)), "kendall_w": float("nan"),
+             "kendall_w_low": float("nan"), "kendall_w_high": float("nan"), "note": "two conditions: the Wilcoxon pair is the test"}
         pairs = scales.wilcoxon_with_ci(wide).to_dict(orient="records")
     else:  # fewer than two participants, or every answer alike: nothing to rank
         fr = {"statistic": 0.0 if len(wide) >= 2 else float("nan"), "p_value": 1.0 if len(wide) >= 2 else float("nan"),
@@ -214,6 +216,20 @@ def family_pairs(kinds: dict) -> list[list[dict]]:
     over the study's whole family: the ratings' Wilcoxon pairs, the scores' mixed-model pairs,
     the choices' binomial pairs."""
     return [v["pairs"] for part in ("ratings", "scores", "choices") for v in kinds[part].values()]
+
+
+def across_p(x: np.ndarray) -> float:
+    """The p-value across the conditions (columns) of paired values: Friedman for three or
+    more, the Wilcoxon signed-rank test for two; 1 when no participant differs."""
+    from scipy.stats import wilcoxon
+
+    from analysis.stats import friedman
+
+    if np.all(x == x[:, :1]):
+        return 1.0
+    if x.shape[1] == 2:
+        return float(wilcoxon(x[:, 0], x[:, 1]).pvalue)
+    return friedman(x)["p_value"]
 
 
 def _p(x) -> str:

@@ -13,6 +13,13 @@ by the visual side of a run (sim/run.py); the servo runs in its own process and 
 it. With a mouse device, the pointer drives the hands (left button: left hand, right button:
 right hand; drag in the view plane, wheel in depth) and the force that would be felt is drawn
 as an arrow and a number.
+
+For a questionnaire the window shows a rating scale (boxes with their numbers, the anchors under
+the two ends; also used for the choice among blind labels) or a visual analogue scale (a line
+with its anchors, and a mark the person sets with the mouse): `show_scale`, `show_slider`. In
+questionnaire mode (`set_questionnaire`, on while a question is asked) the mouse answers
+questions; and a click grasps the brain only while a run is drawn (`draw`), never on a still
+screen (`idle`: a rest screen, questions asked in the window or in the terminal).
 """
 
 from __future__ import annotations
@@ -20,7 +27,7 @@ from __future__ import annotations
 import os
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -32,8 +39,16 @@ PATCH = np.array([0.20, 0.55, 0.95])  # the grasped patch
 TEXT = (0.05, 0.05, 0.12)
 ACCENT = (0.70, 0.10, 0.05)
 ARROW = (0.85, 0.15, 0.10)
-# GLFW key codes -> names the callers use
-KEYS = {32: "space", 257: "enter", 256: "escape", **{ord(c): c.lower() for c in "ABCDEFGHIJKLMNOPQRSTUVWXYZ"}}
+PANEL = (0.96, 0.96, 0.97)  # behind a questionnaire widget
+BOX = (0.86, 0.89, 0.94)  # a point of a scale
+BORDER = (0.35, 0.38, 0.45)
+SELECTED = (0.12, 0.40, 0.85)  # the chosen point, the slider's mark
+WHITE = (1.0, 1.0, 1.0)
+# GLFW key codes -> names the callers use: the top row's digits and the keypad's give the same
+# names ("0".."9"), as do Enter and the keypad's Enter
+KEYS = {32: "space", 257: "enter", 335: "enter", 256: "escape", 259: "backspace", 262: "right", 263: "left",
+        **{ord(c): c.lower() for c in "ABCDEFGHIJKLMNOPQRSTUVWXYZ"},
+        **{48 + k: str(k) for k in range(10)}, **{320 + k: str(k) for k in range(10)}}
 FORCE_ARROW_M_PER_N = 0.08
 WHEEL_M = 0.002  # depth per wheel step
 
@@ -87,6 +102,28 @@ class HandState:
     position: tuple
     force: tuple = (0.0, 0.0, 0.0)
     grasped_vertex: int | None = None
+
+
+@dataclass
+class Widget:
+    """A questionnaire widget: a `scale` (labels in boxes side by side: a rating's points, or
+    blind condition labels) or a `slider` (a visual analogue scale, 0..100). Geometry in window
+    pixels (x right, y down), as the mouse reports them."""
+
+    kind: str  # "scale" or "slider"
+    labels: tuple[str, ...] = ()
+    anchors: tuple[str, str] | None = None
+    selected: int | None = None  # scale: index of the chosen box (None: none yet)
+    value: float | None = None  # slider: the mark, 0..100 (None: not set yet; there is no default)
+    confirmed: bool = False  # scale: the chosen box was clicked again
+    boxes: list = field(default_factory=list)  # scale: (u0, v0, u1, v1) of each label's box
+    line: tuple = ()  # slider: (u0, u1, v), the line from 0 to 100
+    dragging: bool = False
+
+    def value_at(self, u: float) -> float:
+        """The slider's value at pixel column u (0 at the left end, 100 at the right, 0.1 steps)."""
+        u0, u1, _ = self.line
+        return round(min(max((u - u0) / (u1 - u0), 0.0), 1.0) * 100.0, 1)
 
 
 class ParticipantView:
@@ -179,6 +216,11 @@ class ParticipantView:
         self.vis.register_mouse_scroll_callback(self._on_scroll)
         self.pointer = (width / 2.0, height / 2.0)
         self.inputs: dict[int, list] = {}  # hand -> [target, pressed, depth]
+        self.questionnaire = False  # the mouse answers questions, never grasps
+        self._running = False  # frames of a run are drawn (draw), not a still screen (idle): a click may grasp
+        self.widget: Widget | None = None
+        self._widget_meshes: list = []
+        self._widget_dirty = False
         self.n_hands = len(pulls)
         self.closed = False
         self.frames = 0
@@ -214,20 +256,35 @@ class ParticipantView:
                 self._texts[slot] = (text, m)
 
     def text(self) -> dict[str, str]:
-        """What the window shows as text now (tests read it to check no model is named)."""
-        return {k: v[0] for k, v in self._texts.items()}
+        """What the window shows as text now (tests read it to check no model is named); a
+        questionnaire widget's labels, anchors and value are under "widget"."""
+        out = {k: v[0] for k, v in self._texts.items()}
+        w = self.widget
+        if w is not None:
+            parts = list(w.labels) + list(w.anchors or ()) + ([f"{w.value:g}"] if w.value is not None else [])
+            out["widget"] = "  ".join(parts)
+        return out
 
-    def _text_mesh(self, text: str, u: float, v: float, px: float, colour, align: str):
+    def _text_mesh(self, text: str, u: float, v: float, px: float, colour, align: str, max_width: float | None = None,
+                   depth: float | None = None):
+        """Glyphs of `text` `px` high (the cell; capitals are 0.62 px) with their baseline near
+        v - px / 4, aligned left, right, center or middle (the ink's middle) at u; made smaller
+        to fit `max_width` pixels."""
         o3d = self.o3d
         m = o3d.t.geometry.TriangleMesh.create_text(text.encode("ascii", "replace").decode()).to_legacy()
         V = np.asarray(m.vertices, dtype=np.float64)
         if len(V) == 0:
             return m
+        if max_width is not None and V[:, 0].max() * px / 16.0 > max_width:
+            px = max_width / V[:, 0].max() * 16.0
         scale_px = px / 16.0  # glyph units (a 16-unit cell) to pixels
         width_px = V[:, 0].max() * scale_px
         lines = text.count("\n") + 1
-        u0 = u - (width_px / 2 if align == "center" else width_px if align == "right" else 0.0)
-        z = self.text_depth
+        if align == "middle":
+            u0 = u - (V[:, 0].min() + V[:, 0].max()) / 2 * scale_px
+        else:
+            u0 = u - (width_px / 2 if align == "center" else width_px if align == "right" else 0.0)
+        z = self.text_depth if depth is None else depth
         origin = self.R.T @ (z * np.linalg.solve(self.K, [u0, v - (lines - 1) * px * 1.2, 1.0]) - self.t)
         metre = z / self.K[1, 1] * scale_px  # one glyph unit at that depth, in metres
         right, up = self.R[0], -self.R[1]  # camera y points down the image
@@ -273,6 +330,7 @@ class ParticipantView:
             self._draw_forces(hands)
         self._last_hands = hands
         self.prepare_s.append(time.perf_counter() - start)  # this process's own work, before the rasteriser
+        self._running = True
         self._present()
         now = time.perf_counter()
         self.frames += 1
@@ -311,6 +369,8 @@ class ParticipantView:
     def _present(self) -> None:
         if not self.vis.poll_events():
             self.closed = True
+        if self._widget_dirty:  # the mouse changed it during the events
+            self._build_widget()
         self.vis.update_renderer()
         self._fresh = True
 
@@ -323,7 +383,9 @@ class ParticipantView:
         self.prepare_s.pop()
 
     def idle(self) -> None:
-        """Keep the window alive (events, redraw) while nothing moves, e.g. on a rest screen."""
+        """Keep the window alive (events, redraw) while nothing moves, e.g. on a rest screen or
+        during the questions: a click made meanwhile grasps nothing."""
+        self._running = False
         self._present()
 
     def take_keys(self) -> list[str]:
@@ -375,6 +437,158 @@ class ParticipantView:
             self.vis.destroy_window()
             self.closed = True
 
+    # -- the questionnaire -------------------------------------------------------------------
+    def set_questionnaire(self, on: bool) -> None:
+        """Questionnaire mode: mouse clicks answer questions (on the widget shown, if any) and
+        never grasp the brain; a hand held when it begins is let go."""
+        self.questionnaire = bool(on)
+        if on:
+            for state in self.inputs.values():
+                state[1] = False
+
+    def show_scale(self, labels, anchors: tuple[str, str] | None = None) -> Widget:
+        """Boxes side by side, one per label (a rating's points "1".."n", or blind labels), the
+        anchors under the two ends; nothing chosen yet. With anchors the scale spans 55% of the
+        width, so its ends stay where they are whatever the number of points."""
+        n = len(labels)
+        cx, vc = self.width / 2.0, self.height / 2.0
+        if anchors:
+            span = round(0.55 * self.width)
+            b = min(56.0, span / (n + 0.25 * (n - 1)))
+        else:
+            b = 72.0
+            span = n * b + (n - 1) * 0.75 * b
+        gap = (span - n * b) / (n - 1) if n > 1 else 0.0
+        left = cx - span / 2.0
+        boxes = [(round(left + k * (b + gap)), round(vc - b / 2), round(left + k * (b + gap) + b), round(vc + b / 2)) for k in range(n)]
+        self.widget = Widget("scale", labels=tuple(str(x) for x in labels), anchors=tuple(anchors) if anchors else None, boxes=boxes)
+        self._build_widget()
+        return self.widget
+
+    def show_slider(self, anchors: tuple[str, str] | None = None) -> Widget:
+        """A visual analogue scale: a horizontal line (55% of the width) from 0 to 100 with the
+        anchors under its ends, and no mark until the person sets one."""
+        span = round(0.55 * self.width)
+        u0 = round(self.width / 2.0 - span / 2.0)
+        self.widget = Widget("slider", anchors=tuple(anchors) if anchors else None, line=(u0, u0 + span, round(self.height / 2.0)))
+        self._build_widget()
+        return self.widget
+
+    def clear_widget(self) -> None:
+        self.widget = None
+        self._build_widget()
+
+    def select(self, index: int | None) -> None:
+        """Choose a box of the scale (None: none)."""
+        w = self.widget
+        if w is not None and w.kind == "scale" and index != w.selected:
+            w.selected = None if index is None else min(max(int(index), 0), len(w.labels) - 1)
+            self._widget_dirty = True
+
+    def set_value(self, value: float | None) -> None:
+        """Set (or with None, take away) the slider's mark."""
+        w = self.widget
+        if w is not None and w.kind == "slider":
+            value = None if value is None else round(min(max(float(value), 0.0), 100.0), 1)
+            if value != w.value:
+                w.value = value
+                self._widget_dirty = True
+
+    def move(self, step: int) -> None:
+        """An arrow key: the scale's choice moves by `step` boxes (with none chosen yet, right
+        chooses the first and left the last); the slider's mark moves by `step` (none set: nothing)."""
+        w = self.widget
+        if w is None:
+            return
+        if w.kind == "scale":
+            if w.selected is None:
+                self.select(0 if step > 0 else len(w.labels) - 1)
+            else:
+                self.select(w.selected + step)
+        elif w.value is not None:
+            self.set_value(w.value + step)
+
+    def _widget_press(self, x: float, y: float) -> None:
+        w = self.widget
+        if w.kind == "scale":
+            for k, (u0, v0, u1, v1) in enumerate(w.boxes):
+                if u0 - 4 <= x <= u1 + 4 and v0 - 4 <= y <= v1 + 4:
+                    if w.selected == k:
+                        w.confirmed = True  # a second click on the chosen box
+                    self.select(k)
+                    return
+        else:
+            u0, u1, v = w.line
+            if u0 - 20 <= x <= u1 + 20 and abs(y - v) <= 30:
+                w.dragging = True
+                self.set_value(w.value_at(x))
+
+    def _build_widget(self) -> None:
+        """(Re)make the widget's meshes: shapes (a panel, boxes or the line, the mark) in one
+        mesh with vertex colours, just behind the text plane; labels and anchors in another."""
+        self._widget_dirty = False
+        self._fresh = False
+        for m in self._widget_meshes:
+            self.vis.remove_geometry(m, reset_bounding_box=False)
+        self._widget_meshes = []
+        w = self.widget
+        if w is None:
+            return
+        z = self.text_depth
+        quads, texts = [], []  # (u0, v0, u1, v1, depth, colour); (text, u, v, px, colour, align, max_width)
+        if w.kind == "scale":
+            first, last = w.boxes[0], w.boxes[-1]
+            b = first[2] - first[0]
+            bottom = first[3] + (58 if w.anchors else 26)
+            quads.append((first[0] - 48, first[1] - 34, last[2] + 48, bottom, z * 1.03, PANEL))
+            for k, (u0, v0, u1, v1) in enumerate(w.boxes):
+                chosen = k == w.selected
+                quads.append((u0 - 2, v0 - 2, u1 + 2, v1 + 2, z * 1.02, SELECTED if chosen else BORDER))
+                quads.append((u0, v0, u1, v1, z * 1.01, SELECTED if chosen else BOX))
+                px = 0.5 * b if len(w.labels[k]) <= 2 else 0.3 * b
+                texts.append((w.labels[k], (u0 + u1) / 2, (v0 + v1) / 2 + 0.5625 * px, px, WHITE if chosen else TEXT, "middle", b - 6))
+            if w.anchors:
+                half = (last[2] - first[0]) / 2 - 12
+                texts.append((w.anchors[0], first[0], first[3] + 34, 18, TEXT, "left", half))
+                texts.append((w.anchors[1], last[2], first[3] + 34, 18, TEXT, "right", half))
+        else:
+            u0, u1, v = w.line
+            quads.append((u0 - 56, v - 76, u1 + 56, v + 64, z * 1.03, PANEL))
+            quads.append((u0, v - 2, u1, v + 2, z * 1.02, BORDER))
+            for u in (u0, u1):
+                quads.append((u - 2, v - 14, u + 2, v + 14, z * 1.02, BORDER))
+            if w.anchors:
+                half = (u1 - u0) / 2 - 12
+                texts.append((w.anchors[0], u0, v + 44, 18, TEXT, "left", half))
+                texts.append((w.anchors[1], u1, v + 44, 18, TEXT, "right", half))
+            if w.value is not None:
+                u = u0 + (u1 - u0) * w.value / 100.0
+                quads.append((u - 3, v - 22, u + 3, v + 22, z * 1.01, SELECTED))
+                texts.append((f"{w.value:g}", u, v - 32, 24, SELECTED, "middle", None))
+        self._widget_meshes.append(self._quads_mesh(quads))
+        for text, u, v, px, colour, align, max_width in texts:
+            m = self._text_mesh(text, u, v, px, colour, align, max_width=max_width)
+            m.triangle_normals = self.o3d.utility.Vector3dVector()  # as the shapes: drawn in their own colour, without shading
+            self._widget_meshes.append(m)
+        for m in self._widget_meshes:
+            self.vis.add_geometry(m, reset_bounding_box=False)
+
+    def _quads_mesh(self, quads):
+        """Flat rectangles given in pixels, each at its own depth, facing the camera."""
+        o3d = self.o3d
+        V, T, C = [], [], []
+        Kinv = np.linalg.inv(self.K)
+        for u0, v0, u1, v1, depth, colour in quads:
+            n = len(V)
+            for u, v in ((u0, v0), (u1, v0), (u1, v1), (u0, v1)):
+                V.append(self.R.T @ (depth * (Kinv @ [u, v, 1.0]) - self.t))
+                C.append(colour)
+            T += [(n, n + 2, n + 1), (n, n + 3, n + 2)]  # x right, y down: this winding faces the camera
+        m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(V)), o3d.utility.Vector3iVector(np.asarray(T, dtype=np.int32)))
+        m.vertex_colors = o3d.utility.Vector3dVector(np.asarray(C, dtype=np.float64))
+        m.vertex_normals = o3d.utility.Vector3dVector(np.tile(-self.R[2], (len(V), 1)))
+        return m
+
     # -- the pointer (mouse device) ---------------------------------------------------------
     def _ray(self, u: float, v: float) -> np.ndarray:
         d = self.R.T @ np.linalg.solve(self.K, [u, v, 1.0])
@@ -397,10 +611,17 @@ class ParticipantView:
         return self.R.T @ (depth * np.linalg.solve(self.K, [u, v, 1.0]) - self.t)
 
     def _on_button(self, vis, button: int, action: int, mods: int) -> bool:
+        if self.questionnaire or self.widget is not None:  # the mouse answers, never grasps
+            if self.widget is not None and button == 0:
+                if action == 1:
+                    self._widget_press(*self.pointer)
+                else:
+                    self.widget.dragging = False
+            return False
         hand = min(button, self.n_hands - 1) if button in (0, 1) else None
         if hand is None:
             return False
-        if action == 1:  # press: grasp the surface under the pointer
+        if action == 1 and self._running:  # press: grasp the surface under the pointer (only while a run is drawn)
             p = self.pick(*self.pointer)
             if p is not None:
                 self.inputs[hand] = [p, True, self._depth(p)]
@@ -410,12 +631,17 @@ class ParticipantView:
 
     def _on_move(self, vis, x: float, y: float) -> bool:
         self.pointer = (float(x), float(y))
+        w = self.widget
+        if w is not None and w.dragging:
+            self.set_value(w.value_at(x))
         for state in self.inputs.values():
             if state[1]:
                 state[0] = self._at_depth(x, y, state[2])
         return False
 
     def _on_scroll(self, vis, dx: float, dy: float) -> bool:
+        if self.questionnaire:
+            return False
         for state in self.inputs.values():
             if state[1]:
                 state[2] = max(state[2] - dy * WHEEL_M, 0.01)  # wheel up: towards the viewer

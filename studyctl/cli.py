@@ -7,6 +7,7 @@ mistakes are click's (exit status 2). No traceback reaches the user for either.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sqlite3
@@ -586,6 +587,53 @@ def _vertex_ids(ctx, param, value):
     if not ids or not all(0 <= v < 2**31 for v in ids):
         raise click.BadParameter(f"{value!r}: surface vertex ids are whole numbers from 0")
     return ids
+
+
+@calibrate.command("rig")
+@click.option("--db", envvar="STUDYCTL_DB", default=None, type=click.Path(dir_okay=False, path_type=Path),
+              help="The study whose conditions are measured and which keeps the profile.")
+@click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Measure this protocol's conditions without a study (with --out).")
+@click.option("--trials", type=click.IntRange(1, 20), default=2, show_default=True, help="Lockstep trials per condition.")
+@click.option("--profile", "profile_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Keep this profile (from `calibrate rig --out` on the rig) with the study instead of measuring here.")
+@click.option("--out", "out_file", type=OutFile((".json",)), default=None, help="Also write the profile as JSON.")
+@click.option("--json", "as_json", is_flag=True)
+def calibrate_rig(db, protocol_file, trials, profile_file, out_file, as_json):
+    """Each condition's deformation time per frame on this machine (the rig), kept with the
+    study: its synthetic participants perceive these as latency (studyctl/rig.py)."""
+    from studyctl.protocol import load_protocol
+    from studyctl.rig import measure, read_profile, store_profile
+
+    if (db is None) == (protocol_file is None):
+        raise InputError("name the study (--db) or, to write a profile only, a protocol (--protocol with --out)")
+    if protocol_file is not None and (out_file is None or profile_file is not None):
+        raise InputError("--protocol: measures without a study, so it needs --out (and no --profile)")
+    if db is not None:
+        from studyctl.store import Store
+
+        store = Store(db, mode="read")
+        try:
+            protocol = store.protocol()
+        finally:
+            store.close()
+    else:
+        protocol = load_protocol(protocol_file)
+    if profile_file is not None:
+        profile, source = read_profile(profile_file), f"file {profile_file.name}"
+    else:
+        with _progress(len(protocol.conditions) * trials, "rig trials", quiet=as_json) as step:
+            profile, source = measure(protocol, trials, progress=step), "measured"
+    if out_file is not None:
+        Path(out_file).write_text(json.dumps(profile, indent=2) + "\n")
+    if db is not None:
+        store_profile(db, profile, source)
+    if as_json:
+        _print_json(profile | {"source": source})
+        return
+    for r in profile["conditions"]:
+        click.echo(f"{r.get('condition', r['key'][:12])}: {r['frame_ms_p50']:.3f} ms per frame (p95 {r['frame_ms_p95']:.3f})")
+    click.echo(f"rig: {profile.get('machine', 'unknown')}" + (f"; kept with {db}" if db else "") + (f"; wrote {out_file}" if out_file else ""))
 
 
 @calibrate.command("truth")
@@ -1176,6 +1224,17 @@ def synth_cmd(db, participants, seed, jobs, protocol_file, as_json):
     click.echo(f"ran {out['participants']} SYNTHETIC sessions (seed {seed}, {jobs} jobs) in {out['seconds']:.1f} s")
 
 
+@contextlib.contextmanager
+def _progress(total: int, label: str, quiet: bool = False):
+    """A progress bar on stderr (none with --json); yields the function that advances it."""
+    from rich.console import Console
+    from rich.progress import Progress
+
+    with Progress(transient=True, console=Console(stderr=True), disable=quiet) as progress:
+        task = progress.add_task(label, total=total)
+        yield lambda: progress.advance(task)
+
+
 def _model_name(value):
     """Models are spelt plate_spring in files; plate-spring (the subcommand's spelling) is accepted too."""
     return None if value is None else value.replace("-", "_")
@@ -1205,8 +1264,10 @@ def _range(ctx, param, value):
 @click.option("--model", "null_model", default=None, help="With --null: the model to repeat  [default: the protocol's first condition]")
 @click.option("--json", "as_json", is_flag=True)
 def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, null, null_model, as_json):
-    """Monte Carlo power of Cochran's Q per question under the SYNTHETIC model, to choose N;
-    with --null, the false-positive rate of each question when every condition is one model."""
+    """Monte Carlo power under the SYNTHETIC model, to choose N: of the protocol's primary
+    analysis and of each question's test (Cochran's Q, Friedman, the multinomial); with --null,
+    the false-positive rate of each when every condition is one model."""
+    from analysis.kinds import primary
     from studyctl.plan import plot_power, power_table
     from studyctl.protocol import load_protocol
 
@@ -1222,18 +1283,20 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, nu
         raise InputError("--model: only with --null")
     span = span or (12, 60)
     ns = list(range(span[0], span[1] + 1, step))
-    table = power_table(protocol, ns, simulations, seed, pilots)
+    with _progress(len(ns) * simulations, "simulated studies", quiet=as_json) as step:
+        table = power_table(protocol, ns, simulations, seed, pilots, progress=step)
     if plot_file:
         plot_power(table, plot_file)
     if as_json:
-        _print_json({"synthetic": True, "rows": table.to_dict(orient="records")})
+        _print_json({"synthetic": True, "primary": primary(protocol), "rows": table.to_dict(orient="records")})
         return
     from rich.table import Table
 
-    wide = table.pivot(index="n", columns="item", values="power")[list(protocol.items)]
-    t = Table(title=f"SYNTHETIC power of Cochran's Q (p < 0.05), {simulations} simulated studies per N")
+    names = list(dict.fromkeys(table["item"]))
+    wide = table.pivot(index="n", columns="item", values="power")[names]
+    t = Table(title=f"SYNTHETIC power (p < 0.05), {simulations} simulated studies per N; primary: {primary(protocol)['text']}")
     t.add_column("N", justify="right")
-    for q in protocol.items:
+    for q in names:
         t.add_column(q, justify="right")
     for n, row in wide.iterrows():
         t.add_row(str(n), *(f"{v:.2f}" for v in row))
@@ -1243,6 +1306,7 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, nu
 
 
 def _plan_null(protocol, span, simulations, seed, pilots, model, as_json) -> None:
+    from analysis.kinds import primary
     from studyctl.plan import null_table
 
     if span is not None and span[0] != span[1]:
@@ -1252,9 +1316,10 @@ def _plan_null(protocol, span, simulations, seed, pilots, model, as_json) -> Non
         if model not in protocol.conditions:
             raise InputError(f"--model: {model!r} is not a condition of {protocol.name}; allowed: {', '.join(protocol.conditions)}")
     n = span[0] if span else 35
-    table = null_table(protocol, model, n, simulations, seed, pilots)
+    with _progress(simulations, "simulated studies", quiet=as_json) as step:
+        table = null_table(protocol, model, n, simulations, seed, pilots, progress=step)
     if as_json:
-        _print_json({"synthetic": True, "null": True, "model": table["model"].iloc[0], "participants": n,
+        _print_json({"synthetic": True, "null": True, "model": table["model"].iloc[0], "participants": n, "primary": primary(protocol),
                      "items": table[["item", "false_positive_rate", "mc_error", "simulations", "alpha"]].to_dict(orient="records")})
         return
     from rich.table import Table

@@ -125,6 +125,7 @@ class TrialSummary:
     ripple: float  # force ripple on the population's vibration threshold scale (1: at threshold)
     events: int  # safety events
     frame_flops: float  # mean counted work per deformation frame (NaN: not recorded)
+    frame_ms: float = math.nan  # the rig's measured time per frame for this configuration (studyctl/rig.py); NaN: none
 
 
 def frame_ms(flops: float, params: ObserverParams = DEFAULT) -> float:
@@ -229,7 +230,9 @@ def _features(summaries: list[TrialSummary], traits: ObserverTraits, params: Obs
     rendered = np.concatenate([s.rendered for s in summaries]) if summaries else np.zeros(0)
     truth = np.concatenate([s.truth for s in summaries]) if summaries else np.zeros(0)
     flops = [s.frame_flops for s in summaries if math.isfinite(s.frame_flops)]
-    latency = frame_ms(float(np.mean(flops)), params) if flops else math.nan
+    rig = [s.frame_ms for s in summaries if math.isfinite(s.frame_ms)]
+    # the rig's measured frame time when the study has a profile, else the counted work on the reference machine
+    latency = float(np.mean(rig)) if rig else frame_ms(float(np.mean(flops)), params) if flops else math.nan
     within = within_jnd(rendered, truth, traits, params)
     p_vib = [float(ndtr(math.log(s.ripple / traits.vibration) / params.vibration_slope)) if s.ripple > 0 else 0.0 for s in summaries]
     return {
@@ -268,15 +271,17 @@ VAS_NOISE_SD = 0.5  # logit units: where on a line a person marks the same judge
 
 
 def likert_thresholds(points: int) -> np.ndarray:
-    """Symmetric cut points of a `points`-point scale on the latent logit: evenly spaced over
-    +-LIKERT_SPREAD, so the middle of the scale is the yes/no boundary (latent 0)."""
+    """Symmetric cut points of a `points`-point scale on the latent logit, evenly spaced over
+    +-LIKERT_SPREAD: centred on the yes/no boundary (latent 0), which is an even scale's middle
+    cut and the centre of an odd scale's middle point."""
     k = np.arange(1, points)
     return LIKERT_SPREAD * (k - points / 2.0) / (points / 2.0)
 
 
 def likert_answer(eta: float, points: int, u: float) -> int:
     """A rating 1..points: the latent judgement plus logistic noise (inverse CDF at `u`), cut
-    at the scale's thresholds (an ordered logit, whose P(above the middle) = P(yes))."""
+    at the scale's thresholds: an ordered logit, P(rating > k) = logistic(eta - tau_k), whose
+    latent is above 0 with the yes/no question's P(yes)."""
     u = min(max(u, 1e-12), 1.0 - 1e-12)
     latent = eta + math.log(u / (1.0 - u))
     return 1 + int(np.sum(likert_thresholds(points) < latent))

@@ -2,10 +2,14 @@
 
 Pilot runs of synthetic participants on the simulator give, per condition, what each trial
 offers an observer (studyctl/observer.py); simulated studies of N participants, each with
-their own perception, then draw answers from the observer and test each question with
-Cochran's Q across the conditions. Power is the fraction of simulated studies with p < alpha.
-The null test runs one model under every label: its rejection rate is the false-positive rate.
-All of it is SYNTHETIC: a planning aid, no data.
+their own perception, then draw answers of every kind from the observer (as synthetic
+sessions do, studyctl/synthetic.py) and test them: each question across the conditions with
+the test of its kind (Cochran's Q for yes/no, Friedman for ratings and scores (Wilcoxon for two conditions), the exact
+multinomial test for a choice), and the protocol's primary analysis (analysis/kinds.primary:
+"primary" rows; it rejects when a pair of conditions differs at Holm-adjusted p < alpha, or
+for a choice when the multinomial test does). Power is the fraction of simulated studies
+that reject. The null test runs one model under every label: its rejection rate is the
+false-positive rate. All of it is SYNTHETIC: a planning aid, no data.
 """
 
 from __future__ import annotations
@@ -16,17 +20,22 @@ import pandas as pd
 
 def pilot_summaries(protocol, pilots: int = 4, seed: int = 0, mapping: dict[str, str] | None = None) -> dict[str, list]:
     """Per condition label, `pilots` synthetic pilot trials on the simulator, summarised for
-    the observer (studyctl/observer.TrialSummary). `mapping` (label -> model) lets one model
-    play another's condition (the null and swap tests); the pilots' hand motions are drawn per
-    label, as a session draws them per condition."""
+    the observer (studyctl/observer.TrialSummary), with the rig profile's frame time of the
+    condition that ran (studyctl/rig.py: the shipped one) where it has one. `mapping` (label ->
+    model) lets one model play another's condition (the null and swap tests); the pilots' hand
+    motions are drawn per label, as a session draws them per condition."""
+    import dataclasses
+
     from sim.run import run_scene
     from studyctl.conditions import scene_itself
     from studyctl.observer import summarise
+    from studyctl.rig import frame_times
     from studyctl.session import _scene
     from studyctl.synthetic import SyntheticParticipant
     from studyctl.truth import load_truth
 
     mapping = mapping or {}
+    rig = frame_times(protocol)
     scenes: dict[str, object] = {}
     truth = load_truth(scene_itself(protocol))  # the scene's own, whatever a condition changes
     out: dict[str, list] = {}
@@ -41,21 +50,115 @@ def pilot_summaries(protocol, pilots: int = 4, seed: int = 0, mapping: dict[str,
                 result = run_scene(scene, duration=protocol.trial_seconds, time_scale=0)
             finally:
                 scene.operators = None
-            out[label].append(summarise(result, truth, scene.mesh))
+            summary = summarise(result, truth, scene.mesh)
+            out[label].append(dataclasses.replace(summary, frame_ms=rig[model]["frame_ms"]) if model in rig else summary)
     return out
 
 
-def simulate_answers(protocol, summaries: dict[str, list], n: int, rng: np.random.Generator, params=None) -> dict[str, np.ndarray]:
-    """One simulated study of `n` participants: per question, answers (n, conditions) drawn
-    from the observer, each participant's condition perceived from a random pilot trial."""
-    from studyctl.observer import DEFAULT, ObserverTraits, features, p_yes
+def _tested(protocol) -> list:
+    """The questions `plan` tests one by one: each asked after every condition (instrument items
+    through their score), and the choices at the end."""
+    return [q for q in protocol.asked("condition") if q.analysed and q.instrument is None] + \
+        [q for q in protocol.asked("end") if q.kind == "choice"]
+
+
+def test_names(protocol) -> list[str]:
+    """The rows of a power table: each tested question, each instrument's score, the primary."""
+    return [q.id for q in _tested(protocol)] + [name for name, when in protocol.instruments if when == "condition"] + ["primary"]
+
+
+def simulate_study(protocol, summaries: dict[str, list], n: int, rng: np.random.Generator, params=None) -> pd.DataFrame:
+    """One simulated study of `n` participants: tidy answers (code, model, item, trial, answer,
+    period) to every question asked after a condition and every choice at the end, drawn from
+    the observer as a synthetic session draws them; each participant's condition perceived from
+    a random pilot trial; Williams orders in turn for the period."""
+    from studyctl.observer import DEFAULT, ObserverTraits, features, likert_answer, logit, vas_answer
+    from studyctl.questions import NOT_PER_TRIAL, SESSION
+    from studyctl.schedule import williams
 
     params = params or DEFAULT
     labels = list(protocol.conditions)
-    traits = [ObserverTraits.from_normals(z, params) for z in rng.normal(size=(n, 5))]
-    feats = [[features([summaries[c][rng.integers(len(summaries[c]))]], t, params) for c in labels] for t in traits]
-    return {q: (rng.random((n, len(labels))) < np.array([[p_yes(q, f, t, params) for f in row] for row, t in zip(feats, traits)])).astype(int)
-            for q in protocol.items}
+    orders = williams(len(labels))
+    asked = [q for q in protocol.asked("condition") if q.analysed]
+    choices = [q for q in protocol.asked("end") if q.kind == "choice"]
+    rows = []
+    for i, z in enumerate(rng.normal(size=(n, 5))):
+        traits = ObserverTraits.from_normals(z, params)
+        code = f"N{i:04d}"
+        feats = {c: features([summaries[c][rng.integers(len(summaries[c]))]], traits, params) for c in labels}
+        period = {labels[c]: k for k, c in enumerate(orders[i % len(orders)])}
+        for c in labels:
+            for q in asked:
+                eta = logit(q.id, feats[c], traits, params)
+                if q.kind == "yes_no":
+                    v = int(rng.random() < 1.0 / (1.0 + np.exp(-eta)))
+                elif q.kind == "likert":
+                    v = likert_answer(eta, q.points, rng.random())
+                else:
+                    v = vas_answer(eta, rng.normal())
+                rows.append((code, c, q.id, NOT_PER_TRIAL, v, period[c]))
+        for q in choices:
+            utility = {c: logit(q.id, feats[c], traits, params) + rng.gumbel() for c in labels}
+            rows.append((code, SESSION, q.id, NOT_PER_TRIAL, max(utility, key=utility.get), -1))
+    return pd.DataFrame(rows, columns=["code", "model", "item", "trial", "answer", "period"])
+
+
+def test_study(protocol, answers: pd.DataFrame, primary: bool = True) -> dict[str, float]:
+    """The p-value of each of `test_names` on one simulated study (NaN: not computed). Per
+    question: Cochran's Q (yes/no), Friedman (ratings, scores), the exact multinomial (choice)."""
+    from analysis import kinds, scales
+
+    labels = list(protocol.conditions)
+    out = {}
+    for q in _tested(protocol):
+        sel = answers[answers["item"] == q.id]
+        if q.kind == "choice":
+            out[q.id] = scales.choice_analysis(sel.set_index("code")["answer"], labels)["overall"]["p_value"]
+            continue
+        x = sel.pivot(index="code", columns="model", values="answer")[labels].to_numpy(float)
+        if q.kind == "yes_no":
+            out[q.id] = cochran_p(x.astype(int))
+        else:
+            out[q.id] = kinds.across_p(x)
+    meas = kinds.measures(protocol, answers.drop(columns="period"), answers[["code", "model", "period"]].drop_duplicates())
+    for name, when in protocol.instruments:
+        if when == "condition":
+            x = kinds._wide(meas, name, labels).to_numpy(float)
+            out[name] = kinds.across_p(x)
+    out["primary"] = primary_p(protocol, answers, meas) if primary else float("nan")
+    return out
+
+
+def primary_p(protocol, answers: pd.DataFrame, meas: pd.DataFrame) -> float:
+    """The primary analysis's decision as a p-value: the smallest Holm-adjusted p of its pairs
+    (ordinal or logistic GEE, mixed model), or the multinomial test's p (choice); 1 when it is
+    not estimable (it finds nothing)."""
+    from analysis import kinds, scales
+    from analysis.stats import gee_fit, holm
+
+    what = kinds.primary(protocol)
+    labels = list(protocol.conditions)
+    if what["analysis"] == "choice":
+        sel = answers[answers["item"] == what["items"][0]]
+        return scales.choice_analysis(sel.set_index("code")["answer"], labels)["overall"]["p_value"]
+    if what["analysis"] == "ordinal_gee":
+        res = scales.ordinal_gee(meas[meas["item"].isin(what["items"])], labels, with_item=len(what["items"]) > 1)
+    elif what["analysis"] == "logistic_gee":
+        res = gee_fit(answers[answers["item"].isin(what["items"])].astype({"answer": int}), labels, with_item=True)
+    elif what["analysis"] == "mixed_model":
+        res = scales.mixed_model(meas[meas["item"] == what["items"][0]], labels)
+    else:
+        return float("nan")
+    p = [x["p_value"] if x.get("estimable") and np.isfinite(x["p_value"]) else 1.0 for x in res["pairs"]]
+    return min(holm(p)) if p else 1.0
+
+
+def simulate_answers(protocol, summaries: dict[str, list], n: int, rng: np.random.Generator, params=None) -> dict[str, np.ndarray]:
+    """Yes/no answers (n, conditions) per yes/no question of one simulated study (simulate_study)."""
+    df = simulate_study(protocol, summaries, n, rng, params)
+    labels = list(protocol.conditions)
+    return {q.id: df[df["item"] == q.id].pivot(index="code", columns="model", values="answer")[labels].to_numpy(int)
+            for q in protocol.asked("condition") if q.kind == "yes_no"}
 
 
 def cochran_p(x: np.ndarray) -> float:
@@ -68,25 +171,29 @@ def cochran_p(x: np.ndarray) -> float:
 
 
 def power_table(protocol, ns: list[int], simulations: int = 200, seed: int = 0, pilots: int = 4, alpha: float = 0.05,
-                summaries: dict | None = None) -> pd.DataFrame:
-    """Tidy power table: columns n, item, power, simulations, alpha."""
+                summaries: dict | None = None, primary: bool = True, progress=None) -> pd.DataFrame:
+    """Tidy power table: columns n, item (a question, a score, or "primary"), power, simulations, alpha."""
     summaries = summaries or pilot_summaries(protocol, pilots, seed)
     rng = np.random.default_rng(seed)
+    names = [t for t in test_names(protocol) if primary or t != "primary"]
     rows = []
     for n in ns:
-        hits = {q: 0 for q in protocol.items}
+        hits = dict.fromkeys(names, 0)
         for _ in range(simulations):
-            for q, x in simulate_answers(protocol, summaries, n, rng).items():
-                hits[q] += cochran_p(x) < alpha
-        rows += [{"n": n, "item": q, "power": hits[q] / simulations, "simulations": simulations, "alpha": alpha} for q in protocol.items]
+            for t, p in test_study(protocol, simulate_study(protocol, summaries, n, rng), primary).items():
+                if t in hits:
+                    hits[t] += p < alpha
+            if progress:
+                progress()
+        rows += [{"n": n, "item": t, "power": hits[t] / simulations, "simulations": simulations, "alpha": alpha} for t in names]
     return pd.DataFrame(rows, columns=["n", "item", "power", "simulations", "alpha"])
 
 
 def null_table(protocol, model: str | None = None, participants: int = 35, simulations: int = 200, seed: int = 0, pilots: int = 4,
-               alpha: float = 0.05, summaries: dict | None = None) -> pd.DataFrame:
+               alpha: float = 0.05, summaries: dict | None = None, primary: bool = True, progress=None) -> pd.DataFrame:
     """The observer's fairness test: one model (default: the protocol's first condition) under
-    every label; per question the false-positive rate of Cochran's Q, which should be alpha
-    within Monte Carlo error (`mc_error`: its binomial standard error).
+    every label; per question, score and the primary analysis the false-positive rate, which
+    should be alpha or below within Monte Carlo error (`mc_error`: its binomial standard error).
     Columns: item, false_positive_rate, mc_error, simulations, alpha, model, participants."""
     model = model or protocol.conditions[0]
     summaries = summaries or pilot_summaries(protocol, pilots, seed, mapping={c: model for c in protocol.conditions})
@@ -96,13 +203,17 @@ def null_table(protocol, model: str | None = None, participants: int = 35, simul
     pool = [s for c in protocol.conditions for s in summaries[c]]
     summaries = {c: pool for c in protocol.conditions}
     rng = np.random.default_rng(seed)
-    hits = {q: 0 for q in protocol.items}
+    names = [t for t in test_names(protocol) if primary or t != "primary"]
+    hits = dict.fromkeys(names, 0)
     for _ in range(simulations):
-        for q, x in simulate_answers(protocol, summaries, participants, rng).items():
-            hits[q] += cochran_p(x) < alpha
+        for t, p in test_study(protocol, simulate_study(protocol, summaries, participants, rng), primary).items():
+            if t in hits:
+                hits[t] += p < alpha
+        if progress:
+            progress()
     se = float(np.sqrt(alpha * (1 - alpha) / simulations))
-    rows = [{"item": q, "false_positive_rate": hits[q] / simulations, "mc_error": se, "simulations": simulations, "alpha": alpha,
-             "model": model, "participants": participants} for q in protocol.items]
+    rows = [{"item": t, "false_positive_rate": hits[t] / simulations, "mc_error": se, "simulations": simulations, "alpha": alpha,
+             "model": model, "participants": participants} for t in names]
     return pd.DataFrame(rows, columns=["item", "false_positive_rate", "mc_error", "simulations", "alpha", "model", "participants"])
 
 
@@ -111,7 +222,7 @@ def expected_rates(protocol, summaries: dict[str, list], participants: int = 35,
     Carlo standard error. Columns: label, item, rate, mc_error."""
     rng = np.random.default_rng(seed)
     labels = list(protocol.conditions)
-    acc = {q: [] for q in protocol.items}
+    acc = {q.id: [] for q in protocol.asked("condition") if q.kind == "yes_no"}
     for _ in range(simulations):
         for q, x in simulate_answers(protocol, summaries, participants, rng).items():
             acc[q].append(x.mean(axis=0))
@@ -134,7 +245,7 @@ def plot_power(table: pd.DataFrame, path) -> None:
         ax.plot(g["n"], g["power"], marker="o", ms=3, label=item)
     ax.axhline(0.8, color="0.4", ls="--", lw=0.8)
     ax.set_xlabel("participants")
-    ax.set_ylabel(f"power of Cochran's Q (p < {table['alpha'].iloc[0]:.2g})")
+    ax.set_ylabel(f"power (p < {table['alpha'].iloc[0]:.2g}; primary: Holm-adjusted)")
     ax.set_ylim(0, 1.02)
     ax.set_title(f"SYNTHETIC planning: {table['simulations'].iloc[0]} simulated studies per N", fontsize=10)
     ax.legend(fontsize=7, ncol=3)

@@ -305,7 +305,10 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
 
             participant = SyntheticParticipant.draw(code, seed)
             base = scene_itself(protocol)  # the scene's own configuration, whatever the conditions change
-            answers = SyntheticAnswers(participant, load_truth(base), base.mesh)
+            from studyctl.rig import frame_times
+
+            rig = {c: v["frame_ms"] for c, v in frame_times(protocol, store).items()}  # the rig this study runs on
+            answers = SyntheticAnswers(participant, load_truth(base), base.mesh, rig=rig)
         paced = time_scale > 0 and not synthetic  # a person sets the pace
         answerer = answers or (WindowAnswers(shown) if answer_with == "window" else TerminalAnswers(view=shown))
         keys = terminal_keys if paced else None

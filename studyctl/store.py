@@ -18,9 +18,9 @@ import sqlite_utils
 
 from studyctl.errors import StoreError
 
-SCHEMA_VERSION = 6
+SCHEMA_VERSION = 7
 EXPORT_TABLES = ("participants", "schedule", "sessions", "conditions", "trials", "answers", "latency", "events", "consent", "corrections",
-                 "observer_features")
+                 "observer_features", "rig_profile")
 IDENTIFYING_TABLES = ("identities",)
 
 
@@ -111,7 +111,14 @@ def _migration_6(db: sqlite_utils.Database) -> None:
     db.execute("alter table corrections_6 rename to corrections")
 
 
-MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3, 4: _migration_4, 5: _migration_5, 6: _migration_6}
+def _migration_7(db: sqlite_utils.Database) -> None:
+    """Rig profiles (studyctl/rig.py): each configuration's measured frame time, which the
+    study's synthetic participants perceive as latency."""
+    db["rig_profile"].create({"key": str, "condition": str, "model": str, "frame_ms_p50": float, "frame_ms_p95": float, "frames": int,
+                              "machine": str, "measured_at": str, "source": str}, pk="key")
+
+
+MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3, 4: _migration_4, 5: _migration_5, 6: _migration_6, 7: _migration_7}
 
 
 STUDY_TABLES = ("meta", "study")  # what makes a file a study database (with meta.schema_version)

@@ -84,18 +84,25 @@ class SyntheticAnswers:
 
     source = "synthetic"
 
-    def __init__(self, participant: SyntheticParticipant, truth, mesh, params: ObserverParams = DEFAULT):
+    def __init__(self, participant: SyntheticParticipant, truth, mesh, params: ObserverParams = DEFAULT, rig: dict | None = None):
         self.participant = participant
         self.truth, self.mesh, self.params = truth, mesh, params
+        self.rig = rig or {}  # condition -> the rig's frame time, ms (studyctl/rig.py); a condition without one: the flop model
         self._feats: dict[str, dict] = {}
+
+    def _summaries(self, model: str, results: list) -> list:
+        out = [summarise(r, self.truth, self.mesh, self.params) for r in results]
+        if model in self.rig:
+            out = [dataclasses.replace(s, frame_ms=self.rig[model]) for s in out]
+        return out
 
     def begin(self, label: str) -> None:
         pass
 
     def features_of(self, model: str, results: list) -> dict:
         if model not in self._feats:
-            summaries = [summarise(r, self.truth, self.mesh, self.params) for r in results]
-            if any(math.isnan(s.frame_flops) for s in summaries):  # a trace from before work counts: no latency to judge
+            summaries = self._summaries(model, results)
+            if model not in self.rig and any(math.isnan(s.frame_flops) for s in summaries):  # a trace from before work counts: no latency to judge
                 from studyctl.errors import StoreError
 
                 raise StoreError(f"condition {model}: a stored trial has no frame work counts (recorded by an older version); "
@@ -120,8 +127,7 @@ class SyntheticAnswers:
                        for c in sorted(context["labels"]) if c in feats}
             return max(utility, key=utility.get)
         if trial is not None:  # judged on that trial alone
-            summaries = [summarise(r, self.truth, self.mesh, self.params) for r in context.get("results", [])]
-            feats = features(summaries, who.traits, self.params)
+            feats = features(self._summaries(model, context.get("results", [])), who.traits, self.params)
         else:
             feats = self.features_of(model, context.get("results", []))
         if question.kind == "yes_no":

@@ -76,7 +76,7 @@ class WindowAnswers:
             view.show_scale([str(v) for v in values], q.anchors)
             if q.points <= 9:
                 letters = {str(v): v for v in values}
-                hint = f"Press 1-{q.points}, or choose with the Left/Right arrows or a click, then Enter"
+                hint = f"Press 1-{q.points}  (or choose with the Left/Right arrows or a click, then press Enter)"
             else:
                 hint = "Choose with the Left/Right arrows or a click, then press Enter"
         elif q.kind == "vas":
@@ -89,7 +89,7 @@ class WindowAnswers:
             values = [c for c, _ in shown]
             view.show_scale([label for _, label in shown])
             letters = {label.lower(): c for c, label in shown}
-            hint = f"Press {' / '.join(label for _, label in shown)}, or click one, then press Enter"
+            hint = f"Press {' / '.join(label for _, label in shown)}  (or click one, then press Enter)"
         else:
             raise StoreError(f"question {q.id}: a {q.kind} question cannot be answered in the window")
         view.set_text(question=self._wrapped(q.text), center="", bottom=hint)

@@ -376,7 +376,7 @@ def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
     con.close()
     res = studyctl("participants", "list", "--json", "--db", db)
     assert res.exit_code == 0 and json.loads(res.output)[0]["code"] == "P01"
-    assert _q(db, "select value from meta where key = 'schema_version'") == [("6",)]
+    assert _q(db, "select value from meta where key = 'schema_version'") == [("7",)]
     assert _q(db, "select count(*) from observer_features") == [(0,)]
     assert {"config", "config_sha256"} <= {r[1] for r in _q(db, "pragma table_info(conditions)")}
 

@@ -1,0 +1,135 @@
+"""Rig profiles: each condition's deformation time per frame, measured on the machine that
+runs the study, which the synthetic observer perceives as latency (studyctl/observer.py).
+
+Without a profile the observer turns each frame's counted work into time with one flop rate
+fitted on one machine (`frame_ms`), which can be far from the rig: `python -m bench observer`
+found the mass-spring predicted at 4.8x its measured time here. With one, a synthetic study
+predicts the rig it will run on, and stays deterministic (the profile is a fixed number per
+configuration, not a timing taken during the session).
+
+A profile is keyed by the configuration's physics (the resolved configuration without the
+condition's name, studyctl/conditions.py): the same model and options measured once serve any
+condition that runs them. `studyctl calibrate rig` measures one (lockstep trials of each
+condition with a synthetic pilot's pull, after a warm-up) and stores it with the study; the
+shipped `data/rig_ci.json` (measured on the CI machine) serves studies without their own.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import platform
+from pathlib import Path
+
+import numpy as np
+
+from studyctl.errors import InputError
+
+SHIPPED = "data/rig_ci.json"
+FIELDS = ("key", "condition", "model", "frame_ms_p50", "frame_ms_p95", "frames")
+
+
+def physics_key(config: dict) -> str:
+    """The configuration's hash without the condition's name."""
+    from studyctl.conditions import config_sha256
+
+    return config_sha256({k: v for k, v in config.items() if k != "condition"})
+
+
+def machine() -> str:
+    cpu = ""
+    try:
+        cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                    if line.startswith("model name")), "")
+    except OSError:
+        pass
+    return f"{platform.node()}: {cpu or platform.processor() or platform.machine()}"
+
+
+def measure(protocol, trials: int = 2, progress=None) -> dict:
+    """A profile of `protocol`'s conditions on this machine: per condition, `trials` lockstep
+    trials (the protocol's trial time, a synthetic pilot's pull) after a 0.5 s warm-up; the
+    median and 95th percentile of the deformation time per frame."""
+    from sim.run import run_scene
+    from studyctl.session import SOFTWARE_VERSION, _scene, condition_configs
+    from studyctl.store import now
+    from studyctl.synthetic import SyntheticParticipant
+
+    configs = condition_configs(protocol, protocol.conditions)
+    rows = []
+    for c in protocol.conditions:
+        scene = _scene(protocol, c, "simulated")
+        run_scene(scene, duration=0.5, time_scale=0)  # first-frame allocations and caches
+        times = []
+        for k in range(trials):
+            pilot = SyntheticParticipant.draw(f"RIG{k + 1:02d}", 0)
+            scene.operators = pilot.operators(scene, k, c)
+            try:
+                times.append(run_scene(scene, duration=protocol.trial_seconds, time_scale=0).deformation_s * 1e3)
+            finally:
+                scene.operators = None
+            if progress:
+                progress()
+        ms = np.concatenate(times)
+        rows.append({"key": physics_key(configs[c]), "condition": c, "model": configs[c]["model"],
+                     "frame_ms_p50": round(float(np.median(ms)), 4), "frame_ms_p95": round(float(np.percentile(ms, 95)), 4), "frames": int(len(ms))})
+    return {"machine": machine(), "measured_at": now(), "software_version": SOFTWARE_VERSION, "protocol": protocol.name,
+            "trials": trials, "conditions": rows}
+
+
+def read_profile(path: str | Path) -> dict:
+    """A profile file, checked: every entry names its key and a finite positive frame time."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read: {exc.strerror}") from None
+    except ValueError as exc:
+        raise InputError(f"{path}: not JSON ({exc})") from None
+    rows = data.get("conditions") if isinstance(data, dict) else None
+    if not isinstance(rows, list) or not rows:
+        raise InputError(f"{path}: conditions: missing; a rig profile lists conditions (write one with `studyctl calibrate rig --out`)")
+    for k, r in enumerate(rows):
+        if not isinstance(r, dict) or not isinstance(r.get("key"), str) or len(r["key"]) != 64:
+            raise InputError(f"{path}: conditions[{k}].key: missing or not a SHA-256")
+        for f in ("frame_ms_p50", "frame_ms_p95"):
+            v = r.get(f)
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and 0 < v < 1e5):
+                raise InputError(f"{path}: conditions[{k}].{f}: {v!r} is out of range; allowed: a time in ms, 0 < t < 100000")
+    return data
+
+
+def store_profile(db, profile: dict, source: str) -> int:
+    """Keep `profile` with the study (one row per configuration, replacing an older one)."""
+    from studyctl.store import Store
+
+    store = Store(db)
+    try:
+        with store.transaction() as conn:
+            for r in profile["conditions"]:
+                conn.execute("insert or replace into rig_profile (key, condition, model, frame_ms_p50, frame_ms_p95, frames, machine, "
+                             "measured_at, source) values (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                             (r["key"], r.get("condition"), r.get("model"), float(r["frame_ms_p50"]), float(r["frame_ms_p95"]),
+                              r.get("frames"), profile.get("machine"), profile.get("measured_at"), source))
+        return len(profile["conditions"])
+    finally:
+        store.close()
+
+
+def frame_times(protocol, store=None) -> dict[str, dict]:
+    """Each condition's frame time for the synthetic observer: {condition: {frame_ms, source}},
+    from the study's own profile (`store`), else the shipped one; a condition in neither is
+    left out (the observer falls back to its flop model)."""
+    from brainsim_assets import path as asset
+    from studyctl.session import condition_configs
+
+    keys = {c: physics_key(cfg) for c, cfg in condition_configs(protocol, protocol.conditions).items()}
+    known: dict[str, tuple[float, str]] = {}
+    shipped = asset(SHIPPED)
+    if shipped.exists():
+        for r in read_profile(shipped)["conditions"]:
+            known[r["key"]] = (float(r["frame_ms_p50"]), f"shipped {SHIPPED} ({read_profile(shipped).get('machine', '')})")
+    if store is not None:
+        for r in store.rows("select key, frame_ms_p50, source, machine from rig_profile"):
+            known[r["key"]] = (float(r["frame_ms_p50"]), f"{r['source']} ({r['machine']})")
+    return {c: {"frame_ms": known[k][0], "source": known[k][1]} for c, k in keys.items() if k in known}

@@ -1,0 +1,314 @@
+"""Question kinds, standard instruments, their statistics and reports, synthetic answers of
+every kind, power for the primary analysis and rig profiles (issue 26, items 2-7)."""
+
+import json
+import math
+import re
+import sqlite3
+
+import numpy as np
+import pytest
+
+from studyctl import instruments
+from studyctl.observer import likert_answer, likert_thresholds
+from studyctl.protocol import check_protocol, load_protocol
+from studyctl.questions import Question
+from studyctl.synthetic import run_synthetic_study
+from tests.test_study import ROOT, fast_protocol, studyctl
+
+CONDITIONS = """
+[conditions.paper]
+model = "plate_spring"
+variant = "paper"
+
+[conditions.located]
+model = "plate_spring"
+variant = "located"
+"""
+
+QUESTIONS = """
+[[questions]]
+id = "natural"
+text = "Is interaction real and natural?"
+kind = "likert"
+points = 7
+anchors = ["Not at all", "Completely"]
+
+[[questions]]
+id = "realtime"
+text = "Is the interaction real-time?"
+kind = "likert"
+points = 7
+anchors = ["Not at all", "Completely"]
+
+[[questions]]
+id = "stiffness"
+text = "How stiff did the tissue feel?"
+kind = "vas"
+anchors = ["Very soft", "Very stiff"]
+
+[[questions]]
+id = "stable"
+text = "Is the system stable?"
+
+[[questions]]
+id = "smooth"
+text = "Was that pull smooth?"
+kind = "likert"
+points = 5
+anchors = ["Not at all", "Very"]
+when = "trial"
+
+[[questions]]
+id = "comment"
+text = "Anything else?"
+kind = "text"
+when = "end"
+
+[[questions]]
+id = "most_like_tissue"
+text = "Which condition felt most like real brain tissue?"
+kind = "choice"
+when = "end"
+
+[[instruments]]
+name = "sus"
+
+[[instruments]]
+name = "nasa_tlx"
+"""
+
+
+def kinds_protocol(tmp_path, questions=QUESTIONS, conditions=("paper", "located"), trials=2):
+    path = fast_protocol(tmp_path, conditions=conditions, trials=trials)
+    text = path.read_text()
+    text = text[: text.index("[[questions]]")].replace("[inclusion]", CONDITIONS + "\n[inclusion]") + questions
+    path.write_text(text)
+    return path
+
+
+def test_the_shipped_example_validates():
+    p = load_protocol(ROOT / "protocols/plate_spring_variants.toml")
+    assert p.conditions == ("paper", "located", "fem_linear")
+    likert = [q for q in p.questions if q.kind == "likert" and q.instrument is None]
+    assert [q.id for q in likert] == list(load_protocol(ROOT / "protocols/brain_pull_2015.toml").items)
+    assert all(q.points == 7 and q.when == "condition" for q in likert)
+    assert p.instruments == (("sus", "condition"),) and [q.id for q in p.questions if q.instrument] == [f"sus_{k}" for k in range(1, 11)]
+    assert [(q.id, q.kind, q.when) for q in p.asked("end")] == [("most_like_tissue", "choice", "end")]
+    res = studyctl("protocol", "validate", ROOT / "protocols/plate_spring_variants.toml")
+    assert res.exit_code == 0, res.output
+
+
+REFUSED = {
+    "points = 1": ("points = 7\n", "points = 1\n", r":(\d+): questions\[0\]\.points: 1 is out of range; allowed: 3\.\.11"),
+    "a likert item without anchors": ('anchors = ["Not at all", "Completely"]\n\n[[questions]]\nid = "realtime"',
+                                      '\n[[questions]]\nid = "realtime"',
+                                      r":(\d+): questions\[0\]\.anchors: missing: a likert question names its two ends, anchors = \[low, high\]"),
+    "a choice asked per trial": ('kind = "choice"\nwhen = "end"', 'kind = "choice"\nwhen = "trial"',
+                                 r":(\d+): questions\[6\]\.when: 'trial': a choice among the conditions is asked once, after the last; allowed: end"),
+    "an unknown kind": ('kind = "vas"', 'kind = "slider"', r":(\d+): questions\[2\]\.kind: 'slider' is not a kind; allowed: yes_no, likert, vas, choice, text"),
+    "points on a vas": ('kind = "vas"\n', 'kind = "vas"\npoints = 5\n', r":(\d+): questions\[2\]\.points: only a likert question has points"),
+    "an unknown instrument": ('name = "nasa_tlx"', 'name = "tlx"', r":(\d+): instruments\[1\]\.name: 'tlx' is not an instrument; allowed: sus, nasa_tlx"),
+    "an instrument item clashing": ('id = "stable"', 'id = "sus_3"', r":(\d+): instruments\[0\]\.name: duplicate item id 'sus_3' \(also questions\[3\]\)"),
+    "an unknown when": ('when = "end"\n\n[[questions]]\nid = "most', 'when = "later"\n\n[[questions]]\nid = "most',
+                        r":(\d+): questions\[5\]\.when: 'later' is not allowed; allowed: condition, trial, end"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(REFUSED))
+def test_bad_questions_are_refused_at_their_line_with_the_allowed_values(tmp_path, case):
+    old, new, pattern = REFUSED[case]
+    assert old in QUESTIONS
+    path = kinds_protocol(tmp_path, QUESTIONS.replace(old, new, 1))
+    _, problems = check_protocol(path)
+    hits = [m for p in problems if (m := re.search(pattern, p))]
+    assert hits, problems
+    line = int(hits[0].group(1))
+    assert path.read_text().splitlines()[line - 1].strip(), "the line named is not blank"
+    res = studyctl("protocol", "validate", path)
+    assert res.exit_code == 1 and re.search(pattern, res.output + (res.stderr if hasattr(res, "stderr") else ""))
+
+
+def test_sus_scoring_follows_brookes_worked_rule():
+    # Brooke (1996): odd items score answer - 1, even items 5 - answer, the sum times 2.5
+    assert instruments.sus_score([3] * 10) == 50.0  # every answer neutral
+    assert instruments.sus_score([5, 1] * 5) == 100.0 and instruments.sus_score([1, 5] * 5) == 0.0
+    # worked by hand: odd (4-1)+(4-1)+(4-1)+(5-1)+(4-1) = 16, even (5-2)+(5-1)+(5-2)+(5-1)+(5-2) = 17; 33 x 2.5
+    assert instruments.sus_score([4, 2, 4, 1, 4, 2, 5, 1, 4, 2]) == 82.5
+    with pytest.raises(ValueError):
+        instruments.sus_score([6] + [3] * 9)
+
+
+def test_raw_tlx_is_the_mean_of_its_six_subscales():
+    # Hart (2006): RTLX, the unweighted mean; worked by hand: (70 + 20 + 55 + 30 + 65 + 40) / 6 = 46.666...
+    assert instruments.raw_tlx([70, 20, 55, 30, 65, 40]) == pytest.approx(280 / 6, abs=1e-12)
+    qs = instruments.questions("nasa_tlx")
+    assert [q.id for q in qs] == ["tlx_mental", "tlx_physical", "tlx_temporal", "tlx_performance", "tlx_effort", "tlx_frustration"]
+    assert all(q.kind == "vas" for q in qs) and qs[3].anchors == ("Perfect", "Failure")
+    assert instruments.score("nasa_tlx", {q.id: v for q, v in zip(qs, [70, 20, 55, 30, 65, 40])}) == pytest.approx(280 / 6)
+
+
+@pytest.mark.parametrize("points", [3, 4, 7, 11])
+def test_a_rating_is_an_ordered_logit_of_the_yes_no_judgement(points):
+    # the ordered logit's defining property, P(rating > k) = logistic(eta - tau_k), checked on a
+    # fine grid of u (likert_answer's inverse-CDF draw): exact to the grid's resolution
+    u = (np.arange(4000) + 0.5) / 4000
+    t = likert_thresholds(points)
+    for eta in (-2.0, -0.3, 0.0, 1.1, 2.5):
+        r = np.array([likert_answer(eta, points, x) for x in u])
+        assert r.min() >= 1 and r.max() <= points
+        for k in range(1, points):
+            assert np.mean(r > k) == pytest.approx(1 / (1 + math.exp(-(eta - t[k - 1]))), abs=1e-3)
+    assert np.allclose(t, -t[::-1]) and np.all(np.diff(t) > 0)
+    if points % 2 == 0:  # an even scale's middle cut is the yes/no boundary: P(upper half) = P(yes)
+        assert t[points // 2 - 1] == 0.0
+
+
+def test_a_synthetic_study_answers_every_kind_in_its_type_and_reports_each(tmp_path):
+    db = tmp_path / "s.db"
+    run_synthetic_study(db, 6, seed=1, protocol_path=kinds_protocol(tmp_path))
+    con = sqlite3.connect(db)
+    kinds = dict(con.execute("select item, group_concat(distinct typeof(answer)) from answers group by item").fetchall())
+    assert kinds["natural"] == "integer" and kinds["stiffness"] == "real" and kinds["stable"] == "integer"
+    assert kinds["most_like_tissue"] == "text" and kinds["comment"] == "text" and kinds["sus_1"] == "integer" and kinds["tlx_mental"] == "real"
+    assert con.execute("select count(*) from answers where item = 'smooth'").fetchone()[0] == 6 * 2 * 2  # after every trial
+    assert set(con.execute("select distinct trial from answers where item = 'smooth'").fetchall()) == {(0,), (1,)}
+    end = con.execute("select model, trial, answer from answers where item = 'most_like_tissue'").fetchall()
+    assert all(m == "" and t == -1 and a in ("paper", "located") for m, t, a in end)
+    assert {r[0] for r in con.execute("select answer from answers where item = 'comment'")} == {"(synthetic participant: no comment)"}
+    likert = [r[0] for r in con.execute("select answer from answers where item in ('natural', 'realtime')")]
+    assert all(1 <= v <= 7 for v in likert)
+    vas = [r[0] for r in con.execute("select answer from answers where item like 'tlx_%' or item = 'stiffness'")]
+    assert all(0 <= v <= 100 for v in vas)
+    con.close()
+
+    st = json.loads(studyctl("report", "stats", "--json", "--db", db).output)
+    k = st["kinds"]
+    assert k["primary"]["analysis"] == "ordinal_gee" and k["primary"]["items"] == ["natural", "realtime"]
+    assert set(k["ratings"]) == {"natural", "realtime"} and "friedman" in k["ratings"]["natural"]
+    assert {"kendall_w", "kendall_w_low", "kendall_w_high"} <= set(k["ratings"]["natural"]["friedman"])
+    assert {"rank_biserial", "rb_ci_low", "p_holm", "p_holm_family"} <= set(k["ratings"]["natural"]["pairs"][0])
+    assert set(k["scores"]) == {"stiffness", "sus", "nasa_tlx", "smooth (mean over trials)"}
+    assert k["scores"]["sus"]["mixed_model"]["formula"].startswith("answer ~ C(model) + C(period)")
+    assert k["ordinal_gee"]["pairs"][0]["a"] == "paper" and "odds_ratio" in k["ordinal_gee"]["pairs"][0]
+    assert k["choices"]["most_like_tissue"]["n"] == 6 and k["choices"]["most_like_tissue"]["overall"]["test"].startswith("exact multinomial")
+    assert "comment" not in json.dumps(k)  # free text is never analysed
+    # Holm over the whole family: the yes/no McNemar pair, every rating's and score's pairs, the choice's
+    family = [p for v in st["items"].values() for p in v["pairs"]] + [p for part in ("ratings", "scores", "choices") for v in k[part].values()
+                                                                        for p in v["pairs"]]
+    assert len(family) == 1 + 2 + 4 + 1
+    from statsmodels.stats.multitest import multipletests
+
+    ps = [p["p_value"] if p["p_value"] == p["p_value"] else 1.0 for p in family]
+    assert np.allclose([p["p_holm_family"] for p in family], multipletests(ps, method="holm")[1])
+
+    md = studyctl("report", "table1", "--db", db).output
+    assert "SYNTHETIC DATA" in md and "**Ratings**" in md and "**Scores**" in md and "SUS score (0-100)" in md
+    assert "Choice: Which condition felt most like real brain tissue?" in md and "Holm over all 8 pairs" in md
+    assert "Primary analysis, all rating items: proportional-odds GEE" in md
+    html = studyctl("report", "table1", "--format", "html", "--db", db).output
+    assert "<h2>Ratings</h2>" in html and 'alt="ratings"' in html and 'alt="scores"' in html and 'alt="choice_most_like_tissue"' in html
+    latex = studyctl("report", "table1", "--format", "latex", "--db", db).output
+    assert latex.count("\\begin{table}") == 4  # yes/no, ratings, scores, choice (free text is not analysed)
+    js = json.loads(studyctl("report", "table1", "--format", "json", "--db", db).output)
+    assert set(js["kinds"]["scores"]) == set(k["scores"]) and js["rates"][0]["item"] == "stable"
+    out = tmp_path / "export"
+    assert studyctl("export", "--db", db, "--out", out).exit_code == 0
+    conds = (out / "conditions.csv").read_text()
+    assert '"variant"":""located""' in conds or 'located' in conds and "config_sha256" in conds.splitlines()[0]
+
+
+def test_answers_import_and_correct_follow_the_kinds(tmp_path):
+    db = tmp_path / "s.db"
+    proto = kinds_protocol(tmp_path)
+    assert studyctl("study", "init", "--db", db, "--protocol", proto).exit_code == 0
+    assert studyctl("participants", "add", "P01", "--db", db, "--age", "24").exit_code == 0
+    assert studyctl("participants", "consent", "P01", "--db", db).exit_code == 0
+    good = tmp_path / "good.csv"
+    good.write_text("participant,model,item,answer,trial\nP01,paper,natural,6,\nP01,paper,stiffness,42.5,\nP01,paper,stable,yes,\n"
+                    "P01,paper,smooth,4,1\nP01,,most_like_tissue,located,\nP01,,comment,felt fine,\n")
+    res = studyctl("answers", "import", "--db", db, good)
+    assert res.exit_code == 0, res.output
+    con = sqlite3.connect(db)
+    got = {r[0]: (r[1], r[2], r[3]) for r in con.execute("select item, answer, typeof(answer), trial from answers")}
+    assert got == {"natural": (6, "integer", -1), "stiffness": (42.5, "real", -1), "stable": (1, "integer", -1), "smooth": (4, "integer", 1),
+                   "most_like_tissue": ("located", "text", -1), "comment": ("felt fine", "text", -1)}
+    for row, message in [
+        ("P01,located,natural,8,", "answer '8' to natural (likert) is not allowed; allowed: an integer 1..7"),
+        ("P01,located,stiffness,101,", "answer '101' to stiffness (vas) is not allowed; allowed: a number 0..100"),
+        ("P01,located,stiffness,nan,", "answer 'nan' to stiffness (vas) is not allowed"),
+        ("P01,,most_like_tissue,fem,", "answer 'fem' to most_like_tissue (choice) is not allowed; allowed: paper, located"),
+        ("P01,paper,most_like_tissue,paper,", "item most_like_tissue is asked once at the end, about no one condition; leave the model empty"),
+        ("P01,located,smooth,3,", "item smooth is asked after every trial; trial '' is not allowed; allowed: 0..1"),
+        ("P01,located,natural,3,0", "item natural is not asked per trial; leave trial empty"),
+    ]:
+        bad = tmp_path / "bad.csv"
+        bad.write_text("participant,model,item,answer,trial\n" + row + "\n")
+        res = studyctl("answers", "import", "--db", db, bad)
+        assert res.exit_code != 0 and message in res.output, (row, res.output)
+    assert con.execute("select count(*) from answers").fetchone()[0] == 6  # nothing half-written
+    res = studyctl("answers", "correct", "--db", db, "--participant", "P01", "--model", "paper", "--item", "stiffness",
+                   "--answer", "40", "--reason", "typo on the form")
+    assert res.exit_code == 0 and "stiffness: 42.5 -> 40" in res.output
+    res = studyctl("answers", "correct", "--db", db, "--participant", "P01", "--item", "most_like_tissue", "--answer", "paper", "--reason", "r")
+    assert res.exit_code == 0 and "most_like_tissue: located -> paper" in res.output
+    res = studyctl("answers", "correct", "--db", db, "--participant", "P01", "--model", "paper", "--item", "natural", "--answer", "0",
+                   "--reason", "r")
+    assert res.exit_code != 0 and "allowed: an integer 1..7" in res.output
+    assert con.execute("select old_answer, new_answer from corrections order by id").fetchall() == [(42.5, 40.0), ("located", "paper")]
+    con.close()
+
+
+def test_plan_powers_the_primary_analysis_and_its_null_is_at_alpha(tmp_path):
+    from studyctl.plan import null_table, pilot_summaries, power_table
+
+    protocol = load_protocol(kinds_protocol(tmp_path, trials=1))
+    summaries = pilot_summaries(protocol, pilots=2, seed=0)
+    t = power_table(protocol, [6], simulations=8, seed=1, summaries=summaries)
+    assert list(t["item"]) == ["natural", "realtime", "stiffness", "stable", "most_like_tissue", "sus", "nasa_tlx", "primary"]
+    assert t["power"].between(0, 1).all()
+    own = pilot_summaries(protocol, pilots=2, seed=0, mapping={c: "paper" for c in protocol.conditions})
+    null = null_table(protocol, participants=12, simulations=60, seed=2, summaries=own).set_index("item")
+    # one model under every label: each test rejects at most at alpha, within 4 Monte Carlo errors
+    assert (null["false_positive_rate"] <= 0.05 + 4 * null["mc_error"]).all(), null
+    res = studyctl("plan", "--protocol", protocol.path, "--participants", "6", "--simulations", "10", "--pilots", "1", "--json")
+    out = json.loads(res.output)
+    assert out["synthetic"] and out["primary"]["analysis"] == "ordinal_gee" and "primary" in {r["item"] for r in out["rows"]}
+
+
+def test_a_rig_profile_sets_the_latency_synthetic_participants_perceive(tmp_path):
+    from studyctl.rig import physics_key
+    from studyctl.session import condition_configs
+
+    proto = kinds_protocol(tmp_path, trials=1)
+    protocol = load_protocol(proto)
+    keys = {c: physics_key(cfg) for c, cfg in condition_configs(protocol, protocol.conditions).items()}
+    profile = tmp_path / "rig.json"
+    profile.write_text(json.dumps({"machine": "test rig", "conditions": [
+        {"key": keys["paper"], "condition": "paper", "frame_ms_p50": 37.5, "frame_ms_p95": 40.0, "frames": 10},
+        {"key": keys["located"], "condition": "located", "frame_ms_p50": 2.25, "frame_ms_p95": 3.0, "frames": 10}]}))
+    db = tmp_path / "s.db"
+    assert studyctl("study", "init", "--db", db, "--protocol", proto).exit_code == 0
+    res = studyctl("calibrate", "rig", "--db", db, "--profile", profile)
+    assert res.exit_code == 0 and "paper: 37.500 ms per frame" in res.output
+    run_synthetic_study(db, 2, seed=1)
+    con = sqlite3.connect(db)
+    lat = dict(con.execute("select model, value from observer_features where feature = 'latency_ms' and code = 'S001'").fetchall())
+    assert lat == {"paper": 37.5, "located": 2.25}
+    con.close()
+    profile.write_text(json.dumps({"conditions": [{"key": keys["paper"], "frame_ms_p50": float("nan"), "frame_ms_p95": 1.0}]}))
+    res = studyctl("calibrate", "rig", "--db", db, "--profile", profile)
+    assert res.exit_code != 0 and "conditions[0].frame_ms_p50: nan is out of range" in res.output and "Traceback" not in res.output
+
+
+def test_the_shipped_rig_profile_covers_the_shipped_protocols():
+    from studyctl.rig import frame_times
+
+    for name in ("brain_pull_2015", "plate_spring_variants"):
+        p = load_protocol(ROOT / f"protocols/{name}.toml")
+        assert set(frame_times(p)) == set(p.conditions), name
+
+
+def test_question_dataclass_defaults_are_the_papers_yes_no():
+    q = Question("x", "X?")
+    assert (q.kind, q.when, q.points, q.anchors, q.instrument, q.analysed) == ("yes_no", "condition", None, None, None, True)
