@@ -590,7 +590,7 @@ def _vertex_ids(ctx, param, value):
 
 
 @calibrate.command("rig")
-@click.option("--db", envvar="STUDYCTL_DB", default=None, type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--db", envvar="STUDYCTL_DB", show_envvar=True, default=None, type=click.Path(dir_okay=False, path_type=Path),
               help="The study whose conditions are measured and which keeps the profile.")
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Measure this protocol's conditions without a study (with --out).")

@@ -111,7 +111,7 @@ CASES = [
     (["answers", "import", "--db", DB, "{d}/a_who"], "unknown participant 'P77'"),
     (["answers", "import", "--db", DB, "{d}/a_model"], "unknown model 'sph'"),
     (["answers", "import", "--db", DB, "{d}/a_item"], "unknown item 'colour'"),
-    (["answers", "import", "--db", DB, "{d}/a_value"], "must be yes or no"),
+    (["answers", "import", "--db", DB, "{d}/a_value"], "allowed: yes or no"),
     (["answers", "import", "--db", DB, "{d}/a_twice"], "a second answer"),
     (["answers", "import", "--db", DB, "{d}/a_synthetic"], "is synthetic"),
     (["answers", "import", "--db", DB, "{d}/a_cols"], "no 'item' column"),
@@ -156,7 +156,7 @@ CASES = [
     (["participants", "contacts", "--db", DB, "--out", "{d}/exists.csv"], "never overwritten"),
     (["answers", "correct", "--db", DB, "--participant", "P01", "--model", "fem", "--item", "natural", "--answer", "no", "--reason", " "], "--reason"),
     (["answers", "correct", "--db", DB, "--participant", "P01", "--model", "fem", "--item", "texture", "--answer", "no", "--reason", "r"], "no stored answer"),
-    (["answers", "correct", "--db", DB, "--participant", "P01", "--model", "fem", "--item", "natural", "--answer", "maybe", "--reason", "r"], "must be yes or no"),
+    (["answers", "correct", "--db", DB, "--participant", "P01", "--model", "fem", "--item", "natural", "--answer", "maybe", "--reason", "r"], "allowed: yes or no"),
     (["answers", "correct", "--db", DB, "--participant", "P01", "--model", "fem", "--item", "natural", "--answer", "y", "--reason", "r"], "already yes"),
     # sessions: provenance and options
     (["session", "run", "--db", DB, "--participant", "P02", "--time-scale", "0", "--view", "none"], "no consent recorded"),

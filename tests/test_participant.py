@@ -120,7 +120,7 @@ def test_real_time_session_through_a_pty_discards_keys_typed_during_training_and
                        on_output=during_training)
     typed_early = bool(typed)
     assert typed_early and "complete" in text, text
-    assert "Please answer y or n." not in text  # the early "n" never reached a question
+    assert "Please answer" not in text  # the early "n" never reached a question (no refusal was printed)
     assert not MODEL_WORDS.search(text), MODEL_WORDS.search(text)
     con = sqlite3.connect(db)
     answers = con.execute("select answer, source from answers").fetchall()

@@ -371,6 +371,7 @@ def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
     con.execute("alter table participants drop column withdrawal")
     con.execute("alter table conditions drop column config")
     con.execute("alter table conditions drop column config_sha256")
+    con.execute("drop table rig_profile")
     con.execute("update meta set value = '2' where key = 'schema_version'")
     con.commit()
     con.close()

@@ -159,7 +159,7 @@ def test_plan_power_grows_with_n_and_is_labelled_synthetic(tmp_path):
     # fixed pilot summaries: a clearly worse model (slow) and two alike
     slow = _summary(1.0, flops=ObserverParams().flops_per_ms * 80)
     summaries = {"plate_spring": [_summary(1.0)], "fem": [_summary(1.0)], "mass_spring": [slow]}
-    t = power_table(protocol, [6, 24, 48], simulations=100, seed=3, summaries=summaries)
+    t = power_table(protocol, [6, 24, 48], simulations=100, seed=3, summaries=summaries, primary=False)
     assert list(t.columns) == ["n", "item", "power", "simulations", "alpha"]
     rt = t[t["item"] == "realtime"].set_index("n")["power"]
     assert rt[6] < rt[24] <= rt[48] and rt[48] > 0.9  # a large effect: power rises to ~1
@@ -167,7 +167,7 @@ def test_plan_power_grows_with_n_and_is_labelled_synthetic(tmp_path):
                                    "--step", "6", "--simulations", "20", "--pilots", "1", "--json", "--plot", str(tmp_path / "p.png")])
     assert res.exit_code == 0, res.output
     out = json.loads(res.output)
-    assert out["synthetic"] is True and len(out["rows"]) == 2 * 9 and (tmp_path / "p.png").stat().st_size > 5000
+    assert out["synthetic"] is True and len(out["rows"]) == 2 * 10 and (tmp_path / "p.png").stat().st_size > 5000
 
 
 def test_null_study_rejects_at_about_alpha():
@@ -181,7 +181,7 @@ def test_null_study_rejects_at_about_alpha():
     rng = np.random.default_rng(0)
     pool = [_summary(r, flops=f) for r, f in zip(rng.uniform(0.8, 1.6, 12), rng.uniform(1e6, 6e7, 12))]
     summaries = {c: pool[4 * k:4 * k + 4] for k, c in enumerate(protocol.conditions)}
-    t = null_table(protocol, participants=35, simulations=400, seed=1, summaries=summaries)
+    t = null_table(protocol, participants=35, simulations=400, seed=1, summaries=summaries, primary=False)
     assert list(t.columns) == ["item", "false_positive_rate", "mc_error", "simulations", "alpha", "model", "participants"]
     se = t["mc_error"].iloc[0]
     assert se == pytest.approx(math.sqrt(0.05 * 0.95 / 400))
