@@ -1,3 +1,4 @@
+import shutil
 from pathlib import Path
 
 import pytest
@@ -65,3 +66,11 @@ def display():
         os.environ.pop("DISPLAY", None)
     else:
         os.environ["DISPLAY"] = old
+
+
+@pytest.fixture
+def xdotool(display):
+    """A display where xdotool can type and click (the window tests)."""
+    if shutil.which("xdotool") is None:
+        pytest.fail("xdotool is not installed: run `make test`, which installs it")
+    return display

@@ -4,9 +4,7 @@ the terminal through a real pseudo-terminal, with the stored answers' SQLite typ
 
 import os
 import re
-import shutil
 import sqlite3
-import sys
 import threading
 import time
 from pathlib import Path
@@ -16,18 +14,11 @@ import pytest
 
 from studyctl.questions import Question
 from tests.test_participant import MODEL_WORDS
-from tests.test_study import fast_protocol, studyctl
+from tests.test_study import fast_protocol, pty_session, studyctl
 from tests.test_view import _window, _xdotool
 
 SELECTED = np.array([0.12, 0.40, 0.85]) * 255  # sim/view.py: the chosen point, the slider's mark
 LABELS = {"plate_spring": "A", "fem": "B", "mass_spring": "C"}
-
-
-@pytest.fixture
-def xdo(display):
-    if shutil.which("xdotool") is None:
-        pytest.fail("xdotool is not installed: run `make test`, which installs it")
-    return display
 
 
 class Person:
@@ -114,7 +105,7 @@ def _blue(img, box) -> float:
     return float(np.mean(np.linalg.norm(region - SELECTED, axis=2) < 30))
 
 
-def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdo, tmp_path):
+def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_path):
     """A 7-point rating by a number key (after a click on the brain that must grasp nothing, an
     out-of-range key and a click that only chooses), an 11-point one by the arrows and Enter,
     a VAS by a click, the arrows and a drag (its values checked against the line's geometry to
@@ -323,40 +314,6 @@ def kinds_protocol(tmp_path: Path, conditions=("plate_spring", "mass_spring")) -
     return path
 
 
-def pty_answers(argv, replies: dict[str, list[str]], timeout: float = 60.0) -> str:
-    """Run `studyctl ARGV` on a real pseudo-terminal; each time the output ends with one of the
-    prompts' tails in `replies` (e.g. "[1-7]"), type the next reply for it and Enter. Returns all
-    the terminal showed."""
-    import pty
-
-    left = {tail: list(r) for tail, r in replies.items()}
-    pid, fd = pty.fork()
-    if pid == 0:  # the child: a real session on a terminal
-        os.execv(sys.executable, [sys.executable, "-m", "studyctl.cli", *map(str, argv)])
-    out = b""
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        try:
-            chunk = os.read(fd, 4096)
-        except OSError:
-            break
-        if not chunk:
-            break
-        out += chunk
-        tail = out.decode(errors="replace").rstrip()
-        for prompt, todo in left.items():
-            if tail.endswith(prompt):
-                assert todo, f"asked once more than expected: {prompt}\n{tail[-500:]}"
-                os.write(fd, (todo.pop(0) + "\n").encode())
-                out += b"<sent>"
-                break
-    else:
-        os.kill(pid, 9)
-    os.waitpid(pid, 0)
-    assert not any(left.values()), (left, out.decode(errors="replace")[-2000:])
-    return out.decode(errors="replace")
-
-
 def test_every_kind_answered_in_the_terminal_through_a_pty_keeps_its_type(tmp_path):
     """A person's session (`session run`, two conditions, one trial each) answered in a real
     pseudo-terminal: a 7-point rating and a VAS after each condition, a choice among the blind
@@ -367,7 +324,7 @@ def test_every_kind_answered_in_the_terminal_through_a_pty_keeps_its_type(tmp_pa
     studyctl("participants", "add", "P01", "--db", db)
     studyctl("participants", "consent", "P01", "--db", db)
     replies = {"[1-7]": ["9", "6", "3"], "[0-100]": ["150", "37.5", "80"], "[A/B]": ["D", "b"], "(free text; Enter when done)": ["42"]}
-    text = pty_answers(["session", "run", "--db", db, "--participant", "P01", "--time-scale", "0"], replies, timeout=120)
+    text = pty_session(["session", "run", "--db", db, "--participant", "P01", "--time-scale", "0"], replies=replies, timeout=120)
     assert "complete" in text, text[-2000:]
     for refused, asked_again in (
             ("Please answer an integer 1..7 (1 = Not at all real, 7 = Completely real).", "How real did the tissue feel?\n"

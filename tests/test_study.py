@@ -216,12 +216,15 @@ def test_exports_never_contain_identifying_fields(tmp_path):
     assert "P01" in (tmp_path / "csv" / "answers.csv").read_text()
 
 
-def pty_session(argv, answer, timeout=60.0, on_output=None) -> str:
-    """Run `studyctl ARGV` on a real pseudo-terminal; each time the output ends with a "[y/n]"
-    prompt, type `answer()` and Enter. `on_output(fd, text so far)` may type more. Returns all
-    the terminal showed."""
+def pty_session(argv, answer=None, timeout=60.0, on_output=None, replies: dict[str, list[str]] | None = None) -> str:
+    """Run `studyctl ARGV` on a real pseudo-terminal and answer its prompts: each time the output
+    ends with a "[y/n]" prompt, type `answer()` and Enter; or, with `replies`, each time it ends
+    with one of their prompt tails (e.g. "[1-7]"), type that tail's next reply (each must be
+    used up; asking once more than given fails). `on_output(fd, text so far)` may type more.
+    Returns all the terminal showed."""
     import pty
 
+    left = {tail: list(r) for tail, r in (replies or {"[y/n]": []}).items()}
     pid, fd = pty.fork()
     if pid == 0:  # the child: a real session on a terminal
         os.execv(sys.executable, [sys.executable, "-m", "studyctl.cli", *map(str, argv)])
@@ -237,10 +240,22 @@ def pty_session(argv, answer, timeout=60.0, on_output=None) -> str:
         out += chunk
         if on_output is not None:
             on_output(fd, out)
-        if out.rstrip().endswith(b"[y/n]"):
-            os.write(fd, (answer() + "\n").encode())
-            out += b"<sent>"
+        tail = out.decode(errors="replace").rstrip()
+        for prompt, todo in left.items():
+            if tail.endswith(prompt):
+                if replies is None:
+                    reply = answer()
+                else:
+                    assert todo, f"asked once more than expected: {prompt}\n{tail[-500:]}"
+                    reply = todo.pop(0)
+                os.write(fd, (reply + "\n").encode())
+                out += b"<sent>"
+                break
+    else:
+        os.kill(pid, 9)
     os.waitpid(pid, 0)
+    if replies is not None:
+        assert not any(left.values()), (left, out.decode(errors="replace")[-2000:])
     return out.decode(errors="replace")
 
 
