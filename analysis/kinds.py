@@ -39,19 +39,20 @@ def primary(protocol) -> dict:
     """The protocol's primary analysis (what `plan` powers and reports lead with): the
     proportional-odds GEE across its rating items, else the logistic GEE across its yes/no
     questions, else the mixed model of its first score, else the test of its choice."""
-    from studyctl import instruments
-
     ratings = _rating_items(protocol)
     if ratings:
         return {"analysis": "ordinal_gee", "items": [q.id for q in ratings],
-                "text": "proportional-odds GEE across the rating items (answer ~ condition + period + item)"}
+                "text": "proportional-odds GEE " + ("across the rating items (answer ~ condition + period + item)" if len(ratings) > 1
+                                                    else f"of {ratings[0].text!r} (answer ~ condition + period)")}
     binary = [q.id for q in protocol.asked("condition") if q.kind == "yes_no"]
     if binary:
         return {"analysis": "logistic_gee", "items": binary, "text": "logistic GEE across the yes/no questions (answer ~ condition + period + item)"}
-    scores = [q.id for q in _score_questions(protocol)] + [name for name, when in protocol.instruments if when == "condition"]
+    scores = ([q.id for q in _score_questions(protocol)] + [name for name, when in protocol.instruments if when == "condition"]
+              + [q.id + TRIAL_MEAN for q in protocol.asked("trial") if q.analysed and q.kind != "choice" and q.instrument is None]
+              + [name + TRIAL_MEAN for name, when in protocol.instruments if when == "trial"])
     if scores:
-        what = instruments.SCORES.get(scores[0], scores[0])
-        return {"analysis": "mixed_model", "items": scores[:1], "text": f"linear mixed model of {what} (answer ~ condition + period + (1 | participant))"}
+        return {"analysis": "mixed_model", "items": scores[:1],
+                "text": f"linear mixed model of {_label(scores[0], protocol)} (answer ~ condition + period + (1 | participant))"}
     choice = [q.id for q in protocol.asked("end") if q.kind == "choice"]
     if choice:
         return {"analysis": "choice", "items": choice[:1], "text": "exact multinomial test of the final choice"}
@@ -73,16 +74,20 @@ def measures(protocol, answers: pd.DataFrame, per: pd.DataFrame | None = None) -
         sel = cond[(cond["item"] == q.id) & (cond["trial"] < 0)]
         rows += [(r.code, r.model, q.id, "continuous", float(r.answer)) for r in sel.itertuples()]
     for name, when in protocol.instruments:
-        if when != "condition":
+        if when == "end":  # about the whole session: described with the end questions
             continue
         items = [q.id for q in instruments.questions(name)]
-        sel = cond[cond["item"].isin(items) & (cond["trial"] < 0)]
-        for (code, model), g in sel.groupby(["code", "model"], sort=False):
+        sel = cond[cond["item"].isin(items)]
+        scored = []  # (code, model, score) per condition, or per trial of a condition
+        for (code, model, _trial), g in sel.groupby(["code", "model", "trial"], sort=False):
             by_item = dict(zip(g["item"], g["answer"].astype(float)))
             if len(by_item) == len(items):
-                rows.append((code, model, name, "continuous", instruments.score(name, by_item)))
+                scored.append((code, model, instruments.score(name, by_item)))
+        label = name if when == "condition" else name + TRIAL_MEAN
+        for (code, model), g in pd.DataFrame(scored, columns=["code", "model", "score"]).groupby(["code", "model"], sort=False):
+            rows.append((code, model, label, "continuous", float(g["score"].mean())))
     for q in protocol.asked("trial"):
-        if q.analysed and q.kind != "choice":
+        if q.analysed and q.kind != "choice" and q.instrument is None:
             sel = cond[cond["item"] == q.id]
             for (code, model), g in sel.groupby(["code", "model"], sort=False):
                 rows.append((code, model, q.id + TRIAL_MEAN, "continuous", float(g["answer"].astype(float).mean())))
@@ -102,7 +107,7 @@ def _label(item: str, protocol) -> str:
     if item in instruments.SCORES:
         return instruments.SCORES[item]
     base = item.removesuffix(TRIAL_MEAN)
-    text = next((q.text for q in protocol.questions if q.id == base), item)
+    text = instruments.SCORES.get(base) or next((q.text for q in protocol.questions if q.id == base), item)
     return text + (TRIAL_MEAN if item.endswith(TRIAL_MEAN) else "")
 
 
@@ -169,9 +174,18 @@ def choices(protocol, answers: pd.DataFrame) -> dict:
 
 def session_questions(protocol, answers: pd.DataFrame) -> dict:
     """Questions asked once at the end, other than choices: described only."""
+    from studyctl import instruments
+
     out = {}
+    for name, when in protocol.instruments:
+        if when == "end":  # one score per participant
+            items = [q.id for q in instruments.questions(name)]
+            sel = answers[answers["item"].isin(items)]
+            v = [instruments.score(name, dict(zip(g["item"], g["answer"].astype(float)))) for _, g in sel.groupby("code")
+                 if g["item"].nunique() == len(items)]
+            out[name] = {"question": instruments.SCORES[name], "kind": "score"} | scales.mean_ci(v) | scales.median_iqr(v)
     for q in protocol.asked("end"):
-        if not q.analysed or q.kind == "choice":
+        if not q.analysed or q.kind == "choice" or q.instrument is not None:
             continue
         v = answers.loc[answers["item"] == q.id, "answer"].astype(float).to_numpy()
         if q.kind == "yes_no":
@@ -203,12 +217,40 @@ def ordinal_primary(protocol, meas: pd.DataFrame) -> dict | None:
 
 def kind_stats(db, protocol, answers: pd.DataFrame) -> dict:
     """Everything beyond yes/no: ratings, scores, choices, end questions, and the ordinal primary."""
-    from analysis.stats import periods
+    from analysis.stats import _set_holm, periods
 
     meas = measures(protocol, answers, periods(db))
-    return {"primary": primary(protocol), "ratings": ratings(protocol, meas), "scores": scores(protocol, meas),
-            "choices": choices(protocol, answers), "session": session_questions(protocol, answers),
-            "ordinal_gee": ordinal_primary(protocol, meas)}
+    out = {"primary": primary(protocol), "ratings": ratings(protocol, meas), "scores": scores(protocol, meas),
+           "choices": choices(protocol, answers), "session": session_questions(protocol, answers),
+           "ordinal_gee": ordinal_primary(protocol, meas)}
+    what = out["primary"]
+    if what["analysis"] == "mixed_model" and what["items"][0] in out["scores"]:
+        # the primary's pairs Holm-adjusted among themselves (p_holm_primary), as plan powers it;
+        # p_holm stays the whole family's
+        _set_holm(out["scores"][what["items"][0]]["pairs"], "p_holm_primary")
+    return out
+
+
+def primary_line(st: dict) -> str:
+    """The protocol's primary analysis and its result, as a sentence."""
+    from analysis.table1 import _gee_line
+
+    k = st["kinds"]
+    what = k["primary"]
+    if what["analysis"] == "ordinal_gee":
+        return ordinal_gee_line(k["ordinal_gee"])
+    if what["analysis"] == "logistic_gee":
+        return _gee_line(st["gee"]).replace("`", "")
+    if what["analysis"] == "mixed_model" and what["items"][0] in k["scores"]:
+        v = k["scores"][what["items"][0]]
+        pairs = "; ".join(f"{p['b']} - {p['a']} {p['difference']:+.2f}{_ci(p['ci_low'], p['ci_high'], '{:+.2f}')}, "
+                          f"p_Holm {_p(p.get('p_holm_primary'))}" if p.get("estimable") else f"{p['b']} - {p['a']} not estimable"
+                          for p in v["pairs"])
+        return f"Primary analysis: {what['text']}: {pairs} (Holm over its {len(v['pairs'])} pairs)."
+    if what["analysis"] == "choice" and what["items"][0] in k["choices"]:
+        ov = k["choices"][what["items"][0]]["overall"]
+        return f"Primary analysis: {what['text']}: p = {_p(ov['p_value'])} ({ov['test']})."
+    return f"Primary analysis: {what['text']}: not computed."
 
 
 def family_pairs(kinds: dict) -> list[list[dict]]:
@@ -242,6 +284,13 @@ def _ci(lo, hi, fmt="{:.2f}") -> str:
     return "" if lo is None or not (np.isfinite(lo) and np.isfinite(hi)) else f" [{fmt.format(lo)}, {fmt.format(hi)}]"
 
 
+def _friedman_cell(fr: dict, with_w: bool = False) -> str:
+    if not np.isfinite(fr["statistic"]):
+        return "n/a (two conditions: the Wilcoxon pair is the test)" if fr.get("df") == 1 else "n/a (fewer than two participants)"
+    w = f", W {fr['kendall_w']:.2f}{_ci(fr['kendall_w_low'], fr['kendall_w_high'])}" if with_w and np.isfinite(fr["kendall_w"]) else ""
+    return f"{fr['statistic']:.2f} ({_p(fr['p_value'])}){w}"
+
+
 def ordinal_gee_line(res: dict | None) -> str:
     """The primary analysis of the ratings, as a sentence."""
     if not res or not res.get("pairs"):
@@ -250,7 +299,7 @@ def ordinal_gee_line(res: dict | None) -> str:
                       if p.get("estimable") else f"{p['b']} vs {p['a']} not estimable" for p in res["pairs"])
     state = "" if res.get("converged") else " (NOT ESTIMABLE OR NOT CONVERGED: " + "; ".join(res.get("problems") or ["no convergence"]) + ")"
     return (f"Primary analysis, all rating items: proportional-odds GEE {res['formula']}, participants as clusters, "
-            f"{res.get('working_dependence', '')} working dependence, robust standard errors{state}: {pairs} "
+            f"{res.get('working_dependence', '')} working dependence, {res.get('covariance', 'robust standard errors')}{state}: {pairs} "
             "(odds of a higher rating with the second condition).")
 
 
@@ -265,8 +314,7 @@ def kind_tables(kinds: dict, models: list[str], scope: str) -> list[dict]:
             cells = [f"{c['median']:g} [{c['q1']:g}, {c['q3']:g}]" for c in (v["conditions"][m] for m in models)]
             pairs = "; ".join(f"{p['a']}-{p['b']} {_p(p['p_holm'])} (r {p['rank_biserial']:.2f}{_ci(p['rb_ci_low'], p['rb_ci_high'])})"
                               for p in v["pairs"])
-            rows.append([v["question"], *cells, f"{fr['statistic']:.2f} ({_p(fr['p_value'])}), W {fr['kendall_w']:.2f}"
-                         f"{_ci(fr['kendall_w_low'], fr['kendall_w_high'])}", pairs])
+            rows.append([v["question"], *cells, _friedman_cell(fr, with_w=True), pairs])
         points = sorted({v["points"] for v in kinds["ratings"].values()})
         out.append({"title": "Ratings", "columns": ["Question", *(f"{m}: median [IQR]" for m in models), "Friedman chi2 (p), Kendall's W [95% CI]",
                                                   f"Wilcoxon p, {scope} (rank-biserial r [95% CI])"], "rows": rows,
@@ -283,7 +331,7 @@ def kind_tables(kinds: dict, models: list[str], scope: str) -> list[dict]:
                               if p.get("estimable") else f"{p['b']}-{p['a']} not estimable" for p in v["pairs"])
             rows.append([v["label"], *cells, f"F({test['df']}, {test['df_denominator']}) = {test['f']:.2f} ({_p(test['p_value_f'])})"
                          if np.isfinite(test["f"]) else "n/a",
-                         pairs, f"{fr['statistic']:.2f} ({_p(fr['p_value'])})"])
+                         pairs, _friedman_cell(fr)])
         out.append({"title": "Scores", "columns": ["Score", *(f"{m}: mean [95% CI]" for m in models), "Mixed model: condition (p)",
                                                  f"Difference [95% CI], p {scope}", "Friedman chi2 (p)"], "rows": rows,
                     "note": "Linear mixed model (REML) answer ~ condition + period + (1 | participant): the condition's Wald F test and "

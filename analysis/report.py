@@ -189,7 +189,10 @@ def html(db, force_traces: bool = True, accuracy: dict | None = None, stability:
         rows.append(f"<tr><td>{esc(question)}</td>{cells}<td>{qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})</td><td>{esc(pairs)}</td></tr>")
     dcells = "".join(f"<td>{row['mean_ms']:.2f} &plusmn; {row['sd_ms']:.2f}<br>median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f}</td>" for _, row in d.iterrows())
     lat_text = "benchmark of this machine: each participant's mean, mean &plusmn; sd over participants (no test: CPU time is not about people)"
-    gee = esc(table1._gee_line(st["gee"]).replace("`", ""))
+    from analysis.kinds import primary_line
+
+    gee = esc(table1._gee_line(st["gee"], st["kinds"]["primary"]["analysis"] == "logistic_gee").replace("`", ""))
+    primary = (f"<p>{esc(primary_line(st))}</p>" if st["kinds"]["primary"]["analysis"] in ("mixed_model", "choice") else "")
     n_pairs = table1.family_size(st)
     head = "".join(f"<th>{esc(m)}</th>" for m in models)
     binary = (f"<h2>Yes/no questions</h2><p>Rates with Wilson 95% intervals; Cochran's Q across models; pairwise exact McNemar tests.</p>"
@@ -213,6 +216,7 @@ img {{ max-width: 900px; }}
 <p>N = {facts['participants']} participants with every answer; {esc(facts['design'])}.{esc(incomplete)} Holm over all {n_pairs} pairwise tests of the study.</p>
 {binary}
 {kind_html}
+{primary}
 <h2>Deformation time</h2>
 <table><tr><th></th>{head}<th></th></tr>
 <tr><td>Time for real-time deformation of the model, ms</td>{dcells}<td>{lat_text}</td></tr></table>

@@ -221,13 +221,15 @@ def family_size(st: dict) -> int:
     return sum(len(v["pairs"]) for v in st["items"].values()) + sum(len(g) for g in family_pairs(st["kinds"]))
 
 
-def _gee_line(gee: dict) -> str:
+def _gee_line(gee: dict, primary: bool = True) -> str:
+    """The logistic GEE across the yes/no questions as a sentence: the primary analysis unless
+    the protocol has rating items (analysis.kinds.primary)."""
     c = gee.get("composite") if gee else None
     if not c or not c.get("pairs"):
         return ""
     pairs = "; ".join(f"{p['b']} vs {p['a']} OR {p['odds_ratio']:.2f} [{p['ci_low']:.2f}, {p['ci_high']:.2f}], p_Holm {p['p_holm']:.3g}"
                       if p.get("estimable", True) else f"{p['b']} vs {p['a']} not estimable" for p in c["pairs"])
-    return (f"Primary analysis, all questions: logistic GEE `{c['formula']}`, participants as clusters, exchangeable "
+    return (f"{'Primary analysis, all questions' if primary else 'Across the yes/no questions'}: logistic GEE `{c['formula']}`, participants as clusters, exchangeable "
             f"working correlation ({c.get('working_correlation', float('nan')):.2f}), robust standard errors"
             f"{'' if c.get('converged') else ' (NOT ESTIMABLE OR NOT CONVERGED: ' + '; '.join(c.get('problems') or ['no convergence']) + ')'}: {pairs}.")
 
@@ -269,9 +271,13 @@ def markdown(db, holm_scope: str = "family") -> str:
     if not len(r):
         lines += ["| Time for real-time deformation, ms: benchmark of this machine | " + " | ".join(models) + " |",
                   "|---|" + "---|" * len(models), "| mean +- sd (median, p95) | " + " | ".join(deform) + " |", ""]
-    gee = _gee_line(st["gee"])
+    from analysis.kinds import primary_line
+
+    gee = _gee_line(st["gee"], st["kinds"]["primary"]["analysis"] == "logistic_gee")
     if gee:
         lines += [gee, ""]
+    if st["kinds"]["primary"]["analysis"] in ("mixed_model", "choice"):
+        lines += [primary_line(st), ""]
     lines += ["Conditions (what each ran; participants saw only their labels): "
               + "; ".join(condition_text(c) for c in facts["conditions"]) + ".", ""]
     return "\n".join(lines)

@@ -1140,7 +1140,7 @@ def session():
 @click.option("--view", type=click.Choice(["none", "window"]), default=None,
               help="The participant view (default: window for a person in real time, else none).")
 @click.option("--answers", "answer_with", type=click.Choice(["terminal", "window"]), default="terminal", show_default=True,
-              help="Where a person answers the questionnaire (window: Y and N keys).")
+              help="Where a person answers the questionnaire (window: keys and the mouse; free text stays in the terminal).")
 @click.option("--seed", type=int, default=None, help="A synthetic participant's seed  [default: 0; on --resume, the session's]")
 @DEVICES
 @JSON
@@ -1447,9 +1447,11 @@ def report_plots(db, out_dir, as_json):
 @HOLM
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable (the default output is a summary).")
 def report_stats(db, holm_scope, as_json):
-    """The primary analysis (logistic GEE across questions: odds ratios with 95% intervals),
-    per question Cochran's Q, rates with Wilson intervals, exact McNemar pairs with Holm, the
-    GEE per question; the deformation-time benchmark. Complete cases only."""
+    """The protocol's primary analysis first (the proportional-odds GEE across rating items, else
+    the logistic GEE across yes/no questions, else a score's mixed model, else the choice), then
+    every question's tests: Cochran's Q and McNemar pairs (yes/no), Friedman and Wilcoxon pairs
+    (ratings), mixed models (scores), the multinomial test (choices), Holm over the whole
+    family; the deformation-time benchmark. Complete cases only."""
     from analysis.stats import study_stats
     from analysis.table1 import _gee_line, incomplete_text
 
@@ -1461,32 +1463,32 @@ def report_stats(db, holm_scope, as_json):
         return
     flag = " (SYNTHETIC DATA)" if out["facts"]["synthetic"] else ""
     click.echo(f"{out['facts']['study']}: N = {out['facts']['participants']}{flag}")
-    kinds = out["kinds"]
-    click.echo(f"primary analysis: {kinds['primary']['text']}")
-    if kinds["ordinal_gee"]:
-        from analysis.kinds import ordinal_gee_line
+    from analysis.kinds import primary_line
 
-        click.echo(ordinal_gee_line(kinds["ordinal_gee"]))
-    elif out["gee"].get("composite"):
-        click.echo(_gee_line(out["gee"]))
+    kinds = out["kinds"]
+    click.echo(primary_line(out))
     for item, v in out["items"].items():
         pairs = ", ".join(f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" for p in v["pairs"])
         click.echo(f"{item}: Q = {v['cochran_q']:.2f}, p = {v['p_value']:.3g}; {pairs}")
     for item, v in kinds["ratings"].items():
         fr = v["friedman"]
         pairs = ", ".join(f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" for p in v["pairs"])
-        click.echo(f"{item}: Friedman chi2 = {fr['statistic']:.2f}, p = {fr['p_value']:.3g}, W = {fr['kendall_w']:.2f}; {pairs}")
+        friedman = (f"Friedman chi2 = {fr['statistic']:.2f}, p = {fr['p_value']:.3g}, W = {fr['kendall_w']:.2f}"
+                    if fr["statistic"] == fr["statistic"] else "two conditions: the Wilcoxon pair is the test")
+        click.echo(f"{item}: {friedman}; {pairs}")
     for v in kinds["scores"].values():
         t = v["mixed_model"]["model_test"]
         means = ", ".join(f"{m} {c['mean']:.1f}" for m, c in v["conditions"].items())
-        click.echo(f"{v['label']}: {means}; mixed model F({t['df']}, {t['df_denominator']}) = {t['f']:.2f}, p = {t['p_value_f']:.3g}")
+        test = (f"mixed model F({t['df']}, {t['df_denominator']}) = {t['f']:.2f}, p = {t['p_value_f']:.3g}" if t["f"] == t["f"]
+                else "mixed model: not estimable (" + "; ".join(v["mixed_model"]["problems"] or ["no fit"]) + ")")
+        click.echo(f"{v['label']}: {means}; {test}")
     for item, v in kinds["choices"].items():
         shares = ", ".join(f"{m} {s['count']}" for m, s in v["shares"].items())
         click.echo(f"{item}: {shares}; {v['overall']['test']} p = {v['overall']['p_value']:.3g}")
     if out["facts"]["incomplete_participants"]:
         click.echo("left out (incomplete): " + incomplete_text(out["facts"]))
-    gee = _gee_line(out["gee"])
-    if gee:
+    gee = _gee_line(out["gee"], kinds["primary"]["analysis"] == "logistic_gee")
+    if gee and kinds["primary"]["analysis"] != "logistic_gee":  # the primary's own line is printed first
         click.echo(gee.replace("`", ""))
     for row in out["deformation"]["rows"]:
         click.echo(f"deformation time, {row['model']}: {row['mean_ms']:.2f} +- {row['sd_ms']:.2f} ms over {row['n_participants']} participants "

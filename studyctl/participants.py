@@ -165,7 +165,7 @@ def correct_answer(db, code: str, model: str, item: str, answer: str, reason: st
     store = Store(db)
     try:
         protocol = store.protocol()
-        model, trial, new = answer_key(protocol, item, model, trial, answer, "--answer")
+        model, trial, new = answer_key(protocol, item, model, trial, answer, lambda field: f"--{field}")
         q = protocol.question(item)
         p = _person(store, code)
         if p["withdrawn_at"]:
@@ -179,7 +179,7 @@ def correct_answer(db, code: str, model: str, item: str, answer: str, reason: st
                              + (f", trial {trial}" if q.when == "trial" else ""))
         old = rows[0]["answer"]
         if old == new:
-            raise InputError(f"--answer: {code}/{model}/{item} is already {shown(q, new)}")
+            raise InputError(f"--answer: {'/'.join(x for x in (code, model, item) if x)} is already {shown(q, new)}")
 
         with store.transaction(dry_run) as conn:
             conn.execute("update answers set answer = ? where code = ? and model = ? and item = ? and trial = ?", (new, *key))

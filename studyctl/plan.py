@@ -62,9 +62,19 @@ def _tested(protocol) -> list:
         [q for q in protocol.asked("end") if q.kind == "choice"]
 
 
+def _scores(protocol) -> list[str]:
+    """The scores `plan` tests (analysis/kinds.measures' names): each instrument's after every
+    condition, and the mean over trials of each question and instrument asked per trial."""
+    from analysis.kinds import TRIAL_MEAN
+
+    return ([name for name, when in protocol.instruments if when == "condition"]
+            + [q.id + TRIAL_MEAN for q in protocol.asked("trial") if q.analysed and q.kind != "choice" and q.instrument is None]
+            + [name + TRIAL_MEAN for name, when in protocol.instruments if when == "trial"])
+
+
 def test_names(protocol) -> list[str]:
-    """The rows of a power table: each tested question, each instrument's score, the primary."""
-    return [q.id for q in _tested(protocol)] + [name for name, when in protocol.instruments if when == "condition"] + ["primary"]
+    """The rows of a power table: each tested question, each score, the primary."""
+    return [q.id for q in _tested(protocol)] + _scores(protocol) + ["primary"]
 
 
 def simulate_study(protocol, summaries: dict[str, list], n: int, rng: np.random.Generator, params=None) -> pd.DataFrame:
@@ -80,7 +90,16 @@ def simulate_study(protocol, summaries: dict[str, list], n: int, rng: np.random.
     labels = list(protocol.conditions)
     orders = williams(len(labels))
     asked = [q for q in protocol.asked("condition") if q.analysed]
+    per_trial = [q for q in protocol.asked("trial") if q.analysed and q.kind != "choice"]
     choices = [q for q in protocol.asked("end") if q.kind == "choice"]
+
+    def draw(q, eta):
+        if q.kind == "yes_no":
+            return int(rng.random() < 1.0 / (1.0 + np.exp(-eta)))
+        if q.kind == "likert":
+            return likert_answer(eta, q.points, rng.random())
+        return vas_answer(eta, rng.normal())
+
     rows = []
     for i, z in enumerate(rng.normal(size=(n, 5))):
         traits = ObserverTraits.from_normals(z, params)
@@ -89,14 +108,10 @@ def simulate_study(protocol, summaries: dict[str, list], n: int, rng: np.random.
         period = {labels[c]: k for k, c in enumerate(orders[i % len(orders)])}
         for c in labels:
             for q in asked:
-                eta = logit(q.id, feats[c], traits, params)
-                if q.kind == "yes_no":
-                    v = int(rng.random() < 1.0 / (1.0 + np.exp(-eta)))
-                elif q.kind == "likert":
-                    v = likert_answer(eta, q.points, rng.random())
-                else:
-                    v = vas_answer(eta, rng.normal())
-                rows.append((code, c, q.id, NOT_PER_TRIAL, v, period[c]))
+                rows.append((code, c, q.id, NOT_PER_TRIAL, draw(q, logit(q.id, feats[c], traits, params)), period[c]))
+            for t in range(protocol.trials_per_condition) if per_trial else ():  # each trial judged on itself
+                ft = features([summaries[c][rng.integers(len(summaries[c]))]], traits, params)
+                rows += [(code, c, q.id, t, draw(q, logit(q.id, ft, traits, params)), period[c]) for q in per_trial]
         for q in choices:
             utility = {c: logit(q.id, feats[c], traits, params) + rng.gumbel() for c in labels}
             rows.append((code, SESSION, q.id, NOT_PER_TRIAL, max(utility, key=utility.get), -1))
@@ -121,10 +136,8 @@ def test_study(protocol, answers: pd.DataFrame, primary: bool = True) -> dict[st
         else:
             out[q.id] = kinds.across_p(x)
     meas = kinds.measures(protocol, answers.drop(columns="period"), answers[["code", "model", "period"]].drop_duplicates())
-    for name, when in protocol.instruments:
-        if when == "condition":
-            x = kinds._wide(meas, name, labels).to_numpy(float)
-            out[name] = kinds.across_p(x)
+    for name in _scores(protocol):
+        out[name] = kinds.across_p(kinds._wide(meas, name, labels).to_numpy(float))
     out["primary"] = primary_p(protocol, answers, meas) if primary else float("nan")
     return out
 

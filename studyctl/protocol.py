@@ -273,6 +273,8 @@ def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
                 anchors = (a[0].strip(), a[1].strip())
         elif kind == "likert":
             bad(f"{sec}.anchors", "missing: a likert question names its two ends, anchors = [low, high]")
+        if qtext is not None and not qtext.strip():
+            bad(f"{sec}.text", "empty: the question as the participant reads it")
         if qid is not None and not ID_RE.match(qid):
             bad(f"{sec}.id", f"{qid!r} must be lower-case letters, digits and _ (starting with a letter)")
         elif qid is not None and qtext is not None and kind in KINDS and when in WHENS:
@@ -299,6 +301,8 @@ def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
             named.add(name)
             for q in instruments.questions(name, when):
                 add(q, f"{sec}.name")
+    if not any(q.analysed for q in out) and (isinstance(qs, list) or "instruments" in data):
+        bad("questions", "no question to analyse: at least one [[questions]] other than free text, or an [[instruments]]")
     return out
 
 

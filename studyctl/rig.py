@@ -100,11 +100,25 @@ def read_profile(path: str | Path) -> dict:
 
 
 def store_profile(db, profile: dict, source: str) -> int:
-    """Keep `profile` with the study (one row per configuration, replacing an older one)."""
+    """Keep `profile` with the study (one row per configuration, replacing an older one). Refused
+    when none of its entries is a configuration of the study's conditions, and once sessions
+    have run (their synthetic participants perceived the profile they had: a new one would
+    change the later participants alone)."""
+    from studyctl.errors import StoreError
+    from studyctl.session import condition_configs
     from studyctl.store import Store
 
     store = Store(db)
     try:
+        protocol = store.protocol()
+        keys = {physics_key(cfg) for cfg in condition_configs(protocol, protocol.conditions).values()}
+        if not keys & {r["key"] for r in profile["conditions"]}:
+            raise InputError(f"the profile has no entry for the configurations of {db}'s conditions ({', '.join(protocol.conditions)}): "
+                             "measure it with `studyctl calibrate rig --db` on the rig")
+        ran = store.rows("select count(*) as n from sessions")[0]["n"]
+        if ran:
+            raise StoreError(f"{db}: {ran} sessions have run with the rig profile they had; a new one would apply to later "
+                             "participants only: calibrate before the first session")
         with store.transaction() as conn:
             for r in profile["conditions"]:
                 conn.execute("insert or replace into rig_profile (key, condition, model, frame_ms_p50, frame_ms_p95, frames, machine, "
@@ -118,8 +132,9 @@ def store_profile(db, profile: dict, source: str) -> int:
 
 def frame_times(protocol, store=None) -> dict[str, dict]:
     """Each condition's frame time for the synthetic observer: {condition: {frame_ms, source}},
-    from the study's own profile (`store`), else the shipped one; a condition in neither is
-    left out (the observer falls back to its flop model)."""
+    from the study's own profile (`store`), else the shipped one. All conditions or none: when
+    a profile misses a condition, every condition falls back to the observer's flop model (one
+    latency scale for all; a mix would judge conditions on two)."""
     from brainsim_assets import path as asset
     from studyctl.session import condition_configs
 
@@ -132,4 +147,33 @@ def frame_times(protocol, store=None) -> dict[str, dict]:
     if store is not None:
         for r in store.rows("select key, frame_ms_p50, source, machine from rig_profile"):
             known[r["key"]] = (float(r["frame_ms_p50"]), f"{r['source']} ({r['machine']})")
-    return {c: {"frame_ms": known[k][0], "source": known[k][1]} for c, k in keys.items() if k in known}
+    if not all(k in known for k in keys.values()):
+        return {}
+    return {c: {"frame_ms": known[k][0], "source": known[k][1]} for c, k in keys.items()}
+
+
+def keep_shipped(db) -> int:
+    """Store the shipped profile's rows for the study's conditions with the study, once, when it
+    has none of its own (so an export says which frame times its synthetic sessions used)."""
+    from brainsim_assets import path as asset
+    from studyctl.session import condition_configs
+    from studyctl.store import Store
+
+    store = Store(db)
+    try:
+        if store.rows("select 1 from rig_profile limit 1") or not asset(SHIPPED).exists():
+            return 0
+        protocol = store.protocol()
+        keys = {physics_key(cfg) for cfg in condition_configs(protocol, protocol.conditions).values()}
+        shipped = read_profile(asset(SHIPPED))
+        rows = [r for r in shipped["conditions"] if r["key"] in keys]
+        if len(rows) < len(keys):
+            return 0
+        with store.transaction() as conn:
+            conn.executemany("insert or ignore into rig_profile (key, condition, model, frame_ms_p50, frame_ms_p95, frames, machine, "
+                             "measured_at, source) values (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                             [(r["key"], r.get("condition"), r.get("model"), r["frame_ms_p50"], r["frame_ms_p95"], r.get("frames"),
+                               shipped.get("machine"), shipped.get("measured_at"), f"shipped {SHIPPED}") for r in rows])
+        return len(rows)
+    finally:
+        store.close()

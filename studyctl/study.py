@@ -179,7 +179,7 @@ def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) 
                 raise InputError(f"{where}: participant {r['participant']}: no consent recorded; `studyctl participants consent {r['participant']}` first")
             if r["participant"] in in_sessions:
                 raise InputError(f"{where}: participant {r['participant']} has a simulator session; importing would mix sources")
-            model, trial, value = answer_key(protocol, r["item"], r["model"], r.get("trial"), r["answer"], where)
+            model, trial, value = answer_key(protocol, r["item"], r["model"], r.get("trial"), r["answer"], lambda field, where=where: where)
             key = (r["participant"], model, r["item"], trial)
             if key in seen:
                 raise InputError(f"{where}: a second answer for {'/'.join(map(str, key))}")
@@ -199,34 +199,37 @@ def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) 
         store.close()
 
 
-def answer_key(protocol, item: str, model: str, trial, raw, where: str) -> tuple[str, int, object]:
+def answer_key(protocol, item: str, model: str, trial, raw, where) -> tuple[str, int, object]:
     """(condition, trial, typed value) of an answer given by hand (an import or a correction),
     checked against the question: its kind's values, a condition unless it is asked at the
-    end (then none), a trial (0-based) only if it is asked after every trial."""
+    end (then none), a trial (0-based) only if it is asked after every trial. `where(field)`
+    names the place of a field in messages (a file's line, or a command-line option)."""
+    import re
+
     from studyctl.questions import NOT_PER_TRIAL, SESSION, AnswerError, allowed, parse_answer
 
     if item not in protocol.items:
-        raise InputError(f"{where}: unknown item {item!r}; allowed: {', '.join(protocol.items)}")
+        raise InputError(f"{where('item')}: unknown item {item!r}; allowed: {', '.join(protocol.items)}")
     q = protocol.question(item)
     model = (model or "").strip()
     if q.when == "end" and model:
-        raise InputError(f"{where}: item {item} is asked once at the end, about no one condition; leave the model empty (got {model!r})")
+        raise InputError(f"{where('model')}: item {item} is asked once at the end, about no one condition; leave the model empty (got {model!r})")
     if q.when != "end" and model not in protocol.conditions:
-        raise InputError(f"{where}: unknown model {model!r}; allowed: {', '.join(protocol.conditions)}")
+        raise InputError(f"{where('model')}: unknown model {model!r}; allowed: {', '.join(protocol.conditions)}")
     trial = (str(trial).strip() if trial is not None else "")
     if q.when == "trial":
         last = protocol.trials_per_condition - 1
-        if not (trial.isdigit() and int(trial) <= last):
-            raise InputError(f"{where}: item {item} is asked after every trial; trial {trial!r} is not allowed; allowed: 0..{last}")
+        if not (re.fullmatch(r"[0-9]+", trial) and int(trial) <= last):
+            raise InputError(f"{where('trial')}: item {item} is asked after every trial; trial {trial!r} is not allowed; allowed: 0..{last}")
         trial = int(trial)
     elif trial not in ("", str(NOT_PER_TRIAL)):
-        raise InputError(f"{where}: item {item} is not asked per trial; leave trial empty (got {trial!r})")
+        raise InputError(f"{where('trial')}: item {item} is not asked per trial; leave trial empty (got {trial!r})")
     else:
         trial = NOT_PER_TRIAL
     try:
         value = parse_answer(q, raw, by_name=protocol.conditions)
     except AnswerError:
-        raise InputError(f"{where}: answer {str(raw).strip()!r} to {item} ({q.kind}) is not allowed; allowed: "
+        raise InputError(f"{where('answer')}: answer {str(raw).strip()!r} to {item} ({q.kind}) is not allowed; allowed: "
                          + (", ".join(protocol.conditions) if q.kind == "choice" else allowed(q))) from None
     return (SESSION if q.when == "end" else model), trial, value
 

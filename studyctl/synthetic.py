@@ -27,10 +27,10 @@ from studyctl.observer import (
     features,
     likert_answer,
     logit,
-    p_yes,
     summarise,
     vas_answer,
 )
+from studyctl.questions import SESSION
 
 MAX_SYNTHETIC = 1000  # participants per `synth` call: a study, not a stress test (the paper had 35)
 
@@ -126,13 +126,17 @@ class SyntheticAnswers:
             utility = {c: logit(question.id, feats[c], who.traits, self.params) - math.log(-math.log(max(rng.random(), 1e-300)))
                        for c in sorted(context["labels"]) if c in feats}
             return max(utility, key=utility.get)
-        if trial is not None:  # judged on that trial alone
-            feats = features(self._summaries(model, context.get("results", [])), who.traits, self.params)
+        if model == SESSION:  # about the whole session: the mean of its conditions' judgements
+            feats = context["features"]
+            eta = sum(logit(question.id, feats[c], who.traits, self.params) for c in sorted(feats)) / len(feats)
         else:
-            feats = self.features_of(model, context.get("results", []))
+            if trial is not None:  # judged on that trial alone
+                feats = features(self._summaries(model, context.get("results", [])), who.traits, self.params)
+            else:
+                feats = self.features_of(model, context.get("results", []))
+            eta = logit(question.id, feats, who.traits, self.params)
         if question.kind == "yes_no":
-            return rng.random() < p_yes(question.id, feats, who.traits, self.params)
-        eta = logit(question.id, feats, who.traits, self.params)
+            return rng.random() < 1.0 / (1.0 + math.exp(-eta))  # p_yes
         if question.kind == "likert":
             return likert_answer(eta, question.points, rng.random())
         return vas_answer(eta, rng.gauss(0.0, 1.0))
@@ -180,6 +184,9 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
                 assign_order(store, protocol, code)
     finally:
         store.close()
+    from studyctl.rig import keep_shipped
+
+    keep_shipped(db)  # the frame times its synthetic participants perceive, kept with the study
     tasks = [(str(db), code, seed, first_id + k) for k, code in enumerate(codes)]
     t0 = _time.perf_counter()
     if jobs == 1:

@@ -265,7 +265,8 @@ def test_plan_powers_the_primary_analysis_and_its_null_is_at_alpha(tmp_path):
     protocol = load_protocol(kinds_protocol(tmp_path, trials=1))
     summaries = pilot_summaries(protocol, pilots=2, seed=0)
     t = power_table(protocol, [6], simulations=8, seed=1, summaries=summaries)
-    assert list(t["item"]) == ["natural", "realtime", "stiffness", "stable", "most_like_tissue", "sus", "nasa_tlx", "primary"]
+    assert list(t["item"]) == ["natural", "realtime", "stiffness", "stable", "most_like_tissue", "sus", "nasa_tlx", "smooth (mean over trials)",
+                               "primary"]
     assert t["power"].between(0, 1).all()
     own = pilot_summaries(protocol, pilots=2, seed=0, mapping={c: "paper" for c in protocol.conditions})
     # one model under every label: each test rejects at most at alpha, within 4 Monte Carlo errors
@@ -315,3 +316,105 @@ def test_the_shipped_rig_profile_covers_the_shipped_protocols():
 def test_question_dataclass_defaults_are_the_papers_yes_no():
     q = Question("x", "X?")
     assert (q.kind, q.when, q.points, q.anchors, q.instrument, q.analysed) == ("yes_no", "condition", None, None, None, True)
+
+
+END_AND_TRIAL = """
+[[questions]]
+id = "natural"
+text = "Is interaction real and natural?"
+
+[[questions]]
+id = "again"
+text = "Would you use the simulator again?"
+when = "end"
+
+[[questions]]
+id = "overall"
+text = "How realistic was the simulator overall?"
+kind = "vas"
+when = "end"
+
+[[instruments]]
+name = "nasa_tlx"
+when = "trial"
+
+[[instruments]]
+name = "sus"
+when = "end"
+"""
+
+
+def test_end_questions_and_instruments_per_trial_or_at_the_end_are_answered_and_scored(tmp_path):
+    db = tmp_path / "s.db"
+    run_synthetic_study(db, 5, seed=2, protocol_path=kinds_protocol(tmp_path, END_AND_TRIAL))
+    con = sqlite3.connect(db)
+    assert con.execute("select count(*) from sessions where status = 'done'").fetchone()[0] == 5
+    end = con.execute("select item, model, trial, typeof(answer) from answers where item in ('again', 'overall', 'sus_1')").fetchall()
+    assert sorted(set(end)) == [("again", "", -1, "integer"), ("overall", "", -1, "real"), ("sus_1", "", -1, "integer")]
+    assert con.execute("select count(*) from answers where item = 'tlx_mental'").fetchone()[0] == 5 * 2 * 2
+    con.close()
+    k = json.loads(studyctl("report", "stats", "--json", "--db", db).output)["kinds"]
+    # the TLX per trial is one score (the mean over trials of each trial's raw TLX), not six subscales
+    assert set(k["scores"]) == {"nasa_tlx (mean over trials)"} and k["primary"]["analysis"] == "logistic_gee"
+    # the SUS at the end is one score per participant, described with the end questions, not ten items
+    assert set(k["session"]) == {"sus", "again", "overall"} and k["session"]["sus"]["n"] == 5
+    assert 0 <= k["session"]["sus"]["mean"] <= 100
+    md = studyctl("report", "table1", "--db", db).output
+    assert "raw NASA-TLX (0-100) (mean over trials)" in md and "Holm over all 2 pairs" in md and "nan" not in md.lower()
+    assert "Primary analysis, all questions: logistic GEE" in md
+
+
+def test_two_conditions_print_no_nan_and_a_score_can_be_the_primary(tmp_path):
+    qs = """
+[[questions]]
+id = "stiffness"
+text = "How stiff did the tissue feel?"
+kind = "vas"
+
+[[questions]]
+id = "rating"
+text = "How real was it?"
+kind = "likert"
+points = 5
+anchors = ["Not at all", "Completely"]
+when = "trial"
+"""
+    db = tmp_path / "s.db"
+    run_synthetic_study(db, 6, seed=1, protocol_path=kinds_protocol(tmp_path, qs))
+    out = studyctl("report", "stats", "--db", db).output
+    st = json.loads(studyctl("report", "stats", "--json", "--db", db).output)
+    assert st["kinds"]["primary"]["analysis"] == "mixed_model" and st["kinds"]["primary"]["items"] == ["stiffness"]
+    assert out.splitlines()[1].startswith("Primary analysis: linear mixed model of How stiff did the tissue feel?")
+    for fmt in ("md", "html", "latex"):
+        text = re.sub(r"base64,[A-Za-z0-9+/=]+", "", studyctl("report", "table1", "--format", fmt, "--db", db).output)  # the pictures
+        assert not re.search(r"\bnan\b", text.lower()), fmt
+        assert "two conditions: the Wilcoxon pair is the test" in text, fmt
+    pairs = st["kinds"]["scores"]["stiffness"]["pairs"]
+    assert len(pairs) == 1 and pairs[0]["p_holm_primary"] == pytest.approx(pairs[0]["p_value"])  # one pair: Holm leaves it
+
+
+def test_a_rig_profile_covers_every_condition_or_none_and_is_fixed_once_sessions_ran(tmp_path):
+    from studyctl.rig import frame_times, physics_key
+    from studyctl.session import condition_configs
+
+    proto = kinds_protocol(tmp_path, trials=1)
+    protocol = load_protocol(proto)
+    keys = {c: physics_key(cfg) for c, cfg in condition_configs(protocol, protocol.conditions).items()}
+    db = tmp_path / "s.db"
+    assert studyctl("study", "init", "--db", db, "--protocol", proto).exit_code == 0
+    profile = tmp_path / "rig.json"
+    profile.write_text(json.dumps({"conditions": [{"key": "0" * 64, "frame_ms_p50": 1.0, "frame_ms_p95": 2.0}]}))
+    res = studyctl("calibrate", "rig", "--db", db, "--profile", profile)
+    assert res.exit_code != 0 and "the profile has no entry for the configurations" in res.output
+    profile.write_text(json.dumps({"conditions": [{"key": keys["paper"], "frame_ms_p50": 5.0, "frame_ms_p95": 6.0}]}))
+    assert studyctl("calibrate", "rig", "--db", db, "--profile", profile).exit_code == 0
+    from studyctl.store import Store
+
+    store = Store(db, mode="read")
+    try:
+        assert frame_times(protocol, store) == {}  # one condition of two: none (one latency scale for all)
+    finally:
+        store.close()
+    run_synthetic_study(db, 1, seed=1)
+    res = studyctl("calibrate", "rig", "--db", db, "--profile", profile)
+    assert res.exit_code != 0 and "calibrate before the first session" in res.output
