@@ -116,7 +116,8 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
         else:
             ok = isinstance(v, kind)
         if not ok:
-            bad(field, f"{v!r} is not {'an integer' if kind is int else 'a number' if kind is float else 'a ' + kind.__name__}")
+            what = {int: "an integer", float: "a number", str: "a text in quotes", list: "a list in [ ]"}.get(kind, "a " + kind.__name__)
+            bad(field, f"{v!r} is not {what}")
             return default
         if lo is not None and v < lo or hi is not None and v > hi:
             bad(field, f"{v!r} is out of range; allowed: {lo if lo is not None else '-inf'}..{hi if hi is not None else 'inf'}")
@@ -249,7 +250,7 @@ def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
         qid, qtext = get(q, sec, "id", str), get(q, sec, "text", str)
         kind = get(q, sec, "kind", str, default="yes_no", required=False)
         when = get(q, sec, "when", str, default="condition", required=False)
-        if kind not in KINDS:
+        if kind not in KINDS and "kind" in q and isinstance(q["kind"], str):
             bad(f"{sec}.kind", f"{kind!r} is not a kind; allowed: {', '.join(KINDS)}")
         if when not in WHENS:
             bad(f"{sec}.when", f"{when!r} is not allowed; allowed: {', '.join(WHENS)}")
@@ -257,12 +258,13 @@ def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
             bad(f"{sec}.when", f"{when!r}: a choice among the conditions is asked once, after the last; allowed: end")
         if kind == "choice" and n_conditions < 2:
             bad(f"{sec}.kind", "a choice needs at least 2 conditions in design.conditions")
-        points = None
+        points = anchors = None
+        if kind not in KINDS or q.get("kind", kind) != kind:  # refused above: what the kind needs is unknown
+            continue
         if kind == "likert":
             points = get(q, sec, "points", int, lo=LIKERT_POINTS[0], hi=LIKERT_POINTS[1])
         elif "points" in q:
             bad(f"{sec}.points", f"only a likert question has points; this one is {kind}")
-        anchors = None
         if "anchors" in q and kind not in ("likert", "vas"):
             bad(f"{sec}.anchors", f"only a likert or vas question has anchors; this one is {kind}")
         elif "anchors" in q:
