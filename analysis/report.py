@@ -165,14 +165,14 @@ def stability_html(result: dict) -> str:
             f"<table><tr><th>model</th><th>case</th><th>outcome</th><th>at</th><th>reason</th></tr>{rows}</table>{near}")
 
 
-def html(db, force_traces: bool = True, accuracy: dict | None = None, stability: dict | None = None) -> str:
+def html(db, force_traces: bool = True, accuracy: dict | None = None, stability: dict | None = None, holm_scope: str = "family") -> str:
     """One self-contained HTML file: facts, Table 1, statistics, plots (PNG inlined), and the
     accuracy bench's table and Pareto plot and the stability sweep's heat map when given."""
     from analysis.kinds import kind_tables
     from analysis.stats import study_stats
 
     facts, r, q, d = table1.study_facts(db), table1.rates(db), table1.cochran(db), table1.deformation(db)
-    st = study_stats(db, r, q)
+    st = study_stats(db, r, q, holm_scope=holm_scope)
     with tempfile.TemporaryDirectory() as tmp:
         write_plots(db, tmp, force_traces)
         images = {f.stem: base64.b64encode(f.read_bytes()).decode() for f in sorted(Path(tmp).glob("*.png"), key=_figure_order)}
@@ -194,11 +194,12 @@ def html(db, force_traces: bool = True, accuracy: dict | None = None, stability:
     gee = esc(table1._gee_line(st["gee"], st["kinds"]["primary"]["analysis"] == "logistic_gee").replace("`", ""))
     primary = (f"<p>{esc(primary_line(st))}</p>" if st["kinds"]["primary"]["analysis"] in ("mixed_model", "choice") else "")
     n_pairs = table1.family_size(st)
+    scope = f"Holm over all {n_pairs} pairs" if holm_scope == "family" else "Holm within each question"
     head = "".join(f"<th>{esc(m)}</th>" for m in models)
     binary = (f"<h2>Yes/no questions</h2><p>Rates with Wilson 95% intervals; Cochran's Q across models; pairwise exact McNemar tests.</p>"
-              f"<table><tr><th>Question</th>{head}<th>Cochran's Q (p)</th><th>McNemar p (Holm, all {n_pairs} pairs)</th></tr>"
+              f"<table><tr><th>Question</th>{head}<th>Cochran's Q (p)</th><th>McNemar p ({scope})</th></tr>"
               f"{''.join(rows)}</table><p>{gee}</p>") if len(r) else ""
-    kind_html = "".join(_table_html(t) for t in kind_tables(st["kinds"], models, f"Holm over all {n_pairs} pairs"))
+    kind_html = "".join(_table_html(t) for t in kind_tables(st["kinds"], models, scope))
     figs = "".join(f'<figure><img alt="{k}" src="data:image/png;base64,{v}"></figure>' for k, v in images.items())
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{esc(facts['study'])}: Table 1</title>
@@ -213,7 +214,7 @@ img {{ max-width: 900px; }}
 </style></head><body>
 <h1>{esc(facts['study'])}: Table 1</h1>
 {banner}
-<p>N = {facts['participants']} participants with every answer; {esc(facts['design'])}.{esc(incomplete)} Holm over all {n_pairs} pairwise tests of the study.</p>
+<p>N = {facts['participants']} participants with every answer; {esc(facts['design'])}.{esc(incomplete)} {esc(scope)}{" pairwise tests of the study" if holm_scope == "family" else ""}.</p>
 {binary}
 {kind_html}
 {primary}

@@ -1372,11 +1372,11 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
     elif fmt == "latex":
         from analysis.report import latex
 
-        text = latex(db)
+        text = latex(db, holm_scope)
     elif fmt == "html":
         from analysis.report import html
 
-        text = html(db, accuracy=accuracy, stability=stability)
+        text = html(db, accuracy=accuracy, stability=stability, holm_scope=holm_scope)
     elif fmt == "csv":  # the flag and N travel with the table
         facts = table1.study_facts(db)
         text = table1.rates(db).assign(participants=facts["participants"], synthetic=facts["synthetic"]).to_csv(index=False)

@@ -208,6 +208,8 @@ def test_a_synthetic_study_answers_every_kind_in_its_type_and_reports_each(tmp_p
     assert "Primary analysis, all rating items: proportional-odds GEE" in md
     html = studyctl("report", "table1", "--format", "html", "--db", db).output
     assert "<h2>Ratings</h2>" in html and 'alt="ratings"' in html and 'alt="scores"' in html and 'alt="choice_most_like_tissue"' in html
+    for fmt in ("html", "latex"):  # --holm reaches every format
+        assert "Holm within each question" in studyctl("report", "table1", "--format", fmt, "--holm", "question", "--db", db).output
     latex = studyctl("report", "table1", "--format", "latex", "--db", db).output
     assert latex.count("\\begin{table}") == 4  # yes/no, ratings, scores, choice (free text is not analysed)
     js = json.loads(studyctl("report", "table1", "--format", "json", "--db", db).output)
