@@ -35,6 +35,20 @@ def _score_questions(protocol) -> list:
     return [q for q in protocol.asked("condition") if q.kind == "vas" and q.instrument is None]
 
 
+def _per_trial_items(protocol) -> list:
+    """The questions asked after every trial that are analysed as a mean over trials (an
+    instrument's items enter through its score)."""
+    return [q for q in protocol.asked("trial") if q.analysed and q.kind != "choice" and q.instrument is None]
+
+
+def score_names(protocol) -> list[str]:
+    """The scores beside the VAS items (`measures`' names): each instrument's asked after every
+    condition, and the mean over trials of each question and instrument asked per trial."""
+    return ([name for name, when in protocol.instruments if when == "condition"]
+            + [q.id + TRIAL_MEAN for q in _per_trial_items(protocol)]
+            + [name + TRIAL_MEAN for name, when in protocol.instruments if when == "trial"])
+
+
 def primary(protocol) -> dict:
     """The protocol's primary analysis (what `plan` powers and reports lead with): the
     proportional-odds GEE across its rating items, else the logistic GEE across its yes/no
@@ -47,9 +61,7 @@ def primary(protocol) -> dict:
     binary = [q.id for q in protocol.asked("condition") if q.kind == "yes_no"]
     if binary:
         return {"analysis": "logistic_gee", "items": binary, "text": "logistic GEE across the yes/no questions (answer ~ condition + period + item)"}
-    scores = ([q.id for q in _score_questions(protocol)] + [name for name, when in protocol.instruments if when == "condition"]
-              + [q.id + TRIAL_MEAN for q in protocol.asked("trial") if q.analysed and q.kind != "choice" and q.instrument is None]
-              + [name + TRIAL_MEAN for name, when in protocol.instruments if when == "trial"])
+    scores = [q.id for q in _score_questions(protocol)] + score_names(protocol)
     if scores:
         return {"analysis": "mixed_model", "items": scores[:1],
                 "text": f"linear mixed model of {_label(scores[0], protocol)} (answer ~ condition + period + (1 | participant))"}
@@ -86,11 +98,10 @@ def measures(protocol, answers: pd.DataFrame, per: pd.DataFrame | None = None) -
         label = name if when == "condition" else name + TRIAL_MEAN
         for (code, model), g in pd.DataFrame(scored, columns=["code", "model", "score"]).groupby(["code", "model"], sort=False):
             rows.append((code, model, label, "continuous", float(g["score"].mean())))
-    for q in protocol.asked("trial"):
-        if q.analysed and q.kind != "choice" and q.instrument is None:
-            sel = cond[cond["item"] == q.id]
-            for (code, model), g in sel.groupby(["code", "model"], sort=False):
-                rows.append((code, model, q.id + TRIAL_MEAN, "continuous", float(g["answer"].astype(float).mean())))
+    for q in _per_trial_items(protocol):
+        sel = cond[cond["item"] == q.id]
+        for (code, model), g in sel.groupby(["code", "model"], sort=False):
+            rows.append((code, model, q.id + TRIAL_MEAN, "continuous", float(g["answer"].astype(float).mean())))
     out = pd.DataFrame(rows, columns=["code", "model", "item", "kind", "answer"])
     if per is not None and len(out):
         out = out.merge(per, on=["code", "model"], how="left")
@@ -104,8 +115,6 @@ def _wide(df: pd.DataFrame, item: str, models: list[str]) -> pd.DataFrame:
 def _label(item: str, protocol) -> str:
     from studyctl import instruments
 
-    if item in instruments.SCORES:
-        return instruments.SCORES[item]
     base = item.removesuffix(TRIAL_MEAN)
     text = instruments.SCORES.get(base) or next((q.text for q in protocol.questions if q.id == base), item)
     return text + (TRIAL_MEAN if item.endswith(TRIAL_MEAN) else "")

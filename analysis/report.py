@@ -70,8 +70,7 @@ def latex(db, holm_scope: str = "family") -> str:
     facts, r, q, d = table1.study_facts(db), table1.rates(db), table1.cochran(db), table1.deformation(db)
     st = study_stats(db, r, q, holm_scope=holm_scope)
     models = list(d["model"])
-    n_pairs = table1.family_size(st)
-    scope = f"Holm over all {n_pairs} pairs" if holm_scope == "family" else "Holm within each question"
+    scope = table1.holm_text(st)
     rows = []
     for item, question, item_rows, qrow in table1.item_rows(r, q, models):
         rows.append([question] + [f"{x['yes']}/{x['no']}, {100 * x['rate']:.1f}% [{100 * x['wilson_low']:.1f}, {100 * x['wilson_high']:.1f}]"
@@ -193,8 +192,7 @@ def html(db, force_traces: bool = True, accuracy: dict | None = None, stability:
 
     gee = esc(table1._gee_line(st["gee"], st["kinds"]["primary"]["analysis"] == "logistic_gee").replace("`", ""))
     primary = (f"<p>{esc(primary_line(st))}</p>" if st["kinds"]["primary"]["analysis"] in ("mixed_model", "choice") else "")
-    n_pairs = table1.family_size(st)
-    scope = f"Holm over all {n_pairs} pairs" if holm_scope == "family" else "Holm within each question"
+    scope = table1.holm_text(st)
     head = "".join(f"<th>{esc(m)}</th>" for m in models)
     binary = (f"<h2>Yes/no questions</h2><p>Rates with Wilson 95% intervals; Cochran's Q across models; pairwise exact McNemar tests.</p>"
               f"<table><tr><th>Question</th>{head}<th>Cochran's Q (p)</th><th>McNemar p ({scope})</th></tr>"
@@ -214,7 +212,7 @@ img {{ max-width: 900px; }}
 </style></head><body>
 <h1>{esc(facts['study'])}: Table 1</h1>
 {banner}
-<p>N = {facts['participants']} participants with every answer; {esc(facts['design'])}.{esc(incomplete)} {esc(scope)}{" pairwise tests of the study" if holm_scope == "family" else ""}.</p>
+<p>N = {facts['participants']} participants with every answer; {esc(facts['design'])}.{esc(incomplete)} {esc(scope)}.</p>
 {binary}
 {kind_html}
 {primary}

@@ -180,7 +180,7 @@ def study_stats(db, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None
     q = cochran(db) if q is None else q
     protocol = _protocol(db)
     every, _ = complete_answers(db)
-    answers = binary_answers(db)
+    answers = binary_answers(db, protocol, every)
     protocol_models = list(protocol.conditions)
     items = {}
     for item, g in r.groupby("item", sort=False):

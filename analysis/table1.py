@@ -88,10 +88,12 @@ def binary_items(protocol) -> list[str]:
     return [q.id for q in protocol.asked("condition") if q.kind == "yes_no"]
 
 
-def binary_answers(db) -> pd.DataFrame:
-    """The complete participants' answers to `binary_items`, as 0/1 integers."""
-    answers, _ = complete_answers(db)
-    sel = answers[answers["item"].isin(binary_items(_protocol(db))) & (answers["trial"] < 0)]
+def binary_answers(db, protocol=None, answers: pd.DataFrame | None = None) -> pd.DataFrame:
+    """The complete participants' answers to `binary_items`, as 0/1 integers (from `answers`,
+    complete_answers' when the caller has them)."""
+    protocol = protocol or _protocol(db)
+    answers = complete_answers(db)[0] if answers is None else answers
+    sel = answers[answers["item"].isin(binary_items(protocol)) & (answers["trial"] < 0)]
     return sel.astype({"answer": int}).reset_index(drop=True)
 
 
@@ -214,11 +216,14 @@ def item_rows(r, q, models):
         yield item, g["question"].iloc[0], [g.loc[m] for m in models], q[q["item"] == item].iloc[0]
 
 
-def family_size(st: dict) -> int:
-    """How many pairwise tests Holm adjusts over (every kind's)."""
+def holm_text(st: dict) -> str:
+    """What the reports' p_holm is (`study_stats`' scope): Holm over all N pairwise tests of
+    every kind, or within each question."""
     from analysis.kinds import family_pairs
 
-    return sum(len(v["pairs"]) for v in st["items"].values()) + sum(len(g) for g in family_pairs(st["kinds"]))
+    if st["holm"] != "family":
+        return "Holm within each question"
+    return f"Holm over all {sum(len(v['pairs']) for v in st['items'].values()) + sum(len(g) for g in family_pairs(st['kinds']))} pairs"
 
 
 def _gee_line(gee: dict, primary: bool = True) -> str:
@@ -245,14 +250,13 @@ def markdown(db, holm_scope: str = "family") -> str:
     facts, r, q, d = study_facts(db), rates(db), cochran(db), deformation(db)
     st = study_stats(db, r, q, holm_scope=holm_scope)
     pairs = {item: v["pairs"] for item, v in st["items"].items()}
-    n_pairs = family_size(st)
     models = list(d["model"])
     flag = "SYNTHETIC DATA (simulated participants): not evidence about people. " if facts["synthetic"] else ""
     if facts["mixed_source_participants"]:
         flag += f"WARNING: {', '.join(facts['mixed_source_participants'])} answered both as a person and synthetically. "
     listed = incomplete_text(facts)
     left_out = f" Left out (incomplete): {listed}." if listed else ""
-    scope = f"Holm over all {n_pairs} pairs" if holm_scope == "family" else "Holm within each question"
+    scope = holm_text(st)
     lines = [f"**Table 1: {facts['study']}.** {flag}N = {facts['participants']} participants with every answer; {facts['design']}.{left_out}", ""]
     deform = [f"{row['mean_ms']:.2f} +- {row['sd_ms']:.2f} (median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f})" for _, row in d.iterrows()]
     if len(r):  # the yes/no questions: the paper's table

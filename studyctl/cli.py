@@ -7,7 +7,6 @@ mistakes are click's (exit status 2). No traceback reaches the user for either.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import sqlite3
@@ -137,9 +136,12 @@ def _sweep_options(f):
 
 
 def _with_progress(label, fn):
+    """`fn(progress)` with a progress bar that `progress(done, total)` advances, on stderr (a
+    --json document on stdout stays clean)."""
+    from rich.console import Console
     from rich.progress import Progress
 
-    with Progress(transient=True, console=_console()) as progress:
+    with Progress(transient=True, console=Console(stderr=True)) as progress:
         task = progress.add_task(label, total=None)
         return fn(lambda k, n: progress.update(task, completed=k, total=n))
 
@@ -622,8 +624,7 @@ def calibrate_rig(db, protocol_file, trials, profile_file, out_file, as_json):
     if profile_file is not None:
         profile, source = read_profile(profile_file), f"file {profile_file.name}"
     else:
-        with _progress(len(protocol.conditions) * trials, "rig trials", quiet=as_json) as step:
-            profile, source = measure(protocol, trials, progress=step), "measured"
+        profile, source = _with_progress("rig trials", lambda p: measure(protocol, trials, progress=p)), "measured"
     if out_file is not None:
         Path(out_file).write_text(json.dumps(profile, indent=2) + "\n")
     if db is not None:
@@ -1210,29 +1211,13 @@ def replay_cmd(db, session_id, trial, view, frames_dir, as_json):
 @JSON
 def synth_cmd(db, participants, seed, jobs, protocol_file, as_json):
     """Run whole sessions with SYNTHETIC participants on the simulator (labelled synthetic)."""
-    from rich.console import Console
-    from rich.progress import Progress
-
     from studyctl.synthetic import run_synthetic_study
 
-    with Progress(transient=True, console=Console(stderr=True)) as progress:
-        task = progress.add_task("synthetic sessions", total=participants)
-        out = run_synthetic_study(db, participants, seed, jobs, protocol_file, progress=lambda k, n: progress.update(task, completed=k))
+    out = _with_progress("synthetic sessions", lambda p: run_synthetic_study(db, participants, seed, jobs, protocol_file, progress=p))
     if as_json:
         _print_json(out | {"synthetic": True})
         return
     click.echo(f"ran {out['participants']} SYNTHETIC sessions (seed {seed}, {jobs} jobs) in {out['seconds']:.1f} s")
-
-
-@contextlib.contextmanager
-def _progress(total: int, label: str, quiet: bool = False):
-    """A progress bar on stderr (none with --json); yields the function that advances it."""
-    from rich.console import Console
-    from rich.progress import Progress
-
-    with Progress(transient=True, console=Console(stderr=True), disable=quiet) as progress:
-        task = progress.add_task(label, total=total)
-        yield lambda: progress.advance(task)
 
 
 def _model_name(value):
@@ -1283,8 +1268,7 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, nu
         raise InputError("--model: only with --null")
     span = span or (12, 60)
     ns = list(range(span[0], span[1] + 1, step))
-    with _progress(len(ns) * simulations, "simulated studies", quiet=as_json) as step:
-        table = power_table(protocol, ns, simulations, seed, pilots, progress=step)
+    table = _with_progress("simulated studies", lambda p: power_table(protocol, ns, simulations, seed, pilots, progress=p))
     if plot_file:
         plot_power(table, plot_file)
     if as_json:
@@ -1316,8 +1300,7 @@ def _plan_null(protocol, span, simulations, seed, pilots, model, as_json) -> Non
         if model not in protocol.conditions:
             raise InputError(f"--model: {model!r} is not a condition of {protocol.name}; allowed: {', '.join(protocol.conditions)}")
     n = span[0] if span else 35
-    with _progress(simulations, "simulated studies", quiet=as_json) as step:
-        table = null_table(protocol, model, n, simulations, seed, pilots, progress=step)
+    table = _with_progress("simulated studies", lambda p: null_table(protocol, model, n, simulations, seed, pilots, progress=p))
     if as_json:
         _print_json({"synthetic": True, "null": True, "model": table["model"].iloc[0], "participants": n, "primary": primary(protocol),
                      "items": table[["item", "false_positive_rate", "mc_error", "simulations", "alpha"]].to_dict(orient="records")})

@@ -290,3 +290,14 @@ def likert_answer(eta: float, points: int, u: float) -> int:
 def vas_answer(eta: float, z: float) -> float:
     """A mark on a 0..100 line: the logistic of the judgement plus normal noise (`z`), to 0.1."""
     return round(100.0 / (1.0 + math.exp(-(eta + VAS_NOISE_SD * z))), 1)
+
+
+def judged_answer(question, eta: float, uniform, normal):
+    """An answer of a yes/no, rating or VAS question from the latent judgement `eta`, drawing one
+    number: `uniform()` for yes/no (yes with probability logistic(eta)) and ratings, `normal()`
+    for a VAS. Synthetic sessions and `plan` draw through it with their own generators."""
+    if question.kind == "yes_no":
+        return uniform() < 1.0 / (1.0 + math.exp(-eta))
+    if question.kind == "likert":
+        return likert_answer(eta, question.points, uniform())
+    return vas_answer(eta, normal())

@@ -62,19 +62,11 @@ def _tested(protocol) -> list:
         [q for q in protocol.asked("end") if q.kind == "choice"]
 
 
-def _scores(protocol) -> list[str]:
-    """The scores `plan` tests (analysis/kinds.measures' names): each instrument's after every
-    condition, and the mean over trials of each question and instrument asked per trial."""
-    from analysis.kinds import TRIAL_MEAN
-
-    return ([name for name, when in protocol.instruments if when == "condition"]
-            + [q.id + TRIAL_MEAN for q in protocol.asked("trial") if q.analysed and q.kind != "choice" and q.instrument is None]
-            + [name + TRIAL_MEAN for name, when in protocol.instruments if when == "trial"])
-
-
 def test_names(protocol) -> list[str]:
     """The rows of a power table: each tested question, each score, the primary."""
-    return [q.id for q in _tested(protocol)] + _scores(protocol) + ["primary"]
+    from analysis.kinds import score_names
+
+    return [q.id for q in _tested(protocol)] + score_names(protocol) + ["primary"]
 
 
 def simulate_study(protocol, summaries: dict[str, list], n: int, rng: np.random.Generator, params=None) -> pd.DataFrame:
@@ -82,7 +74,7 @@ def simulate_study(protocol, summaries: dict[str, list], n: int, rng: np.random.
     period) to every question asked after a condition and every choice at the end, drawn from
     the observer as a synthetic session draws them; each participant's condition perceived from
     a random pilot trial; Williams orders in turn for the period."""
-    from studyctl.observer import DEFAULT, ObserverTraits, features, likert_answer, logit, vas_answer
+    from studyctl.observer import DEFAULT, ObserverTraits, features, judged_answer, logit
     from studyctl.questions import NOT_PER_TRIAL, SESSION
     from studyctl.schedule import williams
 
@@ -94,11 +86,8 @@ def simulate_study(protocol, summaries: dict[str, list], n: int, rng: np.random.
     choices = [q for q in protocol.asked("end") if q.kind == "choice"]
 
     def draw(q, eta):
-        if q.kind == "yes_no":
-            return int(rng.random() < 1.0 / (1.0 + np.exp(-eta)))
-        if q.kind == "likert":
-            return likert_answer(eta, q.points, rng.random())
-        return vas_answer(eta, rng.normal())
+        v = judged_answer(q, eta, rng.random, rng.normal)
+        return int(v) if q.kind == "yes_no" else v
 
     rows = []
     for i, z in enumerate(rng.normal(size=(n, 5))):
@@ -136,7 +125,7 @@ def test_study(protocol, answers: pd.DataFrame, primary: bool = True) -> dict[st
         else:
             out[q.id] = kinds.across_p(x)
     meas = kinds.measures(protocol, answers.drop(columns="period"), answers[["code", "model", "period"]].drop_duplicates())
-    for name in _scores(protocol):
+    for name in kinds.score_names(protocol):
         out[name] = kinds.across_p(kinds._wide(meas, name, labels).to_numpy(float))
     out["primary"] = primary_p(protocol, answers, meas) if primary else float("nan")
     return out
@@ -190,14 +179,14 @@ def power_table(protocol, ns: list[int], simulations: int = 200, seed: int = 0, 
     rng = np.random.default_rng(seed)
     names = [t for t in test_names(protocol) if primary or t != "primary"]
     rows = []
-    for n in ns:
+    for k, n in enumerate(ns):
         hits = dict.fromkeys(names, 0)
-        for _ in range(simulations):
+        for j in range(simulations):
             for t, p in test_study(protocol, simulate_study(protocol, summaries, n, rng), primary).items():
                 if t in hits:
                     hits[t] += p < alpha
             if progress:
-                progress()
+                progress(k * simulations + j + 1, len(ns) * simulations)
         rows += [{"n": n, "item": t, "power": hits[t] / simulations, "simulations": simulations, "alpha": alpha} for t in names]
     return pd.DataFrame(rows, columns=["n", "item", "power", "simulations", "alpha"])
 
@@ -218,12 +207,12 @@ def null_table(protocol, model: str | None = None, participants: int = 35, simul
     rng = np.random.default_rng(seed)
     names = [t for t in test_names(protocol) if primary or t != "primary"]
     hits = dict.fromkeys(names, 0)
-    for _ in range(simulations):
+    for j in range(simulations):
         for t, p in test_study(protocol, simulate_study(protocol, summaries, participants, rng), primary).items():
             if t in hits:
                 hits[t] += p < alpha
         if progress:
-            progress()
+            progress(j + 1, simulations)
     se = float(np.sqrt(alpha * (1 - alpha) / simulations))
     rows = [{"item": t, "false_positive_rate": hits[t] / simulations, "mc_error": se, "simulations": simulations, "alpha": alpha,
              "model": model, "participants": participants} for t in names]

@@ -26,7 +26,6 @@ import numpy as np
 from studyctl.errors import InputError
 
 SHIPPED = "data/rig_ci.json"
-FIELDS = ("key", "condition", "model", "frame_ms_p50", "frame_ms_p95", "frames")
 
 
 def physics_key(config: dict) -> str:
@@ -34,6 +33,21 @@ def physics_key(config: dict) -> str:
     from studyctl.conditions import config_sha256
 
     return config_sha256({k: v for k, v in config.items() if k != "condition"})
+
+
+def condition_keys(protocol) -> dict[str, str]:
+    """Each condition's physics key (its configuration as the protocol resolves it)."""
+    from studyctl.session import condition_configs
+
+    return {c: physics_key(cfg) for c, cfg in condition_configs(protocol, protocol.conditions).items()}
+
+
+def _keep(conn, rows: list[dict], profile: dict, source: str, verb: str = "replace") -> None:
+    """Profile rows into the study's `rig_profile` (`verb`: replace an older row, or ignore)."""
+    conn.executemany(f"insert or {verb} into rig_profile (key, condition, model, frame_ms_p50, frame_ms_p95, frames, machine, "
+                     "measured_at, source) values (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                     [(r["key"], r.get("condition"), r.get("model"), float(r["frame_ms_p50"]), float(r["frame_ms_p95"]), r.get("frames"),
+                       profile.get("machine"), profile.get("measured_at"), source) for r in rows])
 
 
 def machine() -> str:
@@ -57,7 +71,7 @@ def measure(protocol, trials: int = 2, progress=None) -> dict:
 
     configs = condition_configs(protocol, protocol.conditions)
     rows = []
-    for c in protocol.conditions:
+    for i, c in enumerate(protocol.conditions):
         scene = _scene(protocol, c, "simulated")
         run_scene(scene, duration=0.5, time_scale=0)  # first-frame allocations and caches
         times = []
@@ -69,7 +83,7 @@ def measure(protocol, trials: int = 2, progress=None) -> dict:
             finally:
                 scene.operators = None
             if progress:
-                progress()
+                progress(i * trials + k + 1, len(protocol.conditions) * trials)
         ms = np.concatenate(times)
         rows.append({"key": physics_key(configs[c]), "condition": c, "model": configs[c]["model"],
                      "frame_ms_p50": round(float(np.median(ms)), 4), "frame_ms_p95": round(float(np.percentile(ms, 95)), 4), "frames": int(len(ms))})
@@ -105,14 +119,12 @@ def store_profile(db, profile: dict, source: str) -> int:
     have run (their synthetic participants perceived the profile they had: a new one would
     change the later participants alone)."""
     from studyctl.errors import StoreError
-    from studyctl.session import condition_configs
     from studyctl.store import Store
 
     store = Store(db)
     try:
         protocol = store.protocol()
-        keys = {physics_key(cfg) for cfg in condition_configs(protocol, protocol.conditions).values()}
-        if not keys & {r["key"] for r in profile["conditions"]}:
+        if not set(condition_keys(protocol).values()) & {r["key"] for r in profile["conditions"]}:
             raise InputError(f"the profile has no entry for the configurations of {db}'s conditions ({', '.join(protocol.conditions)}): "
                              "measure it with `studyctl calibrate rig --db` on the rig")
         ran = store.rows("select count(*) as n from sessions")[0]["n"]
@@ -120,11 +132,7 @@ def store_profile(db, profile: dict, source: str) -> int:
             raise StoreError(f"{db}: {ran} sessions have run with the rig profile they had; a new one would apply to later "
                              "participants only: calibrate before the first session")
         with store.transaction() as conn:
-            for r in profile["conditions"]:
-                conn.execute("insert or replace into rig_profile (key, condition, model, frame_ms_p50, frame_ms_p95, frames, machine, "
-                             "measured_at, source) values (?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                             (r["key"], r.get("condition"), r.get("model"), float(r["frame_ms_p50"]), float(r["frame_ms_p95"]),
-                              r.get("frames"), profile.get("machine"), profile.get("measured_at"), source))
+            _keep(conn, profile["conditions"], profile, source)
         return len(profile["conditions"])
     finally:
         store.close()
@@ -136,14 +144,13 @@ def frame_times(protocol, store=None) -> dict[str, dict]:
     a profile misses a condition, every condition falls back to the observer's flop model (one
     latency scale for all; a mix would judge conditions on two)."""
     from brainsim_assets import path as asset
-    from studyctl.session import condition_configs
 
-    keys = {c: physics_key(cfg) for c, cfg in condition_configs(protocol, protocol.conditions).items()}
+    keys = condition_keys(protocol)
     known: dict[str, tuple[float, str]] = {}
-    shipped = asset(SHIPPED)
-    if shipped.exists():
-        for r in read_profile(shipped)["conditions"]:
-            known[r["key"]] = (float(r["frame_ms_p50"]), f"shipped {SHIPPED} ({read_profile(shipped).get('machine', '')})")
+    if asset(SHIPPED).exists():
+        shipped = read_profile(asset(SHIPPED))
+        for r in shipped["conditions"]:
+            known[r["key"]] = (float(r["frame_ms_p50"]), f"shipped {SHIPPED} ({shipped.get('machine', '')})")
     if store is not None:
         for r in store.rows("select key, frame_ms_p50, source, machine from rig_profile"):
             known[r["key"]] = (float(r["frame_ms_p50"]), f"{r['source']} ({r['machine']})")
@@ -156,24 +163,19 @@ def keep_shipped(db) -> int:
     """Store the shipped profile's rows for the study's conditions with the study, once, when it
     has none of its own (so an export says which frame times its synthetic sessions used)."""
     from brainsim_assets import path as asset
-    from studyctl.session import condition_configs
     from studyctl.store import Store
 
     store = Store(db)
     try:
         if store.rows("select 1 from rig_profile limit 1") or not asset(SHIPPED).exists():
             return 0
-        protocol = store.protocol()
-        keys = {physics_key(cfg) for cfg in condition_configs(protocol, protocol.conditions).values()}
+        keys = set(condition_keys(store.protocol()).values())
         shipped = read_profile(asset(SHIPPED))
         rows = [r for r in shipped["conditions"] if r["key"] in keys]
         if len(rows) < len(keys):
             return 0
         with store.transaction() as conn:
-            conn.executemany("insert or ignore into rig_profile (key, condition, model, frame_ms_p50, frame_ms_p95, frames, machine, "
-                             "measured_at, source) values (?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                             [(r["key"], r.get("condition"), r.get("model"), r["frame_ms_p50"], r["frame_ms_p95"], r.get("frames"),
-                               shipped.get("machine"), shipped.get("measured_at"), f"shipped {SHIPPED}") for r in rows])
+            _keep(conn, rows, shipped, f"shipped {SHIPPED}", verb="ignore")
         return len(rows)
     finally:
         store.close()

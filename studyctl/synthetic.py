@@ -25,10 +25,9 @@ from studyctl.observer import (
     ObserverParams,
     ObserverTraits,
     features,
-    likert_answer,
+    judged_answer,
     logit,
     summarise,
-    vas_answer,
 )
 from studyctl.questions import SESSION
 
@@ -135,11 +134,7 @@ class SyntheticAnswers:
             else:
                 feats = self.features_of(model, context.get("results", []))
             eta = logit(question.id, feats, who.traits, self.params)
-        if question.kind == "yes_no":
-            return rng.random() < 1.0 / (1.0 + math.exp(-eta))  # p_yes
-        if question.kind == "likert":
-            return likert_answer(eta, question.points, rng.random())
-        return vas_answer(eta, rng.gauss(0.0, 1.0))
+        return judged_answer(question, eta, rng.random, lambda: rng.gauss(0.0, 1.0))
 
 
 def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, protocol_path=None, progress=None) -> dict:

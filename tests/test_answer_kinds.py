@@ -283,12 +283,11 @@ def test_plan_powers_the_primary_analysis_and_its_null_is_at_alpha(tmp_path):
 
 
 def test_a_rig_profile_sets_the_latency_synthetic_participants_perceive(tmp_path):
-    from studyctl.rig import physics_key
-    from studyctl.session import condition_configs
+    from studyctl.rig import condition_keys
 
     proto = kinds_protocol(tmp_path, trials=1)
     protocol = load_protocol(proto)
-    keys = {c: physics_key(cfg) for c, cfg in condition_configs(protocol, protocol.conditions).items()}
+    keys = condition_keys(protocol)
     profile = tmp_path / "rig.json"
     profile.write_text(json.dumps({"machine": "test rig", "conditions": [
         {"key": keys["paper"], "condition": "paper", "frame_ms_p50": 37.5, "frame_ms_p95": 40.0, "frames": 10},
@@ -396,12 +395,11 @@ when = "trial"
 
 
 def test_a_rig_profile_covers_every_condition_or_none_and_is_fixed_once_sessions_ran(tmp_path):
-    from studyctl.rig import frame_times, physics_key
-    from studyctl.session import condition_configs
+    from studyctl.rig import condition_keys, frame_times
 
     proto = kinds_protocol(tmp_path, trials=1)
     protocol = load_protocol(proto)
-    keys = {c: physics_key(cfg) for c, cfg in condition_configs(protocol, protocol.conditions).items()}
+    keys = condition_keys(protocol)
     db = tmp_path / "s.db"
     assert studyctl("study", "init", "--db", db, "--protocol", proto).exit_code == 0
     profile = tmp_path / "rig.json"
