@@ -7,12 +7,13 @@ PYVER := $(shell $(PYTHON) -c 'import sys; print("%d.%d" % sys.version_info[:2])
 VENV := $(if $(filter 3.11,$(PYVER)),.venv,.venv-$(PYVER))
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
-# libusb: open3d's import; EGL/Mesa: open3d's offscreen OpenGL on the CPU (llvmpipe);
-# Vulkan: open3d's Filament renderer on the CPU; xvfb: a real X display for the participant
-# view's window in tests and headless runs; xdotool: the tests' real X key and mouse events;
-# SuiteSparse (headers, CHOLMOD) and a threaded OpenBLAS: scikit-sparse's CHOLMOD, the sparse Cholesky
-SYSTEM_PACKAGES := libusb-1.0-0 libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libvulkan1 mesa-vulkan-drivers xvfb xdotool \
-	libsuitesparse-dev libopenblas0-pthread
+# libusb: open3d's import; EGL/GL/Mesa: the view's OpenGL on the CPU (llvmpipe), in a window
+# or offscreen; the X11 client libraries glfw loads for the window (monitors, cursor, input);
+# xvfb: a real X display for the participant view's window in tests and headless runs; xdotool:
+# the tests' real X key and mouse events; SuiteSparse (headers, CHOLMOD) and a threaded
+# OpenBLAS: scikit-sparse's CHOLMOD, the sparse Cholesky
+SYSTEM_PACKAGES := libusb-1.0-0 libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libx11-6 libxrandr2 libxinerama1 libxcursor1 libxi6 \
+	xvfb xdotool libsuitesparse-dev libopenblas0-pthread
 OUT ?= out
 
 .PHONY: demo test test-all bench lint system-deps venv clean

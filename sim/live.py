@@ -11,7 +11,7 @@ LIVE_HELP = "Left button: grasp with the left hand. Right button: the right hand
 
 
 def run_view(scene, view: str = "window", duration: float | None = None, time_scale: float = 1.0,
-             screenshot: Path | None = None, live: bool = False, snapshots: bool = False) -> RunResult:
+             screenshot: Path | None = None, live: bool = False, snapshots: bool = False, fullscreen: bool = False) -> RunResult:
     """Run `scene` in real time while the participant view draws every visual frame. With
     `live`, the run lasts until Q, Escape or the window is closed (or `duration`)."""
     from sim.errors import ParameterError
@@ -22,7 +22,7 @@ def run_view(scene, view: str = "window", duration: float | None = None, time_sc
     if screenshot is not None and not Path(screenshot).parent.is_dir():
         raise ParameterError(f"--screenshot: {Path(screenshot).parent} is not a directory")
     mouse = any(h.device == "mouse" for h in scene.spec.hands)
-    shown = open_view(view, scene, show_force=mouse)
+    shown = open_view(view, scene, show_force=mouse, fullscreen=fullscreen)
     try:
         if live:
             def caption(phase, left):

@@ -1,13 +1,6 @@
 """Pictures of a run after it ended: each snapshot drawn by the participant view's renderer
-(sim/view.py, offscreen), composed with a colour bar and the forces (matplotlib).
-
-Importing this module loads open3d; only scenes with ``renderer.kind = "offscreen"`` do.
-
-Which open3d renderer: on these machines (no GPU) the Filament ``OffscreenRenderer`` runs on
-Mesa's CPU Vulkan driver at 2 to 30 s per frame of the 40k-triangle brain, while the classic
-OpenGL ``Visualizer`` with an invisible window falls back to an EGL offscreen context on Mesa's
-llvmpipe and draws the same frame in tens of milliseconds (bench/render.py). The view uses the
-latter, with or without a window; offscreen it needs the EGL packages the Makefile installs.
+offscreen (sim/view.py with `visible=False`: OpenGL on EGL, no display needed), composed with a
+colour bar and the forces (matplotlib). Only scenes with ``renderer.kind = "offscreen"`` import it.
 """
 
 from __future__ import annotations

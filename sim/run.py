@@ -39,7 +39,7 @@ MAX_DURATION_S = 3600.0
 class Pacing:
     """A real-time run with a person: what it shows, when its clock starts, what ends it."""
 
-    view: object | None = None  # a sim.view.ParticipantView, drawn after every visual step
+    view: object | None = None  # a sim.view.ParticipantView, drawn every frame
     wait_for_grasp: bool = False  # the clock starts at the first grasp, or a start key
     start_keys: tuple[str, ...] = ("space", "enter")
     stop_keys: tuple[str, ...] = ()
@@ -47,6 +47,7 @@ class Pacing:
     keys: Callable[[], list[str]] | None = None  # another key source (the experimenter's terminal)
     notify: Callable[[str], None] | None = None  # the devices' notices (calibration, warm motors) for the experimenter
     on_frame: Callable[[object], None] | None = None  # called with the ServoProcess each frame (e.g. a device check's pulse)
+    frame_rate: float = 60.0  # the most frames a second the view draws (a real display's refresh paces it too)
 
 
 @dataclass
@@ -277,7 +278,8 @@ def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, se
     own = servo is None
     sp = ServoProcess(scene, time_scale) if own else servo
     try:
-        out, events = sp.run(scene, visual, n_ticks, spec.visual_rate_hz, frame, wait=bool(pacing and pacing.wait_for_grasp))
+        out, events = sp.run(scene, visual, n_ticks, spec.visual_rate_hz, frame, wait=bool(pacing and pacing.wait_for_grasp),
+                             frame_rate=pacing.frame_rate if pacing is not None else 60.0)
     finally:
         if own:
             sp.close()
@@ -301,8 +303,9 @@ def hand_states(hands) -> list:
 
 
 def _paced_frame(pacing: Pacing, duration: float, rate: float, state: dict):
-    """Called after every visual step of a paced run: pointer to the mouse devices, caption,
-    drawing, keys. Returns "start", "stop" or None."""
+    """Called for every frame of a paced run (up to `pacing.frame_rate` a second, between visual
+    steps): pointer to the mouse devices, caption, drawing (the hands late-latched), keys.
+    Returns "start", "stop" or None."""
 
     def frame(sp, visual):
         if pacing.on_frame is not None:
@@ -325,7 +328,7 @@ def _paced_frame(pacing: Pacing, duration: float, rate: float, state: dict):
             if pacing.caption is not None:
                 left = duration - sp.ticks() / rate if started else duration
                 view.set_text(**pacing.caption("running" if started else "waiting", max(left, 0.0)))
-            view.draw(visual.last, hand_states(visual.hands), sp.read_t)
+            view.draw(visual.last, hand_states(visual.hands), sp.read_t, latch=sp.latest)
             if view.closed:
                 state["ended_early"] = "window closed"
                 return "stop"

@@ -97,7 +97,7 @@ class ViewSpec:
 
     front: Vec3 = (0.0, -0.42, 0.91)  # from above and behind, like the surgeon's view
     up: Vec3 = (0.0, 0.0, 1.0)
-    zoom: float = 0.7
+    zoom: float = 1.0  # 1: the brain at rest fills the view's height (sim/camera.py); 2: twice as large
 
 
 @dataclass(frozen=True)

@@ -452,6 +452,13 @@ class ServoProcess:
             if not b[base + HELD] and h.contact is not None and not h.button:
                 h.contact = None  # released (or dropped after a fault) in the servo
 
+    def latest(self) -> tuple[list[tuple], float]:
+        """The hands' newest positions and when the servo read them: the view's late latch,
+        read just before a frame is drawn (nothing else of the mirrors changes)."""
+        b = self.board
+        read_t = float(b[READ_T])
+        return [tuple(float(x) for x in b[GLOBAL + SLOT * i + P : GLOBAL + SLOT * i + P + 3]) for i in range(self.n)], read_t
+
     def set_input(self, hand: int, target, pressed: bool) -> None:
         """The pointer's target and button for a mouse hand (read by its device every tick)."""
         base = GLOBAL + SLOT * hand
@@ -477,10 +484,13 @@ class ServoProcess:
             pair = (held[0].index, held[1].index, p) if p is not None else None
         self.send("laws", laws, pair, bool(getattr(model, "unstable", False)))
 
-    def run(self, scene, visual, n_ticks: int, visual_rate: float, frame=None, wait: bool = False) -> tuple[dict, list]:
-        """One run: this process runs the visual step and then `frame(sp, visual)` (the
-        participant view: pointer, drawing, keys), which may return "start" (start a waiting
-        run's clock) or "stop". Returns (the run's servo log, events)."""
+    def run(self, scene, visual, n_ticks: int, visual_rate: float, frame=None, wait: bool = False,
+            frame_rate: float = 60.0) -> tuple[dict, list]:
+        """One run: this process runs the visual step at `visual_rate` and, between steps, calls
+        `frame(sp, visual)` (the participant view: pointer, drawing, keys) up to `frame_rate`
+        times a second: the instruments move at the view's rate, not the deformation's. `frame`
+        may return "start" (start a waiting run's clock) or "stop". Returns (the run's servo
+        log, events)."""
         import os
 
         self._done = None
@@ -496,30 +506,35 @@ class ServoProcess:
         if len(own) > 1:  # leave the servo's core to the servo: every thread of this process
             _set_all_threads_affinity(set(own[:-1]))
         period = 1.0 / (visual_rate * self.time_scale)
+        frame_period = 1.0 / frame_rate
+        clock = time.perf_counter
         try:
-            next_frame = time.perf_counter()
+            next_step = next_frame = clock()
             while self.proc.is_alive() and self._done is None:
-                remaining = next_frame - time.perf_counter()
-                if remaining > 0:
-                    time.sleep(remaining)
-                self.sync()
-                if self._done is not None:
-                    break
-                before = {h.index: h.contact for h in self.hands}
-                visual(self.ticks() / self.rate)
-                for h in self.hands:  # new contacts go to the servo
-                    if h.contact is not None and before[h.index] is not h.contact:
-                        self.send_contact(h.index, h.contact, h.contact_t)
-                self.send_laws(visual.model)
-                if frame is not None:
+                now = clock()
+                wake = next_step if frame is None else min(next_step, next_frame)
+                if wake > now:
+                    time.sleep(wake - now)
+                if clock() >= next_step:
+                    self.sync()
+                    if self._done is not None:
+                        break
+                    before = {h.index: h.contact for h in self.hands}
+                    visual(self.ticks() / self.rate)
+                    for h in self.hands:  # new contacts go to the servo
+                        if h.contact is not None and before[h.index] is not h.contact:
+                            self.send_contact(h.index, h.contact, h.contact_t)
+                    self.send_laws(visual.model)
+                    next_step += period
+                    if clock() > next_step + period:
+                        next_step = clock()
+                if frame is not None and clock() >= next_frame:
+                    next_frame = clock() + frame_period
                     command = frame(self, visual)
                     if command == "stop":
                         break
                     if command == "start":
                         self.send("start")
-                next_frame += period
-                if time.perf_counter() > next_frame + period:
-                    next_frame = time.perf_counter()
             if self._done is None:
                 self.send("stop")
                 deadline = time.perf_counter() + 30.0

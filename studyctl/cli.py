@@ -109,6 +109,8 @@ def _names(ctx, param, value):
     return names
 
 
+FULLSCREEN = click.option("--fullscreen", is_flag=True,
+                          help="The participant view fills the primary monitor (else a resizable 1280x720 window).")
 DEVICES = click.option("--devices", "device_names", callback=_names, default=None,
                        help='OpenHaptics device names, comma-separated, e.g. "PHANToM 1,PHANToM 2" (default: the scene\'s).')
 
@@ -720,8 +722,9 @@ def sim():
 @click.option("--view", type=click.Choice(["none", "offscreen", "window"]), default=None,
               help="window: draw the run live in the participant view; offscreen: pictures after the run (--frames); default: the scene's renderer.")
 @click.option("--screenshot", type=OutFile((".png",)), default=None, help="With --view window: save the last frame shown (PNG).")
+@FULLSCREEN
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable statistics.")
-def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: float, view, screenshot, as_json: bool):
+def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: float, view, screenshot, fullscreen, as_json: bool):
     """Scripted simulated Omni hands grasp and pull the brain; the servo loop runs at 1 kHz."""
     from sim.run import run_scene, write_outputs
     from sim.scene import build_scene
@@ -730,11 +733,13 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
     view = view or scene.spec.renderer.kind
     if screenshot is not None and view != "window":
         raise click.UsageError("--screenshot needs --view window")
+    if fullscreen and view != "window":
+        raise click.UsageError("--fullscreen needs --view window")
     if view == "window":
         from sim.live import run_view
 
         result = run_view(scene, "window", duration=duration, time_scale=time_scale, screenshot=screenshot,
-                          snapshots=frames_dir is not None and scene.spec.renderer.kind == "offscreen")
+                          snapshots=frames_dir is not None and scene.spec.renderer.kind == "offscreen", fullscreen=fullscreen)
     else:
         result = run_scene(scene, duration=duration, time_scale=time_scale, snapshots=frames_dir is not None and view == "offscreen")
     stats = result.stats()
@@ -763,16 +768,17 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
 @click.option("--device", type=click.Choice(["mouse", "simulated", "openhaptics"]), default="mouse", show_default=True)
 @click.option("--duration", type=Finite(min=0.0, min_open=True, max=MAX_DURATION_S), default=600.0, show_default=True, help="Seconds at most; Q, Escape or closing the window ends it sooner.")
 @click.option("--screenshot", type=OutFile((".png",)), default=None, help="Save the last frame shown (PNG).")
+@FULLSCREEN
 @DEVICES
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable statistics.")
-def sim_live(scene_file: Path, model_name, device, duration, screenshot, device_names, as_json: bool):
+def sim_live(scene_file: Path, model_name, device, duration, screenshot, fullscreen, device_names, as_json: bool):
     """Open the participant view and pull the brain (mouse: grasp under the cursor, drag, wheel)."""
     from sim.live import run_view
     from sim.scene import build_scene
 
     scene = build_scene(scene_file, model_name).with_device(device)
     scene.device_names = device_names
-    result = run_view(scene, "window", duration=duration, screenshot=screenshot, live=True)
+    result = run_view(scene, "window", duration=duration, screenshot=screenshot, live=True, fullscreen=fullscreen)
     stats = result.stats()
     if as_json:
         _print_json(stats)
@@ -845,8 +851,9 @@ def devices_list(device_names, as_json):
 @click.option("--seconds", type=click.FloatRange(1.0, 600.0), default=5.0, show_default=True, help="How long to watch the styluses.")
 @click.option("--view", type=click.Choice(["none", "window"]), default="none", show_default=True, help="window: show both styluses live.")
 @click.option("--yes", is_flag=True, help="Apply the force pulse without asking.")
+@FULLSCREEN
 @click.option("--json", "as_json", is_flag=True)
-def devices_check(scene_file, device_names, seconds, view, yes, as_json):
+def devices_check(scene_file, device_names, seconds, view, yes, fullscreen, as_json):
     """Calibration, both styluses live, buttons, a gentle force pulse: exit 1 with the fix if anything is wrong."""
     from sim.devices.check import check_rig
     from sim.scene import build_scene
@@ -857,7 +864,9 @@ def devices_check(scene_file, device_names, seconds, view, yes, as_json):
     if view == "window":
         from sim.view import open_view
 
-        shown = open_view("window", scene)
+        shown = open_view("window", scene, fullscreen=fullscreen)
+    elif fullscreen:
+        raise click.UsageError("--fullscreen needs --view window")
     try:
         confirm = (lambda q: True) if yes else (lambda q: click.confirm(q, default=False, err=True))
         report = check_rig(scene, seconds, view=shown, confirm=confirm, say=lambda m: click.echo(m, err=True))
@@ -1143,16 +1152,19 @@ def session():
 @click.option("--answers", "answer_with", type=click.Choice(["terminal", "window"]), default="terminal", show_default=True,
               help="Where a person answers the questionnaire (window: keys and the mouse; free text stays in the terminal).")
 @click.option("--seed", type=int, default=None, help="A synthetic participant's seed  [default: 0; on --resume, the session's]")
+@FULLSCREEN
 @DEVICES
 @JSON
-def session_run(db, participant, device, synthetic, resume, time_scale, view, answer_with, seed, device_names, as_json):
+def session_run(db, participant, device, synthetic, resume, time_scale, view, answer_with, seed, fullscreen, device_names, as_json):
     """Training, then each condition in the assigned order: trials, then the questionnaire."""
     from studyctl.session import run_session
 
     if view is None:
         view = "window" if not synthetic and (time_scale is None or time_scale > 0) else "none"
+    if fullscreen and view != "window":
+        raise click.UsageError("--fullscreen needs --view window")
     out = run_session(db, participant, device, synthetic, resume, time_scale, seed=seed, progress=lambda m: click.echo(m, err=True),
-                      view=view, answer_with=answer_with, device_names=device_names)
+                      view=view, answer_with=answer_with, device_names=device_names, fullscreen=fullscreen)
     if as_json:
         _print_json(out)
         return
@@ -1179,12 +1191,15 @@ cli.add_command(_Group("sessions", commands={"list": session_list}, help="Alias:
 @click.option("--trial", type=click.IntRange(min=1), required=True, help="The session's K-th trial, in the order run (1 = the first).")
 @click.option("--view", type=click.Choice(["none", "window"]), default="none", show_default=True, help="window: play it back in real time.")
 @click.option("--frames", "frames_dir", type=OutDir(), default=None, help="Write pictures, the force plot and the trace.")
+@FULLSCREEN
 @click.option("--json", "as_json", is_flag=True)
-def replay_cmd(db, session_id, trial, view, frames_dir, as_json):
+def replay_cmd(db, session_id, trial, view, frames_dir, fullscreen, as_json):
     """Play a stored trial back: its recorded hand motion through the same model and scene."""
     from studyctl.replay import replay_trial
 
-    out = replay_trial(db, session_id, trial, view=view, frames_dir=frames_dir)
+    if fullscreen and view != "window":
+        raise click.UsageError("--fullscreen needs --view window")
+    out = replay_trial(db, session_id, trial, view=view, frames_dir=frames_dir, fullscreen=fullscreen)
     if as_json:
         _print_json(out)
         return

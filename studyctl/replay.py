@@ -21,7 +21,7 @@ def session_trials(store, session_id: int) -> list[dict]:
         "where t.session_id = ? order by c.position, t.trial", (session_id,))
 
 
-def replay_trial(db, session_id: int, k: int, view: str = "none", frames_dir: Path | None = None) -> dict:
+def replay_trial(db, session_id: int, k: int, view: str = "none", frames_dir: Path | None = None, fullscreen: bool = False) -> dict:
     from sim.run import run_scene, write_outputs
     from sim.scene import Scene
     from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
@@ -53,7 +53,7 @@ def replay_trial(db, session_id: int, k: int, view: str = "none", frames_dir: Pa
     if view == "window":
         from sim.live import run_view
 
-        result = run_view(scene, "window", duration=duration)
+        result = run_view(scene, "window", duration=duration, fullscreen=fullscreen)
     else:
         result = run_scene(scene, duration=duration, time_scale=0.0, snapshots=frames_dir is not None)
     n = min(len(result.forces), len(trace.forces))

@@ -216,7 +216,8 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
 
 def _run_session(db, code: str, device: str = "simulated", synthetic: bool = False, resume: bool = False,
                 time_scale: float | None = None, answers=None, seed: int | None = None, progress: Callable[[str], None] | None = None,
-                session_id: int | None = None, view: str = "none", answer_with: str = "terminal", device_names: list[str] | None = None) -> dict:
+                session_id: int | None = None, view: str = "none", answer_with: str = "terminal", device_names: list[str] | None = None,
+                fullscreen: bool = False) -> dict:
     from sim.run import Pacing, run_scene
     from studyctl.study import assign_order
     from studyctl.traces import trial_traces, write_trace
@@ -233,7 +234,7 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
         if view == "window":
             from sim.view import open_view
 
-            shown = open_view("window", first, show_force=device == "mouse")
+            shown = open_view("window", first, show_force=device == "mouse", fullscreen=fullscreen)
         if time_scale > 0:  # one servo process for the session: devices opened once, kept across trials
             from sim.servo_process import ServoProcess
 

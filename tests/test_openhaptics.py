@@ -216,8 +216,9 @@ def test_cli_without_the_library_is_one_clean_line(tmp_path, monkeypatch):
 
 def test_device_frame_follows_the_view_and_forces_go_back_along_the_pull(tmp_path):
     """A stylus moved right / up / toward the user moves the hand right / up / out of the
-    screen (checked with open3d's own camera for the scene's view), and the tissue's force on a
-    grasped pull points back along the pull in device coordinates."""
+    screen (checked with the camera the view draws with, whose projection tests/test_view.py
+    checks against rendered pixels), and the tissue's force on a grasped pull points back along
+    the pull in device coordinates."""
     import numpy as np
 
     from sim.scene import build_scene
@@ -226,13 +227,12 @@ def test_device_frame_follows_the_view_and_forces_go_back_along_the_pull(tmp_pat
     scene = build_scene(_openhaptics_scene(tmp_path), "plate_spring")
     frame = scene.device_frame(0)
     view = ParticipantView(scene.mesh, visible=False, width=640, height=480, camera=scene.spec.view)
-    cam = view.vis.get_view_control().convert_to_pinhole_camera_parameters()
-    E, K = np.asarray(cam.extrinsic), np.asarray(cam.intrinsic.intrinsic_matrix)
+    camera = view.camera
     view.close()
 
     def pixel(p):
-        c = E[:3, :3] @ np.asarray(p) + E[:3, 3]
-        return (K @ c)[:2] / c[2], c[2]
+        u, v, z = camera.project(p)[0]
+        return (u, v), z
 
     p0 = frame.to_scene((0.0, 0.0, 0.0))
     (u0, v0), z0 = pixel(p0)
