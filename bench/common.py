@@ -64,3 +64,26 @@ def percentile_keys(prefix: str, row: dict, target: float | None = None) -> dict
         out[f"{prefix}.target"] = target
         out[f"{prefix}_p99.ratio_to_target"] = float(row["p99"]) / target
     return out
+
+
+def xvfb_display():
+    """A virtual X display (Xvfb, 1600x900) for a window when there is none: DISPLAY is set for
+    this process and its children. Returns the Xvfb process to terminate, or None if a display
+    was there already."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    if os.environ.get("DISPLAY"):
+        return None
+    xvfb = shutil.which("Xvfb")
+    if xvfb is None:
+        sys.exit("bench: no DISPLAY and no Xvfb (make test installs it)")
+    r, w = os.pipe()
+    proc = subprocess.Popen([xvfb, "-displayfd", str(w), "-screen", "0", "1600x900x24", "-nolisten", "tcp"], pass_fds=(w,),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.close(w)
+    with os.fdopen(r) as fh:
+        os.environ["DISPLAY"] = ":" + fh.readline().strip()
+    return proc

@@ -18,25 +18,11 @@ import sys
 import tempfile
 from pathlib import Path
 
+from bench.common import xvfb_display
 from sim.run import Pacing, run_scene
 from sim.scene import DEFAULT_SCENE, build_scene
 
 TARGET_P99_US = 1100.0
-
-
-def _display():
-    if os.environ.get("DISPLAY"):
-        return None
-    xvfb = shutil.which("Xvfb")
-    if xvfb is None:
-        sys.exit("bench servo: no DISPLAY and no Xvfb (make test installs it)")
-    r, w = os.pipe()
-    proc = subprocess.Popen([xvfb, "-displayfd", str(w), "-screen", "0", "1600x900x24", "-nolisten", "tcp"], pass_fds=(w,),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(w)
-    with os.fdopen(r) as fh:
-        os.environ["DISPLAY"] = ":" + fh.readline().strip()
-    return proc
 
 
 def _scene_file(seconds: float) -> Path:
@@ -63,7 +49,7 @@ def _fake_libhd() -> str | None:
 def run(seconds: float = 10.0) -> list[dict]:
     from sim.view import ParticipantView
 
-    xvfb = _display()
+    xvfb = xvfb_display()
     path = _scene_file(seconds)
     rows = []
     view = None

@@ -321,6 +321,3 @@ class Renderer:
         """RGB bytes of `target`, top row first."""
         data = target.read(viewport=(0, 0, width, height), components=3, alignment=1)
         return np.frombuffer(data, dtype=np.uint8).reshape(height, width, 3)[::-1].copy()
-
-    def release(self) -> None:
-        self.ctx.release()

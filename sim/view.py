@@ -26,6 +26,7 @@ screen (`idle`: a rest screen, questions asked in the window or in the terminal)
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from dataclasses import dataclass, field
@@ -132,14 +133,15 @@ class ParticipantView:
             self._callbacks()
         else:
             self.ctx = open_offscreen()
-        self.gl = Renderer(self.ctx, mesh)
-        self.renderer_name = self.ctx.info.get("GL_RENDERER", "?")
         self.width, self.height = int(width), int(height)
         self._fit()
         self._positions = mesh.vertices.copy()
-        self.gl.set_brain(self._positions, mesh.vertex_normals)
         self._colour_key = None
-        self._set_colours(None, [])
+        with self._current():
+            self.gl = Renderer(self.ctx, mesh)
+            self.renderer_name = self.ctx.info.get("GL_RENDERER", "?")
+            self.gl.set_brain(self._positions, mesh.vertex_normals)
+            self._set_colours(None, [])
         import matplotlib
 
         self.cmap = matplotlib.colormaps["inferno"]
@@ -166,6 +168,27 @@ class ParticipantView:
         self.last_frame_at: float | None = None
 
     # -- window, camera ----------------------------------------------------------------------
+    @contextlib.contextmanager
+    def _current(self):
+        """This view's GL context current on the thread while GL is used, and none after: views
+        of both kinds live in one process (a session's window, offscreen pictures, tests), and a
+        thread may not switch between a GLX and an EGL context while one is current (libglvnd:
+        BadAccess, which ends the process)."""
+        if self.window is not None:
+            import glfw
+
+            glfw.make_context_current(self.window)
+            try:
+                yield
+            finally:
+                glfw.make_context_current(None)
+        else:
+            self.ctx.__enter__()
+            try:
+                yield
+            finally:
+                self.ctx.__exit__(None, None, None)
+
     def _callbacks(self) -> None:
         import glfw
 
@@ -375,17 +398,19 @@ class ParticipantView:
         self._events()
         u = np.zeros_like(self.mesh.vertices) if displacement is None else np.asarray(displacement, dtype=np.float64)
         self._positions = self.mesh.vertices + u
-        self.gl.set_brain(self._positions, vertex_normals(self._positions, self.mesh.triangles))
-        self._set_colours(heat01, [h.grasped_vertex for h in hands if h.grasped_vertex is not None])
-        self.prepare_s.append(time.perf_counter() - start)  # this process's own work, besides the GL calls
-        if latch is not None:  # the newest hand positions, read now
-            positions, read_t = latch()
-            hands = [HandState(tuple(p), h.force, h.grasped_vertex) for h, p in zip(hands, positions)]
-        self._last_hands = hands
-        arrows = self._arrows(hands) if self.show_force else None
-        self._scene = ([self._instrument(k, h.position, h.grasped_vertex is not None) for k, h in enumerate(hands)], arrows)
-        self._running = True
-        self._present()
+        normals = vertex_normals(self._positions, self.mesh.triangles)
+        with self._current():
+            self.gl.set_brain(self._positions, normals)
+            self._set_colours(heat01, [h.grasped_vertex for h in hands if h.grasped_vertex is not None])
+            self.prepare_s.append(time.perf_counter() - start)  # this process's own work, besides the GL calls
+            if latch is not None:  # the newest hand positions, read now
+                positions, read_t = latch()
+                hands = [HandState(tuple(p), h.force, h.grasped_vertex) for h, p in zip(hands, positions)]
+            self._last_hands = hands
+            arrows = self._arrows(hands) if self.show_force else None
+            self._scene = ([self._instrument(k, h.position, h.grasped_vertex is not None) for k, h in enumerate(hands)], arrows)
+            self._running = True
+            self._present()
         now = time.perf_counter()
         self.frames += 1
         self.frame_s.append(now - start)
@@ -434,13 +459,15 @@ class ParticipantView:
         self._running = False
         if self.window is None:
             if not self._fresh:
-                self._present()
+                with self._current():
+                    self._present()
             return
         import glfw
 
         self._events()
         if not self._fresh:
-            self._present()
+            with self._current():
+                self._present()
         else:
             glfw.wait_events_timeout(1.0 / self.max_fps)
 
@@ -458,11 +485,12 @@ class ParticipantView:
         last drawn: it is read as it is while it shows the scene as it is now, else drawn again.
         A window's frame is drawn again offscreen (the same state): its back buffer is undefined
         after a swap."""
-        target = self.gl.target(self.width, self.height)
-        if self.window is not None or not self._fresh:
-            self._render(target)
-            self._fresh = self._fresh or self.window is None
-        return self.gl.read(target, self.width, self.height)
+        with self._current():
+            target = self.gl.target(self.width, self.height)
+            if self.window is not None or not self._fresh:
+                self._render(target)
+                self._fresh = self._fresh or self.window is None
+            return self.gl.read(target, self.width, self.height)
 
     def stats(self) -> dict:
         span = (self.last_frame_at or 0.0) - (self.first_frame_at or 0.0)
@@ -492,14 +520,14 @@ class ParticipantView:
         if self.closed and self.window is None and self.ctx is None:
             return
         self.closed = True
-        if self.ctx is not None:
-            self.gl.release()
-            self.ctx = None
-        if self.window is not None:
+        if self.window is not None:  # the window's context, and every GL object, go with it
             import glfw
 
             glfw.destroy_window(self.window)
             self.window = None
+        elif self.ctx is not None:
+            self.ctx.release()  # an EGL context is destroyed at once when it is not current (it never is between calls)
+        self.ctx = None
 
     # -- the questionnaire -------------------------------------------------------------------
     def set_questionnaire(self, on: bool) -> None:

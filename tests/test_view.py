@@ -360,3 +360,35 @@ def test_the_screen_shows_the_frame_the_view_reports(mode, tmp_path):
     assert _brain_pixels(frame) > 0.2 * width * height and _patch_pixels(frame) > 10
 
 
+
+
+_MIXED = r"""
+import json
+import numpy as np
+from sim.mesh import load_mesh
+from sim.view import HandState, ParticipantView
+mesh = load_mesh()
+pictures = ParticipantView(mesh, width=320, height=240, visible=False)
+pictures.draw(None, [HandState(tuple(mesh.vertices[3386]), grasped_vertex=3386)])
+first = pictures.image()
+window = ParticipantView(mesh, width=320, height=240)
+window.draw(None, [])
+again = ParticipantView(mesh, width=320, height=240, visible=False)
+again.draw(None, [])
+shown = window.image()
+same = pictures.image()
+window.close()
+pictures.close()
+print(json.dumps({"same": bool(np.array_equal(first, same)), "differs": int((np.abs(first.astype(int) - shown).max(axis=2) > 30).sum()),
+                  "plain": bool(np.array_equal(shown, again.image()))}))
+"""
+
+
+def test_window_and_offscreen_views_live_side_by_side_in_one_process(display):
+    """A session's window and offscreen pictures (GLX and EGL contexts) in one process, made and
+    used in turns: each view draws its own scene (once, this ended the process with BadAccess)."""
+    out = subprocess.run([sys.executable, "-c", _MIXED], capture_output=True, text=True, env=dict(os.environ, DISPLAY=display), timeout=120,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert out.returncode == 0, out.stderr[-2000:]
+    r = json.loads(out.stdout.strip().splitlines()[-1])
+    assert r == {"same": True, "differs": r["differs"], "plain": True} and r["differs"] > 100  # the grasped patch and the forceps
