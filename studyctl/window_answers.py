@@ -18,13 +18,8 @@ keys pressed and clicks made before a question appears answer nothing.
 
 from __future__ import annotations
 
-import textwrap
-
 from studyctl.asking import TerminalAnswers
 from studyctl.errors import StoreError
-
-GLYPH_WIDTH = 0.5  # a character of the question's text, in units of its height in pixels
-QUESTION_PX = 24
 
 
 class WindowAnswers:
@@ -48,15 +43,12 @@ class WindowAnswers:
             raise StoreError("the window was closed during the questionnaire; continue with --resume")
         return view.take_keys()
 
-    def _wrapped(self, text: str) -> str:
-        return textwrap.fill(text, width=max(20, int((self.view.width - 80) / (GLYPH_WIDTH * QUESTION_PX))))
-
     def __call__(self, question, model: str, context: dict):
         view = self.view
         view.set_questionnaire(True)
         try:
             if question.kind == "text":  # no text entry in the window
-                view.set_text(question=self._wrapped(question.text), center="", bottom="Please type your answer in the terminal")
+                view.set_text(question=view.wrap(question.text), center="", bottom="Please type your answer in the terminal")
                 return self.terminal(question, model, context)
             return self._ask(question, context.get("labels") or {})
         finally:
@@ -92,7 +84,7 @@ class WindowAnswers:
             hint = f"Press {' / '.join(label for _, label in shown)}  (or click one, then press Enter)"
         else:
             raise StoreError(f"question {q.id}: a {q.kind} question cannot be answered in the window")
-        view.set_text(question=self._wrapped(q.text), center="", bottom=hint)
+        view.set_text(question=view.wrap(q.text), center="", bottom=hint)
         self._keys()  # what was pressed or clicked before the question appeared answers nothing
         w = view.widget
         if w is not None:

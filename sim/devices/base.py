@@ -41,7 +41,7 @@ class DeviceFrame:
 
 def view_rotation(front, up) -> tuple:
     """The rotation whose columns are the screen's right, up and out-of-the-screen directions
-    for a camera looking along -front with `up` (open3d's look-at convention)."""
+    for a camera looking along -front with `up` (a look-at camera, as sim/camera.py's)."""
     import numpy as np
 
     out = np.asarray(front, dtype=np.float64)
