@@ -66,24 +66,33 @@ def percentile_keys(prefix: str, row: dict, target: float | None = None) -> dict
     return out
 
 
-def xvfb_display():
-    """A virtual X display (Xvfb, 1600x900) for a window when there is none: DISPLAY is set for
-    this process and its children. Returns the Xvfb process to terminate, or None if a display
-    was there already."""
+def start_xvfb(screen: str = "1600x900x24", *args: str):
+    """An Xvfb server on a free display number (it reports the number it took): (process, ":N")."""
     import os
     import shutil
     import subprocess
+
+    xvfb = shutil.which("Xvfb")
+    if xvfb is None:
+        raise FileNotFoundError("Xvfb is not installed (make test installs the xvfb package)")
+    r, w = os.pipe()
+    proc = subprocess.Popen([xvfb, "-displayfd", str(w), "-screen", "0", screen, "-nolisten", "tcp", *args], pass_fds=(w,),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.close(w)
+    with os.fdopen(r) as fh:
+        return proc, ":" + fh.readline().strip()
+
+
+def xvfb_display():
+    """A virtual X display for a window when there is none: DISPLAY is set for this process and
+    its children. Returns the Xvfb process to terminate, or None if a display was there already."""
+    import os
     import sys
 
     if os.environ.get("DISPLAY"):
         return None
-    xvfb = shutil.which("Xvfb")
-    if xvfb is None:
-        sys.exit("bench: no DISPLAY and no Xvfb (make test installs it)")
-    r, w = os.pipe()
-    proc = subprocess.Popen([xvfb, "-displayfd", str(w), "-screen", "0", "1600x900x24", "-nolisten", "tcp"], pass_fds=(w,),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(w)
-    with os.fdopen(r) as fh:
-        os.environ["DISPLAY"] = ":" + fh.readline().strip()
+    try:
+        proc, os.environ["DISPLAY"] = start_xvfb()
+    except FileNotFoundError as exc:
+        sys.exit(f"bench: no DISPLAY and {exc}")
     return proc

@@ -31,7 +31,7 @@ FONT_PATH = Path(matplotlib.get_data_path()) / "fonts/ttf/DejaVuSans.ttf"
 PX_MIN, PX_MAX = 4, 400
 CHARS = "".join(map(chr, [*range(32, 127), *range(160, 256)]))
 FALLBACK = "?"
-PAD = 2  # empty pixels around every glyph box: bilinear sampling never reaches a neighbour's ink
+PAD = 2  # empty pixels around every glyph box: drawn texel for texel now, and linear sampling at another scale would not reach a neighbour's ink
 LINE_SPACING = 1.2  # line height over the em size
 
 

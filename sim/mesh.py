@@ -89,10 +89,16 @@ class SurfaceMesh:
 
 
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted vertex normals (unit length; zero at a vertex no triangle uses)."""
-    from sim.kernels import vertex_normals as compiled
-
-    return compiled(np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(triangles))
+    """Area-weighted vertex normals (unit length). NumPy: once per mesh, so that a headless
+    scene never imports numba; the view's per-frame pass is compiled (sim/kernels.py)."""
+    v0, v1, v2 = (vertices[triangles[:, k]] for k in range(3))
+    fn = np.cross(v1 - v0, v2 - v0)  # length = 2 * area
+    n = np.zeros_like(vertices)
+    for k in range(3):
+        for c in range(3):
+            n[:, c] += np.bincount(triangles[:, k], weights=fn[:, c], minlength=len(vertices))
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return n / np.where(norm > 0, norm, 1.0)
 
 
 def load_mesh(path: str | Path = BRAIN_MESH) -> SurfaceMesh:

@@ -29,7 +29,7 @@ def render_snapshots(result, scene, out_dir: Path, progress: Callable[[int, int]
     norm = matplotlib.colors.Normalize(0.0, scale * 1e3)
     for k, snap in enumerate(result.snapshots):
         u = snap.displacement.astype(np.float64)
-        renderer.draw(u, [HandState(p) for p in snap.hand_positions], heat01=np.linalg.norm(u, axis=1) / scale)
+        renderer.draw(u, [HandState(p, holding=g) for p, g in zip(snap.hand_positions, snap.grasped)], heat01=np.linalg.norm(u, axis=1) / scale)
         img = renderer.image()
         fig = plt.figure(figsize=(r.width / 100 + 1.3, r.height / 100 + 0.5), dpi=100)
         ax = fig.add_axes((0.0, 0.0, r.width / (r.width + 130), 1.0 - 50 / (r.height + 50)))

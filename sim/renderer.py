@@ -5,8 +5,8 @@ Why moderngl (with glfw for the window, EGL without a display): a frame costs wh
 triangles cost. The brain's positions and normals are written into buffers that live on the
 GPU (or Mesa's CPU driver) and drawn in one call; instruments and arrows are small meshes placed
 by a matrix; text is textured quads from a font atlas (sim/font.py). Measured here at 1280x720
-under Xvfb with one llvmpipe rasteriser thread: 11-14 ms a frame, where open3d's classic
-visualiser took 75-80 ms (`python -m bench render`).
+under Xvfb with one llvmpipe rasteriser thread: 21-24 ms a frame p50, where open3d's classic
+visualiser took 75-82 ms (`python -m bench render`, docs/participant.md).
 
 Conventions: world coordinates in metres; overlay coordinates in framebuffer pixels from the top
 left corner (x right, y down), as the mouse reports them.
@@ -57,7 +57,6 @@ out vec4 colour;
 void main() {
     vec3 n = normalize(v_normal);
     vec3 v = normalize(eye - v_world);
-    if (dot(n, v) < 0.0) n = -n;
     float head = max(dot(n, v), 0.0);
     float side = max(dot(n, key), 0.0);
     float s = specular * pow(max(dot(n, normalize(key + v)), 0.0), shininess);
@@ -132,6 +131,7 @@ def open_window(width: int, height: int, title: str, fullscreen: bool = False):
     glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 3)
     glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
     glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
+    glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, glfw.TRUE)  # macOS gives a 3.3 core context only so
     glfw.window_hint(glfw.RESIZABLE, glfw.TRUE)
     glfw.window_hint(glfw.DOUBLEBUFFER, glfw.TRUE)
     monitor = None
@@ -157,9 +157,11 @@ def open_offscreen():
 
     _x_runtime_dir()
     try:
-        return moderngl.create_context(standalone=True, backend="egl", require=330)
+        ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
     except Exception as exc:  # no EGL library, no device
         raise ViewError(f"offscreen rendering: no EGL OpenGL 3.3 context ({exc}); `make test` installs libegl1 and Mesa") from exc
+    ctx.__exit__(None, None, None)  # current since its creation: a view makes it current only while it draws
+    return ctx
 
 
 class Renderer:
@@ -215,6 +217,9 @@ class Renderer:
         if px not in self.atlases:
             from sim.font import atlas
 
+            if len(self.atlases) >= 32:  # a window dragged through many sizes: drop the oldest
+                oldest = next(iter(self.atlases))
+                self.atlases.pop(oldest)[1].release()
             a = atlas(px)
             tex = self.ctx.texture((a.image.shape[1], a.image.shape[0]), 1, np.ascontiguousarray(a.image).tobytes(), alignment=1)
             tex.filter = (self.ctx.NEAREST, self.ctx.NEAREST)  # glyphs land on whole pixels: texel for pixel

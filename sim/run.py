@@ -47,7 +47,6 @@ class Pacing:
     keys: Callable[[], list[str]] | None = None  # another key source (the experimenter's terminal)
     notify: Callable[[str], None] | None = None  # the devices' notices (calibration, warm motors) for the experimenter
     on_frame: Callable[[object], None] | None = None  # called with the ServoProcess each frame (e.g. a device check's pulse)
-    frame_rate: float = 60.0  # the most frames a second the view draws (a real display's refresh paces it too)
 
 
 @dataclass
@@ -279,7 +278,7 @@ def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, se
     sp = ServoProcess(scene, time_scale) if own else servo
     try:
         out, events = sp.run(scene, visual, n_ticks, spec.visual_rate_hz, frame, wait=bool(pacing and pacing.wait_for_grasp),
-                             frame_rate=pacing.frame_rate if pacing is not None else 60.0)
+                             frame_rate=getattr(pacing.view, "max_fps", 60.0) if pacing is not None else 60.0)
     finally:
         if own:
             sp.close()
@@ -303,7 +302,7 @@ def hand_states(hands) -> list:
 
 
 def _paced_frame(pacing: Pacing, duration: float, rate: float, state: dict):
-    """Called for every frame of a paced run (up to `pacing.frame_rate` a second, between visual
+    """Called for every frame of a paced run (up to the view's `max_fps` a second, between visual
     steps): pointer to the mouse devices, caption, drawing (the hands late-latched), keys.
     Returns "start", "stop" or None."""
 

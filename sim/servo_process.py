@@ -251,7 +251,6 @@ class _Runner:
                     del self.pulse_end[i]
             t = (self.k - run["k0"]) / self.rate if run is not None else 0.0
             servo.tick(t, (self.k - self.k_device) / self.rate)
-            board[READ_T] = now
             if run is None:  # between runs: hands are shown, nothing is grasped or kept
                 for h in hands:
                     h.grasp_request = None
@@ -276,6 +275,7 @@ class _Runner:
                     self.grasp_seq[i] += 1
                     board[base + GRASP_SEQ] = self.grasp_seq[i]  # written after the position
                     h.grasp_request = None
+            board[READ_T] = now  # after the hands: a frame's late latch never pairs this read with older positions
             board[RUN_SEQ] = self.run_seq  # after the hands: the parent then sees this run's state
             self.k += 1
             run = self.run
@@ -452,12 +452,16 @@ class ServoProcess:
             if not b[base + HELD] and h.contact is not None and not h.button:
                 h.contact = None  # released (or dropped after a fault) in the servo
 
-    def latest(self) -> tuple[list[tuple], float]:
-        """The hands' newest positions and when the servo read them: the view's late latch,
-        read just before a frame is drawn (nothing else of the mirrors changes)."""
+    def latest(self) -> tuple[list[tuple], list[tuple], float]:
+        """The hands' newest positions and forces, and when the servo read the devices for them:
+        the view's late latch, read just before a frame is drawn (the mirrors do not change)."""
         b = self.board
-        read_t = float(b[READ_T])
-        return [tuple(float(x) for x in b[GLOBAL + SLOT * i + P : GLOBAL + SLOT * i + P + 3]) for i in range(self.n)], read_t
+        read_t = float(b[READ_T])  # written after the hands: the positions are at least this new
+
+        def slot(i, k):
+            return tuple(float(x) for x in b[GLOBAL + SLOT * i + k : GLOBAL + SLOT * i + k + 3])
+
+        return [slot(i, P) for i in range(self.n)], [slot(i, F) for i in range(self.n)], read_t
 
     def set_input(self, hand: int, target, pressed: bool) -> None:
         """The pointer's target and button for a mouse hand (read by its device every tick)."""
@@ -506,7 +510,7 @@ class ServoProcess:
         if len(own) > 1:  # leave the servo's core to the servo: every thread of this process
             _set_all_threads_affinity(set(own[:-1]))
         period = 1.0 / (visual_rate * self.time_scale)
-        frame_period = 1.0 / frame_rate
+        frame_period = 1.0 / max(frame_rate, 1.0)
         clock = time.perf_counter
         try:
             next_step = next_frame = clock()

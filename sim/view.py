@@ -72,7 +72,12 @@ class HandState:
 
     position: tuple
     force: tuple = (0.0, 0.0, 0.0)
-    grasped_vertex: int | None = None
+    grasped_vertex: int | None = None  # its patch is coloured
+    holding: bool = False  # the jaws are closed on tissue (also when no patch is coloured: the analyst's pictures)
+
+    @property
+    def closed(self) -> bool:
+        return self.holding or self.grasped_vertex is not None
 
 
 @dataclass
@@ -112,7 +117,8 @@ class ParticipantView:
         from sim.scene import ViewSpec
 
         # Mesa's CPU rasteriser: a thread per core but one, which the servo process keeps
-        os.environ.setdefault("LP_NUM_THREADS", str(max(1, len(os.sched_getaffinity(0)) - 1)))
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        os.environ.setdefault("LP_NUM_THREADS", str(max(1, cores - 1)))
         if visible and not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
             raise ViewError("--view window: no display (DISPLAY is not set); run on a desktop, or under xvfb-run")
         self.mesh = mesh
@@ -123,25 +129,31 @@ class ParticipantView:
         self.n_hands = len(pulls)
         self.max_fps = max_fps
         self.window = None
-        if visible:
-            import glfw
-            import moderngl
+        self.ctx = None
+        try:
+            if visible:
+                import glfw
+                import moderngl
 
-            self.window = open_window(width, height, title, fullscreen)
-            self.ctx = moderngl.create_context()
-            width, height = glfw.get_framebuffer_size(self.window)
-            self._callbacks()
-        else:
-            self.ctx = open_offscreen()
-        self.width, self.height = int(width), int(height)
-        self._fit()
-        self._positions = mesh.vertices.copy()
-        self._colour_key = None
-        with self._current():
-            self.gl = Renderer(self.ctx, mesh)
-            self.renderer_name = self.ctx.info.get("GL_RENDERER", "?")
-            self.gl.set_brain(self._positions, mesh.vertex_normals)
-            self._set_colours(None, [])
+                self.window = open_window(width, height, title, fullscreen)
+                self.ctx = moderngl.create_context()
+                width, height = glfw.get_framebuffer_size(self.window)
+                self._callbacks()
+            else:
+                self.ctx = open_offscreen()
+            self.width, self.height = int(width), int(height)
+            self._fit()
+            self._positions = mesh.vertices.copy()
+            self._colour_key = None
+            with self._current():
+                self.gl = Renderer(self.ctx, mesh)
+                self.renderer_name = self.ctx.info.get("GL_RENDERER", "?")
+                self.gl.set_brain(self._positions, mesh.vertex_normals)
+                self._set_colours(None, [])
+        except Exception:  # nothing left current or open: a later view in this process must still work
+            self.closed = False
+            self.close()
+            raise
         import matplotlib
 
         self.cmap = matplotlib.colormaps["inferno"]
@@ -200,7 +212,7 @@ class ParticipantView:
 
         glfw.set_key_callback(w, key)
         glfw.set_framebuffer_size_callback(w, lambda win, width, height: self.resize(width, height))
-        glfw.set_window_refresh_callback(w, lambda win: self._changed())  # uncovered: draw again
+        glfw.set_window_refresh_callback(w, lambda win: setattr(self, "_fresh", False))  # uncovered: draw again
         glfw.set_mouse_button_callback(w, lambda win, button, action, mods: self._on_button(button, action))
         glfw.set_cursor_pos_callback(w, lambda win, x, y: self._on_move(*self._to_pixels(x, y)))
         glfw.set_scroll_callback(w, lambda win, dx, dy: self._on_scroll(dx, dy))
@@ -227,22 +239,6 @@ class ParticipantView:
 
         self.camera = fit(self.mesh.vertices, self.spec.front, self.spec.up, self.width, self.height, self.spec.zoom)
         self.ui = self.height / DESIGN_HEIGHT
-
-    @property
-    def K(self) -> np.ndarray:
-        return self.camera.K
-
-    @property
-    def R(self) -> np.ndarray:
-        return self.camera.R
-
-    @property
-    def t(self) -> np.ndarray:
-        return self.camera.t
-
-    @property
-    def eye(self) -> np.ndarray:
-        return self.camera.eye
 
     def _changed(self) -> None:
         self._flat = None
@@ -275,7 +271,7 @@ class ParticipantView:
         """The pixel size of a slot's text in this view."""
         return max(4, round(SLOTS[slot][2] * self.ui))
 
-    def wrap(self, text: str, slot: str = "question", margin: float = 40.0) -> str:
+    def wrap(self, text: str, slot: str, margin: float = 24.0) -> str:
         """`text` broken into lines at spaces so each fits the view's width less `margin` pixels a side."""
         from sim.font import atlas
 
@@ -303,6 +299,7 @@ class ParticipantView:
                 continue
             x, y, size, colour, align, down = SLOTS[slot]
             px = self.text_size(slot)
+            text = self.wrap(text, slot)  # at the view's width now: again after a resize
             x = self.width * x if 0 < x < 1 else (x * self.ui if x >= 0 else self.width + x * self.ui)
             y = y * self.ui if y >= 0 else self.height + y * self.ui
             if not down:
@@ -333,10 +330,10 @@ class ParticipantView:
     def _set_colours(self, heat01, grasped: list[int]) -> None:
         """The tissue's colours: plain, or (the analyst's pictures) by `heat01`, with the
         grasped patches over them; written only when they change."""
-        key = (tuple(grasped), None if heat01 is None else id(heat01))
-        if key == self._colour_key and heat01 is None:
+        key = tuple(grasped)
+        if heat01 is None and key == self._colour_key:  # heat changes from picture to picture: always written
             return
-        self._colour_key = key
+        self._colour_key = key if heat01 is None else None
         n = self.mesh.n_vertices
         if heat01 is not None:  # tissue colour, then inferno
             heat = np.asarray(heat01, dtype=np.float64)
@@ -389,8 +386,8 @@ class ParticipantView:
 
     def draw(self, displacement, hands: list[HandState], read_t: float | None = None, heat01=None, latch=None) -> None:
         """Draw one frame and present it. `read_t` (perf_counter) is when the devices were read
-        for this state; `latch()`, if given, returns (the hands' newest positions, when they were
-        read), taken just before drawing. Motion-to-photon runs from that read to the presented
+        for this state; `latch()`, if given, returns (the hands' newest positions, their forces,
+        when the devices were read for them), taken just before drawing. Motion-to-photon runs from that read to the presented
         frame. `heat01` (per vertex, 0..1) colours the tissue by it (the analyst's pictures)."""
         from sim.kernels import vertex_normals
 
@@ -403,12 +400,12 @@ class ParticipantView:
             self.gl.set_brain(self._positions, normals)
             self._set_colours(heat01, [h.grasped_vertex for h in hands if h.grasped_vertex is not None])
             self.prepare_s.append(time.perf_counter() - start)  # this process's own work, besides the GL calls
-            if latch is not None:  # the newest hand positions, read now
-                positions, read_t = latch()
-                hands = [HandState(tuple(p), h.force, h.grasped_vertex) for h, p in zip(hands, positions)]
+            if latch is not None:  # the newest hand positions and forces, read now
+                positions, forces, read_t = latch()
+                hands = [HandState(tuple(p), tuple(f), h.grasped_vertex, h.holding) for h, p, f in zip(hands, positions, forces)]
             self._last_hands = hands
             arrows = self._arrows(hands) if self.show_force else None
-            self._scene = ([self._instrument(k, h.position, h.grasped_vertex is not None) for k, h in enumerate(hands)], arrows)
+            self._scene = ([self._instrument(k, h.position, h.closed) for k, h in enumerate(hands)], arrows)
             self._running = True
             self._present()
         now = time.perf_counter()
@@ -461,6 +458,8 @@ class ParticipantView:
             if not self._fresh:
                 with self._current():
                     self._present()
+            else:
+                time.sleep(1.0 / self.max_fps)
             return
         import glfw
 

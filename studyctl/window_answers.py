@@ -48,7 +48,7 @@ class WindowAnswers:
         view.set_questionnaire(True)
         try:
             if question.kind == "text":  # no text entry in the window
-                view.set_text(question=view.wrap(question.text), center="", bottom="Please type your answer in the terminal")
+                view.set_text(question=question.text, center="", bottom="Please type your answer in the terminal")
                 return self.terminal(question, model, context)
             return self._ask(question, context.get("labels") or {})
         finally:
@@ -84,7 +84,7 @@ class WindowAnswers:
             hint = f"Press {' / '.join(label for _, label in shown)}  (or click one, then press Enter)"
         else:
             raise StoreError(f"question {q.id}: a {q.kind} question cannot be answered in the window")
-        view.set_text(question=view.wrap(q.text), center="", bottom=hint)
+        view.set_text(question=q.text, center="", bottom=hint)
         self._keys()  # what was pressed or clicked before the question appeared answers nothing
         w = view.widget
         if w is not None:

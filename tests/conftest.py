@@ -45,20 +45,15 @@ def display():
     """A real X display for the participant view: Xvfb (installed by `make test`), started
     once for the session; DISPLAY is set for this process and its children."""
     import os
-    import shutil
-    import subprocess
 
-    xvfb = shutil.which("Xvfb")
-    if xvfb is None:
+    from bench.common import start_xvfb
+
+    try:
+        proc, display = start_xvfb()
+    except FileNotFoundError:
         pytest.fail("Xvfb is not installed: run `make test`, which installs the xvfb package")
-    r, w = os.pipe()
-    proc = subprocess.Popen([xvfb, "-displayfd", str(w), "-screen", "0", "1600x900x24", "-nolisten", "tcp"],
-                            pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(w)
-    with os.fdopen(r) as fh:
-        number = fh.readline().strip()
     old = os.environ.get("DISPLAY")
-    os.environ["DISPLAY"] = f":{number}"
+    os.environ["DISPLAY"] = display
     yield os.environ["DISPLAY"]
     proc.terminate()
     proc.wait(timeout=10)

@@ -215,33 +215,39 @@ def test_cli_without_the_library_is_one_clean_line(tmp_path, monkeypatch):
 
 
 def test_device_frame_follows_the_view_and_forces_go_back_along_the_pull(tmp_path):
-    """A stylus moved right / up / toward the user moves the hand right / up / out of the
-    screen (checked with the camera the view draws with, whose projection tests/test_view.py
-    checks against rendered pixels), and the tissue's force on a grasped pull points back along
-    the pull in device coordinates."""
+    """A stylus moved right / up / toward the user moves the drawn instrument right / up / larger
+    on the screen (as a person sees it: the rendered picture, not the camera's algebra), and the
+    tissue's force on a grasped pull points back along the pull in device coordinates."""
     import numpy as np
 
     from sim.scene import build_scene
-    from sim.view import ParticipantView
+    from sim.view import HandState, ParticipantView
 
     scene = build_scene(_openhaptics_scene(tmp_path), "plate_spring")
     frame = scene.device_frame(0)
     view = ParticipantView(scene.mesh, visible=False, width=640, height=480, camera=scene.spec.view)
-    camera = view.camera
-    view.close()
 
-    def pixel(p):
-        u, v, z = camera.project(p)[0]
-        return (u, v), z
+    def tips(device_point):
+        """Where the left forceps' tips are drawn for a device point 6 cm above the brain (nothing
+        hides them): the end of its steel pixels farthest up and right (it comes from the lower
+        left), and how many steel pixels there are."""
+        view.draw(None, [HandState(frame.to_scene(np.add(device_point, (0.0, 0.0, 0.06))))])
+        f = view.image().astype(float)
+        ys, xs = np.nonzero((f[:, :, 2] > f[:, :, 0] + 4) & (f.max(axis=2) < 250) & (f.max(axis=2) > 40))
+        k = np.argmax(xs - ys)
+        return xs[k], ys[k], len(xs)
 
+    try:
+        u0, v0, n0 = tips((0.0, 0.0, 0.0))
+        u, v, _ = tips((0.01, 0.0, 0.0))
+        assert u > u0 + 5 and abs(v - v0) < 0.3 * (u - u0)  # right on the screen
+        u, v, _ = tips((0.0, 0.01, 0.0))
+        assert v < v0 - 5 and abs(u - u0) < 0.3 * (v0 - v)  # up on the screen
+        u, v, _ = tips((0.0, 0.0, 0.02))  # toward the viewer: farther from the view's centre (perspective)
+        assert np.hypot(u - 320, v - 240) > 1.05 * np.hypot(u0 - 320, v0 - 240)
+    finally:
+        view.close()
     p0 = frame.to_scene((0.0, 0.0, 0.0))
-    (u0, v0), z0 = pixel(p0)
-    (u, v), z = pixel(frame.to_scene((0.01, 0.0, 0.0)))
-    assert u > u0 + 5 and abs(v - v0) < 0.3 * (u - u0)  # right on the screen
-    (u, v), z = pixel(frame.to_scene((0.0, 0.01, 0.0)))
-    assert v < v0 - 5 and abs(u - u0) < 0.3 * (v0 - v)  # up on the screen
-    (u, v), z = pixel(frame.to_scene((0.0, 0.0, 0.01)))
-    assert z < z0 - 0.005  # toward the viewer: out of the screen
     # a pull to the user's right, 8 mm in device coordinates, on the grasped tissue
     model = scene.model
     contact = model.grasp(p0, 0)

@@ -329,15 +329,11 @@ def test_the_screen_shows_the_frame_the_view_reports(mode, tmp_path):
     """Read back from the X server's own framebuffer (Xvfb -fbdir): the pixels on the screen are
     the frame `image()` returns (screenshots, pictures); a fullscreen view fills the screen; a
     resized window keeps the brain filling it."""
-    import shutil
+    from bench.common import start_xvfb
 
-    r, w = os.pipe()
-    xvfb = subprocess.Popen([shutil.which("Xvfb"), "-displayfd", str(w), "-screen", "0", "1024x600x24", "-fbdir", str(tmp_path),
-                             "-nolisten", "tcp"], pass_fds=(w,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(w)
+    xvfb, display = start_xvfb("1024x600x24", "-fbdir", str(tmp_path))
     try:
-        with os.fdopen(r) as fh:
-            env = dict(os.environ, DISPLAY=":" + fh.readline().strip())
+        env = dict(os.environ, DISPLAY=display)
         out = subprocess.run([sys.executable, "-c", _ON_SCREEN, mode, str(tmp_path / "frame.npy"), str(tmp_path / "Xvfb_screen0"),
                               str(tmp_path / "screen.xwd")], capture_output=True, text=True, env=env, timeout=120,
                              cwd=Path(__file__).resolve().parents[1])

@@ -114,9 +114,30 @@ def test_the_instruments_follow_the_hands_and_close_on_a_grasp(view, mesh):
     near = _steel(view.image())[int(w) - 10:int(w) + 11, int(u) - 10:int(u) + 11]
     assert near.sum() > 10
     opened = view.image()
-    view.draw(None, [HandState(tuple(p + 0.02 * right), grasped_vertex=0), HandState(FAR)])
+    view.draw(None, [HandState(tuple(p + 0.02 * right), holding=True), HandState(FAR)])  # no patch: only the jaws change
     closed = view.image()
-    assert np.abs(_steel(opened).astype(int) - _steel(closed)).sum() > 20  # the jaws closed
+    assert np.abs(_steel(opened).astype(int) - _steel(closed)).sum() > 300  # the blades turned about the hinge (2013 px here)
+
+
+def test_a_late_latch_draws_the_newest_hand_positions_and_forces(mesh):
+    """`draw(latch=)`: the instrument and the force arrow are drawn where the latch says the hand
+    is now, not where the visual step saw it; motion-to-photon runs from the latch's read."""
+    import time
+
+    from sim.view import ParticipantView
+
+    v = ParticipantView(mesh, width=640, height=360, visible=False, show_force=True)
+    try:
+        lifted = mesh.vertices[3386] - 0.03 * v.camera.R[2]
+        now = lifted + 0.03 * v.camera.R[0]
+        v.draw(None, [HandState(tuple(now), (0.5, 0.0, 0.0))])
+        want = v.image()
+        read = time.perf_counter()
+        v.draw(None, [HandState(tuple(lifted))], read_t=0.0, latch=lambda: ([tuple(now)], [(0.5, 0.0, 0.0)], read))
+        assert np.array_equal(v.image(), want) and v.text()["corner"] == "force:  hand 0.50 N"
+        assert 0 < v.motion_to_photon_s[-1] < time.perf_counter() - read + 1e-9
+    finally:
+        v.close()
 
 
 def test_text_pixels_are_the_font_atlas_glyphs_where_the_layout_puts_them(view):
@@ -201,10 +222,10 @@ def test_pictures_equal_a_fresh_render(mesh):
     b = ParticipantView(mesh, width=320, height=240, visible=False, show_force=True)
     try:
         hands = [HandState(tuple(mesh.vertices[3386]), (0.3, 0.1, 0.0), 3386), HandState(tuple(mesh.vertices[13629]))]
-        for k in range(4):
+        for k in range(5):
             u = np.zeros_like(mesh.vertices)
             u[:, 0] = 0.004 * k
-            heat = np.linspace(0, 1, mesh.n_vertices) * (k % 3) / 2
+            heat = np.linspace(0, 1, mesh.n_vertices) * (k % 3) / 2 if k < 4 else None  # and back to plain tissue
             a.set_text(top=f"trial {k + 1}")
             a.draw(u, hands[: 1 + k % 2], heat01=heat)
             b.draw(np.zeros_like(u), [])  # something else first

@@ -41,16 +41,11 @@ class DeviceFrame:
 
 def view_rotation(front, up) -> tuple:
     """The rotation whose columns are the screen's right, up and out-of-the-screen directions
-    for a camera looking along -front with `up` (a look-at camera, as sim/camera.py's)."""
-    import numpy as np
+    for the participant's camera looking along -front with `up` (sim/camera.py's)."""
+    from sim.camera import orientation
 
-    out = np.asarray(front, dtype=np.float64)
-    out /= np.linalg.norm(out)
-    right = np.cross(-out, np.asarray(up, dtype=np.float64))
-    right /= np.linalg.norm(right)
-    true_up = np.cross(right, -out)
-    R = np.stack([right, true_up, out], axis=1)
-    return tuple(tuple(float(c) for c in row) for row in R)
+    right, down, forward = orientation(front, up)
+    return tuple((float(right[i]), float(-down[i]), float(-forward[i])) for i in range(3))
 
 
 @dataclass(frozen=True)
