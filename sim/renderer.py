@@ -22,45 +22,41 @@ import numpy as np
 
 from sim.errors import ViewError
 
+# lit per vertex (Gouraud): llvmpipe's cost is per fragment, and the brain has a vertex every
+# pixel or two at this size, so per-fragment lighting bought nothing visible for its time;
+# a headlight (what faces the viewer is bright) and a key light from the top left (relief),
+# Blinn-Phong highlights: strong for steel, faint for wet tissue
 LIT_VS = """
 #version 330
 uniform mat4 mvp;
 uniform mat4 model;
 uniform mat3 normal_matrix;
-in vec3 in_position;
-in vec3 in_normal;
-in vec3 in_colour;
-out vec3 v_world;
-out vec3 v_normal;
-out vec3 v_colour;
-void main() {
-    vec4 w = model * vec4(in_position, 1.0);
-    gl_Position = mvp * w;
-    v_world = w.xyz;
-    v_normal = normal_matrix * in_normal;
-    v_colour = in_colour;
-}
-"""
-
-# a headlight (what faces the viewer is bright) and a key light from the top left (relief),
-# Blinn-Phong highlights: strong for steel, faint for wet tissue
-LIT_FS = """
-#version 330
 uniform vec3 eye;
 uniform vec3 key;
 uniform float specular;
 uniform float shininess;
-in vec3 v_world;
-in vec3 v_normal;
-in vec3 v_colour;
-out vec4 colour;
+in vec3 in_position;
+in vec3 in_normal;
+in vec3 in_colour;
+out vec3 v_colour;
 void main() {
-    vec3 n = normalize(v_normal);
-    vec3 v = normalize(eye - v_world);
+    vec4 w = model * vec4(in_position, 1.0);
+    gl_Position = mvp * w;
+    vec3 n = normalize(normal_matrix * in_normal);
+    vec3 v = normalize(eye - w.xyz);
     float head = max(dot(n, v), 0.0);
     float side = max(dot(n, key), 0.0);
     float s = specular * pow(max(dot(n, normalize(key + v)), 0.0), shininess);
-    colour = vec4(min(v_colour * (0.30 + 0.50 * head + 0.25 * side) + vec3(s), 1.0), 1.0);
+    v_colour = min(in_colour * (0.30 + 0.50 * head + 0.25 * side) + vec3(s), 1.0);
+}
+"""
+
+LIT_FS = """
+#version 330
+in vec3 v_colour;
+out vec4 colour;
+void main() {
+    colour = vec4(v_colour, 1.0);
 }
 """
 
