@@ -23,7 +23,6 @@ tick adds one 3 x 3 product to the paper's model.
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
 import time
@@ -31,22 +30,14 @@ from pathlib import Path
 
 import numpy as np
 
-from brainsim_assets import path as _asset
+from sim.field import FIELD_FILE, mesh_digest
 from sim.reference import ICO4_VERTICES
+from sim.scene import clamp_limit
 
 FIELD_SIZE_MM = 8.0  # the reference mesh the field is solved on (the coarsest of the reference's three)
 FIELD_SIGMA = 0.003  # m, Gaussian width of the interpolation between sites
 FIELD_REACH = 0.008  # m, sites farther than this do not contribute
 BLOCK = 240  # right-hand sides per CHOLMOD solve (memory: n_free x BLOCK doubles)
-FIELD_FILE = _asset("data/plate_spring_field.npz")
-
-
-def mesh_digest(mesh) -> str:
-    """Identifies the surface a field belongs to (vertices to 1 um, triangles)."""
-    h = hashlib.sha256()
-    h.update(np.round(np.asarray(mesh.vertices) * 1e6).astype(np.int64).tobytes())
-    h.update(np.asarray(mesh.triangles, dtype=np.int64).tobytes())
-    return h.hexdigest()[:16]
 
 
 def site_stiffness(scene_path, size_mm: float = FIELD_SIZE_MM, sites_per_hemisphere: int = ICO4_VERTICES,
@@ -56,7 +47,6 @@ def site_stiffness(scene_path, size_mm: float = FIELD_SIZE_MM, sites_per_hemisph
         ENVELOPE_FRACTION,
         _premesh,
         build_problem,
-        clamp_limit,
         grasp_matrix,
         hemisphere_surface,
         mesh_hemisphere,
@@ -152,28 +142,6 @@ def build_field(scene_path, out: Path = FIELD_FILE, size_mm: float = FIELD_SIZE_
     os.replace(tmp, out)
     return {"path": str(out), "sites": int(len(res["sites"])), "vertices": int(len(K)), "size_mm": size_mm,
             "seconds": res["seconds"]}
-
-
-def load_field(path, mesh) -> np.ndarray:
-    """K per pascal (n, 3, 3) for `mesh`'s vertices; refuses a field made for another surface."""
-    from sim.errors import ParameterError
-
-    path = Path(path)
-    try:
-        with np.load(path) as z:
-            k6, digest = z["K_per_pa"].astype(np.float64), str(z["mesh_digest"])
-    except (OSError, KeyError, ValueError) as e:
-        raise ParameterError(f"{path}: not a stiffness field ({e})") from None
-    if digest != mesh_digest(mesh) or len(k6) != len(mesh.vertices):
-        raise ParameterError(f"{path}: made for another surface mesh ({len(k6)} vertices, digest {digest}); "
-                             "rebuild it with `studyctl calibrate field`")
-    if not np.all(np.isfinite(k6)):
-        raise ParameterError(f"{path}: K_per_pa holds a non-finite value")
-    K = np.zeros((len(k6), 3, 3))
-    iu = np.triu_indices(3)
-    K[:, iu[0], iu[1]] = k6
-    K[:, iu[1], iu[0]] = k6
-    return K
 
 
 def stiffness_ratio_spread(K: np.ndarray, direction_count: int = 2) -> dict:

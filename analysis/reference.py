@@ -41,7 +41,7 @@ import numpy as np
 
 from sim.jsonable import jsonable
 from sim.patch import patch_area_points
-from sim.scene import DEFAULT_SCENE
+from sim.scene import DEFAULT_SCENE, clamp_limit
 
 MESHER_VERSION = 1  # part of the mesh cache key: bump when the meshing rule changes
 ENVELOPE_FRACTION = 0.1  # fTetWild's envelope (max distance of the mesh boundary from the surface) = this x edge length
@@ -229,16 +229,6 @@ class Problem:
     fixed_nodes: int
     build_s: float
     factor_s: float = 0.0
-
-
-def clamp_limit(scene) -> tuple[int, float]:
-    """(axis, height): the scene's clamp, as `sim.models.fem.fixed_nodes` applies it to a
-    volume: nodes at or below the highest surface vertex of the scene's fixed region."""
-    from sim.scene import AXES
-
-    axis = AXES[scene.spec.fixed.axis]
-    mask = scene.fixed_mask
-    return axis, (float(scene.mesh.vertices[mask, axis].max()) if mask.any() else -math.inf)
 
 
 def build_problem(scene, label: int, mesh: BodyMesh) -> Problem:

@@ -62,7 +62,7 @@ def main() -> None:
 def located_tick(scene, disp) -> float:
     """The location-aware model (issue 16's goal: a tick within 2x of the paper's model's)."""
     from analysis.accuracy import LOCATED_PARAMS
-    from analysis.field import FIELD_FILE, load_field
+    from sim.field import FIELD_FILE, load_field
     from sim.models.plate_spring import PlateSpringModel, load_params
 
     paper = PlateSpringModel(scene.mesh, scene.spec.models["plate_spring"].plate_spring, "continuous")

@@ -72,7 +72,7 @@ def test_pulls(scene, places: int = TEST_PLACES) -> list[Pull]:
     point (`make_pulls`), starting from those points. Vertices of the ico4 subset, where the
     location-aware plate-spring's field is sampled (`analysis.field`), are excluded, so no
     test place is a field site."""
-    from analysis.reference import clamp_limit
+    from sim.scene import clamp_limit
 
     mesh = scene.mesh
     v, n = mesh.vertices, mesh.vertex_normals

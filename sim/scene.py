@@ -608,3 +608,11 @@ class Scene:
 
 def build_scene(path: str | Path, model: str | None = None) -> Scene:
     return Scene(load_scene(path), model)
+
+
+def clamp_limit(scene) -> tuple[int, float]:
+    """(axis, height): the scene's clamp, as `sim.models.fem.fixed_nodes` applies it to a
+    volume: nodes at or below the highest surface vertex of the scene's fixed region."""
+    axis = AXES[scene.spec.fixed.axis]
+    mask = scene.fixed_mask
+    return axis, (float(scene.mesh.vertices[mask, axis].max()) if mask.any() else -math.inf)

@@ -56,7 +56,7 @@ def resolved_config(name: str, spec) -> dict:
         out["variant"] = m.variant
         out["plate_spring"] = _plain(m.plate_spring)
         if m.variant == "located" and "field" not in m.options:  # the shipped stiffness field it loads
-            from analysis.field import FIELD_FILE
+            from sim.field import FIELD_FILE
 
             out["field"] = _plain(Path(FIELD_FILE)) if Path(FIELD_FILE).exists() else None
     return out

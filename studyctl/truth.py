@@ -53,8 +53,8 @@ class Truth:
 def truth_key(scene) -> dict:
     """What the table depends on: the surface, the clamp, Poisson's ratio and the grasp radius
     (not Young's modulus: linear elasticity scales with it)."""
-    from analysis.field import mesh_digest
-    from analysis.reference import clamp_limit
+    from sim.field import mesh_digest
+    from sim.scene import clamp_limit
 
     fem = scene.spec.models.get("fem")
     axis, limit = clamp_limit(scene)

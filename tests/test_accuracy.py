@@ -113,6 +113,23 @@ def test_pareto_front():
     assert pareto(rows) == [True, True, False, False]
 
 
+def test_the_pareto_plots_legend_covers_no_point():
+    """Issue 28: inside the axes (lower left) the legend covered the located plate-spring's
+    point, the best one: fast and accurate lies in that corner."""
+    from analysis.plots import _plt, pareto_figure
+
+    rows = [{"model": m, "setting": s, "frame_ms": ms, "force_error": e} for m, s, ms, e in (
+        ("plate_spring", "located", 0.05, 0.03), ("plate_spring", "scene-fit", 0.04, 0.3), ("fem", "linear-4mm", 2.0, 0.05),
+        ("fem", "p2-4mm", 30.0, 0.02), ("mass_spring", "lg-4mm", 28.0, 0.2))]
+    fig = pareto_figure(rows)
+    fig.canvas.draw()
+    ax = fig.axes[0]
+    box = ax.get_legend().get_window_extent()
+    points = ax.transData.transform([(r["frame_ms"], r["force_error"]) for r in rows])
+    _plt().close(fig)
+    assert not [p for p in points if box.x0 - 5 <= p[0] <= box.x1 + 5 and box.y0 - 5 <= p[1] <= box.y1 + 5]
+
+
 @pytest.fixture(scope="module")
 def small_bench(tmp_path_factory, monkeypatch_module):
     """Three settings, 20/16 mm reference (neo-Hookean on 20 mm), two 4 mm samples, two test

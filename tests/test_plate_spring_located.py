@@ -4,8 +4,9 @@ interpolation, and the shipped field's fit to this brain."""
 import numpy as np
 import pytest
 
-from analysis.field import FIELD_FILE, interpolate, load_field, mesh_digest
+from analysis.field import interpolate
 from sim.errors import ParameterError
+from sim.field import FIELD_FILE, load_field, mesh_digest
 from sim.laws import RadialTable, TensorTable
 from sim.models.plate_spring import PlateSpring, PlateSpringModel, load_params
 from sim.reference import scene_with
@@ -81,7 +82,7 @@ def test_shipped_field_belongs_to_this_brain_and_is_stiffness(scene, tmp_path):
     assert np.all(ev > 0)  # SPD everywhere
     # the softest direction (a tangent pull): at 3 kPa and 24 mm, forces of the order of the
     # bench's 0.1-0.4 N, K ~ 1e-3..6e-3 N/m per Pa; pulling along the normal is stiffer, but finite
-    from analysis.reference import clamp_limit
+    from sim.scene import clamp_limit
 
     axis, limit = clamp_limit(scene)
     free = scene.mesh.vertices[:, axis] > limit + 0.015  # where the bench grasps

@@ -25,7 +25,7 @@ from analysis.reference import (
 )
 from sim.mesh import icosphere
 from sim.reference import make_pulls, scene_with
-from sim.scene import DEFAULT_SCENE
+from sim.scene import DEFAULT_SCENE, clamp_limit
 from studyctl.cli import cli
 
 # -- Richardson and the GCI ------------------------------------------------------------------
@@ -121,7 +121,7 @@ def test_p2_pull_forces_agree_between_two_mesh_sizes(scene, left):
     for m in meshes:
         prob = build_problem(scene, 0, m)
         # the clamp: the scene's plane, and only nodes below it
-        axis, limit = reference.clamp_limit(scene)
+        axis, limit = clamp_limit(scene)
         assert prob.fixed_nodes == int(np.sum(m.nodes[:, axis] <= limit)) > 0
         K = pull_stiffness(prob, pts, w)
         assert np.allclose(K, K.T) and np.all(np.linalg.eigvalsh(K) > 0)

@@ -223,7 +223,7 @@ def test_swapping_which_model_plays_which_condition_leaves_the_rates(swap_pilots
 
 
 def test_the_shipped_truth_covers_the_scenes_grasps_and_is_the_references_solution(tmp_path):
-    from analysis.field import FIELD_FILE
+    from sim.field import FIELD_FILE
     from sim.reference import scene_with
     from studyctl.errors import InputError
     from studyctl.truth import TRUTH_FILE, hand_vertices, load_truth

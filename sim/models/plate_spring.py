@@ -452,7 +452,7 @@ def build(mesh, spec, scene=None) -> PlateSpringModel:
     """Construct from a scene's model spec (`sim.scene.ModelSpec`)."""
     field = None
     if spec.variant == "located":
-        from analysis.field import FIELD_FILE, load_field
+        from sim.field import FIELD_FILE, load_field
 
         field = load_field(spec.options.get("field", FIELD_FILE), mesh)
     return PlateSpringModel(mesh, spec.plate_spring, spec.variant, field)
