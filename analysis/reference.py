@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.jsonable import jsonable
+from sim.mesh import patch_vertices
 from sim.patch import patch_area_points
 from sim.scene import DEFAULT_SCENE, clamp_limit
 
@@ -246,16 +247,6 @@ def build_problem(scene, label: int, mesh: BodyMesh) -> Problem:
     _ = fem.factor
     problem.factor_s = fem.timings.factorisation_s
     return problem
-
-
-def patch_vertices(mesh, vertex: int, radius: float) -> np.ndarray:
-    """Surface vertices within `radius` of `vertex`, same hemisphere: the grasp of the voxel
-    FEM before the area mean (`--functional vertices`, to show why it cannot converge)."""
-    mesh.prepare_queries()
-    patch = np.asarray(mesh._kdtree.query_ball_point(mesh.vertices[vertex], radius), dtype=np.int64)
-    if mesh.labels is not None:
-        patch = patch[mesh.labels[patch] == mesh.labels[vertex]]
-    return patch if len(patch) else np.array([vertex], dtype=np.int64)
 
 
 def grasp_matrix(problem: Problem, points: np.ndarray, weights: np.ndarray | None = None, interpolation: str = "p2"):

@@ -101,6 +101,16 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return n / np.where(norm > 0, norm, 1.0)
 
 
+def patch_vertices(mesh, vertex: int, radius: float) -> np.ndarray:
+    """Surface vertices within `radius` of `vertex`, same hemisphere: the grasp of the voxel
+    FEM before the area mean (`--functional vertices`, to show why it cannot converge)."""
+    mesh.prepare_queries()
+    patch = np.asarray(mesh._kdtree.query_ball_point(mesh.vertices[vertex], radius), dtype=np.int64)
+    if mesh.labels is not None:
+        patch = patch[mesh.labels[patch] == mesh.labels[vertex]]
+    return patch if len(patch) else np.array([vertex], dtype=np.int64)
+
+
 def load_mesh(path: str | Path = BRAIN_MESH) -> SurfaceMesh:
     """Load a surface saved as .npz with ``vertices`` (metres) and ``triangles``."""
     path = Path(path)

@@ -648,7 +648,7 @@ def calibrate_truth(scene_file, vertices, out_file, as_json):
     """The synthetic observer's truth at grasp places: the converged P2 reference's grasp
     stiffness (body-fitted 8 / 5.5 / 4 mm meshes, Richardson). Needed for a scene, or grasp
     places, that the shipped table (data/observer_truth.npz) does not cover."""
-    from studyctl.truth import build_truth
+    from analysis.truth import build_truth
 
     rep = build_truth(scene_file, out_file, vertices, progress=None if as_json else click.echo)
     if as_json:
@@ -1268,7 +1268,7 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, nu
     analysis and of each question's test (Cochran's Q, Friedman, the multinomial); with --null,
     the false-positive rate of each when every condition is one model."""
     from analysis.kinds import primary
-    from studyctl.plan import plot_power, power_table
+    from analysis.plan import plot_power, power_table
     from studyctl.protocol import load_protocol
 
     protocol = load_protocol(protocol_file)
@@ -1306,7 +1306,7 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, nu
 
 def _plan_null(protocol, span, simulations, seed, pilots, model, as_json) -> None:
     from analysis.kinds import primary
-    from studyctl.plan import null_table
+    from analysis.plan import null_table
 
     if span is not None and span[0] != span[1]:
         raise InputError("--participants: with --null give one N (e.g. 35), not a range")

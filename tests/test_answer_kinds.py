@@ -262,7 +262,7 @@ def test_answers_import_and_correct_follow_the_kinds(tmp_path):
 
 
 def test_plan_powers_the_primary_analysis_and_its_null_is_at_alpha(tmp_path):
-    from studyctl.plan import null_table, pilot_summaries, power_table
+    from analysis.plan import null_table, pilot_summaries, power_table
 
     protocol = load_protocol(kinds_protocol(tmp_path, trials=1))
     summaries = pilot_summaries(protocol, pilots=2, seed=0)

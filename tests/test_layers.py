@@ -1,5 +1,6 @@
-"""The layers run one way: the simulator (sim) imports neither the study library (studyctl) nor
-the analyses (analysis), so it runs, ships and is tested without them (issue 28)."""
+"""The layers run one way (issue 28): the simulator (sim) imports neither the study library
+(studyctl) nor the analyses (analysis), so it runs, ships and is tested without them; the study
+library imports no analysis outside its CLI."""
 
 import ast
 from pathlib import Path
@@ -21,3 +22,11 @@ def _imports(path: Path) -> set[str]:
 def test_sim_imports_neither_the_study_library_nor_the_analyses():
     offenders = {str(p.relative_to(ROOT)): sorted(_imports(p) & {"analysis", "studyctl"}) for p in sorted((ROOT / "sim").rglob("*.py"))}
     assert {k: v for k, v in offenders.items() if v} == {}
+
+
+def test_the_study_library_imports_no_analysis_outside_its_cli():
+    """Sessions, storage and synthetic participants run without the statistics; the CLI, which
+    offers both, is the one place that joins them (analysis may read studies: studyctl)."""
+    files = [p for p in sorted((ROOT / "studyctl").rglob("*.py")) if p.name != "cli.py" and "cli" not in p.relative_to(ROOT / "studyctl").parts[:-1]]
+    offenders = {str(p.relative_to(ROOT)): sorted(_imports(p) & {"analysis"}) for p in files}
+    assert len(files) > 15 and {k: v for k, v in offenders.items() if v} == {}

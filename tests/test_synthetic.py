@@ -151,8 +151,8 @@ def test_plan_power_grows_with_n_and_is_labelled_synthetic(tmp_path):
 
     from click.testing import CliRunner
 
+    from analysis.plan import power_table
     from studyctl.cli import cli
-    from studyctl.plan import power_table
     from studyctl.protocol import load_protocol
 
     protocol = load_protocol(fast_protocol(tmp_path, trials=1))
@@ -173,7 +173,7 @@ def test_plan_power_grows_with_n_and_is_labelled_synthetic(tmp_path):
 def test_null_study_rejects_at_about_alpha():
     """One model under three labels: Cochran's Q's false-positive rate is alpha within Monte
     Carlo error for every question (pilot summaries that differ per label, as trials do)."""
-    from studyctl.plan import null_table
+    from analysis.plan import null_table
     from studyctl.protocol import load_protocol
     from tests.test_study import PROTOCOL
 
@@ -193,7 +193,7 @@ def test_null_study_rejects_at_about_alpha():
 def swap_pilots(tmp_path_factory):
     """Pilot trials on the simulator (8 mm brain, 3 s pulls), with the models in their own
     conditions and swapped round."""
-    from studyctl.plan import pilot_summaries
+    from analysis.plan import pilot_summaries
     from studyctl.protocol import load_protocol
 
     tmp = tmp_path_factory.mktemp("swap")
@@ -205,7 +205,7 @@ def swap_pilots(tmp_path_factory):
 
 
 def test_swapping_which_model_plays_which_condition_leaves_the_rates(swap_pilots):
-    from studyctl.plan import expected_rates
+    from analysis.plan import expected_rates
 
     protocol, swap, own, swapped = swap_pilots
     a = expected_rates(protocol, own, simulations=300, seed=4).set_index(["label", "item"])
