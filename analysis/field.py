@@ -24,15 +24,15 @@ tick adds one 3 x 3 product to the paper's model.
 from __future__ import annotations
 
 import math
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 
 from sim.field import FIELD_FILE, mesh_digest
+from sim.files import save_npz
 from sim.reference import ICO4_VERTICES
-from sim.scene import clamp_limit
+from sim.scene import clamp_limit, grasp_radius
 
 FIELD_SIZE_MM = 8.0  # the reference mesh the field is solved on (the coarsest of the reference's three)
 FIELD_SIGMA = 0.003  # m, Gaussian width of the interpolation between sites
@@ -56,8 +56,7 @@ def site_stiffness(scene_path, size_mm: float = FIELD_SIZE_MM, sites_per_hemisph
 
     scene = scene_with(scene_path)
     mesh = scene.mesh
-    fem_spec = scene.spec.models.get("fem")
-    radius = float(fem_spec.options.get("grasp_radius", 0.005)) if fem_spec else 0.005
+    radius = grasp_radius(scene)
     axis, limit = clamp_limit(scene)
     labels = mesh.labels if mesh.labels is not None else np.zeros(len(mesh.vertices), dtype=np.int64)
     hemis = sorted(set(int(x) for x in np.unique(labels)))
@@ -130,16 +129,12 @@ def build_field(scene_path, out: Path = FIELD_FILE, size_mm: float = FIELD_SIZE_
     res = site_stiffness(scene_path, size_mm, progress=progress)
     K = interpolate(scene.mesh, res["sites"], res["K_per_pa"])
     iu = np.triu_indices(3)
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp.npz")
-    np.savez_compressed(tmp, K_per_pa=K[:, iu[0], iu[1]].astype(np.float32), sites=res["sites"],
+    out = save_npz(out, compressed=True, K_per_pa=K[:, iu[0], iu[1]].astype(np.float32), sites=res["sites"],
                         K_sites_per_pa=res["K_per_pa"][:, iu[0], iu[1]].astype(np.float32),
                         mesh_digest=mesh_digest(scene.mesh), size_mm=size_mm, grasp_radius_m=res["grasp_radius_m"],
                         poisson=scene.spec.material.poisson, sigma_m=FIELD_SIGMA, reach_m=FIELD_REACH,
                         source="analysis/field.py build_field: P2 small-strain elasticity on fTetWild meshes of the scene's "
                                "hemispheres, area-mean grasp, per pascal of Young's modulus")
-    os.replace(tmp, out)
     return {"path": str(out), "sites": int(len(res["sites"])), "vertices": int(len(K)), "size_mm": size_mm,
             "seconds": res["seconds"]}
 

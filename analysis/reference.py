@@ -39,10 +39,11 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.files import save_npz
 from sim.jsonable import jsonable
 from sim.mesh import patch_vertices
 from sim.patch import patch_area_points
-from sim.scene import DEFAULT_SCENE, clamp_limit
+from sim.scene import DEFAULT_SCENE, clamp_limit, grasp_radius
 
 MESHER_VERSION = 1  # part of the mesh cache key: bump when the meshing rule changes
 ENVELOPE_FRACTION = 0.1  # fTetWild's envelope (max distance of the mesh boundary from the surface) = this x edge length
@@ -181,10 +182,7 @@ def mesh_hemisphere(vertices: np.ndarray, triangles: np.ndarray, edge_length: fl
     if np.any(np.abs(tet_volumes(nodes, tets)) <= 0):
         raise MeshError("fTetWild returned a degenerate tetrahedron")
     if use_cache:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
-        np.savez_compressed(tmp, nodes=nodes, tets=tets, seconds=seconds)
-        os.replace(tmp, path)  # atomic: a concurrent reader sees all or nothing
+        save_npz(path, compressed=True, nodes=nodes, tets=tets, seconds=seconds)
     return BodyMesh(nodes, tets, edge_length, envelope, seconds)
 
 
@@ -429,10 +427,7 @@ def _nonlinear_task(args) -> dict:
     out = {"force_per_pa": r["force_per_pa"], "converged": bool(r["converged"]), "iterations": int(sum(r["iterations"])),
            "shifts": int(r["shifts"]), "min_jacobian": float(r["min_jacobian"]), "seconds": float(r["seconds"])}
     if r["converged"]:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
-        np.savez(tmp, **out)
-        os.replace(tmp, path)
+        save_npz(path, **out)
     return out | {"cached": False}
 
 
@@ -450,8 +445,7 @@ def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, nonlinear_
     scene = scene_with(scene_path)
     mesh = scene.mesh
     xs = np.asarray(xs, dtype=np.float64)
-    fem_spec = scene.spec.models.get("fem")
-    radius = float(fem_spec.options.get("grasp_radius", 0.005)) if fem_spec else 0.005
+    radius = grasp_radius(scene)
     sizes = sorted((float(x) for x in sizes_mm), reverse=True)
     labels = sorted({p.hemisphere for p in pulls})
     patches = {p.name: patch_area_points(mesh, p.vertex, radius) for p in pulls}
@@ -693,8 +687,7 @@ def run_reference(cfg: ReferenceConfig, progress=None) -> dict:
             raise ParameterError(f"pulls: {', '.join(sorted(unknown))} not among {', '.join(p.name for p in pulls)}")
         pulls = [p for p in pulls if p.name in cfg.pulls]
     xs = sample_displacements(AccuracyConfig(max_pull=cfg.max_pull, samples=cfg.samples))
-    fem_spec = scene.spec.models.get("fem")
-    radius = float(fem_spec.options.get("grasp_radius", 0.005)) if fem_spec else 0.005
+    radius = grasp_radius(scene)
     mesh = scene.mesh
     sizes = sorted((float(s) for s in cfg.sizes_mm), reverse=True)  # coarse to fine
     labels = sorted({p.hemisphere for p in pulls})

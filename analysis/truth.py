@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.files import save_npz
 from studyctl.errors import InputError
 from studyctl.truth import TRUTH_SIZES_MM, hand_vertices, truth_key, user_truth_path
 
@@ -75,10 +76,8 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
         K[k] = np.linalg.inv(0.5 * (Ck + Ck.T))
         orders[k], gci[k] = conv["p_used"], conv["gci"]
         status.append(conv["status"])
-    tmp = out.with_name(out.name + ".tmp.npz")  # whole or not at all
-    np.savez_compressed(tmp, vertices=vertices, K_per_pa=K, K_per_pa_meshes=np.linalg.inv(C), h_m=hs, sizes_mm=np.asarray(sizes_mm),
-                        order=orders, gci=gci, status=np.asarray(status), **{k: np.asarray(v) for k, v in key.items()})
-    tmp.replace(out)
+    save_npz(out, compressed=True, vertices=vertices, K_per_pa=K, K_per_pa_meshes=np.linalg.inv(C), h_m=hs, sizes_mm=np.asarray(sizes_mm),
+             order=orders, gci=gci, status=np.asarray(status), **{k: np.asarray(v) for k, v in key.items()})
     return {"out": str(out), "vertices": int(len(vertices)), "sizes_mm": list(sizes_mm), "seconds": time.perf_counter() - start,
             "status": {s: status.count(s) for s in sorted(set(status))}, "gci_median": float(np.median(gci)), "gci_max": float(np.max(gci)),
             "order_median": float(np.median(orders))}

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 SUBDIVISIONS = 16  # each triangle near the grasp is split into 16 x 16 for the quadrature
+GRASP_RADIUS = 0.005  # m: the default patch, about the bite of a pair of tissue forceps
 
 
 def _sub_triangle_centroids(n: int) -> np.ndarray:

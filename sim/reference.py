@@ -152,16 +152,15 @@ def reference_pull(scene_path, resolution: float, pull: Pull, xs, use_cache: boo
     """
     from sim.errors import ParameterError
     from sim.models.fem import FemModel, NewtonReport, SingularSystemError, fixed_nodes, neo_hookean_solve
-    from sim.scene import AXES
+    from sim.scene import AXES, grasp_radius
     from sim.volume import cache_dir, voxel_volume
 
     scene = scene_with(scene_path, young=1.0)
     xs = np.asarray(xs, dtype=np.float64)
     if len(xs) == 0 or not np.allclose(xs, xs[-1] * np.arange(1, len(xs) + 1) / len(xs)):
         raise ParameterError("displacements: the reference needs equal steps from 0 (x_max * k / n)")
-    fem_spec = scene.spec.models.get("fem")
-    grasp_radius = fem_spec.options.get("grasp_radius", 0.005) if fem_spec else 0.005
-    path = cache_dir() / "accuracy" / f"reference-{_reference_key(scene, resolution, pull, xs, grasp_radius)}.npz"
+    radius = grasp_radius(scene)
+    path = cache_dir() / "accuracy" / f"reference-{_reference_key(scene, resolution, pull, xs, radius)}.npz"
     if use_cache and path.exists():
         with np.load(path) as z:
             return {k: (z[k] if z[k].ndim else z[k].item()) for k in z.files}
@@ -169,7 +168,7 @@ def reference_pull(scene_path, resolution: float, pull: Pull, xs, use_cache: boo
     start = time.perf_counter()
     volume = voxel_volume(mesh, resolution)
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])
-    model = FemModel(mesh, volume, 1.0, scene.spec.material.poisson, fixed, grasp_radius=grasp_radius)
+    model = FemModel(mesh, volume, 1.0, scene.spec.material.poisson, fixed, grasp_radius=radius)
     contact = model.grasp(pull.point, 0)
     part = model.parts[contact.data.part]
     hemi = surface_part(mesh, pull.hemisphere)
@@ -206,10 +205,9 @@ def reference_pull(scene_path, resolution: float, pull: Pull, xs, use_cache: boo
            "min_jacobian": float(rep.min_jacobian), "iterations": iterations, "load_steps": n * sub,
            "nodes": int(len(part.nodes)), "seconds": time.perf_counter() - start}
     if use_cache and rep.converged:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, **out)
-        tmp.replace(path)  # atomic: a killed run never leaves half a cache entry
+        from sim.files import save_npz
+
+        save_npz(path, **out)
     return out
 
 

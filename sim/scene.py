@@ -19,6 +19,7 @@ import numpy as np
 from brainsim_assets import path as _asset
 from sim.errors import ParameterError, SceneError
 from sim.models.base import POISSON_MAX, POISSON_MIN, Vec3
+from sim.patch import GRASP_RADIUS
 from sim.tomlfile import Locator, TomlFileError, read_toml
 
 RENDERERS = ("none", "offscreen")
@@ -415,7 +416,7 @@ def _model_options(table: _Reader, name: str) -> ModelSpec | None:
     if name == "fem":
         resolution = table.number("resolution", default=0.004, lo=0.003, hi=0.008)
         formulation = table.string("formulation", default="linear", choices=("linear", "corotational"))
-        grasp_radius = table.number("grasp_radius", default=0.005, lo=0.0, hi=0.02)
+        grasp_radius = table.number("grasp_radius", default=GRASP_RADIUS, lo=0.0, hi=0.02)
         order = table.integer("order", default=1, lo=1, hi=2)
         if order == 2 and formulation == "corotational":
             table.error("order", "quadratic tetrahedra (order 2) run the linear formulation only")
@@ -433,7 +434,7 @@ def _model_options(table: _Reader, name: str) -> ModelSpec | None:
             "dt": table.number("dt", default=1 / 60, lo=1e-5, hi=0.05),
             "damping": table.number("damping", default=5.0, lo=0.0, hi=1e4),
             "coupling": table.number("coupling", default=300.0, lo=0.0, hi=OMNI_MAX_STIFFNESS, lo_open=True),
-            "grasp_radius": table.number("grasp_radius", default=0.005, lo=0.0, hi=0.02),
+            "grasp_radius": table.number("grasp_radius", default=GRASP_RADIUS, lo=0.0, hi=0.02),
             "iterations": table.integer("iterations", default=10, lo=1, hi=1000),
             "acceleration": table.string("acceleration", default="none", choices=("none", "chebyshev", "anderson")),
         })
@@ -616,3 +617,12 @@ def clamp_limit(scene) -> tuple[int, float]:
     axis = AXES[scene.spec.fixed.axis]
     mask = scene.fixed_mask
     return axis, (float(scene.mesh.vertices[mask, axis].max()) if mask.any() else -math.inf)
+
+
+def grasp_radius(scene) -> float:
+    """The grasp patch's radius the scene's FEM uses (the default where it names none): also
+    the reference's, the stiffness field's and the observer truth's, so all hold the same patch."""
+    from sim.patch import GRASP_RADIUS
+
+    fem = scene.spec.models.get("fem")
+    return float(fem.options.get("grasp_radius", GRASP_RADIUS)) if fem else GRASP_RADIUS

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sim.errors import ViewError
+from sim.patch import GRASP_RADIUS
 
 TISSUE = np.array([0.88, 0.80, 0.78])
 PATCH = np.array([0.20, 0.55, 0.95])  # the grasped patch
@@ -112,7 +113,7 @@ class ParticipantView:
 
     def __init__(self, mesh, pulls=((-1.0, 0.0, 0.0), (1.0, 0.0, 0.0)), width: int = 1280, height: int = 720,
                  visible: bool = True, title: str = "Brain surgery simulator", show_force: bool = False,
-                 grasp_radius: float = 0.005, camera=None, fullscreen: bool = False, max_fps: float = 60.0):
+                 grasp_radius: float = GRASP_RADIUS, camera=None, fullscreen: bool = False, max_fps: float = 60.0):
         from sim.renderer import Renderer, open_offscreen, open_window
         from sim.scene import ViewSpec
 

@@ -53,13 +53,12 @@ def truth_key(scene) -> dict:
     """What the table depends on: the surface, the clamp, Poisson's ratio and the grasp radius
     (not Young's modulus: linear elasticity scales with it)."""
     from sim.field import mesh_digest
-    from sim.scene import clamp_limit
+    from sim.scene import clamp_limit, grasp_radius
 
-    fem = scene.spec.models.get("fem")
     axis, limit = clamp_limit(scene)
     return {"digest": mesh_digest(scene.mesh), "clamp_axis": int(axis), "clamp_height": float(limit),
             "poisson": float(scene.spec.material.poisson),
-            "grasp_radius": float(fem.options.get("grasp_radius", 0.005)) if fem else 0.005}
+            "grasp_radius": grasp_radius(scene)}
 
 
 def user_truth_path(scene) -> Path:

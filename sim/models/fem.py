@@ -27,6 +27,7 @@ from sim.errors import ParameterError
 from sim.laws import Linearised, PairTable
 from sim.linalg import Factor, SingularSystemError, shifted_factor
 from sim.models.base import POISSON_MAX, POISSON_MIN, pull_problem
+from sim.patch import GRASP_RADIUS
 
 __all__ = ["Factor", "SingularSystemError"]  # re-exported: they live in sim.linalg
 
@@ -277,7 +278,7 @@ class FemModel:
 
     name = "fem"
 
-    def __init__(self, surface, volume, young: float, poisson: float, fixed_nodes: np.ndarray, formulation: str = "linear", grasp_radius: float = 0.005,
+    def __init__(self, surface, volume, young: float, poisson: float, fixed_nodes: np.ndarray, formulation: str = "linear", grasp_radius: float = GRASP_RADIUS,
                  order: int = 1):
         from sim.volume import embed
 
@@ -574,7 +575,7 @@ def build(mesh, spec, scene=None):
     material = scene.spec.material
     axis = AXES[scene.spec.fixed.axis]
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, axis)
-    return FemModel(mesh, volume, material.young, material.poisson, fixed, opts.get("formulation", "linear"), opts.get("grasp_radius", 0.005),
+    return FemModel(mesh, volume, material.young, material.poisson, fixed, opts.get("formulation", "linear"), opts.get("grasp_radius", GRASP_RADIUS),
                     order=int(opts.get("order", 1)))
 
 
@@ -866,7 +867,7 @@ def static_pull(scene, grasp, displacement, resolution: float | None = None, for
         order = int(spec.options.get("order", 1)) if spec else 1
     if order == 2 and formulation != "linear":
         raise ParameterError(f"order: quadratic tetrahedra (order 2) run the linear formulation only, not {formulation}")
-    model = FemModel(mesh, volume, material.young, material.poisson, fixed, grasp_radius=spec.options.get("grasp_radius", 0.005) if spec else 0.005,
+    model = FemModel(mesh, volume, material.young, material.poisson, fixed, grasp_radius=spec.options.get("grasp_radius", GRASP_RADIUS) if spec else GRASP_RADIUS,
                      order=order)
     times.update({k: v for k, v in model.timings.items()})
     t0 = time.perf_counter()

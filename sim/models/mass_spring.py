@@ -24,6 +24,7 @@ from sim.errors import ParameterError, SimError
 from sim.laws import Coupling
 from sim.models import MASS_SPRING_INTEGRATORS as INTEGRATORS
 from sim.models.base import pull_problem
+from sim.patch import GRASP_RADIUS
 
 OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m  # 700 N/m: stable closed-loop stiffness at 1 kHz
 SUBSTEP_FRACTION = 0.5  # explicit sub-steps are this fraction of critical_dt()
@@ -566,7 +567,7 @@ class MassSpringModel:
     name = "mass_spring"
 
     def __init__(self, surface, volume, system: MassSpring, integrator: str = "local-global", dt: float = 1 / 60,
-                 coupling: float = 300.0, grasp_radius: float = 0.005, substep: bool = True, iterations: int = 10,
+                 coupling: float = 300.0, grasp_radius: float = GRASP_RADIUS, substep: bool = True, iterations: int = 10,
                  frame_dt: float | None = None):
         from sim.volume import embed
 
@@ -702,7 +703,7 @@ def hold_pull(scene, integrator: str, dt: float, steps: int, resolution: float |
     from sim.volume import voxel_volume
 
     spec = scene.spec.models.get("mass_spring")
-    opts = spec.options if spec else {"resolution": 0.004, "damping": 5.0, "coupling": 300.0, "grasp_radius": 0.005, "iterations": 10}
+    opts = spec.options if spec else {"resolution": 0.004, "damping": 5.0, "coupling": 300.0, "grasp_radius": GRASP_RADIUS, "iterations": 10}
     resolution = opts["resolution"] if resolution is None else resolution
     if not 0.003 <= resolution <= 0.008:
         raise ParameterError(f"resolution: {resolution * 1e3:g} mm is out of range; allowed: 3..8 mm")
