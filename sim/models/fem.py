@@ -268,6 +268,13 @@ class FemContact:
     K: tuple  # C^-1 as 9 floats, row-major (the per-tick stiffness)
 
 
+def _same(held: tuple, now: tuple) -> bool:
+    """The same grasps: the very contact objects a cache was made for. The cache holds them, so
+    their identity cannot pass to a new grasp (an id() key could: Python reuses a freed
+    object's id, and a new grasp then met the last one's pair stiffness or state)."""
+    return len(held) == len(now) and all(x is y for x, y in zip(held, now))
+
+
 class FemModel:
     """The linear FEM under the tissue-model contract (see module docstring).
 
@@ -308,7 +315,7 @@ class FemModel:
         for part in self.parts:  # factorise now, not in the first grasp (two threads: no faster)
             _ = part.factor
         surface.prepare_queries()
-        self._pairs: dict[tuple[int, int], np.ndarray] = {}
+        self._pair_of: tuple | None = None  # (the two contacts' data, their pair stiffness)
         self._out = np.zeros_like(surface.vertices)
         # corotational state, per part: (contact ids, free-dof displacement, multipliers)
         self._corot: dict[int, tuple] = {}
@@ -387,14 +394,12 @@ class FemModel:
         return patch_vertex_weights(self.surface, vertex, self.grasp_radius)
 
     def _pair(self, a, b) -> np.ndarray:
-        key = (id(a.data), id(b.data))
-        K = self._pairs.get(key)
-        if K is None:
+        held = self._pair_of
+        if held is None or not _same(held[0], (a.data, b.data)):
             C12 = a.data.W @ b.data.U if a.data.part == b.data.part else np.zeros((3, 3))
             C = np.block([[a.data.C, C12], [C12.T, b.data.C]])
-            K = np.linalg.inv(0.5 * (C + C.T))
-            self._pairs = {key: K}  # only the current pair is ever needed
-        return K
+            held = self._pair_of = ((a.data, b.data), np.linalg.inv(0.5 * (C + C.T)))  # only the current pair is ever needed
+        return held[1]
 
     def force(self, contact, displacement):
         if self.unstable:
@@ -465,9 +470,9 @@ class FemModel:
             d = np.concatenate([displacements[k] for k in idx])
             fem = self.parts[part_id]
             W = sp.vstack([c.data.W for c in cs]).tocsr()
-            key = tuple(id(c.data) for c in cs)
+            key = tuple(c.data for c in cs)
             state = self._corot.get(part_id)
-            if state is None or state["key"] != key:  # new grasp set: start from the linear solution
+            if state is None or not _same(state["key"], key):  # new grasp set: start from the linear solution
                 U = np.hstack([c.data.U for c in cs])
                 pre = _Precond(solve=fem.solve_free, U=U, C=W @ U)
                 lam = np.linalg.solve(pre.C, d)
