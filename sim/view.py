@@ -29,24 +29,19 @@ from __future__ import annotations
 import contextlib
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
+from sim import hud, widgets
 from sim.errors import ViewError
+from sim.hud import ARROW, DESIGN_HEIGHT, SLOTS
 from sim.patch import GRASP_RADIUS
+from sim.widgets import Widget
 
 TISSUE = np.array([0.88, 0.80, 0.78])
 PATCH = np.array([0.20, 0.55, 0.95])  # the grasped patch
-TEXT = (0.05, 0.05, 0.12)
-ACCENT = (0.70, 0.10, 0.05)
-ARROW = (0.85, 0.15, 0.10)
-PANEL = (0.96, 0.96, 0.97)  # behind a questionnaire widget
 BACKING = (1.0, 1.0, 1.0, 0.82)  # behind a line of text over the brain
-BOX = (0.86, 0.89, 0.94)  # a point of a scale
-BORDER = (0.35, 0.38, 0.45)
-SELECTED = (0.12, 0.40, 0.85)  # the chosen point, the slider's mark
-WHITE = (1.0, 1.0, 1.0)
 # GLFW key codes -> names the callers use: the top row's digits and the keypad's give the same
 # names ("0".."9"), as do Enter and the keypad's Enter
 KEYS = {32: "space", 257: "enter", 335: "enter", 256: "escape", 259: "backspace", 262: "right", 263: "left",
@@ -54,17 +49,6 @@ KEYS = {32: "space", 257: "enter", 335: "enter", 256: "escape", 259: "backspace"
         **{48 + k: str(k) for k in range(10)}, **{320 + k: str(k) for k in range(10)}}
 FORCE_ARROW_M_PER_N = 0.08
 WHEEL_M = 0.002  # depth per wheel step
-DESIGN_HEIGHT = 720.0  # text sizes and widget geometry are given for a view this high, scaled to the real one
-# the text slots: x, y (pixels of a 1280x720 view, from the right or bottom edge where negative),
-# size, colour, alignment, and whether further lines go down from the first (else up from the last)
-SLOTS = {
-    "top": (24, 34, 22, TEXT, "left", True),
-    "center": (0.5, 92, 34, ACCENT, "center", True),
-    "question": (0.5, 92, 24, TEXT, "center", True),
-    "bottom": (0.5, -30, 20, TEXT, "center", False),
-    "corner": (-24, -62, 18, ARROW, "right", False),
-    "notice": (24, -62, 18, ACCENT, "left", False),
-}
 
 
 @dataclass
@@ -79,28 +63,6 @@ class HandState:
     @property
     def closed(self) -> bool:
         return self.holding or self.grasped_vertex is not None
-
-
-@dataclass
-class Widget:
-    """A questionnaire widget: a `scale` (labels in boxes side by side: a rating's points, or
-    blind condition labels) or a `slider` (a visual analogue scale, 0..100). Geometry in window
-    pixels (x right, y down), as the mouse reports them; laid out again when the window resizes."""
-
-    kind: str  # "scale" or "slider"
-    labels: tuple[str, ...] = ()
-    anchors: tuple[str, str] | None = None
-    selected: int | None = None  # scale: index of the chosen box (None: none yet)
-    value: float | None = None  # slider: the mark, 0..100 (None: not set yet; there is no default)
-    confirmed: bool = False  # scale: the chosen box was clicked again
-    boxes: list = field(default_factory=list)  # scale: (u0, v0, u1, v1) of each label's box
-    line: tuple = ()  # slider: (u0, u1, v), the line from 0 to 100
-    dragging: bool = False
-
-    def value_at(self, u: float) -> float:
-        """The slider's value at pixel column u (0 at the left end, 100 at the right, 0.1 steps)."""
-        u0, u1, _ = self.line
-        return round(min(max((u - u0) / (u1 - u0), 0.0), 1.0) * 100.0, 1)
 
 
 def _unit(v) -> np.ndarray:
@@ -268,47 +230,10 @@ class ParticipantView:
             out["widget"] = "  ".join(parts)
         return out
 
-    def text_size(self, slot: str) -> int:
-        """The pixel size of a slot's text in this view."""
-        return max(4, round(SLOTS[slot][2] * self.ui))
-
-    def wrap(self, text: str, slot: str, margin: float = 24.0) -> str:
-        """`text` broken into lines at spaces so each fits the view's width less `margin` pixels a side."""
-        from sim.font import atlas
-
-        a = atlas(self.text_size(slot))
-        room = self.width - 2 * margin * self.ui
-        lines = []
-        for paragraph in text.split("\n"):
-            line = ""
-            for word in paragraph.split(" "):
-                trial = f"{line} {word}" if line else word
-                if line and a.layout(trial)[1] > room:
-                    lines.append(line)
-                    line = word
-                else:
-                    line = trial
-            lines.append(line)
-        return "\n".join(lines)
-
     def layout(self) -> list[tuple]:
         """Every text item as drawn now: (text, x, baseline y, pixel size, rgb, align), slots
         then the widget's labels (tests look for their pixels where they are laid out)."""
-        items = []
-        for slot, text in self._texts.items():
-            if not text:
-                continue
-            x, y, size, colour, align, down = SLOTS[slot]
-            px = self.text_size(slot)
-            text = self.wrap(text, slot)  # at the view's width now: again after a resize
-            x = self.width * x if 0 < x < 1 else (x * self.ui if x >= 0 else self.width + x * self.ui)
-            y = y * self.ui if y >= 0 else self.height + y * self.ui
-            if not down:
-                from sim.font import atlas
-
-                y -= text.count("\n") * atlas(px).line_height
-            items.append((text, x, y, px, colour, align))
-        return items + self._widget_texts
+        return hud.items(self._texts, self.width, self.height) + self._widget_texts
 
     def _overlay(self):
         """The flat overlay's vertices: a light backing under each slot's text (legible over the
@@ -588,88 +513,21 @@ class ParticipantView:
             self.set_value(w.value + step)
 
     def _widget_press(self, x: float, y: float) -> None:
-        w = self.widget
-        if w.kind == "scale":
-            for k, (u0, v0, u1, v1) in enumerate(w.boxes):
-                if u0 - 4 <= x <= u1 + 4 and v0 - 4 <= y <= v1 + 4:
-                    if w.selected == k:
-                        w.confirmed = True  # a second click on the chosen box
-                    self.select(k)
-                    return
-        else:
-            u0, u1, v = w.line
-            if u0 - 20 * self.ui <= x <= u1 + 20 * self.ui and abs(y - v) <= 30 * self.ui:
-                w.dragging = True
-                self.set_value(w.value_at(x))
+        hit = widgets.press(self.widget, x, y, self.ui)
+        if self.widget.kind == "scale" and hit is not None:
+            self.select(hit)
+        elif hit is not None:
+            self.set_value(hit)
 
     def _layout_widget(self) -> None:
         """Where the widget's boxes or line are in this view (again after a resize)."""
-        w, s = self.widget, self.ui
-        if w is not None:
-            cx, vc = self.width / 2.0, self.height / 2.0
-            span = round(0.55 * self.width)
-            if w.kind == "scale":
-                n = len(w.labels)
-                if w.anchors:
-                    b = min(56.0 * s, span / (n + 0.25 * (n - 1)))
-                else:
-                    b = 72.0 * s
-                    span = n * b + (n - 1) * 0.75 * b
-                gap = (span - n * b) / (n - 1) if n > 1 else 0.0
-                left = cx - span / 2.0
-                w.boxes = [(round(left + k * (b + gap)), round(vc - b / 2), round(left + k * (b + gap) + b), round(vc + b / 2))
-                           for k in range(n)]
-            else:
-                u0 = round(cx - span / 2.0)
-                w.line = (u0, u0 + span, round(vc))
+        if self.widget is not None:
+            widgets.place(self.widget, self.width, self.height, self.ui)
         self._build_widget()
 
     def _build_widget(self) -> None:
-        """The widget's shapes (a panel, boxes or the line, the mark) and texts, in pixels."""
         self._changed()
-        self._widget_quads, self._widget_texts = [], []
-        w, s = self.widget, self.ui
-        if w is None:
-            return
-        quads, texts = self._widget_quads, self._widget_texts
-        anchor_px = max(4, round(18 * s))
-        if w.kind == "scale":
-            first, last = w.boxes[0], w.boxes[-1]
-            b = first[2] - first[0]
-            bottom = first[3] + (58 if w.anchors else 26) * s
-            quads.append((first[0] - 48 * s, first[1] - 34 * s, last[2] + 48 * s, bottom, (*PANEL, 1.0)))
-            for k, (u0, v0, u1, v1) in enumerate(w.boxes):
-                chosen = k == w.selected
-                quads.append((u0 - 2 * s, v0 - 2 * s, u1 + 2 * s, v1 + 2 * s, (*(SELECTED if chosen else BORDER), 1.0)))
-                quads.append((u0, v0, u1, v1, (*(SELECTED if chosen else BOX), 1.0)))
-                px = self._fit_px(w.labels[k], 0.5 * b if len(w.labels[k]) <= 2 else 0.3 * b, b - 6 * s)
-                texts.append((w.labels[k], (u0 + u1) / 2, (v0 + v1) / 2 + 0.36 * px, px, WHITE if chosen else TEXT, "middle"))
-            if w.anchors:
-                half = (last[2] - first[0]) / 2 - 12 * s
-                texts.append((w.anchors[0], first[0], first[3] + 34 * s, self._fit_px(w.anchors[0], anchor_px, half), TEXT, "left"))
-                texts.append((w.anchors[1], last[2], first[3] + 34 * s, self._fit_px(w.anchors[1], anchor_px, half), TEXT, "right"))
-        else:
-            u0, u1, v = w.line
-            quads.append((u0 - 56 * s, v - 76 * s, u1 + 56 * s, v + 64 * s, (*PANEL, 1.0)))
-            quads.append((u0, v - 2 * s, u1, v + 2 * s, (*BORDER, 1.0)))
-            for u in (u0, u1):
-                quads.append((u - 2 * s, v - 14 * s, u + 2 * s, v + 14 * s, (*BORDER, 1.0)))
-            if w.anchors:
-                half = (u1 - u0) / 2 - 12 * s
-                texts.append((w.anchors[0], u0, v + 44 * s, self._fit_px(w.anchors[0], anchor_px, half), TEXT, "left"))
-                texts.append((w.anchors[1], u1, v + 44 * s, self._fit_px(w.anchors[1], anchor_px, half), TEXT, "right"))
-            if w.value is not None:
-                u = u0 + (u1 - u0) * w.value / 100.0
-                quads.append((u - 3 * s, v - 22 * s, u + 3 * s, v + 22 * s, (*SELECTED, 1.0)))
-                texts.append((f"{w.value:g}", u, v - 32 * s, max(4, round(24 * s)), SELECTED, "middle"))
-
-    def _fit_px(self, text: str, px: float, max_width: float) -> int:
-        """A pixel size at most `px` at which `text` is at most `max_width` wide."""
-        from sim.font import atlas
-
-        px = max(4, round(px))
-        width = atlas(px).layout(text)[1]
-        return max(4, int(px * max_width / width)) if width > max_width else px
+        self._widget_quads, self._widget_texts = widgets.shapes(self.widget, self.ui) if self.widget is not None else ([], [])
 
     # -- the pointer (mouse device) ---------------------------------------------------------
     def pick(self, u: float, v: float) -> np.ndarray | None:

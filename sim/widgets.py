@@ -1,0 +1,119 @@
+"""The questionnaire's widgets in the participant view: a rating scale (boxes side by side: a
+rating's points, or blind condition labels) and a visual analogue scale (a line from 0 to 100
+and a mark), laid out for a view's size and drawn as flat rectangles and text. The view
+(sim/view.py) keeps which widget is shown and turns keys and clicks into choices."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from sim.hud import TEXT
+
+PANEL = (0.96, 0.96, 0.97)  # behind a widget
+BOX = (0.86, 0.89, 0.94)  # a point of a scale
+BORDER = (0.35, 0.38, 0.45)
+SELECTED = (0.12, 0.40, 0.85)  # the chosen point, the slider's mark
+WHITE = (1.0, 1.0, 1.0)
+
+
+@dataclass
+class Widget:
+    """A `scale` or a `slider` (0..100). Geometry in window pixels (x right, y down), as the
+    mouse reports them; laid out again when the window resizes (`place`)."""
+
+    kind: str  # "scale" or "slider"
+    labels: tuple[str, ...] = ()
+    anchors: tuple[str, str] | None = None
+    selected: int | None = None  # scale: index of the chosen box (None: none yet)
+    value: float | None = None  # slider: the mark, 0..100 (None: not set yet; there is no default)
+    confirmed: bool = False  # scale: the chosen box was clicked again
+    boxes: list = field(default_factory=list)  # scale: (u0, v0, u1, v1) of each label's box
+    line: tuple = ()  # slider: (u0, u1, v), the line from 0 to 100
+    dragging: bool = False
+
+    def value_at(self, u: float) -> float:
+        """The slider's value at pixel column u (0 at the left end, 100 at the right, 0.1 steps)."""
+        u0, u1, _ = self.line
+        return round(min(max((u - u0) / (u1 - u0), 0.0), 1.0) * 100.0, 1)
+
+
+def place(w: Widget, width: int, height: int, ui: float) -> None:
+    """The boxes or the line, centred in a width x height view (`ui`: its height over 720).
+    With anchors a scale spans 55% of the width, so its ends stay where they are whatever the
+    number of points."""
+    cx, vc = width / 2.0, height / 2.0
+    span = round(0.55 * width)
+    if w.kind == "scale":
+        n = len(w.labels)
+        if w.anchors:
+            b = min(56.0 * ui, span / (n + 0.25 * (n - 1)))
+        else:
+            b = 72.0 * ui
+            span = n * b + (n - 1) * 0.75 * b
+        gap = (span - n * b) / (n - 1) if n > 1 else 0.0
+        left = cx - span / 2.0
+        w.boxes = [(round(left + k * (b + gap)), round(vc - b / 2), round(left + k * (b + gap) + b), round(vc + b / 2)) for k in range(n)]
+    else:
+        u0 = round(cx - span / 2.0)
+        w.line = (u0, u0 + span, round(vc))
+
+
+def press(w: Widget, x: float, y: float, ui: float):
+    """A click at (x, y): the box it hits (a second click on the chosen box confirms it), or the
+    slider's value under it (and a drag begins); None when it misses."""
+    if w.kind == "scale":
+        for k, (u0, v0, u1, v1) in enumerate(w.boxes):
+            if u0 - 4 <= x <= u1 + 4 and v0 - 4 <= y <= v1 + 4:
+                if w.selected == k:
+                    w.confirmed = True
+                return k
+        return None
+    u0, u1, v = w.line
+    if u0 - 20 * ui <= x <= u1 + 20 * ui and abs(y - v) <= 30 * ui:
+        w.dragging = True
+        return w.value_at(x)
+    return None
+
+
+def shapes(w: Widget, ui: float) -> tuple[list, list]:
+    """(rectangles (x0, y0, x1, y1, rgba), texts (text, x, baseline y, pixel size, rgb, align))
+    of the widget as it is: a panel, the boxes or the line, the mark, labels and anchors."""
+    quads, texts = [], []
+    anchor_px = max(4, round(18 * ui))
+    if w.kind == "scale":
+        first, last = w.boxes[0], w.boxes[-1]
+        b = first[2] - first[0]
+        bottom = first[3] + (58 if w.anchors else 26) * ui
+        quads.append((first[0] - 48 * ui, first[1] - 34 * ui, last[2] + 48 * ui, bottom, (*PANEL, 1.0)))
+        for k, (u0, v0, u1, v1) in enumerate(w.boxes):
+            chosen = k == w.selected
+            quads.append((u0 - 2 * ui, v0 - 2 * ui, u1 + 2 * ui, v1 + 2 * ui, (*(SELECTED if chosen else BORDER), 1.0)))
+            quads.append((u0, v0, u1, v1, (*(SELECTED if chosen else BOX), 1.0)))
+            px = fit_px(w.labels[k], 0.5 * b if len(w.labels[k]) <= 2 else 0.3 * b, b - 6 * ui)
+            texts.append((w.labels[k], (u0 + u1) / 2, (v0 + v1) / 2 + 0.36 * px, px, WHITE if chosen else TEXT, "middle"))
+        ends = (first[0], last[2], first[3] + 34 * ui, (last[2] - first[0]) / 2 - 12 * ui)
+    else:
+        u0, u1, v = w.line
+        quads.append((u0 - 56 * ui, v - 76 * ui, u1 + 56 * ui, v + 64 * ui, (*PANEL, 1.0)))
+        quads.append((u0, v - 2 * ui, u1, v + 2 * ui, (*BORDER, 1.0)))
+        for u in (u0, u1):
+            quads.append((u - 2 * ui, v - 14 * ui, u + 2 * ui, v + 14 * ui, (*BORDER, 1.0)))
+        if w.value is not None:
+            u = u0 + (u1 - u0) * w.value / 100.0
+            quads.append((u - 3 * ui, v - 22 * ui, u + 3 * ui, v + 22 * ui, (*SELECTED, 1.0)))
+            texts.append((f"{w.value:g}", u, v - 32 * ui, max(4, round(24 * ui)), SELECTED, "middle"))
+        ends = (u0, u1, v + 44 * ui, (u1 - u0) / 2 - 12 * ui)
+    if w.anchors:  # under the two ends, each at most half the span wide
+        left, right, y, half = ends
+        texts.append((w.anchors[0], left, y, fit_px(w.anchors[0], anchor_px, half), TEXT, "left"))
+        texts.append((w.anchors[1], right, y, fit_px(w.anchors[1], anchor_px, half), TEXT, "right"))
+    return quads, texts
+
+
+def fit_px(text: str, px: float, max_width: float) -> int:
+    """A pixel size at most `px` at which `text` is at most `max_width` wide."""
+    from sim.font import atlas
+
+    px = max(4, round(px))
+    width = atlas(px).layout(text)[1]
+    return max(4, int(px * max_width / width)) if width > max_width else px
