@@ -26,6 +26,7 @@ import random
 import string
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 from brainsim_assets import version as _version
 from studyctl.asking import TerminalAnswers, flush_input, terminal_keys
@@ -214,19 +215,36 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
         return _run_session(db, code, device, synthetic, resume, time_scale, *args, view=view, answer_with=answer_with, **kwargs)
 
 
+@dataclass
+class _Run:
+    """What every step of one session's run uses: the study, the participant, the session's
+    row, how it is run and shown, and who answers."""
+
+    db: object
+    store: Store
+    protocol: object
+    code: str
+    device: str
+    time_scale: float
+    say: Callable[[str], None]
+    shown: object = None  # the participant view, if any
+    servo: object = None  # the session's servo process (real time)
+    session_id: int | None = None
+    labels: dict = field(default_factory=dict)  # model -> blind label
+    answerer: object = None
+    participant: object = None  # a synthetic participant's generating traits
+    paced: bool = False  # a person sets the pace
+    keys: Callable | None = None  # the experimenter's terminal keys
+
+
 def _run_session(db, code: str, device: str = "simulated", synthetic: bool = False, resume: bool = False,
                 time_scale: float | None = None, answers=None, seed: int | None = None, progress: Callable[[str], None] | None = None,
                 session_id: int | None = None, view: str = "none", answer_with: str = "terminal", device_names: list[str] | None = None,
                 fullscreen: bool = False) -> dict:
-    from sim.run import Pacing, run_scene
-    from studyctl.study import assign_order
-    from studyctl.traces import trial_traces, write_trace
-
-    store = Store(db)
-    say = progress or (lambda msg: None)
-    shown = servo = None
+    run = _Run(db=db, store=Store(db), protocol=None, code=code, device=device, time_scale=time_scale, say=progress or (lambda msg: None))
+    store = run.store
     try:
-        protocol = store.protocol()
+        protocol = run.protocol = store.protocol()
         first = _scene(protocol, protocol.conditions[0], device)
         if device_names is not None:
             first.device_names = device_names
@@ -234,186 +252,228 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
         if view == "window":
             from sim.view import open_view
 
-            shown = open_view("window", first, show_force=device == "mouse", fullscreen=fullscreen)
+            run.shown = open_view("window", first, show_force=device == "mouse", fullscreen=fullscreen)
         if time_scale > 0:  # one servo process for the session: devices opened once, kept across trials
             from sim.servo_process import ServoProcess
 
-            servo = ServoProcess(first, time_scale)
+            run.servo = ServoProcess(first, time_scale)
         _check_participant(store, protocol, code, synthetic)  # again, now that this process holds the lock
-        sessions = store.rows("select * from sessions where code = ? order by id", (code,))
-        running = [s for s in sessions if s["status"] == "running"]
-        if running and not resume and _never_started(store, running[0]["id"]):
-            # interrupted before its first trial (e.g. in training): nothing of it is kept, start afresh
-            _discard(store, running[0]["id"])
-            say(f"discarded session {running[0]['id']} of {code}: it stopped before its first trial")
-            running = []
-        if running and not resume:
-            raise StoreError(f"participant {code}: a session was interrupted; continue it with --resume")
-        if resume and not running:
-            raise StoreError(f"participant {code}: no interrupted session to resume")
-        order = assign_order(store, protocol, code)
-        if running and (bool(running[0]["synthetic"]), running[0]["device"]) != (synthetic, device):
-            was = running[0]
-            raise StoreError(f"participant {code}: session {was['id']} was started with --device {was['device']}"
-                             f"{' --synthetic' if was['synthetic'] else ''}; resume it with the same options")
-        stored = running[0].get("seed") if running and synthetic else None
-        if stored is not None and seed is not None and seed != stored:
-            raise StoreError(f"participant {code}: session {running[0]['id']} was started with --seed {stored}; "
-                             f"resume it with the same seed (or leave --seed out)")
-        # the session's own seed on a resume; else the one given; else 0 (also a session from
-        # before seeds were stored)
-        seed = stored if stored is not None else (0 if seed is None else seed)
-        from studyctl.conditions import config_json, config_sha256
-
-        configs = condition_configs(protocol, order)  # before anything is written: a condition that fails is a clean error
-        if running:
-            session_id = running[0]["id"]
-            for r in store.rows("select model, config_sha256 from conditions where session_id = ?", (session_id,)):
-                now_sha = config_sha256(configs[r["model"]]) if r["model"] in configs else None
-                if r["config_sha256"] and now_sha != r["config_sha256"]:
-                    raise StoreError(f"participant {code}: condition {r['model']!r} of session {session_id} ran configuration "
-                                     f"{r['config_sha256'][:12]}; the protocol's scene now gives another (its scene or parameter "
-                                     f"files changed): resuming would mix the two")
-            store.event(session_id, "resumed")
-            say(f"resuming session {session_id} of {code}")
-        else:
-            from studyctl.traces import trace_dir
-
-            folder = trace_dir(db)
-            try:  # where the traces go, checked before the session is recorded
-                folder.mkdir(exist_ok=True)
-            except OSError as exc:
-                raise StoreError(f"{folder}: cannot hold the trial traces: {exc.strerror}") from None
-            rng = random.Random(f"labels:{seed}:{code}") if synthetic else random.SystemRandom()
-            labels = condition_labels(order, rng)
-            store.write("sessions", {
-                **({"id": session_id} if session_id is not None else {}),
-                "code": code, "started_at": now(), "finished_at": None, "status": "running", "synthetic": int(synthetic),
-                "device": device, "protocol_sha256": protocol.sha256, "scene_sha256": sha256_file(protocol.scene),
-                "software_version": SOFTWARE_VERSION, "conditions": json.dumps(order), "seed": seed if synthetic else None}, pk="id")
-            session_id = store.rows("select max(id) as id from sessions where code = ?", (code,))[0]["id"]  # the row just written
-            for pos, model in enumerate(order):
-                store.write("conditions", {"session_id": session_id, "position": pos, "model": model, "status": "pending",
-                                           "label": labels[model], "config": config_json(configs[model]),
-                                           "config_sha256": config_sha256(configs[model])}, pk=("session_id", "position"))
-        labels = {r["model"]: r["label"] or chr(ord("A") + r["position"])
-                  for r in store.rows("select model, position, label from conditions where session_id = ?", (session_id,))}
-        participant = None
+        order, seed = _open_session(run, synthetic, resume, seed, session_id)
+        run.labels = {r["model"]: r["label"] or chr(ord("A") + r["position"])
+                      for r in store.rows("select model, position, label from conditions where session_id = ?", (run.session_id,))}
         if answers is None and synthetic:
-            from studyctl.conditions import scene_itself
-            from studyctl.synthetic import SyntheticAnswers, SyntheticParticipant
-            from studyctl.truth import load_truth
-
-            participant = SyntheticParticipant.draw(code, seed)
-            base = scene_itself(protocol)  # the scene's own configuration, whatever the conditions change
-            from studyctl.rig import frame_times
-
-            rig = {c: v["frame_ms"] for c, v in frame_times(protocol, store).items()}  # the rig this study runs on
-            answers = SyntheticAnswers(participant, load_truth(base), base.mesh, rig=rig)
-        paced = time_scale > 0 and not synthetic  # a person sets the pace
-        answerer = answers or (WindowAnswers(shown) if answer_with == "window" else TerminalAnswers(view=shown))
-        keys = terminal_keys if paced else None
-        n_cond = len(order)
-        done_events = {r["kind"] for r in store.rows("select kind from events where session_id = ?", (session_id,))}
-        if "training_done" not in done_events:
-            seconds = protocol.training_minutes * 60.0
-            ran, early = 0.0, None
-            if time_scale > 0 and seconds > 0:
-                say(f"training: {protocol.training_minutes:g} minutes of free pulling; the experimenter ends it early with "
-                    + ("E in the window or " if shown is not None else "") + "Enter in the terminal")
-
-                def training_caption(phase, left):
-                    return {"top": "Training", "center": f"Pull the brain freely: {int(left) // 60}:{int(left) % 60:02d} left",
-                            "bottom": "Experimenter: E ends the training", "question": ""}
-
-                pacing = Pacing(view=shown, caption=training_caption, stop_keys=("e", "enter"), keys=keys, notify=say) if paced or shown else None
-                flush_input()
-                result = run_scene(_scene(protocol, TRAINING_MODEL, device), duration=seconds, time_scale=time_scale, pacing=pacing, servo=servo)
-                if shown is not None:
-                    shown.at_rest()
-                ran, early = (result.times[-1] if len(result.times) else 0.0), result.ended_early
-            store.event(session_id, "training_done", dumps({"planned_s": seconds, "ran_s": round(float(ran), 3), "time_scale": time_scale,
-                                                            "ended_early": early is not None, "by": early}))
+            answers = _synthetic_answers(run, seed)
+        run.paced = time_scale > 0 and not synthetic  # a person sets the pace
+        run.answerer = answers or (WindowAnswers(run.shown) if answer_with == "window" else TerminalAnswers(view=run.shown))
+        run.keys = terminal_keys if run.paced else None
+        _training(run)
         for pos, model in enumerate(order):
-            label = labels[model]
-            status = f"Condition {label} ({pos + 1} of {n_cond})"
-            done_trials = {r["trial"] for r in store.rows("select trial from trials where session_id = ? and model = ?", (session_id, model))}
-            scene = None
-
-            def ask_after(trial, model=model, status=status):  # the questions asked after every trial
-                if _unasked(store, protocol.asked("trial"), code, model, trial):
-                    _ask(store, answerer, protocol.asked("trial"), code, model, trial, session_id,
-                         {"labels": labels, "trial": trial, "results": trial_traces(store, session_id, model, trial)},
-                         f"{status}, after trial {trial + 1}")
-
-            for trial in range(protocol.trials_per_condition):
-                if trial in done_trials:
-                    ask_after(trial)  # a resume asks what an interruption left unasked
-                    continue
-                scene = scene or _scene(protocol, model, device)
-                n_trials = protocol.trials_per_condition
-                say(f"condition {label} ({pos + 1} of {n_cond}): trial {trial + 1} of {n_trials}")
-                if paced and (trial > 0 or pos > 0):
-                    _rest_screen(shown, protocol.rest_seconds, status, "Rest" if trial > 0 else "Next condition in", keys)
-
-                def caption(phase, left, trial=trial, n_trials=n_trials, status=status):
-                    head = f"{status} - trial {trial + 1} of {n_trials}"
-                    if phase == "waiting":
-                        return {"top": head, "center": "Grasp the brain to start", "bottom": "Experimenter: SPACE starts the trial", "question": ""}
-                    return {"top": head, "center": f"{math.ceil(left)} s", "bottom": "Pull the tissue", "question": ""}
-
-                pacing = Pacing(view=shown, wait_for_grasp=paced, caption=caption, keys=keys, notify=say) if (paced or shown) else None
-                started = now()
-                scene.operators = participant.operators(scene, trial, model) if participant else None
-                try:
-                    result = run_scene(scene, duration=protocol.trial_seconds, time_scale=time_scale, pacing=pacing, servo=servo)
-                finally:
-                    scene.operators = None
-                    if shown is not None:
-                        shown.at_rest()
-                rec, lat = _trial_record(session_id, model, trial, started, result)
-                rec |= write_trace(db, session_id, pos, trial, result)  # durable before the trial's row
-                if not rec["grasped"]:
-                    say(f"condition {label}: trial {trial + 1}: nothing was grasped (recorded)")
-                # latency rows first, the trial row last: a trial row means the trial is complete
-                if lat:
-                    store.write_many("latency", lat, pk=("session_id", "model", "trial", "measure"))
-                store.write("trials", rec, pk=("session_id", "model", "trial"))
-                ask_after(trial)
-            results = None  # every stored trial of the condition, resumed or not: read once, when needed
-            if hasattr(answerer, "features_of") and not store.rows(
-                    "select 1 from observer_features where code = ? and model = ? limit 1", (code, model)):
-                # what the observer perceived, from every stored trace of the condition (after a
-                # resume too), kept before the answers drawn from it
-                results = trial_traces(store, session_id, model)
-                feats = answerer.features_of(model, results)
-                at = now()
-                with store.transaction() as conn:
-                    conn.executemany("insert or replace into observer_features (code, model, feature, value, session_id, computed_at) "
-                                     "values (?, ?, ?, ?, ?, ?)", [(code, model, k, float(v), session_id, at) for k, v in feats.items()])
-            if _unasked(store, protocol.asked("condition"), code, model, NOT_PER_TRIAL):
-                results = results if results is not None else trial_traces(store, session_id, model)
-                _ask(store, answerer, protocol.asked("condition"), code, model, NOT_PER_TRIAL, session_id,
-                     {"labels": labels, "trial": None, "results": results}, f"condition {label} ({pos + 1} of {n_cond})")
-            store.db.conn.execute("update conditions set status = 'done' where session_id = ? and position = ?", (session_id, pos))
-        if _unasked(store, protocol.asked("end"), code, SESSION, NOT_PER_TRIAL):  # once, about the whole session
-            feats = {}
-            for r in store.rows("select model, feature, value from observer_features where code = ?", (code,)):
-                feats.setdefault(r["model"], {})[r["feature"]] = math.nan if r["value"] is None else r["value"]  # NaN is stored as NULL
-            _ask(store, answerer, protocol.asked("end"), code, SESSION, NOT_PER_TRIAL, session_id,
-                 {"labels": labels, "trial": None, "results": None, "features": feats}, "all the conditions you tried")
-        store.db.conn.execute("update sessions set status = 'done', finished_at = ? where id = ?", (now(), session_id))
-        if shown is not None:
-            shown.set_text(top="", center="Thank you: the session is complete", bottom="", question="", corner="")
-            shown.idle()
+            _run_condition(run, pos, model, len(order))
+        _ask_at_the_end(run)
+        store.db.conn.execute("update sessions set status = 'done', finished_at = ? where id = ?", (now(), run.session_id))
+        if run.shown is not None:
+            run.shown.set_text(top="", center="Thank you: the session is complete", bottom="", question="", corner="")
+            run.shown.idle()
         n = store.rows("select count(*) as n from answers where code = ?", (code,))[0]["n"]
-        return {"session": session_id, "participant": code, "order": [labels[m] for m in order], "answers": n, "synthetic": synthetic}
+        return {"session": run.session_id, "participant": code, "order": [run.labels[m] for m in order], "answers": n, "synthetic": synthetic}
     finally:
-        if servo is not None:
-            servo.close()
-        if shown is not None:
-            shown.close()
+        if run.servo is not None:
+            run.servo.close()
+        if run.shown is not None:
+            run.shown.close()
         store.close()
+
+
+def _open_session(run: _Run, synthetic: bool, resume: bool, seed: int | None, session_id: int | None) -> tuple[list[str], int]:
+    """The participant's running session, resumed (checked: same options, seed and condition
+    configurations), or a new one written with its conditions. Sets `run.session_id`; returns
+    the participant's condition order and the session's seed."""
+    from studyctl.conditions import config_json, config_sha256
+    from studyctl.study import assign_order
+
+    store, protocol, code, device, say = run.store, run.protocol, run.code, run.device, run.say
+    sessions = store.rows("select * from sessions where code = ? order by id", (code,))
+    running = [s for s in sessions if s["status"] == "running"]
+    if running and not resume and _never_started(store, running[0]["id"]):
+        # interrupted before its first trial (e.g. in training): nothing of it is kept, start afresh
+        _discard(store, running[0]["id"])
+        say(f"discarded session {running[0]['id']} of {code}: it stopped before its first trial")
+        running = []
+    if running and not resume:
+        raise StoreError(f"participant {code}: a session was interrupted; continue it with --resume")
+    if resume and not running:
+        raise StoreError(f"participant {code}: no interrupted session to resume")
+    order = assign_order(store, protocol, code)
+    if running and (bool(running[0]["synthetic"]), running[0]["device"]) != (synthetic, device):
+        was = running[0]
+        raise StoreError(f"participant {code}: session {was['id']} was started with --device {was['device']}"
+                         f"{' --synthetic' if was['synthetic'] else ''}; resume it with the same options")
+    stored = running[0].get("seed") if running and synthetic else None
+    if stored is not None and seed is not None and seed != stored:
+        raise StoreError(f"participant {code}: session {running[0]['id']} was started with --seed {stored}; "
+                         f"resume it with the same seed (or leave --seed out)")
+    # the session's own seed on a resume; else the one given; else 0 (also a session from
+    # before seeds were stored)
+    seed = stored if stored is not None else (0 if seed is None else seed)
+    configs = condition_configs(protocol, order)  # before anything is written: a condition that fails is a clean error
+    if running:
+        run.session_id = running[0]["id"]
+        for r in store.rows("select model, config_sha256 from conditions where session_id = ?", (run.session_id,)):
+            now_sha = config_sha256(configs[r["model"]]) if r["model"] in configs else None
+            if r["config_sha256"] and now_sha != r["config_sha256"]:
+                raise StoreError(f"participant {code}: condition {r['model']!r} of session {run.session_id} ran configuration "
+                                 f"{r['config_sha256'][:12]}; the protocol's scene now gives another (its scene or parameter "
+                                 f"files changed): resuming would mix the two")
+        store.event(run.session_id, "resumed")
+        say(f"resuming session {run.session_id} of {code}")
+        return order, seed
+    from studyctl.traces import trace_dir
+
+    folder = trace_dir(run.db)
+    try:  # where the traces go, checked before the session is recorded
+        folder.mkdir(exist_ok=True)
+    except OSError as exc:
+        raise StoreError(f"{folder}: cannot hold the trial traces: {exc.strerror}") from None
+    rng = random.Random(f"labels:{seed}:{code}") if synthetic else random.SystemRandom()
+    labels = condition_labels(order, rng)
+    store.write("sessions", {
+        **({"id": session_id} if session_id is not None else {}),
+        "code": code, "started_at": now(), "finished_at": None, "status": "running", "synthetic": int(synthetic),
+        "device": device, "protocol_sha256": protocol.sha256, "scene_sha256": sha256_file(protocol.scene),
+        "software_version": SOFTWARE_VERSION, "conditions": json.dumps(order), "seed": seed if synthetic else None}, pk="id")
+    run.session_id = store.rows("select max(id) as id from sessions where code = ?", (code,))[0]["id"]  # the row just written
+    for pos, model in enumerate(order):
+        store.write("conditions", {"session_id": run.session_id, "position": pos, "model": model, "status": "pending",
+                                   "label": labels[model], "config": config_json(configs[model]),
+                                   "config_sha256": config_sha256(configs[model])}, pk=("session_id", "position"))
+    return order, seed
+
+
+def _synthetic_answers(run: _Run, seed: int):
+    """A synthetic participant drawn from the code and seed, answering from what it perceives on
+    the study's rig; sets `run.participant` (its motor traits drive the simulated hands)."""
+    from studyctl.conditions import scene_itself
+    from studyctl.rig import frame_times
+    from studyctl.synthetic import SyntheticAnswers, SyntheticParticipant
+    from studyctl.truth import load_truth
+
+    run.participant = SyntheticParticipant.draw(run.code, seed)
+    base = scene_itself(run.protocol)  # the scene's own configuration, whatever the conditions change
+    rig = {c: v["frame_ms"] for c, v in frame_times(run.protocol, run.store).items()}  # the rig this study runs on
+    return SyntheticAnswers(run.participant, load_truth(base), base.mesh, rig=rig)
+
+
+def _training(run: _Run) -> None:
+    """Free pulling before the first condition (once per session; the experimenter may end it)."""
+    from sim.run import Pacing, run_scene
+
+    store, protocol, shown = run.store, run.protocol, run.shown
+    if "training_done" in {r["kind"] for r in store.rows("select kind from events where session_id = ?", (run.session_id,))}:
+        return
+    seconds = protocol.training_minutes * 60.0
+    ran, early = 0.0, None
+    if run.time_scale > 0 and seconds > 0:
+        run.say(f"training: {protocol.training_minutes:g} minutes of free pulling; the experimenter ends it early with "
+                + ("E in the window or " if shown is not None else "") + "Enter in the terminal")
+
+        def training_caption(phase, left):
+            return {"top": "Training", "center": f"Pull the brain freely: {int(left) // 60}:{int(left) % 60:02d} left",
+                    "bottom": "Experimenter: E ends the training", "question": ""}
+
+        pacing = Pacing(view=shown, caption=training_caption, stop_keys=("e", "enter"), keys=run.keys, notify=run.say) if run.paced or shown else None
+        flush_input()
+        result = run_scene(_scene(protocol, TRAINING_MODEL, run.device), duration=seconds, time_scale=run.time_scale, pacing=pacing,
+                           servo=run.servo)
+        if shown is not None:
+            shown.at_rest()
+        ran, early = (result.times[-1] if len(result.times) else 0.0), result.ended_early
+    store.event(run.session_id, "training_done", dumps({"planned_s": seconds, "ran_s": round(float(ran), 3), "time_scale": run.time_scale,
+                                                        "ended_early": early is not None, "by": early}))
+
+
+def _run_condition(run: _Run, pos: int, model: str, n_cond: int) -> None:
+    """One condition: its trials not yet stored (each followed by the per-trial questions),
+    what the synthetic observer perceived, then the condition's questions."""
+    from studyctl.traces import trial_traces
+
+    store, protocol, code, session_id = run.store, run.protocol, run.code, run.session_id
+    label = run.labels[model]
+    status = f"Condition {label} ({pos + 1} of {n_cond})"
+    done_trials = {r["trial"] for r in store.rows("select trial from trials where session_id = ? and model = ?", (session_id, model))}
+    scene = None
+    for trial in range(protocol.trials_per_condition):
+        if trial not in done_trials:
+            scene = scene or _scene(protocol, model, run.device)
+            _run_trial(run, scene, pos, model, trial, status)
+        # the questions asked after every trial (a resume asks what an interruption left unasked)
+        if _unasked(store, protocol.asked("trial"), code, model, trial):
+            _ask(store, run.answerer, protocol.asked("trial"), code, model, trial, session_id,
+                 {"labels": run.labels, "trial": trial, "results": trial_traces(store, session_id, model, trial)},
+                 f"{status}, after trial {trial + 1}")
+    results = None  # every stored trial of the condition, resumed or not: read once, when needed
+    if hasattr(run.answerer, "features_of") and not store.rows(
+            "select 1 from observer_features where code = ? and model = ? limit 1", (code, model)):
+        # what the observer perceived, from every stored trace of the condition (after a
+        # resume too), kept before the answers drawn from it
+        results = trial_traces(store, session_id, model)
+        feats = run.answerer.features_of(model, results)
+        at = now()
+        with store.transaction() as conn:
+            conn.executemany("insert or replace into observer_features (code, model, feature, value, session_id, computed_at) "
+                             "values (?, ?, ?, ?, ?, ?)", [(code, model, k, float(v), session_id, at) for k, v in feats.items()])
+    if _unasked(store, protocol.asked("condition"), code, model, NOT_PER_TRIAL):
+        results = results if results is not None else trial_traces(store, session_id, model)
+        _ask(store, run.answerer, protocol.asked("condition"), code, model, NOT_PER_TRIAL, session_id,
+             {"labels": run.labels, "trial": None, "results": results}, f"condition {label} ({pos + 1} of {n_cond})")
+    store.db.conn.execute("update conditions set status = 'done' where session_id = ? and position = ?", (session_id, pos))
+
+
+def _run_trial(run: _Run, scene, pos: int, model: str, trial: int, status: str) -> None:
+    """One trial: the rest screen before it, the run, then its trace and row (the row last: a
+    trial row means the trial is complete)."""
+    from sim.run import Pacing, run_scene
+    from studyctl.traces import write_trace
+
+    protocol, shown = run.protocol, run.shown
+    n_trials = protocol.trials_per_condition
+    run.say(f"{status[0].lower()}{status[1:]}: trial {trial + 1} of {n_trials}")
+    if run.paced and (trial > 0 or pos > 0):
+        _rest_screen(shown, protocol.rest_seconds, status, "Rest" if trial > 0 else "Next condition in", run.keys)
+
+    def caption(phase, left):
+        head = f"{status} - trial {trial + 1} of {n_trials}"
+        if phase == "waiting":
+            return {"top": head, "center": "Grasp the brain to start", "bottom": "Experimenter: SPACE starts the trial", "question": ""}
+        return {"top": head, "center": f"{math.ceil(left)} s", "bottom": "Pull the tissue", "question": ""}
+
+    pacing = Pacing(view=shown, wait_for_grasp=run.paced, caption=caption, keys=run.keys, notify=run.say) if (run.paced or shown) else None
+    started = now()
+    scene.operators = run.participant.operators(scene, trial, model) if run.participant else None
+    try:
+        result = run_scene(scene, duration=protocol.trial_seconds, time_scale=run.time_scale, pacing=pacing, servo=run.servo)
+    finally:
+        scene.operators = None
+        if shown is not None:
+            shown.at_rest()
+    rec, lat = _trial_record(run.session_id, model, trial, started, result)
+    rec |= write_trace(run.db, run.session_id, pos, trial, result)  # durable before the trial's row
+    if not rec["grasped"]:
+        run.say(f"condition {run.labels[model]}: trial {trial + 1}: nothing was grasped (recorded)")
+    if lat:  # latency rows first, the trial row last
+        run.store.write_many("latency", lat, pk=("session_id", "model", "trial", "measure"))
+    run.store.write("trials", rec, pk=("session_id", "model", "trial"))
+
+
+def _ask_at_the_end(run: _Run) -> None:
+    """The questions about the whole session, once, with every condition's perceived features."""
+    store, protocol, code = run.store, run.protocol, run.code
+    if not _unasked(store, protocol.asked("end"), code, SESSION, NOT_PER_TRIAL):
+        return
+    feats = {}
+    for r in store.rows("select model, feature, value from observer_features where code = ?", (code,)):
+        feats.setdefault(r["model"], {})[r["feature"]] = math.nan if r["value"] is None else r["value"]  # NaN is stored as NULL
+    _ask(store, run.answerer, protocol.asked("end"), code, SESSION, NOT_PER_TRIAL, run.session_id,
+         {"labels": run.labels, "trial": None, "results": None, "features": feats}, "all the conditions you tried")
 
 
 __all__ = ["run_session", "TerminalAnswers", "WindowAnswers"]
