@@ -1,4 +1,4 @@
-"""Exceptions of the study library; studyctl/cli.py turns them into clean CLI errors."""
+"""Exceptions of the study library; the CLI (studyctl/cli/common.py) turns them into clean CLI errors."""
 
 
 class StudyError(Exception):

@@ -1,0 +1,49 @@
+"""The `studyctl` command line: parse options, call one library function, print.
+
+Library exceptions (`sim.errors.SimError`, `studyctl.errors.StudyError`) become one-line errors
+(a file with several problems: one line each) with exit status 1; usage
+mistakes are click's (exit status 2). No traceback reaches the user for either.
+
+One module per command group, each imported here and added to the root group `cli`; what they
+share (the error handling, output, option types and common options) is in `common`. Commands
+import their library (and anything heavy) inside their functions: `studyctl --help` stays fast.
+"""
+
+from __future__ import annotations
+
+import click
+
+from studyctl.cli import (
+    answers,
+    bench,
+    calibrate,
+    devices,
+    model,
+    participants,
+    plan,
+    reports,
+    sessions,
+    simulator,
+    study,
+)
+from studyctl.cli.common import _Group
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="brainsim-study", prog_name="studyctl")
+def cli():
+    """Haptic brain-surgery simulator: experiments, user studies and reports."""
+
+
+def main() -> None:
+    cli(prog_name="studyctl")
+
+
+# the order the groups are defined in; `--help` lists them sorted by name (`sessions`: a hidden alias)
+for _command in (
+    bench.bench, model.model, calibrate.calibrate, simulator.sim, devices.devices,
+    study.protocol, study.study, participants.participants, participants.schedule_cmd, study.status_cmd,
+    sessions.session, sessions.sessions_alias, sessions.replay_cmd, sessions.synth_cmd, plan.plan_cmd,
+    reports.report, answers.answers, reports.export_cmd,
+):
+    cli.add_command(_command)

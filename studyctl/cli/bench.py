@@ -1,0 +1,165 @@
+"""`studyctl bench`: model error against run time, stability sweeps, the converged reference."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import click
+
+from sim.scene import DEFAULT_SCENE
+from studyctl.cli.common import Finite, OutDir, _console, _Group, _print_json, _with_progress
+
+
+@click.group(cls=_Group)
+def bench():
+    """Model error against run time, and stability on stiff and extreme cases."""
+
+
+def _sweep_options(f):
+    f = click.option("--scheduler", default=None, metavar="ADDRESS", help="Run the cases on a Dask cluster (tcp://host:8786).")(f)
+    f = click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Local worker processes (default: every core).")(f)
+    f = click.option("--out", "out_dir", type=OutDir(), default=None, help="Write tables, JSON and plots here.")(f)
+    f = click.option("--json", "as_json", is_flag=True)(f)
+    f = click.option("--quick", is_flag=True, help="The small sweep (CI, make demo).")(f)
+    return f
+
+
+@bench.command("accuracy")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--young", type=click.FloatRange(1.0, 1e9), default=None, help="Young's modulus of the bench tissue, Pa [default: the scene's].")
+@click.option("--test-places", type=click.IntRange(2, 20), default=None, help="Held-out grasp places, two directions each [default: 6, --quick: 2].")
+@_sweep_options
+def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, jobs, scheduler):
+    """Every model and setting on the same pulls against the converged reference (P2 on
+    body-fitted meshes, neo-Hookean, Richardson): calibrated with one stiffness scale on the
+    calibration pulls, judged raw and calibrated on held-out pulls (within the JND with
+    Wilson intervals, against the reference's band, direction error), time per tick and frame."""
+    from analysis import accuracy
+
+    kw = {"scene": scene_file, "young": young} | ({"test_places": test_places} if test_places else {})
+    cfg = accuracy.quick_config(**kw) if quick else accuracy.AccuracyConfig(**kw)
+    result = _with_progress("accuracy: reference, then models", lambda p: accuracy.run_accuracy(cfg, jobs=jobs, scheduler=scheduler, progress=p))
+    if out_dir:
+        accuracy.write_outputs(result, out_dir)
+    if as_json:
+        _print_json(result)
+        return
+    from rich.table import Table
+
+    t = Table(title=f"Force error on held-out pulls against run time (E = {result['meta']['young_pa'] / 1e3:g} kPa)", caption=accuracy.intro(result))
+    for col in ("model", "setting", "calibration", "scale", "force error", "max", "within JND [95% CI]", "in/out/undecided", "pulls",
+                "direction deg", "tick us", "frame ms"):
+        t.add_column(col, justify="left" if col in ("model", "setting", "calibration") else "right")
+    for r in result["rows"]:
+        t.add_row(r["model"], r["setting"], r["calibration"], f"{r['scale']:.3g}", f"{r['force_error']:.1%}", f"{r['force_error_max']:.1%}",
+                  f"{r['within_jnd']:.0%} [{r['within_jnd_low']:.0%}, {r['within_jnd_high']:.0%}]",
+                  f"{r['within']}/{r['outside']}/{r['undecided']}", f"{r['pulls_within']}/{r['n_test_pulls']}",
+                  f"{r['angle_deg']:.1f}", f"{r['tick_us']:.2f}", f"{r['frame_ms']:.3g}")
+    console = _console()
+    console.print(t)
+    console.print("seed paper, ms per deformation frame (2014 PC): plate-spring 14.69, FEM 21.35, mass-spring 23.08")
+    if out_dir:
+        console.print(f"wrote {out_dir}/accuracy.md, accuracy.json, accuracy.csv, samples.csv, pareto.png")
+
+
+@bench.command("stability")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@_sweep_options
+def bench_stability(scene_file, quick, as_json, out_dir, jobs, scheduler):
+    """Sweep E, nu, time step, spring stiffness, plate-spring parameters, far pulls and 5 cm
+    jumps for every model: stable, refused (with the reason) or unstable (with the time)."""
+    from analysis import stability
+
+    result = _with_progress("stability cases", lambda p: stability.run_stability(quick, scene_file, jobs=jobs, scheduler=scheduler, progress=p))
+    if out_dir:
+        stability.write_outputs(result, out_dir)
+    if as_json:
+        _print_json(result)
+    else:
+        from rich.table import Table
+
+        _, cols, _ = stability.outcome_grid(result["cases"])
+        t = Table(title="Stability sweep: S stable, R refused, U unstable, . not applicable")
+        t.add_column("model")
+        t.add_column("cases: " + " ".join(cols), overflow="fold")
+        by = {}
+        for c in result["cases"]:
+            by.setdefault(c["model"], {})[c["case"]] = c["outcome"][0].upper()
+        for model, row in by.items():
+            t.add_row(model, " ".join(row.get(c, ".") for c in cols))
+        console = _console()
+        console.print(t)
+        console.print(stability.markdown(result).split("\n")[0])
+        if out_dir:
+            console.print(f"wrote {out_dir}/stability.md, stability.json, stability.csv, heatmap.png")
+    m = result["meta"]
+    if m["nan_sent"] or m["over_limit_sent"]:  # the safety promise broke: fail loudly
+        raise click.ClickException(f"{m['nan_sent']} cases sent a NaN and {m['over_limit_sent']} an over-limit force to a device")
+
+
+def _sizes_mm(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        sizes = tuple(float(s) for s in value.split(","))
+    except ValueError:
+        raise click.BadParameter(f"{value!r}: two or three edge lengths in mm, comma-separated") from None
+    if len(sizes) not in (2, 3) or len(set(sizes)) != len(sizes) or not all(2.0 <= s <= 30.0 for s in sizes):
+        raise click.BadParameter(f"{value!r}: two or three different edge lengths in 2..30 mm, comma-separated")
+    return sizes
+
+
+@bench.command("reference")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--young", type=Finite(1.0, 1e9), default=None, help="Young's modulus, Pa (forces are proportional to it) [default: the scene's].")
+@click.option("--sizes", callback=_sizes_mm, default=None, help="fTetWild target edge lengths, mm, comma-separated [default: 8,5.5,4; --quick: 20,16].")
+@click.option("--functional", type=click.Choice(["area", "vertices"]), default="area", show_default=True,
+              help="The grasp: mean displacement of the surface area within the grasp radius, or of its vertices (FemModel's; does not converge).")
+@click.option("--formulation", type=click.Choice(["linear", "neo-hookean"]), default="linear", show_default=True,
+              help="Small-strain linear elasticity (one solve per pull), or compressible neo-Hookean (Newton; minutes per pull and mesh).")
+@click.option("--pulls", "pull_names", default=None, help="Only these bench pulls, comma-separated (e.g. left-lateral,extra1-anterior).")
+@click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Meshes made at once (default: every core).")
+@click.option("--quick", is_flag=True, help="Two coarse meshes, the left hand's pulls, two samples (CI).")
+@click.option("--json", "as_json", is_flag=True)
+@click.option("--out", "out_dir", type=OutDir(), default=None, help="Write reference.json and reference.md here.")
+def bench_reference(scene_file, young, sizes, functional, formulation, pull_names, jobs, quick, as_json, out_dir):
+    """A converged reference: P2 tetrahedra on body-fitted (fTetWild) meshes of each hemisphere at
+    three sizes, Richardson extrapolation and the grid convergence index for every bench pull."""
+    from analysis import reference
+
+    kw = {"scene": scene_file, "young": young, "functional": functional, "formulation": formulation, "jobs": jobs}
+    if sizes is not None:
+        kw["sizes_mm"] = sizes
+    if pull_names:
+        kw["pulls"] = tuple(n.strip() for n in pull_names.split(","))
+    cfg = reference.quick_config(**kw) if quick else reference.ReferenceConfig(**kw)
+    result = _with_progress("reference meshes", lambda p: reference.run_reference(cfg, progress=p))
+    if out_dir:
+        reference.write_outputs(result, out_dir)
+    if as_json:
+        _print_json(result)
+        return
+    from rich.table import Table
+
+    m = result["meta"]
+    t = Table(title=f"Converged reference: P2 {m['formulation']} on fTetWild meshes, E = {m['young_pa'] / 1e3:g} kPa, "
+                    f"nu = {m['poisson']:g}, grasp functional: {m['functional']}")
+    for col in ("pull", "d mm", *(f"F {s:g}mm N" for s in m["sizes_mm"]), "order", "status", "extrap. N", "GCI band", "< JND rel", "< 0.05 N"):
+        t.add_column(col, justify="left" if col in ("pull", "status") else "right", no_wrap=col in ("pull", "status"))
+    for s in result["samples"]:
+        order = "-" if s["order"] is None or not math.isfinite(s["order"]) else f"{s['order']:.2f}"
+        ext = "-" if s["force_ext_n"] is None or not math.isfinite(s["force_ext_n"]) else f"{s['force_ext_n']:.4f}"
+        band = "-" if s["gci"] is None or not math.isfinite(s["gci"]) else f"+-{s['gci']:.1%}"
+        status = {"order out of range": "p out of range", "oscillatory": "oscillating"}.get(s["status"], s["status"])
+        t.add_row(s["pull"], f"{s['displacement_mm']:g}", *(f"{f:.4f}" for f in s["forces_n"]), order, status, ext, band,
+                  "yes" if s["within_jnd_rel"] else "NO", "yes" if s["within_jnd_abs"] else "NO")
+    console = _console()
+    console.print(t)
+    console.print("meshes: " + "; ".join(f"hemisphere {g['hemisphere']} {g['target_edge_mm']:g} mm: {g['nodes']} nodes, {g['tets']} tets, "
+                                         f"h {g['h_mm']:.2f} mm, {g['mesh_s']:.0f} s{' (cached)' if g['cached'] else ''}" for g in result["meshes"]))
+    console.print("band: Roache's GCI on the finest mesh (Fs = 1.25 with a monotone three-mesh order in 0.5..4; otherwise Fs = 3, order 2, "
+                  "and at least the spread of the meshes, no extrapolation). '< JND rel': half-band below the JND fraction of the force "
+                  "(10% at >= 0.5 N, 25% below); '< 0.05 N': half-band below 10% of 0.5 N.")
+    if out_dir:
+        console.print(f"wrote {out_dir}/reference.json, reference.md")

@@ -1,0 +1,155 @@
+"""What the command groups share: library errors as one-line CLI errors (`_Group`), output
+(`_console`, `_print_json`, `_listing`, `_done`), progress bars, option types that check before
+any work is done, and the options several groups take (--db, --json, --dry-run, --devices,
+--fullscreen)."""
+
+from __future__ import annotations
+
+import json
+import math
+import sqlite3
+from pathlib import Path
+
+import click
+
+from analysis.sweep import SweepError
+from brainsim_assets import path as _asset
+from sim.errors import SimError
+from sim.jsonable import jsonable
+from studyctl.errors import StudyError
+
+DEFAULT_PROTOCOL = _asset("protocols/brain_pull_2015.toml")
+
+
+class _Group(click.Group):
+    """Turns library errors into clean CLI errors; a subcommand named with hyphens also answers
+    to underscores (`model plate_spring`, as models are spelt in files and `--model`)."""
+
+    def get_command(self, ctx, cmd_name):
+        return super().get_command(ctx, cmd_name) or super().get_command(ctx, cmd_name.replace("_", "-"))
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except (SimError, StudyError, SweepError) as exc:
+            raise click.ClickException(str(exc)) from None
+        except sqlite3.OperationalError as exc:  # e.g. another process held the database for over 30 s
+            raise click.ClickException(f"the study database: {exc} (another process may be writing to it; try again)") from None
+
+
+def _console():
+    from rich.console import Console
+
+    console = Console()
+    if not console.is_terminal:  # pipes and tests: wide, stable layout
+        console = Console(width=120)
+    return console
+
+
+def _print_json(obj) -> None:
+    click.echo(json.dumps(jsonable(obj), indent=2))
+
+
+class Finite(click.FloatRange):
+    """A float range that also refuses NaN (click's ranges let it through: NaN compares false)."""
+
+    def convert(self, value, param, ctx):
+        v = super().convert(value, param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return v
+
+
+class OutFile(click.Path):
+    """A file to write: its folder must exist and the suffix be one of `suffixes`, checked
+    before any work is done (so a typo never costs a long run or leaves half a result)."""
+
+    def __init__(self, suffixes: tuple[str, ...] | None = None):
+        super().__init__(dir_okay=False, path_type=Path)
+        self.suffixes = suffixes
+
+    def convert(self, value, param, ctx):
+        path = super().convert(value, param, ctx)
+        if not path.parent.is_dir():
+            self.fail(f"{path.parent} is not an existing folder", param, ctx)
+        if self.suffixes and path.suffix.lower() not in self.suffixes:
+            self.fail(f"{path.name}: allowed suffixes: {', '.join(self.suffixes)}", param, ctx)
+        return path
+
+
+class OutDir(click.Path):
+    """A folder to write into (made if missing): nothing on its way may be a file."""
+
+    def __init__(self):
+        super().__init__(file_okay=False, path_type=Path)
+
+    def convert(self, value, param, ctx):
+        path = super().convert(value, param, ctx)
+        for p in (path, *path.parents):
+            if p.exists():
+                if not p.is_dir():
+                    self.fail(f"{p} is a file, not a folder", param, ctx)
+                break
+        return path
+
+
+def _names(ctx, param, value):
+    if value is None:
+        return None
+    names = [n.strip() for n in value.split(",")]
+    if not all(names) or len(names) > 2:
+        raise click.BadParameter(f"{value!r}: one or two device names, comma-separated")
+    return names
+
+
+FULLSCREEN = click.option("--fullscreen", is_flag=True,
+                          help="The participant view fills the primary monitor (else a resizable 1280x720 window).")
+DEVICES = click.option("--devices", "device_names", callback=_names, default=None,
+                       help='OpenHaptics device names, comma-separated, e.g. "PHANToM 1,PHANToM 2" (default: the scene\'s).')
+DB = click.option("--db", envvar="STUDYCTL_DB", show_envvar=True, required=True, type=click.Path(dir_okay=False, path_type=Path),
+                  help="Study database; required unless the STUDYCTL_DB environment variable names one.")
+JSON = click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
+DRY_RUN = click.option("--dry-run", is_flag=True, help="Check and show what would be done; write nothing.")
+
+
+def _done(out: dict, text: str, as_json: bool = False) -> None:
+    if as_json:
+        _print_json(out)
+        return
+    click.echo(("dry run, nothing written: would have " if out.get("dry_run") else "") + text)
+
+
+def _listing(rows: list[dict], as_json: bool, db, what: str, columns: list[str]) -> None:
+    if as_json:
+        _print_json(rows)
+    elif not rows:
+        click.echo(f"{db}: no {what} yet")
+    else:
+        _table(rows, f"{len(rows)} {what}", columns)
+
+
+def _table(rows: list[dict], title: str, columns: list[str]) -> None:
+    from rich.table import Table
+
+    t = Table(title=title)
+    for c in columns:
+        t.add_column(c)
+    for r in rows:
+        t.add_row(*("-" if r[c] is None else str(r[c]) for c in columns))
+    _console().print(t)
+
+
+def _with_progress(label, fn):
+    """`fn(progress)` with a progress bar that `progress(done, total)` advances, on stderr (a
+    --json document on stdout stays clean)."""
+    from rich.console import Console
+    from rich.progress import Progress
+
+    with Progress(transient=True, console=Console(stderr=True)) as progress:
+        task = progress.add_task(label, total=None)
+        return fn(lambda k, n: progress.update(task, completed=k, total=n))
+
+
+def _model_name(value):
+    """Models are spelt plate_spring in files; plate-spring (the subcommand's spelling) is accepted too."""
+    return None if value is None else value.replace("-", "_")

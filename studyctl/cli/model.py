@@ -1,0 +1,266 @@
+"""`studyctl model`: inspect and exercise the tissue models (plate-spring, FEM, mass-spring)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import click
+
+from sim.models.base import MAX_PULL_M, pull_problem
+from sim.run import VisualStep
+from sim.scene import DEFAULT_SCENE
+from studyctl.cli.common import Finite, _console, _Group, _print_json
+
+
+@click.group(cls=_Group)
+def model():
+    """Inspect and exercise the tissue models."""
+
+
+@model.command("plate-spring")
+@click.option("--params", "params_file", required=True, type=click.Path(dir_okay=False, path_type=Path), help="Parameter file (TOML, SI units).")
+@click.option("--variant", type=click.Choice(["paper", "continuous"]), default="continuous", show_default=True)
+@click.option("--force", "force", type=Finite(), default=None, help="Tension F in newtons, >= 0: print the deformation.")
+@click.option("--displacement", "displacement", type=Finite(min=0.0, max=MAX_PULL_M), default=None,
+              help=f"Displacement X in metres, 0..{MAX_PULL_M:g} (the longest pull the tissue models are meant for): print the force.")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+def model_plate_spring(params_file: Path, variant: str, force, displacement, as_json: bool):
+    """The paper's plate-spring model: layer table, X(F), or its inverse F(X).
+
+    Without --force or --displacement it prints the layer table, the jumps of X(F) and the
+    delay budget.
+    """
+    from sim.models.plate_spring import PlateSpring, load_params
+
+    if force is not None and displacement is not None:
+        raise click.UsageError("give --force or --displacement, not both")
+    stack = PlateSpring(load_params(params_file), variant)
+    if force is not None:
+        sol = stack.deformation(force)
+        out = {
+            "variant": variant,
+            "force": sol.force,
+            "dcl": sol.dcl,
+            "deformation": sol.deformation,
+            "layer_deformation": list(sol.layer_deformation),
+            "plate_deformation": sol.plate_deformation,
+            "overstretched": sol.overstretched,
+            "saturated": sol.saturated,
+        }
+        if as_json:
+            _print_json(out)
+        else:
+            _print_solution(out)
+        return
+    if displacement is not None:
+        f = stack.force(displacement)
+        sol = stack.deformation(f)
+        out = {"variant": variant, "displacement": displacement, "force": f, "dcl": sol.dcl, "saturated": displacement > stack.capacity_x}
+        if as_json:
+            _print_json(out)
+        else:
+            click.echo(f"force {f:.6g} N at displacement {displacement:.6g} m ({variant}; DCL layer {sol.dcl}"
+                       + (", beyond the stack's capacity" if out["saturated"] else "") + ")")
+        return
+    table = {
+        "variant": variant,
+        "layers": stack.layer_table(),
+        "jumps": [
+            {"layer": j.layer, "force": j.force, "x_before": j.x_before, "x_after": j.x_after, "size": j.size, "kind": j.kind}
+            for j in stack.jumps
+        ],
+        "capacity": {"deformation": stack.capacity_x, "force": stack.capacity_f},
+        "delay_budget": {"period_s": 1e-3, "layers_in_budget": stack.layers_in_budget()},
+    }
+    if as_json:
+        _print_json(table)
+    else:
+        _print_layer_table(table)
+
+
+def _vector(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        parts = [float(x) for x in value.split(",")]
+    except ValueError:
+        parts = []
+    if len(parts) != 3:
+        raise click.BadParameter(f"{value!r} is not three comma-separated numbers (metres)")
+    names = ("DX", "DY", "DZ") if param is not None and param.name == "displacement" else ("X", "Y", "Z")
+    bad = [name for name, x in zip(names, parts) if not math.isfinite(x)]
+    if bad:
+        raise click.BadParameter(f"{value!r}: {', '.join(bad)} {'is not a finite number' if len(bad) == 1 else 'are not finite numbers'}; "
+                                 "allowed: three finite numbers (metres)")
+    return tuple(parts)
+
+
+def _pull(ctx, param, value):
+    """A displacement vector no longer than the models are meant for (`MAX_PULL_M`)."""
+    vec = _vector(ctx, param, value)
+    if vec is not None and (problem := pull_problem(vec)) is not None:
+        raise click.BadParameter(f"{value!r} {problem}")
+    return vec
+
+
+def _check_grasp(grasp, mesh) -> None:
+    """Refuse a grasp point farther from the brain surface than the simulator's grasp reach
+    (a button press that far away grasps nothing in a run)."""
+    if grasp is None:
+        return
+    import numpy as np
+
+    p = np.asarray(grasp, dtype=np.float64)
+    dist = float(np.linalg.norm(mesh.vertices[mesh.nearest_vertex(p)] - p))
+    reach = VisualStep.grasp_reach
+    if dist > reach:
+        ctx = click.get_current_context()
+        param = next(q for q in ctx.command.params if q.name == "grasp")
+        raise click.BadParameter(f"{','.join(f'{x:g}' for x in grasp)} is {dist * 1e3:.4g} mm from the brain surface; "
+                                 f"allowed: within {reach * 1e3:g} mm of it (the simulator's grasp reach)", ctx, param)
+
+
+@model.command("fem")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--resolution", type=float, default=None, help="Grid spacing in millimetres, 3..8 (default: the scene's, else 4).")
+@click.option("--formulation", type=click.Choice(["linear", "corotational", "neo-hookean"]), default="linear", show_default=True)
+@click.option("--grasp", required=True, callback=_vector, help=f"Grasp point X,Y,Z in metres, within the grasp reach ({VisualStep.grasp_reach * 1e3:g} mm) of the brain surface (snapped to it).")
+@click.option("--displacement", required=True, callback=_pull, help=f"Displacement DX,DY,DZ of the grasp point in metres, at most {MAX_PULL_M:g} m long.")
+@click.option("--steps", type=click.IntRange(1, 200), default=5, show_default=True, help="Load steps of the nonlinear solves.")
+@click.option("--order", type=click.IntRange(1, 2), default=None, help="Element order: 1 linear, 2 quadratic tetrahedra (default: the scene's, else 1).")
+@click.option("--json", "as_json", is_flag=True)
+def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacement, steps: int, order, as_json: bool):
+    """Pull the brain once with the finite element model: force, displacement, phase times."""
+    from sim.models.fem import static_pull
+    from sim.scene import build_scene
+
+    scene = build_scene(scene_file)
+    _check_grasp(grasp, scene.mesh)
+    out = static_pull(scene, grasp, displacement, None if resolution is None else resolution / 1e3, formulation, steps, order)
+    if as_json:
+        _print_json(out)
+        _check_converged(out)
+        return
+    console = _console()
+    f = out["force_n"]
+    console.print(
+        f"FEM ({out['formulation']}, {'quadratic' if out['order'] == 2 else 'linear'} tetrahedra, {out['resolution_mm']:g} mm: "
+        f"{out['volume']['nodes']} corner nodes, {out['volume']['tets']} tetrahedra; "
+        f"grasped hemisphere {out['part']['free_dofs']} unknowns)"
+    )
+    console.print(f"force on the hand: ({f[0]:.4g}, {f[1]:.4g}, {f[2]:.4g}) N, |F| = {out['force_magnitude_n']:.4g} N")
+    console.print(f"largest displacement: {out['max_displacement_m'] * 1e3:.3f} mm")
+    if out["locking"]:
+        console.print("warning: the elements lock at this Poisson ratio (linear tetrahedra from 0.4, quadratic from 0.49): "
+                      "forces are overestimated; try --order 2")
+    if formulation != "linear":
+        console.print(
+            f"converged: {'yes' if out['converged'] else 'NO'}; iterations per load step {out['iterations']}; "
+            f"final residuals {', '.join(f'{r:.1e}' for r in out['final_residuals'] if r is not None)}"
+            + ("; inverted elements" if out["inverted_elements"] else "")
+        )
+        if out.get("completed_steps") is not None and out["completed_steps"] < out["load_steps"]:
+            console.print(f"warning: the solve diverged after {out['completed_steps']} of {out['load_steps']} load steps; "
+                          "the force and displacements above are those it reached, not the requested pull's")
+    from rich.table import Table
+
+    t = Table(title="phase times")
+    t.add_column("phase")
+    t.add_column("ms", justify="right")
+    for k, v in out["times_ms"].items():
+        t.add_row(k, f"{v:.4g}")
+    console.print(t)
+    _check_converged(out)
+
+
+def _check_converged(out: dict) -> None:
+    """A nonlinear solve that did not converge is a failure (exit status 1), not a result."""
+    if out["converged"]:
+        return
+    n, done = out["load_steps"], out.get("completed_steps")
+    where = f"diverged after {done} of {n} load steps" if done is not None and done < n else f"did not converge in {n} load step{'s' * (n != 1)}"
+    raise click.ClickException(
+        f"the {out['formulation']} solve {where}" + (" (elements inverted)" if out.get("inverted_elements") else "")
+        + ": the force is not the requested pull's; try more --steps or a shorter --displacement"
+    )
+
+
+@model.command("mass-spring")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--resolution", type=float, default=None, help="Grid spacing in millimetres, 3..8 (default: the scene's).")
+@click.option("--integrator", type=click.Choice(["explicit", "implicit", "local-global"]), required=True)
+@click.option("--dt", type=Finite(min=0.0, min_open=True, max=0.1), required=True, help="Step in seconds, (0, 0.1].")
+@click.option("--steps", type=click.IntRange(1, 1_000_000), default=100, show_default=True)
+@click.option("--substep", is_flag=True, help="Split explicit steps above the critical step instead of refusing them.")
+@click.option("--grasp", callback=_vector, default=None,
+              help=f"Grasp point X,Y,Z in metres, within the grasp reach ({VisualStep.grasp_reach * 1e3:g} mm) of the brain surface (default: the scene's first hand).")
+@click.option("--displacement", callback=_pull, default=None,
+              help=f"Hand displacement DX,DY,DZ in metres, at most {MAX_PULL_M:g} m long (default: that hand's pull).")
+@click.option("--json", "as_json", is_flag=True)
+def model_mass_spring(scene_file, resolution, integrator, dt, steps, substep, grasp, displacement, as_json):
+    """Hold a pull on the mass-spring brain and step it: stability, displacement, cost."""
+    from sim.models.mass_spring import hold_pull
+    from sim.scene import build_scene
+
+    scene = build_scene(scene_file)
+    _check_grasp(grasp, scene.mesh)
+    out = hold_pull(scene, integrator, dt, steps, None if resolution is None else resolution / 1e3, substep, grasp, displacement)
+    if as_json:
+        _print_json(out)
+        return
+    console = _console()
+    console.print(f"mass-spring ({out['nodes']} nodes, {out['springs']} springs), {integrator}, dt = {dt:g} s, {out['steps']} steps")
+    console.print(f"critical_dt {out['critical_dt']:.4g} s with the coupling spring ({out['critical_dt_without_coupling']:.4g} s without)")
+    if out["stable"]:
+        f = out["force_on_hand_n"]
+        console.print(f"stable; max displacement {out['max_displacement'] * 1e3:.3f} mm; force on the hand ({f[0]:.3g}, {f[1]:.3g}, {f[2]:.3g}) N")
+    else:
+        console.print(f"UNSTABLE (energy monitor) at t = {out['unstable_at']:.4g} s; no force is sent to a device")
+    console.print(f"{out['ms_per_step']:.3f} ms per step" if out["ms_per_step"] is not None else "no step completed")
+
+
+def _print_solution(out: dict) -> None:
+    from rich.table import Table
+
+    t = Table(title=f"Plate-spring stack under F = {out['force']:.6g} N ({out['variant']})")
+    t.add_column("layer", justify="right")
+    t.add_column("deformation (m)", justify="right")
+    for i, x in enumerate(out["layer_deformation"], start=1):
+        t.add_row(str(i) + (" (DCL)" if i == out["dcl"] else ""), f"{x:.6g}")
+    console = _console()
+    console.print(t)
+    console.print(
+        f"X = {out['deformation']:.6g} m, DCL = layer {out['dcl']}, per-plate deformation {out['plate_deformation']:.6g} m, "
+        f"overstretched: {'yes' if out['overstretched'] else 'no'}, saturated: {'yes' if out['saturated'] else 'no'}"
+    )
+
+
+def _print_layer_table(table: dict) -> None:
+    from rich.table import Table
+
+    t = Table(title=f"Plate-spring layers ({table['variant']})")
+    for col in ("layer", "plates", "L (m)", "H (m)", "P (N/m)", "Pc (N/m)", "F consumed (N)", "starts at F (N)", "starts at X (m)", "T_i (ms)"):
+        t.add_column(col, justify="right")
+    for r in table["layers"]:
+        t.add_row(
+            str(r["layer"]), str(r["plates"]), f"{r['length_m']:.4g}", f"{r['thickness_m']:.4g}",
+            f"{r['stiffness_n_per_m']:.4g}", f"{r['corrected_stiffness_n_per_m']:.4g}", f"{r['consumed_force_n']:.4g}",
+            f"{r['start_force_n']:.4g}", f"{r['start_deformation_m']:.4g}",
+            f"{r['cumulative_delay_s'] * 1e3:.3g}" + ("" if r["fits_haptic_period"] else " (over)"),
+        )
+    console = _console()
+    console.print(t)
+    if table["jumps"]:
+        for j in table["jumps"]:
+            console.print(
+                f"jump at layer {j['layer']} -> {j['layer'] + 1}: X(F) jumps {j['kind']} by {abs(j['size']):.4g} m "
+                f"at F = {j['force']:.4g} N"
+            )
+    else:
+        console.print("X(F) is continuous: no jumps at layer transitions")
+    cap = table["capacity"]
+    console.print(
+        f"capacity: X = {cap['deformation']:.4g} m at F = {cap['force']:.4g} N; "
+        f"layers within the 1 ms haptic period: {table['delay_budget']['layers_in_budget']} of {len(table['layers'])}"
+    )

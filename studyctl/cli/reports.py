@@ -1,0 +1,220 @@
+"""`studyctl report` and `studyctl export`: what is made from a study database (Table 1, plots,
+statistics, a published table's check) and its pseudonymous tables as files."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import click
+
+from brainsim_assets import path as _asset
+from sim.jsonable import jsonable
+from studyctl.cli.common import DB, JSON, OutDir, OutFile, _Group, _print_json
+
+PAPER_TABLE = _asset("data/paper_table1.csv")
+
+
+@click.group(cls=_Group)
+def report():
+    """Reports made from a study database."""
+
+
+HOLM = click.option("--holm", "holm_scope", type=click.Choice(["family", "question"]), default="family", show_default=True,
+                    help="Holm over every pairwise test of every question (family), or within each question.")
+
+
+@report.command("table1")
+@DB
+@HOLM
+@click.option("--format", "fmt", type=click.Choice(["md", "csv", "latex", "html", "json"]), default="md", show_default=True)
+@click.option("--out", "out_file", type=OutFile(), default=None)
+@click.option("--accuracy", "accuracy_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="accuracy.json from `studyctl bench accuracy --out`: add its table (md, html) and Pareto plot (html).")
+@click.option("--stability", "stability_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="stability.json from `studyctl bench stability --out`: add its heat map and unstable cases (md, html).")
+def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
+    """The seed paper's Table 1 with Wilson intervals, Cochran's Q and deformation times
+    (html: one self-contained file with the statistics and plots)."""
+    from analysis import table1
+
+    if _no_answers(db, fmt == "json"):
+        return
+    accuracy = _load_bench(accuracy_file, "accuracy", "rows") if accuracy_file else None
+    stability = _load_bench(stability_file, "stability", "cases") if stability_file else None
+    if fmt == "md":
+        text = table1.markdown(db, holm_scope)
+        if accuracy:
+            from analysis.accuracy import markdown
+
+            text += "\n## Model error against run time\n\n" + markdown(accuracy)
+        if stability:
+            from analysis.stability import markdown as stability_md
+
+            text += "\n## Numerical stability\n\n" + stability_md(stability)
+    elif fmt == "latex":
+        from analysis.report import latex
+
+        text = latex(db, holm_scope)
+    elif fmt == "html":
+        from analysis.report import html
+
+        text = html(db, accuracy=accuracy, stability=stability, holm_scope=holm_scope)
+    elif fmt == "csv":  # the flag and N travel with the table
+        facts = table1.study_facts(db)
+        text = table1.rates(db).assign(participants=facts["participants"], synthetic=facts["synthetic"]).to_csv(index=False)
+    else:
+        from analysis.stats import study_stats
+
+        r, q = table1.rates(db), table1.cochran(db)
+        text = json.dumps(jsonable({"facts": table1.study_facts(db), "rates": r.to_dict(orient="records"),
+                                     "cochran": q.to_dict(orient="records"), "kinds": study_stats(db, r, q, holm_scope)["kinds"],
+                                     "deformation": table1.deformation(db).to_dict(orient="records")}), indent=2)
+    if out_file:
+        Path(out_file).write_text(text)
+        click.echo(f"wrote {out_file}")
+    else:
+        click.echo(text, nl=False)
+
+
+def _no_answers(db, as_json: bool) -> bool:
+    """An empty study: say so (exit 0) instead of tables of 0/0 and NaN; nothing is written."""
+    from analysis.table1 import incomplete_text, study_facts
+
+    facts = study_facts(db)
+    if facts["participants"]:
+        return False
+    incomplete = facts["incomplete_participants"]
+    message = "no answers yet" if not incomplete else "no participant has answered every question for every model yet"
+    if as_json:
+        _print_json({"facts": facts, "message": message})
+        return True
+    flag = "SYNTHETIC DATA. " if facts["synthetic"] else ""
+    if facts["mixed_source_participants"]:
+        flag += f"WARNING: {', '.join(facts['mixed_source_participants'])} answered both as a person and synthetically. "
+    listed = "; incomplete: " + incomplete_text(facts) if incomplete else ""
+    click.echo(f"{flag}{facts['study']}: {message}{listed}; nothing to report")
+    return True
+
+
+def _load_bench(path: Path, kind: str, key: str) -> dict:
+    """A bench's JSON (`studyctl bench KIND --out DIR` writes DIR/KIND.json)."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise click.ClickException(f"{path}: not a `studyctl bench {kind}` result ({exc})") from None
+    if not isinstance(data, dict) or not {key, "meta"} <= set(data):
+        raise click.ClickException(f"{path}: not a `studyctl bench {kind}` result (needs {key} and meta; write one with `studyctl bench {kind} --out DIR`)")
+    return data
+
+
+@report.command("plots")
+@DB
+@click.option("--out", "out_dir", required=True, type=OutDir(), help="A folder (made if missing) for the PNG and SVG files.")
+@JSON
+def report_plots(db, out_dir, as_json):
+    """Rates with intervals, deformation times, and force traces against the converged reference (PNG and SVG)."""
+    from analysis.report import write_plots
+
+    if _no_answers(db, as_json):
+        return
+    files = write_plots(db, out_dir)
+    if as_json:
+        _print_json({"out": str(out_dir), "files": [str(f) for f in files]})
+        return
+    click.echo(f"wrote {len(files)} files to {out_dir}")
+
+
+@report.command("stats")
+@DB
+@HOLM
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable (the default output is a summary).")
+def report_stats(db, holm_scope, as_json):
+    """The protocol's primary analysis first (the proportional-odds GEE across rating items, else
+    the logistic GEE across yes/no questions, else a score's mixed model, else the choice), then
+    every question's tests: Cochran's Q and McNemar pairs (yes/no), Friedman and Wilcoxon pairs
+    (ratings), mixed models (scores), the multinomial test (choices), Holm over the whole
+    family; the deformation-time benchmark. Complete cases only."""
+    from analysis.stats import study_stats
+    from analysis.table1 import _gee_line, incomplete_text
+
+    if _no_answers(db, as_json):
+        return
+    out = study_stats(db, holm_scope=holm_scope)
+    if as_json:
+        _print_json(out)
+        return
+    flag = " (SYNTHETIC DATA)" if out["facts"]["synthetic"] else ""
+    click.echo(f"{out['facts']['study']}: N = {out['facts']['participants']}{flag}")
+    from analysis.kinds import primary_line
+
+    kinds = out["kinds"]
+    click.echo(primary_line(out))
+    for item, v in out["items"].items():
+        pairs = ", ".join(f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" for p in v["pairs"])
+        click.echo(f"{item}: Q = {v['cochran_q']:.2f}, p = {v['p_value']:.3g}; {pairs}")
+    for item, v in kinds["ratings"].items():
+        fr = v["friedman"]
+        pairs = ", ".join(f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" for p in v["pairs"])
+        friedman = (f"Friedman chi2 = {fr['statistic']:.2f}, p = {fr['p_value']:.3g}, W = {fr['kendall_w']:.2f}"
+                    if fr["statistic"] == fr["statistic"] else "two conditions: the Wilcoxon pair is the test")
+        click.echo(f"{item}: {friedman}; {pairs}")
+    for v in kinds["scores"].values():
+        t = v["mixed_model"]["model_test"]
+        means = ", ".join(f"{m} {c['mean']:.1f}" for m, c in v["conditions"].items())
+        test = (f"mixed model F({t['df']}, {t['df_denominator']}) = {t['f']:.2f}, p = {t['p_value_f']:.3g}" if t["f"] == t["f"]
+                else "mixed model: not estimable (" + "; ".join(v["mixed_model"]["problems"] or ["no fit"]) + ")")
+        click.echo(f"{v['label']}: {means}; {test}")
+    for item, v in kinds["choices"].items():
+        shares = ", ".join(f"{m} {s['count']}" for m, s in v["shares"].items())
+        click.echo(f"{item}: {shares}; {v['overall']['test']} p = {v['overall']['p_value']:.3g}")
+    if out["facts"]["incomplete_participants"]:
+        click.echo("left out (incomplete): " + incomplete_text(out["facts"]))
+    gee = _gee_line(out["gee"], kinds["primary"]["analysis"] == "logistic_gee")
+    if gee and kinds["primary"]["analysis"] != "logistic_gee":  # the primary's own line is printed first
+        click.echo(gee.replace("`", ""))
+    for row in out["deformation"]["rows"]:
+        click.echo(f"deformation time, {row['model']}: {row['mean_ms']:.2f} +- {row['sd_ms']:.2f} ms over {row['n_participants']} participants "
+                   f"({out['deformation']['label']})")
+
+
+@report.command("published")
+@click.option("--table", "table_file", type=click.Path(dir_okay=False, path_type=Path), default=PAPER_TABLE,
+              show_default="the seed paper's Table 1, data/paper_table1.csv")
+@click.option("--json", "as_json", is_flag=True)
+def report_published(table_file, as_json):
+    """Check a published Table 1: printed rates against their counts, and what counts allow."""
+    from analysis.stats import published
+
+    out = published(table_file)
+    if as_json:
+        _print_json(out)
+        return
+    if out["flags"]:
+        for f in out["flags"]:
+            click.echo(f"{f['item']} / {f['model']}: printed {f['printed']}, counts {f['yes']}/{f['yes'] + f['no']} give {f['computed']}")
+    else:
+        click.echo("every printed rate agrees with its counts")
+    for h in out["homogeneity"]:
+        if math.isnan(h["chi2"]):
+            click.echo(f"{h['item']}: {h['note']}")
+        else:
+            click.echo(f"{h['item']}: chi2({h['df']}) = {h['chi2']:.2f}, p = {h['p_value']:.3g} (ignores the pairing)")
+    click.echo(out["not_computable"])
+
+
+@click.command("export", cls=click.Command)
+@DB
+@click.option("--format", "fmt", type=click.Choice(["csv", "parquet"]), default="csv", show_default=True)
+@click.option("--out", "out_dir", required=True, type=OutDir(), help="A folder (made if missing) for one file per table.")
+@JSON
+def export_cmd(db, fmt, out_dir, as_json):
+    """Export the pseudonymous tables (never the identifying one)."""
+    from studyctl.study import export
+
+    files = export(db, out_dir, fmt)
+    if as_json:
+        _print_json({"out": str(out_dir), "format": fmt, "files": [str(f) for f in files]})
+        return
+    click.echo(f"wrote {len(files)} files to {out_dir}")

@@ -1,0 +1,123 @@
+"""`studyctl session` (and its hidden alias `sessions`), `studyctl replay` and `studyctl synth`:
+running sessions, playing a stored trial back, synthetic participants."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from studyctl.cli.common import (
+    DB,
+    DEVICES,
+    FULLSCREEN,
+    JSON,
+    Finite,
+    OutDir,
+    _console,
+    _Group,
+    _listing,
+    _print_json,
+    _with_progress,
+)
+
+
+@click.group(cls=_Group)
+def session():
+    """Run sessions."""
+
+
+@session.command("run")
+@DB
+@click.option("--participant", required=True)
+@click.option("--device", type=click.Choice(["simulated", "mouse", "openhaptics"]), default="simulated", show_default=True,
+              help="mouse: pilot a session without hardware (needs --view window).")
+@click.option("--synthetic", is_flag=True, help="A synthetic participant answers (data labelled synthetic).")
+@click.option("--resume", is_flag=True, help="Continue an interrupted session after its last committed trial.")
+@click.option("--time-scale", type=Finite(min=0.0, max=1000.0), default=None, help="1 = real time (default for people); synthetic default 0 = as fast as possible.")
+@click.option("--view", type=click.Choice(["none", "window"]), default=None,
+              help="The participant view (default: window for a person in real time, else none).")
+@click.option("--answers", "answer_with", type=click.Choice(["terminal", "window"]), default="terminal", show_default=True,
+              help="Where a person answers the questionnaire (window: keys and the mouse; free text stays in the terminal).")
+@click.option("--seed", type=int, default=None, help="A synthetic participant's seed  [default: 0; on --resume, the session's]")
+@FULLSCREEN
+@DEVICES
+@JSON
+def session_run(db, participant, device, synthetic, resume, time_scale, view, answer_with, seed, fullscreen, device_names, as_json):
+    """Training, then each condition in the assigned order: trials, then the questionnaire."""
+    from studyctl.session import run_session
+
+    if view is None:
+        view = "window" if not synthetic and (time_scale is None or time_scale > 0) else "none"
+    if fullscreen and view != "window":
+        raise click.UsageError("--fullscreen needs --view window")
+    out = run_session(db, participant, device, synthetic, resume, time_scale, seed=seed, progress=lambda m: click.echo(m, err=True),
+                      view=view, answer_with=answer_with, device_names=device_names, fullscreen=fullscreen)
+    if as_json:
+        _print_json(out)
+        return
+    click.echo(f"session {out['session']} of {out['participant']} complete: conditions {' > '.join(out['order'])}, {out['answers']} answers"
+               + (" (SYNTHETIC)" if out["synthetic"] else ""))
+
+
+@session.command("list")
+@DB
+@click.option("--json", "as_json", is_flag=True)
+def session_list(db, as_json):
+    """Every session: participant, state, device, person or synthetic, trials and answers."""
+    from studyctl.participants import list_sessions
+
+    _listing(list_sessions(db), as_json, db, "sessions", ["session", "code", "status", "device", "kind", "started_at", "finished_at", "trials", "answers"])
+
+
+sessions_alias = _Group("sessions", commands={"list": session_list}, help="Alias: `sessions list` is `session list`.", hidden=True)
+
+
+@click.command("replay", cls=click.Command)
+@DB
+@click.option("--session", "session_id", type=click.IntRange(min=1), required=True)
+@click.option("--trial", type=click.IntRange(min=1), required=True, help="The session's K-th trial, in the order run (1 = the first).")
+@click.option("--view", type=click.Choice(["none", "window"]), default="none", show_default=True, help="window: play it back in real time.")
+@click.option("--frames", "frames_dir", type=OutDir(), default=None, help="Write pictures, the force plot and the trace.")
+@FULLSCREEN
+@click.option("--json", "as_json", is_flag=True)
+def replay_cmd(db, session_id, trial, view, frames_dir, fullscreen, as_json):
+    """Play a stored trial back: its recorded hand motion through the same model and scene."""
+    from studyctl.replay import replay_trial
+
+    if fullscreen and view != "window":
+        raise click.UsageError("--fullscreen needs --view window")
+    out = replay_trial(db, session_id, trial, view=view, frames_dir=frames_dir, fullscreen=fullscreen)
+    if as_json:
+        _print_json(out)
+        return
+    from rich.table import Table
+
+    t = Table(title=f"replay of session {session_id}, trial {trial} (condition {out['label']}, {out['model']})")
+    t.add_column("measure")
+    t.add_column("value", justify="right")
+    t.add_row("ticks", str(out["ticks"]))
+    t.add_row("mode", out["mode"])
+    t.add_row("largest force difference from the recording (N)", "-" if out["max_force_difference_n"] is None else f"{out['max_force_difference_n']:.3g}")
+    if frames_dir is not None:
+        t.add_row("pictures", f"{out['frames']} in {frames_dir}")
+    _console().print(t)
+
+
+@click.command("synth", cls=click.Command)
+@DB
+@click.option("--participants", type=click.IntRange(1, 1000), required=True, help="How many synthetic participants (1..1000).")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--jobs", type=click.IntRange(1, 64), default=1, show_default=True, help="Sessions run in parallel processes.")
+@click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Create the database for this protocol if it does not exist  [default: the shipped protocols/brain_pull_2015.toml]")
+@JSON
+def synth_cmd(db, participants, seed, jobs, protocol_file, as_json):
+    """Run whole sessions with SYNTHETIC participants on the simulator (labelled synthetic)."""
+    from studyctl.synthetic import run_synthetic_study
+
+    out = _with_progress("synthetic sessions", lambda p: run_synthetic_study(db, participants, seed, jobs, protocol_file, progress=p))
+    if as_json:
+        _print_json(out | {"synthetic": True})
+        return
+    click.echo(f"ran {out['participants']} SYNTHETIC sessions (seed {seed}, {jobs} jobs) in {out['seconds']:.1f} s")

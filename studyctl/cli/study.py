@@ -1,0 +1,79 @@
+"""`studyctl protocol`, `studyctl study` and `studyctl status`: protocol files, creating a study
+database, and where a study stands."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from studyctl.cli.common import DB, DEFAULT_PROTOCOL, JSON, _Group, _print_json
+
+
+@click.group(cls=_Group)
+def protocol():
+    """Study protocol files."""
+
+
+@protocol.command("validate")
+@click.argument("file", type=click.Path(dir_okay=False, path_type=Path))
+@JSON
+def protocol_validate(file: Path, as_json: bool):
+    """Check a protocol file; print every problem as FILE:LINE: field: message."""
+    from studyctl.protocol import check_protocol
+
+    p, problems = check_protocol(file)
+    if as_json:
+        _print_json({"file": str(file), "ok": not problems, "problems": problems,
+                     **({"study": p.name, "conditions": list(p.conditions), "questions": len(p.questions),
+                         "trials_per_condition": p.trials_per_condition, "target_participants": p.target_participants} if not problems else {})})
+        if problems:
+            raise SystemExit(1)
+        return
+    if problems:
+        for line in problems:
+            click.echo(line, err=True)
+        raise SystemExit(1)
+    click.echo(f"{file}: ok ({p.name}: {len(p.conditions)} conditions, {len(p.questions)} questions, "
+               f"{p.trials_per_condition} trials per condition, target {p.target_participants} participants)")
+
+
+@click.group(cls=_Group)
+def study():
+    """Study databases."""
+
+
+@study.command("init")
+@click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              show_default="the shipped protocols/brain_pull_2015.toml")
+@DB
+@JSON
+def study_init(protocol_file: Path, db: Path, as_json: bool):
+    """Create a study database for a protocol."""
+    from studyctl.store import init_study
+
+    out = init_study(db, protocol_file or DEFAULT_PROTOCOL)
+    if as_json:
+        _print_json(out)
+        return
+    click.echo(f"created {out['db']}: study {out['study']} (schema {out['schema_version']})")
+
+
+@click.command("status", cls=click.Command)
+@DB
+@click.option("--json", "as_json", is_flag=True)
+def status_cmd(db, as_json):
+    """Where the study stands: participants, sessions by state, progress to the target N, who is next."""
+    from studyctl.participants import status
+
+    out = status(db)
+    if as_json:
+        _print_json(out)
+        return
+    p, c = out["participants"], out["complete"]
+    click.echo(f"{out['study']}: {c['persons']} of {out['target_participants']} people complete"
+               + (f" (and {c['synthetic']} SYNTHETIC)" if c["synthetic"] else ""))
+    click.echo(f"participants: {p['persons']} people ({p['consented']} consented, {p['withdrawn']} withdrawn), {p['synthetic']} synthetic")
+    click.echo("sessions: " + (", ".join(f"{n} {k}" for k, n in sorted(out["sessions"].items())) or "none yet"))
+    click.echo(f"answers: {out['answers']}")
+    click.echo("next: " + ("; ".join(f"{r['code']} {r['slot_start'].replace('T', ' ')}" for r in out["next"]) or "nobody scheduled"))
