@@ -87,26 +87,74 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"line (\d+)", str(exc))
         return None, [f"{path}:{m.group(1) if m else 1}: invalid TOML: {exc}"]
-    problems: list[str] = []
+    c = _Checker(path, loc)
+    _unknown_keys(data, c)
+    study, design, inclusion, latency = c.table(data, "study"), c.table(data, "design"), c.table(data, "inclusion"), c.table(data, "latency")
+    meta = _study_fields(study, data.get("ethics", {}) if isinstance(data.get("ethics", {}), dict) else {}, path, c)
+    tables = _condition_tables(data.get("conditions", {}), c.bad)
+    conditions = _design_conditions(design, tables, c)
+    scene = meta["scene"]
+    if from_file and scene is not None and scene.exists():
+        c.problems += _scene_problems(scene, path, text, conditions or [], tables, lambda message: c.bad("design.conditions", message))
+    cb = c.get(design, "design", "counterbalancing", str)
+    if cb is not None and cb not in DESIGNS:
+        c.bad("design.counterbalancing", f"{cb!r} is not one of {', '.join(DESIGNS)}")
+    training = c.get(design, "design", "training_minutes", float, lo=0.0, hi=120.0)
+    trials = c.get(design, "design", "trials_per_condition", int, lo=1, hi=100)
+    trial_s = c.get(design, "design", "trial_seconds", float, lo=0.5, hi=600.0)
+    rest_s = c.get(design, "design", "rest_seconds", float, default=5.0, lo=0.0, hi=600.0, required=False)
 
-    def bad(field: str, message: str) -> None:
-        problems.append(f"{path}:{loc.line(field)}: {field}: {message}")
+    age_min = c.get(inclusion, "inclusion", "age_min", int, lo=0, hi=120)
+    age_max = c.get(inclusion, "inclusion", "age_max", int, lo=0, hi=120)
+    if age_min is not None and age_max is not None and age_min > age_max:
+        c.bad("inclusion.age_max", f"{age_max} is below age_min {age_min}")
 
-    def table(name: str) -> dict:
+    measures = c.get(latency, "latency", "measures", list, default=[], required=False)
+    for m in measures or []:
+        if m not in LATENCY_MEASURES:
+            c.bad("latency.measures", f"unknown measure {m!r}; allowed: {', '.join(LATENCY_MEASURES)}")
+
+    questions = _questions(data, c.get, c.bad, len(conditions or []))
+    if c.problems:
+        return None, c.problems
+    return (
+        Protocol(
+            path=path, name=meta["name"], title=meta["title"], version=meta["version"], target_participants=meta["target"], scene=scene,
+            conditions=tuple(conditions), counterbalancing=cb, training_minutes=training, trials_per_condition=trials,
+            trial_seconds=trial_s, rest_seconds=rest_s, age_min=age_min, age_max=age_max, latency_measures=tuple(measures),
+            questions=tuple(questions), text=text, consent_version=meta["consent_version"], withdrawal=meta["withdrawal"],
+            timezone=meta["timezone"], condition_tables=tables,
+            instruments=tuple(dict.fromkeys((q.instrument, q.when) for q in questions if q.instrument)),
+        ),
+        [],
+    )
+
+
+class _Checker:
+    """A protocol file's problems, each as 'FILE:LINE: field: message', and typed reads that
+    add one when a value is missing, of the wrong type or out of range."""
+
+    def __init__(self, path: Path, loc: Locator):
+        self.path, self.loc, self.problems = path, loc, []
+
+    def bad(self, field: str, message: str) -> None:
+        self.problems.append(f"{self.path}:{self.loc.line(field)}: {field}: {message}")
+
+    def table(self, data: dict, name: str) -> dict:
         t = data.get(name)
         if t is None:
-            bad(name, "missing section")
+            self.bad(name, "missing section")
             return {}
         if not isinstance(t, dict):
-            bad(name, "must be a table")
+            self.bad(name, "must be a table")
             return {}
         return t
 
-    def get(t: dict, section: str, key: str, kind, default=None, lo=None, hi=None, required=True):
+    def get(self, t: dict, section: str, key: str, kind, default=None, lo=None, hi=None, required=True):
         field = f"{section}.{key}"
         if key not in t:
             if required and default is None:
-                bad(field, "missing")
+                self.bad(field, "missing")
             return default
         v = t[key]
         if kind is int:
@@ -117,21 +165,26 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
             ok = isinstance(v, kind)
         if not ok:
             what = {int: "an integer", float: "a number", str: "a text in quotes", list: "a list in [ ]"}.get(kind, "a " + kind.__name__)
-            bad(field, f"{v!r} is not {what}")
+            self.bad(field, f"{v!r} is not {what}")
             return default
         if lo is not None and v < lo or hi is not None and v > hi:
-            bad(field, f"{v!r} is out of range; allowed: {lo if lo is not None else '-inf'}..{hi if hi is not None else 'inf'}")
+            self.bad(field, f"{v!r} is out of range; allowed: {lo if lo is not None else '-inf'}..{hi if hi is not None else 'inf'}")
             return default
         return float(v) if kind is float else v
 
-    sections = {"study": ("name", "title", "version", "target_participants", "scene", "timezone"),
-                "design": ("conditions", "counterbalancing", "training_minutes", "trials_per_condition", "trial_seconds", "rest_seconds"),
-                "inclusion": ("age_min", "age_max"), "latency": ("measures",), "ethics": ("consent_version", "withdrawal"),
-                "questions": ("id", "text", "kind", "points", "anchors", "when"), "instruments": ("name", "when"), "conditions": None}
+
+SECTIONS = {"study": ("name", "title", "version", "target_participants", "scene", "timezone"),
+            "design": ("conditions", "counterbalancing", "training_minutes", "trials_per_condition", "trial_seconds", "rest_seconds"),
+            "inclusion": ("age_min", "age_max"), "latency": ("measures",), "ethics": ("consent_version", "withdrawal"),
+            "questions": ("id", "text", "kind", "points", "anchors", "when"), "instruments": ("name", "when"), "conditions": None}
+
+
+def _unknown_keys(data: dict, c: _Checker) -> None:
+    """Sections and keys a protocol may not have (a typo is named, never ignored)."""
     for key in data:
-        if key not in sections:
-            bad(key, f"unknown section; allowed: {', '.join(sections)}")
-    for sec, keys in sections.items():
+        if key not in SECTIONS:
+            c.bad(key, f"unknown section; allowed: {', '.join(SECTIONS)}")
+    for sec, keys in SECTIONS.items():
         if keys is None:  # [conditions.NAME]: names of the protocol's choosing, checked below
             continue
         tables = data.get(sec)
@@ -140,86 +193,61 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
         for where, t in tables:
             for key in t if isinstance(t, dict) else ():
                 if key not in keys:
-                    bad(f"{where}.{key}", f"unknown key; allowed: {', '.join(keys)}")
-    study, design, inclusion, latency = table("study"), table("design"), table("inclusion"), table("latency")
-    ethics = data.get("ethics", {}) if isinstance(data.get("ethics", {}), dict) else {}
-    consent_version = get(ethics, "ethics", "consent_version", str, default="1", required=False)
-    withdrawal = get(ethics, "ethics", "withdrawal", str, default="keep", required=False)
-    if consent_version is not None and not consent_version.strip():
-        bad("ethics.consent_version", "empty; name the consent form's version, e.g. \"1\"")
-    if withdrawal not in ("keep", "delete"):
-        bad("ethics.withdrawal", f"{withdrawal!r} is not keep or delete")
-    name = get(study, "study", "name", str)
-    title = get(study, "study", "title", str, default="", required=False)
-    timezone = get(study, "study", "timezone", str, default=None, required=False)
+                    c.bad(f"{where}.{key}", f"unknown key; allowed: {', '.join(keys)}")
+
+
+def _study_fields(study: dict, ethics: dict, path: Path, c: _Checker) -> dict:
+    """[ethics] and [study]: the consent form's version, withdrawal, name, title, time zone,
+    version, target N and the scene (resolved beside the protocol)."""
+    out = {"consent_version": c.get(ethics, "ethics", "consent_version", str, default="1", required=False),
+           "withdrawal": c.get(ethics, "ethics", "withdrawal", str, default="keep", required=False)}
+    if out["consent_version"] is not None and not out["consent_version"].strip():
+        c.bad("ethics.consent_version", "empty; name the consent form's version, e.g. \"1\"")
+    if out["withdrawal"] not in ("keep", "delete"):
+        c.bad("ethics.withdrawal", f"{out['withdrawal']!r} is not keep or delete")
+    out["name"] = c.get(study, "study", "name", str)
+    out["title"] = c.get(study, "study", "title", str, default="", required=False)
+    timezone = out["timezone"] = c.get(study, "study", "timezone", str, default=None, required=False)
     if timezone is not None:
         from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
         try:
             ZoneInfo(timezone)
         except (ZoneInfoNotFoundError, ValueError):
-            bad("study.timezone", f"{timezone!r} is not an IANA time zone, e.g. \"Asia/Shanghai\" or \"Europe/Berlin\"")
-    version = get(study, "study", "version", int, default=1, lo=1, required=False)
-    target = get(study, "study", "target_participants", int, lo=1, hi=10000)
-    scene_rel = get(study, "study", "scene", str)
-    scene = None
+            c.bad("study.timezone", f"{timezone!r} is not an IANA time zone, e.g. \"Asia/Shanghai\" or \"Europe/Berlin\"")
+    out["version"] = c.get(study, "study", "version", int, default=1, lo=1, required=False)
+    out["target"] = c.get(study, "study", "target_participants", int, lo=1, hi=10000)
+    scene_rel = c.get(study, "study", "scene", str)
+    out["scene"] = None
     if scene_rel is not None:
-        scene = (path.parent / scene_rel).resolve()
-        if not scene.exists():
-            bad("study.scene", f"{scene} does not exist")
+        out["scene"] = (path.parent / scene_rel).resolve()
+        if not out["scene"].exists():
+            c.bad("study.scene", f"{out['scene']} does not exist")
+    return out
 
-    tables = _condition_tables(data.get("conditions", {}), bad)
-    conditions = get(design, "design", "conditions", list)
-    if conditions is not None:
-        if not conditions:
-            bad("design.conditions", "at least one condition")
-        if len(conditions) > MAX_CONDITIONS:
-            bad("design.conditions", f"{len(conditions)} conditions; allowed: 1..{MAX_CONDITIONS}")
-        for c in conditions:
-            if not isinstance(c, str):
-                bad("design.conditions", f"{c!r} is not a condition's name")
-            elif c not in KNOWN_MODELS and c not in tables:
-                named = f"a [conditions.NAME] table ({', '.join(tables)})" if tables else "a [conditions.NAME] table"
-                bad("design.conditions", f"unknown condition {c!r}; allowed: {named} or a model name ({', '.join(KNOWN_MODELS)})")
-        if len(set(map(str, conditions))) != len(conditions):
-            bad("design.conditions", "a condition appears twice")
-        for declared in tables:
-            if declared not in conditions:
-                bad(f"conditions.{declared}", "not listed in design.conditions")
-    if from_file and scene is not None and scene.exists():
-        problems += _scene_problems(scene, path, text, conditions or [], tables, lambda message: bad("design.conditions", message))
-    cb = get(design, "design", "counterbalancing", str)
-    if cb is not None and cb not in DESIGNS:
-        bad("design.counterbalancing", f"{cb!r} is not one of {', '.join(DESIGNS)}")
-    training = get(design, "design", "training_minutes", float, lo=0.0, hi=120.0)
-    trials = get(design, "design", "trials_per_condition", int, lo=1, hi=100)
-    trial_s = get(design, "design", "trial_seconds", float, lo=0.5, hi=600.0)
-    rest_s = get(design, "design", "rest_seconds", float, default=5.0, lo=0.0, hi=600.0, required=False)
 
-    age_min = get(inclusion, "inclusion", "age_min", int, lo=0, hi=120)
-    age_max = get(inclusion, "inclusion", "age_max", int, lo=0, hi=120)
-    if age_min is not None and age_max is not None and age_min > age_max:
-        bad("inclusion.age_max", f"{age_max} is below age_min {age_min}")
-
-    measures = get(latency, "latency", "measures", list, default=[], required=False)
-    for m in measures or []:
-        if m not in LATENCY_MEASURES:
-            bad("latency.measures", f"unknown measure {m!r}; allowed: {', '.join(LATENCY_MEASURES)}")
-
-    questions = _questions(data, get, bad, len(conditions or []))
-    if problems:
-        return None, problems
-    return (
-        Protocol(
-            path=path, name=name, title=title, version=version, target_participants=target, scene=scene,
-            conditions=tuple(conditions), counterbalancing=cb, training_minutes=training, trials_per_condition=trials,
-            trial_seconds=trial_s, rest_seconds=rest_s, age_min=age_min, age_max=age_max, latency_measures=tuple(measures),
-            questions=tuple(questions), text=text, consent_version=consent_version, withdrawal=withdrawal, timezone=timezone,
-            condition_tables=tables,
-            instruments=tuple(dict.fromkeys((q.instrument, q.when) for q in questions if q.instrument)),
-        ),
-        [],
-    )
+def _design_conditions(design: dict, tables: dict, c: _Checker) -> list | None:
+    """design.conditions: each a [conditions.NAME] table or a model's name, once, and every
+    table listed."""
+    conditions = c.get(design, "design", "conditions", list)
+    if conditions is None:
+        return None
+    if not conditions:
+        c.bad("design.conditions", "at least one condition")
+    if len(conditions) > MAX_CONDITIONS:
+        c.bad("design.conditions", f"{len(conditions)} conditions; allowed: 1..{MAX_CONDITIONS}")
+    for cond in conditions:
+        if not isinstance(cond, str):
+            c.bad("design.conditions", f"{cond!r} is not a condition's name")
+        elif cond not in KNOWN_MODELS and cond not in tables:
+            named = f"a [conditions.NAME] table ({', '.join(tables)})" if tables else "a [conditions.NAME] table"
+            c.bad("design.conditions", f"unknown condition {cond!r}; allowed: {named} or a model name ({', '.join(KNOWN_MODELS)})")
+    if len(set(map(str, conditions))) != len(conditions):
+        c.bad("design.conditions", "a condition appears twice")
+    for declared in tables:
+        if declared not in conditions:
+            c.bad(f"conditions.{declared}", "not listed in design.conditions")
+    return conditions
 
 
 def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
