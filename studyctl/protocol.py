@@ -275,40 +275,9 @@ def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
         if not isinstance(q, dict):
             bad(sec, "must be a table")
             continue
-        qid, qtext = get(q, sec, "id", str), get(q, sec, "text", str)
-        kind = get(q, sec, "kind", str, default="yes_no", required=False)
-        when = get(q, sec, "when", str, default="condition", required=False)
-        if kind not in KINDS and "kind" in q and isinstance(q["kind"], str):
-            bad(f"{sec}.kind", f"{kind!r} is not a kind; allowed: {', '.join(KINDS)}")
-        if when not in WHENS:
-            bad(f"{sec}.when", f"{when!r} is not allowed; allowed: {', '.join(WHENS)}")
-        elif kind == "choice" and when != "end":
-            bad(f"{sec}.when", f"{when!r}: a choice among the conditions is asked once, after the last; allowed: end")
-        if kind == "choice" and n_conditions < 2:
-            bad(f"{sec}.kind", "a choice needs at least 2 conditions in design.conditions")
-        points = anchors = None
-        if kind not in KINDS or q.get("kind", kind) != kind:  # refused above: what the kind needs is unknown
-            continue
-        if kind == "likert":
-            points = get(q, sec, "points", int, lo=LIKERT_POINTS[0], hi=LIKERT_POINTS[1])
-        elif "points" in q:
-            bad(f"{sec}.points", f"only a likert question has points; this one is {kind}")
-        if "anchors" in q and kind not in ("likert", "vas"):
-            bad(f"{sec}.anchors", f"only a likert or vas question has anchors; this one is {kind}")
-        elif "anchors" in q:
-            a = q["anchors"]
-            if not (isinstance(a, list) and len(a) == 2 and all(isinstance(x, str) and x.strip() for x in a)):
-                bad(f"{sec}.anchors", f"{a!r}: two non-empty texts, [low, high], e.g. [\"Not at all\", \"Completely\"]")
-            else:
-                anchors = (a[0].strip(), a[1].strip())
-        elif kind == "likert":
-            bad(f"{sec}.anchors", "missing: a likert question names its two ends, anchors = [low, high]")
-        if qtext is not None and not qtext.strip():
-            bad(f"{sec}.text", "empty: the question as the participant reads it")
-        if qid is not None and not ID_RE.match(qid):
-            bad(f"{sec}.id", f"{qid!r} must be lower-case letters, digits and _ (starting with a letter)")
-        elif qid is not None and qtext is not None and kind in KINDS and when in WHENS:
-            add(Question(qid, qtext, kind=kind, when=when, points=points, anchors=anchors), f"{sec}.id")
+        question = _question(q, sec, get, bad, n_conditions)
+        if question is not None:
+            add(question, f"{sec}.id")
     ins = data.get("instruments", [])
     if not isinstance(ins, list):
         bad("instruments", "must be an array of tables ([[instruments]] with name = ...)")
@@ -334,6 +303,46 @@ def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
     if not any(q.analysed for q in out) and (isinstance(qs, list) or "instruments" in data):
         bad("questions", "no question to analyse: at least one [[questions]] other than free text, or an [[instruments]]")
     return out
+
+
+def _question(q: dict, sec: str, get, bad, n_conditions: int) -> Question | None:
+    """One [[questions]] table: its kind, when it is asked and what the kind needs; the question,
+    or None when it has a problem (added with `bad`)."""
+    qid, qtext = get(q, sec, "id", str), get(q, sec, "text", str)
+    kind = get(q, sec, "kind", str, default="yes_no", required=False)
+    when = get(q, sec, "when", str, default="condition", required=False)
+    if kind not in KINDS and "kind" in q and isinstance(q["kind"], str):
+        bad(f"{sec}.kind", f"{kind!r} is not a kind; allowed: {', '.join(KINDS)}")
+    if when not in WHENS:
+        bad(f"{sec}.when", f"{when!r} is not allowed; allowed: {', '.join(WHENS)}")
+    elif kind == "choice" and when != "end":
+        bad(f"{sec}.when", f"{when!r}: a choice among the conditions is asked once, after the last; allowed: end")
+    if kind == "choice" and n_conditions < 2:
+        bad(f"{sec}.kind", "a choice needs at least 2 conditions in design.conditions")
+    points = anchors = None
+    if kind not in KINDS or q.get("kind", kind) != kind:  # refused above: what the kind needs is unknown
+        return None
+    if kind == "likert":
+        points = get(q, sec, "points", int, lo=LIKERT_POINTS[0], hi=LIKERT_POINTS[1])
+    elif "points" in q:
+        bad(f"{sec}.points", f"only a likert question has points; this one is {kind}")
+    if "anchors" in q and kind not in ("likert", "vas"):
+        bad(f"{sec}.anchors", f"only a likert or vas question has anchors; this one is {kind}")
+    elif "anchors" in q:
+        a = q["anchors"]
+        if not (isinstance(a, list) and len(a) == 2 and all(isinstance(x, str) and x.strip() for x in a)):
+            bad(f"{sec}.anchors", f"{a!r}: two non-empty texts, [low, high], e.g. [\"Not at all\", \"Completely\"]")
+        else:
+            anchors = (a[0].strip(), a[1].strip())
+    elif kind == "likert":
+        bad(f"{sec}.anchors", "missing: a likert question names its two ends, anchors = [low, high]")
+    if qtext is not None and not qtext.strip():
+        bad(f"{sec}.text", "empty: the question as the participant reads it")
+    if qid is not None and not ID_RE.match(qid):
+        bad(f"{sec}.id", f"{qid!r} must be lower-case letters, digits and _ (starting with a letter)")
+    elif qid is not None and qtext is not None and kind in KINDS and when in WHENS:
+        return Question(qid, qtext, kind=kind, when=when, points=points, anchors=anchors)
+    return None
 
 
 def _condition_tables(raw, bad) -> dict[str, dict]:
