@@ -13,11 +13,8 @@ from analysis import plots, table1
 def _protocol(db):
     from studyctl.store import Store
 
-    store = Store(db, mode="read")
-    try:
+    with Store(db, mode="read") as store:
         return store.protocol()
-    finally:
-        store.close()
 
 
 def write_plots(db, out_dir, force_traces: bool = True) -> list[Path]:

@@ -41,11 +41,8 @@ def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.Data
 def _protocol(db):
     from studyctl.store import Store
 
-    store = Store(db, mode="read")
-    try:
+    with Store(db, mode="read") as store:
         return store.protocol()
-    finally:
-        store.close()
 
 
 def wilson(yes: int, n: int, alpha: float = 0.05) -> tuple[float, float]:

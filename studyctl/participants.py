@@ -27,8 +27,7 @@ def _person(store: Store, code: str) -> dict:
 
 def record_consent(db, code: str, given_on: str | None = None, version: str | None = None, dry_run: bool = False) -> dict:
     """Record that a person signed the protocol's consent form (version and date)."""
-    store = Store(db)
-    try:
+    with Store(db) as store:
         protocol = store.protocol()
         p = _person(store, code)
         if p["synthetic"]:
@@ -58,8 +57,6 @@ def record_consent(db, code: str, given_on: str | None = None, version: str | No
             conn.execute("insert into events (session_id, at, kind, detail) values (null, ?, 'consent', ?)",
                          (now(), f"{code}: consent form {version} signed {day}"))
         return {**row, "dry_run": dry_run}
-    finally:
-        store.close()
 
 
 def has_consent(store: Store, code: str, version: str) -> bool:
@@ -72,11 +69,8 @@ def withdraw(db, code: str, reason: str = "", dry_run: bool = False) -> dict:
     Refused while their session runs (it holds the session lock)."""
     from studyctl.lock import session_lock
 
-    store = Store(db, mode="read")  # a missing or foreign database, an unknown code: no lock file made
-    try:
+    with Store(db, mode="read") as store:  # a missing or foreign database, an unknown code: no lock file made
         _person(store, code)
-    finally:
-        store.close()
     if dry_run:  # writes nothing, so needs no lock
         return _withdraw(db, code, reason, dry_run)
     try:
@@ -91,8 +85,7 @@ def withdraw(db, code: str, reason: str = "", dry_run: bool = False) -> dict:
 def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
     from studyctl.traces import trace_dir
 
-    store = Store(db)
-    try:
+    with Store(db) as store:
         protocol = store.protocol()
         p = _person(store, code)
         if p["withdrawn_at"]:
@@ -131,14 +124,11 @@ def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
                     folder.rmdir()
         return {"code": code, "data": ("deleted" if delete else "kept"), "sessions": counts["sessions"], "answers": counts["answers"],
                 "traces": len(traces) if delete else 0, "dry_run": dry_run}
-    finally:
-        store.close()
 
 
 def cancel_slot(db, code: str, dry_run: bool = False) -> dict:
     """Free a participant's slot (keeping their condition order); `schedule` gives a new one."""
-    store = Store(db)
-    try:
+    with Store(db) as store:
         _person(store, code)
         row = store.rows("select slot_start from schedule where code = ? and slot_start is not null", (code,))
         if not row:
@@ -149,8 +139,6 @@ def cancel_slot(db, code: str, dry_run: bool = False) -> dict:
             conn.execute("insert into events (session_id, at, kind, detail) values (null, ?, 'slot_cancelled', ?)",
                          (now(), f"{code}: {row[0]['slot_start']}"))
         return {"code": code, "cancelled": row[0]["slot_start"], "dry_run": dry_run}
-    finally:
-        store.close()
 
 
 def correct_answer(db, code: str, model: str, item: str, answer: str, reason: str, dry_run: bool = False, trial=None) -> dict:
@@ -162,8 +150,7 @@ def correct_answer(db, code: str, model: str, item: str, answer: str, reason: st
 
     if not reason.strip():
         raise InputError("--reason: say why the answer is corrected (it is kept in the audit trail)")
-    store = Store(db)
-    try:
+    with Store(db) as store:
         protocol = store.protocol()
         model, trial, new = answer_key(protocol, item, model, trial, answer, lambda field: f"--{field}")
         q = protocol.question(item)
@@ -187,40 +174,31 @@ def correct_answer(db, code: str, model: str, item: str, answer: str, reason: st
                          "values (?, ?, ?, ?, ?, ?, ?, ?, ?)", (*key, old, new, reason.strip(), now(), getpass.getuser()))
         return {"code": code, "model": model, "item": item, "trial": trial, "old": old, "new": new,
                 "old_shown": shown(q, old), "new_shown": shown(q, new), "dry_run": dry_run}
-    finally:
-        store.close()
 
 
 def list_participants(db) -> list[dict]:
     """One row per participant (no identifying details): kind, age, consent, slot, session state."""
-    store = Store(db, mode="read")
-    try:
+    with Store(db, mode="read") as store:
         return store.rows(
             "select p.code, case when p.synthetic = 1 then 'synthetic' else 'person' end as kind, p.age, "
             "c.version as consent, s.slot_start as slot, "
             "(select status from sessions x where x.code = p.code order by x.id desc limit 1) as session, "
             "(select count(*) from answers a where a.code = p.code) as answers, p.withdrawn_at as withdrawn "
             "from participants p left join consent c on c.code = p.code left join schedule s on s.code = p.code order by p.code")
-    finally:
-        store.close()
 
 
 def list_sessions(db) -> list[dict]:
-    store = Store(db, mode="read")
-    try:
+    with Store(db, mode="read") as store:
         return store.rows(
             "select x.id as session, x.code, x.status, x.device, case when x.synthetic = 1 then 'synthetic' else 'person' end as kind, "
             "x.started_at, x.finished_at, (select count(*) from trials t where t.session_id = x.id) as trials, "
             "(select count(*) from answers a where a.session_id = x.id) as answers from sessions x order by x.id")
-    finally:
-        store.close()
 
 
 def status(db, today: dt.datetime | None = None) -> dict:
     """Where the study stands: participants, sessions by state, progress to the target N, the
     next scheduled sessions."""
-    store = Store(db, mode="read")
-    try:
+    with Store(db, mode="read") as store:
         protocol = store.protocol()
         count = lambda sql: store.rows(sql)[0]["n"]  # noqa: E731
         people = {
@@ -241,8 +219,6 @@ def status(db, today: dt.datetime | None = None) -> dict:
         return {"study": protocol.name, "target_participants": protocol.target_participants, "participants": people,
                 "sessions": sessions, "complete": {"persons": done.get("person", 0), "synthetic": done.get("synthetic", 0)},
                 "answers": count("select count(*) as n from answers"), "next": upcoming}
-    finally:
-        store.close()
 
 
 CONTACTS_NOTE = ("# IDENTIFYING DATA: names and contact details of study participants, for the experimenter only.\n"
@@ -252,12 +228,9 @@ CONTACTS_NOTE = ("# IDENTIFYING DATA: names and contact details of study partici
 def export_contacts(db, out: str | Path) -> dict:
     """The identifying table (code, name, contact) to a CSV whose first lines say what it is.
     Withdrawn participants' details were deleted when they withdrew."""
-    store = Store(db, mode="read")
-    try:
+    with Store(db, mode="read") as store:
         rows = store.rows("select i.code, i.name, i.contact from identities i join participants p on p.code = i.code "
                           "where p.withdrawn_at is null order by i.code")
-    finally:
-        store.close()
     buf = io.StringIO()
     buf.write(CONTACTS_NOTE)
     w = csv.writer(buf, lineterminator="\n")

@@ -26,8 +26,7 @@ def replay_trial(db, session_id: int, k: int, view: str = "none", frames_dir: Pa
     from sim.scene import Scene
     from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
 
-    store = Store(db, mode="read")
-    try:
+    with Store(db, mode="read") as store:
         if not store.rows("select id from sessions where id = ?", (session_id,)):
             raise InputError(f"--session: {db}: no session {session_id}")
         trials = session_trials(store, session_id)
@@ -38,8 +37,6 @@ def replay_trial(db, session_id: int, k: int, view: str = "none", frames_dir: Pa
             raise InputError(f"--trial: trial {k} of session {session_id} was stored without a trace (before schema 2)")
         trace = read_trace(db, row["trace_path"], row["trace_sha256"])  # checks the SHA-256
         protocol = store.protocol()
-    finally:
-        store.close()
     path = (Path(db).parent / row["trace_path"]).resolve()
     spec = condition_scene_spec(protocol, row["model"])
     if row["config_sha256"] and config_sha256(resolved_config(row["model"], spec)) != row["config_sha256"]:

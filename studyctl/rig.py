@@ -121,8 +121,7 @@ def store_profile(db, profile: dict, source: str) -> int:
     from studyctl.errors import StoreError
     from studyctl.store import Store
 
-    store = Store(db)
-    try:
+    with Store(db) as store:
         protocol = store.protocol()
         if not set(condition_keys(protocol).values()) & {r["key"] for r in profile["conditions"]}:
             raise InputError(f"the profile has no entry for the configurations of {db}'s conditions ({', '.join(protocol.conditions)}): "
@@ -134,8 +133,6 @@ def store_profile(db, profile: dict, source: str) -> int:
         with store.transaction() as conn:
             _keep(conn, profile["conditions"], profile, source)
         return len(profile["conditions"])
-    finally:
-        store.close()
 
 
 def frame_times(protocol, store=None) -> dict[str, dict]:
@@ -165,8 +162,7 @@ def keep_shipped(db) -> int:
     from brainsim_assets import path as asset
     from studyctl.store import Store
 
-    store = Store(db)
-    try:
+    with Store(db) as store:
         if store.rows("select 1 from rig_profile limit 1") or not asset(SHIPPED).exists():
             return 0
         keys = set(condition_keys(store.protocol()).values())
@@ -177,5 +173,3 @@ def keep_shipped(db) -> int:
         with store.transaction() as conn:
             _keep(conn, rows, shipped, f"shipped {SHIPPED}", verb="ignore")
         return len(rows)
-    finally:
-        store.close()

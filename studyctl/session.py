@@ -204,13 +204,10 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
     from studyctl.lock import session_lock
 
     time_scale = _check_options(device, synthetic, time_scale, view, answer_with)
-    store = Store(db, mode="read")  # a missing or foreign database, or the wrong participant: no lock file made
-    try:
+    with Store(db, mode="read") as store:  # a missing or foreign database, or the wrong participant: no lock file made
         _check_participant(store, store.protocol(), code, synthetic)
         if resume and not store.rows("select id from sessions where code = ? and status = 'running'", (code,)):
             raise StoreError(f"participant {code}: no interrupted session to resume")
-    finally:
-        store.close()
     with session_lock(db, code):
         return _run_session(db, code, device, synthetic, resume, time_scale, *args, view=view, answer_with=answer_with, **kwargs)
 
@@ -241,47 +238,46 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                 time_scale: float | None = None, answers=None, seed: int | None = None, progress: Callable[[str], None] | None = None,
                 session_id: int | None = None, view: str = "none", answer_with: str = "terminal", device_names: list[str] | None = None,
                 fullscreen: bool = False) -> dict:
-    run = _Run(db=db, store=Store(db), protocol=None, code=code, device=device, time_scale=time_scale, say=progress or (lambda msg: None))
-    store = run.store
-    try:
-        protocol = run.protocol = store.protocol()
-        first = _scene(protocol, protocol.conditions[0], device)
-        if device_names is not None:
-            first.device_names = device_names
-        # before anything is written: no display or no device is a clean error, not a half-made session
-        if view == "window":
-            from sim.view import open_view
+    with Store(db) as store:  # closed last, after the servo and the view
+        run = _Run(db=db, store=store, protocol=None, code=code, device=device, time_scale=time_scale, say=progress or (lambda msg: None))
+        try:
+            protocol = run.protocol = store.protocol()
+            first = _scene(protocol, protocol.conditions[0], device)
+            if device_names is not None:
+                first.device_names = device_names
+            # before anything is written: no display or no device is a clean error, not a half-made session
+            if view == "window":
+                from sim.view import open_view
 
-            run.shown = open_view("window", first, show_force=device == "mouse", fullscreen=fullscreen)
-        if time_scale > 0:  # one servo process for the session: devices opened once, kept across trials
-            from sim.servo_process import ServoProcess
+                run.shown = open_view("window", first, show_force=device == "mouse", fullscreen=fullscreen)
+            if time_scale > 0:  # one servo process for the session: devices opened once, kept across trials
+                from sim.servo_process import ServoProcess
 
-            run.servo = ServoProcess(first, time_scale)
-        _check_participant(store, protocol, code, synthetic)  # again, now that this process holds the lock
-        order, seed = _open_session(run, synthetic, resume, seed, session_id)
-        run.labels = {r["model"]: r["label"] or chr(ord("A") + r["position"])
-                      for r in store.rows("select model, position, label from conditions where session_id = ?", (run.session_id,))}
-        if answers is None and synthetic:
-            answers = _synthetic_answers(run, seed)
-        run.paced = time_scale > 0 and not synthetic  # a person sets the pace
-        run.answerer = answers or (WindowAnswers(run.shown) if answer_with == "window" else TerminalAnswers(view=run.shown))
-        run.keys = terminal_keys if run.paced else None
-        _training(run)
-        for pos, model in enumerate(order):
-            _run_condition(run, pos, model, len(order))
-        _ask_at_the_end(run)
-        store.db.conn.execute("update sessions set status = 'done', finished_at = ? where id = ?", (now(), run.session_id))
-        if run.shown is not None:
-            run.shown.set_text(top="", center="Thank you: the session is complete", bottom="", question="", corner="")
-            run.shown.idle()
-        n = store.rows("select count(*) as n from answers where code = ?", (code,))[0]["n"]
-        return {"session": run.session_id, "participant": code, "order": [run.labels[m] for m in order], "answers": n, "synthetic": synthetic}
-    finally:
-        if run.servo is not None:
-            run.servo.close()
-        if run.shown is not None:
-            run.shown.close()
-        store.close()
+                run.servo = ServoProcess(first, time_scale)
+            _check_participant(store, protocol, code, synthetic)  # again, now that this process holds the lock
+            order, seed = _open_session(run, synthetic, resume, seed, session_id)
+            run.labels = {r["model"]: r["label"] or chr(ord("A") + r["position"])
+                          for r in store.rows("select model, position, label from conditions where session_id = ?", (run.session_id,))}
+            if answers is None and synthetic:
+                answers = _synthetic_answers(run, seed)
+            run.paced = time_scale > 0 and not synthetic  # a person sets the pace
+            run.answerer = answers or (WindowAnswers(run.shown) if answer_with == "window" else TerminalAnswers(view=run.shown))
+            run.keys = terminal_keys if run.paced else None
+            _training(run)
+            for pos, model in enumerate(order):
+                _run_condition(run, pos, model, len(order))
+            _ask_at_the_end(run)
+            store.db.conn.execute("update sessions set status = 'done', finished_at = ? where id = ?", (now(), run.session_id))
+            if run.shown is not None:
+                run.shown.set_text(top="", center="Thank you: the session is complete", bottom="", question="", corner="")
+                run.shown.idle()
+            n = store.rows("select count(*) as n from answers where code = ?", (code,))[0]["n"]
+            return {"session": run.session_id, "participant": code, "order": [run.labels[m] for m in order], "answers": n, "synthetic": synthetic}
+        finally:
+            if run.servo is not None:
+                run.servo.close()
+            if run.shown is not None:
+                run.shown.close()
 
 
 def _open_session(run: _Run, synthetic: bool, resume: bool, seed: int | None, session_id: int | None) -> tuple[list[str], int]:

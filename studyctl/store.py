@@ -143,13 +143,16 @@ def _open_read(path: Path) -> sqlite3.Connection:
         if mode == "immutable" and _has_wal(path):  # immutable would read it without its last writes
             raise StoreError(f"{path}: its last writes are still in {path.name}-wal, which cannot be read here (a read-only "
                              "disk); copy the database with its -wal file to a writable folder")
+        conn = None
         try:
             conn = sqlite3.connect(uri + ("?immutable=1" if mode == "immutable" else f"?mode={mode}"), uri=True, isolation_level=None)
             conn.execute("PRAGMA query_only = ON")
             conn.execute("select count(*) from sqlite_master").fetchone()
             return conn
-        except sqlite3.OperationalError:
-            if mode == "immutable":
+        except BaseException as exc:
+            if conn is not None:
+                conn.close()  # opened but unusable: closed now, not left to the garbage collector
+            if mode == "immutable" or not isinstance(exc, sqlite3.OperationalError):
                 raise
     raise AssertionError("unreachable")
 
@@ -237,9 +240,9 @@ class Store:
                 conn = _open_read(self.path)
             else:
                 conn = sqlite3.connect(str(self.path), timeout=30.0, isolation_level=None)
-            conn.execute("PRAGMA busy_timeout = 30000")  # wait for another writer rather than fail
-            self.db = sqlite_utils.Database(conn)
             try:
+                conn.execute("PRAGMA busy_timeout = 30000")  # wait for another writer rather than fail
+                self.db = sqlite_utils.Database(conn)
                 if self.read_only:
                     self._check_version()
                 else:
@@ -283,7 +286,13 @@ class Store:
                 conn.execute("insert or replace into meta (key, value) values ('schema_version', ?)", (str(v),))
 
     def close(self) -> None:
-        self.db.conn.close()
+        self.db.conn.close()  # a second close does nothing
+
+    def __enter__(self) -> Store:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()  # returns None: an exception in the block goes on
 
     # -- one committed write per event ------------------------------------------------------
     def write(self, table: str, record: dict, pk=None, replace: bool = False) -> None:
@@ -340,15 +349,12 @@ def init_study(db_path: str | Path, protocol_path: str | Path) -> dict:
     from studyctl.protocol import load_protocol
 
     protocol = load_protocol(protocol_path)
-    store = Store(db_path, create=True)
-    try:
+    with Store(db_path, create=True) as store:
         if store.rows("select id from study"):
             raise StoreError(f"{db_path}: already holds a study ({store.study()['name']})")
         store.write("study", {"name": protocol.name, "protocol_path": str(Path(protocol_path).resolve()), "protocol_text": protocol.text,
                               "protocol_sha256": protocol.sha256, "created_at": now()}, pk="id")
         return {"db": str(db_path), "study": protocol.name, "protocol_sha256": protocol.sha256, "schema_version": SCHEMA_VERSION}
-    finally:
-        store.close()
 
 
 def dumps(obj) -> str:

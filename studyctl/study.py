@@ -35,8 +35,7 @@ def _check_age(age, protocol, where: str):
 
 def add_participant(db: str | Path, code: str, age=None, name: str | None = None, contact: str | None = None,
                     synthetic: bool = False, dry_run: bool = False) -> dict:
-    store = Store(db)
-    try:
+    with Store(db) as store:
         protocol = store.protocol()
         code = _check_code(code, "participant")
         age = _check_age(age, protocol, f"participant {code}")
@@ -47,8 +46,6 @@ def add_participant(db: str | Path, code: str, age=None, name: str | None = None
         _insert(store, [{"code": code, "age": age, "synthetic": int(synthetic), "created_at": now()}],
                 [{"code": code, "name": name, "contact": contact}] if name or contact else [], dry_run)
         return {"code": code, "age": age, "synthetic": synthetic, "dry_run": dry_run}
-    finally:
-        store.close()
 
 
 def _insert(store: Store, people: list[dict], identities: list[dict], dry_run: bool) -> None:
@@ -61,8 +58,7 @@ def _insert(store: Store, people: list[dict], identities: list[dict], dry_run: b
 def import_participants(db: str | Path, csv_path: str | Path, dry_run: bool = False) -> dict:
     """CSV with a `code` column, then optional `age`, `name`, `contact`: all rows or none."""
     csv_path = Path(csv_path)
-    store = Store(db)
-    try:
+    with Store(db) as store:
         protocol = store.protocol()
         rows = read_csv(csv_path, ("code", "age", "name", "contact"), ("code",))
         existing = {r["code"] for r in store.rows("select code from participants")}
@@ -80,8 +76,6 @@ def import_participants(db: str | Path, csv_path: str | Path, dry_run: bool = Fa
             raise InputError(f"{csv_path}: no participants (only a header)")
         _insert(store, people, identities, dry_run)
         return {"imported": len(people), "dry_run": dry_run}
-    finally:
-        store.close()
 
 
 def assign_order(store: Store, protocol, code: str) -> list[str]:
@@ -115,8 +109,7 @@ def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:
     if (d1 - d0).days > 366:
         raise InputError(f"--end: {d1} is more than a year after --start; allowed: at most 366 days")
     avail = read_availability(availability) if availability else None
-    store = Store(db)
-    try:
+    with Store(db) as store:
         protocol = store.protocol()
         codes = {r["code"] for r in store.rows("select code from participants")}
         if avail is not None and set(avail) - codes:
@@ -147,8 +140,6 @@ def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:
             if ics and not dry_run:
                 Path(ics).write_text(to_ics([r for r in out if r["slot_start"]], protocol.name, protocol.timezone, protocol.title))
         return out
-    finally:
-        store.close()
 
 
 def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) -> dict:
@@ -157,8 +148,7 @@ def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) 
     empty for a question asked once at the end, `trial` (0-based) only for one asked after every
     trial. Unknown participants, models or items, or a bad answer, reject the whole file."""
     csv_path = Path(csv_path)
-    store = Store(db)
-    try:
+    with Store(db) as store:
         protocol = store.protocol()
         codes = {r["code"] for r in store.rows("select code from participants")}
         synthetic = {r["code"] for r in store.rows("select code from participants where synthetic = 1")}
@@ -195,8 +185,6 @@ def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) 
         if not dry_run:
             store.write_many("answers", records, pk=("code", "model", "item", "trial"))
         return {"imported": len(records), "dry_run": dry_run}
-    finally:
-        store.close()
 
 
 def answer_key(protocol, item: str, model: str, trial, raw, where) -> tuple[str, int, object]:
@@ -250,14 +238,11 @@ def export(db: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[str]:
 
         if importlib.util.find_spec("pyarrow") is None:  # checked before anything is written
             raise StoreError("--format parquet needs the parquet extra: pip install 'brainsim-study[parquet]'")
-    store = Store(db, mode="read")
-    try:
+    with Store(db, mode="read") as store:
         # the columns from the schema, so an empty table still exports its header
         frames = {table: pd.DataFrame(store.rows(f"select * from {table}"), columns=list(store.db[table].columns_dict))
                   for table in EXPORT_TABLES}
         frames["traces"] = traces_frame(store)
-    finally:
-        store.close()
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for table, df in frames.items():

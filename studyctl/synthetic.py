@@ -159,8 +159,7 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
         from brainsim_assets import path as asset
 
         init_study(db, protocol_path or asset("protocols/brain_pull_2015.toml"))
-    store = Store(db)
-    try:
+    with Store(db) as store:
         protocol = store.protocol()
         rng = random.Random(f"ages:{seed}")
         if protocol_path is not None and load_protocol(protocol_path).sha256 != protocol.sha256:
@@ -177,8 +176,6 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
                 conn.execute("insert into participants (code, age, synthetic, created_at) values (?, ?, 1, ?)",
                              (code, rng.randint(protocol.age_min, protocol.age_max), now()))
                 assign_order(store, protocol, code)
-    finally:
-        store.close()
     from studyctl.rig import keep_shipped
 
     keep_shipped(db)  # the frame times its synthetic participants perceive, kept with the study

@@ -127,11 +127,8 @@ def calibrate_rig(db, protocol_file, trials, profile_file, out_file, as_json):
     if db is not None:
         from studyctl.store import Store
 
-        store = Store(db, mode="read")
-        try:
+        with Store(db, mode="read") as store:
             protocol = store.protocol()
-        finally:
-            store.close()
     else:
         protocol = load_protocol(protocol_file)
     if profile_file is not None:
