@@ -172,6 +172,20 @@ def cochran_p(x: np.ndarray) -> float:
     return float(cochrans_q(x).pvalue)
 
 
+def _rejections(protocol, summaries: dict, n: int, rng, simulations: int, names: list[str], alpha: float, primary: bool,
+                progress=None) -> dict[str, int]:
+    """How many of `simulations` studies of n participants each test rejects at `alpha`
+    (`progress(j)` after the j-th study)."""
+    hits = dict.fromkeys(names, 0)
+    for j in range(simulations):
+        for t, p in test_study(protocol, simulate_study(protocol, summaries, n, rng), primary).items():
+            if t in hits:
+                hits[t] += p < alpha
+        if progress:
+            progress(j + 1)
+    return hits
+
+
 def power_table(protocol, ns: list[int], simulations: int = 200, seed: int = 0, pilots: int = 4, alpha: float = 0.05,
                 summaries: dict | None = None, primary: bool = True, progress=None) -> pd.DataFrame:
     """Tidy power table: columns n, item (a question, a score, or "primary"), power, simulations, alpha."""
@@ -180,13 +194,8 @@ def power_table(protocol, ns: list[int], simulations: int = 200, seed: int = 0, 
     names = [t for t in test_names(protocol) if primary or t != "primary"]
     rows = []
     for k, n in enumerate(ns):
-        hits = dict.fromkeys(names, 0)
-        for j in range(simulations):
-            for t, p in test_study(protocol, simulate_study(protocol, summaries, n, rng), primary).items():
-                if t in hits:
-                    hits[t] += p < alpha
-            if progress:
-                progress(k * simulations + j + 1, len(ns) * simulations)
+        step = (lambda j, k=k: progress(k * simulations + j, len(ns) * simulations)) if progress else None
+        hits = _rejections(protocol, summaries, n, rng, simulations, names, alpha, primary, step)
         rows += [{"n": n, "item": t, "power": hits[t] / simulations, "simulations": simulations, "alpha": alpha} for t in names]
     return pd.DataFrame(rows, columns=["n", "item", "power", "simulations", "alpha"])
 
@@ -206,13 +215,8 @@ def null_table(protocol, model: str | None = None, participants: int = 35, simul
     summaries = {c: pool for c in protocol.conditions}
     rng = np.random.default_rng(seed)
     names = [t for t in test_names(protocol) if primary or t != "primary"]
-    hits = dict.fromkeys(names, 0)
-    for j in range(simulations):
-        for t, p in test_study(protocol, simulate_study(protocol, summaries, participants, rng), primary).items():
-            if t in hits:
-                hits[t] += p < alpha
-        if progress:
-            progress(j + 1, simulations)
+    hits = _rejections(protocol, summaries, participants, rng, simulations, names, alpha, primary,
+                       (lambda j: progress(j, simulations)) if progress else None)
     se = float(np.sqrt(alpha * (1 - alpha) / simulations))
     rows = [{"item": t, "false_positive_rate": hits[t] / simulations, "mc_error": se, "simulations": simulations, "alpha": alpha,
              "model": model, "participants": participants} for t in names]
