@@ -43,16 +43,11 @@ BLOCK = 240  # right-hand sides per CHOLMOD solve (memory: n_free x BLOCK double
 def site_stiffness(scene_path, size_mm: float = FIELD_SIZE_MM, sites_per_hemisphere: int = ICO4_VERTICES,
                    progress=None) -> dict:
     """K per pascal (s, 3, 3) at the sites, with the site vertex ids and what it took."""
-    from analysis.reference import (
-        ENVELOPE_FRACTION,
-        _premesh,
-        build_problem,
-        grasp_matrix,
-        hemisphere_surface,
-        mesh_hemisphere,
-    )
+    from analysis.reference import _premesh, build_problem, grasp_matrix
+    from sim.models.fem.grasp import compliances
     from sim.patch import patch_area_points
     from sim.reference import scene_with
+    from sim.tetmesh import hemisphere_surface, mesh_hemisphere
 
     scene = scene_with(scene_path)
     mesh = scene.mesh
@@ -69,19 +64,13 @@ def site_stiffness(scene_path, size_mm: float = FIELD_SIZE_MM, sites_per_hemisph
         ids = np.flatnonzero(labels == h)[:sites_per_hemisphere]
         ids = ids[mesh.vertices[ids, axis] > limit]  # a site below the clamp plane cannot move
         verts, tris, _ = hemisphere_surface(mesh, h)
-        problem = build_problem(scene, h, mesh_hemisphere(verts, tris, size_mm * 1e-3, ENVELOPE_FRACTION * size_mm * 1e-3))
+        problem = build_problem(scene, h, mesh_hemisphere(verts, tris, size_mm * 1e-3))
         for b0 in range(0, len(ids), BLOCK // 3):
             block = ids[b0:b0 + BLOCK // 3]
             Ws = [grasp_matrix(problem, *patch_area_points(mesh, int(v), radius)) for v in block]
             keep = [k for k, W in enumerate(Ws) if W.nnz > 0]
             if keep:
-                import scipy.sparse as sp
-
-                Wt = sp.hstack([Ws[k].T for k in keep]).toarray()
-                U = problem.fem.solve_free(np.ascontiguousarray(Wt))
-                for j, k in enumerate(keep):
-                    C = Ws[k] @ U[:, 3 * j:3 * j + 3]
-                    C = 0.5 * (C + C.T)
+                for k, C in zip(keep, compliances(problem.fem, [Ws[k] for k in keep])):
                     if np.all(np.linalg.eigvalsh(C) > 0):
                         out_sites.append(int(block[k]))
                         out_K.append(np.linalg.inv(C))

@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from analysis import scales
+from analysis.study import Study
 
 TRIAL_MEAN = " (mean over trials)"
 
@@ -224,11 +225,13 @@ def ordinal_primary(protocol, meas: pd.DataFrame) -> dict | None:
     return res
 
 
-def kind_stats(db, protocol, answers: pd.DataFrame) -> dict:
-    """Everything beyond yes/no: ratings, scores, choices, end questions, and the ordinal primary."""
-    from analysis.stats import _set_holm, periods
+def kind_stats(study: Study, answers: pd.DataFrame) -> dict:
+    """Everything beyond yes/no of `study` (analysis.study.Study) from its complete `answers`:
+    ratings, scores, choices, end questions, and the ordinal primary."""
+    from analysis.stats import _set_holm
 
-    meas = measures(protocol, answers, periods(db))
+    protocol = study.protocol
+    meas = measures(protocol, answers, study.periods)
     out = {"primary": primary(protocol), "ratings": ratings(protocol, meas), "scores": scores(protocol, meas),
            "choices": choices(protocol, answers), "session": session_questions(protocol, answers),
            "ordinal_gee": ordinal_primary(protocol, meas)}

@@ -49,12 +49,10 @@ def rates_plot(rates, path: Path, synthetic: bool) -> None:
     plt.close(fig)
 
 
-def deformation_plot(db, path: Path, synthetic: bool) -> None:
-    """Distribution of the deformation time per frame (trial means) per model, log scale."""
-    from analysis.table1 import _query
-
+def deformation_plot(lat, path: Path, synthetic: bool) -> None:
+    """Distribution of the deformation time per frame (trial means) per model, log scale
+    (`lat`: ``model, value`` per trial, analysis.study.Study.latency_trials)."""
     plt = _plt()
-    lat = _query(db, "select model, value from latency where measure = 'deformation_ms'")
     models = list(dict.fromkeys(lat["model"]))
     fig, ax = plt.subplots(figsize=(6, 3.6), dpi=100)
     data = [lat.loc[lat["model"] == m, "value"].to_numpy() for m in models]

@@ -1,4 +1,5 @@
-"""Report documents: LaTeX Table 1, and one self-contained HTML file with tables and plots."""
+"""Report documents: LaTeX Table 1, and one self-contained HTML file with tables and plots, of
+a study read once (analysis.study.Study)."""
 
 from __future__ import annotations
 
@@ -8,29 +9,22 @@ import tempfile
 from pathlib import Path
 
 from analysis import plots, table1
+from analysis.study import Study
 
 
-def _protocol(db):
-    from studyctl.store import Store
-
-    with Store(db, mode="read") as store:
-        return store.protocol()
-
-
-def write_plots(db, out_dir, force_traces: bool = True) -> list[Path]:
+def write_plots(study: Study, out_dir, force_traces: bool = True) -> list[Path]:
     """rates, deformation and force plots as PNG and SVG in `out_dir`."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     from analysis.kinds import kind_stats, measures
-    from analysis.stats import periods
 
-    synthetic = table1.study_facts(db)["synthetic"]
-    r = table1.rates(db)
-    protocol = _protocol(db)
+    synthetic = table1.study_facts(study)["synthetic"]
+    r = table1.rates(study)
+    protocol = study.protocol
     models = list(protocol.conditions)
-    answers, _ = table1.complete_answers(db)
-    kinds = kind_stats(db, protocol, answers)
-    meas = measures(protocol, answers, periods(db))
+    answers, _ = table1.complete_answers(study)
+    kinds = kind_stats(study, answers)
+    meas = measures(protocol, answers, study.periods)
     traces = plots.force_traces(protocol) if force_traces else None
     written = []
     for ext in ("png", "svg"):
@@ -46,7 +40,7 @@ def write_plots(db, out_dir, force_traces: bool = True) -> list[Path]:
         for item, choice in kinds["choices"].items():
             plots.choice_plot(choice, models, out_dir / f"choice_{item}.{ext}", synthetic)
             written.append(out_dir / f"choice_{item}.{ext}")
-        plots.deformation_plot(db, out_dir / f"deformation.{ext}", synthetic)
+        plots.deformation_plot(study.latency_trials, out_dir / f"deformation.{ext}", synthetic)
         written.append(out_dir / f"deformation.{ext}")
         if traces is not None:
             plots.force_plot(traces, out_dir / f"force.{ext}")
@@ -54,7 +48,7 @@ def write_plots(db, out_dir, force_traces: bool = True) -> list[Path]:
     return written
 
 
-def latex(db, holm_scope: str = "family") -> str:
+def latex(study: Study, holm_scope: str = "family") -> str:
     """Table 1 as a LaTeX `table` (booktabs rules): the same columns and rows as the Markdown
     and HTML tables (rates with Wilson intervals, Cochran's Q, McNemar p with Holm, the
     deformation-time benchmark row). Every cell and the caption are escaped by pandas' Styler
@@ -64,8 +58,8 @@ def latex(db, holm_scope: str = "family") -> str:
     from analysis.kinds import kind_tables
     from analysis.stats import study_stats
 
-    facts, r, q, d = table1.study_facts(db), table1.rates(db), table1.cochran(db), table1.deformation(db)
-    st = study_stats(db, r, q, holm_scope=holm_scope)
+    facts, r, q, d = table1.study_facts(study), table1.rates(study), table1.cochran(study), table1.deformation(study)
+    st = study_stats(study, r, q, holm_scope=holm_scope)
     models = list(d["model"])
     scope = table1.holm_text(st)
     rows = []
@@ -161,16 +155,16 @@ def stability_html(result: dict) -> str:
             f"<table><tr><th>model</th><th>case</th><th>outcome</th><th>at</th><th>reason</th></tr>{rows}</table>{near}")
 
 
-def html(db, force_traces: bool = True, accuracy: dict | None = None, stability: dict | None = None, holm_scope: str = "family") -> str:
+def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, stability: dict | None = None, holm_scope: str = "family") -> str:
     """One self-contained HTML file: facts, Table 1, statistics, plots (PNG inlined), and the
     accuracy bench's table and Pareto plot and the stability sweep's heat map when given."""
     from analysis.kinds import kind_tables
     from analysis.stats import study_stats
 
-    facts, r, q, d = table1.study_facts(db), table1.rates(db), table1.cochran(db), table1.deformation(db)
-    st = study_stats(db, r, q, holm_scope=holm_scope)
+    facts, r, q, d = table1.study_facts(study), table1.rates(study), table1.cochran(study), table1.deformation(study)
+    st = study_stats(study, r, q, holm_scope=holm_scope)
     with tempfile.TemporaryDirectory() as tmp:
-        write_plots(db, tmp, force_traces)
+        write_plots(study, tmp, force_traces)
         images = {f.stem: base64.b64encode(f.read_bytes()).decode() for f in sorted(Path(tmp).glob("*.png"), key=_figure_order)}
     esc = _html.escape
     listed = table1.incomplete_text(facts)

@@ -138,8 +138,29 @@ def ordinal_gee(df: pd.DataFrame, models: list[str], with_period: bool = True, w
            "notes": notes}
     present = [m for m in models if (data["model"] == m).any()]
     constant = {m for m, g in data.groupby("model")["answer"] if g.nunique() < 2}
+    problems = _ordinal_problems(data, models, present, constant, out["n_participants"])
+    if data["answer"].nunique() < 2 or len(present) < 2:
+        return _not_estimable(out, problems, models)
+    X = _design(data, present, with_period, with_item, intercept=False)
+    if _singular(X):
+        return _not_estimable(out, problems + [SINGULAR], models)
+    res, caught, error = _fit_ordinal_or_independence(data, X, dependence, out)
+    if res is None:
+        return _not_estimable(out, problems + [f"fit failed: {error}"], models)
+    if out["working_dependence"] == DEPENDENCE["global_odds_ratio"]:
+        out["global_odds_ratio"] = float(np.squeeze(res.cov_struct.dep_params))
+    pairs = _ordinal_pairs(res, models, present, out["n_participants"])
+    _mark_estimable(pairs, problems, constant)
+    if any(not p["estimable"] for p in pairs) and not problems:
+        problems.append("separation or a zero standard error")
+    converged = not any(_is_convergence_warning(w) for w in caught)
+    return out | {"converged": converged and not problems, "estimable": not problems, "problems": problems, "pairs": pairs}
+
+
+def _ordinal_problems(data: pd.DataFrame, models: list[str], present: list[str], constant: set[str], n_participants: int) -> list[str]:
+    """Why the answers cannot give estimable odds ratios (empty: they can)."""
     problems = []
-    if out["n_participants"] < MIN_GEE_PARTICIPANTS:
+    if n_participants < MIN_GEE_PARTICIPANTS:
         problems.append(f"fewer than {MIN_GEE_PARTICIPANTS} participants")
     if data["answer"].nunique() < 2:
         problems.append("every answer alike" if len(data) else "no answers")
@@ -147,25 +168,30 @@ def ordinal_gee(df: pd.DataFrame, models: list[str], with_period: bool = True, w
         problems.append("no answers for " + ", ".join(absent))
     if constant and data["answer"].nunique() > 1:
         problems.append("every answer one category for " + ", ".join(m for m in models if m in constant))
-    if data["answer"].nunique() < 2 or len(present) < 2:
-        return out | {"converged": False, "estimable": False, "problems": problems, "pairs": _nan_pairs(models, ORDINAL_PAIR_KEYS)}
-    X = _design(data, present, with_period, with_item, intercept=False)
-    if _singular(X):
-        return out | {"converged": False, "estimable": False, "problems": problems + [SINGULAR], "pairs": _nan_pairs(models, ORDINAL_PAIR_KEYS)}
+    return problems
+
+
+def _not_estimable(out: dict, problems: list[str], models: list[str]) -> dict:
+    return out | {"converged": False, "estimable": False, "problems": problems, "pairs": _nan_pairs(models, ORDINAL_PAIR_KEYS)}
+
+
+def _fit_ordinal_or_independence(data: pd.DataFrame, X: pd.DataFrame, dependence: str, out: dict):
+    """`_fit_ordinal`; a failed global odds ratio fit is fitted again with independence, and
+    `out` (working_dependence, fallback) says so."""
     res, caught, error = _fit_ordinal(data, X, dependence)
     if dependence == "global_odds_ratio" and (res is None or not _fit_ok(res, caught)):
         why = error or ("no convergence" if res is not None and caught else "non-finite estimates")
         out |= {"working_dependence": DEPENDENCE["independence"], "fallback": f"global odds ratio failed ({why}); fitted with independence"}
         res, caught, error = _fit_ordinal(data, X, "independence")
-    if res is None:
-        return out | {"converged": False, "estimable": False, "problems": problems + [f"fit failed: {error}"],
-                      "pairs": _nan_pairs(models, ORDINAL_PAIR_KEYS)}
-    if out["working_dependence"] == DEPENDENCE["global_odds_ratio"]:
-        out["global_odds_ratio"] = float(np.squeeze(res.cov_struct.dep_params))
+    return res, caught, error
+
+
+def _ordinal_pairs(res, models: list[str], present: list[str], n_participants: int) -> list[dict]:
+    """Each pair's log odds ratio b against a, with its t interval and p (NaN for an absent model)."""
     names, beta, cov = list(res.params.index), res.params.to_numpy(), res.cov_params().to_numpy()
     # t with participants - 1 df, not z: with the bias-reduced sandwich it holds the null's
     # false-positive rate at 12-24 participants (plan --null; z and the plain sandwich gave 0.105)
-    dof = max(out["n_participants"] - 1, 1)
+    dof = max(n_participants - 1, 1)
     t95 = float(stats.t.ppf(0.975, dof))
     pairs = []
     for a, b in itertools.combinations(models, 2):
@@ -179,15 +205,17 @@ def ordinal_gee(df: pd.DataFrame, models: list[str], with_period: bool = True, w
             pairs.append({"a": a, "b": b, "log_odds_ratio": est, "se": se, "odds_ratio": float(np.exp(est)),
                           "ci_low": float(np.exp(est - t95 * se)), "ci_high": float(np.exp(est + t95 * se)),
                           "p_value": float(2 * stats.t.sf(abs(est / se), dof)) if se > 0 else NAN})
+    return pairs
+
+
+def _mark_estimable(pairs: list[dict], problems: list[str], constant: set[str]) -> None:
+    """A pair is estimable with no problems, neither model's answers all one category, a positive
+    standard error and |log OR| <= MAX_LOG_OR; the others' interval and p become NaN."""
     for pair in pairs:
         if problems or pair["a"] in constant or pair["b"] in constant or not (pair["se"] > 0) or not abs(pair["log_odds_ratio"]) <= MAX_LOG_OR:
             pair |= {"ci_low": NAN, "ci_high": NAN, "p_value": NAN, "estimable": False}
         else:
             pair["estimable"] = True
-    if any(not p["estimable"] for p in pairs) and not problems:
-        problems.append("separation or a zero standard error")
-    converged = not any(_is_convergence_warning(w) for w in caught)
-    return out | {"converged": converged and not problems, "estimable": not problems, "problems": problems, "pairs": pairs}
 
 
 def _fit_ordinal(data: pd.DataFrame, X: pd.DataFrame, dependence: str):

@@ -11,6 +11,8 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from analysis.study import Study
+
 
 def holm(p_values) -> list[float]:
     from statsmodels.stats.multitest import multipletests
@@ -75,20 +77,6 @@ def pairwise_wilcoxon(wide: pd.DataFrame) -> pd.DataFrame:
 
 HOLM_SCOPES = ("family", "question")
 MIN_GEE_PARTICIPANTS = 5  # a sandwich covariance from fewer clusters is not worth printing
-
-
-def periods(db) -> pd.DataFrame:
-    """Each participant's position (0-based) of each model in their session: the period
-    factor of the GEE. From the session's conditions, else the assigned order (schedule)."""
-    import json
-
-    from analysis.table1 import _query
-
-    orders = pd.concat([_query(db, "select code, conditions from sessions order by id"),
-                        _query(db, "select code, conditions from schedule")])
-    orders = orders[orders["conditions"].notna()].drop_duplicates("code")  # the first session's order wins
-    rows = [{"code": r.code, "model": m, "period": k} for r in orders.itertuples() for k, m in enumerate(json.loads(r.conditions))]
-    return pd.DataFrame(rows, columns=["code", "model", "period"])
 
 
 def gee_fit(df: pd.DataFrame, models: list[str], with_period: bool = True, with_item: bool = False) -> dict:
@@ -156,15 +144,15 @@ def gee_fit(df: pd.DataFrame, models: list[str], with_period: bool = True, with_
                   "working_correlation": float(res.cov_struct.dep_params), "pairs": pairs}
 
 
-def study_stats(db, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None, holm_scope: str = "family") -> dict:
+def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None, holm_scope: str = "family") -> dict:
     """Everything `studyctl report stats --json` prints (`r`, `q`: rates and cochran already
-    computed by the caller, so a report does not compute them twice). Complete cases only
+    computed by the caller, so a report does not compute them twice) of `study`
+    (analysis.study.Study: the database read once). Complete cases only
     (`analysis.table1.complete_answers`). `holm_scope`: "family" (default: Holm over every
     pairwise McNemar test of every question) or "question" (within each question's pairs)."""
     from analysis.kinds import family_pairs, kind_stats
     from analysis.table1 import (
         DEFORMATION_LABEL,
-        _protocol,
         answers_wide,
         binary_answers,
         cochran,
@@ -176,11 +164,11 @@ def study_stats(db, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None
 
     if holm_scope not in HOLM_SCOPES:
         raise ValueError(f"holm_scope: {holm_scope!r}; allowed: {', '.join(HOLM_SCOPES)}")
-    r = rates(db) if r is None else r
-    q = cochran(db) if q is None else q
-    protocol = _protocol(db)
-    every, _ = complete_answers(db)
-    answers = binary_answers(db, protocol, every)
+    r = rates(study) if r is None else r
+    q = cochran(study) if q is None else q
+    protocol = study.protocol
+    every, _ = complete_answers(study)
+    answers = binary_answers(study, every)
     protocol_models = list(protocol.conditions)
     items = {}
     for item, g in r.groupby("item", sort=False):
@@ -193,10 +181,10 @@ def study_stats(db, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None
             "rates": {row["model"]: {k: row[k] for k in ("yes", "no", "rate", "wilson_low", "wilson_high")} for _, row in g.iterrows()},
             "pairs": pairs.to_dict(orient="records"),
         }
-    kinds = kind_stats(db, protocol, every)
+    kinds = kind_stats(study, every)
     _holm_family(items, holm_scope, family_pairs(kinds))
-    return {"facts": study_facts(db), "holm": holm_scope, "items": items, "gee": study_gee(db, answers, protocol_models),
-            "kinds": kinds, "deformation": {"label": DEFORMATION_LABEL, "rows": deformation(db).to_dict(orient="records")}}
+    return {"facts": study_facts(study), "holm": holm_scope, "items": items, "gee": study_gee(study, answers, protocol_models),
+            "kinds": kinds, "deformation": {"label": DEFORMATION_LABEL, "rows": deformation(study).to_dict(orient="records")}}
 
 
 def _set_holm(pairs: list[dict], key: str = "p_holm") -> None:
@@ -218,14 +206,14 @@ def _holm_family(items: dict, scope: str, others: list[list[dict]] = ()) -> None
         pair["p_holm"] = pair["p_holm_family"] if scope == "family" else pair["p_holm_question"]
 
 
-def study_gee(db, answers: pd.DataFrame, models: list[str]) -> dict:
-    """The primary analysis across questions: a logistic GEE with model and period (and, for
-    the composite over all questions, item) as factors; then one per question, with Holm over
-    the family of their pairwise contrasts."""
+def study_gee(study: Study, answers: pd.DataFrame, models: list[str]) -> dict:
+    """The primary analysis across questions: a logistic GEE with model and period (the
+    condition's position in the participant's session, `study.periods`) and, for the composite
+    over all questions, item as factors; then one per question, with Holm over the family of
+    their pairwise contrasts."""
     if answers.empty or len(models) < 2:
         return {"composite": None, "items": {}}
-    per = periods(db)
-    df = answers.merge(per, on=["code", "model"], how="left")
+    df = answers.merge(study.periods, on=["code", "model"], how="left")
     with_period = bool(df["period"].notna().all())
     if with_period:
         df["period"] = df["period"].astype(int)

@@ -1,48 +1,29 @@
-"""Table 1 of the seed paper from a study database, with the statistics it left out.
+"""Table 1 of the seed paper from a study (analysis.study.Study: the database read once),
+with the statistics it left out.
 
 Tidy DataFrames with stable column names (documented in docs/analysis.md):
 
-- `rates(db)`: one row per item and model: ``item, question, model, yes, no, n, rate,
+- `rates(study)`: one row per item and model: ``item, question, model, yes, no, n, rate,
   wilson_low, wilson_high`` (Wilson 95% interval);
-- `cochran(db)`: one row per item: ``item, cochran_q, df, p_value, n_complete`` (participants
+- `cochran(study)`: one row per item: ``item, cochran_q, df, p_value, n_complete`` (participants
   who answered the item for every model);
-- `deformation(db)`: one row per model: ``model, n_trials, mean_ms, sd_ms, median_ms, p95_ms``.
+- `deformation(study)`: one row per model: ``model, n_trials, mean_ms, sd_ms, median_ms, p95_ms``.
 """
 
 from __future__ import annotations
 
 import json
-import sqlite3
 
 import numpy as np
 import pandas as pd
 
-
-def _connect(db) -> sqlite3.Connection:
-    from studyctl.store import connect_read
-
-    return connect_read(db)
-
-
-def _query(db, sql: str) -> pd.DataFrame:
-    con = _connect(db)
-    try:
-        return pd.read_sql_query(sql, con)
-    finally:
-        con.close()
+from analysis.study import Study
 
 
 def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.DataFrame:
     """0/1 answers to one item: a row per participant who answered it for every model."""
     wide = answers[answers["item"] == item].pivot(index="code", columns="model", values="answer")
     return wide.reindex(columns=models).dropna()
-
-
-def _protocol(db):
-    from studyctl.store import Store
-
-    with Store(db, mode="read") as store:
-        return store.protocol()
 
 
 def wilson(yes: int, n: int, alpha: float = 0.05) -> tuple[float, float]:
@@ -62,13 +43,12 @@ def expected_answers(protocol) -> int:
     return sum(per[q.when] for q in protocol.questions if q.analysed)
 
 
-def complete_answers(db) -> tuple[pd.DataFrame, list[dict]]:
+def complete_answers(study: Study) -> tuple[pd.DataFrame, list[dict]]:
     """The one N rule: a participant counts when they answered every analysed question for
     every condition (complete cases). Returns their answers (code, model, item, trial,
     answer: each in its kind's type) and the others, each as {code, answers, of}: everything
     in a report is computed on the complete ones."""
-    protocol = _protocol(db)
-    answers = _query(db, "select code, model, item, trial, answer from answers")
+    protocol, answers = study.protocol, study.answers
     when = {q.id: q.when for q in protocol.questions if q.analysed}
     w = answers["item"].map(when)
     ok = w.notna() & ((w == "end") == (answers["model"] == "")) & ((w == "end") | answers["model"].isin(protocol.conditions))
@@ -85,18 +65,17 @@ def binary_items(protocol) -> list[str]:
     return [q.id for q in protocol.asked("condition") if q.kind == "yes_no"]
 
 
-def binary_answers(db, protocol=None, answers: pd.DataFrame | None = None) -> pd.DataFrame:
+def binary_answers(study: Study, answers: pd.DataFrame | None = None) -> pd.DataFrame:
     """The complete participants' answers to `binary_items`, as 0/1 integers (from `answers`,
     complete_answers' when the caller has them)."""
-    protocol = protocol or _protocol(db)
-    answers = complete_answers(db)[0] if answers is None else answers
-    sel = answers[answers["item"].isin(binary_items(protocol)) & (answers["trial"] < 0)]
+    answers = complete_answers(study)[0] if answers is None else answers
+    sel = answers[answers["item"].isin(binary_items(study.protocol)) & (answers["trial"] < 0)]
     return sel.astype({"answer": int}).reset_index(drop=True)
 
 
-def rates(db) -> pd.DataFrame:
-    protocol = _protocol(db)
-    answers = binary_answers(db)
+def rates(study: Study) -> pd.DataFrame:
+    protocol = study.protocol
+    answers = binary_answers(study)
     counts = answers.groupby(["item", "model"])["answer"].agg(yes="sum", n="count").reset_index()
     text = {q.id: q.text for q in protocol.questions}
     rows = []
@@ -111,11 +90,11 @@ def rates(db) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["item", "question", "model", "yes", "no", "n", "rate", "wilson_low", "wilson_high"])
 
 
-def cochran(db) -> pd.DataFrame:
+def cochran(study: Study) -> pd.DataFrame:
     from statsmodels.stats.contingency_tables import cochrans_q
 
-    protocol = _protocol(db)
-    answers = binary_answers(db)
+    protocol = study.protocol
+    answers = binary_answers(study)
     rows = []
     for q in binary_items(protocol):
         wide = answers_wide(answers, q, list(protocol.conditions))
@@ -133,15 +112,13 @@ def cochran(db) -> pd.DataFrame:
 DEFORMATION_LABEL = "benchmark of this machine (wall-clock deformation time per frame), not a measure of the participants"
 
 
-def deformation(db) -> pd.DataFrame:
+def deformation(study: Study) -> pd.DataFrame:
     """Deformation time per frame, one value per participant (the mean of their trials) for
     the complete participants: a benchmark of the machine the sessions ran on, summarised
     over participants (no test: CPU timings are not about people)."""
-    protocol = _protocol(db)
-    answers, _ = complete_answers(db)
-    lat = _query(db, "select s.code, l.model, avg(l.value) as value, count(*) as trials from latency l join sessions s on s.id = l.session_id "
-                     "where l.measure = 'deformation_ms' group by s.code, l.model")
-    lat = lat[lat["code"].isin(set(answers["code"]))]
+    protocol = study.protocol
+    answers, _ = complete_answers(study)
+    lat = study.latency[study.latency["code"].isin(set(answers["code"]))]
     rows = []
     for m in protocol.conditions:
         sel = lat["model"] == m
@@ -154,32 +131,24 @@ def deformation(db) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["model", "n_participants", "n_trials", "mean_ms", "sd_ms", "median_ms", "p95_ms"])
 
 
-def study_facts(db) -> dict:
-    protocol = _protocol(db)
-    answers, incomplete = complete_answers(db)
+def study_facts(study: Study) -> dict:
+    protocol = study.protocol
+    answers, incomplete = complete_answers(study)
     n = int(answers["code"].nunique())
-    con = _connect(db)
-    try:
-        # counted from the answers' own source, not from a participant flag that could drift
-        synthetic = con.execute("select count(distinct code) from answers where source = 'synthetic'").fetchone()[0]
-        mixed = [r[0] for r in con.execute(
-            "select code from answers group by code having sum(source = 'synthetic') > 0 and sum(source != 'synthetic') > 0 order by code")]
-    finally:
-        con.close()
+    synthetic, mixed = study.synthetic_participants, list(study.mixed_source_participants)
     return {"study": protocol.name, "participants": n, "incomplete_participants": incomplete,
             "synthetic_participants": synthetic, "mixed_source_participants": mixed,
             "synthetic": synthetic > 0,
             "design": f"within-subject, {len(protocol.conditions)} conditions, {protocol.counterbalancing} counterbalancing",
-            "conditions": conditions(db)}
+            "conditions": conditions(study)}
 
 
-def conditions(db) -> list[dict]:
+def conditions(study: Study) -> list[dict]:
     """What each condition ran: its resolved configuration (studyctl/conditions.py) and hash,
     with the sessions that ran it. A condition that ran under two configurations (its scene or
     protocol changed mid-study) has two rows; sessions before schema 5 recorded none."""
-    rows = _query(db, "select model as condition, config, config_sha256, count(distinct session_id) as sessions "
-                      "from conditions group by model, config_sha256 order by min(session_id)")
-    order = _protocol(db).conditions
+    rows = study.configurations
+    order = study.protocol.conditions
     out = []  # the protocol's order; a stable sort keeps each condition's configurations by first session
     for r in sorted(rows.to_dict(orient="records"), key=lambda r: order.index(r["condition"]) if r["condition"] in order else len(order)):
         config = json.loads(r["config"]) if isinstance(r["config"], str) else None
@@ -236,7 +205,7 @@ def _gee_line(gee: dict, primary: bool = True) -> str:
             f"{'' if c.get('converged') else ' (NOT ESTIMABLE OR NOT CONVERGED: ' + '; '.join(c.get('problems') or ['no convergence']) + ')'}: {pairs}.")
 
 
-def markdown(db, holm_scope: str = "family") -> str:
+def markdown(study: Study, holm_scope: str = "family") -> str:
     """Table 1 as Markdown: counts, rate [Wilson 95%] per model, Cochran's Q per item, McNemar
     pairs with Holm (over the family by default), the deformation-time row (a benchmark of
     this machine), headed by N (complete cases), the design and a synthetic-data flag; the
@@ -244,8 +213,8 @@ def markdown(db, holm_scope: str = "family") -> str:
     from analysis.kinds import kind_tables, table_markdown
     from analysis.stats import study_stats
 
-    facts, r, q, d = study_facts(db), rates(db), cochran(db), deformation(db)
-    st = study_stats(db, r, q, holm_scope=holm_scope)
+    facts, r, q, d = study_facts(study), rates(study), cochran(study), deformation(study)
+    st = study_stats(study, r, q, holm_scope=holm_scope)
     pairs = {item: v["pairs"] for item, v in st["items"].items()}
     models = list(d["model"])
     flag = "SYNTHETIC DATA (simulated participants): not evidence about people. " if facts["synthetic"] else ""

@@ -18,19 +18,12 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
     """Solve the P2 reference at `vertices` (default: around the scene's hands) on each mesh
     size, extrapolate the compliance with the order observed on its trace (Richardson; no
     extrapolation where the order cannot be trusted), and write the table."""
-    import scipy.sparse as sp
-
-    from analysis.reference import (
-        ENVELOPE_FRACTION,
-        _premesh,
-        build_problem,
-        converge,
-        grasp_matrix,
-        hemisphere_surface,
-        mesh_hemisphere,
-    )
+    from analysis.convergence import converge
+    from analysis.reference import _premesh, build_problem, grasp_matrix
+    from sim.models.fem.grasp import compliances, symmetric_inverse
     from sim.patch import patch_area_points
     from sim.reference import scene_with
+    from sim.tetmesh import hemisphere_surface, mesh_hemisphere
 
     scene = scene_with(scene_path)
     mesh = scene.mesh
@@ -50,16 +43,13 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
         sel = np.flatnonzero(labels[vertices] == h)
         verts, tris, _ = hemisphere_surface(mesh, h)
         for i, size in enumerate(sizes_mm):
-            body = mesh_hemisphere(verts, tris, size * 1e-3, ENVELOPE_FRACTION * size * 1e-3)
+            body = mesh_hemisphere(verts, tris, size * 1e-3)
             problem = build_problem(scene, h, body)
             hs[i, j] = body.h
             Ws = [grasp_matrix(problem, *patch_area_points(mesh, int(vertices[k]), key["grasp_radius"])) for k in sel]
             if any(W.nnz == 0 for W in Ws):
                 raise InputError("--vertices: a grasp patch lies in clamped elements (below the clamp plane)")
-            U = problem.fem.solve_free(np.ascontiguousarray(sp.hstack([W.T for W in Ws]).toarray()))
-            for n, (k, W) in enumerate(zip(sel, Ws)):
-                c = W @ U[:, 3 * n:3 * n + 3]
-                C[i, k] = 0.5 * (c + c.T)
+            C[i, sel] = compliances(problem.fem, Ws)
             if progress is not None:
                 progress(f"hemisphere {h}, {size:g} mm: {len(sel)} grasps")
             del problem
@@ -73,7 +63,7 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
         if conv["extrapolated"]:
             second = int(np.argsort(hs[:, j])[1])
             Ck = Ck + (Ck - C[second, k]) / (conv["r21"] ** conv["p_used"] - 1.0)
-        K[k] = np.linalg.inv(0.5 * (Ck + Ck.T))
+        K[k] = symmetric_inverse(Ck)
         orders[k], gci[k] = conv["p_used"], conv["gci"]
         status.append(conv["status"])
     save_npz(out, compressed=True, vertices=vertices, K_per_pa=K, K_per_pa_meshes=np.linalg.inv(C), h_m=hs, sizes_mm=np.asarray(sizes_mm),

@@ -27,7 +27,7 @@ from bench.common import each_call, per_call, report
 from sim.linalg import Factor
 from sim.models.fem import FemModel, LinearFem, fixed_nodes
 from sim.scene import AXES, DEFAULT_SCENE, build_scene
-from sim.volume import voxel_volume
+from sim.tetmesh import body_volume
 
 
 def _hemisphere(volume, label=0):
@@ -148,7 +148,7 @@ def run() -> dict:
     result: dict = {"cpus": os.cpu_count()}
     scene = build_scene(DEFAULT_SCENE)
     mesh = scene.mesh
-    volume = voxel_volume(mesh, 0.004)
+    volume = body_volume(mesh, 0.004)
     nodes, tets = _hemisphere(volume)
     fixed = nodes[:, 2] <= nodes[:, 2].min() + 0.015
     runs = []
@@ -188,7 +188,7 @@ def run() -> dict:
     # and resolution), one per hemisphere as FemModel builds them, and the reference problem's
     spec = scene.spec.models["fem"].options
     material = scene.spec.material
-    scene_volume = voxel_volume(mesh, float(spec["resolution"]))
+    scene_volume = body_volume(mesh, float(spec["resolution"]))
     scene_fixed_nodes = fixed_nodes(scene_volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])
     matrices = {}
     for label, name in ((0, "left"), (1, "right")):

@@ -17,7 +17,7 @@ import sim.models.mass_spring as msm
 from sim.models.fem import fixed_nodes
 from sim.models.mass_spring import from_tets
 from sim.scene import AXES, DEFAULT_SCENE, build_scene
-from sim.volume import voxel_volume
+from sim.tetmesh import body_volume
 
 FRAME = 1 / 30  # the study's step: one per 30 Hz visual frame
 TARGET_MS = 5.0  # issue 19: a frame at 1% of backward Euler
@@ -25,7 +25,7 @@ TARGET_MS = 5.0  # issue 19: a frame at 1% of backward Euler
 
 def _system(scene, resolution=0.004):
     mesh = scene.mesh
-    volume = voxel_volume(mesh, resolution)
+    volume = body_volume(mesh, resolution)
     m = scene.spec.material
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])
     return from_tets(volume.nodes, volume.tets, m.young, m.density, fixed=fixed, damping=5.0)

@@ -2,8 +2,9 @@
 
 "The model is parameterized and thus can be adapted to simulate different organs" (seed
 paper): fit h1, alpha, q and x_c1 within their bounds so that the plate-spring force at a set of
-displacements matches a reference, the scene's FEM (the mean of its hands' pulls along their
-pull directions) or a measured curve from a CSV (displacement_m, force_n). Residuals are in
+displacements matches a reference: the converged FEM reference on the accuracy bench's
+calibration pulls (`analysis.accuracy.calibration_curve`, through `studyctl calibrate
+plate-spring`) or a measured curve from a CSV (displacement_m, force_n). Residuals are in
 units of the force JND, so the report says directly how many samples a person could tell apart.
 """
 
@@ -23,34 +24,6 @@ from sim.models.plate_spring import B_SLACK_M, PlateSpring, PlateSpringParams
 def jnd(force: np.ndarray) -> np.ndarray:
     """Force discrimination threshold used by the seed paper: 10% at or above 0.5 N, 25% below."""
     return np.where(force >= 0.5, 0.10, 0.25)
-
-
-def fem_curve(scene_path, displacements: np.ndarray, formulation: str = "neo-hookean", resolution: float = 0.003) -> tuple[np.ndarray, np.ndarray]:
-    """The scene's FEM force magnitude along each hand's scripted pull: (displacements, forces),
-    the hands' curves concatenated. `neo-hookean` is the nonlinear reference (sim/reference.py,
-    cached); `linear` the haptic FEM's stiffness at `resolution`."""
-    from sim.reference import hand_pulls, reference_pull, scene_with
-
-    scene = scene_with(scene_path)
-    xs = np.asarray(displacements, dtype=np.float64)
-    if formulation not in ("neo-hookean", "linear"):
-        raise ParameterError(f"formulation: {formulation!r} is not one of neo-hookean, linear")
-    if not 0.002 <= resolution <= 0.008:
-        raise ParameterError(f"resolution: {resolution * 1e3:g} mm is out of range; allowed: 2..8 mm")
-    curves = []
-    if formulation == "neo-hookean":
-        for pull in hand_pulls(scene):
-            ref = reference_pull(scene_path, resolution, pull, xs)
-            curves.append(np.linalg.norm(ref["force_per_pa"], axis=1) * scene.spec.material.young)
-    else:
-        from sim.models.fem import build
-        from sim.scene import ModelSpec
-
-        model = build(scene.mesh, ModelSpec(name="fem", options={"resolution": resolution}), scene)
-        for pull in hand_pulls(scene):
-            K = np.asarray(model.grasp(pull.point, 0).law.K).reshape(3, 3)
-            curves.append([float(np.linalg.norm(K @ (np.asarray(pull.direction) * x))) for x in xs])
-    return np.tile(xs, len(curves)), np.concatenate(curves)
 
 
 def read_curve(path) -> tuple[np.ndarray, np.ndarray]:

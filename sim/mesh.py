@@ -102,8 +102,9 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
 
 
 def patch_vertices(mesh, vertex: int, radius: float) -> np.ndarray:
-    """Surface vertices within `radius` of `vertex`, same hemisphere: the grasp of the voxel
-    FEM before the area mean (`--functional vertices`, to show why it cannot converge)."""
+    """Surface vertices within `radius` of `vertex`, same hemisphere (the grasp by vertex mean,
+    before the area mean of `sim.patch`: the reference's `--functional vertices` shows why it
+    cannot converge)."""
     mesh.prepare_queries()
     patch = np.asarray(mesh._kdtree.query_ball_point(mesh.vertices[vertex], radius), dtype=np.int64)
     if mesh.labels is not None:

@@ -21,11 +21,11 @@ from sim.errors import ParameterError, SceneError
 from sim.models.base import POISSON_MAX, POISSON_MIN, Vec3
 from sim.patch import GRASP_RADIUS
 from sim.tomlfile import Locator, TomlFileError, read_toml
+from sim.tomltable import REQUIRED, TableReader
 
 RENDERERS = ("none", "offscreen")
 DEFAULT_SCENE = _asset("protocols/scenes/brain_pull.toml")
 AXES = {"x": 0, "y": 1, "z": 2}
-_REQUIRED = object()
 
 
 @dataclass(frozen=True)
@@ -137,6 +137,17 @@ class SceneSpec:
 # -- parsing -------------------------------------------------------------------------------
 
 SECTIONS = ("scene", "mesh", "material", "fixed", "model", "models", "servo", "visual", "renderer", "view", "hands")
+SECTION_KEYS = {  # the sections read as one table, in reading order: (required, allowed keys)
+    "scene": (False, ("name", "description", "duration")),
+    "mesh": (True, ("path",)),
+    "material": (True, ("young", "poisson", "density")),
+    "fixed": (True, ("axis", "from_bottom")),
+    "model": (True, ("name",)),
+    "servo": (False, ("rate_hz",)),
+    "visual": (False, ("rate_hz",)),
+    "renderer": (False, ("kind", "width", "height", "fps")),
+    "view": (False, ("front", "up", "zoom")),
+}
 MODEL_KEYS = {
     "plate_spring": ("variant", "params", "field"),
     "fem": ("resolution", "formulation", "grasp_radius", "order"),
@@ -145,99 +156,6 @@ MODEL_KEYS = {
 HAND_KEYS = ("name", "device", "start", "pull", "distance", "grasp_at", "pull_start", "pull_time", "release_at",
              "device_name", "device_scale", "device_origin", "trace", "trace_hand")
 
-
-class _Reader:
-    """Typed access to a TOML table. A problem is recorded as 'FILE:LINE: field: message' (the
-    line of the key, else of its table) and the accessor returns None (a section: empty), so
-    loading goes on and finds every problem; `load_scene` raises them together."""
-
-    def __init__(self, path: Path, data: dict, prefix: str, loc: Locator, problems: list, refused: bool = False):
-        self.path, self.data, self.prefix, self.loc, self.problems = path, data, prefix, loc, problems
-        self.refused = refused  # the table itself is missing or not a table (reported once): not its keys
-
-    def error(self, key: str, message: str) -> None:
-        field = f"{self.prefix}{key}" if key else self.prefix.rstrip(".")
-        line = self.loc.line(field)
-        where = f"{self.path}:{line}"
-        self.problems.append((self.path, line, f"{where}: {field}: {message}" if field else f"{where}: {message}"))
-
-    def keys(self, allowed: tuple[str, ...]) -> None:
-        for key in self.data:
-            if key not in allowed:
-                self.error(key, f"unknown key; allowed: {', '.join(allowed)}")
-
-    def table(self, key: str, required: bool = True, allowed: tuple[str, ...] | None = None) -> _Reader:
-        value, refused = self.data.get(key, _REQUIRED), self.refused
-        if value is _REQUIRED:
-            if required and not refused:
-                self.error(key, "missing section")
-            value, refused = {}, refused or required
-        elif not isinstance(value, dict):
-            self.error(key, "must be a table")
-            value, refused = {}, True
-        table = _Reader(self.path, value, f"{self.prefix}{key}.", self.loc, self.problems, refused)
-        if allowed is not None:
-            table.keys(allowed)
-        return table
-
-    def _value(self, key: str, default):
-        value = self.data.get(key, default)
-        if value is _REQUIRED:
-            if not self.refused:
-                self.error(key, "missing")
-            return None
-        return value  # None: absent, and its default depends on a value already refused
-
-    def number(self, key: str, default=_REQUIRED, lo: float = -math.inf, hi: float = math.inf, lo_open=False,
-               hi_open=False) -> float | None:
-        value = self._value(key, default)
-        if value is None:
-            return None
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            return self.error(key, f"{value!r} is not a finite number")
-        below = value <= lo if lo_open else value < lo
-        above = value >= hi if hi_open else value > hi
-        if below or above:
-            left, right = "(" if lo_open else "[", ")" if hi_open else "]"
-            return self.error(key, f"{value!r} is out of range; allowed: {left}{lo:g}, {hi:g}{right}")
-        return float(value)
-
-    def integer(self, key: str, default=_REQUIRED, lo: int = 1, hi: int = 1 << 30) -> int | None:
-        value = self._value(key, default)
-        if value is None:
-            return None
-        if isinstance(value, bool) or not isinstance(value, int):
-            return self.error(key, f"{value!r} is not an integer")
-        if not lo <= value <= hi:
-            return self.error(key, f"{value!r} is out of range; allowed: {lo}..{hi}")
-        return value
-
-    def string(self, key: str, default=_REQUIRED, choices: tuple[str, ...] | None = None) -> str | None:
-        value = self._value(key, default)
-        if value is None:
-            return None
-        if not isinstance(value, str):
-            return self.error(key, f"{value!r} is not a string")
-        if choices is not None and value not in choices:
-            return self.error(key, f"{value!r} is not one of {', '.join(choices)}")
-        return value
-
-    def vector(self, key: str, default=_REQUIRED) -> Vec3 | None:
-        value = self._value(key, default)
-        if value is None:
-            return None
-        ok = isinstance(value, list) and len(value) == 3
-        ok = ok and all(not isinstance(c, bool) and isinstance(c, (int, float)) and math.isfinite(c) for c in value)
-        if not ok:
-            return self.error(key, f"{value!r} is not a list of three numbers (metres)")
-        return (float(value[0]), float(value[1]), float(value[2]))
-
-    def path_value(self, key: str) -> Path | None:
-        s = self.string(key)
-        if s is None:
-            return None
-        p = Path(s)
-        return p if p.is_absolute() else (self.path.parent / p).resolve()
 
 
 def load_scene(path: str | Path) -> SceneSpec:
@@ -249,36 +167,40 @@ def load_scene(path: str | Path) -> SceneSpec:
     except TomlFileError as exc:
         raise SceneError(str(exc)) from None
     problems: list = []
-    root = _Reader(path, data, "", loc, problems)
+    root = TableReader(path, data, "", loc, problems)
     for key, value in data.items():
         if key not in SECTIONS:
             what = "section" if isinstance(value, (dict, list)) else "key"
             root.error(key, f"unknown {what}; allowed: {', '.join(SECTIONS)}")
-    scene = root.table("scene", required=False, allowed=("name", "description", "duration"))
-    mesh = root.table("mesh", allowed=("path",))
-    material = root.table("material", allowed=("young", "poisson", "density"))
-    fixed = root.table("fixed", allowed=("axis", "from_bottom"))
-    model = root.table("model", allowed=("name",))
-    servo = root.table("servo", required=False, allowed=("rate_hz",))
-    visual = root.table("visual", required=False, allowed=("rate_hz",))
-    renderer = root.table("renderer", required=False, allowed=("kind", "width", "height", "fps"))
-    view = root.table("view", required=False, allowed=("front", "up", "zoom"))
+    tables = {name: root.table(name, required=required, allowed=allowed) for name, (required, allowed) in SECTION_KEYS.items()}
+    models, default_model = _models(root, tables["model"])
+    hands = _hands(root)
+    spec = _scene_spec(path, tables, models, default_model, hands)
+    _raise_problems(problems, path)
+    return spec
 
+
+def _models(root: TableReader, model: TableReader) -> tuple[dict[str, ModelSpec], str | None]:
+    """The [models.NAME] sections, and the default model [model] names."""
     models_table = root.table("models")
     models: dict[str, ModelSpec] = {}
     for name in models_table.data:
         spec = _model_spec(models_table, name)
         if spec is not None:
             models[name] = spec
-    if not models_table.data and isinstance(data.get("models"), dict):
+    if not models_table.data and isinstance(root.data.get("models"), dict):
         models_table.error("", "no model configured")
     default_model = model.string("name")
     if default_model is not None and models_table.data and default_model not in models_table.data:
         model.error("name", f"{default_model!r} has no [models.{default_model}] section")
+    return models, default_model
 
-    hands_data = data.get("hands", _REQUIRED)
+
+def _hands(root: TableReader) -> list[HandSpec]:
+    """The one or two [[hands]] tables, with distinct names."""
+    hands_data = root.data.get("hands", REQUIRED)
     hands: list[HandSpec] = []
-    if hands_data is _REQUIRED:
+    if hands_data is REQUIRED:
         root.error("hands", "missing: a scene needs one or two [[hands]]")
     elif not isinstance(hands_data, list) or not hands_data:
         root.error("hands", "a scene needs one or two [[hands]] tables")
@@ -289,17 +211,22 @@ def load_scene(path: str | Path) -> SceneSpec:
             if not isinstance(h, dict):
                 root.error(f"hands[{k}]", "must be a table")
                 continue
-            hand = _Reader(path, h, f"hands[{k}].", loc, problems)
+            hand = TableReader(root.path, h, f"hands[{k}].", root.loc, root.problems)
             hands.append(_hand_spec(hand))
             earlier = [j for j, other in enumerate(hands[:-1]) if hands[-1].name is not None and other.name == hands[-1].name]
             if earlier:
                 hand.error("name", f"{hands[-1].name!r} is also the name of hands[{earlier[0]}]; hand names must be distinct")
+    return hands
 
+
+def _scene_spec(path: Path, t: dict[str, TableReader], models: dict[str, ModelSpec], default_model: str | None,
+                hands: list[HandSpec]) -> SceneSpec:
+    """The spec from the scene's sections `t` (a value refused is None; its problem recorded)."""
+    scene, mesh, material, fixed, renderer = t["scene"], t["mesh"], t["material"], t["fixed"], t["renderer"]
     mesh_path = mesh.path_value("path")
     if mesh_path is not None and not mesh_path.exists():
         mesh.error("path", f"{mesh_path} does not exist")
-
-    spec = SceneSpec(
+    return SceneSpec(
         path=path,
         name=scene.string("name", default=path.stem),
         description=scene.string("description", default=""),
@@ -313,10 +240,10 @@ def load_scene(path: str | Path) -> SceneSpec:
         model=default_model,
         models=models,
         hands=tuple(hands),
-        servo_rate_hz=servo.number("rate_hz", default=1000.0, lo=100.0, hi=10000.0),
-        visual_rate_hz=visual.number("rate_hz", default=30.0, lo=1.0, hi=240.0),
+        servo_rate_hz=t["servo"].number("rate_hz", default=1000.0, lo=100.0, hi=10000.0),
+        visual_rate_hz=t["visual"].number("rate_hz", default=30.0, lo=1.0, hi=240.0),
         duration=scene.number("duration", default=3.0, lo=0.0, lo_open=True),
-        view=_view_spec(view),
+        view=_view_spec(t["view"]),
         renderer=RendererSpec(
             kind=renderer.string("kind", default="none", choices=RENDERERS),
             width=renderer.integer("width", default=640, lo=16, hi=4096),
@@ -324,13 +251,17 @@ def load_scene(path: str | Path) -> SceneSpec:
             fps=renderer.number("fps", default=10.0, lo=0.0, hi=240.0, lo_open=True),
         ),
     )
-    if problems:  # the scene file's in line order, then those of the files it names
+
+
+def _raise_problems(problems: list, path: Path) -> None:
+    """One SceneError of every problem, if any: those of the file `path` in line order, then
+    those of the files it names."""
+    if problems:
         problems.sort(key=lambda p: (p[0] != path, str(p[0]), p[1]))
         raise SceneError([text for _, _, text in problems])
-    return spec
 
 
-def _view_spec(view: _Reader) -> ViewSpec:
+def _view_spec(view: TableReader) -> ViewSpec:
     d = ViewSpec()
     front, up = view.vector("front", default=list(d.front)), view.vector("up", default=list(d.up))
     if front is not None and up is not None and (
@@ -340,7 +271,7 @@ def _view_spec(view: _Reader) -> ViewSpec:
     return ViewSpec(front=front, up=up, zoom=view.number("zoom", default=d.zoom, lo=0.05, hi=5.0))
 
 
-def _model_spec(models: _Reader, name: str) -> ModelSpec | None:
+def _model_spec(models: TableReader, name: str) -> ModelSpec | None:
     from sim.models import MODELS
 
     if name not in MODELS:
@@ -364,7 +295,7 @@ def configure(spec: SceneSpec, table: dict, path: Path, loc: Locator, prefix: st
     model = table["model"]
     overrides = {k: v for k, v in table.items() if k != "model"}
     problems: list = []
-    reader = _Reader(path, overrides, prefix, loc, problems)
+    reader = TableReader(path, overrides, prefix, loc, problems)
     reader.keys(("model",) + MODEL_KEYS[model] + CONDITION_KEYS[model])
     if model not in spec.models:
         reader.error("model", f"{model!r} is not configured in the scene {spec.path}; configured: {', '.join(sorted(spec.models))}")
@@ -375,7 +306,7 @@ def configure(spec: SceneSpec, table: dict, path: Path, loc: Locator, prefix: st
         if isinstance(base.get(key), str) and not Path(base[key]).is_absolute():
             base[key] = str((spec.path.parent / base[key]).resolve())
     merged_problems: list = []
-    merged = _Reader(path, base | {k: v for k, v in overrides.items() if k in MODEL_KEYS[model]}, prefix, loc, merged_problems)
+    merged = TableReader(path, base | {k: v for k, v in overrides.items() if k in MODEL_KEYS[model]}, prefix, loc, merged_problems)
     model_spec = _model_options(merged, model)
     for file, line, text in merged_problems:  # a key the condition left to the scene: say so
         key = text.split(": ")[1].rsplit(".", 1)[-1] if text.count(": ") >= 2 else ""
@@ -385,14 +316,12 @@ def configure(spec: SceneSpec, table: dict, path: Path, loc: Locator, prefix: st
     material = spec.material
     young = reader.number("young", default=material.young, lo=0.0, lo_open=True)
     poisson = reader.number("poisson", default=material.poisson, lo=POISSON_MIN, hi=POISSON_MAX, hi_open=True)
-    if problems:
-        problems.sort(key=lambda p: (p[0] != path, str(p[0]), p[1]))
-        raise SceneError([text for _, _, text in problems])
+    _raise_problems(problems, path)
     material = dataclasses.replace(material, young=young, poisson=poisson)
     return dataclasses.replace(spec, material=material, model=model, models={**spec.models, model: model_spec})
 
 
-def _model_options(table: _Reader, name: str) -> ModelSpec | None:
+def _model_options(table: TableReader, name: str) -> ModelSpec | None:
     if name == "plate_spring":
         from sim.models.plate_spring import MODEL_VARIANTS
 
@@ -402,22 +331,24 @@ def _model_options(table: _Reader, name: str) -> ModelSpec | None:
             options["field"] = table.path_value("field")
             if options["field"] is not None and not options["field"].is_file():
                 table.error("field", f"{options['field']}: no such file (a stiffness field: `studyctl calibrate field`)")
-        raw = table.data.get("params", _REQUIRED)
+        raw = table.data.get("params", REQUIRED)
         params = None
         if isinstance(raw, str):
             params = _params_file(table, table.path_value("params"))
         elif isinstance(raw, dict):
             params = _plate_spring_params(table.table("params"))
-        elif raw is _REQUIRED:
+        elif raw is REQUIRED:
             table.error("params", "missing: a parameter file (a path) or an inline table")
         else:
             table.error("params", f"{raw!r} is neither a parameter file (a path) nor a table")
         return ModelSpec(name=name, variant=variant, plate_spring=params, options=options)
     if name == "fem":
-        resolution = table.number("resolution", default=0.004, lo=0.003, hi=0.008)
+        # the defaults: P2 on the shipped 8 mm body-fitted mesh (sim/models/fem/model.py:
+        # DEFAULT_RESOLUTION, DEFAULT_ORDER); the corotational update runs on P1 only
+        resolution = table.number("resolution", default=0.008, lo=0.003, hi=0.008)
         formulation = table.string("formulation", default="linear", choices=("linear", "corotational"))
         grasp_radius = table.number("grasp_radius", default=GRASP_RADIUS, lo=0.0, hi=0.02)
-        order = table.integer("order", default=1, lo=1, hi=2)
+        order = table.integer("order", default=1 if formulation == "corotational" else 2, lo=1, hi=2)
         if order == 2 and formulation == "corotational":
             table.error("order", "quadratic tetrahedra (order 2) run the linear formulation only")
         return ModelSpec(name=name, options={"resolution": resolution, "formulation": formulation, "grasp_radius": grasp_radius,
@@ -429,7 +360,7 @@ def _model_options(table: _Reader, name: str) -> ModelSpec | None:
         OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m
 
         return ModelSpec(name=name, options={
-            "resolution": table.number("resolution", default=0.004, lo=0.003, hi=0.008),
+            "resolution": table.number("resolution", default=0.008, lo=0.003, hi=0.008),
             "integrator": table.string("integrator", default="local-global", choices=INTEGRATORS),
             "dt": table.number("dt", default=1 / 60, lo=1e-5, hi=0.05),
             "damping": table.number("damping", default=5.0, lo=0.0, hi=1e4),
@@ -441,7 +372,7 @@ def _model_options(table: _Reader, name: str) -> ModelSpec | None:
     return ModelSpec(name=name, options=dict(table.data))
 
 
-def _params_file(table: _Reader, path: Path | None):
+def _params_file(table: TableReader, path: Path | None):
     """The plate-spring parameter file a scene names, its problems named by that file's lines."""
     if path is None:
         return None
@@ -452,10 +383,10 @@ def _params_file(table: _Reader, path: Path | None):
     except TomlFileError as exc:
         table.problems.append((path, 0, str(exc)))
         return None
-    return _plate_spring_params(_Reader(path, data, "", loc, table.problems))
+    return _plate_spring_params(TableReader(path, data, "", loc, table.problems))
 
 
-def _plate_spring_params(r: _Reader):
+def _plate_spring_params(r: TableReader):
     """PlateSpringParams from a table (a parameter file or an inline table): unknown, missing
     and non-numeric keys are all reported; then the first value out of range (the checks of
     PlateSpringParams, some of which relate several keys)."""
@@ -470,8 +401,8 @@ def _plate_spring_params(r: _Reader):
         r.error("", f"missing key{'s' if len(missing) > 1 else ''} {', '.join(missing)}; required: {', '.join(keys)}")
     ok = not missing
     for key in keys:
-        v = values[key] = r.data.get(key, _REQUIRED)
-        if v is _REQUIRED:
+        v = values[key] = r.data.get(key, REQUIRED)
+        if v is REQUIRED:
             continue
         if key == "layers" and (isinstance(v, bool) or not isinstance(v, int)):
             r.error(key, f"{v!r} is not an integer")
@@ -494,7 +425,7 @@ def _plate_spring_params(r: _Reader):
         return None
 
 
-def _hand_spec(h: _Reader) -> HandSpec:
+def _hand_spec(h: TableReader) -> HandSpec:
     from sim.devices import BACKENDS
 
     h.keys(HAND_KEYS)

@@ -164,7 +164,10 @@ class ServoLoop:
             h.contact_t = 0.0
 
     def tick(self, t: float, device_t: float | None = None) -> None:
-        """One tick at run time `t`; devices read at `device_t` (default `t`)."""
+        """One tick at run time `t`; devices read at `device_t` (default `t`).
+
+        Kept as one function on purpose: it is the 1 kHz hot loop, where each Python call costs
+        about 0.1 us of a 1 ms budget shared with the device I/O; its parts are marked below."""
         clock = time.perf_counter
         start = clock()
         row: list[float] = [t, 0.0, 0.0]

@@ -113,26 +113,25 @@ def read_profile(path: str | Path) -> dict:
     return data
 
 
-def store_profile(db, profile: dict, source: str) -> int:
-    """Keep `profile` with the study (one row per configuration, replacing an older one). Refused
-    when none of its entries is a configuration of the study's conditions, and once sessions
-    have run (their synthetic participants perceived the profile they had: a new one would
-    change the later participants alone)."""
+def store_profile(store, profile: dict, source: str) -> int:
+    """Keep `profile` with the study in `store` (an open studyctl.store.Store, for writing): one
+    row per configuration, replacing an older one. Refused when none of its entries is a
+    configuration of the study's conditions, and once sessions have run (their synthetic
+    participants perceived the profile they had: a new one would change the later participants alone)."""
     from studyctl.errors import StoreError
-    from studyctl.store import Store
 
-    with Store(db) as store:
-        protocol = store.protocol()
-        if not set(condition_keys(protocol).values()) & {r["key"] for r in profile["conditions"]}:
-            raise InputError(f"the profile has no entry for the configurations of {db}'s conditions ({', '.join(protocol.conditions)}): "
-                             "measure it with `studyctl calibrate rig --db` on the rig")
-        ran = store.rows("select count(*) as n from sessions")[0]["n"]
-        if ran:
-            raise StoreError(f"{db}: {ran} sessions have run with the rig profile they had; a new one would apply to later "
-                             "participants only: calibrate before the first session")
-        with store.transaction() as conn:
-            _keep(conn, profile["conditions"], profile, source)
-        return len(profile["conditions"])
+    db = store.path
+    protocol = store.protocol()
+    if not set(condition_keys(protocol).values()) & {r["key"] for r in profile["conditions"]}:
+        raise InputError(f"the profile has no entry for the configurations of {db}'s conditions ({', '.join(protocol.conditions)}): "
+                         "measure it with `studyctl calibrate rig --db` on the rig")
+    ran = store.rows("select count(*) as n from sessions")[0]["n"]
+    if ran:
+        raise StoreError(f"{db}: {ran} sessions have run with the rig profile they had; a new one would apply to later "
+                         "participants only: calibrate before the first session")
+    with store.transaction() as conn:
+        _keep(conn, profile["conditions"], profile, source)
+    return len(profile["conditions"])
 
 
 def frame_times(protocol, store=None) -> dict[str, dict]:
@@ -156,20 +155,19 @@ def frame_times(protocol, store=None) -> dict[str, dict]:
     return {c: {"frame_ms": known[k][0], "source": known[k][1]} for c, k in keys.items()}
 
 
-def keep_shipped(db) -> int:
-    """Store the shipped profile's rows for the study's conditions with the study, once, when it
-    has none of its own (so an export says which frame times its synthetic sessions used)."""
+def keep_shipped(store) -> int:
+    """Store the shipped profile's rows for the study's conditions with the study in `store` (an
+    open studyctl.store.Store, for writing), once, when it has none of its own (so an export
+    says which frame times its synthetic sessions used)."""
     from brainsim_assets import path as asset
-    from studyctl.store import Store
 
-    with Store(db) as store:
-        if store.rows("select 1 from rig_profile limit 1") or not asset(SHIPPED).exists():
-            return 0
-        keys = set(condition_keys(store.protocol()).values())
-        shipped = read_profile(asset(SHIPPED))
-        rows = [r for r in shipped["conditions"] if r["key"] in keys]
-        if len(rows) < len(keys):
-            return 0
-        with store.transaction() as conn:
-            _keep(conn, rows, shipped, f"shipped {SHIPPED}", verb="ignore")
-        return len(rows)
+    if store.rows("select 1 from rig_profile limit 1") or not asset(SHIPPED).exists():
+        return 0
+    keys = set(condition_keys(store.protocol()).values())
+    shipped = read_profile(asset(SHIPPED))
+    rows = [r for r in shipped["conditions"] if r["key"] in keys]
+    if len(rows) < len(keys):
+        return 0
+    with store.transaction() as conn:
+        _keep(conn, rows, shipped, f"shipped {SHIPPED}", verb="ignore")
+    return len(rows)

@@ -195,11 +195,6 @@ def inspect(path: str | Path) -> tuple[str, list[str]]:
         raise StoreError(f"{path}: not a study database ({exc})") from None
 
 
-def connect_read(path: str | Path) -> sqlite3.Connection:
-    """A read-only connection to a study database (reports read through pandas with it)."""
-    return Store(path, mode="read").db.conn
-
-
 class Store:
     """An open study database.
 

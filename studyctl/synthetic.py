@@ -148,6 +148,7 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
 
     from studyctl.errors import InputError
     from studyctl.protocol import load_protocol
+    from studyctl.rig import keep_shipped
     from studyctl.store import Store, init_study, now
     from studyctl.study import assign_order
 
@@ -176,9 +177,7 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
                 conn.execute("insert into participants (code, age, synthetic, created_at) values (?, ?, 1, ?)",
                              (code, rng.randint(protocol.age_min, protocol.age_max), now()))
                 assign_order(store, protocol, code)
-    from studyctl.rig import keep_shipped
-
-    keep_shipped(db)  # the frame times its synthetic participants perceive, kept with the study
+        keep_shipped(store)  # the frame times its synthetic participants perceive, kept with the study
     tasks = [(str(db), code, seed, first_id + k) for k, code in enumerate(codes)]
     t0 = _time.perf_counter()
     if jobs == 1:

@@ -2,7 +2,7 @@
 
 The observer (studyctl/observer.py) judges every condition's rendered force against the force
 the converged reference gives for the same hand motion and grasp: linear elasticity on
-quadratic tetrahedra of body-fitted meshes of 8, 5.5 and 4 mm (fTetWild), Richardson-
+quadratic tetrahedra on the shipped body-fitted meshes of 8, 6 and 4 mm (fTetWild), Richardson-
 extrapolated (analysis/reference.py, docs/reference.md). It is none of the study's models and
 nothing is calibrated against it (the located plate-spring's field is solved on the 8 mm mesh
 alone, and is not a study condition).
@@ -28,7 +28,7 @@ from studyctl.errors import InputError
 
 TRUTH_FILE = _asset("data/observer_truth.npz")
 TRUTH_RADIUS = 0.010  # m around each hand's start: the motor model's grasps land within a few mm
-TRUTH_SIZES_MM = (8.0, 5.5, 4.0)
+TRUTH_SIZES_MM = (8.0, 6.0, 4.0)  # the shipped body-fitted meshes (sim/tetmesh.py)
 
 
 @dataclass(frozen=True)

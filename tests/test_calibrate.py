@@ -23,13 +23,15 @@ def test_fit_recovers_a_curve_the_model_can_make():
         assert 1.0 <= getattr(fitted, k) <= (2.0 if k == "alpha" else 1.5)  # within the paper's bounds
 
 
-def test_cli_calibrates_to_the_fem_and_to_a_csv(tmp_path):
-    # the nonlinear FEM reference on a 6 mm mesh (the shipped fit used 3 mm: minutes)
-    res = CliRunner().invoke(cli, ["calibrate", "plate-spring", "--resolution", "6", "--json", "--out", str(tmp_path / "cal.toml")])
+def test_cli_calibrates_to_the_converged_reference_and_to_a_csv(tmp_path, monkeypatch):
+    # the converged reference on the bench's six calibration pulls; here on the two coarser
+    # shipped meshes (the shipped fit used all three: the 4 mm P2 solves take a minute)
+    monkeypatch.setattr("analysis.reference.DEFAULT_SIZES_MM", (8.0, 6.0))
+    res = CliRunner().invoke(cli, ["calibrate", "plate-spring", "--samples", "3", "--json", "--out", str(tmp_path / "cal.toml")])
     assert res.exit_code == 0, res.output
     rep = json.loads(res.output)
-    assert rep["points"] == 12 and "neo-hookean, 6 mm" in rep["reference"]
-    assert rep["within_jnd"] >= 0.9
+    assert rep["points"] == 18 and "converged reference" in rep["reference"] and "8, 6 mm" in rep["reference"]
+    assert rep["within_jnd"] >= 0.5  # one force curve for six pulls of different stiffness: not all within
     fitted = load_params(tmp_path / "cal.toml")  # a valid parameter file
     assert fitted.alpha == rep["fitted"]["alpha"]
     (tmp_path / "curve.csv").write_text("displacement_m,force_n\n0.005,0.05\n0.01,0.11\n0.015,0.18\n0.02,0.26\n")

@@ -9,7 +9,8 @@ from click.testing import CliRunner
 from sim.models.fem import FemModel, fixed_nodes
 from sim.run import run_scene
 from sim.scene import build_scene
-from sim.volume import embed, voxel_volume
+from sim.tetmesh import body_volume
+from sim.volume import embed
 from studyctl.cli import cli
 from tests.conftest import SCENE
 
@@ -19,7 +20,7 @@ LEFT, LEFT2, RIGHT = (-0.0313, -0.0186, 0.0723), (-0.045, 0.0, 0.06), (0.0315, -
 @pytest.fixture(scope="module")
 def model():
     scene = build_scene(SCENE)
-    volume = voxel_volume(scene.mesh, 0.008)
+    volume = body_volume(scene.mesh, 0.008)
     fixed = fixed_nodes(volume, scene.mesh, scene.fixed_mask, 2)
     return FemModel(scene.mesh, volume, 3000.0, 0.45, fixed)
 
@@ -33,9 +34,10 @@ def test_condensed_stiffness_reproduces_a_direct_solve(model):
     assert np.allclose(model.force(c, tuple(d)), -f, rtol=1e-9, atol=1e-12)
     # and the deformation field of the frame is that solution, embedded on the surface
     field = model.deformation([c], [d])
-    nodal = np.zeros((model.volume.n_nodes, 3))
-    nodal[model.part_nodes[c.data.part]] = part.from_free(u)
-    assert np.allclose(field, model.embedding.matrix @ nodal, atol=1e-15)
+    nodal = np.zeros((model.n_model_nodes, 3))
+    start = model.offsets[c.data.part]
+    nodal[start : start + part.n_all] = part.from_free(u, corners=False)
+    assert np.allclose(field, model.surface_matrix @ nodal, atol=1e-15)
     patch, share = model.grasp_patch(c.vertex)
     assert np.allclose(share @ field[patch], d, atol=1e-3 * np.linalg.norm(d))
 
@@ -82,7 +84,7 @@ def test_sim_run_with_fem_lockstep():
 
 
 def test_cli_model_fem_json_and_errors():
-    res = CliRunner().invoke(cli, ["model", "fem", "--resolution", "8", "--grasp", ",".join(map(str, LEFT)), "--displacement", "-0.005,0,0", "--json"])
+    res = CliRunner().invoke(cli, ["model", "fem", "--resolution", "8", "--order", "1", "--grasp", ",".join(map(str, LEFT)), "--displacement", "-0.005,0,0", "--json"])
     assert res.exit_code == 0, res.output
     out = json.loads(res.output)
     assert out["force_n"][0] > 0 and out["converged"] and out["locking"]  # linear tetrahedra at Poisson 0.45
@@ -95,7 +97,7 @@ def test_cli_model_fem_json_and_errors():
 
 @pytest.mark.parametrize("formulation", ["corotational", "neo-hookean"])
 def test_cli_nonlinear_formulations_converge_and_agree_for_small_pulls(formulation):
-    args = ["model", "fem", "--resolution", "8", "--grasp", ",".join(map(str, LEFT)), "--json"]
+    args = ["model", "fem", "--resolution", "8", "--order", "1", "--grasp", ",".join(map(str, LEFT)), "--json"]
     lin = json.loads(CliRunner().invoke(cli, [*args, "--displacement", "-0.0005,0,0"]).output)
     res = CliRunner().invoke(cli, [*args, "--displacement", "-0.0005,0,0", "--formulation", formulation, "--steps", "1"])
     out = json.loads(res.output)
@@ -107,7 +109,7 @@ def test_corotational_haptic_frames_converge_to_the_static_corotational_solution
     from sim.models.fem import corotational_solve
 
     scene = build_scene(SCENE)
-    volume = voxel_volume(scene.mesh, 0.008)
+    volume = body_volume(scene.mesh, 0.008)
     fixed = fixed_nodes(volume, scene.mesh, scene.fixed_mask, 2)
     model = FemModel(scene.mesh, volume, 3000.0, 0.45, fixed, formulation="corotational")
     c = model.grasp(LEFT, 0)
@@ -138,7 +140,7 @@ def test_corotational_fem_gives_up_when_an_element_inverts():
 
     scene = scene_with(DEFAULT_SCENE)
     pull = next(p for p in test_pulls(scene) if p.name == "test1-anterior")
-    model = _build_model(scene, Setting("fem", "c", (("formulation", "corotational"), ("resolution", 0.006))), HANDSET_PARAMS, 1.0)
+    model = _build_model(scene, Setting("fem", "c", (("formulation", "corotational"), ("resolution", 0.006), ("order", 1))), HANDSET_PARAMS, 1.0)
     c = model.grasp(pull.point, 0)
     forces = []
     for f in range(1, 73):
@@ -159,7 +161,7 @@ def test_corotational_fem_gives_up_when_an_element_inverts():
 def test_compiled_polar_rotations_equal_the_svd_ones():
     pytest.importorskip("numba")
     from sim.kernels import polar_rotations
-    from sim.models.fem import _svd_rotations
+    from sim.models.fem.corotational import _svd_rotations
 
     rng = np.random.default_rng(1)
     F = np.eye(3) + 0.4 * rng.normal(size=(5000, 3, 3))

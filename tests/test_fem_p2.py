@@ -4,7 +4,8 @@ locking flag that follows the element (issue 16)."""
 import numpy as np
 import pytest
 
-from sim.models.fem import LinearFem, p2_mesh
+from sim.models.fem import LinearFem
+from sim.models.fem.p2 import mesh as p2_mesh
 from tests.test_fem import box
 
 L, H, E, NU, P = 0.1, 0.01, 1e6, 0.3, 1e-3

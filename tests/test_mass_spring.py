@@ -8,7 +8,7 @@ import pytest
 from sim.errors import ParameterError
 from sim.models.fem import LinearFem, constraint_matrix
 from sim.models.mass_spring import MassSpring, StabilityError, from_tets
-from sim.volume import grid_tets
+from sim.volume import grid_tets, locate
 
 
 def one_spring(k=40.0, m=0.01, stretch=0.002, damping=0.0):
@@ -94,7 +94,8 @@ def test_static_pull_against_linear_fem_on_the_same_mesh(capsys):
     fem = LinearFem(nodes, tets, E, 0.25, fixed)  # nu = 1/4: the lattice's own Poisson ratio
     ms = from_tets(nodes, tets, E, 1040.0, fixed=fixed)
     patch = np.flatnonzero((nodes[:, 2] > 0.02 - 1e-9) & (np.linalg.norm(nodes[:, :2] - 0.015, axis=1) < 0.0055))
-    W = constraint_matrix(fem, patch, np.full(len(patch), 1.0 / len(patch)))
+    tet, bary = locate(nodes, tets, nodes[patch])
+    W = constraint_matrix(fem, tet, bary, np.full(len(patch), 1.0 / len(patch)))
     C_fem = W @ fem.solve_free(W.T.toarray())
     free3 = (3 * ms.free[:, None] + np.arange(3)).ravel()
     K_ms = ms.stiffness_at_rest()[free3][:, free3]

@@ -19,7 +19,9 @@ def test_cli_mass_spring_reports_stability_and_cost():
     for key in ("critical_dt", "stable", "max_displacement", "ms_per_step"):
         assert key in out
     assert out["stable"] and 0.0 < out["max_displacement"] < 0.05
-    assert out["critical_dt"] < out["critical_dt_without_coupling"]  # the coupling spring stiffens the patch
+    # the coupling spring can only stiffen the patch; on the body-fitted mesh the smallest elements,
+    # by the folded surface, set the critical step, so it may not lower it
+    assert out["critical_dt"] <= out["critical_dt_without_coupling"] * (1 + 1e-9)  # equal to the last bits here
     res = CliRunner().invoke(cli, [*base, "--integrator", "explicit", "--dt", "0.02"])
     assert res.exit_code == 1 and "above the critical step" in res.output and len(res.output.strip().splitlines()) == 1
     res = CliRunner().invoke(cli, [*base, "--integrator", "explicit", "--dt", "0.02", "--substep", "--json"])

@@ -126,6 +126,15 @@ def test_margin_bounds_match_brute_force_over_every_pairing(yes, n):
         assert min_mcnemar_p(yes[a], yes[b], n) == pytest.approx(p)
 
 
+def _read(db):
+    """The study in `db`, read once, as the report commands read it."""
+    from analysis.study import read_study
+    from studyctl.store import Store
+
+    with Store(db, mode="read") as store:
+        return read_study(store)
+
+
 def _answers_db(tmp_path, answers: dict, orders: dict | None = None, protocol=None):
     """A study database holding these answers {code: {model: [0/1 per item]}} (imported, so no
     simulator runs); `orders` {code: [models]} recorded as their schedule."""
@@ -161,14 +170,15 @@ def test_one_n_rule_complete_cases_everywhere_and_the_rest_listed(tmp_path):
     answers["P98"] = {"fem": [1] * 9}  # stopped after one condition
     answers["P99"] = {m: [1] * 9 for m in models[:2]} | {"plate_spring": [1] * 4}  # stopped mid-questionnaire
     db = _answers_db(tmp_path, answers)
-    facts = study_facts(db)
+    study = _read(db)
+    facts = study_facts(study)
     assert facts["participants"] == 8
     assert facts["incomplete_participants"] == [{"code": "P98", "answers": 9, "of": 27}, {"code": "P99", "answers": 22, "of": 27}]
-    r = rates(db)
+    r = rates(study)
     assert (r["n"] == 8).all()  # the rates use the same 8 as the tests
-    st = study_stats(db)
+    st = study_stats(study)
     assert all(v["n_complete"] == 8 for v in st["items"].values()) and st["gee"]["composite"]["n_participants"] == 8
-    assert "N = 8 participants" in markdown(db) and "P98 (9/27), P99 (22/27)" in markdown(db)
+    assert "N = 8 participants" in markdown(study) and "P98 (9/27), P99 (22/27)" in markdown(study)
 
 
 def test_holm_over_the_family_of_27_pairs_by_default(tmp_path):
@@ -177,8 +187,8 @@ def test_holm_over_the_family_of_27_pairs_by_default(tmp_path):
     rng = np.random.default_rng(2)
     answers = {f"P{i:02d}": {"fem": rng.binomial(1, 0.9, 9).tolist(), "mass_spring": rng.binomial(1, 0.3, 9).tolist(),
                              "plate_spring": rng.binomial(1, 0.6, 9).tolist()} for i in range(20)}
-    db = _answers_db(tmp_path, answers)
-    fam, per = study_stats(db), study_stats(db, holm_scope="question")
+    study = _read(_answers_db(tmp_path, answers))
+    fam, per = study_stats(study), study_stats(study, holm_scope="question")
     raw = [p["p_value"] for v in fam["items"].values() for p in v["pairs"]]
     assert len(raw) == 27 and fam["holm"] == "family"
     assert [p["p_holm"] for v in fam["items"].values() for p in v["pairs"]] == pytest.approx(holm(raw))
@@ -227,7 +237,7 @@ def test_gee_has_the_period_factor_and_a_composite(tmp_path):
     models = ["fem", "mass_spring", "plate_spring"]
     orders = {f"P{i:02d}": [models[(i + k) % 3] for k in range(3)] for i in range(18)}
     answers = {c: {m: rng.binomial(1, 0.7, 9).tolist() for m in models} for c in orders}
-    gee = study_stats(_answers_db(tmp_path, answers, orders))["gee"]
+    gee = study_stats(_read(_answers_db(tmp_path, answers, orders)))["gee"]
     assert gee["period_factor"] is True
     assert gee["composite"]["formula"] == "answer ~ C(model) + C(period) + C(item)" and gee["composite"]["n_answers"] == 18 * 27
     assert set(gee["items"]) == {"natural", "behaviour", "texture", "comfortable", "guidance", "realtime", "feedback", "deformation", "stable"}
@@ -268,6 +278,49 @@ def test_latex_html_and_plots(small_study, tmp_path):
     assert names == ["deformation.png", "deformation.svg", "force.png", "force.svg", "rates.png", "rates.svg"]
 
 
+def test_a_report_reads_the_study_once(small_study, tmp_path, monkeypatch):
+    """Each report command opens the database once (one Store, no other connection) and makes
+    every table, statistic and plot from one snapshot (analysis.study.Study)."""
+    import dataclasses
+    import sqlite3
+
+    from studyctl.store import Store
+
+    opened, others, inside = [], [], []
+    store_init, connect = Store.__init__, sqlite3.connect
+
+    def counted_init(self, *args, **kwargs):
+        opened.append(args[0])
+        inside.append(self)
+        try:
+            store_init(self, *args, **kwargs)
+        finally:
+            inside.pop()
+
+    def counted_connect(*args, **kwargs):
+        if not inside:  # a connection that is not a Store's own
+            others.append(args[0])
+        return connect(*args, **kwargs)
+
+    monkeypatch.setattr(Store, "__init__", counted_init)
+    monkeypatch.setattr(sqlite3, "connect", counted_connect)
+    # the formats share one reading path (`_read`); html (with its plots) and the statistics are the heaviest readers
+    for args in (["table1", "--format", "html", "--out", str(tmp_path / "r.html")], ["table1", "--format", "latex"], ["stats", "--json"]):
+        opened.clear()
+        res = CliRunner().invoke(cli, ["report", *args, "--db", str(small_study)])
+        assert res.exit_code == 0, res.output
+        assert opened == [small_study] and others == [], args
+    assert "data:image/png;base64," in (tmp_path / "r.html").read_text()
+
+    from analysis.report import html
+
+    study = _read(small_study)
+    opened.clear()
+    assert html(study, force_traces=False).startswith("<!doctype html>") and opened == [] and others == []  # the snapshot alone
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        study.answers = None
+
+
 @pytest.mark.slow
 def test_html_report_renders_in_headless_chromium(small_study, tmp_path):
     import shutil
@@ -303,7 +356,7 @@ def test_latex_table_escapes_every_special_character_and_has_the_other_formats_c
     protocol.write_text(text)
     rng = np.random.default_rng(5)
     answers = {f"P{i:02d}": {m: rng.integers(0, 2, 9).tolist() for m in ("fem", "mass_spring", "plate_spring")} for i in range(6)}
-    tex = latex(_answers_db(tmp_path, answers, protocol=protocol))
+    tex = latex(_read(_answers_db(tmp_path, answers, protocol=protocol)))
     row = next(line for line in tex.splitlines() if line.startswith("Is \\{it"))
     question = row.split(" & ")[0]
     assert question == ("Is \\{it\\} \\$5\\textasciicircum 2 \\textasciitilde \\space \\& 50\\% of\\_the \\#1 "
@@ -325,9 +378,9 @@ def test_gee_says_not_estimable_when_a_model_answers_alike_throughout(tmp_path):
     rng = np.random.default_rng(6)
     answers = {f"P{i:02d}": {"fem": rng.integers(0, 2, 9).tolist(), "mass_spring": [0] * 9, "plate_spring": rng.integers(0, 2, 9).tolist()}
                for i in range(8)}
-    db = _answers_db(tmp_path, answers)
-    comp = study_stats(db)["gee"]["composite"]
+    study = _read(_answers_db(tmp_path, answers))
+    comp = study_stats(study)["gee"]["composite"]
     assert comp["estimable"] is False and not comp["converged"] and "mass_spring" in comp["problems"][0]
     bad = [p for p in comp["pairs"] if "mass_spring" in (p["a"], p["b"])]
     assert bad and all(not p["estimable"] and math.isnan(p["p_value"]) for p in bad)
-    assert "not estimable" in markdown(db) and "NOT ESTIMABLE" in markdown(db)
+    assert "not estimable" in markdown(study) and "NOT ESTIMABLE" in markdown(study)

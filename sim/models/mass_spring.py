@@ -4,7 +4,7 @@
 - implicit Euler (Baraff and Witkin 1998: one Newton step, one sparse solve per step);
 - local/global (Liu, Bargteil, O'Brien and Kavan 2013, "Fast simulation of mass-spring
   systems"): per step, alternate a local projection of every spring to its rest length with a
-  global solve of a constant matrix ``M + h^2 L``, factorised once per step size.
+  global solve of a constant matrix ``M + h^2 L``, factorised once per step size (local_global.py).
 
 Damping is mass-proportional: ``f = -damping * m * v`` (damping in 1/s). An energy monitor
 flags blow-up; an unstable model renders zero force. See docs/mass_spring.md.
@@ -24,16 +24,12 @@ from sim.errors import ParameterError, SimError
 from sim.laws import Coupling
 from sim.models import MASS_SPRING_INTEGRATORS as INTEGRATORS
 from sim.models.base import pull_problem
+from sim.models.local_global import ACCELERATIONS, ANDERSON_DEPTH, RHO_ITERATIONS, LocalGlobal  # noqa: F401 (re-exported)
 from sim.patch import GRASP_RADIUS
 
 OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m  # 700 N/m: stable closed-loop stiffness at 1 kHz
 SUBSTEP_FRACTION = 0.5  # explicit sub-steps are this fraction of critical_dt()
 MAX_SUBSTEPS = 2000  # more explicit sub-steps per step than this cannot serve a visual frame
-
-
-ACCELERATIONS = ("none", "chebyshev", "anderson")
-RHO_ITERATIONS = 120  # plain iterations that estimate the spectral radius (once per step size)
-ANDERSON_DEPTH = 5  # past iterates Anderson acceleration combines (Peng et al. 2018 use 5-6)
 
 
 def _spring_rhs():
@@ -69,7 +65,7 @@ class StepReport:
     unstable: bool
 
 
-class MassSpring:
+class MassSpring(LocalGlobal):
     """``MassSpring(positions, springs, stiffness, masses, fixed=None, damping=0.0)``."""
 
     def __init__(self, positions, springs, stiffness, masses, fixed=None, damping: float = 0.0, acceleration: str = "none"):
@@ -115,6 +111,11 @@ class MassSpring:
         # A: signed incidence (e, n); L = A^T diag(k) A is the graph Laplacian of the springs
         rows = np.repeat(np.arange(len(e)), 2)
         self._A = sp.csr_matrix((np.tile([1.0, -1.0], len(e)), (rows, e.ravel())), shape=(len(e), self.n))
+
+    @staticmethod
+    def _local_kernel():
+        """The compiled local step or None: `_spring_rhs` of this module (the NumPy path where it is swapped)."""
+        return _spring_rhs()
 
     # -- forces and energy ------------------------------------------------------------------
     def state(self) -> tuple:
@@ -264,8 +265,7 @@ class MassSpring:
         dominant kernels: per-spring work, sparse products (2 flops per entry and column),
         triangular solves (4 per factor entry and column) and, for the implicit integrator, the
         factorisation (sum of squared column counts of L)."""
-        n, e, nf = self.n, len(self.springs), len(self.free)
-        m = len(self.anchors)
+        n, e = self.n, len(self.springs)
         if integrator == "explicit":
             crit = self.critical_dt()
             n_sub = math.ceil(dt / (SUBSTEP_FRACTION * crit)) if dt > crit else 1
@@ -275,11 +275,7 @@ class MassSpring:
                 return math.nan
             nnz_L, fac, nnz_J = self._flops_cache["implicit"]
             return float(100 * e + 6 * nnz_J + fac + 4 * nnz_L + 20 * n)
-        solver = self._lg_solver(dt)
-        nnz_L = solver["factor"].nnz_L
-        m_act = len(self._moving)
-        per_iter = 6 * solver["A_act"].nnz + 10 * m_act + 6 * solver["Ak"].nnz + 6 * nf + 12 * nnz_L + (18 * nf * m if m else 0)
-        return float(iterations * per_iter + 6 * solver["L_fixed"].nnz + 20 * n)
+        return self._lg_flops(dt, iterations)
 
     def _accel(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         f = self.spring_forces(x) + self.anchor_forces(x) + self.external - self.damping * self.m[:, None] * v
@@ -321,179 +317,6 @@ class MassSpring:
         v[free3] += dv
         self.v = v.reshape(-1, 3)
         self.x += h * self.v
-
-    def _local_global(self, h: float, iterations: int) -> None:
-        """Liu et al. 2013: minimise |x - y|_M^2 / (2 h^2) + sum k/2 |x_i - x_j - d_ij|^2.
-
-        With `acceleration = "chebyshev"` (Wang 2015), iterate k+1 is
-        ``omega_k+1 (xhat_k+1 - x_k-1) + x_k-1`` from the second on, omega from the spectral
-        radius of the plain iteration (`lg_rho`, estimated once per step size)."""
-        solver = self._lg_solver(h)
-        m = self.m[:, None]
-        y = self.x + h * self.v + h * h * self.external / m
-        x = y.copy()
-        fixed = solver["fixed_idx"]
-        x[fixed] = self.rest_positions[fixed]
-        free = self.free
-        if "fixed_part" not in solver:  # the clamped nodes sit at rest: their pull is the same every step
-            solver["fixed_part"] = solver["L_fixed"] @ self.rest_positions[fixed] if len(fixed) else 0.0
-        wood = self._woodbury(solver, free)
-        # the right-hand side's fixed part, once per step (the same sums as inside the loop)
-        base = self.m[free, None] * y[free] / (h * h) - solver["fixed_part"]
-        if self.acceleration == "anderson":
-            x = self._anderson(solver, wood, base, x, y, h, iterations)
-            iterations = 0
-        rho = self.lg_rho(h) if self.acceleration == "chebyshev" else None
-        prev, omega = None, 1.0
-        for k in range(iterations):
-            xf = self._lg_global(solver, wood, base + self._lg_local(solver, x))
-            if rho is not None and k >= 1:  # Chebyshev semi-iteration on the free nodes
-                omega = 2.0 / (2.0 - rho * rho) if k == 1 else 4.0 / (4.0 - rho * rho * omega)
-                xf = omega * (xf - prev) + prev
-            prev = x[free].copy() if rho is not None else None
-            x[free] = xf
-        v = (x - self.x) / h
-        v[fixed] = 0.0
-        self.v = v / (1.0 + h * self.damping)  # mass-proportional damping, implicitly
-        self.x = x
-
-    def _anderson(self, solver: dict, wood, base: np.ndarray, x: np.ndarray, y: np.ndarray, h: float, iterations: int) -> np.ndarray:
-        """Anderson-accelerated local/global (Peng, Deng, Zhang and Liu 2018): each iterate
-        combines the last `ANDERSON_DEPTH` local/global updates, least squares on their
-        residuals (normal equations of at most ANDERSON_DEPTH columns); one that raises the
-        step's objective is replaced by the plain update and the history cleared (their
-        safeguard), so the objective still falls every iteration."""
-        free = self.free
-        size = 3 * len(free)
-        F = np.empty((ANDERSON_DEPTH, size))  # rows: differences of successive residuals (a ring)
-        G = np.empty((ANDERSON_DEPTH, size))  # and of successive updates
-        used, head = 0, 0
-        f_prev = g_prev = None
-        yf = y[free]
-        mass = self.m[free, None] / (h * h)
-        xf = x[free]  # the free rows of x, kept alongside it (x's free rows are written by _lg_objective)
-        energy = self._lg_objective(solver, x, xf, yf, mass)
-        for _ in range(iterations):
-            g = self._lg_global(solver, wood, base + self._lg_local(solver, x))
-            f = g - xf
-            if f_prev is not None:
-                np.subtract(f.ravel(), f_prev.ravel(), out=F[head])
-                np.subtract(g.ravel(), g_prev.ravel(), out=G[head])
-                head, used = (head + 1) % ANDERSON_DEPTH, min(used + 1, ANDERSON_DEPTH)
-            f_prev, g_prev = f, g
-            dF = F[:used]
-            gram = dF @ dF.T
-            if np.trace(gram) > 0.0:  # no history, or all-zero differences (converged to the last bit): plain update
-                # a tiny ridge keeps nearly parallel residual differences solvable
-                theta = np.linalg.solve(gram + 1e-12 * np.trace(gram) * np.eye(used), dF @ f.ravel())
-                cand = g - (theta @ G[:used]).reshape(g.shape)
-                trial = self._lg_objective(solver, x, cand, yf, mass)
-                if trial <= energy:
-                    energy, xf = trial, cand
-                    continue
-                used = head = 0
-            energy, xf = self._lg_objective(solver, x, g, yf, mass), g
-        return x
-
-    def _lg_objective(self, solver: dict, x: np.ndarray, xf: np.ndarray, yf: np.ndarray, mass: np.ndarray) -> float:
-        """The step's objective sum m |x - y|^2 / (2 h^2) + springs + anchors at x with its free
-        nodes at `xf` (x is changed: its free rows become xf). `mass` is m / h^2 on the free
-        rows; springs between two clamped nodes are left out (they are constant)."""
-        x[self.free] = xf
-        d = xf - yf
-        total = 0.5 * float(np.sum(mass * d * d))
-        for nodes, k, target in self.anchors:
-            total += 0.5 * k * float(np.sum((x[nodes].mean(axis=0) - target) ** 2))
-        return total + self._spring_energy(x)
-
-    def _lg_local(self, solver: dict, x: np.ndarray) -> np.ndarray:
-        """The local step and its share of the right-hand side, A^T diag(k) d (free rows): each
-        moving spring's vector projected to its rest length. One pass over the springs
-        (compiled, `sim/kernels.py`) where numba is installed, else sparse products."""
-        kernel = _spring_rhs()
-        if kernel is not None:
-            return kernel(x, solver["act_i"], solver["act_j"], solver["act_k"], solver["rest_act"], solver["free_pos"], len(self.free))
-        dvec = solver["A_act"] @ x  # vectors x_i - x_j of the springs that touch a free node
-        length = np.sqrt(np.einsum("ij,ij->i", dvec, dvec))
-        dvec *= (solver["rest_act"] / np.where(length > 0, length, 1.0))[:, None]
-        return solver["Ak"] @ dvec
-
-    @staticmethod
-    def _lg_global(solver: dict, wood, rhs: np.ndarray) -> np.ndarray:
-        """The global step: (M / h^2 + L) x = rhs on the free nodes (prefactored)."""
-        if wood is None:
-            return solver["factor"].solve(np.ascontiguousarray(rhs))
-        Wm, Z, Sinv, Wkt = wood  # anchors: (Q + W diag(k) W^T) x = rhs + W diag(k) T, by Woodbury
-        xb = solver["factor"].solve(np.ascontiguousarray(rhs + Wkt))
-        return xb - Z @ (Sinv @ (Wm.T @ xb))
-
-    def lg_rho(self, h: float) -> float:
-        """Spectral radius of the plain local/global iteration at step `h`: estimated once,
-        from the decay of successive updates over plain iterations from the rest state pulled
-        by a unit-scale random displacement (the iteration matrix depends on the step and the
-        springs, barely on the state). Capped at 0.9999."""
-        solver = self._lg_solver(h)
-        if "rho" not in solver:
-            # a smooth start (the whole tissue shifted and sheared): the slow modes that
-            # decide the rate; the fast ones have died out by the iterations measured
-            x = self.rest_positions.copy()
-            c = x[self.free] - x[self.free].mean(axis=0)
-            x[self.free] += 0.05 * c[:, [1, 2, 0]] + 1e-3
-            inertia = (self.m[:, None] * self.rest_positions / (h * h))[self.free]
-            fixed_part = solver["L_fixed"] @ x[self.fixed] if self.fixed.any() else 0.0
-            steps = []
-            for _ in range(RHO_ITERATIONS):
-                xf = self._lg_global(solver, None, inertia - fixed_part + self._lg_local(solver, x))
-                steps.append(float(np.linalg.norm(xf - x[self.free])))
-                x[self.free] = xf
-            tail = RHO_ITERATIONS // 2
-            ratios = np.array(steps[tail + 1:]) / np.array(steps[tail:-1])
-            solver["rho"] = float(min(np.exp(np.mean(np.log(ratios))), 0.9999))
-        return solver["rho"]
-
-    def _woodbury(self, solver: dict, free: np.ndarray):
-        """Precomputed pieces for the anchors' low-rank update of the global matrix."""
-        if not self.anchors:
-            return None
-        key = tuple((n, k) for n, k, _ in self.anchors)  # the arrays themselves: an id could be reused
-        cached = solver.get("wood")
-        pos = -np.ones(self.n, dtype=np.int64)
-        pos[free] = np.arange(len(free))
-        if cached is None or len(cached[0]) != len(key) or any(a is not b or ka != kb for (a, ka), (b, kb) in zip(cached[0], key)):
-            cols = []
-            for nodes, _, _ in self.anchors:
-                w = np.zeros(len(free))
-                p = pos[nodes]
-                w[p[p >= 0]] = 1.0 / len(nodes)
-                cols.append(w)
-            Wm = np.stack(cols, axis=1)  # (n_free, m)
-            Z = solver["factor"].solve(np.ascontiguousarray(Wm))
-            ks = np.array([k for _, k, _ in self.anchors])
-            Sinv = np.linalg.inv(np.diag(1.0 / ks) + Wm.T @ Z)
-            solver["wood"] = cached = (key, Wm, Z, Sinv)
-        _, Wm, Z, Sinv = cached
-        kt = np.stack([k * t for _, k, t in self.anchors])  # (m, 3)
-        return Wm, Z, Sinv, Wm @ kt  # W diag(k) T: the same for every iteration of the step
-
-    def _lg_solver(self, h: float) -> dict:
-        if h not in self._lg_cache:
-            from sim.linalg import Factor
-
-            L = (self._A.T @ sp.diags(self.k) @ self._A).tocsr()  # (n, n) spring Laplacian
-            M = sp.diags(self.m / (h * h))
-            free, fixed = self.free, np.flatnonzero(self.fixed)
-            Q = (M + L).tocsr()
-            active = self._moving  # springs between two clamped nodes never move: leave them out
-            A_act = self._A[active].tocsr()
-            Ak = (A_act.T.multiply(self.k[active][None, :])).tocsr()[free]  # (A^T diag(k)) on free rows
-            free_pos = -np.ones(self.n, dtype=np.int64)
-            free_pos[free] = np.arange(len(free))
-            e = self.springs[active]
-            self._lg_cache = {h: {"factor": Factor(Q[free][:, free], simplicial=True), "L_fixed": L[free][:, fixed],  # one step size at a time
-                                  "A_act": A_act, "Ak": Ak, "rest_act": self.rest[active],
-                                  "act_i": np.ascontiguousarray(e[:, 0]), "act_j": np.ascontiguousarray(e[:, 1]),
-                                  "act_k": np.ascontiguousarray(self.k[active]), "free_pos": free_pos, "fixed_idx": fixed}}
-        return self._lg_cache[h]
 
     def _monitor(self) -> float:
         """Energy monitor: NaN, runaway velocities or an energy jump of 1000x flag blow-up."""
@@ -680,10 +503,10 @@ class MassSpringModel:
 def build(mesh, spec, scene=None) -> MassSpringModel:
     from sim.models.fem import fixed_nodes
     from sim.scene import AXES
-    from sim.volume import voxel_volume
+    from sim.tetmesh import body_volume
 
     o = spec.options
-    volume = voxel_volume(mesh, o["resolution"])
+    volume = body_volume(mesh, o["resolution"])
     material = scene.spec.material
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])
     system = from_tets(volume.nodes, volume.tets, material.young, material.density, fixed=fixed, damping=o["damping"])
@@ -700,10 +523,10 @@ def hold_pull(scene, integrator: str, dt: float, steps: int, resolution: float |
     from sim.models.base import Contact  # noqa: F401
     from sim.models.fem import fixed_nodes
     from sim.scene import AXES
-    from sim.volume import voxel_volume
+    from sim.tetmesh import body_volume
 
     spec = scene.spec.models.get("mass_spring")
-    opts = spec.options if spec else {"resolution": 0.004, "damping": 5.0, "coupling": 300.0, "grasp_radius": GRASP_RADIUS, "iterations": 10}
+    opts = spec.options if spec else {"resolution": 0.008, "damping": 5.0, "coupling": 300.0, "grasp_radius": GRASP_RADIUS, "iterations": 10}
     resolution = opts["resolution"] if resolution is None else resolution
     if not 0.003 <= resolution <= 0.008:
         raise ParameterError(f"resolution: {resolution * 1e3:g} mm is out of range; allowed: 3..8 mm")
@@ -717,7 +540,7 @@ def hold_pull(scene, integrator: str, dt: float, steps: int, resolution: float |
     if (problem := pull_problem(displacement)) is not None:
         raise ParameterError(f"displacement: {problem}")
     mesh = scene.mesh
-    volume = voxel_volume(mesh, resolution)
+    volume = body_volume(mesh, resolution)
     material = scene.spec.material
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])
     system = from_tets(volume.nodes, volume.tets, material.young, material.density, fixed=fixed, damping=opts["damping"])

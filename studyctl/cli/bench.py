@@ -113,9 +113,9 @@ def _sizes_mm(ctx, param, value):
 @bench.command("reference")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--young", type=Finite(1.0, 1e9), default=None, help="Young's modulus, Pa (forces are proportional to it) [default: the scene's].")
-@click.option("--sizes", callback=_sizes_mm, default=None, help="fTetWild target edge lengths, mm, comma-separated [default: 8,5.5,4; --quick: 20,16].")
+@click.option("--sizes", callback=_sizes_mm, default=None, help="fTetWild target edge lengths, mm, comma-separated [default: 8,6,4, the shipped meshes; --quick: 20,16].")
 @click.option("--functional", type=click.Choice(["area", "vertices"]), default="area", show_default=True,
-              help="The grasp: mean displacement of the surface area within the grasp radius, or of its vertices (FemModel's; does not converge).")
+              help="The grasp: mean displacement of the surface area within the grasp radius, or of its vertices (does not converge).")
 @click.option("--formulation", type=click.Choice(["linear", "neo-hookean"]), default="linear", show_default=True,
               help="Small-strain linear elasticity (one solve per pull), or compressible neo-Hookean (Newton; minutes per pull and mesh).")
 @click.option("--pulls", "pull_names", default=None, help="Only these bench pulls, comma-separated (e.g. left-lateral,extra1-anterior).")

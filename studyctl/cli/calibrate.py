@@ -20,25 +20,28 @@ def calibrate():
 
 @calibrate.command("plate-spring")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
-@click.option("--reference", default="fem", show_default=True, help="fem (the scene's FEM) or a CSV with displacement_m, force_n.")
-@click.option("--formulation", type=click.Choice(["neo-hookean", "linear"]), default="neo-hookean", show_default=True, help="FEM reference formulation.")
-@click.option("--resolution", type=click.FloatRange(2, 8), default=3.0, show_default=True, help="FEM reference mesh spacing, mm (2 mm: about 8 min and 5 GB per pull the first time).")
+@click.option("--reference", default="converged", show_default=True,
+              help="converged (the accuracy bench's reference on its calibration pulls) or a CSV with displacement_m, force_n.")
+@click.option("--formulation", type=click.Choice(["linear", "neo-hookean"]), default="linear", show_default=True,
+              help="The reference's formulation (neo-hookean: solved on the 8 mm mesh, about 2 minutes per pull the first time).")
 @click.option("--max-displacement", type=click.FloatRange(min=0.001, max=0.1), default=0.024, show_default=True, help="m, the longest pull.")
 @click.option("--samples", type=click.IntRange(3, 100), default=6, show_default=True, help="Points per pull.")
 @click.option("--out", "out_file", type=OutFile((".toml",)), default=None, help="Write the fitted parameter file (.toml).")
 @click.option("--json", "as_json", is_flag=True)
-def calibrate_plate_spring(scene_file, reference, formulation, resolution, max_displacement, samples, out_file, as_json):
+def calibrate_plate_spring(scene_file, reference, formulation, max_displacement, samples, out_file, as_json):
     """Fit h1, alpha, q and x_c1 (within their bounds) to the reference force-displacement curve."""
     import numpy as np
 
-    from sim.calibrate import fem_curve, fit, read_curve, to_toml
+    from analysis.accuracy import calibration_curve
+    from sim.calibrate import fit, read_curve, to_toml
     from sim.scene import load_scene
+    from sim.tetmesh import SHIPPED_MM
 
     spec = load_scene(scene_file)
     ps = spec.model_spec("plate_spring")
-    if reference == "fem":
-        xs, forces = fem_curve(scene_file, max_displacement * np.arange(1, samples + 1) / samples, formulation, resolution / 1000)
-        reference = f"fem ({formulation}, {resolution:g} mm, the scene's {len(spec.hands)} scripted pulls)"
+    if reference == "converged":
+        nonlinear = max(SHIPPED_MM) if formulation == "neo-hookean" else None
+        xs, forces, reference = calibration_curve(scene_file, max_displacement * np.arange(1, samples + 1) / samples, nonlinear)
     else:
         xs, forces = read_curve(reference)
     params, rep = fit(ps.plate_spring, xs, forces, ps.variant)
@@ -119,14 +122,13 @@ def calibrate_rig(db, protocol_file, trials, profile_file, out_file, as_json):
     study: its synthetic participants perceive these as latency (studyctl/rig.py)."""
     from studyctl.protocol import load_protocol
     from studyctl.rig import measure, read_profile, store_profile
+    from studyctl.store import Store
 
     if (db is None) == (protocol_file is None):
         raise InputError("name the study (--db) or, to write a profile only, a protocol (--protocol with --out)")
     if protocol_file is not None and (out_file is None or profile_file is not None):
         raise InputError("--protocol: measures without a study, so it needs --out (and no --profile)")
     if db is not None:
-        from studyctl.store import Store
-
         with Store(db, mode="read") as store:
             protocol = store.protocol()
     else:
@@ -137,8 +139,9 @@ def calibrate_rig(db, protocol_file, trials, profile_file, out_file, as_json):
         profile, source = _with_progress("rig trials", lambda p: measure(protocol, trials, progress=p)), "measured"
     if out_file is not None:
         Path(out_file).write_text(json.dumps(profile, indent=2) + "\n")
-    if db is not None:
-        store_profile(db, profile, source)
+    if db is not None:  # opened for writing after the measuring, as before: a study that cannot be written still gets --out
+        with Store(db) as store:
+            store_profile(store, profile, source)
     if as_json:
         _print_json(profile | {"source": source})
         return
@@ -154,7 +157,7 @@ def calibrate_rig(db, protocol_file, trials, profile_file, out_file, as_json):
 @click.option("--json", "as_json", is_flag=True)
 def calibrate_truth(scene_file, vertices, out_file, as_json):
     """The synthetic observer's truth at grasp places: the converged P2 reference's grasp
-    stiffness (body-fitted 8 / 5.5 / 4 mm meshes, Richardson). Needed for a scene, or grasp
+    stiffness (the shipped body-fitted 8 / 6 / 4 mm meshes, Richardson). Needed for a scene, or grasp
     places, that the shipped table (data/observer_truth.npz) does not cover."""
     from analysis.truth import build_truth
 

@@ -123,12 +123,12 @@ def _check_grasp(grasp, mesh) -> None:
 
 @model.command("fem")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
-@click.option("--resolution", type=float, default=None, help="Grid spacing in millimetres, 3..8 (default: the scene's, else 4).")
+@click.option("--resolution", type=float, default=None, help="Target edge of the body-fitted mesh in millimetres, 3..8 (default: the scene's, else 8; 8, 6 and 4 are shipped).")
 @click.option("--formulation", type=click.Choice(["linear", "corotational", "neo-hookean"]), default="linear", show_default=True)
 @click.option("--grasp", required=True, callback=_vector, help=f"Grasp point X,Y,Z in metres, within the grasp reach ({VisualStep.grasp_reach * 1e3:g} mm) of the brain surface (snapped to it).")
 @click.option("--displacement", required=True, callback=_pull, help=f"Displacement DX,DY,DZ of the grasp point in metres, at most {MAX_PULL_M:g} m long.")
 @click.option("--steps", type=click.IntRange(1, 200), default=5, show_default=True, help="Load steps of the nonlinear solves.")
-@click.option("--order", type=click.IntRange(1, 2), default=None, help="Element order: 1 linear, 2 quadratic tetrahedra (default: the scene's, else 1).")
+@click.option("--order", type=click.IntRange(1, 2), default=None, help="Element order: 1 linear, 2 quadratic tetrahedra (default: the scene's, else 2; 1 for --formulation corotational).")
 @click.option("--json", "as_json", is_flag=True)
 def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacement, steps: int, order, as_json: bool):
     """Pull the brain once with the finite element model: force, displacement, phase times."""
@@ -188,7 +188,7 @@ def _check_converged(out: dict) -> None:
 
 @model.command("mass-spring")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
-@click.option("--resolution", type=float, default=None, help="Grid spacing in millimetres, 3..8 (default: the scene's).")
+@click.option("--resolution", type=float, default=None, help="Target edge of the body-fitted mesh in millimetres, 3..8 (default: the scene's).")
 @click.option("--integrator", type=click.Choice(["explicit", "implicit", "local-global"]), required=True)
 @click.option("--dt", type=Finite(min=0.0, min_open=True, max=0.1), required=True, help="Step in seconds, (0, 0.1].")
 @click.option("--steps", type=click.IntRange(1, 1_000_000), default=100, show_default=True)

@@ -21,6 +21,15 @@ def report():
     """Reports made from a study database."""
 
 
+def _read(db):
+    """The study in `db`, read once (analysis.study.Study): every report is made from it."""
+    from analysis.study import read_study
+    from studyctl.store import Store
+
+    with Store(db, mode="read") as store:
+        return read_study(store)
+
+
 HOLM = click.option("--holm", "holm_scope", type=click.Choice(["family", "question"]), default="family", show_default=True,
                     help="Holm over every pairwise test of every question (family), or within each question.")
 
@@ -39,12 +48,13 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
     (html: one self-contained file with the statistics and plots)."""
     from analysis import table1
 
-    if _no_answers(db, fmt == "json"):
+    study = _read(db)
+    if _no_answers(study, fmt == "json"):
         return
     accuracy = _load_bench(accuracy_file, "accuracy", "rows") if accuracy_file else None
     stability = _load_bench(stability_file, "stability", "cases") if stability_file else None
     if fmt == "md":
-        text = table1.markdown(db, holm_scope)
+        text = table1.markdown(study, holm_scope)
         if accuracy:
             from analysis.accuracy import markdown
 
@@ -56,21 +66,21 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
     elif fmt == "latex":
         from analysis.report import latex
 
-        text = latex(db, holm_scope)
+        text = latex(study, holm_scope)
     elif fmt == "html":
         from analysis.report import html
 
-        text = html(db, accuracy=accuracy, stability=stability, holm_scope=holm_scope)
+        text = html(study, accuracy=accuracy, stability=stability, holm_scope=holm_scope)
     elif fmt == "csv":  # the flag and N travel with the table
-        facts = table1.study_facts(db)
-        text = table1.rates(db).assign(participants=facts["participants"], synthetic=facts["synthetic"]).to_csv(index=False)
+        facts = table1.study_facts(study)
+        text = table1.rates(study).assign(participants=facts["participants"], synthetic=facts["synthetic"]).to_csv(index=False)
     else:
         from analysis.stats import study_stats
 
-        r, q = table1.rates(db), table1.cochran(db)
-        text = json.dumps(jsonable({"facts": table1.study_facts(db), "rates": r.to_dict(orient="records"),
-                                     "cochran": q.to_dict(orient="records"), "kinds": study_stats(db, r, q, holm_scope)["kinds"],
-                                     "deformation": table1.deformation(db).to_dict(orient="records")}), indent=2)
+        r, q = table1.rates(study), table1.cochran(study)
+        text = json.dumps(jsonable({"facts": table1.study_facts(study), "rates": r.to_dict(orient="records"),
+                                     "cochran": q.to_dict(orient="records"), "kinds": study_stats(study, r, q, holm_scope)["kinds"],
+                                     "deformation": table1.deformation(study).to_dict(orient="records")}), indent=2)
     if out_file:
         Path(out_file).write_text(text)
         click.echo(f"wrote {out_file}")
@@ -78,11 +88,11 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
         click.echo(text, nl=False)
 
 
-def _no_answers(db, as_json: bool) -> bool:
+def _no_answers(study, as_json: bool) -> bool:
     """An empty study: say so (exit 0) instead of tables of 0/0 and NaN; nothing is written."""
     from analysis.table1 import incomplete_text, study_facts
 
-    facts = study_facts(db)
+    facts = study_facts(study)
     if facts["participants"]:
         return False
     incomplete = facts["incomplete_participants"]
@@ -117,9 +127,10 @@ def report_plots(db, out_dir, as_json):
     """Rates with intervals, deformation times, and force traces against the converged reference (PNG and SVG)."""
     from analysis.report import write_plots
 
-    if _no_answers(db, as_json):
+    study = _read(db)
+    if _no_answers(study, as_json):
         return
-    files = write_plots(db, out_dir)
+    files = write_plots(study, out_dir)
     if as_json:
         _print_json({"out": str(out_dir), "files": [str(f) for f in files]})
         return
@@ -139,9 +150,10 @@ def report_stats(db, holm_scope, as_json):
     from analysis.stats import study_stats
     from analysis.table1 import _gee_line, incomplete_text
 
-    if _no_answers(db, as_json):
+    study = _read(db)
+    if _no_answers(study, as_json):
         return
-    out = study_stats(db, holm_scope=holm_scope)
+    out = study_stats(study, holm_scope=holm_scope)
     if as_json:
         _print_json(out)
         return

@@ -1,0 +1,156 @@
+"""Small-strain isotropic linear elasticity on P1 or P2 tetrahedra: vectorised assembly, the
+Dirichlet clamp, one sparse Cholesky factorisation (CHOLMOD, `sim.linalg.Factor`) reused for
+every solve. Degrees of freedom are node-major: dof ``3 i + c`` is component c of node i."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from sim.errors import ParameterError
+from sim.linalg import Factor, SingularSystemError
+from sim.models.base import POISSON_MAX, POISSON_MIN
+from sim.models.fem import p1, p2
+
+ELEMENTS = {1: p1, 2: p2}
+# Locking follows the element. Linear tetrahedra are already far too stiff at the brain's
+# Poisson 0.45 (docs/fem.md): the P1 error grows like 1/(1 - 2 nu), so P1 is flagged from 0.4
+# on; quadratic tetrahedra only close to incompressibility.
+LOCKING_POISSON = {1: 0.4, 2: 0.49}
+ASSEMBLIES = [0]  # stiffness assemblies in this process (tests: a scene without FEM makes none)
+
+
+def lame(young: float, poisson: float) -> tuple[float, float]:
+    lam = young * poisson / ((1 + poisson) * (1 - 2 * poisson))
+    mu = young / (2 * (1 + poisson))
+    return lam, mu
+
+
+def check_material(young: float, poisson: float) -> None:
+    if not (math.isfinite(young) and young > 0):
+        raise ParameterError(f"young: {young!r} is out of range; allowed: a finite number > 0 Pa")
+    if not (math.isfinite(poisson) and POISSON_MIN <= poisson < POISSON_MAX):
+        raise ParameterError(f"poisson: {poisson!r} is out of range; allowed: [{POISSON_MIN:g}, {POISSON_MAX:g})")
+
+
+def element_dofs(elements: np.ndarray) -> np.ndarray:
+    # int32 halves the memory traffic of assembly (dof counts stay far below 2**31)
+    k = elements.shape[1]
+    return (3 * elements[:, :, None].astype(np.int32) + np.arange(3, dtype=np.int32)).reshape(len(elements), 3 * k)
+
+
+def assemble(element_matrices: np.ndarray, elements: np.ndarray, n_nodes: int) -> sp.csr_matrix:
+    ASSEMBLIES[0] += 1
+    dofs = element_dofs(elements)
+    k = dofs.shape[1]
+    rows = np.repeat(dofs, k, axis=1).ravel()
+    cols = np.tile(dofs, (1, k)).ravel()
+    return sp.coo_matrix((element_matrices.ravel(), (rows, cols)), shape=(3 * n_nodes, 3 * n_nodes)).tocsr()
+
+
+@dataclass
+class Timings:
+    assembly_s: float = 0.0
+    factorisation_s: float = 0.0
+
+
+def _check(nodes: np.ndarray, tets: np.ndarray, fixed: np.ndarray, order: int) -> None:
+    if nodes.ndim != 2 or nodes.shape[1] != 3 or tets.ndim != 2 or tets.shape[1] != 4:
+        raise ParameterError("nodes must be (n, 3) and tets (m, 4)")
+    if fixed.shape != (len(nodes),):
+        raise ParameterError(f"fixed: must be a boolean mask over the {len(nodes)} nodes")
+    if len(tets) == 0 or tets.min() < 0 or tets.max() >= len(nodes):
+        raise ParameterError(f"tets: indices must be in 0..{len(nodes) - 1}")
+    if order not in ELEMENTS:
+        raise ParameterError(f"order: {order!r} is not an element order; allowed: 1 (linear), 2 (quadratic tetrahedra)")
+    if not fixed.any():
+        raise SingularSystemError("fixed: no fixed nodes; the stiffness is singular (rigid-body motion is free)")
+
+
+class LinearFem:
+    """Linear elasticity on linear (order 1) or quadratic (order 2) tetrahedra with nodes
+    `fixed` clamped.
+
+    ``LinearFem(nodes, tets, young, poisson, fixed).solve(forces)`` returns the static corner
+    displacements (n, 3) for corner forces (n, 3). With ``order=2`` the quadratic elements are
+    built from the corner mesh: `elements` (m, 10) index `all_nodes`, the corners then the
+    mid-edge nodes (a mid-edge node is clamped when both its corners are).
+    """
+
+    def __init__(self, nodes, tets, young: float, poisson: float, fixed, order: int = 1):
+        nodes = np.asarray(nodes, dtype=np.float64)
+        tets = np.asarray(tets, dtype=np.int64)
+        fixed = np.asarray(fixed, dtype=bool)
+        _check(nodes, tets, fixed, order)
+        check_material(young, poisson)
+        self.nodes, self.tets, self.fixed = nodes, tets, fixed
+        self.young, self.poisson = float(young), float(poisson)
+        self.lam, self.mu = lame(young, poisson)
+        self.order = order
+        self.element = ELEMENTS[order]
+        self.timings = Timings()
+        start = time.perf_counter()
+        self.grads, vol = p1.shape_gradients(nodes, tets)
+        if np.any(vol < 0):
+            raise ParameterError(f"tets: {int(np.sum(vol < 0))} elements are inverted (negative volume)")
+        self.volumes = vol
+        if order == 1:
+            self.all_nodes, self.elements = nodes, tets
+            self.element_matrices = p1.element_stiffness(self.grads, vol, self.lam, self.mu)  # kept for the corotational update
+            matrices = self.element_matrices
+        else:
+            self.all_nodes, self.elements, edges = p2.mesh(nodes, tets)
+            matrices = p2.element_stiffness(self.grads, vol, self.lam, self.mu)
+            fixed = np.concatenate([fixed, fixed[edges].all(axis=1)])
+        self.n_all = len(self.all_nodes)
+        self.stiffness = assemble(matrices, self.elements, self.n_all)
+        self.timings.assembly_s = time.perf_counter() - start
+        self.free = np.flatnonzero(~np.repeat(fixed, 3))  # free dof -> global dof
+        self.reduced = self.stiffness[self.free][:, self.free].tocsr()
+        self._factor: Factor | None = None
+
+    @property
+    def locking(self) -> bool:
+        """The element locks (is too stiff) at this Poisson ratio (see LOCKING_POISSON)."""
+        return self.poisson >= LOCKING_POISSON[self.order]
+
+    @property
+    def factor(self) -> Factor:
+        if self._factor is None:
+            start = time.perf_counter()
+            self._factor = Factor(self.reduced)
+            self.timings.factorisation_s = time.perf_counter() - start
+        return self._factor
+
+    def quadrature(self) -> tuple[np.ndarray, np.ndarray]:
+        """Shape-function gradients at the quadrature points (m, q, k, 3) and the points' weights (m, q)."""
+        G = self.element.quadrature_gradients(self.grads)
+        return G, np.repeat(np.abs(self.volumes)[:, None] / G.shape[1], G.shape[1], axis=1)
+
+    def solve_free(self, b: np.ndarray) -> np.ndarray:
+        return self.factor.solve(b)
+
+    def solve(self, forces) -> np.ndarray:
+        f = np.asarray(forces, dtype=np.float64).reshape(-1)
+        if f.shape != (3 * len(self.nodes),):
+            raise ParameterError(f"forces: must be ({len(self.nodes)}, 3)")
+        full = np.zeros(3 * self.n_all)
+        full[: len(f)] = f  # loads on the corners; mid-edge nodes carry none
+        u = np.zeros(3 * self.n_all)
+        u[self.free] = self.solve_free(full[self.free])
+        return u[: 3 * len(self.nodes)].reshape(-1, 3)
+
+    def to_free(self, u_nodes: np.ndarray) -> np.ndarray:
+        if self.order != 1:
+            raise ParameterError("order: the corotational solver needs linear (order 1) tetrahedra")
+        return np.asarray(u_nodes).reshape(-1)[self.free]
+
+    def from_free(self, u_free: np.ndarray, corners: bool = True) -> np.ndarray:
+        """Displacements (n, 3) of a free-dof vector: the corners, or every node (n_all, 3)."""
+        u = np.zeros(3 * self.n_all)
+        u[self.free] = u_free
+        return (u[: 3 * len(self.nodes)] if corners else u).reshape(-1, 3)

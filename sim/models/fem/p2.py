@@ -1,0 +1,60 @@
+"""Quadratic (P2, 10-node) tetrahedra on straight elements: the four corners, then the edge
+mid-points in the order of EDGES; a degree-2 Gauss rule of four points integrates the
+stiffness exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+
+NODES = 10
+EDGES = np.array([(0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3)])  # local corners of the mid-edge nodes
+# barycentric points (a, b, b, b) and permutations, each weighing a quarter of the volume
+_A, _B = 0.5854101966249685, 0.1381966011250105
+POINTS = np.array([[_A, _B, _B, _B], [_B, _A, _B, _B], [_B, _B, _A, _B], [_B, _B, _B, _A]])
+
+
+def mesh(nodes: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(nodes with the edge mid-points appended, (m, 10) elements, (n_edges, 2) corner pairs)."""
+    pairs = np.sort(tets[:, EDGES], axis=2).reshape(-1, 2)
+    edges, inverse = np.unique(pairs, axis=0, return_inverse=True)
+    mids = 0.5 * (nodes[edges[:, 0]] + nodes[edges[:, 1]])
+    tets10 = np.hstack([tets, len(nodes) + inverse.reshape(len(tets), 6)])
+    return np.vstack([nodes, mids]), tets10, edges
+
+
+def shape(bary: np.ndarray) -> np.ndarray:
+    """Shape functions (k, 10) at barycentric points (k, 4): corners L_i (2 L_i - 1), edges 4 L_i L_j."""
+    bary = np.asarray(bary, dtype=np.float64)
+    corners = bary * (2.0 * bary - 1.0)
+    edges = 4.0 * bary[:, EDGES[:, 0]] * bary[:, EDGES[:, 1]]
+    return np.hstack([corners, edges])
+
+
+def quadrature_gradients(grads: np.ndarray) -> np.ndarray:
+    """Gradients of the ten shape functions at the four quadrature points, (m, 4, 10, 3), from
+    the (constant) gradients of the barycentric coordinates `grads` (m, 4, 3).
+
+    Corners N_i = L_i (2 L_i - 1): grad = (4 L_i - 1) grad L_i; edges N_ij = 4 L_i L_j:
+    grad = 4 (L_j grad L_i + L_i grad L_j)."""
+    out = np.empty((len(grads), len(POINTS), 10, 3))
+    for q, L in enumerate(POINTS):
+        out[:, q, :4] = (4.0 * L - 1.0)[None, :, None] * grads
+        for e, (i, j) in enumerate(EDGES):
+            out[:, q, 4 + e] = 4.0 * (L[j] * grads[:, i] + L[i] * grads[:, j])
+    return out
+
+
+def element_stiffness(grads: np.ndarray, vol: np.ndarray, lam: float, mu: float) -> np.ndarray:
+    """Element matrices (m, 30, 30): the P1 formula summed over the quadrature points.
+
+    With T[(a i), (b j)] = sum_q G_qai G_qbj (one batched matrix product), K[a i, b j] =
+    V/4 (lam T[ai, bj] + mu T[aj, bi] + mu d_ij sum_k T[ak, bk])."""
+    m = len(grads)
+    G = quadrature_gradients(grads)  # (m, q, 10, 3)
+    A = G.transpose(0, 2, 3, 1).reshape(m, 30, len(POINTS))
+    T = np.matmul(A, A.transpose(0, 2, 1)).reshape(m, 10, 3, 10, 3)
+    gg = np.einsum("maibi->mab", T)
+    K = lam * T + mu * T.transpose(0, 1, 4, 3, 2)
+    K += mu * gg[:, :, None, :, None] * np.eye(3)[None, None, :, None, :]
+    K *= (np.abs(vol) / len(POINTS))[:, None, None, None, None]
+    return K.reshape(m, 30, 30)

@@ -1,0 +1,115 @@
+"""One static pull on the scene's brain: the `studyctl model fem` command."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from sim.errors import ParameterError
+from sim.models.base import pull_problem
+from sim.models.fem.corotational import corotational_solve
+from sim.models.fem.model import DEFAULT_ORDER, DEFAULT_RESOLUTION, FemModel, fixed_nodes
+from sim.models.fem.newton import NewtonReport, neo_hookean_solve
+from sim.patch import GRASP_RADIUS
+
+FORMULATIONS = ("linear", "corotational", "neo-hookean")
+TICKS = 20000  # servo-tick force calls timed
+
+
+def _options(scene, formulation: str, displacement, resolution: float | None, order: int | None) -> tuple:
+    """(displacement (3,), resolution, order, grasp radius), checked."""
+    if formulation not in FORMULATIONS:
+        raise ParameterError(f"formulation: {formulation!r} is not one of {', '.join(FORMULATIONS)}")
+    if (problem := pull_problem(displacement)) is not None:
+        raise ParameterError(f"displacement: {problem}")
+    spec = scene.model_spec.options if scene.model_spec.name == "fem" else {}
+    resolution = float(spec.get("resolution", DEFAULT_RESOLUTION)) if resolution is None else resolution
+    if not 0.003 <= resolution <= 0.008:
+        raise ParameterError(f"resolution: {resolution * 1e3:g} mm is out of range; allowed: 3..8 mm")
+    if order is None:  # the scene's, except that the corotational update runs on linear tetrahedra only
+        order = 1 if formulation == "corotational" else int(spec.get("order", DEFAULT_ORDER))
+    if order == 2 and formulation == "corotational":
+        raise ParameterError("order: the corotational formulation runs on linear tetrahedra (order 1) only")
+    return np.asarray(displacement, dtype=np.float64), resolution, order, spec.get("grasp_radius", GRASP_RADIUS)
+
+
+def _time_ticks(model, contact, d: tuple) -> float:
+    t0 = time.perf_counter()
+    for _ in range(TICKS):
+        model.force(contact, d)
+    return (time.perf_counter() - t0) / TICKS
+
+
+def _solve(model, contact, d: np.ndarray, formulation: str, steps: int) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(force holding the grasp (3,), every node's displacement, the solver's report)."""
+    if formulation == "linear":
+        return np.asarray(model.grasp_forces([contact], [d])), model.nodal_displacement([contact], [d]), {"converged": True}
+    part = model.parts[contact.data.part]
+    if formulation == "neo-hookean":
+        u_part, force, rep = neo_hookean_solve(part, contact.data.W, d, steps=steps)
+    else:
+        u_part, force, rep = corotational_solve(part, contact.data.W, contact.data.U, d, steps=steps)
+    u = np.zeros((model.n_model_nodes, 3))
+    start = model.offsets[contact.data.part]
+    u[start : start + len(u_part)] = u_part
+    return np.asarray(force), u, _report(rep)
+
+
+def static_pull(scene, grasp, displacement, resolution: float | None = None, formulation: str = "linear", steps: int = 5,
+                order: int | None = None) -> dict:
+    """Grasp the scene's brain at `grasp` and hold the grasp point at `displacement` (m).
+
+    Returns the force on the hand, the largest displacement, the phase times, and for the
+    nonlinear formulations the convergence history.
+    """
+    from sim.scene import AXES
+    from sim.tetmesh import body_volume
+    from sim.volume import describe
+
+    d, resolution, order, radius = _options(scene, formulation, displacement, resolution, order)
+    times: dict[str, float] = {}
+    t0 = time.perf_counter()
+    mesh = scene.mesh
+    volume = body_volume(mesh, resolution)
+    times["mesh_s"] = time.perf_counter() - t0
+    material = scene.spec.material
+    fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])
+    model = FemModel(mesh, volume, material.young, material.poisson, fixed, grasp_radius=radius, order=order)
+    times.update(model.timings)
+    t0 = time.perf_counter()
+    contact = model.grasp(grasp, 0)
+    times["grasp_s"] = time.perf_counter() - t0
+    times["tick_s"] = _time_ticks(model, contact, tuple(float(x) for x in d))
+    t0 = time.perf_counter()
+    model.deformation([contact], [d])
+    times["frame_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    force, u, report = _solve(model, contact, d, formulation, steps)
+    if formulation != "linear":
+        times["solve_s"] = time.perf_counter() - t0
+    part = model.parts[contact.data.part]
+    out = {"formulation": formulation, "order": order, "resolution_mm": resolution * 1e3, "volume": describe(volume),
+           "part": {"nodes": int(part.n_all), "tets": int(len(part.tets)), "free_dofs": int(len(part.free))},
+           "grasp_vertex": contact.vertex, "grasp_point": list(contact.point), "displacement": d.tolist(), "locking": model.locking}
+    out.update(report)
+    # the hand feels minus the force that holds the tissue at d
+    out["force_n"] = (-force).tolist()
+    out["force_magnitude_n"] = float(np.linalg.norm(force))
+    out["max_displacement_m"] = float(np.linalg.norm(u, axis=1).max())
+    out["times_ms"] = {k.removesuffix("_s"): v * 1e3 for k, v in times.items()}
+    return out
+
+
+def _report(rep: NewtonReport) -> dict:
+    return {
+        "converged": rep.converged,
+        "load_steps": rep.load_steps,
+        "iterations": rep.iterations,
+        "final_residuals": [r[-1] if r else None for r in rep.residuals],
+        "min_jacobian": rep.min_jacobian,
+        "inverted_elements": rep.min_jacobian <= 0,
+        "tangent_updates": rep.tangent_updates,
+        # a solve that stopped early returns the state of its last solved load step
+        "completed_steps": rep.completed_steps,
+    }
