@@ -99,7 +99,7 @@ def locate(nodes: np.ndarray, tets: np.ndarray, points: np.ndarray, k: int = 32)
     return cand[rows, pick], w[rows, pick]
 
 
-def embed(volume: VolumeMesh, points: np.ndarray, labels: np.ndarray | None = None, k: int = 32) -> Embedding:
+def embed(volume: VolumeMesh, points: np.ndarray, labels: np.ndarray | None = None, k: int = 12) -> Embedding:
     """Barycentric embedding of `points` in the volume (each restricted to its component)."""
     from scipy.sparse import csr_matrix
 
