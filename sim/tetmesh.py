@@ -79,9 +79,13 @@ class BodyMesh:
     tets: np.ndarray  # (m, 4), positively oriented
     edge_length: float  # fTetWild's target edge length, m
     envelope: float  # fTetWild's envelope, m
-    seconds: float  # meshing time (0 when read from the cache)
-    cached: bool = False
+    seconds: float  # the meshing time (as recorded, when shipped or cached)
     source: str = "meshed"  # "shipped" (data/), "cache" or "meshed"
+
+    @property
+    def cached(self) -> bool:
+        """Read back, not meshed now."""
+        return self.source != "meshed"
 
     @property
     def volume(self) -> float:
@@ -138,7 +142,7 @@ def _shipped(vertices, triangles, edge_length: float, envelope: float) -> BodyMe
         nodes, tets = z[f"nodes_{entry['hemisphere']}"], z[f"tets_{entry['hemisphere']}"].astype(np.int64)
     if content_hash(nodes, tets) != entry["sha256"]:
         raise MeshError(f"{path}: hemisphere {entry['hemisphere']}: content hash differs from data/brain_tets.json; the file is damaged")
-    return BodyMesh(nodes, tets, edge_length, envelope, float(entry["mesh_s"]), cached=True, source="shipped")
+    return BodyMesh(nodes, tets, edge_length, envelope, float(entry["mesh_s"]), source="shipped")
 
 
 def _tetwild(vertices: np.ndarray, triangles: np.ndarray, edge_length: float, envelope: float, threads: int) -> tuple:
@@ -183,7 +187,7 @@ def mesh_hemisphere(vertices: np.ndarray, triangles: np.ndarray, edge_length: fl
     path = _cache_path(vertices, triangles, edge_length, envelope)
     if use_cache and path.exists():
         with np.load(path) as z:
-            return BodyMesh(z["nodes"], z["tets"], edge_length, envelope, float(z["seconds"]), cached=True, source="cache")
+            return BodyMesh(z["nodes"], z["tets"], edge_length, envelope, float(z["seconds"]), source="cache")
     nodes, tets, seconds = _tetwild(vertices, triangles, edge_length, envelope, threads)
     if use_cache:
         save_npz(path, compressed=True, nodes=nodes, tets=tets, seconds=seconds)

@@ -7,6 +7,7 @@ import pytest
 from click.testing import CliRunner
 
 from sim.models.fem import FemModel, fixed_nodes
+from sim.patch import patch_vertex_weights
 from sim.run import run_scene
 from sim.scene import build_scene
 from sim.tetmesh import body_volume
@@ -38,7 +39,7 @@ def test_condensed_stiffness_reproduces_a_direct_solve(model):
     start = model.offsets[c.data.part]
     nodal[start : start + part.n_all] = part.from_free(u, corners=False)
     assert np.allclose(field, model.surface_matrix @ nodal, atol=1e-15)
-    patch, share = model.grasp_patch(c.vertex)
+    patch, share = patch_vertex_weights(model.surface, c.vertex, model.grasp_radius)  # the area mean on the vertices
     assert np.allclose(share @ field[patch], d, atol=1e-3 * np.linalg.norm(d))
 
 

@@ -19,7 +19,6 @@ import scipy.sparse as sp
 
 from sim.errors import ParameterError
 from sim.laws import Linearised, PairTable
-from sim.linalg import SingularSystemError
 from sim.models.fem.corotational import Precond, corotational_step, warped_active
 from sim.models.fem.grasp import condense, constraint_matrix, symmetric_inverse
 from sim.models.fem.linear import LinearFem
@@ -180,20 +179,11 @@ class FemModel:
         points, weights = patch_area_points(self.surface, v, self.grasp_radius)
         tet, bary = locate(fem.nodes, fem.tets, points)
         W = constraint_matrix(fem, tet, bary, weights)
-        if W.nnz == 0:
-            raise SingularSystemError("grasp point lies in a clamped element: it cannot move")
-        U, C, Kc = condense(fem, W)
+        U, C, Kc = condense(fem, W)  # raises SingularSystemError if the patch cannot move
         data = FemContact(part=part, W=W, U=U, C=C, K=tuple(float(x) for x in Kc.ravel()))
         anchor = tuple(float(c) for c in self.surface.vertices[v])
         normal = tuple(float(c) for c in self.surface.vertex_normals[v])
         return Contact(hand=hand, vertex=int(v), point=anchor, normal=normal, data=data, law=Linearised(K=data.K))
-
-    def grasp_patch(self, vertex: int) -> tuple[np.ndarray, np.ndarray]:
-        """(surface vertices, weights): the grasp's area mean folded onto the surface vertices
-        (`sim.patch`), what the view shows held."""
-        from sim.patch import patch_vertex_weights
-
-        return patch_vertex_weights(self.surface, vertex, self.grasp_radius)
 
     def _pair(self, a, b) -> np.ndarray:
         held = self._pair_of
