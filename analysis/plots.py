@@ -257,3 +257,43 @@ def choice_plot(choice: dict, models: list[str], path: Path, synthetic: bool) ->
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+def psychometric_plot(trials, rows: list[dict], condition: str, path: Path, synthetic: bool) -> None:
+    """One condition's discrimination: every participant's fitted psychometric function
+    (analysis/psychometric.py, refitted here for its curve) and Weber fraction, and the pooled
+    proportion correct in bins of the increment (point size: trials), on a log axis."""
+    from scipy import stats
+
+    from analysis.psychometric import fit_psychometric
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
+    d = trials["stimulus"].to_numpy(dtype=float)
+    lo, hi = float(d.min()) / 1.5, float(d.max()) * 1.5
+    grid = np.geomspace(lo, hi, 200)
+    for _, g in trials.groupby("code", sort=True):
+        fit = fit_psychometric(g["stimulus"], g["correct"])
+        z = (np.log(grid) - fit.location) / fit.scale
+        f = stats.norm.cdf(z) if fit.function == "gaussian" else 1.0 - np.exp(-np.exp(z))
+        ax.plot(grid, fit.guess + (1.0 - fit.guess - fit.lapse) * f, color="#1f77b4", alpha=0.35, lw=1)
+        ax.plot([fit.weber], [0.75 - fit.lapse / 2], "o", color="#1f77b4", ms=3, alpha=0.6)
+    edges = np.geomspace(d.min() * 0.999, d.max() * 1.001, 9)
+    idx = np.clip(np.digitize(d, edges) - 1, 0, len(edges) - 2)
+    correct = trials["correct"].to_numpy(dtype=float)
+    for b in range(len(edges) - 1):
+        sel = idx == b
+        if sel.any():
+            ax.scatter(np.exp(np.log(d[sel]).mean()), correct[sel].mean(), s=8 + 2 * sel.sum(), color="k", alpha=0.7, zorder=3)
+    ax.axhline(0.75, color="0.6", lw=0.8, ls="--")
+    ax.set_xscale("log")
+    ax.set_ylim(0.35, 1.02)
+    ax.set_xlabel("increment in stiffness (comparison / reference - 1)")
+    ax.set_ylabel("proportion correct")
+    gm = np.exp(np.mean(np.log([r["weber"] for r in rows if r["weber"] == r["weber"] and r["weber"] > 0]))) if rows else float("nan")
+    ax.set_title(("SYNTHETIC DATA: " if synthetic else "") + f"{condition}: {len(rows)} participants, geometric-mean Weber fraction {gm:.1%}",
+                 fontsize=9)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

@@ -28,7 +28,9 @@ class Study:
       ``code, model, period`` (the session's order, else the assigned one);
     - `latency`: each participant's mean deformation time per condition: ``code, model, value, trials``;
     - `latency_trials`: every trial's deformation time: ``model, value``;
-    - `configurations`: what each condition ran: ``condition, config, config_sha256, sessions``.
+    - `configurations`: what each condition ran: ``condition, config, config_sha256, sessions``;
+    - `discrimination`: every discrimination trial: ``code, model, task, trial, delta, comparison_interval,
+      answer, correct, state (the procedure's, JSON), source``, and `traits` every synthetic participant's generating traits: ``code, trait, value``.
     """
 
     protocol: object
@@ -39,6 +41,8 @@ class Study:
     latency: pd.DataFrame
     latency_trials: pd.DataFrame
     configurations: pd.DataFrame
+    discrimination: pd.DataFrame
+    traits: pd.DataFrame
 
 
 def read_study(store) -> Study:
@@ -64,6 +68,9 @@ def read_study(store) -> Study:
         latency_trials=query("select model, value from latency where measure = 'deformation_ms'"),
         configurations=query("select model as condition, config, config_sha256, count(distinct session_id) as sessions "
                              "from conditions group by model, config_sha256 order by min(session_id)"),
+        discrimination=query("select code, model, task, trial, delta, comparison_interval, answer, correct, state, source from discrimination "
+                             "order by code, model, task, trial"),
+        traits=query("select code, trait, value from synthetic_traits order by code, trait"),
     )
 
 

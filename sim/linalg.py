@@ -13,6 +13,8 @@ read: A must be symmetric.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -119,6 +121,7 @@ class Factor:
         A = _csc(A)
         self.n = A.shape[0]
         self.shift = _shift  # the factor is of A + shift * I (see `shifted_factor`)
+        self._ratio = 1.0  # the factor stands for ratio * A (`scaled`): solves are divided by it
         if _factor is None:
             _factor, problem = _factorise(A, simplicial=simplicial)
             if _factor is None:
@@ -149,6 +152,13 @@ class Factor:
             raise SingularSystemError(f"stiffness is singular or not positive definite: {problem}")
         return Factor(A, _factor=factor)
 
+    def scaled(self, ratio: float) -> Factor:
+        """The factor of `ratio` * A (ratio > 0) without factorising again: the same L, and
+        every solve divided by `ratio` (a stiffness scaled by a material's modulus)."""
+        out = copy.copy(self)
+        out._ratio = self._ratio * float(ratio)
+        return out
+
     @property
     def nnz_L(self) -> int:
         """Entries of the factor L: a solve is about 4 nnz_L flops per right-hand side (the
@@ -173,7 +183,8 @@ class Factor:
             raise ValueError(f"right-hand side has {b.shape[0] if b.ndim else 0} rows; the matrix has {self.n}")
         if b.size == 0:
             return np.zeros_like(b)
-        return np.asarray(self._solver.solve_A(b))
+        x = np.asarray(self._solver.solve_A(b))
+        return x if self._ratio == 1.0 else x / self._ratio
 
 
 # shifts tried by `shifted_factor`, as multiples of the mean absolute diagonal

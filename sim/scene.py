@@ -477,6 +477,16 @@ class Scene:
             self.spec = dataclasses.replace(self.spec, hands=hands)
         return self
 
+    def with_stiffness(self, scale: float) -> Scene:
+        """This scene with its tissue model's stiffness times `scale` (the model's
+        `with_stiffness`: Young's modulus for the FEM and the mass-spring, the plates' E for
+        the plate-spring); the spec, mesh and devices' settings shared."""
+        import copy
+
+        out = copy.copy(self)
+        out.model = self.model.with_stiffness(scale)  # the cached_property's slot: this scene's own model
+        return out
+
     def device_name(self, i: int) -> str:
         """The OpenHaptics device name of hand i: set with `devices` (the CLI's --devices), the
         scene's `device_name`, else "Default Device" for a one-hand scene or the names the

@@ -79,6 +79,12 @@ class ObserverParams:
     vibration_sd: float = 0.35  # vibrotactile thresholds across people (about +-3 dB)
     vibration_slope: float = 0.35  # log-units per sd of the detection function
     bias_sd: float = 0.6  # some people say yes more (logit)
+    # stiffness discrimination (the discrimination task): the Weber fraction for stiffness is
+    # 15-23% with force and position cues (Jones and Hunter 1990: 23%; Tan et al. 1995: 17%
+    # with work cues removed), about twice the force's; people differ by about +-1.5 sd
+    stiffness_weber: float = 0.15
+    stiffness_weber_sd: float = 0.30
+    lapse_max: float = 0.04  # a trial answered at random (attention lapses, mistyped keys): 0-4% of trials
     base_logit: float = 1.0
     sample_every: int = 10  # judge the force at 100 Hz (ticks are 1 kHz)
 
@@ -114,6 +120,20 @@ class ObserverTraits:
         return cls(weber=params.weber * math.exp(params.weber_sd * a), prior=math.exp(params.prior_sd * b),
                    latency_ms=params.latency_ms * math.exp(params.latency_sd * c), vibration=math.exp(params.vibration_sd * d),
                    bias=params.bias_sd * e)
+
+
+@dataclass(frozen=True)
+class DiscriminationTraits:
+    """How finely one participant tells stiffness apart."""
+
+    weber: float  # the relative increment in stiffness they pick out 75% of the time when attending
+    lapse: float  # the share of trials they answer at random (their function's upper asymptote is 1 - lapse / 2)
+
+    @classmethod
+    def draw(cls, code: str, seed: int, params: ObserverParams = DEFAULT) -> DiscriminationTraits:
+        rng = random.Random(f"discrimination:{seed}:{code}")  # its own stream: the other traits keep their draws
+        return cls(weber=params.stiffness_weber * math.exp(params.stiffness_weber_sd * rng.gauss(0.0, 1.0)),
+                   lapse=rng.uniform(0.0, params.lapse_max))
 
 
 @dataclass(frozen=True)
@@ -208,6 +228,64 @@ def within_jnd(rendered: np.ndarray, truth: np.ndarray, traits: ObserverTraits, 
     w = weber_at(traits.prior * truth, traits, params)
     r = np.log(np.maximum(rendered, 1e-3) / (traits.prior * truth))
     return float(np.mean(ndtr(1.0 - r / w) - ndtr(-1.0 - r / w)))
+
+
+Z75 = 0.6744897501960817  # the standard normal's 75% point
+
+
+def loading_curve(trace, hand: int, mesh=None) -> tuple[np.ndarray, np.ndarray] | None:
+    """(stretch, force) of one hand while it first held the tissue, up to its largest stretch:
+    the hand's distance from the point it grasped (the grasped vertex of `mesh`; without a mesh,
+    where the hand was at the grasp) in m, and the force magnitude it felt (N)."""
+    grasps = [e for e in trace.events if e.kind == "grasp" and e.hand == hand]
+    if not grasps:
+        return None
+    anchor = mesh.vertices[int(grasps[0].detail.split()[1])] if mesh is not None else None
+    grasps = [e.t for e in grasps]
+    held = (trace.times >= grasps[0]) & trace.buttons[:, hand]
+    idx = np.flatnonzero(held)
+    if len(idx) < 2:
+        return None
+    idx = idx[: np.argmax(np.diff(idx) > 1) + 1] if np.any(np.diff(idx) > 1) else idx  # the first hold only
+    stretch = np.linalg.norm(trace.positions[idx, hand] - (trace.positions[idx[0], hand] if anchor is None else anchor), axis=1)
+    force = np.linalg.norm(trace.forces[idx, hand], axis=1)
+    top = int(np.argmax(stretch))
+    return stretch[: top + 1], force[: top + 1]
+
+
+def stiffness_log_ratio(a, b, mesh=None, points: int = 16, low: float = 0.3) -> float:
+    """ln of how much stiffer interval `b` was than `a`: per hand, b's force over a's at the same
+    stretches (`points` from `low` times the smaller of the two largest stretches up to it, where
+    the pull dominates tremor and the device's resolution), the median over them, then the mean
+    over the hands that held the tissue in both; NaN when none did. A person compares the
+    resistance at the same stretch, so a longer pull in one interval does not feel stiffer."""
+    out = []
+    for hand in range(a.positions.shape[1]):
+        ca, cb = loading_curve(a, hand, mesh), loading_curve(b, hand, mesh)
+        if ca is None or cb is None:
+            continue
+        top = min(ca[0][-1], cb[0][-1])
+        if not top > 0:
+            continue
+        grid = np.linspace(low * top, top, points)
+        fa, fb = (np.interp(grid, x[np.argsort(x, kind="stable")], f[np.argsort(x, kind="stable")]) for x, f in (ca, cb))
+        ok = (fa > 0) & (fb > 0)
+        if ok.any():
+            out.append(float(np.median(np.log(fb[ok] / fa[ok]))))
+    return _round(float(np.mean(out))) if out else math.nan
+
+
+def stiffer_answer(intervals, traits: DiscriminationTraits, uniform, normal, mesh=None) -> int:
+    """The interval (1 or 2) that felt stiffer: the traces' log stiffness ratio seen through
+    Weber-law noise in each interval, so that an increment of `traits.weber` is picked out 75% of
+    the time (P = Phi(ln ratio * Z75 / ln(1 + weber))); with probability `traits.lapse`, or when
+    nothing was held, a guess. Draws exactly three numbers. `mesh`: the scene's surface, whose
+    grasped vertex each stretch is measured from (`loading_curve`)."""
+    ratio = stiffness_log_ratio(intervals[0], intervals[1], mesh)
+    lapsed, z, guess = uniform(), normal(), uniform()
+    if lapsed < traits.lapse or not math.isfinite(ratio):
+        return 1 if guess < 0.5 else 2
+    return 2 if ratio + z * math.log1p(traits.weber) / Z75 > 0 else 1
 
 
 def _round(x: float, digits: int = 9) -> float:

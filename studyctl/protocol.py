@@ -50,6 +50,7 @@ class Protocol:
     # name, the scene's own configuration (studyctl/conditions.py)
     condition_tables: dict = field(default_factory=dict, compare=False)
     instruments: tuple[tuple[str, str], ...] = ()  # (name, when) of each [[instruments]]; their items are in `questions`
+    tasks: tuple = ()  # [[tasks]] run in every condition after its free trials (studyctl/tasks.py)
 
     @property
     def sha256(self) -> str:
@@ -100,7 +101,7 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     if cb is not None and cb not in DESIGNS:
         c.bad("design.counterbalancing", f"{cb!r} is not one of {', '.join(DESIGNS)}")
     training = c.get(design, "design", "training_minutes", float, lo=0.0, hi=120.0)
-    trials = c.get(design, "design", "trials_per_condition", int, lo=1, hi=100)
+    trials = c.get(design, "design", "trials_per_condition", int, lo=0, hi=100)
     trial_s = c.get(design, "design", "trial_seconds", float, lo=0.5, hi=600.0)
     rest_s = c.get(design, "design", "rest_seconds", float, default=5.0, lo=0.0, hi=600.0, required=False)
 
@@ -114,6 +115,11 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
         if m not in LATENCY_MEASURES:
             c.bad("latency.measures", f"unknown measure {m!r}; allowed: {', '.join(LATENCY_MEASURES)}")
 
+    from studyctl.tasks import check_tasks
+
+    tasks = check_tasks(data, c, trial_s)
+    if trials == 0 and not tasks and "tasks" not in data:
+        c.bad("design.trials_per_condition", "0 is out of range without [[tasks]]; allowed: 1..100 (0 when each condition has a task)")
     questions = _questions(data, c.get, c.bad, len(conditions or []))
     if c.problems:
         return None, c.problems
@@ -124,7 +130,7 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
             trial_seconds=trial_s, rest_seconds=rest_s, age_min=age_min, age_max=age_max, latency_measures=tuple(measures),
             questions=tuple(questions), text=text, consent_version=meta["consent_version"], withdrawal=meta["withdrawal"],
             timezone=meta["timezone"], condition_tables=tables,
-            instruments=tuple(dict.fromkeys((q.instrument, q.when) for q in questions if q.instrument)),
+            instruments=tuple(dict.fromkeys((q.instrument, q.when) for q in questions if q.instrument)), tasks=tuple(tasks),
         ),
         [],
     )
@@ -164,7 +170,7 @@ class _Checker:
         else:
             ok = isinstance(v, kind)
         if not ok:
-            what = {int: "an integer", float: "a number", str: "a text in quotes", list: "a list in [ ]"}.get(kind, "a " + kind.__name__)
+            what = {int: "an integer", float: "a number", str: "a text in quotes", list: "a list in [ ]", bool: "true or false"}.get(kind, "a " + kind.__name__)
             self.bad(field, f"{v!r} is not {what}")
             return default
         if lo is not None and v < lo or hi is not None and v > hi:
@@ -176,7 +182,8 @@ class _Checker:
 SECTIONS = {"study": ("name", "title", "version", "target_participants", "scene", "timezone"),
             "design": ("conditions", "counterbalancing", "training_minutes", "trials_per_condition", "trial_seconds", "rest_seconds"),
             "inclusion": ("age_min", "age_max"), "latency": ("measures",), "ethics": ("consent_version", "withdrawal"),
-            "questions": ("id", "text", "kind", "points", "anchors", "when"), "instruments": ("name", "when"), "conditions": None}
+            "questions": ("id", "text", "kind", "points", "anchors", "when"), "instruments": ("name", "when"), "conditions": None,
+            "tasks": ("kind", "parameter", "reference", "method", "rule", "trials", "question", "feedback", "interval_seconds", "range", "start")}
 
 
 def _unknown_keys(data: dict, c: _Checker) -> None:
@@ -266,8 +273,8 @@ def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
             out.append(q)
 
     qs = data.get("questions")
-    if qs is None and "instruments" not in data:
-        bad("questions", "missing section: at least one [[questions]] or [[instruments]]")
+    if qs is None and "instruments" not in data and "tasks" not in data:
+        bad("questions", "missing section: at least one [[questions]], [[instruments]] or [[tasks]]")
     elif qs is not None and not isinstance(qs, list):
         bad("questions", "must be an array of tables ([[questions]])")
     for k, q in enumerate(qs if isinstance(qs, list) else []):

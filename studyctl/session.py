@@ -230,6 +230,7 @@ class _Run:
     labels: dict = field(default_factory=dict)  # model -> blind label
     answerer: object = None
     participant: object = None  # a synthetic participant's generating traits
+    seed: int | None = None  # the session's seed (synthetic)
     paced: bool = False  # a person sets the pace
     keys: Callable | None = None  # the experimenter's terminal keys
 
@@ -256,6 +257,7 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                 run.servo = ServoProcess(first, time_scale)
             _check_participant(store, protocol, code, synthetic)  # again, now that this process holds the lock
             order, seed = _open_session(run, synthetic, resume, seed, session_id)
+            run.seed = seed
             run.labels = {r["model"]: r["label"] or chr(ord("A") + r["position"])
                           for r in store.rows("select model, position, label from conditions where session_id = ?", (run.session_id,))}
             if answers is None and synthetic:
@@ -354,6 +356,9 @@ def _synthetic_answers(run: _Run, seed: int):
     from studyctl.truth import load_truth
 
     run.participant = SyntheticParticipant.draw(run.code, seed)
+    with run.store.transaction() as conn:  # what it was drawn with, kept: estimates can be checked against it
+        conn.executemany("insert or replace into synthetic_traits (code, trait, value, seed) values (?, ?, ?, ?)",
+                         [(run.code, k, float(v), seed) for k, v in run.participant.trait_values().items()])
     base = scene_itself(run.protocol)  # the scene's own configuration, whatever the conditions change
     rig = {c: v["frame_ms"] for c, v in frame_times(run.protocol, run.store).items()}  # the rig this study runs on
     return SyntheticAnswers(run.participant, load_truth(base), base.mesh, rig=rig)
@@ -406,8 +411,16 @@ def _run_condition(run: _Run, pos: int, model: str, n_cond: int) -> None:
             _ask(store, run.answerer, protocol.asked("trial"), code, model, trial, session_id,
                  {"labels": run.labels, "trial": trial, "results": trial_traces(store, session_id, model, trial)},
                  f"{status}, after trial {trial + 1}")
+    for task in protocol.tasks:  # after the free trials: the condition's model is familiar by then
+        done = store.rows("select count(*) as n from discrimination where session_id = ? and model = ? and task = ?",
+                          (session_id, model, task.index))[0]["n"]
+        if done < task.trials:
+            from studyctl.discrimination import run_task
+
+            scene = scene or _scene(protocol, model, run.device)
+            run_task(run, scene, pos, model, task, status)
     results = None  # every stored trial of the condition, resumed or not: read once, when needed
-    if hasattr(run.answerer, "features_of") and not store.rows(
+    if protocol.trials_per_condition and hasattr(run.answerer, "features_of") and not store.rows(
             "select 1 from observer_features where code = ? and model = ? limit 1", (code, model)):
         # what the observer perceived, from every stored trace of the condition (after a
         # resume too), kept before the answers drawn from it

@@ -18,9 +18,10 @@ import sqlite_utils
 
 from studyctl.errors import StoreError
 
-SCHEMA_VERSION = 7
+SCHEMA_VERSION = 8
 EXPORT_TABLES = ("participants", "schedule", "sessions", "conditions", "trials", "answers", "latency", "events", "consent", "corrections",
-                 "observer_features", "rig_profile")
+                 "observer_features", "rig_profile",
+                 "discrimination", "synthetic_traits")
 IDENTIFYING_TABLES = ("identities",)
 
 
@@ -118,7 +119,21 @@ def _migration_7(db: sqlite_utils.Database) -> None:
                               "machine": str, "measured_at": str, "source": str}, pk="key")
 
 
-MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3, 4: _migration_4, 5: _migration_5, 6: _migration_6, 7: _migration_7}
+def _migration_8(db: sqlite_utils.Database) -> None:
+    """Discrimination trials (studyctl/tasks.py): per trial the increment tried, which interval
+    held the comparison, the answer, the procedure's state after it and both intervals' traces;
+    and each synthetic participant's generating traits (so that estimates can be checked)."""
+    db["discrimination"].create(
+        {"session_id": int, "code": str, "model": str, "task": int, "trial": int, "reference": float, "delta": float,
+         "comparison": float, "comparison_interval": int, "answer": int, "correct": int, "state": str, "source": str,
+         "started_at": str, "answered_at": str, "trace_path_1": str, "trace_sha256_1": str, "trace_path_2": str, "trace_sha256_2": str},
+        pk=("session_id", "model", "task", "trial"), foreign_keys=[("session_id", "sessions", "id")])
+    db["synthetic_traits"].create({"code": str, "trait": str, "value": float, "seed": int},
+                                  pk=("code", "trait"), foreign_keys=[("code", "participants", "code")])
+
+
+MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3, 4: _migration_4, 5: _migration_5, 6: _migration_6, 7: _migration_7,
+              8: _migration_8}
 
 
 STUDY_TABLES = ("meta", "study")  # what makes a file a study database (with meta.schema_version)

@@ -22,11 +22,13 @@ from dataclasses import dataclass
 
 from studyctl.observer import (
     DEFAULT,
+    DiscriminationTraits,
     ObserverParams,
     ObserverTraits,
     features,
     judged_answer,
     logit,
+    stiffer_answer,
     summarise,
 )
 from studyctl.questions import SESSION
@@ -44,6 +46,7 @@ class SyntheticParticipant:
     tremor_hz: float
     stiffness: float  # hand stiffness, N/m
     traits: ObserverTraits  # how they perceive (studyctl/observer.py)
+    discrimination: DiscriminationTraits  # how finely they tell stiffness apart (the discrimination task)
 
     @classmethod
     def draw(cls, code: str, seed: int) -> SyntheticParticipant:
@@ -53,7 +56,14 @@ class SyntheticParticipant:
             pull_scale=rng.uniform(0.8, 1.2), time_scale=rng.uniform(0.8, 1.3),
             tremor_m=rng.uniform(0.1e-3, 0.4e-3), tremor_hz=rng.uniform(8.0, 12.0),
             stiffness=rng.uniform(200.0, 500.0), traits=ObserverTraits.draw(code, seed),
+            discrimination=DiscriminationTraits.draw(code, seed),
         )
+
+    def trait_values(self) -> dict[str, float]:
+        """Every generating trait by name (stored with the study: `synthetic_traits`)."""
+        out = {k: float(getattr(self, k)) for k in ("pull_scale", "time_scale", "tremor_m", "tremor_hz", "stiffness")}
+        out |= {f"observer_{k}": float(v) for k, v in dataclasses.asdict(self.traits).items()}
+        return out | {f"stiffness_{k}": float(v) for k, v in dataclasses.asdict(self.discrimination).items()}
 
     def operators(self, scene, trial: int, model: str) -> list:
         """This participant's pulls for one trial: the scene's, varied per trial and hand."""
@@ -108,6 +118,13 @@ class SyntheticAnswers:
                                  "the synthetic observer cannot judge its latency; start the participant's session afresh")
             self._feats[model] = features(summaries, self.participant.traits, self.params)
         return self._feats[model]
+
+    def discriminate(self, task, model: str, context: dict) -> int:
+        """Which of the trial's two intervals felt stiffer (1 or 2), from their traces
+        (`studyctl.observer.stiffer_answer`), drawn with a generator seeded by the trial."""
+        who = self.participant
+        rng = random.Random(f"discrimination:{who.seed}:{who.code}:{model}:{task.index}:{context['trial']}")
+        return stiffer_answer(context["intervals"], who.discrimination, rng.random, lambda: rng.gauss(0.0, 1.0), self.mesh)
 
     def __call__(self, question, model: str, context: dict):
         """An answer of the question's kind from this participant's latent judgement of the

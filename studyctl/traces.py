@@ -53,13 +53,14 @@ def encode(result) -> bytes:
     return buf.getvalue()
 
 
-def write_trace(db: str | Path, session_id: int, position: int, trial: int, result) -> dict:
-    """Write the trial's trace durably; returns the trial row's trace fields."""
+def write_trace(db: str | Path, session_id: int, position: int, trial: int, result, name: str | None = None) -> dict:
+    """Write the trial's trace durably; returns the trial row's trace fields. `name`: the file's
+    name in the session's folder, when it is not a free trial's (a task's interval)."""
     data = encode(result)
     folder = trace_dir(db) / f"session-{session_id:04d}"
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        path = folder / f"condition-{position + 1}-trial-{trial + 1}.npz"
+        path = folder / (name or f"condition-{position + 1}-trial-{trial + 1}.npz")
         tmp = path.with_suffix(".npz.tmp")
         with open(tmp, "wb") as fh:
             fh.write(data)

@@ -372,12 +372,14 @@ def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
     con.execute("alter table conditions drop column config")
     con.execute("alter table conditions drop column config_sha256")
     con.execute("drop table rig_profile")
+    con.execute("drop table discrimination")
+    con.execute("drop table synthetic_traits")
     con.execute("update meta set value = '2' where key = 'schema_version'")
     con.commit()
     con.close()
     res = studyctl("participants", "list", "--json", "--db", db)
     assert res.exit_code == 0 and json.loads(res.output)[0]["code"] == "P01"
-    assert _q(db, "select value from meta where key = 'schema_version'") == [("7",)]
+    assert _q(db, "select value from meta where key = 'schema_version'") == [("8",)]
     assert _q(db, "select count(*) from observer_features") == [(0,)]
     assert {"config", "config_sha256"} <= {r[1] for r in _q(db, "pragma table_info(conditions)")}
 

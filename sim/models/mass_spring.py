@@ -435,6 +435,16 @@ class MassSpringModel:
         s.energy_peak = 0.0
         self.step_s = []
 
+    def with_stiffness(self, scale: float) -> MassSpringModel:
+        """This model with Young's modulus times `scale` (the discrimination task's stimulus):
+        every spring's stiffness is linear in E (`from_tets`), the masses are not, so the
+        springs are scaled and the system built again (its local/global factor depends on them)."""
+        s = self.system
+        system = MassSpring(s.rest_positions, s.springs, s.k * float(scale), s.m, fixed=s.fixed, damping=s.damping, acceleration=s.acceleration)
+        return MassSpringModel(self.surface, self.volume, system, integrator=self.integrator, dt=self.dt, coupling=self.coupling,
+                               grasp_radius=self.grasp_radius, substep=self.substep, iterations=self.iterations,
+                               frame_dt=self.steps_per_frame * self.dt)
+
     def grasp(self, point, hand: int = 0):
         from sim.models.base import Contact
 

@@ -18,6 +18,7 @@ servo tick is a binary search and a multiply-add.
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 import tomllib
 from collections.abc import Sequence
@@ -418,6 +419,13 @@ class PlateSpringModel:
 
     def force(self, contact: Contact, displacement: Sequence[float]) -> Vec3:
         return contact.law.force(displacement)
+
+    def with_stiffness(self, scale: float) -> PlateSpringModel:
+        """This model with the plates' modulus E times `scale`: every spring constant and layer
+        force is linear in E (Eqs. 3, 6, 9) and the layer lengths are not, so every force
+        scales by `scale` and the deformation is unchanged (the discrimination task's stimulus)."""
+        params = dataclasses.replace(self.stack.params, E=self.stack.params.E * float(scale))
+        return PlateSpringModel(self.mesh, params, self.variant, self.field)
 
     def profile(self, x: float) -> np.ndarray:
         """Displacement magnitude at the ring borders R_0..R_N for a stack stretched by x."""

@@ -49,6 +49,17 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
     from analysis import table1
 
     study = _read(db)
+    if study.protocol.tasks and not study.protocol.questions:  # a discrimination study without questions: its section is the report
+        if fmt in ("csv", "latex"):
+            raise click.ClickException(f"--format {fmt}: the study asks no questions (no Table 1); its discrimination task "
+                                       "reports as md, html or json (`studyctl report jnd`)")
+        text = _jnd_text(study, fmt)
+        if out_file:
+            Path(out_file).write_text(text)
+            click.echo(f"wrote {out_file}")
+        else:
+            click.echo(text, nl=False)
+        return
     if _no_answers(study, fmt == "json"):
         return
     accuracy = _load_bench(accuracy_file, "accuracy", "rows") if accuracy_file else None
@@ -80,7 +91,14 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
         r, q = table1.rates(study), table1.cochran(study)
         text = json.dumps(jsonable({"facts": table1.study_facts(study), "rates": r.to_dict(orient="records"),
                                      "cochran": q.to_dict(orient="records"), "kinds": study_stats(study, r, q, holm_scope)["kinds"],
-                                     "deformation": table1.deformation(study).to_dict(orient="records")}), indent=2)
+                                     "deformation": table1.deformation(study).to_dict(orient="records")}
+                                    | ({"jnd": _jnd(study)} if study.protocol.tasks else {})), indent=2)
+    if study.protocol.tasks and fmt == "md":
+        text += "\n## Stiffness discrimination\n\n" + _jnd_text(study, "md")
+    elif study.protocol.tasks and fmt == "html":
+        from analysis.jnd import html_section
+
+        text = text.replace("</body></html>", html_section(_jnd(study), study) + "\n</body></html>")
     if out_file:
         Path(out_file).write_text(text)
         click.echo(f"wrote {out_file}")
@@ -117,6 +135,41 @@ def _load_bench(path: Path, kind: str, key: str) -> dict:
     if not isinstance(data, dict) or not {key, "meta"} <= set(data):
         raise click.ClickException(f"{path}: not a `studyctl bench {kind}` result (needs {key} and meta; write one with `studyctl bench {kind} --out DIR`)")
     return data
+
+
+def _jnd(study) -> dict:
+    from analysis.jnd import jnd_results
+
+    return jnd_results(study)
+
+
+def _jnd_text(study, fmt: str) -> str:
+    from analysis import jnd
+
+    res = _jnd(study)
+    if fmt == "json":
+        return json.dumps(jsonable(res), indent=2) + "\n"
+    return jnd.html(res, study) if fmt == "html" else jnd.markdown(res)
+
+
+@report.command("jnd")
+@DB
+@click.option("--format", "fmt", type=click.Choice(["md", "html", "json"]), default="md", show_default=True)
+@click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
+@click.option("--out", "out_file", type=OutFile(), default=None)
+def report_jnd(db, fmt, as_json, out_file):
+    """Stiffness discrimination: each participant's psychometric fit and Weber fraction with its
+    bootstrap 95% interval per condition, the conditions' geometric means, the group test (mixed
+    model on log Weber fraction, Friedman, Holm pairs); html with psychometric plots."""
+    study = _read(db)
+    if not study.protocol.tasks:
+        raise click.ClickException(f"{db}: the study's protocol has no discrimination task ([[tasks]]); nothing to report")
+    text = _jnd_text(study, "json" if as_json else fmt)
+    if out_file:
+        Path(out_file).write_text(text)
+        click.echo(f"wrote {out_file}")
+    else:
+        click.echo(text, nl=False)
 
 
 @report.command("plots")

@@ -9,6 +9,7 @@ interpolated with its element's own shape functions).
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import math
 import time
@@ -142,6 +143,17 @@ class FemModel:
             cols.append((self.offsets[k] + nodes).ravel())
             vals.append(part.element.shape(bary[sel]).ravel())
         return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(len(tet), self.n_model_nodes))
+
+    def with_stiffness(self, scale: float) -> FemModel:
+        """This model with Young's modulus times `scale` (the discrimination task's stimulus):
+        the parts scaled (`LinearFem.scaled`, the factors reused), the mesh and embedding
+        shared, no grasp or frame state carried over. Equal to building it with E * scale."""
+        out = copy.copy(self)
+        out.parts = [p.scaled(scale) for p in self.parts]
+        out._pair_of, out._corot, out._out = None, {}, np.zeros_like(self._out)
+        out.inverted_frames = out.tangent_updates = out.restarts = 0
+        out.unstable, out.frame_flops = False, math.nan
+        return out
 
     @property
     def timings(self) -> dict:

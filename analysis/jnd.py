@@ -1,0 +1,199 @@
+"""The discrimination task's report (`studyctl report jnd`; a section of `report table1`):
+per participant and condition the psychometric fit and Weber fraction with its parametric-
+bootstrap interval (analysis/psychometric.py), per condition the geometric mean, across
+conditions the group test, the QUEST+ posterior where it ran, and for synthetic participants
+their generating Weber fraction beside the estimate (so recovery can be read off).
+
+`jnd_results(study)` returns one JSON-able dict; `markdown` and `html` print it. Keys:
+
+- ``facts``: study, participants, synthetic, task (method, trials, reference, question), function;
+- ``weber``: one row per participant and condition: code, condition, n_trials, weber, ci_low,
+  ci_high, lapse, slope, converged, p_correct, quest_estimate (QUEST+ only), generating_weber
+  (synthetic only);
+- ``conditions``: per condition: n, geometric mean Weber fraction with a 95% interval (t on logs),
+  median, and for synthetic studies the median absolute relative error against the generating
+  values and the intervals' coverage of them;
+- ``group``: analysis.psychometric.group_test across conditions (None with one condition).
+"""
+
+from __future__ import annotations
+
+import html as _html
+import json
+import math
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+SYNTHETIC_FLAG = "SYNTHETIC DATA (simulated participants): not evidence about people."
+
+
+def trials(study, task: int = 0) -> pd.DataFrame:
+    """One task's trials, tidy: code, condition, trial, stimulus (the increment), correct."""
+    d = study.discrimination
+    d = d[d["task"] == task]
+    return pd.DataFrame({"code": d["code"], "condition": d["model"], "trial": d["trial"], "stimulus": d["delta"].astype(float),
+                         "correct": d["correct"].astype(int)}).reset_index(drop=True)
+
+
+def _quest_estimates(study, task: int) -> dict:
+    """(code, condition) -> the procedure's own estimate after its last trial."""
+    d = study.discrimination
+    d = d[d["task"] == task].sort_values("trial")
+    out = {}
+    for (code, cond), g in d.groupby(["code", "model"]):
+        state = json.loads(g["state"].iloc[-1]) if isinstance(g["state"].iloc[-1], str) else {}
+        if "estimate" in state:
+            out[(code, cond)] = float(state["estimate"])
+    return out
+
+
+def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) -> dict:
+    from analysis.psychometric import group_test, weber_table
+
+    protocol = study.protocol
+    spec = protocol.tasks[task]
+    t = trials(study, task)
+    sources = set(study.discrimination["source"])
+    synthetic = "synthetic" in sources
+    kwargs = {} if n_boot is None else {"n_boot": n_boot}
+    table = weber_table(t, seed=seed, **kwargs) if len(t) else pd.DataFrame()
+    facts = {"study": protocol.name, "participants": int(t["code"].nunique()) if len(t) else 0, "synthetic": synthetic,
+             "task": {"kind": spec.kind, "parameter": spec.parameter, "method": spec.method, "rule": spec.rule if spec.method == "staircase" else None,
+                      "trials": spec.trials, "reference": spec.reference, "question": spec.question, "range": [spec.low, spec.high]}}
+    if not len(table):
+        return {"facts": facts, "weber": [], "conditions": [], "group": None}
+    table = table.copy()
+    table["p_correct"] = [float(t[(t["code"] == r.code) & (t["condition"] == r.condition)]["correct"].mean()) for r in table.itertuples()]
+    if spec.method == "quest+":
+        quest = _quest_estimates(study, task)
+        table["quest_estimate"] = [quest.get((r.code, r.condition), math.nan) for r in table.itertuples()]
+    traits = study.traits
+    generating = traits[traits["trait"] == "stiffness_weber"].set_index("code")["value"] if len(traits) else pd.Series(dtype=float)
+    if synthetic and len(generating):
+        table["generating_weber"] = [float(generating.get(c, math.nan)) for c in table["code"]]
+    order = [c for c in protocol.conditions if c in set(table["condition"])]
+    conds = [_condition_summary(table[table["condition"] == c], c) for c in order]
+    group = group_test(table) if len(order) >= 2 else None
+    return {"facts": facts, "weber": table.to_dict(orient="records"), "conditions": conds, "group": group}
+
+
+def _condition_summary(rows: pd.DataFrame, condition: str) -> dict:
+    w = rows["weber"].to_numpy(dtype=float)
+    w = w[np.isfinite(w) & (w > 0)]
+    out = {"condition": condition, "n": int(len(w)), "geometric_mean": math.nan, "gm_low": math.nan, "gm_high": math.nan,
+           "median": float(np.median(w)) if len(w) else math.nan}
+    if len(w) >= 2:
+        lw = np.log(w)
+        half = stats.t.ppf(0.975, len(w) - 1) * lw.std(ddof=1) / math.sqrt(len(w))
+        out |= {"geometric_mean": float(np.exp(lw.mean())), "gm_low": float(np.exp(lw.mean() - half)), "gm_high": float(np.exp(lw.mean() + half))}
+    if "generating_weber" in rows:
+        g = rows["generating_weber"].to_numpy(dtype=float)
+        ok = np.isfinite(g) & np.isfinite(rows["weber"].to_numpy(dtype=float))
+        if ok.any():
+            est = rows["weber"].to_numpy(dtype=float)[ok]
+            out["recovery_median_abs_rel_error"] = float(np.median(np.abs(est - g[ok]) / g[ok]))
+            out["recovery_coverage"] = float(np.mean((rows["ci_low"].to_numpy(dtype=float)[ok] <= g[ok]) & (g[ok] <= rows["ci_high"].to_numpy(dtype=float)[ok])))
+    return out
+
+
+def _pct(x) -> str:
+    return "-" if x is None or not math.isfinite(float(x)) else f"{100 * float(x):.1f}%"
+
+
+def _p(x) -> str:
+    return "-" if x is None or not math.isfinite(float(x)) else f"{float(x):.3g}"
+
+
+def markdown(res: dict) -> str:
+    f = res["facts"]
+    task = f["task"]
+    flag = f"{SYNTHETIC_FLAG} " if f["synthetic"] else ""
+    method = task["method"] + (f" ({task['rule']})" if task["rule"] else "")
+    lines = [f"**Stiffness discrimination: {f['study']}.** {flag}N = {f['participants']} participants; two-interval forced choice "
+             f"\"{task['question']}\", {task['trials']} {method} trials per condition around {task['reference']:g} times each condition's stiffness.", ""]
+    if not res["weber"]:
+        return "\n".join(lines + ["No discrimination trials yet.", ""])
+    lines += ["| Condition | N | Weber fraction, geometric mean [95% CI] | median |" + (" recovery: median abs. error, CI coverage |" if any("recovery_coverage" in c for c in res["conditions"]) else ""),
+              "|---|---|---|---|" + ("---|" if any("recovery_coverage" in c for c in res["conditions"]) else "")]
+    for c in res["conditions"]:
+        rec = f" {_pct(c['recovery_median_abs_rel_error'])}, {_pct(c['recovery_coverage'])} |" if "recovery_coverage" in c else ""
+        lines.append(f"| {c['condition']} | {c['n']} | {_pct(c['geometric_mean'])} [{_pct(c['gm_low'])}, {_pct(c['gm_high'])}] | {_pct(c['median'])} |{rec}")
+    g = res["group"]
+    if g:
+        lines += ["", _group_text(g)]
+    lines += ["", "Per participant (Weber fraction with its parametric-bootstrap 95% interval; the increment picked out 75% of the time):", "",
+              "| Participant | Condition | trials | % correct | Weber [95% CI] | lapse |" + (" generating |" if "generating_weber" in res["weber"][0] else ""),
+              "|---|---|---|---|---|---|" + ("---|" if "generating_weber" in res["weber"][0] else "")]
+    for r in res["weber"]:
+        gen = f" {_pct(r['generating_weber'])} |" if "generating_weber" in r else ""
+        lines.append(f"| {r['code']} | {r['condition']} | {r['n_trials']} | {_pct(r['p_correct'])} | {_pct(r['weber'])} [{_pct(r['ci_low'])}, {_pct(r['ci_high'])}] "
+                     f"| {_pct(r['lapse'])} |{gen}")
+    return "\n".join(lines) + "\n"
+
+
+def _group_text(g: dict) -> str:
+    """The group test in one paragraph (keys of analysis.psychometric.group_test)."""
+    parts = []
+    mm = g.get("mixed_model") or {}
+    if mm:
+        parts.append(f"Mixed model of log Weber fraction on condition (participant as random intercept): likelihood-ratio chi2({mm.get('df')}) = "
+                     f"{_p(mm.get('chi2'))}, p = {_p(mm.get('p'))}.")
+    fr = g.get("friedman") or {}
+    if fr:
+        parts.append(f"{fr.get('test', 'Friedman')}: statistic {_p(fr.get('statistic'))}, p = {_p(fr.get('p'))}.")
+    pairs = g.get("pairs") or []
+    if pairs:
+        parts.append("Pairs (paired t on log Weber fractions, Holm): " + "; ".join(
+            f"{p['a']} vs {p['b']}: ratio {_p(p.get('ratio'))} [{_p(p.get('ratio_low'))}, {_p(p.get('ratio_high'))}], p_holm {_p(p.get('p_holm'))}" for p in pairs) + ".")
+    return " ".join(parts)
+
+
+def html_section(res: dict, study) -> str:
+    """The report's section as HTML (escaped), with one psychometric plot per condition."""
+    from analysis.report import _inline_png
+
+    esc = _html.escape
+    body = [f'<p class="synthetic">{esc(SYNTHETIC_FLAG)}</p>' if res["facts"]["synthetic"] else ""]
+    task = res["facts"]["task"]
+    body.append(f"<p>N = {res['facts']['participants']}; two-interval forced choice &ldquo;{esc(task['question'])}&rdquo;, "
+                f"{task['trials']} {esc(task['method'])} trials per condition.</p>")
+    if res["conditions"]:
+        rows = "".join(f"<tr><td>{esc(c['condition'])}</td><td>{c['n']}</td><td>{_pct(c['geometric_mean'])} [{_pct(c['gm_low'])}, {_pct(c['gm_high'])}]</td>"
+                       f"<td>{_pct(c['median'])}</td></tr>" for c in res["conditions"])
+        body.append(f"<table><tr><th>Condition</th><th>N</th><th>Weber fraction, geometric mean [95% CI]</th><th>median</th></tr>{rows}</table>")
+    if res["group"]:
+        body.append(f"<p>{esc(_group_text(res['group']))}</p>")
+    if res["weber"]:
+        from analysis.plots import psychometric_plot
+
+        t = trials(study)
+        for c in res["conditions"]:
+            img = _inline_png(lambda path, c=c: psychometric_plot(t[t["condition"] == c["condition"]], [r for r in res["weber"] if r["condition"] == c["condition"]],
+                                                                   c["condition"], path, res["facts"]["synthetic"]))
+            body.append(f'<figure><img alt="psychometric {esc(c["condition"])}" src="data:image/png;base64,{img}"></figure>')
+        head = "".join(f"<th>{esc(h)}</th>" for h in ("Participant", "Condition", "trials", "% correct", "Weber [95% CI]", "lapse"))
+        rows = "".join(f"<tr><td>{esc(r['code'])}</td><td>{esc(r['condition'])}</td><td>{r['n_trials']}</td><td>{_pct(r['p_correct'])}</td>"
+                       f"<td>{_pct(r['weber'])} [{_pct(r['ci_low'])}, {_pct(r['ci_high'])}]</td><td>{_pct(r['lapse'])}</td></tr>" for r in res["weber"])
+        body.append(f"<table><tr>{head}</tr>{rows}</table>")
+    return "<h2>Stiffness discrimination</h2>" + "".join(body)
+
+
+def html(res: dict, study) -> str:
+    esc = _html.escape
+    return f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>{esc(res['facts']['study'])}: stiffness discrimination</title>
+<style>
+body {{ font-family: sans-serif; margin: 2em; color: #222; }}
+table {{ border-collapse: collapse; font-size: 13px; margin: 1em 0; }}
+th, td {{ border: 1px solid #bbb; padding: 4px 8px; vertical-align: top; }}
+th {{ background: #eee; }}
+.synthetic {{ background: #b00020; color: white; padding: 6px 10px; font-weight: bold; display: inline-block; }}
+figure {{ display: inline-block; margin: 1em; }}
+img {{ max-width: 900px; }}
+</style></head><body>
+<h1>{esc(res['facts']['study'])}</h1>
+{html_section(res, study)}
+</body></html>
+"""

@@ -1,0 +1,602 @@
+"""Psychometric functions of the two-interval forced-choice stiffness discrimination task
+(studyctl/tasks.py): per participant and condition the Weber fraction with a parametric-bootstrap
+interval, and the group test across conditions. Tidy outputs with stable keys, as in
+analysis/stats.py and analysis/scales.py.
+
+The model. A trial presents the reference (stiffness scale `reference`, 1 = the condition's own)
+and a comparison stiffer by the relative increment delta > 0; `correct` = the participant chose
+the comparison. On x = ln(delta):
+
+    P(correct) = guess + (1 - guess - lapse) * F((x - location) / scale)
+
+with F the cumulative Gaussian Phi ("gaussian") or the Gumbel 1 - exp(-exp(z)) ("weibull": the
+Weibull 1 - exp(-(delta / a) ** b) in delta, location = ln a, scale = 1 / b). guess = 0.5 (two
+alternatives), lapse fitted in [0, lapse_max]. The threshold is the delta where F = 0.5: 75%
+correct for the lapse-free function, 0.75 - lapse / 2 with lapses. This is psignifit's 2AFC
+convention (its default thresh_PC = 0.5 of the sigmoid's range; Schuett et al. 2016), so the
+threshold does not move when the lapse rate does. delta is relative to the reference, so the
+threshold is the Weber fraction; `jnd` = weber * reference is the same in the reference's units.
+
+Fit: maximum likelihood (`fit_psychometric`): the log-likelihood on a grid over the bounded
+parameter space; the best points, and the best in each part of it (lapse rate, scale), each
+taken uphill by Fisher scoring; then scipy's L-BFGS-B (analytic gradient) from the best of them. Bounds, from the ln stimuli tested (span = their range, ln 2 with one level):
+location within the tested range widened by the span on each side, scale in [span / 100,
+2 span], lapse in [0, lapse_max]. Never NaN: data that do not bound the threshold return the
+bounded maximum with `converged` False and a `flag` (FLAGS):
+
+- ``all_correct``: every answer correct: the threshold is below the lowest delta tested; the fit
+  sits at the lower location bound (weber = the bound);
+- ``at_chance``: no level above chance (e.g. every answer wrong): the threshold is above the
+  highest delta; the fit sits at the upper bound;
+- ``one_level``: one stimulus level: location and scale are not identified; the weber returned is
+  one of equally likely values;
+- ``location_at_bound`` / ``scale_at_bound``: the maximum lies on a bound (a very shallow
+  function, or a step between two levels, which no finite data can resolve);
+- ``optimizer``: L-BFGS-B did not report convergence.
+
+The first three (DEGENERATE) get no bootstrap interval (ci_low, ci_high NaN): a parametric
+bootstrap from a bound says nothing. The others keep theirs.
+
+Interval: parametric bootstrap (`bootstrap_interval`): responses simulated from the fitted
+function at the same stimuli, refitted, the percentile interval of the Weber fraction. The
+refits are vectorised over replicates: a coarse grid and the original fit as starting points,
+then projected Fisher scoring with step halving, all replicates at once.
+
+`weber_table`: one row per participant and condition (columns WEBER_COLUMNS).
+
+`group_test(table)`: across conditions, on the participants with a finite Weber fraction in
+every condition ("complete"); needs >= 2 conditions and >= MIN_PARTICIPANTS complete
+participants, otherwise `estimable` is False, the tests None, `problems` says why. Pairs are
+(a, b) in `itertools.combinations(conditions, 2)` order, each effect b against a. JSON-able,
+NaN as None. Keys:
+
+- ``conditions`` (the order used), ``n_participants`` (complete), ``excluded`` (codes left out:
+  a condition missing or its Weber fraction not finite), ``n_not_converged`` (fits among those
+  used whose `converged` is False), ``estimable``, ``problems``;
+- ``mixed_model``: linear mixed model of ln(weber) on condition, participant as random intercept
+  (statsmodels MixedLM, ML). ``chi2``, ``df``, ``p``: likelihood-ratio test against the
+  intercept-only model, also by ML; ``loglik``, ``loglik_null``, ``variance_participant``,
+  ``variance_residual``, ``converged``, ``n_observations``;
+- ``friedman``: the rank check. ``test`` ("Friedman"; "Wilcoxon signed-rank" with 2 conditions),
+  ``statistic``, ``df`` (None for Wilcoxon), ``p`` (scipy's friedmanchisquare, tie-corrected;
+  wilcoxon with its defaults);
+- ``pairs``: per pair ``a``, ``b``, ``n``, ``ratio`` (geometric-mean ratio b / a: exp of the mean
+  ln difference), ``ratio_low``, ``ratio_high`` (95%, t on n - 1 df), ``t``, ``df``, ``p`` (paired t
+  on ln weber), ``p_holm`` (Holm over the pairs' t tests), ``wilcoxon`` (statistic), ``p_wilcoxon``,
+  ``p_wilcoxon_holm`` (Holm over the pairs' Wilcoxon tests).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import itertools
+import math
+import warnings
+import zlib
+from typing import NamedTuple
+
+import numpy as np
+import pandas as pd
+from scipy import optimize, special, stats
+
+FUNCTIONS = ("gaussian", "weibull")
+GUESS = 0.5  # two intervals
+LAPSE_MAX = 0.06
+# the steepest function fitted, in ln delta: the Weibull slope 5, the steepest the QUEST+ procedure
+# considers (studyctl/procedures.py). Without a floor a third of 40-trial fits were step functions
+# and their bootstraps, simulated from a step, covered the truth 84% of the time; at 0.2, 92%.
+SCALE_MIN = 0.2
+# 500 replicates: the 2.5% and 97.5% percentiles move by about 2% of the interval's width between
+# seeds. Measured on one core: about 40 microseconds a replicate at 40 trials (20 ms a fit), so
+# a report of 35 participants x 3 conditions takes about 2 s.
+N_BOOT = 500
+BOOTSTRAP_SEED = 2015  # fixed: a report computed twice prints the same intervals
+LEVEL = 0.95
+ONE_LEVEL_SPAN = math.log(2.0)  # the ln-stimulus span that sets the bounds when one level was tested
+MIN_PARTICIPANTS = 3
+FLAGS = ("all_correct", "at_chance", "one_level", "location_at_bound", "shallow", "optimizer", "steep")
+DEGENERATE = ("all_correct", "at_chance", "one_level")
+CONVERGED_FLAGS = ("", "steep")  # the flags a fit may carry and still count as converged
+WEBER_COLUMNS = ["code", "condition", "n_trials", "weber", "ci_low", "ci_high", "lapse", "slope", "converged", "flag"]
+NAN = float("nan")
+POLISH_ITERATIONS = 25
+HALVINGS = 12
+
+_LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
+# z where F = 1/2 (the threshold), F's density there, and the width of psignifit (F from 5% to 95%)
+_Z_HALF = {"gaussian": 0.0, "weibull": math.log(math.log(2.0))}
+_DENSITY_HALF = {"gaussian": 1.0 / math.sqrt(2.0 * math.pi), "weibull": 0.5 * math.log(2.0)}
+_Z_WIDTH = {"gaussian": 2.0 * float(stats.norm.ppf(0.95)), "weibull": math.log(-math.log(0.05)) - math.log(-math.log(0.95))}
+# z beyond these changes no probability that matters (1 - F < 1e-260) and keeps 1 / (1 - P) finite
+_Z_CLIP = {"gaussian": (-35.0, 35.0), "weibull": (-35.0, 6.5)}
+
+
+@dataclasses.dataclass(frozen=True)
+class PsychometricFit:
+    """A maximum-likelihood psychometric function (module docstring). `location`, `scale` and
+    `width` are in ln(delta); `slope` is dP(correct)/d ln(delta) at the threshold (per e-fold of
+    the increment; divide by `weber` for per unit delta). `width`: psignifit's, the ln-delta
+    distance over which F rises from 5% to 95%. `converged` is False whenever `flag` is set."""
+
+    function: str
+    guess: float
+    lapse_max: float
+    scale_min: float
+    reference: float
+    weber: float  # the increment at F = 0.5 (75% correct without lapses), relative to the reference
+    jnd: float  # weber * reference
+    location: float
+    scale: float
+    width: float
+    slope: float
+    lapse: float
+    loglik: float
+    n_trials: int
+    n_levels: int
+    converged: bool
+    flag: str  # "" or one of FLAGS
+    ci_low: float = NAN
+    ci_high: float = NAN
+    ci_level: float = NAN
+    n_boot: int = 0
+
+    def p_correct(self, stimulus) -> np.ndarray:
+        """The fitted P(correct) at increments `stimulus`."""
+        x = np.log(np.asarray(stimulus, dtype=float))
+        t = _terms(self.function, self.guess, x, self.location, math.log(self.scale), self.lapse)
+        return np.exp(t.logP)
+
+
+# --- the model ----------------------------------------------------------------------------------
+
+class _Terms(NamedTuple):
+    z: np.ndarray
+    logP: np.ndarray
+    log1mP: np.ndarray
+    logF: np.ndarray
+    logf: np.ndarray
+    logA: np.ndarray
+
+
+def _log_cdf(function: str, z: np.ndarray):
+    """ln F, ln(1 - F) and ln F' at z, accurate in both tails."""
+    if function == "gaussian":
+        return special.log_ndtr(z), special.log_ndtr(-z), -0.5 * z * z - _LOG_SQRT_2PI
+    ez = np.exp(z)
+    return np.log(-np.expm1(-ez)), -ez, z - ez
+
+
+def _terms(function: str, guess: float, x, location, log_scale, lapse) -> _Terms:
+    """Everything the likelihood and its derivatives need; broadcasts parameters (B, 1) against
+    levels (J,). In logs: 1 - P is lapse + A (1 - F), which underflows where F is near 1."""
+    z = np.clip((x - location) / np.exp(log_scale), *_Z_CLIP[function])
+    logF, logQ, logf = _log_cdf(function, z)
+    logA = np.log1p(-(guess + np.asarray(lapse, dtype=float)))
+    with np.errstate(divide="ignore"):
+        logP = np.logaddexp(np.log(guess), logA + logF)
+        log1mP = np.logaddexp(np.log(lapse), logA + logQ)
+    return _Terms(z, logP, log1mP, logF, logf, logA)
+
+
+def _loglik(t: _Terms, k: np.ndarray, n: np.ndarray) -> np.ndarray:
+    return np.sum(k * t.logP + (n - k) * t.log1mP, axis=-1)
+
+
+def _score(t: _Terms, k, n, log_scale) -> np.ndarray:
+    """d loglik / d(location, ln scale, lapse), shape (..., 3)."""
+    w = k * np.exp(-t.logP) - (n - k) * np.exp(-t.log1mP)  # d loglik / dP per level
+    dz = w * np.exp(t.logA + t.logf)  # dP/dz = A f
+    inv_scale = np.exp(-np.asarray(log_scale, dtype=float))  # scalar, or (B, 1) against (B, J)
+    return np.stack([-np.sum(dz * inv_scale, axis=-1), -np.sum(dz * t.z, axis=-1), -np.sum(w * np.exp(t.logF), axis=-1)], axis=-1)
+
+
+def _fisher(t: _Terms, n, log_scale) -> np.ndarray:
+    """Expected information sum n dP dP' / (P (1 - P)), shape (B, 3, 3); each factor scaled by
+    1 / sqrt(P (1 - P)) first so no term overflows."""
+    h = 0.5 * (t.logP + t.log1mP)
+    g = np.exp(t.logA + t.logf - h)
+    d = np.stack([-g / np.exp(log_scale), -g * t.z, -np.exp(t.logF - h)], axis=-1)  # (B, J, 3)
+    return np.einsum("bj,bja,bjc->bac", np.broadcast_to(n, d.shape[:2]), d, d)
+
+
+def _threshold(function: str, location, scale):
+    return location + scale * _Z_HALF[function]
+
+
+@functools.cache
+def _blas():
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
+
+
+def _one_blas_thread():
+    """numpy's OpenBLAS to one thread while fitting: the products here are small, and its idle
+    workers spin for about 0.1 s after each threaded call (sim/linalg.py), which made a
+    bootstrap 5-10 times slower on 2 cores."""
+    return _blas().limit(limits=1, user_api="blas")
+
+
+# --- data and bounds ----------------------------------------------------------------------------
+
+def _levels(stimulus, correct, trials=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ln delta per level, correct per level, trials per level) from trials (0/1 answers) or,
+    with `trials`, from counts per row (floats allowed: expected counts)."""
+    s = np.asarray(stimulus, dtype=float).ravel()
+    c = np.asarray(correct, dtype=float).ravel()
+    n = np.ones_like(s) if trials is None else np.asarray(trials, dtype=float).ravel()
+    if not (len(s) == len(c) == len(n)):
+        raise ValueError(f"stimulus, correct{', trials' if trials is not None else ''}: lengths {len(s)}, {len(c)}, {len(n)} differ")
+    if not len(s):
+        raise ValueError("no trials")
+    if not (np.isfinite(s).all() and (s > 0).all()):
+        raise ValueError("stimulus: every increment must be finite and > 0")
+    if trials is None and not np.isin(c, (0.0, 1.0)).all():
+        raise ValueError("correct: every answer must be 0 or 1 (or pass trials= with counts)")
+    if trials is not None and not (np.isfinite(n).all() and (n > 0).all() and (c >= 0).all() and (c <= n).all()):
+        raise ValueError("trials, correct: need trials > 0 and 0 <= correct <= trials")
+    x, inv = np.unique(np.log(s), return_inverse=True)
+    return x, np.bincount(inv, weights=c), np.bincount(inv, weights=n)
+
+
+class _Bounds(NamedTuple):
+    lo: np.ndarray  # (location, ln scale, lapse)
+    hi: np.ndarray
+
+
+def _bounds(x: np.ndarray, lapse_max: float, scale_min: float) -> _Bounds:
+    span = float(x[-1] - x[0]) if len(x) > 1 else ONE_LEVEL_SPAN
+    return _Bounds(np.array([x[0] - span, math.log(scale_min), 0.0]),
+                   np.array([x[-1] + span, math.log(max(2.0 * span, 10.0 * scale_min)), lapse_max]))
+
+
+def _grid(b: _Bounds, n_loc: int, n_scale: int, n_lapse: int) -> np.ndarray:
+    """Parameter points (G, 3) spanning the bounds."""
+    lapses = np.linspace(b.lo[2], b.hi[2], n_lapse) if b.hi[2] > b.lo[2] else np.array([b.lo[2]])
+    g = np.meshgrid(np.linspace(b.lo[0], b.hi[0], n_loc), np.linspace(b.lo[1], b.hi[1], n_scale), lapses, indexing="ij")
+    return np.stack([a.ravel() for a in g], axis=1)
+
+
+def _check(function: str, guess: float, lapse_max: float, scale_min: float) -> None:
+    if function not in FUNCTIONS:
+        raise ValueError(f"function: {function!r}; allowed: {', '.join(FUNCTIONS)}")
+    if not (0.0 <= guess < 1.0 and 0.0 <= lapse_max and guess + lapse_max < 1.0):
+        raise ValueError(f"guess {guess!r}, lapse_max {lapse_max!r}: need 0 <= guess < 1, lapse_max >= 0, guess + lapse_max < 1")
+    if not (math.isfinite(scale_min) and scale_min > 0):
+        raise ValueError(f"scale_min {scale_min!r}: must be > 0")
+
+
+# --- the fit ------------------------------------------------------------------------------------
+
+def fit_psychometric(stimulus, correct, function: str = "gaussian", guess: float = GUESS, lapse_max: float = LAPSE_MAX,
+                     scale_min: float = SCALE_MIN, reference: float = 1.0, trials=None, n_boot: int = 0, level: float = LEVEL,
+                     seed=BOOTSTRAP_SEED) -> PsychometricFit:
+    """The maximum-likelihood psychometric function of one participant in one condition.
+
+    `stimulus`: the increments delta (> 0) of the trials; `correct`: 1 where the comparison was
+    chosen. With `trials`, each row is a level instead: `correct` of `trials` answers correct
+    (floats allowed). `n_boot` > 0 adds the parametric-bootstrap interval (`bootstrap_interval`,
+    seeded by `seed`) as ci_low, ci_high. Degenerate data give a flagged fit (module
+    docstring), never an exception or a silent NaN; invalid input raises ValueError."""
+    _check(function, guess, lapse_max, scale_min)
+    x, k, n = _levels(stimulus, correct, trials)
+    with _one_blas_thread():
+        return _fit(function, guess, lapse_max, scale_min, reference, x, k, n, n_boot, level, seed)
+
+
+def _fit(function, guess, lapse_max, scale_min, reference, x, k, n, n_boot, level, seed) -> PsychometricFit:
+    b = _bounds(x, lapse_max, scale_min)
+    # the grid: a coarse look at the whole bounded space, so the polish starts near the global
+    # maximum whatever the data (psychometric likelihoods with a lapse are not concave)
+    pts = _grid(b, 41, 25, 3)
+    ll = _loglik(_terms(function, guess, x, pts[:, :1], pts[:, 1:2], pts[:, 2:]), k, n)
+    # starts: the best grid points, and the best at each lapse rate and each quarter of the scale
+    # range (other basins), each taken uphill by the vectorised `_polish`; L-BFGS-B from the best
+    # of them, so the reported optimum is scipy's
+    ll = np.where(np.isfinite(ll), ll, -np.inf)
+    quarter = np.minimum(((pts[:, 1] - b.lo[1]) / max(b.hi[1] - b.lo[1], 1e-300) * 4).astype(int), 3)
+    slices = [np.flatnonzero((pts[:, 2] == lam) & (quarter == q)) for lam in np.unique(pts[:, 2]) for q in range(4)]
+    idx = np.unique(np.concatenate([np.argsort(ll)[-8:]] + [[s_[np.argmax(ll[s_])]] for s_ in slices if len(s_)]))
+    cand = _polish(function, guess, x, np.broadcast_to(k, (len(idx), len(x))), n, pts[idx], b)
+    ll_c = _loglik(_terms(function, guess, x, cand[:, :1], cand[:, 1:2], cand[:, 2:]), k, n)
+    start = cand[np.argmax(ll_c)]
+    scale_l = lapse_max if lapse_max > 0 else 1.0  # lapse in units of its bound: the three parameters alike in size
+
+    def negll(v):
+        theta = np.array([v[0], v[1], v[2] * scale_l])
+        t = _terms(function, guess, x, theta[0], theta[1], theta[2])
+        return -float(_loglik(t, k, n)), -_score(t, k, n, theta[1]) * np.array([1.0, 1.0, scale_l])
+
+    box = np.array(list(zip(b.lo, b.hi))) / np.array([1.0, 1.0, scale_l])[:, None]
+    best = optimize.minimize(negll, start / [1.0, 1.0, scale_l], jac=True, method="L-BFGS-B", bounds=box,
+                             options={"ftol": 1e-12, "gtol": 1e-8, "maxiter": 500})
+    theta = np.clip(best.x * [1.0, 1.0, scale_l], b.lo, b.hi)
+    # L-BFGS-B's line search may stop "abnormally" at the optimum itself; judge the point by its
+    # projected gradient (zero where free, pointing outward where on a bound) instead
+    _, g = negll(best.x)
+    pg = np.where(best.x <= box[:, 0], np.minimum(g, 0.0), np.where(best.x >= box[:, 1], np.maximum(g, 0.0), g))
+    ok = bool(best.success) or float(np.max(np.abs(pg))) <= 1e-4
+    fit = _make_fit(function, guess, lapse_max, scale_min, reference, theta, -float(best.fun), x, k, n, b, ok)
+    if n_boot > 0 and fit.flag not in DEGENERATE:
+        low, high = _interval(fit, x, n, n_boot, level, seed)
+        fit = dataclasses.replace(fit, ci_low=low, ci_high=high, ci_level=level, n_boot=n_boot)
+    return fit
+
+
+def _make_fit(function, guess, lapse_max, scale_min, reference, theta, loglik, x, k, n, b: _Bounds, success: bool) -> PsychometricFit:
+    loc, log_s, lapse = (float(v) for v in theta)
+    s = math.exp(log_s)
+    weber = math.exp(_threshold(function, loc, s))
+    tol = 1e-6 * (b.hi[:2] - b.lo[:2])
+    if len(x) == 1:
+        flag = "one_level"
+    elif np.all(k >= n):
+        flag = "all_correct"
+    elif np.all(k <= guess * n):
+        flag = "at_chance"
+    elif loc <= b.lo[0] + tol[0] or loc >= b.hi[0] - tol[0]:
+        flag = "location_at_bound"
+    elif log_s >= b.hi[1] - tol[1]:
+        flag = "shallow"
+    elif not success:
+        flag = "optimizer"
+    elif log_s <= b.lo[1] + tol[1]:
+        flag = "steep"
+    else:
+        flag = ""
+    return PsychometricFit(function=function, guess=guess, lapse_max=lapse_max, scale_min=scale_min, reference=reference, weber=weber, jnd=weber * reference,
+                           location=loc, scale=s, width=s * _Z_WIDTH[function], slope=(1.0 - guess - lapse) * _DENSITY_HALF[function] / s,
+                           lapse=lapse, loglik=loglik, n_trials=int(round(float(n.sum()))), n_levels=len(x), converged=flag in CONVERGED_FLAGS,
+                           flag=flag)
+
+
+# --- the parametric bootstrap -------------------------------------------------------------------
+
+def bootstrap_interval(fit: PsychometricFit, stimulus, trials=None, n_boot: int = N_BOOT, level: float = LEVEL,
+                       rng=BOOTSTRAP_SEED) -> tuple[float, float]:
+    """The percentile interval (`level`) of the Weber fraction over `n_boot` data sets simulated
+    from `fit` at the same stimuli (`stimulus`, and `trials` per row if the fit was made from
+    counts) and refitted by maximum likelihood with the fit's bounds. `rng`: a seed or a numpy
+    Generator. (NaN, NaN) for a degenerate fit (FLAGS) or n_boot < 1."""
+    if n_boot < 1 or fit.flag in DEGENERATE:
+        return NAN, NAN
+    s = np.asarray(stimulus, dtype=float).ravel()
+    x, _, n = _levels(s, np.zeros_like(s), trials)
+    with _one_blas_thread():
+        return _interval(fit, x, n, n_boot, level, rng)
+
+
+def _interval(fit: PsychometricFit, x, n, n_boot: int, level: float, rng) -> tuple[float, float]:
+    webers = _bootstrap_webers(fit, x, n, n_boot, rng)
+    low, high = np.quantile(webers, [(1.0 - level) / 2.0, (1.0 + level) / 2.0])
+    return float(low), float(high)
+
+
+def _bootstrap_webers(fit: PsychometricFit, x, n, n_boot: int, rng) -> np.ndarray:
+    rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    p = np.exp(_terms(fit.function, fit.guess, x, fit.location, math.log(fit.scale), fit.lapse).logP)
+    if np.allclose(n, np.round(n)):
+        k = rng.binomial(np.round(n).astype(np.int64), p, size=(n_boot, len(x))).astype(float)
+    else:  # expected counts: simulate each level's proportion from the nearest whole number of trials
+        m = np.maximum(np.round(n), 1).astype(np.int64)
+        k = rng.binomial(m, p, size=(n_boot, len(x))) * (n / m)
+    theta = _fit_many(fit.function, fit.guess, x, k, n, _bounds(x, fit.lapse_max, fit.scale_min),
+                      np.array([fit.location, math.log(fit.scale), fit.lapse]))
+    return np.exp(_threshold(fit.function, theta[:, 0], np.exp(theta[:, 1])))
+
+
+def _fit_many(function: str, guess: float, x, k, n, b: _Bounds, warm: np.ndarray) -> np.ndarray:
+    """Maximum-likelihood parameters (B, 3) of B data sets `k` (B, J) at the same levels: each
+    starts from the better of the best point of a coarse grid and `warm`, then `_polish`."""
+    pts = _grid(b, 21, 11, 3)
+    t = _terms(function, guess, x, pts[:, :1], pts[:, 1:2], pts[:, 2:])  # (G, J)
+    ll_grid = k @ t.logP.T + (n - k) @ t.log1mP.T  # (B, G): one matrix product for every replicate
+    best = np.argmax(ll_grid, axis=1)
+    ll_warm = _loglik(_terms(function, guess, x, warm[0], warm[1], warm[2]), k, n)
+    theta = np.where((ll_warm >= ll_grid[np.arange(len(k)), best])[:, None], warm[None, :], pts[best])
+    return _polish(function, guess, x, k, n, theta, b)
+
+
+def _polish(function: str, guess: float, x, k, n, theta: np.ndarray, b: _Bounds, max_iter: int = POLISH_ITERATIONS) -> np.ndarray:
+    """Projected Fisher scoring with step halving, every data set at once: a parameter on a bound
+    whose gradient points outward is held there (its row of the information replaced by the
+    identity); each step is halved until the likelihood does not fall. A data set stops when
+    its log-likelihood gains less than 1e-10, or after `max_iter` steps: those whose maximum is a
+    step function (scale to its lower bound) approach it slowly, and their threshold moves by
+    less than 1e-3 meanwhile (measured; the interval is not affected)."""
+    theta = theta.copy()
+    n_b = np.broadcast_to(n, k.shape)
+
+    def ll_of(th, kk, nn):
+        return _loglik(_terms(function, guess, x, th[:, :1], th[:, 1:2], th[:, 2:]), kk, nn)
+
+    ll = ll_of(theta, k, n_b)
+    todo = np.arange(len(theta))
+    eye = np.eye(3)
+    for _ in range(max_iter):
+        if not len(todo):
+            break
+        th, kk, nn, ll0 = theta[todo], k[todo], n_b[todo], ll[todo]
+        t = _terms(function, guess, x, th[:, :1], th[:, 1:2], th[:, 2:])
+        g = _score(t, kk, nn, th[:, 1:2])
+        held = ((th <= b.lo + 1e-12) & (g < 0)) | ((th >= b.hi - 1e-12) & (g > 0))
+        free = (~held).astype(float)
+        info = _fisher(t, nn, th[:, 1:2]) * free[:, :, None] * free[:, None, :] + held[:, :, None] * eye
+        info += eye * (1e-10 * np.trace(info, axis1=1, axis2=2)[:, None, None] + 1e-12)
+        step = np.linalg.solve(info, (g * free)[:, :, None])[:, :, 0]
+        new, ll_new = th.copy(), ll0.copy()
+        left = np.arange(len(todo))
+        frac = 1.0
+        for _ in range(HALVINGS):
+            cand = np.clip(th[left] + frac * step[left], b.lo, b.hi)
+            ll_c = ll_of(cand, kk[left], nn[left])
+            ok = ll_c >= ll0[left]
+            new[left[ok]], ll_new[left[ok]] = cand[ok], ll_c[ok]
+            left = left[~ok]
+            if not len(left):
+                break
+            frac *= 0.5
+        theta[todo], ll[todo] = new, ll_new
+        todo = todo[ll_new - ll0 > 1e-10]
+    return theta
+
+
+# --- per participant and condition --------------------------------------------------------------
+
+def _row_seed(seed: int, code, condition) -> list[int]:
+    """A row's own stream: its interval does not depend on which other rows the table has."""
+    return [int(seed), zlib.crc32(str(code).encode()), zlib.crc32(str(condition).encode())]
+
+
+def weber_table(trials: pd.DataFrame, function: str = "gaussian", n_boot: int = N_BOOT, seed: int = BOOTSTRAP_SEED,
+                guess: float = GUESS, lapse_max: float = LAPSE_MAX, scale_min: float = SCALE_MIN, level: float = LEVEL,
+                reference: float = 1.0) -> pd.DataFrame:
+    """One row per participant (code) and condition of `trials` (columns code, condition, stimulus,
+    correct; others ignored): the fit's n_trials, weber, ci_low, ci_high (the bootstrap
+    interval, NaN with n_boot=0 or a degenerate fit), lapse, slope, converged, flag. Sorted by
+    code, then condition."""
+    missing = [c for c in ("code", "condition", "stimulus", "correct") if c not in trials.columns]
+    if missing:
+        raise ValueError(f"trials: missing columns {', '.join(missing)}")
+    rows = []
+    for (code, condition), g in trials.groupby(["code", "condition"], sort=True):
+        fit = fit_psychometric(g["stimulus"], g["correct"], function=function, guess=guess, lapse_max=lapse_max, scale_min=scale_min, reference=reference,
+                               n_boot=n_boot, level=level, seed=_row_seed(seed, code, condition))
+        rows.append({"code": code, "condition": condition, "n_trials": fit.n_trials, "weber": fit.weber, "ci_low": fit.ci_low,
+                     "ci_high": fit.ci_high, "lapse": fit.lapse, "slope": fit.slope, "converged": fit.converged, "flag": fit.flag})
+    return pd.DataFrame(rows, columns=WEBER_COLUMNS)
+
+
+# --- across conditions --------------------------------------------------------------------------
+
+def _json(v):
+    """Plain Python values; NaN and infinities as None."""
+    if isinstance(v, dict):
+        return {k: _json(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_json(x) for x in v]
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v) if math.isfinite(v) else None
+    return v
+
+
+def _holm(p: list[float]) -> list[float]:
+    from statsmodels.stats.multitest import multipletests
+
+    if not p:
+        return []
+    # a test that could not be made counts as p = 1 in the family (as analysis.stats does)
+    return [float(x) for x in multipletests([x if np.isfinite(x) else 1.0 for x in p], method="holm")[1]]
+
+
+def group_test(table: pd.DataFrame, conditions: list[str] | None = None) -> dict:
+    """Across conditions (module docstring for the keys): the likelihood-ratio test of a linear
+    mixed model of ln(weber) on condition with a random intercept per participant, Friedman (or
+    Wilcoxon with two conditions) as the rank check, and every pair: the geometric-mean ratio
+    with its interval, the paired t and the Wilcoxon signed-rank test on ln weber, each family
+    Holm-adjusted. `table`: `weber_table`'s columns code, condition, weber (and converged);
+    `conditions`: their order (default: sorted). Never raises on too few data: `estimable`
+    False with `problems`."""
+    if table.duplicated(["code", "condition"]).any():
+        raise ValueError("table: a participant has two rows for one condition")
+    conds = list(conditions) if conditions is not None else sorted(pd.unique(table["condition"]))
+    usable = table[table["condition"].isin(conds) & np.isfinite(table["weber"].astype(float)) & (table["weber"].astype(float) > 0)]
+    wide = usable.pivot(index="code", columns="condition", values="weber").reindex(columns=conds)
+    complete = wide.dropna()
+    out = {"conditions": conds, "n_participants": len(complete),
+           "excluded": sorted(str(c) for c in set(table["code"]) - set(complete.index)), "n_not_converged": 0,
+           "estimable": False, "problems": [], "mixed_model": None, "friedman": None, "pairs": []}
+    if "converged" in table.columns:
+        used = table[table["code"].isin(complete.index) & table["condition"].isin(conds)]
+        out["n_not_converged"] = int((~used["converged"].astype(bool)).sum())
+    if len(conds) < 2:
+        out["problems"].append("fewer than 2 conditions")
+    if len(complete) < MIN_PARTICIPANTS:
+        out["problems"].append(f"fewer than {MIN_PARTICIPANTS} participants with a Weber fraction in every condition")
+    if out["problems"]:
+        out["pairs"] = [{"a": a, "b": b, "n": len(complete)} for a, b in itertools.combinations(conds, 2)]
+        return _json(out)
+    logw = np.log(complete.to_numpy(dtype=float))  # (participants, conditions)
+    out |= {"estimable": True, "mixed_model": _mixed_lr(logw), "friedman": _rank_check(logw), "pairs": _pairs(logw, conds)}
+    return _json(out)
+
+
+def _mixed_lr(logw: np.ndarray) -> dict:
+    """ML fits of ln weber ~ condition + (1 | participant) and ~ 1 + (1 | participant); the
+    likelihood-ratio chi-square on k - 1 df. ML, not REML: REML likelihoods of models with
+    different fixed effects are not comparable."""
+    import statsmodels.api as sm
+
+    n, k = logw.shape
+    y = logw.ravel()
+    groups = np.repeat(np.arange(n), k)
+    cond = np.tile(np.arange(k), n)
+    X = np.column_stack([np.ones(n * k)] + [(cond == j).astype(float) for j in range(1, k)])
+    fits = []
+    for exog in (X, X[:, :1]):
+        res, error = None, None
+        # statsmodels' default (bfgs, then lbfgs, then cg); its lbfgs alone hits a singular
+        # Hessian on some data, where Nelder-Mead still finds the maximum
+        for method in (None, "nm"):
+            with warnings.catch_warnings(), np.errstate(all="ignore"):
+                warnings.simplefilter("ignore")  # convergence and boundary notes: `converged` says what matters
+                try:
+                    res = sm.MixedLM(y, exog, groups=groups).fit(reml=False, **({} if method is None else {"method": method}))
+                    break
+                except Exception as exc:  # a flat likelihood (e.g. every value alike) raises many kinds
+                    error = f"{type(exc).__name__}: {exc}"
+        if res is None:
+            return {"chi2": NAN, "df": k - 1, "p": NAN, "loglik": NAN, "loglik_null": NAN, "variance_participant": NAN,
+                    "variance_residual": NAN, "converged": False, "n_observations": n * k, "problem": error}
+        fits.append(res)
+    full, null = fits
+    chi2 = max(2.0 * (float(full.llf) - float(null.llf)), 0.0)  # >= 0: the models are nested
+    return {"chi2": chi2, "df": k - 1, "p": float(stats.chi2.sf(chi2, k - 1)), "loglik": float(full.llf), "loglik_null": float(null.llf),
+            "variance_participant": float(np.asarray(full.cov_re).squeeze()), "variance_residual": float(full.scale),
+            "converged": bool(full.converged and null.converged), "n_observations": n * k, "problem": None}
+
+
+def _rank_check(logw: np.ndarray) -> dict:
+    k = logw.shape[1]
+    if k >= 3:
+        res = stats.friedmanchisquare(*logw.T)
+        return {"test": "Friedman", "statistic": float(res.statistic), "df": k - 1, "p": float(res.pvalue)}
+    stat, p = _wilcoxon(logw[:, 1], logw[:, 0])
+    return {"test": "Wilcoxon signed-rank", "statistic": stat, "df": None, "p": p}
+
+
+def _wilcoxon(b: np.ndarray, a: np.ndarray) -> tuple[float, float]:
+    if np.all(b == a):  # no nonzero difference: nothing to rank (scipy would divide by zero)
+        return 0.0, 1.0
+    res = stats.wilcoxon(b, a)
+    return float(res.statistic), float(res.pvalue)
+
+
+def _pairs(logw: np.ndarray, conds: list[str]) -> list[dict]:
+    n = logw.shape[0]
+    t975 = float(stats.t.ppf(0.975, n - 1))
+    pairs = []
+    for (i, a), (j, b) in itertools.combinations(enumerate(conds), 2):
+        d = logw[:, j] - logw[:, i]
+        mean, se = float(d.mean()), float(d.std(ddof=1) / math.sqrt(n))
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # zero variance: t and p NaN, reported as None
+            t = stats.ttest_rel(logw[:, j], logw[:, i])
+        w, pw = _wilcoxon(logw[:, j], logw[:, i])
+        pairs.append({"a": a, "b": b, "n": n, "ratio": math.exp(mean), "ratio_low": math.exp(mean - t975 * se),
+                      "ratio_high": math.exp(mean + t975 * se), "t": float(t.statistic), "df": n - 1, "p": float(t.pvalue),
+                      "wilcoxon": w, "p_wilcoxon": pw})
+    for pair, p in zip(pairs, _holm([p["p"] for p in pairs])):
+        pair["p_holm"] = p
+    for pair, p in zip(pairs, _holm([p["p_wilcoxon"] for p in pairs])):
+        pair["p_wilcoxon_holm"] = p
+    return pairs
+
+
+__all__ = ["PsychometricFit", "fit_psychometric", "bootstrap_interval", "weber_table", "group_test", "FUNCTIONS", "FLAGS",
+           "DEGENERATE", "WEBER_COLUMNS", "N_BOOT", "BOOTSTRAP_SEED", "GUESS", "LAPSE_MAX"]
