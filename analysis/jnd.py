@@ -181,18 +181,12 @@ def html_section(res: dict, study) -> str:
 
 
 def html(res: dict, study) -> str:
+    from analysis.report import STYLE
+
     esc = _html.escape
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{esc(res['facts']['study'])}: stiffness discrimination</title>
-<style>
-body {{ font-family: sans-serif; margin: 2em; color: #222; }}
-table {{ border-collapse: collapse; font-size: 13px; margin: 1em 0; }}
-th, td {{ border: 1px solid #bbb; padding: 4px 8px; vertical-align: top; }}
-th {{ background: #eee; }}
-.synthetic {{ background: #b00020; color: white; padding: 6px 10px; font-weight: bold; display: inline-block; }}
-figure {{ display: inline-block; margin: 1em; }}
-img {{ max-width: 900px; }}
-</style></head><body>
+{STYLE}</head><body>
 <h1>{esc(res['facts']['study'])}</h1>
 {html_section(res, study)}
 </body></html>

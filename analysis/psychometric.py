@@ -162,7 +162,12 @@ class _Terms(NamedTuple):
 def _log_cdf(function: str, z: np.ndarray):
     """ln F, ln(1 - F) and ln F' at z, accurate in both tails."""
     if function == "gaussian":
-        return special.log_ndtr(z), special.log_ndtr(-z), -0.5 * z * z - _LOG_SQRT_2PI
+        # one ndtr for the smaller tail, accurate down to 1e-268 at |z| = 35 (the clip): half
+        # the time of two log_ndtr calls, which dominated the bootstrap
+        tail = special.ndtr(-np.abs(z))
+        log_tail, log_body = np.log(tail), np.log1p(-tail)
+        below = z < 0
+        return np.where(below, log_tail, log_body), np.where(below, log_body, log_tail), -0.5 * z * z - _LOG_SQRT_2PI
     ez = np.exp(z)
     return np.log(-np.expm1(-ez)), -ez, z - ez
 
@@ -387,15 +392,33 @@ def _bootstrap_webers(fit: PsychometricFit, x, n, n_boot: int, rng) -> np.ndarra
 
 
 def _fit_many(function: str, guess: float, x, k, n, b: _Bounds, warm: np.ndarray) -> np.ndarray:
-    """Maximum-likelihood parameters (B, 3) of B data sets `k` (B, J) at the same levels: each
-    starts from the better of the best point of a coarse grid and `warm`, then `_polish`."""
+    """Maximum-likelihood parameters (B, 3) of B data sets `k` (B, J) at the same levels. Starts
+    per data set: `warm` (the fitted parameters), the best point of a coarse grid, and the best
+    at each other lapse rate of the grid when within 2 log-likelihood units of it (the other
+    basin: lapses or a shallower function explaining the same errors). Every start gets a few
+    steps of `_polish`, the best of each data set is polished to the end. (Better of `warm` and
+    the grid's best alone missed the maximum in 3.4% of replicates, these starts in 1.1%.)"""
     pts = _grid(b, 21, 11, 3)
     t = _terms(function, guess, x, pts[:, :1], pts[:, 1:2], pts[:, 2:])  # (G, J)
-    ll_grid = k @ t.logP.T + (n - k) @ t.log1mP.T  # (B, G): one matrix product for every replicate
+    ll_grid = k @ t.logP.T + (n - k) @ t.log1mP.T  # (B, G): one matrix product for every data set
+    B = len(k)
     best = np.argmax(ll_grid, axis=1)
-    ll_warm = _loglik(_terms(function, guess, x, warm[0], warm[1], warm[2]), k, n)
-    theta = np.where((ll_warm >= ll_grid[np.arange(len(k)), best])[:, None], warm[None, :], pts[best])
-    return _polish(function, guess, x, k, n, theta, b)
+    top = ll_grid[np.arange(B), best]
+    rows, starts = [np.arange(B), np.arange(B)], [np.broadcast_to(warm, (B, 3)), pts[best]]
+    for lam in np.unique(pts[:, 2]):
+        m = np.flatnonzero(pts[:, 2] == lam)
+        j = m[np.argmax(ll_grid[:, m], axis=1)]
+        extra = (j != best) & (ll_grid[np.arange(B), j] >= top - 2.0)
+        rows.append(np.flatnonzero(extra))
+        starts.append(pts[j[extra]])
+    rows = np.concatenate(rows)
+    theta = _polish(function, guess, x, k[rows], n, np.concatenate(starts), b, max_iter=4)
+    ll = _loglik(_terms(function, guess, x, theta[:, :1], theta[:, 1:2], theta[:, 2:]), k[rows], n)
+    order = np.lexsort((ll, rows))  # by data set, then likelihood: the last of each data set is its best
+    last = np.r_[rows[order][1:] != rows[order][:-1], True]
+    winners = np.empty((B, 3))
+    winners[rows[order][last]] = theta[order][last]
+    return _polish(function, guess, x, k, n, winners, b)
 
 
 def _polish(function: str, guess: float, x, k, n, theta: np.ndarray, b: _Bounds, max_iter: int = POLISH_ITERATIONS) -> np.ndarray:

@@ -96,6 +96,18 @@ def _figure_order(path: Path) -> int:
     return next((k for k, name in enumerate(FIGURES) if path.stem.startswith(name)), len(FIGURES))
 
 
+# every HTML report's look (Table 1, the discrimination report)
+STYLE = """<style>
+body { font-family: sans-serif; margin: 2em; color: #222; }
+table { border-collapse: collapse; font-size: 13px; }
+th, td { border: 1px solid #bbb; padding: 4px 8px; vertical-align: top; }
+th { background: #eee; }
+.synthetic { background: #b00020; color: white; padding: 6px 10px; font-weight: bold; display: inline-block; }
+figure { display: inline-block; margin: 1em; }
+img { max-width: 900px; }
+</style>"""
+
+
 def _table_html(t: dict) -> str:
     """One of analysis.kinds.kind_tables as an HTML section (every cell escaped)."""
     esc = _html.escape
@@ -192,15 +204,7 @@ def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, 
     figs = "".join(f'<figure><img alt="{k}" src="data:image/png;base64,{v}"></figure>' for k, v in images.items())
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{esc(facts['study'])}: Table 1</title>
-<style>
-body {{ font-family: sans-serif; margin: 2em; color: #222; }}
-table {{ border-collapse: collapse; font-size: 13px; }}
-th, td {{ border: 1px solid #bbb; padding: 4px 8px; vertical-align: top; }}
-th {{ background: #eee; }}
-.synthetic {{ background: #b00020; color: white; padding: 6px 10px; font-weight: bold; display: inline-block; }}
-figure {{ display: inline-block; margin: 1em; }}
-img {{ max-width: 900px; }}
-</style></head><body>
+{STYLE}</head><body>
 <h1>{esc(facts['study'])}: Table 1</h1>
 {banner}
 <p>N = {facts['participants']} participants with every answer; {esc(facts['design'])}.{esc(incomplete)} {esc(scope)}.</p>
