@@ -75,7 +75,7 @@ def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) 
         table["generating_weber"] = [float(generating.get(c, math.nan)) for c in table["code"]]
     order = [c for c in protocol.conditions if c in set(table["condition"])]
     conds = [_condition_summary(table[table["condition"] == c], c) for c in order]
-    group = group_test(table) if len(order) >= 2 else None
+    group = group_test(table, conditions=order) if len(order) >= 2 else None
     return {"facts": facts, "weber": table.to_dict(orient="records"), "conditions": conds, "group": group}
 
 
