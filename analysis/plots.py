@@ -263,8 +263,6 @@ def psychometric_plot(trials, rows: list[dict], condition: str, path: Path, synt
     """One condition's discrimination: every participant's fitted psychometric function
     (analysis/psychometric.py, refitted here for its curve) and Weber fraction, and the pooled
     proportion correct in bins of the increment (point size: trials), on a log axis."""
-    from scipy import stats
-
     from analysis.psychometric import fit_psychometric
 
     plt = _plt()
@@ -274,9 +272,7 @@ def psychometric_plot(trials, rows: list[dict], condition: str, path: Path, synt
     grid = np.geomspace(lo, hi, 200)
     for _, g in trials.groupby("code", sort=True):
         fit = fit_psychometric(g["stimulus"], g["correct"])
-        z = (np.log(grid) - fit.location) / fit.scale
-        f = stats.norm.cdf(z) if fit.function == "gaussian" else 1.0 - np.exp(-np.exp(z))
-        ax.plot(grid, fit.guess + (1.0 - fit.guess - fit.lapse) * f, color="#1f77b4", alpha=0.35, lw=1)
+        ax.plot(grid, fit.p_correct(grid), color="#1f77b4", alpha=0.35, lw=1)
         ax.plot([fit.weber], [0.75 - fit.lapse / 2], "o", color="#1f77b4", ms=3, alpha=0.6)
     edges = np.geomspace(d.min() * 0.999, d.max() * 1.001, 9)
     idx = np.clip(np.digitize(d, edges) - 1, 0, len(edges) - 2)

@@ -20,7 +20,7 @@ from studyctl.questions import Question
 from studyctl.store import dumps, now
 
 INTERVALS = ("1", "2")
-_STIMULI: dict = {}  # (id of the condition's scene, scale) -> its scaled scene: the few a procedure keeps trying
+_STIMULI: dict = {}  # (the condition's scene, scale) -> its scaled scene: the few a procedure keeps trying
 STIMULI_KEPT = 6  # FEM scenes share their factors (`LinearFem.scaled`); a mass-spring's is rebuilt (0.2 s)
 
 
@@ -28,7 +28,7 @@ def stimulus_scene(scene, scale: float):
     """The condition's scene with its stiffness times `scale` (the scene itself at 1)."""
     if scale == 1.0:
         return scene
-    key = (id(scene), float(scale))
+    key = (scene, float(scale))  # the scene itself (hashed by identity), never its id(): a freed scene's id is reused
     out = _STIMULI.pop(key, None)
     if out is None:
         out = scene.with_stiffness(scale)

@@ -237,12 +237,11 @@ def loading_curve(trace, hand: int, mesh=None) -> tuple[np.ndarray, np.ndarray] 
     """(stretch, force) of one hand while it first held the tissue, up to its largest stretch:
     the hand's distance from the point it grasped (the grasped vertex of `mesh`; without a mesh,
     where the hand was at the grasp) in m, and the force magnitude it felt (N)."""
-    grasps = [e for e in trace.events if e.kind == "grasp" and e.hand == hand]
-    if not grasps:
+    first = next((e for e in trace.events if e.kind == "grasp" and e.hand == hand), None)
+    if first is None:
         return None
-    anchor = mesh.vertices[int(grasps[0].detail.split()[1])] if mesh is not None else None
-    grasps = [e.t for e in grasps]
-    held = (trace.times >= grasps[0]) & trace.buttons[:, hand]
+    anchor = mesh.vertices[int(first.detail.split()[1])] if mesh is not None else None
+    held = (trace.times >= first.t) & trace.buttons[:, hand]
     idx = np.flatnonzero(held)
     if len(idx) < 2:
         return None
@@ -268,7 +267,7 @@ def stiffness_log_ratio(a, b, mesh=None, points: int = 16, low: float = 0.3) -> 
         if not top > 0:
             continue
         grid = np.linspace(low * top, top, points)
-        fa, fb = (np.interp(grid, x[np.argsort(x, kind="stable")], f[np.argsort(x, kind="stable")]) for x, f in (ca, cb))
+        fa, fb = (np.interp(grid, x[order], f[order]) for x, f in (ca, cb) for order in [np.argsort(x, kind="stable")])
         ok = (fa > 0) & (fb > 0)
         if ok.any():
             out.append(float(np.median(np.log(fb[ok] / fa[ok]))))

@@ -48,6 +48,9 @@ class DiscriminationTask:
         return self.reference, self.reference * (1.0 + delta)
 
 
+DEFAULT = DiscriminationTask(index=0)  # what a [[tasks]] table leaves out
+
+
 def check_tasks(data: dict, checker, trial_seconds: float | None) -> list[DiscriminationTask]:
     """The protocol's `[[tasks]]`: each checked, its problems added to `checker` (the protocol's
     `_Checker`: FILE:LINE: field: message), the valid ones returned."""
@@ -68,29 +71,29 @@ def check_tasks(data: dict, checker, trial_seconds: float | None) -> list[Discri
         kind = get(t, sec, "kind", str)
         if kind is not None and kind not in KINDS:
             bad(f"{sec}.kind", f"{kind!r} is not a task; allowed: {', '.join(KINDS)}")
-        parameter = get(t, sec, "parameter", str, default="stiffness", required=False)
+        parameter = get(t, sec, "parameter", str, default=DEFAULT.parameter, required=False)
         if parameter not in PARAMETERS:
             bad(f"{sec}.parameter", f"{parameter!r} is not a parameter; allowed: {', '.join(PARAMETERS)}")
-        method = get(t, sec, "method", str, default="quest+", required=False)
+        method = get(t, sec, "method", str, default=DEFAULT.method, required=False)
         if method not in METHODS:
             bad(f"{sec}.method", f"{method!r} is not a method; allowed: {', '.join(METHODS)}")
-        rule = get(t, sec, "rule", str, default="1-up-2-down", required=False)
+        rule = get(t, sec, "rule", str, default=DEFAULT.rule, required=False)
         if rule not in RULES:
             bad(f"{sec}.rule", f"{rule!r} is not a rule; allowed: {', '.join(RULES)}")
         elif "rule" in t and method != "staircase":
             bad(f"{sec}.rule", f"only a staircase has a rule; this task's method is {method!r}")
-        reference = get(t, sec, "reference", float, default=1.0, required=False)
+        reference = get(t, sec, "reference", float, default=DEFAULT.reference, required=False)
         if reference is not None and not 0.0 < reference <= REFERENCE_MAX:
             bad(f"{sec}.reference", f"{reference!r} is out of range; allowed: 0 < reference <= {REFERENCE_MAX:g}")
             reference = None
-        trials = get(t, sec, "trials", int, default=40, lo=TRIALS[0], hi=TRIALS[1], required=False)
-        question = get(t, sec, "question", str, default="Which one was stiffer?", required=False)
+        trials = get(t, sec, "trials", int, default=DEFAULT.trials, lo=TRIALS[0], hi=TRIALS[1], required=False)
+        question = get(t, sec, "question", str, default=DEFAULT.question, required=False)
         if question is not None and not question.strip():
             bad(f"{sec}.question", "empty: the question as the participant reads it")
-        feedback = get(t, sec, "feedback", bool, default=False, required=False)
+        feedback = get(t, sec, "feedback", bool, default=DEFAULT.feedback, required=False)
         seconds = get(t, sec, "interval_seconds", float, default=trial_seconds, lo=0.5, hi=600.0, required=False)
         low, high = _range(t, sec, bad)
-        start = get(t, sec, "start", float, default=min(max(0.4, low or 0.4), high or 0.4), required=False)
+        start = get(t, sec, "start", float, default=min(max(DEFAULT.start, low or DEFAULT.start), high or DEFAULT.start), required=False)
         if "start" in t and method != "staircase":
             bad(f"{sec}.start", f"only a staircase has a start; QUEST+ chooses its own (this task's method is {method!r})")
         elif start is not None and low is not None and high is not None and not low <= start <= high:
@@ -105,7 +108,7 @@ def check_tasks(data: dict, checker, trial_seconds: float | None) -> list[Discri
 def _range(t: dict, sec: str, bad) -> tuple[float | None, float | None]:
     """`range = [low, high]`: the relative increments the procedure may try."""
     if "range" not in t:
-        return 0.02, 1.0
+        return DEFAULT.low, DEFAULT.high
     r = t["range"]
     ok = isinstance(r, list) and len(r) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in r)
     if ok and DELTA_RANGE[0] <= r[0] < r[1] <= DELTA_RANGE[1]:

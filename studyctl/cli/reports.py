@@ -53,12 +53,7 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
         if fmt in ("csv", "latex"):
             raise click.ClickException(f"--format {fmt}: the study asks no questions (no Table 1); its discrimination task "
                                        "reports as md, html or json (`studyctl report jnd`)")
-        text = _jnd_text(study, fmt)
-        if out_file:
-            Path(out_file).write_text(text)
-            click.echo(f"wrote {out_file}")
-        else:
-            click.echo(text, nl=False)
+        _emit(_jnd_text(study, fmt), out_file)
         return
     if _no_answers(study, fmt == "json"):
         return
@@ -99,6 +94,11 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
         from analysis.jnd import html_section
 
         text = text.replace("</body></html>", html_section(_jnd(study), study) + "\n</body></html>")
+    _emit(text, out_file)
+
+
+def _emit(text: str, out_file) -> None:
+    """A report's text: to `out_file` (saying so) or to stdout."""
     if out_file:
         Path(out_file).write_text(text)
         click.echo(f"wrote {out_file}")
@@ -165,11 +165,7 @@ def report_jnd(db, fmt, as_json, out_file):
     if not study.protocol.tasks:
         raise click.ClickException(f"{db}: the study's protocol has no discrimination task ([[tasks]]); nothing to report")
     text = _jnd_text(study, "json" if as_json else fmt)
-    if out_file:
-        Path(out_file).write_text(text)
-        click.echo(f"wrote {out_file}")
-    else:
-        click.echo(text, nl=False)
+    _emit(text, out_file)
 
 
 @report.command("plots")
