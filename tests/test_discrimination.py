@@ -239,7 +239,8 @@ def test_a_person_discriminates_in_the_window_with_the_mouse(xdotool, tmp_path, 
 
     db = tmp_path / "s.db"
     rec = Recorder(monkeypatch, limit_s=240.0)
-    protocol = jnd_protocol(tmp_path, trials=10)
+    # 1.5 s pulls: the "1 s" screen is drawn half a second into the grasp, the patch long shown
+    protocol = jnd_protocol(tmp_path, trials=10, extra="\ninterval_seconds = 1.5")
     for args in (("study", "init", "--protocol", protocol), ("participants", "add", "P01"), ("participants", "consent", "P01")):
         assert studyctl(*args, "--db", db).exit_code == 0
 
@@ -254,7 +255,7 @@ def test_a_person_discriminates_in_the_window_with_the_mouse(xdotool, tmp_path, 
                 for k in range(1, 6):
                     _xdotool("mousemove", "--window", w, 560 - 8 * k, 420)
                     time.sleep(0.08)
-                time.sleep(1.0)
+                time.sleep(1.3)  # held past the pull's end
                 _xdotool("mouseup", 1)
             elif w and text.get("question") == "Which one was stiffer?":
                 time.sleep(0.3)
