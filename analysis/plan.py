@@ -14,6 +14,8 @@ false-positive rate. All of it is SYNTHETIC: a planning aid, no data.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import pandas as pd
 
@@ -172,51 +174,95 @@ def cochran_p(x: np.ndarray) -> float:
     return float(cochrans_q(x).pvalue)
 
 
-def _rejections(protocol, summaries: dict, n: int, rng, simulations: int, names: list[str], alpha: float, primary: bool,
-                progress=None) -> dict[str, int]:
-    """How many of `simulations` studies of n participants each test rejects at `alpha`
-    (`progress(j)` after the j-th study)."""
-    hits = dict.fromkeys(names, 0)
-    for j in range(simulations):
-        for t, p in test_study(protocol, simulate_study(protocol, summaries, n, rng), primary).items():
+BATCH = 25  # simulated studies per task: each batch has its own random stream, so the tables are
+# the same whether the batches run here, in local processes or on a Dask cluster
+
+
+@dataclass(frozen=True)
+class _Batch:
+    """One task of a power or null table: `size` simulated studies of `n` participants drawn
+    from the stream (seed, n, index)."""
+
+    protocol: object
+    summaries: dict
+    n: int
+    seed: int
+    index: int
+    size: int
+    names: tuple
+    alpha: float
+    primary: bool
+
+
+def _rejections(batch: _Batch) -> dict[str, int]:
+    """How many of the batch's simulated studies each test rejects at alpha."""
+    rng = np.random.default_rng([batch.seed, batch.n, batch.index])
+    hits = dict.fromkeys(batch.names, 0)
+    for _ in range(batch.size):
+        for t, p in test_study(batch.protocol, simulate_study(batch.protocol, batch.summaries, batch.n, rng), batch.primary).items():
             if t in hits:
-                hits[t] += p < alpha
-        if progress:
-            progress(j + 1)
+                hits[t] += p < batch.alpha
     return hits
 
 
+def _hits(protocol, summaries: dict, ns: list[int], simulations: int, seed: int, names: list[str], alpha: float, primary: bool,
+          jobs: int, scheduler: str | None, progress) -> dict[int, dict[str, int]]:
+    """Per N, how many of `simulations` studies each test rejects; the batches run where
+    `analysis.sweep.completed` puts them. `progress(studies done, studies)`."""
+    from analysis.sweep import completed
+
+    batches = [_Batch(protocol, summaries, n, seed, i, min(BATCH, simulations - start), tuple(names), alpha, primary)
+               for n in ns for i, start in enumerate(range(0, simulations, BATCH))]
+    out = {n: dict.fromkeys(names, 0) for n in ns}
+    done = 0
+    for k, hits in completed(_rejections, batches, jobs, scheduler):
+        for t, h in hits.items():
+            out[batches[k].n][t] += h
+        done += batches[k].size
+        if progress:
+            progress(done, len(ns) * simulations)
+    return out
+
+
+def _reachable(scheduler: str | None) -> None:
+    """An unreachable cluster is an error now, not after the pilots have run."""
+    if scheduler:
+        from analysis.sweep import connect
+
+        connect(scheduler).close()
+
+
 def power_table(protocol, ns: list[int], simulations: int = 200, seed: int = 0, pilots: int = 4, alpha: float = 0.05,
-                summaries: dict | None = None, primary: bool = True, progress=None) -> pd.DataFrame:
-    """Tidy power table: columns n, item (a question, a score, or "primary"), power, simulations, alpha."""
+                summaries: dict | None = None, primary: bool = True, progress=None, jobs: int = 1,
+                scheduler: str | None = None) -> pd.DataFrame:
+    """Tidy power table: columns n, item (a question, a score, or "primary"), power, simulations, alpha.
+    The simulated studies run in `jobs` local processes or on the Dask cluster at `scheduler`
+    (the pilots here), with the same result."""
+    _reachable(scheduler)
     summaries = summaries or pilot_summaries(protocol, pilots, seed)
-    rng = np.random.default_rng(seed)
     names = [t for t in test_names(protocol) if primary or t != "primary"]
-    rows = []
-    for k, n in enumerate(ns):
-        step = (lambda j, k=k: progress(k * simulations + j, len(ns) * simulations)) if progress else None
-        hits = _rejections(protocol, summaries, n, rng, simulations, names, alpha, primary, step)
-        rows += [{"n": n, "item": t, "power": hits[t] / simulations, "simulations": simulations, "alpha": alpha} for t in names]
+    hits = _hits(protocol, summaries, ns, simulations, seed, names, alpha, primary, jobs, scheduler, progress)
+    rows = [{"n": n, "item": t, "power": hits[n][t] / simulations, "simulations": simulations, "alpha": alpha} for n in ns for t in names]
     return pd.DataFrame(rows, columns=["n", "item", "power", "simulations", "alpha"])
 
 
 def null_table(protocol, model: str | None = None, participants: int = 35, simulations: int = 200, seed: int = 0, pilots: int = 4,
-               alpha: float = 0.05, summaries: dict | None = None, primary: bool = True, progress=None) -> pd.DataFrame:
+               alpha: float = 0.05, summaries: dict | None = None, primary: bool = True, progress=None, jobs: int = 1,
+               scheduler: str | None = None) -> pd.DataFrame:
     """The observer's fairness test: one model (default: the protocol's first condition) under
     every label; per question, score and the primary analysis the false-positive rate, which
     should be alpha or below within Monte Carlo error (`mc_error`: its binomial standard error).
     Columns: item, false_positive_rate, mc_error, simulations, alpha, model, participants."""
     model = model or protocol.conditions[0]
+    _reachable(scheduler)
     summaries = summaries or pilot_summaries(protocol, pilots, seed, mapping={c: model for c in protocol.conditions})
     # every label draws from all the model's pilot trials: the trials of a condition are a
     # sample of one distribution, whichever label it has (fixed per-label pilots would be a
     # difference between labels that no study has)
     pool = [s for c in protocol.conditions for s in summaries[c]]
     summaries = {c: pool for c in protocol.conditions}
-    rng = np.random.default_rng(seed)
     names = [t for t in test_names(protocol) if primary or t != "primary"]
-    hits = _rejections(protocol, summaries, participants, rng, simulations, names, alpha, primary,
-                       (lambda j: progress(j, simulations)) if progress else None)
+    hits = _hits(protocol, summaries, [participants], simulations, seed, names, alpha, primary, jobs, scheduler, progress)[participants]
     se = float(np.sqrt(alpha * (1 - alpha) / simulations))
     rows = [{"item": t, "false_positive_rate": hits[t] / simulations, "mc_error": se, "simulations": simulations, "alpha": alpha,
              "model": model, "participants": participants} for t in names]

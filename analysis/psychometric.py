@@ -545,12 +545,10 @@ def _json(v):
 
 
 def _holm(p: list[float]) -> list[float]:
-    from statsmodels.stats.multitest import multipletests
+    from analysis.stats import holm
 
-    if not p:
-        return []
-    # a test that could not be made counts as p = 1 in the family (as analysis.stats does)
-    return [float(x) for x in multipletests([x if np.isfinite(x) else 1.0 for x in p], method="holm")[1]]
+    # a test that could not be made counts as p = 1 in the family (as analysis.plan does)
+    return holm([x if np.isfinite(x) else 1.0 for x in p])
 
 
 def group_test(table: pd.DataFrame, conditions: list[str] | None = None) -> dict:

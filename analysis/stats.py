@@ -15,12 +15,16 @@ from analysis.study import Study
 
 
 def holm(p_values) -> list[float]:
-    from statsmodels.stats.multitest import multipletests
-
-    p = list(p_values)
-    if not p:
+    """Holm's step-down adjusted p-values, in the given order (statsmodels' `multipletests(p,
+    method="holm")`, which the tests check it against; that one runs a full garbage collection
+    on every call, half of a `plan` simulated study's time)."""
+    p = np.asarray(list(p_values), dtype=float)
+    if not p.size:
         return []
-    return [float(x) for x in multipletests(p, method="holm")[1]]  # the default is Holm-Sidak
+    order = np.argsort(p)  # NaN last, and carried to the p-values after it, as statsmodels does
+    adjusted = np.empty_like(p)
+    adjusted[order] = np.minimum(np.maximum.accumulate(p[order] * np.arange(p.size, 0, -1)), 1.0)
+    return [float(x) for x in adjusted]
 
 
 def pairwise_mcnemar(wide: pd.DataFrame) -> pd.DataFrame:

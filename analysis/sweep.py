@@ -8,7 +8,7 @@ Results come back in task order whatever order they finish in.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 
 class SweepError(Exception):
@@ -26,44 +26,61 @@ def run_tasks(fn: Callable, tasks: Sequence, jobs: int | None = None, scheduler:
     A task gives the same bits here, in a local pool and on a Dask worker: every process that
     factorises runs its BLAS on one thread (`sim.linalg._one_thread_pools`)."""
     tasks = list(tasks)
-    total = len(tasks)
-    report = progress or (lambda done, total: None)
+    results: list = [None] * len(tasks)
+    for done, (i, result) in enumerate(completed(fn, tasks, jobs, scheduler), start=1):
+        results[i] = result
+        if progress:
+            progress(done, len(tasks))
+    return results
+
+
+def completed(fn: Callable, tasks: Sequence, jobs: int | None = None, scheduler: str | None = None) -> Iterator[tuple[int, object]]:
+    """`(index, fn(tasks[index]))` as each task finishes: in this process (jobs 1), in a pool of
+    `jobs` local processes (default: one per core), or on the Dask cluster at `scheduler`,
+    which runs a task again elsewhere when its worker dies (up to `distributed`'s
+    allowed-failures, 3 by default)."""
+    tasks = list(tasks)
     if scheduler:
-        return _run_dask(fn, tasks, scheduler, report)
+        yield from _dask(fn, tasks, scheduler)
+        return
     jobs = default_jobs() if jobs is None else jobs
-    if jobs <= 1 or total <= 1:
-        out = []
-        for i, t in enumerate(tasks, start=1):
-            out.append(fn(t))
-            report(i, total)
-        return out
+    if jobs <= 1 or len(tasks) <= 1:
+        for i, t in enumerate(tasks):
+            yield i, fn(t)
+        return
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    results: list = [None] * total
     # spawn: a fresh interpreter per worker, no forked locks or threads (progress bars, BLAS)
-    with ProcessPoolExecutor(max_workers=min(jobs, total), mp_context=mp.get_context("spawn")) as pool:
+    with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=mp.get_context("spawn")) as pool:
         futures = {pool.submit(fn, t): i for i, t in enumerate(tasks)}
-        for done, fut in enumerate(as_completed(futures), start=1):
-            results[futures[fut]] = fut.result()
-            report(done, total)
-    return results
+        for fut in as_completed(futures):
+            yield futures[fut], fut.result()
 
 
-def _run_dask(fn, tasks, scheduler, report):
+def connect(scheduler: str):
+    """A Dask client of the cluster at `scheduler`, or a SweepError saying why not (callers
+    that write check it before they write anything)."""
     try:
-        from distributed import Client, as_completed
+        from distributed import Client
     except ImportError:
         raise SweepError("--scheduler needs the dask extra: pip install 'brainsim-study[dask]'") from None
     try:
-        client = Client(scheduler, timeout="10s")
-    except (OSError, TimeoutError) as exc:
+        if scheduler.startswith("tcp://"):  # a refused port is told at once (the client would retry for 10 s)
+            import socket
+
+            host, _, port = scheduler[len("tcp://"):].rpartition(":")
+            socket.create_connection((host.strip("[]"), int(port)), timeout=10).close()
+        return Client(scheduler, timeout="10s")
+    except (OSError, TimeoutError, ValueError) as exc:
         raise SweepError(f"scheduler {scheduler}: cannot connect ({exc})") from None
-    with client:
+
+
+def _dask(fn, tasks, scheduler):
+    from distributed import as_completed
+
+    with connect(scheduler) as client:
         futures = client.map(fn, tasks, pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
-        results: list = [None] * len(tasks)
-        for done, fut in enumerate(as_completed(futures), start=1):
-            results[index[fut.key]] = fut.result()
-            report(done, len(tasks))
-    return results
+        for fut in as_completed(futures):
+            yield index[fut.key], fut.result()

@@ -154,15 +154,21 @@ class SyntheticAnswers:
         return judged_answer(question, eta, rng.random, lambda: rng.gauss(0.0, 1.0))
 
 
-def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, protocol_path=None, progress=None) -> dict:
-    """Register N synthetic participants, give them counterbalanced orders, run their sessions.
+def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, protocol_path=None, progress=None,
+                        scheduler: str | None = None) -> dict:
+    """Register N synthetic participants, give them counterbalanced orders, run their sessions:
+    in this process (jobs 1), in `jobs` local processes, or on the Dask cluster at `scheduler`.
 
     Codes, ages, orders and session ids are assigned up front and in order, so orders, trials,
-    forces and answers are the same for the same seed whatever `jobs` is and however busy the
-    machine (the observer reads no wall-clock time); measured times differ."""
+    forces and answers are the same for the same seed wherever and however the sessions run
+    and however busy the machine (the observer reads no wall-clock time); measured times
+    differ. Each session runs in a scratch study and is stored here as it finishes
+    (studyctl/bundles.py): a worker that dies costs its participant's run, never a participant."""
     import time as _time
     from pathlib import Path
 
+    from analysis.sweep import completed, connect
+    from studyctl.bundles import run_away, seed_for, store_bundle
     from studyctl.errors import InputError
     from studyctl.protocol import load_protocol
     from studyctl.rig import keep_shipped
@@ -173,6 +179,8 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
         raise InputError(f"--participants: {participants} is out of range; allowed: 1..{MAX_SYNTHETIC}")
     if not 1 <= jobs <= 64:
         raise InputError(f"--jobs: {jobs} is out of range; allowed: 1..64")
+    if scheduler:  # an unreachable cluster is refused before anything is written
+        connect(scheduler).close()
     if not Path(db).exists():  # a new study: the protocol given, else the shipped one
         from brainsim_assets import path as asset
 
@@ -195,26 +203,11 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
                              (code, rng.randint(protocol.age_min, protocol.age_max), now()))
                 assign_order(store, protocol, code)
         keep_shipped(store)  # the frame times its synthetic participants perceive, kept with the study
-    tasks = [(str(db), code, seed, first_id + k) for k, code in enumerate(codes)]
-    t0 = _time.perf_counter()
-    if jobs == 1:
-        for k, task in enumerate(tasks):
-            _run_one(task)
+        seeds = [seed_for(store, code, seed, first_id + k) for k, code in enumerate(codes)]
+        t0 = _time.perf_counter()
+        for done, (_, bundle) in enumerate(completed(run_away, seeds, jobs, scheduler), start=1):
+            store_bundle(store, bundle)
             if progress:
-                progress(k + 1, len(tasks))
-    else:
-        import multiprocessing as mp
-
-        with mp.get_context("spawn").Pool(jobs) as pool:
-            for k, _ in enumerate(pool.imap_unordered(_run_one, tasks)):
-                if progress:
-                    progress(k + 1, len(tasks))
-    return {"participants": len(codes), "codes": codes, "seed": seed, "jobs": jobs, "seconds": _time.perf_counter() - t0}
-
-
-def _run_one(task) -> str:
-    from studyctl.session import run_session
-
-    db, code, seed, session_id = task
-    run_session(db, code, synthetic=True, seed=seed, time_scale=0.0, session_id=session_id)
-    return code
+                progress(done, len(seeds))
+    return {"participants": len(codes), "codes": codes, "seed": seed, "jobs": jobs, "scheduler": scheduler,
+            "seconds": _time.perf_counter() - t0}

@@ -53,26 +53,32 @@ def encode(result) -> bytes:
     return buf.getvalue()
 
 
+def write_durably(path: Path, data: bytes) -> None:
+    """`data` in `path` (its folders made), surviving a power cut: a temporary file, fsync,
+    rename, fsync of the folder and its parent."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as fh:
+        fh.write(data)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+    for d in (path.parent, path.parent.parent):  # the rename and the new folder survive a power cut
+        fd = os.open(d, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
 def write_trace(db: str | Path, session_id: int, position: int, trial: int, result, name: str | None = None) -> dict:
     """Write the trial's trace durably; returns the trial row's trace fields. `name`: the file's
     name in the session's folder, when it is not a free trial's (a task's interval)."""
     data = encode(result)
     folder = trace_dir(db) / f"session-{session_id:04d}"
+    path = folder / (name or f"condition-{position + 1}-trial-{trial + 1}.npz")
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        path = folder / (name or f"condition-{position + 1}-trial-{trial + 1}.npz")
-        tmp = path.with_suffix(".npz.tmp")
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-        for d in (folder, folder.parent):  # the rename and the new folder survive a power cut
-            fd = os.open(d, os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
+        write_durably(path, data)
     except OSError as exc:
         raise StoreError(f"{folder}: cannot write the trial's trace: {exc.strerror}") from None
     return {"trace_path": str(path.relative_to(Path(db).parent)), "trace_sha256": hashlib.sha256(data).hexdigest(),

@@ -384,3 +384,19 @@ def test_gee_says_not_estimable_when_a_model_answers_alike_throughout(tmp_path):
     bad = [p for p in comp["pairs"] if "mass_spring" in (p["a"], p["b"])]
     assert bad and all(not p["estimable"] and math.isnan(p["p_value"]) for p in bad)
     assert "not estimable" in markdown(study) and "NOT ESTIMABLE" in markdown(study)
+
+
+def test_holm_equals_statsmodels_with_ties_and_nan():
+    from statsmodels.stats.multitest import multipletests
+
+    from analysis.stats import holm
+
+    rng = np.random.default_rng(1)
+    for k in range(300):
+        p = rng.uniform(0, 1, rng.integers(1, 12)) ** 3
+        if k % 3 == 0:
+            p[rng.integers(p.size)] = p[0]  # a tie
+        if k % 7 == 0:
+            p[rng.integers(p.size)] = np.nan
+        assert np.array_equal(holm(p), multipletests(p, method="holm")[1], equal_nan=True)
+    assert holm([]) == [] and holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])  # by hand

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from sim.scene import DEFAULT_SCENE
-from studyctl.cli.common import Finite, OutDir, _console, _Group, _print_json, _with_progress
+from studyctl.cli.common import SCHEDULER, Finite, OutDir, _console, _Group, _print_json, _with_progress
 
 
 @click.group(cls=_Group)
@@ -17,7 +17,7 @@ def bench():
 
 
 def _sweep_options(f):
-    f = click.option("--scheduler", default=None, metavar="ADDRESS", help="Run the cases on a Dask cluster (tcp://host:8786).")(f)
+    f = SCHEDULER(f)
     f = click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Local worker processes (default: every core).")(f)
     f = click.option("--out", "out_dir", type=OutDir(), default=None, help="Write tables, JSON and plots here.")(f)
     f = click.option("--json", "as_json", is_flag=True)(f)

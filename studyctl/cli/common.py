@@ -109,6 +109,8 @@ DEVICES = click.option("--devices", "device_names", callback=_names, default=Non
 DB = click.option("--db", envvar="STUDYCTL_DB", show_envvar=True, required=True, type=click.Path(dir_okay=False, path_type=Path),
                   help="Study database; required unless the STUDYCTL_DB environment variable names one.")
 JSON = click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
+SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
+                         help="Run on a Dask cluster (tcp://host:8786; the dask extra) instead of local processes.")
 DRY_RUN = click.option("--dry-run", is_flag=True, help="Check and show what would be done; write nothing.")
 
 

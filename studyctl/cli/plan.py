@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from studyctl.cli.common import DEFAULT_PROTOCOL, OutFile, _console, _model_name, _print_json, _with_progress
+from studyctl.cli.common import DEFAULT_PROTOCOL, SCHEDULER, OutFile, _console, _model_name, _print_json, _with_progress
 from studyctl.errors import InputError
 
 
@@ -32,8 +32,10 @@ def _range(ctx, param, value):
 @click.option("--plot", "plot_file", type=OutFile((".png", ".svg", ".pdf")), default=None, help="Write the power curves (PNG, SVG or PDF).")
 @click.option("--null", "null", is_flag=True, help="The observer's fairness test: one model under every label; false-positive rates.")
 @click.option("--model", "null_model", default=None, help="With --null: the model to repeat  [default: the protocol's first condition]")
+@click.option("--jobs", type=click.IntRange(1, 256), default=1, show_default=True, help="Simulated studies run in parallel processes.")
+@SCHEDULER
 @click.option("--json", "as_json", is_flag=True)
-def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, null, null_model, as_json):
+def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, null, null_model, jobs, scheduler, as_json):
     """Monte Carlo power under the SYNTHETIC model, to choose N: of the protocol's primary
     analysis and of each question's test (Cochran's Q, Friedman, the multinomial); with --null,
     the false-positive rate of each when every condition is one model."""
@@ -47,13 +49,14 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, nu
         for name, opt in (("step", "--step"), ("plot_file", "--plot")):
             if ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT:
                 raise InputError(f"{opt}: not with --null (it reports false-positive rates at one N)")
-        _plan_null(protocol, span, simulations, seed, pilots, null_model, as_json)
+        _plan_null(protocol, span, simulations, seed, pilots, null_model, as_json, {"jobs": jobs, "scheduler": scheduler})
         return
     if null_model is not None:
         raise InputError("--model: only with --null")
     span = span or (12, 60)
     ns = list(range(span[0], span[1] + 1, step))
-    table = _with_progress("simulated studies", lambda p: power_table(protocol, ns, simulations, seed, pilots, progress=p))
+    table = _with_progress("simulated studies", lambda p: power_table(protocol, ns, simulations, seed, pilots, progress=p,
+                                                                           jobs=jobs, scheduler=scheduler))
     if plot_file:
         plot_power(table, plot_file)
     if as_json:
@@ -74,7 +77,7 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, nu
         click.echo(f"plot: {plot_file}")
 
 
-def _plan_null(protocol, span, simulations, seed, pilots, model, as_json) -> None:
+def _plan_null(protocol, span, simulations, seed, pilots, model, as_json, where: dict) -> None:
     from analysis.kinds import primary
     from analysis.plan import null_table
 
@@ -85,7 +88,7 @@ def _plan_null(protocol, span, simulations, seed, pilots, model, as_json) -> Non
         if model not in protocol.conditions:
             raise InputError(f"--model: {model!r} is not a condition of {protocol.name}; allowed: {', '.join(protocol.conditions)}")
     n = span[0] if span else 35
-    table = _with_progress("simulated studies", lambda p: null_table(protocol, model, n, simulations, seed, pilots, progress=p))
+    table = _with_progress("simulated studies", lambda p: null_table(protocol, model, n, simulations, seed, pilots, progress=p, **where))
     if as_json:
         _print_json({"synthetic": True, "null": True, "model": table["model"].iloc[0], "participants": n, "primary": primary(protocol),
                      "items": table[["item", "false_positive_rate", "mc_error", "simulations", "alpha"]].to_dict(orient="records")})

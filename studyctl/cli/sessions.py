@@ -12,6 +12,7 @@ from studyctl.cli.common import (
     DEVICES,
     FULLSCREEN,
     JSON,
+    SCHEDULER,
     Finite,
     OutDir,
     _console,
@@ -111,13 +112,16 @@ def replay_cmd(db, session_id, trial, view, frames_dir, fullscreen, as_json):
 @click.option("--jobs", type=click.IntRange(1, 64), default=1, show_default=True, help="Sessions run in parallel processes.")
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Create the database for this protocol if it does not exist  [default: the shipped protocols/brain_pull_2015.toml]")
+@SCHEDULER
 @JSON
-def synth_cmd(db, participants, seed, jobs, protocol_file, as_json):
+def synth_cmd(db, participants, seed, jobs, protocol_file, scheduler, as_json):
     """Run whole sessions with SYNTHETIC participants on the simulator (labelled synthetic)."""
     from studyctl.synthetic import run_synthetic_study
 
-    out = _with_progress("synthetic sessions", lambda p: run_synthetic_study(db, participants, seed, jobs, protocol_file, progress=p))
+    out = _with_progress("synthetic sessions", lambda p: run_synthetic_study(db, participants, seed, jobs, protocol_file, progress=p,
+                                                                             scheduler=scheduler))
     if as_json:
         _print_json(out | {"synthetic": True})
         return
-    click.echo(f"ran {out['participants']} SYNTHETIC sessions (seed {seed}, {jobs} jobs) in {out['seconds']:.1f} s")
+    where = f"on the Dask cluster at {scheduler}" if scheduler else f"{jobs} jobs"
+    click.echo(f"ran {out['participants']} SYNTHETIC sessions (seed {seed}, {where}) in {out['seconds']:.1f} s")

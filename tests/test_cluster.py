@@ -1,0 +1,86 @@
+"""`synth` and `plan` on a Dask cluster (a LocalCluster of worker processes): the same answers as
+local jobs for the same seed, every participant stored exactly once when a worker is killed
+mid-run, and an unreachable cluster refused before anything is written."""
+
+import os
+import signal
+import sqlite3
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from studyctl.cli import cli
+from studyctl.synthetic import run_synthetic_study
+from tests.test_study import fast_protocol
+from tests.test_synthetic import _content, _summary
+
+distributed = pytest.importorskip("distributed")
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c:
+        yield c
+
+
+def test_synth_on_a_cluster_equals_local_jobs_and_a_killed_worker_loses_no_participant(tmp_path, cluster):
+    protocol = fast_protocol(tmp_path, trials=1)
+    run_synthetic_study(tmp_path / "local.db", 4, seed=5, jobs=2, protocol_path=protocol)
+    killed = []
+    with distributed.Client(cluster) as watcher:
+        def kill_a_busy_worker(done, total):
+            if done == 1:  # three participants left, each worker running one
+                busy = [w for w, keys in watcher.processing().items() if keys]
+                pid = watcher.run(os.getpid, workers=busy[:1])[busy[0]]
+                os.kill(pid, signal.SIGKILL)  # its nanny starts a new one; the scheduler reruns its task
+                killed.append(busy[0])
+
+        out = run_synthetic_study(tmp_path / "dask.db", 4, seed=5, protocol_path=protocol, scheduler=cluster.scheduler_address,
+                                  progress=kill_a_busy_worker)
+    assert killed and out["participants"] == 4
+    con = sqlite3.connect(tmp_path / "dask.db")
+    sessions = con.execute("select code, status, synthetic from sessions order by code").fetchall()
+    trials = con.execute("select count(*), count(distinct session_id || model || trial) from trials").fetchone()
+    con.close()
+    assert sessions == [(f"S{k:03d}", "done", 1) for k in range(1, 5)]  # each participant once, finished
+    assert trials == (4 * 3, 4 * 3)
+    # the same answers, orders, trials' forces and perceived features as the local processes
+    assert _content(tmp_path / "dask.db") == _content(tmp_path / "local.db")
+    for (path,) in sqlite3.connect(tmp_path / "dask.db").execute("select trace_path from trials"):
+        a, b = np.load(tmp_path / path), np.load(tmp_path / path.replace("dask.db", "local.db"))
+        assert all(np.array_equal(a[k], b[k]) for k in a.files if k != "deformation_s")  # deformation times are measured
+
+
+def _summaries():
+    from studyctl.observer import ObserverParams
+
+    slow = _summary(1.0, flops=ObserverParams().flops_per_ms * 80)
+    return {"plate_spring": [_summary(1.0), _summary(1.2)], "fem": [_summary(1.0)], "mass_spring": [slow]}
+
+
+def test_plan_tables_are_the_same_here_in_local_processes_and_on_a_cluster(tmp_path, cluster):
+    from analysis.plan import BATCH, null_table, power_table
+    from studyctl.protocol import load_protocol
+
+    protocol = load_protocol(fast_protocol(tmp_path, trials=1))
+    kw = {"simulations": BATCH + 5, "seed": 3, "summaries": _summaries(), "primary": False}  # two batches per N, one short
+    seen = []
+    here = power_table(protocol, [6, 12], **kw, progress=lambda done, total: seen.append((done, total)))
+    assert seen[-1] == (2 * (BATCH + 5), 2 * (BATCH + 5)) and len(seen) == 4
+    pd.testing.assert_frame_equal(here, power_table(protocol, [6, 12], **kw, jobs=2))
+    pd.testing.assert_frame_equal(here, power_table(protocol, [6, 12], **kw, scheduler=cluster.scheduler_address))
+    assert here["power"].between(0, 1).all() and (here["simulations"] == BATCH + 5).all()
+    null = null_table(protocol, participants=12, **kw)
+    pd.testing.assert_frame_equal(null, null_table(protocol, participants=12, **kw, scheduler=cluster.scheduler_address))
+
+
+@pytest.mark.parametrize("command", [["synth", "--participants", "2"], ["plan", "--participants", "6", "--simulations", "10"]])
+def test_an_unreachable_scheduler_is_a_one_line_error_and_nothing_is_written(tmp_path, command):
+    db = tmp_path / "s.db"
+    args = command + (["--db", str(db)] if command[0] == "synth" else []) + ["--scheduler", "tcp://127.0.0.1:1"]
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 1 and "scheduler tcp://127.0.0.1:1: cannot connect" in res.output, res.output
+    assert len(res.output.strip().splitlines()) == 1 and "Traceback" not in res.output
+    assert not db.exists()
