@@ -24,7 +24,7 @@ def run_tasks(fn: Callable, tasks: Sequence, jobs: int | None = None, scheduler:
     """`[fn(t) for t in tasks]`, in parallel; `progress(done, total)` after each task.
 
     A task gives the same bits here, in a local pool and on a Dask worker: every process that
-    factorises runs its BLAS on one thread (`sim.linalg._one_thread_pools`)."""
+    factorises runs its BLAS on one thread (`sim.linalg.one_thread_pools`)."""
     tasks = list(tasks)
     results: list = [None] * len(tasks)
     for done, (i, result) in enumerate(completed(fn, tasks, jobs, scheduler), start=1):

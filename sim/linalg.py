@@ -30,19 +30,19 @@ _CHOLMOD = None
 
 def _cholmod():
     """scikit-sparse's CHOLMOD module, loaded on first use (a scene without FEM or mass-spring
-    never loads it); the thread pools are pinned as it loads (`_one_thread_pools`)."""
+    never loads it); the thread pools are pinned as it loads (`one_thread_pools`)."""
     global _CHOLMOD
     if _CHOLMOD is None:
         import scipy.linalg  # noqa: F401 - scipy's own OpenBLAS, loaded now so that the pin reaches it
         import scipy.sparse.linalg  # noqa: F401
         import sksparse.cholmod
 
-        _one_thread_pools()
+        one_thread_pools()
         _CHOLMOD = sksparse.cholmod
     return _CHOLMOD
 
 
-def _one_thread_pools() -> None:
+def one_thread_pools() -> None:
     """Run every OpenBLAS pool loaded by then (numpy's, scipy's, and the system's, which CHOLMOD
     uses) on one thread, in every process that factorises; and the system's OpenMP runtime
     (CHOLMOD links it) in the calling thread (an OpenMP setting is per thread).

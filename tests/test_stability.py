@@ -96,7 +96,7 @@ def test_dask_cluster_gives_the_local_answers():
     import analysis.stability as st
 
     # the FEM's rigid rows too: CHOLMOD's bits depend on the BLAS thread count, which Dask's
-    # nanny sets to one; every process that factorises runs one thread (sim.linalg._one_thread_pools)
+    # nanny sets to one; every process that factorises runs one thread (sim.linalg.one_thread_pools)
     cases = [c for c in make_cases(quick=True) if c.model == "plate_spring/continuous"
              or (c.model.startswith("fem/") and c.case == "E=1e+09Pa")]
     here = st.run_stability(quick=True, jobs=1, cases=cases)["cases"]
