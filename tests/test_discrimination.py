@@ -193,6 +193,7 @@ def test_a_synthetic_session_stores_every_trial_and_a_killed_one_resumes_as_if_u
     from studyctl.session import run_session
     from studyctl.synthetic import run_synthetic_study
     from studyctl.traces import read_trace
+    from tests.test_study import studyctl
 
     protocol = jnd_protocol(tmp_path, trials=12)
     whole, broken = tmp_path / "whole.db", tmp_path / "broken.db"
@@ -207,8 +208,12 @@ def test_a_synthetic_session_stores_every_trial_and_a_killed_one_resumes_as_if_u
         return store_trial(run, *args, **kwargs)
 
     monkeypatch.setattr(disc, "_store_trial", crash_on_the_seventh)
+    # the same participant's session run here (`synth` runs it in a scratch study and stores it
+    # whole: a crash there loses the participant's run, not the study's rows)
+    for args in (("study", "init", "--protocol", protocol), ("participants", "add", "S001", "--synthetic")):
+        assert studyctl(*args, "--db", broken).exit_code == 0
     with pytest.raises(KeyboardInterrupt):
-        run_synthetic_study(broken, 1, seed=3, protocol_path=protocol)
+        run_session(broken, "S001", synthetic=True, seed=3, time_scale=0.0)
     assert len(_rows(broken)) == 6
     monkeypatch.setattr(disc, "_store_trial", store_trial)
     run_session(broken, "S001", synthetic=True, resume=True, time_scale=0.0)
