@@ -223,8 +223,8 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
     """The reference, then every setting, on the calibration and test pulls; returns rows
     (raw and calibrated per setting), per-sample verdicts and meta."""
     from analysis.reference import pull_references
-    from analysis.sweep import run_tasks
     from sim.errors import ParameterError
+    from studyctl.sweep import run_tasks
 
     scene = scene_with(cfg.scene)
     young = float(cfg.young if cfg.young is not None else scene.spec.material.young)

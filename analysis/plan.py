@@ -211,8 +211,8 @@ def _rejections(batch: _Batch) -> dict[str, int]:
 def _hits(protocol, summaries: dict, ns: list[int], simulations: int, seed: int, names: list[str], alpha: float, primary: bool,
           jobs: int, scheduler: str | None, progress) -> dict[int, dict[str, int]]:
     """Per N, how many of `simulations` studies each test rejects; the batches run where
-    `analysis.sweep.completed` puts them. `progress(studies done, studies)`."""
-    from analysis.sweep import completed
+    `studyctl.sweep.completed` puts them. `progress(studies done, studies)`."""
+    from studyctl.sweep import completed
 
     batches = [_Batch(protocol, summaries, n, seed, i, min(BATCH, simulations - start), tuple(names), alpha, primary)
                for n in ns for i, start in enumerate(range(0, simulations, BATCH))]
@@ -230,7 +230,7 @@ def _hits(protocol, summaries: dict, ns: list[int], simulations: int, seed: int,
 def _reachable(scheduler: str | None) -> None:
     """An unreachable cluster is an error now, not after the pilots have run."""
     if scheduler:
-        from analysis.sweep import connect
+        from studyctl.sweep import connect
 
         connect(scheduler).close()
 

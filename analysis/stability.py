@@ -213,7 +213,7 @@ def classify(result, peak: float) -> dict:
 def run_stability(quick: bool = False, scene_path=DEFAULT_SCENE, jobs: int | None = None, scheduler: str | None = None,
                   progress=None, cases: list[Case] | None = None) -> dict:
     """Run the sweep (or the given `cases`) on local processes or a Dask cluster."""
-    from analysis.sweep import run_tasks
+    from studyctl.sweep import run_tasks
 
     cases = make_cases(quick) if cases is None else cases
     results = run_tasks(_task, [(c, str(scene_path)) for c in cases], jobs=jobs, scheduler=scheduler, progress=progress)

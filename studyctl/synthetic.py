@@ -167,13 +167,13 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
     import time as _time
     from pathlib import Path
 
-    from analysis.sweep import completed, connect
     from studyctl.bundles import run_away, seed_for, store_bundle
     from studyctl.errors import InputError
     from studyctl.protocol import load_protocol
     from studyctl.rig import keep_shipped
     from studyctl.store import Store, init_study, now
     from studyctl.study import assign_order
+    from studyctl.sweep import completed, connect
 
     if not 1 <= participants <= MAX_SYNTHETIC:
         raise InputError(f"--participants: {participants} is out of range; allowed: 1..{MAX_SYNTHETIC}")

@@ -361,7 +361,7 @@ def test_cli_conventions_hold_for_every_command():
 def test_a_missing_extra_is_a_one_line_error_naming_it(tmp_path, monkeypatch):
     import importlib.util
 
-    from analysis.sweep import SweepError, _run_dask
+    from studyctl.sweep import SweepError, connect
 
     db = tmp_path / "s.db"
     studyctl("study", "init", "--db", db)  # the shipped protocol
@@ -372,4 +372,4 @@ def test_a_missing_extra_is_a_one_line_error_naming_it(tmp_path, monkeypatch):
     assert not (tmp_path / "out").exists()  # nothing written
     monkeypatch.setitem(sys.modules, "distributed", None)  # as if not installed
     with pytest.raises(SweepError, match=r"brainsim-study\[dask\]"):
-        _run_dask(lambda x: x, [1], "tcp://127.0.0.1:1", lambda *a: None)
+        connect("tcp://127.0.0.1:1")

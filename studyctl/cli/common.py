@@ -12,11 +12,11 @@ from pathlib import Path
 
 import click
 
-from analysis.sweep import SweepError
 from brainsim_assets import path as _asset
 from sim.errors import SimError
 from sim.jsonable import jsonable
 from studyctl.errors import StudyError
+from studyctl.sweep import SweepError
 
 DEFAULT_PROTOCOL = _asset("protocols/brain_pull_2015.toml")
 

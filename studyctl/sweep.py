@@ -1,8 +1,9 @@
-"""Run a sweep's independent tasks: in this process, on the local cores, or on a Dask cluster.
+"""Run independent tasks (a bench's cases, synthetic participants, a plan's simulated studies):
+in this process, on the local cores, or on a Dask cluster.
 
-Tasks are plain picklable values and `fn` a module-level function, so the same sweep runs
+Tasks are plain picklable values and `fn` a module-level function, so the same work runs
 unchanged in a process pool or on Dask workers (which must have this package installed).
-Results come back in task order whatever order they finish in.
+`run_tasks` gives the results in task order; `completed` gives each as it finishes.
 """
 
 from __future__ import annotations
