@@ -59,6 +59,18 @@ def test_two_grasps_on_one_hemisphere_are_coupled_and_on_two_are_not(model):
     assert sep[0] == (0.0, 0.0, 0.0) or np.allclose(sep[0], 0.0)
 
 
+def test_a_second_grasp_at_a_vertex_reuses_its_condensation_as_a_new_contact(model):
+    """Grasps at one vertex share the condensed responses (computed once, read-only) but are new
+    contacts (caches keyed by a contact's identity see a new grasp); a model with another
+    stiffness condenses afresh."""
+    a, b = model.grasp(LEFT, 0), model.grasp(LEFT, 1)
+    assert a.data is not b.data and b.data.U is a.data.U and b.data.K == a.data.K and a.vertex == b.vertex
+    assert not a.data.U.flags.writeable
+    stiff = model.with_stiffness(2.0)
+    c = stiff.grasp(LEFT, 0)
+    assert c.data.U is not a.data.U and np.allclose(c.data.K, 2.0 * np.asarray(a.data.K), rtol=1e-9)
+
+
 def test_embedding_reproduces_linear_fields(model):
     vol = model.volume
     A = np.array([[1e-3, 2e-3, 0.0], [0.0, 1e-3, -1e-3], [5e-4, 0.0, 2e-3]])

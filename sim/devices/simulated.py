@@ -54,15 +54,20 @@ class PullScript:
     glitch: bool = False
 
     def target(self, t: float) -> Vec3:
+        # per axis written out, not looped: this runs at 1 kHz per hand (the same operations)
         s = min_jerk((t - self.pull_start) / self.pull_time) if self.pull_time > 0 else float(t >= self.pull_start)
-        x = [self.start[k] + s * self.pull[k] for k in range(3)]
+        a, p = self.start, self.pull
+        x0, x1, x2 = a[0] + s * p[0], a[1] + s * p[1], a[2] + s * p[2]
         if self.jump_at is not None and not self.glitch and t >= self.jump_at:
-            x = [x[k] + self.jump[k] for k in range(3)]
+            j = self.jump
+            x0, x1, x2 = x0 + j[0], x1 + j[1], x2 + j[2]
         if self.tremor_m:
             w = 2.0 * math.pi * self.tremor_hz * t
-            for k in range(3):
-                x[k] += self.tremor_m * math.sin(w + self.tremor_phase[k])
-        return (x[0], x[1], x[2])
+            m, ph, sin = self.tremor_m, self.tremor_phase, math.sin
+            x0 += m * sin(w + ph[0])
+            x1 += m * sin(w + ph[1])
+            x2 += m * sin(w + ph[2])
+        return (x0, x1, x2)
 
     def button(self, t: float) -> bool:
         return self.grasp_at <= t < self.release_at
@@ -122,11 +127,13 @@ class SimulatedOmni:
         self._advance(t)
         r = self.spec.resolution_m
         o, x = self.origin, self._x
-        q = tuple(o[i] + round((x[i] - o[i]) / r) * r for i in range(3))  # encoder quantisation
+        # encoder quantisation, per axis written out (1 kHz per hand)
+        q = (o[0] + round((x[0] - o[0]) / r) * r, o[1] + round((x[1] - o[1]) / r) * r, o[2] + round((x[2] - o[2]) / r) * r)
         return DeviceState(position=q, button=self.script.button(t))
 
     def write_force(self, force: Vec3) -> None:
-        fx, fy, fz = (float(c) for c in force)
+        fx, fy, fz = force
+        fx, fy, fz = float(fx), float(fy), float(fz)
         mag = math.sqrt(fx * fx + fy * fy + fz * fz)
         if not math.isfinite(mag):
             fx = fy = fz = mag = 0.0

@@ -29,6 +29,7 @@ from sim.volume import locate
 DEFAULT_RESOLUTION = 0.008  # m: the shipped body-fitted mesh the scene's FEM runs on (docs/fem.md)
 DEFAULT_ORDER = 2  # quadratic tetrahedra: P1 locks at the brain's Poisson ratio
 
+GRASPS_KEPT = 16  # condensed grasps kept per model (`FemModel.grasp`): a session's grasps land on a few vertices
 COROT_FORCE_LIMIT = 3.0  # a corotational force this many times the linear one for the same grasp is a runaway
 # Assembled, factorised parts by content: a process that builds the same scene again (a session's
 # conditions, each synthetic participant, a sweep's cases) reuses them: P2 on the 8 mm mesh costs
@@ -112,6 +113,7 @@ class FemModel:
         self.embed_s = time.perf_counter() - start
         surface.prepare_queries()
         self._pair_of: tuple | None = None  # (the two contacts' data, their pair stiffness)
+        self._grasps: dict[int, tuple] = {}  # surface vertex -> its condensed grasp (`grasp`)
         self._out = np.zeros_like(surface.vertices)
         # corotational state, per part: (contact ids, free-dof displacement, multipliers)
         self._corot: dict[int, tuple] = {}
@@ -150,7 +152,7 @@ class FemModel:
         shared, no grasp or frame state carried over. Equal to building it with E * scale."""
         out = copy.copy(self)
         out.parts = [p.scaled(scale) for p in self.parts]
-        out._pair_of, out._corot, out._out = None, {}, np.zeros_like(self._out)
+        out._pair_of, out._corot, out._out, out._grasps = None, {}, np.zeros_like(self._out), {}
         out.inverted_frames = out.tangent_updates = out.restarts = 0
         out.unstable, out.frame_flops = False, math.nan
         return out
@@ -182,20 +184,34 @@ class FemModel:
     def grasp(self, point, hand: int = 0):
         from sim.models.base import Contact
 
-        v = self.surface.nearest_vertex(point)
-        part = int(self.tet_part[self.embedding.tet[v]])
-        fem = self.parts[part]
-        # the patch's area mean, each quadrature point interpolated in its element: the
-        # reference's functional (its vertex mean, a handful of point constraints, would soften
-        # without limit as the mesh is refined: 13% from 8 to 4 mm on P2)
-        points, weights = patch_area_points(self.surface, v, self.grasp_radius)
-        tet, bary = locate(fem.nodes, fem.tets, points)
-        W = constraint_matrix(fem, tet, bary, weights)
-        U, C, Kc = condense(fem, W)  # raises SingularSystemError if the patch cannot move
-        data = FemContact(part=part, W=W, U=U, C=C, K=tuple(float(x) for x in Kc.ravel()))
+        v = int(self.surface.nearest_vertex(point))
+        data = FemContact(*self._condensed(v))  # a new object per grasp: caches keyed by identity see a new grasp
         anchor = tuple(float(c) for c in self.surface.vertices[v])
         normal = tuple(float(c) for c in self.surface.vertex_normals[v])
         return Contact(hand=hand, vertex=int(v), point=anchor, normal=normal, data=data, law=Linearised(K=data.K))
+
+    def _condensed(self, v: int) -> tuple:
+        """(part, W, U, C, K) of a grasp at surface vertex `v`: a function of the vertex alone,
+        computed once per model (about 0.1 s at P2 8 mm: three solves and the patch's location;
+        the motor model grasps the same few vertices in every trial of a session). U and C are
+        read-only: every grasp at `v` shares them."""
+        hit = self._grasps.pop(v, None)
+        if hit is None:
+            part = int(self.tet_part[self.embedding.tet[v]])
+            fem = self.parts[part]
+            # the patch's area mean, each quadrature point interpolated in its element: the
+            # reference's functional (its vertex mean, a handful of point constraints, would soften
+            # without limit as the mesh is refined: 13% from 8 to 4 mm on P2)
+            points, weights = patch_area_points(self.surface, v, self.grasp_radius)
+            tet, bary = locate(fem.nodes, fem.tets, points)
+            W = constraint_matrix(fem, tet, bary, weights)
+            U, C, Kc = condense(fem, W)  # raises SingularSystemError if the patch cannot move
+            U.flags.writeable = C.flags.writeable = False
+            hit = (part, W, U, C, tuple(float(x) for x in Kc.ravel()))
+            while len(self._grasps) >= GRASPS_KEPT:
+                self._grasps.pop(next(iter(self._grasps)))  # the least recently used
+        self._grasps[v] = hit
+        return hit
 
     def _pair(self, a, b) -> np.ndarray:
         held = self._pair_of
