@@ -47,6 +47,69 @@ def spring_energy(x, ei, ej, k, rest):
     return total
 
 
+@numba.njit(cache=True, fastmath=False)
+def spring_gradient(x, ei, ej, k, rest, free_pos, n_free):
+    """The springs' energy gradient on the free rows: k (1 - rest / |d|) d, d = x_i - x_j,
+    +at i and -at j (the Newton solver's right-hand side, `sim/models/newton.py`)."""
+    out = np.zeros((n_free, 3))
+    for s in range(ei.shape[0]):
+        i, j = ei[s], ej[s]
+        d0 = x[i, 0] - x[j, 0]
+        d1 = x[i, 1] - x[j, 1]
+        d2 = x[i, 2] - x[j, 2]
+        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        c = k[s] * (1.0 - rest[s] / length) if length > 0.0 else 0.0
+        fi, fj = free_pos[i], free_pos[j]
+        if fi >= 0:
+            out[fi, 0] += c * d0
+            out[fi, 1] += c * d1
+            out[fi, 2] += c * d2
+        if fj >= 0:
+            out[fj, 0] -= c * d0
+            out[fj, 1] -= c * d1
+            out[fj, 2] -= c * d2
+    return out
+
+
+@numba.njit(cache=True, fastmath=False)
+def spring_hessian_product(x, ei, ej, k, rest, free_pos, p):
+    """The springs' exact Hessian at x times p (free rows; clamped nodes do not move), matrix
+    free: per spring k (n n^T + (1 - rest/|d|) (I - n n^T)) (p_i - p_j), n = d / |d|. The
+    transverse term is not clamped (it is negative for a compressed spring): Newton keeps its
+    quadratic convergence and PCG watches for negative curvature instead."""
+    out = np.zeros_like(p)
+    for s in range(ei.shape[0]):
+        i, j = ei[s], ej[s]
+        d0 = x[i, 0] - x[j, 0]
+        d1 = x[i, 1] - x[j, 1]
+        d2 = x[i, 2] - x[j, 2]
+        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        if length <= 0.0:
+            continue
+        fi, fj = free_pos[i], free_pos[j]
+        q0 = q1 = q2 = 0.0
+        if fi >= 0:
+            q0, q1, q2 = p[fi, 0], p[fi, 1], p[fi, 2]
+        if fj >= 0:
+            q0, q1, q2 = q0 - p[fj, 0], q1 - p[fj, 1], q2 - p[fj, 2]
+        inv = 1.0 / length
+        n0, n1, n2 = d0 * inv, d1 * inv, d2 * inv
+        along = n0 * q0 + n1 * q1 + n2 * q2
+        t = 1.0 - rest[s] * inv
+        a = k[s] * (1.0 - t) * along
+        b = k[s] * t
+        h0, h1, h2 = a * n0 + b * q0, a * n1 + b * q1, a * n2 + b * q2
+        if fi >= 0:
+            out[fi, 0] += h0
+            out[fi, 1] += h1
+            out[fi, 2] += h2
+        if fj >= 0:
+            out[fj, 0] -= h0
+            out[fj, 1] -= h1
+            out[fj, 2] -= h2
+    return out
+
+
 @numba.njit(cache=True)
 def _inv3(a, out):
     """out = a^-1 for a 3 x 3 matrix; returns det a."""
@@ -172,6 +235,8 @@ def warm_up() -> None:
     idx = np.array([0], dtype=np.int64)
     spring_rhs(x, idx, idx + 1, np.ones(1), np.ones(1), np.array([0, 1], dtype=np.int64), 2)
     spring_energy(x, idx, idx + 1, np.ones(1), np.ones(1))
+    spring_gradient(x, idx, idx + 1, np.ones(1), np.ones(1), np.array([0, 1], dtype=np.int64), 2)
+    spring_hessian_product(x, idx, idx + 1, np.ones(1), np.ones(1), np.array([0, 1], dtype=np.int64), x)
     polar_rotations(np.eye(3)[None].copy(), np.empty((1, 3, 3)), np.empty(1))
     tets = np.arange(4, dtype=np.int64)[None]
     F = np.empty((1, 3, 3))

@@ -367,7 +367,7 @@ def _model_options(table: TableReader, name: str) -> ModelSpec | None:
             "coupling": table.number("coupling", default=300.0, lo=0.0, hi=OMNI_MAX_STIFFNESS, lo_open=True),
             "grasp_radius": table.number("grasp_radius", default=GRASP_RADIUS, lo=0.0, hi=0.02),
             "iterations": table.integer("iterations", default=10, lo=1, hi=1000),
-            "acceleration": table.string("acceleration", default="none", choices=("none", "chebyshev", "anderson")),
+            "acceleration": table.string("acceleration", default="none", choices=("none", "chebyshev", "anderson", "newton")),
         })
     return ModelSpec(name=name, options=dict(table.data))
 

@@ -221,3 +221,96 @@ def test_anderson_at_rest_converged_to_the_last_bit_does_not_fail():
     ms = MassSpring(x, [[0, 1], [1, 2], [0, 2]], 10.0, 0.001, fixed=[True, False, False], acceleration="anderson")
     ms.step(1 / 30, "local-global", iterations=10)
     assert np.allclose(ms.x, x, atol=1e-12)
+
+
+def test_newton_converges_to_the_local_global_step_with_anchors_and_clamped_nodes():
+    """Newton-Krylov (acceleration "newton", sim/models/newton.py) minimises the same
+    backward-Euler objective as local/global: on the clamped, pulled block it reaches the step
+    that 5000 plain iterations converge to. 1e-6 of the frame's motion: both are converged far
+    below that (Newton quadratically; the plain iteration shrinks its error by rho < 0.9 per
+    iteration, rho^5000 is nothing); clamped nodes stay at rest."""
+    plain = _pulled_block()
+    s0 = plain.state()
+    plain.step(1 / 30, "local-global", iterations=5000)
+    ref, moved = plain.x.copy(), np.linalg.norm(plain.x - s0[0])
+    ms = _pulled_block("newton")
+    ms.step(1 / 30, "local-global", iterations=200)
+    assert np.linalg.norm(ms.x - ref) / moved < 1e-6
+    assert np.array_equal(ms.x[ms.fixed], ms.rest_positions[ms.fixed]) and not ms.v[ms.fixed].any()
+    assert np.allclose(ms.v, plain.v, atol=1e-6 * moved * 30)
+    # fewer solves than the plain iteration to 1% (both count solves with the same factor)
+    for it in range(1, 200):
+        ms.set_state(s0)
+        ms.step(1 / 30, "local-global", iterations=it)
+        if np.linalg.norm(ms.x - ref) / moved < 0.01:
+            break
+    assert it < 30, it
+
+
+def test_newton_never_raises_the_steps_objective():
+    """The line search accepts only decrease: every Newton iterate of a step (each one where a
+    gradient is taken) has a lower objective than the last, on the hard pull where an unguarded
+    Anderson step overshoots; and the step ends below where it started, whatever its budget."""
+    ms = _pulled_block("newton")
+    patch = ms.anchors[0][0]
+    ms.set_anchors([(patch, 3000.0, ms.rest_positions[patch].mean(axis=0) + np.array([0.03, 0.03, -0.02]))])
+    s0 = ms.state()
+    h = 1 / 30
+    solver = ms._lg_solver(h)
+    y = s0[0] + h * s0[1]
+    mass = ms.m[ms.free, None] / (h * h)
+    start = ms._lg_objective(solver, y.copy(), y[ms.free].copy(), y[ms.free], mass)
+    seen = []
+    gradient = ms._nk_gradient
+
+    def recording(solver, x, xf, yf, mass):
+        seen.append(ms._lg_objective(solver, x.copy(), xf, yf, mass))
+        return gradient(solver, x, xf, yf, mass)
+
+    ms._nk_gradient = recording
+    ms.step(h, "local-global", iterations=60)
+    assert len(seen) >= 4 and np.all(np.diff(seen) < 0), seen
+    del ms._nk_gradient
+    for it in range(1, 40):
+        ms.set_state(s0)
+        ms.step(h, "local-global", iterations=it)
+        x = ms.x.copy()
+        assert ms._lg_objective(solver, x, x[ms.free].copy(), y[ms.free], mass) < start
+
+
+def test_newton_hessian_product_and_gradient_match_finite_differences():
+    """The compiled exact Hessian product (transverse term unclamped) and gradient against
+    central differences of the objective, and the NumPy path against the compiled one."""
+    import sim.models.mass_spring as msm
+
+    pytest.importorskip("numba")
+    ms = _pulled_block("newton")
+    ms.step(1 / 30, "local-global", iterations=3)
+    h = 1 / 30
+    solver = ms._lg_solver(h)
+    rng = np.random.default_rng(1)
+    x = ms.x + rng.normal(0, 2e-4, ms.x.shape) * ~ms.fixed[:, None]
+    y = x + rng.normal(0, 1e-4, x.shape)
+    mass = ms.m[ms.free, None] / (h * h)
+    xf, yf = x[ms.free].copy(), y[ms.free]
+    g = ms._nk_gradient(solver, x, xf, yf, mass)
+    p = rng.normal(0, 1.0, xf.shape)
+    hp = ms._nk_hessian_product(solver, x, mass, p)
+    eps = 1e-7
+    fd = (ms._lg_objective(solver, x.copy(), xf + eps * p, yf, mass) - ms._lg_objective(solver, x.copy(), xf - eps * p, yf, mass)) / (2 * eps)
+    assert float(np.sum(g * p)) == pytest.approx(fd, rel=1e-5)
+    x[ms.free] = xf
+    x2 = x.copy()
+    x2[ms.free] = xf + eps * p
+    gp = ms._nk_gradient(solver, x2, xf + eps * p, yf, mass)
+    x2[ms.free] = xf - eps * p
+    gm = ms._nk_gradient(solver, x2, xf - eps * p, yf, mass)
+    assert np.allclose(hp, (gp - gm) / (2 * eps), rtol=1e-4, atol=1e-4 * np.abs(hp).max())
+    saved, msm._spring_rhs = msm._spring_rhs, lambda: None
+    try:
+        hp_numpy = ms._nk_hessian_product(solver, x, mass, p)
+        g_numpy = ms._nk_gradient(solver, x, xf, yf, mass)
+    finally:
+        msm._spring_rhs = saved
+    assert np.allclose(hp_numpy, hp, rtol=1e-12, atol=1e-12 * np.abs(hp).max())
+    assert np.allclose(g_numpy, g, rtol=1e-10, atol=1e-10 * np.abs(g).max())

@@ -52,7 +52,7 @@ def _scene_text(**replace) -> str:
         ('device = "simulated"', 'device = "phantom"', r"device: 'phantom' is not one of simulated"),
         ("rate_hz = 1000", "rate_hz = 1000 =", r"invalid TOML"),
         ('acceleration = "none"', 'acceleration = "aitken"',
-         r"models.mass_spring.acceleration: 'aitken' is not one of none, chebyshev, anderson"),
+         r"models.mass_spring.acceleration: 'aitken' is not one of none, chebyshev, anderson, newton"),
         ("x_c1", "x_c1", r""),
     ],
 )

@@ -25,6 +25,7 @@ from sim.laws import Coupling
 from sim.models import MASS_SPRING_INTEGRATORS as INTEGRATORS
 from sim.models.base import pull_problem
 from sim.models.local_global import ACCELERATIONS, ANDERSON_DEPTH, RHO_ITERATIONS, LocalGlobal  # noqa: F401 (re-exported)
+from sim.models.newton import NewtonKrylov
 from sim.patch import GRASP_RADIUS
 
 OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m  # 700 N/m: stable closed-loop stiffness at 1 kHz
@@ -65,7 +66,7 @@ class StepReport:
     unstable: bool
 
 
-class MassSpring(LocalGlobal):
+class MassSpring(LocalGlobal, NewtonKrylov):
     """``MassSpring(positions, springs, stiffness, masses, fixed=None, damping=0.0)``."""
 
     def __init__(self, positions, springs, stiffness, masses, fixed=None, damping: float = 0.0, acceleration: str = "none"):
