@@ -27,25 +27,25 @@ def cluster():
 
 def test_synth_on_a_cluster_equals_local_jobs_and_a_killed_worker_loses_no_participant(tmp_path, cluster):
     protocol = fast_protocol(tmp_path, trials=1)
-    run_synthetic_study(tmp_path / "local.db", 4, seed=5, jobs=2, protocol_path=protocol)
+    run_synthetic_study(tmp_path / "local.db", 3, seed=5, jobs=2, protocol_path=protocol)
     killed = []
     with distributed.Client(cluster) as watcher:
         def kill_a_busy_worker(done, total):
-            if done == 1:  # three participants left, each worker running one
+            if done == 1:  # two participants left, each worker running one
                 busy = [w for w, keys in watcher.processing().items() if keys]
                 pid = watcher.run(os.getpid, workers=busy[:1])[busy[0]]
                 os.kill(pid, signal.SIGKILL)  # its nanny starts a new one; the scheduler reruns its task
                 killed.append(busy[0])
 
-        out = run_synthetic_study(tmp_path / "dask.db", 4, seed=5, protocol_path=protocol, scheduler=cluster.scheduler_address,
+        out = run_synthetic_study(tmp_path / "dask.db", 3, seed=5, protocol_path=protocol, scheduler=cluster.scheduler_address,
                                   progress=kill_a_busy_worker)
-    assert killed and out["participants"] == 4
+    assert killed and out["participants"] == 3
     con = sqlite3.connect(tmp_path / "dask.db")
     sessions = con.execute("select code, status, synthetic from sessions order by code").fetchall()
     trials = con.execute("select count(*), count(distinct session_id || model || trial) from trials").fetchone()
     con.close()
-    assert sessions == [(f"S{k:03d}", "done", 1) for k in range(1, 5)]  # each participant once, finished
-    assert trials == (4 * 3, 4 * 3)
+    assert sessions == [(f"S{k:03d}", "done", 1) for k in range(1, 4)]  # each participant once, finished
+    assert trials == (3 * 3, 3 * 3)
     # the same answers, orders, trials' forces and perceived features as the local processes
     assert _content(tmp_path / "dask.db") == _content(tmp_path / "local.db")
     for (path,) in sqlite3.connect(tmp_path / "dask.db").execute("select trace_path from trials"):
