@@ -8,18 +8,27 @@ import numba
 import numpy as np
 
 
+@numba.njit(cache=True, fastmath=False, inline="always")
+def _spring_vector(x, i, j):
+    """x_i - x_j and its length, the geometry of every pass over the springs."""
+    d0 = x[i, 0] - x[j, 0]
+    d1 = x[i, 1] - x[j, 1]
+    d2 = x[i, 2] - x[j, 2]
+    return d0, d1, d2, np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+
+
 @numba.njit(cache=True, fastmath=False)
-def spring_rhs(x, ei, ej, k, rest, free_pos, n_free):
-    """sum over springs of k (x_i - x_j) rest / |x_i - x_j|, +at i and -at j, on the free rows:
-    the local/global step's A^T diag(k) d with every spring projected to its rest length."""
+def _spring_sum(x, ei, ej, k, rest, free_pos, n_free, gradient):
+    """sum over springs of c (x_i - x_j), +at i and -at j, on the free rows, with c = k rest / |d|
+    (the local/global right-hand side) or, with `gradient`, k - that = k (1 - rest / |d|) (the
+    springs' energy gradient). One loop for both; the flag is constant through it."""
     out = np.zeros((n_free, 3))
     for s in range(ei.shape[0]):
         i, j = ei[s], ej[s]
-        d0 = x[i, 0] - x[j, 0]
-        d1 = x[i, 1] - x[j, 1]
-        d2 = x[i, 2] - x[j, 2]
-        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        c = k[s] * (rest[s] / length if length > 0.0 else 1.0)
+        d0, d1, d2, length = _spring_vector(x, i, j)
+        c = k[s] * (rest[s] / length if length > 0.0 else 1.0)  # a zero-length spring adds nothing either way
+        if gradient:
+            c = k[s] - c
         fi, fj = free_pos[i], free_pos[j]
         if fi >= 0:
             out[fi, 0] += c * d0
@@ -30,6 +39,20 @@ def spring_rhs(x, ei, ej, k, rest, free_pos, n_free):
             out[fj, 1] -= c * d1
             out[fj, 2] -= c * d2
     return out
+
+
+@numba.njit(cache=True, fastmath=False)
+def spring_rhs(x, ei, ej, k, rest, free_pos, n_free):
+    """sum over springs of k (x_i - x_j) rest / |x_i - x_j|, +at i and -at j, on the free rows:
+    the local/global step's A^T diag(k) d with every spring projected to its rest length."""
+    return _spring_sum(x, ei, ej, k, rest, free_pos, n_free, False)
+
+
+@numba.njit(cache=True, fastmath=False)
+def spring_gradient(x, ei, ej, k, rest, free_pos, n_free):
+    """The springs' energy gradient on the free rows: k (1 - rest / |d|) d, d = x_i - x_j,
+    +at i and -at j (the Newton solver's right-hand side, `sim/models/newton.py`)."""
+    return _spring_sum(x, ei, ej, k, rest, free_pos, n_free, True)
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -38,37 +61,10 @@ def spring_energy(x, ei, ej, k, rest):
     objective, for Anderson acceleration's energy safeguard."""
     total = 0.0
     for s in range(ei.shape[0]):
-        i, j = ei[s], ej[s]
-        d0 = x[i, 0] - x[j, 0]
-        d1 = x[i, 1] - x[j, 1]
-        d2 = x[i, 2] - x[j, 2]
-        stretch = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) - rest[s]
+        length = _spring_vector(x, ei[s], ej[s])[3]
+        stretch = length - rest[s]
         total += 0.5 * k[s] * stretch * stretch
     return total
-
-
-@numba.njit(cache=True, fastmath=False)
-def spring_gradient(x, ei, ej, k, rest, free_pos, n_free):
-    """The springs' energy gradient on the free rows: k (1 - rest / |d|) d, d = x_i - x_j,
-    +at i and -at j (the Newton solver's right-hand side, `sim/models/newton.py`)."""
-    out = np.zeros((n_free, 3))
-    for s in range(ei.shape[0]):
-        i, j = ei[s], ej[s]
-        d0 = x[i, 0] - x[j, 0]
-        d1 = x[i, 1] - x[j, 1]
-        d2 = x[i, 2] - x[j, 2]
-        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        c = k[s] * (1.0 - rest[s] / length) if length > 0.0 else 0.0
-        fi, fj = free_pos[i], free_pos[j]
-        if fi >= 0:
-            out[fi, 0] += c * d0
-            out[fi, 1] += c * d1
-            out[fi, 2] += c * d2
-        if fj >= 0:
-            out[fj, 0] -= c * d0
-            out[fj, 1] -= c * d1
-            out[fj, 2] -= c * d2
-    return out
 
 
 @numba.njit(cache=True, fastmath=False)
@@ -80,10 +76,7 @@ def spring_hessian_product(x, ei, ej, k, rest, free_pos, p):
     out = np.zeros_like(p)
     for s in range(ei.shape[0]):
         i, j = ei[s], ej[s]
-        d0 = x[i, 0] - x[j, 0]
-        d1 = x[i, 1] - x[j, 1]
-        d2 = x[i, 2] - x[j, 2]
-        length = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        d0, d1, d2, length = _spring_vector(x, i, j)
         if length <= 0.0:
             continue
         fi, fj = free_pos[i], free_pos[j]

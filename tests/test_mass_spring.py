@@ -191,18 +191,21 @@ def test_accelerations_reach_the_backward_euler_step_in_fewer_iterations():
         assert np.linalg.norm(ms.x - ref) / moved < 1e-6, acc  # the same fixed point
 
 
+def _hard_pull(acceleration: str):
+    """The pulled block under a hard, sideways pull of a stiff coupling (where an unguarded
+    Anderson combination overshoots), with what evaluating the step's objective needs:
+    (model, start state, h, solver, y, m / h^2 on the free rows)."""
+    ms = _pulled_block(acceleration)
+    patch = ms.anchors[0][0]
+    ms.set_anchors([(patch, 3000.0, ms.rest_positions[patch].mean(axis=0) + np.array([0.03, 0.03, -0.02]))])
+    s0, h = ms.state(), 1 / 30
+    return ms, s0, h, ms._lg_solver(h), s0[0] + h * s0[1], ms.m[ms.free, None] / (h * h)
+
+
 def test_anderson_never_raises_the_steps_objective():
     """Peng et al.'s safeguard: an accelerated iterate that raises the backward-Euler objective
     is replaced by the plain update, so the objective falls at every iteration count."""
-    ms = _pulled_block("anderson")
-    # a hard, sideways pull of a stiff coupling: unguarded, the combination overshoots here
-    patch = ms.anchors[0][0]
-    ms.set_anchors([(patch, 3000.0, ms.rest_positions[patch].mean(axis=0) + np.array([0.03, 0.03, -0.02]))])
-    s0 = ms.state()
-    h = 1 / 30
-    solver = ms._lg_solver(h)
-    y = s0[0] + h * s0[1]
-    mass = ms.m[ms.free, None] / (h * h)
+    ms, s0, h, solver, y, mass = _hard_pull("anderson")
     values = []
     for it in range(1, 40):
         ms.set_state(s0)
@@ -251,14 +254,7 @@ def test_newton_never_raises_the_steps_objective():
     """The line search accepts only decrease: every Newton iterate of a step (each one where a
     gradient is taken) has a lower objective than the last, on the hard pull where an unguarded
     Anderson step overshoots; and the step ends below where it started, whatever its budget."""
-    ms = _pulled_block("newton")
-    patch = ms.anchors[0][0]
-    ms.set_anchors([(patch, 3000.0, ms.rest_positions[patch].mean(axis=0) + np.array([0.03, 0.03, -0.02]))])
-    s0 = ms.state()
-    h = 1 / 30
-    solver = ms._lg_solver(h)
-    y = s0[0] + h * s0[1]
-    mass = ms.m[ms.free, None] / (h * h)
+    ms, s0, h, solver, y, mass = _hard_pull("newton")
     start = ms._lg_objective(solver, y.copy(), y[ms.free].copy(), y[ms.free], mass)
     seen = []
     gradient = ms._nk_gradient
