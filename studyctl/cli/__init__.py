@@ -18,6 +18,7 @@ from studyctl.cli import (
     bench,
     calibrate,
     devices,
+    metrics,
     model,
     participants,
     plan,
@@ -44,6 +45,6 @@ for _command in (
     bench.bench, model.model, calibrate.calibrate, simulator.sim, devices.devices,
     study.protocol, study.study, participants.participants, participants.schedule_cmd, study.status_cmd,
     sessions.session, sessions.sessions_alias, sessions.replay_cmd, sessions.synth_cmd, plan.plan_cmd,
-    reports.report, answers.answers, reports.export_cmd,
+    reports.report, answers.answers, reports.export_cmd, metrics.metrics_cmd,
 ):
     cli.add_command(_command)

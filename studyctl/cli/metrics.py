@@ -1,0 +1,43 @@
+"""`studyctl metrics`: every stored trial's performance metrics (analysis/metrics.py), tidy."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from sim.jsonable import jsonable
+from studyctl.cli.common import DB, OutFile
+
+
+def _note(table) -> str:
+    codes = table.loc[table["synthetic"], "code"].unique()
+    return f"SYNTHETIC DATA: {len(codes)} of {table['code'].nunique()} participants are synthetic" if len(codes) else ""
+
+
+@click.command("metrics", cls=click.Command)
+@DB
+@click.option("--format", "fmt", type=click.Choice(["csv", "json"]), default="csv", show_default=True)
+@click.option("--out", "out_file", type=OutFile((".csv", ".json")), default=None, help="Write to this file instead of stdout.")
+def metrics_cmd(db, fmt, out_file):
+    """Performance metrics from every stored trace, one row per participant, condition, trial,
+    hand and metric (docs/metrics.md); synthetic participants' rows say so."""
+    from analysis.metrics import METRICS, metrics_table
+    from studyctl.store import Store
+
+    with Store(db, mode="read") as store:
+        table = metrics_table(store)
+    note = _note(table) if len(table) else f"{db}: no trial with a stored trace yet"
+    if fmt == "json":
+        text = json.dumps(jsonable({"note": note, "synthetic": bool(table["synthetic"].any()),
+                                    "metrics": [vars(m) for m in METRICS], "rows": table.to_dict(orient="records")}), indent=2) + "\n"
+    else:
+        text = table.to_csv(index=False)
+    if out_file:
+        Path(out_file).write_text(text)
+        click.echo(f"wrote {out_file} ({len(table)} rows)" + (f"; {note}" if note else ""))
+        return
+    click.echo(text, nl=False)
+    if note and fmt == "csv":  # on stderr: the CSV on stdout stays parseable
+        click.echo(note, err=True)
