@@ -39,7 +39,7 @@ def completed(fn: Callable, tasks: Sequence, jobs: int | None = None, scheduler:
     """`(index, fn(tasks[index]))` as each task finishes: in this process (jobs 1), in a pool of
     `jobs` local processes (default: one per core), or on the Dask cluster at `scheduler`,
     which runs a task again elsewhere when its worker dies (up to `distributed`'s
-    allowed-failures, 3 by default)."""
+    allowed-failures, 3 by default; a local process that dies stops the pool instead)."""
     tasks = list(tasks)
     if scheduler:
         yield from _dask(fn, tasks, scheduler)
@@ -53,10 +53,13 @@ def completed(fn: Callable, tasks: Sequence, jobs: int | None = None, scheduler:
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     # spawn: a fresh interpreter per worker, no forked locks or threads (progress bars, BLAS)
-    with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=mp.get_context("spawn")) as pool:
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=mp.get_context("spawn"))
+    try:
         futures = {pool.submit(fn, t): i for i, t in enumerate(tasks)}
         for fut in as_completed(futures):
             yield futures[fut], fut.result()
+    finally:  # on an error here or in the caller: the tasks not started are dropped, not run first
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def connect(scheduler: str):
@@ -71,6 +74,8 @@ def connect(scheduler: str):
             import socket
 
             host, _, port = scheduler[len("tcp://"):].rpartition(":")
+            if not host or not port.isdigit():
+                raise ValueError("the address needs a host and a port, e.g. tcp://host:8786")
             socket.create_connection((host.strip("[]"), int(port)), timeout=10).close()
         return Client(scheduler, timeout="10s")
     except (OSError, TimeoutError, ValueError) as exc:
