@@ -231,7 +231,8 @@ def markdown(study: Study, holm_scope: str = "family") -> str:
         for item, question, rows, qrow in item_rows(r, q, models):
             cells = [f"{row['yes']}/{row['no']}, {row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]" for row in rows]
             mc = "; ".join(f"{p['a']}-{p['b']} {p['p_holm']:.3g}" for p in pairs.get(item, []))
-            lines.append(f"| {question} | " + " | ".join(cells) + f" | {qrow['cochran_q']:.2f} ({qrow['p_value']:.3g}) | {mc} |")
+            test = f"{qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})" if len(models) > 1 else "n/a (one condition)"
+            lines.append(f"| {question} | " + " | ".join(cells) + f" | {test} | {mc} |")
         lines.append("| Time for real-time deformation of the model, ms: benchmark of this machine | " + " | ".join(deform) + " | | |")
         lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models; pairwise exact McNemar tests, "
                   f"{scope}. Deformation time: each participant's mean over their trials, mean +- sd over participants: "
@@ -248,6 +249,9 @@ def markdown(study: Study, holm_scope: str = "family") -> str:
         lines += [gee, ""]
     if st["kinds"]["primary"]["analysis"] in ("mixed_model", "choice"):
         lines += [primary_line(st), ""]
+    if len(models) < 2:
+        lines += ["One condition: there is nothing to compare between conditions (no Cochran's Q, McNemar or Friedman test); "
+                  "a study with groups compares its groups instead.", ""]
     lines += ["Conditions (what each ran; participants saw only their labels): "
               + "; ".join(condition_text(c) for c in facts["conditions"]) + ".", ""]
     return "\n".join(lines)

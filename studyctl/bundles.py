@@ -4,9 +4,9 @@
 of whichever process or Dask worker runs it); the process that called `synth` then stores the
 result in the study in one transaction. So one process alone writes the study database
 (SQLite's write-ahead log needs every writer on one host: a database on a shared disk cannot
-take writers from several machines), a worker needs no path to the study, and a worker that
-dies loses only the participant it was running, which is run again from the start: every
-participant is stored exactly once. The scratch study has the study's name and rows, so its
+take writers from several machines), a worker needs no path to the study, and a Dask worker
+that dies loses only the participant it was running, which the cluster runs again from the
+start: every participant is stored exactly once. The scratch study has the study's name and rows, so its
 trace paths and everything computed from them are the study's own.
 """
 
@@ -20,7 +20,7 @@ from pathlib import Path
 from studyctl.errors import StoreError
 
 SEEDED = ("study", "rig_profile")  # the study's rows a synthetic session reads
-OWN = ("participants", "schedule")  # the participant's own rows, written by `synth` before the run
+OWN = ("participants", "participant_fields", "schedule")  # the participant's own rows, written by `synth` before the run
 NEW_IDS = ("events", "corrections")  # rowid tables: the study gives imported rows their ids
 FIRST = ("sessions",)  # imported before the rows that reference them
 

@@ -105,6 +105,7 @@ def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
                 conn.execute("delete from answers where code = ?", (code,))
                 conn.execute("delete from corrections where code = ?", (code,))
                 conn.execute("delete from observer_features where code = ?", (code,))
+                conn.execute("delete from participant_fields where code = ?", (code,))
                 conn.execute("delete from sessions where code = ?", (code,))
             else:  # an interrupted session will not be resumed
                 conn.execute("update sessions set status = 'withdrawn' where code = ? and status = 'running'", (code,))
@@ -177,14 +178,22 @@ def correct_answer(db, code: str, model: str, item: str, answer: str, reason: st
 
 
 def list_participants(db) -> list[dict]:
-    """One row per participant (no identifying details): kind, age, consent, slot, session state."""
+    """One row per participant (no identifying details): kind, age, their group (with
+    design.groups), consent, slot, session state."""
     with Store(db, mode="read") as store:
-        return store.rows(
+        protocol = store.protocol()
+        rows = store.rows(
             "select p.code, case when p.synthetic = 1 then 'synthetic' else 'person' end as kind, p.age, "
             "c.version as consent, s.slot_start as slot, "
             "(select status from sessions x where x.code = p.code order by x.id desc limit 1) as session, "
             "(select count(*) from answers a where a.code = p.code) as answers, p.withdrawn_at as withdrawn "
             "from participants p left join consent c on c.code = p.code left join schedule s on s.code = p.code order by p.code")
+        if protocol.groups:
+            from studyctl.fields import read_fields
+
+            fields = read_fields(store, protocol)
+            rows = [{**r, "group": fields.get(r["code"], {}).get(protocol.groups)} for r in rows]
+        return rows
 
 
 def list_sessions(db) -> list[dict]:

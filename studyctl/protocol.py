@@ -51,6 +51,15 @@ class Protocol:
     condition_tables: dict = field(default_factory=dict, compare=False)
     instruments: tuple[tuple[str, str], ...] = ()  # (name, when) of each [[instruments]]; their items are in `questions`
     tasks: tuple = ()  # [[tasks]] run in every condition after its free trials (studyctl/tasks.py)
+    fields: tuple = ()  # [fields.NAME]: what is recorded about each participant (studyctl/fields.py)
+    groups: str | None = None  # design.groups: the choice field that is the between-participant factor
+
+    def field_named(self, name: str):
+        return next((f for f in self.fields if f.name == name), None)
+
+    @property
+    def group_field(self):
+        return self.field_named(self.groups) if self.groups else None
 
     @property
     def sha256(self) -> str:
@@ -121,6 +130,9 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     if trials == 0 and not tasks and "tasks" not in data:
         c.bad("design.trials_per_condition", "0 is out of range without [[tasks]]; allowed: 1..100 (0 when each condition has a task)")
     questions = _questions(data, c.get, c.bad, len(conditions or []))
+    from studyctl.fields import check_fields
+
+    fields, groups = check_fields(data, design, c)
     if c.problems:
         return None, c.problems
     return (
@@ -131,6 +143,7 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
             questions=tuple(questions), text=text, consent_version=meta["consent_version"], withdrawal=meta["withdrawal"],
             timezone=meta["timezone"], condition_tables=tables,
             instruments=tuple(dict.fromkeys((q.instrument, q.when) for q in questions if q.instrument)), tasks=tuple(tasks),
+            fields=tuple(fields), groups=groups,
         ),
         [],
     )
@@ -180,9 +193,10 @@ class _Checker:
 
 
 SECTIONS = {"study": ("name", "title", "version", "target_participants", "scene", "timezone"),
-            "design": ("conditions", "counterbalancing", "training_minutes", "trials_per_condition", "trial_seconds", "rest_seconds"),
+            "design": ("conditions", "counterbalancing", "training_minutes", "trials_per_condition", "trial_seconds", "rest_seconds", "groups"),
             "inclusion": ("age_min", "age_max"), "latency": ("measures",), "ethics": ("consent_version", "withdrawal"),
             "questions": ("id", "text", "kind", "points", "anchors", "when"), "instruments": ("name", "when"), "conditions": None,
+            "fields": None,
             "tasks": ("kind", "parameter", "reference", "method", "rule", "trials", "question", "feedback", "interval_seconds", "range", "start")}
 
 

@@ -18,10 +18,10 @@ import sqlite_utils
 
 from studyctl.errors import StoreError
 
-SCHEMA_VERSION = 8
+SCHEMA_VERSION = 9
 EXPORT_TABLES = ("participants", "schedule", "sessions", "conditions", "trials", "answers", "latency", "events", "consent", "corrections",
                  "observer_features", "rig_profile",
-                 "discrimination", "synthetic_traits")
+                 "discrimination", "synthetic_traits", "participant_fields")
 IDENTIFYING_TABLES = ("identities",)
 
 
@@ -132,8 +132,16 @@ def _migration_8(db: sqlite_utils.Database) -> None:
                                   pk=("code", "trait"), foreign_keys=[("code", "participants", "code")])
 
 
+def _migration_9(db: sqlite_utils.Database) -> None:
+    """Participant fields (studyctl/fields.py): one row per participant and field the protocol
+    declares, the value as given (typed on read by the field's kind; the column has no type
+    affinity). Never identifying: characteristics such as experience, kept with the code."""
+    db.execute("create table participant_fields (code text not null references participants(code), field text not null, value, "
+               "primary key (code, field))")
+
+
 MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3, 4: _migration_4, 5: _migration_5, 6: _migration_6, 7: _migration_7,
-              8: _migration_8}
+              8: _migration_8, 9: _migration_9}
 
 
 STUDY_TABLES = ("meta", "study")  # what makes a file a study database (with meta.schema_version)

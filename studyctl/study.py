@@ -34,35 +34,50 @@ def _check_age(age, protocol, where: str):
 
 
 def add_participant(db: str | Path, code: str, age=None, name: str | None = None, contact: str | None = None,
-                    synthetic: bool = False, dry_run: bool = False) -> dict:
+                    synthetic: bool = False, dry_run: bool = False, fields: dict[str, str] | None = None) -> dict:
+    """Register a participant; `fields` their values of the protocol's [fields.NAME] (text as
+    given, e.g. {"experience": "resident"}), each checked against its field."""
+    from studyctl.fields import parse_fields
+
     with Store(db) as store:
         protocol = store.protocol()
         code = _check_code(code, "participant")
         age = _check_age(age, protocol, f"participant {code}")
+        values = parse_fields(protocol, fields or {}, f"participant {code}")
         if store.rows("select code from participants where code = ?", (code,)):
             raise InputError(f"participant {code}: already registered")
         if synthetic and (name or contact):
             raise InputError(f"participant {code}: a synthetic participant has no name or contact")
         _insert(store, [{"code": code, "age": age, "synthetic": int(synthetic), "created_at": now()}],
-                [{"code": code, "name": name, "contact": contact}] if name or contact else [], dry_run)
-        return {"code": code, "age": age, "synthetic": synthetic, "dry_run": dry_run}
+                [{"code": code, "name": name, "contact": contact}] if name or contact else [], dry_run, {code: values})
+        return {"code": code, "age": age, "synthetic": synthetic, "fields": values, "dry_run": dry_run}
 
 
-def _insert(store: Store, people: list[dict], identities: list[dict], dry_run: bool) -> None:
-    """Participants and their identifying details (kept apart; never exported or reported), all or none."""
+def _insert(store: Store, people: list[dict], identities: list[dict], dry_run: bool, fields: dict | None = None) -> None:
+    """Participants, their fields, and their identifying details (kept apart; never exported or
+    reported), all or none."""
+    from studyctl.fields import field_rows
+
     with store.transaction(dry_run) as conn:
         conn.executemany("insert into participants (code, age, synthetic, created_at) values (:code, :age, :synthetic, :created_at)", people)
         conn.executemany("insert into identities (code, name, contact) values (:code, :name, :contact)", identities)
+        conn.executemany("insert into participant_fields (code, field, value) values (:code, :field, :value)",
+                         [r for code, values in (fields or {}).items() for r in field_rows(code, values)])
 
 
 def import_participants(db: str | Path, csv_path: str | Path, dry_run: bool = False) -> dict:
-    """CSV with a `code` column, then optional `age`, `name`, `contact`: all rows or none."""
+    """CSV with a `code` column, then optional `age`, `name`, `contact` and a column per field the
+    protocol declares ([fields.NAME]; a required field's column must be there): all rows or none."""
+    from studyctl.fields import parse_fields
+
     csv_path = Path(csv_path)
     with Store(db) as store:
         protocol = store.protocol()
-        rows = read_csv(csv_path, ("code", "age", "name", "contact"), ("code",))
+        names = tuple(f.name for f in protocol.fields)
+        required = ("code",) + tuple(f.name for f in protocol.fields if f.required)
+        rows = read_csv(csv_path, ("code", "age", "name", "contact") + names, required)
         existing = {r["code"] for r in store.rows("select code from participants")}
-        people, identities, seen = [], [], set()
+        people, identities, fields, seen = [], [], {}, set()
         for line, row in rows:
             where = f"{csv_path}: line {line}"
             code = _check_code(row.get("code"), where)
@@ -70,22 +85,32 @@ def import_participants(db: str | Path, csv_path: str | Path, dry_run: bool = Fa
                 raise InputError(f"{where}: code {code!r} appears twice or is already registered")
             seen.add(code)
             people.append({"code": code, "age": _check_age(row.get("age"), protocol, where), "synthetic": 0, "created_at": now()})
+            fields[code] = parse_fields(protocol, {k: row[k] for k in names if k in row}, where)
             if row.get("name") or row.get("contact"):
                 identities.append({"code": code, "name": row.get("name") or None, "contact": row.get("contact") or None})
         if not people:
             raise InputError(f"{csv_path}: no participants (only a header)")
-        _insert(store, people, identities, dry_run)
+        _insert(store, people, identities, dry_run, fields)
         return {"imported": len(people), "dry_run": dry_run}
 
 
 def assign_order(store: Store, protocol, code: str) -> list[str]:
-    """The participant's condition order: the stored one, else the next Williams row."""
+    """The participant's condition order: the stored one, else the next Williams row. With
+    groups (design.groups), the rows are counted within the participant's group, so that each
+    group is balanced on its own."""
+    from studyctl.fields import group_of
+
     row = store.rows("select conditions from schedule where code = ?", (code,))
     if row and row[0]["conditions"]:
         return json.loads(row[0]["conditions"])
+    group = group_of(store, protocol, code)
+    among, args = "", ()
+    if protocol.groups:  # the same group: its members' rows only
+        among = " and s.code in (select code from participant_fields where field = ? and value = ?)"
+        args = (protocol.groups, group)
     completed = [r["order_index"] for r in store.rows(
-        "select s.order_index from schedule s join sessions x on x.code = s.code where x.status = 'done'")]
-    assigned = [r["order_index"] for r in store.rows("select order_index from schedule")]
+        "select s.order_index from schedule s join sessions x on x.code = s.code where x.status = 'done'" + among, args)]
+    assigned = [r["order_index"] for r in store.rows("select s.order_index from schedule s where 1" + among, args)]
     k = next_order(protocol.conditions, completed, assigned)
     order = [protocol.conditions[i] for i in williams(len(protocol.conditions))[k]]
     # plain SQL, so the caller's transaction (if any) holds it

@@ -163,12 +163,13 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
     forces and answers are the same for the same seed wherever and however the sessions run
     and however busy the machine (the observer reads no wall-clock time); measured times
     differ. Each session runs in a scratch study and is stored here as it finishes
-    (studyctl/bundles.py): a worker that dies costs its participant's run, never a participant."""
+    (studyctl/bundles.py): a Dask worker that dies costs its participant's run, never a participant."""
     import time as _time
     from pathlib import Path
 
     from studyctl.bundles import run_away, seed_for, store_bundle
     from studyctl.errors import InputError
+    from studyctl.fields import synthetic_fields
     from studyctl.protocol import load_protocol
     from studyctl.rig import keep_shipped
     from studyctl.store import Store, init_study, now
@@ -197,10 +198,14 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
             k += 1
             if f"S{k:03d}" not in registered:
                 codes.append(f"S{k:03d}")
+        before = store.rows("select count(*) as n from participants where synthetic = 1")[0]["n"]
+        values = synthetic_fields(protocol, codes, seed, start=before)  # groups in turn: balanced
         with store.transaction() as conn:  # all registered or none
             for code in codes:
                 conn.execute("insert into participants (code, age, synthetic, created_at) values (?, ?, 1, ?)",
                              (code, rng.randint(protocol.age_min, protocol.age_max), now()))
+                conn.executemany("insert into participant_fields (code, field, value) values (?, ?, ?)",
+                                 [(code, k, v) for k, v in values[code].items()])
                 assign_order(store, protocol, code)
         keep_shipped(store)  # the frame times its synthetic participants perceive, kept with the study
         seeds = [seed_for(store, code, seed, first_id + k) for k, code in enumerate(codes)]

@@ -145,6 +145,8 @@ CASES = [
     (["participants", "add", "P09", "--age", "200", "--db", DB], "--age"),
     (["participants", "add", "P01", "--db", DB], "already registered"),
     (["participants", "add", "S09", "--synthetic", "--name", "Bob", "--db", DB], "has no name or contact"),
+    (["participants", "add", "P09", "--field", "experience=student", "--db", DB], "unknown field 'experience'; allowed: none"),
+    (["participants", "add", "P09", "--field", "experience", "--db", DB], "--field: 'experience' is not NAME=VALUE"),
     (["participants", "consent", "P99", "--db", DB], "not registered"),
     (["participants", "consent", "P02", "--date", "2099-01-01", "--db", DB], "in the future"),
     (["participants", "consent", "P02", "--date", "yesterday", "--db", DB], "is not a date"),

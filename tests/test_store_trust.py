@@ -374,12 +374,13 @@ def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
     con.execute("drop table rig_profile")
     con.execute("drop table discrimination")
     con.execute("drop table synthetic_traits")
+    con.execute("drop table participant_fields")
     con.execute("update meta set value = '2' where key = 'schema_version'")
     con.commit()
     con.close()
     res = studyctl("participants", "list", "--json", "--db", db)
     assert res.exit_code == 0 and json.loads(res.output)[0]["code"] == "P01"
-    assert _q(db, "select value from meta where key = 'schema_version'") == [("8",)]
+    assert _q(db, "select value from meta where key = 'schema_version'") == [("9",)]
     assert _q(db, "select count(*) from observer_features") == [(0,)]
     assert {"config", "config_sha256"} <= {r[1] for r in _q(db, "pragma table_info(conditions)")}
 

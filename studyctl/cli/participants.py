@@ -21,15 +21,26 @@ def participants():
 @click.option("--age", type=click.IntRange(0, 120), default=None)
 @click.option("--name", default=None, help="Kept in a separate table that no export or report includes.")
 @click.option("--contact", default=None, help="Kept in a separate table that no export or report includes.")
+@click.option("--field", "fields", multiple=True, metavar="NAME=VALUE",
+              help="A value of one of the protocol's [fields.NAME], e.g. --field experience=resident (repeatable; never a name).")
 @click.option("--synthetic", is_flag=True, help="A SYNTHETIC participant (run only with `session run --synthetic`).")
 @DB
 @DRY_RUN
 @JSON
-def participants_add(code, age, name, contact, synthetic, db, dry_run, as_json):
+def participants_add(code, age, name, contact, fields, synthetic, db, dry_run, as_json):
     """Register a participant under a pseudonymous CODE."""
+    from studyctl.errors import InputError
     from studyctl.study import add_participant
 
-    out = add_participant(db, code, age, name, contact, synthetic=synthetic, dry_run=dry_run)
+    given: dict[str, str] = {}
+    for f in fields:
+        key, eq, value = f.partition("=")
+        if not eq or not key.strip():
+            raise InputError(f"--field: {f!r} is not NAME=VALUE, e.g. --field experience=resident")
+        if key.strip() in given:
+            raise InputError(f"--field: {key.strip()} is given twice")
+        given[key.strip()] = value
+    out = add_participant(db, code, age, name, contact, synthetic=synthetic, dry_run=dry_run, fields=given)
     _done(out, f"added {out['code']}" + (" (SYNTHETIC)" if synthetic else ""), as_json)
 
 
@@ -39,8 +50,9 @@ def participants_add(code, age, name, contact, synthetic, db, dry_run, as_json):
 @DRY_RUN
 @JSON
 def participants_import(csv_file, db, dry_run, as_json):
-    """Register participants from a CSV (code, then optional age, name, contact): all or none.
-    UTF-8 with or without BOM, ',' or ';' separated, headers in any case."""
+    """Register participants from a CSV (code, then optional age, name, contact, and a column per
+    protocol field, e.g. experience): all or none. UTF-8 with or without BOM, ',' or ';'
+    separated, headers in any case."""
     from studyctl.study import import_participants
 
     out = import_participants(db, csv_file, dry_run=dry_run)
@@ -54,7 +66,11 @@ def participants_list(db, as_json):
     """Every participant (codes only, never names): kind, consent, slot, session, answers."""
     from studyctl.participants import list_participants
 
-    _listing(list_participants(db), as_json, db, "participants", ["code", "kind", "age", "consent", "slot", "session", "answers", "withdrawn"])
+    rows = list_participants(db)
+    columns = ["code", "kind", "age", "consent", "slot", "session", "answers", "withdrawn"]
+    if rows and "group" in rows[0]:
+        columns.insert(3, "group")
+    _listing(rows, as_json, db, "participants", columns)
 
 
 @participants.command("consent")

@@ -212,7 +212,9 @@ def report_stats(db, holm_scope, as_json):
 
     kinds = out["kinds"]
     click.echo(primary_line(out))
-    for item, v in out["items"].items():
+    if len(study.protocol.conditions) < 2:
+        click.echo("one condition: there is nothing to compare between conditions (no Cochran's Q, McNemar or Friedman test)")
+    for item, v in out["items"].items() if len(study.protocol.conditions) > 1 else ():
         pairs = ", ".join(f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" for p in v["pairs"])
         click.echo(f"{item}: Q = {v['cochran_q']:.2f}, p = {v['p_value']:.3g}; {pairs}")
     for item, v in kinds["ratings"].items():
