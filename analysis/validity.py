@@ -1,0 +1,404 @@
+"""Construct validity from the performance metrics (issue 32, item 4): do the groups differ, do
+they learn, where do the novices stand against the experts, and can a participant's group be told
+from their metrics. Tidy inputs and outputs, stable column names (pingouin style).
+
+Inputs: `metrics`, the tidy table of analysis.metrics.metrics_table (code, synthetic, condition,
+trial, hand, metric, value, unit: `trial` the stored 0-based index); `groups`, a Series code ->
+group label; `order`, the group labels in order, the expert group last.
+
+- `participant_scores`: one value per participant, condition and metric (mean over trials and hands).
+- `group_tests`: Kruskal-Wallis per metric and condition, pairwise two-sided Mann-Whitney U with Holm
+  over the whole family, Cliff's delta with a bootstrap percentile interval, group medians and IQR.
+- `mixed_model`: value ~ group + condition + trial, participant random intercept (statsmodels MixedLM).
+- `learning_curves`: y = plateau + (y0 - plateau) exp(-rate (trial - 1)) per metric and group,
+  bootstrap intervals over participants.
+- `proficiency`: the expert group's benchmark band per metric and every other participant's scorecard.
+- `classify`: standardised features + logistic regression, leave-one-participant-out accuracy with
+  a permutation p-value.
+"""
+
+from __future__ import annotations
+
+import itertools
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy import optimize, stats
+
+from analysis.stats import holm
+
+BOTH = "both"  # analysis.metrics' hand of the bimanual metrics
+SCORE_COLUMNS = ["code", "condition", "metric", "value", "n_values"]
+KRUSKAL_COLUMNS = ["metric", "condition", "k", "n", "H", "df", "p", "p_holm"]
+PAIR_COLUMNS = ["metric", "condition", "a", "b", "n_a", "n_b", "median_a", "median_b", "U", "p", "p_holm",
+                "cliffs_delta", "delta_low", "delta_high"]
+DESCRIPTIVE_COLUMNS = ["metric", "condition", "group", "n", "median", "q1", "q3", "iqr"]
+FIXED_COLUMNS = ["metric", "term", "coef", "se", "z", "p", "converged"]
+CURVE_COLUMNS = ["metric", "condition", "group", "n_participants", "n_trials", "y0", "plateau", "rate",
+                 "plateau_low", "plateau_high", "rate_low", "rate_high", "n_boot", "n_boot_ok"]
+BENCHMARK_COLUMNS = ["metric", "condition", "n_expert", "median", "low", "high", "better"]
+SCORECARD_COLUMNS = ["code", "group", "condition", "metric", "value", "median", "low", "high", "better",
+                     "position", "proficient"]
+SUMMARY_COLUMNS = ["code", "group", "condition", "n_metrics", "n_proficient", "fraction_proficient"]
+
+
+def _with_groups(df: pd.DataFrame, groups: pd.Series, order: Sequence[str] | None) -> tuple[pd.DataFrame, list[str]]:
+    """`df` with a `group` column (participants without a group dropped) and the group order."""
+    order = list(order) if order is not None else sorted(pd.unique(groups.dropna()).tolist())
+    out = df.assign(group=df["code"].map(groups))
+    return out[out["group"].isin(order)].copy(), order
+
+
+# ---------------------------------------------------------------- scores
+
+def participant_scores(metrics: pd.DataFrame, how: str = "mean") -> pd.DataFrame:
+    """One value per participant, condition and metric: the mean (or `how="median"`) over trials
+    and hands. Hand "both" rows (the bimanual metrics) are their own metric; should a metric come
+    both per hand and as "both", the latter is named ``METRIC:both``. Columns `SCORE_COLUMNS`."""
+    if how not in ("mean", "median"):
+        raise ValueError(f"how must be 'mean' or 'median', not {how!r}")
+    m = metrics.dropna(subset=["value"])
+    per_hand = set(m.loc[m["hand"] != BOTH, "metric"])
+    is_both = (m["hand"] == BOTH) & m["metric"].isin(per_hand)
+    m = m.assign(metric=m["metric"].where(~is_both, m["metric"] + ":" + BOTH))
+    out = m.groupby(["code", "condition", "metric"], sort=True)["value"].agg([how, "count"]).reset_index()
+    return out.rename(columns={how: "value", "count": "n_values"})[SCORE_COLUMNS]
+
+
+def _trial_means(metrics: pd.DataFrame) -> pd.DataFrame:
+    """Per participant, condition, trial and metric: the mean over hands (hand "both" as in
+    `participant_scores`)."""
+    m = metrics.dropna(subset=["value"])
+    per_hand = set(m.loc[m["hand"] != BOTH, "metric"])
+    is_both = (m["hand"] == BOTH) & m["metric"].isin(per_hand)
+    m = m.assign(metric=m["metric"].where(~is_both, m["metric"] + ":" + BOTH))
+    return m.groupby(["code", "condition", "trial", "metric"], sort=True)["value"].mean().reset_index()
+
+
+# ---------------------------------------------------------------- group comparisons
+
+def cliffs_delta(a, b) -> float:
+    """Cliff's delta P(a > b) - P(a < b), = the rank-biserial correlation of Mann-Whitney's U of `a`."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return float(np.mean(np.sign(a[:, None] - b[None, :])))
+
+
+def cliffs_delta_interval(a, b, n_boot: int = 2000, level: float = 0.95, seed: int = 0) -> tuple[float, float]:
+    """Bootstrap percentile interval of Cliff's delta, resampling participants within each group
+    (stratified). With complete separation every replicate is +-1 and so is the interval."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if len(a) < 2 or len(b) < 2:
+        return float("nan"), float("nan")
+    dom = np.sign(a[:, None] - b[None, :])
+    rng = np.random.default_rng(seed)
+    ia = rng.integers(0, len(a), (n_boot, len(a)))
+    ib = rng.integers(0, len(b), (n_boot, len(b)))
+    d = dom[ia[:, :, None], ib[:, None, :]].mean(axis=(1, 2))
+    tail = 50 * (1 - level)
+    lo, hi = np.percentile(d, [tail, 100 - tail])
+    return float(lo), float(hi)
+
+
+@dataclass(frozen=True)
+class GroupTests:
+    """`kruskal` (KRUSKAL_COLUMNS), `pairs` (PAIR_COLUMNS), `descriptives` (DESCRIPTIVE_COLUMNS).
+    p_holm: Holm over the whole family, all metrics and conditions (x pairs for `pairs`)."""
+    kruskal: pd.DataFrame
+    pairs: pd.DataFrame
+    descriptives: pd.DataFrame
+
+
+def group_tests(scores: pd.DataFrame, groups: pd.Series, order: Sequence[str] | None = None,
+                n_boot: int = 2000, seed: int = 0) -> GroupTests:
+    """Kruskal-Wallis across the groups per metric and condition, then two-sided Mann-Whitney U
+    for every pair of groups (in `order`; effect size Cliff's delta of a over b with its
+    bootstrap percentile 95% interval). `scores`: as from `participant_scores`."""
+    s, order = _with_groups(scores.dropna(subset=["value"]), groups, order)
+    kw, pairs, desc = [], [], []
+    for (metric, condition), d in s.groupby(["metric", "condition"], sort=True):
+        vals = {g: d.loc[d["group"] == g, "value"].to_numpy(float) for g in order}
+        for g, v in vals.items():
+            q1, med, q3 = np.percentile(v, [25, 50, 75]) if len(v) else (np.nan,) * 3
+            desc.append({"metric": metric, "condition": condition, "group": g, "n": len(v), "median": med,
+                         "q1": q1, "q3": q3, "iqr": q3 - q1})
+        present = [v for v in vals.values() if len(v)]
+        H = p = np.nan
+        if len(present) >= 2 and np.ptp(np.concatenate(present)) > 0:  # every value the same: no test
+            res = stats.kruskal(*present)
+            H, p = float(res.statistic), float(res.pvalue)
+        kw.append({"metric": metric, "condition": condition, "k": len(present), "n": sum(map(len, present)),
+                   "H": H, "df": len(present) - 1, "p": p})
+        for ga, gb in itertools.combinations(order, 2):
+            a, b = vals[ga], vals[gb]
+            row = {"metric": metric, "condition": condition, "a": ga, "b": gb, "n_a": len(a), "n_b": len(b),
+                   "median_a": np.median(a) if len(a) else np.nan, "median_b": np.median(b) if len(b) else np.nan,
+                   "U": np.nan, "p": np.nan, "cliffs_delta": np.nan, "delta_low": np.nan, "delta_high": np.nan}
+            if len(a) and len(b):
+                res = stats.mannwhitneyu(a, b, alternative="two-sided")
+                lo, hi = cliffs_delta_interval(a, b, n_boot=n_boot, seed=seed)
+                row |= {"U": float(res.statistic), "p": float(res.pvalue), "cliffs_delta": cliffs_delta(a, b),
+                        "delta_low": lo, "delta_high": hi}
+            pairs.append(row)
+    kw_df = pd.DataFrame(kw, columns=[c for c in KRUSKAL_COLUMNS if c != "p_holm"])
+    kw_df.insert(len(kw_df.columns), "p_holm", holm(kw_df["p"]))
+    pair_df = pd.DataFrame(pairs, columns=[c for c in PAIR_COLUMNS if c != "p_holm"])
+    pair_df.insert(PAIR_COLUMNS.index("p_holm"), "p_holm", holm(pair_df["p"]))
+    return GroupTests(kw_df[KRUSKAL_COLUMNS], pair_df[PAIR_COLUMNS], pd.DataFrame(desc, columns=DESCRIPTIVE_COLUMNS))
+
+
+# ---------------------------------------------------------------- mixed model
+
+@dataclass(frozen=True)
+class MixedModels:
+    """`fixed`: FIXED_COLUMNS, the fixed effects of every metric fitted; `skipped`: metric, reason."""
+    fixed: pd.DataFrame
+    skipped: pd.DataFrame
+
+
+def _term(name: str) -> str:
+    """statsmodels' "C(group, Treatment(reference='x'))[T.y]" as "group[y]"."""
+    if name.startswith("C(") and ")[T." in name:
+        var = name[2:].split(",")[0].split(")")[0]
+        return f"{var}[{name.rsplit('[T.', 1)[1][:-1]}]"
+    return name
+
+
+def mixed_model(metrics: pd.DataFrame, groups: pd.Series, order: Sequence[str] | None = None) -> MixedModels:
+    """Per metric, statsmodels MixedLM of value ~ group + condition + trial (treatment coding, the
+    first group of `order` and the first condition alphabetically as references; `trial` the
+    stored index) with a random intercept per participant, on the per-trial values (mean over
+    hands). Skipped, with the reason, where the study has one condition or one group."""
+    import statsmodels.formula.api as smf
+    from statsmodels.tools.sm_exceptions import ConvergenceWarning
+
+    t, order = _with_groups(_trial_means(metrics), groups, order)
+    fixed, skipped = [], []
+    for metric, d in t.groupby("metric", sort=True):
+        conditions = sorted(d["condition"].unique())
+        present = [g for g in order if (d["group"] == g).any()]
+        if len(conditions) < 2:
+            skipped.append({"metric": metric, "reason": f"one condition ({conditions[0]}): no condition effect to model"})
+            continue
+        if len(present) < 2:
+            skipped.append({"metric": metric, "reason": "fewer than two groups with data"})
+            continue
+        formula = (f"value ~ C(group, Treatment(reference={present[0]!r})) "
+                   f"+ C(condition, Treatment(reference={conditions[0]!r})) + trial")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                res = smf.mixedlm(formula, d, groups=d["code"]).fit(reml=True)
+            except (np.linalg.LinAlgError, ValueError) as e:
+                skipped.append({"metric": metric, "reason": f"fit failed: {e}"})
+                continue
+        converged = bool(res.converged) and not any(issubclass(w.category, ConvergenceWarning) for w in caught)
+        names = [n for n in res.fe_params.index]
+        for n in names:
+            fixed.append({"metric": metric, "term": _term(n), "coef": float(res.fe_params[n]), "se": float(res.bse_fe[n]),
+                          "z": float(res.tvalues[n]), "p": float(res.pvalues[n]), "converged": converged})
+    return MixedModels(pd.DataFrame(fixed, columns=FIXED_COLUMNS), pd.DataFrame(skipped, columns=["metric", "reason"]))
+
+
+# ---------------------------------------------------------------- learning curves
+
+def exp_plateau(trial, y0, plateau, rate):
+    """y = plateau + (y0 - plateau) exp(-rate (trial - 1)), trial 1-based."""
+    return plateau + (y0 - plateau) * np.exp(-rate * (np.asarray(trial, float) - 1.0))
+
+
+_RATES = np.geomspace(1e-3, 20.0, 160)
+
+
+def _start(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """Starting values: the rate on a grid minimising the residual of the (then linear) least
+    squares fit of y0 and plateau, every rate at once."""
+    e = np.exp(-_RATES[:, None] * (x[None, :] - 1.0))
+    X = np.stack([e, 1.0 - e], axis=2)  # rates, trials, 2
+    coef = np.linalg.pinv(X) @ y  # rates, 2
+    ss = np.sum((np.einsum("rtk,rk->rt", X, coef) - y[None, :]) ** 2, axis=1)
+    i = int(np.nanargmin(ss))
+    return float(coef[i, 0]), float(coef[i, 1]), float(_RATES[i])
+
+
+def fit_learning_curve(trial, y, max_rate: float = 50.0) -> tuple[float, float, float] | None:
+    """(y0, plateau, rate) of `exp_plateau` by scipy.optimize.curve_fit from a grid start, or None
+    where the fit fails: fewer than 3 trials, no convergence, non-finite parameters, a rate above
+    `max_rate` (a step, no curve), or a rate too slow for half the approach to the plateau to lie
+    within the trials observed (rate < ln 2 / (last - first trial)): a plateau then is an
+    extrapolation, and a growing or straight series fits as one far away."""
+    x, y = np.asarray(trial, float), np.asarray(y, float)
+    ok = np.isfinite(y)
+    x, y = x[ok], y[ok]
+    if len(np.unique(x)) < 3:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", optimize.OptimizeWarning)
+            p, _ = optimize.curve_fit(exp_plateau, x, y, p0=_start(x, y), maxfev=2000)
+    except (RuntimeError, ValueError):
+        return None
+    if not np.all(np.isfinite(p)) or not np.log(2.0) / (x.max() - x.min()) <= p[2] <= max_rate:
+        return None
+    return float(p[0]), float(p[1]), float(p[2])
+
+
+def learning_curves(metrics: pd.DataFrame, groups: pd.Series, order: Sequence[str] | None = None,
+                    n_boot: int = 500, level: float = 0.95, seed: int = 0) -> pd.DataFrame:
+    """Per metric, condition and group: the group's per-trial mean (of the participants' means over
+    hands) against the trial number (the stored 0-based index + 1), fitted with `exp_plateau`;
+    percentile intervals of plateau and rate from `n_boot` bootstrap replicates resampling the
+    group's participants (seeded); a replicate whose fit fails is dropped (n_boot_ok counts the
+    rest). Columns `CURVE_COLUMNS`."""
+    t, order = _with_groups(_trial_means(metrics), groups, order)
+    rng = np.random.default_rng(seed)
+    tail = 50 * (1 - level)
+    rows = []
+    for (metric, condition), d in t.groupby(["metric", "condition"], sort=True):
+        for g in order:
+            w = d[d["group"] == g].pivot_table(index="code", columns="trial", values="value", aggfunc="mean")
+            if w.empty:
+                continue
+            x = w.columns.to_numpy(float) + 1.0
+            P = w.to_numpy(float)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a trial nobody in a replicate did
+                fit = fit_learning_curve(x, np.nanmean(P, axis=0))
+                boots = []
+                for _ in range(n_boot):
+                    f = fit_learning_curve(x, np.nanmean(P[rng.integers(0, len(P), len(P))], axis=0))
+                    if f is not None:
+                        boots.append(f)
+            row = {"metric": metric, "condition": condition, "group": g, "n_participants": len(P), "n_trials": len(x),
+                   "y0": np.nan, "plateau": np.nan, "rate": np.nan, "plateau_low": np.nan, "plateau_high": np.nan,
+                   "rate_low": np.nan, "rate_high": np.nan, "n_boot": n_boot, "n_boot_ok": len(boots)}
+            if fit is not None:
+                row |= dict(zip(["y0", "plateau", "rate"], fit))
+            if boots:
+                b = np.array(boots)
+                row |= dict(zip(["plateau_low", "plateau_high"], np.percentile(b[:, 1], [tail, 100 - tail])))
+                row |= dict(zip(["rate_low", "rate_high"], np.percentile(b[:, 2], [tail, 100 - tail])))
+            rows.append(row)
+    return pd.DataFrame(rows, columns=CURVE_COLUMNS)
+
+
+# ---------------------------------------------------------------- proficiency
+
+@dataclass(frozen=True)
+class Proficiency:
+    """`benchmark` (BENCHMARK_COLUMNS): the expert group's median and band per metric and
+    condition; `scorecard` (SCORECARD_COLUMNS): every other participant's value against it,
+    position "inside" the band, "better" or "worse" beyond it (a metric without a direction:
+    "above"/"below"), proficient where inside or better; `summary` (SUMMARY_COLUMNS): the
+    fraction of a participant's metrics at proficiency."""
+    benchmark: pd.DataFrame
+    scorecard: pd.DataFrame
+    summary: pd.DataFrame
+
+
+def proficiency(scores: pd.DataFrame, groups: pd.Series, expert: str, better: Mapping[str, str] | None = None,
+                band: tuple[float, float] = (5.0, 95.0)) -> Proficiency:
+    """The expert group's benchmark per metric and condition: its median and the `band`
+    percentiles (5th-95th by default; (25, 75) for the IQR). `better`: metric -> "lower" or
+    "higher", where better performance lies."""
+    better = dict(better or {})
+    bad = {k: v for k, v in better.items() if v not in ("lower", "higher")}
+    if bad:
+        raise ValueError(f"better must be 'lower' or 'higher': {bad}")
+    s = scores.dropna(subset=["value"]).assign(group=scores["code"].map(groups))
+    s = s[s["group"].notna()]
+    ex = s[s["group"] == expert]
+    if ex.empty:
+        raise ValueError(f"no participant of the expert group {expert!r}")
+    bench = []
+    for (metric, condition), d in ex.groupby(["metric", "condition"], sort=True):
+        lo, med, hi = np.percentile(d["value"].to_numpy(float), [band[0], 50, band[1]])
+        bench.append({"metric": metric, "condition": condition, "n_expert": len(d), "median": med, "low": lo,
+                      "high": hi, "better": better.get(metric)})
+    bench_df = pd.DataFrame(bench, columns=BENCHMARK_COLUMNS)
+    card = s[s["group"] != expert].merge(bench_df.drop(columns="n_expert"), on=["metric", "condition"], how="inner")
+
+    def position(r) -> str:
+        if r["low"] <= r["value"] <= r["high"]:
+            return "inside"
+        above = r["value"] > r["high"]
+        if r["better"] is None or pd.isna(r["better"]):
+            return "above" if above else "below"
+        return "better" if above == (r["better"] == "higher") else "worse"
+
+    card["position"] = card.apply(position, axis=1) if len(card) else pd.Series(dtype=str)
+    card["proficient"] = card["position"].isin(["inside", "better"])
+    card = card.sort_values(["code", "condition", "metric"]).reset_index(drop=True)[SCORECARD_COLUMNS]
+    summary = (card.groupby(["code", "group", "condition"], sort=True)["proficient"]
+               .agg(n_metrics="count", n_proficient="sum").reset_index())
+    summary["n_proficient"] = summary["n_proficient"].astype(int)
+    summary["fraction_proficient"] = summary["n_proficient"] / summary["n_metrics"]
+    return Proficiency(bench_df, card, summary[SUMMARY_COLUMNS])
+
+
+# ---------------------------------------------------------------- classification
+
+@dataclass(frozen=True)
+class Classification:
+    """Leave-one-participant-out classification of group from the metric vector."""
+    features: tuple[str, ...]
+    n: int
+    accuracy: float
+    balanced_accuracy: float
+    chance: float  # the largest group's share: what always guessing it scores
+    p_value: float  # permutation test of the accuracy
+    n_permutations: int
+    confusion: pd.DataFrame  # rows: true group, columns: predicted, in the group order
+    predictions: pd.DataFrame  # code, group, predicted
+
+    def table(self) -> pd.DataFrame:
+        return pd.DataFrame([{"n": self.n, "n_features": len(self.features), "accuracy": self.accuracy,
+                              "balanced_accuracy": self.balanced_accuracy, "chance": self.chance,
+                              "p_value": self.p_value, "n_permutations": self.n_permutations}])
+
+
+def classify(scores: pd.DataFrame, groups: pd.Series, order: Sequence[str] | None = None,
+             n_permutations: int = 500, seed: int = 0, C: float = 1.0) -> Classification:
+    """Group from a participant's metric vector (one feature per condition x metric; a missing
+    value imputed with the training median): median imputation, standardisation and an
+    L2-regularised multinomial logistic regression (class weights balanced), refitted inside
+    every fold. Accuracy and balanced accuracy leave-one-participant-out (the table has one row per
+    participant, so leave-one-out); p-value from sklearn's permutation_test_score with the same
+    folds and `n_permutations` permutations of the labels (seeded). Logistic regression rather
+    than a random forest: with ~30 participants and a dozen features a regularised linear model
+    is stable across folds, fits in milliseconds (the permutation test refits n x
+    n_permutations times) and its standardised coefficients read as which metrics separate."""
+    from sklearn.impute import SimpleImputer
+    from sklearn.linear_model import LogisticRegression
+    from sklearn.metrics import balanced_accuracy_score, confusion_matrix
+    from sklearn.model_selection import LeaveOneOut, cross_val_predict, permutation_test_score
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+    from threadpoolctl import threadpool_limits
+
+    s, order = _with_groups(scores.dropna(subset=["value"]), groups, order)
+    s = s.assign(feature=s["condition"].astype(str) + "/" + s["metric"].astype(str))
+    wide = s.pivot_table(index="code", columns="feature", values="value", aggfunc="mean").sort_index()
+    wide = wide.loc[:, wide.notna().any()]
+    y = wide.index.map(groups).to_numpy()
+    order = [g for g in order if g in set(y)]
+    if len(order) < 2:
+        raise ValueError("classification needs participants of at least two groups")
+    X = wide.to_numpy(float)
+    model = make_pipeline(SimpleImputer(strategy="median"), StandardScaler(),
+                          LogisticRegression(C=C, class_weight="balanced", max_iter=2000))
+    cv = LeaveOneOut()
+    with threadpool_limits(1):  # thousands of tiny fits: BLAS threads only contend (5x slower on 2 cores)
+        pred = cross_val_predict(model, X, y, cv=cv)
+        score, _, p = permutation_test_score(model, X, y, cv=cv, n_permutations=n_permutations,
+                                             random_state=seed, scoring="accuracy")
+    cm = confusion_matrix(y, pred, labels=order)
+    return Classification(
+        features=tuple(wide.columns), n=len(y), accuracy=float(score),
+        balanced_accuracy=float(balanced_accuracy_score(y, pred)),
+        chance=float(pd.Series(y).value_counts(normalize=True).max()), p_value=float(p),
+        n_permutations=n_permutations,
+        confusion=pd.DataFrame(cm, index=pd.Index(order, name="true"), columns=pd.Index(order, name="predicted")),
+        predictions=pd.DataFrame({"code": wide.index, "group": y, "predicted": pred}))
