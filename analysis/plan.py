@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from studyctl.sweep import completed, reachable
+
 
 def pilot_summaries(protocol, pilots: int = 4, seed: int = 0, mapping: dict[str, str] | None = None) -> dict[str, list]:
     """Per condition label, `pilots` synthetic pilot trials on the simulator, summarised for
@@ -212,8 +214,6 @@ def _hits(protocol, summaries: dict, ns: list[int], simulations: int, seed: int,
           jobs: int, scheduler: str | None, progress) -> dict[int, dict[str, int]]:
     """Per N, how many of `simulations` studies each test rejects; the batches run where
     `studyctl.sweep.completed` puts them. `progress(studies done, studies)`."""
-    from studyctl.sweep import completed
-
     batches = [_Batch(protocol, summaries, n, seed, i, min(BATCH, simulations - start), tuple(names), alpha, primary)
                for n in ns for i, start in enumerate(range(0, simulations, BATCH))]
     out = {n: dict.fromkeys(names, 0) for n in ns}
@@ -227,21 +227,13 @@ def _hits(protocol, summaries: dict, ns: list[int], simulations: int, seed: int,
     return out
 
 
-def _reachable(scheduler: str | None) -> None:
-    """An unreachable cluster is an error now, not after the pilots have run."""
-    if scheduler:
-        from studyctl.sweep import connect
-
-        connect(scheduler).close()
-
-
 def power_table(protocol, ns: list[int], simulations: int = 200, seed: int = 0, pilots: int = 4, alpha: float = 0.05,
                 summaries: dict | None = None, primary: bool = True, progress=None, jobs: int = 1,
                 scheduler: str | None = None) -> pd.DataFrame:
     """Tidy power table: columns n, item (a question, a score, or "primary"), power, simulations, alpha.
     The simulated studies run in `jobs` local processes or on the Dask cluster at `scheduler`
     (the pilots here), with the same result."""
-    _reachable(scheduler)
+    reachable(scheduler)  # before the pilots
     summaries = summaries or pilot_summaries(protocol, pilots, seed)
     names = [t for t in test_names(protocol) if primary or t != "primary"]
     hits = _hits(protocol, summaries, ns, simulations, seed, names, alpha, primary, jobs, scheduler, progress)
@@ -257,7 +249,7 @@ def null_table(protocol, model: str | None = None, participants: int = 35, simul
     should be alpha or below within Monte Carlo error (`mc_error`: its binomial standard error).
     Columns: item, false_positive_rate, mc_error, simulations, alpha, model, participants."""
     model = model or protocol.conditions[0]
-    _reachable(scheduler)
+    reachable(scheduler)  # before the pilots
     summaries = summaries or pilot_summaries(protocol, pilots, seed, mapping={c: model for c in protocol.conditions})
     # every label draws from all the model's pilot trials: the trials of a condition are a
     # sample of one distribution, whichever label it has (fixed per-label pilots would be a

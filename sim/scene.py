@@ -355,6 +355,7 @@ def _model_options(table: TableReader, name: str) -> ModelSpec | None:
                                              "order": order})
     if name == "mass_spring":
         from sim.devices.base import OmniSpec
+        from sim.models import MASS_SPRING_ACCELERATIONS as ACCELERATIONS
         from sim.models import MASS_SPRING_INTEGRATORS as INTEGRATORS
 
         OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m
@@ -367,7 +368,7 @@ def _model_options(table: TableReader, name: str) -> ModelSpec | None:
             "coupling": table.number("coupling", default=300.0, lo=0.0, hi=OMNI_MAX_STIFFNESS, lo_open=True),
             "grasp_radius": table.number("grasp_radius", default=GRASP_RADIUS, lo=0.0, hi=0.02),
             "iterations": table.integer("iterations", default=10, lo=1, hi=1000),
-            "acceleration": table.string("acceleration", default="none", choices=("none", "chebyshev", "anderson", "newton")),
+            "acceleration": table.string("acceleration", default="none", choices=ACCELERATIONS),
         })
     return ModelSpec(name=name, options=dict(table.data))
 

@@ -82,6 +82,13 @@ def connect(scheduler: str):
         raise SweepError(f"scheduler {scheduler}: cannot connect ({exc})") from None
 
 
+def reachable(scheduler: str | None) -> None:
+    """A SweepError now when there is a `scheduler` and it cannot be reached: callers check it
+    before they write anything or run work that comes before the cluster's."""
+    if scheduler:
+        connect(scheduler).close()
+
+
 def _dask(fn, tasks, scheduler):
     from distributed import as_completed
 

@@ -169,19 +169,18 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
 
     from studyctl.bundles import run_away, seed_for, store_bundle
     from studyctl.errors import InputError
-    from studyctl.fields import synthetic_fields
+    from studyctl.fields import field_rows, synthetic_fields
     from studyctl.protocol import load_protocol
     from studyctl.rig import keep_shipped
     from studyctl.store import Store, init_study, now
     from studyctl.study import assign_order
-    from studyctl.sweep import completed, connect
+    from studyctl.sweep import completed, reachable
 
     if not 1 <= participants <= MAX_SYNTHETIC:
         raise InputError(f"--participants: {participants} is out of range; allowed: 1..{MAX_SYNTHETIC}")
     if not 1 <= jobs <= 64:
         raise InputError(f"--jobs: {jobs} is out of range; allowed: 1..64")
-    if scheduler:  # an unreachable cluster is refused before anything is written
-        connect(scheduler).close()
+    reachable(scheduler)  # an unreachable cluster is refused before anything is written
     if not Path(db).exists():  # a new study: the protocol given, else the shipped one
         from brainsim_assets import path as asset
 
@@ -204,8 +203,8 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
             for code in codes:
                 conn.execute("insert into participants (code, age, synthetic, created_at) values (?, ?, 1, ?)",
                              (code, rng.randint(protocol.age_min, protocol.age_max), now()))
-                conn.executemany("insert into participant_fields (code, field, value) values (?, ?, ?)",
-                                 [(code, k, v) for k, v in values[code].items()])
+                conn.executemany("insert into participant_fields (code, field, value) values (:code, :field, :value)",
+                                 field_rows(code, values[code]))
                 assign_order(store, protocol, code)
         keep_shipped(store)  # the frame times its synthetic participants perceive, kept with the study
         seeds = [seed_for(store, code, seed, first_id + k) for k, code in enumerate(codes)]

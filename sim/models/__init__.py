@@ -17,6 +17,7 @@ MODELS = {
 
 # Options that scene files validate without importing the model modules
 MASS_SPRING_INTEGRATORS = ("explicit", "implicit", "local-global")
+MASS_SPRING_ACCELERATIONS = ("none", "chebyshev", "anderson", "newton")  # of local-global; newton: sim/models/newton.py
 
 
 def model_module(name: str):

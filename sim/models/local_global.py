@@ -11,7 +11,6 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-ACCELERATIONS = ("none", "chebyshev", "anderson", "newton")  # newton: sim/models/newton.py
 RHO_ITERATIONS = 120  # plain iterations that estimate the spectral radius (once per step size)
 ANDERSON_DEPTH = 5  # past iterates Anderson acceleration combines (Peng et al. 2018 use 5-6)
 

@@ -22,9 +22,10 @@ import scipy.sparse as sp
 from sim.devices.base import OmniSpec
 from sim.errors import ParameterError, SimError
 from sim.laws import Coupling
+from sim.models import MASS_SPRING_ACCELERATIONS as ACCELERATIONS
 from sim.models import MASS_SPRING_INTEGRATORS as INTEGRATORS
 from sim.models.base import pull_problem
-from sim.models.local_global import ACCELERATIONS, ANDERSON_DEPTH, RHO_ITERATIONS, LocalGlobal  # noqa: F401 (re-exported)
+from sim.models.local_global import ANDERSON_DEPTH, RHO_ITERATIONS, LocalGlobal  # noqa: F401 (re-exported)
 from sim.models.newton import NewtonKrylov
 from sim.patch import GRASP_RADIUS
 
