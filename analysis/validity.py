@@ -60,22 +60,23 @@ def participant_scores(metrics: pd.DataFrame, how: str = "mean") -> pd.DataFrame
     both per hand and as "both", the latter is named ``METRIC:both``. Columns `SCORE_COLUMNS`."""
     if how not in ("mean", "median"):
         raise ValueError(f"how must be 'mean' or 'median', not {how!r}")
+    out = _both_named(metrics).groupby(["code", "condition", "metric"], sort=True)["value"].agg([how, "count"]).reset_index()
+    return out.rename(columns={how: "value", "count": "n_values"})[SCORE_COLUMNS]
+
+
+def _both_named(metrics: pd.DataFrame) -> pd.DataFrame:
+    """The rows with a value; a metric that comes both per hand and as hand "both" renamed
+    ``METRIC:both`` in its "both" rows."""
     m = metrics.dropna(subset=["value"])
     per_hand = set(m.loc[m["hand"] != BOTH, "metric"])
     is_both = (m["hand"] == BOTH) & m["metric"].isin(per_hand)
-    m = m.assign(metric=m["metric"].where(~is_both, m["metric"] + ":" + BOTH))
-    out = m.groupby(["code", "condition", "metric"], sort=True)["value"].agg([how, "count"]).reset_index()
-    return out.rename(columns={how: "value", "count": "n_values"})[SCORE_COLUMNS]
+    return m.assign(metric=m["metric"].where(~is_both, m["metric"] + ":" + BOTH))
 
 
 def _trial_means(metrics: pd.DataFrame) -> pd.DataFrame:
     """Per participant, condition, trial and metric: the mean over hands (hand "both" as in
     `participant_scores`)."""
-    m = metrics.dropna(subset=["value"])
-    per_hand = set(m.loc[m["hand"] != BOTH, "metric"])
-    is_both = (m["hand"] == BOTH) & m["metric"].isin(per_hand)
-    m = m.assign(metric=m["metric"].where(~is_both, m["metric"] + ":" + BOTH))
-    return m.groupby(["code", "condition", "trial", "metric"], sort=True)["value"].mean().reset_index()
+    return _both_named(metrics).groupby(["code", "condition", "trial", "metric"], sort=True)["value"].mean().reset_index()
 
 
 # ---------------------------------------------------------------- group comparisons
@@ -307,8 +308,7 @@ def proficiency(scores: pd.DataFrame, groups: pd.Series, expert: str, better: Ma
     bad = {k: v for k, v in better.items() if v not in ("lower", "higher")}
     if bad:
         raise ValueError(f"better must be 'lower' or 'higher': {bad}")
-    s = scores.dropna(subset=["value"]).assign(group=scores["code"].map(groups))
-    s = s[s["group"].notna()]
+    s, _ = _with_groups(scores.dropna(subset=["value"]), groups, None)
     ex = s[s["group"] == expert]
     if ex.empty:
         raise ValueError(f"no participant of the expert group {expert!r}")

@@ -155,7 +155,7 @@ def check_fields(data: dict, design: dict, c) -> tuple[list[Field], str | None]:
     return out, groups
 
 
-def parse_fields(protocol, given: dict[str, str], where: str, synthetic: bool = False) -> dict[str, object]:
+def parse_fields(protocol, given: dict[str, str], where: str) -> dict[str, object]:
     """The typed values of a participant's fields (name -> text as given), checked against the
     protocol: an unknown field, a value the field does not take, a required field missing, each
     one InputError naming the field and what it allows. Empty values count as not given."""
@@ -183,13 +183,11 @@ def field_rows(code: str, values: dict[str, object]) -> list[dict]:
     return [{"code": code, "field": k, "value": v} for k, v in values.items()]
 
 
-def read_fields(store, protocol, codes=None) -> dict[str, dict[str, object]]:
+def read_fields(store, protocol) -> dict[str, dict[str, object]]:
     """code -> {field: value}, each typed by the protocol's field kind."""
     rows = store.rows("select code, field, value from participant_fields order by code, field")
     out: dict[str, dict[str, object]] = {}
     for r in rows:
-        if codes is not None and r["code"] not in codes:
-            continue
         f = protocol.field_named(r["field"])
         v = r["value"]
         if f is not None and v is not None:
