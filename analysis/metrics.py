@@ -23,13 +23,13 @@ import numpy as np
 import pandas as pd
 
 from analysis import kinematics as kin
+from sim.targets import SAFE_FORCE_N
 
 # Brain damage began at a continuous retraction force of 30 g (0.29 N) in Yokoh, Sugita and
 # Kobayashi 1983 (J Neurosurg 58:918-923, dog brain, strain-gauge retractor); the forces
 # neurosurgeons use on brain tissue are of the same order (Marcus et al. 2014, Int J Med Robot,
 # doi:10.1002/rcs.1568: 0.03-0.22 N; nervous tissue's mean of average forces 0.4 N across 45
-# studies, Golahmadi et al. 2021, Ann Med Surg).
-SAFE_FORCE_N = 0.030 * 9.80665
+# studies, Golahmadi et al. 2021, Ann Med Surg). A scene's target may set its own.
 
 COLUMNS = ["code", "synthetic", "condition", "trial", "hand", "metric", "value", "unit"]
 BOTH = "both"
@@ -185,6 +185,23 @@ def trial_metrics(trace, goals: Goal | Mapping[str, Goal] | None = None) -> list
         vals = bimanual_metrics(trace.times, trace.forces, trace.buttons)
         rows += [{"hand": BOTH, "metric": k, "value": v} for k, v in vals.items()]
     return rows
+
+
+def scene_goals(scene) -> dict[str, Goal]:
+    """The Goal of each hand of a `sim.scene.Scene` that has a target (`[hands.target]`), by hand name."""
+    out = {}
+    for h, target in zip(scene.spec.hands, scene.targets()):
+        if target is not None:
+            s = target.spec
+            out[h.name] = Goal(target_m=target.displacement, tolerance_m=s.tolerance, hold_s=s.hold, safe_force_n=s.safe_force)
+    return out
+
+
+def study_goals(store) -> dict[str, Goal]:
+    """The goals of a study's task: its protocol's scene's targets (every condition runs that scene)."""
+    from sim.scene import build_scene
+
+    return scene_goals(build_scene(store.protocol().scene))
 
 
 def metrics_table(store, goals: Goal | Mapping[str, Goal] | None = None) -> pd.DataFrame:

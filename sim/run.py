@@ -73,6 +73,8 @@ class VisualStep:
     grasp_s: list[float] = field(default_factory=list)
     snapshots: list[Snapshot] = field(default_factory=list)
     last: np.ndarray | None = None
+    targets: object = None  # a sim.targets.TargetTracker: the hands' targets, followed every frame
+    end_on_targets: bool = False  # the run ends once every hand has held its target
     grasp_reach: float = 0.01  # a button press farther than this from the surface grasps nothing
     _next_snapshot: float = 0.0
     _tree: object = None
@@ -87,6 +89,11 @@ class VisualStep:
             positions = mesh.vertices if self.last is None else mesh.vertices + self.last
             self._tree = cKDTree(positions)
         return self._tree
+
+    @property
+    def finished(self) -> bool:
+        """The run's task is done: every hand has held its target (with `end_on_targets`)."""
+        return self.end_on_targets and self.targets is not None and self.targets.all_held
 
     def model_mesh(self):
         return getattr(self.model, "surface", None) or self.model.mesh
@@ -133,6 +140,8 @@ class VisualStep:
         self.deformation_s.append(time.perf_counter() - start)
         self.frame_flops.append(flops)  # a failed frame: no count (never the last frame's)
         self.last = u  # the latest surface displacement, for live drawing
+        if self.targets is not None:
+            self.targets.update(t, self.hands)
         if self.snapshot_period is not None and t + 1e-9 >= self._next_snapshot:
             self._next_snapshot += self.snapshot_period
             self.snapshots.append(
@@ -171,7 +180,8 @@ class RunResult:
     model_diagnostics: dict = field(default_factory=dict)
     started_by: str = "clock"  # a paced run: "grasp" or "key"
     waited_s: float = 0.0  # a paced run: seconds before its clock started
-    ended_early: str | None = None  # a paced run: the key (or "window closed") that ended it
+    ended_early: str | None = None  # what ended it early: a paced run's key (or "window closed"), or "targets held"
+    targets_held: list | None = None  # per hand, whether it held its target (None: no hand has one)
     view: dict | None = None  # the participant view's statistics
     pacer: str | None = None  # real time: "process" (its own clock) or "hd-scheduler" (real devices)
     frame_flops: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per visual frame, the model's count
@@ -221,8 +231,9 @@ def _percentiles(values: np.ndarray, qs, with_max=False) -> dict:
 
 
 def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, snapshots: bool = False,
-              pacing: Pacing | None = None, servo=None) -> RunResult:
-    """Run `scene` (a `sim.scene.Scene`) for `duration` simulated seconds.
+              pacing: Pacing | None = None, servo=None, end_on_targets: bool = False) -> RunResult:
+    """Run `scene` (a `sim.scene.Scene`) for `duration` simulated seconds, or, with
+    `end_on_targets`, until every hand has held its target (`[hands.target]`), whichever is first.
 
     In real time (`time_scale > 0`) the servo runs in its own process: `servo`, a
     `sim.servo_process.ServoProcess` kept open across runs (a session's), or one opened for
@@ -244,7 +255,7 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
     if hasattr(model, "reset"):  # every run starts from undeformed tissue
         model.reset()
     if time_scale > 0:
-        return _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, servo)
+        return _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, servo, end_on_targets)
     person = [h.device for h in spec.hands if h.device in ("openhaptics", "mouse")]
     if person:
         raise ParameterError(f"device {person[0]}: a person's device runs in real time only (time scale > 0)")
@@ -252,24 +263,43 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
     hands = [Hand(index=i, name=h.name, device=d) for i, (h, d) in enumerate(zip(spec.hands, devices))]
     servo_loop = ServoLoop.for_devices(model, hands, rate)
     snapshot_period = 1.0 / spec.renderer.fps if snapshots else None
-    visual = VisualStep(model=model, hands=hands, events=servo_loop.events, snapshot_period=snapshot_period)
+    visual = VisualStep(model=model, hands=hands, events=servo_loop.events, snapshot_period=snapshot_period,
+                        targets=_tracker(scene), end_on_targets=end_on_targets)
     n_ticks = int(round(duration * rate))
     try:
         starts, misses, wall = _run_lockstep(servo_loop, visual, n_ticks, rate, spec.visual_rate_hz)
     finally:
         for d in devices:
             d.close()
-    return _result(scene, model, "lockstep", time_scale, duration, rate, [h.name for h in hands], servo_loop.rows.array(), starts, misses,
-                   wall, visual, servo_loop.events)
+    return _ended(visual, _result(scene, model, "lockstep", time_scale, duration, rate, [h.name for h in hands], servo_loop.rows.array(), starts, misses,
+                   wall, visual, servo_loop.events))
 
 
-def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, servo) -> RunResult:
+def _tracker(scene):
+    """The hands' targets to follow during a run (None: no hand has one)."""
+    from sim.targets import TargetTracker
+
+    tracker = TargetTracker(scene.targets(), [scene.script(i).start for i in range(len(scene.spec.hands))])
+    return tracker if tracker.any else None
+
+
+def _ended(visual: VisualStep, result: RunResult) -> RunResult:
+    """The result, with the targets' outcome: which hands held theirs, and the run ended by them."""
+    if visual.targets is not None:
+        result.targets_held = [s is not None and s.held for s in visual.targets.states]
+        if visual.finished and result.ended_early is None:
+            result.ended_early = "targets held"
+    return result
+
+
+def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, servo, end_on_targets=False) -> RunResult:
     from sim.servo_process import ServoProcess
 
     spec = scene.spec
     n_ticks = int(round(duration * rate))
     snapshot_period = 1.0 / spec.renderer.fps if snapshots else None
-    visual = VisualStep(model=model, hands=[], events=[], snapshot_period=snapshot_period)
+    visual = VisualStep(model=model, hands=[], events=[], snapshot_period=snapshot_period, targets=_tracker(scene),
+                        end_on_targets=end_on_targets)
     state: dict = {"ended_early": None}
     frame = _paced_frame(pacing, duration, rate, state) if pacing is not None else None
     if pacing is not None and pacing.view is not None:
@@ -289,16 +319,19 @@ def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, se
     result.waited_s = float(out.get("waited_s", 0.0))
     result.pacer = out.get("pacer")
     result.ended_early = state["ended_early"]
+    _ended(visual, result)
     if pacing is not None and pacing.view is not None:
         result.view = pacing.view.stats()
     return result
 
 
-def hand_states(hands) -> list:
-    """What the participant view draws of the visual step's hands."""
+def hand_states(hands, targets=None) -> list:
+    """What the participant view draws of the visual step's hands (and their targets: a
+    sim.targets.TargetTracker)."""
     from sim.view import HandState
 
-    return [HandState(h.position, h.force, h.contact.vertex if h.contact is not None else None) for h in hands]
+    return [HandState(h.position, h.force, h.contact.vertex if h.contact is not None else None,
+                      target=targets.states[i] if targets is not None else None) for i, h in enumerate(hands)]
 
 
 def _paced_frame(pacing: Pacing, duration: float, rate: float, state: dict):
@@ -327,7 +360,7 @@ def _paced_frame(pacing: Pacing, duration: float, rate: float, state: dict):
             if pacing.caption is not None:
                 left = duration - sp.ticks() / rate if started else duration
                 view.set_text(**pacing.caption("running" if started else "waiting", max(left, 0.0)))
-            view.draw(visual.last, hand_states(visual.hands), sp.read_t, latch=sp.latest)
+            view.draw(visual.last, hand_states(visual.hands, visual.targets), sp.read_t, latch=sp.latest)
             if view.closed:
                 state["ended_early"] = "window closed"
                 return "stop"
@@ -385,6 +418,8 @@ def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
         if t + 1e-9 >= next_visual:
             visual(t)
             next_visual += frame
+            if visual.finished:
+                return starts[: k + 1], 0, clock() - begin
     return starts, 0, clock() - begin
 
 

@@ -20,6 +20,7 @@ from brainsim_assets import path as _asset
 from sim.errors import ParameterError, SceneError
 from sim.models.base import POISSON_MAX, POISSON_MIN, Vec3
 from sim.patch import GRASP_RADIUS
+from sim.targets import SAFE_FORCE_N, HandTarget, TargetSpec
 from sim.tomlfile import Locator, TomlFileError, read_toml
 from sim.tomltable import REQUIRED, TableReader
 
@@ -67,6 +68,7 @@ class HandSpec:
     device_origin: Vec3 | None = None  # where the device's origin lies in the scene (default: the grasp target)
     trace: Path | None = None  # replay: a recorded run's trace.csv
     trace_hand: str | None = None  # replay: the recorded hand to follow (default: this name)
+    target: TargetSpec | None = None  # [hands.target]: pull by a distance along the pull and hold (sim/targets.py)
 
     def script(self, mesh):
         """The scripted pull on `mesh`: start on the surface, pull along the tangent plane."""
@@ -154,7 +156,8 @@ MODEL_KEYS = {
     "mass_spring": ("resolution", "integrator", "dt", "damping", "coupling", "grasp_radius", "iterations", "acceleration"),
 }
 HAND_KEYS = ("name", "device", "start", "pull", "distance", "grasp_at", "pull_start", "pull_time", "release_at",
-             "device_name", "device_scale", "device_origin", "trace", "trace_hand")
+             "device_name", "device_scale", "device_origin", "trace", "trace_hand", "target")
+TARGET_KEYS = ("distance", "tolerance", "hold", "safe_force")
 
 
 
@@ -177,7 +180,39 @@ def load_scene(path: str | Path) -> SceneSpec:
     hands = _hands(root)
     spec = _scene_spec(path, tables, models, default_model, hands)
     _raise_problems(problems, path)
+    if any(h.target is not None for h in spec.hands):  # needs the mesh: only when the rest is sound
+        _check_targets(spec, root, problems)
+        _raise_problems(problems, path)
     return spec
+
+
+def _check_targets(spec: SceneSpec, root: TableReader, problems: list) -> None:
+    """Each target within its hand's device workspace: the Omni's 160 x 120 x 70 mm box (times
+    `device_scale`) around the device's origin, as a person's device is aligned with the view,
+    and as the simulated device's box lies along the scene's axes."""
+    from sim.devices.base import OmniSpec
+
+    scene = Scene(spec)
+    half = np.asarray(OmniSpec().workspace_m) / 2.0
+    for i, h in enumerate(spec.hands):
+        if h.target is None:
+            continue
+        try:
+            target = scene.targets()[i]
+        except SceneError as exc:
+            root.error(f"hands[{i}].pull", str(exc).split(": ", 1)[-1])
+            continue
+        point = np.asarray(target.point(scene.script(i).start))
+        frame = scene.device_frame(i)
+        rel = point - np.asarray(frame.origin)
+        in_device = np.asarray(frame.rotation).T @ rel / frame.scale  # R is orthonormal
+        box = half * frame.scale
+        if np.any(np.abs(in_device) > half + 1e-12) or np.any(np.abs(rel) > box + 1e-12):
+            reach = ", ".join(f"{2e3 * b:g}" for b in box)
+            root.error(f"hands[{i}].target.distance",
+                       f"{h.target.distance:g} m puts the target at {np.round(point * 1e3, 1).tolist()} mm, outside the device's "
+                       f"workspace ({reach} mm around {np.round(np.asarray(frame.origin) * 1e3, 1).tolist()} mm); "
+                       f"allowed: a target within it (a shorter distance, or a larger device_scale)")
 
 
 def _models(root: TableReader, model: TableReader) -> tuple[dict[str, ModelSpec], str | None]:
@@ -452,7 +487,20 @@ def _hand_spec(h: TableReader) -> HandSpec:
         device_origin=h.vector("device_origin") if "device_origin" in h.data else None,
         trace=h.path_value("trace") if "trace" in h.data else None,
         trace_hand=h.string("trace_hand") if "trace_hand" in h.data else None,
+        target=_target_spec(h.table("target", allowed=TARGET_KEYS)) if "target" in h.data else None,
     )
+
+
+def _target_spec(t: TableReader) -> TargetSpec | None:
+    spec = TargetSpec(
+        distance=t.number("distance", lo=0.0, hi=0.2, lo_open=True),
+        tolerance=t.number("tolerance", default=0.002, lo=0.0, hi=0.05, lo_open=True),
+        hold=t.number("hold", default=0.5, lo=0.0, hi=60.0),
+        safe_force=t.number("safe_force", default=SAFE_FORCE_N, lo=0.0, hi=3.3, lo_open=True),
+    )
+    if spec.distance is not None and spec.tolerance is not None and spec.tolerance >= spec.distance:
+        t.error("tolerance", f"{spec.tolerance:g} m is not below the distance {spec.distance:g} m; allowed: (0, distance)")
+    return spec
 
 
 # -- the runtime scene ---------------------------------------------------------------------
@@ -507,6 +555,18 @@ class Scene:
         h = self.spec.hands[i]
         origin = h.device_origin if h.device_origin is not None else self.script(i).start
         return DeviceFrame(rotation=view_rotation(self.spec.view.front, self.spec.view.up), scale=h.device_scale, origin=tuple(origin))
+
+    def targets(self) -> list[HandTarget | None]:
+        """Each hand's target on this scene's mesh (None: the free pull), its direction the
+        scene's pull projected on the surface's tangent plane at the grasp point."""
+        out = []
+        for h in self.spec.hands:
+            if h.target is None:
+                out.append(None)
+                continue
+            pull = np.asarray(h.script(self.mesh).pull, dtype=np.float64)
+            out.append(HandTarget(spec=h.target, direction=tuple(float(c) for c in pull / np.linalg.norm(pull))))
+        return out
 
     def script(self, i: int):
         """The scripted operator of hand i: the scene's, or the one set in `operators`."""

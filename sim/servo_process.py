@@ -529,6 +529,8 @@ class ServoProcess:
                         if h.contact is not None and before[h.index] is not h.contact:
                             self.send_contact(h.index, h.contact, h.contact_t)
                     self.send_laws(visual.model)
+                    if getattr(visual, "finished", False):  # every hand has held its target
+                        break
                     next_step += period
                     if clock() > next_step + period:
                         next_step = clock()

@@ -59,6 +59,7 @@ class HandState:
     force: tuple = (0.0, 0.0, 0.0)
     grasped_vertex: int | None = None  # its patch is coloured
     holding: bool = False  # the jaws are closed on tissue (also when no patch is coloured: the analyst's pictures)
+    target: object = None  # a sim.targets.TargetState: where the hand's target is, the progress towards it
 
     @property
     def closed(self) -> bool:
@@ -328,7 +329,7 @@ class ParticipantView:
             self.prepare_s.append(time.perf_counter() - start)  # this process's own work, besides the GL calls
             if latch is not None:  # the newest hand positions and forces, read now
                 positions, forces, read_t = latch()
-                hands = [HandState(tuple(p), tuple(f), h.grasped_vertex, h.holding) for h, p, f in zip(hands, positions, forces)]
+                hands = [HandState(tuple(p), tuple(f), h.grasped_vertex, h.holding, h.target) for h, p, f in zip(hands, positions, forces)]
             self._last_hands = hands
             arrows = self._arrows(hands) if self.show_force else None
             self._scene = ([self._instrument(k, h.position, h.closed) for k, h in enumerate(hands)], arrows)

@@ -13,6 +13,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from sim.targets import TRIAL_ENDS
 from sim.tomlfile import Locator, TomlFileError, read_toml
 from studyctl.errors import ProtocolError
 from studyctl.questions import KINDS, LIKERT_POINTS, WHENS, Question
@@ -53,6 +54,7 @@ class Protocol:
     tasks: tuple = ()  # [[tasks]] run in every condition after its free trials (studyctl/tasks.py)
     fields: tuple = ()  # [fields.NAME]: what is recorded about each participant (studyctl/fields.py)
     groups: str | None = None  # design.groups: the choice field that is the between-participant factor
+    trial_end: str = "time"  # design.trial_end: "time" (the trial's seconds) or "targets" (every hand held its target, or the time)
 
     def field_named(self, name: str):
         return next((f for f in self.fields if f.name == name), None)
@@ -113,6 +115,11 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     trials = c.get(design, "design", "trials_per_condition", int, lo=0, hi=100)
     trial_s = c.get(design, "design", "trial_seconds", float, lo=0.5, hi=600.0)
     rest_s = c.get(design, "design", "rest_seconds", float, default=5.0, lo=0.0, hi=600.0, required=False)
+    trial_end = c.get(design, "design", "trial_end", str, default="time", required=False)
+    if trial_end is not None and trial_end not in TRIAL_ENDS:
+        c.bad("design.trial_end", f"{trial_end!r} is not one of {', '.join(TRIAL_ENDS)}")
+    elif trial_end == "targets" and from_file and scene is not None and scene.exists() and not _scene_has_targets(scene):
+        c.bad("design.trial_end", f"'targets' needs a target on a hand of the scene {scene} ([hands.target]); it has none")
 
     age_min = c.get(inclusion, "inclusion", "age_min", int, lo=0, hi=120)
     age_max = c.get(inclusion, "inclusion", "age_max", int, lo=0, hi=120)
@@ -143,10 +150,20 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
             questions=tuple(questions), text=text, consent_version=meta["consent_version"], withdrawal=meta["withdrawal"],
             timezone=meta["timezone"], condition_tables=tables,
             instruments=tuple(dict.fromkeys((q.instrument, q.when) for q in questions if q.instrument)), tasks=tuple(tasks),
-            fields=tuple(fields), groups=groups,
+            fields=tuple(fields), groups=groups, trial_end=trial_end or "time",
         ),
         [],
     )
+
+
+def _scene_has_targets(scene: Path) -> bool:
+    from sim.errors import SceneError
+    from sim.scene import load_scene
+
+    try:
+        return any(h.target is not None for h in load_scene(scene).hands)
+    except SceneError:  # its problems are reported with the conditions'
+        return True
 
 
 class _Checker:
@@ -193,7 +210,8 @@ class _Checker:
 
 
 SECTIONS = {"study": ("name", "title", "version", "target_participants", "scene", "timezone"),
-            "design": ("conditions", "counterbalancing", "training_minutes", "trials_per_condition", "trial_seconds", "rest_seconds", "groups"),
+            "design": ("conditions", "counterbalancing", "training_minutes", "trials_per_condition", "trial_seconds", "rest_seconds", "groups",
+                       "trial_end"),
             "inclusion": ("age_min", "age_max"), "latency": ("measures",), "ethics": ("consent_version", "withdrawal"),
             "questions": ("id", "text", "kind", "points", "anchors", "when"), "instruments": ("name", "when"), "conditions": None,
             "fields": None,

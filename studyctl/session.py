@@ -453,13 +453,18 @@ def _run_trial(run: _Run, scene, pos: int, model: str, trial: int, status: str) 
         head = f"{status} - trial {trial + 1} of {n_trials}"
         if phase == "waiting":
             return {"top": head, "center": "Grasp the brain to start", "bottom": "Experimenter: SPACE starts the trial", "question": ""}
-        return {"top": head, "center": f"{math.ceil(left)} s", "bottom": "Pull the tissue", "question": ""}
+        return {"top": head, "center": f"{math.ceil(left)} s", "bottom": task, "question": ""}
+
+    task = "Pull the tissue"
+    if any(h.target is not None for h in scene.spec.hands):
+        task = "Pull to the target and hold it there" + (" to end the trial" if protocol.trial_end == "targets" else "")
 
     pacing = Pacing(view=shown, wait_for_grasp=run.paced, caption=caption, keys=run.keys, notify=run.say) if (run.paced or shown) else None
     started = now()
     scene.operators = run.participant.operators(scene, trial, model) if run.participant else None
     try:
-        result = run_scene(scene, duration=protocol.trial_seconds, time_scale=run.time_scale, pacing=pacing, servo=run.servo)
+        result = run_scene(scene, duration=protocol.trial_seconds, time_scale=run.time_scale, pacing=pacing, servo=run.servo,
+                           end_on_targets=protocol.trial_end == "targets")
     finally:
         scene.operators = None
         if shown is not None:

@@ -192,7 +192,7 @@ def test_three_independent_problems_all_reported_with_their_lines(tmp_path):
          "models.fem.radius", "resolution, formulation, grasp_radius, order"),
         ('name = "right"\n', 'name = "right"\nspeed = 2.0\n', "speed", "hands[1].speed",
          "name, device, start, pull, distance, grasp_at, pull_start, pull_time, release_at, device_name, device_scale, "
-         "device_origin, trace, trace_hand"),
+         "device_origin, trace, trace_hand, target"),
         ("[servo]", "[sevro]\nrate_hz = 1000\n\n[servo]", "[sevro]", "sevro",
          "scene, mesh, material, fixed, model, models, servo, visual, renderer, view, hands"),
     ],
