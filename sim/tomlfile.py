@@ -50,6 +50,12 @@ class Locator:
             m = _TABLE.match(line)
             if m:
                 table = re.sub(r"\s+", "", m.group(1))
+                parts = table.split(".")
+                for i in range(len(parts) - 1, 0, -1):  # [hands.target] after the k-th [[hands]]: hands[k].target
+                    head = ".".join(parts[:i])
+                    if head in counts:
+                        table = f"{head}[{counts[head] - 1}]." + ".".join(parts[i:])
+                        break
                 self.lines.setdefault(table, n)
                 continue
             m = _KEY.match(line)
