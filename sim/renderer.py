@@ -179,6 +179,8 @@ class Renderer:
         self.instruments = {kind: self._static(shapes.forceps(opening), STEEL) for kind, opening in (("open", 1.0), ("closed", 0.0))}
         self.arrow_buffer = ctx.buffer(reserve=4096 * 9 * 4, dynamic=True)
         self.arrow = ctx.vertex_array(self.lit, [(self.arrow_buffer, "3f 3f 3f", "in_position", "in_normal", "in_colour")])
+        self.marker_buffer = ctx.buffer(reserve=4096 * 9 * 4, dynamic=True)  # the hands' targets (made on first use)
+        self.marker = ctx.vertex_array(self.lit, [(self.marker_buffer, "3f 3f 3f", "in_position", "in_normal", "in_colour")])
         self.flat_buffer = ctx.buffer(reserve=6 * FLAT_FLOATS * 4 * 4096, dynamic=True)
         self.flat_vao = ctx.vertex_array(self.flat, [(self.flat_buffer, "2f 2f 4f", "in_xy", "in_st", "in_rgba")])
         self.atlases: dict[int, tuple] = {}  # pixel size -> (font atlas, texture)
@@ -267,9 +269,13 @@ class Renderer:
         data = np.concatenate(parts).astype(np.float32) if parts else np.zeros((0, FLAT_FLOATS), np.float32)
         return data, runs
 
-    def draw(self, target, camera, placed: list[Placed], arrows: np.ndarray | None, flat) -> None:
+    def draw(self, target, camera, placed: list[Placed], arrows: np.ndarray | None, flat, markers: np.ndarray | None = None,
+             bars=None) -> None:
         """One frame into `target` (the window's screen or an offscreen framebuffer): `arrows`
-        are triangles of the force arrows (k, 9) or None; `flat` is flat_vertices' result."""
+        are triangles of the force arrows (k, 9) or None; `flat` is flat_vertices' result.
+        `markers` (triangles like the arrows) are the hands' targets, drawn over the scene (no
+        depth test: the tissue pulled up never hides them); `bars` (flat_vertices' result) are
+        drawn over the overlay: what changes every frame, kept out of the overlay's cache."""
         import moderngl
 
         ctx = self.ctx
@@ -297,6 +303,22 @@ class Renderer:
             self.arrow_buffer.orphan(max(len(arrows) * 36, 36))
             self.arrow_buffer.write(np.ascontiguousarray(arrows, dtype=np.float32))
             self.arrow.render(vertices=len(arrows))
+        if markers is not None and len(markers):
+            ctx.disable(moderngl.DEPTH_TEST)
+            self._place(np.eye(3), np.zeros(3))
+            self.lit["specular"].value = 0.25
+            self.marker_buffer.orphan(max(len(markers) * 36, 36))
+            self.marker_buffer.write(np.ascontiguousarray(markers, dtype=np.float32))
+            self.marker.render(vertices=len(markers))
+            ctx.enable(moderngl.DEPTH_TEST)
+        self._flat(flat, camera)
+        if bars is not None:
+            self._flat(bars, camera)
+
+    def _flat(self, flat, camera) -> None:
+        import moderngl
+
+        ctx = self.ctx
         data, runs = flat
         if runs:
             ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)

@@ -119,6 +119,8 @@ class VisualStep:
                 if h.button:  # still held: publish (time first, so the ramp starts right)
                     h.contact_t = t
                     h.contact = contact
+                    if self.targets is not None:  # the target counts from where the button was pressed, as the metrics do
+                        self.targets.grasped(h.index, request)
                     self.events.append(Event(t, h.index, "grasp", f"vertex {contact.vertex}"))
         contacts, displacements = [], []
         for h in self.hands:

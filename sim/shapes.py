@@ -364,3 +364,43 @@ def _cone(ring: np.ndarray, radius: float, height: float, apex_z: float) -> Shap
     v = np.concatenate((ring, apex))
     n = np.concatenate((normals(a), normals(a + np.pi / sides)))
     return Shape(v, n, np.column_stack((i, (i + 1) % sides, i + sides)))
+
+
+# ---------------------------------------------------------------------------------------------
+# a hand's target (issue 32): a ring where the target is, a thin rod along the pull to it
+
+
+def torus(radius: float, tube: float, segments: int = 32, sides: int = 8) -> Shape:
+    """A ring about the z axis in the z = 0 plane: centre line `radius` from the origin, a round
+    tube `tube` thick (radius), smooth normals. Seen along z it is a circle of that radius."""
+    if not 0.0 < tube < radius:
+        raise ValueError("need 0 < tube < radius")
+    if segments < 3 or sides < 3:
+        raise ValueError("segments and sides must be at least 3")
+    a = 2.0 * np.pi * np.arange(segments) / segments  # around the ring
+    b = 2.0 * np.pi * np.arange(sides) / sides  # around the tube
+    ca, sa = np.cos(a)[:, None], np.sin(a)[:, None]
+    cb, sb = np.cos(b)[None, :], np.sin(b)[None, :]
+    n = np.stack((ca * cb, sa * cb, np.broadcast_to(sb, (segments, sides))), axis=-1).reshape(-1, 3)
+    centre = np.stack((radius * ca, radius * sa, np.zeros((segments, 1))), axis=-1)
+    v = (np.broadcast_to(centre, (segments, sides, 3)).reshape(-1, 3) + tube * n)
+    i, j = np.meshgrid(np.arange(segments), np.arange(sides), indexing="ij")
+    i2, j2 = (i + 1) % segments, (j + 1) % sides
+    q00, q10, q11, q01 = i * sides + j, i2 * sides + j, i2 * sides + j2, i * sides + j2
+    tris = np.concatenate((np.stack((q00, q10, q11), -1).reshape(-1, 3), np.stack((q00, q11, q01), -1).reshape(-1, 3)))
+    return Shape(v, n, tris)
+
+
+def rod(length: float, radius: float, sides: int = 8) -> Shape:
+    """An open cylinder from the origin along +z, `length` long (a thin line in the scene);
+    `length <= 0` gives an empty Shape."""
+    if length <= 0.0 or not math.isfinite(length):
+        return Shape.empty()
+    if radius <= 0.0 or sides < 3:
+        raise ValueError("need radius > 0 and sides >= 3")
+    i = np.arange(sides)
+    j = (i + 1) % sides
+    radial = np.column_stack((np.cos(2 * np.pi * i / sides), np.sin(2 * np.pi * i / sides), np.zeros(sides)))
+    v = np.concatenate((_ring(radius, 0.0, sides), _ring(radius, length, sides)))
+    tris = np.concatenate((np.column_stack((i, j, j + sides)), np.column_stack((i, j + sides, i + sides))))
+    return Shape(v, np.concatenate((radial, radial)), tris)

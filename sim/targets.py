@@ -6,7 +6,8 @@ it there, and keep the force under a safe limit.
 - `TargetTracker`: follows the hands during a run (the visual step calls it every frame): where
   the target lies, the progress along the pull, when each hand has held its target.
 
-The tip's displacement counts from where the hand was when its grasp took hold; the target is
+The tip's displacement counts from where the hand was when its button was pressed for the grasp
+that took hold (as the metrics count from the first tick of the button held); the target is
 that displacement equal to `distance` times the pull's direction, within `tolerance` (the
 metrics' `analysis.metrics.Goal` uses the same rule on the stored trace, at every tick).
 """
@@ -77,6 +78,10 @@ class TargetTracker:
         """Every hand that has a target has held it (False when no hand has one)."""
         return self.any and all(s is None or s.held for s in self.states)
 
+    def grasped(self, i: int, at) -> None:
+        """Hand i's grasp took hold; its button was pressed with the tip `at` (the target's origin)."""
+        self.origins[i], self.since[i] = tuple(float(c) for c in at), None
+
     def update(self, t: float, hands) -> None:
         for i, (target, h) in enumerate(zip(self.targets, hands)):
             if target is None:
@@ -88,7 +93,7 @@ class TargetTracker:
                 self.origins[i], self.since[i] = None, None
                 st.point, st.progress, st.error, st.on_target = target.point(self.starts[i]), 0.0, math.nan, False
                 continue
-            if self.origins[i] is None:
+            if self.origins[i] is None:  # a grasp not announced through `grasped`: from here
                 self.origins[i] = tuple(h.position)
             o, p, d = self.origins[i], h.position, target.direction
             disp = (p[0] - o[0], p[1] - o[1], p[2] - o[2])

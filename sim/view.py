@@ -76,7 +76,8 @@ class ParticipantView:
 
     def __init__(self, mesh, pulls=((-1.0, 0.0, 0.0), (1.0, 0.0, 0.0)), width: int = 1280, height: int = 720,
                  visible: bool = True, title: str = "Brain surgery simulator", show_force: bool = False,
-                 grasp_radius: float = GRASP_RADIUS, camera=None, fullscreen: bool = False, max_fps: float = 60.0):
+                 grasp_radius: float = GRASP_RADIUS, camera=None, fullscreen: bool = False, max_fps: float = 60.0,
+                 targets=None):
         from sim.renderer import Renderer, open_offscreen, open_window
         from sim.scene import ViewSpec
 
@@ -91,6 +92,9 @@ class ParticipantView:
         self.grasp_radius = grasp_radius
         self.pulls = [np.asarray(p, dtype=np.float64) for p in pulls]
         self.n_hands = len(pulls)
+        # each hand's sim.targets.HandTarget (or None): the tolerance and the pull a target's
+        # state is drawn with (the ring's size, the bar's band, the line along the pull)
+        self.targets = list(targets) if targets is not None else []
         self.max_fps = max_fps
         self.window = None
         self.ctx = None
@@ -127,6 +131,11 @@ class ParticipantView:
         self._fresh = False  # the last frame drawn shows the scene as it is now
         self._scene = ([], None)  # instruments placed and arrow triangles of the last frame
         self._last_hands: list[HandState] = []
+        self._markers = None  # the targets' rings and lines (triangles) of the last frame
+        self._bars = None  # the targets' progress bars (flat vertices) of the last frame
+        self._bar_key = None  # what the bars' labels say: made again (with the overlay) when it changes
+        self._target_texts: list = []
+        self._target_shapes: dict = {}
         self.keys: list[str] = []
         self.pointer = (self.width / 2.0, self.height / 2.0)
         self.inputs: dict[int, list] = {}  # hand -> [target, pressed, depth]
@@ -234,7 +243,7 @@ class ParticipantView:
     def layout(self) -> list[tuple]:
         """Every text item as drawn now: (text, x, baseline y, pixel size, rgb, align), slots
         then the widget's labels (tests look for their pixels where they are laid out)."""
-        return hud.items(self._texts, self.width, self.height) + self._widget_texts
+        return hud.items(self._texts, self.width, self.height) + self._target_texts + self._widget_texts
 
     def _overlay(self):
         """The flat overlay's vertices: a light backing under each slot's text (legible over the
@@ -311,6 +320,66 @@ class ParticipantView:
         self.set_text(corner="force:  " + "   ".join(corner))
         return np.concatenate(parts) if parts else None
 
+    # -- the hands' targets (issue 32) ---------------------------------------------------------
+    def _side(self, k: int) -> float:
+        """-1 for a hand whose pull goes left on the screen, +1 for right (the first hand left
+        when its pull is along the view's depth)."""
+        sx = float(self.pulls[k % len(self.pulls)] @ self.camera.R[0])
+        return float(np.sign(sx)) if abs(sx) > 1e-6 else (-1.0 if k == 0 else 1.0)
+
+    def _target_shape(self, kind: str, size: float):
+        """A target's ring (`size`: its radius) or line (its length), made once."""
+        from sim import shapes
+
+        key = (kind, size)
+        if key not in self._target_shapes:
+            self._target_shapes[key] = shapes.torus(size, max(0.25 * size, 0.0006), 40, 8) if kind == "ring" else shapes.rod(size, 0.00025, 6)
+        return self._target_shapes[key]
+
+    def _show_targets(self, hands) -> None:
+        """The targets of the hands that have one: a ring at the target (the tolerance's size,
+        facing the viewer: magenta, green while within the tolerance, gold once held) with a thin
+        line to it from where the grasp took hold, and a progress bar per hand in the overlay
+        (hud.target_bars). Nothing at all when no hand has a target."""
+        from sim import shapes
+        from sim.renderer import Overlay
+
+        shown = [(k, h.target) for k, h in enumerate(hands) if h.target is not None]
+        if not shown and self._bar_key is None:
+            self._markers = self._bars = None
+            return
+        parts, bars, names = [], [], []
+        right, _, forward = self.camera.R
+        for k, st in shown:
+            spec = self.targets[k] if k < len(self.targets) else None
+            colour = hud.TARGET_HELD if st.held else hud.TARGET_ON if st.on_target else hud.TARGET_AWAY
+            radius = max(spec.spec.tolerance, 0.0015) if spec is not None else 0.003
+            ring = self._target_shape("ring", radius)
+            point = np.asarray(st.point, dtype=np.float64)
+            items = [(ring, shapes.frame(forward, right), point)]
+            band = None
+            if spec is not None:
+                d, dist = np.asarray(spec.direction, dtype=np.float64), spec.spec.distance
+                length = dist - radius
+                line = self._target_shape("rod", length)
+                side = right if abs(d @ right) < 0.9 else forward
+                items.append((line, shapes.frame(d, side), point - dist * d))
+                band = (1.0 - spec.spec.tolerance / dist, 1.0 + spec.spec.tolerance / dist)
+            for shape, R, t in items:
+                if shape.n_triangles:
+                    V, N = shapes.transform(shape, R, t)
+                    T = shape.triangles.ravel()
+                    parts.append(np.hstack([V[T], N[T], np.broadcast_to(np.asarray(colour, dtype=np.float32), (len(T), 3))]))
+            bars.append((self._side(k), st.progress, band, st.on_target, st.held, st.over_limit))
+            names.append(("Left", "Right")[k] if len(hands) == 2 else "Your")
+        self._markers = np.concatenate(parts) if parts else None
+        self._bars = self.gl.flat_vertices(Overlay(quads=hud.target_bars(bars, self.width, self.ui))) if bars else None
+        key = (tuple((b[0], b[4], b[5]) for b in bars), tuple(names), self.width, self.height) if bars else None
+        if key != self._bar_key:
+            self._bar_key = key
+            self._target_texts = hud.target_labels(bars, names, self.width, self.ui) if bars else []
+            self._changed()
+
     def draw(self, displacement, hands: list[HandState], read_t: float | None = None, heat01=None, latch=None) -> None:
         """Draw one frame and present it. `read_t` (perf_counter) is when the devices were read
         for this state; `latch()`, if given, returns (the hands' newest positions, their forces,
@@ -333,6 +402,7 @@ class ParticipantView:
             self._last_hands = hands
             arrows = self._arrows(hands) if self.show_force else None
             self._scene = ([self._instrument(k, h.position, h.closed) for k, h in enumerate(hands)], arrows)
+            self._show_targets(hands)
             self._running = True
             self._present()
         now = time.perf_counter()
@@ -353,7 +423,7 @@ class ParticipantView:
 
     def _render(self, target) -> None:
         placed, arrows = self._scene
-        self.gl.draw(target, self.camera, placed, arrows, self._overlay())
+        self.gl.draw(target, self.camera, placed, arrows, self._overlay(), self._markers, self._bars)
 
     def _present(self) -> None:
         """Draw the scene as it is into the window (swap, and wait until it is shown) or into the
@@ -586,4 +656,4 @@ def open_view(kind: str, scene, show_force: bool = False, fullscreen: bool = Fal
     pulls = [h.pull for h in scene.spec.hands]
     # one patch size for every model: a model-specific one would be a cue in a blind study
     return ParticipantView(scene.mesh, pulls=pulls, visible=(kind == "window"), show_force=show_force, camera=scene.spec.view,
-                           fullscreen=fullscreen)
+                           fullscreen=fullscreen, targets=scene.targets())
