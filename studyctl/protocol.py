@@ -55,6 +55,7 @@ class Protocol:
     fields: tuple = ()  # [fields.NAME]: what is recorded about each participant (studyctl/fields.py)
     groups: str | None = None  # design.groups: the choice field that is the between-participant factor
     trial_end: str = "time"  # design.trial_end: "time" (the trial's seconds) or "targets" (every hand held its target, or the time)
+    skills: dict = field(default_factory=dict, compare=False)  # [synthetic.groups.NAME]: group -> studyctl.skill.SkillProfile
 
     def field_named(self, name: str):
         return next((f for f in self.fields if f.name == name), None)
@@ -140,6 +141,9 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     from studyctl.fields import check_fields
 
     fields, groups = check_fields(data, design, c)
+    from studyctl.skill import check_skills
+
+    skills = check_skills(data, groups, fields, c)
     if c.problems:
         return None, c.problems
     return (
@@ -150,7 +154,7 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
             questions=tuple(questions), text=text, consent_version=meta["consent_version"], withdrawal=meta["withdrawal"],
             timezone=meta["timezone"], condition_tables=tables,
             instruments=tuple(dict.fromkeys((q.instrument, q.when) for q in questions if q.instrument)), tasks=tuple(tasks),
-            fields=tuple(fields), groups=groups, trial_end=trial_end or "time",
+            fields=tuple(fields), groups=groups, trial_end=trial_end or "time", skills=skills,
         ),
         [],
     )
@@ -214,7 +218,7 @@ SECTIONS = {"study": ("name", "title", "version", "target_participants", "scene"
                        "trial_end"),
             "inclusion": ("age_min", "age_max"), "latency": ("measures",), "ethics": ("consent_version", "withdrawal"),
             "questions": ("id", "text", "kind", "points", "anchors", "when"), "instruments": ("name", "when"), "conditions": None,
-            "fields": None,
+            "fields": None, "synthetic": ("groups",),
             "tasks": ("kind", "parameter", "reference", "method", "rule", "trials", "question", "feedback", "interval_seconds", "range", "start")}
 
 

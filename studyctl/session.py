@@ -352,10 +352,11 @@ def _synthetic_answers(run: _Run, seed: int):
     the study's rig; sets `run.participant` (its motor traits drive the simulated hands)."""
     from studyctl.conditions import scene_itself
     from studyctl.rig import frame_times
-    from studyctl.synthetic import SyntheticAnswers, SyntheticParticipant
+    from studyctl.synthetic import SyntheticAnswers, SyntheticParticipant, skill_for
     from studyctl.truth import load_truth
 
-    run.participant = SyntheticParticipant.draw(run.code, seed)
+    # its group's skill profile ([synthetic.groups.NAME]), if the protocol gives one
+    run.participant = SyntheticParticipant.draw(run.code, seed, skill_for(run.store, run.protocol, run.code))
     with run.store.transaction() as conn:  # what it was drawn with, kept: estimates can be checked against it
         conn.executemany("insert or replace into synthetic_traits (code, trait, value, seed) values (?, ?, ?, ?)",
                          [(run.code, k, float(v), seed) for k, v in run.participant.trait_values().items()])

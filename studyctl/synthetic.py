@@ -11,6 +11,10 @@ synthetic. See docs/synthetic.md for the model and its parameters.
   is a logistic function of what this participant perceived of its trials against the
   converged reference (force within their JND of what they expect, deformation latency,
   vibration, safety events) and their bias. No outcome is set per model.
+- Skill (issue 32, item 5): a hand whose scene gives it a target is pulled to the target, beyond
+  it by the participant's overshoot and back, and held there; a protocol's
+  `[synthetic.groups.NAME]` gives a group's tremor, speed, overshoot, force restraint and
+  learning (studyctl/skill.py). Without a profile and a target, the scene's pull as before.
 """
 
 from __future__ import annotations
@@ -32,8 +36,19 @@ from studyctl.observer import (
     summarise,
 )
 from studyctl.questions import SESSION
+from studyctl.skill import Skill, SkillProfile
 
 MAX_SYNTHETIC = 1000  # participants per `synth` call: a study, not a stress test (the paper had 35)
+CORRECTION_DELAY = 0.2  # s from the end of an overshooting movement to the start of the correction (a visual reaction time)
+CORRECTION_TIME = 0.5  # the corrective movement's duration, times the first movement's
+HOLD_MARGIN = 1.0  # s a target-pursuing hand keeps its grasp beyond the movement and the target's hold time
+
+def skill_for(store, protocol, code: str) -> SkillProfile | None:
+    """The skill profile of the participant's group (`[synthetic.groups.NAME]`), None without one."""
+    from studyctl.fields import group_of
+
+    group = group_of(store, protocol, code) if protocol.skills else None
+    return protocol.skills.get(group) if group is not None else None
 
 
 @dataclass(frozen=True)
@@ -47,9 +62,12 @@ class SyntheticParticipant:
     stiffness: float  # hand stiffness, N/m
     traits: ObserverTraits  # how they perceive (studyctl/observer.py)
     discrimination: DiscriminationTraits  # how finely they tell stiffness apart (the discrimination task)
+    skill: Skill | None = None  # their group's skill profile, spread to them (studyctl/skill.py); None: no profile
 
     @classmethod
-    def draw(cls, code: str, seed: int) -> SyntheticParticipant:
+    def draw(cls, code: str, seed: int, profile: SkillProfile | None = None) -> SyntheticParticipant:
+        """The participant of this code and seed; `profile` (their group's, `skill_for`) gives
+        their skill. The other traits do not depend on it."""
         rng = random.Random(f"participant:{seed}:{code}")
         return cls(
             code=code, seed=seed,
@@ -57,34 +75,63 @@ class SyntheticParticipant:
             tremor_m=rng.uniform(0.1e-3, 0.4e-3), tremor_hz=rng.uniform(8.0, 12.0),
             stiffness=rng.uniform(200.0, 500.0), traits=ObserverTraits.draw(code, seed),
             discrimination=DiscriminationTraits.draw(code, seed),
+            skill=profile.individual(code, seed) if profile is not None else None,
         )
 
     def trait_values(self) -> dict[str, float]:
-        """Every generating trait by name (stored with the study: `synthetic_traits`)."""
+        """Every generating trait by name (stored with the study: `synthetic_traits`); a skill's
+        values as `skill_*` (first trial and plateau)."""
         out = {k: float(getattr(self, k)) for k in ("pull_scale", "time_scale", "tremor_m", "tremor_hz", "stiffness")}
         out |= {f"observer_{k}": float(v) for k, v in dataclasses.asdict(self.traits).items()}
-        return out | {f"stiffness_{k}": float(v) for k, v in dataclasses.asdict(self.discrimination).items()}
+        out |= {f"stiffness_{k}": float(v) for k, v in dataclasses.asdict(self.discrimination).items()}
+        return out | (self.skill.values() if self.skill is not None else {})
 
     def operators(self, scene, trial: int, model: str) -> list:
-        """This participant's pulls for one trial: the scene's, varied per trial and hand."""
+        """This participant's pulls for one trial, varied per trial and hand: the scene's pull,
+        or, for a hand with a target, to the target (beyond it by the overshoot and back) and
+        held there, with the skill's tremor, speed and force restraint on this trial."""
         from sim.devices.simulated import HandImpedance
 
         rng = random.Random(f"trial:{self.seed}:{self.code}:{model}:{trial}")
+        tremor_mm, speed, overshoot = self.skill.at(trial if isinstance(trial, int) else 0) if self.skill else (None, 1.0, 0.0)
+        restraint = self.skill.force_restraint if self.skill else 0.0
+        tremor_m = self.tremor_m if tremor_mm is None else tremor_mm * 1e-3
+        targets = scene.targets() if any(h.target is not None for h in scene.spec.hands) else [None] * len(scene.spec.hands)
         out = []
         for i in range(len(scene.spec.hands)):
             base = scene.spec.hands[i].script(scene.mesh)
             s = self.pull_scale * rng.uniform(0.9, 1.1)
             mass = 0.2
             damping = 2 * 0.7 * math.sqrt(self.stiffness * mass)
-            out.append(dataclasses.replace(
+            script = dataclasses.replace(
                 base,
                 pull=tuple(s * c for c in base.pull),
-                pull_time=base.pull_time * self.time_scale * rng.uniform(0.9, 1.1),
-                tremor_m=self.tremor_m, tremor_hz=self.tremor_hz,
+                pull_time=base.pull_time * self.time_scale * rng.uniform(0.9, 1.1) / speed,
+                tremor_m=tremor_m, tremor_hz=self.tremor_hz,
                 tremor_phase=tuple(rng.uniform(0, 2 * math.pi) for _ in range(3)),
                 impedance=HandImpedance(mass_kg=mass, stiffness_n_per_m=self.stiffness, damping_ns_per_m=damping),
-            ))
+            )
+            out.append(script if targets[i] is None else pursue(script, targets[i], overshoot, restraint))
         return out
+
+
+def pursue(script, target, overshoot: float, restraint: float = 0.0):
+    """`script` made to pursue `target` (a `sim.targets.HandTarget`): from the grasp to the
+    target times (1 + overshoot) along its direction in the script's pull time, then, after
+    `CORRECTION_DELAY`, back to the target in `CORRECTION_TIME` of it, both minimum jerk; held
+    until the target's hold time and `HOLD_MARGIN` have passed (at least the script's own
+    release); holding back near the target's safe force by `restraint`."""
+    d, u = target.spec.distance, target.direction
+    end = script.pull_start + script.pull_time
+    back = {}
+    if overshoot > 0:
+        back = {"back": tuple(-overshoot * d * c for c in u), "back_start": end + CORRECTION_DELAY,
+                "back_time": CORRECTION_TIME * script.pull_time}
+        end = back["back_start"] + back["back_time"]
+    return dataclasses.replace(
+        script, pull=tuple((1.0 + overshoot) * d * c for c in u), **back,
+        release_at=max(script.release_at, end + target.spec.hold + HOLD_MARGIN),
+        restraint=restraint, safe_force=target.spec.safe_force if restraint > 0 else math.inf)
 
 
 class SyntheticAnswers:

@@ -4,6 +4,12 @@ The operator's hand is a mass-spring-damper pulled towards a scripted target; th
 device renders acts on that hand, so a stiff tissue holds the hand back. The device reports
 the hand position quantised to 0.055 mm and confined to the 160 x 120 x 70 mm workspace, and
 its motors saturate at the peak force.
+
+A script may go beyond its goal and come back (`back`: a second minimum-jerk segment, e.g. a
+corrective movement after an overshoot) and may hold back near a force limit (`restraint`): while
+the felt force is above `RESTRAINT_ONSET` of `safe_force`, the operator's target retreats along
+the pull at `restraint * RESTRAINT_GAIN` m/s per newton above it, and comes forward again at the
+same rate per newton below it (never past the script). docs/synthetic.md, "Skill profiles".
 """
 
 from __future__ import annotations
@@ -13,6 +19,9 @@ from dataclasses import dataclass
 
 from sim.devices.base import DeviceState, OmniSpec
 from sim.models.base import Vec3
+
+RESTRAINT_ONSET = 0.9  # the felt force, as a fraction of the safe limit, at which a restrained operator holds back
+RESTRAINT_GAIN = 3.0  # m/s of retreat per newton above the onset, at restraint 1
 
 
 @dataclass(frozen=True)
@@ -52,12 +61,24 @@ class PullScript:
     jump_at: float | None = None
     jump: Vec3 = (0.0, 0.0, 0.0)
     glitch: bool = False
+    # a second movement after the pull (e.g. back from an overshoot): by `back` (m) from
+    # `back_start` over `back_time` s, minimum jerk; none when back_start is None
+    back: Vec3 = (0.0, 0.0, 0.0)
+    back_start: float | None = None
+    back_time: float = 0.0
+    # holding back near a force limit (0: never; 1: most); see the module's docstring
+    restraint: float = 0.0
+    safe_force: float = math.inf  # N
 
     def target(self, t: float) -> Vec3:
         # per axis written out, not looped: this runs at 1 kHz per hand (the same operations)
         s = min_jerk((t - self.pull_start) / self.pull_time) if self.pull_time > 0 else float(t >= self.pull_start)
         a, p = self.start, self.pull
         x0, x1, x2 = a[0] + s * p[0], a[1] + s * p[1], a[2] + s * p[2]
+        if self.back_start is not None:
+            s = min_jerk((t - self.back_start) / self.back_time) if self.back_time > 0 else float(t >= self.back_start)
+            b = self.back
+            x0, x1, x2 = x0 + s * b[0], x1 + s * b[1], x2 + s * b[2]
         if self.jump_at is not None and not self.glitch and t >= self.jump_at:
             j = self.jump
             x0, x1, x2 = x0 + j[0], x1 + j[1], x2 + j[2]
@@ -100,6 +121,10 @@ class SimulatedOmni:
         self._step = step
         self._force = (0.0, 0.0, 0.0)
         self.max_force_applied = 0.0
+        self.held_back = 0.0  # m the operator's target is held back along the pull (restraint)
+        p = script.pull
+        n = math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+        self._along = (p[0] / n, p[1] / n, p[2] / n) if n > 0 else (0.0, 0.0, 0.0)
         SimulatedOmni.opened += 1
 
     def _advance(self, t: float) -> None:
@@ -107,12 +132,20 @@ class SimulatedOmni:
         k, c, m = imp.stiffness_n_per_m, imp.damping_ns_per_m, imp.mass_kg
         x, v, f, o, half = self._x, self._v, self._force, self.origin, self._half
         sc = self.script
+        gain = sc.restraint * RESTRAINT_GAIN
+        if gain:  # the felt force is the one last written: the same through this advance
+            excess = math.sqrt(f[0] * f[0] + f[1] * f[1] + f[2] * f[2]) - RESTRAINT_ONSET * sc.safe_force
+            u = self._along
         while self._t + 1e-12 < t:
             h = min(self._step, t - self._t)
             if sc.glitch and sc.jump_at is not None and self._t < sc.jump_at <= self._t + h:
                 for i in range(3):
                     x[i] += sc.jump[i]
             target = sc.target(self._t + h)
+            if gain:
+                back = self.held_back + h * gain * excess
+                back = self.held_back = back if back > 0.0 else 0.0
+                target = (target[0] - back * u[0], target[1] - back * u[1], target[2] - back * u[2])
             for i in range(3):
                 a = (k * (target[i] - x[i]) - c * v[i] + f[i]) / m
                 v[i] += h * a  # semi-implicit Euler: velocity first
