@@ -224,10 +224,16 @@ def _start(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
     return float(coef[i, 0]), float(coef[i, 1]), float(_RATES[i])
 
 
-def fit_learning_curve(trial, y, max_rate: float = 50.0) -> tuple[float, float, float] | None:
+# half the approach within a quarter of a trial: a step between the first two trials, which whole
+# trials cannot resolve into a rate (the fit then rests wherever its start put it, e.g. at the
+# start grid's top)
+MAX_RATE = float(np.log(2.0) / 0.25)
+
+
+def fit_learning_curve(trial, y, max_rate: float = MAX_RATE) -> tuple[float, float, float] | None:
     """(y0, plateau, rate) of `exp_plateau` by scipy.optimize.curve_fit from a grid start, or None
     where the fit fails: fewer than 3 trials, no convergence, non-finite parameters, a rate above
-    `max_rate` (a step, no curve), or a rate too slow for half the approach to the plateau to lie
+    `max_rate` (a step, no curve: `MAX_RATE`), or a rate too slow for half the approach to the plateau to lie
     within the trials observed (rate < ln 2 / (last - first trial)): a plateau then is an
     extrapolation, and a growing or straight series fits as one far away."""
     x, y = np.asarray(trial, float), np.asarray(y, float)

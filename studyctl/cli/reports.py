@@ -281,3 +281,33 @@ def export_cmd(db, fmt, out_dir, as_json):
         _print_json({"out": str(out_dir), "format": fmt, "files": [str(f) for f in files]})
         return
     click.echo(f"wrote {len(files)} files to {out_dir}")
+
+
+@report.command("validity")
+@DB
+@click.option("--format", "fmt", type=click.Choice(["md", "html", "json"]), default="md", show_default=True)
+@click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
+@click.option("--out", "out_file", type=OutFile(), default=None)
+@click.option("--permutations", type=click.IntRange(min=1), default=None, show_default="100",
+              help="Permutations of the classifier's permutation test.")
+@click.option("--bootstrap", type=click.IntRange(min=1), default=None, show_default="200",
+              help="Bootstrap replicates of Cliff's delta's and the learning curves' intervals.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of every resampling.")
+def report_validity(db, fmt, as_json, out_file, permutations, bootstrap, seed):
+    """Construct validity: the performance metrics compared between the participant groups
+    (Kruskal-Wallis, Mann-Whitney pairs with Holm, Cliff's delta), the mixed model with several
+    conditions, learning curves, the expert benchmark and scorecards, leave-one-out
+    classification of the group, and the face-validity ratings per group (html: box and strip
+    plots per group and learning curves per metric)."""
+    from analysis import validity_report as vr
+    from studyctl.cli.common import _with_progress
+    from studyctl.store import Store
+
+    permutations = vr.DEFAULT_PERMUTATIONS if permutations is None else permutations
+    bootstrap = vr.DEFAULT_BOOTSTRAP if bootstrap is None else bootstrap
+    with Store(db, mode="read") as store:
+        rep = _with_progress("construct validity", lambda progress: vr.validity_report(
+            store, permutations=permutations, bootstrap=bootstrap, seed=seed, progress=progress))
+    fmt = "json" if as_json else fmt
+    text = vr.to_json(rep) if fmt == "json" else vr.html(rep) if fmt == "html" else vr.markdown(rep)
+    _emit(text, out_file)
