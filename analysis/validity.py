@@ -8,7 +8,8 @@ group label; `order`, the group labels in order, the expert group last.
 
 - `participant_scores`: one value per participant, condition and metric (mean over trials and hands).
 - `group_tests`: Kruskal-Wallis per metric and condition, pairwise two-sided Mann-Whitney U with Holm
-  over the whole family, Cliff's delta with a bootstrap percentile interval, group medians and IQR.
+  over the whole family (and, with `n_perm`, the Westfall-Young step-down min-p permutation
+  adjustment), Cliff's delta with a bootstrap percentile interval, group medians and IQR.
 - `mixed_model`: value ~ group + condition + trial, participant random intercept (statsmodels MixedLM).
 - `learning_curves`: y = plateau + (y0 - plateau) exp(-rate (trial - 1)) per metric and group,
   bootstrap intervals over participants.
@@ -106,19 +107,115 @@ def cliffs_delta_interval(a, b, n_boot: int = 2000, level: float = 0.95, seed: i
 @dataclass(frozen=True)
 class GroupTests:
     """`kruskal` (KRUSKAL_COLUMNS), `pairs` (PAIR_COLUMNS), `descriptives` (DESCRIPTIVE_COLUMNS).
-    p_holm: Holm over the whole family, all metrics and conditions (x pairs for `pairs`)."""
+    p_holm: Holm over the whole family, all metrics and conditions (x pairs for `pairs`); with
+    `n_perm` > 0, `kruskal` and `pairs` also carry `p_wy` (after `p_holm`): the Westfall-Young
+    step-down min-p adjustment over the same family."""
     kruskal: pd.DataFrame
     pairs: pd.DataFrame
     descriptives: pd.DataFrame
 
 
+WY_TOLERANCE = 1e-10  # relative: a permutation's p this close to the observed one counts as a tie (<=)
+
+
+def permutation_indices(n: int, n_perm: int, seed: int = 0) -> np.ndarray:
+    """The (n_perm, n) permutations of `group_tests`' Westfall-Young adjustment: row b, column i
+    is the participant whose group participant i takes in permutation b (participants in sorted
+    code order). numpy default_rng(seed).permuted, row by row."""
+    return np.random.default_rng(seed).permuted(np.tile(np.arange(n), (n_perm, 1)), axis=1)
+
+
+def westfall_young(p_obs, p_perm) -> np.ndarray:
+    """Westfall-Young step-down min-p adjusted p-values (Westfall & Young 1993, algorithm 2.8).
+    `p_obs`: (m,) the observed raw p of the family; `p_perm`: (B, m) the raw p of every test under
+    each of B permutations (the same permutation across a row, so the tests' dependence is kept).
+    With the observed p in increasing order p(1) <= ... <= p(m), the adjusted p(j) is
+    (1 + #{b: min over k >= j of p*_b(k) <= p(j)}) / (B + 1), the observed labelling counted as
+    one of the permutations (so >= 1 / (B + 1)), then made monotone (running maximum). A test
+    whose observed p is NaN is not in the family (NaN out); a NaN permutation p counts as 1.
+    A permutation p within a relative WY_TOLERANCE of p(j) counts as <= (ties of the statistic
+    computed in a different floating-point order)."""
+    p_obs = np.asarray(p_obs, float)
+    p_perm = np.asarray(p_perm, float).reshape(-1, len(p_obs))
+    out = np.full(len(p_obs), np.nan)
+    keep = np.flatnonzero(np.isfinite(p_obs))
+    if not len(keep):
+        return out
+    order = keep[np.argsort(p_obs[keep], kind="stable")]
+    q = np.nan_to_num(p_perm[:, order], nan=1.0)
+    q = np.minimum.accumulate(q[:, ::-1], axis=1)[:, ::-1]  # successive minima from the least significant
+    hits = (q <= p_obs[order] * (1 + WY_TOLERANCE)).sum(axis=0)
+    out[order] = np.maximum.accumulate((1 + hits) / (len(p_perm) + 1))
+    return out
+
+
+def _kruskal_p(x: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:
+    """Kruskal-Wallis p (scipy.stats.kruskal's H, tie-corrected, chi-square with one df fewer than
+    the non-empty groups) of values `x` (n,) under each row of `labels` (P, n; group indices
+    0..k-1); NaN where fewer than two groups are non-empty or every value is the same."""
+    n = len(x)
+    if n < 2 or np.ptp(x) == 0:
+        return np.full(len(labels), np.nan)
+    r = stats.rankdata(x)
+    _, t = np.unique(x, return_counts=True)
+    ties = 1.0 - (t ** 3 - t).sum() / float(n ** 3 - n)
+    onehot = (labels[:, :, None] == np.arange(k)).astype(float)
+    rsum = np.einsum("pnk,n->pk", onehot, r)
+    ng = onehot.sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ssbn = np.where(ng > 0, rsum * rsum / ng, 0.0).sum(axis=1)
+    h = (12.0 / (n * (n + 1)) * ssbn - 3 * (n + 1)) / ties
+    df = (ng > 0).sum(axis=1) - 1
+    p = stats.chi2.sf(h, np.maximum(df, 1))
+    return np.where(df >= 1, p, np.nan)
+
+
+def _mannwhitney_p(x: np.ndarray, labels: np.ndarray, a: int, b: int) -> np.ndarray:
+    """Two-sided Mann-Whitney p of group `a` against `b` under each row of `labels` (P, n), as
+    scipy.stats.mannwhitneyu(method="asymptotic") computes it (normal approximation, tie and
+    continuity corrections): the average ranks within each row's pooled sample of the two groups.
+    NaN where either group is empty."""
+    in_a, in_b = labels == a, labels == b
+    pooled = (in_a | in_b).astype(float)
+    less = pooled @ (x[None, :] < x[:, None]).T.astype(float)  # [p, i]: pooled j with x_j < x_i
+    equal = pooled @ (x[None, :] == x[:, None]).T.astype(float)  # [p, i]: pooled j with x_j == x_i (i itself too)
+    rank = less + (equal + 1) / 2
+    n1, n2 = in_a.sum(axis=1).astype(float), in_b.sum(axis=1).astype(float)
+    u1 = (rank * in_a).sum(axis=1) - n1 * (n1 + 1) / 2
+    u = np.maximum(u1, n1 * n2 - u1)
+    n = n1 + n2
+    tie_term = ((equal * equal - 1) * pooled).sum(axis=1)  # sum of t^3 - t over the tie groups
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.sqrt(n1 * n2 / 12 * ((n + 1) - tie_term / (n * (n - 1))))
+        z = (u - n1 * n2 / 2 - 0.5) / s
+    p = np.clip(2 * stats.norm.sf(z), 0.0, 1.0)
+    return np.where((n1 > 0) & (n2 > 0), p, np.nan)
+
+
 def group_tests(scores: pd.DataFrame, groups: pd.Series, order: Sequence[str] | None = None,
-                n_boot: int = 2000, seed: int = 0) -> GroupTests:
+                n_boot: int = 2000, seed: int = 0, n_perm: int = 0) -> GroupTests:
     """Kruskal-Wallis across the groups per metric and condition, then two-sided Mann-Whitney U
     for every pair of groups (in `order`; effect size Cliff's delta of a over b with its
-    bootstrap percentile 95% interval). `scores`: as from `participant_scores`."""
+    bootstrap percentile 95% interval). `scores`: as from `participant_scores`.
+
+    `n_perm` > 0 adds the column `p_wy` to `kruskal` (family: every metric x condition) and to
+    `pairs` (family: every metric x condition x pair): the Westfall-Young step-down min-p
+    adjustment (`westfall_young`) over `n_perm` random permutations of the group labels across
+    the participants (`permutation_indices(n, n_perm, seed)`, participants in sorted code order).
+    One permutation relabels a participant alike in every metric and condition, so the
+    correlation between the metrics is kept and the family-wise error rate is controlled exactly
+    under the complete null whatever the dependence. A test uses the participants with a value
+    (their permuted labels). The raw p it adjusts: Kruskal-Wallis as in `p`; Mann-Whitney from the
+    normal approximation (scipy's method="asymptotic"), which is `p` unless a group has at most 8
+    participants and there are no ties (scipy's exact p). With `n_perm` = 0 (the default) there
+    is no `p_wy` column."""
     s, order = _with_groups(scores.dropna(subset=["value"]), groups, order)
     kw, pairs, desc = [], [], []
+    codes = np.sort(s["code"].unique())
+    if n_perm > 0:
+        lab = pd.Series(codes).map(groups).map({g: i for i, g in enumerate(order)}).to_numpy(int)
+        labels = np.vstack([lab, lab[permutation_indices(len(codes), int(n_perm), seed)]])  # row 0: observed
+        kw_perm, pair_perm = [], []
     for (metric, condition), d in s.groupby(["metric", "condition"], sort=True):
         vals = {g: d.loc[d["group"] == g, "value"].to_numpy(float) for g in order}
         for g, v in vals.items():
@@ -132,7 +229,12 @@ def group_tests(scores: pd.DataFrame, groups: pd.Series, order: Sequence[str] | 
             H, p = float(res.statistic), float(res.pvalue)
         kw.append({"metric": metric, "condition": condition, "k": len(present), "n": sum(map(len, present)),
                    "H": H, "df": len(present) - 1, "p": p})
-        for ga, gb in itertools.combinations(order, 2):
+        if n_perm > 0:
+            x = d["value"].to_numpy(float)
+            lt = labels[:, np.searchsorted(codes, d["code"].to_numpy())]
+            kw_perm.append(_kruskal_p(x, lt, len(order)) if np.isfinite(p) else np.full(len(lt), np.nan))
+        for ia, ib in itertools.combinations(range(len(order)), 2):
+            ga, gb = order[ia], order[ib]
             a, b = vals[ga], vals[gb]
             row = {"metric": metric, "condition": condition, "a": ga, "b": gb, "n_a": len(a), "n_b": len(b),
                    "median_a": np.median(a) if len(a) else np.nan, "median_b": np.median(b) if len(b) else np.nan,
@@ -143,11 +245,19 @@ def group_tests(scores: pd.DataFrame, groups: pd.Series, order: Sequence[str] | 
                 row |= {"U": float(res.statistic), "p": float(res.pvalue), "cliffs_delta": cliffs_delta(a, b),
                         "delta_low": lo, "delta_high": hi}
             pairs.append(row)
+            if n_perm > 0:
+                pair_perm.append(_mannwhitney_p(x, lt, ia, ib) if len(a) and len(b) else np.full(len(lt), np.nan))
     kw_df = pd.DataFrame(kw, columns=[c for c in KRUSKAL_COLUMNS if c != "p_holm"])
     kw_df.insert(len(kw_df.columns), "p_holm", holm(kw_df["p"]))
     pair_df = pd.DataFrame(pairs, columns=[c for c in PAIR_COLUMNS if c != "p_holm"])
     pair_df.insert(PAIR_COLUMNS.index("p_holm"), "p_holm", holm(pair_df["p"]))
-    return GroupTests(kw_df[KRUSKAL_COLUMNS], pair_df[PAIR_COLUMNS], pd.DataFrame(desc, columns=DESCRIPTIVE_COLUMNS))
+    kw_cols, pair_cols = list(KRUSKAL_COLUMNS), list(PAIR_COLUMNS)
+    if n_perm > 0:
+        for df, perm, cols in ((kw_df, kw_perm, kw_cols), (pair_df, pair_perm, pair_cols)):
+            pp = np.column_stack(perm) if perm else np.empty((len(labels), 0))
+            df["p_wy"] = westfall_young(pp[0], pp[1:])
+            cols.insert(cols.index("p_holm") + 1, "p_wy")
+    return GroupTests(kw_df[kw_cols], pair_df[pair_cols], pd.DataFrame(desc, columns=DESCRIPTIVE_COLUMNS))
 
 
 # ---------------------------------------------------------------- mixed model

@@ -3,6 +3,8 @@ Kruskal-Wallis (its own H) and Mann-Whitney (its rank-biserial correlation), a d
 count for Cliff's delta, statsmodels for Holm, known parameters for the learning curves, the mixed
 model and the classifier. Inputs: tidy tables in analysis.metrics' format, built here."""
 
+import itertools
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -86,6 +88,148 @@ def test_group_tests_match_pingouin_and_direct_counts():
     # the planted ordering: students' paths longer than the neurosurgeons'
     sn = res.pairs[(res.pairs["a"] == "student") & (res.pairs["b"] == "neurosurgeon") & (res.pairs["metric"] == "path_length")]
     assert (sn["cliffs_delta"] > 0.5).all() and (sn["p_holm"] < 0.05).all()
+
+
+def _wy_reference(scores, groups, order, n_perm, seed):
+    """Westfall-Young step-down min-p written plainly: every permutation of the participants'
+    labels (group_tests' stream, v.permutation_indices), scipy's kruskal / mannwhitneyu
+    (method="asymptotic") per test, then the step-down by loops. Returns (kw p_wy, pair p_wy,
+    kw raw permutation p, pair raw permutation p) in group_tests' row order."""
+    from scipy import stats
+
+    d = scores.assign(group=scores["code"].map(groups))
+    d = d[d["group"].isin(order)]
+    codes = sorted(d["code"].unique())
+    perms = v.permutation_indices(len(codes), n_perm, seed)
+    maps = [dict(zip(codes, [groups[c] for c in codes]))]
+    maps += [{c: groups[codes[j]] for c, j in zip(codes, row)} for row in perms]
+
+    def kw_p(sub, labels):
+        xs = [sub.loc[labels == g, "value"].to_numpy() for g in order]
+        xs = [x for x in xs if len(x)]
+        if len(xs) < 2 or np.ptp(sub["value"]) == 0:
+            return np.nan
+        return stats.kruskal(*xs).pvalue
+
+    def mwu_p(sub, labels, a, b):
+        x, y = sub.loc[labels == a, "value"].to_numpy(), sub.loc[labels == b, "value"].to_numpy()
+        if not len(x) or not len(y):
+            return np.nan
+        return stats.mannwhitneyu(x, y, alternative="two-sided", method="asymptotic").pvalue
+
+    kw, pairs = [], []  # per permutation (row 0: observed), the p of every test
+    for mp in maps:
+        kw_row, pair_row = [], []
+        for _, sub in d.groupby(["metric", "condition"], sort=True):
+            labels = sub["code"].map(mp)
+            kw_row.append(kw_p(sub, labels))
+            for a, b in itertools.combinations(order, 2):
+                pair_row.append(mwu_p(sub, labels, a, b))
+        kw.append(kw_row)
+        pairs.append(pair_row)
+
+    def step_down(rows):
+        obs, perm = rows[0], rows[1:]
+        fam = sorted((i for i in range(len(obs)) if not np.isnan(obs[i])), key=lambda i: obs[i])
+        out, single, running = [np.nan] * len(obs), [np.nan] * len(obs), 0.0
+        for j, i in enumerate(fam):
+            hits = 0
+            for row in perm:
+                q = min(1.0 if np.isnan(row[k]) else row[k] for k in fam[j:])
+                hits += q <= obs[i] * (1 + v.WY_TOLERANCE)
+            running = max(running, (1 + hits) / (len(perm) + 1))
+            out[i] = running
+            single[i] = (1 + sum(1.0 if np.isnan(row[i]) else row[i] <= obs[i] * (1 + v.WY_TOLERANCE) for row in perm)) / (len(perm) + 1)
+        return np.array(out), np.array(single)
+
+    (kw_wy, kw_single), (pair_wy, pair_single) = step_down(kw), step_down(pairs)
+    return kw_wy, pair_wy, kw_single, pair_single
+
+
+def _wy_example():
+    """Three groups of 6, two conditions, ties (values rounded), one participant without one
+    metric, and a metric the neurosurgeons lack (its observed tests have 2 groups, permutations
+    3)."""
+    m, groups = make_metrics({"student": {"path_length": 7.0, "sparc": -4.0, "force": 1.0},
+                              "resident": {"path_length": 6.5, "sparc": -3.5, "force": 1.0},
+                              "neurosurgeon": {"path_length": 5.5, "sparc": -3.0, "force": 1.0}},
+                             n_per_group=6, conditions=("linear", "fem"), seed=5)
+    s = v.participant_scores(m).assign(value=lambda d: d["value"].round(1))
+    s = s[~((s["code"] == "STU01") & (s["metric"] == "sparc"))]
+    s = s[~(s["code"].str.startswith("NEU") & (s["metric"] == "force"))]
+    return s, groups
+
+
+def test_westfall_young_matches_a_brute_force_reference():
+    scores, groups = _wy_example()
+    res = v.group_tests(scores, groups, ORDER, n_boot=20, seed=7, n_perm=150)
+    kw_wy, pair_wy, kw_single, pair_single = _wy_reference(scores, groups, ORDER, 150, 7)
+    assert list(res.kruskal.columns) == v.KRUSKAL_COLUMNS + ["p_wy"]
+    assert list(res.pairs.columns) == [*v.PAIR_COLUMNS[:v.PAIR_COLUMNS.index("p_holm") + 1], "p_wy",
+                                       *v.PAIR_COLUMNS[v.PAIR_COLUMNS.index("p_holm") + 1:]]
+    np.testing.assert_allclose(res.kruskal["p_wy"], kw_wy, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(res.pairs["p_wy"], pair_wy, rtol=0, atol=1e-12)
+    # the neurosurgeons' missing metric: its pairs with them are not tested, nor in the family
+    force = res.pairs[res.pairs["metric"] == "force"]
+    assert force.loc[force["b"] == "neurosurgeon", "p_wy"].isna().all() and force.loc[force["b"] != "neurosurgeon", "p_wy"].notna().all()
+    assert (res.kruskal.loc[res.kruskal["metric"] == "force", "k"] == 2).all()
+    # min-p with the observed labelling counted: never below a test's own permutation p, nor 1 / (B + 1)
+    for got, single in ((res.kruskal["p_wy"], kw_single), (res.pairs["p_wy"], pair_single)):
+        ok = got.notna().to_numpy()
+        assert (got[ok] >= single[ok] - 1e-12).all() and (got[ok] >= 1 / 151).all() and (got[ok] <= 1).all()
+    # step-down monotone: a smaller raw p never gets a larger adjusted p
+    k = res.kruskal.sort_values("p")
+    assert k["p_wy"].is_monotonic_increasing
+    # n_perm = 0: today's tables, no p_wy
+    plain = v.group_tests(scores, groups, ORDER, n_boot=20, seed=7)
+    assert list(plain.kruskal.columns) == v.KRUSKAL_COLUMNS and list(plain.pairs.columns) == v.PAIR_COLUMNS
+    pd.testing.assert_frame_equal(plain.pairs, res.pairs.drop(columns="p_wy"))
+    pd.testing.assert_frame_equal(plain.kruskal, res.kruskal.drop(columns="p_wy"))
+
+
+def test_westfall_young_vectorised_p_equals_scipy_on_the_observed_data():
+    from scipy import stats
+
+    scores, groups = _wy_example()
+    d = scores.assign(group=scores["code"].map(groups))
+    for _, sub in d.groupby(["metric", "condition"]):
+        x = sub["value"].to_numpy(float)
+        lab = sub["group"].map({g: i for i, g in enumerate(ORDER)}).to_numpy()[None, :]
+        xs = [x[lab[0] == i] for i in range(3) if (lab[0] == i).any()]
+        assert v._kruskal_p(x, lab, 3)[0] == pytest.approx(stats.kruskal(*xs).pvalue, rel=1e-12)
+        for a, b in itertools.combinations(range(3), 2):
+            if (lab[0] == a).any() and (lab[0] == b).any():
+                ref = stats.mannwhitneyu(x[lab[0] == a], x[lab[0] == b], method="asymptotic").pvalue
+                assert v._mannwhitney_p(x, lab, a, b)[0] == pytest.approx(ref, rel=1e-12)
+
+
+def test_westfall_young_is_not_fooled_by_duplicated_metrics():
+    # one metric five times over: Holm multiplies its p by 5, Westfall-Young (which permutes the
+    # labels alike for all five) gives each the single test's permutation p
+    m, groups = make_metrics({"student": {"x": 0.9}, "resident": {"x": 0.0}, "neurosurgeon": {"x": 0.0}}, n_per_group=10, seed=17)
+    one = v.participant_scores(m)
+    five = pd.concat([one.assign(metric=f"x{i}") for i in range(5)], ignore_index=True)
+    r1 = v.group_tests(one, groups, ORDER, n_boot=20, n_perm=400)
+    r5 = v.group_tests(five, groups, ORDER, n_boot=20, n_perm=400)
+    p_single = r1.kruskal["p_wy"].item()
+    assert 0.01 < r1.kruskal["p"].item() < 0.05 and p_single < 0.05
+    assert r5.kruskal["p_wy"].tolist() == pytest.approx([p_single] * 5, abs=1e-15)
+    assert r5.kruskal["p_holm"].tolist() == pytest.approx([5 * r1.kruskal["p"].item()] * 5)
+    assert (r5.kruskal["p_holm"] > 0.05).all()  # Holm loses it, Westfall-Young does not
+    for pair, g in r1.pairs.groupby(["a", "b"]):
+        dup = r5.pairs[(r5.pairs["a"] == pair[0]) & (r5.pairs["b"] == pair[1])]
+        # a family of 3 pairs x 5 copies: each pair's p_wy as in the family of its 3 pairs alone
+        assert dup["p_wy"].tolist() == pytest.approx([g["p_wy"].item()] * 5, abs=1e-15)
+
+
+def test_westfall_young_floor_under_a_clear_group_effect():
+    m, groups = make_metrics({"student": {"path_length": 20.0, "sparc": 0.0}, "resident": {"path_length": 10.0, "sparc": 0.0},
+                              "neurosurgeon": {"path_length": 0.0, "sparc": 0.0}}, n_per_group=8, seed=2)
+    res = v.group_tests(v.participant_scores(m), groups, ORDER, n_boot=20, n_perm=200, seed=3)
+    assert res.kruskal["p_wy"].min() == pytest.approx(1 / 201) and res.pairs["p_wy"].min() == pytest.approx(1 / 201)
+    assert res.kruskal.set_index("metric").loc["path_length", "p_wy"] == pytest.approx(1 / 201)
+    assert np.isnan(v.westfall_young([np.nan, 0.2], np.full((5, 2), 0.5))[0])  # untested: not in the family
+    assert v.westfall_young([np.nan, 0.2], np.full((5, 2), 0.5))[1] == pytest.approx(1 / 6)
 
 
 def test_cliffs_delta_with_ties_and_its_interval():

@@ -108,11 +108,14 @@ def test_json_has_every_section_and_finds_the_built_in_difference(db, built):
     out = json.loads(report(db, "--format", "json"))
     assert out["synthetic"] is True and out["note"].startswith("SYNTHETIC DATA")
     assert out["groups"] == ORDER and out["expert"] == "neurosurgeon" and out["participants_with_metrics"] == 15
-    assert out["metrics"] == ["path_length", "sparc"] and out["settings"] == {"permutations": 20, "bootstrap": 50, "seed": 0, "band": [5.0, 95.0]}
+    assert out["metrics"] == ["path_length", "sparc"] and out["settings"] == {"permutations": 20, "group_permutations": 1000, "bootstrap": 50, "seed": 0,
+                                                                           "band": [5.0, 95.0]}
     kw = {r["metric"]: r for r in out["kruskal"]}
     assert kw["path_length"]["p_holm"] < 0.01 and kw["sparc"]["p_holm"] > 0.05
-    assert len(out["pairs"]) == 6 and all({"p", "p_holm", "cliffs_delta", "delta_low", "delta_high"} <= set(r) for r in out["pairs"])
+    assert kw["path_length"]["p_wy"] == pytest.approx(1 / 1001) and kw["sparc"]["p_wy"] > 0.05  # the groups separated: p_wy's floor
+    assert len(out["pairs"]) == 6 and all({"p", "p_holm", "p_wy", "cliffs_delta", "delta_low", "delta_high"} <= set(r) for r in out["pairs"])
     sep = [r for r in out["pairs"] if r["metric"] == "path_length"]
+    assert all(r["p_wy"] < 0.05 for r in sep)
     assert all(r["cliffs_delta"] == 1.0 and r["delta_low"] == 1.0 for r in sep)  # every student's path longer than every resident's ...
     assert out["mixed_model"]["reason"].startswith("one condition (plate_spring)") and out["mixed_model"]["fixed"] == []
     curves = [r for r in out["learning_curves"] if r["metric"] == "path_length"]
@@ -154,17 +157,19 @@ def test_markdown_structure(db, built):
     assert lines[0] == "# Construct validity: brain_pull_2015 (SYNTHETIC DATA)"
     assert lines[2] == "**SYNTHETIC DATA (simulated participants): not evidence about people.** 15 synthetic participants."
     assert lines[4] == ("N = 15 participants with metrics in 3 groups of experience (student 5, resident 5, neurosurgeon 5); 1 condition "
-                        "(plate_spring), up to 6 trials each; 2 metrics (docs/metrics.md). Expert group: neurosurgeon. 20 permutations, "
-                        "50 bootstrap replicates, seed 0.")
+                        "(plate_spring), up to 6 trials each; 2 metrics (docs/metrics.md). Expert group: neurosurgeon. 1000 permutations "
+                        "of the group tests' labels, 20 of the classifier's, 50 bootstrap replicates, seed 0.")
     assert [ln for ln in lines if ln.startswith("## ")] == [
         "## Participants", "## Group comparisons", "## Pairwise comparisons", "## Mixed model", "## Learning curves",
         "## Proficiency benchmark", "## Scorecards", "## Expertise classification", "## Face validity ratings"]
     i = lines.index("## Group comparisons")
     assert lines[i + 4] == ("| metric | unit | condition | student: median [IQR] | resident: median [IQR] | neurosurgeon: median [IQR] "
-                            "| H | p | p_holm |")
+                            "| H | p | p_holm | p_wy |")
     assert lines[i + 6].startswith("| path_length | m | plate_spring | ") and lines[i + 7].startswith("| sparc | 1 | plate_spring | ")
     assert "Holm over the family of all 2 Kruskal-Wallis tests" in lines[i + 2]
     assert "Holm over the family of all 6 pairwise tests (metrics x conditions x pairs)" in md
+    assert "p_wy: Westfall-Young step-down min-p over the same family, 1000 permutations" in lines[i + 2]
+    assert "| pair | U | p | p_holm | p_wy | Cliff's delta [95% CI] |" in md
     assert "Not fitted: one condition (plate_spring): no condition effect to model" in md
     assert "| participant | group | condition | metrics at proficiency | fraction |" in md and "| nan |" not in md
     assert "| path_length | plate_spring | 5 | " in md and md.count(" | lower |") == 1 and md.count(" | higher |") == 1

@@ -290,12 +290,14 @@ def export_cmd(db, fmt, out_dir, as_json):
 @click.option("--out", "out_file", type=OutFile(), default=None)
 @click.option("--permutations", type=click.IntRange(min=1), default=None, show_default="100",
               help="Permutations of the classifier's permutation test.")
+@click.option("--group-permutations", type=click.IntRange(min=1), default=None, show_default="1000",
+              help="Permutations of the group labels for the group tests' Westfall-Young p.")
 @click.option("--bootstrap", type=click.IntRange(min=1), default=None, show_default="200",
               help="Bootstrap replicates of Cliff's delta's and the learning curves' intervals.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every resampling.")
-def report_validity(db, fmt, as_json, out_file, permutations, bootstrap, seed):
+def report_validity(db, fmt, as_json, out_file, permutations, group_permutations, bootstrap, seed):
     """Construct validity: the performance metrics compared between the participant groups
-    (Kruskal-Wallis, Mann-Whitney pairs with Holm, Cliff's delta), the mixed model with several
+    (Kruskal-Wallis, Mann-Whitney pairs with Holm and Westfall-Young, Cliff's delta), the mixed model with several
     conditions, learning curves, the expert benchmark and scorecards, leave-one-out
     classification of the group, and the face-validity ratings per group (html: box and strip
     plots per group and learning curves per metric)."""
@@ -305,9 +307,11 @@ def report_validity(db, fmt, as_json, out_file, permutations, bootstrap, seed):
 
     permutations = vr.DEFAULT_PERMUTATIONS if permutations is None else permutations
     bootstrap = vr.DEFAULT_BOOTSTRAP if bootstrap is None else bootstrap
+    group_permutations = vr.DEFAULT_GROUP_PERMUTATIONS if group_permutations is None else group_permutations
     with Store(db, mode="read") as store:
         rep = _with_progress("construct validity", lambda progress: vr.validity_report(
-            store, permutations=permutations, bootstrap=bootstrap, seed=seed, progress=progress))
+            store, permutations=permutations, group_permutations=group_permutations, bootstrap=bootstrap, seed=seed,
+            progress=progress))
     fmt = "json" if as_json else fmt
     text = vr.to_json(rep) if fmt == "json" else vr.html(rep) if fmt == "html" else vr.markdown(rep)
     _emit(text, out_file)
