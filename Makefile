@@ -31,8 +31,9 @@ demo: venv
 	@echo "pictures: $(OUT)/demo/frame_*.png, force plot: $(OUT)/demo/force.png, SYNTHETIC study: $(OUT)/demo/study.db,"
 	@echo "Table 1: $(OUT)/demo/table1.md, report with statistics, plots, model error vs run time: $(OUT)/demo/report.html"
 
+# two workers, each taking whole test files (a module's fixtures, e.g. the quick stability sweep, run once)
 test: venv
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --dist loadfile
 
 test-all: venv
 	@command -v chromium >/dev/null || { SUDO=""; [ "$$(id -u)" = 0 ] || SUDO=sudo; $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends chromium >/dev/null; }
