@@ -381,7 +381,8 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
     out.append(("Learning curves", "Per metric, condition and group: the group's mean per trial fitted with y = plateau + (y0 - plateau) "
                 "exp(-rate (trial - 1)); 95% percentile intervals of plateau and rate from bootstrap replicates resampling the group's "
                 "participants (fits that failed are dropped: ok/replicates). No fit (-): fewer than 3 trials, no convergence, a step "
-                "(rate above 50) or a rate too slow for half the approach to lie within the trials observed.",
+                f"(rate above {v.MAX_RATE:.2f}: half the approach within a quarter of a trial) or a rate too slow for half the approach to "
+                "lie within the trials observed.",
                 ["metric", "condition", "group", "n", "y0", "plateau [95% CI]", "rate per trial [95% CI]", "ok"], rows))
 
     prof = rep["proficiency"]

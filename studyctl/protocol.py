@@ -106,9 +106,11 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     meta = _study_fields(study, data.get("ethics", {}) if isinstance(data.get("ethics", {}), dict) else {}, path, c)
     tables = _condition_tables(data.get("conditions", {}), c.bad)
     conditions = _design_conditions(design, tables, c)
-    scene = meta["scene"]
+    scene, scene_spec = meta["scene"], None
     if from_file and scene is not None and scene.exists():
-        c.problems += _scene_problems(scene, path, text, conditions or [], tables, lambda message: c.bad("design.conditions", message))
+        scene_spec, problems = _scene_problems(scene, path, text, conditions or [], tables,
+                                               lambda message: c.bad("design.conditions", message))
+        c.problems += problems
     cb = c.get(design, "design", "counterbalancing", str)
     if cb is not None and cb not in DESIGNS:
         c.bad("design.counterbalancing", f"{cb!r} is not one of {', '.join(DESIGNS)}")
@@ -119,7 +121,7 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     trial_end = c.get(design, "design", "trial_end", str, default="time", required=False)
     if trial_end is not None and trial_end not in TRIAL_ENDS:
         c.bad("design.trial_end", f"{trial_end!r} is not one of {', '.join(TRIAL_ENDS)}")
-    elif trial_end == "targets" and from_file and scene is not None and scene.exists() and not _scene_has_targets(scene):
+    elif trial_end == "targets" and scene_spec is not None and not any(h.target is not None for h in scene_spec.hands):
         c.bad("design.trial_end", f"'targets' needs a target on a hand of the scene {scene} ([hands.target]); it has none")
 
     age_min = c.get(inclusion, "inclusion", "age_min", int, lo=0, hi=120)
@@ -158,16 +160,6 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
         ),
         [],
     )
-
-
-def _scene_has_targets(scene: Path) -> bool:
-    from sim.errors import SceneError
-    from sim.scene import load_scene
-
-    try:
-        return any(h.target is not None for h in load_scene(scene).hands)
-    except SceneError:  # its problems are reported with the conditions'
-        return True
 
 
 class _Checker:
@@ -410,10 +402,11 @@ def _condition_tables(raw, bad) -> dict[str, dict]:
     return tables
 
 
-def _scene_problems(scene: Path, path: Path, text: str, conditions: list, tables: dict, bad) -> list[str]:
-    """The scene file's own problems (each 'FILE:LINE: field: message'); then, for a valid scene,
-    each condition's: a model the scene does not configure, an option it does not take or out
-    of its range (named at the protocol's lines)."""
+def _scene_problems(scene: Path, path: Path, text: str, conditions: list, tables: dict, bad) -> tuple:
+    """(the scene's spec, or None when it has problems; the problems, each 'FILE:LINE: field:
+    message'): the scene file's own; then, for a valid scene, each condition's: a model the
+    scene does not configure, an option it does not take or out of its range (named at the
+    protocol's lines)."""
     from sim.errors import SceneError, SimError
     from sim.scene import configure, load_scene
     from sim.tomlfile import Locator
@@ -421,7 +414,7 @@ def _scene_problems(scene: Path, path: Path, text: str, conditions: list, tables
     try:
         spec = load_scene(scene)
     except SceneError as exc:
-        return list(exc.problems)
+        return None, list(exc.problems)
     out: list[str] = []
     for c in conditions:
         if not isinstance(c, str):  # refused above
@@ -435,7 +428,7 @@ def _scene_problems(scene: Path, path: Path, text: str, conditions: list, tables
                 out.append(f"{path}:{Locator(text).line(f'conditions.{c}')}: conditions.{c}: {exc}")
         elif c in KNOWN_MODELS and c not in spec.models:
             bad(f"{c!r} is not configured in the scene {scene}; configured: {', '.join(sorted(spec.models))}")
-    return out
+    return spec, out
 
 
 def load_protocol(path: str | Path) -> Protocol:
