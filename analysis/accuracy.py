@@ -8,10 +8,12 @@ it was not calibrated on (docs/accuracy.md).
   each model runs its visual frames along the ramp (so the corotational FEM's per-frame
   iteration and the mass-spring's dynamics are what a user would feel) and is sampled at
   `samples` equal displacements.
-- **Reference** (`analysis.reference.pull_references`): P2 tetrahedra on fTetWild meshes of each
-  hemisphere at three sizes, the area-mean grasp (`sim.patch`); the compressible neo-Hookean
-  force on the coarsest mesh corrected by the linear sequence's Richardson extrapolation
-  (`combined_sample`), with the GCI band widened by the uncertainty of that correction.
+- **Reference** (`analysis.reference.pull_references`): the tissue's finite-strain law (human
+  cortex, one-term Ogden, nearly incompressible; docs/material.md) on P2 tetrahedra on the
+  shipped fTetWild meshes of each hemisphere at three sizes, the area-mean grasp
+  (`sim.patch`), each pull followed by Newton from rest; Richardson extrapolation of the force
+  magnitude with the GCI band (`combined_sample`). Solved once and shipped
+  (data/reference_pulls.npz), hash-checked.
 - **Calibration budget.** Every model gets one stiffness scale s, fitted on the calibration
   pulls (the geometric mean of reference over model force: least squares in log force), and
   is reported raw (s = 1) and calibrated; s multiplies the force, as scaling the modulus would
@@ -54,12 +56,11 @@ class Setting:
 @dataclass(frozen=True)
 class AccuracyConfig:
     scene: Path = DEFAULT_SCENE
-    young: float | None = None  # Pa; None: the scene's own (3 kPa)
+    young: float | None = None  # Pa, the linear models' modulus; None: the scene's. Another value scales the whole brain:
+    # the law's mu by the same ratio (its forces scale exactly), so the reference and every model move together
     max_pull: float = 0.024  # m
     samples: int = 6
     reference_sizes_mm: tuple[float, ...] = (8.0, 6.0, 4.0)  # the reference's meshes: the shipped body-fitted ones (sim/tetmesh.py)
-    nonlinear_mm: float | None = None  # a neo-Hookean solve on this mesh (one of the sizes), corrected by the linear
-    # sequence; None: the linear reference (the default: at 24 mm the 8 mm mesh inverts elements on 7 of 18 pulls)
     test_places: int = TEST_PLACES
     settings: tuple[Setting, ...] = field(default_factory=lambda: default_settings(False))
     handset: Path = HANDSET_PARAMS  # the uncalibrated plate-spring parameters
@@ -170,44 +171,29 @@ def _tick_time(model, contact, d, reps: int = 20000) -> float:
 
 # -- the reference -------------------------------------------------------------------------
 
-NONLINEAR_TRANSFER = 0.01  # relative: how far the correction F_nh(coarse) x F_lin,ext / F_lin(coarse) may be off (docs/accuracy.md)
-
-
-def reference_samples(refs: dict, pulls: list[Pull], xs, young: float, sizes_mm, nonlinear_mm) -> list[list[dict]]:
-    """Per pull and sample: the reference force (N, vector), magnitude and half-band."""
+def reference_samples(refs: dict, pulls: list[Pull], xs, mu: float) -> list[list[dict]]:
+    """Per pull and sample: the reference force (N, vector on the tissue), magnitude and half-band,
+    for a law of shear modulus `mu` (the stored forces are per pascal of it)."""
     from analysis.reference import combined_sample
 
-    sizes = sorted((float(x) for x in sizes_mm), reverse=True)
-    nl_index = sizes.index(float(nonlinear_mm)) if nonlinear_mm else 0
-    out = []
-    for pull in pulls:
-        r = refs[pull.name]
-        row = []
-        for k in range(len(xs)):
-            nl = None if r["nonlinear_per_pa"] is None else r["nonlinear_per_pa"][k] * young
-            c = combined_sample(r["linear_per_pa"][:, k] * young, r["h_m"], nl, nl_index)
-            if nl is not None:  # the correction's own uncertainty, added in quadrature
-                c["band_rel"] = math.hypot(c["band_rel"], NONLINEAR_TRANSFER)
-                c["band_half_n"] = c["band_rel"] * c["force_n"]
-            row.append(c)
-        out.append(row)
-    return out
+    return [[combined_sample(refs[p.name]["force_per_pa"][:, k] * mu, refs[p.name]["h_m"]) for k in range(len(xs))] for p in pulls]
 
 
-def calibration_curve(scene_path, xs, nonlinear_mm: float | None = None, jobs: int | None = None, progress=None) -> tuple:
-    """The converged reference's force magnitude (N, at the scene's modulus) on the bench's
-    calibration pulls (`make_pulls`), at displacements `xs`: (displacements, forces, how),
-    the pulls' curves concatenated. What `calibrate plate-spring` fits to."""
+def calibration_curve(scene_path, xs, jobs: int | None = None, progress=None) -> tuple:
+    """The converged reference's force magnitude (N, the scene's law) on the bench's calibration
+    pulls (`make_pulls`), at displacements `xs`: (displacements, forces, how), the pulls'
+    curves concatenated. What `calibrate plate-spring` fits to."""
     from analysis.reference import DEFAULT_SIZES_MM, pull_references
 
     scene = scene_with(scene_path)
     pulls = make_pulls(scene)
     xs = np.asarray(xs, dtype=np.float64)
-    refs = pull_references(scene_path, pulls, xs, DEFAULT_SIZES_MM, nonlinear_mm, jobs=jobs, progress=progress)["pulls"]
-    rows = reference_samples(refs, pulls, xs, scene.spec.material.young, DEFAULT_SIZES_MM, nonlinear_mm)
+    refs = pull_references(scene_path, pulls, xs, DEFAULT_SIZES_MM, jobs=jobs, progress=progress)["pulls"]
+    law = scene.spec.material.law
+    rows = reference_samples(refs, pulls, xs, law.shear_modulus)
     forces = np.array([[c["force_n"] for c in row] for row in rows])
-    how = (f"the converged reference ({'neo-Hookean on the ' + format(nonlinear_mm, 'g') + ' mm mesh, corrected by' if nonlinear_mm else 'linear'} "
-           f"P2 on the body-fitted {', '.join(f'{s:g}' for s in DEFAULT_SIZES_MM)} mm meshes, Richardson-extrapolated; "
+    how = (f"the converged reference ({law.describe()}, finite strain on P2 on the body-fitted "
+           f"{', '.join(f'{s:g}' for s in DEFAULT_SIZES_MM)} mm meshes, Richardson-extrapolated; "
            f"the accuracy bench's {len(pulls)} calibration pulls)")
     return np.tile(xs, len(pulls)), forces.ravel(), how
 
@@ -223,14 +209,12 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
     """The reference, then every setting, on the calibration and test pulls; returns rows
     (raw and calibrated per setting), per-sample verdicts and meta."""
     from analysis.reference import pull_references
-    from sim.errors import ParameterError
     from studyctl.sweep import run_tasks
 
     scene = scene_with(cfg.scene)
     young = float(cfg.young if cfg.young is not None else scene.spec.material.young)
-    if cfg.nonlinear_mm is not None and float(cfg.nonlinear_mm) not in {float(x) for x in cfg.reference_sizes_mm}:
-        raise ParameterError(f"nonlinear_mm: {cfg.nonlinear_mm:g} is not one of the reference sizes "
-                             f"{', '.join(f'{x:g}' for x in cfg.reference_sizes_mm)} mm")
+    e_ratio = young / scene.spec.material.young
+    law = scene.spec.material.law.scaled(e_ratio)
     calib, test = make_pulls(scene), test_pulls(scene, cfg.test_places)
     pulls = calib + test
     xs = sample_displacements(cfg)
@@ -241,21 +225,20 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
             progress(k, n + n_tasks)
 
     start = time.perf_counter()
-    refs = pull_references(cfg.scene, pulls, xs, cfg.reference_sizes_mm, cfg.nonlinear_mm, jobs=jobs, progress=ref_progress)
+    refs = pull_references(cfg.scene, pulls, xs, cfg.reference_sizes_mm, jobs=jobs, progress=ref_progress)
     ref_s = time.perf_counter() - start
-    ref = reference_samples(refs["pulls"], pulls, xs, young, cfg.reference_sizes_mm, cfg.nonlinear_mm)
-    n_ref = len(refs["meshes"]) + (len(pulls) if cfg.nonlinear_mm else 0)
+    ref = reference_samples(refs["pulls"], pulls, xs, law.shear_modulus)
+    n_ref = len(pulls) * len(cfg.reference_sizes_mm)
 
     def model_progress(k, n):
         if progress is not None:
             progress(n_ref + k, n_ref + n)
 
-    e_ratio = young / scene.spec.material.young
     tasks = [("model", str(cfg.scene), young, s, pulls, xs, cfg.handset, e_ratio) for s in cfg.settings]
     models = run_tasks(_task, tasks, jobs=jobs, scheduler=scheduler, progress=model_progress)
     rows, samples = compare(ref, models, pulls, len(calib), xs)
     flat = [c for row in ref for c in row]
-    nl = [r["nonlinear"] for r in refs["pulls"].values() if r["nonlinear"]]
+    solves = [s for r in refs["pulls"].values() for s in r["solves"]]
     meta = {
         "synthetic": False,
         "young_pa": young, "scene_young_pa": scene.spec.material.young,
@@ -263,16 +246,16 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
         "calibration_pulls": [dataclasses.asdict(p) for p in calib],
         "test_pulls": [dataclasses.asdict(p) for p in test],
         "reference": {
-            "setting": ("neo-hookean" if cfg.nonlinear_mm else "linear") + f"-p2-bodyfitted-{'/'.join(f'{x:g}' for x in refs['sizes_mm'])}mm",
+            "setting": f"{law.law}-p2-bodyfitted-{'/'.join(f'{x:g}' for x in refs['sizes_mm'])}mm",
             "element": "P2 (10-node tetrahedra)", "mesher": "fTetWild (pytetwild)", "grasp": "area mean (sim/patch.py)",
-            "formulation": "neo-Hookean on the coarsest mesh x linear Richardson correction" if cfg.nonlinear_mm else "linear, Richardson",
-            "sizes_mm": refs["sizes_mm"], "nonlinear_mm": cfg.nonlinear_mm, "nonlinear_transfer": NONLINEAR_TRANSFER if cfg.nonlinear_mm else 0.0,
+            "formulation": f"finite strain, {law.describe()}, Richardson", "law": law.params(),
+            "law_source": scene.spec.material.law_source, "sizes_mm": refs["sizes_mm"],
             "band_rel_max": float(max(c["band_rel"] for c in flat)), "band_rel_median": float(np.median([c["band_rel"] for c in flat])),
             "band_half_n_max": float(max(c["band_half_n"] for c in flat)),
             "statuses": {s: sum(c["status"] == s for c in flat) for s in sorted({c["status"] for c in flat})},
-            "converged": all(n["converged"] for n in nl) if nl else True,
-            "min_jacobian": min((n["min_jacobian"] for n in nl), default=math.nan),
-            "meshes": refs["meshes"], "seconds": ref_s,
+            "converged": all(s["converged"] for s in solves),
+            "min_jacobian": min((s["min_jacobian"] for s in solves), default=math.nan),
+            "solves_stored": sum(bool(s.get("cached")) for s in solves), "solves": len(solves), "seconds": ref_s,
         },
         "quick": cfg.quick,
     }
@@ -375,7 +358,7 @@ def intro(result: dict) -> str:
     return (f"Reference: {ref['setting']} ({ref['formulation']}; GCI half-band median {ref['band_rel_median']:.1%}, "
             f"largest {ref['band_rel_max']:.1%}). {len(m['calibration_pulls'])} calibration pulls and {len(m['test_pulls'])} held-out test "
             f"pulls to {m['max_pull_m'] * 1e3:g} mm at {m['pull_speed_m_per_s'] * 1e3:g} mm/s, {m['samples_per_pull']} samples each; "
-            f"E = {m['young_pa'] / 1e3:g} kPa (scene: {m['scene_young_pa'] / 1e3:g} kPa)" + (" (quick bench)" if m["quick"] else "") + ".")
+            f"the linear models' E = {m['young_pa'] / 1e3:.3g} kPa (scene: {m['scene_young_pa'] / 1e3:.3g} kPa)" + (" (quick bench)" if m["quick"] else "") + ".")
 
 
 def markdown(result: dict) -> str:

@@ -7,22 +7,26 @@ stiffness is sampled over the surface and shipped with the project:
 
 - **Sites**: the ico4 subset of each fsaverage5 hemisphere (its first 2562 vertices, about
   4 mm apart on the pial surface), above the clamp plane.
-- **At each site**: the 3 x 3 stiffness per pascal that holds the area mean of the grasp patch
-  (`sim.patch`) at a displacement d, K = (W A^-1 W^T)^-1, on the reference's body-fitted P2
-  mesh (`analysis.reference`, 8 mm target edge, small-strain linear elasticity). The columns
-  A^-1 W^T of all sites are solved in blocks with one CHOLMOD factor.
+- **At each site**: the 3 x 3 stiffness that holds the area mean of the grasp patch
+  (`sim.patch`) at a small displacement d, K = (W A^-1 W^T)^-1, on the reference's body-fitted
+  P2 mesh (`analysis.reference`, 8 mm target edge), A the tissue law's tangent at rest (its
+  small-strain limit), per pascal of the law's shear modulus. The columns A^-1 W^T of all
+  sites are solved in blocks with one CHOLMOD factor.
 - **Everywhere else**: a Gaussian-weighted mean of the sites within FIELD_REACH on the same
   hemisphere (a positive combination of SPD matrices is SPD); a vertex with no site in reach
   takes its nearest site's.
 
 `sim.models.plate_spring.PlateSpringModel` with a field renders F = -(f(|d|) / (k0 |d|)) E K(v) d:
-the stack's curve f sets how the force grows with the pull (its shape, k0 its initial slope),
-the field sets how stiff the brain is at the grasped vertex v and in which direction. The
-tick adds one 3 x 3 product to the paper's model.
+the stack's curve f sets how the force grows with the pull (its shape, k0 its initial slope:
+fitted to the finite-strain reference's stiffening on the calibration pulls), the field sets
+how stiff the brain is at the grasped vertex v and in which direction; E is the stack's
+modulus, which for the located stack is the law's shear modulus (the field is per pascal of
+it). The tick adds one 3 x 3 product to the paper's model.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from pathlib import Path
@@ -42,8 +46,8 @@ BLOCK = 240  # right-hand sides per CHOLMOD solve (memory: n_free x BLOCK double
 
 def site_stiffness(scene_path, size_mm: float = FIELD_SIZE_MM, sites_per_hemisphere: int = ICO4_VERTICES,
                    progress=None) -> dict:
-    """K per pascal (s, 3, 3) at the sites, with the site vertex ids and what it took."""
-    from analysis.reference import _premesh, build_problem, grasp_matrix
+    """K per pascal of shear modulus (s, 3, 3) at the sites, with the site vertex ids and what it took."""
+    from analysis.reference import _premesh, build_problem, grasp_matrix, small_strain_factor
     from sim.models.fem.grasp import compliances
     from sim.patch import patch_area_points
     from sim.reference import scene_with
@@ -65,19 +69,20 @@ def site_stiffness(scene_path, size_mm: float = FIELD_SIZE_MM, sites_per_hemisph
         ids = ids[mesh.vertices[ids, axis] > limit]  # a site below the clamp plane cannot move
         verts, tris, _ = hemisphere_surface(mesh, h)
         problem = build_problem(scene, h, mesh_hemisphere(verts, tris, size_mm * 1e-3))
+        factor = small_strain_factor(problem, scene.spec.material.law)
         for b0 in range(0, len(ids), BLOCK // 3):
             block = ids[b0:b0 + BLOCK // 3]
             Ws = [grasp_matrix(problem, *patch_area_points(mesh, int(v), radius)) for v in block]
             keep = [k for k, W in enumerate(Ws) if W.nnz > 0]
             if keep:
-                for k, C in zip(keep, compliances(problem.fem, [Ws[k] for k in keep])):
+                for k, C in zip(keep, compliances(factor, [Ws[k] for k in keep])):
                     if np.all(np.linalg.eigvalsh(C) > 0):
                         out_sites.append(int(block[k]))
                         out_K.append(np.linalg.inv(C))
             done += len(block)
             if progress is not None:
                 progress(done, total)
-        del problem
+        del problem, factor
     return {"sites": np.array(out_sites, dtype=np.int64), "K_per_pa": np.array(out_K), "size_mm": size_mm,
             "grasp_radius_m": radius, "seconds": time.perf_counter() - start}
 
@@ -121,9 +126,9 @@ def build_field(scene_path, out: Path = FIELD_FILE, size_mm: float = FIELD_SIZE_
     out = save_npz(out, compressed=True, K_per_pa=K[:, iu[0], iu[1]].astype(np.float32), sites=res["sites"],
                         K_sites_per_pa=res["K_per_pa"][:, iu[0], iu[1]].astype(np.float32),
                         mesh_digest=mesh_digest(scene.mesh), size_mm=size_mm, grasp_radius_m=res["grasp_radius_m"],
-                        poisson=scene.spec.material.poisson, sigma_m=FIELD_SIGMA, reach_m=FIELD_REACH,
-                        source="analysis/field.py build_field: P2 small-strain elasticity on fTetWild meshes of the scene's "
-                               "hemispheres, area-mean grasp, per pascal of Young's modulus")
+                        law=json.dumps(scene.spec.material.law.params()), sigma_m=FIELD_SIGMA, reach_m=FIELD_REACH,
+                        source="analysis/field.py build_field: the tissue law's small-strain limit on P2 on fTetWild meshes of the "
+                               "scene's hemispheres, area-mean grasp, per pascal of the law's shear modulus")
     return {"path": str(out), "sites": int(len(res["sites"])), "vertices": int(len(K)), "size_mm": size_mm,
             "seconds": res["seconds"]}
 
@@ -136,30 +141,41 @@ def stiffness_ratio_spread(K: np.ndarray, direction_count: int = 2) -> dict:
             "anisotropy_median": float(np.median(ev[:, -1] / ev[:, 0])) if np.all(ev[:, 0] > 0) else math.nan}
 
 
-def fit_shape(scene_path, start_params, xs, formulation: str = "linear", size_mm: float = FIELD_SIZE_MM,
-              jobs: int | None = None) -> tuple:
+def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", jobs: int | None = None) -> tuple:
     """The located stack's curve, which only shapes the force (the field sets its size).
 
-    "linear" (the accuracy bench's reference): a one-layer stack, whose curve is a straight
-    line, so F = E K(v) d exactly. "neo-hookean": h1, alpha, q, x_c1 fitted (`sim.calibrate.fit`)
-    so that the stack's force over its initial slope follows the mean neo-Hookean / linear force
-    ratio of the calibration pulls (`sim.reference.make_pulls`) whose neo-Hookean solve converged
-    on the field's mesh. Returns (params, report)."""
+    "small-strain": a one-layer stack, whose curve is a straight line, so F = E K(v) d exactly.
+    "finite-strain": h1, alpha, q and x_c1 fitted (`sim.calibrate.fit`) so that the stack's
+    force over its initial slope follows the mean finite-strain / small-strain force ratio of
+    the calibration pulls (`sim.reference.make_pulls`), both on the reference's finest mesh
+    (the shipped solves). Returns (params, report)."""
     import dataclasses
 
     from sim.calibrate import fit
     from sim.models.plate_spring import PlateSpring
 
-    if formulation == "linear":
-        return dataclasses.replace(start_params, layers=1), {"formulation": "linear", "within_jnd": 1.0, "pulls": []}
-    from analysis.reference import pull_references
+    if formulation == "small-strain":
+        return dataclasses.replace(start_params, layers=1), {"formulation": formulation, "within_jnd": 1.0, "pulls": []}
+    from analysis.reference import DEFAULT_SIZES_MM, build_problem, pull_references, pull_stiffness
+    from sim.patch import patch_area_points
     from sim.reference import make_pulls, scene_with
+    from sim.tetmesh import hemisphere_surface, mesh_hemisphere
 
-    pulls = make_pulls(scene_with(scene_path))
-    refs = pull_references(scene_path, pulls, xs, (size_mm,), size_mm, jobs=jobs)["pulls"]
-    ratios = {name: np.linalg.norm(r["nonlinear_per_pa"], axis=1) / np.linalg.norm(r["linear_per_pa"][0], axis=1)
-              for name, r in refs.items() if r["nonlinear"]["converged"]}
+    scene = scene_with(scene_path)
+    law = scene.spec.material.law
+    pulls = make_pulls(scene)
+    fine = min(DEFAULT_SIZES_MM)
+    refs = pull_references(scene_path, pulls, xs, (fine,), jobs=jobs)["pulls"]
+    ratios = {}
+    for label in sorted({p.hemisphere for p in pulls}):
+        verts, tris, _ = hemisphere_surface(scene.mesh, label)
+        problem = build_problem(scene, label, mesh_hemisphere(verts, tris, fine * 1e-3))
+        for p in (p for p in pulls if p.hemisphere == label):
+            K = pull_stiffness(problem, law, *patch_area_points(scene.mesh, p.vertex, grasp_radius(scene)))
+            small = np.linalg.norm(np.outer(xs, K @ np.asarray(p.direction)), axis=1)
+            ratios[p.name] = np.linalg.norm(refs[p.name]["force_per_pa"][0], axis=1) / small
     ratio = np.mean(list(ratios.values()), axis=0)
     k0 = PlateSpring(start_params).force(1e-7) / 1e-7
     params, rep = fit(start_params, np.asarray(xs), k0 * ratio * np.asarray(xs))
-    return params, rep | {"formulation": "neo-hookean", "nonlinear_over_linear": ratio.tolist(), "pulls": sorted(ratios)}
+    return params, rep | {"formulation": formulation, "finite_over_small_strain": ratio.tolist(),
+                          "per_pull": {k: v.tolist() for k, v in ratios.items()}, "pulls": sorted(ratios), "mesh_mm": fine}

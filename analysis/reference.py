@@ -1,19 +1,24 @@
-"""A converged reference for the accuracy bench: quadratic tetrahedra on the brain's body-fitted
-meshes, refined three times, with Richardson extrapolation and Roache's grid convergence index.
+"""A converged reference for the accuracy bench and the observer's truth: the tissue's
+finite-strain law (the scene's `[material]`: human cortex, one-term Ogden, sim/material.py) on
+quadratic tetrahedra on the brain's body-fitted meshes, refined three times, with Richardson
+extrapolation and Roache's grid convergence index.
 
-- **Geometry**: the same body-fitted fTetWild meshes the simulator's FEM and mass-spring run
-  on (`sim.tetmesh`: 8, 6 and 4 mm target edges, shipped in data/ with their hashes).
-- **Elements**: the FEM core's quadratic (P2) tetrahedra (`sim.models.fem.LinearFem` with
-  ``order=2``), small-strain linear elasticity, the scene's material and clamp (nodes at or
-  below the highest clamped surface vertex, the plane of `sim.models.fem.fixed_nodes`).
-- **Grasp**: the FEM core's constraint and condensation (`sim.models.fem.grasp`): the mean
-  displacement of the surface *area* within the grasp radius (`sim.patch`), each quadrature
-  point interpolated with its element's quadratic shape functions; the force holding the
-  patch at ``d`` is ``(W K^-1 W^T)^-1 d``.
-- **Nonlinear**: the FEM core's Newton solver (`sim.models.fem.neo_hookean_solve`) on P2.
-- The accuracy bench's pulls and displacements (`analysis.accuracy`). Linear elasticity makes
-  the force proportional to the displacement and to Young's modulus: one solve per pull (3
-  right-hand sides) serves every sampled displacement and modulus.
+- **Geometry**: the body-fitted fTetWild meshes the simulator's FEM and mass-spring run on
+  (`sim.tetmesh`: 8, 6 and 4 mm target edges, shipped in data/ with their hashes).
+- **Elements**: P2 (10-node) tetrahedra, displacement-based, the law nearly incompressible
+  (kappa = 50 mu): `sim.models.fem.FiniteStrain` (docs/material.md says why P2 and not the
+  P2/P0 mean-dilatation element), the scene's clamp (nodes at or below the highest clamped
+  surface vertex, the plane of `sim.models.fem.fixed_nodes`).
+- **Grasp**: the FEM core's constraint (`sim.models.fem.grasp`): the mean displacement of the
+  surface *area* within the grasp radius (`sim.patch`), each quadrature point interpolated
+  with its element's quadratic shape functions.
+- **Solve**: each pull is followed from rest to its largest displacement by the FEM core's
+  Newton solver (`sim.models.fem.hold`), recording the force holding the patch (and, for the
+  observer's pulls, the condensed tangent stiffness) at every sampled displacement. Forces are
+  stored per pascal of the law's shear modulus: a law scaled in mu gives forces scaled alike.
+- **Shipped**: the solves of the shipped scene's pulls on the shipped meshes are in
+  `data/reference_pulls.npz` (made by `scripts/make_reference_pulls.py`, hash-checked against
+  `data/reference_pulls.json`); any other pull, mesh or law is solved and cached on disk.
 - Richardson and the GCI: `analysis.convergence`.
 
 The numbers are in docs/reference.md.
@@ -32,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.convergence import GCI_FS3, GCI_FS_FALLBACK, converge
+from brainsim_assets import path as _asset
 from sim.files import save_npz
 from sim.jsonable import jsonable
 from sim.mesh import patch_vertices
@@ -49,36 +55,39 @@ from sim.tetmesh import (
 
 DEFAULT_SIZES_MM = SHIPPED_MM  # target edge lengths, coarse to fine: the shipped meshes
 QUICK_SIZES_MM = (20.0, 16.0)
-FORMULATIONS = ("linear", "neo-hookean")
+FORMULATIONS = ("finite-strain", "small-strain")
+SOLVER_VERSION = 1  # part of every solve's key: bump when the solver or element changes
+SHIPPED_PULLS = _asset("data/reference_pulls.npz")
+SHIPPED_PULLS_INFO = _asset("data/reference_pulls.json")
+RECORD_XS = 0.002 * np.arange(1, 13)  # m: where the shipped solves record (2, 4, ..., 24 mm)
+
+
+class ReferenceDataError(RuntimeError):
+    """The shipped reference solves are damaged (their hash differs)."""
 
 
 # -- the P2 problem ---------------------------------------------------------------------------
 
 @dataclass
 class Problem:
-    """One hemisphere at one mesh size: the factorised P2 stiffness and its grasp queries."""
+    """One hemisphere at one mesh size: the P2 space with the scene's clamp."""
 
     label: int
     mesh: BodyMesh
-    fem: object  # sim.models.fem.LinearFem, order 2, Young's modulus 1 Pa
+    space: object  # sim.models.fem.TetSpace, order 2
     fixed_nodes: int
     build_s: float
-    factor_s: float = 0.0
 
 
 def build_problem(scene, label: int, mesh: BodyMesh) -> Problem:
-    """P2 linear elasticity (E = 1 Pa, the scene's Poisson ratio) on a body-fitted hemisphere
-    mesh, clamped like the scene's FEM; factorised now."""
-    from sim.models.fem import LinearFem
+    """P2 tetrahedra on a body-fitted hemisphere mesh, clamped like the scene's FEM."""
+    from sim.models.fem import TetSpace
 
     start = time.perf_counter()
     axis, limit = clamp_limit(scene)
     fixed = mesh.nodes[:, axis] <= limit
-    fem = LinearFem(mesh.nodes, mesh.tets, 1.0, scene.spec.material.poisson, fixed, order=2)
-    problem = Problem(label=label, mesh=mesh, fem=fem, fixed_nodes=int(fixed.sum()), build_s=time.perf_counter() - start)
-    _ = fem.factor
-    problem.factor_s = fem.timings.factorisation_s
-    return problem
+    space = TetSpace(mesh.nodes, mesh.tets, fixed, order=2)
+    return Problem(label=label, mesh=mesh, space=space, fixed_nodes=int(fixed.sum()), build_s=time.perf_counter() - start)
 
 
 def grasp_matrix(problem: Problem, points: np.ndarray, weights: np.ndarray | None = None):
@@ -91,163 +100,240 @@ def grasp_matrix(problem: Problem, points: np.ndarray, weights: np.ndarray | Non
     points = np.atleast_2d(points)
     weights = np.full(len(points), 1.0 / len(points)) if weights is None else np.asarray(weights, dtype=np.float64)
     tet, bary = locate(problem.mesh.nodes, problem.mesh.tets, points)
-    return constraint_matrix(problem.fem, tet, bary, weights)
+    return constraint_matrix(problem.space, tet, bary, weights)
 
 
-def pull_stiffness(problem: Problem, points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-    """The condensed stiffness (3, 3) per pascal of Young's modulus: the force holding the
-    patch's mean displacement at d is K d (N for E = 1 Pa and d in m)."""
-    from sim.models.fem import condense
+def small_strain_factor(problem: Problem, law):
+    """The factorised tangent of `law` at rest on the problem (its small-strain limit: linear
+    elasticity with mu and lambda = kappa - 2 mu / 3), per pascal of the law's shear modulus."""
+    from sim.linalg import Factor
+    from sim.models.fem import FiniteStrain
 
-    return condense(problem.fem, grasp_matrix(problem, points, weights))[2]
+    unit = law.scaled(1.0 / law.shear_modulus)
+    K = FiniteStrain(problem.space, unit).evaluate(np.zeros(3 * problem.space.n_all))["K"]
+    return Factor(K)
 
 
-# -- compressible neo-Hookean on P2 --------------------------------------------------------
-
-def neo_hookean_pull(problem: Problem, points, weights, direction, xs, min_steps: int = 6, tol: float = 1e-6) -> dict:
-    """Forces (per pascal, (len(xs), 3)) holding the patch at each x in `xs` (equal steps
-    x_max k / n) along `direction`: one solve (`sim.models.fem.neo_hookean_solve` on P2), at
-    least `min_steps` load steps in all."""
-    from sim.models.fem import neo_hookean_solve
-
-    xs = np.asarray(xs, dtype=np.float64)
+def pull_stiffness(problem: Problem, law, points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """The small-strain condensed stiffness (3, 3) per pascal of shear modulus: the force
+    holding the patch's mean displacement at a small d is mu K d."""
     W = grasp_matrix(problem, points, weights)
-    sub = max(1, math.ceil(min_steps / len(xs)))
-    forces = np.full((len(xs), 3), np.nan)
-
-    def on_step(step, u, lam_mult):
-        if step % sub == 0:
-            forces[step // sub - 1] = lam_mult
-
-    t0 = time.perf_counter()
-    _, _, rep = neo_hookean_solve(problem.fem, W, np.asarray(direction) * xs[-1], steps=sub * len(xs), tol=tol, max_iter=40, on_step=on_step)
-    return {"force_per_pa": forces, "converged": rep.converged, "iterations": rep.iterations, "shifts": rep.shifts,
-            "min_jacobian": rep.min_jacobian, "seconds": time.perf_counter() - t0}
+    C = W @ small_strain_factor(problem, law).solve(np.ascontiguousarray(W.T.toarray()))
+    return np.linalg.inv(0.5 * (C + C.T))
 
 
-NONLINEAR_CACHE_VERSION = 1
+# -- finite-strain pulls, shipped or solved and cached ---------------------------------------
+
+def _law_key(law) -> list:
+    """The law up to its scale: forces are stored per pascal of shear modulus."""
+    mu = law.shear_modulus
+    return [law.law, [round(m / mu, 12) for m in law.mu], [round(a, 9) for a in law.alpha], round(law.bulk_ratio, 9)]
 
 
-def _nonlinear_path(body: BodyMesh, scene, radius: float, pull, xs) -> Path:
+def pull_key(mesh: BodyMesh, scene, law, radius: float, pull) -> str:
+    axis, limit = clamp_limit(scene)
+    key = json.dumps([SOLVER_VERSION, mesh.key, _law_key(law), axis, round(limit, 9), round(radius, 9), int(pull.vertex),
+                      [round(c, 12) for c in pull.direction]])
+    return hashlib.sha256(key.encode()).hexdigest()[:24]
+
+
+_SHIPPED: dict | None = None
+
+
+def shipped_solves() -> dict:
+    """The shipped solves by key ({key: {"xs", "force_per_pa", "stiffness_per_pa"?, "meta"}}),
+    checked against the SHA-256 in data/reference_pulls.json; {} when none are shipped."""
+    global _SHIPPED
+    if _SHIPPED is None:
+        _SHIPPED = {}
+        if SHIPPED_PULLS.exists() and SHIPPED_PULLS_INFO.exists():
+            want = json.loads(SHIPPED_PULLS_INFO.read_text())["sha256"]
+            have = hashlib.sha256(SHIPPED_PULLS.read_bytes()).hexdigest()
+            if have != want:
+                raise ReferenceDataError(f"{SHIPPED_PULLS}: SHA-256 {have[:12]}... differs from {SHIPPED_PULLS_INFO.name}'s "
+                                         f"{want[:12]}...; the file is damaged (reinstall, or rebuild it with scripts/make_reference_pulls.py)")
+            with np.load(SHIPPED_PULLS, allow_pickle=False) as z:
+                for name in z.files:
+                    key, _, part = name.partition("__")
+                    entry = _SHIPPED.setdefault(key, {})
+                    entry[part] = json.loads(str(z[name])) if part == "meta" else z[name]
+    return _SHIPPED
+
+
+def _cache_file(key: str) -> Path:
     from sim.volume import cache_dir
 
-    axis, limit = clamp_limit(scene)
-    key = json.dumps([NONLINEAR_CACHE_VERSION, body.key, scene.spec.material.poisson, axis, round(limit, 9), radius,
-                      pull.vertex, [round(c, 12) for c in pull.direction], [round(float(x), 9) for x in xs]])
-    return cache_dir() / "reference" / f"neohookean-{hashlib.sha256(key.encode()).hexdigest()[:20]}.npz"
+    return cache_dir() / "reference" / f"pull-{key}.npz"
 
 
-def _nonlinear_task(args) -> dict:
-    """One neo-Hookean pull on one mesh (a worker process): cached on disk per pull."""
-    scene_path, label, size_mm, pull, xs, radius = args
+def _covers(entry: dict, xs: np.ndarray, stiffness: bool) -> np.ndarray | None:
+    """Indices of `xs` in the entry's records, if it has them all (and its stiffness, if asked)."""
+    if stiffness and "stiffness_per_pa" not in entry:
+        return None
+    have = np.asarray(entry["xs"])
+    idx = [int(np.argmin(np.abs(have - x))) for x in xs]
+    return np.array(idx) if all(abs(have[i] - x) <= 1e-9 for i, x in zip(idx, xs)) else None
+
+
+def stored_solve(key: str, xs, stiffness: bool = False) -> dict | None:
+    """A solve of `key` recording at every x of `xs`: shipped, else cached; None if neither."""
+    xs = np.asarray(xs, dtype=np.float64)
+    candidates = [shipped_solves().get(key)]
+    path = _cache_file(key)
+    if path.exists():
+        with np.load(path, allow_pickle=False) as z:
+            candidates.append({k: (json.loads(str(z[k])) if k == "meta" else z[k]) for k in z.files})
+    for entry in candidates:
+        if entry is None:
+            continue
+        idx = _covers(entry, xs, stiffness)
+        if idx is not None:
+            out = {"force_per_pa": np.asarray(entry["force_per_pa"])[idx], **entry["meta"]}
+            if "stiffness_per_pa" in entry:
+                out["stiffness_per_pa"] = np.asarray(entry["stiffness_per_pa"])[idx]
+            return out
+    return None
+
+
+def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness: bool = False) -> dict:
+    """Follow the pull (the patch's mean displacement along `direction`) to max(xs), recording
+    the force holding it (per pascal of shear modulus, (len(xs), 3), the force on the tissue)
+    and, with `stiffness`, the condensed tangent (len(xs), 3, 3) at each x."""
+    from sim.models.fem import FiniteStrain, hold
+
+    xs = np.asarray(xs, dtype=np.float64)
+    unit = law.scaled(1.0 / law.shear_modulus)
+    W = grasp_matrix(problem, points, weights)
+    t0 = time.perf_counter()
+    res = hold(FiniteStrain(problem.space, unit, mean_dilatation=False), W, np.asarray(direction) * xs[-1], fractions=xs / xs[-1],
+               first_step=min(0.25, 2.0 * xs[0] / xs[-1]), stiffness=stiffness)
+    rep = res.report
+    out = {"force_per_pa": res.forces, "converged": bool(rep.converged), "reason": rep.reason,
+           "iterations": int(sum(rep.iterations)), "load_steps": int(rep.load_steps), "cut_steps": int(rep.cut_steps),
+           "factorisations": int(rep.tangent_updates), "gmres_iterations": int(rep.linear_iterations), "shifts": int(rep.shifts),
+           "min_jacobian": float(rep.min_jacobian), "seconds": time.perf_counter() - t0, "free_dofs": int(len(problem.space.free))}
+    if stiffness:
+        out["stiffness_per_pa"] = res.stiffness
+    return out
+
+
+def _pull_task(args) -> dict:
+    """One pull on one mesh (a worker process): shipped, cached, or solved and cached."""
+    scene_path, label, size_mm, pull, xs, stiffness = args
+    from sim.reference import scene_with
+
+    scene = scene_with(scene_path)
+    law, radius = scene.spec.material.law, grasp_radius(scene)
+    verts, tris, _ = hemisphere_surface(scene.mesh, label)
+    body = mesh_hemisphere(verts, tris, size_mm * 1e-3)
+    key = pull_key(body, scene, law, radius, pull)
+    found = stored_solve(key, xs, stiffness)
+    if found is not None:
+        return found | {"cached": True, "key": key, "h_m": body.h}
+    problem = build_problem(scene, label, body)
+    r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs, stiffness)
+    meta = {k: v for k, v in r.items() if k not in ("force_per_pa", "stiffness_per_pa")}
+    if r["converged"]:
+        arrays = {"xs": np.asarray(xs, dtype=np.float64), "force_per_pa": r["force_per_pa"], "meta": np.asarray(json.dumps(meta))}
+        if stiffness:
+            arrays["stiffness_per_pa"] = r["stiffness_per_pa"]
+        save_npz(_cache_file(key), **arrays)
+    return r | {"cached": False, "key": key, "h_m": body.h}
+
+
+def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int | None = None, progress=None,
+                    stiffness_for=()) -> dict:
+    """The finite-strain reference of every pull in `pulls` on every mesh size: per pull
+    ``{"h_m": [coarse..fine], "force_per_pa": (sizes, n, 3), "stiffness_per_pa": (sizes, n, 3, 3)
+    or None, "solves": [per size]}``, plus ``"sizes_mm"``. Pulls named in `stiffness_for`
+    record the condensed tangent too. Solves run in worker processes (`jobs`, default every
+    core), largest meshes first."""
+    from sim.reference import scene_with
+
+    scene = scene_with(scene_path)
+    xs = np.asarray(xs, dtype=np.float64)
+    sizes = sorted((float(x) for x in sizes_mm), reverse=True)
+    labels = sorted({p.hemisphere for p in pulls})
+    _premesh(scene.mesh, labels, sizes, 1, jobs)
+    tasks = [(str(scene_path), p.hemisphere, s, p, xs, p.name in stiffness_for) for s in sorted(sizes) for p in pulls]
+    results = _run(tasks, jobs, progress)
+    out = {p.name: {"h_m": [0.0] * len(sizes), "force_per_pa": [None] * len(sizes), "stiffness_per_pa": [None] * len(sizes),
+                    "solves": [None] * len(sizes)} for p in pulls}
+    for (_, _, s, p, _, _), r in zip(tasks, results):
+        i = sizes.index(s)
+        row = out[p.name]
+        row["h_m"][i] = r["h_m"]
+        row["force_per_pa"][i] = np.asarray(r["force_per_pa"])
+        row["stiffness_per_pa"][i] = r.get("stiffness_per_pa")
+        row["solves"][i] = {k: v for k, v in r.items() if k not in ("force_per_pa", "stiffness_per_pa")} | {"size_mm": s}
+    for row in out.values():
+        row["force_per_pa"] = np.stack(row["force_per_pa"])
+        row["stiffness_per_pa"] = np.stack(row["stiffness_per_pa"]) if all(k is not None for k in row["stiffness_per_pa"]) else None
+    return {"pulls": out, "sizes_mm": sizes}
+
+
+def _run(tasks: list, jobs: int | None, progress) -> list:
+    """`_pull_task` over `tasks`, in order: stored ones here, the rest in worker processes."""
+    results: list = [None] * len(tasks)
+    todo = []
+    for i, t in enumerate(tasks):
+        r = _stored_task(t)
+        if r is not None:
+            results[i] = r
+        else:
+            todo.append(i)
+    done = len(tasks) - len(todo)
+    if progress is not None:
+        progress(done, len(tasks))
+    jobs = max(1, min(jobs or os.cpu_count() or 1, len(todo) or 1))
+    order = sorted(todo, key=lambda i: tasks[i][2])  # the finest (slowest) meshes first
+    if jobs == 1:
+        for i in order:
+            results[i] = _pull_task(tasks[i])
+            done += 1
+            if progress is not None:
+                progress(done, len(tasks))
+    elif order:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = {pool.submit(_pull_task, tasks[i]): i for i in order}
+            for f in as_completed(futures):
+                results[futures[f]] = f.result()
+                done += 1
+                if progress is not None:
+                    progress(done, len(tasks))
+    return results
+
+
+def _stored_task(task) -> dict | None:
+    """`_pull_task`'s answer when it is shipped or cached (no worker needed)."""
+    scene_path, label, size_mm, pull, xs, stiffness = task
     from sim.reference import scene_with
 
     scene = scene_with(scene_path)
     verts, tris, _ = hemisphere_surface(scene.mesh, label)
-    edge = size_mm * 1e-3
-    body = mesh_hemisphere(verts, tris, edge)
-    path = _nonlinear_path(body, scene, radius, pull, xs)
-    if path.exists():
-        with np.load(path) as z:
-            return {k: (z[k] if z[k].ndim else z[k].item()) for k in z.files} | {"cached": True}
-    problem = build_problem(scene, label, body)
-    r = neo_hookean_pull(problem, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs)
-    out = {"force_per_pa": r["force_per_pa"], "converged": bool(r["converged"]), "iterations": int(sum(r["iterations"])),
-           "shifts": int(r["shifts"]), "min_jacobian": float(r["min_jacobian"]), "seconds": float(r["seconds"])}
-    if r["converged"]:
-        save_npz(path, **out)
-    return out | {"cached": False}
+    if needs_meshing(verts, tris, size_mm * 1e-3):
+        return None
+    body = mesh_hemisphere(verts, tris, size_mm * 1e-3)
+    key = pull_key(body, scene, scene.spec.material.law, grasp_radius(scene), pull)
+    found = stored_solve(key, xs, stiffness)
+    return None if found is None else found | {"cached": True, "key": key, "h_m": body.h}
 
 
-def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, nonlinear_mm: float | None = None,
-                    threads: int = 1, jobs: int | None = None, progress=None) -> dict:
-    """The reference of every pull in `pulls` (any, not only the bench's): per pull
-    ``{"h_m": [coarse..fine], "linear_per_pa": (sizes, n, 3), "nonlinear_per_pa": (n, 3) or None,
-    "nonlinear": solve info}``, plus ``"meshes"``.
-
-    Linear P2 on every size (one condensed 3 x 3 stiffness per pull and mesh); with
-    `nonlinear_mm`, the compressible neo-Hookean pull on that mesh too (worker processes, cached
-    per pull: about 1.7 minutes per pull on the 8 mm mesh on this 2-core machine)."""
-    from sim.reference import scene_with
-
-    scene = scene_with(scene_path)
-    mesh = scene.mesh
-    xs = np.asarray(xs, dtype=np.float64)
-    radius = grasp_radius(scene)
-    sizes = sorted((float(x) for x in sizes_mm), reverse=True)
-    labels = sorted({p.hemisphere for p in pulls})
-    patches = {p.name: patch_area_points(mesh, p.vertex, radius) for p in pulls}
-    _premesh(mesh, labels, sorted(set(sizes) | ({float(nonlinear_mm)} if nonlinear_mm else set())), threads, jobs)
-    out = {p.name: {"h_m": [], "linear_per_pa": [], "nonlinear_per_pa": None, "nonlinear": None} for p in pulls}
-    n_steps = len(labels) * len(sizes) + (len(pulls) if nonlinear_mm else 0)
-    step = 0
-    if nonlinear_mm:
-        tasks = [(str(scene_path), p.hemisphere, float(nonlinear_mm), p, xs, radius) for p in pulls]
-        jobs = max(1, min(jobs or os.cpu_count() or 1, len(tasks)))
-        if jobs == 1:
-            results = []
-            for t in tasks:
-                results.append(_nonlinear_task(t))
-                step += 1
-                if progress is not None:
-                    progress(step, n_steps)
-        else:
-            import multiprocessing
-            from concurrent.futures import ProcessPoolExecutor
-
-            results = []
-            with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-                for r in pool.map(_nonlinear_task, tasks):
-                    results.append(r)
-                    step += 1
-                    if progress is not None:
-                        progress(step, n_steps)
-        for p, r in zip(pulls, results):
-            out[p.name]["nonlinear_per_pa"] = np.asarray(r.pop("force_per_pa"))
-            out[p.name]["nonlinear"] = r | {"mesh_mm": float(nonlinear_mm)}
-    meshes = []
-    for label in labels:
-        verts, tris, _ = hemisphere_surface(mesh, label)
-        for size in sizes:
-            bm = mesh_hemisphere(verts, tris, size * 1e-3, threads=threads)
-            prob = build_problem(scene, label, bm)
-            for p in pulls:
-                if p.hemisphere == label:
-                    K = pull_stiffness(prob, *patches[p.name])
-                    out[p.name]["linear_per_pa"].append(np.outer(xs, K @ np.asarray(p.direction)))
-                    out[p.name]["h_m"].append(bm.h)
-            meshes.append(bm.describe() | {"hemisphere": int(label), "free_dofs": int(len(prob.fem.free)),
-                                           "assembly_s": prob.build_s, "factor_s": prob.factor_s})
-            del prob
-            step += 1
-            if progress is not None:
-                progress(step, n_steps)
-    for r in out.values():
-        r["linear_per_pa"] = np.stack(r["linear_per_pa"])
-    return {"pulls": out, "meshes": meshes, "grasp_radius_m": radius, "sizes_mm": sizes,
-            "patch_points": {k: int(len(v[0])) for k, v in patches.items()}}
-
-
-def combined_sample(linear_forces, hs, nonlinear_force=None, nonlinear_index: int = 0) -> dict:
-    """The reference at one sample: Richardson on the linear magnitudes (`converge`); with a
-    neo-Hookean force on mesh `nonlinear_index` (into `linear_forces`, coarse to fine), the
-    neo-Hookean value corrected by the linear sequence's discretisation error:
-    F = F_nh(mesh) x F_lin,ext / F_lin(mesh) (a correction factor: the mesh error is taken to
-    be the same fraction for both formulations). Returns the force vector, its magnitude, the
-    GCI half-band (N, relative to the magnitude) and the convergence record."""
-    mags = [float(np.linalg.norm(f)) for f in linear_forces]
+def combined_sample(forces, hs) -> dict:
+    """The reference at one sample from its force vectors on the meshes (coarse to fine):
+    Richardson on the magnitudes (`converge`), the finest mesh's vector scaled to the
+    extrapolated magnitude. Returns the force vector, its magnitude, the GCI half-band (N,
+    relative to the magnitude) and the convergence record."""
+    mags = [float(np.linalg.norm(f)) for f in forces]
     conv = converge(mags, hs)
     finest = mags[int(np.argmin(hs))]
-    if nonlinear_force is None:
-        vec = np.asarray(linear_forces[int(np.argmin(hs))], dtype=np.float64) * conv["f_ext"] / finest
-        formulation = "linear"
-    else:
-        nl = np.asarray(nonlinear_force, dtype=np.float64)
-        vec = nl * conv["f_ext"] / mags[nonlinear_index]
-        formulation = "neo-hookean"
+    vec = np.asarray(forces[int(np.argmin(hs))], dtype=np.float64) * (conv["f_ext"] / finest if finest > 0 else 1.0)
     mag = float(np.linalg.norm(vec))
     return {"force": vec, "force_n": mag, "band_rel": conv["gci"], "band_half_n": conv["gci"] * mag, "status": conv["status"],
-            "order": conv["p"], "extrapolated": conv["extrapolated"], "linear_forces_n": mags, "formulation": formulation}
+            "order": conv["p"], "extrapolated": conv["extrapolated"], "forces_n": mags}
 
 
 # -- the reference ------------------------------------------------------------------------
@@ -256,14 +342,13 @@ def combined_sample(linear_forces, hs, nonlinear_force=None, nonlinear_index: in
 class ReferenceConfig:
     scene: Path = DEFAULT_SCENE
     sizes_mm: tuple[float, ...] = DEFAULT_SIZES_MM  # fTetWild target edge lengths
-    young: float | None = None  # Pa; None: the scene's (forces are proportional to it)
     max_pull: float = 0.024  # m, the accuracy bench's (analysis.accuracy.AccuracyConfig)
     samples: int = 6
-    pulls: tuple[str, ...] | None = None  # pull names to run; None: all of the bench's
-    formulation: str = "linear"  # or "neo-hookean" (slow: a Newton solve per pull and size)
-    functional: str = "area"  # the grasp: mean displacement of the surface area ("area") or of its vertices ("vertices")
+    pulls: tuple[str, ...] | None = None  # pull names to run; None: all of the bench's calibration pulls
+    formulation: str = "finite-strain"  # or "small-strain" (the law's small-strain limit: one linear solve per pull)
+    functional: str = "area"  # the grasp: mean displacement of the surface area ("area") or of its vertices ("vertices", small strain)
     threads: int = 1  # fTetWild's threads per mesh (more are no faster on this surface: measured)
-    jobs: int | None = None  # meshes made at once in worker processes (default: every core)
+    jobs: int | None = None  # worker processes for meshing and solving (default: every core)
     quick: bool = False
     extra: dict = field(default_factory=dict)
 
@@ -296,58 +381,65 @@ def _selected_pulls(cfg: ReferenceConfig, scene) -> list:
         pulls = [p for p in pulls if p.name in cfg.pulls]
     if cfg.formulation not in FORMULATIONS:
         raise ParameterError(f"formulation: {cfg.formulation!r}; allowed: {', '.join(FORMULATIONS)}")
+    if cfg.functional not in ("area", "vertices"):
+        raise ParameterError(f"functional: {cfg.functional!r}; allowed: area, vertices")
+    if cfg.functional == "vertices" and cfg.formulation != "small-strain":
+        raise ParameterError("functional: vertices is a small-strain demonstration (its force has no continuum limit); "
+                             "use it with formulation small-strain")
     return pulls
 
 
 def _patches(cfg: ReferenceConfig, mesh, pulls, radius: float) -> dict:
     """The grasp functional per pull: the mean displacement of the surface within the grasp
     radius ("area", converges) or of the surface vertices there ("vertices", does not)."""
-    from sim.errors import ParameterError
-
-    if cfg.functional not in ("area", "vertices"):
-        raise ParameterError(f"functional: {cfg.functional!r}; allowed: area, vertices")
     if cfg.functional == "area":
         return {p.name: patch_area_points(mesh, p.vertex, radius) for p in pulls}
     return {p.name: (mesh.vertices[patch_vertices(mesh, p.vertex, radius)], None) for p in pulls}
 
 
-def _solve_meshes(cfg: ReferenceConfig, scene, pulls, patches, xs, sizes, progress) -> tuple[dict, dict, list]:
-    """Per pull, the force per pascal on each mesh (sizes, xs, 3) and the nonlinear solves' records; the meshes' rows."""
-    mesh = scene.mesh
-    labels = sorted({p.hemisphere for p in pulls})
-    F: dict[str, list[np.ndarray]] = {p.name: [] for p in pulls}
-    solves: dict[str, list[dict]] = {p.name: [] for p in pulls}
-    made = _premesh(mesh, labels, sizes, cfg.threads, cfg.jobs)
-    meshes, n_steps = [], len(labels) * len(sizes)
+def _mesh_rows(scene, labels, sizes, made) -> tuple[list, dict]:
+    """The meshes' rows (sizes, volumes, P2 dofs) and h by (hemisphere, size)."""
+    rows, h_of = [], {}
     for label in labels:
-        verts, tris, _ = hemisphere_surface(mesh, label)
+        verts, tris, _ = hemisphere_surface(scene.mesh, label)
         surf_vol = enclosed_volume(verts, tris)
         for size in sizes:
-            bm = mesh_hemisphere(verts, tris, size * 1e-3, threads=cfg.threads)
+            bm = mesh_hemisphere(verts, tris, size * 1e-3)
             prob = build_problem(scene, label, bm)
-            t0 = time.perf_counter()
+            h_of[(label, size)] = bm.h
+            rows.append(bm.describe() | {"cached": bm.cached and (label, size) not in made, "hemisphere": int(label),
+                                         "surface_volume_cm3": surf_vol * 1e6, "volume_error": bm.volume / surf_vol - 1.0,
+                                         "p2_nodes": int(prob.space.n_all), "free_dofs": int(len(prob.space.free)),
+                                         "fixed_corner_nodes": prob.fixed_nodes})
+    return rows, h_of
+
+
+def _small_strain(cfg, scene, pulls, patches, xs, sizes, progress) -> dict:
+    """Per pull, the small-strain force per pascal of shear modulus on each mesh (sizes, xs, 3)."""
+    law = scene.spec.material.law
+    F: dict[str, list[np.ndarray]] = {p.name: [] for p in pulls}
+    labels = sorted({p.hemisphere for p in pulls})
+    done = 0
+    for label in labels:
+        verts, tris, _ = hemisphere_surface(scene.mesh, label)
+        for size in sizes:
+            prob = build_problem(scene, label, mesh_hemisphere(verts, tris, size * 1e-3))
+            factor = small_strain_factor(prob, law)
             for p in (p for p in pulls if p.hemisphere == label):
-                if cfg.formulation == "neo-hookean":
-                    r = neo_hookean_pull(prob, *patches[p.name], np.asarray(p.direction), xs)
-                    F[p.name].append(r["force_per_pa"])
-                    solves[p.name].append({k: r[k] for k in ("converged", "iterations", "shifts", "min_jacobian", "seconds")})
-                else:  # linear: proportional to the displacement
-                    F[p.name].append(np.outer(xs, pull_stiffness(prob, *patches[p.name]) @ np.asarray(p.direction)))
-            meshes.append(bm.describe() | {"cached": bm.cached and (label, size) not in made, "hemisphere": int(label),
-                                           "surface_volume_cm3": surf_vol * 1e6, "volume_error": bm.volume / surf_vol - 1.0,
-                                           "p2_nodes": int(prob.fem.n_all), "free_dofs": int(len(prob.fem.free)),
-                                           "fixed_corner_nodes": prob.fixed_nodes, "assembly_s": prob.build_s,
-                                           "factor_s": prob.factor_s, "solve_s": time.perf_counter() - t0})
-            del prob
+                W = grasp_matrix(prob, *patches[p.name])
+                C = W @ factor.solve(np.ascontiguousarray(W.T.toarray()))
+                F[p.name].append(np.outer(xs, np.linalg.inv(0.5 * (C + C.T)) @ np.asarray(p.direction)))
+            del prob, factor
+            done += 1
             if progress is not None:
-                progress(len(meshes), n_steps)
-    return {k: np.stack(v) for k, v in F.items()}, solves, meshes
+                progress(done, len(labels) * len(sizes))
+    return {k: np.stack(v) for k, v in F.items()}
 
 
 def _sample(pull, x: float, f: list, hs: list, sizes: list) -> dict:
     """One sample's convergence record and verdict from its forces on the meshes (coarse to fine)."""
     row = {"pull": pull.name, "displacement_mm": float(x) * 1e3, "forces_n": f, "h_mm": [h * 1e3 for h in hs], "target_edge_mm": sizes}
-    if not all(math.isfinite(v) for v in f):  # a nonlinear solve that stopped early
+    if not all(math.isfinite(v) for v in f):  # a solve that stopped early
         return row | {"status": "not solved", "order": math.nan, "order_used": math.nan, "fs": math.nan, "extrapolated": False,
                       "force_ext_n": math.nan, "gci": math.nan, "band_n": [math.nan, math.nan], "band_half_n": math.nan,
                       "band_rel": math.nan, "jnd_fraction": math.nan, "within_jnd_rel": False, "within_jnd_abs": False}
@@ -365,30 +457,43 @@ def run_reference(cfg: ReferenceConfig, progress=None) -> dict:
 
     t_start = time.perf_counter()
     scene = scene_with(cfg.scene)
-    young = float(cfg.young if cfg.young is not None else scene.spec.material.young)
+    law = scene.spec.material.law
+    mu = law.shear_modulus
     pulls = _selected_pulls(cfg, scene)
     xs = sample_displacements(AccuracyConfig(max_pull=cfg.max_pull, samples=cfg.samples))
     radius = grasp_radius(scene)
     sizes = sorted((float(s) for s in cfg.sizes_mm), reverse=True)  # coarse to fine
     patches = _patches(cfg, scene.mesh, pulls, radius)
-    F, solves, meshes = _solve_meshes(cfg, scene, pulls, patches, xs, sizes, progress)
-    h_of = {(m["hemisphere"], m["target_edge_mm"]): m["h_mm"] * 1e-3 for m in meshes}
+    labels = sorted({p.hemisphere for p in pulls})
+    made = _premesh(scene.mesh, labels, sizes, cfg.threads, cfg.jobs)
+    solves: dict = {p.name: [] for p in pulls}
+    if cfg.formulation == "finite-strain":
+        refs = pull_references(cfg.scene, pulls, xs, sizes, jobs=cfg.jobs, progress=progress)["pulls"]
+        F = {name: r["force_per_pa"] for name, r in refs.items()}
+        solves = {name: r["solves"] for name, r in refs.items()}
+    else:
+        F = _small_strain(cfg, scene, pulls, patches, xs, sizes, progress)
+    meshes, h_of = _mesh_rows(scene, labels, sizes, made)
     samples, pull_rows = [], []
     for p in pulls:
         hs = [h_of[(p.hemisphere, s)] for s in sizes]
         pull_rows.append({"pull": p.name, "hemisphere": p.hemisphere, "grasp_vertex": p.vertex, "patch_points": int(len(patches[p.name][0])),
                           "direction": list(p.direction), "h_mm": [h * 1e3 for h in hs], "force_per_pa": F[p.name].tolist(),
                           "solves": solves[p.name]})
-        samples += [_sample(p, x, [float(np.linalg.norm(F[p.name][i, k])) * young for i in range(len(sizes))], hs, sizes)
+        samples += [_sample(p, x, [float(np.linalg.norm(F[p.name][i, k])) * mu for i in range(len(sizes))], hs, sizes)
                     for k, x in enumerate(xs)]
-    meta = {"scene": str(cfg.scene), "young_pa": young, "scene_young_pa": scene.spec.material.young, "poisson": scene.spec.material.poisson,
-            "element": "P2 (10-node tetrahedra)",
-            "formulation": "compressible neo-Hookean" if cfg.formulation == "neo-hookean" else "small-strain linear elasticity",
+    gcis = [s["gci"] for s in samples if math.isfinite(s["gci"])]
+    meta = {"scene": str(cfg.scene), "law": law.params(), "law_text": law.describe(), "law_source": scene.spec.material.law_source,
+            "shear_modulus_pa": mu, "element": "P2 (10-node tetrahedra), displacement-based",
+            "formulation": (f"finite strain, {law.describe()}" if cfg.formulation == "finite-strain"
+                            else f"the law's small-strain limit (mu {mu:.4g} Pa, Poisson {law.poisson:.3f})"),
             "mesher": "fTetWild (pytetwild), shipped meshes where the size is shipped", "envelope_fraction": ENVELOPE_FRACTION,
             "sizes_mm": sizes, "grasp_radius_m": radius, "functional": cfg.functional,
             "clamp": dict(zip(("axis", "height_m"), clamp_limit(scene))),
             "max_pull_m": cfg.max_pull, "samples_per_pull": cfg.samples, "quick": cfg.quick,
-            "gci_fs": GCI_FS3 if len(sizes) == 3 else GCI_FS_FALLBACK, "seconds": time.perf_counter() - t_start}
+            "gci_fs": GCI_FS3 if len(sizes) == 3 else GCI_FS_FALLBACK,
+            "gci_median": float(np.median(gcis)) if gcis else math.nan, "gci_max": float(np.max(gcis)) if gcis else math.nan,
+            "seconds": time.perf_counter() - t_start}
     return {"samples": samples, "pulls": pull_rows, "meshes": meshes, "meta": meta}
 
 
@@ -426,8 +531,8 @@ def markdown(result: dict) -> str:
     """The reference table as Markdown."""
     m = result["meta"]
     sizes = m["sizes_mm"]
-    lines = [f"P2 {m['formulation']} on fTetWild meshes (target edges {', '.join(f'{s:g}' for s in sizes)} mm), "
-             f"E = {m['young_pa'] / 1e3:g} kPa, nu = {m['poisson']:g}; GCI factor of safety {m['gci_fs']:g}"
+    lines = [f"P2, {m['formulation']}, on fTetWild meshes (target edges {', '.join(f'{s:g}' for s in sizes)} mm); "
+             f"GCI factor of safety {m['gci_fs']:g}; GCI half-band median {m['gci_median']:.1%}, largest {m['gci_max']:.1%}"
              + (" (quick)" if m["quick"] else "") + ".", "",
              "| pull | d (mm) | " + " | ".join(f"F @ {s:g} mm (N)" for s in sizes) + " | order | status | extrapolated (N) | band (N) | band % | < JND (rel) | < 0.05 N |",
              "|---|---|" + "---|" * len(sizes) + "---|---|---|---|---|---|---|"]
@@ -435,11 +540,20 @@ def markdown(result: dict) -> str:
         lines.append(f"| {s['pull']} | {s['displacement_mm']:g} | " + " | ".join(f"{f:.4f}" for f in s["forces_n"])
                      + f" | {_fmt(s['order'], '.2f')} | {s['status']} | {_fmt(s['force_ext_n'], '.4f')} | {s['band_n'][0]:.4f}..{s['band_n'][1]:.4f} | "
                      f"{s['gci']:.1%} | {'yes' if s['within_jnd_rel'] else 'no'} | {'yes' if s['within_jnd_abs'] else 'no'} |")
-    lines += ["", "| hemisphere | target edge (mm) | nodes | tets | h (mm) | P2 dofs (free) | volume error | mesh s | factor s |",
-              "|---|---|---|---|---|---|---|---|---|"]
+    lines += ["", "| hemisphere | target edge (mm) | nodes | tets | h (mm) | P2 dofs (free) | volume error | mesh s |",
+              "|---|---|---|---|---|---|---|---|"]
     for g in result["meshes"]:
         lines.append(f"| {g['hemisphere']} | {g['target_edge_mm']:g} | {g['nodes']} | {g['tets']} | {g['h_mm']:.2f} | {g['free_dofs']} | "
-                     f"{g['volume_error']:+.2%} | {g['mesh_s']:.1f}{' (cached)' if g['cached'] else ''} | {g['factor_s']:.1f} |")
+                     f"{g['volume_error']:+.2%} | {g['mesh_s']:.1f}{' (cached)' if g['cached'] else ''} |")
+    solves = [s for p in result["pulls"] for s in p["solves"] if s]
+    if solves:
+        lines += ["", "| pull | mesh (mm) | converged | load steps | Newton iterations | factorisations | smallest det F | s | stored |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for p in result["pulls"]:
+            for s in p["solves"]:
+                lines.append(f"| {p['pull']} | {s['size_mm']:g} | {'yes' if s['converged'] else 'no: ' + s.get('reason', '')} | "
+                             f"{s.get('load_steps', '-')} | {s.get('iterations', '-')} | {s.get('factorisations', '-')} | "
+                             f"{s.get('min_jacobian', math.nan):.2f} | {s.get('seconds', math.nan):.0f} | {'yes' if s.get('cached') else 'no'} |")
     return "\n".join(lines) + "\n"
 
 

@@ -79,9 +79,10 @@ def _csc(A) -> sp.csc_matrix:
     return A
 
 
-def _factorise(A: sp.csc_matrix, shifts=(0.0,), simplicial: bool = False):
+def _factorise(A: sp.csc_matrix, shifts=(0.0,), simplicial: bool = False, analysis=None):
     """CHOLMOD's factor of A + s I for the first s in `shifts` that is positive definite, with s;
-    (None, message) when none is. One symbolic analysis serves every shift."""
+    (None, message) when none is. One symbolic analysis serves every shift (`analysis`, when
+    given: one made for A's pattern, kept by the caller)."""
     cholmod = _cholmod()
     CholmodError, CholmodNotPositiveDefiniteError = cholmod.CholmodError, cholmod.CholmodNotPositiveDefiniteError
     problem = "empty matrix"
@@ -89,7 +90,7 @@ def _factorise(A: sp.csc_matrix, shifts=(0.0,), simplicial: bool = False):
         # supernodal: always L L^T, so CHOLMOD itself reports a matrix that is not positive
         # definite (its simplicial mode computes L D L^T, which accepts indefinite ones: D is
         # checked below instead)
-        factor = cholmod.analyze(A, mode="simplicial" if simplicial else "supernodal")
+        factor = cholmod.analyze(A, mode="simplicial" if simplicial else "supernodal") if analysis is None else analysis.copy()
     except CholmodError as exc:
         return None, f"CHOLMOD analysis failed: {exc}"
     for shift in shifts:
@@ -191,7 +192,7 @@ class Factor:
 SHIFTS = (0.0, 1e-6, 1e-4, 1e-2, 1.0, 10.0, 100.0)
 
 
-def shifted_factor(K) -> Factor:
+def shifted_factor(K, analysis=None, shifts=SHIFTS) -> Factor:
     """Factor K, or K + tau * mean(|diag K|) * I with the smallest tau in `SHIFTS` (1e-6..100) that
     is positive definite.
 
@@ -199,12 +200,19 @@ def shifted_factor(K) -> Factor:
     load): a shifted factorisation, not a line search. The residual is still the exact one, so
     the shifted (modified) Newton steps converge to the same equilibrium, only more slowly
     (linearly). The shift used is `Factor.shift` (0 when K itself is positive definite).
-    One symbolic analysis serves every attempt; a failed attempt's memory is reused.
+    One symbolic analysis serves every attempt; a failed attempt's memory is reused. A Newton
+    solver whose tangents keep one pattern passes `analysis` (`symbolic(K)`), so that only the
+    numeric factorisation is done each iteration.
     """
     A = _csc(K)
     scale = float(np.mean(np.abs(A.diagonal()))) if A.shape[0] else 1.0
-    factor, shift = _factorise(A, [tau * scale for tau in SHIFTS])
+    factor, shift = _factorise(A, [tau * scale for tau in shifts], analysis=analysis)
     if factor is None:
         raise SingularSystemError("tangent stiffness is not positive definite even shifted by 100 times its mean |diagonal|")
     return Factor(A, _factor=factor, _shift=shift)
 
+
+
+def symbolic(K):
+    """CHOLMOD's symbolic analysis (ordering, supernodes) of K's pattern, for `shifted_factor`."""
+    return _cholmod().analyze(_csc(K), mode="supernodal")

@@ -31,9 +31,15 @@ AXES = {"x": 0, "y": 1, "z": 2}
 
 @dataclass(frozen=True)
 class MaterialSpec:
-    young: float  # Pa
-    poisson: float
+    """The tissue: its finite-strain law (the reference's and the observer's truth's, sim/material.py)
+    and the linear models' modulus and Poisson ratio (`young` given, or the law's small-strain limit)."""
+
+    young: float  # Pa, the linear models'
+    poisson: float  # the linear models'
     density: float  # kg/m3
+    law: Any = None  # sim.hyperelastic.Hyperelastic
+    law_source: str = ""  # the material file's path, or "inline"
+    young_given: bool = True  # False: young = 2 mu (1 + poisson) of the law
 
 
 @dataclass(frozen=True)
@@ -142,7 +148,7 @@ SECTIONS = ("scene", "mesh", "material", "fixed", "model", "models", "servo", "v
 SECTION_KEYS = {  # the sections read as one table, in reading order: (required, allowed keys)
     "scene": (False, ("name", "description", "duration")),
     "mesh": (True, ("path",)),
-    "material": (True, ("young", "poisson", "density")),
+    "material": (True, ("file", "law", "mu", "mu1", "mu2", "alpha", "bulk_ratio", "young", "poisson", "density")),
     "fixed": (True, ("axis", "from_bottom")),
     "model": (True, ("name",)),
     "servo": (False, ("rate_hz",)),
@@ -266,11 +272,7 @@ def _scene_spec(path: Path, t: dict[str, TableReader], models: dict[str, ModelSp
         name=scene.string("name", default=path.stem),
         description=scene.string("description", default=""),
         mesh_path=mesh_path,
-        material=MaterialSpec(
-            young=material.number("young", lo=0.0, lo_open=True),
-            poisson=material.number("poisson", lo=POISSON_MIN, hi=POISSON_MAX, hi_open=True),
-            density=material.number("density", lo=0.0, lo_open=True),
-        ),
+        material=_material_spec(material),
         fixed=FixedSpec(axis=fixed.string("axis", choices=tuple(AXES)), from_bottom=fixed.number("from_bottom", lo=0.0)),
         model=default_model,
         models=models,
@@ -286,6 +288,19 @@ def _scene_spec(path: Path, t: dict[str, TableReader], models: dict[str, ModelSp
             fps=renderer.number("fps", default=10.0, lo=0.0, hi=240.0, lo_open=True),
         ),
     )
+
+
+def _material_spec(material: TableReader) -> MaterialSpec:
+    from sim.material import DEFAULT_POISSON, scene_law
+
+    law, source = scene_law(material)
+    poisson = material.number("poisson", default=DEFAULT_POISSON, lo=POISSON_MIN, hi=POISSON_MAX, hi_open=True)
+    given = "young" in material.data
+    young = material.number("young", lo=0.0, lo_open=True) if given else None
+    if not given and law is not None and poisson is not None:
+        young = law.young(poisson)
+    return MaterialSpec(young=young, poisson=poisson, density=material.number("density", default=1040.0, lo=0.0, lo_open=True),
+                        law=law, law_source=source, young_given=given)
 
 
 def _raise_problems(problems: list, path: Path) -> None:

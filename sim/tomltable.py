@@ -88,6 +88,19 @@ class TableReader:
             return self.error(key, f"{value!r} is not one of {', '.join(choices)}")
         return value
 
+    def numbers(self, key: str, default=REQUIRED, lo: float = -math.inf, hi: float = math.inf, most: int = 8) -> tuple | None:
+        """A number or a list of 1..`most` numbers, each in [lo, hi]."""
+        value = self._value(key, default)
+        if value is None:
+            return None
+        items = value if isinstance(value, list) else [value]
+        if not 1 <= len(items) <= most or any(isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c) for c in items):
+            return self.error(key, f"{value!r} is not a number or a list of 1..{most} finite numbers")
+        bad = [c for c in items if not lo <= c <= hi]
+        if bad:
+            return self.error(key, f"{bad[0]!r} is out of range; allowed: [{lo:g}, {hi:g}]")
+        return tuple(float(c) for c in items)
+
     def vector(self, key: str, default=REQUIRED) -> Vec3 | None:
         value = self._value(key, default)
         if value is None:

@@ -190,7 +190,7 @@ def truth_forces(trace, truth, mesh) -> np.ndarray:
             if not sel.any():
                 continue
             d = trace.positions[sel, hand] - mesh.vertices[vertex]
-            out[sel, hand] = np.linalg.norm(d @ truth.K(vertex).T, axis=1)
+            out[sel, hand] = np.linalg.norm(truth.force(vertex, d), axis=1)
     return out
 
 

@@ -107,9 +107,9 @@ def test_the_pareto_plots_legend_covers_no_point():
 
 @pytest.fixture(scope="module")
 def small_bench(tmp_path_factory, monkeypatch_module):
-    """Three settings, 20/16 mm reference (neo-Hookean on 20 mm), two 4 mm samples, two test
-    places: the bench end to end in seconds."""
-    tiny = accuracy.AccuracyConfig(samples=2, max_pull=0.008, reference_sizes_mm=(20.0, 16.0), nonlinear_mm=20.0, test_places=2,
+    """Three settings, 20/16 mm reference (the finite-strain law), two 4 mm samples, two test
+    places: the bench end to end in a minute or two (the reference solves are cached after)."""
+    tiny = accuracy.AccuracyConfig(samples=2, max_pull=0.008, reference_sizes_mm=(20.0, 16.0), test_places=2,
                                    quick=True, settings=(
         Setting("plate_spring", "scene-fit", (("variant", "continuous"), ("params", "scene"))),
         Setting("fem", "linear-8mm", (("formulation", "linear"), ("resolution", 0.008))),
@@ -137,7 +137,7 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
         assert r["within"] + r["outside"] + r["undecided"] == r["n_test"] == 4 * 2 and r["n_test_pulls"] == 4
         assert r["tick_us"] > 0 and r["frame_ms"] > 0 and 0 <= r["angle_deg"] <= 180
     ref = out["meta"]["reference"]
-    assert ref["converged"] and ref["nonlinear_mm"] == 20.0 and ref["sizes_mm"] == [20.0, 16.0]
+    assert ref["converged"] and ref["sizes_mm"] == [20.0, 16.0] and ref["law"]["law"] == "ogden" and ref["solves"] == 10 * 2
     assert len(out["meta"]["calibration_pulls"]) == 6 and len(out["meta"]["test_pulls"]) == 4
     assert len(out["samples"]) == 3 * 2 * 10 * 2
     # the calibrated scale is the geometric mean of reference over model force on the calibration samples

@@ -24,7 +24,7 @@ RETRACTION = ROOT / "protocols/scenes/retraction.toml"
 
 def scene_file(tmp_path: Path, target: str | None = None, right_target: str | None = None) -> Path:
     """The retraction scene with absolute paths, its targets replaced (None: as shipped)."""
-    text = RETRACTION.read_text().replace('"../../data/', f'"{ROOT}/data/').replace('"../models/', f'"{ROOT}/protocols/models/')
+    text = RETRACTION.read_text().replace('"../../data/', f'"{ROOT}/data/').replace('"../models/', f'"{ROOT}/protocols/models/').replace('"../materials/', f'"{ROOT}/protocols/materials/')
     text = text.replace('kind = "offscreen"', 'kind = "none"')
     left, right = text.split("\n[[hands]]\nname = \"right\"")
     if target is not None:

@@ -26,7 +26,7 @@ def fast_protocol(tmp_path: Path, conditions=("plate_spring", "fem", "mass_sprin
     and P2 costs 3-4 s more to assemble in every process that builds it (test_fem_model,
     test_accuracy and test_stability test the shipped P2)."""
     scene = (ROOT / "protocols/scenes/brain_pull.toml").read_text()
-    scene = scene.replace('"../../data/', f'"{ROOT}/data/').replace('"../models/', f'"{ROOT}/protocols/models/')
+    scene = scene.replace('"../../data/', f'"{ROOT}/data/').replace('"../models/', f'"{ROOT}/protocols/models/').replace('"../materials/', f'"{ROOT}/protocols/materials/')
     scene = scene.replace("\norder = 2 ", "\norder = 1 ", 1).replace('kind = "offscreen"', 'kind = "none"')
     (tmp_path / "scene.toml").write_text(scene)
     text = PROTOCOL.read_text().replace('scene = "scenes/brain_pull.toml"', f'scene = "{tmp_path / "scene.toml"}"')

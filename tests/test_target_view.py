@@ -28,7 +28,7 @@ def _protocol(tmp_path, trial_seconds=30.0):
     """protocols/construct_validity.toml on protocols/scenes/retraction.toml: one trial, no
     training, a yes/no question (answered with a key) instead of the ratings and the SUS."""
     scene = (ROOT / "protocols/scenes/retraction.toml").read_text()
-    scene = scene.replace('"../../data/', f'"{ROOT}/data/').replace('"../models/', f'"{ROOT}/protocols/models/')
+    scene = scene.replace('"../../data/', f'"{ROOT}/data/').replace('"../models/', f'"{ROOT}/protocols/models/').replace('"../materials/', f'"{ROOT}/protocols/materials/')
     (tmp_path / "retraction.toml").write_text(scene.replace('kind = "offscreen"', 'kind = "none"'))
     text = (ROOT / "protocols/construct_validity.toml").read_text()
     text = text.replace('scene = "scenes/retraction.toml"', f'scene = "{tmp_path / "retraction.toml"}"')

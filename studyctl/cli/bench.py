@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from sim.scene import DEFAULT_SCENE
-from studyctl.cli.common import SCHEDULER, Finite, OutDir, _console, _Group, _print_json, _with_progress
+from studyctl.cli.common import SCHEDULER, OutDir, _console, _Group, _print_json, _with_progress
 
 
 @click.group(cls=_Group)
@@ -27,12 +27,13 @@ def _sweep_options(f):
 
 @bench.command("accuracy")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
-@click.option("--young", type=click.FloatRange(1.0, 1e9), default=None, help="Young's modulus of the bench tissue, Pa [default: the scene's].")
+@click.option("--young", type=click.FloatRange(1.0, 1e9), default=None,
+              help="The linear models' Young's modulus, Pa, with the tissue's law scaled alike [default: the scene's].")
 @click.option("--test-places", type=click.IntRange(2, 20), default=None, help="Held-out grasp places, two directions each [default: 6, --quick: 2].")
 @_sweep_options
 def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, jobs, scheduler):
-    """Every model and setting on the same pulls against the converged reference (P2 on
-    body-fitted meshes, neo-Hookean, Richardson): calibrated with one stiffness scale on the
+    """Every model and setting on the same pulls against the converged reference (the tissue's
+    finite-strain law on P2 on body-fitted meshes, Richardson; shipped): calibrated with one stiffness scale on the
     calibration pulls, judged raw and calibrated on held-out pulls (within the JND with
     Wilson intervals, against the reference's band, direction error), time per tick and frame."""
     from analysis import accuracy
@@ -47,7 +48,7 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, jobs
         return
     from rich.table import Table
 
-    t = Table(title=f"Force error on held-out pulls against run time (E = {result['meta']['young_pa'] / 1e3:g} kPa)", caption=accuracy.intro(result))
+    t = Table(title=f"Force error on held-out pulls against run time (the linear models' E = {result['meta']['young_pa'] / 1e3:.3g} kPa)", caption=accuracy.intro(result))
     for col in ("model", "setting", "calibration", "scale", "force error", "max", "within JND [95% CI]", "in/out/undecided", "pulls",
                 "direction deg", "tick us", "frame ms"):
         t.add_column(col, justify="left" if col in ("model", "setting", "calibration") else "right")
@@ -112,23 +113,24 @@ def _sizes_mm(ctx, param, value):
 
 @bench.command("reference")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
-@click.option("--young", type=Finite(1.0, 1e9), default=None, help="Young's modulus, Pa (forces are proportional to it) [default: the scene's].")
 @click.option("--sizes", callback=_sizes_mm, default=None, help="fTetWild target edge lengths, mm, comma-separated [default: 8,6,4, the shipped meshes; --quick: 20,16].")
 @click.option("--functional", type=click.Choice(["area", "vertices"]), default="area", show_default=True,
               help="The grasp: mean displacement of the surface area within the grasp radius, or of its vertices (does not converge).")
-@click.option("--formulation", type=click.Choice(["linear", "neo-hookean"]), default="linear", show_default=True,
-              help="Small-strain linear elasticity (one solve per pull), or compressible neo-Hookean (Newton; minutes per pull and mesh).")
+@click.option("--formulation", type=click.Choice(["finite-strain", "small-strain"]), default="finite-strain", show_default=True,
+              help="The scene's law at finite strain (Newton along each pull; shipped for the shipped scene), or its small-strain "
+                   "limit (one linear solve per pull and mesh).")
 @click.option("--pulls", "pull_names", default=None, help="Only these bench pulls, comma-separated (e.g. left-lateral,extra1-anterior).")
-@click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Meshes made at once (default: every core).")
+@click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Meshes made and pulls solved at once (default: every core).")
 @click.option("--quick", is_flag=True, help="Two coarse meshes, the left hand's pulls, two samples (CI).")
 @click.option("--json", "as_json", is_flag=True)
 @click.option("--out", "out_dir", type=OutDir(), default=None, help="Write reference.json and reference.md here.")
-def bench_reference(scene_file, young, sizes, functional, formulation, pull_names, jobs, quick, as_json, out_dir):
-    """A converged reference: P2 tetrahedra on body-fitted (fTetWild) meshes of each hemisphere at
-    three sizes, Richardson extrapolation and the grid convergence index for every bench pull."""
+def bench_reference(scene_file, sizes, functional, formulation, pull_names, jobs, quick, as_json, out_dir):
+    """A converged reference: the tissue's law on P2 tetrahedra on body-fitted (fTetWild) meshes
+    of each hemisphere at three sizes, Richardson extrapolation and the grid convergence index
+    for every calibration pull of the accuracy bench."""
     from analysis import reference
 
-    kw = {"scene": scene_file, "young": young, "functional": functional, "formulation": formulation, "jobs": jobs}
+    kw = {"scene": scene_file, "functional": functional, "formulation": formulation, "jobs": jobs}
     if sizes is not None:
         kw["sizes_mm"] = sizes
     if pull_names:
@@ -143,8 +145,8 @@ def bench_reference(scene_file, young, sizes, functional, formulation, pull_name
     from rich.table import Table
 
     m = result["meta"]
-    t = Table(title=f"Converged reference: P2 {m['formulation']} on fTetWild meshes, E = {m['young_pa'] / 1e3:g} kPa, "
-                    f"nu = {m['poisson']:g}, grasp functional: {m['functional']}")
+    t = Table(title=f"Converged reference: P2, {m['formulation']}, on fTetWild meshes, grasp functional: {m['functional']}; "
+                    f"GCI half-band median {m['gci_median']:.1%}, largest {m['gci_max']:.1%} ({m['seconds']:.0f} s)")
     for col in ("pull", "d mm", *(f"F {s:g}mm N" for s in m["sizes_mm"]), "order", "status", "extrap. N", "GCI band", "< JND rel", "< 0.05 N"):
         t.add_column(col, justify="left" if col in ("pull", "status") else "right", no_wrap=col in ("pull", "status"))
     for s in result["samples"]:

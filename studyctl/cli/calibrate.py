@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from sim.scene import DEFAULT_SCENE
-from studyctl.cli.common import OutFile, _Group, _print_json, _with_progress
+from studyctl.cli.common import Finite, OutFile, _console, _Group, _print_json, _with_progress
 from studyctl.errors import InputError
 
 
@@ -22,26 +22,22 @@ def calibrate():
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--reference", default="converged", show_default=True,
               help="converged (the accuracy bench's reference on its calibration pulls) or a CSV with displacement_m, force_n.")
-@click.option("--formulation", type=click.Choice(["linear", "neo-hookean"]), default="linear", show_default=True,
-              help="The reference's formulation (neo-hookean: solved on the 8 mm mesh, about 2 minutes per pull the first time).")
 @click.option("--max-displacement", type=click.FloatRange(min=0.001, max=0.1), default=0.024, show_default=True, help="m, the longest pull.")
 @click.option("--samples", type=click.IntRange(3, 100), default=6, show_default=True, help="Points per pull.")
 @click.option("--out", "out_file", type=OutFile((".toml",)), default=None, help="Write the fitted parameter file (.toml).")
 @click.option("--json", "as_json", is_flag=True)
-def calibrate_plate_spring(scene_file, reference, formulation, max_displacement, samples, out_file, as_json):
+def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out_file, as_json):
     """Fit h1, alpha, q and x_c1 (within their bounds) to the reference force-displacement curve."""
     import numpy as np
 
     from analysis.accuracy import calibration_curve
     from sim.calibrate import fit, read_curve, to_toml
     from sim.scene import load_scene
-    from sim.tetmesh import SHIPPED_MM
 
     spec = load_scene(scene_file)
     ps = spec.model_spec("plate_spring")
     if reference == "converged":
-        nonlinear = max(SHIPPED_MM) if formulation == "neo-hookean" else None
-        xs, forces, reference = calibration_curve(scene_file, max_displacement * np.arange(1, samples + 1) / samples, nonlinear)
+        xs, forces, reference = calibration_curve(scene_file, max_displacement * np.arange(1, samples + 1) / samples)
     else:
         xs, forces = read_curve(reference)
     params, rep = fit(ps.plate_spring, xs, forces, ps.variant)
@@ -58,17 +54,66 @@ def calibrate_plate_spring(scene_file, reference, formulation, max_displacement,
         click.echo(f"wrote {out_file}")
 
 
+@calibrate.command("material")
+@click.option("--data", "data_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              show_default="data/brain_tissue_uniaxial_budday2017.csv", help="CSV: region, stretch, nominal_stress_kpa.")
+@click.option("--region", default="cortex", show_default=True, help="The data's region to fit.")
+@click.option("--law", "laws", multiple=True, type=click.Choice(["neo-hookean", "mooney-rivlin", "ogden", "ogden-2"]),
+              help="Laws to fit (repeat; default: all four).")
+@click.option("--bulk-ratio", type=Finite(min=1.0, max=1e4), default=None, show_default="50", help="kappa / mu of the laws.")
+@click.option("--out", "out_file", type=OutFile((".toml",)), default=None, help="Write the chosen law as a material file (.toml).")
+@click.option("--json", "as_json", is_flag=True)
+def calibrate_material(data_file, region, laws, bulk_ratio, out_file, as_json):
+    """Fit finite-strain laws to uniaxial tension and compression data (nominal stress, least
+    squares) and choose one by AICc (docs/material.md)."""
+    from analysis.material_fit import DATA_FILE, FIT_LAWS, fit_material, law_of
+    from sim.hyperelastic import BULK_RATIO
+    from sim.material import material_toml
+
+    data_file = data_file or DATA_FILE
+    rep = fit_material(data_file, region, laws or FIT_LAWS, BULK_RATIO if bulk_ratio is None else bulk_ratio)
+    if out_file:
+        chosen = next(f for f in rep["laws"] if f["law"] == rep["fit"])
+        law = law_of(chosen)
+        prov = {"data": Path(rep["data"]["path"]).name, "sha256": rep["data"]["sha256"], "region": region,
+                "source": "Budday et al. 2017, Acta Biomaterialia 48:319-340 (as tabulated by Linka et al. 2023)"
+                if Path(rep["data"]["path"]).name == Path(DATA_FILE).name else "",
+                "fit": rep["method"], "rms_rel": rep["rms_rel"], "rms_rel_tension": rep["rms_rel_tension"],
+                "rms_rel_compression": rep["rms_rel_compression"],
+                **{f"ci95_{k}": v for k, v in chosen["ci95"].items()}}
+        Path(out_file).write_text(material_toml(law, prov, f"{region}: {law.describe()}\nWritten by `studyctl calibrate material "
+                                                           f"--region {region} --out {Path(out_file).name}`."))
+    if as_json:
+        _print_json({k: v for k, v in rep.items()} | {"out": str(out_file) if out_file else None})
+        return
+    from rich.table import Table
+
+    table = Table(title=f"{region}: {rep['data']['points']} points, stretch {rep['data']['stretch_range'][0]:g}..{rep['data']['stretch_range'][1]:g}")
+    for col in ("law", "parameters [95% CI]", "RMS (rel.)", "tension", "compression", "AICc", ""):
+        table.add_column(col)
+    for f in rep["laws"]:
+        pars = "; ".join(f"{k} {v:.4g} [{f['ci95'][k][0]:.3g}, {f['ci95'][k][1]:.3g}]" for k, v in f["parameters"].items())
+        note = "chosen" if f["law"] == rep["fit"] else ("" if f["identified"] else "not identified")
+        table.add_row(f["law"], pars, f"{f['rms_rel']:.1%}", f"{f['rms_rel_tension']:.1%}", f"{f['rms_rel_compression']:.1%}",
+                      f"{f['aicc']:.1f}", note)
+    _console().print(table)
+    if out_file:
+        click.echo(f"wrote {out_file}")
+
+
 @calibrate.command("field")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--out", "out_file", type=OutFile((".npz",)), default=None, show_default="data/plate_spring_field.npz", help="The stiffness field.")
 @click.option("--params-out", type=OutFile((".toml",)), default=None, help="Also write the located stack's curve here.")
-@click.option("--formulation", type=click.Choice(["linear", "neo-hookean"]), default="linear", show_default=True,
-              help="The curve: straight (the bench's linear reference) or fitted to the neo-Hookean / linear ratio of the calibration pulls.")
+@click.option("--formulation", type=click.Choice(["finite-strain", "small-strain"]), default="finite-strain", show_default=True,
+              help="The curve: fitted to the finite-strain / small-strain force ratio of the calibration pulls, or straight.")
 @click.option("--json", "as_json", is_flag=True)
 def calibrate_field(scene_file, out_file, params_out, formulation, as_json):
     """The location-aware plate-spring's stiffness field: the reference's 3 x 3 grasp stiffness
     at the ico4 sites of both hemispheres (P2, 8 mm body-fitted mesh, area-mean grasp),
     interpolated to every vertex; with --params-out, the stack's curve too."""
+    import dataclasses
+
     from analysis import field
     from analysis.accuracy import AccuracyConfig, sample_displacements
     from sim.calibrate import to_toml
@@ -79,9 +124,12 @@ def calibrate_field(scene_file, out_file, params_out, formulation, as_json):
         start = load_scene(scene_file).model_spec("plate_spring").plate_spring
         xs = sample_displacements(AccuracyConfig())
         params, fit_rep = field.fit_shape(scene_file, start, xs, formulation)
-        how = ("a one-layer stack: a straight curve, so the force is E K(v) d, as the bench's linear reference" if formulation == "linear" else
-               f"fitted to the neo-Hookean / linear force ratio ({', '.join(f'{r:.3f}' for r in fit_rep['nonlinear_over_linear'])})\n"
-               f"of the calibration pulls {', '.join(fit_rep['pulls'])} on the field's 8 mm P2 mesh; {fit_rep['within_jnd']:.0%} within the JND")
+        law = load_scene(scene_file).material.law
+        params = dataclasses.replace(params, E=law.shear_modulus)  # the field is per pascal of the law's shear modulus
+        how = ("a one-layer stack: a straight curve, so the force is E K(v) d, the law's small-strain limit" if formulation == "small-strain" else
+               f"fitted to the mean finite-strain / small-strain force ratio ({', '.join(f'{r:.3f}' for r in fit_rep['finite_over_small_strain'])})\n"
+               f"of the calibration pulls {', '.join(fit_rep['pulls'])} on the {fit_rep['mesh_mm']:g} mm P2 mesh; {fit_rep['within_jnd']:.0%} "
+               "within the JND.\nE is the law's shear modulus (the field is per pascal of it)")
         Path(params_out).write_text(to_toml(params, (
             "Plate-spring stack for the location-aware model (variant \"located\"): only the curve's shape matters,\n"
             "the stiffness field (data/plate_spring_field.npz) sets its size and direction at each vertex.\n"
@@ -154,16 +202,23 @@ def calibrate_rig(db, protocol_file, trials, profile_file, out_file, as_json):
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--vertices", default=None, callback=_vertex_ids, help="Surface vertex ids, e.g. 3386,13629  [default: within 10 mm of the scene's hands]")
 @click.option("--out", "out_file", type=OutFile((".npz",)), default=None, help="[default: the cache folder, where sessions find it]")
+@click.option("--no-check", is_flag=True, help="Skip the transfer check (a direct solve at the farthest place per hand).")
+@click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Reference solves at once (default: every core).")
 @click.option("--json", "as_json", is_flag=True)
-def calibrate_truth(scene_file, vertices, out_file, as_json):
-    """The synthetic observer's truth at grasp places: the converged P2 reference's grasp
-    stiffness (the shipped body-fitted 8 / 6 / 4 mm meshes, Richardson). Needed for a scene, or grasp
-    places, that the shipped table (data/observer_truth.npz) does not cover."""
+def calibrate_truth(scene_file, vertices, out_file, no_check, jobs, as_json):
+    """The synthetic observer's truth at grasp places: the converged reference's finite-strain
+    path along each hand's pull (the scene's law on the shipped body-fitted 8 / 6 / 4 mm meshes,
+    Richardson) and its small-strain transfer to the places around it. Needed for a scene, or
+    grasp places, that the shipped table (data/observer_truth.npz) does not cover; the shipped
+    scene's paths are shipped solves, another scene's take minutes per pull and mesh."""
     from analysis.truth import build_truth
 
-    rep = build_truth(scene_file, out_file, vertices, progress=None if as_json else click.echo)
+    rep = build_truth(scene_file, out_file, vertices, check=not no_check, jobs=jobs, progress=None if as_json else click.echo)
     if as_json:
         _print_json(rep)
         return
-    click.echo(f"wrote {rep['out']}: {rep['vertices']} grasp places ({rep['seconds']:.0f} s); GCI median {rep['gci_median']:.1%}, "
-               f"max {rep['gci_max']:.1%}")
+    click.echo(f"wrote {rep['out']}: {rep['vertices']} grasp places on {len(rep['paths'])} paths ({rep['seconds']:.0f} s); path GCI "
+               f"median {rep['path_gci_median']:.1%}, max {rep['path_gci_max']:.1%}")
+    for c in rep["transfer_checks"]:
+        click.echo(f"transfer check {c['hand']}: vertex {c['vertex']}, {c['distance_mm']:.1f} mm from the hand's, largest error "
+                   f"{c['error_max']:.1%} (median {c['error_median']:.1%}) on the {c['mesh_mm']:g} mm mesh")

@@ -124,10 +124,12 @@ def _check_grasp(grasp, mesh) -> None:
 @model.command("fem")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--resolution", type=float, default=None, help="Target edge of the body-fitted mesh in millimetres, 3..8 (default: the scene's, else 8; 8, 6 and 4 are shipped).")
-@click.option("--formulation", type=click.Choice(["linear", "corotational", "neo-hookean"]), default="linear", show_default=True)
+@click.option("--formulation", type=click.Choice(["linear", "corotational", "finite-strain"]), default="linear", show_default=True,
+              help="finite-strain: the scene's material law (docs/material.md), Newton along the pull.")
 @click.option("--grasp", required=True, callback=_vector, help=f"Grasp point X,Y,Z in metres, within the grasp reach ({VisualStep.grasp_reach * 1e3:g} mm) of the brain surface (snapped to it).")
 @click.option("--displacement", required=True, callback=_pull, help=f"Displacement DX,DY,DZ of the grasp point in metres, at most {MAX_PULL_M:g} m long.")
-@click.option("--steps", type=click.IntRange(1, 200), default=5, show_default=True, help="Load steps of the nonlinear solves.")
+@click.option("--steps", type=click.IntRange(1, 200), default=5, show_default=True,
+              help="Load steps of the nonlinear solves (finite-strain: the first step is 1/steps of the pull, then adaptive).")
 @click.option("--order", type=click.IntRange(1, 2), default=None, help="Element order: 1 linear, 2 quadratic tetrahedra (default: the scene's, else 2; 1 for --formulation corotational).")
 @click.option("--json", "as_json", is_flag=True)
 def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacement, steps: int, order, as_json: bool):
@@ -160,9 +162,9 @@ def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacemen
             f"final residuals {', '.join(f'{r:.1e}' for r in out['final_residuals'] if r is not None)}"
             + ("; inverted elements" if out["inverted_elements"] else "")
         )
-        if out.get("completed_steps") is not None and out["completed_steps"] < out["load_steps"]:
-            console.print(f"warning: the solve diverged after {out['completed_steps']} of {out['load_steps']} load steps; "
-                          "the force and displacements above are those it reached, not the requested pull's")
+        if not out["converged"]:
+            console.print("warning: the solve stopped " + _stopped(out) + "; the force and displacements above are those it reached, "
+                          "not the requested pull's")
     from rich.table import Table
 
     t = Table(title="phase times")
@@ -178,12 +180,21 @@ def _check_converged(out: dict) -> None:
     """A nonlinear solve that did not converge is a failure (exit status 1), not a result."""
     if out["converged"]:
         return
-    n, done = out["load_steps"], out.get("completed_steps")
-    where = f"diverged after {done} of {n} load steps" if done is not None and done < n else f"did not converge in {n} load step{'s' * (n != 1)}"
-    raise click.ClickException(
-        f"the {out['formulation']} solve {where}" + (" (elements inverted)" if out.get("inverted_elements") else "")
-        + ": the force is not the requested pull's; try more --steps or a shorter --displacement"
-    )
+    raise click.ClickException(f"the {out['formulation']} solve stopped {_stopped(out)}: the force is not the requested pull's; "
+                               "try more --steps or a shorter --displacement")
+
+
+def _stopped(out: dict) -> str:
+    """Where a nonlinear solve stopped, and why."""
+    frac, n, done = out.get("completed_fraction"), out["load_steps"], out.get("completed_steps")
+    if frac is not None:
+        where = f"at {frac:.0%} of the pull after {done} load step{'s' * (done != 1)}"
+    elif done is not None and done < n:
+        where = f"after {done} of {n} load steps"
+    else:
+        where = f"without converging in {n} load step{'s' * (n != 1)}"
+    why = out.get("reason") or ("elements inverted" if out.get("inverted_elements") else "")
+    return where + (f" ({why})" if why else "")
 
 
 @model.command("mass-spring")

@@ -3,7 +3,9 @@
 - `p1`, `p2`: the elements (shape functions, quadrature, element stiffness);
 - `linear`: small-strain linear elasticity, assembly, the clamp, one factorisation (`LinearFem`);
 - `grasp`: the grasp constraint and its condensation;
-- `newton`: the compressible neo-Hookean Newton solver, the element a parameter;
+- `space`: the elements on a mesh with its clamp (`TetSpace`), shared by every solve;
+- `finite_strain`: a finite-strain law (`sim.hyperelastic`) on a space (P2, or P2/P0 with a mean dilatation);
+- `newton`: the one Newton solver for finite strain, following a held constraint's path;
 - `corotational`: the stiffness-warping update (P1);
 - `model`: `FemModel` under the tissue-model contract, and `build` from a scene;
 - `pull`: one static pull (`studyctl model fem`).
@@ -11,8 +13,10 @@
 SI units; dof ``3 i + c`` is component c of node i.
 """
 
+from sim.hyperelastic import Hyperelastic
 from sim.linalg import Factor, SingularSystemError
 from sim.models.fem.corotational import corotational_internal_force, corotational_solve, element_rotations
+from sim.models.fem.finite_strain import FiniteStrain
 from sim.models.fem.grasp import condense, constraint_matrix, pull_stiffness
 from sim.models.fem.linear import ASSEMBLIES, LOCKING_POISSON, LinearFem, assemble, check_material, element_dofs, lame
 from sim.models.fem.model import (
@@ -24,10 +28,11 @@ from sim.models.fem.model import (
            build,
            fixed_nodes,
 )
-from sim.models.fem.newton import NewtonReport, neo_hookean_solve
+from sim.models.fem.newton import HeldPath, NewtonReport, hold
 from sim.models.fem.pull import FORMULATIONS, static_pull
+from sim.models.fem.space import TetSpace
 
 __all__ = ["ASSEMBLIES", "COROT_FORCE_LIMIT", "DEFAULT_ORDER", "DEFAULT_RESOLUTION", "FORMULATIONS", "LOCKING_POISSON", "Factor",
-           "FemContact", "FemModel", "LinearFem", "NewtonReport", "SingularSystemError", "assemble", "build", "check_material",
+           "FemContact", "FemModel", "FiniteStrain", "HeldPath", "Hyperelastic", "LinearFem", "NewtonReport", "TetSpace", "SingularSystemError", "assemble", "build", "check_material",
            "condense", "constraint_matrix", "corotational_internal_force", "corotational_solve", "element_dofs", "element_rotations",
-           "fixed_nodes", "lame", "neo_hookean_solve", "pull_stiffness", "static_pull"]
+           "fixed_nodes", "hold", "lame", "pull_stiffness", "static_pull"]

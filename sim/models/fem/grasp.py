@@ -49,9 +49,10 @@ def pull_stiffness(fem, tet: np.ndarray, bary: np.ndarray, weights: np.ndarray) 
     return condense(fem, constraint_matrix(fem, tet, bary, weights))[2]
 
 
-def compliances(fem, Ws: list) -> np.ndarray:
+def compliances(factor, Ws: list) -> np.ndarray:
     """The symmetrised compliances W K^-1 W^T (k, 3, 3) of several grasps, from one solve with
-    3k right-hand sides (the stiffness field's and the observer truth's many grasps)."""
-    U = fem.solve_free(np.ascontiguousarray(sp.hstack([W.T for W in Ws]).toarray()))
+    3k right-hand sides (the stiffness field's and the observer truth's many grasps); `factor`
+    a factorised K (`sim.linalg.Factor`)."""
+    U = factor.solve(np.ascontiguousarray(sp.hstack([W.T for W in Ws]).toarray()))
     C = np.stack([W @ U[:, 3 * j : 3 * j + 3] for j, W in enumerate(Ws)])
     return 0.5 * (C + np.swapaxes(C, 1, 2))

@@ -13,11 +13,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from sim.errors import ParameterError
-from sim.linalg import Factor, SingularSystemError
+from sim.linalg import Factor
 from sim.models.base import POISSON_MAX, POISSON_MIN
 from sim.models.fem import p1, p2
+from sim.models.fem.space import TetSpace
 
-ELEMENTS = {1: p1, 2: p2}
 # Locking follows the element. Linear tetrahedra are already far too stiff at the brain's
 # Poisson 0.45 (docs/fem.md): the P1 error grows like 1/(1 - 2 nu), so P1 is flagged from 0.4
 # on; quadratic tetrahedra only close to incompressibility.
@@ -74,20 +74,7 @@ class Timings:
     factorisation_s: float = 0.0
 
 
-def _check(nodes: np.ndarray, tets: np.ndarray, fixed: np.ndarray, order: int) -> None:
-    if nodes.ndim != 2 or nodes.shape[1] != 3 or tets.ndim != 2 or tets.shape[1] != 4:
-        raise ParameterError("nodes must be (n, 3) and tets (m, 4)")
-    if fixed.shape != (len(nodes),):
-        raise ParameterError(f"fixed: must be a boolean mask over the {len(nodes)} nodes")
-    if len(tets) == 0 or tets.min() < 0 or tets.max() >= len(nodes):
-        raise ParameterError(f"tets: indices must be in 0..{len(nodes) - 1}")
-    if order not in ELEMENTS:
-        raise ParameterError(f"order: {order!r} is not an element order; allowed: 1 (linear), 2 (quadratic tetrahedra)")
-    if not fixed.any():
-        raise SingularSystemError("fixed: no fixed nodes; the stiffness is singular (rigid-body motion is free)")
-
-
-class LinearFem:
+class LinearFem(TetSpace):
     """Linear elasticity on linear (order 1) or quadratic (order 2) tetrahedra with nodes
     `fixed` clamped.
 
@@ -98,32 +85,17 @@ class LinearFem:
     """
 
     def __init__(self, nodes, tets, young: float, poisson: float, fixed, order: int = 1):
-        nodes = np.asarray(nodes, dtype=np.float64)
-        tets = np.asarray(tets, dtype=np.int64)
-        fixed = np.asarray(fixed, dtype=bool)
-        _check(nodes, tets, fixed, order)
+        start = time.perf_counter()
+        super().__init__(nodes, tets, fixed, order)
         check_material(young, poisson)
-        self.nodes, self.tets, self.fixed = nodes, tets, fixed
         self.young, self.poisson = float(young), float(poisson)
         self.lam, self.mu = lame(young, poisson)
-        self.order = order
-        self.element = ELEMENTS[order]
         self.timings = Timings()
-        start = time.perf_counter()
-        self.grads, vol = p1.shape_gradients(nodes, tets)
-        if np.any(vol < 0):
-            raise ParameterError(f"tets: {int(np.sum(vol < 0))} elements are inverted (negative volume)")
-        self.volumes = vol
         if order == 1:
-            self.all_nodes, self.elements = nodes, tets
-            self.element_matrices = p1.element_stiffness(self.grads, vol, self.lam, self.mu)  # kept for the corotational update
+            self.element_matrices = p1.element_stiffness(self.grads, self.volumes, self.lam, self.mu)  # kept for the corotational update
             matrices = self.element_matrices
         else:
-            self.all_nodes, self.elements, edges = p2.mesh(nodes, tets)
-            matrices = p2.element_stiffness(self.grads, vol, self.lam, self.mu)
-            fixed = np.concatenate([fixed, fixed[edges].all(axis=1)])
-        self.n_all = len(self.all_nodes)
-        self.free = np.flatnonzero(~np.repeat(fixed, 3))  # free dof -> global dof
+            matrices = p2.element_stiffness(self.grads, self.volumes, self.lam, self.mu)
         self.reduced = assemble(matrices, self.elements, self.n_all, self.free)
         self.timings.assembly_s = time.perf_counter() - start
         self._stiffness: sp.csr_matrix | None = None
@@ -166,11 +138,6 @@ class LinearFem:
         out.timings = Timings()
         return out
 
-    def quadrature(self) -> tuple[np.ndarray, np.ndarray]:
-        """Shape-function gradients at the quadrature points (m, q, k, 3) and the points' weights (m, q)."""
-        G = self.element.quadrature_gradients(self.grads)
-        return G, np.repeat(np.abs(self.volumes)[:, None] / G.shape[1], G.shape[1], axis=1)
-
     def solve_free(self, b: np.ndarray) -> np.ndarray:
         return self.factor.solve(b)
 
@@ -188,9 +155,3 @@ class LinearFem:
         if self.order != 1:
             raise ParameterError("order: the corotational solver needs linear (order 1) tetrahedra")
         return np.asarray(u_nodes).reshape(-1)[self.free]
-
-    def from_free(self, u_free: np.ndarray, corners: bool = True) -> np.ndarray:
-        """Displacements (n, 3) of a free-dof vector: the corners, or every node (n_all, 3)."""
-        u = np.zeros(3 * self.n_all)
-        u[self.free] = u_free
-        return (u[: 3 * len(self.nodes)] if corners else u).reshape(-1, 3)

@@ -1,12 +1,14 @@
-"""Static compressible neo-Hookean solve with a grasp held, on P1 or P2 tetrahedra: the one
-Newton solver of the haptic model's nonlinear reference (`studyctl model fem`) and of the
-converged reference (`analysis.reference`).
+"""The FEM core's one Newton solver for finite strain: hold linear constraints on the free dofs
+(a grasp's ``W u = d``, or a cube's faces) at a target, following the load path from rest.
 
-Energy density ``mu/2 (I1 - 3) - mu ln J + lam/2 (ln J)^2``, integrated at the element's
-quadrature points (one for P1, four for P2). The grasp ``W u = d`` is imposed with a Lagrange
-multiplier, condensed (Schur complement: 3 extra solves per iteration). The displacement is
-applied in equal load steps, each Newton-iterated to a relative residual below `tol`; an
-indefinite tangent is factorised shifted (`sim.linalg.shifted_factor`).
+The constraint is a Lagrange multiplier, condensed (a Schur complement: k extra solves per
+iteration for k constraint rows). The path ``d(t) = t target``, t in (0, 1], is followed in
+adaptive steps: each step starts from the last two states extrapolated, is Newton-iterated
+to a relative residual below `tol`, halved when it fails (an inverted element or no
+convergence) and lengthened when it converges quickly; steps land on every requested
+fraction, where the force and the condensed tangent stiffness ``(W K_t^-1 W^T)^-1`` of the
+converged state are recorded. The tangent's pattern is fixed, so CHOLMOD's symbolic analysis
+is done once; an indefinite tangent is factorised shifted (`sim.linalg.shifted_factor`).
 """
 
 from __future__ import annotations
@@ -16,8 +18,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from sim.linalg import shifted_factor
-from sim.models.fem.linear import element_dofs
+from sim.linalg import SingularSystemError, shifted_factor, symbolic
+
+FLOOR = 1e-6  # a residual below this whose Newton steps no longer move the state is at round-off (kappa = 50 mu)
 
 
 @dataclass
@@ -26,84 +29,250 @@ class NewtonReport:
     iterations: list[int] = field(default_factory=list)  # per load step
     residuals: list[list[float]] = field(default_factory=list)  # relative residual per iteration
     converged: bool = True
-    min_jacobian: float = 1.0  # smallest det(F) seen: <= 0 means an inverted element
+    min_jacobian: float = 1.0  # smallest det(F) of a converged state: <= 0 means an inverted element
     shifts: int = 0  # Newton iterations whose tangent was indefinite (factorised shifted)
     tangent_updates: int = 0  # refactorisations (corotational solver)
     completed_steps: int | None = None  # load steps solved; fewer than load_steps when the solve stopped
+    cut_steps: int = 0  # steps halved after a failure (inverted elements or no convergence)
+    reason: str = ""  # why a solve stopped
+    linear_iterations: int = 0  # GMRES iterations (each: a tangent product and a solve with the last factor)
 
 
-def stress(F: np.ndarray, lam: float, mu: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """First Piola-Kirchhoff stress P, F^-1 and ln J at deformation gradients F (..., 3, 3)."""
-    J = np.linalg.det(F)
-    Finv = np.linalg.inv(F)
-    FinvT = np.swapaxes(Finv, -1, -2)
-    lnJ = np.log(J)
-    return mu * (F - FinvT) + (lam * lnJ)[..., None, None] * FinvT, Finv, lnJ
+@dataclass
+class HeldPath:
+    """What `hold` returns: the state at the last converged step, and the records."""
+
+    u: np.ndarray  # (3 n_all,) displacement of the last converged state
+    multipliers: np.ndarray  # (k,) force holding the constraints there (on the body: + pulls along W)
+    fractions: np.ndarray  # the recorded t
+    forces: np.ndarray  # (len(fractions), k); NaN where not reached
+    stiffness: np.ndarray | None  # (len(fractions), k, k) condensed tangents, when asked for
+    report: NewtonReport
+    states: list = field(default_factory=list)  # the u of each recorded fraction, when asked for
+    fraction_done: float = 1.0  # the t of the last converged state
 
 
-def tangent(G: np.ndarray, wq: np.ndarray, Finv: np.ndarray, lnJ: np.ndarray, lam: float, mu: float) -> np.ndarray:
-    """Element tangents (m, 3k, 3k) of A_iJkL = mu d_ik d_JL + (mu - lam lnJ) Finv_Li Finv_Jk + lam Finv_Ji Finv_Lk."""
-    m, nq, k = G.shape[:3]
-    X = np.einsum("mqLi,mqaL->mqai", Finv, G).reshape(m, nq, 3 * k)  # (g_a . Finv)_i
-    c1 = (mu - lam * lnJ) * wq
-    K = (lam * np.matmul(np.swapaxes(X * wq[..., None], 1, 2), X)).reshape(m, k, 3, k, 3)
-    K += np.matmul(np.swapaxes(X * c1[..., None], 1, 2), X).reshape(m, k, 3, k, 3).transpose(0, 1, 4, 3, 2)
-    gg = np.einsum("mqaj,mqbj->mab", G * wq[..., None, None], G)
-    K += mu * gg[:, :, None, :, None] * np.eye(3)[None, None, :, None, :]
-    return K.reshape(m, 3 * k, 3 * k)
+def _residual(f_free, Wt, lam, gap, scale) -> tuple[np.ndarray, float]:
+    r = f_free - Wt @ lam
+    denom = max(float(np.linalg.norm(f_free)), float(np.linalg.norm(Wt @ lam)), 1e-300)
+    return r, max(float(np.linalg.norm(r)) / denom, float(np.linalg.norm(gap)) / scale)
 
 
-def neo_hookean_solve(fem, W: sp.csr_matrix, target: np.ndarray, steps: int = 10, tol: float = 1e-8, max_iter: int = 25,
-                      on_step=None):
-    """Hold the grasp (W u = d) at `target` (3,) on `fem` (a `LinearFem`, either order). W may
-    have any number of rows k (then `target` is (k,)): any linear constraints on the free dofs.
-
-    Returns (nodal displacements (n_all, 3), force holding the grasp (k,), NewtonReport); a
-    solve that stops (an inverted element, or no convergence in `max_iter`) returns its last
-    state with ``converged`` False. `on_step(step, u (n_all, 3), force (3,))`, if given, sees
-    each converged load step (a whole force-displacement curve from one solve)."""
-    lam, mu = fem.lam, fem.mu
-    G, wq = fem.quadrature()
-    m, k = G.shape[0], G.shape[2]
-    dofs = element_dofs(fem.elements)
-    rows, cols = np.repeat(dofs, 3 * k, axis=1).ravel(), np.tile(dofs, (1, 3 * k)).ravel()
-    free, n = fem.free, 3 * fem.n_all
-    u, lam_mult = np.zeros(n), np.zeros(W.shape[0])
+def hold(system, W: sp.csr_matrix, target, fractions=(1.0,), *, first_step: float = 0.25, min_step: float = 1e-3,
+         tol: float = 1e-8, max_iter: int = 12, stiffness: bool = False, keep_states: bool = False) -> HeldPath:
+    """Follow ``W u = t target`` from t = 0 to the largest of `fractions` on `system` (a
+    `FiniteStrain`). W (k, n_free) any linear constraints on the free dofs."""
+    space = system.space
+    free, n = space.free, 3 * space.n_all
+    target = np.asarray(target, dtype=np.float64).reshape(-1)
+    fractions = np.asarray(sorted(float(t) for t in fractions), dtype=np.float64)
+    if W.shape != (len(target), len(free)) or not (fractions[0] > 0 and fractions[-1] <= 1.0 + 1e-12):
+        raise ValueError("hold: W must be (k, n_free) for k targets, fractions in (0, 1]")
     Wt = np.ascontiguousarray(W.T.toarray())
-    report = NewtonReport(load_steps=steps, completed_steps=0)
-    scale = max(float(np.linalg.norm(target)), 1e-12)
-    for step in range(1, steps + 1):
-        d = np.asarray(target, dtype=np.float64) * step / steps
-        hist: list[float] = []
+    scale = max(float(np.linalg.norm(target)), 1e-300)
+    report = NewtonReport(load_steps=0, completed_steps=0)
+    forces = np.full((len(fractions), len(target)), np.nan)
+    Ks = np.full((len(fractions), len(target), len(target)), np.nan) if stiffness else None
+    states: list = []
+    steps = _Steps(W, Wt)
+    t_done, u_done, lam_done = 0.0, np.zeros(n), np.zeros(len(target))
+    prev = None  # (t, u, lam) of the step before, for the predictor
+    h = min(first_step, fractions[-1])
+    record = 0
+    while record < len(fractions):
+        t_new = min(t_done + h, fractions[record])
+        if fractions[record] - t_new < 0.25 * h:  # no sliver of a step before a record
+            t_new = fractions[record]
+        d = target * t_new
+        if prev is not None and t_done > prev[0]:  # secant predictor from the last two states
+            w = (t_new - t_done) / (t_done - prev[0])
+            u, lam = u_done + w * (u_done - prev[1]), lam_done + w * (lam_done - prev[2])
+        else:
+            u, lam = u_done.copy(), lam_done.copy()
+        ok, hist, last = _iterate(system, W, Wt, u, lam, d, scale, tol, max_iter, steps, report)
         report.residuals.append(hist)
-        for _ in range(max_iter):
-            F = np.eye(3) + np.einsum("mai,mqaj->mqij", u[dofs].reshape(m, k, 3), G)
-            J = np.linalg.det(F)
-            report.min_jacobian = min(report.min_jacobian, float(J.min()))
-            if np.any(J <= 0):
-                break
-            P, Finv, lnJ = stress(F, lam, mu)
-            f_int = np.bincount(dofs.ravel(), weights=np.einsum("mq,mqij,mqaj->mai", wq, P, G).ravel(), minlength=n)
-            r = f_int[free] - Wt @ lam_mult  # internal force minus the grasp's
-            gap = W @ u[free] - d
-            res = float(np.linalg.norm(r)) / max(float(np.linalg.norm(f_int[free])), float(np.linalg.norm(Wt @ lam_mult)), 1e-30)
-            hist.append(max(res, float(np.linalg.norm(gap)) / scale))
-            if len(hist) > 1 and hist[-1] < tol:
-                break
-            Kt = sp.coo_matrix((tangent(G, wq, Finv, lnJ, lam, mu).ravel(), (rows, cols)), shape=(n, n)).tocsr()[free][:, free]
-            factor = shifted_factor(0.5 * (Kt + Kt.T))
-            del Kt
-            report.shifts += int(factor.shift > 0)
-            Kr, KW = factor.solve(-r), factor.solve(Wt)
-            dl = np.linalg.solve(W @ KW, -gap - W @ Kr)
-            u[free] += Kr + KW @ dl
-            lam_mult = lam_mult + dl
-            del factor
         report.iterations.append(len(hist))
-        if not (len(hist) > 1 and hist[-1] < tol):
-            report.converged = False
-            return u.reshape(-1, 3), lam_mult, report
-        report.completed_steps = step
-        if on_step is not None:
-            on_step(step, u.reshape(-1, 3).copy(), lam_mult.copy())
-    return u.reshape(-1, 3), lam_mult, report
+        if not ok and last is not None and prev is not None and not np.array_equal(u, u_done):
+            # the predictor may have overshot into inverted elements: try from the last state
+            ok, hist, last = _iterate(system, W, Wt, u_done.copy(), lam_done.copy(), d, scale, tol, max_iter, steps, report)
+            report.residuals.append(hist)
+            report.iterations.append(len(hist))
+        if not ok:
+            report.cut_steps += 1
+            h = 0.5 * (t_new - t_done)
+            if h < min_step * fractions[-1]:
+                report.converged = False
+                report.reason = last if isinstance(last, str) else "no convergence"
+                break
+            continue
+        u_new, lam_new, min_j = last
+        prev = (t_done, u_done, lam_done)
+        t_done, u_done, lam_done = t_new, u_new, lam_new
+        report.completed_steps += 1
+        report.load_steps += 1
+        report.min_jacobian = min(report.min_jacobian, min_j)
+        if len(hist) <= 4:
+            h = min(2.0 * (t_new - prev[0]), 0.5)
+        else:
+            h = t_new - prev[0]
+        while record < len(fractions) and t_done >= fractions[record] - 1e-12:
+            forces[record] = lam_done
+            if stiffness:
+                Ks[record] = _condensed(system, W, Wt, u_done, steps, report)
+            if keep_states:
+                states.append(u_done.copy())
+            record += 1
+    return HeldPath(u=u_done, multipliers=lam_done, fractions=fractions, forces=forces, stiffness=Ks, report=report, states=states,
+                    fraction_done=t_done)
+
+
+class _Steps:
+    """The constrained Newton step, [K -W^T; W 0] [du; dl] = [-r; -gap], for one solve.
+
+    Factorising the tangent is most of a Newton iteration's cost (CHOLMOD, about 1 s at 45k
+    unknowns, 5 s at 130k), so the step is found by GMRES on the KKT system, preconditioned by
+    the exact step of the last factorised tangent (its factor and K0^-1 W^T kept); the tangent is
+    factorised afresh when GMRES needs more than `REFRESH` iterations. Where K is not positive
+    definite (compression can make it so while the constrained problem is not), the factor is
+    of the augmented Lagrangian's K + rho W^T W, whose constrained step is the same; failing
+    that, shifted (a modified Newton step)."""
+
+    REFRESH = 20
+
+    def __init__(self, W: sp.csr_matrix, Wt: np.ndarray):
+        self.W, self.Wt = W, Wt
+        self.WtW = None
+        self.analyses: dict = {}
+        self.factor = None
+
+    def refactor(self, K, report) -> None:
+        self.factor = None  # free the old factor before the new one is made
+        rho = 0.0
+        try:
+            f = shifted_factor(K, analysis=self._analysis("plain", K), shifts=(0.0,))
+        except SingularSystemError:
+            if self.WtW is None:
+                self.WtW = (self.W.T @ self.W).tocsr()
+            rho = float(np.mean(np.abs(K.diagonal()))) / max(float(np.max(np.abs(self.WtW.diagonal()))), 1e-300) * 10.0
+            Ka = (K + rho * self.WtW).tocsr()
+            f = shifted_factor(Ka, analysis=self._analysis("augmented", Ka))
+            report.shifts += int(f.shift > 0)
+        report.tangent_updates += 1
+        KW = f.solve(self.Wt)
+        self.factor, self.rho, self.KW, self.S = f, rho, KW, self.W @ KW
+
+    def _analysis(self, kind, A):
+        if kind not in self.analyses:
+            self.analyses[kind] = symbolic(A)
+        return self.analyses[kind]
+
+    def exact(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The factorised tangent's solution of [K -W^T; W 0] [x; y] = [a; b]."""
+        rhs = a + self.rho * (self.Wt @ b) if self.rho else a
+        Kr = self.factor.solve(rhs)
+        y = np.linalg.solve(self.S, b - self.W @ Kr)
+        return Kr + self.KW @ y, y
+
+    def step(self, K, r: np.ndarray, gap: np.ndarray, report, rtol: float = 1e-8) -> tuple[np.ndarray, np.ndarray]:
+        """The step to a relative accuracy `rtol` of the KKT residual (an inexact Newton step:
+        loose far from the solution, tight near it)."""
+        if self.factor is None:
+            self.refactor(K, report)
+            return self.exact(-r, -gap)
+        W, Wt = self.W, self.Wt
+
+        def kkt(x, y):
+            return K @ x - Wt @ y, W @ x
+
+        x, y, its = right_gmres(kkt, self.exact, -r, -gap, rtol, self.REFRESH)
+        report.linear_iterations += its
+        if x is None:
+            self.refactor(K, report)
+            return self.exact(-r, -gap)
+        return x, y
+
+
+def right_gmres(A, M, a: np.ndarray, b: np.ndarray, rtol: float, maxiter: int):
+    """GMRES with right preconditioning on the block system A (x, y) = (a, b), M the
+    preconditioner (x, y) -> (x, y); the true residual's norm is what is minimised, so the
+    stopping test is on it. Returns (x, y, iterations), or (None, None, iterations) when
+    `maxiter` iterations do not reach `rtol`."""
+    n = len(a)
+    rhs = np.concatenate([a, b])
+    beta = float(np.linalg.norm(rhs))
+    if beta == 0.0:
+        return np.zeros_like(a), np.zeros_like(b), 0
+    V = [rhs / beta]
+    Z: list[np.ndarray] = []
+    H = np.zeros((maxiter + 1, maxiter))
+    for j in range(maxiter):
+        zx, zy = M(V[j][:n], V[j][n:])
+        Z.append(np.concatenate([zx, zy]))
+        wx, wy = A(zx, zy)
+        w = np.concatenate([wx, wy])
+        for i in range(j + 1):  # modified Gram-Schmidt
+            H[i, j] = float(V[i] @ w)
+            w = w - H[i, j] * V[i]
+        H[j + 1, j] = float(np.linalg.norm(w))
+        e1 = np.zeros(j + 2)
+        e1[0] = beta
+        c, *_ = np.linalg.lstsq(H[: j + 2, : j + 1], e1, rcond=None)
+        res = float(np.linalg.norm(H[: j + 2, : j + 1] @ c - e1))
+        if res <= rtol * beta or H[j + 1, j] <= 1e-14 * beta:
+            sol = np.column_stack(Z) @ c
+            return sol[:n], sol[n:], j + 1
+        V.append(w / H[j + 1, j])
+    return None, None, maxiter
+
+
+def _iterate(system, W, Wt, u, lam, d, scale, tol, max_iter, steps: _Steps, report):
+    """Newton on one step from (u, lam). Returns (converged, residual history, (u, lam, min J) or
+    why it stopped)."""
+    free = system.space.free
+    hist: list[float] = []
+    moved = np.inf
+    state = system.evaluate(u, tangent=True)
+    if state["min_jacobian"] <= 0:
+        return False, hist, "elements inverted"
+    for _ in range(max_iter):
+        gap = W @ u[free] - d
+        r, res = _residual(state["f"][free], Wt, lam, gap, scale)
+        hist.append(res)
+        if len(hist) > 1 and (res < tol or (res < FLOOR and moved <= 1e-12 * max(float(np.linalg.norm(u[free])), 1e-300))):
+            # converged, or at the round-off floor (the residual no longer falls and the steps are nothing)
+            return True, hist, (u, lam, state["min_jacobian"])
+        if len(hist) > 1 and hist[-1] > 0.25 * hist[-2]:
+            steps.factor = None  # Newton is not contracting on the old tangent's steps: factorise this one
+        try:
+            # Eisenstat-Walker-like forcing: the linear solve as accurate as the residual warrants
+            du, dl = steps.step(state["K"], r, gap, report, rtol=float(np.clip(0.1 * res, 1e-10, 1e-2)))
+        except SingularSystemError:
+            return False, hist, "tangent singular"
+        step = 1.0
+        for _ in range(6):  # back off a step that inverts elements
+            trial = u.copy()
+            trial[free] += step * du
+            state = system.evaluate(trial, tangent=True)
+            if state["min_jacobian"] > 0:
+                break
+            step *= 0.5
+        else:
+            return False, hist, "elements inverted"
+        moved = step * float(np.linalg.norm(du))
+        u, lam = trial, lam + step * dl
+        if len(hist) > 3 and hist[-1] > 10.0 * hist[-4]:
+            return False, hist, "diverging"
+    gap = W @ u[free] - d
+    r, res = _residual(state["f"][free], Wt, lam, gap, scale)
+    hist.append(res)
+    if res < tol:
+        return True, hist, (u, lam, state["min_jacobian"])
+    return False, hist, "no convergence"
+
+
+def _condensed(system, W, Wt, u, steps: _Steps, report) -> np.ndarray:
+    """(W K_t^-1 W^T)^-1 at the converged state u, from a fresh factorisation there: the force's
+    tangent against the target (with the augmented factor, (W Ka^-1 W^T)^-1 - rho I: the same)."""
+    steps.refactor(system.evaluate(u, tangent=True)["K"], report)
+    out = np.linalg.inv(0.5 * (steps.S + steps.S.T))
+    return out - steps.rho * np.eye(len(out)) if steps.rho else out

@@ -10,10 +10,10 @@ from sim.errors import ParameterError
 from sim.models.base import pull_problem
 from sim.models.fem.corotational import corotational_solve
 from sim.models.fem.model import DEFAULT_ORDER, DEFAULT_RESOLUTION, FemModel, fixed_nodes
-from sim.models.fem.newton import NewtonReport, neo_hookean_solve
+from sim.models.fem.newton import NewtonReport, hold
 from sim.patch import GRASP_RADIUS
 
-FORMULATIONS = ("linear", "corotational", "neo-hookean")
+FORMULATIONS = ("linear", "corotational", "finite-strain")
 TICKS = 20000  # servo-tick force calls timed
 
 
@@ -41,13 +41,17 @@ def _time_ticks(model, contact, d: tuple) -> float:
     return (time.perf_counter() - t0) / TICKS
 
 
-def _solve(model, contact, d: np.ndarray, formulation: str, steps: int) -> tuple[np.ndarray, np.ndarray, dict]:
+def _solve(model, contact, d: np.ndarray, formulation: str, steps: int, law=None) -> tuple[np.ndarray, np.ndarray, dict]:
     """(force holding the grasp (3,), every node's displacement, the solver's report)."""
     if formulation == "linear":
         return np.asarray(model.grasp_forces([contact], [d])), model.nodal_displacement([contact], [d]), {"converged": True}
     part = model.parts[contact.data.part]
-    if formulation == "neo-hookean":
-        u_part, force, rep = neo_hookean_solve(part, contact.data.W, d, steps=steps)
+    if formulation == "finite-strain":  # the scene's law on the model's mesh and element (P2: displacement-based)
+        from sim.models.fem.finite_strain import FiniteStrain
+
+        held = hold(FiniteStrain(part, law, mean_dilatation=False), contact.data.W, d, first_step=1.0 / steps)
+        u_part, force, rep = held.u.reshape(-1, 3), held.multipliers, held.report
+        rep.completed_fraction = float(held.fraction_done)
     else:
         u_part, force, rep = corotational_solve(part, contact.data.W, contact.data.U, d, steps=steps)
     u = np.zeros((model.n_model_nodes, 3))
@@ -85,7 +89,7 @@ def static_pull(scene, grasp, displacement, resolution: float | None = None, for
     model.deformation([contact], [d])
     times["frame_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    force, u, report = _solve(model, contact, d, formulation, steps)
+    force, u, report = _solve(model, contact, d, formulation, steps, material.law)
     if formulation != "linear":
         times["solve_s"] = time.perf_counter() - t0
     part = model.parts[contact.data.part]
@@ -112,4 +116,6 @@ def _report(rep: NewtonReport) -> dict:
         "tangent_updates": rep.tangent_updates,
         # a solve that stopped early returns the state of its last solved load step
         "completed_steps": rep.completed_steps,
+        "completed_fraction": getattr(rep, "completed_fraction", 1.0 if rep.converged else None),
+        "reason": rep.reason,
     }

@@ -1,0 +1,67 @@
+"""Make the shipped finite-strain reference solves: data/reference_pulls.npz and its record
+data/reference_pulls.json (the file's SHA-256, what each entry is, how long it took).
+
+Solves the accuracy bench's 18 pulls (`sim.reference.make_pulls` and `test_pulls`) of the
+shipped scene on each shipped mesh (8, 6, 4 mm) with the scene's law (protocols/materials/
+human_cortex.toml), recording every 2 mm to 24 mm (`analysis.reference.RECORD_XS`), the hand
+pulls with their condensed tangent stiffness too (the observer's truth reads them). Solves
+already cached ($BRAINSIM_CACHE/reference) are reused.
+
+    .venv/bin/python scripts/make_reference_pulls.py [--jobs 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import hashlib
+import json
+import time
+
+import numpy as np
+
+from analysis.reference import RECORD_XS, SHIPPED_PULLS, SHIPPED_PULLS_INFO, _cache_file, pull_references
+from brainsim_assets import version
+from sim.reference import hand_pulls, make_pulls, scene_with, test_pulls
+from sim.scene import DEFAULT_SCENE
+from sim.tetmesh import SHIPPED_MM
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--jobs", type=int, default=2)
+    args = ap.parse_args()
+    scene = scene_with(DEFAULT_SCENE)
+    pulls = make_pulls(scene) + test_pulls(scene)
+    hands = {p.name for p in make_pulls(scene) if any(p.vertex == h.vertex and np.allclose(p.direction, h.direction) for h in hand_pulls(scene))}
+    start = time.perf_counter()
+
+    def progress(k, n):
+        print(f"{k}/{n} solves, {time.perf_counter() - start:.0f} s", flush=True)
+
+    refs = pull_references(DEFAULT_SCENE, pulls, RECORD_XS, SHIPPED_MM, jobs=args.jobs, progress=progress, stiffness_for=hands)
+    arrays, entries = {}, []
+    for p in pulls:
+        for s in refs["pulls"][p.name]["solves"]:
+            key = s["key"]
+            if not s["converged"]:
+                entries.append({"pull": p.name, "size_mm": s["size_mm"], "key": key, "converged": False, "reason": s.get("reason", "")})
+                continue
+            with np.load(_cache_file(key), allow_pickle=False) as z:
+                for name in z.files:
+                    arrays[f"{key}__{name}"] = z[name]
+            meta = json.loads(str(arrays[f"{key}__meta"]))
+            entries.append({"pull": p.name, "size_mm": s["size_mm"], "key": key, "stiffness": p.name in hands} | meta)
+    np.savez_compressed(SHIPPED_PULLS, **arrays)
+    law = scene.spec.material.law
+    SHIPPED_PULLS_INFO.write_text(json.dumps({
+        "sha256": hashlib.sha256(SHIPPED_PULLS.read_bytes()).hexdigest(),
+        "made": datetime.date.today().isoformat(), "version": version(), "law": law.params(),
+        "law_source": "protocols/materials/human_cortex.toml", "scene": "protocols/scenes/brain_pull.toml",
+        "record_mm": [round(x * 1e3, 6) for x in RECORD_XS], "sizes_mm": list(SHIPPED_MM),
+        "made_by": "scripts/make_reference_pulls.py", "wall_s": time.perf_counter() - start, "entries": entries}, indent=1) + "\n")
+    print(f"wrote {SHIPPED_PULLS} ({len(entries)} solves)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,182 @@
+"""Finite-strain hyperelastic laws for brain tissue, nearly incompressible, with a
+deviatoric/volumetric split (docs/material.md):
+
+    psi = sum_p 2 mu_p / alpha_p^2 (lb1^alpha_p + lb2^alpha_p + lb3^alpha_p - 3) + kappa/2 (ln J)^2
+
+with lb_i = J^(-1/3) l_i the isochoric principal stretches. This is the convention of Budday
+et al. (2017): mu = sum_p mu_p is the small-strain shear modulus, and every term is stable
+for mu_p > 0, whatever the sign of alpha_p. The three laws are one family:
+
+- neo-Hookean: one term, alpha = 2 (psi = mu/2 (Ib1 - 3));
+- Mooney-Rivlin: alpha = 2 and -2 (psi = mu1/2 (Ib1 - 3) + mu2/2 (Ib2 - 3));
+- Ogden: N terms of free alpha (one term with alpha near -20 follows human brain, Budday
+  et al. 2017; Linka et al. 2023).
+
+The volumetric energy kappa/2 (ln J)^2 is FEBio's for its uncoupled laws; kappa is
+`bulk_ratio` times mu (`BULK_RATIO`, why in docs/material.md). The closed-form homogeneous
+responses here (uniaxial loading with free lateral faces, simple shear) are what
+`studyctl calibrate material` fits and what the cube tests hold the FEM to. SI units.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.errors import ParameterError
+
+LAWS = ("neo-hookean", "mooney-rivlin", "ogden")
+# kappa / mu: small-strain Poisson ratio 0.49, the brain-shift models' value (Wittek et al. 2007,
+# Miller et al. 2010: nearly incompressible, with the element free of locking); docs/material.md
+BULK_RATIO = 50.0
+BULK_RATIO_RANGE = (1.0, 1.0e4)
+ALPHA_RANGE = (-60.0, 60.0)  # |alpha| above this over/underflows stretches of 0.1..10
+
+
+@dataclass(frozen=True)
+class Hyperelastic:
+    """One law: its name, the terms' shear moduli `mu` (Pa) and exponents `alpha`, and kappa / mu."""
+
+    law: str
+    mu: tuple[float, ...]
+    alpha: tuple[float, ...]
+    bulk_ratio: float = BULK_RATIO
+
+    def __post_init__(self):
+        problem = law_problem(self)
+        if problem:
+            raise ParameterError(problem)
+
+    @property
+    def shear_modulus(self) -> float:
+        """Pa: the small-strain shear modulus, sum of mu_p."""
+        return float(sum(self.mu))
+
+    @property
+    def bulk_modulus(self) -> float:
+        return self.bulk_ratio * self.shear_modulus
+
+    @property
+    def poisson(self) -> float:
+        """The small-strain Poisson ratio of kappa and mu: (3 kappa - 2 mu) / (2 (3 kappa + mu))."""
+        r = self.bulk_ratio
+        return (3.0 * r - 2.0) / (2.0 * (3.0 * r + 1.0))
+
+    def young(self, poisson: float) -> float:
+        """The Young's modulus of a linear model with this shear modulus and `poisson`: 2 mu (1 + nu)."""
+        return 2.0 * self.shear_modulus * (1.0 + poisson)
+
+    def scaled(self, ratio: float) -> Hyperelastic:
+        """The same law with every mu_p times `ratio` (a stiffer or softer brain of the same shape)."""
+        return Hyperelastic(self.law, tuple(m * ratio for m in self.mu), self.alpha, self.bulk_ratio)
+
+    def terms(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.asarray(self.mu, dtype=np.float64), np.asarray(self.alpha, dtype=np.float64)
+
+    def params(self) -> dict:
+        """The law's own parameters under its own names (SI): what a material file and
+        `calibrate material --json` hold."""
+        if self.law == "neo-hookean":
+            out = {"law": self.law, "mu": self.mu[0]}
+        elif self.law == "mooney-rivlin":
+            out = {"law": self.law, "mu1": self.mu[0], "mu2": self.mu[1]}
+        else:
+            out = {"law": self.law, "mu": list(self.mu), "alpha": list(self.alpha)}
+        return out | {"bulk_ratio": self.bulk_ratio}
+
+    def describe(self) -> str:
+        terms = ", ".join(f"mu {m:.4g} Pa, alpha {a:.4g}" for m, a in zip(self.mu, self.alpha))
+        return f"{self.law} ({terms}; kappa = {self.bulk_ratio:g} mu)"
+
+
+def neo_hookean(mu: float, bulk_ratio: float = BULK_RATIO) -> Hyperelastic:
+    return Hyperelastic("neo-hookean", (float(mu),), (2.0,), float(bulk_ratio))
+
+
+def mooney_rivlin(mu1: float, mu2: float, bulk_ratio: float = BULK_RATIO) -> Hyperelastic:
+    return Hyperelastic("mooney-rivlin", (float(mu1), float(mu2)), (2.0, -2.0), float(bulk_ratio))
+
+
+def ogden(mu, alpha, bulk_ratio: float = BULK_RATIO) -> Hyperelastic:
+    mu, alpha = tuple(float(m) for m in np.atleast_1d(mu)), tuple(float(a) for a in np.atleast_1d(alpha))
+    return Hyperelastic("ogden", mu, alpha, float(bulk_ratio))
+
+
+def law_problem(law: Hyperelastic) -> str:
+    """What is wrong with a law's parameters, or ''."""
+    if law.law not in LAWS:
+        return f"law: {law.law!r} is not one of {', '.join(LAWS)}"
+    if len(law.mu) == 0 or len(law.mu) != len(law.alpha):
+        return "mu, alpha: one alpha per mu, at least one term"
+    for m in law.mu:
+        if not (math.isfinite(m) and m >= 0.0):
+            return f"mu: {m!r} is out of range; allowed: a finite number >= 0 Pa per term (a negative term is unstable)"
+    if not sum(law.mu) > 0.0:
+        return "mu: the terms' sum (the shear modulus) must be > 0 Pa"
+    for a in law.alpha:
+        if not (math.isfinite(a) and a != 0.0 and ALPHA_RANGE[0] <= a <= ALPHA_RANGE[1]):
+            return f"alpha: {a!r} is out of range; allowed: {ALPHA_RANGE[0]:g}..{ALPHA_RANGE[1]:g}, not 0"
+    lo, hi = BULK_RATIO_RANGE
+    if not (math.isfinite(law.bulk_ratio) and lo <= law.bulk_ratio <= hi):
+        return f"bulk_ratio: {law.bulk_ratio!r} is out of range; allowed: {lo:g}..{hi:g} (kappa / mu)"
+    return ""
+
+
+# -- closed forms in principal stretches ---------------------------------------------------------
+
+def principal_nominal(law: Hyperelastic, l1, l2, l3) -> tuple:
+    """The principal nominal (first Piola-Kirchhoff) stresses dpsi/dl_i (Pa) at principal
+    stretches (arrays broadcast): (1/l_i) [sum_p (2 mu_p/alpha_p) J^(-alpha_p/3) (l_i^alpha_p -
+    (1/3) sum_j l_j^alpha_p) + kappa ln J]."""
+    l1, l2, l3 = (np.asarray(x, dtype=np.float64) for x in (l1, l2, l3))
+    J = l1 * l2 * l3
+    out = [law.bulk_modulus * np.log(J) for _ in range(3)]
+    for m, a in zip(law.mu, law.alpha):
+        c = 2.0 * m / a * J ** (-a / 3.0)
+        pw = (l1**a, l2**a, l3**a)
+        mean = (pw[0] + pw[1] + pw[2]) / 3.0
+        for i in range(3):
+            out[i] = out[i] + c * (pw[i] - mean)
+    return tuple(o / li for o, li in zip(out, (l1, l2, l3)))
+
+
+def uniaxial(law: Hyperelastic, stretch) -> tuple[np.ndarray, np.ndarray]:
+    """Uniaxial loading with free lateral faces: (nominal stress along the load, Pa; lateral
+    stretch), the lateral stretch solving a zero lateral stress (Newton on its log, to round-off)."""
+    lam = np.atleast_1d(np.asarray(stretch, dtype=np.float64))
+    t = -0.5 * np.log(lam)  # the incompressible lateral stretch's log: the start
+    for _ in range(60):
+        lt = np.exp(t)
+        f = principal_nominal(law, lam, lt, lt)[1] * lt
+        h = 1e-7
+        df = (principal_nominal(law, lam, np.exp(t + h), np.exp(t + h))[1] * np.exp(t + h) - f) / h
+        step = f / df
+        t = t - step
+        if np.all(np.abs(step) < 1e-15):
+            break
+    lt = np.exp(t)
+    return principal_nominal(law, lam, lt, lt)[0], lt
+
+
+def incompressible_uniaxial(law: Hyperelastic, stretch) -> np.ndarray:
+    """The incompressible limit: P = sum_p (2 mu_p / alpha_p) (l^(alpha_p - 1) - l^(-alpha_p/2 - 1))."""
+    lam = np.asarray(stretch, dtype=np.float64)
+    return sum(2.0 * m / a * (lam ** (a - 1.0) - lam ** (-a / 2.0 - 1.0)) for m, a in zip(law.mu, law.alpha))
+
+
+def simple_shear(law: Hyperelastic, gamma: float) -> np.ndarray:
+    """The first Piola-Kirchhoff stress (3, 3) in simple shear F = I + gamma e1 (x) e2 (J = 1,
+    so no volumetric part): the Cauchy stress sum_i s_i n_i (x) n_i in the principal frame of
+    b = F F^T, s_i = sum_p (2 mu_p/alpha_p)(l_i^alpha_p - mean_j l_j^alpha_p), times F^-T."""
+    F = np.eye(3)
+    F[0, 1] = gamma
+    c, n = np.linalg.eigh(F @ F.T)
+    lam = np.sqrt(c)
+    s = np.zeros(3)
+    for m, a in zip(law.mu, law.alpha):
+        pw = lam**a
+        s += 2.0 * m / a * (pw - pw.mean())
+    sigma = (n * s) @ n.T
+    return sigma @ np.linalg.inv(F).T

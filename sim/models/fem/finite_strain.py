@@ -1,0 +1,82 @@
+"""A finite-strain hyperelastic body on a `TetSpace`: internal forces, the tangent on the free
+dofs and the energy of a displacement field (`FiniteStrain`), for the Newton solver
+(`newton.hold`).
+
+The element is the space's (P1 or P2) with one mean dilatation per element: the volumetric
+energy is V_e U(theta_e), theta_e = (1/V_e) int_e J dV (Simo, Taylor and Pister 1985; the
+three-field u/theta/p element with theta and p constant per element, condensed). On P2 this is
+the P2/P0 mixed element, which satisfies the inf-sup condition and does not lock as kappa/mu
+grows (docs/material.md shows it on a cantilever); on P1 theta is J itself, the plain
+displacement element (which locks). Kernels: `hyperelastic_kernels`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from sim.hyperelastic import Hyperelastic
+from sim.models.fem.hyperelastic_kernels import element_pass, pattern_positions, scatter_matrix, scatter_vector
+from sim.models.fem.linear import element_dofs
+
+CHUNK = 16384  # elements per compiled pass: their (30 x 30) tangents stay at 118 MB on P2
+
+
+class FiniteStrain:
+    """The law `law` on the space `space` (a `TetSpace` or `LinearFem`)."""
+
+    def __init__(self, space, law: Hyperelastic, mean_dilatation: bool = True):
+        self.space, self.law = space, law
+        self.mean_dilatation = bool(mean_dilatation)
+        self.G, self.wq = space.quadrature()
+        self.G = np.ascontiguousarray(self.G)
+        self.dofs = element_dofs(space.elements)
+        n = 3 * space.n_all
+        self.free = space.free
+        self.free_pos = np.full(n, -1, dtype=np.int64)
+        self.free_pos[self.free] = np.arange(len(self.free))
+        # the tangent's pattern on the free dofs, found once; each assembly only adds values
+        rows = self.free_pos[np.repeat(self.dofs, self.dofs.shape[1], axis=1).ravel()]
+        cols = self.free_pos[np.tile(self.dofs, (1, self.dofs.shape[1])).ravel()]
+        keep = (rows >= 0) & (cols >= 0)
+        nf = len(self.free)
+        pattern = sp.csr_matrix((np.ones(int(keep.sum())), (rows[keep], cols[keep])), shape=(nf, nf))
+        pattern.sum_duplicates()
+        pattern.sort_indices()
+        self.indptr, self.indices = pattern.indptr.astype(np.int64), pattern.indices.astype(np.int64)
+        self.pos = pattern_positions(self.dofs.astype(np.int64), self.free_pos, self.indptr, self.indices)
+        self.mu, self.alpha = law.terms()
+        self.kappa = law.bulk_modulus
+
+    def element_displacements(self, u: np.ndarray) -> np.ndarray:
+        """(m, k, 3) element nodal displacements of a full (3 n_all,) vector."""
+        k = self.dofs.shape[1] // 3
+        return u[self.dofs].reshape(len(self.dofs), k, 3)
+
+    def evaluate(self, u: np.ndarray, tangent: bool = True) -> dict:
+        """At the displacement `u` (3 n_all,): the internal force on every dof `f` (3 n_all,),
+        the tangent on the free dofs `K` (CSR, or None), the energy, the smallest J of any
+        quadrature point `min_jacobian` and the mean dilatations' range. A state with an
+        inverted point (min_jacobian <= 0) has infinite energy and no usable force."""
+        ue = self.element_displacements(u)
+        m, nd = self.dofs.shape
+        f = np.zeros(3 * self.space.n_all)
+        data = np.zeros(len(self.indices)) if tangent else None
+        energy = np.zeros(m)
+        theta = np.zeros(m)
+        min_j = np.zeros(m)
+        for a in range(0, m, CHUNK):
+            b = min(m, a + CHUNK)
+            fe = np.zeros((b - a, nd))
+            Ke = np.zeros((b - a, nd, nd)) if tangent else np.zeros((1, 1, 1))
+            element_pass(self.G[a:b], self.wq[a:b], np.ascontiguousarray(ue[a:b]), self.mu, self.alpha, self.kappa, self.mean_dilatation, tangent,
+                         fe, Ke, energy[a:b], theta[a:b], min_j[a:b])
+            scatter_vector(fe, self.dofs[a:b], f)
+            if tangent:
+                scatter_matrix(Ke, self.pos[a:b], data)
+        K = None
+        if tangent:
+            nf = len(self.free)
+            K = sp.csr_matrix((data, self.indices, self.indptr), shape=(nf, nf))
+        return {"f": f, "K": K, "energy": float(np.sum(energy)), "min_jacobian": float(min_j.min()),
+                "theta_range": (float(theta.min()), float(theta.max()))}

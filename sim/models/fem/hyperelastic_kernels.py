@@ -1,0 +1,325 @@
+"""Compiled element passes (numba) of the finite-strain laws (`sim/hyperelastic.py`) on P1/P2
+tetrahedra with a mean dilatation per element (`finite_strain.py`): internal forces, tangents,
+energies, and their scatter into a fixed sparse pattern.
+
+At each quadrature point the isochoric Ogden energy is an isotropic function of C = F^T F,
+taken in C's eigenbasis (c_a, N_a; a cyclic Jacobi iteration, accurate for repeated
+eigenvalues): S = sum_a s_a N_a N_a with s_a = 2 dW/dc_a, and the material tangent
+4 d2W/dCdC = sum_ab 2 ds_a/dc_b N_aN_aN_bN_b + sum_(a!=b) (s_a - s_b)/(c_a - c_b)
+(N_aN_bN_aN_b + N_aN_bN_bN_a), the divided difference taken in a form that stays accurate as
+c_a -> c_b (the reference state, where every point has c = 1). The volumetric part uses the
+element's mean J (theta = int J / V, Simo, Taylor and Pister 1985): its energy V U(theta).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, inline="always")
+def _eig3(A, w, V):
+    """Eigenvalues w (3,) and eigenvectors (columns of V) of the symmetric 3 x 3 A (overwritten):
+    cyclic Jacobi rotations to round-off."""
+    for i in range(3):
+        for j in range(3):
+            V[i, j] = 1.0 if i == j else 0.0
+    for _ in range(30):
+        off = A[0, 1] * A[0, 1] + A[0, 2] * A[0, 2] + A[1, 2] * A[1, 2]
+        diag = A[0, 0] * A[0, 0] + A[1, 1] * A[1, 1] + A[2, 2] * A[2, 2]
+        if off <= 1e-36 * diag:
+            break
+        for p, q in ((0, 1), (0, 2), (1, 2)):
+            apq = A[p, q]
+            if apq == 0.0:
+                continue
+            theta = (A[q, q] - A[p, p]) / (2.0 * apq)
+            t = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1.0))
+            c = 1.0 / math.sqrt(t * t + 1.0)
+            s = t * c
+            A[p, p] -= t * apq
+            A[q, q] += t * apq
+            A[p, q] = 0.0
+            A[q, p] = 0.0
+            r = 3 - p - q
+            arp, arq = A[r, p], A[r, q]
+            A[r, p] = c * arp - s * arq
+            A[p, r] = A[r, p]
+            A[r, q] = s * arp + c * arq
+            A[q, r] = A[r, q]
+            for k in range(3):
+                vkp, vkq = V[k, p], V[k, q]
+                V[k, p] = c * vkp - s * vkq
+                V[k, q] = s * vkp + c * vkq
+    for i in range(3):
+        w[i] = A[i, i]
+
+
+@numba.njit(cache=True, inline="always")
+def _power_dd(ca, cb, beta):
+    """(ca^beta - cb^beta) / (ca - cb), accurate as ca -> cb (limit beta cb^(beta - 1))."""
+    t = math.log(ca / cb)
+    if abs(t) < 1e-5:
+        r = beta * (1.0 + 0.5 * (beta - 1.0) * t + (2.0 * beta - 1.0) * (beta - 1.0) * t * t / 12.0)
+    else:
+        r = math.expm1(beta * t) / math.expm1(t)
+    return cb ** (beta - 1.0) * r
+
+
+@numba.njit(cache=True, inline="always")
+def _iso_point(F, J, mu, alpha, c, N, s, M, D):
+    """The isochoric part at one point: eigen-pairs of C (c, N), s_a = 2 dW/dc_a, M_ab =
+    2 ds_a/dc_b and D_ab = (s_a - s_b)/(c_a - c_b) (a != b); returns the energy density."""
+    C = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            C[i, j] = F[0, i] * F[0, j] + F[1, i] * F[1, j] + F[2, i] * F[2, j]
+    _eig3(C, c, N)
+    for a in range(3):
+        s[a] = 0.0
+        for b in range(3):
+            M[a, b] = 0.0
+            D[a, b] = 0.0
+    energy = 0.0
+    for p in range(mu.shape[0]):
+        al = alpha[p]
+        beta = 0.5 * al - 1.0
+        Jp = J ** (-al / 3.0)
+        A = 2.0 * mu[p] / al * Jp
+        pw0, pw1, pw2 = c[0] ** (0.5 * al), c[1] ** (0.5 * al), c[2] ** (0.5 * al)
+        m = (pw0 + pw1 + pw2) / 3.0
+        energy += 2.0 * mu[p] / (al * al) * (Jp * 3.0 * m - 3.0)
+        cb = (pw0 / c[0], pw1 / c[1], pw2 / c[2])  # c_a^beta
+        for a in range(3):
+            sa = cb[a] - m / c[a]
+            s[a] += A * sa
+            for b in range(3):
+                v = -al / (6.0 * c[b]) * sa - al / 6.0 * cb[b] / c[a]
+                if a == b:
+                    v += beta * cb[a] / c[a] + m / (c[a] * c[a])
+                M[a, b] += 2.0 * A * v
+                if a != b:
+                    D[a, b] += A * (_power_dd(c[a], c[b], beta) + m / (c[a] * c[b]))
+    return energy
+
+
+@numba.njit(cache=True, parallel=True)
+def element_pass(G, wq, ue, mu, alpha, kappa, mean, want_tangent, fe, Ke, energy, theta, minJ):
+    """For every element e: the internal force fe[e] (3k,), the tangent Ke[e] (3k, 3k) when
+    `want_tangent`, the energy, the mean dilatation theta and the smallest J of its points.
+
+    G (m, q, k, 3) shape-function gradients at the quadrature points, wq (m, q) their weights,
+    ue (m, k, 3) the element's nodal displacements. `mean`: the volumetric energy of the
+    element's mean J (P2/P0); else of each point's J (the plain displacement element). An element with a point at J <= 0 gets
+    minJ <= 0 and no force (the caller rejects the state)."""
+    m, nq, k = G.shape[0], G.shape[1], G.shape[2]
+    nd = 3 * k
+    for e in numba.prange(m):
+        F = np.empty((3, 3))
+        Finv = np.empty((3, 3))
+        c = np.empty(3)
+        N = np.empty((3, 3))
+        s = np.empty(3)
+        Mab = np.empty((3, 3))
+        Dab = np.empty((3, 3))
+        n = np.empty((3, 3))
+        qg = np.empty((k, 3))
+        Y = np.empty((9, nd))
+        Z = np.empty((9, nd))
+        X = np.empty((nq, k, 3))
+        Jq = np.zeros(nq)
+        g = np.zeros(nd)
+        f = np.zeros(nd)
+        if want_tangent:
+            for i in range(nd):
+                for j in range(nd):
+                    Ke[e, i, j] = 0.0
+        vol, jint, en, jmin = 0.0, 0.0, 0.0, np.inf
+        for q in range(nq):
+            w = wq[e, q]
+            vol += w
+            for i in range(3):
+                for J_ in range(3):
+                    acc = 1.0 if i == J_ else 0.0
+                    for a in range(k):
+                        acc += ue[e, a, i] * G[e, q, a, J_]
+                    F[i, J_] = acc
+            Jd = (F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]) - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
+                  + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]))
+            jmin = min(jmin, Jd)
+            if Jd <= 0.0:
+                continue
+            en += w * _iso_point(F, Jd, mu, alpha, c, N, s, Mab, Dab)
+            jint += w * Jd
+            # n_a = F N_a; qg[a', b] = grad N_a' . N_b
+            for i in range(3):
+                for a in range(3):
+                    n[i, a] = F[i, 0] * N[0, a] + F[i, 1] * N[1, a] + F[i, 2] * N[2, a]
+            for a in range(k):
+                for b in range(3):
+                    qg[a, b] = G[e, q, a, 0] * N[0, b] + G[e, q, a, 1] * N[1, b] + G[e, q, a, 2] * N[2, b]
+            for a in range(k):
+                for i in range(3):
+                    acc = 0.0
+                    for b in range(3):
+                        acc += s[b] * n[i, b] * qg[a, b]
+                    f[3 * a + i] += w * acc
+            # F^-1, for the volumetric variations: X[a, i] = grad N_a . F^-1[:, i]
+            inv = 1.0 / Jd
+            Finv[0, 0] = (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]) * inv
+            Finv[0, 1] = (F[0, 2] * F[2, 1] - F[0, 1] * F[2, 2]) * inv
+            Finv[0, 2] = (F[0, 1] * F[1, 2] - F[0, 2] * F[1, 1]) * inv
+            Finv[1, 0] = (F[1, 2] * F[2, 0] - F[1, 0] * F[2, 2]) * inv
+            Finv[1, 1] = (F[0, 0] * F[2, 2] - F[0, 2] * F[2, 0]) * inv
+            Finv[1, 2] = (F[0, 2] * F[1, 0] - F[0, 0] * F[1, 2]) * inv
+            Finv[2, 0] = (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]) * inv
+            Finv[2, 1] = (F[0, 1] * F[2, 0] - F[0, 0] * F[2, 1]) * inv
+            Finv[2, 2] = (F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]) * inv
+            Jq[q] = Jd
+            for a in range(k):
+                for i in range(3):
+                    X[q, a, i] = G[e, q, a, 0] * Finv[0, i] + G[e, q, a, 1] * Finv[1, i] + G[e, q, a, 2] * Finv[2, i]
+                    g[3 * a + i] += w * Jd * X[q, a, i]
+            if not want_tangent:
+                continue
+            # isochoric material part: Y^T Q Y with Y[(a,b), (a', i)] = qg[a', b] n[i, a]
+            for a in range(3):
+                for b in range(3):
+                    r = 3 * a + b
+                    for ap in range(k):
+                        for i in range(3):
+                            Y[r, 3 * ap + i] = qg[ap, b] * n[i, a]
+            for a in range(3):
+                for b in range(3):
+                    r = 3 * a + b
+                    if a == b:
+                        for col in range(nd):
+                            Z[r, col] = Mab[a, 0] * Y[0, col] + Mab[a, 1] * Y[4, col] + Mab[a, 2] * Y[8, col]
+                    else:
+                        rt = 3 * b + a
+                        for col in range(nd):
+                            Z[r, col] = Dab[a, b] * (Y[rt, col] + Y[r, col])
+            for i in range(nd):
+                for j in range(i, nd):
+                    acc = 0.0
+                    for r in range(9):
+                        acc += Y[r, i] * Z[r, j]
+                    Ke[e, i, j] += w * acc
+            # geometric part: delta_ik sum_b s_b qg[a', b] qg[b', b]
+            for ap in range(k):
+                for bp in range(ap, k):
+                    geo = w * (s[0] * qg[ap, 0] * qg[bp, 0] + s[1] * qg[ap, 1] * qg[bp, 1] + s[2] * qg[ap, 2] * qg[bp, 2])
+                    for i in range(3):
+                        Ke[e, 3 * ap + i, 3 * bp + i] += geo
+        theta[e] = jint / vol
+        minJ[e] = jmin
+        if jmin <= 0.0:
+            for i in range(nd):
+                fe[e, i] = 0.0
+            energy[e] = np.inf
+            continue
+        if not mean:
+            # each point's own J: U(J), P = U'(J) J F^-T, tangent (U'' J^2 X X + U' J (X X - X X))
+            env = 0.0
+            for q in range(nq):
+                w, Jd = wq[e, q], Jq[q]
+                lj = math.log(Jd)
+                env += w * 0.5 * kappa * lj * lj
+                p = kappa * lj / Jd
+                dp = kappa * (1.0 - lj) / (Jd * Jd)
+                for a in range(k):
+                    for i in range(3):
+                        f[3 * a + i] += w * p * Jd * X[q, a, i]
+                if want_tangent:
+                    c1, c2 = w * p * Jd, w * dp * Jd * Jd
+                    for ap in range(k):
+                        for i in range(3):
+                            row = 3 * ap + i
+                            for bp in range(k):
+                                for kk in range(3):
+                                    col = 3 * bp + kk
+                                    if col >= row:
+                                        Ke[e, row, col] += (c1 + c2) * X[q, ap, i] * X[q, bp, kk] - c1 * X[q, ap, kk] * X[q, bp, i]
+            energy[e] = en + env
+            for i in range(nd):
+                fe[e, i] = f[i]
+            if want_tangent:
+                for i in range(nd):
+                    for j in range(i):
+                        Ke[e, i, j] = Ke[e, j, i]
+            continue
+        th = theta[e]
+        lt = math.log(th)
+        p = kappa * lt / th
+        dp = kappa * (1.0 - lt) / (th * th)
+        energy[e] = en + vol * 0.5 * kappa * lt * lt
+        for i in range(nd):
+            fe[e, i] = f[i] + p * g[i]
+        if want_tangent:
+            # the pressure's geometric term: p int J (X_ai X_bk - X_ak X_bi)
+            for q in range(nq):
+                c1 = p * wq[e, q] * Jq[q]
+                for ap in range(k):
+                    for i in range(3):
+                        row = 3 * ap + i
+                        for bp in range(k):
+                            for kk in range(3):
+                                col = 3 * bp + kk
+                                if col >= row:
+                                    Ke[e, row, col] += c1 * (X[q, ap, i] * X[q, bp, kk] - X[q, ap, kk] * X[q, bp, i])
+            c2 = dp / vol
+            for i in range(nd):
+                for j in range(i, nd):
+                    Ke[e, i, j] += c2 * g[i] * g[j]
+            for i in range(nd):
+                for j in range(i):
+                    Ke[e, i, j] = Ke[e, j, i]
+
+
+@numba.njit(cache=True)
+def pattern_positions(dofs, free_pos, indptr, indices):
+    """Where each element entry (e, r, c) lands in the data of a CSR matrix over the free dofs
+    (-1: a clamped row or column): binary search in the row's sorted columns."""
+    m, nd = dofs.shape
+    out = np.full((m, nd, nd), -1, dtype=np.int32)
+    for e in range(m):
+        for r in range(nd):
+            row = free_pos[dofs[e, r]]
+            if row < 0:
+                continue
+            lo0, hi0 = indptr[row], indptr[row + 1]
+            for c in range(nd):
+                col = free_pos[dofs[e, c]]
+                if col < 0:
+                    continue
+                lo, hi = lo0, hi0
+                while lo < hi:
+                    mid = (lo + hi) // 2
+                    if indices[mid] < col:
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                out[e, r, c] = lo
+    return out
+
+
+@numba.njit(cache=True)
+def scatter_matrix(Ke, pos, data):
+    """data[pos[e, r, c]] += Ke[e, r, c] for every entry with a position."""
+    m, nd = Ke.shape[0], Ke.shape[1]
+    for e in range(m):
+        for r in range(nd):
+            for c in range(nd):
+                p = pos[e, r, c]
+                if p >= 0:
+                    data[p] += Ke[e, r, c]
+
+
+@numba.njit(cache=True)
+def scatter_vector(fe, dofs, out):
+    m, nd = fe.shape
+    for e in range(m):
+        for r in range(nd):
+            out[dofs[e, r]] += fe[e, r]

@@ -1,0 +1,123 @@
+"""`studyctl calibrate material` and material files (analysis/material_fit.py, sim/material.py):
+the fit against an independent one, the chosen law and its errors as the issue states them,
+refusals with the file, line and allowed values, and a written file read back by a scene."""
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scipy.optimize import curve_fit
+
+from analysis.material_fit import DATA_FILE, read_curve
+from sim.material import load_material
+from sim.scene import load_scene
+from studyctl.cli import cli
+from tests.conftest import ROOT
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    res = CliRunner().invoke(cli, ["calibrate", "material", "--data", str(DATA_FILE), "--region", "cortex", "--json"])
+    assert res.exit_code == 0, res.output
+    return json.loads(res.output)
+
+
+def test_cortex_chooses_one_term_ogden_within_ten_percent(fitted):
+    assert fitted["law"] == "ogden" and len(fitted["mu"]) == len(fitted["alpha"]) == 1
+    assert 1000 < fitted["mu"][0] < 2500 and -25 < fitted["alpha"][0] < -12  # Pa; a large negative exponent
+    assert fitted["rms_rel"] <= 0.10  # the issue's bound; measured 5.6%
+    laws = {f["law"]: f for f in fitted["laws"]}
+    assert laws["neo-hookean"]["rms_rel"] > 3 * fitted["rms_rel"]  # it cannot follow the asymmetry
+    assert laws["ogden"]["aicc"] < laws["neo-hookean"]["aicc"] and laws["ogden"]["identified"]
+    lo, hi = laws["ogden"]["ci95"]["mu"]
+    assert lo < fitted["mu"][0] < hi
+    assert fitted["data"]["sha256"] == "2b895488b4a2be6ad7ca95de513a474ba3fde2c1187f8c9fe6156e7cf588ef6a"
+
+
+def test_the_fit_agrees_with_an_independent_incompressible_fit(fitted):
+    """scipy's curve_fit on the incompressible closed form, written here: P = 2 mu/a (l^(a-1) -
+    l^(-a/2-1)). The fitted law is nearly incompressible (kappa = 50 mu), so within a few %."""
+    c = read_curve(DATA_FILE, "cortex")
+    (mu, a), _ = curve_fit(lambda lam, mu, a: 2 * mu / a * (lam ** (a - 1) - lam ** (-a / 2 - 1)), c.stretch, c.stress, p0=(1500, -20))
+    assert fitted["mu"][0] == pytest.approx(mu, rel=0.05) and fitted["alpha"][0] == pytest.approx(a, rel=0.05)
+
+
+def test_the_shipped_material_is_the_fit_and_the_default(fitted):
+    law, prov = load_material(ROOT / "protocols/materials/human_cortex.toml")
+    assert law.mu == pytest.approx(tuple(fitted["mu"]), rel=1e-9) and law.alpha == pytest.approx(tuple(fitted["alpha"]), rel=1e-9)
+    assert prov["sha256"] == fitted["data"]["sha256"] and prov["region"] == "cortex"
+    assert load_scene(ROOT / "protocols/scenes/brain_pull.toml").material.law == law
+
+
+def test_written_material_file_is_read_back_by_a_scene(tmp_path):
+    out = tmp_path / "wm.toml"
+    res = CliRunner().invoke(cli, ["calibrate", "material", "--region", "corona_radiata", "--law", "ogden", "--law", "neo-hookean",
+                                   "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "chosen" in res.output and "ogden" in res.output
+    law, prov = load_material(out)
+    assert law.law == "ogden" and prov["region"] == "corona_radiata" and 0 < prov["rms_rel"] < 0.1
+    scene = tmp_path / "s.toml"
+    text = (ROOT / "protocols/scenes/brain_pull.toml").read_text().replace('"../../data/', f'"{ROOT}/data/').replace(
+        '"../models/', f'"{ROOT}/protocols/models/').replace('"../materials/human_cortex.toml"', f'"{out}"')
+    scene.write_text(text)
+    spec = load_scene(scene)
+    assert spec.material.law == law and spec.material.young == pytest.approx(2 * law.shear_modulus * 1.45)
+
+
+@pytest.mark.parametrize("csv, region, message", [
+    ("region,stretch,nominal_stress_kpa\ncortex,0.9,-1.0\ncortex,0.95,-0.4\ncortex,1.05,0.1\ncortex,1.1,nan\n", "cortex",
+     r"d.csv:5: nominal_stress_kpa: nan is out of range"),
+    ("region,stretch,nominal_stress_kpa\ncortex,0.9,-1.0\n", "white", r"d.csv: region 'white' has no rows; regions there: cortex"),
+    ("region,stretch\ncortex,0.9\n", "cortex", r"d.csv: missing column\(s\) nominal_stress_kpa"),
+    ("region,stretch,nominal_stress_kpa\ncortex,0.9,-1.0\ncortex,1.1,0.4\n", "cortex", r"at least two points in tension and two in compression"),
+    ("region,stretch,nominal_stress_kpa\ncortex,9.0,-1.0\n", "cortex", r"d.csv:2: stretch: 9.0 is out of range; allowed: a number in 0.2..5"),
+])
+def test_bad_data_is_refused_with_file_line_and_range(tmp_path, csv, region, message):
+    path = tmp_path / "d.csv"
+    path.write_text(csv)
+    res = CliRunner().invoke(cli, ["calibrate", "material", "--data", str(path), "--region", region])
+    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert len(res.output.strip().splitlines()) == 1
+    import re
+
+    assert re.search(message, res.output), res.output
+
+
+@pytest.mark.parametrize("material, message", [
+    ('[material]\nlaw = "ogden"\nmu = [1500.0]\nalpha = [0.0]\n', r"m.toml:4: material.alpha: 0 is not an exponent"),
+    ('[material]\nlaw = "ogden"\nmu = [1500.0]\n', r"m.toml:1: material.alpha: missing"),
+    ('[material]\nlaw = "yeoh"\nmu = [1500.0]\n', r"m.toml:2: material.law: 'yeoh' is not one of neo-hookean, mooney-rivlin, ogden"),
+    ('[material]\nlaw = "mooney-rivlin"\nmu1 = 1.0\nmu2 = -2.0\n', r"m.toml:4: material.mu2: -2.0 is out of range"),
+    ('[material]\nlaw = "neo-hookean"\nmu = 1000.0\nbulk_ratio = 0.5\n', r"m.toml:4: material.bulk_ratio: 0.5 is out of range; allowed: \[1, 10000\]"),
+    ('[materials]\nlaw = "neo-hookean"\n', r"m.toml:1: materials: unknown key; allowed: material, provenance"),
+])
+def test_bad_material_files_are_refused_by_line(tmp_path, material, message):
+    import re
+
+    from sim.errors import ParameterError
+
+    path = tmp_path / "m.toml"
+    path.write_text(material)
+    with pytest.raises(ParameterError) as exc:
+        load_material(path)
+    assert re.search(message, str(exc.value)), str(exc.value)
+
+
+def test_a_scene_with_a_bad_material_file_names_that_files_line(tmp_path):
+    bad = tmp_path / "m.toml"
+    bad.write_text('[material]\nlaw = "ogden"\nmu = [1500.0]\nalpha = [99.0]\n')
+    scene = tmp_path / "s.toml"
+    scene.write_text((ROOT / "protocols/scenes/brain_pull.toml").read_text().replace('"../../data/', f'"{ROOT}/data/').replace(
+        '"../models/', f'"{ROOT}/protocols/models/').replace('"../materials/human_cortex.toml"', f'"{bad}"'))
+    res = CliRunner().invoke(cli, ["sim", "run", "--scene", str(scene), "--duration", "0.1", "--time-scale", "0"])
+    assert res.exit_code == 1 and f"{bad}:4: material.alpha: 99.0 is out of range; allowed: [-60, 60]" in res.output
+
+
+def test_nan_data_cells_give_one_line_not_a_traceback(tmp_path):
+    path = tmp_path / "d.csv"
+    path.write_text("region,stretch,nominal_stress_kpa\ncortex,0.9,-1\ncortex,abc,-0.5\n")
+    res = CliRunner().invoke(cli, ["calibrate", "material", "--data", str(path)])
+    assert res.exit_code == 1 and "d.csv:3: stretch: 'abc' is out of range" in res.output
+    assert np.isfinite(1.0)
