@@ -183,12 +183,13 @@ def calibration_curve(scene_path, xs, jobs: int | None = None, progress=None) ->
     """The converged reference's force magnitude (N, the scene's law) on the bench's calibration
     pulls (`make_pulls`), at displacements `xs`: (displacements, forces, how), the pulls'
     curves concatenated. What `calibrate plate-spring` fits to."""
-    from analysis.reference import DEFAULT_SIZES_MM, pull_references
+    from analysis.reference import DEFAULT_SIZES_MM, pull_references, require_converged
 
     scene = scene_with(scene_path)
     pulls = make_pulls(scene)
     xs = np.asarray(xs, dtype=np.float64)
     refs = pull_references(scene_path, pulls, xs, DEFAULT_SIZES_MM, jobs=jobs, progress=progress)["pulls"]
+    require_converged(refs, "calibration curve")
     law = scene.spec.material.law
     rows = reference_samples(refs, pulls, xs, law.shear_modulus)
     forces = np.array([[c["force_n"] for c in row] for row in rows])
@@ -208,7 +209,7 @@ def _task(task):
 def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | None = None, progress=None) -> dict:
     """The reference, then every setting, on the calibration and test pulls; returns rows
     (raw and calibrated per setting), per-sample verdicts and meta."""
-    from analysis.reference import pull_references
+    from analysis.reference import pull_references, require_converged
     from studyctl.sweep import run_tasks
 
     scene = scene_with(cfg.scene)
@@ -226,6 +227,7 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
 
     start = time.perf_counter()
     refs = pull_references(cfg.scene, pulls, xs, cfg.reference_sizes_mm, jobs=jobs, progress=ref_progress)
+    require_converged(refs["pulls"], "accuracy bench")
     ref_s = time.perf_counter() - start
     ref = reference_samples(refs["pulls"], pulls, xs, law.shear_modulus)
     n_ref = len(pulls) * len(cfg.reference_sizes_mm)

@@ -156,7 +156,7 @@ def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", 
 
     if formulation == "small-strain":
         return dataclasses.replace(start_params, layers=1), {"formulation": formulation, "within_jnd": 1.0, "pulls": []}
-    from analysis.reference import DEFAULT_SIZES_MM, build_problem, pull_references, pull_stiffness
+    from analysis.reference import DEFAULT_SIZES_MM, build_problem, pull_references, pull_stiffness, require_converged
     from sim.patch import patch_area_points
     from sim.reference import make_pulls, scene_with
     from sim.tetmesh import hemisphere_surface, mesh_hemisphere
@@ -166,6 +166,7 @@ def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", 
     pulls = make_pulls(scene)
     fine = min(DEFAULT_SIZES_MM)
     refs = pull_references(scene_path, pulls, xs, (fine,), jobs=jobs)["pulls"]
+    require_converged(refs, "located stack's curve")
     ratios = {}
     for label in sorted({p.hemisphere for p in pulls}):
         verts, tris, _ = hemisphere_surface(scene.mesh, label)

@@ -47,40 +47,31 @@ class Curve:
 
 
 def read_curve(path, region: str) -> Curve:
-    """The rows of `region` in a CSV with columns region, stretch, nominal_stress_kpa."""
-    import pandas as pd
+    """The rows of `region` in a CSV with columns region, stretch, nominal_stress_kpa (read
+    strictly: `studyctl.csvfiles.read_csv`); a bad cell is named by its line and column."""
+    from studyctl.csvfiles import read_csv
 
     p = Path(path)
-    try:
-        raw = p.read_bytes()
-    except OSError as exc:
-        raise MaterialDataError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    try:
-        df = pd.read_csv(p, dtype={"region": str})
-    except (ValueError, pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise MaterialDataError(f"{p}: not a CSV file: {str(exc).splitlines()[0]}") from None
-    need = ("region", "stretch", "nominal_stress_kpa")
-    missing = [c for c in need if c not in df.columns]
-    if missing:
-        raise MaterialDataError(f"{p}: missing column(s) {', '.join(missing)}; needed: {', '.join(need)}")
-    regions = sorted(str(r) for r in df["region"].dropna().unique())
-    sel = df[df["region"] == region]
-    if sel.empty:
+    columns = ("region", "stretch", "nominal_stress_kpa")
+    rows = read_csv(p, columns, columns)
+    regions = sorted({r["region"] for _, r in rows if r["region"]})
+    mine = [(line, r) for line, r in rows if r["region"] == region]
+    if not mine:
         raise MaterialDataError(f"{p}: region {region!r} has no rows; regions there: {', '.join(regions) or 'none'}")
-    for col, lo, hi in (("stretch", 0.2, 5.0), ("nominal_stress_kpa", -1e6, 1e6)):
-        vals = pd.to_numeric(sel[col], errors="coerce")
-        bad = ~np.isfinite(vals.to_numpy(dtype=np.float64)) | (vals < lo).to_numpy() | (vals > hi).to_numpy()
-        if bad.any():
-            row = int(sel.index[np.flatnonzero(bad)[0]]) + 2  # the header is line 1
-            v = sel[col].iloc[np.flatnonzero(bad)[0]]
-            shown = repr(v) if isinstance(v, str) else repr(float(v))
-            raise MaterialDataError(f"{p}:{row}: {col}: {shown} is out of range; "
-                                    f"allowed: a number in {lo:g}..{hi:g}")
-    lam = sel["stretch"].to_numpy(dtype=np.float64)
-    stress = sel["nominal_stress_kpa"].to_numpy(dtype=np.float64) * 1e3
+    values = {c: [] for c in columns[1:]}
+    for line, r in mine:
+        for col, lo, hi in (("stretch", 0.2, 5.0), ("nominal_stress_kpa", -1e6, 1e6)):
+            try:
+                v = float(r[col])
+            except ValueError:
+                v = math.nan
+            if not (math.isfinite(v) and lo <= v <= hi):
+                raise MaterialDataError(f"{p}:{line}: {col}: {r[col][:20]!r} is out of range; allowed: a number in {lo:g}..{hi:g}")
+            values[col].append(v)
+    lam, stress = np.array(values["stretch"]), np.array(values["nominal_stress_kpa"]) * 1e3
     if (lam < 1).sum() < 2 or (lam > 1).sum() < 2:
         raise MaterialDataError(f"{p}: region {region!r} needs at least two points in tension and two in compression")
-    return Curve(str(p), hashlib.sha256(raw).hexdigest(), region, lam, stress)
+    return Curve(str(p), hashlib.sha256(p.read_bytes()).hexdigest(), region, lam, stress)
 
 
 def _law(name: str, x: np.ndarray, bulk_ratio: float) -> Hyperelastic:
@@ -135,9 +126,12 @@ def fit_law(curve: Curve, name: str, bulk_ratio: float = BULK_RATIO) -> dict:
             continue
         if np.all(np.isfinite(r.fun)) and (best is None or r.cost < best.cost):
             best = r
+    if best is None:
+        raise MaterialDataError(f"{curve.path}: the {name} law could not be fitted to region {curve.region!r} from any start "
+                                "(its stresses over- or underflow there)")
     x, res = best.x, best.fun
     n, k = len(y), len(x)
-    rss = float(np.sum(res**2))
+    rss = max(float(np.sum(res**2)), 1e-300)  # an exact fit: no log of zero
     dof = max(n - k, 1)
     J = best.jac
     try:
@@ -171,7 +165,9 @@ def fit_material(path, region: str = "cortex", laws=FIT_LAWS, bulk_ratio: float 
     fits = [fit_law(curve, name, bulk_ratio) for name in laws]
     candidates = [f for f in fits if f["identified"]] or fits
     chosen = min(candidates, key=lambda f: f["aicc"])
-    return {"law": chosen["material"]["law"], **{k: v for k, v in chosen["material"].items() if k != "law"},
+    warning = None if chosen["identified"] else (f"no law's parameters are identified by these data; {chosen['law']} has the lowest "
+                                                 "AICc, but its intervals are wide or a parameter is at its bound")
+    return {"law": chosen["material"]["law"], **{k: v for k, v in chosen["material"].items() if k != "law"}, "warning": warning,
             "fit": chosen["law"], "rms_rel": chosen["rms_rel"], "rms_rel_tension": chosen["rms_rel_tension"],
             "rms_rel_compression": chosen["rms_rel_compression"], "shear_modulus_pa": chosen["shear_modulus_pa"],
             "laws": fits,

@@ -38,6 +38,7 @@ import numpy as np
 
 from analysis.convergence import GCI_FS3, GCI_FS_FALLBACK, converge
 from brainsim_assets import path as _asset
+from sim.errors import SimError
 from sim.files import save_npz
 from sim.jsonable import jsonable
 from sim.mesh import patch_vertices
@@ -62,8 +63,8 @@ SHIPPED_PULLS_INFO = _asset("data/reference_pulls.json")
 RECORD_XS = 0.002 * np.arange(1, 13)  # m: where the shipped solves record (2, 4, ..., 24 mm)
 
 
-class ReferenceDataError(RuntimeError):
-    """The shipped reference solves are damaged (their hash differs)."""
+class ReferenceDataError(SimError):
+    """The shipped reference solves are damaged (their hash differs) or a solve did not converge."""
 
 
 # -- the P2 problem ---------------------------------------------------------------------------
@@ -110,7 +111,7 @@ def small_strain_factor(problem: Problem, law):
     from sim.models.fem import FiniteStrain
 
     unit = law.scaled(1.0 / law.shear_modulus)
-    K = FiniteStrain(problem.space, unit).evaluate(np.zeros(3 * problem.space.n_all))["K"]
+    K = FiniteStrain(problem.space, unit, mean_dilatation=False).evaluate(np.zeros(3 * problem.space.n_all))["K"]
     return Factor(K)
 
 
@@ -145,9 +146,12 @@ def shipped_solves() -> dict:
     checked against the SHA-256 in data/reference_pulls.json; {} when none are shipped."""
     global _SHIPPED
     if _SHIPPED is None:
-        _SHIPPED = {}
+        found: dict = {}
         if SHIPPED_PULLS.exists() and SHIPPED_PULLS_INFO.exists():
-            want = json.loads(SHIPPED_PULLS_INFO.read_text())["sha256"]
+            try:
+                want = json.loads(SHIPPED_PULLS_INFO.read_text())["sha256"]
+            except (OSError, ValueError, KeyError, TypeError) as exc:
+                raise ReferenceDataError(f"{SHIPPED_PULLS_INFO}: not the shipped solves' record ({exc}); reinstall") from None
             have = hashlib.sha256(SHIPPED_PULLS.read_bytes()).hexdigest()
             if have != want:
                 raise ReferenceDataError(f"{SHIPPED_PULLS}: SHA-256 {have[:12]}... differs from {SHIPPED_PULLS_INFO.name}'s "
@@ -155,8 +159,9 @@ def shipped_solves() -> dict:
             with np.load(SHIPPED_PULLS, allow_pickle=False) as z:
                 for name in z.files:
                     key, _, part = name.partition("__")
-                    entry = _SHIPPED.setdefault(key, {})
+                    entry = found.setdefault(key, {})
                     entry[part] = json.loads(str(z[name])) if part == "meta" else z[name]
+        _SHIPPED = found
     return _SHIPPED
 
 
@@ -168,11 +173,13 @@ def _cache_file(key: str) -> Path:
 
 def _covers(entry: dict, xs: np.ndarray, stiffness: bool) -> np.ndarray | None:
     """Indices of `xs` in the entry's records, if it has them all (and its stiffness, if asked)."""
-    if stiffness and "stiffness_per_pa" not in entry:
-        return None
     have = np.asarray(entry["xs"])
-    idx = [int(np.argmin(np.abs(have - x))) for x in xs]
-    return np.array(idx) if all(abs(have[i] - x) <= 1e-9 for i, x in zip(idx, xs)) else None
+    idx = np.array([int(np.argmin(np.abs(have - x))) for x in xs])
+    if not all(abs(have[i] - x) <= 1e-9 for i, x in zip(idx, xs)):
+        return None
+    if stiffness and ("stiffness_per_pa" not in entry or not np.all(np.isfinite(np.asarray(entry["stiffness_per_pa"])[idx]))):
+        return None
+    return idx
 
 
 def stored_solve(key: str, xs, stiffness: bool = False) -> dict | None:
@@ -199,9 +206,12 @@ def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness:
     """Follow the pull (the patch's mean displacement along `direction`) to max(xs), recording
     the force holding it (per pascal of shear modulus, (len(xs), 3), the force on the tissue)
     and, with `stiffness`, the condensed tangent (len(xs), 3, 3) at each x."""
+    from sim.errors import ParameterError
     from sim.models.fem import FiniteStrain, hold
 
     xs = np.asarray(xs, dtype=np.float64)
+    if xs.ndim != 1 or len(xs) == 0 or not np.all(np.isfinite(xs)) or np.any(xs <= 0) or np.any(np.diff(xs) <= 0):
+        raise ParameterError("displacements: an increasing list of positive lengths (m)")
     unit = law.scaled(1.0 / law.shear_modulus)
     W = grasp_matrix(problem, points, weights)
     t0 = time.perf_counter()
@@ -215,6 +225,15 @@ def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness:
     if stiffness:
         out["stiffness_per_pa"] = res.stiffness
     return out
+
+
+def require_converged(refs: dict, what: str) -> None:
+    """Refuse to build on a reference solve that stopped (naming the pull, the mesh and why)."""
+    for name, r in refs.items():
+        for s in r["solves"]:
+            if not s["converged"]:
+                raise ReferenceDataError(f"{what}: the reference solve of pull {name} on the {s['size_mm']:g} mm mesh stopped "
+                                         f"({s.get('reason') or 'no convergence'}); every sample needs it")
 
 
 def _pull_task(args) -> dict:
@@ -234,11 +253,23 @@ def _pull_task(args) -> dict:
     r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs, stiffness)
     meta = {k: v for k, v in r.items() if k not in ("force_per_pa", "stiffness_per_pa")}
     if r["converged"]:
-        arrays = {"xs": np.asarray(xs, dtype=np.float64), "force_per_pa": r["force_per_pa"], "meta": np.asarray(json.dumps(meta))}
-        if stiffness:
-            arrays["stiffness_per_pa"] = r["stiffness_per_pa"]
-        save_npz(_cache_file(key), **arrays)
+        _cache(key, np.asarray(xs, dtype=np.float64), r["force_per_pa"], r.get("stiffness_per_pa"), meta)
     return r | {"cached": False, "key": key, "h_m": body.h}
+
+
+def _cache(key: str, xs, force, stiffness, meta: dict) -> None:
+    """Keep a solve in the cache, merged with the records of an earlier one of the same pull
+    (a stiffness is NaN where a solve did not record it)."""
+    path = _cache_file(key)
+    stiff = np.full((len(xs), 3, 3), np.nan) if stiffness is None else np.asarray(stiffness)
+    if path.exists():
+        with np.load(path, allow_pickle=False) as z:
+            old_xs, old_f = z["xs"], z["force_per_pa"]
+            old_k = z["stiffness_per_pa"] if "stiffness_per_pa" in z.files else np.full((len(old_xs), 3, 3), np.nan)
+        keep = np.array([np.min(np.abs(xs - x)) > 1e-9 for x in old_xs], dtype=bool)
+        xs, force, stiff = (np.concatenate([xs, old_xs[keep]]), np.concatenate([force, old_f[keep]]), np.concatenate([stiff, old_k[keep]]))
+    order = np.argsort(xs)
+    save_npz(path, xs=xs[order], force_per_pa=np.asarray(force)[order], stiffness_per_pa=stiff[order], meta=np.asarray(json.dumps(meta)))
 
 
 def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int | None = None, progress=None,
@@ -276,8 +307,9 @@ def _run(tasks: list, jobs: int | None, progress) -> list:
     """`_pull_task` over `tasks`, in order: stored ones here, the rest in worker processes."""
     results: list = [None] * len(tasks)
     todo = []
+    seen: dict = {}
     for i, t in enumerate(tasks):
-        r = _stored_task(t)
+        r = _stored_task(t, seen)
         if r is not None:
             results[i] = r
         else:
@@ -307,16 +339,21 @@ def _run(tasks: list, jobs: int | None, progress) -> list:
     return results
 
 
-def _stored_task(task) -> dict | None:
-    """`_pull_task`'s answer when it is shipped or cached (no worker needed)."""
+def _stored_task(task, seen: dict) -> dict | None:
+    """`_pull_task`'s answer when it is shipped or cached (no worker needed); `seen` keeps the
+    scene and the meshes read for earlier tasks."""
     scene_path, label, size_mm, pull, xs, stiffness = task
     from sim.reference import scene_with
 
-    scene = scene_with(scene_path)
-    verts, tris, _ = hemisphere_surface(scene.mesh, label)
-    if needs_meshing(verts, tris, size_mm * 1e-3):
+    if scene_path not in seen:
+        seen[scene_path] = scene_with(scene_path)
+    scene = seen[scene_path]
+    if (scene_path, label, size_mm) not in seen:
+        verts, tris, _ = hemisphere_surface(scene.mesh, label)
+        seen[(scene_path, label, size_mm)] = None if needs_meshing(verts, tris, size_mm * 1e-3) else mesh_hemisphere(verts, tris, size_mm * 1e-3)
+    body = seen[(scene_path, label, size_mm)]
+    if body is None:
         return None
-    body = mesh_hemisphere(verts, tris, size_mm * 1e-3)
     key = pull_key(body, scene, scene.spec.material.law, grasp_radius(scene), pull)
     found = stored_solve(key, xs, stiffness)
     return None if found is None else found | {"cached": True, "key": key, "h_m": body.h}

@@ -62,7 +62,7 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
     `sizes_mm`, Richardson), the small-strain stiffness at every grasp place (default: within
     10 mm of the hands) and its transfer; with `check`, the transfer's error at the place farthest
     from each hand's vertex, solved directly on the coarsest mesh."""
-    from analysis.reference import RECORD_XS, combined_sample, pull_references
+    from analysis.reference import RECORD_XS, combined_sample, pull_references, require_converged
     from sim.reference import hand_pulls, scene_with
     from sim.scene import grasp_radius
 
@@ -95,6 +95,7 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
     # the paths: the reference's finite-strain solves along each hand's pull
     refs = pull_references(scene_path, pulls, RECORD_XS, sizes_mm, jobs=jobs, stiffness_for={p.name for p in pulls},
                            progress=(lambda k, n: progress(f"reference paths: {k}/{n} solves")) if progress else None)["pulls"]
+    require_converged(refs, "observer truth")
     # the small-strain stiffness at every place and at the hands' own vertices
     all_v = np.concatenate([vertices, centres])
     C, hs = _small_strain(scene, hemis, all_v, labels, sizes_mm, radius, progress)
@@ -123,14 +124,21 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
     checks = _check_transfer(scene, pulls, sets, path, vertices, C, refs, sizes_mm, radius, progress) if check else []
     save_npz(out, compressed=True, vertices=vertices, path=path, transfer=transfer, s=s, direction=np.array([p.direction for p in pulls]),
              force_per_pa=F, stiffness_per_pa=K, path_gci=path_gci, path_pulls=np.array([p.name for p in pulls]),
-             K0_per_pa=K0, small_strain_order=orders, small_strain_status=np.asarray(status), small_strain_gci=gci,
+             K0_per_pa=K0, K0_per_pa_meshes=np.linalg.inv(C), small_strain_order=orders, small_strain_status=np.asarray(status), small_strain_gci=gci,
              h_m=hs, sizes_mm=np.asarray(sizes_mm), transfer_check=np.asarray([json_line(c) for c in checks]),
              **{k: np.asarray(v) for k, v in key.items()})
-    return {"out": str(out), "vertices": int(len(vertices)), "paths": [p.name for p in pulls], "sizes_mm": list(sizes_mm),
+    rep = {"out": str(out), "vertices": int(len(vertices)), "paths": [p.name for p in pulls], "sizes_mm": list(sizes_mm),
             "seconds": time.perf_counter() - start, "path_gci_median": float(np.median(path_gci[:, 1:])),
             "path_gci_max": float(np.max(path_gci[:, 1:])), "small_strain_gci_median": float(np.median(gci)),
             "transfer_checks": checks, "force_at_n": {p.name: {f"{x * 1e3:g} mm": float(np.linalg.norm(F[h, m]) * law.shear_modulus)
                                                              for m, x in enumerate(s) if m and m % 2 == 0} for h, p in enumerate(pulls)}}
+    # the record beside the table: its SHA-256 (the shipped one is checked against it) and how it was made
+    import hashlib
+    import json
+
+    out.with_suffix(".json").write_text(json.dumps({"sha256": hashlib.sha256(out.read_bytes()).hexdigest(), "made_by": "studyctl calibrate truth",
+                                                    "law": law.params()} | {k: v for k, v in rep.items() if k != "out"}, indent=1) + "\n")
+    return rep
 
 
 def json_line(obj) -> str:

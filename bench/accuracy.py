@@ -12,7 +12,7 @@ from bench.common import main_with_json
 def measure() -> dict:
     out = run_accuracy(quick_config(), jobs=1)  # one process: timings without a neighbour on the other core
     ref = out["meta"]["reference"]
-    print(f"reference {ref['setting']} (converged: {ref['converged']}); E = {out['meta']['young_pa'] / 1e3:g} kPa; quick bench")
+    print(f"reference {ref['setting']} (converged: {ref['converged']}); the linear models' E = {out['meta']['young_pa'] / 1e3:.3g} kPa; quick bench")
     for r in out["rows"]:
         paper = PAPER_MS[r["model"]]
         print(f"  {r['model'] + '/' + r['setting'] + '/' + r['calibration']:42s} force error {r['force_error']:6.1%} "

@@ -12,6 +12,7 @@ E = 2 mu (1 + nu) with the law's shear modulus mu (docs/material.md).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 from brainsim_assets import path as _asset
@@ -103,6 +104,33 @@ def scene_law(material: TableReader) -> tuple[Hyperelastic | None, str]:
         return read_law(material), "inline"
     law, _ = material_file(DEFAULT_MATERIAL, material.problems)
     return law, str(DEFAULT_MATERIAL)
+
+
+@dataclass(frozen=True)
+class MaterialSpec:
+    """The tissue: its finite-strain law (the reference's and the observer's truth's, sim/material.py)
+    and the linear models' modulus and Poisson ratio (`young` given, or the law's small-strain limit)."""
+
+    young: float  # Pa, the linear models'
+    poisson: float  # the linear models'
+    density: float  # kg/m3
+    law: Hyperelastic | None = None
+    law_source: str = ""  # the material file's path, or "inline"
+    young_given: bool = True  # False: young = 2 mu (1 + poisson) of the law
+
+
+def material_spec(material: TableReader) -> MaterialSpec:
+    """A scene's [material] (its problems recorded on the reader)."""
+    from sim.models.base import POISSON_MAX, POISSON_MIN
+
+    law, source = scene_law(material)
+    poisson = material.number("poisson", default=DEFAULT_POISSON, lo=POISSON_MIN, hi=POISSON_MAX, hi_open=True)
+    given = "young" in material.data
+    young = material.number("young", lo=0.0, lo_open=True) if given else None
+    if not given and law is not None and poisson is not None:
+        young = law.young(poisson)
+    return MaterialSpec(young=young, poisson=poisson, density=material.number("density", default=1040.0, lo=0.0, lo_open=True),
+                        law=law, law_source=source, young_given=given)
 
 
 def _toml_value(v) -> str:

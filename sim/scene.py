@@ -18,6 +18,7 @@ import numpy as np
 
 from brainsim_assets import path as _asset
 from sim.errors import ParameterError, SceneError
+from sim.material import MaterialSpec, material_spec
 from sim.models.base import POISSON_MAX, POISSON_MIN, Vec3
 from sim.patch import GRASP_RADIUS
 from sim.targets import SAFE_FORCE_N, HandTarget, TargetSpec
@@ -27,19 +28,6 @@ from sim.tomltable import REQUIRED, TableReader
 RENDERERS = ("none", "offscreen")
 DEFAULT_SCENE = _asset("protocols/scenes/brain_pull.toml")
 AXES = {"x": 0, "y": 1, "z": 2}
-
-
-@dataclass(frozen=True)
-class MaterialSpec:
-    """The tissue: its finite-strain law (the reference's and the observer's truth's, sim/material.py)
-    and the linear models' modulus and Poisson ratio (`young` given, or the law's small-strain limit)."""
-
-    young: float  # Pa, the linear models'
-    poisson: float  # the linear models'
-    density: float  # kg/m3
-    law: Any = None  # sim.hyperelastic.Hyperelastic
-    law_source: str = ""  # the material file's path, or "inline"
-    young_given: bool = True  # False: young = 2 mu (1 + poisson) of the law
 
 
 @dataclass(frozen=True)
@@ -272,7 +260,7 @@ def _scene_spec(path: Path, t: dict[str, TableReader], models: dict[str, ModelSp
         name=scene.string("name", default=path.stem),
         description=scene.string("description", default=""),
         mesh_path=mesh_path,
-        material=_material_spec(material),
+        material=material_spec(material),
         fixed=FixedSpec(axis=fixed.string("axis", choices=tuple(AXES)), from_bottom=fixed.number("from_bottom", lo=0.0)),
         model=default_model,
         models=models,
@@ -288,19 +276,6 @@ def _scene_spec(path: Path, t: dict[str, TableReader], models: dict[str, ModelSp
             fps=renderer.number("fps", default=10.0, lo=0.0, hi=240.0, lo_open=True),
         ),
     )
-
-
-def _material_spec(material: TableReader) -> MaterialSpec:
-    from sim.material import DEFAULT_POISSON, scene_law
-
-    law, source = scene_law(material)
-    poisson = material.number("poisson", default=DEFAULT_POISSON, lo=POISSON_MIN, hi=POISSON_MAX, hi_open=True)
-    given = "young" in material.data
-    young = material.number("young", lo=0.0, lo_open=True) if given else None
-    if not given and law is not None and poisson is not None:
-        young = law.young(poisson)
-    return MaterialSpec(young=young, poisson=poisson, density=material.number("density", default=1040.0, lo=0.0, lo_open=True),
-                        law=law, law_source=source, young_given=given)
 
 
 def _raise_problems(problems: list, path: Path) -> None:

@@ -116,8 +116,14 @@ def test_p2_pull_forces_agree_between_two_mesh_sizes(scene, left):
         # the clamp: the scene's plane, and only nodes below it
         axis, limit = clamp_limit(scene)
         assert prob.fixed_nodes == int(np.sum(m.nodes[:, axis] <= limit)) > 0
-        K = pull_stiffness(prob, scene.spec.material.law, pts, w)  # the law's small-strain limit, per pascal of mu
+        law = scene.spec.material.law
+        K = pull_stiffness(prob, law, pts, w)  # the law's small-strain limit, per pascal of mu
         assert np.allclose(K, K.T) and np.all(np.linalg.eigvalsh(K) > 0)
+        if m is meshes[0]:  # it is linear elasticity at the law's moduli, assembled independently (LinearFem)
+            from sim.models.fem import LinearFem, condense
+
+            lin = LinearFem(m.nodes, m.tets, law.young(law.poisson) / law.shear_modulus, law.poisson, prob.space.fixed, order=2)
+            assert np.allclose(condense(lin, reference.grasp_matrix(prob, pts, w))[2], K, rtol=1e-8)
         forces.append(np.linalg.norm(K @ np.asarray(pull.direction)))
     assert abs(forces[1] / forces[0] - 1) < 0.03  # measured 0.4% (docs/reference.md)
     # the cortex's shear modulus and a 4 mm pull: hundredths of a newton

@@ -97,6 +97,8 @@ def calibrate_material(data_file, region, laws, bulk_ratio, out_file, as_json):
         table.add_row(f["law"], pars, f"{f['rms_rel']:.1%}", f"{f['rms_rel_tension']:.1%}", f"{f['rms_rel_compression']:.1%}",
                       f"{f['aicc']:.1f}", note)
     _console().print(table)
+    if rep["warning"]:
+        click.echo(f"warning: {rep['warning']}")
     if out_file:
         click.echo(f"wrote {out_file}")
 

@@ -2,12 +2,13 @@
 dofs and the energy of a displacement field (`FiniteStrain`), for the Newton solver
 (`newton.hold`).
 
-The element is the space's (P1 or P2) with one mean dilatation per element: the volumetric
-energy is V_e U(theta_e), theta_e = (1/V_e) int_e J dV (Simo, Taylor and Pister 1985; the
-three-field u/theta/p element with theta and p constant per element, condensed). On P2 this is
-the P2/P0 mixed element, which satisfies the inf-sup condition and does not lock as kappa/mu
-grows (docs/material.md shows it on a cantilever); on P1 theta is J itself, the plain
-displacement element (which locks). Kernels: `hyperelastic_kernels`.
+The element is the space's (P1 or P2), displacement-based: the volumetric energy U(J) at each
+quadrature point (the default, the reference's). With `mean_dilatation`, one mean dilatation
+per element instead: V_e U(theta_e), theta_e = (1/V_e) int_e J dV (Simo, Taylor and Pister
+1985; the three-field u/theta/p element with theta and p constant per element, condensed), on
+P2 the P2/P0 mixed element, which does not lock as kappa/mu grows but has spurious modes at
+finite compression (docs/material.md says why the reference uses plain P2); on P1 theta is J
+itself. Kernels: `hyperelastic_kernels`.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ CHUNK = 16384  # elements per compiled pass: their (30 x 30) tangents stay at 11
 class FiniteStrain:
     """The law `law` on the space `space` (a `TetSpace` or `LinearFem`)."""
 
-    def __init__(self, space, law: Hyperelastic, mean_dilatation: bool = True):
+    def __init__(self, space, law: Hyperelastic, mean_dilatation: bool = False):
         self.space, self.law = space, law
         self.mean_dilatation = bool(mean_dilatation)
         self.G, self.wq = space.quadrature()

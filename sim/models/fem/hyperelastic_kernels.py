@@ -18,6 +18,8 @@ import math
 import numba
 import numpy as np
 
+from sim.kernels import _inv3
+
 
 @numba.njit(cache=True, inline="always")
 def _eig3(A, w, V):
@@ -105,6 +107,20 @@ def _iso_point(F, J, mu, alpha, c, N, s, M, D):
     return energy
 
 
+@numba.njit(cache=True, inline="always")
+def _add_pressure(Ke, e, X, q, k, c1, c2):
+    """Ke[e]'s upper triangle += c2 X_ai X_bk + c1 (X_ai X_bk - X_ak X_bi) at point q: the
+    volumetric tangent's terms (c1 = p J w, c2 = U'' J^2 w; the mean dilatation adds its own)."""
+    for ap in range(k):
+        for i in range(3):
+            row = 3 * ap + i
+            for bp in range(k):
+                for kk in range(3):
+                    col = 3 * bp + kk
+                    if col >= row:
+                        Ke[e, row, col] += (c1 + c2) * X[q, ap, i] * X[q, bp, kk] - c1 * X[q, ap, kk] * X[q, bp, i]
+
+
 @numba.njit(cache=True, parallel=True)
 def element_pass(G, wq, ue, mu, alpha, kappa, mean, want_tangent, fe, Ke, energy, theta, minJ):
     """For every element e: the internal force fe[e] (3k,), the tangent Ke[e] (3k, 3k) when
@@ -166,17 +182,7 @@ def element_pass(G, wq, ue, mu, alpha, kappa, mean, want_tangent, fe, Ke, energy
                     for b in range(3):
                         acc += s[b] * n[i, b] * qg[a, b]
                     f[3 * a + i] += w * acc
-            # F^-1, for the volumetric variations: X[a, i] = grad N_a . F^-1[:, i]
-            inv = 1.0 / Jd
-            Finv[0, 0] = (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]) * inv
-            Finv[0, 1] = (F[0, 2] * F[2, 1] - F[0, 1] * F[2, 2]) * inv
-            Finv[0, 2] = (F[0, 1] * F[1, 2] - F[0, 2] * F[1, 1]) * inv
-            Finv[1, 0] = (F[1, 2] * F[2, 0] - F[1, 0] * F[2, 2]) * inv
-            Finv[1, 1] = (F[0, 0] * F[2, 2] - F[0, 2] * F[2, 0]) * inv
-            Finv[1, 2] = (F[0, 2] * F[1, 0] - F[0, 0] * F[1, 2]) * inv
-            Finv[2, 0] = (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]) * inv
-            Finv[2, 1] = (F[0, 1] * F[2, 0] - F[0, 0] * F[2, 1]) * inv
-            Finv[2, 2] = (F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]) * inv
+            _inv3(F, Finv)  # F^-1, for the volumetric variations: X[a, i] = grad N_a . F^-1[:, i]
             Jq[q] = Jd
             for a in range(k):
                 for i in range(3):
@@ -233,15 +239,7 @@ def element_pass(G, wq, ue, mu, alpha, kappa, mean, want_tangent, fe, Ke, energy
                     for i in range(3):
                         f[3 * a + i] += w * p * Jd * X[q, a, i]
                 if want_tangent:
-                    c1, c2 = w * p * Jd, w * dp * Jd * Jd
-                    for ap in range(k):
-                        for i in range(3):
-                            row = 3 * ap + i
-                            for bp in range(k):
-                                for kk in range(3):
-                                    col = 3 * bp + kk
-                                    if col >= row:
-                                        Ke[e, row, col] += (c1 + c2) * X[q, ap, i] * X[q, bp, kk] - c1 * X[q, ap, kk] * X[q, bp, i]
+                    _add_pressure(Ke, e, X, q, k, w * p * Jd, w * dp * Jd * Jd)
             energy[e] = en + env
             for i in range(nd):
                 fe[e, i] = f[i]
@@ -258,17 +256,8 @@ def element_pass(G, wq, ue, mu, alpha, kappa, mean, want_tangent, fe, Ke, energy
         for i in range(nd):
             fe[e, i] = f[i] + p * g[i]
         if want_tangent:
-            # the pressure's geometric term: p int J (X_ai X_bk - X_ak X_bi)
-            for q in range(nq):
-                c1 = p * wq[e, q] * Jq[q]
-                for ap in range(k):
-                    for i in range(3):
-                        row = 3 * ap + i
-                        for bp in range(k):
-                            for kk in range(3):
-                                col = 3 * bp + kk
-                                if col >= row:
-                                    Ke[e, row, col] += c1 * (X[q, ap, i] * X[q, bp, kk] - X[q, ap, kk] * X[q, bp, i])
+            for q in range(nq):  # the pressure's geometric term: p int J (X_ai X_bk - X_ak X_bi)
+                _add_pressure(Ke, e, X, q, k, p * wq[e, q] * Jq[q], 0.0)
             c2 = dp / vol
             for i in range(nd):
                 for j in range(i, nd):

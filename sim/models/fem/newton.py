@@ -111,10 +111,8 @@ def hold(system, W: sp.csr_matrix, target, fractions=(1.0,), *, first_step: floa
         report.completed_steps += 1
         report.load_steps += 1
         report.min_jacobian = min(report.min_jacobian, min_j)
-        if len(hist) <= 4:
-            h = min(2.0 * (t_new - prev[0]), 0.5)
-        else:
-            h = t_new - prev[0]
+        if len(hist) <= 4:  # the planned step grows after a quick one (a step shortened to land on a record leaves it)
+            h = min(2.0 * h, 0.5)
         while record < len(fractions) and t_done >= fractions[record] - 1e-12:
             forces[record] = lam_done
             if stiffness:
@@ -178,7 +176,8 @@ class _Steps:
         loose far from the solution, tight near it)."""
         if self.factor is None:
             self.refactor(K, report)
-            return self.exact(-r, -gap)
+            if self.factor.shift == 0.0:
+                return self.exact(-r, -gap)
         W, Wt = self.W, self.Wt
 
         def kkt(x, y):
@@ -187,7 +186,9 @@ class _Steps:
         x, y, its = right_gmres(kkt, self.exact, -r, -gap, rtol, self.REFRESH)
         report.linear_iterations += its
         if x is None:
-            self.refactor(K, report)
+            if self.factor.shift == 0.0:
+                self.refactor(K, report)
+            # a shifted factor's own step: modified Newton (slower, but the residual stays exact)
             return self.exact(-r, -gap)
         return x, y
 
@@ -218,7 +219,7 @@ def right_gmres(A, M, a: np.ndarray, b: np.ndarray, rtol: float, maxiter: int):
         e1[0] = beta
         c, *_ = np.linalg.lstsq(H[: j + 2, : j + 1], e1, rcond=None)
         res = float(np.linalg.norm(H[: j + 2, : j + 1] @ c - e1))
-        if res <= rtol * beta or H[j + 1, j] <= 1e-14 * beta:
+        if res <= rtol * beta or H[j + 1, j] <= 1e-14 * float(np.linalg.norm(H[: j + 2, j])):
             sol = np.column_stack(Z) @ c
             return sol[:n], sol[n:], j + 1
         V.append(w / H[j + 1, j])
@@ -241,7 +242,7 @@ def _iterate(system, W, Wt, u, lam, d, scale, tol, max_iter, steps: _Steps, repo
         if len(hist) > 1 and (res < tol or (res < FLOOR and moved <= 1e-12 * max(float(np.linalg.norm(u[free])), 1e-300))):
             # converged, or at the round-off floor (the residual no longer falls and the steps are nothing)
             return True, hist, (u, lam, state["min_jacobian"])
-        if len(hist) > 1 and hist[-1] > 0.25 * hist[-2]:
+        if len(hist) > 1 and hist[-1] > 0.25 * hist[-2] and res > FLOOR:
             steps.factor = None  # Newton is not contracting on the old tangent's steps: factorise this one
         try:
             # Eisenstat-Walker-like forcing: the linear solve as accurate as the residual warrants
@@ -273,6 +274,19 @@ def _iterate(system, W, Wt, u, lam, d, scale, tol, max_iter, steps: _Steps, repo
 def _condensed(system, W, Wt, u, steps: _Steps, report) -> np.ndarray:
     """(W K_t^-1 W^T)^-1 at the converged state u, from a fresh factorisation there: the force's
     tangent against the target (with the augmented factor, (W Ka^-1 W^T)^-1 - rho I: the same)."""
-    steps.refactor(system.evaluate(u, tangent=True)["K"], report)
+    K = system.evaluate(u, tangent=True)["K"]
+    steps.refactor(K, report)
+    if steps.factor.shift > 0.0:
+        # the factor is of a shifted matrix: the condensed columns by GMRES on the unshifted
+        # constrained system, the shifted factor's exact step preconditioning it
+        cols = []
+        for j in range(W.shape[0]):
+            e = np.zeros(W.shape[0])
+            e[j] = 1.0
+            x, y, _ = right_gmres(lambda a, b: (K @ a - Wt @ b, W @ a), steps.exact, np.zeros(K.shape[0]), e, 1e-10, 200)
+            if y is None:
+                return np.full((W.shape[0], W.shape[0]), np.nan)
+            cols.append(y)  # [K -W^T; W 0] [x; y] = [0; e]: y = (W K^-1 W^T)^-1 e
+        return np.column_stack(cols)
     out = np.linalg.inv(0.5 * (steps.S + steps.S.T))
     return out - steps.rho * np.eye(len(out)) if steps.rho else out
