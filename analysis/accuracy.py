@@ -174,29 +174,42 @@ def _tick_time(model, contact, d, reps: int = 20000) -> float:
 def reference_samples(refs: dict, pulls: list[Pull], xs, mu: float) -> list[list[dict]]:
     """Per pull and sample: the reference force (N, vector on the tissue), magnitude and half-band,
     for a law of shear modulus `mu` (the stored forces are per pascal of it)."""
+    return [[_sample(refs[p.name]["force_per_pa"][:, k] * mu, refs[p.name]["h_m"]) for k in range(len(xs))] for p in pulls]
+
+
+def _sample(forces, hs) -> dict:
+    """`combined_sample`, or NaN where a mesh's solve did not reach the sample (no reference)."""
     from analysis.reference import combined_sample
 
-    return [[combined_sample(refs[p.name]["force_per_pa"][:, k] * mu, refs[p.name]["h_m"]) for k in range(len(xs))] for p in pulls]
+    if not np.isfinite(forces).all():
+        return {"force": np.full(3, math.nan), "force_n": math.nan, "band_rel": math.nan, "band_half_n": math.nan,
+                "status": "not solved", "order": math.nan, "extrapolated": False, "forces_n": [float(np.linalg.norm(f)) for f in forces]}
+    return combined_sample(forces, hs)
 
 
 def calibration_curve(scene_path, xs, jobs: int | None = None, progress=None) -> tuple:
     """The converged reference's force magnitude (N, the scene's law) on the bench's calibration
     pulls (`make_pulls`), at displacements `xs`: (displacements, forces, how), the pulls'
     curves concatenated. What `calibrate plate-spring` fits to."""
-    from analysis.reference import DEFAULT_SIZES_MM, pull_references, require_converged
+    from analysis.reference import DEFAULT_SIZES_MM, ReferenceDataError, pull_references, reached
 
     scene = scene_with(scene_path)
     pulls = make_pulls(scene)
     xs = np.asarray(xs, dtype=np.float64)
     refs = pull_references(scene_path, pulls, xs, DEFAULT_SIZES_MM, jobs=jobs, progress=progress)["pulls"]
-    require_converged(refs, "calibration curve")
     law = scene.spec.material.law
     rows = reference_samples(refs, pulls, xs, law.shear_modulus)
-    forces = np.array([[c["force_n"] for c in row] for row in rows])
+    forces = np.array([[c["force_n"] for c in row] for row in rows]).ravel()
+    ok = np.isfinite(forces)
+    if not ok.any():
+        raise ReferenceDataError("calibration curve: no reference solve reached any sample")
+    missing = [(f"{name} beyond {float(xs[m].max()) * 1e3:g} mm" if m.any() else f"all of {name}") + f" ({why})"
+               for name, (m, why) in reached(refs).items() if not m.all()]
     how = (f"the converged reference ({law.describe()}, finite strain on P2 on the body-fitted "
            f"{', '.join(f'{s:g}' for s in DEFAULT_SIZES_MM)} mm meshes, Richardson-extrapolated; "
-           f"the accuracy bench's {len(pulls)} calibration pulls)")
-    return np.tile(xs, len(pulls)), forces.ravel(), how
+           f"the accuracy bench's {len(pulls)} calibration pulls"
+           + (f"; {int((~ok).sum())} samples have no reference: {'; '.join(missing)}" if missing else "") + ")")
+    return np.tile(xs, len(pulls))[ok], forces[ok], how
 
 
 # -- the bench -----------------------------------------------------------------------------
@@ -209,7 +222,7 @@ def _task(task):
 def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | None = None, progress=None) -> dict:
     """The reference, then every setting, on the calibration and test pulls; returns rows
     (raw and calibrated per setting), per-sample verdicts and meta."""
-    from analysis.reference import pull_references, require_converged
+    from analysis.reference import ReferenceDataError, pull_references, reached
     from studyctl.sweep import run_tasks
 
     scene = scene_with(cfg.scene)
@@ -227,7 +240,6 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
 
     start = time.perf_counter()
     refs = pull_references(cfg.scene, pulls, xs, cfg.reference_sizes_mm, jobs=jobs, progress=ref_progress)
-    require_converged(refs["pulls"], "accuracy bench")
     ref_s = time.perf_counter() - start
     ref = reference_samples(refs["pulls"], pulls, xs, law.shear_modulus)
     n_ref = len(pulls) * len(cfg.reference_sizes_mm)
@@ -240,6 +252,9 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
     models = run_tasks(_task, tasks, jobs=jobs, scheduler=scheduler, progress=model_progress)
     rows, samples = compare(ref, models, pulls, len(calib), xs)
     flat = [c for row in ref for c in row]
+    solved = [c for c in flat if math.isfinite(c["force_n"])]
+    if not solved:
+        raise ReferenceDataError("accuracy bench: no reference solve reached any sample")
     solves = [s for r in refs["pulls"].values() for s in r["solves"]]
     meta = {
         "synthetic": False,
@@ -252,10 +267,13 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
             "element": "P2 (10-node tetrahedra)", "mesher": "fTetWild (pytetwild)", "grasp": "area mean (sim/patch.py)",
             "formulation": f"finite strain, {law.describe()}, Richardson", "law": law.params(),
             "law_source": scene.spec.material.law_source, "sizes_mm": refs["sizes_mm"],
-            "band_rel_max": float(max(c["band_rel"] for c in flat)), "band_rel_median": float(np.median([c["band_rel"] for c in flat])),
-            "band_half_n_max": float(max(c["band_half_n"] for c in flat)),
+            "band_rel_max": float(max(c["band_rel"] for c in solved)), "band_rel_median": float(np.median([c["band_rel"] for c in solved])),
+            "band_half_n_max": float(max(c["band_half_n"] for c in solved)),
             "statuses": {s: sum(c["status"] == s for c in flat) for s in sorted({c["status"] for c in flat})},
             "converged": all(s["converged"] for s in solves),
+            # samples past where a mesh's solve stopped have no reference: left out of every row
+            "no_reference": [{"pull": name, "samples": int((~m).sum()), "reached_mm": float(xs[m].max() * 1e3) if m.any() else 0.0, "why": why}
+                             for name, (m, why) in reached(refs["pulls"]).items() if not m.all()],
             "min_jacobian": min((s["min_jacobian"] for s in solves), default=math.nan),
             "solves_stored": sum(bool(s.get("cached")) for s in solves), "solves": len(solves), "seconds": ref_s,
         },
@@ -288,7 +306,7 @@ def wilson(k: int, n: int) -> tuple[float, float]:
 
 def calibration_scale(model_mags: np.ndarray, ref_mags: np.ndarray) -> float:
     """One stiffness scale: exp(mean log(reference / model)) over the calibration samples."""
-    ok = (model_mags > 0) & np.isfinite(model_mags)
+    ok = (model_mags > 0) & np.isfinite(model_mags) & np.isfinite(ref_mags)
     return float(np.exp(np.mean(np.log(ref_mags[ok] / model_mags[ok])))) if ok.any() else math.nan
 
 
@@ -310,6 +328,8 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                 for k, x in enumerate(xs):
                     f = s * mags[p, k]
                     r = R[p, k]
+                    if not math.isfinite(r):  # no reference here (its solve stopped): not judged
+                        continue
                     rel = abs(f - r) / r
                     ok = bool(abs(f - r) <= float(jnd(np.array(r))) * r)
                     v = verdict(f, r, H[p, k])
@@ -357,8 +377,12 @@ COLUMNS = ("model", "setting", "calibration", "scale", "force_error", "force_err
 def intro(result: dict) -> str:
     m = result["meta"]
     ref = m["reference"]
+    gone = ref.get("no_reference") or []
+    missing = (f" {sum(g['samples'] for g in gone)} samples have no reference and are not judged ("
+               + "; ".join((f"{g['pull']} beyond {g['reached_mm']:g} mm" if g["reached_mm"] > 0 else f"all of {g['pull']}") + f": {g['why']}"
+                           for g in gone) + ").") if gone else ""
     return (f"Reference: {ref['setting']} ({ref['formulation']}; GCI half-band median {ref['band_rel_median']:.1%}, "
-            f"largest {ref['band_rel_max']:.1%}). {len(m['calibration_pulls'])} calibration pulls and {len(m['test_pulls'])} held-out test "
+            f"largest {ref['band_rel_max']:.1%}).{missing} {len(m['calibration_pulls'])} calibration pulls and {len(m['test_pulls'])} held-out test "
             f"pulls to {m['max_pull_m'] * 1e3:g} mm at {m['pull_speed_m_per_s'] * 1e3:g} mm/s, {m['samples_per_pull']} samples each; "
             f"the linear models' E = {m['young_pa'] / 1e3:.3g} kPa (scene: {m['scene_young_pa'] / 1e3:.3g} kPa)" + (" (quick bench)" if m["quick"] else "") + ".")
 

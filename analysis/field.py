@@ -156,7 +156,7 @@ def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", 
 
     if formulation == "small-strain":
         return dataclasses.replace(start_params, layers=1), {"formulation": formulation, "within_jnd": 1.0, "pulls": []}
-    from analysis.reference import DEFAULT_SIZES_MM, build_problem, pull_references, pull_stiffness, require_converged
+    from analysis.reference import DEFAULT_SIZES_MM, build_problem, pull_references, pull_stiffness
     from sim.patch import patch_area_points
     from sim.reference import make_pulls, scene_with
     from sim.tetmesh import hemisphere_surface, mesh_hemisphere
@@ -166,7 +166,6 @@ def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", 
     pulls = make_pulls(scene)
     fine = min(DEFAULT_SIZES_MM)
     refs = pull_references(scene_path, pulls, xs, (fine,), jobs=jobs)["pulls"]
-    require_converged(refs, "located stack's curve")
     ratios = {}
     for label in sorted({p.hemisphere for p in pulls}):
         verts, tris, _ = hemisphere_surface(scene.mesh, label)
@@ -175,8 +174,15 @@ def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", 
             K = pull_stiffness(problem, law, *patch_area_points(scene.mesh, p.vertex, grasp_radius(scene)))
             small = np.linalg.norm(np.outer(xs, K @ np.asarray(p.direction)), axis=1)
             ratios[p.name] = np.linalg.norm(refs[p.name]["force_per_pa"][0], axis=1) / small
-    ratio = np.mean(list(ratios.values()), axis=0)
+    # the mean over the pulls whose solve reached each x (a solve that stopped has none beyond)
+    stacked = np.array(list(ratios.values()))
+    reached_by = np.isfinite(stacked).sum(axis=0)
+    ratio = np.nansum(stacked, axis=0) / np.maximum(reached_by, 1)
+    ok = reached_by > 0
     k0 = PlateSpring(start_params).force(1e-7) / 1e-7
-    params, rep = fit(start_params, np.asarray(xs), k0 * ratio * np.asarray(xs))
+    params, rep = fit(start_params, np.asarray(xs)[ok], k0 * ratio[ok] * np.asarray(xs)[ok])
     return params, rep | {"formulation": formulation, "finite_over_small_strain": ratio.tolist(),
-                          "per_pull": {k: v.tolist() for k, v in ratios.items()}, "pulls": sorted(ratios), "mesh_mm": fine}
+                          "per_pull": {k: v.tolist() for k, v in ratios.items()}, "mesh_mm": fine,
+                          "pulls": sorted(k for k, v in ratios.items() if np.isfinite(v).any()),
+                          "no_reference": sorted(k for k, v in ratios.items() if not np.isfinite(v).any()),
+                          "pulls_reaching": reached_by.tolist()}

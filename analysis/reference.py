@@ -177,8 +177,10 @@ def _covers(entry: dict, xs: np.ndarray, stiffness: bool) -> np.ndarray | None:
     idx = np.array([int(np.argmin(np.abs(have - x))) for x in xs])
     if not all(abs(have[i] - x) <= 1e-9 for i, x in zip(idx, xs)):
         return None
-    if stiffness and ("stiffness_per_pa" not in entry or not np.all(np.isfinite(np.asarray(entry["stiffness_per_pa"])[idx]))):
-        return None
+    if stiffness:  # recorded wherever the solve reached (a solve that stopped has no records beyond)
+        reached_at = np.isfinite(np.asarray(entry["force_per_pa"])[idx]).all(axis=1)
+        if "stiffness_per_pa" not in entry or not np.all(np.isfinite(np.asarray(entry["stiffness_per_pa"])[idx][reached_at])):
+            return None
     return idx
 
 
@@ -221,9 +223,24 @@ def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness:
     out = {"force_per_pa": res.forces, "converged": bool(rep.converged), "reason": rep.reason,
            "iterations": int(sum(rep.iterations)), "load_steps": int(rep.load_steps), "cut_steps": int(rep.cut_steps),
            "factorisations": int(rep.tangent_updates), "gmres_iterations": int(rep.linear_iterations), "shifts": int(rep.shifts),
-           "min_jacobian": float(rep.min_jacobian), "seconds": time.perf_counter() - t0, "free_dofs": int(len(problem.space.free))}
+           "min_jacobian": float(rep.min_jacobian), "reached_mm": float(res.fraction_done * xs[-1] * 1e3), "seconds": time.perf_counter() - t0, "free_dofs": int(len(problem.space.free))}
     if stiffness:
         out["stiffness_per_pa"] = res.stiffness
+    return out
+
+
+def reached(refs: dict) -> dict:
+    """Per pull, which records every mesh's solve reached (bool per x), and why the others
+    have no reference (the first solve that stopped: its mesh, where and why; "" if none)."""
+    out = {}
+    for name, r in refs.items():
+        ok = np.isfinite(np.asarray(r["force_per_pa"])).all(axis=(0, 2))
+        why = ""
+        for s in r["solves"]:
+            if not s["converged"]:
+                why = f"the {s['size_mm']:g} mm mesh's solve stopped at {s.get('reached_mm', math.nan):.1f} mm ({s.get('reason') or 'no convergence'})"
+                break
+        out[name] = (ok, why)
     return out
 
 
@@ -238,7 +255,7 @@ def require_converged(refs: dict, what: str) -> None:
 
 def _pull_task(args) -> dict:
     """One pull on one mesh (a worker process): shipped, cached, or solved and cached."""
-    scene_path, label, size_mm, pull, xs, stiffness = args
+    scene_path, label, size_mm, pull, xs, stiffness, upto, finer = args
     from sim.reference import scene_with
 
     scene = scene_with(scene_path)
@@ -247,12 +264,30 @@ def _pull_task(args) -> dict:
     body = mesh_hemisphere(verts, tris, size_mm * 1e-3)
     key = pull_key(body, scene, law, radius, pull)
     found = stored_solve(key, xs, stiffness)
-    if found is not None:
+    if found is not None and not (finer == "solve" and found.get("skipped")):
         return found | {"cached": True, "key": key, "h_m": body.h}
+    asked = xs <= upto + 1e-12
+    if finer == "skip" and not asked.all():
+        return {"force_per_pa": np.full((len(xs), 3), np.nan), "converged": False, "skipped": True, "cached": False, "key": key,
+                "h_m": body.h, "reached_mm": 0.0,
+                "reason": f"not solved: the coarsest mesh's solve stopped after its {upto * 1e3:g} mm record, and the finer ones were not run"}
+    if not asked.any():
+        return {"force_per_pa": np.full((len(xs), 3), np.nan), "converged": False, "cached": False, "key": key, "h_m": body.h,
+                "reason": "not solved: the coarsest mesh's solve stopped before the first sample", "reached_mm": 0.0}
     problem = build_problem(scene, label, body)
-    r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs, stiffness)
+    r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs[asked], stiffness)
+    if not asked.all():  # followed only as far as the coarsest mesh got: no records beyond
+        for name in ("force_per_pa", "stiffness_per_pa"):
+            if name in r:
+                part = np.asarray(r[name])
+                r[name] = np.concatenate([part, np.full((len(xs) - len(part),) + part.shape[1:], np.nan)])
+        if r["converged"]:
+            r["converged"] = False
+            r["reason"] = f"solved to {upto * 1e3:g} mm only, where the coarsest mesh's solve stopped"
     meta = {k: v for k, v in r.items() if k not in ("force_per_pa", "stiffness_per_pa")}
-    if r["converged"]:
+    if r["converged"] or np.isfinite(np.asarray(r["force_per_pa"])).all(axis=1).any():
+        # a solve that stopped is kept too: its records up to where it stopped are converged
+        # states, and solving it again would stop at the same place
         _cache(key, np.asarray(xs, dtype=np.float64), r["force_per_pa"], r.get("stiffness_per_pa"), meta)
     return r | {"cached": False, "key": key, "h_m": body.h}
 
@@ -273,12 +308,16 @@ def _cache(key: str, xs, force, stiffness, meta: dict) -> None:
 
 
 def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int | None = None, progress=None,
-                    stiffness_for=()) -> dict:
+                    stiffness_for=(), finer: str = "stored") -> dict:
     """The finite-strain reference of every pull in `pulls` on every mesh size: per pull
     ``{"h_m": [coarse..fine], "force_per_pa": (sizes, n, 3), "stiffness_per_pa": (sizes, n, 3, 3)
     or None, "solves": [per size]}``, plus ``"sizes_mm"``. Pulls named in `stiffness_for`
     record the condensed tangent too. Solves run in worker processes (`jobs`, default every
-    core), largest meshes first."""
+    core): the coarsest mesh first, then the finer ones, largest first; where the coarsest
+    mesh's solve stopped, the finer ones follow the pull only as far as it got (a sample needs
+    every mesh, and the last steps before a solve stops are the slowest). `finer` says what to do
+    there: "stored" (a stored skip stands, otherwise solve), "solve", or "skip" (record a skip:
+    a solve near where the coarse one stopped can take an hour on the 4 mm mesh)."""
     from sim.reference import scene_with
 
     scene = scene_with(scene_path)
@@ -286,11 +325,19 @@ def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int 
     sizes = sorted((float(x) for x in sizes_mm), reverse=True)
     labels = sorted({p.hemisphere for p in pulls})
     _premesh(scene.mesh, labels, sizes, 1, jobs)
-    tasks = [(str(scene_path), p.hemisphere, s, p, xs, p.name in stiffness_for) for s in sorted(sizes) for p in pulls]
-    results = _run(tasks, jobs, progress)
+    n_all = len(sizes) * len(pulls)
+    first = [(str(scene_path), p.hemisphere, sizes[0], p, xs, p.name in stiffness_for, xs[-1], finer) for p in pulls]
+    coarse = _run(first, jobs, (lambda k, n: progress(k, n_all)) if progress else None)
+    upto = {}
+    for p, r in zip(pulls, coarse):
+        ok = np.isfinite(np.asarray(r["force_per_pa"])).all(axis=1)
+        upto[p.name] = float(xs[ok].max()) if ok.any() else 0.0
+    rest = [(str(scene_path), p.hemisphere, s, p, xs, p.name in stiffness_for, upto[p.name], finer) for s in sorted(sizes[1:]) for p in pulls]
+    tasks = first + rest
+    results = coarse + _run(rest, jobs, (lambda k, n: progress(len(first) + k, n_all)) if progress else None)
     out = {p.name: {"h_m": [0.0] * len(sizes), "force_per_pa": [None] * len(sizes), "stiffness_per_pa": [None] * len(sizes),
                     "solves": [None] * len(sizes)} for p in pulls}
-    for (_, _, s, p, _, _), r in zip(tasks, results):
+    for (_, _, s, p, *_), r in zip(tasks, results):
         i = sizes.index(s)
         row = out[p.name]
         row["h_m"][i] = r["h_m"]
@@ -342,7 +389,7 @@ def _run(tasks: list, jobs: int | None, progress) -> list:
 def _stored_task(task, seen: dict) -> dict | None:
     """`_pull_task`'s answer when it is shipped or cached (no worker needed); `seen` keeps the
     scene and the meshes read for earlier tasks."""
-    scene_path, label, size_mm, pull, xs, stiffness = task
+    scene_path, label, size_mm, pull, xs, stiffness, _, finer = task
     from sim.reference import scene_with
 
     if scene_path not in seen:
@@ -356,7 +403,9 @@ def _stored_task(task, seen: dict) -> dict | None:
         return None
     key = pull_key(body, scene, scene.spec.material.law, grasp_radius(scene), pull)
     found = stored_solve(key, xs, stiffness)
-    return None if found is None else found | {"cached": True, "key": key, "h_m": body.h}
+    if found is None or (finer == "solve" and found.get("skipped")):
+        return None
+    return found | {"cached": True, "key": key, "h_m": body.h}
 
 
 def combined_sample(forces, hs) -> dict:

@@ -78,7 +78,8 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
     sets = hand_sets(scene)
     if vertices is None:
         vertices = np.unique(np.concatenate(list(sets.values())))
-    vertices = np.unique(np.asarray(vertices, dtype=np.int64))
+    # the hands' own vertices always: their paths are the table's exact part
+    vertices = np.unique(np.concatenate([np.asarray(vertices, dtype=np.int64).ravel(), [p.vertex for p in pulls]]))
     if len(vertices) == 0 or vertices.min() < 0 or vertices.max() >= len(mesh.vertices):
         raise InputError(f"--vertices: surface vertex ids must be in 0..{len(mesh.vertices) - 1}")
     # each place follows the path of the nearest hand on its hemisphere

@@ -4,10 +4,11 @@ data/reference_pulls.json (the file's SHA-256, what each entry is, how long it t
 Solves the accuracy bench's 18 pulls (`sim.reference.make_pulls` and `test_pulls`) of the
 shipped scene on each shipped mesh (8, 6, 4 mm) with the scene's law (protocols/materials/
 human_cortex.toml), recording every 2 mm to 24 mm (`analysis.reference.RECORD_XS`), the hand
-pulls with their condensed tangent stiffness too (the observer's truth reads them). Solves
-already cached ($BRAINSIM_CACHE/reference) are reused.
+pulls with their condensed tangent stiffness too (the observer's truth reads them). A solve that
+stops (the tangent loses definiteness on some anterior pulls) is shipped with the records it
+reached and its reason. Solves already cached ($BRAINSIM_CACHE/reference) are reused.
 
-    .venv/bin/python scripts/make_reference_pulls.py [--jobs 2]
+    .venv/bin/python scripts/make_reference_pulls.py [--jobs 2] [--finer stored|solve|skip]
 """
 
 from __future__ import annotations
@@ -30,6 +31,8 @@ from sim.tetmesh import SHIPPED_MM
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--finer", choices=("stored", "solve", "skip"), default="stored",
+                    help="where the coarsest mesh's solve stopped: keep a stored skip (default), solve the finer meshes, or skip them")
     args = ap.parse_args()
     scene = scene_with(DEFAULT_SCENE)
     pulls = make_pulls(scene) + test_pulls(scene)
@@ -39,19 +42,23 @@ def main() -> None:
     def progress(k, n):
         print(f"{k}/{n} solves, {time.perf_counter() - start:.0f} s", flush=True)
 
-    refs = pull_references(DEFAULT_SCENE, pulls, RECORD_XS, SHIPPED_MM, jobs=args.jobs, progress=progress, stiffness_for=hands)
+    refs = pull_references(DEFAULT_SCENE, pulls, RECORD_XS, SHIPPED_MM, jobs=args.jobs, progress=progress, stiffness_for=hands,
+                           finer=args.finer)
     arrays, entries = {}, []
     for p in pulls:
         for s in refs["pulls"][p.name]["solves"]:
             key = s["key"]
-            if not s["converged"]:
+            found = stored_solve(key, RECORD_XS, stiffness=p.name in hands)  # cached, or shipped before
+            if found is None and s.get("skipped"):  # shipped as a skip (no records), so that readers do not solve it
+                found = {"force_per_pa": np.full((len(RECORD_XS), 3), np.nan), "converged": False, "skipped": True,
+                         "reason": s["reason"], "reached_mm": 0.0}
+            if found is None:  # stopped before its first record
                 entries.append({"pull": p.name, "size_mm": s["size_mm"], "key": key, "converged": False, "reason": s.get("reason", "")})
                 continue
-            found = stored_solve(key, RECORD_XS, stiffness=p.name in hands)  # cached, or shipped before
             meta = {k: v for k, v in found.items() if k not in ("force_per_pa", "stiffness_per_pa")}
             arrays[f"{key}__xs"] = RECORD_XS
             arrays[f"{key}__force_per_pa"] = found["force_per_pa"]
-            if p.name in hands:
+            if p.name in hands and not found.get("skipped"):
                 arrays[f"{key}__stiffness_per_pa"] = found["stiffness_per_pa"]
             arrays[f"{key}__meta"] = np.asarray(json.dumps(meta))
             entries.append({"pull": p.name, "size_mm": s["size_mm"], "key": key, "stiffness": p.name in hands} | meta)

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 
-def save_npz(path, compressed: bool = False, **arrays) -> Path:
+def save_npz(path, /, compressed: bool = False, **arrays) -> Path:
     """NumPy arrays to `path`, through a temporary file of this process beside it, renamed over
     it: a concurrent reader, or a run killed halfway, never sees half a file (caches, shipped
     tables)."""

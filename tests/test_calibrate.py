@@ -30,8 +30,10 @@ def test_cli_calibrates_to_the_converged_reference_and_to_a_csv(tmp_path, monkey
     res = CliRunner().invoke(cli, ["calibrate", "plate-spring", "--samples", "3", "--json", "--out", str(tmp_path / "cal.toml")])
     assert res.exit_code == 0, res.output
     rep = json.loads(res.output)
-    assert rep["points"] == 18 and "converged reference" in rep["reference"] and "8, 6 mm" in rep["reference"]
-    assert rep["within_jnd"] >= 0.5  # one force curve for six pulls of different stiffness: not all within
+    # extra1-anterior's 8 mm solve stopped at 8.8 mm and its finer ones are not shipped: its 3 samples have no reference
+    assert rep["points"] == 15 and "converged reference" in rep["reference"] and "8, 6 mm" in rep["reference"]
+    assert "3 samples have no reference: all of extra1-anterior" in rep["reference"]
+    assert rep["within_jnd"] >= 0.2  # one force curve for five pulls of different stiffness: not all within
     fitted = load_params(tmp_path / "cal.toml")  # a valid parameter file
     assert fitted.alpha == rep["fitted"]["alpha"]
     (tmp_path / "curve.csv").write_text("displacement_m,force_n\n0.005,0.05\n0.01,0.11\n0.015,0.18\n0.02,0.26\n")

@@ -80,13 +80,17 @@ def test_shipped_field_belongs_to_this_brain_and_is_stiffness(scene, tmp_path):
     assert K.shape == (len(scene.mesh.vertices), 3, 3)
     ev = np.linalg.eigvalsh(K)
     assert np.all(ev > 0)  # SPD everywhere
-    # the softest direction (a tangent pull): at 3 kPa and 24 mm, forces of the order of the
-    # bench's 0.1-0.4 N, K ~ 1e-3..6e-3 N/m per Pa; pulling along the normal is stiffer, but finite
+    # per pascal of the law's shear modulus mu (small strain, Poisson 0.490 from kappa = 50 mu):
+    # the softest direction (a tangent pull) gives the bench's small-strain forces, K ~ 2e-3..3e-2
+    # N/m per Pa; along the normal, a uniform pressure on a 5 mm disc of a half-space has
+    # K = 3 pi^2 a E / (16 (1 - nu^2)) = 0.036 N/m per Pa of mu, which the free surface's median
+    # stays under (the brain is softer than a half-space away from the clamp); near the clamp,
+    # stiffer, but finite
     from sim.scene import clamp_limit
 
     axis, limit = clamp_limit(scene)
     free = scene.mesh.vertices[:, axis] > limit + 0.015  # where the bench grasps
-    assert 5e-4 < np.median(ev[free, 0]) < 1e-2 and np.all(ev[:, -1] < 1.0)
+    assert 1.5e-3 < np.median(ev[free, 0]) < 3e-2 and np.median(ev[free, -1]) < 0.036 and np.all(ev[:, -1] < 10.0)
     with np.load(FIELD_FILE) as z:
         assert str(z["mesh_digest"]) == mesh_digest(scene.mesh) and float(z["size_mm"]) == 8.0
     # a field made for another surface is refused, naming the file

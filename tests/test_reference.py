@@ -177,7 +177,10 @@ def test_the_shipped_solves_are_the_solvers_and_hash_checked(scene, tmp_path, mo
     info = json.loads(reference.SHIPPED_PULLS_INFO.read_text())
     assert info["law"] == scene.spec.material.law.params()
     entries = {(e["pull"], e["size_mm"]): e for e in info["entries"]}
-    assert len(entries) == 54 and all(e["converged"] for e in entries.values())  # 18 pulls x 3 meshes
+    assert len(entries) == 54  # 18 pulls x 3 meshes
+    for e in entries.values():  # a solve that stopped says why and how far it got
+        assert e["converged"] or (e["reason"] and 0 <= e.get("reached_mm", 0.0) < 24.0)
+    assert entries[("left-lateral", 4.0)]["converged"] and entries[("right-lateral", 4.0)]["converged"]  # the hands
     pull = next(p for p in make_pulls(scene) if p.name == "left-anterior")
     verts, tris, _ = hemisphere_surface(scene.mesh, 0)
     body = mesh_hemisphere(verts, tris, 0.008)
@@ -194,3 +197,59 @@ def test_the_shipped_solves_are_the_solvers_and_hash_checked(scene, tmp_path, mo
     monkeypatch.setattr(reference, "_SHIPPED", None)
     with pytest.raises(reference.ReferenceDataError, match="damaged"):
         reference.shipped_solves()
+
+
+def test_samples_past_a_stopped_solve_have_no_reference_and_are_not_judged():
+    """A pull whose solve stopped on one mesh: its later samples carry no reference, the
+    calibration scale and the rows leave them out, and the others are judged as before."""
+    from analysis.accuracy import calibration_scale, compare, reference_samples
+    from sim.reference import Pull
+
+    xs = np.array([0.004, 0.008])
+    hs = [0.0026, 0.0023, 0.0017]
+    good = np.stack([np.outer(xs, [0.0, 0.0, 10.0 * k]) for k in (1.02, 1.01, 1.0)])  # (sizes, n, 3) per pascal
+    stopped = good.copy()
+    stopped[2, 1] = np.nan  # the finest mesh did not reach 8 mm
+    refs = {"a": {"force_per_pa": good, "h_m": hs, "solves": [{"converged": True, "size_mm": s} for s in (8, 6, 4)]},
+            "b": {"force_per_pa": stopped, "h_m": hs, "solves": [{"converged": True, "size_mm": 8}, {"converged": True, "size_mm": 6},
+                                                                   {"converged": False, "size_mm": 4, "reason": "tangent singular"}]}}
+    pulls = [Pull("a", 1, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0), Pull("b", 2, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0)]
+    ref = reference_samples(refs, pulls, xs, 100.0)
+    assert np.isfinite(ref[1][0]["force_n"]) and np.isnan(ref[1][1]["force_n"]) and ref[1][1]["status"] == "not solved"
+    ok, why = reference.reached(refs)["b"]
+    assert ok.tolist() == [True, False] and "4 mm" in why and "tangent singular" in why
+    R = np.array([[c["force_n"] for c in row] for row in ref])
+    assert calibration_scale(np.full(4, 2.0), R.ravel() * 0 + np.array([4.0, 4.0, 4.0, np.nan])) == pytest.approx(2.0)
+    model = {"model": "m", "setting": "s", "force": -np.stack([[[0.0, 0.0, R[0, k]] for k in range(2)]] * 2),
+             "tick_us": 1.0, "frame_ms": 1.0, "frame_ms_p99": 1.0, "build_s": 0.0, "unstable": 0}
+    model["force"][1, 1] = [0.0, 0.0, -99.0]  # far off where there is no reference: must not count
+    rows, samples = compare(ref, [model], pulls, 1, xs)
+    raw = rows[0]
+    assert raw["n_test"] == 1 and raw["within"] == 1 and raw["force_error_max"] == pytest.approx(0.0, abs=1e-12)
+    assert not any(s["pull"] == "b" and s["displacement_mm"] == 8.0 for s in samples)
+
+
+def test_finer_meshes_follow_a_pull_only_as_far_as_the_coarsest_got(scene, monkeypatch):
+    """Where the coarsest mesh's solve stopped, the finer meshes are asked only up to its last
+    record (a sample needs every mesh)."""
+    pulls = [p for p in make_pulls(scene) if p.name in ("left-lateral", "left-anterior")]
+    xs = np.array([0.004, 0.008, 0.012])
+    asked = []
+
+    def fake_run(tasks, jobs, progress):
+        out = []
+        for t in tasks:
+            asked.append((t[3].name, t[2], t[6]))
+            f = np.ones((len(xs), 3))
+            if t[3].name == "left-anterior" and t[2] == 8.0:
+                f[2] = np.nan  # stopped between 8 and 12 mm on the coarsest mesh
+            out.append({"force_per_pa": f, "h_m": t[2] * 1e-3, "converged": not np.isnan(f).any(), "key": "k"})
+        return out
+
+    monkeypatch.setattr(reference, "_premesh", lambda *a: set())
+    monkeypatch.setattr(reference, "_run", fake_run)
+    refs = reference.pull_references(DEFAULT_SCENE, pulls, xs, (8.0, 6.0, 4.0))
+    assert asked[:2] == [("left-lateral", 8.0, 0.012), ("left-anterior", 8.0, 0.012)]  # the coarsest first
+    assert sorted(asked[2:]) == sorted([(n, s, 0.012 if n == "left-lateral" else 0.008) for s in (4.0, 6.0)
+                                        for n in ("left-lateral", "left-anterior")])
+    assert refs["pulls"]["left-anterior"]["force_per_pa"].shape == (3, 3, 3)

@@ -39,14 +39,14 @@ def scene_file(tmp_path: Path, target: str | None = None, right_target: str | No
 def test_the_shipped_targets_lie_along_the_pull_on_the_surface():
     scene = build_scene(RETRACTION)
     for i, target in enumerate(scene.targets()):
-        assert target.spec.distance == 0.040 and target.spec.tolerance == 0.003 and target.spec.safe_force == 0.29
+        assert target.spec.distance == 0.008 and target.spec.tolerance == 0.0015 and target.spec.safe_force == 0.29
         d = np.asarray(target.direction)
         start = np.asarray(scene.script(i).start)
         normal = scene.mesh.vertex_normals[scene.mesh.nearest_vertex(start)]
         assert abs(np.linalg.norm(d) - 1) < 1e-12 and abs(d @ normal) < 1e-9  # unit, on the tangent plane
         assert np.sign(d[0]) == (-1 if i == 0 else 1)  # left hand pulls left, right hand right
         goal = scene_goals(scene)[scene.spec.hands[i].name]
-        assert np.allclose(goal.target_m, 0.040 * d) and goal.tolerance_m == 0.003 and goal.hold_s == 0.5
+        assert np.allclose(goal.target_m, 0.008 * d) and goal.tolerance_m == 0.0015 and goal.hold_s == 0.5
 
 
 @pytest.mark.parametrize("target, field, message", [
@@ -81,7 +81,7 @@ def _scripted(tmp_path, distance):
 
 
 def test_a_run_ends_once_every_hand_held_its_target_and_the_metrics_agree(tmp_path):
-    scene = _scripted(tmp_path, 0.040)  # the scripted pull ends on the target
+    scene = _scripted(tmp_path, 0.008)  # the scripted pull ends on the target
     full = run_scene(scene, duration=6.0, time_scale=0)
     ended = run_scene(scene, duration=6.0, time_scale=0, end_on_targets=True)
     assert full.ended_early is None and full.targets_held == [True, True] and full.times[-1] > 5.9

@@ -53,13 +53,15 @@ def test_the_table_follows_the_reference_paths_and_transfers_within_its_check(co
     assert np.allclose(truth.force(p.vertex, np.outer(RECORD_XS, p.direction)), want, rtol=1e-9)
     assert rep["vertices"] == len(truth.vertices) and rep["paths"] == [q.name for q in pulls]
     (check,) = [c for c in rep["transfer_checks"] if c["hand"] == p.name]
-    assert check["converged"] and check["error_max"] < 0.15  # a grasp a few mm off the hand's vertex
+    # a grasp a few mm off the hand's vertex: near rest the transfer is the small-strain ratio (exact in
+    # the limit); the stiffening differs by place, so the error grows along the pull (docs/synthetic.md)
+    assert check["converged"] and check["error_at_mm"]["2"] < 0.15 and check["error_at_mm"]["2"] < check["error_at_mm"]["8"] < 1.0
     # the transfer maps the hand's own small-strain stiffness to each place's
     z = np.load(out)
     for k, v in enumerate(truth.vertices):
         h = int(truth.path[k])
         assert np.allclose(truth.K(int(v)), mu * z["K0_per_pa"][k], rtol=1e-8)
-        assert h == 0  # the left hand's places follow the left hand's path
+        assert h == (1 if int(v) == pulls[1].vertex else 0)  # the left hand's places follow its path; the right hand's vertex (always in) its own
 
 
 def test_a_table_for_another_law_is_refused(coarse_truth, tmp_path):

@@ -130,7 +130,9 @@ def calibrate_field(scene_file, out_file, params_out, formulation, as_json):
         params = dataclasses.replace(params, E=law.shear_modulus)  # the field is per pascal of the law's shear modulus
         how = ("a one-layer stack: a straight curve, so the force is E K(v) d, the law's small-strain limit" if formulation == "small-strain" else
                f"fitted to the mean finite-strain / small-strain force ratio ({', '.join(f'{r:.3f}' for r in fit_rep['finite_over_small_strain'])})\n"
-               f"of the calibration pulls {', '.join(fit_rep['pulls'])} on the {fit_rep['mesh_mm']:g} mm P2 mesh; {fit_rep['within_jnd']:.0%} "
+               f"of the calibration pulls {', '.join(fit_rep['pulls'])} on the {fit_rep['mesh_mm']:g} mm P2 mesh"
+               + (f" ({', '.join(fit_rep['no_reference'])}: no reference)" if fit_rep.get("no_reference") else "")
+               + f"; {fit_rep['within_jnd']:.0%} "
                "within the JND.\nE is the law's shear modulus (the field is per pascal of it)")
         Path(params_out).write_text(to_toml(params, (
             "Plate-spring stack for the location-aware model (variant \"located\"): only the curve's shape matters,\n"
