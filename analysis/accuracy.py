@@ -274,7 +274,7 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
             # samples past where a mesh's solve stopped have no reference: left out of every row
             "no_reference": [{"pull": name, "samples": int((~m).sum()), "reached_mm": float(xs[m].max() * 1e3) if m.any() else 0.0, "why": why}
                              for name, (m, why) in reached(refs["pulls"]).items() if not m.all()],
-            "min_jacobian": min((s["min_jacobian"] for s in solves), default=math.nan),
+            "min_jacobian": min((s["min_jacobian"] for s in solves if "min_jacobian" in s), default=math.nan),
             "solves_stored": sum(bool(s.get("cached")) for s in solves), "solves": len(solves), "seconds": ref_s,
         },
         "quick": cfg.quick,
@@ -321,10 +321,10 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
         scale = calibration_scale(mags[:n_calib].ravel(), R[:n_calib].ravel())
         for calibration, s in (("raw", 1.0), ("calibrated", scale)):
             errs, within, verdicts, angles, calib_errs = [], [], [], [], []
-            pulls_within = 0
+            pulls_within = pulls_judged = 0
             for p, pull in enumerate(pulls):
                 test = p >= n_calib
-                all_in = True
+                all_in, judged = True, 0
                 for k, x in enumerate(xs):
                     f = s * mags[p, k]
                     r = R[p, k]
@@ -344,16 +344,18 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                         verdicts.append(v)
                         angles.append(ang)
                         all_in = all_in and ok
+                        judged += 1
                     else:
                         calib_errs.append(rel)
-                pulls_within += int(test and all_in)
+                pulls_within += int(test and judged > 0 and all_in)  # a pull with no reference is not judged
+                pulls_judged += int(test and judged > 0)
             n = len(within)
             lo, hi = wilson(int(sum(within)), n)
             rows.append({"model": m["model"], "setting": m["setting"], "calibration": calibration, "scale": s,
                          "force_error": float(np.mean(errs)), "force_error_max": float(np.max(errs)),
                          "within_jnd": float(np.mean(within)), "within_jnd_low": lo, "within_jnd_high": hi, "n_test": n,
                          "within": verdicts.count("within"), "outside": verdicts.count("outside"), "undecided": verdicts.count("undecided"),
-                         "pulls_within": pulls_within, "n_test_pulls": len(pulls) - n_calib,
+                         "pulls_within": pulls_within, "n_test_pulls": pulls_judged,
                          "angle_deg": float(np.mean(angles)), "angle_deg_max": float(np.max(angles)),
                          "calibration_error": float(np.mean(calib_errs)),
                          "tick_us": m["tick_us"], "frame_ms": m["frame_ms"], "frame_ms_p99": m["frame_ms_p99"],

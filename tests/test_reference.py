@@ -226,6 +226,13 @@ def test_samples_past_a_stopped_solve_have_no_reference_and_are_not_judged():
     rows, samples = compare(ref, [model], pulls, 1, xs)
     raw = rows[0]
     assert raw["n_test"] == 1 and raw["within"] == 1 and raw["force_error_max"] == pytest.approx(0.0, abs=1e-12)
+    assert raw["pulls_within"] == 1 and raw["n_test_pulls"] == 1
+    # a test pull with no reference at all is not counted as a pull within, nor as a pull judged
+    refs["c"] = {**refs["b"], "force_per_pa": np.full_like(stopped, np.nan)}
+    model["force"] = np.concatenate([model["force"], model["force"][:1]])
+    rows, _ = compare(reference_samples(refs, pulls + [Pull("c", 3, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0)], xs, 100.0), [model],
+                      pulls + [Pull("c", 3, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0)], 1, xs)
+    assert rows[0]["n_test"] == 1 and rows[0]["pulls_within"] == 1 and rows[0]["n_test_pulls"] == 1
     assert not any(s["pull"] == "b" and s["displacement_mm"] == 8.0 for s in samples)
 
 
