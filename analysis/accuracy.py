@@ -174,24 +174,22 @@ def _tick_time(model, contact, d, reps: int = 20000) -> float:
 def reference_samples(refs: dict, pulls: list[Pull], xs, mu: float) -> list[list[dict]]:
     """Per pull and sample: the reference force (N, vector on the tissue), magnitude and half-band,
     for a law of shear modulus `mu` (the stored forces are per pascal of it)."""
-    return [[_sample(refs[p.name]["force_per_pa"][:, k] * mu, refs[p.name]["h_m"]) for k in range(len(xs))] for p in pulls]
-
-
-def _sample(forces, hs) -> dict:
-    """`combined_sample`, or NaN where a mesh's solve did not reach the sample (no reference)."""
     from analysis.reference import combined_sample
 
-    if not np.isfinite(forces).all():
-        return {"force": np.full(3, math.nan), "force_n": math.nan, "band_rel": math.nan, "band_half_n": math.nan,
-                "status": "not solved", "order": math.nan, "extrapolated": False, "forces_n": [float(np.linalg.norm(f)) for f in forces]}
-    return combined_sample(forces, hs)
+    return [[combined_sample(refs[p.name]["force_per_pa"][:, k] * mu, refs[p.name]["h_m"]) for k in range(len(xs))] for p in pulls]
 
 
 def calibration_curve(scene_path, xs, jobs: int | None = None, progress=None) -> tuple:
     """The converged reference's force magnitude (N, the scene's law) on the bench's calibration
     pulls (`make_pulls`), at displacements `xs`: (displacements, forces, how), the pulls'
     curves concatenated. What `calibrate plate-spring` fits to."""
-    from analysis.reference import DEFAULT_SIZES_MM, ReferenceDataError, pull_references, reached
+    from analysis.reference import (
+        DEFAULT_SIZES_MM,
+        ReferenceDataError,
+        describe_no_reference,
+        no_reference,
+        pull_references,
+    )
 
     scene = scene_with(scene_path)
     pulls = make_pulls(scene)
@@ -203,12 +201,11 @@ def calibration_curve(scene_path, xs, jobs: int | None = None, progress=None) ->
     ok = np.isfinite(forces)
     if not ok.any():
         raise ReferenceDataError("calibration curve: no reference solve reached any sample")
-    missing = [(f"{name} beyond {float(xs[m].max()) * 1e3:g} mm" if m.any() else f"all of {name}") + f" ({why})"
-               for name, (m, why) in reached(refs).items() if not m.all()]
+    gone = no_reference(refs, xs)
     how = (f"the converged reference ({law.describe()}, finite strain on P2 on the body-fitted "
            f"{', '.join(f'{s:g}' for s in DEFAULT_SIZES_MM)} mm meshes, Richardson-extrapolated; "
            f"the accuracy bench's {len(pulls)} calibration pulls"
-           + (f"; {int((~ok).sum())} samples have no reference: {'; '.join(missing)}" if missing else "") + ")")
+           + (f"; {int((~ok).sum())} samples have no reference: {describe_no_reference(gone)}" if gone else "") + ")")
     return np.tile(xs, len(pulls))[ok], forces[ok], how
 
 
@@ -222,7 +219,7 @@ def _task(task):
 def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | None = None, progress=None) -> dict:
     """The reference, then every setting, on the calibration and test pulls; returns rows
     (raw and calibrated per setting), per-sample verdicts and meta."""
-    from analysis.reference import ReferenceDataError, pull_references, reached
+    from analysis.reference import ReferenceDataError, no_reference, pull_references
     from studyctl.sweep import run_tasks
 
     scene = scene_with(cfg.scene)
@@ -272,8 +269,7 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
             "statuses": {s: sum(c["status"] == s for c in flat) for s in sorted({c["status"] for c in flat})},
             "converged": all(s["converged"] for s in solves),
             # samples past where a mesh's solve stopped have no reference: left out of every row
-            "no_reference": [{"pull": name, "samples": int((~m).sum()), "reached_mm": float(xs[m].max() * 1e3) if m.any() else 0.0, "why": why}
-                             for name, (m, why) in reached(refs["pulls"]).items() if not m.all()],
+            "no_reference": no_reference(refs["pulls"], xs),
             "min_jacobian": min((s["min_jacobian"] for s in solves if "min_jacobian" in s), default=math.nan),
             "solves_stored": sum(bool(s.get("cached")) for s in solves), "solves": len(solves), "seconds": ref_s,
         },
@@ -379,10 +375,11 @@ COLUMNS = ("model", "setting", "calibration", "scale", "force_error", "force_err
 def intro(result: dict) -> str:
     m = result["meta"]
     ref = m["reference"]
+    from analysis.reference import describe_no_reference
+
     gone = ref.get("no_reference") or []
-    missing = (f" {sum(g['samples'] for g in gone)} samples have no reference and are not judged ("
-               + "; ".join((f"{g['pull']} beyond {g['reached_mm']:g} mm" if g["reached_mm"] > 0 else f"all of {g['pull']}") + f": {g['why']}"
-                           for g in gone) + ").") if gone else ""
+    missing = (f" {sum(g['samples'] for g in gone)} samples have no reference and are not judged: "
+               f"{describe_no_reference(gone)}.") if gone else ""
     return (f"Reference: {ref['setting']} ({ref['formulation']}; GCI half-band median {ref['band_rel_median']:.1%}, "
             f"largest {ref['band_rel_max']:.1%}).{missing} {len(m['calibration_pulls'])} calibration pulls and {len(m['test_pulls'])} held-out test "
             f"pulls to {m['max_pull_m'] * 1e3:g} mm at {m['pull_speed_m_per_s'] * 1e3:g} mm/s, {m['samples_per_pull']} samples each; "

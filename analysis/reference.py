@@ -244,6 +244,19 @@ def reached(refs: dict) -> dict:
     return out
 
 
+def no_reference(refs: dict, xs) -> list[dict]:
+    """The pulls with samples that have no reference: how many, the last x every mesh reached
+    (mm, 0 if none) and why."""
+    return [{"pull": name, "samples": int((~m).sum()), "reached_mm": float(np.asarray(xs)[m].max() * 1e3) if m.any() else 0.0, "why": why}
+            for name, (m, why) in reached(refs).items() if not m.all()]
+
+
+def describe_no_reference(gone: list[dict]) -> str:
+    """`no_reference`'s list in words: "all of P (why); Q beyond 8 mm (why)"."""
+    return "; ".join((f"{g['pull']} beyond {g['reached_mm']:g} mm" if g["reached_mm"] > 0 else f"all of {g['pull']}") + f" ({g['why']})"
+                     for g in gone)
+
+
 def require_converged(refs: dict, what: str) -> None:
     """Refuse to build on a reference solve that stopped (naming the pull, the mesh and why)."""
     for name, r in refs.items():
@@ -263,8 +276,8 @@ def _pull_task(args) -> dict:
     verts, tris, _ = hemisphere_surface(scene.mesh, label)
     body = mesh_hemisphere(verts, tris, size_mm * 1e-3)
     key = pull_key(body, scene, law, radius, pull)
-    found = stored_solve(key, xs, stiffness)
-    if found is not None and not (finer == "solve" and found.get("skipped")):
+    found = _stored(key, xs, stiffness, finer)
+    if found is not None:
         return found | {"cached": True, "key": key, "h_m": body.h}
     asked = xs <= upto + 1e-12
     if finer == "skip" and not asked.all():
@@ -402,18 +415,26 @@ def _stored_task(task, seen: dict) -> dict | None:
     if body is None:
         return None
     key = pull_key(body, scene, scene.spec.material.law, grasp_radius(scene), pull)
+    found = _stored(key, xs, stiffness, finer)
+    return None if found is None else found | {"cached": True, "key": key, "h_m": body.h}
+
+
+def _stored(key: str, xs, stiffness: bool, finer: str) -> dict | None:
+    """`stored_solve`, except a stored skip when the finer solves are asked for ("solve")."""
     found = stored_solve(key, xs, stiffness)
-    if found is None or (finer == "solve" and found.get("skipped")):
-        return None
-    return found | {"cached": True, "key": key, "h_m": body.h}
+    return None if found is None or (finer == "solve" and found.get("skipped")) else found
 
 
 def combined_sample(forces, hs) -> dict:
     """The reference at one sample from its force vectors on the meshes (coarse to fine):
     Richardson on the magnitudes (`converge`), the finest mesh's vector scaled to the
     extrapolated magnitude. Returns the force vector, its magnitude, the GCI half-band (N,
-    relative to the magnitude) and the convergence record."""
+    relative to the magnitude) and the convergence record; NaN and "not solved" where a mesh's
+    solve did not reach the sample (no reference)."""
     mags = [float(np.linalg.norm(f)) for f in forces]
+    if not all(math.isfinite(m) for m in mags):
+        return {"force": np.full(3, math.nan), "force_n": math.nan, "band_rel": math.nan, "band_half_n": math.nan,
+                "status": "not solved", "order": math.nan, "extrapolated": False, "forces_n": mags}
     conv = converge(mags, hs)
     finest = mags[int(np.argmin(hs))]
     vec = np.asarray(forces[int(np.argmin(hs))], dtype=np.float64) * (conv["f_ext"] / finest if finest > 0 else 1.0)
