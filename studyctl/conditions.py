@@ -47,7 +47,10 @@ def _plain(value):
 def resolved_config(name: str, spec) -> dict:
     """What condition `name` runs: the model with every option, the material (JSON-able)."""
     m = spec.model_spec()
-    out = {"condition": name, "model": m.name, "options": _plain(m.options), "material": _plain(spec.material),
+    material = _plain(spec.material)
+    if material.get("law_source") not in (None, "", "inline"):  # the law file's content, as for every other file
+        material["law_source"] = _plain(Path(material["law_source"]))
+    out = {"condition": name, "model": m.name, "options": _plain(m.options), "material": material,
            # what else the forces depend on: the scene file itself (any edit is a new configuration),
            # the surface, the clamp, the loop rates
            "scene": _plain(spec.path), "mesh": _plain(spec.mesh_path), "fixed": _plain(spec.fixed),

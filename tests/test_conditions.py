@@ -233,3 +233,22 @@ def test_a_changed_configuration_is_not_resumed_and_a_failing_one_writes_nothing
     scene.write_text(original.replace("rate_hz = 30", "rate_hz = 60", 1))  # the visual rate: a mass-spring's frame step
     res = studyctl("session", "run", "--participant", "S01", "--synthetic", "--resume", "--db", db)
     assert res.exit_code == 1 and "ran configuration" in res.output and "resuming would mix the two" in res.output, res.output
+
+
+def test_a_configuration_is_the_same_wherever_the_project_lies(tmp_path):
+    """The hash of what a condition runs names files by content, never by where they lie (a study
+    moved to another directory resumes, the shipped rig profile matches on a clean clone)."""
+    import shutil
+    from pathlib import Path
+
+    from studyctl.rig import condition_keys
+
+    root = Path(__file__).resolve().parents[1]
+    moved = tmp_path / "elsewhere" / "protocols"
+    shutil.copytree(root / "protocols", moved)
+    (moved.parent / "data").mkdir()
+    shutil.copy(root / "data/brain_fsaverage5.npz", moved.parent / "data")  # the scene's surface
+    here, there = (load_protocol(d / "brain_pull_2015.toml") for d in (root / "protocols", moved))
+    assert condition_keys(here) == condition_keys(there)
+    cfg = resolved_config("fem", condition_scene_spec(there, "fem"))
+    assert "elsewhere" not in json.dumps(cfg) and cfg["material"]["law_source"]["file"] == "human_cortex.toml"
