@@ -5,8 +5,9 @@ Each hemisphere's closed pial surface is meshed with fTetWild (`pytetwild`, MPL-
 target edge length; the mesh boundary follows the surface within an envelope of
 ENVELOPE_FRACTION x the edge length, so geometry and field refine together. fTetWild is not
 deterministic (two runs give meshes a few % apart in node count), so the meshes at the
-simulator's resolutions (SHIPPED_MM) are made once and shipped in `data/` with their
-provenance and content hash (`data/brain_tets.json`, `scripts/make_tet_meshes.py`). Any other
+simulator's resolutions (SHIPPED_MM), and the coarse ones the test suite's small reference
+solves use (TEST_MM), are made once and shipped in `data/` with their provenance and content
+hash (`data/brain_tets.json`, `scripts/make_tet_meshes.py`). Any other
 size, or another surface, is meshed on first use and cached on disk
 (``$BRAINSIM_CACHE/reference``); fTetWild takes 0.5-1.5 minutes per hemisphere and size.
 """
@@ -29,6 +30,7 @@ from sim.volume import VolumeMesh, cache_dir, tet_volumes
 MESHER_VERSION = 1  # part of the mesh cache key: bump when the meshing rule changes
 ENVELOPE_FRACTION = 0.1  # fTetWild's envelope (max distance of the mesh boundary from the surface) = this x edge length
 SHIPPED_MM = (8.0, 6.0, 4.0)  # target edge lengths shipped in data/ (the simulator's resolutions)
+TEST_MM = (20.0, 16.0)  # also shipped: the tests' small reference solves (a fresh machine's `make test` runs no fTetWild)
 PROVENANCE = _asset("data/brain_tets.json")
 
 

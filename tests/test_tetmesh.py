@@ -15,6 +15,7 @@ from sim.scene import DEFAULT_SCENE
 from sim.tetmesh import (
     PROVENANCE,
     SHIPPED_MM,
+    TEST_MM,
     body_volume,
     content_hash,
     enclosed_volume,
@@ -31,14 +32,16 @@ def scene():
 
 def test_every_shipped_mesh_matches_its_provenance(scene):
     prov = json.loads(PROVENANCE.read_text())
-    assert sorted({m["target_edge_mm"] for m in prov["meshes"]}) == sorted(SHIPPED_MM)
+    assert sorted({m["target_edge_mm"] for m in prov["meshes"]}) == sorted(SHIPPED_MM + TEST_MM)
     for entry in prov["meshes"]:
         v, t, _ = hemisphere_surface(scene.mesh, entry["hemisphere"])
         m = mesh_hemisphere(v, t, entry["target_edge_mm"] * 1e-3)
         assert m.source == "shipped" and content_hash(m.nodes, m.tets) == entry["sha256"]
         vol = tet_volumes(m.nodes, m.tets)
         assert np.all(vol > 0)  # positively oriented, none degenerate
-        assert abs(vol.sum() / enclosed_volume(v, t) - 1) < 0.01  # the boundary follows the pial surface
+        # the boundary follows the pial surface within the envelope (0.1 x the edge): the volume
+        # error shrinks with the size (1% at 8 mm)
+        assert abs(vol.sum() / enclosed_volume(v, t) - 1) < 0.01 * entry["target_edge_mm"] / 8.0
         assert len(m.tets) == entry["tets"] and len(m.nodes) == entry["nodes"]
 
 
