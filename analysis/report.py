@@ -71,7 +71,7 @@ def latex(study: Study, holm_scope: str = "family") -> str:
                 + [f"{x['mean_ms']:.2f} +- {x['sd_ms']:.2f}" for _, x in d.iterrows()] + ["", ""])
     df = pd.DataFrame(rows, columns=["Question", *models, "Cochran's Q (p)", f"McNemar p ({scope})"])
     listed = table1.incomplete_text(facts)
-    caption = (("SYNTHETIC DATA (simulated participants). " if facts["synthetic"] else "")
+    caption = ((f"{facts['flag']} " if facts["flag"] else "")
                + f"{facts['study']}: N = {facts['participants']} participants with every answer; {facts['design']}."
                + (f" Left out (incomplete): {listed}." if listed else ""))
     tables = [(df, caption)] if len(r) else []
@@ -181,7 +181,7 @@ def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, 
     esc = _html.escape
     listed = table1.incomplete_text(facts)
     incomplete = f" Left out (incomplete): {listed}." if listed else ""
-    banner = ('<p class="synthetic">SYNTHETIC DATA: simulated participants; not evidence about people.</p>' if facts["synthetic"] else "")
+    banner = f'<p class="synthetic">{esc(facts["flag"])}</p>' if facts["flag"] else ""
     rows = []
     models = list(d["model"])
     for item, question, item_rows, qrow in table1.item_rows(r, q, models):

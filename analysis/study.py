@@ -15,15 +15,27 @@ from dataclasses import dataclass
 import pandas as pd
 
 
+SYNTHETIC_FLAG = "SYNTHETIC DATA (simulated participants): not evidence about people."
+
+
+def data_flag(persons: int, synthetic: int) -> str:
+    """What a report says first about whose data it holds: nothing for people only, the
+    synthetic flag for simulated participants only, and, pooled, how many of each."""
+    if synthetic and persons:
+        return (f"MIXED DATA: {persons} {'person' if persons == 1 else 'people'} and {synthetic} SYNTHETIC (simulated) "
+                f"participant{'s' if synthetic != 1 else ''} pooled; not evidence about people as it stands.")
+    return SYNTHETIC_FLAG if synthetic else ""
+
+
 @dataclass(frozen=True, eq=False)
 class Study:
     """What the analyses read of one study database.
 
     - `protocol`: the study's protocol (studyctl.protocol.Protocol), as stored with it;
     - `answers`: every stored answer: ``code, model, item, trial, answer`` (each in its kind's type);
-    - `synthetic_participants`: how many participants answered synthetically (from the answers' own
-      source, not a participant flag); `mixed_source_participants`: the codes that answered both
-      as a person and synthetically;
+    - `synthetic_participants`, `person_participants`: how many participants answered
+      synthetically, and as people (from the answers' own source, not a participant flag);
+      `mixed_source_participants`: the codes that answered both ways;
     - `periods`: each participant's position (0-based) of each condition in their session:
       ``code, model, period`` (the session's order, else the assigned one);
     - `latency`: each participant's mean deformation time per condition: ``code, model, value, trials``;
@@ -36,6 +48,7 @@ class Study:
     protocol: object
     answers: pd.DataFrame
     synthetic_participants: int
+    person_participants: int
     mixed_source_participants: tuple[str, ...]
     periods: pd.DataFrame
     latency: pd.DataFrame
@@ -54,6 +67,7 @@ def read_study(store) -> Study:
 
     # counted from the answers' own source, not from a participant flag that could drift
     synthetic = con.execute("select count(distinct code) from answers where source = 'synthetic'").fetchone()[0]
+    persons = con.execute("select count(distinct code) from answers where source != 'synthetic'").fetchone()[0]
     mixed = tuple(r[0] for r in con.execute(
         "select code from answers group by code having sum(source = 'synthetic') > 0 and sum(source != 'synthetic') > 0 order by code"))
     orders = pd.concat([query("select code, conditions from sessions order by id"), query("select code, conditions from schedule")])
@@ -61,6 +75,7 @@ def read_study(store) -> Study:
         protocol=store.protocol(),
         answers=query("select code, model, item, trial, answer from answers"),
         synthetic_participants=synthetic,
+        person_participants=persons,
         mixed_source_participants=mixed,
         periods=_periods(orders),
         latency=query("select s.code, l.model, avg(l.value) as value, count(*) as trials from latency l join sessions s on s.id = l.session_id "

@@ -17,7 +17,7 @@ import json
 import numpy as np
 import pandas as pd
 
-from analysis.study import Study
+from analysis.study import Study, data_flag
 
 
 def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.DataFrame:
@@ -136,9 +136,10 @@ def study_facts(study: Study) -> dict:
     answers, incomplete = complete_answers(study)
     n = int(answers["code"].nunique())
     synthetic, mixed = study.synthetic_participants, list(study.mixed_source_participants)
+    persons = study.person_participants
     return {"study": protocol.name, "participants": n, "incomplete_participants": incomplete,
-            "synthetic_participants": synthetic, "mixed_source_participants": mixed,
-            "synthetic": synthetic > 0,
+            "synthetic_participants": synthetic, "person_participants": persons, "mixed_source_participants": mixed,
+            "synthetic": synthetic > 0, "mixed": synthetic > 0 and persons > 0, "flag": data_flag(persons, synthetic),
             "design": f"within-subject, {len(protocol.conditions)} conditions, {protocol.counterbalancing} counterbalancing",
             "conditions": conditions(study)}
 
@@ -217,7 +218,7 @@ def markdown(study: Study, holm_scope: str = "family") -> str:
     st = study_stats(study, r, q, holm_scope=holm_scope)
     pairs = {item: v["pairs"] for item, v in st["items"].items()}
     models = list(d["model"])
-    flag = "SYNTHETIC DATA (simulated participants): not evidence about people. " if facts["synthetic"] else ""
+    flag = f"{facts['flag']} " if facts["flag"] else ""
     if facts["mixed_source_participants"]:
         flag += f"WARNING: {', '.join(facts['mixed_source_participants'])} answered both as a person and synthetically. "
     listed = incomplete_text(facts)

@@ -20,7 +20,7 @@ from pathlib import Path
 from studyctl.errors import StoreError
 
 SEEDED = ("study", "rig_profile")  # the study's rows a synthetic session reads
-OWN = ("participants", "participant_fields", "schedule")  # the participant's own rows, written by `synth` before the run
+OWN = ("participants", "participant_fields", "schedule", "synthetic_traits")  # the participant's own rows, written by `synth` before the run
 NEW_IDS = ("events", "corrections")  # rowid tables: the study gives imported rows their ids
 FIRST = ("sessions",)  # imported before the rows that reference them
 

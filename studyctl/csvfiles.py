@@ -7,12 +7,14 @@ import io
 from pathlib import Path
 
 from studyctl.errors import InputError
+from studyctl.text import control_problem
 
 
 def read_csv(path: str | Path, columns: tuple[str, ...], required: tuple[str, ...]) -> list[tuple[int, dict]]:
     """(line, row) pairs of a CSV as people save them: UTF-8 with or without a BOM, CRLF or LF,
     ',' ';' or tab separated, header names in any case and spacing. Unknown or missing columns
-    and undecodable bytes are one-line errors naming the file."""
+    and undecodable bytes, and control characters in a cell, are one-line errors naming the
+    file, the line and the column."""
     path = Path(path)
     try:
         raw = path.read_bytes()
@@ -45,5 +47,9 @@ def read_csv(path: str | Path, columns: tuple[str, ...], required: tuple[str, ..
             continue  # blank lines, e.g. at the end of a spreadsheet's file
         if len(cells) > len(header) and any(c.strip() for c in cells[len(header):]):  # empty trailing cells are fine
             raise InputError(f"{path}: line {line}: {len(cells)} cells, the header has {len(header)}")
-        rows.append((line, {k: (cells[i].strip() if i < len(cells) else "") for i, k in enumerate(header)}))
+        row = {k: (cells[i].strip() if i < len(cells) else "") for i, k in enumerate(header)}
+        for k, v in row.items():
+            if (problem := control_problem(v)) is not None:
+                raise InputError(f"{path}: line {line}: {k}: {problem}")
+        rows.append((line, row))
     return rows

@@ -19,3 +19,7 @@ class StoreError(StudyError):
 
 class InputError(StudyError):
     """A CSV or command-line value is invalid (the whole input is rejected)."""
+
+
+class Interrupted(StudyError):
+    """The user interrupted a command (Ctrl-C); the message says what was kept and how to go on."""

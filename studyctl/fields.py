@@ -15,6 +15,7 @@ import random
 from dataclasses import dataclass
 
 from studyctl.errors import InputError
+from studyctl.text import control_problem, quoted
 
 FIELD_KINDS = ("choice", "integer", "number", "text")
 FIELD_KEYS = ("kind", "values", "required", "min", "max", "description")
@@ -67,7 +68,7 @@ class Field:
             if not math.isfinite(v):
                 raise ValueError(text)
         else:
-            if not text or len(text) > MAX_TEXT or "\n" in text:
+            if not text or len(text) > MAX_TEXT or control_problem(text) is not None or "\n" in text:
                 raise ValueError(text)
             return text
         if self.min is not None and v < self.min or self.max is not None and v > self.max:
@@ -165,13 +166,13 @@ def parse_fields(protocol, given: dict[str, str], where: str) -> dict[str, objec
         f = protocol.field_named(name)
         if f is None:
             allowed = ", ".join(names) if names else "none (the protocol declares no [fields.NAME])"
-            raise InputError(f"{where}: unknown field {name!r}; allowed: {allowed}")
+            raise InputError(f"{where}: unknown field {quoted(name)}; allowed: {allowed}")
         if raw is None or str(raw).strip() == "":
             continue
         try:
             out[name] = f.parse(raw)
         except ValueError:
-            raise InputError(f"{where}: {name} = {str(raw).strip()!r} is not allowed; allowed: {f.allowed()}") from None
+            raise InputError(f"{where}: {name} = {quoted(str(raw).strip())} is not allowed; allowed: {f.allowed()}") from None
     for f in protocol.fields:
         if f.required and f.name not in out:
             raise InputError(f"{where}: field {f.name} is required; allowed: {f.allowed()}")

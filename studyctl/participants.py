@@ -16,6 +16,7 @@ from pathlib import Path
 
 from studyctl.errors import InputError, StoreError
 from studyctl.store import Store, now
+from studyctl.text import control_problem, spreadsheet_safe
 
 
 def _person(store: Store, code: str) -> dict:
@@ -85,6 +86,8 @@ def withdraw(db, code: str, reason: str = "", dry_run: bool = False) -> dict:
 def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
     from studyctl.traces import trace_dir
 
+    if (problem := control_problem(reason)) is not None:
+        raise InputError(f"--reason: {problem}")
     with Store(db) as store:
         protocol = store.protocol()
         p = _person(store, code)
@@ -151,6 +154,8 @@ def correct_answer(db, code: str, model: str, item: str, answer: str, reason: st
 
     if not reason.strip():
         raise InputError("--reason: say why the answer is corrected (it is kept in the audit trail)")
+    if (problem := control_problem(reason)) is not None:
+        raise InputError(f"--reason: {problem}")
     with Store(db) as store:
         protocol = store.protocol()
         model, trial, new = answer_key(protocol, item, model, trial, answer, lambda field: f"--{field}")
@@ -244,7 +249,7 @@ def export_contacts(db, out: str | Path) -> dict:
     buf.write(CONTACTS_NOTE)
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["code", "name", "contact"])
-    w.writerows([r["code"], r["name"] or "", r["contact"] or ""] for r in rows)
+    w.writerows([spreadsheet_safe(v) for v in (r["code"], r["name"] or "", r["contact"] or "")] for r in rows)
     path = Path(out)
     try:  # never overwrite (an older list may hold people who since withdrew); 0600 from the start
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)

@@ -17,6 +17,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from studyctl.text import control_problem, quoted
+
 KINDS = ("yes_no", "likert", "vas", "choice", "text")
 WHENS = ("condition", "trial", "end")
 LIKERT_POINTS = (3, 11)
@@ -66,6 +68,8 @@ def parse_answer(q: Question, raw, labels: dict[str, str] | None = None, by_name
     corrections, by the condition's name (`by_name`); it is returned as the condition's name."""
     text = str(raw).strip()
     if q.kind == "text":
+        if (problem := control_problem(text)) is not None:
+            raise AnswerError(problem)
         return text
     if q.kind == "yes_no":
         if text.lower() in YES:
@@ -93,8 +97,8 @@ def parse_answer(q: Question, raw, labels: dict[str, str] | None = None, by_name
         if text in by_name:
             return text
         if by_name:
-            raise AnswerError(f"{text!r} is not a condition; allowed: {', '.join(by_name)}")
-    raise AnswerError(f"{text!r} is not allowed; allowed: {allowed(q, labels)}")
+            raise AnswerError(f"{quoted(text)} is not a condition; allowed: {', '.join(by_name)}")
+    raise AnswerError(f"{quoted(text)} is not allowed; allowed: {allowed(q, labels)}")
 
 
 def shown(q: Question, value) -> str:

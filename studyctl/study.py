@@ -10,6 +10,7 @@ from studyctl.csvfiles import read_csv
 from studyctl.errors import InputError, StoreError
 from studyctl.schedule import allocate, next_order, read_availability, to_ics, williams
 from studyctl.store import EXPORT_TABLES, Store, now
+from studyctl.text import control_problem, quoted, spreadsheet_frame
 
 CODE_CHARS = set("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_")
 
@@ -48,6 +49,9 @@ def add_participant(db: str | Path, code: str, age=None, name: str | None = None
             raise InputError(f"participant {code}: already registered")
         if synthetic and (name or contact):
             raise InputError(f"participant {code}: a synthetic participant has no name or contact")
+        for option, text in (("--name", name), ("--contact", contact)):
+            if text and (problem := control_problem(text)) is not None:
+                raise InputError(f"{option}: {problem}")
         _insert(store, [{"code": code, "age": age, "synthetic": int(synthetic), "created_at": now()}],
                 [{"code": code, "name": name, "contact": contact}] if name or contact else [], dry_run, {code: values})
         return {"code": code, "age": age, "synthetic": synthetic, "fields": values, "dry_run": dry_run}
@@ -242,7 +246,7 @@ def answer_key(protocol, item: str, model: str, trial, raw, where) -> tuple[str,
     try:
         value = parse_answer(q, raw, by_name=protocol.conditions)
     except AnswerError:
-        raise InputError(f"{where('answer')}: answer {str(raw).strip()!r} to {item} ({q.kind}) is not allowed; allowed: "
+        raise InputError(f"{where('answer')}: answer {quoted(str(raw).strip())} to {item} ({q.kind}) is not allowed; allowed: "
                          + (", ".join(protocol.conditions) if q.kind == "choice" else allowed(q))) from None
     return (SESSION if q.when == "end" else model), trial, value
 
@@ -272,8 +276,8 @@ def export(db: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[str]:
     written = []
     for table, df in frames.items():
         path = out_dir / f"{table}.{fmt}"
-        if fmt == "csv":
-            df.to_csv(path, index=False)
+        if fmt == "csv":  # text cells a spreadsheet would run as formulas are shown instead (docs/study.md)
+            spreadsheet_frame(df).to_csv(path, index=False)
         else:
             df.to_parquet(path, index=False)
         written.append(str(path))

@@ -85,6 +85,8 @@ def connect(scheduler: str):
 def reachable(scheduler: str | None) -> None:
     """A SweepError now when there is a `scheduler` and it cannot be reached: callers check it
     before they write anything or run work that comes before the cluster's."""
+    if scheduler is not None and not scheduler.strip():  # '' is not "here": say so rather than run locally
+        raise SweepError("--scheduler: the address is empty; give one (tcp://host:8786), or leave --scheduler out to run here")
     if scheduler:
         connect(scheduler).close()
 

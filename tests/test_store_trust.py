@@ -140,7 +140,7 @@ def test_reports_count_synthetic_answers_from_rows_not_flags(tmp_path):
     facts = json.loads(studyctl("report", "table1", "--format", "json", "--db", db).output)["facts"]
     assert facts["synthetic_participants"] == 2 and facts["synthetic"] and facts["mixed_source_participants"] == ["P01"]
     text = studyctl("report", "table1", "--db", db).output
-    assert "SYNTHETIC DATA" in text and "WARNING: P01 answered both as a person and synthetically" in text
+    assert "MIXED DATA: 1 person and 2 SYNTHETIC" in text and "WARNING: P01 answered both as a person and synthetically" in text
 
 
 def test_resume_with_other_options_than_the_start_is_refused(tmp_path):

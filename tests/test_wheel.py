@@ -48,6 +48,7 @@ def run_as_a_user(venv: Path, cwd: Path) -> dict:
 
     out = {"help": run(bin_ / "studyctl", "-h"), "version": run(bin_ / "python", "-m", "studyctl", "--version")}
     out["sim"] = json.loads(run(bin_ / "studyctl", "sim", "run", "--time-scale", "0", "--duration", "0.5", "--json"))
+    out["init"] = run(bin_ / "studyctl", "study", "init", "--db", cwd / "study.db")  # the shipped protocol, installed
     out["synth"] = json.loads(run(bin_ / "studyctl", "synth", "--db", cwd / "study.db", "--participants", "2", "--json"))
     out["published"] = json.loads(run(bin_ / "studyctl", "report", "published", "--json"))
     out["where"] = run(bin_ / "python", "-c", "import brainsim_assets, studyctl; print(brainsim_assets.root()); print(studyctl.__file__)")

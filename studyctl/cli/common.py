@@ -15,10 +15,14 @@ import click
 from brainsim_assets import path as _asset
 from sim.errors import SimError
 from sim.jsonable import jsonable
-from studyctl.errors import StudyError
+from studyctl.errors import Interrupted, StudyError
 from studyctl.sweep import SweepError
 
 DEFAULT_PROTOCOL = _asset("protocols/brain_pull_2015.toml")
+
+
+class _Stopped(click.ClickException):
+    exit_code = 130  # the shell's code for a command ended by Ctrl-C (128 + SIGINT)
 
 
 class _Group(click.Group):
@@ -31,6 +35,8 @@ class _Group(click.Group):
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
+        except Interrupted as exc:  # Ctrl-C where the library says what was kept
+            raise _Stopped(str(exc)) from None
         except (SimError, StudyError, SweepError) as exc:
             raise click.ClickException(str(exc)) from None
         except sqlite3.OperationalError as exc:  # e.g. another process held the database for over 30 s

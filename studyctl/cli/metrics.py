@@ -33,7 +33,9 @@ def metrics_cmd(db, fmt, out_file):
         text = json.dumps(jsonable({"note": note, "synthetic": bool(table["synthetic"].any()),
                                     "metrics": [vars(m) for m in METRICS], "rows": table.to_dict(orient="records")}), indent=2) + "\n"
     else:
-        text = table.to_csv(index=False)
+        from studyctl.text import spreadsheet_frame
+
+        text = spreadsheet_frame(table).to_csv(index=False)
     if out_file:
         Path(out_file).write_text(text)
         click.echo(f"wrote {out_file} ({len(table)} rows)" + (f"; {note}" if note else ""))

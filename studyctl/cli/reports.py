@@ -79,7 +79,9 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
         text = html(study, accuracy=accuracy, stability=stability, holm_scope=holm_scope)
     elif fmt == "csv":  # the flag and N travel with the table
         facts = table1.study_facts(study)
-        text = table1.rates(study).assign(participants=facts["participants"], synthetic=facts["synthetic"]).to_csv(index=False)
+        from studyctl.text import spreadsheet_frame
+
+        text = spreadsheet_frame(table1.rates(study).assign(participants=facts["participants"], synthetic=facts["synthetic"])).to_csv(index=False)
     else:
         from analysis.stats import study_stats
 
@@ -118,7 +120,7 @@ def _no_answers(study, as_json: bool) -> bool:
     if as_json:
         _print_json({"facts": facts, "message": message})
         return True
-    flag = "SYNTHETIC DATA. " if facts["synthetic"] else ""
+    flag = f"{facts['flag']} " if facts["flag"] else ""
     if facts["mixed_source_participants"]:
         flag += f"WARNING: {', '.join(facts['mixed_source_participants'])} answered both as a person and synthetically. "
     listed = "; incomplete: " + incomplete_text(facts) if incomplete else ""
@@ -206,8 +208,8 @@ def report_stats(db, holm_scope, as_json):
     if as_json:
         _print_json(out)
         return
-    flag = " (SYNTHETIC DATA)" if out["facts"]["synthetic"] else ""
-    click.echo(f"{out['facts']['study']}: N = {out['facts']['participants']}{flag}")
+    flag = f" {out['facts']['flag']}" if out["facts"]["flag"] else ""
+    click.echo(f"{out['facts']['study']}: N = {out['facts']['participants']}.{flag}")
     from analysis.kinds import primary_line
 
     kinds = out["kinds"]

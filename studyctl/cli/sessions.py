@@ -111,17 +111,27 @@ def replay_cmd(db, session_id, trial, view, frames_dir, fullscreen, as_json):
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--jobs", type=click.IntRange(1, 64), default=1, show_default=True, help="Sessions run in parallel processes.")
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Create the database for this protocol if it does not exist  [default: the shipped protocols/brain_pull_2015.toml]")
+              help="Create --db for this protocol when it does not exist (e.g. protocols/brain_pull_2015.toml); without it, --db must exist.")
+@click.option("--alongside-people", is_flag=True,
+              help="Add synthetic sessions to a study with people registered (its reports then say MIXED DATA); refused otherwise.")
 @SCHEDULER
 @JSON
-def synth_cmd(db, participants, seed, jobs, protocol_file, scheduler, as_json):
-    """Run whole sessions with SYNTHETIC participants on the simulator (labelled synthetic)."""
+def synth_cmd(db, participants, seed, jobs, protocol_file, alongside_people, scheduler, as_json):
+    """Run whole sessions with SYNTHETIC participants on the simulator (labelled synthetic).
+    Participants an interrupted run registered are run first, with their own seed."""
     from studyctl.synthetic import run_synthetic_study
 
     out = _with_progress("synthetic sessions", lambda p: run_synthetic_study(db, participants, seed, jobs, protocol_file, progress=p,
-                                                                             scheduler=scheduler))
+                                                                             scheduler=scheduler, alongside_people=alongside_people))
     if as_json:
         _print_json(out | {"synthetic": True})
         return
+    if out["created"]:
+        click.echo(f"created {db} for the protocol {out['created']}")
+    if out["completed"]:
+        done = out["completed"]
+        seeds = ", ".join(str(s) for s in sorted({c["seed"] for c in done}))
+        click.echo(f"first ran the {len(done)} participant{'s' if len(done) != 1 else ''} an interrupted synth had registered "
+                   f"({', '.join(c['code'] for c in done)}; seed {seeds})")
     where = f"on the Dask cluster at {scheduler}" if scheduler else f"{jobs} jobs"
-    click.echo(f"ran {out['participants']} SYNTHETIC sessions (seed {seed}, {where}) in {out['seconds']:.1f} s")
+    click.echo(f"ran {out['participants']} SYNTHETIC sessions of {out['protocol']!r} (seed {seed}, {where}) in {out['seconds']:.1f} s")

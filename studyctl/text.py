@@ -1,0 +1,55 @@
+"""Text from people: control characters refused, long values quoted by a short prefix, cells
+made safe to open in a spreadsheet (the OWASP CSV-injection rule)."""
+
+from __future__ import annotations
+
+import unicodedata
+
+LINE_BREAKS = "\t\n\r"  # the control characters a text may hold
+QUOTE_LIMIT = 40  # characters of a refused value an error line quotes
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r")  # a spreadsheet reads a cell starting so as a formula
+
+
+def control_character(text: str) -> tuple[int, str] | None:
+    """(position, character) of the first control character other than a tab or line break."""
+    for i, c in enumerate(text):
+        if c not in LINE_BREAKS and unicodedata.category(c) == "Cc":
+            return i, c
+    return None
+
+
+def control_problem(text: str) -> str | None:
+    """Why `text` is refused for a control character, or None."""
+    found = control_character(text)
+    if found is None:
+        return None
+    i, c = found
+    return f"control character U+{ord(c):04X} at character {i + 1}; text may hold no control characters (tabs and line breaks aside)"
+
+
+def quoted(value, limit: int = QUOTE_LIMIT) -> str:
+    """`value` quoted for an error line: whole when short, else its first `limit` characters
+    and its length."""
+    text = str(value)
+    if len(text) <= limit:
+        return repr(text)
+    return f"{text[:limit]!r}... ({len(text)} characters)"
+
+
+def spreadsheet_safe(value):
+    """A text cell a spreadsheet would run as a formula, prefixed with ' (shown, not run); any
+    other value as it is."""
+    if isinstance(value, str) and value.startswith(FORMULA_START):
+        return "'" + value
+    return value
+
+
+def spreadsheet_frame(df):
+    """A pandas DataFrame whose text cells are `spreadsheet_safe` (numbers stay numbers)."""
+    from pandas.api.types import is_object_dtype, is_string_dtype
+
+    out = df.copy()
+    for col in out.columns:
+        if is_object_dtype(out[col]) or is_string_dtype(out[col]):
+            out[col] = out[col].map(spreadsheet_safe)
+    return out

@@ -1,0 +1,146 @@
+"""Commands never do what the user did not ask for without saying so (issue 42, item 3): each
+trap reproduced through the CLI first, then refused or made explicit."""
+
+import csv
+import sqlite3
+
+import pytest
+
+from tests.test_study import fast_protocol, studyctl
+
+
+def _person_with_answers(tmp_path, db, proto):
+    """A study holding a person's data: P01 registered, consented, answers imported from paper."""
+    assert studyctl("study", "init", "--db", db, "--protocol", proto).exit_code == 0
+    assert studyctl("participants", "add", "P01", "--db", db, "--age", "24").exit_code == 0
+    assert studyctl("participants", "consent", "P01", "--db", db).exit_code == 0
+    answers = tmp_path / "paper.csv"
+    items = ("natural", "behaviour", "texture", "comfortable", "guidance", "realtime", "feedback", "deformation", "stable")
+    rows = [f"P01,plate_spring,{item},yes" for item in items]
+    answers.write_text("participant,model,item,answer\n" + "\n".join(rows) + "\n")
+    return answers
+
+
+def test_synth_never_creates_a_study_it_was_not_told_to(tmp_path):
+    typo = tmp_path / "typo.db"
+    res = studyctl("synth", "--db", typo, "--participants", "1")
+    assert res.exit_code != 0 and "typo.db does not exist" in res.output and "--protocol" in res.output
+    assert not typo.exists() and "Traceback" not in res.output
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    res = studyctl("synth", "--db", typo, "--participants", "1", "--protocol", proto)
+    assert res.exit_code == 0, res.output
+    assert f"created {typo} for the protocol {proto}" in res.output
+
+
+def test_an_empty_scheduler_address_is_an_error(tmp_path):
+    db = tmp_path / "s.db"
+    res = studyctl("synth", "--db", db, "--participants", "1", "--protocol", fast_protocol(tmp_path), "--scheduler", "")
+    assert res.exit_code != 0 and "--scheduler" in res.output and "empty" in res.output
+    assert not db.exists()
+
+
+def test_synthetic_sessions_into_a_study_of_people_are_refused_unless_asked_for(tmp_path):
+    db = tmp_path / "s.db"
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    answers = _person_with_answers(tmp_path, db, proto)
+    res = studyctl("answers", "import", "--db", db, answers)
+    assert res.exit_code == 0, res.output
+    res = studyctl("synth", "--db", db, "--participants", "1")
+    assert res.exit_code != 0 and "is a study of people (1 person registered)" in res.output and "--alongside-people" in res.output
+    assert sqlite3.connect(db).execute("select count(*) from participants where synthetic = 1").fetchone()[0] == 0
+    res = studyctl("synth", "--db", db, "--participants", "1", "--alongside-people")
+    assert res.exit_code == 0, res.output
+    first = studyctl("report", "table1", "--db", db).output.strip().splitlines()[0]
+    assert "MIXED DATA" in first and "1 person" in first and "1 SYNTHETIC" in first, first
+
+
+def test_an_interrupted_synth_leaves_no_participant_without_a_session(tmp_path, monkeypatch):
+    import studyctl.sweep as sweep
+
+    db = tmp_path / "s.db"
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    real = sweep.completed
+
+    def one_then_ctrl_c(fn, tasks, jobs, scheduler):
+        for k, item in enumerate(real(fn, tasks, jobs, scheduler)):
+            if k == 1:
+                raise KeyboardInterrupt
+            yield item
+
+    monkeypatch.setattr(sweep, "completed", one_then_ctrl_c)
+    res = studyctl("synth", "--db", db, "--participants", "3", "--protocol", proto, "--seed", "4")
+    assert res.exit_code != 0 and "Traceback" not in res.output
+    assert "interrupted after 1 of 3 sessions" in res.output and "the next `studyctl synth" in res.output, res.output
+    monkeypatch.setattr(sweep, "completed", real)
+    con = sqlite3.connect(db)
+    assert con.execute("select count(*) from participants").fetchone()[0] == 3
+    res = studyctl("synth", "--db", db, "--participants", "1", "--seed", "9")
+    assert res.exit_code == 0, res.output
+    assert "first ran the 2 participants an interrupted synth had registered (S002, S003; seed 4)" in res.output, res.output
+    orphans = con.execute("select count(*) from participants p where not exists (select 1 from sessions s where s.code = p.code)")
+    assert orphans.fetchone()[0] == 0
+    seeds = dict(con.execute("select code, seed from sessions").fetchall())
+    assert seeds == {"S001": 4, "S002": 4, "S003": 4, "S004": 9}
+
+
+TEXT_PROTOCOL = """
+[[questions]]
+id = "comment"
+text = "Anything else?"
+kind = "text"
+when = "end"
+"""
+
+
+def _text_study(tmp_path):
+    db = tmp_path / "s.db"
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    proto.write_text(proto.read_text() + TEXT_PROTOCOL)
+    assert studyctl("study", "init", "--db", db, "--protocol", proto).exit_code == 0, proto.read_text()
+    assert studyctl("participants", "add", "P01", "--db", db, "--age", "24").exit_code == 0
+    assert studyctl("participants", "consent", "P01", "--db", db).exit_code == 0
+    return db
+
+
+@pytest.mark.parametrize("char", ["\x00", "\x1b", "\x7f"])
+def test_text_answers_with_control_characters_are_refused(tmp_path, char):
+    db = _text_study(tmp_path)
+    bad = tmp_path / "a.csv"
+    bad.write_text(f"participant,model,item,answer\nP01,,comment,fine{char}rest\n")
+    res = studyctl("answers", "import", "--db", db, bad)
+    assert res.exit_code != 0 and f"a.csv: line 2: answer: control character U+{ord(char):04X}" in res.output, res.output
+    assert sqlite3.connect(db).execute("select count(*) from answers").fetchone()[0] == 0
+
+
+def test_exports_neutralise_spreadsheet_formulas(tmp_path):
+    db = _text_study(tmp_path)
+    good = tmp_path / "a.csv"
+    good.write_text('participant,model,item,answer\nP01,,comment,"=HYPERLINK(""http://x"",""y"")"\n')
+    assert studyctl("answers", "import", "--db", db, good).exit_code == 0
+    stored = sqlite3.connect(db).execute("select answer from answers").fetchone()[0]
+    assert stored == '=HYPERLINK("http://x","y")'  # stored as given
+    out = tmp_path / "export"
+    assert studyctl("export", "--db", db, "--out", out).exit_code == 0
+    with open(out / "answers.csv", newline="") as fh:
+        cells = [r["answer"] for r in csv.DictReader(fh)]
+    assert cells == ["'=HYPERLINK(\"http://x\",\"y\")"]
+
+
+def test_a_long_refused_value_is_quoted_by_a_short_prefix(tmp_path):
+    db = _text_study(tmp_path)
+    bad = tmp_path / "a.csv"
+    bad.write_text("participant,model,item,answer\nP01,plate_spring,natural," + "y" * 10_000 + "\n")
+    res = studyctl("answers", "import", "--db", db, bad)
+    assert res.exit_code != 0 and "(10000 characters)" in res.output
+    assert len(res.output) < 400, res.output
+
+
+def test_names_contacts_and_reasons_with_control_characters_are_refused(tmp_path):
+    db = _text_study(tmp_path)
+    res = studyctl("participants", "add", "P02", "--db", db, "--age", "24", "--name", "Ann\x00e")
+    assert res.exit_code != 0 and "--name: control character U+0000 at character 4" in res.output
+    res = studyctl("participants", "withdraw", "P01", "--db", db, "--reason", "moved\x1b[2J")
+    assert res.exit_code != 0 and "--reason: control character U+001B" in res.output
+    con = sqlite3.connect(db)
+    assert con.execute("select count(*) from participants").fetchone()[0] == 1
+    assert con.execute("select count(*) from participants where withdrawn_at is not null").fetchone()[0] == 0
