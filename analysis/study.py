@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import pandas as pd
 
-
 SYNTHETIC_FLAG = "SYNTHETIC DATA (simulated participants): not evidence about people."
 
 

@@ -331,8 +331,12 @@ class _Runner:
 def _child(conn, shm_name: str, recipes, hand_names, rate: float, time_scale: float, miss_streak: int, suspend_s: float):
     """The servo process: opens the devices once, then serves runs until told to close."""
     import gc
+    import signal
     import sys
 
+    # Ctrl-C in the terminal reaches the whole process group: the session's process handles it
+    # and closes this one (zero force, devices closed), so no traceback from here
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     shm = shared_memory.SharedMemory(name=shm_name)
     runner = None
     try:

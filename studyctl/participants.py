@@ -111,7 +111,7 @@ def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
                 conn.execute("delete from participant_fields where code = ?", (code,))
                 conn.execute("delete from sessions where code = ?", (code,))
             else:  # an interrupted session will not be resumed
-                conn.execute("update sessions set status = 'withdrawn' where code = ? and status = 'running'", (code,))
+                conn.execute("update sessions set status = 'withdrawn' where code = ? and status in ('running', 'interrupted')", (code,))
             conn.execute("delete from schedule where code = ?", (code,))
             conn.execute("delete from identities where code = ?", (code,))
             conn.execute("update participants set withdrawn_at = ?, withdrawal = ? where code = ?",

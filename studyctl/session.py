@@ -30,12 +30,13 @@ from dataclasses import dataclass, field
 
 from brainsim_assets import version as _version
 from studyctl.asking import TerminalAnswers, flush_input, terminal_keys
-from studyctl.errors import InputError, StoreError
+from studyctl.errors import InputError, Interrupted, StoreError
 from studyctl.questions import NOT_PER_TRIAL, SESSION
 from studyctl.store import Store, dumps, now, sha256_file
 from studyctl.window_answers import WindowAnswers
 
 SOFTWARE_VERSION = f"brainsim-study {_version()}"  # stored with each session
+OPEN = ("running", "interrupted")  # a session to resume: killed while running, or stopped with Ctrl-C
 TRAINING_MODEL = "plate_spring"  # free exploration before the first condition (never named on screen)
 
 
@@ -206,8 +207,12 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
     time_scale = _check_options(device, synthetic, time_scale, view, answer_with)
     with Store(db, mode="read") as store:  # a missing or foreign database, or the wrong participant: no lock file made
         _check_participant(store, store.protocol(), code, synthetic)
-        if resume and not store.rows("select id from sessions where code = ? and status = 'running'", (code,)):
+        open_ = store.rows("select id, device, synthetic from sessions where code = ? and status in ('running', 'interrupted')", (code,))
+        if resume and not open_:
             raise StoreError(f"participant {code}: no interrupted session to resume")
+        if resume and open_[0]["device"] != device:  # said before any device or window is opened
+            raise StoreError(f"participant {code}: session {open_[0]['id']} was started with --device {open_[0]['device']}, "
+                             f"not {device}; resume it with --device {open_[0]['device']}")
     with session_lock(db, code):
         return _run_session(db, code, device, synthetic, resume, time_scale, *args, view=view, answer_with=answer_with, **kwargs)
 
@@ -275,11 +280,29 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                 run.shown.idle()
             n = store.rows("select count(*) as n from answers where code = ?", (code,))[0]["n"]
             return {"session": run.session_id, "participant": code, "order": [run.labels[m] for m in order], "answers": n, "synthetic": synthetic}
+        except KeyboardInterrupt:
+            raise Interrupted(_interrupted(run, synthetic)) from None
         finally:
             if run.servo is not None:
                 run.servo.close()
             if run.shown is not None:
                 run.shown.close()
+
+
+def _interrupted(run: _Run, synthetic: bool) -> str:
+    """Ctrl-C: the session marked `interrupted` at once (the trial in flight is not kept: a trial
+    row is written only whole); what to type to go on."""
+    if run.session_id is None:
+        return f"session of {run.code}: interrupted before it started; nothing was written"
+    store = run.store
+    with store.transaction() as conn:
+        conn.execute("update sessions set status = 'interrupted' where id = ? and status = 'running'", (run.session_id,))
+    store.event(run.session_id, "interrupted")
+    trials = store.rows("select count(*) as n from trials where session_id = ?", (run.session_id,))[0]["n"]
+    again = f"studyctl session run --db {run.db} --participant {run.code}" + (" --synthetic" if synthetic else "") + \
+        (f" --device {run.device}" if run.device != "simulated" else "") + " --resume"
+    return (f"session {run.session_id} of {run.code} interrupted ({trials} trial{'s' if trials != 1 else ''} kept; the one in "
+            f"flight, if any, is not); resume it with: {again}")
 
 
 def _open_session(run: _Run, synthetic: bool, resume: bool, seed: int | None, session_id: int | None) -> tuple[list[str], int]:
@@ -291,7 +314,7 @@ def _open_session(run: _Run, synthetic: bool, resume: bool, seed: int | None, se
 
     store, protocol, code, device, say = run.store, run.protocol, run.code, run.device, run.say
     sessions = store.rows("select * from sessions where code = ? order by id", (code,))
-    running = [s for s in sessions if s["status"] == "running"]
+    running = [s for s in sessions if s["status"] in OPEN]
     if running and not resume and _never_started(store, running[0]["id"]):
         # interrupted before its first trial (e.g. in training): nothing of it is kept, start afresh
         _discard(store, running[0]["id"])
@@ -405,7 +428,7 @@ def _run_condition(run: _Run, pos: int, model: str, n_cond: int) -> None:
     scene = None
     for trial in range(protocol.trials_per_condition):
         if trial not in done_trials:
-            scene = scene or _scene(protocol, model, run.device)
+            scene = scene or _loaded(run, protocol, model, status)
             _run_trial(run, scene, pos, model, trial, status)
         # the questions asked after every trial (a resume asks what an interruption left unasked)
         if _unasked(store, protocol.asked("trial"), code, model, trial):
@@ -418,7 +441,7 @@ def _run_condition(run: _Run, pos: int, model: str, n_cond: int) -> None:
         if done < task.trials:
             from studyctl.discrimination import run_task
 
-            scene = scene or _scene(protocol, model, run.device)
+            scene = scene or _loaded(run, protocol, model, status)
             run_task(run, scene, pos, model, task, status)
     results = None  # every stored trial of the condition, resumed or not: read once, when needed
     if protocol.trials_per_condition and hasattr(run.answerer, "features_of") and not store.rows(
@@ -436,6 +459,13 @@ def _run_condition(run: _Run, pos: int, model: str, n_cond: int) -> None:
         _ask(store, run.answerer, protocol.asked("condition"), code, model, NOT_PER_TRIAL, session_id,
              {"labels": run.labels, "trial": None, "results": results}, f"condition {label} ({pos + 1} of {n_cond})")
     store.db.conn.execute("update conditions set status = 'done' where session_id = ? and position = ?", (session_id, pos))
+
+
+def _loaded(run: _Run, protocol, model: str, status: str):
+    """The condition's scene, said first (building a fine model takes up to half a minute, and a
+    silent terminal looks hung); the model is never named (the labels are blind)."""
+    run.say(f"{status[:1].lower()}{status[1:]}: loading")
+    return _scene(protocol, model, run.device)
 
 
 def _run_trial(run: _Run, scene, pos: int, model: str, trial: int, status: str) -> None:

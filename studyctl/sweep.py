@@ -53,13 +53,26 @@ def completed(fn: Callable, tasks: Sequence, jobs: int | None = None, scheduler:
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     # spawn: a fresh interpreter per worker, no forked locks or threads (progress bars, BLAS)
-    pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=mp.get_context("spawn"))
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=mp.get_context("spawn"), initializer=_quiet_on_ctrl_c)
+    wait = True
     try:
         futures = {pool.submit(fn, t): i for i, t in enumerate(tasks)}
         for fut in as_completed(futures):
             yield futures[fut], fut.result()
+    except KeyboardInterrupt:  # the workers got it too and left quietly: nothing to wait for
+        wait = False
+        raise
     finally:  # on an error here or in the caller: the tasks not started are dropped, not run first
-        pool.shutdown(wait=True, cancel_futures=True)
+        pool.shutdown(wait=wait, cancel_futures=True)
+
+
+def _quiet_on_ctrl_c() -> None:
+    """A pool worker's Ctrl-C (the terminal sends it to every process of the command): leave at
+    once, without a traceback; the command's own process says what was kept."""
+    import os
+    import signal
+
+    signal.signal(signal.SIGINT, lambda *_: os._exit(130))
 
 
 def connect(scheduler: str):

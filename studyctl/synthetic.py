@@ -252,17 +252,17 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
         pending = _unrun(store)
         codes = _register(store, protocol, participants, seed)
         runs = pending + [(code, seed) for code in codes]
-        first_id = (store.rows("select max(id) as m from sessions")[0]["m"] or 0) + 1
-        seeds = [seed_for(store, code, s, first_id + k) for k, (code, s) in enumerate(runs)]
         t0, stored = _time.perf_counter(), 0
-        try:
+        try:  # from the registration's commit on, an interruption leaves participants to complete
+            first_id = (store.rows("select max(id) as m from sessions")[0]["m"] or 0) + 1
+            seeds = [seed_for(store, code, s, first_id + k) for k, (code, s) in enumerate(runs)]
             for stored, (_, bundle) in enumerate(completed(run_away, seeds, jobs, scheduler), start=1):
                 store_bundle(store, bundle)
                 if progress:
                     progress(stored, len(seeds))
         except KeyboardInterrupt:
-            left = len(seeds) - stored
-            raise Interrupted(f"synth: interrupted after {stored} of {len(seeds)} sessions (each stored whole); the next "
+            left = len(runs) - stored
+            raise Interrupted(f"synth: interrupted after {stored} of {len(runs)} sessions (each stored whole); the next "
                               f"`studyctl synth --db {db}` first runs the {left} registered participant{'s' if left != 1 else ''} "
                               "left without one") from None
     return {"participants": len(codes), "codes": codes, "seed": seed, "jobs": jobs, "scheduler": scheduler,

@@ -1,6 +1,7 @@
 """A person in the chair: every movement recorded, replays, blind labels, the terminal
 questionnaire in real time through a real pseudo-terminal, and kills mid-trial."""
 
+import json
 import os
 import re
 import signal
@@ -156,3 +157,70 @@ def test_a_second_process_cannot_drive_a_live_session_and_is_told_so(tmp_path):
     assert con.execute("select count(*) from answers").fetchone()[0] == 27
     assert con.execute("select count(*) from trials").fetchone()[0] == 6
     assert con.execute("select status from sessions").fetchall() == [("done",)]
+
+
+def _ctrl_c(argv, when: bytes, timeout=120.0, delay=1.0) -> tuple[str, int]:
+    """Run `studyctl ARGV` on a real pseudo-terminal, type Ctrl-C `delay` s after the output
+    first shows `when` (the terminal sends SIGINT to every process of the command: the session's
+    servo process, a pool's workers); (all the terminal showed, exit status)."""
+    import pty
+    import select
+
+    pid, fd = pty.fork()
+    if pid == 0:
+        os.execv(sys.executable, [sys.executable, "-m", "studyctl.cli", *map(str, argv)])
+    out, sent, deadline = b"", False, time.time() + timeout
+    while time.time() < deadline:
+        if not select.select([fd], [], [], 0.5)[0]:
+            continue
+        try:
+            chunk = os.read(fd, 4096)
+        except OSError:
+            break
+        if not chunk:
+            break
+        out += chunk
+        if not sent and when in out:
+            time.sleep(delay)
+            os.write(fd, b"\x03")
+            sent = True
+    else:
+        os.kill(pid, 9)
+    _, status = os.waitpid(pid, 0)
+    assert sent, out.decode(errors="replace")[-2000:]
+    return out.decode(errors="replace"), os.waitstatus_to_exitcode(status)
+
+
+def test_ctrl_c_in_the_chair_marks_the_session_interrupted_and_says_how_to_resume(tmp_path):
+    db = tmp_path / "s.db"
+    studyctl("study", "init", "--protocol", _protocol(tmp_path, conditions=("plate_spring",), trials=2, trial_seconds=3.0), "--db", db)
+    studyctl("participants", "add", "P01", "--db", db)
+    studyctl("participants", "consent", "P01", "--db", db)
+    text, code = _ctrl_c(["session", "run", "--db", db, "--participant", "P01", "--view", "none"], b"trial 2 of 2")
+    assert code == 130 and "Traceback" not in text and "KeyboardInterrupt" not in text, text
+    last = text.strip().splitlines()[-1]
+    assert "session 1 of P01 interrupted (1 trial kept" in last and f"studyctl session run --db {db} --participant P01 --resume" in last
+    assert sqlite3.connect(db).execute("select status from sessions").fetchall() == [("interrupted",)]
+    listed = json.loads(studyctl("session", "list", "--db", db, "--json").output)
+    assert [s["status"] for s in listed] == ["interrupted"]
+    res = studyctl("session", "run", "--db", db, "--participant", "P01", "--view", "window", "--device", "mouse", "--resume")
+    assert res.exit_code != 0 and "was started with --device simulated" in res.output  # another device: said, not resumed
+    text = pty_session(["session", "run", "--db", db, "--participant", "P01", "--view", "none", "--resume"], lambda: "y", timeout=120)
+    assert "resuming session 1 of P01" in text and "condition A (1 of 1): loading" in text and "complete" in text, text
+    con = sqlite3.connect(db)
+    assert con.execute("select status from sessions").fetchall() == [("done",)]
+    assert con.execute("select trial from trials order by trial").fetchall() == [(0,), (1,)]
+
+
+def test_ctrl_c_during_a_parallel_synth_prints_one_line_and_the_next_run_completes_it(tmp_path):
+    db = tmp_path / "s.db"
+    proto = _protocol(tmp_path, conditions=("plate_spring",), trials=1, trial_seconds=1.0)
+    text, code = _ctrl_c(["synth", "--db", db, "--protocol", proto, "--participants", "12", "--jobs", "2", "--seed", "3"],
+                         b"%", delay=0.1)  # Ctrl-C once the first sessions are stored (the bar shows a percentage)
+    assert code == 130 and "Traceback" not in text and "KeyboardInterrupt" not in text, text
+    assert "synth: interrupted after" in text and "the next `studyctl synth" in text, text
+    res = studyctl("synth", "--db", db, "--participants", "1")
+    assert res.exit_code == 0, res.output
+    con = sqlite3.connect(db)
+    assert con.execute("select count(*) from participants p where not exists (select 1 from sessions s where s.code = p.code)").fetchone()[0] == 0
+    assert con.execute("select count(*) from sessions where status = 'done'").fetchone()[0] == 13

@@ -37,6 +37,9 @@ class _Group(click.Group):
             return super().invoke(ctx)
         except Interrupted as exc:  # Ctrl-C where the library says what was kept
             raise _Stopped(str(exc)) from None
+        except KeyboardInterrupt:  # Ctrl-C anywhere else: one line (writes are transactions: none is half-done)
+            raise _Stopped(f"{ctx.command_path} {ctx.invoked_subcommand or ''}".rstrip()
+                           + ": interrupted (Ctrl-C); nothing half-written") from None
         except (SimError, StudyError, SweepError) as exc:
             raise click.ClickException(str(exc)) from None
         except sqlite3.OperationalError as exc:  # e.g. another process held the database for over 30 s
