@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-SYNTHETIC_FLAG = "SYNTHETIC DATA (simulated participants): not evidence about people."
+from analysis.study import data_flag
 
 
 def trials(study, task: int = 0) -> pd.DataFrame:
@@ -55,11 +55,14 @@ def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) 
     protocol = study.protocol
     spec = protocol.tasks[task]
     t = trials(study, task)
-    sources = set(study.discrimination["source"])
-    synthetic = "synthetic" in sources
+    d = study.discrimination
+    synthetic_codes = d.loc[d["source"] == "synthetic", "code"].nunique()
+    person_codes = d.loc[d["source"] != "synthetic", "code"].nunique()
+    synthetic = synthetic_codes > 0
     kwargs = {} if n_boot is None else {"n_boot": n_boot}
     table = weber_table(t, seed=seed, **kwargs) if len(t) else pd.DataFrame()
     facts = {"study": protocol.name, "participants": int(t["code"].nunique()) if len(t) else 0, "synthetic": synthetic,
+             "flag": data_flag(person_codes, synthetic_codes),
              "task": {"kind": spec.kind, "parameter": spec.parameter, "method": spec.method, "rule": spec.rule if spec.method == "staircase" else None,
                       "trials": spec.trials, "reference": spec.reference, "question": spec.question, "range": [spec.low, spec.high]}}
     if not len(table):
@@ -109,7 +112,7 @@ def _p(x) -> str:
 def markdown(res: dict) -> str:
     f = res["facts"]
     task = f["task"]
-    flag = f"{SYNTHETIC_FLAG} " if f["synthetic"] else ""
+    flag = f"{f['flag']} " if f["flag"] else ""
     method = task["method"] + (f" ({task['rule']})" if task["rule"] else "")
     lines = [f"**Stiffness discrimination: {f['study']}.** {flag}N = {f['participants']} participants; two-interval forced choice "
              f"\"{task['question']}\", {task['trials']} {method} trials per condition around {task['reference']:g} times each condition's stiffness.", ""]
@@ -155,7 +158,7 @@ def html_section(res: dict, study) -> str:
     from analysis.report import _inline_png
 
     esc = _html.escape
-    body = [f'<p class="synthetic">{esc(SYNTHETIC_FLAG)}</p>' if res["facts"]["synthetic"] else ""]
+    body = [f'<p class="synthetic">{esc(res["facts"]["flag"])}</p>' if res["facts"]["flag"] else ""]
     task = res["facts"]["task"]
     body.append(f"<p>N = {res['facts']['participants']}; two-interval forced choice &ldquo;{esc(task['question'])}&rdquo;, "
                 f"{task['trials']} {esc(task['method'])} trials per condition.</p>")

@@ -17,13 +17,12 @@ text is exported, never analysed. Complete cases only (analysis.table1.complete_
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 import pandas as pd
 
 from analysis import scales
 from analysis.study import Study
+from analysis.withhold import across_reason
 
 TRIAL_MEAN = " (mean over trials)"
 
@@ -40,6 +39,21 @@ def _per_trial_items(protocol) -> list:
     """The questions asked after every trial that are analysed as a mean over trials (an
     instrument's items enter through its score)."""
     return [q for q in protocol.asked("trial") if q.analysed and q.kind != "choice" and q.instrument is None]
+
+
+def score_scale(item: str, protocol) -> tuple[float, float] | None:
+    """The range a score lies in (its interval stays inside): a VAS item's 0-100, an
+    instrument's 0-100, a per-trial mean's question's own scale."""
+    from studyctl import instruments
+    from studyctl.questions import VAS_RANGE
+
+    base = item.removesuffix(TRIAL_MEAN)
+    if base in instruments.SCORES:
+        return instruments.SCORE_RANGE[base]
+    q = next((q for q in protocol.questions if q.id == base), None)
+    if q is None:
+        return None
+    return {"vas": tuple(VAS_RANGE), "yes_no": (0.0, 1.0), "likert": (1.0, float(q.points or 0))}.get(q.kind)
 
 
 def score_names(protocol) -> list[str]:
@@ -139,17 +153,16 @@ def ratings(protocol, meas: pd.DataFrame) -> dict:
 
 
 def _tests(wide: pd.DataFrame, k: int) -> dict:
-    """Friedman [W with CI] and Wilcoxon pairs [rank-biserial with CI] on a complete wide table."""
-    if len(wide) >= 2 and k >= 2 and np.ptp(wide.to_numpy()) > 0:
-        fr = scales.friedman_with_ci(wide.to_numpy()) if k >= 3 else \
-            {"statistic": float("nan"), "p_value": float("nan"), "df": 1, "n": int(len(wide)), "kendall_w": float("nan"),
-             "kendall_w_low": float("nan"), "kendall_w_high": float("nan"), "note": "two conditions: the Wilcoxon pair is the test"}
-        pairs = scales.wilcoxon_with_ci(wide).to_dict(orient="records")
-    else:  # fewer than two participants, or every answer alike: nothing to rank
-        fr = {"statistic": 0.0 if len(wide) >= 2 else float("nan"), "p_value": 1.0 if len(wide) >= 2 else float("nan"),
-              "df": k - 1, "n": int(len(wide)), "kendall_w": float("nan"), "kendall_w_low": float("nan"), "kendall_w_high": float("nan")}
-        pairs = [{"a": a, "b": b, "statistic": 0.0, "p_value": 1.0, "p_holm": 1.0, "rank_biserial": 0.0,
-                  "rb_ci_low": float("nan"), "rb_ci_high": float("nan")} for a, b in itertools.combinations(wide.columns, 2)]
+    """Friedman [W with CI] and Wilcoxon pairs [rank-biserial with CI] on a complete wide table;
+    each withheld with its `reason` where its prerequisites fail (analysis/withhold.py)."""
+    nan = float("nan")
+    reason = across_reason(len(wide), k, wide.to_numpy() if len(wide) else None)
+    if reason is None:
+        fr = scales.friedman_with_ci(wide.to_numpy()) | {"test": "Friedman (tie-corrected chi2)", "reason": None}
+    else:
+        fr = {"test": "Friedman (tie-corrected chi2)", "statistic": nan, "p_value": nan, "df": k - 1, "n": int(len(wide)),
+              "kendall_w": nan, "kendall_w_low": nan, "kendall_w_high": nan, "reason": reason}
+    pairs = scales.wilcoxon_with_ci(wide).to_dict(orient="records") if k >= 2 else []
     return {"friedman": fr, "pairs": pairs}
 
 
@@ -167,7 +180,7 @@ def scores(protocol, meas: pd.DataFrame) -> dict:
                                 models, with_period)
         fr = _tests(wide, len(models))["friedman"]
         out[item] = {"label": _label(item, protocol), "n": int(len(wide)),
-                     "conditions": {m: scales.mean_ci(wide[m]) | scales.median_iqr(wide[m]) for m in models},
+                     "conditions": {m: scales.mean_ci(wide[m], scale=score_scale(item, protocol)) | scales.median_iqr(wide[m]) for m in models},
                      "mixed_model": mm, "friedman": fr, "pairs": [dict(p) for p in mm["pairs"]]}
     return out
 
@@ -193,7 +206,8 @@ def session_questions(protocol, answers: pd.DataFrame) -> dict:
             sel = answers[answers["item"].isin(items)]
             v = [instruments.score(name, dict(zip(g["item"], g["answer"].astype(float)))) for _, g in sel.groupby("code")
                  if g["item"].nunique() == len(items)]
-            out[name] = {"question": instruments.SCORES[name], "kind": "score"} | scales.mean_ci(v) | scales.median_iqr(v)
+            out[name] = ({"question": instruments.SCORES[name], "kind": "score"} | scales.mean_ci(v, scale=instruments.SCORE_RANGE[name])
+                         | scales.median_iqr(v))
     for q in protocol.asked("end"):
         if not q.analysed or q.kind == "choice" or q.instrument is not None:
             continue
@@ -205,7 +219,7 @@ def session_questions(protocol, answers: pd.DataFrame) -> dict:
             out[q.id] = {"question": q.text, "kind": q.kind, "n": len(v), "yes": int(v.sum()), "rate": float(v.mean()) if len(v) else float("nan"),
                          "wilson_low": lo, "wilson_high": hi}
         else:
-            out[q.id] = {"question": q.text, "kind": q.kind} | scales.mean_ci(v) | scales.median_iqr(v)
+            out[q.id] = {"question": q.text, "kind": q.kind} | scales.mean_ci(v, scale=score_scale(q.id, protocol)) | scales.median_iqr(v)
     return out
 
 
@@ -298,9 +312,26 @@ def _ci(lo, hi, fmt="{:.2f}") -> str:
 
 def _friedman_cell(fr: dict, with_w: bool = False) -> str:
     if not np.isfinite(fr["statistic"]):
-        return "n/a (two conditions: the Wilcoxon pair is the test)" if fr.get("df") == 1 else "n/a (fewer than two participants)"
+        return f"n/a ({fr.get('reason') or 'not run'})"
     w = f", W {fr['kendall_w']:.2f}{_ci(fr['kendall_w_low'], fr['kendall_w_high'])}" if with_w and np.isfinite(fr["kendall_w"]) else ""
     return f"{fr['statistic']:.2f} ({_p(fr['p_value'])}){w}"
+
+
+def _mean_cell(c: dict, fmt: str) -> str:
+    """A mean with its interval, or with why it has none."""
+    if not c["n"]:
+        return "n/a (no values)"
+    ci = _ci(c["ci_low"], c["ci_high"], fmt)
+    return fmt.format(c["mean"]) + (ci or f" ({c['ci_reason']})" if c.get("ci_reason") else ci)
+
+
+def _rank_pair_cell(p: dict) -> str:
+    """A Wilcoxon pair: its Holm p and rank-biserial r [CI], or why it was not tested."""
+    r = "" if not np.isfinite(p["rank_biserial"]) else f"r {p['rank_biserial']:.2f}{_ci(p['rb_ci_low'], p['rb_ci_high'])}"
+    if not np.isfinite(p["p_value"]):
+        return f"{p['a']}-{p['b']} not tested: {p.get('reason') or 'not run'}" + (f" ({r})" if r else "")
+    warn = f"; {p['warning']}" if p.get("warning") else ""
+    return f"{p['a']}-{p['b']} {_p(p['p_holm'])} ({r}{warn})"
 
 
 def ordinal_gee_line(res: dict | None) -> str:
@@ -324,8 +355,7 @@ def kind_tables(kinds: dict, models: list[str], scope: str) -> list[dict]:
         for v in kinds["ratings"].values():
             fr = v["friedman"]
             cells = [f"{c['median']:g} [{c['q1']:g}, {c['q3']:g}]" for c in (v["conditions"][m] for m in models)]
-            pairs = "; ".join(f"{p['a']}-{p['b']} {_p(p['p_holm'])} (r {p['rank_biserial']:.2f}{_ci(p['rb_ci_low'], p['rb_ci_high'])})"
-                              for p in v["pairs"])
+            pairs = "; ".join(_rank_pair_cell(p) for p in v["pairs"]) or "n/a (one condition)"
             rows.append([v["question"], *cells, _friedman_cell(fr, with_w=True), pairs])
         points = sorted({v["points"] for v in kinds["ratings"].values()})
         out.append({"title": "Ratings", "columns": ["Question", *(f"{m}: median [IQR]" for m in models), "Friedman chi2 (p), Kendall's W [95% CI]",
@@ -337,13 +367,13 @@ def kind_tables(kinds: dict, models: list[str], scope: str) -> list[dict]:
         rows = []
         for v in kinds["scores"].values():
             mm, fr = v["mixed_model"], v["friedman"]
-            cells = [f"{c['mean']:.1f}{_ci(c['ci_low'], c['ci_high'], '{:.1f}')}" for c in (v["conditions"][m] for m in models)]
+            cells = [_mean_cell(c, "{:.1f}") for c in (v["conditions"][m] for m in models)]
             test = mm["model_test"]
             pairs = "; ".join(f"{p['b']}-{p['a']} {p['difference']:+.1f}{_ci(p['ci_low'], p['ci_high'], '{:+.1f}')}, p {_p(p.get('p_holm'))}"
                               if p.get("estimable") else f"{p['b']}-{p['a']} not estimable" for p in v["pairs"])
             rows.append([v["label"], *cells, f"F({test['df']}, {test['df_denominator']}) = {test['f']:.2f} ({_p(test['p_value_f'])})"
-                         if np.isfinite(test["f"]) else "n/a",
-                         pairs, _friedman_cell(fr)])
+                         if np.isfinite(test["f"]) else f"n/a ({test.get('reason') or 'not estimable'})",
+                         pairs or "n/a (one condition)", _friedman_cell(fr)])
         out.append({"title": "Scores", "columns": ["Score", *(f"{m}: mean [95% CI]" for m in models), "Mixed model: condition (p)",
                                                  f"Difference [95% CI], p {scope}", "Friedman chi2 (p)"], "rows": rows,
                     "note": "Linear mixed model (REML) answer ~ condition + period + (1 | participant): the condition's Wald F test and "
@@ -362,7 +392,8 @@ def kind_tables(kinds: dict, models: list[str], scope: str) -> list[dict]:
             if v["kind"] == "yes_no":
                 rows.append([v["question"], f"{v['yes']}/{v['n']} yes, {v['rate']:.0%}{_ci(v['wilson_low'], v['wilson_high'], '{:.0%}')}"])
             else:
-                rows.append([v["question"], f"mean {v['mean']:.2f}{_ci(v['ci_low'], v['ci_high'])}, median {v['median']:g} [{v['q1']:g}, {v['q3']:g}]"])
+                rows.append([v["question"], f"mean {_mean_cell(v, '{:.2f}')}, median {v['median']:g} [{v['q1']:g}, {v['q3']:g}]"
+                             if v["n"] else "no answers"])
         out.append({"title": "Asked once at the end", "columns": ["Question", "Answers"], "rows": rows,
                     "note": "About the whole session, not one condition: described, not tested."})
     return out

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from analysis import plots, table1
 from analysis.study import Study
+from analysis.withhold import mean_sd
 
 
 def write_plots(study: Study, out_dir, force_traces: bool = True) -> list[Path]:
@@ -66,9 +67,9 @@ def latex(study: Study, holm_scope: str = "family") -> str:
     for item, question, item_rows, qrow in table1.item_rows(r, q, models):
         rows.append([question] + [f"{x['yes']}/{x['no']}, {100 * x['rate']:.1f}% [{100 * x['wilson_low']:.1f}, {100 * x['wilson_high']:.1f}]"
                                   for x in item_rows]
-                    + [f"{qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})", "; ".join(f"{p['a']}-{p['b']} {p['p_holm']:.3g}" for p in st["items"][item]["pairs"])])
+                    + [table1.cochran_cell(qrow), "; ".join(table1.mcnemar_cell(p) for p in st["items"][item]["pairs"])])
     rows.append(["Time for real-time deformation, ms (benchmark of this machine)"]
-                + [f"{x['mean_ms']:.2f} +- {x['sd_ms']:.2f}" for _, x in d.iterrows()] + ["", ""])
+                + [mean_sd(x["mean_ms"], x["sd_ms"], x["n_participants"]) for _, x in d.iterrows()] + ["", ""])
     df = pd.DataFrame(rows, columns=["Question", *models, "Cochran's Q (p)", f"McNemar p ({scope})"])
     listed = table1.incomplete_text(facts)
     caption = ((f"{facts['flag']} " if facts["flag"] else "")
@@ -187,9 +188,11 @@ def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, 
     for item, question, item_rows, qrow in table1.item_rows(r, q, models):
         cells = "".join(f"<td>{row['yes']}/{row['no']}<br>{row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]</td>"
                         for row in item_rows)
-        pairs = "; ".join(f"{p['a']} vs {p['b']}: {p['p_holm']:.3g}" for p in st["items"][item]["pairs"])
-        rows.append(f"<tr><td>{esc(question)}</td>{cells}<td>{qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})</td><td>{esc(pairs)}</td></tr>")
-    dcells = "".join(f"<td>{row['mean_ms']:.2f} &plusmn; {row['sd_ms']:.2f}<br>median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f}</td>" for _, row in d.iterrows())
+        pairs = "; ".join(table1.mcnemar_cell(p) for p in st["items"][item]["pairs"])
+        rows.append(f"<tr><td>{esc(question)}</td>{cells}<td>{esc(table1.cochran_cell(qrow))}</td><td>{esc(pairs)}</td></tr>")
+    dcells = "".join(f"<td>{esc(mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])).replace('+-', '&plusmn;')}<br>median "
+                     f"{row['median_ms']:.2f}, p95 {row['p95_ms']:.2f}</td>" if row["n_participants"] else "<td>n/a (no trials)</td>"
+                     for _, row in d.iterrows())
     lat_text = "benchmark of this machine: each participant's mean, mean &plusmn; sd over participants (no test: CPU time is not about people)"
     from analysis.kinds import primary_line
 

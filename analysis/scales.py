@@ -21,6 +21,7 @@ import pandas as pd
 from scipy import stats
 
 from analysis.stats import MIN_GEE_PARTICIPANTS, friedman, pairwise_wilcoxon
+from analysis.withhold import mean_ci, model_reason
 
 Z95 = 1.959963984540054
 MAX_LOG_OR = 10.0  # beyond this a log odds ratio is separation, not an estimate (as in gee_fit)
@@ -243,6 +244,9 @@ def _fit_ok(res, caught) -> bool:
 MIXED_PAIR_KEYS = ("difference", "se", "ci_low", "ci_high", "p_value")
 
 
+MIXED_TEST = "Wald test of the condition in the linear mixed model (F with between-within df)"
+
+
 def mixed_model(df: pd.DataFrame, models: list[str], with_period: bool = True) -> dict:
     """Linear mixed model (statsmodels MixedLM, REML): answer ~ C(model) [+ C(period)] with a
     random intercept per participant; for continuous answers, or as the parametric companion
@@ -271,17 +275,18 @@ def mixed_model(df: pd.DataFrame, models: list[str], with_period: bool = True) -
     if absent := [m for m in models if m not in present]:
         problems.append("no answers for " + ", ".join(absent))
     empty = {"converged": False, "estimable": False, "problems": problems, "variance_participant": NAN, "variance_residual": NAN,
-             "model_test": dict.fromkeys(("chi2", "df", "p_value", "f", "df_denominator", "p_value_f"), NAN),
+             "model_test": dict.fromkeys(("chi2", "df", "p_value", "f", "df_denominator", "p_value_f"), NAN)
+             | {"test": MIXED_TEST, "reason": "; ".join(problems) or "not estimable"},
              "means": {m: {"mean": NAN, "se": NAN, "ci_low": NAN, "ci_high": NAN} for m in models},
              "pairs": _nan_pairs(models, MIXED_PAIR_KEYS)}
     if out["n_participants"] < 2 or len(present) < 2 or data["answer"].nunique() < 2:
         return out | empty
     X = _design(data, present, with_period, False, intercept=True)
     if _singular(X):
-        return out | empty | {"problems": problems + [SINGULAR]}
+        return out | empty | {"problems": problems + [SINGULAR], "model_test": empty["model_test"] | {"reason": SINGULAR}}
     res, caught, error = _fit_mixed(data, X)
     if res is None:
-        return out | empty | {"problems": problems + [f"fit failed: {error}"]}
+        return out | empty | {"problems": problems + [f"fit failed: {error}"], "model_test": empty["model_test"] | {"reason": f"fit failed: {error}"}}
     names, k = list(X.columns), X.shape[1]
     beta = np.asarray(res.fe_params, dtype=float)
     cov = np.asarray(res.cov_params(), dtype=float)[:k, :k]
@@ -289,9 +294,13 @@ def mixed_model(df: pd.DataFrame, models: list[str], with_period: bool = True) -
     if any("boundary" in str(w.message).lower() for w in caught):
         notes.append("participant variance on the boundary (0): the fit is an ordinary regression")
     # statsmodels warns as it retries other optimisers; res.converged is the final fit's word
-    out |= {"converged": bool(res.converged) and bool(np.isfinite(cov).all()) and not problems,
-            "variance_participant": float(np.asarray(res.cov_re).squeeze()), "variance_residual": float(res.scale),
-            "model_test": _wald([_model_vector(names, present, m) for m in present[1:]], beta, cov, df_den)}
+    converged = bool(res.converged) and bool(np.isfinite(cov).all()) and not problems
+    test = _wald([_model_vector(names, present, m) for m in present[1:]], beta, cov, df_den)
+    reason = model_reason(converged, df_den, out["n_participants"])
+    if reason is not None:  # no F or p from a fit that did not converge or has no residual df
+        test |= {"chi2": NAN, "p_value": NAN, "f": NAN, "p_value_f": NAN}
+    out |= {"converged": converged, "variance_participant": float(np.asarray(res.cov_re).squeeze()), "variance_residual": float(res.scale),
+            "model_test": test | {"test": MIXED_TEST, "reason": reason}}
     period_mix = np.zeros(k)  # equal weights over the period levels: each period dummy's mean
     if with_period:
         levels = data["period"].astype(int).nunique()
@@ -533,19 +542,6 @@ def multinomial_test(counts) -> dict:
 
 
 # --- 5. report-table helpers ---------------------------------------------------------------------
-
-def mean_ci(values, confidence: float = 0.95) -> dict:
-    """Mean with its t interval (n - 1 df), SD (n - 1); missing values left out; NaN interval below 2 values."""
-    v = np.asarray(values, dtype=float)
-    v = v[np.isfinite(v)]
-    n = len(v)
-    mean = float(v.mean()) if n else NAN
-    if n < 2:
-        return {"n": n, "mean": mean, "sd": NAN, "ci_low": NAN, "ci_high": NAN}
-    sd = float(v.std(ddof=1))
-    half = float(stats.t.ppf(0.5 + confidence / 2, n - 1)) * sd / math.sqrt(n)
-    return {"n": n, "mean": mean, "sd": sd, "ci_low": mean - half, "ci_high": mean + half}
-
 
 def median_iqr(values) -> dict:
     """Median and quartiles (linear interpolation: numpy's default, R's type 7); missing values left out."""

@@ -13,6 +13,8 @@ from scipy import stats
 
 from analysis.study import Study
 
+NAN = float("nan")
+
 
 def holm(p_values) -> list[float]:
     """Holm's step-down adjusted p-values, in the given order (statsmodels' `multipletests(p,
@@ -21,9 +23,15 @@ def holm(p_values) -> list[float]:
     p = np.asarray(list(p_values), dtype=float)
     if not p.size:
         return []
-    order = np.argsort(p)  # NaN last, and carried to the p-values after it, as statsmodels does
-    adjusted = np.empty_like(p)
-    adjusted[order] = np.minimum(np.maximum.accumulate(p[order] * np.arange(p.size, 0, -1)), 1.0)
+    # a test withheld (NaN: its prerequisites did not hold, analysis/withhold.py) is not in the
+    # family: the others are adjusted over the tests actually run
+    tested = np.flatnonzero(np.isfinite(p))
+    adjusted = np.full_like(p, np.nan)
+    q = p[tested]
+    order = np.argsort(q)
+    out = np.empty_like(q)
+    out[order] = np.minimum(np.maximum.accumulate(q[order] * np.arange(q.size, 0, -1)), 1.0)
+    adjusted[tested] = out
     return [float(x) for x in adjusted]
 
 
@@ -37,10 +45,12 @@ def pairwise_mcnemar(wide: pd.DataFrame) -> pd.DataFrame:
         x, y = wide[a].to_numpy(int), wide[b].to_numpy(int)
         n01, n10 = int(np.sum((x == 0) & (y == 1))), int(np.sum((x == 1) & (y == 0)))
         table = [[int(np.sum((x == 1) & (y == 1))), n10], [n01, int(np.sum((x == 0) & (y == 0)))]]
-        p = float(mcnemar(table, exact=True).pvalue) if n01 + n10 > 0 else 1.0
-        rows.append({"a": a, "b": b, "n01": n01, "n10": n10, "p_value": p, "odds_ratio": (n10 + 0.5) / (n01 + 0.5)})
-    df = pd.DataFrame(rows, columns=["a", "b", "n01", "n10", "p_value", "odds_ratio"])
-    df.insert(5, "p_holm", holm(df["p_value"]))
+        reason = None if n01 + n10 > 0 else "no participant answered the two differently: nothing to test"
+        p = float(mcnemar(table, exact=True).pvalue) if reason is None else NAN
+        rows.append({"a": a, "b": b, "test": "exact McNemar", "n01": n01, "n10": n10, "p_value": p,
+                     "odds_ratio": (n10 + 0.5) / (n01 + 0.5), "reason": reason})
+    df = pd.DataFrame(rows, columns=["a", "b", "test", "n01", "n10", "p_value", "odds_ratio", "reason"])
+    df.insert(6, "p_holm", holm(df["p_value"]))
     return df
 
 
@@ -60,22 +70,32 @@ def friedman(matrix: np.ndarray) -> dict:
     }
 
 
+WILCOXON = "Wilcoxon signed-rank (statistic: the smaller signed-rank sum)"
+
+
 def pairwise_wilcoxon(wide: pd.DataFrame) -> pd.DataFrame:
     """Wilcoxon signed-rank tests between every pair of columns, Holm-adjusted; effect size:
     matched-pairs rank-biserial correlation."""
+    from analysis.withhold import pair_reason, pair_warning
+
     rows = []
     for a, b in itertools.combinations(wide.columns, 2):
         d = wide[a].to_numpy(float) - wide[b].to_numpy(float)
+        reason = pair_reason(len(d), d)
         d = d[d != 0]
-        if len(d) == 0:
-            rows.append({"a": a, "b": b, "statistic": 0.0, "p_value": 1.0, "rank_biserial": 0.0})
+        row = {"a": a, "b": b, "test": WILCOXON, "statistic": NAN, "p_value": NAN, "rank_biserial": NAN, "reason": reason, "warning": None}
+        if reason is not None:
+            if len(d) == 0 and len(wide) >= 2:  # no pair differs: the effect is none, the test has nothing to rank
+                row["rank_biserial"] = 0.0
+            rows.append(row)
             continue
         res = stats.wilcoxon(wide[a], wide[b])
         rk = stats.rankdata(np.abs(d))
         rb = (rk[d > 0].sum() - rk[d < 0].sum()) / rk.sum()
-        rows.append({"a": a, "b": b, "statistic": float(res.statistic), "p_value": float(res.pvalue), "rank_biserial": float(rb)})
-    df = pd.DataFrame(rows, columns=["a", "b", "statistic", "p_value", "rank_biserial"])
-    df.insert(4, "p_holm", holm(df["p_value"]))
+        rows.append(row | {"statistic": float(res.statistic), "p_value": float(res.pvalue), "rank_biserial": float(rb),
+                           "warning": pair_warning(len(d))})
+    df = pd.DataFrame(rows, columns=["a", "b", "test", "statistic", "p_value", "rank_biserial", "reason", "warning"])
+    df.insert(5, "p_holm", holm(df["p_value"]))
     return df
 
 
@@ -192,8 +212,9 @@ def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | N
 
 
 def _set_holm(pairs: list[dict], key: str = "p_holm") -> None:
-    """Holm over these pairs' `p_value` (NaN, a test that could not be made, counts as 1), into `key`."""
-    for pair, p in zip(pairs, holm([x["p_value"] if np.isfinite(x["p_value"]) else 1.0 for x in pairs])):
+    """Holm over these pairs' `p_value` into `key`; a test that was not made (NaN) stays NaN and
+    is not counted in the family."""
+    for pair, p in zip(pairs, holm([x["p_value"] for x in pairs])):
         pair[key] = p
 
 

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.study import Study, data_flag
+from analysis.withhold import binary_across_reason, mean_sd
 
 
 def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.DataFrame:
@@ -98,15 +99,14 @@ def cochran(study: Study) -> pd.DataFrame:
     rows = []
     for q in binary_items(protocol):
         wide = answers_wide(answers, q, list(protocol.conditions))
-        if len(wide) >= 2 and len(protocol.conditions) >= 2:
+        reason = binary_across_reason(len(wide), len(protocol.conditions), wide.to_numpy(dtype=int) if len(wide) else None)
+        q_stat = p = float("nan")
+        if reason is None:
             r = cochrans_q(wide.to_numpy(dtype=int))
             q_stat, p = float(r.statistic), float(r.pvalue)
-            if not np.isfinite(q_stat):  # every participant answered alike across models
-                q_stat, p = 0.0, 1.0
-            rows.append({"item": q, "cochran_q": q_stat, "df": len(protocol.conditions) - 1, "p_value": p, "n_complete": len(wide)})
-        else:
-            rows.append({"item": q, "cochran_q": float("nan"), "df": len(protocol.conditions) - 1, "p_value": float("nan"), "n_complete": len(wide)})
-    return pd.DataFrame(rows, columns=["item", "cochran_q", "df", "p_value", "n_complete"])
+        rows.append({"item": q, "test": "Cochran's Q", "cochran_q": q_stat, "df": len(protocol.conditions) - 1, "p_value": p,
+                     "n_complete": len(wide), "reason": reason})
+    return pd.DataFrame(rows, columns=["item", "test", "cochran_q", "df", "p_value", "n_complete", "reason"])
 
 
 DEFORMATION_LABEL = "benchmark of this machine (wall-clock deformation time per frame), not a measure of the participants"
@@ -183,6 +183,20 @@ def item_rows(r, q, models):
         yield item, g["question"].iloc[0], [g.loc[m] for m in models], q[q["item"] == item].iloc[0]
 
 
+def cochran_cell(qrow) -> str:
+    """Cochran's Q (p), or why it was not run."""
+    if qrow["p_value"] != qrow["p_value"]:
+        return f"n/a ({qrow.get('reason') or 'not run'})"
+    return f"{qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})"
+
+
+def mcnemar_cell(p: dict) -> str:
+    """A McNemar pair's Holm p, or why it was not tested."""
+    if p["p_value"] != p["p_value"]:
+        return f"{p['a']}-{p['b']} not tested: {p.get('reason') or 'not run'}"
+    return f"{p['a']}-{p['b']} {p['p_holm']:.3g}"
+
+
 def holm_text(st: dict) -> str:
     """What the reports' p_holm is (`study_stats`' scope): Holm over all N pairwise tests of
     every kind, or within each question."""
@@ -190,7 +204,11 @@ def holm_text(st: dict) -> str:
 
     if st["holm"] != "family":
         return "Holm within each question"
-    return f"Holm over all {sum(len(v['pairs']) for v in st['items'].values()) + sum(len(g) for g in family_pairs(st['kinds']))} pairs"
+    pairs = [p for v in st["items"].values() for p in v["pairs"]] + [p for g in family_pairs(st["kinds"]) for p in g]
+    tested = sum(1 for p in pairs if p.get("p_value") is not None and np.isfinite(p["p_value"]))
+    if not tested:
+        return "Holm: no pair tested"
+    return f"Holm over all {tested} pairs tested"
 
 
 def _gee_line(gee: dict, primary: bool = True) -> str:
@@ -225,14 +243,15 @@ def markdown(study: Study, holm_scope: str = "family") -> str:
     left_out = f" Left out (incomplete): {listed}." if listed else ""
     scope = holm_text(st)
     lines = [f"**Table 1: {facts['study']}.** {flag}N = {facts['participants']} participants with every answer; {facts['design']}.{left_out}", ""]
-    deform = [f"{row['mean_ms']:.2f} +- {row['sd_ms']:.2f} (median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f})" for _, row in d.iterrows()]
+    deform = [f"{mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])} (median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f})"
+              if row["n_participants"] else "n/a (no trials)" for _, row in d.iterrows()]
     if len(r):  # the yes/no questions: the paper's table
         lines += ["| Question | " + " | ".join(f"{m}: yes/no, rate [95% CI]" for m in models) + f" | Cochran's Q (p) | McNemar p, {scope} |",
                   "|---|" + "---|" * len(models) + "---|---|"]
         for item, question, rows, qrow in item_rows(r, q, models):
             cells = [f"{row['yes']}/{row['no']}, {row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]" for row in rows]
-            mc = "; ".join(f"{p['a']}-{p['b']} {p['p_holm']:.3g}" for p in pairs.get(item, []))
-            test = f"{qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})" if len(models) > 1 else "n/a (one condition)"
+            mc = "; ".join(mcnemar_cell(p) for p in pairs.get(item, [])) or "n/a (one condition)"
+            test = cochran_cell(qrow)
             lines.append(f"| {question} | " + " | ".join(cells) + f" | {test} | {mc} |")
         lines.append("| Time for real-time deformation of the model, ms: benchmark of this machine | " + " | ".join(deform) + " | | |")
         lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models; pairwise exact McNemar tests, "

@@ -23,12 +23,13 @@ from scipy import stats
 
 from analysis import validity as v
 from analysis.stats import holm
+from analysis.study import data_flag
 from studyctl.errors import StudyError
 
 DEFAULT_PERMUTATIONS = 100
 DEFAULT_GROUP_PERMUTATIONS = 1000  # the group tests' Westfall-Young adjustment: ~0.1 s for 30 participants x 20 metrics
 DEFAULT_BOOTSTRAP = 200
-SYNTHETIC_NOTE = "SYNTHETIC DATA (simulated participants): not evidence about people."
+
 SESSION = ""  # the condition of an answer given once at the end of the session
 BAND = (5.0, 95.0)  # the expert benchmark's band (percentiles of the expert group)
 
@@ -243,9 +244,10 @@ def validity_report(store, permutations: int = DEFAULT_PERMUTATIONS, bootstrap: 
     step(7, STEPS)
     in_groups = groups[groups.isin(order)]
     synthetic = sorted(synthetic_codes & set(in_groups.index) | synthetic_codes & measured)
+    persons = sorted((set(in_groups.index) | measured) - synthetic_codes)
     return {
-        "study": protocol.name, "synthetic": bool(synthetic), "synthetic_participants": len(synthetic),
-        "note": SYNTHETIC_NOTE if synthetic else "",
+        "study": protocol.name, "synthetic": bool(synthetic), "synthetic_participants": len(synthetic), "person_participants": len(persons),
+        "note": data_flag(len(persons), len(synthetic)),
         "group_field": protocol.groups, "groups": order, "expert": expert,
         "participants": int(len(in_groups)), "participants_with_metrics": int(len(set(in_groups.index) & measured)),
         "ungrouped_with_metrics": ungrouped, "conditions": conditions,
@@ -301,7 +303,8 @@ def _cond(c: str) -> str:
 
 
 def title(rep: dict) -> str:
-    return f"Construct validity: {rep['study']}" + (" (SYNTHETIC DATA)" if rep["synthetic"] else "")
+    kind = " (MIXED DATA)" if rep["synthetic"] and rep.get("person_participants") else " (SYNTHETIC DATA)" if rep["synthetic"] else ""
+    return f"Construct validity: {rep['study']}{kind}"
 
 
 def header_lines(rep: dict) -> list[str]:
@@ -433,8 +436,8 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
 
 def markdown(rep: dict) -> str:
     lines = [f"# {title(rep)}", ""]
-    if rep["synthetic"]:
-        lines += [f"**{SYNTHETIC_NOTE}** {rep['synthetic_participants']} synthetic participants.", ""]
+    if rep["note"]:
+        lines += [f"**{rep['note']}** {rep['synthetic_participants']} synthetic participants.", ""]
     lines += header_lines(rep) + [""]
     for name, text, cols, rows in sections(rep):
         lines += [f"## {name}", "", text, ""]
@@ -500,8 +503,8 @@ def html(rep: dict) -> str:
     esc = _html.escape
     parts = [f"<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{esc(title(rep))}</title>\n{STYLE}</head><body>",
              f"<h1>{esc(title(rep))}</h1>"]
-    if rep["synthetic"]:
-        parts.append(f'<p class="synthetic">{esc(SYNTHETIC_NOTE)} {rep["synthetic_participants"]} synthetic participants.</p>')
+    if rep["note"]:
+        parts.append(f'<p class="synthetic">{esc(rep["note"])} {rep["synthetic_participants"]} synthetic participants.</p>')
     parts += [f"<p>{esc(line)}</p>" for line in header_lines(rep)]
     for name, text, cols, rows in sections(rep):
         parts.append(f"<h2>{esc(name)}</h2><p>{esc(text)}</p>")

@@ -44,6 +44,7 @@ TLX_SUBSCALES = (  # id, question, low anchor, high anchor (Hart and Staveland 1
 )
 
 SCORES = {"sus": "SUS score (0-100)", "nasa_tlx": "raw NASA-TLX (0-100)"}
+SCORE_RANGE = {"sus": (0.0, 100.0), "nasa_tlx": (0.0, 100.0)}  # where each score lies (its intervals stay inside)
 
 
 def questions(name: str, when: str = "condition") -> tuple[Question, ...]:

@@ -389,7 +389,7 @@ when = "trial"
     for fmt in ("md", "html", "latex"):
         text = re.sub(r"base64,[A-Za-z0-9+/=]+", "", studyctl("report", "table1", "--format", fmt, "--db", db).output)  # the pictures
         assert not re.search(r"\bnan\b", text.lower()), fmt
-        assert "two conditions: the Wilcoxon pair is the test" in text, fmt
+        assert "two conditions: the pair is the test" in text, fmt
     pairs = st["kinds"]["scores"]["stiffness"]["pairs"]
     assert len(pairs) == 1 and pairs[0]["p_holm_primary"] == pytest.approx(pairs[0]["p_value"])  # one pair: Holm leaves it
 

@@ -200,6 +200,7 @@ def report_stats(db, holm_scope, as_json):
     family; the deformation-time benchmark. Complete cases only."""
     from analysis.stats import study_stats
     from analysis.table1 import _gee_line, incomplete_text
+    from analysis.withhold import mean_sd
 
     study = _read(db)
     if _no_answers(study, as_json):
@@ -216,20 +217,27 @@ def report_stats(db, holm_scope, as_json):
     click.echo(primary_line(out))
     if len(study.protocol.conditions) < 2:
         click.echo("one condition: there is nothing to compare between conditions (no Cochran's Q, McNemar or Friedman test)")
+    def pair(p: dict) -> str:
+        if p["p_value"] != p["p_value"]:
+            return f"{p['a']}-{p['b']} not tested ({p.get('reason') or 'not estimable'})"
+        return f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" + (f" ({p['warning']})" if p.get("warning") else "")
+
     for item, v in out["items"].items() if len(study.protocol.conditions) > 1 else ():
-        pairs = ", ".join(f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" for p in v["pairs"])
-        click.echo(f"{item}: Q = {v['cochran_q']:.2f}, p = {v['p_value']:.3g}; {pairs}")
+        pairs = ", ".join(pair(p) for p in v["pairs"])
+        cochran = f"Q = {v['cochran_q']:.2f}, p = {v['p_value']:.3g}" if v["p_value"] == v["p_value"] else \
+            f"Cochran's Q not tested ({v.get('reason') or 'not estimable'})"
+        click.echo(f"{item}: {cochran}; {pairs}")
     for item, v in kinds["ratings"].items():
         fr = v["friedman"]
-        pairs = ", ".join(f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" for p in v["pairs"])
+        pairs = ", ".join(pair(p) for p in v["pairs"])
         friedman = (f"Friedman chi2 = {fr['statistic']:.2f}, p = {fr['p_value']:.3g}, W = {fr['kendall_w']:.2f}"
-                    if fr["statistic"] == fr["statistic"] else "two conditions: the Wilcoxon pair is the test")
+                    if fr["statistic"] == fr["statistic"] else f"Friedman not tested ({fr.get('reason')})")
         click.echo(f"{item}: {friedman}; {pairs}")
     for v in kinds["scores"].values():
         t = v["mixed_model"]["model_test"]
         means = ", ".join(f"{m} {c['mean']:.1f}" for m, c in v["conditions"].items())
         test = (f"mixed model F({t['df']}, {t['df_denominator']}) = {t['f']:.2f}, p = {t['p_value_f']:.3g}" if t["f"] == t["f"]
-                else "mixed model: not estimable (" + "; ".join(v["mixed_model"]["problems"] or ["no fit"]) + ")")
+                else f"mixed model: not tested ({t.get('reason') or 'no fit'})")
         click.echo(f"{v['label']}: {means}; {test}")
     for item, v in kinds["choices"].items():
         shares = ", ".join(f"{m} {s['count']}" for m, s in v["shares"].items())
@@ -240,7 +248,7 @@ def report_stats(db, holm_scope, as_json):
     if gee and kinds["primary"]["analysis"] != "logistic_gee":  # the primary's own line is printed first
         click.echo(gee.replace("`", ""))
     for row in out["deformation"]["rows"]:
-        click.echo(f"deformation time, {row['model']}: {row['mean_ms']:.2f} +- {row['sd_ms']:.2f} ms over {row['n_participants']} participants "
+        click.echo(f"deformation time, {row['model']}: {mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])} ms over {row['n_participants']} participants "
                    f"({out['deformation']['label']})")
 
 
