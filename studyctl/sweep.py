@@ -59,20 +59,22 @@ def completed(fn: Callable, tasks: Sequence, jobs: int | None = None, scheduler:
         futures = {pool.submit(fn, t): i for i, t in enumerate(tasks)}
         for fut in as_completed(futures):
             yield futures[fut], fut.result()
-    except KeyboardInterrupt:  # the workers got it too and left quietly: nothing to wait for
+    except KeyboardInterrupt:  # the workers ignore it (no traceback from them): end them, do not wait
         wait = False
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):
+            proc.terminate()
         raise
     finally:  # on an error here or in the caller: the tasks not started are dropped, not run first
         pool.shutdown(wait=wait, cancel_futures=True)
 
 
 def _quiet_on_ctrl_c() -> None:
-    """A pool worker's Ctrl-C (the terminal sends it to every process of the command): leave at
-    once, without a traceback; the command's own process says what was kept."""
-    import os
+    """A pool worker ignores Ctrl-C (the terminal sends it to every process of the command): the
+    command's own process gets it, ends the workers and says what was kept. (Workers that died of
+    it themselves would break the pool first, and the command would report that instead.)"""
     import signal
 
-    signal.signal(signal.SIGINT, lambda *_: os._exit(130))
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def connect(scheduler: str):

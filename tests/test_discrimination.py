@@ -212,7 +212,9 @@ def test_a_synthetic_session_stores_every_trial_and_a_killed_one_resumes_as_if_u
     # whole: a crash there loses the participant's run, not the study's rows)
     for args in (("study", "init", "--protocol", protocol), ("participants", "add", "S001", "--synthetic")):
         assert studyctl(*args, "--db", broken).exit_code == 0
-    with pytest.raises(KeyboardInterrupt):
+    from studyctl.errors import Interrupted
+
+    with pytest.raises(Interrupted, match="session 1 of S001 interrupted"):  # marked at once, and the line says how to resume
         run_session(broken, "S001", synthetic=True, seed=3, time_scale=0.0)
     assert len(_rows(broken)) == 6
     monkeypatch.setattr(disc, "_store_trial", store_trial)

@@ -168,6 +168,7 @@ def _ctrl_c(argv, when: bytes, timeout=120.0, delay=1.0) -> tuple[str, int]:
 
     pid, fd = pty.fork()
     if pid == 0:
+        signal.signal(signal.SIGINT, signal.SIG_DFL)  # pytest-xdist's workers ignore SIGINT, and an ignored signal stays so across exec
         os.execv(sys.executable, [sys.executable, "-m", "studyctl.cli", *map(str, argv)])
     out, sent, deadline = b"", False, time.time() + timeout
     while time.time() < deadline:

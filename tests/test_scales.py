@@ -162,7 +162,7 @@ def test_kendall_w_interval_does_not_collapse_near_zero():
 def test_wrappers_add_the_intervals_to_the_existing_tests():
     wide = _likert(20, seed=5).pivot(index="code", columns="model", values="answer")[MODELS]
     w = wilcoxon_with_ci(wide)
-    assert list(w.columns) == ["a", "b", "statistic", "p_value", "p_holm", "rank_biserial", "rb_ci_low", "rb_ci_high"]
+    assert list(w.columns) == ["a", "b", "test", "statistic", "p_value", "p_holm", "rank_biserial", "reason", "warning", "rb_ci_low", "rb_ci_high"]
     for row in w.itertuples():
         single = rank_biserial_ci(wide[row.a], wide[row.b])
         assert (row.rb_ci_low, row.rb_ci_high) == (single["ci_low"], single["ci_high"])

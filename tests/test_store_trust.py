@@ -152,7 +152,7 @@ def test_resume_with_other_options_than_the_start_is_refused(tmp_path):
     con.commit()
     con.close()
     res = studyctl("session", "run", "--participant", "S01", "--synthetic", "--resume", "--db", db)
-    assert res.exit_code == 1 and "was started with --device openhaptics; resume it with the same options" in res.output
+    assert res.exit_code == 1 and "was started with --device openhaptics, not simulated; resume it with --device openhaptics" in res.output
     assert _q(db, "select count(*) from answers") == [(0,)]
 
 

@@ -1,6 +1,7 @@
 """Table 1 statistics against published values, and a synthetic study through to the report."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -267,7 +268,7 @@ def test_latex_html_and_plots(small_study, tmp_path):
     db = small_study
     tex = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "latex"]).output
     assert tex.startswith("\\begin{table}") and "SYNTHETIC DATA" in tex and tex.count("\\\\") == 11  # header, 9 questions, deformation
-    assert "McNemar p (Holm over all 27 pairs)" in tex and "benchmark of this machine" in tex
+    assert re.search(r"McNemar p \(Holm over all \d+ pairs tested\)", tex) and "benchmark of this machine" in tex
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "html", "--out", str(tmp_path / "r.html")])
     assert res.exit_code == 0, res.output
     page = (tmp_path / "r.html").read_text()
@@ -399,5 +400,9 @@ def test_holm_equals_statsmodels_with_ties_and_nan():
             p[rng.integers(p.size)] = p[0]  # a tie
         if k % 7 == 0:
             p[rng.integers(p.size)] = np.nan
-        assert np.array_equal(holm(p), multipletests(p, method="holm")[1], equal_nan=True)
+        # a test not made (NaN) is not in the family: statsmodels on the others, NaN where it was
+        ok = np.isfinite(p)
+        expected = np.full(p.size, np.nan)
+        expected[ok] = multipletests(p[ok], method="holm")[1]
+        assert np.array_equal(holm(p), expected, equal_nan=True)
     assert holm([]) == [] and holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])  # by hand
