@@ -27,6 +27,9 @@ import pandas as pd
 from scipy import stats
 
 from analysis.study import data_flag
+from analysis.withhold import interval_reason
+
+GM_WARN_BELOW = 5  # participants: below this a geometric mean's t interval is said to be wide
 
 
 def trials(study, task: int = 0) -> pd.DataFrame:
@@ -50,7 +53,7 @@ def _quest_estimates(study, task: int) -> dict:
 
 
 def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) -> dict:
-    from analysis.psychometric import group_test, weber_table
+    from analysis.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, group_test, weber_table
 
     protocol = study.protocol
     spec = protocol.tasks[task]
@@ -63,6 +66,9 @@ def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) 
     table = weber_table(t, seed=seed, **kwargs) if len(t) else pd.DataFrame()
     facts = {"study": protocol.name, "participants": int(t["code"].nunique()) if len(t) else 0, "synthetic": synthetic,
              "flag": data_flag(person_codes, synthetic_codes),
+             "fit": {"function": DEFAULT_FUNCTION, "axis": "ln ln(1 + delta) (the log of the log stiffness ratio)",
+                     "slope": "held: the two-interval observer's, from its threshold", "lapse_max": LAPSE_MAX,
+                     "interval": f"parametric bootstrap, percentile, {kwargs.get('n_boot', N_BOOT)} refits"},
              "task": {"kind": spec.kind, "parameter": spec.parameter, "method": spec.method, "rule": spec.rule if spec.method == "staircase" else None,
                       "trials": spec.trials, "reference": spec.reference, "question": spec.question, "range": [spec.low, spec.high]}}
     if not len(table):
@@ -87,10 +93,16 @@ def _condition_summary(rows: pd.DataFrame, condition: str) -> dict:
     w = w[np.isfinite(w) & (w > 0)]
     out = {"condition": condition, "n": int(len(w)), "geometric_mean": math.nan, "gm_low": math.nan, "gm_high": math.nan,
            "median": float(np.median(w)) if len(w) else math.nan}
-    if len(w) >= 2:
+    if len(w):
+        out["geometric_mean"] = float(np.exp(np.log(w).mean()))
+    if len(w) >= 2 and np.ptp(w) > 0:
         lw = np.log(w)
         half = stats.t.ppf(0.975, len(w) - 1) * lw.std(ddof=1) / math.sqrt(len(w))
-        out |= {"geometric_mean": float(np.exp(lw.mean())), "gm_low": float(np.exp(lw.mean() - half)), "gm_high": float(np.exp(lw.mean() + half))}
+        out |= {"gm_low": float(np.exp(lw.mean() - half)), "gm_high": float(np.exp(lw.mean() + half))}
+        if len(w) < GM_WARN_BELOW:
+            out["gm_warning"] = f"N = {len(w)}: a t interval on {len(w) - 1} df is wide; {GM_WARN_BELOW} or more narrow it"
+    else:
+        out["gm_reason"] = interval_reason(w) if len(w) else "no fit"
     if "generating_weber" in rows:
         g = rows["generating_weber"].to_numpy(dtype=float)
         ok = np.isfinite(g) & np.isfinite(rows["weber"].to_numpy(dtype=float))
@@ -102,11 +114,54 @@ def _condition_summary(rows: pd.DataFrame, condition: str) -> dict:
 
 
 def _pct(x) -> str:
-    return "-" if x is None or not math.isfinite(float(x)) else f"{100 * float(x):.1f}%"
+    if x is None or not math.isfinite(float(x)):
+        return "-"
+    v = 100 * float(x)
+    return f"{v:.1f}%" if abs(v) >= 0.1 or v == 0 else f"{v:.2g}%"
 
 
 def _p(x) -> str:
     return "-" if x is None or not math.isfinite(float(x)) else f"{float(x):.3g}"
+
+
+def _interval(lo, hi, why: str = "no interval") -> str:
+    return f"[{_pct(lo)}, {_pct(hi)}]" if lo is not None and math.isfinite(float(lo)) and math.isfinite(float(hi)) else f"({why})"
+
+
+FLAG_TEXT = {"all_correct": "every answer right: below the range tested", "at_chance": "at chance: above the range tested",
+             "one_level": "one level: not identified", "location_at_bound": "threshold beyond the range tested",
+             "shallow": "no trend", "optimizer": "the optimiser stopped", "steep": "slope at its bound"}
+
+
+def tables(res: dict) -> list[dict]:
+    """The report's tables ({title, columns, rows: text, note}), one source for Markdown and HTML:
+    per condition (geometric mean [95% CI], median, recovery when synthetic) and per participant
+    (the fit, its flag, QUEST+'s own estimate where it ran, the generating value when synthetic)."""
+    recovery = any("recovery_coverage" in c for c in res["conditions"])
+    rows = []
+    for c in res["conditions"]:
+        gm = f"{_pct(c['geometric_mean'])} {_interval(c['gm_low'], c['gm_high'], c.get('gm_reason') or 'no interval')}" if c["n"] else "n/a (no fit)"
+        if c.get("gm_warning"):
+            gm += f" ({c['gm_warning']})"
+        rows.append([c["condition"], str(c["n"]), gm, _pct(c["median"])]
+                    + ([f"{_pct(c.get('recovery_median_abs_rel_error'))}, {_pct(c.get('recovery_coverage'))}"] if recovery else []))
+    out = [{"title": "Weber fraction per condition", "columns": ["Condition", "N", "geometric mean [95% CI]", "median"]
+            + (["recovery: median abs. error, CI coverage"] if recovery else []), "rows": rows,
+            "note": "Geometric mean over participants with a t interval on ln Weber fraction (n - 1 df)."}]
+    quest = any("quest_estimate" in r for r in res["weber"])
+    generating = any("generating_weber" in r for r in res["weber"])
+    rows = []
+    for r in res["weber"]:
+        flag = FLAG_TEXT.get(r.get("flag") or "", "")
+        rows.append([r["code"], r["condition"], str(r["n_trials"]), _pct(r["p_correct"]),
+                     f"{_pct(r['weber'])} {_interval(r['ci_low'], r['ci_high'], 'no interval: ' + flag if flag else 'no interval')}",
+                     _pct(r["lapse"]), flag or "-"]
+                    + ([_pct(r.get("quest_estimate"))] if quest else []) + ([_pct(r.get("generating_weber"))] if generating else []))
+    out.append({"title": "Per participant", "columns": ["Participant", "Condition", "trials", "% correct", "Weber [95% CI]", "lapse", "fit flag"]
+                + (["QUEST+ estimate"] if quest else []) + (["generating"] if generating else []), "rows": rows,
+                "note": "The Weber fraction with its parametric-bootstrap 95% interval: the increment picked out 75% of the time by the "
+                        "two-interval observer fitted on the log stiffness ratio (analysis/psychometric.py); lapse: the fit's."})
+    return out
 
 
 def markdown(res: dict) -> str:
@@ -118,22 +173,14 @@ def markdown(res: dict) -> str:
              f"\"{task['question']}\", {task['trials']} {method} trials per condition around {task['reference']:g} times each condition's stiffness.", ""]
     if not res["weber"]:
         return "\n".join(lines + ["No discrimination trials yet.", ""])
-    lines += ["| Condition | N | Weber fraction, geometric mean [95% CI] | median |" + (" recovery: median abs. error, CI coverage |" if any("recovery_coverage" in c for c in res["conditions"]) else ""),
-              "|---|---|---|---|" + ("---|" if any("recovery_coverage" in c for c in res["conditions"]) else "")]
-    for c in res["conditions"]:
-        rec = f" {_pct(c['recovery_median_abs_rel_error'])}, {_pct(c['recovery_coverage'])} |" if "recovery_coverage" in c else ""
-        lines.append(f"| {c['condition']} | {c['n']} | {_pct(c['geometric_mean'])} [{_pct(c['gm_low'])}, {_pct(c['gm_high'])}] | {_pct(c['median'])} |{rec}")
-    g = res["group"]
-    if g:
-        lines += ["", _group_text(g)]
-    lines += ["", "Per participant (Weber fraction with its parametric-bootstrap 95% interval; the increment picked out 75% of the time):", "",
-              "| Participant | Condition | trials | % correct | Weber [95% CI] | lapse |" + (" generating |" if "generating_weber" in res["weber"][0] else ""),
-              "|---|---|---|---|---|---|" + ("---|" if "generating_weber" in res["weber"][0] else "")]
-    for r in res["weber"]:
-        gen = f" {_pct(r['generating_weber'])} |" if "generating_weber" in r else ""
-        lines.append(f"| {r['code']} | {r['condition']} | {r['n_trials']} | {_pct(r['p_correct'])} | {_pct(r['weber'])} [{_pct(r['ci_low'])}, {_pct(r['ci_high'])}] "
-                     f"| {_pct(r['lapse'])} |{gen}")
-    return "\n".join(lines) + "\n"
+    from analysis.kinds import table_markdown
+
+    first, per = tables(res)
+    lines += table_markdown(first)
+    if res["group"]:
+        lines += [_group_text(res["group"]), ""]
+    lines += table_markdown(per)
+    return "\n".join(lines)
 
 
 def _group_text(g: dict) -> str:
@@ -162,10 +209,15 @@ def html_section(res: dict, study) -> str:
     task = res["facts"]["task"]
     body.append(f"<p>N = {res['facts']['participants']}; two-interval forced choice &ldquo;{esc(task['question'])}&rdquo;, "
                 f"{task['trials']} {esc(task['method'])} trials per condition.</p>")
-    if res["conditions"]:
-        rows = "".join(f"<tr><td>{esc(c['condition'])}</td><td>{c['n']}</td><td>{_pct(c['geometric_mean'])} [{_pct(c['gm_low'])}, {_pct(c['gm_high'])}]</td>"
-                       f"<td>{_pct(c['median'])}</td></tr>" for c in res["conditions"])
-        body.append(f"<table><tr><th>Condition</th><th>N</th><th>Weber fraction, geometric mean [95% CI]</th><th>median</th></tr>{rows}</table>")
+    first, per = tables(res) if res["weber"] else ({}, {})
+
+    def table(t: dict) -> str:
+        head = "".join(f"<th>{esc(h)}</th>" for h in t["columns"])
+        rows = "".join("<tr>" + "".join(f"<td>{esc(cell)}</td>" for cell in row) + "</tr>" for row in t["rows"])
+        return f"<h3>{esc(t['title'])}</h3><table><tr>{head}</tr>{rows}</table><p>{esc(t['note'])}</p>"
+
+    if first:
+        body.append(table(first))
     if res["group"]:
         body.append(f"<p>{esc(_group_text(res['group']))}</p>")
     if res["weber"]:
@@ -176,10 +228,7 @@ def html_section(res: dict, study) -> str:
             img = _inline_png(lambda path, c=c: psychometric_plot(t[t["condition"] == c["condition"]], [r for r in res["weber"] if r["condition"] == c["condition"]],
                                                                    c["condition"], path, res["facts"]["synthetic"]))
             body.append(f'<figure><img alt="psychometric {esc(c["condition"])}" src="data:image/png;base64,{img}"></figure>')
-        head = "".join(f"<th>{esc(h)}</th>" for h in ("Participant", "Condition", "trials", "% correct", "Weber [95% CI]", "lapse"))
-        rows = "".join(f"<tr><td>{esc(r['code'])}</td><td>{esc(r['condition'])}</td><td>{r['n_trials']}</td><td>{_pct(r['p_correct'])}</td>"
-                       f"<td>{_pct(r['weber'])} [{_pct(r['ci_low'])}, {_pct(r['ci_high'])}]</td><td>{_pct(r['lapse'])}</td></tr>" for r in res["weber"])
-        body.append(f"<table><tr>{head}</tr>{rows}</table>")
+        body.append(table(per))
     return "<h2>Stiffness discrimination</h2>" + "".join(body)
 
 

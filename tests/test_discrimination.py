@@ -311,10 +311,9 @@ def test_synthetic_participants_weber_fractions_are_recovered(tmp_path):
     """20 synthetic participants, 40 QUEST+ trials each on the plate-spring (1 s pulls), through
     the simulator, the observer and `studyctl report jnd --json`: each participant's fitted Weber
     fraction against the one it was generated with (stored in synthetic_traits). Measured with
-    this seed: median absolute relative error 21.8% (the issue's bound: 25%), and the bootstrap
-    95% intervals cover 18 of 20 (90%; the bound: 88-99%, i.e. 18 or 19 of 20). Not every seed
-    meets the bounds: seeds 2 and 3 give 26.7% and 30.8%, covering 16 and 19 of 20 (the spread
-    of a 40-trial estimate on this shallow a function is about the bound; docs/study.md)."""
+    this seed (the reports' "thurstone" fit): median absolute relative error 23.0% (bound 25%),
+    and the bootstrap 95% intervals cover 18 of 20 (90%; the bound: 18 or 19 of 20). Seeds 2
+    and 3: 22.5% and 22.6%, covering 17 and 19 of 20 (docs/study.md)."""
     from studyctl.synthetic import run_synthetic_study
     from tests.test_study import studyctl
 

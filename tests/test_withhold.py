@@ -132,3 +132,19 @@ def test_every_report_at_small_n_prints_only_valid_statistics(studies, n):
     if n == 2:  # a Wilcoxon pair is run, with the warning that it cannot reach 0.05
         pairs = [p for v in st["kinds"]["ratings"].values() for p in v["pairs"] if p["p_value"] is not None]
         assert pairs and all("cannot reach p < 0.05" in p["warning"] for p in pairs)
+
+
+def test_report_jnd_says_what_a_small_group_cannot_give(tmp_path):
+    """Two participants: the geometric mean's interval is printed with the warning that it is wide;
+    every participant's row names its fit flag and QUEST+'s own estimate, in Markdown and HTML."""
+    from tests.test_discrimination import jnd_protocol
+
+    db = tmp_path / "s.db"
+    assert studyctl("synth", "--db", db, "--protocol", jnd_protocol(tmp_path, trials=12), "--participants", 2, "--seed", 4).exit_code == 0
+    md = studyctl("report", "jnd", "--db", db).output
+    assert "N = 2: a t interval on 1 df is wide" in md and "| fit flag | QUEST+ estimate | generating |" in md
+    html = studyctl("report", "jnd", "--db", db, "--format", "html").output
+    assert "QUEST+ estimate" in html and "recovery: median abs. error, CI coverage" in html and "N = 2: a t interval" in html
+    js = json.loads(studyctl("report", "jnd", "--db", db, "--format", "json").output)
+    assert js["facts"]["fit"]["function"] == "thurstone" and js["conditions"][0]["gm_warning"]
+    _check_text(md, 2, "jnd")
