@@ -187,7 +187,10 @@ def _group_text(g: dict) -> str:
     """The group test in one paragraph (keys of analysis.psychometric.group_test)."""
     parts = []
     mm = g.get("mixed_model") or {}
-    if mm:
+    if mm and mm.get("converged") is False:
+        parts.append("Mixed model of log Weber fraction on condition: not tested (the fit did not converge"
+                     + (f": {mm['problem']}" if mm.get("problem") else "") + ").")
+    elif mm:
         parts.append(f"Mixed model of log Weber fraction on condition (participant as random intercept): likelihood-ratio chi2({mm.get('df')}) = "
                      f"{_p(mm.get('chi2'))}, p = {_p(mm.get('p'))}.")
     fr = g.get("friedman") or {}

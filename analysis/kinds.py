@@ -361,7 +361,7 @@ def kind_tables(kinds: dict, models: list[str], scope: str) -> list[dict]:
         out.append({"title": "Ratings", "columns": ["Question", *(f"{m}: median [IQR]" for m in models), "Friedman chi2 (p), Kendall's W [95% CI]",
                                                   f"Wilcoxon p, {scope} (rank-biserial r [95% CI])"], "rows": rows,
                     "note": f"{'/'.join(map(str, points))}-point ratings (1 = the low anchor). Friedman across the conditions (tie-corrected); "
-                            "Wilcoxon signed-rank pairs; intervals of W and r: BCa bootstrap over participants. "
+                            "Wilcoxon signed-rank pairs; interval of r: BCa bootstrap over participants, of W: percentile bootstrap (W is bounded at 0, where BCa fails). "
                             + ordinal_gee_line(kinds.get("ordinal_gee"))})
     if kinds["scores"]:
         rows = []

@@ -430,7 +430,7 @@ def kendall_w_ci(matrix, n_resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOO
     m = m[np.isfinite(m).all(axis=1)]
     n, k = m.shape
     if n == 0 or k < 2:
-        return {"kendall_w": NAN, "ci_low": NAN, "ci_high": NAN, "n": int(n), "method": BOOTSTRAP_METHOD}
+        return {"kendall_w": NAN, "ci_low": NAN, "ci_high": NAN, "n": int(n), "method": PERCENTILE_METHOD}
     ranks = stats.rankdata(m, axis=1)
     ties = np.array([float(np.sum(c**3 - c)) for c in (np.unique(row, return_counts=True)[1] for row in m)])
 

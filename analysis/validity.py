@@ -33,9 +33,11 @@ from analysis.stats import holm
 
 BOTH = "both"  # analysis.metrics' hand of the bimanual metrics
 SCORE_COLUMNS = ["code", "condition", "metric", "value", "n_values"]
-KRUSKAL_COLUMNS = ["metric", "condition", "k", "n", "H", "df", "p", "p_holm"]
-PAIR_COLUMNS = ["metric", "condition", "a", "b", "n_a", "n_b", "median_a", "median_b", "U", "p", "p_holm",
-                "cliffs_delta", "delta_low", "delta_high"]
+KRUSKAL_COLUMNS = ["metric", "condition", "test", "k", "n", "H", "df", "p", "p_holm", "reason"]
+PAIR_COLUMNS = ["metric", "condition", "test", "a", "b", "n_a", "n_b", "median_a", "median_b", "U", "p", "p_holm",
+                "cliffs_delta", "delta_low", "delta_high", "reason"]
+KRUSKAL = "Kruskal-Wallis H (tie-corrected)"
+MANN_WHITNEY = "Mann-Whitney U, two-sided (U: of the first group)"
 DESCRIPTIVE_COLUMNS = ["metric", "condition", "group", "n", "median", "q1", "q3", "iqr"]
 FIXED_COLUMNS = ["metric", "term", "coef", "se", "z", "p", "converged"]
 CURVE_COLUMNS = ["metric", "condition", "group", "n_participants", "n_trials", "y0", "plateau", "rate",
@@ -192,6 +194,16 @@ def _mannwhitney_p(x: np.ndarray, labels: np.ndarray, a: int, b: int) -> np.ndar
     return np.where((n1 > 0) & (n2 > 0), p, np.nan)
 
 
+def _rank_reason(present: list[np.ndarray]) -> str | None:
+    """Why a rank test across these groups' values is not run, or None."""
+    if len(present) < 2:
+        return "fewer than two groups with values"
+    values = np.concatenate(present)
+    if np.ptp(values) == 0:
+        return f"every value is {float(values[0]):g}: no variation to rank"
+    return None
+
+
 def group_tests(scores: pd.DataFrame, groups: pd.Series, order: Sequence[str] | None = None,
                 n_boot: int = 2000, seed: int = 0, n_perm: int = 0) -> GroupTests:
     """Kruskal-Wallis across the groups per metric and condition, then two-sided Mann-Whitney U
@@ -224,11 +236,12 @@ def group_tests(scores: pd.DataFrame, groups: pd.Series, order: Sequence[str] | 
                          "q1": q1, "q3": q3, "iqr": q3 - q1})
         present = [v for v in vals.values() if len(v)]
         H = p = np.nan
-        if len(present) >= 2 and np.ptp(np.concatenate(present)) > 0:  # every value the same: no test
+        reason = _rank_reason(present)
+        if reason is None:
             res = stats.kruskal(*present)
             H, p = float(res.statistic), float(res.pvalue)
-        kw.append({"metric": metric, "condition": condition, "k": len(present), "n": sum(map(len, present)),
-                   "H": H, "df": len(present) - 1, "p": p})
+        kw.append({"metric": metric, "condition": condition, "test": KRUSKAL, "k": len(present), "n": sum(map(len, present)),
+                   "H": H, "df": len(present) - 1, "p": p, "reason": reason})
         if n_perm > 0:
             x = d["value"].to_numpy(float)
             lt = labels[:, np.searchsorted(codes, d["code"].to_numpy())]
@@ -236,17 +249,18 @@ def group_tests(scores: pd.DataFrame, groups: pd.Series, order: Sequence[str] | 
         for ia, ib in itertools.combinations(range(len(order)), 2):
             ga, gb = order[ia], order[ib]
             a, b = vals[ga], vals[gb]
-            row = {"metric": metric, "condition": condition, "a": ga, "b": gb, "n_a": len(a), "n_b": len(b),
+            reason = _rank_reason([v for v in (a, b) if len(v)])
+            row = {"metric": metric, "condition": condition, "test": MANN_WHITNEY, "a": ga, "b": gb, "n_a": len(a), "n_b": len(b),
                    "median_a": np.median(a) if len(a) else np.nan, "median_b": np.median(b) if len(b) else np.nan,
-                   "U": np.nan, "p": np.nan, "cliffs_delta": np.nan, "delta_low": np.nan, "delta_high": np.nan}
-            if len(a) and len(b):
+                   "U": np.nan, "p": np.nan, "cliffs_delta": np.nan, "delta_low": np.nan, "delta_high": np.nan, "reason": reason}
+            if reason is None:
                 res = stats.mannwhitneyu(a, b, alternative="two-sided")
                 lo, hi = cliffs_delta_interval(a, b, n_boot=n_boot, seed=seed)
                 row |= {"U": float(res.statistic), "p": float(res.pvalue), "cliffs_delta": cliffs_delta(a, b),
                         "delta_low": lo, "delta_high": hi}
             pairs.append(row)
             if n_perm > 0:
-                pair_perm.append(_mannwhitney_p(x, lt, ia, ib) if len(a) and len(b) else np.full(len(lt), np.nan))
+                pair_perm.append(_mannwhitney_p(x, lt, ia, ib) if reason is None else np.full(len(lt), np.nan))
     kw_df = pd.DataFrame(kw, columns=[c for c in KRUSKAL_COLUMNS if c != "p_holm"])
     kw_df.insert(len(kw_df.columns), "p_holm", holm(kw_df["p"]))
     pair_df = pd.DataFrame(pairs, columns=[c for c in PAIR_COLUMNS if c != "p_holm"])

@@ -351,17 +351,22 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
     for k in kw.to_dict(orient="records"):
         d = desc[(desc["metric"] == k["metric"]) & (desc["condition"] == k["condition"])].set_index("group")
         meds = [f"{_g(d.loc[g, 'median'])} {_ci(d.loc[g, 'q1'], d.loc[g, 'q3'])}" if g in d.index else "-" for g in order]
-        rows.append([k["metric"], _unit(k["metric"]), k["condition"], *meds, _g(k["H"]), _p(k["p"]), _p(k["p_holm"]), _p(k["p_wy"])])
+        tested = k.get("reason") is None
+        rows.append([k["metric"], _unit(k["metric"]), k["condition"], *meds, _g(k["H"]) if tested else "-",
+                     _p(k["p"]) if tested else f"not tested: {k['reason']}", _p(k["p_holm"]), _p(k["p_wy"])])
+    n_kw = int(kw["reason"].isna().sum()) if "reason" in kw else len(kw)
     out.append(("Group comparisons", f"Kruskal-Wallis across the groups per metric and condition (each participant's mean over trials "
-                f"and hands); p_holm: Holm over the family of all {len(kw)} Kruskal-Wallis tests (a metric with no variation is not "
-                "tested, and counts in the family as p = 1); p_wy: Westfall-Young step-down min-p over the same family, "
+                f"and hands); p_holm: Holm over the family of the {n_kw} Kruskal-Wallis tests run (a metric with no variation, or "
+                "values in fewer than two groups, is not tested and not in the family); p_wy: Westfall-Young step-down min-p over the same family, "
                 f"{rep['settings']['group_permutations']} permutations of the participants' group labels (keeps the correlation "
                 "between the metrics, which makes Holm conservative).", cols, rows))
     rows = [[r["metric"], r["condition"], f"{r['a']} vs {r['b']}", _g(r["U"]), _p(r["p"]), _p(r["p_holm"]), _p(r["p_wy"]),
              f"{_g(r['cliffs_delta'], '{:.2f}')} [{_g(r['delta_low'], '{:.2f}')}, {_g(r['delta_high'], '{:.2f}')}]"]
+            if r.get("reason") is None else [r["metric"], r["condition"], f"{r['a']} vs {r['b']}", "-", f"not tested: {r['reason']}", "-", "-", "-"]
             for r in pairs.to_dict(orient="records")]
-    out.append(("Pairwise comparisons", f"Two-sided Mann-Whitney U for every pair of groups; p_holm: Holm over the family of all "
-                f"{len(pairs)} pairwise tests (metrics x conditions x pairs); p_wy: Westfall-Young step-down min-p over the same "
+    n_pairs = int(pairs["reason"].isna().sum()) if "reason" in pairs else len(pairs)
+    out.append(("Pairwise comparisons", f"Two-sided Mann-Whitney U for every pair of groups; p_holm: Holm over the family of the "
+                f"{n_pairs} pairwise tests run (metrics x conditions x pairs); p_wy: Westfall-Young step-down min-p over the same "
                 "family (the same permutations; raw p from the normal approximation); Cliff's delta of the first group over the second "
                 f"(positive: higher values in the first) with its bootstrap percentile 95% interval ({rep['settings']['bootstrap']} "
                 "replicates, participants resampled within each group).",
@@ -371,15 +376,21 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
     if mm["reason"]:
         out.append(("Mixed model", f"Not fitted: {mm['reason']}.", [], []))
     else:
-        rows = [[r["metric"], r["term"], _g(r["coef"]), _g(r["se"]), _g(r["z"]), _p(r["p"]), "yes" if r["converged"] else "NO"]
+        rows = [[r["metric"], r["term"], _g(r["coef"]), _g(r["se"]), _g(r["z"]), _p(r["p"]), "yes"] if r["converged"] else
+                [r["metric"], r["term"], "-", "-", "-", "not tested: the fit did not converge", "NO"]
                 for r in mm["fixed"].to_dict(orient="records")]
         rows += [[r["metric"], "not fitted: " + r["reason"], "", "", "", "", ""] for r in mm["skipped"].to_dict(orient="records")]
         out.append(("Mixed model", "Per metric, value ~ group + condition + trial with a random intercept per participant "
                     f"(statsmodels MixedLM, REML; references: {order[0]} and the first condition alphabetically); Wald p, not adjusted.",
                     ["metric", "term", "coef", "se", "z", "p", "converged"], rows))
 
-    rows = [[r["metric"], r["condition"], r["group"], r["n_participants"], _g(r["y0"]), f"{_g(r['plateau'])} {_ci(r['plateau_low'], r['plateau_high'])}",
-             f"{_g(r['rate'])} {_ci(r['rate_low'], r['rate_high'])}", f"{r['n_boot_ok']}/{r['n_boot']}"]
+    def curve_ci(lo, hi) -> str:  # an interval of fewer than two distinct replicates says nothing
+        return _ci(lo, hi) if lo == lo and hi == hi and hi > lo else "(no interval)"
+
+    rows = [[r["metric"], r["condition"], r["group"], r["n_participants"], _g(r["y0"]), f"{_g(r['plateau'])} {curve_ci(r['plateau_low'], r['plateau_high'])}",
+             f"{_g(r['rate'])} {curve_ci(r['rate_low'], r['rate_high'])}", f"{r['n_boot_ok']}/{r['n_boot']}"]
+            if r["plateau"] == r["plateau"] else [r["metric"], r["condition"], r["group"], r["n_participants"], "-", "no fit", "no fit",
+                                                  f"{r['n_boot_ok']}/{r['n_boot']}"]
             for r in rep["learning_curves"].to_dict(orient="records")]
     out.append(("Learning curves", "Per metric, condition and group: the group's mean per trial fitted with y = plateau + (y0 - plateau) "
                 "exp(-rate (trial - 1)); 95% percentile intervals of plateau and rate from bootstrap replicates resampling the group's "

@@ -4,6 +4,7 @@ count for Cliff's delta, statsmodels for Holm, known parameters for the learning
 model and the classifier. Inputs: tidy tables in analysis.metrics' format, built here."""
 
 import itertools
+import math
 
 import numpy as np
 import pandas as pd
@@ -164,7 +165,8 @@ def test_westfall_young_matches_a_brute_force_reference():
     scores, groups = _wy_example()
     res = v.group_tests(scores, groups, ORDER, n_boot=20, seed=7, n_perm=150)
     kw_wy, pair_wy, kw_single, pair_single = _wy_reference(scores, groups, ORDER, 150, 7)
-    assert list(res.kruskal.columns) == v.KRUSKAL_COLUMNS + ["p_wy"]
+    assert list(res.kruskal.columns) == [*v.KRUSKAL_COLUMNS[:v.KRUSKAL_COLUMNS.index("p_holm") + 1], "p_wy",
+                                         *v.KRUSKAL_COLUMNS[v.KRUSKAL_COLUMNS.index("p_holm") + 1:]]
     assert list(res.pairs.columns) == [*v.PAIR_COLUMNS[:v.PAIR_COLUMNS.index("p_holm") + 1], "p_wy",
                                        *v.PAIR_COLUMNS[v.PAIR_COLUMNS.index("p_holm") + 1:]]
     np.testing.assert_allclose(res.kruskal["p_wy"], kw_wy, rtol=0, atol=1e-12)
@@ -251,7 +253,8 @@ def test_holm_matches_statsmodels():
 def test_group_tests_constant_metric_gives_nan_not_error():
     m, groups = make_metrics({"student": {"x": 1.0}, "neurosurgeon": {"x": 1.0}}, n_per_group=4, sd=0.0)
     res = v.group_tests(v.participant_scores(m), groups, ["student", "neurosurgeon"], n_boot=50)
-    assert np.isnan(res.kruskal["H"].item()) and res.pairs["cliffs_delta"].item() == 0.0
+    assert np.isnan(res.kruskal["H"].item()) and np.isnan(res.pairs["cliffs_delta"].item())  # not tested: no variation
+    assert res.pairs["reason"].item() == "every value is 1: no variation to rank"
 
 
 TRUTH = {"student": (10.0, 4.0, 0.5), "neurosurgeon": (6.0, 3.0, 1.2)}  # y0, plateau, rate
@@ -339,3 +342,22 @@ def test_classifier_at_chance_when_groups_are_identical():
     m, groups = make_metrics({"student": same, "neurosurgeon": same}, n_per_group=8, trials=1, seed=7)
     res = v.classify(v.participant_scores(m), groups, ["student", "neurosurgeon"], n_permutations=60, seed=0)
     assert res.accuracy <= 0.65 and res.p_value > 0.05
+
+
+def test_an_invariant_metric_is_not_tested_and_says_why():
+    """A metric every participant scores alike (e.g. a count that is 0 throughout): no
+    Kruskal-Wallis, no Mann-Whitney, no Cliff's delta: null with the reason, not p = 1 and a
+    collapsed [0, 0]; each test names itself; Holm counts only the tests run."""
+    scores, groups = _scores()
+    flat = scores[scores["metric"] == "path_length"].assign(metric="grasp_losses", value=0.0)
+    res = v.group_tests(pd.concat([scores, flat], ignore_index=True), groups, ORDER, n_boot=50)
+    kw = res.kruskal.set_index(["metric", "condition"])
+    row = kw.loc[("grasp_losses", "fem")]
+    assert math.isnan(row["p"]) and math.isnan(row["p_holm"]) and row["reason"] == "every value is 0: no variation to rank"
+    assert set(res.kruskal["test"]) == {v.KRUSKAL} and set(res.pairs["test"]) == {v.MANN_WHITNEY}
+    pairs = res.pairs[res.pairs["metric"] == "grasp_losses"]
+    assert pairs["p"].isna().all() and pairs["cliffs_delta"].isna().all() and pairs["reason"].notna().all()
+    tested = res.kruskal[res.kruskal["reason"].isna()]
+    from analysis.stats import holm
+
+    assert np.allclose(tested["p_holm"], holm(tested["p"]))  # the family: the tests run

@@ -166,8 +166,8 @@ def test_markdown_structure(db, built):
     assert lines[i + 4] == ("| metric | unit | condition | student: median [IQR] | resident: median [IQR] | neurosurgeon: median [IQR] "
                             "| H | p | p_holm | p_wy |")
     assert lines[i + 6].startswith("| path_length | m | plate_spring | ") and lines[i + 7].startswith("| sparc | 1 | plate_spring | ")
-    assert "Holm over the family of all 2 Kruskal-Wallis tests" in lines[i + 2]
-    assert "Holm over the family of all 6 pairwise tests (metrics x conditions x pairs)" in md
+    assert "Holm over the family of the 2 Kruskal-Wallis tests run" in lines[i + 2]
+    assert "Holm over the family of the 6 pairwise tests run (metrics x conditions x pairs)" in md
     assert "p_wy: Westfall-Young step-down min-p over the same family, 1000 permutations" in lines[i + 2]
     assert "| pair | U | p | p_holm | p_wy | Cliff's delta [95% CI] |" in md
     assert "Not fitted: one condition (plate_spring): no condition effect to model" in md
