@@ -22,6 +22,12 @@ KNOWN_MODELS = ("fem", "mass_spring", "plate_spring")
 MAX_CONDITIONS = 8
 DESIGNS = ("williams",)
 LATENCY_MEASURES = ("deformation_ms", "tick_interval_p99_us", "read_to_force_us", "tick_compute_us")
+DEFAULT_LATENCY = ("deformation_ms", "tick_interval_p99_us", "read_to_force_us")  # [latency] left out, with free trials
+DEFAULT_AGES = (18, 120)  # [inclusion] left out: adults
+# what to write for a missing section (the error says it)
+SECTION_HINTS = {"study": 'name = "my_study", target_participants = 20, scene = "scenes/brain_pull.toml"',
+                 "design": 'conditions = ["fem", "plate_spring"], counterbalancing = "williams", training_minutes = 2.0, '
+                           'trials_per_condition = 3, trial_seconds = 3.0'}
 ID_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
@@ -102,7 +108,8 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
         return None, [f"{path}:{m.group(1) if m else 1}: invalid TOML: {exc}"]
     c = _Checker(path, loc)
     _unknown_keys(data, c)
-    study, design, inclusion, latency = c.table(data, "study"), c.table(data, "design"), c.table(data, "inclusion"), c.table(data, "latency")
+    study, design = c.table(data, "study"), c.table(data, "design")
+    inclusion, latency = c.table(data, "inclusion", required=False), c.table(data, "latency", required=False)
     meta = _study_fields(study, data.get("ethics", {}) if isinstance(data.get("ethics", {}), dict) else {}, path, c)
     tables = _condition_tables(data.get("conditions", {}), c.bad)
     conditions = _design_conditions(design, tables, c)
@@ -124,12 +131,13 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     elif trial_end == "targets" and scene_spec is not None and not any(h.target is not None for h in scene_spec.hands):
         c.bad("design.trial_end", f"'targets' needs a target on a hand of the scene {scene} ([hands.target]); it has none")
 
-    age_min = c.get(inclusion, "inclusion", "age_min", int, lo=0, hi=120)
-    age_max = c.get(inclusion, "inclusion", "age_max", int, lo=0, hi=120)
+    age_min = c.get(inclusion, "inclusion", "age_min", int, default=DEFAULT_AGES[0], lo=0, hi=120, required=False)
+    age_max = c.get(inclusion, "inclusion", "age_max", int, default=DEFAULT_AGES[1], lo=0, hi=120, required=False)
     if age_min is not None and age_max is not None and age_min > age_max:
         c.bad("inclusion.age_max", f"{age_max} is below age_min {age_min}")
 
-    measures = c.get(latency, "latency", "measures", list, default=[], required=False)
+    # without [latency]: the three measures of the paper's study where there are free trials to time
+    measures = c.get(latency, "latency", "measures", list, default=list(DEFAULT_LATENCY) if trials else [], required=False)
     for m in measures or []:
         if m not in LATENCY_MEASURES:
             c.bad("latency.measures", f"unknown measure {m!r}; allowed: {', '.join(LATENCY_MEASURES)}")
@@ -172,10 +180,12 @@ class _Checker:
     def bad(self, field: str, message: str) -> None:
         self.problems.append(f"{self.path}:{self.loc.line(field)}: {field}: {message}")
 
-    def table(self, data: dict, name: str) -> dict:
+    def table(self, data: dict, name: str, required: bool = True) -> dict:
         t = data.get(name)
         if t is None:
-            self.bad(name, "missing section")
+            if required:
+                hint = SECTION_HINTS.get(name)
+                self.bad(name, "missing section" + (f"; write [{name}] with {hint} (docs/study.md lists every key)" if hint else ""))
             return {}
         if not isinstance(t, dict):
             self.bad(name, "must be a table")

@@ -3,6 +3,7 @@ trap reproduced through the CLI first, then refused or made explicit."""
 
 import csv
 import sqlite3
+from pathlib import Path
 
 import pytest
 
@@ -144,3 +145,58 @@ def test_names_contacts_and_reasons_with_control_characters_are_refused(tmp_path
     con = sqlite3.connect(db)
     assert con.execute("select count(*) from participants").fetchone()[0] == 1
     assert con.execute("select count(*) from participants where withdrawn_at is not null").fetchone()[0] == 0
+
+
+@pytest.mark.parametrize("kind", ["yes_no", "rating", "discrimination", "validity"])
+def test_protocol_new_writes_a_protocol_that_validates_and_runs_from_its_own_folder(tmp_path, kind):
+    import json as _json
+    import os
+
+    out = tmp_path / "lab" / "study"
+    res = studyctl("protocol", "new", "--kind", kind, "--out", out, "--name", "my_study", "--json")
+    assert res.exit_code == 0, res.output
+    made = _json.loads(res.output)
+    assert made["name"] == "my_study" and (out / "protocol.toml").exists() and (out / "scene.toml").exists()
+    assert "../" not in (out / "scene.toml").read_text()  # every path resolves from anywhere
+    elsewhere = tmp_path / "other"
+    elsewhere.mkdir()
+    cwd = os.getcwd()
+    try:
+        os.chdir(elsewhere)
+        res = studyctl("protocol", "validate", out / "protocol.toml")
+    finally:
+        os.chdir(cwd)
+    assert res.exit_code == 0 and "my_study" in res.output, res.output
+    res = studyctl("protocol", "new", "--kind", kind, "--out", out)
+    assert res.exit_code != 0 and "exists; `protocol new` never overwrites" in res.output
+
+
+def test_inclusion_and_latency_have_documented_defaults_and_a_missing_section_says_what_to_write(tmp_path):
+    from studyctl.protocol import DEFAULT_AGES, DEFAULT_LATENCY, load_protocol
+
+    proto = fast_protocol(tmp_path)
+    text = proto.read_text()
+    for section in ("[inclusion]", "[latency]"):
+        start = text.index(section)
+        end = text.index("\n[", start + 1)
+        text = text[:start] + text[end + 1:]
+    proto.write_text(text)
+    p = load_protocol(proto)
+    assert (p.age_min, p.age_max) == DEFAULT_AGES and p.latency_measures == DEFAULT_LATENCY
+    start = text.index("[study]")
+    end = text.index("\n[", start + 1)
+    proto.write_text(text[:start] + text[end + 1:])
+    res = studyctl("protocol", "validate", proto)
+    assert res.exit_code != 0 and "study: missing section; write [study] with name = " in res.output
+    docs = (Path(__file__).resolve().parents[1] / "docs/study.md").read_text()
+    assert "`[inclusion]` left out: adults, 18-120" in docs and "`[latency]` left out:" in docs
+
+
+def test_docs_list_every_section_and_key_the_validator_knows():
+    from studyctl.protocol import SECTIONS
+
+    docs = (Path(__file__).resolve().parents[1] / "docs/study.md").read_text()
+    for section, keys in SECTIONS.items():
+        assert f"`[{section}" in docs or f"`[[{section}]]`" in docs, section
+        for key in keys or ():
+            assert f"`{key}`" in docs, (section, key)

@@ -15,6 +15,25 @@ def protocol():
     """Study protocol files."""
 
 
+@protocol.command("new")
+@click.option("--kind", type=click.Choice(["yes_no", "rating", "discrimination", "validity"]), required=True,
+              help="yes_no: the paper's study; rating: ratings, SUS and a choice; discrimination: stiffness JND; validity: construct validity.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="The folder for protocol.toml and scene.toml.")
+@click.option("--name", default=None, help="The study's name (lower-case letters, digits, _)  [default: the example's]")
+@JSON
+def protocol_new(kind: str, out_dir: Path, name: str | None, as_json: bool):
+    """Write a protocol and its scene of a kind into a folder of your own, from the shipped example,
+    with every path resolving from there; edit them, then `protocol validate`."""
+    from studyctl.templates import new_protocol
+
+    out = new_protocol(kind, out_dir, name)
+    if as_json:
+        _print_json(out)
+        return
+    click.echo(f"wrote {out['protocol']} ({out['name']}, from {Path(out['from']).name}) and {out['scene']}; "
+               f"check your edits with `studyctl protocol validate {out['protocol']}`")
+
+
 @protocol.command("validate")
 @click.argument("file", type=click.Path(dir_okay=False, path_type=Path))
 @JSON

@@ -1,0 +1,59 @@
+"""`studyctl protocol new`: a lab's own protocol and scene, written from a shipped example of its
+kind into a folder of its own, with every path in them resolving from there."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from studyctl.errors import InputError
+
+KINDS = {  # kind -> the shipped protocol it starts from, and what it is
+    "yes_no": ("brain_pull_2015.toml", "the paper's study: yes/no questions after each model"),
+    "rating": ("plate_spring_variants.toml", "ratings (7-point), a standard instrument (SUS) and a choice at the end"),
+    "discrimination": ("stiffness_jnd.toml", "two-interval stiffness discrimination (QUEST+), Weber fractions per condition"),
+    "validity": ("construct_validity.toml", "construct validity: groups of experience, performance metrics, targets"),
+}
+_RELATIVE = re.compile(r'"((?:\.\./)+[^"]+)"')
+_NAME = re.compile(r"^[a-z][a-z0-9_]{0,63}$")
+
+
+def new_protocol(kind: str, out_dir: str | Path, name: str | None = None) -> dict:
+    """Write OUT/protocol.toml (the `kind`'s shipped example, renamed `name`) and OUT/scene.toml
+    (its scene, the relative paths to the shipped surface, material and model files made
+    absolute); check the protocol; never overwrite. Returns what was written."""
+    from brainsim_assets import path as asset
+    from studyctl.protocol import check_protocol
+
+    if kind not in KINDS:
+        raise InputError(f"--kind: {kind!r} is not a kind; allowed: {', '.join(KINDS)}")
+    if name is not None and not _NAME.match(name):
+        raise InputError(f"--name: {name!r}: lower-case letters, digits and _ (starting with a letter), at most 64")
+    out = Path(out_dir)
+    protocol_path, scene_path = out / "protocol.toml", out / "scene.toml"
+    for p in (protocol_path, scene_path):
+        if p.exists():
+            raise InputError(f"{p}: exists; `protocol new` never overwrites (choose another --out)")
+    source = asset(f"protocols/{KINDS[kind][0]}")
+    text = source.read_text()
+    scene_rel = re.search(r'^scene\s*=\s*"([^"]+)"', text, re.M).group(1)
+    shipped_scene = (source.parent / scene_rel).resolve()
+    scene_text = _RELATIVE.sub(lambda m: f'"{(shipped_scene.parent / m.group(1)).resolve()}"', shipped_scene.read_text())
+    text = re.sub(r'^scene\s*=\s*"[^"]+"(.*)$', r'scene = "scene.toml"\1', text, count=1, flags=re.M)
+    if name is not None:
+        text = re.sub(r'^name\s*=\s*"[^"]+"', f'name = "{name}"', text, count=1, flags=re.M)
+    header = (f"# Written by `studyctl protocol new --kind {kind}` from the shipped {KINDS[kind][0]}: "
+              f"{KINDS[kind][1]}.\n# Edit freely; `studyctl protocol validate protocol.toml` checks it (docs/study.md lists every key).\n")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        scene_path.write_text(f"# Written by `studyctl protocol new` from the shipped {shipped_scene.name}; paths made absolute.\n" + scene_text)
+        protocol_path.write_text(header + text)
+        _, problems = check_protocol(protocol_path)
+    except OSError as exc:
+        raise InputError(f"{out}: cannot write the protocol: {exc.strerror}") from None
+    if problems:  # a bug of the template, never the user's: nothing left behind
+        protocol_path.unlink(missing_ok=True)
+        scene_path.unlink(missing_ok=True)
+        raise InputError(f"{protocol_path}: the template does not validate: {problems[0]}")
+    return {"kind": kind, "from": str(source), "protocol": str(protocol_path), "scene": str(scene_path),
+            "name": re.search(r'^name\s*=\s*"([^"]+)"', text, re.M).group(1)}
