@@ -195,9 +195,13 @@ def _mannwhitney_p(x: np.ndarray, labels: np.ndarray, a: int, b: int) -> np.ndar
 
 
 def _rank_reason(present: list[np.ndarray]) -> str | None:
-    """Why a rank test across these groups' values is not run, or None."""
+    """Why a rank test across these groups' values is not run, or None: two groups or more, each
+    with 2 participants or more (one value a group has no spread to rank against: the
+    approximate p of Kruskal-Wallis is meaningless there, and Mann-Whitney's is always 1)."""
     if len(present) < 2:
         return "fewer than two groups with values"
+    if min(map(len, present)) < 2:
+        return "a group has fewer than 2 participants with values"
     values = np.concatenate(present)
     if np.ptp(values) == 0:
         return f"every value is {float(values[0]):g}: no variation to rank"
@@ -516,6 +520,9 @@ def classify(scores: pd.DataFrame, groups: pd.Series, order: Sequence[str] | Non
     order = [g for g in order if g in set(y)]
     if len(order) < 2:
         raise ValueError("classification needs participants of at least two groups")
+    smallest = pd.Series(y).value_counts().min()
+    if smallest < 2:  # leaving its one participant out leaves the model without that group
+        raise ValueError(f"classification needs 2 or more participants in every group (leave-one-out leaves a group of {smallest} empty)")
     X = wide.to_numpy(float)
     model = make_pipeline(SimpleImputer(strategy="median"), StandardScaler(),
                           LogisticRegression(C=C, class_weight="balanced", max_iter=2000))

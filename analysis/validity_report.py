@@ -351,10 +351,10 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
     for k in kw.to_dict(orient="records"):
         d = desc[(desc["metric"] == k["metric"]) & (desc["condition"] == k["condition"])].set_index("group")
         meds = [f"{_g(d.loc[g, 'median'])} {_ci(d.loc[g, 'q1'], d.loc[g, 'q3'])}" if g in d.index else "-" for g in order]
-        tested = k.get("reason") is None
+        tested = not isinstance(k.get("reason"), str)
         rows.append([k["metric"], _unit(k["metric"]), k["condition"], *meds, _g(k["H"]) if tested else "-",
                      _p(k["p"]) if tested else f"not tested: {k['reason']}", _p(k["p_holm"]), _p(k["p_wy"])])
-    n_kw = int(kw["reason"].isna().sum()) if "reason" in kw else len(kw)
+    n_kw = int(kw["p"].notna().sum())
     out.append(("Group comparisons", f"Kruskal-Wallis across the groups per metric and condition (each participant's mean over trials "
                 f"and hands); p_holm: Holm over the family of the {n_kw} Kruskal-Wallis tests run (a metric with no variation, or "
                 "values in fewer than two groups, is not tested and not in the family); p_wy: Westfall-Young step-down min-p over the same family, "
@@ -362,9 +362,9 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
                 "between the metrics, which makes Holm conservative).", cols, rows))
     rows = [[r["metric"], r["condition"], f"{r['a']} vs {r['b']}", _g(r["U"]), _p(r["p"]), _p(r["p_holm"]), _p(r["p_wy"]),
              f"{_g(r['cliffs_delta'], '{:.2f}')} [{_g(r['delta_low'], '{:.2f}')}, {_g(r['delta_high'], '{:.2f}')}]"]
-            if r.get("reason") is None else [r["metric"], r["condition"], f"{r['a']} vs {r['b']}", "-", f"not tested: {r['reason']}", "-", "-", "-"]
+            if not isinstance(r.get("reason"), str) else [r["metric"], r["condition"], f"{r['a']} vs {r['b']}", "-", f"not tested: {r['reason']}", "-", "-", "-"]
             for r in pairs.to_dict(orient="records")]
-    n_pairs = int(pairs["reason"].isna().sum()) if "reason" in pairs else len(pairs)
+    n_pairs = int(pairs["p"].notna().sum())
     out.append(("Pairwise comparisons", f"Two-sided Mann-Whitney U for every pair of groups; p_holm: Holm over the family of the "
                 f"{n_pairs} pairwise tests run (metrics x conditions x pairs); p_wy: Westfall-Young step-down min-p over the same "
                 "family (the same permutations; raw p from the normal approximation); Cliff's delta of the first group over the second "

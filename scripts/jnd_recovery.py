@@ -21,9 +21,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def protocol(folder: Path, trials: int) -> Path:
-    """The shipped discrimination protocol on the plate-spring alone, 1 s intervals, no training."""
+def protocol(folder: Path, trials: int, shipped: bool = False) -> Path:
+    """The shipped discrimination protocol on the plate-spring alone, 1 s intervals, no training;
+    `shipped`: as shipped (three models, 3 s intervals), `trials` aside."""
     text = (ROOT / "protocols/stiffness_jnd.toml").read_text()
+    if shipped:
+        path = folder / "jnd.toml"
+        path.write_text(text.replace('scene = "scenes/brain_pull.toml"', f'scene = "{ROOT}/protocols/scenes/brain_pull.toml"')
+                        .replace("trials = 40", f"trials = {trials}"))
+        return path
     text = text.replace('scene = "scenes/brain_pull.toml"', f'scene = "{ROOT}/protocols/scenes/brain_pull.toml"')
     text = text.replace('conditions = ["fem", "mass_spring", "plate_spring"]', 'conditions = ["plate_spring"]')
     text = text.replace("trials = 40", f"trials = {trials}").replace("training_minutes = 2.0", "training_minutes = 0.0")
@@ -47,6 +53,7 @@ def main() -> None:
     ap.add_argument("--functions", default="thurstone,gaussian")
     ap.add_argument("--dir", type=Path, default=Path("/tmp/jnd_recovery"))
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--shipped", action="store_true", help="the shipped protocol as it is: fem, mass_spring and plate_spring, 3 s intervals")
     a = ap.parse_args()
     out = {}
     studies = {}
@@ -54,7 +61,7 @@ def main() -> None:
         folder = a.dir / f"seed{seed}"
         shutil.rmtree(folder, ignore_errors=True)
         folder.mkdir(parents=True)
-        run_synthetic_study(folder / "s.db", a.participants, seed=seed, jobs=a.jobs, protocol_path=protocol(folder, a.trials))
+        run_synthetic_study(folder / "s.db", a.participants, seed=seed, jobs=a.jobs, protocol_path=protocol(folder, a.trials, a.shipped))
         with Store(folder / "s.db", mode="read") as store:
             studies[seed] = read_study(store)
     for fn in a.functions.split(","):
@@ -66,6 +73,9 @@ def main() -> None:
             g = np.array([made[c] for c in table["code"]])
             errors[seed] = float(np.median(np.abs(table["weber"].to_numpy() - g) / g))
             covered += list((table["ci_low"].to_numpy() <= g) & (g <= table["ci_high"].to_numpy()))
+            for cond, rows in table.groupby("condition"):  # per condition as well
+                gc = np.array([made[c] for c in rows["code"]])
+                errors[f"{seed} {cond}"] = float(np.median(np.abs(rows["weber"].to_numpy() - gc) / gc))
         out[fn] = {"median_abs_rel_error": errors, "coverage": float(np.mean(covered)), "fits": len(covered)}
     print(json.dumps({"synthetic": True, "participants": a.participants, "trials": a.trials, "functions": out}, indent=2))
 

@@ -68,7 +68,9 @@ def _check_json(st: dict, n: int) -> None:
             assert test["df_denominator"] > 0 and v["mixed_model"]["converged"], (n, item)
 
 
-def _check_text(text: str, n: int, fmt: str) -> None:
+def _check_text(text: str, n: int, fmt: str, bounded: bool = True) -> None:
+    """No NaN or inf, no Holm over no tests, every interval ordered; with `bounded` (the study
+    reports: percentages and 0-100 scores) nothing printed above 100."""
     text = re.sub(r"base64,[A-Za-z0-9+/=]+", "", text)
     bad = re.search(r"\bnan\b|\binf\b", text, re.I)
     assert not bad, (n, fmt, text[max(0, bad.start() - 300):bad.end() + 50])
@@ -79,7 +81,7 @@ def _check_text(text: str, n: int, fmt: str) -> None:
     # nothing above 100 (a percentage, a 0-100 score) before the list of configurations (hashes)
     if fmt == "html":
         text = re.sub(r"<[^>]+>", " ", re.sub(r"<style>.*?</style>", "", text, flags=re.S))
-    over = None if fmt == "latex" else re.search(r"(?<![\w.])(?:10[1-9]|1[1-9]\d|[2-9]\d\d)(?:\.\d+)?(?![\w.])", text.split("Conditions (what each ran")[0])
+    over = None if fmt == "latex" or not bounded else re.search(r"(?<![\w.])(?:10[1-9]|1[1-9]\d|[2-9]\d\d)(?:\.\d+)?(?![\w.])", text.split("Conditions (what each ran")[0])
     assert not over, (n, fmt, over and text[over.start() - 80:over.end() + 20])
 
 
@@ -148,3 +150,24 @@ def test_report_jnd_says_what_a_small_group_cannot_give(tmp_path):
     js = json.loads(studyctl("report", "jnd", "--db", db, "--format", "json").output)
     assert js["facts"]["fit"]["function"] == "thurstone" and js["conditions"][0]["gm_warning"]
     _check_text(md, 2, "jnd")
+
+
+def test_report_validity_with_one_participant_per_group_tests_nothing_and_says_why(tmp_path):
+    from tests.test_fields import field_protocol
+
+    db = tmp_path / "s.db"
+    res = studyctl("synth", "--db", db, "--protocol", field_protocol(tmp_path, conditions=("plate_spring",), trials=2), "--participants", 3, "--seed", 3)
+    assert res.exit_code == 0, res.output
+    for fmt in ("md", "html"):
+        text = studyctl("report", "validity", "--db", db, "--format", fmt).output
+        _check_text(text, 3, f"validity {fmt}", bounded=False)  # (counts of permutations and replicates)
+        assert "not tested: a group has fewer than 2 participants with values" in text
+        assert "classification needs 2 or more participants in every group" in text
+    js = json.loads(studyctl("report", "validity", "--db", db, "--format", "json").output)
+    _check_json_tests(js)
+
+
+def _check_json_tests(js: dict) -> None:
+    for path, d in _walk(js):
+        if "test" in d and "p" in d:  # validity's tests: p, or null with the reason
+            assert (d["p"] is not None and not d.get("reason")) or (d["p"] is None and d.get("reason")), (path, d)
