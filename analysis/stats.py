@@ -207,8 +207,38 @@ def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | N
         }
     kinds = kind_stats(study, every)
     _holm_family(items, holm_scope, family_pairs(kinds))
-    return {"facts": study_facts(study), "holm": holm_scope, "items": items, "gee": study_gee(study, answers, protocol_models),
+    gee = study_gee(study, answers, protocol_models)
+    _name_tests(kinds, gee)
+    return {"facts": study_facts(study), "holm": holm_scope, "items": items, "gee": gee,
             "kinds": kinds, "deformation": {"label": DEFORMATION_LABEL, "rows": deformation(study).to_dict(orient="records")}}
+
+
+PAIR_TESTS = {"scores": "t contrast of the linear mixed model (between-within df)",
+              "choices": "exact binomial test of the two conditions' counts",
+              "ordinal_gee": "Wald t of the proportional-odds GEE (participants - 1 df)",
+              "gee": "Wald z of the logistic GEE (robust covariance)"}
+
+
+def _name_tests(kinds: dict, gee: dict) -> None:
+    """Every pairwise test in the JSON names itself (`test`), and one that could not be made says
+    why (`reason`), as the rank and McNemar tests already do."""
+    def name(pairs, test: str, problems=()) -> None:
+        for p in pairs or []:
+            p.setdefault("test", test)
+            if p.get("p_value") is None or not np.isfinite(p["p_value"]):
+                p.setdefault("reason", "; ".join(problems) or "not estimable")
+
+    for v in kinds["scores"].values():
+        problems = v["mixed_model"].get("problems") or []
+        name(v["pairs"], PAIR_TESTS["scores"], problems)
+        name(v["mixed_model"]["pairs"], PAIR_TESTS["scores"], problems)
+    for v in kinds["choices"].values():
+        name(v["pairs"], PAIR_TESTS["choices"])
+    if kinds.get("ordinal_gee"):
+        name(kinds["ordinal_gee"]["pairs"], PAIR_TESTS["ordinal_gee"], kinds["ordinal_gee"].get("problems") or [])
+    for part in [gee.get("composite")] + list((gee.get("items") or {}).values()):
+        if part:
+            name(part.get("pairs"), PAIR_TESTS["gee"], part.get("problems") or [])
 
 
 def _set_holm(pairs: list[dict], key: str = "p_holm") -> None:
