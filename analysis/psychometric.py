@@ -590,8 +590,8 @@ def _json(v):
 def _holm(p: list[float]) -> list[float]:
     from analysis.stats import holm
 
-    # a test that could not be made counts as p = 1 in the family (as analysis.plan does)
-    return holm([x if np.isfinite(x) else 1.0 for x in p])
+    # a test that could not be made is not in the family (analysis/withhold.py's rule)
+    return holm(p)
 
 
 def group_test(table: pd.DataFrame, conditions: list[str] | None = None) -> dict:
