@@ -53,7 +53,15 @@ def _quest_estimates(study, task: int) -> dict:
 
 
 def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) -> dict:
-    from analysis.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, group_test, weber_table
+    from analysis.psychometric import (
+        DEFAULT_FUNCTION,
+        LAPSE_MAX,
+        N_BOOT,
+        POOLED_MIN,
+        group_test,
+        pooled_webers,
+        weber_table,
+    )
 
     protocol = study.protocol
     spec = protocol.tasks[task]
@@ -73,7 +81,9 @@ def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) 
                       "trials": spec.trials, "reference": spec.reference, "question": spec.question, "range": [spec.low, spec.high]}}
     if not len(table):
         return {"facts": facts, "weber": [], "conditions": [], "group": None}
-    table = table.copy()
+    table = table.merge(pooled_webers(t), on=["code", "condition"], how="left")
+    facts["pooled"] = (f"each participant's Weber fraction pooled with the condition's others (empirical Bayes: ln weber normal over "
+                       f"the participants, the observer's likelihood; {POOLED_MIN} or more participants a condition)")
     table["p_correct"] = [float(t[(t["code"] == r.code) & (t["condition"] == r.condition)]["correct"].mean()) for r in table.itertuples()]
     if spec.method == "quest+":
         quest = _quest_estimates(study, task)
@@ -110,6 +120,12 @@ def _condition_summary(rows: pd.DataFrame, condition: str) -> dict:
             est = rows["weber"].to_numpy(dtype=float)[ok]
             out["recovery_median_abs_rel_error"] = float(np.median(np.abs(est - g[ok]) / g[ok]))
             out["recovery_coverage"] = float(np.mean((rows["ci_low"].to_numpy(dtype=float)[ok] <= g[ok]) & (g[ok] <= rows["ci_high"].to_numpy(dtype=float)[ok])))
+        pooled = rows["weber_pooled"].to_numpy(dtype=float) if "weber_pooled" in rows else np.full(len(rows), np.nan)
+        okp = np.isfinite(g) & np.isfinite(pooled)
+        if okp.any():
+            out["recovery_pooled_median_abs_rel_error"] = float(np.median(np.abs(pooled[okp] - g[okp]) / g[okp]))
+            out["recovery_pooled_coverage"] = float(np.mean((rows["pooled_low"].to_numpy(dtype=float)[okp] <= g[okp])
+                                                            & (g[okp] <= rows["pooled_high"].to_numpy(dtype=float)[okp])))
     return out
 
 
@@ -136,17 +152,21 @@ FLAG_TEXT = {"all_correct": "every answer right: below the range tested", "at_ch
 def tables(res: dict) -> list[dict]:
     """The report's tables ({title, columns, rows: text, note}), one source for Markdown and HTML:
     per condition (geometric mean [95% CI], median, recovery when synthetic) and per participant
-    (the fit, its flag, QUEST+'s own estimate where it ran, the generating value when synthetic)."""
+    (the fit, its flag, the pooled estimate, QUEST+'s own estimate where it ran, the generating
+    value when synthetic)."""
+    from analysis.psychometric import POOLED_MIN
     recovery = any("recovery_coverage" in c for c in res["conditions"])
     rows = []
     for c in res["conditions"]:
         gm = f"{_pct(c['geometric_mean'])} {_interval(c['gm_low'], c['gm_high'], c.get('gm_reason') or 'no interval')}" if c["n"] else "n/a (no fit)"
         if c.get("gm_warning"):
             gm += f" ({c['gm_warning']})"
+        pooled_rec = (f"; pooled {_pct(c['recovery_pooled_median_abs_rel_error'])}, {_pct(c['recovery_pooled_coverage'])}"
+                      if "recovery_pooled_coverage" in c else "")
         rows.append([c["condition"], str(c["n"]), gm, _pct(c["median"])]
-                    + ([f"{_pct(c.get('recovery_median_abs_rel_error'))}, {_pct(c.get('recovery_coverage'))}"] if recovery else []))
+                    + ([f"{_pct(c.get('recovery_median_abs_rel_error'))}, {_pct(c.get('recovery_coverage'))}{pooled_rec}"] if recovery else []))
     out = [{"title": "Weber fraction per condition", "columns": ["Condition", "N", "geometric mean [95% CI]", "median"]
-            + (["recovery: median abs. error, CI coverage"] if recovery else []), "rows": rows,
+            + (["recovery: median abs. error, CI coverage (own fit; pooled)"] if recovery else []), "rows": rows,
             "note": "Geometric mean over participants with a t interval on ln Weber fraction (n - 1 df)."}]
     quest = any("quest_estimate" in r for r in res["weber"])
     generating = any("generating_weber" in r for r in res["weber"])
@@ -155,12 +175,17 @@ def tables(res: dict) -> list[dict]:
         flag = FLAG_TEXT.get(r.get("flag") or "", "")
         rows.append([r["code"], r["condition"], str(r["n_trials"]), _pct(r["p_correct"]),
                      f"{_pct(r['weber'])} {_interval(r['ci_low'], r['ci_high'], 'no interval: ' + flag if flag else 'no interval')}",
-                     _pct(r["lapse"]), flag or "-"]
+                     _pct(r["lapse"]), flag or "-",
+                     f"{_pct(r.get('weber_pooled'))} {_interval(r.get('pooled_low'), r.get('pooled_high'), 'too few to pool')}"
+                     if r.get("weber_pooled") == r.get("weber_pooled") and r.get("weber_pooled") is not None else "(too few to pool)"]
                     + ([_pct(r.get("quest_estimate"))] if quest else []) + ([_pct(r.get("generating_weber"))] if generating else []))
-    out.append({"title": "Per participant", "columns": ["Participant", "Condition", "trials", "% correct", "Weber [95% CI]", "lapse", "fit flag"]
+    out.append({"title": "Per participant", "columns": ["Participant", "Condition", "trials", "% correct", "Weber [95% CI]", "lapse", "fit flag",
+                                                        "pooled [95% CrI]"]
                 + (["QUEST+ estimate"] if quest else []) + (["generating"] if generating else []), "rows": rows,
                 "note": "The Weber fraction with its parametric-bootstrap 95% interval: the increment picked out 75% of the time by the "
-                        "two-interval observer fitted on the log stiffness ratio (analysis/psychometric.py); lapse: the fit's."})
+                        "two-interval observer fitted on the log stiffness ratio (analysis/psychometric.py); lapse: the fit's. Pooled: the "
+                        f"same observer, each participant pooled with the condition's others (empirical Bayes, {POOLED_MIN} or more participants), "
+                        "posterior median and 95% credible interval: the better estimate of one person from 40 trials (docs/study.md)."})
     return out
 
 

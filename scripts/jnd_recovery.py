@@ -41,7 +41,7 @@ def protocol(folder: Path, trials: int, shipped: bool = False) -> Path:
 
 def main() -> None:
     from analysis import jnd
-    from analysis.psychometric import weber_table
+    from analysis.psychometric import pooled_webers, weber_table
     from analysis.study import read_study
     from studyctl.store import Store
     from studyctl.synthetic import run_synthetic_study
@@ -50,7 +50,7 @@ def main() -> None:
     ap.add_argument("--seeds", default="1,2,3")
     ap.add_argument("--participants", type=int, default=20)
     ap.add_argument("--trials", type=int, default=40)
-    ap.add_argument("--functions", default="thurstone,gaussian")
+    ap.add_argument("--functions", default="thurstone,pooled,gaussian", help="fits: thurstone, gaussian, weibull, and pooled (the empirical-Bayes estimate)")
     ap.add_argument("--dir", type=Path, default=Path("/tmp/jnd_recovery"))
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--shipped", action="store_true", help="the shipped protocol as it is: fem, mass_spring and plate_spring, 3 s intervals")
@@ -65,6 +65,16 @@ def main() -> None:
         with Store(folder / "s.db", mode="read") as store:
             studies[seed] = read_study(store)
     for fn in a.functions.split(","):
+        if fn == "pooled":
+            errors, covered = {}, []
+            for seed, study in studies.items():
+                p = pooled_webers(jnd.trials(study, 0))
+                made = study.traits[study.traits["trait"] == "stiffness_weber"].set_index("code")["value"]
+                g = np.array([made[c] for c in p["code"]])
+                errors[seed] = float(np.median(np.abs(p["weber_pooled"].to_numpy() - g) / g))
+                covered += list((p["pooled_low"].to_numpy() <= g) & (g <= p["pooled_high"].to_numpy()))
+            out[fn] = {"median_abs_rel_error": errors, "coverage": float(np.mean(covered)), "fits": len(covered)}
+            continue
         errors, covered = {}, []
         for seed, study in studies.items():
             table = weber_table(jnd.trials(study, 0), function=fn)
