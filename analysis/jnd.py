@@ -82,8 +82,8 @@ def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) 
     if not len(table):
         return {"facts": facts, "weber": [], "conditions": [], "group": None}
     table = table.merge(pooled_webers(t), on=["code", "condition"], how="left")
-    facts["pooled"] = (f"each participant's Weber fraction pooled with the condition's others (empirical Bayes: ln weber normal over "
-                       f"the participants, the observer's likelihood; {POOLED_MIN} or more participants a condition)")
+    facts["pooled"] = (f"each participant's Weber fraction pooled with the condition's others (hierarchical: ln weber normal over the "
+                       f"participants, flat priors on its mean and spread, the observer's likelihood; {POOLED_MIN} or more participants a condition)")
     table["p_correct"] = [float(t[(t["code"] == r.code) & (t["condition"] == r.condition)]["correct"].mean()) for r in table.itertuples()]
     if spec.method == "quest+":
         quest = _quest_estimates(study, task)
@@ -184,7 +184,7 @@ def tables(res: dict) -> list[dict]:
                 + (["QUEST+ estimate"] if quest else []) + (["generating"] if generating else []), "rows": rows,
                 "note": "The Weber fraction with its parametric-bootstrap 95% interval: the increment picked out 75% of the time by the "
                         "two-interval observer fitted on the log stiffness ratio (analysis/psychometric.py); lapse: the fit's. Pooled: the "
-                        f"same observer, each participant pooled with the condition's others (empirical Bayes, {POOLED_MIN} or more participants), "
+                        f"same observer, each participant pooled with the condition's others (hierarchical, {POOLED_MIN} or more participants), "
                         "posterior median and 95% credible interval: the better estimate of one person from 40 trials (docs/study.md)."})
     return out
 

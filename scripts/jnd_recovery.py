@@ -50,7 +50,7 @@ def main() -> None:
     ap.add_argument("--seeds", default="1,2,3")
     ap.add_argument("--participants", type=int, default=20)
     ap.add_argument("--trials", type=int, default=40)
-    ap.add_argument("--functions", default="thurstone,pooled,gaussian", help="fits: thurstone, gaussian, weibull, and pooled (the empirical-Bayes estimate)")
+    ap.add_argument("--functions", default="thurstone,pooled,gaussian", help="fits: thurstone, gaussian, weibull, and pooled (the hierarchical estimate)")
     ap.add_argument("--dir", type=Path, default=Path("/tmp/jnd_recovery"))
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--shipped", action="store_true", help="the shipped protocol as it is: fem, mass_spring and plate_spring, 3 s intervals")

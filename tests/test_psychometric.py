@@ -497,8 +497,8 @@ def test_thurstone_recovers_and_covers_the_observer():
 def test_pooling_over_participants_recovers_them_better_than_their_own_fits():
     """60 simulated observers of one condition (Weber fractions log-normal around 12%, lapses
     0-4%), 40 trials each at increments log-uniform in 0.02-1: each participant's pooled estimate
-    (empirical Bayes over the 60) against the generating value, beside their own fits. Measured:
-    median error 17.8% pooled against 22.1% own; the credible intervals cover 88% (the band allows
+    (hierarchical over the 60) against the generating value, beside their own fits. Measured:
+    median error 19.7% pooled against 22.1% own; the credible intervals cover 95% (the band allows
     about 2 binomial standard deviations of 60 fits)."""
     from analysis.psychometric import POOLED_MIN, pooled_webers
 
