@@ -53,15 +53,8 @@ def _quest_estimates(study, task: int) -> dict:
 
 
 def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) -> dict:
-    from analysis.psychometric import (
-        DEFAULT_FUNCTION,
-        LAPSE_MAX,
-        N_BOOT,
-        POOLED_MIN,
-        group_test,
-        pooled_webers,
-        weber_table,
-    )
+    from analysis.pooled import POOLED_MIN, pooled_webers
+    from analysis.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, group_test, weber_table
 
     protocol = study.protocol
     spec = protocol.tasks[task]
@@ -154,7 +147,7 @@ def tables(res: dict) -> list[dict]:
     per condition (geometric mean [95% CI], median, recovery when synthetic) and per participant
     (the fit, its flag, the pooled estimate, QUEST+'s own estimate where it ran, the generating
     value when synthetic)."""
-    from analysis.psychometric import POOLED_MIN
+    from analysis.pooled import POOLED_MIN
     recovery = any("recovery_coverage" in c for c in res["conditions"])
     rows = []
     for c in res["conditions"]:

@@ -41,7 +41,8 @@ def protocol(folder: Path, trials: int, shipped: bool = False) -> Path:
 
 def main() -> None:
     from analysis import jnd
-    from analysis.psychometric import pooled_webers, weber_table
+    from analysis.pooled import pooled_webers
+    from analysis.psychometric import weber_table
     from analysis.study import read_study
     from studyctl.store import Store
     from studyctl.synthetic import run_synthetic_study

@@ -500,7 +500,7 @@ def test_pooling_over_participants_recovers_them_better_than_their_own_fits():
     (hierarchical over the 60) against the generating value, beside their own fits. Measured:
     median error 19.7% pooled against 22.1% own; the credible intervals cover 95% (the band allows
     about 2 binomial standard deviations of 60 fits)."""
-    from analysis.psychometric import POOLED_MIN, pooled_webers
+    from analysis.pooled import POOLED_MIN, pooled_webers
 
     rng = np.random.default_rng(4)
     rows, truth = [], {}
