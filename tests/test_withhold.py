@@ -173,3 +173,11 @@ def _check_json_tests(js: dict) -> None:
     for path, d in _walk(js):
         if "test" in d and "p" in d:  # validity's tests: p, or null with the reason
             assert (d["p"] is not None and not d.get("reason")) or (d["p"] is None and d.get("reason")), (path, d)
+
+
+def test_a_group_model_that_did_not_converge_prints_no_test():
+    from analysis.jnd import _group_text
+
+    text = _group_text({"mixed_model": {"converged": False, "chi2": 2.72, "df": 2, "p": 0.257, "problem": "singular covariance"}})
+    assert "not tested (the fit did not converge: singular covariance)" in text and "2.72" not in text and "0.257" not in text
+    assert "chi2(2) = 2.72, p = 0.257" in _group_text({"mixed_model": {"converged": True, "chi2": 2.72, "df": 2, "p": 0.257}})
