@@ -256,8 +256,9 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
         try:  # from the registration's commit on, an interruption leaves participants to complete
             first_id = (store.rows("select max(id) as m from sessions")[0]["m"] or 0) + 1
             seeds = [seed_for(store, code, s, first_id + k) for k, (code, s) in enumerate(runs)]
-            for stored, (_, bundle) in enumerate(completed(run_away, seeds, jobs, scheduler), start=1):
+            for _, bundle in completed(run_away, seeds, jobs, scheduler):
                 store_bundle(store, bundle)
+                stored += 1  # counted once its transaction committed (Ctrl-C inside it rolls it back)
                 if progress:
                     progress(stored, len(seeds))
         except KeyboardInterrupt:
