@@ -15,7 +15,7 @@ import pandas as pd
 
 from studyctl.store import Store
 from studyctl.traces import read_trace
-from tests.test_study import count_rows, fast_protocol, pty_session, studyctl
+from tests.test_study import count_rows, fast_protocol, pty_run, pty_session, studyctl
 
 MODEL_WORDS = re.compile(r"plate.?spring|mass.?spring|\bfem\b|finite|element|corotational|neo.?hookean|young|poisson", re.I)
 
@@ -160,36 +160,20 @@ def test_a_second_process_cannot_drive_a_live_session_and_is_told_so(tmp_path):
 
 
 def _ctrl_c(argv, when: bytes, timeout=120.0, delay=1.0) -> tuple[str, int]:
-    """Run `studyctl ARGV` on a real pseudo-terminal, type Ctrl-C `delay` s after the output
-    first shows `when` (the terminal sends SIGINT to every process of the command: the session's
-    servo process, a pool's workers); (all the terminal showed, exit status)."""
-    import pty
-    import select
+    """Run `studyctl ARGV` on a real pseudo-terminal (`pty_run`), type Ctrl-C `delay` s after the
+    output first shows `when` (the terminal sends SIGINT to every process of the command: the
+    session's servo process, a pool's workers); (all the terminal showed, exit status)."""
+    sent = []
 
-    pid, fd = pty.fork()
-    if pid == 0:
-        signal.signal(signal.SIGINT, signal.SIG_DFL)  # pytest-xdist's workers ignore SIGINT, and an ignored signal stays so across exec
-        os.execv(sys.executable, [sys.executable, "-m", "studyctl.cli", *map(str, argv)])
-    out, sent, deadline = b"", False, time.time() + timeout
-    while time.time() < deadline:
-        if not select.select([fd], [], [], 0.5)[0]:
-            continue
-        try:
-            chunk = os.read(fd, 4096)
-        except OSError:
-            break
-        if not chunk:
-            break
-        out += chunk
+    def interrupt(fd, out) -> None:
         if not sent and when in out:
             time.sleep(delay)
             os.write(fd, b"\x03")
-            sent = True
-    else:
-        os.kill(pid, 9)
-    _, status = os.waitpid(pid, 0)
-    assert sent, out.decode(errors="replace")[-2000:]
-    return out.decode(errors="replace"), os.waitstatus_to_exitcode(status)
+            sent.append(True)
+
+    text, status = pty_run(argv, interrupt, timeout)
+    assert sent, text[-2000:]
+    return text, status
 
 
 def test_ctrl_c_in_the_chair_marks_the_session_interrupted_and_says_how_to_resume(tmp_path):

@@ -219,21 +219,23 @@ def test_exports_never_contain_identifying_fields(tmp_path):
     assert "P01" in (tmp_path / "csv" / "answers.csv").read_text()
 
 
-def pty_session(argv, answer=None, timeout=60.0, on_output=None, replies: dict[str, list[str]] | None = None) -> str:
-    """Run `studyctl ARGV` on a real pseudo-terminal and answer its prompts: each time the output
-    ends with a "[y/n]" prompt, type `answer()` and Enter; or, with `replies`, each time it ends
-    with one of their prompt tails (e.g. "[1-7]"), type that tail's next reply (each must be
-    used up; asking once more than given fails). `on_output(fd, text so far)` may type more.
-    Returns all the terminal showed."""
+def pty_run(argv, on_output=None, timeout=60.0) -> tuple[str, int]:
+    """Run `studyctl ARGV` on a real pseudo-terminal; after each chunk of output,
+    `on_output(fd, out)` (out: a bytearray of all the terminal showed so far) may type, or append
+    a marker to `out`. Killed at `timeout`. Returns (all the terminal showed, exit status)."""
     import pty
+    import select
+    import signal
 
-    left = {tail: list(r) for tail, r in (replies or {"[y/n]": []}).items()}
     pid, fd = pty.fork()
     if pid == 0:  # the child: a real session on a terminal
+        signal.signal(signal.SIGINT, signal.SIG_DFL)  # pytest-xdist's workers ignore SIGINT, and an ignored signal stays so across exec
         os.execv(sys.executable, [sys.executable, "-m", "studyctl.cli", *map(str, argv)])
-    out = b""
+    out = bytearray()
     deadline = time.time() + timeout
     while time.time() < deadline:
+        if not select.select([fd], [], [], 0.5)[0]:
+            continue
         try:
             chunk = os.read(fd, 4096)
         except OSError:
@@ -241,6 +243,23 @@ def pty_session(argv, answer=None, timeout=60.0, on_output=None, replies: dict[s
         if not chunk:
             break
         out += chunk
+        if on_output is not None:
+            on_output(fd, out)
+    else:
+        os.kill(pid, 9)
+    _, status = os.waitpid(pid, 0)
+    return out.decode(errors="replace"), os.waitstatus_to_exitcode(status)
+
+
+def pty_session(argv, answer=None, timeout=60.0, on_output=None, replies: dict[str, list[str]] | None = None) -> str:
+    """Run `studyctl ARGV` on a real pseudo-terminal (`pty_run`) and answer its prompts: each
+    time the output ends with a "[y/n]" prompt, type `answer()` and Enter; or, with `replies`,
+    each time it ends with one of their prompt tails (e.g. "[1-7]"), type that tail's next reply
+    (each must be used up; asking once more than given fails). `on_output(fd, text so far)` may
+    type more. Returns all the terminal showed."""
+    left = {tail: list(r) for tail, r in (replies or {"[y/n]": []}).items()}
+
+    def respond(fd, out: bytearray) -> None:
         if on_output is not None:
             on_output(fd, out)
         tail = out.decode(errors="replace").rstrip()
@@ -254,12 +273,11 @@ def pty_session(argv, answer=None, timeout=60.0, on_output=None, replies: dict[s
                 os.write(fd, (reply + "\n").encode())
                 out += b"<sent>"
                 break
-    else:
-        os.kill(pid, 9)
-    os.waitpid(pid, 0)
+
+    text, _ = pty_run(argv, respond, timeout)
     if replies is not None:
-        assert not any(left.values()), (left, out.decode(errors="replace")[-2000:])
-    return out.decode(errors="replace")
+        assert not any(left.values()), (left, text[-2000:])
+    return text
 
 
 def test_terminal_questionnaire_through_a_real_pty(tmp_path):
