@@ -148,6 +148,7 @@ def tables(res: dict) -> list[dict]:
     (the fit, its flag, the pooled estimate, QUEST+'s own estimate where it ran, the generating
     value when synthetic)."""
     from analysis.pooled import POOLED_MIN
+
     recovery = any("recovery_coverage" in c for c in res["conditions"])
     rows = []
     for c in res["conditions"]:
@@ -223,7 +224,7 @@ def _group_text(g: dict) -> str:
 
 def html_section(res: dict, study) -> str:
     """The report's section as HTML (escaped), with one psychometric plot per condition."""
-    from analysis.report import _inline_png
+    from analysis.report import _inline_png, _table_html
 
     esc = _html.escape
     body = [f'<p class="synthetic">{esc(res["facts"]["flag"])}</p>' if res["facts"]["flag"] else ""]
@@ -231,14 +232,8 @@ def html_section(res: dict, study) -> str:
     body.append(f"<p>N = {res['facts']['participants']}; two-interval forced choice &ldquo;{esc(task['question'])}&rdquo;, "
                 f"{task['trials']} {esc(task['method'])} trials per condition.</p>")
     first, per = tables(res) if res["weber"] else ({}, {})
-
-    def table(t: dict) -> str:
-        head = "".join(f"<th>{esc(h)}</th>" for h in t["columns"])
-        rows = "".join("<tr>" + "".join(f"<td>{esc(cell)}</td>" for cell in row) + "</tr>" for row in t["rows"])
-        return f"<h3>{esc(t['title'])}</h3><table><tr>{head}</tr>{rows}</table><p>{esc(t['note'])}</p>"
-
     if first:
-        body.append(table(first))
+        body.append(_table_html(first, "h3"))
     if res["group"]:
         body.append(f"<p>{esc(_group_text(res['group']))}</p>")
     if res["weber"]:
@@ -249,7 +244,7 @@ def html_section(res: dict, study) -> str:
             img = _inline_png(lambda path, c=c: psychometric_plot(t[t["condition"] == c["condition"]], [r for r in res["weber"] if r["condition"] == c["condition"]],
                                                                    c["condition"], path, res["facts"]["synthetic"]))
             body.append(f'<figure><img alt="psychometric {esc(c["condition"])}" src="data:image/png;base64,{img}"></figure>')
-        body.append(table(per))
+        body.append(_table_html(per, "h3"))
     return "<h2>Stiffness discrimination</h2>" + "".join(body)
 
 

@@ -322,7 +322,7 @@ def _mean_cell(c: dict, fmt: str) -> str:
     if not c["n"]:
         return "n/a (no values)"
     ci = _ci(c["ci_low"], c["ci_high"], fmt)
-    return fmt.format(c["mean"]) + (ci or f" ({c['ci_reason']})" if c.get("ci_reason") else ci)
+    return fmt.format(c["mean"]) + (ci or (f" ({c['ci_reason']})" if c.get("ci_reason") else ""))
 
 
 def _rank_pair_cell(p: dict) -> str:

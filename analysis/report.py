@@ -109,12 +109,13 @@ img { max-width: 900px; }
 </style>"""
 
 
-def _table_html(t: dict) -> str:
-    """One of analysis.kinds.kind_tables as an HTML section (every cell escaped)."""
+def _table_html(t: dict, heading: str = "h2") -> str:
+    """A table {title, columns, rows, note} (analysis.kinds.kind_tables, analysis.jnd.tables) as
+    an HTML section under a `heading` (every cell escaped)."""
     esc = _html.escape
     head = "".join(f"<th>{esc(c)}</th>" for c in t["columns"])
     rows = "".join("<tr>" + "".join(f"<td>{esc(str(c))}</td>" for c in r) + "</tr>" for r in t["rows"])
-    return f"<h2>{esc(t['title'])}</h2><table><tr>{head}</tr>{rows}</table><p>{esc(t['note'])}</p>"
+    return f"<{heading}>{esc(t['title'])}</{heading}><table><tr>{head}</tr>{rows}</table><p>{esc(t['note'])}</p>"
 
 
 def _inline_png(draw) -> str:

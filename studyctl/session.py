@@ -207,7 +207,8 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
     time_scale = _check_options(device, synthetic, time_scale, view, answer_with)
     with Store(db, mode="read") as store:  # a missing or foreign database, or the wrong participant: no lock file made
         _check_participant(store, store.protocol(), code, synthetic)
-        open_ = store.rows("select id, device, synthetic from sessions where code = ? and status in ('running', 'interrupted')", (code,))
+        open_ = store.rows(f"select id, device, synthetic from sessions where code = ? and status in ({', '.join('?' * len(OPEN))})",
+                           (code, *OPEN))
         if resume and not open_:
             raise StoreError(f"participant {code}: no interrupted session to resume")
         if resume and open_[0]["device"] != device:  # said before any device or window is opened
