@@ -85,7 +85,16 @@ def default_settings(quick: bool) -> tuple[Setting, ...]:
     # (the small elements by the folded surface), 0.93 s a frame at 8 mm (docs/accuracy.md)
     ms = [Setting("mass_spring", f"implicit-{r}mm", (("integrator", "implicit"), ("resolution", r / 1000))) for r in ms_res]
     ms += [Setting("mass_spring", f"local-global-{r}mm", (("integrator", "local-global"), ("resolution", r / 1000))) for r in lg_res]
-    return tuple(ps + fem + ms)
+    return tuple(ps + fem + ms + plugin_settings())
+
+
+def plugin_settings() -> list[Setting]:
+    """A row for every installed model outside brainsim (a lab's own): as the scene configures
+    it, else with its declared defaults."""
+    from sim.models.registry import installed, plugins
+
+    models, _ = installed()
+    return [Setting(name, "default") for name in plugins(models)]
 
 
 def quick_config(**kw) -> AccuracyConfig:
@@ -102,22 +111,20 @@ def sample_displacements(cfg: AccuracyConfig) -> np.ndarray:
 # -- a model on the same pulls -------------------------------------------------------------
 
 def _build_model(scene, setting: Setting, handset: Path, e_ratio: float):
-    from sim.models import model_module
+    from sim.models.api import default_options
     from sim.models.plate_spring import load_params
-    from sim.scene import ModelSpec
+    from sim.models.registry import model_class
 
+    cls = model_class(setting.model)
     opts = dict(setting.options)
     base = scene.spec.models.get(setting.model)
+    options = dict(base.options) if base else default_options(cls)
     if setting.model == "plate_spring":
-        scene_ps = scene.spec.models["plate_spring"].plate_spring
         params = {"handset": lambda: load_params(handset), "located": lambda: load_params(LOCATED_PARAMS),
-                  "scene": lambda: scene_ps}[opts["params"]]()
+                  "scene": lambda: options["params"]}[opts.pop("params")]()
         # the stack's modulus is the tissue's: scale it with the bench's modulus
-        params = dataclasses.replace(params, E=params.E * e_ratio)
-        spec = ModelSpec(name="plate_spring", variant=opts["variant"], plate_spring=params)
-    else:
-        spec = ModelSpec(name=setting.model, options=dict(base.options if base else {}) | opts)
-    return model_module(setting.model).build(scene.mesh, spec, scene)
+        opts["params"] = dataclasses.replace(params, E=params.E * e_ratio)
+    return cls.build(scene.mesh, options | opts, scene)
 
 
 def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], xs, handset: Path = HANDSET_PARAMS,
@@ -137,10 +144,7 @@ def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], x
     tick_s: list[float] = []
     unstable = 0
     for p, pull in enumerate(pulls):
-        if hasattr(model, "reset"):
-            model.reset()  # mass-spring: back to rest (an empty frame would step the system)
-        else:
-            model.deformation([], [])  # drops the corotational FEM's state
+        model.reset()  # back to rest: the mass-spring's state, the corotational FEM's frame
         contact = model.grasp(pull.point, 0)
         direction = np.asarray(pull.direction)
         for f in range(1, n_frames + 1):
@@ -151,7 +155,7 @@ def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], x
             if f % per_sample == 0:
                 force[p, f // per_sample - 1] = model.force(contact, tuple(float(c) for c in d))
         tick_s.append(_tick_time(model, contact, tuple(float(c) for c in direction * xs[-1])))
-        unstable += int(bool(getattr(model, "unstable", False)))  # pulls the model gave up on (it renders zero force)
+        unstable += int(bool(model.unstable))  # pulls the model gave up on (it renders zero force)
     return {"model": setting.model, "setting": setting.setting, "force": force,
             "frame_ms": float(np.median(frame_s) * 1e3), "frame_ms_p99": float(np.percentile(frame_s, 99) * 1e3),
             "tick_us": float(np.median(tick_s) * 1e6), "build_s": build_s, "unstable": unstable}

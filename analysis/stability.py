@@ -72,17 +72,30 @@ def _label(family: str, v: float) -> str:
             "jump": f"jump={v * 1e2:g}cm", "glitch": f"glitch={v * 1e2:g}cm"}[family]
 
 
+def model_rows() -> tuple:
+    """`MODELS` and a row for every installed model outside brainsim (a lab's own), as the
+    scene configures it or with its declared defaults."""
+    from sim.models.registry import installed, plugins
+
+    models, _ = installed()
+    return MODELS + tuple((f"{name}/default", name, {}, None) for name in plugins(models))
+
+
 def applies(model: str, family: str) -> bool:
     if family in ("alpha", "q", "layers"):
-        return model.startswith("plate_spring")
+        return model.startswith("plate_spring/")
     if family == "stiffness":  # the mass-spring's springs: the hand coupling (tissue springs follow E)
-        return model.startswith("mass_spring")
+        return model.startswith("mass_spring/")
+    if family in ("young", "poisson") and not any(model.startswith(f"{m}/") for m in ("plate_spring", "fem", "mass_spring")):
+        from sim.models.registry import model_class
+
+        return family in model_class(model.rsplit("/", 1)[0]).material_keys  # a lab's model: the material it reads
     return True
 
 
 def make_cases(quick: bool = False) -> list[Case]:
     out = []
-    for label, *_ in MODELS:
+    for label, *_ in model_rows():
         for family, values in _families(quick).items():
             if applies(label, family):
                 out += [Case(label, _label(family, v), family, float(v)) for v in values]
@@ -90,18 +103,22 @@ def make_cases(quick: bool = False) -> list[Case]:
 
 
 def _scene_for(case: Case, scene_path):
+    from sim.models.api import default_options
     from sim.models.plate_spring import PlateSpringParams
+    from sim.models.registry import model_class
     from sim.scene import ModelSpec, Scene, load_scene
 
     spec = load_scene(scene_path)
-    _, name, options, variant = next(m for m in MODELS if m[0] == case.model)
+    _, name, options, variant = next(m for m in model_rows() if m[0] == case.model)
     material = spec.material
     if case.family == "young":
         material = dataclasses.replace(material, young=case.value)
     elif case.family == "poisson":
         material = dataclasses.replace(material, poisson=case.value)
     base = spec.models.get(name)
-    opts = dict(base.options if base else {}) | dict(options) | {"resolution": RESOLUTION}
+    opts = (dict(base.options) if base else default_options(model_class(name))) | dict(options)
+    if name in ("fem", "mass_spring"):
+        opts["resolution"] = RESOLUTION
     visual_hz = spec.visual_rate_hz
     if case.family == "dt":
         if name == "mass_spring":
@@ -111,16 +128,15 @@ def _scene_for(case: Case, scene_path):
     if case.family == "stiffness":
         opts["coupling"] = case.value
     if name == "plate_spring":
-        params = base.plate_spring
+        params = opts["params"]
         if case.family in ("alpha", "q", "layers"):
             # through the constructor, so out-of-bounds values meet the same checks as a file's
             values = dataclasses.asdict(params) | {case.family: int(case.value) if case.family == "layers" else case.value}
             params = PlateSpringParams(**values)
         if case.family == "young":
             params = dataclasses.replace(params, E=case.value)
-        model_spec = ModelSpec(name=name, variant=variant, plate_spring=params)
-    else:
-        model_spec = ModelSpec(name=name, options=opts)
+        opts |= {"variant": variant, "params": params, "field": None}
+    model_spec = ModelSpec(name=name, options=opts)
     hand = spec.hands[0]
     hand = dataclasses.replace(hand, device="simulated", distance=case.value if case.family == "pull" else PULL,
                                grasp_at=0.02, pull_start=0.05, pull_time=0.25, release_at=DURATION + 1.0)

@@ -65,7 +65,7 @@ def located_tick(scene, disp) -> float:
     from sim.field import FIELD_FILE, load_field
     from sim.models.plate_spring import PlateSpringModel, load_params
 
-    paper = PlateSpringModel(scene.mesh, scene.spec.models["plate_spring"].plate_spring, "continuous")
+    paper = PlateSpringModel(scene.mesh, scene.spec.models["plate_spring"].options["params"], "continuous")
     located = PlateSpringModel(scene.mesh, load_params(LOCATED_PARAMS), "located", load_field(FIELD_FILE, scene.mesh))
     laws = {name: [m.grasp(h.start, i).law for i, h in enumerate(scene.spec.hands)] for name, m in (("paper", paper), ("located", located))}
     out = {}

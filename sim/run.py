@@ -96,7 +96,7 @@ class VisualStep:
         return self.end_on_targets and self.targets is not None and self.targets.all_held
 
     def model_mesh(self):
-        return getattr(self.model, "surface", None) or self.model.mesh
+        return self.model.surface_mesh()
 
     def __call__(self, t: float) -> None:
         self._tree = None  # the surface moved since the last frame
@@ -133,7 +133,7 @@ class VisualStep:
         flops = math.nan
         try:
             u = self.model.deformation(contacts, displacements)
-            flops = float(getattr(self.model, "frame_flops", math.nan))
+            flops = float(self.model.frame_flops)
         except Exception as exc:  # the model failed: drop the grasps (zero force), keep running
             self.events.append(Event(t, -1, "model_fault", f"model_fault: deformation: {exc}"))
             for h in self.hands:
@@ -254,8 +254,7 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
         raise ParameterError(f"time scale: {time_scale!r} is out of range; allowed: 0 (lockstep) or (0, 1000]")
     if time_scale <= 0 and pacing is not None:
         raise ParameterError("the participant view and paced trials need real time (time scale > 0)")
-    if hasattr(model, "reset"):  # every run starts from undeformed tissue
-        model.reset()
+    model.reset()  # every run starts from undeformed tissue
     if time_scale > 0:
         return _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, servo, end_on_targets)
     person = [h.device for h in spec.hands if h.device in ("openhaptics", "mouse")]
@@ -403,7 +402,7 @@ def _result(scene, model, mode, time_scale, duration, rate, names, rows, starts,
         grasp_s=np.asarray(visual.grasp_s),
         events=events,
         snapshots=visual.snapshots,
-        model_diagnostics=model.diagnostics() if hasattr(model, "diagnostics") else {},
+        model_diagnostics=model.diagnostics(),
     )
 
 

@@ -12,12 +12,11 @@ import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from brainsim_assets import path as _asset
-from sim.errors import ParameterError, SceneError
+from sim.errors import SceneError
 from sim.material import MaterialSpec, material_spec
 from sim.models.base import POISSON_MAX, POISSON_MIN, Vec3
 from sim.patch import GRASP_RADIUS
@@ -40,9 +39,10 @@ class FixedSpec:
 
 @dataclass(frozen=True)
 class ModelSpec:
+    """A model as a scene configures it: its name (registered, or "package.module:Class") and
+    every option its class declares (`sim.models.api`), defaults filled."""
+
     name: str
-    variant: str = "continuous"
-    plate_spring: Any = None  # PlateSpringParams for the plate-spring model
     options: dict = field(default_factory=dict, compare=False)
 
 
@@ -143,11 +143,6 @@ SECTION_KEYS = {  # the sections read as one table, in reading order: (required,
     "visual": (False, ("rate_hz",)),
     "renderer": (False, ("kind", "width", "height", "fps")),
     "view": (False, ("front", "up", "zoom")),
-}
-MODEL_KEYS = {
-    "plate_spring": ("variant", "params", "field"),
-    "fem": ("resolution", "formulation", "grasp_radius", "order"),
-    "mass_spring": ("resolution", "integrator", "dt", "damping", "coupling", "grasp_radius", "iterations", "acceleration"),
 }
 HAND_KEYS = ("name", "device", "start", "pull", "distance", "grasp_at", "pull_start", "pull_time", "release_at",
              "device_name", "device_scale", "device_origin", "trace", "trace_hand", "target")
@@ -297,42 +292,40 @@ def _view_spec(view: TableReader) -> ViewSpec:
 
 
 def _model_spec(models: TableReader, name: str) -> ModelSpec | None:
-    from sim.models import MODELS
+    from sim.models.registry import ModelLoadError, model_class
 
-    if name not in MODELS:
-        models.error(name, f"unknown model {name!r}; available: {', '.join(sorted(MODELS))}")
+    try:
+        cls = model_class(name)
+    except ModelLoadError as exc:
+        models.error(name, str(exc))
         return None
-    return _model_options(models.table(name, allowed=MODEL_KEYS.get(name)), name)
-
-
-# the material keys a condition of each model may change: those the model uses (the
-# plate-spring's stiffness is in its fitted `params`, whose E is the plates', not the tissue's;
-# the mass-spring's springs follow E alone)
-CONDITION_KEYS = {"fem": ("young", "poisson"), "mass_spring": ("young",), "plate_spring": ()}
+    return _model_options(models.table(name), name, cls)
 
 
 def configure(spec: SceneSpec, table: dict, path: Path, loc: Locator, prefix: str) -> SceneSpec:
     """The scene with a study condition's model as the condition configures it: the scene's
-    [models.MODEL] with the condition's `table` (a protocol's [conditions.NAME]: `model` and the
+    [models.MODEL] (or, where the scene has none, the model's declared defaults) with the condition's `table` (a protocol's [conditions.NAME]: `model` and the
     keys to change) on top, and `young` / `poisson` on the material. Every key is checked as the
     scene's own are, its problems named with the protocol's `path` and lines (`prefix`:
     "conditions.NAME."); raises one SceneError with all of them."""
+    from sim.models.registry import model_class
+
     model = table["model"]
+    cls = model_class(model)  # the protocol's checker loaded it already
+    option_keys = tuple(f.name for f in dataclasses.fields(cls.Options))
     overrides = {k: v for k, v in table.items() if k != "model"}
     problems: list = []
     reader = TableReader(path, overrides, prefix, loc, problems)
-    reader.keys(("model",) + MODEL_KEYS[model] + CONDITION_KEYS[model])
-    if model not in spec.models:
-        reader.error("model", f"{model!r} is not configured in the scene {spec.path}; configured: {', '.join(sorted(spec.models))}")
-        raise SceneError([text for _, _, text in problems])
+    reader.keys(("model",) + option_keys + cls.material_keys)
     data, _ = read_toml(spec.path)
-    base = dict(data["models"][model])
-    for key in ("params", "field"):  # the scene's relative paths stay relative to the scene
-        if isinstance(base.get(key), str) and not Path(base[key]).is_absolute():
+    base = dict(data["models"][model]) if model in spec.models else {}  # not in the scene: the model's declared defaults
+    for f in dataclasses.fields(cls.Options):  # the scene's relative paths stay relative to the scene
+        key = f.name
+        if isinstance(base.get(key), str) and _file_option(f) and not Path(base[key]).is_absolute():
             base[key] = str((spec.path.parent / base[key]).resolve())
     merged_problems: list = []
-    merged = TableReader(path, base | {k: v for k, v in overrides.items() if k in MODEL_KEYS[model]}, prefix, loc, merged_problems)
-    model_spec = _model_options(merged, model)
+    merged = TableReader(path, base | {k: v for k, v in overrides.items() if k in option_keys}, prefix, loc, merged_problems)
+    model_spec = _model_options(merged, model, cls)
     for file, line, text in merged_problems:  # a key the condition left to the scene: say so
         key = text.split(": ")[1].rsplit(".", 1)[-1] if text.count(": ") >= 2 else ""
         if key in base and key not in overrides:
@@ -346,109 +339,17 @@ def configure(spec: SceneSpec, table: dict, path: Path, loc: Locator, prefix: st
     return dataclasses.replace(spec, material=material, model=model, models={**spec.models, model: model_spec})
 
 
-def _model_options(table: TableReader, name: str) -> ModelSpec | None:
-    if name == "plate_spring":
-        from sim.models.plate_spring import MODEL_VARIANTS
+def _file_option(f) -> bool:
+    """An option whose string value may name a file relative to the scene (a path, or a table
+    that may be given as a file, like the plate-spring's `params`)."""
+    from sim.models.api import _kind
 
-        variant = table.string("variant", default="continuous", choices=MODEL_VARIANTS)
-        options = {}
-        if "field" in table.data:
-            options["field"] = table.path_value("field")
-            if options["field"] is not None and not options["field"].is_file():
-                table.error("field", f"{options['field']}: no such file (a stiffness field: `studyctl calibrate field`)")
-        raw = table.data.get("params", REQUIRED)
-        params = None
-        if isinstance(raw, str):
-            params = _params_file(table, table.path_value("params"))
-        elif isinstance(raw, dict):
-            params = _plate_spring_params(table.table("params"))
-        elif raw is REQUIRED:
-            table.error("params", "missing: a parameter file (a path) or an inline table")
-        else:
-            table.error("params", f"{raw!r} is neither a parameter file (a path) nor a table")
-        return ModelSpec(name=name, variant=variant, plate_spring=params, options=options)
-    if name == "fem":
-        # the defaults: P2 on the shipped 8 mm body-fitted mesh (sim/models/fem/model.py:
-        # DEFAULT_RESOLUTION, DEFAULT_ORDER); the corotational update runs on P1 only
-        resolution = table.number("resolution", default=0.008, lo=0.003, hi=0.008)
-        formulation = table.string("formulation", default="linear", choices=("linear", "corotational"))
-        grasp_radius = table.number("grasp_radius", default=GRASP_RADIUS, lo=0.0, hi=0.02)
-        order = table.integer("order", default=1 if formulation == "corotational" else 2, lo=1, hi=2)
-        if order == 2 and formulation == "corotational":
-            table.error("order", "quadratic tetrahedra (order 2) run the linear formulation only")
-        return ModelSpec(name=name, options={"resolution": resolution, "formulation": formulation, "grasp_radius": grasp_radius,
-                                             "order": order})
-    if name == "mass_spring":
-        from sim.devices.base import OmniSpec
-        from sim.models import MASS_SPRING_ACCELERATIONS as ACCELERATIONS
-        from sim.models import MASS_SPRING_INTEGRATORS as INTEGRATORS
-
-        OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m
-
-        return ModelSpec(name=name, options={
-            "resolution": table.number("resolution", default=0.008, lo=0.003, hi=0.008),
-            "integrator": table.string("integrator", default="local-global", choices=INTEGRATORS),
-            "dt": table.number("dt", default=1 / 60, lo=1e-5, hi=0.05),
-            "damping": table.number("damping", default=5.0, lo=0.0, hi=1e4),
-            "coupling": table.number("coupling", default=300.0, lo=0.0, hi=OMNI_MAX_STIFFNESS, lo_open=True),
-            "grasp_radius": table.number("grasp_radius", default=GRASP_RADIUS, lo=0.0, hi=0.02),
-            "iterations": table.integer("iterations", default=10, lo=1, hi=1000),
-            "acceleration": table.string("acceleration", default="none", choices=ACCELERATIONS),
-        })
-    return ModelSpec(name=name, options=dict(table.data))
+    return _kind(f) in ("path", "table")
 
 
-def _params_file(table: TableReader, path: Path | None):
-    """The plate-spring parameter file a scene names, its problems named by that file's lines."""
-    if path is None:
-        return None
-    if not path.is_file():
-        return table.error("params", f"{path} does not exist" if not path.exists() else f"{path} is not a file")
-    try:
-        data, loc = read_toml(path)
-    except TomlFileError as exc:
-        table.problems.append((path, 0, str(exc)))
-        return None
-    return _plate_spring_params(TableReader(path, data, "", loc, table.problems))
-
-
-def _plate_spring_params(r: TableReader):
-    """PlateSpringParams from a table (a parameter file or an inline table): unknown, missing
-    and non-numeric keys are all reported; then the first value out of range (the checks of
-    PlateSpringParams, some of which relate several keys)."""
-    import dataclasses
-
-    from sim.models.plate_spring import PlateSpringParams
-
-    keys = tuple(f.name for f in dataclasses.fields(PlateSpringParams))
-    r.keys(keys)
-    values, missing = {}, [key for key in keys if key not in r.data]
-    if missing:
-        r.error("", f"missing key{'s' if len(missing) > 1 else ''} {', '.join(missing)}; required: {', '.join(keys)}")
-    ok = not missing
-    for key in keys:
-        v = values[key] = r.data.get(key, REQUIRED)
-        if v is REQUIRED:
-            continue
-        if key == "layers" and (isinstance(v, bool) or not isinstance(v, int)):
-            r.error(key, f"{v!r} is not an integer")
-        elif key != "layers" and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
-            r.error(key, f"{v!r} is not a finite number")
-        else:
-            continue
-        ok = False
-    if not ok:
-        return None
-    try:
-        return PlateSpringParams.from_mapping(values, source="")
-    except ParameterError as exc:
-        message = str(exc).removeprefix(": ")
-        key, sep, rest = message.partition(": ")
-        if sep and key in keys:
-            r.error(key, rest)
-        else:
-            r.error("", message)
-        return None
+def _model_options(table: TableReader, name: str, cls) -> ModelSpec | None:
+    options = cls.read_options(table)
+    return None if options is None else ModelSpec(name=name, options=options)
 
 
 def _hand_spec(h: TableReader) -> HandSpec:
@@ -578,9 +479,17 @@ class Scene:
 
     @cached_property
     def model(self):
-        from sim.models import model_module
+        from sim.models.api import TissueModel
+        from sim.models.registry import ModelLoadError, model_class
 
-        return model_module(self.model_spec.name).build(self.mesh, self.model_spec, self)
+        try:
+            cls = model_class(self.model_spec.name)
+        except ModelLoadError as exc:
+            raise SceneError(str(exc)) from None
+        model = cls.build(self.mesh, self.model_spec.options, self)
+        if not isinstance(model, TissueModel):
+            raise SceneError(f"model {self.model_spec.name!r}: build gave a {type(model).__name__}, not a sim.models.api.TissueModel")
+        return model
 
     def open_devices(self) -> list:
         """One device per hand; hands on the same backend open together (one OpenHaptics rig)."""
@@ -614,7 +523,6 @@ def clamp_limit(scene) -> tuple[int, float]:
 def grasp_radius(scene) -> float:
     """The grasp patch's radius the scene's FEM uses (the default where it names none): also
     the reference's, the stiffness field's and the observer truth's, so all hold the same patch."""
-    from sim.patch import GRASP_RADIUS
 
     fem = scene.spec.models.get("fem")
     return float(fem.options.get("grasp_radius", GRASP_RADIUS)) if fem else GRASP_RADIUS

@@ -231,7 +231,7 @@ class ServoLoop:
                     self.events.append(Event(t, -1, "model_fault", f"model_fault: force: {exc}"))
                 self.model_fault = True
         # 3. safety, write, record
-        unstable = bool(getattr(self.model, "unstable", False))
+        unstable = bool(self.model.unstable)
         suspended = t < self.suspended_until
         k = 0
         io = 0.0
@@ -320,8 +320,4 @@ class ServoLoop:
         return False
 
     def _forces(self, contacts, disps):
-        batch = getattr(self.model, "forces", None)
-        if batch is not None:  # models whose contacts are coupled (two grasps on one FEM)
-            return batch(contacts, disps)
-        force = self.model.force
-        return [force(c, d) for c, d in zip(contacts, disps)]
+        return self.model.forces(contacts, disps)

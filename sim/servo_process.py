@@ -479,18 +479,19 @@ class ServoProcess:
         except (BrokenPipeError, OSError):
             pass
 
-    def send_contact(self, hand: int, contact, t: float) -> None:
-        self.send("contact", hand, contact.point, contact.law, t)
+    def send_contact(self, hand: int, contact, t: float, model) -> None:
+        self.send("contact", hand, contact.point, model.law(contact), t)
 
     def send_laws(self, model) -> None:
         held = [h for h in self.hands if h.contact is not None]
-        laws = {h.index: h.contact.law for h in held}
+        # a law the model gives is refreshed each frame; a model that only writes `force` went
+        # to the servo once, at the grasp (sim.models.api.ModelForce)
+        laws = {h.index: h.contact.law for h in held if h.contact.law is not None}
         pair = None
-        pair_law = getattr(model, "pair_law", None)
-        if pair_law is not None and len(held) == 2:
-            p = pair_law([h.contact for h in held])
+        if len(held) == 2:
+            p = model.pair_law([h.contact for h in held])
             pair = (held[0].index, held[1].index, p) if p is not None else None
-        self.send("laws", laws, pair, bool(getattr(model, "unstable", False)))
+        self.send("laws", laws, pair, bool(model.unstable))
 
     def run(self, scene, visual, n_ticks: int, visual_rate: float, frame=None, wait: bool = False,
             frame_rate: float = 60.0) -> tuple[dict, list]:
@@ -531,7 +532,7 @@ class ServoProcess:
                     visual(self.ticks() / self.rate)
                     for h in self.hands:  # new contacts go to the servo
                         if h.contact is not None and before[h.index] is not h.contact:
-                            self.send_contact(h.index, h.contact, h.contact_t)
+                            self.send_contact(h.index, h.contact, h.contact_t, visual.model)
                     self.send_laws(visual.model)
                     if getattr(visual, "finished", False):  # every hand has held its target
                         break

@@ -46,22 +46,20 @@ def _plain(value):
 
 def resolved_config(name: str, spec) -> dict:
     """What condition `name` runs: the model with every option, the material (JSON-able)."""
+    from sim.models.registry import model_class, provenance
+
     m = spec.model_spec()
     material = _plain(spec.material)
     if material.get("law_source") not in (None, "", "inline"):  # the law file's content, as for every other file
         material["law_source"] = _plain(Path(material["law_source"]))
-    out = {"condition": name, "model": m.name, "options": _plain(m.options), "material": material,
+    out = {"condition": name, "model": m.name, "material": material,
            # what else the forces depend on: the scene file itself (any edit is a new configuration),
            # the surface, the clamp, the loop rates
            "scene": _plain(spec.path), "mesh": _plain(spec.mesh_path), "fixed": _plain(spec.fixed),
            "servo_rate_hz": spec.servo_rate_hz, "visual_rate_hz": spec.visual_rate_hz}
-    if m.name == "plate_spring":
-        out["variant"] = m.variant
-        out["plate_spring"] = _plain(m.plate_spring)
-        if m.variant == "located" and "field" not in m.options:  # the shipped stiffness field it loads
-            from sim.field import FIELD_FILE
-
-            out["field"] = _plain(Path(FIELD_FILE)) if Path(FIELD_FILE).exists() else None
+    out |= {k: _plain(v) for k, v in model_class(m.name).configuration(m.options).items()}
+    if (source := provenance(m.name)) is not None:  # a lab's own model: which code ran
+        out["plugin"] = source
     return out
 
 

@@ -13,12 +13,12 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from sim.models import registry
 from sim.targets import TRIAL_ENDS
 from sim.tomlfile import Locator, TomlFileError, read_toml
 from studyctl.errors import ProtocolError
 from studyctl.questions import KINDS, LIKERT_POINTS, WHENS, Question
 
-KNOWN_MODELS = ("fem", "mass_spring", "plate_spring")
 MAX_CONDITIONS = 8
 DESIGNS = ("williams",)
 LATENCY_MEASURES = ("deformation_ms", "tick_interval_p99_us", "read_to_force_us", "tick_compute_us")
@@ -284,9 +284,9 @@ def _design_conditions(design: dict, tables: dict, c: _Checker) -> list | None:
     for cond in conditions:
         if not isinstance(cond, str):
             c.bad("design.conditions", f"{cond!r} is not a condition's name")
-        elif cond not in KNOWN_MODELS and cond not in tables:
+        elif cond not in registry.names() and cond not in tables:
             named = f"a [conditions.NAME] table ({', '.join(tables)})" if tables else "a [conditions.NAME] table"
-            c.bad("design.conditions", f"unknown condition {cond!r}; allowed: {named} or a model name ({', '.join(KNOWN_MODELS)})")
+            c.bad("design.conditions", f"unknown condition {cond!r}; allowed: {named} or a model name ({', '.join(registry.names())})")
     if len(set(map(str, conditions))) != len(conditions):
         c.bad("design.conditions", "a condition appears twice")
     for declared in tables:
@@ -402,14 +402,25 @@ def _condition_tables(raw, bad) -> dict[str, dict]:
             bad(f"conditions.{name}", "must be a table: [conditions.NAME] with model = ...")
         elif not ID_RE.match(name):
             bad(f"conditions.{name}", f"{name!r} must be lower-case letters, digits and _ (starting with a letter)")
-        elif name in KNOWN_MODELS:  # a model's name alone means the scene's own configuration
+        elif name in registry.names():  # a model's name alone means the scene's own configuration
             bad(f"conditions.{name}", f"{name!r} is a model's name, which means the scene's own configuration; name the condition otherwise")
-        elif t.get("model") not in KNOWN_MODELS:
+        elif not registry.is_model_name(t.get("model")):
             what = "missing" if "model" not in t else f"{t['model']!r} is not a model"
-            bad(f"conditions.{name}.model", f"{what}; allowed: {', '.join(KNOWN_MODELS)}")
+            bad(f"conditions.{name}.model", f"{what}; allowed: {', '.join(registry.names())} or \"package.module:Class\"")
+        elif (problem := _load_problem(t["model"])) is not None:
+            bad(f"conditions.{name}.model", problem)
         else:
             tables[name] = t
     return tables
+
+
+def _load_problem(name: str) -> str | None:
+    """Why model `name` cannot be used (it does not import, declares another API...), or None."""
+    try:
+        registry.model_class(name)
+    except registry.ModelLoadError as exc:
+        return str(exc)
+    return None
 
 
 def _scene_problems(scene: Path, path: Path, text: str, conditions: list, tables: dict, bad) -> tuple:
@@ -436,7 +447,7 @@ def _scene_problems(scene: Path, path: Path, text: str, conditions: list, tables
                 out += exc.problems
             except SimError as exc:  # e.g. plate-spring parameters that fail the paper's bounds
                 out.append(f"{path}:{Locator(text).line(f'conditions.{c}')}: conditions.{c}: {exc}")
-        elif c in KNOWN_MODELS and c not in spec.models:
+        elif c in registry.names() and c not in spec.models:
             bad(f"{c!r} is not configured in the scene {scene}; configured: {', '.join(sorted(spec.models))}")
     return spec, out
 

@@ -7,6 +7,7 @@ import pytest
 
 from sim.devices.base import OmniSpec
 from sim.devices.simulated import HandImpedance, PullScript, SimulatedOmni, min_jerk
+from sim.models.api import TissueModel
 from sim.models.base import Contact
 from sim.servo import Hand, ServoLoop, limit_force
 
@@ -62,7 +63,7 @@ def test_limit_force_rules():
     assert limit_force((0.1, 0.2, 0.3), 3.3) == ((0.1, 0.2, 0.3), None)
 
 
-class _Stiff:
+class _Stiff(TissueModel):
     """A model returning k * displacement, or NaN when asked."""
 
     def __init__(self, k):

@@ -110,7 +110,8 @@ def test_a_scaled_model_is_the_model_built_with_the_scaled_modulus(tmp_path, mod
     s = 1.37
     if model == "plate_spring":
         ps = spec.models[model]
-        rebuilt = dataclasses.replace(spec, models={**spec.models, model: dataclasses.replace(ps, plate_spring=dataclasses.replace(ps.plate_spring, E=ps.plate_spring.E * s))})
+        params = ps.options["params"]
+        rebuilt = dataclasses.replace(spec, models={**spec.models, model: dataclasses.replace(ps, options=ps.options | {"params": dataclasses.replace(params, E=params.E * s)})})
     else:
         rebuilt = dataclasses.replace(spec, material=dataclasses.replace(spec.material, young=spec.material.young * s))
     base = Scene(spec)

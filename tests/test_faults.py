@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from sim.devices.base import DeviceState
+from sim.models.api import TissueModel
 from sim.models.base import Contact
 from sim.servo import Hand, ServoLoop
 
@@ -38,7 +39,7 @@ class Scripted:
         pass
 
 
-class Spring:
+class Spring(TissueModel):
     def __init__(self, k):
         self.k = k
 

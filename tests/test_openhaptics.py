@@ -11,6 +11,7 @@ import pytest
 
 from sim.devices.openhaptics import HDError, OpenHapticsRig, load_library
 from sim.errors import DeviceError
+from sim.models.api import TissueModel
 from sim.servo import Hand, ServoLoop
 
 SOURCE = Path(__file__).parent / "fake_libhd" / "fake_libhd.c"
@@ -121,7 +122,7 @@ def test_one_callback_serves_both_devices_with_frames_and_clamped_forces(libhd):
     assert all(fake.fakehd_force_enabled(i) and fake.fakehd_ramping(i) for i in range(2))
     devices = rig.devices()
 
-    class Stiff:  # a very stiff spring: forces far above the peak are asked for
+    class Stiff(TissueModel):  # a very stiff spring: forces far above the peak are asked for
         def force(self, contact, d):
             return (-1e4 * d[0], -1e4 * d[1], -1e4 * d[2])
 
@@ -155,7 +156,7 @@ def test_device_fault_in_a_frame_becomes_zero_force_and_an_event(libhd):
     devices = rig.devices()
     hands = [Hand(index=i, name=d.name, device=d) for i, d in enumerate(devices)]
 
-    class Push:
+    class Push(TissueModel):
         def force(self, contact, d):
             return (1.0, 0.0, 0.0)
 
@@ -260,7 +261,7 @@ def test_a_continuous_force_above_the_budget_is_reduced_and_logged():
     from sim.devices.base import OmniSpec
     from sim.models.base import Contact
 
-    class Steady:
+    class Steady(TissueModel):
         def force(self, contact, d):
             return (1.5, 0.0, 0.0)
 

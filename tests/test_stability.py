@@ -11,6 +11,7 @@ from click.testing import CliRunner
 
 from analysis.stability import CHATTER_REVERSALS, Case, _scene_for, make_cases, markdown, peak_reversals, run_case
 from sim.devices.simulated import PullScript, SimulatedOmni
+from sim.models.api import TissueModel
 from sim.models.base import Contact
 from sim.run import run_scene
 from sim.servo import Hand, ServoLoop
@@ -174,7 +175,7 @@ def test_rigid_fem_contact_is_flagged_exactly_when_its_trace_chatters(model):
     assert peak_reversals(result.times, forces) == (peak if not met else peak - 1)  # the withheld one is not in the trace
 
 
-class _RigidPoint:
+class _RigidPoint(TissueModel):
     """A rigid point contact, f = -k d with k = 1e7 N/m in every direction: no BLAS, no mesh."""
 
     def force(self, contact, d):

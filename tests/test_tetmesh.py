@@ -63,11 +63,10 @@ def test_a_damaged_shipped_mesh_is_refused_by_name(scene, tmp_path, monkeypatch)
 
 
 def test_fem_mass_spring_and_reference_share_one_geometry(scene):
-    from sim.scene import ModelSpec
 
     volume = body_volume(scene.mesh, 0.008)
-    fem = build_fem(scene.mesh, ModelSpec(name="fem", options={"resolution": 0.008, "order": 1}), scene)
-    ms = build_ms(scene.mesh, ModelSpec(name="mass_spring", options=dict(scene.spec.model_spec("mass_spring").options) | {"resolution": 0.008}), scene)
+    fem = build_fem(scene.mesh, {"resolution": 0.008, "order": 1}, scene)
+    ms = build_ms(scene.mesh, dict(scene.spec.model_spec("mass_spring").options) | {"resolution": 0.008}, scene)
     for model in (fem, ms):
         assert np.array_equal(model.volume.nodes, volume.nodes) and np.array_equal(model.volume.tets, volume.tets)
     v, t, _ = hemisphere_surface(scene.mesh, 1)

@@ -22,9 +22,10 @@ import scipy.sparse as sp
 from sim.devices.base import OmniSpec
 from sim.errors import ParameterError, SimError
 from sim.laws import Coupling
-from sim.models import MASS_SPRING_ACCELERATIONS as ACCELERATIONS
-from sim.models import MASS_SPRING_INTEGRATORS as INTEGRATORS
 from sim.models.base import pull_problem
+from sim.models.builtin import MASS_SPRING_ACCELERATIONS as ACCELERATIONS
+from sim.models.builtin import MASS_SPRING_INTEGRATORS as INTEGRATORS
+from sim.models.builtin import MassSpringBase
 from sim.models.local_global import ANDERSON_DEPTH, RHO_ITERATIONS, LocalGlobal  # noqa: F401 (re-exported)
 from sim.models.newton import NewtonKrylov
 from sim.patch import GRASP_RADIUS
@@ -378,7 +379,7 @@ class _Grasp:
     anchor: np.ndarray  # their mean rest position
 
 
-class MassSpringModel:
+class MassSpringModel(MassSpringBase):
     """The mass-spring model under the tissue-model contract.
 
     A grasp attaches a virtual-coupling spring (stiffness `coupling`, at most the Omni's
@@ -512,12 +513,12 @@ class MassSpringModel:
         }
 
 
-def build(mesh, spec, scene=None) -> MassSpringModel:
+def build(mesh, o: dict, scene) -> MassSpringModel:
+    """Construct from a scene's mass-spring options (`sim.models.builtin.MassSpringOptions`, as a dict)."""
     from sim.models.fem import fixed_nodes
     from sim.scene import AXES
     from sim.tetmesh import body_volume
 
-    o = spec.options
     volume = body_volume(mesh, o["resolution"])
     material = scene.spec.material
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])

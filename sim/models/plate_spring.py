@@ -30,9 +30,10 @@ import numpy as np
 from sim.errors import ParameterError
 from sim.laws import RadialTable, TensorTable
 from sim.models.base import Contact, Vec3
+from sim.models.builtin import PLATE_SPRING_VARIANTS, PlateSpringBase
 
 VARIANTS = ("paper", "continuous")  # of the stack
-MODEL_VARIANTS = VARIANTS + ("located",)  # of the tissue model: "located" is the continuous stack with a stiffness field
+MODEL_VARIANTS = PLATE_SPRING_VARIANTS  # of the tissue model: "located" is the continuous stack with a stiffness field
 HAPTIC_PERIOD_S = 1e-3  # 1 kHz servo rate: the T of Eq. (18)
 
 # The paper bounds B by "b <= B <= b + 0.1" with no unit; we read the 0.1 as millimetres
@@ -371,7 +372,7 @@ class _ContactField:
     distance: np.ndarray  # their geodesic (edge-path) distance from the grasp vertex, m
 
 
-class PlateSpringModel:
+class PlateSpringModel(PlateSpringBase):
     """The plate-spring model under the tissue-model contract.
 
     Grasp: snap to the nearest surface vertex and precompute the geodesic distances of the
@@ -455,12 +456,3 @@ class PlateSpringModel:
             self._touched.append(f.vertices)
         return out
 
-
-def build(mesh, spec, scene=None) -> PlateSpringModel:
-    """Construct from a scene's model spec (`sim.scene.ModelSpec`)."""
-    field = None
-    if spec.variant == "located":
-        from sim.field import FIELD_FILE, load_field
-
-        field = load_field(spec.options.get("field", FIELD_FILE), mesh)
-    return PlateSpringModel(mesh, spec.plate_spring, spec.variant, field)

@@ -40,7 +40,7 @@ def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out
         xs, forces, reference = calibration_curve(scene_file, max_displacement * np.arange(1, samples + 1) / samples)
     else:
         xs, forces = read_curve(reference)
-    params, rep = fit(ps.plate_spring, xs, forces, ps.variant)
+    params, rep = fit(ps.options["params"], xs, forces, ps.options["variant"])
     if out_file:
         Path(out_file).write_text(to_toml(params, f"Plate-spring parameters fitted by `studyctl calibrate plate-spring` to {reference}\n"
                                                   f"({rep['points']} points up to {xs.max() * 1e3:.0f} mm; {rep['within_jnd']:.0%} within the force JND)"))
@@ -123,7 +123,7 @@ def calibrate_field(scene_file, out_file, params_out, formulation, as_json):
 
     rep = _with_progress("stiffness field sites", lambda p: field.build_field(scene_file, out_file or field.FIELD_FILE, progress=p))
     if params_out:
-        start = load_scene(scene_file).model_spec("plate_spring").plate_spring
+        start = load_scene(scene_file).model_spec("plate_spring").options["params"]
         xs = sample_displacements(AccuracyConfig())
         params, fit_rep = field.fit_shape(scene_file, start, xs, formulation)
         law = load_scene(scene_file).material.law

@@ -20,6 +20,7 @@ import scipy.sparse as sp
 
 from sim.errors import ParameterError
 from sim.laws import Linearised, PairTable
+from sim.models.builtin import FemBase
 from sim.models.fem.corotational import Precond, corotational_step, warped_active
 from sim.models.fem.grasp import condense, constraint_matrix, symmetric_inverse
 from sim.models.fem.linear import LinearFem
@@ -69,7 +70,7 @@ def _same(held: tuple, now: tuple) -> bool:
     return len(held) == len(now) and all(x is y for x, y in zip(held, now))
 
 
-class FemModel:
+class FemModel(FemBase):
     """The linear FEM under the tissue-model contract (see module docstring).
 
     Each connected component of the volume (each hemisphere) is its own system with its own
@@ -357,12 +358,11 @@ def fixed_nodes(volume, surface, fixed_surface_mask: np.ndarray, axis: int) -> n
     return volume.nodes[:, axis] <= limit
 
 
-def build(mesh, spec, scene=None):
-    """Construct from a scene's model spec (`sim.scene.ModelSpec`)."""
+def build(mesh, opts: dict, scene):
+    """Construct from a scene's FEM options (`sim.models.builtin.FemOptions`, as a dict)."""
     from sim.scene import AXES
     from sim.tetmesh import body_volume
 
-    opts = spec.options
     volume = body_volume(mesh, float(opts.get("resolution", DEFAULT_RESOLUTION)))
     material = scene.spec.material
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])

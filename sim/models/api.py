@@ -1,0 +1,270 @@
+"""The tissue-model API, version 1: what a model gives the platform and what the platform asks.
+
+A model is a class registered under the entry-point group ``brainsim.models`` (name -> class,
+`sim.models.registry`) or named in a scene as ``"package.module:Class"``. Subclass
+`TissueModel`; the platform calls nothing that this class does not declare.
+
+Declared by the class (read when a scene or protocol names the model, before anything builds):
+
+| attribute          | meaning                                                                    |
+|--------------------|----------------------------------------------------------------------------|
+| ``api_version``    | the API it was written for; a model of another version does not load       |
+| ``description``    | one line for `studyctl model list`                                         |
+| ``Options``        | a frozen dataclass: one field per scene option, declared with `option()`   |
+| ``material_keys``  | the scene's material keys a study condition may change (``young``, ...)    |
+| ``build(mesh, options, scene)`` | the running model (default: ``cls(mesh, options, scene)``)    |
+
+Required of a running model (three calls at three rates, budgets in `BUDGETS`):
+
+| call                                      | when                          | returns                          |
+|-------------------------------------------|-------------------------------|----------------------------------|
+| ``grasp(point, hand) -> Contact``         | a hand closes on the tissue   | the contact (`sim.models.base`)  |
+| ``force(contact, displacement)``          | every servo tick (1 kHz)      | force on the hand, N, 3 floats   |
+| ``deformation(contacts, displacements)``  | every visual frame            | (n_vertices, 3) surface motion   |
+
+Optional capabilities, each with its default here (override what the model has):
+``reset()`` back to rest before each run (no-op); ``diagnostics()`` a dict for the run's JSON
+(empty); ``frame_flops`` counted work of the last frame (NaN: not counted); ``unstable`` the
+model's state blew up, the servo renders zero force (False); ``forces(contacts, displacements)``
+several contacts at once, for coupled contacts (one `force` each); ``pair_law(contacts)`` the
+law of two coupled contacts for a servo in another process (None); ``with_stiffness(scale)``
+the same model with every force times `scale`, for the discrimination task (declare
+``scales_stiffness = True``); ``surface`` a surface of its own that `deformation` moves
+(None: the scene's mesh).
+
+**The per-tick law.** A servo in another process (a person's session) cannot call the model:
+it evaluates ``contact.law.force(d)``, a small picklable object from `sim.laws` (or the model's
+own, with ``force(d)`` and ``update(**state)``), sent at the grasp and again after every frame.
+A model that only writes ``force`` and leaves ``contact.law`` as None gets `ModelForce`: a copy
+of the model, as it was at the grasp, pickled to the servo (cheap for a small model; a model
+whose force changes between frames gives a law and updates it in ``deformation``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from sim.models.base import Contact, Vec3
+from sim.tomltable import REQUIRED
+
+API_VERSION = 1
+
+# The budgets a model keeps on this machine (`studyctl model check`), per call, 99th percentile:
+# a servo tick is 1 ms shared with the device's I/O and the safety rules (sim/servo.py), a
+# visual frame at 30 Hz is 33 ms, a grasp stalls the frames it falls in.
+BUDGETS = {"force_us_p99": 20.0, "deformation_ms_p99": 33.0, "grasp_ms_p99": 250.0}
+
+
+class CapabilityError(Exception):
+    """A model asked for a capability it does not declare."""
+
+
+def option(default: Any = dataclasses.MISSING, *, unit: str = "", lo: float | None = None, hi: float | None = None,
+           lo_open: bool = False, hi_open: bool = False, choices: tuple | None = None, doc: str = "") -> Any:
+    """A field of a model's ``Options``: its default, unit, bounds (closed unless ``lo_open`` /
+    ``hi_open``) or choices, and a line of help. The scene reader checks every value against
+    these, naming FILE:LINE and the allowed range."""
+    meta = {"unit": unit, "lo": lo, "hi": hi, "lo_open": lo_open, "hi_open": hi_open, "choices": choices, "doc": doc}
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class NoOptions:
+    """A model without options."""
+
+
+@dataclass(frozen=True)
+class OptionInfo:
+    """One declared option, as `studyctl model describe` prints it."""
+
+    name: str
+    kind: str  # number | integer | string | path | table
+    default: Any
+    unit: str
+    allowed: str
+    doc: str
+
+
+def _kind(f) -> str:
+    t = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
+    t = t.replace(" ", "")
+    if t.startswith("int"):
+        return "integer"
+    if t.startswith("float"):
+        return "number"
+    if t.startswith("str"):
+        return "string"
+    if "Path" in t:
+        return "path"
+    return "table"
+
+
+def _allowed(meta: dict, kind: str) -> str:
+    if meta.get("choices"):
+        return ", ".join(map(str, meta["choices"]))
+    lo, hi = meta.get("lo"), meta.get("hi")
+    if lo is None and hi is None:
+        return "any" if kind != "path" else "a file"
+    if kind == "integer":
+        return f"{lo if lo is not None else '-inf'}..{hi if hi is not None else 'inf'}"
+    left, right = "(" if meta.get("lo_open") or lo is None else "[", ")" if meta.get("hi_open") or hi is None else "]"
+    return f"{left}{lo if lo is not None else -math.inf:g}, {hi if hi is not None else math.inf:g}{right}"
+
+
+def options_of(cls) -> list[OptionInfo]:
+    """The options `cls` declares, in order."""
+    out = []
+    for f in dataclasses.fields(cls.Options):
+        kind = _kind(f)
+        default = None if f.default is dataclasses.MISSING else f.default
+        out.append(OptionInfo(f.name, kind, default, f.metadata.get("unit", ""), _allowed(dict(f.metadata), kind), f.metadata.get("doc", "")))
+    return out
+
+
+def read_options(cls, table) -> dict | None:
+    """The options of model class `cls` from a scene's table (a `sim.tomltable.TableReader`):
+    unknown keys, types and bounds checked from the declaration, then the class's own checks
+    (``Options.__post_init__`` raising ValueError "key: message"). Problems are recorded on
+    `table`; returns the values as a dict (every option, defaults filled) or None."""
+    fields = dataclasses.fields(cls.Options)
+    table.keys(tuple(f.name for f in fields))
+    values, ok = {}, True
+    for f in fields:
+        m = f.metadata
+        kind = _kind(f)
+        default = f.default if f.default is not dataclasses.MISSING else REQUIRED
+        if kind == "number":
+            v = table.number(f.name, default=default, lo=-math.inf if m.get("lo") is None else m["lo"],
+                             hi=math.inf if m.get("hi") is None else m["hi"], lo_open=m.get("lo_open", False), hi_open=m.get("hi_open", False))
+        elif kind == "integer":
+            v = table.integer(f.name, default=default, lo=-(1 << 62) if m.get("lo") is None else m["lo"], hi=(1 << 62) if m.get("hi") is None else m["hi"])
+        elif kind == "string":
+            v = table.string(f.name, default=default, choices=m.get("choices"))
+        elif kind == "path":
+            v = table.path_value(f.name) if f.name in table.data else (None if default is None else default)
+            if v is not None and f.name in table.data and not Path(v).is_file():
+                table.error(f.name, f"{v}: no such file")
+                v = None
+        else:
+            v = table.data.get(f.name, default)
+        if v is None and not (f.default is None and f.name not in table.data):
+            ok = False
+        values[f.name] = v
+    if not ok:
+        return None
+    try:
+        return _as_dict(cls.Options(**values))
+    except (ValueError, TypeError) as exc:
+        key, sep, rest = str(exc).partition(": ")
+        if sep and key in values:
+            table.error(key, rest)
+        else:
+            table.error("", str(exc))
+        return None
+
+
+def default_options(cls) -> dict:
+    """Every option of model class `cls` at its declared default (what a scene that does not
+    configure the model runs). Raises ValueError naming an option without a default."""
+    missing = [f.name for f in dataclasses.fields(cls.Options) if f.default is dataclasses.MISSING]
+    if missing:
+        raise ValueError(f"model {cls.__name__}: option{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
+                         f"{'have' if len(missing) > 1 else 'has'} no default; configure the model in the scene")
+    return _as_dict(cls.Options())
+
+
+def _as_dict(options) -> dict:
+    """The options' values, shallow (a nested dataclass such as parameters stays itself)."""
+    return {f.name: getattr(options, f.name) for f in dataclasses.fields(options)}
+
+
+class TissueModel:
+    """Base of every tissue model: the declaration (class attributes) and the optional
+    capabilities' defaults. See the module's docstring for the contract."""
+
+    api_version: ClassVar[int] = API_VERSION
+    description: ClassVar[str] = ""
+    Options: ClassVar[type] = NoOptions
+    material_keys: ClassVar[tuple[str, ...]] = ()
+    scales_stiffness: ClassVar[bool] = False
+
+    name: str = ""
+    mesh: Any = None  # the scene's surface mesh (sim.mesh.Mesh)
+    surface: Any = None  # a surface of the model's own that `deformation` moves (None: `mesh`)
+    frame_flops: float = math.nan
+    unstable: bool = False
+
+    @classmethod
+    def build(cls, mesh, options: dict, scene) -> TissueModel:
+        """The running model on the scene's `mesh` with the scene's `options` (every declared
+        option, as `read_options` gives them; `scene`: `sim.scene.Scene`, for its material,
+        clamp and rates)."""
+        return cls(mesh, options, scene)
+
+    @classmethod
+    def read_options(cls, table) -> dict | None:
+        """The options from a scene's table, checked against ``Options`` (`read_options`)."""
+        return read_options(cls, table)
+
+    @classmethod
+    def configuration(cls, options: dict) -> dict:
+        """What a study stores (and hashes) of a condition of this model: its options. A model
+        whose options hold files or parameter sets may say more."""
+        return {"options": options}
+
+    # -- the contract --------------------------------------------------------------------------
+    def grasp(self, point: Sequence[float], hand: int = 0) -> Contact:
+        raise NotImplementedError(f"{type(self).__name__}.grasp")
+
+    def force(self, contact: Contact, displacement: Sequence[float]) -> Vec3:
+        return contact.law.force(displacement)
+
+    def deformation(self, contacts: Sequence[Contact], displacements) -> np.ndarray:
+        raise NotImplementedError(f"{type(self).__name__}.deformation")
+
+    # -- optional capabilities -----------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to rest (every run starts from undeformed tissue)."""
+
+    def diagnostics(self) -> dict:
+        return {}
+
+    def forces(self, contacts: Sequence[Contact], displacements) -> list[Vec3]:
+        force = self.force
+        return [force(c, d) for c, d in zip(contacts, displacements)]
+
+    def pair_law(self, contacts: Sequence[Contact]):
+        return None
+
+    def with_stiffness(self, scale: float) -> TissueModel:
+        raise CapabilityError(f"model {self.name!r} does not scale its stiffness (the discrimination task needs it)")
+
+    def surface_mesh(self):
+        """The surface `deformation` moves."""
+        return self.surface if self.surface is not None else self.mesh
+
+    def law(self, contact: Contact):
+        """What a servo in another process evaluates for `contact`: its law, else `ModelForce`."""
+        return contact.law if contact.law is not None else ModelForce(self, dataclasses.replace(contact, law=None))
+
+
+@dataclass
+class ModelForce:
+    """The law of a model that only writes ``force``: the model itself (a copy, as it was at
+    the grasp) called with the contact."""
+
+    model: Any
+    contact: Contact
+
+    def force(self, d) -> Vec3:
+        return self.model.force(self.contact, d)
+
+    def update(self, **_) -> None:  # the copy is the model at the grasp
+        pass

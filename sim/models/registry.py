@@ -1,0 +1,129 @@
+"""Which tissue models are installed: the entry-point group ``brainsim.models`` (name -> class;
+the three built-in models register there too, in pyproject.toml) and ``"package.module:Class"``
+names for a model on the Python path. A model that does not load (its import fails, its class is
+missing, it declares another API version) is one line naming it and the cause; the others load."""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import importlib
+import inspect
+import re
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+
+from sim.models.api import API_VERSION, TissueModel
+
+GROUP = "brainsim.models"
+HOME = "brainsim-study"  # the distribution of the built-in models
+PATH_NAME = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")  # package.module:Class
+
+
+class ModelLoadError(Exception):
+    """A model that cannot be used: the message names it and the cause, in one line."""
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    name: str
+    target: str  # "package.module:Class"
+    distribution: str | None  # None: a "package.module:Class" on the Python path
+    version: str | None
+
+    @property
+    def builtin(self) -> bool:
+        return self.distribution == HOME
+
+
+@functools.cache
+def entry_points() -> dict[str, ModelInfo]:
+    """The registered models, by name (first registration of a name wins; duplicates are listed
+    by `problems`)."""
+    out: dict[str, ModelInfo] = {}
+    for ep in metadata.entry_points(group=GROUP):
+        dist = ep.dist.name if ep.dist is not None else None
+        version = ep.dist.version if ep.dist is not None else None
+        out.setdefault(ep.name, ModelInfo(ep.name, ep.value, dist, version))
+    return out
+
+
+def names() -> list[str]:
+    """Every registered name (loaded or not), sorted."""
+    return sorted(entry_points())
+
+
+def is_model_name(name) -> bool:
+    """`name` could name a model: registered, or of the form package.module:Class."""
+    return isinstance(name, str) and (name in entry_points() or bool(PATH_NAME.match(name)))
+
+
+def info(name: str) -> ModelInfo:
+    if name in entry_points():
+        return entry_points()[name]
+    if PATH_NAME.match(name):
+        return ModelInfo(name, name, None, None)
+    available = ", ".join(names()) or "none"
+    raise ModelLoadError(f"unknown model {name!r}; installed: {available} (or name a class as \"package.module:Class\")")
+
+
+@functools.cache
+def model_class(name: str) -> type:
+    """The class of model `name`, checked against the API. Raises ModelLoadError."""
+    i = info(name)
+    where = f"model {name!r}" + (f" (from {i.distribution} {i.version})" if i.distribution and not i.builtin else "")
+    module_name, _, attr = i.target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except Exception as exc:  # a plugin's import may fail in any way: one line, the others load
+        raise ModelLoadError(f"{where}: cannot import {module_name}: {type(exc).__name__}: {exc}") from None
+    cls = getattr(module, attr, None) if attr else None
+    if cls is None:
+        raise ModelLoadError(f"{where}: {module_name} has no class {attr!r}")
+    if not (inspect.isclass(cls) and issubclass(cls, TissueModel)):
+        raise ModelLoadError(f"{where}: {i.target} is not a subclass of sim.models.api.TissueModel")
+    if cls.api_version != API_VERSION:
+        raise ModelLoadError(f"{where}: declares model API version {cls.api_version!r}; this brainsim runs version {API_VERSION}")
+    return cls
+
+
+def installed() -> tuple[dict[str, type], list[str]]:
+    """(the models that load, by name; one line per registered model that does not)."""
+    ok, problems = {}, []
+    for name in names():
+        try:
+            ok[name] = model_class(name)
+        except ModelLoadError as exc:
+            problems.append(str(exc))
+    return ok, problems
+
+
+def plugins(models) -> list[str]:
+    """The names among `models` that come from outside brainsim, sorted."""
+    return sorted(name for name in models if not info(name).builtin)
+
+
+def source_sha256(cls) -> str:
+    """SHA-256 of the source of the package (or module) that holds `cls`: its .py files, by
+    relative path and content."""
+    module = inspect.getmodule(cls)
+    path = Path(inspect.getfile(module))
+    top = module.__name__.split(".")[0]
+    root = path
+    for _ in range(module.__name__.count(".") + (1 if path.name == "__init__.py" else 0)):
+        root = root.parent
+    files = sorted(root.rglob("*.py")) if root.is_dir() and root.name == top else [path]
+    h = hashlib.sha256()
+    for f in files:
+        h.update(str(f.relative_to(root.parent)).encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def provenance(name: str) -> dict | None:
+    """Where a model outside brainsim comes from (stored with a study's condition): its
+    distribution, version and the SHA-256 of its source; None for the built-in models."""
+    i = info(name)
+    if i.builtin:
+        return None
+    return {"target": i.target, "distribution": i.distribution, "version": i.version, "source_sha256": source_sha256(model_class(name))}
