@@ -93,9 +93,12 @@ def applies(model: str, family: str) -> bool:
     return True
 
 
-def make_cases(quick: bool = False) -> list[Case]:
+def make_cases(quick: bool = False, models: tuple[str, ...] | None = None) -> list[Case]:
+    """The sweep's cases: every row's (of `models` only, when given)."""
     out = []
-    for label, *_ in model_rows():
+    for label, name, *_ in model_rows():
+        if models is not None and name not in models:
+            continue
         for family, values in _families(quick).items():
             if applies(label, family):
                 out += [Case(label, _label(family, v), family, float(v)) for v in values]

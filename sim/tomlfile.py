@@ -11,7 +11,8 @@ import re
 import tomllib
 from pathlib import Path
 
-_NAME = r"[A-Za-z0-9_-]+(?:\s*\.\s*[A-Za-z0-9_-]+)*"
+_PART = r'(?:[A-Za-z0-9_-]+|"[^"\\]*"|\'[^\']*\')'  # bare, or quoted (a model named "package.module:Class")
+_NAME = rf"{_PART}(?:\s*\.\s*{_PART})*"
 _ARRAY_TABLE = re.compile(rf"^\[\[\s*({_NAME})\s*\]\]")
 _TABLE = re.compile(rf"^\[\s*({_NAME})\s*\]")
 _KEY = re.compile(rf"^({_NAME})\s*=")
@@ -19,6 +20,12 @@ _KEY = re.compile(rf"^({_NAME})\s*=")
 
 class TomlFileError(Exception):
     """A file that cannot be read as TOML; the message is one line naming the file (and line)."""
+
+
+def _unquote(name: str) -> str:
+    """A dotted TOML name as the readers spell it: spaces around dots dropped, quotes removed
+    (the quoted part's own dots then read as the readers join them)."""
+    return "".join(p.strip("\"'") if p[:1] in "\"'" else re.sub(r"\s+", "", p) for p in re.split(r"(\"[^\"]*\"|'[^']*')", name))
 
 
 class Locator:
@@ -49,7 +56,7 @@ class Locator:
                 continue
             m = _TABLE.match(line)
             if m:
-                table = re.sub(r"\s+", "", m.group(1))
+                table = _unquote(m.group(1))
                 parts = table.split(".")
                 for i in range(len(parts) - 1, 0, -1):  # [hands.target] after the k-th [[hands]]: hands[k].target
                     head = ".".join(parts[:i])
@@ -60,7 +67,7 @@ class Locator:
                 continue
             m = _KEY.match(line)
             if m:
-                parts = re.sub(r"\s+", "", m.group(1)).split(".")
+                parts = _unquote(m.group(1)).split(".")
                 for i in range(1, len(parts) + 1):  # a dotted key also locates its parents
                     key = ".".join(parts[:i])
                     self.lines.setdefault(f"{table}.{key}" if table else key, n)

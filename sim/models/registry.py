@@ -127,3 +127,27 @@ def provenance(name: str) -> dict | None:
     if i.builtin:
         return None
     return {"target": i.target, "distribution": i.distribution, "version": i.version, "source_sha256": source_sha256(model_class(name))}
+
+
+def _source(i: ModelInfo) -> str:
+    return f"{i.distribution} {i.version}" if i.distribution else "the Python path"
+
+
+def describe(name: str) -> dict:
+    """What `studyctl model describe` prints. Raises ModelLoadError."""
+    from sim.models.api import options_of
+
+    cls, i = model_class(name), info(name)
+    capabilities = {"stiffness scaling": bool(cls.scales_stiffness)}  # declared; the others are seen when it runs
+    return {"name": name, "class": i.target, "distribution": i.distribution, "version": i.version, "source": _source(i),
+            "builtin": i.builtin, "api_version": cls.api_version, "description": cls.description,
+            "material_keys": list(cls.material_keys), "capabilities": capabilities,
+            "options": [o.__dict__ for o in options_of(cls)]}
+
+
+def describe_installed() -> tuple[list[dict], list[str]]:
+    """Every installed model that loads, described; one line per one that does not."""
+    models, problems = installed()
+    rows = [{"name": n, "source": _source(info(n)), "builtin": info(n).builtin, "description": c.description,
+             "scales_stiffness": bool(c.scales_stiffness)} for n, c in models.items()]
+    return rows, problems

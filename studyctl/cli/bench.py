@@ -16,7 +16,23 @@ def bench():
     """Model error against run time, and stability on stiff and extreme cases."""
 
 
+def _models(ctx, param, value):
+    """--models: installed model names, comma-separated (None: every one)."""
+    if value is None:
+        return None
+    from sim.models.registry import installed
+
+    names = [v.strip().replace("-", "_") for v in value.split(",") if v.strip()]
+    models, _ = installed()
+    unknown = [n for n in names if n not in models]
+    if unknown or not names:
+        raise click.BadParameter(f"{', '.join(unknown) or repr(value)}: not an installed model; installed: {', '.join(sorted(models))}")
+    return tuple(names)
+
+
 def _sweep_options(f):
+    f = click.option("--models", callback=_models, default=None,
+                     help="Only these models, comma-separated (default: every installed model, a lab's own included).")(f)
     f = SCHEDULER(f)
     f = click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Local worker processes (default: every core).")(f)
     f = click.option("--out", "out_dir", type=OutDir(), default=None, help="Write tables, JSON and plots here.")(f)
@@ -31,7 +47,7 @@ def _sweep_options(f):
               help="The linear models' Young's modulus, Pa, with the tissue's law scaled alike [default: the scene's].")
 @click.option("--test-places", type=click.IntRange(2, 20), default=None, help="Held-out grasp places, two directions each [default: 6, --quick: 2].")
 @_sweep_options
-def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, jobs, scheduler):
+def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, jobs, scheduler, models):
     """Every model and setting on the same pulls against the converged reference (the tissue's
     finite-strain law on P2 on body-fitted meshes, Richardson; shipped): calibrated with one stiffness scale on the
     calibration pulls, judged raw and calibrated on held-out pulls (within the JND with
@@ -39,6 +55,8 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, jobs
     from analysis import accuracy
 
     kw = {"scene": scene_file, "young": young} | ({"test_places": test_places} if test_places else {})
+    settings = accuracy.default_settings(quick)
+    kw["settings"] = settings if models is None else tuple(s for s in settings if s.model in models)
     cfg = accuracy.quick_config(**kw) if quick else accuracy.AccuracyConfig(**kw)
     result = _with_progress("accuracy: reference, then models", lambda p: accuracy.run_accuracy(cfg, jobs=jobs, scheduler=scheduler, progress=p))
     if out_dir:
@@ -67,12 +85,13 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, jobs
 @bench.command("stability")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @_sweep_options
-def bench_stability(scene_file, quick, as_json, out_dir, jobs, scheduler):
+def bench_stability(scene_file, quick, as_json, out_dir, jobs, scheduler, models):
     """Sweep E, nu, time step, spring stiffness, plate-spring parameters, far pulls and 5 cm
     jumps for every model: stable, refused (with the reason) or unstable (with the time)."""
     from analysis import stability
 
-    result = _with_progress("stability cases", lambda p: stability.run_stability(quick, scene_file, jobs=jobs, scheduler=scheduler, progress=p))
+    cases = stability.make_cases(quick, models)
+    result = _with_progress("stability cases", lambda p: stability.run_stability(quick, scene_file, jobs=jobs, scheduler=scheduler, progress=p, cases=cases))
     if out_dir:
         stability.write_outputs(result, out_dir)
     if as_json:

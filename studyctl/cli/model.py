@@ -10,12 +10,101 @@ import click
 from sim.models.base import MAX_PULL_M, pull_problem
 from sim.run import VisualStep
 from sim.scene import DEFAULT_SCENE
-from studyctl.cli.common import Finite, _console, _Group, _print_json
+from studyctl.cli.common import Finite, OutFile, _console, _Group, _print_json, _with_progress
 
 
 @click.group(cls=_Group)
 def model():
     """Inspect and exercise the tissue models."""
+
+
+@model.command("list")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+def model_list(as_json: bool):
+    """The installed tissue models: built in, and registered by other packages under the
+    entry-point group brainsim.models. A model that does not load is listed with the cause."""
+    from sim.models.registry import describe_installed
+
+    rows, problems = describe_installed()
+    if as_json:
+        _print_json({"models": rows, "problems": problems})
+        return
+    from rich.table import Table
+
+    t = Table(title=f"{len(rows)} tissue models")
+    for c in ("name", "from", "description", "stiffness scaling"):
+        t.add_column(c)
+    for r in rows:
+        t.add_row(r["name"], r["source"], r["description"], "yes" if r["scales_stiffness"] else "no")
+    _console().print(t)
+    for p in problems:
+        click.echo(f"not loaded: {p}")
+
+
+@model.command("describe")
+@click.argument("name")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
+def model_describe(name: str, as_json: bool):
+    """A model's options (units, defaults, bounds), capabilities and where it comes from."""
+    from sim.models.registry import ModelLoadError, describe
+
+    try:
+        out = describe(name)
+    except ModelLoadError as exc:
+        raise click.ClickException(str(exc)) from None
+    if as_json:
+        _print_json(out)
+        return
+    from rich.markup import escape
+    from rich.table import Table
+
+    click.echo(f"{out['name']}: {out['description']}\nfrom {out['source']} ({out['class']}; model API {out['api_version']})")
+    click.echo(f"capabilities: {', '.join(k for k, v in out['capabilities'].items() if v) or 'none beyond the contract'}")
+    click.echo(f"material keys a condition may change: {', '.join(out['material_keys']) or 'none'}")
+    t = Table(title=escape("options ([models.NAME] in a scene, [conditions.NAME] in a protocol)"))
+    for c in ("option", "kind", "unit", "default", "allowed", "meaning"):
+        t.add_column(c)
+    for o in out["options"]:
+        t.add_row(o["name"], o["kind"], o["unit"] or "-", "-" if o["default"] is None else repr(o["default"]), o["allowed"], o["doc"])
+    _console().print(t)
+
+
+@model.command("check")
+@click.argument("name")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE,
+              show_default="protocols/scenes/brain_pull.toml", help="The scene the model runs in (its configuration of the model, else the model's defaults).")
+@click.option("--quick", is_flag=True, help="The accuracy bench's small configuration (20 and 16 mm reference meshes, two test places).")
+@click.option("--json", "as_json", is_flag=True, help="The scorecard as JSON (default: Markdown).")
+@click.option("--out", "out_file", type=OutFile(), default=None, help="Also write the scorecard here (.md or .json).")
+def model_check(name: str, scene_file: Path, quick: bool, as_json: bool, out_file):
+    """A model's scorecard: the contract, its time budgets on this machine, the quick stability
+    sweep and the accuracy bench against the tissue truth. Exits 1 on a violation."""
+    import json
+
+    from analysis.model_check import CheckConfig, CheckError, check_model, scorecard_md
+    from sim.jsonable import jsonable
+
+    from sim.models.registry import ModelLoadError, model_class
+
+    try:  # a model that does not load is one line, before any progress bar
+        model_class(name)
+    except ModelLoadError as exc:
+        raise click.ClickException(str(exc)) from None
+
+    def run(progress):
+        return check_model(name, CheckConfig(scene=scene_file, quick=quick), progress=lambda k, n, what: progress(k, n))
+
+    try:
+        card = _with_progress(f"model check {name}", run)
+    except CheckError as exc:
+        raise click.ClickException(str(exc)) from None
+    text = json.dumps(jsonable(card), indent=2) if as_json else scorecard_md(card)
+    if out_file:
+        Path(out_file).write_text(json.dumps(jsonable(card), indent=2) if str(out_file).endswith(".json") else scorecard_md(card))
+    click.echo(text.rstrip("\n"))
+    if card["violations"]:
+        raise click.ClickException(f"model {name}: {len(card['violations'])} violation{'s' if len(card['violations']) > 1 else ''} "
+                                   "of the model contract (see above)")
 
 
 @model.command("plate-spring")

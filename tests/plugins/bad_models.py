@@ -1,0 +1,73 @@
+"""Plugins that break the model contract, one way each (tests/test_plugins.py). Each is a
+simple model that writes `force` only (no law: the servo process gets `ModelForce`)."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.models.api import TissueModel, option
+from sim.models.base import Contact
+
+
+@dataclass(frozen=True)
+class Options:
+    stiffness: float = option(200.0, unit="N/m", lo=1.0, hi=700.0, doc="the spring's stiffness")
+
+
+class Spring(TissueModel):
+    """A spring from the grasp point to the hand: keeps the contract."""
+
+    description = "a spring to the grasp point (test plugin)"
+    Options = Options
+    name = "spring"
+
+    def __init__(self, mesh, options, scene):
+        self.mesh, self.k = mesh, options["stiffness"]
+        self._out = np.zeros_like(mesh.vertices)
+
+    def grasp(self, point, hand=0):
+        v = self.mesh.nearest_vertex(point)
+        p = tuple(float(c) for c in self.mesh.vertices[v])
+        return Contact(hand=hand, vertex=int(v), point=p, normal=(0.0, 0.0, 1.0))
+
+    def force(self, contact, d):
+        k = self.k
+        return (-k * d[0], -k * d[1], -k * d[2])
+
+    def deformation(self, contacts, displacements):
+        self._out[:] = 0.0
+        for c, d in zip(contacts, displacements):
+            self._out[c.vertex] = d
+        return self._out
+
+
+class NanForce(Spring):
+    description = "force returns NaN once pulled (test plugin)"
+
+    def force(self, contact, d):
+        return (math.nan, 0.0, 0.0) if any(d) else (0.0, 0.0, 0.0)
+
+
+class SlowForce(Spring):
+    description = "force takes 50 microseconds (test plugin)"
+
+    def force(self, contact, d):
+        end = time.perf_counter() + 50e-6
+        while time.perf_counter() < end:
+            pass
+        return super().force(contact, d)
+
+
+class GraspRaises(Spring):
+    description = "grasp raises (test plugin)"
+
+    def grasp(self, point, hand=0):
+        raise RuntimeError("no grip on this tissue")
+
+
+class OtherVersion(Spring):
+    api_version = 2

@@ -1,0 +1,188 @@
+"""A lab's own tissue model through the public API (sim/models/api.py): discovery by entry point
+and by "package.module:Class", plugins that break the contract (each named by `model check`,
+each harmless in a session), and the walk-through of docs/models.md in a fresh virtual
+environment with the example plugin (examples/brainsim-halfspace)."""
+
+from __future__ import annotations
+
+import ast
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.conftest import ROOT
+from tests.test_study import fast_protocol
+
+BAD = "tests.plugins.bad_models"
+ENTRY_POINTS = f"""[brainsim.models]
+spring = {BAD}:Spring
+nan_force = {BAD}:NanForce
+slow_force = {BAD}:SlowForce
+grasp_raises = {BAD}:GraspRaises
+other_version = {BAD}:OtherVersion
+missing_class = {BAD}:NoSuchModel
+broken_import = tests.plugins.broken_import:Model
+"""
+
+
+@pytest.fixture(scope="module")
+def plugin_env(tmp_path_factory):
+    """An environment whose Python path holds a distribution `fakeplugins` registering the test
+    plugins under brainsim.models (what `pip install` of a plugin package writes)."""
+    site = tmp_path_factory.mktemp("site")
+    info = site / "fakeplugins-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: fakeplugins\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(ENTRY_POINTS)
+    env = {k: v for k, v in os.environ.items() if k != "STUDYCTL_DB"}
+    env["PYTHONPATH"] = f"{site}{os.pathsep}{ROOT}"
+    return env
+
+
+def _studyctl(env, *args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "studyctl", *map(str, args)], env=env, cwd=cwd, capture_output=True, text=True, timeout=600)
+
+
+def test_model_list_shows_every_model_that_loads_and_one_line_for_each_that_does_not(plugin_env):
+    res = _studyctl(plugin_env, "model", "list", "--json")
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout)
+    names = {m["name"]: m for m in out["models"]}
+    assert {"plate_spring", "fem", "mass_spring", "spring", "nan_force", "slow_force", "grasp_raises"} <= set(names)
+    assert names["fem"]["builtin"] and names["spring"]["source"] == "fakeplugins 0.1" and not names["spring"]["builtin"]
+    problems = sorted(out["problems"])
+    assert len(problems) == 3 and all("\n" not in p for p in problems)
+    assert problems[0].startswith("model 'broken_import' (from fakeplugins 0.1): cannot import tests.plugins.broken_import: "
+                                  "ModuleNotFoundError: No module named 'brainsim_no_such_dependency'")
+    assert problems[1] == f"model 'missing_class' (from fakeplugins 0.1): {BAD} has no class 'NoSuchModel'"
+    assert problems[2] == "model 'other_version' (from fakeplugins 0.1): declares model API version 2; this brainsim runs version 1"
+    text = _studyctl(plugin_env, "model", "list")
+    assert text.returncode == 0 and "not loaded: model 'missing_class'" in text.stdout and "Traceback" not in text.stdout + text.stderr
+
+
+@pytest.mark.parametrize(("name", "violation"), [
+    ("nan_force", "VIOLATION finite, continuous force along the pull: non-finite force at 0.10 mm"),
+    ("slow_force", "VIOLATION force_us_p99: "),
+    ("grasp_raises", "VIOLATION grasp: raised RuntimeError: no grip on this tissue"),
+])
+def test_model_check_names_each_violation_and_exits_non_zero(plugin_env, name, violation):
+    res = _studyctl(plugin_env, "model", "check", name)
+    assert res.returncode == 1, res.stdout + res.stderr
+    assert violation in res.stdout, res.stdout
+    assert "violation" in res.stderr and "Traceback" not in res.stdout + res.stderr
+    if name == "slow_force":  # 50 us a call against a budget of 20: decisive on any machine
+        card = json.loads(_studyctl(plugin_env, "model", "check", name, "--json").stdout)
+        force = next(b for b in card["budgets"] if b["budget"] == "force_us_p99")
+        assert force["median"] >= 50.0 and not force["ok"]
+
+
+@pytest.mark.parametrize(("name", "cause"), [
+    ("broken_import", "model 'broken_import' (from fakeplugins 0.1): cannot import tests.plugins.broken_import: ModuleNotFoundError"),
+    ("missing_class", f"model 'missing_class' (from fakeplugins 0.1): {BAD} has no class 'NoSuchModel'"),
+    ("tests.plugins.nowhere:Model", "model 'tests.plugins.nowhere:Model': cannot import tests.plugins.nowhere: ModuleNotFoundError"),
+])
+def test_a_model_that_does_not_load_is_one_line_naming_it_and_the_cause(plugin_env, name, cause):
+    res = _studyctl(plugin_env, "model", "check", name)
+    assert res.returncode == 1 and res.stderr.startswith(f"Error: {cause}"), res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
+
+
+def test_a_model_on_the_python_path_keeps_the_contract():
+    from analysis.model_check import _scene, contract
+    from sim.scene import DEFAULT_SCENE
+
+    rows, _ = contract(_scene(f"{BAD}:Spring", DEFAULT_SCENE))
+    assert all(r["ok"] for r in rows), rows
+    assert [r["check"] for r in rows][:3] == ["build", "grasp", "zero force at zero displacement"]
+
+
+def _plugin_scene(tmp_path, target: str) -> Path:
+    """The fast test scene running `target` ("package.module:Class"), one hand."""
+    fast_protocol(tmp_path)
+    text = (tmp_path / "scene.toml").read_text()
+    text = text.replace("[models.plate_spring]", f'[models."{target}"]\nstiffness = 300.0\n\n[models.plate_spring]', 1)
+    path = tmp_path / "plugin_scene.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("time_scale", [0.0, 1.0])
+def test_in_a_session_a_plugin_that_sends_nan_renders_zero_force_and_logs_it(tmp_path, time_scale):
+    """In the servo loop (lockstep) and in the servo process (real time, the model's copy
+    pickled to it at the grasp): zero force and a nan_force event, never a crash."""
+    from sim.run import run_scene
+    from sim.scene import build_scene
+
+    path = _plugin_scene(tmp_path, f"{BAD}:NanForce")
+    scene = build_scene(path, f"{BAD}:NanForce")
+    result = run_scene(scene, duration=1.0, time_scale=time_scale)
+    kinds = [e.kind for e in result.events]
+    assert "grasp" in kinds and "nan_force" in kinds, kinds
+    assert np.all(result.forces == 0.0)
+
+
+def test_in_a_session_a_plugin_whose_grasp_raises_logs_a_fault_and_renders_nothing(tmp_path):
+    from sim.run import run_scene
+    from sim.scene import build_scene
+
+    path = _plugin_scene(tmp_path, f"{BAD}:GraspRaises")
+    result = run_scene(build_scene(path, f"{BAD}:GraspRaises"), duration=1.0, time_scale=0.0)
+    faults = [e for e in result.events if e.kind == "model_fault"]
+    assert faults and "grasp: no grip on this tissue" in faults[0].detail
+    assert np.all(result.forces == 0.0)
+    # the other models are unaffected: the same scene's plate-spring pulls as ever
+    other = run_scene(build_scene(path, "plate_spring"), duration=1.0, time_scale=0.0)
+    assert np.abs(other.forces).max() > 0.01 and not [e for e in other.events if e.kind == "model_fault"]
+
+
+def test_a_plugins_bad_option_is_refused_with_file_line_and_range_like_a_builtin_one(tmp_path):
+    from sim.errors import SceneError
+    from sim.scene import load_scene
+
+    path = _plugin_scene(tmp_path, f"{BAD}:Spring")
+    text = path.read_text().replace("stiffness = 300.0", "stiffness = 9000.0\ncolour = 1")
+    path.write_text(text)
+    with pytest.raises(SceneError) as exc:
+        load_scene(path)
+    line = text.splitlines().index("stiffness = 9000.0") + 1
+    assert f"{path}:{line}: models.{BAD}:Spring.stiffness: 9000.0 is out of range; allowed: [1, 700]" in exc.value.problems
+    assert any(p.endswith(f"models.{BAD}:Spring.colour: unknown key; allowed: stiffness") for p in exc.value.problems)
+
+
+def test_a_condition_stores_the_plugins_distribution_version_and_source_hash(plugin_env, tmp_path):
+    path = fast_protocol(tmp_path, conditions=("plate_spring", "own"))
+    path.write_text(path.read_text().replace("[inclusion]", '[conditions.own]\nmodel = "spring"\nstiffness = 250.0\n\n[inclusion]'))
+    code = f"""
+import json
+from studyctl.conditions import condition_scene_spec, resolved_config
+from studyctl.protocol import load_protocol
+p = load_protocol({str(path)!r})
+print(json.dumps({{c: resolved_config(c, condition_scene_spec(p, c)) for c in p.conditions}}))
+"""
+    res = subprocess.run([sys.executable, "-c", code], env=plugin_env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    configs = json.loads(res.stdout)
+    own = configs["own"]
+    assert own["model"] == "spring" and own["options"] == {"stiffness": 250.0}
+    assert own["plugin"]["distribution"] == "fakeplugins" and own["plugin"]["version"] == "0.1"
+    assert own["plugin"]["target"] == f"{BAD}:Spring" and len(own["plugin"]["source_sha256"]) == 64
+    assert "plugin" not in configs["plate_spring"]  # built in: the study's own version says it
+
+
+def test_no_caller_probes_a_model_with_hasattr_or_getattr():
+    """Every optional capability is declared by sim/models/api.py: nothing outside it asks a
+    model whether it has an attribute."""
+    offenders = []
+    for path in [*ROOT.glob("sim/**/*.py"), *ROOT.glob("studyctl/**/*.py"), *ROOT.glob("analysis/**/*.py")]:
+        if path.name == "api.py" and path.parent.name == "models":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in ("hasattr", "getattr") and node.args:
+                if "model" in ast.unparse(node.args[0]).lower():
+                    offenders.append(f"{path.relative_to(ROOT)}:{node.lineno}: {ast.unparse(node)}")
+    assert offenders == []
