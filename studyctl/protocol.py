@@ -145,6 +145,8 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     from studyctl.tasks import check_tasks
 
     tasks = check_tasks(data, c, trial_s)
+    if any(t.kind == "discrimination" for t in tasks):
+        _check_stiffness_scaling(conditions or [], tables, c.bad)
     if trials == 0 and not tasks and "tasks" not in data:
         c.bad("design.trials_per_condition", "0 is out of range without [[tasks]]; allowed: 1..100 (0 when each condition has a task)")
     questions = _questions(data, c.get, c.bad, len(conditions or []))
@@ -421,6 +423,15 @@ def _load_problem(name: str) -> str | None:
     except registry.ModelLoadError as exc:
         return str(exc)
     return None
+
+
+def _check_stiffness_scaling(conditions: list, tables: dict, bad) -> None:
+    """The discrimination task scales each condition's stiffness: its model must declare it."""
+    for cond in conditions:
+        model = tables[cond].get("model") if cond in tables else cond
+        if isinstance(model, str) and _load_problem(model) is None and not registry.model_class(model).scales_stiffness:
+            bad("design.conditions", f"condition {cond!r}: model {model!r} does not scale its stiffness (scales_stiffness in its "
+                                     "class, docs/models.md), which the discrimination task needs")
 
 
 def _scene_problems(scene: Path, path: Path, text: str, conditions: list, tables: dict, bad) -> tuple:

@@ -161,8 +161,9 @@ class SyntheticAnswers:
             if model not in self.rig and any(math.isnan(s.frame_flops) for s in summaries):  # a trace from before work counts: no latency to judge
                 from studyctl.errors import StoreError
 
-                raise StoreError(f"condition {model}: a stored trial has no frame work counts (recorded by an older version); "
-                                 "the synthetic observer cannot judge its latency; start the participant's session afresh")
+                raise StoreError(f"condition {model}: a stored trial has no frame work counts (recorded by an older version, or its "
+                                 "model counts none: set frame_flops in deformation, docs/models.md); the synthetic observer cannot "
+                                 "judge its latency; start the participant's session afresh, or give the study a rig profile")
             self._feats[model] = features(summaries, self.participant.traits, self.params)
         return self._feats[model]
 

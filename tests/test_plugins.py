@@ -186,3 +186,82 @@ def test_no_caller_probes_a_model_with_hasattr_or_getattr():
                 if "model" in ast.unparse(node.args[0]).lower():
                     offenders.append(f"{path.relative_to(ROOT)}:{node.lineno}: {ast.unparse(node)}")
     assert offenders == []
+
+
+DOCS = ROOT / "docs" / "models.md"
+
+
+def test_the_walkthrough_of_docs_models_in_a_fresh_environment(tmp_path):
+    """docs/models.md step by step: brainsim's wheel and the example plugin installed into a new
+    venv (seeing this venv's third-party packages through a path file, as tests/test_wheel.py
+    does), every command run from a folder outside the checkout, as the page writes it."""
+    import shutil
+    import sysconfig
+
+    from tests.test_wheel import build_wheel
+
+    docs = DOCS.read_text()
+    wheel = build_wheel(tmp_path)
+    example = shutil.copytree(ROOT / "examples" / "brainsim-halfspace", tmp_path / "example")  # builds leave files beside the source
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp_path / "dist"), str(example)], check=True, capture_output=True)
+    (plugin,) = (tmp_path / "dist").glob("brainsim_halfspace-*.whl")
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+    py = venv / "bin" / "python"
+    site = subprocess.run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], check=True, capture_output=True, text=True).stdout.strip()
+    Path(site, "deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-deps", str(wheel), str(plugin)], check=True, capture_output=True)
+    work = tmp_path / "lab"
+    work.mkdir()
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "STUDYCTL_DB")}
+
+    def run(command: str, *extra: str, ok: bool = True) -> str:
+        assert command in docs, f"docs/models.md no longer says {command!r}"
+        args = command.split()
+        res = subprocess.run([str(venv / "bin" / args[0]), *args[1:], *extra], cwd=work, env=env, capture_output=True, text=True, timeout=900)
+        assert (res.returncode == 0) == ok, f"{command}: {res.stdout[-3000:]}{res.stderr[-3000:]}"
+        return res.stdout
+
+    models = json.loads(run("studyctl model list", "--json"))
+    half = next(m for m in models["models"] if m["name"] == "halfspace")
+    assert half["source"] == "brainsim-halfspace 0.1.0" and not half["builtin"]
+    assert "grasp_radius" in run("studyctl model describe halfspace")
+    card = json.loads(run("studyctl model check halfspace --quick", "--json"))
+    assert card["violations"] == [] and all(r["ok"] for r in card["contract"]) and card["stability"]["safety_held"]
+    assert {r["calibration"] for r in card["accuracy"]["rows"]} == {"raw", "calibrated"}
+    run("studyctl protocol new --kind yes_no --out mystudy")
+    protocol = work / "mystudy" / "protocol.toml"
+    edit = '[conditions.half_space]\nmodel = "halfspace"\ngrasp_radius = 0.005\n'
+    assert 'conditions = ["plate_spring", "fem", "half_space"]' in docs and edit in docs
+    text = protocol.read_text().replace('conditions = ["fem", "mass_spring", "plate_spring"]', 'conditions = ["plate_spring", "fem", "half_space"]')
+    # shorter sessions than the page's (one 1 s trial per condition): the machinery, not the statistics, is under test
+    text = text.replace("trials_per_condition = 3", "trials_per_condition = 1").replace("trial_seconds = 3.0", "trial_seconds = 1.0")
+    protocol.write_text(text.replace("[inclusion]", edit + "\n[inclusion]"))
+    run("studyctl protocol validate mystudy/protocol.toml")
+    run("studyctl synth --db mystudy/study.db --protocol mystudy/protocol.toml --participants 6")
+    table1 = run("studyctl report table1 --db mystudy/study.db")
+    assert "half_space" in table1 and "SYNTHETIC" in table1.upper()
+    sweep = json.loads(run("studyctl bench stability --quick --models halfspace,plate_spring", "--json"))
+    assert {c["model"].split("/")[0] for c in sweep["cases"]} == {"halfspace", "plate_spring"}
+    assert sweep["meta"]["nan_sent"] == 0 and sweep["meta"]["over_limit_sent"] == 0
+    bench = json.loads(run("studyctl bench accuracy --quick --models halfspace,plate_spring", "--json"))
+    assert {r["model"] for r in bench["rows"]} == {"halfspace", "plate_spring"}
+
+
+def test_a_discrimination_study_refuses_a_model_that_does_not_scale_its_stiffness(tmp_path):
+    """The spring plugin declares no stiffness scaling: the protocol says so before any session."""
+    from studyctl.protocol import check_protocol
+
+    path = tmp_path / "p"
+    path.mkdir()
+    res = subprocess.run([sys.executable, "-m", "studyctl", "protocol", "new", "--kind", "discrimination", "--out", str(path)],
+                         capture_output=True, text=True, cwd=ROOT)
+    assert res.returncode == 0, res.stderr
+    protocol = path / "protocol.toml"
+    text = protocol.read_text()
+    start = text.index("conditions = [")
+    text = text[:start] + 'conditions = ["own"]' + text[text.index("\n", start):]
+    protocol.write_text(text.replace("[inclusion]", f'[conditions.own]\nmodel = "{BAD}:Spring"\n\n[inclusion]', 1)
+                        if "[inclusion]" in text else text + f'\n[conditions.own]\nmodel = "{BAD}:Spring"\n')
+    _, problems = check_protocol(protocol)
+    assert any(f"design.conditions: condition 'own': model '{BAD}:Spring' does not scale its stiffness" in p for p in problems), problems

@@ -83,7 +83,6 @@ def model_check(name: str, scene_file: Path, quick: bool, as_json: bool, out_fil
 
     from analysis.model_check import CheckConfig, CheckError, check_model, scorecard_md
     from sim.jsonable import jsonable
-
     from sim.models.registry import ModelLoadError, model_class
 
     try:  # a model that does not load is one line, before any progress bar
