@@ -200,6 +200,11 @@ def stored_solve(key: str, xs, stiffness: bool = False) -> dict | None:
             out = {"force_per_pa": np.asarray(entry["force_per_pa"])[idx], **entry["meta"]}
             if "stiffness_per_pa" in entry:
                 out["stiffness_per_pa"] = np.asarray(entry["stiffness_per_pa"])[idx]
+            if not out.get("converged") and np.isfinite(out["force_per_pa"]).all():
+                # a longer pull that stopped beyond every record asked: those records are
+                # converged states, whichever request solved it first
+                out |= {"converged": True, "reason": f"stored solve stopped at {out.get('reached_mm')} mm "
+                                                     f"({out.get('reason')}), beyond every record asked"}
             return out
     return None
 

@@ -260,3 +260,19 @@ def test_finer_meshes_follow_a_pull_only_as_far_as_the_coarsest_got(scene, monke
     assert sorted(asked[2:]) == sorted([(n, s, 0.012 if n == "left-lateral" else 0.008) for s in (4.0, 6.0)
                                         for n in ("left-lateral", "left-anterior")])
     assert refs["pulls"]["left-anterior"]["force_per_pa"].shape == (3, 3, 3)
+
+
+def test_a_stored_solve_that_stopped_beyond_the_records_asked_serves_them_as_converged(tmp_path, monkeypatch):
+    """A solve cached by a longer pull (say `bench accuracy --quick`'s 24 mm) that stopped at
+    12.5 mm holds converged states up to there: a shorter request is converged, a longer not."""
+    import numpy as np
+
+    from analysis import reference
+
+    monkeypatch.setenv("BRAINSIM_CACHE", str(tmp_path))
+    xs = np.array([0.004, 0.008, 0.016])
+    force = np.array([[1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [np.nan, np.nan, np.nan]])
+    reference._cache("k", xs, force, None, {"converged": False, "reason": "diverging", "reached_mm": 12.5})
+    short = reference.stored_solve("k", xs[:2])
+    assert short["converged"] and "stopped at 12.5 mm (diverging)" in short["reason"]
+    assert not reference.stored_solve("k", xs)["converged"]

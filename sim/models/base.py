@@ -1,4 +1,7 @@
-"""The tissue-model contract: three calls at three rates.
+"""The tissue-model contract's low-level types (Contact, the pull limits); the public model API,
+with every optional capability and the declaration of options, is `sim.models.api`.
+
+Three calls at three rates:
 
 | call                                   | when                         | budget               |
 |----------------------------------------|------------------------------|----------------------|

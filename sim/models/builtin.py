@@ -5,7 +5,7 @@ class (`PlateSpringModel`, `FemModel`, `MassSpringModel`) subclasses its declara
 
 from __future__ import annotations
 
-import math
+import importlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,6 +20,14 @@ FEM_FORMULATIONS = ("linear", "corotational")
 MASS_SPRING_INTEGRATORS = ("explicit", "implicit", "local-global")
 MASS_SPRING_ACCELERATIONS = ("none", "chebyshev", "anderson", "newton")  # of local-global; newton: sim/models/newton.py
 OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m  # 700 N/m: stable closed-loop stiffness at 1 kHz
+
+
+def implementation(target: str):
+    """The function `target` ("module:name") of a model's running code, imported on first use:
+    by name, as the registry loads a model, so that this module (read by every scene reader)
+    imports none of the three implementations and none of them imports back."""
+    module, _, name = target.partition(":")
+    return getattr(importlib.import_module(module), name)
 
 
 # -- plate-spring --------------------------------------------------------------------------------
@@ -47,9 +55,9 @@ class PlateSpringBase(TissueModel):
         values = read_options(cls, own)
         params = None
         if isinstance(raw, str):
-            params = _params_file(table, table.path_value("params"))
+            params = implementation("sim.models.plate_spring:params_file")(table, table.path_value("params"))
         elif isinstance(raw, dict):
-            params = _plate_spring_params(table.table("params"))
+            params = implementation("sim.models.plate_spring:params_table")(table.table("params"))
         elif raw is REQUIRED:
             table.error("params", "missing: a parameter file (a path) or an inline table")
         else:
@@ -60,14 +68,7 @@ class PlateSpringBase(TissueModel):
 
     @classmethod
     def build(cls, mesh, options: dict, scene):
-        from sim.models.plate_spring import PlateSpringModel
-
-        field = None
-        if options["variant"] == "located":
-            from sim.field import FIELD_FILE, load_field
-
-            field = load_field(options["field"] or FIELD_FILE, mesh)
-        return PlateSpringModel(mesh, options["params"], options["variant"], field)
+        return implementation("sim.models.plate_spring:build")(mesh, options, scene)
 
     @classmethod
     def configuration(cls, options: dict) -> dict:
@@ -78,62 +79,6 @@ class PlateSpringBase(TissueModel):
 
             out["field"] = Path(FIELD_FILE) if Path(FIELD_FILE).exists() else None
         return out
-
-
-def _params_file(table, path: Path | None):
-    """The plate-spring parameter file a scene names, its problems named by that file's lines."""
-    from sim.tomlfile import TomlFileError, read_toml
-
-    if path is None:
-        return None
-    if not path.is_file():
-        return table.error("params", f"{path} does not exist" if not path.exists() else f"{path} is not a file")
-    try:
-        data, loc = read_toml(path)
-    except TomlFileError as exc:
-        table.problems.append((path, 0, str(exc)))
-        return None
-    return _plate_spring_params(type(table)(path, data, "", loc, table.problems))
-
-
-def _plate_spring_params(r):
-    """PlateSpringParams from a table (a parameter file or an inline table): unknown, missing
-    and non-numeric keys are all reported; then the first value out of range (the checks of
-    PlateSpringParams, some of which relate several keys)."""
-    import dataclasses
-
-    from sim.errors import ParameterError
-    from sim.models.plate_spring import PlateSpringParams
-
-    keys = tuple(f.name for f in dataclasses.fields(PlateSpringParams))
-    r.keys(keys)
-    values, missing = {}, [key for key in keys if key not in r.data]
-    if missing:
-        r.error("", f"missing key{'s' if len(missing) > 1 else ''} {', '.join(missing)}; required: {', '.join(keys)}")
-    ok = not missing
-    for key in keys:
-        v = values[key] = r.data.get(key, REQUIRED)
-        if v is REQUIRED:
-            continue
-        if key == "layers" and (isinstance(v, bool) or not isinstance(v, int)):
-            r.error(key, f"{v!r} is not an integer")
-        elif key != "layers" and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
-            r.error(key, f"{v!r} is not a finite number")
-        else:
-            continue
-        ok = False
-    if not ok:
-        return None
-    try:
-        return PlateSpringParams.from_mapping(values, source="")
-    except ParameterError as exc:
-        message = str(exc).removeprefix(": ")
-        key, sep, rest = message.partition(": ")
-        if sep and key in keys:
-            r.error(key, rest)
-        else:
-            r.error("", message)
-        return None
 
 
 # -- FEM -----------------------------------------------------------------------------------------
@@ -161,9 +106,7 @@ class FemBase(TissueModel):
 
     @classmethod
     def build(cls, mesh, options: dict, scene):
-        from sim.models.fem.model import build
-
-        return build(mesh, options, scene)
+        return implementation("sim.models.fem.model:build")(mesh, options, scene)
 
 
 # -- mass-spring ---------------------------------------------------------------------------------
@@ -188,6 +131,4 @@ class MassSpringBase(TissueModel):
 
     @classmethod
     def build(cls, mesh, options: dict, scene):
-        from sim.models.mass_spring import build
-
-        return build(mesh, options, scene)
+        return implementation("sim.models.mass_spring:build")(mesh, options, scene)

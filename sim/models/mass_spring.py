@@ -533,13 +533,13 @@ def hold_pull(scene, integrator: str, dt: float, steps: int, resolution: float |
               grasp=None, displacement=None) -> dict:
     """Grasp the scene's brain (default: its first hand's start), hold the hand displaced (default:
     that hand's scripted pull) and step the mass-spring system `steps` times."""
-    from sim.models.base import Contact  # noqa: F401
+    from sim.models.api import default_options
     from sim.models.fem import fixed_nodes
     from sim.scene import AXES
     from sim.tetmesh import body_volume
 
     spec = scene.spec.models.get("mass_spring")
-    opts = spec.options if spec else {"resolution": 0.008, "damping": 5.0, "coupling": 300.0, "grasp_radius": GRASP_RADIUS, "iterations": 10}
+    opts = spec.options if spec else default_options(MassSpringBase)
     resolution = opts["resolution"] if resolution is None else resolution
     if not 0.003 <= resolution <= 0.008:
         raise ParameterError(f"resolution: {resolution * 1e3:g} mm is out of range; allowed: 3..8 mm")

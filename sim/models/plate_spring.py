@@ -31,6 +31,8 @@ from sim.errors import ParameterError
 from sim.laws import RadialTable, TensorTable
 from sim.models.base import Contact, Vec3
 from sim.models.builtin import PLATE_SPRING_VARIANTS, PlateSpringBase
+from sim.tomlfile import TomlFileError, read_toml
+from sim.tomltable import REQUIRED
 
 VARIANTS = ("paper", "continuous")  # of the stack
 MODEL_VARIANTS = PLATE_SPRING_VARIANTS  # of the tissue model: "located" is the continuous stack with a stiffness field
@@ -456,3 +458,63 @@ class PlateSpringModel(PlateSpringBase):
             self._touched.append(f.vertices)
         return out
 
+
+def build(mesh, options: dict, scene=None) -> PlateSpringModel:
+    """Construct from a scene's plate-spring options (`sim.models.builtin.PlateSpringOptions`, as a dict)."""
+    field = None
+    if options["variant"] == "located":
+        from sim.field import FIELD_FILE, load_field
+
+        field = load_field(options["field"] or FIELD_FILE, mesh)
+    return PlateSpringModel(mesh, options["params"], options["variant"], field)
+
+
+# -- the scene reader's parameters (sim.models.builtin.PlateSpringBase.read_options) --------------
+
+def params_file(table, path: Path | None):
+    """The plate-spring parameter file a scene names, its problems named by that file's lines."""
+    if path is None:
+        return None
+    if not path.is_file():
+        return table.error("params", f"{path} does not exist" if not path.exists() else f"{path} is not a file")
+    try:
+        data, loc = read_toml(path)
+    except TomlFileError as exc:
+        table.problems.append((path, 0, str(exc)))
+        return None
+    return params_table(type(table)(path, data, "", loc, table.problems))
+
+
+def params_table(r):
+    """PlateSpringParams from a table (a parameter file or an inline table): unknown, missing
+    and non-numeric keys are all reported; then the first value out of range (the checks of
+    PlateSpringParams, some of which relate several keys)."""
+    keys = tuple(f.name for f in dataclasses.fields(PlateSpringParams))
+    r.keys(keys)
+    values, missing = {}, [key for key in keys if key not in r.data]
+    if missing:
+        r.error("", f"missing key{'s' if len(missing) > 1 else ''} {', '.join(missing)}; required: {', '.join(keys)}")
+    ok = not missing
+    for key in keys:
+        v = values[key] = r.data.get(key, REQUIRED)
+        if v is REQUIRED:
+            continue
+        if key == "layers" and (isinstance(v, bool) or not isinstance(v, int)):
+            r.error(key, f"{v!r} is not an integer")
+        elif key != "layers" and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
+            r.error(key, f"{v!r} is not a finite number")
+        else:
+            continue
+        ok = False
+    if not ok:
+        return None
+    try:
+        return PlateSpringParams.from_mapping(values, source="")
+    except ParameterError as exc:
+        message = str(exc).removeprefix(": ")
+        key, sep, rest = message.partition(": ")
+        if sep and key in keys:
+            r.error(key, rest)
+        else:
+            r.error("", message)
+        return None

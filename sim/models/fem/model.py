@@ -20,15 +20,15 @@ import scipy.sparse as sp
 
 from sim.errors import ParameterError
 from sim.laws import Linearised, PairTable
-from sim.models.builtin import FemBase
+from sim.models.builtin import FemBase, FemOptions
 from sim.models.fem.corotational import Precond, corotational_step, warped_active
 from sim.models.fem.grasp import condense, constraint_matrix, symmetric_inverse
 from sim.models.fem.linear import LinearFem
 from sim.patch import GRASP_RADIUS, patch_area_points
 from sim.volume import locate
 
-DEFAULT_RESOLUTION = 0.008  # m: the shipped body-fitted mesh the scene's FEM runs on (docs/fem.md)
-DEFAULT_ORDER = 2  # quadratic tetrahedra: P1 locks at the brain's Poisson ratio
+DEFAULT_RESOLUTION = FemOptions.resolution  # m: the shipped body-fitted mesh the scene's FEM runs on (docs/fem.md)
+DEFAULT_ORDER = 2  # quadratic tetrahedra: P1 locks at the brain's Poisson ratio (FemOptions' default for the linear formulation)
 
 GRASPS_KEPT = 16  # condensed grasps kept per model (`FemModel.grasp`): a session's grasps land on a few vertices
 COROT_FORCE_LIMIT = 3.0  # a corotational force this many times the linear one for the same grasp is a runaway
