@@ -121,7 +121,7 @@ def _build_model(scene, setting: Setting, handset: Path, e_ratio: float):
     options = dict(base.options) if base else default_options(cls)
     if setting.model == "plate_spring":
         params = {"handset": lambda: load_params(handset), "located": lambda: load_params(LOCATED_PARAMS),
-                  "scene": lambda: options["params"]}[opts.pop("params")]()
+                  "scene": lambda: options["params"]}[opts.pop("params", "scene")]()
         # the stack's modulus is the tissue's: scale it with the bench's modulus
         opts["params"] = dataclasses.replace(params, E=params.E * e_ratio)
     return cls.build(scene.mesh, options | opts, scene)

@@ -84,3 +84,18 @@ def test_an_unreachable_scheduler_is_a_one_line_error_and_nothing_is_written(tmp
     assert res.exit_code == 1 and "scheduler tcp://127.0.0.1:1: cannot connect" in res.output, res.output
     assert len(res.output.strip().splitlines()) == 1 and "Traceback" not in res.output
     assert not db.exists()
+
+
+def test_a_lab_model_runs_on_the_cluster_as_in_local_jobs(tmp_path, cluster):
+    """A condition of a lab's own model (tests/plugins, by "package.module:Class"): the workers
+    load it like the built-in ones, and the answers are the local jobs'."""
+    from tests.test_plugins import BAD
+
+    protocol = fast_protocol(tmp_path, conditions=("plate_spring", "own"), trials=1)
+    protocol.write_text(protocol.read_text().replace("[inclusion]", f'[conditions.own]\nmodel = "{BAD}:Spring"\n\n[inclusion]', 1))
+    run_synthetic_study(tmp_path / "local.db", 2, seed=7, jobs=1, protocol_path=protocol)
+    out = run_synthetic_study(tmp_path / "dask.db", 2, seed=7, protocol_path=protocol, scheduler=cluster.scheduler_address)
+    assert out["participants"] == 2
+    assert _content(tmp_path / "dask.db") == _content(tmp_path / "local.db")
+    models = {m for (m,) in sqlite3.connect(tmp_path / "dask.db").execute("select distinct model from trials")}
+    assert models == {"plate_spring", "own"}

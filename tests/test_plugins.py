@@ -265,3 +265,28 @@ def test_a_discrimination_study_refuses_a_model_that_does_not_scale_its_stiffnes
                         if "[inclusion]" in text else text + f'\n[conditions.own]\nmodel = "{BAD}:Spring"\n')
     _, problems = check_protocol(protocol)
     assert any(f"design.conditions: condition 'own': model '{BAD}:Spring' does not scale its stiffness" in p for p in problems), problems
+
+
+def test_model_describe_prints_the_declared_options(plugin_env):
+    out = json.loads(_studyctl(plugin_env, "model", "describe", "spring", "--json").stdout)
+    assert out["options"] == [{"name": "stiffness", "kind": "number", "default": 200.0, "unit": "N/m", "allowed": "[1, 700]",
+                               "doc": "the spring's stiffness"}]
+    assert (out["distribution"], out["version"], out["builtin"]) == ("fakeplugins", "0.1", False)
+    fem = json.loads(_studyctl(plugin_env, "model", "describe", "fem", "--json").stdout)
+    assert [o["name"] for o in fem["options"]] == ["resolution", "formulation", "grasp_radius", "order"]
+    assert fem["options"][0]["allowed"] == "[0.003, 0.008]" and fem["material_keys"] == ["young", "poisson"]
+
+
+def test_model_check_of_a_built_in_model_gives_its_whole_scorecard(tmp_path):
+    """The plate-spring on the shipped scene: the contract, budgets, the quick sweep's cases of
+    both its rows and the quick accuracy bench's row; Markdown and JSON say the same."""
+    from tests.test_study import studyctl
+
+    res = studyctl("model", "check", "plate_spring", "--quick", "--json", "--out", tmp_path / "card.md")
+    assert res.exit_code == 0, res.output
+    card = json.loads(res.output)
+    assert card["violations"] == [] and len(card["contract"]) == 8 and all(r["ok"] for r in card["contract"])
+    assert {c["model"] for c in card["stability"]["cases"]} == {"plate_spring/continuous", "plate_spring/paper"}
+    assert card["stability"]["safety_held"] and {r["calibration"] for r in card["accuracy"]["rows"]} == {"raw", "calibrated"}
+    md = (tmp_path / "card.md").read_text()
+    assert md.startswith("# Model check: plate_spring") and "The model keeps the contract and its budgets on this machine." in md

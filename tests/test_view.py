@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.conftest import ROOT
 from tests.test_participant import MODEL_WORDS, _protocol
 from tests.test_study import studyctl
 
@@ -388,3 +389,39 @@ def test_window_and_offscreen_views_live_side_by_side_in_one_process(display):
     assert out.returncode == 0, out.stderr[-2000:]
     r = json.loads(out.stdout.strip().splitlines()[-1])
     assert r == {"same": True, "differs": r["differs"], "plain": True} and r["differs"] > 100  # the grasped patch and the forceps
+
+
+def test_a_plugin_model_in_the_window_with_the_mouse(xdotool, tmp_path):
+    """A lab's own model (tests/plugins, named "package.module:Class" in the scene) held with
+    the mouse: its force, written as `force` only, reaches the servo process as a copy of the
+    model (sim.models.api.ModelForce) and is felt and recorded like a built-in model's."""
+    from tests.test_plugins import BAD, _plugin_scene
+
+    scene = _plugin_scene(tmp_path, f"{BAD}:Spring")
+    proc = subprocess.Popen([sys.executable, "-m", "studyctl.cli", "sim", "live", "--scene", str(scene), "--model", f"{BAD}:Spring",
+                             "--duration", "60", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        deadline = time.time() + 60
+        while _window() is None and time.time() < deadline:
+            time.sleep(0.2)
+        w = _window()
+        assert w, proc.stderr.read() if proc.poll() is not None else "no window"
+        time.sleep(2.0)
+        _xdotool("mousemove", "--window", w, 560, 420)
+        time.sleep(0.5)
+        _xdotool("mousedown", 1)
+        time.sleep(1.0)
+        for k in range(1, 11):
+            _xdotool("mousemove", "--window", w, 560 - 6 * k, 420)
+            time.sleep(0.1)
+        time.sleep(1.0)
+        _xdotool("key", "--window", w, "q")
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    _xdotool("mouseup", 1)
+    assert proc.returncode == 0, err
+    s = json.loads(out)
+    assert s["model"] == f"{BAD}:Spring" and s["events"].get("grasp", 0) >= 1
+    assert s["max_force_per_hand_n"]["left"] > 0.02 and "model_fault" not in s["events"] and "nan_force" not in s["events"]
