@@ -94,7 +94,23 @@ def plugin_settings() -> list[Setting]:
     from sim.models.registry import installed, plugins
 
     models, _ = installed()
-    return [Setting(name, "default") for name in plugins(models)]
+    return [Setting(name, "default") for name in plugins(models) if plugin_problem(name) is None]
+
+
+def plugin_problem(name: str, scene_path=DEFAULT_SCENE) -> str | None:
+    """Why the benches leave a lab's model out of their default rows, or None: it has an
+    option without a default and the scene does not configure it."""
+    from sim.models.api import default_options
+    from sim.models.registry import model_class
+    from sim.scene import load_scene
+
+    if name in load_scene(scene_path).models:
+        return None
+    try:
+        default_options(model_class(name))
+    except ValueError as exc:
+        return str(exc)
+    return None
 
 
 def quick_config(**kw) -> AccuracyConfig:
@@ -111,6 +127,7 @@ def sample_displacements(cfg: AccuracyConfig) -> np.ndarray:
 # -- a model on the same pulls -------------------------------------------------------------
 
 def _build_model(scene, setting: Setting, handset: Path, e_ratio: float):
+    from sim.errors import SceneError, SimError
     from sim.models.api import default_options
     from sim.models.plate_spring import load_params
     from sim.models.registry import model_class
@@ -118,13 +135,21 @@ def _build_model(scene, setting: Setting, handset: Path, e_ratio: float):
     cls = model_class(setting.model)
     opts = dict(setting.options)
     base = scene.spec.models.get(setting.model)
-    options = dict(base.options) if base else default_options(cls)
+    try:
+        options = dict(base.options) if base else default_options(cls)
+    except ValueError as exc:
+        raise SceneError(str(exc)) from None
     if setting.model == "plate_spring":
         params = {"handset": lambda: load_params(handset), "located": lambda: load_params(LOCATED_PARAMS),
                   "scene": lambda: options["params"]}[opts.pop("params", "scene")]()
         # the stack's modulus is the tissue's: scale it with the bench's modulus
         opts["params"] = dataclasses.replace(params, E=params.E * e_ratio)
-    return cls.build(scene.mesh, options | opts, scene)
+    try:
+        return cls.build(scene.mesh, options | opts, scene)
+    except SimError:
+        raise
+    except Exception as exc:  # a lab's model may fail in any way: one line naming it
+        raise SceneError(f"model {setting.model!r}: build raised {type(exc).__name__}: {exc}") from None
 
 
 def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], xs, handset: Path = HANDSET_PARAMS,

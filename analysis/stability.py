@@ -72,13 +72,17 @@ def _label(family: str, v: float) -> str:
             "jump": f"jump={v * 1e2:g}cm", "glitch": f"glitch={v * 1e2:g}cm"}[family]
 
 
-def model_rows() -> tuple:
+def model_rows(extra: tuple[str, ...] = ()) -> tuple:
     """`MODELS` and a row for every installed model outside brainsim (a lab's own), as the
-    scene configures it or with its declared defaults."""
+    scene configures it or with its declared defaults, and for each name of `extra` (a
+    "package.module:Class") that has none."""
+    from analysis.accuracy import plugin_problem
     from sim.models.registry import installed, plugins
 
     models, _ = installed()
-    return MODELS + tuple((f"{name}/default", name, {}, None) for name in plugins(models))
+    names = [n for n in plugins(models) if plugin_problem(n) is None]
+    names += [n for n in extra if n not in names and all(m[1] != n for m in MODELS)]
+    return MODELS + tuple((f"{name}/default", name, {}, None) for name in names)
 
 
 def applies(model: str, family: str) -> bool:
@@ -96,7 +100,7 @@ def applies(model: str, family: str) -> bool:
 def make_cases(quick: bool = False, models: tuple[str, ...] | None = None) -> list[Case]:
     """The sweep's cases: every row's (of `models` only, when given)."""
     out = []
-    for label, name, *_ in model_rows():
+    for label, name, *_ in model_rows(tuple(models or ())):
         if models is not None and name not in models:
             continue
         for family, values in _families(quick).items():
@@ -112,7 +116,7 @@ def _scene_for(case: Case, scene_path):
     from sim.scene import ModelSpec, Scene, load_scene
 
     spec = load_scene(scene_path)
-    _, name, options, variant = next(m for m in model_rows() if m[0] == case.model)
+    _, name, options, variant = next(m for m in model_rows((case.model.rsplit("/", 1)[0],)) if m[0] == case.model)
     material = spec.material
     if case.family == "young":
         material = dataclasses.replace(material, young=case.value)

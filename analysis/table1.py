@@ -158,6 +158,16 @@ def conditions(study: Study) -> list[dict]:
     return out
 
 
+def _material_keys(model: str) -> tuple:
+    """The material keys model `model` reads (its declaration); none when it no longer loads."""
+    from sim.models.registry import ModelLoadError, model_class
+
+    try:
+        return model_class(model).material_keys
+    except ModelLoadError:
+        return ()
+
+
 def condition_text(c: dict) -> str:
     """One line of what a condition ran: model, variant and options, the tissue's modulus."""
     cfg = c["config"]
@@ -166,7 +176,9 @@ def condition_text(c: dict) -> str:
     opts = dict(cfg["options"]) | ({"variant": cfg["variant"]} if "variant" in cfg else {})
     shown = ", ".join(f"{k} {v['file'] if isinstance(v, dict) and 'file' in v else v}" for k, v in sorted(opts.items()))
     mat = cfg["material"]
-    young = {"fem": f"; E {mat['young']:g} Pa, nu {mat['poisson']:g}", "mass_spring": f"; E {mat['young']:g} Pa"}.get(cfg["model"], "")
+    keys = _material_keys(cfg["model"])
+    parts = [f"{label} {mat[key]:g}{unit}" for key, label, unit in (("young", "E", " Pa"), ("poisson", "nu", "")) if key in keys]
+    young = f"; {', '.join(parts)}" if parts else ""
     return f"{c['condition']}: {cfg['model']} ({shown}{young}), configuration {c['config_sha256'][:12]}"
 
 

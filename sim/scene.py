@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from brainsim_assets import path as _asset
-from sim.errors import SceneError
+from sim.errors import SceneError, SimError
 from sim.material import MaterialSpec, material_spec
 from sim.models.base import POISSON_MAX, POISSON_MIN, Vec3
 from sim.patch import GRASP_RADIUS
@@ -344,7 +344,7 @@ def _file_option(f) -> bool:
     that may be given as a file, like the plate-spring's `params`)."""
     from sim.models.api import _kind
 
-    return _kind(f) in ("path", "table")
+    return _kind(f) in ("path", "other")
 
 
 def _model_options(table: TableReader, name: str, cls) -> ModelSpec | None:
@@ -486,7 +486,12 @@ class Scene:
             cls = model_class(self.model_spec.name)
         except ModelLoadError as exc:
             raise SceneError(str(exc)) from None
-        model = cls.build(self.mesh, self.model_spec.options, self)
+        try:
+            model = cls.build(self.mesh, self.model_spec.options, self)
+        except SimError:
+            raise
+        except Exception as exc:  # a lab's model may fail in any way: one line naming it
+            raise SceneError(f"model {self.model_spec.name!r}: build raised {type(exc).__name__}: {exc}") from None
         if not isinstance(model, TissueModel):
             raise SceneError(f"model {self.model_spec.name!r}: build gave a {type(model).__name__}, not a sim.models.api.TissueModel")
         return model

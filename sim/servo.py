@@ -231,7 +231,13 @@ class ServoLoop:
                     self.events.append(Event(t, -1, "model_fault", f"model_fault: force: {exc}"))
                 self.model_fault = True
         # 3. safety, write, record
-        unstable = bool(self.model.unstable)
+        try:
+            unstable = bool(self.model.unstable)
+        except Exception as exc:  # a model that cannot say: as if unstable (zero force), logged once
+            unstable = True
+            if not self.model_fault:
+                self.events.append(Event(t, -1, "model_fault", f"model_fault: unstable: {exc}"))
+            self.model_fault = True
         suspended = t < self.suspended_until
         k = 0
         io = 0.0

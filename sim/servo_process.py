@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import multiprocessing as mp
+import pickle
 import threading
 import time
 from dataclasses import dataclass
@@ -479,19 +480,38 @@ class ServoProcess:
         except (BrokenPipeError, OSError):
             pass
 
-    def send_contact(self, hand: int, contact, t: float, model) -> None:
-        self.send("contact", hand, contact.point, model.law(contact), t)
+    def send_contact(self, hand: int, contact, t: float, model, events: list) -> None:
+        """A new grasp's law to the servo. A law that cannot be made or sent (a model's law
+        raising, a copy that does not pickle) is a model fault: logged, the grasp dropped."""
+        try:
+            law = model.law(contact)
+            pickle.dumps(law)
+        except Exception as exc:
+            from sim.servo import Event
 
-    def send_laws(self, model) -> None:
+            events.append(Event(t, hand, "model_fault", f"model_fault: law: {type(exc).__name__}: {exc}"))
+            self.hands[hand].contact = None
+            return
+        self.send("contact", hand, contact.point, law, t)
+
+    def send_laws(self, model, events: list | None = None) -> None:
         held = [h for h in self.hands if h.contact is not None]
         # a law the model gives is refreshed each frame; a model that only writes `force` went
         # to the servo once, at the grasp (sim.models.api.ModelForce)
         laws = {h.index: h.contact.law for h in held if h.contact.law is not None}
         pair = None
-        if len(held) == 2:
-            p = model.pair_law([h.contact for h in held])
-            pair = (held[0].index, held[1].index, p) if p is not None else None
-        self.send("laws", laws, pair, bool(model.unstable))
+        try:
+            if len(held) == 2:
+                p = model.pair_law([h.contact for h in held])
+                pair = (held[0].index, held[1].index, p) if p is not None else None
+            unstable = bool(model.unstable)
+        except Exception as exc:  # as a force that raises: zero force (unstable), logged once
+            unstable = True
+            if events is not None and not any(e.kind == "model_fault" and e.detail.startswith("model_fault: laws") for e in events):
+                from sim.servo import Event
+
+                events.append(Event(self.ticks() / self.rate, -1, "model_fault", f"model_fault: laws: {type(exc).__name__}: {exc}"))
+        self.send("laws", laws, pair, unstable)
 
     def run(self, scene, visual, n_ticks: int, visual_rate: float, frame=None, wait: bool = False,
             frame_rate: float = 60.0) -> tuple[dict, list]:
@@ -532,8 +552,8 @@ class ServoProcess:
                     visual(self.ticks() / self.rate)
                     for h in self.hands:  # new contacts go to the servo
                         if h.contact is not None and before[h.index] is not h.contact:
-                            self.send_contact(h.index, h.contact, h.contact_t, visual.model)
-                    self.send_laws(visual.model)
+                            self.send_contact(h.index, h.contact, h.contact_t, visual.model, visual.events)
+                    self.send_laws(visual.model, visual.events)
                     if getattr(visual, "finished", False):  # every hand has held its target
                         break
                     next_step += period

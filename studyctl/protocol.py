@@ -428,6 +428,8 @@ def _load_problem(name: str) -> str | None:
 def _check_stiffness_scaling(conditions: list, tables: dict, bad) -> None:
     """The discrimination task scales each condition's stiffness: its model must declare it."""
     for cond in conditions:
+        if not isinstance(cond, str):  # refused by the design's check
+            continue
         model = tables[cond].get("model") if cond in tables else cond
         if isinstance(model, str) and _load_problem(model) is None and not registry.model_class(model).scales_stiffness:
             bad("design.conditions", f"condition {cond!r}: model {model!r} does not scale its stiffness (scales_stiffness in its "

@@ -290,3 +290,71 @@ def test_model_check_of_a_built_in_model_gives_its_whole_scorecard(tmp_path):
     assert card["stability"]["safety_held"] and {r["calibration"] for r in card["accuracy"]["rows"]} == {"raw", "calibrated"}
     md = (tmp_path / "card.md").read_text()
     assert md.startswith("# Model check: plate_spring") and "The model keeps the contract and its budgets on this machine." in md
+
+
+def test_a_plugin_whose_build_raises_is_one_line(tmp_path):
+    path = _plugin_scene(tmp_path, f"{BAD}:Spring")
+    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{BAD}:BuildRaises"]'))
+    env = {k: v for k, v in os.environ.items() if k != "STUDYCTL_DB"} | {"PYTHONPATH": str(ROOT)}
+    res = _studyctl(env, "sim", "run", "--scene", path, "--model", f"{BAD}:BuildRaises", "--time-scale", "0", "--duration", "0.5")
+    assert res.returncode == 1 and res.stderr.strip() == (f"Error: model '{BAD}:BuildRaises': build raised RuntimeError: "
+                                                          "no tissue parameters for this brain"), res.stderr
+
+
+def test_a_plugin_whose_copy_cannot_reach_the_servo_process_is_a_fault_not_a_crash(tmp_path):
+    from sim.run import run_scene
+    from sim.scene import build_scene
+
+    path = _plugin_scene(tmp_path, f"{BAD}:Spring")
+    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{BAD}:Unpicklable"]'))
+    result = run_scene(build_scene(path, f"{BAD}:Unpicklable"), duration=1.0, time_scale=1.0)
+    faults = [e for e in result.events if e.kind == "model_fault"]
+    assert faults and faults[0].detail.startswith("model_fault: law: TypeError") and np.all(result.forces == 0.0)
+
+
+def test_options_are_checked_by_kind_and_a_declaration_the_reader_cannot_read_does_not_load(tmp_path, plugin_env):
+    from sim.errors import SceneError
+    from sim.models.registry import ModelLoadError, model_class
+    from sim.scene import load_scene
+
+    with pytest.raises(ModelLoadError, match=r"Options is not a dataclass"):
+        model_class(f"{BAD}:NotADataclass")
+    path = _plugin_scene(tmp_path, f"{BAD}:Spring")
+    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]\nstiffness = 300.0',
+                                             f'[models."{BAD}:Flagged"]\nmirrored = "yes"\nlayers = 3'))
+    with pytest.raises(SceneError) as exc:
+        load_scene(path)
+    assert any(p.endswith(f"models.{BAD}:Flagged.mirrored: 'yes' is not true or false") for p in exc.value.problems), exc.value.problems
+    assert any(p.endswith(f"models.{BAD}:Flagged.layers: 3 is not one of 1, 2") for p in exc.value.problems), exc.value.problems
+    # a model whose option has no default: the benches leave it out of their default rows, and say why
+    from analysis.accuracy import plugin_problem
+
+    assert "stiffness has no default" in plugin_problem(f"{BAD}:NoDefault")
+
+
+def test_a_discrimination_protocol_with_a_malformed_condition_is_refused_in_one_line(tmp_path):
+    from studyctl.protocol import check_protocol
+
+    path = tmp_path / "p"
+    path.mkdir()
+    subprocess.run([sys.executable, "-m", "studyctl", "protocol", "new", "--kind", "discrimination", "--out", str(path)], check=True,
+                   capture_output=True, cwd=ROOT)
+    protocol = path / "protocol.toml"
+    text = protocol.read_text()
+    start = text.index("conditions = [")
+    protocol.write_text(text[:start] + 'conditions = [["fem"], "plate_spring"]' + text[text.index("\n", start):])
+    _, problems = check_protocol(protocol)
+    assert any("design.conditions: ['fem'] is not a condition's name" in p for p in problems), problems
+
+
+def test_the_built_in_models_keep_the_contract_and_their_budgets_here():
+    """Contract and budgets (not the sweeps) of the three on the shipped scene: the budgets'
+    margins are 10x or more on this machine (docs/models.md), not marginal."""
+    from analysis.model_check import CheckConfig, _scene, budgets, contract
+    from sim.scene import DEFAULT_SCENE
+
+    for name in ("plate_spring", "fem", "mass_spring"):
+        rows, parts = contract(_scene(name, DEFAULT_SCENE))
+        assert all(r["ok"] for r in rows), (name, rows)
+        timed = budgets(parts, CheckConfig(scene=DEFAULT_SCENE, force_calls=2000, frames=10))
+        assert [b["budget"] for b in timed] == ["force_us_p99", "deformation_ms_p99", "grasp_ms_p99"] and all("raised" not in b for b in timed)

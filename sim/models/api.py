@@ -12,6 +12,7 @@ Declared by the class (read when a scene or protocol names the model, before any
 | ``description``    | one line for `studyctl model list`                                         |
 | ``Options``        | a frozen dataclass: one field per scene option, declared with `option()`   |
 | ``material_keys``  | the scene's material keys a study condition may change (``young``, ...)    |
+| ``scales_stiffness`` | True when ``with_stiffness`` is given (the discrimination task needs it) |
 | ``build(mesh, options, scene)`` | the running model (default: ``cls(mesh, options, scene)``)    |
 
 Required of a running model (three calls at three rates, budgets in `BUDGETS`):
@@ -36,8 +37,9 @@ the same model with every force times `scale`, for the discrimination task (decl
 it evaluates ``contact.law.force(d)``, a small picklable object from `sim.laws` (or the model's
 own, with ``force(d)`` and ``update(**state)``), sent at the grasp and again after every frame.
 A model that only writes ``force`` and leaves ``contact.law`` as None gets `ModelForce`: a copy
-of the model, as it was at the grasp, pickled to the servo (cheap for a small model; a model
-whose force changes between frames gives a law and updates it in ``deformation``).
+of the model, as it was at the grasp, pickled to the servo with everything it holds (with the
+scene's mesh about 3 MB and a few ms, at each grasp); a model whose force changes between frames,
+or that holds much, gives a law and updates it in ``deformation``.
 """
 
 from __future__ import annotations
@@ -92,18 +94,28 @@ class OptionInfo:
     doc: str
 
 
+KINDS = {"float": "number", "int": "integer", "str": "string", "bool": "boolean", "Path": "path"}  # declared type -> kind
+
+
 def _kind(f) -> str:
+    """The kind of option field `f` from its declared type (`float`, `int`, `str`, `bool`,
+    `Path`, each optionally `| None`); "other" for any other type (a class with its own
+    `read_options` may declare those)."""
     t = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
-    t = t.replace(" ", "")
-    if t.startswith("int"):
-        return "integer"
-    if t.startswith("float"):
-        return "number"
-    if t.startswith("str"):
-        return "string"
-    if "Path" in t:
-        return "path"
-    return "table"
+    parts = [p.strip() for p in t.split("|") if p.strip() != "None"]
+    return KINDS.get(parts[0], "other") if len(parts) == 1 else "other"
+
+
+def declaration_problem(cls) -> str | None:
+    """Why `cls` does not declare its options as the API asks, or None."""
+    if not (isinstance(cls.Options, type) and dataclasses.is_dataclass(cls.Options)):
+        return "Options is not a dataclass"
+    if "read_options" in vars(cls):  # the class reads its own options
+        return None
+    bad = [f"{f.name} ({f.type})" for f in dataclasses.fields(cls.Options) if _kind(f) == "other"]
+    if bad:
+        return f"option{'s' if len(bad) > 1 else ''} {', '.join(bad)} of a type the scene reader does not know; allowed: {', '.join(KINDS)} (or None with them)"
+    return None
 
 
 def _allowed(meta: dict, kind: str) -> str:
@@ -152,8 +164,17 @@ def read_options(cls, table) -> dict | None:
             if v is not None and f.name in table.data and not Path(v).is_file():
                 table.error(f.name, f"{v}: no such file")
                 v = None
-        else:
+        elif kind == "boolean":
             v = table.data.get(f.name, default)
+            if v is REQUIRED:
+                table.error(f.name, "missing")
+                v = None
+            elif not isinstance(v, bool) and v is not None:
+                v = table.error(f.name, f"{v!r} is not true or false")
+        else:  # a class with its own read_options reads these
+            v = table.data.get(f.name, None if default is REQUIRED else default)
+        if v is not None and m.get("choices") and kind != "string" and v not in m["choices"]:
+            v = table.error(f.name, f"{v!r} is not one of {', '.join(map(str, m['choices']))}")
         if v is None and not (f.default is None and f.name not in table.data):
             ok = False
         values[f.name] = v

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
-from sim.models.api import API_VERSION, TissueModel
+from sim.models.api import API_VERSION, TissueModel, declaration_problem
 
 GROUP = "brainsim.models"
 HOME = "brainsim-study"  # the distribution of the built-in models
@@ -85,6 +85,8 @@ def model_class(name: str) -> type:
         raise ModelLoadError(f"{where}: {i.target} is not a subclass of sim.models.api.TissueModel")
     if cls.api_version != API_VERSION:
         raise ModelLoadError(f"{where}: declares model API version {cls.api_version!r}; this brainsim runs version {API_VERSION}")
+    if (problem := declaration_problem(cls)) is not None:
+        raise ModelLoadError(f"{where}: {problem}")
     return cls
 
 

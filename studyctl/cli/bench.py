@@ -18,12 +18,17 @@ def bench():
 
 def _models(ctx, param, value):
     """--models: installed model names, comma-separated (None: every one)."""
-    if value is None:
-        return None
-    from sim.models.registry import installed
+    from sim.models.registry import installed, plugins
 
-    names = [v.strip().replace("-", "_") for v in value.split(",") if v.strip()]
     models, _ = installed()
+    if value is None:  # every model: say which of a lab's models the defaults cannot build
+        from analysis.accuracy import plugin_problem
+
+        for name in plugins(models):
+            if (problem := plugin_problem(name)) is not None:
+                click.echo(f"not benched: {problem} ([models.{name}] in the scene, or --models after configuring it)", err=True)
+        return None
+    names = [n if n in models else n.replace("-", "_") for n in (v.strip() for v in value.split(",")) if n]
     unknown = [n for n in names if n not in models]
     if unknown or not names:
         raise click.BadParameter(f"{', '.join(unknown) or repr(value)}: not an installed model; installed: {', '.join(sorted(models))}")

@@ -163,4 +163,8 @@ def _with_progress(label, fn):
 
 def _model_name(value):
     """Models are spelt plate_spring in files; plate-spring (the subcommand's spelling) is accepted too."""
-    return None if value is None else value.replace("-", "_")
+    if value is None:
+        return None
+    from sim.models.registry import is_model_name
+
+    return value if is_model_name(value) else value.replace("-", "_")

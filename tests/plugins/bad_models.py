@@ -72,3 +72,49 @@ class GraspRaises(Spring):
 
 class OtherVersion(Spring):
     api_version = 2
+
+
+class BuildRaises(Spring):
+    description = "build raises (test plugin)"
+
+    def __init__(self, mesh, options, scene):
+        raise RuntimeError("no tissue parameters for this brain")
+
+
+class Unpicklable(Spring):
+    """Writes force only and holds a lock: its copy cannot go to the servo process."""
+
+    description = "holds a lock (test plugin)"
+
+    def __init__(self, mesh, options, scene):
+        import threading
+
+        super().__init__(mesh, options, scene)
+        self.lock = threading.Lock()
+
+
+@dataclass(frozen=True)
+class NeedsOptions:
+    stiffness: float = option(unit="N/m", lo=1.0, hi=700.0, doc="no default: the scene must give it")
+
+
+class NoDefault(Spring):
+    description = "an option without a default (test plugin)"
+    Options = NeedsOptions
+
+
+class NotADataclass(Spring):
+    class Options:
+        stiffness = 200.0
+
+
+@dataclass(frozen=True)
+class FlagOptions:
+    stiffness: float = option(200.0, unit="N/m", lo=1.0, hi=700.0)
+    mirrored: bool = option(False, doc="a boolean option")
+    layers: int = option(2, choices=(1, 2), doc="an integer with choices")
+
+
+class Flagged(Spring):
+    description = "boolean and integer-choice options (test plugin)"
+    Options = FlagOptions
