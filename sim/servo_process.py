@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import math
 import multiprocessing as mp
-import pickle
 import threading
 import time
 from dataclasses import dataclass
@@ -31,6 +30,7 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
+from sim.models.api import servo_law, servo_state
 from sim.servo import Event, Hand, ServoLoop, wait_until
 
 # per-hand slots in shared memory (float64); IN_P/IN_BUTTON are written by the parent (the
@@ -481,36 +481,22 @@ class ServoProcess:
             pass
 
     def send_contact(self, hand: int, contact, t: float, model, events: list) -> None:
-        """A new grasp's law to the servo. A law that cannot be made or sent (a model's law
-        raising, a copy that does not pickle) is a model fault: logged, the grasp dropped."""
-        try:
-            law = model.law(contact)
-            pickle.dumps(law)
-        except Exception as exc:
-            from sim.servo import Event
-
-            events.append(Event(t, hand, "model_fault", f"model_fault: law: {type(exc).__name__}: {exc}"))
+        """A new grasp's law to the servo; one that cannot be made or sent is a model fault: logged, the grasp dropped."""
+        law, fault = servo_law(model, contact)
+        if fault is not None:
+            events.append(Event(t, hand, "model_fault", f"model_fault: law: {fault}"))
             self.hands[hand].contact = None
             return
         self.send("contact", hand, contact.point, law, t)
 
     def send_laws(self, model, events: list | None = None) -> None:
         held = [h for h in self.hands if h.contact is not None]
-        # a law the model gives is refreshed each frame; a model that only writes `force` went
-        # to the servo once, at the grasp (sim.models.api.ModelForce)
+        # a model's own laws are refreshed each frame (a ModelForce went once, at the grasp)
         laws = {h.index: h.contact.law for h in held if h.contact.law is not None}
-        pair = None
-        try:
-            if len(held) == 2:
-                p = model.pair_law([h.contact for h in held])
-                pair = (held[0].index, held[1].index, p) if p is not None else None
-            unstable = bool(model.unstable)
-        except Exception as exc:  # as a force that raises: zero force (unstable), logged once
-            unstable = True
-            if events is not None and not any(e.kind == "model_fault" and e.detail.startswith("model_fault: laws") for e in events):
-                from sim.servo import Event
-
-                events.append(Event(self.ticks() / self.rate, -1, "model_fault", f"model_fault: laws: {type(exc).__name__}: {exc}"))
+        p, unstable, fault = servo_state(model, [h.contact for h in held])
+        pair = (held[0].index, held[1].index, p) if p is not None else None
+        if fault is not None and events is not None and not any(e.detail.startswith("model_fault: laws") for e in events):
+            events.append(Event(self.ticks() / self.rate, -1, "model_fault", f"model_fault: laws: {fault}"))  # logged once
         self.send("laws", laws, pair, unstable)
 
     def run(self, scene, visual, n_ticks: int, visual_rate: float, frame=None, wait: bool = False,

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import pickle
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -289,3 +290,24 @@ class ModelForce:
 
     def update(self, **_) -> None:  # the copy is the model at the grasp
         pass
+
+
+def servo_law(model: TissueModel, contact: Contact) -> tuple[Any, str | None]:
+    """(the law a servo in another process gets for `contact`, checked to pickle; or None and
+    why it cannot have one: the model's `law` raised, or its copy does not pickle)."""
+    try:
+        law = model.law(contact)
+        pickle.dumps(law)
+    except Exception as exc:  # a lab's model may fail in any way: a fault, never a crash
+        return None, f"{type(exc).__name__}: {exc}"
+    return law, None
+
+
+def servo_state(model: TissueModel, contacts: Sequence[Contact]) -> tuple[Any, bool, str | None]:
+    """(the pair law of two coupled contacts or None, whether the model is unstable, the fault
+    or None): what a servo in another process needs after a frame; a model that raises here is
+    taken as unstable (zero force)."""
+    try:
+        return (model.pair_law(contacts) if len(contacts) == 2 else None), bool(model.unstable), None
+    except Exception as exc:
+        return None, True, f"{type(exc).__name__}: {exc}"

@@ -299,7 +299,7 @@ def _stopped(out: dict) -> str:
 @click.option("--json", "as_json", is_flag=True)
 def model_mass_spring(scene_file, resolution, integrator, dt, steps, substep, grasp, displacement, as_json):
     """Hold a pull on the mass-spring brain and step it: stability, displacement, cost."""
-    from sim.models.mass_spring import hold_pull
+    from sim.models.mass_spring_pull import hold_pull
     from sim.scene import build_scene
 
     scene = build_scene(scene_file)
