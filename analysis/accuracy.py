@@ -100,15 +100,12 @@ def plugin_settings() -> list[Setting]:
 def plugin_problem(name: str, scene_path=DEFAULT_SCENE) -> str | None:
     """Why the benches leave a lab's model out of their default rows, or None: it has an
     option without a default and the scene does not configure it."""
-    from sim.models.api import default_options
-    from sim.models.registry import model_class
+    from sim.errors import SceneError
     from sim.scene import load_scene
 
-    if name in load_scene(scene_path).models:
-        return None
     try:
-        default_options(model_class(name))
-    except ValueError as exc:
+        load_scene(scene_path).options_of(name)
+    except SceneError as exc:
         return str(exc)
     return None
 
@@ -128,17 +125,12 @@ def sample_displacements(cfg: AccuracyConfig) -> np.ndarray:
 
 def _build_model(scene, setting: Setting, handset: Path, e_ratio: float):
     from sim.errors import SceneError, SimError
-    from sim.models.api import default_options
     from sim.models.plate_spring import load_params
     from sim.models.registry import model_class
 
     cls = model_class(setting.model)
     opts = dict(setting.options)
-    base = scene.spec.models.get(setting.model)
-    try:
-        options = dict(base.options) if base else default_options(cls)
-    except ValueError as exc:
-        raise SceneError(str(exc)) from None
+    options = scene.spec.options_of(setting.model)
     if setting.model == "plate_spring":
         params = {"handset": lambda: load_params(handset), "located": lambda: load_params(LOCATED_PARAMS),
                   "scene": lambda: options["params"]}[opts.pop("params", "scene")]()

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.models.api import API_VERSION, BUDGETS, default_options
+from sim.models.api import API_VERSION, BUDGETS
 from sim.models.registry import info, model_class
 
 STEP_M = 1e-4  # the continuity check's step along a pull
@@ -51,12 +51,7 @@ def _scene(name: str, scene_path: Path):
     from sim.scene import ModelSpec, Scene, load_scene
 
     spec = load_scene(scene_path)
-    if name not in spec.models:
-        try:
-            options = default_options(model_class(name))
-        except ValueError as exc:
-            raise CheckError(f"{exc} ({scene_path})") from None
-        spec = dataclasses.replace(spec, models={**spec.models, name: ModelSpec(name=name, options=options)})
+    spec = dataclasses.replace(spec, models={**spec.models, name: ModelSpec(name=name, options=spec.options_of(name))})
     return Scene(dataclasses.replace(spec, model=name))
 
 

@@ -110,9 +110,7 @@ def make_cases(quick: bool = False, models: tuple[str, ...] | None = None) -> li
 
 
 def _scene_for(case: Case, scene_path):
-    from sim.models.api import default_options
     from sim.models.plate_spring import PlateSpringParams
-    from sim.models.registry import model_class
     from sim.scene import ModelSpec, Scene, load_scene
 
     spec = load_scene(scene_path)
@@ -122,8 +120,7 @@ def _scene_for(case: Case, scene_path):
         material = dataclasses.replace(material, young=case.value)
     elif case.family == "poisson":
         material = dataclasses.replace(material, poisson=case.value)
-    base = spec.models.get(name)
-    opts = (dict(base.options) if base else default_options(model_class(name))) | dict(options)
+    opts = spec.options_of(name) | dict(options)
     if name in ("fem", "mass_spring"):
         opts["resolution"] = RESOLUTION
     visual_hz = spec.visual_rate_hz

@@ -122,6 +122,19 @@ class SceneSpec:
     renderer: RendererSpec
     view: ViewSpec = ViewSpec()
 
+    def options_of(self, name: str) -> dict:
+        """Model `name`'s options on this scene: its [models.NAME], else the model's declared
+        defaults. Raises SceneError naming an option without a default (and ModelLoadError)."""
+        from sim.models.api import default_options
+        from sim.models.registry import model_class
+
+        if name in self.models:
+            return dict(self.models[name].options)
+        try:
+            return default_options(model_class(name))
+        except ValueError as exc:
+            raise SceneError(f"{exc} ({self.path})") from None
+
     def model_spec(self, name: str | None = None) -> ModelSpec:
         name = name or self.model
         if name not in self.models:
@@ -342,9 +355,9 @@ def configure(spec: SceneSpec, table: dict, path: Path, loc: Locator, prefix: st
 def _file_option(f) -> bool:
     """An option whose string value may name a file relative to the scene (a path, or a table
     that may be given as a file, like the plate-spring's `params`)."""
-    from sim.models.api import _kind
+    from sim.models.api import option_kind
 
-    return _kind(f) in ("path", "other")
+    return option_kind(f) in ("path", "other")
 
 
 def _model_options(table: TableReader, name: str, cls) -> ModelSpec | None:

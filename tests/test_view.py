@@ -163,12 +163,12 @@ def test_a_paced_session_in_the_window_shows_instructions_countdown_hands_and_de
     assert all(r == ("grasp", 1) for r in con.execute("select started_by, grasped from trials"))
 
 
-def test_the_mouse_grasps_and_pulls_the_brain_in_sim_live(xdotool, tmp_path):
-    """A person with a mouse: press on the left hemisphere, drag, release, Q. The force that
-    would be felt is drawn and recorded."""
-    shot = tmp_path / "live.png"
-    proc = subprocess.Popen([sys.executable, "-m", "studyctl.cli", "sim", "live", "--duration", "60", "--screenshot", str(shot), "--json"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+def _drag_in_sim_live(*args: str) -> dict:
+    """`studyctl sim live ARGS --json` driven as a person with a mouse would: press on the left
+    hemisphere, drag 60 px to the left over a second, Q while still holding (a screenshot then
+    shows the pull); the run's JSON summary."""
+    proc = subprocess.Popen([sys.executable, "-m", "studyctl.cli", "sim", "live", "--duration", "60", *args, "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
         deadline = time.time() + 60
         while _window() is None and time.time() < deadline:
@@ -180,18 +180,25 @@ def test_the_mouse_grasps_and_pulls_the_brain_in_sim_live(xdotool, tmp_path):
         time.sleep(0.5)
         _xdotool("mousedown", 1)
         time.sleep(1.0)
-        for k in range(1, 11):  # drag 60 px to the left over a second
+        for k in range(1, 11):
             _xdotool("mousemove", "--window", w, 560 - 6 * k, 420)
             time.sleep(0.1)
         time.sleep(1.0)
-        _xdotool("key", "--window", w, "q")  # quit while still holding: the screenshot shows the pull
+        _xdotool("key", "--window", w, "q")
         out, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
     _xdotool("mouseup", 1)
     assert proc.returncode == 0, err
-    s = json.loads(out)
+    return json.loads(out)
+
+
+def test_the_mouse_grasps_and_pulls_the_brain_in_sim_live(xdotool, tmp_path):
+    """A person with a mouse: press on the left hemisphere, drag, release, Q. The force that
+    would be felt is drawn and recorded."""
+    shot = tmp_path / "live.png"
+    s = _drag_in_sim_live("--screenshot", str(shot))
     assert s["events"].get("grasp", 0) >= 1 and s["ended_early"] == "q"
     assert s["max_force_per_hand_n"]["left"] > 0.02 and s["max_force_per_hand_n"]["right"] == 0.0
     import matplotlib.image as mpimg
@@ -398,30 +405,6 @@ def test_a_plugin_model_in_the_window_with_the_mouse(xdotool, tmp_path):
     from tests.test_plugins import BAD, _plugin_scene
 
     scene = _plugin_scene(tmp_path, f"{BAD}:Spring")
-    proc = subprocess.Popen([sys.executable, "-m", "studyctl.cli", "sim", "live", "--scene", str(scene), "--model", f"{BAD}:Spring",
-                             "--duration", "60", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
-    try:
-        deadline = time.time() + 60
-        while _window() is None and time.time() < deadline:
-            time.sleep(0.2)
-        w = _window()
-        assert w, proc.stderr.read() if proc.poll() is not None else "no window"
-        time.sleep(2.0)
-        _xdotool("mousemove", "--window", w, 560, 420)
-        time.sleep(0.5)
-        _xdotool("mousedown", 1)
-        time.sleep(1.0)
-        for k in range(1, 11):
-            _xdotool("mousemove", "--window", w, 560 - 6 * k, 420)
-            time.sleep(0.1)
-        time.sleep(1.0)
-        _xdotool("key", "--window", w, "q")
-        out, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    _xdotool("mouseup", 1)
-    assert proc.returncode == 0, err
-    s = json.loads(out)
+    s = _drag_in_sim_live("--scene", str(scene), "--model", f"{BAD}:Spring")
     assert s["model"] == f"{BAD}:Spring" and s["events"].get("grasp", 0) >= 1
     assert s["max_force_per_hand_n"]["left"] > 0.02 and "model_fault" not in s["events"] and "nan_force" not in s["events"]

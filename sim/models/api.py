@@ -98,7 +98,7 @@ class OptionInfo:
 KINDS = {"float": "number", "int": "integer", "str": "string", "bool": "boolean", "Path": "path"}  # declared type -> kind
 
 
-def _kind(f) -> str:
+def option_kind(f) -> str:
     """The kind of option field `f` from its declared type (`float`, `int`, `str`, `bool`,
     `Path`, each optionally `| None`); "other" for any other type (a class with its own
     `read_options` may declare those)."""
@@ -113,7 +113,7 @@ def declaration_problem(cls) -> str | None:
         return "Options is not a dataclass"
     if "read_options" in vars(cls):  # the class reads its own options
         return None
-    bad = [f"{f.name} ({f.type})" for f in dataclasses.fields(cls.Options) if _kind(f) == "other"]
+    bad = [f"{f.name} ({f.type})" for f in dataclasses.fields(cls.Options) if option_kind(f) == "other"]
     if bad:
         return f"option{'s' if len(bad) > 1 else ''} {', '.join(bad)} of a type the scene reader does not know; allowed: {', '.join(KINDS)} (or None with them)"
     return None
@@ -135,7 +135,7 @@ def options_of(cls) -> list[OptionInfo]:
     """The options `cls` declares, in order."""
     out = []
     for f in dataclasses.fields(cls.Options):
-        kind = _kind(f)
+        kind = option_kind(f)
         default = None if f.default is dataclasses.MISSING else f.default
         out.append(OptionInfo(f.name, kind, default, f.metadata.get("unit", ""), _allowed(dict(f.metadata), kind), f.metadata.get("doc", "")))
     return out
@@ -151,7 +151,7 @@ def read_options(cls, table) -> dict | None:
     values, ok = {}, True
     for f in fields:
         m = f.metadata
-        kind = _kind(f)
+        kind = option_kind(f)
         default = f.default if f.default is not dataclasses.MISSING else REQUIRED
         if kind == "number":
             v = table.number(f.name, default=default, lo=-math.inf if m.get("lo") is None else m["lo"],

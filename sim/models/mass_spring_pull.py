@@ -9,7 +9,6 @@ import numpy as np
 
 from sim.errors import ParameterError
 from sim.models.base import pull_problem
-from sim.models.builtin import MassSpringBase
 from sim.models.mass_spring import MassSpringModel, StabilityError, from_tets
 
 
@@ -17,13 +16,11 @@ def hold_pull(scene, integrator: str, dt: float, steps: int, resolution: float |
               grasp=None, displacement=None) -> dict:
     """Grasp the scene's brain (default: its first hand's start), hold the hand displaced (default:
     that hand's scripted pull) and step the mass-spring system `steps` times."""
-    from sim.models.api import default_options
     from sim.models.fem import fixed_nodes
     from sim.scene import AXES
     from sim.tetmesh import body_volume
 
-    spec = scene.spec.models.get("mass_spring")
-    opts = spec.options if spec else default_options(MassSpringBase)
+    opts = scene.spec.options_of("mass_spring")
     resolution = opts["resolution"] if resolution is None else resolution
     if not 0.003 <= resolution <= 0.008:
         raise ParameterError(f"resolution: {resolution * 1e3:g} mm is out of range; allowed: 3..8 mm")
