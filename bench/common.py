@@ -96,3 +96,34 @@ def xvfb_display():
     except FileNotFoundError as exc:
         sys.exit(f"bench: no DISPLAY and {exc}")
     return proc
+
+
+def scene_budgets(model: str, frames: int = 36, force_calls: int = 20000) -> dict:
+    """The shipped scene's configuration of `model` against the model contract's budgets
+    (`sim.models.api.BUDGETS`): both hands grasp where the study's do and pull 12 mm over
+    `frames` visual frames (the study's pull at 10 mm/s, 30 Hz), each frame timed; the law's
+    force call timed `force_calls` times at the pull's end. Returns stable keys (p50, p99 and
+    the budgets with the p99's ratio to them) and prints one line each."""
+    from sim.models.api import BUDGETS
+    from sim.scene import DEFAULT_SCENE, Scene, load_scene
+
+    scene = Scene(load_scene(DEFAULT_SCENE), model=model)
+    m = scene.model
+    m.reset()
+    scripts = [scene.script(i) for i in range(len(scene.spec.hands))]
+    contacts = [m.grasp(s.start, i) for i, s in enumerate(scripts)]
+    pulls = [np.asarray(s.pull, dtype=np.float64) for s in scripts]
+    times = []
+    for k in range(1, frames + 1):
+        d = [tuple(float(c) for c in p * k / frames) for p in pulls]
+        start = time.perf_counter()
+        m.deformation(contacts, d)
+        times.append(time.perf_counter() - start)
+    frame_s = np.asarray(times)
+    law = m.law(contacts[0])
+    end = tuple(float(c) for c in pulls[0])
+    force_s = each_call(lambda: law.force(end), force_calls)
+    frame = report(f"{model} (scene configuration) frame", frame_s, "ms", BUDGETS["deformation_ms_p99"])
+    force = report(f"{model} (scene configuration) force call", force_s, "us", BUDGETS["force_us_p99"])
+    return {"options": {k: (str(v) if not isinstance(v, (int, float, str, bool, type(None))) else v) for k, v in scene.model_spec.options.items()},
+            **percentile_keys("frame_ms", frame, BUDGETS["deformation_ms_p99"]), **percentile_keys("force_us", force, BUDGETS["force_us_p99"])}

@@ -184,7 +184,15 @@ class Factor:
             raise ValueError(f"right-hand side has {b.shape[0] if b.ndim else 0} rows; the matrix has {self.n}")
         if b.size == 0:
             return np.zeros_like(b)
-        x = np.asarray(self._solver.solve_A(b))
+        return self.rescaled(self.unscaled_solve(b))
+
+    def unscaled_solve(self, b: np.ndarray) -> np.ndarray:
+        """The solve with the factor itself, before a `scaled` factor's division: the same for
+        every scaling of one factor, so such a solve can be kept and shared by them."""
+        return np.asarray(self._solver.solve_A(np.asarray(b, dtype=np.float64)))
+
+    def rescaled(self, x: np.ndarray) -> np.ndarray:
+        """An `unscaled_solve` as this factor's `solve` (the same bits)."""
         return x if self._ratio == 1.0 else x / self._ratio
 
 

@@ -407,20 +407,38 @@ def _result(scene, model, mode, time_scale, duration, rate, names, rows, starts,
 
 
 def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: float, visual_rate: float):
+    """Every tick, and a visual step after the tick that reaches each frame's time. The quiet
+    ticks between frames run compiled where the run allows it (sim/lockstep.py: the same bits),
+    the others in Python."""
+    # imported here, not at the top: numba (0.3 s) only where a lockstep run needs it
+    from sim.lockstep import CompiledTicks
+
     starts = np.empty(n_ticks)
     clock = time.perf_counter
     begin = clock()
     next_visual = 0.0
     frame = 1.0 / visual_rate
-    for k in range(n_ticks):
+    compiled = CompiledTicks.for_loop(servo)
+    k = 0
+    while k < n_ticks:
         t = k / rate
         starts[k] = clock()
+        if compiled is not None and not t + 1e-9 >= next_visual:
+            end = k + 1  # the ticks before the one that reaches the next frame
+            while end < n_ticks and not end / rate + 1e-9 >= next_visual:
+                end += 1
+            done = compiled.run(k, end, rate)
+            if done:
+                starts[k + 1 : k + done] = starts[k]
+                k += done
+                continue
         servo.tick(t)
         if t + 1e-9 >= next_visual:
             visual(t)
             next_visual += frame
             if visual.finished:
                 return starts[: k + 1], 0, clock() - begin
+        k += 1
     return starts, 0, clock() - begin
 
 

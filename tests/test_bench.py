@@ -28,3 +28,17 @@ def test_text_mode_prints_the_lines(monkeypatch, capsys):
     out = capsys.readouterr().out
     assert "human-readable" in out and "never" not in out
 
+
+
+def test_scene_budgets_time_the_scene_configuration_against_the_contract(capsys):
+    """`python -m bench fem|mass_spring` report the shipped scene's configuration beside the
+    model contract's budgets (here the cheap plate-spring, few calls: the keys, not the speed)."""
+    from bench.common import scene_budgets
+    from sim.models.api import BUDGETS
+
+    out = scene_budgets("plate_spring", frames=6, force_calls=200)
+    assert out["frame_ms.target"] == BUDGETS["deformation_ms_p99"] and out["force_us.target"] == BUDGETS["force_us_p99"]
+    assert 0 < out["frame_ms_p50"] <= out["frame_ms_p99"] <= out["frame_ms_max"]
+    assert out["frame_ms_p99.ratio_to_target"] == out["frame_ms_p99"] / BUDGETS["deformation_ms_p99"]
+    assert out["options"]["variant"] == "continuous"  # the scene's own configuration
+    assert "plate_spring (scene configuration) frame" in capsys.readouterr().out

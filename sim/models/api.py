@@ -28,7 +28,10 @@ Optional capabilities, each with its default here (override what the model has):
 (empty); ``frame_flops`` counted work of the last frame (NaN: not counted); ``unstable`` the
 model's state blew up, the servo renders zero force (False); ``forces(contacts, displacements)``
 several contacts at once, for coupled contacts (one `force` each); ``pair_law(contacts)`` the
-law of two coupled contacts for a servo in another process (None); ``with_stiffness(scale)``
+law of two coupled contacts for a servo in another process (None); ``tick_laws(contacts)``
+the laws whose ``force(d)`` are the model's forces now, which a lockstep servo may evaluate
+compiled (`sim/lockstep.py`; the contacts' laws when ``force`` and ``forces`` are the defaults
+here, else None); ``with_stiffness(scale)``
 the same model with every force times `scale`, for the discrimination task (declare
 ``scales_stiffness = True``); ``surface`` a surface of its own that `deformation` moves
 (None: the scene's mesh).
@@ -265,6 +268,14 @@ class TissueModel:
     def pair_law(self, contacts: Sequence[Contact]):
         return None
 
+    def tick_laws(self, contacts: Sequence[Contact]) -> list | None:
+        """The laws whose ``force(d)`` are ``forces(contacts, d)`` now (a servo may evaluate
+        them itself: the compiled lockstep ticks, sim/lockstep.py), or None where the model
+        computes its forces otherwise. A model overriding ``force`` or ``forces`` says so here."""
+        if type(self).force is TissueModel.force and type(self).forces is TissueModel.forces and all(c.law is not None for c in contacts):
+            return [c.law for c in contacts]
+        return None
+
     def with_stiffness(self, scale: float) -> TissueModel:
         raise CapabilityError(f"model {self.name!r} does not scale its stiffness (the discrimination task needs it)")
 
@@ -301,6 +312,15 @@ def servo_law(model: TissueModel, contact: Contact) -> tuple[Any, str | None]:
     except Exception as exc:  # a lab's model may fail in any way: a fault, never a crash
         return None, f"{type(exc).__name__}: {exc}"
     return law, None
+
+
+def servo_laws(model: TissueModel, contacts: Sequence[Contact]) -> list | None:
+    """`model.tick_laws(contacts)`, None where it raises (the Python tick then logs the fault)."""
+    try:
+        laws = model.tick_laws(contacts)
+    except Exception:
+        return None
+    return list(laws) if laws is not None and len(laws) == len(contacts) else None
 
 
 def servo_state(model: TissueModel, contacts: Sequence[Contact]) -> tuple[Any, bool, str | None]:

@@ -482,6 +482,10 @@ class MassSpringModel(MassSpringBase):
         # hand at anchor + d, patch (mapped to the surface point) where the simulation left it
         return contact.law.force(displacement)
 
+    def tick_laws(self, contacts):
+        """Each contact's coupling, unless the system blew up (`force`)."""
+        return None if self.system.unstable else [c.law for c in contacts]
+
     def deformation(self, contacts, displacements) -> np.ndarray:
         sysm = self.system
         # the coupling spring pulls the patch's mean towards where the hand puts it

@@ -29,7 +29,7 @@ import numpy as np
 
 from sim.errors import ParameterError
 from sim.laws import RadialTable, TensorTable
-from sim.models.base import Contact, Vec3
+from sim.models.base import Contact
 from sim.models.builtin import PLATE_SPRING_VARIANTS, PlateSpringBase
 from sim.tomlfile import TomlFileError, read_toml
 from sim.tomltable import REQUIRED
@@ -419,9 +419,6 @@ class PlateSpringModel(PlateSpringBase):
         else:
             law = RadialTable(list(self.stack._x0), list(self.stack._f0), list(self.stack._slope))
         return Contact(hand=hand, vertex=int(v), point=anchor, normal=normal, data=_ContactField(idx, dist), law=law)
-
-    def force(self, contact: Contact, displacement: Sequence[float]) -> Vec3:
-        return contact.law.force(displacement)
 
     def with_stiffness(self, scale: float) -> PlateSpringModel:
         """This model with the plates' modulus E times `scale`: every spring constant and layer

@@ -34,11 +34,13 @@ def symmetric_inverse(C: np.ndarray) -> np.ndarray:
     return np.linalg.inv(0.5 * (C + C.T))
 
 
-def condense(fem, W: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(U = K^-1 W^T (n_free, 3), the compliance C = W U symmetrised (3, 3), the stiffness C^-1)."""
+def condense(fem, W: sp.csr_matrix, unscaled: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(U = K^-1 W^T (n_free, 3), the compliance C = W U symmetrised (3, 3), the stiffness C^-1).
+    `unscaled`: the factor's `unscaled_solve` of W^T, kept from an earlier grasp of this patch on
+    a model sharing the factor (`LinearFem.scaled`): the same U without solving again."""
     if W.nnz == 0:
         raise SingularSystemError("grasp patch lies in clamped elements: it cannot move")
-    U = fem.solve_free(np.ascontiguousarray(W.T.toarray()))
+    U = fem.solve_free(np.ascontiguousarray(W.T.toarray())) if unscaled is None else fem.factor.rescaled(unscaled)
     C = W @ U
     C = 0.5 * (C + C.T)
     return U, C, np.linalg.inv(C)

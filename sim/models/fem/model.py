@@ -20,6 +20,7 @@ import scipy.sparse as sp
 
 from sim.errors import ParameterError
 from sim.laws import Linearised, PairTable
+from sim.linalg import SingularSystemError
 from sim.models.builtin import FemBase, FemOptions
 from sim.models.fem.corotational import Precond, corotational_step, warped_active
 from sim.models.fem.grasp import condense, constraint_matrix, symmetric_inverse
@@ -115,6 +116,10 @@ class FemModel(FemBase):
         surface.prepare_queries()
         self._pair_of: tuple | None = None  # (the two contacts' data, their pair stiffness)
         self._grasps: dict[int, tuple] = {}  # surface vertex -> its condensed grasp (`grasp`)
+        # surface vertex -> (part, W, the factor's unscaled solve of W^T): the costly part of a
+        # grasp (location and three solves, 60 ms at P2 8 mm), shared with every stiffness-scaled
+        # copy (`with_stiffness`: the same factor), whose grasps then cost a division and W U
+        self._located: dict[int, tuple] = {}
         self._out = np.zeros_like(surface.vertices)
         # corotational state, per part: (contact ids, free-dof displacement, multipliers)
         self._corot: dict[int, tuple] = {}
@@ -198,15 +203,25 @@ class FemModel(FemBase):
         read-only: every grasp at `v` shares them."""
         hit = self._grasps.pop(v, None)
         if hit is None:
-            part = int(self.tet_part[self.embedding.tet[v]])
+            located = self._located.pop(v, None)
+            if located is None:
+                part = int(self.tet_part[self.embedding.tet[v]])
+                fem = self.parts[part]
+                # the patch's area mean, each quadrature point interpolated in its element: the
+                # reference's functional (its vertex mean, a handful of point constraints, would soften
+                # without limit as the mesh is refined: 13% from 8 to 4 mm on P2)
+                points, weights = patch_area_points(self.surface, v, self.grasp_radius)
+                tet, bary = locate(fem.nodes, fem.tets, points)
+                W = constraint_matrix(fem, tet, bary, weights)
+                if W.nnz == 0:
+                    raise SingularSystemError("grasp patch lies in clamped elements: it cannot move")
+                located = (part, W, fem.factor.unscaled_solve(np.ascontiguousarray(W.T.toarray())))
+                while len(self._located) >= GRASPS_KEPT:
+                    self._located.pop(next(iter(self._located)))
+            self._located[v] = located
+            part, W, unscaled = located
             fem = self.parts[part]
-            # the patch's area mean, each quadrature point interpolated in its element: the
-            # reference's functional (its vertex mean, a handful of point constraints, would soften
-            # without limit as the mesh is refined: 13% from 8 to 4 mm on P2)
-            points, weights = patch_area_points(self.surface, v, self.grasp_radius)
-            tet, bary = locate(fem.nodes, fem.tets, points)
-            W = constraint_matrix(fem, tet, bary, weights)
-            U, C, Kc = condense(fem, W)  # raises SingularSystemError if the patch cannot move
+            U, C, Kc = condense(fem, W, unscaled)
             U.flags.writeable = C.flags.writeable = False
             hit = (part, W, U, C, tuple(float(x) for x in Kc.ravel()))
             while len(self._grasps) >= GRASPS_KEPT:
@@ -233,6 +248,12 @@ class FemModel(FemBase):
         if len(contacts) == 2 and contacts[0].data.part == contacts[1].data.part and self.formulation == "linear":
             return PairTable(K=[float(x) for x in self._pair(contacts[0], contacts[1]).ravel()])
         return None
+
+    def tick_laws(self, contacts):
+        """Each contact's law, unless the model is unstable or the two grasps are coupled."""
+        if self.unstable or self.pair_law(contacts) is not None:
+            return None
+        return [c.law for c in contacts]
 
     def forces(self, contacts, displacements):
         pair = self.pair_law(contacts)
