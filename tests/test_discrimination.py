@@ -29,7 +29,10 @@ def jnd_protocol(tmp_path: Path, conditions=("plate_spring",), trials=12, method
 
     fast_protocol(tmp_path)  # writes tmp_path / "scene.toml"
     text = JND.read_text().replace('scene = "scenes/brain_pull.toml"', f'scene = "{tmp_path / "scene.toml"}"')
-    text = text.replace('conditions = ["fem", "mass_spring", "plate_spring"]', f"conditions = {json.dumps(list(conditions))}")
+    text = text.replace('conditions = ["fem", "mass_spring_3it", "plate_spring"]', f"conditions = {json.dumps(list(conditions))}")
+    if "mass_spring_3it" not in conditions:  # the shipped mass-spring condition's table goes with it
+        head, rest = text.split("[conditions.mass_spring_3it]")
+        text = head + rest[rest.index("[[tasks]]"):]
     text = text.replace("trials = 40", f"trials = {trials}").replace("training_minutes = 2.0", "training_minutes = 0.0")
     text = text.replace('method = "quest+"', f'method = "{method}"' + extra).replace("trial_seconds = 3.0", "trial_seconds = 1.0")
     path = tmp_path / "jnd.toml"
@@ -39,7 +42,9 @@ def jnd_protocol(tmp_path: Path, conditions=("plate_spring",), trials=12, method
 
 def test_shipped_protocol_is_forty_quest_trials_on_each_model():
     p = load_protocol(JND)
-    assert p.conditions == ("fem", "mass_spring", "plate_spring") and p.trials_per_condition == 0 and not p.questions
+    assert p.conditions == ("fem", "mass_spring_3it", "plate_spring") and p.trials_per_condition == 0 and not p.questions
+    # the mass-spring at 3 local/global iterations a frame: as accurate as 10 (docs/mass_spring.md)
+    assert p.condition_tables["mass_spring_3it"] == {"model": "mass_spring", "iterations": 3}
     (task,) = p.tasks
     assert (task.kind, task.parameter, task.reference, task.method, task.trials, task.feedback) == ("discrimination", "stiffness", 1.0, "quest+", 40, False)
     assert task.question == "Which one was stiffer?" and (task.low, task.high) == (0.02, 1.0) and task.interval_seconds == 3.0
