@@ -5,7 +5,8 @@ two simulated Omnis (the operator's hand dynamics), evaluating two force laws an
 rules, about 90 us a tick. Most ticks are quiet: no button changes, no fault, no safety rule
 acts, nothing is logged. `CompiledTicks` runs those in one compiled loop with the arithmetic of
 `ServoLoop.tick`, `SimulatedOmni.read`/`write_force`, `PullScript.target` and the laws
-(`sim/laws.py`) written out in the same order, so the trace is the same to the bit (tested
+(`sim/laws.py`) written out in the same order, so the trace is the same to the bit (Python's `x ** 2` and `t ** 3` are the C library's pow, which
+is not always `x * x`: the kernel calls pow with the exponent as a value it cannot fold; tested
 against the Python tick on the shipped scenes and on random scripts). The first tick that would
 do anything else (an event, a rule acting, a reversal of the force) is left undone and the
 Python tick runs it. Runs that this cannot mirror (another device, a law it does not know, a
@@ -20,7 +21,8 @@ import time
 import numba
 import numpy as np
 
-from sim.devices.simulated import RESTRAINT_GAIN, RESTRAINT_ONSET, PullScript, SimulatedOmni
+import sim.devices.simulated as simulated
+from sim.devices.simulated import PullScript, SimulatedOmni
 from sim.laws import Coupling, Linearised, RadialTable, TensorTable, Zero
 from sim.servo import ServoLoop, limit_force
 
@@ -50,19 +52,19 @@ _LIMIT_FORCE = limit_force
 
 
 @numba.njit(cache=True, fastmath=False, inline="always")
-def _min_jerk(tau):
+def _min_jerk(tau, three):
     if tau <= 0.0:
         return 0.0
     if tau >= 1.0:
         return 1.0
-    return math.pow(tau, 3.0) * (10.0 - 15.0 * tau + 6.0 * tau * tau)
+    return math.pow(tau, three) * (10.0 - 15.0 * tau + 6.0 * tau * tau)
 
 
 @numba.njit(cache=True, fastmath=False)
-def _target(sc, t, out):
+def _target(sc, t, out, three):
     """`PullScript.target` (no jump: such scripts never come here)."""
     if sc[8] > 0:
-        s = _min_jerk((t - sc[7]) / sc[8])
+        s = _min_jerk((t - sc[7]) / sc[8], three)
     else:
         s = 1.0 if t >= sc[7] else 0.0
     x0 = sc[0] + s * sc[3]
@@ -70,7 +72,7 @@ def _target(sc, t, out):
     x2 = sc[2] + s * sc[5]
     if sc[18] != 0.0:  # a back movement
         if sc[20] > 0:
-            s = _min_jerk((t - sc[19]) / sc[20])
+            s = _min_jerk((t - sc[19]) / sc[20], three)
         else:
             s = 1.0 if t >= sc[19] else 0.0
         x0, x1, x2 = x0 + s * sc[15], x1 + s * sc[16], x2 + s * sc[17]
@@ -84,16 +86,16 @@ def _target(sc, t, out):
 
 
 @numba.njit(cache=True, fastmath=False)
-def _advance(dev, cst, sc, t, target):
+def _advance(dev, cst, sc, t, target, prm):
     """`SimulatedOmni._advance` on the state row `dev` (changed in place)."""
     k, c, m = cst[8], cst[9], cst[10]
-    gain = sc[21] * RESTRAINT_GAIN
+    gain = sc[21] * prm[10]
     excess = 0.0
     if gain != 0.0:
-        excess = math.sqrt(dev[7] * dev[7] + dev[8] * dev[8] + dev[9] * dev[9]) - RESTRAINT_ONSET * sc[22]
+        excess = math.sqrt(dev[7] * dev[7] + dev[8] * dev[8] + dev[9] * dev[9]) - prm[9] * sc[22]
     while dev[6] + 1e-12 < t:
         h = min(cst[6], t - dev[6])
-        _target(sc, dev[6] + h, target)
+        _target(sc, dev[6] + h, target, prm[8])
         if gain != 0.0:
             back = dev[10] + h * gain * excess
             back = back if back > 0.0 else 0.0
@@ -150,9 +152,11 @@ def _law(kind, p, x0, f0, slope, n, dx, dy, dz, out):
 def _ticks(k0, k1, rate, dev, cst, scr, hand, point, kinds, laws, x0, f0, slope, nseg, prm, rows):
     """Ticks k0..k1-1 while they are quiet; returns how many ran (their rows in `rows`).
 
-    prm: peak_force, ramp_s, jump_m, continuous_force, dt, budget_tau_s, suspended_until."""
+    prm: peak_force, ramp_s, jump_m, continuous_force, dt, budget_tau_s, suspended_until, then
+    the exponents 2 and 3 and the devices' RESTRAINT_ONSET and RESTRAINT_GAIN."""
     nh = dev.shape[0]
     peak, ramp_s, jump_m, cont, dt, tau, suspended_until = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5], prm[6]
+    two = prm[7]
     ndev = dev.copy()
     target = np.empty(3)
     pos = np.empty((nh, 3))
@@ -166,14 +170,14 @@ def _ticks(k0, k1, rate, dev, cst, scr, hand, point, kinds, laws, x0, f0, slope,
         for i in range(nh):
             for j in range(DEV):
                 ndev[i, j] = dev[i, j]
-            _advance(ndev[i], cst[i], scr[i], t, target)
+            _advance(ndev[i], cst[i], scr[i], t, target, prm)
             r = cst[i, 7]
             o = cst[i]
             for j in range(3):
                 pos[i, j] = o[j] + np.rint((ndev[i, j] - o[j]) / r) * r
             if not (math.isfinite(pos[i, 0]) and math.isfinite(pos[i, 1]) and math.isfinite(pos[i, 2])):
                 return k - k0
-            step = math.sqrt((pos[i, 0] - hand[i, 0]) ** 2 + (pos[i, 1] - hand[i, 1]) ** 2 + (pos[i, 2] - hand[i, 2]) ** 2)
+            step = math.sqrt(math.pow(pos[i, 0] - hand[i, 0], two) + math.pow(pos[i, 1] - hand[i, 1], two) + math.pow(pos[i, 2] - hand[i, 2], two))
             if hand[i, 9] > 0 and step > jump_m:
                 return k - k0
             button = 1.0 if (scr[i, 6] <= t and t < scr[i, 9]) else 0.0
@@ -195,7 +199,7 @@ def _ticks(k0, k1, rate, dev, cst, scr, hand, point, kinds, laws, x0, f0, slope,
             mag = math.sqrt(fx * fx + fy * fy + fz * fz)
             if not math.isfinite(mag) or mag > peak:
                 return k - k0
-            m2 = fx ** 2 + fy ** 2 + fz ** 2
+            m2 = math.pow(fx, two) + math.pow(fy, two) + math.pow(fz, two)
             if hand[i, 11] > 0 and m2 > cont * cont:
                 return k - k0
             p0, p1, p2 = hand[i, 3], hand[i, 4], hand[i, 5]
@@ -205,7 +209,7 @@ def _ticks(k0, k1, rate, dev, cst, scr, hand, point, kinds, laws, x0, f0, slope,
         # the tick is quiet: keep it (write, heat, record)
         row = rows[k - k0]
         row[0] = t
-        c2 = cont ** 2
+        c2 = math.pow(cont, two)
         for i in range(nh):
             fx, fy, fz = frc[i, 0], frc[i, 1], frc[i, 2]
             for j in range(DEV):
@@ -223,7 +227,7 @@ def _ticks(k0, k1, rate, dev, cst, scr, hand, point, kinds, laws, x0, f0, slope,
             hand[i, 0], hand[i, 1], hand[i, 2] = pos[i, 0], pos[i, 1], pos[i, 2]
             hand[i, 3], hand[i, 4], hand[i, 5] = fx, fy, fz
             hand[i, 9] += 1
-            m2 = fx ** 2 + fy ** 2 + fz ** 2
+            m2 = math.pow(fx, two) + math.pow(fy, two) + math.pow(fz, two)
             hand[i, 10] += (m2 - hand[i, 10]) * dt / tau
             if hand[i, 11] == 0 and hand[i, 10] > c2:
                 hand[i, 11] = 1.0
@@ -257,7 +261,6 @@ class CompiledTicks:
             self.scr[i] = (*sc.start, *sc.pull, sc.grasp_at, sc.pull_start, sc.pull_time, sc.release_at, sc.tremor_m, sc.tremor_hz,
                            *sc.tremor_phase, *sc.back, 1.0 if back else 0.0, sc.back_start if back else 0.0, sc.back_time,
                            sc.restraint, sc.safe_force)
-        self.prm = np.array([servo.peak_force, servo.ramp_s, servo.jump_m, servo.continuous_force, servo.dt, servo.budget_tau_s, 0.0])
         self.rows = np.empty((0, 3 + 7 * nh))
 
     @classmethod
@@ -309,6 +312,8 @@ class CompiledTicks:
             point[i] = h.contact.point
             if kind in (RADIAL, TENSOR):
                 m = len(law.x0)
+                if m == 0 or len(law.f0) < m or len(law.slope) < m:  # the Python tick reports such a table's fault
+                    return None
                 x0[i, :m], f0[i, :m], slope[i, :m], nseg[i] = law.x0, law.f0, law.slope, m
                 if kind == TENSOR:
                     p[i, :10] = (law.k0, *law.S)
@@ -342,15 +347,23 @@ class CompiledTicks:
             dev[i] = (*d._x, *d._v, d._t, *d._force, d.held_back, d.max_force_applied)
             hand[i] = (*h.position, *h.force, 1.0 if h.button else 0.0, h.contact_t, h.max_force, h.ticks, h.mean_square,
                        1.0 if h.over_budget else 0.0)
-        self.prm[6] = servo.suspended_until
+        # read now, as the Python tick reads them; the constants passed as values: numba would
+        # freeze a module's constant in its disk cache, which a change elsewhere does not clear
+        prm = np.array([servo.peak_force, servo.ramp_s, servo.jump_m, servo.continuous_force, servo.dt, servo.budget_tau_s,
+                        servo.suspended_until, 2.0, 3.0, simulated.RESTRAINT_ONSET, simulated.RESTRAINT_GAIN])
         if len(self.rows) < k1 - k0:
             self.rows = np.empty((k1 - k0, 3 + 7 * nh))
         start = time.perf_counter()
-        done = _ticks(k0, k1, float(rate), dev, self.cst, self.scr, hand, point, kinds, p, x0, f0, slope, nseg, self.prm, self.rows)
+        try:
+            done = _ticks(k0, k1, float(rate), dev, self.cst, self.scr, hand, point, kinds, p, x0, f0, slope, nseg, prm, self.rows)
+        except Exception:  # e.g. a law dividing by zero: nothing is kept, the Python tick runs it (and logs the fault)
+            return 0
         if done == 0:
             return 0
         rows = self.rows[:done]
-        rows[:, 1] = rows[:, 2] = (time.perf_counter() - start) / done  # measured: the loop's time per tick
+        # a compiled tick's compute and read-to-force times are the loop's mean per tick: lockstep
+        # has no device I/O, and these ticks are not timed one by one
+        rows[:, 1] = rows[:, 2] = (time.perf_counter() - start) / done
         servo.rows.extend(rows)
         for i, h in enumerate(hands):
             d, r = h.device, dev[i]

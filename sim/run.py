@@ -410,15 +410,17 @@ def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
     """Every tick, and a visual step after the tick that reaches each frame's time. The quiet
     ticks between frames run compiled where the run allows it (sim/lockstep.py: the same bits),
     the others in Python."""
-    # imported here, not at the top: numba (0.3 s) only where a lockstep run needs it
-    from sim.lockstep import CompiledTicks
+    try:  # here, not at the top: numba (0.3 s) only where a lockstep run needs it; without numba every tick in Python
+        from sim.lockstep import CompiledTicks
+    except ImportError:
+        CompiledTicks = None
 
     starts = np.empty(n_ticks)
     clock = time.perf_counter
     begin = clock()
     next_visual = 0.0
     frame = 1.0 / visual_rate
-    compiled = CompiledTicks.for_loop(servo)
+    compiled = CompiledTicks.for_loop(servo) if CompiledTicks is not None else None
     k = 0
     while k < n_ticks:
         t = k / rate

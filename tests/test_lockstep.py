@@ -76,3 +76,42 @@ def test_ticks_where_safety_rules_act_run_in_python_and_match(monkeypatch):
     compiled, ran = _trace(scene, True, monkeypatch)
     assert ran == 0 and "position_jump" in {e.kind for e in compiled.events}  # a scripted glitch: every tick in Python
     _same(python, compiled)
+
+
+def test_squares_are_python_s_pow_not_a_product(monkeypatch):
+    """Python's `f ** 2` is the C library's pow, which differs from `f * f` in the last bit for
+    about 1 in 1000 doubles; the kernel must square as Python does. Here (found by a review's
+    fuzzing) hand 2's |F|^2 differs at tick 264, and with a continuous force whose square is the
+    moving mean at tick 267, the budget's hold starts one tick apart when squared by product."""
+    import sim.run as run
+    from sim.devices.simulated import PullScript
+
+    scene = Scene(load_scene(SCENE), model="plate_spring")
+    scene.operators = [
+        PullScript(start=(-0.03129865074157715, -0.01857537841796875, 0.07231871032714844), pull=(-0.014751214155823847, 0.000219056358319369, -0.004966962712999299),
+                   grasp_at=0.1, pull_start=0.2502312785531666, pull_time=0.0, release_at=float("inf"), tremor_m=5.6960810945673863e-05,
+                   tremor_hz=11.460162508426842, tremor_phase=(2.7800067755363704, -2.604916020132662, 2.8254466215527287),
+                   back=(0.007261085761279033, -8.278971696640409e-05, -0.0011517704324314054), back_start=1.1497290651637488, back_time=0.0,
+                   restraint=-0.43042455440151617, safe_force=2.842545333497624),
+        PullScript(start=(0.0315217170715332, -0.017235355377197267, 0.07162483215332031), pull=(0.28079366587418514, -0.020586662358612416, -0.14241707958145486),
+                   grasp_at=0.23040665509968233, pull_start=0.5177730814215935, pull_time=0.0, release_at=0.3659100995344341, tremor_m=0.0002693509584440471,
+                   tremor_hz=7.57496491509573, tremor_phase=(0.1905642532682723, -1.772835424088715, 3.724958432825807),
+                   back=(-0.008835832915465688, 0.001354220713046484, 0.0060764964072449095), back_start=1.2187774721076732, back_time=0.872444550445846,
+                   restraint=0.0, safe_force=2.952085672487362)]
+    original, servos = run._run_lockstep, []
+
+    def budget(servo, *args):
+        servo.continuous_force = 4.971238889260343e-05  # its square: hand 2's moving mean of |F|^2 at tick 267
+        servos.append(servo)
+        return original(servo, *args)
+
+    monkeypatch.setattr(run, "_run_lockstep", budget)
+    monkeypatch.setattr(lockstep, "ENABLED", False)
+    python = run_scene(scene, duration=1.5, time_scale=0)
+    monkeypatch.setattr(lockstep, "ENABLED", True)
+    compiled = run_scene(scene, duration=1.5, time_scale=0)
+    _same(python, compiled)
+    assert "force_budget" in {e.kind for e in compiled.events}
+    a, b = servos
+    assert [(h.mean_square.hex(), h.max_force.hex(), h.over_budget, h.ticks) for h in a.hands] == \
+        [(h.mean_square.hex(), h.max_force.hex(), h.over_budget, h.ticks) for h in b.hands]

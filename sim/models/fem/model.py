@@ -250,7 +250,10 @@ class FemModel(FemBase):
         return None
 
     def tick_laws(self, contacts):
-        """Each contact's law, unless the model is unstable or the two grasps are coupled."""
+        """Each contact's law, unless the model is unstable or the two grasps are coupled (or a
+        subclass computes its forces otherwise)."""
+        if type(self).force is not FemModel.force or type(self).forces is not FemModel.forces:
+            return None
         if self.unstable or self.pair_law(contacts) is not None:
             return None
         return [c.law for c in contacts]
