@@ -76,8 +76,12 @@ class VisualStep:
     targets: object = None  # a sim.targets.TargetTracker: the hands' targets, followed every frame
     end_on_targets: bool = False  # the run ends once every hand has held its target
     grasp_reach: float = 0.01  # a button press farther than this from the surface grasps nothing
+    # a run that draws nothing (lockstep, no pictures): each frame only `advance`s the model, and
+    # its surface is computed when a grasp needs it (the traces are the same: no force reads it)
+    lazy_surface: bool = False
     _next_snapshot: float = 0.0
     _tree: object = None
+    _stale: bool = False  # the model advanced since `last` was taken (lazy_surface)
 
     def _surface_tree(self):
         """Closest-point structure of the surface as it is now (rebuilt at most once a frame,
@@ -85,6 +89,9 @@ class VisualStep:
         if self._tree is None:
             from scipy.spatial import cKDTree
 
+            if self._stale:
+                self._stale = False
+                self.last = self.model.surface_displacement()
             mesh = self.model_mesh()
             positions = mesh.vertices if self.last is None else mesh.vertices + self.last
             self._tree = cKDTree(positions)
@@ -132,7 +139,11 @@ class VisualStep:
         start = time.perf_counter()
         flops = math.nan
         try:
-            u = self.model.deformation(contacts, displacements)
+            if self.lazy_surface:
+                self.model.advance(contacts, displacements)
+                u = None
+            else:
+                u = self.model.deformation(contacts, displacements)
             flops = float(self.model.frame_flops)
         except Exception as exc:  # the model failed: drop the grasps (zero force), keep running
             self.events.append(Event(t, -1, "model_fault", f"model_fault: deformation: {exc}"))
@@ -141,7 +152,9 @@ class VisualStep:
             u = np.zeros_like(self.model_mesh().vertices)
         self.deformation_s.append(time.perf_counter() - start)
         self.frame_flops.append(flops)  # a failed frame: no count (never the last frame's)
-        self.last = u  # the latest surface displacement, for live drawing
+        self._stale = u is None
+        if u is not None:
+            self.last = u  # the latest surface displacement, for live drawing
         if self.targets is not None:
             self.targets.update(t, self.hands)
         if self.snapshot_period is not None and t + 1e-9 >= self._next_snapshot:
@@ -265,7 +278,7 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
     servo_loop = ServoLoop.for_devices(model, hands, rate)
     snapshot_period = 1.0 / spec.renderer.fps if snapshots else None
     visual = VisualStep(model=model, hands=hands, events=servo_loop.events, snapshot_period=snapshot_period,
-                        targets=_tracker(scene), end_on_targets=end_on_targets)
+                        targets=_tracker(scene), end_on_targets=end_on_targets, lazy_surface=not snapshots)
     n_ticks = int(round(duration * rate))
     try:
         starts, misses, wall = _run_lockstep(servo_loop, visual, n_ticks, rate, spec.visual_rate_hz)

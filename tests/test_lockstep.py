@@ -115,3 +115,38 @@ def test_squares_are_python_s_pow_not_a_product(monkeypatch):
     a, b = servos
     assert [(h.mean_square.hex(), h.max_force.hex(), h.over_budget, h.ticks) for h in a.hands] == \
         [(h.mean_square.hex(), h.max_force.hex(), h.over_budget, h.ticks) for h in b.hands]
+
+
+@pytest.mark.parametrize("model", ["fem", "mass_spring", "plate_spring"])
+def test_a_lazy_surface_is_the_frame_s_surface(model):
+    """A lockstep run without pictures only `advance`s the model each frame; the surface asked
+    for later (a grasp's collision) is the one `deformation` gives, to the bit."""
+    scene = Scene(load_scene(SCENE), model=model)
+    m = scene.model
+    contacts = [m.grasp(scene.script(i).start, i) for i in range(2)]
+    pulls = [np.asarray(scene.script(i).pull) for i in range(2)]
+    frames = [[tuple(p * k / 6) for p in pulls] for k in range(1, 7)] + [[]]
+    eager, lazy = [], []
+    for out, lazily in ((eager, False), (lazy, True)):
+        m.reset()
+        for ds in frames:
+            held = contacts[: len(ds)]
+            if lazily:
+                m.advance(held, ds)
+                out.append(m.surface_displacement().copy())
+            else:
+                out.append(np.array(m.deformation(held, ds)))
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(eager, lazy))
+    assert np.abs(eager[-2]).max() > 1e-3  # the pulled surface moved
+
+
+def test_a_late_grasp_collides_with_the_deformed_surface_lazily_as_eagerly(monkeypatch):
+    """The second hand grasps after the first has pulled: with pictures (every frame's surface)
+    and without (computed for the grasp), the same grasp, trace and events."""
+    scene = Scene(load_scene(SCENE), model="mass_spring")
+    scene.operators = _operators(scene)
+    scene.operators[1] = dataclasses.replace(scene.operators[1], grasp_at=1.2, pull_start=1.4, back_start=None)
+    eager = run_scene(scene, duration=2.5, time_scale=0, snapshots=True)
+    lazy = run_scene(scene, duration=2.5, time_scale=0)
+    _same(eager, lazy)
+    assert [e.t for e in lazy.events if e.kind == "grasp"][1] >= 1.2

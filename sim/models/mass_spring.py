@@ -490,6 +490,12 @@ class MassSpringModel(MassSpringBase):
         return None if self.system.unstable else [c.law for c in contacts]
 
     def deformation(self, contacts, displacements) -> np.ndarray:
+        self.advance(contacts, displacements)
+        return self.surface_displacement()
+
+    def advance(self, contacts, displacements) -> None:
+        """Steps the system and publishes the patches; the surface (the embedding of the nodes'
+        displacement) waits for `surface_displacement`."""
         sysm = self.system
         # the coupling spring pulls the patch's mean towards where the hand puts it
         sysm.set_anchors([(c.data.nodes, self.coupling, c.data.anchor + np.asarray(d, dtype=np.float64)) for c, d in zip(contacts, displacements)])
@@ -510,6 +516,9 @@ class MassSpringModel(MassSpringBase):
             if moved > 1e-12:  # the hand moved since the last frame: the patch's share of that motion
                 gain = min(1.0, max(0.0, float((patch - np.asarray(c.law.patch)) @ step) / moved))
             c.law.update(patch=tuple(float(x) for x in patch), d_frame=tuple(float(x) for x in d), gain=gain)
+
+    def surface_displacement(self) -> np.ndarray:
+        sysm = self.system
         u = sysm.x - sysm.rest_positions
         if not np.all(np.isfinite(u)):
             u = np.zeros_like(u)

@@ -121,6 +121,7 @@ class FemModel(FemBase):
         # copy (`with_stiffness`: the same factor), whose grasps then cost a division and W U
         self._located: dict[int, tuple] = {}
         self._out = np.zeros_like(surface.vertices)
+        self._pending: tuple | None = ("zero",)  # the last frame's surface, not computed yet (`advance`)
         # corotational state, per part: (contact ids, free-dof displacement, multipliers)
         self._corot: dict[int, tuple] = {}
         self.inverted_frames = 0  # frames in which an element was inverted (det F <= 0)
@@ -158,7 +159,7 @@ class FemModel(FemBase):
         shared, no grasp or frame state carried over. Equal to building it with E * scale."""
         out = copy.copy(self)
         out.parts = [p.scaled(scale) for p in self.parts]
-        out._pair_of, out._corot, out._out, out._grasps = None, {}, np.zeros_like(self._out), {}
+        out._pair_of, out._corot, out._out, out._grasps, out._pending = None, {}, np.zeros_like(self._out), {}, ("zero",)
         out.inverted_frames = out.tangent_updates = out.restarts = 0
         out.unstable, out.frame_flops = False, math.nan
         return out
@@ -280,22 +281,38 @@ class FemModel(FemBase):
         return u
 
     def deformation(self, contacts, displacements) -> np.ndarray:
+        self.advance(contacts, displacements)
+        return self.surface_displacement()
+
+    def advance(self, contacts, displacements) -> None:
+        """The frame's state (the corotational update and its laws); the surface waits for
+        `surface_displacement` (the linear formulation's force never needs it)."""
         if not contacts:
             self.frame_flops = float(3 * len(self._out))  # zeroing: every call sets its count (none is left over)
-            self._out[:] = 0.0
+            self._pending = ("zero",)
             self._corot.clear()
             self.unstable = False  # released: the next grasp starts from the linear solution
-            return self._out
+            return
         displacements = [np.asarray(d, dtype=np.float64) for d in displacements]
-        # counted work of the frame (studyctl/observer.py): dense products with the grasps'
-        # responses (6 flops per free dof and grasp), the embedding (2 per entry and component), zeroing
+        # counted work of the frame as a session runs it (studyctl/observer.py), the surface
+        # included: dense products with the grasps' responses (6 flops per free dof and grasp),
+        # the embedding (2 per entry and component), zeroing
         self.frame_flops = float(2 * self.surface_matrix.nnz + 3 * self.n_model_nodes
                                  + sum(6 * len(self.parts[c.data.part].free) for c in contacts) + 72 * len(contacts))
         if self.formulation == "corotational":
-            u = self._corotational_frame(contacts, displacements)
+            self._pending = ("nodes", self._corotational_frame(contacts, displacements))
         else:
-            u = self.nodal_displacement(contacts, displacements)
-        self._out[:] = self.surface_matrix @ u
+            self._pending = ("grasps", list(contacts), displacements)
+
+    def surface_displacement(self) -> np.ndarray:
+        pending, self._pending = self._pending, None
+        if pending is None:  # asked again: this frame's surface is there already
+            return self._out
+        if pending[0] == "zero":
+            self._out[:] = 0.0
+        else:
+            u = pending[1] if pending[0] == "nodes" else self.nodal_displacement(pending[1], pending[2])
+            self._out[:] = self.surface_matrix @ u
         return self._out
 
     def _corotational_frame(self, contacts, displacements) -> np.ndarray:
