@@ -22,8 +22,10 @@ import numba
 import numpy as np
 
 import sim.devices.simulated as simulated
+import sim.servo
 from sim.devices.simulated import PullScript, SimulatedOmni
 from sim.laws import Coupling, Linearised, RadialTable, TensorTable, Zero
+from sim.models.api import servo_laws
 from sim.servo import ServoLoop, limit_force
 
 # law kinds
@@ -262,12 +264,17 @@ class CompiledTicks:
                            *sc.tremor_phase, *sc.back, 1.0 if back else 0.0, sc.back_start if back else 0.0, sc.back_time,
                            sc.restraint, sc.safe_force)
         self.rows = np.empty((0, 3 + 7 * nh))
+        # set when the model's state rules these ticks out (unstable, laws they do not know):
+        # that holds until the next frame, so the loop stops asking until then (`frame`)
+        self.idle = False
+
+    def frame(self) -> None:
+        """A visual frame ran: the model's laws and state may have changed."""
+        self.idle = False
 
     @classmethod
     def for_loop(cls, servo) -> CompiledTicks | None:
         """The compiled ticks for `servo`, or None where the run is not one they mirror."""
-        import sim.servo
-
         if not ENABLED or type(servo) is not ServoLoop or not servo.hands or vars(servo).keys() & {"tick", "_forces"}:
             return None
         if sim.servo.limit_force is not _LIMIT_FORCE or any(getattr(c, name) is not f for (c, name), f in MIRRORED.items()):
@@ -283,8 +290,6 @@ class CompiledTicks:
     def _laws(self):
         """Per hand: the law's kind and numbers, or None when a held hand's force is not a law
         these ticks know (or the model is not law-driven now)."""
-        from sim.models.api import servo_laws
-
         servo = self.servo
         hands = servo.hands
         nh = len(hands)
@@ -331,12 +336,12 @@ class CompiledTicks:
         if any(h.fault is not None for h in hands):
             return 0
         try:
-            if bool(servo.model.unstable):
-                return 0
+            unstable = bool(servo.model.unstable)
         except Exception:  # the Python tick logs it
-            return 0
-        laws = self._laws()
+            unstable = True
+        laws = None if unstable else self._laws()
         if laws is None:
+            self.idle = True
             return 0
         kinds, p, point, x0, f0, slope, nseg = laws
         nh = len(hands)

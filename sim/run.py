@@ -438,7 +438,7 @@ def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
     while k < n_ticks:
         t = k / rate
         starts[k] = clock()
-        if compiled is not None and not t + 1e-9 >= next_visual:
+        if compiled is not None and not compiled.idle and not t + 1e-9 >= next_visual:
             end = k + 1  # the ticks before the one that reaches the next frame
             while end < n_ticks and not end / rate + 1e-9 >= next_visual:
                 end += 1
@@ -451,6 +451,8 @@ def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
         if t + 1e-9 >= next_visual:
             visual(t)
             next_visual += frame
+            if compiled is not None:
+                compiled.frame()
             if visual.finished:
                 return starts[: k + 1], 0, clock() - begin
         k += 1

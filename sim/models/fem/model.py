@@ -20,7 +20,6 @@ import scipy.sparse as sp
 
 from sim.errors import ParameterError
 from sim.laws import Linearised, PairTable
-from sim.linalg import SingularSystemError
 from sim.models.builtin import FemBase, FemOptions
 from sim.models.fem.corotational import Precond, corotational_step, warped_active
 from sim.models.fem.grasp import condense, constraint_matrix, symmetric_inverse
@@ -213,9 +212,7 @@ class FemModel(FemBase):
                 # without limit as the mesh is refined: 13% from 8 to 4 mm on P2)
                 points, weights = patch_area_points(self.surface, v, self.grasp_radius)
                 tet, bary = locate(fem.nodes, fem.tets, points)
-                W = constraint_matrix(fem, tet, bary, weights)
-                if W.nnz == 0:
-                    raise SingularSystemError("grasp patch lies in clamped elements: it cannot move")
+                W = constraint_matrix(fem, tet, bary, weights)  # `condense` refuses a patch that cannot move
                 located = (part, W, fem.factor.unscaled_solve(np.ascontiguousarray(W.T.toarray())))
                 while len(self._located) >= GRASPS_KEPT:
                     self._located.pop(next(iter(self._located)))
