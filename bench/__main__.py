@@ -1,6 +1,7 @@
 """Run the benchmarks: `python -m bench` (all) or `python -m bench plate_spring servo 10`
 (a number is an argument for the benchmark before it: seconds, for servo; `--json` makes
-each benchmark print only JSON with stable keys, one object per benchmark)."""
+each benchmark print only JSON with stable keys, one object per benchmark). `fem_static` (the
+tissue's law solved statically on the accuracy bench's pulls, about 15 min) runs only when named."""
 
 import importlib
 import sys

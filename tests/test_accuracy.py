@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from analysis import accuracy
-from analysis.accuracy import Setting, compare, pareto
+from analysis.accuracy import Setting, class_best, compare, pareto
 from sim.reference import Pull, make_pulls, scene_with
 from sim.scene import DEFAULT_SCENE
 from studyctl.cli import cli
@@ -88,6 +88,28 @@ def test_pareto_front():
     assert pareto(rows) == [True, True, False, False]
 
 
+def _row(model, setting, calibration, within, error, ms, p99, unstable=0):
+    return {"model": model, "setting": setting, "calibration": calibration, "scale": 1.0, "within_jnd": within, "within_jnd_low": within - 0.1,
+            "within_jnd_high": within + 0.1, "force_error": error, "pulls_within": 0, "n_test_pulls": 9, "frame_ms": ms, "frame_ms_p99": p99,
+            "unstable_pulls": unstable}
+
+
+def test_each_class_at_its_best_keeps_the_budget_and_gives_up_no_pull():
+    rows = [_row("fem", "fast", "raw", 0.20, 0.5, 1.0, 2.0), _row("fem", "slow", "raw", 0.96, 0.04, 30.0, 600.0),
+            _row("fem", "corot", "raw", 0.30, 0.4, 5.0, 8.0, unstable=4), _row("fem", "tie", "raw", 0.20, 0.5, 0.5, 0.9),
+            _row("mass_spring", "lg", "raw", 0.85, 0.08, 3.0, 9.0), _row("mass_spring", "lg", "calibrated", 0.10, 0.4, 3.0, 9.0),
+            _row("plate_spring", "only-slow", "raw", 0.9, 0.05, 40.0, 50.0)]
+    best = {(b["model"], b["calibration"]): b for b in class_best(rows)}
+    fem = best[("fem", "raw")]
+    # the accurate row is over the 33 ms budget and the corotational one gave up: of the two
+    # left at 20%, the faster wins the tie
+    assert fem["setting"] == "tie" and not fem["meets_target"]
+    assert fem["left_out"] == {"slow": "frame p99 600 ms over the 33 ms budget", "corot": "gave up on a pull"}
+    assert best[("mass_spring", "raw")]["meets_target"] and not best[("mass_spring", "calibrated")]["meets_target"]
+    assert best[("plate_spring", "raw")]["setting"] is None and "no configuration" in best[("plate_spring", "raw")]["why"]
+    assert class_best(rows, frame_budget_ms=1000.0)[0]["setting"] == "slow"
+
+
 def test_the_pareto_plots_legend_covers_no_point():
     """Issue 28: inside the axes (lower left) the legend covered the located plate-spring's
     point, the best one: fast and accurate lies in that corner."""
@@ -146,6 +168,8 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
             c = [s for s in out["samples"] if s["setting"] == setting and s["calibration"] == "raw" and s["set"] == "calibration"]
             assert r["scale"] == pytest.approx(np.exp(np.mean([np.log(s["reference_force_n"] / s["force_n"]) for s in c])))
     assert sorted(p.name for p in d.iterdir()) == ["accuracy.csv", "accuracy.json", "accuracy.md", "pareto.png", "pareto.svg", "samples.csv"]
+    assert {(b["model"], b["calibration"]) for b in out["best"]} == {(m, c) for m in ("plate_spring", "fem", "mass_spring") for c in ("raw", "calibrated")}
+    assert "Each class at its best" in (d / "accuracy.md").read_text()
 
 
 def test_report_carries_the_accuracy_table_and_pareto_plot(small_bench, small_study, tmp_path):

@@ -290,3 +290,77 @@ def test_corotational_is_linear_in_stretch_and_follows_neo_hookean_in_bending():
     assert abs(corot - 1) < 0.01 and 0.88 < nh < 0.95
     corot, nh = _block_force_ratios("shear", 0.10)
     assert corot > 1.3 and nh > 1.3 and abs(corot / nh - 1) < 0.08
+
+
+# -- the nodal-pressure element (sim/models/fem/nodal_pressure.py) ---------------------------
+
+def _np_block(n=3):
+    from sim.models.fem import TetSpace
+
+    nodes, tets = box(n, n, n, 0.03 / n)
+    return nodes, tets, TetSpace(nodes, tets, nodes[:, 2] < 1e-12, order=1)
+
+
+def test_volume_hessians_are_the_gradients_derivative():
+    """The analytic second derivatives against central differences of the gradient (exact: the
+    gradient of a volume is quadratic in the corners)."""
+    from sim.models.fem.nodal_pressure import volume_hessians, volumes
+
+    x = np.random.default_rng(3).normal(size=(20, 4, 3))
+    h = 1e-3
+    fd = np.empty((20, 12, 12))
+    for k in range(12):
+        a, i = divmod(k, 3)
+        xp, xm = x.copy(), x.copy()
+        xp[:, a, i] += h
+        xm[:, a, i] -= h
+        fd[:, :, k] = (volumes(xp)[1] - volumes(xm)[1]).reshape(20, 12) / (2 * h)
+    assert np.abs(volume_hessians(x) - fd).max() < 1e-12 * np.abs(fd).max()
+    assert np.allclose(volumes(x)[0], np.linalg.det(x[:, 1:] - x[:, :1]) / 6.0)
+
+
+def test_nodal_pressure_force_and_tangent_are_its_energys_derivatives():
+    from sim.models.fem.nodal_pressure import NodalPressure
+
+    _, _, space = _np_block()
+    system = NodalPressure(space, neo_hookean(1000.0, 50.0))
+    rng = np.random.default_rng(4)
+    u = np.zeros(3 * space.n_all)
+    u[space.free] = rng.normal(size=len(space.free)) * 3e-4
+    st = system.evaluate(u)
+    assert st["min_jacobian"] > 0.5
+    du = np.zeros_like(u)
+    du[space.free] = rng.normal(size=len(space.free)) * 1e-8
+    plus, minus = system.evaluate(u + du, tangent=False), system.evaluate(u - du, tangent=False)
+    assert (plus["energy"] - minus["energy"]) / 2 == pytest.approx(st["f"] @ du, rel=1e-5)
+    Kdu = st["K"] @ du[space.free]
+    assert np.linalg.norm((plus["f"] - minus["f"])[space.free] / 2 - Kdu) < 1e-5 * np.linalg.norm(Kdu)
+
+
+def test_nodal_pressure_is_the_plain_element_under_uniform_strain_and_locks_less():
+    """Under a uniform deformation every node's J is every element's, so the energies agree;
+    pulling a nearly incompressible block (kappa = 50 mu), the plain P1 block is twice as stiff
+    as P2 (locking) and the nodal pressure lies well between."""
+    from sim.models.fem import TetSpace
+    from sim.models.fem.nodal_pressure import NodalPressure
+
+    nodes, tets, space = _np_block(4)
+    law = neo_hookean(1000.0, 50.0)
+    F = np.array([[1.05, 0.02, 0.0], [0.0, 0.97, 0.01], [0.0, 0.0, 1.01]])
+    u = (nodes @ (F - np.eye(3)).T).ravel()
+    assert NodalPressure(space, law).evaluate(u, tangent=False)["energy"] == pytest.approx(
+        FiniteStrain(space, law).evaluate(u, tangent=False)["energy"], rel=1e-12)
+    top = nodes[nodes[:, 2] > 0.03 - 1e-9]
+    forces = {}
+    for name, order in (("p1", 1), ("nodal", 1), ("p2", 2)):
+        sp_ = TetSpace(nodes, tets, nodes[:, 2] < 1e-12, order=order)
+        tet, bary = locate(nodes, tets, top)
+        W = constraint_matrix(sp_, tet, bary, np.full(len(top), 1.0 / len(top)))
+        system = NodalPressure(sp_, law) if name == "nodal" else FiniteStrain(sp_, law, mean_dilatation=False)
+        res = hold(system, W, np.array([0.0, 0.0, 0.003]))
+        assert res.report.converged
+        forces[name] = res.multipliers[2]
+    assert forces["p1"] > 1.5 * forces["p2"]  # measured 1.73
+    assert forces["p2"] < forces["nodal"] < forces["p2"] + 0.7 * (forces["p1"] - forces["p2"])  # measured 0.56 of the gap
+    with pytest.raises(ParameterError, match="linear"):
+        NodalPressure(TetSpace(nodes, tets, nodes[:, 2] < 1e-12, order=2), law)

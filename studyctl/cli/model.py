@@ -212,13 +212,14 @@ def _check_grasp(grasp, mesh) -> None:
 @model.command("fem")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--resolution", type=float, default=None, help="Target edge of the body-fitted mesh in millimetres, 3..8 (default: the scene's, else 8; 8, 6 and 4 are shipped).")
-@click.option("--formulation", type=click.Choice(["linear", "corotational", "finite-strain"]), default="linear", show_default=True,
-              help="finite-strain: the scene's material law (docs/material.md), Newton along the pull.")
+@click.option("--formulation", type=click.Choice(["linear", "corotational", "finite-strain", "nodal-pressure"]), default="linear", show_default=True,
+              help="finite-strain: the scene's material law (docs/material.md), Newton along the pull; nodal-pressure: the same law "
+                   "on linear tetrahedra with averaged nodal volumes, which do not lock (docs/fem.md).")
 @click.option("--grasp", required=True, callback=_vector, help=f"Grasp point X,Y,Z in metres, within the grasp reach ({VisualStep.grasp_reach * 1e3:g} mm) of the brain surface (snapped to it).")
 @click.option("--displacement", required=True, callback=_pull, help=f"Displacement DX,DY,DZ of the grasp point in metres, at most {MAX_PULL_M:g} m long.")
 @click.option("--steps", type=click.IntRange(1, 200), default=5, show_default=True,
               help="Load steps of the nonlinear solves (finite-strain: the first step is 1/steps of the pull, then adaptive).")
-@click.option("--order", type=click.IntRange(1, 2), default=None, help="Element order: 1 linear, 2 quadratic tetrahedra (default: the scene's, else 2; 1 for --formulation corotational).")
+@click.option("--order", type=click.IntRange(1, 2), default=None, help="Element order: 1 linear, 2 quadratic tetrahedra (default: the scene's, else 2; 1 for --formulation corotational and nodal-pressure).")
 @click.option("--json", "as_json", is_flag=True)
 def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacement, steps: int, order, as_json: bool):
     """Pull the brain once with the finite element model: force, displacement, phase times."""

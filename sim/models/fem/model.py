@@ -277,6 +277,14 @@ class FemModel(FemBase):
             u[start : start + part.n_all] += part.from_free(c.data.U @ f[3 * k : 3 * k + 3], corners=False)
         return u
 
+    def reset(self) -> None:
+        """Back to rest: no frame state, and a model that gave up renders again (the accuracy
+        bench resets between pulls; without this a corotational give-up zeroed every later pull)."""
+        self._corot.clear()
+        self._pair_of = None
+        self._pending = ("zero",)
+        self.unstable = False
+
     def deformation(self, contacts, displacements) -> np.ndarray:
         self.advance(contacts, displacements)
         return self.surface_displacement()

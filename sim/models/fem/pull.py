@@ -13,7 +13,7 @@ from sim.models.fem.model import DEFAULT_ORDER, DEFAULT_RESOLUTION, FemModel, fi
 from sim.models.fem.newton import NewtonReport, hold
 from sim.patch import GRASP_RADIUS
 
-FORMULATIONS = ("linear", "corotational", "finite-strain")
+FORMULATIONS = ("linear", "corotational", "finite-strain", "nodal-pressure")
 TICKS = 20000  # servo-tick force calls timed
 
 
@@ -27,10 +27,11 @@ def _options(scene, formulation: str, displacement, resolution: float | None, or
     resolution = float(spec.get("resolution", DEFAULT_RESOLUTION)) if resolution is None else resolution
     if not 0.003 <= resolution <= 0.008:
         raise ParameterError(f"resolution: {resolution * 1e3:g} mm is out of range; allowed: 3..8 mm")
-    if order is None:  # the scene's, except that the corotational update runs on linear tetrahedra only
-        order = 1 if formulation == "corotational" else int(spec.get("order", DEFAULT_ORDER))
-    if order == 2 and formulation == "corotational":
-        raise ParameterError("order: the corotational formulation runs on linear tetrahedra (order 1) only")
+    linear_only = formulation in ("corotational", "nodal-pressure")
+    if order is None:  # the scene's, except that the corotational update and the nodal pressure run on linear tetrahedra only
+        order = 1 if linear_only else int(spec.get("order", DEFAULT_ORDER))
+    if order == 2 and linear_only:
+        raise ParameterError(f"order: the {formulation} formulation runs on linear tetrahedra (order 1) only")
     return np.asarray(displacement, dtype=np.float64), resolution, order, spec.get("grasp_radius", GRASP_RADIUS)
 
 
@@ -46,10 +47,12 @@ def _solve(model, contact, d: np.ndarray, formulation: str, steps: int, law=None
     if formulation == "linear":
         return np.asarray(model.grasp_forces([contact], [d])), model.nodal_displacement([contact], [d]), {"converged": True}
     part = model.parts[contact.data.part]
-    if formulation == "finite-strain":  # the scene's law on the model's mesh and element (P2: displacement-based)
+    if formulation in ("finite-strain", "nodal-pressure"):  # the scene's law on the model's mesh and element
         from sim.models.fem.finite_strain import FiniteStrain
+        from sim.models.fem.nodal_pressure import NodalPressure
 
-        held = hold(FiniteStrain(part, law, mean_dilatation=False), contact.data.W, d, first_step=1.0 / steps)
+        system = FiniteStrain(part, law, mean_dilatation=False) if formulation == "finite-strain" else NodalPressure(part, law)
+        held = hold(system, contact.data.W, d, first_step=1.0 / steps)
         u_part, force, rep = held.u.reshape(-1, 3), held.multipliers, held.report
         rep.completed_fraction = float(held.fraction_done)
     else:
