@@ -15,7 +15,7 @@ import random
 from dataclasses import dataclass
 
 from studyctl.errors import InputError
-from studyctl.text import control_problem, quoted
+from studyctl.text import ID_RE, control_problem, quoted
 
 FIELD_KINDS = ("choice", "integer", "number", "text")
 FIELD_KEYS = ("kind", "values", "required", "min", "max", "description")
@@ -83,8 +83,6 @@ def _num(v: float) -> str:
 def check_fields(data: dict, design: dict, c) -> tuple[list[Field], str | None]:
     """[fields.NAME] tables and design.groups, each problem added to the protocol checker `c`
     (FILE:LINE: field: message, naming what is allowed)."""
-    from studyctl.protocol import ID_RE
-
     raw = data.get("fields", {})
     out: list[Field] = []
     if not isinstance(raw, dict):

@@ -17,7 +17,9 @@ from sim.models import registry
 from sim.targets import TRIAL_ENDS
 from sim.tomlfile import Locator, TomlFileError, read_toml
 from studyctl.errors import ProtocolError
+from studyctl.fields import check_fields
 from studyctl.questions import KINDS, LIKERT_POINTS, WHENS, Question
+from studyctl.text import ID_RE
 
 MAX_CONDITIONS = 8
 DESIGNS = ("williams",)
@@ -28,7 +30,6 @@ DEFAULT_AGES = (18, 120)  # [inclusion] left out: adults
 SECTION_HINTS = {"study": 'name = "my_study", target_participants = 20, scene = "scenes/brain_pull.toml"',
                  "design": 'conditions = ["fem", "plate_spring"], counterbalancing = "williams", training_minutes = 2.0, '
                            'trials_per_condition = 3, trial_seconds = 3.0'}
-ID_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
 @dataclass(frozen=True)
@@ -150,8 +151,6 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     if trials == 0 and not tasks and "tasks" not in data:
         c.bad("design.trials_per_condition", "0 is out of range without [[tasks]]; allowed: 1..100 (0 when each condition has a task)")
     questions = _questions(data, c.get, c.bad, len(conditions or []))
-    from studyctl.fields import check_fields
-
     fields, groups = check_fields(data, design, c)
     from studyctl.skill import check_skills
 

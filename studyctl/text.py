@@ -1,10 +1,12 @@
-"""Text from people: control characters refused, long values quoted by a short prefix, cells
+"""Text from people: identifiers checked, control characters refused, long values quoted by a short prefix, cells
 made safe to open in a spreadsheet (the OWASP CSV-injection rule)."""
 
 from __future__ import annotations
 
+import re
 import unicodedata
 
+ID_RE = re.compile(r"^[a-z][a-z0-9_]*$")  # a name a protocol gives (question, condition, field): also a column and a key
 LINE_BREAKS = "\t\n\r"  # the control characters a text may hold
 QUOTE_LIMIT = 40  # characters of a refused value an error line quotes
 FORMULA_START = ("=", "+", "-", "@", "\t", "\r")  # a spreadsheet reads a cell starting so as a formula

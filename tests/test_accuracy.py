@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from analysis import accuracy
-from analysis.accuracy import Setting, class_best, compare, pareto
+from analysis.accuracy import Setting, class_best, compare, coupling_bound, pareto
 from sim.reference import Pull, make_pulls, scene_with
 from sim.scene import DEFAULT_SCENE
 from studyctl.cli import cli
@@ -110,6 +110,16 @@ def test_each_class_at_its_best_keeps_the_budget_and_gives_up_no_pull():
     assert class_best(rows, frame_budget_ms=1000.0)[0]["setting"] == "slow"
 
 
+def test_coupling_bound_of_a_linear_tissue_is_the_series_springs():
+    """Behind a coupling k a linear tissue K gives F = K k / (K + k) d: relative error K / (K + k)."""
+    xs = np.array([0.004, 0.008, 0.012])
+    ref = [[{"force_n": 50.0 * x} for x in xs] for _ in range(3)]
+    assert coupling_bound(ref, 1, xs, 10000.0) == 1.0  # 0.5% off
+    assert coupling_bound(ref, 1, xs, 100.0) == 0.0  # 33% off
+    ref[2][2]["force_n"] = float("nan")  # a sample without a reference is not judged
+    assert coupling_bound(ref, 1, xs, 10000.0) == 1.0
+
+
 def test_the_pareto_plots_legend_covers_no_point():
     """Issue 28: inside the axes (lower left) the legend covered the located plate-spring's
     point, the best one: fast and accurate lies in that corner."""
@@ -168,6 +178,7 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
             c = [s for s in out["samples"] if s["setting"] == setting and s["calibration"] == "raw" and s["set"] == "calibration"]
             assert r["scale"] == pytest.approx(np.exp(np.mean([np.log(s["reference_force_n"] / s["force_n"]) for s in c])))
     assert sorted(p.name for p in d.iterdir()) == ["accuracy.csv", "accuracy.json", "accuracy.md", "pareto.png", "pareto.svg", "samples.csv"]
+    assert 0.0 <= out["meta"]["coupling_bound"]["scene"] <= out["meta"]["coupling_bound"]["omni_max"] <= 1.0
     assert {(b["model"], b["calibration"]) for b in out["best"]} == {(m, c) for m in ("plate_spring", "fem", "mass_spring") for c in ("raw", "calibrated")}
     assert "Each class at its best" in (d / "accuracy.md").read_text()
 

@@ -30,3 +30,59 @@ def test_the_study_library_imports_no_analysis_outside_its_cli():
     files = [p for p in sorted((ROOT / "studyctl").rglob("*.py")) if "cli" not in p.relative_to(ROOT / "studyctl").parts[:-1]]
     offenders = {str(p.relative_to(ROOT)): sorted(_imports(p) & {"analysis"}) for p in files}
     assert len(files) > 15 and {k: v for k, v in offenders.items() if v} == {}
+
+
+def _module_graph() -> tuple[list[str], dict[str, set[str]]]:
+    """The project's modules and who imports whom, function-level imports included (`from a
+    import b` counts a.b where that is a module)."""
+    files = {}
+    for pkg in ("sim", "studyctl", "analysis"):
+        for p in sorted((ROOT / pkg).rglob("*.py")):
+            parts = p.relative_to(ROOT).with_suffix("").parts
+            files[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = p
+
+    def resolve(name: str) -> str | None:
+        while name and name not in files:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    edges: dict[str, set[str]] = {m: set() for m in files}
+    for mod, path in files.items():
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                targets = {resolve(f"{node.module}.{a.name}") or resolve(node.module) for a in node.names}
+            elif isinstance(node, ast.Import):
+                targets = {resolve(a.name) for a in node.names}
+            else:
+                continue
+            edges[mod] |= {t for t in targets if t and t != mod}
+    return list(files), edges
+
+
+# Issue 45 removes these; the test fails when one is gone (shrink the list) or another appears.
+KNOWN_CYCLES = {
+    ("studyctl.bundles", "studyctl.rig", "studyctl.session", "studyctl.synthetic"),
+    ("analysis.kinds", "analysis.scales", "analysis.stats", "analysis.table1"),
+    ("analysis.accuracy", "analysis.plots", "analysis.reference", "analysis.stability"),
+}
+
+
+def test_no_import_cycles_between_the_projects_modules():
+    """Strongly connected components of the import graph (scipy), function-level imports
+    included: an import inside a function hides a cycle from Python, not from the design. The
+    CLI's commands may import each other (they are one program's entry points)."""
+    import numpy as np
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    mods, edges = _module_graph()
+    index = {m: i for i, m in enumerate(mods)}
+    pairs = [(index[a], index[b]) for a, bs in edges.items() for b in bs]
+    graph = csr_matrix((np.ones(len(pairs)), tuple(zip(*pairs))), shape=(len(mods), len(mods)))
+    _, label = connected_components(graph, directed=True, connection="strong")
+    groups: dict[int, list[str]] = {}
+    for m, lab in zip(mods, label):
+        groups.setdefault(int(lab), []).append(m)
+    cycles = {tuple(sorted(g)) for g in groups.values() if len(g) > 1 and not all(m.startswith("studyctl.cli") for m in g)}
+    assert len(mods) > 120 and edges["studyctl.protocol"] >= {"studyctl.fields", "studyctl.text"}
+    assert cycles == KNOWN_CYCLES
