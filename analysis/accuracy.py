@@ -405,7 +405,7 @@ def coupling_bound(ref: list[list[dict]], n_calib: int, xs, stiffness: float) ->
         x = np.concatenate([[0.0], np.asarray(xs, dtype=np.float64)[known]])
         f = np.concatenate([[0.0], mags[known]])
         for d, r in zip(np.asarray(xs)[known], mags[known]):
-            F = brentq(lambda F, d=d: F - float(np.interp(d - F / stiffness, x, f)), 0.0, stiffness * d)
+            F = brentq(lambda F, d=d, x=x, f=f: F - float(np.interp(d - F / stiffness, x, f)), 0.0, stiffness * d)
             within.append(abs(F - r) <= float(jnd(np.array(r))) * r)
     return float(np.mean(within)) if within else math.nan
 
