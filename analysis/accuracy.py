@@ -121,7 +121,9 @@ def quick_config(**kw) -> AccuracyConfig:
 
 
 def sample_displacements(cfg: AccuracyConfig) -> np.ndarray:
-    return cfg.max_pull * np.arange(1, cfg.samples + 1) / cfg.samples
+    from analysis.reference import pull_samples
+
+    return pull_samples(cfg.max_pull, cfg.samples)
 
 
 # -- a model on the same pulls -------------------------------------------------------------
@@ -408,15 +410,6 @@ def coupling_bound(ref: list[list[dict]], n_calib: int, xs, stiffness: float) ->
             F = brentq(lambda F, d=d, x=x, f=f: F - float(np.interp(d - F / stiffness, x, f)), 0.0, stiffness * d)
             within.append(abs(F - r) <= float(jnd(np.array(r))) * r)
     return float(np.mean(within)) if within else math.nan
-
-
-def pareto(rows: list[dict]) -> list[bool]:
-    """Rows no other row beats on both force error and frame time."""
-    out = []
-    for r in rows:
-        out.append(not any(o is not r and o["force_error"] <= r["force_error"] and o["frame_ms"] <= r["frame_ms"]
-                           and (o["force_error"] < r["force_error"] or o["frame_ms"] < r["frame_ms"]) for o in rows))
-    return out
 
 
 TARGET_WITHIN = 0.80  # a class follows the tissue when one configuration is within the JND on 80% of held-out samples (issue 44)

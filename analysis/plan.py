@@ -31,10 +31,9 @@ def pilot_summaries(protocol, pilots: int = 4, seed: int = 0, mapping: dict[str,
     import dataclasses
 
     from sim.run import run_scene
-    from studyctl.conditions import scene_itself
+    from studyctl.conditions import condition_scene, scene_itself
     from studyctl.observer import summarise
     from studyctl.rig import frame_times
-    from studyctl.session import _scene
     from studyctl.synthetic import SyntheticParticipant
     from studyctl.truth import load_truth
 
@@ -45,7 +44,7 @@ def pilot_summaries(protocol, pilots: int = 4, seed: int = 0, mapping: dict[str,
     out: dict[str, list] = {}
     for label in protocol.conditions:
         model = mapping.get(label, label)
-        scene = scenes.get(model) or scenes.setdefault(model, _scene(protocol, model, "simulated"))
+        scene = scenes.get(model) or scenes.setdefault(model, condition_scene(protocol, model, "simulated"))
         out[label] = []
         for k in range(pilots):
             p = SyntheticParticipant.draw(f"PILOT{k + 1:02d}", seed)

@@ -125,6 +125,15 @@ def force_plot(traces: dict, path: Path) -> None:
 PAPER_MS = {"plate_spring": 14.69, "fem": 21.35, "mass_spring": 23.08}  # seed paper, Table 1 (its 2014 PC)
 
 
+def pareto(rows: list[dict]) -> list[bool]:
+    """Rows no other row beats on both force error and frame time."""
+    out = []
+    for r in rows:
+        out.append(not any(o is not r and o["force_error"] <= r["force_error"] and o["frame_ms"] <= r["frame_ms"]
+                           and (o["force_error"] < r["force_error"] or o["frame_ms"] < r["frame_ms"]) for o in rows))
+    return out
+
+
 def pareto_plot(rows: list[dict], path: Path, reference: str = "") -> None:
     """Log-log: mean relative force error against deformation time per frame, one point per
     model setting; the Pareto front joined (black) and each class's own (dashed, its colour); the paper's deformation times as vertical marks."""
@@ -134,8 +143,6 @@ def pareto_plot(rows: list[dict], path: Path, reference: str = "") -> None:
 
 
 def pareto_figure(rows: list[dict], reference: str = ""):
-    from analysis.accuracy import pareto
-
     plt = _plt()
     fig, ax = plt.subplots(figsize=(10, 5.5), dpi=100)
     front = pareto(rows)
@@ -170,14 +177,13 @@ def pareto_figure(rows: list[dict], reference: str = ""):
     return fig
 
 
-def stability_heatmap(cases: list[dict], path: Path, title: str = "") -> None:
-    """Outcome per model (rows) and case (columns): stable, refused, unstable, or n/a."""
+def stability_heatmap(outcomes: tuple, path: Path, title: str = "") -> None:
+    """Outcome per model (rows) and case (columns): stable, refused, unstable, or n/a;
+    `outcomes` is (rows, columns, codes) as `analysis.stability.outcome_grid` makes it."""
     from matplotlib.colors import ListedColormap
 
-    from analysis.stability import outcome_grid
-
     plt = _plt()
-    rows, cols, grid = outcome_grid(cases)
+    rows, cols, grid = outcomes
     fig, ax = plt.subplots(figsize=(max(8, 0.32 * len(cols) + 3), 0.45 * len(rows) + 2.4), dpi=100)
     cmap = ListedColormap(["#2ca02c", "#9e9e9e", "#d62728"]).with_extremes(bad="white")
     ax.imshow(np.ma.masked_invalid(grid), cmap=cmap, vmin=-0.5, vmax=2.5, aspect="auto")

@@ -234,6 +234,11 @@ def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness:
     return out
 
 
+def pull_samples(max_pull: float, samples: int) -> np.ndarray:
+    """Where a pull is sampled: `samples` equal steps to `max_pull` (m), rest excluded."""
+    return max_pull * np.arange(1, samples + 1) / samples
+
+
 def reached(refs: dict) -> dict:
     """Per pull, which records every mesh's solve reached (bool per x), and why the others
     have no reference (the first solve that stopped: its mesh, where and why; "" if none)."""
@@ -564,7 +569,6 @@ def _sample(pull, x: float, f: list, hs: list, sizes: list) -> dict:
 
 def run_reference(cfg: ReferenceConfig, progress=None) -> dict:
     """Mesh, solve and extrapolate every pull; returns {"samples", "pulls", "meshes", "meta"}."""
-    from analysis.accuracy import AccuracyConfig, sample_displacements
     from sim.reference import scene_with
 
     t_start = time.perf_counter()
@@ -572,7 +576,7 @@ def run_reference(cfg: ReferenceConfig, progress=None) -> dict:
     law = scene.spec.material.law
     mu = law.shear_modulus
     pulls = _selected_pulls(cfg, scene)
-    xs = sample_displacements(AccuracyConfig(max_pull=cfg.max_pull, samples=cfg.samples))
+    xs = pull_samples(cfg.max_pull, cfg.samples)
     radius = grasp_radius(scene)
     sizes = sorted((float(s) for s in cfg.sizes_mm), reverse=True)  # coarse to fine
     patches = _patches(cfg, scene.mesh, pulls, radius)

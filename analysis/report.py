@@ -152,10 +152,10 @@ def accuracy_html(result: dict) -> str:
 def stability_html(result: dict) -> str:
     """The stability sweep's heat map and the cases that were not stable, as an HTML section."""
     from analysis.plots import stability_heatmap
-    from analysis.stability import markdown
+    from analysis.stability import markdown, outcome_grid
 
     esc = _html.escape
-    img = _inline_png(lambda path: stability_heatmap(result["cases"], path))
+    img = _inline_png(lambda path: stability_heatmap(outcome_grid(result["cases"]), path))
 
     def at(c):
         return "" if c["detected_at_s"] is None else f"{c['detected_at_s']:.3f} s"

@@ -292,6 +292,6 @@ def write_outputs(result: dict, out_dir) -> list[Path]:
     pd.DataFrame(result["cases"]).drop(columns=["events"]).to_csv(files[1], index=False)
     files[2].write_text(markdown(result))
     for ext in ("png", "svg"):
-        stability_heatmap(result["cases"], out / f"heatmap.{ext}")
+        stability_heatmap(outcome_grid(result["cases"]), out / f"heatmap.{ext}")
         files.append(out / f"heatmap.{ext}")
     return files

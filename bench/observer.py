@@ -21,14 +21,14 @@ PROTOCOL = Path(__file__).resolve().parents[1] / "protocols" / "brain_pull_2015.
 
 def main() -> None:
     from sim.run import run_scene
+    from studyctl.conditions import condition_scene
     from studyctl.observer import DEFAULT, frame_ms
     from studyctl.protocol import load_protocol
-    from studyctl.session import _scene
 
     protocol = load_protocol(PROTOCOL)
     out = {}
     for model in protocol.conditions:
-        scene = _scene(protocol, model, "simulated")
+        scene = condition_scene(protocol, model, "simulated")
         run_scene(scene, duration=0.5, time_scale=0)  # warm-up: first-frame allocations
         r = run_scene(scene, duration=protocol.trial_seconds, time_scale=0)
         measured = r.deformation_s * 1e3

@@ -45,7 +45,7 @@ def main() -> None:
     from analysis.psychometric import weber_table
     from analysis.study import read_study
     from studyctl.store import Store
-    from studyctl.synthetic import run_synthetic_study
+    from studyctl.synthetic_study import run_synthetic_study
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="1,2,3")

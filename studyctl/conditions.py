@@ -10,7 +10,12 @@ import hashlib
 import json
 from pathlib import Path
 
+from brainsim_assets import version as _version
 from sim.tomlfile import Locator
+
+SOFTWARE_VERSION = f"brainsim-study {_version()}"  # stored with each session and rig profile
+
+_SCENES: dict = {}  # (scene file, resolved configuration's hash, device) -> Scene: models are built once per process
 
 
 def condition_scene_spec(protocol, name: str, spec=None):
@@ -24,6 +29,27 @@ def condition_scene_spec(protocol, name: str, spec=None):
         spec.model_spec(name)  # raises, naming what the scene configures
         return dataclasses.replace(spec, model=name)
     return configure(spec, table, protocol.path, Locator(protocol.text), f"conditions.{name}.")
+
+
+def condition_scene(protocol, condition: str, device: str):
+    """The protocol's scene for `condition` (its model as the protocol configures it), with every
+    hand on `device` (built once per process, reused)."""
+    from sim.scene import Scene
+
+    spec = condition_scene_spec(protocol, condition)
+    key = (str(protocol.scene), config_sha256(resolved_config(condition, spec)), device)
+    if key not in _SCENES:
+        _SCENES[key] = Scene(spec).with_device(device)
+    return _SCENES[key]
+
+
+def condition_configs(protocol, names) -> dict[str, dict]:
+    """Each condition's fully resolved configuration, stored with the session: exports and
+    reports show it, the participant never."""
+    from sim.scene import load_scene
+
+    spec = load_scene(protocol.scene)
+    return {c: resolved_config(c, condition_scene_spec(protocol, c, spec)) for c in names}
 
 
 def scene_itself(protocol):

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from studyctl.conditions import SOFTWARE_VERSION, condition_configs, condition_scene
 from studyctl.errors import InputError
 
 SHIPPED = "data/rig_ci.json"
@@ -37,8 +38,6 @@ def physics_key(config: dict) -> str:
 
 def condition_keys(protocol) -> dict[str, str]:
     """Each condition's physics key (its configuration as the protocol resolves it)."""
-    from studyctl.session import condition_configs
-
     return {c: physics_key(cfg) for c, cfg in condition_configs(protocol, protocol.conditions).items()}
 
 
@@ -65,14 +64,13 @@ def measure(protocol, trials: int = 2, progress=None) -> dict:
     trials (the protocol's trial time, a synthetic pilot's pull) after a 0.5 s warm-up; the
     median and 95th percentile of the deformation time per frame."""
     from sim.run import run_scene
-    from studyctl.session import SOFTWARE_VERSION, _scene, condition_configs
     from studyctl.store import now
     from studyctl.synthetic import SyntheticParticipant
 
     configs = condition_configs(protocol, protocol.conditions)
     rows = []
     for i, c in enumerate(protocol.conditions):
-        scene = _scene(protocol, c, "simulated")
+        scene = condition_scene(protocol, c, "simulated")
         run_scene(scene, duration=0.5, time_scale=0)  # first-frame allocations and caches
         times = []
         for k in range(trials):

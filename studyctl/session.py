@@ -28,32 +28,15 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from brainsim_assets import version as _version
 from studyctl.asking import TerminalAnswers, flush_input, terminal_keys
+from studyctl.conditions import SOFTWARE_VERSION, condition_configs, condition_scene
 from studyctl.errors import InputError, Interrupted, StoreError
 from studyctl.questions import NOT_PER_TRIAL, SESSION
 from studyctl.store import Store, dumps, now, sha256_file
 from studyctl.window_answers import WindowAnswers
 
-SOFTWARE_VERSION = f"brainsim-study {_version()}"  # stored with each session
 OPEN = ("running", "interrupted")  # a session to resume: killed while running, or stopped with Ctrl-C
 TRAINING_MODEL = "plate_spring"  # free exploration before the first condition (never named on screen)
-
-
-_SCENES: dict = {}  # (scene file, resolved configuration's hash, device) -> Scene: models are built once per process
-
-
-def _scene(protocol, condition: str, device: str):
-    """The protocol's scene for `condition` (its model as the protocol configures it), with every
-    hand on `device` (built once, reused)."""
-    from sim.scene import Scene
-    from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
-
-    spec = condition_scene_spec(protocol, condition)
-    key = (str(protocol.scene), config_sha256(resolved_config(condition, spec)), device)
-    if key not in _SCENES:
-        _SCENES[key] = Scene(spec).with_device(device)
-    return _SCENES[key]
 
 
 def _unasked(store: Store, questions, code: str, model: str, trial: int) -> list:
@@ -76,19 +59,9 @@ def _ask(store: Store, answerer, questions, code: str, model: str, trial: int, s
                                 "source": answerer.source, "answered_at": now()}, pk=("code", "model", "item", "trial"))
 
 
-def condition_configs(protocol, names) -> dict[str, dict]:
-    """Each condition's fully resolved configuration (studyctl/conditions.py), stored with the
-    session: exports and reports show it, the participant never."""
-    from sim.scene import load_scene
-    from studyctl.conditions import condition_scene_spec, resolved_config
-
-    spec = load_scene(protocol.scene)
-    return {c: resolved_config(c, condition_scene_spec(protocol, c, spec)) for c in names}
-
-
 def reference_model(protocol):
     """The linear FEM on the protocol's scene: the force reference of the answer model."""
-    return _scene(protocol, "fem", "simulated").model
+    return condition_scene(protocol, "fem", "simulated").model
 
 
 def condition_labels(models, rng) -> dict[str, str]:
@@ -249,7 +222,7 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
         run = _Run(db=db, store=store, protocol=None, code=code, device=device, time_scale=time_scale, say=progress or (lambda msg: None))
         try:
             protocol = run.protocol = store.protocol()
-            first = _scene(protocol, protocol.conditions[0], device)
+            first = condition_scene(protocol, protocol.conditions[0], device)
             if device_names is not None:
                 first.device_names = device_names
             # before anything is written: no display or no device is a clean error, not a half-made session
@@ -408,7 +381,7 @@ def _training(run: _Run) -> None:
 
         pacing = Pacing(view=shown, caption=training_caption, stop_keys=("e", "enter"), keys=run.keys, notify=run.say) if run.paced or shown else None
         flush_input()
-        result = run_scene(_scene(protocol, TRAINING_MODEL, run.device), duration=seconds, time_scale=run.time_scale, pacing=pacing,
+        result = run_scene(condition_scene(protocol, TRAINING_MODEL, run.device), duration=seconds, time_scale=run.time_scale, pacing=pacing,
                            servo=run.servo)
         if shown is not None:
             shown.at_rest()
@@ -466,7 +439,7 @@ def _loaded(run: _Run, protocol, model: str, status: str):
     """The condition's scene, said first (building a fine model takes up to half a minute, and a
     silent terminal looks hung); the model is never named (the labels are blind)."""
     run.say(f"{status[:1].lower()}{status[1:]}: loading")
-    return _scene(protocol, model, run.device)
+    return condition_scene(protocol, model, run.device)
 
 
 def _run_trial(run: _Run, scene, pos: int, model: str, trial: int, status: str) -> None:

@@ -16,7 +16,7 @@ def root() -> Path:
 @pytest.fixture(scope="session")
 def small_study(tmp_path_factory):
     """A small SYNTHETIC study database, shared by the report tests."""
-    from studyctl.synthetic import run_synthetic_study
+    from studyctl.synthetic_study import run_synthetic_study
     from tests.test_study import fast_protocol
 
     tmp = tmp_path_factory.mktemp("study")

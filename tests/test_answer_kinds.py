@@ -13,7 +13,7 @@ from studyctl import instruments
 from studyctl.observer import likert_answer, likert_thresholds
 from studyctl.protocol import check_protocol, load_protocol
 from studyctl.questions import Question
-from studyctl.synthetic import run_synthetic_study
+from studyctl.synthetic_study import run_synthetic_study
 from tests.test_study import ROOT, fast_protocol, studyctl
 
 CONDITIONS = """

@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from studyctl.cli import cli
-from studyctl.synthetic import run_synthetic_study
+from studyctl.synthetic_study import run_synthetic_study
 from tests.test_study import fast_protocol
 from tests.test_synthetic import _content, _summary
 

@@ -197,7 +197,7 @@ def test_a_synthetic_session_stores_every_trial_and_a_killed_one_resumes_as_if_u
     and matching their hashes; the generating traits kept."""
     import studyctl.discrimination as disc
     from studyctl.session import run_session
-    from studyctl.synthetic import run_synthetic_study
+    from studyctl.synthetic_study import run_synthetic_study
     from studyctl.traces import read_trace
     from tests.test_study import studyctl
 
@@ -320,7 +320,7 @@ def test_synthetic_participants_weber_fractions_are_recovered(tmp_path):
     this seed (the reports' "thurstone" fit): median absolute relative error 23.0% (bound 25%),
     and the bootstrap 95% intervals cover 18 of 20 (90%; the bound: 18 or 19 of 20). Seeds 2
     and 3: 22.5% and 22.6%, covering 17 and 19 of 20 (docs/study.md)."""
-    from studyctl.synthetic import run_synthetic_study
+    from studyctl.synthetic_study import run_synthetic_study
     from tests.test_study import studyctl
 
     db = tmp_path / "s.db"
@@ -344,7 +344,7 @@ def test_report_jnd_gives_each_conditions_weber_fractions_and_the_group_test(tmp
     hand-set parameters), four synthetic participants, ten trials: `report jnd` as json, md and html (with a
     psychometric plot per condition), and the same section in `report table1`; every output
     flagged synthetic."""
-    from studyctl.synthetic import run_synthetic_study
+    from studyctl.synthetic_study import run_synthetic_study
     from tests.test_study import studyctl
 
     path = jnd_protocol(tmp_path, conditions=("plate_spring", "paper", "handset"), trials=10)

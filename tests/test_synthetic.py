@@ -22,7 +22,8 @@ from studyctl.observer import (
     weber_at,
     within_jnd,
 )
-from studyctl.synthetic import SyntheticParticipant, run_synthetic_study
+from studyctl.synthetic import SyntheticParticipant
+from studyctl.synthetic_study import run_synthetic_study
 from tests.test_study import fast_protocol
 
 MEDIAN = ObserverTraits(weber=0.10, prior=1.0, latency_ms=40.0, vibration=1.0, bias=0.0)

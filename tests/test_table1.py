@@ -10,7 +10,7 @@ from scipy.stats import norm
 
 from analysis.table1 import wilson
 from studyctl.cli import cli
-from studyctl.synthetic import run_synthetic_study
+from studyctl.synthetic_study import run_synthetic_study
 from tests.test_study import fast_protocol
 
 

@@ -119,7 +119,7 @@ def replay_cmd(db, session_id, trial, view, frames_dir, fullscreen, as_json):
 def synth_cmd(db, participants, seed, jobs, protocol_file, alongside_people, scheduler, as_json):
     """Run whole sessions with SYNTHETIC participants on the simulator (labelled synthetic).
     Participants an interrupted run registered are run first, with their own seed."""
-    from studyctl.synthetic import run_synthetic_study
+    from studyctl.synthetic_study import run_synthetic_study
 
     out = _with_progress("synthetic sessions", lambda p: run_synthetic_study(db, participants, seed, jobs, protocol_file, progress=p,
                                                                              scheduler=scheduler, alongside_people=alongside_people))

@@ -1,0 +1,118 @@
+"""A synthetic study: register N synthetic participants (codes, ages, fields, counterbalanced
+orders, traits), run their sessions here, in local processes or on a Dask cluster, and store
+each whole as it finishes (studyctl/bundles.py). The participants themselves (motor and answer
+models) are studyctl/synthetic.py's."""
+
+from __future__ import annotations
+
+import random
+import time
+from pathlib import Path
+
+from studyctl.bundles import run_away, seed_for, store_bundle
+from studyctl.errors import InputError, Interrupted
+from studyctl.fields import field_rows, synthetic_fields
+from studyctl.protocol import load_protocol
+from studyctl.rig import keep_shipped
+from studyctl.store import Store, init_study, now
+from studyctl.study import assign_order
+from studyctl.sweep import completed, reachable
+from studyctl.synthetic import MAX_SYNTHETIC, SyntheticParticipant, skill_for
+
+
+def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, protocol_path=None, progress=None,
+                        scheduler: str | None = None, alongside_people: bool = False) -> dict:
+    """Register N synthetic participants, give them counterbalanced orders, run their sessions:
+    in this process (jobs 1), in `jobs` local processes, or on the Dask cluster at `scheduler`.
+
+    Codes, ages, orders, traits and session ids are assigned up front and in order, so orders,
+    trials, forces and answers are the same for the same seed wherever and however the sessions
+    run and however busy the machine (the observer reads no wall-clock time); measured times
+    differ. Each session runs in a scratch study and is stored here as it finishes
+    (studyctl/bundles.py): a Dask worker that dies costs its participant's run, never a participant.
+
+    Nothing the caller did not ask for: a database that does not exist is created only for a
+    `protocol_path` given; a study with people registered takes synthetic sessions only
+    `alongside_people` (its reports then say MIXED DATA); participants registered by a run that
+    was interrupted (Ctrl-C, a crash) are run first, with the seed they were registered with;
+    Ctrl-C raises Interrupted saying what was stored."""
+    if not 1 <= participants <= MAX_SYNTHETIC:
+        raise InputError(f"--participants: {participants} is out of range; allowed: 1..{MAX_SYNTHETIC}")
+    if not 1 <= jobs <= 64:
+        raise InputError(f"--jobs: {jobs} is out of range; allowed: 1..64")
+    reachable(scheduler)  # an unreachable cluster is refused before anything is written
+    created = None
+    if not Path(db).exists():  # a new study only of the protocol the user names
+        if protocol_path is None:
+            from brainsim_assets import path as asset
+
+            raise InputError(f"--db: {db} does not exist; give --protocol FILE to create a study of that protocol there "
+                             f"(the paper's: {asset('protocols/brain_pull_2015.toml')}), or `studyctl study init` it first")
+        init_study(db, protocol_path)
+        created = str(protocol_path)
+    with Store(db) as store:
+        protocol = store.protocol()
+        if protocol_path is not None and load_protocol(protocol_path).sha256 != protocol.sha256:
+            raise InputError(f"--protocol: {protocol_path} is not the protocol {db} was created with; leave --protocol out")
+        people = store.rows("select count(*) as n from participants where synthetic = 0")[0]["n"]
+        if people and not alongside_people:
+            raise InputError(f"--db: {db} is a study of people ({people} {'person' if people == 1 else 'people'} registered): synthetic "
+                             "sessions would be pooled with theirs in every report; give --alongside-people to add them anyway "
+                             "(reports then say MIXED DATA), or run them in a study of their own")
+        pending = _unrun(store)
+        codes = _register(store, protocol, participants, seed)
+        runs = pending + [(code, seed) for code in codes]
+        t0, stored = time.perf_counter(), 0
+        try:  # from the registration's commit on, an interruption leaves participants to complete
+            first_id = (store.rows("select max(id) as m from sessions")[0]["m"] or 0) + 1
+            seeds = [seed_for(store, code, s, first_id + k) for k, (code, s) in enumerate(runs)]
+            for _, bundle in completed(run_away, seeds, jobs, scheduler):
+                store_bundle(store, bundle)
+                stored += 1  # counted once its transaction committed (Ctrl-C inside it rolls it back)
+                if progress:
+                    progress(stored, len(seeds))
+        except KeyboardInterrupt:
+            left = len(runs) - stored
+            raise Interrupted(f"synth: interrupted after {stored} of {len(runs)} sessions (each stored whole); the next "
+                              f"`studyctl synth --db {db}` first runs the {left} registered participant{'s' if left != 1 else ''} "
+                              "left without one") from None
+    return {"participants": len(codes), "codes": codes, "seed": seed, "jobs": jobs, "scheduler": scheduler,
+            "seconds": time.perf_counter() - t0, "protocol": protocol.name, "protocol_file": str(protocol.path), "created": created,
+            "completed": [{"code": c, "seed": s} for c, s in pending]}
+
+
+def _unrun(store) -> list[tuple[str, int]]:
+    """(code, seed) of the synthetic participants registered by a `synth` that did not finish:
+    no session, not withdrawn; the seed they were registered with (their traits' rows)."""
+    rows = store.rows("select p.code, (select max(t.seed) from synthetic_traits t where t.code = p.code) as seed from participants p "
+                      "where p.synthetic = 1 and p.withdrawn_at is null and not exists (select 1 from sessions s where s.code = p.code) "
+                      "order by p.code")
+    return [(r["code"], int(r["seed"])) for r in rows if r["seed"] is not None]
+
+
+def _register(store, protocol, participants: int, seed: int) -> list[str]:
+    """Register `participants` new synthetic codes (S001, S002, ... skipping codes in use) with
+    ages, fields, orders and generating traits, in one transaction: all or none."""
+    rng = random.Random(f"ages:{seed}")
+    registered = {r["code"] for r in store.rows("select code from participants")}
+    codes, k = [], 0
+    while len(codes) < participants:
+        k += 1
+        if f"S{k:03d}" not in registered:
+            codes.append(f"S{k:03d}")
+    before = store.rows("select count(*) as n from participants where synthetic = 1")[0]["n"]
+    values = synthetic_fields(protocol, codes, seed, start=before)  # groups in turn: balanced
+    with store.transaction() as conn:
+        for code in codes:
+            conn.execute("insert into participants (code, age, synthetic, created_at) values (?, ?, 1, ?)",
+                         (code, rng.randint(protocol.age_min, protocol.age_max), now()))
+            conn.executemany("insert into participant_fields (code, field, value) values (:code, :field, :value)",
+                             field_rows(code, values[code]))
+            assign_order(store, protocol, code)
+            # its traits (and so its seed) kept now: a run interrupted before its session is
+            # completed by the next `synth`, with this seed
+            drawn = SyntheticParticipant.draw(code, seed, skill_for(store, protocol, code))
+            conn.executemany("insert or replace into synthetic_traits (code, trait, value, seed) values (?, ?, ?, ?)",
+                             [(code, t, float(v), seed) for t, v in drawn.trait_values().items()])
+    keep_shipped(store)  # the frame times its synthetic participants perceive, kept with the study
+    return codes
