@@ -273,6 +273,8 @@ def warm_up() -> None:
     spring_energy(x, idx, idx + 1, np.ones(1), np.ones(1))
     spring_gradient(x, idx, idx + 1, np.ones(1), np.ones(1), np.array([0, 1], dtype=np.int64), 2)
     spring_hessian_product(x, idx, idx + 1, np.ones(1), np.ones(1), np.array([0, 1], dtype=np.int64), x)
+    explicit_substeps(x.copy(), np.zeros((2, 3)), np.ones(2), np.zeros(2, dtype=np.bool_), idx, idx + 1, np.ones(1), np.ones(1), idx,
+                      np.array([0, 1], dtype=np.int64), np.ones(1), np.zeros((1, 3)), np.zeros((2, 3)), 0.0, 1e-3, 1)
     polar_rotations(np.eye(3)[None].copy(), np.empty((1, 3, 3)), np.empty(1))
     tets = np.arange(4, dtype=np.int64)[None]
     F = np.empty((1, 3, 3))

@@ -56,11 +56,11 @@ def test_synthetic_sessions_into_a_study_of_people_are_refused_unless_asked_for(
 
 
 def test_an_interrupted_synth_leaves_no_participant_without_a_session(tmp_path, monkeypatch):
-    import studyctl.sweep as sweep
+    import studyctl.synthetic_study as runner  # where the synthetic study takes its completed sessions from
 
     db = tmp_path / "s.db"
     proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
-    real = sweep.completed
+    real = runner.completed
 
     def one_then_ctrl_c(fn, tasks, jobs, scheduler):
         for k, item in enumerate(real(fn, tasks, jobs, scheduler)):
@@ -68,11 +68,11 @@ def test_an_interrupted_synth_leaves_no_participant_without_a_session(tmp_path, 
                 raise KeyboardInterrupt
             yield item
 
-    monkeypatch.setattr(sweep, "completed", one_then_ctrl_c)
+    monkeypatch.setattr(runner, "completed", one_then_ctrl_c)
     res = studyctl("synth", "--db", db, "--participants", "3", "--protocol", proto, "--seed", "4")
     assert res.exit_code != 0 and "Traceback" not in res.output
     assert "interrupted after 1 of 3 sessions" in res.output and "the next `studyctl synth" in res.output, res.output
-    monkeypatch.setattr(sweep, "completed", real)
+    monkeypatch.setattr(runner, "completed", real)
     con = sqlite3.connect(db)
     assert con.execute("select count(*) from participants").fetchone()[0] == 3
     res = studyctl("synth", "--db", db, "--participants", "1", "--seed", "9")

@@ -441,7 +441,7 @@ class MassSpringModel(MassSpringBase):
         self._out = np.zeros_like(surface.vertices)
         self.step_s: list[float] = []
         self.frame_flops = math.nan  # the last frame's counted work (MassSpring.step_flops)
-        if integrator == "local-global" and _spring_rhs() is not None:
+        if integrator in ("local-global", "explicit") and _spring_rhs() is not None:
             from sim.kernels import warm_up
 
             warm_up()  # compiled now, not in the first frame of a trial
