@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.stats import wilson
 from brainsim_assets import path as _asset
 from sim.calibrate import jnd
 from sim.reference import TEST_PLACES, Pull, make_pulls, scene_with, test_pulls
@@ -322,15 +323,6 @@ def verdict(force: float, reference: float, half_band: float) -> str:
     """Within the JND for every reference value in its band, for none, or undecided."""
     e, tol = abs(force - reference), float(jnd(np.array(reference))) * reference
     return "within" if e + half_band <= tol else "outside" if e - half_band > tol else "undecided"
-
-
-def wilson(k: int, n: int) -> tuple[float, float]:
-    from statsmodels.stats.proportion import proportion_confint
-
-    if n == 0:
-        return (math.nan, math.nan)
-    lo, hi = proportion_confint(k, n, alpha=0.05, method="wilson")
-    return float(lo), float(hi)
 
 
 def calibration_scale(model_mags: np.ndarray, ref_mags: np.ndarray) -> float:

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from analysis import scales
+from analysis.stats import friedman, set_holm, wilson
 from analysis.study import Study
 from analysis.withhold import across_reason
 
@@ -213,7 +214,6 @@ def session_questions(protocol, answers: pd.DataFrame) -> dict:
             continue
         v = answers.loc[answers["item"] == q.id, "answer"].astype(float).to_numpy()
         if q.kind == "yes_no":
-            from analysis.table1 import wilson
 
             lo, hi = wilson(int(v.sum()), len(v))
             out[q.id] = {"question": q.text, "kind": q.kind, "n": len(v), "yes": int(v.sum()), "rate": float(v.mean()) if len(v) else float("nan"),
@@ -225,7 +225,6 @@ def session_questions(protocol, answers: pd.DataFrame) -> dict:
 
 def ordinal_primary(protocol, meas: pd.DataFrame) -> dict | None:
     """The proportional-odds GEE across the rating items, Holm over its pairs."""
-    from analysis.stats import _set_holm
 
     items = [q.id for q in _rating_items(protocol)]
     if not items or len(protocol.conditions) < 2:
@@ -235,14 +234,13 @@ def ordinal_primary(protocol, meas: pd.DataFrame) -> dict | None:
     if with_period:
         data = data.assign(period=data["period"].astype(int))
     res = scales.ordinal_gee(data, list(protocol.conditions), with_period=with_period, with_item=len(items) > 1)
-    _set_holm(res["pairs"])
+    set_holm(res["pairs"])
     return res
 
 
 def kind_stats(study: Study, answers: pd.DataFrame) -> dict:
     """Everything beyond yes/no of `study` (analysis.study.Study) from its complete `answers`:
     ratings, scores, choices, end questions, and the ordinal primary."""
-    from analysis.stats import _set_holm
 
     protocol = study.protocol
     meas = measures(protocol, answers, study.periods)
@@ -253,20 +251,32 @@ def kind_stats(study: Study, answers: pd.DataFrame) -> dict:
     if what["analysis"] == "mixed_model" and what["items"][0] in out["scores"]:
         # the primary's pairs Holm-adjusted among themselves (p_holm_primary), as plan powers it;
         # p_holm stays the whole family's
-        _set_holm(out["scores"][what["items"][0]]["pairs"], "p_holm_primary")
+        set_holm(out["scores"][what["items"][0]]["pairs"], "p_holm_primary")
     return out
+
+
+def gee_line(gee: dict, primary: bool = True) -> str:
+    """The logistic GEE across the yes/no questions as a sentence: the primary analysis unless
+    the protocol has rating items (analysis.kinds.primary)."""
+    c = gee.get("composite") if gee else None
+    if not c or not c.get("pairs"):
+        return ""
+    pairs = "; ".join(f"{p['b']} vs {p['a']} OR {p['odds_ratio']:.2f} [{p['ci_low']:.2f}, {p['ci_high']:.2f}], p_Holm {p['p_holm']:.3g}"
+                      if p.get("estimable", True) else f"{p['b']} vs {p['a']} not estimable" for p in c["pairs"])
+    return (f"{'Primary analysis, all questions' if primary else 'Across the yes/no questions'}: logistic GEE `{c['formula']}`, participants as clusters, exchangeable "
+            f"working correlation ({c.get('working_correlation', float('nan')):.2f}), robust standard errors"
+            f"{'' if c.get('converged') else ' (NOT ESTIMABLE OR NOT CONVERGED: ' + '; '.join(c.get('problems') or ['no convergence']) + ')'}: {pairs}.")
 
 
 def primary_line(st: dict) -> str:
     """The protocol's primary analysis and its result, as a sentence."""
-    from analysis.table1 import _gee_line
 
     k = st["kinds"]
     what = k["primary"]
     if what["analysis"] == "ordinal_gee":
-        return ordinal_gee_line(k["ordinal_gee"])
+        return ordinalgee_line(k["ordinal_gee"])
     if what["analysis"] == "logistic_gee":
-        return _gee_line(st["gee"]).replace("`", "")
+        return gee_line(st["gee"]).replace("`", "")
     if what["analysis"] == "mixed_model" and what["items"][0] in k["scores"]:
         v = k["scores"][what["items"][0]]
         pairs = "; ".join(f"{p['b']} - {p['a']} {p['difference']:+.2f}{_ci(p['ci_low'], p['ci_high'], '{:+.2f}')}, "
@@ -293,7 +303,6 @@ def across_p(x: np.ndarray) -> float:
     permutation test, 0.4 s a call); 1 when no participant differs."""
     from scipy.stats import wilcoxon
 
-    from analysis.stats import friedman
 
     if np.all(x == x[:, :1]):
         return 1.0
@@ -334,7 +343,7 @@ def _rank_pair_cell(p: dict) -> str:
     return f"{p['a']}-{p['b']} {_p(p['p_holm'])} ({r}{warn})"
 
 
-def ordinal_gee_line(res: dict | None) -> str:
+def ordinalgee_line(res: dict | None) -> str:
     """The primary analysis of the ratings, as a sentence."""
     if not res or not res.get("pairs"):
         return ""
@@ -362,7 +371,7 @@ def kind_tables(kinds: dict, models: list[str], scope: str) -> list[dict]:
                                                   f"Wilcoxon p, {scope} (rank-biserial r [95% CI])"], "rows": rows,
                     "note": f"{'/'.join(map(str, points))}-point ratings (1 = the low anchor). Friedman across the conditions (tie-corrected); "
                             "Wilcoxon signed-rank pairs; interval of r: BCa bootstrap over participants, of W: percentile bootstrap (W is bounded at 0, where BCa fails). "
-                            + ordinal_gee_line(kinds.get("ordinal_gee"))})
+                            + ordinalgee_line(kinds.get("ordinal_gee"))})
     if kinds["scores"]:
         rows = []
         for v in kinds["scores"].values():

@@ -57,7 +57,7 @@ def latex(study: Study, holm_scope: str = "family") -> str:
     import pandas as pd
 
     from analysis.kinds import kind_tables
-    from analysis.stats import study_stats
+    from analysis.study_stats import study_stats
 
     facts, r, q, d = table1.study_facts(study), table1.rates(study), table1.cochran(study), table1.deformation(study)
     st = study_stats(study, r, q, holm_scope=holm_scope)
@@ -172,8 +172,8 @@ def stability_html(result: dict) -> str:
 def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, stability: dict | None = None, holm_scope: str = "family") -> str:
     """One self-contained HTML file: facts, Table 1, statistics, plots (PNG inlined), and the
     accuracy bench's table and Pareto plot and the stability sweep's heat map when given."""
-    from analysis.kinds import kind_tables
-    from analysis.stats import study_stats
+    from analysis.kinds import gee_line, kind_tables
+    from analysis.study_stats import study_stats
 
     facts, r, q, d = table1.study_facts(study), table1.rates(study), table1.cochran(study), table1.deformation(study)
     st = study_stats(study, r, q, holm_scope=holm_scope)
@@ -197,7 +197,7 @@ def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, 
     lat_text = "benchmark of this machine: each participant's mean, mean &plusmn; sd over participants (no test: CPU time is not about people)"
     from analysis.kinds import primary_line
 
-    gee = esc(table1._gee_line(st["gee"], st["kinds"]["primary"]["analysis"] == "logistic_gee").replace("`", ""))
+    gee = esc(gee_line(st["gee"], st["kinds"]["primary"]["analysis"] == "logistic_gee").replace("`", ""))
     primary = (f"<p>{esc(primary_line(st))}</p>" if st["kinds"]["primary"]["analysis"] in ("mixed_model", "choice") else "")
     scope = table1.holm_text(st)
     head = "".join(f"<th>{esc(m)}</th>" for m in models)

@@ -11,8 +11,6 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from analysis.study import Study
-
 NAN = float("nan")
 
 
@@ -33,6 +31,23 @@ def holm(p_values) -> list[float]:
     out[order] = np.minimum(np.maximum.accumulate(q[order] * np.arange(q.size, 0, -1)), 1.0)
     adjusted[tested] = out
     return [float(x) for x in adjusted]
+
+
+def set_holm(pairs: list[dict], key: str = "p_holm") -> None:
+    """Holm over these pairs' `p_value` into `key`; a test that was not made (NaN) stays NaN and
+    is not counted in the family."""
+    for pair, p in zip(pairs, holm([x["p_value"] for x in pairs])):
+        pair[key] = p
+
+
+def wilson(yes: int, n: int, alpha: float = 0.05) -> tuple[float, float]:
+    """Wilson interval of a proportion (NaN for no observations)."""
+    from statsmodels.stats.proportion import proportion_confint
+
+    if n == 0:
+        return (float("nan"), float("nan"))
+    lo, hi = proportion_confint(yes, n, alpha=alpha, method="wilson")  # the default is the normal interval
+    return float(lo), float(hi)
 
 
 def pairwise_mcnemar(wide: pd.DataFrame) -> pd.DataFrame:
@@ -168,117 +183,6 @@ def gee_fit(df: pd.DataFrame, models: list[str], with_period: bool = True, with_
                   "working_correlation": float(res.cov_struct.dep_params), "pairs": pairs}
 
 
-def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None, holm_scope: str = "family") -> dict:
-    """Everything `studyctl report stats --json` prints (`r`, `q`: rates and cochran already
-    computed by the caller, so a report does not compute them twice) of `study`
-    (analysis.study.Study: the database read once). Complete cases only
-    (`analysis.table1.complete_answers`). `holm_scope`: "family" (default: Holm over every
-    pairwise McNemar test of every question) or "question" (within each question's pairs)."""
-    from analysis.kinds import family_pairs, kind_stats
-    from analysis.table1 import (
-        DEFORMATION_LABEL,
-        answers_wide,
-        binary_answers,
-        cochran,
-        complete_answers,
-        deformation,
-        rates,
-        study_facts,
-    )
-
-    if holm_scope not in HOLM_SCOPES:
-        raise ValueError(f"holm_scope: {holm_scope!r}; allowed: {', '.join(HOLM_SCOPES)}")
-    r = rates(study) if r is None else r
-    q = cochran(study) if q is None else q
-    protocol = study.protocol
-    every, _ = complete_answers(study)
-    answers = binary_answers(study, every)
-    protocol_models = list(protocol.conditions)
-    items = {}
-    for item, g in r.groupby("item", sort=False):
-        wide = answers_wide(answers, item, protocol_models)
-        pairs = pairwise_mcnemar(wide) if len(wide) else pd.DataFrame(columns=["a", "b", "n01", "n10", "p_value", "p_holm", "odds_ratio"])
-        qrow = q[q["item"] == item].iloc[0]
-        items[item] = {
-            "question": g["question"].iloc[0],
-            "cochran_q": qrow["cochran_q"], "df": int(qrow["df"]), "p_value": qrow["p_value"], "n_complete": int(qrow["n_complete"]),
-            "rates": {row["model"]: {k: row[k] for k in ("yes", "no", "rate", "wilson_low", "wilson_high")} for _, row in g.iterrows()},
-            "pairs": pairs.to_dict(orient="records"),
-        }
-    kinds = kind_stats(study, every)
-    _holm_family(items, holm_scope, family_pairs(kinds))
-    gee = study_gee(study, answers, protocol_models)
-    _name_tests(kinds, gee)
-    return {"facts": study_facts(study), "holm": holm_scope, "items": items, "gee": gee,
-            "kinds": kinds, "deformation": {"label": DEFORMATION_LABEL, "rows": deformation(study).to_dict(orient="records")}}
-
-
-PAIR_TESTS = {"scores": "t contrast of the linear mixed model (between-within df)",
-              "choices": "exact binomial test of the two conditions' counts",
-              "ordinal_gee": "Wald t of the proportional-odds GEE (participants - 1 df)",
-              "gee": "Wald z of the logistic GEE (robust covariance)"}
-
-
-def _name_tests(kinds: dict, gee: dict) -> None:
-    """Every pairwise test in the JSON names itself (`test`), and one that could not be made says
-    why (`reason`), as the rank and McNemar tests already do."""
-    def name(pairs, test: str, problems=()) -> None:
-        for p in pairs or []:
-            p.setdefault("test", test)
-            if p.get("p_value") is None or not np.isfinite(p["p_value"]):
-                p.setdefault("reason", "; ".join(problems) or "not estimable")
-
-    for v in kinds["scores"].values():
-        problems = v["mixed_model"].get("problems") or []
-        name(v["pairs"], PAIR_TESTS["scores"], problems)
-        name(v["mixed_model"]["pairs"], PAIR_TESTS["scores"], problems)
-    for v in kinds["choices"].values():
-        name(v["pairs"], PAIR_TESTS["choices"])
-    if kinds.get("ordinal_gee"):
-        name(kinds["ordinal_gee"]["pairs"], PAIR_TESTS["ordinal_gee"], kinds["ordinal_gee"].get("problems") or [])
-    for part in [gee.get("composite")] + list((gee.get("items") or {}).values()):
-        if part:
-            name(part.get("pairs"), PAIR_TESTS["gee"], part.get("problems") or [])
-
-
-def _set_holm(pairs: list[dict], key: str = "p_holm") -> None:
-    """Holm over these pairs' `p_value` into `key`; a test that was not made (NaN) stays NaN and
-    is not counted in the family."""
-    for pair, p in zip(pairs, holm([x["p_value"] for x in pairs])):
-        pair[key] = p
-
-
-def _holm_family(items: dict, scope: str, others: list[list[dict]] = ()) -> None:
-    """Set each pair's `p_holm`: over the whole family of pairwise tests (the yes/no questions'
-    McNemar pairs and `others`: every other kind's pairs, a list per question or score), or per
-    question (`p_holm_question` is kept either way)."""
-    per_question = [v["pairs"] for v in items.values()] + list(others)
-    for pairs in per_question:
-        _set_holm(pairs, "p_holm_question")
-    family = [pair for pairs in per_question for pair in pairs]
-    _set_holm(family, "p_holm_family")
-    for pair in family:
-        pair["p_holm"] = pair["p_holm_family"] if scope == "family" else pair["p_holm_question"]
-
-
-def study_gee(study: Study, answers: pd.DataFrame, models: list[str]) -> dict:
-    """The primary analysis across questions: a logistic GEE with model and period (the
-    condition's position in the participant's session, `study.periods`) and, for the composite
-    over all questions, item as factors; then one per question, with Holm over the family of
-    their pairwise contrasts."""
-    if answers.empty or len(models) < 2:
-        return {"composite": None, "items": {}}
-    df = answers.merge(study.periods, on=["code", "model"], how="left")
-    with_period = bool(df["period"].notna().all())
-    if with_period:
-        df["period"] = df["period"].astype(int)
-    composite = gee_fit(df, models, with_period, with_item=True)
-    items = {item: gee_fit(g, models, with_period) for item, g in df.groupby("item", sort=False)}
-    _set_holm([pair for v in items.values() for pair in v["pairs"]])
-    _set_holm(composite["pairs"])
-    return {"composite": composite, "items": items, "period_factor": with_period}
-
-
 def max_cochran_q(yes: list[int], n: int) -> float:
     """The largest Cochran's Q that any pairing of `n` participants' answers can give with
     these yes counts per model (the margins). Q = (k-1)(k sum C_j^2 - T^2) / (k T - sum R_i^2)
@@ -388,4 +292,4 @@ def published(path: str | Path) -> dict:
     }
 
 
-__all__ = ["holm", "pairwise_mcnemar", "friedman", "pairwise_wilcoxon", "gee_fit", "study_stats", "margin_bounds", "published"]
+__all__ = ["holm", "set_holm", "wilson", "pairwise_mcnemar", "friedman", "pairwise_wilcoxon", "gee_fit", "margin_bounds", "published"]

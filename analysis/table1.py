@@ -17,23 +17,15 @@ import json
 import numpy as np
 import pandas as pd
 
+from analysis.stats import wilson
 from analysis.study import Study, data_flag
-from analysis.withhold import binary_across_reason, mean_sd
+from analysis.withhold import binary_across_reason
 
 
 def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.DataFrame:
     """0/1 answers to one item: a row per participant who answered it for every model."""
     wide = answers[answers["item"] == item].pivot(index="code", columns="model", values="answer")
     return wide.reindex(columns=models).dropna()
-
-
-def wilson(yes: int, n: int, alpha: float = 0.05) -> tuple[float, float]:
-    from statsmodels.stats.proportion import proportion_confint
-
-    if n == 0:
-        return (float("nan"), float("nan"))
-    lo, hi = proportion_confint(yes, n, alpha=alpha, method="wilson")  # the default is the normal interval
-    return float(lo), float(hi)
 
 
 def expected_answers(protocol) -> int:
@@ -221,69 +213,3 @@ def holm_text(st: dict) -> str:
     if not tested:
         return "Holm: no pair tested"
     return f"Holm over all {tested} pairs tested"
-
-
-def _gee_line(gee: dict, primary: bool = True) -> str:
-    """The logistic GEE across the yes/no questions as a sentence: the primary analysis unless
-    the protocol has rating items (analysis.kinds.primary)."""
-    c = gee.get("composite") if gee else None
-    if not c or not c.get("pairs"):
-        return ""
-    pairs = "; ".join(f"{p['b']} vs {p['a']} OR {p['odds_ratio']:.2f} [{p['ci_low']:.2f}, {p['ci_high']:.2f}], p_Holm {p['p_holm']:.3g}"
-                      if p.get("estimable", True) else f"{p['b']} vs {p['a']} not estimable" for p in c["pairs"])
-    return (f"{'Primary analysis, all questions' if primary else 'Across the yes/no questions'}: logistic GEE `{c['formula']}`, participants as clusters, exchangeable "
-            f"working correlation ({c.get('working_correlation', float('nan')):.2f}), robust standard errors"
-            f"{'' if c.get('converged') else ' (NOT ESTIMABLE OR NOT CONVERGED: ' + '; '.join(c.get('problems') or ['no convergence']) + ')'}: {pairs}.")
-
-
-def markdown(study: Study, holm_scope: str = "family") -> str:
-    """Table 1 as Markdown: counts, rate [Wilson 95%] per model, Cochran's Q per item, McNemar
-    pairs with Holm (over the family by default), the deformation-time row (a benchmark of
-    this machine), headed by N (complete cases), the design and a synthetic-data flag; the
-    GEE across questions below."""
-    from analysis.kinds import kind_tables, table_markdown
-    from analysis.stats import study_stats
-
-    facts, r, q, d = study_facts(study), rates(study), cochran(study), deformation(study)
-    st = study_stats(study, r, q, holm_scope=holm_scope)
-    pairs = {item: v["pairs"] for item, v in st["items"].items()}
-    models = list(d["model"])
-    flag = f"{facts['flag']} " if facts["flag"] else ""
-    if facts["mixed_source_participants"]:
-        flag += f"WARNING: {', '.join(facts['mixed_source_participants'])} answered both as a person and synthetically. "
-    listed = incomplete_text(facts)
-    left_out = f" Left out (incomplete): {listed}." if listed else ""
-    scope = holm_text(st)
-    lines = [f"**Table 1: {facts['study']}.** {flag}N = {facts['participants']} participants with every answer; {facts['design']}.{left_out}", ""]
-    deform = [f"{mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])} (median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f})"
-              if row["n_participants"] else "n/a (no trials)" for _, row in d.iterrows()]
-    if len(r):  # the yes/no questions: the paper's table
-        lines += ["| Question | " + " | ".join(f"{m}: yes/no, rate [95% CI]" for m in models) + f" | Cochran's Q (p) | McNemar p, {scope} |",
-                  "|---|" + "---|" * len(models) + "---|---|"]
-        for item, question, rows, qrow in item_rows(r, q, models):
-            cells = [f"{row['yes']}/{row['no']}, {row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]" for row in rows]
-            mc = "; ".join(mcnemar_cell(p) for p in pairs.get(item, [])) or "n/a (one condition)"
-            test = cochran_cell(qrow)
-            lines.append(f"| {question} | " + " | ".join(cells) + f" | {test} | {mc} |")
-        lines.append("| Time for real-time deformation of the model, ms: benchmark of this machine | " + " | ".join(deform) + " | | |")
-        lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models; pairwise exact McNemar tests, "
-                  f"{scope}. Deformation time: each participant's mean over their trials, mean +- sd over participants: "
-                  "wall-clock time of this machine, not a measure of the participants (no test).", ""]
-    for t in kind_tables(st["kinds"], models, scope):
-        lines += table_markdown(t)
-    if not len(r):
-        lines += ["| Time for real-time deformation, ms: benchmark of this machine | " + " | ".join(models) + " |",
-                  "|---|" + "---|" * len(models), "| mean +- sd (median, p95) | " + " | ".join(deform) + " |", ""]
-    from analysis.kinds import primary_line
-
-    gee = _gee_line(st["gee"], st["kinds"]["primary"]["analysis"] == "logistic_gee")
-    if gee:
-        lines += [gee, ""]
-    if st["kinds"]["primary"]["analysis"] in ("mixed_model", "choice"):
-        lines += [primary_line(st), ""]
-    if len(models) < 2:
-        lines += ["One condition: there is nothing to compare between conditions (no Cochran's Q, McNemar or Friedman test); "
-                  "a study with groups compares its groups instead.", ""]
-    lines += ["Conditions (what each ran; participants saw only their labels): "
-              + "; ".join(condition_text(c) for c in facts["conditions"]) + ".", ""]
-    return "\n".join(lines)

@@ -59,12 +59,6 @@ def _module_graph() -> tuple[list[str], dict[str, set[str]]]:
     return list(files), edges
 
 
-# Issue 45 removes these; the test fails when one is gone (shrink the list) or another appears.
-KNOWN_CYCLES = {
-    ("analysis.kinds", "analysis.scales", "analysis.stats", "analysis.table1"),
-}
-
-
 def test_no_import_cycles_between_the_projects_modules():
     """Strongly connected components of the import graph (scipy), function-level imports
     included: an import inside a function hides a cycle from Python, not from the design. The
@@ -83,4 +77,17 @@ def test_no_import_cycles_between_the_projects_modules():
         groups.setdefault(int(lab), []).append(m)
     cycles = {tuple(sorted(g)) for g in groups.values() if len(g) > 1 and not all(m.startswith("studyctl.cli") for m in g)}
     assert len(mods) > 120 and edges["studyctl.protocol"] >= {"studyctl.fields", "studyctl.text"}
-    assert cycles == KNOWN_CYCLES
+    assert cycles == set()
+
+
+def test_no_private_name_is_imported_from_another_package():
+    """A leading underscore is a module's own: another package uses its public API."""
+    offenders = []
+    for pkg in ("sim", "studyctl", "analysis"):
+        for p in sorted((ROOT / pkg).rglob("*.py")):
+            for node in ast.walk(ast.parse(p.read_text(), filename=str(p))):
+                if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                    top = node.module.split(".")[0]
+                    if top in ("sim", "studyctl", "analysis") and top != pkg:
+                        offenders += [f"{p.relative_to(ROOT)}:{node.lineno} {node.module}.{a.name}" for a in node.names if a.name.startswith("_")]
+    assert offenders == []

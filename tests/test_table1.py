@@ -8,7 +8,7 @@ import pytest
 from click.testing import CliRunner
 from scipy.stats import norm
 
-from analysis.table1 import wilson
+from analysis.stats import wilson
 from studyctl.cli import cli
 from studyctl.synthetic_study import run_synthetic_study
 from tests.test_study import fast_protocol
@@ -162,8 +162,9 @@ def _answers_db(tmp_path, answers: dict, orders: dict | None = None, protocol=No
 
 
 def test_one_n_rule_complete_cases_everywhere_and_the_rest_listed(tmp_path):
-    from analysis.stats import study_stats
-    from analysis.table1 import markdown, rates, study_facts
+    from analysis.study_stats import study_stats
+    from analysis.study_stats import table1_markdown as markdown
+    from analysis.table1 import rates, study_facts
 
     rng = np.random.default_rng(1)
     models = ["fem", "mass_spring", "plate_spring"]
@@ -183,7 +184,8 @@ def test_one_n_rule_complete_cases_everywhere_and_the_rest_listed(tmp_path):
 
 
 def test_holm_over_the_family_of_27_pairs_by_default(tmp_path):
-    from analysis.stats import holm, study_stats
+    from analysis.stats import holm
+    from analysis.study_stats import study_stats
 
     rng = np.random.default_rng(2)
     answers = {f"P{i:02d}": {"fem": rng.binomial(1, 0.9, 9).tolist(), "mass_spring": rng.binomial(1, 0.3, 9).tolist(),
@@ -232,7 +234,7 @@ def test_gee_matches_the_hand_built_saturated_case():
 
 
 def test_gee_has_the_period_factor_and_a_composite(tmp_path):
-    from analysis.stats import study_stats
+    from analysis.study_stats import study_stats
 
     rng = np.random.default_rng(4)
     models = ["fem", "mass_spring", "plate_spring"]
@@ -374,8 +376,8 @@ def test_latex_table_escapes_every_special_character_and_has_the_other_formats_c
 
 
 def test_gee_says_not_estimable_when_a_model_answers_alike_throughout(tmp_path):
-    from analysis.stats import study_stats
-    from analysis.table1 import markdown
+    from analysis.study_stats import study_stats
+    from analysis.study_stats import table1_markdown as markdown
 
     rng = np.random.default_rng(6)
     answers = {f"P{i:02d}": {"fem": rng.integers(0, 2, 9).tolist(), "mass_spring": [0] * 9, "plate_spring": rng.integers(0, 2, 9).tolist()}

@@ -47,6 +47,7 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
     """The seed paper's Table 1 with Wilson intervals, Cochran's Q and deformation times
     (html: one self-contained file with the statistics and plots)."""
     from analysis import table1
+    from analysis.study_stats import table1_markdown
 
     study = _read(db)
     if study.protocol.tasks and not study.protocol.questions:  # a discrimination study without questions: its section is the report
@@ -60,7 +61,7 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
     accuracy = _load_bench(accuracy_file, "accuracy", "rows") if accuracy_file else None
     stability = _load_bench(stability_file, "stability", "cases") if stability_file else None
     if fmt == "md":
-        text = table1.markdown(study, holm_scope)
+        text = table1_markdown(study, holm_scope)
         if accuracy:
             from analysis.accuracy import markdown
 
@@ -83,7 +84,7 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
 
         text = spreadsheet_frame(table1.rates(study).assign(participants=facts["participants"], synthetic=facts["synthetic"])).to_csv(index=False)
     else:
-        from analysis.stats import study_stats
+        from analysis.study_stats import study_stats
 
         r, q = table1.rates(study), table1.cochran(study)
         text = json.dumps(jsonable({"facts": table1.study_facts(study), "rates": r.to_dict(orient="records"),
@@ -198,8 +199,9 @@ def report_stats(db, holm_scope, as_json):
     every question's tests: Cochran's Q and McNemar pairs (yes/no), Friedman and Wilcoxon pairs
     (ratings), mixed models (scores), the multinomial test (choices), Holm over the whole
     family; the deformation-time benchmark. Complete cases only."""
-    from analysis.stats import study_stats
-    from analysis.table1 import _gee_line, incomplete_text
+    from analysis.kinds import gee_line
+    from analysis.study_stats import study_stats
+    from analysis.table1 import incomplete_text
     from analysis.withhold import mean_sd
 
     study = _read(db)
@@ -244,7 +246,7 @@ def report_stats(db, holm_scope, as_json):
         click.echo(f"{item}: {shares}; {v['overall']['test']} p = {v['overall']['p_value']:.3g}")
     if out["facts"]["incomplete_participants"]:
         click.echo("left out (incomplete): " + incomplete_text(out["facts"]))
-    gee = _gee_line(out["gee"], kinds["primary"]["analysis"] == "logistic_gee")
+    gee = gee_line(out["gee"], kinds["primary"]["analysis"] == "logistic_gee")
     if gee and kinds["primary"]["analysis"] != "logistic_gee":  # the primary's own line is printed first
         click.echo(gee.replace("`", ""))
     for row in out["deformation"]["rows"]:

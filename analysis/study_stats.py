@@ -1,0 +1,170 @@
+"""Everything `studyctl report stats --json` prints for a study, and Table 1 as Markdown: the
+yes/no questions' rates, Cochran's Q and McNemar pairs (analysis/table1.py), each answer kind's
+statistics (analysis/kinds.py), the logistic GEE across questions, and Holm over the family of
+pairwise tests (analysis/stats.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from analysis.kinds import family_pairs, gee_line, kind_stats, kind_tables, primary_line, table_markdown
+from analysis.stats import HOLM_SCOPES, gee_fit, pairwise_mcnemar, set_holm
+from analysis.study import Study
+from analysis.table1 import (
+    DEFORMATION_LABEL,
+    answers_wide,
+    binary_answers,
+    cochran,
+    cochran_cell,
+    complete_answers,
+    condition_text,
+    deformation,
+    holm_text,
+    incomplete_text,
+    item_rows,
+    mcnemar_cell,
+    rates,
+    study_facts,
+)
+from analysis.withhold import mean_sd
+
+
+def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None, holm_scope: str = "family") -> dict:
+    """Everything `studyctl report stats --json` prints (`r`, `q`: rates and cochran already
+    computed by the caller, so a report does not compute them twice) of `study`
+    (analysis.study.Study: the database read once). Complete cases only
+    (`analysis.table1.complete_answers`). `holm_scope`: "family" (default: Holm over every
+    pairwise McNemar test of every question) or "question" (within each question's pairs)."""
+    if holm_scope not in HOLM_SCOPES:
+        raise ValueError(f"holm_scope: {holm_scope!r}; allowed: {', '.join(HOLM_SCOPES)}")
+    r = rates(study) if r is None else r
+    q = cochran(study) if q is None else q
+    protocol = study.protocol
+    every, _ = complete_answers(study)
+    answers = binary_answers(study, every)
+    protocol_models = list(protocol.conditions)
+    items = {}
+    for item, g in r.groupby("item", sort=False):
+        wide = answers_wide(answers, item, protocol_models)
+        pairs = pairwise_mcnemar(wide) if len(wide) else pd.DataFrame(columns=["a", "b", "n01", "n10", "p_value", "p_holm", "odds_ratio"])
+        qrow = q[q["item"] == item].iloc[0]
+        items[item] = {
+            "question": g["question"].iloc[0],
+            "cochran_q": qrow["cochran_q"], "df": int(qrow["df"]), "p_value": qrow["p_value"], "n_complete": int(qrow["n_complete"]),
+            "rates": {row["model"]: {k: row[k] for k in ("yes", "no", "rate", "wilson_low", "wilson_high")} for _, row in g.iterrows()},
+            "pairs": pairs.to_dict(orient="records"),
+        }
+    kinds = kind_stats(study, every)
+    _holm_family(items, holm_scope, family_pairs(kinds))
+    gee = study_gee(study, answers, protocol_models)
+    _name_tests(kinds, gee)
+    return {"facts": study_facts(study), "holm": holm_scope, "items": items, "gee": gee,
+            "kinds": kinds, "deformation": {"label": DEFORMATION_LABEL, "rows": deformation(study).to_dict(orient="records")}}
+
+
+PAIR_TESTS = {"scores": "t contrast of the linear mixed model (between-within df)",
+              "choices": "exact binomial test of the two conditions' counts",
+              "ordinal_gee": "Wald t of the proportional-odds GEE (participants - 1 df)",
+              "gee": "Wald z of the logistic GEE (robust covariance)"}
+
+
+def _name_tests(kinds: dict, gee: dict) -> None:
+    """Every pairwise test in the JSON names itself (`test`), and one that could not be made says
+    why (`reason`), as the rank and McNemar tests already do."""
+    def name(pairs, test: str, problems=()) -> None:
+        for p in pairs or []:
+            p.setdefault("test", test)
+            if p.get("p_value") is None or not np.isfinite(p["p_value"]):
+                p.setdefault("reason", "; ".join(problems) or "not estimable")
+
+    for v in kinds["scores"].values():
+        problems = v["mixed_model"].get("problems") or []
+        name(v["pairs"], PAIR_TESTS["scores"], problems)
+        name(v["mixed_model"]["pairs"], PAIR_TESTS["scores"], problems)
+    for v in kinds["choices"].values():
+        name(v["pairs"], PAIR_TESTS["choices"])
+    if kinds.get("ordinal_gee"):
+        name(kinds["ordinal_gee"]["pairs"], PAIR_TESTS["ordinal_gee"], kinds["ordinal_gee"].get("problems") or [])
+    for part in [gee.get("composite")] + list((gee.get("items") or {}).values()):
+        if part:
+            name(part.get("pairs"), PAIR_TESTS["gee"], part.get("problems") or [])
+
+
+def _holm_family(items: dict, scope: str, others: list[list[dict]] = ()) -> None:
+    """Set each pair's `p_holm`: over the whole family of pairwise tests (the yes/no questions'
+    McNemar pairs and `others`: every other kind's pairs, a list per question or score), or per
+    question (`p_holm_question` is kept either way)."""
+    per_question = [v["pairs"] for v in items.values()] + list(others)
+    for pairs in per_question:
+        set_holm(pairs, "p_holm_question")
+    family = [pair for pairs in per_question for pair in pairs]
+    set_holm(family, "p_holm_family")
+    for pair in family:
+        pair["p_holm"] = pair["p_holm_family"] if scope == "family" else pair["p_holm_question"]
+
+
+def study_gee(study: Study, answers: pd.DataFrame, models: list[str]) -> dict:
+    """The primary analysis across questions: a logistic GEE with model and period (the
+    condition's position in the participant's session, `study.periods`) and, for the composite
+    over all questions, item as factors; then one per question, with Holm over the family of
+    their pairwise contrasts."""
+    if answers.empty or len(models) < 2:
+        return {"composite": None, "items": {}}
+    df = answers.merge(study.periods, on=["code", "model"], how="left")
+    with_period = bool(df["period"].notna().all())
+    if with_period:
+        df["period"] = df["period"].astype(int)
+    composite = gee_fit(df, models, with_period, with_item=True)
+    items = {item: gee_fit(g, models, with_period) for item, g in df.groupby("item", sort=False)}
+    set_holm([pair for v in items.values() for pair in v["pairs"]])
+    set_holm(composite["pairs"])
+    return {"composite": composite, "items": items, "period_factor": with_period}
+
+
+def table1_markdown(study: Study, holm_scope: str = "family") -> str:
+    """Table 1 as Markdown: counts, rate [Wilson 95%] per model, Cochran's Q per item, McNemar
+    pairs with Holm (over the family by default), the deformation-time row (a benchmark of
+    this machine), headed by N (complete cases), the design and a synthetic-data flag; the
+    GEE across questions below."""
+    facts, r, q, d = study_facts(study), rates(study), cochran(study), deformation(study)
+    st = study_stats(study, r, q, holm_scope=holm_scope)
+    pairs = {item: v["pairs"] for item, v in st["items"].items()}
+    models = list(d["model"])
+    flag = f"{facts['flag']} " if facts["flag"] else ""
+    if facts["mixed_source_participants"]:
+        flag += f"WARNING: {', '.join(facts['mixed_source_participants'])} answered both as a person and synthetically. "
+    listed = incomplete_text(facts)
+    left_out = f" Left out (incomplete): {listed}." if listed else ""
+    scope = holm_text(st)
+    lines = [f"**Table 1: {facts['study']}.** {flag}N = {facts['participants']} participants with every answer; {facts['design']}.{left_out}", ""]
+    deform = [f"{mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])} (median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f})"
+              if row["n_participants"] else "n/a (no trials)" for _, row in d.iterrows()]
+    if len(r):  # the yes/no questions: the paper's table
+        lines += ["| Question | " + " | ".join(f"{m}: yes/no, rate [95% CI]" for m in models) + f" | Cochran's Q (p) | McNemar p, {scope} |",
+                  "|---|" + "---|" * len(models) + "---|---|"]
+        for item, question, rows, qrow in item_rows(r, q, models):
+            cells = [f"{row['yes']}/{row['no']}, {row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]" for row in rows]
+            mc = "; ".join(mcnemar_cell(p) for p in pairs.get(item, [])) or "n/a (one condition)"
+            test = cochran_cell(qrow)
+            lines.append(f"| {question} | " + " | ".join(cells) + f" | {test} | {mc} |")
+        lines.append("| Time for real-time deformation of the model, ms: benchmark of this machine | " + " | ".join(deform) + " | | |")
+        lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models; pairwise exact McNemar tests, "
+                  f"{scope}. Deformation time: each participant's mean over their trials, mean +- sd over participants: "
+                  "wall-clock time of this machine, not a measure of the participants (no test).", ""]
+    for t in kind_tables(st["kinds"], models, scope):
+        lines += table_markdown(t)
+    if not len(r):
+        lines += ["| Time for real-time deformation, ms: benchmark of this machine | " + " | ".join(models) + " |",
+                  "|---|" + "---|" * len(models), "| mean +- sd (median, p95) | " + " | ".join(deform) + " |", ""]
+    gee = gee_line(st["gee"], st["kinds"]["primary"]["analysis"] == "logistic_gee")
+    if gee:
+        lines += [gee, ""]
+    if st["kinds"]["primary"]["analysis"] in ("mixed_model", "choice"):
+        lines += [primary_line(st), ""]
+    if len(models) < 2:
+        lines += ["One condition: there is nothing to compare between conditions (no Cochran's Q, McNemar or Friedman test); "
+                  "a study with groups compares its groups instead.", ""]
+    lines += ["Conditions (what each ran; participants saw only their labels): "
+              + "; ".join(condition_text(c) for c in facts["conditions"]) + ".", ""]
+    return "\n".join(lines)
