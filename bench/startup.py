@@ -37,7 +37,8 @@ print(json.dumps({"ready_s": t_ready, "total_s": total, "modules": len(mods),
 
 def _scene(text: str, tmp: Path, name: str) -> Path:
     root = DEFAULT_SCENE.parents[2]
-    text = text.replace('"../../data/', f'"{root}/data/').replace('"../models/', f'"{root}/protocols/models/')
+    for rel, where in (('"../../data/', "data"), ('"../models/', "protocols/models"), ('"../materials/', "protocols/materials")):
+        text = text.replace(rel, f'"{root}/{where}/')  # the scene's relative paths, from the temporary folder
     path = tmp / name
     path.write_text(text)
     return path
