@@ -122,7 +122,7 @@ def quick_config(**kw) -> AccuracyConfig:
 
 
 def sample_displacements(cfg: AccuracyConfig) -> np.ndarray:
-    from analysis.reference import pull_samples
+    from analysis.tissue_pulls import pull_samples
 
     return pull_samples(cfg.max_pull, cfg.samples)
 
@@ -201,7 +201,7 @@ def _tick_time(model, contact, d, reps: int = 20000) -> float:
 def reference_samples(refs: dict, pulls: list[Pull], xs, mu: float) -> list[list[dict]]:
     """Per pull and sample: the reference force (N, vector on the tissue), magnitude and half-band,
     for a law of shear modulus `mu` (the stored forces are per pascal of it)."""
-    from analysis.reference import combined_sample
+    from analysis.tissue_pulls import combined_sample
 
     return [[combined_sample(refs[p.name]["force_per_pa"][:, k] * mu, refs[p.name]["h_m"]) for k in range(len(xs))] for p in pulls]
 
@@ -210,7 +210,7 @@ def calibration_curve(scene_path, xs, jobs: int | None = None, progress=None) ->
     """The converged reference's force magnitude (N, the scene's law) on the bench's calibration
     pulls (`make_pulls`), at displacements `xs`: (displacements, forces, how), the pulls'
     curves concatenated. What `calibrate plate-spring` fits to."""
-    from analysis.reference import (
+    from analysis.tissue_pulls import (
         DEFAULT_SIZES_MM,
         ReferenceDataError,
         describe_no_reference,
@@ -246,7 +246,7 @@ def _task(task):
 def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | None = None, progress=None) -> dict:
     """The reference, then every setting, on the calibration and test pulls; returns rows
     (raw and calibrated per setting), per-sample verdicts and meta."""
-    from analysis.reference import ReferenceDataError, no_reference, pull_references
+    from analysis.tissue_pulls import ReferenceDataError, no_reference, pull_references
     from studyctl.sweep import run_tasks
 
     scene = scene_with(cfg.scene)
@@ -443,7 +443,7 @@ COLUMNS = ("model", "setting", "calibration", "scale", "force_error", "force_err
 def intro(result: dict) -> str:
     m = result["meta"]
     ref = m["reference"]
-    from analysis.reference import describe_no_reference
+    from analysis.tissue_pulls import describe_no_reference
 
     gone = ref.get("no_reference") or []
     missing = (f" {sum(g['samples'] for g in gone)} samples have no reference and are not judged: "

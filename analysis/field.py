@@ -47,7 +47,7 @@ BLOCK = 240  # right-hand sides per CHOLMOD solve (memory: n_free x BLOCK double
 def site_stiffness(scene_path, size_mm: float = FIELD_SIZE_MM, sites_per_hemisphere: int = ICO4_VERTICES,
                    progress=None) -> dict:
     """K per pascal of shear modulus (s, 3, 3) at the sites, with the site vertex ids and what it took."""
-    from analysis.reference import _premesh, build_problem, grasp_matrix, small_strain_factor
+    from analysis.tissue_pulls import _premesh, build_problem, grasp_matrix, small_strain_factor
     from sim.models.fem.grasp import compliances
     from sim.patch import patch_area_points
     from sim.reference import scene_with
@@ -156,7 +156,7 @@ def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", 
 
     if formulation == "small-strain":
         return dataclasses.replace(start_params, layers=1), {"formulation": formulation, "within_jnd": 1.0, "pulls": []}
-    from analysis.reference import DEFAULT_SIZES_MM, build_problem, pull_references, pull_stiffness
+    from analysis.tissue_pulls import DEFAULT_SIZES_MM, build_problem, pull_references, pull_stiffness
     from sim.patch import patch_area_points
     from sim.reference import make_pulls, scene_with
     from sim.tetmesh import hemisphere_surface, mesh_hemisphere

@@ -13,7 +13,7 @@ their generating Weber fraction beside the estimate (so recovery can be read off
 - ``conditions``: per condition: n, geometric mean Weber fraction with a 95% interval (t on logs),
   median, and for synthetic studies the median absolute relative error against the generating
   values and the intervals' coverage of them;
-- ``group``: analysis.psychometric.group_test across conditions (None with one condition).
+- ``group``: analysis.weber_groups.group_test across conditions (None with one condition).
 """
 
 from __future__ import annotations
@@ -54,7 +54,8 @@ def _quest_estimates(study, task: int) -> dict:
 
 def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) -> dict:
     from analysis.pooled import POOLED_MIN, pooled_webers
-    from analysis.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, group_test, weber_table
+    from analysis.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, weber_table
+    from analysis.weber_groups import group_test
 
     protocol = study.protocol
     spec = protocol.tasks[task]
@@ -203,7 +204,7 @@ def markdown(res: dict) -> str:
 
 
 def _group_text(g: dict) -> str:
-    """The group test in one paragraph (keys of analysis.psychometric.group_test)."""
+    """The group test in one paragraph (keys of analysis.weber_groups.group_test)."""
     parts = []
     mm = g.get("mixed_model") or {}
     if mm and mm.get("converged") is False:

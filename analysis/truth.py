@@ -17,7 +17,7 @@ from studyctl.truth import TRUTH_SIZES_MM, hand_sets, truth_key, user_truth_path
 def _small_strain(scene, hemis, vertices, labels, sizes_mm, radius, progress) -> tuple[np.ndarray, np.ndarray]:
     """The small-strain compliance per pascal of shear modulus (sizes, n, 3, 3) at `vertices` on
     each mesh, and h (sizes, hemispheres)."""
-    from analysis.reference import build_problem, grasp_matrix, small_strain_factor
+    from analysis.tissue_pulls import build_problem, grasp_matrix, small_strain_factor
     from sim.models.fem.grasp import compliances
     from sim.patch import patch_area_points
     from sim.tetmesh import hemisphere_surface, mesh_hemisphere
@@ -62,7 +62,7 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
     `sizes_mm`, Richardson), the small-strain stiffness at every grasp place (default: within
     10 mm of the hands) and its transfer; with `check`, the transfer's error at the place farthest
     from each hand's vertex, solved directly on the coarsest mesh."""
-    from analysis.reference import RECORD_XS, combined_sample, pull_references, require_converged
+    from analysis.tissue_pulls import RECORD_XS, combined_sample, pull_references, require_converged
     from sim.reference import hand_pulls, scene_with
     from sim.scene import grasp_radius
 
@@ -151,7 +151,7 @@ def json_line(obj) -> str:
 def _check_transfer(scene, pulls, sets, path, vertices, C, refs, sizes_mm, radius, progress) -> list[dict]:
     """Per hand: the place of its set farthest from its vertex, its path solved directly on the
     coarsest mesh, against the transfer of the hand's path on that mesh."""
-    from analysis.reference import RECORD_XS, build_problem, solve_pull
+    from analysis.tissue_pulls import RECORD_XS, build_problem, solve_pull
     from sim.patch import patch_area_points
     from sim.tetmesh import hemisphere_surface, mesh_hemisphere
 

@@ -64,12 +64,14 @@ def _iteration_cost(space, system) -> dict:
 
 def measure() -> dict:
     from analysis.accuracy import AccuracyConfig, reference_samples, sample_displacements
-    from analysis.reference import clamp_limit, grasp_radius, hemisphere_surface, mesh_hemisphere, pull_references
+    from analysis.tissue_pulls import pull_references
     from sim.models.api import BUDGETS
     from sim.models.fem import FiniteStrain, TetSpace, constraint_matrix, hold
     from sim.models.fem.nodal_pressure import NodalPressure
     from sim.patch import patch_area_points
     from sim.reference import make_pulls, scene_with, test_pulls
+    from sim.scene import clamp_limit, grasp_radius
+    from sim.tetmesh import hemisphere_surface, mesh_hemisphere
     from sim.volume import locate
 
     cfg = AccuracyConfig()

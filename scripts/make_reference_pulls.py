@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from analysis.reference import RECORD_XS, SHIPPED_PULLS, SHIPPED_PULLS_INFO, pull_references, stored_solve
+from analysis.tissue_pulls import RECORD_XS, SHIPPED_PULLS, SHIPPED_PULLS_INFO, pull_references, stored_solve
 from brainsim_assets import version
 from sim.reference import hand_pulls, make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE

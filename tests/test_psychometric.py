@@ -23,9 +23,9 @@ from analysis.psychometric import (
     _levels,
     bootstrap_interval,
     fit_psychometric,
-    group_test,
     weber_table,
 )
+from analysis.weber_groups import group_test
 
 ps = pytest.importorskip("psignifit")
 pg = pytest.importorskip("pingouin")

@@ -10,10 +10,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from analysis import reference
-from analysis.convergence import richardson, richardson2
-from analysis.reference import build_problem, patch_area_points, pull_stiffness
+from analysis import reference, tissue_pulls
+from analysis.convergence import converge, richardson, richardson2
+from analysis.tissue_pulls import build_problem, pull_stiffness
 from sim.mesh import icosphere
+from sim.patch import patch_area_points
 from sim.reference import make_pulls, scene_with
 from sim.scene import DEFAULT_SCENE, clamp_limit
 from sim.tetmesh import enclosed_volume, hemisphere_surface, mesh_hemisphere
@@ -46,7 +47,7 @@ def test_richardson_other_orders_and_two_meshes():
     assert abs(r["p"] - 1.5) < 1e-10 and abs(r["f_ext"] - 1.0) < 1e-10
     r2 = richardson2(1.0 + 0.3 * 1.0**2, 1.0 + 0.3 * 1.6**2, 1.0, 1.6)  # two meshes: assumed order 2, Fs = 3
     assert r2["f_ext"] == pytest.approx(1.0, abs=1e-12) and r2["fs"] == 3.0 and r2["status"] == "two meshes"
-    assert reference.converge([3.0, 2.0, 1.5], [3e-3, 2e-3, 1.5e-3])["f1"] == 1.5  # any order in, finest first
+    assert converge([3.0, 2.0, 1.5], [3e-3, 2e-3, 1.5e-3])["f1"] == 1.5  # any order in, finest first
     with pytest.raises(ValueError):
         richardson(1, 2, 3, 2.0, 1.0, 3.0)
 
@@ -123,7 +124,7 @@ def test_p2_pull_forces_agree_between_two_mesh_sizes(scene, left):
             from sim.models.fem import LinearFem, condense
 
             lin = LinearFem(m.nodes, m.tets, law.young(law.poisson) / law.shear_modulus, law.poisson, prob.space.fixed, order=2)
-            assert np.allclose(condense(lin, reference.grasp_matrix(prob, pts, w))[2], K, rtol=1e-8)
+            assert np.allclose(condense(lin, tissue_pulls.grasp_matrix(prob, pts, w))[2], K, rtol=1e-8)
         forces.append(np.linalg.norm(K @ np.asarray(pull.direction)))
     assert abs(forces[1] / forces[0] - 1) < 0.03  # measured 0.4% (docs/reference.md)
     # the cortex's shear modulus and a 4 mm pull: hundredths of a newton
@@ -165,7 +166,7 @@ def test_combined_sample_by_hand():
     direction, scaled to that magnitude."""
     forces = [np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.95, 0.0]), np.array([0.0, 0.94 * 0.8, 0.94 * 0.6])]
     hs = [0.004, 0.002, 0.001]
-    c = reference.combined_sample(forces, hs)
+    c = tissue_pulls.combined_sample(forces, hs)
     assert c["status"] == "monotone" and c["order"] == pytest.approx(np.log(5) / np.log(2))
     assert c["force_n"] == pytest.approx(0.9375) and np.allclose(c["force"], [0.0, 0.9375 * 0.8, 0.9375 * 0.6])
     assert c["band_rel"] == pytest.approx(1.25 * (0.01 / 0.94) / 4)
@@ -174,7 +175,7 @@ def test_combined_sample_by_hand():
 def test_the_shipped_solves_are_the_solvers_and_hash_checked(scene, tmp_path, monkeypatch):
     """A shipped entry is what the solver gives for its pull (solved again here, on the 8 mm mesh,
     at two of its records), and a damaged file is refused by name."""
-    info = json.loads(reference.SHIPPED_PULLS_INFO.read_text())
+    info = json.loads(tissue_pulls.SHIPPED_PULLS_INFO.read_text())
     assert info["law"] == scene.spec.material.law.params()
     entries = {(e["pull"], e["size_mm"]): e for e in info["entries"]}
     assert len(entries) == 54  # 18 pulls x 3 meshes
@@ -184,19 +185,19 @@ def test_the_shipped_solves_are_the_solvers_and_hash_checked(scene, tmp_path, mo
     pull = next(p for p in make_pulls(scene) if p.name == "left-anterior")
     verts, tris, _ = hemisphere_surface(scene.mesh, 0)
     body = mesh_hemisphere(verts, tris, 0.008)
-    key = reference.pull_key(body, scene, scene.spec.material.law, 0.005, pull)
+    key = tissue_pulls.pull_key(body, scene, scene.spec.material.law, 0.005, pull)
     assert entries[("left-anterior", 8.0)]["key"] == key
     xs = np.array([0.004, 0.008])
-    shipped = reference.stored_solve(key, xs)["force_per_pa"]
-    again = reference.solve_pull(build_problem(scene, 0, body), scene.spec.material.law, *patch_area_points(scene.mesh, pull.vertex, 0.005),
+    shipped = tissue_pulls.stored_solve(key, xs)["force_per_pa"]
+    again = tissue_pulls.solve_pull(build_problem(scene, 0, body), scene.spec.material.law, *patch_area_points(scene.mesh, pull.vertex, 0.005),
                                  np.asarray(pull.direction), xs)
     assert again["converged"] and np.allclose(again["force_per_pa"], shipped, rtol=1e-6)
     bad = tmp_path / "reference_pulls.npz"
-    bad.write_bytes(reference.SHIPPED_PULLS.read_bytes()[:-10] + b"0123456789")
-    monkeypatch.setattr(reference, "SHIPPED_PULLS", bad)
-    monkeypatch.setattr(reference, "_SHIPPED", None)
-    with pytest.raises(reference.ReferenceDataError, match="damaged"):
-        reference.shipped_solves()
+    bad.write_bytes(tissue_pulls.SHIPPED_PULLS.read_bytes()[:-10] + b"0123456789")
+    monkeypatch.setattr(tissue_pulls, "SHIPPED_PULLS", bad)
+    monkeypatch.setattr(tissue_pulls, "_SHIPPED", None)
+    with pytest.raises(tissue_pulls.ReferenceDataError, match="damaged"):
+        tissue_pulls.shipped_solves()
 
 
 def test_samples_past_a_stopped_solve_have_no_reference_and_are_not_judged():
@@ -216,7 +217,7 @@ def test_samples_past_a_stopped_solve_have_no_reference_and_are_not_judged():
     pulls = [Pull("a", 1, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0), Pull("b", 2, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0)]
     ref = reference_samples(refs, pulls, xs, 100.0)
     assert np.isfinite(ref[1][0]["force_n"]) and np.isnan(ref[1][1]["force_n"]) and ref[1][1]["status"] == "not solved"
-    ok, why = reference.reached(refs)["b"]
+    ok, why = tissue_pulls.reached(refs)["b"]
     assert ok.tolist() == [True, False] and "4 mm" in why and "tangent singular" in why
     R = np.array([[c["force_n"] for c in row] for row in ref])
     assert calibration_scale(np.full(4, 2.0), R.ravel() * 0 + np.array([4.0, 4.0, 4.0, np.nan])) == pytest.approx(2.0)
@@ -253,9 +254,9 @@ def test_finer_meshes_follow_a_pull_only_as_far_as_the_coarsest_got(scene, monke
             out.append({"force_per_pa": f, "h_m": t[2] * 1e-3, "converged": not np.isnan(f).any(), "key": "k"})
         return out
 
-    monkeypatch.setattr(reference, "_premesh", lambda *a: set())
-    monkeypatch.setattr(reference, "_run", fake_run)
-    refs = reference.pull_references(DEFAULT_SCENE, pulls, xs, (8.0, 6.0, 4.0))
+    monkeypatch.setattr(tissue_pulls, "_premesh", lambda *a: set())
+    monkeypatch.setattr(tissue_pulls, "_run", fake_run)
+    refs = tissue_pulls.pull_references(DEFAULT_SCENE, pulls, xs, (8.0, 6.0, 4.0))
     assert asked[:2] == [("left-lateral", 8.0, 0.012), ("left-anterior", 8.0, 0.012)]  # the coarsest first
     assert sorted(asked[2:]) == sorted([(n, s, 0.012 if n == "left-lateral" else 0.008) for s in (4.0, 6.0)
                                         for n in ("left-lateral", "left-anterior")])
@@ -267,12 +268,12 @@ def test_a_stored_solve_that_stopped_beyond_the_records_asked_serves_them_as_con
     12.5 mm holds converged states up to there: a shorter request is converged, a longer not."""
     import numpy as np
 
-    from analysis import reference
+    from analysis import tissue_pulls
 
     monkeypatch.setenv("BRAINSIM_CACHE", str(tmp_path))
     xs = np.array([0.004, 0.008, 0.016])
     force = np.array([[1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [np.nan, np.nan, np.nan]])
-    reference._cache("k", xs, force, None, {"converged": False, "reason": "diverging", "reached_mm": 12.5})
-    short = reference.stored_solve("k", xs[:2])
+    tissue_pulls._cache("k", xs, force, None, {"converged": False, "reason": "diverging", "reached_mm": 12.5})
+    short = tissue_pulls.stored_solve("k", xs[:2])
     assert short["converged"] and "stopped at 12.5 mm (diverging)" in short["reason"]
-    assert not reference.stored_solve("k", xs)["converged"]
+    assert not tissue_pulls.stored_solve("k", xs)["converged"]

@@ -234,7 +234,7 @@ def test_the_shipped_truth_covers_the_scenes_grasps_and_is_the_references_soluti
     share; off the hand's vertex it transfers within the measured error."""
     import json
 
-    from analysis.reference import RECORD_XS, combined_sample, pull_references
+    from analysis.tissue_pulls import RECORD_XS, combined_sample, pull_references
     from sim.field import FIELD_FILE
     from sim.reference import hand_pulls, scene_with
     from studyctl.errors import InputError

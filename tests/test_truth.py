@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from analysis.reference import RECORD_XS, combined_sample, pull_references
+from analysis.tissue_pulls import RECORD_XS, combined_sample, pull_references
 from sim.reference import hand_pulls, scene_with
 from studyctl.cli import cli
 from studyctl.truth import hand_sets, load_truth
