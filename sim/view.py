@@ -18,7 +18,7 @@ and a number.
 
 For a questionnaire the window shows a rating scale (boxes with their numbers, the anchors under
 the two ends; also used for the choice among blind labels) or a visual analogue scale (a line
-with its anchors, and a mark the person sets with the mouse): `show_scale`, `show_slider`. In
+with its anchors, and a mark the person sets with the mouse): `answers.show_scale`, `answers.show_slider` (`sim.widgets.WidgetPanel`). In
 questionnaire mode (`set_questionnaire`, on while a question is asked) the mouse answers
 questions; and a click grasps the brain only while a run is drawn (`draw`), never on a still
 screen (`idle`: a rest screen, questions asked in the window or in the terminal).
@@ -33,11 +33,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim import hud, widgets
+from sim import hud
 from sim.errors import ViewError
 from sim.hud import ARROW, DESIGN_HEIGHT, SLOTS
 from sim.patch import GRASP_RADIUS
-from sim.widgets import Widget
+from sim.widgets import WidgetPanel
 
 TISSUE = np.array([0.88, 0.80, 0.78])
 PATCH = np.array([0.20, 0.55, 0.95])  # the grasped patch
@@ -141,9 +141,8 @@ class ParticipantView:
         self.inputs: dict[int, list] = {}  # hand -> [target, pressed, depth]
         self.questionnaire = False  # the mouse answers questions, never grasps
         self._running = False  # frames of a run are drawn (draw), not a still screen (idle): a click may grasp
-        self.widget: Widget | None = None
-        self._widget_quads: list = []  # the widget's shapes and texts, in pixels
-        self._widget_texts: list = []
+        self.answers = WidgetPanel(self._changed)  # the widget a question shows (questionnaire mode)
+        self.answers.resize(self.width, self.height, self.ui)
         self.closed = False
         self.frames = 0
         self.frame_s: list[float] = []
@@ -196,8 +195,7 @@ class ParticipantView:
         if width > 0 and height > 0 and (width, height) != (self.width, self.height):
             self.width, self.height = int(width), int(height)
             self._fit()
-            if self.widget is not None:
-                self._layout_widget()
+            self.answers.resize(self.width, self.height, self.ui)
             self._changed()
 
     def _to_pixels(self, x: float, y: float) -> tuple[float, float]:
@@ -234,7 +232,7 @@ class ParticipantView:
         """What the window shows as text now (tests read it to check no model is named); a
         questionnaire widget's labels, anchors and value are under "widget"."""
         out = {k: v for k, v in self._texts.items() if v}
-        w = self.widget
+        w = self.answers.widget
         if w is not None:
             parts = list(w.labels) + list(w.anchors or ()) + ([f"{w.value:g}"] if w.value is not None else [])
             out["widget"] = "  ".join(parts)
@@ -243,7 +241,7 @@ class ParticipantView:
     def layout(self) -> list[tuple]:
         """Every text item as drawn now: (text, x, baseline y, pixel size, rgb, align), slots
         then the widget's labels (tests look for their pixels where they are laid out)."""
-        return hud.items(self._texts, self.width, self.height) + self._target_texts + self._widget_texts
+        return hud.items(self._texts, self.width, self.height) + self._target_texts + self.answers.texts
 
     def _overlay(self):
         """The flat overlay's vertices: a light backing under each slot's text (legible over the
@@ -254,11 +252,11 @@ class ParticipantView:
             texts = self.layout()
             quads = []
             pad = 5.0 * self.ui
-            for text, x, y, px, _, align in texts[: len(texts) - len(self._widget_texts)]:
+            for text, x, y, px, _, align in texts[: len(texts) - len(self.answers.texts)]:
                 q, _ = self.gl.text_quads(text, x, y, px, align)
                 if len(q):
                     quads.append((q[:, 0].min() - pad, q[:, 1].min() - pad, q[:, 2].max() + pad, q[:, 3].max() + pad, BACKING))
-            quads += self._widget_quads
+            quads += self.answers.quads
             self._flat = self.gl.flat_vertices(Overlay(quads=quads, texts=texts))
         return self._flat
 
@@ -534,72 +532,6 @@ class ParticipantView:
             for state in self.inputs.values():
                 state[1] = False
 
-    def show_scale(self, labels, anchors: tuple[str, str] | None = None) -> Widget:
-        """Boxes side by side, one per label (a rating's points "1".."n", or blind labels), the
-        anchors under the two ends; nothing chosen yet. With anchors the scale spans 55% of the
-        width, so its ends stay where they are whatever the number of points."""
-        self.widget = Widget("scale", labels=tuple(str(x) for x in labels), anchors=tuple(anchors) if anchors else None)
-        self._layout_widget()
-        return self.widget
-
-    def show_slider(self, anchors: tuple[str, str] | None = None) -> Widget:
-        """A visual analogue scale: a horizontal line (55% of the width) from 0 to 100 with the
-        anchors under its ends, and no mark until the person sets one."""
-        self.widget = Widget("slider", anchors=tuple(anchors) if anchors else None)
-        self._layout_widget()
-        return self.widget
-
-    def clear_widget(self) -> None:
-        self.widget = None
-        self._layout_widget()
-
-    def select(self, index: int | None) -> None:
-        """Choose a box of the scale (None: none)."""
-        w = self.widget
-        if w is not None and w.kind == "scale" and index != w.selected:
-            w.selected = None if index is None else min(max(int(index), 0), len(w.labels) - 1)
-            self._build_widget()
-
-    def set_value(self, value: float | None) -> None:
-        """Set (or with None, take away) the slider's mark."""
-        w = self.widget
-        if w is not None and w.kind == "slider":
-            value = None if value is None else round(min(max(float(value), 0.0), 100.0), 1)
-            if value != w.value:
-                w.value = value
-                self._build_widget()
-
-    def move(self, step: int) -> None:
-        """An arrow key: the scale's choice moves by `step` boxes (with none chosen yet, right
-        chooses the first and left the last); the slider's mark moves by `step` (none set: nothing)."""
-        w = self.widget
-        if w is None:
-            return
-        if w.kind == "scale":
-            if w.selected is None:
-                self.select(0 if step > 0 else len(w.labels) - 1)
-            else:
-                self.select(w.selected + step)
-        elif w.value is not None:
-            self.set_value(w.value + step)
-
-    def _widget_press(self, x: float, y: float) -> None:
-        hit = widgets.press(self.widget, x, y, self.ui)
-        if self.widget.kind == "scale" and hit is not None:
-            self.select(hit)
-        elif hit is not None:
-            self.set_value(hit)
-
-    def _layout_widget(self) -> None:
-        """Where the widget's boxes or line are in this view (again after a resize)."""
-        if self.widget is not None:
-            widgets.place(self.widget, self.width, self.height, self.ui)
-        self._build_widget()
-
-    def _build_widget(self) -> None:
-        self._changed()
-        self._widget_quads, self._widget_texts = widgets.shapes(self.widget, self.ui) if self.widget is not None else ([], [])
-
     # -- the pointer (mouse device) ---------------------------------------------------------
     def pick(self, u: float, v: float) -> np.ndarray | None:
         """The point of the brain surface (as drawn now) under pixel (u, v), or None."""
@@ -610,12 +542,13 @@ class ParticipantView:
         return None if not np.isfinite(hit) else self.camera.eye + hit * d
 
     def _on_button(self, button: int, action: int) -> None:
-        if self.questionnaire or self.widget is not None:  # the mouse answers, never grasps
-            if self.widget is not None and button == 0:
+        w = self.answers.widget
+        if self.questionnaire or w is not None:  # the mouse answers, never grasps
+            if w is not None and button == 0:
                 if action == 1:
-                    self._widget_press(*self.pointer)
+                    self.answers.press(*self.pointer)
                 else:
-                    self.widget.dragging = False
+                    w.dragging = False
             return
         hand = min(button, self.n_hands - 1) if button in (0, 1) else None
         if hand is None:
@@ -629,9 +562,9 @@ class ParticipantView:
 
     def _on_move(self, x: float, y: float) -> None:
         self.pointer = (float(x), float(y))
-        w = self.widget
+        w = self.answers.widget
         if w is not None and w.dragging:
-            self.set_value(w.value_at(x))
+            self.answers.set_value(w.value_at(x))
         for state in self.inputs.values():
             if state[1]:
                 state[0] = self.camera.at_depth(x, y, state[2])

@@ -1,7 +1,7 @@
 """The questionnaire's widgets in the participant view: a rating scale (boxes side by side: a
 rating's points, or blind condition labels) and a visual analogue scale (a line from 0 to 100
-and a mark), laid out for a view's size and drawn as flat rectangles and text. The view
-(sim/view.py) keeps which widget is shown and turns keys and clicks into choices."""
+and a mark), laid out for a view's size and drawn as flat rectangles and text; `WidgetPanel` holds the one
+a question shows and turns keys and clicks into choices (the view, sim/view.py, owns one)."""
 
 from __future__ import annotations
 
@@ -117,3 +117,89 @@ def fit_px(text: str, px: float, max_width: float) -> int:
     px = max(4, round(px))
     width = atlas(px).layout(text)[1]
     return max(4, int(px * max_width / width)) if width > max_width else px
+
+
+class WidgetPanel:
+    """The widget a question shows in the view (at most one), its shapes and texts in pixels,
+    and the choices keys and clicks make on it. `changed` is called whenever its drawing changes."""
+
+    def __init__(self, changed) -> None:
+        self.widget: Widget | None = None
+        self.quads: list = []
+        self.texts: list = []
+        self._changed = changed
+        self._view = (1, 1, 1.0)  # the view's width, height and text scale, where it lays out
+
+    def show_scale(self, labels, anchors: tuple[str, str] | None = None) -> Widget:
+        """Boxes side by side, one per label (a rating's points "1".."n", or blind labels), the
+        anchors under the two ends; nothing chosen yet. With anchors the scale spans 55% of the
+        width, so its ends stay where they are whatever the number of points."""
+        self.widget = Widget("scale", labels=tuple(str(x) for x in labels), anchors=tuple(anchors) if anchors else None)
+        self.layout(*self._view)
+        return self.widget
+
+    def show_slider(self, anchors: tuple[str, str] | None = None) -> Widget:
+        """A visual analogue scale: a horizontal line (55% of the width) from 0 to 100 with the
+        anchors under its ends, and no mark until the person sets one."""
+        self.widget = Widget("slider", anchors=tuple(anchors) if anchors else None)
+        self.layout(*self._view)
+        return self.widget
+
+    def clear(self) -> None:
+        self.widget = None
+        self.layout(*self._view)
+
+    def select(self, index: int | None) -> None:
+        """Choose a box of the scale (None: none)."""
+        w = self.widget
+        if w is not None and w.kind == "scale" and index != w.selected:
+            w.selected = None if index is None else min(max(int(index), 0), len(w.labels) - 1)
+            self._build()
+
+    def set_value(self, value: float | None) -> None:
+        """Set (or with None, take away) the slider's mark."""
+        w = self.widget
+        if w is not None and w.kind == "slider":
+            value = None if value is None else round(min(max(float(value), 0.0), 100.0), 1)
+            if value != w.value:
+                w.value = value
+                self._build()
+
+    def move(self, step: int) -> None:
+        """An arrow key: the scale's choice moves by `step` boxes (with none chosen yet, right
+        chooses the first and left the last); the slider's mark moves by `step` (none set: nothing)."""
+        w = self.widget
+        if w is None:
+            return
+        if w.kind == "scale":
+            if w.selected is None:
+                self.select(0 if step > 0 else len(w.labels) - 1)
+            else:
+                self.select(w.selected + step)
+        elif w.value is not None:
+            self.set_value(w.value + step)
+
+    def press(self, x: float, y: float) -> None:
+        """A click at window pixel (x, y): the box or the slider's value under it."""
+        hit = press(self.widget, x, y, self._view[2])
+        if self.widget.kind == "scale" and hit is not None:
+            self.select(hit)
+        elif hit is not None:
+            self.set_value(hit)
+
+    def resize(self, width: int, height: int, ui: float) -> None:
+        """The view's size changed: remembered, and the widget shown laid out again."""
+        self._view = (width, height, ui)
+        if self.widget is not None:
+            self.layout(width, height, ui)
+
+    def layout(self, width: int, height: int, ui: float) -> None:
+        """Where the widget's boxes or line are in a view of this size."""
+        self._view = (width, height, ui)
+        if self.widget is not None:
+            place(self.widget, width, height, ui)
+        self._build()
+
+    def _build(self) -> None:
+        self._changed()
+        self.quads, self.texts = shapes(self.widget, self._view[2]) if self.widget is not None else ([], [])

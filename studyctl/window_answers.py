@@ -52,7 +52,7 @@ class WindowAnswers:
                 return self.terminal(question, model, context)
             return self._ask(question, context.get("labels") or {})
         finally:
-            view.clear_widget()
+            view.answers.clear()
             view.set_text(question="", bottom="")
             view.set_questionnaire(False)
 
@@ -65,31 +65,31 @@ class WindowAnswers:
             hint = "Y = yes     N = no"
         elif q.kind == "likert":
             values = list(range(1, q.points + 1))
-            view.show_scale([str(v) for v in values], q.anchors)
+            view.answers.show_scale([str(v) for v in values], q.anchors)
             if q.points <= 9:
                 letters = {str(v): v for v in values}
                 hint = f"Press 1-{q.points}  (or choose with the Left/Right arrows or a click, then press Enter)"
             else:
                 hint = "Choose with the Left/Right arrows or a click, then press Enter"
         elif q.kind == "vas":
-            view.show_slider(q.anchors)
+            view.answers.show_slider(q.anchors)
             hint = "Click or drag on the line to set your mark (Left/Right arrows move it), then press Enter"
         elif q.kind == "choice":
             if not labels:
                 raise StoreError(f"question {q.id}: a choice needs the conditions' labels")
             shown = sorted(labels.items(), key=lambda cl: cl[1])  # (condition, label), as the person knows them
             values = [c for c, _ in shown]
-            view.show_scale([label for _, label in shown])
+            view.answers.show_scale([label for _, label in shown])
             letters = {label.lower(): c for c, label in shown}
             hint = f"Press {' / '.join(label for _, label in shown)}  (or click one, then press Enter)"
         else:
             raise StoreError(f"question {q.id}: a {q.kind} question cannot be answered in the window")
         view.set_text(question=q.text, center="", bottom=hint)
         self._keys()  # what was pressed or clicked before the question appeared answers nothing
-        w = view.widget
+        w = view.answers.widget
         if w is not None:
-            view.select(None)
-            view.set_value(None)
+            view.answers.select(None)
+            view.answers.set_value(None)
             w.confirmed = w.dragging = False
         while True:
             for k in self._keys():
@@ -98,10 +98,10 @@ class WindowAnswers:
                 if w is None:
                     continue
                 if k in ("left", "right"):
-                    view.move(-1 if k == "left" else 1)
+                    view.answers.move(-1 if k == "left" else 1)
                 elif k == "backspace":
-                    view.select(None)
-                    view.set_value(None)
+                    view.answers.select(None)
+                    view.answers.set_value(None)
                 elif k == "enter":
                     if w.kind == "scale" and w.selected is not None:
                         return values[w.selected]

@@ -144,7 +144,7 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
             # 7 points: a click on the brain grasps nothing; 8 is no point; a click chooses 2;
             # 5 answers at once
             person.ready(qs[0])
-            w = view.widget
+            w = view.answers.widget
             person.click(*brain_point)
             person.key("8")
             person.settle()
@@ -160,7 +160,7 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
             # 11 points: Right 8 times from nothing chosen (1, 2, .. 8), Left once; a number key
             # answers nothing (10 and 11 have none); Enter
             person.ready(qs[1])
-            w = view.widget
+            w = view.answers.widget
             person.key(*["Right"] * 8)
             person.wait(lambda: w.selected == 7, "Right x8 chooses 8")
             person.key("Left", "3")
@@ -174,7 +174,7 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
             # VAS: Enter without a mark does nothing; a click at 30% of the line; Right twice; a
             # drag from 20% to 70%; Left; Enter on the keypad
             person.ready(qs[2])
-            w = view.widget
+            w = view.answers.widget
             u0, u1, v = w.line
             person.key("Return")
             person.settle(3)
@@ -204,7 +204,7 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
             person.wait(lambda: len(person.answers) == 3, "the VAS answer")
             # SUS item 2 (5 points): a click chooses 2, a second click on it confirms
             person.ready(qs[3])
-            person.click(*_centre(view.widget.boxes[1]), times=2)
+            person.click(*_centre(view.answers.widget.boxes[1]), times=2)
             person.wait(lambda: len(person.answers) == 4, "the SUS answer")
             # 3 points: the keypad's digits are digits
             person.ready(qs[4])
@@ -212,7 +212,7 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
             person.wait(lambda: len(person.answers) == 5, "the keypad answer")
             # choice: a click chooses C; the letter B answers at once
             person.ready(qs[5])
-            w = view.widget
+            w = view.answers.widget
             assert w.labels == ("A", "B", "C")
             person.click(*_centre(w.boxes[2]))
             person.wait(lambda: w.selected == 2, "a click chooses C")
@@ -268,7 +268,7 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
     assert got[3] == 2 and type(got[3]) is int
     assert got[4] == 3 and type(got[4]) is int
     assert got[5] == "fem"  # B's condition, never shown
-    assert not view.questionnaire and view.widget is None  # after a question the mouse may grasp again
+    assert not view.questionnaire and view.answers.widget is None  # after a question the mouse may grasp again
     # the window stayed blind: labels, numbers and anchors only
     assert not [x for x in person.texts if MODEL_WORDS.search(x)]
     assert any("A  B  C" == x for x in person.texts) and any("Not at all real" in x for x in person.texts)

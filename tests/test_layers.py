@@ -91,3 +91,9 @@ def test_no_private_name_is_imported_from_another_package():
                     if top in ("sim", "studyctl", "analysis") and top != pkg:
                         offenders += [f"{p.relative_to(ROOT)}:{node.lineno} {node.module}.{a.name}" for a in node.names if a.name.startswith("_")]
     assert offenders == []
+
+
+def test_no_module_is_over_600_lines():
+    """A module past 600 lines holds more than one concept (issue 45): split it by concept."""
+    sizes = {str(p.relative_to(ROOT)): p.read_text().count("\n") for pkg in ("sim", "studyctl", "analysis") for p in (ROOT / pkg).rglob("*.py")}
+    assert len(sizes) > 120 and {k: v for k, v in sizes.items() if v > 600} == {}
