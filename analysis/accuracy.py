@@ -36,11 +36,28 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.plots import pareto_plot
 from analysis.stats import wilson
+from analysis.tissue_pulls import (
+    DEFAULT_SIZES_MM,
+    ReferenceDataError,
+    combined_sample,
+    describe_no_reference,
+    no_reference,
+    pull_references,
+    pull_samples,
+)
 from brainsim_assets import path as _asset
 from sim.calibrate import jnd
+from sim.errors import SceneError, SimError
+from sim.jsonable import jsonable
+from sim.models.api import BUDGETS
+from sim.models.mass_spring import OMNI_MAX_STIFFNESS
+from sim.models.plate_spring import load_params
+from sim.models.registry import installed, model_class, plugins
 from sim.reference import TEST_PLACES, Pull, make_pulls, scene_with, test_pulls
-from sim.scene import DEFAULT_SCENE
+from sim.scene import DEFAULT_SCENE, load_scene
+from studyctl.sweep import run_tasks
 
 HANDSET_PARAMS = _asset("protocols/models/plate_spring_handset.toml")
 LOCATED_PARAMS = _asset("protocols/models/plate_spring_located.toml")
@@ -95,7 +112,6 @@ def default_settings(quick: bool) -> tuple[Setting, ...]:
 def plugin_settings() -> list[Setting]:
     """A row for every installed model outside brainsim (a lab's own): as the scene configures
     it, else with its declared defaults."""
-    from sim.models.registry import installed, plugins
 
     models, _ = installed()
     return [Setting(name, "default") for name in plugins(models) if plugin_problem(name) is None]
@@ -104,8 +120,6 @@ def plugin_settings() -> list[Setting]:
 def plugin_problem(name: str, scene_path=DEFAULT_SCENE) -> str | None:
     """Why the benches leave a lab's model out of their default rows, or None: it has an
     option without a default and the scene does not configure it."""
-    from sim.errors import SceneError
-    from sim.scene import load_scene
 
     try:
         load_scene(scene_path).options_of(name)
@@ -122,7 +136,6 @@ def quick_config(**kw) -> AccuracyConfig:
 
 
 def sample_displacements(cfg: AccuracyConfig) -> np.ndarray:
-    from analysis.tissue_pulls import pull_samples
 
     return pull_samples(cfg.max_pull, cfg.samples)
 
@@ -130,9 +143,6 @@ def sample_displacements(cfg: AccuracyConfig) -> np.ndarray:
 # -- a model on the same pulls -------------------------------------------------------------
 
 def _build_model(scene, setting: Setting, handset: Path, e_ratio: float):
-    from sim.errors import SceneError, SimError
-    from sim.models.plate_spring import load_params
-    from sim.models.registry import model_class
 
     cls = model_class(setting.model)
     opts = dict(setting.options)
@@ -201,7 +211,6 @@ def _tick_time(model, contact, d, reps: int = 20000) -> float:
 def reference_samples(refs: dict, pulls: list[Pull], xs, mu: float) -> list[list[dict]]:
     """Per pull and sample: the reference force (N, vector on the tissue), magnitude and half-band,
     for a law of shear modulus `mu` (the stored forces are per pascal of it)."""
-    from analysis.tissue_pulls import combined_sample
 
     return [[combined_sample(refs[p.name]["force_per_pa"][:, k] * mu, refs[p.name]["h_m"]) for k in range(len(xs))] for p in pulls]
 
@@ -210,13 +219,6 @@ def calibration_curve(scene_path, xs, jobs: int | None = None, progress=None) ->
     """The converged reference's force magnitude (N, the scene's law) on the bench's calibration
     pulls (`make_pulls`), at displacements `xs`: (displacements, forces, how), the pulls'
     curves concatenated. What `calibrate plate-spring` fits to."""
-    from analysis.tissue_pulls import (
-        DEFAULT_SIZES_MM,
-        ReferenceDataError,
-        describe_no_reference,
-        no_reference,
-        pull_references,
-    )
 
     scene = scene_with(scene_path)
     pulls = make_pulls(scene)
@@ -246,8 +248,6 @@ def _task(task):
 def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | None = None, progress=None) -> dict:
     """The reference, then every setting, on the calibration and test pulls; returns rows
     (raw and calibrated per setting), per-sample verdicts and meta."""
-    from analysis.tissue_pulls import ReferenceDataError, no_reference, pull_references
-    from studyctl.sweep import run_tasks
 
     scene = scene_with(cfg.scene)
     young = float(cfg.young if cfg.young is not None else scene.spec.material.young)
@@ -280,7 +280,6 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
     if not solved:
         raise ReferenceDataError("accuracy bench: no reference solve reached any sample")
     solves = [s for r in refs["pulls"].values() for s in r["solves"]]
-    from sim.models.mass_spring import OMNI_MAX_STIFFNESS
 
     coupling = float(scene.spec.options_of("mass_spring")["coupling"])
     meta = {
@@ -413,7 +412,6 @@ def class_best(rows: list[dict], frame_budget_ms: float | None = None) -> list[d
     `sim.models.api.BUDGETS`) and that gave up no pull; ties go to the lower force error, then
     the faster frame. A class with no such configuration gets a row with `setting` None and
     the reason. `meets_target`: within on at least `TARGET_WITHIN` of the samples."""
-    from sim.models.api import BUDGETS
 
     budget = float(BUDGETS["deformation_ms_p99"] if frame_budget_ms is None else frame_budget_ms)
     out = []
@@ -443,7 +441,6 @@ COLUMNS = ("model", "setting", "calibration", "scale", "force_error", "force_err
 def intro(result: dict) -> str:
     m = result["meta"]
     ref = m["reference"]
-    from analysis.tissue_pulls import describe_no_reference
 
     gone = ref.get("no_reference") or []
     missing = (f" {sum(g['samples'] for g in gone)} samples have no reference and are not judged: "
@@ -490,8 +487,6 @@ def write_outputs(result: dict, out_dir) -> list[Path]:
     """accuracy.json, accuracy.csv, samples.csv, accuracy.md, pareto.png and .svg."""
     import pandas as pd
 
-    from analysis.plots import pareto_plot
-    from sim.jsonable import jsonable
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

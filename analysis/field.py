@@ -33,10 +33,24 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.tissue_pulls import (
+    DEFAULT_SIZES_MM,
+    _premesh,
+    build_problem,
+    grasp_matrix,
+    pull_references,
+    pull_stiffness,
+    small_strain_factor,
+)
+from sim.calibrate import fit
 from sim.field import FIELD_FILE, mesh_digest
 from sim.files import save_npz
-from sim.reference import ICO4_VERTICES
+from sim.models.fem.grasp import compliances
+from sim.models.plate_spring import PlateSpring
+from sim.patch import patch_area_points
+from sim.reference import ICO4_VERTICES, make_pulls, scene_with
 from sim.scene import clamp_limit, grasp_radius
+from sim.tetmesh import hemisphere_surface, mesh_hemisphere
 
 FIELD_SIZE_MM = 8.0  # the reference mesh the field is solved on (the coarsest of the reference's three)
 FIELD_SIGMA = 0.003  # m, Gaussian width of the interpolation between sites
@@ -47,11 +61,6 @@ BLOCK = 240  # right-hand sides per CHOLMOD solve (memory: n_free x BLOCK double
 def site_stiffness(scene_path, size_mm: float = FIELD_SIZE_MM, sites_per_hemisphere: int = ICO4_VERTICES,
                    progress=None) -> dict:
     """K per pascal of shear modulus (s, 3, 3) at the sites, with the site vertex ids and what it took."""
-    from analysis.tissue_pulls import _premesh, build_problem, grasp_matrix, small_strain_factor
-    from sim.models.fem.grasp import compliances
-    from sim.patch import patch_area_points
-    from sim.reference import scene_with
-    from sim.tetmesh import hemisphere_surface, mesh_hemisphere
 
     scene = scene_with(scene_path)
     mesh = scene.mesh
@@ -117,7 +126,6 @@ def interpolate(mesh, sites: np.ndarray, K_sites: np.ndarray, sigma: float = FIE
 def build_field(scene_path, out: Path = FIELD_FILE, size_mm: float = FIELD_SIZE_MM, progress=None) -> dict:
     """Solve the sites, interpolate, and write the field (float32, symmetric 6 entries per
     vertex) with what it was made from; atomic."""
-    from sim.reference import scene_with
 
     scene = scene_with(scene_path)
     res = site_stiffness(scene_path, size_mm, progress=progress)
@@ -151,15 +159,9 @@ def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", 
     (the shipped solves). Returns (params, report)."""
     import dataclasses
 
-    from sim.calibrate import fit
-    from sim.models.plate_spring import PlateSpring
 
     if formulation == "small-strain":
         return dataclasses.replace(start_params, layers=1), {"formulation": formulation, "within_jnd": 1.0, "pulls": []}
-    from analysis.tissue_pulls import DEFAULT_SIZES_MM, build_problem, pull_references, pull_stiffness
-    from sim.patch import patch_area_points
-    from sim.reference import make_pulls, scene_with
-    from sim.tetmesh import hemisphere_surface, mesh_hemisphere
 
     scene = scene_with(scene_path)
     law = scene.spec.material.law

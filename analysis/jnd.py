@@ -26,7 +26,12 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from analysis.kinds import table_markdown
+from analysis.pooled import POOLED_MIN, pooled_webers
+from analysis.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, weber_table
+from analysis.report import STYLE, _inline_png, _table_html
 from analysis.study import data_flag
+from analysis.weber_groups import group_test
 from analysis.withhold import interval_reason
 
 GM_WARN_BELOW = 5  # participants: below this a geometric mean's t interval is said to be wide
@@ -53,9 +58,6 @@ def _quest_estimates(study, task: int) -> dict:
 
 
 def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) -> dict:
-    from analysis.pooled import POOLED_MIN, pooled_webers
-    from analysis.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, weber_table
-    from analysis.weber_groups import group_test
 
     protocol = study.protocol
     spec = protocol.tasks[task]
@@ -148,7 +150,6 @@ def tables(res: dict) -> list[dict]:
     per condition (geometric mean [95% CI], median, recovery when synthetic) and per participant
     (the fit, its flag, the pooled estimate, QUEST+'s own estimate where it ran, the generating
     value when synthetic)."""
-    from analysis.pooled import POOLED_MIN
 
     recovery = any("recovery_coverage" in c for c in res["conditions"])
     rows = []
@@ -193,7 +194,6 @@ def markdown(res: dict) -> str:
              f"\"{task['question']}\", {task['trials']} {method} trials per condition around {task['reference']:g} times each condition's stiffness.", ""]
     if not res["weber"]:
         return "\n".join(lines + ["No discrimination trials yet.", ""])
-    from analysis.kinds import table_markdown
 
     first, per = tables(res)
     lines += table_markdown(first)
@@ -225,7 +225,6 @@ def _group_text(g: dict) -> str:
 
 def html_section(res: dict, study) -> str:
     """The report's section as HTML (escaped), with one psychometric plot per condition."""
-    from analysis.report import _inline_png, _table_html
 
     esc = _html.escape
     body = [f'<p class="synthetic">{esc(res["facts"]["flag"])}</p>' if res["facts"]["flag"] else ""]
@@ -250,7 +249,6 @@ def html_section(res: dict, study) -> str:
 
 
 def html(res: dict, study) -> str:
-    from analysis.report import STYLE
 
     esc = _html.escape
     return f"""<!doctype html>

@@ -24,6 +24,8 @@ from analysis import scales
 from analysis.stats import friedman, set_holm, wilson
 from analysis.study import Study
 from analysis.withhold import across_reason
+from studyctl import instruments
+from studyctl.questions import VAS_RANGE
 
 TRIAL_MEAN = " (mean over trials)"
 
@@ -45,8 +47,6 @@ def _per_trial_items(protocol) -> list:
 def score_scale(item: str, protocol) -> tuple[float, float] | None:
     """The range a score lies in (its interval stays inside): a VAS item's 0-100, an
     instrument's 0-100, a per-trial mean's question's own scale."""
-    from studyctl import instruments
-    from studyctl.questions import VAS_RANGE
 
     base = item.removesuffix(TRIAL_MEAN)
     if base in instruments.SCORES:
@@ -91,7 +91,6 @@ def measures(protocol, answers: pd.DataFrame, per: pd.DataFrame | None = None) -
     """Each participant's value per condition and measure (tidy: code, model, item, kind,
     answer, period): rating items (kind ordinal); VAS items and instrument scores, and the
     mean over trials of every question asked after each trial (kind continuous)."""
-    from studyctl import instruments
 
     rows = []
     cond = answers[answers["model"].isin(protocol.conditions)]
@@ -129,7 +128,6 @@ def _wide(df: pd.DataFrame, item: str, models: list[str]) -> pd.DataFrame:
 
 
 def _label(item: str, protocol) -> str:
-    from studyctl import instruments
 
     base = item.removesuffix(TRIAL_MEAN)
     text = instruments.SCORES.get(base) or next((q.text for q in protocol.questions if q.id == base), item)
@@ -198,7 +196,6 @@ def choices(protocol, answers: pd.DataFrame) -> dict:
 
 def session_questions(protocol, answers: pd.DataFrame) -> dict:
     """Questions asked once at the end, other than choices: described only."""
-    from studyctl import instruments
 
     out = {}
     for name, when in protocol.instruments:

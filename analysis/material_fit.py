@@ -26,6 +26,7 @@ import numpy as np
 
 from brainsim_assets import path as _asset
 from sim.hyperelastic import BULK_RATIO, Hyperelastic, mooney_rivlin, neo_hookean, ogden, uniaxial
+from studyctl.csvfiles import read_csv
 from studyctl.errors import InputError
 
 DATA_FILE = _asset("data/brain_tissue_uniaxial_budday2017.csv")
@@ -49,7 +50,6 @@ class Curve:
 def read_curve(path, region: str) -> Curve:
     """The rows of `region` in a CSV with columns region, stretch, nominal_stress_kpa (read
     strictly: `studyctl.csvfiles.read_csv`); a bad cell is named by its line and column."""
-    from studyctl.csvfiles import read_csv
 
     p = Path(path)
     columns = ("region", "stretch", "nominal_stress_kpa")

@@ -23,7 +23,9 @@ import numpy as np
 import pandas as pd
 
 from analysis import kinematics as kin
+from sim.scene import build_scene
 from sim.targets import SAFE_FORCE_N
+from studyctl.traces import read_trace
 
 # Brain damage began at a continuous retraction force of 30 g (0.29 N) in Yokoh, Sugita and
 # Kobayashi 1983 (J Neurosurg 58:918-923, dog brain, strain-gauge retractor); the forces
@@ -199,7 +201,6 @@ def scene_goals(scene) -> dict[str, Goal]:
 
 def study_goals(store) -> dict[str, Goal]:
     """The goals of a study's task: its protocol's scene's targets (every condition runs that scene)."""
-    from sim.scene import build_scene
 
     return scene_goals(build_scene(store.protocol().scene))
 
@@ -208,7 +209,6 @@ def metrics_table(store, goals: Goal | Mapping[str, Goal] | None = None) -> pd.D
     """Every stored trial's metrics (an open studyctl.store.Store), tidy in `COLUMNS`. The
     condition is the protocol's name for it (as in every report); `trial` the stored 0-based index.
     A trial run again in a later session of the same participant: the later one counts."""
-    from studyctl.traces import read_trace
 
     rows = store.rows(
         "select s.code, p.synthetic, t.model, t.trial, t.session_id, t.trace_path, t.trace_sha256 from trials t "

@@ -24,8 +24,12 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.accuracy import AccuracyConfig, Setting, quick_config, run_accuracy
+from analysis.stability import make_cases, run_case
+from sim.errors import SimError
 from sim.models.api import API_VERSION, BUDGETS
-from sim.models.registry import info, model_class
+from sim.models.registry import ModelLoadError, info, model_class
+from sim.scene import ModelSpec, Scene, clamp_limit, load_scene
 
 STEP_M = 1e-4  # the continuity check's step along a pull
 MAX_STEP_N = 0.1  # N per STEP_M: 1000 N/m, above the Omni's 700 N/m stable stiffness
@@ -48,7 +52,6 @@ def _scene(name: str, scene_path: Path):
     """The scene running model `name`: the scene's configuration of it, else its declared defaults."""
     import dataclasses
 
-    from sim.scene import ModelSpec, Scene, load_scene
 
     spec = load_scene(scene_path)
     spec = dataclasses.replace(spec, models={**spec.models, name: ModelSpec(name=name, options=spec.options_of(name))})
@@ -159,7 +162,6 @@ def contract(scene) -> tuple[list[dict], dict]:
         c.attempt("stiffness scaling (the discrimination task)",
                   lambda: (True, type(model.with_stiffness(1.37)).__name__, None))
     model.reset()
-    from sim.scene import clamp_limit
 
     return c.rows, {"model": model, "contact": contact, "pull": d_max, "start": starts[0], "clamp": clamp_limit(scene)}
 
@@ -218,7 +220,6 @@ def _timed(parts: dict, cfg: CheckConfig) -> list[dict]:
 
 def stability(name: str, scene_path: Path) -> dict:
     """The quick stability sweep's cases of the model's rows."""
-    from analysis.stability import make_cases, run_case
 
     cases = make_cases(quick=True, models=(name,))
     rows = [run_case(c, scene_path) for c in cases]
@@ -230,7 +231,6 @@ def stability(name: str, scene_path: Path) -> dict:
 
 def accuracy(name: str, scene_path: Path, quick: bool) -> dict:
     """The accuracy bench's row for the model (raw and calibrated) against the tissue truth."""
-    from analysis.accuracy import AccuracyConfig, Setting, quick_config, run_accuracy
 
     setting = (Setting(name, "default"),)
     cfg = quick_config(scene=scene_path, settings=setting) if quick else AccuracyConfig(scene=scene_path, settings=setting)
@@ -243,8 +243,6 @@ def accuracy(name: str, scene_path: Path, quick: bool) -> dict:
 
 def check_model(name: str, cfg: CheckConfig, progress=None) -> dict:
     """The scorecard of model `name` on `cfg.scene`. Raises CheckError when it cannot run."""
-    from sim.errors import SimError
-    from sim.models.registry import ModelLoadError
 
     try:
         cls = model_class(name)

@@ -19,7 +19,19 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from analysis import kinds, scales
+from analysis.kinds import score_names
+from analysis.stats import gee_fit, holm
+from sim.linalg import one_thread_pools
+from sim.run import run_scene
+from studyctl.conditions import condition_scene, scene_itself
+from studyctl.observer import DEFAULT, ObserverTraits, features, judged_answer, logit, summarise
+from studyctl.questions import NOT_PER_TRIAL, SESSION
+from studyctl.rig import frame_times
+from studyctl.schedule import williams
 from studyctl.sweep import completed, reachable
+from studyctl.synthetic import SyntheticParticipant
+from studyctl.truth import load_truth
 
 
 def pilot_summaries(protocol, pilots: int = 4, seed: int = 0, mapping: dict[str, str] | None = None) -> dict[str, list]:
@@ -30,12 +42,6 @@ def pilot_summaries(protocol, pilots: int = 4, seed: int = 0, mapping: dict[str,
     motions are drawn per label, as a session draws them per condition."""
     import dataclasses
 
-    from sim.run import run_scene
-    from studyctl.conditions import condition_scene, scene_itself
-    from studyctl.observer import summarise
-    from studyctl.rig import frame_times
-    from studyctl.synthetic import SyntheticParticipant
-    from studyctl.truth import load_truth
 
     mapping = mapping or {}
     rig = frame_times(protocol)
@@ -67,7 +73,6 @@ def _tested(protocol) -> list:
 
 def test_names(protocol) -> list[str]:
     """The rows of a power table: each tested question, each score, the primary."""
-    from analysis.kinds import score_names
 
     return [q.id for q in _tested(protocol)] + score_names(protocol) + ["primary"]
 
@@ -77,9 +82,6 @@ def simulate_study(protocol, summaries: dict[str, list], n: int, rng: np.random.
     period) to every question asked after a condition and every choice at the end, drawn from
     the observer as a synthetic session draws them; each participant's condition perceived from
     a random pilot trial; Williams orders in turn for the period."""
-    from studyctl.observer import DEFAULT, ObserverTraits, features, judged_answer, logit
-    from studyctl.questions import NOT_PER_TRIAL, SESSION
-    from studyctl.schedule import williams
 
     params = params or DEFAULT
     labels = list(protocol.conditions)
@@ -113,7 +115,6 @@ def simulate_study(protocol, summaries: dict[str, list], n: int, rng: np.random.
 def test_study(protocol, answers: pd.DataFrame, primary: bool = True) -> dict[str, float]:
     """The p-value of each of `test_names` on one simulated study (NaN: not computed). Per
     question: Cochran's Q (yes/no), Friedman (ratings, scores), the exact multinomial (choice)."""
-    from analysis import kinds, scales
 
     labels = list(protocol.conditions)
     out = {}
@@ -138,8 +139,6 @@ def primary_p(protocol, answers: pd.DataFrame, meas: pd.DataFrame) -> float:
     """The primary analysis's decision as a p-value: the smallest Holm-adjusted p of its pairs
     (ordinal or logistic GEE, mixed model), or the multinomial test's p (choice); 1 when it is
     not estimable (it finds nothing)."""
-    from analysis import kinds, scales
-    from analysis.stats import gee_fit, holm
 
     what = kinds.primary(protocol)
     labels = list(protocol.conditions)
@@ -197,7 +196,6 @@ class _Batch:
 
 def _rejections(batch: _Batch) -> dict[str, int]:
     """How many of the batch's simulated studies each test rejects at alpha."""
-    from sim.linalg import one_thread_pools
 
     one_thread_pools()  # the model fits' small BLAS calls: 5.6x faster than two threads fighting on 2 cores
     rng = np.random.default_rng([batch.seed, batch.n, batch.index])

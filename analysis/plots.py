@@ -7,6 +7,14 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.psychometric import fit_psychometric
+from sim.calibrate import jnd
+from sim.run import run_scene
+from sim.scene import Scene, load_scene
+from studyctl.conditions import condition_scene_spec, scene_itself
+from studyctl.observer import truth_forces
+from studyctl.truth import load_truth
+
 
 def _plt():
     import matplotlib
@@ -74,11 +82,6 @@ def force_traces(protocol, duration: float = 3.0) -> dict:
     """The scene's scripted pull, run with each of the study's conditions (lockstep); the
     converged reference's force (the synthetic observer's truth, studyctl/truth.py) for each
     run's own hand motion. Returns {condition: (t, force, reference)} for the first hand."""
-    from sim.run import run_scene
-    from sim.scene import Scene, load_scene
-    from studyctl.conditions import condition_scene_spec, scene_itself
-    from studyctl.observer import truth_forces
-    from studyctl.truth import load_truth
 
     out = {}
     truth = load_truth(scene_itself(protocol))  # the scene's own, whatever a condition changes
@@ -94,7 +97,6 @@ def force_traces(protocol, duration: float = 3.0) -> dict:
 def force_plot(traces: dict, path: Path) -> None:
     """Fig. 5-style: force of each model and the converged reference for the same pull, and
     the relative difference against the force JND."""
-    from sim.calibrate import jnd
 
     plt = _plt()
     fig, (ax, bx) = plt.subplots(2, 1, figsize=(7, 5.4), dpi=100, sharex=True)
@@ -274,7 +276,6 @@ def psychometric_plot(trials, rows: list[dict], condition: str, path: Path, synt
     """One condition's discrimination: every participant's fitted psychometric function
     (analysis/psychometric.py, refitted here for its curve) and Weber fraction, and the pooled
     proportion correct in bins of the increment (point size: trials), on a log axis."""
-    from analysis.psychometric import fit_psychometric
 
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6, 4), dpi=100)

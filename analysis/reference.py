@@ -48,9 +48,12 @@ from analysis.tissue_pulls import (
     pull_samples,
     small_strain_factor,
 )
+from sim.calibrate import jnd
+from sim.errors import ParameterError
 from sim.jsonable import jsonable
 from sim.mesh import patch_vertices
 from sim.patch import patch_area_points
+from sim.reference import make_pulls, scene_with
 from sim.scene import DEFAULT_SCENE, clamp_limit, grasp_radius
 from sim.tetmesh import ENVELOPE_FRACTION, enclosed_volume, hemisphere_surface, mesh_hemisphere
 
@@ -83,7 +86,6 @@ def jnd_verdict(force: float, band_half: float) -> dict:
     """Is the band narrower than the force JND? Relative: half-band / force below the JND
     fraction (10% at or above 0.5 N, 25% below, `sim.calibrate.jnd`); absolute: half-band below
     0.05 N (10% of 0.5 N)."""
-    from sim.calibrate import jnd
 
     rel = band_half / force if force > 0 else math.inf
     frac = float(jnd(np.array(force)))
@@ -91,8 +93,6 @@ def jnd_verdict(force: float, band_half: float) -> dict:
 
 
 def _selected_pulls(cfg: ReferenceConfig, scene) -> list:
-    from sim.errors import ParameterError
-    from sim.reference import make_pulls
 
     pulls = make_pulls(scene)
     if cfg.pulls is not None:
@@ -173,7 +173,6 @@ def _sample(pull, x: float, f: list, hs: list, sizes: list) -> dict:
 
 def run_reference(cfg: ReferenceConfig, progress=None) -> dict:
     """Mesh, solve and extrapolate every pull; returns {"samples", "pulls", "meshes", "meta"}."""
-    from sim.reference import scene_with
 
     t_start = time.perf_counter()
     scene = scene_with(cfg.scene)

@@ -9,7 +9,12 @@ import tempfile
 from pathlib import Path
 
 from analysis import plots, table1
+from analysis.accuracy import intro
+from analysis.kinds import gee_line, kind_stats, kind_tables, measures, primary_line
+from analysis.plots import pareto_plot, stability_heatmap
+from analysis.stability import markdown, outcome_grid
 from analysis.study import Study
+from analysis.study_stats import study_stats
 from analysis.withhold import mean_sd
 
 
@@ -17,7 +22,6 @@ def write_plots(study: Study, out_dir, force_traces: bool = True) -> list[Path]:
     """rates, deformation and force plots as PNG and SVG in `out_dir`."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    from analysis.kinds import kind_stats, measures
 
     synthetic = table1.study_facts(study)["synthetic"]
     r = table1.rates(study)
@@ -56,8 +60,6 @@ def latex(study: Study, holm_scope: str = "family") -> str:
     (`escape="latex"`: & % $ # _ { } ~ ^ and backslash)."""
     import pandas as pd
 
-    from analysis.kinds import kind_tables
-    from analysis.study_stats import study_stats
 
     facts, r, q, d = table1.study_facts(study), table1.rates(study), table1.cochran(study), table1.deformation(study)
     st = study_stats(study, r, q, holm_scope=holm_scope)
@@ -128,8 +130,6 @@ def _inline_png(draw) -> str:
 
 def accuracy_html(result: dict) -> str:
     """The accuracy bench's table and Pareto plot (analysis/accuracy.py) as an HTML section."""
-    from analysis.accuracy import intro
-    from analysis.plots import pareto_plot
 
     esc = _html.escape
     raw = [r for r in result["rows"] if r["calibration"] == "raw"]
@@ -151,8 +151,6 @@ def accuracy_html(result: dict) -> str:
 
 def stability_html(result: dict) -> str:
     """The stability sweep's heat map and the cases that were not stable, as an HTML section."""
-    from analysis.plots import stability_heatmap
-    from analysis.stability import markdown, outcome_grid
 
     esc = _html.escape
     img = _inline_png(lambda path: stability_heatmap(outcome_grid(result["cases"]), path))
@@ -172,8 +170,6 @@ def stability_html(result: dict) -> str:
 def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, stability: dict | None = None, holm_scope: str = "family") -> str:
     """One self-contained HTML file: facts, Table 1, statistics, plots (PNG inlined), and the
     accuracy bench's table and Pareto plot and the stability sweep's heat map when given."""
-    from analysis.kinds import gee_line, kind_tables
-    from analysis.study_stats import study_stats
 
     facts, r, q, d = table1.study_facts(study), table1.rates(study), table1.cochran(study), table1.deformation(study)
     st = study_stats(study, r, q, holm_scope=holm_scope)
@@ -195,7 +191,6 @@ def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, 
                      f"{row['median_ms']:.2f}, p95 {row['p95_ms']:.2f}</td>" if row["n_participants"] else "<td>n/a (no trials)</td>"
                      for _, row in d.iterrows())
     lat_text = "benchmark of this machine: each participant's mean, mean &plusmn; sd over participants (no test: CPU time is not about people)"
-    from analysis.kinds import primary_line
 
     gee = esc(gee_line(st["gee"], st["kinds"]["primary"]["analysis"] == "logistic_gee").replace("`", ""))
     primary = (f"<p>{esc(primary_line(st))}</p>" if st["kinds"]["primary"]["analysis"] in ("mixed_model", "choice") else "")

@@ -27,8 +27,15 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.scene import DEFAULT_SCENE
+from analysis.accuracy import plugin_problem
+from analysis.plots import stability_heatmap
+from sim.errors import SimError
+from sim.models.plate_spring import PlateSpringParams
+from sim.models.registry import installed, plugins
+from sim.run import run_scene
+from sim.scene import DEFAULT_SCENE, ModelSpec, Scene, load_scene
 from sim.servo import ServoLoop
+from studyctl.sweep import run_tasks
 
 # (row label, model name, options, plate-spring variant)
 MODELS = (
@@ -76,8 +83,6 @@ def model_rows(extra: tuple[str, ...] = ()) -> tuple:
     """`MODELS` and a row for every installed model outside brainsim (a lab's own), as the
     scene configures it or with its declared defaults, and for each name of `extra` (a
     "package.module:Class") that has none."""
-    from analysis.accuracy import plugin_problem
-    from sim.models.registry import installed, plugins
 
     models, _ = installed()
     names = [n for n in plugins(models) if plugin_problem(n) is None]
@@ -110,8 +115,6 @@ def make_cases(quick: bool = False, models: tuple[str, ...] | None = None) -> li
 
 
 def _scene_for(case: Case, scene_path):
-    from sim.models.plate_spring import PlateSpringParams
-    from sim.scene import ModelSpec, Scene, load_scene
 
     spec = load_scene(scene_path)
     _, name, options, variant = next(m for m in model_rows((case.model.rsplit("/", 1)[0],)) if m[0] == case.model)
@@ -157,8 +160,6 @@ def _scene_for(case: Case, scene_path):
 
 def run_case(case: Case, scene_path=DEFAULT_SCENE) -> dict:
     """Build and run one case; never raises for what the case does to the model."""
-    from sim.errors import SimError
-    from sim.run import run_scene
 
     out = {"model": case.model, "case": case.case, "family": case.family, "value": case.value,
            "outcome": "stable", "reason": "", "detected_at_s": None, "nan_sent": False, "over_limit_sent": False,
@@ -233,7 +234,6 @@ def classify(result, peak: float) -> dict:
 def run_stability(quick: bool = False, scene_path=DEFAULT_SCENE, jobs: int | None = None, scheduler: str | None = None,
                   progress=None, cases: list[Case] | None = None) -> dict:
     """Run the sweep (or the given `cases`) on local processes or a Dask cluster."""
-    from studyctl.sweep import run_tasks
 
     cases = make_cases(quick) if cases is None else cases
     results = run_tasks(_task, [(c, str(scene_path)) for c in cases], jobs=jobs, scheduler=scheduler, progress=progress)
@@ -283,7 +283,6 @@ def write_outputs(result: dict, out_dir) -> list[Path]:
     """stability.json, stability.csv, stability.md, heatmap.png and .svg."""
     import pandas as pd
 
-    from analysis.plots import stability_heatmap
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

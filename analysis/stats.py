@@ -11,6 +11,10 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from analysis.withhold import pair_reason, pair_warning
+from studyctl.csvfiles import read_csv
+from studyctl.errors import InputError
+
 NAN = float("nan")
 
 
@@ -91,7 +95,6 @@ WILCOXON = "Wilcoxon signed-rank (statistic: the smaller signed-rank sum)"
 def pairwise_wilcoxon(wide: pd.DataFrame) -> pd.DataFrame:
     """Wilcoxon signed-rank tests between every pair of columns, Holm-adjusted; effect size:
     matched-pairs rank-biserial correlation."""
-    from analysis.withhold import pair_reason, pair_warning
 
     rows = []
     for a, b in itertools.combinations(wide.columns, 2):
@@ -248,8 +251,6 @@ def _percent(text: str) -> float:
 def published(path: str | Path) -> dict:
     """Check a published table (columns item, question, model, yes, no, printed_rate): every
     printed rate recomputed from its counts; what aggregated counts allow, and what not."""
-    from studyctl.csvfiles import read_csv
-    from studyctl.errors import InputError
 
     path = Path(path)
     rows = read_csv(path, ("item", "question", "model", "yes", "no", "printed_rate"), ("item", "model", "yes", "no", "printed_rate"))

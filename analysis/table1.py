@@ -17,9 +17,11 @@ import json
 import numpy as np
 import pandas as pd
 
+from analysis.kinds import family_pairs
 from analysis.stats import wilson
 from analysis.study import Study, data_flag
 from analysis.withhold import binary_across_reason
+from sim.models.registry import ModelLoadError, model_class
 
 
 def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.DataFrame:
@@ -152,7 +154,6 @@ def conditions(study: Study) -> list[dict]:
 
 def _material_keys(model: str) -> tuple:
     """The material keys model `model` reads (its declaration); none when it no longer loads."""
-    from sim.models.registry import ModelLoadError, model_class
 
     try:
         return model_class(model).material_keys
@@ -204,7 +205,6 @@ def mcnemar_cell(p: dict) -> str:
 def holm_text(st: dict) -> str:
     """What the reports' p_holm is (`study_stats`' scope): Holm over all N pairwise tests of
     every kind, or within each question."""
-    from analysis.kinds import family_pairs
 
     if st["holm"] != "family":
         return "Holm within each question"

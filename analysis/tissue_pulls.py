@@ -35,11 +35,15 @@ import numpy as np
 
 from analysis.convergence import converge
 from brainsim_assets import path as _asset
-from sim.errors import SimError
+from sim.errors import ParameterError, SimError
 from sim.files import save_npz
+from sim.linalg import Factor
+from sim.models.fem import FiniteStrain, TetSpace, constraint_matrix, hold
 from sim.patch import patch_area_points
+from sim.reference import scene_with
 from sim.scene import clamp_limit, grasp_radius
 from sim.tetmesh import SHIPPED_MM, BodyMesh, hemisphere_surface, mesh_hemisphere, needs_meshing
+from sim.volume import cache_dir, locate
 
 DEFAULT_SIZES_MM = SHIPPED_MM  # target edge lengths, coarse to fine: the shipped meshes
 QUICK_SIZES_MM = (20.0, 16.0)
@@ -68,7 +72,6 @@ class Problem:
 
 def build_problem(scene, label: int, mesh: BodyMesh) -> Problem:
     """P2 tetrahedra on a body-fitted hemisphere mesh, clamped like the scene's FEM."""
-    from sim.models.fem import TetSpace
 
     start = time.perf_counter()
     axis, limit = clamp_limit(scene)
@@ -81,8 +84,6 @@ def grasp_matrix(problem: Problem, points: np.ndarray, weights: np.ndarray | Non
     """W (3, n_free): the weighted mean displacement of `points` (weights sum to 1; default
     equal), each located in its containing or nearest tetrahedron and interpolated with the
     element's quadratic shape functions (`sim.models.fem.constraint_matrix`, as `FemModel.grasp`)."""
-    from sim.models.fem import constraint_matrix
-    from sim.volume import locate
 
     points = np.atleast_2d(points)
     weights = np.full(len(points), 1.0 / len(points)) if weights is None else np.asarray(weights, dtype=np.float64)
@@ -93,8 +94,6 @@ def grasp_matrix(problem: Problem, points: np.ndarray, weights: np.ndarray | Non
 def small_strain_factor(problem: Problem, law):
     """The factorised tangent of `law` at rest on the problem (its small-strain limit: linear
     elasticity with mu and lambda = kappa - 2 mu / 3), per pascal of the law's shear modulus."""
-    from sim.linalg import Factor
-    from sim.models.fem import FiniteStrain
 
     unit = law.scaled(1.0 / law.shear_modulus)
     K = FiniteStrain(problem.space, unit, mean_dilatation=False).evaluate(np.zeros(3 * problem.space.n_all))["K"]
@@ -152,7 +151,6 @@ def shipped_solves() -> dict:
 
 
 def _cache_file(key: str) -> Path:
-    from sim.volume import cache_dir
 
     return cache_dir() / "reference" / f"pull-{key}.npz"
 
@@ -199,8 +197,6 @@ def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness:
     """Follow the pull (the patch's mean displacement along `direction`) to max(xs), recording
     the force holding it (per pascal of shear modulus, (len(xs), 3), the force on the tissue)
     and, with `stiffness`, the condensed tangent (len(xs), 3, 3) at each x."""
-    from sim.errors import ParameterError
-    from sim.models.fem import FiniteStrain, hold
 
     xs = np.asarray(xs, dtype=np.float64)
     if xs.ndim != 1 or len(xs) == 0 or not np.all(np.isfinite(xs)) or np.any(xs <= 0) or np.any(np.diff(xs) <= 0):
@@ -265,7 +261,6 @@ def require_converged(refs: dict, what: str) -> None:
 def _pull_task(args) -> dict:
     """One pull on one mesh (a worker process): shipped, cached, or solved and cached."""
     scene_path, label, size_mm, pull, xs, stiffness, upto, finer = args
-    from sim.reference import scene_with
 
     scene = scene_with(scene_path)
     law, radius = scene.spec.material.law, grasp_radius(scene)
@@ -327,7 +322,6 @@ def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int 
     every mesh, and the last steps before a solve stops are the slowest). `finer` says what to do
     there: "stored" (a stored skip stands, otherwise solve), "solve", or "skip" (record a skip:
     a solve near where the coarse one stopped can take an hour on the 4 mm mesh)."""
-    from sim.reference import scene_with
 
     scene = scene_with(scene_path)
     xs = np.asarray(xs, dtype=np.float64)
@@ -399,7 +393,6 @@ def _stored_task(task, seen: dict) -> dict | None:
     """`_pull_task`'s answer when it is shipped or cached (no worker needed); `seen` keeps the
     scene and the meshes read for earlier tasks."""
     scene_path, label, size_mm, pull, xs, stiffness, _, finer = task
-    from sim.reference import scene_with
 
     if scene_path not in seen:
         seen[scene_path] = scene_with(scene_path)

@@ -9,7 +9,23 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.convergence import converge
+from analysis.tissue_pulls import (
+    RECORD_XS,
+    build_problem,
+    combined_sample,
+    grasp_matrix,
+    pull_references,
+    require_converged,
+    small_strain_factor,
+    solve_pull,
+)
 from sim.files import save_npz
+from sim.models.fem.grasp import compliances, symmetric_inverse
+from sim.patch import patch_area_points
+from sim.reference import hand_pulls, scene_with
+from sim.scene import grasp_radius
+from sim.tetmesh import hemisphere_surface, mesh_hemisphere
 from studyctl.errors import InputError
 from studyctl.truth import TRUTH_SIZES_MM, hand_sets, truth_key, user_truth_path
 
@@ -17,10 +33,6 @@ from studyctl.truth import TRUTH_SIZES_MM, hand_sets, truth_key, user_truth_path
 def _small_strain(scene, hemis, vertices, labels, sizes_mm, radius, progress) -> tuple[np.ndarray, np.ndarray]:
     """The small-strain compliance per pascal of shear modulus (sizes, n, 3, 3) at `vertices` on
     each mesh, and h (sizes, hemispheres)."""
-    from analysis.tissue_pulls import build_problem, grasp_matrix, small_strain_factor
-    from sim.models.fem.grasp import compliances
-    from sim.patch import patch_area_points
-    from sim.tetmesh import hemisphere_surface, mesh_hemisphere
 
     mesh, law = scene.mesh, scene.spec.material.law
     C = np.zeros((len(sizes_mm), len(vertices), 3, 3))
@@ -45,8 +57,6 @@ def _small_strain(scene, hemis, vertices, labels, sizes_mm, radius, progress) ->
 def _extrapolated_stiffness(C: np.ndarray, hs: np.ndarray) -> tuple[np.ndarray, float, str, float]:
     """K from compliances on the meshes (sizes, 3, 3) with h (sizes,): Richardson on the trace
     with the order observed (none where it cannot be trusted); (K, order, status, gci)."""
-    from analysis.convergence import converge
-    from sim.models.fem.grasp import symmetric_inverse
 
     conv = converge([np.trace(c) for c in C], hs)
     order = np.argsort(hs)
@@ -62,9 +72,6 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
     `sizes_mm`, Richardson), the small-strain stiffness at every grasp place (default: within
     10 mm of the hands) and its transfer; with `check`, the transfer's error at the place farthest
     from each hand's vertex, solved directly on the coarsest mesh."""
-    from analysis.tissue_pulls import RECORD_XS, combined_sample, pull_references, require_converged
-    from sim.reference import hand_pulls, scene_with
-    from sim.scene import grasp_radius
 
     start = time.perf_counter()
     scene = scene_with(scene_path)
@@ -151,9 +158,6 @@ def json_line(obj) -> str:
 def _check_transfer(scene, pulls, sets, path, vertices, C, refs, sizes_mm, radius, progress) -> list[dict]:
     """Per hand: the place of its set farthest from its vertex, its path solved directly on the
     coarsest mesh, against the transfer of the hand's path on that mesh."""
-    from analysis.tissue_pulls import RECORD_XS, build_problem, solve_pull
-    from sim.patch import patch_area_points
-    from sim.tetmesh import hemisphere_surface, mesh_hemisphere
 
     mesh = scene.mesh
     coarse = 0  # sizes_mm is coarse to fine

@@ -22,9 +22,15 @@ import pandas as pd
 from scipy import stats
 
 from analysis import validity as v
+from analysis.metrics import UNITS, metrics_table, study_goals
+from analysis.plots import OTHER_COLORS, _plt
+from analysis.report import STYLE
 from analysis.stats import holm
 from analysis.study import data_flag
+from sim.jsonable import jsonable
+from studyctl import instruments
 from studyctl.errors import StudyError
+from studyctl.fields import read_fields
 
 DEFAULT_PERMUTATIONS = 100
 DEFAULT_GROUP_PERMUTATIONS = 1000  # the group tests' Westfall-Young adjustment: ~0.1 s for 30 participants x 20 metrics
@@ -57,7 +63,6 @@ def _metric_base(name: str) -> str:
 
 
 def _unit(name: str) -> str:
-    from analysis.metrics import UNITS
 
     return UNITS.get(_metric_base(name), "")
 
@@ -84,7 +89,6 @@ def study_groups(store, protocol) -> tuple[pd.Series, list[str], pd.DataFrame]:
     """Each participant's group (code -> value of the design.groups field), the groups in the
     field's order, and the integer and number fields as a tidy table (code, field, value). Text
     fields are dropped here, before anything else sees them."""
-    from studyctl.fields import read_fields
 
     if not protocol.groups or protocol.group_field is None:
         raise NoGroupsError(f"{store.path}: the study has no participant groups (its protocol sets no design.groups naming a "
@@ -111,7 +115,6 @@ def rating_scores(protocol, answers: pd.DataFrame) -> tuple[pd.DataFrame, dict[s
     after each trial), and each instrument's score (SUS, raw NASA-TLX; per condition, or once
     for the session: condition ""). Free-text answers are never read. Returns the table and each
     item's text."""
-    from studyctl import instruments
 
     rows, text = [], {}
     for q in protocol.questions:
@@ -181,7 +184,6 @@ def validity_report(store, permutations: int = DEFAULT_PERMUTATIONS, bootstrap: 
     adjustment (`p_wy`, analysis.validity.group_tests' n_perm); `bootstrap`: replicates of Cliff's delta's intervals and
     of the learning curves'; `seed`: of every resampling. `progress(done, STEPS)` after each step.
     Raises NoGroupsError for a study without design.groups."""
-    from analysis.metrics import metrics_table, study_goals
 
     step = progress or (lambda k, n: None)
     protocol = store.protocol()
@@ -279,7 +281,6 @@ def _records(obj):
 
 def to_json(rep: dict) -> str:
     """The report as JSON (NaN as null); `scores` (every participant's value) included."""
-    from sim.jsonable import jsonable
 
     return json.dumps(jsonable(_records(rep)), indent=2) + "\n"
 
@@ -460,7 +461,6 @@ def markdown(rep: dict) -> str:
 # ---------------------------------------------------------------- html and its plots
 
 def _png(fig) -> str:
-    from analysis.plots import _plt
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
@@ -471,7 +471,6 @@ def _png(fig) -> str:
 def metric_figure(rep: dict, metric: str):
     """One metric: per condition, a box plot per group with every participant's score as a point,
     and the groups' learning curves (trial means and the fitted curve)."""
-    from analysis.plots import OTHER_COLORS, _plt
 
     plt = _plt()
     order, conditions = rep["groups"], rep["conditions"]
@@ -509,7 +508,6 @@ def metric_figure(rep: dict, metric: str):
 def html(rep: dict) -> str:
     """One self-contained HTML file: the sections' tables and, per metric, a figure (box and
     strip plots per group, learning curves) inlined as base64 PNG."""
-    from analysis.report import STYLE
 
     esc = _html.escape
     parts = [f"<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{esc(title(rep))}</title>\n{STYLE}</head><body>",

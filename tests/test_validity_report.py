@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis import metrics as metrics_mod
+from analysis import validity_report as report_mod
 from analysis import validity_report as vr
 from analysis.metrics import COLUMNS
 from studyctl.store import Store
@@ -91,8 +91,8 @@ def built(db, monkeypatch):
     """The study's metrics replaced by `built_metrics` (two conditions when asked for)."""
     def use(conditions=("plate_spring",)):
         table = built_metrics(_groups(db), conditions)
-        monkeypatch.setattr(metrics_mod, "metrics_table", lambda store, goals=None: table)
-        monkeypatch.setattr(metrics_mod, "study_goals", lambda store: {})
+        monkeypatch.setattr(report_mod, "metrics_table", lambda store, goals=None: table)  # where the report takes them from
+        monkeypatch.setattr(report_mod, "study_goals", lambda store: {})
         return table
     return use
 
