@@ -18,6 +18,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from studyctl.errors import StoreError
+from studyctl.session import run_session
+from studyctl.store import Store
+from studyctl.traces import trace_dir, write_durably
 
 SEEDED = ("study", "rig_profile")  # the study's rows a synthetic session reads
 OWN = ("participants", "participant_fields", "schedule", "synthetic_traits")  # the participant's own rows, written by `synth` before the run
@@ -54,9 +57,6 @@ def seed_for(store, code: str, seed: int, session_id: int) -> Seed:
 
 def run_away(task: Seed) -> Bundle:
     """Run the participant's synthetic session in a scratch study; return what it wrote."""
-    from studyctl.session import run_session
-    from studyctl.store import Store
-    from studyctl.traces import trace_dir
 
     with tempfile.TemporaryDirectory(prefix="studyctl-synth-") as folder:
         db = Path(folder) / task.db_name
@@ -75,7 +75,6 @@ def store_bundle(store, bundle: Bundle) -> None:
     """Write a bundle into the study: its traces durably, checked against the SHA-256s its rows
     hold, then all its rows in one transaction. A session already stored is refused (a
     participant stored twice would be a bug, never a second sample)."""
-    from studyctl.traces import write_durably
 
     if store.rows("select id from sessions where id = ?", (bundle.session_id,)):
         raise StoreError(f"session {bundle.session_id} of {bundle.code} is already in {store.path}; not stored twice")

@@ -11,6 +11,8 @@ import json
 from pathlib import Path
 
 from brainsim_assets import version as _version
+from sim.models.registry import model_class, provenance
+from sim.scene import Scene, configure, load_scene
 from sim.tomlfile import Locator
 
 SOFTWARE_VERSION = f"brainsim-study {_version()}"  # stored with each session and rig profile
@@ -21,7 +23,6 @@ _SCENES: dict = {}  # (scene file, resolved configuration's hash, device) -> Sce
 def condition_scene_spec(protocol, name: str, spec=None):
     """The scene spec (`sim.scene.SceneSpec`) whose default model is condition `name`; `spec`:
     the protocol's scene, already loaded. Raises SceneError naming the protocol's lines."""
-    from sim.scene import configure, load_scene
 
     spec = spec if spec is not None else load_scene(protocol.scene)
     table = protocol.condition_tables.get(name)
@@ -34,7 +35,6 @@ def condition_scene_spec(protocol, name: str, spec=None):
 def condition_scene(protocol, condition: str, device: str):
     """The protocol's scene for `condition` (its model as the protocol configures it), with every
     hand on `device` (built once per process, reused)."""
-    from sim.scene import Scene
 
     spec = condition_scene_spec(protocol, condition)
     key = (str(protocol.scene), config_sha256(resolved_config(condition, spec)), device)
@@ -46,7 +46,6 @@ def condition_scene(protocol, condition: str, device: str):
 def condition_configs(protocol, names) -> dict[str, dict]:
     """Each condition's fully resolved configuration, stored with the session: exports and
     reports show it, the participant never."""
-    from sim.scene import load_scene
 
     spec = load_scene(protocol.scene)
     return {c: resolved_config(c, condition_scene_spec(protocol, c, spec)) for c in names}
@@ -55,7 +54,6 @@ def condition_configs(protocol, names) -> dict[str, dict]:
 def scene_itself(protocol):
     """The protocol's scene as its file configures it, no condition applied: what the synthetic
     observer's truth (studyctl/truth.py) and the force reference are made for."""
-    from sim.scene import Scene, load_scene
 
     return Scene(load_scene(protocol.scene))
 
@@ -72,7 +70,6 @@ def _plain(value):
 
 def resolved_config(name: str, spec) -> dict:
     """What condition `name` runs: the model with every option, the material (JSON-able)."""
-    from sim.models.registry import model_class, provenance
 
     m = spec.model_spec()
     material = _plain(spec.material)

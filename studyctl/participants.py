@@ -15,8 +15,12 @@ import os
 from pathlib import Path
 
 from studyctl.errors import InputError, StoreError
+from studyctl.lock import session_lock
+from studyctl.questions import shown
 from studyctl.store import Store, now
+from studyctl.study import answer_key
 from studyctl.text import control_problem, spreadsheet_safe
+from studyctl.traces import trace_dir
 
 
 def _person(store: Store, code: str) -> dict:
@@ -68,7 +72,6 @@ def withdraw(db, code: str, reason: str = "", dry_run: bool = False) -> dict:
     """A participant withdraws: no further sessions or slots; their pseudonymous data is kept or
     deleted as the protocol's `ethics.withdrawal` says; their contact details are deleted.
     Refused while their session runs (it holds the session lock)."""
-    from studyctl.lock import session_lock
 
     with Store(db, mode="read") as store:  # a missing or foreign database, an unknown code: no lock file made
         _person(store, code)
@@ -84,7 +87,6 @@ def withdraw(db, code: str, reason: str = "", dry_run: bool = False) -> dict:
 
 
 def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
-    from studyctl.traces import trace_dir
 
     if (problem := control_problem(reason)) is not None:
         raise InputError(f"--reason: {problem}")
@@ -149,8 +151,6 @@ def correct_answer(db, code: str, model: str, item: str, answer: str, reason: st
     """Change one stored answer (a value its question's kind allows; `model` empty for one
     asked at the end, `trial` for one asked after every trial), keeping the old value, the
     reason and who did it in `corrections`."""
-    from studyctl.questions import shown
-    from studyctl.study import answer_key
 
     if not reason.strip():
         raise InputError("--reason: say why the answer is corrected (it is kept in the audit trail)")

@@ -13,12 +13,17 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from sim.errors import SceneError, SimError
 from sim.models import registry
+from sim.scene import configure, load_scene
 from sim.targets import TRIAL_ENDS
 from sim.tomlfile import Locator, TomlFileError, read_toml
+from studyctl import instruments
 from studyctl.errors import ProtocolError
 from studyctl.fields import check_fields
 from studyctl.questions import KINDS, LIKERT_POINTS, WHENS, Question
+from studyctl.skill import check_skills
+from studyctl.tasks import check_tasks
 from studyctl.text import ID_RE
 
 MAX_CONDITIONS = 8
@@ -143,7 +148,6 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
         if m not in LATENCY_MEASURES:
             c.bad("latency.measures", f"unknown measure {m!r}; allowed: {', '.join(LATENCY_MEASURES)}")
 
-    from studyctl.tasks import check_tasks
 
     tasks = check_tasks(data, c, trial_s)
     if any(t.kind == "discrimination" for t in tasks):
@@ -152,7 +156,6 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
         c.bad("design.trials_per_condition", "0 is out of range without [[tasks]]; allowed: 1..100 (0 when each condition has a task)")
     questions = _questions(data, c.get, c.bad, len(conditions or []))
     fields, groups = check_fields(data, design, c)
-    from studyctl.skill import check_skills
 
     skills = check_skills(data, groups, fields, c)
     if c.problems:
@@ -299,7 +302,6 @@ def _design_conditions(design: dict, tables: dict, c: _Checker) -> list | None:
 def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
     """[[questions]] and [[instruments]] as questions, in file order (instruments' items after
     the questions): a kind, when it is asked, and what the kind needs (docs/study.md)."""
-    from studyctl import instruments
 
     out: list[Question] = []
     seen: dict[str, str] = {}
@@ -440,9 +442,6 @@ def _scene_problems(scene: Path, path: Path, text: str, conditions: list, tables
     message'): the scene file's own; then, for a valid scene, each condition's: a model the
     scene does not configure, an option it does not take or out of its range (named at the
     protocol's lines)."""
-    from sim.errors import SceneError, SimError
-    from sim.scene import configure, load_scene
-    from sim.tomlfile import Locator
 
     try:
         spec = load_scene(scene)

@@ -9,6 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.run import run_scene, write_outputs
+from sim.scene import Scene
+from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
 from studyctl.errors import InputError
 from studyctl.store import Store
 from studyctl.traces import read_trace
@@ -22,9 +25,6 @@ def session_trials(store, session_id: int) -> list[dict]:
 
 
 def replay_trial(db, session_id: int, k: int, view: str = "none", frames_dir: Path | None = None, fullscreen: bool = False) -> dict:
-    from sim.run import run_scene, write_outputs
-    from sim.scene import Scene
-    from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
 
     with Store(db, mode="read") as store:
         if not store.rows("select id from sessions where id = ?", (session_id,)):

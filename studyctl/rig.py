@@ -23,15 +23,18 @@ from pathlib import Path
 
 import numpy as np
 
-from studyctl.conditions import SOFTWARE_VERSION, condition_configs, condition_scene
-from studyctl.errors import InputError
+from brainsim_assets import path as asset
+from sim.run import run_scene
+from studyctl.conditions import SOFTWARE_VERSION, condition_configs, condition_scene, config_sha256
+from studyctl.errors import InputError, StoreError
+from studyctl.store import now
+from studyctl.synthetic import SyntheticParticipant
 
 SHIPPED = "data/rig_ci.json"
 
 
 def physics_key(config: dict) -> str:
     """The configuration's hash without the condition's name."""
-    from studyctl.conditions import config_sha256
 
     return config_sha256({k: v for k, v in config.items() if k != "condition"})
 
@@ -63,9 +66,6 @@ def measure(protocol, trials: int = 2, progress=None) -> dict:
     """A profile of `protocol`'s conditions on this machine: per condition, `trials` lockstep
     trials (the protocol's trial time, a synthetic pilot's pull) after a 0.5 s warm-up; the
     median and 95th percentile of the deformation time per frame."""
-    from sim.run import run_scene
-    from studyctl.store import now
-    from studyctl.synthetic import SyntheticParticipant
 
     configs = condition_configs(protocol, protocol.conditions)
     rows = []
@@ -116,7 +116,6 @@ def store_profile(store, profile: dict, source: str) -> int:
     row per configuration, replacing an older one. Refused when none of its entries is a
     configuration of the study's conditions, and once sessions have run (their synthetic
     participants perceived the profile they had: a new one would change the later participants alone)."""
-    from studyctl.errors import StoreError
 
     db = store.path
     protocol = store.protocol()
@@ -137,7 +136,6 @@ def frame_times(protocol, store=None) -> dict[str, dict]:
     from the study's own profile (`store`), else the shipped one. All conditions or none: when
     a profile misses a condition, every condition falls back to the observer's flop model (one
     latency scale for all; a mix would judge conditions on two)."""
-    from brainsim_assets import path as asset
 
     keys = condition_keys(protocol)
     known: dict[str, tuple[float, str]] = {}
@@ -157,7 +155,6 @@ def keep_shipped(store) -> int:
     """Store the shipped profile's rows for the study's conditions with the study in `store` (an
     open studyctl.store.Store, for writing), once, when it has none of its own (so an export
     says which frame times its synthetic sessions used)."""
-    from brainsim_assets import path as asset
 
     if store.rows("select 1 from rig_profile limit 1") or not asset(SHIPPED).exists():
         return 0

@@ -28,11 +28,26 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from sim.run import Pacing, run_scene
 from studyctl.asking import TerminalAnswers, flush_input, terminal_keys
-from studyctl.conditions import SOFTWARE_VERSION, condition_configs, condition_scene
+from studyctl.conditions import (
+    SOFTWARE_VERSION,
+    condition_configs,
+    condition_scene,
+    config_json,
+    config_sha256,
+    scene_itself,
+)
 from studyctl.errors import InputError, Interrupted, StoreError
+from studyctl.lock import session_lock
+from studyctl.participants import has_consent
 from studyctl.questions import NOT_PER_TRIAL, SESSION
+from studyctl.rig import frame_times
 from studyctl.store import Store, dumps, now, sha256_file
+from studyctl.study import assign_order
+from studyctl.synthetic import SyntheticAnswers, SyntheticParticipant, skill_for
+from studyctl.traces import trace_dir, trial_traces, write_trace
+from studyctl.truth import load_truth
 from studyctl.window_answers import WindowAnswers
 
 OPEN = ("running", "interrupted")  # a session to resume: killed while running, or stopped with Ctrl-C
@@ -147,7 +162,6 @@ def _discard(store: Store, session_id: int) -> None:
 def _check_participant(store: Store, protocol, code: str, synthetic: bool) -> None:
     """Registered, not withdrawn, not done; a person or synthetic, never both; answers from one
     source; a person has signed the protocol's consent form."""
-    from studyctl.participants import has_consent
 
     person = store.rows("select synthetic, withdrawn_at from participants where code = ?", (code,))
     if not person:
@@ -175,7 +189,6 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
                 time_scale: float | None = None, *args, view: str = "none", answer_with: str = "terminal", **kwargs) -> dict:
     """Run (or with `resume`, continue) participant `code`'s session; see `_run_session`. One
     process at a time drives a participant's session (studyctl/lock.py)."""
-    from studyctl.lock import session_lock
 
     time_scale = _check_options(device, synthetic, time_scale, view, answer_with)
     with Store(db, mode="read") as store:  # a missing or foreign database, or the wrong participant: no lock file made
@@ -283,8 +296,6 @@ def _open_session(run: _Run, synthetic: bool, resume: bool, seed: int | None, se
     """The participant's running session, resumed (checked: same options, seed and condition
     configurations), or a new one written with its conditions. Sets `run.session_id`; returns
     the participant's condition order and the session's seed."""
-    from studyctl.conditions import config_json, config_sha256
-    from studyctl.study import assign_order
 
     store, protocol, code, device, say = run.store, run.protocol, run.code, run.device, run.say
     sessions = store.rows("select * from sessions where code = ? order by id", (code,))
@@ -322,7 +333,6 @@ def _open_session(run: _Run, synthetic: bool, resume: bool, seed: int | None, se
         store.event(run.session_id, "resumed")
         say(f"resuming session {run.session_id} of {code}")
         return order, seed
-    from studyctl.traces import trace_dir
 
     folder = trace_dir(run.db)
     try:  # where the traces go, checked before the session is recorded
@@ -347,10 +357,6 @@ def _open_session(run: _Run, synthetic: bool, resume: bool, seed: int | None, se
 def _synthetic_answers(run: _Run, seed: int):
     """A synthetic participant drawn from the code and seed, answering from what it perceives on
     the study's rig; sets `run.participant` (its motor traits drive the simulated hands)."""
-    from studyctl.conditions import scene_itself
-    from studyctl.rig import frame_times
-    from studyctl.synthetic import SyntheticAnswers, SyntheticParticipant, skill_for
-    from studyctl.truth import load_truth
 
     # its group's skill profile ([synthetic.groups.NAME]), if the protocol gives one
     run.participant = SyntheticParticipant.draw(run.code, seed, skill_for(run.store, run.protocol, run.code))
@@ -364,7 +370,6 @@ def _synthetic_answers(run: _Run, seed: int):
 
 def _training(run: _Run) -> None:
     """Free pulling before the first condition (once per session; the experimenter may end it)."""
-    from sim.run import Pacing, run_scene
 
     store, protocol, shown = run.store, run.protocol, run.shown
     if "training_done" in {r["kind"] for r in store.rows("select kind from events where session_id = ?", (run.session_id,))}:
@@ -393,7 +398,6 @@ def _training(run: _Run) -> None:
 def _run_condition(run: _Run, pos: int, model: str, n_cond: int) -> None:
     """One condition: its trials not yet stored (each followed by the per-trial questions),
     what the synthetic observer perceived, then the condition's questions."""
-    from studyctl.traces import trial_traces
 
     store, protocol, code, session_id = run.store, run.protocol, run.code, run.session_id
     label = run.labels[model]
@@ -445,8 +449,6 @@ def _loaded(run: _Run, protocol, model: str, status: str):
 def _run_trial(run: _Run, scene, pos: int, model: str, trial: int, status: str) -> None:
     """One trial: the rest screen before it, the run, then its trace and row (the row last: a
     trial row means the trial is complete)."""
-    from sim.run import Pacing, run_scene
-    from studyctl.traces import write_trace
 
     protocol, shown = run.protocol, run.shown
     n_trials = protocol.trials_per_condition

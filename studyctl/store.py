@@ -17,6 +17,7 @@ from pathlib import Path
 import sqlite_utils
 
 from studyctl.errors import StoreError
+from studyctl.protocol import load_protocol, protocol_from_text
 
 SCHEMA_VERSION = 9
 EXPORT_TABLES = ("participants", "schedule", "sessions", "conditions", "trials", "answers", "latency", "events", "consent", "corrections",
@@ -350,7 +351,6 @@ class Store:
         return rows[0]
 
     def protocol(self):
-        from studyctl.protocol import protocol_from_text
 
         s = self.study()
         return protocol_from_text(s["protocol_text"], s["protocol_path"])
@@ -364,7 +364,6 @@ def sha256_file(path: str | Path) -> str:
 
 
 def init_study(db_path: str | Path, protocol_path: str | Path) -> dict:
-    from studyctl.protocol import load_protocol
 
     protocol = load_protocol(protocol_path)
     with Store(db_path, create=True) as store:

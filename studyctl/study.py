@@ -8,9 +8,12 @@ from pathlib import Path
 
 from studyctl.csvfiles import read_csv
 from studyctl.errors import InputError, StoreError
+from studyctl.fields import field_rows, group_of, parse_fields
+from studyctl.questions import NOT_PER_TRIAL, SESSION, AnswerError, allowed, parse_answer
 from studyctl.schedule import allocate, next_order, read_availability, to_ics, williams
 from studyctl.store import EXPORT_TABLES, Store, now
 from studyctl.text import control_problem, quoted, spreadsheet_frame
+from studyctl.traces import traces_frame
 
 CODE_CHARS = set("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_")
 
@@ -38,7 +41,6 @@ def add_participant(db: str | Path, code: str, age=None, name: str | None = None
                     synthetic: bool = False, dry_run: bool = False, fields: dict[str, str] | None = None) -> dict:
     """Register a participant; `fields` their values of the protocol's [fields.NAME] (text as
     given, e.g. {"experience": "resident"}), each checked against its field."""
-    from studyctl.fields import parse_fields
 
     with Store(db) as store:
         protocol = store.protocol()
@@ -60,7 +62,6 @@ def add_participant(db: str | Path, code: str, age=None, name: str | None = None
 def _insert(store: Store, people: list[dict], identities: list[dict], dry_run: bool, fields: dict | None = None) -> None:
     """Participants, their fields, and their identifying details (kept apart; never exported or
     reported), all or none."""
-    from studyctl.fields import field_rows
 
     with store.transaction(dry_run) as conn:
         conn.executemany("insert into participants (code, age, synthetic, created_at) values (:code, :age, :synthetic, :created_at)", people)
@@ -72,7 +73,6 @@ def _insert(store: Store, people: list[dict], identities: list[dict], dry_run: b
 def import_participants(db: str | Path, csv_path: str | Path, dry_run: bool = False) -> dict:
     """CSV with a `code` column, then optional `age`, `name`, `contact` and a column per field the
     protocol declares ([fields.NAME]; a required field's column must be there): all rows or none."""
-    from studyctl.fields import parse_fields
 
     csv_path = Path(csv_path)
     with Store(db) as store:
@@ -102,7 +102,6 @@ def assign_order(store: Store, protocol, code: str) -> list[str]:
     """The participant's condition order: the stored one, else the next Williams row. With
     groups (design.groups), the rows are counted within the participant's group, so that each
     group is balanced on its own."""
-    from studyctl.fields import group_of
 
     row = store.rows("select conditions from schedule where code = ?", (code,))
     if row and row[0]["conditions"]:
@@ -223,7 +222,6 @@ def answer_key(protocol, item: str, model: str, trial, raw, where) -> tuple[str,
     names the place of a field in messages (a file's line, or a command-line option)."""
     import re
 
-    from studyctl.questions import NOT_PER_TRIAL, SESSION, AnswerError, allowed, parse_answer
 
     if item not in protocol.items:
         raise InputError(f"{where('item')}: unknown item {item!r}; allowed: {', '.join(protocol.items)}")
@@ -257,7 +255,6 @@ def export(db: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[str]:
     checked against its SHA-256) before anything is written."""
     import pandas as pd
 
-    from studyctl.traces import traces_frame
 
     if fmt not in ("csv", "parquet"):
         raise InputError(f"--format: {fmt!r} is not csv or parquet")

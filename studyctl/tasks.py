@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from studyctl.procedures import METHODS, RULES, ProcedureSpec
+
 KINDS = ("discrimination",)
 PARAMETERS = ("stiffness",)
 TRIALS = (10, 500)
@@ -39,7 +41,6 @@ class DiscriminationTask:
     kind = "discrimination"
 
     def procedure_spec(self):
-        from studyctl.procedures import ProcedureSpec
 
         return ProcedureSpec(method=self.method, rule=self.rule, start=self.start, low=self.low, high=self.high)
 
@@ -54,7 +55,6 @@ DEFAULT = DiscriminationTask(index=0)  # what a [[tasks]] table leaves out
 def check_tasks(data: dict, checker, trial_seconds: float | None) -> list[DiscriminationTask]:
     """The protocol's `[[tasks]]`: each checked, its problems added to `checker` (the protocol's
     `_Checker`: FILE:LINE: field: message), the valid ones returned."""
-    from studyctl.procedures import METHODS, RULES
 
     get, bad = checker.get, checker.bad
     raw = data.get("tasks", [])

@@ -6,7 +6,9 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from brainsim_assets import path as asset
 from studyctl.errors import InputError
+from studyctl.protocol import check_protocol
 
 KINDS = {  # kind -> the shipped protocol it starts from, and what it is
     "yes_no": ("brain_pull_2015.toml", "the paper's study: yes/no questions after each model"),
@@ -22,8 +24,6 @@ def new_protocol(kind: str, out_dir: str | Path, name: str | None = None) -> dic
     """Write OUT/protocol.toml (the `kind`'s shipped example, renamed `name`) and OUT/scene.toml
     (its scene, the relative paths to the shipped surface, material and model files made
     absolute); check the protocol; never overwrite. Returns what was written."""
-    from brainsim_assets import path as asset
-    from studyctl.protocol import check_protocol
 
     if kind not in KINDS:
         raise InputError(f"--kind: {kind!r} is not a kind; allowed: {', '.join(KINDS)}")

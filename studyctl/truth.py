@@ -36,6 +36,10 @@ from pathlib import Path
 import numpy as np
 
 from brainsim_assets import path as _asset
+from sim.field import mesh_digest
+from sim.mesh import patch_vertices
+from sim.scene import clamp_limit, grasp_radius
+from sim.volume import cache_dir
 from studyctl.errors import InputError
 
 TRUTH_FILE = _asset("data/observer_truth.npz")
@@ -104,8 +108,6 @@ def law_key(law) -> str:
 def truth_key(scene) -> dict:
     """What the table depends on: the surface, the clamp, the law's shape and the grasp radius
     (not its scale, the shear modulus: the forces scale with it)."""
-    from sim.field import mesh_digest
-    from sim.scene import clamp_limit, grasp_radius
 
     axis, limit = clamp_limit(scene)
     return {"version": TRUTH_VERSION, "digest": mesh_digest(scene.mesh), "clamp_axis": int(axis), "clamp_height": float(limit),
@@ -116,7 +118,6 @@ def user_truth_path(scene) -> Path:
     """Where `studyctl calibrate truth` puts a table for a scene the shipped one does not cover."""
     import hashlib
 
-    from sim.volume import cache_dir
 
     key = json.dumps(truth_key(scene), sort_keys=True)
     return cache_dir() / f"truth-{hashlib.sha256(key.encode()).hexdigest()[:20]}.npz"
@@ -188,7 +189,6 @@ def hand_vertices(scene, radius: float = TRUTH_RADIUS) -> np.ndarray:
 
 def hand_sets(scene, radius: float = TRUTH_RADIUS) -> dict:
     """{hand index: the surface vertices within `radius` of its grasp (same hemisphere)}."""
-    from sim.mesh import patch_vertices
 
     mesh = scene.mesh
     return {k: patch_vertices(mesh, mesh.nearest_vertex(hand.script(mesh).start), radius) for k, hand in enumerate(scene.spec.hands)}
