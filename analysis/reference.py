@@ -3,28 +3,11 @@ finite-strain law (the scene's `[material]`: human cortex, one-term Ogden, sim/m
 quadratic tetrahedra on the brain's body-fitted meshes, refined three times, with Richardson
 extrapolation and Roache's grid convergence index.
 
-- **Geometry**: the body-fitted fTetWild meshes the simulator's FEM and mass-spring run on
-  (`sim.tetmesh`: 8, 6 and 4 mm target edges, shipped in data/ with their hashes).
-- **Elements**: P2 (10-node) tetrahedra, displacement-based, the law nearly incompressible
-  (kappa = 50 mu): `sim.models.fem.FiniteStrain` (docs/material.md says why P2 and not the
-  P2/P0 mean-dilatation element), the scene's clamp (nodes at or below the highest clamped
-  surface vertex, the plane of `sim.models.fem.fixed_nodes`).
-- **Grasp**: the FEM core's constraint (`sim.models.fem.grasp`): the mean displacement of the
-  surface *area* within the grasp radius (`sim.patch`), each quadrature point interpolated
-  with its element's quadratic shape functions.
-- **Solve**: each pull is followed from rest to its largest displacement by the FEM core's
-  Newton solver (`sim.models.fem.hold`), recording the force holding the patch (and, for the
-  observer's pulls, the condensed tangent stiffness) at every sampled displacement. Forces are
-  stored per pascal of the law's shear modulus: a law scaled in mu gives forces scaled alike.
-- **Shipped**: the solves of the shipped scene's pulls on the shipped meshes are in
-  `data/reference_pulls.npz` (made by `scripts/make_reference_pulls.py`, hash-checked against
-  `data/reference_pulls.json`); any other pull, mesh or law is solved and cached on disk.
+- **The pulls** (geometry, elements, grasp, solves, the shipped data and the cache):
+  analysis/tissue_pulls.py.
 - Richardson and the GCI: `analysis.convergence`.
 
-The numbers are in docs/reference.
-
-The pulls themselves (the P2 problem, the solves, the shipped data and the cache):
-analysis/tissue_pulls.py.
+The numbers are in docs/reference.md.
 """
 
 from __future__ import annotations
