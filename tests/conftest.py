@@ -17,7 +17,7 @@ def root() -> Path:
 def small_study(tmp_path_factory):
     """A small SYNTHETIC study database, shared by the report tests."""
     from studyctl.synthetic_study import run_synthetic_study
-    from tests.test_study import fast_protocol
+    from tests.helpers import fast_protocol
 
     tmp = tmp_path_factory.mktemp("study")
     db = tmp / "s.db"

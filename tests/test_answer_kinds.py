@@ -14,7 +14,8 @@ from studyctl.observer import likert_answer, likert_thresholds
 from studyctl.protocol import check_protocol, load_protocol
 from studyctl.questions import Question
 from studyctl.synthetic_study import run_synthetic_study
-from tests.test_study import ROOT, fast_protocol, studyctl
+from tests.conftest import ROOT
+from tests.helpers import fast_protocol, studyctl
 
 CONDITIONS = """
 [conditions.paper]

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from studyctl.questions import Question
+from tests.helpers import fast_protocol, pty_session, studyctl
 from tests.test_participant import MODEL_WORDS
-from tests.test_study import fast_protocol, pty_session, studyctl
 from tests.test_view import _window, _xdotool
 
 SELECTED = np.array([0.12, 0.40, 0.85]) * 255  # sim/view.py: the chosen point, the slider's mark
@@ -305,7 +305,7 @@ when = "end"
 
 
 def kinds_protocol(tmp_path: Path, conditions=("plate_spring", "mass_spring")) -> Path:
-    """fast_protocol (tests/test_study.py) with one question of each kind but yes/no instead of
+    """fast_protocol (tests/helpers.py) with one question of each kind but yes/no instead of
     the paper's nine: a rating and a VAS after each condition, a choice and free text at the end."""
     path = fast_protocol(tmp_path, conditions=conditions, trials=1)
     text = path.read_text()

@@ -7,7 +7,7 @@ import pytest
 from click.testing import CliRunner
 
 from studyctl.cli import cli
-from tests.test_study import fast_protocol, studyctl
+from tests.helpers import fast_protocol, studyctl
 
 
 @pytest.mark.parametrize("args, needle", [

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from studyctl.cli import cli
 from studyctl.synthetic_study import run_synthetic_study
-from tests.test_study import fast_protocol
+from tests.helpers import fast_protocol
 from tests.test_synthetic import _content, _summary
 
 distributed = pytest.importorskip("distributed")

@@ -13,7 +13,7 @@ from sim.scene import load_scene
 from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
 from studyctl.protocol import check_protocol, load_protocol
 from studyctl.synthetic_study import run_synthetic_study
-from tests.test_study import fast_protocol, studyctl
+from tests.helpers import fast_protocol, studyctl
 
 VARIANTS = """
 [conditions.paper]

@@ -25,7 +25,7 @@ JND = ROOT / "protocols/stiffness_jnd.toml"
 def jnd_protocol(tmp_path: Path, conditions=("plate_spring",), trials=12, method="quest+", extra="") -> Path:
     """The shipped discrimination protocol on the quick scene (linear FEM tetrahedra, no
     pictures), 1 s intervals, `trials` per condition."""
-    from tests.test_study import fast_protocol
+    from tests.helpers import fast_protocol
 
     fast_protocol(tmp_path)  # writes tmp_path / "scene.toml"
     text = JND.read_text().replace('scene = "scenes/brain_pull.toml"', f'scene = "{tmp_path / "scene.toml"}"')
@@ -108,7 +108,7 @@ def test_a_scaled_model_is_the_model_built_with_the_scaled_modulus(tmp_path, mod
     Young's modulus (the plate-spring: the plates' E) times s, built from scratch: the same
     forces over a scripted two-hand pull, and s times the unscaled model's for the FEM and the
     plate-spring (whose forces are linear in the modulus)."""
-    from tests.test_study import fast_protocol
+    from tests.helpers import fast_protocol
 
     fast_protocol(tmp_path)
     spec = dataclasses.replace(load_scene(tmp_path / "scene.toml"), model=model)
@@ -199,7 +199,7 @@ def test_a_synthetic_session_stores_every_trial_and_a_killed_one_resumes_as_if_u
     from studyctl.session import run_session
     from studyctl.synthetic_study import run_synthetic_study
     from studyctl.traces import read_trace
-    from tests.test_study import studyctl
+    from tests.helpers import studyctl
 
     protocol = jnd_protocol(tmp_path, trials=12)
     whole, broken = tmp_path / "whole.db", tmp_path / "broken.db"
@@ -246,8 +246,8 @@ def test_a_person_discriminates_in_the_window_with_the_mouse(xdotool, tmp_path, 
     import time
 
     from studyctl.session import run_session
+    from tests.helpers import studyctl
     from tests.test_participant import MODEL_WORDS
-    from tests.test_study import studyctl
     from tests.test_view import Recorder, _window, _xdotool
 
     db = tmp_path / "s.db"
@@ -321,7 +321,7 @@ def test_synthetic_participants_weber_fractions_are_recovered(tmp_path):
     and the bootstrap 95% intervals cover 18 of 20 (90%; the bound: 18 or 19 of 20). Seeds 2
     and 3: 22.5% and 22.6%, covering 17 and 19 of 20 (docs/study.md)."""
     from studyctl.synthetic_study import run_synthetic_study
-    from tests.test_study import studyctl
+    from tests.helpers import studyctl
 
     db = tmp_path / "s.db"
     run_synthetic_study(db, 20, seed=1, jobs=2, protocol_path=jnd_protocol(tmp_path, trials=40))
@@ -345,7 +345,7 @@ def test_report_jnd_gives_each_conditions_weber_fractions_and_the_group_test(tmp
     psychometric plot per condition), and the same section in `report table1`; every output
     flagged synthetic."""
     from studyctl.synthetic_study import run_synthetic_study
-    from tests.test_study import studyctl
+    from tests.helpers import studyctl
 
     path = jnd_protocol(tmp_path, conditions=("plate_spring", "paper", "handset"), trials=10)
     text = path.read_text().replace("[[tasks]]", '[conditions.paper]\nmodel = "plate_spring"\nvariant = "paper"\n\n'

@@ -11,7 +11,7 @@ import pytest
 
 from studyctl.protocol import check_protocol, load_protocol
 from studyctl.schedule import williams
-from tests.test_study import fast_protocol, studyctl
+from tests.helpers import fast_protocol, studyctl
 
 FIELDS = '''
 [fields.experience]

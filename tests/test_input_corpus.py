@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from studyctl.cli import cli
-from tests.test_study import fast_protocol, studyctl
+from tests.helpers import fast_protocol, studyctl
 
 BAD_UTF8 = "code,age\nP0\xe9,23\n".encode("latin-1")
 

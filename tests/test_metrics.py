@@ -16,7 +16,7 @@ from scipy.optimize import brentq
 from analysis import kinematics as kin
 from analysis.metrics import COLUMNS, METRICS, SAFE_FORCE_N, Goal, hand_metrics, trial_metrics
 from tests.conftest import ROOT
-from tests.test_study import fast_protocol, studyctl
+from tests.helpers import fast_protocol, studyctl
 
 FS = 1000.0
 Q = 0.055e-3  # the Omni's tip quantisation, m

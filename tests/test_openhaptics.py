@@ -323,8 +323,8 @@ def test_a_persons_session_on_two_fake_omnis_in_the_window(libhd, display, tmp_p
     participant view in a real window, answers typed on a pseudo-terminal."""
     import sqlite3
 
+    from tests.helpers import pty_session, studyctl
     from tests.test_participant import _protocol
-    from tests.test_study import pty_session, studyctl
 
     db = tmp_path / "s.db"
     studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, trial_seconds=1.0, training=0.05), "--db", db)

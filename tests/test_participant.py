@@ -15,7 +15,7 @@ import pandas as pd
 
 from studyctl.store import Store
 from studyctl.traces import read_trace
-from tests.test_study import count_rows, fast_protocol, pty_run, pty_session, studyctl
+from tests.helpers import count_rows, fast_protocol, pty_run, pty_session, studyctl
 
 MODEL_WORDS = re.compile(r"plate.?spring|mass.?spring|\bfem\b|finite|element|corotational|neo.?hookean|young|poisson", re.I)
 

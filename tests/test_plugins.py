@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import ROOT
-from tests.test_study import fast_protocol
+from tests.helpers import fast_protocol
 
 BAD = "tests.plugins.bad_models"
 ENTRY_POINTS = f"""[brainsim.models]
@@ -280,7 +280,7 @@ def test_model_describe_prints_the_declared_options(plugin_env):
 def test_model_check_of_a_built_in_model_gives_its_whole_scorecard(tmp_path):
     """The plate-spring on the shipped scene: the contract, budgets, the quick sweep's cases of
     both its rows and the quick accuracy bench's row; Markdown and JSON say the same."""
-    from tests.test_study import studyctl
+    from tests.helpers import studyctl
 
     res = studyctl("model", "check", "plate_spring", "--quick", "--json", "--out", tmp_path / "card.md")
     assert res.exit_code == 0, res.output

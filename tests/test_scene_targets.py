@@ -16,7 +16,7 @@ from sim.errors import SceneError
 from sim.run import run_scene
 from sim.scene import Scene, build_scene, load_scene
 from studyctl.protocol import check_protocol
-from tests.test_study import studyctl
+from tests.helpers import studyctl
 
 ROOT = Path(__file__).resolve().parents[1]
 RETRACTION = ROOT / "protocols/scenes/retraction.toml"
@@ -108,7 +108,7 @@ def test_a_pull_short_of_the_target_runs_to_the_time_limit(tmp_path):
 
 
 def test_trial_end_is_checked_against_the_protocol_and_its_scene(tmp_path):
-    from tests.test_study import fast_protocol
+    from tests.helpers import fast_protocol
 
     path = fast_protocol(tmp_path)
     text = path.read_text()

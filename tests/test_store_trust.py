@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.test_study import PROTOCOL, fast_protocol, studyctl
+from tests.helpers import PROTOCOL, fast_protocol, studyctl
 
 
 def _files(d: Path) -> dict:

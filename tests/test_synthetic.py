@@ -24,7 +24,7 @@ from studyctl.observer import (
 )
 from studyctl.synthetic import SyntheticParticipant
 from studyctl.synthetic_study import run_synthetic_study
-from tests.test_study import fast_protocol
+from tests.helpers import fast_protocol
 
 MEDIAN = ObserverTraits(weber=0.10, prior=1.0, latency_ms=40.0, vibration=1.0, bias=0.0)
 
@@ -176,7 +176,7 @@ def test_null_study_rejects_at_about_alpha():
     Carlo error for every question (pilot summaries that differ per label, as trials do)."""
     from analysis.plan import null_table
     from studyctl.protocol import load_protocol
-    from tests.test_study import PROTOCOL
+    from tests.helpers import PROTOCOL
 
     protocol = load_protocol(PROTOCOL)
     rng = np.random.default_rng(0)

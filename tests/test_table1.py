@@ -11,7 +11,7 @@ from scipy.stats import norm
 from analysis.stats import wilson
 from studyctl.cli import cli
 from studyctl.synthetic_study import run_synthetic_study
-from tests.test_study import fast_protocol
+from tests.helpers import fast_protocol
 
 
 @pytest.mark.parametrize("yes, n, lo, hi", [(81, 263, 0.2553, 0.3662), (15, 148, 0.0624, 0.1605), (0, 20, 0.0000, 0.1611)])
@@ -142,7 +142,7 @@ def _answers_db(tmp_path, answers: dict, orders: dict | None = None, protocol=No
     import json
 
     from studyctl.store import Store, init_study
-    from tests.test_study import PROTOCOL
+    from tests.helpers import PROTOCOL
 
     db = tmp_path / "a.db"
     init_study(db, protocol or PROTOCOL)
@@ -351,7 +351,8 @@ def test_latex_table_escapes_every_special_character_and_has_the_other_formats_c
     import re
 
     from analysis.report import latex
-    from tests.test_study import PROTOCOL, ROOT
+    from tests.conftest import ROOT
+    from tests.helpers import PROTOCOL
 
     special = "Is {it} $5^2 ~ & 50% of_the #1 \\ case?"
     text = PROTOCOL.read_text().replace("Is interaction real and natural?", special.replace("\\", "\\\\"))

@@ -15,7 +15,7 @@ import numpy as np
 
 from sim import hud
 from tests.conftest import ROOT
-from tests.test_study import studyctl as _studyctl
+from tests.helpers import studyctl as _studyctl
 from tests.test_view import _window, _xdotool
 
 QUESTION = '''[[questions]]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.test_study import fast_protocol, studyctl
+from tests.helpers import fast_protocol, studyctl
 
 
 def _person_with_answers(tmp_path, db, proto):

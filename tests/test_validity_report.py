@@ -16,8 +16,8 @@ from analysis import validity_report as report_mod
 from analysis import validity_report as vr
 from analysis.metrics import COLUMNS
 from studyctl.store import Store
+from tests.helpers import fast_protocol, studyctl
 from tests.test_fields import field_protocol
-from tests.test_study import fast_protocol, studyctl
 
 ORDER = ["student", "resident", "neurosurgeon"]
 SECRET = "SECRET-REMARK-7f3a"  # a text field's value: never in a report

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from tests.conftest import ROOT
+from tests.helpers import studyctl
 from tests.test_participant import MODEL_WORDS, _protocol
-from tests.test_study import studyctl
 
 PATCH = np.array([0.20, 0.55, 0.95]) * 255
 

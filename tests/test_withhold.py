@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from analysis.withhold import mean_ci
+from tests.helpers import studyctl
 from tests.test_answer_kinds import QUESTIONS, kinds_protocol
-from tests.test_study import studyctl
 
 PER_TRIAL = QUESTIONS.replace('id = "stable"\ntext = "Is the system stable?"', 'id = "stable"\ntext = "Is the system stable?"\nwhen = "trial"')
 
