@@ -81,6 +81,8 @@ def explicit_substeps(x, v, m, fixed, ei, ej, k, rest, anchor_nodes, anchor_ptr,
         for a in range(anchor_k.shape[0]):
             lo, hi = anchor_ptr[a], anchor_ptr[a + 1]
             cnt = hi - lo
+            if cnt == 0:  # an anchor on no node pulls nothing (as the NumPy step)
+                continue
             for c in range(3):
                 mean = 0.0
                 for p in range(lo, hi):
