@@ -18,10 +18,11 @@ and a number.
 
 For a questionnaire the window shows a rating scale (boxes with their numbers, the anchors under
 the two ends; also used for the choice among blind labels) or a visual analogue scale (a line
-with its anchors, and a mark the person sets with the mouse): `answers.show_scale`, `answers.show_slider` (`sim.widgets.WidgetPanel`). In
-questionnaire mode (`set_questionnaire`, on while a question is asked) the mouse answers
-questions; and a click grasps the brain only while a run is drawn (`draw`), never on a still
-screen (`idle`: a rest screen, questions asked in the window or in the terminal).
+with its anchors, and a mark the person sets with the mouse): `answers.show_scale`,
+`answers.show_slider` (`sim.widgets.WidgetPanel`). In questionnaire mode (`set_questionnaire`,
+on while a question is asked) the mouse answers questions; and a click grasps the brain only
+while a run is drawn (`draw`), never on a still screen (`idle`: a rest screen, questions asked
+in the window or in the terminal).
 """
 
 from __future__ import annotations
