@@ -112,7 +112,6 @@ def default_settings(quick: bool) -> tuple[Setting, ...]:
 def plugin_settings() -> list[Setting]:
     """A row for every installed model outside brainsim (a lab's own): as the scene configures
     it, else with its declared defaults."""
-
     models, _ = installed()
     return [Setting(name, "default") for name in plugins(models) if plugin_problem(name) is None]
 
@@ -120,7 +119,6 @@ def plugin_settings() -> list[Setting]:
 def plugin_problem(name: str, scene_path=DEFAULT_SCENE) -> str | None:
     """Why the benches leave a lab's model out of their default rows, or None: it has an
     option without a default and the scene does not configure it."""
-
     try:
         load_scene(scene_path).options_of(name)
     except SceneError as exc:
@@ -136,14 +134,12 @@ def quick_config(**kw) -> AccuracyConfig:
 
 
 def sample_displacements(cfg: AccuracyConfig) -> np.ndarray:
-
     return pull_samples(cfg.max_pull, cfg.samples)
 
 
 # -- a model on the same pulls -------------------------------------------------------------
 
 def _build_model(scene, setting: Setting, handset: Path, e_ratio: float):
-
     cls = model_class(setting.model)
     opts = dict(setting.options)
     options = scene.spec.options_of(setting.model)
@@ -211,7 +207,6 @@ def _tick_time(model, contact, d, reps: int = 20000) -> float:
 def reference_samples(refs: dict, pulls: list[Pull], xs, mu: float) -> list[list[dict]]:
     """Per pull and sample: the reference force (N, vector on the tissue), magnitude and half-band,
     for a law of shear modulus `mu` (the stored forces are per pascal of it)."""
-
     return [[combined_sample(refs[p.name]["force_per_pa"][:, k] * mu, refs[p.name]["h_m"]) for k in range(len(xs))] for p in pulls]
 
 
@@ -219,7 +214,6 @@ def calibration_curve(scene_path, xs, jobs: int | None = None, progress=None) ->
     """The converged reference's force magnitude (N, the scene's law) on the bench's calibration
     pulls (`make_pulls`), at displacements `xs`: (displacements, forces, how), the pulls'
     curves concatenated. What `calibrate plate-spring` fits to."""
-
     scene = scene_with(scene_path)
     pulls = make_pulls(scene)
     xs = np.asarray(xs, dtype=np.float64)
@@ -248,7 +242,6 @@ def _task(task):
 def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | None = None, progress=None) -> dict:
     """The reference, then every setting, on the calibration and test pulls; returns rows
     (raw and calibrated per setting), per-sample verdicts and meta."""
-
     scene = scene_with(cfg.scene)
     young = float(cfg.young if cfg.young is not None else scene.spec.material.young)
     e_ratio = young / scene.spec.material.young
@@ -412,7 +405,6 @@ def class_best(rows: list[dict], frame_budget_ms: float | None = None) -> list[d
     `sim.models.api.BUDGETS`) and that gave up no pull; ties go to the lower force error, then
     the faster frame. A class with no such configuration gets a row with `setting` None and
     the reason. `meets_target`: within on at least `TARGET_WITHIN` of the samples."""
-
     budget = float(BUDGETS["deformation_ms_p99"] if frame_budget_ms is None else frame_budget_ms)
     out = []
     for model in dict.fromkeys(r["model"] for r in rows):

@@ -61,7 +61,6 @@ BLOCK = 240  # right-hand sides per CHOLMOD solve (memory: n_free x BLOCK double
 def site_stiffness(scene_path, size_mm: float = FIELD_SIZE_MM, sites_per_hemisphere: int = ICO4_VERTICES,
                    progress=None) -> dict:
     """K per pascal of shear modulus (s, 3, 3) at the sites, with the site vertex ids and what it took."""
-
     scene = scene_with(scene_path)
     mesh = scene.mesh
     radius = grasp_radius(scene)
@@ -126,7 +125,6 @@ def interpolate(mesh, sites: np.ndarray, K_sites: np.ndarray, sigma: float = FIE
 def build_field(scene_path, out: Path = FIELD_FILE, size_mm: float = FIELD_SIZE_MM, progress=None) -> dict:
     """Solve the sites, interpolate, and write the field (float32, symmetric 6 entries per
     vertex) with what it was made from; atomic."""
-
     scene = scene_with(scene_path)
     res = site_stiffness(scene_path, size_mm, progress=progress)
     K = interpolate(scene.mesh, res["sites"], res["K_per_pa"])

@@ -58,7 +58,6 @@ def _quest_estimates(study, task: int) -> dict:
 
 
 def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) -> dict:
-
     protocol = study.protocol
     spec = protocol.tasks[task]
     t = trials(study, task)
@@ -150,7 +149,6 @@ def tables(res: dict) -> list[dict]:
     per condition (geometric mean [95% CI], median, recovery when synthetic) and per participant
     (the fit, its flag, the pooled estimate, QUEST+'s own estimate where it ran, the generating
     value when synthetic)."""
-
     recovery = any("recovery_coverage" in c for c in res["conditions"])
     rows = []
     for c in res["conditions"]:
@@ -225,7 +223,6 @@ def _group_text(g: dict) -> str:
 
 def html_section(res: dict, study) -> str:
     """The report's section as HTML (escaped), with one psychometric plot per condition."""
-
     esc = _html.escape
     body = [f'<p class="synthetic">{esc(res["facts"]["flag"])}</p>' if res["facts"]["flag"] else ""]
     task = res["facts"]["task"]
@@ -249,7 +246,6 @@ def html_section(res: dict, study) -> str:
 
 
 def html(res: dict, study) -> str:
-
     esc = _html.escape
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{esc(res['facts']['study'])}: stiffness discrimination</title>

@@ -47,7 +47,6 @@ def _per_trial_items(protocol) -> list:
 def score_scale(item: str, protocol) -> tuple[float, float] | None:
     """The range a score lies in (its interval stays inside): a VAS item's 0-100, an
     instrument's 0-100, a per-trial mean's question's own scale."""
-
     base = item.removesuffix(TRIAL_MEAN)
     if base in instruments.SCORES:
         return instruments.SCORE_RANGE[base]
@@ -91,7 +90,6 @@ def measures(protocol, answers: pd.DataFrame, per: pd.DataFrame | None = None) -
     """Each participant's value per condition and measure (tidy: code, model, item, kind,
     answer, period): rating items (kind ordinal); VAS items and instrument scores, and the
     mean over trials of every question asked after each trial (kind continuous)."""
-
     rows = []
     cond = answers[answers["model"].isin(protocol.conditions)]
     for q in _rating_items(protocol):
@@ -128,7 +126,6 @@ def _wide(df: pd.DataFrame, item: str, models: list[str]) -> pd.DataFrame:
 
 
 def _label(item: str, protocol) -> str:
-
     base = item.removesuffix(TRIAL_MEAN)
     text = instruments.SCORES.get(base) or next((q.text for q in protocol.questions if q.id == base), item)
     return text + (TRIAL_MEAN if item.endswith(TRIAL_MEAN) else "")
@@ -196,7 +193,6 @@ def choices(protocol, answers: pd.DataFrame) -> dict:
 
 def session_questions(protocol, answers: pd.DataFrame) -> dict:
     """Questions asked once at the end, other than choices: described only."""
-
     out = {}
     for name, when in protocol.instruments:
         if when == "end":  # one score per participant

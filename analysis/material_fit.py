@@ -50,7 +50,6 @@ class Curve:
 def read_curve(path, region: str) -> Curve:
     """The rows of `region` in a CSV with columns region, stretch, nominal_stress_kpa (read
     strictly: `studyctl.csvfiles.read_csv`); a bad cell is named by its line and column."""
-
     p = Path(path)
     columns = ("region", "stretch", "nominal_stress_kpa")
     rows = read_csv(p, columns, columns)

@@ -201,7 +201,6 @@ def scene_goals(scene) -> dict[str, Goal]:
 
 def study_goals(store) -> dict[str, Goal]:
     """The goals of a study's task: its protocol's scene's targets (every condition runs that scene)."""
-
     return scene_goals(build_scene(store.protocol().scene))
 
 
@@ -209,7 +208,6 @@ def metrics_table(store, goals: Goal | Mapping[str, Goal] | None = None) -> pd.D
     """Every stored trial's metrics (an open studyctl.store.Store), tidy in `COLUMNS`. The
     condition is the protocol's name for it (as in every report); `trial` the stored 0-based index.
     A trial run again in a later session of the same participant: the later one counts."""
-
     rows = store.rows(
         "select s.code, p.synthetic, t.model, t.trial, t.session_id, t.trace_path, t.trace_sha256 from trials t "
         "join sessions s on s.id = t.session_id join participants p on p.code = s.code "

@@ -220,7 +220,6 @@ def _timed(parts: dict, cfg: CheckConfig) -> list[dict]:
 
 def stability(name: str, scene_path: Path) -> dict:
     """The quick stability sweep's cases of the model's rows."""
-
     cases = make_cases(quick=True, models=(name,))
     rows = [run_case(c, scene_path) for c in cases]
     counts = {k: sum(1 for r in rows if r["outcome"] == k) for k in ("stable", "unstable", "refused")}
@@ -231,7 +230,6 @@ def stability(name: str, scene_path: Path) -> dict:
 
 def accuracy(name: str, scene_path: Path, quick: bool) -> dict:
     """The accuracy bench's row for the model (raw and calibrated) against the tissue truth."""
-
     setting = (Setting(name, "default"),)
     cfg = quick_config(scene=scene_path, settings=setting) if quick else AccuracyConfig(scene=scene_path, settings=setting)
     out = run_accuracy(cfg, jobs=1)
@@ -243,7 +241,6 @@ def accuracy(name: str, scene_path: Path, quick: bool) -> dict:
 
 def check_model(name: str, cfg: CheckConfig, progress=None) -> dict:
     """The scorecard of model `name` on `cfg.scene`. Raises CheckError when it cannot run."""
-
     try:
         cls = model_class(name)
         scene = _scene(name, cfg.scene)

@@ -73,7 +73,6 @@ def _tested(protocol) -> list:
 
 def test_names(protocol) -> list[str]:
     """The rows of a power table: each tested question, each score, the primary."""
-
     return [q.id for q in _tested(protocol)] + score_names(protocol) + ["primary"]
 
 
@@ -82,7 +81,6 @@ def simulate_study(protocol, summaries: dict[str, list], n: int, rng: np.random.
     period) to every question asked after a condition and every choice at the end, drawn from
     the observer as a synthetic session draws them; each participant's condition perceived from
     a random pilot trial; Williams orders in turn for the period."""
-
     params = params or DEFAULT
     labels = list(protocol.conditions)
     orders = williams(len(labels))
@@ -115,7 +113,6 @@ def simulate_study(protocol, summaries: dict[str, list], n: int, rng: np.random.
 def test_study(protocol, answers: pd.DataFrame, primary: bool = True) -> dict[str, float]:
     """The p-value of each of `test_names` on one simulated study (NaN: not computed). Per
     question: Cochran's Q (yes/no), Friedman (ratings, scores), the exact multinomial (choice)."""
-
     labels = list(protocol.conditions)
     out = {}
     for q in _tested(protocol):
@@ -139,7 +136,6 @@ def primary_p(protocol, answers: pd.DataFrame, meas: pd.DataFrame) -> float:
     """The primary analysis's decision as a p-value: the smallest Holm-adjusted p of its pairs
     (ordinal or logistic GEE, mixed model), or the multinomial test's p (choice); 1 when it is
     not estimable (it finds nothing)."""
-
     what = kinds.primary(protocol)
     labels = list(protocol.conditions)
     if what["analysis"] == "choice":
@@ -196,7 +192,6 @@ class _Batch:
 
 def _rejections(batch: _Batch) -> dict[str, int]:
     """How many of the batch's simulated studies each test rejects at alpha."""
-
     one_thread_pools()  # the model fits' small BLAS calls: 5.6x faster than two threads fighting on 2 cores
     rng = np.random.default_rng([batch.seed, batch.n, batch.index])
     hits = dict.fromkeys(batch.names, 0)

@@ -82,7 +82,6 @@ def force_traces(protocol, duration: float = 3.0) -> dict:
     """The scene's scripted pull, run with each of the study's conditions (lockstep); the
     converged reference's force (the synthetic observer's truth, studyctl/truth.py) for each
     run's own hand motion. Returns {condition: (t, force, reference)} for the first hand."""
-
     out = {}
     truth = load_truth(scene_itself(protocol))  # the scene's own, whatever a condition changes
     spec = load_scene(protocol.scene)
@@ -97,7 +96,6 @@ def force_traces(protocol, duration: float = 3.0) -> dict:
 def force_plot(traces: dict, path: Path) -> None:
     """Fig. 5-style: force of each model and the converged reference for the same pull, and
     the relative difference against the force JND."""
-
     plt = _plt()
     fig, (ax, bx) = plt.subplots(2, 1, figsize=(7, 5.4), dpi=100, sharex=True)
     for k, (m, (t, f, ref)) in enumerate(traces.items()):
@@ -276,7 +274,6 @@ def psychometric_plot(trials, rows: list[dict], condition: str, path: Path, synt
     """One condition's discrimination: every participant's fitted psychometric function
     (analysis/psychometric.py, refitted here for its curve) and Weber fraction, and the pooled
     proportion correct in bins of the increment (point size: trials), on a log axis."""
-
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
     d = trials["stimulus"].to_numpy(dtype=float)

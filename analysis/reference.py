@@ -69,14 +69,12 @@ def jnd_verdict(force: float, band_half: float) -> dict:
     """Is the band narrower than the force JND? Relative: half-band / force below the JND
     fraction (10% at or above 0.5 N, 25% below, `sim.calibrate.jnd`); absolute: half-band below
     0.05 N (10% of 0.5 N)."""
-
     rel = band_half / force if force > 0 else math.inf
     frac = float(jnd(np.array(force)))
     return {"band_rel": rel, "jnd_fraction": frac, "within_jnd_rel": bool(rel < frac), "within_jnd_abs": bool(band_half < 0.05)}
 
 
 def _selected_pulls(cfg: ReferenceConfig, scene) -> list:
-
     pulls = make_pulls(scene)
     if cfg.pulls is not None:
         unknown = set(cfg.pulls) - {p.name for p in pulls}
@@ -156,7 +154,6 @@ def _sample(pull, x: float, f: list, hs: list, sizes: list) -> dict:
 
 def run_reference(cfg: ReferenceConfig, progress=None) -> dict:
     """Mesh, solve and extrapolate every pull; returns {"samples", "pulls", "meshes", "meta"}."""
-
     t_start = time.perf_counter()
     scene = scene_with(cfg.scene)
     law = scene.spec.material.law

@@ -130,7 +130,6 @@ def _inline_png(draw) -> str:
 
 def accuracy_html(result: dict) -> str:
     """The accuracy bench's table and Pareto plot (analysis/accuracy.py) as an HTML section."""
-
     esc = _html.escape
     raw = [r for r in result["rows"] if r["calibration"] == "raw"]
     img = _inline_png(lambda path: pareto_plot(raw, path, reference=result["meta"]["reference"]["setting"]))
@@ -151,7 +150,6 @@ def accuracy_html(result: dict) -> str:
 
 def stability_html(result: dict) -> str:
     """The stability sweep's heat map and the cases that were not stable, as an HTML section."""
-
     esc = _html.escape
     img = _inline_png(lambda path: stability_heatmap(outcome_grid(result["cases"]), path))
 
@@ -170,7 +168,6 @@ def stability_html(result: dict) -> str:
 def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, stability: dict | None = None, holm_scope: str = "family") -> str:
     """One self-contained HTML file: facts, Table 1, statistics, plots (PNG inlined), and the
     accuracy bench's table and Pareto plot and the stability sweep's heat map when given."""
-
     facts, r, q, d = table1.study_facts(study), table1.rates(study), table1.cochran(study), table1.deformation(study)
     st = study_stats(study, r, q, holm_scope=holm_scope)
     with tempfile.TemporaryDirectory() as tmp:

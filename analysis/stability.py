@@ -83,7 +83,6 @@ def model_rows(extra: tuple[str, ...] = ()) -> tuple:
     """`MODELS` and a row for every installed model outside brainsim (a lab's own), as the
     scene configures it or with its declared defaults, and for each name of `extra` (a
     "package.module:Class") that has none."""
-
     models, _ = installed()
     names = [n for n in plugins(models) if plugin_problem(n) is None]
     names += [n for n in extra if n not in names and all(m[1] != n for m in MODELS)]
@@ -115,7 +114,6 @@ def make_cases(quick: bool = False, models: tuple[str, ...] | None = None) -> li
 
 
 def _scene_for(case: Case, scene_path):
-
     spec = load_scene(scene_path)
     _, name, options, variant = next(m for m in model_rows((case.model.rsplit("/", 1)[0],)) if m[0] == case.model)
     material = spec.material
@@ -160,7 +158,6 @@ def _scene_for(case: Case, scene_path):
 
 def run_case(case: Case, scene_path=DEFAULT_SCENE) -> dict:
     """Build and run one case; never raises for what the case does to the model."""
-
     out = {"model": case.model, "case": case.case, "family": case.family, "value": case.value,
            "outcome": "stable", "reason": "", "detected_at_s": None, "nan_sent": False, "over_limit_sent": False,
            "max_force_n": 0.0, "peak_reversals": 0, "events": {}, "wall_s": 0.0}
@@ -234,7 +231,6 @@ def classify(result, peak: float) -> dict:
 def run_stability(quick: bool = False, scene_path=DEFAULT_SCENE, jobs: int | None = None, scheduler: str | None = None,
                   progress=None, cases: list[Case] | None = None) -> dict:
     """Run the sweep (or the given `cases`) on local processes or a Dask cluster."""
-
     cases = make_cases(quick) if cases is None else cases
     results = run_tasks(_task, [(c, str(scene_path)) for c in cases], jobs=jobs, scheduler=scheduler, progress=progress)
     counts = {k: sum(r["outcome"] == k for r in results) for k in ("stable", "refused", "unstable")}

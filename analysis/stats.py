@@ -95,7 +95,6 @@ WILCOXON = "Wilcoxon signed-rank (statistic: the smaller signed-rank sum)"
 def pairwise_wilcoxon(wide: pd.DataFrame) -> pd.DataFrame:
     """Wilcoxon signed-rank tests between every pair of columns, Holm-adjusted; effect size:
     matched-pairs rank-biserial correlation."""
-
     rows = []
     for a, b in itertools.combinations(wide.columns, 2):
         d = wide[a].to_numpy(float) - wide[b].to_numpy(float)
@@ -251,7 +250,6 @@ def _percent(text: str) -> float:
 def published(path: str | Path) -> dict:
     """Check a published table (columns item, question, model, yes, no, printed_rate): every
     printed rate recomputed from its counts; what aggregated counts allow, and what not."""
-
     path = Path(path)
     rows = read_csv(path, ("item", "question", "model", "yes", "no", "printed_rate"), ("item", "model", "yes", "no", "printed_rate"))
     if not rows:

@@ -154,7 +154,6 @@ def conditions(study: Study) -> list[dict]:
 
 def _material_keys(model: str) -> tuple:
     """The material keys model `model` reads (its declaration); none when it no longer loads."""
-
     try:
         return model_class(model).material_keys
     except ModelLoadError:
@@ -205,7 +204,6 @@ def mcnemar_cell(p: dict) -> str:
 def holm_text(st: dict) -> str:
     """What the reports' p_holm is (`study_stats`' scope): Holm over all N pairwise tests of
     every kind, or within each question."""
-
     if st["holm"] != "family":
         return "Holm within each question"
     pairs = [p for v in st["items"].values() for p in v["pairs"]] + [p for g in family_pairs(st["kinds"]) for p in g]

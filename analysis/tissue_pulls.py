@@ -72,7 +72,6 @@ class Problem:
 
 def build_problem(scene, label: int, mesh: BodyMesh) -> Problem:
     """P2 tetrahedra on a body-fitted hemisphere mesh, clamped like the scene's FEM."""
-
     start = time.perf_counter()
     axis, limit = clamp_limit(scene)
     fixed = mesh.nodes[:, axis] <= limit
@@ -84,7 +83,6 @@ def grasp_matrix(problem: Problem, points: np.ndarray, weights: np.ndarray | Non
     """W (3, n_free): the weighted mean displacement of `points` (weights sum to 1; default
     equal), each located in its containing or nearest tetrahedron and interpolated with the
     element's quadratic shape functions (`sim.models.fem.constraint_matrix`, as `FemModel.grasp`)."""
-
     points = np.atleast_2d(points)
     weights = np.full(len(points), 1.0 / len(points)) if weights is None else np.asarray(weights, dtype=np.float64)
     tet, bary = locate(problem.mesh.nodes, problem.mesh.tets, points)
@@ -94,7 +92,6 @@ def grasp_matrix(problem: Problem, points: np.ndarray, weights: np.ndarray | Non
 def small_strain_factor(problem: Problem, law):
     """The factorised tangent of `law` at rest on the problem (its small-strain limit: linear
     elasticity with mu and lambda = kappa - 2 mu / 3), per pascal of the law's shear modulus."""
-
     unit = law.scaled(1.0 / law.shear_modulus)
     K = FiniteStrain(problem.space, unit, mean_dilatation=False).evaluate(np.zeros(3 * problem.space.n_all))["K"]
     return Factor(K)
@@ -151,7 +148,6 @@ def shipped_solves() -> dict:
 
 
 def _cache_file(key: str) -> Path:
-
     return cache_dir() / "reference" / f"pull-{key}.npz"
 
 
@@ -197,7 +193,6 @@ def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness:
     """Follow the pull (the patch's mean displacement along `direction`) to max(xs), recording
     the force holding it (per pascal of shear modulus, (len(xs), 3), the force on the tissue)
     and, with `stiffness`, the condensed tangent (len(xs), 3, 3) at each x."""
-
     xs = np.asarray(xs, dtype=np.float64)
     if xs.ndim != 1 or len(xs) == 0 or not np.all(np.isfinite(xs)) or np.any(xs <= 0) or np.any(np.diff(xs) <= 0):
         raise ParameterError("displacements: an increasing list of positive lengths (m)")
@@ -322,7 +317,6 @@ def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int 
     every mesh, and the last steps before a solve stops are the slowest). `finer` says what to do
     there: "stored" (a stored skip stands, otherwise solve), "solve", or "skip" (record a skip:
     a solve near where the coarse one stopped can take an hour on the 4 mm mesh)."""
-
     scene = scene_with(scene_path)
     xs = np.asarray(xs, dtype=np.float64)
     sizes = sorted((float(x) for x in sizes_mm), reverse=True)

@@ -33,7 +33,6 @@ from studyctl.truth import TRUTH_SIZES_MM, hand_sets, truth_key, user_truth_path
 def _small_strain(scene, hemis, vertices, labels, sizes_mm, radius, progress) -> tuple[np.ndarray, np.ndarray]:
     """The small-strain compliance per pascal of shear modulus (sizes, n, 3, 3) at `vertices` on
     each mesh, and h (sizes, hemispheres)."""
-
     mesh, law = scene.mesh, scene.spec.material.law
     C = np.zeros((len(sizes_mm), len(vertices), 3, 3))
     hs = np.zeros((len(sizes_mm), len(hemis)))
@@ -57,7 +56,6 @@ def _small_strain(scene, hemis, vertices, labels, sizes_mm, radius, progress) ->
 def _extrapolated_stiffness(C: np.ndarray, hs: np.ndarray) -> tuple[np.ndarray, float, str, float]:
     """K from compliances on the meshes (sizes, 3, 3) with h (sizes,): Richardson on the trace
     with the order observed (none where it cannot be trusted); (K, order, status, gci)."""
-
     conv = converge([np.trace(c) for c in C], hs)
     order = np.argsort(hs)
     Ck = C[order[0]]
@@ -72,7 +70,6 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
     `sizes_mm`, Richardson), the small-strain stiffness at every grasp place (default: within
     10 mm of the hands) and its transfer; with `check`, the transfer's error at the place farthest
     from each hand's vertex, solved directly on the coarsest mesh."""
-
     start = time.perf_counter()
     scene = scene_with(scene_path)
     mesh, law = scene.mesh, scene.spec.material.law
@@ -158,7 +155,6 @@ def json_line(obj) -> str:
 def _check_transfer(scene, pulls, sets, path, vertices, C, refs, sizes_mm, radius, progress) -> list[dict]:
     """Per hand: the place of its set farthest from its vertex, its path solved directly on the
     coarsest mesh, against the transfer of the hand's path on that mesh."""
-
     mesh = scene.mesh
     coarse = 0  # sizes_mm is coarse to fine
     out = []

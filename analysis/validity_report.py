@@ -63,7 +63,6 @@ def _metric_base(name: str) -> str:
 
 
 def _unit(name: str) -> str:
-
     return UNITS.get(_metric_base(name), "")
 
 
@@ -89,7 +88,6 @@ def study_groups(store, protocol) -> tuple[pd.Series, list[str], pd.DataFrame]:
     """Each participant's group (code -> value of the design.groups field), the groups in the
     field's order, and the integer and number fields as a tidy table (code, field, value). Text
     fields are dropped here, before anything else sees them."""
-
     if not protocol.groups or protocol.group_field is None:
         raise NoGroupsError(f"{store.path}: the study has no participant groups (its protocol sets no design.groups naming a "
                             "[fields.NAME] choice); a construct-validity report compares groups")
@@ -115,7 +113,6 @@ def rating_scores(protocol, answers: pd.DataFrame) -> tuple[pd.DataFrame, dict[s
     after each trial), and each instrument's score (SUS, raw NASA-TLX; per condition, or once
     for the session: condition ""). Free-text answers are never read. Returns the table and each
     item's text."""
-
     rows, text = [], {}
     for q in protocol.questions:
         if q.instrument is not None or q.kind not in ("likert", "vas"):
@@ -184,7 +181,6 @@ def validity_report(store, permutations: int = DEFAULT_PERMUTATIONS, bootstrap: 
     adjustment (`p_wy`, analysis.validity.group_tests' n_perm); `bootstrap`: replicates of Cliff's delta's intervals and
     of the learning curves'; `seed`: of every resampling. `progress(done, STEPS)` after each step.
     Raises NoGroupsError for a study without design.groups."""
-
     step = progress or (lambda k, n: None)
     protocol = store.protocol()
     groups, order, fields = study_groups(store, protocol)
@@ -281,7 +277,6 @@ def _records(obj):
 
 def to_json(rep: dict) -> str:
     """The report as JSON (NaN as null); `scores` (every participant's value) included."""
-
     return json.dumps(jsonable(_records(rep)), indent=2) + "\n"
 
 
@@ -461,7 +456,6 @@ def markdown(rep: dict) -> str:
 # ---------------------------------------------------------------- html and its plots
 
 def _png(fig) -> str:
-
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     _plt().close(fig)
@@ -471,7 +465,6 @@ def _png(fig) -> str:
 def metric_figure(rep: dict, metric: str):
     """One metric: per condition, a box plot per group with every participant's score as a point,
     and the groups' learning curves (trial means and the fitted curve)."""
-
     plt = _plt()
     order, conditions = rep["groups"], rep["conditions"]
     colors = {g: OTHER_COLORS[k % len(OTHER_COLORS)] for k, g in enumerate(order)}
@@ -508,7 +501,6 @@ def metric_figure(rep: dict, metric: str):
 def html(rep: dict) -> str:
     """One self-contained HTML file: the sections' tables and, per metric, a figure (box and
     strip plots per group, learning curves) inlined as base64 PNG."""
-
     esc = _html.escape
     parts = [f"<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{esc(title(rep))}</title>\n{STYLE}</head><body>",
              f"<h1>{esc(title(rep))}</h1>"]

@@ -57,7 +57,6 @@ def seed_for(store, code: str, seed: int, session_id: int) -> Seed:
 
 def run_away(task: Seed) -> Bundle:
     """Run the participant's synthetic session in a scratch study; return what it wrote."""
-
     with tempfile.TemporaryDirectory(prefix="studyctl-synth-") as folder:
         db = Path(folder) / task.db_name
         with Store(db, create=True) as scratch, scratch.transaction():
@@ -75,7 +74,6 @@ def store_bundle(store, bundle: Bundle) -> None:
     """Write a bundle into the study: its traces durably, checked against the SHA-256s its rows
     hold, then all its rows in one transaction. A session already stored is refused (a
     participant stored twice would be a bug, never a second sample)."""
-
     if store.rows("select id from sessions where id = ?", (bundle.session_id,)):
         raise StoreError(f"session {bundle.session_id} of {bundle.code} is already in {store.path}; not stored twice")
     named = {}

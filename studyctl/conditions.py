@@ -23,7 +23,6 @@ _SCENES: dict = {}  # (scene file, resolved configuration's hash, device) -> Sce
 def condition_scene_spec(protocol, name: str, spec=None):
     """The scene spec (`sim.scene.SceneSpec`) whose default model is condition `name`; `spec`:
     the protocol's scene, already loaded. Raises SceneError naming the protocol's lines."""
-
     spec = spec if spec is not None else load_scene(protocol.scene)
     table = protocol.condition_tables.get(name)
     if table is None:  # the old form: the scene's own configuration of the model
@@ -35,7 +34,6 @@ def condition_scene_spec(protocol, name: str, spec=None):
 def condition_scene(protocol, condition: str, device: str):
     """The protocol's scene for `condition` (its model as the protocol configures it), with every
     hand on `device` (built once per process, reused)."""
-
     spec = condition_scene_spec(protocol, condition)
     key = (str(protocol.scene), config_sha256(resolved_config(condition, spec)), device)
     if key not in _SCENES:
@@ -46,7 +44,6 @@ def condition_scene(protocol, condition: str, device: str):
 def condition_configs(protocol, names) -> dict[str, dict]:
     """Each condition's fully resolved configuration, stored with the session: exports and
     reports show it, the participant never."""
-
     spec = load_scene(protocol.scene)
     return {c: resolved_config(c, condition_scene_spec(protocol, c, spec)) for c in names}
 
@@ -54,7 +51,6 @@ def condition_configs(protocol, names) -> dict[str, dict]:
 def scene_itself(protocol):
     """The protocol's scene as its file configures it, no condition applied: what the synthetic
     observer's truth (studyctl/truth.py) and the force reference are made for."""
-
     return Scene(load_scene(protocol.scene))
 
 
@@ -70,7 +66,6 @@ def _plain(value):
 
 def resolved_config(name: str, spec) -> dict:
     """What condition `name` runs: the model with every option, the material (JSON-able)."""
-
     m = spec.model_spec()
     material = _plain(spec.material)
     if material.get("law_source") not in (None, "", "inline"):  # the law file's content, as for every other file

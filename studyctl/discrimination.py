@@ -48,7 +48,6 @@ def answer_question(task) -> Question:
 
 def run_task(run, scene, pos: int, model: str, task, status: str) -> None:
     """Every trial of `task` in this condition that is not stored yet, each committed whole."""
-
     store = run.store
     done = store.rows("select trial, delta, correct from discrimination where session_id = ? and model = ? and task = ? order by trial",
                       (run.session_id, model, task.index))
@@ -74,7 +73,6 @@ def run_task(run, scene, pos: int, model: str, task, status: str) -> None:
 def _run_interval(run, scene, model: str, task, trial: int, interval: int, status: str):
     """One interval's pull: the person starts it with a grasp (or SPACE), it lasts the task's
     interval time; a synthetic participant pulls as in its free trials, its motion drawn anew."""
-
     shown = run.shown
     head = f"{status} - comparison {trial + 1} of {task.trials}"
 
@@ -116,7 +114,6 @@ def _feedback(run, correct: bool) -> None:
 def _store_trial(run, pos: int, model: str, task, trial: int, delta: float, comparison_interval: int, answer: int, state: dict,
                  started: str, results: list) -> None:
     """Both traces durably, then the trial's row (the row last: a row means the trial is whole)."""
-
     row = {"session_id": run.session_id, "code": run.code, "model": model, "task": task.index, "trial": trial,
            "reference": task.reference, "delta": delta, "comparison": task.reference * (1.0 + delta),
            "comparison_interval": comparison_interval, "answer": answer, "correct": int(answer == comparison_interval),

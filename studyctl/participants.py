@@ -72,7 +72,6 @@ def withdraw(db, code: str, reason: str = "", dry_run: bool = False) -> dict:
     """A participant withdraws: no further sessions or slots; their pseudonymous data is kept or
     deleted as the protocol's `ethics.withdrawal` says; their contact details are deleted.
     Refused while their session runs (it holds the session lock)."""
-
     with Store(db, mode="read") as store:  # a missing or foreign database, an unknown code: no lock file made
         _person(store, code)
     if dry_run:  # writes nothing, so needs no lock
@@ -87,7 +86,6 @@ def withdraw(db, code: str, reason: str = "", dry_run: bool = False) -> dict:
 
 
 def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
-
     if (problem := control_problem(reason)) is not None:
         raise InputError(f"--reason: {problem}")
     with Store(db) as store:
@@ -151,7 +149,6 @@ def correct_answer(db, code: str, model: str, item: str, answer: str, reason: st
     """Change one stored answer (a value its question's kind allows; `model` empty for one
     asked at the end, `trial` for one asked after every trial), keeping the old value, the
     reason and who did it in `corrections`."""
-
     if not reason.strip():
         raise InputError("--reason: say why the answer is corrected (it is kept in the audit trail)")
     if (problem := control_problem(reason)) is not None:

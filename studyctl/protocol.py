@@ -302,7 +302,6 @@ def _design_conditions(design: dict, tables: dict, c: _Checker) -> list | None:
 def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
     """[[questions]] and [[instruments]] as questions, in file order (instruments' items after
     the questions): a kind, when it is asked, and what the kind needs (docs/study.md)."""
-
     out: list[Question] = []
     seen: dict[str, str] = {}
 
@@ -442,7 +441,6 @@ def _scene_problems(scene: Path, path: Path, text: str, conditions: list, tables
     message'): the scene file's own; then, for a valid scene, each condition's: a model the
     scene does not configure, an option it does not take or out of its range (named at the
     protocol's lines)."""
-
     try:
         spec = load_scene(scene)
     except SceneError as exc:

@@ -25,7 +25,6 @@ def session_trials(store, session_id: int) -> list[dict]:
 
 
 def replay_trial(db, session_id: int, k: int, view: str = "none", frames_dir: Path | None = None, fullscreen: bool = False) -> dict:
-
     with Store(db, mode="read") as store:
         if not store.rows("select id from sessions where id = ?", (session_id,)):
             raise InputError(f"--session: {db}: no session {session_id}")

@@ -35,7 +35,6 @@ SHIPPED = "data/rig_ci.json"
 
 def physics_key(config: dict) -> str:
     """The configuration's hash without the condition's name."""
-
     return config_sha256({k: v for k, v in config.items() if k != "condition"})
 
 
@@ -66,7 +65,6 @@ def measure(protocol, trials: int = 2, progress=None) -> dict:
     """A profile of `protocol`'s conditions on this machine: per condition, `trials` lockstep
     trials (the protocol's trial time, a synthetic pilot's pull) after a 0.5 s warm-up; the
     median and 95th percentile of the deformation time per frame."""
-
     configs = condition_configs(protocol, protocol.conditions)
     rows = []
     for i, c in enumerate(protocol.conditions):
@@ -116,7 +114,6 @@ def store_profile(store, profile: dict, source: str) -> int:
     row per configuration, replacing an older one. Refused when none of its entries is a
     configuration of the study's conditions, and once sessions have run (their synthetic
     participants perceived the profile they had: a new one would change the later participants alone)."""
-
     db = store.path
     protocol = store.protocol()
     if not set(condition_keys(protocol).values()) & {r["key"] for r in profile["conditions"]}:
@@ -136,7 +133,6 @@ def frame_times(protocol, store=None) -> dict[str, dict]:
     from the study's own profile (`store`), else the shipped one. All conditions or none: when
     a profile misses a condition, every condition falls back to the observer's flop model (one
     latency scale for all; a mix would judge conditions on two)."""
-
     keys = condition_keys(protocol)
     known: dict[str, tuple[float, str]] = {}
     if asset(SHIPPED).exists():
@@ -155,7 +151,6 @@ def keep_shipped(store) -> int:
     """Store the shipped profile's rows for the study's conditions with the study in `store` (an
     open studyctl.store.Store, for writing), once, when it has none of its own (so an export
     says which frame times its synthetic sessions used)."""
-
     if store.rows("select 1 from rig_profile limit 1") or not asset(SHIPPED).exists():
         return 0
     keys = set(condition_keys(store.protocol()).values())

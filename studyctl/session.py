@@ -162,7 +162,6 @@ def _discard(store: Store, session_id: int) -> None:
 def _check_participant(store: Store, protocol, code: str, synthetic: bool) -> None:
     """Registered, not withdrawn, not done; a person or synthetic, never both; answers from one
     source; a person has signed the protocol's consent form."""
-
     person = store.rows("select synthetic, withdrawn_at from participants where code = ?", (code,))
     if not person:
         raise StoreError(f"participant {code}: not registered; add with `studyctl participants add`")
@@ -189,7 +188,6 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
                 time_scale: float | None = None, *args, view: str = "none", answer_with: str = "terminal", **kwargs) -> dict:
     """Run (or with `resume`, continue) participant `code`'s session; see `_run_session`. One
     process at a time drives a participant's session (studyctl/lock.py)."""
-
     time_scale = _check_options(device, synthetic, time_scale, view, answer_with)
     with Store(db, mode="read") as store:  # a missing or foreign database, or the wrong participant: no lock file made
         _check_participant(store, store.protocol(), code, synthetic)
@@ -296,7 +294,6 @@ def _open_session(run: _Run, synthetic: bool, resume: bool, seed: int | None, se
     """The participant's running session, resumed (checked: same options, seed and condition
     configurations), or a new one written with its conditions. Sets `run.session_id`; returns
     the participant's condition order and the session's seed."""
-
     store, protocol, code, device, say = run.store, run.protocol, run.code, run.device, run.say
     sessions = store.rows("select * from sessions where code = ? order by id", (code,))
     running = [s for s in sessions if s["status"] in OPEN]
@@ -370,7 +367,6 @@ def _synthetic_answers(run: _Run, seed: int):
 
 def _training(run: _Run) -> None:
     """Free pulling before the first condition (once per session; the experimenter may end it)."""
-
     store, protocol, shown = run.store, run.protocol, run.shown
     if "training_done" in {r["kind"] for r in store.rows("select kind from events where session_id = ?", (run.session_id,))}:
         return
@@ -398,7 +394,6 @@ def _training(run: _Run) -> None:
 def _run_condition(run: _Run, pos: int, model: str, n_cond: int) -> None:
     """One condition: its trials not yet stored (each followed by the per-trial questions),
     what the synthetic observer perceived, then the condition's questions."""
-
     store, protocol, code, session_id = run.store, run.protocol, run.code, run.session_id
     label = run.labels[model]
     status = f"Condition {label} ({pos + 1} of {n_cond})"
@@ -449,7 +444,6 @@ def _loaded(run: _Run, protocol, model: str, status: str):
 def _run_trial(run: _Run, scene, pos: int, model: str, trial: int, status: str) -> None:
     """One trial: the rest screen before it, the run, then its trace and row (the row last: a
     trial row means the trial is complete)."""
-
     protocol, shown = run.protocol, run.shown
     n_trials = protocol.trials_per_condition
     run.say(f"{status[0].lower()}{status[1:]}: trial {trial + 1} of {n_trials}")

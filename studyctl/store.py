@@ -351,7 +351,6 @@ class Store:
         return rows[0]
 
     def protocol(self):
-
         s = self.study()
         return protocol_from_text(s["protocol_text"], s["protocol_path"])
 
@@ -364,7 +363,6 @@ def sha256_file(path: str | Path) -> str:
 
 
 def init_study(db_path: str | Path, protocol_path: str | Path) -> dict:
-
     protocol = load_protocol(protocol_path)
     with Store(db_path, create=True) as store:
         if store.rows("select id from study"):

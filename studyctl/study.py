@@ -41,7 +41,6 @@ def add_participant(db: str | Path, code: str, age=None, name: str | None = None
                     synthetic: bool = False, dry_run: bool = False, fields: dict[str, str] | None = None) -> dict:
     """Register a participant; `fields` their values of the protocol's [fields.NAME] (text as
     given, e.g. {"experience": "resident"}), each checked against its field."""
-
     with Store(db) as store:
         protocol = store.protocol()
         code = _check_code(code, "participant")
@@ -62,7 +61,6 @@ def add_participant(db: str | Path, code: str, age=None, name: str | None = None
 def _insert(store: Store, people: list[dict], identities: list[dict], dry_run: bool, fields: dict | None = None) -> None:
     """Participants, their fields, and their identifying details (kept apart; never exported or
     reported), all or none."""
-
     with store.transaction(dry_run) as conn:
         conn.executemany("insert into participants (code, age, synthetic, created_at) values (:code, :age, :synthetic, :created_at)", people)
         conn.executemany("insert into identities (code, name, contact) values (:code, :name, :contact)", identities)
@@ -73,7 +71,6 @@ def _insert(store: Store, people: list[dict], identities: list[dict], dry_run: b
 def import_participants(db: str | Path, csv_path: str | Path, dry_run: bool = False) -> dict:
     """CSV with a `code` column, then optional `age`, `name`, `contact` and a column per field the
     protocol declares ([fields.NAME]; a required field's column must be there): all rows or none."""
-
     csv_path = Path(csv_path)
     with Store(db) as store:
         protocol = store.protocol()
@@ -102,7 +99,6 @@ def assign_order(store: Store, protocol, code: str) -> list[str]:
     """The participant's condition order: the stored one, else the next Williams row. With
     groups (design.groups), the rows are counted within the participant's group, so that each
     group is balanced on its own."""
-
     row = store.rows("select conditions from schedule where code = ?", (code,))
     if row and row[0]["conditions"]:
         return json.loads(row[0]["conditions"])

@@ -47,7 +47,6 @@ HOLD_MARGIN = 1.0  # s a target-pursuing hand keeps its grasp beyond the movemen
 
 def skill_for(store, protocol, code: str) -> SkillProfile | None:
     """The skill profile of the participant's group (`[synthetic.groups.NAME]`), None without one."""
-
     group = group_of(store, protocol, code) if protocol.skills else None
     return protocol.skills.get(group) if group is not None else None
 
@@ -91,7 +90,6 @@ class SyntheticParticipant:
         """This participant's pulls for one trial, varied per trial and hand: the scene's pull,
         or, for a hand with a target, to the target (beyond it by the overshoot and back) and
         held there, with the skill's tremor, speed and force restraint on this trial."""
-
         rng = random.Random(f"trial:{self.seed}:{self.code}:{model}:{trial}")
         tremor_mm, speed, overshoot = self.skill.at(trial if isinstance(trial, int) else 0) if self.skill else (None, 1.0, 0.0)
         restraint = self.skill.force_restraint if self.skill else 0.0

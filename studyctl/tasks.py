@@ -41,7 +41,6 @@ class DiscriminationTask:
     kind = "discrimination"
 
     def procedure_spec(self):
-
         return ProcedureSpec(method=self.method, rule=self.rule, start=self.start, low=self.low, high=self.high)
 
     def scales(self, delta: float) -> tuple[float, float]:
@@ -55,7 +54,6 @@ DEFAULT = DiscriminationTask(index=0)  # what a [[tasks]] table leaves out
 def check_tasks(data: dict, checker, trial_seconds: float | None) -> list[DiscriminationTask]:
     """The protocol's `[[tasks]]`: each checked, its problems added to `checker` (the protocol's
     `_Checker`: FILE:LINE: field: message), the valid ones returned."""
-
     get, bad = checker.get, checker.bad
     raw = data.get("tasks", [])
     if not isinstance(raw, list):

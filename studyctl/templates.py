@@ -24,7 +24,6 @@ def new_protocol(kind: str, out_dir: str | Path, name: str | None = None) -> dic
     """Write OUT/protocol.toml (the `kind`'s shipped example, renamed `name`) and OUT/scene.toml
     (its scene, the relative paths to the shipped surface, material and model files made
     absolute); check the protocol; never overwrite. Returns what was written."""
-
     if kind not in KINDS:
         raise InputError(f"--kind: {kind!r} is not a kind; allowed: {', '.join(KINDS)}")
     if name is not None and not _NAME.match(name):

@@ -88,7 +88,6 @@ def write_trace(db: str | Path, session_id: int, position: int, trial: int, resu
 
 def read_trace(db: str | Path, rel: str, sha256: str) -> Trace:
     """The stored trace, checked against the SHA-256 its trial row holds."""
-
     path = Path(db).parent / rel
     try:
         data = path.read_bytes()

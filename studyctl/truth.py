@@ -108,7 +108,6 @@ def law_key(law) -> str:
 def truth_key(scene) -> dict:
     """What the table depends on: the surface, the clamp, the law's shape and the grasp radius
     (not its scale, the shear modulus: the forces scale with it)."""
-
     axis, limit = clamp_limit(scene)
     return {"version": TRUTH_VERSION, "digest": mesh_digest(scene.mesh), "clamp_axis": int(axis), "clamp_height": float(limit),
             "law": law_key(scene.spec.material.law), "grasp_radius": grasp_radius(scene)}
@@ -189,6 +188,5 @@ def hand_vertices(scene, radius: float = TRUTH_RADIUS) -> np.ndarray:
 
 def hand_sets(scene, radius: float = TRUTH_RADIUS) -> dict:
     """{hand index: the surface vertices within `radius` of its grasp (same hemisphere)}."""
-
     mesh = scene.mesh
     return {k: patch_vertices(mesh, mesh.nearest_vertex(hand.script(mesh).start), radius) for k, hand in enumerate(scene.spec.hands)}
