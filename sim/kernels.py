@@ -227,9 +227,11 @@ def deformation_gradients(u, tets, grads, F):
 @numba.njit(cache=True)
 def corotated_minus_linear(u, nodes, tets, Ke, R, out):
     """out += sum_e R_e K_e (R_e^T x_e - X_e) - K_e u_e over the given elements, scattered to
-    their dofs: the corotational internal force's change from the linear one (x = X + u)."""
+    their dofs: the corotational internal force's change from the linear one (x = X + u).
+    Returns the energy's change, sum_e 1/2 l_e.K_e l_e - 1/2 u_e.K_e u_e (l = R^T x - X)."""
     local = np.empty(12)
     ue = np.empty(12)
+    energy = 0.0
     for e in range(tets.shape[0]):
         for a in range(4):
             n = tets[e, a]
@@ -257,12 +259,15 @@ def corotated_minus_linear(u, nodes, tets, Ke, R, out):
                 lin0 += Ke[e, r0, c] * uc
                 lin1 += Ke[e, r0 + 1, c] * uc
                 lin2 += Ke[e, r0 + 2, c] * uc
+            energy += 0.5 * (local[r0] * fl0 + local[r0 + 1] * fl1 + local[r0 + 2] * fl2
+                             - ue[r0] * lin0 - ue[r0 + 1] * lin1 - ue[r0 + 2] * lin2)
             n = tets[e, a]
             for i in range(3):
                 out[3 * n + i] += R[e, i, 0] * fl0 + R[e, i, 1] * fl1 + R[e, i, 2] * fl2
             out[3 * n] -= lin0
             out[3 * n + 1] -= lin1
             out[3 * n + 2] -= lin2
+    return energy
 
 
 def warm_up() -> None:

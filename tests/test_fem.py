@@ -197,6 +197,31 @@ def test_corotational_small_pull_matches_linear_and_large_rotation_is_invariant(
     assert np.abs(corotational_internal_force(fem, u_rot, R)).max() < 1e-12 * np.abs(fem.stiffness @ u_rot).max()
 
 
+def test_corotational_force_is_the_gradient_of_its_energy_also_for_inverted_elements(monkeypatch):
+    """The line search's merit: E = sum 1/2 l.K l (l = R^T x - X) has the corotational force as
+    its gradient (central differences), with the polar rotation and with the SVD's for
+    inverted elements; the compiled frame path's energy equals the NumPy one."""
+    import sim.models.fem.corotational as fm
+
+    fem, _, _ = _block_pull((0.008, 0.0, 0.006))
+    rng = np.random.default_rng(5)
+    u = rng.normal(0, 2.5e-3, 3 * len(fem.nodes))  # element edges are 1 cm: some invert
+    state = fm.evaluate(fem, u)
+    assert (state.J <= 0).any() and (state.J > 0).any()
+    probe = rng.normal(size=u.size)
+    h = 1e-8
+    fd = (fm.evaluate(fem, u + h * probe).energy - fm.evaluate(fem, u - h * probe).energy) / (2 * h)
+    assert fd == pytest.approx(float(state.f @ probe), rel=1e-5)
+    elements = np.flatnonzero(state.J < 0.9)
+    part = fm.evaluate(fem, u, elements)
+    assert part.energy == pytest.approx(fm.corotational_energy(fem, u, part.R, elements), rel=1e-12)
+    fd = (fm.evaluate(fem, u + h * probe, elements).energy - fm.evaluate(fem, u - h * probe, elements).energy) / (2 * h)
+    assert fd == pytest.approx(float(part.f @ probe), rel=1e-5)
+    monkeypatch.setattr(fm, "_kernels", lambda: None)
+    numpy_part = fm.evaluate(fem, u, elements)
+    assert numpy_part.energy == pytest.approx(part.energy, rel=1e-12) and np.allclose(numpy_part.f, part.f, rtol=1e-10, atol=1e-12 * np.abs(part.f).max())
+
+
 def test_compiled_corotational_passes_equal_the_numpy_ones(monkeypatch):
     """The compiled rotations and force (a subset of elements, as the haptic frame uses) equal
     the batched NumPy products on a large, rotating displacement."""

@@ -63,16 +63,17 @@ def _svd_rotations(F: np.ndarray) -> np.ndarray:
     return Uf @ Vt
 
 
-def corotational_internal_force(fem: LinearFem, u: np.ndarray, R: np.ndarray, elements: np.ndarray | None = None) -> np.ndarray:
+def corotational_internal_force(fem: LinearFem, u: np.ndarray, R: np.ndarray, elements: np.ndarray | None = None, Ku: np.ndarray | None = None) -> np.ndarray:
     """f = sum_e R_e K_e (R_e^T x_e - X_e): linear elasticity in each element's rotated frame.
 
     With `elements`, only those are corotated (R given for them); the others stay linear,
-    which is what they are when their rotation is negligible.
+    which is what they are when their rotation is negligible. `Ku`: the linear force K u, when
+    the caller has it.
     """
     kernels = _kernels()
     if kernels is not None and elements is not None:  # one compiled pass over the elements
         tets, _, Ke = _element_arrays(fem, elements)
-        out = fem.stiffness @ u
+        out = (fem.stiffness @ u) if Ku is None else Ku.copy()
         kernels.corotated_minus_linear(np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(fem.nodes, dtype=np.float64), tets, Ke, np.ascontiguousarray(R), out)
         return out
     tets = fem.tets if elements is None else fem.tets[elements]
@@ -87,7 +88,7 @@ def corotational_internal_force(fem: LinearFem, u: np.ndarray, R: np.ndarray, el
     if elements is None:
         return np.bincount(dofs.ravel(), weights=fe.ravel(), minlength=n)
     linear = np.einsum("mij,mj->mi", Ke, ue.reshape(-1, 12))
-    return fem.stiffness @ u + np.bincount(dofs.ravel(), weights=(fe.reshape(-1, 12) - linear).ravel(), minlength=n)
+    return ((fem.stiffness @ u) if Ku is None else Ku) + np.bincount(dofs.ravel(), weights=(fe.reshape(-1, 12) - linear).ravel(), minlength=n)
 
 
 def warped_stiffness(fem: LinearFem, R: np.ndarray) -> sp.csr_matrix:
@@ -97,6 +98,24 @@ def warped_stiffness(fem: LinearFem, R: np.ndarray) -> sp.csr_matrix:
     return assemble(Kw.reshape(-1, 12, 12), fem.tets, len(fem.nodes))[fem.free][:, fem.free]
 
 
+def corotational_energy(fem: LinearFem, u: np.ndarray, R: np.ndarray, elements: np.ndarray | None = None, Ku: np.ndarray | None = None) -> float:
+    """E = sum_e 1/2 l_e^T K_e l_e with l_e = R_e^T x_e - X_e: the energy whose gradient is the
+    corotational force (with the polar rotation, or the SVD's for an inverted element, the
+    rotation's derivative adds nothing; McAdams et al. 2011). With `elements`, only those are
+    corotated and the others keep the linear energy, as in `corotational_internal_force`
+    (`Ku` as there)."""
+    tets = fem.tets if elements is None else fem.tets[elements]
+    Ke = fem.element_matrices if elements is None else fem.element_matrices[elements]
+    X = fem.nodes[tets]
+    ue = u[element_dofs(tets)].reshape(-1, 4, 3)
+    local = (np.matmul(X + ue, R) - X).reshape(-1, 12)
+    corot = 0.5 * float(np.einsum("mi,mij,mj->", local, Ke, local, optimize=True))
+    if elements is None:
+        return corot
+    ue = ue.reshape(-1, 12)
+    return 0.5 * float(u @ ((fem.stiffness @ u) if Ku is None else Ku)) + corot - 0.5 * float(np.einsum("mi,mij,mj->", ue, Ke, ue, optimize=True))
+
+
 @dataclass
 class Precond:
     solve: object  # callable: b -> K^-1 b on the free dofs
@@ -104,19 +123,66 @@ class Precond:
     C: np.ndarray  # W K^-1 W^T
 
 
-def corotational_step(fem: LinearFem, W, pre: Precond, u: np.ndarray, lam_mult: np.ndarray, d: np.ndarray, elements=None):
-    """One preconditioned step towards corotational equilibrium with W u = d.
-    Returns (u, lam_mult, relative residual, min det F, rotations)."""
+@dataclass(frozen=True)
+class State:
+    """A corotational state's rotations, det F, internal force (all dofs) and energy: what a
+    step needs at its start, so the line search's accepted trial serves the next step."""
+    u: np.ndarray
+    R: np.ndarray
+    J: np.ndarray
+    f: np.ndarray
+    energy: float
+
+
+def evaluate(fem: LinearFem, u: np.ndarray, elements: np.ndarray | None = None) -> State:
     R, J = element_rotations(fem, u, elements)
-    f_int = corotational_internal_force(fem, u, R, elements)[fem.free]
+    kernels = _kernels()
+    if elements is None or kernels is None:
+        Ku = None if elements is None else fem.stiffness @ u
+        return State(u, R, J, corotational_internal_force(fem, u, R, elements, Ku), corotational_energy(fem, u, R, elements, Ku))
+    # the haptic frame's path: one compiled pass gives the force's and the energy's change
+    tets, _, Ke = _element_arrays(fem, elements)
+    f = fem.stiffness @ u
+    linear = 0.5 * float(u @ f)
+    change = kernels.corotated_minus_linear(np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(fem.nodes, dtype=np.float64), tets, Ke, np.ascontiguousarray(R), f)
+    return State(u, R, J, f, linear + change)
+
+
+MAX_HALVINGS = 8  # the preconditioned step is a descent direction, so some halving decreases
+
+
+def corotational_step(fem: LinearFem, W, pre: Precond, at: State, lam_mult: np.ndarray, d: np.ndarray, elements=None):
+    """One preconditioned step towards corotational equilibrium with W u = d, from the state `at`.
+
+    The step is du = -P (f - W^T lam'), the multiplier lam' chosen so that W du closes the gap:
+    with P symmetric positive definite it descends the Lagrangian E(u) - lam'.(W u - d), which
+    is bounded below. Near an inverted element the rotations turn fast and the full step
+    (which omits their derivative) can overshoot, so it is halved until the Lagrangian
+    decreases (Armijo). Returns (state, lam_mult, relative residual at `at`, min det F at `at`,
+    halvings; -1 when no halving decreased and the state is kept).
+    """
+    free = fem.free
+    f_int = at.f[free]
     r = f_int - (W.T @ lam_mult)
-    gap = W @ u[fem.free] - d
+    gap = W @ at.u[free] - d
     res = max(float(np.linalg.norm(r)) / max(float(np.linalg.norm(f_int)), 1e-30), float(np.linalg.norm(gap)) / max(float(np.linalg.norm(d)), 1e-12))
     Kr = pre.solve(-r)
     dl = np.linalg.solve(pre.C, -gap - W @ Kr)
-    u = u.copy()
-    u[fem.free] += Kr + pre.U @ dl
-    return u, lam_mult + dl, res, float(J.min()), R
+    step = Kr + pre.U @ dl
+    lam_new = lam_mult + dl
+    slope = float((f_int - W.T @ lam_new) @ step)  # < 0: a descent direction
+    base = at.energy - float(lam_new @ gap)
+    alpha = 1.0
+    for halvings in range(MAX_HALVINGS + 1):
+        u = at.u.copy()
+        u[free] += alpha * step
+        trial = evaluate(fem, u, elements)
+        merit = trial.energy - float(lam_new @ (W @ u[free] - d))
+        # near convergence the decrease falls below the energy's round-off: accept within that
+        if math.isfinite(merit) and merit <= base + 1e-4 * alpha * slope + 1e-12 * abs(base):
+            return trial, lam_mult + alpha * dl, res, float(at.J.min()), halvings
+        alpha *= 0.5
+    return at, lam_mult, res, float(at.J.min()), -1
 
 
 def corotational_solve(fem: LinearFem, W, U: np.ndarray, target: np.ndarray, steps: int = 5, tol: float = 1e-7, max_iter: int = 100):
@@ -136,21 +202,24 @@ def corotational_solve(fem: LinearFem, W, U: np.ndarray, target: np.ndarray, ste
     report = NewtonReport(load_steps=steps)
     Wt = np.ascontiguousarray(W.T.toarray())
     report.completed_steps = 0
+    at = evaluate(fem, u)
     for step in range(1, steps + 1):
         d = np.asarray(target, dtype=np.float64) * step / steps
         hist: list[float] = []
-        good = (u, lam_mult)
+        good = (at, lam_mult)
         for _ in range(max_iter):
-            u, lam_mult, res, jmin, R = corotational_step(fem, W, pre, u, lam_mult, d)
+            R = at.R
+            at, lam_mult, res, jmin, _ = corotational_step(fem, W, pre, at, lam_mult, d)
             report.min_jacobian = min(report.min_jacobian, jmin)
             hist.append(res)
-            if not math.isfinite(res) or jmin <= 0 or res > 1e3 * min(hist):
-                # diverging (or an element turned inside out): return the state before this load step
-                u, lam_mult = good
+            if not math.isfinite(res) or res > 1e3 * min(hist):
+                # diverging: return the state before this load step (an inverted element is not
+                # a failure: its rotation is the SVD's, Irving et al. 2004, and min det F is reported)
+                at, lam_mult = good
                 report.converged = False
                 report.iterations.append(len(hist))
                 report.residuals.append(hist)
-                return u.reshape(-1, 3), lam_mult, report
+                return at.u.reshape(-1, 3), lam_mult, report
             if len(hist) > 1 and res < tol:
                 break
             if len(hist) >= 5 and hist[-1] > 0.5 * hist[-5]:
@@ -164,7 +233,7 @@ def corotational_solve(fem: LinearFem, W, U: np.ndarray, target: np.ndarray, ste
             report.completed_steps = step
         report.iterations.append(len(hist))
         report.residuals.append(hist)
-    return u.reshape(-1, 3), lam_mult, report
+    return at.u.reshape(-1, 3), lam_mult, report
 
 
 

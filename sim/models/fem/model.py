@@ -21,7 +21,7 @@ import scipy.sparse as sp
 from sim.errors import ParameterError
 from sim.laws import Linearised, PairTable
 from sim.models.builtin import FemBase, FemOptions
-from sim.models.fem.corotational import Precond, corotational_step, warped_active
+from sim.models.fem.corotational import Precond, corotational_step, evaluate, warped_active
 from sim.models.fem.grasp import condense, constraint_matrix, symmetric_inverse
 from sim.models.fem.linear import LinearFem
 from sim.patch import GRASP_RADIUS, patch_area_points
@@ -126,6 +126,7 @@ class FemModel(FemBase):
         self.inverted_frames = 0  # frames in which an element was inverted (det F <= 0)
         self.tangent_updates = 0  # warped-stiffness refactorisations
         self.restarts = 0  # corotational iterations that diverged and restarted from linear
+        self.halvings = 0  # corotational steps halved by the line search (near inverted elements)
         # a corotational iteration that runs away (measured on held-out bench pulls: elements
         # invert near 20 mm and the force then grows to 1e4 N within a few frames) is caught when
         # its force exceeds COROT_FORCE_LIMIT times the linear force for the same grasp; the servo
@@ -159,7 +160,7 @@ class FemModel(FemBase):
         out = copy.copy(self)
         out.parts = [p.scaled(scale) for p in self.parts]
         out._pair_of, out._corot, out._out, out._grasps, out._pending = None, {}, np.zeros_like(self._out), {}, ("zero",)
-        out.inverted_frames = out.tangent_updates = out.restarts = 0
+        out.inverted_frames = out.tangent_updates = out.restarts = out.halvings = 0
         out.unstable, out.frame_flops = False, math.nan
         return out
 
@@ -184,6 +185,7 @@ class FemModel(FemBase):
             "inverted_frames": self.inverted_frames,
             "tangent_updates": self.tangent_updates,
             "restarts": self.restarts,
+            "halvings": self.halvings,
             "unstable": self.unstable,
         }
 
@@ -353,9 +355,15 @@ class FemModel(FemBase):
                 if mag.max() > 1e-6:
                     state["active"] = np.flatnonzero((mag > 0.05 * mag.max())[fem.tets].any(axis=1))
             if len(state["active"]):
-                u, lam, res, jmin, R = corotational_step(fem, W, state["pre"], state["u"], state["lam"], d, state["active"])
-                # approximate count: rotation and 12x12 product per active element, two solves
-                self.frame_flops += 600 * len(state["active"]) + 8 * fem.factor.nnz_L
+                at = state.get("at")
+                if at is None or at.u is not state["u"]:
+                    at = evaluate(fem, state["u"], state["active"])
+                at_new, lam, res, jmin, halvings = corotational_step(fem, W, state["pre"], at, state["lam"], d, state["active"])
+                u, R = at_new.u, at.R
+                # approximate count: rotation, energy and 12x12 product per active element and
+                # line-search trial, two solves
+                self.frame_flops += 700 * len(state["active"]) * (1 + max(halvings, 0)) + 8 * fem.factor.nnz_L
+                self.halvings += max(halvings, 0)
                 if jmin <= 0:
                     self.inverted_frames += 1
                 if not (res < 1.0 and np.all(np.isfinite(u))):  # diverged: restart from linear with a fresh tangent
@@ -363,6 +371,9 @@ class FemModel(FemBase):
                     u, lam = state["u"], state["lam"]
                     self.restarts += 1
                 else:
+                    state["at"] = at_new
+                    if halvings != 0:  # the tangent has aged past a full step: refresh it now
+                        state["since"] = max(state["since"], 3)
                     hist = (state["hist"] + [res])[-6:]
                     state["since"] += 1
                     # far from equilibrium (the hand moves, or the preconditioner has aged) and no
