@@ -1,7 +1,8 @@
 """Run the benchmarks: `python -m bench` (all) or `python -m bench plate_spring servo 10`
 (a number is an argument for the benchmark before it: seconds, for servo; `--json` makes
 each benchmark print only JSON with stable keys, one object per benchmark). `fem_static` (the
-tissue's law solved statically on the accuracy bench's pulls, about 15 min) runs only when named."""
+tissue's law solved statically on the accuracy bench's pulls, about 15 min) and
+`fem_quasi_newton` (a real-time method tried for that law, about 5 min) run only when named."""
 
 import importlib
 import sys

@@ -42,3 +42,35 @@ def test_scene_budgets_time_the_scene_configuration_against_the_contract(capsys)
     assert out["frame_ms_p99.ratio_to_target"] == out["frame_ms_p99"] / BUDGETS["deformation_ms_p99"]
     assert out["options"]["variant"] == "continuous"  # the scene's own configuration
     assert "plate_spring (scene configuration) frame" in capsys.readouterr().out
+
+
+def test_quasi_newton_frames_reach_the_converged_element_when_given_the_iterations():
+    """`python -m bench fem_quasi_newton`'s frame iteration (L-BFGS on the rest factor with a
+    line search) on a small nearly incompressible block: with enough iterations a frame it
+    reaches the force of the same element solved by Newton (an independent solver), and with
+    one a frame it trails it; its JSON keys are flat."""
+    from bench.fem_quasi_newton import _frames, flat
+    from sim.hyperelastic import neo_hookean
+    from sim.linalg import Factor
+    from sim.models.fem import TetSpace, constraint_matrix, hold
+    from sim.models.fem.nodal_pressure import NodalPressure
+    from sim.volume import grid_tets, locate
+
+    nodes, tets = grid_tets(np.ones((3, 3, 3), bool), np.zeros(3), 0.01)
+    space = TetSpace(nodes, tets, nodes[:, 2] < 1e-12, order=1)
+    system = NodalPressure(space, neo_hookean(1000.0, 50.0))
+    top = int(np.argmin(np.linalg.norm(nodes - (0.015, 0.015, 0.03), axis=1)))
+    tet, bary = locate(nodes, tets, nodes[[top]])
+    W = constraint_matrix(space, tet, bary, np.array([1.0])).tocsr()
+    factor = Factor(system.evaluate(np.zeros(3 * space.n_all))["K"])
+    U = factor.solve(np.ascontiguousarray(W.T.toarray()))
+    Ci = np.linalg.inv(W @ U)
+    direction, xs = np.array([1.0, 0.0, 0.0]), np.array([0.003, 0.006, 0.009])
+    static = np.linalg.norm(hold(system, W, direction * xs[-1], fractions=xs / xs[-1]).forces, axis=1)
+    many = _frames(system, factor, W, U, Ci, direction, xs, 4, 12, 8)
+    assert np.allclose(many["forces"], static, rtol=1e-3)
+    one = _frames(system, factor, W, U, Ci, direction, xs, 4, 1, 8)
+    assert np.abs(np.asarray(one["forces"]) / static - 1).max() > 3 * np.abs(np.asarray(many["forces"]) / static - 1).max()
+    out = {"budget_ms": 33.0, "pulls": {"p": {"settings": {"1it-m8": one | {"error": [0.1, -0.2]}}}}}
+    keys = flat(out)
+    assert keys["fem_quasi_newton.p.1it-m8.max_abs_error"] == 0.2 and all(isinstance(v, float) for v in keys.values())
