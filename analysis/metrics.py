@@ -5,7 +5,7 @@ definition and source are in `METRICS` (and docs/metrics.md, which a test keeps 
 - `Goal`: what the task asks of a hand (a pull target, its tolerance and hold time, a safe force
   limit); outcome metrics and the time and impulse above the limit need one, the rest do not;
 - `trial_metrics(trace, goals)`: one trace's metrics as rows ``hand, metric, value``;
-- `metrics_table(store, goals)`: every stored trial's, tidy (`COLUMNS`): one row per participant,
+- `metrics_table(study, goals)`: every stored trial's, tidy (`COLUMNS`): one row per participant,
   condition, trial, hand and metric (bimanual metrics: hand "both").
 
 The movement of a hand is its grasp: from the first tick its button is held to the last (the
@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from analysis import kinematics as kin
+from analysis.study import Study
 from sim.scene import build_scene
 from sim.targets import SAFE_FORCE_N
 from studyctl.traces import read_trace
@@ -199,23 +200,21 @@ def scene_goals(scene) -> dict[str, Goal]:
     return out
 
 
-def study_goals(store) -> dict[str, Goal]:
+def study_goals(study: Study) -> dict[str, Goal]:
     """The goals of a study's task: its protocol's scene's targets (every condition runs that scene)."""
-    return scene_goals(build_scene(store.protocol().scene))
+    return scene_goals(build_scene(study.protocol.scene))
 
 
-def metrics_table(store, goals: Goal | Mapping[str, Goal] | None = None) -> pd.DataFrame:
-    """Every stored trial's metrics (an open studyctl.store.Store), tidy in `COLUMNS`. The
-    condition is the protocol's name for it (as in every report); `trial` the stored 0-based index.
-    A trial run again in a later session of the same participant: the later one counts."""
-    rows = store.rows(
-        "select s.code, p.synthetic, t.model, t.trial, t.session_id, t.trace_path, t.trace_sha256 from trials t "
-        "join sessions s on s.id = t.session_id join participants p on p.code = s.code "
-        "where t.trace_path is not null order by s.code, t.model, t.trial, t.session_id")
+def metrics_table(study: Study, goals: Goal | Mapping[str, Goal] | None = None) -> pd.DataFrame:
+    """Every stored trial's metrics (the study's traced trials, their traces read from beside its
+    database), tidy in `COLUMNS`. The condition is the protocol's name for it (as in every
+    report); `trial` the stored 0-based index. A trial run again in a later session of the same
+    participant: the later one counts."""
+    rows = study.traced_trials.to_dict(orient="records")
     latest = {(r["code"], r["model"], r["trial"]): r for r in rows}  # ordered by session: the last wins
     out = []
     for r in latest.values():
-        trace = read_trace(store.path, r["trace_path"], r["trace_sha256"])
+        trace = read_trace(study.path, r["trace_path"], r["trace_sha256"])
         key = {"code": r["code"], "synthetic": bool(r["synthetic"]), "condition": r["model"], "trial": int(r["trial"])}
         out += [key | m | {"unit": UNITS[m["metric"]]} for m in trial_metrics(trace, goals)]
     return pd.DataFrame(out, columns=COLUMNS)

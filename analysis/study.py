@@ -1,9 +1,10 @@
 """A study database read once: everything the analyses use, as an immutable snapshot.
 
 `read_study(store)` reads it from an open `studyctl.store.Store` (the caller opens and closes
-it: `with Store(path, mode="read") as store: study = read_study(store)`); every function of
-analysis/table1.py, stats.py, kinds.py and report.py that looks at a study takes the `Study`,
-so a report reads the database once and never opens it itself. The snapshot's tables are
+it: `with Store(path, mode="read") as store: study = read_study(store)`); every report takes
+the `Study` (Table 1, the statistics, the JND, construct validity, the performance metrics),
+so a report reads the database once and never opens it itself; only the trace files of the
+traced trials are read later, from beside `path`. The snapshot's tables are
 never changed by the analyses (each works on copies).
 """
 
@@ -11,8 +12,12 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from pathlib import Path
 
 import pandas as pd
+
+from studyctl.store import snapshot
+from studyctl.store.participant_fields import read_fields
 
 SYNTHETIC_FLAG = "SYNTHETIC DATA (simulated participants): not evidence about people."
 
@@ -41,7 +46,12 @@ class Study:
     - `latency_trials`: every trial's deformation time: ``model, value``;
     - `configurations`: what each condition ran: ``condition, config, config_sha256, sessions``;
     - `discrimination`: every discrimination trial: ``code, model, task, trial, delta, comparison_interval,
-      answer, correct, state (the procedure's, JSON), source``, and `traits` every synthetic participant's generating traits: ``code, trait, value``.
+      answer, correct, state (the procedure's, JSON), source``, and `traits` every synthetic participant's generating traits: ``code, trait, value``;
+    - `path`: the database file (trace paths are relative to its folder);
+    - `synthetic_codes`: the codes registered as synthetic or with a synthetic answer;
+    - `fields`: every participant's protocol fields, typed by their kind: ``code, field, value``;
+    - `traced_trials`: every trial with a stored trace: ``code, synthetic, model, trial, session_id,
+      trace_path, trace_sha256``.
     """
 
     protocol: object
@@ -55,36 +65,37 @@ class Study:
     configurations: pd.DataFrame
     discrimination: pd.DataFrame
     traits: pd.DataFrame
+    path: Path
+    synthetic_codes: tuple[str, ...]
+    fields: pd.DataFrame
+    traced_trials: pd.DataFrame
 
 
 def read_study(store) -> Study:
     """The snapshot of the study in `store` (an open studyctl.store.Store), read in one go."""
-    con = store.db.conn
-
-    def query(sql: str) -> pd.DataFrame:
-        return pd.read_sql_query(sql, con)
-
     # counted from the answers' own source, not from a participant flag that could drift
-    synthetic = con.execute("select count(distinct code) from answers where source = 'synthetic'").fetchone()[0]
-    persons = con.execute("select count(distinct code) from answers where source != 'synthetic'").fetchone()[0]
-    mixed = tuple(r[0] for r in con.execute(
-        "select code from answers group by code having sum(source = 'synthetic') > 0 and sum(source != 'synthetic') > 0 order by code"))
-    orders = pd.concat([query("select code, conditions from sessions order by id"), query("select code, conditions from schedule")])
+    synthetic = snapshot.synthetic_count(store)
+    persons = snapshot.person_count(store)
+    mixed = snapshot.mixed_source_codes(store)
+    orders = snapshot.condition_orders(store)
+    protocol = store.protocol()
+    fields = [{"code": code, "field": k, "value": v} for code, values in read_fields(store, protocol).items() for k, v in values.items()]
     return Study(
-        protocol=store.protocol(),
-        answers=query("select code, model, item, trial, answer from answers"),
+        protocol=protocol,
+        answers=snapshot.answers(store),
         synthetic_participants=synthetic,
         person_participants=persons,
         mixed_source_participants=mixed,
         periods=_periods(orders),
-        latency=query("select s.code, l.model, avg(l.value) as value, count(*) as trials from latency l join sessions s on s.id = l.session_id "
-                      "where l.measure = 'deformation_ms' group by s.code, l.model"),
-        latency_trials=query("select model, value from latency where measure = 'deformation_ms'"),
-        configurations=query("select model as condition, config, config_sha256, count(distinct session_id) as sessions "
-                             "from conditions group by model, config_sha256 order by min(session_id)"),
-        discrimination=query("select code, model, task, trial, delta, comparison_interval, answer, correct, state, source from discrimination "
-                             "order by code, model, task, trial"),
-        traits=query("select code, trait, value from synthetic_traits order by code, trait"),
+        latency=snapshot.latency(store),
+        latency_trials=snapshot.latency_trials(store),
+        configurations=snapshot.configurations(store),
+        discrimination=snapshot.discrimination(store),
+        traits=snapshot.traits(store),
+        path=store.path,
+        synthetic_codes=snapshot.synthetic_codes(store),
+        fields=pd.DataFrame(fields, columns=["code", "field", "value"], dtype=object),
+        traced_trials=snapshot.traced_trials(store),
     )
 
 

@@ -2,7 +2,7 @@
 performance metrics (analysis/metrics.py) compared between its participant groups with
 analysis/validity.py, beside its face-validity ratings per group.
 
-`validity_report(store, ...)` reads one open studyctl.store.Store and returns a dict of tidy
+`validity_report(study, ...)` reads one study snapshot (analysis/study.py) and returns a dict of tidy
 DataFrames and numbers; `markdown`, `html` and `to_json` render it. The groups are each
 participant's value of the protocol's `design.groups` field, in the field's order; the most
 expert group is its last value. Participant fields of kind `text` are never read; integer and
@@ -26,11 +26,10 @@ from analysis.metrics import UNITS, metrics_table, study_goals
 from analysis.plots import OTHER_COLORS, _plt
 from analysis.report import STYLE
 from analysis.stats import holm
-from analysis.study import data_flag
+from analysis.study import Study, data_flag
 from sim.jsonable import jsonable
 from studyctl import instruments
 from studyctl.errors import StudyError
-from studyctl.fields import read_fields
 
 DEFAULT_PERMUTATIONS = 100
 DEFAULT_GROUP_PERMUTATIONS = 1000  # the group tests' Westfall-Young adjustment: ~0.1 s for 30 participants x 20 metrics
@@ -84,25 +83,23 @@ def _describe(x: np.ndarray) -> dict:
 
 # ---------------------------------------------------------------- reading
 
-def study_groups(store, protocol) -> tuple[pd.Series, list[str], pd.DataFrame]:
+def study_groups(study: Study) -> tuple[pd.Series, list[str], pd.DataFrame]:
     """Each participant's group (code -> value of the design.groups field), the groups in the
     field's order, and the integer and number fields as a tidy table (code, field, value). Text
     fields are dropped here, before anything else sees them."""
+    protocol = study.protocol
     if not protocol.groups or protocol.group_field is None:
-        raise NoGroupsError(f"{store.path}: the study has no participant groups (its protocol sets no design.groups naming a "
+        raise NoGroupsError(f"{study.path}: the study has no participant groups (its protocol sets no design.groups naming a "
                             "[fields.NAME] choice); a construct-validity report compares groups")
     field = protocol.group_field
     numeric = {f.name for f in protocol.fields if f.kind in ("integer", "number") and f.name != field.name}
     groups, rows = {}, []
-    for code, values in read_fields(store, protocol).items():
+    for code, stored in study.fields.groupby("code", sort=False):
+        values = dict(zip(stored["field"], stored["value"]))
         if values.get(field.name) is not None:
             groups[code] = str(values[field.name])
         rows += [{"code": code, "field": k, "value": float(x)} for k, x in values.items() if k in numeric and x is not None]
     return pd.Series(groups, dtype=object), list(field.values), pd.DataFrame(rows, columns=["code", "field", "value"])
-
-
-def _answers(store) -> pd.DataFrame:
-    return pd.read_sql_query("select code, model, item, trial, answer, source from answers", store.db.conn)
 
 
 # ---------------------------------------------------------------- face validity
@@ -173,22 +170,21 @@ def _with_wy(columns: list[str]) -> list[str]:
     return columns[:i] + ["p_wy"] + columns[i:]
 
 
-def validity_report(store, permutations: int = DEFAULT_PERMUTATIONS, bootstrap: int = DEFAULT_BOOTSTRAP, seed: int = 0,
+def validity_report(study: Study, permutations: int = DEFAULT_PERMUTATIONS, bootstrap: int = DEFAULT_BOOTSTRAP, seed: int = 0,
                     progress: Callable[[int, int], None] | None = None,
                     group_permutations: int = DEFAULT_GROUP_PERMUTATIONS) -> dict:
-    """The construct-validity report of the study in `store` (an open Store). `permutations`:
+    """The construct-validity report of `study` (analysis/study.py's snapshot). `permutations`:
     of the classifier's permutation test; `group_permutations`: of the group tests' Westfall-Young
     adjustment (`p_wy`, analysis.validity.group_tests' n_perm); `bootstrap`: replicates of Cliff's delta's intervals and
     of the learning curves'; `seed`: of every resampling. `progress(done, STEPS)` after each step.
     Raises NoGroupsError for a study without design.groups."""
     step = progress or (lambda k, n: None)
-    protocol = store.protocol()
-    groups, order, fields = study_groups(store, protocol)
+    protocol = study.protocol
+    groups, order, fields = study_groups(study)
     expert = order[-1]
-    synthetic_codes = {r["code"] for r in store.rows("select code from participants where synthetic")}
-    answers = _answers(store)
-    synthetic_codes |= set(answers.loc[answers["source"] == "synthetic", "code"])
-    metrics = metrics_table(store, study_goals(store))
+    synthetic_codes = set(study.synthetic_codes)
+    answers = study.answers
+    metrics = metrics_table(study, study_goals(study))
     step(1, STEPS)
     synthetic_codes |= set(metrics.loc[metrics["synthetic"].astype(bool), "code"])
     measured = set(metrics["code"])

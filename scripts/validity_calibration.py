@@ -53,8 +53,8 @@ def identical_groups(text: str, like: str = "resident") -> str:
 def run_pool(protocol_text: str, participants: int, seed: int, jobs: int, where: Path) -> tuple[pd.DataFrame, pd.Series]:
     """Participant scores (analysis.validity.participant_scores) and groups of a synthetic study."""
     from analysis.metrics import metrics_table, study_goals
+    from analysis.study import read_study
     from analysis.validity import participant_scores
-    from studyctl.fields import read_fields
     from studyctl.store import Store
 
     path = where / "protocol.toml"
@@ -63,9 +63,10 @@ def run_pool(protocol_text: str, participants: int, seed: int, jobs: int, where:
     subprocess.run([sys.executable, "-m", "studyctl", "synth", "--protocol", str(path), "--participants", str(participants),
                     "--seed", str(seed), "--jobs", str(jobs), "--db", str(db)], check=True, stdout=subprocess.DEVNULL)
     with Store(db, mode="read") as store:
-        protocol = store.protocol()
-        table = metrics_table(store, study_goals(store))
-        groups = pd.Series({c: v[protocol.groups] for c, v in read_fields(store, protocol).items()})
+        study = read_study(store)
+    table = metrics_table(study, study_goals(study))
+    fields = study.fields[study.fields["field"] == study.protocol.groups]
+    groups = pd.Series(dict(zip(fields["code"], fields["value"])))
     return participant_scores(table), groups
 
 

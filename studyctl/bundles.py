@@ -20,6 +20,8 @@ from pathlib import Path
 from studyctl.errors import StoreError
 from studyctl.session import run_session
 from studyctl.store import Store
+from studyctl.store.tables import table_rows
+from studyctl.store.trials import session_exists
 from studyctl.traces import trace_dir, write_durably
 
 SEEDED = ("study", "rig_profile")  # the study's rows a synthetic session reads
@@ -50,8 +52,8 @@ class Bundle:
 
 
 def seed_for(store, code: str, seed: int, session_id: int) -> Seed:
-    rows = {t: store.rows(f"select * from [{t}]") for t in SEEDED}
-    rows |= {t: store.rows(f"select * from [{t}] where code = ?", (code,)) for t in OWN}
+    rows = {t: table_rows(store, t) for t in SEEDED}
+    rows |= {t: table_rows(store, t, code) for t in OWN}
     return Seed(store.path.name, code, seed, session_id, rows)
 
 
@@ -64,7 +66,7 @@ def run_away(task: Seed) -> Bundle:
                 scratch.db[table].insert_all(rows)
         run_session(db, task.code, synthetic=True, seed=task.seed, time_scale=0.0, session_id=task.session_id)
         with Store(db, mode="read") as scratch:
-            tables = {t: scratch.rows(f"select * from [{t}]") for t in scratch.db.table_names()
+            tables = {t: table_rows(scratch, t) for t in scratch.db.table_names()
                       if t not in ("meta", *SEEDED, *OWN)}
         traces = {str(p.relative_to(db.parent)): p.read_bytes() for p in sorted(trace_dir(db).rglob("*.npz"))}
     return Bundle(task.code, task.session_id, {t: rows for t, rows in tables.items() if rows}, traces)
@@ -74,7 +76,7 @@ def store_bundle(store, bundle: Bundle) -> None:
     """Write a bundle into the study: its traces durably, checked against the SHA-256s its rows
     hold, then all its rows in one transaction. A session already stored is refused (a
     participant stored twice would be a bug, never a second sample)."""
-    if store.rows("select id from sessions where id = ?", (bundle.session_id,)):
+    if session_exists(store, bundle.session_id):
         raise StoreError(f"session {bundle.session_id} of {bundle.code} is already in {store.path}; not stored twice")
     named = {}
     for table in ("trials", "discrimination"):

@@ -20,6 +20,7 @@ from sim.run import Pacing, run_scene
 from studyctl.procedures import replay
 from studyctl.questions import Question
 from studyctl.store import dumps, now
+from studyctl.store.trials import discrimination_done
 from studyctl.traces import write_trace
 
 INTERVALS = ("1", "2")
@@ -49,8 +50,7 @@ def answer_question(task) -> Question:
 def run_task(run, scene, pos: int, model: str, task, status: str) -> None:
     """Every trial of `task` in this condition that is not stored yet, each committed whole."""
     store = run.store
-    done = store.rows("select trial, delta, correct from discrimination where session_id = ? and model = ? and task = ? order by trial",
-                      (run.session_id, model, task.index))
+    done = discrimination_done(store, run.session_id, model, task.index)
     procedure = replay(task.procedure_spec(), [(r["delta"], bool(r["correct"])) for r in done])
     for trial in range(len(done), task.trials):
         delta = float(procedure.next_stimulus())

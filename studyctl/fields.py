@@ -182,27 +182,6 @@ def field_rows(code: str, values: dict[str, object]) -> list[dict]:
     return [{"code": code, "field": k, "value": v} for k, v in values.items()]
 
 
-def read_fields(store, protocol) -> dict[str, dict[str, object]]:
-    """code -> {field: value}, each typed by the protocol's field kind."""
-    rows = store.rows("select code, field, value from participant_fields order by code, field")
-    out: dict[str, dict[str, object]] = {}
-    for r in rows:
-        f = protocol.field_named(r["field"])
-        v = r["value"]
-        if f is not None and v is not None:
-            v = int(v) if f.kind == "integer" else float(v) if f.kind == "number" else str(v)
-        out.setdefault(r["code"], {})[r["field"]] = v
-    return out
-
-
-def group_of(store, protocol, code: str) -> str | None:
-    """The participant's group (their value of the design.groups field), None without groups."""
-    if not protocol.groups:
-        return None
-    rows = store.rows("select value from participant_fields where code = ? and field = ?", (code, protocol.groups))
-    return str(rows[0]["value"]) if rows else None
-
-
 def synthetic_fields(protocol, codes: list[str], seed: int, start: int = 0) -> dict[str, dict[str, object]]:
     """Field values of synthetic participants: the group field's values in turn (balanced:
     the k-th synthetic participant of the study is in group k mod the number of groups; `start`

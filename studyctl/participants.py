@@ -17,17 +17,18 @@ from pathlib import Path
 from studyctl.errors import InputError, StoreError
 from studyctl.lock import session_lock
 from studyctl.questions import shown
-from studyctl.store import Store, now
+from studyctl.store import Store, now, records
+from studyctl.store.participant_fields import read_fields
 from studyctl.study import answer_key
 from studyctl.text import control_problem, spreadsheet_safe
 from studyctl.traces import trace_dir
 
 
 def _person(store: Store, code: str) -> dict:
-    rows = store.rows("select * from participants where code = ?", (code,))
-    if not rows:
+    p = records.person(store, code)
+    if p is None:
         raise InputError(f"participant {code}: not registered")
-    return rows[0]
+    return p
 
 
 def record_consent(db, code: str, given_on: str | None = None, version: str | None = None, dry_run: bool = False) -> dict:
@@ -51,21 +52,18 @@ def record_consent(db, code: str, given_on: str | None = None, version: str | No
         created = dt.date.fromisoformat(store.study()["created_at"][:10])
         if day < created - dt.timedelta(days=366):
             raise InputError(f"--date: {day} is more than a year before the study was created ({created})")
-        earlier = store.rows("select given_on, version from consent where code = ?", (code,))
+        earlier = records.consent_rows(store, code)
         if earlier:
             raise InputError(f"participant {code}: consent form {earlier[0]['version']} already recorded, signed {earlier[0]['given_on']}")
         row = {"code": code, "version": version, "given_on": day.isoformat(), "recorded_at": now(), "recorded_by": getpass.getuser()}
 
         with store.transaction(dry_run) as conn:
-            conn.execute("insert or replace into consent (code, version, given_on, recorded_at, recorded_by) values (?, ?, ?, ?, ?)",
-                         tuple(row.values()))
-            conn.execute("insert into events (session_id, at, kind, detail) values (null, ?, 'consent', ?)",
-                         (now(), f"{code}: consent form {version} signed {day}"))
+            records.record_consent(conn, row, f"{code}: consent form {version} signed {day}")
         return {**row, "dry_run": dry_run}
 
 
 def has_consent(store: Store, code: str, version: str) -> bool:
-    return bool(store.rows("select code from consent where code = ? and version = ?", (code, version)))
+    return records.has_consent(store, code, version)
 
 
 def withdraw(db, code: str, reason: str = "", dry_run: bool = False) -> dict:
@@ -93,32 +91,15 @@ def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
         p = _person(store, code)
         if p["withdrawn_at"]:
             raise InputError(f"participant {code}: already withdrew on {p['withdrawn_at'][:10]}")
-        sessions = [r["id"] for r in store.rows("select id from sessions where code = ?", (code,))]
-        traces = [r["trace_path"] for r in store.rows(
-            "select trace_path from trials where trace_path is not null and session_id in (select id from sessions where code = ?)", (code,))]
-        counts = {t: store.rows(f"select count(*) as n from {t} where code = ?", (code,))[0]["n"] for t in ("answers", "sessions")}
+        sessions = records.session_ids(store, code)
+        traces = records.trace_paths(store, code)
+        counts = records.data_counts(store, code)
         delete = protocol.withdrawal == "delete"
 
         with store.transaction(dry_run) as conn:
-            ids = ",".join(str(i) for i in sessions) or "null"
-            if delete:
-                for table in ("latency", "trials", "conditions"):
-                    conn.execute(f"delete from {table} where session_id in ({ids})")
-                conn.execute(f"delete from events where session_id in ({ids})")
-                conn.execute("delete from answers where code = ?", (code,))
-                conn.execute("delete from corrections where code = ?", (code,))
-                conn.execute("delete from observer_features where code = ?", (code,))
-                conn.execute("delete from participant_fields where code = ?", (code,))
-                conn.execute("delete from sessions where code = ?", (code,))
-            else:  # an interrupted session will not be resumed
-                conn.execute("update sessions set status = 'withdrawn' where code = ? and status in ('running', 'interrupted')", (code,))
-            conn.execute("delete from schedule where code = ?", (code,))
-            conn.execute("delete from identities where code = ?", (code,))
-            conn.execute("update participants set withdrawn_at = ?, withdrawal = ? where code = ?",
-                         (now(), "deleted" if delete else "kept", code))
-            conn.execute("insert into events (session_id, at, kind, detail) values (null, ?, 'withdrawn', ?)",
-                         (now(), f"{code}: data {'deleted' if delete else 'kept'} ({protocol.withdrawal} in the protocol)"
-                                 + (f"; reason: {reason}" if reason else "")))
+            records.withdraw_rows(conn, code, sessions, delete,
+                                  f"{code}: data {'deleted' if delete else 'kept'} ({protocol.withdrawal} in the protocol)"
+                                  + (f"; reason: {reason}" if reason else ""))
         if delete and not dry_run:  # the files after the rows: a crash between leaves files no row names
             for rel in traces:
                 (store.path.parent / rel).unlink(missing_ok=True)
@@ -134,15 +115,13 @@ def cancel_slot(db, code: str, dry_run: bool = False) -> dict:
     """Free a participant's slot (keeping their condition order); `schedule` gives a new one."""
     with Store(db) as store:
         _person(store, code)
-        row = store.rows("select slot_start from schedule where code = ? and slot_start is not null", (code,))
-        if not row:
+        slot = records.slot_start(store, code)
+        if slot is None:
             raise InputError(f"participant {code}: has no slot to cancel")
 
         with store.transaction(dry_run) as conn:
-            conn.execute("update schedule set slot_start = null, slot_end = null where code = ?", (code,))
-            conn.execute("insert into events (session_id, at, kind, detail) values (null, ?, 'slot_cancelled', ?)",
-                         (now(), f"{code}: {row[0]['slot_start']}"))
-        return {"code": code, "cancelled": row[0]["slot_start"], "dry_run": dry_run}
+            records.cancel_slot(conn, code, f"{code}: {slot}")
+        return {"code": code, "cancelled": slot, "dry_run": dry_run}
 
 
 def correct_answer(db, code: str, model: str, item: str, answer: str, reason: str, dry_run: bool = False, trial=None) -> dict:
@@ -163,18 +142,16 @@ def correct_answer(db, code: str, model: str, item: str, answer: str, reason: st
         if p["synthetic"]:
             raise InputError(f"participant {code}: synthetic answers come from the simulator and are not corrected by hand")
         key = (code, model, item, trial)
-        rows = store.rows("select answer from answers where code = ? and model = ? and item = ? and trial = ?", key)
-        if not rows:
+        stored = records.stored_answer(store, key)
+        if stored is None:
             raise InputError(f"participant {code}: no stored answer for model {model!r}, item {item!r}"
                              + (f", trial {trial}" if q.when == "trial" else ""))
-        old = rows[0]["answer"]
+        old = stored["answer"]
         if old == new:
             raise InputError(f"--answer: {'/'.join(x for x in (code, model, item) if x)} is already {shown(q, new)}")
 
         with store.transaction(dry_run) as conn:
-            conn.execute("update answers set answer = ? where code = ? and model = ? and item = ? and trial = ?", (new, *key))
-            conn.execute("insert into corrections (code, model, item, trial, old_answer, new_answer, reason, corrected_at, corrected_by) "
-                         "values (?, ?, ?, ?, ?, ?, ?, ?, ?)", (*key, old, new, reason.strip(), now(), getpass.getuser()))
+            records.correct_answer(conn, key, old, new, reason.strip(), getpass.getuser())
         return {"code": code, "model": model, "item": item, "trial": trial, "old": old, "new": new,
                 "old_shown": shown(q, old), "new_shown": shown(q, new), "dry_run": dry_run}
 
@@ -184,15 +161,8 @@ def list_participants(db) -> list[dict]:
     design.groups), consent, slot, session state."""
     with Store(db, mode="read") as store:
         protocol = store.protocol()
-        rows = store.rows(
-            "select p.code, case when p.synthetic = 1 then 'synthetic' else 'person' end as kind, p.age, "
-            "c.version as consent, s.slot_start as slot, "
-            "(select status from sessions x where x.code = p.code order by x.id desc limit 1) as session, "
-            "(select count(*) from answers a where a.code = p.code) as answers, p.withdrawn_at as withdrawn "
-            "from participants p left join consent c on c.code = p.code left join schedule s on s.code = p.code order by p.code")
+        rows = records.participant_list(store)
         if protocol.groups:
-            from studyctl.fields import read_fields
-
             fields = read_fields(store, protocol)
             rows = [{**r, "group": fields.get(r["code"], {}).get(protocol.groups)} for r in rows]
         return rows
@@ -200,10 +170,7 @@ def list_participants(db) -> list[dict]:
 
 def list_sessions(db) -> list[dict]:
     with Store(db, mode="read") as store:
-        return store.rows(
-            "select x.id as session, x.code, x.status, x.device, case when x.synthetic = 1 then 'synthetic' else 'person' end as kind, "
-            "x.started_at, x.finished_at, (select count(*) from trials t where t.session_id = x.id) as trials, "
-            "(select count(*) from answers a where a.session_id = x.id) as answers from sessions x order by x.id")
+        return records.session_list(store)
 
 
 def status(db, today: dt.datetime | None = None) -> dict:
@@ -211,25 +178,16 @@ def status(db, today: dt.datetime | None = None) -> dict:
     next scheduled sessions."""
     with Store(db, mode="read") as store:
         protocol = store.protocol()
-        count = lambda sql: store.rows(sql)[0]["n"]  # noqa: E731
-        people = {
-            "persons": count("select count(*) as n from participants where synthetic = 0"),
-            "synthetic": count("select count(*) as n from participants where synthetic = 1"),
-            "withdrawn": count("select count(*) as n from participants where synthetic = 0 and withdrawn_at is not null"),
-            "consented": count("select count(*) as n from consent"),
-        }
-        sessions = {r["status"]: r["n"] for r in store.rows("select status, count(*) as n from sessions group by status")}
+        people = records.people_counts(store)
+        sessions = records.sessions_by_status(store)
         # complete: every question answered for every condition, in a session or imported from paper
         full = len(protocol.conditions) * len(protocol.items)
-        done = {r["kind"]: r["n"] for r in store.rows(
-            "select kind, count(*) as n from (select case when p.synthetic = 1 then 'synthetic' else 'person' end as kind "
-            "from participants p join answers a on a.code = p.code where p.withdrawn_at is null group by p.code having count(*) >= ?) "
-            "group by kind", (full,))}
+        done = records.complete_by_kind(store, full)
         moment = (today or dt.datetime.now()).isoformat(timespec="minutes")
-        upcoming = store.rows("select code, slot_start, slot_end from schedule where slot_start >= ? order by slot_start limit 5", (moment,))
+        upcoming = records.upcoming_slots(store, moment)
         return {"study": protocol.name, "target_participants": protocol.target_participants, "participants": people,
                 "sessions": sessions, "complete": {"persons": done.get("person", 0), "synthetic": done.get("synthetic", 0)},
-                "answers": count("select count(*) as n from answers"), "next": upcoming}
+                "answers": records.answer_count(store), "next": upcoming}
 
 
 CONTACTS_NOTE = ("# IDENTIFYING DATA: names and contact details of study participants, for the experimenter only.\n"
@@ -240,8 +198,7 @@ def export_contacts(db, out: str | Path) -> dict:
     """The identifying table (code, name, contact) to a CSV whose first lines say what it is.
     Withdrawn participants' details were deleted when they withdrew."""
     with Store(db, mode="read") as store:
-        rows = store.rows("select i.code, i.name, i.contact from identities i join participants p on p.code = i.code "
-                          "where p.withdrawn_at is null order by i.code")
+        rows = records.contacts(store)
     buf = io.StringIO()
     buf.write(CONTACTS_NOTE)
     w = csv.writer(buf, lineterminator="\n")

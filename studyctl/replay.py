@@ -14,19 +14,13 @@ from sim.scene import Scene
 from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
 from studyctl.errors import InputError
 from studyctl.store import Store
+from studyctl.store.trials import session_exists, session_trials
 from studyctl.traces import read_trace
-
-
-def session_trials(store, session_id: int) -> list[dict]:
-    """A session's trials in the order they were run (condition position, then trial)."""
-    return store.rows(
-        "select t.*, c.position, c.label, c.config_sha256 from trials t join conditions c on c.session_id = t.session_id and c.model = t.model "
-        "where t.session_id = ? order by c.position, t.trial", (session_id,))
 
 
 def replay_trial(db, session_id: int, k: int, view: str = "none", frames_dir: Path | None = None, fullscreen: bool = False) -> dict:
     with Store(db, mode="read") as store:
-        if not store.rows("select id from sessions where id = ?", (session_id,)):
+        if not session_exists(store, session_id):
             raise InputError(f"--session: {db}: no session {session_id}")
         trials = session_trials(store, session_id)
         if not 1 <= k <= len(trials):

@@ -28,6 +28,7 @@ from sim.run import run_scene
 from studyctl.conditions import SOFTWARE_VERSION, condition_configs, condition_scene, config_sha256
 from studyctl.errors import InputError, StoreError
 from studyctl.store import now
+from studyctl.store.rig_profile import has_profile, keep_rows, profile_rows, session_count
 from studyctl.synthetic import SyntheticParticipant
 
 SHIPPED = "data/rig_ci.json"
@@ -41,14 +42,6 @@ def physics_key(config: dict) -> str:
 def condition_keys(protocol) -> dict[str, str]:
     """Each condition's physics key (its configuration as the protocol resolves it)."""
     return {c: physics_key(cfg) for c, cfg in condition_configs(protocol, protocol.conditions).items()}
-
-
-def _keep(conn, rows: list[dict], profile: dict, source: str, verb: str = "replace") -> None:
-    """Profile rows into the study's `rig_profile` (`verb`: replace an older row, or ignore)."""
-    conn.executemany(f"insert or {verb} into rig_profile (key, condition, model, frame_ms_p50, frame_ms_p95, frames, machine, "
-                     "measured_at, source) values (?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                     [(r["key"], r.get("condition"), r.get("model"), float(r["frame_ms_p50"]), float(r["frame_ms_p95"]), r.get("frames"),
-                       profile.get("machine"), profile.get("measured_at"), source) for r in rows])
 
 
 def machine() -> str:
@@ -119,12 +112,12 @@ def store_profile(store, profile: dict, source: str) -> int:
     if not set(condition_keys(protocol).values()) & {r["key"] for r in profile["conditions"]}:
         raise InputError(f"the profile has no entry for the configurations of {db}'s conditions ({', '.join(protocol.conditions)}): "
                          "measure it with `studyctl calibrate rig --db` on the rig")
-    ran = store.rows("select count(*) as n from sessions")[0]["n"]
+    ran = session_count(store)
     if ran:
         raise StoreError(f"{db}: {ran} sessions have run with the rig profile they had; a new one would apply to later "
                          "participants only: calibrate before the first session")
     with store.transaction() as conn:
-        _keep(conn, profile["conditions"], profile, source)
+        keep_rows(conn, profile["conditions"], profile, source)
     return len(profile["conditions"])
 
 
@@ -140,7 +133,7 @@ def frame_times(protocol, store=None) -> dict[str, dict]:
         for r in shipped["conditions"]:
             known[r["key"]] = (float(r["frame_ms_p50"]), f"shipped {SHIPPED} ({shipped.get('machine', '')})")
     if store is not None:
-        for r in store.rows("select key, frame_ms_p50, source, machine from rig_profile"):
+        for r in profile_rows(store):
             known[r["key"]] = (float(r["frame_ms_p50"]), f"{r['source']} ({r['machine']})")
     if not all(k in known for k in keys.values()):
         return {}
@@ -151,7 +144,7 @@ def keep_shipped(store) -> int:
     """Store the shipped profile's rows for the study's conditions with the study in `store` (an
     open studyctl.store.Store, for writing), once, when it has none of its own (so an export
     says which frame times its synthetic sessions used)."""
-    if store.rows("select 1 from rig_profile limit 1") or not asset(SHIPPED).exists():
+    if has_profile(store) or not asset(SHIPPED).exists():
         return 0
     keys = set(condition_keys(store.protocol()).values())
     shipped = read_profile(asset(SHIPPED))
@@ -159,5 +152,5 @@ def keep_shipped(store) -> int:
     if len(rows) < len(keys):
         return 0
     with store.transaction() as conn:
-        _keep(conn, rows, shipped, f"shipped {SHIPPED}", verb="ignore")
+        keep_rows(conn, rows, shipped, f"shipped {SHIPPED}", verb="ignore")
     return len(rows)

@@ -44,6 +44,7 @@ from studyctl.participants import has_consent
 from studyctl.questions import NOT_PER_TRIAL, SESSION
 from studyctl.rig import frame_times
 from studyctl.store import Store, dumps, now, sha256_file
+from studyctl.store import sessions as session_rows
 from studyctl.study import assign_order
 from studyctl.synthetic import SyntheticAnswers, SyntheticParticipant, skill_for
 from studyctl.traces import trace_dir, trial_traces, write_trace
@@ -56,7 +57,7 @@ TRAINING_MODEL = "plate_spring"  # free exploration before the first condition (
 
 def _unasked(store: Store, questions, code: str, model: str, trial: int) -> list:
     """Those of `questions` not yet answered for this condition (and trial)."""
-    done = {r["item"] for r in store.rows("select item from answers where code = ? and model = ? and trial = ?", (code, model, trial))}
+    done = session_rows.answered_items(store, code, model, trial)
     return [q for q in questions if q.id not in done]
 
 
@@ -69,9 +70,8 @@ def _ask(store: Store, answerer, questions, code: str, model: str, trial: int, s
     answerer.begin(about)
     for q in todo:
         value = answerer(q, model, context)
-        store.write("answers", {"code": code, "model": model, "item": q.id, "trial": trial,
-                                "answer": int(bool(value)) if q.kind == "yes_no" else value, "session_id": session_id,
-                                "source": answerer.source, "answered_at": now()}, pk=("code", "model", "item", "trial"))
+        session_rows.record_answer(store, code, model, q.id, trial, int(bool(value)) if q.kind == "yes_no" else value, session_id,
+                                   answerer.source)
 
 
 def reference_model(protocol):
@@ -145,37 +145,23 @@ def _check_options(device: str, synthetic: bool, time_scale: float | None, view:
     return time_scale
 
 
-def _never_started(store: Store, session_id: int) -> bool:
-    return not any(store.rows(f"select 1 from {t} where session_id = ? limit 1", (session_id,)) for t in ("trials", "answers"))
-
-
-def _discard(store: Store, session_id: int) -> None:
-    with store.transaction() as conn:
-        conn.execute("delete from latency where session_id = ?", (session_id,))
-        conn.execute("delete from conditions where session_id = ?", (session_id,))
-        conn.execute("update events set session_id = null where session_id = ?", (session_id,))
-        conn.execute("delete from sessions where id = ?", (session_id,))
-        conn.execute("insert into events (session_id, at, kind, detail) values (null, ?, 'session_discarded', ?)",
-                     (now(), f"session {session_id}: stopped before its first trial"))
-
-
 def _check_participant(store: Store, protocol, code: str, synthetic: bool) -> None:
     """Registered, not withdrawn, not done; a person or synthetic, never both; answers from one
     source; a person has signed the protocol's consent form."""
-    person = store.rows("select synthetic, withdrawn_at from participants where code = ?", (code,))
-    if not person:
+    person = session_rows.participant_status(store, code)
+    if person is None:
         raise StoreError(f"participant {code}: not registered; add with `studyctl participants add`")
-    if person[0]["withdrawn_at"]:
-        raise StoreError(f"participant {code}: withdrew on {person[0]['withdrawn_at'][:10]}; no further sessions")
-    if store.rows("select id from sessions where code = ? and status = 'done'", (code,)):
+    if person["withdrawn_at"]:
+        raise StoreError(f"participant {code}: withdrew on {person['withdrawn_at'][:10]}; no further sessions")
+    if session_rows.has_done_session(store, code):
         raise StoreError(f"participant {code}: the session is already complete")
-    registered_synthetic = bool(person[0]["synthetic"])
+    registered_synthetic = bool(person["synthetic"])
     if synthetic and not registered_synthetic:
         raise StoreError(f"participant {code}: registered as a person; --synthetic runs only participants registered "
                          "as synthetic (`studyctl synth`, or `participants add --synthetic`)")
     if not synthetic and registered_synthetic:
         raise StoreError(f"participant {code}: registered as synthetic; a person's session needs a person's code (or add --synthetic)")
-    imported = store.rows("select count(*) as n from answers where code = ? and source = 'import'", (code,))[0]["n"]
+    imported = session_rows.imported_answers(store, code)
     if imported:
         raise StoreError(f"participant {code}: already has {imported} answers imported from another source; "
                          "a simulator session would mix sources")
@@ -191,8 +177,7 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
     time_scale = _check_options(device, synthetic, time_scale, view, answer_with)
     with Store(db, mode="read") as store:  # a missing or foreign database, or the wrong participant: no lock file made
         _check_participant(store, store.protocol(), code, synthetic)
-        open_ = store.rows(f"select id, device, synthetic from sessions where code = ? and status in ({', '.join('?' * len(OPEN))})",
-                           (code, *OPEN))
+        open_ = session_rows.open_sessions(store, code, OPEN)
         if resume and not open_:
             raise StoreError(f"participant {code}: no interrupted session to resume")
         if resume and open_[0]["device"] != device:  # said before any device or window is opened
@@ -249,7 +234,7 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
             order, seed = _open_session(run, synthetic, resume, seed, session_id)
             run.seed = seed
             run.labels = {r["model"]: r["label"] or chr(ord("A") + r["position"])
-                          for r in store.rows("select model, position, label from conditions where session_id = ?", (run.session_id,))}
+                          for r in session_rows.condition_labels(store, run.session_id)}
             if answers is None and synthetic:
                 answers = _synthetic_answers(run, seed)
             run.paced = time_scale > 0 and not synthetic  # a person sets the pace
@@ -259,11 +244,11 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
             for pos, model in enumerate(order):
                 _run_condition(run, pos, model, len(order))
             _ask_at_the_end(run)
-            store.db.conn.execute("update sessions set status = 'done', finished_at = ? where id = ?", (now(), run.session_id))
+            session_rows.session_done(store, run.session_id)
             if run.shown is not None:
                 run.shown.set_text(top="", center="Thank you: the session is complete", bottom="", question="", corner="")
                 run.shown.idle()
-            n = store.rows("select count(*) as n from answers where code = ?", (code,))[0]["n"]
+            n = session_rows.answer_count(store, code)
             return {"session": run.session_id, "participant": code, "order": [run.labels[m] for m in order], "answers": n, "synthetic": synthetic}
         except KeyboardInterrupt:
             raise Interrupted(_interrupted(run, synthetic)) from None
@@ -280,10 +265,9 @@ def _interrupted(run: _Run, synthetic: bool) -> str:
     if run.session_id is None:
         return f"session of {run.code}: interrupted before it started; nothing was written"
     store = run.store
-    with store.transaction() as conn:
-        conn.execute("update sessions set status = 'interrupted' where id = ? and status = 'running'", (run.session_id,))
+    session_rows.mark_interrupted(store, run.session_id)
     store.event(run.session_id, "interrupted")
-    trials = store.rows("select count(*) as n from trials where session_id = ?", (run.session_id,))[0]["n"]
+    trials = session_rows.trial_count(store, run.session_id)
     again = f"studyctl session run --db {run.db} --participant {run.code}" + (" --synthetic" if synthetic else "") + \
         (f" --device {run.device}" if run.device != "simulated" else "") + " --resume"
     return (f"session {run.session_id} of {run.code} interrupted ({trials} trial{'s' if trials != 1 else ''} kept; the one in "
@@ -295,11 +279,11 @@ def _open_session(run: _Run, synthetic: bool, resume: bool, seed: int | None, se
     configurations), or a new one written with its conditions. Sets `run.session_id`; returns
     the participant's condition order and the session's seed."""
     store, protocol, code, device, say = run.store, run.protocol, run.code, run.device, run.say
-    sessions = store.rows("select * from sessions where code = ? order by id", (code,))
+    sessions = session_rows.participant_sessions(store, code)
     running = [s for s in sessions if s["status"] in OPEN]
-    if running and not resume and _never_started(store, running[0]["id"]):
+    if running and not resume and not session_rows.has_trials_or_answers(store, running[0]["id"]):
         # interrupted before its first trial (e.g. in training): nothing of it is kept, start afresh
-        _discard(store, running[0]["id"])
+        session_rows.discard_session(store, running[0]["id"])
         say(f"discarded session {running[0]['id']} of {code}: it stopped before its first trial")
         running = []
     if running and not resume:
@@ -321,7 +305,7 @@ def _open_session(run: _Run, synthetic: bool, resume: bool, seed: int | None, se
     configs = condition_configs(protocol, order)  # before anything is written: a condition that fails is a clean error
     if running:
         run.session_id = running[0]["id"]
-        for r in store.rows("select model, config_sha256 from conditions where session_id = ?", (run.session_id,)):
+        for r in session_rows.condition_shas(store, run.session_id):
             now_sha = config_sha256(configs[r["model"]]) if r["model"] in configs else None
             if r["config_sha256"] and now_sha != r["config_sha256"]:
                 raise StoreError(f"participant {code}: condition {r['model']!r} of session {run.session_id} ran configuration "
@@ -338,16 +322,11 @@ def _open_session(run: _Run, synthetic: bool, resume: bool, seed: int | None, se
         raise StoreError(f"{folder}: cannot hold the trial traces: {exc.strerror}") from None
     rng = random.Random(f"labels:{seed}:{code}") if synthetic else random.SystemRandom()
     labels = condition_labels(order, rng)
-    store.write("sessions", {
-        **({"id": session_id} if session_id is not None else {}),
-        "code": code, "started_at": now(), "finished_at": None, "status": "running", "synthetic": int(synthetic),
-        "device": device, "protocol_sha256": protocol.sha256, "scene_sha256": sha256_file(protocol.scene),
-        "software_version": SOFTWARE_VERSION, "conditions": json.dumps(order), "seed": seed if synthetic else None}, pk="id")
-    run.session_id = store.rows("select max(id) as id from sessions where code = ?", (code,))[0]["id"]  # the row just written
+    run.session_id = session_rows.open_session(store, code, synthetic, device, protocol.sha256, sha256_file(protocol.scene),
+                                               SOFTWARE_VERSION, json.dumps(order), seed if synthetic else None, session_id)
     for pos, model in enumerate(order):
-        store.write("conditions", {"session_id": run.session_id, "position": pos, "model": model, "status": "pending",
-                                   "label": labels[model], "config": config_json(configs[model]),
-                                   "config_sha256": config_sha256(configs[model])}, pk=("session_id", "position"))
+        session_rows.add_condition(store, run.session_id, pos, model, labels[model], config_json(configs[model]),
+                                   config_sha256(configs[model]))
     return order, seed
 
 
@@ -357,9 +336,8 @@ def _synthetic_answers(run: _Run, seed: int):
 
     # its group's skill profile ([synthetic.groups.NAME]), if the protocol gives one
     run.participant = SyntheticParticipant.draw(run.code, seed, skill_for(run.store, run.protocol, run.code))
-    with run.store.transaction() as conn:  # what it was drawn with, kept: estimates can be checked against it
-        conn.executemany("insert or replace into synthetic_traits (code, trait, value, seed) values (?, ?, ?, ?)",
-                         [(run.code, k, float(v), seed) for k, v in run.participant.trait_values().items()])
+    # what it was drawn with, kept: estimates can be checked against it
+    session_rows.keep_synthetic_traits(run.store, run.code, run.participant.trait_values(), seed)
     base = scene_itself(run.protocol)  # the scene's own configuration, whatever the conditions change
     rig = {c: v["frame_ms"] for c, v in frame_times(run.protocol, run.store).items()}  # the rig this study runs on
     return SyntheticAnswers(run.participant, load_truth(base), base.mesh, rig=rig)
@@ -368,7 +346,7 @@ def _synthetic_answers(run: _Run, seed: int):
 def _training(run: _Run) -> None:
     """Free pulling before the first condition (once per session; the experimenter may end it)."""
     store, protocol, shown = run.store, run.protocol, run.shown
-    if "training_done" in {r["kind"] for r in store.rows("select kind from events where session_id = ?", (run.session_id,))}:
+    if "training_done" in session_rows.event_kinds(store, run.session_id):
         return
     seconds = protocol.training_minutes * 60.0
     ran, early = 0.0, None
@@ -397,7 +375,7 @@ def _run_condition(run: _Run, pos: int, model: str, n_cond: int) -> None:
     store, protocol, code, session_id = run.store, run.protocol, run.code, run.session_id
     label = run.labels[model]
     status = f"Condition {label} ({pos + 1} of {n_cond})"
-    done_trials = {r["trial"] for r in store.rows("select trial from trials where session_id = ? and model = ?", (session_id, model))}
+    done_trials = session_rows.done_trials(store, session_id, model)
     scene = None
     for trial in range(protocol.trials_per_condition):
         if trial not in done_trials:
@@ -409,29 +387,26 @@ def _run_condition(run: _Run, pos: int, model: str, n_cond: int) -> None:
                  {"labels": run.labels, "trial": trial, "results": trial_traces(store, session_id, model, trial)},
                  f"{status}, after trial {trial + 1}")
     for task in protocol.tasks:  # after the free trials: the condition's model is familiar by then
-        done = store.rows("select count(*) as n from discrimination where session_id = ? and model = ? and task = ?",
-                          (session_id, model, task.index))[0]["n"]
+        done = session_rows.discrimination_trials_done(store, session_id, model, task.index)
         if done < task.trials:
             from studyctl.discrimination import run_task
 
             scene = scene or _loaded(run, protocol, model, status)
             run_task(run, scene, pos, model, task, status)
     results = None  # every stored trial of the condition, resumed or not: read once, when needed
-    if protocol.trials_per_condition and hasattr(run.answerer, "features_of") and not store.rows(
-            "select 1 from observer_features where code = ? and model = ? limit 1", (code, model)):
+    if protocol.trials_per_condition and hasattr(run.answerer, "features_of") and not session_rows.has_observer_features(
+            store, code, model):
         # what the observer perceived, from every stored trace of the condition (after a
         # resume too), kept before the answers drawn from it
         results = trial_traces(store, session_id, model)
         feats = run.answerer.features_of(model, results)
         at = now()
-        with store.transaction() as conn:
-            conn.executemany("insert or replace into observer_features (code, model, feature, value, session_id, computed_at) "
-                             "values (?, ?, ?, ?, ?, ?)", [(code, model, k, float(v), session_id, at) for k, v in feats.items()])
+        session_rows.keep_observer_features(store, code, model, feats, session_id, at)
     if _unasked(store, protocol.asked("condition"), code, model, NOT_PER_TRIAL):
         results = results if results is not None else trial_traces(store, session_id, model)
         _ask(store, run.answerer, protocol.asked("condition"), code, model, NOT_PER_TRIAL, session_id,
              {"labels": run.labels, "trial": None, "results": results}, f"condition {label} ({pos + 1} of {n_cond})")
-    store.db.conn.execute("update conditions set status = 'done' where session_id = ? and position = ?", (session_id, pos))
+    session_rows.condition_done(store, session_id, pos)
 
 
 def _loaded(run: _Run, protocol, model: str, status: str):
@@ -474,9 +449,7 @@ def _run_trial(run: _Run, scene, pos: int, model: str, trial: int, status: str) 
     rec |= write_trace(run.db, run.session_id, pos, trial, result)  # durable before the trial's row
     if not rec["grasped"]:
         run.say(f"condition {run.labels[model]}: trial {trial + 1}: nothing was grasped (recorded)")
-    if lat:  # latency rows first, the trial row last
-        run.store.write_many("latency", lat, pk=("session_id", "model", "trial", "measure"))
-    run.store.write("trials", rec, pk=("session_id", "model", "trial"))
+    session_rows.record_trial(run.store, rec, lat)  # latency rows first, the trial row last
 
 
 def _ask_at_the_end(run: _Run) -> None:
@@ -485,7 +458,7 @@ def _ask_at_the_end(run: _Run) -> None:
     if not _unasked(store, protocol.asked("end"), code, SESSION, NOT_PER_TRIAL):
         return
     feats = {}
-    for r in store.rows("select model, feature, value from observer_features where code = ?", (code,)):
+    for r in session_rows.observer_features(store, code):
         feats.setdefault(r["model"], {})[r["feature"]] = math.nan if r["value"] is None else r["value"]  # NaN is stored as NULL
     _ask(store, run.answerer, protocol.asked("end"), code, SESSION, NOT_PER_TRIAL, run.session_id,
          {"labels": run.labels, "trial": None, "results": None, "features": feats}, "all the conditions you tried")

@@ -8,10 +8,12 @@ from pathlib import Path
 
 from studyctl.csvfiles import read_csv
 from studyctl.errors import InputError, StoreError
-from studyctl.fields import field_rows, group_of, parse_fields
+from studyctl.fields import field_rows, parse_fields
 from studyctl.questions import NOT_PER_TRIAL, SESSION, AnswerError, allowed, parse_answer
 from studyctl.schedule import allocate, next_order, read_availability, to_ics, williams
-from studyctl.store import EXPORT_TABLES, Store, now
+from studyctl.store import EXPORT_TABLES, Store, now, roster
+from studyctl.store.participant_fields import group_of
+from studyctl.store.tables import table_rows
 from studyctl.text import control_problem, quoted, spreadsheet_frame
 from studyctl.traces import traces_frame
 
@@ -46,7 +48,7 @@ def add_participant(db: str | Path, code: str, age=None, name: str | None = None
         code = _check_code(code, "participant")
         age = _check_age(age, protocol, f"participant {code}")
         values = parse_fields(protocol, fields or {}, f"participant {code}")
-        if store.rows("select code from participants where code = ?", (code,)):
+        if roster.is_registered(store, code):
             raise InputError(f"participant {code}: already registered")
         if synthetic and (name or contact):
             raise InputError(f"participant {code}: a synthetic participant has no name or contact")
@@ -62,10 +64,8 @@ def _insert(store: Store, people: list[dict], identities: list[dict], dry_run: b
     """Participants, their fields, and their identifying details (kept apart; never exported or
     reported), all or none."""
     with store.transaction(dry_run) as conn:
-        conn.executemany("insert into participants (code, age, synthetic, created_at) values (:code, :age, :synthetic, :created_at)", people)
-        conn.executemany("insert into identities (code, name, contact) values (:code, :name, :contact)", identities)
-        conn.executemany("insert into participant_fields (code, field, value) values (:code, :field, :value)",
-                         [r for code, values in (fields or {}).items() for r in field_rows(code, values)])
+        roster.insert_participants(conn, people, identities,
+                                   [r for code, values in (fields or {}).items() for r in field_rows(code, values)])
 
 
 def import_participants(db: str | Path, csv_path: str | Path, dry_run: bool = False) -> dict:
@@ -77,7 +77,7 @@ def import_participants(db: str | Path, csv_path: str | Path, dry_run: bool = Fa
         names = tuple(f.name for f in protocol.fields)
         required = ("code",) + tuple(f.name for f in protocol.fields if f.required)
         rows = read_csv(csv_path, ("code", "age", "name", "contact") + names, required)
-        existing = {r["code"] for r in store.rows("select code from participants")}
+        existing = roster.participant_codes(store)
         people, identities, fields, seen = [], [], {}, set()
         for line, row in rows:
             where = f"{csv_path}: line {line}"
@@ -99,22 +99,17 @@ def assign_order(store: Store, protocol, code: str) -> list[str]:
     """The participant's condition order: the stored one, else the next Williams row. With
     groups (design.groups), the rows are counted within the participant's group, so that each
     group is balanced on its own."""
-    row = store.rows("select conditions from schedule where code = ?", (code,))
-    if row and row[0]["conditions"]:
-        return json.loads(row[0]["conditions"])
+    stored = roster.stored_order(store, code)
+    if stored:
+        return json.loads(stored)
     group = group_of(store, protocol, code)
-    among, args = "", ()
-    if protocol.groups:  # the same group: its members' rows only
-        among = " and s.code in (select code from participant_fields where field = ? and value = ?)"
-        args = (protocol.groups, group)
-    completed = [r["order_index"] for r in store.rows(
-        "select s.order_index from schedule s join sessions x on x.code = s.code where x.status = 'done'" + among, args)]
-    assigned = [r["order_index"] for r in store.rows("select s.order_index from schedule s where 1" + among, args)]
+    # with groups, the same group: its members' rows only
+    completed = roster.completed_orders(store, protocol.groups, group)
+    assigned = roster.assigned_orders(store, protocol.groups, group)
     k = next_order(protocol.conditions, completed, assigned)
     order = [protocol.conditions[i] for i in williams(len(protocol.conditions))[k]]
     # plain SQL, so the caller's transaction (if any) holds it
-    store.db.conn.execute("insert or replace into schedule (code, slot_start, slot_end, order_index, conditions) values (?, null, null, ?, ?)",
-                          (code, k, json.dumps(order)))
+    roster.save_order(store.db.conn, code, k, json.dumps(order))
     return order
 
 
@@ -135,18 +130,15 @@ def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:
     avail = read_availability(availability) if availability else None
     with Store(db) as store:
         protocol = store.protocol()
-        codes = {r["code"] for r in store.rows("select code from participants")}
+        codes = roster.participant_codes(store)
         if avail is not None and set(avail) - codes:
             raise InputError(f"{availability}: unknown participant {sorted(set(avail) - codes)[0]!r}")
         # people who still need the rig: no slot, not withdrawn, no finished session, no answers from paper
-        waiting = [r["code"] for r in store.rows(
-            "select p.code from participants p left join schedule s on s.code = p.code where s.slot_start is null "
-            "and p.synthetic = 0 and p.withdrawn_at is null and p.code not in (select code from sessions where status = 'done') "
-            "and p.code not in (select code from answers where source = 'import') order by p.code")]
+        waiting = roster.waiting_codes(store)
         if not waiting:
             raise InputError("nobody is waiting for a slot (every person has one, has finished, or withdrew)")
         taken = [(dt.datetime.fromisoformat(r["slot_start"]), dt.datetime.fromisoformat(r["slot_end"]))
-                 for r in store.rows("select slot_start, slot_end from schedule where slot_start is not null")]
+                 for r in roster.taken_slots(store)]
         if d0 == today:  # the part of today that has passed is taken too
             taken.append((dt.datetime.combine(today, dt.time(0)), dt.datetime.now().replace(second=0, microsecond=0)))
         slots = allocate(waiting, d0, d1, hours, minutes, avail, taken)
@@ -159,8 +151,8 @@ def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:
                 assign_order(store, protocol, code)  # counterbalanced order, kept with the slot
                 if code in slots:
                     a, b = slots[code]
-                    conn.execute("update schedule set slot_start = ?, slot_end = ? where code = ?", (a.isoformat(), b.isoformat(), code))
-            out = store.rows("select code, slot_start, slot_end, order_index, conditions from schedule order by slot_start is null, slot_start, code")
+                    roster.set_slot(conn, code, a.isoformat(), b.isoformat())
+            out = roster.schedule_rows(store)
             if ics and not dry_run:
                 Path(ics).write_text(to_ics([r for r in out if r["slot_start"]], protocol.name, protocol.timezone, protocol.title))
         return out
@@ -174,11 +166,11 @@ def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) 
     csv_path = Path(csv_path)
     with Store(db) as store:
         protocol = store.protocol()
-        codes = {r["code"] for r in store.rows("select code from participants")}
-        synthetic = {r["code"] for r in store.rows("select code from participants where synthetic = 1")}
-        in_sessions = {r["code"] for r in store.rows("select distinct code from sessions")}
-        withdrawn = {r["code"] for r in store.rows("select code from participants where withdrawn_at is not null")}
-        consented = {r["code"] for r in store.rows("select code from consent where version = ?", (protocol.consent_version,))}
+        codes = roster.participant_codes(store)
+        synthetic = roster.synthetic_codes(store)
+        in_sessions = roster.session_codes(store)
+        withdrawn = roster.withdrawn_codes(store)
+        consented = roster.consented_codes(store, protocol.consent_version)
         rows = read_csv(csv_path, ("participant", "model", "item", "answer", "trial"), ("participant", "model", "item", "answer"))
         records, seen = [], set()
         for line, r in rows:
@@ -200,7 +192,7 @@ def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) 
             seen.add(key)
             records.append({"code": key[0], "model": model, "item": key[2], "trial": trial, "answer": value,
                             "session_id": None, "source": "import", "answered_at": now()})
-        existing = {(r["code"], r["model"], r["item"], r["trial"]) for r in store.rows("select code, model, item, trial from answers")}
+        existing = roster.answer_keys(store)
         clash = seen & existing
         if clash:
             raise InputError(f"{csv_path}: {'/'.join(map(str, sorted(clash)[0]))} is already answered in the database")
@@ -262,7 +254,7 @@ def export(db: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[str]:
             raise StoreError("--format parquet needs the parquet extra: pip install 'brainsim-study[parquet]'")
     with Store(db, mode="read") as store:
         # the columns from the schema, so an empty table still exports its header
-        frames = {table: pd.DataFrame(store.rows(f"select * from {table}"), columns=list(store.db[table].columns_dict))
+        frames = {table: pd.DataFrame(table_rows(store, table), columns=list(store.db[table].columns_dict))
                   for table in EXPORT_TABLES}
         frames["traces"] = traces_frame(store)
     out_dir.mkdir(parents=True, exist_ok=True)

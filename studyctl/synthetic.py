@@ -25,7 +25,6 @@ import random
 from dataclasses import dataclass
 
 from sim.devices.simulated import HandImpedance
-from studyctl.fields import group_of
 from studyctl.observer import (
     DEFAULT,
     DiscriminationTraits,
@@ -39,6 +38,7 @@ from studyctl.observer import (
 )
 from studyctl.questions import SESSION
 from studyctl.skill import Skill, SkillProfile
+from studyctl.store.participant_fields import group_of
 
 MAX_SYNTHETIC = 1000  # participants per `synth` call: a study, not a stress test (the paper had 35)
 CORRECTION_DELAY = 0.2  # s from the end of an overshooting movement to the start of the correction (a visual reaction time)

@@ -14,7 +14,8 @@ from studyctl.errors import InputError, Interrupted
 from studyctl.fields import field_rows, synthetic_fields
 from studyctl.protocol import load_protocol
 from studyctl.rig import keep_shipped
-from studyctl.store import Store, init_study, now
+from studyctl.store import Store, init_study, now, roster
+from studyctl.store.sessions import insert_traits, next_session_id
 from studyctl.study import assign_order
 from studyctl.sweep import completed, reachable
 from studyctl.synthetic import MAX_SYNTHETIC, SyntheticParticipant, skill_for
@@ -54,7 +55,7 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
         protocol = store.protocol()
         if protocol_path is not None and load_protocol(protocol_path).sha256 != protocol.sha256:
             raise InputError(f"--protocol: {protocol_path} is not the protocol {db} was created with; leave --protocol out")
-        people = store.rows("select count(*) as n from participants where synthetic = 0")[0]["n"]
+        people = roster.participant_count(store, synthetic=False)
         if people and not alongside_people:
             raise InputError(f"--db: {db} is a study of people ({people} {'person' if people == 1 else 'people'} registered): synthetic "
                              "sessions would be pooled with theirs in every report; give --alongside-people to add them anyway "
@@ -64,7 +65,7 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
         runs = pending + [(code, seed) for code in codes]
         t0, stored = time.perf_counter(), 0
         try:  # from the registration's commit on, an interruption leaves participants to complete
-            first_id = (store.rows("select max(id) as m from sessions")[0]["m"] or 0) + 1
+            first_id = next_session_id(store)
             seeds = [seed_for(store, code, s, first_id + k) for k, (code, s) in enumerate(runs)]
             for _, bundle in completed(run_away, seeds, jobs, scheduler):
                 store_bundle(store, bundle)
@@ -84,35 +85,29 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
 def _unrun(store) -> list[tuple[str, int]]:
     """(code, seed) of the synthetic participants registered by a `synth` that did not finish:
     no session, not withdrawn; the seed they were registered with (their traits' rows)."""
-    rows = store.rows("select p.code, (select max(t.seed) from synthetic_traits t where t.code = p.code) as seed from participants p "
-                      "where p.synthetic = 1 and p.withdrawn_at is null and not exists (select 1 from sessions s where s.code = p.code) "
-                      "order by p.code")
-    return [(r["code"], int(r["seed"])) for r in rows if r["seed"] is not None]
+    return [(r["code"], int(r["seed"])) for r in roster.unrun_synthetic(store) if r["seed"] is not None]
 
 
 def _register(store, protocol, participants: int, seed: int) -> list[str]:
     """Register `participants` new synthetic codes (S001, S002, ... skipping codes in use) with
     ages, fields, orders and generating traits, in one transaction: all or none."""
     rng = random.Random(f"ages:{seed}")
-    registered = {r["code"] for r in store.rows("select code from participants")}
+    registered = roster.participant_codes(store)
     codes, k = [], 0
     while len(codes) < participants:
         k += 1
         if f"S{k:03d}" not in registered:
             codes.append(f"S{k:03d}")
-    before = store.rows("select count(*) as n from participants where synthetic = 1")[0]["n"]
+    before = roster.participant_count(store, synthetic=True)
     values = synthetic_fields(protocol, codes, seed, start=before)  # groups in turn: balanced
     with store.transaction() as conn:
         for code in codes:
-            conn.execute("insert into participants (code, age, synthetic, created_at) values (?, ?, 1, ?)",
-                         (code, rng.randint(protocol.age_min, protocol.age_max), now()))
-            conn.executemany("insert into participant_fields (code, field, value) values (:code, :field, :value)",
-                             field_rows(code, values[code]))
+            person = {"code": code, "age": rng.randint(protocol.age_min, protocol.age_max), "synthetic": 1, "created_at": now()}
+            roster.insert_participants(conn, [person], [], field_rows(code, values[code]))
             assign_order(store, protocol, code)
             # its traits (and so its seed) kept now: a run interrupted before its session is
             # completed by the next `synth`, with this seed
             drawn = SyntheticParticipant.draw(code, seed, skill_for(store, protocol, code))
-            conn.executemany("insert or replace into synthetic_traits (code, trait, value, seed) values (?, ?, ?, ?)",
-                             [(code, t, float(v), seed) for t, v in drawn.trait_values().items()])
+            insert_traits(conn, code, drawn.trait_values(), seed)
     keep_shipped(store)  # the frame times its synthetic participants perceive, kept with the study
     return codes

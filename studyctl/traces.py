@@ -20,6 +20,7 @@ import numpy as np
 
 from sim.servo import Event
 from studyctl.errors import StoreError
+from studyctl.store.trials import all_trace_rows, trace_rows
 
 
 def trace_dir(db: str | Path) -> Path:
@@ -104,8 +105,7 @@ def read_trace(db: str | Path, rel: str, sha256: str) -> Trace:
 
 def trial_traces(store, session_id: int, model: str, trial: int | None = None) -> list[Trace]:
     """Every stored trace of one condition of a session (or of its one `trial`), in trial order."""
-    rows = store.rows("select trace_path, trace_sha256 from trials where session_id = ? and model = ? and trace_path is not null "
-                      "and (? is null or trial = ?) order by trial", (session_id, model, trial, trial))
+    rows = trace_rows(store, session_id, model, trial)
     return [read_trace(store.path, r["trace_path"], r["trace_sha256"]) for r in rows]
 
 
@@ -117,8 +117,7 @@ def traces_frame(store):
     import pandas as pd
 
     frames = []
-    rows = store.rows("select session_id, model, trial, trace_path, trace_sha256 from trials where trace_path is not null "
-                      "order by session_id, model, trial")
+    rows = all_trace_rows(store)
     for r in rows:
         tr = read_trace(store.path, r["trace_path"], r["trace_sha256"])
         n, h = tr.positions.shape[:2]

@@ -3,6 +3,7 @@
 library imports no analysis outside its CLI."""
 
 import ast
+import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -97,3 +98,24 @@ def test_no_module_is_over_600_lines():
     """A module past 600 lines holds more than one concept (issue 45): split it by concept."""
     sizes = {str(p.relative_to(ROOT)): p.read_text().count("\n") for pkg in ("sim", "studyctl", "analysis") for p in (ROOT / pkg).rglob("*.py")}
     assert len(sizes) > 120 and {k: v for k, v in sizes.items() if v > 600} == {}
+
+
+SQL = re.compile(r"^\s*(select\s.+\sfrom\s|insert\s+(or\s+\w+\s+)?into\s|update\s+\w+\s+set\s|delete\s+from\s|create\s+(table|index)\s)",
+                 re.I | re.S)
+
+
+def test_only_the_store_layer_writes_sql():
+    """The study library and the reports call studyctl/store/'s functions (issue 45): a string
+    that starts an SQL statement anywhere else is a query that has lost its home."""
+    found = []
+    for pkg in ("sim", "studyctl", "analysis"):
+        for p in sorted((ROOT / pkg).rglob("*.py")):
+            if p.is_relative_to(ROOT / "studyctl" / "store"):
+                continue
+            for node in ast.walk(ast.parse(p.read_text(), filename=str(p))):
+                if isinstance(node, ast.Constant) and isinstance(node.value, str) and SQL.match(node.value):
+                    found.append(f"{p.relative_to(ROOT)}:{node.lineno}")
+    in_store = sum(1 for p in (ROOT / "studyctl" / "store").rglob("*.py")
+                   for node in ast.walk(ast.parse(p.read_text())) if isinstance(node, ast.Constant) and isinstance(node.value, str)
+                   and SQL.match(node.value))
+    assert found == [] and in_store > 100  # the check sees the store's own statements

@@ -15,6 +15,7 @@ import pytest
 from analysis import validity_report as report_mod
 from analysis import validity_report as vr
 from analysis.metrics import COLUMNS
+from analysis.study import read_study
 from studyctl.store import Store
 from tests.helpers import fast_protocol, studyctl
 from tests.test_fields import field_protocol
@@ -91,8 +92,8 @@ def built(db, monkeypatch):
     """The study's metrics replaced by `built_metrics` (two conditions when asked for)."""
     def use(conditions=("plate_spring",)):
         table = built_metrics(_groups(db), conditions)
-        monkeypatch.setattr(report_mod, "metrics_table", lambda store, goals=None: table)  # where the report takes them from
-        monkeypatch.setattr(report_mod, "study_goals", lambda store: {})
+        monkeypatch.setattr(report_mod, "metrics_table", lambda study, goals=None: table)  # where the report takes them from
+        monkeypatch.setattr(report_mod, "study_goals", lambda study: {})
         return table
     return use
 
@@ -141,7 +142,7 @@ def test_json_has_every_section_and_finds_the_built_in_difference(db, built):
 def test_the_mixed_model_is_fitted_with_two_conditions(db, built):
     built(conditions=("fem", "plate_spring"))
     with Store(db, mode="read") as store:
-        rep = vr.validity_report(store, permutations=5, bootstrap=20)
+        rep = vr.validity_report(read_study(store), permutations=5, bootstrap=20)
     fixed = rep["mixed_model"]["fixed"]
     assert rep["mixed_model"]["reason"] is None and set(fixed["metric"]) == {"path_length", "sparc"}
     pl = fixed[fixed["metric"] == "path_length"].set_index("term")
@@ -212,9 +213,9 @@ def test_rating_kruskal_wallis_and_sus_against_pingouin_and_statsmodels(db):
     from statsmodels.stats.multitest import multipletests
 
     with Store(db, mode="read") as store:
-        protocol = store.protocol()
-        groups, order, _ = vr.study_groups(store, protocol)
-        scores, text = vr.rating_scores(protocol, vr._answers(store))
+        study = read_study(store)
+    groups, order, _ = vr.study_groups(study)
+    scores, text = vr.rating_scores(study.protocol, study.answers)
     desc, tests = vr.ratings_by_group(scores, text, groups, order)
     con = sqlite3.connect(db)
     ans = pd.read_sql_query("select a.code, a.item, a.answer, f.value as grp from answers a join participant_fields f "

@@ -150,6 +150,15 @@ def _table(rows: list[dict], title: str, columns: list[str]) -> None:
     _console().print(t)
 
 
+def read_snapshot(db):
+    """The study in `db`, read once (analysis.study.Study): every report is made from it."""
+    from analysis.study import read_study  # the reports' stack loads only for the commands that make one
+    from studyctl.store import Store
+
+    with Store(db, mode="read") as store:
+        return read_study(store)
+
+
 def _with_progress(label, fn):
     """`fn(progress)` with a progress bar that `progress(done, total)` advances, on stderr (a
     --json document on stdout stays clean)."""

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from sim.jsonable import jsonable
-from studyctl.cli.common import DB, OutFile
+from studyctl.cli.common import DB, OutFile, read_snapshot
 
 
 def _note(table) -> str:
@@ -24,10 +24,9 @@ def metrics_cmd(db, fmt, out_file):
     """Performance metrics from every stored trace, one row per participant, condition, trial,
     hand and metric (docs/metrics.md); synthetic participants' rows say so."""
     from analysis.metrics import METRICS, metrics_table, study_goals
-    from studyctl.store import Store
 
-    with Store(db, mode="read") as store:
-        table = metrics_table(store, study_goals(store))
+    study = read_snapshot(db)
+    table = metrics_table(study, study_goals(study))
     note = _note(table) if len(table) else f"{db}: no trial with a stored trace yet"
     if fmt == "json":
         text = json.dumps(jsonable({"note": note, "synthetic": bool(table["synthetic"].any()),

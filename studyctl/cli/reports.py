@@ -11,7 +11,7 @@ import click
 
 from brainsim_assets import path as _asset
 from sim.jsonable import jsonable
-from studyctl.cli.common import DB, JSON, OutDir, OutFile, _Group, _print_json
+from studyctl.cli.common import DB, JSON, OutDir, OutFile, _Group, _print_json, read_snapshot
 
 PAPER_TABLE = _asset("data/paper_table1.csv")
 
@@ -19,15 +19,6 @@ PAPER_TABLE = _asset("data/paper_table1.csv")
 @click.group(cls=_Group)
 def report():
     """Reports made from a study database."""
-
-
-def _read(db):
-    """The study in `db`, read once (analysis.study.Study): every report is made from it."""
-    from analysis.study import read_study
-    from studyctl.store import Store
-
-    with Store(db, mode="read") as store:
-        return read_study(store)
 
 
 HOLM = click.option("--holm", "holm_scope", type=click.Choice(["family", "question"]), default="family", show_default=True,
@@ -49,7 +40,7 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
     from analysis import table1
     from analysis.study_stats import table1_markdown
 
-    study = _read(db)
+    study = read_snapshot(db)
     if study.protocol.tasks and not study.protocol.questions:  # a discrimination study without questions: its section is the report
         if fmt in ("csv", "latex"):
             raise click.ClickException(f"--format {fmt}: the study asks no questions (no Table 1); its discrimination task "
@@ -164,7 +155,7 @@ def report_jnd(db, fmt, as_json, out_file):
     """Stiffness discrimination: each participant's psychometric fit and Weber fraction with its
     bootstrap 95% interval per condition, the conditions' geometric means, the group test (mixed
     model on log Weber fraction, Friedman, Holm pairs); html with psychometric plots."""
-    study = _read(db)
+    study = read_snapshot(db)
     if not study.protocol.tasks:
         raise click.ClickException(f"{db}: the study's protocol has no discrimination task ([[tasks]]); nothing to report")
     text = _jnd_text(study, "json" if as_json else fmt)
@@ -179,7 +170,7 @@ def report_plots(db, out_dir, as_json):
     """Rates with intervals, deformation times, and force traces against the converged reference (PNG and SVG)."""
     from analysis.report import write_plots
 
-    study = _read(db)
+    study = read_snapshot(db)
     if _no_answers(study, as_json):
         return
     files = write_plots(study, out_dir)
@@ -204,7 +195,7 @@ def report_stats(db, holm_scope, as_json):
     from analysis.table1 import incomplete_text
     from analysis.withhold import mean_sd
 
-    study = _read(db)
+    study = read_snapshot(db)
     if _no_answers(study, as_json):
         return
     out = study_stats(study, holm_scope=holm_scope)
@@ -315,15 +306,14 @@ def report_validity(db, fmt, as_json, out_file, permutations, group_permutations
     plots per group and learning curves per metric)."""
     from analysis import validity_report as vr
     from studyctl.cli.common import _with_progress
-    from studyctl.store import Store
 
     permutations = vr.DEFAULT_PERMUTATIONS if permutations is None else permutations
     bootstrap = vr.DEFAULT_BOOTSTRAP if bootstrap is None else bootstrap
     group_permutations = vr.DEFAULT_GROUP_PERMUTATIONS if group_permutations is None else group_permutations
-    with Store(db, mode="read") as store:
-        rep = _with_progress("construct validity", lambda progress: vr.validity_report(
-            store, permutations=permutations, group_permutations=group_permutations, bootstrap=bootstrap, seed=seed,
-            progress=progress))
+    study = read_snapshot(db)
+    rep = _with_progress("construct validity", lambda progress: vr.validity_report(
+        study, permutations=permutations, group_permutations=group_permutations, bootstrap=bootstrap, seed=seed,
+        progress=progress))
     fmt = "json" if as_json else fmt
     text = vr.to_json(rep) if fmt == "json" else vr.html(rep) if fmt == "html" else vr.markdown(rep)
     _emit(text, out_file)

@@ -1,0 +1,86 @@
+"""What the reports read of a study, for analysis/study.py's `read_study`: the answers and the
+counts of whose they are, the condition orders, the deformation latencies, the configurations
+each condition ran, the discrimination trials, the synthetic traits, the synthetic codes and the
+traced trials behind the performance metrics. Each is a function of
+an open `Store`; tables come back as pandas DataFrames exactly as pandas reads the query (its
+column names, dtypes and row order), since the reports built from them must not change."""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from studyctl.store.database import Store
+
+
+def _frame(store: Store, sql: str) -> pd.DataFrame:
+    return pd.read_sql_query(sql, store.db.conn)
+
+
+# counted from the answers' own source, not from a participant flag that could drift
+def synthetic_count(store: Store) -> int:
+    """How many participants have synthetic answers."""
+    return store.db.conn.execute("select count(distinct code) from answers where source = 'synthetic'").fetchone()[0]
+
+
+def person_count(store: Store) -> int:
+    """How many participants have answers not synthetic (a person's)."""
+    return store.db.conn.execute("select count(distinct code) from answers where source != 'synthetic'").fetchone()[0]
+
+
+def mixed_source_codes(store: Store) -> tuple[str, ...]:
+    """The codes with both synthetic answers and a person's, in code order."""
+    return tuple(r[0] for r in store.db.conn.execute(
+        "select code from answers group by code having sum(source = 'synthetic') > 0 and sum(source != 'synthetic') > 0 order by code"))
+
+
+def condition_orders(store: Store) -> pd.DataFrame:
+    """code, conditions (JSON) of every session in id order, then of every schedule row."""
+    return pd.concat([_frame(store, "select code, conditions from sessions order by id"),
+                      _frame(store, "select code, conditions from schedule")])
+
+
+def answers(store: Store) -> pd.DataFrame:
+    """Every stored answer: code, model, item, trial, answer."""
+    return _frame(store, "select code, model, item, trial, answer from answers")
+
+
+def latency(store: Store) -> pd.DataFrame:
+    """Each participant's mean deformation time per condition: code, model, value, trials."""
+    return _frame(store, "select s.code, l.model, avg(l.value) as value, count(*) as trials from latency l join sessions s on s.id = l.session_id "
+                         "where l.measure = 'deformation_ms' group by s.code, l.model")
+
+
+def latency_trials(store: Store) -> pd.DataFrame:
+    """Every trial's deformation time: model, value."""
+    return _frame(store, "select model, value from latency where measure = 'deformation_ms'")
+
+
+def configurations(store: Store) -> pd.DataFrame:
+    """What each condition ran: condition, config, config_sha256, sessions; in order of first session."""
+    return _frame(store, "select model as condition, config, config_sha256, count(distinct session_id) as sessions "
+                         "from conditions group by model, config_sha256 order by min(session_id)")
+
+
+def discrimination(store: Store) -> pd.DataFrame:
+    """Every discrimination trial: code, model, task, trial, delta, comparison_interval, answer, correct, state, source."""
+    return _frame(store, "select code, model, task, trial, delta, comparison_interval, answer, correct, state, source from discrimination "
+                         "order by code, model, task, trial")
+
+
+def traits(store: Store) -> pd.DataFrame:
+    """Every synthetic participant's generating traits: code, trait, value."""
+    return _frame(store, "select code, trait, value from synthetic_traits order by code, trait")
+
+
+def synthetic_codes(store: Store) -> tuple[str, ...]:
+    """The codes registered as synthetic or with a synthetic answer, in code order."""
+    return tuple(r[0] for r in store.db.conn.execute(
+        "select code from participants where synthetic union select code from answers where source = 'synthetic' order by code"))
+
+
+def traced_trials(store: Store) -> pd.DataFrame:
+    """Every traced trial with its participant: code, synthetic, model, trial, session_id,
+    trace_path, trace_sha256, by code, condition, trial, then session."""
+    return _frame(store, "select s.code, p.synthetic, t.model, t.trial, t.session_id, t.trace_path, t.trace_sha256 from trials t "
+                         "join sessions s on s.id = t.session_id join participants p on p.code = s.code "
+                         "where t.trace_path is not null order by s.code, t.model, t.trial, t.session_id")
