@@ -1,0 +1,107 @@
+"""A study database read once: everything the analyses use, as an immutable snapshot.
+
+`read_study(store)` reads it from an open `studyctl.store.Store` (the caller opens and closes
+it: `with Store(path, mode="read") as store: study = read_study(store)`); every report takes
+the `Study` (Table 1, the statistics, the JND, construct validity, the performance metrics),
+so a report reads the database once and never opens it itself; only the trace files of the
+traced trials are read later, from beside `path`. The snapshot's tables are
+never changed by the analyses (each works on copies).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from studyctl.store import snapshot
+from studyctl.store.participant_fields import read_fields
+
+SYNTHETIC_FLAG = "SYNTHETIC DATA (simulated participants): not evidence about people."
+
+
+def data_flag(persons: int, synthetic: int) -> str:
+    """What a report says first about whose data it holds: nothing for people only, the
+    synthetic flag for simulated participants only, and, pooled, how many of each."""
+    if synthetic and persons:
+        return (f"MIXED DATA: {persons} {'person' if persons == 1 else 'people'} and {synthetic} SYNTHETIC (simulated) "
+                f"participant{'s' if synthetic != 1 else ''} pooled; not evidence about people as it stands.")
+    return SYNTHETIC_FLAG if synthetic else ""
+
+
+@dataclass(frozen=True, eq=False)
+class Study:
+    """What the analyses read of one study database.
+
+    - `protocol`: the study's protocol (studyctl.protocol.Protocol), as stored with it;
+    - `answers`: every stored answer: ``code, model, item, trial, answer`` (each in its kind's type);
+    - `synthetic_participants`, `person_participants`: how many participants answered
+      synthetically, and as people (from the answers' own source, not a participant flag);
+      `mixed_source_participants`: the codes that answered both ways;
+    - `periods`: each participant's position (0-based) of each condition in their session:
+      ``code, model, period`` (the session's order, else the assigned one);
+    - `latency`: each participant's mean deformation time per condition: ``code, model, value, trials``;
+    - `latency_trials`: every trial's deformation time: ``model, value``;
+    - `configurations`: what each condition ran: ``condition, config, config_sha256, sessions``;
+    - `discrimination`: every discrimination trial: ``code, model, task, trial, delta, comparison_interval,
+      answer, correct, state (the procedure's, JSON), source``, and `traits` every synthetic participant's generating traits: ``code, trait, value``;
+    - `path`: the database file (trace paths are relative to its folder);
+    - `synthetic_codes`: the codes registered as synthetic or with a synthetic answer;
+    - `fields`: every participant's protocol fields, typed by their kind: ``code, field, value``;
+    - `traced_trials`: every trial with a stored trace: ``code, synthetic, model, trial, session_id,
+      trace_path, trace_sha256``.
+    """
+
+    protocol: object
+    answers: pd.DataFrame
+    synthetic_participants: int
+    person_participants: int
+    mixed_source_participants: tuple[str, ...]
+    periods: pd.DataFrame
+    latency: pd.DataFrame
+    latency_trials: pd.DataFrame
+    configurations: pd.DataFrame
+    discrimination: pd.DataFrame
+    traits: pd.DataFrame
+    path: Path
+    synthetic_codes: tuple[str, ...]
+    fields: pd.DataFrame
+    traced_trials: pd.DataFrame
+
+
+def read_study(store) -> Study:
+    """The snapshot of the study in `store` (an open studyctl.store.Store), read in one go."""
+    # counted from the answers' own source, not from a participant flag that could drift
+    synthetic = snapshot.synthetic_count(store)
+    persons = snapshot.person_count(store)
+    mixed = snapshot.mixed_source_codes(store)
+    orders = snapshot.condition_orders(store)
+    protocol = store.protocol()
+    fields = [{"code": code, "field": k, "value": v} for code, values in read_fields(store, protocol).items() for k, v in values.items()]
+    return Study(
+        protocol=protocol,
+        answers=snapshot.answers(store),
+        synthetic_participants=synthetic,
+        person_participants=persons,
+        mixed_source_participants=mixed,
+        periods=_periods(orders),
+        latency=snapshot.latency(store),
+        latency_trials=snapshot.latency_trials(store),
+        configurations=snapshot.configurations(store),
+        discrimination=snapshot.discrimination(store),
+        traits=snapshot.traits(store),
+        path=store.path,
+        synthetic_codes=snapshot.synthetic_codes(store),
+        fields=pd.DataFrame(fields, columns=["code", "field", "value"], dtype=object),
+        traced_trials=snapshot.traced_trials(store),
+    )
+
+
+def _periods(orders: pd.DataFrame) -> pd.DataFrame:
+    """The period factor of the GEE from each participant's condition orders (sessions first,
+    then the schedule): the first session's order wins."""
+    orders = orders[orders["conditions"].notna()].drop_duplicates("code")
+    rows = [{"code": r.code, "model": m, "period": k} for r in orders.itertuples() for k, m in enumerate(json.loads(r.conditions))]
+    return pd.DataFrame(rows, columns=["code", "model", "period"])
