@@ -2,8 +2,8 @@
 modulus, against a converged reference, calibrated with the same budget and judged on pulls
 it was not calibrated on (docs/accuracy.md).
 
-- **Pulls.** Calibration: the three grasp points of `sim.reference.make_pulls` (the scene's two
-  hands and a frontal point) x two tangent directions. Test (held out): `sim.reference.test_pulls`,
+- **Pulls.** Calibration: the three grasp points of `sim.pulls.make_pulls` (the scene's two
+  hands and a frontal point) x two tangent directions. Test (held out): `sim.pulls.test_pulls`,
   six places away from those (three per hemisphere) x two directions. The hand moves at 10 mm/s;
   each model runs its visual frames along the ramp (so the corotational FEM's per-frame
   iteration and the mass-spring's dynamics are what a user would feel) and is sampled at
@@ -55,7 +55,7 @@ from sim.models.api import BUDGETS
 from sim.models.mass_spring import OMNI_MAX_STIFFNESS
 from sim.models.plate_spring import load_params
 from sim.models.registry import installed, model_class, plugins
-from sim.reference import TEST_PLACES, Pull, make_pulls, scene_with, test_pulls
+from sim.pulls import TEST_PLACES, Pull, make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE, load_scene
 from studyctl.sweep import run_tasks
 

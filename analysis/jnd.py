@@ -26,11 +26,10 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from analysis.kinds import table_markdown
+from analysis.formatting import PAGE_END, drawn_png, figure_html, p_value, page_head, table_html, table_markdown
 from analysis.pooled import POOLED_MIN, pooled_webers
 from analysis.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, weber_table
-from analysis.report import STYLE, _inline_png, _table_html
-from analysis.study import data_flag
+from analysis.study_snapshot import data_flag
 from analysis.weber_groups import group_test
 from analysis.withhold import interval_reason
 
@@ -131,10 +130,6 @@ def _pct(x) -> str:
     return f"{v:.1f}%" if abs(v) >= 0.1 or v == 0 else f"{v:.2g}%"
 
 
-def _p(x) -> str:
-    return "-" if x is None or not math.isfinite(float(x)) else f"{float(x):.3g}"
-
-
 def _interval(lo, hi, why: str = "no interval") -> str:
     return f"[{_pct(lo)}, {_pct(hi)}]" if lo is not None and math.isfinite(float(lo)) and math.isfinite(float(hi)) else f"({why})"
 
@@ -210,14 +205,14 @@ def _group_text(g: dict) -> str:
                      + (f": {mm['problem']}" if mm.get("problem") else "") + ").")
     elif mm:
         parts.append(f"Mixed model of log Weber fraction on condition (participant as random intercept): likelihood-ratio chi2({mm.get('df')}) = "
-                     f"{_p(mm.get('chi2'))}, p = {_p(mm.get('p'))}.")
+                     f"{p_value(mm.get('chi2'))}, p = {p_value(mm.get('p'))}.")
     fr = g.get("friedman") or {}
     if fr:
-        parts.append(f"{fr.get('test', 'Friedman')}: statistic {_p(fr.get('statistic'))}, p = {_p(fr.get('p'))}.")
+        parts.append(f"{fr.get('test', 'Friedman')}: statistic {p_value(fr.get('statistic'))}, p = {p_value(fr.get('p'))}.")
     pairs = g.get("pairs") or []
     if pairs:
         parts.append("Pairs (paired t on log Weber fractions, Holm): " + "; ".join(
-            f"{p['a']} vs {p['b']}: ratio {_p(p.get('ratio'))} [{_p(p.get('ratio_low'))}, {_p(p.get('ratio_high'))}], p_holm {_p(p.get('p_holm'))}" for p in pairs) + ".")
+            f"{p['a']} vs {p['b']}: ratio {p_value(p.get('ratio'))} [{p_value(p.get('ratio_low'))}, {p_value(p.get('ratio_high'))}], p_holm {p_value(p.get('p_holm'))}" for p in pairs) + ".")
     return " ".join(parts)
 
 
@@ -230,7 +225,7 @@ def html_section(res: dict, study) -> str:
                 f"{task['trials']} {esc(task['method'])} trials per condition.</p>")
     first, per = tables(res) if res["weber"] else ({}, {})
     if first:
-        body.append(_table_html(first, "h3"))
+        body.append(table_html(first, "h3"))
     if res["group"]:
         body.append(f"<p>{esc(_group_text(res['group']))}</p>")
     if res["weber"]:
@@ -238,19 +233,16 @@ def html_section(res: dict, study) -> str:
 
         t = trials(study)
         for c in res["conditions"]:
-            img = _inline_png(lambda path, c=c: psychometric_plot(t[t["condition"] == c["condition"]], [r for r in res["weber"] if r["condition"] == c["condition"]],
+            img = drawn_png(lambda path, c=c: psychometric_plot(t[t["condition"] == c["condition"]], [r for r in res["weber"] if r["condition"] == c["condition"]],
                                                                    c["condition"], path, res["facts"]["synthetic"]))
-            body.append(f'<figure><img alt="psychometric {esc(c["condition"])}" src="data:image/png;base64,{img}"></figure>')
-        body.append(_table_html(per, "h3"))
+            body.append(figure_html(f'psychometric {esc(c["condition"])}', img))
+        body.append(table_html(per, "h3"))
     return "<h2>Stiffness discrimination</h2>" + "".join(body)
 
 
 def html(res: dict, study) -> str:
     esc = _html.escape
-    return f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>{esc(res['facts']['study'])}: stiffness discrimination</title>
-{STYLE}</head><body>
+    return f"""{page_head(f"{res['facts']['study']}: stiffness discrimination")}
 <h1>{esc(res['facts']['study'])}</h1>
 {html_section(res, study)}
-</body></html>
-"""
+{PAGE_END}"""

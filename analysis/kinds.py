@@ -21,11 +21,17 @@ import numpy as np
 import pandas as pd
 
 from analysis import scales
+from analysis.formatting import p_value
 from analysis.stats import friedman, set_holm, wilson
-from analysis.study import Study
+from analysis.study_snapshot import Study
 from analysis.withhold import across_reason
 from studyctl import instruments
 from studyctl.questions import VAS_RANGE
+
+
+def _p(x) -> str:  # the shared p-value, with n/a where a test gave none
+    return p_value(x, missing="n/a")
+
 
 TRIAL_MEAN = " (mean over trials)"
 
@@ -232,7 +238,7 @@ def ordinal_primary(protocol, meas: pd.DataFrame) -> dict | None:
 
 
 def kind_stats(study: Study, answers: pd.DataFrame) -> dict:
-    """Everything beyond yes/no of `study` (analysis.study.Study) from its complete `answers`:
+    """Everything beyond yes/no of `study` (analysis.study_snapshot.Study) from its complete `answers`:
     ratings, scores, choices, end questions, and the ordinal primary."""
 
     protocol = study.protocol
@@ -302,10 +308,6 @@ def across_p(x: np.ndarray) -> float:
     if x.shape[1] == 2:
         return float(wilcoxon(x[:, 0], x[:, 1], method="approx").pvalue)
     return friedman(x)["p_value"]
-
-
-def _p(x) -> str:
-    return "n/a" if x is None or not np.isfinite(x) else f"{x:.3g}"
 
 
 def _ci(lo, hi, fmt="{:.2f}") -> str:
@@ -399,11 +401,3 @@ def kind_tables(kinds: dict, models: list[str], scope: str) -> list[dict]:
         out.append({"title": "Asked once at the end", "columns": ["Question", "Answers"], "rows": rows,
                     "note": "About the whole session, not one condition: described, not tested."})
     return out
-
-
-def table_markdown(t: dict) -> list[str]:
-    def cell(x: str) -> str:
-        return str(x).replace("|", "\\|").replace("\n", " ")
-
-    return [f"**{t['title']}**", "", "| " + " | ".join(map(cell, t["columns"])) + " |", "|" + "---|" * len(t["columns"]),
-            *("| " + " | ".join(map(cell, r)) + " |" for r in t["rows"]), "", t["note"], ""]

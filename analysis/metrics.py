@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from analysis import kinematics as kin
-from analysis.study import Study
+from analysis.study_snapshot import Study
 from sim.scene import build_scene
 from sim.targets import SAFE_FORCE_N
 from studyctl.traces import read_trace

@@ -59,7 +59,7 @@ def rates_plot(rates, path: Path, synthetic: bool) -> None:
 
 def deformation_plot(lat, path: Path, synthetic: bool) -> None:
     """Distribution of the deformation time per frame (trial means) per model, log scale
-    (`lat`: ``model, value`` per trial, analysis.study.Study.latency_trials)."""
+    (`lat`: ``model, value`` per trial, analysis.study_snapshot.Study.latency_trials)."""
     plt = _plt()
     models = list(dict.fromkeys(lat["model"]))
     fig, ax = plt.subplots(figsize=(6, 3.6), dpi=100)

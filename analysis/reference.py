@@ -36,7 +36,7 @@ from sim.errors import ParameterError
 from sim.jsonable import jsonable
 from sim.mesh import patch_vertices
 from sim.patch import patch_area_points
-from sim.reference import make_pulls, scene_with
+from sim.pulls import make_pulls, scene_with
 from sim.scene import DEFAULT_SCENE, clamp_limit, grasp_radius
 from sim.tetmesh import ENVELOPE_FRACTION, enclosed_volume, hemisphere_surface, mesh_hemisphere
 

@@ -1,19 +1,19 @@
 """Report documents: LaTeX Table 1, and one self-contained HTML file with tables and plots, of
-a study read once (analysis.study.Study)."""
+a study read once (analysis.study_snapshot.Study)."""
 
 from __future__ import annotations
 
-import base64
 import html as _html
 import tempfile
 from pathlib import Path
 
 from analysis import plots, table1
 from analysis.accuracy import intro
+from analysis.formatting import PAGE_END, drawn_png, figure_html, page_head, png_base64, table_html
 from analysis.kinds import gee_line, kind_stats, kind_tables, measures, primary_line
 from analysis.plots import pareto_plot, stability_heatmap
 from analysis.stability import markdown, outcome_grid
-from analysis.study import Study
+from analysis.study_snapshot import Study
 from analysis.study_stats import study_stats
 from analysis.withhold import mean_sd
 
@@ -99,40 +99,11 @@ def _figure_order(path: Path) -> int:
     return next((k for k, name in enumerate(FIGURES) if path.stem.startswith(name)), len(FIGURES))
 
 
-# every HTML report's look (Table 1, the discrimination report)
-STYLE = """<style>
-body { font-family: sans-serif; margin: 2em; color: #222; }
-table { border-collapse: collapse; font-size: 13px; }
-th, td { border: 1px solid #bbb; padding: 4px 8px; vertical-align: top; }
-th { background: #eee; }
-.synthetic { background: #b00020; color: white; padding: 6px 10px; font-weight: bold; display: inline-block; }
-figure { display: inline-block; margin: 1em; }
-img { max-width: 900px; }
-</style>"""
-
-
-def _table_html(t: dict, heading: str = "h2") -> str:
-    """A table {title, columns, rows, note} (analysis.kinds.kind_tables, analysis.jnd.tables) as
-    an HTML section under a `heading` (every cell escaped)."""
-    esc = _html.escape
-    head = "".join(f"<th>{esc(c)}</th>" for c in t["columns"])
-    rows = "".join("<tr>" + "".join(f"<td>{esc(str(c))}</td>" for c in r) + "</tr>" for r in t["rows"])
-    return f"<{heading}>{esc(t['title'])}</{heading}><table><tr>{head}</tr>{rows}</table><p>{esc(t['note'])}</p>"
-
-
-def _inline_png(draw) -> str:
-    """Base64 PNG of what `draw(path)` writes (a report is one self-contained file)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "plot.png"
-        draw(path)
-        return base64.b64encode(path.read_bytes()).decode()
-
-
 def accuracy_html(result: dict) -> str:
     """The accuracy bench's table and Pareto plot (analysis/accuracy.py) as an HTML section."""
     esc = _html.escape
     raw = [r for r in result["rows"] if r["calibration"] == "raw"]
-    img = _inline_png(lambda path: pareto_plot(raw, path, reference=result["meta"]["reference"]["setting"]))
+    img = drawn_png(lambda path: pareto_plot(raw, path, reference=result["meta"]["reference"]["setting"]))
     head = "".join(f"<th>{h}</th>" for h in ("model", "setting", "calibration", "scale", "force error (mean / max)", "within JND [95% CI]",
                                              "within / outside / undecided", "direction error", "servo tick", "deformation frame"))
     rows = "".join(
@@ -145,13 +116,13 @@ def accuracy_html(result: dict) -> str:
     return (f"<h2>Model error against run time</h2><p>{esc(intro(result))} Simulated pulls, not participants. "
             "Seed paper (its 2014 PC): plate-spring 14.69 ms, FEM 21.35 ms, mass-spring 23.08 ms per deformation.</p>"
             f"<table><tr>{head}</tr>{rows}</table>"
-            f'<figure><img alt="pareto" src="data:image/png;base64,{img}"></figure>')
+            + figure_html("pareto", img))
 
 
 def stability_html(result: dict) -> str:
     """The stability sweep's heat map and the cases that were not stable, as an HTML section."""
     esc = _html.escape
-    img = _inline_png(lambda path: stability_heatmap(outcome_grid(result["cases"]), path))
+    img = drawn_png(lambda path: stability_heatmap(outcome_grid(result["cases"]), path))
 
     def at(c):
         return "" if c["detected_at_s"] is None else f"{c['detected_at_s']:.3f} s"
@@ -161,7 +132,7 @@ def stability_html(result: dict) -> str:
     md = markdown(result).splitlines()
     near = "".join(f"<p>{esc(line)}</p>" for line in md if line.startswith("Stable but near"))
     return (f"<h2>Numerical stability</h2><p>{esc(md[0])}</p>"
-            f'<figure><img alt="stability" src="data:image/png;base64,{img}"></figure>'
+            + figure_html("stability", img) +
             f"<table><tr><th>model</th><th>case</th><th>outcome</th><th>at</th><th>reason</th></tr>{rows}</table>{near}")
 
 
@@ -172,7 +143,7 @@ def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, 
     st = study_stats(study, r, q, holm_scope=holm_scope)
     with tempfile.TemporaryDirectory() as tmp:
         write_plots(study, tmp, force_traces)
-        images = {f.stem: base64.b64encode(f.read_bytes()).decode() for f in sorted(Path(tmp).glob("*.png"), key=_figure_order)}
+        images = {f.stem: png_base64(f) for f in sorted(Path(tmp).glob("*.png"), key=_figure_order)}
     esc = _html.escape
     listed = table1.incomplete_text(facts)
     incomplete = f" Left out (incomplete): {listed}." if listed else ""
@@ -196,11 +167,9 @@ def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, 
     binary = (f"<h2>Yes/no questions</h2><p>Rates with Wilson 95% intervals; Cochran's Q across models; pairwise exact McNemar tests.</p>"
               f"<table><tr><th>Question</th>{head}<th>Cochran's Q (p)</th><th>McNemar p ({scope})</th></tr>"
               f"{''.join(rows)}</table><p>{gee}</p>") if len(r) else ""
-    kind_html = "".join(_table_html(t) for t in kind_tables(st["kinds"], models, scope))
-    figs = "".join(f'<figure><img alt="{k}" src="data:image/png;base64,{v}"></figure>' for k, v in images.items())
-    return f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>{esc(facts['study'])}: Table 1</title>
-{STYLE}</head><body>
+    kind_html = "".join(table_html(t) for t in kind_tables(st["kinds"], models, scope))
+    figs = "".join(figure_html(k, v) for k, v in images.items())
+    return f"""{page_head(f"{facts['study']}: Table 1")}
 <h1>{esc(facts['study'])}: Table 1</h1>
 {banner}
 <p>N = {facts['participants']} participants with every answer; {esc(facts['design'])}.{esc(incomplete)} {esc(scope)}.</p>
@@ -215,5 +184,4 @@ def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, 
 {figs}
 {accuracy_html(accuracy) if accuracy else ""}
 {stability_html(stability) if stability else ""}
-</body></html>
-"""
+{PAGE_END}"""

@@ -8,9 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from analysis.kinds import family_pairs, gee_line, kind_stats, kind_tables, primary_line, table_markdown
+from analysis.formatting import table_markdown
+from analysis.kinds import family_pairs, gee_line, kind_stats, kind_tables, primary_line
 from analysis.stats import HOLM_SCOPES, gee_fit, pairwise_mcnemar, set_holm
-from analysis.study import Study
+from analysis.study_snapshot import Study
 from analysis.table1 import (
     DEFORMATION_LABEL,
     answers_wide,
@@ -33,7 +34,7 @@ from analysis.withhold import mean_sd
 def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None, holm_scope: str = "family") -> dict:
     """Everything `studyctl report stats --json` prints (`r`, `q`: rates and cochran already
     computed by the caller, so a report does not compute them twice) of `study`
-    (analysis.study.Study: the database read once). Complete cases only
+    (analysis.study_snapshot.Study: the database read once). Complete cases only
     (`analysis.table1.complete_answers`). `holm_scope`: "family" (default: Holm over every
     pairwise McNemar test of every question) or "question" (within each question's pairs)."""
     if holm_scope not in HOLM_SCOPES:

@@ -1,4 +1,4 @@
-"""Table 1 of the seed paper from a study (analysis.study.Study: the database read once),
+"""Table 1 of the seed paper from a study (analysis.study_snapshot.Study: the database read once),
 with the statistics it left out.
 
 Tidy DataFrames with stable column names (documented in docs/analysis.md):
@@ -19,7 +19,7 @@ import pandas as pd
 
 from analysis.kinds import family_pairs
 from analysis.stats import wilson
-from analysis.study import Study, data_flag
+from analysis.study_snapshot import Study, data_flag
 from analysis.withhold import binary_across_reason
 from sim.models.registry import ModelLoadError, model_class
 

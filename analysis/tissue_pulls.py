@@ -1,5 +1,5 @@
 """The tissue's finite-strain pulls, which the converged reference (analysis/reference.py)
-and the observer's truth (analysis/truth.py) are made of: the tissue's law (the scene's
+and the observer's truth (analysis/truth_table.py) are made of: the tissue's law (the scene's
 `[material]`, sim/material.py) on quadratic tetrahedra on the brain's body-fitted meshes, each
 pull solved by Newton, read from the shipped solves or from the cache.
 
@@ -40,7 +40,7 @@ from sim.files import save_npz
 from sim.linalg import Factor
 from sim.models.fem import FiniteStrain, TetSpace, constraint_matrix, hold
 from sim.patch import patch_area_points
-from sim.reference import scene_with
+from sim.pulls import scene_with
 from sim.scene import clamp_limit, grasp_radius
 from sim.tetmesh import SHIPPED_MM, BodyMesh, hemisphere_surface, mesh_hemisphere, needs_meshing
 from sim.volume import cache_dir, locate

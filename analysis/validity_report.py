@@ -2,7 +2,7 @@
 performance metrics (analysis/metrics.py) compared between its participant groups with
 analysis/validity.py, beside its face-validity ratings per group.
 
-`validity_report(study, ...)` reads one study snapshot (analysis/study.py) and returns a dict of tidy
+`validity_report(study, ...)` reads one study snapshot (analysis/study_snapshot.py) and returns a dict of tidy
 DataFrames and numbers; `markdown`, `html` and `to_json` render it. The groups are each
 participant's value of the protocol's `design.groups` field, in the field's order; the most
 expert group is its last value. Participant fields of kind `text` are never read; integer and
@@ -11,9 +11,7 @@ number fields are described per group, nothing else of a participant is.
 
 from __future__ import annotations
 
-import base64
 import html as _html
-import io
 import json
 from collections.abc import Callable
 
@@ -22,11 +20,11 @@ import pandas as pd
 from scipy import stats
 
 from analysis import validity as v
+from analysis.formatting import PAGE_END, figure_png, p_value, page_head
 from analysis.metrics import UNITS, metrics_table, study_goals
 from analysis.plots import OTHER_COLORS, _plt
-from analysis.report import STYLE
 from analysis.stats import holm
-from analysis.study import Study, data_flag
+from analysis.study_snapshot import Study, data_flag
 from sim.jsonable import jsonable
 from studyctl import instruments
 from studyctl.errors import StudyError
@@ -173,7 +171,7 @@ def _with_wy(columns: list[str]) -> list[str]:
 def validity_report(study: Study, permutations: int = DEFAULT_PERMUTATIONS, bootstrap: int = DEFAULT_BOOTSTRAP, seed: int = 0,
                     progress: Callable[[int, int], None] | None = None,
                     group_permutations: int = DEFAULT_GROUP_PERMUTATIONS) -> dict:
-    """The construct-validity report of `study` (analysis/study.py's snapshot). `permutations`:
+    """The construct-validity report of `study` (analysis/study_snapshot.py's snapshot). `permutations`:
     of the classifier's permutation test; `group_permutations`: of the group tests' Westfall-Young
     adjustment (`p_wy`, analysis.validity.group_tests' n_perm); `bootstrap`: replicates of Cliff's delta's intervals and
     of the learning curves'; `seed`: of every resampling. `progress(done, STEPS)` after each step.
@@ -280,12 +278,6 @@ def _g(x, fmt: str = "{:.3g}") -> str:
     return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) or pd.isna(x) else fmt.format(x)
 
 
-def _p(x) -> str:
-    if x is None or pd.isna(x):
-        return "-"
-    return "<0.001" if x < 0.001 else f"{x:.3f}"
-
-
 def _ci(lo, hi) -> str:
     return f"[{_g(lo)}, {_g(hi)}]"
 
@@ -345,14 +337,14 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
         meds = [f"{_g(d.loc[g, 'median'])} {_ci(d.loc[g, 'q1'], d.loc[g, 'q3'])}" if g in d.index else "-" for g in order]
         tested = not isinstance(k.get("reason"), str)
         rows.append([k["metric"], _unit(k["metric"]), k["condition"], *meds, _g(k["H"]) if tested else "-",
-                     _p(k["p"]) if tested else f"not tested: {k['reason']}", _p(k["p_holm"]), _p(k["p_wy"])])
+                     p_value(k["p"], decimals=True) if tested else f"not tested: {k['reason']}", p_value(k["p_holm"], decimals=True), p_value(k["p_wy"], decimals=True)])
     n_kw = int(kw["p"].notna().sum())
     out.append(("Group comparisons", f"Kruskal-Wallis across the groups per metric and condition (each participant's mean over trials "
                 f"and hands); p_holm: Holm over the family of the {n_kw} Kruskal-Wallis tests run (a metric with no variation, or "
                 "values in fewer than two groups, is not tested and not in the family); p_wy: Westfall-Young step-down min-p over the same family, "
                 f"{rep['settings']['group_permutations']} permutations of the participants' group labels (keeps the correlation "
                 "between the metrics, which makes Holm conservative).", cols, rows))
-    rows = [[r["metric"], r["condition"], f"{r['a']} vs {r['b']}", _g(r["U"]), _p(r["p"]), _p(r["p_holm"]), _p(r["p_wy"]),
+    rows = [[r["metric"], r["condition"], f"{r['a']} vs {r['b']}", _g(r["U"]), p_value(r["p"], decimals=True), p_value(r["p_holm"], decimals=True), p_value(r["p_wy"], decimals=True),
              f"{_g(r['cliffs_delta'], '{:.2f}')} [{_g(r['delta_low'], '{:.2f}')}, {_g(r['delta_high'], '{:.2f}')}]"]
             if not isinstance(r.get("reason"), str) else [r["metric"], r["condition"], f"{r['a']} vs {r['b']}", "-", f"not tested: {r['reason']}", "-", "-", "-"]
             for r in pairs.to_dict(orient="records")]
@@ -368,7 +360,7 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
     if mm["reason"]:
         out.append(("Mixed model", f"Not fitted: {mm['reason']}.", [], []))
     else:
-        rows = [[r["metric"], r["term"], _g(r["coef"]), _g(r["se"]), _g(r["z"]), _p(r["p"]), "yes"] if r["converged"] else
+        rows = [[r["metric"], r["term"], _g(r["coef"]), _g(r["se"]), _g(r["z"]), p_value(r["p"], decimals=True), "yes"] if r["converged"] else
                 [r["metric"], r["term"], "-", "-", "-", "not tested: the fit did not converge", "NO"]
                 for r in mm["fixed"].to_dict(orient="records")]
         rows += [[r["metric"], "not fitted: " + r["reason"], "", "", "", "", ""] for r in mm["skipped"].to_dict(orient="records")]
@@ -415,7 +407,7 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
         text = (f"Group from a participant's {c['n_features']} metric scores (median imputation, standardisation, L2 logistic "
                 f"regression, balanced class weights), leave-one-participant-out over {c['n']} participants: accuracy "
                 f"{c['accuracy']:.1%} (balanced {c['balanced_accuracy']:.1%}; the largest group's share {c['chance']:.1%}), "
-                f"permutation p = {_p(c['p_value'])} ({c['n_permutations']} permutations of the groups). Below the largest group's "
+                f"permutation p = {p_value(c['p_value'], decimals=True)} ({c['n_permutations']} permutations of the groups). Below the largest group's "
                 "share is what leave-one-out gives groups that do not differ (each left-out participant shifts the training groups "
                 "against its own); read the permutation p, not the distance from chance. Confusion (rows: true group):")
         rows = [[g] + list(r) for g, r in zip(c["groups"], c["confusion"])]
@@ -429,7 +421,7 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
         for t in rt.to_dict(orient="records"):
             d = rd[(rd["item"] == t["item"]) & (rd["condition"] == t["condition"])].set_index("group")
             cells = [f"{_g(d.loc[g, 'median'])} {_ci(d.loc[g, 'q1'], d.loc[g, 'q3'])} ({d.loc[g, 'n']})" for g in order]
-            rows.append([t["question"], _cond(t["condition"]), *cells, _g(t["H"]), _p(t["p"]), _p(t["p_holm"])])
+            rows.append([t["question"], _cond(t["condition"]), *cells, _g(t["H"]), p_value(t["p"], decimals=True), p_value(t["p_holm"], decimals=True)])
         out.append(("Face validity ratings", "Per rating question (its mean over trials when asked after each trial) and instrument "
                     "score (SUS, 0-100), per group: median [IQR] (n), every participant who answered; Kruskal-Wallis across the groups, "
                     f"p_holm: Holm over the family of all {len(rt)} ratings and scores.",
@@ -450,13 +442,6 @@ def markdown(rep: dict) -> str:
 
 
 # ---------------------------------------------------------------- html and its plots
-
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    _plt().close(fig)
-    return base64.b64encode(buf.getvalue()).decode()
-
 
 def metric_figure(rep: dict, metric: str):
     """One metric: per condition, a box plot per group with every participant's score as a point,
@@ -498,7 +483,7 @@ def html(rep: dict) -> str:
     """One self-contained HTML file: the sections' tables and, per metric, a figure (box and
     strip plots per group, learning curves) inlined as base64 PNG."""
     esc = _html.escape
-    parts = [f"<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{esc(title(rep))}</title>\n{STYLE}</head><body>",
+    parts = [page_head(title(rep)),
              f"<h1>{esc(title(rep))}</h1>"]
     if rep["note"]:
         parts.append(f'<p class="synthetic">{esc(rep["note"])} {rep["synthetic_participants"]} synthetic participants.</p>')
@@ -512,7 +497,7 @@ def html(rep: dict) -> str:
     if rep["metrics"]:
         parts.append("<h2>Metrics per group and learning curves</h2>")
         for m in rep["metrics"]:
-            img = _png(metric_figure(rep, m))
+            img = figure_png(metric_figure(rep, m), _plt().close)
             parts.append(f'<figure><img alt="{esc(m)}" src="data:image/png;base64,{img}"><figcaption>{esc(m)}</figcaption></figure>')
-    parts.append("</body></html>\n")
+    parts.append(PAGE_END)
     return "\n".join(parts)

@@ -99,7 +99,7 @@ def measure() -> dict:
     from sim.models.fem.newton import hold
     from sim.models.fem.nodal_pressure import NodalPressure
     from sim.models.registry import model_class
-    from sim.reference import make_pulls, scene_with, test_pulls
+    from sim.pulls import make_pulls, scene_with, test_pulls
 
     cfg = AccuracyConfig()
     scene = scene_with(cfg.scene)

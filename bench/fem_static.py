@@ -69,7 +69,7 @@ def measure() -> dict:
     from sim.models.fem import FiniteStrain, TetSpace, constraint_matrix, hold
     from sim.models.fem.nodal_pressure import NodalPressure
     from sim.patch import patch_area_points
-    from sim.reference import make_pulls, scene_with, test_pulls
+    from sim.pulls import make_pulls, scene_with, test_pulls
     from sim.scene import clamp_limit, grasp_radius
     from sim.tetmesh import hemisphere_surface, mesh_hemisphere
     from sim.volume import locate

@@ -62,8 +62,8 @@ def main() -> None:
 def located_tick(scene, disp) -> float:
     """The location-aware model (issue 16's goal: a tick within 2x of the paper's model's)."""
     from analysis.accuracy import LOCATED_PARAMS
-    from sim.field import FIELD_FILE, load_field
     from sim.models.plate_spring import PlateSpringModel, load_params
+    from sim.stiffness_field import FIELD_FILE, load_field
 
     paper = PlateSpringModel(scene.mesh, scene.spec.models["plate_spring"].options["params"], "continuous")
     located = PlateSpringModel(scene.mesh, load_params(LOCATED_PARAMS), "located", load_field(FIELD_FILE, scene.mesh))

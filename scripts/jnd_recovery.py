@@ -43,7 +43,7 @@ def main() -> None:
     from analysis import jnd
     from analysis.pooled import pooled_webers
     from analysis.psychometric import weber_table
-    from analysis.study import read_study
+    from analysis.study_snapshot import read_study
     from studyctl.store import Store
     from studyctl.synthetic_study import run_synthetic_study
 

@@ -1,7 +1,7 @@
 """Make the shipped finite-strain reference solves: data/reference_pulls.npz and its record
 data/reference_pulls.json (the file's SHA-256, what each entry is, how long it took).
 
-Solves the accuracy bench's 18 pulls (`sim.reference.make_pulls` and `test_pulls`) of the
+Solves the accuracy bench's 18 pulls (`sim.pulls.make_pulls` and `test_pulls`) of the
 shipped scene on each shipped mesh (8, 6, 4 mm) with the scene's law (protocols/materials/
 human_cortex.toml), recording every 2 mm to 24 mm (`analysis.reference.RECORD_XS`), the hand
 pulls with their condensed tangent stiffness too (the observer's truth reads them). A solve that
@@ -23,7 +23,7 @@ import numpy as np
 
 from analysis.tissue_pulls import RECORD_XS, SHIPPED_PULLS, SHIPPED_PULLS_INFO, pull_references, stored_solve
 from brainsim_assets import version
-from sim.reference import hand_pulls, make_pulls, scene_with, test_pulls
+from sim.pulls import hand_pulls, make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE
 from sim.tetmesh import SHIPPED_MM
 

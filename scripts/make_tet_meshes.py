@@ -23,7 +23,7 @@ import numpy as np
 
 from sim.files import save_npz
 from sim.mesh import BRAIN_MESH as MESH_FILE
-from sim.reference import scene_with
+from sim.pulls import scene_with
 from sim.scene import DEFAULT_SCENE
 from sim.tetmesh import (
     ENVELOPE_FRACTION,

@@ -461,7 +461,7 @@ def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
 
 def write_outputs(result: RunResult, scene, out_dir: Path, progress: Callable[[int, int], None] | None = None) -> int:
     """Pictures (one PNG per snapshot), the force-time plot and the trace CSV. Returns frames written."""
-    from sim.plots import force_plot, write_trace
+    from sim.run_plots import force_plot, write_trace
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -469,7 +469,7 @@ def write_outputs(result: RunResult, scene, out_dir: Path, progress: Callable[[i
     force_plot(result, out_dir / "force.png")
     written = 0
     if scene.spec.renderer.kind == "offscreen" and result.snapshots:
-        from sim.render import render_snapshots
+        from sim.run_pictures import render_snapshots
 
         written = render_snapshots(result, scene, out_dir, progress=progress)
     return written

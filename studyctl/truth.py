@@ -36,9 +36,9 @@ from pathlib import Path
 import numpy as np
 
 from brainsim_assets import path as _asset
-from sim.field import mesh_digest
 from sim.mesh import patch_vertices
 from sim.scene import clamp_limit, grasp_radius
+from sim.stiffness_field import mesh_digest
 from sim.volume import cache_dir
 from studyctl.errors import InputError
 

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 from analysis import accuracy
 from analysis.accuracy import Setting, class_best, compare, coupling_bound
 from analysis.plots import pareto
-from sim.reference import Pull, make_pulls, scene_with
+from sim.pulls import Pull, make_pulls, scene_with
 from sim.scene import DEFAULT_SCENE
 from studyctl.cli import cli
 

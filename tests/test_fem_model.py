@@ -157,7 +157,7 @@ def test_corotational_fem_pulls_through_inverted_elements_and_still_catches_a_ru
     force that grows smoothly. The runaway check stays as the servo's safety net."""
     import sim.models.fem.model as fem_model
     from analysis.accuracy import HANDSET_PARAMS, Setting, _build_model
-    from sim.reference import scene_with, test_pulls
+    from sim.pulls import scene_with, test_pulls
     from sim.scene import DEFAULT_SCENE
 
     scene = scene_with(DEFAULT_SCENE)

@@ -67,7 +67,7 @@ def test_steady_pull_renders_no_force_steps():
     import numpy as np
 
     from analysis.accuracy import HANDSET_PARAMS, Setting, _build_model
-    from sim.reference import make_pulls, scene_with
+    from sim.pulls import make_pulls, scene_with
     from sim.scene import DEFAULT_SCENE
 
     scene = scene_with(DEFAULT_SCENE)
@@ -96,7 +96,7 @@ def test_a_grasp_starts_from_zero_force():
     import numpy as np
 
     from analysis.accuracy import HANDSET_PARAMS, Setting, _build_model
-    from sim.reference import make_pulls, scene_with
+    from sim.pulls import make_pulls, scene_with
     from sim.scene import DEFAULT_SCENE
 
     scene = scene_with(DEFAULT_SCENE)

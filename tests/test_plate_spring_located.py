@@ -4,13 +4,13 @@ interpolation, and the shipped field's fit to this brain."""
 import numpy as np
 import pytest
 
-from analysis.field import interpolate
+from analysis.field_fit import interpolate
 from sim.errors import ParameterError
-from sim.field import FIELD_FILE, load_field, mesh_digest
 from sim.laws import RadialTable, TensorTable
 from sim.models.plate_spring import PlateSpring, PlateSpringModel, load_params
-from sim.reference import scene_with
+from sim.pulls import scene_with
 from sim.scene import DEFAULT_SCENE
+from sim.stiffness_field import FIELD_FILE, load_field, mesh_digest
 
 PARAMS = DEFAULT_SCENE.parents[1] / "models" / "plate_spring_located.toml"
 

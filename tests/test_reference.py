@@ -15,7 +15,7 @@ from analysis.convergence import converge, richardson, richardson2
 from analysis.tissue_pulls import build_problem, pull_stiffness
 from sim.mesh import icosphere
 from sim.patch import patch_area_points
-from sim.reference import make_pulls, scene_with
+from sim.pulls import make_pulls, scene_with
 from sim.scene import DEFAULT_SCENE, clamp_limit
 from sim.tetmesh import enclosed_volume, hemisphere_surface, mesh_hemisphere
 from sim.volume import tet_volumes
@@ -204,7 +204,7 @@ def test_samples_past_a_stopped_solve_have_no_reference_and_are_not_judged():
     """A pull whose solve stopped on one mesh: its later samples carry no reference, the
     calibration scale and the rows leave them out, and the others are judged as before."""
     from analysis.accuracy import calibration_scale, compare, reference_samples
-    from sim.reference import Pull
+    from sim.pulls import Pull
 
     xs = np.array([0.004, 0.008])
     hs = [0.0026, 0.0023, 0.0017]

@@ -117,7 +117,7 @@ def test_replay_reproduces_a_recorded_run(tmp_path):
 
     scene = build_scene(SCENE)
     first = run_scene(scene, duration=2.0, time_scale=0)
-    from sim.plots import write_trace
+    from sim.run_plots import write_trace
 
     write_trace(first, tmp_path / "trace.csv")
     text = _localise(SCENE.read_text()).replace('device = "simulated"', f'device = "replay"\ntrace = "{tmp_path / "trace.csv"}"')

@@ -235,8 +235,8 @@ def test_the_shipped_truth_covers_the_scenes_grasps_and_is_the_references_soluti
     import json
 
     from analysis.tissue_pulls import RECORD_XS, combined_sample, pull_references
-    from sim.field import FIELD_FILE
-    from sim.reference import hand_pulls, scene_with
+    from sim.pulls import hand_pulls, scene_with
+    from sim.stiffness_field import FIELD_FILE
     from studyctl.errors import InputError
     from studyctl.truth import TRUTH_FILE, hand_vertices, load_truth
     from tests.conftest import SCENE

@@ -129,7 +129,7 @@ def test_margin_bounds_match_brute_force_over_every_pairing(yes, n):
 
 def _read(db):
     """The study in `db`, read once, as the report commands read it."""
-    from analysis.study import read_study
+    from analysis.study_snapshot import read_study
     from studyctl.store import Store
 
     with Store(db, mode="read") as store:
@@ -284,7 +284,7 @@ def test_latex_html_and_plots(small_study, tmp_path):
 
 def test_a_report_reads_the_study_once(small_study, tmp_path, monkeypatch):
     """Each report command opens the database once (one Store, no other connection) and makes
-    every table, statistic and plot from one snapshot (analysis.study.Study)."""
+    every table, statistic and plot from one snapshot (analysis.study_snapshot.Study)."""
     import dataclasses
     import sqlite3
 

@@ -10,7 +10,7 @@ import pytest
 from sim.errors import MeshError
 from sim.models.fem import build as build_fem
 from sim.models.mass_spring import build as build_ms
-from sim.reference import scene_with
+from sim.pulls import scene_with
 from sim.scene import DEFAULT_SCENE
 from sim.tetmesh import (
     PROVENANCE,

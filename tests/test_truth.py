@@ -1,4 +1,4 @@
-"""`studyctl calibrate truth` (analysis/truth.py) end to end on two coarse meshes (20 and 16 mm,
+"""`studyctl calibrate truth` (analysis/truth_table.py) end to end on two coarse meshes (20 and 16 mm,
 meshed and solved on first use, then cached): the table it writes is read by `load_truth` for
 the scene it was made for, follows the reference's paths, and its transfer to a grasp place off
 the hand's vertex is checked against a direct solve there."""
@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from analysis.tissue_pulls import RECORD_XS, combined_sample, pull_references
-from sim.reference import hand_pulls, scene_with
+from sim.pulls import hand_pulls, scene_with
 from studyctl.cli import cli
 from studyctl.truth import hand_sets, load_truth
 from tests.conftest import SCENE
@@ -18,17 +18,17 @@ from tests.conftest import SCENE
 
 @pytest.fixture(scope="module")
 def coarse_truth(tmp_path_factory, monkeypatch_module):
-    import analysis.truth
+    import analysis.truth_table
 
     scene = scene_with(SCENE)
     left = hand_sets(scene)[0]
     out = tmp_path_factory.mktemp("truth") / "t.npz"
-    original = analysis.truth.build_truth
+    original = analysis.truth_table.build_truth
 
     def coarse(*a, **kw):
         return original(*a, **(kw | {"sizes_mm": (20.0, 16.0)}))
 
-    monkeypatch_module.setattr(analysis.truth, "build_truth", coarse)
+    monkeypatch_module.setattr(analysis.truth_table, "build_truth", coarse)
     vertices = ",".join(str(int(v)) for v in left[:: max(1, len(left) // 4)])
     res = CliRunner().invoke(cli, ["calibrate", "truth", "--vertices", vertices, "--out", str(out), "--jobs", "1", "--json"])
     assert res.exit_code == 0, res.output
@@ -79,7 +79,7 @@ def test_between_records_and_off_the_pull_it_is_the_reference_solved_there(coars
     """At 3 mm (between the 2 and 4 mm records: the Hermite interpolant) and at 6 mm with 0.5 mm
     sideways (the path's tangent), against the reference solved directly to that displacement
     (the law is hyperelastic: the state does not depend on the path to it)."""
-    from sim.reference import Pull
+    from sim.pulls import Pull
 
     scene, out, _ = coarse_truth
     truth = load_truth(scene, out)

@@ -15,7 +15,7 @@ import pytest
 from analysis import validity_report as report_mod
 from analysis import validity_report as vr
 from analysis.metrics import COLUMNS
-from analysis.study import read_study
+from analysis.study_snapshot import read_study
 from studyctl.store import Store
 from tests.helpers import fast_protocol, studyctl
 from tests.test_fields import field_protocol

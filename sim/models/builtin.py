@@ -75,7 +75,7 @@ class PlateSpringBase(TissueModel):
         out = {"options": {"field": options["field"]} if options["field"] is not None else {},
                "variant": options["variant"], "plate_spring": options["params"]}
         if options["variant"] == "located" and options["field"] is None:  # the shipped stiffness field it loads
-            from sim.field import FIELD_FILE
+            from sim.stiffness_field import FIELD_FILE
 
             out["field"] = Path(FIELD_FILE) if Path(FIELD_FILE).exists() else None
         return out

@@ -389,7 +389,7 @@ class PlateSpringModel(PlateSpringBase):
     name = "plate_spring"
 
     def __init__(self, mesh, params: PlateSpringParams, variant: str = "continuous", field=None):
-        """`variant` "located" (beyond the paper, `analysis.field`): the continuous stack's curve
+        """`variant` "located" (beyond the paper, `analysis.field_fit`): the continuous stack's curve
         gives the shape, `field` ((n, 3, 3) stiffness per pascal at every vertex, scaled by the
         stack's E, the tissue's modulus) the size and direction of the force at the grasp."""
         if variant not in MODEL_VARIANTS:
@@ -460,7 +460,7 @@ def build(mesh, options: dict, scene=None) -> PlateSpringModel:
     """Construct from a scene's plate-spring options (`sim.models.builtin.PlateSpringOptions`, as a dict)."""
     field = None
     if options["variant"] == "located":
-        from sim.field import FIELD_FILE, load_field
+        from sim.stiffness_field import FIELD_FILE, load_field
 
         field = load_field(options["field"] or FIELD_FILE, mesh)
     return PlateSpringModel(mesh, options["params"], options["variant"], field)

@@ -116,7 +116,7 @@ def calibrate_field(scene_file, out_file, params_out, formulation, as_json):
     interpolated to every vertex; with --params-out, the stack's curve too."""
     import dataclasses
 
-    from analysis import field
+    from analysis import field_fit as field
     from analysis.accuracy import AccuracyConfig, sample_displacements
     from sim.calibrate import to_toml
     from sim.scene import load_scene
@@ -215,7 +215,7 @@ def calibrate_truth(scene_file, vertices, out_file, no_check, jobs, as_json):
     Richardson) and its small-strain transfer to the places around it. Needed for a scene, or
     grasp places, that the shipped table (data/observer_truth.npz) does not cover; the shipped
     scene's paths are shipped solves, another scene's take minutes per pull and mesh."""
-    from analysis.truth import build_truth
+    from analysis.truth_table import build_truth
 
     rep = build_truth(scene_file, out_file, vertices, check=not no_check, jobs=jobs, progress=None if as_json else click.echo)
     if as_json:

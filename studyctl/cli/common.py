@@ -151,8 +151,8 @@ def _table(rows: list[dict], title: str, columns: list[str]) -> None:
 
 
 def read_snapshot(db):
-    """The study in `db`, read once (analysis.study.Study): every report is made from it."""
-    from analysis.study import read_study  # the reports' stack loads only for the commands that make one
+    """The study in `db`, read once (analysis.study_snapshot.Study): every report is made from it."""
+    from analysis.study_snapshot import read_study  # the reports' stack loads only for the commands that make one
     from studyctl.store import Store
 
     with Store(db, mode="read") as store:

@@ -84,7 +84,7 @@ sessions_alias = _Group("sessions", commands={"list": session_list}, help="Alias
 @click.option("--json", "as_json", is_flag=True)
 def replay_cmd(db, session_id, trial, view, frames_dir, fullscreen, as_json):
     """Play a stored trial back: its recorded hand motion through the same model and scene."""
-    from studyctl.replay import replay_trial
+    from studyctl.trial_replay import replay_trial
 
     if fullscreen and view != "window":
         raise click.UsageError("--fullscreen needs --view window")

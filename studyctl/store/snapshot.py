@@ -1,4 +1,4 @@
-"""What the reports read of a study, for analysis/study.py's `read_study`: the answers and the
+"""What the reports read of a study, for analysis/study_snapshot.py's `read_study`: the answers and the
 counts of whose they are, the condition orders, the deformation latencies, the configurations
 each condition ran, the discrimination trials, the synthetic traits, the synthetic codes and the
 traced trials behind the performance metrics. Each is a function of

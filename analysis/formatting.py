@@ -1,0 +1,86 @@
+"""How every report writes its numbers and its pages: p-values, a table as Markdown or HTML,
+and the self-contained HTML page with its pictures inlined as base64 PNG. Table 1, the
+statistics, the discrimination report and the construct-validity report all use these, so a
+p-value or a page looks the same wherever it appears."""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+import tempfile
+from pathlib import Path
+
+import pandas as pd
+
+# every HTML report's look
+STYLE = """<style>
+body { font-family: sans-serif; margin: 2em; color: #222; }
+table { border-collapse: collapse; font-size: 13px; }
+th, td { border: 1px solid #bbb; padding: 4px 8px; vertical-align: top; }
+th { background: #eee; }
+.synthetic { background: #b00020; color: white; padding: 6px 10px; font-weight: bold; display: inline-block; }
+figure { display: inline-block; margin: 1em; }
+img { max-width: 900px; }
+</style>"""
+
+PAGE_END = "</body></html>\n"
+
+
+def p_value(x, missing: str = "-", decimals: bool = False) -> str:
+    """A p-value as a report prints it: `missing` where there is none (None, NaN); three
+    significant digits; or, with `decimals`, three decimals and "<0.001" below that."""
+    if x is None or pd.isna(x) or not math.isfinite(float(x)):
+        return missing
+    x = float(x)
+    if decimals:
+        return "<0.001" if x < 0.001 else f"{x:.3f}"
+    return f"{x:.3g}"
+
+
+def table_markdown(t: dict) -> list[str]:
+    """A table {title, columns, rows, note} as Markdown lines (pipes and newlines in cells escaped)."""
+    def cell(x: str) -> str:
+        return str(x).replace("|", "\\|").replace("\n", " ")
+
+    return [f"**{t['title']}**", "", "| " + " | ".join(map(cell, t["columns"])) + " |", "|" + "---|" * len(t["columns"]),
+            *("| " + " | ".join(map(cell, r)) + " |" for r in t["rows"]), "", t["note"], ""]
+
+
+def table_html(t: dict, heading: str = "h2") -> str:
+    """A table {title, columns, rows, note} as an HTML section under a `heading` (every cell escaped)."""
+    esc = html.escape
+    head = "".join(f"<th>{esc(c)}</th>" for c in t["columns"])
+    rows = "".join("<tr>" + "".join(f"<td>{esc(str(c))}</td>" for c in r) + "</tr>" for r in t["rows"])
+    return f"<{heading}>{esc(t['title'])}</{heading}><table><tr>{head}</tr>{rows}</table><p>{esc(t['note'])}</p>"
+
+
+def page_head(title: str) -> str:
+    """An HTML report's opening, up to and with <body> (the title escaped)."""
+    return f'<!doctype html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>\n{STYLE}</head><body>'
+
+
+def png_base64(path: Path) -> str:
+    return base64.b64encode(Path(path).read_bytes()).decode()
+
+
+def drawn_png(draw) -> str:
+    """Base64 PNG of what `draw(path)` writes (a report is one self-contained file)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "plot.png"
+        draw(path)
+        return png_base64(path)
+
+
+def figure_png(fig, close) -> str:
+    """Base64 PNG of a matplotlib figure, which `close(fig)` then closes."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    close(fig)
+    return base64.b64encode(buf.getvalue()).decode()
+
+
+def figure_html(alt: str, png: str) -> str:
+    """An inlined picture (`png`: base64) with its alternative text (escaped by the caller)."""
+    return f'<figure><img alt="{alt}" src="data:image/png;base64,{png}"></figure>'
