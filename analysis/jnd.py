@@ -229,7 +229,7 @@ def html_section(res: dict, study) -> str:
     if res["group"]:
         body.append(f"<p>{esc(_group_text(res['group']))}</p>")
     if res["weber"]:
-        from analysis.plots import psychometric_plot
+        from analysis.plots import psychometric_plot  # lazy: matplotlib, only for the HTML page's figures
 
         t = trials(study)
         for c in res["conditions"]:

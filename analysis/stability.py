@@ -31,7 +31,7 @@ from analysis.accuracy import plugin_problem
 from analysis.plots import stability_heatmap
 from sim.errors import SimError
 from sim.models.plate_spring import PlateSpringParams
-from sim.models.registry import installed, plugins
+from sim.models.registry import installed, model_class, plugins
 from sim.run import run_scene
 from sim.scene import DEFAULT_SCENE, ModelSpec, Scene, load_scene
 from sim.servo import ServoLoop
@@ -95,8 +95,6 @@ def applies(model: str, family: str) -> bool:
     if family == "stiffness":  # the mass-spring's springs: the hand coupling (tissue springs follow E)
         return model.startswith("mass_spring/")
     if family in ("young", "poisson") and not any(model.startswith(f"{m}/") for m in ("plate_spring", "fem", "mass_spring")):
-        from sim.models.registry import model_class
-
         return family in model_class(model.rsplit("/", 1)[0]).material_keys  # a lab's model: the material it reads
     return True
 

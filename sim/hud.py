@@ -3,6 +3,8 @@ for a view of any size (sizes are given for a 720-pixel-high view and scale with
 
 from __future__ import annotations
 
+from sim.font import atlas
+
 TEXT = (0.05, 0.05, 0.12)
 ACCENT = (0.70, 0.10, 0.05)
 ARROW = (0.85, 0.15, 0.10)  # the force: its arrow and its numbers
@@ -28,8 +30,6 @@ def size(slot: str, ui: float) -> int:
 
 def wrap(text: str, px: int, room: float) -> str:
     """`text` broken into lines at spaces so each is at most `room` pixels wide at size `px`."""
-    from sim.font import atlas
-
     a = atlas(px)
     lines = []
     for paragraph in text.split("\n"):
@@ -48,8 +48,6 @@ def wrap(text: str, px: int, room: float) -> str:
 def items(texts: dict[str, str], width: int, height: int) -> list[tuple]:
     """Each slot's text as drawn in a width x height view: (text wrapped to the width, x,
     baseline y, pixel size, rgb, align)."""
-    from sim.font import atlas
-
     ui = height / DESIGN_HEIGHT
     out = []
     for slot, text in texts.items():

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from sim.errors import ParameterError
 from sim.run import Pacing, RunResult, run_scene
+from sim.view import open_view
 
 LIVE_HELP = "Left button: grasp with the left hand. Right button: the right hand. Drag to pull, wheel for depth. Q: quit."
 
@@ -14,9 +16,6 @@ def run_view(scene, view: str = "window", duration: float | None = None, time_sc
              screenshot: Path | None = None, live: bool = False, snapshots: bool = False, fullscreen: bool = False) -> RunResult:
     """Run `scene` in real time while the participant view draws every visual frame. With
     `live`, the run lasts until Q, Escape or the window is closed (or `duration`)."""
-    from sim.errors import ParameterError
-    from sim.view import open_view
-
     if time_scale <= 0:
         raise ParameterError("--view window: the participant view needs real time (--time-scale > 0)")
     if screenshot is not None and not Path(screenshot).parent.is_dir():

@@ -18,6 +18,7 @@ from pathlib import Path
 from brainsim_assets import path as _asset
 from sim.errors import ParameterError
 from sim.hyperelastic import ALPHA_RANGE, BULK_RATIO, BULK_RATIO_RANGE, LAWS, Hyperelastic
+from sim.models.base import POISSON_MAX, POISSON_MIN
 from sim.tomlfile import TomlFileError, read_toml
 from sim.tomltable import TableReader
 
@@ -121,8 +122,6 @@ class MaterialSpec:
 
 def material_spec(material: TableReader) -> MaterialSpec:
     """A scene's [material] (its problems recorded on the reader)."""
-    from sim.models.base import POISSON_MAX, POISSON_MIN
-
     law, source = scene_law(material)
     poisson = material.number("poisson", default=DEFAULT_POISSON, lo=POISSON_MIN, hi=POISSON_MAX, hi_open=True)
     given = "young" in material.data

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.scene import Scene, clamp_limit, load_scene
+
 EXTRA_GRASPS = ((0.035, 0.015, 0.062),)  # frontal dorsal right hemisphere, beside the scene's hands
 
 
@@ -62,8 +64,6 @@ def test_pulls(scene, places: int = TEST_PLACES) -> list[Pull]:
     point (`make_pulls`), starting from those points. Vertices of the ico4 subset, where the
     location-aware plate-spring's field is sampled (`analysis.field_fit`), are excluded, so no
     test place is a field site."""
-    from sim.scene import clamp_limit
-
     mesh = scene.mesh
     v, n = mesh.vertices, mesh.vertex_normals
     labels = mesh.labels if mesh.labels is not None else np.zeros(len(v), dtype=np.int64)
@@ -110,8 +110,6 @@ def hand_pulls(scene) -> list[Pull]:
 
 def scene_with(path, young: float | None = None):
     """The scene at `path`, with Young's modulus replaced if given."""
-    from sim.scene import Scene, load_scene
-
     spec = load_scene(path)
     if young is not None:
         spec = dataclasses.replace(spec, material=dataclasses.replace(spec.material, young=float(young)))

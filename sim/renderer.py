@@ -20,7 +20,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sim import shapes
 from sim.errors import ViewError
+from sim.font import atlas
 
 # lit per vertex (Gouraud): llvmpipe's cost is per fragment, and the brain has a vertex every
 # pixel or two at this size, so per-fragment lighting bought nothing visible for its time;
@@ -164,8 +166,6 @@ class Renderer:
     """The GL resources of one view and the drawing of a frame."""
 
     def __init__(self, ctx, mesh):
-        from sim import shapes
-
         self.ctx = ctx
         self.lit = ctx.program(vertex_shader=LIT_VS, fragment_shader=LIT_FS)
         self.flat = ctx.program(vertex_shader=FLAT_VS, fragment_shader=FLAT_FS)
@@ -213,8 +213,6 @@ class Renderer:
 
     def _atlas(self, px: int):
         if px not in self.atlases:
-            from sim.font import atlas
-
             if len(self.atlases) >= 32:  # a window dragged through many sizes: drop the oldest
                 oldest = next(iter(self.atlases))
                 self.atlases.pop(oldest)[1].release()

@@ -28,7 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.errors import ParameterError
 from sim.servo import Event, Hand, ServoLoop
+from sim.targets import TargetTracker
 
 # a run keeps every tick in memory (about 110 bytes per tick for two hands): one hour is
 # 0.4 GB, where 1e12 s would have asked for petabytes
@@ -255,8 +257,6 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
     this run; `pacing` adds the participant view, waiting for a grasp and stop keys.
     `time_scale == 0` is lockstep (not for real devices).
     """
-    from sim.errors import ParameterError
-
     spec = scene.spec
     duration = spec.duration if duration is None else duration
     rate = spec.servo_rate_hz
@@ -291,8 +291,6 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
 
 def _tracker(scene):
     """The hands' targets to follow during a run (None: no hand has one)."""
-    from sim.targets import TargetTracker
-
     tracker = TargetTracker(scene.targets(), [scene.script(i).start for i in range(len(scene.spec.hands))])
     return tracker if tracker.any else None
 
@@ -307,6 +305,7 @@ def _ended(visual: VisualStep, result: RunResult) -> RunResult:
 
 
 def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, servo, end_on_targets=False) -> RunResult:
+    # lazy: the real-time servo's process machinery and compiled kernels, only for a real-time run
     from sim.servo_process import ServoProcess
 
     spec = scene.spec
@@ -342,7 +341,7 @@ def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, se
 def hand_states(hands, targets=None) -> list:
     """What the participant view draws of the visual step's hands (and their targets: a
     sim.targets.TargetTracker)."""
-    from sim.view import HandState
+    from sim.view import HandState  # lazy: the view (OpenGL) loads only when a run draws
 
     return [HandState(h.position, h.force, h.contact.vertex if h.contact is not None else None,
                       target=targets.states[i] if targets is not None else None) for i, h in enumerate(hands)]
@@ -424,7 +423,7 @@ def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
     ticks between frames run compiled where the run allows it (sim/lockstep.py: the same bits),
     the others in Python."""
     try:  # here, not at the top: numba (0.3 s) only where a lockstep run needs it; without numba every tick in Python
-        from sim.lockstep import CompiledTicks
+        from sim.lockstep import CompiledTicks  # lazy: numba, only for a compiled lockstep run
     except ImportError:
         CompiledTicks = None
 
@@ -461,7 +460,7 @@ def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
 
 def write_outputs(result: RunResult, scene, out_dir: Path, progress: Callable[[int, int], None] | None = None) -> int:
     """Pictures (one PNG per snapshot), the force-time plot and the trace CSV. Returns frames written."""
-    from sim.run_plots import force_plot, write_trace
+    from sim.run_plots import force_plot, write_trace  # lazy: matplotlib, only when outputs are written
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -469,7 +468,7 @@ def write_outputs(result: RunResult, scene, out_dir: Path, progress: Callable[[i
     force_plot(result, out_dir / "force.png")
     written = 0
     if scene.spec.renderer.kind == "offscreen" and result.snapshots:
-        from sim.run_pictures import render_snapshots
+        from sim.run_pictures import render_snapshots  # lazy: offscreen OpenGL and matplotlib, only for snapshots
 
         written = render_snapshots(result, scene, out_dir, progress=progress)
     return written

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.view import HandState, ParticipantView
+
 
 def render_snapshots(result, scene, out_dir: Path, progress: Callable[[int, int], None] | None = None) -> int:
     """Write frame_NNNN.png for every snapshot: the rendering, a colour bar and the forces."""
@@ -18,7 +20,6 @@ def render_snapshots(result, scene, out_dir: Path, progress: Callable[[int, int]
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from sim.view import HandState, ParticipantView
 
     mesh = scene.mesh
     r = scene.spec.renderer

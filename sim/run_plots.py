@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.devices.base import OmniSpec
+
 
 def _pyplot():
     import matplotlib
@@ -18,8 +20,6 @@ def _pyplot():
 
 
 def force_plot(result, path: Path) -> None:
-    from sim.devices.base import OmniSpec
-
     plt = _pyplot()
     spec = OmniSpec()
     fig, ax = plt.subplots(figsize=(7.0, 3.6), dpi=100)

@@ -16,9 +16,15 @@ from pathlib import Path
 import numpy as np
 
 from brainsim_assets import path as _asset
+from sim.devices import BACKENDS, backend_module
+from sim.devices.base import DeviceFrame, OmniSpec, view_rotation
+from sim.devices.simulated import PullScript
 from sim.errors import SceneError, SimError
 from sim.material import MaterialSpec, material_spec
+from sim.mesh import load_mesh
+from sim.models.api import TissueModel, default_options, option_kind
 from sim.models.base import POISSON_MAX, POISSON_MIN, Vec3
+from sim.models.registry import ModelLoadError, model_class
 from sim.patch import GRASP_RADIUS
 from sim.targets import SAFE_FORCE_N, HandTarget, TargetSpec
 from sim.tomlfile import Locator, TomlFileError, read_toml
@@ -66,8 +72,6 @@ class HandSpec:
 
     def script(self, mesh):
         """The scripted pull on `mesh`: start on the surface, pull along the tangent plane."""
-        from sim.devices.simulated import PullScript
-
         v = mesh.nearest_vertex(self.start)
         p = mesh.vertices[v]
         n = mesh.vertex_normals[v]
@@ -125,9 +129,6 @@ class SceneSpec:
     def options_of(self, name: str) -> dict:
         """Model `name`'s options on this scene: its [models.NAME], else the model's declared
         defaults. Raises SceneError naming an option without a default (and ModelLoadError)."""
-        from sim.models.api import default_options
-        from sim.models.registry import model_class
-
         if name in self.models:
             return dict(self.models[name].options)
         try:
@@ -192,8 +193,6 @@ def _check_targets(spec: SceneSpec, root: TableReader, problems: list) -> None:
     """Each target within its hand's device workspace: the Omni's 160 x 120 x 70 mm box (times
     `device_scale`) around the device's origin, as a person's device is aligned with the view,
     and as the simulated device's box lies along the scene's axes."""
-    from sim.devices.base import OmniSpec
-
     scene = Scene(spec)
     half = np.asarray(OmniSpec().workspace_m) / 2.0
     for i, h in enumerate(spec.hands):
@@ -305,8 +304,6 @@ def _view_spec(view: TableReader) -> ViewSpec:
 
 
 def _model_spec(models: TableReader, name: str) -> ModelSpec | None:
-    from sim.models.registry import ModelLoadError, model_class
-
     try:
         cls = model_class(name)
     except ModelLoadError as exc:
@@ -321,8 +318,6 @@ def configure(spec: SceneSpec, table: dict, path: Path, loc: Locator, prefix: st
     keys to change) on top, and `young` / `poisson` on the material. Every key is checked as the
     scene's own are, its problems named with the protocol's `path` and lines (`prefix`:
     "conditions.NAME."); raises one SceneError with all of them."""
-    from sim.models.registry import model_class
-
     model = table["model"]
     cls = model_class(model)  # the protocol's checker loaded it already
     option_keys = tuple(f.name for f in dataclasses.fields(cls.Options))
@@ -355,8 +350,6 @@ def configure(spec: SceneSpec, table: dict, path: Path, loc: Locator, prefix: st
 def _file_option(f) -> bool:
     """An option whose string value may name a file relative to the scene (a path, or a table
     that may be given as a file, like the plate-spring's `params`)."""
-    from sim.models.api import option_kind
-
     return option_kind(f) in ("path", "other")
 
 
@@ -366,8 +359,6 @@ def _model_options(table: TableReader, name: str, cls) -> ModelSpec | None:
 
 
 def _hand_spec(h: TableReader) -> HandSpec:
-    from sim.devices import BACKENDS
-
     h.keys(HAND_KEYS)
     name = h.string("name")
     grasp_at = h.number("grasp_at", default=0.2, lo=0.0)
@@ -454,8 +445,6 @@ class Scene:
     def device_frame(self, i: int):
         """Hand i's real device in the scene: aligned with the view, scaled, its origin at the
         hand's `device_origin` (default: its grasp target on the surface)."""
-        from sim.devices.base import DeviceFrame, view_rotation
-
         h = self.spec.hands[i]
         origin = h.device_origin if h.device_origin is not None else self.script(i).start
         return DeviceFrame(rotation=view_rotation(self.spec.view.front, self.spec.view.up), scale=h.device_scale, origin=tuple(origin))
@@ -480,8 +469,6 @@ class Scene:
 
     @cached_property
     def mesh(self):
-        from sim.mesh import load_mesh
-
         return load_mesh(self.spec.mesh_path)
 
     @cached_property
@@ -492,9 +479,6 @@ class Scene:
 
     @cached_property
     def model(self):
-        from sim.models.api import TissueModel
-        from sim.models.registry import ModelLoadError, model_class
-
         try:
             cls = model_class(self.model_spec.name)
         except ModelLoadError as exc:
@@ -511,8 +495,6 @@ class Scene:
 
     def open_devices(self) -> list:
         """One device per hand; hands on the same backend open together (one OpenHaptics rig)."""
-        from sim.devices import backend_module
-
         devices: list = [None] * len(self.spec.hands)
         for backend in dict.fromkeys(h.device for h in self.spec.hands):
             idx = [i for i, h in enumerate(self.spec.hands) if h.device == backend]

@@ -12,6 +12,11 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
+from sim.devices.mouse import MouseDevice
+from sim.devices.openhaptics import OpenHapticsDevice, OpenHapticsRig
+from sim.devices.replay import ReplayDevice
+from sim.devices.simulated import SimulatedOmni
+from sim.laws import Constant
 from sim.servo import Hand, ServoLoop, wait_until
 
 # per-hand slots in shared memory (float64); IN_P/IN_BUTTON are written by the parent (the
@@ -52,23 +57,16 @@ class LawModel:
 
 def _open_device(r, board, rig):
     if r[0] == "simulated":
-        from sim.devices.simulated import SimulatedOmni
-
         return SimulatedOmni(r[1], name=r[2])
     if r[0] == "replay":
-        from sim.devices.replay import ReplayDevice
-
         return ReplayDevice(r[1], r[2])
     if r[0] == "mouse":
-        from sim.devices.mouse import MouseDevice
-
         base = GLOBAL + SLOT * r[1]
 
         def source(base=base):
             return (board[base + IN_P], board[base + IN_P + 1], board[base + IN_P + 2]), board[base + IN_BUTTON] > 0.5
 
         return MouseDevice(source, r[3], name=r[2])
-    from sim.devices.openhaptics import OpenHapticsDevice
 
     return OpenHapticsDevice(rig, r[4], frame=r[3])
 
@@ -78,8 +76,6 @@ def _open_devices(recipes, board=None):
     rig = None
     names = [r[2] for r in recipes if r[0] == "openhaptics"]
     if names:
-        from sim.devices.openhaptics import OpenHapticsRig
-
         rig = OpenHapticsRig(names, library=next(r[5] for r in recipes if r[0] == "openhaptics"))
     try:
         return [_open_device(r, board, rig) for r in recipes], rig
@@ -153,8 +149,6 @@ class _Runner:
                 self.model.pair, self.model.unstable = pair, unstable
             elif kind == "pulse" and self.run is not None:  # the device check: a short, gentle force
                 _, i, force, seconds = msg
-                from sim.laws import Constant
-
                 hands[i].contact_t = (self.k - self.run["k0"]) / self.rate
                 hands[i].contact = RemoteContact(i, hands[i].position, Constant(tuple(force)))
                 self.pulse_end[i] = self.k + int(seconds * self.rate)

@@ -31,6 +31,7 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
+from sim.errors import DeviceError
 from sim.models.api import servo_law, servo_state
 from sim.servo import Event, Hand
 from sim.servo_child import (
@@ -74,8 +75,6 @@ class ServoProcess:
     its hands, send contacts and laws, collect each run's log. Close it when done."""
 
     def __init__(self, scene, time_scale: float = 1.0, miss_streak: int = 3, suspend_s: float = 0.1):
-        from sim.errors import DeviceError
-
         self.closed = False
         recipes = device_recipes(scene)
         self.n = len(recipes)

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from brainsim_assets import path as _asset
+from sim.errors import ParameterError
 
 FIELD_FILE = _asset("data/plate_spring_field.npz")
 
@@ -24,8 +25,6 @@ def mesh_digest(mesh) -> str:
 
 def load_field(path, mesh) -> np.ndarray:
     """K per pascal (n, 3, 3) for `mesh`'s vertices; refuses a field made for another surface."""
-    from sim.errors import ParameterError
-
     path = Path(path)
     try:
         with np.load(path) as z:

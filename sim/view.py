@@ -34,10 +34,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim import hud
+from sim import hud, shapes
+from sim.camera import fit, ray_hit
 from sim.errors import ViewError
 from sim.hud import ARROW, DESIGN_HEIGHT, SLOTS
+from sim.kernels import vertex_normals
 from sim.patch import GRASP_RADIUS
+from sim.renderer import Overlay, Placed, Renderer, open_offscreen, open_window
+from sim.scene import ViewSpec
 from sim.widgets import WidgetPanel
 
 TISSUE = np.array([0.88, 0.80, 0.78])
@@ -79,8 +83,6 @@ class ParticipantView:
                  visible: bool = True, title: str = "Brain surgery simulator", show_force: bool = False,
                  grasp_radius: float = GRASP_RADIUS, camera=None, fullscreen: bool = False, max_fps: float = 60.0,
                  targets=None):
-        from sim.renderer import Renderer, open_offscreen, open_window
-        from sim.scene import ViewSpec
 
         # Mesa's CPU rasteriser: a thread per core but one, which the servo process keeps
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
@@ -207,8 +209,6 @@ class ParticipantView:
         return x * self.width / max(ww, 1), y * self.height / max(wh, 1)
 
     def _fit(self) -> None:
-        from sim.camera import fit
-
         self.camera = fit(self.mesh.vertices, self.spec.front, self.spec.up, self.width, self.height, self.spec.zoom)
         self.ui = self.height / DESIGN_HEIGHT
 
@@ -247,8 +247,6 @@ class ParticipantView:
     def _overlay(self):
         """The flat overlay's vertices: a light backing under each slot's text (legible over the
         brain), the widget's shapes, then every text."""
-        from sim.renderer import Overlay
-
         if self._flat is None:
             texts = self.layout()
             quads = []
@@ -288,9 +286,6 @@ class ParticipantView:
     def _instrument(self, k: int, position, grasped: bool):
         """Forceps with their tips at the hand: the handle comes towards the viewer from the
         bottom of the screen on the hand's side; the jaws open across the view."""
-        from sim import shapes
-        from sim.renderer import Placed
-
         right, down, forward = self.camera.R
         sx = float(self.pulls[k % len(self.pulls)] @ right)
         side = np.sign(sx) if abs(sx) > 1e-6 else (-1.0 if k == 0 else 1.0)
@@ -300,8 +295,6 @@ class ParticipantView:
 
     def _arrows(self, hands) -> np.ndarray | None:
         """Triangles (vertices of position, normal, colour) of the force arrows at the hands."""
-        from sim import shapes
-
         parts, corner = [], []
         for k, h in enumerate(hands):
             f = np.asarray(h.force, dtype=np.float64)
@@ -328,8 +321,6 @@ class ParticipantView:
 
     def _target_shape(self, kind: str, size: float):
         """A target's ring (`size`: its radius) or line (its length), made once."""
-        from sim import shapes
-
         key = (kind, size)
         if key not in self._target_shapes:
             self._target_shapes[key] = shapes.torus(size, max(0.25 * size, 0.0006), 40, 8) if kind == "ring" else shapes.rod(size, 0.00025, 6)
@@ -340,9 +331,6 @@ class ParticipantView:
         facing the viewer: magenta, green while within the tolerance, gold once held) with a thin
         line to it from where the grasp took hold, and a progress bar per hand in the overlay
         (hud.target_bars). Nothing at all when no hand has a target."""
-        from sim import shapes
-        from sim.renderer import Overlay
-
         shown = [(k, h.target) for k, h in enumerate(hands) if h.target is not None]
         if not shown and self._bar_key is None:
             self._markers = self._bars = None
@@ -384,8 +372,6 @@ class ParticipantView:
         for this state; `latch()`, if given, returns (the hands' newest positions, their forces,
         when the devices were read for them), taken just before drawing. Motion-to-photon runs from that read to the presented
         frame. `heat01` (per vertex, 0..1) colours the tissue by it (the analyst's pictures)."""
-        from sim.kernels import vertex_normals
-
         start = time.perf_counter()
         self._events()
         u = np.zeros_like(self.mesh.vertices) if displacement is None else np.asarray(displacement, dtype=np.float64)
@@ -536,8 +522,6 @@ class ParticipantView:
     # -- the pointer (mouse device) ---------------------------------------------------------
     def pick(self, u: float, v: float) -> np.ndarray | None:
         """The point of the brain surface (as drawn now) under pixel (u, v), or None."""
-        from sim.camera import ray_hit
-
         d = self.camera.ray(u, v)
         hit = ray_hit(self.camera.eye, d, self._positions, self.mesh.triangles)
         return None if not np.isfinite(hit) else self.camera.eye + hit * d

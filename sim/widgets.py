@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from sim.font import atlas
 from sim.hud import TEXT
 
 PANEL = (0.96, 0.96, 0.97)  # behind a widget
@@ -112,8 +113,6 @@ def shapes(w: Widget, ui: float) -> tuple[list, list]:
 
 def fit_px(text: str, px: float, max_width: float) -> int:
     """A pixel size at most `px` at which `text` is at most `max_width` wide."""
-    from sim.font import atlas
-
     px = max(4, round(px))
     width = atlas(px).layout(text)[1]
     return max(4, int(px * max_width / width)) if width > max_width else px

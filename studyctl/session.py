@@ -38,6 +38,7 @@ from studyctl.conditions import (
     config_sha256,
     scene_itself,
 )
+from studyctl.discrimination import run_task
 from studyctl.errors import InputError, Interrupted, StoreError
 from studyctl.lock import session_lock
 from studyctl.participants import has_consent
@@ -223,11 +224,11 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                 first.device_names = device_names
             # before anything is written: no display or no device is a clean error, not a half-made session
             if view == "window":
-                from sim.view import open_view
+                from sim.view import open_view  # lazy: OpenGL and glfw, only for a window
 
                 run.shown = open_view("window", first, show_force=device == "mouse", fullscreen=fullscreen)
             if time_scale > 0:  # one servo process for the session: devices opened once, kept across trials
-                from sim.servo_process import ServoProcess
+                from sim.servo_process import ServoProcess  # lazy: the real-time servo process, not for lockstep
 
                 run.servo = ServoProcess(first, time_scale)
             _check_participant(store, protocol, code, synthetic)  # again, now that this process holds the lock
@@ -389,8 +390,6 @@ def _run_condition(run: _Run, pos: int, model: str, n_cond: int) -> None:
     for task in protocol.tasks:  # after the free trials: the condition's model is familiar by then
         done = session_rows.discrimination_trials_done(store, session_id, model, task.index)
         if done < task.trials:
-            from studyctl.discrimination import run_task
-
             scene = scene or _loaded(run, protocol, model, status)
             run_task(run, scene, pos, model, task, status)
     results = None  # every stored trial of the condition, resumed or not: read once, when needed

@@ -25,6 +25,7 @@ import random
 from dataclasses import dataclass
 
 from sim.devices.simulated import HandImpedance
+from studyctl.errors import StoreError
 from studyctl.observer import (
     DEFAULT,
     DiscriminationTraits,
@@ -157,8 +158,6 @@ class SyntheticAnswers:
         if model not in self._feats:
             summaries = self._summaries(model, results)
             if model not in self.rig and any(math.isnan(s.frame_flops) for s in summaries):  # a trace from before work counts: no latency to judge
-                from studyctl.errors import StoreError
-
                 raise StoreError(f"condition {model}: a stored trial has no frame work counts (recorded by an older version, or its "
                                  "model counts none: set frame_flops in deformation, docs/models.md); the synthetic observer cannot "
                                  "judge its latency; start the participant's session afresh, or give the study a rig profile")

@@ -41,7 +41,7 @@ def replay_trial(db, session_id: int, k: int, view: str = "none", frames_dir: Pa
     scene.spec = dataclasses.replace(scene.spec, hands=hands)
     duration = len(trace.times) / scene.spec.servo_rate_hz
     if view == "window":
-        from sim.live import run_view
+        from sim.live import run_view  # lazy: OpenGL and glfw, only for a window
 
         result = run_view(scene, "window", duration=duration, fullscreen=fullscreen)
     else:

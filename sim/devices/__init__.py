@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import importlib
 
+from sim.errors import SceneError
+
 BACKENDS = {
     "simulated": "sim.devices.simulated",
     "openhaptics": "sim.devices.openhaptics",
@@ -16,8 +18,6 @@ BACKENDS = {
 
 
 def backend_module(name: str):
-    from sim.errors import SceneError
-
     if name not in BACKENDS:
         raise SceneError(f"device: unknown backend {name!r}; available: {', '.join(sorted(BACKENDS))}")
     return importlib.import_module(BACKENDS[name])

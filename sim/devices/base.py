@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol
 
+from sim.camera import orientation
 from sim.models.base import Vec3
 
 
@@ -42,8 +43,6 @@ class DeviceFrame:
 def view_rotation(front, up) -> tuple:
     """The rotation whose columns are the screen's right, up and out-of-the-screen directions
     for the participant's camera looking along -front with `up` (sim/camera.py's)."""
-    from sim.camera import orientation
-
     right, down, forward = orientation(front, up)
     return tuple((float(right[i]), float(-down[i]), float(-forward[i])) for i in range(3))
 

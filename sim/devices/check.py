@@ -16,6 +16,20 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.devices.openhaptics import (
+    HD_CALIBRATION_AUTO,
+    HD_CALIBRATION_ENCODER_RESET,
+    HD_CALIBRATION_INKWELL,
+    HD_INVALID_HANDLE,
+    HD_SUCCESS,
+    HDError,
+    flush_errors,
+    load_library,
+    nominal_limits,
+)
+from sim.run import Pacing, run_scene
+from sim.servo_process import ServoProcess
+
 CONFIG_DIRS = ("$GTDD_HOME/config", "~/.3dsystems/config", "/usr/share/3DSystems/config", "/etc/3DSystems/config")
 PULSE_N = 0.5
 PULSE_S = 0.2
@@ -36,18 +50,6 @@ def candidate_names(names=()) -> list[str]:
 
 def list_devices(names, library: str | None = None) -> list[dict]:
     """Open and close each named device; what the library reports, or its error."""
-    from sim.devices.openhaptics import (
-        HD_CALIBRATION_AUTO,
-        HD_CALIBRATION_ENCODER_RESET,
-        HD_CALIBRATION_INKWELL,
-        HD_INVALID_HANDLE,
-        HD_SUCCESS,
-        HDError,
-        flush_errors,
-        load_library,
-        nominal_limits,
-    )
-
     lib = load_library(library)
     out = []
     for name in names:
@@ -70,9 +72,6 @@ def check_rig(scene, seconds: float = 5.0, view=None, confirm=None, say=print) -
     """Check the scene's real devices (every hand on openhaptics). `confirm(question)` -> bool
     asks the experimenter before the force pulse (None: no pulse). Returns the report; its
     `problems` list is empty when the rig is ready."""
-    from sim.run import Pacing, run_scene
-    from sim.servo_process import ServoProcess
-
     names = [scene.device_name(i) for i in range(len(scene.spec.hands))]
     listing = list_devices(names)
     problems = [f"{d['name']}: not found ({d['error']}); the configured names are set in the vendor's configuration tool "

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 from sim.devices.base import DeviceState, OmniSpec
+from sim.errors import DeviceError
 
 REACH_M = 0.5e-3  # the hand closes once it is this close to the grasped point
 
@@ -56,7 +57,5 @@ class MouseDevice:
 
 
 def open_devices(hands, mesh):
-    from sim.errors import DeviceError
-
     raise DeviceError("device mouse: the mouse drives a hand only in a real-time run with the participant view "
                       "(studyctl sim live, or session run --device mouse --view window)")

@@ -396,6 +396,4 @@ class OpenHapticsDevice:
 
 
 def open_devices(hands, mesh):
-    from sim.errors import DeviceError
-
     raise DeviceError("device openhaptics: real devices run in the servo process, in real time (time scale > 0)")

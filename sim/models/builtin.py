@@ -13,6 +13,7 @@ from typing import Any
 from sim.devices.base import OmniSpec
 from sim.models.api import TissueModel, option, read_options
 from sim.patch import GRASP_RADIUS
+from sim.stiffness_field import FIELD_FILE
 from sim.tomltable import REQUIRED
 
 PLATE_SPRING_VARIANTS = ("paper", "continuous", "located")  # "located": the continuous stack with a stiffness field
@@ -75,8 +76,6 @@ class PlateSpringBase(TissueModel):
         out = {"options": {"field": options["field"]} if options["field"] is not None else {},
                "variant": options["variant"], "plate_spring": options["params"]}
         if options["variant"] == "located" and options["field"] is None:  # the shipped stiffness field it loads
-            from sim.stiffness_field import FIELD_FILE
-
             out["field"] = Path(FIELD_FILE) if Path(FIELD_FILE).exists() else None
         return out
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from sim.linalg import Factor
+
 RHO_ITERATIONS = 120  # plain iterations that estimate the spectral radius (once per step size)
 ANDERSON_DEPTH = 5  # past iterates Anderson acceleration combines (Peng et al. 2018 use 5-6)
 
@@ -199,8 +201,6 @@ class LocalGlobal:
 
     def _lg_solver(self, h: float) -> dict:
         if h not in self._lg_cache:
-            from sim.linalg import Factor
-
             L = (self._A.T @ sp.diags(self.k) @ self._A).tocsr()  # (n, n) spring Laplacian
             M = sp.diags(self.m / (h * h))
             free, fixed = self.free, np.flatnonzero(self.fixed)

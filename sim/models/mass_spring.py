@@ -20,15 +20,22 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from sim import kernels
 from sim.devices.base import OmniSpec
 from sim.errors import ParameterError, SimError
 from sim.laws import Coupling
+from sim.linalg import Factor
+from sim.models.base import Contact
 from sim.models.builtin import MASS_SPRING_ACCELERATIONS as ACCELERATIONS
 from sim.models.builtin import MASS_SPRING_INTEGRATORS as INTEGRATORS
 from sim.models.builtin import MassSpringBase
+from sim.models.fem import fixed_nodes
 from sim.models.local_global import ANDERSON_DEPTH, RHO_ITERATIONS, LocalGlobal  # noqa: F401 (re-exported)
 from sim.models.newton import NewtonKrylov
 from sim.patch import GRASP_RADIUS
+from sim.scene import AXES
+from sim.tetmesh import body_volume
+from sim.volume import embed, tet_volumes
 
 OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m  # 700 N/m: stable closed-loop stiffness at 1 kHz
 SUBSTEP_FRACTION = 0.5  # explicit sub-steps are this fraction of critical_dt()
@@ -36,21 +43,13 @@ MAX_SUBSTEPS = 2000  # more explicit sub-steps per step than this cannot serve a
 
 
 def _spring_rhs():
-    """The compiled local step (sim/kernels.py), or None without numba."""
-    try:
-        from sim.kernels import spring_rhs
-    except ImportError:
-        return None
-    return spring_rhs
+    """The compiled local step (sim/kernels.py); the tests replace it with None for the NumPy path."""
+    return kernels.spring_rhs
 
 
 def _explicit_kernel():
-    """The compiled explicit sub-steps (sim/kernels.py), or None without numba."""
-    try:
-        from sim.kernels import explicit_substeps
-    except ImportError:
-        return None
-    return explicit_substeps
+    """The compiled explicit sub-steps (sim/kernels.py); None in tests: the NumPy loop."""
+    return kernels.explicit_substeps
 
 
 class StabilityError(SimError):
@@ -162,16 +161,9 @@ class MassSpring(LocalGlobal, NewtonKrylov):
 
     def _spring_energy(self, x: np.ndarray) -> float:
         """sum k/2 (|x_i - x_j| - rest)^2 over the springs that can stretch (between two clamped
-        nodes they keep their rest length): one compiled pass where numba is installed (the
+        nodes they keep their rest length): one compiled pass (the
         monitor runs it every step, Anderson every iteration)."""
-        a = self._moving
-        try:
-            from sim.kernels import spring_energy
-        except ImportError:
-            d = x[self.springs[a, 0]] - x[self.springs[a, 1]]
-            stretch = np.sqrt(np.einsum("ij,ij->i", d, d)) - self.rest[a]
-            return float(0.5 * np.sum(self.k[a] * stretch**2))
-        return spring_energy(x, *self._moving_springs())
+        return kernels.spring_energy(x, *self._moving_springs())
 
     def _moving_springs(self) -> tuple:
         """(i, j, k, rest) of the springs that can stretch, contiguous, for the compiled passes
@@ -335,8 +327,6 @@ class MassSpring(LocalGlobal, NewtonKrylov):
 
     def _implicit(self, h: float) -> None:
         """(M - h^2 df/dx + h c M) dv = h (f + h df/dx v): one linearised backward-Euler step."""
-        from sim.linalg import Factor
-
         free3 = (3 * self.free[:, None] + np.arange(3)).ravel()
         J = (self._spring_jacobian(self.x) - self._anchor_matrix())[free3][:, free3]
         mass = np.repeat(self.m[self.free], 3)
@@ -388,8 +378,6 @@ def from_tets(nodes: np.ndarray, tets: np.ndarray, young: float, density: float,
     n_l / V``; with spring directions spread evenly, ``<n_x^4> = 1/5`` and ``<n_x^2 n_y^2> =
     1/15`` give ``lambda = mu = c E / 15``, a Young's modulus ``c E / 6`` and Poisson's ratio
     1/4 (a spring lattice cannot have another). ``c = 6`` makes the lattice's modulus E."""
-    from sim.volume import tet_volumes
-
     vol = np.abs(tet_volumes(nodes, tets))
     e6 = np.stack([tets[:, [0, 0, 0, 1, 1, 2]].ravel(), tets[:, [1, 2, 3, 2, 3, 3]].ravel()], axis=1)
     e6.sort(axis=1)
@@ -426,8 +414,6 @@ class MassSpringModel(MassSpringBase):
     def __init__(self, surface, volume, system: MassSpring, integrator: str = "local-global", dt: float = 1 / 60,
                  coupling: float = 300.0, grasp_radius: float = GRASP_RADIUS, substep: bool = True, iterations: int = 10,
                  frame_dt: float | None = None):
-        from sim.volume import embed
-
         if not 0 < coupling <= OMNI_MAX_STIFFNESS:
             raise ParameterError(f"coupling: {coupling!r} N/m is out of range; allowed: (0, {OMNI_MAX_STIFFNESS:g}] N/m (Omni's stable stiffness at 1 kHz)")
         if integrator not in INTEGRATORS:
@@ -446,9 +432,7 @@ class MassSpringModel(MassSpringBase):
         self.step_s: list[float] = []
         self.frame_flops = math.nan  # the last frame's counted work (MassSpring.step_flops)
         if integrator in ("local-global", "explicit") and _spring_rhs() is not None:
-            from sim.kernels import warm_up
-
-            warm_up()  # compiled now, not in the first frame of a trial
+            kernels.warm_up()  # compiled now, not in the first frame of a trial
         self._check_explicit()
 
     def _check_explicit(self) -> None:
@@ -488,8 +472,6 @@ class MassSpringModel(MassSpringBase):
         return out
 
     def grasp(self, point, hand: int = 0):
-        from sim.models.base import Contact
-
         v = self.surface.nearest_vertex(point)
         p = self.surface.vertices[v]
         nodes = np.asarray(self._tree.query_ball_point(p, max(self.grasp_radius, self.volume.resolution)), dtype=np.int64)
@@ -570,10 +552,6 @@ class MassSpringModel(MassSpringBase):
 
 def build(mesh, o: dict, scene) -> MassSpringModel:
     """Construct from a scene's mass-spring options (`sim.models.builtin.MassSpringOptions`, as a dict)."""
-    from sim.models.fem import fixed_nodes
-    from sim.scene import AXES
-    from sim.tetmesh import body_volume
-
     volume = body_volume(mesh, o["resolution"])
     material = scene.spec.material
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])

@@ -9,17 +9,16 @@ import numpy as np
 
 from sim.errors import ParameterError
 from sim.models.base import pull_problem
+from sim.models.fem import fixed_nodes
 from sim.models.mass_spring import MassSpringModel, StabilityError, from_tets
+from sim.scene import AXES
+from sim.tetmesh import body_volume
 
 
 def hold_pull(scene, integrator: str, dt: float, steps: int, resolution: float | None = None, substep: bool = False,
               grasp=None, displacement=None) -> dict:
     """Grasp the scene's brain (default: its first hand's start), hold the hand displaced (default:
     that hand's scripted pull) and step the mass-spring system `steps` times."""
-    from sim.models.fem import fixed_nodes
-    from sim.scene import AXES
-    from sim.tetmesh import body_volume
-
     opts = scene.spec.options_of("mass_spring")
     resolution = opts["resolution"] if resolution is None else resolution
     if not 0.003 <= resolution <= 0.008:

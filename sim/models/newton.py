@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim.kernels import spring_gradient, spring_hessian_product
+
 NEWTON_ETA = 0.3  # CG stops at this fraction of the preconditioned residual (Eisenstat-Walker-like forcing)
 NEWTON_CG_CAP = 8  # at most this many CG iterations per Newton step: a new linearisation pays off after that
 ARMIJO = 1e-4  # sufficient decrease of the line search
@@ -130,7 +132,6 @@ class NewtonKrylov:
         (or where the local step's kernel is swapped for the NumPy path)."""
         if self._local_kernel() is None:
             return None
-        from sim.kernels import spring_gradient, spring_hessian_product
 
         return spring_gradient, spring_hessian_product
 

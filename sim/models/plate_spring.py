@@ -31,6 +31,7 @@ from sim.errors import ParameterError
 from sim.laws import RadialTable, TensorTable
 from sim.models.base import Contact
 from sim.models.builtin import PLATE_SPRING_VARIANTS, PlateSpringBase
+from sim.stiffness_field import FIELD_FILE, load_field
 from sim.tomlfile import TomlFileError, read_toml
 from sim.tomltable import REQUIRED
 
@@ -460,8 +461,6 @@ def build(mesh, options: dict, scene=None) -> PlateSpringModel:
     """Construct from a scene's plate-spring options (`sim.models.builtin.PlateSpringOptions`, as a dict)."""
     field = None
     if options["variant"] == "located":
-        from sim.stiffness_field import FIELD_FILE, load_field
-
         field = load_field(options["field"] or FIELD_FILE, mesh)
     return PlateSpringModel(mesh, options["params"], options["variant"], field)
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
-from sim.models.api import API_VERSION, TissueModel, declaration_problem
+from sim.models.api import API_VERSION, TissueModel, declaration_problem, options_of
 
 GROUP = "brainsim.models"
 HOME = "brainsim-study"  # the distribution of the built-in models
@@ -137,8 +137,6 @@ def _source(i: ModelInfo) -> str:
 
 def describe(name: str) -> dict:
     """What `studyctl model describe` prints. Raises ModelLoadError."""
-    from sim.models.api import options_of
-
     cls, i = model_class(name), info(name)
     capabilities = {"stiffness scaling": bool(cls.scales_stiffness)}  # declared; the others are seen when it runs
     return {"name": name, "class": i.target, "distribution": i.distribution, "version": i.version, "source": _source(i),

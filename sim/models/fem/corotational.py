@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from sim import kernels
 from sim.linalg import Factor
 from sim.models.fem.linear import LinearFem, assemble, element_dofs
 from sim.models.fem.newton import NewtonReport
@@ -29,10 +30,7 @@ def _element_arrays(fem: LinearFem, elements: np.ndarray | None) -> tuple:
 
 
 def _kernels():
-    try:
-        import sim.kernels as kernels
-    except ImportError:
-        return None
+    """The compiled passes (sim/kernels.py); the tests replace it with None for the NumPy path."""
     return kernels
 
 

@@ -18,14 +18,18 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from sim import kernels
 from sim.errors import ParameterError
 from sim.laws import Linearised, PairTable
+from sim.models.base import Contact
 from sim.models.builtin import FemBase, FemOptions
 from sim.models.fem.corotational import Precond, corotational_step, evaluate, warped_active
 from sim.models.fem.grasp import condense, constraint_matrix, symmetric_inverse
 from sim.models.fem.linear import LinearFem
 from sim.patch import GRASP_RADIUS, patch_area_points
-from sim.volume import locate
+from sim.scene import AXES
+from sim.tetmesh import body_volume
+from sim.volume import embed, locate
 
 DEFAULT_RESOLUTION = FemOptions.resolution  # m: the shipped body-fitted mesh the scene's FEM runs on (docs/fem.md)
 DEFAULT_ORDER = 2  # quadratic tetrahedra: P1 locks at the brain's Poisson ratio (FemOptions' default for the linear formulation)
@@ -82,8 +86,6 @@ class FemModel(FemBase):
 
     def __init__(self, surface, volume, young: float, poisson: float, fixed_nodes: np.ndarray, formulation: str = "linear", grasp_radius: float = GRASP_RADIUS,
                  order: int = 1):
-        from sim.volume import embed
-
         if formulation not in ("linear", "corotational"):
             raise ParameterError(f"formulation: {formulation!r} is not available for the haptic model; allowed: linear, corotational")
         if order == 2 and formulation != "linear":
@@ -134,12 +136,7 @@ class FemModel(FemBase):
         self.unstable = False
         self.frame_flops = math.nan  # the last frame's counted work
         if formulation == "corotational":
-            try:
-                from sim.kernels import warm_up
-            except ImportError:  # the SVD path needs no compiling
-                pass
-            else:
-                warm_up()  # compiled now, not in the first frame of a trial
+            kernels.warm_up()  # compiled now, not in the first frame of a trial
 
     def _surface_matrix(self) -> sp.csr_matrix:
         """(surface vertices, model nodes): each vertex interpolated with its element's shape functions."""
@@ -190,8 +187,6 @@ class FemModel(FemBase):
         }
 
     def grasp(self, point, hand: int = 0):
-        from sim.models.base import Contact
-
         v = int(self.surface.nearest_vertex(point))
         data = FemContact(*self._condensed(v))  # a new object per grasp: caches keyed by identity see a new grasp
         anchor = tuple(float(c) for c in self.surface.vertices[v])
@@ -417,9 +412,6 @@ def fixed_nodes(volume, surface, fixed_surface_mask: np.ndarray, axis: int) -> n
 
 def build(mesh, opts: dict, scene):
     """Construct from a scene's FEM options (`sim.models.builtin.FemOptions`, as a dict)."""
-    from sim.scene import AXES
-    from sim.tetmesh import body_volume
-
     volume = body_volume(mesh, float(opts.get("resolution", DEFAULT_RESOLUTION)))
     material = scene.spec.material
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])

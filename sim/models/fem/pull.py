@@ -9,9 +9,14 @@ import numpy as np
 from sim.errors import ParameterError
 from sim.models.base import pull_problem
 from sim.models.fem.corotational import corotational_solve
+from sim.models.fem.finite_strain import FiniteStrain
 from sim.models.fem.model import DEFAULT_ORDER, DEFAULT_RESOLUTION, FemModel, fixed_nodes
 from sim.models.fem.newton import NewtonReport, hold
+from sim.models.fem.nodal_pressure import NodalPressure
 from sim.patch import GRASP_RADIUS
+from sim.scene import AXES
+from sim.tetmesh import body_volume
+from sim.volume import describe
 
 FORMULATIONS = ("linear", "corotational", "finite-strain", "nodal-pressure")
 TICKS = 20000  # servo-tick force calls timed
@@ -48,8 +53,6 @@ def _solve(model, contact, d: np.ndarray, formulation: str, steps: int, law=None
         return np.asarray(model.grasp_forces([contact], [d])), model.nodal_displacement([contact], [d]), {"converged": True}
     part = model.parts[contact.data.part]
     if formulation in ("finite-strain", "nodal-pressure"):  # the scene's law on the model's mesh and element
-        from sim.models.fem.finite_strain import FiniteStrain
-        from sim.models.fem.nodal_pressure import NodalPressure
 
         system = FiniteStrain(part, law, mean_dilatation=False) if formulation == "finite-strain" else NodalPressure(part, law)
         held = hold(system, contact.data.W, d, first_step=1.0 / steps)
@@ -70,10 +73,6 @@ def static_pull(scene, grasp, displacement, resolution: float | None = None, for
     Returns the force on the hand, the largest displacement, the phase times, and for the
     nonlinear formulations the convergence history.
     """
-    from sim.scene import AXES
-    from sim.tetmesh import body_volume
-    from sim.volume import describe
-
     d, resolution, order, radius = _options(scene, formulation, displacement, resolution, order)
     times: dict[str, float] = {}
     t0 = time.perf_counter()
