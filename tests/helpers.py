@@ -1,10 +1,12 @@
-"""What the tests share: the paper's protocol, a fast protocol, the CLI in this process, and a
-person at a real pseudo-terminal (pty_run, pty_session)."""
+"""What the tests share: protocols, scenes and data built for them, the CLI in this process, and a person at a pseudo-terminal."""
 
 import json
 import os
+import re
+import shutil
 import signal
 import sqlite3
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -15,6 +17,10 @@ from studyctl.cli import cli
 from tests.conftest import ROOT
 
 PROTOCOL = ROOT / "protocols" / "brain_pull_2015.toml"
+JND = ROOT / "protocols/stiffness_jnd.toml"  # the shipped discrimination protocol
+BAD = "tests.plugins.bad_models"  # the test plugins' module (tests/plugins), for "package.module:Class"
+# names no participant-facing text may contain: a model's or a parameter's
+MODEL_WORDS = re.compile(r"plate.?spring|mass.?spring|\bfem\b|finite|element|corotational|neo.?hookean|young|poisson", re.I)
 
 
 def fast_protocol(tmp_path: Path, conditions=("plate_spring", "fem", "mass_spring"), trials=2, training=0.0) -> Path:
@@ -105,3 +111,196 @@ def pty_session(argv, answer=None, timeout=60.0, on_output=None, replies: dict[s
     if replies is not None:
         assert not any(left.values()), (left, text[-2000:])
     return text
+
+
+def localise(text: str) -> str:
+    """Make the shipped scene's relative paths absolute, so a copy works from tmp_path."""
+    return text.replace('"../../data/', f'"{ROOT}/data/').replace('"../models/', f'"{ROOT}/protocols/models/').replace('"../materials/', f'"{ROOT}/protocols/materials/')
+
+
+def box(nx, ny, nz, h, origin=(0.0, 0.0, 0.0)):
+    """A box of nx x ny x nz cubes of side h from `origin`, in tetrahedra (sim.volume.grid_tets)."""
+    import numpy as np
+
+    from sim.volume import grid_tets
+
+    return grid_tets(np.ones((nx, ny, nz), bool), np.asarray(origin, float), h)
+
+
+def participant_protocol(tmp_path, trial_seconds=3.0, rest=0.5, **kw):
+    """`fast_protocol` with `trial_seconds`-long trials and `rest` seconds of rest between them."""
+    p = fast_protocol(tmp_path, **kw)
+    text = p.read_text().replace("trial_seconds = 1.0", f"trial_seconds = {trial_seconds}").replace("rest_seconds = 5.0", f"rest_seconds = {rest}")
+    p.write_text(text)
+    return p
+
+
+FIELDS = '''
+[fields.experience]
+kind = "choice"
+values = ["student", "resident", "neurosurgeon"]
+required = true
+
+[fields.years]
+kind = "integer"
+min = 0
+max = 40
+
+[fields.hours_per_week]
+kind = "number"
+
+[fields.note]
+kind = "text"
+'''
+
+
+def field_protocol(tmp_path: Path, fields: str = FIELDS, groups: str | None = "experience", conditions=("plate_spring", "fem", "mass_spring"),
+                   trials=2) -> Path:
+    """`fast_protocol` with participant `fields` (FIELDS: one of each kind) and design.groups `groups`."""
+    path = fast_protocol(tmp_path, conditions=conditions, trials=trials)
+    text = path.read_text()
+    if groups is not None:
+        text = text.replace("[design]\n", f"[design]\ngroups = {json.dumps(groups)}\n", 1)
+    path.write_text(text + fields)
+    return path
+
+
+KINDS_CONDITIONS = """
+[conditions.paper]
+model = "plate_spring"
+variant = "paper"
+
+[conditions.located]
+model = "plate_spring"
+variant = "located"
+"""
+
+QUESTIONS = """
+[[questions]]
+id = "natural"
+text = "Is interaction real and natural?"
+kind = "likert"
+points = 7
+anchors = ["Not at all", "Completely"]
+
+[[questions]]
+id = "realtime"
+text = "Is the interaction real-time?"
+kind = "likert"
+points = 7
+anchors = ["Not at all", "Completely"]
+
+[[questions]]
+id = "stiffness"
+text = "How stiff did the tissue feel?"
+kind = "vas"
+anchors = ["Very soft", "Very stiff"]
+
+[[questions]]
+id = "stable"
+text = "Is the system stable?"
+
+[[questions]]
+id = "smooth"
+text = "Was that pull smooth?"
+kind = "likert"
+points = 5
+anchors = ["Not at all", "Very"]
+when = "trial"
+
+[[questions]]
+id = "comment"
+text = "Anything else?"
+kind = "text"
+when = "end"
+
+[[questions]]
+id = "most_like_tissue"
+text = "Which condition felt most like real brain tissue?"
+kind = "choice"
+when = "end"
+
+[[instruments]]
+name = "sus"
+
+[[instruments]]
+name = "nasa_tlx"
+"""
+
+
+def kinds_protocol(tmp_path, questions=QUESTIONS, conditions=("paper", "located"), trials=2):
+    """`fast_protocol` on two plate-spring variants (KINDS_CONDITIONS) asking `questions` (QUESTIONS: every kind, two instruments)."""
+    path = fast_protocol(tmp_path, conditions=conditions, trials=trials)
+    text = path.read_text()
+    text = text[: text.index("[[questions]]")].replace("[inclusion]", KINDS_CONDITIONS + "\n[inclusion]") + questions
+    path.write_text(text)
+    return path
+
+
+def jnd_protocol(tmp_path: Path, conditions=("plate_spring",), trials=12, method="quest+", extra="") -> Path:
+    """The shipped discrimination protocol on the quick scene (linear FEM tetrahedra, no
+    pictures), 1 s intervals, `trials` per condition."""
+    fast_protocol(tmp_path)  # writes tmp_path / "scene.toml"
+    text = JND.read_text().replace('scene = "scenes/brain_pull.toml"', f'scene = "{tmp_path / "scene.toml"}"')
+    text = text.replace('conditions = ["fem", "mass_spring_3it", "plate_spring"]', f"conditions = {json.dumps(list(conditions))}")
+    if "mass_spring_3it" not in conditions:  # the shipped mass-spring condition's table goes with it
+        head, rest = text.split("[conditions.mass_spring_3it]")
+        text = head + rest[rest.index("[[tasks]]"):]
+    text = text.replace("trials = 40", f"trials = {trials}").replace("training_minutes = 2.0", "training_minutes = 0.0")
+    text = text.replace('method = "quest+"', f'method = "{method}"' + extra).replace("trial_seconds = 3.0", "trial_seconds = 1.0")
+    path = tmp_path / "jnd.toml"
+    path.write_text(text)
+    return path
+
+
+def plugin_scene(tmp_path, target: str) -> Path:
+    """The fast test scene running `target` ("package.module:Class"), one hand."""
+    fast_protocol(tmp_path)
+    text = (tmp_path / "scene.toml").read_text()
+    text = text.replace("[models.plate_spring]", f'[models."{target}"]\nstiffness = 300.0\n\n[models.plate_spring]', 1)
+    path = tmp_path / "plugin_scene.toml"
+    path.write_text(text)
+    return path
+
+
+def synthetic_content(db):
+    """A synthetic study database's answers, trials, orders and observer features, sorted: equal for equal studies."""
+    con = sqlite3.connect(db)
+    answers = con.execute("select code, model, item, answer, session_id, source from answers order by code, model, item").fetchall()
+    trials = con.execute("select session_id, model, trial, round(max_force_n, 9) from trials order by session_id, model, trial").fetchall()
+    orders = con.execute("select code, conditions from schedule order by code").fetchall()
+    feats = con.execute("select code, model, feature, value from observer_features order by code, model, feature").fetchall()
+    con.close()
+    return answers, trials, orders, feats
+
+
+def synthetic_summary(ratio, flops=1e4, ripple=0.0, events=0):
+    """A trial's summary for the synthetic observer: forces rendered at `ratio` times the truth."""
+    import numpy as np
+
+    from studyctl.observer import TrialSummary
+
+    truth = np.linspace(0.05, 1.0, 40)
+    return TrialSummary(rendered=ratio * truth, truth=truth, ripple=ripple, events=events, frame_flops=flops)
+
+
+def _copy_sources(dest: Path) -> Path:
+    """The files git would put in a clone (tracked, plus new ones not ignored): the wheel is
+    built from these, in a copy, so the checkout gets no build/ or egg-info."""
+    files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=ROOT, check=True,
+                           capture_output=True).stdout.decode().split("\0")
+    for rel in filter(None, files):
+        src = ROOT / rel
+        if src.is_file():
+            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / rel)
+    return dest
+
+
+def build_wheel(tmp: Path) -> Path:
+    """Build brainsim's wheel from a copy of the sources (`_copy_sources`) into tmp/dist; its path."""
+    src = _copy_sources(tmp / "src")
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp / "dist"), str(src)], check=True,
+                   capture_output=True)
+    (wheel,) = (tmp / "dist").glob("brainsim_study-*.whl")
+    return wheel

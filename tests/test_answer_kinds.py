@@ -15,77 +15,7 @@ from studyctl.protocol import check_protocol, load_protocol
 from studyctl.questions import Question
 from studyctl.synthetic_study import run_synthetic_study
 from tests.conftest import ROOT
-from tests.helpers import fast_protocol, studyctl
-
-CONDITIONS = """
-[conditions.paper]
-model = "plate_spring"
-variant = "paper"
-
-[conditions.located]
-model = "plate_spring"
-variant = "located"
-"""
-
-QUESTIONS = """
-[[questions]]
-id = "natural"
-text = "Is interaction real and natural?"
-kind = "likert"
-points = 7
-anchors = ["Not at all", "Completely"]
-
-[[questions]]
-id = "realtime"
-text = "Is the interaction real-time?"
-kind = "likert"
-points = 7
-anchors = ["Not at all", "Completely"]
-
-[[questions]]
-id = "stiffness"
-text = "How stiff did the tissue feel?"
-kind = "vas"
-anchors = ["Very soft", "Very stiff"]
-
-[[questions]]
-id = "stable"
-text = "Is the system stable?"
-
-[[questions]]
-id = "smooth"
-text = "Was that pull smooth?"
-kind = "likert"
-points = 5
-anchors = ["Not at all", "Very"]
-when = "trial"
-
-[[questions]]
-id = "comment"
-text = "Anything else?"
-kind = "text"
-when = "end"
-
-[[questions]]
-id = "most_like_tissue"
-text = "Which condition felt most like real brain tissue?"
-kind = "choice"
-when = "end"
-
-[[instruments]]
-name = "sus"
-
-[[instruments]]
-name = "nasa_tlx"
-"""
-
-
-def kinds_protocol(tmp_path, questions=QUESTIONS, conditions=("paper", "located"), trials=2):
-    path = fast_protocol(tmp_path, conditions=conditions, trials=trials)
-    text = path.read_text()
-    text = text[: text.index("[[questions]]")].replace("[inclusion]", CONDITIONS + "\n[inclusion]") + questions
-    path.write_text(text)
-    return path
+from tests.helpers import QUESTIONS, kinds_protocol, studyctl
 
 
 def test_the_shipped_example_validates():

@@ -13,9 +13,8 @@ import numpy as np
 import pytest
 
 from studyctl.questions import Question
-from tests.helpers import fast_protocol, pty_session, studyctl
-from tests.test_participant import MODEL_WORDS
-from tests.test_view import _window, _xdotool
+from tests.helpers import MODEL_WORDS, fast_protocol, pty_session, studyctl
+from tests.window_helpers import run_xdotool, window
 
 SELECTED = np.array([0.12, 0.40, 0.85]) * 255  # sim/view.py: the chosen point, the slider's mark
 LABELS = {"plate_spring": "A", "fem": "B", "mass_spring": "C"}
@@ -79,13 +78,13 @@ class Person:
 
     def key(self, *names: str) -> None:
         for name in names:
-            _xdotool("key", "--window", self.w, name)
+            run_xdotool("key", "--window", self.w, name)
 
     def click(self, x: float, y: float, times: int = 1) -> None:
-        _xdotool("mousemove", "--window", self.w, round(x), round(y))
+        run_xdotool("mousemove", "--window", self.w, round(x), round(y))
         time.sleep(0.05)
         for _ in range(times):
-            _xdotool("click", 1)
+            run_xdotool("click", 1)
 
     def shoot(self, name: str) -> np.ndarray:
         self.wanted.append(name)
@@ -137,9 +136,9 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
     def act():
         try:
             deadline = time.time() + 30
-            while _window() is None and time.time() < deadline:
+            while window() is None and time.time() < deadline:
                 time.sleep(0.1)
-            person.w = _window()
+            person.w = window()
             assert person.w, "no window"
             # 7 points: a click on the brain grasps nothing; 8 is no point; a click chooses 2;
             # 5 answers at once
@@ -186,12 +185,12 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
             person.marks = [(w.value, expected)]
             person.key("Right", "Right")
             person.wait(lambda: w.value is not None and abs(w.value - (person.marks[0][0] + 2)) < 1e-9, "Right x2 moves the mark by 2")
-            _xdotool("mousemove", "--window", person.w, u0 + round(0.2 * (u1 - u0)), v)
-            _xdotool("mousedown", 1)
+            run_xdotool("mousemove", "--window", person.w, u0 + round(0.2 * (u1 - u0)), v)
+            run_xdotool("mousedown", 1)
             for k in range(1, 11):
-                _xdotool("mousemove", "--window", person.w, u0 + round((0.2 + 0.05 * k) * (u1 - u0)), v - 2)
+                run_xdotool("mousemove", "--window", person.w, u0 + round((0.2 + 0.05 * k) * (u1 - u0)), v - 2)
                 time.sleep(0.03)
-            _xdotool("mouseup", 1)
+            run_xdotool("mouseup", 1)
             end = u0 + round(0.7 * (u1 - u0))
             person.wait(lambda: w.value is not None and abs(w.value - 100.0 * (end - u0) / (u1 - u0)) < 0.08, "the drag's mark at 70%")
             person.settle()
@@ -237,16 +236,16 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
         assert person.error is None, person.error
         # on a still screen (a rest, questions in the terminal) a click grasps nothing; while a
         # run's frames are drawn it does
-        _xdotool("mousemove", "--window", person.w, *brain_point)
-        _xdotool("click", 1)
+        run_xdotool("mousemove", "--window", person.w, *brain_point)
+        run_xdotool("click", 1)
         for _ in range(3):
             view.idle()
         assert view.inputs == {}
         view.draw(None, hands)
-        _xdotool("mousedown", 1)
+        run_xdotool("mousedown", 1)
         for _ in range(3):
             view.draw(None, hands)
-        _xdotool("mouseup", 1)
+        run_xdotool("mouseup", 1)
         assert view.inputs and next(iter(view.inputs.values()))[1]  # grasped, held
     except Exception:
         t.join(timeout=5)

@@ -13,8 +13,7 @@ from click.testing import CliRunner
 
 from studyctl.cli import cli
 from studyctl.synthetic_study import run_synthetic_study
-from tests.helpers import fast_protocol
-from tests.test_synthetic import _content, _summary
+from tests.helpers import fast_protocol, synthetic_content, synthetic_summary
 
 distributed = pytest.importorskip("distributed")
 
@@ -47,7 +46,7 @@ def test_synth_on_a_cluster_equals_local_jobs_and_a_killed_worker_loses_no_parti
     assert sessions == [(f"S{k:03d}", "done", 1) for k in range(1, 4)]  # each participant once, finished
     assert trials == (3 * 3, 3 * 3)
     # the same answers, orders, trials' forces and perceived features as the local processes
-    assert _content(tmp_path / "dask.db") == _content(tmp_path / "local.db")
+    assert synthetic_content(tmp_path / "dask.db") == synthetic_content(tmp_path / "local.db")
     for (path,) in sqlite3.connect(tmp_path / "dask.db").execute("select trace_path from trials"):
         a, b = np.load(tmp_path / path), np.load(tmp_path / path.replace("dask.db", "local.db"))
         assert all(np.array_equal(a[k], b[k]) for k in a.files if k != "deformation_s")  # deformation times are measured
@@ -56,8 +55,8 @@ def test_synth_on_a_cluster_equals_local_jobs_and_a_killed_worker_loses_no_parti
 def _summaries():
     from studyctl.observer import ObserverParams
 
-    slow = _summary(1.0, flops=ObserverParams().flops_per_ms * 80)
-    return {"plate_spring": [_summary(1.0), _summary(1.2)], "fem": [_summary(1.0)], "mass_spring": [slow]}
+    slow = synthetic_summary(1.0, flops=ObserverParams().flops_per_ms * 80)
+    return {"plate_spring": [synthetic_summary(1.0), synthetic_summary(1.2)], "fem": [synthetic_summary(1.0)], "mass_spring": [slow]}
 
 
 def test_plan_tables_are_the_same_here_in_local_processes_and_on_a_cluster(tmp_path, cluster):
@@ -89,13 +88,13 @@ def test_an_unreachable_scheduler_is_a_one_line_error_and_nothing_is_written(tmp
 def test_a_lab_model_runs_on_the_cluster_as_in_local_jobs(tmp_path, cluster):
     """A condition of a lab's own model (tests/plugins, by "package.module:Class"): the workers
     load it like the built-in ones, and the answers are the local jobs'."""
-    from tests.test_plugins import BAD
+    from tests.helpers import BAD
 
     protocol = fast_protocol(tmp_path, conditions=("plate_spring", "own"), trials=1)
     protocol.write_text(protocol.read_text().replace("[inclusion]", f'[conditions.own]\nmodel = "{BAD}:Spring"\n\n[inclusion]', 1))
     run_synthetic_study(tmp_path / "local.db", 2, seed=7, jobs=1, protocol_path=protocol)
     out = run_synthetic_study(tmp_path / "dask.db", 2, seed=7, protocol_path=protocol, scheduler=cluster.scheduler_address)
     assert out["participants"] == 2
-    assert _content(tmp_path / "dask.db") == _content(tmp_path / "local.db")
+    assert synthetic_content(tmp_path / "dask.db") == synthetic_content(tmp_path / "local.db")
     models = {m for (m,) in sqlite3.connect(tmp_path / "dask.db").execute("select distinct model from trials")}
     assert models == {"plate_spring", "own"}

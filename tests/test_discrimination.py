@@ -17,27 +17,9 @@ import pytest
 
 from sim.scene import Scene, load_scene
 from studyctl.protocol import check_protocol, load_protocol
+from tests.helpers import JND, jnd_protocol
 
 ROOT = Path(__file__).resolve().parents[1]
-JND = ROOT / "protocols/stiffness_jnd.toml"
-
-
-def jnd_protocol(tmp_path: Path, conditions=("plate_spring",), trials=12, method="quest+", extra="") -> Path:
-    """The shipped discrimination protocol on the quick scene (linear FEM tetrahedra, no
-    pictures), 1 s intervals, `trials` per condition."""
-    from tests.helpers import fast_protocol
-
-    fast_protocol(tmp_path)  # writes tmp_path / "scene.toml"
-    text = JND.read_text().replace('scene = "scenes/brain_pull.toml"', f'scene = "{tmp_path / "scene.toml"}"')
-    text = text.replace('conditions = ["fem", "mass_spring_3it", "plate_spring"]', f"conditions = {json.dumps(list(conditions))}")
-    if "mass_spring_3it" not in conditions:  # the shipped mass-spring condition's table goes with it
-        head, rest = text.split("[conditions.mass_spring_3it]")
-        text = head + rest[rest.index("[[tasks]]"):]
-    text = text.replace("trials = 40", f"trials = {trials}").replace("training_minutes = 2.0", "training_minutes = 0.0")
-    text = text.replace('method = "quest+"', f'method = "{method}"' + extra).replace("trial_seconds = 3.0", "trial_seconds = 1.0")
-    path = tmp_path / "jnd.toml"
-    path.write_text(text)
-    return path
 
 
 def test_shipped_protocol_is_forty_quest_trials_on_each_model():
@@ -246,9 +228,8 @@ def test_a_person_discriminates_in_the_window_with_the_mouse(xdotool, tmp_path, 
     import time
 
     from studyctl.session import run_session
-    from tests.helpers import studyctl
-    from tests.test_participant import MODEL_WORDS
-    from tests.test_view import Recorder, _window, _xdotool
+    from tests.helpers import MODEL_WORDS, studyctl
+    from tests.window_helpers import Recorder, run_xdotool, window
 
     db = tmp_path / "s.db"
     rec = Recorder(monkeypatch, limit_s=240.0)
@@ -259,20 +240,20 @@ def test_a_person_discriminates_in_the_window_with_the_mouse(xdotool, tmp_path, 
 
     def person(done):
         while not done.is_set():
-            w = _window()
+            w = window()
             text = rec.views[-1].text() if rec.views else {}
             if w and "grasp the brain to start" in text.get("center", ""):
                 time.sleep(0.3)
-                _xdotool("mousemove", "--window", w, 560, 420)
-                _xdotool("mousedown", 1)
+                run_xdotool("mousemove", "--window", w, 560, 420)
+                run_xdotool("mousedown", 1)
                 for k in range(1, 6):
-                    _xdotool("mousemove", "--window", w, 560 - 8 * k, 420)
+                    run_xdotool("mousemove", "--window", w, 560 - 8 * k, 420)
                     time.sleep(0.08)
                 time.sleep(1.3)  # held past the pull's end
-                _xdotool("mouseup", 1)
+                run_xdotool("mouseup", 1)
             elif w and text.get("question") == "Which one was stiffer?":
                 time.sleep(0.3)
-                _xdotool("key", "--window", w, "2")
+                run_xdotool("key", "--window", w, "2")
                 time.sleep(0.5)
             time.sleep(0.1)
 
@@ -298,9 +279,9 @@ def test_a_person_discriminates_in_the_window_with_the_mouse(xdotool, tmp_path, 
         if name and name not in shots:
             shots[name] = img
     assert set(shots) == {"interval_1", "interval_2", "answer"}
-    from tests.test_view import _brain_pixels, _patch_pixels
+    from tests.window_helpers import brain_pixels, patch_pixels
 
-    assert _brain_pixels(shots["interval_1"]) > 50_000 and _patch_pixels(shots["interval_2"]) > 30  # the brain; a grasped patch
+    assert brain_pixels(shots["interval_1"]) > 50_000 and patch_pixels(shots["interval_2"]) > 30  # the brain; a grasped patch
     import os
 
     if os.environ.get("BRAINSIM_SHOTS"):  # docs/img comes from here

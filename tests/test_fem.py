@@ -6,11 +6,8 @@ import pytest
 from sim.errors import ParameterError
 from sim.hyperelastic import neo_hookean
 from sim.models.fem import FiniteStrain, LinearFem, SingularSystemError, constraint_matrix, hold, lame
-from sim.volume import grid_tets, locate, tet_volumes
-
-
-def box(nx, ny, nz, h, origin=(0.0, 0.0, 0.0)):
-    return grid_tets(np.ones((nx, ny, nz), bool), np.asarray(origin, float), h)
+from sim.volume import locate, tet_volumes
+from tests.helpers import box
 
 
 def test_kuhn_tets_are_positive_and_fill_the_box():

@@ -6,7 +6,7 @@ import pytest
 
 from sim.models.fem import LinearFem
 from sim.models.fem.p2 import mesh as p2_mesh
-from tests.test_fem import box
+from tests.helpers import box
 
 L, H, E, NU, P = 0.1, 0.01, 1e6, 0.3, 1e-3
 

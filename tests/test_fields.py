@@ -11,35 +11,7 @@ import pytest
 
 from studyctl.protocol import check_protocol, load_protocol
 from studyctl.schedule import williams
-from tests.helpers import fast_protocol, studyctl
-
-FIELDS = '''
-[fields.experience]
-kind = "choice"
-values = ["student", "resident", "neurosurgeon"]
-required = true
-
-[fields.years]
-kind = "integer"
-min = 0
-max = 40
-
-[fields.hours_per_week]
-kind = "number"
-
-[fields.note]
-kind = "text"
-'''
-
-
-def field_protocol(tmp_path: Path, fields: str = FIELDS, groups: str | None = "experience", conditions=("plate_spring", "fem", "mass_spring"),
-                   trials=2) -> Path:
-    path = fast_protocol(tmp_path, conditions=conditions, trials=trials)
-    text = path.read_text()
-    if groups is not None:
-        text = text.replace("[design]\n", f"[design]\ngroups = {json.dumps(groups)}\n", 1)
-    path.write_text(text + fields)
-    return path
+from tests.helpers import FIELDS, fast_protocol, field_protocol, studyctl
 
 
 def study(tmp_path: Path, **kw) -> Path:

@@ -43,9 +43,9 @@ def test_sim_run_with_mass_spring(tmp_path):
 
 
 def test_coupling_above_the_omni_limit_is_refused(tmp_path):
-    from tests.test_scene import _localise
+    from tests.helpers import localise
 
-    text = _localise(SCENE.read_text()).replace("coupling = 300.0", "coupling = 900.0")
+    text = localise(SCENE.read_text()).replace("coupling = 300.0", "coupling = 900.0")
     path = tmp_path / "s.toml"
     path.write_text(text)
     from sim.errors import SceneError

@@ -179,9 +179,9 @@ def test_device_fault_in_a_frame_becomes_zero_force_and_an_event(libhd):
 
 def _openhaptics_scene(tmp_path):
     from tests.conftest import SCENE
-    from tests.test_scene import _localise
+    from tests.helpers import localise
 
-    text = _localise(SCENE.read_text()).replace('device = "simulated"', 'device = "openhaptics"').replace('kind = "offscreen"', 'kind = "none"')
+    text = localise(SCENE.read_text()).replace('device = "simulated"', 'device = "openhaptics"').replace('kind = "offscreen"', 'kind = "none"')
     path = tmp_path / "rig.toml"
     path.write_text(text)
     return path
@@ -323,11 +323,10 @@ def test_a_persons_session_on_two_fake_omnis_in_the_window(libhd, display, tmp_p
     participant view in a real window, answers typed on a pseudo-terminal."""
     import sqlite3
 
-    from tests.helpers import pty_session, studyctl
-    from tests.test_participant import _protocol
+    from tests.helpers import participant_protocol, pty_session, studyctl
 
     db = tmp_path / "s.db"
-    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, trial_seconds=1.0, training=0.05), "--db", db)
+    studyctl("study", "init", "--protocol", participant_protocol(tmp_path, trials=1, trial_seconds=1.0, training=0.05), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
     studyctl("participants", "consent", "P01", "--db", db)
     log = tmp_path / "hd.log"

@@ -3,7 +3,6 @@ questionnaire in real time through a real pseudo-terminal, and kills mid-trial."
 
 import json
 import os
-import re
 import signal
 import sqlite3
 import subprocess
@@ -15,21 +14,12 @@ import pandas as pd
 
 from studyctl.store import Store
 from studyctl.traces import read_trace
-from tests.helpers import count_rows, fast_protocol, pty_run, pty_session, studyctl
-
-MODEL_WORDS = re.compile(r"plate.?spring|mass.?spring|\bfem\b|finite|element|corotational|neo.?hookean|young|poisson", re.I)
-
-
-def _protocol(tmp_path, trial_seconds=3.0, rest=0.5, **kw):
-    p = fast_protocol(tmp_path, **kw)
-    text = p.read_text().replace("trial_seconds = 1.0", f"trial_seconds = {trial_seconds}").replace("rest_seconds = 5.0", f"rest_seconds = {rest}")
-    p.write_text(text)
-    return p
+from tests.helpers import MODEL_WORDS, count_rows, participant_protocol, pty_run, pty_session, studyctl
 
 
 def _synthetic_db(tmp_path, name="s.db", code="P01"):
     db = tmp_path / name
-    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=3), "--db", db)
+    studyctl("study", "init", "--protocol", participant_protocol(tmp_path, trials=3), "--db", db)
     studyctl("participants", "add", code, "--age", "24", "--synthetic", "--db", db)
     return db
 
@@ -106,7 +96,7 @@ def test_sigkill_mid_trial_loses_only_that_trial_and_resumed_answers_use_every_t
 
 def test_real_time_session_through_a_pty_discards_keys_typed_during_training_and_names_no_model(tmp_path):
     db = tmp_path / "s.db"
-    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, trial_seconds=1.0, training=0.05), "--db", db)
+    studyctl("study", "init", "--protocol", participant_protocol(tmp_path, trials=1, trial_seconds=1.0, training=0.05), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
     studyctl("participants", "consent", "P01", "--db", db)
     typed = []
@@ -134,7 +124,7 @@ def test_real_time_session_through_a_pty_discards_keys_typed_during_training_and
 
 def test_a_second_process_cannot_drive_a_live_session_and_is_told_so(tmp_path):
     db = tmp_path / "s.db"
-    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=2, trial_seconds=1.0), "--db", db)
+    studyctl("study", "init", "--protocol", participant_protocol(tmp_path, trials=2, trial_seconds=1.0), "--db", db)
     studyctl("participants", "add", "P05", "--synthetic", "--db", db)
     cmd = [sys.executable, "-m", "studyctl.cli", "session", "run", "--db", str(db), "--participant", "P05", "--synthetic", "--time-scale", "1"]
     first = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -178,7 +168,7 @@ def _ctrl_c(argv, when: bytes, timeout=120.0, delay=1.0) -> tuple[str, int]:
 
 def test_ctrl_c_in_the_chair_marks_the_session_interrupted_and_says_how_to_resume(tmp_path):
     db = tmp_path / "s.db"
-    studyctl("study", "init", "--protocol", _protocol(tmp_path, conditions=("plate_spring",), trials=2, trial_seconds=3.0), "--db", db)
+    studyctl("study", "init", "--protocol", participant_protocol(tmp_path, conditions=("plate_spring",), trials=2, trial_seconds=3.0), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
     studyctl("participants", "consent", "P01", "--db", db)
     text, code = _ctrl_c(["session", "run", "--db", db, "--participant", "P01", "--view", "none"], b"trial 2 of 2")
@@ -199,7 +189,7 @@ def test_ctrl_c_in_the_chair_marks_the_session_interrupted_and_says_how_to_resum
 
 def test_ctrl_c_during_a_parallel_synth_prints_one_line_and_the_next_run_completes_it(tmp_path):
     db = tmp_path / "s.db"
-    proto = _protocol(tmp_path, conditions=("plate_spring",), trials=1, trial_seconds=1.0)
+    proto = participant_protocol(tmp_path, conditions=("plate_spring",), trials=1, trial_seconds=1.0)
     text, code = _ctrl_c(["synth", "--db", db, "--protocol", proto, "--participants", "12", "--jobs", "2", "--seed", "3"],
                          b"%", delay=0.1)  # Ctrl-C once the first sessions are stored (the bar shows a percentage)
     assert code == 130 and "Traceback" not in text and "KeyboardInterrupt" not in text, text

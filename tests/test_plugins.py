@@ -16,9 +16,8 @@ import numpy as np
 import pytest
 
 from tests.conftest import ROOT
-from tests.helpers import fast_protocol
+from tests.helpers import BAD, build_wheel, fast_protocol, plugin_scene
 
-BAD = "tests.plugins.bad_models"
 ENTRY_POINTS = f"""[brainsim.models]
 spring = {BAD}:Spring
 nan_force = {BAD}:NanForce
@@ -101,16 +100,6 @@ def test_a_model_on_the_python_path_keeps_the_contract():
     assert [r["check"] for r in rows][:3] == ["build", "grasp", "zero force at zero displacement"]
 
 
-def _plugin_scene(tmp_path, target: str) -> Path:
-    """The fast test scene running `target` ("package.module:Class"), one hand."""
-    fast_protocol(tmp_path)
-    text = (tmp_path / "scene.toml").read_text()
-    text = text.replace("[models.plate_spring]", f'[models."{target}"]\nstiffness = 300.0\n\n[models.plate_spring]', 1)
-    path = tmp_path / "plugin_scene.toml"
-    path.write_text(text)
-    return path
-
-
 @pytest.mark.parametrize("time_scale", [0.0, 1.0])
 def test_in_a_session_a_plugin_that_sends_nan_renders_zero_force_and_logs_it(tmp_path, time_scale):
     """In the servo loop (lockstep) and in the servo process (real time, the model's copy
@@ -118,7 +107,7 @@ def test_in_a_session_a_plugin_that_sends_nan_renders_zero_force_and_logs_it(tmp
     from sim.run import run_scene
     from sim.scene import build_scene
 
-    path = _plugin_scene(tmp_path, f"{BAD}:NanForce")
+    path = plugin_scene(tmp_path, f"{BAD}:NanForce")
     scene = build_scene(path, f"{BAD}:NanForce")
     result = run_scene(scene, duration=1.0, time_scale=time_scale)
     kinds = [e.kind for e in result.events]
@@ -130,7 +119,7 @@ def test_in_a_session_a_plugin_whose_grasp_raises_logs_a_fault_and_renders_nothi
     from sim.run import run_scene
     from sim.scene import build_scene
 
-    path = _plugin_scene(tmp_path, f"{BAD}:GraspRaises")
+    path = plugin_scene(tmp_path, f"{BAD}:GraspRaises")
     result = run_scene(build_scene(path, f"{BAD}:GraspRaises"), duration=1.0, time_scale=0.0)
     faults = [e for e in result.events if e.kind == "model_fault"]
     assert faults and "grasp: no grip on this tissue" in faults[0].detail
@@ -144,7 +133,7 @@ def test_a_plugins_bad_option_is_refused_with_file_line_and_range_like_a_builtin
     from sim.errors import SceneError
     from sim.scene import load_scene
 
-    path = _plugin_scene(tmp_path, f"{BAD}:Spring")
+    path = plugin_scene(tmp_path, f"{BAD}:Spring")
     text = path.read_text().replace("stiffness = 300.0", "stiffness = 9000.0\ncolour = 1")
     path.write_text(text)
     with pytest.raises(SceneError) as exc:
@@ -197,8 +186,6 @@ def test_the_walkthrough_of_docs_models_in_a_fresh_environment(tmp_path):
     does), every command run from a folder outside the checkout, as the page writes it."""
     import shutil
     import sysconfig
-
-    from tests.test_wheel import build_wheel
 
     docs = DOCS.read_text()
     wheel = build_wheel(tmp_path)
@@ -293,7 +280,7 @@ def test_model_check_of_a_built_in_model_gives_its_whole_scorecard(tmp_path):
 
 
 def test_a_plugin_whose_build_raises_is_one_line(tmp_path):
-    path = _plugin_scene(tmp_path, f"{BAD}:Spring")
+    path = plugin_scene(tmp_path, f"{BAD}:Spring")
     path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{BAD}:BuildRaises"]'))
     env = {k: v for k, v in os.environ.items() if k != "STUDYCTL_DB"} | {"PYTHONPATH": str(ROOT)}
     res = _studyctl(env, "sim", "run", "--scene", path, "--model", f"{BAD}:BuildRaises", "--time-scale", "0", "--duration", "0.5")
@@ -305,7 +292,7 @@ def test_a_plugin_whose_copy_cannot_reach_the_servo_process_is_a_fault_not_a_cra
     from sim.run import run_scene
     from sim.scene import build_scene
 
-    path = _plugin_scene(tmp_path, f"{BAD}:Spring")
+    path = plugin_scene(tmp_path, f"{BAD}:Spring")
     path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{BAD}:Unpicklable"]'))
     result = run_scene(build_scene(path, f"{BAD}:Unpicklable"), duration=1.0, time_scale=1.0)
     faults = [e for e in result.events if e.kind == "model_fault"]
@@ -319,7 +306,7 @@ def test_options_are_checked_by_kind_and_a_declaration_the_reader_cannot_read_do
 
     with pytest.raises(ModelLoadError, match=r"Options is not a dataclass"):
         model_class(f"{BAD}:NotADataclass")
-    path = _plugin_scene(tmp_path, f"{BAD}:Spring")
+    path = plugin_scene(tmp_path, f"{BAD}:Spring")
     path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]\nstiffness = 300.0',
                                              f'[models."{BAD}:Flagged"]\nmirrored = "yes"\nlayers = 3'))
     with pytest.raises(SceneError) as exc:

@@ -10,6 +10,7 @@ import pytest
 from sim.errors import SceneError
 from sim.scene import load_scene
 from tests.conftest import ROOT, SCENE
+from tests.helpers import localise
 
 
 def test_shipped_scene(root):
@@ -22,11 +23,6 @@ def test_shipped_scene(root):
     assert not s.material.young_given and s.material.poisson == 0.45
     assert s.material.young == pytest.approx(2 * law.shear_modulus * 1.45, rel=1e-12)
     assert s.renderer.kind == "offscreen" and s.servo_rate_hz == 1000.0
-
-
-def _localise(text: str) -> str:
-    """Make the shipped scene's relative paths absolute, so a copy works from tmp_path."""
-    return text.replace('"../../data/', f'"{ROOT}/data/').replace('"../models/', f'"{ROOT}/protocols/models/').replace('"../materials/', f'"{ROOT}/protocols/materials/')
 
 
 def _scene_text(**replace) -> str:
@@ -74,7 +70,7 @@ def test_broken_scenes(tmp_path, old, new, message):
         message = r"p.toml:\d+: alpha: 3.0 is out of range; allowed: \[1, 2\]"
     else:
         text = _scene_text(**{old: new})
-    text = _localise(text)
+    text = localise(text)
     path = tmp_path / "scene.toml"
     path.write_text(text)
     with pytest.raises(Exception) as exc:
@@ -91,7 +87,7 @@ def test_broken_scenes(tmp_path, old, new, message):
 
 
 def test_three_hands_refused(tmp_path):
-    text = _localise(SCENE.read_text())
+    text = localise(SCENE.read_text())
     block = text[text.index("[[hands]]"):]
     path = tmp_path / "s.toml"
     path.write_text(text + "\n" + block.replace('name = "left"', 'name = "third"'))
@@ -107,7 +103,7 @@ def _run_python(code: str) -> dict:
 def test_headless_plate_spring_scene_never_imports_open3d_the_renderer_or_other_models(tmp_path):
     # the FEM module is never imported, so no stiffness matrix is ever assembled
     scene = tmp_path / "headless.toml"
-    scene.write_text(_localise(SCENE.read_text().replace('kind = "offscreen"', 'kind = "none"')))
+    scene.write_text(localise(SCENE.read_text().replace('kind = "offscreen"', 'kind = "none"')))
     got = _run_python(f"""
         import json, sys
         from sim.scene import build_scene
@@ -125,7 +121,7 @@ def test_headless_plate_spring_scene_never_imports_open3d_the_renderer_or_other_
 
 
 def test_one_hand_scene_opens_one_device(tmp_path):
-    text = _localise(SCENE.read_text())
+    text = localise(SCENE.read_text())
     text = text[: text.rindex("[[hands]]")]  # drop the right hand
     scene = tmp_path / "one.toml"
     scene.write_text(text)
@@ -142,7 +138,7 @@ def test_one_hand_scene_opens_one_device(tmp_path):
 
 def test_headless_fem_scene_meshes_in_a_child_and_assembles_once_per_hemisphere(tmp_path):
     scene = tmp_path / "fem.toml"
-    text = _localise(SCENE.read_text().replace('kind = "offscreen"', 'kind = "none"'))
+    text = localise(SCENE.read_text().replace('kind = "offscreen"', 'kind = "none"'))
     scene.write_text(text.replace('name = "plate_spring"               #', 'name = "fem"  #').replace("resolution = 0.004", "resolution = 0.008"))
     got = _run_python(f"""
         import json, sys
@@ -167,7 +163,7 @@ def _line_of(text: str, needle: str) -> int:
 
 def _write_scene(tmp_path, text: str, name: str = "s.toml"):
     path = tmp_path / name
-    path.write_text(_localise(text))
+    path.write_text(localise(text))
     return path, path.read_text()
 
 
@@ -246,7 +242,7 @@ def test_poisson_bound_is_the_fems(tmp_path):
 
 def test_file_problems_are_one_line_naming_the_file(tmp_path):
     bad = tmp_path / "latin1.toml"
-    bad.write_bytes(_localise(SCENE.read_text()).replace('"Two simulated', '"Zw\xf6lf simulated').encode("latin-1"))
+    bad.write_bytes(localise(SCENE.read_text()).replace('"Two simulated', '"Zw\xf6lf simulated').encode("latin-1"))
     assert _problems(bad) == [f"{bad}:6: not UTF-8: byte 0xf6 at column 18; TOML files must be UTF-8"]
 
     syntax, text = _write_scene(tmp_path, _scene_text(**{"rate_hz = 1000": "rate_hz = 1000 ="}), "syntax.toml")

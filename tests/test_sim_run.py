@@ -113,14 +113,14 @@ def test_cli_unknown_model_is_a_clean_error():
 
 
 def test_replay_reproduces_a_recorded_run(tmp_path):
-    from tests.test_scene import _localise
+    from tests.helpers import localise
 
     scene = build_scene(SCENE)
     first = run_scene(scene, duration=2.0, time_scale=0)
     from sim.run_plots import write_trace
 
     write_trace(first, tmp_path / "trace.csv")
-    text = _localise(SCENE.read_text()).replace('device = "simulated"', f'device = "replay"\ntrace = "{tmp_path / "trace.csv"}"')
+    text = localise(SCENE.read_text()).replace('device = "simulated"', f'device = "replay"\ntrace = "{tmp_path / "trace.csv"}"')
     (tmp_path / "replay.toml").write_text(text)
     replay = run_scene(build_scene(tmp_path / "replay.toml"), duration=2.0, time_scale=0)
     # same positions and buttons, so the same grasps and (the recorded hand being passive) the same forces
@@ -130,9 +130,9 @@ def test_replay_reproduces_a_recorded_run(tmp_path):
 
 
 def test_replay_of_a_missing_trace_is_a_clean_error(tmp_path):
-    from tests.test_scene import _localise
+    from tests.helpers import localise
 
-    text = _localise(SCENE.read_text()).replace('device = "simulated"', f'device = "replay"\ntrace = "{tmp_path / "none.csv"}"')
+    text = localise(SCENE.read_text()).replace('device = "simulated"', f'device = "replay"\ntrace = "{tmp_path / "none.csv"}"')
     (tmp_path / "replay.toml").write_text(text)
     res = CliRunner().invoke(cli, ["sim", "run", "--scene", str(tmp_path / "replay.toml"), "--duration", "0.1", "--time-scale", "0"])
     assert res.exit_code == 1 and "none.csv: cannot read" in res.output

@@ -3,7 +3,6 @@ hand, the features kept in the database, the null and swap tests of the observer
 
 import math
 import multiprocessing as mp
-import sqlite3
 
 import numpy as np
 import pytest
@@ -24,19 +23,9 @@ from studyctl.observer import (
 )
 from studyctl.synthetic import SyntheticParticipant
 from studyctl.synthetic_study import run_synthetic_study
-from tests.helpers import fast_protocol
+from tests.helpers import fast_protocol, synthetic_content, synthetic_summary
 
 MEDIAN = ObserverTraits(weber=0.10, prior=1.0, latency_ms=40.0, vibration=1.0, bias=0.0)
-
-
-def _content(db):
-    con = sqlite3.connect(db)
-    answers = con.execute("select code, model, item, answer, session_id, source from answers order by code, model, item").fetchall()
-    trials = con.execute("select session_id, model, trial, round(max_force_n, 9) from trials order by session_id, model, trial").fetchall()
-    orders = con.execute("select code, conditions from schedule order by code").fetchall()
-    feats = con.execute("select code, model, feature, value from observer_features order by code, model, feature").fetchall()
-    con.close()
-    return answers, trials, orders, feats
 
 
 def _spin(stop):
@@ -60,7 +49,7 @@ def test_same_seed_same_answers_with_any_jobs_and_load(tmp_path):
             stop.set()
             for h in hogs:
                 h.join()
-        runs[name] = _content(db)
+        runs[name] = synthetic_content(db)
     # same seed: the same trials, orders, perceived features and answers, in parallel or on a
     # busy machine (the observer reads no wall-clock time)
     assert runs["a"] == runs["b"] == runs["c"]
@@ -107,16 +96,11 @@ def test_ripple_level_of_a_tone_at_threshold_is_one():
     assert vibration_threshold_n(np.array([250.0]))[0] == pytest.approx(1000.0 * 0.6e-6)
 
 
-def _summary(ratio, flops=1e4, ripple=0.0, events=0):
-    truth = np.linspace(0.05, 1.0, 40)
-    return TrialSummary(rendered=ratio * truth, truth=truth, ripple=ripple, events=events, frame_flops=flops)
-
-
 def test_answers_follow_what_was_perceived_not_the_model_name():
-    good = features([_summary(1.0)], MEDIAN)
-    stiff = features([_summary(2.0)], MEDIAN)
-    slow = features([_summary(1.0, flops=ObserverParams().flops_per_ms * 80)], MEDIAN)
-    shaky = features([_summary(1.0, ripple=4.0, events=2)], MEDIAN)
+    good = features([synthetic_summary(1.0)], MEDIAN)
+    stiff = features([synthetic_summary(2.0)], MEDIAN)
+    slow = features([synthetic_summary(1.0, flops=ObserverParams().flops_per_ms * 80)], MEDIAN)
+    shaky = features([synthetic_summary(1.0, ripple=4.0, events=2)], MEDIAN)
     assert good["within_jnd"] == pytest.approx(P_WITHIN_PERFECT, abs=0.02) and stiff["within_jnd"] < 0.05
     assert slow["latency_ms"] == pytest.approx(frame_ms(ObserverParams().flops_per_ms * 80)) and slow["p_latency"] > 0.99
     assert p_yes("feedback", stiff, MEDIAN) < p_yes("feedback", good, MEDIAN) - 0.3
@@ -158,8 +142,8 @@ def test_plan_power_grows_with_n_and_is_labelled_synthetic(tmp_path):
 
     protocol = load_protocol(fast_protocol(tmp_path, trials=1))
     # fixed pilot summaries: a clearly worse model (slow) and two alike
-    slow = _summary(1.0, flops=ObserverParams().flops_per_ms * 80)
-    summaries = {"plate_spring": [_summary(1.0)], "fem": [_summary(1.0)], "mass_spring": [slow]}
+    slow = synthetic_summary(1.0, flops=ObserverParams().flops_per_ms * 80)
+    summaries = {"plate_spring": [synthetic_summary(1.0)], "fem": [synthetic_summary(1.0)], "mass_spring": [slow]}
     t = power_table(protocol, [6, 24, 48], simulations=100, seed=3, summaries=summaries, primary=False)
     assert list(t.columns) == ["n", "item", "power", "simulations", "alpha"]
     rt = t[t["item"] == "realtime"].set_index("n")["power"]
@@ -180,7 +164,7 @@ def test_null_study_rejects_at_about_alpha():
 
     protocol = load_protocol(PROTOCOL)
     rng = np.random.default_rng(0)
-    pool = [_summary(r, flops=f) for r, f in zip(rng.uniform(0.8, 1.6, 12), rng.uniform(1e6, 6e7, 12))]
+    pool = [synthetic_summary(r, flops=f) for r, f in zip(rng.uniform(0.8, 1.6, 12), rng.uniform(1e6, 6e7, 12))]
     summaries = {c: pool[4 * k:4 * k + 4] for k, c in enumerate(protocol.conditions)}
     t = null_table(protocol, participants=35, simulations=400, seed=1, summaries=summaries, primary=False)
     assert list(t.columns) == ["item", "false_positive_rate", "mc_error", "simulations", "alpha", "model", "participants"]

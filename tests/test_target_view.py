@@ -16,7 +16,7 @@ import numpy as np
 from sim import hud
 from tests.conftest import ROOT
 from tests.helpers import studyctl as _studyctl
-from tests.test_view import _window, _xdotool
+from tests.window_helpers import run_xdotool, window
 
 QUESTION = '''[[questions]]
 id = "target_clear"
@@ -101,10 +101,10 @@ class Person:
         spec = v.targets[k]
         origin = np.asarray(v._last_hands[k].target.point) - spec.spec.distance * np.asarray(spec.direction)
         u0, v0, _ = v.camera.project(origin)[0]
-        _xdotool("mousemove", "--window", w, int(round(u0)), int(round(v0)))
+        run_xdotool("mousemove", "--window", w, int(round(u0)), int(round(v0)))
         time.sleep(0.4)
         button = (1, 3)[k]
-        _xdotool("mousedown", button)
+        run_xdotool("mousedown", button)
         deadline = time.time() + 20
         while v._last_hands[k].grasped_vertex is None and time.time() < deadline:
             time.sleep(0.05)
@@ -114,12 +114,12 @@ class Person:
         u1, v1, depth = v.camera.project(point)[0]
         steps = int(round((v.inputs[k][2] - depth) / 0.002))  # the wheel: 2 mm of depth a notch, up towards the viewer
         for j in range(1, 13):
-            _xdotool("mousemove", "--window", w, int(round(u0 + (u1 - u0) * j / 12)), int(round(v0 + (v1 - v0) * j / 12)))
+            run_xdotool("mousemove", "--window", w, int(round(u0 + (u1 - u0) * j / 12)), int(round(v0 + (v1 - v0) * j / 12)))
             time.sleep(0.08)
             if j == 6 and "pull" in shots:
                 self.shoot("pull", tmp_path / "pull.png")
         for _ in range(abs(steps)):
-            _xdotool("click", 4 if steps > 0 else 5)
+            run_xdotool("click", 4 if steps > 0 else 5)
             time.sleep(0.03)
         deadline = time.time() + 10
 
@@ -135,7 +135,7 @@ class Person:
             time.sleep(0.05)
         if "held" in shots:
             self.shoot("held", tmp_path / "held.png")
-        _xdotool("mouseup", button)
+        run_xdotool("mouseup", button)
         time.sleep(0.3)
 
 
@@ -154,15 +154,15 @@ def test_a_person_pulls_each_hand_to_its_target_with_the_mouse_and_the_trial_end
     def act(done):
         try:
             deadline = time.time() + 90
-            while not (person.view and _window() and "Grasp the brain to start" in person.texts) and time.time() < deadline:
+            while not (person.view and window() and "Grasp the brain to start" in person.texts) and time.time() < deadline:
                 time.sleep(0.1)
-            w = _window()
+            w = window()
             time.sleep(0.5)
             person.shoot("before", tmp_path / "before.png")
             person.pull_to_target(w, 0, shots=("pull", "on", "held"), tmp_path=tmp_path)
             person.pull_to_target(w, 1)
             while not done.is_set():  # the question after the trial: no
-                _xdotool("key", "--window", w, "n")
+                run_xdotool("key", "--window", w, "n")
                 time.sleep(0.3)
         except Exception as exc:  # the session's own thread reports it
             failures.append(exc)

@@ -17,8 +17,7 @@ from analysis import validity_report as vr
 from analysis.metrics import COLUMNS
 from analysis.study_snapshot import read_study
 from studyctl.store import Store
-from tests.helpers import fast_protocol, studyctl
-from tests.test_fields import field_protocol
+from tests.helpers import fast_protocol, field_protocol, studyctl
 
 ORDER = ["student", "resident", "neurosurgeon"]
 SECRET = "SECRET-REMARK-7f3a"  # a text field's value: never in a report

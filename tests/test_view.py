@@ -14,66 +14,8 @@ import numpy as np
 import pytest
 
 from tests.conftest import ROOT
-from tests.helpers import studyctl
-from tests.test_participant import MODEL_WORDS, _protocol
-
-PATCH = np.array([0.20, 0.55, 0.95]) * 255
-
-
-def _xdotool(*args):
-    return subprocess.run(["xdotool", *map(str, args)], capture_output=True, text=True, timeout=10)
-
-
-def _window():
-    out = _xdotool("search", "--name", "Brain surgery simulator").stdout.split()
-    return out[0] if out else None
-
-
-class Recorder:
-    """Wraps the view: every text it shows, and a screenshot at each change of its main message.
-    A watchdog closes the views after `limit_s`, so a lost X event fails the test, never hangs it."""
-
-    def __init__(self, monkeypatch, limit_s: float = 150.0):
-        from sim.view import ParticipantView
-
-        self.texts, self.shots, self.views = [], [], []
-        rec = self
-
-        def watchdog():
-            time.sleep(limit_s)
-            for v in rec.views:
-                v.closed = True  # paced runs stop, the window questionnaire raises
-
-        threading.Thread(target=watchdog, daemon=True).start()
-        set_text, draw, idle = ParticipantView.set_text, ParticipantView.draw, ParticipantView.idle
-
-        def set_text_spy(view, **slots):
-            set_text(view, **slots)
-            rec.texts.extend(t for t in slots.values() if t)
-
-        def shoot(view, hands, displacement):
-            text = view.text()
-            key = (text.get("center", "") or text.get("question", ""), text.get("top", ""))
-            if not rec.shots or rec.shots[-1][0] != key:
-                rec.shots.append((key, view.image(), [h.position for h in hands], [h.grasped_vertex for h in hands], displacement))
-                if os.environ.get("BRAINSIM_SHOTS"):  # keep them to look at (docs/img comes from here)
-                    view.screenshot(Path(os.environ["BRAINSIM_SHOTS"]) / f"shot_{len(rec.shots):03d}.png")
-
-        def draw_spy(view, displacement, hands, read_t=None, latch=None):
-            draw(view, displacement, hands, read_t, latch=latch)
-            if view not in rec.views:
-                rec.views.append(view)
-            rec.hands = view._last_hands  # as drawn: late-latched
-            shoot(view, rec.hands, displacement)
-
-        def idle_spy(view):
-            idle(view)
-            shoot(view, getattr(rec, "hands", []), None)
-
-        monkeypatch.setattr(ParticipantView, "idle", idle_spy)
-
-        monkeypatch.setattr(ParticipantView, "set_text", set_text_spy)
-        monkeypatch.setattr(ParticipantView, "draw", draw_spy)
+from tests.helpers import MODEL_WORDS, participant_protocol, studyctl
+from tests.window_helpers import Recorder, brain_pixels, patch_pixels, run_xdotool, window
 
 
 def _window_session(db, actor, tmp_path, protocol_kw, **session_kw):
@@ -81,7 +23,7 @@ def _window_session(db, actor, tmp_path, protocol_kw, **session_kw):
     person or an experimenter at the keyboard and mouse) acts in a thread."""
     from studyctl.session import run_session
 
-    studyctl("study", "init", "--protocol", _protocol(tmp_path, **protocol_kw), "--db", db)
+    studyctl("study", "init", "--protocol", participant_protocol(tmp_path, **protocol_kw), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
     studyctl("participants", "consent", "P01", "--db", db)
     done = threading.Event()
@@ -92,14 +34,6 @@ def _window_session(db, actor, tmp_path, protocol_kw, **session_kw):
     finally:
         done.set()
         t.join()
-
-
-def _brain_pixels(img):
-    return int(np.sum(np.all(img < 245, axis=2)))
-
-
-def _patch_pixels(img):
-    return int(np.sum(np.linalg.norm(img.astype(float) - PATCH, axis=2) < 60))
 
 
 def test_sim_run_in_a_window_reports_the_view_and_saves_the_last_frame(display, tmp_path):
@@ -114,7 +48,7 @@ def test_sim_run_in_a_window_reports_the_view_and_saves_the_last_frame(display, 
     import matplotlib.image as mpimg
 
     img = (mpimg.imread(shot)[:, :, :3] * 255).astype(np.uint8)
-    assert img.shape == (720, 1280, 3) and _brain_pixels(img) > 50_000 and _patch_pixels(img) > 30  # the brain, the grasped patches
+    assert img.shape == (720, 1280, 3) and brain_pixels(img) > 50_000 and patch_pixels(img) > 30  # the brain, the grasped patches
 
 
 def test_a_paced_session_in_the_window_shows_instructions_countdown_hands_and_deformation(xdotool, tmp_path, monkeypatch):
@@ -125,9 +59,9 @@ def test_a_paced_session_in_the_window_shows_instructions_countdown_hands_and_de
 
     def person(done):  # presses Y now and then: only keys pressed while a question is shown count
         while not done.is_set():
-            w = _window()
+            w = window()
             if w:
-                _xdotool("key", "--window", w, "y")
+                run_xdotool("key", "--window", w, "y")
             time.sleep(0.4)
 
     out = _window_session(db, person, tmp_path, dict(trials=2, trial_seconds=2.0, training=0.05, rest=1.0, conditions=("plate_spring", "fem")))
@@ -144,10 +78,10 @@ def test_a_paced_session_in_the_window_shows_instructions_countdown_hands_and_de
     running = [(k, img, h, g, u) for k, img, h, g, u in rec.shots if re.fullmatch(r"\d s", k[0])]
     assert waiting and running and any(k[0].startswith("Rest: ") for k, *_ in rec.shots)
     img0 = waiting[0][0]
-    assert _brain_pixels(img0) > 50_000
+    assert brain_pixels(img0) > 50_000
     # while a trial runs: a grasped, highlighted patch; the hands have moved since the first screen
     late = running[-1]
-    assert any(g is not None for g in late[3]) and _patch_pixels(late[1]) > 30
+    assert any(g is not None for g in late[3]) and patch_pixels(late[1]) > 30
     moved = max(np.linalg.norm(np.subtract(a, b)) for a, b in zip(late[2], waiting[0][1]))
     assert moved > 0.004
     # the tissue deforms where it is grasped: the surface drawn there has moved, and so have its pixels
@@ -171,25 +105,25 @@ def _drag_in_sim_live(*args: str) -> dict:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
         deadline = time.time() + 60
-        while _window() is None and time.time() < deadline:
+        while window() is None and time.time() < deadline:
             time.sleep(0.2)
-        w = _window()
+        w = window()
         assert w, proc.stderr.read() if proc.poll() is not None else "no window"
         time.sleep(2.0)
-        _xdotool("mousemove", "--window", w, 560, 420)
+        run_xdotool("mousemove", "--window", w, 560, 420)
         time.sleep(0.5)
-        _xdotool("mousedown", 1)
+        run_xdotool("mousedown", 1)
         time.sleep(1.0)
         for k in range(1, 11):
-            _xdotool("mousemove", "--window", w, 560 - 6 * k, 420)
+            run_xdotool("mousemove", "--window", w, 560 - 6 * k, 420)
             time.sleep(0.1)
         time.sleep(1.0)
-        _xdotool("key", "--window", w, "q")
+        run_xdotool("key", "--window", w, "q")
         out, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
-    _xdotool("mouseup", 1)
+    run_xdotool("mouseup", 1)
     assert proc.returncode == 0, err
     return json.loads(out)
 
@@ -205,7 +139,7 @@ def test_the_mouse_grasps_and_pulls_the_brain_in_sim_live(xdotool, tmp_path):
 
     img = (mpimg.imread(shot)[:, :, :3] * 255).astype(np.uint8)
     red = np.sum((img[:, :, 0] > 170) & (img[:, :, 1] < 90) & (img[:, :, 2] < 80))
-    assert red > 40 and _patch_pixels(img) > 30  # the force arrow and number; the grasped patch
+    assert red > 40 and patch_pixels(img) > 30  # the force arrow and number; the grasped patch
 
 
 def test_a_whole_session_piloted_with_the_mouse(xdotool, tmp_path, monkeypatch):
@@ -215,20 +149,20 @@ def test_a_whole_session_piloted_with_the_mouse(xdotool, tmp_path, monkeypatch):
     def person(done):
         grasped = False
         while not done.is_set():
-            w = _window()
+            w = window()
             if w and not grasped and any("Grasp the brain" in x for x in rec.texts):
                 time.sleep(0.5)
-                _xdotool("mousemove", "--window", w, 560, 420)
-                _xdotool("mousedown", 1)
+                run_xdotool("mousemove", "--window", w, 560, 420)
+                run_xdotool("mousedown", 1)
                 time.sleep(0.6)
                 for k in range(1, 6):
-                    _xdotool("mousemove", "--window", w, 560 - 8 * k, 420)
+                    run_xdotool("mousemove", "--window", w, 560 - 8 * k, 420)
                     time.sleep(0.1)
                 time.sleep(1.5)
-                _xdotool("mouseup", 1)
+                run_xdotool("mouseup", 1)
                 grasped = True
             elif w and grasped:
-                _xdotool("key", "--window", w, "n")
+                run_xdotool("key", "--window", w, "n")
             time.sleep(0.3)
 
     out = _window_session(db, person, tmp_path, dict(trials=1, trial_seconds=1.5, conditions=("plate_spring",)), device="mouse")
@@ -250,17 +184,17 @@ def test_the_experimenter_ends_training_early_and_starts_a_trial_in_which_nothin
     def experimenter(done):
         pressed = set()
         while not done.is_set():
-            w = _window()
+            w = window()
             text = rec.views[-1].text() if rec.views else {}
             if w and text.get("top") == "Training" and "e" not in pressed:
                 time.sleep(1.0)
-                _xdotool("key", "--window", w, "e")
+                run_xdotool("key", "--window", w, "e")
                 pressed.add("e")
             elif w and text.get("center") == "Grasp the brain to start" and "space" not in pressed:
-                _xdotool("key", "--window", w, "space")
+                run_xdotool("key", "--window", w, "space")
                 pressed.add("space")
             elif w and "space" in pressed:
-                _xdotool("key", "--window", w, "n")
+                run_xdotool("key", "--window", w, "n")
             time.sleep(0.3)
 
     out = _window_session(db, experimenter, tmp_path, dict(trials=1, trial_seconds=1.0, training=1.0, conditions=("fem",)), device="mouse")
@@ -276,7 +210,7 @@ def test_the_experimenter_ends_training_early_and_starts_a_trial_in_which_nothin
 
 def test_clean_errors_for_a_window_without_a_display_and_a_mouse_without_a_window(tmp_path, monkeypatch):
     db = tmp_path / "s.db"
-    studyctl("study", "init", "--protocol", _protocol(tmp_path, trials=1, conditions=("fem",)), "--db", db)
+    studyctl("study", "init", "--protocol", participant_protocol(tmp_path, trials=1, conditions=("fem",)), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
     studyctl("participants", "consent", "P01", "--db", db)
     monkeypatch.delenv("DISPLAY", raising=False)
@@ -361,7 +295,7 @@ def test_the_screen_shows_the_frame_the_view_reports(mode, tmp_path):
     shown = screen[y:y + height, x:x + width].astype(int)
     # the same pixels but for a few on triangle edges (measured: 0 in a window, 1 of 614 400 fullscreen)
     assert np.mean(np.abs(shown - frame).max(axis=2) > 1) < 1e-4, info
-    assert _brain_pixels(frame) > 0.2 * width * height and _patch_pixels(frame) > 10
+    assert brain_pixels(frame) > 0.2 * width * height and patch_pixels(frame) > 10
 
 
 
@@ -402,9 +336,9 @@ def test_a_plugin_model_in_the_window_with_the_mouse(xdotool, tmp_path):
     """A lab's own model (tests/plugins, named "package.module:Class" in the scene) held with
     the mouse: its force, written as `force` only, reaches the servo process as a copy of the
     model (sim.models.api.ModelForce) and is felt and recorded like a built-in model's."""
-    from tests.test_plugins import BAD, _plugin_scene
+    from tests.helpers import BAD, plugin_scene
 
-    scene = _plugin_scene(tmp_path, f"{BAD}:Spring")
+    scene = plugin_scene(tmp_path, f"{BAD}:Spring")
     s = _drag_in_sim_live("--scene", str(scene), "--model", f"{BAD}:Spring")
     assert s["model"] == f"{BAD}:Spring" and s["events"].get("grasp", 0) >= 1
     assert s["max_force_per_hand_n"]["left"] > 0.02 and "model_fault" not in s["events"] and "nan_force" not in s["events"]

@@ -13,27 +13,7 @@ from pathlib import Path
 import pytest
 
 from tests.conftest import ROOT
-
-
-def _copy_sources(dest: Path) -> Path:
-    """The files git would put in a clone (tracked, plus new ones not ignored): the wheel is
-    built from these, in a copy, so the checkout gets no build/ or egg-info."""
-    files = subprocess.run(["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=ROOT, check=True,
-                           capture_output=True).stdout.decode().split("\0")
-    for rel in filter(None, files):
-        src = ROOT / rel
-        if src.is_file():
-            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(src, dest / rel)
-    return dest
-
-
-def build_wheel(tmp: Path) -> Path:
-    src = _copy_sources(tmp / "src")
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp / "dist"), str(src)], check=True,
-                   capture_output=True)
-    (wheel,) = (tmp / "dist").glob("brainsim_study-*.whl")
-    return wheel
+from tests.helpers import build_wheel
 
 
 def run_as_a_user(venv: Path, cwd: Path) -> dict:

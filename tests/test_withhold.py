@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from analysis.withhold import mean_ci
-from tests.helpers import studyctl
-from tests.test_answer_kinds import QUESTIONS, kinds_protocol
+from tests.helpers import QUESTIONS, kinds_protocol, studyctl
 
 PER_TRIAL = QUESTIONS.replace('id = "stable"\ntext = "Is the system stable?"', 'id = "stable"\ntext = "Is the system stable?"\nwhen = "trial"')
 
@@ -140,7 +139,7 @@ def test_every_report_at_small_n_prints_only_valid_statistics(studies, n):
 def test_report_jnd_says_what_a_small_group_cannot_give(tmp_path):
     """Two participants: the geometric mean's interval is printed with the warning that it is wide;
     every participant's row names its fit flag and QUEST+'s own estimate, in Markdown and HTML."""
-    from tests.test_discrimination import jnd_protocol
+    from tests.helpers import jnd_protocol
 
     db = tmp_path / "s.db"
     assert studyctl("synth", "--db", db, "--protocol", jnd_protocol(tmp_path, trials=12), "--participants", 2, "--seed", 4).exit_code == 0
@@ -155,7 +154,7 @@ def test_report_jnd_says_what_a_small_group_cannot_give(tmp_path):
 
 
 def test_report_validity_with_one_participant_per_group_tests_nothing_and_says_why(tmp_path):
-    from tests.test_fields import field_protocol
+    from tests.helpers import field_protocol
 
     db = tmp_path / "s.db"
     res = studyctl("synth", "--db", db, "--protocol", field_protocol(tmp_path, conditions=("plate_spring",), trials=2), "--participants", 3, "--seed", 3)
