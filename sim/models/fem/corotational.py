@@ -170,14 +170,19 @@ def corotational_step(fem: LinearFem, W, pre: Precond, at: State, lam_mult: np.n
     lam_new = lam_mult + dl
     slope = float((f_int - W.T @ lam_new) @ step)  # < 0: a descent direction
     base = at.energy - float(lam_new @ gap)
+    grad = float(np.linalg.norm(f_int - W.T @ lam_new))
     alpha = 1.0
     for halvings in range(MAX_HALVINGS + 1):
         u = at.u.copy()
         u[free] += alpha * step
         trial = evaluate(fem, u, elements)
         merit = trial.energy - float(lam_new @ (W @ u[free] - d))
-        # near convergence the decrease falls below the energy's round-off: accept within that
-        if math.isfinite(merit) and merit <= base + 1e-4 * alpha * slope + 1e-12 * abs(base):
+        if math.isfinite(merit) and merit <= base + 1e-4 * alpha * slope:
+            return trial, lam_mult + alpha * dl, res, float(at.J.min()), halvings
+        # near convergence the energy's change falls below its round-off: there the step must
+        # shrink the Lagrangian's gradient instead
+        if (math.isfinite(merit) and abs(merit - base) <= 1e-12 * abs(base)
+                and float(np.linalg.norm(trial.f[free] - W.T @ lam_new)) < grad):
             return trial, lam_mult + alpha * dl, res, float(at.J.min()), halvings
         alpha *= 0.5
     return at, lam_mult, res, float(at.J.min()), -1
