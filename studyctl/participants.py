@@ -17,7 +17,7 @@ from pathlib import Path
 from studyctl.errors import InputError, StoreError
 from studyctl.lock import session_lock
 from studyctl.questions import shown
-from studyctl.store import Store, now, records
+from studyctl.store import Store, now, records, roster
 from studyctl.store.participant_fields import read_fields
 from studyctl.study import answer_key
 from studyctl.text import control_problem, spreadsheet_safe
@@ -25,7 +25,7 @@ from studyctl.traces import trace_dir
 
 
 def _person(store: Store, code: str) -> dict:
-    p = records.person(store, code)
+    p = roster.person(store, code)
     if p is None:
         raise InputError(f"participant {code}: not registered")
     return p

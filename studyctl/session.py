@@ -44,8 +44,9 @@ from studyctl.lock import session_lock
 from studyctl.participants import has_consent
 from studyctl.questions import NOT_PER_TRIAL, SESSION
 from studyctl.rig import frame_times
-from studyctl.store import Store, dumps, now, sha256_file
+from studyctl.store import Store, dumps, now, roster, sha256_file
 from studyctl.store import sessions as session_rows
+from studyctl.store.trials import discrimination_done
 from studyctl.study import assign_order
 from studyctl.synthetic import SyntheticAnswers, SyntheticParticipant, skill_for
 from studyctl.traces import trace_dir, trial_traces, write_trace
@@ -149,7 +150,7 @@ def _check_options(device: str, synthetic: bool, time_scale: float | None, view:
 def _check_participant(store: Store, protocol, code: str, synthetic: bool) -> None:
     """Registered, not withdrawn, not done; a person or synthetic, never both; answers from one
     source; a person has signed the protocol's consent form."""
-    person = session_rows.participant_status(store, code)
+    person = roster.person(store, code)
     if person is None:
         raise StoreError(f"participant {code}: not registered; add with `studyctl participants add`")
     if person["withdrawn_at"]:
@@ -388,8 +389,7 @@ def _run_condition(run: _Run, pos: int, model: str, n_cond: int) -> None:
                  {"labels": run.labels, "trial": trial, "results": trial_traces(store, session_id, model, trial)},
                  f"{status}, after trial {trial + 1}")
     for task in protocol.tasks:  # after the free trials: the condition's model is familiar by then
-        done = session_rows.discrimination_trials_done(store, session_id, model, task.index)
-        if done < task.trials:
+        if len(discrimination_done(store, session_id, model, task.index)) < task.trials:
             scene = scene or _loaded(run, protocol, model, status)
             run_task(run, scene, pos, model, task, status)
     results = None  # every stored trial of the condition, resumed or not: read once, when needed

@@ -48,7 +48,7 @@ def add_participant(db: str | Path, code: str, age=None, name: str | None = None
         code = _check_code(code, "participant")
         age = _check_age(age, protocol, f"participant {code}")
         values = parse_fields(protocol, fields or {}, f"participant {code}")
-        if roster.is_registered(store, code):
+        if roster.person(store, code) is not None:
             raise InputError(f"participant {code}: already registered")
         if synthetic and (name or contact):
             raise InputError(f"participant {code}: a synthetic participant has no name or contact")

@@ -8,15 +8,10 @@ from __future__ import annotations
 import sqlite3
 
 from studyctl.store.database import Store, now
+from studyctl.store.roster import participant_count
 
 
 # -- reads ---------------------------------------------------------------------------------
-def person(store: Store, code: str) -> dict | None:
-    """A participant's row (code, age, synthetic, withdrawn_at, withdrawal, ...), or None if not registered."""
-    rows = store.rows("select * from participants where code = ?", (code,))
-    return rows[0] if rows else None
-
-
 def consent_rows(store: Store, code: str) -> list[dict]:
     """The consent recorded for a participant (given_on, version): none or one row."""
     return store.rows("select given_on, version from consent where code = ?", (code,))
@@ -80,8 +75,8 @@ def _count(store: Store, sql: str) -> int:
 def people_counts(store: Store) -> dict[str, int]:
     """How many persons, synthetic participants, withdrawn persons and consent records the study holds."""
     return {
-        "persons": _count(store, "select count(*) as n from participants where synthetic = 0"),
-        "synthetic": _count(store, "select count(*) as n from participants where synthetic = 1"),
+        "persons": participant_count(store, synthetic=False),
+        "synthetic": participant_count(store, synthetic=True),
         "withdrawn": _count(store, "select count(*) as n from participants where synthetic = 0 and withdrawn_at is not null"),
         "consented": _count(store, "select count(*) as n from consent"),
     }

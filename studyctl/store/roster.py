@@ -15,9 +15,10 @@ _IN_GROUP = " and s.code in (select code from participant_fields where field = ?
 
 
 # -- registration -------------------------------------------------------------------------
-def is_registered(store: Store, code: str) -> bool:
-    """Whether a participant with this code is registered."""
-    return bool(store.rows("select code from participants where code = ?", (code,)))
+def person(store: Store, code: str) -> dict | None:
+    """A participant's row (code, age, synthetic, withdrawn_at, withdrawal, ...), or None if not registered."""
+    rows = store.rows("select * from participants where code = ?", (code,))
+    return rows[0] if rows else None
 
 
 def participant_codes(store: Store) -> set[str]:

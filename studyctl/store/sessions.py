@@ -1,6 +1,6 @@
 """A session's rows: the session itself, its conditions, trials, latency, answers and events,
-and what a session reads of its participant (registration, observer features, synthetic
-traits, discrimination trials). The statements of studyctl/session.py, as functions of an open
+and what a session reads of its participant (a finished session, answers, observer features,
+synthetic traits). The statements of studyctl/session.py, as functions of an open
 `Store`; each write commits exactly where the session committed it before (a crash loses at
 most the trial in flight)."""
 
@@ -9,12 +9,6 @@ from __future__ import annotations
 from studyctl.store.database import Store, now
 
 # -- the participant, checked before a session runs -------------------------------------------
-
-
-def participant_status(store: Store, code: str) -> dict | None:
-    """The participant's `synthetic` and `withdrawn_at`, or None when not registered."""
-    rows = store.rows("select synthetic, withdrawn_at from participants where code = ?", (code,))
-    return rows[0] if rows else None
 
 
 def has_done_session(store: Store, code: str) -> bool:
@@ -131,12 +125,6 @@ def record_trial(store: Store, trial: dict, latency: list[dict]) -> None:
     if latency:
         store.write_many("latency", latency, pk=("session_id", "model", "trial", "measure"))
     store.write("trials", trial, pk=("session_id", "model", "trial"))
-
-
-def discrimination_trials_done(store: Store, session_id: int, model: str, task: int) -> int:
-    """How many trials of a discrimination task the session stored for the condition."""
-    return store.rows("select count(*) as n from discrimination where session_id = ? and model = ? and task = ?",
-                      (session_id, model, task))[0]["n"]
 
 
 # -- answers ---------------------------------------------------------------------------------
