@@ -61,18 +61,23 @@ def _svd_rotations(F: np.ndarray) -> np.ndarray:
     return Uf @ Vt
 
 
-def corotational_internal_force(fem: LinearFem, u: np.ndarray, R: np.ndarray, elements: np.ndarray | None = None, Ku: np.ndarray | None = None) -> np.ndarray:
+def _corotate_compiled(fem: LinearFem, u: np.ndarray, R: np.ndarray, elements: np.ndarray, out: np.ndarray) -> float:
+    """Add the `elements`' corotational force's change from the linear one to `out` (one
+    compiled pass); returns the energy's change."""
+    tets, _, Ke = _element_arrays(fem, elements)
+    return kernels.corotated_minus_linear(np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(fem.nodes, dtype=np.float64), tets, Ke,
+                                          np.ascontiguousarray(R), out)
+
+
+def corotational_internal_force(fem: LinearFem, u: np.ndarray, R: np.ndarray, elements: np.ndarray | None = None) -> np.ndarray:
     """f = sum_e R_e K_e (R_e^T x_e - X_e): linear elasticity in each element's rotated frame.
 
     With `elements`, only those are corotated (R given for them); the others stay linear,
-    which is what they are when their rotation is negligible. `Ku`: the linear force K u, when
-    the caller has it.
+    which is what they are when their rotation is negligible.
     """
-    kernels = _kernels()
-    if kernels is not None and elements is not None:  # one compiled pass over the elements
-        tets, _, Ke = _element_arrays(fem, elements)
-        out = (fem.stiffness @ u) if Ku is None else Ku.copy()
-        kernels.corotated_minus_linear(np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(fem.nodes, dtype=np.float64), tets, Ke, np.ascontiguousarray(R), out)
+    if _kernels() is not None and elements is not None:  # one compiled pass over the elements
+        out = fem.stiffness @ u
+        _corotate_compiled(fem, u, R, elements, out)
         return out
     tets = fem.tets if elements is None else fem.tets[elements]
     Ke = fem.element_matrices if elements is None else fem.element_matrices[elements]
@@ -86,7 +91,7 @@ def corotational_internal_force(fem: LinearFem, u: np.ndarray, R: np.ndarray, el
     if elements is None:
         return np.bincount(dofs.ravel(), weights=fe.ravel(), minlength=n)
     linear = np.einsum("mij,mj->mi", Ke, ue.reshape(-1, 12))
-    return ((fem.stiffness @ u) if Ku is None else Ku) + np.bincount(dofs.ravel(), weights=(fe.reshape(-1, 12) - linear).ravel(), minlength=n)
+    return fem.stiffness @ u + np.bincount(dofs.ravel(), weights=(fe.reshape(-1, 12) - linear).ravel(), minlength=n)
 
 
 def warped_stiffness(fem: LinearFem, R: np.ndarray) -> sp.csr_matrix:
@@ -96,12 +101,11 @@ def warped_stiffness(fem: LinearFem, R: np.ndarray) -> sp.csr_matrix:
     return assemble(Kw.reshape(-1, 12, 12), fem.tets, len(fem.nodes))[fem.free][:, fem.free]
 
 
-def corotational_energy(fem: LinearFem, u: np.ndarray, R: np.ndarray, elements: np.ndarray | None = None, Ku: np.ndarray | None = None) -> float:
+def corotational_energy(fem: LinearFem, u: np.ndarray, R: np.ndarray, elements: np.ndarray | None = None) -> float:
     """E = sum_e 1/2 l_e^T K_e l_e with l_e = R_e^T x_e - X_e: the energy whose gradient is the
     corotational force (with the polar rotation, or the SVD's for an inverted element, the
     rotation's derivative adds nothing; McAdams et al. 2011). With `elements`, only those are
-    corotated and the others keep the linear energy, as in `corotational_internal_force`
-    (`Ku` as there)."""
+    corotated and the others keep the linear energy, as in `corotational_internal_force`."""
     tets = fem.tets if elements is None else fem.tets[elements]
     Ke = fem.element_matrices if elements is None else fem.element_matrices[elements]
     X = fem.nodes[tets]
@@ -111,7 +115,7 @@ def corotational_energy(fem: LinearFem, u: np.ndarray, R: np.ndarray, elements: 
     if elements is None:
         return corot
     ue = ue.reshape(-1, 12)
-    return 0.5 * float(u @ ((fem.stiffness @ u) if Ku is None else Ku)) + corot - 0.5 * float(np.einsum("mi,mij,mj->", ue, Ke, ue, optimize=True))
+    return 0.5 * float(u @ (fem.stiffness @ u)) + corot - 0.5 * float(np.einsum("mi,mij,mj->", ue, Ke, ue, optimize=True))
 
 
 @dataclass
@@ -134,16 +138,11 @@ class State:
 
 def evaluate(fem: LinearFem, u: np.ndarray, elements: np.ndarray | None = None) -> State:
     R, J = element_rotations(fem, u, elements)
-    kernels = _kernels()
-    if elements is None or kernels is None:
-        Ku = None if elements is None else fem.stiffness @ u
-        return State(u, R, J, corotational_internal_force(fem, u, R, elements, Ku), corotational_energy(fem, u, R, elements, Ku))
-    # the haptic frame's path: one compiled pass gives the force's and the energy's change
-    tets, _, Ke = _element_arrays(fem, elements)
-    f = fem.stiffness @ u
-    linear = 0.5 * float(u @ f)
-    change = kernels.corotated_minus_linear(np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(fem.nodes, dtype=np.float64), tets, Ke, np.ascontiguousarray(R), f)
-    return State(u, R, J, f, linear + change)
+    if elements is not None and _kernels() is not None:  # the haptic frame's path: one compiled pass gives both
+        f = fem.stiffness @ u
+        linear = 0.5 * float(u @ f)
+        return State(u, R, J, f, linear + _corotate_compiled(fem, u, R, elements, f))
+    return State(u, R, J, corotational_internal_force(fem, u, R, elements), corotational_energy(fem, u, R, elements))
 
 
 MAX_HALVINGS = 8  # the preconditioned step is a descent direction, so some halving decreases
