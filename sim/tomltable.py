@@ -1,5 +1,7 @@
-"""`TableReader`: typed, range-checked reads of a parsed TOML table, for `sim.scene` (a scene
-file, the plate-spring parameter file it names, a protocol's condition on top of it)."""
+"""`TableReader`: typed, range-checked reads of a parsed TOML table, the one reader of every
+TOML file the project takes: a scene, the plate-spring parameter file it names, a material,
+a protocol (`studyctl.protocol`) and its conditions on top of the scene. One wording for each
+problem, so a user reads the same message whichever file it is in."""
 
 from __future__ import annotations
 
@@ -10,6 +12,9 @@ from sim.models.base import Vec3
 from sim.tomlfile import Locator
 
 REQUIRED = object()  # the default of a key that must be given
+# what a value of the wrong type should have been, in a TOML writer's words
+WHAT = {"integer": "an integer", "number": "a finite number", "string": "a text in quotes", "boolean": "true or false",
+        "list": "a list in [ ]"}
 
 
 class TableReader:
@@ -32,19 +37,29 @@ class TableReader:
             if key not in allowed:
                 self.error(key, f"unknown key; allowed: {', '.join(allowed)}")
 
-    def table(self, key: str, required: bool = True, allowed: tuple[str, ...] | None = None) -> TableReader:
+    def strings(self) -> list[str]:
+        """The problems as 'FILE:LINE: field: message', in the order they were found."""
+        return [text for _, _, text in self.problems]
+
+    def table(self, key: str, required: bool = True, allowed: tuple[str, ...] | None = None, hint: str | None = None) -> TableReader:
+        """Section `key`; `hint`: what a missing one should hold (added to its message)."""
         value, refused = self.data.get(key, REQUIRED), self.refused
         if value is REQUIRED:
             if required and not refused:
-                self.error(key, "missing section")
+                self.error(key, "missing section" + (f"; write [{key}] with {hint}" if hint else ""))
             value, refused = {}, refused or required
         elif not isinstance(value, dict):
             self.error(key, "must be a table")
             value, refused = {}, True
-        table = TableReader(self.path, value, f"{self.prefix}{key}.", self.loc, self.problems, refused)
+        table = self.sub(value, f"{self.prefix}{key}.", refused)
         if allowed is not None:
             table.keys(allowed)
         return table
+
+    def sub(self, data: dict, prefix: str, refused: bool = False) -> TableReader:
+        """A reader of `data` (a table found by the caller: an item of an array of tables, a
+        [section.NAME]) whose fields are named `prefix`KEY, its problems added to this one's."""
+        return TableReader(self.path, data, prefix, self.loc, self.problems, refused)
 
     def _value(self, key: str, default):
         value = self.data.get(key, default)
@@ -60,7 +75,7 @@ class TableReader:
         if value is None:
             return None
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            return self.error(key, f"{value!r} is not a finite number")
+            return self.error(key, f"{value!r} is not {WHAT['number']}")
         below = value <= lo if lo_open else value < lo
         above = value >= hi if hi_open else value > hi
         if below or above:
@@ -68,14 +83,15 @@ class TableReader:
             return self.error(key, f"{value!r} is out of range; allowed: {left}{lo:g}, {hi:g}{right}")
         return float(value)
 
-    def integer(self, key: str, default=REQUIRED, lo: int = 1, hi: int = 1 << 30) -> int | None:
+    def integer(self, key: str, default=REQUIRED, lo: int = 1, hi: int | None = None) -> int | None:
+        """An integer in lo..hi (no upper bound where `hi` is None)."""
         value = self._value(key, default)
         if value is None:
             return None
         if isinstance(value, bool) or not isinstance(value, int):
-            return self.error(key, f"{value!r} is not an integer")
-        if not lo <= value <= hi:
-            return self.error(key, f"{value!r} is out of range; allowed: {lo}..{hi}")
+            return self.error(key, f"{value!r} is not {WHAT['integer']}")
+        if value < lo or hi is not None and value > hi:
+            return self.error(key, f"{value!r} is out of range; allowed: {lo}..{'inf' if hi is None else hi}")
         return value
 
     def string(self, key: str, default=REQUIRED, choices: tuple[str, ...] | None = None) -> str | None:
@@ -83,9 +99,26 @@ class TableReader:
         if value is None:
             return None
         if not isinstance(value, str):
-            return self.error(key, f"{value!r} is not a string")
+            return self.error(key, f"{value!r} is not {WHAT['string']}")
         if choices is not None and value not in choices:
             return self.error(key, f"{value!r} is not one of {', '.join(choices)}")
+        return value
+
+    def boolean(self, key: str, default=REQUIRED) -> bool | None:
+        value = self._value(key, default)
+        if value is None:
+            return None
+        if not isinstance(value, bool):
+            return self.error(key, f"{value!r} is not {WHAT['boolean']}")
+        return value
+
+    def items(self, key: str, default=REQUIRED) -> list | None:
+        """A list, its items checked by the caller."""
+        value = self._value(key, default)
+        if value is None:
+            return None
+        if not isinstance(value, list):
+            return self.error(key, f"{value!r} is not {WHAT['list']}")
         return value
 
     def numbers(self, key: str, default=REQUIRED, lo: float = -math.inf, hi: float = math.inf, most: int = 8) -> tuple | None:

@@ -14,11 +14,13 @@ import math
 import random
 from dataclasses import dataclass
 
+from sim.tomltable import TableReader
 from studyctl.errors import InputError
 from studyctl.text import ID_RE, control_problem, quoted
 
 FIELD_KINDS = ("choice", "integer", "number", "text")
 FIELD_KEYS = ("kind", "values", "required", "min", "max", "description")
+UNBOUNDED = 1 << 62  # an integer field's min and max may be any integer
 MAX_TEXT = 200  # a text field's longest value: a remark, not a record about someone
 
 
@@ -80,74 +82,77 @@ def _num(v: float) -> str:
     return str(int(v)) if float(v).is_integer() else str(v)
 
 
-def check_fields(data: dict, design: dict, c) -> tuple[list[Field], str | None]:
-    """[fields.NAME] tables and design.groups, each problem added to the protocol checker `c`
+def check_fields(data: dict, design: TableReader, c: TableReader) -> tuple[list[Field], str | None]:
+    """[fields.NAME] tables and design.groups (`design`: the protocol's [design]), each problem
+    added to the protocol file's reader `c`
     (FILE:LINE: field: message, naming what is allowed)."""
     raw = data.get("fields", {})
     out: list[Field] = []
     if not isinstance(raw, dict):
-        c.bad("fields", "must be tables, one per field: [fields.NAME] with kind = ...")
+        c.error("fields", "must be tables, one per field: [fields.NAME] with kind = ...")
         raw = {}
     for name, t in raw.items():
         sec = f"fields.{name}"
         if not isinstance(t, dict):
-            c.bad(sec, "must be a table: [fields.NAME] with kind = ...")
+            c.error(sec, "must be a table: [fields.NAME] with kind = ...")
             continue
         if not ID_RE.match(name):
-            c.bad(sec, f"{name!r} must be lower-case letters, digits and _ (starting with a letter)")
+            c.error(sec, f"{name!r} must be lower-case letters, digits and _ (starting with a letter)")
             continue
         if name in ("code", "age", "name", "contact"):
-            c.bad(sec, f"{name!r} is a participant's own column; name the field otherwise")
+            c.error(sec, f"{name!r} is a participant's own column; name the field otherwise")
             continue
         for key in t:
             if key not in FIELD_KEYS:
-                c.bad(f"{sec}.{key}", f"unknown key; allowed: {', '.join(FIELD_KEYS)}")
-        kind = c.get(t, sec, "kind", str)
+                c.error(f"{sec}.{key}", f"unknown key; allowed: {', '.join(FIELD_KEYS)}")
+        r = c.sub(t, f"{sec}.")
+        kind = r.string("kind")
         if kind is None:
             continue
         if kind not in FIELD_KINDS:
-            c.bad(f"{sec}.kind", f"{kind!r} is not a field kind; allowed: {', '.join(FIELD_KINDS)}")
+            c.error(f"{sec}.kind", f"{kind!r} is not a field kind; allowed: {', '.join(FIELD_KINDS)}")
             continue
-        required = c.get(t, sec, "required", bool, default=False, required=False)
-        description = c.get(t, sec, "description", str, default="", required=False)
+        required = r.boolean("required", default=False)
+        description = r.string("description", default="")
         values, lo, hi, ok = (), None, None, True
         if kind == "choice":
-            v = c.get(t, sec, "values", list)
+            v = r.items("values")
             if v is not None:
                 if len(v) < 2 or not all(isinstance(x, str) and x.strip() for x in v):
-                    c.bad(f"{sec}.values", f"{v!r}: at least two non-empty texts, e.g. [\"student\", \"resident\", \"neurosurgeon\"]")
+                    c.error(f"{sec}.values", f"{v!r}: at least two non-empty texts, e.g. [\"student\", \"resident\", \"neurosurgeon\"]")
                     ok = False
                 elif len(set(x.strip() for x in v)) != len(v):
-                    c.bad(f"{sec}.values", "a value appears twice")
+                    c.error(f"{sec}.values", "a value appears twice")
                     ok = False
                 else:
                     values = tuple(x.strip() for x in v)
             else:
                 ok = False
         elif "values" in t:
-            c.bad(f"{sec}.values", f"only a choice field has values; this one is {kind}")
+            c.error(f"{sec}.values", f"only a choice field has values; this one is {kind}")
         if kind in ("integer", "number"):
-            num = int if kind == "integer" else float
-            lo = c.get(t, sec, "min", num, required=False)
-            hi = c.get(t, sec, "max", num, required=False)
+            if kind == "integer":
+                lo, hi = r.integer("min", default=None, lo=-UNBOUNDED), r.integer("max", default=None, lo=-UNBOUNDED)
+            else:
+                lo, hi = r.number("min", default=None), r.number("max", default=None)
             if lo is not None and hi is not None and lo > hi:
-                c.bad(f"{sec}.max", f"{_num(hi)} is below min {_num(lo)}")
+                c.error(f"{sec}.max", f"{_num(hi)} is below min {_num(lo)}")
                 ok = False
         else:
             for key in ("min", "max"):
                 if key in t:
-                    c.bad(f"{sec}.{key}", f"only an integer or number field has {key}; this one is {kind}")
+                    c.error(f"{sec}.{key}", f"only an integer or number field has {key}; this one is {kind}")
         if ok:
             out.append(Field(name, kind, values, bool(required), lo, hi, description or ""))
-    groups = c.get(design, "design", "groups", str, required=False)
+    groups = design.string("groups", default=None)
     if groups is not None:
         by_name = {f.name: f for f in out}
         if groups not in raw:
             named = f"a [fields.NAME] choice ({', '.join(raw)})" if raw else "a [fields.NAME] table with kind = \"choice\""
-            c.bad("design.groups", f"{groups!r} names no field; allowed: {named}")
+            c.error("design.groups", f"{groups!r} names no field; allowed: {named}")
         elif groups in by_name and by_name[groups].kind != "choice":
             choices = [f.name for f in out if f.kind == "choice"]
-            c.bad("design.groups", f"{groups!r} is a {by_name[groups].kind} field; the groups are a choice field's values; allowed: "
+            c.error("design.groups", f"{groups!r} is a {by_name[groups].kind} field; the groups are a choice field's values; allowed: "
                   + (", ".join(choices) if choices else "a field with kind = \"choice\""))
         elif groups in by_name:  # every participant is in a group
             out = [dataclasses.replace(f, required=True) if f.name == groups else f for f in out]

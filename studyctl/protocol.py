@@ -7,7 +7,6 @@ message``; `check_protocol` returns them without raising (for ``studyctl protoco
 from __future__ import annotations
 
 import hashlib
-import math
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -18,6 +17,7 @@ from sim.models import registry
 from sim.scene import configure, load_scene
 from sim.targets import TRIAL_ENDS
 from sim.tomlfile import Locator, TomlFileError, read_toml
+from sim.tomltable import TableReader
 from studyctl import instruments
 from studyctl.errors import ProtocolError
 from studyctl.fields import check_fields
@@ -112,54 +112,50 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"line (\d+)", str(exc))
         return None, [f"{path}:{m.group(1) if m else 1}: invalid TOML: {exc}"]
-    c = _Checker(path, loc)
+    c = TableReader(path, data, "", loc, [])
     _unknown_keys(data, c)
-    study, design = c.table(data, "study"), c.table(data, "design")
-    inclusion, latency = c.table(data, "inclusion", required=False), c.table(data, "latency", required=False)
-    meta = _study_fields(study, data.get("ethics", {}) if isinstance(data.get("ethics", {}), dict) else {}, path, c)
-    tables = _condition_tables(data.get("conditions", {}), c.bad)
+    study, design = c.table("study", hint=_hint("study")), c.table("design", hint=_hint("design"))
+    inclusion, latency = c.table("inclusion", required=False), c.table("latency", required=False)
+    meta = _study_fields(study, c.table("ethics", required=False), path)
+    tables = _condition_tables(data.get("conditions", {}), c.error)
     conditions = _design_conditions(design, tables, c)
     scene, scene_spec = meta["scene"], None
     if from_file and scene is not None and scene.exists():
         scene_spec, problems = _scene_problems(scene, path, text, conditions or [], tables,
-                                               lambda message: c.bad("design.conditions", message))
-        c.problems += problems
-    cb = c.get(design, "design", "counterbalancing", str)
-    if cb is not None and cb not in DESIGNS:
-        c.bad("design.counterbalancing", f"{cb!r} is not one of {', '.join(DESIGNS)}")
-    training = c.get(design, "design", "training_minutes", float, lo=0.0, hi=120.0)
-    trials = c.get(design, "design", "trials_per_condition", int, lo=0, hi=100)
-    trial_s = c.get(design, "design", "trial_seconds", float, lo=0.5, hi=600.0)
-    rest_s = c.get(design, "design", "rest_seconds", float, default=5.0, lo=0.0, hi=600.0, required=False)
-    trial_end = c.get(design, "design", "trial_end", str, default="time", required=False)
-    if trial_end is not None and trial_end not in TRIAL_ENDS:
-        c.bad("design.trial_end", f"{trial_end!r} is not one of {', '.join(TRIAL_ENDS)}")
-    elif trial_end == "targets" and scene_spec is not None and not any(h.target is not None for h in scene_spec.hands):
-        c.bad("design.trial_end", f"'targets' needs a target on a hand of the scene {scene} ([hands.target]); it has none")
+                                               lambda message: c.error("design.conditions", message))
+        c.problems += [(path, 0, p) for p in problems]
+    cb = design.string("counterbalancing", choices=DESIGNS)
+    training = design.number("training_minutes", lo=0.0, hi=120.0)
+    trials = design.integer("trials_per_condition", lo=0, hi=100)
+    trial_s = design.number("trial_seconds", lo=0.5, hi=600.0)
+    rest_s = design.number("rest_seconds", default=5.0, lo=0.0, hi=600.0)
+    trial_end = design.string("trial_end", default="time", choices=TRIAL_ENDS)
+    if trial_end == "targets" and scene_spec is not None and not any(h.target is not None for h in scene_spec.hands):
+        c.error("design.trial_end", f"'targets' needs a target on a hand of the scene {scene} ([hands.target]); it has none")
 
-    age_min = c.get(inclusion, "inclusion", "age_min", int, default=DEFAULT_AGES[0], lo=0, hi=120, required=False)
-    age_max = c.get(inclusion, "inclusion", "age_max", int, default=DEFAULT_AGES[1], lo=0, hi=120, required=False)
+    age_min = inclusion.integer("age_min", default=DEFAULT_AGES[0], lo=0, hi=120)
+    age_max = inclusion.integer("age_max", default=DEFAULT_AGES[1], lo=0, hi=120)
     if age_min is not None and age_max is not None and age_min > age_max:
-        c.bad("inclusion.age_max", f"{age_max} is below age_min {age_min}")
+        c.error("inclusion.age_max", f"{age_max} is below age_min {age_min}")
 
     # without [latency]: the three measures of the paper's study where there are free trials to time
-    measures = c.get(latency, "latency", "measures", list, default=list(DEFAULT_LATENCY) if trials else [], required=False)
+    measures = latency.items("measures", default=list(DEFAULT_LATENCY) if trials else [])
     for m in measures or []:
         if m not in LATENCY_MEASURES:
-            c.bad("latency.measures", f"unknown measure {m!r}; allowed: {', '.join(LATENCY_MEASURES)}")
+            c.error("latency.measures", f"unknown measure {m!r}; allowed: {', '.join(LATENCY_MEASURES)}")
 
 
     tasks = check_tasks(data, c, trial_s)
     if any(t.kind == "discrimination" for t in tasks):
-        _check_stiffness_scaling(conditions or [], tables, c.bad)
+        _check_stiffness_scaling(conditions or [], tables, c.error)
     if trials == 0 and not tasks and "tasks" not in data:
-        c.bad("design.trials_per_condition", "0 is out of range without [[tasks]]; allowed: 1..100 (0 when each condition has a task)")
-    questions = _questions(data, c.get, c.bad, len(conditions or []))
+        c.error("design.trials_per_condition", "0 is out of range without [[tasks]]; allowed: 1..100 (0 when each condition has a task)")
+    questions = _questions(data, c, len(conditions or []))
     fields, groups = check_fields(data, design, c)
 
     skills = check_skills(data, groups, fields, c)
     if c.problems:
-        return None, c.problems
+        return None, c.strings()
     return (
         Protocol(
             path=path, name=meta["name"], title=meta["title"], version=meta["version"], target_participants=meta["target"], scene=scene,
@@ -174,49 +170,9 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     )
 
 
-class _Checker:
-    """A protocol file's problems, each as 'FILE:LINE: field: message', and typed reads that
-    add one when a value is missing, of the wrong type or out of range."""
-
-    def __init__(self, path: Path, loc: Locator):
-        self.path, self.loc, self.problems = path, loc, []
-
-    def bad(self, field: str, message: str) -> None:
-        self.problems.append(f"{self.path}:{self.loc.line(field)}: {field}: {message}")
-
-    def table(self, data: dict, name: str, required: bool = True) -> dict:
-        t = data.get(name)
-        if t is None:
-            if required:
-                hint = SECTION_HINTS.get(name)
-                self.bad(name, "missing section" + (f"; write [{name}] with {hint} (docs/study.md lists every key)" if hint else ""))
-            return {}
-        if not isinstance(t, dict):
-            self.bad(name, "must be a table")
-            return {}
-        return t
-
-    def get(self, t: dict, section: str, key: str, kind, default=None, lo=None, hi=None, required=True):
-        field = f"{section}.{key}"
-        if key not in t:
-            if required and default is None:
-                self.bad(field, "missing")
-            return default
-        v = t[key]
-        if kind is int:
-            ok = isinstance(v, int) and not isinstance(v, bool)
-        elif kind is float:
-            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-        else:
-            ok = isinstance(v, kind)
-        if not ok:
-            what = {int: "an integer", float: "a number", str: "a text in quotes", list: "a list in [ ]", bool: "true or false"}.get(kind, "a " + kind.__name__)
-            self.bad(field, f"{v!r} is not {what}")
-            return default
-        if lo is not None and v < lo or hi is not None and v > hi:
-            self.bad(field, f"{v!r} is out of range; allowed: {lo if lo is not None else '-inf'}..{hi if hi is not None else 'inf'}")
-            return default
-        return float(v) if kind is float else v
+def _hint(section: str) -> str:
+    """What a missing [section] should hold, for its message."""
+    return f"{SECTION_HINTS[section]} (docs/study.md lists every key)"
 
 
 SECTIONS = {"study": ("name", "title", "version", "target_participants", "scene", "timezone"),
@@ -228,11 +184,11 @@ SECTIONS = {"study": ("name", "title", "version", "target_participants", "scene"
             "tasks": ("kind", "parameter", "reference", "method", "rule", "trials", "question", "feedback", "interval_seconds", "range", "start")}
 
 
-def _unknown_keys(data: dict, c: _Checker) -> None:
+def _unknown_keys(data: dict, c: TableReader) -> None:
     """Sections and keys a protocol may not have (a typo is named, never ignored)."""
     for key in data:
         if key not in SECTIONS:
-            c.bad(key, f"unknown section; allowed: {', '.join(SECTIONS)}")
+            c.error(key, f"unknown section; allowed: {', '.join(SECTIONS)}")
     for sec, keys in SECTIONS.items():
         if keys is None:  # [conditions.NAME]: names of the protocol's choosing, checked below
             continue
@@ -242,68 +198,67 @@ def _unknown_keys(data: dict, c: _Checker) -> None:
         for where, t in tables:
             for key in t if isinstance(t, dict) else ():
                 if key not in keys:
-                    c.bad(f"{where}.{key}", f"unknown key; allowed: {', '.join(keys)}")
+                    c.error(f"{where}.{key}", f"unknown key; allowed: {', '.join(keys)}")
 
 
-def _study_fields(study: dict, ethics: dict, path: Path, c: _Checker) -> dict:
+def _study_fields(study: TableReader, ethics: TableReader, path: Path) -> dict:
     """[ethics] and [study]: the consent form's version, withdrawal, name, title, time zone,
     version, target N and the scene (resolved beside the protocol)."""
-    out = {"consent_version": c.get(ethics, "ethics", "consent_version", str, default="1", required=False),
-           "withdrawal": c.get(ethics, "ethics", "withdrawal", str, default="keep", required=False)}
+    out = {"consent_version": ethics.string("consent_version", default="1"),
+           "withdrawal": ethics.string("withdrawal", default="keep", choices=("keep", "delete"))}
     if out["consent_version"] is not None and not out["consent_version"].strip():
-        c.bad("ethics.consent_version", "empty; name the consent form's version, e.g. \"1\"")
-    if out["withdrawal"] not in ("keep", "delete"):
-        c.bad("ethics.withdrawal", f"{out['withdrawal']!r} is not keep or delete")
-    out["name"] = c.get(study, "study", "name", str)
-    out["title"] = c.get(study, "study", "title", str, default="", required=False)
-    timezone = out["timezone"] = c.get(study, "study", "timezone", str, default=None, required=False)
+        ethics.error("consent_version", "empty; name the consent form's version, e.g. \"1\"")
+    out["name"] = study.string("name")
+    out["title"] = study.string("title", default="")
+    timezone = out["timezone"] = study.string("timezone", default=None)
     if timezone is not None:
         from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
         try:
             ZoneInfo(timezone)
         except (ZoneInfoNotFoundError, ValueError):
-            c.bad("study.timezone", f"{timezone!r} is not an IANA time zone, e.g. \"Asia/Shanghai\" or \"Europe/Berlin\"")
-    out["version"] = c.get(study, "study", "version", int, default=1, lo=1, required=False)
-    out["target"] = c.get(study, "study", "target_participants", int, lo=1, hi=10000)
-    scene_rel = c.get(study, "study", "scene", str)
+            study.error("timezone", f"{timezone!r} is not an IANA time zone, e.g. \"Asia/Shanghai\" or \"Europe/Berlin\"")
+    out["version"] = study.integer("version", default=1, lo=1)
+    out["target"] = study.integer("target_participants", lo=1, hi=10000)
+    scene_rel = study.string("scene")
     out["scene"] = None
     if scene_rel is not None:
         out["scene"] = (path.parent / scene_rel).resolve()
         if not out["scene"].exists():
-            c.bad("study.scene", f"{out['scene']} does not exist")
+            study.error("scene", f"{out['scene']} does not exist")
     return out
 
 
-def _design_conditions(design: dict, tables: dict, c: _Checker) -> list | None:
+def _design_conditions(design: TableReader, tables: dict, c: TableReader) -> list | None:
     """design.conditions: each a [conditions.NAME] table or a model's name, once, and every
     table listed."""
-    conditions = c.get(design, "design", "conditions", list)
+    conditions = design.items("conditions")
     if conditions is None:
         return None
     if not conditions:
-        c.bad("design.conditions", "at least one condition")
+        c.error("design.conditions", "at least one condition")
     if len(conditions) > MAX_CONDITIONS:
-        c.bad("design.conditions", f"{len(conditions)} conditions; allowed: 1..{MAX_CONDITIONS}")
+        c.error("design.conditions", f"{len(conditions)} conditions; allowed: 1..{MAX_CONDITIONS}")
     for cond in conditions:
         if not isinstance(cond, str):
-            c.bad("design.conditions", f"{cond!r} is not a condition's name")
+            c.error("design.conditions", f"{cond!r} is not a condition's name")
         elif cond not in registry.names() and cond not in tables:
             named = f"a [conditions.NAME] table ({', '.join(tables)})" if tables else "a [conditions.NAME] table"
-            c.bad("design.conditions", f"unknown condition {cond!r}; allowed: {named} or a model name ({', '.join(registry.names())})")
+            c.error("design.conditions", f"unknown condition {cond!r}; allowed: {named} or a model name ({', '.join(registry.names())})")
     if len(set(map(str, conditions))) != len(conditions):
-        c.bad("design.conditions", "a condition appears twice")
+        c.error("design.conditions", "a condition appears twice")
     for declared in tables:
         if declared not in conditions:
-            c.bad(f"conditions.{declared}", "not listed in design.conditions")
+            c.error(f"conditions.{declared}", "not listed in design.conditions")
     return conditions
 
 
-def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
+def _questions(data: dict, c: TableReader, n_conditions: int) -> list[Question]:
     """[[questions]] and [[instruments]] as questions, in file order (instruments' items after
     the questions): a kind, when it is asked, and what the kind needs (docs/study.md)."""
     out: list[Question] = []
     seen: dict[str, str] = {}
+    bad = c.error
 
     def add(q: Question, where: str) -> None:
         if q.id in seen:
@@ -322,7 +277,7 @@ def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
         if not isinstance(q, dict):
             bad(sec, "must be a table")
             continue
-        question = _question(q, sec, get, bad, n_conditions)
+        question = _question(c.sub(q, f"{sec}."), n_conditions)
         if question is not None:
             add(question, f"{sec}.id")
     ins = data.get("instruments", [])
@@ -335,15 +290,15 @@ def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
         if not isinstance(t, dict):
             bad(sec, "must be a table")
             continue
-        name = get(t, sec, "name", str)
-        when = get(t, sec, "when", str, default="condition", required=False)
+        r = c.sub(t, f"{sec}.")
+        name, when = r.string("name"), r.string("when", default="condition")
         if name is not None and name not in instruments.NAMES:
             bad(f"{sec}.name", f"{name!r} is not an instrument; allowed: {', '.join(instruments.NAMES)}")
-        elif when not in WHENS:
+        elif when is not None and when not in WHENS:
             bad(f"{sec}.when", f"{when!r} is not allowed; allowed: {', '.join(WHENS)}")
         elif name in named:
             bad(f"{sec}.name", f"{name!r} appears twice")
-        elif name is not None:
+        elif name is not None and when is not None:
             named.add(name)
             for q in instruments.questions(name, when):
                 add(q, f"{sec}.name")
@@ -352,41 +307,42 @@ def _questions(data: dict, get, bad, n_conditions: int) -> list[Question]:
     return out
 
 
-def _question(q: dict, sec: str, get, bad, n_conditions: int) -> Question | None:
+def _question(r: TableReader, n_conditions: int) -> Question | None:
     """One [[questions]] table: its kind, when it is asked and what the kind needs; the question,
-    or None when it has a problem (added with `bad`)."""
-    qid, qtext = get(q, sec, "id", str), get(q, sec, "text", str)
-    kind = get(q, sec, "kind", str, default="yes_no", required=False)
-    when = get(q, sec, "when", str, default="condition", required=False)
-    if kind not in KINDS and "kind" in q and isinstance(q["kind"], str):
-        bad(f"{sec}.kind", f"{kind!r} is not a kind; allowed: {', '.join(KINDS)}")
-    if when not in WHENS:
-        bad(f"{sec}.when", f"{when!r} is not allowed; allowed: {', '.join(WHENS)}")
-    elif kind == "choice" and when != "end":
-        bad(f"{sec}.when", f"{when!r}: a choice among the conditions is asked once, after the last; allowed: end")
+    or None when it has a problem (added to `r`'s problems)."""
+    q, bad = r.data, r.error
+    qid, qtext = r.string("id"), r.string("text")
+    kind = r.string("kind", default="yes_no")
+    when = r.string("when", default="condition")
+    if kind is not None and kind not in KINDS:
+        bad("kind", f"{kind!r} is not a kind; allowed: {', '.join(KINDS)}")
+    if when is not None and when not in WHENS:
+        bad("when", f"{when!r} is not allowed; allowed: {', '.join(WHENS)}")
+    elif kind == "choice" and when is not None and when != "end":
+        bad("when", f"{when!r}: a choice among the conditions is asked once, after the last; allowed: end")
     if kind == "choice" and n_conditions < 2:
-        bad(f"{sec}.kind", "a choice needs at least 2 conditions in design.conditions")
+        bad("kind", "a choice needs at least 2 conditions in design.conditions")
     points = anchors = None
-    if kind not in KINDS or q.get("kind", kind) != kind:  # refused above: what the kind needs is unknown
+    if kind not in KINDS:  # refused above: what the kind needs is unknown
         return None
     if kind == "likert":
-        points = get(q, sec, "points", int, lo=LIKERT_POINTS[0], hi=LIKERT_POINTS[1])
+        points = r.integer("points", lo=LIKERT_POINTS[0], hi=LIKERT_POINTS[1])
     elif "points" in q:
-        bad(f"{sec}.points", f"only a likert question has points; this one is {kind}")
+        bad("points", f"only a likert question has points; this one is {kind}")
     if "anchors" in q and kind not in ("likert", "vas"):
-        bad(f"{sec}.anchors", f"only a likert or vas question has anchors; this one is {kind}")
+        bad("anchors", f"only a likert or vas question has anchors; this one is {kind}")
     elif "anchors" in q:
         a = q["anchors"]
         if not (isinstance(a, list) and len(a) == 2 and all(isinstance(x, str) and x.strip() for x in a)):
-            bad(f"{sec}.anchors", f"{a!r}: two non-empty texts, [low, high], e.g. [\"Not at all\", \"Completely\"]")
+            bad("anchors", f"{a!r}: two non-empty texts, [low, high], e.g. [\"Not at all\", \"Completely\"]")
         else:
             anchors = (a[0].strip(), a[1].strip())
     elif kind == "likert":
-        bad(f"{sec}.anchors", "missing: a likert question names its two ends, anchors = [low, high]")
+        bad("anchors", "missing: a likert question names its two ends, anchors = [low, high]")
     if qtext is not None and not qtext.strip():
-        bad(f"{sec}.text", "empty: the question as the participant reads it")
+        bad("text", "empty: the question as the participant reads it")
     if qid is not None and not ID_RE.match(qid):
-        bad(f"{sec}.id", f"{qid!r} must be lower-case letters, digits and _ (starting with a letter)")
+        bad("id", f"{qid!r} must be lower-case letters, digits and _ (starting with a letter)")
     elif qid is not None and qtext is not None and kind in KINDS and when in WHENS:
         return Question(qid, qtext, kind=kind, when=when, points=points, anchors=anchors)
     return None

@@ -15,6 +15,8 @@ import math
 import random
 from dataclasses import dataclass, fields
 
+from sim.tomltable import TableReader
+
 # key -> (lowest, highest, default, unit); a default None means "as without a profile"
 KEYS: dict[str, tuple[float, float, float | None, str]] = {
     "tremor_mm": (0.0, 2.0, None, "mm per axis"),  # None: the participant's own draw, 0.1-0.4 mm
@@ -94,51 +96,53 @@ class Skill:
         return {f"skill_{f.name}": float(getattr(self, f.name)) for f in fields(self) if getattr(self, f.name) is not None}
 
 
-def check_skills(data: dict, groups: str | None, fields_: list, c) -> dict[str, SkillProfile]:
-    """[synthetic.groups.NAME] tables, each problem added to the protocol checker `c` (FILE:LINE:
+def check_skills(data: dict, groups: str | None, fields_: list, c: TableReader) -> dict[str, SkillProfile]:
+    """[synthetic.groups.NAME] tables, each problem added to the protocol file's reader `c` (FILE:LINE:
     field: message, naming what is allowed): a group that is not a value of design.groups' field,
     the section without design.groups, an unknown key, a value out of range."""
     raw = data.get("synthetic")
     if raw is None:
         return {}
     if not isinstance(raw, dict):
-        c.bad("synthetic", "must be a table: [synthetic.groups.NAME], one per group")
+        c.error("synthetic", "must be a table: [synthetic.groups.NAME], one per group")
         return {}
     tables = raw.get("groups")
     if tables is None:
         return {}
     if not isinstance(tables, dict) or not all(isinstance(t, dict) for t in tables.values()):
-        c.bad("synthetic.groups", "must be tables, one per group: [synthetic.groups.NAME] with tremor_mm = ..., speed = ...")
+        c.error("synthetic.groups", "must be tables, one per group: [synthetic.groups.NAME] with tremor_mm = ..., speed = ...")
         return {}
     field = next((f for f in fields_ if f.name == groups), None) if groups else None
     if groups is None:  # named at the first group's table (the file has no [synthetic.groups] line of its own)
         where = f"synthetic.groups.{next(iter(tables))}" if tables else "synthetic.groups"
-        c.problems.append(f"{c.path}:{c.loc.line(where)}: synthetic.groups: needs design.groups: the choice field whose values are the groups")
+        line = c.loc.line(where)
+        c.problems.append((c.path, line, f"{c.path}:{line}: synthetic.groups: needs design.groups: the choice field whose values are the groups"))
         return {}
     values = field.values if field is not None and field.kind == "choice" else None  # a bad design.groups is reported there
     out: dict[str, SkillProfile] = {}
     for name, t in tables.items():
         sec = f"synthetic.groups.{name}"
         if values is not None and name not in values:
-            c.bad(sec, f"not a value of design.groups field {groups}; allowed: {', '.join(values)}")
+            c.error(sec, f"not a value of design.groups field {groups}; allowed: {', '.join(values)}")
             continue
         ok = True
         for key in t:
             if key not in KEYS:
-                c.bad(f"{sec}.{key}", f"unknown key; allowed: {', '.join(KEYS)}")
+                c.error(f"{sec}.{key}", f"unknown key; allowed: {', '.join(KEYS)}")
                 ok = False
         got = {}
+        r = c.sub(t, f"{sec}.")
         for key, (lo, hi, default, _) in KEYS.items():
             n = len(c.problems)
-            v = c.get(t, sec, key, float, default=default, lo=lo, hi=hi, required=False)
+            v = r.number(key, default=default, lo=lo, hi=hi)
             ok = ok and len(c.problems) == n
             got[key] = v
         for key, base in PLATEAUS.items():
             if key in t and not t.get("learning"):
-                c.bad(f"{sec}.{key}", f"a plateau needs learning > 0 (trials to halve the gap from {base} to it)")
+                c.error(f"{sec}.{key}", f"a plateau needs learning > 0 (trials to halve the gap from {base} to it)")
                 ok = False
         if "plateau_tremor_mm" in t and "tremor_mm" not in t:
-            c.bad(f"{sec}.plateau_tremor_mm", "needs tremor_mm: the group's tremor on the first trial")
+            c.error(f"{sec}.plateau_tremor_mm", "needs tremor_mm: the group's tremor on the first trial")
             ok = False
         if ok:
             out[name] = SkillProfile(**got)

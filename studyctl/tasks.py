@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sim.tomltable import TableReader
 from studyctl.procedures import METHODS, RULES, ProcedureSpec
 
 KINDS = ("discrimination",)
@@ -51,10 +52,10 @@ class DiscriminationTask:
 DEFAULT = DiscriminationTask(index=0)  # what a [[tasks]] table leaves out
 
 
-def check_tasks(data: dict, checker, trial_seconds: float | None) -> list[DiscriminationTask]:
-    """The protocol's `[[tasks]]`: each checked, its problems added to `checker` (the protocol's
-    `_Checker`: FILE:LINE: field: message), the valid ones returned."""
-    get, bad = checker.get, checker.bad
+def check_tasks(data: dict, checker: TableReader, trial_seconds: float | None) -> list[DiscriminationTask]:
+    """The protocol's `[[tasks]]`: each checked, its problems added to `checker` (the protocol
+    file's reader: FILE:LINE: field: message), the valid ones returned."""
+    bad = checker.error
     raw = data.get("tasks", [])
     if not isinstance(raw, list):
         bad("tasks", "must be an array of tables ([[tasks]] with kind = \"discrimination\")")
@@ -66,32 +67,33 @@ def check_tasks(data: dict, checker, trial_seconds: float | None) -> list[Discri
             bad(sec, "must be a table")
             continue
         before = len(checker.problems)
-        kind = get(t, sec, "kind", str)
+        r = checker.sub(t, f"{sec}.")
+        kind = r.string("kind")
         if kind is not None and kind not in KINDS:
             bad(f"{sec}.kind", f"{kind!r} is not a task; allowed: {', '.join(KINDS)}")
-        parameter = get(t, sec, "parameter", str, default=DEFAULT.parameter, required=False)
-        if parameter not in PARAMETERS:
+        parameter = r.string("parameter", default=DEFAULT.parameter)
+        if parameter is not None and parameter not in PARAMETERS:
             bad(f"{sec}.parameter", f"{parameter!r} is not a parameter; allowed: {', '.join(PARAMETERS)}")
-        method = get(t, sec, "method", str, default=DEFAULT.method, required=False)
-        if method not in METHODS:
+        method = r.string("method", default=DEFAULT.method)
+        if method is not None and method not in METHODS:
             bad(f"{sec}.method", f"{method!r} is not a method; allowed: {', '.join(METHODS)}")
-        rule = get(t, sec, "rule", str, default=DEFAULT.rule, required=False)
-        if rule not in RULES:
+        rule = r.string("rule", default=DEFAULT.rule)
+        if rule is not None and rule not in RULES:
             bad(f"{sec}.rule", f"{rule!r} is not a rule; allowed: {', '.join(RULES)}")
         elif "rule" in t and method != "staircase":
             bad(f"{sec}.rule", f"only a staircase has a rule; this task's method is {method!r}")
-        reference = get(t, sec, "reference", float, default=DEFAULT.reference, required=False)
+        reference = r.number("reference", default=DEFAULT.reference)
         if reference is not None and not 0.0 < reference <= REFERENCE_MAX:
             bad(f"{sec}.reference", f"{reference!r} is out of range; allowed: 0 < reference <= {REFERENCE_MAX:g}")
             reference = None
-        trials = get(t, sec, "trials", int, default=DEFAULT.trials, lo=TRIALS[0], hi=TRIALS[1], required=False)
-        question = get(t, sec, "question", str, default=DEFAULT.question, required=False)
+        trials = r.integer("trials", default=DEFAULT.trials, lo=TRIALS[0], hi=TRIALS[1])
+        question = r.string("question", default=DEFAULT.question)
         if question is not None and not question.strip():
             bad(f"{sec}.question", "empty: the question as the participant reads it")
-        feedback = get(t, sec, "feedback", bool, default=DEFAULT.feedback, required=False)
-        seconds = get(t, sec, "interval_seconds", float, default=trial_seconds, lo=0.5, hi=600.0, required=False)
+        feedback = r.boolean("feedback", default=DEFAULT.feedback)
+        seconds = r.number("interval_seconds", default=trial_seconds, lo=0.5, hi=600.0)
         low, high = _range(t, sec, bad)
-        start = get(t, sec, "start", float, default=min(max(DEFAULT.start, low or DEFAULT.start), high or DEFAULT.start), required=False)
+        start = r.number("start", default=min(max(DEFAULT.start, low or DEFAULT.start), high or DEFAULT.start))
         if "start" in t and method != "staircase":
             bad(f"{sec}.start", f"only a staircase has a start; QUEST+ chooses its own (this task's method is {method!r})")
         elif start is not None and low is not None and high is not None and not low <= start <= high:

@@ -285,3 +285,22 @@ def test_cli_prints_every_problem_without_a_traceback(tmp_path):
     res = CliRunner().invoke(cli, ["sim", "run", "--scene", str(bad), "--duration", "0.1", "--time-scale", "0"])
     assert res.exit_code == 1 and "Traceback" not in res.output
     assert res.output == f"Error: {bad}:2: not UTF-8: byte 0xff at column 9; TOML files must be UTF-8\n"
+
+
+def test_a_scene_and_a_protocol_word_the_same_problem_alike(tmp_path):
+    """One reader for every TOML file (sim/tomltable.py): the same mistake reads the same in a
+    scene and in a protocol (issue 45: the protocol's own checker worded its ranges and types
+    differently)."""
+    from studyctl.protocol import check_protocol
+    from tests.helpers import PROTOCOL
+
+    path, text = _write_scene(tmp_path, _scene_text(**{"rate_hz = 1000": 'rate_hz = "fast"', "poisson = 0.45": "poisson = 0.7"}))
+    scene = _problems(path)
+    assert f"{path}:{_line_of(text, 'rate_hz')}: servo.rate_hz: 'fast' is not a finite number" in scene
+    assert f"{path}:{_line_of(text, 'poisson = 0.7')}: material.poisson: 0.7 is out of range; allowed: [0, 0.5)" in scene
+    protocol = PROTOCOL.read_text().replace("trial_seconds = 3.0", 'trial_seconds = "fast"').replace("training_minutes = 5.0",
+                                                                                                     "training_minutes = 500.0")
+    _, problems = check_protocol(PROTOCOL, protocol)
+    where = f"{PROTOCOL}:"
+    assert f"{where}{_line_of(protocol, 'trial_seconds')}: design.trial_seconds: 'fast' is not a finite number" in problems
+    assert f"{where}{_line_of(protocol, 'training_minutes')}: design.training_minutes: 500.0 is out of range; allowed: [0, 120]" in problems

@@ -69,10 +69,10 @@ def test_profiles_without_design_groups_are_refused():
 
 @pytest.mark.parametrize("line, message", [
     ("tremor = 0.3", "synthetic.groups.student.tremor: unknown key; allowed: " + ", ".join(KEYS)),
-    ("speed = 9", "synthetic.groups.student.speed: 9 is out of range; allowed: 0.25..4.0"),
-    ("force_restraint = 1.5", "synthetic.groups.student.force_restraint: 1.5 is out of range; allowed: 0.0..1.0"),
-    ("overshoot = -0.1", "synthetic.groups.student.overshoot: -0.1 is out of range; allowed: 0.0..1.0"),
-    ("spread = \"wide\"", "synthetic.groups.student.spread: 'wide' is not a number"),
+    ("speed = 9", "synthetic.groups.student.speed: 9 is out of range; allowed: [0.25, 4]"),
+    ("force_restraint = 1.5", "synthetic.groups.student.force_restraint: 1.5 is out of range; allowed: [0, 1]"),
+    ("overshoot = -0.1", "synthetic.groups.student.overshoot: -0.1 is out of range; allowed: [0, 1]"),
+    ("spread = \"wide\"", "synthetic.groups.student.spread: 'wide' is not a finite number"),
 ])
 def test_unknown_keys_and_values_out_of_range_are_refused(line, message):
     text = CV.read_text().split("[synthetic.groups.student]")[0] + f"[synthetic.groups.student]\ntremor_mm = 0.3\n{line}\n"
