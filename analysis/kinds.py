@@ -22,7 +22,9 @@ import pandas as pd
 
 from analysis import scales
 from analysis.formatting import p_value
+from analysis.kind_results import ChoiceStats, KindStats, PrimaryAnalysis, RatingStats, ScoreStats
 from analysis.stats import friedman, set_holm, wilson
+from analysis.study_results import LogisticGee, StudyStats
 from analysis.study_snapshot import Study
 from analysis.withhold import across_reason
 from studyctl import instruments
@@ -70,26 +72,26 @@ def score_names(protocol) -> list[str]:
             + [name + TRIAL_MEAN for name, when in protocol.instruments if when == "trial"])
 
 
-def primary(protocol) -> dict:
+def primary(protocol) -> PrimaryAnalysis:
     """The protocol's primary analysis (what `plan` powers and reports lead with): the
     proportional-odds GEE across its rating items, else the logistic GEE across its yes/no
     questions, else the mixed model of its first score, else the test of its choice."""
     ratings = _rating_items(protocol)
     if ratings:
-        return {"analysis": "ordinal_gee", "items": [q.id for q in ratings],
-                "text": "proportional-odds GEE " + ("across the rating items (answer ~ condition + period + item)" if len(ratings) > 1
-                                                    else f"of {ratings[0].text!r} (answer ~ condition + period)")}
+        return PrimaryAnalysis("ordinal_gee", tuple(q.id for q in ratings),
+                               "proportional-odds GEE " + ("across the rating items (answer ~ condition + period + item)" if len(ratings) > 1
+                                                           else f"of {ratings[0].text!r} (answer ~ condition + period)"))
     binary = [q.id for q in protocol.asked("condition") if q.kind == "yes_no"]
     if binary:
-        return {"analysis": "logistic_gee", "items": binary, "text": "logistic GEE across the yes/no questions (answer ~ condition + period + item)"}
+        return PrimaryAnalysis("logistic_gee", tuple(binary), "logistic GEE across the yes/no questions (answer ~ condition + period + item)")
     scores = [q.id for q in _score_questions(protocol)] + score_names(protocol)
     if scores:
-        return {"analysis": "mixed_model", "items": scores[:1],
-                "text": f"linear mixed model of {_label(scores[0], protocol)} (answer ~ condition + period + (1 | participant))"}
+        return PrimaryAnalysis("mixed_model", tuple(scores[:1]),
+                               f"linear mixed model of {_label(scores[0], protocol)} (answer ~ condition + period + (1 | participant))")
     choice = [q.id for q in protocol.asked("end") if q.kind == "choice"]
     if choice:
-        return {"analysis": "choice", "items": choice[:1], "text": "exact multinomial test of the final choice"}
-    return {"analysis": "none", "items": [], "text": "no question compares the conditions"}
+        return PrimaryAnalysis("choice", tuple(choice[:1]), "exact multinomial test of the final choice")
+    return PrimaryAnalysis("none", (), "no question compares the conditions")
 
 
 def measures(protocol, answers: pd.DataFrame, per: pd.DataFrame | None = None) -> pd.DataFrame:
@@ -137,7 +139,7 @@ def _label(item: str, protocol) -> str:
     return text + (TRIAL_MEAN if item.endswith(TRIAL_MEAN) else "")
 
 
-def ratings(protocol, meas: pd.DataFrame) -> dict:
+def ratings(protocol, meas: pd.DataFrame) -> dict[str, RatingStats]:
     """Per rating item: each condition's median [IQR], mean and distribution (count per point);
     Friedman with Kendall's W [95% CI]; Wilcoxon pairs with rank-biserial [95% CI]."""
     models = list(protocol.conditions)
@@ -150,7 +152,8 @@ def ratings(protocol, meas: pd.DataFrame) -> dict:
             per_model[m] = scales.median_iqr(v) | {"mean": float(v.mean()) if len(v) else float("nan"),
                                                    "counts": [int(np.sum(v == k)) for k in range(1, q.points + 1)]}
         tests = _tests(wide, len(models))
-        out[q.id] = {"question": q.text, "points": q.points, "anchors": list(q.anchors), "n": int(len(wide)), "conditions": per_model} | tests
+        out[q.id] = RatingStats(question=q.text, points=q.points, anchors=list(q.anchors), n=int(len(wide)), conditions=per_model,
+                                friedman=tests["friedman"], pairs=tests["pairs"])
     return out
 
 
@@ -168,7 +171,7 @@ def _tests(wide: pd.DataFrame, k: int) -> dict:
     return {"friedman": fr, "pairs": pairs}
 
 
-def scores(protocol, meas: pd.DataFrame) -> dict:
+def scores(protocol, meas: pd.DataFrame) -> dict[str, ScoreStats]:
     """Per score (VAS items, instrument scores, per-trial means): mean [95% CI] per condition;
     the linear mixed model (condition + period) with its pairs; Friedman as the check."""
     models = list(protocol.conditions)
@@ -181,19 +184,21 @@ def scores(protocol, meas: pd.DataFrame) -> dict:
         mm = scales.mixed_model(data.assign(period=data["period"].astype(int)) if with_period else data.drop(columns="period", errors="ignore"),
                                 models, with_period)
         fr = _tests(wide, len(models))["friedman"]
-        out[item] = {"label": _label(item, protocol), "n": int(len(wide)),
-                     "conditions": {m: scales.mean_ci(wide[m], scale=score_scale(item, protocol)) | scales.median_iqr(wide[m]) for m in models},
-                     "mixed_model": mm, "friedman": fr, "pairs": [dict(p) for p in mm["pairs"]]}
+        out[item] = ScoreStats(label=_label(item, protocol), n=int(len(wide)),
+                               conditions={m: scales.mean_ci(wide[m], scale=score_scale(item, protocol)) | scales.median_iqr(wide[m])
+                                           for m in models},
+                               mixed_model=mm, friedman=fr, pairs=[dict(p) for p in mm["pairs"]])
     return out
 
 
-def choices(protocol, answers: pd.DataFrame) -> dict:
+def choices(protocol, answers: pd.DataFrame) -> dict[str, ChoiceStats]:
     out = {}
     for q in protocol.asked("end"):
         if q.kind == "choice":
             sel = answers[answers["item"] == q.id].set_index("code")["answer"]
             res = scales.choice_analysis(sel, list(protocol.conditions))
-            out[q.id] = {"question": q.text} | res
+            out[q.id] = ChoiceStats(question=q.text, n=res["n"], k=res["k"], n_missing=res["n_missing"], shares=res["shares"],
+                                    overall=res["overall"], pairs=res["pairs"])
     return out
 
 
@@ -237,27 +242,27 @@ def ordinal_primary(protocol, meas: pd.DataFrame) -> dict | None:
     return res
 
 
-def kind_stats(study: Study, answers: pd.DataFrame) -> dict:
+def kind_stats(study: Study, answers: pd.DataFrame) -> KindStats:
     """Everything beyond yes/no of `study` (analysis.study_snapshot.Study) from its complete `answers`:
     ratings, scores, choices, end questions, and the ordinal primary."""
 
     protocol = study.protocol
     meas = measures(protocol, answers, study.periods)
-    out = {"primary": primary(protocol), "ratings": ratings(protocol, meas), "scores": scores(protocol, meas),
-           "choices": choices(protocol, answers), "session": session_questions(protocol, answers),
-           "ordinal_gee": ordinal_primary(protocol, meas)}
-    what = out["primary"]
-    if what["analysis"] == "mixed_model" and what["items"][0] in out["scores"]:
+    out = KindStats(primary=primary(protocol), ratings=ratings(protocol, meas), scores=scores(protocol, meas),
+                    choices=choices(protocol, answers), session=session_questions(protocol, answers),
+                    ordinal_gee=ordinal_primary(protocol, meas))
+    what = out.primary
+    if what.analysis == "mixed_model" and what.items[0] in out.scores:
         # the primary's pairs Holm-adjusted among themselves (p_holm_primary), as plan powers it;
         # p_holm stays the whole family's
-        set_holm(out["scores"][what["items"][0]]["pairs"], "p_holm_primary")
+        set_holm(out.scores[what.items[0]].pairs, "p_holm_primary")
     return out
 
 
-def gee_line(gee: dict, primary: bool = True) -> str:
+def gee_line(gee: LogisticGee, primary: bool = True) -> str:
     """The logistic GEE across the yes/no questions as a sentence: the primary analysis unless
     the protocol has rating items (analysis.kinds.primary)."""
-    c = gee.get("composite") if gee else None
+    c = gee.composite
     if not c or not c.get("pairs"):
         return ""
     pairs = "; ".join(f"{p['b']} vs {p['a']} OR {p['odds_ratio']:.2f} [{p['ci_low']:.2f}, {p['ci_high']:.2f}], p_Holm {p['p_holm']:.3g}"
@@ -267,32 +272,25 @@ def gee_line(gee: dict, primary: bool = True) -> str:
             f"{'' if c.get('converged') else ' (NOT ESTIMABLE OR NOT CONVERGED: ' + '; '.join(c.get('problems') or ['no convergence']) + ')'}: {pairs}.")
 
 
-def primary_line(st: dict) -> str:
+def primary_line(st: StudyStats) -> str:
     """The protocol's primary analysis and its result, as a sentence."""
 
-    k = st["kinds"]
-    what = k["primary"]
-    if what["analysis"] == "ordinal_gee":
-        return ordinalgee_line(k["ordinal_gee"])
-    if what["analysis"] == "logistic_gee":
-        return gee_line(st["gee"]).replace("`", "")
-    if what["analysis"] == "mixed_model" and what["items"][0] in k["scores"]:
-        v = k["scores"][what["items"][0]]
+    k = st.kinds
+    what = k.primary
+    if what.analysis == "ordinal_gee":
+        return ordinalgee_line(k.ordinal_gee)
+    if what.analysis == "logistic_gee":
+        return gee_line(st.gee).replace("`", "")
+    if what.analysis == "mixed_model" and what.items[0] in k.scores:
+        v = k.scores[what.items[0]]
         pairs = "; ".join(f"{p['b']} - {p['a']} {p['difference']:+.2f}{_ci(p['ci_low'], p['ci_high'], '{:+.2f}')}, "
                           f"p_Holm {_p(p.get('p_holm_primary'))}" if p.get("estimable") else f"{p['b']} - {p['a']} not estimable"
-                          for p in v["pairs"])
-        return f"Primary analysis: {what['text']}: {pairs} (Holm over its {len(v['pairs'])} pairs)."
-    if what["analysis"] == "choice" and what["items"][0] in k["choices"]:
-        ov = k["choices"][what["items"][0]]["overall"]
-        return f"Primary analysis: {what['text']}: p = {_p(ov['p_value'])} ({ov['test']})."
-    return f"Primary analysis: {what['text']}: not computed."
-
-
-def family_pairs(kinds: dict) -> list[list[dict]]:
-    """Every pairwise test of the kinds beyond yes/no, a list per question or score, for Holm
-    over the study's whole family: the ratings' Wilcoxon pairs, the scores' mixed-model pairs,
-    the choices' binomial pairs."""
-    return [v["pairs"] for part in ("ratings", "scores", "choices") for v in kinds[part].values()]
+                          for p in v.pairs)
+        return f"Primary analysis: {what.text}: {pairs} (Holm over its {len(v.pairs)} pairs)."
+    if what.analysis == "choice" and what.items[0] in k.choices:
+        ov = k.choices[what.items[0]].overall
+        return f"Primary analysis: {what.text}: p = {_p(ov['p_value'])} ({ov['test']})."
+    return f"Primary analysis: {what.text}: not computed."
 
 
 def across_p(x: np.ndarray) -> float:
@@ -350,49 +348,47 @@ def ordinalgee_line(res: dict | None) -> str:
             "(odds of a higher rating with the second condition).")
 
 
-def kind_tables(kinds: dict, models: list[str], scope: str) -> list[dict]:
+def kind_tables(kinds: KindStats, models: list[str], scope: str) -> list[dict]:
     """The tables of every kind beyond yes/no, each {title, columns, rows (lists of text),
     note}: what the Markdown, LaTeX and HTML reports render alike."""
     out = []
-    if kinds["ratings"]:
+    if kinds.ratings:
         rows = []
-        for v in kinds["ratings"].values():
-            fr = v["friedman"]
-            cells = [f"{c['median']:g} [{c['q1']:g}, {c['q3']:g}]" for c in (v["conditions"][m] for m in models)]
-            pairs = "; ".join(_rank_pair_cell(p) for p in v["pairs"]) or "n/a (one condition)"
-            rows.append([v["question"], *cells, _friedman_cell(fr, with_w=True), pairs])
-        points = sorted({v["points"] for v in kinds["ratings"].values()})
+        for v in kinds.ratings.values():
+            cells = [f"{c['median']:g} [{c['q1']:g}, {c['q3']:g}]" for c in (v.conditions[m] for m in models)]
+            pairs = "; ".join(_rank_pair_cell(p) for p in v.pairs) or "n/a (one condition)"
+            rows.append([v.question, *cells, _friedman_cell(v.friedman, with_w=True), pairs])
+        points = sorted({v.points for v in kinds.ratings.values()})
         out.append({"title": "Ratings", "columns": ["Question", *(f"{m}: median [IQR]" for m in models), "Friedman chi2 (p), Kendall's W [95% CI]",
                                                   f"Wilcoxon p, {scope} (rank-biserial r [95% CI])"], "rows": rows,
                     "note": f"{'/'.join(map(str, points))}-point ratings (1 = the low anchor). Friedman across the conditions (tie-corrected); "
                             "Wilcoxon signed-rank pairs; interval of r: BCa bootstrap over participants, of W: percentile bootstrap (W is bounded at 0, where BCa fails). "
-                            + ordinalgee_line(kinds.get("ordinal_gee"))})
-    if kinds["scores"]:
+                            + ordinalgee_line(kinds.ordinal_gee)})
+    if kinds.scores:
         rows = []
-        for v in kinds["scores"].values():
-            mm, fr = v["mixed_model"], v["friedman"]
-            cells = [_mean_cell(c, "{:.1f}") for c in (v["conditions"][m] for m in models)]
-            test = mm["model_test"]
+        for v in kinds.scores.values():
+            cells = [_mean_cell(c, "{:.1f}") for c in (v.conditions[m] for m in models)]
+            test = v.mixed_model["model_test"]
             pairs = "; ".join(f"{p['b']}-{p['a']} {p['difference']:+.1f}{_ci(p['ci_low'], p['ci_high'], '{:+.1f}')}, p {_p(p.get('p_holm'))}"
-                              if p.get("estimable") else f"{p['b']}-{p['a']} not estimable" for p in v["pairs"])
-            rows.append([v["label"], *cells, f"F({test['df']}, {test['df_denominator']}) = {test['f']:.2f} ({_p(test['p_value_f'])})"
+                              if p.get("estimable") else f"{p['b']}-{p['a']} not estimable" for p in v.pairs)
+            rows.append([v.label, *cells, f"F({test['df']}, {test['df_denominator']}) = {test['f']:.2f} ({_p(test['p_value_f'])})"
                          if np.isfinite(test["f"]) else f"n/a ({test.get('reason') or 'not estimable'})",
-                         pairs or "n/a (one condition)", _friedman_cell(fr)])
+                         pairs or "n/a (one condition)", _friedman_cell(v.friedman)])
         out.append({"title": "Scores", "columns": ["Score", *(f"{m}: mean [95% CI]" for m in models), "Mixed model: condition (p)",
                                                  f"Difference [95% CI], p {scope}", "Friedman chi2 (p)"], "rows": rows,
                     "note": "Linear mixed model (REML) answer ~ condition + period + (1 | participant): the condition's Wald F test and "
                             "pairwise differences (t intervals, between-within df); Friedman as the non-parametric check. SUS: Brooke (1996), 0-100; "
                             "raw NASA-TLX: the mean of its six subscales, 0-100 (Hart 2006)."})
-    for v in kinds["choices"].values():
-        ov = v["overall"]
-        rows = [[m, f"{s['count']}", f"{s['share']:.0%}{_ci(s['wilson_low'], s['wilson_high'], '{:.0%}')}"] for m, s in v["shares"].items()]
-        pairs = "; ".join(f"{p['a']}-{p['b']} {p['n_a']}:{p['n_b']}, p {_p(p.get('p_holm'))}" for p in v["pairs"])
-        out.append({"title": f"Choice: {v['question']}", "columns": ["Condition", "Chosen by", "Share [Wilson 95%]"], "rows": rows,
+    for v in kinds.choices.values():
+        ov = v.overall
+        rows = [[m, f"{s['count']}", f"{s['share']:.0%}{_ci(s['wilson_low'], s['wilson_high'], '{:.0%}')}"] for m, s in v.shares.items()]
+        pairs = "; ".join(f"{p['a']}-{p['b']} {p['n_a']}:{p['n_b']}, p {_p(p.get('p_holm'))}" for p in v.pairs)
+        out.append({"title": f"Choice: {v.question}", "columns": ["Condition", "Chosen by", "Share [Wilson 95%]"], "rows": rows,
                     "note": f"{ov['test']}: p = {_p(ov['p_value'])} (chi2 = {ov['statistic']:.2f}, {ov['df']} df; equal chances); "
                             f"exact binomial pairs, {scope}: {pairs}."})
-    if kinds["session"]:
+    if kinds.session:
         rows = []
-        for v in kinds["session"].values():
+        for v in kinds.session.values():
             if v["kind"] == "yes_no":
                 rows.append([v["question"], f"{v['yes']}/{v['n']} yes, {v['rate']:.0%}{_ci(v['wilson_low'], v['wilson_high'], '{:.0%}')}"])
             else:

@@ -138,15 +138,15 @@ def primary_p(protocol, answers: pd.DataFrame, meas: pd.DataFrame) -> float:
     not estimable (it finds nothing)."""
     what = kinds.primary(protocol)
     labels = list(protocol.conditions)
-    if what["analysis"] == "choice":
-        sel = answers[answers["item"] == what["items"][0]]
+    if what.analysis == "choice":
+        sel = answers[answers["item"] == what.items[0]]
         return scales.choice_analysis(sel.set_index("code")["answer"], labels)["overall"]["p_value"]
-    if what["analysis"] == "ordinal_gee":
-        res = scales.ordinal_gee(meas[meas["item"].isin(what["items"])], labels, with_item=len(what["items"]) > 1)
-    elif what["analysis"] == "logistic_gee":
-        res = gee_fit(answers[answers["item"].isin(what["items"])].astype({"answer": int}), labels, with_item=True)
-    elif what["analysis"] == "mixed_model":
-        res = scales.mixed_model(meas[meas["item"] == what["items"][0]], labels)
+    if what.analysis == "ordinal_gee":
+        res = scales.ordinal_gee(meas[meas["item"].isin(what.items)], labels, with_item=len(what.items) > 1)
+    elif what.analysis == "logistic_gee":
+        res = gee_fit(answers[answers["item"].isin(what.items)].astype({"answer": int}), labels, with_item=True)
+    elif what.analysis == "mixed_model":
+        res = scales.mixed_model(meas[meas["item"] == what.items[0]], labels)
     else:
         return float("nan")
     p = [x["p_value"] if x.get("estimable") and np.isfinite(x["p_value"]) else 1.0 for x in res["pairs"]]

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.kind_results import ChoiceStats, RatingStats, ScoreStats
 from analysis.psychometric import fit_psychometric
 from sim.calibrate import jnd
 from sim.run import run_scene
@@ -202,12 +203,12 @@ def stability_heatmap(outcomes: tuple, path: Path, title: str = "") -> None:
     plt.close(fig)
 
 
-def likert_plot(ratings: dict, models: list[str], path: Path, synthetic: bool) -> None:
+def likert_plot(ratings: dict[str, RatingStats], models: list[str], path: Path, synthetic: bool) -> None:
     """Diverging stacked bars (the field's convention for Likert items; Heiberger and Robbins
     2014): per item and condition, the share of each point, disagreeing points left of zero,
     agreeing ones right, the middle point split across zero."""
     plt = _plt()
-    rows = [(v["question"], m, np.asarray(v["conditions"][m]["counts"], dtype=float)) for v in ratings.values() for m in models]
+    rows = [(v.question, m, np.asarray(v.conditions[m]["counts"], dtype=float)) for v in ratings.values() for m in models]
     points = max(len(c) for _, _, c in rows)
     cmap = plt.get_cmap("RdBu", points)
     fig, ax = plt.subplots(figsize=(10, 0.32 * len(rows) + 1.6), dpi=100)
@@ -232,7 +233,7 @@ def likert_plot(ratings: dict, models: list[str], path: Path, synthetic: bool) -
     plt.close(fig)
 
 
-def scores_plot(scores: dict, meas, models: list[str], path: Path, synthetic: bool) -> None:
+def scores_plot(scores: dict[str, ScoreStats], meas, models: list[str], path: Path, synthetic: bool) -> None:
     """Each score per condition: a box plot with every participant's value as a point."""
     plt = _plt()
     items = list(scores)
@@ -243,7 +244,7 @@ def scores_plot(scores: dict, meas, models: list[str], path: Path, synthetic: bo
         ax.boxplot(data, tick_labels=models, showfliers=False, widths=0.5)
         for j, (m, v) in enumerate(zip(models, data)):
             ax.scatter(j + 1 + rng.uniform(-0.12, 0.12, len(v)), v, s=12, color=color(m, j), alpha=0.8, zorder=3)
-        ax.set_title(scores[item]["label"], fontsize=9)
+        ax.set_title(scores[item].label, fontsize=9)
         ax.tick_params(axis="x", labelsize=8, rotation=20)
     fig.suptitle("Scores per condition" + (" (SYNTHETIC DATA)" if synthetic else ""))
     fig.tight_layout()
@@ -251,11 +252,11 @@ def scores_plot(scores: dict, meas, models: list[str], path: Path, synthetic: bo
     plt.close(fig)
 
 
-def choice_plot(choice: dict, models: list[str], path: Path, synthetic: bool) -> None:
+def choice_plot(choice: ChoiceStats, models: list[str], path: Path, synthetic: bool) -> None:
     """Share of participants choosing each condition, with Wilson 95% intervals."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(5, 3.4), dpi=100)
-    s = [choice["shares"][m] for m in models]
+    s = [choice.shares[m] for m in models]
     share = np.array([x["share"] for x in s])
     ax.bar(range(len(models)), share, color=[color(m, j) for j, m in enumerate(models)])
     ax.errorbar(range(len(models)), share, yerr=[share - [x["wilson_low"] for x in s], np.array([x["wilson_high"] for x in s]) - share],
@@ -264,7 +265,7 @@ def choice_plot(choice: dict, models: list[str], path: Path, synthetic: bool) ->
     ax.set_xticks(range(len(models)), models)
     ax.set_ylim(0, 1)
     ax.set_ylabel("share chosen")
-    ax.set_title(choice["question"][:60] + (" (SYNTHETIC)" if synthetic else ""), fontsize=9)
+    ax.set_title(choice.question[:60] + (" (SYNTHETIC)" if synthetic else ""), fontsize=9)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

@@ -23,7 +23,7 @@ def write_plots(study: Study, out_dir, force_traces: bool = True) -> list[Path]:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
 
-    synthetic = table1.study_facts(study)["synthetic"]
+    synthetic = table1.study_facts(study).synthetic
     r = table1.rates(study)
     protocol = study.protocol
     models = list(protocol.conditions)
@@ -36,13 +36,13 @@ def write_plots(study: Study, out_dir, force_traces: bool = True) -> list[Path]:
         if len(r):
             plots.rates_plot(r, out_dir / f"rates.{ext}", synthetic)
             written.append(out_dir / f"rates.{ext}")
-        if kinds["ratings"]:
-            plots.likert_plot(kinds["ratings"], models, out_dir / f"ratings.{ext}", synthetic)
+        if kinds.ratings:
+            plots.likert_plot(kinds.ratings, models, out_dir / f"ratings.{ext}", synthetic)
             written.append(out_dir / f"ratings.{ext}")
-        if kinds["scores"]:
-            plots.scores_plot(kinds["scores"], meas, models, out_dir / f"scores.{ext}", synthetic)
+        if kinds.scores:
+            plots.scores_plot(kinds.scores, meas, models, out_dir / f"scores.{ext}", synthetic)
             written.append(out_dir / f"scores.{ext}")
-        for item, choice in kinds["choices"].items():
+        for item, choice in kinds.choices.items():
             plots.choice_plot(choice, models, out_dir / f"choice_{item}.{ext}", synthetic)
             written.append(out_dir / f"choice_{item}.{ext}")
         plots.deformation_plot(study.latency_trials, out_dir / f"deformation.{ext}", synthetic)
@@ -69,17 +69,17 @@ def latex(study: Study, holm_scope: str = "family") -> str:
     for item, question, item_rows, qrow in table1.item_rows(r, q, models):
         rows.append([question] + [f"{x['yes']}/{x['no']}, {100 * x['rate']:.1f}% [{100 * x['wilson_low']:.1f}, {100 * x['wilson_high']:.1f}]"
                                   for x in item_rows]
-                    + [table1.cochran_cell(qrow), "; ".join(table1.mcnemar_cell(p) for p in st["items"][item]["pairs"])])
+                    + [table1.cochran_cell(qrow), "; ".join(table1.mcnemar_cell(p) for p in st.items[item].pairs)])
     rows.append(["Time for real-time deformation, ms (benchmark of this machine)"]
                 + [mean_sd(x["mean_ms"], x["sd_ms"], x["n_participants"]) for _, x in d.iterrows()] + ["", ""])
     df = pd.DataFrame(rows, columns=["Question", *models, "Cochran's Q (p)", f"McNemar p ({scope})"])
     listed = table1.incomplete_text(facts)
-    caption = ((f"{facts['flag']} " if facts["flag"] else "")
-               + f"{facts['study']}: N = {facts['participants']} participants with every answer; {facts['design']}."
+    caption = ((f"{facts.flag} " if facts.flag else "")
+               + f"{facts.study}: N = {facts.participants} participants with every answer; {facts.design}."
                + (f" Left out (incomplete): {listed}." if listed else ""))
     tables = [(df, caption)] if len(r) else []
     tables += [(pd.DataFrame(t["rows"], columns=t["columns"]), f"{t['title']}. {caption} {t['note']}")
-               for t in kind_tables(st["kinds"], models, scope)]
+               for t in kind_tables(st.kinds, models, scope)]
     if not len(r):  # the deformation row had no yes/no table to sit in
         tables.append((df.iloc[[-1], : len(models) + 1], f"Deformation time (benchmark of this machine). {caption}"))
     return "\n".join(_latex_table(t, c) for t, c in tables)
@@ -147,32 +147,32 @@ def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, 
     esc = _html.escape
     listed = table1.incomplete_text(facts)
     incomplete = f" Left out (incomplete): {listed}." if listed else ""
-    banner = f'<p class="synthetic">{esc(facts["flag"])}</p>' if facts["flag"] else ""
+    banner = f'<p class="synthetic">{esc(facts.flag)}</p>' if facts.flag else ""
     rows = []
     models = list(d["model"])
     for item, question, item_rows, qrow in table1.item_rows(r, q, models):
         cells = "".join(f"<td>{row['yes']}/{row['no']}<br>{row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]</td>"
                         for row in item_rows)
-        pairs = "; ".join(table1.mcnemar_cell(p) for p in st["items"][item]["pairs"])
+        pairs = "; ".join(table1.mcnemar_cell(p) for p in st.items[item].pairs)
         rows.append(f"<tr><td>{esc(question)}</td>{cells}<td>{esc(table1.cochran_cell(qrow))}</td><td>{esc(pairs)}</td></tr>")
     dcells = "".join(f"<td>{esc(mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])).replace('+-', '&plusmn;')}<br>median "
                      f"{row['median_ms']:.2f}, p95 {row['p95_ms']:.2f}</td>" if row["n_participants"] else "<td>n/a (no trials)</td>"
                      for _, row in d.iterrows())
     lat_text = "benchmark of this machine: each participant's mean, mean &plusmn; sd over participants (no test: CPU time is not about people)"
 
-    gee = esc(gee_line(st["gee"], st["kinds"]["primary"]["analysis"] == "logistic_gee").replace("`", ""))
-    primary = (f"<p>{esc(primary_line(st))}</p>" if st["kinds"]["primary"]["analysis"] in ("mixed_model", "choice") else "")
+    gee = esc(gee_line(st.gee, st.kinds.primary.analysis == "logistic_gee").replace("`", ""))
+    primary = (f"<p>{esc(primary_line(st))}</p>" if st.kinds.primary.analysis in ("mixed_model", "choice") else "")
     scope = table1.holm_text(st)
     head = "".join(f"<th>{esc(m)}</th>" for m in models)
     binary = (f"<h2>Yes/no questions</h2><p>Rates with Wilson 95% intervals; Cochran's Q across models; pairwise exact McNemar tests.</p>"
               f"<table><tr><th>Question</th>{head}<th>Cochran's Q (p)</th><th>McNemar p ({scope})</th></tr>"
               f"{''.join(rows)}</table><p>{gee}</p>") if len(r) else ""
-    kind_html = "".join(table_html(t) for t in kind_tables(st["kinds"], models, scope))
+    kind_html = "".join(table_html(t) for t in kind_tables(st.kinds, models, scope))
     figs = "".join(figure_html(k, v) for k, v in images.items())
-    return f"""{page_head(f"{facts['study']}: Table 1")}
-<h1>{esc(facts['study'])}: Table 1</h1>
+    return f"""{page_head(f"{facts.study}: Table 1")}
+<h1>{esc(facts.study)}: Table 1</h1>
 {banner}
-<p>N = {facts['participants']} participants with every answer; {esc(facts['design'])}.{esc(incomplete)} {esc(scope)}.</p>
+<p>N = {facts.participants} participants with every answer; {esc(facts.design)}.{esc(incomplete)} {esc(scope)}.</p>
 {binary}
 {kind_html}
 {primary}
@@ -180,7 +180,7 @@ def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, 
 <table><tr><th></th>{head}<th></th></tr>
 <tr><td>Time for real-time deformation of the model, ms</td>{dcells}<td>{lat_text}</td></tr></table>
 <h2>Conditions</h2><p>What each condition ran (participants saw only their labels; the full configuration is in the export's conditions.csv):</p>
-<ul>{"".join(f"<li>{esc(table1.condition_text(c))}</li>" for c in facts["conditions"])}</ul>
+<ul>{"".join(f"<li>{esc(table1.condition_text(c))}</li>" for c in facts.conditions)}</ul>
 {figs}
 {accuracy_html(accuracy) if accuracy else ""}
 {stability_html(stability) if stability else ""}

@@ -9,8 +9,10 @@ import numpy as np
 import pandas as pd
 
 from analysis.formatting import table_markdown
-from analysis.kinds import family_pairs, gee_line, kind_stats, kind_tables, primary_line
+from analysis.kind_results import KindStats
+from analysis.kinds import gee_line, kind_stats, kind_tables, primary_line
 from analysis.stats import HOLM_SCOPES, gee_fit, pairwise_mcnemar, set_holm
+from analysis.study_results import DeformationBenchmark, LogisticGee, StudyStats, YesNoItem
 from analysis.study_snapshot import Study
 from analysis.table1 import (
     DEFORMATION_LABEL,
@@ -31,8 +33,8 @@ from analysis.table1 import (
 from analysis.withhold import mean_sd
 
 
-def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None, holm_scope: str = "family") -> dict:
-    """Everything `studyctl report stats --json` prints (`r`, `q`: rates and cochran already
+def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None, holm_scope: str = "family") -> StudyStats:
+    """Everything `studyctl report stats --json` prints (`StudyStats.as_dict()`; `r`, `q`: rates and cochran already
     computed by the caller, so a report does not compute them twice) of `study`
     (analysis.study_snapshot.Study: the database read once). Complete cases only
     (`analysis.table1.complete_answers`). `holm_scope`: "family" (default: Holm over every
@@ -50,18 +52,18 @@ def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | N
         wide = answers_wide(answers, item, protocol_models)
         pairs = pairwise_mcnemar(wide) if len(wide) else pd.DataFrame(columns=["a", "b", "n01", "n10", "p_value", "p_holm", "odds_ratio"])
         qrow = q[q["item"] == item].iloc[0]
-        items[item] = {
-            "question": g["question"].iloc[0],
-            "cochran_q": qrow["cochran_q"], "df": int(qrow["df"]), "p_value": qrow["p_value"], "n_complete": int(qrow["n_complete"]),
-            "rates": {row["model"]: {k: row[k] for k in ("yes", "no", "rate", "wilson_low", "wilson_high")} for _, row in g.iterrows()},
-            "pairs": pairs.to_dict(orient="records"),
-        }
+        items[item] = YesNoItem(
+            question=g["question"].iloc[0],
+            cochran_q=qrow["cochran_q"], df=int(qrow["df"]), p_value=qrow["p_value"], n_complete=int(qrow["n_complete"]),
+            rates={row["model"]: {k: row[k] for k in ("yes", "no", "rate", "wilson_low", "wilson_high")} for _, row in g.iterrows()},
+            pairs=pairs.to_dict(orient="records"),
+        )
     kinds = kind_stats(study, every)
-    _holm_family(items, holm_scope, family_pairs(kinds))
+    _holm_family(items, holm_scope, kinds.family_pairs())
     gee = study_gee(study, answers, protocol_models)
     _name_tests(kinds, gee)
-    return {"facts": study_facts(study), "holm": holm_scope, "items": items, "gee": gee,
-            "kinds": kinds, "deformation": {"label": DEFORMATION_LABEL, "rows": deformation(study).to_dict(orient="records")}}
+    return StudyStats(facts=study_facts(study), holm=holm_scope, items=items, gee=gee, kinds=kinds,
+                      deformation=DeformationBenchmark(DEFORMATION_LABEL, deformation(study).to_dict(orient="records")))
 
 
 PAIR_TESTS = {"scores": "t contrast of the linear mixed model (between-within df)",
@@ -70,7 +72,7 @@ PAIR_TESTS = {"scores": "t contrast of the linear mixed model (between-within df
               "gee": "Wald z of the logistic GEE (robust covariance)"}
 
 
-def _name_tests(kinds: dict, gee: dict) -> None:
+def _name_tests(kinds: KindStats, gee: LogisticGee) -> None:
     """Every pairwise test in the JSON names itself (`test`), and one that could not be made says
     why (`reason`), as the rank and McNemar tests already do."""
     def name(pairs, test: str, problems=()) -> None:
@@ -79,24 +81,24 @@ def _name_tests(kinds: dict, gee: dict) -> None:
             if p.get("p_value") is None or not np.isfinite(p["p_value"]):
                 p.setdefault("reason", "; ".join(problems) or "not estimable")
 
-    for v in kinds["scores"].values():
-        problems = v["mixed_model"].get("problems") or []
-        name(v["pairs"], PAIR_TESTS["scores"], problems)
-        name(v["mixed_model"]["pairs"], PAIR_TESTS["scores"], problems)
-    for v in kinds["choices"].values():
-        name(v["pairs"], PAIR_TESTS["choices"])
-    if kinds.get("ordinal_gee"):
-        name(kinds["ordinal_gee"]["pairs"], PAIR_TESTS["ordinal_gee"], kinds["ordinal_gee"].get("problems") or [])
-    for part in [gee.get("composite")] + list((gee.get("items") or {}).values()):
+    for v in kinds.scores.values():
+        problems = v.mixed_model.get("problems") or []
+        name(v.pairs, PAIR_TESTS["scores"], problems)
+        name(v.mixed_model["pairs"], PAIR_TESTS["scores"], problems)
+    for v in kinds.choices.values():
+        name(v.pairs, PAIR_TESTS["choices"])
+    if kinds.ordinal_gee:
+        name(kinds.ordinal_gee["pairs"], PAIR_TESTS["ordinal_gee"], kinds.ordinal_gee.get("problems") or [])
+    for part in [gee.composite, *gee.items.values()]:
         if part:
             name(part.get("pairs"), PAIR_TESTS["gee"], part.get("problems") or [])
 
 
-def _holm_family(items: dict, scope: str, others: list[list[dict]] = ()) -> None:
+def _holm_family(items: dict[str, YesNoItem], scope: str, others: list[list[dict]] = ()) -> None:
     """Set each pair's `p_holm`: over the whole family of pairwise tests (the yes/no questions'
     McNemar pairs and `others`: every other kind's pairs, a list per question or score), or per
     question (`p_holm_question` is kept either way)."""
-    per_question = [v["pairs"] for v in items.values()] + list(others)
+    per_question = [v.pairs for v in items.values()] + list(others)
     for pairs in per_question:
         set_holm(pairs, "p_holm_question")
     family = [pair for pairs in per_question for pair in pairs]
@@ -105,13 +107,13 @@ def _holm_family(items: dict, scope: str, others: list[list[dict]] = ()) -> None
         pair["p_holm"] = pair["p_holm_family"] if scope == "family" else pair["p_holm_question"]
 
 
-def study_gee(study: Study, answers: pd.DataFrame, models: list[str]) -> dict:
+def study_gee(study: Study, answers: pd.DataFrame, models: list[str]) -> LogisticGee:
     """The primary analysis across questions: a logistic GEE with model and period (the
     condition's position in the participant's session, `study.periods`) and, for the composite
     over all questions, item as factors; then one per question, with Holm over the family of
     their pairwise contrasts."""
     if answers.empty or len(models) < 2:
-        return {"composite": None, "items": {}}
+        return LogisticGee(composite=None, items={})
     df = answers.merge(study.periods, on=["code", "model"], how="left")
     with_period = bool(df["period"].notna().all())
     if with_period:
@@ -120,7 +122,7 @@ def study_gee(study: Study, answers: pd.DataFrame, models: list[str]) -> dict:
     items = {item: gee_fit(g, models, with_period) for item, g in df.groupby("item", sort=False)}
     set_holm([pair for v in items.values() for pair in v["pairs"]])
     set_holm(composite["pairs"])
-    return {"composite": composite, "items": items, "period_factor": with_period}
+    return LogisticGee(composite=composite, items=items, period_factor=with_period)
 
 
 def table1_markdown(study: Study, holm_scope: str = "family") -> str:
@@ -130,15 +132,15 @@ def table1_markdown(study: Study, holm_scope: str = "family") -> str:
     GEE across questions below."""
     facts, r, q, d = study_facts(study), rates(study), cochran(study), deformation(study)
     st = study_stats(study, r, q, holm_scope=holm_scope)
-    pairs = {item: v["pairs"] for item, v in st["items"].items()}
+    pairs = {item: v.pairs for item, v in st.items.items()}
     models = list(d["model"])
-    flag = f"{facts['flag']} " if facts["flag"] else ""
-    if facts["mixed_source_participants"]:
-        flag += f"WARNING: {', '.join(facts['mixed_source_participants'])} answered both as a person and synthetically. "
+    flag = f"{facts.flag} " if facts.flag else ""
+    if facts.mixed_source_participants:
+        flag += f"WARNING: {', '.join(facts.mixed_source_participants)} answered both as a person and synthetically. "
     listed = incomplete_text(facts)
     left_out = f" Left out (incomplete): {listed}." if listed else ""
     scope = holm_text(st)
-    lines = [f"**Table 1: {facts['study']}.** {flag}N = {facts['participants']} participants with every answer; {facts['design']}.{left_out}", ""]
+    lines = [f"**Table 1: {facts.study}.** {flag}N = {facts.participants} participants with every answer; {facts.design}.{left_out}", ""]
     deform = [f"{mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])} (median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f})"
               if row["n_participants"] else "n/a (no trials)" for _, row in d.iterrows()]
     if len(r):  # the yes/no questions: the paper's table
@@ -153,19 +155,19 @@ def table1_markdown(study: Study, holm_scope: str = "family") -> str:
         lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models; pairwise exact McNemar tests, "
                   f"{scope}. Deformation time: each participant's mean over their trials, mean +- sd over participants: "
                   "wall-clock time of this machine, not a measure of the participants (no test).", ""]
-    for t in kind_tables(st["kinds"], models, scope):
+    for t in kind_tables(st.kinds, models, scope):
         lines += table_markdown(t)
     if not len(r):
         lines += ["| Time for real-time deformation, ms: benchmark of this machine | " + " | ".join(models) + " |",
                   "|---|" + "---|" * len(models), "| mean +- sd (median, p95) | " + " | ".join(deform) + " |", ""]
-    gee = gee_line(st["gee"], st["kinds"]["primary"]["analysis"] == "logistic_gee")
+    gee = gee_line(st.gee, st.kinds.primary.analysis == "logistic_gee")
     if gee:
         lines += [gee, ""]
-    if st["kinds"]["primary"]["analysis"] in ("mixed_model", "choice"):
+    if st.kinds.primary.analysis in ("mixed_model", "choice"):
         lines += [primary_line(st), ""]
     if len(models) < 2:
         lines += ["One condition: there is nothing to compare between conditions (no Cochran's Q, McNemar or Friedman test); "
                   "a study with groups compares its groups instead.", ""]
     lines += ["Conditions (what each ran; participants saw only their labels): "
-              + "; ".join(condition_text(c) for c in facts["conditions"]) + ".", ""]
+              + "; ".join(condition_text(c) for c in facts.conditions) + ".", ""]
     return "\n".join(lines)

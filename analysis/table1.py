@@ -17,8 +17,9 @@ import json
 import numpy as np
 import pandas as pd
 
-from analysis.kinds import family_pairs
+from analysis.facts import StudyFacts
 from analysis.stats import wilson
+from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study, data_flag
 from analysis.withhold import binary_across_reason
 from sim.models.registry import ModelLoadError, model_class
@@ -125,17 +126,17 @@ def deformation(study: Study) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["model", "n_participants", "n_trials", "mean_ms", "sd_ms", "median_ms", "p95_ms"])
 
 
-def study_facts(study: Study) -> dict:
+def study_facts(study: Study) -> StudyFacts:
     protocol = study.protocol
     answers, incomplete = complete_answers(study)
     n = int(answers["code"].nunique())
     synthetic, mixed = study.synthetic_participants, list(study.mixed_source_participants)
     persons = study.person_participants
-    return {"study": protocol.name, "participants": n, "incomplete_participants": incomplete,
-            "synthetic_participants": synthetic, "person_participants": persons, "mixed_source_participants": mixed,
-            "synthetic": synthetic > 0, "mixed": synthetic > 0 and persons > 0, "flag": data_flag(persons, synthetic),
-            "design": f"within-subject, {len(protocol.conditions)} conditions, {protocol.counterbalancing} counterbalancing",
-            "conditions": conditions(study)}
+    return StudyFacts(study=protocol.name, participants=n, incomplete_participants=incomplete,
+                      synthetic_participants=synthetic, person_participants=persons, mixed_source_participants=mixed,
+                      synthetic=synthetic > 0, mixed=synthetic > 0 and persons > 0, flag=data_flag(persons, synthetic),
+                      design=f"within-subject, {len(protocol.conditions)} conditions, {protocol.counterbalancing} counterbalancing",
+                      conditions=conditions(study))
 
 
 def conditions(study: Study) -> list[dict]:
@@ -174,9 +175,9 @@ def condition_text(c: dict) -> str:
     return f"{c['condition']}: {cfg['model']} ({shown}{young}), configuration {c['config_sha256'][:12]}"
 
 
-def incomplete_text(facts: dict) -> str:
+def incomplete_text(facts: StudyFacts) -> str:
     """The participants left out of every statistic, as reports print them: "P98 (9/27), ..."."""
-    return ", ".join("{} ({}/{})".format(x["code"], x["answers"], x["of"]) for x in facts["incomplete_participants"])
+    return ", ".join("{} ({}/{})".format(x["code"], x["answers"], x["of"]) for x in facts.incomplete_participants)
 
 
 def item_rows(r, q, models):
@@ -201,12 +202,12 @@ def mcnemar_cell(p: dict) -> str:
     return f"{p['a']}-{p['b']} {p['p_holm']:.3g}"
 
 
-def holm_text(st: dict) -> str:
+def holm_text(st: StudyStats) -> str:
     """What the reports' p_holm is (`study_stats`' scope): Holm over all N pairwise tests of
     every kind, or within each question."""
-    if st["holm"] != "family":
+    if st.holm != "family":
         return "Holm within each question"
-    pairs = [p for v in st["items"].values() for p in v["pairs"]] + [p for g in family_pairs(st["kinds"]) for p in g]
+    pairs = [p for v in st.items.values() for p in v.pairs] + [p for g in st.kinds.family_pairs() for p in g]
     tested = sum(1 for p in pairs if p.get("p_value") is not None and np.isfinite(p["p_value"]))
     if not tested:
         return "Holm: no pair tested"

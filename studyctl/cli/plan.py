@@ -60,13 +60,13 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, nu
     if plot_file:
         plot_power(table, plot_file)
     if as_json:
-        _print_json({"synthetic": True, "primary": primary(protocol), "rows": table.to_dict(orient="records")})
+        _print_json({"synthetic": True, "primary": primary(protocol).as_dict(), "rows": table.to_dict(orient="records")})
         return
     from rich.table import Table
 
     names = list(dict.fromkeys(table["item"]))
     wide = table.pivot(index="n", columns="item", values="power")[names]
-    t = Table(title=f"SYNTHETIC power (p < 0.05), {simulations} simulated studies per N; primary: {primary(protocol)['text']}")
+    t = Table(title=f"SYNTHETIC power (p < 0.05), {simulations} simulated studies per N; primary: {primary(protocol).text}")
     t.add_column("N", justify="right")
     for q in names:
         t.add_column(q, justify="right")
@@ -90,7 +90,7 @@ def _plan_null(protocol, span, simulations, seed, pilots, model, as_json, where:
     n = span[0] if span else 35
     table = _with_progress("simulated studies", lambda p: null_table(protocol, model, n, simulations, seed, pilots, progress=p, **where))
     if as_json:
-        _print_json({"synthetic": True, "null": True, "model": table["model"].iloc[0], "participants": n, "primary": primary(protocol),
+        _print_json({"synthetic": True, "null": True, "model": table["model"].iloc[0], "participants": n, "primary": primary(protocol).as_dict(),
                      "items": table[["item", "false_positive_rate", "mc_error", "simulations", "alpha"]].to_dict(orient="records")})
         return
     from rich.table import Table

@@ -73,13 +73,13 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
         facts = table1.study_facts(study)
         from studyctl.text import spreadsheet_frame
 
-        text = spreadsheet_frame(table1.rates(study).assign(participants=facts["participants"], synthetic=facts["synthetic"])).to_csv(index=False)
+        text = spreadsheet_frame(table1.rates(study).assign(participants=facts.participants, synthetic=facts.synthetic)).to_csv(index=False)
     else:
         from analysis.study_stats import study_stats
 
         r, q = table1.rates(study), table1.cochran(study)
-        text = json.dumps(jsonable({"facts": table1.study_facts(study), "rates": r.to_dict(orient="records"),
-                                     "cochran": q.to_dict(orient="records"), "kinds": study_stats(study, r, q, holm_scope)["kinds"],
+        text = json.dumps(jsonable({"facts": table1.study_facts(study).as_dict(), "rates": r.to_dict(orient="records"),
+                                     "cochran": q.to_dict(orient="records"), "kinds": study_stats(study, r, q, holm_scope).kinds.as_dict(),
                                      "deformation": table1.deformation(study).to_dict(orient="records")}
                                     | ({"jnd": _jnd(study)} if study.protocol.tasks else {})), indent=2)
     if study.protocol.tasks and fmt == "md":
@@ -105,18 +105,18 @@ def _no_answers(study, as_json: bool) -> bool:
     from analysis.table1 import incomplete_text, study_facts
 
     facts = study_facts(study)
-    if facts["participants"]:
+    if facts.participants:
         return False
-    incomplete = facts["incomplete_participants"]
+    incomplete = facts.incomplete_participants
     message = "no answers yet" if not incomplete else "no participant has answered every question for every model yet"
     if as_json:
-        _print_json({"facts": facts, "message": message})
+        _print_json({"facts": facts.as_dict(), "message": message})
         return True
-    flag = f"{facts['flag']} " if facts["flag"] else ""
-    if facts["mixed_source_participants"]:
-        flag += f"WARNING: {', '.join(facts['mixed_source_participants'])} answered both as a person and synthetically. "
+    flag = f"{facts.flag} " if facts.flag else ""
+    if facts.mixed_source_participants:
+        flag += f"WARNING: {', '.join(facts.mixed_source_participants)} answered both as a person and synthetically. "
     listed = "; incomplete: " + incomplete_text(facts) if incomplete else ""
-    click.echo(f"{flag}{facts['study']}: {message}{listed}; nothing to report")
+    click.echo(f"{flag}{facts.study}: {message}{listed}; nothing to report")
     return True
 
 
@@ -200,13 +200,14 @@ def report_stats(db, holm_scope, as_json):
         return
     out = study_stats(study, holm_scope=holm_scope)
     if as_json:
-        _print_json(out)
+        _print_json(out.as_dict())
         return
-    flag = f" {out['facts']['flag']}" if out["facts"]["flag"] else ""
-    click.echo(f"{out['facts']['study']}: N = {out['facts']['participants']}.{flag}")
+    facts = out.facts
+    flag = f" {facts.flag}" if facts.flag else ""
+    click.echo(f"{facts.study}: N = {facts.participants}.{flag}")
     from analysis.kinds import primary_line
 
-    kinds = out["kinds"]
+    kinds = out.kinds
     click.echo(primary_line(out))
     if len(study.protocol.conditions) < 2:
         click.echo("one condition: there is nothing to compare between conditions (no Cochran's Q, McNemar or Friedman test)")
@@ -215,34 +216,34 @@ def report_stats(db, holm_scope, as_json):
             return f"{p['a']}-{p['b']} not tested ({p.get('reason') or 'not estimable'})"
         return f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" + (f" ({p['warning']})" if p.get("warning") else "")
 
-    for item, v in out["items"].items() if len(study.protocol.conditions) > 1 else ():
-        pairs = ", ".join(pair(p) for p in v["pairs"])
-        cochran = f"Q = {v['cochran_q']:.2f}, p = {v['p_value']:.3g}" if v["p_value"] == v["p_value"] else \
-            f"Cochran's Q not tested ({v.get('reason') or 'not estimable'})"
+    for item, v in out.items.items() if len(study.protocol.conditions) > 1 else ():
+        pairs = ", ".join(pair(p) for p in v.pairs)
+        # the item keeps no reason: the Cochran frame (analysis.table1.cochran) has it
+        cochran = f"Q = {v.cochran_q:.2f}, p = {v.p_value:.3g}" if v.p_value == v.p_value else "Cochran's Q not tested (not estimable)"
         click.echo(f"{item}: {cochran}; {pairs}")
-    for item, v in kinds["ratings"].items():
-        fr = v["friedman"]
-        pairs = ", ".join(pair(p) for p in v["pairs"])
+    for item, v in kinds.ratings.items():
+        fr = v.friedman
+        pairs = ", ".join(pair(p) for p in v.pairs)
         friedman = (f"Friedman chi2 = {fr['statistic']:.2f}, p = {fr['p_value']:.3g}, W = {fr['kendall_w']:.2f}"
                     if fr["statistic"] == fr["statistic"] else f"Friedman not tested ({fr.get('reason')})")
         click.echo(f"{item}: {friedman}; {pairs}")
-    for v in kinds["scores"].values():
-        t = v["mixed_model"]["model_test"]
-        means = ", ".join(f"{m} {c['mean']:.1f}" for m, c in v["conditions"].items())
+    for v in kinds.scores.values():
+        t = v.mixed_model["model_test"]
+        means = ", ".join(f"{m} {c['mean']:.1f}" for m, c in v.conditions.items())
         test = (f"mixed model F({t['df']}, {t['df_denominator']}) = {t['f']:.2f}, p = {t['p_value_f']:.3g}" if t["f"] == t["f"]
                 else f"mixed model: not tested ({t.get('reason') or 'no fit'})")
-        click.echo(f"{v['label']}: {means}; {test}")
-    for item, v in kinds["choices"].items():
-        shares = ", ".join(f"{m} {s['count']}" for m, s in v["shares"].items())
-        click.echo(f"{item}: {shares}; {v['overall']['test']} p = {v['overall']['p_value']:.3g}")
-    if out["facts"]["incomplete_participants"]:
-        click.echo("left out (incomplete): " + incomplete_text(out["facts"]))
-    gee = gee_line(out["gee"], kinds["primary"]["analysis"] == "logistic_gee")
-    if gee and kinds["primary"]["analysis"] != "logistic_gee":  # the primary's own line is printed first
+        click.echo(f"{v.label}: {means}; {test}")
+    for item, v in kinds.choices.items():
+        shares = ", ".join(f"{m} {s['count']}" for m, s in v.shares.items())
+        click.echo(f"{item}: {shares}; {v.overall['test']} p = {v.overall['p_value']:.3g}")
+    if facts.incomplete_participants:
+        click.echo("left out (incomplete): " + incomplete_text(facts))
+    gee = gee_line(out.gee, kinds.primary.analysis == "logistic_gee")
+    if gee and kinds.primary.analysis != "logistic_gee":  # the primary's own line is printed first
         click.echo(gee.replace("`", ""))
-    for row in out["deformation"]["rows"]:
+    for row in out.deformation.rows:
         click.echo(f"deformation time, {row['model']}: {mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])} ms over {row['n_participants']} participants "
-                   f"({out['deformation']['label']})")
+                   f"({out.deformation.label})")
 
 
 @report.command("published")
