@@ -326,11 +326,11 @@ def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, se
         if own:
             sp.close()
     names = [h.name for h in spec.hands]
-    result = _result(scene, model, "realtime-process", time_scale, duration, rate, names, out["rows"], out["starts"], out["misses"], out["wall"],
+    result = _result(scene, model, "realtime-process", time_scale, duration, rate, names, out.rows, out.starts, out.misses, out.wall,
                      visual, events)
-    result.started_by = out.get("started_by") or "clock"
-    result.waited_s = float(out.get("waited_s", 0.0))
-    result.pacer = out.get("pacer")
+    result.started_by = out.started_by or "clock"
+    result.waited_s = float(out.waited_s)
+    result.pacer = out.pacer
     result.ended_early = state["ended_early"]
     _ended(visual, result)
     if pacing is not None and pacing.view is not None:

@@ -18,6 +18,27 @@ from sim.devices.replay import ReplayDevice
 from sim.devices.simulated import SimulatedOmni
 from sim.laws import Constant
 from sim.servo import Hand, ServoLoop, wait_until
+from sim.servo_messages import (
+    BeginRun,
+    Close,
+    DeviceRecipe,
+    LawUpdate,
+    MouseRecipe,
+    NewContact,
+    Notice,
+    OpenHapticsRecipe,
+    PairLaw,
+    Pulse,
+    Ready,
+    ReplayRecipe,
+    RunDone,
+    RunLog,
+    SimulatedRecipe,
+    StartClock,
+    StartFailed,
+    StopRun,
+    ToServo,
+)
 
 # per-hand slots in shared memory (float64); IN_P/IN_BUTTON are written by the parent (the
 # view's pointer, for mouse devices), the rest by the servo
@@ -44,39 +65,55 @@ class LawModel:
 
     def __init__(self) -> None:
         self.unstable = False
-        self.pair = None  # (hand a, hand b, PairTable)
+        self.pair: PairLaw | None = None
 
     def force(self, contact, d):
         return contact.law.force(d)
 
     def forces(self, contacts, disps):
-        if self.pair is not None and len(contacts) == 2 and (contacts[0].hand, contacts[1].hand) == self.pair[:2]:
-            return self.pair[2].forces(disps[0], disps[1])
+        pair = self.pair
+        if pair is not None and len(contacts) == 2 and (contacts[0].hand, contacts[1].hand) == (pair.a, pair.b):
+            return pair.table.forces(disps[0], disps[1])
         return [c.law.force(d) for c, d in zip(contacts, disps)]
 
 
-def _open_device(r, board, rig):
-    if r[0] == "simulated":
-        return SimulatedOmni(r[1], name=r[2])
-    if r[0] == "replay":
-        return ReplayDevice(r[1], r[2])
-    if r[0] == "mouse":
-        base = GLOBAL + SLOT * r[1]
+@dataclass(slots=True)
+class RunState:
+    """The current run, updated every tick (misses, streak)."""
+
+    n: int  # ticks to run once the clock has started
+    k0: int  # the process's tick at which the run's clock starts (the run's begin until then)
+    starts: np.ndarray  # each tick's start (perf_counter)
+    begin: float  # perf_counter when the run began, for its wall time
+    started: bool = False
+    started_by: str | None = None  # "clock", "grasp" or "key"
+    misses: int = 0
+    streak: int = 0  # consecutive missed deadlines
+    waited_s: float = 0.0  # from the run's begin to its clock's start
+
+
+def _open_device(r: DeviceRecipe, board, rig):
+    if isinstance(r, SimulatedRecipe):
+        return SimulatedOmni(r.script, name=r.name)
+    if isinstance(r, ReplayRecipe):
+        return ReplayDevice(r.trace, r.trace_hand)
+    if isinstance(r, MouseRecipe):
+        base = GLOBAL + SLOT * r.hand
 
         def source(base=base):
             return (board[base + IN_P], board[base + IN_P + 1], board[base + IN_P + 2]), board[base + IN_BUTTON] > 0.5
 
-        return MouseDevice(source, r[3], name=r[2])
+        return MouseDevice(source, r.start, name=r.name)
 
-    return OpenHapticsDevice(rig, r[4], frame=r[3])
+    return OpenHapticsDevice(rig, r.rig_index, frame=r.frame)
 
 
 def _open_devices(recipes, board=None):
     """The devices of `recipes`; real ones share one rig (opened here, started by the runner)."""
     rig = None
-    names = [r[2] for r in recipes if r[0] == "openhaptics"]
-    if names:
-        rig = OpenHapticsRig(names, library=next(r[5] for r in recipes if r[0] == "openhaptics"))
+    real = [r for r in recipes if isinstance(r, OpenHapticsRecipe)]
+    if real:
+        rig = OpenHapticsRig([r.name for r in real], library=real[0].library)
     try:
         return [_open_device(r, board, rig) for r in recipes], rig
     except Exception:
@@ -125,55 +162,50 @@ class _Runner:
         self.k_device = 0  # the devices' clock starts here (each run's begin)
         self.run_seq = 0
         self.pulse_end: dict[int, int] = {}
-        self.run: dict | None = None  # the current run; None between runs
-        self.done: dict | None = None  # a finished run's log, sent by the pacer's thread
+        self.run: RunState | None = None  # None between runs
+        self.done: RunLog | None = None  # a finished run's log, sent by the pacer's thread
         self.closing = False
         self.last_start = None
 
     # -- messages ------------------------------------------------------------------------------
-    def handle(self, msg) -> None:
+    def handle(self, msg: ToServo) -> None:
         with self.lock:
-            kind = msg[0]
-            hands = self.hands
-            if kind == "contact":
-                _, i, point, law, t_contact = msg
-                if self.run is not None and hands[i].button:
-                    hands[i].contact_t = t_contact
-                    hands[i].contact = RemoteContact(i, point, law)
-            elif kind == "laws":
-                _, laws, pair, unstable = msg
-                for i, law in laws.items():
-                    c = hands[i].contact
-                    if c is not None:
-                        c.law = law
-                self.model.pair, self.model.unstable = pair, unstable
-            elif kind == "pulse" and self.run is not None:  # the device check: a short, gentle force
-                _, i, force, seconds = msg
-                hands[i].contact_t = (self.k - self.run["k0"]) / self.rate
-                hands[i].contact = RemoteContact(i, hands[i].position, Constant(tuple(force)))
-                self.pulse_end[i] = self.k + int(seconds * self.rate)
-            elif kind == "run":
-                self.run_seq = msg[1]
-                self._begin(*msg[2:])
-            elif kind == "start" and self.run is not None and not self.run["started"]:  # the experimenter's key
-                self._start("key", keep_last=False)
-            elif kind == "stop" and self.run is not None:
-                self._finish()
-            elif kind == "close":
-                if self.run is not None:
+            hands, run = self.hands, self.run
+            match msg:
+                case NewContact(hand=i) if run is not None and hands[i].button:
+                    hands[i].contact_t = msg.t
+                    hands[i].contact = RemoteContact(i, msg.point, msg.law)
+                case LawUpdate():
+                    for i, law in msg.laws.items():
+                        c = hands[i].contact
+                        if c is not None:
+                            c.law = law
+                    self.model.pair, self.model.unstable = msg.pair, msg.unstable
+                case Pulse(hand=i) if run is not None:  # the device check: a short, gentle force
+                    hands[i].contact_t = (self.k - run.k0) / self.rate
+                    hands[i].contact = RemoteContact(i, hands[i].position, Constant(tuple(msg.force)))
+                    self.pulse_end[i] = self.k + int(msg.seconds * self.rate)
+                case BeginRun():
+                    self.run_seq = msg.seq
+                    self._begin(msg.n_ticks, msg.wait, msg.recipes)
+                case StartClock() if run is not None and not run.started:  # the experimenter's key
+                    self._start("key", keep_last=False)
+                case StopRun() if run is not None:
                     self._finish()
-                self.closing = True
+                case Close():
+                    if run is not None:
+                        self._finish()
+                    self.closing = True
 
     def _begin(self, n_ticks: int, wait: bool, recipes) -> None:
         """A new run. Scripted and replayed devices are re-made from the run's recipes; mouse and
         real devices are kept (a rig is opened once per servo process)."""
         for i, r in enumerate(recipes):
-            if r[0] in ("simulated", "replay"):  # a script or recording plays from its start each run
+            if isinstance(r, (SimulatedRecipe, ReplayRecipe)):  # a script or recording plays from its start each run
                 self.devices[i] = self.hands[i].device = _open_device(r, self.board, self.rig)
                 self.hands[i].ticks = 0
         self._drop_contacts()
-        self.run = {"n": n_ticks, "started": False, "started_by": None, "k0": self.k, "starts": np.empty(n_ticks), "misses": 0,
-                    "streak": 0, "begin": time.perf_counter(), "waited_s": 0.0}
+        self.run = RunState(n=n_ticks, k0=self.k, starts=np.empty(n_ticks), begin=time.perf_counter())
         self.k_device = self.k  # the run begins: scripted devices start their script, waiting is counted from here
         self.board[TICKS], self.board[STARTED] = 0, 0.0
         if not wait:
@@ -183,19 +215,20 @@ class _Runner:
         """The run's clock starts at tick `self.k`: the one running now (a grasp, kept) or the next
         (a key, or a run that does not wait)."""
         run = self.run
-        run.update(started=True, started_by=by, k0=self.k, misses=0, streak=0, waited_s=(self.k - self.k_device) / self.rate)
+        run.started, run.started_by, run.k0 = True, by, self.k
+        run.misses, run.streak, run.waited_s = 0, 0, (self.k - self.k_device) / self.rate
         self.servo.restart(keep_last=keep_last)
         if keep_last:
-            run["starts"][0] = self.last_start
+            run.starts[0] = self.last_start
         self.board[STARTED] = 1.0
 
     def _finish(self) -> None:
         run = self.run
-        n = self.k - run["k0"] if run["started"] else 0
-        rows = self.servo.rows.array() if run["started"] else np.zeros((0, self.servo.rows.width))
-        self.done = {"rows": rows, "events": list(self.servo.events) if run["started"] else [], "starts": run["starts"][:n],
-                     "misses": run["misses"], "wall": time.perf_counter() - run["begin"], "started_by": run["started_by"],
-                     "waited_s": run["waited_s"], "pacer": "hd-scheduler" if self.rig is not None else "process"}
+        n = self.k - run.k0 if run.started else 0
+        rows = self.servo.rows.array() if run.started else np.zeros((0, self.servo.rows.width))
+        self.done = RunLog(rows=rows, events=tuple(self.servo.events) if run.started else (), starts=run.starts[:n],
+                           misses=run.misses, wall=time.perf_counter() - run.begin, started_by=run.started_by,
+                           waited_s=run.waited_s, pacer="hd-scheduler" if self.rig is not None else "process")
         self.run = None
         self._drop_contacts()
         self.servo.rows.clear()
@@ -210,22 +243,22 @@ class _Runner:
         with self.lock:
             run, servo, hands, board = self.run, self.servo, self.hands, self.board
             self.last_start = now
-            started = run is not None and run["started"]
+            started = run is not None and run.started
             if run is not None:
                 if started:
-                    run["starts"][self.k - run["k0"]] = now
+                    run.starts[self.k - run.k0] = now
                 if late:
-                    run["misses"] += 1
-                    run["streak"] += 1
-                    if run["streak"] >= self.miss_streak:  # the loop cannot keep time: no force for a while
-                        servo.suspend((self.k - run["k0"]) / self.rate, self.suspend_s, "deadline_streak")
+                    run.misses += 1
+                    run.streak += 1
+                    if run.streak >= self.miss_streak:  # the loop cannot keep time: no force for a while
+                        servo.suspend((self.k - run.k0) / self.rate, self.suspend_s, "deadline_streak")
                 else:
-                    run["streak"] = 0
+                    run.streak = 0
             for i, end in list(self.pulse_end.items()):
                 if self.k >= end:
                     hands[i].contact = None
                     del self.pulse_end[i]
-            t = (self.k - run["k0"]) / self.rate if run is not None else 0.0
+            t = (self.k - run.k0) / self.rate if run is not None else 0.0
             servo.tick(t, (self.k - self.k_device) / self.rate)
             if run is None:  # between runs: hands are shown, nothing is grasped or kept
                 for h in hands:
@@ -255,18 +288,18 @@ class _Runner:
             board[RUN_SEQ] = self.run_seq  # after the hands: the parent then sees this run's state
             self.k += 1
             run = self.run
-            if run is not None and run["started"]:
-                board[TICKS] = self.k - run["k0"]
-                if self.k - run["k0"] >= run["n"]:
+            if run is not None and run.started:
+                board[TICKS] = self.k - run.k0
+                if self.k - run.k0 >= run.n:
                     self._finish()
 
     def send_pending(self) -> None:
         done, self.done = self.done, None
         if done is not None:
-            self.conn.send(("done", done))
+            self.conn.send(RunDone(done))
         if self.rig is not None:
             for notice in self.rig.take_notices():  # calibration guidance, warm motors
-                self.conn.send(("notice", notice))
+                self.conn.send(Notice(notice))
 
     # -- pacers --------------------------------------------------------------------------------
     def serve_self_paced(self) -> None:
@@ -320,11 +353,11 @@ def child_main(conn, shm_name: str, recipes, hand_names, rate: float, time_scale
         try:
             runner = _Runner(conn, board, recipes, hand_names, rate, time_scale, miss_streak, suspend_s)
         except Exception as exc:  # reported to the parent as a clean error
-            conn.send(("error", str(exc)))
+            conn.send(StartFailed(str(exc)))
             return
         priority = _realtime_priority()
         sys.setswitchinterval(2e-4)  # the HD thread and the message thread share the interpreter lock
-        conn.send(("ready", priority))
+        conn.send(Ready(priority))
         gc.disable()  # a full collection is a multi-millisecond pause; the loop allocates little
         if runner.rig is not None:
             runner.serve_hd_paced()

@@ -9,9 +9,10 @@ modules), and the two sides talk through
 - shared memory, written by the child every tick and read by the parent each frame: per hand
   the position, button, force sent, fault, and a grasp request (position + counter); the
   pointer's target for mouse devices (written by the parent); the run's clock and state;
-- a pipe from the parent: "run" (a new run and its device recipes), contacts (their force laws,
-  sim/laws.py) when grasped, law updates after every frame, "start", "stop", "pulse", "close";
-  and from the child: each run's tick log and events when it ends, and the devices' notices.
+- a pipe from the parent: a new run and its device recipes, contacts (their force laws,
+  sim/laws.py) when grasped, law updates after every frame, start, stop, pulse, close; and from
+  the child: each run's tick log and events when it ends, and the devices' notices (the
+  messages' classes are in sim/servo_messages.py).
 
 The child opens its devices once and serves run after run (a session's training and trials)
 until closed; between runs it keeps reading the devices and sends no force. Simulated devices
@@ -51,23 +52,43 @@ from sim.servo_child import (
     P,
     child_main,
 )
+from sim.servo_messages import (
+    BeginRun,
+    Close,
+    DeviceRecipe,
+    LawUpdate,
+    MouseRecipe,
+    NewContact,
+    Notice,
+    OpenHapticsRecipe,
+    PairLaw,
+    ReplayRecipe,
+    RunDone,
+    RunLog,
+    SimulatedRecipe,
+    StartClock,
+    StartFailed,
+    StopRun,
+    ToServo,
+)
 
 
-def device_recipes(scene, library: str | None = None) -> list[tuple]:
+def device_recipes(scene, library: str | None = None) -> tuple[DeviceRecipe, ...]:
     """Picklable descriptions of the scene's devices, opened in the servo process."""
-    out = []
+    out: list[DeviceRecipe] = []
     rig_index = 0
     for i, h in enumerate(scene.spec.hands):
         if h.device == "simulated":
-            out.append(("simulated", scene.script(i), f"{h.name} (simulated)"))
+            out.append(SimulatedRecipe(script=scene.script(i), name=f"{h.name} (simulated)"))
         elif h.device == "replay":
-            out.append(("replay", str(h.trace), h.trace_hand or h.name))
+            out.append(ReplayRecipe(trace=str(h.trace), trace_hand=h.trace_hand or h.name))
         elif h.device == "mouse":
-            out.append(("mouse", i, f"{h.name} (mouse)", scene.script(i).start))
+            out.append(MouseRecipe(hand=i, name=f"{h.name} (mouse)", start=scene.script(i).start))
         else:
-            out.append(("openhaptics", None, scene.device_name(i), scene.device_frame(i), rig_index, library))
+            out.append(OpenHapticsRecipe(name=scene.device_name(i), frame=scene.device_frame(i), rig_index=rig_index,
+                                         library=library))
             rig_index += 1
-    return out
+    return tuple(out)
 
 
 class ServoProcess:
@@ -85,8 +106,8 @@ class ServoProcess:
         self.board = np.ndarray((size,), dtype=np.float64, buffer=self.shm.buf)
         self.board[:] = 0.0
         for i, r in enumerate(recipes):  # a mouse hand rests where the scene puts it
-            if r[0] == "mouse":
-                self.board[GLOBAL + SLOT * i + IN_P : GLOBAL + SLOT * i + IN_P + 3] = r[3]
+            if isinstance(r, MouseRecipe):
+                self.board[GLOBAL + SLOT * i + IN_P : GLOBAL + SLOT * i + IN_P + 3] = r.start
         ctx = mp.get_context("spawn")
         self.conn, child_conn = ctx.Pipe()
         self.proc = ctx.Process(
@@ -95,16 +116,16 @@ class ServoProcess:
             daemon=True,
         )
         self.proc.start()
-        kind, payload = self.conn.recv() if self.conn.poll(120) else ("error", "the servo process did not start within 120 s")
-        if kind == "error":
+        msg = self.conn.recv() if self.conn.poll(120) else StartFailed("the servo process did not start within 120 s")
+        if isinstance(msg, StartFailed):
             self.close()
-            raise DeviceError(payload)
-        self.priority = payload
+            raise DeviceError(msg.reason)
+        self.priority = msg.priority
         self.hands = [Hand(index=i, name=h.name, device=None) for i, h in enumerate(scene.spec.hands)]
         self._grasp_seen = [0] * self.n
         self.read_t = 0.0  # when the devices were read for the state last synced
         self.notices: list[str] = []  # from the devices (calibration, warm motors), for the experimenter
-        self._done = None
+        self._done: RunLog | None = None
         self.run_seq = 0
 
     def ticks(self) -> int:
@@ -115,11 +136,11 @@ class ServoProcess:
 
     def _receive(self) -> None:
         while self.conn.poll():
-            kind, payload = self.conn.recv()
-            if kind == "done":
-                self._done = payload
-            elif kind == "notice":
-                self.notices.append(payload)
+            msg = self.conn.recv()
+            if isinstance(msg, RunDone):
+                self._done = msg.result
+            elif isinstance(msg, Notice):
+                self.notices.append(msg.text)
 
     def sync(self) -> None:
         """Copy the child's latest hand state into the mirrors (and new grasp requests)."""
@@ -155,7 +176,7 @@ class ServoProcess:
         self.board[base + IN_BUTTON] = 0.0 if not pressed else 1.0
         self.board[base + IN_P : base + IN_P + 3] = target
 
-    def send(self, *msg) -> None:
+    def send(self, msg: ToServo) -> None:
         try:
             self.conn.send(msg)
         except (BrokenPipeError, OSError):
@@ -168,20 +189,20 @@ class ServoProcess:
             events.append(Event(t, hand, "model_fault", f"model_fault: law: {fault}"))
             self.hands[hand].contact = None
             return
-        self.send("contact", hand, contact.point, law, t)
+        self.send(NewContact(hand=hand, point=contact.point, law=law, t=t))
 
     def send_laws(self, model, events: list | None = None) -> None:
         held = [h for h in self.hands if h.contact is not None]
         # a model's own laws are refreshed each frame (a ModelForce went once, at the grasp)
         laws = {h.index: h.contact.law for h in held if h.contact.law is not None}
         p, unstable, fault = servo_state(model, [h.contact for h in held])
-        pair = (held[0].index, held[1].index, p) if p is not None else None
+        pair = PairLaw(held[0].index, held[1].index, p) if p is not None else None
         if fault is not None and events is not None and not any(e.detail.startswith("model_fault: laws") for e in events):
             events.append(Event(self.ticks() / self.rate, -1, "model_fault", f"model_fault: laws: {fault}"))  # logged once
-        self.send("laws", laws, pair, unstable)
+        self.send(LawUpdate(laws=laws, pair=pair, unstable=unstable))
 
     def run(self, scene, visual, n_ticks: int, visual_rate: float, frame=None, wait: bool = False,
-            frame_rate: float = 60.0) -> tuple[dict, list]:
+            frame_rate: float = 60.0) -> tuple[RunLog, list]:
         """One run: this process runs the visual step at `visual_rate` and, between steps, calls
         `frame(sp, visual)` (the participant view: pointer, drawing, keys) up to `frame_rate`
         times a second: the instruments move at the view's rate, not the deformation's. `frame`
@@ -193,7 +214,7 @@ class ServoProcess:
         for h in self.hands:
             h.contact, h.grasp_request = None, None
         self.run_seq += 1
-        self.send("run", self.run_seq, n_ticks, wait, device_recipes(scene))
+        self.send(BeginRun(seq=self.run_seq, n_ticks=n_ticks, wait=wait, recipes=device_recipes(scene)))
         deadline = time.perf_counter() + 10.0
         while self.board[RUN_SEQ] != self.run_seq and self.proc.is_alive() and time.perf_counter() < deadline:
             time.sleep(0.0005)  # the first frame shows this run's devices, not the last run's
@@ -232,9 +253,9 @@ class ServoProcess:
                     if command == "stop":
                         break
                     if command == "start":
-                        self.send("start")
+                        self.send(StartClock())
             if self._done is None:
-                self.send("stop")
+                self.send(StopRun())
                 deadline = time.perf_counter() + 30.0
                 while self._done is None and self.proc.is_alive() and time.perf_counter() < deadline:
                     if self.conn.poll(0.05):
@@ -242,18 +263,18 @@ class ServoProcess:
         finally:
             if len(own) > 1:
                 _set_all_threads_affinity(set(own))
-        out = self._done or {"rows": np.zeros((0, 3)), "events": [], "starts": np.zeros(0), "misses": 0, "wall": math.nan,
-                             "started_by": None, "waited_s": 0.0, "pacer": None}
+        out = self._done or RunLog(rows=np.zeros((0, 3)), events=(), starts=np.zeros(0), misses=0, wall=math.nan,
+                                   started_by=None, waited_s=0.0, pacer=None)
         # the visual side's events (grasps, misses, model faults) of this run's clock
         seen = [e for e in visual.events if e.t >= 0.0]
-        events = sorted(list(out["events"]) + seen, key=lambda e: e.t)
+        events = sorted([*out.events, *seen], key=lambda e: e.t)
         return out, events
 
     def close(self) -> None:
         if self.closed:
             return
         self.closed = True
-        self.send("close")
+        self.send(Close())
         self.proc.join(timeout=10)
         if self.proc.is_alive():
             self.proc.terminate()

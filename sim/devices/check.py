@@ -28,6 +28,7 @@ from sim.devices.openhaptics import (
     nominal_limits,
 )
 from sim.run import Pacing, run_scene
+from sim.servo_messages import Pulse
 from sim.servo_process import ServoProcess
 
 CONFIG_DIRS = ("$GTDD_HOME/config", "~/.3dsystems/config", "/usr/share/3DSystems/config", "/etc/3DSystems/config")
@@ -111,7 +112,7 @@ def check_rig(scene, seconds: float = 5.0, view=None, confirm=None, say=print) -
                     for i in range(len(names)):
                         frame = scene.device_frame(i)
                         up = np.subtract(frame.to_scene((0.0, 1.0, 0.0)), frame.origin)
-                        sp_.send("pulse", i, tuple(float(c) for c in PULSE_N * up), PULSE_S)
+                        sp_.send(Pulse(hand=i, force=tuple(float(c) for c in PULSE_N * up), seconds=PULSE_S))
                     sent.append(True)
 
             def pulse_caption(phase, left):
