@@ -11,9 +11,10 @@ STAMP := $(VENV)/.installed
 # or offscreen; the X11 client libraries glfw loads for the window (monitors, cursor, input);
 # xvfb: a real X display for the participant view's window in tests and headless runs; xdotool:
 # the tests' real X key and mouse events; SuiteSparse (headers, CHOLMOD) and a threaded
-# OpenBLAS: scikit-sparse's CHOLMOD, the sparse Cholesky
+# OpenBLAS: scikit-sparse's CHOLMOD, the sparse Cholesky; texlive (pdflatex, booktabs, tabularx,
+# pdflscape): the tests compile every report's LaTeX tables and check they fit the page
 SYSTEM_PACKAGES := libusb-1.0-0 libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libx11-6 libxrandr2 libxinerama1 libxcursor1 libxi6 \
-	xvfb xdotool libsuitesparse-dev libopenblas0-pthread
+	xvfb xdotool libsuitesparse-dev libopenblas0-pthread texlive-latex-base texlive-latex-recommended
 OUT ?= out
 
 .PHONY: demo test test-all bench lint system-deps venv clean

@@ -76,7 +76,8 @@ class StudyStats:
     - items: per yes/no question id, its rates, Cochran's Q and McNemar pairs;
     - gee: the logistic GEE across the yes/no questions;
     - kinds: every other kind of answer, and the protocol's primary analysis;
-    - deformation: the deformation-time benchmark."""
+    - deformation: the deformation-time benchmark;
+    - methods: the study's methods as data (analysis/methods.py), which `report text` writes out."""
 
     facts: StudyFacts
     holm: str
@@ -84,9 +85,11 @@ class StudyStats:
     gee: LogisticGee
     kinds: KindStats
     deformation: DeformationBenchmark
+    methods: dict
 
     def as_dict(self) -> dict:
         """The nested dict `report stats --json` prints (through sim.jsonable.jsonable)."""
         return {"facts": self.facts.as_dict(), "holm": self.holm, "items": {k: v.as_dict() for k, v in self.items.items()},
-                "gee": self.gee.as_dict(), "kinds": self.kinds.as_dict(), "deformation": self.deformation.as_dict()}
+                "gee": self.gee.as_dict(), "kinds": self.kinds.as_dict(), "deformation": self.deformation.as_dict(),
+                "methods": self.methods}
 

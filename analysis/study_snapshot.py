@@ -51,7 +51,9 @@ class Study:
     - `synthetic_codes`: the codes registered as synthetic or with a synthetic answer;
     - `fields`: every participant's protocol fields, typed by their kind: ``code, field, value``;
     - `traced_trials`: every trial with a stored trace: ``code, synthetic, model, trial, session_id,
-      trace_path, trace_sha256``.
+      trace_path, trace_sha256``;
+    - `setups`: how the finished sessions ran: ``device, software_version, synthetic, sessions``;
+    - `latencies`: every latency measure per condition: ``measure, model, trials, mean, lowest, highest``.
     """
 
     protocol: object
@@ -69,6 +71,8 @@ class Study:
     synthetic_codes: tuple[str, ...]
     fields: pd.DataFrame
     traced_trials: pd.DataFrame
+    setups: pd.DataFrame
+    latencies: pd.DataFrame
 
 
 def read_study(store) -> Study:
@@ -96,6 +100,8 @@ def read_study(store) -> Study:
         synthetic_codes=snapshot.synthetic_codes(store),
         fields=pd.DataFrame(fields, columns=["code", "field", "value"], dtype=object),
         traced_trials=snapshot.traced_trials(store),
+        setups=snapshot.session_setups(store),
+        latencies=snapshot.latency_summary(store),
     )
 
 

@@ -11,6 +11,7 @@ import pandas as pd
 from analysis.formatting import table_markdown
 from analysis.kind_results import KindStats
 from analysis.kinds import gee_line, kind_stats, kind_tables, primary_line
+from analysis.methods import study_methods
 from analysis.stats import HOLM_SCOPES, gee_fit, pairwise_mcnemar, set_holm
 from analysis.study_results import DeformationBenchmark, LogisticGee, StudyStats, YesNoItem
 from analysis.study_snapshot import Study
@@ -62,8 +63,10 @@ def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | N
     _holm_family(items, holm_scope, kinds.family_pairs())
     gee = study_gee(study, answers, protocol_models)
     _name_tests(kinds, gee)
-    return StudyStats(facts=study_facts(study), holm=holm_scope, items=items, gee=gee, kinds=kinds,
-                      deformation=DeformationBenchmark(DEFORMATION_LABEL, deformation(study).to_dict(orient="records")))
+    facts = study_facts(study)
+    return StudyStats(facts=facts, holm=holm_scope, items=items, gee=gee, kinds=kinds,
+                      deformation=DeformationBenchmark(DEFORMATION_LABEL, deformation(study).to_dict(orient="records")),
+                      methods=study_methods(study, facts, items, kinds, holm_scope))
 
 
 PAIR_TESTS = {"scores": "t contrast of the linear mixed model (between-within df)",

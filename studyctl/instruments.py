@@ -19,6 +19,8 @@ import numpy as np
 from studyctl.questions import Question
 
 NAMES = ("sus", "nasa_tlx")
+# each instrument's source, as a methods section cites it
+SOURCES = {"sus": "Brooke (1996)", "nasa_tlx": "Hart and Staveland (1988), raw (unweighted) as in Hart (2006)"}
 
 SUS_ITEMS = (
     "I think that I would like to use this system frequently.",

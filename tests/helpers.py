@@ -41,6 +41,21 @@ def fast_protocol(tmp_path: Path, conditions=("plate_spring", "fem", "mass_sprin
     return path
 
 
+def variants_protocol(tmp_path: Path) -> Path:
+    """The shipped ratings example (protocols/plate_spring_variants.toml: Likert items, the SUS
+    after each condition, a choice at the end) on fast_protocol's coarse scene, one short trial
+    per condition."""
+    fast = fast_protocol(tmp_path)  # writes the fast scene beside it
+    text = (ROOT / "protocols/plate_spring_variants.toml").read_text()
+    text = text.replace('scene = "scenes/brain_pull.toml"', f'scene = "{tmp_path / "scene.toml"}"')
+    text = text.replace("trials_per_condition = 3", "trials_per_condition = 1").replace("trial_seconds = 3.0", "trial_seconds = 1.0")
+    text = text.replace("training_minutes = 5.0", "training_minutes = 0.0")
+    fast.unlink()
+    path = tmp_path / "variants.toml"
+    path.write_text(text)
+    return path
+
+
 def studyctl(*args, env=None):
     return CliRunner().invoke(cli, [str(a) for a in args], env=env, catch_exceptions=False)
 
@@ -304,3 +319,19 @@ def build_wheel(tmp: Path) -> Path:
                    capture_output=True)
     (wheel,) = (tmp / "dist").glob("brainsim_study-*.whl")
     return wheel
+
+
+def latex_problems(tex: str, folder: Path) -> list[str]:
+    """Compile the LaTeX document `tex` with pdflatex in `folder`: its errors, overfull boxes
+    over 1 pt and floats too large for the page, as lines of its log ([] when it fits)."""
+    (folder / "doc.tex").write_text(tex)
+    run = subprocess.run(["pdflatex", "-interaction=nonstopmode", "-halt-on-error", "doc.tex"], cwd=folder,
+                         capture_output=True, text=True, timeout=120)
+    log = (folder / "doc.log").read_text(errors="replace")
+    problems = [ln for ln in log.splitlines() if ln.startswith("!") or "Float too large" in ln]
+    for m in re.finditer(r"Overfull \\[hv]box \(([\d.]+)pt too (?:wide|high)\)[^\n]*", log):
+        if float(m.group(1)) > 1.0:
+            problems.append(m.group(0))
+    if run.returncode != 0 or not (folder / "doc.pdf").exists():
+        problems.append(f"pdflatex exit {run.returncode}")
+    return problems

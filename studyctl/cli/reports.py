@@ -246,6 +246,26 @@ def report_stats(db, holm_scope, as_json):
                    f"({out.deformation.label})")
 
 
+@report.command("text")
+@DB
+@HOLM
+@click.option("--style", type=click.Choice(["apa"]), default="apa", show_default=True, help="Number style: APA 7 (p = .066, p < .001).")
+@click.option("--format", "fmt", type=click.Choice(["md", "latex"]), default="md", show_default=True)
+@click.option("--out", "out_file", type=OutFile(), default=None)
+def report_text(db, holm_scope, style, fmt, out_file):
+    """The methods and results paragraphs for a paper (participants, design, apparatus, procedure,
+    analysis, results), every number taken from what `report stats --json` prints; synthetic
+    data said first, withheld statistics withheld with their reason."""
+    from analysis.paper_text import study_text
+
+    study = read_snapshot(db)
+    if study.protocol.tasks and not study.protocol.questions:
+        raise click.ClickException("the study asks no questions; its discrimination task reports with `studyctl report jnd`")
+    if _no_answers(study, False):
+        return
+    _emit(study_text(study, holm_scope, fmt), out_file)
+
+
 @report.command("published")
 @click.option("--table", "table_file", type=click.Path(dir_okay=False, path_type=Path), default=PAPER_TABLE,
               show_default="the seed paper's Table 1, data/paper_table1.csv")

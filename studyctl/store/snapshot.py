@@ -84,3 +84,15 @@ def traced_trials(store: Store) -> pd.DataFrame:
     return _frame(store, "select s.code, p.synthetic, t.model, t.trial, t.session_id, t.trace_path, t.trace_sha256 from trials t "
                          "join sessions s on s.id = t.session_id join participants p on p.code = s.code "
                          "where t.trace_path is not null order by s.code, t.model, t.trial, t.session_id")
+
+
+def session_setups(store: Store) -> pd.DataFrame:
+    """How the finished sessions ran: device, software_version, synthetic, sessions (a count)."""
+    return _frame(store, "select device, software_version, synthetic, count(*) as sessions from sessions where status = 'done' "
+                         "group by device, software_version, synthetic order by min(id)")
+
+
+def latency_summary(store: Store) -> pd.DataFrame:
+    """Every latency measure per condition over the trials: measure, model, trials, mean, lowest, highest."""
+    return _frame(store, "select measure, model, count(*) as trials, avg(value) as mean, min(value) as lowest, max(value) as highest "
+                         "from latency group by measure, model order by measure, model")

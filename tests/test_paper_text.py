@@ -1,0 +1,116 @@
+"""`studyctl report text`: the methods and results paragraphs. Every number in them is a value of
+`report stats --json` at its printed precision (APA style), and the text says synthetic first."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+
+from analysis import paper_text
+
+NUMBER = re.compile(r"(?<![\w.])(-?\d*\.?\d+)(%?)(?![\w.]*\d)")
+
+
+def _leaves(obj, numbers: list, strings: list) -> None:
+    if isinstance(obj, dict):
+        for v in obj.values():
+            _leaves(v, numbers, strings)
+    elif isinstance(obj, list):
+        for v in obj:
+            _leaves(v, numbers, strings)
+    elif isinstance(obj, bool) or obj is None:
+        return
+    elif isinstance(obj, (int, float)):
+        numbers.append(float(obj))
+    elif isinstance(obj, str):
+        strings.append(obj)
+
+
+def unsupported_numbers(text: str, doc: dict) -> list[str]:
+    """The numbers of `text` that no value of `doc` gives at the printed precision (as printed,
+    or as a percentage), once the strings `doc` holds (question texts, names, versions, formulas)
+    are taken out of the text. 'p < .001' is checked against the p-values below .001."""
+    numbers, strings = [], []
+    _leaves(doc, numbers, strings)
+    for s in sorted(set(strings), key=len, reverse=True):
+        if len(s) >= 3 and s in text:
+            text = text.replace(s, " ")
+    missing = []
+    if "p < .001" in text:
+        if not any(0 <= x < 0.0005 for x in numbers):
+            missing.append("p < .001")
+        text = text.replace("p < .001", " ")
+    for m in NUMBER.finditer(text):
+        token, percent = m.group(1), m.group(2)
+        value = float(token)
+        decimals = len(token.split(".")[1]) if "." in token else 0
+        scale = 100.0 if percent else 1.0
+        if not any(round(x * scale, decimals) == round(value, decimals) for x in numbers):
+            missing.append(m.group(0))
+    return missing
+
+
+def test_the_checker_finds_a_number_the_json_does_not_hold():
+    doc = {"a": 0.0655, "b": 0.375, "c": 2, "q": "Is it 3 mm?"}
+    assert unsupported_numbers("Q(2) = .066, 37.5%, “Is it 3 mm?”", doc) == []
+    assert unsupported_numbers("Q(2) = .067", doc) == [".067"]
+    assert unsupported_numbers("37.6%", doc) == ["37.6%"]
+    assert unsupported_numbers("p < .001", doc) == ["p < .001"]
+
+
+def test_apa_numbers():
+    assert paper_text.p_text(0.0657) == "p = .066"
+    assert paper_text.p_text(0.0004) == "p < .001"
+    assert paper_text.p_text(float("nan")) is None
+    assert paper_text.unit(0.0708) == ".07" and paper_text.unit(-0.3137) == "-.31"
+    assert paper_text.sig(0.004182567) == "0.00418" and paper_text.sig(6.7449) == "6.74" and paper_text.sig(4502.887) == "4503"
+
+
+@pytest.fixture(scope="module")
+def variants_study(tmp_path_factory):
+    """A SYNTHETIC study of the shipped ratings example."""
+    from studyctl.synthetic_study import run_synthetic_study
+    from tests.helpers import variants_protocol
+
+    tmp = tmp_path_factory.mktemp("variants")
+    db = tmp / "v.db"
+    run_synthetic_study(db, 6, seed=7, protocol_path=variants_protocol(tmp))
+    return db
+
+
+def _text_and_json(db, *args) -> tuple[str, dict]:
+    from tests.helpers import studyctl
+
+    text = studyctl("report", "text", "--db", db, *args)
+    stats = studyctl("report", "stats", "--db", db, "--json")
+    assert text.exit_code == 0 and stats.exit_code == 0, text.output + stats.output
+    return text.output, json.loads(stats.output)
+
+
+@pytest.mark.parametrize("which", ["paper", "variants"])
+def test_every_number_of_the_text_is_in_the_stats_json(which, small_study, variants_study):
+    db = small_study if which == "paper" else variants_study
+    text, doc = _text_and_json(db)
+    assert text.startswith("## Participants\n\nSYNTHETIC DATA (simulated participants)")
+    assert [h for h in re.findall(r"^## (\w+)", text, re.M)] == ["Participants", "Design", "Apparatus", "Procedure", "Analysis", "Results"]
+    assert unsupported_numbers(text, doc) == []
+    m = doc["methods"]
+    assert f"N = {m['participants']['n']} participants" in text and f"{m['design']['trials_per_condition']} trials" in text
+    if which == "paper":  # the primary analysis and a yes/no item, as the JSON has them
+        item = next(iter(doc["items"].values()))
+        assert f"Cochran's Q({item['df']}) = {item['cochran_q']:.2f}" in text
+        assert "logistic GEE across the yes/no questions" in text
+    else:
+        assert "proportional-odds GEE" in text and "Friedman χ²(2)" in text and "sus questionnaire (Brooke (1996)" in text
+        assert "Which condition felt most like real brain tissue?" in text
+
+
+def test_the_latex_text_compiles(variants_study, tmp_path):
+    from analysis.latex import document
+    from tests.helpers import latex_problems
+
+    text, _ = _text_and_json(variants_study, "--format", "latex")
+    assert "\\subsection*{Results}" in text and "$\\chi$$^{2}$(2)" in text
+    assert latex_problems(document(text), tmp_path) == []
