@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.latex import tables as latex_tables
 from analysis.plots import pareto_plot
 from analysis.stats import wilson
 from analysis.tissue_pulls import (
@@ -443,29 +444,44 @@ def intro(result: dict) -> str:
             f"the linear models' E = {m['young_pa'] / 1e3:.3g} kPa (scene: {m['scene_young_pa'] / 1e3:.3g} kPa)" + (" (quick bench)" if m["quick"] else "") + ".")
 
 
-def markdown(result: dict) -> str:
-    """The accuracy table as Markdown (test pulls only), with what it was measured against."""
-    lines = [intro(result), "",
-             "| model | setting | calibration | scale | force error (mean / max) | within JND [95% CI] | within / outside / undecided | "
-             "whole pulls within | unstable pulls | direction error (mean / max) | tick | frame |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in result["rows"]:
-        lines.append(f"| {r['model']} | {r['setting']} | {r['calibration']} | {r['scale']:.3g} | {r['force_error']:.1%} / {r['force_error_max']:.1%} | "
-                     f"{r['within_jnd']:.0%} [{r['within_jnd_low']:.0%}, {r['within_jnd_high']:.0%}] | "
-                     f"{r['within']} / {r['outside']} / {r['undecided']} | {r['pulls_within']}/{r['n_test_pulls']} | {r['unstable_pulls']} | "
-                     f"{r['angle_deg']:.1f} / {r['angle_deg_max']:.1f} deg | {r['tick_us']:.2f} us | {r['frame_ms']:.3g} ms |")
-    lines += ["", f"Each class at its best (`class_best`: the most samples within the JND among the configurations whose frame p99 keeps "
-              f"the budget and that gave up no pull; the target is {TARGET_WITHIN:.0%}):", "",
-              "| model | calibration | best setting | within JND [95% CI] | force error | whole pulls within | frame (p50 / p99) | meets target | left out |",
-              "|---|---|---|---|---|---|---|---|---|"]
+def tables(result: dict) -> list[dict]:
+    """The accuracy table (every configuration, raw and calibrated) and each class at its best, as
+    {title, columns, rows, note}: what the Markdown and the LaTeX print."""
+    rows = [[r["model"], r["setting"], r["calibration"], f"{r['scale']:.3g}", f"{r['force_error']:.1%} / {r['force_error_max']:.1%}",
+             f"{r['within_jnd']:.0%} [{r['within_jnd_low']:.0%}, {r['within_jnd_high']:.0%}]",
+             f"{r['within']} / {r['outside']} / {r['undecided']}", f"{r['pulls_within']}/{r['n_test_pulls']}", str(r["unstable_pulls"]),
+             f"{r['angle_deg']:.1f} / {r['angle_deg_max']:.1f} deg", f"{r['tick_us']:.2f} us", f"{r['frame_ms']:.3g} ms"]
+            for r in result["rows"]]
+    best = []
     for b in class_best(result["rows"]):
         left = "; ".join(f"{k}: {v}" for k, v in b["left_out"].items()) or "none"
         if b["setting"] is None:
-            lines.append(f"| {b['model']} | {b['calibration']} | none ({b['why']}) | | | | | no | {left} |")
+            best.append([b["model"], b["calibration"], f"none ({b['why']})", "", "", "", "", "no", left])
             continue
-        lines.append(f"| {b['model']} | {b['calibration']} | {b['setting']} | {b['within_jnd']:.0%} [{b['within_jnd_low']:.0%}, {b['within_jnd_high']:.0%}] | "
-                     f"{b['force_error']:.1%} | {b['pulls_within']}/{b['n_test_pulls']} | {b['frame_ms']:.3g} / {b['frame_ms_p99']:.3g} ms | "
-                     f"{'yes' if b['meets_target'] else 'no'} | {left} |")
+        best.append([b["model"], b["calibration"], b["setting"],
+                     f"{b['within_jnd']:.0%} [{b['within_jnd_low']:.0%}, {b['within_jnd_high']:.0%}]", f"{b['force_error']:.1%}",
+                     f"{b['pulls_within']}/{b['n_test_pulls']}", f"{b['frame_ms']:.3g} / {b['frame_ms_p99']:.3g} ms",
+                     "yes" if b["meets_target"] else "no", left])
+    return [{"title": "Model error against run time", "columns": ["model", "setting", "calibration", "scale", "force error (mean / max)",
+                                                                   "within JND [95% CI]", "within / outside / undecided", "whole pulls within",
+                                                                   "unstable pulls", "direction error (mean / max)", "tick", "frame"],
+             "rows": rows, "note": intro(result)},
+            {"title": "Each class at its best", "columns": ["model", "calibration", "best setting", "within JND [95% CI]", "force error",
+                                                            "whole pulls within", "frame (p50 / p99)", "meets target", "left out"],
+             "rows": best, "note": f"The most samples within the JND among the configurations whose frame p99 keeps the budget and that "
+                                   f"gave up no pull; the target is {TARGET_WITHIN:.0%}."}]
+
+
+def markdown(result: dict) -> str:
+    """The accuracy table as Markdown (test pulls only), with what it was measured against."""
+    every, best = tables(result)
+
+    def rows(t: dict) -> list[str]:
+        return ["| " + " | ".join(t["columns"]) + " |", "|" + "---|" * len(t["columns"])] + ["| " + " | ".join(r) + " |" for r in t["rows"]]
+
+    lines = [intro(result), "", *rows(every)]
+    lines += ["", f"Each class at its best (`class_best`: the most samples within the JND among the configurations whose frame p99 keeps "
+              f"the budget and that gave up no pull; the target is {TARGET_WITHIN:.0%}):", "", *rows(best)]
     cb = result["meta"].get("coupling_bound")
     if cb:
         lines += ["", f"The mass-spring renders through its hand coupling: the tissue's own forces behind it (an exact model) are within "
@@ -476,7 +492,7 @@ def markdown(result: dict) -> str:
 
 
 def write_outputs(result: dict, out_dir) -> list[Path]:
-    """accuracy.json, accuracy.csv, samples.csv, accuracy.md, pareto.png and .svg."""
+    """accuracy.json, accuracy.csv, samples.csv, accuracy.md, accuracy.tex (its tables as LaTeX), pareto.png and .svg."""
     import pandas as pd
 
 
@@ -487,6 +503,8 @@ def write_outputs(result: dict, out_dir) -> list[Path]:
     pd.DataFrame(result["rows"]).to_csv(files[1], index=False)
     pd.DataFrame(result["samples"]).to_csv(files[2], index=False)
     files[3].write_text(markdown(result))
+    files.append(out / "accuracy.tex")
+    files[4].write_text(latex_tables(tables(result), "tab:accuracy"))
     raw = [r for r in result["rows"] if r["calibration"] == "raw"]
     for ext in ("png", "svg"):
         pareto_plot(raw, out / f"pareto.{ext}", reference=result["meta"]["reference"]["setting"])

@@ -18,6 +18,7 @@ their generating Weber fraction beside the estimate (so recovery can be read off
 
 from __future__ import annotations
 
+import dataclasses
 import html as _html
 import json
 import math
@@ -27,9 +28,12 @@ import pandas as pd
 from scipy import stats
 
 from analysis.formatting import PAGE_END, drawn_png, figure_html, p_value, page_head, table_html, table_markdown
+from analysis.latex import tables as latex_tables
+from analysis.methods import study_methods
 from analysis.pooled import POOLED_MIN, pooled_webers
 from analysis.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, weber_table
 from analysis.study_snapshot import data_flag
+from analysis.table1 import study_facts
 from analysis.weber_groups import group_test
 from analysis.withhold import interval_reason
 
@@ -73,8 +77,11 @@ def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) 
                      "interval": f"parametric bootstrap, percentile, {kwargs.get('n_boot', N_BOOT)} refits"},
              "task": {"kind": spec.kind, "parameter": spec.parameter, "method": spec.method, "rule": spec.rule if spec.method == "staircase" else None,
                       "trials": spec.trials, "reference": spec.reference, "question": spec.question, "range": [spec.low, spec.high]}}
+    # the methods as `report text` writes them, N the participants with discrimination trials
+    methods = study_methods(study, dataclasses.replace(study_facts(study), participants=facts["participants"], synthetic=synthetic,
+                                                       synthetic_participants=synthetic_codes, person_participants=person_codes))
     if not len(table):
-        return {"facts": facts, "weber": [], "conditions": [], "group": None}
+        return {"facts": facts, "weber": [], "conditions": [], "group": None, "methods": methods}
     table = table.merge(pooled_webers(t), on=["code", "condition"], how="left")
     facts["pooled"] = (f"each participant's Weber fraction pooled with the condition's others (hierarchical: ln weber normal over the "
                        f"participants, flat priors on its mean and spread, the observer's likelihood; {POOLED_MIN} or more participants a condition)")
@@ -89,7 +96,7 @@ def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) 
     order = [c for c in protocol.conditions if c in set(table["condition"])]
     conds = [_condition_summary(table[table["condition"] == c], c) for c in order]
     group = group_test(table, conditions=order) if len(order) >= 2 else None
-    return {"facts": facts, "weber": table.to_dict(orient="records"), "conditions": conds, "group": group}
+    return {"facts": facts, "weber": table.to_dict(orient="records"), "conditions": conds, "group": group, "methods": methods}
 
 
 def _condition_summary(rows: pd.DataFrame, condition: str) -> dict:
@@ -178,13 +185,19 @@ def tables(res: dict) -> list[dict]:
     return out
 
 
-def markdown(res: dict) -> str:
+def _heading(res: dict) -> tuple[str, str]:
+    """(the report's title, what it holds): the study, the synthetic flag, N and the task."""
     f = res["facts"]
     task = f["task"]
     flag = f"{f['flag']} " if f["flag"] else ""
     method = task["method"] + (f" ({task['rule']})" if task["rule"] else "")
-    lines = [f"**Stiffness discrimination: {f['study']}.** {flag}N = {f['participants']} participants; two-interval forced choice "
-             f"\"{task['question']}\", {task['trials']} {method} trials per condition around {task['reference']:g} times each condition's stiffness.", ""]
+    return (f"Stiffness discrimination: {f['study']}", f"{flag}N = {f['participants']} participants; two-interval forced choice "
+            f"\"{task['question']}\", {task['trials']} {method} trials per condition around {task['reference']:g} times each condition's stiffness.")
+
+
+def markdown(res: dict) -> str:
+    title, head = _heading(res)
+    lines = [f"**{title}.** {head}", ""]
     if not res["weber"]:
         return "\n".join(lines + ["No discrimination trials yet.", ""])
 
@@ -194,6 +207,18 @@ def markdown(res: dict) -> str:
         lines += [_group_text(res["group"]), ""]
     lines += table_markdown(per)
     return "\n".join(lines)
+
+
+def latex(res: dict) -> str:
+    """The report's tables as LaTeX (analysis/latex.py), the study's heading and the group test in
+    the first table's caption."""
+    title, head = _heading(res)
+    if not res["weber"]:
+        return f"% {title}. {head} No discrimination trials yet.\n"
+    first, per = tables(res)
+    group = f" {_group_text(res['group'])}" if res["group"] else ""
+    first = first | {"title": f"{title}: {first['title']}", "note": f"{head} {first['note']}{group}"}
+    return latex_tables([first, per], "tab:jnd")
 
 
 def _group_text(g: dict) -> str:

@@ -61,10 +61,13 @@ def _model(config: dict | None) -> dict:
             "density": material.get("density")}
 
 
-def study_methods(study: Study, facts: StudyFacts, items: dict, kinds: KindStats, holm: str) -> dict:
-    """The methods of `study` (`facts`: analysis.table1.study_facts; `items` and `kinds`: the
-    yes/no and other kinds' statistics the results come from, for the primary analysis and the
-    size of the Holm family; `holm`: its scope)."""
+def study_methods(study: Study, facts: StudyFacts, items: dict | None = None, kinds: KindStats | None = None,
+                  holm: str = "family") -> dict:
+    """The methods of `study` (`facts`: analysis.table1.study_facts, or the discrimination
+    report's N in its place; `items` and `kinds`: the yes/no and other kinds' statistics the
+    results come from, for the primary analysis and the size of the Holm family, None for a
+    study without questions; `holm`: its scope)."""
+    items = items or {}
     protocol = study.protocol
     complete = set(study.answers["code"]) - {r["code"] for r in facts.incomplete_participants}
     configs = facts.conditions
@@ -73,7 +76,7 @@ def study_methods(study: Study, facts: StudyFacts, items: dict, kinds: KindStats
     setups = study.setups.to_dict(orient="records")
     latencies = [r for r in study.latencies.to_dict(orient="records") if r["measure"] in protocol.latency_measures]
     asked = sorted({q.kind for q in protocol.questions if q.analysed}, key=list(KIND_TESTS).index)
-    family = sum(len(v.pairs) for v in items.values()) + sum(len(pairs) for pairs in kinds.family_pairs())
+    family = sum(len(v.pairs) for v in items.values()) + (sum(len(pairs) for pairs in kinds.family_pairs()) if kinds else 0)
     return {
         "participants": {
             "n": facts.participants, "target": protocol.target_participants, "synthetic": facts.synthetic,
@@ -104,7 +107,7 @@ def study_methods(study: Study, facts: StudyFacts, items: dict, kinds: KindStats
                        "interval_seconds": t.interval_seconds, "low": t.low, "high": t.high} for t in protocol.tasks],
         },
         "analysis": {
-            "primary": kinds.primary.analysis, "primary_text": kinds.primary.text,
+            "primary": kinds.primary.analysis if kinds else None, "primary_text": kinds.primary.text if kinds else None,
             "complete_cases": True, "kinds": [{"kind": k, "omnibus": KIND_TESTS[k][0], "pairs": KIND_TESTS[k][1],
                                                "describe": KIND_TESTS[k][2]} for k in asked],
             "holm": holm, "holm_family": family, "ci_level": CI_LEVEL, "software": _versions(),

@@ -8,6 +8,7 @@ reason. Markdown, or LaTeX through analysis/latex.py's escaping."""
 from __future__ import annotations
 
 from analysis import latex
+from analysis.jnd import jnd_results
 from analysis.study_snapshot import Study
 from analysis.study_stats import study_stats
 from sim.jsonable import jsonable
@@ -75,7 +76,8 @@ def _participants(m: dict, facts: dict) -> str:
     who = ("synthetic participants simulated by the platform, not people" if p["synthetic_participants"] and not p["person_participants"]
            else "people" if not p["synthetic_participants"]
            else f"{p['person_participants']} people and {p['synthetic_participants']} synthetic participants, pooled")
-    text = (f"{facts['flag'] + ' ' if facts['flag'] else ''}N = {p['n']} participants answered every question for every condition "
+    did = "answered every question for every condition" if m["procedure"]["questions"] else "took part in the discrimination task"
+    text = (f"{facts['flag'] + ' ' if facts['flag'] else ''}N = {p['n']} participants {did} "
             f"(target {p['target']}; ages {p['age_min']} to {p['age_max']} eligible); they were {who}.")
     if p["excluded"]:
         text += (f" {len(p['excluded'])} participants with incomplete answers were excluded from every analysis ("
@@ -157,12 +159,17 @@ def _analysis(m: dict) -> str:
     an = m["analysis"]
     level = f"{100 * an['ci_level']:g}%"
     text = f"The primary analysis was planned as a {an['primary_text']}." if an["primary_text"] else ""
+    if m["procedure"]["tasks"]:
+        text += (" Discrimination: each participant's Weber fraction per condition from a psychometric fit, the conditions' geometric "
+                 "means with t intervals on ln Weber fraction, and a linear mixed model, the Friedman test and Holm-corrected pairs "
+                 "across the conditions.")
     for k in an["kinds"]:
         text += (f" {KIND_WORDS[k['kind']].capitalize()} answers were compared across the conditions by {k['omnibus']} and between pairs "
                  f"of conditions by {k['pairs']}, and described by {k['describe']}.")
     scope = (f"over the family of all {an['holm_family']} pairwise tests" if an["holm"] == "family"
              else "within each question's pairwise tests")
-    text += (f" Pairwise p-values were corrected by Holm's method {scope}." if an["holm_family"] else " No pairwise test was made.")
+    if m["procedure"]["questions"]:
+        text += (f" Pairwise p-values were corrected by Holm's method {scope}." if an["holm_family"] else " No pairwise test was made.")
     text += (" Only complete cases were analysed; intervals are "
              f"{level}. Software: " + ", ".join(f"{k} {v}" for k, v in an["software"].items()) + ".")
     return text.strip()
@@ -255,14 +262,57 @@ def _deformation(st: dict) -> str:
 
 def study_text(study: Study, holm_scope: str = "family", fmt: str = "md") -> str:
     """The methods and results of `study` as Markdown (`fmt` "md") or LaTeX ("latex"), written
-    from the object `report stats --json` prints for it (same `holm_scope`)."""
-    st = jsonable(study_stats(study, holm_scope=holm_scope).as_dict())
+    from the object `report stats --json` prints for it (same `holm_scope`); for a study that
+    only discriminates (tasks, no questions), from the object `report jnd --json` prints."""
+    if study.protocol.tasks and not study.protocol.questions:
+        st = jsonable(jnd_results(study))
+    else:
+        st = jsonable(study_stats(study, holm_scope=holm_scope).as_dict())
     return latex_text(st) if fmt == "latex" else markdown(st)
+
+
+def _discrimination(res: dict) -> list[str]:
+    """The Weber fraction per condition and the group test (`report jnd --json`)."""
+    f = res["facts"]
+    out = [f"Each participant's Weber fraction was fitted by a {f['fit']['function']} psychometric function on {f['fit']['axis']} "
+           f"(slope {f['fit']['slope']}; lapse at most {f['fit']['lapse_max']:g}; interval: {f['fit']['interval']})."]
+    for c in res["conditions"]:
+        if not _finite(c.get("geometric_mean")):
+            out.append(f"{c['condition']}: no Weber fraction (no fit).")
+            continue
+        ci = (f", 95% CI [{pct(c['gm_low'])}, {pct(c['gm_high'])}]" if _finite(c.get("gm_low"))
+              else f" ({c.get('gm_reason') or 'no interval'})")
+        warn = f"; {c['gm_warning']}" if c.get("gm_warning") else ""
+        out.append(f"{c['condition']} (n = {c['n']}): geometric mean Weber fraction {pct(c['geometric_mean'])}{ci}, "
+                   f"median {pct(c['median'])}{warn}.")
+    g = res.get("group")
+    if g:
+        mm, fr = g.get("mixed_model") or {}, g.get("friedman") or {}
+        parts = []
+        if p_text(mm.get("p")) and mm.get("converged", True):
+            parts.append(f"a linear mixed model of ln Weber fraction, likelihood-ratio χ²({mm['df']}) = {mm['chi2']:.2f}, {p_text(mm['p'])}")
+        if p_text(fr.get("p")):
+            parts.append(f"the Friedman test, χ²({fr['df']}) = {fr['statistic']:.2f}, {p_text(fr['p'])}")
+        problems = "; ".join(g.get("problems") or [])
+        text = (f"Across the conditions ({g['n_participants']} participants): " + " and ".join(parts) + "." if parts
+                else f"The conditions were not compared: {problems or 'not estimable'}.")
+        shown = [p for p in g.get("pairs") or [] if _finite(p.get("p_holm")) and p["p_holm"] < SIGNIFICANT]
+        text += (" Pairs differing after Holm's correction: " + "; ".join(
+            f"{p['a']} vs {p['b']}, ratio {p['ratio']:.2f}, 95% CI [{p['ratio_low']:.2f}, {p['ratio_high']:.2f}], t({p['df']}) = "
+            f"{p['t']:.2f}, {p_text(p['p'])}, Holm-corrected {p_text(p['p_holm'])}" for p in shown) + "."
+                 if shown else " No pair of conditions differed after Holm's correction." if g.get("pairs") else "")
+        out.append(text)
+    return out
 
 
 def sections(st: dict) -> list[tuple[str, list[str]]]:
     """(heading, paragraphs) of the methods and results, from the `report stats --json` object `st`."""
-    m, facts, kinds = st["methods"], st["facts"], st["kinds"]
+    m, facts = st["methods"], st["facts"]
+    if "weber" in st:  # a discrimination study (`report jnd --json`)
+        results = ([facts["flag"]] if facts["flag"] else []) + (_discrimination(st) if st["weber"] else ["No discrimination trials yet."])
+        return [("Participants", [_participants(m, facts)]), ("Design", [_design(m)]), ("Apparatus", [_apparatus(m)]),
+                ("Procedure", [_procedure(m)]), ("Analysis", [_analysis(m)]), ("Results", results)]
+    kinds = st["kinds"]
     an = m["analysis"]
     family = (f"family of {an['holm_family']}" if st["holm"] == "family" else "within each question")
     results = [facts["flag"]] if facts["flag"] else []

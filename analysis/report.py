@@ -9,8 +9,10 @@ from pathlib import Path
 
 from analysis import plots, table1
 from analysis.accuracy import intro
+from analysis.figure_size import FigureSize, figure_size
 from analysis.formatting import PAGE_END, drawn_png, figure_html, page_head, png_base64, table_html
 from analysis.kinds import gee_line, kind_stats, kind_tables, measures, primary_line
+from analysis.latex import tables as latex_tables
 from analysis.plots import pareto_plot, stability_heatmap
 from analysis.stability import markdown, outcome_grid
 from analysis.study_snapshot import Study
@@ -18,8 +20,12 @@ from analysis.study_stats import study_stats
 from analysis.withhold import mean_sd
 
 
-def write_plots(study: Study, out_dir, force_traces: bool = True) -> list[Path]:
-    """rates, deformation and force plots as PNG and SVG in `out_dir`."""
+def write_plots(study: Study, out_dir, force_traces: bool = True, size: str | FigureSize = "screen") -> list[Path]:
+    """rates, ratings, scores, choices, deformation and force plots in `out_dir`, at `size`
+    (analysis/figure_size.py): "screen" (PNG and SVG, each figure's own size, as the HTML report
+    inlines them) or "single"/"double" (PDF, SVG and 600-dpi PNG, 85/175 mm wide). Returns the
+    files written, figure by figure."""
+    size = figure_size(size)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
 
@@ -31,36 +37,29 @@ def write_plots(study: Study, out_dir, force_traces: bool = True) -> list[Path]:
     kinds = kind_stats(study, answers)
     meas = measures(protocol, answers, study.periods)
     traces = plots.force_traces(protocol) if force_traces else None
+    figures = []
+    if len(r):
+        figures.append(("rates", lambda: plots.rates_figure(r, synthetic, size=size, models=models)))
+    if kinds.ratings:
+        figures.append(("ratings", lambda: plots.likert_figure(kinds.ratings, models, synthetic, size=size)))
+    if kinds.scores:
+        figures.append(("scores", lambda: plots.scores_figure(kinds.scores, meas, models, synthetic, size=size)))
+    for item, choice in kinds.choices.items():
+        figures.append((f"choice_{item}", lambda choice=choice: plots.choice_figure(choice, models, synthetic, size=size)))
+    figures.append(("deformation", lambda: plots.deformation_figure(study.latency_trials, synthetic, size=size, models=models)))
+    if traces is not None:
+        figures.append(("force", lambda: plots.force_figure(traces, size=size)))
     written = []
-    for ext in ("png", "svg"):
-        if len(r):
-            plots.rates_plot(r, out_dir / f"rates.{ext}", synthetic)
-            written.append(out_dir / f"rates.{ext}")
-        if kinds.ratings:
-            plots.likert_plot(kinds.ratings, models, out_dir / f"ratings.{ext}", synthetic)
-            written.append(out_dir / f"ratings.{ext}")
-        if kinds.scores:
-            plots.scores_plot(kinds.scores, meas, models, out_dir / f"scores.{ext}", synthetic)
-            written.append(out_dir / f"scores.{ext}")
-        for item, choice in kinds.choices.items():
-            plots.choice_plot(choice, models, out_dir / f"choice_{item}.{ext}", synthetic)
-            written.append(out_dir / f"choice_{item}.{ext}")
-        plots.deformation_plot(study.latency_trials, out_dir / f"deformation.{ext}", synthetic)
-        written.append(out_dir / f"deformation.{ext}")
-        if traces is not None:
-            plots.force_plot(traces, out_dir / f"force.{ext}")
-            written.append(out_dir / f"force.{ext}")
+    for name, draw in figures:
+        written += plots.save(draw(), out_dir / name, size)
     return written
 
 
 def latex(study: Study, holm_scope: str = "family") -> str:
-    """Table 1 as a LaTeX `table` (booktabs rules): the same columns and rows as the Markdown
-    and HTML tables (rates with Wilson intervals, Cochran's Q, McNemar p with Holm, the
-    deformation-time benchmark row). Every cell and the caption are escaped by pandas' Styler
-    (`escape="latex"`: & % $ # _ { } ~ ^ and backslash)."""
-    import pandas as pd
-
-
+    """Table 1 and each answer kind's table as LaTeX (analysis/latex.py: booktabs, wrapping
+    columns that fit the text block, escaped text, proper symbols): the same columns and rows as
+    the Markdown and HTML tables (rates with Wilson intervals, Cochran's Q, McNemar p with Holm,
+    the deformation-time benchmark row)."""
     facts, r, q, d = table1.study_facts(study), table1.rates(study), table1.cochran(study), table1.deformation(study)
     st = study_stats(study, r, q, holm_scope=holm_scope)
     models = list(d["model"])
@@ -70,26 +69,19 @@ def latex(study: Study, holm_scope: str = "family") -> str:
         rows.append([question] + [f"{x['yes']}/{x['no']}, {100 * x['rate']:.1f}% [{100 * x['wilson_low']:.1f}, {100 * x['wilson_high']:.1f}]"
                                   for x in item_rows]
                     + [table1.cochran_cell(qrow), "; ".join(table1.mcnemar_cell(p) for p in st.items[item].pairs)])
-    rows.append(["Time for real-time deformation, ms (benchmark of this machine)"]
-                + [mean_sd(x["mean_ms"], x["sd_ms"], x["n_participants"]) for _, x in d.iterrows()] + ["", ""])
-    df = pd.DataFrame(rows, columns=["Question", *models, "Cochran's Q (p)", f"McNemar p ({scope})"])
+    deformation_row = (["Time for real-time deformation, ms (benchmark of this machine)"]
+                       + [mean_sd(x["mean_ms"], x["sd_ms"], x["n_participants"]) for _, x in d.iterrows()])
     listed = table1.incomplete_text(facts)
     caption = ((f"{facts.flag} " if facts.flag else "")
                + f"{facts.study}: N = {facts.participants} participants with every answer; {facts.design}."
                + (f" Left out (incomplete): {listed}." if listed else ""))
-    tables = [(df, caption)] if len(r) else []
-    tables += [(pd.DataFrame(t["rows"], columns=t["columns"]), f"{t['title']}. {caption} {t['note']}")
-               for t in kind_tables(st.kinds, models, scope)]
+    columns = ["Question", *models, "Cochran's Q (p)", f"McNemar p ({scope})"]
+    tables = [{"title": "Table 1", "columns": columns, "rows": rows + [deformation_row + ["", ""]], "note": caption}] if len(r) else []
+    tables += [t | {"note": f"{caption} {t['note']}"} for t in kind_tables(st.kinds, models, scope)]
     if not len(r):  # the deformation row had no yes/no table to sit in
-        tables.append((df.iloc[[-1], : len(models) + 1], f"Deformation time (benchmark of this machine). {caption}"))
-    return "\n".join(_latex_table(t, c) for t, c in tables)
-
-
-def _latex_table(df, caption: str) -> str:
-    from pandas.io.formats.style_render import _escape_latex
-
-    styler = df.style.format(escape="latex").format_index(escape="latex", axis=1).hide(axis="index")
-    return styler.to_latex(hrules=True, caption=_escape_latex(caption), column_format="l" + "c" * (len(df.columns) - 1), position_float="centering")
+        tables.append({"title": "Deformation time (benchmark of this machine)", "columns": columns[: len(models) + 1],
+                       "rows": [deformation_row], "note": caption})
+    return latex_tables(tables, "tab:" + facts.study)
 
 
 FIGURES = ("rates", "ratings", "scores", "choice", "deformation", "force")

@@ -21,6 +21,7 @@ from scipy import stats
 
 from analysis import validity as v
 from analysis.formatting import PAGE_END, figure_png, p_value, page_head
+from analysis.latex import tables as latex_tables
 from analysis.metrics import UNITS, metrics_table, study_goals
 from analysis.plots import OTHER_COLORS, _plt
 from analysis.stats import holm
@@ -439,6 +440,17 @@ def markdown(rep: dict) -> str:
         if cols:
             lines += _table(cols, rows) + [""]
     return "\n".join(lines)
+
+
+def latex(rep: dict) -> str:
+    """The report's tables as LaTeX (analysis/latex.py), each section's text its caption; the
+    title, the synthetic note and the header lines as a comment and the first caption's start."""
+    lead = " ".join([rep["note"] + f" {rep['synthetic_participants']} synthetic participants." if rep["note"] else "",
+                     *header_lines(rep)]).strip()
+    ts = [{"title": name, "columns": cols, "rows": rows, "note": text} for name, text, cols, rows in sections(rep) if cols]
+    if ts:
+        ts[0] = ts[0] | {"note": f"{title(rep)}. {lead} {ts[0]['note']}"}
+    return latex_tables(ts, "tab:validity")
 
 
 # ---------------------------------------------------------------- html and its plots

@@ -132,7 +132,7 @@ def test_the_pareto_plots_legend_covers_no_point():
     fig = pareto_figure(rows)
     fig.canvas.draw()
     ax = fig.axes[0]
-    box = ax.get_legend().get_window_extent()
+    box = (ax.get_legend() or fig.legends[0]).get_window_extent()  # below the axes since issue 46 (a figure legend)
     points = ax.transData.transform([(r["frame_ms"], r["force_error"]) for r in rows])
     _plt().close(fig)
     assert not [p for p in points if box.x0 - 5 <= p[0] <= box.x1 + 5 and box.y0 - 5 <= p[1] <= box.y1 + 5]
@@ -178,10 +178,21 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
         if cal == "calibrated":
             c = [s for s in out["samples"] if s["setting"] == setting and s["calibration"] == "raw" and s["set"] == "calibration"]
             assert r["scale"] == pytest.approx(np.exp(np.mean([np.log(s["reference_force_n"] / s["force_n"]) for s in c])))
-    assert sorted(p.name for p in d.iterdir()) == ["accuracy.csv", "accuracy.json", "accuracy.md", "pareto.png", "pareto.svg", "samples.csv"]
+    assert sorted(p.name for p in d.iterdir()) == ["accuracy.csv", "accuracy.json", "accuracy.md", "accuracy.tex", "pareto.png", "pareto.svg",
+                                                   "samples.csv"]
     assert 0.0 <= out["meta"]["coupling_bound"]["scene"] <= out["meta"]["coupling_bound"]["omni_max"] <= 1.0
     assert {(b["model"], b["calibration"]) for b in out["best"]} == {(m, c) for m in ("plate_spring", "fem", "mass_spring") for c in ("raw", "calibrated")}
     assert "Each class at its best" in (d / "accuracy.md").read_text()
+
+
+def test_the_accuracy_tables_compile_and_fit_an_a4_page(small_bench, tmp_path):
+    from analysis.latex import document
+    from tests.helpers import latex_problems
+
+    _, d = small_bench
+    tex = (d / "accuracy.tex").read_text()
+    assert tex.count("\\begin{landscape}") == 2 and "\\toprule" in tex and "+-" not in tex  # 12 and 9 columns turn the page
+    assert latex_problems(document(tex), tmp_path) == []
 
 
 def test_report_carries_the_accuracy_table_and_pareto_plot(small_bench, small_study, tmp_path):
@@ -194,6 +205,8 @@ def test_report_carries_the_accuracy_table_and_pareto_plot(small_bench, small_st
     assert "Model error against run time" in page and 'alt="pareto"' in page and "linear-8mm" in page
     md = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--accuracy", str(d / "accuracy.json")]).output
     assert "| fem | linear-8mm | raw |" in md and "| fem | linear-8mm | calibrated |" in md and "14.69" in md
+    tex = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "latex", "--accuracy", str(d / "accuracy.json")]).output
+    assert "\\label{tab:accuracy:1}" in tex and "linear-8mm" in tex
     (tmp_path / "bad.json").write_text("{}")
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--accuracy", str(tmp_path / "bad.json")])
     assert res.exit_code == 1 and "bad.json: not a `studyctl bench accuracy` result" in res.output

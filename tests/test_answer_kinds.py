@@ -9,13 +9,14 @@ import sqlite3
 import numpy as np
 import pytest
 
+from analysis.latex import document
 from studyctl import instruments
 from studyctl.observer import likert_answer, likert_thresholds
 from studyctl.protocol import check_protocol, load_protocol
 from studyctl.questions import Question
 from studyctl.synthetic_study import run_synthetic_study
 from tests.conftest import ROOT
-from tests.helpers import QUESTIONS, kinds_protocol, studyctl
+from tests.helpers import QUESTIONS, kinds_protocol, latex_problems, studyctl
 
 
 def test_the_shipped_example_validates():
@@ -142,7 +143,9 @@ def test_a_synthetic_study_answers_every_kind_in_its_type_and_reports_each(tmp_p
     for fmt in ("html", "latex"):  # --holm reaches every format
         assert "Holm within each question" in studyctl("report", "table1", "--format", fmt, "--holm", "question", "--db", db).output
     latex = studyctl("report", "table1", "--format", "latex", "--db", db).output
-    assert latex.count("\\begin{table}") == 4  # yes/no, ratings, scores, choice (free text is not analysed)
+    # yes/no, ratings, scores, choice (free text is not analysed), each a float or, when taller than the page, a longtable
+    assert latex.count("\\begin{table}") + latex.count("\\begin{longtable}") == 4 and latex.count("\\toprule") >= 4
+    assert latex_problems(document(latex), tmp_path) == []  # compiles, nothing wider than the A4 text block
     js = json.loads(studyctl("report", "table1", "--format", "json", "--db", db).output)
     assert set(js["kinds"]["scores"]) == set(k["scores"]) and js["rates"][0]["item"] == "stable"
     out = tmp_path / "export"

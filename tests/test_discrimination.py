@@ -15,9 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from analysis.latex import document
 from sim.scene import Scene, load_scene
 from studyctl.protocol import check_protocol, load_protocol
-from tests.helpers import JND, jnd_protocol
+from tests.helpers import JND, jnd_protocol, latex_problems, unsupported_numbers
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -346,3 +347,7 @@ def test_report_jnd_gives_each_conditions_weber_fractions_and_the_group_test(tmp
     assert html.count('<img alt="psychometric') == 3 and "SYNTHETIC DATA" in html
     table1 = studyctl("report", "table1", "--db", db).output
     assert table1 == md
+    text = studyctl("report", "text", "--db", db).output  # the methods and results, every number from `report jnd --json`
+    assert "SYNTHETIC DATA" in text and "geometric mean Weber fraction" in text and unsupported_numbers(text, out) == []
+    tex = studyctl("report", "jnd", "--db", db, "--format", "latex").output  # its tables compile and fit the A4 text block
+    assert "SYNTHETIC DATA" in tex and tex.count("\\toprule") >= 2 and latex_problems(document(tex), tmp_path) == []

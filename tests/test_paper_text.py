@@ -9,47 +9,7 @@ import re
 import pytest
 
 from analysis import paper_text
-
-NUMBER = re.compile(r"(?<![\w.])(-?\d*\.?\d+)(%?)(?![\w.]*\d)")
-
-
-def _leaves(obj, numbers: list, strings: list) -> None:
-    if isinstance(obj, dict):
-        for v in obj.values():
-            _leaves(v, numbers, strings)
-    elif isinstance(obj, list):
-        for v in obj:
-            _leaves(v, numbers, strings)
-    elif isinstance(obj, bool) or obj is None:
-        return
-    elif isinstance(obj, (int, float)):
-        numbers.append(float(obj))
-    elif isinstance(obj, str):
-        strings.append(obj)
-
-
-def unsupported_numbers(text: str, doc: dict) -> list[str]:
-    """The numbers of `text` that no value of `doc` gives at the printed precision (as printed,
-    or as a percentage), once the strings `doc` holds (question texts, names, versions, formulas)
-    are taken out of the text. 'p < .001' is checked against the p-values below .001."""
-    numbers, strings = [], []
-    _leaves(doc, numbers, strings)
-    for s in sorted(set(strings), key=len, reverse=True):
-        if len(s) >= 3 and s in text:
-            text = text.replace(s, " ")
-    missing = []
-    if "p < .001" in text:
-        if not any(0 <= x < 0.0005 for x in numbers):
-            missing.append("p < .001")
-        text = text.replace("p < .001", " ")
-    for m in NUMBER.finditer(text):
-        token, percent = m.group(1), m.group(2)
-        value = float(token)
-        decimals = len(token.split(".")[1]) if "." in token else 0
-        scale = 100.0 if percent else 1.0
-        if not any(round(x * scale, decimals) == round(value, decimals) for x in numbers):
-            missing.append(m.group(0))
-    return missing
+from tests.helpers import unsupported_numbers
 
 
 def test_the_checker_finds_a_number_the_json_does_not_hold():

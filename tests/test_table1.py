@@ -8,10 +8,11 @@ import pytest
 from click.testing import CliRunner
 from scipy.stats import norm
 
+from analysis.latex import document
 from analysis.stats import wilson
 from studyctl.cli import cli
 from studyctl.synthetic_study import run_synthetic_study
-from tests.helpers import fast_protocol
+from tests.helpers import fast_protocol, latex_problems
 
 
 @pytest.mark.parametrize("yes, n, lo, hi", [(81, 263, 0.2553, 0.3662), (15, 148, 0.0624, 0.1605), (0, 20, 0.0000, 0.1611)])
@@ -269,8 +270,10 @@ def test_report_stats_json_keys(tmp_path):
 def test_latex_html_and_plots(small_study, tmp_path):
     db = small_study
     tex = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "latex"]).output
-    assert tex.startswith("\\begin{table}") and "SYNTHETIC DATA" in tex and tex.count("\\\\") == 11  # header, 9 questions, deformation
-    assert re.search(r"McNemar p \(Holm over all \d+ pairs tested\)", tex) and "benchmark of this machine" in tex
+    assert tex.startswith("% needs in the preamble") and "SYNTHETIC DATA" in tex and "\\toprule" in tex and "+-" not in tex
+    assert sum(ln.startswith("Is ") or ln.startswith("Does ") or ln.startswith("Can ") or ln.startswith("Are ") for ln in tex.splitlines()) == 9
+    assert re.search(r"McNemar p \(Holm over all \d+ pairs tested\)", tex) and "benchmark of this machine" in tex and "$\\pm$" in tex
+    assert latex_problems(document(tex), tmp_path) == []  # compiles with booktabs, nothing wider than the A4 text block
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "html", "--out", str(tmp_path / "r.html")])
     assert res.exit_code == 0, res.output
     page = (tmp_path / "r.html").read_text()
@@ -364,16 +367,17 @@ def test_latex_table_escapes_every_special_character_and_has_the_other_formats_c
     tex = latex(_read(_answers_db(tmp_path, answers, protocol=protocol)))
     row = next(line for line in tex.splitlines() if line.startswith("Is \\{it"))
     question = row.split(" & ")[0]
-    assert question == ("Is \\{it\\} \\$5\\textasciicircum 2 \\textasciitilde \\space \\& 50\\% of\\_the \\#1 "
+    assert question == ("Is \\{it\\} \\$5\\textasciicircum 2 \\textasciitilde \\space \\& 50\\% of\\_\\allowbreak{}the \\#1 "
                         "\\textbackslash \\space case?")
-    # nothing special is left unescaped in any cell: drop the escapes, then look for the characters
-    for line in [x for x in tex.splitlines() if x.endswith(" \\\\")]:
-        body = line.removesuffix(" \\\\")
+    # nothing special is left unescaped in any cell: drop the escapes (and the symbols written as LaTeX), then look for the characters
+    rows = [x for x in tex.splitlines() if x.endswith(" \\\\") and not x.startswith("\\textbf") and not x.startswith("\\caption")]
+    for line in rows:
+        body = line.removesuffix(" \\\\").replace("$\\pm$", "").replace("$-$", "")
         cells = re.split(r"(?<!\\)&", body)
         assert len(cells) == 6, line  # question, three models, Cochran's Q, McNemar
-        rest = re.sub(r"\\(textasciicircum|textasciitilde|textbackslash|space)|\\[{}$&%_#]", "", body.replace(" & ", " "))
+        rest = re.sub(r"\\(textasciicircum|textasciitilde|textbackslash|space|allowbreak\{\})|\\[{}$&%_#]", "", body.replace(" & ", " "))
         assert not re.search(r"[{}$^~%_#\\]", rest), line
-    assert tex.count("\\\\") == 11 and "\\toprule" in tex and "\\bottomrule" in tex
+    assert len(rows) == 10 and "\\toprule" in tex and "\\bottomrule" in tex  # 9 questions and the deformation row
 
 
 def test_gee_says_not_estimable_when_a_model_answers_alike_throughout(tmp_path):

@@ -14,10 +14,11 @@ import pytest
 
 from analysis import validity_report as report_mod
 from analysis import validity_report as vr
+from analysis.latex import document
 from analysis.metrics import COLUMNS
 from analysis.study_snapshot import read_study
 from studyctl.store import Store
-from tests.helpers import fast_protocol, field_protocol, studyctl
+from tests.helpers import fast_protocol, field_protocol, latex_problems, studyctl
 
 ORDER = ["student", "resident", "neurosurgeon"]
 SECRET = "SECRET-REMARK-7f3a"  # a text field's value: never in a report
@@ -178,6 +179,13 @@ def test_markdown_structure(db, built):
     assert face[4] == "| question | condition | student: median [IQR] (n) | resident: median [IQR] (n) | neurosurgeon: median [IQR] (n) | H | p | p_holm |"
     assert face[6].startswith("| The brain tissue moved as real brain tissue does. | plate_spring | ")
     assert face[7].startswith("| SUS score (0-100) | whole session | ")
+
+
+def test_the_latex_tables_compile_and_fit_an_a4_page(db, built, tmp_path):
+    built()
+    tex = report(db, "--format", "latex")
+    assert "SYNTHETIC DATA" in tex and tex.count("\\toprule") >= 8 and "Face validity ratings" in tex
+    assert latex_problems(document(tex), tmp_path) == []
 
 
 def test_html_has_a_figure_per_metric_and_says_synthetic(db, built, tmp_path):

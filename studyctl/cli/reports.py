@@ -31,7 +31,7 @@ HOLM = click.option("--holm", "holm_scope", type=click.Choice(["family", "questi
 @click.option("--format", "fmt", type=click.Choice(["md", "csv", "latex", "html", "json"]), default="md", show_default=True)
 @click.option("--out", "out_file", type=OutFile(), default=None)
 @click.option("--accuracy", "accuracy_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
-              help="accuracy.json from `studyctl bench accuracy --out`: add its table (md, html) and Pareto plot (html).")
+              help="accuracy.json from `studyctl bench accuracy --out`: add its tables (md, latex, html) and Pareto plot (html).")
 @click.option("--stability", "stability_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="stability.json from `studyctl bench stability --out`: add its heat map and unstable cases (md, html).")
 def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
@@ -42,9 +42,9 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
 
     study = read_snapshot(db)
     if study.protocol.tasks and not study.protocol.questions:  # a discrimination study without questions: its section is the report
-        if fmt in ("csv", "latex"):
+        if fmt == "csv":
             raise click.ClickException(f"--format {fmt}: the study asks no questions (no Table 1); its discrimination task "
-                                       "reports as md, html or json (`studyctl report jnd`)")
+                                       "reports as md, html, latex or json (`studyctl report jnd`)")
         _emit(_jnd_text(study, fmt), out_file)
         return
     if _no_answers(study, fmt == "json"):
@@ -62,9 +62,14 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
 
             text += "\n## Numerical stability\n\n" + stability_md(stability)
     elif fmt == "latex":
+        from analysis.latex import tables as latex_tables
         from analysis.report import latex
 
         text = latex(study, holm_scope)
+        if accuracy:
+            from analysis.accuracy import tables as accuracy_tables
+
+            text += latex_tables(accuracy_tables(accuracy), "tab:accuracy")
     elif fmt == "html":
         from analysis.report import html
 
@@ -82,8 +87,8 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
                                      "cochran": q.to_dict(orient="records"), "kinds": study_stats(study, r, q, holm_scope).kinds.as_dict(),
                                      "deformation": table1.deformation(study).to_dict(orient="records")}
                                     | ({"jnd": _jnd(study)} if study.protocol.tasks else {})), indent=2)
-    if study.protocol.tasks and fmt == "md":
-        text += "\n## Stiffness discrimination\n\n" + _jnd_text(study, "md")
+    if study.protocol.tasks and fmt in ("md", "latex"):
+        text += ("\n## Stiffness discrimination\n\n" if fmt == "md" else "\n") + _jnd_text(study, fmt)
     elif study.protocol.tasks and fmt == "html":
         from analysis.jnd import html_section
 
@@ -143,12 +148,12 @@ def _jnd_text(study, fmt: str) -> str:
     res = _jnd(study)
     if fmt == "json":
         return json.dumps(jsonable(res), indent=2) + "\n"
-    return jnd.html(res, study) if fmt == "html" else jnd.markdown(res)
+    return jnd.html(res, study) if fmt == "html" else jnd.latex(res) if fmt == "latex" else jnd.markdown(res)
 
 
 @report.command("jnd")
 @DB
-@click.option("--format", "fmt", type=click.Choice(["md", "html", "json"]), default="md", show_default=True)
+@click.option("--format", "fmt", type=click.Choice(["md", "html", "json", "latex"]), default="md", show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
 @click.option("--out", "out_file", type=OutFile(), default=None)
 def report_jnd(db, fmt, as_json, out_file):
@@ -164,20 +169,24 @@ def report_jnd(db, fmt, as_json, out_file):
 
 @report.command("plots")
 @DB
-@click.option("--out", "out_dir", required=True, type=OutDir(), help="A folder (made if missing) for the PNG and SVG files.")
+@click.option("--out", "out_dir", required=True, type=OutDir(), help="A folder (made if missing) for the figure files.")
+@click.option("--size", type=click.Choice(["screen", "single", "double"]), default="screen", show_default=True,
+              help="screen: PNG and SVG at each figure's own size (the HTML report's); single or double: a journal's one or "
+                   "two columns, 85 or 175 mm wide, as PDF (fonts embedded), SVG and 600-dpi PNG.")
 @JSON
-def report_plots(db, out_dir, as_json):
-    """Rates with intervals, deformation times, and force traces against the converged reference (PNG and SVG)."""
+def report_plots(db, out_dir, size, as_json):
+    """Rates with intervals, ratings, scores, choices, deformation times, and force traces against the converged reference."""
+    from analysis.figure_size import file_info
     from analysis.report import write_plots
 
     study = read_snapshot(db)
     if _no_answers(study, as_json):
         return
-    files = write_plots(study, out_dir)
+    files = write_plots(study, out_dir, size=size)
     if as_json:
-        _print_json({"out": str(out_dir), "files": [str(f) for f in files]})
+        _print_json({"out": str(out_dir), "size": size, "files": [file_info(f) for f in files]})
         return
-    click.echo(f"wrote {len(files)} files to {out_dir}")
+    click.echo(f"wrote {len(files)} files ({size} size) to {out_dir}")
 
 
 @report.command("stats")
@@ -254,14 +263,13 @@ def report_stats(db, holm_scope, as_json):
 @click.option("--out", "out_file", type=OutFile(), default=None)
 def report_text(db, holm_scope, style, fmt, out_file):
     """The methods and results paragraphs for a paper (participants, design, apparatus, procedure,
-    analysis, results), every number taken from what `report stats --json` prints; synthetic
-    data said first, withheld statistics withheld with their reason."""
+    analysis, results), every number taken from what `report stats --json` prints (`report jnd
+    --json` for a discrimination study); synthetic data said first, withheld statistics withheld
+    with their reason."""
     from analysis.paper_text import study_text
 
     study = read_snapshot(db)
-    if study.protocol.tasks and not study.protocol.questions:
-        raise click.ClickException("the study asks no questions; its discrimination task reports with `studyctl report jnd`")
-    if _no_answers(study, False):
+    if not (study.protocol.tasks and not study.protocol.questions) and _no_answers(study, False):
         return
     _emit(study_text(study, holm_scope, fmt), out_file)
 
@@ -309,7 +317,7 @@ def export_cmd(db, fmt, out_dir, as_json):
 
 @report.command("validity")
 @DB
-@click.option("--format", "fmt", type=click.Choice(["md", "html", "json"]), default="md", show_default=True)
+@click.option("--format", "fmt", type=click.Choice(["md", "html", "json", "latex"]), default="md", show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
 @click.option("--out", "out_file", type=OutFile(), default=None)
 @click.option("--permutations", type=click.IntRange(min=1), default=None, show_default="100",
@@ -336,5 +344,5 @@ def report_validity(db, fmt, as_json, out_file, permutations, group_permutations
         study, permutations=permutations, group_permutations=group_permutations, bootstrap=bootstrap, seed=seed,
         progress=progress))
     fmt = "json" if as_json else fmt
-    text = vr.to_json(rep) if fmt == "json" else vr.html(rep) if fmt == "html" else vr.markdown(rep)
+    text = {"json": vr.to_json, "html": vr.html, "latex": vr.latex}.get(fmt, vr.markdown)(rep)
     _emit(text, out_file)
