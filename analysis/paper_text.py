@@ -7,6 +7,8 @@ reason. Markdown, or LaTeX through analysis/latex.py's escaping."""
 
 from __future__ import annotations
 
+import json
+
 from analysis import latex
 from analysis.jnd import jnd_results
 from analysis.study_snapshot import Study
@@ -261,13 +263,16 @@ def _deformation(st: dict) -> str:
 
 
 def study_text(study: Study, holm_scope: str = "family", fmt: str = "md") -> str:
-    """The methods and results of `study` as Markdown (`fmt` "md") or LaTeX ("latex"), written
+    """The methods and results of `study` as Markdown (`fmt` "md"), LaTeX ("latex") or JSON, written
     from the object `report stats --json` prints for it (same `holm_scope`); for a study that
     only discriminates (tasks, no questions), from the object `report jnd --json` prints."""
     if study.protocol.tasks and not study.protocol.questions:
         st = jsonable(jnd_results(study))
     else:
         st = jsonable(study_stats(study, holm_scope=holm_scope).as_dict())
+    if fmt == "json":  # for machines: the same paragraphs under their headings
+        return json.dumps({"sections": [{"heading": h, "paragraphs": [p for p in ps if p]} for h, ps in sections(st)]}, indent=2,
+                          ensure_ascii=False) + "\n"
     return latex_text(st) if fmt == "latex" else markdown(st)
 
 

@@ -25,6 +25,19 @@ def small_study(tmp_path_factory):
     return db
 
 
+@pytest.fixture(scope="session")
+def variants_study(tmp_path_factory):
+    """A small SYNTHETIC study of the shipped ratings example (Likert items, the SUS after each
+    condition, a choice at the end), shared by the report tests."""
+    from studyctl.synthetic_study import run_synthetic_study
+    from tests.helpers import variants_protocol
+
+    tmp = tmp_path_factory.mktemp("variants")
+    db = tmp / "v.db"
+    run_synthetic_study(db, 6, seed=7, protocol_path=variants_protocol(tmp))
+    return db
+
+
 def write_params(path: Path, **overrides) -> Path:
     """A plate-spring parameter file: the brain defaults with `overrides` (None drops a key)."""
     import tomllib

@@ -23,18 +23,6 @@ PRINT = {"single": 85.0, "double": 175.0}
 TALL = {"ratings", "force", "stability"}  # as tall as their content: rows, panels, cases
 
 
-@pytest.fixture(scope="module")
-def variants_study(tmp_path_factory):
-    """A SYNTHETIC study with ratings, a score and a choice (the shipped ratings example)."""
-    from studyctl.synthetic_study import run_synthetic_study
-    from tests.helpers import variants_protocol
-
-    tmp = tmp_path_factory.mktemp("variants")
-    db = tmp / "v.db"
-    run_synthetic_study(db, 6, seed=7, protocol_path=variants_protocol(tmp))
-    return db
-
-
 def shown_texts(fig) -> list[Text]:
     """Every text the figure draws: visible, not empty, not in a hidden axes, and, for tick
     labels, only those of ticks inside the axis' view (matplotlib keeps others unused)."""

@@ -60,15 +60,16 @@ def test_a_pull_just_within_the_bound_is_accepted_and_just_beyond_refused():
     _refused([*FEM, "--grasp", LEFT, "--displacement", "0.03,0.0401,0"], ["'--displacement'", "is 0.05008 m long"])
 
 
-@pytest.mark.parametrize("as_json", [False, True])
-def test_a_corotational_solve_that_does_not_converge_fails(as_json):
-    args = [*FEM, "--grasp", LEFT, "--displacement=-0.05,0,0", "--formulation", "corotational", "--steps", "1"]
-    line = _refused([*args, "--json"] if as_json else args, ["corotational solve stopped", "--steps", "--displacement"], exit_code=1)
-    assert line == ("Error: the corotational solve stopped after 0 of 1 load steps (elements inverted): the force is not the "
-                    "requested pull's; try more --steps or a shorter --displacement")
-    if as_json:  # the report is still there, and says so
-        res = CliRunner().invoke(cli, [*args, "--json"])
-        assert json.loads(res.stdout)["converged"] is False
+def test_a_corotational_solve_that_does_not_converge_fails():
+    """One line on stderr, exit 1, and the --json report still printed, saying so (one solve: it
+    iterates to its limit, about a minute)."""
+    args = [*FEM, "--grasp", LEFT, "--displacement=-0.05,0,0", "--formulation", "corotational", "--steps", "1", "--json"]
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 1 and "Traceback" not in res.output, res.output
+    errors = [line for line in res.stderr.splitlines() if line.startswith("Error")]
+    assert errors == ["Error: the corotational solve stopped after 0 of 1 load steps (elements inverted): the force is not the "
+                      "requested pull's; try more --steps or a shorter --displacement"]
+    assert json.loads(res.stdout)["converged"] is False
 
 
 def test_a_finite_strain_solve_that_does_not_converge_fails():

@@ -28,18 +28,6 @@ def test_apa_numbers():
     assert paper_text.sig(0.004182567) == "0.00418" and paper_text.sig(6.7449) == "6.74" and paper_text.sig(4502.887) == "4503"
 
 
-@pytest.fixture(scope="module")
-def variants_study(tmp_path_factory):
-    """A SYNTHETIC study of the shipped ratings example."""
-    from studyctl.synthetic_study import run_synthetic_study
-    from tests.helpers import variants_protocol
-
-    tmp = tmp_path_factory.mktemp("variants")
-    db = tmp / "v.db"
-    run_synthetic_study(db, 6, seed=7, protocol_path=variants_protocol(tmp))
-    return db
-
-
 def _text_and_json(db, *args) -> tuple[str, dict]:
     from tests.helpers import studyctl
 
@@ -74,3 +62,12 @@ def test_the_latex_text_compiles(variants_study, tmp_path):
     text, _ = _text_and_json(variants_study, "--format", "latex")
     assert "\\subsection*{Results}" in text and "$\\chi$$^{2}$(2)" in text
     assert latex_problems(document(text), tmp_path) == []
+
+
+def test_json_holds_the_same_paragraphs(small_study):
+    from tests.helpers import studyctl
+
+    md = studyctl("report", "text", "--db", small_study).output
+    js = json.loads(studyctl("report", "text", "--db", small_study, "--json").output)
+    assert [s["heading"] for s in js["sections"]] == re.findall(r"^## (\w+)", md, re.M)
+    assert all(p in md for s in js["sections"] for p in s["paragraphs"])

@@ -259,9 +259,10 @@ def report_stats(db, holm_scope, as_json):
 @DB
 @HOLM
 @click.option("--style", type=click.Choice(["apa"]), default="apa", show_default=True, help="Number style: APA 7 (p = .066, p < .001).")
-@click.option("--format", "fmt", type=click.Choice(["md", "latex"]), default="md", show_default=True)
+@click.option("--format", "fmt", type=click.Choice(["md", "latex", "json"]), default="md", show_default=True)
+@click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
 @click.option("--out", "out_file", type=OutFile(), default=None)
-def report_text(db, holm_scope, style, fmt, out_file):
+def report_text(db, holm_scope, style, fmt, as_json, out_file):
     """The methods and results paragraphs for a paper (participants, design, apparatus, procedure,
     analysis, results), every number taken from what `report stats --json` prints (`report jnd
     --json` for a discrimination study); synthetic data said first, withheld statistics withheld
@@ -271,7 +272,7 @@ def report_text(db, holm_scope, style, fmt, out_file):
     study = read_snapshot(db)
     if not (study.protocol.tasks and not study.protocol.questions) and _no_answers(study, False):
         return
-    _emit(study_text(study, holm_scope, fmt), out_file)
+    _emit(study_text(study, holm_scope, "json" if as_json else fmt), out_file)
 
 
 @report.command("published")
