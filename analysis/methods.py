@@ -12,7 +12,8 @@ from importlib.metadata import PackageNotFoundError, version
 from analysis.facts import StudyFacts
 from analysis.kind_results import KindStats
 from analysis.study_snapshot import Study
-from studyctl.instruments import SOURCES
+from analysis.table1 import material_keys
+from studyctl.instruments import SOURCES, TITLES
 
 CI_LEVEL = 0.95  # every interval the reports print
 ANALYSIS_PACKAGES = ("numpy", "scipy", "pandas", "statsmodels", "scikit-learn")
@@ -39,7 +40,7 @@ def _versions() -> dict[str, str]:
 
 
 def _groups(study: Study, complete: set[str]) -> dict | None:
-    """The design's group field and how many complete participants are in each of its values."""
+    """The design's group field and how many of the `complete` participants are in each value."""
     field = study.protocol.groups
     if not field:
         return None
@@ -51,14 +52,20 @@ def _groups(study: Study, complete: set[str]) -> dict | None:
 
 
 def _model(config: dict | None) -> dict:
-    """A condition's resolved configuration as a methods section names it."""
+    """A condition's resolved configuration as a methods section names it: its options (a
+    plate-spring's variant and parameter file among them) and only the material values the
+    model reads (a plate-spring stack has its own stiffness; a mass-spring reads E alone)."""
     if not config:
         return {}
+    options = dict(config.get("options") or {}) | ({"variant": config["variant"]} if "variant" in config else {})
+    options = {k: v["file"] if isinstance(v, dict) and "file" in v else v for k, v in options.items()}
     material = config.get("material") or {}
-    law = material.get("law") if isinstance(material.get("law"), dict) else None
-    return {"options": config.get("options") or {}, "mesh": (config.get("mesh") or {}).get("file"),
-            "law": law.get("law") if law else None, "young_pa": material.get("young"), "poisson": material.get("poisson"),
-            "density": material.get("density")}
+    keys = material_keys(config["model"])
+    # the hyperelastic law only where the formulation solves it (the linear FEM reads E and nu)
+    finite = options.get("formulation") in ("finite-strain", "nodal-pressure")
+    law = material.get("law") if isinstance(material.get("law"), dict) and finite else None
+    return {"options": options, "mesh": (config.get("mesh") or {}).get("file"), "law": law.get("law") if law else None,
+            "young_pa": material.get("young") if "young" in keys else None, "poisson": material.get("poisson") if "poisson" in keys else None}
 
 
 def study_methods(study: Study, facts: StudyFacts, items: dict | None = None, kinds: KindStats | None = None,
@@ -69,7 +76,9 @@ def study_methods(study: Study, facts: StudyFacts, items: dict | None = None, ki
     study without questions; `holm`: its scope)."""
     items = items or {}
     protocol = study.protocol
-    complete = set(study.answers["code"]) - {r["code"] for r in facts.incomplete_participants}
+    # the participants the results count: those who answered everything, or who discriminated
+    answered = set(study.answers["code"]) or set(study.discrimination["code"])
+    complete = answered - {r["code"] for r in facts.incomplete_participants}
     configs = facts.conditions
     rates = {(c["config"] or {}).get("servo_rate_hz") for c in configs}
     visual = {(c["config"] or {}).get("visual_rate_hz") for c in configs}
@@ -101,7 +110,7 @@ def study_methods(study: Study, facts: StudyFacts, items: dict | None = None, ki
             "questions": [{"id": q.id, "text": q.text, "kind": q.kind, "when": q.when, "points": q.points,
                            "anchors": list(q.anchors) if q.anchors else None, "instrument": q.instrument}
                           for q in protocol.questions if not q.instrument],
-            "instruments": [{"name": name, "when": when, "source": SOURCES[name],
+            "instruments": [{"name": name, "title": TITLES[name], "when": when, "source": SOURCES[name],
                              "items": sum(1 for q in protocol.questions if q.instrument == name)} for name, when in protocol.instruments],
             "tasks": [{"kind": t.kind, "parameter": t.parameter, "method": t.method, "trials": t.trials, "question": t.question,
                        "interval_seconds": t.interval_seconds, "low": t.low, "high": t.high} for t in protocol.tasks],

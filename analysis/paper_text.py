@@ -17,6 +17,9 @@ from sim.jsonable import jsonable
 
 KIND_WORDS = {"yes_no": "yes/no question", "likert": "rating", "vas": "visual analogue scale", "choice": "choice among the conditions"}
 WHEN_WORDS = {"condition": "after each condition", "trial": "after each trial", "end": "once, after the last condition"}
+# the rig's latency measures (studyctl.protocol.LATENCY_MEASURES) in words, with their units
+MEASURES = {"deformation_ms": "deformation time per frame (ms)", "tick_interval_p99_us": "servo tick interval, 99th percentile (µs)",
+            "read_to_force_us": "time from device read to force (µs)", "tick_compute_us": "servo tick computation (µs)"}
 SIGNIFICANT = 0.05  # which pairwise tests the results name (after Holm); the rest are counted
 
 
@@ -53,6 +56,8 @@ def sig(x, digits: int = 3) -> str:
 
 def _names(xs) -> str:
     xs = list(xs)
+    if not xs:
+        return "none"
     return xs[0] if len(xs) == 1 else ", ".join(xs[:-1]) + (", and " if len(xs) > 2 else " and ") + xs[-1]
 
 
@@ -64,7 +69,7 @@ def _pairs_text(pairs: list[dict], describe, what: str, family: str) -> str:
     out = []
     if shown:
         out.append(f"{what} differing after Holm's correction ({family}): "
-                   + "; ".join(f"{p['a']} vs {p['b']}, {describe(p)}, {p_text(p['p_value'])}, Holm-corrected {p_text(p['p_holm'])}"
+                   + "; ".join(f"{describe(p)}, {p_text(p['p_value'])}, Holm-corrected {p_text(p['p_holm'])}"
                                for p in shown) + ".")
     elif tested:
         out.append(f"No {what.lower()} differed after Holm's correction ({family}).")
@@ -78,11 +83,13 @@ def _participants(m: dict, facts: dict) -> str:
     who = ("synthetic participants simulated by the platform, not people" if p["synthetic_participants"] and not p["person_participants"]
            else "people" if not p["synthetic_participants"]
            else f"{p['person_participants']} people and {p['synthetic_participants']} synthetic participants, pooled")
-    did = "answered every question for every condition" if m["procedure"]["questions"] else "took part in the discrimination task"
+    asked = m["procedure"]["questions"] or m["procedure"]["instruments"]
+    did = "answered every question for every condition" if asked else "took part in the discrimination task"
     text = (f"{facts['flag'] + ' ' if facts['flag'] else ''}N = {p['n']} participants {did} "
             f"(target {p['target']}; ages {p['age_min']} to {p['age_max']} eligible); they were {who}.")
     if p["excluded"]:
-        text += (f" {len(p['excluded'])} participants with incomplete answers were excluded from every analysis ("
+        k = len(p["excluded"])
+        text += (f" Excluded from every analysis for incomplete answers: {k} participant{'' if k == 1 else 's'} ("
                  + "; ".join(f"{x['code']}: {x['answers']} of {x['of']} answers" for x in p["excluded"]) + ").")
     else:
         text += " No participant was excluded."
@@ -110,12 +117,12 @@ def _design(m: dict) -> str:
 
 def _apparatus(m: dict) -> str:
     a = m["apparatus"]
-    devices = _names([f"{x['device']} devices ({x['sessions']} sessions{', synthetic' if x['synthetic'] else ''})" for x in a["devices"]])
-    text = f"Sessions ran with {devices}" if a["devices"] else "No session has finished"
+    text = ("Sessions ran with " + _names([f"{x['device']} devices ({x['sessions']} sessions{', synthetic' if x['synthetic'] else ''})"
+                                           for x in a["devices"]])) if a["devices"] else "No session has finished"
     if a["software_versions"]:
         text += f", on {_names(a['software_versions'])}"
     text += "."
-    if a["servo_rate_hz"]:
+    if a["servo_rate_hz"] and a["visual_rate_hz"]:
         text += (f" The haptic servo loop ran at {_names([f'{x:g}' for x in a['servo_rate_hz']])} Hz and the visual loop at "
                  f"{_names([f'{x:g}' for x in a['visual_rate_hz']])} Hz.")
     for c in a["models"]:
@@ -133,7 +140,7 @@ def _apparatus(m: dict) -> str:
         text += (f" Condition {c['condition']} ran the {c['model']} model" + (f" ({options})" if options else "")
                  + (f" on the mesh {c['mesh']}" if c.get("mesh") else "") + (f", with {_names(material)}" if material else "") + ".")
     for r in a["latency"]:
-        text += (f" Measured {r['measure']} with {r['model']}: mean {sig(r['mean'])} over {r['trials']} trials "
+        text += (f" Measured {MEASURES.get(r['measure'], r['measure'])} with {r['model']}: mean {sig(r['mean'])} over {r['trials']} trials "
                  f"(range {sig(r['lowest'])} to {sig(r['highest'])}).")
     return text
 
@@ -150,28 +157,36 @@ def _procedure(m: dict) -> str:
         parts.append(f"“{q['text']}” ({KIND_WORDS.get(q['kind'], q['kind'])}{scale}, asked {WHEN_WORDS.get(q['when'], q['when'])})")
     text = ("Participants answered " + "; ".join(parts) + ".") if parts else ""
     for ins in pr["instruments"]:
-        text += f" They completed the {ins['name']} questionnaire ({ins['source']}; {ins['items']} items) {WHEN_WORDS.get(ins['when'], ins['when'])}."
+        text += f" They completed the {ins['title']} ({ins['source']}; {ins['items']} items) {WHEN_WORDS.get(ins['when'], ins['when'])}."
     for t in pr["tasks"]:
-        text += (f" A {t['kind']} task on {t['parameter']} ran {t['trials']} trials by {t['method']}, asking “{t['question']}” after two "
-                 f"{t['interval_seconds']:g} s intervals, with increments from {t['low']:g} to {t['high']:g}.")
+        text += (f" A {t['kind']} task on {t['parameter']} ran {t['trials']} trials per condition by {t['method']}, asking “{t['question']}” "
+                 f"after two {t['interval_seconds']:g} s intervals, the comparison's increment over the reference from {t['low']:g} to "
+                 f"{t['high']:g} (relative).")
     return text.strip()
 
 
 def _analysis(m: dict) -> str:
     an = m["analysis"]
     level = f"{100 * an['ci_level']:g}%"
+    several = m["design"]["n_conditions"] > 1
     text = f"The primary analysis was planned as a {an['primary_text']}." if an["primary_text"] else ""
     if m["procedure"]["tasks"]:
-        text += (" Discrimination: each participant's Weber fraction per condition from a psychometric fit, the conditions' geometric "
-                 "means with t intervals on ln Weber fraction, and a linear mixed model, the Friedman test and Holm-corrected pairs "
-                 "across the conditions.")
+        text += (" Discrimination: each participant's Weber fraction per condition from a psychometric fit, and the conditions' "
+                 "geometric means with t intervals on ln Weber fraction" + (", compared by a linear mixed model, the Friedman test and "
+                                                                             "Holm-corrected pairs." if several else "."))
     for k in an["kinds"]:
-        text += (f" {KIND_WORDS[k['kind']].capitalize()} answers were compared across the conditions by {k['omnibus']} and between pairs "
-                 f"of conditions by {k['pairs']}, and described by {k['describe']}.")
+        word = KIND_WORDS[k["kind"]].capitalize()
+        text += (f" {word} answers were compared across the conditions by {k['omnibus']} and between pairs of conditions by "
+                 f"{k['pairs']}, and described by {k['describe']}." if several
+                 else f" {word} answers were described by {k['describe']}; with one condition, nothing was compared.")
     scope = (f"over the family of all {an['holm_family']} pairwise tests" if an["holm"] == "family"
              else "within each question's pairwise tests")
-    if m["procedure"]["questions"]:
-        text += (f" Pairwise p-values were corrected by Holm's method {scope}." if an["holm_family"] else " No pairwise test was made.")
+    if an["holm_family"]:
+        text += f" Pairwise p-values were corrected by Holm's method {scope}."
+    groups = m["participants"]["groups"]
+    if groups:
+        text += (f" The comparison between the {groups['field']} groups (construct validity) is reported separately "
+                 "(`studyctl report validity`), not here.")
     text += (" Only complete cases were analysed; intervals are "
              f"{level}. Software: " + ", ".join(f"{k} {v}" for k, v in an["software"].items()) + ".")
     return text.strip()
@@ -183,9 +198,10 @@ def _yes_no(st: dict, family: str) -> list[str]:
         rates = "; ".join(f"{m} {pct(r['rate'])} ({r['yes']} yes, {r['no']} no, 95% CI [{pct(r['wilson_low'])}, {pct(r['wilson_high'])}])"
                           for m, r in v["rates"].items())
         p = p_text(v["p_value"])
-        cochran = f"Cochran's Q({v['df']}) = {v['cochran_q']:.2f}, {p}" if p else "Cochran's Q was not tested (not estimable)"
+        cochran = (f"Cochran's Q({v['df']}) = {v['cochran_q']:.2f}, {p}" if p
+                   else f"Cochran's Q was not tested ({v.get('reason') or 'not estimable'})")
         out.append(f"“{v['question']}”: yes with {rates}; {cochran}. "
-                   + _pairs_text(v["pairs"], lambda p: f"{p['n01']} vs {p['n10']} discordant answers", "Pairs", family))
+                   + _pairs_text(v["pairs"], lambda p: f"{p['a']} vs {p['b']}, {p['n01']} and {p['n10']} discordant answers", "Pairs", family))
     return out
 
 
@@ -195,7 +211,7 @@ def _gee(fit: dict | None, what: str, family: str, n_conditions: int) -> str:
     if not fit.get("estimable", True) or not fit.get("converged", True):
         return f"The {what} was not reported: {'; '.join(fit.get('problems') or []) or 'it did not converge'}."
     head = f"The {what} ({fit['formula']}) included {fit['n_participants']} participants and {fit['n_answers']} answers."
-    return head + " " + _pairs_text(fit["pairs"], lambda p: f"OR = {p['odds_ratio']:.2f}, 95% CI [{p['ci_low']:.2f}, {p['ci_high']:.2f}]",
+    return head + " " + _pairs_text(fit["pairs"], lambda p: f"{p['b']} relative to {p['a']}, OR = {p['odds_ratio']:.2f}, 95% CI [{p['ci_low']:.2f}, {p['ci_high']:.2f}]",
                                     "Condition pairs", family)
 
 
@@ -205,11 +221,12 @@ def _ratings(kinds: dict, family: str) -> list[str]:
         medians = "; ".join(f"{m} Mdn = {c['median']:g} (IQR {c['q1']:g} to {c['q3']:g})" for m, c in v["conditions"].items())
         fr = v["friedman"]
         p = p_text(fr.get("p_value"))
-        friedman = (f"Friedman χ²({fr['df']}) = {fr['statistic']:.2f}, {p}, Kendall's W = {unit(fr['kendall_w'])}, "
-                    f"95% CI [{unit(fr['kendall_w_low'])}, {unit(fr['kendall_w_high'])}]" if p
+        w_ci = (f", 95% CI [{unit(fr['kendall_w_low'])}, {unit(fr['kendall_w_high'])}]" if _finite(fr.get("kendall_w_low"))
+                else " (no interval)")
+        friedman = (f"Friedman χ²({fr['df']}) = {fr['statistic']:.2f}, {p}, Kendall's W = {unit(fr['kendall_w'])}{w_ci}" if p
                     else f"the Friedman test was not made: {fr.get('reason') or 'not estimable'}")
         out.append(f"“{v['question']}” (n = {v['n']}): {medians}; {friedman}. "
-                   + _pairs_text(v["pairs"], lambda p: f"rank-biserial r = {unit(p['rank_biserial'])}", "Pairs", family))
+                   + _pairs_text(v["pairs"], lambda p: f"{p['a']} over {p['b']}, rank-biserial r = {unit(p['rank_biserial'])}", "Pairs", family))
     return out
 
 
@@ -224,7 +241,7 @@ def _scores(kinds: dict, family: str) -> list[str]:
             model = f"the mixed model was not reported: {'; '.join(problems) or 'not estimable'}."
         else:
             model = (f"linear mixed model, F({test['df']:g}, {test['df_denominator']:g}) = {test['f']:.2f}, {p}. "
-                     + _pairs_text(v["pairs"], lambda p: f"difference {p['difference']:.2f}, 95% CI [{p['ci_low']:.2f}, {p['ci_high']:.2f}]",
+                     + _pairs_text(v["pairs"], lambda p: f"{p['b']} minus {p['a']}, {p['difference']:.2f}, 95% CI [{p['ci_low']:.2f}, {p['ci_high']:.2f}]",
                                    "Pairs", family))
         out.append(f"{v['label']} (n = {v['n']}): {means}; {model}".strip())
     return out
@@ -236,9 +253,11 @@ def _choices(kinds: dict, family: str) -> list[str]:
         shares = "; ".join(f"{m} {pct(s['share'])} ({s['count']} of {v['n']})" for m, s in v["shares"].items() if _finite(s.get("share")))
         o = v["overall"]
         p = p_text(o.get("p_value"))
-        overall = f"{o['test']}, χ²({o['df']}) = {o['statistic']:.2f}, {p}" if p else "no test of the shares was made"
+        # the chi-square statistic with its own p; the exact test's p on its own
+        overall = (f"{o['test']}, χ²({o['df']}) = {o['statistic']:.2f}, {p}" if p and o["test"].startswith("chi-square")
+                   else f"{o['test']}, {p}" if p else "no test of the shares was made")
         out.append(f"“{v['question']}”: chosen {shares}; {overall}. "
-                   + _pairs_text(v["pairs"], lambda p: f"{p['n_a']} vs {p['n_b']} choices", "Pairs", family))
+                   + _pairs_text(v["pairs"], lambda p: f"{p['a']} vs {p['b']}, {p['n_a']} and {p['n_b']} choices", "Pairs", family))
     return out
 
 
@@ -257,7 +276,8 @@ def _session(kinds: dict) -> list[str]:
 
 def _deformation(st: dict) -> str:
     d = st["deformation"]
-    rows = "; ".join(f"{r['model']} {sig(r['mean_ms'])} ms (SD {sig(r['sd_ms'])}, {r['n_trials']} trials)" if _finite(r.get("sd_ms"))
+    rows = "; ".join(f"{r['model']} {sig(r['mean_ms'])} ms (SD {sig(r['sd_ms'])} over {r['n_participants']} participants' means, "
+                     f"{r['n_trials']} trials)" if _finite(r.get("sd_ms"))
                      else f"{r['model']} {sig(r['mean_ms'])} ms ({r['n_trials']} trials)" for r in d["rows"] if _finite(r.get("mean_ms")))
     return f"Deformation time per frame, a {d['label']}: {rows}." if rows else ""
 
@@ -327,6 +347,8 @@ def sections(st: dict) -> list[tuple[str, list[str]]]:
     elif kinds["primary"]["analysis"] == "ordinal_gee":
         results.append(_gee(kinds.get("ordinal_gee"), "proportional-odds GEE across the rating items", "their own family", n))
     results += _yes_no(st, family) + _ratings(kinds, family) + _scores(kinds, family) + _choices(kinds, family) + _session(kinds)
+    if m["procedure"]["tasks"]:
+        results.append("The discrimination task's results (Weber fractions) are reported by `studyctl report jnd`, not here.")
     results.append(_deformation(st))
     return [("Participants", [_participants(m, facts)]), ("Design", [_design(m)]), ("Apparatus", [_apparatus(m)]),
             ("Procedure", [_procedure(m)]), ("Analysis", [_analysis(m)]), ("Results", [r for r in results if r])]

@@ -20,7 +20,8 @@ class YesNoItem:
     - cochran_q, df, p_value, n_complete: Cochran's Q across the conditions (NaN when not run)
       and the participants who answered for every condition;
     - rates: per condition {yes, no, rate, wilson_low, wilson_high};
-    - pairs: the exact McNemar pairs (`a, b, n01, n10, p_value, p_holm, odds_ratio`, ...)."""
+    - pairs: the exact McNemar pairs (`a, b, n01, n10, p_value, p_holm, odds_ratio`, ...);
+    - reason: why Cochran's Q was not tested (None when it was)."""
 
     question: str
     cochran_q: float
@@ -29,6 +30,7 @@ class YesNoItem:
     n_complete: int
     rates: dict[str, dict]
     pairs: list[dict]
+    reason: str | None = None
 
     def as_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}

@@ -153,7 +153,7 @@ def conditions(study: Study) -> list[dict]:
     return out
 
 
-def _material_keys(model: str) -> tuple:
+def material_keys(model: str) -> tuple:
     """The material keys model `model` reads (its declaration); none when it no longer loads."""
     try:
         return model_class(model).material_keys
@@ -169,7 +169,7 @@ def condition_text(c: dict) -> str:
     opts = dict(cfg["options"]) | ({"variant": cfg["variant"]} if "variant" in cfg else {})
     shown = ", ".join(f"{k} {v['file'] if isinstance(v, dict) and 'file' in v else v}" for k, v in sorted(opts.items()))
     mat = cfg["material"]
-    keys = _material_keys(cfg["model"])
+    keys = material_keys(cfg["model"])
     parts = [f"{label} {mat[key]:g}{unit}" for key, label, unit in (("young", "E", " Pa"), ("poisson", "nu", "")) if key in keys]
     young = f"; {', '.join(parts)}" if parts else ""
     return f"{c['condition']}: {cfg['model']} ({shown}{young}), configuration {c['config_sha256'][:12]}"

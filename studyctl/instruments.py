@@ -20,7 +20,8 @@ from studyctl.questions import Question
 
 NAMES = ("sus", "nasa_tlx")
 # each instrument's source, as a methods section cites it
-SOURCES = {"sus": "Brooke (1996)", "nasa_tlx": "Hart and Staveland (1988), raw (unweighted) as in Hart (2006)"}
+SOURCES = {"sus": "Brooke, 1996", "nasa_tlx": "Hart & Staveland, 1988; unweighted, as in Hart, 2006"}
+TITLES = {"sus": "System Usability Scale (SUS)", "nasa_tlx": "NASA Task Load Index (raw NASA-TLX)"}
 
 SUS_ITEMS = (
     "I think that I would like to use this system frequently.",

@@ -14,6 +14,7 @@ from tests.helpers import latex_problems
     ("a 0-100 scale", "a 0--100 scale"),
     ("r -0.31 [-0.76, 0.40]", "r $-$0.31 [$-$0.76, 0.40]"),
     ("on 2026-11-27", "on 2026-11-27"),  # a date keeps its hyphens
+    ("mesh brain2-3.npz", "mesh brain2-3.npz"),  # so does a name
     ("50% & more_than #1 {x}", "50\\% \\& more\\_\\allowbreak{}than \\#1 \\{x\\}"),
     ("χ²(2) ≥ 3 µs, 45°", "$\\chi$$^{2}$(2) $\\geq$ 3 $\\mu$s, 45$^{\\circ}$"),
 ])

@@ -51,7 +51,7 @@ def test_every_number_of_the_text_is_in_the_stats_json(which, small_study, varia
         assert f"Cochran's Q({item['df']}) = {item['cochran_q']:.2f}" in text
         assert "logistic GEE across the yes/no questions" in text
     else:
-        assert "proportional-odds GEE" in text and "Friedman χ²(2)" in text and "sus questionnaire (Brooke (1996)" in text
+        assert "proportional-odds GEE" in text and "Friedman χ²(2)" in text and "System Usability Scale (SUS) (Brooke, 1996" in text
         assert "Which condition felt most like real brain tissue?" in text
 
 
@@ -71,3 +71,23 @@ def test_json_holds_the_same_paragraphs(small_study):
     js = json.loads(studyctl("report", "text", "--db", small_study, "--json").output)
     assert [s["heading"] for s in js["sections"]] == re.findall(r"^## (\w+)", md, re.M)
     assert all(p in md for s in js["sections"] for p in s["paragraphs"])
+
+
+def test_effects_name_their_direction_and_only_what_a_model_reads(variants_study):
+    """A pair's effect says which condition it favours (an odds ratio and a difference are the
+    second condition's relative to the first; a rank-biserial r is positive when the first is
+    higher), and a condition's material is the one its model reads (a plate-spring stack has its
+    own stiffness; its variant tells two plate-spring conditions apart)."""
+    text, doc = _text_and_json(variants_study)
+    apparatus = text.split("## Apparatus")[1].split("## Procedure")[0]
+    assert "Condition paper ran the plate_spring model (variant paper)" in apparatus
+    assert "Condition located ran the plate_spring model (variant located)" in apparatus
+    plate = [s for s in apparatus.split(". ") if "plate_spring model" in s]
+    assert plate and not any("Young" in s or "law" in s for s in plate)
+    for p in doc["kinds"]["ordinal_gee"]["pairs"]:
+        if p["p_holm"] < 0.05:
+            assert f"{p['b']} relative to {p['a']}, OR = {p['odds_ratio']:.2f}" in text
+    for v in doc["kinds"]["ratings"].values():
+        for p in v["pairs"]:
+            if p["p_holm"] is not None and p["p_holm"] < 0.05:
+                assert f"{p['a']} over {p['b']}, rank-biserial r = {paper_text.unit(p['rank_biserial'])}" in text
