@@ -227,8 +227,8 @@ def report_stats(db, holm_scope, as_json):
 
     for item, v in out.items.items() if len(study.protocol.conditions) > 1 else ():
         pairs = ", ".join(pair(p) for p in v.pairs)
-        # the item keeps no reason: the Cochran frame (analysis.table1.cochran) has it
-        cochran = f"Q = {v.cochran_q:.2f}, p = {v.p_value:.3g}" if v.p_value == v.p_value else "Cochran's Q not tested (not estimable)"
+        cochran = (f"Q = {v.cochran_q:.2f}, p = {v.p_value:.3g}" if v.p_value == v.p_value
+                   else f"Cochran's Q not tested ({v.reason or 'not estimable'})")
         click.echo(f"{item}: {cochran}; {pairs}")
     for item, v in kinds.ratings.items():
         fr = v.friedman
