@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.formatting import markdown_grid
 from analysis.latex import tables as latex_tables
 from analysis.plots import pareto_plot
 from analysis.stats import wilson
@@ -475,13 +476,9 @@ def tables(result: dict) -> list[dict]:
 def markdown(result: dict) -> str:
     """The accuracy table as Markdown (test pulls only), with what it was measured against."""
     every, best = tables(result)
-
-    def rows(t: dict) -> list[str]:
-        return ["| " + " | ".join(t["columns"]) + " |", "|" + "---|" * len(t["columns"])] + ["| " + " | ".join(r) + " |" for r in t["rows"]]
-
-    lines = [intro(result), "", *rows(every)]
+    lines = [intro(result), "", *markdown_grid(every["columns"], every["rows"])]
     lines += ["", f"Each class at its best (`class_best`: the most samples within the JND among the configurations whose frame p99 keeps "
-              f"the budget and that gave up no pull; the target is {TARGET_WITHIN:.0%}):", "", *rows(best)]
+              f"the budget and that gave up no pull; the target is {TARGET_WITHIN:.0%}):", "", *markdown_grid(best["columns"], best["rows"])]
     cb = result["meta"].get("coupling_bound")
     if cb:
         lines += ["", f"The mass-spring renders through its hand coupling: the tissue's own forces behind it (an exact model) are within "

@@ -39,13 +39,17 @@ def p_value(x, missing: str = "-", decimals: bool = False) -> str:
     return f"{x:.3g}"
 
 
-def table_markdown(t: dict) -> list[str]:
-    """A table {title, columns, rows, note} as Markdown lines (pipes and newlines in cells escaped)."""
-    def cell(x: str) -> str:
+def markdown_grid(columns: list, rows: list[list]) -> list[str]:
+    """A header and rows as Markdown table lines (pipes and newlines in cells escaped)."""
+    def cell(x) -> str:
         return str(x).replace("|", "\\|").replace("\n", " ")
 
-    return [f"**{t['title']}**", "", "| " + " | ".join(map(cell, t["columns"])) + " |", "|" + "---|" * len(t["columns"]),
-            *("| " + " | ".join(map(cell, r)) + " |" for r in t["rows"]), "", t["note"], ""]
+    return ["| " + " | ".join(map(cell, columns)) + " |", "|" + "---|" * len(columns), *("| " + " | ".join(map(cell, r)) + " |" for r in rows)]
+
+
+def table_markdown(t: dict) -> list[str]:
+    """A table {title, columns, rows, note} as Markdown lines, headed by its title, its note below."""
+    return [f"**{t['title']}**", "", *markdown_grid(t["columns"], t["rows"]), "", t["note"], ""]
 
 
 def table_html(t: dict, heading: str = "h2") -> str:

@@ -59,11 +59,11 @@ def _weights(t: dict, width: float) -> list[float]:
     return [x / sum(w) for x in w]
 
 
-def _height(t: dict, caption: str, landscape: bool) -> float:
-    """A rough height (pt) of the table set in small type: each row as tall as its most wrapped
-    cell, with the caption; enough to tell a table that fits a page from one that does not."""
-    width = TEXT_HEIGHT if landscape else TEXT_WIDTH
-    per_col = [max(w * width - 6.0, 10.0) / CHAR_PT for w in _weights(t, width)]
+def _height(t: dict, caption: str, weights: list[float], width: float) -> float:
+    """A rough height (pt) of the table set in small type, its columns `weights` of `width`: each
+    row as tall as its most wrapped cell, with the caption; enough to tell a table that fits a
+    page from one that does not."""
+    per_col = [max(w * width - 6.0, 10.0) / CHAR_PT for w in weights]
 
     def lines(row) -> int:
         return max(-(-len(str(c)) // int(n)) for c, n in zip(row, per_col)) if len(row) else 1
@@ -83,8 +83,9 @@ def table(t: dict, label: str | None = None) -> str:
     mark = f"\\label{{{label}}}" if label else ""
     landscape = n > LANDSCAPE_COLUMNS
     page = TEXT_WIDTH if landscape else TEXT_HEIGHT
-    weights = _weights(t, TEXT_HEIGHT if landscape else TEXT_WIDTH)
-    if _height(t, caption, landscape) > FLOAT_SHARE * page:
+    width = TEXT_HEIGHT if landscape else TEXT_WIDTH
+    weights = _weights(t, width)
+    if _height(t, caption, weights, width) > FLOAT_SHARE * page:
         # p{} widths: the text width less the columns' padding, shared by weight
         spec = "".join(f">{{\\raggedright\\arraybackslash\\hspace{{0pt}}}}p{{\\dimexpr({w:.4f}\\linewidth-{w * 2 * n:.4f}\\tabcolsep)\\relax}}"
                        for w in weights)

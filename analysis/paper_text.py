@@ -8,6 +8,7 @@ reason. Markdown, or LaTeX through analysis/latex.py's escaping."""
 from __future__ import annotations
 
 import json
+import math
 
 from analysis import latex
 from analysis.jnd import jnd_results
@@ -46,11 +47,9 @@ def pct(x) -> str:
 
 def sig(x, digits: int = 3) -> str:
     """`digits` significant digits, without an exponent (deformation times of 0.00418 ms)."""
-    from math import floor, log10
-
     if x == 0:
         return "0"
-    decimals = max(digits - 1 - floor(log10(abs(x))), 0)
+    decimals = max(digits - 1 - math.floor(math.log10(abs(x))), 0)
     return f"{x:.{decimals}f}"
 
 

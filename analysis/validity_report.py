@@ -20,7 +20,7 @@ import pandas as pd
 from scipy import stats
 
 from analysis import validity as v
-from analysis.formatting import PAGE_END, figure_png, p_value, page_head
+from analysis.formatting import PAGE_END, figure_png, markdown_grid, p_value, page_head
 from analysis.latex import tables as latex_tables
 from analysis.metrics import UNITS, metrics_table, study_goals
 from analysis.plots import OTHER_COLORS, _plt
@@ -308,13 +308,6 @@ def header_lines(rep: dict) -> list[str]:
     return lines
 
 
-def _table(columns: list[str], rows: list[list]) -> list[str]:
-    def cell(x) -> str:
-        return str(x).replace("|", "\\|").replace("\n", " ")
-
-    return ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)] + ["| " + " | ".join(cell(c) for c in r) + " |" for r in rows]
-
-
 def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
     """The report's sections as (title, text, columns, rows): what md and html both render."""
     order, out = rep["groups"], []
@@ -438,7 +431,7 @@ def markdown(rep: dict) -> str:
     for name, text, cols, rows in sections(rep):
         lines += [f"## {name}", "", text, ""]
         if cols:
-            lines += _table(cols, rows) + [""]
+            lines += markdown_grid(cols, rows) + [""]
     return "\n".join(lines)
 
 

@@ -23,19 +23,25 @@ BAD = "tests.plugins.bad_models"  # the test plugins' module (tests/plugins), fo
 MODEL_WORDS = re.compile(r"plate.?spring|mass.?spring|\bfem\b|finite|element|corotational|neo.?hookean|young|poisson", re.I)
 
 
-def fast_protocol(tmp_path: Path, conditions=("plate_spring", "fem", "mass_spring"), trials=2, training=0.0) -> Path:
-    """The shipped protocol on a coarse (8 mm) brain, short trials: quick synthetic sessions.
-    The FEM on linear tetrahedra: the study machinery under test does not need P2's accuracy,
-    and P2 costs 3-4 s more to assemble in every process that builds it (test_fem_model,
-    test_accuracy and test_stability test the shipped P2)."""
+def _fast(protocol: Path, tmp_path: Path, trials: int, training: float) -> str:
+    """The text of shipped `protocol` on a coarse (8 mm) brain with short trials: its scene
+    rewritten into `tmp_path` (the FEM on linear tetrahedra: the study machinery under test does
+    not need P2's accuracy, and P2 costs 3-4 s more to assemble in every process that builds
+    it; test_fem_model, test_accuracy and test_stability test the shipped P2), `trials` of 1 s
+    per condition, `training` minutes."""
     scene = (ROOT / "protocols/scenes/brain_pull.toml").read_text()
     scene = scene.replace('"../../data/', f'"{ROOT}/data/').replace('"../models/', f'"{ROOT}/protocols/models/').replace('"../materials/', f'"{ROOT}/protocols/materials/')
     scene = scene.replace("\norder = 2 ", "\norder = 1 ", 1).replace('kind = "offscreen"', 'kind = "none"')
     (tmp_path / "scene.toml").write_text(scene)
-    text = PROTOCOL.read_text().replace('scene = "scenes/brain_pull.toml"', f'scene = "{tmp_path / "scene.toml"}"')
-    text = text.replace('conditions = ["fem", "mass_spring", "plate_spring"]', f"conditions = {json.dumps(list(conditions))}")
+    text = protocol.read_text().replace('scene = "scenes/brain_pull.toml"', f'scene = "{tmp_path / "scene.toml"}"')
     text = text.replace("trials_per_condition = 3", f"trials_per_condition = {trials}").replace("trial_seconds = 3.0", "trial_seconds = 1.0")
-    text = text.replace("training_minutes = 5.0", f"training_minutes = {training}")
+    return text.replace("training_minutes = 5.0", f"training_minutes = {training}")
+
+
+def fast_protocol(tmp_path: Path, conditions=("plate_spring", "fem", "mass_spring"), trials=2, training=0.0) -> Path:
+    """The shipped protocol on a coarse brain, short trials: quick synthetic sessions (`_fast`)."""
+    text = _fast(PROTOCOL, tmp_path, trials, training)
+    text = text.replace('conditions = ["fem", "mass_spring", "plate_spring"]', f"conditions = {json.dumps(list(conditions))}")
     path = tmp_path / "protocol.toml"
     path.write_text(text)
     return path
@@ -43,16 +49,10 @@ def fast_protocol(tmp_path: Path, conditions=("plate_spring", "fem", "mass_sprin
 
 def variants_protocol(tmp_path: Path) -> Path:
     """The shipped ratings example (protocols/plate_spring_variants.toml: Likert items, the SUS
-    after each condition, a choice at the end) on fast_protocol's coarse scene, one short trial
-    per condition."""
-    fast = fast_protocol(tmp_path)  # writes the fast scene beside it
-    text = (ROOT / "protocols/plate_spring_variants.toml").read_text()
-    text = text.replace('scene = "scenes/brain_pull.toml"', f'scene = "{tmp_path / "scene.toml"}"')
-    text = text.replace("trials_per_condition = 3", "trials_per_condition = 1").replace("trial_seconds = 3.0", "trial_seconds = 1.0")
-    text = text.replace("training_minutes = 5.0", "training_minutes = 0.0")
-    fast.unlink()
+    after each condition, a choice at the end) on the same coarse scene, one short trial per
+    condition (`_fast`)."""
     path = tmp_path / "variants.toml"
-    path.write_text(text)
+    path.write_text(_fast(ROOT / "protocols/plate_spring_variants.toml", tmp_path, trials=1, training=0.0))
     return path
 
 
