@@ -17,7 +17,9 @@ SYSTEM_PACKAGES := libusb-1.0-0 libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libx
 	xvfb xdotool libsuitesparse-dev libopenblas0-pthread texlive-latex-base texlive-latex-recommended
 OUT ?= out
 
-.PHONY: demo test test-all bench lint system-deps venv clean
+.PHONY: demo test test-all test-latest lock latest-venv bench lint system-deps venv clean
+# the versions the suite passed on (make lock refreshes them); pyproject.toml keeps the ranges
+LOCK := requirements/constraints.txt
 
 demo: venv
 	$(VENV)/bin/studyctl sim run --scene protocols/scenes/brain_pull.toml --frames $(OUT)/demo
@@ -59,14 +61,31 @@ system-deps:
 	  DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
 	fi
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml $(LOCK)
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade "pip>=25.1"
+	$(PY) -m pip install -q --upgrade "pip>=25.1" -c $(LOCK)
 	@# open3d-cpu replaces open3d on Linux x86_64 (same module): a venv made before holds the full one
 	@if [ "$$(uname -sm)" = "Linux x86_64" ] && ! $(PY) -m pip show -q open3d-cpu >/dev/null 2>&1; then \
 	  $(PY) -m pip uninstall -y -q open3d >/dev/null 2>&1 || true; fi
-	$(PY) -m pip install -q -e . --group dev
+	$(PY) -m pip install -q -e . --group dev -c $(LOCK)
 	@touch $(STAMP)
+
+# the suite on the newest versions pyproject.toml allows, in their own venv with the lock untouched
+# (drift is seen here before a user meets it); the versions that differ from the lock come first
+test-latest: latest-venv
+	.venv-latest/bin/python -m pytest -q -n 2 --dist loadfile
+
+# refresh the lock on purpose: freeze the newest versions, then `make test` installs and runs them
+lock: latest-venv
+	scripts/freeze_lock.sh .venv-latest $(LOCK)
+	$(MAKE) test
+
+latest-venv: system-deps
+	rm -rf .venv-latest && $(PYTHON) -m venv .venv-latest
+	.venv-latest/bin/python -m pip install -q --upgrade pip
+	.venv-latest/bin/python -m pip install -q --upgrade --upgrade-strategy eager -e . --group dev
+	@echo "versions that differ from $(LOCK) (< locked, > newest):"
+	@.venv-latest/bin/python -m pip freeze --exclude-editable | diff <(grep -v '^#' $(LOCK) | grep -v '^pip==') - | grep '^[<>]' || echo "  none"
 
 clean:
 	rm -rf $(VENV) $(OUT) .pytest_cache .hypothesis

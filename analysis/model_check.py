@@ -24,11 +24,22 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.accuracy import AccuracyConfig, Setting, quick_config, run_accuracy
+from analysis.accuracy import (
+    PULL_SPEED,
+    TICK_TIMING_CALLS,
+    AccuracyConfig,
+    Setting,
+    quick_config,
+    run_accuracy,
+    sample_displacements,
+)
+from analysis.stability import DURATION as STABILITY_DURATION
 from analysis.stability import make_cases, run_case
+from analysis.tissue_pulls import shipped_solve_seconds, unsolved
 from sim.errors import SimError
 from sim.models.api import API_VERSION, BUDGETS
 from sim.models.registry import ModelLoadError, info, model_class
+from sim.pulls import make_pulls, scene_with, test_pulls
 from sim.scene import ModelSpec, Scene, clamp_limit, load_scene
 
 STEP_M = 1e-4  # the continuity check's step along a pull
@@ -44,6 +55,7 @@ class CheckError(Exception):
 class CheckConfig:
     scene: Path
     quick: bool = False
+    contract_only: bool = False  # the contract and the budgets only (seconds): what a model's author iterates on
     force_calls: int = 20000
     frames: int = 36  # a 12 mm pull at 10 mm/s, 30 Hz
 
@@ -218,55 +230,132 @@ def _timed(parts: dict, cfg: CheckConfig) -> list[dict]:
             for k, limit in BUDGETS.items()]
 
 
-def stability(name: str, scene_path: Path) -> dict:
-    """The quick stability sweep's cases of the model's rows."""
+def stability(name: str, scene_path: Path, step=None) -> dict:
+    """The quick stability sweep's cases of the model's rows; `step(k, n)` after each case."""
     cases = make_cases(quick=True, models=(name,))
-    rows = [run_case(c, scene_path) for c in cases]
+    rows = []
+    for c in cases:
+        rows.append(run_case(c, scene_path))
+        if step is not None:
+            step(len(rows), len(cases))
     counts = {k: sum(1 for r in rows if r["outcome"] == k) for k in ("stable", "unstable", "refused")}
     safety = not any(r["nan_sent"] or r["over_limit_sent"] for r in rows)
     return {"cases": [{k: r[k] for k in ("model", "case", "outcome", "reason")} for r in rows], "counts": counts,
             "safety_held": safety}
 
 
-def accuracy(name: str, scene_path: Path, quick: bool) -> dict:
-    """The accuracy bench's row for the model (raw and calibrated) against the tissue truth."""
+def _accuracy_config(name: str, scene_path: Path, quick: bool) -> AccuracyConfig:
     setting = (Setting(name, "default"),)
-    cfg = quick_config(scene=scene_path, settings=setting) if quick else AccuracyConfig(scene=scene_path, settings=setting)
-    out = run_accuracy(cfg, jobs=1)
+    return quick_config(scene=scene_path, settings=setting) if quick else AccuracyConfig(scene=scene_path, settings=setting)
+
+
+def accuracy(name: str, scene_path: Path, quick: bool, step=None) -> dict:
+    """The accuracy bench's row for the model (raw and calibrated) against the tissue truth;
+    `step(k, n)` after each reference solve and the model's pulls."""
+    out = run_accuracy(_accuracy_config(name, scene_path, quick), jobs=1, progress=step)
     keep = ("setting", "calibration", "scale", "force_error", "within_jnd", "within_jnd_low", "within_jnd_high", "n_test",
             "pulls_within", "frame_ms", "tick_us")
     return {"rows": [{k: r.get(k) for k in keep if k in r} for r in out["rows"]], "reference": out["meta"]["reference"]["setting"],
             "quick": quick}
 
 
+UNKNOWN_SOLVE_S = 60.0  # a reference solve of a size with no shipped record: a guess, said as one
+
+
+def estimate(name: str, cfg: CheckConfig, build_s: float, timed: list[dict]) -> dict:
+    """Seconds the sweep and the bench will take, from this model's own measured costs (its
+    build, a tick's and a frame's median from the budgets) times the work each stage does, plus
+    the reference solves neither shipped nor cached (at the shipped solves' median time)."""
+    med = {b["budget"]: b["median"] for b in timed}
+    tick_s, frame_s = med.get("force_us_p99", 0.0) * 1e-6, med.get("deformation_ms_p99", 0.0) * 1e-3
+    spec = load_scene(cfg.scene)
+    cases = make_cases(quick=True, models=(name,))
+    case_s = build_s + STABILITY_DURATION * (1000.0 * tick_s + spec.visual_rate_hz * frame_s)
+    acfg = _accuracy_config(name, cfg.scene, cfg.quick)
+    scene = scene_with(cfg.scene)
+    pulls = make_pulls(scene) + test_pulls(scene, acfg.test_places)
+    xs = sample_displacements(acfg)
+    frames = max(1, round(xs[0] / PULL_SPEED * spec.visual_rate_hz)) * len(xs)
+    pulls_s = build_s + len(pulls) * (frames * frame_s + TICK_TIMING_CALLS * tick_s)
+    todo = unsolved(cfg.scene, pulls, xs, acfg.reference_sizes_mm)
+    per = shipped_solve_seconds()
+    ref_s = sum(n * per.get(size, UNKNOWN_SOLVE_S) for size, n in todo.items())
+    return {"stability_s": len(cases) * case_s, "stability_cases": len(cases), "accuracy_s": pulls_s + ref_s,
+            "reference_solves": int(sum(todo.values())), "reference_solves_s": ref_s, "pulls": len(pulls)}
+
+
+class CheckInterrupted(Exception):
+    """Stopped (Ctrl-C) during a check: `card` holds the stages that finished."""
+
+    def __init__(self, card: dict, stage: str):
+        super().__init__(f"interrupted during {stage}")
+        self.card, self.stage = card, stage
+
+
+class _Quiet:
+    def start(self, key: str, title: str, units: int | None = None) -> None: ...
+    def step(self, k: int, n: int) -> None: ...
+    def end(self, key: str, seconds: float, summary: str) -> None: ...
+    def estimate(self, est: dict) -> None: ...
+
+
+STAGES = {"contract": "contract", "budgets": "budgets (this machine)", "stability": "stability (quick sweep)",
+          "accuracy": "accuracy against the tissue truth"}
+
+
 def check_model(name: str, cfg: CheckConfig, progress=None) -> dict:
-    """The scorecard of model `name` on `cfg.scene`. Raises CheckError when it cannot run."""
+    """The scorecard of model `name` on `cfg.scene`. Raises CheckError when it cannot run, and
+    CheckInterrupted (holding what finished) on Ctrl-C. `progress`: an object with `start(key,
+    title)`, `step(k, n)`, `end(key, seconds, summary)` and `estimate(dict)`, told as the stages go."""
     try:
         cls = model_class(name)
         scene = _scene(name, cfg.scene)
     except (ModelLoadError, SimError) as exc:
         raise CheckError(str(exc)) from None
     i = info(name)
-    step = (lambda k, what: progress(k, 4, what)) if progress else (lambda k, what: None)
-    step(0, "contract")
-    rows, parts = contract(scene)
-    step(1, "budgets")
-    timed = budgets(parts, cfg)
-    violations = [f"{r['check']}: {r['detail']}" for r in rows if not r["ok"]]
-    violations += [f"{b['budget']}: raised {b['raised']} while timed" if "raised" in b else
-                   f"{b['budget']}: {b['value']:.3g} over the budget of {b['limit']:g}" for b in timed if not b["ok"]]
+    ui = progress or _Quiet()
     card = {"model": name, "class": i.target, "distribution": i.distribution, "version": i.version, "api_version": API_VERSION,
-            "description": cls.description, "scene": str(cfg.scene), "machine_budgets": BUDGETS, "contract": rows, "budgets": timed,
-            "violations": violations}
-    if violations:  # a model that breaks the contract is not swept nor benched: the violations come first
-        card["stability"] = card["accuracy"] = None
-        card["skipped"] = "the stability sweep and the accuracy bench run once the contract and the budgets hold"
-        return card
-    step(2, "stability (quick sweep)")
-    card["stability"] = stability(name, cfg.scene)
-    step(3, "accuracy against the tissue truth")
-    card["accuracy"] = accuracy(name, cfg.scene, cfg.quick)
-    step(4, "done")
+            "description": cls.description, "scene": str(cfg.scene), "machine_budgets": BUDGETS, "contract_only": cfg.contract_only,
+            "contract": [], "budgets": [], "violations": [], "stage_seconds": {}}
+    stage = "contract"
+
+    def run(key, fn, summary):
+        nonlocal stage
+        stage = key
+        ui.start(key, STAGES[key])
+        t0 = time.perf_counter()
+        out = fn()
+        card["stage_seconds"][key] = time.perf_counter() - t0
+        ui.end(key, card["stage_seconds"][key], summary(out))
+        return out
+
+    try:
+        rows, parts = run("contract", lambda: contract(scene), lambda r: f"{sum(x['ok'] for x in r[0])} of {len(r[0])} checks held")
+        card["contract"] = rows
+        timed = run("budgets", lambda: budgets(parts, cfg), lambda r: f"{sum(b['ok'] for b in r)} of {len(r)} within")
+        card["budgets"] = timed
+        violations = [f"{r['check']}: {r['detail']}" for r in rows if not r["ok"]]
+        violations += [f"{b['budget']}: raised {b['raised']} while timed" if "raised" in b else
+                       f"{b['budget']}: {b['value']:.3g} over the budget of {b['limit']:g}" for b in timed if not b["ok"]]
+        card["violations"] = violations
+        if violations:  # a model that breaks the contract is not swept nor benched: the violations come first
+            card["stability"] = card["accuracy"] = None
+            card["skipped"] = "the stability sweep and the accuracy bench run once the contract and the budgets hold"
+            return card
+        if cfg.contract_only:
+            card["stability"] = card["accuracy"] = None
+            card["skipped"] = "--contract: the stability sweep and the accuracy bench were not run"
+            return card
+        est = estimate(name, cfg, card["stage_seconds"]["contract"], timed)
+        card["estimate"] = est
+        ui.estimate(est)
+        card["stability"] = run("stability", lambda: stability(name, cfg.scene, ui.step),
+                                lambda r: ", ".join(f"{v} {k}" for k, v in r["counts"].items()))
+        card["accuracy"] = run("accuracy", lambda: accuracy(name, cfg.scene, cfg.quick, ui.step),
+                               lambda r: ", ".join(f"{x['calibration']} {x['within_jnd']:.0%} within the JND" for x in r["rows"]))
+    except KeyboardInterrupt:
+        card["interrupted"] = stage
+        raise CheckInterrupted(card, STAGES[stage]) from None
     return card
 
 
@@ -293,7 +382,12 @@ def scorecard_md(card: dict) -> str:
             lines.append(f"| {r['setting']} | {r['calibration']} | {r['scale']:.3g} | {r['within_jnd']:.0%} ({r['within_jnd_low']:.0%}-{r['within_jnd_high']:.0%}), "
                          f"n = {r['n_test']} | {r['frame_ms']:.3g} |")
     lines += ["", "## Verdict", ""]
-    lines += [f"- VIOLATION {v}" for v in card["violations"]] or ["The model keeps the contract and its budgets on this machine."]
+    if card.get("interrupted"):
+        lines += [f"INTERRUPTED during {STAGES[card['interrupted']]}: the stages above finished, the rest were not run.", ""]
+    if card.get("interrupted") in ("contract", "budgets"):
+        lines += ["No verdict: the contract and the budgets did not finish."]
+    else:
+        lines += [f"- VIOLATION {v}" for v in card["violations"]] or ["The model keeps the contract and its budgets on this machine."]
     if card.get("skipped"):
         lines.append(f"\n{card['skipped']}.")
     return "\n".join(lines) + "\n"

@@ -402,6 +402,38 @@ def _stored_task(task, seen: dict) -> dict | None:
     return None if found is None else found | {"cached": True, "key": key, "h_m": body.h}
 
 
+def unsolved(scene_path, pulls, xs, sizes_mm) -> dict:
+    """The solves `pull_references` would have to run for these pulls and sizes (neither
+    shipped nor cached): {size_mm: count}. Reads the meshes and the stores, solves nothing."""
+    scene = scene_with(scene_path)
+    law, radius = scene.spec.material.law, grasp_radius(scene)
+    xs = np.asarray(xs, dtype=np.float64)
+    out: dict = {}
+    for size in sizes_mm:
+        bodies: dict = {}
+        for pull in pulls:
+            if pull.hemisphere not in bodies:
+                verts, tris, _ = hemisphere_surface(scene.mesh, pull.hemisphere)
+                bodies[pull.hemisphere] = mesh_hemisphere(verts, tris, float(size) * 1e-3)
+            key = pull_key(bodies[pull.hemisphere], scene, law, radius, pull)
+            out[float(size)] = out.get(float(size), 0) + int(_stored(key, xs, False, "stored") is None)
+    return out
+
+
+def shipped_solve_seconds() -> dict:
+    """The median time of a shipped solve per mesh size (s, on the machine that made them):
+    what an unsolved one costs, roughly."""
+    try:
+        entries = json.loads(SHIPPED_PULLS_INFO.read_text())["entries"]
+    except (OSError, ValueError, KeyError):
+        return {}
+    by: dict = {}
+    for e in entries:
+        if e.get("seconds"):
+            by.setdefault(float(e["size_mm"]), []).append(float(e["seconds"]))
+    return {k: float(np.median(v)) for k, v in by.items()}
+
+
 def _stored(key: str, xs, stiffness: bool, finer: str) -> dict | None:
     """`stored_solve`, except a stored skip when the finer solves are asked for ("solve")."""
     found = stored_solve(key, xs, stiffness)

@@ -2,7 +2,9 @@
 data/reference_pulls.json (the file's SHA-256, what each entry is, how long it took).
 
 Solves the accuracy bench's 18 pulls (`sim.pulls.make_pulls` and `test_pulls`) of the
-shipped scene on each shipped mesh (8, 6, 4 mm) with the scene's law (protocols/materials/
+shipped scene on each shipped mesh (8, 6, 4 mm: the full bench's Richardson triple) and on the
+quick bench's pair (20, 16 mm: `--quick` benches and `model check --quick` then solve nothing on an
+empty cache) with the scene's law (protocols/materials/
 human_cortex.toml), recording every 2 mm to 24 mm (`analysis.reference.RECORD_XS`), the hand
 pulls with their condensed tangent stiffness too (the observer's truth reads them). A solve that
 stops (the tangent loses definiteness on some anterior pulls) is shipped with the records it
@@ -21,7 +23,14 @@ import time
 
 import numpy as np
 
-from analysis.tissue_pulls import RECORD_XS, SHIPPED_PULLS, SHIPPED_PULLS_INFO, pull_references, stored_solve
+from analysis.tissue_pulls import (
+    QUICK_SIZES_MM,
+    RECORD_XS,
+    SHIPPED_PULLS,
+    SHIPPED_PULLS_INFO,
+    pull_references,
+    stored_solve,
+)
 from brainsim_assets import version
 from sim.pulls import hand_pulls, make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE
@@ -42,11 +51,12 @@ def main() -> None:
     def progress(k, n):
         print(f"{k}/{n} solves, {time.perf_counter() - start:.0f} s", flush=True)
 
-    refs = pull_references(DEFAULT_SCENE, pulls, RECORD_XS, SHIPPED_MM, jobs=args.jobs, progress=progress, stiffness_for=hands,
-                           finer=args.finer)
+    # each group as its benches read it: the finer meshes follow a pull as far as the group's coarsest got
+    groups = [pull_references(DEFAULT_SCENE, pulls, RECORD_XS, sizes, jobs=args.jobs, progress=progress, stiffness_for=hands,
+                              finer=args.finer) for sizes in (SHIPPED_MM, QUICK_SIZES_MM)]
     arrays, entries = {}, []
     for p in pulls:
-        for s in refs["pulls"][p.name]["solves"]:
+        for s in (s for refs in groups for s in refs["pulls"][p.name]["solves"]):
             key = s["key"]
             found = stored_solve(key, RECORD_XS, stiffness=p.name in hands)  # cached, or shipped before
             if found is None and s.get("skipped"):  # shipped as a skip (no records), so that readers do not solve it
@@ -68,7 +78,7 @@ def main() -> None:
         "sha256": hashlib.sha256(SHIPPED_PULLS.read_bytes()).hexdigest(),
         "made": datetime.date.today().isoformat(), "version": version(), "law": law.params(),
         "law_source": "protocols/materials/human_cortex.toml", "scene": "protocols/scenes/brain_pull.toml",
-        "record_mm": [round(x * 1e3, 6) for x in RECORD_XS], "sizes_mm": list(SHIPPED_MM),
+        "record_mm": [round(x * 1e3, 6) for x in RECORD_XS], "sizes_mm": list(SHIPPED_MM) + list(QUICK_SIZES_MM),
         "made_by": "scripts/make_reference_pulls.py", "wall_s": time.perf_counter() - start, "entries": entries}, indent=1) + "\n")
     print(f"wrote {SHIPPED_PULLS} ({len(entries)} solves)")
 

@@ -271,12 +271,56 @@ def test_model_check_of_a_built_in_model_gives_its_whole_scorecard(tmp_path):
 
     res = studyctl("model", "check", "plate_spring", "--quick", "--json", "--out", tmp_path / "card.md")
     assert res.exit_code == 0, res.output
-    card = json.loads(res.output)
+    card = json.loads(res.stdout)  # the stages went to stderr
     assert card["violations"] == [] and len(card["contract"]) == 8 and all(r["ok"] for r in card["contract"])
     assert {c["model"] for c in card["stability"]["cases"]} == {"plate_spring/continuous", "plate_spring/paper"}
     assert card["stability"]["safety_held"] and {r["calibration"] for r in card["accuracy"]["rows"]} == {"raw", "calibrated"}
     md = (tmp_path / "card.md").read_text()
     assert md.startswith("# Model check: plate_spring") and "The model keeps the contract and its budgets on this machine." in md
+
+
+def test_model_check_prints_its_stages_and_contract_runs_only_the_contract_and_budgets(plugin_env):
+    """The stages on stderr as they start and end (the estimate after the budgets), the card on
+    stdout; --contract stops after the budgets and says so."""
+    res = _studyctl(plugin_env, "model", "check", "spring", "--quick")
+    assert res.returncode == 0, res.stderr
+    lines = res.stderr.splitlines()
+    starts = [ln for ln in lines if ln.endswith(" ...")]
+    assert starts == ["[1/4] contract ...", "[2/4] budgets (this machine) ...", "[3/4] stability (quick sweep) ...",
+                      "[4/4] accuracy against the tissue truth ..."], res.stderr
+    assert any(ln.startswith("[1/4] contract: 7 of 7 checks held (") for ln in lines), res.stderr  # no stiffness scaling: 7
+    assert any("estimated from this model's measured costs" in ln and "the reference solves shipped or cached" in ln for ln in lines), res.stderr
+    assert "## Accuracy against the tissue truth" in res.stdout
+    only = _studyctl(plugin_env, "model", "check", "spring", "--contract", "--json")
+    assert only.returncode == 0, only.stderr
+    card = json.loads(only.stdout)
+    assert card["contract_only"] and card["stability"] is None and card["accuracy"] is None
+    assert card["skipped"].startswith("--contract") and set(card["stage_seconds"]) == {"contract", "budgets"}
+    assert [ln for ln in only.stderr.splitlines() if ln.endswith(" ...")] == ["[1/2] contract ...", "[2/2] budgets (this machine) ..."]
+
+
+def test_model_check_interrupted_keeps_the_stages_that_finished(plugin_env, tmp_path):
+    """Ctrl-C (SIGINT) in the stability sweep: exit 130, the card with the contract and the budgets
+    written to --out and printed, marked interrupted; nothing claims a verdict on the rest."""
+    import signal
+    import time
+
+    out = tmp_path / "card.json"
+    proc = subprocess.Popen([sys.executable, "-m", "studyctl", "model", "check", "fem", "--out", str(out)], env=plugin_env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    seen, deadline = "", time.monotonic() + 300
+    while "[3/4] stability (quick sweep) ..." not in seen and time.monotonic() < deadline:  # stderr, line by line
+        seen += proc.stderr.readline()
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, seen + stderr
+    card = json.loads(out.read_text())
+    assert card["interrupted"] == "stability" and len(card["contract"]) == 8 and len(card["budgets"]) == 3
+    assert "stability" not in card and "accuracy" not in card
+    assert "## Budgets" in stdout  # stdout: the same card as Markdown
+    assert "INTERRUPTED during stability (quick sweep)" in stdout
+    assert "Traceback" not in stderr
+    assert stderr.strip().splitlines()[-1].startswith("Error: model check fem: interrupted during stability (quick sweep)")
 
 
 def test_a_plugin_whose_build_raises_is_one_line(tmp_path):

@@ -178,7 +178,7 @@ def test_the_shipped_solves_are_the_solvers_and_hash_checked(scene, tmp_path, mo
     info = json.loads(tissue_pulls.SHIPPED_PULLS_INFO.read_text())
     assert info["law"] == scene.spec.material.law.params()
     entries = {(e["pull"], e["size_mm"]): e for e in info["entries"]}
-    assert len(entries) == 54  # 18 pulls x 3 meshes
+    assert len(entries) == 90  # 18 pulls x 5 meshes: the full bench's 8, 6, 4 mm and the quick benches' 20, 16 mm
     for e in entries.values():  # a solve that stopped says why and how far it got
         assert e["converged"] or (e["reason"] and 0 <= e.get("reached_mm", 0.0) < 24.0)
     assert entries[("left-lateral", 4.0)]["converged"] and entries[("right-lateral", 4.0)]["converged"]  # the hands
@@ -198,6 +198,25 @@ def test_the_shipped_solves_are_the_solvers_and_hash_checked(scene, tmp_path, mo
     monkeypatch.setattr(tissue_pulls, "_SHIPPED", None)
     with pytest.raises(tissue_pulls.ReferenceDataError, match="damaged"):
         tissue_pulls.shipped_solves()
+
+
+def test_the_quick_benches_and_model_check_solve_nothing_on_an_empty_cache(tmp_path, monkeypatch):
+    """Every solve `--quick` asks for (the accuracy bench, hence `model check --quick`, and the
+    reference bench) is shipped: an empty cache costs seconds, not minutes of finite-strain solves."""
+    from analysis.accuracy import quick_config as quick_accuracy
+    from analysis.accuracy import sample_displacements
+    from sim.pulls import test_pulls
+
+    monkeypatch.setenv("BRAINSIM_CACHE", str(tmp_path / "empty"))
+    scene = scene_with(DEFAULT_SCENE)
+    acc = quick_accuracy()
+    pulls = make_pulls(scene) + test_pulls(scene, acc.test_places)
+    assert tissue_pulls.unsolved(DEFAULT_SCENE, pulls, sample_displacements(acc), acc.reference_sizes_mm) == {20.0: 0, 16.0: 0}
+    ref = reference.quick_config()
+    chosen = [p for p in make_pulls(scene) if p.name in ref.pulls]
+    xs = tissue_pulls.pull_samples(ref.max_pull, ref.samples)
+    assert tissue_pulls.unsolved(DEFAULT_SCENE, chosen, xs, ref.sizes_mm) == {20.0: 0, 16.0: 0}
+    assert not (tmp_path / "empty").exists()  # nothing was solved, so nothing cached
 
 
 def test_samples_past_a_stopped_solve_have_no_reference_and_are_not_judged():

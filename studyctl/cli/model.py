@@ -10,7 +10,7 @@ import click
 from sim.models.base import MAX_PULL_M, pull_problem
 from sim.run import VisualStep
 from sim.scene import DEFAULT_SCENE
-from studyctl.cli.common import Finite, OutFile, _console, _Group, _print_json, _with_progress
+from studyctl.cli.common import Finite, OutFile, _console, _Group, _print_json
 
 
 @click.group(cls=_Group)
@@ -74,36 +74,100 @@ def model_describe(name: str, as_json: bool):
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE,
               show_default="protocols/scenes/brain_pull.toml", help="The scene the model runs in (its configuration of the model, else the model's defaults).")
 @click.option("--quick", is_flag=True, help="The accuracy bench's small configuration (20 and 16 mm reference meshes, two test places).")
+@click.option("--contract", "contract_only", is_flag=True, help="The contract and the budgets only (seconds): no stability sweep, no accuracy bench.")
 @click.option("--json", "as_json", is_flag=True, help="The scorecard as JSON (default: Markdown).")
 @click.option("--out", "out_file", type=OutFile(), default=None, help="Also write the scorecard here (.md or .json).")
-def model_check(name: str, scene_file: Path, quick: bool, as_json: bool, out_file):
+def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, as_json: bool, out_file):
     """A model's scorecard: the contract, its time budgets on this machine, the quick stability
-    sweep and the accuracy bench against the tissue truth. Exits 1 on a violation."""
+    sweep and the accuracy bench against the tissue truth. Stages are reported on stderr as they
+    start and end, with an estimate of the time left; Ctrl-C keeps the stages that finished.
+    Exits 1 on a violation, 130 when interrupted."""
     import json
 
-    from analysis.model_check import CheckConfig, CheckError, check_model, scorecard_md
+    from analysis.model_check import CheckConfig, CheckError, CheckInterrupted, check_model, scorecard_md
     from sim.jsonable import jsonable
     from sim.models.registry import ModelLoadError, model_class
 
-    try:  # a model that does not load is one line, before any progress bar
+    try:  # a model that does not load is one line, before any progress
         model_class(name)
     except ModelLoadError as exc:
         raise click.ClickException(str(exc)) from None
 
-    def run(progress):
-        return check_model(name, CheckConfig(scene=scene_file, quick=quick), progress=lambda k, n, what: progress(k, n))
+    def emit(card):
+        text = json.dumps(jsonable(card), indent=2) if as_json else scorecard_md(card)
+        if out_file:
+            Path(out_file).write_text(json.dumps(jsonable(card), indent=2) if str(out_file).endswith(".json") else scorecard_md(card))
+        click.echo(text.rstrip("\n"))
 
     try:
-        card = _with_progress(f"model check {name}", run)
+        with _StageReport(4 if not contract_only else 2) as report:
+            card = check_model(name, CheckConfig(scene=scene_file, quick=quick, contract_only=contract_only), progress=report)
     except CheckError as exc:
         raise click.ClickException(str(exc)) from None
-    text = json.dumps(jsonable(card), indent=2) if as_json else scorecard_md(card)
-    if out_file:
-        Path(out_file).write_text(json.dumps(jsonable(card), indent=2) if str(out_file).endswith(".json") else scorecard_md(card))
-    click.echo(text.rstrip("\n"))
+    except CheckInterrupted as stop:
+        emit(stop.card)
+        click.echo(f"Error: model check {name}: {stop}; the scorecard above holds the stages that finished", err=True)
+        raise SystemExit(130) from None
+    emit(card)
     if card["violations"]:
         raise click.ClickException(f"model {name}: {len(card['violations'])} violation{'s' if len(card['violations']) > 1 else ''} "
                                    "of the model contract (see above)")
+
+
+class _StageReport:
+    """`model check`'s stages on stderr: a line as each starts and ends, a bar with the time
+    left on the long ones, and the estimate of the whole once the budgets are measured."""
+
+    def __init__(self, stages: int):
+        from rich.console import Console
+
+        self.console, self.stages, self.k, self.bar, self.task = Console(stderr=True, highlight=False), stages, 0, None, None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self._stop_bar()
+
+    def _stop_bar(self):
+        if self.bar is not None:
+            self.bar.stop()
+            self.bar = None
+
+    def start(self, key: str, title: str, units=None) -> None:
+        self.k += 1
+        self.title = title
+        self.console.print(f"[{self.k}/{self.stages}] {title} ...", soft_wrap=True)
+
+    def step(self, k: int, n: int) -> None:
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
+
+        if not self.console.is_terminal:  # a log or a pipe gets the stage lines only
+            return
+        if self.bar is None:
+            self.bar = Progress(TextColumn(f"      {self.title}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                                TextColumn("left"), TimeRemainingColumn(), console=self.console, transient=True)
+            self.bar.start()
+            self.task = self.bar.add_task("", total=n)
+        self.bar.update(self.task, completed=k, total=n)
+
+    def end(self, key: str, seconds: float, summary: str) -> None:
+        self._stop_bar()
+        self.console.print(f"[{self.k}/{self.stages}] {self.title}: {summary} ({seconds:.1f} s)", soft_wrap=True)
+
+    def estimate(self, est: dict) -> None:
+        refs = (f", {est['reference_solves']} reference solves neither shipped nor cached (about {est['reference_solves_s']:.0f} s)"
+                if est["reference_solves"] else ", the reference solves shipped or cached")
+        self.console.print(f"      estimated from this model's measured costs: stability about {est['stability_s']:.0f} s "
+                           f"({est['stability_cases']} cases), accuracy about {est['accuracy_s']:.0f} s ({est['pulls']} pulls{refs}); "
+                           f"about {est['stability_s'] + est['accuracy_s']:.0f} s to go", soft_wrap=True)
 
 
 @model.command("plate-spring")
