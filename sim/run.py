@@ -60,6 +60,23 @@ class Snapshot:
     grasped: list[bool]
 
 
+_REST_TREES: dict = {}  # id(surface mesh) -> (mesh, its vertices' tree): a grasp at rest (every trial's first) builds none
+REST_TREES_KEPT = 8
+
+
+def _rest_tree(mesh):
+    """The closest-point tree of `mesh` at rest, one per mesh (the mesh is held with it, so its
+    id cannot be reused while the entry lives)."""
+    hit = _REST_TREES.get(id(mesh))
+    if hit is None or hit[0] is not mesh:
+        from scipy.spatial import cKDTree
+
+        while len(_REST_TREES) >= REST_TREES_KEPT:
+            _REST_TREES.pop(next(iter(_REST_TREES)))
+        hit = _REST_TREES[id(mesh)] = (mesh, cKDTree(mesh.vertices))
+    return hit[1]
+
+
 @dataclass
 class VisualStep:
     """Grasps requested by the servo, the deformation of the surface, snapshots for pictures."""
@@ -77,6 +94,9 @@ class VisualStep:
     last: np.ndarray | None = None
     targets: object = None  # a sim.targets.TargetTracker: the hands' targets, followed every frame
     end_on_targets: bool = False  # the run ends once every hand has held its target
+    # the run ends once every hand has grasped and let go (lockstep): what a synthetic interval
+    # needs, since its judgement reads each hand's first hold only (studyctl/observer.py)
+    end_on_release: bool = False
     grasp_reach: float = 0.01  # a button press farther than this from the surface grasps nothing
     # a run that draws nothing (lockstep, no pictures): each frame only `advance`s the model, and
     # its surface is computed when a grasp needs it (the traces are the same: no force reads it)
@@ -84,6 +104,7 @@ class VisualStep:
     _next_snapshot: float = 0.0
     _tree: object = None
     _stale: bool = False  # the model advanced since `last` was taken (lazy_surface)
+    _grasped: set = field(default_factory=set)  # hands that have held the tissue in this run
 
     def _surface_tree(self):
         """Closest-point structure of the surface as it is now (rebuilt at most once a frame,
@@ -95,14 +116,27 @@ class VisualStep:
                 self._stale = False
                 self.last = self.model.surface_displacement()
             mesh = self.model_mesh()
-            positions = mesh.vertices if self.last is None else mesh.vertices + self.last
-            self._tree = cKDTree(positions)
+            if self.last is None or not self.last.any():  # the surface at rest: its tree is the mesh's, built once
+                self._tree = _rest_tree(mesh)
+            else:
+                self._tree = cKDTree(mesh.vertices + self.last)
         return self._tree
 
     @property
     def finished(self) -> bool:
-        """The run's task is done: every hand has held its target (with `end_on_targets`)."""
-        return self.end_on_targets and self.targets is not None and self.targets.all_held
+        """The run's task is done (`finished_why` says how)."""
+        return self.finished_why is not None
+
+    @property
+    def finished_why(self) -> str | None:
+        """"targets held": every hand has held its target (with `end_on_targets`); "released":
+        every hand has grasped and let go (with `end_on_release`); None: the run goes on."""
+        if self.end_on_targets and self.targets is not None and self.targets.all_held:
+            return "targets held"
+        if (self.end_on_release and self.hands and len(self._grasped) == len(self.hands)
+                and not any(h.button or h.contact is not None for h in self.hands)):
+            return "released"
+        return None
 
     def model_mesh(self):
         return self.model.surface_mesh()
@@ -131,6 +165,7 @@ class VisualStep:
                     if self.targets is not None:  # the target counts from where the button was pressed, as the metrics do
                         self.targets.grasped(h.index, request)
                     self.events.append(Event(t, h.index, "grasp", f"vertex {contact.vertex}"))
+                    self._grasped.add(h.index)
         contacts, displacements = [], []
         for h in self.hands:
             c = h.contact
@@ -197,7 +232,7 @@ class RunResult:
     model_diagnostics: dict = field(default_factory=dict)
     started_by: str = "clock"  # a paced run: "grasp" or "key"
     waited_s: float = 0.0  # a paced run: seconds before its clock started
-    ended_early: str | None = None  # what ended it early: a paced run's key (or "window closed"), or "targets held"
+    ended_early: str | None = None  # what ended it early: a paced run's key (or "window closed"), "targets held" or "released"
     targets_held: list | None = None  # per hand, whether it held its target (None: no hand has one)
     view: dict | None = None  # the participant view's statistics
     pacer: str | None = None  # real time: "process" (its own clock) or "hd-scheduler" (real devices)
@@ -248,9 +283,10 @@ def _percentiles(values: np.ndarray, qs, with_max=False) -> dict:
 
 
 def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, snapshots: bool = False,
-              pacing: Pacing | None = None, servo=None, end_on_targets: bool = False) -> RunResult:
+              pacing: Pacing | None = None, servo=None, end_on_targets: bool = False, end_on_release: bool = False) -> RunResult:
     """Run `scene` (a `sim.scene.Scene`) for `duration` simulated seconds, or, with
-    `end_on_targets`, until every hand has held its target (`[hands.target]`), whichever is first.
+    `end_on_targets`, until every hand has held its target (`[hands.target]`), whichever is first;
+    with `end_on_release` (lockstep only), until every hand has grasped and let go.
 
     In real time (`time_scale > 0`) the servo runs in its own process: `servo`, a
     `sim.servo_process.ServoProcess` kept open across runs (a session's), or one opened for
@@ -265,6 +301,8 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
         raise ParameterError(f"duration: {duration!r} is out of range; allowed: (0, {MAX_DURATION_S:g}] s")
     if not (math.isfinite(time_scale) and 0 <= time_scale <= 1000):
         raise ParameterError(f"time scale: {time_scale!r} is out of range; allowed: 0 (lockstep) or (0, 1000]")
+    if end_on_release and time_scale > 0:
+        raise ParameterError("end_on_release: a lockstep run's option (time scale 0)")
     if time_scale <= 0 and pacing is not None:
         raise ParameterError("the participant view and paced trials need real time (time scale > 0)")
     model.reset()  # every run starts from undeformed tissue
@@ -278,7 +316,7 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
     servo_loop = ServoLoop.for_devices(model, hands, rate)
     snapshot_period = 1.0 / spec.renderer.fps if snapshots else None
     visual = VisualStep(model=model, hands=hands, events=servo_loop.events, snapshot_period=snapshot_period,
-                        targets=_tracker(scene), end_on_targets=end_on_targets, lazy_surface=not snapshots)
+                        targets=_tracker(scene), end_on_targets=end_on_targets, end_on_release=end_on_release, lazy_surface=not snapshots)
     n_ticks = int(round(duration * rate))
     try:
         starts, misses, wall = _run_lockstep(servo_loop, visual, n_ticks, rate, spec.visual_rate_hz)
@@ -296,11 +334,11 @@ def _tracker(scene):
 
 
 def _ended(visual: VisualStep, result: RunResult) -> RunResult:
-    """The result, with the targets' outcome: which hands held theirs, and the run ended by them."""
+    """The result, with the targets' outcome (which hands held theirs) and what ended it early."""
     if visual.targets is not None:
         result.targets_held = [s is not None and s.held for s in visual.targets.states]
-        if visual.finished and result.ended_early is None:
-            result.ended_early = "targets held"
+    if visual.finished and result.ended_early is None:
+        result.ended_early = visual.finished_why
     return result
 
 

@@ -24,8 +24,13 @@ from studyctl.store.trials import discrimination_done
 from studyctl.traces import write_trace
 
 INTERVALS = ("1", "2")
-_STIMULI: dict = {}  # (the condition's scene, scale) -> its scaled scene: the few a procedure keeps trying
-STIMULI_KEPT = 6  # FEM scenes share their factors (`LinearFem.scaled`); a mass-spring's is rebuilt (0.2 s)
+# (the condition's scene, scale) -> its scaled scene: what a procedure tries again, in this
+# participant's session and the next ones a process runs (the condition's scene is built once per
+# process, `studyctl.conditions.condition_scene`). QUEST+ draws from a grid of 35 increments for the
+# shipped task, so all of them are kept: FEM scenes share their factors (`LinearFem.scaled`), a
+# mass-spring factorises its own at its first frame (85 ms, a few MB at 8 mm), done once a process.
+_STIMULI: dict = {}
+STIMULI_KEPT = 40
 
 
 def stimulus_scene(scene, scale: float):
@@ -85,7 +90,10 @@ def _run_interval(run, scene, model: str, task, trial: int, interval: int, statu
     pacing = Pacing(view=shown, wait_for_grasp=run.paced, caption=caption, keys=run.keys, notify=run.say) if (run.paced or shown) else None
     scene.operators = run.participant.operators(scene, f"task{task.index}:{trial}:{interval}", model) if run.participant else None
     try:
-        return run_scene(scene, duration=task.interval_seconds, time_scale=run.time_scale, pacing=pacing, servo=run.servo)
+        # a synthetic interval in lockstep ends when both hands have let go: its judgement reads
+        # each hand's first hold only, so the rest of the interval would change no answer
+        return run_scene(scene, duration=task.interval_seconds, time_scale=run.time_scale, pacing=pacing, servo=run.servo,
+                         end_on_release=bool(run.participant) and run.time_scale == 0)
     finally:
         scene.operators = None
         if shown is not None:

@@ -114,6 +114,36 @@ def test_a_scaled_model_is_the_model_built_with_the_scaled_modulus(tmp_path, mod
             np.testing.assert_allclose(stiff.force(stiff.grasp(point), d), s * np.asarray(base.model.force(base.model.grasp(point), d)), rtol=1e-9)
 
 
+@pytest.mark.parametrize("model", ["plate_spring", "mass_spring"])
+def test_a_lockstep_run_ended_at_the_release_is_the_full_runs_start_and_judged_alike(tmp_path, model):
+    """`end_on_release` (a synthetic interval): the run stops at the first frame after both hands
+    let go; every tick before it is the full run's, bit for bit, so the stiffness judgement, which
+    reads each hand's first hold, is the same."""
+    from sim.run import run_scene
+    from studyctl.observer import stiffness_log_ratio
+    from tests.helpers import fast_protocol
+
+    fast_protocol(tmp_path)
+    spec = dataclasses.replace(load_scene(tmp_path / "scene.toml"), model=model)
+    base = Scene(spec).with_device("simulated")
+    stiffer = Scene(spec).with_stiffness(1.3).with_device("simulated")
+    full = [run_scene(s, duration=3.0, time_scale=0.0) for s in (base, stiffer)]
+    short = [run_scene(s, duration=3.0, time_scale=0.0, end_on_release=True) for s in (base, stiffer)]
+    for f, r in zip(full, short):
+        released = max(e.t for e in f.events if e.kind == "release")
+        assert sum(e.kind == "release" for e in f.events) == 2 and released < 2.9  # both hands let go before the end
+        n = len(r.times)
+        assert r.ended_early == "released" and f.ended_early is None
+        assert released <= r.times[-1] < released + 1.0 / spec.visual_rate_hz + 1e-9
+        for name in ("times", "positions", "forces", "buttons"):
+            np.testing.assert_array_equal(getattr(r, name), getattr(f, name)[:n])
+    ratio = stiffness_log_ratio(*full, base.mesh)
+    assert ratio > 0.1  # the stiffer one is felt
+    assert stiffness_log_ratio(*short, base.mesh) == ratio
+    with pytest.raises(Exception, match="end_on_release"):
+        run_scene(base, duration=1.0, time_scale=1.0, end_on_release=True)
+
+
 # -- the observer's judgement from two traces ------------------------------------------------------
 
 
