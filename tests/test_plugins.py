@@ -213,6 +213,8 @@ def test_the_walkthrough_of_docs_models_in_a_fresh_environment(tmp_path):
     half = next(m for m in models["models"] if m["name"] == "halfspace")
     assert half["source"] == "brainsim-halfspace 0.1.0" and not half["builtin"]
     assert "grasp_radius" in run("studyctl model describe halfspace")
+    contract = json.loads(run("studyctl model check halfspace --contract", "--json"))
+    assert contract["violations"] == [] and contract["stability"] is None and len(contract["budgets"]) == 3
     card = json.loads(run("studyctl model check halfspace --quick", "--json"))
     assert card["violations"] == [] and all(r["ok"] for r in card["contract"]) and card["stability"]["safety_held"]
     assert {r["calibration"] for r in card["accuracy"]["rows"]} == {"raw", "calibrated"}
