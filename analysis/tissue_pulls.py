@@ -404,7 +404,8 @@ def _stored_task(task, seen: dict) -> dict | None:
 
 def unsolved(scene_path, pulls, xs, sizes_mm) -> dict:
     """The solves `pull_references` would have to run for these pulls and sizes (neither
-    shipped nor cached): {size_mm: count}. Reads the meshes and the stores, solves nothing."""
+    shipped nor cached): {size_mm: count}. Reads the meshes and the stores, solves nothing and
+    meshes nothing (a pull on a mesh not yet made counts as unsolved)."""
     scene = scene_with(scene_path)
     law, radius = scene.spec.material.law, grasp_radius(scene)
     xs = np.asarray(xs, dtype=np.float64)
@@ -414,9 +415,11 @@ def unsolved(scene_path, pulls, xs, sizes_mm) -> dict:
         for pull in pulls:
             if pull.hemisphere not in bodies:
                 verts, tris, _ = hemisphere_surface(scene.mesh, pull.hemisphere)
-                bodies[pull.hemisphere] = mesh_hemisphere(verts, tris, float(size) * 1e-3)
-            key = pull_key(bodies[pull.hemisphere], scene, law, radius, pull)
-            out[float(size)] = out.get(float(size), 0) + int(_stored(key, xs, False, "stored") is None)
+                edge = float(size) * 1e-3
+                bodies[pull.hemisphere] = None if needs_meshing(verts, tris, edge) else mesh_hemisphere(verts, tris, edge)
+            body = bodies[pull.hemisphere]
+            missing = body is None or _stored(pull_key(body, scene, law, radius, pull), xs, False, "stored") is None
+            out[float(size)] = out.get(float(size), 0) + int(missing)
     return out
 
 

@@ -7,7 +7,7 @@ py="$venv/bin/python"
 pyver=$("$py" -c 'import sys; print("%d.%d" % sys.version_info[:2])')
 tmp=$(mktemp)
 {
-  grep '^#' "$lock" | sed -E "s/^# Made [0-9-]+ on CPython [0-9.]+,/# Made $(date +%F) on CPython $pyver,/"
+  grep '^#' "$lock" | sed -E "s/^# Made [0-9-]+ on CPython [0-9.]+, [^ ]+ [^ ]+ /# Made $(date +%F) on CPython $pyver, $(uname -s) $(uname -m) /"
   echo "pip==$("$py" -m pip --version | cut -d' ' -f2)"
   "$py" -m pip freeze --exclude-editable
 } > "$tmp"

@@ -83,6 +83,7 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
     start and end, with an estimate of the time left; Ctrl-C keeps the stages that finished.
     Exits 1 on a violation, 130 when interrupted."""
     import json
+    import os
 
     from analysis.model_check import CheckConfig, CheckError, CheckInterrupted, check_model, scorecard_md
     from sim.jsonable import jsonable
@@ -95,8 +96,11 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
 
     def emit(card):
         text = json.dumps(jsonable(card), indent=2) if as_json else scorecard_md(card)
-        if out_file:
-            Path(out_file).write_text(json.dumps(jsonable(card), indent=2) if str(out_file).endswith(".json") else scorecard_md(card))
+        if out_file:  # whole or not at all: a second Ctrl-C while writing leaves no half card
+            out = Path(out_file)
+            part = out.with_name(f".{out.name}.part")
+            part.write_text(json.dumps(jsonable(card), indent=2) if out.suffix == ".json" else scorecard_md(card))
+            os.replace(part, out)
         click.echo(text.rstrip("\n"))
 
     try:

@@ -63,6 +63,17 @@ class SlowForce(Spring):
         return super().force(contact, d)
 
 
+class SlowBuild(Spring):
+    """Keeps the contract; building it takes a second (the stability sweep builds it per case:
+    a stage long enough to interrupt)."""
+
+    description = "a spring that takes a second to build (test plugin)"
+
+    def __init__(self, mesh, options, scene):
+        time.sleep(1.0)
+        super().__init__(mesh, options, scene)
+
+
 class GraspRaises(Spring):
     description = "grasp raises (test plugin)"
 
