@@ -169,8 +169,8 @@ class _StageReport:
     def estimate(self, est: dict) -> None:
         refs = (f", {est['reference_solves']} reference solves neither shipped nor cached (about {est['reference_solves_s']:.0f} s)"
                 if est["reference_solves"] else ", the reference solves shipped or cached")
-        self.console.print(f"      estimated from this model's measured costs: stability up to about {est['stability_s']:.0f} s "
-                           f"({est['stability_cases']} cases, each counted with a build as long as the contract's), accuracy about {est['accuracy_s']:.0f} s ({est['pulls']} pulls{refs}); "
+        self.console.print(f"      estimated from this model's measured costs: stability about {est['stability_s']:.0f} s "
+                           f"({est['stability_cases']} cases, each with a build as long as the contract's), accuracy about {est['accuracy_s']:.0f} s ({est['pulls']} pulls{refs}); "
                            f"about {est['stability_s'] + est['accuracy_s']:.0f} s to go", soft_wrap=True)
 
 
