@@ -1,9 +1,13 @@
-"""Fitting the finite-strain laws to uniaxial tissue data (`studyctl calibrate material`).
+"""Fitting the finite-strain laws to tissue data (`studyctl calibrate material`).
 
-Each law (`sim.hyperelastic`: neo-Hookean, Mooney-Rivlin, one- and two-term Ogden)
-is fitted to the nominal stress of uniaxial tension and compression together, by least
-squares on the stress (Pa), with the law's own volumetric part (kappa = bulk_ratio mu) and
-free lateral faces: the same closed form the FEM's cube tests hold the FEM to. The shear
+Each law (`sim.hyperelastic`: neo-Hookean, Mooney-Rivlin, one- and two-term Ogden) is fitted
+to every loading mode its data files hold together: uniaxial tension and compression (nominal
+stress; the law's own volumetric part, kappa = bulk_ratio mu, and free lateral faces: the same
+closed form the FEM's cube tests hold the FEM to) and simple shear (the shear stress, J = 1:
+`shear_stress`). One file: least squares on the stress (Pa). Several files: each file's
+residuals divided by the RMS of its data, so that every file counts alike whatever its stress
+scale. Each mode's error is reported, and each mode's error when the law is fitted without it
+(leave one mode out: how well the others predict it). The shear
 moduli are bounded below by 0 (a negative term is unstable). Ogden's exponents are started
 from a grid (the objective has several minima) and the best kept.
 
@@ -30,6 +34,10 @@ from studyctl.csvfiles import read_csv
 from studyctl.errors import InputError
 
 DATA_FILE = _asset("data/brain_tissue_uniaxial_budday2017.csv")
+SHEAR_FILE = _asset("data/brain_tissue_shear_budday2017.csv")
+# a file's loading mode, from its columns
+MODES = {"uniaxial": ("stretch", "nominal_stress_kpa"), "shear": ("shear_strain", "shear_stress_kpa")}
+SHEAR_BAND = (0.1, 0.2)  # |shear strain| where a law's worst relative shear error is reported
 FIT_LAWS = ("neo-hookean", "mooney-rivlin", "ogden", "ogden-2")
 ALPHA_STARTS = (-30.0, -20.0, -10.0, -4.0, 4.0, 10.0)
 
@@ -43,23 +51,48 @@ class Curve:
     path: str
     sha256: str
     region: str
-    stretch: np.ndarray
-    stress: np.ndarray  # nominal, Pa
+    x: np.ndarray  # stretch (uniaxial) or shear strain (shear)
+    stress: np.ndarray  # nominal (uniaxial) or shear (shear), Pa
+    mode: str = "uniaxial"
+
+    @property
+    def stretch(self) -> np.ndarray:
+        return self.x
+
+    def modes(self) -> np.ndarray:
+        """Each point's mode: tension, compression (uniaxial) or shear."""
+        if self.mode == "shear":
+            return np.full(len(self.x), "shear")
+        return np.where(self.x > 1.0, "tension", "compression")
 
 
 def read_curve(path, region: str) -> Curve:
-    """The rows of `region` in a CSV with columns region, stretch, nominal_stress_kpa (read
-    strictly: `studyctl.csvfiles.read_csv`); a bad cell is named by its line and column."""
+    """The rows of `region` in a CSV of one loading mode, read from its columns: region, stretch,
+    nominal_stress_kpa (uniaxial) or region, shear_strain, shear_stress_kpa (simple shear); read
+    strictly (`studyctl.csvfiles.read_csv`): a bad cell is named by its line and column."""
     p = Path(path)
-    columns = ("region", "stretch", "nominal_stress_kpa")
-    rows = read_csv(p, columns, columns)
+    allowed = ("region",) + tuple(c for cols in MODES.values() for c in cols)
+    rows = read_csv(p, allowed, ("region",))
+    header = set(rows[0][1]) if rows else set()
+    found = [m for m, cols in MODES.items() if set(cols) <= header]
+    for cols in MODES.values():  # half a mode's columns: name the missing one
+        if len(found) == 0 and any(c in header for c in cols):
+            missing = next(c for c in cols if c not in header)
+            raise MaterialDataError(f"{p}: no {missing!r} column; a file is region, " + " or region, ".join(", ".join(c) for c in MODES.values()))
+    if len(found) != 1:
+        raise MaterialDataError(f"{p}: the columns must be region, then " + " or ".join(", ".join(c) for c in MODES.values())
+                                + f" (one loading mode a file); found {', '.join(sorted(header)) or 'none'}")
+    mode = found[0]
+    xcol, ycol = MODES[mode]
     regions = sorted({r["region"] for _, r in rows if r["region"]})
     mine = [(line, r) for line, r in rows if r["region"] == region]
     if not mine:
         raise MaterialDataError(f"{p}: region {region!r} has no rows; regions there: {', '.join(regions) or 'none'}")
-    values = {c: [] for c in columns[1:]}
+    ranges = {"stretch": (0.2, 5.0), "shear_strain": (-5.0, 5.0), "nominal_stress_kpa": (-1e6, 1e6), "shear_stress_kpa": (-1e6, 1e6)}
+    values = {xcol: [], ycol: []}
     for line, r in mine:
-        for col, lo, hi in (("stretch", 0.2, 5.0), ("nominal_stress_kpa", -1e6, 1e6)):
+        for col in (xcol, ycol):
+            lo, hi = ranges[col]
             try:
                 v = float(r[col])
             except ValueError:
@@ -67,10 +100,28 @@ def read_curve(path, region: str) -> Curve:
             if not (math.isfinite(v) and lo <= v <= hi):
                 raise MaterialDataError(f"{p}:{line}: {col}: {r[col][:20]!r} is out of range; allowed: a number in {lo:g}..{hi:g}")
             values[col].append(v)
-    lam, stress = np.array(values["stretch"]), np.array(values["nominal_stress_kpa"]) * 1e3
-    if (lam < 1).sum() < 2 or (lam > 1).sum() < 2:
+    x, stress = np.array(values[xcol]), np.array(values[ycol]) * 1e3
+    if mode == "uniaxial" and ((x < 1).sum() < 2 or (x > 1).sum() < 2):
         raise MaterialDataError(f"{p}: region {region!r} needs at least two points in tension and two in compression")
-    return Curve(str(p), hashlib.sha256(p.read_bytes()).hexdigest(), region, lam, stress)
+    if mode == "shear" and (np.abs(x) > 0).sum() < 2:
+        raise MaterialDataError(f"{p}: region {region!r} needs at least two points at a non-zero shear strain")
+    return Curve(str(p), hashlib.sha256(p.read_bytes()).hexdigest(), region, x, stress, mode)
+
+
+def shear_stress(law: Hyperelastic, gamma) -> np.ndarray:
+    """The shear stress (Pa) of simple shear F = I + gamma e1 (x) e2, in closed form: principal
+    stretches l1 = sqrt(1 + gamma^2 / 4) + gamma / 2, l2 = 1 / l1, l3 = 1 (J = 1: no volumetric
+    part), tau = (s1 - s2) / (l1 + l2) with s1 - s2 = sum_p (2 mu_p / alpha_p)(l1^a_p - l2^a_p)
+    (the Cauchy stress rotated to the shear plane; the first Piola-Kirchhoff's 12 entry is the
+    same). `sim.hyperelastic.simple_shear` gives the whole tensor by an eigendecomposition."""
+    g = np.asarray(gamma, dtype=np.float64)
+    l1 = np.sqrt(1.0 + 0.25 * g * g) + 0.5 * g
+    l2 = 1.0 / l1
+    return sum(2.0 * m / a * (l1**a - l2**a) for m, a in zip(law.mu, law.alpha)) / (l1 + l2)
+
+
+def _predict(law: Hyperelastic, curve: Curve) -> np.ndarray:
+    return shear_stress(law, curve.x) if curve.mode == "shear" else uniaxial(law, curve.x)[0]
 
 
 def _law(name: str, x: np.ndarray, bulk_ratio: float) -> Hyperelastic:
@@ -104,32 +155,56 @@ def _starts(name: str, mu0: float) -> list[tuple[np.ndarray, tuple]]:
     return out
 
 
-def fit_law(curve: Curve, name: str, bulk_ratio: float = BULK_RATIO) -> dict:
-    """One law's least-squares fit to the curve: parameters, intervals, errors, criteria."""
-    from scipy.optimize import least_squares
-    from scipy.stats import t as student_t
+def _mu_start(curves: list[Curve]) -> float:
+    """A start for mu from the small-strain slope: dP/dlambda = 3 mu (uniaxial, incompressible),
+    dtau/dgamma = mu (shear)."""
+    for c in curves:
+        near = np.abs(c.x - (0.0 if c.mode == "shear" else 1.0)) <= (0.051 if c.mode == "shear" else 0.031)
+        if near.sum() >= 2:
+            slope = float(np.polyfit(c.x[near] - (0.0 if c.mode == "shear" else 1.0), c.stress[near], 1)[0])
+            return max(slope / (1.0 if c.mode == "shear" else 3.0), 1.0)
+    return 1000.0
 
-    lam, y = curve.stretch, curve.stress
-    # a start for mu: the small-strain slope, dP/dlambda = 3 mu (incompressible)
-    near = np.abs(lam - 1.0) <= 0.031
-    mu0 = max(float(np.polyfit(lam[near] - 1.0, y[near], 1)[0]) / 3.0, 1.0) if near.sum() >= 2 else 1000.0
+
+def _solve(curves: list[Curve], name: str, bulk_ratio: float, weights: list[float], keep: list[np.ndarray]):
+    """The best least-squares optimum over the law's starts, on the kept points of each curve
+    (residuals times each curve's weight); None when no start gives a finite one."""
+    from scipy.optimize import least_squares
 
     def residual(x):
-        return uniaxial(_law(name, x, bulk_ratio), lam)[0] - y
+        law = _law(name, x, bulk_ratio)
+        return np.concatenate([(_predict(law, c) - c.stress)[k] * w for c, w, k in zip(curves, weights, keep)])
 
     best = None
-    for x0, bounds in _starts(name, mu0):
+    for x0, bounds in _starts(name, _mu_start(curves)):
         try:
             r = least_squares(residual, x0, bounds=bounds, x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=4000)
         except ValueError:  # a start whose law over/underflows
             continue
         if np.all(np.isfinite(r.fun)) and (best is None or r.cost < best.cost):
             best = r
+    return best
+
+
+def _rms_rel(res: np.ndarray, y: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(res**2)) / np.sqrt(np.mean(y**2))) if len(y) else math.nan
+
+
+def fit_law(curves, name: str, bulk_ratio: float = BULK_RATIO) -> dict:
+    """One law's least-squares fit to the curves (one `Curve` or several, each of one mode):
+    parameters, intervals, each mode's error, each mode's error when fitted without it, criteria."""
+    from scipy.stats import t as student_t
+
+    curves = [curves] if isinstance(curves, Curve) else list(curves)
+    # one file: the stress in Pa as it is; several: each file's residuals over its data's RMS
+    weights = [1.0] if len(curves) == 1 else [1.0 / float(np.sqrt(np.mean(c.stress**2))) for c in curves]
+    everything = [np.ones(len(c.x), bool) for c in curves]
+    best = _solve(curves, name, bulk_ratio, weights, everything)
     if best is None:
-        raise MaterialDataError(f"{curve.path}: the {name} law could not be fitted to region {curve.region!r} from any start "
+        raise MaterialDataError(f"{curves[0].path}: the {name} law could not be fitted to region {curves[0].region!r} from any start "
                                 "(its stresses over- or underflow there)")
     x, res = best.x, best.fun
-    n, k = len(y), len(x)
+    n, k = len(res), len(x)
     rss = max(float(np.sum(res**2)), 1e-300)  # an exact fit: no log of zero
     dof = max(n - k, 1)
     J = best.jac
@@ -140,17 +215,38 @@ def fit_law(curve: Curve, name: str, bulk_ratio: float = BULK_RATIO) -> dict:
         half = np.full(k, np.inf)
     at_bound = [bool(np.isclose(v, 0.0)) for v in x[: 1 if name in ("neo-hookean", "ogden") else 2]]
     law = _law(name, x, bulk_ratio)
-    rms = lambda sel: float(np.sqrt(np.mean(res[sel] ** 2)) / np.sqrt(np.mean(y[sel] ** 2)))  # noqa: E731
-    tension, compression = lam > 1.0, lam < 1.0
+    y = np.concatenate([c.stress for c in curves])
+    modes = np.concatenate([c.modes() for c in curves])
+    pa = np.concatenate([_predict(law, c) - c.stress for c in curves])  # the residuals in Pa, whatever the weights
     identified = bool(np.all(np.isfinite(half)) and np.all(half < np.abs(x)) and not any(at_bound))
     aicc = n * math.log(rss / n) + 2 * k + (2 * k * (k + 1) / (n - k - 1) if n - k - 1 > 0 else math.inf)
-    return {"law": name, "parameters": dict(zip(_names(name), (float(v) for v in x))),
-            "ci95": {p: [float(v - h), float(v + h)] for p, v, h in zip(_names(name), x, half)},
-            "material": law.params(), "shear_modulus_pa": law.shear_modulus,
-            "rms_rel": rms(np.ones(n, bool)), "rms_rel_tension": rms(tension), "rms_rel_compression": rms(compression),
-            "rms_pa": float(np.sqrt(rss / n)), "aicc": aicc, "bic": n * math.log(rss / n) + k * math.log(n),
-            "identified": identified, "at_bound": any(at_bound), "n": n, "k": k,
-            "residuals_pa": res.tolist()}
+    present = [m for m in ("tension", "compression", "shear") if (modes == m).any()]
+    out = {"law": name, "parameters": dict(zip(_names(name), (float(v) for v in x))),
+           "ci95": {p: [float(v - h), float(v + h)] for p, v, h in zip(_names(name), x, half)},
+           "material": law.params(), "shear_modulus_pa": law.shear_modulus,
+           "rms_rel": _rms_rel(pa, y), **{f"rms_rel_{m}": _rms_rel(pa[modes == m], y[modes == m]) for m in present},
+           **({"rms_rel_uniaxial": _rms_rel(pa[modes != "shear"], y[modes != "shear"])} if "shear" in present and len(present) > 1 else {}),
+           "rms_pa": float(np.sqrt(np.mean(pa**2))), "aicc": aicc, "bic": n * math.log(rss / n) + k * math.log(n),
+           "identified": identified, "at_bound": any(at_bound), "n": n, "k": k,
+           "residuals_pa": pa.tolist()}
+    shear = [c for c in curves if c.mode == "shear"]
+    if shear:
+        band = [np.abs(c.x) >= SHEAR_BAND[0] - 1e-12 for c in shear]
+        band = [b & (np.abs(c.x) <= SHEAR_BAND[1] + 1e-12) for b, c in zip(band, shear)]
+        rel = np.concatenate([np.abs(shear_stress(law, c.x[b]) / c.stress[b] - 1.0) for c, b in zip(shear, band)])
+        out["shear_worst_rel"] = float(rel.max()) if len(rel) else math.nan
+    if len(present) > 1:  # each mode predicted by a fit to the others
+        out["left_out"] = {}
+        for m in present:
+            keep = [c.modes() != m for c in curves]
+            alone = _solve(curves, name, bulk_ratio, weights, keep)
+            if alone is None:
+                out["left_out"][m] = math.nan
+                continue
+            other = _law(name, alone.x, bulk_ratio)
+            held = np.concatenate([(_predict(other, c) - c.stress)[c.modes() == m] for c in curves])
+            out["left_out"][m] = _rms_rel(held, y[modes == m])
+    return out
 
 
 def law_of(fit: dict) -> Hyperelastic:
@@ -158,19 +254,24 @@ def law_of(fit: dict) -> Hyperelastic:
     return _law(fit["law"], np.array(list(fit["parameters"].values())), fit["material"]["bulk_ratio"])
 
 
-def fit_material(path, region: str = "cortex", laws=FIT_LAWS, bulk_ratio: float = BULK_RATIO) -> dict:
-    """Fit every law in `laws` to `region` of the data file; choose by AICc among identified fits."""
-    curve = read_curve(path, region)
-    fits = [fit_law(curve, name, bulk_ratio) for name in laws]
+def fit_material(paths, region: str = "cortex", laws=FIT_LAWS, bulk_ratio: float = BULK_RATIO) -> dict:
+    """Fit every law in `laws` to `region` of the data files (one path or several, each of one
+    loading mode, fitted together); choose by AICc among identified fits."""
+    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    curves = [read_curve(p, region) for p in paths]
+    fits = [fit_law(curves, name, bulk_ratio) for name in laws]
     candidates = [f for f in fits if f["identified"]] or fits
     chosen = min(candidates, key=lambda f: f["aicc"])
     warning = None if chosen["identified"] else (f"no law's parameters are identified by these data; {chosen['law']} has the lowest "
                                                  "AICc, but its intervals are wide or a parameter is at its bound")
+    files = [{"path": c.path, "sha256": c.sha256, "region": region, "mode": c.mode, "points": len(c.x),
+              ("stretch_range" if c.mode == "uniaxial" else "shear_strain_range"): [float(c.x.min()), float(c.x.max())]} for c in curves]
+    modes = "uniaxial tension and compression" if all(c.mode == "uniaxial" for c in curves) else \
+        " and ".join(sorted({"uniaxial tension and compression" if c.mode == "uniaxial" else "simple shear" for c in curves}, reverse=True))
+    weighting = "on the stress (Pa)" if len(curves) == 1 else "each file's residuals divided by its data's RMS"
+    keys = [k for k in chosen if k.startswith("rms_rel") or k in ("shear_worst_rel", "left_out", "shear_modulus_pa")]
     return {"law": chosen["material"]["law"], **{k: v for k, v in chosen["material"].items() if k != "law"}, "warning": warning,
-            "fit": chosen["law"], "rms_rel": chosen["rms_rel"], "rms_rel_tension": chosen["rms_rel_tension"],
-            "rms_rel_compression": chosen["rms_rel_compression"], "shear_modulus_pa": chosen["shear_modulus_pa"],
-            "laws": fits,
-            "data": {"path": curve.path, "sha256": curve.sha256, "region": region, "points": len(curve.stretch),
-                     "stretch_range": [float(curve.stretch.min()), float(curve.stretch.max())]},
-            "method": ("least squares on the nominal stress (Pa), tension and compression together; uniaxial loading with free "
-                       f"lateral faces, nearly incompressible (kappa = {bulk_ratio:g} mu); chosen by AICc among identified fits")}
+            "fit": chosen["law"], **{k: chosen[k] for k in keys},
+            "laws": fits, "data": files[0], "files": files,
+            "method": (f"least squares {weighting}, {modes} together; uniaxial loading with free lateral faces, simple shear in "
+                       f"closed form (J = 1); nearly incompressible (kappa = {bulk_ratio:g} mu); chosen by AICc among identified fits")}

@@ -126,3 +126,84 @@ def test_nan_data_cells_give_one_line_not_a_traceback(tmp_path):
     path.write_text("region,stretch,nominal_stress_kpa\ncortex,0.9,-1\ncortex,abc,-0.5\n")
     res = CliRunner().invoke(cli, ["calibrate", "material", "--data", str(path)])
     assert res.exit_code == 1 and "d.csv:3: stretch: 'abc' is out of range" in res.output
+
+
+# -- several loading modes together (uniaxial tension and compression, simple shear) --------------
+
+def test_the_shear_closed_form_is_the_stress_tensors_and_neo_hookean_is_linear():
+    """`shear_stress` (principal stretches in closed form) against `sim.hyperelastic.simple_shear`
+    (the stress tensor by an eigendecomposition of F F^T) and against mu gamma, exact for a
+    neo-Hookean solid in simple shear."""
+    import numpy as np
+
+    from analysis.material_fit import shear_stress
+    from sim.hyperelastic import neo_hookean, ogden, simple_shear
+
+    g = np.linspace(-0.4, 0.4, 9)
+    for law in (ogden([1200.0, 300.0], [-18.0, 4.0]), ogden([1500.0], [-20.0])):
+        tensor = np.array([simple_shear(law, x)[0, 1] for x in g])
+        np.testing.assert_allclose(shear_stress(law, g), tensor, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(shear_stress(neo_hookean(1000.0), g), 1000.0 * g, rtol=1e-12, atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def both_modes():
+    from analysis.material_fit import SHEAR_FILE
+
+    res = CliRunner().invoke(cli, ["calibrate", "material", "--data", str(DATA_FILE), "--data", str(SHEAR_FILE), "--region", "cortex",
+                                   "--json"])
+    assert res.exit_code == 0, res.output
+    return json.loads(res.output)
+
+
+def test_uniaxial_and_shear_fitted_together_meet_both_and_report_each_mode_left_out(both_modes):
+    """Cortex, tension, compression and shear together: the one-term Ogden law, within 10% RMS
+    on the uniaxial data and 20% at worst over shear strains 0.1-0.2; each mode's error and
+    its error when fitted without it. A fit that includes a mode fits it at least as well as one
+    that leaves it out (the joint optimum's objective is no larger): the invariant every law keeps."""
+    f = both_modes
+    assert [x["mode"] for x in f["files"]] == ["uniaxial", "shear"] and f["files"][1]["points"] == 33
+    assert f["law"] == "ogden" and 1200 < f["mu"][0] < 1500 and -23 < f["alpha"][0] < -18
+    assert f["rms_rel_uniaxial"] <= 0.10  # measured 7.9%
+    assert f["shear_worst_rel"] <= 0.20  # measured 14.5%
+    assert set(f["left_out"]) == {"tension", "compression", "shear"}
+    for law in f["laws"]:
+        for mode, held_out in law["left_out"].items():
+            assert held_out >= law[f"rms_rel_{mode}"] - 1e-6, (law["law"], mode)
+    uniaxial_only = {x["law"]: x for x in json.loads(CliRunner().invoke(cli, ["calibrate", "material", "--json"]).output)["laws"]}
+    assert uniaxial_only["ogden"]["shear_modulus_pa"] > f["shear_modulus_pa"]  # the shear data soften the small-strain modulus
+
+
+def test_the_joint_fit_agrees_with_an_independent_incompressible_fit(both_modes):
+    """scipy's curve_fit on the incompressible closed forms written here (uniaxial P = 2 mu/a
+    (l^(a-1) - l^(-a/2-1)); shear tau = 2 mu/a (l1^a - l1^-a) / (l1 + 1/l1)), each file divided
+    by its data's RMS as the fit does: the nearly incompressible law (kappa = 50 mu) within a few %."""
+    import numpy as np
+    from scipy.optimize import curve_fit
+
+    from analysis.material_fit import SHEAR_FILE
+
+    u, s = read_curve(DATA_FILE, "cortex"), read_curve(SHEAR_FILE, "cortex")
+    wu, ws = 1 / np.sqrt(np.mean(u.stress**2)), 1 / np.sqrt(np.mean(s.stress**2))
+
+    def model(i, mu, a):
+        i = i.astype(int)
+        lam, g = u.x, s.x
+        l1 = np.sqrt(1 + g * g / 4) + g / 2
+        both = np.concatenate([wu * 2 * mu / a * (lam ** (a - 1) - lam ** (-a / 2 - 1)), ws * 2 * mu / a * (l1**a - l1**-a) / (l1 + 1 / l1)])
+        return both[i]
+
+    idx = np.arange(len(u.x) + len(s.x), dtype=float)
+    (mu, a), _ = curve_fit(model, idx, np.concatenate([wu * u.stress, ws * s.stress]), p0=(1500, -20))
+    assert both_modes["mu"][0] == pytest.approx(mu, rel=0.05) and both_modes["alpha"][0] == pytest.approx(a, rel=0.05)
+
+
+def test_a_file_of_half_a_mode_or_of_two_is_refused_by_name(tmp_path):
+    half = tmp_path / "s.csv"
+    half.write_text("region,shear_strain\ncortex,0.1\n")
+    res = CliRunner().invoke(cli, ["calibrate", "material", "--data", str(half)])
+    assert res.exit_code == 1 and "s.csv: no 'shear_stress_kpa' column" in res.output and len(res.output.strip().splitlines()) == 1
+    two = tmp_path / "t.csv"
+    two.write_text("region,stretch,nominal_stress_kpa,shear_strain,shear_stress_kpa\ncortex,0.9,-1,0.1,0.1\n")
+    res = CliRunner().invoke(cli, ["calibrate", "material", "--data", str(two)])
+    assert res.exit_code == 1 and "one loading mode a file" in res.output and len(res.output.strip().splitlines()) == 1

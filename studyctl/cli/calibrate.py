@@ -55,31 +55,37 @@ def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out
 
 
 @calibrate.command("material")
-@click.option("--data", "data_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              show_default="data/brain_tissue_uniaxial_budday2017.csv", help="CSV: region, stretch, nominal_stress_kpa.")
+@click.option("--data", "data_files", type=click.Path(dir_okay=False, path_type=Path), multiple=True,
+              show_default="data/brain_tissue_uniaxial_budday2017.csv",
+              help="CSV of one loading mode, read from its columns: region, stretch, nominal_stress_kpa (uniaxial) or region, "
+                   "shear_strain, shear_stress_kpa (simple shear; data/brain_tissue_shear_budday2017.csv). Repeat to fit the modes together.")
 @click.option("--region", default="cortex", show_default=True, help="The data's region to fit.")
 @click.option("--law", "laws", multiple=True, type=click.Choice(["neo-hookean", "mooney-rivlin", "ogden", "ogden-2"]),
               help="Laws to fit (repeat; default: all four).")
 @click.option("--bulk-ratio", type=Finite(min=1.0, max=1e4), default=None, show_default="50", help="kappa / mu of the laws.")
 @click.option("--out", "out_file", type=OutFile((".toml",)), default=None, help="Write the chosen law as a material file (.toml).")
 @click.option("--json", "as_json", is_flag=True)
-def calibrate_material(data_file, region, laws, bulk_ratio, out_file, as_json):
-    """Fit finite-strain laws to uniaxial tension and compression data (nominal stress, least
-    squares) and choose one by AICc (docs/material.md)."""
-    from analysis.material_fit import DATA_FILE, FIT_LAWS, fit_material, law_of
+def calibrate_material(data_files, region, laws, bulk_ratio, out_file, as_json):
+    """Fit finite-strain laws to tissue data (uniaxial tension and compression, simple shear: each
+    file's mode read from its columns, several fitted together), report each mode's error and
+    each mode's error when left out of the fit, and choose one law by AICc (docs/material.md)."""
+    from analysis.material_fit import DATA_FILE, FIT_LAWS, SHEAR_FILE, fit_material, law_of
     from sim.hyperelastic import BULK_RATIO
     from sim.material import material_toml
 
-    data_file = data_file or DATA_FILE
-    rep = fit_material(data_file, region, laws or FIT_LAWS, BULK_RATIO if bulk_ratio is None else bulk_ratio)
+    data_files = list(data_files) or [DATA_FILE]
+    rep = fit_material(data_files, region, laws or FIT_LAWS, BULK_RATIO if bulk_ratio is None else bulk_ratio)
     if out_file:
         chosen = next(f for f in rep["laws"] if f["law"] == rep["fit"])
         law = law_of(chosen)
+        shipped = {Path(DATA_FILE).name, Path(SHEAR_FILE).name}
         prov = {"data": Path(rep["data"]["path"]).name, "sha256": rep["data"]["sha256"], "region": region,
+                **{f"data_{f['mode']}": Path(f["path"]).name for f in rep["files"][1:]},
+                **{f"sha256_{f['mode']}": f["sha256"] for f in rep["files"][1:]},
                 "source": "Budday et al. 2017, Acta Biomaterialia 48:319-340 (as tabulated by Linka et al. 2023)"
-                if Path(rep["data"]["path"]).name == Path(DATA_FILE).name else "",
-                "fit": rep["method"], "rms_rel": rep["rms_rel"], "rms_rel_tension": rep["rms_rel_tension"],
-                "rms_rel_compression": rep["rms_rel_compression"],
+                if all(Path(f["path"]).name in shipped for f in rep["files"]) else "",
+                "fit": rep["method"], **{k: v for k, v in rep.items() if k.startswith("rms_rel") or k == "shear_worst_rel"},
+                **{f"left_out_rms_rel_{m}": v for m, v in (rep.get("left_out") or {}).items()},
                 **{f"ci95_{k}": v for k, v in chosen["ci95"].items()}}
         Path(out_file).write_text(material_toml(law, prov, f"{region}: {law.describe()}\nWritten by `studyctl calibrate material "
                                                            f"--region {region} --out {Path(out_file).name}`."))
@@ -88,14 +94,20 @@ def calibrate_material(data_file, region, laws, bulk_ratio, out_file, as_json):
         return
     from rich.table import Table
 
-    table = Table(title=f"{region}: {rep['data']['points']} points, stretch {rep['data']['stretch_range'][0]:g}..{rep['data']['stretch_range'][1]:g}")
-    for col in ("law", "parameters [95% CI]", "RMS (rel.)", "tension", "compression", "AICc", ""):
+    spans = "; ".join(f"{f['mode']} {f['points']} points, " + (f"stretch {f['stretch_range'][0]:g}..{f['stretch_range'][1]:g}"
+                      if f["mode"] == "uniaxial" else f"shear strain {f['shear_strain_range'][0]:g}..{f['shear_strain_range'][1]:g}")
+                      for f in rep["files"])
+    modes = [m for m in ("tension", "compression", "shear") if f"rms_rel_{m}" in rep["laws"][0]]
+    table = Table(title=f"{region}: {spans}")
+    for col in ("law", "parameters [95% CI]", "RMS (rel.)", *modes, *(f"{m} left out" for m in modes if "left_out" in rep["laws"][0]),
+                *(("worst shear 0.1-0.2",) if "shear" in modes else ()), "AICc", ""):
         table.add_column(col)
     for f in rep["laws"]:
         pars = "; ".join(f"{k} {v:.4g} [{f['ci95'][k][0]:.3g}, {f['ci95'][k][1]:.3g}]" for k, v in f["parameters"].items())
         note = "chosen" if f["law"] == rep["fit"] else ("" if f["identified"] else "not identified")
-        table.add_row(f["law"], pars, f"{f['rms_rel']:.1%}", f"{f['rms_rel_tension']:.1%}", f"{f['rms_rel_compression']:.1%}",
-                      f"{f['aicc']:.1f}", note)
+        table.add_row(f["law"], pars, f"{f['rms_rel']:.1%}", *(f"{f[f'rms_rel_{m}']:.1%}" for m in modes),
+                      *(f"{f['left_out'][m]:.1%}" for m in modes if "left_out" in f),
+                      *((f"{f['shear_worst_rel']:.1%}",) if "shear" in modes else ()), f"{f['aicc']:.1f}", note)
     _console().print(table)
     if rep["warning"]:
         click.echo(f"warning: {rep['warning']}")
