@@ -120,6 +120,20 @@ def shear_stress(law: Hyperelastic, gamma) -> np.ndarray:
     return sum(2.0 * m / a * (l1**a - l2**a) for m, a in zip(law.mu, law.alpha)) / (l1 + l2)
 
 
+def principal_stretch_range(curves: list[Curve]) -> tuple[float, float]:
+    """The principal stretches the data's loading states cover: a uniaxial test's axial stretch
+    and its lateral one (the incompressible limit, l^-1/2), simple shear's l1 and 1/l1 (l3 = 1).
+    A law is measured inside this range and extrapolated outside it."""
+    ends = []
+    for c in curves:
+        if c.mode == "shear":
+            l1 = np.sqrt(1.0 + 0.25 * c.x**2) + 0.5 * np.abs(c.x)
+            ends += [l1.max(), (1.0 / l1).min()]
+        else:
+            ends += [c.x.min(), c.x.max(), (c.x ** -0.5).min(), (c.x ** -0.5).max()]
+    return float(min(ends)), float(max(ends))
+
+
 def _predict(law: Hyperelastic, curve: Curve) -> np.ndarray:
     return shear_stress(law, curve.x) if curve.mode == "shear" else uniaxial(law, curve.x)[0]
 
@@ -273,5 +287,7 @@ def fit_material(paths, region: str = "cortex", laws=FIT_LAWS, bulk_ratio: float
     return {"law": chosen["material"]["law"], **{k: v for k, v in chosen["material"].items() if k != "law"}, "warning": warning,
             "fit": chosen["law"], **{k: chosen[k] for k in keys},
             "laws": fits, "data": files[0], "files": files,
+            # where the law is measured: a state whose principal stretches leave this range is extrapolation
+            "principal_stretch_range": list(principal_stretch_range(curves)),
             "method": (f"least squares {weighting}, {modes} together; uniaxial loading with free lateral faces, simple shear in "
                        f"closed form (J = 1); nearly incompressible (kappa = {bulk_ratio:g} mu); chosen by AICc among identified fits")}

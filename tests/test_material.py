@@ -167,6 +167,8 @@ def test_uniaxial_and_shear_fitted_together_meet_both_and_report_each_mode_left_
     assert f["rms_rel_uniaxial"] <= 0.10  # measured 7.9%
     assert f["shear_worst_rel"] <= 0.20  # measured 14.5%
     assert set(f["left_out"]) == {"tension", "compression", "shear"}
+    # where the law is measured, from the files: stretch 0.9..1.1 and shear 0.2's l1 = 1.105, 1 / l1 = 0.905
+    assert f["principal_stretch_range"] == pytest.approx([0.9, (0.01 + 1) ** 0.5 + 0.1], abs=1e-9)
     for law in f["laws"]:
         for mode, held_out in law["left_out"].items():
             assert held_out >= law[f"rms_rel_{mode}"] - 1e-6, (law["law"], mode)
