@@ -291,3 +291,30 @@ def fit_material(paths, region: str = "cortex", laws=FIT_LAWS, bulk_ratio: float
             "principal_stretch_range": list(principal_stretch_range(curves)),
             "method": (f"least squares {weighting}, {modes} together; uniaxial loading with free lateral faces, simple shear in "
                        f"closed form (J = 1); nearly incompressible (kappa = {bulk_ratio:g} mu); chosen by AICc among identified fits")}
+
+
+def fitted_range(material_path) -> tuple[tuple[float, float] | None, str]:
+    """The principal stretches a material file's law was fitted to: the data files its
+    provenance names (`data`, and `data_shear` for a fit across modes), looked up beside the
+    material file, then among the shipped data, for its `region`. (None, why) when they cannot
+    be found or read."""
+    from sim.material import load_material
+
+    try:
+        _, prov = load_material(Path(material_path))
+    except Exception as exc:  # an inline law, a missing file: no provenance to follow
+        return None, f"the material's provenance cannot be read ({type(exc).__name__})"
+    names = [prov.get("data")] + [v for k, v in prov.items() if k.startswith("data_") and isinstance(v, str)]
+    if not names[0] or not prov.get("region"):
+        return None, "the material file names no data file and region"
+    curves = []
+    for name in names:
+        found = next((p for p in (Path(material_path).parent / name, _asset(f"data/{name}")) if p.exists()), None)
+        if found is None:
+            return None, f"the material's data file {name} is not beside it nor shipped"
+        try:
+            curves.append(read_curve(found, str(prov["region"])))
+        except InputError as exc:
+            return None, str(exc)
+    return principal_stretch_range(curves), f"{', '.join(names)}, region {prov['region']}"
+

@@ -123,6 +123,11 @@ def test_cli_nonlinear_formulations_converge_and_agree_for_small_pulls(formulati
     out = json.loads(res.output)
     assert out["converged"] and out["final_residuals"][-1] < 1e-7
     assert np.allclose(out["force_n"], lin["force_n"], rtol=0.02, atol=0.02 * lin["force_magnitude_n"])
+    if formulation == "finite-strain":  # a small pull rests on measured tissue: every point within the data's stretches
+        sup = out["support"]
+        assert out["support_data"] == "brain_tissue_uniaxial_budday2017.csv, region cortex" and sup["stretch_range"] == [0.9, 1.1]
+        assert sup["energy_share_outside"] == 0.0 and 0.9 < sup["principal_stretch_min"] and sup["principal_stretch_max"] < 1.1
+        assert 0.0 < sup["max_abs_j_minus_1"] < 0.01
 
 
 def test_corotational_haptic_frames_converge_to_the_static_corotational_solution():

@@ -241,3 +241,36 @@ def test_p2_converges_on_a_finite_strain_bending_where_p1_does_not_yet():
     assert e2 < 0.5 * e1  # the differences shrink: converging
     assert abs(p2[2] - p2[1]) / p2[2] < 0.05  # 4.84, 4.12, 4.00 mN: differences 15%, 3%
     assert p1 > 3 * p2[2]  # linear tetrahedra lock at kappa = 50 mu: 7.5x too stiff at two elements through the thickness
+
+
+# -- where a state rests on the law's data (support) --------------------------------------------
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_point_states_store_the_energy_the_compiled_pass_does_and_support_reads_homogeneous_stretches(order):
+    """`point_states` (NumPy) against `FiniteStrain.evaluate` (the compiled element pass) on a
+    random state: the same stored energy; and on homogeneous deformations, whose every point has
+    the stretches and J of F: a stretch of 1.2 (isochoric) puts all the energy outside
+    0.9..1.1, one of 1.05 none, and a dilatation of 1.1 gives |J - 1| = 0.331."""
+    import numpy as np
+
+    from sim.hyperelastic import ogden
+    from sim.models.fem import TetSpace
+    from sim.models.fem.finite_strain import FiniteStrain, point_states, support
+    from sim.volume import grid_tets
+
+    nodes, tets = grid_tets(np.ones((2, 2, 2), bool), np.zeros(3), 0.01)
+    space = TetSpace(nodes, tets, nodes[:, 2] < 1e-12, order=order)
+    system = FiniteStrain(space, ogden([1500.0], [-18.0]))
+    u = np.random.default_rng(1).normal(scale=5e-4, size=3 * space.n_all)
+    s = point_states(system, u)
+    assert float(np.sum(s["psi"] * s["weights"])) == pytest.approx(system.evaluate(u, tangent=False)["energy"], rel=1e-12)
+
+    def homogeneous(F):
+        return ((np.asarray(F) - np.eye(3)) @ space.all_nodes.T).T.ravel()
+
+    for lam, share in ((1.2, 1.0), (1.05, 0.0)):
+        out = support(system, homogeneous(np.diag([lam, lam**-0.5, lam**-0.5])), (0.9, 1.1))
+        assert out["energy_share_outside"] == share and out["max_abs_j_minus_1"] < 1e-12
+        assert out["principal_stretch_max"] == pytest.approx(lam, rel=1e-12)
+        assert out["principal_stretch_min"] == pytest.approx(lam**-0.5, rel=1e-12)
+    assert support(system, homogeneous(np.eye(3) * 1.1), (0.9, 1.2))["max_abs_j_minus_1"] == pytest.approx(0.331, rel=1e-12)

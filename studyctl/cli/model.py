@@ -296,7 +296,18 @@ def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacemen
 
     scene = build_scene(scene_file)
     _check_grasp(grasp, scene.mesh)
-    out = static_pull(scene, grasp, displacement, None if resolution is None else resolution / 1e3, formulation, steps, order)
+    stretch_range, source = None, ""
+    if formulation == "finite-strain":  # where the law was measured: from its material file's data
+        from analysis.material_fit import fitted_range
+
+        law_source = scene.spec.material.law_source
+        stretch_range, source = fitted_range(law_source) if law_source not in ("", "inline") else (None, "an inline law names no data")
+    out = static_pull(scene, grasp, displacement, None if resolution is None else resolution / 1e3, formulation, steps, order,
+                      stretch_range=stretch_range)
+    if formulation == "finite-strain":
+        out["support_data"] = source if stretch_range is not None else None
+        if stretch_range is None:
+            out["support_unavailable"] = source
     if as_json:
         _print_json(out)
         _check_converged(out)
@@ -322,6 +333,15 @@ def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacemen
         if not out["converged"]:
             console.print("warning: the solve stopped " + _stopped(out) + "; the force and displacements above are those it reached, "
                           "not the requested pull's")
+        if "support" in out:
+            sup = out["support"]
+            lo, hi = sup["stretch_range"]
+            console.print(f"support: {sup['energy_share_outside']:.0%} of the stored energy at points with a principal stretch outside "
+                          f"{lo:.3g}-{hi:.3g}, the range the law's data cover ({out['support_data']}): that share rests on the "
+                          f"law's extrapolation; principal stretches {sup['principal_stretch_min']:.3g}-{sup['principal_stretch_max']:.3g}, "
+                          f"largest |J - 1| {sup['max_abs_j_minus_1']:.3g}")
+        elif out.get("support_unavailable"):
+            console.print(f"support: not computed ({out['support_unavailable']})")
     from rich.table import Table
 
     t = Table(title="phase times")

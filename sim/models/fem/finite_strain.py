@@ -81,3 +81,36 @@ class FiniteStrain:
             K = sp.csr_matrix((data, self.indices, self.indptr), shape=(nf, nf))
         return {"f": f, "K": K, "energy": float(np.sum(energy)), "min_jacobian": float(min_j.min()),
                 "theta_range": (float(theta.min()), float(theta.max()))}
+
+
+def point_states(system: FiniteStrain, u: np.ndarray) -> dict:
+    """Every quadrature point's state at the displacement `u` (3 n_all,), in NumPy (not the
+    compiled element pass): principal stretches (m, q, 3), J (m, q), the stored energy density
+    psi (m, q, Pa) and the points' weights (m, q, m^3)."""
+    ue = system.element_displacements(u)
+    F = np.eye(3) + np.einsum("mka,mqkb->mqab", ue, system.G)
+    C = np.einsum("mqka,mqkb->mqab", F, F)
+    stretches = np.sqrt(np.clip(np.linalg.eigvalsh(C), 0.0, None))
+    J = np.linalg.det(F)
+    law = system.law
+    with np.errstate(divide="ignore", invalid="ignore"):
+        iso = stretches * np.cbrt(J)[..., None] ** -1.0
+        psi = 0.5 * law.bulk_modulus * np.log(J) ** 2
+        for m, a in zip(law.mu, law.alpha):
+            psi = psi + 2.0 * m / a**2 * (np.sum(iso**a, axis=-1) - 3.0)
+    return {"stretches": stretches, "J": J, "psi": psi, "weights": system.wq}
+
+
+def support(system: FiniteStrain, u: np.ndarray, stretch_range: tuple[float, float]) -> dict:
+    """Where a state rests on measured tissue: the share of its stored energy at quadrature
+    points with a principal stretch outside `stretch_range` (the range the law's data cover),
+    and the largest |J - 1| of any point (how far the nearly incompressible law is from it)."""
+    s = point_states(system, u)
+    lo, hi = stretch_range
+    energy = s["psi"] * s["weights"]
+    outside = (s["stretches"].min(axis=-1) < lo) | (s["stretches"].max(axis=-1) > hi)
+    total = float(np.sum(energy))
+    return {"energy_share_outside": float(np.sum(energy[outside]) / total) if total > 0 else 0.0,
+            "points_outside": int(outside.sum()), "points": int(outside.size), "stretch_range": [float(lo), float(hi)],
+            "max_abs_j_minus_1": float(np.max(np.abs(s["J"] - 1.0))),
+            "principal_stretch_min": float(s["stretches"].min()), "principal_stretch_max": float(s["stretches"].max())}

@@ -9,7 +9,7 @@ import numpy as np
 from sim.errors import ParameterError
 from sim.models.base import pull_problem
 from sim.models.fem.corotational import corotational_solve
-from sim.models.fem.finite_strain import FiniteStrain
+from sim.models.fem.finite_strain import FiniteStrain, support
 from sim.models.fem.model import DEFAULT_ORDER, DEFAULT_RESOLUTION, FemModel, fixed_nodes
 from sim.models.fem.newton import NewtonReport, hold
 from sim.models.fem.nodal_pressure import NodalPressure
@@ -47,8 +47,9 @@ def _time_ticks(model, contact, d: tuple) -> float:
     return (time.perf_counter() - t0) / TICKS
 
 
-def _solve(model, contact, d: np.ndarray, formulation: str, steps: int, law=None) -> tuple[np.ndarray, np.ndarray, dict]:
-    """(force holding the grasp (3,), every node's displacement, the solver's report)."""
+def _solve(model, contact, d: np.ndarray, formulation: str, steps: int, law=None, stretch_range=None) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(force holding the grasp (3,), every node's displacement, the solver's report; with
+    `stretch_range`, a finite-strain state's support: `finite_strain.support`)."""
     if formulation == "linear":
         return np.asarray(model.grasp_forces([contact], [d])), model.nodal_displacement([contact], [d]), {"converged": True}
     part = model.parts[contact.data.part]
@@ -58,6 +59,8 @@ def _solve(model, contact, d: np.ndarray, formulation: str, steps: int, law=None
         held = hold(system, contact.data.W, d, first_step=1.0 / steps)
         u_part, force, rep = held.u.reshape(-1, 3), held.multipliers, held.report
         rep.completed_fraction = float(held.fraction_done)
+        if stretch_range is not None and formulation == "finite-strain":
+            rep.support = support(system, held.u, stretch_range)
     else:
         u_part, force, rep = corotational_solve(part, contact.data.W, contact.data.U, d, steps=steps)
     u = np.zeros((model.n_model_nodes, 3))
@@ -67,11 +70,12 @@ def _solve(model, contact, d: np.ndarray, formulation: str, steps: int, law=None
 
 
 def static_pull(scene, grasp, displacement, resolution: float | None = None, formulation: str = "linear", steps: int = 5,
-                order: int | None = None) -> dict:
+                order: int | None = None, stretch_range: tuple[float, float] | None = None) -> dict:
     """Grasp the scene's brain at `grasp` and hold the grasp point at `displacement` (m).
 
     Returns the force on the hand, the largest displacement, the phase times, and for the
-    nonlinear formulations the convergence history.
+    nonlinear formulations the convergence history; for the finite-strain one with
+    `stretch_range` (the principal stretches the law's data cover), the state's support.
     """
     d, resolution, order, radius = _options(scene, formulation, displacement, resolution, order)
     times: dict[str, float] = {}
@@ -91,7 +95,7 @@ def static_pull(scene, grasp, displacement, resolution: float | None = None, for
     model.deformation([contact], [d])
     times["frame_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    force, u, report = _solve(model, contact, d, formulation, steps, material.law)
+    force, u, report = _solve(model, contact, d, formulation, steps, material.law, stretch_range)
     if formulation != "linear":
         times["solve_s"] = time.perf_counter() - t0
     part = model.parts[contact.data.part]
@@ -120,4 +124,5 @@ def _report(rep: NewtonReport) -> dict:
         "completed_steps": rep.completed_steps,
         "completed_fraction": getattr(rep, "completed_fraction", 1.0 if rep.converged else None),
         "reason": rep.reason,
+        **({"support": rep.support} if getattr(rep, "support", None) is not None else {}),
     }
