@@ -30,6 +30,7 @@ import numpy as np
 
 from brainsim_assets import path as _asset
 from sim.hyperelastic import BULK_RATIO, Hyperelastic, mooney_rivlin, neo_hookean, ogden, uniaxial
+from sim.material import load_material
 from studyctl.csvfiles import read_csv
 from studyctl.errors import InputError
 
@@ -298,8 +299,6 @@ def fitted_range(material_path) -> tuple[tuple[float, float] | None, str]:
     provenance names (`data`, and `data_shear` for a fit across modes), looked up beside the
     material file, then among the shipped data, for its `region`. (None, why) when they cannot
     be found or read."""
-    from sim.material import load_material
-
     try:
         _, prov = load_material(Path(material_path))
     except Exception as exc:  # an inline law, a missing file: no provenance to follow
