@@ -109,14 +109,20 @@ def read_curve(path, region: str) -> Curve:
     return Curve(str(p), hashlib.sha256(p.read_bytes()).hexdigest(), region, x, stress, mode)
 
 
+def shear_stretch(gamma) -> np.ndarray:
+    """The larger in-plane principal stretch of simple shear by `gamma` (>= 1 for gamma >= 0):
+    sqrt(1 + gamma^2 / 4) + gamma / 2; the other is its inverse, the third 1."""
+    g = np.asarray(gamma, dtype=np.float64)
+    return np.sqrt(1.0 + 0.25 * g * g) + 0.5 * g
+
+
 def shear_stress(law: Hyperelastic, gamma) -> np.ndarray:
     """The shear stress (Pa) of simple shear F = I + gamma e1 (x) e2, in closed form: principal
     stretches l1 = sqrt(1 + gamma^2 / 4) + gamma / 2, l2 = 1 / l1, l3 = 1 (J = 1: no volumetric
     part), tau = (s1 - s2) / (l1 + l2) with s1 - s2 = sum_p (2 mu_p / alpha_p)(l1^a_p - l2^a_p)
     (the Cauchy stress rotated to the shear plane; the first Piola-Kirchhoff's 12 entry is the
     same). `sim.hyperelastic.simple_shear` gives the whole tensor by an eigendecomposition."""
-    g = np.asarray(gamma, dtype=np.float64)
-    l1 = np.sqrt(1.0 + 0.25 * g * g) + 0.5 * g
+    l1 = shear_stretch(gamma)
     l2 = 1.0 / l1
     return sum(2.0 * m / a * (l1**a - l2**a) for m, a in zip(law.mu, law.alpha)) / (l1 + l2)
 
@@ -128,7 +134,7 @@ def principal_stretch_range(curves: list[Curve]) -> tuple[float, float]:
     ends = []
     for c in curves:
         if c.mode == "shear":
-            l1 = np.sqrt(1.0 + 0.25 * c.x**2) + 0.5 * np.abs(c.x)
+            l1 = shear_stretch(np.abs(c.x))
             ends += [l1.max(), (1.0 / l1).min()]
         else:
             ends += [c.x.min(), c.x.max(), (c.x ** -0.5).min(), (c.x ** -0.5).max()]
@@ -246,8 +252,7 @@ def fit_law(curves, name: str, bulk_ratio: float = BULK_RATIO) -> dict:
            "residuals_pa": pa.tolist()}
     shear = [c for c in curves if c.mode == "shear"]
     if shear:
-        band = [np.abs(c.x) >= SHEAR_BAND[0] - 1e-12 for c in shear]
-        band = [b & (np.abs(c.x) <= SHEAR_BAND[1] + 1e-12) for b, c in zip(band, shear)]
+        band = [(np.abs(c.x) >= SHEAR_BAND[0] - 1e-12) & (np.abs(c.x) <= SHEAR_BAND[1] + 1e-12) for c in shear]
         rel = np.concatenate([np.abs(shear_stress(law, c.x[b]) / c.stress[b] - 1.0) for c, b in zip(shear, band)])
         out["shear_worst_rel"] = float(rel.max()) if len(rel) else math.nan
     if len(present) > 1:  # each mode predicted by a fit to the others

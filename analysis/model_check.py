@@ -272,14 +272,14 @@ def estimate(name: str, cfg: CheckConfig, build_s: float, timed: list[dict]) -> 
     the reference solves neither shipped nor cached (at the shipped solves' median time)."""
     med = {b["budget"]: b["median"] for b in timed}
     tick_s, frame_s = med.get("force_us_p99", 0.0) * 1e-6, med.get("deformation_ms_p99", 0.0) * 1e-3
-    spec = load_scene(cfg.scene)
-    cases = make_cases(quick=True, models=(name,))
-    case_s = CASE_OVERHEAD_S + build_s + STABILITY_DURATION * (1000.0 * tick_s + spec.visual_rate_hz * frame_s)
-    acfg = _accuracy_config(name, cfg.scene, cfg.quick)
     scene = scene_with(cfg.scene)
+    hz = scene.spec.visual_rate_hz
+    cases = make_cases(quick=True, models=(name,))
+    case_s = CASE_OVERHEAD_S + build_s + STABILITY_DURATION * (1000.0 * tick_s + hz * frame_s)
+    acfg = _accuracy_config(name, cfg.scene, cfg.quick)
     pulls = make_pulls(scene) + test_pulls(scene, acfg.test_places)
     xs = sample_displacements(acfg)
-    frames = max(1, round(xs[0] / PULL_SPEED * spec.visual_rate_hz)) * len(xs)
+    frames = max(1, round(xs[0] / PULL_SPEED * hz)) * len(xs)
     pulls_s = build_s + len(pulls) * (frames * frame_s + TICK_TIMING_CALLS * tick_s)
     todo = unsolved(cfg.scene, pulls, xs, acfg.reference_sizes_mm)
     per = shipped_solve_seconds()

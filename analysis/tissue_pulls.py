@@ -404,23 +404,12 @@ def _stored_task(task, seen: dict) -> dict | None:
 
 def unsolved(scene_path, pulls, xs, sizes_mm) -> dict:
     """The solves `pull_references` would have to run for these pulls and sizes (neither
-    shipped nor cached): {size_mm: count}. Reads the meshes and the stores, solves nothing and
-    meshes nothing (a pull on a mesh not yet made counts as unsolved)."""
-    scene = scene_with(scene_path)
-    law, radius = scene.spec.material.law, grasp_radius(scene)
+    shipped nor cached): {size_mm: count}. `_stored_task` for each: reads the meshes and the
+    stores, solves nothing and meshes nothing (a pull on a mesh not yet made counts as unsolved)."""
     xs = np.asarray(xs, dtype=np.float64)
-    out: dict = {}
-    for size in sizes_mm:
-        bodies: dict = {}
-        for pull in pulls:
-            if pull.hemisphere not in bodies:
-                verts, tris, _ = hemisphere_surface(scene.mesh, pull.hemisphere)
-                edge = float(size) * 1e-3
-                bodies[pull.hemisphere] = None if needs_meshing(verts, tris, edge) else mesh_hemisphere(verts, tris, edge)
-            body = bodies[pull.hemisphere]
-            missing = body is None or _stored(pull_key(body, scene, law, radius, pull), xs, False, "stored") is None
-            out[float(size)] = out.get(float(size), 0) + int(missing)
-    return out
+    seen: dict = {}
+    return {float(size): sum(_stored_task((str(scene_path), p.hemisphere, float(size), p, xs, False, xs[-1], "stored"), seen) is None
+                             for p in pulls) for size in sizes_mm}
 
 
 def shipped_solve_seconds() -> dict:
