@@ -28,7 +28,6 @@ it was not calibrated on (docs/accuracy.md).
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -36,23 +35,17 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.formatting import markdown_grid
-from analysis.latex import tables as latex_tables
-from analysis.plots import pareto_plot
 from analysis.stats import wilson
 from analysis.tissue_pulls import (
     DEFAULT_SIZES_MM,
     ReferenceDataError,
-    combined_sample,
-    describe_no_reference,
-    no_reference,
-    pull_references,
     pull_samples,
+    reached,
 )
+from analysis.truth_band import DEVICE_LIMIT_N, MAX_J_DEVIATION, decide, truth_samples
 from brainsim_assets import path as _asset
 from sim.calibrate import jnd
 from sim.errors import SceneError, SimError
-from sim.jsonable import jsonable
 from sim.models.api import BUDGETS
 from sim.models.mass_spring import OMNI_MAX_STIFFNESS
 from sim.models.plate_spring import load_params
@@ -64,6 +57,19 @@ from studyctl.sweep import run_tasks
 HANDSET_PARAMS = _asset("protocols/models/plate_spring_handset.toml")
 LOCATED_PARAMS = _asset("protocols/models/plate_spring_located.toml")
 PULL_SPEED = 0.010  # m/s, a careful surgical pull (the scene's: 12 mm in 1.2 s)
+
+
+def frames_per_sample(xs, frame_hz: float) -> int:
+    """Visual frames between samples: the nearest whole number to PULL_SPEED (at least one); the
+    speed the models are then pulled at is `pull_speed` (0.5 mm samples at 30 Hz: 2 frames, 7.5 mm/s)."""
+    return max(1, round(float(xs[0]) / PULL_SPEED * frame_hz))
+
+
+def pull_speed(xs, frame_hz: float) -> float:
+    return float(xs[0]) / frames_per_sample(xs, frame_hz) * frame_hz
+DECIDED_RULE = (f"decided: reference at most {DEVICE_LIMIT_N:g} N, at most the JND fraction at that force (25% below 0.5 N, 10% above) "
+                f"of the state's energy outside the data's principal stretches, |J - 1| at most {MAX_J_DEVIATION:g}, and the band "
+                "(mesh GCI and the ensemble's law spread, root-sum-square) narrower than the JND")
 
 
 @dataclass(frozen=True)
@@ -78,8 +84,8 @@ class AccuracyConfig:
     scene: Path = DEFAULT_SCENE
     young: float | None = None  # Pa, the linear models' modulus; None: the scene's. Another value scales the whole brain:
     # the law's mu by the same ratio (its forces scale exactly), so the reference and every model move together
-    max_pull: float = 0.024  # m
-    samples: int = 6
+    max_pull: float = 0.012  # m: the scenes' scripted pulls; beyond, no truth is decided (docs/reference.md)
+    samples: int = 24  # every 0.5 mm: the shipped solves' records
     reference_sizes_mm: tuple[float, ...] = (8.0, 6.0, 4.0)  # the reference's meshes: the shipped body-fitted ones (sim/tetmesh.py)
     test_places: int = TEST_PLACES
     settings: tuple[Setting, ...] = field(default_factory=lambda: default_settings(False))
@@ -129,9 +135,9 @@ def plugin_problem(name: str, scene_path=DEFAULT_SCENE) -> str | None:
 
 
 def quick_config(**kw) -> AccuracyConfig:
-    """A smaller bench for CI and `make demo`: 20 and 16 mm reference meshes, 3 samples, two
-    test places, coarse settings."""
-    return AccuracyConfig(**({"samples": 3, "reference_sizes_mm": (20.0, 16.0), "test_places": 2,
+    """A smaller bench for CI and `make demo`: 20 and 16 mm reference meshes, 6 samples (every
+    2 mm), two test places, coarse settings."""
+    return AccuracyConfig(**({"samples": 6, "reference_sizes_mm": (20.0, 16.0), "test_places": 2,
                               "settings": default_settings(True), "quick": True} | kw))
 
 
@@ -168,7 +174,7 @@ def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], x
     model = _build_model(scene, setting, handset, e_ratio)
     build_s = time.perf_counter() - start
     frame_hz = scene.spec.visual_rate_hz
-    per_sample = max(1, round((xs[0]) / PULL_SPEED * frame_hz))
+    per_sample = frames_per_sample(xs, frame_hz)
     n_frames = per_sample * len(xs)
     force = np.zeros((len(pulls), len(xs), 3))
     frame_s: list[float] = []
@@ -210,10 +216,10 @@ def _tick_time(law, d, reps: int = TICK_TIMING_CALLS) -> float:
 
 # -- the reference -------------------------------------------------------------------------
 
-def reference_samples(refs: dict, pulls: list[Pull], xs, mu: float) -> list[list[dict]]:
-    """Per pull and sample: the reference force (N, vector on the tissue), magnitude and half-band,
-    for a law of shear modulus `mu` (the stored forces are per pascal of it)."""
-    return [[combined_sample(refs[p.name]["force_per_pa"][:, k] * mu, refs[p.name]["h_m"]) for k in range(len(xs))] for p in pulls]
+def reference_samples(truth: dict, pulls: list[Pull]) -> list[list[dict]]:
+    """Per pull and sample: the truth (`analysis.truth_band.truth_samples`): the reference force
+    (N, vector on the tissue), its magnitude, band and support, and whether it is decided."""
+    return [truth["pulls"][p.name] for p in pulls]
 
 
 def calibration_curve(scene_path, xs, jobs: int | None = None, progress=None) -> tuple:
@@ -223,19 +229,26 @@ def calibration_curve(scene_path, xs, jobs: int | None = None, progress=None) ->
     scene = scene_with(scene_path)
     pulls = make_pulls(scene)
     xs = np.asarray(xs, dtype=np.float64)
-    refs = pull_references(scene_path, pulls, xs, DEFAULT_SIZES_MM, jobs=jobs, progress=progress)["pulls"]
+    truth = truth_samples(scene_path, pulls, xs, DEFAULT_SIZES_MM, jobs=jobs, progress=progress)
     law = scene.spec.material.law
-    rows = reference_samples(refs, pulls, xs, law.shear_modulus)
+    rows = reference_samples(truth, pulls)
     forces = np.array([[c["force_n"] for c in row] for row in rows]).ravel()
-    ok = np.isfinite(forces)
+    ok = np.array([[c["decided"] for c in row] for row in rows]).ravel()
     if not ok.any():
-        raise ReferenceDataError("calibration curve: no reference solve reached any sample")
-    gone = no_reference(refs, xs)
+        raise ReferenceDataError("calibration curve: the truth is decided at no sample of the calibration pulls")
     how = (f"the converged reference ({law.describe()}, finite strain on P2 on the body-fitted "
            f"{', '.join(f'{s:g}' for s in DEFAULT_SIZES_MM)} mm meshes, Richardson-extrapolated; "
-           f"the accuracy bench's {len(pulls)} calibration pulls"
-           + (f"; {int((~ok).sum())} samples have no reference: {describe_no_reference(gone)}" if gone else "") + ")")
+           f"the accuracy bench's {len(pulls)} calibration pulls, at the {int(ok.sum())} of {ok.size} samples where the truth is "
+           f"decided: {_not_decided_words([c for row in rows for c in row])})")
     return np.tile(xs, len(pulls))[ok], forces[ok], how
+
+
+def _not_decided_words(cells: list[dict]) -> str:
+    """"n extrapolated, m undecided, k without a reference" over samples."""
+    ext = sum(c["truth"] == "extrapolated" for c in cells)
+    und = sum(c["truth"] == "undecided" and math.isfinite(c["force_n"]) for c in cells)
+    none = sum(not math.isfinite(c["force_n"]) for c in cells)
+    return f"{ext} extrapolated, {und} undecided, {none} without a reference"
 
 
 # -- the bench -----------------------------------------------------------------------------
@@ -262,9 +275,12 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
             progress(k, n + n_tasks)
 
     start = time.perf_counter()
-    refs = pull_references(cfg.scene, pulls, xs, cfg.reference_sizes_mm, jobs=jobs, progress=ref_progress)
+    truth = truth_samples(cfg.scene, pulls, xs, cfg.reference_sizes_mm, jobs=jobs, progress=ref_progress)
+    refs = truth["refs"]
     ref_s = time.perf_counter() - start
-    ref = reference_samples(refs["pulls"], pulls, xs, law.shear_modulus)
+    if e_ratio != 1.0:  # a stiffer or softer brain of the same shape: every force scales with mu
+        truth = _scaled(truth, e_ratio)
+    ref = reference_samples(truth, pulls)
     n_ref = len(pulls) * len(cfg.reference_sizes_mm)
 
     def model_progress(k, n):
@@ -275,7 +291,7 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
     models = run_tasks(_task, tasks, jobs=jobs, scheduler=scheduler, progress=model_progress)
     rows, samples = compare(ref, models, pulls, len(calib), xs)
     flat = [c for row in ref for c in row]
-    solved = [c for c in flat if math.isfinite(c["force_n"])]
+    solved = [c for c in flat if math.isfinite(c["force_n"]) and math.isfinite(c["band_rel"])]
     if not solved:
         raise ReferenceDataError("accuracy bench: no reference solve reached any sample")
     solves = [s for r in refs["pulls"].values() for s in r["solves"]]
@@ -288,7 +304,7 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
         "coupling_bound": {"scene_n_per_m": coupling, "scene": coupling_bound(ref, len(calib), xs, coupling),
                            "omni_max_n_per_m": OMNI_MAX_STIFFNESS, "omni_max": coupling_bound(ref, len(calib), xs, OMNI_MAX_STIFFNESS)},
         "young_pa": young, "scene_young_pa": scene.spec.material.young,
-        "max_pull_m": cfg.max_pull, "samples_per_pull": cfg.samples, "pull_speed_m_per_s": PULL_SPEED,
+        "max_pull_m": cfg.max_pull, "samples_per_pull": cfg.samples, "pull_speed_m_per_s": pull_speed(xs, scene.spec.visual_rate_hz),
         "calibration_pulls": [dataclasses.asdict(p) for p in calib],
         "test_pulls": [dataclasses.asdict(p) for p in test],
         "reference": {
@@ -298,16 +314,77 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
             "law_source": scene.spec.material.law_source, "sizes_mm": refs["sizes_mm"],
             "band_rel_max": float(max(c["band_rel"] for c in solved)), "band_rel_median": float(np.median([c["band_rel"] for c in solved])),
             "band_half_n_max": float(max(c["band_half_n"] for c in solved)),
+            "ensemble": truth["ensemble"], "decided_rule": DECIDED_RULE,
+            "samples": {"decided": sum(c["decided"] for c in flat), "extrapolated": sum(c["truth"] == "extrapolated" for c in flat),
+                        "undecided": sum(c["truth"] == "undecided" and math.isfinite(c["force_n"]) for c in flat),
+                        "no_reference": sum(not math.isfinite(c["force_n"]) for c in flat)},
+            "test_decided": sum(c["decided"] for row in ref[len(calib):] for c in row),
+            "max_abs_j_minus_1_decided": max((c["max_abs_j_minus_1"] for c in flat if c["decided"]), default=math.nan),
+            "support_share_decided_max": max((c["support_share_outside"] for c in flat if c["decided"]), default=math.nan),
             "statuses": {s: sum(c["status"] == s for c in flat) for s in sorted({c["status"] for c in flat})},
             "converged": all(s["converged"] for s in solves),
             # samples past where a mesh's solve stopped have no reference: left out of every row
-            "no_reference": no_reference(refs["pulls"], xs),
+            "no_reference": _no_reference(ref, pulls, xs, refs["pulls"]),
             "min_jacobian": min((s["min_jacobian"] for s in solves if "min_jacobian" in s), default=math.nan),
             "solves_stored": sum(bool(s.get("cached")) for s in solves), "solves": len(solves), "seconds": ref_s,
         },
         "quick": cfg.quick,
     }
-    return {"rows": rows, "best": class_best(rows), "samples": samples, "meta": meta}
+    return {"rows": rows, "best": class_best(rows), "samples": samples, "by_displacement": breakdown(samples, "displacement_mm"),
+            "by_force_band": breakdown(samples, "force_band"), "meta": meta}
+
+
+def _no_reference(ref: list[list[dict]], pulls: list[Pull], xs, refs: dict) -> list[dict]:
+    """The pulls with samples that have no reference force at all (the coarsest mesh's solve
+    stopped before them): how many, the last x reached (mm) and why (`tissue_pulls.reached`)."""
+    out = []
+    for p, row in zip(pulls, ref):
+        ok = np.array([math.isfinite(c["force_n"]) for c in row])
+        if not ok.all():
+            out.append({"pull": p.name, "samples": int((~ok).sum()), "reached_mm": float(np.asarray(xs)[ok].max() * 1e3) if ok.any() else 0.0,
+                        "why": reached(refs)[p.name][1] or "no reference solve reached it"})
+    return out
+
+
+def _scaled(truth: dict, ratio: float) -> dict:
+    """The truth of a brain `ratio` times as stiff (forces scale with mu; bands and support do not)."""
+    pulls = {}
+    for name, rows in truth["pulls"].items():
+        out = []
+        for c in rows:
+            f = c["force_n"] * ratio
+            ok, verdict_, why = decide(f, c["band_rel"], c["support_share_outside"], c["max_abs_j_minus_1"])
+            out.append(c | {"force": np.asarray(c["force"]) * ratio, "force_n": f, "band_half_n": c["band_half_n"] * ratio,
+                            "law_forces_n": [x * ratio for x in c["law_forces_n"]], "decided": ok, "truth": verdict_, "reason": why})
+        pulls[name] = out
+    return truth | {"pulls": pulls}
+
+
+FORCE_BANDS = ((0.0, 0.1, "below 0.1 N"), (0.1, 0.5, "0.1-0.5 N"), (0.5, math.inf, "above 0.5 N"))
+
+
+def force_band(force_n: float) -> str:
+    return next(label for lo, hi, label in FORCE_BANDS if lo <= force_n < hi)
+
+
+def breakdown(samples: list[dict], by: str) -> list[dict]:
+    """Held-out samples per model, calibration and group (`displacement_mm` or `force_band`):
+    decided, within the JND among them (with a Wilson interval), extrapolated and undecided."""
+    groups: dict = {}
+    for c in samples:
+        if c["set"] != "test":
+            continue
+        g = c[by] if by != "force_band" else force_band(c["reference_force_n"])
+        groups.setdefault((c["model"], c["setting"], c["calibration"], g), []).append(c)
+    out = []
+    for (model, setting, calibration, g), cs in groups.items():
+        dec = [c for c in cs if c["decided"]]
+        k = sum(c["within_jnd"] for c in dec)
+        lo, hi = wilson(k, len(dec)) if dec else (math.nan, math.nan)
+        out.append({"model": model, "setting": setting, "calibration": calibration, by: g, "decided": len(dec), "within": k,
+                    "within_jnd": k / len(dec) if dec else math.nan, "within_jnd_low": lo, "within_jnd_high": hi,
+                    "extrapolated": sum(c["verdict"] == "extrapolated" for c in cs), "undecided": sum(not c["decided"] and c["verdict"] == "undecided" for c in cs)})
+    return out
 
 
 def _angle(f, g) -> float:
@@ -330,16 +407,22 @@ def calibration_scale(model_mags: np.ndarray, ref_mags: np.ndarray) -> float:
 
 
 def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_calib: int, xs) -> tuple[list[dict], list[dict]]:
-    """Rows (per setting: raw and calibrated) judged on the test pulls (pulls[n_calib:]), and the samples."""
+    """Rows (per setting: raw and calibrated) judged on the test pulls (pulls[n_calib:]) at the
+    samples where the truth is decided, and every sample (the others carry the truth's verdict,
+    `extrapolated` or `undecided`, and its reason). The calibration scale is fitted on the
+    calibration pulls' decided samples."""
     rows, samples = [], []
     R = np.array([[c["force_n"] for c in row] for row in ref])  # (P, n)
     H = np.array([[c["band_half_n"] for c in row] for row in ref])
+    D = np.array([[c["decided"] for c in row] for row in ref], dtype=bool)
     for m in models:
         F = np.asarray(m["force"])
         mags = np.linalg.norm(F, axis=2)
-        scale = calibration_scale(mags[:n_calib].ravel(), R[:n_calib].ravel())
+        calib = D[:n_calib]
+        scale = calibration_scale(mags[:n_calib][calib], R[:n_calib][calib])
         for calibration, s in (("raw", 1.0), ("calibrated", scale)):
             errs, within, verdicts, angles, calib_errs = [], [], [], [], []
+            counts = {"extrapolated": 0, "truth_undecided": 0}
             pulls_within = pulls_judged = 0
             for p, pull in enumerate(pulls):
                 test = p >= n_calib
@@ -347,16 +430,23 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                 for k, x in enumerate(xs):
                     f = s * mags[p, k]
                     r = R[p, k]
+                    cell = ref[p][k]
                     if not math.isfinite(r):  # no reference here (its solve stopped): not judged
                         continue
                     rel = abs(f - r) / r
                     ok = bool(abs(f - r) <= float(jnd(np.array(r))) * r)
-                    v = verdict(f, r, H[p, k])
-                    ang = _angle(-F[p, k], ref[p][k]["force"])  # the reference is the force on the tissue
+                    v = verdict(f, r, H[p, k]) if D[p, k] else cell["truth"]
+                    ang = _angle(-F[p, k], cell["force"])  # the reference is the force on the tissue
                     samples.append({"model": m["model"], "setting": m["setting"], "calibration": calibration, "set": "test" if test else "calibration",
-                                    "pull": pull.name, "displacement_mm": float(x) * 1e3, "force_n": f, "reference_force_n": r,
-                                    "reference_half_band_n": float(H[p, k]), "force_error": rel, "within_jnd": ok, "verdict": v,
-                                    "angle_deg": ang})
+                                    "pull": pull.name, "displacement_mm": round(float(x) * 1e3, 6), "force_n": f, "reference_force_n": r,
+                                    "reference_half_band_n": float(H[p, k]), "mesh_band_rel": cell["mesh_band_rel"], "law_band_rel": cell["law_band_rel"],
+                                    "support_share_outside": cell["support_share_outside"], "max_abs_j_minus_1": cell["max_abs_j_minus_1"],
+                                    "decided": bool(D[p, k]), "reason": cell["reason"],
+                                    "force_error": rel, "within_jnd": ok, "verdict": v, "angle_deg": ang})
+                    if not D[p, k]:
+                        if test:
+                            counts["extrapolated" if v == "extrapolated" else "truth_undecided"] += 1
+                        continue
                     if test:
                         errs.append(rel)
                         within.append(ok)
@@ -366,20 +456,25 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                         judged += 1
                     else:
                         calib_errs.append(rel)
-                pulls_within += int(test and judged > 0 and all_in)  # a pull with no reference is not judged
+                pulls_within += int(test and judged > 0 and all_in)  # a pull with no decided sample is not judged
                 pulls_judged += int(test and judged > 0)
             n = len(within)
-            lo, hi = wilson(int(sum(within)), n)
+            lo, hi = wilson(int(sum(within)), n) if n else (math.nan, math.nan)
             rows.append({"model": m["model"], "setting": m["setting"], "calibration": calibration, "scale": s,
-                         "force_error": float(np.mean(errs)), "force_error_max": float(np.max(errs)),
-                         "within_jnd": float(np.mean(within)), "within_jnd_low": lo, "within_jnd_high": hi, "n_test": n,
+                         "force_error": nan_mean(errs), "force_error_max": float(np.max(errs)) if errs else math.nan,
+                         "within_jnd": nan_mean(within), "within_jnd_low": lo, "within_jnd_high": hi, "n_test": n,
                          "within": verdicts.count("within"), "outside": verdicts.count("outside"), "undecided": verdicts.count("undecided"),
+                         "extrapolated": counts["extrapolated"], "truth_undecided": counts["truth_undecided"],
                          "pulls_within": pulls_within, "n_test_pulls": pulls_judged,
-                         "angle_deg": float(np.mean(angles)), "angle_deg_max": float(np.max(angles)),
-                         "calibration_error": float(np.mean(calib_errs)),
+                         "angle_deg": nan_mean(angles), "angle_deg_max": float(np.max(angles)) if angles else math.nan,
+                         "calibration_error": nan_mean(calib_errs),
                          "tick_us": m["tick_us"], "frame_ms": m["frame_ms"], "frame_ms_p99": m["frame_ms_p99"],
                          "build_s": m["build_s"], "unstable_pulls": int(m["unstable"])})
     return rows, samples
+
+
+def nan_mean(values) -> float:
+    return float(np.mean(values)) if len(values) else math.nan
 
 
 def coupling_bound(ref: list[list[dict]], n_calib: int, xs, stiffness: float) -> float:
@@ -430,84 +525,3 @@ def class_best(rows: list[dict], frame_budget_ms: float | None = None) -> list[d
                                                     "pulls_within", "n_test_pulls", "frame_ms", "frame_ms_p99")}
                        | {"meets_target": bool(best["within_jnd"] >= TARGET_WITHIN), "why": ""})
     return out
-
-
-COLUMNS = ("model", "setting", "calibration", "scale", "force_error", "force_error_max", "within_jnd", "within_jnd_low",
-           "within_jnd_high", "within", "outside", "undecided", "pulls_within", "angle_deg", "tick_us", "frame_ms")
-
-
-def intro(result: dict) -> str:
-    m = result["meta"]
-    ref = m["reference"]
-
-    gone = ref.get("no_reference") or []
-    missing = (f" {sum(g['samples'] for g in gone)} samples have no reference and are not judged: "
-               f"{describe_no_reference(gone)}.") if gone else ""
-    return (f"Reference: {ref['setting']} ({ref['formulation']}; GCI half-band median {ref['band_rel_median']:.1%}, "
-            f"largest {ref['band_rel_max']:.1%}).{missing} {len(m['calibration_pulls'])} calibration pulls and {len(m['test_pulls'])} held-out test "
-            f"pulls to {m['max_pull_m'] * 1e3:g} mm at {m['pull_speed_m_per_s'] * 1e3:g} mm/s, {m['samples_per_pull']} samples each; "
-            f"the linear models' E = {m['young_pa'] / 1e3:.3g} kPa (scene: {m['scene_young_pa'] / 1e3:.3g} kPa)" + (" (quick bench)" if m["quick"] else "") + ".")
-
-
-def tables(result: dict) -> list[dict]:
-    """The accuracy table (every configuration, raw and calibrated) and each class at its best, as
-    {title, columns, rows, note}: what the Markdown and the LaTeX print."""
-    rows = [[r["model"], r["setting"], r["calibration"], f"{r['scale']:.3g}", f"{r['force_error']:.1%} / {r['force_error_max']:.1%}",
-             f"{r['within_jnd']:.0%} [{r['within_jnd_low']:.0%}, {r['within_jnd_high']:.0%}]",
-             f"{r['within']} / {r['outside']} / {r['undecided']}", f"{r['pulls_within']}/{r['n_test_pulls']}", str(r["unstable_pulls"]),
-             f"{r['angle_deg']:.1f} / {r['angle_deg_max']:.1f} deg", f"{r['tick_us']:.2f} us", f"{r['frame_ms']:.3g} ms"]
-            for r in result["rows"]]
-    best = []
-    for b in class_best(result["rows"]):
-        left = "; ".join(f"{k}: {v}" for k, v in b["left_out"].items()) or "none"
-        if b["setting"] is None:
-            best.append([b["model"], b["calibration"], f"none ({b['why']})", "", "", "", "", "no", left])
-            continue
-        best.append([b["model"], b["calibration"], b["setting"],
-                     f"{b['within_jnd']:.0%} [{b['within_jnd_low']:.0%}, {b['within_jnd_high']:.0%}]", f"{b['force_error']:.1%}",
-                     f"{b['pulls_within']}/{b['n_test_pulls']}", f"{b['frame_ms']:.3g} / {b['frame_ms_p99']:.3g} ms",
-                     "yes" if b["meets_target"] else "no", left])
-    return [{"title": "Model error against run time", "columns": ["model", "setting", "calibration", "scale", "force error (mean / max)",
-                                                                   "within JND [95% CI]", "within / outside / undecided", "whole pulls within",
-                                                                   "unstable pulls", "direction error (mean / max)", "tick", "frame"],
-             "rows": rows, "note": intro(result)},
-            {"title": "Each class at its best", "columns": ["model", "calibration", "best setting", "within JND [95% CI]", "force error",
-                                                            "whole pulls within", "frame (p50 / p99)", "meets target", "left out"],
-             "rows": best, "note": f"The most samples within the JND among the configurations whose frame p99 keeps the budget and that "
-                                   f"gave up no pull; the target is {TARGET_WITHIN:.0%}."}]
-
-
-def markdown(result: dict) -> str:
-    """The accuracy table as Markdown (test pulls only), with what it was measured against."""
-    every, best = tables(result)
-    lines = [intro(result), "", *markdown_grid(every["columns"], every["rows"])]
-    lines += ["", f"Each class at its best (`class_best`: the most samples within the JND among the configurations whose frame p99 keeps "
-              f"the budget and that gave up no pull; the target is {TARGET_WITHIN:.0%}):", "", *markdown_grid(best["columns"], best["rows"])]
-    cb = result["meta"].get("coupling_bound")
-    if cb:
-        lines += ["", f"The mass-spring renders through its hand coupling: the tissue's own forces behind it (an exact model) are within "
-                      f"the JND on {cb['scene']:.0%} of the samples at the scene's {cb['scene_n_per_m']:g} N/m and {cb['omni_max']:.0%} at "
-                      f"{cb['omni_max_n_per_m']:g} N/m, the stiffest an Omni renders stably at 1 kHz (`coupling_bound`)."]
-    lines += ["", "Seed paper, deformation time per frame on its 2014 PC: plate-spring 14.69 ms, FEM 21.35 ms, mass-spring 23.08 ms."]
-    return "\n".join(lines) + "\n"
-
-
-def write_outputs(result: dict, out_dir) -> list[Path]:
-    """accuracy.json, accuracy.csv, samples.csv, accuracy.md, accuracy.tex (its tables as LaTeX), pareto.png and .svg."""
-    import pandas as pd
-
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    files = [out / "accuracy.json", out / "accuracy.csv", out / "samples.csv", out / "accuracy.md"]
-    files[0].write_text(json.dumps(jsonable(result), indent=2))
-    pd.DataFrame(result["rows"]).to_csv(files[1], index=False)
-    pd.DataFrame(result["samples"]).to_csv(files[2], index=False)
-    files[3].write_text(markdown(result))
-    files.append(out / "accuracy.tex")
-    files[4].write_text(latex_tables(tables(result), "tab:accuracy"))
-    raw = [r for r in result["rows"] if r["calibration"] == "raw"]
-    for ext in ("png", "svg"):
-        pareto_plot(raw, out / f"pareto.{ext}", reference=result["meta"]["reference"]["setting"])
-        files.append(out / f"pareto.{ext}")
-    return files

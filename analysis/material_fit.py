@@ -250,11 +250,8 @@ def fit_law(curves, name: str, bulk_ratio: float = BULK_RATIO) -> dict:
            "rms_pa": float(np.sqrt(np.mean(pa**2))), "aicc": aicc, "bic": n * math.log(rss / n) + k * math.log(n),
            "identified": identified, "at_bound": any(at_bound), "n": n, "k": k,
            "residuals_pa": pa.tolist()}
-    shear = [c for c in curves if c.mode == "shear"]
-    if shear:
-        band = [(np.abs(c.x) >= SHEAR_BAND[0] - 1e-12) & (np.abs(c.x) <= SHEAR_BAND[1] + 1e-12) for c in shear]
-        rel = np.concatenate([np.abs(shear_stress(law, c.x[b]) / c.stress[b] - 1.0) for c, b in zip(shear, band)])
-        out["shear_worst_rel"] = float(rel.max()) if len(rel) else math.nan
+    if any(c.mode == "shear" for c in curves):
+        out["shear_worst_rel"] = law_errors(law, curves)["shear_worst_rel"]
     if len(present) > 1:  # each mode predicted by a fit to the others
         out["left_out"] = {}
         for m in present:
@@ -299,26 +296,48 @@ def fit_material(paths, region: str = "cortex", laws=FIT_LAWS, bulk_ratio: float
                        f"closed form (J = 1); nearly incompressible (kappa = {bulk_ratio:g} mu); chosen by AICc among identified fits")}
 
 
-def fitted_range(material_path) -> tuple[tuple[float, float] | None, str]:
-    """The principal stretches a material file's law was fitted to: the data files its
-    provenance names (`data`, and `data_shear` for a fit across modes), looked up beside the
-    material file, then among the shipped data, for its `region`. (None, why) when they cannot
-    be found or read."""
+def material_data(material_path) -> tuple[list[Path], str]:
+    """The data files a material file's law was fitted to (its provenance's `data`, and
+    `data_shear` for a fit across modes: beside the material file, else among the shipped data)
+    and the region; raises MaterialDataError naming what is missing."""
     try:
         _, prov = load_material(Path(material_path))
     except Exception as exc:  # an inline law, a missing file: no provenance to follow
-        return None, f"the material's provenance cannot be read ({type(exc).__name__})"
+        raise MaterialDataError(f"{material_path}: the material's provenance cannot be read ({type(exc).__name__})") from None
     names = [prov.get("data")] + [v for k, v in prov.items() if k.startswith("data_") and isinstance(v, str)]
     if not names[0] or not prov.get("region"):
-        return None, "the material file names no data file and region"
-    curves = []
+        raise MaterialDataError(f"{material_path}: the material file names no data file and region")
+    paths = []
     for name in names:
         found = next((p for p in (Path(material_path).parent / name, _asset(f"data/{name}")) if p.exists()), None)
         if found is None:
-            return None, f"the material's data file {name} is not beside it nor shipped"
-        try:
-            curves.append(read_curve(found, str(prov["region"])))
-        except InputError as exc:
-            return None, str(exc)
-    return principal_stretch_range(curves), f"{', '.join(names)}, region {prov['region']}"
+            raise MaterialDataError(f"{material_path}: the material's data file {name} is not beside it nor shipped")
+        paths.append(found)
+    return paths, str(prov["region"])
 
+
+def law_errors(law: Hyperelastic, curves: list[Curve]) -> dict:
+    """A law's errors on data curves: the uniaxial RMS relative to the data's RMS and the worst
+    relative shear error over `SHEAR_BAND` (NaN where the curves hold no such mode)."""
+    uni = [c for c in curves if c.mode == "uniaxial"]
+    shear = [c for c in curves if c.mode == "shear"]
+    out = {"rms_rel_uniaxial": math.nan, "shear_worst_rel": math.nan}
+    if uni:
+        res = np.concatenate([_predict(law, c) - c.stress for c in uni])
+        out["rms_rel_uniaxial"] = _rms_rel(res, np.concatenate([c.stress for c in uni]))
+    if shear:
+        band = [(np.abs(c.x) >= SHEAR_BAND[0] - 1e-12) & (np.abs(c.x) <= SHEAR_BAND[1] + 1e-12) for c in shear]
+        rel = np.concatenate([np.abs(shear_stress(law, c.x[b]) / c.stress[b] - 1.0) for c, b in zip(shear, band)])
+        out["shear_worst_rel"] = float(rel.max()) if len(rel) else math.nan
+    return out
+
+
+def fitted_range(material_path) -> tuple[tuple[float, float] | None, str]:
+    """The principal stretches a material file's law was fitted to (`material_data`'s files, for
+    its region). (None, why) when they cannot be found or read."""
+    try:
+        paths, region = material_data(material_path)
+        curves = [read_curve(p, region) for p in paths]
+    except InputError as exc:
+        return None, str(exc)
+    return principal_stretch_range(curves), f"{', '.join(p.name for p in paths)}, region {region}"

@@ -25,10 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from analysis.accuracy import (
-    PULL_SPEED,
     TICK_TIMING_CALLS,
     AccuracyConfig,
     Setting,
+    frames_per_sample,
     quick_config,
     run_accuracy,
     sample_displacements,
@@ -254,7 +254,7 @@ def accuracy(name: str, scene_path: Path, quick: bool, step=None) -> dict:
     `step(k, n)` after each reference solve and the model's pulls."""
     out = run_accuracy(_accuracy_config(name, scene_path, quick), jobs=1, progress=step)
     keep = ("setting", "calibration", "scale", "force_error", "within_jnd", "within_jnd_low", "within_jnd_high", "n_test",
-            "pulls_within", "frame_ms", "tick_us")
+            "extrapolated", "truth_undecided", "pulls_within", "frame_ms", "tick_us")
     return {"rows": [{k: r.get(k) for k in keep if k in r} for r in out["rows"]], "reference": out["meta"]["reference"]["setting"],
             "quick": quick}
 
@@ -279,7 +279,7 @@ def estimate(name: str, cfg: CheckConfig, build_s: float, timed: list[dict]) -> 
     acfg = _accuracy_config(name, cfg.scene, cfg.quick)
     pulls = make_pulls(scene) + test_pulls(scene, acfg.test_places)
     xs = sample_displacements(acfg)
-    frames = max(1, round(xs[0] / PULL_SPEED * hz)) * len(xs)
+    frames = frames_per_sample(xs, hz) * len(xs)
     pulls_s = build_s + len(pulls) * (frames * frame_s + TICK_TIMING_CALLS * tick_s)
     todo = unsolved(cfg.scene, pulls, xs, acfg.reference_sizes_mm)
     per = shipped_solve_seconds()
@@ -361,7 +361,8 @@ def check_model(name: str, cfg: CheckConfig, progress=None) -> dict:
         card["stability"] = run("stability", lambda: stability(name, cfg.scene, ui.step),
                                 lambda r: ", ".join(f"{v} {k}" for k, v in r["counts"].items()))
         card["accuracy"] = run("accuracy", lambda: accuracy(name, cfg.scene, cfg.quick, ui.step),
-                               lambda r: ", ".join(f"{x['calibration']} {x['within_jnd']:.0%} within the JND" for x in r["rows"]))
+                               lambda r: ", ".join(f"{x['calibration']} {x['within_jnd']:.0%} within the JND (of {x['n_test']} decided)"
+                                                   if x["n_test"] else f"{x['calibration']}: no decided sample" for x in r["rows"]))
     except KeyboardInterrupt:
         card["interrupted"] = stage
         raise CheckInterrupted(card, STAGES[stage]) from None
@@ -386,10 +387,13 @@ def scorecard_md(card: dict) -> str:
     if card.get("accuracy"):
         a = card["accuracy"]
         lines += ["", f"## Accuracy against the tissue truth ({a['reference']}{', quick' if a['quick'] else ''})", "",
-                  "| setting | calibration | scale | within the JND (95% CI), test samples | frame ms |", "|---|---|---|---|---|"]
+                  "| setting | calibration | scale | within the JND (95% CI), decided test samples | truth extrapolated / undecided | frame ms |",
+                  "|---|---|---|---|---|---|"]
         for r in a["rows"]:
-            lines.append(f"| {r['setting']} | {r['calibration']} | {r['scale']:.3g} | {r['within_jnd']:.0%} ({r['within_jnd_low']:.0%}-{r['within_jnd_high']:.0%}), "
-                         f"n = {r['n_test']} | {r['frame_ms']:.3g} |")
+            rate = (f"{r['within_jnd']:.0%} ({r['within_jnd_low']:.0%}-{r['within_jnd_high']:.0%}), n = {r['n_test']}" if r["n_test"]
+                    else "none: the truth is decided at no held-out sample")
+            lines.append(f"| {r['setting']} | {r['calibration']} | {r['scale']:.3g} | {rate} | {r.get('extrapolated', 0)} / "
+                         f"{r.get('truth_undecided', 0)} | {r['frame_ms']:.3g} |")
     lines += ["", "## Verdict", ""]
     if card.get("interrupted"):
         lines += [f"INTERRUPTED during {STAGES[card['interrupted']]}: the stages above finished, the rest were not run.", ""]

@@ -49,8 +49,8 @@ FORMULATIONS = ("finite-strain", "small-strain")
 class ReferenceConfig:
     scene: Path = DEFAULT_SCENE
     sizes_mm: tuple[float, ...] = DEFAULT_SIZES_MM  # fTetWild target edge lengths
-    max_pull: float = 0.024  # m, the accuracy bench's (analysis.accuracy.AccuracyConfig)
-    samples: int = 6
+    max_pull: float = 0.012  # m, the accuracy bench's (analysis.accuracy.AccuracyConfig)
+    samples: int = 24
     pulls: tuple[str, ...] | None = None  # pull names to run; None: all of the bench's calibration pulls
     formulation: str = "finite-strain"  # or "small-strain" (the law's small-strain limit: one linear solve per pull)
     functional: str = "area"  # the grasp: mean displacement of the surface area ("area") or of its vertices ("vertices", small strain)
@@ -61,8 +61,9 @@ class ReferenceConfig:
 
 
 def quick_config(**kw) -> ReferenceConfig:
-    """Two coarse meshes (20 and 16 mm), the left hand's two pulls (one hemisphere), 2 samples."""
-    return ReferenceConfig(**({"sizes_mm": QUICK_SIZES_MM, "samples": 2, "pulls": ("left-lateral", "left-anterior"), "quick": True} | kw))
+    """Two coarse meshes (20 and 16 mm), the left hand's two pulls (one hemisphere), 2 samples
+    (2 and 4 mm: where the finer mesh follows, docs/reference.md)."""
+    return ReferenceConfig(**({"sizes_mm": QUICK_SIZES_MM, "samples": 2, "max_pull": 0.004, "pulls": ("left-lateral", "left-anterior"), "quick": True} | kw))
 
 
 def jnd_verdict(force: float, band_half: float) -> dict:
@@ -141,8 +142,9 @@ def _small_strain(cfg, scene, pulls, patches, xs, sizes, progress) -> dict:
 def _sample(pull, x: float, f: list, hs: list, sizes: list) -> dict:
     """One sample's convergence record and verdict from its forces on the meshes (coarse to fine)."""
     row = {"pull": pull.name, "displacement_mm": float(x) * 1e3, "forces_n": f, "h_mm": [h * 1e3 for h in hs], "target_edge_mm": sizes}
-    if not all(math.isfinite(v) for v in f):  # a solve that stopped early
-        return row | {"status": "not solved", "order": math.nan, "order_used": math.nan, "fs": math.nan, "extrapolated": False,
+    if not all(math.isfinite(v) for v in f):  # a solve that stopped early, or a finer mesh that did not follow
+        status = "coarsest mesh only" if math.isfinite(f[0]) else "not solved"
+        return row | {"status": status, "order": math.nan, "order_used": math.nan, "fs": math.nan, "extrapolated": False,
                       "force_ext_n": math.nan, "gci": math.nan, "band_n": [math.nan, math.nan], "band_half_n": math.nan,
                       "band_rel": math.nan, "jnd_fraction": math.nan, "within_jnd_rel": False, "within_jnd_abs": False}
     conv = converge(f, hs)
@@ -150,6 +152,17 @@ def _sample(pull, x: float, f: list, hs: list, sizes: list) -> dict:
     return row | {"order": conv["p"], "order_used": conv["p_used"], "status": conv["status"], "R": conv["R"], "fs": conv["fs"],
                   "extrapolated": conv["extrapolated"], "force_ext_n": conv["f_ext"], "gci": conv["gci"],
                   "band_n": [f[-1] - half, f[-1] + half], "band_half_n": half} | jnd_verdict(f[-1], half)
+
+
+def _support(sup, k: int) -> dict:
+    """A sample's support over the meshes that reached it (the larger share and |J - 1|;
+    analysis.truth_band): NaN for the small-strain formulation, which has none."""
+    if sup is None:
+        return {"support_share_outside": math.nan, "max_abs_j_minus_1": math.nan}
+    col = np.asarray(sup)[:, k]
+    ok = np.isfinite(col[:, 0])
+    return {"support_share_outside": float(col[ok, 0].max()) if ok.any() else math.nan,
+            "max_abs_j_minus_1": float(col[ok, 1].max()) if ok.any() else math.nan}
 
 
 def run_reference(cfg: ReferenceConfig, progress=None) -> dict:
@@ -166,9 +179,11 @@ def run_reference(cfg: ReferenceConfig, progress=None) -> dict:
     labels = sorted({p.hemisphere for p in pulls})
     made = _premesh(scene.mesh, labels, sizes, cfg.threads, cfg.jobs)
     solves: dict = {p.name: [] for p in pulls}
+    support: dict = {}
     if cfg.formulation == "finite-strain":
         refs = pull_references(cfg.scene, pulls, xs, sizes, jobs=cfg.jobs, progress=progress)["pulls"]
         F = {name: r["force_per_pa"] for name, r in refs.items()}
+        support = {name: r["support"] for name, r in refs.items()}
         solves = {name: r["solves"] for name, r in refs.items()}
     else:
         F = _small_strain(cfg, scene, pulls, patches, xs, sizes, progress)
@@ -180,7 +195,7 @@ def run_reference(cfg: ReferenceConfig, progress=None) -> dict:
                           "direction": list(p.direction), "h_mm": [h * 1e3 for h in hs], "force_per_pa": F[p.name].tolist(),
                           "solves": solves[p.name]})
         samples += [_sample(p, x, [float(np.linalg.norm(F[p.name][i, k])) * mu for i in range(len(sizes))], hs, sizes)
-                    for k, x in enumerate(xs)]
+                    | _support(support.get(p.name), k) for k, x in enumerate(xs)]
     gcis = [s["gci"] for s in samples if math.isfinite(s["gci"])]
     meta = {"scene": str(cfg.scene), "law": law.params(), "law_text": law.describe(), "law_source": scene.spec.material.law_source,
             "shear_modulus_pa": mu, "element": "P2 (10-node tetrahedra), displacement-based",
@@ -203,12 +218,13 @@ def markdown(result: dict) -> str:
     lines = [f"P2, {m['formulation']}, on fTetWild meshes (target edges {', '.join(f'{s:g}' for s in sizes)} mm); "
              f"GCI factor of safety {m['gci_fs']:g}; GCI half-band median {m['gci_median']:.1%}, largest {m['gci_max']:.1%}"
              + (" (quick)" if m["quick"] else "") + ".", "",
-             "| pull | d (mm) | " + " | ".join(f"F @ {s:g} mm (N)" for s in sizes) + " | order | status | extrapolated (N) | band (N) | band % | < JND (rel) | < 0.05 N |",
-             "|---|---|" + "---|" * len(sizes) + "---|---|---|---|---|---|---|"]
+             "| pull | d (mm) | " + " | ".join(f"F @ {s:g} mm (N)" for s in sizes) + " | order | status | extrapolated (N) | band (N) | band % | < JND (rel) | < 0.05 N | energy outside data | max abs(J - 1) |",
+             "|---|---|" + "---|" * len(sizes) + "---|---|---|---|---|---|---|---|---|"]
     for s in result["samples"]:
         lines.append(f"| {s['pull']} | {s['displacement_mm']:g} | " + " | ".join(f"{f:.4f}" for f in s["forces_n"])
                      + f" | {_fmt(s['order'], '.2f')} | {s['status']} | {_fmt(s['force_ext_n'], '.4f')} | {s['band_n'][0]:.4f}..{s['band_n'][1]:.4f} | "
-                     f"{s['gci']:.1%} | {'yes' if s['within_jnd_rel'] else 'no'} | {'yes' if s['within_jnd_abs'] else 'no'} |")
+                     f"{s['gci']:.1%} | {'yes' if s['within_jnd_rel'] else 'no'} | {'yes' if s['within_jnd_abs'] else 'no'} | "
+                     f"{_fmt(s['support_share_outside'], '.0%')} | {_fmt(s['max_abs_j_minus_1'], '.3f')} |")
     lines += ["", "| hemisphere | target edge (mm) | nodes | tets | h (mm) | P2 dofs (free) | volume error | mesh s |",
               "|---|---|---|---|---|---|---|---|"]
     for g in result["meshes"]:

@@ -8,7 +8,7 @@ import tempfile
 from pathlib import Path
 
 from analysis import plots, table1
-from analysis.accuracy import intro
+from analysis.accuracy_tables import intro
 from analysis.figure_size import FigureSize, figure_size
 from analysis.formatting import PAGE_END, drawn_png, figure_html, page_head, png_base64, table_html
 from analysis.kinds import gee_line, kind_stats, kind_tables, measures, primary_line

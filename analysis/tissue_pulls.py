@@ -34,11 +34,13 @@ from pathlib import Path
 import numpy as np
 
 from analysis.convergence import converge
+from analysis.material_fit import fitted_range
 from brainsim_assets import path as _asset
 from sim.errors import ParameterError, SimError
 from sim.files import save_npz
 from sim.linalg import Factor
 from sim.models.fem import FiniteStrain, TetSpace, constraint_matrix, hold
+from sim.models.fem.finite_strain import support
 from sim.patch import patch_area_points
 from sim.pulls import scene_with
 from sim.scene import clamp_limit, grasp_radius
@@ -47,10 +49,15 @@ from sim.volume import cache_dir, locate
 
 DEFAULT_SIZES_MM = SHIPPED_MM  # target edge lengths, coarse to fine: the shipped meshes
 QUICK_SIZES_MM = (20.0, 16.0)
-SOLVER_VERSION = 1  # part of every solve's key: bump when the solver or element changes
+SOLVER_VERSION = 2  # part of every solve's key: bump when the solver, element or law form changes (2: the convex volumetric energy, issue 55)
 SHIPPED_PULLS = _asset("data/reference_pulls.npz")
 SHIPPED_PULLS_INFO = _asset("data/reference_pulls.json")
-RECORD_XS = 0.002 * np.arange(1, 13)  # m: where the shipped solves record (2, 4, ..., 24 mm)
+RECORD_XS = 0.0005 * np.arange(1, 25)  # m: where the shipped solves record (0.5, 1.0, ..., 12 mm; issue 55)
+# the finer meshes and the ensemble's laws follow a pull only while the coarsest mesh's state has at
+# most this share of its energy outside the data's stretches: beyond, no sample can be decided (a decided
+# sample has at most the JND fraction at its force, 25% at most; analysis.truth_band.decide)
+FOLLOW_SHARE = 0.25
+SUPPORT_FIELDS = ("energy_share_outside", "max_abs_j_minus_1", "principal_stretch_min", "principal_stretch_max")
 
 
 class ReferenceDataError(SimError):
@@ -113,10 +120,10 @@ def _law_key(law) -> list:
     return [law.law, [round(m / mu, 12) for m in law.mu], [round(a, 9) for a in law.alpha], round(law.bulk_ratio, 9)]
 
 
-def pull_key(mesh: BodyMesh, scene, law, radius: float, pull) -> str:
+def pull_key(mesh: BodyMesh, scene, law, radius: float, pull, stretch_range=None) -> str:
     axis, limit = clamp_limit(scene)
     key = json.dumps([SOLVER_VERSION, mesh.key, _law_key(law), axis, round(limit, 9), round(radius, 9), int(pull.vertex),
-                      [round(c, 12) for c in pull.direction]])
+                      [round(c, 12) for c in pull.direction]] + ([[round(float(r), 9) for r in stretch_range]] if stretch_range else []))
     return hashlib.sha256(key.encode()).hexdigest()[:24]
 
 
@@ -157,6 +164,8 @@ def _covers(entry: dict, xs: np.ndarray, stiffness: bool) -> np.ndarray | None:
     idx = np.array([int(np.argmin(np.abs(have - x))) for x in xs])
     if not all(abs(have[i] - x) <= 1e-9 for i, x in zip(idx, xs)):
         return None
+    if "support" not in entry:
+        return None
     if stiffness:  # recorded wherever the solve reached (a solve that stopped has no records beyond)
         reached_at = np.isfinite(np.asarray(entry["force_per_pa"])[idx]).all(axis=1)
         if "stiffness_per_pa" not in entry or not np.all(np.isfinite(np.asarray(entry["stiffness_per_pa"])[idx][reached_at])):
@@ -177,7 +186,7 @@ def stored_solve(key: str, xs, stiffness: bool = False) -> dict | None:
             continue
         idx = _covers(entry, xs, stiffness)
         if idx is not None:
-            out = {"force_per_pa": np.asarray(entry["force_per_pa"])[idx], **entry["meta"]}
+            out = {"force_per_pa": np.asarray(entry["force_per_pa"])[idx], "support": np.asarray(entry["support"])[idx], **entry["meta"]}
             if "stiffness_per_pa" in entry:
                 out["stiffness_per_pa"] = np.asarray(entry["stiffness_per_pa"])[idx]
             if not out.get("converged") and np.isfinite(out["force_per_pa"]).all():
@@ -189,20 +198,27 @@ def stored_solve(key: str, xs, stiffness: bool = False) -> dict | None:
     return None
 
 
-def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness: bool = False) -> dict:
+def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness: bool = False, stretch_range=None) -> dict:
     """Follow the pull (the patch's mean displacement along `direction`) to max(xs), recording
-    the force holding it (per pascal of shear modulus, (len(xs), 3), the force on the tissue)
-    and, with `stiffness`, the condensed tangent (len(xs), 3, 3) at each x."""
+    the force holding it (per pascal of shear modulus, (len(xs), 3), the force on the tissue),
+    its support (`support`, (len(xs), 4): `SUPPORT_FIELDS` of `sim.models.fem.finite_strain.support`
+    for the principal stretches `stretch_range`, NaN without one) and, with `stiffness`, the
+    condensed tangent (len(xs), 3, 3) at each x."""
     xs = np.asarray(xs, dtype=np.float64)
     if xs.ndim != 1 or len(xs) == 0 or not np.all(np.isfinite(xs)) or np.any(xs <= 0) or np.any(np.diff(xs) <= 0):
         raise ParameterError("displacements: an increasing list of positive lengths (m)")
     unit = law.scaled(1.0 / law.shear_modulus)
     W = grasp_matrix(problem, points, weights)
     t0 = time.perf_counter()
-    res = hold(FiniteStrain(problem.space, unit, mean_dilatation=False), W, np.asarray(direction) * xs[-1], fractions=xs / xs[-1],
-               first_step=min(0.25, 2.0 * xs[0] / xs[-1]), stiffness=stiffness)
+    system = FiniteStrain(problem.space, unit, mean_dilatation=False)
+    res = hold(system, W, np.asarray(direction) * xs[-1], fractions=xs / xs[-1],
+               first_step=min(0.25, 2.0 * xs[0] / xs[-1]), stiffness=stiffness, keep_states=stretch_range is not None)
     rep = res.report
-    out = {"force_per_pa": res.forces, "converged": bool(rep.converged), "reason": rep.reason,
+    sup = np.full((len(xs), len(SUPPORT_FIELDS)), np.nan)
+    for i, u in enumerate(res.states):  # the states of the records reached, in order
+        s = support(system, u, stretch_range)
+        sup[i] = [s[k] for k in SUPPORT_FIELDS]
+    out = {"force_per_pa": res.forces, "support": sup, "converged": bool(rep.converged), "reason": rep.reason,
            "iterations": int(sum(rep.iterations)), "load_steps": int(rep.load_steps), "cut_steps": int(rep.cut_steps),
            "factorisations": int(rep.tangent_updates), "gmres_iterations": int(rep.linear_iterations), "shifts": int(rep.shifts),
            "min_jacobian": float(rep.min_jacobian), "reached_mm": float(res.fraction_done * xs[-1] * 1e3), "seconds": time.perf_counter() - t0, "free_dofs": int(len(problem.space.free))}
@@ -255,59 +271,68 @@ def require_converged(refs: dict, what: str) -> None:
 
 def _pull_task(args) -> dict:
     """One pull on one mesh (a worker process): shipped, cached, or solved and cached."""
-    scene_path, label, size_mm, pull, xs, stiffness, upto, finer = args
+    scene_path, label, size_mm, pull, xs, stiffness, upto, finer, law = args
 
     scene = scene_with(scene_path)
-    law, radius = scene.spec.material.law, grasp_radius(scene)
+    law, radius, rng = law or scene.spec.material.law, grasp_radius(scene), truth_range(scene)
     verts, tris, _ = hemisphere_surface(scene.mesh, label)
     body = mesh_hemisphere(verts, tris, size_mm * 1e-3)
-    key = pull_key(body, scene, law, radius, pull)
+    key = pull_key(body, scene, law, radius, pull, rng)
     found = _stored(key, xs, stiffness, finer)
     if found is not None:
         return found | {"cached": True, "key": key, "h_m": body.h}
     asked = xs <= upto + 1e-12
+    nothing = {"force_per_pa": np.full((len(xs), 3), np.nan), "support": np.full((len(xs), len(SUPPORT_FIELDS)), np.nan),
+               "converged": False, "cached": False, "key": key, "h_m": body.h, "reached_mm": 0.0}
     if finer == "skip" and not asked.all():
-        return {"force_per_pa": np.full((len(xs), 3), np.nan), "converged": False, "skipped": True, "cached": False, "key": key,
-                "h_m": body.h, "reached_mm": 0.0,
-                "reason": f"not solved: the coarsest mesh's solve stopped after its {upto * 1e3:g} mm record, and the finer ones were not run"}
+        return nothing | {"skipped": True, "reason": f"not solved: the coarsest mesh's solve stopped after its {upto * 1e3:g} mm record, "
+                                                     "and the finer ones were not run"}
     if not asked.any():
-        return {"force_per_pa": np.full((len(xs), 3), np.nan), "converged": False, "cached": False, "key": key, "h_m": body.h,
-                "reason": "not solved: the coarsest mesh's solve stopped before the first sample", "reached_mm": 0.0}
+        return nothing | {"reason": "not solved: the coarsest mesh's solve stopped before the first sample"}
     problem = build_problem(scene, label, body)
-    r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs[asked], stiffness)
-    if not asked.all():  # followed only as far as the coarsest mesh got: no records beyond
-        for name in ("force_per_pa", "stiffness_per_pa"):
+    r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs[asked], stiffness, rng)
+    if not asked.all():  # followed only as far as asked: no records beyond
+        for name in ("force_per_pa", "stiffness_per_pa", "support"):
             if name in r:
                 part = np.asarray(r[name])
                 r[name] = np.concatenate([part, np.full((len(xs) - len(part),) + part.shape[1:], np.nan)])
-        if r["converged"]:
-            r["converged"] = False
-            r["reason"] = f"solved to {upto * 1e3:g} mm only, where the coarsest mesh's solve stopped"
-    meta = {k: v for k, v in r.items() if k not in ("force_per_pa", "stiffness_per_pa")}
+        r["followed_mm"] = float(upto * 1e3)
+    meta = {k: v for k, v in r.items() if k not in ("force_per_pa", "stiffness_per_pa", "support")}
     if r["converged"] or np.isfinite(np.asarray(r["force_per_pa"])).all(axis=1).any():
         # a solve that stopped is kept too: its records up to where it stopped are converged
         # states, and solving it again would stop at the same place
-        _cache(key, np.asarray(xs, dtype=np.float64), r["force_per_pa"], r.get("stiffness_per_pa"), meta)
+        _cache(key, np.asarray(xs, dtype=np.float64), r["force_per_pa"], r.get("stiffness_per_pa"), r["support"], meta)
     return r | {"cached": False, "key": key, "h_m": body.h}
 
 
-def _cache(key: str, xs, force, stiffness, meta: dict) -> None:
+def truth_range(scene) -> tuple[float, float] | None:
+    """The principal stretches the scene's law was fitted to (`analysis.material_fit.fitted_range`),
+    None when its material names no data."""
+    source = scene.spec.material.law_source
+    return fitted_range(source)[0] if source else None
+
+
+def _cache(key: str, xs, force, stiffness, sup, meta: dict) -> None:
     """Keep a solve in the cache, merged with the records of an earlier one of the same pull
     (a stiffness is NaN where a solve did not record it)."""
     path = _cache_file(key)
     stiff = np.full((len(xs), 3, 3), np.nan) if stiffness is None else np.asarray(stiffness)
+    sup = np.asarray(sup)
     if path.exists():
         with np.load(path, allow_pickle=False) as z:
             old_xs, old_f = z["xs"], z["force_per_pa"]
             old_k = z["stiffness_per_pa"] if "stiffness_per_pa" in z.files else np.full((len(old_xs), 3, 3), np.nan)
+            old_s = z["support"] if "support" in z.files else np.full((len(old_xs), len(SUPPORT_FIELDS)), np.nan)
         keep = np.array([np.min(np.abs(xs - x)) > 1e-9 for x in old_xs], dtype=bool)
-        xs, force, stiff = (np.concatenate([xs, old_xs[keep]]), np.concatenate([force, old_f[keep]]), np.concatenate([stiff, old_k[keep]]))
+        xs, force, stiff, sup = (np.concatenate([xs, old_xs[keep]]), np.concatenate([force, old_f[keep]]),
+                                 np.concatenate([stiff, old_k[keep]]), np.concatenate([sup, old_s[keep]]))
     order = np.argsort(xs)
-    save_npz(path, xs=xs[order], force_per_pa=np.asarray(force)[order], stiffness_per_pa=stiff[order], meta=np.asarray(json.dumps(meta)))
+    save_npz(path, xs=xs[order], force_per_pa=np.asarray(force)[order], stiffness_per_pa=stiff[order], support=sup[order],
+             meta=np.asarray(json.dumps(meta)))
 
 
 def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int | None = None, progress=None,
-                    stiffness_for=(), finer: str = "stored") -> dict:
+                    stiffness_for=(), finer: str = "stored", law=None, upto: dict | None = None) -> dict:
     """The finite-strain reference of every pull in `pulls` on every mesh size: per pull
     ``{"h_m": [coarse..fine], "force_per_pa": (sizes, n, 3), "stiffness_per_pa": (sizes, n, 3, 3)
     or None, "solves": [per size]}``, plus ``"sizes_mm"``. Pulls named in `stiffness_for`
@@ -316,20 +341,25 @@ def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int 
     mesh's solve stopped, the finer ones follow the pull only as far as it got (a sample needs
     every mesh, and the last steps before a solve stops are the slowest). `finer` says what to do
     there: "stored" (a stored skip stands, otherwise solve), "solve", or "skip" (record a skip:
-    a solve near where the coarse one stopped can take an hour on the 4 mm mesh)."""
+    a solve near where the coarse one stopped can take an hour on the 4 mm mesh). Beyond where the
+    coarsest mesh's state has more than `FOLLOW_SHARE` of its energy outside the data's stretches
+    the finer meshes do not follow either (no sample is decided there), except on the pulls in
+    `stiffness_for` (the observer's paths). `law`: another law than the scene's (the truth's
+    ensemble); `upto`: per pull, the last displacement to solve on every mesh (m)."""
     scene = scene_with(scene_path)
     xs = np.asarray(xs, dtype=np.float64)
     sizes = sorted((float(x) for x in sizes_mm), reverse=True)
     labels = sorted({p.hemisphere for p in pulls})
     _premesh(scene.mesh, labels, sizes, 1, jobs)
     n_all = len(sizes) * len(pulls)
-    first = [(str(scene_path), p.hemisphere, sizes[0], p, xs, p.name in stiffness_for, xs[-1], finer) for p in pulls]
+    given = upto or {}
+    first = [(str(scene_path), p.hemisphere, sizes[0], p, xs, p.name in stiffness_for, given.get(p.name, xs[-1]), finer, law) for p in pulls]
     coarse = _run(first, jobs, (lambda k, n: progress(k, n_all)) if progress else None)
-    upto = {}
+    follow = {}
     for p, r in zip(pulls, coarse):
-        ok = np.isfinite(np.asarray(r["force_per_pa"])).all(axis=1)
-        upto[p.name] = float(xs[ok].max()) if ok.any() else 0.0
-    rest = [(str(scene_path), p.hemisphere, s, p, xs, p.name in stiffness_for, upto[p.name], finer) for s in sorted(sizes[1:]) for p in pulls]
+        follow[p.name] = follow_to(xs, r, p.name in stiffness_for)
+    rest = [(str(scene_path), p.hemisphere, s, p, xs, p.name in stiffness_for, follow[p.name], finer, law)
+            for s in sorted(sizes[1:]) for p in pulls]
     tasks = first + rest
     results = coarse + _run(rest, jobs, (lambda k, n: progress(len(first) + k, n_all)) if progress else None)
     out = {p.name: {"h_m": [0.0] * len(sizes), "force_per_pa": [None] * len(sizes), "stiffness_per_pa": [None] * len(sizes),
@@ -340,11 +370,25 @@ def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int 
         row["h_m"][i] = r["h_m"]
         row["force_per_pa"][i] = np.asarray(r["force_per_pa"])
         row["stiffness_per_pa"][i] = r.get("stiffness_per_pa")
-        row["solves"][i] = {k: v for k, v in r.items() if k not in ("force_per_pa", "stiffness_per_pa")} | {"size_mm": s}
+        row.setdefault("support", [None] * len(sizes))[i] = np.asarray(r["support"])
+        row["solves"][i] = {k: v for k, v in r.items() if k not in ("force_per_pa", "stiffness_per_pa", "support")} | {"size_mm": s}
     for row in out.values():
         row["force_per_pa"] = np.stack(row["force_per_pa"])
+        row["support"] = np.stack(row["support"])
         row["stiffness_per_pa"] = np.stack(row["stiffness_per_pa"]) if all(k is not None for k in row["stiffness_per_pa"]) else None
     return {"pulls": out, "sizes_mm": sizes}
+
+
+def follow_to(xs, coarse: dict, whole: bool) -> float:
+    """How far the finer meshes follow a pull (m): as far as the coarsest mesh's solve reached
+    and, unless `whole`, while its state has at most `FOLLOW_SHARE` of its energy outside the
+    data's stretches (a state without a support, NaN, counts as outside)."""
+    ok = np.isfinite(np.asarray(coarse["force_per_pa"])).all(axis=1)
+    if not whole:
+        share = np.asarray(coarse["support"])[:, 0]
+        inside = np.cumprod(share <= FOLLOW_SHARE).astype(bool)  # stop at the first state outside
+        ok = ok & inside
+    return float(np.asarray(xs)[ok].max()) if ok.any() else 0.0
 
 
 def _run(tasks: list, jobs: int | None, progress) -> list:
@@ -386,7 +430,7 @@ def _run(tasks: list, jobs: int | None, progress) -> list:
 def _stored_task(task, seen: dict) -> dict | None:
     """`_pull_task`'s answer when it is shipped or cached (no worker needed); `seen` keeps the
     scene and the meshes read for earlier tasks."""
-    scene_path, label, size_mm, pull, xs, stiffness, _, finer = task
+    scene_path, label, size_mm, pull, xs, stiffness, _, finer, law = task
 
     if scene_path not in seen:
         seen[scene_path] = scene_with(scene_path)
@@ -397,18 +441,20 @@ def _stored_task(task, seen: dict) -> dict | None:
     body = seen[(scene_path, label, size_mm)]
     if body is None:
         return None
-    key = pull_key(body, scene, scene.spec.material.law, grasp_radius(scene), pull)
+    if ("range", scene_path) not in seen:
+        seen[("range", scene_path)] = truth_range(scene)
+    key = pull_key(body, scene, law or scene.spec.material.law, grasp_radius(scene), pull, seen[("range", scene_path)])
     found = _stored(key, xs, stiffness, finer)
     return None if found is None else found | {"cached": True, "key": key, "h_m": body.h}
 
 
-def unsolved(scene_path, pulls, xs, sizes_mm) -> dict:
+def unsolved(scene_path, pulls, xs, sizes_mm, law=None) -> dict:
     """The solves `pull_references` would have to run for these pulls and sizes (neither
-    shipped nor cached): {size_mm: count}. `_stored_task` for each: reads the meshes and the
+    shipped nor cached), with the scene's law or `law`: {size_mm: count}. `_stored_task` for each: reads the meshes and the
     stores, solves nothing and meshes nothing (a pull on a mesh not yet made counts as unsolved)."""
     xs = np.asarray(xs, dtype=np.float64)
     seen: dict = {}
-    return {float(size): sum(_stored_task((str(scene_path), p.hemisphere, float(size), p, xs, False, xs[-1], "stored"), seen) is None
+    return {float(size): sum(_stored_task((str(scene_path), p.hemisphere, float(size), p, xs, False, xs[-1], "stored", law), seen) is None
                              for p in pulls) for size in sizes_mm}
 
 

@@ -15,11 +15,11 @@ from analysis.tissue_pulls import (
     build_problem,
     combined_sample,
     grasp_matrix,
-    pull_references,
     require_converged,
     small_strain_factor,
     solve_pull,
 )
+from analysis.truth_band import truth_samples
 from sim.files import save_npz
 from sim.models.fem.grasp import compliances, symmetric_inverse
 from sim.patch import patch_area_points
@@ -98,8 +98,9 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
     hemis = sorted(set(int(labels[v]) for v in np.concatenate([vertices, centres])))
     sizes_mm = sorted((float(s) for s in sizes_mm), reverse=True)
     # the paths: the reference's finite-strain solves along each hand's pull
-    refs = pull_references(scene_path, pulls, RECORD_XS, sizes_mm, jobs=jobs, stiffness_for={p.name for p in pulls},
-                           progress=(lambda k, n: progress(f"reference paths: {k}/{n} solves")) if progress else None)["pulls"]
+    truth = truth_samples(scene_path, pulls, RECORD_XS, sizes_mm, jobs=jobs, stiffness_for={p.name for p in pulls},
+                          progress=(lambda k, n: progress(f"reference paths: {k}/{n} solves")) if progress else None)
+    refs = truth["refs"]["pulls"]
     require_converged(refs, "observer truth")
     # the small-strain stiffness at every place and at the hands' own vertices
     all_v = np.concatenate([vertices, centres])
@@ -116,6 +117,8 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
     F = np.zeros((len(pulls), len(s), 3))
     K = np.zeros((len(pulls), len(s), 3, 3))
     path_gci = np.zeros((len(pulls), len(s)))
+    path_band = np.zeros((len(pulls), len(s)))  # mesh and law, root-sum-square (analysis.truth_band)
+    path_decided = np.ones((len(pulls), len(s)), dtype=bool)
     for h, p in enumerate(pulls):
         r = refs[p.name]
         fine = int(np.argmin(r["h_m"]))
@@ -126,15 +129,32 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
             finest = float(np.linalg.norm(r["force_per_pa"][fine, m]))
             K[h, m + 1] = r["stiffness_per_pa"][fine, m] * (c["force_n"] / finest)
             path_gci[h, m + 1] = c["band_rel"]
+            t = truth["pulls"][p.name][m]
+            path_band[h, m + 1], path_decided[h, m + 1] = t["band_rel"], t["decided"]
+    # where the band is unknown (an ensemble law did not get there), the path's widest known one
+    path_band = np.where(np.isfinite(path_band), path_band, np.nanmax(path_band))
     checks = _check_transfer(scene, pulls, sets, path, vertices, C, refs, sizes_mm, radius, progress) if check else []
+    # the transfer's error at each hand's farthest place, along the path (0 at rest, where it is exact):
+    # a place off the hand's vertex carries it in its band (studyctl.truth.Truth.band)
+    transfer_error = np.zeros((len(pulls), len(s)))
+    for c in checks:
+        h = [p.name for p in pulls].index(c["hand"])
+        transfer_error[h, 1:] = [c["error_at_mm"][f"{x * 1e3:g}"] for x in RECORD_XS]
+    transfer_error = np.where(np.isfinite(transfer_error), transfer_error, np.nanmax(transfer_error))
     save_npz(out, compressed=True, vertices=vertices, path=path, transfer=transfer, s=s, direction=np.array([p.direction for p in pulls]),
-             force_per_pa=F, stiffness_per_pa=K, path_gci=path_gci, path_pulls=np.array([p.name for p in pulls]),
+             force_per_pa=F, stiffness_per_pa=K, path_gci=path_gci, path_band=path_band, path_decided=path_decided,
+             path_band_rel=np.where(path_decided, 0.0, path_band), transfer_error=transfer_error,
+             path_vertex=np.array([p.vertex for p in pulls], dtype=np.int64), path_pulls=np.array([p.name for p in pulls]),
              K0_per_pa=K0, K0_per_pa_meshes=np.linalg.inv(C), small_strain_order=orders, small_strain_status=np.asarray(status), small_strain_gci=gci,
              h_m=hs, sizes_mm=np.asarray(sizes_mm), transfer_check=np.asarray([json_line(c) for c in checks]),
              **{k: np.asarray(v) for k, v in key.items()})
     rep = {"out": str(out), "vertices": int(len(vertices)), "paths": [p.name for p in pulls], "sizes_mm": list(sizes_mm),
             "seconds": time.perf_counter() - start, "path_gci_median": float(np.median(path_gci[:, 1:])),
             "path_gci_max": float(np.max(path_gci[:, 1:])), "small_strain_gci_median": float(np.median(gci)),
+            "ensemble": truth["ensemble"],
+            "path_first_undecided_mm": {p.name: (float(s[int(np.argmin(path_decided[h]))] * 1e3) if not path_decided[h].all() else None)
+                                   for h, p in enumerate(pulls)},
+            "path_band_median_undecided": float(np.median(path_band[~path_decided])) if (~path_decided).any() else 0.0,
             "transfer_checks": checks, "force_at_n": {p.name: {f"{x * 1e3:g} mm": float(np.linalg.norm(F[h, m]) * law.shear_modulus)
                                                              for m, x in enumerate(s) if m and m % 2 == 0} for h, p in enumerate(pulls)}}
     # the record beside the table: its SHA-256 (the shipped one is checked against it) and how it was made

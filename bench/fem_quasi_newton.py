@@ -101,7 +101,7 @@ def _frames(system, factor, W, U, Ci, direction, xs, per_sample: int, iterations
 
 
 def measure() -> dict:
-    from analysis.accuracy import PULL_SPEED, AccuracyConfig, sample_displacements
+    from analysis.accuracy import AccuracyConfig, frames_per_sample, sample_displacements
     from sim.linalg import Factor
     from sim.models.api import BUDGETS
     from sim.models.fem.newton import hold
@@ -113,7 +113,7 @@ def measure() -> dict:
     scene = scene_with(cfg.scene)
     pulls = {p.name: p for p in make_pulls(scene) + test_pulls(scene, cfg.test_places)}
     xs = sample_displacements(cfg)
-    per_sample = max(1, round(xs[0] / PULL_SPEED * scene.spec.visual_rate_hz))
+    per_sample = frames_per_sample(xs, scene.spec.visual_rate_hz)
     # the model only supplies the 8 mm hemisphere and the grasp's constraint
     model = model_class("fem").build(scene.mesh, scene.spec.options_of("fem") | {"formulation": "linear", "resolution": 0.008, "order": 1}, scene)
     out = {"budget_ms": BUDGETS["deformation_ms_p99"], "samples_mm": [float(x * 1e3) for x in xs], "pulls": {}}

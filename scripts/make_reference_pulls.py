@@ -4,10 +4,11 @@ data/reference_pulls.json (the file's SHA-256, what each entry is, how long it t
 Solves the accuracy bench's 18 pulls (`sim.pulls.make_pulls` and `test_pulls`) of the
 shipped scene on each shipped mesh (8, 6, 4 mm: the full bench's Richardson triple) and on the
 quick bench's pair (20, 16 mm: `--quick` benches and `model check --quick` then solve nothing on an
-empty cache) with the scene's law (protocols/materials/
-human_cortex.toml), recording every 2 mm to 24 mm (`analysis.reference.RECORD_XS`), the hand
-pulls with their condensed tangent stiffness too (the observer's truth reads them). A solve that
-stops (the tangent loses definiteness on some anterior pulls) is shipped with the records it
+empty cache) with the scene's law (protocols/materials/human_cortex.toml), recording every
+0.5 mm to 12 mm (`analysis.tissue_pulls.RECORD_XS`) the force and the state's support, the hand
+pulls with their condensed tangent stiffness too (the observer's truth reads them); then the
+other laws of the truth's ensemble (`analysis.truth_band.ensemble`) on each group's coarsest
+mesh, as far as the finer meshes follow. A solve that stops is shipped with the records it
 reached and its reason. Solves already cached ($BRAINSIM_CACHE/reference) are reused.
 
     .venv/bin/python scripts/make_reference_pulls.py [--jobs 2] [--finer stored|solve|skip]
@@ -28,13 +29,17 @@ from analysis.tissue_pulls import (
     RECORD_XS,
     SHIPPED_PULLS,
     SHIPPED_PULLS_INFO,
+    follow_to,
     pull_references,
     stored_solve,
 )
+from analysis.truth_band import ensemble, shape_index, shapes
 from brainsim_assets import version
 from sim.pulls import hand_pulls, make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE
 from sim.tetmesh import SHIPPED_MM
+
+QUICK_TEST_PLACES = 6
 
 
 def main() -> None:
@@ -51,32 +56,48 @@ def main() -> None:
     def progress(k, n):
         print(f"{k}/{n} solves, {time.perf_counter() - start:.0f} s", flush=True)
 
-    # each group as its benches read it: the finer meshes follow a pull as far as the group's coarsest got
-    groups = [pull_references(DEFAULT_SCENE, pulls, RECORD_XS, sizes, jobs=args.jobs, progress=progress, stiffness_for=hands,
-                              finer=args.finer) for sizes in (SHIPPED_MM, QUICK_SIZES_MM)]
-    arrays, entries = {}, []
-    for p in pulls:
-        for s in (s for refs in groups for s in refs["pulls"][p.name]["solves"]):
-            key = s["key"]
-            found = stored_solve(key, RECORD_XS, stiffness=p.name in hands)  # cached, or shipped before
-            if found is None and s.get("skipped"):  # shipped as a skip (no records), so that readers do not solve it
-                found = {"force_per_pa": np.full((len(RECORD_XS), 3), np.nan), "converged": False, "skipped": True,
-                         "reason": s["reason"], "reached_mm": 0.0}
-            if found is None:  # stopped before its first record
-                entries.append({"pull": p.name, "size_mm": s["size_mm"], "key": key, "converged": False, "reason": s.get("reason", "")})
-                continue
-            meta = {k: v for k, v in found.items() if k not in ("force_per_pa", "stiffness_per_pa")}
-            arrays[f"{key}__xs"] = RECORD_XS
-            arrays[f"{key}__force_per_pa"] = found["force_per_pa"]
-            if p.name in hands and not found.get("skipped"):
-                arrays[f"{key}__stiffness_per_pa"] = found["stiffness_per_pa"]
-            arrays[f"{key}__meta"] = np.asarray(json.dumps(meta))
-            entries.append({"pull": p.name, "size_mm": s["size_mm"], "key": key, "stiffness": p.name in hands} | meta)
-    np.savez_compressed(SHIPPED_PULLS, **arrays)
     law = scene.spec.material.law
+    members = ensemble(scene.spec.material.law_source, law)
+    others = shapes(members)[1:]
+    # each group as its benches read it: the finer meshes follow a pull as far as the group's coarsest got
+    groups, solved = [], []
+    # the quick benches judge two test places: their pairs hold the first six (QUICK_TEST_PLACES)
+    quick_pulls = make_pulls(scene) + test_pulls(scene, QUICK_TEST_PLACES)
+    for sizes, group in ((SHIPPED_MM, pulls), (QUICK_SIZES_MM, quick_pulls)):
+        main_refs = pull_references(DEFAULT_SCENE, group, RECORD_XS, sizes, jobs=args.jobs, progress=progress, stiffness_for=hands,
+                                    finer=args.finer)
+        groups.append(main_refs)
+        solved += [(p, s, None) for p in group for s in main_refs["pulls"][p.name]["solves"]]
+        upto = {p.name: follow_to(RECORD_XS, {"force_per_pa": main_refs["pulls"][p.name]["force_per_pa"][0],
+                                              "support": main_refs["pulls"][p.name]["support"][0]}, p.name in hands) for p in group}
+        for k, shape in enumerate(others, start=1):
+            refs = pull_references(DEFAULT_SCENE, group, RECORD_XS, (max(sizes),), jobs=args.jobs, progress=progress, law=shape, upto=upto)
+            solved += [(p, s, k) for p in group for s in refs["pulls"][p.name]["solves"]]
+    arrays, entries = {}, []
+    for p, s, k in solved:
+        key = s["key"]
+        stiff = p.name in hands and k is None
+        found = stored_solve(key, RECORD_XS, stiffness=stiff)  # cached, or shipped before
+        if found is None and s.get("skipped"):  # shipped as a skip (no records), so that readers do not solve it
+            found = {"force_per_pa": np.full((len(RECORD_XS), 3), np.nan), "support": np.full((len(RECORD_XS), 4), np.nan),
+                     "converged": False, "skipped": True, "reason": s["reason"], "reached_mm": 0.0}
+        if found is None:  # stopped before its first record
+            entries.append({"pull": p.name, "size_mm": s["size_mm"], "key": key, "shape": k or 0, "converged": False, "reason": s.get("reason", "")})
+            continue
+        meta = {m: v for m, v in found.items() if m not in ("force_per_pa", "stiffness_per_pa", "support")}
+        arrays[f"{key}__xs"] = RECORD_XS
+        arrays[f"{key}__force_per_pa"] = found["force_per_pa"]
+        arrays[f"{key}__support"] = found["support"]
+        if stiff and not found.get("skipped"):
+            arrays[f"{key}__stiffness_per_pa"] = found["stiffness_per_pa"]
+        arrays[f"{key}__meta"] = np.asarray(json.dumps(meta))
+        entries.append({"pull": p.name, "size_mm": s["size_mm"], "key": key, "shape": k or 0, "stiffness": stiff} | meta)
+    np.savez_compressed(SHIPPED_PULLS, **arrays)
     SHIPPED_PULLS_INFO.write_text(json.dumps({
         "sha256": hashlib.sha256(SHIPPED_PULLS.read_bytes()).hexdigest(),
         "made": datetime.date.today().isoformat(), "version": version(), "law": law.params(),
+        "ensemble": [{"name": m["name"], "role": m["role"], "law": m["law"].params(), "shape": i, "rms_rel_uniaxial": m["rms_rel_uniaxial"],
+                      "shear_worst_rel": m["shear_worst_rel"], "passes": m["passes"]} for m, i in zip(members, shape_index(members))],
         "law_source": "protocols/materials/human_cortex.toml", "scene": "protocols/scenes/brain_pull.toml",
         "record_mm": [round(x * 1e3, 6) for x in RECORD_XS], "sizes_mm": list(SHIPPED_MM) + list(QUICK_SIZES_MM),
         "made_by": "scripts/make_reference_pulls.py", "wall_s": time.perf_counter() - start, "entries": entries}, indent=1) + "\n")

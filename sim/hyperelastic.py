@@ -1,7 +1,8 @@
 """Finite-strain hyperelastic laws for brain tissue, nearly incompressible, with a
 deviatoric/volumetric split (docs/material.md):
 
-    psi = sum_p 2 mu_p / alpha_p^2 (lb1^alpha_p + lb2^alpha_p + lb3^alpha_p - 3) + kappa/2 (ln J)^2
+    psi = sum_p 2 mu_p / alpha_p^2 (lb1^alpha_p + lb2^alpha_p + lb3^alpha_p - 3) + U(J),
+    U(J) = kappa/4 (J^2 - 1 - 2 ln J)
 
 with lb_i = J^(-1/3) l_i the isochoric principal stretches. This is the convention of Budday
 et al. (2017): mu = sum_p mu_p is the small-strain shear modulus, and every term is stable
@@ -12,8 +13,11 @@ for mu_p > 0, whatever the sign of alpha_p. The three laws are one family:
 - Ogden: N terms of free alpha (one term with alpha near -20 follows human brain, Budday
   et al. 2017; Linka et al. 2023).
 
-The volumetric energy kappa/2 (ln J)^2 is FEBio's for its uncoupled laws; kappa is
-`bulk_ratio` times mu (`BULK_RATIO`, why in docs/material.md). The closed-form homogeneous
+The volumetric energy U(J) = kappa/4 (J^2 - 1 - 2 ln J) (Simo and Taylor 1982; Abaqus's and
+FEBio's convex choice) is convex for every J > 0 (U'' = kappa/2 (1 + 1/J^2)), where the
+kappa/2 (ln J)^2 used before issue 55 is not past J = e; both have U''(1) = kappa, so the
+small-strain limit is unchanged. kappa is `bulk_ratio` times mu (`BULK_RATIO`, why in
+docs/material.md). The closed-form homogeneous
 responses here (uniaxial loading with free lateral faces, simple shear) are what
 `studyctl calibrate material` fits and what the cube tests hold the FEM to. SI units.
 """
@@ -86,6 +90,16 @@ class Hyperelastic:
             out = {"law": self.law, "mu": list(self.mu), "alpha": list(self.alpha)}
         return out | {"bulk_ratio": self.bulk_ratio}
 
+    @staticmethod
+    def from_params(d: dict) -> Hyperelastic:
+        """The law of `params()`'s dictionary."""
+        br = float(d.get("bulk_ratio", BULK_RATIO))
+        if d["law"] == "neo-hookean":
+            return neo_hookean(d["mu"], br)
+        if d["law"] == "mooney-rivlin":
+            return mooney_rivlin(d["mu1"], d["mu2"], br)
+        return ogden(d["mu"], d["alpha"], br)
+
     def describe(self) -> str:
         terms = ", ".join(f"mu {m:.4g} Pa, alpha {a:.4g}" for m, a in zip(self.mu, self.alpha))
         return f"{self.law} ({terms}; kappa = {self.bulk_ratio:g} mu)"
@@ -126,13 +140,21 @@ def law_problem(law: Hyperelastic) -> str:
 
 # -- closed forms in principal stretches ---------------------------------------------------------
 
+def volumetric(kappa: float, J) -> tuple:
+    """U(J) = kappa/4 (J^2 - 1 - 2 ln J) and its first two derivatives (arrays broadcast); the
+    compiled element pass (`sim.models.fem.hyperelastic_kernels`) writes the same three lines."""
+    J = np.asarray(J, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return 0.25 * kappa * (J * J - 1.0 - 2.0 * np.log(J)), 0.5 * kappa * (J - 1.0 / J), 0.5 * kappa * (1.0 + 1.0 / (J * J))
+
+
 def principal_nominal(law: Hyperelastic, l1, l2, l3) -> tuple:
     """The principal nominal (first Piola-Kirchhoff) stresses dpsi/dl_i (Pa) at principal
     stretches (arrays broadcast): (1/l_i) [sum_p (2 mu_p/alpha_p) J^(-alpha_p/3) (l_i^alpha_p -
-    (1/3) sum_j l_j^alpha_p) + kappa ln J]."""
+    (1/3) sum_j l_j^alpha_p) + J U'(J)]."""
     l1, l2, l3 = (np.asarray(x, dtype=np.float64) for x in (l1, l2, l3))
     J = l1 * l2 * l3
-    out = [law.bulk_modulus * np.log(J) for _ in range(3)]
+    out = [J * volumetric(law.bulk_modulus, J)[1] for _ in range(3)]
     for m, a in zip(law.mu, law.alpha):
         c = 2.0 * m / a * J ** (-a / 3.0)
         pw = (l1**a, l2**a, l3**a)

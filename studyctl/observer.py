@@ -146,6 +146,7 @@ class TrialSummary:
     events: int  # safety events
     frame_flops: float  # mean counted work per deformation frame (NaN: not recorded)
     frame_ms: float = math.nan  # the rig's measured time per frame for this configuration (studyctl/rig.py); NaN: none
+    band: np.ndarray | None = None  # (k,) the truth's relative half-band where it is not decided (0 where it is); None: 0
 
 
 def frame_ms(flops: float, params: ObserverParams = DEFAULT) -> float:
@@ -176,9 +177,11 @@ def ripple_level(force: np.ndarray, rate_hz: float, params: ObserverParams = DEF
     return float(np.sqrt(np.sum((amp[band] / vibration_threshold_n(freq[band], params)) ** 2) / 1.5))
 
 
-def truth_forces(trace, truth, mesh) -> np.ndarray:
-    """The truth's force magnitude for the trace's hand motion and grasps, per tick and hand."""
+def truth_forces(trace, truth, mesh, with_band: bool = False):
+    """The truth's force magnitude for the trace's hand motion and grasps, per tick and hand
+    (and, `with_band`, its relative half-band where it is not decided)."""
     out = np.zeros(trace.positions.shape[:2])
+    band = np.zeros(trace.positions.shape[:2])
     grasps: dict[int, list] = {}
     for e in trace.events:
         if e.kind == "grasp":
@@ -191,12 +194,14 @@ def truth_forces(trace, truth, mesh) -> np.ndarray:
                 continue
             d = trace.positions[sel, hand] - mesh.vertices[vertex]
             out[sel, hand] = np.linalg.norm(truth.force(vertex, d), axis=1)
-    return out
+            if with_band:
+                band[sel, hand] = truth.band(vertex, d)
+    return (out, band) if with_band else out
 
 
 def summarise(trace, truth, mesh, params: ObserverParams = DEFAULT) -> TrialSummary:
     f = np.linalg.norm(trace.forces, axis=2)
-    ref = truth_forces(trace, truth, mesh)
+    ref, band = truth_forces(trace, truth, mesh, with_band=True)
     rate = 1.0 / float(np.median(np.diff(trace.times))) if len(trace.times) > 1 else 1000.0
     judged = ref >= params.judged_force_n
     judged[np.arange(len(judged)) % params.sample_every != 0] = False
@@ -206,7 +211,7 @@ def summarise(trace, truth, mesh, params: ObserverParams = DEFAULT) -> TrialSumm
         if len(held):
             ripple = max(ripple, ripple_level(f[held[0]:held[-1] + 1, i], rate, params))
     flops = np.asarray(getattr(trace, "frame_flops", np.zeros(0)), dtype=np.float64)
-    return TrialSummary(rendered=f[judged], truth=ref[judged], ripple=ripple,
+    return TrialSummary(rendered=f[judged], truth=ref[judged], band=band[judged], ripple=ripple,
                         events=sum(1 for e in trace.events if e.kind in SAFETY_EVENTS),
                         frame_flops=float(np.nanmean(flops)) if len(flops) and np.isfinite(flops).any() else math.nan)
 
@@ -219,14 +224,19 @@ def weber_at(force: np.ndarray, traits: ObserverTraits, params: ObserverParams =
     return traits.weber * (params.weber_low / params.weber * (1.0 - t) + t)
 
 
-def within_jnd(rendered: np.ndarray, truth: np.ndarray, traits: ObserverTraits, params: ObserverParams = DEFAULT) -> float:
+def within_jnd(rendered: np.ndarray, truth: np.ndarray, traits: ObserverTraits, params: ObserverParams = DEFAULT,
+               band: np.ndarray | None = None) -> float:
     """Mean probability that a force sample feels as expected: the log ratio of the rendered
     force to the expected one (truth x the participant's prior), perceived with Gaussian noise
-    of one JND, falls within one JND. A perfect model scores 0.683, not 1."""
+    of one JND, falls within one JND. A perfect model scores 0.683, not 1. Where the truth is
+    not decided (`band`: its relative half-band there), a force inside the band is as good as
+    the centre: the log ratio is measured from the band's nearer edge."""
     if len(truth) == 0:
         return math.nan
     w = weber_at(traits.prior * truth, traits, params)
     r = np.log(np.maximum(rendered, 1e-3) / (traits.prior * truth))
+    if band is not None:
+        r = np.sign(r) * np.maximum(np.abs(r) - np.log1p(np.asarray(band, dtype=np.float64)), 0.0)
     return float(np.mean(ndtr(1.0 - r / w) - ndtr(-1.0 - r / w)))
 
 
@@ -306,11 +316,12 @@ def features(summaries: list[TrialSummary], traits: ObserverTraits, params: Obse
 def _features(summaries: list[TrialSummary], traits: ObserverTraits, params: ObserverParams = DEFAULT) -> dict:
     rendered = np.concatenate([s.rendered for s in summaries]) if summaries else np.zeros(0)
     truth = np.concatenate([s.truth for s in summaries]) if summaries else np.zeros(0)
+    band = np.concatenate([s.band if s.band is not None else np.zeros(len(s.truth)) for s in summaries]) if summaries else np.zeros(0)
     flops = [s.frame_flops for s in summaries if math.isfinite(s.frame_flops)]
     rig = [s.frame_ms for s in summaries if math.isfinite(s.frame_ms)]
     # the rig's measured frame time when the study has a profile, else the counted work on the reference machine
     latency = float(np.mean(rig)) if rig else frame_ms(float(np.mean(flops)), params) if flops else math.nan
-    within = within_jnd(rendered, truth, traits, params)
+    within = within_jnd(rendered, truth, traits, params, band)
     p_vib = [float(ndtr(math.log(s.ripple / traits.vibration) / params.vibration_slope)) if s.ripple > 0 else 0.0 for s in summaries]
     return {
         "within_jnd": within,  # NaN: the truth never reached a judged force (nothing to judge)

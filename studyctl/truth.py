@@ -46,7 +46,7 @@ TRUTH_FILE = _asset("data/observer_truth.npz")
 TRUTH_INFO = _asset("data/observer_truth.json")  # its SHA-256 and how it was made
 TRUTH_RADIUS = 0.010  # m around each hand's start: the motor model's grasps land within a few mm
 TRUTH_SIZES_MM = (8.0, 6.0, 4.0)  # the shipped body-fitted meshes (sim/tetmesh.py)
-TRUTH_VERSION = 2  # 1: the linear P2 stiffness per pascal of Young's modulus
+TRUTH_VERSION = 3  # 1: the linear P2 stiffness per pascal of Young's modulus; 3: records to 12 mm with the band (issue 55)
 
 
 @dataclass(frozen=True)
@@ -63,6 +63,24 @@ class Truth:
     mu: float  # the scene's law's shear modulus, Pa
     digest: str  # the surface the table belongs to
     grasp_radius: float
+    band_rel: np.ndarray | None = None  # (h, m) the truth's relative half-band where it is not decided, 0 where it is
+    path_band: np.ndarray | None = None  # (h, m) the band everywhere (mesh and law)
+    transfer_error: np.ndarray | None = None  # (h, m) the transfer's error at the path's farthest place
+    path_vertex: np.ndarray | None = None  # (h,) each path's own grasp vertex
+
+    def band(self, vertex: int, d) -> np.ndarray:
+        """The truth's relative half-band for hand displacements d (k, 3), linear along the path
+        between records, the last record's beyond: at a path's own vertex, where the truth is
+        not decided (0 where it is); at any other place, everywhere, the path's band and the
+        transfer's measured error root-sum-square (the transfer is exact only at rest)."""
+        d = np.atleast_2d(np.asarray(d, dtype=np.float64))
+        if self.band_rel is None:
+            return np.zeros(len(d))
+        h = int(self.path[self._row(vertex)])
+        s = d @ self.direction[h]
+        if self.path_vertex is None or int(vertex) == int(self.path_vertex[h]):
+            return np.interp(s, self.s, self.band_rel[h])
+        return np.hypot(np.interp(s, self.s, self.path_band[h]), np.interp(s, self.s, self.transfer_error[h]))
 
     def _row(self, vertex: int) -> int:
         hit = np.flatnonzero(self.vertices == int(vertex))
@@ -164,7 +182,8 @@ def load_truth(scene, path: Path | str | None = None) -> Truth:
         if z is None:
             why.append(f"{p}: made for another scene ({reason})")
             continue
-        parts.append({k: z[k] for k in ("vertices", "path", "transfer", "s", "direction", "force_per_pa", "stiffness_per_pa")})
+        parts.append({k: z[k] for k in ("vertices", "path", "transfer", "s", "direction", "force_per_pa", "stiffness_per_pa", "path_band_rel",
+                                        "path_band", "transfer_error", "path_vertex")})
     if not parts:
         raise InputError(("; ".join(why) or "no observer truth table") + "; make one with `studyctl calibrate truth --scene FILE`")
     s = parts[0]["s"]
@@ -178,7 +197,10 @@ def load_truth(scene, path: Path | str | None = None) -> Truth:
                  direction=np.concatenate([q["direction"] for q in parts]),
                  force_per_pa=np.concatenate([q["force_per_pa"] for q in parts]),
                  stiffness_per_pa=np.concatenate([q["stiffness_per_pa"] for q in parts]),
-                 mu=float(scene.spec.material.law.shear_modulus), digest=key["digest"], grasp_radius=key["grasp_radius"])
+                 mu=float(scene.spec.material.law.shear_modulus), digest=key["digest"], grasp_radius=key["grasp_radius"],
+                 band_rel=np.concatenate([q["path_band_rel"] for q in parts]), path_band=np.concatenate([q["path_band"] for q in parts]),
+                 transfer_error=np.concatenate([q["transfer_error"] for q in parts]),
+                 path_vertex=np.concatenate([q["path_vertex"] for q in parts]))
 
 
 def hand_vertices(scene, radius: float = TRUTH_RADIUS) -> np.ndarray:

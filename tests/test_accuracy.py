@@ -33,9 +33,12 @@ def _pull(name="p"):
     return Pull(name, 0, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 0)
 
 
-def _ref(f, half=0.0):
+def _ref(f, half=0.0, decided=True, truth=""):
     f = np.asarray(f, dtype=float)
-    return {"force": f, "force_n": float(np.linalg.norm(f)), "band_half_n": half}
+    n = float(np.linalg.norm(f))
+    return {"force": f, "force_n": n, "band_half_n": half, "band_rel": half / n, "mesh_band_rel": half / n, "law_band_rel": 0.0,
+            "support_share_outside": 0.0, "max_abs_j_minus_1": 0.0, "decided": decided, "truth": truth,
+            "reason": "" if decided else "a reason"}
 
 
 def test_calibration_scale_errors_verdicts_and_wilson_by_hand():
@@ -60,6 +63,29 @@ def test_calibration_scale_errors_verdicts_and_wilson_by_hand():
     centre, half = (1 + z * z / 2) / (2 + z * z), z / (2 + z * z) * np.sqrt(0.5 + z * z / 4)
     assert (cal["within_jnd_low"], cal["within_jnd_high"]) == pytest.approx((centre - half, centre + half), abs=1e-6)
     assert [s["set"] for s in samples if s["calibration"] == "raw"] == ["calibration"] * 2 + ["test"] * 2
+
+
+def test_samples_where_the_truth_is_not_decided_carry_its_verdict_and_are_not_rated():
+    """Test pull: 0.4 N decided, 1.0 N extrapolated, 0.2 N undecided; a model exact at the first
+    and 50% off at the others is within the JND on 1 of 1 decided samples, with 1 extrapolated
+    and 1 undecided beside; the calibration scale is fitted on the decided calibration sample only."""
+    far = _ref([1.0, 0, 0], decided=False, truth="extrapolated")
+    ref = [[_ref([0.4, 0, 0]), far, _ref([0.2, 0, 0])], [_ref([0.4, 0, 0]), far, _ref([0.2, 0, 0], decided=False, truth="undecided")]]
+    model = {"model": "m", "setting": "s", "force": np.array([[[-0.2, 0, 0], [-0.1, 0, 0], [-0.1, 0, 0]],
+                                                              [[-0.4, 0, 0], [-1.5, 0, 0], [-0.3, 0, 0]]]),
+             "tick_us": 1.0, "frame_ms": 2.0, "frame_ms_p99": 3.0, "build_s": 0.0, "unstable": False}
+    rows, samples = compare(ref, [model], [_pull("c"), _pull("t")], 1, np.array([0.01, 0.02, 0.03]))
+    raw, cal = rows
+    assert cal["scale"] == pytest.approx(2.0)  # the two decided calibration samples (the extrapolated one would give 10)
+    assert raw["n_test"] == 1 and raw["within_jnd"] == 1.0 and raw["within"] == 1
+    assert raw["extrapolated"] == 1 and raw["truth_undecided"] == 1 and raw["force_error_max"] == pytest.approx(0.0)
+    test = [s for s in samples if s["set"] == "test" and s["calibration"] == "raw"]
+    assert [s["verdict"] for s in test] == ["within", "extrapolated", "undecided"]
+    assert [s["decided"] for s in test] == [True, False, False] and test[1]["reason"] == "a reason"
+    by = accuracy.breakdown(samples, "force_band")
+    raw_rows = {r["force_band"]: r for r in by if r["calibration"] == "raw"}
+    assert raw_rows["0.1-0.5 N"]["decided"] == 1 and raw_rows["0.1-0.5 N"]["within"] == 1 and raw_rows["0.1-0.5 N"]["undecided"] == 1
+    assert raw_rows["above 0.5 N"]["decided"] == 0 and raw_rows["above 0.5 N"]["extrapolated"] == 1
 
 
 def test_verdict_against_the_band():
@@ -167,7 +193,7 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
     assert set(rows) == {(s, c) for s in ("scene-fit", "linear-8mm", "local-global-8mm") for c in ("raw", "calibrated")}
     for r in rows.values():
         assert 0.0 <= r["within_jnd_low"] <= r["within_jnd"] <= r["within_jnd_high"] <= 1.0
-        assert r["within"] + r["outside"] + r["undecided"] == r["n_test"] == 4 * 2 and r["n_test_pulls"] == 4
+        assert r["within"] + r["outside"] + r["undecided"] == r["n_test"] and r["n_test"] + r["extrapolated"] + r["truth_undecided"] == 4 * 2
         assert r["tick_us"] > 0 and r["frame_ms"] > 0 and 0 <= r["angle_deg"] <= 180
     ref = out["meta"]["reference"]
     assert ref["converged"] and ref["sizes_mm"] == [20.0, 16.0] and ref["law"]["law"] == "ogden" and ref["solves"] == 10 * 2

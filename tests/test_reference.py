@@ -177,21 +177,26 @@ def test_the_shipped_solves_are_the_solvers_and_hash_checked(scene, tmp_path, mo
     at two of its records), and a damaged file is refused by name."""
     info = json.loads(tissue_pulls.SHIPPED_PULLS_INFO.read_text())
     assert info["law"] == scene.spec.material.law.params()
-    entries = {(e["pull"], e["size_mm"]): e for e in info["entries"]}
+    entries = {(e["pull"], e["size_mm"]): e for e in info["entries"] if e["shape"] == 0}
     assert len(entries) == 90  # 18 pulls x 5 meshes: the full bench's 8, 6, 4 mm and the quick benches' 20, 16 mm
+    # and every other law of the ensemble on each group's coarsest mesh
+    shapes = sorted({e["shape"] for e in info["ensemble"]})
+    assert len([e for e in info["entries"] if e["shape"] > 0]) == 18 * 2 * (len(shapes) - 1)
     for e in entries.values():  # a solve that stopped says why and how far it got
-        assert e["converged"] or (e["reason"] and 0 <= e.get("reached_mm", 0.0) < 24.0)
+        assert e["converged"] or (e["reason"] and 0 <= e.get("reached_mm", 0.0) < 12.0)
     assert entries[("left-lateral", 4.0)]["converged"] and entries[("right-lateral", 4.0)]["converged"]  # the hands
     pull = next(p for p in make_pulls(scene) if p.name == "left-anterior")
     verts, tris, _ = hemisphere_surface(scene.mesh, 0)
     body = mesh_hemisphere(verts, tris, 0.008)
-    key = tissue_pulls.pull_key(body, scene, scene.spec.material.law, 0.005, pull)
+    rng = tissue_pulls.truth_range(scene)
+    key = tissue_pulls.pull_key(body, scene, scene.spec.material.law, 0.005, pull, rng)
     assert entries[("left-anterior", 8.0)]["key"] == key
-    xs = np.array([0.004, 0.008])
-    shipped = tissue_pulls.stored_solve(key, xs)["force_per_pa"]
+    xs = np.array([0.002, 0.004])
+    shipped = tissue_pulls.stored_solve(key, xs)
     again = tissue_pulls.solve_pull(build_problem(scene, 0, body), scene.spec.material.law, *patch_area_points(scene.mesh, pull.vertex, 0.005),
-                                 np.asarray(pull.direction), xs)
-    assert again["converged"] and np.allclose(again["force_per_pa"], shipped, rtol=1e-6)
+                                 np.asarray(pull.direction), xs, stretch_range=rng)
+    assert again["converged"] and np.allclose(again["force_per_pa"], shipped["force_per_pa"], rtol=1e-6)
+    assert np.allclose(again["support"], shipped["support"], rtol=1e-6, atol=1e-9)
     bad = tmp_path / "reference_pulls.npz"
     bad.write_bytes(tissue_pulls.SHIPPED_PULLS.read_bytes()[:-10] + b"0123456789")
     monkeypatch.setattr(tissue_pulls, "SHIPPED_PULLS", bad)
@@ -212,6 +217,11 @@ def test_the_quick_benches_and_model_check_solve_nothing_on_an_empty_cache(tmp_p
     acc = quick_accuracy()
     pulls = make_pulls(scene) + test_pulls(scene, acc.test_places)
     assert tissue_pulls.unsolved(DEFAULT_SCENE, pulls, sample_displacements(acc), acc.reference_sizes_mm) == {20.0: 0, 16.0: 0}
+    # and the ensemble's other laws on the coarsest mesh (the truth's law band)
+    from analysis.truth_band import scene_ensemble, shapes
+
+    for shape in shapes(scene_ensemble(scene))[1:]:
+        assert tissue_pulls.unsolved(DEFAULT_SCENE, pulls, sample_displacements(acc), (20.0,), law=shape) == {20.0: 0}
     ref = reference.quick_config()
     chosen = [p for p in make_pulls(scene) if p.name in ref.pulls]
     xs = tissue_pulls.pull_samples(ref.max_pull, ref.samples)
@@ -222,7 +232,7 @@ def test_the_quick_benches_and_model_check_solve_nothing_on_an_empty_cache(tmp_p
 def test_samples_past_a_stopped_solve_have_no_reference_and_are_not_judged():
     """A pull whose solve stopped on one mesh: its later samples carry no reference, the
     calibration scale and the rows leave them out, and the others are judged as before."""
-    from analysis.accuracy import calibration_scale, compare, reference_samples
+    from analysis.accuracy import calibration_scale, compare
     from sim.pulls import Pull
 
     xs = np.array([0.004, 0.008])
@@ -233,8 +243,18 @@ def test_samples_past_a_stopped_solve_have_no_reference_and_are_not_judged():
     refs = {"a": {"force_per_pa": good, "h_m": hs, "solves": [{"converged": True, "size_mm": s} for s in (8, 6, 4)]},
             "b": {"force_per_pa": stopped, "h_m": hs, "solves": [{"converged": True, "size_mm": 8}, {"converged": True, "size_mm": 6},
                                                                    {"converged": False, "size_mm": 4, "reason": "tangent singular"}]}}
+
+    def cells(name):
+        out = []
+        for k in range(len(xs)):
+            c = tissue_pulls.combined_sample(refs[name]["force_per_pa"][:, k] * 100.0, hs)
+            out.append(c | {"mesh_band_rel": c["band_rel"], "law_band_rel": 0.0, "support_share_outside": 0.0, "max_abs_j_minus_1": 0.0,
+                            "decided": bool(np.isfinite(c["force_n"])), "truth": "" if np.isfinite(c["force_n"]) else "undecided",
+                            "reason": "" if np.isfinite(c["force_n"]) else "no reference force"})
+        return out
+
     pulls = [Pull("a", 1, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0), Pull("b", 2, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0)]
-    ref = reference_samples(refs, pulls, xs, 100.0)
+    ref = [cells("a"), cells("b")]
     assert np.isfinite(ref[1][0]["force_n"]) and np.isnan(ref[1][1]["force_n"]) and ref[1][1]["status"] == "not solved"
     ok, why = tissue_pulls.reached(refs)["b"]
     assert ok.tolist() == [True, False] and "4 mm" in why and "tangent singular" in why
@@ -250,15 +270,15 @@ def test_samples_past_a_stopped_solve_have_no_reference_and_are_not_judged():
     # a test pull with no reference at all is not counted as a pull within, nor as a pull judged
     refs["c"] = {**refs["b"], "force_per_pa": np.full_like(stopped, np.nan)}
     model["force"] = np.concatenate([model["force"], model["force"][:1]])
-    rows, _ = compare(reference_samples(refs, pulls + [Pull("c", 3, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0)], xs, 100.0), [model],
-                      pulls + [Pull("c", 3, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0)], 1, xs)
+    rows, _ = compare(ref + [cells("c")], [model], pulls + [Pull("c", 3, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0)], 1, xs)
     assert rows[0]["n_test"] == 1 and rows[0]["pulls_within"] == 1 and rows[0]["n_test_pulls"] == 1
     assert not any(s["pull"] == "b" and s["displacement_mm"] == 8.0 for s in samples)
 
 
 def test_finer_meshes_follow_a_pull_only_as_far_as_the_coarsest_got(scene, monkeypatch):
     """Where the coarsest mesh's solve stopped, the finer meshes are asked only up to its last
-    record (a sample needs every mesh)."""
+    record (a sample needs every mesh); and only as long as its state has at most FOLLOW_SHARE
+    of its energy outside the data's stretches (beyond, no sample can be decided)."""
     pulls = [p for p in make_pulls(scene) if p.name in ("left-lateral", "left-anterior")]
     xs = np.array([0.004, 0.008, 0.012])
     asked = []
@@ -268,17 +288,20 @@ def test_finer_meshes_follow_a_pull_only_as_far_as_the_coarsest_got(scene, monke
         for t in tasks:
             asked.append((t[3].name, t[2], t[6]))
             f = np.ones((len(xs), 3))
+            sup = np.zeros((len(xs), 4))
             if t[3].name == "left-anterior" and t[2] == 8.0:
                 f[2] = np.nan  # stopped between 8 and 12 mm on the coarsest mesh
-            out.append({"force_per_pa": f, "h_m": t[2] * 1e-3, "converged": not np.isnan(f).any(), "key": "k"})
+                sup[2] = np.nan
+            if t[3].name == "left-lateral" and t[2] == 8.0:
+                sup[2, 0] = tissue_pulls.FOLLOW_SHARE + 0.01  # its 12 mm state rests mostly beyond the data
+            out.append({"force_per_pa": f, "support": sup, "h_m": t[2] * 1e-3, "converged": not np.isnan(f).any(), "key": "k"})
         return out
 
     monkeypatch.setattr(tissue_pulls, "_premesh", lambda *a: set())
     monkeypatch.setattr(tissue_pulls, "_run", fake_run)
     refs = tissue_pulls.pull_references(DEFAULT_SCENE, pulls, xs, (8.0, 6.0, 4.0))
     assert asked[:2] == [("left-lateral", 8.0, 0.012), ("left-anterior", 8.0, 0.012)]  # the coarsest first
-    assert sorted(asked[2:]) == sorted([(n, s, 0.012 if n == "left-lateral" else 0.008) for s in (4.0, 6.0)
-                                        for n in ("left-lateral", "left-anterior")])
+    assert sorted(asked[2:]) == sorted([(n, s, 0.008) for s in (4.0, 6.0) for n in ("left-lateral", "left-anterior")])
     assert refs["pulls"]["left-anterior"]["force_per_pa"].shape == (3, 3, 3)
 
 
@@ -292,7 +315,7 @@ def test_a_stored_solve_that_stopped_beyond_the_records_asked_serves_them_as_con
     monkeypatch.setenv("BRAINSIM_CACHE", str(tmp_path))
     xs = np.array([0.004, 0.008, 0.016])
     force = np.array([[1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [np.nan, np.nan, np.nan]])
-    tissue_pulls._cache("k", xs, force, None, {"converged": False, "reason": "diverging", "reached_mm": 12.5})
+    tissue_pulls._cache("k", xs, force, None, np.zeros((3, 4)), {"converged": False, "reason": "diverging", "reached_mm": 12.5})
     short = tissue_pulls.stored_solve("k", xs[:2])
     assert short["converged"] and "stopped at 12.5 mm (diverging)" in short["reason"]
     assert not tissue_pulls.stored_solve("k", xs)["converged"]

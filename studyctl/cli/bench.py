@@ -57,7 +57,7 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, jobs
     finite-strain law on P2 on body-fitted meshes, Richardson; shipped): calibrated with one stiffness scale on the
     calibration pulls, judged raw and calibrated on held-out pulls (within the JND with
     Wilson intervals, against the reference's band, direction error), time per tick and frame."""
-    from analysis import accuracy
+    from analysis import accuracy, accuracy_tables
 
     kw = {"scene": scene_file, "young": young} | ({"test_places": test_places} if test_places else {})
     settings = accuracy.default_settings(quick)
@@ -65,19 +65,21 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, jobs
     cfg = accuracy.quick_config(**kw) if quick else accuracy.AccuracyConfig(**kw)
     result = _with_progress("accuracy: reference, then models", lambda p: accuracy.run_accuracy(cfg, jobs=jobs, scheduler=scheduler, progress=p))
     if out_dir:
-        accuracy.write_outputs(result, out_dir)
+        accuracy_tables.write_outputs(result, out_dir)
     if as_json:
         _print_json(result)
         return
     from rich.table import Table
 
-    t = Table(title=f"Force error on held-out pulls against run time (the linear models' E = {result['meta']['young_pa'] / 1e3:.3g} kPa)", caption=accuracy.intro(result))
-    for col in ("model", "setting", "calibration", "scale", "force error", "max", "within JND [95% CI]", "in/out/undecided", "pulls",
+    t = Table(title=f"Force error on held-out pulls against run time (the linear models' E = {result['meta']['young_pa'] / 1e3:.3g} kPa)", caption=accuracy_tables.intro(result))
+    for col in ("model", "setting", "calibration", "scale", "force error", "max", "within JND [95% CI]", "decided/extrap./undec.",
+                "in/out/undecided", "pulls",
                 "direction deg", "tick us", "frame ms"):
         t.add_column(col, justify="left" if col in ("model", "setting", "calibration") else "right")
     for r in result["rows"]:
         t.add_row(r["model"], r["setting"], r["calibration"], f"{r['scale']:.3g}", f"{r['force_error']:.1%}", f"{r['force_error_max']:.1%}",
                   f"{r['within_jnd']:.0%} [{r['within_jnd_low']:.0%}, {r['within_jnd_high']:.0%}]",
+                  f"{r['n_test']}/{r['extrapolated']}/{r['truth_undecided']}",
                   f"{r['within']}/{r['outside']}/{r['undecided']}", f"{r['pulls_within']}/{r['n_test_pulls']}",
                   f"{r['angle_deg']:.1f}", f"{r['tick_us']:.2f}", f"{r['frame_ms']:.3g}")
     best = Table(title=f"Each class at its best (frame p99 within the budget, no pull given up; target {accuracy.TARGET_WITHIN:.0%} within the JND)")

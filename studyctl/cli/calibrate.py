@@ -22,8 +22,9 @@ def calibrate():
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--reference", default="converged", show_default=True,
               help="converged (the accuracy bench's reference on its calibration pulls) or a CSV with displacement_m, force_n.")
-@click.option("--max-displacement", type=click.FloatRange(min=0.001, max=0.1), default=0.024, show_default=True, help="m, the longest pull.")
-@click.option("--samples", type=click.IntRange(3, 100), default=6, show_default=True, help="Points per pull.")
+@click.option("--max-displacement", type=click.FloatRange(min=0.001, max=0.1), default=0.012, show_default=True, help="m, the longest pull.")
+@click.option("--samples", type=click.IntRange(3, 100), default=24, show_default=True,
+              help="Points per pull (the converged reference: only where the truth is decided).")
 @click.option("--out", "out_file", type=OutFile((".toml",)), default=None, help="Write the fitted parameter file (.toml).")
 @click.option("--json", "as_json", is_flag=True)
 def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out_file, as_json):

@@ -54,7 +54,7 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
     if fmt == "md":
         text = table1_markdown(study, holm_scope)
         if accuracy:
-            from analysis.accuracy import markdown
+            from analysis.accuracy_tables import markdown
 
             text += "\n## Model error against run time\n\n" + markdown(accuracy)
         if stability:
@@ -67,7 +67,7 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
 
         text = latex(study, holm_scope)
         if accuracy:
-            from analysis.accuracy import tables as accuracy_tables
+            from analysis.accuracy_tables import tables as accuracy_tables
 
             text += latex_tables(accuracy_tables(accuracy), "tab:accuracy")
     elif fmt == "html":

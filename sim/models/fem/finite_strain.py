@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from sim.hyperelastic import Hyperelastic
+from sim.hyperelastic import Hyperelastic, volumetric
 from sim.models.fem.hyperelastic_kernels import element_pass, pattern_positions, scatter_matrix, scatter_vector
 from sim.models.fem.linear import element_dofs
 
@@ -95,7 +95,7 @@ def point_states(system: FiniteStrain, u: np.ndarray) -> dict:
     law = system.law
     with np.errstate(divide="ignore", invalid="ignore"):
         iso = stretches * np.cbrt(J)[..., None] ** -1.0
-        psi = 0.5 * law.bulk_modulus * np.log(J) ** 2
+        psi = volumetric(law.bulk_modulus, J)[0]
         for m, a in zip(law.mu, law.alpha):
             psi = psi + 2.0 * m / a**2 * (np.sum(iso**a, axis=-1) - 3.0)
     return {"stretches": stretches, "J": J, "psi": psi, "weights": system.wq}

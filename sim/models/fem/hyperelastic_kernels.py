@@ -238,10 +238,10 @@ def element_pass(G, wq, ue, mu, alpha, kappa, mean, want_tangent, fe, Ke, energy
             env = 0.0
             for q in range(nq):
                 w, Jd = wq[e, q], Jq[q]
-                lj = math.log(Jd)
-                env += w * 0.5 * kappa * lj * lj
-                p = kappa * lj / Jd
-                dp = kappa * (1.0 - lj) / (Jd * Jd)
+                # U(J) = kappa/4 (J^2 - 1 - 2 ln J), convex for every J > 0 (sim.hyperelastic.volumetric)
+                env += w * 0.25 * kappa * (Jd * Jd - 1.0 - 2.0 * math.log(Jd))
+                p = 0.5 * kappa * (Jd - 1.0 / Jd)
+                dp = 0.5 * kappa * (1.0 + 1.0 / (Jd * Jd))
                 for a in range(k):
                     for i in range(3):
                         f[3 * a + i] += w * p * Jd * X[q, a, i]
@@ -256,10 +256,9 @@ def element_pass(G, wq, ue, mu, alpha, kappa, mean, want_tangent, fe, Ke, energy
                         Ke[e, i, j] = Ke[e, j, i]
             continue
         th = theta[e]
-        lt = math.log(th)
-        p = kappa * lt / th
-        dp = kappa * (1.0 - lt) / (th * th)
-        energy[e] = en + vol * 0.5 * kappa * lt * lt
+        p = 0.5 * kappa * (th - 1.0 / th)
+        dp = 0.5 * kappa * (1.0 + 1.0 / (th * th))
+        energy[e] = en + vol * 0.25 * kappa * (th * th - 1.0 - 2.0 * math.log(th))
         for i in range(nd):
             fe[e, i] = f[i] + p * g[i]
         if want_tangent:

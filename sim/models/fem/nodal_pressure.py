@@ -7,7 +7,7 @@ every element to keep its volume and the mesh locks (the bench's P1 pulls: 76% t
 8 mm). Here the volumetric energy is taken per node instead: with V_n the quarter-volumes of
 the elements around node n (current) and V0_n at rest, J_n = V_n / V0_n and
 
-    E = sum_e V0_e W_iso(F_e) + sum_n V0_n U(J_n),   U(J) = kappa/2 (ln J)^2,
+    E = sum_e V0_e W_iso(F_e) + sum_n V0_n U(J_n),   U(J) = kappa/4 (J^2 - 1 - 2 ln J),
 
 so the volume is kept over each node's patch rather than in every element. The isochoric part
 is `FiniteStrain`'s (kappa 0); the volumetric force and tangent are below. The tangent's
@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from sim.errors import ParameterError
-from sim.hyperelastic import Hyperelastic
+from sim.hyperelastic import Hyperelastic, volumetric
 from sim.models.fem.finite_strain import FiniteStrain
 
 
@@ -96,13 +96,11 @@ class NodalPressure:
         Jn = (self.A @ V) / self.V0n
         if st["min_jacobian"] <= 0 or np.any(Jn <= 0):
             return st | {"min_jacobian": min(st["min_jacobian"], float(Jn.min()), 0.0), "energy": np.inf}
-        lj = np.log(Jn)
-        up = self.kappa * lj / Jn  # U'(J_n)
-        upp = self.kappa * (1.0 - lj) / Jn ** 2  # U''(J_n)
+        un, up, upp = volumetric(self.kappa, Jn)  # U, U', U'' at each node
         pe = self.A.T @ up  # per element: the mean of its nodes' U'
         f = st["f"].copy()
         np.add.at(f, self.dofs.ravel(), (pe[:, None] * g.reshape(-1, 12)).ravel())
-        out = st | {"f": f, "energy": st["energy"] + float(np.sum(self.V0n * 0.5 * self.kappa * lj ** 2)),
+        out = st | {"f": f, "energy": st["energy"] + float(np.sum(self.V0n * un)),
                     "nodal_j_range": (float(Jn.min()), float(Jn.max()))}
         if tangent:
             N = 3 * len(self.X)
