@@ -355,7 +355,8 @@ def _scaled(truth: dict, ratio: float) -> dict:
             f = c["force_n"] * ratio
             ok, verdict_, why = decide(f, c["band_rel"], c["support_share_outside"], c["max_abs_j_minus_1"])
             out.append(c | {"force": np.asarray(c["force"]) * ratio, "force_n": f, "band_half_n": c["band_half_n"] * ratio,
-                            "law_forces_n": [x * ratio for x in c["law_forces_n"]], "decided": ok, "truth": verdict_, "reason": why})
+                            "forces_n": [x * ratio for x in c["forces_n"]], "law_forces_n": [x * ratio for x in c["law_forces_n"]],
+                            "decided": ok, "truth": verdict_, "reason": why})
         pulls[name] = out
     return truth | {"pulls": pulls}
 
@@ -489,9 +490,10 @@ def coupling_bound(ref: list[list[dict]], n_calib: int, xs, stiffness: float) ->
     for row in ref[n_calib:]:
         mags = np.array([c["force_n"] for c in row])
         known = np.isfinite(mags)
+        decided = known & np.array([bool(c.get("decided", True)) for c in row])  # rated where the truth is decided
         x = np.concatenate([[0.0], np.asarray(xs, dtype=np.float64)[known]])
         f = np.concatenate([[0.0], mags[known]])
-        for d, r in zip(np.asarray(xs)[known], mags[known]):
+        for d, r in zip(np.asarray(xs)[decided], mags[decided]):
             F = brentq(lambda F, d=d, x=x, f=f: F - float(np.interp(d - F / stiffness, x, f)), 0.0, stiffness * d)
             within.append(abs(F - r) <= float(jnd(np.array(r))) * r)
     return float(np.mean(within)) if within else math.nan

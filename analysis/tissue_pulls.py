@@ -278,7 +278,7 @@ def _pull_task(args) -> dict:
     verts, tris, _ = hemisphere_surface(scene.mesh, label)
     body = mesh_hemisphere(verts, tris, size_mm * 1e-3)
     key = pull_key(body, scene, law, radius, pull, rng)
-    found = _stored(key, xs, stiffness, finer)
+    found = _stored(key, xs, stiffness, finer, upto)
     if found is not None:
         return found | {"cached": True, "key": key, "h_m": body.h}
     asked = xs <= upto + 1e-12
@@ -288,7 +288,7 @@ def _pull_task(args) -> dict:
         return nothing | {"skipped": True, "reason": f"not solved: the coarsest mesh's solve stopped after its {upto * 1e3:g} mm record, "
                                                      "and the finer ones were not run"}
     if not asked.any():
-        return nothing | {"reason": "not solved: the coarsest mesh's solve stopped before the first sample"}
+        return nothing | {"reason": "not solved: the coarsest mesh's solve stopped, or its state left the data, before the first sample"}
     problem = build_problem(scene, label, body)
     r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs[asked], stiffness, rng)
     if not asked.all():  # followed only as far as asked: no records beyond
@@ -355,10 +355,13 @@ def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int 
     given = upto or {}
     first = [(str(scene_path), p.hemisphere, sizes[0], p, xs, p.name in stiffness_for, given.get(p.name, xs[-1]), finer, law) for p in pulls]
     coarse = _run(first, jobs, (lambda k, n: progress(k, n_all)) if progress else None)
-    follow = {}
+    follow, mode = {}, {}
     for p, r in zip(pulls, coarse):
         follow[p.name] = follow_to(xs, r, p.name in stiffness_for)
-    rest = [(str(scene_path), p.hemisphere, s, p, xs, p.name in stiffness_for, follow[p.name], finer, law)
+        # "skip" is for pulls whose coarsest solve stopped; one cut short by its support is followed
+        stopped = not np.isfinite(np.asarray(r["force_per_pa"])).all()
+        mode[p.name] = finer if finer != "skip" or stopped else "stored"
+    rest = [(str(scene_path), p.hemisphere, s, p, xs, p.name in stiffness_for, follow[p.name], mode[p.name], law)
             for s in sorted(sizes[1:]) for p in pulls]
     tasks = first + rest
     results = coarse + _run(rest, jobs, (lambda k, n: progress(len(first) + k, n_all)) if progress else None)
@@ -382,10 +385,11 @@ def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int 
 def follow_to(xs, coarse: dict, whole: bool) -> float:
     """How far the finer meshes follow a pull (m): as far as the coarsest mesh's solve reached
     and, unless `whole`, while its state has at most `FOLLOW_SHARE` of its energy outside the
-    data's stretches (a state without a support, NaN, counts as outside)."""
+    data's stretches (a state beyond the solve's reach, NaN, counts as outside; a law whose data
+    are unknown has no support at all and is followed as far as it goes)."""
     ok = np.isfinite(np.asarray(coarse["force_per_pa"])).all(axis=1)
-    if not whole:
-        share = np.asarray(coarse["support"])[:, 0]
+    share = np.asarray(coarse["support"])[:, 0]
+    if not whole and np.isfinite(share[ok]).any():  # a law without data (no stretch range, NaN) is followed as far as it goes
         inside = np.cumprod(share <= FOLLOW_SHARE).astype(bool)  # stop at the first state outside
         ok = ok & inside
     return float(np.asarray(xs)[ok].max()) if ok.any() else 0.0
@@ -430,7 +434,7 @@ def _run(tasks: list, jobs: int | None, progress) -> list:
 def _stored_task(task, seen: dict) -> dict | None:
     """`_pull_task`'s answer when it is shipped or cached (no worker needed); `seen` keeps the
     scene and the meshes read for earlier tasks."""
-    scene_path, label, size_mm, pull, xs, stiffness, _, finer, law = task
+    scene_path, label, size_mm, pull, xs, stiffness, upto, finer, law = task
 
     if scene_path not in seen:
         seen[scene_path] = scene_with(scene_path)
@@ -444,18 +448,34 @@ def _stored_task(task, seen: dict) -> dict | None:
     if ("range", scene_path) not in seen:
         seen[("range", scene_path)] = truth_range(scene)
     key = pull_key(body, scene, law or scene.spec.material.law, grasp_radius(scene), pull, seen[("range", scene_path)])
-    found = _stored(key, xs, stiffness, finer)
+    found = _stored(key, xs, stiffness, finer, upto)
     return None if found is None else found | {"cached": True, "key": key, "h_m": body.h}
 
 
 def unsolved(scene_path, pulls, xs, sizes_mm, law=None) -> dict:
     """The solves `pull_references` would have to run for these pulls and sizes (neither
-    shipped nor cached), with the scene's law or `law`: {size_mm: count}. `_stored_task` for each: reads the meshes and the
+    shipped nor cached), with the scene's law or `law` (followed, as `truth_samples` asks, as far as the
+    scene's law's finer meshes follow): {size_mm: count}. `_stored_task` for each: reads the meshes and the
     stores, solves nothing and meshes nothing (a pull on a mesh not yet made counts as unsolved)."""
     xs = np.asarray(xs, dtype=np.float64)
     seen: dict = {}
-    return {float(size): sum(_stored_task((str(scene_path), p.hemisphere, float(size), p, xs, False, xs[-1], "stored", law), seen) is None
-                             for p in pulls) for size in sizes_mm}
+    sizes = sorted((float(s) for s in sizes_mm), reverse=True)
+    out, follow = {}, {}
+    if law is not None:  # another law of the ensemble follows as far as the scene's law's finer meshes do
+        for p in pulls:
+            main = _stored_task((str(scene_path), p.hemisphere, sizes[0], p, xs, False, xs[-1], "stored", None), seen)
+            if main is not None:
+                follow[p.name] = follow_to(xs, main, False)
+    for i, size in enumerate(sizes):
+        out[size] = 0
+        for p in pulls:
+            # the finer meshes are asked only as far as the coarsest one's solve lets them follow
+            upto = follow.get(p.name, xs[-1]) if i > 0 or law is not None else xs[-1]
+            found = _stored_task((str(scene_path), p.hemisphere, size, p, xs, False, upto, "stored", law), seen)
+            out[size] += found is None
+            if i == 0 and law is None and found is not None:
+                follow[p.name] = follow_to(xs, found, False)
+    return {float(s): out[float(s)] for s in sizes_mm}
 
 
 def shipped_solve_seconds() -> dict:
@@ -472,10 +492,15 @@ def shipped_solve_seconds() -> dict:
     return {k: float(np.median(v)) for k, v in by.items()}
 
 
-def _stored(key: str, xs, stiffness: bool, finer: str) -> dict | None:
-    """`stored_solve`, except a stored skip when the finer solves are asked for ("solve")."""
+def _stored(key: str, xs, stiffness: bool, finer: str, upto: float | None = None) -> dict | None:
+    """`stored_solve`, except a stored skip when the finer solves are asked for ("solve"), and a
+    solve followed only part of the way when it is asked to go further (`upto`, m)."""
     found = stored_solve(key, xs, stiffness)
-    return None if found is None or (finer == "solve" and found.get("skipped")) else found
+    if found is None or (finer == "solve" and found.get("skipped")):
+        return None
+    if upto is not None and found.get("followed_mm") is not None and found["followed_mm"] < upto * 1e3 - 1e-6:
+        return None
+    return found
 
 
 def combined_sample(forces, hs) -> dict:

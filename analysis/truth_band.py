@@ -113,6 +113,8 @@ def decide(force_n: float, band_rel: float, share_outside: float, max_j_dev: flo
     tol = float(jnd(np.array(force_n)))
     if force_n > DEVICE_LIMIT_N:
         return False, "extrapolated", f"reference {force_n:.2f} N above the device's {DEVICE_LIMIT_N:g} N"
+    if not math.isfinite(share_outside):
+        return False, "undecided", "the law names no data, so where its states rest on measurements is unknown"
     if not (share_outside <= tol):
         return False, "extrapolated", f"{share_outside:.0%} of the energy outside the data's stretches (at most {tol:.0%}, the JND here)"
     if not (max_j_dev <= MAX_J_DEVIATION):

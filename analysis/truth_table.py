@@ -132,7 +132,9 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
             t = truth["pulls"][p.name][m]
             path_band[h, m + 1], path_decided[h, m + 1] = t["band_rel"], t["decided"]
     # where the band is unknown (an ensemble law did not get there), the path's widest known one
-    path_band = np.where(np.isfinite(path_band), path_band, np.nanmax(path_band))
+    for h in range(len(pulls)):
+        known = np.isfinite(path_band[h])
+        path_band[h, ~known] = path_band[h, known].max() if known.any() else 0.0
     checks = _check_transfer(scene, pulls, sets, path, vertices, C, refs, sizes_mm, radius, progress) if check else []
     # the transfer's error at each hand's farthest place, along the path (0 at rest, where it is exact):
     # a place off the hand's vertex carries it in its band (studyctl.truth.Truth.band)
@@ -140,7 +142,9 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
     for c in checks:
         h = [p.name for p in pulls].index(c["hand"])
         transfer_error[h, 1:] = [c["error_at_mm"][f"{x * 1e3:g}"] for x in RECORD_XS]
-    transfer_error = np.where(np.isfinite(transfer_error), transfer_error, np.nanmax(transfer_error))
+    for h in range(len(pulls)):  # past where the direct solve stopped: its largest error
+        known = np.isfinite(transfer_error[h])
+        transfer_error[h, ~known] = transfer_error[h, known].max() if known.any() else 0.0
     save_npz(out, compressed=True, vertices=vertices, path=path, transfer=transfer, s=s, direction=np.array([p.direction for p in pulls]),
              force_per_pa=F, stiffness_per_pa=K, path_gci=path_gci, path_band=path_band, path_decided=path_decided,
              path_band_rel=np.where(path_decided, 0.0, path_band), transfer_error=transfer_error,

@@ -1,9 +1,9 @@
 """Make the shipped finite-strain reference solves: data/reference_pulls.npz and its record
 data/reference_pulls.json (the file's SHA-256, what each entry is, how long it took).
 
-Solves the accuracy bench's 18 pulls (`sim.pulls.make_pulls` and `test_pulls`) of the
-shipped scene on each shipped mesh (8, 6, 4 mm: the full bench's Richardson triple) and on the
-quick bench's pair (20, 16 mm: `--quick` benches and `model check --quick` then solve nothing on an
+Solves the accuracy bench's 26 pulls (`sim.pulls.make_pulls` and `test_pulls`) of the
+shipped scene on each shipped mesh (8, 6, 4 mm: the full bench's Richardson triple) and the
+first 18 (six test places) on the quick bench's pair (20, 16 mm: `--quick` benches and `model check --quick` then solve nothing on an
 empty cache) with the scene's law (protocols/materials/human_cortex.toml), recording every
 0.5 mm to 12 mm (`analysis.tissue_pulls.RECORD_XS`) the force and the state's support, the hand
 pulls with their condensed tangent stiffness too (the observer's truth reads them); then the

@@ -229,8 +229,9 @@ def within_jnd(rendered: np.ndarray, truth: np.ndarray, traits: ObserverTraits, 
     """Mean probability that a force sample feels as expected: the log ratio of the rendered
     force to the expected one (truth x the participant's prior), perceived with Gaussian noise
     of one JND, falls within one JND. A perfect model scores 0.683, not 1. Where the truth is
-    not decided (`band`: its relative half-band there), a force inside the band is as good as
-    the centre: the log ratio is measured from the band's nearer edge."""
+    not decided (`band`: its relative half-band b there), a force inside the band is as good as
+    the centre: the log ratio is measured from the band's nearer edge, taken symmetric in log
+    force (truth (1 + b) above, truth / (1 + b) below: below, a little narrower than truth (1 - b))."""
     if len(truth) == 0:
         return math.nan
     w = weber_at(traits.prior * truth, traits, params)
