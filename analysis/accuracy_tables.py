@@ -77,9 +77,9 @@ def markdown(result: dict) -> str:
         lines += ["", f"The mass-spring renders through its hand coupling: the tissue's own forces behind it (an exact model) are within "
                       f"the JND on {cb['scene']:.0%} of the samples at the scene's {cb['scene_n_per_m']:g} N/m and {cb['omni_max']:.0%} at "
                       f"{cb['omni_max_n_per_m']:g} N/m, the stiffest an Omni renders stably at 1 kHz (`coupling_bound`)."]
-    for by, title in (("displacement_mm", "displacement (mm)"), ("force_band", "reference force")):
-        lines += ["", f"Held-out samples per {title.split(' (')[0]}: within the JND / decided (extrapolated, undecided):", "",
-                  *markdown_grid(*breakdown_grid(result[by], by, title))]
+    for key, by, title in (("by_displacement", "displacement_mm", "displacement (mm)"), ("by_force_band", "force_band", "reference force")):
+        lines += ["", f"Held-out samples per {title}: within the JND / decided (extrapolated, undecided):", "",
+                  *markdown_grid(*breakdown_grid(result[key], by, title))]
     lines += ["", "Seed paper, deformation time per frame on its 2014 PC: plate-spring 14.69 ms, FEM 21.35 ms, mass-spring 23.08 ms."]
     return "\n".join(lines) + "\n"
 

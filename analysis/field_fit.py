@@ -154,7 +154,7 @@ def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", 
     "finite-strain": h1, alpha, q and x_c1 fitted (`sim.calibrate.fit`) so that the stack's
     force over its initial slope follows the mean finite-strain / small-strain force ratio of
     the calibration pulls (`sim.pulls.make_pulls`), both on the reference's finest mesh
-    (the shipped solves). Returns (params, report)."""
+    (the shipped solves), where that mesh followed the pull. Returns (params, report)."""
     import dataclasses
 
 
@@ -165,7 +165,9 @@ def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", 
     law = scene.spec.material.law
     pulls = make_pulls(scene)
     fine = min(DEFAULT_SIZES_MM)
-    refs = pull_references(scene_path, pulls, xs, (fine,), jobs=jobs)["pulls"]
+    # the reference's group, so that the finest mesh is read as far as it followed each pull (the
+    # support's limit, docs/reference.md), not solved further on its own
+    refs = pull_references(scene_path, pulls, xs, DEFAULT_SIZES_MM, jobs=jobs)["pulls"]
     ratios = {}
     for label in sorted({p.hemisphere for p in pulls}):
         verts, tris, _ = hemisphere_surface(scene.mesh, label)
@@ -173,7 +175,7 @@ def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", 
         for p in (p for p in pulls if p.hemisphere == label):
             K = pull_stiffness(problem, law, *patch_area_points(scene.mesh, p.vertex, grasp_radius(scene)))
             small = np.linalg.norm(np.outer(xs, K @ np.asarray(p.direction)), axis=1)
-            ratios[p.name] = np.linalg.norm(refs[p.name]["force_per_pa"][0], axis=1) / small
+            ratios[p.name] = np.linalg.norm(refs[p.name]["force_per_pa"][-1], axis=1) / small
     # the mean over the pulls whose solve reached each x (a solve that stopped has none beyond)
     stacked = np.array(list(ratios.values()))
     reached_by = np.isfinite(stacked).sum(axis=0)

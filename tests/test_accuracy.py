@@ -208,7 +208,13 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
                                                    "samples.csv"]
     assert 0.0 <= out["meta"]["coupling_bound"]["scene"] <= out["meta"]["coupling_bound"]["omni_max"] <= 1.0
     assert {(b["model"], b["calibration"]) for b in out["best"]} == {(m, c) for m in ("plate_spring", "fem", "mass_spring") for c in ("raw", "calibrated")}
-    assert "Each class at its best" in (d / "accuracy.md").read_text()
+    md = (d / "accuracy.md").read_text()
+    assert "Each class at its best" in md and "Held-out samples per displacement (mm)" in md and "| below 0.1 N |" in md
+    # every sample says where the truth stands, and only decided ones carry a within/outside verdict
+    for s in out["samples"]:
+        assert s["verdict"] in (("within", "outside", "undecided") if s["decided"] else ("extrapolated", "undecided"))
+        assert s["decided"] or s["reason"]
+    assert [e["name"] for e in out["meta"]["reference"]["ensemble"]][0] == "chosen"
 
 
 def test_the_accuracy_tables_compile_and_fit_an_a4_page(small_bench, tmp_path):
