@@ -246,7 +246,7 @@ def pareto_figure(rows: list[dict], reference: str = "", size: FigureSize = SCRE
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("deformation time per visual frame, ms (median, this machine)")
-    ax.set_ylabel("mean relative force error vs reference (decided samples)")
+    ax.set_ylabel("mean force error (decided samples)")
     _suptitle(fig, "Force error vs deformation time" + (f" (reference {reference})" if reference else ""), size)
     # outside the axes: inside, "lower left" covered the best point (fast and accurate lies there)
     _legend(fig, size, 3 if size.name == "single" else 6)

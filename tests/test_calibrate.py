@@ -27,13 +27,17 @@ def test_cli_calibrates_to_the_converged_reference_and_to_a_csv(tmp_path, monkey
     # the converged reference on the bench's six calibration pulls; here on the two coarser
     # shipped meshes (the shipped fit used all three: the 4 mm P2 solves take a minute)
     monkeypatch.setattr("analysis.accuracy.DEFAULT_SIZES_MM", (8.0, 6.0))  # where the calibration curve reads them
-    res = CliRunner().invoke(cli, ["calibrate", "plate-spring", "--samples", "3", "--json", "--out", str(tmp_path / "cal.toml")])
+    res = CliRunner().invoke(cli, ["calibrate", "plate-spring", "--max-displacement", "0.004", "--samples", "8", "--json",
+                                   "--out", str(tmp_path / "cal.toml")])
     assert res.exit_code == 0, res.output
     rep = json.loads(res.output)
-    # extra1-anterior's 8 mm solve stopped at 8.8 mm and its finer ones are not shipped: its 3 samples have no reference
-    assert rep["points"] == 15 and "converged reference" in rep["reference"] and "8, 6 mm" in rep["reference"]
-    assert "3 samples have no reference: all of extra1-anterior" in rep["reference"]
-    assert rep["within_jnd"] >= 0.2  # one force curve for five pulls of different stiffness: not all within
+    # only the samples where the truth is decided are fitted (0.5-4 mm: most of the 48), and the text says how many
+    import re
+
+    found = re.search(r"at the (\d+) of 48 samples where the truth is decided", rep["reference"])
+    assert found and rep["points"] == int(found.group(1)) and 20 <= rep["points"] < 48
+    assert "converged reference" in rep["reference"] and "8, 6 mm" in rep["reference"] and "extrapolated" in rep["reference"]
+    assert rep["within_jnd"] >= 0.2  # one force curve for six pulls of different stiffness: not all within
     fitted = load_params(tmp_path / "cal.toml")  # a valid parameter file
     assert fitted.alpha == rep["fitted"]["alpha"]
     (tmp_path / "curve.csv").write_text("displacement_m,force_n\n0.005,0.05\n0.01,0.11\n0.015,0.18\n0.02,0.26\n")

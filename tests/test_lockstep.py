@@ -57,7 +57,7 @@ def test_compiled_ticks_give_the_python_ticks_trace_to_the_bit(model, monkeypatc
     assert none == 0
     assert ran > 0.9 * len(compiled.times)  # most ticks are quiet: they ran compiled
     _same(python, compiled)
-    assert np.abs(compiled.forces).max() > 0.1  # the hands felt the tissue
+    assert np.abs(compiled.forces).max() > 0.05  # the hands felt the tissue (about 0.1 N at the FEM's E 3.9 kPa)
 
 
 def test_ticks_where_safety_rules_act_run_in_python_and_match(monkeypatch):

@@ -18,7 +18,7 @@ def test_shipped_scene(root):
     assert s.model == "plate_spring" and len(s.hands) == 2
     assert s.mesh_path == root / "data" / "brain_fsaverage5.npz"
     law = s.material.law  # human cortex, fitted to Budday et al. 2017 (protocols/materials/human_cortex.toml)
-    assert law.law == "ogden" and 1400 < law.shear_modulus < 1700 and -20 < law.alpha[0] < -16 and law.bulk_ratio == 50
+    assert law.law == "ogden" and 1250 < law.shear_modulus < 1450 and -22 < law.alpha[0] < -19 and law.bulk_ratio == 50  # the joint fit (issue 55)
     # the linear models' modulus is the law's small-strain limit at their Poisson ratio: E = 2 mu (1 + nu)
     assert not s.material.young_given and s.material.poisson == 0.45
     assert s.material.young == pytest.approx(2 * law.shear_modulus * 1.45, rel=1e-12)

@@ -76,7 +76,7 @@ def test_a_table_for_another_law_is_refused(coarse_truth, tmp_path):
 
 
 def test_between_records_and_off_the_pull_it_is_the_reference_solved_there(coarse_truth):
-    """At 3 mm (between the 2 and 4 mm records: the Hermite interpolant) and at 6 mm with 0.5 mm
+    """At 2.75 mm (between the 2.5 and 3 mm records: the Hermite interpolant) and at 6 mm with 0.5 mm
     sideways (the path's tangent), against the reference solved directly to that displacement
     (the law is hyperelastic: the state does not depend on the path to it)."""
     from sim.pulls import Pull
@@ -88,10 +88,11 @@ def test_between_records_and_off_the_pull_it_is_the_reference_solved_there(coars
     e = np.asarray(p.direction)
     side = np.cross(scene.mesh.vertex_normals[p.vertex], e)
     side /= np.linalg.norm(side)
-    for d, tol in ((0.003 * e, 0.01), (0.006 * e + 0.0005 * side, 0.03)):
+    for d, tol in ((0.00275 * e, 0.01), (0.006 * e + 0.0005 * side, 0.03)):
         x = float(np.linalg.norm(d))
         probe = Pull("probe", p.vertex, p.point, tuple(d / x), p.hemisphere)
-        r = pull_references(SCENE, [probe], [x], (20.0, 16.0), jobs=1)["pulls"]["probe"]
+        # followed whole on both meshes, as the table's own paths are (not cut where the support ends)
+        r = pull_references(SCENE, [probe], [x], (20.0, 16.0), jobs=1, stiffness_for={"probe"})["pulls"]["probe"]
         want = combined_sample(r["force_per_pa"][:, 0] * mu, r["h_m"])["force"]
         got = truth.force(p.vertex, [d])[0]
         assert np.linalg.norm(got - want) < tol * np.linalg.norm(want)
