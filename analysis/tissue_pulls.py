@@ -114,7 +114,7 @@ def pull_stiffness(problem: Problem, law, points: np.ndarray, weights: np.ndarra
 
 # -- finite-strain pulls, shipped or solved and cached ---------------------------------------
 
-def _law_key(law) -> list:
+def law_shape_key(law) -> list:
     """The law up to its scale: forces are stored per pascal of shear modulus."""
     mu = law.shear_modulus
     return [law.law, [round(m / mu, 12) for m in law.mu], [round(a, 9) for a in law.alpha], round(law.bulk_ratio, 9)]
@@ -122,7 +122,7 @@ def _law_key(law) -> list:
 
 def pull_key(mesh: BodyMesh, scene, law, radius: float, pull, stretch_range=None) -> str:
     axis, limit = clamp_limit(scene)
-    key = json.dumps([SOLVER_VERSION, mesh.key, _law_key(law), axis, round(limit, 9), round(radius, 9), int(pull.vertex),
+    key = json.dumps([SOLVER_VERSION, mesh.key, law_shape_key(law), axis, round(limit, 9), round(radius, 9), int(pull.vertex),
                       [round(c, 12) for c in pull.direction]] + ([[round(float(r), 9) for r in stretch_range]] if stretch_range else []))
     return hashlib.sha256(key.encode()).hexdigest()[:24]
 
@@ -344,8 +344,9 @@ def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int 
     a solve near where the coarse one stopped can take an hour on the 4 mm mesh). Beyond where the
     coarsest mesh's state has more than `FOLLOW_SHARE` of its energy outside the data's stretches
     the finer meshes do not follow either (no sample is decided there), except on the pulls in
-    `stiffness_for` (the observer's paths). `law`: another law than the scene's (the truth's
-    ensemble); `upto`: per pull, the last displacement to solve on every mesh (m)."""
+    `stiffness_for` (the observer's paths); each pull's `follow_m` says how far (m). `law`:
+    another law than the scene's (the truth's ensemble); `upto`: per pull, the last displacement
+    to solve on every mesh (m)."""
     scene = scene_with(scene_path)
     xs = np.asarray(xs, dtype=np.float64)
     sizes = sorted((float(x) for x in sizes_mm), reverse=True)
@@ -366,14 +367,14 @@ def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int 
     tasks = first + rest
     results = coarse + _run(rest, jobs, (lambda k, n: progress(len(first) + k, n_all)) if progress else None)
     out = {p.name: {"h_m": [0.0] * len(sizes), "force_per_pa": [None] * len(sizes), "stiffness_per_pa": [None] * len(sizes),
-                    "solves": [None] * len(sizes)} for p in pulls}
+                    "support": [None] * len(sizes), "solves": [None] * len(sizes), "follow_m": follow[p.name]} for p in pulls}
     for (_, _, s, p, *_), r in zip(tasks, results):
         i = sizes.index(s)
         row = out[p.name]
         row["h_m"][i] = r["h_m"]
         row["force_per_pa"][i] = np.asarray(r["force_per_pa"])
         row["stiffness_per_pa"][i] = r.get("stiffness_per_pa")
-        row.setdefault("support", [None] * len(sizes))[i] = np.asarray(r["support"])
+        row["support"][i] = np.asarray(r["support"])
         row["solves"][i] = {k: v for k, v in r.items() if k not in ("force_per_pa", "stiffness_per_pa", "support")} | {"size_mm": s}
     for row in out.values():
         row["force_per_pa"] = np.stack(row["force_per_pa"])
@@ -460,21 +461,18 @@ def unsolved(scene_path, pulls, xs, sizes_mm, law=None) -> dict:
     xs = np.asarray(xs, dtype=np.float64)
     seen: dict = {}
     sizes = sorted((float(s) for s in sizes_mm), reverse=True)
-    out, follow = {}, {}
-    if law is not None:  # another law of the ensemble follows as far as the scene's law's finer meshes do
-        for p in pulls:
-            main = _stored_task((str(scene_path), p.hemisphere, sizes[0], p, xs, False, xs[-1], "stored", None), seen)
-            if main is not None:
-                follow[p.name] = follow_to(xs, main, False)
+    # the scene's law on the coarsest mesh sets how far the finer meshes, and the ensemble's laws, follow
+    coarse = {p.name: _stored_task((str(scene_path), p.hemisphere, sizes[0], p, xs, False, xs[-1], "stored", None), seen) for p in pulls}
+    follow = {name: follow_to(xs, c, False) for name, c in coarse.items() if c is not None}
+    out = {}
     for i, size in enumerate(sizes):
         out[size] = 0
         for p in pulls:
-            # the finer meshes are asked only as far as the coarsest one's solve lets them follow
-            upto = follow.get(p.name, xs[-1]) if i > 0 or law is not None else xs[-1]
-            found = _stored_task((str(scene_path), p.hemisphere, size, p, xs, False, upto, "stored", law), seen)
+            if law is None and i == 0:
+                found = coarse[p.name]
+            else:
+                found = _stored_task((str(scene_path), p.hemisphere, size, p, xs, False, follow.get(p.name, xs[-1]), "stored", law), seen)
             out[size] += found is None
-            if i == 0 and law is None and found is not None:
-                follow[p.name] = follow_to(xs, found, False)
     return {float(s): out[float(s)] for s in sizes_mm}
 
 

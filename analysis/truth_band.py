@@ -28,7 +28,7 @@ import math
 import numpy as np
 
 from analysis.material_fit import MaterialDataError, fit_material, law_errors, law_of, material_data, read_curve
-from analysis.tissue_pulls import SHIPPED_PULLS_INFO, combined_sample, follow_to, pull_references
+from analysis.tissue_pulls import SHIPPED_PULLS_INFO, combined_sample, law_shape_key, pull_references
 from sim.calibrate import jnd
 from sim.hyperelastic import Hyperelastic
 from sim.pulls import scene_with
@@ -72,24 +72,16 @@ def ensemble(material_path, law: Hyperelastic) -> list[dict]:
 def shapes(members: list[dict]) -> list[Hyperelastic]:
     """The distinct law shapes (up to the scale of mu) of the ensemble, the chosen law's first,
     each at unit shear modulus: what is solved."""
-    out, seen = [], set()
-    for m in members:
-        unit = m["law"].scaled(1.0 / m["law"].shear_modulus)
-        key = (unit.law, tuple(round(x, 12) for x in unit.mu), tuple(round(a, 9) for a in unit.alpha), unit.bulk_ratio)
-        if key not in seen:
-            seen.add(key)
-            out.append(unit)
-    return out
+    out: dict = {}
+    for m in members:  # the solves' own key of a law up to its scale (analysis.tissue_pulls)
+        out.setdefault(json.dumps(law_shape_key(m["law"])), m["law"].scaled(1.0 / m["law"].shear_modulus))
+    return list(out.values())
 
 
 def shape_index(members: list[dict]) -> list[int]:
     """For each member, the index of its shape in `shapes(members)`."""
-    keys = [(u.law, tuple(round(x, 12) for x in u.mu), tuple(round(a, 9) for a in u.alpha), u.bulk_ratio) for u in shapes(members)]
-    out = []
-    for m in members:
-        u = m["law"].scaled(1.0 / m["law"].shear_modulus)
-        out.append(keys.index((u.law, tuple(round(x, 12) for x in u.mu), tuple(round(a, 9) for a in u.alpha), u.bulk_ratio)))
-    return out
+    keys = [json.dumps(law_shape_key(u)) for u in shapes(members)]
+    return [keys.index(json.dumps(law_shape_key(m["law"]))) for m in members]
 
 
 def law_spread(forces_by_member: np.ndarray) -> float:
@@ -172,8 +164,7 @@ def truth_samples(scene_path, pulls, xs, sizes_mm, jobs: int | None = None, prog
     xs = np.asarray(xs, dtype=np.float64)
     sizes = sorted((float(s) for s in sizes_mm), reverse=True)
     refs = pull_references(scene_path, pulls, xs, sizes, jobs=jobs, progress=progress, stiffness_for=stiffness_for)
-    upto = {p.name: follow_to(xs, {"force_per_pa": refs["pulls"][p.name]["force_per_pa"][0], "support": refs["pulls"][p.name]["support"][0]},
-                              p.name in stiffness_for) for p in pulls}
+    upto = {p.name: refs["pulls"][p.name]["follow_m"] for p in pulls}
     # each other shape on the coarsest mesh, as far as the finer meshes follow
     per_shape = [refs["pulls"]] + [pull_references(scene_path, pulls, xs, (sizes[0],), jobs=jobs, law=s, upto=upto)["pulls"] for s in shp[1:]]
     mu = law.shear_modulus

@@ -131,10 +131,7 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
             path_gci[h, m + 1] = c["band_rel"]
             t = truth["pulls"][p.name][m]
             path_band[h, m + 1], path_decided[h, m + 1] = t["band_rel"], t["decided"]
-    # where the band is unknown (an ensemble law did not get there), the path's widest known one
-    for h in range(len(pulls)):
-        known = np.isfinite(path_band[h])
-        path_band[h, ~known] = path_band[h, known].max() if known.any() else 0.0
+    _fill_unknown(path_band)  # where an ensemble law did not get: the path's widest known band
     checks = _check_transfer(scene, pulls, sets, path, vertices, C, refs, sizes_mm, radius, progress) if check else []
     # the transfer's error at each hand's farthest place, along the path (0 at rest, where it is exact):
     # a place off the hand's vertex carries it in its band (studyctl.truth.Truth.band)
@@ -142,9 +139,7 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
     for c in checks:
         h = [p.name for p in pulls].index(c["hand"])
         transfer_error[h, 1:] = [c["error_at_mm"][f"{x * 1e3:g}"] for x in RECORD_XS]
-    for h in range(len(pulls)):  # past where the direct solve stopped: its largest error
-        known = np.isfinite(transfer_error[h])
-        transfer_error[h, ~known] = transfer_error[h, known].max() if known.any() else 0.0
+    _fill_unknown(transfer_error)  # past where the direct solve stopped: its largest error
     save_npz(out, compressed=True, vertices=vertices, path=path, transfer=transfer, s=s, direction=np.array([p.direction for p in pulls]),
              force_per_pa=F, stiffness_per_pa=K, path_gci=path_gci, path_band=path_band, path_decided=path_decided,
              path_band_rel=np.where(path_decided, 0.0, path_band), transfer_error=transfer_error,
@@ -168,6 +163,13 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
     out.with_suffix(".json").write_text(json.dumps({"sha256": hashlib.sha256(out.read_bytes()).hexdigest(), "made_by": "studyctl calibrate truth",
                                                     "law": law.params()} | {k: v for k, v in rep.items() if k != "out"}, indent=1) + "\n")
     return rep
+
+
+def _fill_unknown(a: np.ndarray) -> None:
+    """In place, each row's NaNs by the row's largest known value (0 if it has none)."""
+    for row in a:
+        known = np.isfinite(row)
+        row[~known] = row[known].max() if known.any() else 0.0
 
 
 def json_line(obj) -> str:

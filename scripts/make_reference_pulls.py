@@ -29,7 +29,6 @@ from analysis.tissue_pulls import (
     RECORD_XS,
     SHIPPED_PULLS,
     SHIPPED_PULLS_INFO,
-    follow_to,
     pull_references,
     stored_solve,
 )
@@ -68,8 +67,7 @@ def main() -> None:
                                     finer=args.finer)
         groups.append(main_refs)
         solved += [(p, s, None) for p in group for s in main_refs["pulls"][p.name]["solves"]]
-        upto = {p.name: follow_to(RECORD_XS, {"force_per_pa": main_refs["pulls"][p.name]["force_per_pa"][0],
-                                              "support": main_refs["pulls"][p.name]["support"][0]}, p.name in hands) for p in group}
+        upto = {p.name: main_refs["pulls"][p.name]["follow_m"] for p in group}
         for k, shape in enumerate(others, start=1):
             refs = pull_references(DEFAULT_SCENE, group, RECORD_XS, (max(sizes),), jobs=args.jobs, progress=progress, law=shape, upto=upto)
             solved += [(p, s, k) for p in group for s in refs["pulls"][p.name]["solves"]]
