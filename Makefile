@@ -22,15 +22,16 @@ OUT ?= out
 LOCK := requirements/constraints.txt
 
 demo: venv
-	$(VENV)/bin/studyctl sim run --scene protocols/scenes/brain_pull.toml --frames $(OUT)/demo
+	@echo "make demo overwrites its own outputs in $(OUT)/demo/ (--force; every other command refuses to overwrite a file)"
+	$(VENV)/bin/studyctl sim run --scene protocols/scenes/brain_pull.toml --frames $(OUT)/demo --force
 	rm -rf $(OUT)/demo/study.db $(OUT)/demo/study.db-wal $(OUT)/demo/study.db-shm $(OUT)/demo/study.db.traces $(OUT)/demo/study.db.locks
 	$(VENV)/bin/studyctl synth --db $(OUT)/demo/study.db --protocol protocols/brain_pull_2015.toml --participants 35 --seed 1 --jobs 2
-	$(VENV)/bin/studyctl bench accuracy --quick --out $(OUT)/demo/accuracy
-	$(VENV)/bin/studyctl bench stability --quick --out $(OUT)/demo/stability
+	$(VENV)/bin/studyctl bench accuracy --quick --out $(OUT)/demo/accuracy --force
+	$(VENV)/bin/studyctl bench stability --quick --out $(OUT)/demo/stability --force
 	$(VENV)/bin/studyctl report table1 --db $(OUT)/demo/study.db --accuracy $(OUT)/demo/accuracy/accuracy.json \
-	    --stability $(OUT)/demo/stability/stability.json --out $(OUT)/demo/table1.md
+	    --stability $(OUT)/demo/stability/stability.json --out $(OUT)/demo/table1.md --force
 	$(VENV)/bin/studyctl report table1 --db $(OUT)/demo/study.db --accuracy $(OUT)/demo/accuracy/accuracy.json \
-	    --stability $(OUT)/demo/stability/stability.json --format html --out $(OUT)/demo/report.html
+	    --stability $(OUT)/demo/stability/stability.json --format html --out $(OUT)/demo/report.html --force
 	@echo "pictures: $(OUT)/demo/frame_*.png, force plot: $(OUT)/demo/force.png, SYNTHETIC study: $(OUT)/demo/study.db,"
 	@echo "Table 1: $(OUT)/demo/table1.md, report with statistics, plots, model error vs run time: $(OUT)/demo/report.html"
 

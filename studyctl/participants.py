@@ -11,11 +11,11 @@ import csv
 import datetime as dt
 import getpass
 import io
-import os
 from pathlib import Path
 
 from studyctl.errors import InputError, StoreError
 from studyctl.lock import session_lock
+from studyctl.outputs import write_file
 from studyctl.questions import shown
 from studyctl.store import Store, now, records, roster
 from studyctl.store.participant_fields import read_fields
@@ -194,9 +194,10 @@ CONTACTS_NOTE = ("# IDENTIFYING DATA: names and contact details of study partici
                  "# Keep it under the study's data-protection rules; never share it with the pseudonymous data.\n")
 
 
-def export_contacts(db, out: str | Path) -> dict:
+def export_contacts(db, out: str | Path, force: bool = False) -> dict:
     """The identifying table (code, name, contact) to a CSV whose first lines say what it is.
-    Withdrawn participants' details were deleted when they withdrew."""
+    Withdrawn participants' details were deleted when they withdrew. An existing file is refused
+    unless `force` (studyctl/outputs.py); readable by the owner only (0600) from the start."""
     with Store(db, mode="read") as store:
         rows = records.contacts(store)
     buf = io.StringIO()
@@ -205,10 +206,5 @@ def export_contacts(db, out: str | Path) -> dict:
     w.writerow(["code", "name", "contact"])
     w.writerows([spreadsheet_safe(v) for v in (r["code"], r["name"] or "", r["contact"] or "")] for r in rows)
     path = Path(out)
-    try:  # never overwrite (an older list may hold people who since withdrew); 0600 from the start
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    except FileExistsError:
-        raise StoreError(f"{path}: exists; the contact list is never overwritten") from None
-    with os.fdopen(fd, "w") as fh:
-        fh.write(buf.getvalue())
-    return {"file": str(path), "participants": len(rows)}
+    replaced = write_file(path, buf.getvalue(), force, mode=0o600)
+    return {"file": str(path), "participants": len(rows), "replaced": [str(p) for p in replaced]}

@@ -9,6 +9,7 @@ from pathlib import Path
 from studyctl.csvfiles import read_csv
 from studyctl.errors import InputError, StoreError
 from studyctl.fields import field_rows, parse_fields
+from studyctl.outputs import Staged
 from studyctl.questions import NOT_PER_TRIAL, SESSION, AnswerError, allowed, parse_answer
 from studyctl.schedule import allocate, next_order, read_availability, to_ics, williams
 from studyctl.store import EXPORT_TABLES, Store, now, roster
@@ -237,33 +238,53 @@ def answer_key(protocol, item: str, model: str, trial, raw, where) -> tuple[str,
     return (SESSION if q.when == "end" else model), trial, value
 
 
-def export(db: str | Path, out_dir: str | Path, fmt: str = "csv") -> list[str]:
+def export(db: str | Path, out_dir: str | Path, fmt: str = "csv", force: bool = False) -> Staged:
     """Every pseudonymous table, one file each, and every trial's per-tick trace (traces.csv or
     .parquet). The identities table is never exported. Everything is read (and every trace
-    checked against its SHA-256) before anything is written."""
+    checked against its SHA-256) and converted before anything is written, the files are written
+    to a temporary folder beside `out_dir` and moved in together (all or none); a file of the same
+    name in `out_dir` is refused unless `force`. Returns the `Staged` folder (`.written`,
+    `.replaced`)."""
     import pandas as pd
-
 
     if fmt not in ("csv", "parquet"):
         raise InputError(f"--format: {fmt!r} is not csv or parquet")
     out_dir = Path(out_dir)
+    target = Staged(out_dir, force, folder=True, expect=[f"{t}.{fmt}" for t in (*EXPORT_TABLES, "traces")])
     if fmt == "parquet":
         import importlib.util
 
-        if importlib.util.find_spec("pyarrow") is None:  # checked before anything is written
+        if importlib.util.find_spec("pyarrow") is None:  # an optional extra: checked before anything is read or written
             raise StoreError("--format parquet needs the parquet extra: pip install 'brainsim-study[parquet]'")
+        import pyarrow.parquet as pq
     with Store(db, mode="read") as store:
         # the columns from the schema, so an empty table still exports its header
         frames = {table: pd.DataFrame(table_rows(store, table), columns=list(store.db[table].columns_dict))
                   for table in EXPORT_TABLES}
         frames["traces"] = traces_frame(store)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    written = []
-    for table, df in frames.items():
-        path = out_dir / f"{table}.{fmt}"
-        if fmt == "csv":  # text cells a spreadsheet would run as formulas are shown instead (docs/study.md)
-            spreadsheet_frame(df).to_csv(path, index=False)
-        else:
-            df.to_parquet(path, index=False)
-        written.append(str(path))
-    return written
+    if fmt == "csv":  # text cells a spreadsheet would run as formulas are shown instead (docs/study.md)
+        converted = {table: spreadsheet_frame(df).to_csv(index=False) for table, df in frames.items()}
+    else:
+        converted = {table: parquet_table(df) for table, df in frames.items()}
+    with target as tmp:
+        for table, data in converted.items():
+            path = tmp / f"{table}.{fmt}"
+            if fmt == "csv":
+                path.write_text(data, encoding="utf-8")
+            else:
+                pq.write_table(data, path)
+    return target
+
+
+def parquet_table(df):
+    """`df` as an Arrow table. A column holding text in some rows and numbers in others (the
+    answers of a study that asks a text question) is written as text, a number as its digits
+    (1 as "1"); the question's kind says how to read it (docs/study.md)."""
+    import pyarrow as pa
+
+    df = df.copy()
+    for col in df.select_dtypes(include="object").columns:
+        kinds = {type(v) for v in df[col] if v is not None and v == v}
+        if len(kinds) > 1 and not kinds <= {int, float}:
+            df[col] = [None if v is None or v != v else str(v) for v in df[col]]
+    return pa.Table.from_pandas(df, preserve_index=False)

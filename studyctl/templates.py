@@ -8,6 +8,7 @@ from pathlib import Path
 
 from brainsim_assets import path as asset
 from studyctl.errors import InputError
+from studyctl.outputs import Staged
 from studyctl.protocol import check_protocol
 
 KINDS = {  # kind -> the shipped protocol it starts from, and what it is
@@ -20,19 +21,19 @@ _RELATIVE = re.compile(r'"((?:\.\./)+[^"]+)"')
 _NAME = re.compile(r"^[a-z][a-z0-9_]{0,63}$")
 
 
-def new_protocol(kind: str, out_dir: str | Path, name: str | None = None) -> dict:
+def new_protocol(kind: str, out_dir: str | Path, name: str | None = None, force: bool = False) -> dict:
     """Write OUT/protocol.toml (the `kind`'s shipped example, renamed `name`) and OUT/scene.toml
     (its scene, the relative paths to the shipped surface, material and model files made
-    absolute); check the protocol; never overwrite. Returns what was written."""
+    absolute); check the protocol. Both or neither (studyctl/outputs.py): an existing file is
+    refused unless `force`, and a failed write (a full disk) leaves nothing behind. Returns what
+    was written (`replaced`: the files `force` overwrote)."""
     if kind not in KINDS:
         raise InputError(f"--kind: {kind!r} is not a kind; allowed: {', '.join(KINDS)}")
     if name is not None and not _NAME.match(name):
         raise InputError(f"--name: {name!r}: lower-case letters, digits and _ (starting with a letter), at most 64")
     out = Path(out_dir)
     protocol_path, scene_path = out / "protocol.toml", out / "scene.toml"
-    for p in (protocol_path, scene_path):
-        if p.exists():
-            raise InputError(f"{p}: exists; `protocol new` never overwrites (choose another --out)")
+    target = Staged(out, force, folder=True, expect=(protocol_path.name, scene_path.name))
     source = asset(f"protocols/{KINDS[kind][0]}")
     text = source.read_text()
     scene_rel = re.search(r'^scene\s*=\s*"([^"]+)"', text, re.M).group(1)
@@ -44,15 +45,14 @@ def new_protocol(kind: str, out_dir: str | Path, name: str | None = None) -> dic
     header = (f"# Written by `studyctl protocol new --kind {kind}` from the shipped {KINDS[kind][0]}: "
               f"{KINDS[kind][1]}.\n# Edit freely; `studyctl protocol validate protocol.toml` checks it (docs/study.md lists every key).\n")
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        scene_path.write_text(f"# Written by `studyctl protocol new` from the shipped {shipped_scene.name}; paths made absolute.\n" + scene_text)
-        protocol_path.write_text(header + text)
-        _, problems = check_protocol(protocol_path)
+        with target as tmp:  # checked where it is written: the scene's path is relative to the protocol
+            (tmp / scene_path.name).write_text(
+                f"# Written by `studyctl protocol new` from the shipped {shipped_scene.name}; paths made absolute.\n" + scene_text)
+            (tmp / protocol_path.name).write_text(header + text)
+            _, problems = check_protocol(tmp / protocol_path.name)
+            if problems:  # a bug of the template, never the user's: nothing left behind
+                raise InputError(f"{protocol_path}: the template does not validate: {problems[0].replace(str(tmp), str(out))}")
     except OSError as exc:
-        raise InputError(f"{out}: cannot write the protocol: {exc.strerror}") from None
-    if problems:  # a bug of the template, never the user's: nothing left behind
-        protocol_path.unlink(missing_ok=True)
-        scene_path.unlink(missing_ok=True)
-        raise InputError(f"{protocol_path}: the template does not validate: {problems[0]}")
+        raise InputError(f"{out}: cannot write the protocol: {exc.strerror or exc}; nothing was written") from None
     return {"kind": kind, "from": str(source), "protocol": str(protocol_path), "scene": str(scene_path),
-            "name": re.search(r'^name\s*=\s*"([^"]+)"', text, re.M).group(1)}
+            "name": re.search(r'^name\s*=\s*"([^"]+)"', text, re.M).group(1), "replaced": [str(p) for p in target.replaced]}

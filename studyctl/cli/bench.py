@@ -8,7 +8,21 @@ from pathlib import Path
 import click
 
 from sim.scene import DEFAULT_SCENE
-from studyctl.cli.common import SCHEDULER, OutDir, _console, _Group, _print_json, _with_progress
+from studyctl.cli.common import (
+    FORCE,
+    SCHEDULER,
+    OutDir,
+    _console,
+    _Group,
+    _print_json,
+    _with_progress,
+    say_replaced,
+    staged,
+)
+
+# what each bench writes into --out (analysis/accuracy_tables.py, analysis/stability.py write_outputs)
+ACCURACY_FILES = ("accuracy.json", "accuracy.csv", "samples.csv", "accuracy.md", "accuracy.tex", "pareto.png", "pareto.svg")
+STABILITY_FILES = ("stability.json", "stability.csv", "stability.md", "heatmap.png", "heatmap.svg")
 
 
 @click.group(cls=_Group)
@@ -40,6 +54,7 @@ def _sweep_options(f):
                      help="Only these models, comma-separated (default: every installed model, a lab's own included).")(f)
     f = SCHEDULER(f)
     f = click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Local worker processes (default: every core).")(f)
+    f = FORCE(f)
     f = click.option("--out", "out_dir", type=OutDir(), default=None, help="Write tables, JSON and plots here.")(f)
     f = click.option("--json", "as_json", is_flag=True)(f)
     f = click.option("--quick", is_flag=True, help="The small sweep (CI, make demo).")(f)
@@ -52,20 +67,23 @@ def _sweep_options(f):
               help="The linear models' Young's modulus, Pa, with the tissue's law scaled alike [default: the scene's].")
 @click.option("--test-places", type=click.IntRange(2, 20), default=None, help="Held-out grasp places, two directions each [default: 6, --quick: 2].")
 @_sweep_options
-def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, jobs, scheduler, models):
+def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, force, jobs, scheduler, models):
     """Every model and setting on the same pulls against the converged reference (the tissue's
     finite-strain law on P2 on body-fitted meshes, Richardson; shipped): calibrated with one stiffness scale on the
     calibration pulls, judged raw and calibrated on held-out pulls (within the JND with
     Wilson intervals, against the reference's band, direction error), time per tick and frame."""
     from analysis import accuracy, accuracy_tables
 
+    target = staged(out_dir, force, folder=True, expect=ACCURACY_FILES)  # refused before the sweep
     kw = {"scene": scene_file, "young": young} | ({"test_places": test_places} if test_places else {})
     settings = accuracy.default_settings(quick)
     kw["settings"] = settings if models is None else tuple(s for s in settings if s.model in models)
     cfg = accuracy.quick_config(**kw) if quick else accuracy.AccuracyConfig(**kw)
     result = _with_progress("accuracy: reference, then models", lambda p: accuracy.run_accuracy(cfg, jobs=jobs, scheduler=scheduler, progress=p))
-    if out_dir:
-        accuracy_tables.write_outputs(result, out_dir)
+    if target:
+        with target as tmp:
+            accuracy_tables.write_outputs(result, tmp)
+        say_replaced(target)
     if as_json:
         _print_json(result)
         return
@@ -103,15 +121,18 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, jobs
 @bench.command("stability")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @_sweep_options
-def bench_stability(scene_file, quick, as_json, out_dir, jobs, scheduler, models):
+def bench_stability(scene_file, quick, as_json, out_dir, force, jobs, scheduler, models):
     """Sweep E, nu, time step, spring stiffness, plate-spring parameters, far pulls and 5 cm
     jumps for every model: stable, refused (with the reason) or unstable (with the time)."""
     from analysis import stability
 
+    target = staged(out_dir, force, folder=True, expect=STABILITY_FILES)  # refused before the sweep
     cases = stability.make_cases(quick, models)
     result = _with_progress("stability cases", lambda p: stability.run_stability(quick, scene_file, jobs=jobs, scheduler=scheduler, progress=p, cases=cases))
-    if out_dir:
-        stability.write_outputs(result, out_dir)
+    if target:
+        with target as tmp:
+            stability.write_outputs(result, tmp)
+        say_replaced(target)
     if as_json:
         _print_json(result)
     else:
@@ -161,12 +182,14 @@ def _sizes_mm(ctx, param, value):
 @click.option("--quick", is_flag=True, help="Two coarse meshes, the left hand's pulls, two samples (CI).")
 @click.option("--json", "as_json", is_flag=True)
 @click.option("--out", "out_dir", type=OutDir(), default=None, help="Write reference.json and reference.md here.")
-def bench_reference(scene_file, sizes, functional, formulation, pull_names, jobs, quick, as_json, out_dir):
+@FORCE
+def bench_reference(scene_file, sizes, functional, formulation, pull_names, jobs, quick, as_json, out_dir, force):
     """A converged reference: the tissue's law on P2 tetrahedra on body-fitted (fTetWild) meshes
     of each hemisphere at three sizes, Richardson extrapolation and the grid convergence index
     for every calibration pull of the accuracy bench."""
     from analysis import reference
 
+    target = staged(out_dir, force, folder=True, expect=("reference.json", "reference.md"))  # refused before the solves
     kw = {"scene": scene_file, "functional": functional, "formulation": formulation, "jobs": jobs}
     if sizes is not None:
         kw["sizes_mm"] = sizes
@@ -174,8 +197,10 @@ def bench_reference(scene_file, sizes, functional, formulation, pull_names, jobs
         kw["pulls"] = tuple(n.strip() for n in pull_names.split(","))
     cfg = reference.quick_config(**kw) if quick else reference.ReferenceConfig(**kw)
     result = _with_progress("reference meshes", lambda p: reference.run_reference(cfg, progress=p))
-    if out_dir:
-        reference.write_outputs(result, out_dir)
+    if target:
+        with target as tmp:
+            reference.write_outputs(result, tmp)
+        say_replaced(target)
     if as_json:
         _print_json(result)
         return

@@ -9,7 +9,18 @@ from pathlib import Path
 import click
 
 from sim.scene import DEFAULT_SCENE
-from studyctl.cli.common import Finite, OutFile, _console, _Group, _print_json, _with_progress
+from studyctl.cli.common import (
+    FORCE,
+    Finite,
+    OutFile,
+    _console,
+    _Group,
+    _print_json,
+    _with_progress,
+    say_replaced,
+    staged,
+    write_output,
+)
 from studyctl.errors import InputError
 
 
@@ -26,8 +37,9 @@ def calibrate():
 @click.option("--samples", type=click.IntRange(3, 100), default=24, show_default=True,
               help="Points per pull (the converged reference: only where the truth is decided).")
 @click.option("--out", "out_file", type=OutFile((".toml",)), default=None, help="Write the fitted parameter file (.toml).")
+@FORCE
 @click.option("--json", "as_json", is_flag=True)
-def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out_file, as_json):
+def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out_file, force, as_json):
     """Fit h1, alpha, q and x_c1 (within their bounds) to the reference force-displacement curve."""
     import numpy as np
 
@@ -35,6 +47,7 @@ def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out
     from sim.calibrate import fit, read_curve, to_toml
     from sim.scene import load_scene
 
+    target = staged(out_file, force)  # an existing file refused before the fit
     spec = load_scene(scene_file)
     ps = spec.model_spec("plate_spring")
     if reference == "converged":
@@ -42,9 +55,9 @@ def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out
     else:
         xs, forces = read_curve(reference)
     params, rep = fit(ps.options["params"], xs, forces, ps.options["variant"])
-    if out_file:
-        Path(out_file).write_text(to_toml(params, f"Plate-spring parameters fitted by `studyctl calibrate plate-spring` to {reference}\n"
-                                                  f"({rep['points']} points up to {xs.max() * 1e3:.0f} mm; {rep['within_jnd']:.0%} within the force JND)"))
+    if target:
+        write_output(target, to_toml(params, f"Plate-spring parameters fitted by `studyctl calibrate plate-spring` to {reference}\n"
+                                             f"({rep['points']} points up to {xs.max() * 1e3:.0f} mm; {rep['within_jnd']:.0%} within the force JND)"))
     if as_json:
         _print_json(rep | {"reference": reference, "out": str(out_file) if out_file else None})
         return
@@ -65,8 +78,9 @@ def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out
               help="Laws to fit (repeat; default: all four).")
 @click.option("--bulk-ratio", type=Finite(min=1.0, max=1e4), default=None, show_default="50", help="kappa / mu of the laws.")
 @click.option("--out", "out_file", type=OutFile((".toml",)), default=None, help="Write the chosen law as a material file (.toml).")
+@FORCE
 @click.option("--json", "as_json", is_flag=True)
-def calibrate_material(data_files, region, laws, bulk_ratio, out_file, as_json):
+def calibrate_material(data_files, region, laws, bulk_ratio, out_file, force, as_json):
     """Fit finite-strain laws to tissue data (uniaxial tension and compression, simple shear: each
     file's mode read from its columns, several fitted together), report each mode's error and
     each mode's error when left out of the fit, and choose one law by AICc (docs/material.md)."""
@@ -74,6 +88,7 @@ def calibrate_material(data_files, region, laws, bulk_ratio, out_file, as_json):
     from sim.hyperelastic import BULK_RATIO
     from sim.material import material_toml
 
+    target = staged(out_file, force)  # an existing file refused before the fit
     data_files = list(data_files) or [DATA_FILE]
     rep = fit_material(data_files, region, laws or FIT_LAWS, BULK_RATIO if bulk_ratio is None else bulk_ratio)
     if out_file:
@@ -88,8 +103,8 @@ def calibrate_material(data_files, region, laws, bulk_ratio, out_file, as_json):
                 "fit": rep["method"], **{k: v for k, v in rep.items() if k.startswith("rms_rel") or k == "shear_worst_rel"},
                 **{f"left_out_rms_rel_{m}": v for m, v in (rep.get("left_out") or {}).items()},
                 **{f"ci95_{k}": v for k, v in chosen["ci95"].items()}}
-        Path(out_file).write_text(material_toml(law, prov, f"{region}: {law.describe()}\nWritten by `studyctl calibrate material "
-                                                           f"--region {region} --out {Path(out_file).name}`."))
+        write_output(target, material_toml(law, prov, f"{region}: {law.describe()}\nWritten by `studyctl calibrate material "
+                                                      f"--region {region} --out {Path(out_file).name}`."))
     if as_json:
         _print_json({k: v for k, v in rep.items()} | {"out": str(out_file) if out_file else None})
         return
@@ -120,10 +135,11 @@ def calibrate_material(data_files, region, laws, bulk_ratio, out_file, as_json):
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--out", "out_file", type=OutFile((".npz",)), default=None, show_default="data/plate_spring_field.npz", help="The stiffness field.")
 @click.option("--params-out", type=OutFile((".toml",)), default=None, help="Also write the located stack's curve here.")
+@FORCE
 @click.option("--formulation", type=click.Choice(["finite-strain", "small-strain"]), default="finite-strain", show_default=True,
               help="The curve: fitted to the finite-strain / small-strain force ratio of the calibration pulls, or straight.")
 @click.option("--json", "as_json", is_flag=True)
-def calibrate_field(scene_file, out_file, params_out, formulation, as_json):
+def calibrate_field(scene_file, out_file, params_out, formulation, force, as_json):
     """The location-aware plate-spring's stiffness field: the reference's 3 x 3 grasp stiffness
     at the ico4 sites of both hemispheres (P2, 8 mm body-fitted mesh, area-mean grasp),
     interpolated to every vertex; with --params-out, the stack's curve too."""
@@ -134,7 +150,13 @@ def calibrate_field(scene_file, out_file, params_out, formulation, as_json):
     from sim.calibrate import to_toml
     from sim.scene import load_scene
 
-    rep = _with_progress("stiffness field sites", lambda p: field.build_field(scene_file, out_file or field.FIELD_FILE, progress=p))
+    # the shipped field too (the default): refused before the solves unless --force
+    field_target = staged(out_file or field.FIELD_FILE, force)
+    params_target = staged(params_out, force)
+    with field_target as tmp:
+        rep = _with_progress("stiffness field sites", lambda p: field.build_field(scene_file, tmp, progress=p))
+    rep["path"] = str(field_target.target)
+    say_replaced(field_target)
     if params_out:
         start = load_scene(scene_file).model_spec("plate_spring").options["params"]
         xs = sample_displacements(AccuracyConfig())
@@ -147,7 +169,7 @@ def calibrate_field(scene_file, out_file, params_out, formulation, as_json):
                + (f" ({', '.join(fit_rep['no_reference'])}: no reference)" if fit_rep.get("no_reference") else "")
                + f"; {fit_rep['within_jnd']:.0%} "
                "within the JND.\nE is the law's shear modulus (the field is per pascal of it)")
-        Path(params_out).write_text(to_toml(params, (
+        write_output(params_target, to_toml(params, (
             "Plate-spring stack for the location-aware model (variant \"located\"): only the curve's shape matters,\n"
             "the stiffness field (data/plate_spring_field.npz) sets its size and direction at each vertex.\n"
             f"Written by `studyctl calibrate field --params-out FILE --formulation {formulation}`:\n{how}.")))
@@ -181,8 +203,9 @@ def _vertex_ids(ctx, param, value):
 @click.option("--profile", "profile_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Keep this profile (from `calibrate rig --out` on the rig) with the study instead of measuring here.")
 @click.option("--out", "out_file", type=OutFile((".json",)), default=None, help="Also write the profile as JSON.")
+@FORCE
 @click.option("--json", "as_json", is_flag=True)
-def calibrate_rig(db, protocol_file, trials, profile_file, out_file, as_json):
+def calibrate_rig(db, protocol_file, trials, profile_file, out_file, force, as_json):
     """Each condition's deformation time per frame on this machine (the rig), kept with the
     study: its synthetic participants perceive these as latency (studyctl/rig.py)."""
     from studyctl.protocol import load_protocol
@@ -193,6 +216,7 @@ def calibrate_rig(db, protocol_file, trials, profile_file, out_file, as_json):
         raise InputError("name the study (--db) or, to write a profile only, a protocol (--protocol with --out)")
     if protocol_file is not None and (out_file is None or profile_file is not None):
         raise InputError("--protocol: measures without a study, so it needs --out (and no --profile)")
+    target = staged(out_file, force)  # an existing file refused before the trials
     if db is not None:
         with Store(db, mode="read") as store:
             protocol = store.protocol()
@@ -202,8 +226,8 @@ def calibrate_rig(db, protocol_file, trials, profile_file, out_file, as_json):
         profile, source = read_profile(profile_file), f"file {profile_file.name}"
     else:
         profile, source = _with_progress("rig trials", lambda p: measure(protocol, trials, progress=p)), "measured"
-    if out_file is not None:
-        Path(out_file).write_text(json.dumps(profile, indent=2) + "\n")
+    if target:
+        write_output(target, json.dumps(profile, indent=2) + "\n")
     if db is not None:  # opened for writing after the measuring, as before: a study that cannot be written still gets --out
         with Store(db) as store:
             store_profile(store, profile, source)
@@ -218,19 +242,25 @@ def calibrate_rig(db, protocol_file, trials, profile_file, out_file, as_json):
 @calibrate.command("truth")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
 @click.option("--vertices", default=None, callback=_vertex_ids, help="Surface vertex ids, e.g. 3386,13629  [default: within 10 mm of the scene's hands]")
-@click.option("--out", "out_file", type=OutFile((".npz",)), default=None, help="[default: the cache folder, where sessions find it]")
+@click.option("--out", "out_file", type=OutFile((".npz",)), default=None, help="[default: the cache folder, where sessions find it; rebuilt there freely]")
+@FORCE
 @click.option("--no-check", is_flag=True, help="Skip the transfer check (a direct solve at the farthest place per hand).")
 @click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Reference solves at once (default: every core).")
 @click.option("--json", "as_json", is_flag=True)
-def calibrate_truth(scene_file, vertices, out_file, no_check, jobs, as_json):
+def calibrate_truth(scene_file, vertices, out_file, force, no_check, jobs, as_json):
     """The synthetic observer's truth at grasp places: the converged reference's finite-strain
     path along each hand's pull (the scene's law on the shipped body-fitted 8 / 6 / 4 mm meshes,
     Richardson) and its small-strain transfer to the places around it. Needed for a scene, or
     grasp places, that the shipped table (data/observer_truth.npz) does not cover; the shipped
     scene's paths are shipped solves, another scene's take minutes per pull and mesh."""
     from analysis.truth_table import build_truth
+    from studyctl.outputs import refuse_existing
 
+    # a named table and its .json refused before the solves (the cache's is the tool's own); the table is written atomically
+    replaced = refuse_existing([out_file, out_file.with_suffix(".json")], force) if out_file else []
     rep = build_truth(scene_file, out_file, vertices, check=not no_check, jobs=jobs, progress=None if as_json else click.echo)
+    if replaced:
+        click.echo(f"--force: overwrote {', '.join(map(str, replaced))}", err=True)
     if as_json:
         _print_json(rep)
         return

@@ -16,6 +16,7 @@ from brainsim_assets import path as _asset
 from sim.errors import SimError
 from sim.jsonable import jsonable
 from studyctl.errors import Interrupted, StudyError
+from studyctl.outputs import Staged
 from studyctl.sweep import SweepError
 
 DEFAULT_PROTOCOL = _asset("protocols/brain_pull_2015.toml")
@@ -120,7 +121,30 @@ DB = click.option("--db", envvar="STUDYCTL_DB", show_envvar=True, required=True,
 JSON = click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
                          help="Run on a Dask cluster (tcp://host:8786; the dask extra) instead of local processes.")
+FORCE = click.option("--force", is_flag=True,
+                     help="Overwrite output files that exist (without it the command refuses and changes nothing).")
 DRY_RUN = click.option("--dry-run", is_flag=True, help="Check and show what would be done; write nothing.")
+
+
+def staged(path, force: bool, folder: bool = False, expect=()) -> Staged | None:
+    """An output option's target (studyctl/outputs.py), or None where the option was not given;
+    made at the command's start, so an existing target is refused before any work."""
+    return None if path is None else Staged(path, force, folder=folder, expect=expect)
+
+
+def say_replaced(out: Staged | None) -> None:
+    """One line on stderr (a --json document on stdout stays clean) where --force overwrote files."""
+    if out is None or not out.replaced:
+        return
+    what = str(out.replaced[0]) if len(out.replaced) == 1 else f"{len(out.replaced)} files in {out.target}"
+    click.echo(f"--force: overwrote {what}", err=True)
+
+
+def write_output(out: Staged, text: str) -> None:
+    """A text output, whole or not at all, saying where --force overwrote it."""
+    with out as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    say_replaced(out)
 
 
 def _done(out: dict, text: str, as_json: bool = False) -> None:

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import click
 
 from sim.jsonable import jsonable
-from studyctl.cli.common import DB, OutFile, read_snapshot
+from studyctl.cli.common import DB, FORCE, OutFile, read_snapshot, staged, write_output
 
 
 def _note(table) -> str:
@@ -20,11 +19,13 @@ def _note(table) -> str:
 @DB
 @click.option("--format", "fmt", type=click.Choice(["csv", "json"]), default="csv", show_default=True)
 @click.option("--out", "out_file", type=OutFile((".csv", ".json")), default=None, help="Write to this file instead of stdout.")
-def metrics_cmd(db, fmt, out_file):
+@FORCE
+def metrics_cmd(db, fmt, out_file, force):
     """Performance metrics from every stored trace, one row per participant, condition, trial,
     hand and metric (docs/metrics.md); synthetic participants' rows say so."""
     from analysis.metrics import METRICS, metrics_table, study_goals
 
+    target = staged(out_file, force)  # an existing file refused before the work
     study = read_snapshot(db)
     table = metrics_table(study, study_goals(study))
     note = _note(table) if len(table) else f"{db}: no trial with a stored trace yet"
@@ -35,8 +36,8 @@ def metrics_cmd(db, fmt, out_file):
         from studyctl.text import spreadsheet_frame
 
         text = spreadsheet_frame(table).to_csv(index=False)
-    if out_file:
-        Path(out_file).write_text(text)
+    if target:
+        write_output(target, text)
         click.echo(f"wrote {out_file} ({len(table)} rows)" + (f"; {note}" if note else ""))
         return
     click.echo(text, nl=False)

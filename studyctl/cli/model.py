@@ -10,7 +10,7 @@ import click
 from sim.models.base import MAX_PULL_M, pull_problem
 from sim.run import VisualStep
 from sim.scene import DEFAULT_SCENE
-from studyctl.cli.common import Finite, OutFile, _console, _Group, _print_json
+from studyctl.cli.common import FORCE, Finite, OutFile, _console, _Group, _print_json, staged, write_output
 
 
 @click.group(cls=_Group)
@@ -77,18 +77,19 @@ def model_describe(name: str, as_json: bool):
 @click.option("--contract", "contract_only", is_flag=True, help="The contract and the budgets only (seconds): no stability sweep, no accuracy bench.")
 @click.option("--json", "as_json", is_flag=True, help="The scorecard as JSON (default: Markdown).")
 @click.option("--out", "out_file", type=OutFile(), default=None, help="Also write the scorecard here (.md or .json).")
-def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, as_json: bool, out_file):
+@FORCE
+def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, as_json: bool, out_file, force: bool):
     """A model's scorecard: the contract, its time budgets on this machine, the quick stability
     sweep and the accuracy bench against the tissue truth. Stages are reported on stderr as they
     start and end, with an estimate of the time left; Ctrl-C keeps the stages that finished.
     Exits 1 on a violation, 130 when interrupted."""
     import json
-    import os
 
     from analysis.model_check import CheckConfig, CheckError, CheckInterrupted, check_model, scorecard_md
     from sim.jsonable import jsonable
     from sim.models.registry import ModelLoadError, model_class
 
+    target = staged(out_file, force)  # an existing file refused before the check runs
     try:  # a model that does not load is one line, before any progress
         model_class(name)
     except ModelLoadError as exc:
@@ -96,11 +97,8 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
 
     def emit(card):
         text = json.dumps(jsonable(card), indent=2) if as_json else scorecard_md(card)
-        if out_file:  # whole or not at all: a second Ctrl-C while writing leaves no half card
-            out = Path(out_file)
-            part = out.with_name(f".{out.name}.part")
-            part.write_text(json.dumps(jsonable(card), indent=2) if out.suffix == ".json" else scorecard_md(card))
-            os.replace(part, out)
+        if target:  # whole or not at all: a second Ctrl-C while writing leaves no half card
+            write_output(target, json.dumps(jsonable(card), indent=2) if target.target.suffix == ".json" else scorecard_md(card))
         click.echo(text.rstrip("\n"))
 
     try:

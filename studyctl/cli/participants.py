@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from studyctl.cli.common import DB, DRY_RUN, JSON, OutFile, _console, _done, _Group, _listing, _print_json
+from studyctl.cli.common import DB, DRY_RUN, FORCE, JSON, OutFile, _console, _done, _Group, _listing, _print_json
 
 
 @click.group(cls=_Group)
@@ -106,13 +106,16 @@ def participants_withdraw(code, reason, db, dry_run, as_json):
 
 @participants.command("contacts")
 @DB
-@click.option("--out", "out_file", required=True, type=OutFile((".csv",)), help="A new CSV file (never overwritten).")
+@click.option("--out", "out_file", required=True, type=OutFile((".csv",)), help="The CSV file to write.")
+@FORCE
 @JSON
-def participants_contacts(db, out_file, as_json):
+def participants_contacts(db, out_file, force, as_json):
     """EXPERIMENTER ONLY: names and contact details (the identifying table) to a CSV marked as such."""
     from studyctl.participants import export_contacts
 
-    out = export_contacts(db, out_file)
+    out = export_contacts(db, out_file, force=force)
+    if out["replaced"]:
+        click.echo(f"--force: overwrote {out['file']}", err=True)
     if as_json:
         _print_json(out)
         return

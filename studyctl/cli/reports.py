@@ -11,7 +11,19 @@ import click
 
 from brainsim_assets import path as _asset
 from sim.jsonable import jsonable
-from studyctl.cli.common import DB, JSON, OutDir, OutFile, _Group, _print_json, read_snapshot
+from studyctl.cli.common import (
+    DB,
+    FORCE,
+    JSON,
+    OutDir,
+    OutFile,
+    _Group,
+    _print_json,
+    read_snapshot,
+    say_replaced,
+    staged,
+    write_output,
+)
 
 PAPER_TABLE = _asset("data/paper_table1.csv")
 
@@ -30,22 +42,24 @@ HOLM = click.option("--holm", "holm_scope", type=click.Choice(["family", "questi
 @HOLM
 @click.option("--format", "fmt", type=click.Choice(["md", "csv", "latex", "html", "json"]), default="md", show_default=True)
 @click.option("--out", "out_file", type=OutFile(), default=None)
+@FORCE
 @click.option("--accuracy", "accuracy_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="accuracy.json from `studyctl bench accuracy --out`: add its tables (md, latex, html) and Pareto plot (html).")
 @click.option("--stability", "stability_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="stability.json from `studyctl bench stability --out`: add its heat map and unstable cases (md, html).")
-def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
+def report_table1(db, holm_scope, fmt, out_file, force, accuracy_file, stability_file):
     """The seed paper's Table 1 with Wilson intervals, Cochran's Q and deformation times
     (html: one self-contained file with the statistics and plots)."""
     from analysis import table1
     from analysis.study_stats import table1_markdown
 
+    target = staged(out_file, force)  # an existing file refused before the study is read
     study = read_snapshot(db)
     if study.protocol.tasks and not study.protocol.questions:  # a discrimination study without questions: its section is the report
         if fmt == "csv":
             raise click.ClickException(f"--format {fmt}: the study asks no questions (no Table 1); its discrimination task "
                                        "reports as md, html, latex or json (`studyctl report jnd`)")
-        _emit(_jnd_text(study, fmt), out_file)
+        _emit(_jnd_text(study, fmt), target)
         return
     if _no_answers(study, fmt == "json"):
         return
@@ -93,14 +107,14 @@ def report_table1(db, holm_scope, fmt, out_file, accuracy_file, stability_file):
         from analysis.jnd import html_section
 
         text = text.replace("</body></html>", html_section(_jnd(study), study) + "\n</body></html>")
-    _emit(text, out_file)
+    _emit(text, target)
 
 
-def _emit(text: str, out_file) -> None:
-    """A report's text: to `out_file` (saying so) or to stdout."""
-    if out_file:
-        Path(out_file).write_text(text)
-        click.echo(f"wrote {out_file}")
+def _emit(text: str, out) -> None:
+    """A report's text: to `out` (saying so) or to stdout."""
+    if out:
+        write_output(out, text)
+        click.echo(f"wrote {out.target}")
     else:
         click.echo(text, nl=False)
 
@@ -156,33 +170,39 @@ def _jnd_text(study, fmt: str) -> str:
 @click.option("--format", "fmt", type=click.Choice(["md", "html", "json", "latex"]), default="md", show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
 @click.option("--out", "out_file", type=OutFile(), default=None)
-def report_jnd(db, fmt, as_json, out_file):
+@FORCE
+def report_jnd(db, fmt, as_json, out_file, force):
     """Stiffness discrimination: each participant's psychometric fit and Weber fraction with its
     bootstrap 95% interval per condition, the conditions' geometric means, the group test (mixed
     model on log Weber fraction, Friedman, Holm pairs); html with psychometric plots."""
+    target = staged(out_file, force)  # an existing file refused before the study is read
     study = read_snapshot(db)
     if not study.protocol.tasks:
         raise click.ClickException(f"{db}: the study's protocol has no discrimination task ([[tasks]]); nothing to report")
     text = _jnd_text(study, "json" if as_json else fmt)
-    _emit(text, out_file)
+    _emit(text, target)
 
 
 @report.command("plots")
 @DB
 @click.option("--out", "out_dir", required=True, type=OutDir(), help="A folder (made if missing) for the figure files.")
+@FORCE
 @click.option("--size", type=click.Choice(["screen", "single", "double"]), default="screen", show_default=True,
               help="screen: PNG and SVG at each figure's own size (the HTML report's); single or double: a journal's one or "
                    "two columns, 85 or 175 mm wide, as PDF (fonts embedded), SVG and 600-dpi PNG.")
 @JSON
-def report_plots(db, out_dir, size, as_json):
+def report_plots(db, out_dir, force, size, as_json):
     """Rates with intervals, ratings, scores, choices, deformation times, and force traces against the converged reference."""
     from analysis.figure_size import file_info
     from analysis.report import write_plots
 
+    target = staged(out_dir, force, folder=True)
     study = read_snapshot(db)
     if _no_answers(study, as_json):
         return
-    files = write_plots(study, out_dir, size=size)
+    with target as tmp:  # every figure or none: a failed plot leaves no half set
+        files = [target.final(f) for f in write_plots(study, tmp, size=size)]
+    say_replaced(target)
     if as_json:
         _print_json({"out": str(out_dir), "size": size, "files": [file_info(f) for f in files]})
         return
@@ -262,17 +282,19 @@ def report_stats(db, holm_scope, as_json):
 @click.option("--format", "fmt", type=click.Choice(["md", "latex", "json"]), default="md", show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
 @click.option("--out", "out_file", type=OutFile(), default=None)
-def report_text(db, holm_scope, style, fmt, as_json, out_file):
+@FORCE
+def report_text(db, holm_scope, style, fmt, as_json, out_file, force):
     """The methods and results paragraphs for a paper (participants, design, apparatus, procedure,
     analysis, results), every number taken from what `report stats --json` prints (`report jnd
     --json` for a discrimination study); synthetic data said first, withheld statistics withheld
     with their reason."""
     from analysis.paper_text import study_text
 
+    target = staged(out_file, force)  # an existing file refused before the study is read
     study = read_snapshot(db)
     if not (study.protocol.tasks and not study.protocol.questions) and _no_answers(study, False):
         return
-    _emit(study_text(study, holm_scope, "json" if as_json else fmt), out_file)
+    _emit(study_text(study, holm_scope, "json" if as_json else fmt), target)
 
 
 @report.command("published")
@@ -304,12 +326,15 @@ def report_published(table_file, as_json):
 @DB
 @click.option("--format", "fmt", type=click.Choice(["csv", "parquet"]), default="csv", show_default=True)
 @click.option("--out", "out_dir", required=True, type=OutDir(), help="A folder (made if missing) for one file per table.")
+@FORCE
 @JSON
-def export_cmd(db, fmt, out_dir, as_json):
+def export_cmd(db, fmt, out_dir, force, as_json):
     """Export the pseudonymous tables (never the identifying one)."""
     from studyctl.study import export
 
-    files = export(db, out_dir, fmt)
+    target = export(db, out_dir, fmt, force=force)
+    say_replaced(target)
+    files = target.written
     if as_json:
         _print_json({"out": str(out_dir), "format": fmt, "files": [str(f) for f in files]})
         return
@@ -321,6 +346,7 @@ def export_cmd(db, fmt, out_dir, as_json):
 @click.option("--format", "fmt", type=click.Choice(["md", "html", "json", "latex"]), default="md", show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
 @click.option("--out", "out_file", type=OutFile(), default=None)
+@FORCE
 @click.option("--permutations", type=click.IntRange(min=1), default=None, show_default="100",
               help="Permutations of the classifier's permutation test.")
 @click.option("--group-permutations", type=click.IntRange(min=1), default=None, show_default="1000",
@@ -328,7 +354,7 @@ def export_cmd(db, fmt, out_dir, as_json):
 @click.option("--bootstrap", type=click.IntRange(min=1), default=None, show_default="200",
               help="Bootstrap replicates of Cliff's delta's and the learning curves' intervals.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of every resampling.")
-def report_validity(db, fmt, as_json, out_file, permutations, group_permutations, bootstrap, seed):
+def report_validity(db, fmt, as_json, out_file, force, permutations, group_permutations, bootstrap, seed):
     """Construct validity: the performance metrics compared between the participant groups
     (Kruskal-Wallis, Mann-Whitney pairs with Holm and Westfall-Young, Cliff's delta), the mixed model with several
     conditions, learning curves, the expert benchmark and scorecards, leave-one-out
@@ -340,10 +366,11 @@ def report_validity(db, fmt, as_json, out_file, permutations, group_permutations
     permutations = vr.DEFAULT_PERMUTATIONS if permutations is None else permutations
     bootstrap = vr.DEFAULT_BOOTSTRAP if bootstrap is None else bootstrap
     group_permutations = vr.DEFAULT_GROUP_PERMUTATIONS if group_permutations is None else group_permutations
+    target = staged(out_file, force)  # an existing file refused before the study is read
     study = read_snapshot(db)
     rep = _with_progress("construct validity", lambda progress: vr.validity_report(
         study, permutations=permutations, group_permutations=group_permutations, bootstrap=bootstrap, seed=seed,
         progress=progress))
     fmt = "json" if as_json else fmt
     text = {"json": vr.to_json, "html": vr.html, "latex": vr.latex}.get(fmt, vr.markdown)(rep)
-    _emit(text, out_file)
+    _emit(text, target)

@@ -10,6 +10,7 @@ import click
 from studyctl.cli.common import (
     DB,
     DEVICES,
+    FORCE,
     FULLSCREEN,
     JSON,
     SCHEDULER,
@@ -20,6 +21,8 @@ from studyctl.cli.common import (
     _listing,
     _print_json,
     _with_progress,
+    say_replaced,
+    staged,
 )
 
 
@@ -80,15 +83,22 @@ sessions_alias = _Group("sessions", commands={"list": session_list}, help="Alias
 @click.option("--trial", type=click.IntRange(min=1), required=True, help="The session's K-th trial, in the order run (1 = the first).")
 @click.option("--view", type=click.Choice(["none", "window"]), default="none", show_default=True, help="window: play it back in real time.")
 @click.option("--frames", "frames_dir", type=OutDir(), default=None, help="Write pictures, the force plot and the trace.")
+@FORCE
 @FULLSCREEN
 @click.option("--json", "as_json", is_flag=True)
-def replay_cmd(db, session_id, trial, view, frames_dir, fullscreen, as_json):
+def replay_cmd(db, session_id, trial, view, frames_dir, force, fullscreen, as_json):
     """Play a stored trial back: its recorded hand motion through the same model and scene."""
     from studyctl.trial_replay import replay_trial
 
     if fullscreen and view != "window":
         raise click.UsageError("--fullscreen needs --view window")
-    out = replay_trial(db, session_id, trial, view=view, frames_dir=frames_dir, fullscreen=fullscreen)
+    target = staged(frames_dir, force, folder=True, expect=("trace.csv", "force.png"))  # refused before the replay
+    if target:
+        with target as tmp:  # the pictures, plot and trace all or none
+            out = replay_trial(db, session_id, trial, view=view, frames_dir=tmp, fullscreen=fullscreen)
+        say_replaced(target)
+    else:
+        out = replay_trial(db, session_id, trial, view=view, frames_dir=None, fullscreen=fullscreen)
     if as_json:
         _print_json(out)
         return

@@ -11,7 +11,20 @@ import click
 
 from sim.run import MAX_DURATION_S
 from sim.scene import DEFAULT_SCENE
-from studyctl.cli.common import DEVICES, FULLSCREEN, Finite, OutDir, OutFile, _console, _Group, _model_name, _print_json
+from studyctl.cli.common import (
+    DEVICES,
+    FORCE,
+    FULLSCREEN,
+    Finite,
+    OutDir,
+    OutFile,
+    _console,
+    _Group,
+    _model_name,
+    _print_json,
+    staged,
+)
+from studyctl.outputs import refuse_existing
 
 
 @click.group(cls=_Group)
@@ -29,13 +42,17 @@ def sim():
 @click.option("--view", type=click.Choice(["none", "offscreen", "window"]), default=None,
               help="window: draw the run live in the participant view; offscreen: pictures after the run (--frames); default: the scene's renderer.")
 @click.option("--screenshot", type=OutFile((".png",)), default=None, help="With --view window: save the last frame shown (PNG).")
+@FORCE
 @FULLSCREEN
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable statistics.")
-def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: float, view, screenshot, fullscreen, as_json: bool):
+def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: float, view, screenshot, force, fullscreen, as_json: bool):
     """Scripted simulated Omni hands grasp and pull the brain; the servo loop runs at 1 kHz."""
     from sim.run import run_scene, write_outputs
     from sim.scene import build_scene
 
+    # refused before the run: the folder's trace and force plot (its pictures are checked once drawn), the screenshot
+    target = staged(frames_dir, force, folder=True, expect=("trace.csv", "force.png"))
+    replaced = refuse_existing([screenshot], force) if screenshot is not None else []
     scene = build_scene(scene_file, model_name)
     view = view or scene.spec.renderer.kind
     if screenshot is not None and view != "window":
@@ -50,16 +67,20 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
     else:
         result = run_scene(scene, duration=duration, time_scale=time_scale, snapshots=frames_dir is not None and view == "offscreen")
     stats = result.stats()
-    if frames_dir is not None:
-        if as_json:
-            stats["frames"] = write_outputs(result, scene, frames_dir)
-        else:
-            from rich.progress import Progress
+    if target:
+        with target as tmp:  # the pictures, plot and trace all or none
+            if as_json:
+                stats["frames"] = write_outputs(result, scene, tmp)
+            else:
+                from rich.progress import Progress
 
-            with Progress(transient=True) as progress:
-                task = progress.add_task("rendering frames", total=max(len(result.snapshots), 1))
-                stats["frames"] = write_outputs(result, scene, frames_dir, progress=lambda k, n: progress.update(task, completed=k))
+                with Progress(transient=True) as progress:
+                    task = progress.add_task("rendering frames", total=max(len(result.snapshots), 1))
+                    stats["frames"] = write_outputs(result, scene, tmp, progress=lambda k, n: progress.update(task, completed=k))
         stats["frames_dir"] = str(frames_dir)
+        replaced += target.replaced
+    if replaced:
+        click.echo(f"--force: overwrote {replaced[0] if len(replaced) == 1 else f'{len(replaced)} files'}", err=True)
     if screenshot is not None:
         stats["screenshot"] = str(screenshot)
     if as_json:
@@ -75,14 +96,17 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
 @click.option("--device", type=click.Choice(["mouse", "simulated", "openhaptics"]), default="mouse", show_default=True)
 @click.option("--duration", type=Finite(min=0.0, min_open=True, max=MAX_DURATION_S), default=600.0, show_default=True, help="Seconds at most; Q, Escape or closing the window ends it sooner.")
 @click.option("--screenshot", type=OutFile((".png",)), default=None, help="Save the last frame shown (PNG).")
+@FORCE
 @FULLSCREEN
 @DEVICES
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable statistics.")
-def sim_live(scene_file: Path, model_name, device, duration, screenshot, fullscreen, device_names, as_json: bool):
+def sim_live(scene_file: Path, model_name, device, duration, screenshot, force, fullscreen, device_names, as_json: bool):
     """Open the participant view and pull the brain (mouse: grasp under the cursor, drag, wheel)."""
     from sim.live import run_view
     from sim.scene import build_scene
 
+    if screenshot is not None and refuse_existing([screenshot], force):
+        click.echo(f"--force: overwrites {screenshot}", err=True)
     scene = build_scene(scene_file, model_name).with_device(device)
     scene.device_names = device_names
     result = run_view(scene, "window", duration=duration, screenshot=screenshot, live=True, fullscreen=fullscreen)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from studyctl.cli.common import DB, DEFAULT_PROTOCOL, JSON, _Group, _print_json
+from studyctl.cli.common import DB, DEFAULT_PROTOCOL, FORCE, JSON, _Group, _print_json
 
 
 @click.group(cls=_Group)
@@ -19,14 +19,17 @@ def protocol():
 @click.option("--kind", type=click.Choice(["yes_no", "rating", "discrimination", "validity"]), required=True,
               help="yes_no: the paper's study; rating: ratings, SUS and a choice; discrimination: stiffness JND; validity: construct validity.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), required=True, help="The folder for protocol.toml and scene.toml.")
+@FORCE
 @click.option("--name", default=None, help="The study's name (lower-case letters, digits, _)  [default: the example's]")
 @JSON
-def protocol_new(kind: str, out_dir: Path, name: str | None, as_json: bool):
+def protocol_new(kind: str, out_dir: Path, force: bool, name: str | None, as_json: bool):
     """Write a protocol and its scene of a kind into a folder of your own, from the shipped example,
     with every path resolving from there; edit them, then `protocol validate`."""
     from studyctl.templates import new_protocol
 
-    out = new_protocol(kind, out_dir, name)
+    out = new_protocol(kind, out_dir, name, force=force)
+    if out["replaced"]:
+        click.echo(f"--force: overwrote {', '.join(out['replaced'])}", err=True)
     if as_json:
         _print_json(out)
         return

@@ -1,0 +1,107 @@
+"""Files a command writes: never over an existing one unless asked (`--force`), and all or none.
+
+Every output is written under a temporary name beside its target (a hidden file or folder in the
+same folder, so the move is a rename on one file system) and moved into place only when the
+whole of it is written; a failed or interrupted write removes what it wrote, so nothing is left
+that blocks the retry. Whether a target exists is checked before the work where the names are
+known, and again, for every file written, before anything is moved. With `force`, the files the
+command writes replace those of the same names; other files in a folder are left as they are.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+from studyctl.errors import StudyError
+
+
+class OutputExists(StudyError):
+    """An output file exists and the command was not told to overwrite it."""
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def refuse_existing(paths, force: bool) -> list[Path]:
+    """The `paths` that exist; without `force`, any one existing is an `OutputExists` naming it."""
+    found = [Path(p) for p in paths if os.path.lexists(p)]
+    if found and not force:
+        more = f" (and {len(found) - 1} more of the files this command writes)" if len(found) > 1 else ""
+        raise OutputExists(f"{found[0]}: exists{more}; --force overwrites {'them' if more else 'it'}")
+    return found
+
+
+class Staged:
+    """`with Staged(target, force) as tmp:` write the output to `tmp`, a temporary file (or, with
+    `folder=True`, a temporary folder) beside `target`; on a clean exit it is moved to `target`
+    (a folder: each file into `target`, made if missing), else removed. `expect`: the names a
+    folder will hold, refused before the work when they exist. After the block, `replaced`
+    lists the files that were overwritten and `written` every file moved into place."""
+
+    def __init__(self, target, force: bool = False, folder: bool = False, expect=(), mode: int | None = None):
+        self.target, self.force, self.folder, self.mode = Path(target), force, folder, mode
+        self.replaced: list[Path] = []
+        self.written: list[Path] = []
+        refuse_existing([self.target / n for n in expect] if folder else [self.target], force)
+
+    def __enter__(self) -> Path:
+        parent = self.target.parent
+        parent.mkdir(parents=True, exist_ok=True)
+        hidden = f".{self.target.name}."
+        if self.folder:
+            self.tmp = Path(tempfile.mkdtemp(prefix=hidden, suffix=".tmp", dir=parent))
+            os.chmod(self.tmp, 0o777 & ~_umask())
+        else:  # the target's suffix kept: writers that choose a format by it (savefig, savez) see the same
+            fd, name = tempfile.mkstemp(prefix=hidden, suffix=".tmp" + self.target.suffix, dir=parent)
+            os.close(fd)
+            self.tmp = Path(name)
+            os.chmod(self.tmp, self.mode if self.mode is not None else 0o666 & ~_umask())
+        return self.tmp
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            if exc_type is None:
+                self._move()
+        finally:
+            if self.tmp.is_dir():
+                shutil.rmtree(self.tmp, ignore_errors=True)
+            elif os.path.lexists(self.tmp):
+                self.tmp.unlink()
+
+    def final(self, path) -> Path:
+        """Where a file written under the temporary name ends up."""
+        return self.target / Path(path).relative_to(self.tmp) if self.folder else self.target
+
+    def _move(self) -> None:
+        if not self.folder:
+            self.replaced = refuse_existing([self.target], self.force)
+            os.replace(self.tmp, self.target)
+            self.written = [self.target]
+            return
+        files = sorted(p.relative_to(self.tmp) for p in self.tmp.rglob("*") if not p.is_dir())
+        self.replaced = refuse_existing([self.target / f for f in files], self.force)
+        self.written = [self.target / f for f in files]
+        if not os.path.lexists(self.target):  # a new folder: one rename moves all of it
+            os.rename(self.tmp, self.target)
+            return
+        for f in files:
+            (self.target / f).parent.mkdir(parents=True, exist_ok=True)
+            os.replace(self.tmp / f, self.target / f)
+
+
+def write_file(path, data: str | bytes, force: bool = False, mode: int | None = None) -> list[Path]:
+    """`data` to `path`, whole or not at all; returns the replaced file ([] when it was new)."""
+    staged = Staged(path, force, mode=mode)
+    with staged as tmp:
+        if isinstance(data, bytes):
+            tmp.write_bytes(data)
+        else:
+            with open(tmp, "w", encoding="utf-8", newline="") as fh:
+                fh.write(data)
+    return staged.replaced
