@@ -9,7 +9,7 @@ from pathlib import Path
 from studyctl.csvfiles import read_csv
 from studyctl.errors import InputError, StoreError
 from studyctl.fields import field_rows, parse_fields
-from studyctl.outputs import Staged
+from studyctl.outputs import Staged, refuse_existing, write_file
 from studyctl.questions import NOT_PER_TRIAL, SESSION, AnswerError, allowed, parse_answer
 from studyctl.schedule import allocate, next_order, read_availability, to_ics, williams
 from studyctl.store import EXPORT_TABLES, Store, now, roster
@@ -116,9 +116,12 @@ def assign_order(store: Store, protocol, code: str) -> list[str]:
 
 def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:00", minutes: int = 45,
                    availability: str | Path | None = None, ics: str | Path | None = None, dry_run: bool = False,
-                   today: dt.date | None = None) -> list[dict]:
+                   today: dt.date | None = None, force: bool = False) -> list[dict]:
     """Slots and counterbalanced orders for every waiting participant, all stored or none
-    (`dry_run`: none, the proposal is returned)."""
+    (`dry_run`: none, the proposal is returned); `ics`, a calendar of the slots, is refused
+    before anything is stored where it exists (unless `force`), and written whole or not at all."""
+    if ics and not dry_run:
+        refuse_existing([ics], force)
     try:
         d0, d1 = dt.date.fromisoformat(start), dt.date.fromisoformat(end)
     except ValueError:
@@ -155,7 +158,7 @@ def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:
                     roster.set_slot(conn, code, a.isoformat(), b.isoformat())
             out = roster.schedule_rows(store)
             if ics and not dry_run:
-                Path(ics).write_text(to_ics([r for r in out if r["slot_start"]], protocol.name, protocol.timezone, protocol.title))
+                write_file(ics, to_ics([r for r in out if r["slot_start"]], protocol.name, protocol.timezone, protocol.title), force)
         return out
 
 

@@ -131,10 +131,11 @@ def participants_contacts(db, out_file, force, as_json):
 @click.option("--session-minutes", type=click.IntRange(5, 480), default=45, show_default=True)
 @click.option("--availability", type=click.Path(dir_okay=False, path_type=Path), default=None, help="CSV: code,date,start,end.")
 @click.option("--ics", type=OutFile((".ics",)), default=None, help="Write an iCalendar file (.ics).")
+@FORCE
 @click.option("--json", "as_json", is_flag=True)
 @DRY_RUN
 @click.pass_context
-def schedule_cmd(ctx, db, start, end, hours, session_minutes, availability, ics, as_json, dry_run):
+def schedule_cmd(ctx, db, start, end, hours, session_minutes, availability, ics, force, as_json, dry_run):
     """Give each waiting participant a slot on the rig and a counterbalanced order
     (`schedule cancel CODE` frees a slot; scheduling again gives a new one)."""
     if ctx.invoked_subcommand is not None:
@@ -144,7 +145,10 @@ def schedule_cmd(ctx, db, start, end, hours, session_minutes, availability, ics,
             raise click.UsageError(f"Missing option '{name}'.")
     from studyctl.study import schedule_study
 
-    rows = schedule_study(db, start, end, hours, session_minutes, availability, ics, dry_run=dry_run)
+    existed = ics is not None and ics.exists()
+    rows = schedule_study(db, start, end, hours, session_minutes, availability, ics, dry_run=dry_run, force=force)
+    if existed and not dry_run:
+        click.echo(f"--force: overwrote {ics}", err=True)
     if as_json:
         _print_json(rows)
         return

@@ -6,7 +6,18 @@ from pathlib import Path
 
 import click
 
-from studyctl.cli.common import DEFAULT_PROTOCOL, SCHEDULER, OutFile, _console, _model_name, _print_json, _with_progress
+from studyctl.cli.common import (
+    DEFAULT_PROTOCOL,
+    FORCE,
+    SCHEDULER,
+    OutFile,
+    _console,
+    _model_name,
+    _print_json,
+    _with_progress,
+    say_replaced,
+    staged,
+)
 from studyctl.errors import InputError
 
 
@@ -30,12 +41,13 @@ def _range(ctx, param, value):
 @click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=0, show_default=True)
 @click.option("--pilots", type=click.IntRange(1, 50), default=4, show_default=True, help="Synthetic pilot runs per model.")
 @click.option("--plot", "plot_file", type=OutFile((".png", ".svg", ".pdf")), default=None, help="Write the power curves (PNG, SVG or PDF).")
+@FORCE
 @click.option("--null", "null", is_flag=True, help="The observer's fairness test: one model under every label; false-positive rates.")
 @click.option("--model", "null_model", default=None, help="With --null: the model to repeat  [default: the protocol's first condition]")
 @click.option("--jobs", type=click.IntRange(1, 256), default=1, show_default=True, help="Simulated studies run in parallel processes.")
 @SCHEDULER
 @click.option("--json", "as_json", is_flag=True)
-def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, null, null_model, jobs, scheduler, as_json):
+def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, force, null, null_model, jobs, scheduler, as_json):
     """Monte Carlo power under the SYNTHETIC model, to choose N: of the protocol's primary
     analysis and of each question's test (Cochran's Q, Friedman, the multinomial); with --null,
     the false-positive rate of each when every condition is one model."""
@@ -43,6 +55,7 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, nu
     from analysis.plan import plot_power, power_table
     from studyctl.protocol import load_protocol
 
+    target = staged(plot_file, force)  # an existing file refused before the simulations
     protocol = load_protocol(protocol_file)
     if null:
         ctx = click.get_current_context()
@@ -57,8 +70,10 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, nu
     ns = list(range(span[0], span[1] + 1, step))
     table = _with_progress("simulated studies", lambda p: power_table(protocol, ns, simulations, seed, pilots, progress=p,
                                                                            jobs=jobs, scheduler=scheduler))
-    if plot_file:
-        plot_power(table, plot_file)
+    if target:
+        with target as tmp:
+            plot_power(table, tmp)
+        say_replaced(target)
     if as_json:
         _print_json({"synthetic": True, "primary": primary(protocol).as_dict(), "rows": table.to_dict(orient="records")})
         return
