@@ -10,6 +10,7 @@ command writes replace those of the same names; other files in a folder are left
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import tempfile
@@ -20,6 +21,14 @@ from studyctl.errors import StudyError
 
 class OutputExists(StudyError):
     """An output file exists and the command was not told to overwrite it."""
+
+
+class OutputFailed(StudyError):
+    """The file system refused an output (full, read-only, not allowed); nothing was left of it."""
+
+
+# what a file system says when it cannot take an output: one line, not a traceback
+_REFUSALS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG}
 
 
 def _umask() -> int:
@@ -68,11 +77,17 @@ class Staged:
         try:
             if exc_type is None:
                 self._move()
+        except OSError as failed:  # the move itself (a full disk while making a folder)
+            exc = failed
+            if failed.errno not in _REFUSALS:
+                raise
         finally:
             if self.tmp.is_dir():
                 shutil.rmtree(self.tmp, ignore_errors=True)
             elif os.path.lexists(self.tmp):
                 self.tmp.unlink()
+        if isinstance(exc, OSError) and exc.errno in _REFUSALS:
+            raise OutputFailed(f"{self.target}: cannot write: {exc.strerror}; nothing was written") from None
 
     def final(self, path) -> Path:
         """Where a file written under the temporary name ends up."""

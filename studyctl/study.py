@@ -286,7 +286,7 @@ def parquet_table(df):
     import pyarrow as pa
 
     df = df.copy()
-    for col in df.select_dtypes(include="object").columns:
+    for col in [c for c in df.columns if df[c].dtype.kind == "O"]:
         kinds = {type(v) for v in df[col] if v is not None and v == v}
         if len(kinds) > 1 and not kinds <= {int, float}:
             df[col] = [None if v is None or v != v else str(v) for v in df[col]]

@@ -155,7 +155,7 @@ CASES = [
     (["participants", "consent", "P01", "--db", DB], "already recorded"),
     (["participants", "consent", "P02", "--date", "1900-01-01", "--db", DB], "more than a year before the study"),
     (["participants", "withdraw", "P99", "--db", DB], "not registered"),
-    (["participants", "contacts", "--db", DB, "--out", "{d}/exists.csv"], "never overwritten"),
+    (["participants", "contacts", "--db", DB, "--out", "{d}/exists.csv"], "exists.csv: exists; --force overwrites it"),
     (["answers", "correct", "--db", DB, "--participant", "P01", "--model", "fem", "--item", "natural", "--answer", "no", "--reason", " "], "--reason"),
     (["answers", "correct", "--db", DB, "--participant", "P01", "--model", "fem", "--item", "texture", "--answer", "no", "--reason", "r"], "no stored answer"),
     (["answers", "correct", "--db", DB, "--participant", "P01", "--model", "fem", "--item", "natural", "--answer", "maybe", "--reason", "r"], "allowed: yes or no"),

@@ -168,7 +168,7 @@ def test_protocol_new_writes_a_protocol_that_validates_and_runs_from_its_own_fol
         os.chdir(cwd)
     assert res.exit_code == 0 and "my_study" in res.output, res.output
     res = studyctl("protocol", "new", "--kind", kind, "--out", out)
-    assert res.exit_code != 0 and "exists; `protocol new` never overwrites" in res.output
+    assert res.exit_code != 0 and "protocol.toml: exists (and 1 more of the files this command writes); --force overwrites them" in res.output
 
 
 def test_inclusion_and_latency_have_documented_defaults_and_a_missing_section_says_what_to_write(tmp_path):

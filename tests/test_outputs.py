@@ -1,0 +1,185 @@
+"""Outputs are never overwritten without --force, and a command that writes several files writes
+all or none (studyctl/outputs.py): every output option of every command, through the CLI."""
+
+import errno
+import hashlib
+import re
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import ROOT
+from tests.helpers import PROTOCOL, fast_protocol, studyctl
+
+# (command with {db} and {out}, where the existing file is: "" for `out` itself, else a name in the folder `out`,
+#  whether the --force run is quick enough to run here)
+CASES = {
+    "report table1": (["report", "table1", "--db", "{db}", "--out", "{out}"], "table1.md", "", True),
+    "report table1 html": (["report", "table1", "--db", "{db}", "--format", "html", "--out", "{out}"], "r.html", "", True),
+    "report jnd": (["report", "jnd", "--db", "{db}", "--out", "{out}"], "jnd.md", "", False),
+    "report text": (["report", "text", "--db", "{db}", "--out", "{out}"], "text.md", "", True),
+    "report validity": (["report", "validity", "--db", "{db}", "--out", "{out}"], "v.md", "", False),
+    "report plots": (["report", "plots", "--db", "{db}", "--out", "{out}"], "plots", "rates.png", True),
+    "export": (["export", "--db", "{db}", "--out", "{out}"], "export", "answers.csv", True),
+    "export parquet": (["export", "--db", "{db}", "--format", "parquet", "--out", "{out}"], "export", "answers.parquet", True),
+    "metrics": (["metrics", "--db", "{db}", "--out", "{out}"], "metrics.csv", "", True),
+    "participants contacts": (["participants", "contacts", "--db", "{db}", "--out", "{out}"], "contacts.csv", "", True),
+    "protocol new": (["protocol", "new", "--kind", "yes_no", "--out", "{out}"], "lab", "scene.toml", True),
+    "schedule --ics": (["schedule", "--db", "{db}", "--start", "2099-01-05", "--end", "2099-01-09", "--ics", "{out}"], "s.ics", "", False),
+    "plan --plot": (["plan", "--protocol", PROTOCOL, "--plot", "{out}"], "power.png", "", False),
+    "calibrate plate-spring": (["calibrate", "plate-spring", "--out", "{out}"], "ps.toml", "", False),
+    "calibrate material": (["calibrate", "material", "--out", "{out}"], "m.toml", "", True),
+    "calibrate field --out": (["calibrate", "field", "--out", "{out}"], "f.npz", "", False),
+    "calibrate field --params-out": (["calibrate", "field", "--out", "{tmp}/new.npz", "--params-out", "{out}"], "p.toml", "", False),
+    "calibrate rig": (["calibrate", "rig", "--protocol", PROTOCOL, "--out", "{out}"], "rig.json", "", False),
+    "calibrate truth": (["calibrate", "truth", "--out", "{out}"], "t.npz", "", False),
+    "model check": (["model", "check", "plate_spring", "--contract", "--out", "{out}"], "card.md", "", True),
+    "bench accuracy": (["bench", "accuracy", "--quick", "--out", "{out}"], "acc", "accuracy.json", False),
+    "bench stability": (["bench", "stability", "--quick", "--out", "{out}"], "stab", "stability.json", False),
+    "bench reference": (["bench", "reference", "--quick", "--out", "{out}"], "ref", "reference.md", False),
+    "sim run --frames": (["sim", "run", "--scene", "{tmp}/scene.toml", "--duration", "0.2", "--time-scale", "0", "--frames", "{out}"],
+                         "frames", "trace.csv", True),
+    "sim run --screenshot": (["sim", "run", "--view", "window", "--screenshot", "{out}"], "shot.png", "", False),
+    "sim live --screenshot": (["sim", "live", "--screenshot", "{out}"], "shot.png", "", False),
+    "replay --frames": (["replay", "--db", "{db}", "--session", "1", "--trial", "1", "--frames", "{out}"], "replay", "trace.csv", True),
+}
+OLD = b"an earlier result\n"
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _listing(folder: Path) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_an_existing_output_is_refused_without_force_and_replaced_with_it(case, small_study, tmp_path):
+    argv, name, inside, quick = CASES[case]
+    fast_protocol(tmp_path)  # the quick scene, tmp_path / "scene.toml"
+    out = tmp_path / name
+    existing = out / inside if inside else out
+    existing.parent.mkdir(parents=True, exist_ok=True)
+    existing.write_bytes(OLD)
+    before = _listing(tmp_path)
+    args = [str(a).format(db=small_study, out=out, tmp=tmp_path) for a in argv]
+
+    res = studyctl(*args)
+    assert res.exit_code == 1, res.output
+    lines = res.output.strip().splitlines()
+    assert lines == [f"Error: {existing}: exists; --force overwrites it"], res.output
+    assert _sha(existing) == hashlib.sha256(OLD).hexdigest()
+    assert _listing(tmp_path) == before  # nothing else written, no temporary left
+    if not quick:
+        return
+    res = studyctl(*args, "--force")
+    assert res.exit_code == 0, res.output
+    assert existing.read_bytes() != OLD
+    assert f"--force: overwrote {existing}" in res.output.splitlines()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary left
+
+
+def test_a_second_existing_file_is_counted(tmp_path):
+    out = tmp_path / "lab"
+    out.mkdir()
+    for name in ("protocol.toml", "scene.toml"):
+        (out / name).write_bytes(OLD)
+    res = studyctl("protocol", "new", "--kind", "yes_no", "--out", out)
+    assert res.exit_code == 1
+    assert res.output.strip() == f"Error: {out / 'protocol.toml'}: exists (and 1 more of the files this command writes); --force overwrites them"
+
+
+def test_force_leaves_the_folders_other_files(small_study, tmp_path):
+    out = tmp_path / "export"
+    out.mkdir()
+    (out / "answers.csv").write_bytes(OLD)
+    (out / "notes.txt").write_bytes(OLD)
+    res = studyctl("export", "--db", small_study, "--out", out, "--force")
+    assert res.exit_code == 0, res.output
+    assert (out / "notes.txt").read_bytes() == OLD
+    assert (out / "answers.csv").read_bytes() != OLD
+
+
+@pytest.mark.parametrize("fmt", ["csv", "parquet"])
+def test_export_writes_all_files_or_none(fmt, small_study, tmp_path, monkeypatch):
+    """The disk fills up at the sixth file: the five written go too, and the retry works."""
+    import pyarrow.parquet as pq
+
+    written = []
+    module, name = (Path, "write_text") if fmt == "csv" else (pq, "write_table")
+    real = getattr(module, name)
+
+    def full_at_the_sixth(*args, **kwargs):
+        written.append(args)
+        if len(written) == 6:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(*args, **kwargs)
+
+    out = tmp_path / "export"
+    out.mkdir()
+    (out / "notes.txt").write_bytes(OLD)
+    monkeypatch.setattr(module, name, full_at_the_sixth)
+    res = studyctl("export", "--db", small_study, "--format", fmt, "--out", out)
+    assert res.exit_code == 1
+    assert res.output.strip() == f"Error: {out}: cannot write: No space left on device; nothing was written"
+    assert len(written) == 6
+    assert _listing(tmp_path) == ["export", "export/notes.txt"]  # no half export, no temporary folder
+    monkeypatch.setattr(module, name, real)
+    res = studyctl("export", "--db", small_study, "--format", fmt, "--out", out)
+    assert res.exit_code == 0, res.output
+    assert len(list(out.iterdir())) == 17
+
+
+TEXT_QUESTION = '\n[[questions]]\nid = "comment"\ntext = "Anything else?"\nkind = "text"\nwhen = "end"\n'
+
+
+def test_parquet_export_of_a_study_with_text_answers(tmp_path):
+    import pandas as pd
+
+    db = tmp_path / "s.db"
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    proto.write_text(proto.read_text() + TEXT_QUESTION)
+    assert studyctl("study", "init", "--db", db, "--protocol", proto).exit_code == 0
+    assert studyctl("participants", "add", "P01", "--db", db, "--age", "24").exit_code == 0
+    assert studyctl("participants", "consent", "P01", "--db", db).exit_code == 0
+    answers = tmp_path / "a.csv"
+    answers.write_text("participant,model,item,answer\nP01,,comment,felt soft\nP01,plate_spring,natural,yes\n")
+    assert studyctl("answers", "import", "--db", db, answers).exit_code == 0
+    out = tmp_path / "parquet"
+    res = studyctl("export", "--db", db, "--format", "parquet", "--out", out)
+    assert res.exit_code == 0, res.output
+    assert res.output.strip() == f"wrote 16 files to {out}"
+    got = pd.read_parquet(out / "answers.parquet").set_index("item")["answer"].to_dict()
+    assert got == {"comment": "felt soft", "natural": "1"}  # one column, as text where a study asks for text
+
+
+def test_protocol_new_on_a_full_disk_leaves_nothing_and_the_retry_works(tmp_path, monkeypatch):
+    real = Path.write_text
+
+    def full_disk(self, *args, **kwargs):
+        if self.name == "scene.toml":
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(self, *args, **kwargs)
+
+    out = tmp_path / "lab" / "study"
+    monkeypatch.setattr(Path, "write_text", full_disk)
+    res = studyctl("protocol", "new", "--kind", "yes_no", "--out", out)
+    assert res.exit_code == 1
+    assert res.output.strip() == f"Error: {out}: cannot write: No space left on device; nothing was written"
+    assert not out.exists()
+    assert _listing(tmp_path / "lab") == []  # no temporary folder either
+    monkeypatch.setattr(Path, "write_text", real)
+    res = studyctl("protocol", "new", "--kind", "yes_no", "--out", out)
+    assert res.exit_code == 0, res.output
+    assert _listing(out) == ["protocol.toml", "scene.toml"]
+
+
+def test_make_demo_forces_every_output_and_says_so():
+    text = (ROOT / "Makefile").read_text()
+    recipe = text[text.index("\ndemo:"):text.index("\n\n", text.index("\ndemo:"))]
+    commands = re.sub(r"\\\n\s*", " ", recipe).splitlines()
+    writers = [c for c in commands if "studyctl" in c and re.search(r"--out |--frames ", c)]
+    assert len(writers) == 5
+    assert [c for c in writers if "--force" not in c] == []
+    assert "make demo overwrites its own outputs in $(OUT)/demo/" in recipe
