@@ -33,7 +33,7 @@ def load_field(path, mesh) -> np.ndarray:
         raise ParameterError(f"{path}: not a stiffness field ({e})") from None
     if digest != mesh_digest(mesh) or len(k6) != len(mesh.vertices):
         raise ParameterError(f"{path}: made for another surface mesh ({len(k6)} vertices, digest {digest}); "
-                             "rebuild it with `studyctl calibrate field`")
+                             f"rebuild it with `studyctl calibrate field --out {path} --force`")
     if not np.all(np.isfinite(k6)):
         raise ParameterError(f"{path}: K_per_pa holds a non-finite value")
     K = np.zeros((len(k6), 3, 3))

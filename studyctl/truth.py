@@ -150,7 +150,7 @@ def _check_shipped(path: Path) -> None:
     have = hashlib.sha256(path.read_bytes()).hexdigest()
     if have != want:
         raise InputError(f"{path}: SHA-256 {have[:12]}... differs from {TRUTH_INFO.name}'s {want[:12]}...; the file is damaged "
-                         "(reinstall, or rebuild it with `studyctl calibrate truth --out data/observer_truth.npz`)")
+                         "(reinstall, or rebuild it with `studyctl calibrate truth --out data/observer_truth.npz --force`)")
 
 
 def _read(path: Path, key: dict):
