@@ -60,6 +60,14 @@ class Staged:
         refuse_existing([self.target / n for n in expect] if folder else [self.target], force)
 
     def __enter__(self) -> Path:
+        try:
+            return self._make()
+        except OSError as exc:
+            if exc.errno in _REFUSALS:
+                raise OutputFailed(f"{self.target}: cannot write: {exc.strerror}; nothing was written") from None
+            raise
+
+    def _make(self) -> Path:
         parent = self.target.parent
         parent.mkdir(parents=True, exist_ok=True)
         hidden = f".{self.target.name}."

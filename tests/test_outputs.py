@@ -183,3 +183,16 @@ def test_make_demo_forces_every_output_and_says_so():
     assert len(writers) == 5
     assert [c for c in writers if "--force" not in c] == []
     assert "make demo overwrites its own outputs in $(OUT)/demo/" in recipe
+
+
+def test_a_read_only_folder_is_one_line_and_leaves_nothing(small_study, tmp_path, monkeypatch):
+    import tempfile
+
+    def read_only(*args, **kwargs):
+        raise OSError(errno.EROFS, "Read-only file system")
+
+    monkeypatch.setattr(tempfile, "mkstemp", read_only)
+    res = studyctl("report", "table1", "--db", small_study, "--out", tmp_path / "table1.md")
+    assert res.exit_code == 1
+    assert res.output.strip() == f"Error: {tmp_path / 'table1.md'}: cannot write: Read-only file system; nothing was written"
+    assert _listing(tmp_path) == []
