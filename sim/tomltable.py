@@ -149,5 +149,8 @@ class TableReader:
         if s is None:
             return None
         p = Path(s)
-        return p if p.is_absolute() else (self.path.parent / p).resolve()
+        p = p if p.is_absolute() else (self.path.parent / p).resolve()
+        if p.exists() and not p.is_file():  # a folder, a device (/dev/zero never ends), a named pipe (blocks)
+            return self.error(key, f"{p} is not a regular file")
+        return p
 

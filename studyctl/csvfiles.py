@@ -6,6 +6,8 @@ import csv
 import io
 from pathlib import Path
 
+from sim.errors import InputFileError
+from sim.files import DATA_MAX_BYTES, read_input
 from studyctl.errors import InputError
 from studyctl.text import control_problem
 
@@ -17,9 +19,9 @@ def read_csv(path: str | Path, columns: tuple[str, ...], required: tuple[str, ..
     file, the line and the column."""
     path = Path(path)
     try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read: {exc.strerror}") from None
+        raw = read_input(path, DATA_MAX_BYTES)
+    except InputFileError as exc:
+        raise InputError(str(exc)) from None
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

@@ -7,8 +7,6 @@ message``; `check_protocol` returns them without raising (for ``studyctl protoco
 from __future__ import annotations
 
 import hashlib
-import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,7 +14,7 @@ from sim.errors import SceneError, SimError
 from sim.models import registry
 from sim.scene import configure, load_scene
 from sim.targets import TRIAL_ENDS
-from sim.tomlfile import Locator, TomlFileError, read_toml
+from sim.tomlfile import Locator, TomlFileError, parse_toml, read_toml_text
 from sim.tomltable import TableReader
 from studyctl import instruments
 from studyctl.errors import ProtocolError
@@ -103,15 +101,11 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     from_file = text is None
     try:
         if text is None:
-            data, loc = read_toml(path)
-            text = path.read_text(encoding="utf-8")
+            data, loc, text = read_toml_text(path)
         else:
-            data, loc = tomllib.loads(text), Locator(text)
+            data, loc = parse_toml(text, path), Locator(text)
     except TomlFileError as exc:
         return None, [str(exc)]
-    except tomllib.TOMLDecodeError as exc:
-        m = re.search(r"line (\d+)", str(exc))
-        return None, [f"{path}:{m.group(1) if m else 1}: invalid TOML: {exc}"]
     c = TableReader(path, data, "", loc, [])
     _unknown_keys(data, c)
     study, design = c.table("study", hint=_hint("study")), c.table("design", hint=_hint("design"))
@@ -120,7 +114,7 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     tables = _condition_tables(data.get("conditions", {}), c.error)
     conditions = _design_conditions(design, tables, c)
     scene, scene_spec = meta["scene"], None
-    if from_file and scene is not None and scene.exists():
+    if from_file and scene is not None and scene.is_file():
         scene_spec, problems = _scene_problems(scene, path, text, conditions or [], tables,
                                                lambda message: c.error("design.conditions", message))
         c.problems += [(path, 0, p) for p in problems]
@@ -226,6 +220,8 @@ def _study_fields(study: TableReader, ethics: TableReader, path: Path) -> dict:
         out["scene"] = (path.parent / scene_rel).resolve()
         if not out["scene"].exists():
             study.error("scene", f"{out['scene']} does not exist")
+        elif not out["scene"].is_file():  # a folder, a device (/dev/zero never ends), a named pipe (blocks)
+            study.error("scene", f"{out['scene']} is not a regular file")
     return out
 
 

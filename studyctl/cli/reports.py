@@ -10,6 +10,8 @@ from pathlib import Path
 import click
 
 from brainsim_assets import path as _asset
+from sim.errors import InputFileError
+from sim.files import DATA_MAX_BYTES, read_input
 from sim.jsonable import jsonable
 from studyctl.cli.common import DB, JSON, OutDir, OutFile, _Group, _print_json, read_snapshot
 
@@ -128,7 +130,9 @@ def _no_answers(study, as_json: bool) -> bool:
 def _load_bench(path: Path, kind: str, key: str) -> dict:
     """A bench's JSON (`studyctl bench KIND --out DIR` writes DIR/KIND.json)."""
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(read_input(path, DATA_MAX_BYTES))
+    except InputFileError as exc:
+        raise click.ClickException(str(exc)) from None
     except (OSError, ValueError) as exc:
         raise click.ClickException(f"{path}: not a `studyctl bench {kind}` result ({exc})") from None
     if not isinstance(data, dict) or not {key, "meta"} <= set(data):
