@@ -117,6 +117,8 @@ DEVICES = click.option("--devices", "device_names", callback=_names, default=Non
                        help='OpenHaptics device names, comma-separated, e.g. "PHANToM 1,PHANToM 2" (default: the scene\'s).')
 DB = click.option("--db", envvar="STUDYCTL_DB", show_envvar=True, required=True, type=click.Path(dir_okay=False, path_type=Path),
                   help="Study database; required unless the STUDYCTL_DB environment variable names one.")
+# a seed: what NumPy and Python take, and within SQLite's 64-bit integers (a larger one overflowed the store)
+SEED = click.IntRange(0, 2**32 - 1)
 JSON = click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
                          help="Run on a Dask cluster (tcp://host:8786; the dask extra) instead of local processes.")

@@ -13,7 +13,7 @@ from brainsim_assets import path as _asset
 from sim.errors import InputFileError
 from sim.files import DATA_MAX_BYTES, read_input
 from sim.jsonable import jsonable
-from studyctl.cli.common import DB, JSON, OutDir, OutFile, _Group, _print_json, read_snapshot
+from studyctl.cli.common import DB, JSON, SEED, OutDir, OutFile, _Group, _print_json, read_snapshot
 
 PAPER_TABLE = _asset("data/paper_table1.csv")
 
@@ -331,7 +331,7 @@ def export_cmd(db, fmt, out_dir, as_json):
               help="Permutations of the group labels for the group tests' Westfall-Young p.")
 @click.option("--bootstrap", type=click.IntRange(min=1), default=None, show_default="200",
               help="Bootstrap replicates of Cliff's delta's and the learning curves' intervals.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of every resampling.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of every resampling.")
 def report_validity(db, fmt, as_json, out_file, permutations, group_permutations, bootstrap, seed):
     """Construct validity: the performance metrics compared between the participant groups
     (Kruskal-Wallis, Mann-Whitney pairs with Holm and Westfall-Young, Cliff's delta), the mixed model with several

@@ -13,6 +13,7 @@ from studyctl.cli.common import (
     FULLSCREEN,
     JSON,
     SCHEDULER,
+    SEED,
     Finite,
     OutDir,
     _console,
@@ -40,7 +41,7 @@ def session():
               help="The participant view (default: window for a person in real time, else none).")
 @click.option("--answers", "answer_with", type=click.Choice(["terminal", "window"]), default="terminal", show_default=True,
               help="Where a person answers the questionnaire (window: keys and the mouse; free text stays in the terminal).")
-@click.option("--seed", type=int, default=None, help="A synthetic participant's seed  [default: 0; on --resume, the session's]")
+@click.option("--seed", type=SEED, default=None, help="A synthetic participant's seed  [default: 0; on --resume, the session's]")
 @FULLSCREEN
 @DEVICES
 @JSON
@@ -108,7 +109,7 @@ def replay_cmd(db, session_id, trial, view, frames_dir, fullscreen, as_json):
 @click.command("synth", cls=click.Command)
 @DB
 @click.option("--participants", type=click.IntRange(1, 1000), required=True, help="How many synthetic participants (1..1000).")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--jobs", type=click.IntRange(1, 64), default=1, show_default=True, help="Sessions run in parallel processes.")
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Create --db for this protocol when it does not exist (e.g. protocols/brain_pull_2015.toml); without it, --db must exist.")
