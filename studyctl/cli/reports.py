@@ -325,11 +325,11 @@ def export_cmd(db, fmt, out_dir, as_json):
 @click.option("--format", "fmt", type=click.Choice(["md", "html", "json", "latex"]), default="md", show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
 @click.option("--out", "out_file", type=OutFile(), default=None)
-@click.option("--permutations", type=click.IntRange(min=1), default=None, show_default="100",
+@click.option("--permutations", type=click.IntRange(1, 1_000_000), default=None, show_default="100",
               help="Permutations of the classifier's permutation test.")
-@click.option("--group-permutations", type=click.IntRange(min=1), default=None, show_default="1000",
+@click.option("--group-permutations", type=click.IntRange(1, 1_000_000), default=None, show_default="1000",
               help="Permutations of the group labels for the group tests' Westfall-Young p.")
-@click.option("--bootstrap", type=click.IntRange(min=1), default=None, show_default="200",
+@click.option("--bootstrap", type=click.IntRange(1, 1_000_000), default=None, show_default="200",
               help="Bootstrap replicates of Cliff's delta's and the learning curves' intervals.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of every resampling.")
 def report_validity(db, fmt, as_json, out_file, permutations, group_permutations, bootstrap, seed):

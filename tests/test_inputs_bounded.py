@@ -1,0 +1,203 @@
+"""Inputs bounded (docs/study.md, "Limits on input"): TOML nesting and size, input paths that
+must be regular files, control characters and lengths of texts, integer ranges of seeds, a
+second Ctrl-C while an interrupted session cleans up. Each refusal: one line, a non-zero exit,
+no traceback, nothing changed."""
+
+import hashlib
+import os
+import signal
+import sqlite3
+
+import pytest
+
+from tests.helpers import fast_protocol, studyctl
+
+
+def _hash(path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _one_error_line(res) -> str:
+    """The refusal's one line (click's usage errors print a usage line before it)."""
+    lines = res.output.strip().splitlines()
+    assert "Traceback" not in res.output, res.output
+    return lines[-1]
+
+
+def _study(tmp_path):
+    db = tmp_path / "s.db"
+    res = studyctl("study", "init", "--protocol", fast_protocol(tmp_path, conditions=("plate_spring",), trials=1), "--db", db)
+    assert res.exit_code == 0, res.output
+    return db
+
+
+# --- TOML: depth and size -------------------------------------------------------------------
+
+def test_a_protocol_nested_5000_deep_is_one_line_not_a_recursion_error(tmp_path):
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    proto.write_text(proto.read_text() + "deep = " + "[" * 5000 + "]" * 5000 + "\n")
+    before = _hash(proto)
+    res = studyctl("protocol", "validate", proto)
+    assert res.exit_code == 1
+    assert res.output.strip().count("\n") == 0, res.output
+    assert "nested more than 32 levels deep; allowed: at most 32" in res.output
+    assert "RecursionError" not in res.output
+    assert _hash(proto) == before
+
+
+def test_study_init_from_a_too_deep_protocol_writes_no_database(tmp_path):
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    proto.write_text(proto.read_text() + "deep = " + "{a = " * 100 + "1" + "}" * 100 + "\n")
+    res = studyctl("study", "init", "--protocol", proto, "--db", tmp_path / "s.db")
+    assert res.exit_code == 1
+    assert "nested more than 32 levels deep" in _one_error_line(res)
+    assert not (tmp_path / "s.db").exists()
+
+
+def test_tables_nested_by_dotted_keys_are_limited_too(tmp_path):
+    proto = tmp_path / "dotted.toml"
+    proto.write_text("[study]\n" + "a." * 40 + "b = 1\n")
+    res = studyctl("protocol", "validate", proto)
+    assert res.exit_code == 1
+    assert res.output.strip() == f"{proto}: tables nested more than 32 levels deep; allowed: at most 32"
+
+
+def test_brackets_inside_strings_and_comments_do_not_count_as_nesting(tmp_path):
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    text = proto.read_text().replace('[study]\n', '[study]\n# ' + "[" * 50 + "\n", 1)
+    text = text.replace('title = "Virtual', 'title = "' + "[{" * 40 + ' Virtual', 1)
+    proto.write_text(text)
+    res = studyctl("protocol", "validate", proto)
+    assert res.exit_code == 0, res.output
+
+
+def test_a_toml_file_over_one_mib_is_refused_before_parsing(tmp_path):
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    proto.write_text(proto.read_text() + "# " + "x" * (1024 * 1024) + "\n")
+    res = studyctl("protocol", "validate", proto)
+    assert res.exit_code == 1
+    assert res.output.strip() == f"{proto}: 1.0 MiB; allowed: at most 1 MiB"
+
+
+# --- paths that must be regular files --------------------------------------------------------
+
+def _with_scene(tmp_path, scene: str):
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    text = proto.read_text()
+    start = text.index("scene = ")
+    proto.write_text(text[:start] + f'scene = "{scene}"' + text[text.index("\n", start):])
+    return proto
+
+
+def test_a_scene_that_is_dev_zero_is_refused_before_reading(tmp_path):
+    proto = _with_scene(tmp_path, "/dev/zero")
+    res = studyctl("protocol", "validate", proto)
+    assert res.exit_code == 1
+    assert res.output.strip().endswith("study.scene: /dev/zero is not a regular file"), res.output
+    assert res.output.strip().count("\n") == 0, res.output
+
+
+def test_a_named_pipe_as_scene_is_refused_without_blocking(tmp_path):
+    os.mkfifo(tmp_path / "pipe.toml")
+    proto = _with_scene(tmp_path, str(tmp_path / "pipe.toml"))
+    res = studyctl("study", "init", "--protocol", proto, "--db", tmp_path / "s.db")
+    assert res.exit_code == 1
+    assert _one_error_line(res).endswith(f"study.scene: {tmp_path / 'pipe.toml'} is not a regular file")
+    assert not (tmp_path / "s.db").exists()
+
+
+def test_a_protocol_that_is_a_device_or_a_pipe_is_named_as_such(tmp_path):
+    os.mkfifo(tmp_path / "p.toml")
+    res = studyctl("protocol", "validate", tmp_path / "p.toml")
+    assert res.exit_code == 1
+    assert res.output.strip() == f"{tmp_path / 'p.toml'}: is a named pipe; allowed: a regular file"
+    res = studyctl("protocol", "validate", "/dev/zero")
+    assert res.output.strip() == "/dev/zero: is a character device; allowed: a regular file"
+
+
+@pytest.mark.parametrize("command", [
+    ["calibrate", "material", "--data"],
+    ["calibrate", "plate-spring", "--reference"],
+])
+def test_data_files_that_are_devices_or_pipes_are_refused(tmp_path, command):
+    os.mkfifo(tmp_path / "d.csv")
+    for path, kind in (("/dev/zero", "a character device"), (str(tmp_path / "d.csv"), "a named pipe")):
+        res = studyctl(*command, path)
+        assert res.exit_code == 1
+        assert _one_error_line(res) == f"Error: {path}: is {kind}; allowed: a regular file"
+
+
+def test_answers_and_participants_imports_refuse_a_pipe_and_change_nothing(tmp_path):
+    db = _study(tmp_path)
+    before = _hash(db)
+    os.mkfifo(tmp_path / "a.csv")
+    for args in (["answers", "import", "--db", db, tmp_path / "a.csv"], ["participants", "import", "--db", db, tmp_path / "a.csv"]):
+        res = studyctl(*args)
+        assert res.exit_code == 1
+        assert _one_error_line(res) == f"Error: {tmp_path / 'a.csv'}: is a named pipe; allowed: a regular file"
+    assert _hash(db) == before
+
+
+# --- integer ranges ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("option", ["--seed"])
+def test_a_seed_of_2_to_the_70_is_a_usage_error_not_an_overflow(tmp_path, option):
+    db = _study(tmp_path)
+    before = _hash(db)
+    res = studyctl("synth", "--db", db, "--participants", "1", option, str(2**70))
+    assert res.exit_code == 2
+    assert _one_error_line(res) == f"Error: Invalid value for '{option}': {2**70} is not in the range 0<=x<=4294967295."
+    assert "OverflowError" not in res.output
+    assert _hash(db) == before
+
+
+@pytest.mark.parametrize("args", [
+    ["session", "run", "--participant", "P01", "--synthetic", "--seed", str(2**63)],
+    ["report", "validity", "--seed", "-1"],
+])
+def test_seeds_of_other_commands_are_ranged_too(tmp_path, args):
+    db = _study(tmp_path)
+    before = _hash(db)
+    res = studyctl(*args[:2], "--db", db, *args[2:])
+    assert res.exit_code == 2
+    assert "is not in the range 0<=x<=4294967295" in _one_error_line(res)
+    assert _hash(db) == before
+
+
+# --- a second Ctrl-C during the cleanup -----------------------------------------------------
+
+def test_a_second_ctrl_c_while_a_resumed_session_cleans_up_still_says_how_to_resume(tmp_path, monkeypatch):
+    import studyctl.session as session  # where a session runs its trials and marks itself interrupted
+
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)  # pytest-xdist's workers ignore SIGINT
+    try:
+        db = tmp_path / "s.db"
+        assert studyctl("study", "init", "--protocol", fast_protocol(tmp_path, conditions=("plate_spring",), trials=3), "--db", db).exit_code == 0
+        assert studyctl("participants", "add", "S01", "--db", db, "--synthetic").exit_code == 0
+        real_scene, real_mark = session.run_scene, session.session_rows.mark_interrupted
+        calls = []
+
+        def ctrl_c_at_the_second_run(*a, **kw):
+            calls.append(1)
+            if len(calls) == 2:
+                raise KeyboardInterrupt
+            return real_scene(*a, **kw)
+
+        def ctrl_c_again_while_marking(store, session_id):
+            os.kill(os.getpid(), signal.SIGINT)  # the second Ctrl-C, in the cleanup
+            real_mark(store, session_id)
+
+        monkeypatch.setattr(session, "run_scene", ctrl_c_at_the_second_run)
+        run = ["session", "run", "--db", db, "--participant", "S01", "--synthetic"]
+        assert studyctl(*run).exit_code == 130
+        calls.clear()
+        monkeypatch.setattr(session.session_rows, "mark_interrupted", ctrl_c_again_while_marking)
+        res = studyctl(*run, "--resume")
+        assert res.exit_code == 130
+        last = _one_error_line(res)
+        assert last.startswith("Error: session 1 of S01 interrupted"), res.output
+        assert last.endswith(f"studyctl session run --db {db} --participant S01 --synthetic --resume")
+        assert sqlite3.connect(db).execute("select status from sessions").fetchall() == [("interrupted",)]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the shield restored the handler
+    finally:
+        signal.signal(signal.SIGINT, old)
