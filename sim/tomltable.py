@@ -9,6 +9,7 @@ import math
 from pathlib import Path
 
 from sim.models.base import Vec3
+from sim.text import VALUE_MOST, text_problem
 from sim.tomlfile import Locator
 
 REQUIRED = object()  # the default of a key that must be given
@@ -94,12 +95,17 @@ class TableReader:
             return self.error(key, f"{value!r} is out of range; allowed: {lo}..{'inf' if hi is None else hi}")
         return value
 
-    def string(self, key: str, default=REQUIRED, choices: tuple[str, ...] | None = None) -> str | None:
+    def string(self, key: str, default=REQUIRED, choices: tuple[str, ...] | None = None, most: int = VALUE_MOST,
+               one_line: bool = False) -> str | None:
+        """A text of at most `most` characters, without control characters (tabs and line
+        breaks aside unless `one_line`)."""
         value = self._value(key, default)
         if value is None:
             return None
         if not isinstance(value, str):
             return self.error(key, f"{value!r} is not {WHAT['string']}")
+        if (problem := text_problem(value, most, one_line)) is not None:
+            return self.error(key, problem)
         if choices is not None and value not in choices:
             return self.error(key, f"{value!r} is not one of {', '.join(choices)}")
         return value

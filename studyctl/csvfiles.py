@@ -51,7 +51,7 @@ def read_csv(path: str | Path, columns: tuple[str, ...], required: tuple[str, ..
             raise InputError(f"{path}: line {line}: {len(cells)} cells, the header has {len(header)}")
         row = {k: (cells[i].strip() if i < len(cells) else "") for i, k in enumerate(header)}
         for k, v in row.items():
-            if (problem := control_problem(v)) is not None:
+            if (problem := control_problem(v)) is not None:  # lengths: checked by what reads the cell
                 raise InputError(f"{path}: line {line}: {k}: {problem}")
         rows.append((line, row))
     return rows

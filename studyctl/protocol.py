@@ -22,7 +22,7 @@ from studyctl.fields import check_fields
 from studyctl.questions import KINDS, LIKERT_POINTS, WHENS, Question
 from studyctl.skill import check_skills
 from studyctl.tasks import check_tasks
-from studyctl.text import ID_RE
+from studyctl.text import ID_RE, NAME_MOST, TEXT_MOST, TITLE_MOST, quoted, text_problem
 
 MAX_CONDITIONS = 8
 DESIGNS = ("williams",)
@@ -198,12 +198,12 @@ def _unknown_keys(data: dict, c: TableReader) -> None:
 def _study_fields(study: TableReader, ethics: TableReader, path: Path) -> dict:
     """[ethics] and [study]: the consent form's version, withdrawal, name, title, time zone,
     version, target N and the scene (resolved beside the protocol)."""
-    out = {"consent_version": ethics.string("consent_version", default="1"),
+    out = {"consent_version": ethics.string("consent_version", default="1", most=NAME_MOST, one_line=True),
            "withdrawal": ethics.string("withdrawal", default="keep", choices=("keep", "delete"))}
     if out["consent_version"] is not None and not out["consent_version"].strip():
         ethics.error("consent_version", "empty; name the consent form's version, e.g. \"1\"")
-    out["name"] = study.string("name")
-    out["title"] = study.string("title", default="")
+    out["name"] = study.string("name", most=NAME_MOST, one_line=True)
+    out["title"] = study.string("title", default="", most=TITLE_MOST, one_line=True)
     timezone = out["timezone"] = study.string("timezone", default=None)
     if timezone is not None:
         from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
@@ -307,7 +307,7 @@ def _question(r: TableReader, n_conditions: int) -> Question | None:
     """One [[questions]] table: its kind, when it is asked and what the kind needs; the question,
     or None when it has a problem (added to `r`'s problems)."""
     q, bad = r.data, r.error
-    qid, qtext = r.string("id"), r.string("text")
+    qid, qtext = r.string("id", most=NAME_MOST, one_line=True), r.string("text", most=TEXT_MOST)
     kind = r.string("kind", default="yes_no")
     when = r.string("when", default="condition")
     if kind is not None and kind not in KINDS:
@@ -330,7 +330,10 @@ def _question(r: TableReader, n_conditions: int) -> Question | None:
     elif "anchors" in q:
         a = q["anchors"]
         if not (isinstance(a, list) and len(a) == 2 and all(isinstance(x, str) and x.strip() for x in a)):
-            bad("anchors", f"{a!r}: two non-empty texts, [low, high], e.g. [\"Not at all\", \"Completely\"]")
+            bad("anchors", f"{quoted(a)}: two non-empty texts, [low, high], e.g. [\"Not at all\", \"Completely\"]")
+        elif (problem := next((f"{end}: {p}" for end, x in zip(("low", "high"), a)
+                               if (p := text_problem(x, NAME_MOST, one_line=True)) is not None), None)) is not None:
+            bad("anchors", problem)
         else:
             anchors = (a[0].strip(), a[1].strip())
     elif kind == "likert":

@@ -201,3 +201,112 @@ def test_a_second_ctrl_c_while_a_resumed_session_cleans_up_still_says_how_to_res
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the shield restored the handler
     finally:
         signal.signal(signal.SIGINT, old)
+
+
+# --- texts: control characters and lengths -----------------------------------------------------
+
+ESC, NUL, CSI = "\x1b[2J", "\x00", "\x9b2J"  # an ESC sequence (clear the screen), a NUL, a C1 control (CSI)
+
+
+def _toml_text(s: str) -> str:
+    """`s` as the inside of a TOML basic string, control characters escaped as \\uXXXX."""
+    return "".join(f"\\u{ord(c):04x}" if ord(c) < 0x20 or 0x7F <= ord(c) <= 0x9F else c for c in s)
+
+
+@pytest.mark.parametrize("old, new, field, problem", [
+    ('name = "brain_pull_2015"', f'name = "brain{_toml_text(ESC)}pull"', "study.name", "control character U+001B at character 6"),
+    ('title = "Virtual', f'title = "{_toml_text(NUL)}Virtual', "study.title", "control character U+0000 at character 1"),
+    ('text = "Is interaction real', f'text = "Is {_toml_text(CSI)}interaction real', "questions[0].text", "control character U+009B at character 4"),
+    ('name = "brain_pull_2015"', 'name = "' + "b" * 101 + '"', "study.name", "101 characters; allowed: at most 100"),
+    ('title = "Virtual brain pulling with three soft-tissue models"', 'title = "' + "t" * 201 + '"', "study.title",
+     "201 characters; allowed: at most 200"),
+    ('text = "Is interaction real and natural?"', 'text = "' + "q" * 2001 + '"', "questions[0].text", "2001 characters; allowed: at most 2000"),
+])
+def test_protocol_texts_with_control_characters_or_too_long_are_refused(tmp_path, old, new, field, problem):
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    assert old in proto.read_text()
+    proto.write_text(proto.read_text().replace(old, new, 1))
+    before = _hash(proto)
+    res = studyctl("study", "init", "--protocol", proto, "--db", tmp_path / "s.db")
+    assert res.exit_code == 1
+    line = _one_error_line(res)
+    assert f": {field}: {problem}" in line, res.output
+    assert "\x1b" not in res.output and "\x00" not in res.output and "\x9b" not in res.output
+    assert not (tmp_path / "s.db").exists()
+    assert _hash(proto) == before
+
+
+@pytest.mark.parametrize("anchor, problem", [
+    (_toml_text(ESC) + "Not at all", "anchors: low: control character U+001B at character 1"),
+    ("Not at all\\tquite", "anchors: low: control character U+0009 at character 11; a one-line text"),
+    ("n" * 101, "anchors: low: 101 characters; allowed: at most 100"),
+])
+def test_scale_anchors_with_control_characters_or_too_long_are_refused(tmp_path, anchor, problem):
+    from tests.helpers import variants_protocol
+
+    proto = variants_protocol(tmp_path)
+    proto.write_text(proto.read_text().replace('anchors = ["Not at all"', f'anchors = ["{anchor}"', 1))
+    res = studyctl("protocol", "validate", proto)
+    assert res.exit_code == 1
+    assert problem in _one_error_line(res), res.output
+
+
+def test_a_scene_text_with_an_escape_sequence_is_refused(tmp_path):
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    scene = tmp_path / "scene.toml"
+    text = scene.read_text()
+    assert '[scene]\nname = "' in text
+    scene.write_text(text.replace('[scene]\nname = "', '[scene]\nname = "\\u001b]0;owned\\u0007', 1))
+    res = studyctl("protocol", "validate", proto)
+    assert res.exit_code == 1
+    assert "scene.name: control character U+001B at character 1" in res.output, res.output
+
+
+def _free_text_study(tmp_path):
+    db = tmp_path / "s.db"
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    proto.write_text(proto.read_text() + '\n[[questions]]\nid = "comment"\ntext = "Anything else?"\nkind = "text"\nwhen = "end"\n')
+    assert studyctl("study", "init", "--db", db, "--protocol", proto).exit_code == 0
+    assert studyctl("participants", "add", "P01", "--db", db, "--age", "24").exit_code == 0
+    assert studyctl("participants", "consent", "P01", "--db", db).exit_code == 0
+    return db
+
+
+def test_a_free_text_answer_over_2000_characters_is_refused_on_import(tmp_path):
+    db = _free_text_study(tmp_path)
+    answers = tmp_path / "a.csv"
+    answers.write_text("participant,model,item,answer\nP01,,comment," + "w" * 2001 + "\n")
+    before = _hash(db)
+    res = studyctl("answers", "import", "--db", db, answers)
+    assert res.exit_code == 1
+    assert _one_error_line(res).endswith("(2001 characters) to comment (text) is not allowed; allowed: a text of at most 2000 characters")
+    assert _hash(db) == before
+
+
+@pytest.mark.parametrize("args, problem", [
+    (["participants", "add", "P02", "--name", "A" * 101], "--name: 101 characters; allowed: at most 100"),
+    (["participants", "add", "P02", "--name", "Ann\te"], "--name: control character U+0009 at character 4"),
+    (["participants", "add", "P02", "--contact", "c" * 201], "--contact: 201 characters; allowed: at most 200"),
+    (["participants", "withdraw", "P01", "--reason", "r" * 2001], "--reason: 2001 characters; allowed: at most 2000"),
+    (["participants", "withdraw", "P01", "--reason", "moved\x9b2J"], "--reason: control character U+009B"),
+])
+def test_participant_texts_are_bounded(tmp_path, args, problem):
+    db = _free_text_study(tmp_path)
+    before = _hash(db)
+    res = studyctl(*args[:2], "--db", db, *args[2:])
+    assert res.exit_code == 1
+    assert problem in _one_error_line(res), res.output
+    assert _hash(db) == before
+
+
+def test_the_terminal_questionnaire_asks_again_for_a_free_text_with_an_escape_sequence():
+    from studyctl.asking import TerminalAnswers
+    from studyctl.questions import Question
+
+    replies, shown = iter(["fine\x1b[2J", "x" * 2001, "fine"]), []
+    ask = TerminalAnswers(prompt=lambda text: next(replies), echo=shown.append)
+    answer = ask(Question("comment", "Anything else?", kind="text", when="end"), "", {"labels": {}})
+    assert answer == "fine"
+    assert shown[0] == "Please type it again: control character U+001B at character 5; text may hold no control characters " \
+                       "(tabs and line breaks aside)."
+    assert shown[1] == "Please type it again: 2001 characters; allowed: at most 2000."
