@@ -12,6 +12,7 @@ from sim.models.base import Vec3
 from sim.text import VALUE_MOST, text_problem
 from sim.tomlfile import Locator
 
+INT64_MAX = 2**63 - 1
 REQUIRED = object()  # the default of a key that must be given
 # what a value of the wrong type should have been, in a TOML writer's words
 WHAT = {"integer": "an integer", "number": "a finite number", "string": "a text in quotes", "boolean": "true or false",
@@ -85,14 +86,15 @@ class TableReader:
         return float(value)
 
     def integer(self, key: str, default=REQUIRED, lo: int = 1, hi: int | None = None) -> int | None:
-        """An integer in lo..hi (no upper bound where `hi` is None)."""
+        """An integer in lo..hi (where `hi` is None, up to TOML's own largest, 2^63 - 1, which a
+        parser may not enforce and SQLite cannot store beyond)."""
         value = self._value(key, default)
         if value is None:
             return None
         if isinstance(value, bool) or not isinstance(value, int):
             return self.error(key, f"{value!r} is not {WHAT['integer']}")
-        if value < lo or hi is not None and value > hi:
-            return self.error(key, f"{value!r} is out of range; allowed: {lo}..{'inf' if hi is None else hi}")
+        if value < lo or value > (INT64_MAX if hi is None else hi):
+            return self.error(key, f"{value!r} is out of range; allowed: {lo}..{INT64_MAX if hi is None else hi}")
         return value
 
     def string(self, key: str, default=REQUIRED, choices: tuple[str, ...] | None = None, most: int = VALUE_MOST,

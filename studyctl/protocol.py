@@ -212,7 +212,7 @@ def _study_fields(study: TableReader, ethics: TableReader, path: Path) -> dict:
             ZoneInfo(timezone)
         except (ZoneInfoNotFoundError, ValueError):
             study.error("timezone", f"{timezone!r} is not an IANA time zone, e.g. \"Asia/Shanghai\" or \"Europe/Berlin\"")
-    out["version"] = study.integer("version", default=1, lo=1)
+    out["version"] = study.integer("version", default=1, lo=1, hi=10_000)
     out["target"] = study.integer("target_participants", lo=1, hi=10000)
     scene_rel = study.string("scene")
     out["scene"] = None

@@ -164,6 +164,22 @@ def test_seeds_of_other_commands_are_ranged_too(tmp_path, args):
     assert _hash(db) == before
 
 
+
+def test_replay_of_a_session_id_beyond_sqlites_integers_is_a_usage_error(tmp_path):
+    db = _study(tmp_path)
+    res = studyctl("replay", "--db", db, "--session", str(2**70), "--trial", "1")
+    assert res.exit_code == 2
+    assert _one_error_line(res) == f"Error: Invalid value for '--session': {2**70} is not in the range 1<=x<={2**63 - 1}."
+
+
+def test_a_protocol_integer_beyond_its_range_is_one_line(tmp_path):
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    proto.write_text(proto.read_text().replace("version = 1\n", "version = 99999999999999999999999\n", 1))
+    res = studyctl("study", "init", "--protocol", proto, "--db", tmp_path / "s.db")
+    assert res.exit_code == 1
+    assert _one_error_line(res).endswith("study.version: 99999999999999999999999 is out of range; allowed: 1..10000")
+    assert not (tmp_path / "s.db").exists()
+
 # --- a second Ctrl-C during the cleanup -----------------------------------------------------
 
 def test_a_second_ctrl_c_while_a_resumed_session_cleans_up_still_says_how_to_resume(tmp_path, monkeypatch):

@@ -77,8 +77,8 @@ sessions_alias = _Group("sessions", commands={"list": session_list}, help="Alias
 
 @click.command("replay", cls=click.Command)
 @DB
-@click.option("--session", "session_id", type=click.IntRange(min=1), required=True)
-@click.option("--trial", type=click.IntRange(min=1), required=True, help="The session's K-th trial, in the order run (1 = the first).")
+@click.option("--session", "session_id", type=click.IntRange(1, 2**63 - 1), required=True)
+@click.option("--trial", type=click.IntRange(1, 10_000), required=True, help="The session's K-th trial, in the order run (1 = the first).")
 @click.option("--view", type=click.Choice(["none", "window"]), default="none", show_default=True, help="window: play it back in real time.")
 @click.option("--frames", "frames_dir", type=OutDir(), default=None, help="Write pictures, the force plot and the trace.")
 @FULLSCREEN
