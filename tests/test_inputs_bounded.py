@@ -115,6 +115,23 @@ def test_a_protocol_that_is_a_device_or_a_pipe_is_named_as_such(tmp_path):
     assert res.output.strip() == "/dev/zero: is a character device; allowed: a regular file"
 
 
+
+@pytest.mark.parametrize("key", ["path", "file"])
+def test_a_scene_naming_a_pipe_as_its_mesh_or_material_is_refused(tmp_path, key):
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    os.mkfifo(tmp_path / "pipe")
+    scene = tmp_path / "scene.toml"
+    lines = scene.read_text().splitlines()
+    k = next(i for i, line in enumerate(lines) if line.startswith(f"{key} = "))
+    lines[k] = f'{key} = "{tmp_path / "pipe"}"'
+    scene.write_text("\n".join(lines) + "\n")
+    before = _hash(scene)
+    res = studyctl("protocol", "validate", proto)
+    assert res.exit_code == 1
+    assert res.output.strip().endswith(f": {'mesh' if key == 'path' else 'material'}.{key}: {tmp_path / 'pipe'} is not a regular file"), res.output
+    assert res.output.strip().count("\n") == 0
+    assert _hash(scene) == before
+
 @pytest.mark.parametrize("command", [
     ["calibrate", "material", "--data"],
     ["calibrate", "plate-spring", "--reference"],
