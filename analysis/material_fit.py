@@ -48,7 +48,7 @@ MODES = {"uniaxial": ("stretch", "nominal_stress_kpa"), "shear": ("shear_strain"
 SHEAR_BAND = (0.1, 0.2)  # |shear strain| where a law's worst relative shear error is reported
 FIT_LAWS = ("neo-hookean", "mooney-rivlin", "ogden", "ogden-2")
 ALPHA_STARTS = (-30.0, -20.0, -10.0, -4.0, 4.0, 10.0)
-MAX_POINTS = 5000  # of one file's region, after merging repeated rows; the shipped curves have 66 (shear) and 133
+MAX_POINTS = 5000  # of one file's region, after merging repeated rows: a mean curve needs a few hundred
 
 
 class MaterialDataError(InputError):

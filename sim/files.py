@@ -12,9 +12,9 @@ import numpy as np
 from sim.errors import InputFileError
 
 MIB = 1024 * 1024
-TOML_MAX_BYTES = 1 * MIB  # a protocol, scene, material or parameter file: the shipped ones are a few kB
+TOML_MAX_BYTES = 1 * MIB  # a protocol, scene, material or parameter file: a page of settings, not data
 DATA_MAX_BYTES = 64 * MIB  # a CSV or JSON a command reads (tissue data, answers, participants, a rig profile)
-MESH_MAX_BYTES = 512 * MIB  # a surface mesh (.npz); the shipped brain is a few MB
+MESH_MAX_BYTES = 512 * MIB  # a surface mesh (.npz): far above a brain surface, far below what exhausts memory
 
 
 def _kind(mode: int) -> str:

@@ -21,7 +21,7 @@ _NAME = rf"{_PART}(?:\s*\.\s*{_PART})*"
 _ARRAY_TABLE = re.compile(rf"^\[\[\s*({_NAME})\s*\]\]")
 _TABLE = re.compile(rf"^\[\s*({_NAME})\s*\]")
 _KEY = re.compile(rf"^({_NAME})\s*=")
-MAX_DEPTH = 32  # arrays, inline tables and tables nested in each other; the shipped files nest 4 deep
+MAX_DEPTH = 32  # arrays, inline tables and tables nested in each other: far beyond any settings file, far within the stack
 # what can hold a bracket that does not nest: strings (multi-line first) and comments; then the brackets
 _TOKENS = re.compile(r'"""(?:\\.|[^\\])*?"""|\'\'\'.*?\'\'\'|"(?:\\.|[^"\\\n])*"|\'[^\'\n]*\'|#[^\n]*|[\[\]{}]', re.S)
 
