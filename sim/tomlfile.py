@@ -22,8 +22,9 @@ _ARRAY_TABLE = re.compile(rf"^\[\[\s*({_NAME})\s*\]\]")
 _TABLE = re.compile(rf"^\[\s*({_NAME})\s*\]")
 _KEY = re.compile(rf"^({_NAME})\s*=")
 MAX_DEPTH = 32  # arrays, inline tables and tables nested in each other: far beyond any settings file, far within the stack
-# what can hold a bracket that does not nest: strings (multi-line first) and comments; then the brackets
-_TOKENS = re.compile(r'"""(?:\\.|[^\\])*?"""|\'\'\'.*?\'\'\'|"(?:\\.|[^"\\\n])*"|\'[^\'\n]*\'|#[^\n]*|[\[\]{}]', re.S)
+_NEXT = re.compile(r"""[\[\]{}"'#]""")  # a bracket, or the start of what can hold one that does not nest
+_BASIC_END = re.compile(r'\\.|["\n]', re.S)  # in a one-line basic string: an escape, its end, or a line break (unterminated)
+_MULTI_END = re.compile(r'\\.|"""', re.S)
 
 
 class TomlFileError(Exception):
@@ -98,16 +99,38 @@ class Locator:
 def _too_deep(text: str) -> int | None:
     """The line where brackets first nest deeper than `MAX_DEPTH`, or None. Checked before
     parsing: the standard parser recurses once per level and a deep enough file exhausts the
-    stack."""
-    depth = 0
-    for m in _TOKENS.finditer(text):
-        c = m.group()
+    stack. Brackets in strings and comments do not count; one pass, each character looked at
+    once or twice (no backtracking on an unterminated string, which stops the scan: the parser
+    then names it)."""
+    depth, pos = 0, 0
+    while (m := _NEXT.search(text, pos)) is not None:
+        c, pos = m.group(), m.end()
         if c in "[{":
             depth += 1
             if depth > MAX_DEPTH:
                 return text.count("\n", 0, m.start()) + 1
         elif c in "]}":
             depth = max(depth - 1, 0)
+        elif c == "#":
+            pos = text.find("\n", pos)
+        elif text.startswith(c * 3, m.start()):
+            if c == "'":
+                pos = text.find("'''", pos + 2)
+                pos = -1 if pos < 0 else pos + 3
+            else:
+                pos += 2
+                while (e := _MULTI_END.search(text, pos)) is not None and e.group() != '"""':
+                    pos = e.end()
+                pos = -1 if e is None else e.end()
+        elif c == "'":
+            end = text.find("'", pos)
+            pos = -1 if end < 0 or text.find("\n", pos, end) >= 0 else end + 1
+        else:
+            while (e := _BASIC_END.search(text, pos)) is not None and e.group().startswith("\\"):
+                pos = e.end()
+            pos = -1 if e is None or e.group() != '"' else e.end()
+        if pos < 0:
+            return None
     return None
 
 

@@ -71,6 +71,16 @@ def test_brackets_inside_strings_and_comments_do_not_count_as_nesting(tmp_path):
     assert res.exit_code == 0, res.output
 
 
+
+def test_an_unterminated_string_of_escapes_is_scanned_once_and_named_by_the_parser(tmp_path):
+    """Half a megabyte of `"\\` on one line: a backtracking scan would take hours."""
+    proto = tmp_path / "p.toml"
+    proto.write_text('x = "' + '\\"' * 300_000 + "\n")
+    res = studyctl("protocol", "validate", proto)
+    assert res.exit_code == 1
+    assert res.output.startswith(f"{proto}:1: invalid TOML: "), res.output[:300]
+    assert res.output.strip().count("\n") == 0
+
 def test_a_toml_file_over_one_mib_is_refused_before_parsing(tmp_path):
     proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
     proto.write_text(proto.read_text() + "# " + "x" * (1024 * 1024) + "\n")
