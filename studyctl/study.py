@@ -87,6 +87,9 @@ def import_participants(db: str | Path, csv_path: str | Path, dry_run: bool = Fa
             seen.add(code)
             people.append({"code": code, "age": _check_age(row.get("age"), protocol, where), "synthetic": 0, "created_at": now()})
             fields[code] = parse_fields(protocol, {k: row[k] for k in names if k in row}, where)
+            for column, most in (("name", NAME_MOST), ("contact", TITLE_MOST)):  # as `participants add` checks them
+                if row.get(column) and (problem := text_problem(row[column], most, one_line=True)) is not None:
+                    raise InputError(f"{where}: {column}: {problem}")
             if row.get("name") or row.get("contact"):
                 identities.append({"code": code, "name": row.get("name") or None, "contact": row.get("contact") or None})
         if not people:

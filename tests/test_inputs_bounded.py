@@ -353,3 +353,14 @@ def test_the_terminal_questionnaire_asks_again_for_a_free_text_with_an_escape_se
     assert shown[0] == "Please type it again: control character U+001B at character 5; text may hold no control characters " \
                        "(tabs and line breaks aside)."
     assert shown[1] == "Please type it again: 2001 characters; allowed: at most 2000."
+
+
+def test_an_imported_name_over_100_characters_is_refused_like_an_added_one(tmp_path):
+    db = _free_text_study(tmp_path)
+    people = tmp_path / "p.csv"
+    people.write_text("code,age,name\nP02,24," + "N" * 101 + "\n")
+    before = _hash(db)
+    res = studyctl("participants", "import", "--db", db, people)
+    assert res.exit_code == 1
+    assert _one_error_line(res) == f"Error: {people}: line 2: name: 101 characters; allowed: at most 100"
+    assert _hash(db) == before
