@@ -17,6 +17,13 @@ independent measurements, so read these as the precision of the fit to that curv
 error relative to the data's RMS, overall and per mode, and AICc and BIC. The law chosen is
 the one of lowest AICc among those whose parameters are identified (every interval finite
 and narrower than the value itself); the others are reported beside it.
+
+Odd data are said, not fitted silently: rows repeated exactly (same region, strain and stress)
+are counted once, and the count merged is reported (a copy pasted twice is not a second
+measurement, and would narrow the intervals); a region whose stresses are all zero, and a fit
+no law explains (R^2 <= 0 for the chosen law: no better than the data's mean), are refused; a
+region of more than `MAX_POINTS` points is refused before any fit (bin or thin the curve: the
+fit's time grows with the points, and a mean curve needs a few hundred at most).
 """
 
 from __future__ import annotations
@@ -41,6 +48,7 @@ MODES = {"uniaxial": ("stretch", "nominal_stress_kpa"), "shear": ("shear_strain"
 SHEAR_BAND = (0.1, 0.2)  # |shear strain| where a law's worst relative shear error is reported
 FIT_LAWS = ("neo-hookean", "mooney-rivlin", "ogden", "ogden-2")
 ALPHA_STARTS = (-30.0, -20.0, -10.0, -4.0, 4.0, 10.0)
+MAX_POINTS = 5000  # of one file's region, after merging repeated rows: a mean curve needs a few hundred
 
 
 class MaterialDataError(InputError):
@@ -55,6 +63,7 @@ class Curve:
     x: np.ndarray  # stretch (uniaxial) or shear strain (shear)
     stress: np.ndarray  # nominal (uniaxial) or shear (shear), Pa
     mode: str = "uniaxial"
+    duplicates: int = 0  # rows that repeated an earlier row exactly, counted once
 
     @property
     def stretch(self) -> np.ndarray:
@@ -101,12 +110,19 @@ def read_curve(path, region: str) -> Curve:
             if not (math.isfinite(v) and lo <= v <= hi):
                 raise MaterialDataError(f"{p}:{line}: {col}: {r[col][:20]!r} is out of range; allowed: a number in {lo:g}..{hi:g}")
             values[col].append(v)
-    x, stress = np.array(values[xcol]), np.array(values[ycol]) * 1e3
+    pairs = list(dict.fromkeys(zip(values[xcol], values[ycol])))  # exact repeats counted once, the first kept, in order
+    duplicates = len(mine) - len(pairs)
+    if len(pairs) > MAX_POINTS:
+        raise MaterialDataError(f"{p}: region {region!r} has {len(pairs)} points; allowed: at most {MAX_POINTS} a file "
+                                "(bin or thin the curve, e.g. a mean stress per strain step)")
+    x, stress = np.array([a for a, _ in pairs]), np.array([b for _, b in pairs]) * 1e3
+    if not np.any(stress != 0.0):
+        raise MaterialDataError(f"{p}: region {region!r}: every {ycol} is 0; there is nothing to fit")
     if mode == "uniaxial" and ((x < 1).sum() < 2 or (x > 1).sum() < 2):
         raise MaterialDataError(f"{p}: region {region!r} needs at least two points in tension and two in compression")
     if mode == "shear" and (np.abs(x) > 0).sum() < 2:
         raise MaterialDataError(f"{p}: region {region!r} needs at least two points at a non-zero shear strain")
-    return Curve(str(p), hashlib.sha256(p.read_bytes()).hexdigest(), region, x, stress, mode)
+    return Curve(str(p), hashlib.sha256(p.read_bytes()).hexdigest(), region, x, stress, mode, duplicates)
 
 
 def shear_stretch(gamma) -> np.ndarray:
@@ -240,6 +256,8 @@ def fit_law(curves, name: str, bulk_ratio: float = BULK_RATIO) -> dict:
     modes = np.concatenate([c.modes() for c in curves])
     pa = np.concatenate([_predict(law, c) - c.stress for c in curves])  # the residuals in Pa, whatever the weights
     identified = bool(np.all(np.isfinite(half)) and np.all(half < np.abs(x)) and not any(at_bound))
+    spread = float(np.sum((y - y.mean()) ** 2))
+    r2 = 1.0 - float(np.sum(pa**2)) / spread if spread > 0.0 else math.nan
     aicc = n * math.log(rss / n) + 2 * k + (2 * k * (k + 1) / (n - k - 1) if n - k - 1 > 0 else math.inf)
     present = [m for m in ("tension", "compression", "shear") if (modes == m).any()]
     out = {"law": name, "parameters": dict(zip(_names(name), (float(v) for v in x))),
@@ -247,7 +265,7 @@ def fit_law(curves, name: str, bulk_ratio: float = BULK_RATIO) -> dict:
            "material": law.params(), "shear_modulus_pa": law.shear_modulus,
            "rms_rel": _rms_rel(pa, y), **{f"rms_rel_{m}": _rms_rel(pa[modes == m], y[modes == m]) for m in present},
            **({"rms_rel_uniaxial": _rms_rel(pa[modes != "shear"], y[modes != "shear"])} if "shear" in present and len(present) > 1 else {}),
-           "rms_pa": float(np.sqrt(np.mean(pa**2))), "aicc": aicc, "bic": n * math.log(rss / n) + k * math.log(n),
+           "rms_pa": float(np.sqrt(np.mean(pa**2))), "r2": r2, "aicc": aicc, "bic": n * math.log(rss / n) + k * math.log(n),
            "identified": identified, "at_bound": any(at_bound), "n": n, "k": k,
            "residuals_pa": pa.tolist()}
     if any(c.mode == "shear" for c in curves):
@@ -271,17 +289,27 @@ def law_of(fit: dict) -> Hyperelastic:
     return _law(fit["law"], np.array(list(fit["parameters"].values())), fit["material"]["bulk_ratio"])
 
 
-def fit_material(paths, region: str = "cortex", laws=FIT_LAWS, bulk_ratio: float = BULK_RATIO) -> dict:
+def fit_material(paths, region: str = "cortex", laws=FIT_LAWS, bulk_ratio: float = BULK_RATIO, progress=None) -> dict:
     """Fit every law in `laws` to `region` of the data files (one path or several, each of one
-    loading mode, fitted together); choose by AICc among identified fits."""
+    loading mode, fitted together); choose by AICc among identified fits. `progress(done,
+    total)` is called after each law. Raises MaterialDataError when the chosen law explains
+    nothing (R^2 <= 0, or not finite)."""
     paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
     curves = [read_curve(p, region) for p in paths]
-    fits = [fit_law(curves, name, bulk_ratio) for name in laws]
+    fits = []
+    for name in laws:
+        fits.append(fit_law(curves, name, bulk_ratio))
+        if progress is not None:
+            progress(len(fits), len(laws))
     candidates = [f for f in fits if f["identified"]] or fits
     chosen = min(candidates, key=lambda f: f["aicc"])
+    if not (math.isfinite(chosen["r2"]) and chosen["r2"] > 0.0 and math.isfinite(chosen["rms_rel"])):
+        what = f"R^2 {chosen['r2']:.3g}" if math.isfinite(chosen["r2"]) else "the stresses do not vary"
+        raise MaterialDataError(f"{', '.join(str(p) for p in paths)}: region {region!r}: no law explains these data (the chosen "
+                                f"{chosen['law']}: {what}, no better than the data's mean); nothing fitted")
     warning = None if chosen["identified"] else (f"no law's parameters are identified by these data; {chosen['law']} has the lowest "
                                                  "AICc, but its intervals are wide or a parameter is at its bound")
-    files = [{"path": c.path, "sha256": c.sha256, "region": region, "mode": c.mode, "points": len(c.x),
+    files = [{"path": c.path, "sha256": c.sha256, "region": region, "mode": c.mode, "points": len(c.x), "duplicates_merged": c.duplicates,
               ("stretch_range" if c.mode == "uniaxial" else "shear_strain_range"): [float(c.x.min()), float(c.x.max())]} for c in curves]
     modes = "uniaxial tension and compression" if all(c.mode == "uniaxial" for c in curves) else \
         " and ".join(sorted({"uniaxial tension and compression" if c.mode == "uniaxial" else "simple shear" for c in curves}, reverse=True))

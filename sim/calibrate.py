@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.errors import ParameterError
+from sim.errors import InputFileError, ParameterError
+from sim.files import DATA_MAX_BYTES, check_input
 from sim.models.plate_spring import B_SLACK_M, PlateSpring, PlateSpringParams
 
 
@@ -29,6 +30,10 @@ def jnd(force: np.ndarray) -> np.ndarray:
 def read_curve(path) -> tuple[np.ndarray, np.ndarray]:
     path = Path(path)
     xs, fs = [], []
+    try:
+        check_input(path, DATA_MAX_BYTES)
+    except InputFileError as exc:
+        raise ParameterError(str(exc)) from None
     try:
         with open(path, newline="") as fh:
             reader = csv.DictReader(fh)

@@ -31,3 +31,7 @@ class DeviceError(SimError):
 
 class ViewError(SimError):
     """The participant view cannot open its window."""
+
+
+class InputFileError(SimError):
+    """An input file that is not a regular file, is too large, or cannot be read (one line)."""

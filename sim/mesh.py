@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from brainsim_assets import path as _asset
-from sim.errors import MeshError
+from sim.errors import InputFileError, MeshError
+from sim.files import MESH_MAX_BYTES, check_input
 
 BRAIN_MESH = _asset("data/brain_fsaverage5.npz")
 
@@ -115,6 +116,10 @@ def patch_vertices(mesh, vertex: int, radius: float) -> np.ndarray:
 def load_mesh(path: str | Path = BRAIN_MESH) -> SurfaceMesh:
     """Load a surface saved as .npz with ``vertices`` (metres) and ``triangles``."""
     path = Path(path)
+    try:
+        check_input(path, MESH_MAX_BYTES)
+    except InputFileError as exc:
+        raise MeshError(str(exc)) from None
     try:
         with np.load(path) as data:
             vertices = np.asarray(data["vertices"], dtype=np.float64)

@@ -1,7 +1,9 @@
 """Reading TOML input files with problems named as ``FILE:LINE``.
 
-`read_toml` turns a missing or unreadable file, bytes that are not UTF-8 and TOML syntax
-errors into one-line `TomlFileError`s; `Locator` finds the line of a table or key (a dotted
+`read_toml` turns a missing or unreadable file, one that is not a regular file or is larger
+than `TOML_MAX_BYTES`, bytes that are not UTF-8, TOML syntax errors and nesting deeper than
+`MAX_DEPTH` into one-line `TomlFileError`s (`parse_toml`: the same for a text already read,
+such as a protocol stored in a study); `Locator` finds the line of a table or key (a dotted
 field such as ``models.fem.resolution`` or ``hands[1].pull``) for error messages.
 """
 
@@ -11,11 +13,18 @@ import re
 import tomllib
 from pathlib import Path
 
+from sim.errors import InputFileError
+from sim.files import TOML_MAX_BYTES, read_input
+
 _PART = r'(?:[A-Za-z0-9_-]+|"[^"\\]*"|\'[^\']*\')'  # bare, or quoted (a model named "package.module:Class")
 _NAME = rf"{_PART}(?:\s*\.\s*{_PART})*"
 _ARRAY_TABLE = re.compile(rf"^\[\[\s*({_NAME})\s*\]\]")
 _TABLE = re.compile(rf"^\[\s*({_NAME})\s*\]")
 _KEY = re.compile(rf"^({_NAME})\s*=")
+MAX_DEPTH = 32  # arrays, inline tables and tables nested in each other: far beyond any settings file, far within the stack
+_NEXT = re.compile(r"""[\[\]{}"'#]""")  # a bracket, or the start of what can hold one that does not nest
+_BASIC_END = re.compile(r'\\.|["\n]', re.S)  # in a one-line basic string: an escape, its end, or a line break (unterminated)
+_MULTI_END = re.compile(r'\\.|"""', re.S)
 
 
 class TomlFileError(Exception):
@@ -87,13 +96,81 @@ class Locator:
         return 1
 
 
-def read_toml(path: str | Path) -> tuple[dict, Locator]:
-    """Parse a TOML file; raises `TomlFileError` naming the file and, where known, the line."""
+def _too_deep(text: str) -> int | None:
+    """The line where brackets first nest deeper than `MAX_DEPTH`, or None. Checked before
+    parsing: the standard parser recurses once per level and a deep enough file exhausts the
+    stack. Brackets in strings and comments do not count; one pass, each character looked at
+    once or twice (no backtracking on an unterminated string, which stops the scan: the parser
+    then names it)."""
+    depth, pos = 0, 0
+    while (m := _NEXT.search(text, pos)) is not None:
+        c, pos = m.group(), m.end()
+        if c in "[{":
+            depth += 1
+            if depth > MAX_DEPTH:
+                return text.count("\n", 0, m.start()) + 1
+        elif c in "]}":
+            depth = max(depth - 1, 0)
+        elif c == "#":
+            pos = text.find("\n", pos)
+        elif text.startswith(c * 3, m.start()):
+            if c == "'":
+                pos = text.find("'''", pos + 2)
+                pos = -1 if pos < 0 else pos + 3
+            else:
+                pos += 2
+                while (e := _MULTI_END.search(text, pos)) is not None and e.group() != '"""':
+                    pos = e.end()
+                pos = -1 if e is None else e.end()
+        elif c == "'":
+            end = text.find("'", pos)
+            pos = -1 if end < 0 or text.find("\n", pos, end) >= 0 else end + 1
+        else:
+            while (e := _BASIC_END.search(text, pos)) is not None and e.group().startswith("\\"):
+                pos = e.end()
+            pos = -1 if e is None or e.group() != '"' else e.end()
+        if pos < 0:
+            return None
+    return None
+
+
+def _data_depth(data) -> int:
+    """How deep tables and arrays nest in parsed data (dotted keys and table headers nest
+    without brackets), without recursion."""
+    deepest, todo = 0, [(data, 1)]
+    while todo:
+        value, depth = todo.pop()
+        deepest = max(deepest, depth)
+        if depth <= MAX_DEPTH:
+            todo += [(v, depth + 1) for v in (value.values() if isinstance(value, dict) else value) if isinstance(v, (dict, list))]
+    return deepest
+
+
+def parse_toml(text: str, path: str | Path) -> dict:
+    """TOML text read from `path` (for messages); raises `TomlFileError` naming the file and,
+    where known, the line."""
+    line = _too_deep(text)
+    if line is not None:
+        raise TomlFileError(f"{path}:{line}: nested more than {MAX_DEPTH} levels deep; allowed: at most {MAX_DEPTH}")
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        m = re.search(r"line (\d+)", str(exc))
+        raise TomlFileError(f"{path}:{m.group(1) if m else 1}: invalid TOML: {exc}") from None
+    except RecursionError:  # a nesting the bracket scan cannot see; never expected
+        raise TomlFileError(f"{path}: nested too deeply; allowed: at most {MAX_DEPTH} levels") from None
+    if _data_depth(data) > MAX_DEPTH:
+        raise TomlFileError(f"{path}: tables nested more than {MAX_DEPTH} levels deep; allowed: at most {MAX_DEPTH}")
+    return data
+
+
+def read_toml_text(path: str | Path) -> tuple[dict, Locator, str]:
+    """`read_toml` and the file's text."""
     path = Path(path)
     try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise TomlFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
+        raw = read_input(path, TOML_MAX_BYTES)
+    except InputFileError as exc:
+        raise TomlFileError(str(exc)) from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -101,9 +178,10 @@ def read_toml(path: str | Path) -> tuple[dict, Locator]:
         column = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
         raise TomlFileError(f"{path}:{line}: not UTF-8: byte 0x{raw[exc.start]:02x} at column {column}; "
                             "TOML files must be UTF-8") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        m = re.search(r"line (\d+)", str(exc))
-        raise TomlFileError(f"{path}:{m.group(1) if m else 1}: invalid TOML: {exc}") from None
-    return data, Locator(text)
+    return parse_toml(text, path), Locator(text), text
+
+
+def read_toml(path: str | Path) -> tuple[dict, Locator]:
+    """Parse a TOML file; raises `TomlFileError` naming the file and, where known, the line."""
+    data, loc, _ = read_toml_text(path)
+    return data, loc

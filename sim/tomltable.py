@@ -9,8 +9,10 @@ import math
 from pathlib import Path
 
 from sim.models.base import Vec3
+from sim.text import VALUE_MOST, text_problem
 from sim.tomlfile import Locator
 
+INT64_MAX = 2**63 - 1
 REQUIRED = object()  # the default of a key that must be given
 # what a value of the wrong type should have been, in a TOML writer's words
 WHAT = {"integer": "an integer", "number": "a finite number", "string": "a text in quotes", "boolean": "true or false",
@@ -84,22 +86,28 @@ class TableReader:
         return float(value)
 
     def integer(self, key: str, default=REQUIRED, lo: int = 1, hi: int | None = None) -> int | None:
-        """An integer in lo..hi (no upper bound where `hi` is None)."""
+        """An integer in lo..hi (where `hi` is None, up to TOML's own largest, 2^63 - 1, which a
+        parser may not enforce and SQLite cannot store beyond)."""
         value = self._value(key, default)
         if value is None:
             return None
         if isinstance(value, bool) or not isinstance(value, int):
             return self.error(key, f"{value!r} is not {WHAT['integer']}")
-        if value < lo or hi is not None and value > hi:
-            return self.error(key, f"{value!r} is out of range; allowed: {lo}..{'inf' if hi is None else hi}")
+        if value < lo or value > (INT64_MAX if hi is None else hi):
+            return self.error(key, f"{value!r} is out of range; allowed: {lo}..{INT64_MAX if hi is None else hi}")
         return value
 
-    def string(self, key: str, default=REQUIRED, choices: tuple[str, ...] | None = None) -> str | None:
+    def string(self, key: str, default=REQUIRED, choices: tuple[str, ...] | None = None, most: int = VALUE_MOST,
+               one_line: bool = False) -> str | None:
+        """A text of at most `most` characters, without control characters (tabs and line
+        breaks aside unless `one_line`)."""
         value = self._value(key, default)
         if value is None:
             return None
         if not isinstance(value, str):
             return self.error(key, f"{value!r} is not {WHAT['string']}")
+        if (problem := text_problem(value, most, one_line)) is not None:
+            return self.error(key, problem)
         if choices is not None and value not in choices:
             return self.error(key, f"{value!r} is not one of {', '.join(choices)}")
         return value
@@ -149,5 +157,8 @@ class TableReader:
         if s is None:
             return None
         p = Path(s)
-        return p if p.is_absolute() else (self.path.parent / p).resolve()
+        p = p if p.is_absolute() else (self.path.parent / p).resolve()
+        if p.exists() and not p.is_file():  # a folder, a device (/dev/zero never ends), a named pipe (blocks)
+            return self.error(key, f"{p} is not a regular file")
+        return p
 

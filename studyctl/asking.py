@@ -110,5 +110,5 @@ class TerminalAnswers:
                 raise StoreError("the questionnaire got no answer (input closed); continue later with --resume") from None
             try:
                 return parse_answer(question, reply, labels)
-            except AnswerError:
-                self.echo(f"Please answer {allowed(question, labels)}.")
+            except AnswerError as exc:
+                self.echo(f"Please type it again: {exc}." if question.kind == "text" else f"Please answer {allowed(question, labels)}.")

@@ -6,6 +6,8 @@ import csv
 import io
 from pathlib import Path
 
+from sim.errors import InputFileError
+from sim.files import DATA_MAX_BYTES, read_input
 from studyctl.errors import InputError
 from studyctl.text import control_problem
 
@@ -17,9 +19,9 @@ def read_csv(path: str | Path, columns: tuple[str, ...], required: tuple[str, ..
     file, the line and the column."""
     path = Path(path)
     try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read: {exc.strerror}") from None
+        raw = read_input(path, DATA_MAX_BYTES)
+    except InputFileError as exc:
+        raise InputError(str(exc)) from None
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
@@ -49,7 +51,7 @@ def read_csv(path: str | Path, columns: tuple[str, ...], required: tuple[str, ..
             raise InputError(f"{path}: line {line}: {len(cells)} cells, the header has {len(header)}")
         row = {k: (cells[i].strip() if i < len(cells) else "") for i, k in enumerate(header)}
         for k, v in row.items():
-            if (problem := control_problem(v)) is not None:
+            if (problem := control_problem(v)) is not None:  # lengths: checked by what reads the cell
                 raise InputError(f"{path}: line {line}: {k}: {problem}")
         rows.append((line, row))
     return rows

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from sim.tomltable import TableReader
 from studyctl.errors import InputError
-from studyctl.text import ID_RE, control_problem, quoted
+from studyctl.text import ID_RE, quoted, text_problem
 
 FIELD_KINDS = ("choice", "integer", "number", "text")
 FIELD_KEYS = ("kind", "values", "required", "min", "max", "description")
@@ -70,7 +70,7 @@ class Field:
             if not math.isfinite(v):
                 raise ValueError(text)
         else:
-            if not text or len(text) > MAX_TEXT or control_problem(text) is not None or "\n" in text:
+            if not text or text_problem(text, MAX_TEXT, one_line=True) is not None:
                 raise ValueError(text)
             return text
         if self.min is not None and v < self.min or self.max is not None and v > self.max:

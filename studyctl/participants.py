@@ -20,7 +20,7 @@ from studyctl.questions import shown
 from studyctl.store import Store, now, records, roster
 from studyctl.store.participant_fields import read_fields
 from studyctl.study import answer_key
-from studyctl.text import control_problem, spreadsheet_safe
+from studyctl.text import TEXT_MOST, spreadsheet_safe, text_problem
 from studyctl.traces import trace_dir
 
 
@@ -84,7 +84,7 @@ def withdraw(db, code: str, reason: str = "", dry_run: bool = False) -> dict:
 
 
 def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
-    if (problem := control_problem(reason)) is not None:
+    if (problem := text_problem(reason, TEXT_MOST)) is not None:
         raise InputError(f"--reason: {problem}")
     with Store(db) as store:
         protocol = store.protocol()
@@ -130,7 +130,7 @@ def correct_answer(db, code: str, model: str, item: str, answer: str, reason: st
     reason and who did it in `corrections`."""
     if not reason.strip():
         raise InputError("--reason: say why the answer is corrected (it is kept in the audit trail)")
-    if (problem := control_problem(reason)) is not None:
+    if (problem := text_problem(reason, TEXT_MOST)) is not None:
         raise InputError(f"--reason: {problem}")
     with Store(db) as store:
         protocol = store.protocol()

@@ -7,8 +7,6 @@ message``; `check_protocol` returns them without raising (for ``studyctl protoco
 from __future__ import annotations
 
 import hashlib
-import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,7 +14,7 @@ from sim.errors import SceneError, SimError
 from sim.models import registry
 from sim.scene import configure, load_scene
 from sim.targets import TRIAL_ENDS
-from sim.tomlfile import Locator, TomlFileError, read_toml
+from sim.tomlfile import Locator, TomlFileError, parse_toml, read_toml_text
 from sim.tomltable import TableReader
 from studyctl import instruments
 from studyctl.errors import ProtocolError
@@ -24,7 +22,7 @@ from studyctl.fields import check_fields
 from studyctl.questions import KINDS, LIKERT_POINTS, WHENS, Question
 from studyctl.skill import check_skills
 from studyctl.tasks import check_tasks
-from studyctl.text import ID_RE
+from studyctl.text import ID_RE, NAME_MOST, TEXT_MOST, TITLE_MOST, quoted, text_problem
 
 MAX_CONDITIONS = 8
 DESIGNS = ("williams",)
@@ -103,15 +101,11 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     from_file = text is None
     try:
         if text is None:
-            data, loc = read_toml(path)
-            text = path.read_text(encoding="utf-8")
+            data, loc, text = read_toml_text(path)
         else:
-            data, loc = tomllib.loads(text), Locator(text)
+            data, loc = parse_toml(text, path), Locator(text)
     except TomlFileError as exc:
         return None, [str(exc)]
-    except tomllib.TOMLDecodeError as exc:
-        m = re.search(r"line (\d+)", str(exc))
-        return None, [f"{path}:{m.group(1) if m else 1}: invalid TOML: {exc}"]
     c = TableReader(path, data, "", loc, [])
     _unknown_keys(data, c)
     study, design = c.table("study", hint=_hint("study")), c.table("design", hint=_hint("design"))
@@ -120,7 +114,7 @@ def check_protocol(path: str | Path, text: str | None = None) -> tuple[Protocol 
     tables = _condition_tables(data.get("conditions", {}), c.error)
     conditions = _design_conditions(design, tables, c)
     scene, scene_spec = meta["scene"], None
-    if from_file and scene is not None and scene.exists():
+    if from_file and scene is not None and scene.is_file():
         scene_spec, problems = _scene_problems(scene, path, text, conditions or [], tables,
                                                lambda message: c.error("design.conditions", message))
         c.problems += [(path, 0, p) for p in problems]
@@ -204,12 +198,12 @@ def _unknown_keys(data: dict, c: TableReader) -> None:
 def _study_fields(study: TableReader, ethics: TableReader, path: Path) -> dict:
     """[ethics] and [study]: the consent form's version, withdrawal, name, title, time zone,
     version, target N and the scene (resolved beside the protocol)."""
-    out = {"consent_version": ethics.string("consent_version", default="1"),
+    out = {"consent_version": ethics.string("consent_version", default="1", most=NAME_MOST, one_line=True),
            "withdrawal": ethics.string("withdrawal", default="keep", choices=("keep", "delete"))}
     if out["consent_version"] is not None and not out["consent_version"].strip():
         ethics.error("consent_version", "empty; name the consent form's version, e.g. \"1\"")
-    out["name"] = study.string("name")
-    out["title"] = study.string("title", default="")
+    out["name"] = study.string("name", most=NAME_MOST, one_line=True)
+    out["title"] = study.string("title", default="", most=TITLE_MOST, one_line=True)
     timezone = out["timezone"] = study.string("timezone", default=None)
     if timezone is not None:
         from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
@@ -218,7 +212,7 @@ def _study_fields(study: TableReader, ethics: TableReader, path: Path) -> dict:
             ZoneInfo(timezone)
         except (ZoneInfoNotFoundError, ValueError):
             study.error("timezone", f"{timezone!r} is not an IANA time zone, e.g. \"Asia/Shanghai\" or \"Europe/Berlin\"")
-    out["version"] = study.integer("version", default=1, lo=1)
+    out["version"] = study.integer("version", default=1, lo=1, hi=10_000)
     out["target"] = study.integer("target_participants", lo=1, hi=10000)
     scene_rel = study.string("scene")
     out["scene"] = None
@@ -226,6 +220,8 @@ def _study_fields(study: TableReader, ethics: TableReader, path: Path) -> dict:
         out["scene"] = (path.parent / scene_rel).resolve()
         if not out["scene"].exists():
             study.error("scene", f"{out['scene']} does not exist")
+        elif not out["scene"].is_file():  # a folder, a device (/dev/zero never ends), a named pipe (blocks)
+            study.error("scene", f"{out['scene']} is not a regular file")
     return out
 
 
@@ -311,7 +307,7 @@ def _question(r: TableReader, n_conditions: int) -> Question | None:
     """One [[questions]] table: its kind, when it is asked and what the kind needs; the question,
     or None when it has a problem (added to `r`'s problems)."""
     q, bad = r.data, r.error
-    qid, qtext = r.string("id"), r.string("text")
+    qid, qtext = r.string("id", most=NAME_MOST, one_line=True), r.string("text", most=TEXT_MOST)
     kind = r.string("kind", default="yes_no")
     when = r.string("when", default="condition")
     if kind is not None and kind not in KINDS:
@@ -334,7 +330,10 @@ def _question(r: TableReader, n_conditions: int) -> Question | None:
     elif "anchors" in q:
         a = q["anchors"]
         if not (isinstance(a, list) and len(a) == 2 and all(isinstance(x, str) and x.strip() for x in a)):
-            bad("anchors", f"{a!r}: two non-empty texts, [low, high], e.g. [\"Not at all\", \"Completely\"]")
+            bad("anchors", f"{quoted(a)}: two non-empty texts, [low, high], e.g. [\"Not at all\", \"Completely\"]")
+        elif (problem := next((f"{end}: {p}" for end, x in zip(("low", "high"), a)
+                               if (p := text_problem(x, NAME_MOST, one_line=True)) is not None), None)) is not None:
+            bad("anchors", problem)
         else:
             anchors = (a[0].strip(), a[1].strip())
     elif kind == "likert":

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from studyctl.text import control_problem, quoted
+from studyctl.text import TEXT_MOST, quoted, text_problem
 
 KINDS = ("yes_no", "likert", "vas", "choice", "text")
 WHENS = ("condition", "trial", "end")
@@ -59,7 +59,7 @@ def allowed(q: Question, labels: dict[str, str] | None = None) -> str:
         return f"a number 0..100{ends}"
     if q.kind == "choice":
         return "one of " + (", ".join(sorted(labels.values())) if labels else "the conditions")
-    return "any text"
+    return f"a text of at most {TEXT_MOST} characters"
 
 
 def parse_answer(q: Question, raw, labels: dict[str, str] | None = None, by_name: tuple[str, ...] = ()):
@@ -68,7 +68,7 @@ def parse_answer(q: Question, raw, labels: dict[str, str] | None = None, by_name
     corrections, by the condition's name (`by_name`); it is returned as the condition's name."""
     text = str(raw).strip()
     if q.kind == "text":
-        if (problem := control_problem(text)) is not None:
+        if (problem := text_problem(text, TEXT_MOST)) is not None:
             raise AnswerError(problem)
         return text
     if q.kind == "yes_no":

@@ -24,6 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from brainsim_assets import path as asset
+from sim.errors import InputFileError
+from sim.files import DATA_MAX_BYTES, read_input
 from sim.run import run_scene
 from studyctl.conditions import SOFTWARE_VERSION, condition_configs, condition_scene, config_sha256
 from studyctl.errors import InputError, StoreError
@@ -84,9 +86,9 @@ def read_profile(path: str | Path) -> dict:
     """A profile file, checked: every entry names its key and a finite positive frame time."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text())
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read: {exc.strerror}") from None
+        data = json.loads(read_input(path, DATA_MAX_BYTES))
+    except InputFileError as exc:
+        raise InputError(str(exc)) from None
     except ValueError as exc:
         raise InputError(f"{path}: not JSON ({exc})") from None
     rows = data.get("conditions") if isinstance(data, dict) else None

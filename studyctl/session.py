@@ -20,10 +20,13 @@ is lost (beyond the trial in flight) and nothing is done twice.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import random
+import signal
 import string
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -185,8 +188,28 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
         if resume and open_[0]["device"] != device:  # said before any device or window is opened
             raise StoreError(f"participant {code}: session {open_[0]['id']} was started with --device {open_[0]['device']}, "
                              f"not {device}; resume it with --device {open_[0]['device']}")
-    with session_lock(db, code):
-        return _run_session(db, code, device, synthetic, resume, time_scale, *args, view=view, answer_with=answer_with, **kwargs)
+    with _ctrl_c_shield() as shield, session_lock(db, code):
+        return _run_session(db, code, device, synthetic, resume, time_scale, *args, view=view, answer_with=answer_with,
+                            shield=shield, **kwargs)
+
+
+@contextlib.contextmanager
+def _ctrl_c_shield():
+    """A function that, called at the first Ctrl-C, ignores further ones until the block ends:
+    the session is marked interrupted, its servo and view closed, its store and lock released
+    whole, and the line saying how to resume reaches the user (a second Ctrl-C used to cut that
+    short and leave no line). The previous handler is restored at the end."""
+    old = []
+
+    def shield() -> None:
+        if not old and threading.current_thread() is threading.main_thread():  # signals are set in the main thread only
+            old.append(signal.signal(signal.SIGINT, signal.SIG_IGN))
+
+    try:
+        yield shield
+    finally:
+        if old:
+            signal.signal(signal.SIGINT, old[0])
 
 
 @dataclass
@@ -215,7 +238,7 @@ class _Run:
 def _run_session(db, code: str, device: str = "simulated", synthetic: bool = False, resume: bool = False,
                 time_scale: float | None = None, answers=None, seed: int | None = None, progress: Callable[[str], None] | None = None,
                 session_id: int | None = None, view: str = "none", answer_with: str = "terminal", device_names: list[str] | None = None,
-                fullscreen: bool = False) -> dict:
+                fullscreen: bool = False, shield: Callable[[], None] = lambda: None) -> dict:
     with Store(db) as store:  # closed last, after the servo and the view
         run = _Run(db=db, store=store, protocol=None, code=code, device=device, time_scale=time_scale, say=progress or (lambda msg: None))
         try:
@@ -253,6 +276,7 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
             n = session_rows.answer_count(store, code)
             return {"session": run.session_id, "participant": code, "order": [run.labels[m] for m in order], "answers": n, "synthetic": synthetic}
         except KeyboardInterrupt:
+            shield()
             raise Interrupted(_interrupted(run, synthetic)) from None
         finally:
             if run.servo is not None:

@@ -15,7 +15,7 @@ from studyctl.schedule import allocate, next_order, read_availability, to_ics, w
 from studyctl.store import EXPORT_TABLES, Store, now, roster
 from studyctl.store.participant_fields import group_of
 from studyctl.store.tables import table_rows
-from studyctl.text import control_problem, quoted, spreadsheet_frame
+from studyctl.text import NAME_MOST, TITLE_MOST, quoted, spreadsheet_frame, text_problem
 from studyctl.traces import traces_frame
 
 CODE_CHARS = set("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_")
@@ -53,8 +53,8 @@ def add_participant(db: str | Path, code: str, age=None, name: str | None = None
             raise InputError(f"participant {code}: already registered")
         if synthetic and (name or contact):
             raise InputError(f"participant {code}: a synthetic participant has no name or contact")
-        for option, text in (("--name", name), ("--contact", contact)):
-            if text and (problem := control_problem(text)) is not None:
+        for option, text, most in (("--name", name, NAME_MOST), ("--contact", contact, TITLE_MOST)):
+            if text and (problem := text_problem(text, most, one_line=True)) is not None:
                 raise InputError(f"{option}: {problem}")
         _insert(store, [{"code": code, "age": age, "synthetic": int(synthetic), "created_at": now()}],
                 [{"code": code, "name": name, "contact": contact}] if name or contact else [], dry_run, {code: values})
@@ -88,6 +88,9 @@ def import_participants(db: str | Path, csv_path: str | Path, dry_run: bool = Fa
             seen.add(code)
             people.append({"code": code, "age": _check_age(row.get("age"), protocol, where), "synthetic": 0, "created_at": now()})
             fields[code] = parse_fields(protocol, {k: row[k] for k in names if k in row}, where)
+            for column, most in (("name", NAME_MOST), ("contact", TITLE_MOST)):  # as `participants add` checks them
+                if row.get(column) and (problem := text_problem(row[column], most, one_line=True)) is not None:
+                    raise InputError(f"{where}: {column}: {problem}")
             if row.get("name") or row.get("contact"):
                 identities.append({"code": code, "name": row.get("name") or None, "contact": row.get("contact") or None})
         if not people:

@@ -4,29 +4,12 @@ made safe to open in a spreadsheet (the OWASP CSV-injection rule)."""
 from __future__ import annotations
 
 import re
-import unicodedata
+
+from sim.text import LINE_BREAKS, NAME_MOST, TEXT_MOST, TITLE_MOST, control_character, control_problem, text_problem
 
 ID_RE = re.compile(r"^[a-z][a-z0-9_]*$")  # a name a protocol gives (question, condition, field): also a column and a key
-LINE_BREAKS = "\t\n\r"  # the control characters a text may hold
 QUOTE_LIMIT = 40  # characters of a refused value an error line quotes
 FORMULA_START = ("=", "+", "-", "@", "\t", "\r")  # a spreadsheet reads a cell starting so as a formula
-
-
-def control_character(text: str) -> tuple[int, str] | None:
-    """(position, character) of the first control character other than a tab or line break."""
-    for i, c in enumerate(text):
-        if c not in LINE_BREAKS and unicodedata.category(c) == "Cc":
-            return i, c
-    return None
-
-
-def control_problem(text: str) -> str | None:
-    """Why `text` is refused for a control character, or None."""
-    found = control_character(text)
-    if found is None:
-        return None
-    i, c = found
-    return f"control character U+{ord(c):04X} at character {i + 1}; text may hold no control characters (tabs and line breaks aside)"
 
 
 def quoted(value, limit: int = QUOTE_LIMIT) -> str:
@@ -55,3 +38,7 @@ def spreadsheet_frame(df):
         if is_object_dtype(out[col]) or is_string_dtype(out[col]):
             out[col] = out[col].map(spreadsheet_safe)
     return out
+
+
+__all__ = ["ID_RE", "LINE_BREAKS", "NAME_MOST", "TEXT_MOST", "TITLE_MOST", "control_character", "control_problem", "quoted",
+           "spreadsheet_frame", "spreadsheet_safe", "text_problem"]

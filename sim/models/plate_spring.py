@@ -20,7 +20,6 @@ from __future__ import annotations
 import bisect
 import dataclasses
 import math
-import tomllib
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
@@ -130,15 +129,9 @@ def load_params(path: str | Path) -> PlateSpringParams:
     """Read a parameter file (TOML, top-level keys in SI units)."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ParameterError(f"{path}: cannot read: {exc.strerror}") from None
-    except UnicodeDecodeError as exc:
-        raise ParameterError(f"{path}: not UTF-8 (byte 0x{exc.object[exc.start]:02x}); TOML files must be UTF-8") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ParameterError(f"{path}: invalid TOML: {exc}") from None
+        data, _ = read_toml(path)
+    except TomlFileError as exc:
+        raise ParameterError(str(exc)) from None
     return PlateSpringParams.from_mapping(data, source=str(path))
 
 

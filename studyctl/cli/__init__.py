@@ -11,6 +11,8 @@ import their library (and anything heavy) inside their functions: `studyctl --he
 
 from __future__ import annotations
 
+import sys
+
 import click
 
 from studyctl.cli import (
@@ -37,7 +39,11 @@ def cli():
 
 
 def main() -> None:
-    cli(prog_name="studyctl")
+    try:
+        cli(prog_name="studyctl")
+    except KeyboardInterrupt:  # a further Ctrl-C while the command printed its last line or exited: still one line
+        click.echo("Error: interrupted (Ctrl-C) again while ending; what was written is whole", err=True)
+        sys.exit(130)
 
 
 # the order the groups are defined in; `--help` lists them sorted by name (`sessions`: a hidden alias)

@@ -34,7 +34,7 @@ def answers_import(db, csv_file, dry_run, as_json):
 @click.option("--model", default="", callback=lambda c, p, v: _model_name(v),
               help="The condition the answer is about, e.g. fem; left out for a question asked once at the end.")
 @click.option("--item", required=True, help="The question's id, e.g. natural.")
-@click.option("--trial", type=int, default=None, help="The trial (0-based) of a question asked after every trial.")
+@click.option("--trial", type=click.IntRange(0, 10_000), default=None, help="The trial (0-based) of a question asked after every trial.")
 @click.option("--answer", required=True, help="The right answer, as the question's kind allows: yes/no, a rating, 0-100, a condition, text.")
 @click.option("--reason", required=True, help="Why (kept in the audit trail with the old value and your login).")
 @DRY_RUN

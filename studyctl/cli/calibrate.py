@@ -13,6 +13,7 @@ from studyctl.cli.common import (
     FORCE,
     Finite,
     OutFile,
+    _command_line,
     _console,
     _Group,
     _print_json,
@@ -80,7 +81,8 @@ def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out
 @click.option("--out", "out_file", type=OutFile((".toml",)), default=None, help="Write the chosen law as a material file (.toml).")
 @FORCE
 @click.option("--json", "as_json", is_flag=True)
-def calibrate_material(data_files, region, laws, bulk_ratio, out_file, force, as_json):
+@click.pass_context
+def calibrate_material(ctx, data_files, region, laws, bulk_ratio, out_file, force, as_json):
     """Fit finite-strain laws to tissue data (uniaxial tension and compression, simple shear: each
     file's mode read from its columns, several fitted together), report each mode's error and
     each mode's error when left out of the fit, and choose one law by AICc (docs/material.md)."""
@@ -89,8 +91,16 @@ def calibrate_material(data_files, region, laws, bulk_ratio, out_file, force, as
     from sim.material import material_toml
 
     target = staged(out_file, force)  # an existing file refused before the fit
+    command = _command_line(ctx)  # the provenance: this command as run
     data_files = list(data_files) or [DATA_FILE]
-    rep = fit_material(data_files, region, laws or FIT_LAWS, BULK_RATIO if bulk_ratio is None else bulk_ratio)
+    laws = laws or FIT_LAWS
+    rep = _with_progress(f"fitting {len(laws)} law{'s' if len(laws) != 1 else ''}",
+                         lambda p: fit_material(data_files, region, laws, BULK_RATIO if bulk_ratio is None else bulk_ratio, progress=p))
+    for f in rep["files"]:  # on stderr: a --json document stays clean
+        if f["duplicates_merged"]:
+            click.echo(f"warning: {f['path']}: {f['duplicates_merged']} row{'s' if f['duplicates_merged'] != 1 else ''} of region "
+                       f"{region} repeated an earlier row exactly (same strain and stress) and counted once; "
+                       f"{f['points']} points fitted", err=True)
     if out_file:
         chosen = next(f for f in rep["laws"] if f["law"] == rep["fit"])
         law = law_of(chosen)
@@ -102,9 +112,8 @@ def calibrate_material(data_files, region, laws, bulk_ratio, out_file, force, as
                 if all(Path(f["path"]).name in shipped for f in rep["files"]) else "",
                 "fit": rep["method"], **{k: v for k, v in rep.items() if k.startswith("rms_rel") or k == "shear_worst_rel"},
                 **{f"left_out_rms_rel_{m}": v for m, v in (rep.get("left_out") or {}).items()},
-                **{f"ci95_{k}": v for k, v in chosen["ci95"].items()}}
-        write_output(target, material_toml(law, prov, f"{region}: {law.describe()}\nWritten by `studyctl calibrate material "
-                                                      f"--region {region} --out {Path(out_file).name}`."))
+                **{f"ci95_{k}": v for k, v in chosen["ci95"].items()}, "command": command}
+        write_output(target, material_toml(law, prov, f"{region}: {law.describe()}\nWritten by `{command}`."))
     if as_json:
         _print_json({k: v for k, v in rep.items()} | {"out": str(out_file) if out_file else None})
         return

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+import shlex
 import sqlite3
 from pathlib import Path
 
@@ -45,6 +46,26 @@ class _Group(click.Group):
             raise click.ClickException(str(exc)) from None
         except sqlite3.OperationalError as exc:  # e.g. another process held the database for over 30 s
             raise click.ClickException(f"the study database: {exc} (another process may be writing to it; try again)") from None
+
+
+def _command_line(ctx: click.Context) -> str:
+    """The command as run, for an output's provenance: `studyctl`, the subcommands and every
+    option given on the command line or by the environment, in the command's order (rebuilt
+    from click's context: the same words whether run from a shell or in-process)."""
+    from click.core import ParameterSource
+
+    words = ["studyctl", *ctx.command_path.split()[1:]]
+    for param in ctx.command.params:
+        if ctx.get_parameter_source(param.name) not in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT):
+            continue
+        value = ctx.params[param.name]
+        option = max(param.opts, key=len) if isinstance(param, click.Option) else None
+        for v in (value if param.multiple else [value]):
+            if isinstance(param, click.Option) and param.is_flag:
+                words += [option] if v else (param.secondary_opts[:1] or [])
+            else:
+                words += [option, str(v)] if option else [str(v)]
+    return " ".join(shlex.quote(w) for w in words)
 
 
 def _console():
@@ -118,6 +139,8 @@ DEVICES = click.option("--devices", "device_names", callback=_names, default=Non
                        help='OpenHaptics device names, comma-separated, e.g. "PHANToM 1,PHANToM 2" (default: the scene\'s).')
 DB = click.option("--db", envvar="STUDYCTL_DB", show_envvar=True, required=True, type=click.Path(dir_okay=False, path_type=Path),
                   help="Study database; required unless the STUDYCTL_DB environment variable names one.")
+# a seed: what NumPy and Python take, and within SQLite's 64-bit integers (a larger one overflowed the store)
+SEED = click.IntRange(0, 2**32 - 1)
 JSON = click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 SCHEDULER = click.option("--scheduler", default=None, metavar="ADDRESS",
                          help="Run on a Dask cluster (tcp://host:8786; the dask extra) instead of local processes.")
@@ -189,7 +212,10 @@ def _with_progress(label, fn):
     from rich.console import Console
     from rich.progress import Progress
 
-    with Progress(transient=True, console=Console(stderr=True)) as progress:
+    console = Console(stderr=True)
+    if not console.is_terminal:  # a pipe or a log: no bar (stopping one there leaves a blank line before an error's one line)
+        return fn(lambda k, n: None)
+    with Progress(transient=True, console=console) as progress:
         task = progress.add_task(label, total=None)
         return fn(lambda k, n: progress.update(task, completed=k, total=n))
 

@@ -10,6 +10,7 @@ from studyctl.cli.common import (
     DEFAULT_PROTOCOL,
     FORCE,
     SCHEDULER,
+    SEED,
     OutFile,
     _console,
     _model_name,
@@ -38,7 +39,7 @@ def _range(ctx, param, value):
 @click.option("--simulations", type=click.IntRange(10, 100000), default=200, show_default=True)
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path),
               default=DEFAULT_PROTOCOL, show_default="the shipped protocols/brain_pull_2015.toml")
-@click.option("--seed", type=click.IntRange(0, 2**32 - 1), default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--pilots", type=click.IntRange(1, 50), default=4, show_default=True, help="Synthetic pilot runs per model.")
 @click.option("--plot", "plot_file", type=OutFile((".png", ".svg", ".pdf")), default=None, help="Write the power curves (PNG, SVG or PDF).")
 @FORCE

@@ -10,11 +10,14 @@ from pathlib import Path
 import click
 
 from brainsim_assets import path as _asset
+from sim.errors import InputFileError
+from sim.files import DATA_MAX_BYTES, read_input
 from sim.jsonable import jsonable
 from studyctl.cli.common import (
     DB,
     FORCE,
     JSON,
+    SEED,
     OutDir,
     OutFile,
     _Group,
@@ -142,7 +145,9 @@ def _no_answers(study, as_json: bool) -> bool:
 def _load_bench(path: Path, kind: str, key: str) -> dict:
     """A bench's JSON (`studyctl bench KIND --out DIR` writes DIR/KIND.json)."""
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(read_input(path, DATA_MAX_BYTES))
+    except InputFileError as exc:
+        raise click.ClickException(str(exc)) from None
     except (OSError, ValueError) as exc:
         raise click.ClickException(f"{path}: not a `studyctl bench {kind}` result ({exc})") from None
     if not isinstance(data, dict) or not {key, "meta"} <= set(data):
@@ -347,13 +352,13 @@ def export_cmd(db, fmt, out_dir, force, as_json):
 @click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
 @click.option("--out", "out_file", type=OutFile(), default=None)
 @FORCE
-@click.option("--permutations", type=click.IntRange(min=1), default=None, show_default="100",
+@click.option("--permutations", type=click.IntRange(1, 1_000_000), default=None, show_default="100",
               help="Permutations of the classifier's permutation test.")
-@click.option("--group-permutations", type=click.IntRange(min=1), default=None, show_default="1000",
+@click.option("--group-permutations", type=click.IntRange(1, 1_000_000), default=None, show_default="1000",
               help="Permutations of the group labels for the group tests' Westfall-Young p.")
-@click.option("--bootstrap", type=click.IntRange(min=1), default=None, show_default="200",
+@click.option("--bootstrap", type=click.IntRange(1, 1_000_000), default=None, show_default="200",
               help="Bootstrap replicates of Cliff's delta's and the learning curves' intervals.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of every resampling.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of every resampling.")
 def report_validity(db, fmt, as_json, out_file, force, permutations, group_permutations, bootstrap, seed):
     """Construct validity: the performance metrics compared between the participant groups
     (Kruskal-Wallis, Mann-Whitney pairs with Holm and Westfall-Young, Cliff's delta), the mixed model with several

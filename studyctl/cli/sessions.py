@@ -14,6 +14,7 @@ from studyctl.cli.common import (
     FULLSCREEN,
     JSON,
     SCHEDULER,
+    SEED,
     Finite,
     OutDir,
     _console,
@@ -43,7 +44,7 @@ def session():
               help="The participant view (default: window for a person in real time, else none).")
 @click.option("--answers", "answer_with", type=click.Choice(["terminal", "window"]), default="terminal", show_default=True,
               help="Where a person answers the questionnaire (window: keys and the mouse; free text stays in the terminal).")
-@click.option("--seed", type=int, default=None, help="A synthetic participant's seed  [default: 0; on --resume, the session's]")
+@click.option("--seed", type=SEED, default=None, help="A synthetic participant's seed  [default: 0; on --resume, the session's]")
 @FULLSCREEN
 @DEVICES
 @JSON
@@ -79,8 +80,8 @@ sessions_alias = _Group("sessions", commands={"list": session_list}, help="Alias
 
 @click.command("replay", cls=click.Command)
 @DB
-@click.option("--session", "session_id", type=click.IntRange(min=1), required=True)
-@click.option("--trial", type=click.IntRange(min=1), required=True, help="The session's K-th trial, in the order run (1 = the first).")
+@click.option("--session", "session_id", type=click.IntRange(1, 2**63 - 1), required=True)
+@click.option("--trial", type=click.IntRange(1, 10_000), required=True, help="The session's K-th trial, in the order run (1 = the first).")
 @click.option("--view", type=click.Choice(["none", "window"]), default="none", show_default=True, help="window: play it back in real time.")
 @click.option("--frames", "frames_dir", type=OutDir(), default=None, help="Write pictures, the force plot and the trace.")
 @FORCE
@@ -118,7 +119,7 @@ def replay_cmd(db, session_id, trial, view, frames_dir, force, fullscreen, as_js
 @click.command("synth", cls=click.Command)
 @DB
 @click.option("--participants", type=click.IntRange(1, 1000), required=True, help="How many synthetic participants (1..1000).")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--jobs", type=click.IntRange(1, 64), default=1, show_default=True, help="Sessions run in parallel processes.")
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Create --db for this protocol when it does not exist (e.g. protocols/brain_pull_2015.toml); without it, --db must exist.")

@@ -1,0 +1,41 @@
+"""Texts a file or a person gives, checked by one helper (`text_problem`): no control
+characters (an ESC sequence would drive the participant's terminal, a NUL cuts a text short;
+tabs and line breaks aside where a text may span lines) and a longest length per kind of text
+(docs/study.md, "Limits on input")."""
+
+from __future__ import annotations
+
+import unicodedata
+
+LINE_BREAKS = "\t\n\r"  # the control characters a text may hold
+NAME_MOST = 100  # a study's name, a scale's anchor, a consent form's version, a person's name
+TITLE_MOST = 200  # a study's title, a person's contact
+TEXT_MOST = 2000  # a question's text, a free-text answer, a reason given for a withdrawal or a correction
+VALUE_MOST = 4096  # any other text of a TOML file (a path, a description): PATH_MAX on Linux
+
+
+def control_character(text: str, one_line: bool = False) -> tuple[int, str] | None:
+    """(position, character) of the first control character (C0, DEL, C1), tabs and line
+    breaks aside unless `one_line`."""
+    for i, c in enumerate(text):
+        if (one_line or c not in LINE_BREAKS) and unicodedata.category(c) == "Cc":
+            return i, c
+    return None
+
+
+def control_problem(text: str, one_line: bool = False) -> str | None:
+    """Why `text` is refused for a control character, or None."""
+    found = control_character(text, one_line)
+    if found is None:
+        return None
+    i, c = found
+    allowed = "a one-line text holds no control characters, tabs and line breaks included" if one_line else \
+        "text may hold no control characters (tabs and line breaks aside)"
+    return f"control character U+{ord(c):04X} at character {i + 1}; {allowed}"
+
+
+def text_problem(text: str, most: int = VALUE_MOST, one_line: bool = False) -> str | None:
+    """Why `text` is refused (a control character, or longer than `most` characters), or None."""
+    if len(text) > most:
+        return f"{len(text)} characters; allowed: at most {most}"
+    return control_problem(text, one_line)

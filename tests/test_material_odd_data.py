@@ -1,0 +1,103 @@
+"""`studyctl calibrate material` on odd data (docs/material.md, "Odd data"): exact repeats
+counted once with a warning, a region of zero stresses and a fit that explains nothing refused,
+too many points refused before any fit, progress per law, and the provenance of a written file
+that is the command as run."""
+
+import hashlib
+import json
+import shlex
+
+from analysis.material_fit import DATA_FILE, MAX_POINTS, fit_material
+from sim.material import load_material
+from tests.helpers import studyctl
+
+
+def _cortex_rows() -> list[str]:
+    return [line for line in DATA_FILE.read_text().splitlines()[1:] if line.startswith("cortex,")]
+
+
+def _data(tmp_path, rows, name="d.csv"):
+    path = tmp_path / name
+    path.write_text("region,stretch,nominal_stress_kpa\n" + "\n".join(rows) + "\n")
+    return path
+
+
+def _fit(*args):
+    res = studyctl("calibrate", "material", "--law", "neo-hookean", *args)
+    return res
+
+
+def test_rows_repeated_exactly_are_counted_once_with_a_warning(tmp_path):
+    rows = _cortex_rows()
+    once, twice = _data(tmp_path, rows, "once.csv"), _data(tmp_path, rows + rows[:10], "twice.csv")
+    res = _fit("--data", twice, "--json")
+    assert res.exit_code == 0, res.output
+    warning, document = res.output.split("\n", 1)
+    assert warning == (f"warning: {twice}: 10 rows of region cortex repeated an earlier row exactly (same strain and stress) "
+                       f"and counted once; {len(rows)} points fitted")
+    merged = json.loads(document)
+    assert merged["files"][0]["points"] == len(rows)
+    assert merged["files"][0]["duplicates_merged"] == 10
+    alone = json.loads(_fit("--data", once, "--json").output)
+    assert merged["laws"][0]["ci95"] == alone["laws"][0]["ci95"]  # the intervals of the data without the copies
+
+
+def test_the_same_strain_with_another_stress_is_a_point_of_its_own(tmp_path):
+    rows = _cortex_rows()
+    region, stretch, stress = rows[5].split(",")
+    res = _fit("--data", _data(tmp_path, rows + [f"{region},{stretch},{float(stress) * 1.01:.4f}"]), "--json")
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.output)["files"][0]["points"] == len(rows) + 1
+
+
+def test_a_region_of_zero_stresses_is_refused_and_nothing_is_written(tmp_path):
+    rows = [",".join(r.split(",")[:2] + ["0"]) for r in _cortex_rows()]
+    data = _data(tmp_path, rows)
+    before = hashlib.sha256(data.read_bytes()).hexdigest()
+    res = _fit("--data", data, "--out", tmp_path / "m.toml")
+    assert res.exit_code == 1
+    assert res.output == f"Error: {data}: region 'cortex': every nominal_stress_kpa is 0; there is nothing to fit\n"
+    assert not (tmp_path / "m.toml").exists()
+    assert hashlib.sha256(data.read_bytes()).hexdigest() == before
+
+
+def test_a_fit_that_explains_nothing_is_refused(tmp_path):
+    """Stresses of the wrong sign (pulling in compression, pushing in tension): no law with
+    positive moduli follows them; its best is no better than the data's mean."""
+    rows = [f"{r.split(',')[0]},{r.split(',')[1]},{-float(r.split(',')[2]):.4f}" for r in _cortex_rows()]
+    data = _data(tmp_path, rows)
+    res = _fit("--data", data, "--out", tmp_path / "m.toml")
+    assert res.exit_code == 1
+    line = res.output.strip()
+    assert line.startswith(f"Error: {data}: region 'cortex': no law explains these data (the chosen neo-hookean: R^2 "), line
+    assert line.endswith(", no better than the data's mean); nothing fitted")
+    assert "\n" not in line
+    assert "inf%" not in res.output
+    assert not (tmp_path / "m.toml").exists()
+
+
+def test_too_many_points_are_refused_before_any_fit(tmp_path):
+    n = MAX_POINTS + 1
+    rows = [f"cortex,{0.9 + 0.2 * k / n:.8f},{(0.2 * k / n - 0.1) * 10:.8f}" for k in range(n)]
+    data = _data(tmp_path, rows)
+    res = _fit("--data", data)
+    assert res.exit_code == 1
+    assert res.output == (f"Error: {data}: region 'cortex' has {n} points; allowed: at most {MAX_POINTS} a file "
+                          "(bin or thin the curve, e.g. a mean stress per strain step)\n")
+
+
+def test_progress_is_reported_after_each_law():
+    seen = []
+    fit_material(DATA_FILE, "cortex", ("neo-hookean", "mooney-rivlin"), progress=lambda k, n: seen.append((k, n)))
+    assert seen == [(1, 2), (2, 2)]
+
+
+def test_the_written_provenance_is_the_command_as_run(tmp_path):
+    out = tmp_path / "m.toml"
+    args = ["calibrate", "material", "--data", str(DATA_FILE), "--region", "cortex", "--law", "ogden", "--bulk-ratio", "40",
+            "--out", str(out)]
+    res = studyctl(*args)
+    assert res.exit_code == 0, res.output
+    command = "studyctl " + " ".join(shlex.quote(a) for a in args).replace("--bulk-ratio 40", "--bulk-ratio 40.0")
+    assert f"# Written by `{command}`." in out.read_text().splitlines()
+    assert load_material(out)[1]["command"] == command
