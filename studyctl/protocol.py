@@ -235,6 +235,8 @@ def _design_conditions(design: TableReader, tables: dict, c: TableReader) -> lis
     conditions = design.items("conditions")
     if conditions is None:
         return None
+    # a model's name is spelt plate-spring or plate_spring alike; a condition's table is named with _ only
+    conditions = [registry.canonical(x) if isinstance(x, str) and x not in tables else x for x in conditions]
     if not conditions:
         c.error("design.conditions", "at least one condition")
     if len(conditions) > MAX_CONDITIONS:
@@ -368,7 +370,7 @@ def _condition_tables(raw, bad) -> dict[str, dict]:
         elif (problem := _load_problem(t["model"])) is not None:
             bad(f"conditions.{name}.model", problem)
         else:
-            tables[name] = t
+            tables[name] = t | {"model": registry.canonical(t["model"])}
     return tables
 
 

@@ -59,7 +59,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from sim.models.base import Contact, Vec3
+from sim.models.base import Contact, Vec3, surface_checked
 from sim.tomltable import REQUIRED
 
 API_VERSION = 1
@@ -121,6 +121,41 @@ def declaration_problem(cls) -> str | None:
     bad = [f"{f.name} ({f.type})" for f in dataclasses.fields(cls.Options) if option_kind(f) == "other"]
     if bad:
         return f"option{'s' if len(bad) > 1 else ''} {', '.join(bad)} of a type the scene reader does not know; allowed: {', '.join(KINDS)} (or None with them)"
+    return None
+
+
+def _default_outside(default, meta: dict, kind: str) -> bool:
+    """Whether `default` lies outside the bounds or choices its own declaration gives."""
+    if meta.get("choices"):
+        return default not in meta["choices"]
+    if kind not in ("number", "integer"):
+        return False
+    if isinstance(default, bool) or not isinstance(default, (int, float)) or (kind == "integer" and not isinstance(default, int)):
+        return True
+    if not math.isfinite(default):
+        return True
+    lo, hi = meta.get("lo"), meta.get("hi")
+    below = lo is not None and (default < lo or (meta.get("lo_open") and default == lo))
+    above = hi is not None and (default > hi or (meta.get("hi_open") and default == hi))
+    return bool(below or above)
+
+
+def default_problem(cls) -> str | None:
+    """Why the defaults `cls` declares cannot run (a default outside its own bounds or choices, or
+    defaults its ``Options`` refuses together), or None. Read when the model loads, so a bad
+    declaration is one line in `model list`, not a fault found later by a scene or a check."""
+    fields = dataclasses.fields(cls.Options)
+    for f in fields:
+        if f.default is dataclasses.MISSING or f.default is None:
+            continue
+        kind = option_kind(f)
+        if _default_outside(f.default, dict(f.metadata), kind):
+            return f"option {f.name}: its default {f.default!r} is outside its own declaration; allowed: {_allowed(dict(f.metadata), kind)}"
+    if all(f.default is not dataclasses.MISSING for f in fields):
+        try:
+            cls.Options()
+        except (ValueError, TypeError) as exc:
+            return f"options: the declared defaults are refused by Options itself: {exc}"
     return None
 
 
@@ -260,7 +295,7 @@ class TissueModel:
         """A frame whose surface nobody draws (a lockstep run without pictures): what the servo
         needs of it (the laws' state, `unstable`); `surface_displacement()` gives the surface
         when it is asked for (a grasp's collision). The default runs `deformation` and keeps it."""
-        self._kept_surface = self.deformation(contacts, displacements)
+        self._kept_surface = surface_checked(self.deformation(contacts, displacements), self.surface_mesh())
 
     def surface_displacement(self) -> np.ndarray:
         """The surface displacement of the last `advance` (its state's, computed now where the

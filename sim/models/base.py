@@ -22,6 +22,7 @@ update them in ``deformation``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -77,3 +78,26 @@ class TissueModel(Protocol):
     def deformation(
         self, contacts: Sequence[Contact], displacements: Sequence[Sequence[float]]
     ) -> np.ndarray: ...
+
+
+def surface_checked(u, mesh) -> np.ndarray:
+    """`u`, a model's surface displacement, as the frame uses it: one finite row of three per
+    vertex of the surface it moves. Raises ValueError saying what it got."""
+    a = np.asarray(u, dtype=np.float64)
+    want = (len(mesh.vertices), 3)
+    if a.shape != want:
+        raise ValueError(f"returned an array of shape {a.shape}; allowed: {want}, one (dx, dy, dz) in m per surface vertex")
+    if not np.isfinite(a).all():
+        raise ValueError(f"returned {int(np.size(a) - np.isfinite(a).sum())} non-finite values; allowed: finite displacements in m")
+    return a
+
+
+def contact_checked(contact) -> Contact:
+    """`contact`, what a model's `grasp` returned, as the servo uses it: a `Contact` whose point
+    is three finite floats. Raises ValueError saying what it got."""
+    if not isinstance(contact, Contact):
+        raise ValueError(f"returned {type(contact).__name__}; allowed: a sim.models.base.Contact")
+    p = contact.point
+    if len(p) != 3 or not all(math.isfinite(float(c)) for c in p):
+        raise ValueError(f"returned a contact whose point is {p!r}; allowed: three finite floats (m)")
+    return contact

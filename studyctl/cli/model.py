@@ -87,8 +87,9 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
 
     from analysis.model_check import CheckConfig, CheckError, CheckInterrupted, check_model, scorecard_md
     from sim.jsonable import jsonable
-    from sim.models.registry import ModelLoadError, model_class
+    from sim.models.registry import ModelLoadError, canonical, model_class
 
+    name = canonical(name)  # plate-spring is plate_spring
     try:  # a model that does not load is one line, before any progress
         model_class(name)
     except ModelLoadError as exc:
