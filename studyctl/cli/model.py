@@ -10,7 +10,7 @@ import click
 from sim.models.base import MAX_PULL_M, pull_problem
 from sim.run import VisualStep
 from sim.scene import DEFAULT_SCENE
-from studyctl.cli.common import Finite, OutFile, _console, _Group, _print_json
+from studyctl.cli.common import Finite, OutDir, OutFile, _console, _Group, _print_json
 
 
 @click.group(cls=_Group)
@@ -117,6 +117,24 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
     if card["violations"]:
         raise click.ClickException(f"model {name}: {len(card['violations'])} violation{'s' if len(card['violations']) > 1 else ''} "
                                    "of the model contract (see above)")
+
+
+@model.command("wheel")
+@click.argument("folder", type=click.Path(file_okay=False, exists=True, path_type=Path))
+@click.option("--out", "out_dir", type=OutDir(), default=Path("dist"), show_default=True, help="The folder the wheel is written into.")
+@click.option("--force", is_flag=True, help="Replace a wheel of the same name and version.")
+def model_wheel(folder: Path, out_dir: Path, force: bool):
+    """Build the wheel of a model package (FOLDER holds its pyproject.toml) with the standard
+    library alone: offline, where pip cannot fetch setuptools. Install it into any venv with
+    `pip install --no-deps WHEEL` (docs/models.md)."""
+    from studyctl.errors import InputError
+    from studyctl.model_wheel import build_wheel
+
+    try:
+        wheel = build_wheel(folder, out_dir, force=force)
+    except InputError as exc:
+        raise click.ClickException(str(exc)) from None
+    click.echo(f"{wheel} ({wheel.stat().st_size / 1e3:.1f} kB)")
 
 
 class _StageReport:
