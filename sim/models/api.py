@@ -2,7 +2,9 @@
 
 A model is a class registered under the entry-point group ``brainsim.models`` (name -> class,
 `sim.models.registry`) or named in a scene as ``"package.module:Class"``. Subclass
-`TissueModel`; the platform calls nothing that this class does not declare.
+`TissueModel`; the platform calls nothing that this class does not declare. Everything a model
+needs is imported from here: `TissueModel`, `option`, `Contact`, the laws (`Linearised`,
+`RadialTable`, `TensorTable`, `Coupling`, `Constant`), `BUDGETS`, `MAX_PULL_M`.
 
 Declared by the class (read when a scene or protocol names the model, before anything builds):
 
@@ -59,8 +61,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from sim.models.base import Contact, Vec3, surface_checked
+from sim.laws import Constant, Coupling, Linearised, RadialTable, TensorTable
+from sim.models.base import MAX_PULL_M, Contact, Vec3, surface_checked
 from sim.tomltable import REQUIRED
+
+# everything a model's author imports, from this one module (docs/models.md)
+__all__ = ["API_VERSION", "BUDGETS", "MAX_PULL_M", "CapabilityError", "Constant", "Contact", "Coupling", "Linearised", "NoOptions",
+           "RadialTable", "TensorTable", "TissueModel", "Vec3", "default_options", "option", "read_options"]
 
 API_VERSION = 1
 
