@@ -50,6 +50,9 @@ class ModelSpec:
 
     name: str
     options: dict = field(default_factory=dict, compare=False)
+    # why the model does not load (sim.models.registry), else None: the scene's other models still
+    # run, and this one is refused, in one line, when it is asked for
+    problem: str | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)
@@ -131,7 +134,7 @@ class SceneSpec:
         defaults. Raises SceneError naming an option without a default (and ModelLoadError)."""
         name = canonical(name)
         if name in self.models:
-            return dict(self.models[name].options)
+            return dict(self.model_spec(name).options)
         try:
             return default_options(model_class(name))
         except ValueError as exc:
@@ -142,6 +145,8 @@ class SceneSpec:
         if name not in self.models:
             configured = ", ".join(sorted(self.models))
             raise SceneError(f"{self.path}: models.{name}: not configured in this scene; configured: {configured}")
+        if self.models[name].problem is not None:
+            raise SceneError(f"{self.path}: models.{name}: {self.models[name].problem}")
         return self.models[name]
 
 
@@ -307,9 +312,8 @@ def _view_spec(view: TableReader) -> ViewSpec:
 def _model_spec(models: TableReader, name: str) -> ModelSpec | None:
     try:
         cls = model_class(name)
-    except ModelLoadError as exc:
-        models.error(name, str(exc))
-        return None
+    except ModelLoadError as exc:  # kept for the line it gives when asked for; the scene's other models run
+        return ModelSpec(canonical(name), {}, problem=str(exc))
     return _model_options(models.table(name), name, cls)
 
 

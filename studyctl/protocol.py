@@ -414,6 +414,8 @@ def _scene_problems(scene: Path, path: Path, text: str, conditions: list, tables
                 out += exc.problems
             except SimError as exc:  # e.g. plate-spring parameters that fail the paper's bounds
                 out.append(f"{path}:{Locator(text).line(f'conditions.{c}')}: conditions.{c}: {exc}")
+        elif c in registry.names() and (problem := _load_problem(c)) is not None:
+            bad(f"condition {c!r}: {problem}")
         elif c in registry.names() and c not in spec.models:
             bad(f"{c!r} is not configured in the scene {scene}; configured: {', '.join(sorted(spec.models))}")
     return spec, out

@@ -209,3 +209,15 @@ def test_model_wheel_refuses_a_folder_without_a_pyproject_in_one_line(tmp_path):
     assert res.exit_code == 1
     assert res.output.strip() == f"Error: {tmp_path / 'pyproject.toml'}: no such file; a model package has a pyproject.toml (docs/models.md)"
     assert not (tmp_path / "dist").exists()
+
+
+def test_a_scene_configuring_a_model_that_does_not_load_still_runs_its_other_models(env, tmp_path):
+    path = plugin_scene(tmp_path, f"{BAD}:Spring")
+    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', "[models.bad_default]"))
+    ok = _studyctl(env, "sim", "run", "--scene", path, "--model", "plate_spring", "--time-scale", "0", "--duration", "0.5", "--json")
+    assert ok.returncode == 0, ok.stderr
+    assert json.loads(ok.stdout)["model"] == "plate_spring"
+    res = _studyctl(env, "sim", "run", "--scene", path, "--model", "bad_default", "--time-scale", "0", "--duration", "0.5")
+    assert res.returncode == 1
+    assert res.stderr.strip() == (f"Error: {path}: models.bad_default: model 'bad_default' (from shadows 0.1): option stiffness: "
+                                  "its default 900.0 is outside its own declaration; allowed: [1, 700]"), res.stderr
