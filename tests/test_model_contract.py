@@ -221,3 +221,15 @@ def test_a_scene_configuring_a_model_that_does_not_load_still_runs_its_other_mod
     assert res.returncode == 1
     assert res.stderr.strip() == (f"Error: {path}: models.bad_default: model 'bad_default' (from shadows 0.1): option stiffness: "
                                   "its default 900.0 is outside its own declaration; allowed: [1, 700]"), res.stderr
+
+
+def test_a_real_time_run_logs_force_calls_over_their_budget_as_an_event(tmp_path):
+    """The servo process times the copy of the slow plugin it evaluates: one over_budget event,
+    kept in the trace a session stores."""
+    target = f"{BAD}:SlowForce"
+    path = plugin_scene(tmp_path, target)
+    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{target}"]'))
+    result = run_scene(build_scene(path, target), duration=1.0, time_scale=1.0)
+    events = [e.detail for e in result.events if e.kind == "over_budget"]
+    assert len(events) == 1 and events[0].startswith("over_budget: force: "), events
+    assert result.over_budget == events

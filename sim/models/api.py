@@ -17,7 +17,11 @@ Declared by the class (read when a scene or protocol names the model, before any
 | ``scales_stiffness`` | True when ``with_stiffness`` is given (the discrimination task needs it) |
 | ``build(mesh, options, scene)`` | the running model (default: ``cls(mesh, options, scene)``)    |
 
-Required of a running model (three calls at three rates, budgets in `BUDGETS`):
+Asked of a running model (three calls at three rates, budgets in `BUDGETS`). A model writes
+``grasp`` and ``deformation``; it writes ``force`` unless every contact it gives carries a
+``law``, which the inherited ``force`` evaluates. Every return value is checked where it is used
+(`sim.models.base.contact_checked`, `surface_checked`, the servo's three numbers): a wrong one is
+zero force and a ``model_fault`` event.
 
 | call                                      | when                          | returns                          |
 |-------------------------------------------|-------------------------------|----------------------------------|
