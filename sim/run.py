@@ -29,8 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.errors import ParameterError
-from sim.models.api import BUDGETS
-from sim.models.base import contact_checked, surface_checked
+from sim.models.base import BUDGETS, contact_checked, surface_checked
 from sim.servo import SLOW_CALLS_MIN, Event, Hand, ServoLoop
 from sim.targets import TargetTracker
 

@@ -25,6 +25,7 @@ from sim.mesh import load_mesh
 from sim.models.api import TissueModel, default_options, option_kind
 from sim.models.base import POISSON_MAX, POISSON_MIN, Vec3
 from sim.models.registry import ModelLoadError, canonical, model_class
+from sim.models.registry import names as registry_names
 from sim.patch import GRASP_RADIUS
 from sim.targets import SAFE_FORCE_N, HandTarget, TargetSpec
 from sim.tomlfile import Locator, TomlFileError, read_toml
@@ -312,8 +313,11 @@ def _view_spec(view: TableReader) -> ViewSpec:
 def _model_spec(models: TableReader, name: str) -> ModelSpec | None:
     try:
         cls = model_class(name)
-    except ModelLoadError as exc:  # kept for the line it gives when asked for; the scene's other models run
-        return ModelSpec(canonical(name), {}, problem=str(exc))
+    except ModelLoadError as exc:
+        if canonical(name) in registry_names():  # an installed model that does not load: kept for the line it
+            return ModelSpec(canonical(name), {}, problem=str(exc))  # gives when asked for; the scene's other models run
+        models.error(name, str(exc))  # a name nothing registers, or a class that does not load: the scene's own mistake
+        return None
     return _model_options(models.table(name), name, cls)
 
 

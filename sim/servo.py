@@ -17,8 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sim.models.api import BUDGETS
-from sim.models.base import Contact
+from sim.models.base import BUDGETS, Contact
 
 NO_FORCE = (0.0, 0.0, 0.0)
 FORCE_BUDGET_S = BUDGETS["force_us_p99"] * 1e-6

@@ -111,7 +111,7 @@ print(json.dumps({{c: resolved_config(c, condition_scene_spec(p, c)) for c in p.
 
 
 def test_a_default_outside_its_own_bounds_does_not_load_and_says_so_in_one_line(env, tmp_path):
-    line = (f"model 'bad_default' (from shadows 0.1): option stiffness: its default 900.0 is outside its own declaration; "
+    line = ("model 'bad_default' (from shadows 0.1): option stiffness: its default 900.0 is outside its own declaration; "
             "allowed: [1, 700]")
     out = json.loads(_studyctl(env, "model", "list", "--json").stdout)
     assert line in out["problems"]

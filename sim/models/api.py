@@ -66,7 +66,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from sim.laws import Constant, Coupling, Linearised, RadialTable, TensorTable
-from sim.models.base import MAX_PULL_M, Contact, Vec3, surface_checked
+from sim.models.base import BUDGETS, MAX_PULL_M, Contact, Vec3, surface_checked
 from sim.tomltable import REQUIRED
 
 # everything a model's author imports, from this one module (docs/models.md)
@@ -75,10 +75,6 @@ __all__ = ["API_VERSION", "BUDGETS", "MAX_PULL_M", "CapabilityError", "Constant"
 
 API_VERSION = 1
 
-# The budgets a model keeps on this machine (`studyctl model check`), per call, 99th percentile:
-# a servo tick is 1 ms shared with the device's I/O and the safety rules (sim/servo.py), a
-# visual frame at 30 Hz is 33 ms, a grasp stalls the frames it falls in.
-BUDGETS = {"force_us_p99": 20.0, "deformation_ms_p99": 33.0, "grasp_ms_p99": 250.0}
 
 
 class CapabilityError(Exception):

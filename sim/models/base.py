@@ -31,6 +31,12 @@ import numpy as np
 
 Vec3 = tuple[float, float, float]
 
+# The budgets a model keeps on this machine (`studyctl model check`), per call, 99th percentile:
+# a servo tick is 1 ms shared with the device's I/O and the safety rules (sim/servo.py), a
+# visual frame at 30 Hz is 33 ms, a grasp stalls the frames it falls in. Here, not in
+# sim.models.api, so that the servo process can judge its calls without importing the API.
+BUDGETS = {"force_us_p99": 20.0, "deformation_ms_p99": 33.0, "grasp_ms_p99": 250.0}
+
 # Poisson's ratio, one bound for scene files and the FEM: POISSON_MIN <= nu < POISSON_MAX
 # (nu = 0.5 is incompressible: linear elasticity's Lame lambda is infinite there).
 POISSON_MIN, POISSON_MAX = 0.0, 0.5
