@@ -199,6 +199,14 @@ def condition_text(c: dict) -> str:
             f"configuration {c['config_sha256'][:12]}")
 
 
+def plugin_note(conditions: list[dict]) -> str:
+    """The conditions whose model came from outside brainsim-study, with its package and version,
+    as a sentence for a table's note ("" when every model is built in)."""
+    outside = [f"{c['condition']} ran {c['model']} {source_text(c['source'])}" for c in conditions
+               if c.get("source") is not None and not c["source"]["builtin"]]
+    return f"Models from outside brainsim-study: {'; '.join(outside)}." if outside else ""
+
+
 def incomplete_text(facts: StudyFacts) -> str:
     """The participants left out of every statistic, as reports print them: "P98 (9/27), ..."."""
     return ", ".join("{} ({}/{})".format(x["code"], x["answers"], x["of"]) for x in facts.incomplete_participants)

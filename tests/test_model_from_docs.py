@@ -101,6 +101,8 @@ def test_a_model_written_from_the_docs_installs_into_its_own_venv_and_reports_it
     assert "Condition fem ran the fem model built into brainsim-study" in text, text
     table1 = run("~/lab/bin/studyctl report table1 --db mystudy/study.db")
     assert "stiff: stiffening (" in table1 and "from brainsim-stiffening 0.1.0 (source SHA-256 " in table1, table1
+    latex = run("~/lab/bin/studyctl report table1 --db mystudy/study.db --format latex")
+    assert "Models from outside brainsim-study: stiff ran stiffening from brainsim-stiffening 0.1.0" in latex, latex
     facts = json.loads(run("~/lab/bin/studyctl report table1 --db mystudy/study.db --format json"))["facts"]
     source = next(c["source"] for c in facts["conditions"] if c["condition"] == "stiff")
     assert (source["package"], source["version"], source["builtin"]) == ("brainsim-stiffening", "0.1.0", False)
