@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.errors import ParameterError
+from sim.errors import ParameterError, SceneError
 from sim.models.base import BUDGETS, contact_checked, surface_checked
 from sim.servo import SLOW_CALLS_MIN, Event, Hand, ServoLoop
 from sim.targets import TargetTracker
@@ -321,7 +321,10 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
         raise ParameterError("end_on_release: a lockstep run's option (time scale 0)")
     if time_scale <= 0 and pacing is not None:
         raise ParameterError("the participant view and paced trials need real time (time scale > 0)")
-    model.reset()  # every run starts from undeformed tissue
+    try:
+        model.reset()  # every run starts from undeformed tissue
+    except Exception as exc:  # a lab's model may fail in any way: one line naming it, as a failed build is
+        raise SceneError(f"model {scene.model_spec.name!r}: reset raised {type(exc).__name__}: {exc}") from None
     if time_scale > 0:
         return _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, servo, end_on_targets)
     person = [h.device for h in spec.hands if h.device in ("openhaptics", "mouse")]
@@ -492,8 +495,21 @@ def _result(scene, model, mode, time_scale, duration, rate, names, rows, starts,
         grasp_s=np.asarray(visual.grasp_s),
         events=events,
         snapshots=visual.snapshots,
-        model_diagnostics=model.diagnostics(),
+        model_diagnostics=_diagnostics(model, events),
     )
+
+
+def _diagnostics(model, events: list) -> dict:
+    """The model's `diagnostics()` for the run's JSON; one that raises or gives no dict is a
+    `model_fault` event and none."""
+    try:
+        out = model.diagnostics()
+        if not isinstance(out, dict):
+            raise ValueError(f"returned {type(out).__name__}; allowed: a dict")
+        return out
+    except Exception as exc:
+        events.append(Event(events[-1].t if events else 0.0, -1, "model_fault", f"model_fault: diagnostics: {exc}"))
+        return {}
 
 
 def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: float, visual_rate: float):

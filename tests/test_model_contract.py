@@ -233,3 +233,21 @@ def test_a_real_time_run_logs_force_calls_over_their_budget_as_an_event(tmp_path
     events = [e.detail for e in result.events if e.kind == "over_budget"]
     assert len(events) == 1 and events[0].startswith("over_budget: force: "), events
     assert result.over_budget == events
+
+
+@pytest.mark.parametrize(("cls", "rc", "line"), [
+    ("DiagnosticsRaise", 0, None),
+    ("ResetRaises", 1, "model '{target}': reset raised RuntimeError: cannot rewind"),
+])
+def test_diagnostics_and_reset_that_raise_are_one_line_not_a_traceback(tmp_path, cls, rc, line):
+    target = f"{BAD}:{cls}"
+    path = plugin_scene(tmp_path, target)
+    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{target}"]'))
+    env = {k: v for k, v in os.environ.items() if k != "STUDYCTL_DB"} | {"PYTHONPATH": str(ROOT)}
+    res = _studyctl(env, "sim", "run", "--scene", path, "--model", target, "--time-scale", "0", "--duration", "0.5", "--json")
+    assert res.returncode == rc, res.stderr
+    assert "Traceback" not in res.stderr
+    if line is None:
+        assert json.loads(res.stdout)["events"].get("model_fault") == 1
+    else:
+        assert res.stderr.strip() == "Error: " + line.format(target=target)

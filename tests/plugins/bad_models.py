@@ -161,3 +161,17 @@ class Fem(Spring):
     """Registered under a built-in's name (tests/test_plugins.py): refused, the built-in stays."""
 
     description = "a plugin that calls itself fem (test plugin)"
+
+
+class DiagnosticsRaise(Spring):
+    description = "diagnostics raises (test plugin)"
+
+    def diagnostics(self):
+        raise RuntimeError("no counters")
+
+
+class ResetRaises(Spring):
+    description = "reset raises (test plugin)"
+
+    def reset(self):
+        raise RuntimeError("cannot rewind")
