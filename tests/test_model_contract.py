@@ -251,3 +251,16 @@ def test_diagnostics_and_reset_that_raise_are_one_line_not_a_traceback(tmp_path,
         assert json.loads(res.stdout)["events"].get("model_fault") == 1
     else:
         assert res.stderr.strip() == "Error: " + line.format(target=target)
+
+
+def test_a_real_time_session_says_a_condition_s_force_calls_are_over_their_budget(tmp_path):
+    protocol = fast_protocol(tmp_path, conditions=("slow",), trials=1)
+    protocol.write_text(protocol.read_text().replace("[inclusion]", f'[conditions.slow]\nmodel = "{BAD}:SlowForce"\n\n[inclusion]', 1))
+    env = {k: v for k, v in os.environ.items() if k != "STUDYCTL_DB"} | {"PYTHONPATH": str(ROOT)}
+    db = tmp_path / "s.db"
+    assert _studyctl(env, "study", "init", "--protocol", protocol, "--db", db).returncode == 0
+    assert _studyctl(env, "participants", "add", "P05", "--synthetic", "--db", db).returncode == 0
+    res = _studyctl(env, "session", "run", "--db", db, "--participant", "P05", "--synthetic", "--time-scale", "1")
+    assert res.returncode == 0, res.stderr
+    said = [ln for ln in res.stderr.splitlines() if "over_budget" in ln]
+    assert len(said) == 1 and said[0].startswith("condition A: trial 1: over_budget: force: "), res.stderr
