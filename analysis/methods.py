@@ -12,7 +12,7 @@ from importlib.metadata import PackageNotFoundError, version
 from analysis.facts import StudyFacts
 from analysis.kind_results import KindStats
 from analysis.study_snapshot import Study
-from analysis.table1 import material_keys
+from analysis.table1 import material_keys, model_source
 from studyctl.instruments import SOURCES, TITLES
 
 CI_LEVEL = 0.95  # every interval the reports print
@@ -103,7 +103,8 @@ def study_methods(study: Study, facts: StudyFacts, items: dict | None = None, ki
             "devices": [{"device": r["device"], "sessions": int(r["sessions"]), "synthetic": bool(r["synthetic"])} for r in setups],
             "software_versions": sorted({r["software_version"] for r in setups if r["software_version"]}),
             "servo_rate_hz": sorted(x for x in rates if x is not None), "visual_rate_hz": sorted(x for x in visual if x is not None),
-            "models": [{"condition": c["condition"], "model": c["model"], **_model(c["config"])} for c in configs],
+            "models": [{"condition": c["condition"], "model": c["model"], **_model(c["config"]),
+                        "source": c.get("source", model_source(c["config"]))} for c in configs],
             "latency": [{k: (float(v) if isinstance(v, float) else v) for k, v in r.items()} for r in latencies],
         },
         "procedure": {

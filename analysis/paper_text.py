@@ -136,7 +136,10 @@ def _apparatus(m: dict) -> str:
             material.append(f"Young's modulus {sig(c['young_pa'])} Pa")
         if _finite(c.get("poisson")):
             material.append(f"Poisson's ratio {c['poisson']:g}")
-        text += (f" Condition {c['condition']} ran the {c['model']} model" + (f" ({options})" if options else "")
+        src = c.get("source")
+        origin = (f" of the package {src['package']} {src['version']}" if src and not src["builtin"] and src["package"]
+                  else f" ({src['target']}, from the Python path)" if src and not src["builtin"] else " built into brainsim-study")
+        text += (f" Condition {c['condition']} ran the {c['model']} model{origin}" + (f" ({options})" if options else "")
                  + (f" on the mesh {c['mesh']}" if c.get("mesh") else "") + (f", with {_names(material)}" if material else "") + ".")
     for r in a["latency"]:
         text += (f" Measured {MEASURES.get(r['measure'], r['measure'])} with {r['model']}: mean {sig(r['mean'])} over {r['trials']} trials "

@@ -76,7 +76,9 @@ def latex(study: Study, holm_scope: str = "family") -> str:
                + f"{facts.study}: N = {facts.participants} participants with every answer; {facts.design}."
                + (f" Left out (incomplete): {listed}." if listed else ""))
     columns = ["Question", *models, "Cochran's Q (p)", f"McNemar p ({scope})"]
-    tables = [{"title": "Table 1", "columns": columns, "rows": rows + [deformation_row + ["", ""]], "note": caption}] if len(r) else []
+    origins = table1.plugin_note(facts.conditions)
+    tables = [{"title": "Table 1", "columns": columns, "rows": rows + [deformation_row + ["", ""]],
+               "note": f"{caption} {origins}".strip()}] if len(r) else []
     tables += [t | {"note": f"{caption} {t['note']}"} for t in kind_tables(st.kinds, models, scope)]
     if not len(r):  # the deformation row had no yes/no table to sit in
         tables.append({"title": "Deformation time (benchmark of this machine)", "columns": columns[: len(models) + 1],

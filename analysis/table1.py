@@ -149,8 +149,31 @@ def conditions(study: Study) -> list[dict]:
     for r in sorted(rows.to_dict(orient="records"), key=lambda r: order.index(r["condition"]) if r["condition"] in order else len(order)):
         config = json.loads(r["config"]) if isinstance(r["config"], str) else None
         out.append({"condition": r["condition"], "model": config["model"] if config else None, "config": config,
-                    "config_sha256": r["config_sha256"] if config else None, "sessions": int(r["sessions"])})
+                    "config_sha256": r["config_sha256"] if config else None, "sessions": int(r["sessions"]),
+                    "source": model_source(config)})
     return out
+
+
+def model_source(config: dict | None) -> dict | None:
+    """Where a condition's model came from, as its stored configuration says: a plugin's
+    distribution, version and source hash (`plugin`, studyctl/conditions.py), else built into
+    brainsim-study (whose version is the sessions' software version); None: no configuration."""
+    if not config:
+        return None
+    plugin = config.get("plugin")
+    if not plugin:
+        return {"package": "brainsim-study", "version": None, "builtin": True, "source_sha256": None}
+    return {"package": plugin.get("distribution"), "version": plugin.get("version"), "builtin": False,
+            "source_sha256": plugin.get("source_sha256"), "target": plugin.get("target")}
+
+
+def source_text(source: dict | None) -> str:
+    """A model's origin in words: "built in", or "from PACKAGE VERSION (source SHA-256 ...)"."""
+    if source is None or source["builtin"]:
+        return "built in"
+    where = f"{source['package']} {source['version']}" if source["package"] else f"{source['target']} on the Python path"
+    sha = f" (source SHA-256 {source['source_sha256'][:12]})" if source.get("source_sha256") else ""
+    return f"from {where}{sha}"
 
 
 def material_keys(model: str) -> tuple:
@@ -172,7 +195,16 @@ def condition_text(c: dict) -> str:
     keys = material_keys(cfg["model"])
     parts = [f"{label} {mat[key]:g}{unit}" for key, label, unit in (("young", "E", " Pa"), ("poisson", "nu", "")) if key in keys]
     young = f"; {', '.join(parts)}" if parts else ""
-    return f"{c['condition']}: {cfg['model']} ({shown}{young}), configuration {c['config_sha256'][:12]}"
+    return (f"{c['condition']}: {cfg['model']} ({shown}{young}), {source_text(c.get('source', model_source(cfg)))}, "
+            f"configuration {c['config_sha256'][:12]}")
+
+
+def plugin_note(conditions: list[dict]) -> str:
+    """The conditions whose model came from outside brainsim-study, with its package and version,
+    as a sentence for a table's note ("" when every model is built in)."""
+    outside = [f"{c['condition']} ran {c['model']} {source_text(c['source'])}" for c in conditions
+               if c.get("source") is not None and not c["source"]["builtin"]]
+    return f"Models from outside brainsim-study: {'; '.join(outside)}." if outside else ""
 
 
 def incomplete_text(facts: StudyFacts) -> str:

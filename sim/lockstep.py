@@ -358,6 +358,12 @@ class CompiledTicks:
                         servo.suspended_until, 2.0, 3.0, simulated.RESTRAINT_ONSET, simulated.RESTRAINT_GAIN])
         if len(self.rows) < k1 - k0:
             self.rows = np.empty((k1 - k0, 3 + 7 * nh))
+        try:
+            # the first call of a process loads or compiles the kernel (tens to hundreds of ms):
+            # paid here, on no tick, so the timed batch below is the ticks' own work
+            _ticks(k0, k0, float(rate), dev, self.cst, self.scr, hand, point, kinds, p, x0, f0, slope, nseg, prm, self.rows)
+        except Exception:
+            return 0
         start = time.perf_counter()
         try:
             done = _ticks(k0, k1, float(rate), dev, self.cst, self.scr, hand, point, kinds, p, x0, f0, slope, nseg, prm, self.rows)

@@ -28,8 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.errors import ParameterError
-from sim.servo import Event, Hand, ServoLoop
+from sim.errors import ParameterError, SceneError
+from sim.models.base import BUDGETS, contact_checked, surface_checked
+from sim.servo import SLOW_CALLS_MIN, Event, Hand, ServoLoop
 from sim.targets import TargetTracker
 
 # a run keeps every tick in memory (about 110 bytes per tick for two hands): one hour is
@@ -105,8 +106,9 @@ class VisualStep:
     _tree: object = None
     _stale: bool = False  # the model advanced since `last` was taken (lazy_surface)
     _grasped: set = field(default_factory=set)  # hands that have held the tissue in this run
+    _last_fault: str | None = None
 
-    def _surface_tree(self):
+    def _surface_tree(self, t: float):
         """Closest-point structure of the surface as it is now (rebuilt at most once a frame,
         and only when a grasp needs it)."""
         if self._tree is None:
@@ -114,7 +116,11 @@ class VisualStep:
 
             if self._stale:
                 self._stale = False
-                self.last = self.model.surface_displacement()
+                try:
+                    self.last = surface_checked(self.model.surface_displacement(), self.model_mesh())
+                except Exception as exc:  # a surface the model cannot give: the surface at rest, grasps dropped
+                    self._fault(t, f"surface_displacement: {exc}")
+                    self.last = None
             mesh = self.model_mesh()
             if self.last is None or not self.last.any():  # the surface at rest: its tree is the mesh's, built once
                 self._tree = _rest_tree(mesh)
@@ -141,6 +147,16 @@ class VisualStep:
     def model_mesh(self):
         return self.model.surface_mesh()
 
+    def _fault(self, t: float, detail: str) -> None:
+        """The model failed in a frame: its grasps dropped (zero force from the next tick), one
+        `model_fault` event while it keeps failing the same way (not one a frame)."""
+        for h in self.hands:
+            h.contact = None
+        detail = f"model_fault: {detail}"
+        if detail != self._last_fault:
+            self.events.append(Event(t, -1, "model_fault", detail))
+        self._last_fault = detail
+
     def __call__(self, t: float) -> None:
         self._tree = None  # the surface moved since the last frame
         for h in self.hands:
@@ -149,12 +165,12 @@ class VisualStep:
                 start = time.perf_counter()
                 h.grasp_request = None
                 # collide with the deformed surface; the model grasps that vertex at rest
-                dist, vertex = self._surface_tree().query(request)
+                dist, vertex = self._surface_tree(t).query(request)
                 if dist > self.grasp_reach:
                     self.events.append(Event(t, h.index, "grasp_missed", f"surface {dist * 1e3:.1f} mm away"))
                     continue
                 try:
-                    contact = self.model.grasp(self.model_mesh().vertices[vertex], h.index)
+                    contact = contact_checked(self.model.grasp(self.model_mesh().vertices[vertex], h.index))
                 except Exception as exc:  # e.g. a singular system: no grasp, never a crash
                     self.events.append(Event(t, h.index, "model_fault", f"model_fault: grasp: {exc}"))
                     continue
@@ -180,12 +196,10 @@ class VisualStep:
                 self.model.advance(contacts, displacements)
                 u = None
             else:
-                u = self.model.deformation(contacts, displacements)
+                u = surface_checked(self.model.deformation(contacts, displacements), self.model_mesh())
             flops = float(self.model.frame_flops)
         except Exception as exc:  # the model failed: drop the grasps (zero force), keep running
-            self.events.append(Event(t, -1, "model_fault", f"model_fault: deformation: {exc}"))
-            for h in self.hands:
-                h.contact = None
+            self._fault(t, f"deformation: {exc}")
             u = np.zeros_like(self.model_mesh().vertices)
         self.deformation_s.append(time.perf_counter() - start)
         self.frame_flops.append(flops)  # a failed frame: no count (never the last frame's)
@@ -237,6 +251,7 @@ class RunResult:
     view: dict | None = None  # the participant view's statistics
     pacer: str | None = None  # real time: "process" (its own clock) or "hd-scheduler" (real devices)
     frame_flops: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per visual frame, the model's count
+    over_budget: list[str] = field(default_factory=list)  # one line per call whose 99th percentile passed its budget
 
     def stats(self) -> dict:
         """The summary `studyctl sim run --json` prints."""
@@ -266,6 +281,7 @@ class RunResult:
             "started_by": self.started_by,
             "pacer": self.pacer,
             "ended_early": self.ended_early,
+            "over_budget": self.over_budget,
             **({"view": self.view} if self.view is not None else {}),
         }
 
@@ -305,7 +321,10 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
         raise ParameterError("end_on_release: a lockstep run's option (time scale 0)")
     if time_scale <= 0 and pacing is not None:
         raise ParameterError("the participant view and paced trials need real time (time scale > 0)")
-    model.reset()  # every run starts from undeformed tissue
+    try:
+        model.reset()  # every run starts from undeformed tissue
+    except Exception as exc:  # a lab's model may fail in any way: one line naming it, as a failed build is
+        raise SceneError(f"model {scene.model_spec.name!r}: reset raised {type(exc).__name__}: {exc}") from None
     if time_scale > 0:
         return _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, servo, end_on_targets)
     person = [h.device for h in spec.hands if h.device in ("openhaptics", "mouse")]
@@ -323,8 +342,29 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
     finally:
         for d in devices:
             d.close()
-    return _ended(visual, _result(scene, model, "lockstep", time_scale, duration, rate, [h.name for h in hands], servo_loop.rows.array(), starts, misses,
-                   wall, visual, servo_loop.events))
+    result = _result(scene, model, "lockstep", time_scale, duration, rate, [h.name for h in hands], servo_loop.rows.array(), starts, misses,
+                     wall, visual, servo_loop.events)
+    # wall-clock judgements, kept out of the events: a lockstep run's events are the same on every machine
+    result.over_budget = [line for line in (servo_loop.budget_line(),) if line is not None] + visual_budget_lines(visual)
+    return _ended(visual, result)
+
+
+def visual_budget_lines(visual: VisualStep) -> list[str]:
+    """One line per visual-side call of this run that passed its budget (sim.models.api.BUDGETS,
+    99th percentiles): a frame's deformation when more than 1% of the frames, and at least
+    `SLOW_CALLS_MIN`, took longer; a grasp when any did (a run has a few)."""
+    out = []
+    frames = np.asarray(visual.deformation_s) * 1e3
+    budget = BUDGETS["deformation_ms_p99"]
+    if (over := int((frames > budget).sum())) > 0.01 * len(frames) and over >= SLOW_CALLS_MIN:
+        out.append(f"over_budget: deformation: {over} of {len(frames)} frames took over {budget:g} ms (worst {frames.max():.1f} ms); "
+                   f"budget: {budget:g} ms at the 99th percentile (docs/models.md)")
+    grasps = np.asarray(visual.grasp_s) * 1e3
+    budget = BUDGETS["grasp_ms_p99"]
+    if (over := int((grasps > budget).sum())) > 0:
+        out.append(f"over_budget: grasp: {over} of {len(grasps)} grasps took over {budget:g} ms (worst {grasps.max():.0f} ms); "
+                   f"budget: {budget:g} ms (docs/models.md)")
+    return out
 
 
 def _tracker(scene):
@@ -366,6 +406,9 @@ def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, se
     names = [h.name for h in spec.hands]
     result = _result(scene, model, "realtime-process", time_scale, duration, rate, names, out.rows, out.starts, out.misses, out.wall,
                      visual, events)
+    lines = visual_budget_lines(visual)
+    result.events = sorted([*result.events, *(Event(duration, -1, "over_budget", line) for line in lines)], key=lambda e: e.t)
+    result.over_budget = [e.detail for e in result.events if e.kind == "over_budget"]
     result.started_by = out.started_by or "clock"
     result.waited_s = float(out.waited_s)
     result.pacer = out.pacer
@@ -452,8 +495,21 @@ def _result(scene, model, mode, time_scale, duration, rate, names, rows, starts,
         grasp_s=np.asarray(visual.grasp_s),
         events=events,
         snapshots=visual.snapshots,
-        model_diagnostics=model.diagnostics(),
+        model_diagnostics=_diagnostics(model, events),
     )
+
+
+def _diagnostics(model, events: list) -> dict:
+    """The model's `diagnostics()` for the run's JSON; one that raises or gives no dict is a
+    `model_fault` event and none."""
+    try:
+        out = model.diagnostics()
+        if not isinstance(out, dict):
+            raise ValueError(f"returned {type(out).__name__}; allowed: a dict")
+        return out
+    except Exception as exc:
+        events.append(Event(events[-1].t if events else 0.0, -1, "model_fault", f"model_fault: diagnostics: {exc}"))
+        return {}
 
 
 def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: float, visual_rate: float):

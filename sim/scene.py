@@ -24,7 +24,8 @@ from sim.material import MaterialSpec, material_spec
 from sim.mesh import load_mesh
 from sim.models.api import TissueModel, default_options, option_kind
 from sim.models.base import POISSON_MAX, POISSON_MIN, Vec3
-from sim.models.registry import ModelLoadError, model_class
+from sim.models.registry import ModelLoadError, canonical, model_class
+from sim.models.registry import names as registry_names
 from sim.patch import GRASP_RADIUS
 from sim.targets import SAFE_FORCE_N, HandTarget, TargetSpec
 from sim.tomlfile import Locator, TomlFileError, read_toml
@@ -50,6 +51,9 @@ class ModelSpec:
 
     name: str
     options: dict = field(default_factory=dict, compare=False)
+    # why the model does not load (sim.models.registry), else None: the scene's other models still
+    # run, and this one is refused, in one line, when it is asked for
+    problem: str | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)
@@ -129,18 +133,21 @@ class SceneSpec:
     def options_of(self, name: str) -> dict:
         """Model `name`'s options on this scene: its [models.NAME], else the model's declared
         defaults. Raises SceneError naming an option without a default (and ModelLoadError)."""
+        name = canonical(name)
         if name in self.models:
-            return dict(self.models[name].options)
+            return dict(self.model_spec(name).options)
         try:
             return default_options(model_class(name))
         except ValueError as exc:
             raise SceneError(f"{exc} ({self.path})") from None
 
     def model_spec(self, name: str | None = None) -> ModelSpec:
-        name = name or self.model
+        name = canonical(name or self.model)
         if name not in self.models:
             configured = ", ".join(sorted(self.models))
             raise SceneError(f"{self.path}: models.{name}: not configured in this scene; configured: {configured}")
+        if self.models[name].problem is not None:
+            raise SceneError(f"{self.path}: models.{name}: {self.models[name].problem}")
         return self.models[name]
 
 
@@ -222,12 +229,12 @@ def _models(root: TableReader, model: TableReader) -> tuple[dict[str, ModelSpec]
     models: dict[str, ModelSpec] = {}
     for name in models_table.data:
         spec = _model_spec(models_table, name)
-        if spec is not None:
-            models[name] = spec
+        if spec is not None:  # plate-spring and plate_spring are one model
+            models[canonical(name)] = dataclasses.replace(spec, name=canonical(name))
     if not models_table.data and isinstance(root.data.get("models"), dict):
         models_table.error("", "no model configured")
-    default_model = model.string("name")
-    if default_model is not None and models_table.data and default_model not in models_table.data:
+    default_model = canonical(model.string("name"))
+    if default_model is not None and models_table.data and default_model not in {canonical(k) for k in models_table.data}:
         model.error("name", f"{default_model!r} has no [models.{default_model}] section")
     return models, default_model
 
@@ -307,7 +314,9 @@ def _model_spec(models: TableReader, name: str) -> ModelSpec | None:
     try:
         cls = model_class(name)
     except ModelLoadError as exc:
-        models.error(name, str(exc))
+        if canonical(name) in registry_names():  # an installed model that does not load: kept for the line it
+            return ModelSpec(canonical(name), {}, problem=str(exc))  # gives when asked for; the scene's other models run
+        models.error(name, str(exc))  # a name nothing registers, or a class that does not load: the scene's own mistake
         return None
     return _model_options(models.table(name), name, cls)
 
@@ -318,7 +327,7 @@ def configure(spec: SceneSpec, table: dict, path: Path, loc: Locator, prefix: st
     keys to change) on top, and `young` / `poisson` on the material. Every key is checked as the
     scene's own are, its problems named with the protocol's `path` and lines (`prefix`:
     "conditions.NAME."); raises one SceneError with all of them."""
-    model = table["model"]
+    model = canonical(table["model"])
     cls = model_class(model)  # the protocol's checker loaded it already
     option_keys = tuple(f.name for f in dataclasses.fields(cls.Options))
     overrides = {k: v for k, v in table.items() if k != "model"}
@@ -326,7 +335,8 @@ def configure(spec: SceneSpec, table: dict, path: Path, loc: Locator, prefix: st
     reader = TableReader(path, overrides, prefix, loc, problems)
     reader.keys(("model",) + option_keys + cls.material_keys)
     data, _ = read_toml(spec.path)
-    base = dict(data["models"][model]) if model in spec.models else {}  # not in the scene: the model's declared defaults
+    scene_tables = {canonical(k): v for k, v in data.get("models", {}).items()}
+    base = dict(scene_tables[model]) if model in spec.models else {}  # not in the scene: the model's declared defaults
     for f in dataclasses.fields(cls.Options):  # the scene's relative paths stay relative to the scene
         key = f.name
         if isinstance(base.get(key), str) and _file_option(f) and not Path(base[key]).is_absolute():

@@ -17,9 +17,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sim.models.base import Contact
+from sim.models.base import BUDGETS, Contact
 
 NO_FORCE = (0.0, 0.0, 0.0)
+FORCE_BUDGET_S = BUDGETS["force_us_p99"] * 1e-6
+SLOW_CALLS_MIN = 3  # one slow call (a cold cache, a collection) is not a model's cost
 
 
 def wait_until(deadline: float, spin: float) -> None:
@@ -66,6 +68,10 @@ class Hand:
     reversals: list = field(default_factory=list)  # times the rendered force flipped direction (chatter monitor)
     mean_square: float = 0.0  # moving mean of |force|^2 over `budget_tau_s` (the continuous-force budget)
     over_budget: bool = False
+
+
+def _not_a_force(f):
+    raise ValueError(f"returned {len(f)} numbers; allowed: (fx, fy, fz), three floats in N")
 
 
 def limit_force(force, peak: float) -> tuple[tuple[float, float, float], str | None]:
@@ -137,6 +143,11 @@ class ServoLoop:
     continuous_force: float = math.inf
     budget_tau_s: float = 5.0
     dt: float = 1e-3
+    # the model's force calls against their budget (sim.models.api.BUDGETS, the 99th percentile):
+    # counted here, judged once at the end of a run (`budget_line`), never one event a call
+    force_calls: int = 0
+    force_over: int = 0
+    force_worst_s: float = 0.0
 
     @classmethod
     def for_devices(cls, model, hands: list[Hand], rate: float) -> ServoLoop:
@@ -152,6 +163,16 @@ class ServoLoop:
             self.events.append(Event(t, -1, reason))
         self.suspended_until = max(self.suspended_until, t + duration)
 
+    def budget_line(self) -> str | None:
+        """One line when more than 1% of this run's force calls, and at least `SLOW_CALLS_MIN`, took
+        longer than the force budget (its 99th percentile), else None; the count starts again."""
+        calls, over, worst = self.force_calls, self.force_over, self.force_worst_s
+        self.force_calls, self.force_over, self.force_worst_s = 0, 0, 0.0
+        if over <= 0.01 * calls or over < SLOW_CALLS_MIN:
+            return None
+        return (f"over_budget: force: {over} of {calls} calls took over {FORCE_BUDGET_S * 1e6:g} us (worst {worst * 1e6:.0f} us); "
+                f"budget: {FORCE_BUDGET_S * 1e6:g} us at the 99th percentile (docs/models.md)")
+
     def restart(self, keep_last: bool) -> None:
         """A paced run's clock starts now (at the first grasp, or a start key): the waiting
         ticks are dropped and the tick just run (kept with `keep_last`: the grasp) becomes t = 0.
@@ -164,6 +185,7 @@ class ServoLoop:
             last[0] = 0.0
             self.rows.append(last)
         self.suspended_until = -math.inf
+        self.force_calls, self.force_over, self.force_worst_s = 0, 0, 0.0
         for h in self.hands:
             h.reversals.clear()
             h.contact_t = 0.0
@@ -229,7 +251,18 @@ class ServoLoop:
                 p, a = h.position, c.point
                 disps.append((p[0] - a[0], p[1] - a[1], p[2] - a[2]))
             try:
+                f0 = clock()
                 raw = self._forces(contacts, disps)
+                took = clock() - f0
+                self.force_calls += 1
+                if took > FORCE_BUDGET_S:
+                    self.force_over += 1
+                    if took > self.force_worst_s:
+                        self.force_worst_s = took
+                # what the loop below unpacks: three numbers per contact, else a fault here
+                if len(raw) != len(held):
+                    raise ValueError(f"{len(raw)} forces for {len(held)} contacts; allowed: one (fx, fy, fz) per contact")
+                raw = [(float(f[0]), float(f[1]), float(f[2])) if len(f) == 3 else _not_a_force(f) for f in raw]
             except Exception as exc:  # a model that throws renders nothing: never a crash in the loop
                 raw = [NO_FORCE] * len(held)
                 if not self.model_fault:

@@ -17,7 +17,7 @@ from sim.devices.openhaptics import OpenHapticsDevice, OpenHapticsRig
 from sim.devices.replay import ReplayDevice
 from sim.devices.simulated import SimulatedOmni
 from sim.laws import Constant
-from sim.servo import Hand, ServoLoop, wait_until
+from sim.servo import Event, Hand, ServoLoop, wait_until
 from sim.servo_messages import (
     BeginRun,
     Close,
@@ -226,6 +226,8 @@ class _Runner:
         run = self.run
         n = self.k - run.k0 if run.started else 0
         rows = self.servo.rows.array() if run.started else np.zeros((0, self.servo.rows.width))
+        if (line := self.servo.budget_line()) is not None and run.started:
+            self.servo.events.append(Event(n / self.rate, -1, "over_budget", line))
         self.done = RunLog(rows=rows, events=tuple(self.servo.events) if run.started else (), starts=run.starts[:n],
                            misses=run.misses, wall=time.perf_counter() - run.begin, started_by=run.started_by,
                            waited_s=run.waited_s, pacer="hd-scheduler" if self.rig is not None else "process")

@@ -231,6 +231,8 @@ def _design_conditions(design: TableReader, tables: dict, c: TableReader) -> lis
     conditions = design.items("conditions")
     if conditions is None:
         return None
+    # a model's name is spelt plate-spring or plate_spring alike; a condition's table is named with _ only
+    conditions = [registry.canonical(x) if isinstance(x, str) and x not in tables else x for x in conditions]
     if not conditions:
         c.error("design.conditions", "at least one condition")
     if len(conditions) > MAX_CONDITIONS:
@@ -367,7 +369,7 @@ def _condition_tables(raw, bad) -> dict[str, dict]:
         elif (problem := _load_problem(t["model"])) is not None:
             bad(f"conditions.{name}.model", problem)
         else:
-            tables[name] = t
+            tables[name] = t | {"model": registry.canonical(t["model"])}
     return tables
 
 
@@ -411,6 +413,8 @@ def _scene_problems(scene: Path, path: Path, text: str, conditions: list, tables
                 out += exc.problems
             except SimError as exc:  # e.g. plate-spring parameters that fail the paper's bounds
                 out.append(f"{path}:{Locator(text).line(f'conditions.{c}')}: conditions.{c}: {exc}")
+        elif c in registry.names() and (problem := _load_problem(c)) is not None:
+            bad(f"condition {c!r}: {problem}")
         elif c in registry.names() and c not in spec.models:
             bad(f"{c!r} is not configured in the scene {scene}; configured: {', '.join(sorted(spec.models))}")
     return spec, out

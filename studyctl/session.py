@@ -472,6 +472,9 @@ def _run_trial(run: _Run, scene, pos: int, model: str, trial: int, status: str) 
     rec |= write_trace(run.db, run.session_id, pos, trial, result)  # durable before the trial's row
     if not rec["grasped"]:
         run.say(f"condition {run.labels[model]}: trial {trial + 1}: nothing was grasped (recorded)")
+    if run.time_scale > 0:  # a person's trial: a model slower than its budget (also an event in the trace)
+        for line in result.over_budget:
+            run.say(f"condition {run.labels[model]}: trial {trial + 1}: {line}")
     session_rows.record_trial(run.store, rec, lat)  # latency rows first, the trial row last
 
 

@@ -136,7 +136,7 @@ def test_sessions_store_what_each_condition_ran_and_reports_show_it(tmp_path):
     assert {"config", "config_sha256"} <= set(cond.columns) and cond["config"].map(lambda c: json.loads(c)["model"]).tolist().count("fem") == 2
     md = studyctl("report", "table1", "--db", db).output
     assert "| Question | paper: yes/no" in md and "3 conditions" in md
-    assert re.search(r"paper: plate_spring \(variant paper\), configuration [0-9a-f]{12}; located: plate_spring \(variant located\)", md)
+    assert re.search(r"paper: plate_spring \(variant paper\), built in, configuration [0-9a-f]{12}; located: plate_spring \(variant located\)", md)
     assert "stiff_fem: fem (formulation linear, grasp_radius 0.005, order 1, resolution 0.008; E 6000 Pa, nu 0.45)" in md
     res = studyctl("report", "table1", "--db", db, "--format", "html", "--out", tmp_path / "r.html")
     assert res.exit_code == 0 and "<h2>Conditions</h2>" in (tmp_path / "r.html").read_text()

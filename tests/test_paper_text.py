@@ -80,8 +80,8 @@ def test_effects_name_their_direction_and_only_what_a_model_reads(variants_study
     own stiffness; its variant tells two plate-spring conditions apart)."""
     text, doc = _text_and_json(variants_study)
     apparatus = text.split("## Apparatus")[1].split("## Procedure")[0]
-    assert "Condition paper ran the plate_spring model (variant paper)" in apparatus
-    assert "Condition located ran the plate_spring model (variant located)" in apparatus
+    assert "Condition paper ran the plate_spring model built into brainsim-study (variant paper)" in apparatus
+    assert "Condition located ran the plate_spring model built into brainsim-study (variant located)" in apparatus
     plate = [s for s in apparatus.split(". ") if "plate_spring model" in s]
     assert plate and not any("Young" in s or "law" in s for s in plate)
     for p in doc["kinds"]["ordinal_gee"]["pairs"]:

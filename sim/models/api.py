@@ -2,7 +2,9 @@
 
 A model is a class registered under the entry-point group ``brainsim.models`` (name -> class,
 `sim.models.registry`) or named in a scene as ``"package.module:Class"``. Subclass
-`TissueModel`; the platform calls nothing that this class does not declare.
+`TissueModel`; the platform calls nothing that this class does not declare. Everything a model
+needs is imported from here: `TissueModel`, `option`, `Contact`, the laws (`Linearised`,
+`RadialTable`, `TensorTable`, `Coupling`, `Constant`), `BUDGETS`, `MAX_PULL_M`.
 
 Declared by the class (read when a scene or protocol names the model, before anything builds):
 
@@ -15,7 +17,11 @@ Declared by the class (read when a scene or protocol names the model, before any
 | ``scales_stiffness`` | True when ``with_stiffness`` is given (the discrimination task needs it) |
 | ``build(mesh, options, scene)`` | the running model (default: ``cls(mesh, options, scene)``)    |
 
-Required of a running model (three calls at three rates, budgets in `BUDGETS`):
+Asked of a running model (three calls at three rates, budgets in `BUDGETS`). A model writes
+``grasp`` and ``deformation``; it writes ``force`` unless every contact it gives carries a
+``law``, which the inherited ``force`` evaluates. Every return value is checked where it is used
+(`sim.models.base.contact_checked`, `surface_checked`, the servo's three numbers): a wrong one is
+zero force and a ``model_fault`` event.
 
 | call                                      | when                          | returns                          |
 |-------------------------------------------|-------------------------------|----------------------------------|
@@ -59,15 +65,16 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from sim.models.base import Contact, Vec3
+from sim.laws import Constant, Coupling, Linearised, RadialTable, TensorTable
+from sim.models.base import BUDGETS, MAX_PULL_M, Contact, Vec3, surface_checked
 from sim.tomltable import REQUIRED
+
+# everything a model's author imports, from this one module (docs/models.md)
+__all__ = ["API_VERSION", "BUDGETS", "MAX_PULL_M", "CapabilityError", "Constant", "Contact", "Coupling", "Linearised", "NoOptions",
+           "RadialTable", "TensorTable", "TissueModel", "Vec3", "default_options", "option", "read_options"]
 
 API_VERSION = 1
 
-# The budgets a model keeps on this machine (`studyctl model check`), per call, 99th percentile:
-# a servo tick is 1 ms shared with the device's I/O and the safety rules (sim/servo.py), a
-# visual frame at 30 Hz is 33 ms, a grasp stalls the frames it falls in.
-BUDGETS = {"force_us_p99": 20.0, "deformation_ms_p99": 33.0, "grasp_ms_p99": 250.0}
 
 
 class CapabilityError(Exception):
@@ -121,6 +128,41 @@ def declaration_problem(cls) -> str | None:
     bad = [f"{f.name} ({f.type})" for f in dataclasses.fields(cls.Options) if option_kind(f) == "other"]
     if bad:
         return f"option{'s' if len(bad) > 1 else ''} {', '.join(bad)} of a type the scene reader does not know; allowed: {', '.join(KINDS)} (or None with them)"
+    return None
+
+
+def _default_outside(default, meta: dict, kind: str) -> bool:
+    """Whether `default` lies outside the bounds or choices its own declaration gives."""
+    if meta.get("choices"):
+        return default not in meta["choices"]
+    if kind not in ("number", "integer"):
+        return False
+    if isinstance(default, bool) or not isinstance(default, (int, float)) or (kind == "integer" and not isinstance(default, int)):
+        return True
+    if not math.isfinite(default):
+        return True
+    lo, hi = meta.get("lo"), meta.get("hi")
+    below = lo is not None and (default < lo or (meta.get("lo_open") and default == lo))
+    above = hi is not None and (default > hi or (meta.get("hi_open") and default == hi))
+    return bool(below or above)
+
+
+def default_problem(cls) -> str | None:
+    """Why the defaults `cls` declares cannot run (a default outside its own bounds or choices, or
+    defaults its ``Options`` refuses together), or None. Read when the model loads, so a bad
+    declaration is one line in `model list`, not a fault found later by a scene or a check."""
+    fields = dataclasses.fields(cls.Options)
+    for f in fields:
+        if f.default is dataclasses.MISSING or f.default is None:
+            continue
+        kind = option_kind(f)
+        if _default_outside(f.default, dict(f.metadata), kind):
+            return f"option {f.name}: its default {f.default!r} is outside its own declaration; allowed: {_allowed(dict(f.metadata), kind)}"
+    if all(f.default is not dataclasses.MISSING for f in fields):
+        try:
+            cls.Options()
+        except (ValueError, TypeError) as exc:
+            return f"options: the declared defaults are refused by Options itself: {exc}"
     return None
 
 
@@ -260,7 +302,7 @@ class TissueModel:
         """A frame whose surface nobody draws (a lockstep run without pictures): what the servo
         needs of it (the laws' state, `unstable`); `surface_displacement()` gives the surface
         when it is asked for (a grasp's collision). The default runs `deformation` and keeps it."""
-        self._kept_surface = self.deformation(contacts, displacements)
+        self._kept_surface = surface_checked(self.deformation(contacts, displacements), self.surface_mesh())
 
     def surface_displacement(self) -> np.ndarray:
         """The surface displacement of the last `advance` (its state's, computed now where the

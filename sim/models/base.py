@@ -22,6 +22,7 @@ update them in ``deformation``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -29,6 +30,12 @@ from typing import Any, Protocol
 import numpy as np
 
 Vec3 = tuple[float, float, float]
+
+# The budgets a model keeps on this machine (`studyctl model check`), per call, 99th percentile:
+# a servo tick is 1 ms shared with the device's I/O and the safety rules (sim/servo.py), a
+# visual frame at 30 Hz is 33 ms, a grasp stalls the frames it falls in. Here, not in
+# sim.models.api, so that the servo process can judge its calls without importing the API.
+BUDGETS = {"force_us_p99": 20.0, "deformation_ms_p99": 33.0, "grasp_ms_p99": 250.0}
 
 # Poisson's ratio, one bound for scene files and the FEM: POISSON_MIN <= nu < POISSON_MAX
 # (nu = 0.5 is incompressible: linear elasticity's Lame lambda is infinite there).
@@ -77,3 +84,26 @@ class TissueModel(Protocol):
     def deformation(
         self, contacts: Sequence[Contact], displacements: Sequence[Sequence[float]]
     ) -> np.ndarray: ...
+
+
+def surface_checked(u, mesh) -> np.ndarray:
+    """`u`, a model's surface displacement, as the frame uses it: one finite row of three per
+    vertex of the surface it moves. Raises ValueError saying what it got."""
+    a = np.asarray(u, dtype=np.float64)
+    want = (len(mesh.vertices), 3)
+    if a.shape != want:
+        raise ValueError(f"returned an array of shape {a.shape}; allowed: {want}, one (dx, dy, dz) in m per surface vertex")
+    if not np.isfinite(a).all():
+        raise ValueError(f"returned {int(np.size(a) - np.isfinite(a).sum())} non-finite values; allowed: finite displacements in m")
+    return a
+
+
+def contact_checked(contact) -> Contact:
+    """`contact`, what a model's `grasp` returned, as the servo uses it: a `Contact` whose point
+    is three finite floats. Raises ValueError saying what it got."""
+    if not isinstance(contact, Contact):
+        raise ValueError(f"returned {type(contact).__name__}; allowed: a sim.models.base.Contact")
+    p = contact.point
+    if len(p) != 3 or not all(math.isfinite(float(c)) for c in p):
+        raise ValueError(f"returned a contact whose point is {p!r}; allowed: three finite floats (m)")
+    return contact

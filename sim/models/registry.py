@@ -1,7 +1,10 @@
 """Which tissue models are installed: the entry-point group ``brainsim.models`` (name -> class;
 the three built-in models register there too, in pyproject.toml) and ``"package.module:Class"``
 names for a model on the Python path. A model that does not load (its import fails, its class is
-missing, it declares another API version) is one line naming it and the cause; the others load."""
+missing, it declares another API version, an option's default lies outside its own bounds) is one
+line naming it and the cause; the others load. Names are spelt with `_` or `-` alike
+(`plate-spring` is `plate_spring`). A plugin may not take a name already taken: a built-in's name
+stays the built-in's, and a name two plugins register is neither's; each refusal is a line."""
 
 from __future__ import annotations
 
@@ -14,7 +17,7 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
-from sim.models.api import API_VERSION, TissueModel, declaration_problem, options_of
+from sim.models.api import API_VERSION, TissueModel, declaration_problem, default_problem, options_of
 
 GROUP = "brainsim.models"
 HOME = "brainsim-study"  # the distribution of the built-in models
@@ -37,16 +40,56 @@ class ModelInfo:
         return self.distribution == HOME
 
 
-@functools.cache
-def entry_points() -> dict[str, ModelInfo]:
-    """The registered models, by name (first registration of a name wins; duplicates are listed
-    by `problems`)."""
-    out: dict[str, ModelInfo] = {}
+def canonical(name):
+    """`name` as the registry keys it: a registered name with `-` spelt `_` (`plate-spring` is
+    `plate_spring`); a "package.module:Class" name, or anything not a string, unchanged."""
+    if not isinstance(name, str) or ":" in name:
+        return name
+    return name.replace("-", "_")
+
+
+def _scan() -> tuple[dict[str, ModelInfo], list[str]]:
+    """(the registered models by canonical name, one line per registration refused). The
+    built-in models are read first and keep their names; a plugin registering a built-in's name,
+    or a name another plugin registers too, is refused."""
+    found: dict[str, list[ModelInfo]] = {}
     for ep in metadata.entry_points(group=GROUP):
         dist = ep.dist.name if ep.dist is not None else None
         version = ep.dist.version if ep.dist is not None else None
-        out.setdefault(ep.name, ModelInfo(ep.name, ep.value, dist, version))
-    return out
+        i = ModelInfo(canonical(ep.name), ep.value, dist, version)
+        if i not in found.setdefault(i.name, []):  # one distribution seen twice on the path is one registration
+            found[i.name].append(i)
+    out: dict[str, ModelInfo] = {}
+    refused: list[str] = []
+    for name, regs in found.items():
+        home = [i for i in regs if i.builtin]
+        others = [i for i in regs if not i.builtin]
+        if home:
+            out[name] = home[0]
+            refused += [f"model {name!r} (from {_source(i)}): refused: {name!r} is a built-in model's name, and the built-in "
+                        f"stays; register the plugin under another name" for i in others]
+        elif len(others) == 1:
+            out[name] = others[0]
+        else:
+            froms = " and ".join(_source(i) for i in others)
+            refused.append(f"model {name!r}: refused: registered by {froms}; neither loads until one is uninstalled or renamed")
+    return out, refused
+
+
+@functools.cache
+def _registered() -> tuple[dict[str, ModelInfo], tuple[str, ...]]:
+    out, refused = _scan()
+    return out, tuple(refused)
+
+
+def entry_points() -> dict[str, ModelInfo]:
+    """The registered models, by canonical name (refused registrations left out: `refusals`)."""
+    return _registered()[0]
+
+
+def refusals() -> list[str]:
+    """One line per registration the registry refused (a name taken by a built-in, or by two plugins)."""
+    return list(_registered()[1])
 
 
 def names() -> list[str]:
@@ -55,11 +98,12 @@ def names() -> list[str]:
 
 
 def is_model_name(name) -> bool:
-    """`name` could name a model: registered, or of the form package.module:Class."""
-    return isinstance(name, str) and (name in entry_points() or bool(PATH_NAME.match(name)))
+    """`name` could name a model: registered (either spelling), or of the form package.module:Class."""
+    return isinstance(name, str) and (canonical(name) in entry_points() or bool(PATH_NAME.match(name)))
 
 
 def info(name: str) -> ModelInfo:
+    name = canonical(name)
     if name in entry_points():
         return entry_points()[name]
     if PATH_NAME.match(name):
@@ -68,9 +112,13 @@ def info(name: str) -> ModelInfo:
     raise ModelLoadError(f"unknown model {name!r}; installed: {available} (or name a class as \"package.module:Class\")")
 
 
-@functools.cache
 def model_class(name: str) -> type:
-    """The class of model `name`, checked against the API. Raises ModelLoadError."""
+    """The class of model `name` (either spelling), checked against the API. Raises ModelLoadError."""
+    return _model_class(canonical(name))
+
+
+@functools.cache
+def _model_class(name: str) -> type:
     i = info(name)
     where = f"model {name!r}" + (f" (from {i.distribution} {i.version})" if i.distribution and not i.builtin else "")
     module_name, _, attr = i.target.partition(":")
@@ -85,14 +133,14 @@ def model_class(name: str) -> type:
         raise ModelLoadError(f"{where}: {i.target} is not a subclass of sim.models.api.TissueModel")
     if cls.api_version != API_VERSION:
         raise ModelLoadError(f"{where}: declares model API version {cls.api_version!r}; this brainsim runs version {API_VERSION}")
-    if (problem := declaration_problem(cls)) is not None:
+    if (problem := declaration_problem(cls) or default_problem(cls)) is not None:
         raise ModelLoadError(f"{where}: {problem}")
     return cls
 
 
 def installed() -> tuple[dict[str, type], list[str]]:
     """(the models that load, by name; one line per registered model that does not)."""
-    ok, problems = {}, []
+    ok, problems = {}, refusals()
     for name in names():
         try:
             ok[name] = model_class(name)
@@ -128,6 +176,7 @@ def provenance(name: str) -> dict | None:
     i = info(name)
     if i.builtin:
         return None
+    name = canonical(name)
     return {"target": i.target, "distribution": i.distribution, "version": i.version, "source_sha256": source_sha256(model_class(name))}
 
 
@@ -137,6 +186,7 @@ def _source(i: ModelInfo) -> str:
 
 def describe(name: str) -> dict:
     """What `studyctl model describe` prints. Raises ModelLoadError."""
+    name = canonical(name)
     cls, i = model_class(name), info(name)
     capabilities = {"stiffness scaling": bool(cls.scales_stiffness)}  # declared; the others are seen when it runs
     return {"name": name, "class": i.target, "distribution": i.distribution, "version": i.version, "source": _source(i),

@@ -10,7 +10,7 @@ import click
 from sim.models.base import MAX_PULL_M, pull_problem
 from sim.run import VisualStep
 from sim.scene import DEFAULT_SCENE
-from studyctl.cli.common import FORCE, Finite, OutFile, _console, _Group, _print_json, staged, write_output
+from studyctl.cli.common import FORCE, Finite, OutDir, OutFile, _console, _Group, _print_json, staged, write_output
 
 
 @click.group(cls=_Group)
@@ -87,9 +87,10 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
 
     from analysis.model_check import CheckConfig, CheckError, CheckInterrupted, check_model, scorecard_md
     from sim.jsonable import jsonable
-    from sim.models.registry import ModelLoadError, model_class
+    from sim.models.registry import ModelLoadError, canonical, model_class
 
     target = staged(out_file, force)  # an existing file refused before the check runs
+    name = canonical(name)  # plate-spring is plate_spring
     try:  # a model that does not load is one line, before any progress
         model_class(name)
     except ModelLoadError as exc:
@@ -114,6 +115,24 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
     if card["violations"]:
         raise click.ClickException(f"model {name}: {len(card['violations'])} violation{'s' if len(card['violations']) > 1 else ''} "
                                    "of the model contract (see above)")
+
+
+@model.command("wheel")
+@click.argument("folder", type=click.Path(file_okay=False, exists=True, path_type=Path))
+@click.option("--out", "out_dir", type=OutDir(), default=Path("dist"), show_default=True, help="The folder the wheel is written into.")
+@click.option("--force", is_flag=True, help="Replace a wheel of the same name and version.")
+def model_wheel(folder: Path, out_dir: Path, force: bool):
+    """Build the wheel of a model package (FOLDER holds its pyproject.toml) with the standard
+    library alone: offline, where pip cannot fetch setuptools. Install it into any venv with
+    `pip install --no-deps WHEEL` (docs/models.md)."""
+    from studyctl.errors import InputError
+    from studyctl.model_wheel import build_wheel
+
+    try:
+        wheel = build_wheel(folder, out_dir, force=force)
+    except InputError as exc:
+        raise click.ClickException(str(exc)) from None
+    click.echo(f"{wheel} ({wheel.stat().st_size / 1e3:.1f} kB)")
 
 
 class _StageReport:

@@ -147,3 +147,5 @@ def _print_run(s: dict) -> None:
     if "frames_dir" in s:
         t.add_row("pictures", f"{s['frames']} in {s['frames_dir']}")
     _console().print(t)
+    for line in s.get("over_budget", []):  # the model's calls slower than their budget (docs/models.md)
+        click.echo(line)

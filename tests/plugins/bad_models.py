@@ -129,3 +129,49 @@ class FlagOptions:
 class Flagged(Spring):
     description = "boolean and integer-choice options (test plugin)"
     Options = FlagOptions
+
+
+class WrongShape(Spring):
+    """A deformation of two columns where the API asks three (and the same from the lazy surface)."""
+
+    description = "deformation of the wrong shape (test plugin)"
+
+    def deformation(self, contacts, displacements):
+        return np.zeros((len(self.mesh.vertices), 2))
+
+
+class TwoFloatForce(Spring):
+    description = "force returns two numbers (test plugin)"
+
+    def force(self, contact, d):
+        return (0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class BadDefaultOptions:
+    stiffness: float = option(900.0, unit="N/m", lo=1.0, hi=700.0, doc="its default outside its own bounds")
+
+
+class BadDefault(Spring):
+    description = "an option whose default lies outside its bounds (test plugin)"
+    Options = BadDefaultOptions
+
+
+class Fem(Spring):
+    """Registered under a built-in's name (tests/test_plugins.py): refused, the built-in stays."""
+
+    description = "a plugin that calls itself fem (test plugin)"
+
+
+class DiagnosticsRaise(Spring):
+    description = "diagnostics raises (test plugin)"
+
+    def diagnostics(self):
+        raise RuntimeError("no counters")
+
+
+class ResetRaises(Spring):
+    description = "reset raises (test plugin)"
+
+    def reset(self):
+        raise RuntimeError("cannot rewind")

@@ -22,9 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.laws import Linearised
-from sim.models.api import TissueModel, option
-from sim.models.base import Contact
+from sim.models.api import Contact, Linearised, TissueModel, option
 
 __version__ = "0.1.0"
 

@@ -1,0 +1,119 @@
+"""A lab's model package as a wheel, with nothing but the standard library (`studyctl model wheel`).
+
+A tissue model is pure Python: its wheel is a zip of its packages and three small metadata files.
+`pip install ./mymodel` builds one with setuptools, which pip fetches from the package index into
+an isolated build; offline, a venv's own setuptools is too old to build one (Python 3.11's venv
+has 65.5, without the `wheel` package it needs; Python 3.12's has none). This writes the wheel
+from the package's pyproject.toml alone, so `pip install --no-deps` puts the model into any venv,
+offline. It reads what a model package needs ([project] name, version, description,
+requires-python, dependencies and entry points; the packages under `src/`, or where
+[tool.setuptools.packages.find] says) and refuses anything else it cannot honour in one line."""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import re
+import tomllib
+import zipfile
+from pathlib import Path
+
+from studyctl.errors import InputError
+
+NAME = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9._-]*[A-Za-z0-9])?$")
+VERSION = re.compile(r"^[0-9]+(\.[0-9]+)*([a-z0-9.+-]*)$")
+READ = ("name", "version", "description", "requires-python", "dependencies", "entry-points", "license", "readme", "authors")
+
+
+def _project(folder: Path) -> tuple[dict, Path]:
+    """([project] of folder/pyproject.toml, the folder its packages are in)."""
+    path = folder / "pyproject.toml"
+    if not path.is_file():
+        raise InputError(f"{path}: no such file; a model package has a pyproject.toml (docs/models.md)")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not TOML: {exc}") from None
+    project = data.get("project")
+    if not isinstance(project, dict):
+        raise InputError(f"{path}: project: missing; allowed: a [project] table with name and version")
+    for key in ("name", "version"):
+        if not isinstance(project.get(key), str):
+            raise InputError(f"{path}: project.{key}: missing; allowed: a string")
+    if not NAME.match(project["name"]):
+        raise InputError(f"{path}: project.name: {project['name']!r} is not a distribution name; allowed: letters, digits, . _ -")
+    if not VERSION.match(project["version"]):
+        raise InputError(f"{path}: project.version: {project['version']!r} is not a version; allowed: e.g. 0.1.0")
+    unknown = sorted(set(project) - set(READ))
+    if unknown:
+        raise InputError(f"{path}: project.{unknown[0]}: not read by this builder; allowed: {', '.join(READ)} "
+                         "(or build with `pip wheel` where setuptools can be fetched)")
+    find = data.get("tool", {}).get("setuptools", {}).get("packages", {}).get("find", {})
+    where = find.get("where", ["src"] if (folder / "src").is_dir() else ["."])
+    if not (isinstance(where, list) and len(where) == 1 and isinstance(where[0], str)):
+        raise InputError(f"{path}: tool.setuptools.packages.find.where: {where!r}; allowed: one folder, e.g. [\"src\"]")
+    return project, folder / where[0]
+
+
+def _packages(root: Path) -> list[Path]:
+    """The top-level packages under `root` (folders with an __init__.py)."""
+    return sorted(p for p in root.iterdir() if p.is_dir() and (p / "__init__.py").is_file()) if root.is_dir() else []
+
+
+def _metadata(project: dict) -> str:
+    lines = ["Metadata-Version: 2.1", f"Name: {project['name']}", f"Version: {project['version']}"]
+    if isinstance(project.get("description"), str):
+        lines.append(f"Summary: {project['description']}")
+    if isinstance(project.get("requires-python"), str):
+        lines.append(f"Requires-Python: {project['requires-python']}")
+    lines += [f"Requires-Dist: {d}" for d in project.get("dependencies", [])]
+    return "\n".join(lines) + "\n"
+
+
+def _entry_points(project: dict) -> str:
+    out = []
+    for group, table in (project.get("entry-points") or {}).items():
+        out.append(f"[{group}]")
+        out += [f"{name} = {target}" for name, target in table.items()]
+        out.append("")
+    return "\n".join(out)
+
+
+def _record_line(name: str, data: bytes) -> str:
+    digest = base64.urlsafe_b64encode(hashlib.sha256(data).digest()).rstrip(b"=").decode()
+    return f"{name},sha256={digest},{len(data)}"
+
+
+def build_wheel(folder: str | Path, out_dir: str | Path, force: bool = False) -> Path:
+    """The wheel of the model package in `folder`, written into `out_dir` (whole or not at all;
+    an existing wheel of that name replaced only with `force`); its path. Raises InputError."""
+    folder, out_dir = Path(folder), Path(out_dir)
+    project, root = _project(folder)
+    packages = _packages(root)
+    if not packages:
+        raise InputError(f"{root}: no package (a folder with an __init__.py); allowed: the layout of docs/models.md, src/PACKAGE/__init__.py")
+    if "brainsim.models" not in (project.get("entry-points") or {}):
+        raise InputError(f"{folder / 'pyproject.toml'}: project.entry-points.\"brainsim.models\": missing; "
+                         "allowed: a table naming the model's class, e.g. mymodel = \"mypackage:MyModel\"")
+    dist = re.sub(r"[-_.]+", "_", project["name"]).lower()
+    info = f"{dist}-{project['version']}.dist-info"
+    files: list[tuple[str, bytes]] = []
+    for pkg in packages:
+        for f in sorted(pkg.rglob("*")):
+            if f.is_file() and "__pycache__" not in f.parts and f.suffix not in (".pyc", ".pyo"):
+                files.append((f.relative_to(root).as_posix(), f.read_bytes()))
+    files += [(f"{info}/METADATA", _metadata(project).encode()),
+              (f"{info}/WHEEL", b"Wheel-Version: 1.0\nGenerator: studyctl model wheel\nRoot-Is-Purelib: true\nTag: py3-none-any\n"),
+              (f"{info}/entry_points.txt", _entry_points(project).encode())]
+    record = "\n".join([*(_record_line(n, d) for n, d in files), f"{info}/RECORD,,"]) + "\n"
+    files.append((f"{info}/RECORD", record.encode()))
+    wheel = out_dir / f"{dist}-{project['version']}-py3-none-any.whl"
+    if wheel.exists() and not force:
+        raise InputError(f"{wheel}: exists; pass --force to replace it")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    part = out_dir / f".{wheel.name}.part"
+    with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
+        for name, data in files:
+            z.writestr(name, data)
+    part.replace(wheel)
+    return wheel
