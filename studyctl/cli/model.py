@@ -89,12 +89,12 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
     from sim.jsonable import jsonable
     from sim.models.registry import ModelLoadError, canonical, model_class
 
-    target = staged(out_file, force)  # an existing file refused before the check runs
     name = canonical(name)  # plate-spring is plate_spring
     try:  # a model that does not load is one line, before any progress
         model_class(name)
     except ModelLoadError as exc:
         raise click.ClickException(str(exc)) from None
+    target = staged(out_file, force)  # an existing file refused before the check runs
 
     def emit(card):
         text = json.dumps(jsonable(card), indent=2) if as_json else scorecard_md(card)
