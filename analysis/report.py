@@ -29,7 +29,8 @@ def write_plots(study: Study, out_dir, force_traces: bool = True, size: str | Fi
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
 
-    synthetic = table1.study_facts(study).synthetic
+    facts = table1.study_facts(study)
+    synthetic = "mixed" if facts.mixed else facts.synthetic  # the titles' kind of data (plots._kind)
     r = table1.rates(study)
     protocol = study.protocol
     models = list(protocol.conditions)

@@ -40,6 +40,7 @@ class Study:
     - `synthetic_participants`, `person_participants`: how many participants answered
       synthetically, and as people (from the answers' own source, not a participant flag);
       `mixed_source_participants`: the codes that answered both ways;
+    - `sources`: each participant's answer sources: ``code, source`` (their kind, studyctl.completeness);
     - `periods`: each participant's position (0-based) of each condition in their session:
       ``code, model, period`` (the session's order, else the assigned one);
     - `latency`: each participant's mean deformation time per condition: ``code, model, value, trials``;
@@ -61,6 +62,7 @@ class Study:
     synthetic_participants: int
     person_participants: int
     mixed_source_participants: tuple[str, ...]
+    sources: pd.DataFrame
     periods: pd.DataFrame
     latency: pd.DataFrame
     latency_trials: pd.DataFrame
@@ -90,6 +92,7 @@ def read_study(store) -> Study:
         synthetic_participants=synthetic,
         person_participants=persons,
         mixed_source_participants=mixed,
+        sources=snapshot.answer_sources(store),
         periods=_periods(orders),
         latency=snapshot.latency(store),
         latency_trials=snapshot.latency_trials(store),

@@ -23,6 +23,7 @@ from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study, data_flag
 from analysis.withhold import binary_across_reason
 from sim.models.registry import ModelLoadError, model_class
+from studyctl.completeness import analysed_rows, completeness
 
 
 def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.DataFrame:
@@ -31,29 +32,15 @@ def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.Data
     return wide.reindex(columns=models).dropna()
 
 
-def expected_answers(protocol) -> int:
-    """How many analysed answers a complete participant gives: each question asked after a
-    condition once per condition, after a trial once per trial, at the end once (free text
-    is never analysed, so it is not needed)."""
-    per = {"condition": len(protocol.conditions), "trial": len(protocol.conditions) * protocol.trials_per_condition, "end": 1}
-    return sum(per[q.when] for q in protocol.questions if q.analysed)
-
-
 def complete_answers(study: Study) -> tuple[pd.DataFrame, list[dict]]:
-    """The one N rule: a participant counts when they answered every analysed question for
-    every condition (complete cases). Returns their answers (code, model, item, trial,
-    answer: each in its kind's type) and the others, each as {code, answers, of}: everything
-    in a report is computed on the complete ones."""
+    """The one N rule (studyctl.completeness): a participant counts when they answered every
+    analysed question for every condition (complete cases). Returns their answers (code,
+    model, item, trial, answer: each in its kind's type) and the others, each as {code,
+    answers, of}: everything in a report is computed on the complete ones."""
     protocol, answers = study.protocol, study.answers
-    when = {q.id: q.when for q in protocol.questions if q.analysed}
-    w = answers["item"].map(when)
-    ok = w.notna() & ((w == "end") == (answers["model"] == "")) & ((w == "end") | answers["model"].isin(protocol.conditions))
-    answers = answers[ok]
-    need = expected_answers(protocol)
-    counts = answers.groupby("code").size()
-    complete = set(counts[counts == need].index)
-    incomplete = [{"code": str(c), "answers": int(n), "of": need} for c, n in counts.items() if c not in complete]
-    return answers[answers["code"].isin(complete)].reset_index(drop=True), incomplete
+    done = completeness(protocol, answers, study.sources)
+    answers = answers[analysed_rows(protocol, answers) & answers["code"].isin(set(done.complete))]
+    return answers.reset_index(drop=True), list(done.incomplete)
 
 
 def binary_items(protocol) -> list[str]:
@@ -127,12 +114,16 @@ def deformation(study: Study) -> pd.DataFrame:
 
 
 def study_facts(study: Study) -> StudyFacts:
+    """N, the incomplete, and the complete participants counted by kind (studyctl.completeness):
+    a mixed-source participant counts as synthetic (their data are partly simulated) and is
+    named in the reports' warning."""
     protocol = study.protocol
-    answers, incomplete = complete_answers(study)
-    n = int(answers["code"].nunique())
-    synthetic, mixed = study.synthetic_participants, list(study.mixed_source_participants)
-    persons = study.person_participants
-    return StudyFacts(study=protocol.name, participants=n, incomplete_participants=incomplete,
+    done = completeness(protocol, study.answers, study.sources)
+    n = len(done.complete)
+    persons = done.count("person")
+    synthetic = done.count("synthetic") + done.count("mixed")
+    mixed = [c for c in done.complete if done.kinds.get(c) == "mixed"]
+    return StudyFacts(study=protocol.name, participants=n, incomplete_participants=list(done.incomplete),
                       synthetic_participants=synthetic, person_participants=persons, mixed_source_participants=mixed,
                       synthetic=synthetic > 0, mixed=synthetic > 0 and persons > 0, flag=data_flag(persons, synthetic),
                       design=f"within-subject, {len(protocol.conditions)} conditions, {protocol.counterbalancing} counterbalancing",

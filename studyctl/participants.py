@@ -17,7 +17,9 @@ from pathlib import Path
 from studyctl.errors import InputError, StoreError
 from studyctl.lock import session_lock
 from studyctl.questions import shown
+from studyctl.completeness import completeness
 from studyctl.store import Store, now, records, roster
+from studyctl.store import snapshot
 from studyctl.store.participant_fields import read_fields
 from studyctl.study import answer_key
 from studyctl.text import control_problem, spreadsheet_safe
@@ -180,13 +182,16 @@ def status(db, today: dt.datetime | None = None) -> dict:
         protocol = store.protocol()
         people = records.people_counts(store)
         sessions = records.sessions_by_status(store)
-        # complete: every question answered for every condition, in a session or imported from paper
-        full = len(protocol.conditions) * len(protocol.items)
-        done = records.complete_by_kind(store, full)
+        # complete: the reports' own rule (studyctl.completeness), among those who have not withdrawn
+        gone = roster.withdrawn_codes(store)
+        answers = snapshot.answers(store)
+        done = completeness(protocol, answers, snapshot.answer_sources(store), only=set(answers["code"]) - gone)
         moment = (today or dt.datetime.now()).isoformat(timespec="minutes")
         upcoming = records.upcoming_slots(store, moment)
         return {"study": protocol.name, "target_participants": protocol.target_participants, "participants": people,
-                "sessions": sessions, "complete": {"persons": done.get("person", 0), "synthetic": done.get("synthetic", 0)},
+                "sessions": sessions, "complete": {"persons": done.count("person"), "synthetic": done.count("synthetic"),
+                                                       "mixed": done.count("mixed")},
+                "incomplete": list(done.incomplete),
                 "answers": records.answer_count(store), "next": upcoming}
 
 

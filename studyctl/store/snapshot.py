@@ -44,6 +44,11 @@ def answers(store: Store) -> pd.DataFrame:
     return _frame(store, "select code, model, item, trial, answer from answers")
 
 
+def answer_sources(store: Store) -> pd.DataFrame:
+    """Each participant's answer sources: code, source (one row per distinct pair)."""
+    return _frame(store, "select distinct code, source from answers order by code")
+
+
 def latency(store: Store) -> pd.DataFrame:
     """Each participant's mean deformation time per condition: code, model, value, trials."""
     return _frame(store, "select s.code, l.model, avg(l.value) as value, count(*) as trials from latency l join sessions s on s.id = l.session_id "
