@@ -1,0 +1,167 @@
+"""Counts that add up: one definition of a complete participant (studyctl.completeness) behind
+`status`, Table 1's N, the banners and the lists of the incomplete, kinds of participants
+counted apart; `synth --complete` brings an interrupted run to its N and says what it ran."""
+
+import hashlib
+import sqlite3
+
+import pytest
+
+from tests.helpers import fast_protocol, studyctl
+
+ITEMS = ["natural", "behaviour", "texture", "comfortable", "guidance", "realtime", "feedback", "deformation", "stable"]
+CONDITIONS = ("plate_spring", "fem")
+END_TEXT = '\n[[questions]]\nid = "comments"\ntext = "Any comments?"\nkind = "text"\nwhen = "end"\n'
+
+
+def _sha(path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.fixture(scope="module")
+def mixed_study(tmp_path_factory):
+    """One synthetic participant, three people who answered everything (the end-of-study text
+    question included), one person with one yes/no answer and one with only the text answer."""
+    tmp = tmp_path_factory.mktemp("mixed")
+    proto = fast_protocol(tmp, conditions=CONDITIONS, trials=1)
+    proto.write_text(proto.read_text() + END_TEXT)
+    db = tmp / "s.db"
+    assert studyctl("synth", "--protocol", proto, "--db", db, "--participants", 1, "--seed", 3).exit_code == 0
+    rows = ["participant,model,item,answer"]
+    for code in ("P01", "P02", "P03", "P04", "P05"):
+        assert studyctl("participants", "add", code, "--age", 24, "--db", db).exit_code == 0
+        assert studyctl("participants", "consent", code, "--db", db).exit_code == 0
+    for code in ("P01", "P02", "P03"):
+        rows += [f"{code},{m},{i},{'yes' if (k + len(m)) % 3 else 'no'}" for m in CONDITIONS for k, i in enumerate(ITEMS)]
+        rows.append(f"{code},,comments,fine")
+    rows += ["P04,fem,natural,no", "P05,,comments,none"]
+    (tmp / "a.csv").write_text("\n".join(rows) + "\n")
+    res = studyctl("answers", "import", tmp / "a.csv", "--db", db, "--alongside-people")
+    if res.exit_code != 0:
+        res = studyctl("answers", "import", tmp / "a.csv", "--db", db)
+    assert res.exit_code == 0, res.output
+    return db
+
+
+def test_status_counts_people_complete_with_an_end_of_study_text_question(mixed_study):
+    first = studyctl("status", "--db", mixed_study).output.splitlines()[0]
+    assert first.startswith("brain_pull_2015: 3 of "), first
+
+
+def test_status_counts_the_synthetic_participant_apart(mixed_study):
+    first = studyctl("status", "--db", mixed_study).output.splitlines()[0]
+    assert first.endswith("people complete (and 1 SYNTHETIC)"), first
+
+
+def test_status_lists_a_person_with_one_answer_and_one_with_only_text_as_incomplete(mixed_study):
+    lines = studyctl("status", "--db", mixed_study).output.splitlines()
+    assert "incomplete: P04 (1/18), P05 (0/18)" in lines, lines
+
+
+def test_table1_n_is_the_complete_people_and_synthetic_participants(mixed_study):
+    out = studyctl("report", "table1", "--db", mixed_study).output
+    assert "N = 4 participants with every answer" in out, out[:600]
+
+
+def test_table1_banner_counts_the_complete_people(mixed_study):
+    out = studyctl("report", "table1", "--db", mixed_study).output
+    assert "MIXED DATA: 3 people and 1 SYNTHETIC (simulated) participant pooled" in out, out[:600]
+
+
+def test_table1_lists_both_incomplete_people(mixed_study):
+    out = studyctl("report", "table1", "--db", mixed_study).output
+    assert "Left out (incomplete): P04 (1/18), P05 (0/18)." in out, out[:600]
+
+
+def test_status_json_counts_match_table1(mixed_study):
+    import json
+
+    out = json.loads(studyctl("status", "--db", mixed_study, "--json").output)
+    assert out["complete"] == {"persons": 3, "synthetic": 1, "mixed": 0}
+
+
+def test_plots_of_a_mixed_study_are_titled_mixed(mixed_study, tmp_path, monkeypatch):
+    import analysis.plots as plots
+
+    titles = []
+    real = plots._suptitle
+    monkeypatch.setattr(plots, "_suptitle", lambda fig, text, size: (titles.append(text), real(fig, text, size)))
+    monkeypatch.setattr(plots, "force_traces", lambda protocol: None)  # the traces' figure has no kind of data in its title
+    assert studyctl("report", "plots", "--db", mixed_study, "--out", tmp_path / "plots").exit_code == 0
+    assert titles and all(t.startswith("MIXED DATA: ") for t in titles), titles
+
+
+def _interrupt_after(monkeypatch, k: int):
+    import studyctl.synthetic_study as runner
+
+    real = runner.completed
+
+    def k_then_ctrl_c(fn, tasks, jobs, scheduler):
+        for i, item in enumerate(real(fn, tasks, jobs, scheduler)):
+            if i == k:
+                raise KeyboardInterrupt
+            yield item
+
+    monkeypatch.setattr(runner, "completed", k_then_ctrl_c)
+    return lambda: monkeypatch.setattr(runner, "completed", real)
+
+
+@pytest.fixture
+def interrupted(tmp_path, monkeypatch):
+    """A `synth --participants 4` interrupted after 1 session stored."""
+    db = tmp_path / "s.db"
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    restore = _interrupt_after(monkeypatch, 1)
+    res = studyctl("synth", "--db", db, "--participants", "4", "--protocol", proto, "--seed", "4")
+    restore()
+    return db, res
+
+
+def test_an_interrupted_synth_suggests_complete(interrupted):
+    db, res = interrupted
+    assert f"`studyctl synth --db {db} --complete` runs the 3 registered participants left without one, completing this run's 4" in res.output, res.output
+
+
+def test_synth_complete_brings_an_interrupted_run_to_its_n(interrupted):
+    db, _ = interrupted
+    assert studyctl("synth", "--db", db, "--complete").exit_code == 0
+    assert sqlite3.connect(db).execute("select count(*) from sessions where status = 'done'").fetchone()[0] == 4
+
+
+def test_synth_complete_says_what_it_ran_in_one_line(interrupted):
+    db, _ = interrupted
+    out = studyctl("synth", "--db", db, "--complete").output
+    assert "ran 3 SYNTHETIC sessions of 'brain_pull_2015': 0 new, 3 resumed (S002, S003, S004; seed 4); " \
+           "4 synthetic participants with a session in total" in out, out
+
+
+def test_synth_complete_leaves_four_participants(interrupted):
+    db, _ = interrupted
+    studyctl("synth", "--db", db, "--complete")
+    assert sqlite3.connect(db).execute("select count(*) from participants").fetchone()[0] == 4
+
+
+def test_new_participants_while_an_interrupted_run_waits_are_refused(interrupted):
+    db, _ = interrupted
+    before = _sha(db)
+    res = studyctl("synth", "--db", db, "--participants", "3")
+    assert res.exit_code == 1
+    assert res.output.strip() == (f"Error: --db: {db} holds 3 synthetic participants an interrupted synth registered without a "
+                                  "session; give --complete to run them (with --participants N to add N more after)")
+    assert _sha(db) == before
+
+
+def test_complete_with_nothing_to_complete_is_refused(small_study):
+    before = _sha(small_study)
+    res = studyctl("synth", "--db", small_study, "--complete")
+    assert res.exit_code == 1
+    assert res.output.strip() == (f"Error: --complete: {small_study} holds no synthetic participant an interrupted synth "
+                                  "left without a session; nothing to complete")
+    assert _sha(small_study) == before
+
+
+def test_synth_without_participants_or_complete_is_refused(small_study):
+    res = studyctl("synth", "--db", small_study)
+    assert res.exit_code == 1
+    assert res.output.strip() == ("Error: --participants: missing; give how many new synthetic participants (1..1000), "
+                                  "or --complete to finish an interrupted run")
