@@ -12,7 +12,7 @@ from analysis.formatting import table_markdown
 from analysis.kind_results import KindStats
 from analysis.kinds import gee_line, kind_stats, kind_tables, primary_line
 from analysis.methods import study_methods
-from analysis.stats import HOLM_SCOPES, gee_fit, pairwise_mcnemar, set_holm
+from analysis.stats import HOLM_SCOPES, gee_fit, pairwise_mcnemar, records, set_holm
 from analysis.study_results import DeformationBenchmark, LogisticGee, StudyStats, YesNoItem
 from analysis.study_snapshot import Study
 from analysis.table1 import (
@@ -57,7 +57,7 @@ def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | N
             question=g["question"].iloc[0],
             cochran_q=qrow["cochran_q"], df=int(qrow["df"]), p_value=qrow["p_value"], n_complete=int(qrow["n_complete"]),
             rates={row["model"]: {k: row[k] for k in ("yes", "no", "rate", "wilson_low", "wilson_high")} for _, row in g.iterrows()},
-            pairs=pairs.to_dict(orient="records"), reason=qrow.get("reason") if isinstance(qrow.get("reason"), str) else None,
+            pairs=records(pairs), reason=qrow.get("reason") if isinstance(qrow.get("reason"), str) else None,
         )
     kinds = kind_stats(study, every)
     _holm_family(items, holm_scope, kinds.family_pairs())

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.facts import StudyFacts
-from analysis.stats import wilson
+from analysis.stats import tests_run, wilson
 from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study, data_flag
 from analysis.withhold import binary_across_reason
@@ -115,14 +115,14 @@ def deformation(study: Study) -> pd.DataFrame:
 
 def study_facts(study: Study) -> StudyFacts:
     """N, the incomplete, and the complete participants counted by kind (studyctl.completeness):
-    a mixed-source participant counts as synthetic (their data are partly simulated) and is
-    named in the reports' warning."""
+    a complete mixed-source participant counts as synthetic (their data are partly simulated);
+    the reports' warning names every mixed-source participant."""
     protocol = study.protocol
     done = completeness(protocol, study.answers, study.sources)
     n = len(done.complete)
     persons = done.count("person")
     synthetic = done.count("synthetic") + done.count("mixed")
-    mixed = [c for c in done.complete if done.kinds.get(c) == "mixed"]
+    mixed = list(study.mixed_source_participants)  # the warning names every one, complete or not
     return StudyFacts(study=protocol.name, participants=n, incomplete_participants=list(done.incomplete),
                       synthetic_participants=synthetic, person_participants=persons, mixed_source_participants=mixed,
                       synthetic=synthetic > 0, mixed=synthetic > 0 and persons > 0, flag=data_flag(persons, synthetic),
@@ -199,7 +199,7 @@ def holm_text(st: StudyStats) -> str:
     if st.holm != "family":
         return "Holm within each question"
     pairs = [p for v in st.items.values() for p in v.pairs] + [p for g in st.kinds.family_pairs() for p in g]
-    tested = sum(1 for p in pairs if p.get("p_value") is not None and np.isfinite(p["p_value"]))
+    tested = tests_run(pairs)
     if not tested:
         return "Holm: no pair tested"
     return f"Holm over all {tested} pairs tested"
