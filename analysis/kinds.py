@@ -183,12 +183,30 @@ def scores(protocol, meas: pd.DataFrame) -> dict[str, ScoreStats]:
         with_period = "period" in data and bool(data["period"].notna().all())
         mm = scales.mixed_model(data.assign(period=data["period"].astype(int)) if with_period else data.drop(columns="period", errors="ignore"),
                                 models, with_period)
+        _clip_means(mm, score_scale(item, protocol))
         fr = _tests(wide, len(models))["friedman"]
         out[item] = ScoreStats(label=_label(item, protocol), n=int(len(wide)),
                                conditions={m: scales.mean_ci(wide[m], scale=score_scale(item, protocol)) | scales.median_iqr(wide[m])
                                            for m in models},
                                mixed_model=mm, friedman=fr, pairs=[dict(p) for p in mm["pairs"]])
     return out
+
+
+def _clip_means(mm: dict, scale: tuple[float, float] | None) -> None:
+    """Keep the mixed model's per-condition mean intervals (normal theory, unbounded) inside the
+    score's scale, saying so in its notes where one reached past an end."""
+    if scale is None:
+        return
+    lo, hi = scale
+    clipped = False
+    for c in mm.get("means", {}).values():
+        for key in ("ci_low", "ci_high"):
+            v = c.get(key)
+            if v is not None and np.isfinite(v) and not lo <= v <= hi:
+                c[key], clipped = min(max(v, lo), hi), True
+    if clipped:
+        mm.setdefault("notes", []).append(f"the model-based means' 95% intervals reached past the {lo:g}-{hi:g} scale "
+                                          "and are clipped to it (the normal-theory interval is not bounded)")
 
 
 def choices(protocol, answers: pd.DataFrame) -> dict[str, ChoiceStats]:
