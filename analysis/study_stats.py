@@ -17,6 +17,7 @@ from analysis.study_results import DeformationBenchmark, LogisticGee, StudyStats
 from analysis.study_snapshot import Study
 from analysis.table1 import (
     DEFORMATION_LABEL,
+    DEFORMATION_WORK,
     answers_wide,
     binary_answers,
     cochran,
@@ -157,7 +158,7 @@ def table1_markdown(study: Study, holm_scope: str = "family") -> str:
         lines.append("| Time for real-time deformation of the model, ms: benchmark of this machine | " + " | ".join(deform) + " | | |")
         lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models; pairwise exact McNemar tests, "
                   f"{scope}. Deformation time: each participant's mean over their trials, mean +- sd over participants: "
-                  "wall-clock time of this machine, not a measure of the participants (no test).", ""]
+                  f"wall-clock time of this machine {DEFORMATION_WORK}, not a measure of the participants (no test).", ""]
     for t in kind_tables(st.kinds, models, scope):
         lines += table_markdown(t)
     if not len(r):

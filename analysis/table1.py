@@ -91,7 +91,9 @@ def cochran(study: Study) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["item", "test", "cochran_q", "df", "p_value", "n_complete", "reason"])
 
 
-DEFORMATION_LABEL = "benchmark of this machine (wall-clock deformation time per frame), not a measure of the participants"
+# what the row times (sim/run.py: every frame computes its surface, drawn or not)
+DEFORMATION_WORK = "per visual frame, the model's deformation with the surface a participant's view draws"
+DEFORMATION_LABEL = f"benchmark of this machine (wall-clock time {DEFORMATION_WORK}), not a measure of the participants"
 
 
 def deformation(study: Study) -> pd.DataFrame:
