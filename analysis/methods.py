@@ -59,7 +59,8 @@ def _model(config: dict | None) -> dict:
     if not config:
         return {}
     options = dict(config.get("options") or {}) | ({"variant": config["variant"]} if "variant" in config else {})
-    options = {k: v["file"] if isinstance(v, dict) and "file" in v else v for k, v in options.items()}
+    # an unset option (None: the model's own default applies) is left out, never printed as None
+    options = {k: v["file"] if isinstance(v, dict) and "file" in v else v for k, v in options.items() if v is not None}
     material = config.get("material") or {}
     keys = material_keys(config["model"])
     # the hyperelastic law only where the formulation solves it (the linear FEM reads E and nu)

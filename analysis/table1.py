@@ -159,7 +159,7 @@ def condition_text(c: dict) -> str:
     cfg = c["config"]
     if cfg is None:
         return f"{c['condition']}: the scene's own configuration (not recorded before schema 5)"
-    opts = dict(cfg["options"]) | ({"variant": cfg["variant"]} if "variant" in cfg else {})
+    opts = {k: v for k, v in cfg["options"].items() if v is not None} | ({"variant": cfg["variant"]} if "variant" in cfg else {})
     shown = ", ".join(f"{k} {v['file'] if isinstance(v, dict) and 'file' in v else v}" for k, v in sorted(opts.items()))
     mat = cfg["material"]
     keys = material_keys(cfg["model"])

@@ -165,3 +165,32 @@ def test_synth_without_participants_or_complete_is_refused(small_study):
     assert res.exit_code == 1
     assert res.output.strip() == ("Error: --participants: missing; give how many new synthetic participants (1..1000), "
                                   "or --complete to finish an interrupted run")
+
+
+@pytest.fixture(scope="module")
+def unset_study(tmp_path_factory):
+    """A study of one condition of a lab's model whose option `k0` is unset (None)."""
+    from tests.helpers import BAD
+
+    tmp = tmp_path_factory.mktemp("unset")
+    proto = fast_protocol(tmp, conditions=("plate_spring", "own"), trials=1)
+    proto.write_text(proto.read_text().replace("[inclusion]", f'[conditions.own]\nmodel = "{BAD}:Unset"\n\n[inclusion]', 1))
+    db = tmp / "s.db"
+    res = studyctl("synth", "--protocol", proto, "--db", db, "--participants", 2, "--seed", 1)
+    assert res.exit_code == 0, res.output
+    return db
+
+
+def test_report_text_never_prints_an_unset_option_as_none(unset_study):
+    text = studyctl("report", "text", "--db", unset_study).output
+    assert "None" not in text, text
+
+
+def test_table1_conditions_never_print_an_unset_option_as_none(unset_study):
+    text = studyctl("report", "table1", "--db", unset_study).output
+    assert "None" not in text, text
+
+
+def test_report_text_still_names_the_set_option(unset_study):
+    text = studyctl("report", "text", "--db", unset_study).output
+    assert "stiffness 200" in text, text
