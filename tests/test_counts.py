@@ -194,3 +194,150 @@ def test_table1_conditions_never_print_an_unset_option_as_none(unset_study):
 def test_report_text_still_names_the_set_option(unset_study):
     text = studyctl("report", "text", "--db", unset_study).output
     assert "stiffness 200" in text, text
+
+
+def _synth(tmp_path_factory, name: str, n: int, seed: int, protocol) -> object:
+    tmp = tmp_path_factory.mktemp(name)
+    db = tmp / "s.db"
+    res = studyctl("synth", "--protocol", protocol(tmp), "--db", db, "--participants", n, "--seed", seed)
+    assert res.exit_code == 0, res.output
+    return db
+
+
+@pytest.fixture(scope="module")
+def one(tmp_path_factory):
+    return _synth(tmp_path_factory, "one", 1, 3, lambda tmp: fast_protocol(tmp, trials=1))
+
+
+@pytest.fixture(scope="module")
+def two(tmp_path_factory):
+    return _synth(tmp_path_factory, "two", 2, 3, lambda tmp: fast_protocol(tmp, trials=1))
+
+
+@pytest.fixture(scope="module")
+def two_variants(tmp_path_factory):
+    from tests.helpers import variants_protocol
+
+    return _synth(tmp_path_factory, "two_variants", 2, 3, variants_protocol)
+
+
+def _holm_counts(db) -> dict:
+    import json
+    import re
+
+    table = studyctl("report", "table1", "--db", db).output
+    text = studyctl("report", "text", "--db", db).output
+    js = json.loads(studyctl("report", "stats", "--json", "--db", db).output)
+    return {"table1": sorted(set(re.findall(r"Holm over all (\d+) pairs tested", table))),
+            "text": sorted(set(re.findall(r"family of all (\d+) pairwise tests", text))),
+            "json": [str(js["methods"]["analysis"]["holm_family"])]}
+
+
+@pytest.mark.parametrize("study", ["two", "small_study", "variants_study"])
+def test_the_holm_family_is_one_number_in_table1_text_and_json(study, request):
+    counts = _holm_counts(request.getfixturevalue(study))
+    assert counts["table1"] == counts["text"] == counts["json"], counts
+
+
+def test_at_n_2_the_holm_family_counts_only_the_tests_run(two):
+    counts = _holm_counts(two)
+    assert counts["json"] != ["27"], counts  # 27 pairs exist; at N = 2 some are not testable
+
+
+def test_at_n_1_no_mcnemar_pair_is_tested(one):
+    out = studyctl("report", "table1", "--db", one).output
+    rows = [line for line in out.splitlines() if "not testable at N = 1" in line]
+    assert rows and all("not tested: not testable at N = 1" in r for r in rows), rows
+
+
+def test_at_n_1_no_row_prints_a_mcnemar_p_value(one):
+    import re
+
+    out = studyctl("report", "table1", "--db", one).output
+    assert not re.search(r"(plate_spring|fem|mass_spring)-(plate_spring|fem|mass_spring) [0-9]", out), out
+
+
+@pytest.mark.parametrize("command", [("table1",), ("text",), ("stats",), ("table1", "--format", "latex"), ("table1", "--format", "html")])
+def test_no_nan_in_a_report_at_n_2(two, command):
+    import re
+
+    out = studyctl("report", *command, "--db", two).output
+    assert not re.search(r"\bnan\b", out, re.I), re.findall(r".{60}\bnan\b.{20}", out, re.I)
+
+
+def test_the_gee_working_correlation_at_n_2_says_why_it_is_missing(two):
+    out = studyctl("report", "table1", "--db", two).output
+    assert "exchangeable working correlation (not estimated: fewer than 5 participants)" in out, out
+
+
+@pytest.mark.parametrize("command", [("table1",), ("text",), ("stats",)])
+def test_no_nan_in_a_ratings_report(variants_study, command):
+    import re
+
+    out = studyctl("report", *command, "--db", variants_study).output
+    assert not re.search(r"\bnan\b", out, re.I), re.findall(r".{60}\bnan\b.{20}", out, re.I)
+
+
+def _intervals(node, path=""):
+    """(path, low, high) of every interval in a report's JSON."""
+    if isinstance(node, dict):
+        if "ci_low" in node and "ci_high" in node:
+            yield path, node["ci_low"], node["ci_high"]
+        for k, v in node.items():
+            yield from _intervals(v, f"{path}/{k}")
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            yield from _intervals(v, f"{path}/{i}")
+
+
+def test_sus_mixed_model_means_stay_inside_0_100_in_the_json(two_variants):
+    import json
+
+    js = json.loads(studyctl("report", "stats", "--json", "--db", two_variants).output)
+    means = js["kinds"]["scores"]["sus"]["mixed_model"]["means"]
+    out = [(m, c["ci_low"], c["ci_high"]) for m, c in means.items()
+           if c["ci_low"] is not None and not 0 <= c["ci_low"] <= c["ci_high"] <= 100]
+    assert out == []
+
+
+def test_a_clipped_sus_interval_says_so_in_a_note(two_variants):
+    import json
+
+    js = json.loads(studyctl("report", "stats", "--json", "--db", two_variants).output)
+    assert any("clipped to it" in n for n in js["kinds"]["scores"]["sus"]["mixed_model"]["notes"]), js["kinds"]["scores"]["sus"]["mixed_model"]
+
+
+def test_every_sus_interval_in_the_json_stays_inside_0_100(two_variants):
+    import json
+
+    js = json.loads(studyctl("report", "stats", "--json", "--db", two_variants).output)
+    found = [(p, lo, hi) for p, lo, hi in _intervals(js["kinds"]["scores"]["sus"]["conditions"])
+             if lo is not None and not 0 <= lo <= hi <= 100]
+    assert found == []
+
+
+def test_table1_says_what_the_deformation_time_measured(small_study):
+    out = studyctl("report", "table1", "--db", small_study).output
+    assert "per visual frame, the model's deformation with the surface a participant's view draws" in out, out[-1500:]
+
+
+@pytest.fixture(scope="module")
+def small_jnd(tmp_path_factory):
+    from tests.helpers import jnd_protocol
+
+    return _synth(tmp_path_factory, "jnd", 2, 3, lambda tmp: jnd_protocol(tmp, conditions=("plate_spring", "fem"), trials=12))
+
+
+def test_report_jnd_says_why_a_pair_is_not_tested(small_jnd):
+    out = studyctl("report", "jnd", "--db", small_jnd).output
+    assert "plate_spring vs fem: not tested (fewer than 3 participants with a Weber fraction in every condition)" in out, out
+
+
+def test_report_jnd_prints_no_bare_dash_interval(small_jnd):
+    out = studyctl("report", "jnd", "--db", small_jnd).output
+    assert "[-, -]" not in out, out
+
+
+def test_report_jnd_explains_a_dash_in_its_notes(small_jnd):
+    out = studyctl("report", "jnd", "--db", small_jnd).output
+    assert "A - marks a value there is none of" in out, out
