@@ -23,7 +23,6 @@ from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study, data_flag
 from analysis.withhold import binary_across_reason
 from sim.models.registry import ModelLoadError, model_class
-from studyctl.completeness import analysed_rows, completeness
 
 
 def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.DataFrame:
@@ -37,10 +36,8 @@ def complete_answers(study: Study) -> tuple[pd.DataFrame, list[dict]]:
     analysed question for every condition (complete cases). Returns their answers (code,
     model, item, trial, answer: each in its kind's type) and the others, each as {code,
     answers, of}: everything in a report is computed on the complete ones."""
-    protocol, answers = study.protocol, study.answers
-    done = completeness(protocol, answers, study.sources)
-    answers = answers[analysed_rows(protocol, answers) & answers["code"].isin(set(done.complete))]
-    return answers.reset_index(drop=True), list(done.incomplete)
+    done = study.completeness
+    return done.counted(study.answers).reset_index(drop=True), list(done.incomplete)
 
 
 def binary_items(protocol) -> list[str]:
@@ -120,7 +117,7 @@ def study_facts(study: Study) -> StudyFacts:
     a complete mixed-source participant counts as synthetic (their data are partly simulated);
     the reports' warning names every mixed-source participant."""
     protocol = study.protocol
-    done = completeness(protocol, study.answers, study.sources)
+    done = study.completeness
     n = len(done.complete)
     persons = done.count("person")
     synthetic = done.count("synthetic") + done.count("mixed")

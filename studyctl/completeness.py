@@ -37,15 +37,21 @@ def analysed_rows(protocol, answers: pd.DataFrame) -> pd.Series:
 class Completeness:
     """`complete`: the complete participants' codes, sorted; `incomplete`: every other
     participant with an answer, each {code, answers, of}, by code; `kinds`: code -> kind of
-    every participant with an answer."""
+    every participant with an answer; `protocol`: the protocol it was counted under."""
 
     complete: tuple[str, ...]
     incomplete: tuple[dict, ...]
     kinds: dict
+    protocol: object
 
     def count(self, kind: str) -> int:
         """How many complete participants are of `kind`."""
         return sum(1 for c in self.complete if self.kinds.get(c) == kind)
+
+    def counted(self, answers: pd.DataFrame) -> pd.DataFrame:
+        """The rows of `answers` every statistic is computed on: the complete participants'
+        analysed answers."""
+        return answers[analysed_rows(self.protocol, answers) & answers["code"].isin(set(self.complete))]
 
 
 def kinds_of(sources: pd.DataFrame) -> dict:
@@ -68,4 +74,4 @@ def completeness(protocol, answers: pd.DataFrame, sources: pd.DataFrame, only: s
     every = sorted(str(c) for c in set(answers["code"]))
     complete = tuple(c for c in every if int(counts.get(c, 0)) == need)
     incomplete = tuple({"code": c, "answers": int(counts.get(c, 0)), "of": need} for c in every if c not in complete)
-    return Completeness(complete, incomplete, kinds_of(sources))
+    return Completeness(complete, incomplete, kinds_of(sources), protocol)

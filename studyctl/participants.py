@@ -17,7 +17,6 @@ from pathlib import Path
 from studyctl.errors import InputError, StoreError
 from studyctl.lock import session_lock
 from studyctl.questions import shown
-from studyctl.completeness import completeness
 from studyctl.store import Store, now, records, roster
 from studyctl.store import snapshot
 from studyctl.store.participant_fields import read_fields
@@ -183,9 +182,7 @@ def status(db, today: dt.datetime | None = None) -> dict:
         people = records.people_counts(store)
         sessions = records.sessions_by_status(store)
         # complete: the reports' own rule (studyctl.completeness), among those who have not withdrawn
-        gone = roster.withdrawn_codes(store)
-        answers = snapshot.answers(store)
-        done = completeness(protocol, answers, snapshot.answer_sources(store), only=set(answers["code"]) - gone)
+        done = snapshot.completeness(store, protocol, only=roster.participant_codes(store) - roster.withdrawn_codes(store))
         moment = (today or dt.datetime.now()).isoformat(timespec="minutes")
         upcoming = records.upcoming_slots(store, moment)
         return {"study": protocol.name, "target_participants": protocol.target_participants, "participants": people,
