@@ -93,7 +93,7 @@ def run_synthetic_study(db, participants: int | None, seed: int = 0, jobs: int =
 
 
 def _check_pending(db, pending: list, complete: bool) -> None:
-    """Refuse new participants while an interrupted run's wait (they would be run together,
+    """Refuse new participants while an interrupted run's participants wait (they would run together,
     more sessions than asked), and --complete with nothing to complete."""
     if pending and not complete:
         n = len(pending)
