@@ -163,7 +163,8 @@ def tables(res: dict) -> list[dict]:
                     + ([f"{_pct(c.get('recovery_median_abs_rel_error'))}, {_pct(c.get('recovery_coverage'))}{pooled_rec}"] if recovery else []))
     out = [{"title": "Weber fraction per condition", "columns": ["Condition", "N", "geometric mean [95% CI]", "median"]
             + (["recovery: median abs. error, CI coverage (own fit; pooled)"] if recovery else []), "rows": rows,
-            "note": "Geometric mean over participants with a t interval on ln Weber fraction (n - 1 df)."}]
+            "note": "Geometric mean over participants with a t interval on ln Weber fraction (n - 1 df)."
+                    + (" A - marks a recovery figure there is none of (no participant's fit to compare)." if recovery else "")}]
     quest = any("quest_estimate" in r for r in res["weber"])
     generating = any("generating_weber" in r for r in res["weber"])
     rows = []
@@ -171,7 +172,7 @@ def tables(res: dict) -> list[dict]:
         flag = FLAG_TEXT.get(r.get("flag") or "", "")
         rows.append([r["code"], r["condition"], str(r["n_trials"]), _pct(r["p_correct"]),
                      f"{_pct(r['weber'])} {_interval(r['ci_low'], r['ci_high'], 'no interval: ' + flag if flag else 'no interval')}",
-                     _pct(r["lapse"]), flag or "-",
+                     _pct(r["lapse"]), flag or "none",
                      f"{_pct(r.get('weber_pooled'))} {_interval(r.get('pooled_low'), r.get('pooled_high'), 'too few to pool')}"
                      if r.get("weber_pooled") == r.get("weber_pooled") and r.get("weber_pooled") is not None else "(too few to pool)"]
                     + ([_pct(r.get("quest_estimate"))] if quest else []) + ([_pct(r.get("generating_weber"))] if generating else []))
@@ -181,7 +182,9 @@ def tables(res: dict) -> list[dict]:
                 "note": "The Weber fraction with its parametric-bootstrap 95% interval: the increment picked out 75% of the time by the "
                         "two-interval observer fitted on the log stiffness ratio (analysis/psychometric.py); lapse: the fit's. Pooled: the "
                         f"same observer, each participant pooled with the condition's others (hierarchical, {POOLED_MIN} or more participants), "
-                        "posterior median and 95% credible interval: the better estimate of one person from 40 trials (docs/study.md)."})
+                        "posterior median and 95% credible interval: the better estimate of one person from 40 trials (docs/study.md). "
+                        "A - marks a value there is none of: the fit gave none (it did not converge), or the run recorded none "
+                        "(no QUEST+ estimate, no generating value)."})
     return out
 
 
@@ -235,9 +238,11 @@ def _group_text(g: dict) -> str:
     if fr:
         parts.append(f"{fr.get('test', 'Friedman')}: statistic {p_value(fr.get('statistic'))}, p = {p_value(fr.get('p'))}.")
     pairs = g.get("pairs") or []
+    why = "; ".join(g.get("problems") or []) or "no ratio"
     if pairs:
         parts.append("Pairs (paired t on log Weber fractions, Holm): " + "; ".join(
-            f"{p['a']} vs {p['b']}: ratio {p_value(p.get('ratio'))} [{p_value(p.get('ratio_low'))}, {p_value(p.get('ratio_high'))}], p_holm {p_value(p.get('p_holm'))}" for p in pairs) + ".")
+            f"{p['a']} vs {p['b']}: ratio {p_value(p.get('ratio'))} [{p_value(p.get('ratio_low'))}, {p_value(p.get('ratio_high'))}], p_holm {p_value(p.get('p_holm'))}"
+            if p_value(p.get("ratio")) != "-" else f"{p['a']} vs {p['b']}: not tested ({why})" for p in pairs) + ".")
     return " ".join(parts)
 
 

@@ -23,7 +23,7 @@ import pandas as pd
 from analysis import scales
 from analysis.formatting import p_value
 from analysis.kind_results import ChoiceStats, KindStats, PrimaryAnalysis, RatingStats, ScoreStats
-from analysis.stats import friedman, set_holm, wilson
+from analysis.stats import friedman, records, set_holm, wilson
 from analysis.study_results import LogisticGee, StudyStats
 from analysis.study_snapshot import Study
 from analysis.withhold import across_reason
@@ -167,7 +167,7 @@ def _tests(wide: pd.DataFrame, k: int) -> dict:
     else:
         fr = {"test": "Friedman (tie-corrected chi2)", "statistic": nan, "p_value": nan, "df": k - 1, "n": int(len(wide)),
               "kendall_w": nan, "kendall_w_low": nan, "kendall_w_high": nan, "reason": reason}
-    pairs = scales.wilcoxon_with_ci(wide).to_dict(orient="records") if k >= 2 else []
+    pairs = records(scales.wilcoxon_with_ci(wide)) if k >= 2 else []
     return {"friedman": fr, "pairs": pairs}
 
 
@@ -183,12 +183,30 @@ def scores(protocol, meas: pd.DataFrame) -> dict[str, ScoreStats]:
         with_period = "period" in data and bool(data["period"].notna().all())
         mm = scales.mixed_model(data.assign(period=data["period"].astype(int)) if with_period else data.drop(columns="period", errors="ignore"),
                                 models, with_period)
+        _clip_means(mm, score_scale(item, protocol))
         fr = _tests(wide, len(models))["friedman"]
         out[item] = ScoreStats(label=_label(item, protocol), n=int(len(wide)),
                                conditions={m: scales.mean_ci(wide[m], scale=score_scale(item, protocol)) | scales.median_iqr(wide[m])
                                            for m in models},
                                mixed_model=mm, friedman=fr, pairs=[dict(p) for p in mm["pairs"]])
     return out
+
+
+def _clip_means(mm: dict, scale: tuple[float, float] | None) -> None:
+    """Keep the mixed model's per-condition mean intervals (normal theory, unbounded) inside the
+    score's scale, saying so in its notes where one reached past an end."""
+    if scale is None:
+        return
+    lo, hi = scale
+    clipped = False
+    for c in mm.get("means", {}).values():
+        for key in ("ci_low", "ci_high"):
+            v = c.get(key)
+            if v is not None and np.isfinite(v) and not lo <= v <= hi:
+                c[key], clipped = min(max(v, lo), hi), True
+    if clipped:
+        mm.setdefault("notes", []).append(f"the model-based means' 95% intervals reached past the {lo:g}-{hi:g} scale "
+                                          "and are clipped to it (the normal-theory interval is not bounded)")
 
 
 def choices(protocol, answers: pd.DataFrame) -> dict[str, ChoiceStats]:
@@ -259,6 +277,14 @@ def kind_stats(study: Study, answers: pd.DataFrame) -> KindStats:
     return out
 
 
+def _rho_text(fit: dict) -> str:
+    """A GEE's exchangeable working correlation, or why there is none (never a bare nan)."""
+    rho = fit.get("working_correlation")
+    if rho is not None and np.isfinite(rho):
+        return f"{rho:.2f}"
+    return "not estimated: " + "; ".join(fit.get("problems") or ["the fit gave none"])
+
+
 def gee_line(gee: LogisticGee, primary: bool = True) -> str:
     """The logistic GEE across the yes/no questions as a sentence: the primary analysis unless
     the protocol has rating items (analysis.kinds.primary)."""
@@ -268,7 +294,7 @@ def gee_line(gee: LogisticGee, primary: bool = True) -> str:
     pairs = "; ".join(f"{p['b']} vs {p['a']} OR {p['odds_ratio']:.2f} [{p['ci_low']:.2f}, {p['ci_high']:.2f}], p_Holm {p['p_holm']:.3g}"
                       if p.get("estimable", True) else f"{p['b']} vs {p['a']} not estimable" for p in c["pairs"])
     return (f"{'Primary analysis, all questions' if primary else 'Across the yes/no questions'}: logistic GEE `{c['formula']}`, participants as clusters, exchangeable "
-            f"working correlation ({c.get('working_correlation', float('nan')):.2f}), robust standard errors"
+            f"working correlation ({_rho_text(c)}), robust standard errors"
             f"{'' if c.get('converged') else ' (NOT ESTIMABLE OR NOT CONVERGED: ' + '; '.join(c.get('problems') or ['no convergence']) + ')'}: {pairs}.")
 
 

@@ -11,6 +11,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 from analysis.facts import StudyFacts
 from analysis.kind_results import KindStats
+from analysis.stats import tests_run
 from analysis.study_snapshot import Study
 from analysis.table1 import material_keys, model_source
 from studyctl.instruments import SOURCES, TITLES
@@ -58,7 +59,8 @@ def _model(config: dict | None) -> dict:
     if not config:
         return {}
     options = dict(config.get("options") or {}) | ({"variant": config["variant"]} if "variant" in config else {})
-    options = {k: v["file"] if isinstance(v, dict) and "file" in v else v for k, v in options.items()}
+    # an unset option (None: the model's own default applies) is left out, never printed as None
+    options = {k: v["file"] if isinstance(v, dict) and "file" in v else v for k, v in options.items() if v is not None}
     material = config.get("material") or {}
     keys = material_keys(config["model"])
     # the hyperelastic law only where the formulation solves it (the linear FEM reads E and nu)
@@ -85,7 +87,8 @@ def study_methods(study: Study, facts: StudyFacts, items: dict | None = None, ki
     setups = study.setups.to_dict(orient="records")
     latencies = [r for r in study.latencies.to_dict(orient="records") if r["measure"] in protocol.latency_measures]
     asked = sorted({q.kind for q in protocol.questions if q.analysed}, key=list(KIND_TESTS).index)
-    family = sum(len(v.pairs) for v in items.values()) + (sum(len(pairs) for pairs in kinds.family_pairs()) if kinds else 0)
+    # the Holm family: the pairwise tests actually run, as Table 1 and the JSON count them
+    family = tests_run([p for v in items.values() for p in v.pairs] + ([p for g in kinds.family_pairs() for p in g] if kinds else []))
     return {
         "participants": {
             "n": facts.participants, "target": protocol.target_participants, "synthetic": facts.synthetic,

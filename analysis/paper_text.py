@@ -181,7 +181,7 @@ def _analysis(m: dict) -> str:
         text += (f" {word} answers were compared across the conditions by {k['omnibus']} and between pairs of conditions by "
                  f"{k['pairs']}, and described by {k['describe']}." if several
                  else f" {word} answers were described by {k['describe']}; with one condition, nothing was compared.")
-    scope = (f"over the family of all {an['holm_family']} pairwise tests" if an["holm"] == "family"
+    scope = (f"over the family of all {an['holm_family']} pairwise tests run" if an["holm"] == "family"
              else "within each question's pairwise tests")
     if an["holm_family"]:
         text += f" Pairwise p-values were corrected by Holm's method {scope}."

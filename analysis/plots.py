@@ -93,8 +93,14 @@ def _save_one(fig, path: Path, size: FigureSize) -> None:
     _plt().close(fig)
 
 
-def _flag(synthetic: bool) -> str:
-    return "SYNTHETIC DATA: " if synthetic else ""
+def _kind(synthetic: bool | str) -> str:
+    """The data's kind as a title says it: `synthetic` is False (people), True (simulated
+    participants only) or "mixed" (people and simulated participants pooled)."""
+    return "MIXED DATA" if synthetic == "mixed" else "SYNTHETIC DATA" if synthetic else ""
+
+
+def _flag(synthetic: bool | str) -> str:
+    return f"{_kind(synthetic)}: " if synthetic else ""
 
 
 @styled
@@ -332,7 +338,7 @@ def likert_figure(ratings: dict[str, RatingStats], models: list[str], synthetic:
     ax.set_ylim(y - 0.5, -0.6)
     ax.set_xlim(-1, 1)
     ax.set_xlabel(wrap("share of participants (left: below the middle of the scale; right: above)", size.font_pt, fig.get_figwidth() - 0.3))
-    _suptitle(fig, "Ratings per condition" + (" (SYNTHETIC DATA)" if synthetic else ""), size)
+    _suptitle(fig, "Ratings per condition" + (f" ({_kind(synthetic)})" if synthetic else ""), size)
     _legend(fig, size, points, title="rating", handlelength=1.2, columnspacing=1.0)
     return fig
 
@@ -361,7 +367,7 @@ def scores_figure(scores: dict[str, ScoreStats], meas, models: list[str], synthe
         ax.tick_params(axis="x", rotation=30)
         for t in ax.get_xticklabels():
             t.set(ha="right", rotation_mode="anchor")
-    _suptitle(fig, "Scores per condition" + (" (SYNTHETIC DATA)" if synthetic else ""), size)
+    _suptitle(fig, "Scores per condition" + (f" ({_kind(synthetic)})" if synthetic else ""), size)
     return fig
 
 
@@ -384,7 +390,7 @@ def choice_figure(choice: ChoiceStats, models: list[str], synthetic: bool, size:
     ax.set_xticks(range(len(models)), models, rotation=30 if turn else 0, ha="right" if turn else "center", rotation_mode="anchor")
     ax.set_ylim(0, 1)
     ax.set_ylabel("share chosen (Wilson 95% CI)")
-    _suptitle(fig, choice.question + (" (SYNTHETIC)" if synthetic else ""), size)
+    _suptitle(fig, choice.question + (f" ({_kind(synthetic)})" if synthetic else ""), size)
     return fig
 
 

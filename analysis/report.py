@@ -29,7 +29,8 @@ def write_plots(study: Study, out_dir, force_traces: bool = True, size: str | Fi
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
 
-    synthetic = table1.study_facts(study).synthetic
+    facts = table1.study_facts(study)
+    synthetic = "mixed" if facts.mixed else facts.synthetic  # the titles' kind of data (plots._kind)
     r = table1.rates(study)
     protocol = study.protocol
     models = list(protocol.conditions)
@@ -74,7 +75,8 @@ def latex(study: Study, holm_scope: str = "family") -> str:
     listed = table1.incomplete_text(facts)
     caption = ((f"{facts.flag} " if facts.flag else "")
                + f"{facts.study}: N = {facts.participants} participants with every answer; {facts.design}."
-               + (f" Left out (incomplete): {listed}." if listed else ""))
+               + (f" Left out (incomplete): {listed}." if listed else "")
+               + f" Deformation time: {table1.DEFORMATION_WORK}.")
     columns = ["Question", *models, "Cochran's Q (p)", f"McNemar p ({scope})"]
     origins = table1.plugin_note(facts.conditions)
     tables = [{"title": "Table 1", "columns": columns, "rows": rows + [deformation_row + ["", ""]],
@@ -152,7 +154,8 @@ def html(study: Study, force_traces: bool = True, accuracy: dict | None = None, 
     dcells = "".join(f"<td>{esc(mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])).replace('+-', '&plusmn;')}<br>median "
                      f"{row['median_ms']:.2f}, p95 {row['p95_ms']:.2f}</td>" if row["n_participants"] else "<td>n/a (no trials)</td>"
                      for _, row in d.iterrows())
-    lat_text = "benchmark of this machine: each participant's mean, mean &plusmn; sd over participants (no test: CPU time is not about people)"
+    lat_text = (f"benchmark of this machine ({esc(table1.DEFORMATION_WORK)}): each participant's mean, mean &plusmn; sd over participants "
+                "(no test: CPU time is not about people)")
 
     gee = esc(gee_line(st.gee, st.kinds.primary.analysis == "logistic_gee").replace("`", ""))
     primary = (f"<p>{esc(primary_line(st))}</p>" if st.kinds.primary.analysis in ("mixed_model", "choice") else "")

@@ -44,6 +44,24 @@ def set_holm(pairs: list[dict], key: str = "p_holm") -> None:
         pair[key] = p
 
 
+def records(df: pd.DataFrame) -> list[dict]:
+    """A table's rows as dicts, a missing text (a reason, a warning) as None, never a float nan
+    a report would print."""
+    out = df.to_dict(orient="records")
+    text = [c for c in df.columns if not pd.api.types.is_numeric_dtype(df[c])]  # object or pandas' string dtype
+    for row in out:
+        for c in text:
+            if isinstance(row[c], float) and not np.isfinite(row[c]):
+                row[c] = None
+    return out
+
+
+def tests_run(pairs) -> int:
+    """How many of these pairwise tests were run (a finite p-value): the size of the Holm family
+    that `set_holm` adjusts over, as every report counts it."""
+    return sum(1 for p in pairs if p.get("p_value") is not None and np.isfinite(p["p_value"]))
+
+
 def wilson(yes: int, n: int, alpha: float = 0.05) -> tuple[float, float]:
     """Wilson interval of a proportion (NaN for no observations)."""
     from statsmodels.stats.proportion import proportion_confint
@@ -64,7 +82,9 @@ def pairwise_mcnemar(wide: pd.DataFrame) -> pd.DataFrame:
         x, y = wide[a].to_numpy(int), wide[b].to_numpy(int)
         n01, n10 = int(np.sum((x == 0) & (y == 1))), int(np.sum((x == 1) & (y == 0)))
         table = [[int(np.sum((x == 1) & (y == 1))), n10], [n01, int(np.sum((x == 0) & (y == 0)))]]
-        reason = None if n01 + n10 > 0 else "no participant answered the two differently: nothing to test"
+        # one participant cannot be tested (as Cochran's Q in the same row says), discordant or not
+        reason = (pair_reason(len(wide)) if len(wide) < 2 else
+                  None if n01 + n10 > 0 else "no participant answered the two differently: nothing to test")
         p = float(mcnemar(table, exact=True).pvalue) if reason is None else NAN
         rows.append({"a": a, "b": b, "test": "exact McNemar", "n01": n01, "n10": n10, "p_value": p,
                      "odds_ratio": (n10 + 0.5) / (n01 + 0.5), "reason": reason})

@@ -40,6 +40,8 @@ class Study:
     - `synthetic_participants`, `person_participants`: how many participants answered
       synthetically, and as people (from the answers' own source, not a participant flag);
       `mixed_source_participants`: the codes that answered both ways;
+    - `completeness`: who is complete, who is not, and each one's kind (studyctl.completeness:
+      the one rule behind N, the banners, the lists of the incomplete and `studyctl status`);
     - `periods`: each participant's position (0-based) of each condition in their session:
       ``code, model, period`` (the session's order, else the assigned one);
     - `latency`: each participant's mean deformation time per condition: ``code, model, value, trials``;
@@ -61,6 +63,7 @@ class Study:
     synthetic_participants: int
     person_participants: int
     mixed_source_participants: tuple[str, ...]
+    completeness: object
     periods: pd.DataFrame
     latency: pd.DataFrame
     latency_trials: pd.DataFrame
@@ -90,6 +93,7 @@ def read_study(store) -> Study:
         synthetic_participants=synthetic,
         person_participants=persons,
         mixed_source_participants=mixed,
+        completeness=snapshot.completeness(store, protocol),
         periods=_periods(orders),
         latency=snapshot.latency(store),
         latency_trials=snapshot.latency_trials(store),

@@ -12,11 +12,12 @@ from analysis.formatting import table_markdown
 from analysis.kind_results import KindStats
 from analysis.kinds import gee_line, kind_stats, kind_tables, primary_line
 from analysis.methods import study_methods
-from analysis.stats import HOLM_SCOPES, gee_fit, pairwise_mcnemar, set_holm
+from analysis.stats import HOLM_SCOPES, gee_fit, pairwise_mcnemar, records, set_holm
 from analysis.study_results import DeformationBenchmark, LogisticGee, StudyStats, YesNoItem
 from analysis.study_snapshot import Study
 from analysis.table1 import (
     DEFORMATION_LABEL,
+    DEFORMATION_WORK,
     answers_wide,
     binary_answers,
     cochran,
@@ -57,7 +58,7 @@ def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | N
             question=g["question"].iloc[0],
             cochran_q=qrow["cochran_q"], df=int(qrow["df"]), p_value=qrow["p_value"], n_complete=int(qrow["n_complete"]),
             rates={row["model"]: {k: row[k] for k in ("yes", "no", "rate", "wilson_low", "wilson_high")} for _, row in g.iterrows()},
-            pairs=pairs.to_dict(orient="records"), reason=qrow.get("reason") if isinstance(qrow.get("reason"), str) else None,
+            pairs=records(pairs), reason=qrow.get("reason") if isinstance(qrow.get("reason"), str) else None,
         )
     kinds = kind_stats(study, every)
     _holm_family(items, holm_scope, kinds.family_pairs())
@@ -157,7 +158,7 @@ def table1_markdown(study: Study, holm_scope: str = "family") -> str:
         lines.append("| Time for real-time deformation of the model, ms: benchmark of this machine | " + " | ".join(deform) + " | | |")
         lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models; pairwise exact McNemar tests, "
                   f"{scope}. Deformation time: each participant's mean over their trials, mean +- sd over participants: "
-                  "wall-clock time of this machine, not a measure of the participants (no test).", ""]
+                  f"wall-clock time of this machine {DEFORMATION_WORK}, not a measure of the participants (no test).", ""]
     for t in kind_tables(st.kinds, models, scope):
         lines += table_markdown(t)
     if not len(r):

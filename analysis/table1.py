@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.facts import StudyFacts
-from analysis.stats import wilson
+from analysis.stats import tests_run, wilson
 from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study, data_flag
 from analysis.withhold import binary_across_reason
@@ -31,29 +31,13 @@ def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.Data
     return wide.reindex(columns=models).dropna()
 
 
-def expected_answers(protocol) -> int:
-    """How many analysed answers a complete participant gives: each question asked after a
-    condition once per condition, after a trial once per trial, at the end once (free text
-    is never analysed, so it is not needed)."""
-    per = {"condition": len(protocol.conditions), "trial": len(protocol.conditions) * protocol.trials_per_condition, "end": 1}
-    return sum(per[q.when] for q in protocol.questions if q.analysed)
-
-
 def complete_answers(study: Study) -> tuple[pd.DataFrame, list[dict]]:
-    """The one N rule: a participant counts when they answered every analysed question for
-    every condition (complete cases). Returns their answers (code, model, item, trial,
-    answer: each in its kind's type) and the others, each as {code, answers, of}: everything
-    in a report is computed on the complete ones."""
-    protocol, answers = study.protocol, study.answers
-    when = {q.id: q.when for q in protocol.questions if q.analysed}
-    w = answers["item"].map(when)
-    ok = w.notna() & ((w == "end") == (answers["model"] == "")) & ((w == "end") | answers["model"].isin(protocol.conditions))
-    answers = answers[ok]
-    need = expected_answers(protocol)
-    counts = answers.groupby("code").size()
-    complete = set(counts[counts == need].index)
-    incomplete = [{"code": str(c), "answers": int(n), "of": need} for c, n in counts.items() if c not in complete]
-    return answers[answers["code"].isin(complete)].reset_index(drop=True), incomplete
+    """The one N rule (studyctl.completeness): a participant counts when they answered every
+    analysed question for every condition (complete cases). Returns their answers (code,
+    model, item, trial, answer: each in its kind's type) and the others, each as {code,
+    answers, of}: everything in a report is computed on the complete ones."""
+    done = study.completeness
+    return done.counted(study.answers).reset_index(drop=True), list(done.incomplete)
 
 
 def binary_items(protocol) -> list[str]:
@@ -104,7 +88,9 @@ def cochran(study: Study) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["item", "test", "cochran_q", "df", "p_value", "n_complete", "reason"])
 
 
-DEFORMATION_LABEL = "benchmark of this machine (wall-clock deformation time per frame), not a measure of the participants"
+# what the row times (sim/run.py: every frame computes its surface, drawn or not)
+DEFORMATION_WORK = "per visual frame, the model's deformation with the surface a participant's view draws"
+DEFORMATION_LABEL = f"benchmark of this machine (wall-clock time {DEFORMATION_WORK}), not a measure of the participants"
 
 
 def deformation(study: Study) -> pd.DataFrame:
@@ -127,12 +113,16 @@ def deformation(study: Study) -> pd.DataFrame:
 
 
 def study_facts(study: Study) -> StudyFacts:
+    """N, the incomplete, and the complete participants counted by kind (studyctl.completeness):
+    a complete mixed-source participant counts as synthetic (their data are partly simulated);
+    the reports' warning names every mixed-source participant."""
     protocol = study.protocol
-    answers, incomplete = complete_answers(study)
-    n = int(answers["code"].nunique())
-    synthetic, mixed = study.synthetic_participants, list(study.mixed_source_participants)
-    persons = study.person_participants
-    return StudyFacts(study=protocol.name, participants=n, incomplete_participants=incomplete,
+    done = study.completeness
+    n = len(done.complete)
+    persons = done.count("person")
+    synthetic = done.count("synthetic") + done.count("mixed")
+    mixed = list(study.mixed_source_participants)  # the warning names every one, complete or not
+    return StudyFacts(study=protocol.name, participants=n, incomplete_participants=list(done.incomplete),
                       synthetic_participants=synthetic, person_participants=persons, mixed_source_participants=mixed,
                       synthetic=synthetic > 0, mixed=synthetic > 0 and persons > 0, flag=data_flag(persons, synthetic),
                       design=f"within-subject, {len(protocol.conditions)} conditions, {protocol.counterbalancing} counterbalancing",
@@ -189,7 +179,7 @@ def condition_text(c: dict) -> str:
     cfg = c["config"]
     if cfg is None:
         return f"{c['condition']}: the scene's own configuration (not recorded before schema 5)"
-    opts = dict(cfg["options"]) | ({"variant": cfg["variant"]} if "variant" in cfg else {})
+    opts = {k: v for k, v in cfg["options"].items() if v is not None} | ({"variant": cfg["variant"]} if "variant" in cfg else {})
     shown = ", ".join(f"{k} {v['file'] if isinstance(v, dict) and 'file' in v else v}" for k, v in sorted(opts.items()))
     mat = cfg["material"]
     keys = material_keys(cfg["model"])
@@ -240,7 +230,7 @@ def holm_text(st: StudyStats) -> str:
     if st.holm != "family":
         return "Holm within each question"
     pairs = [p for v in st.items.values() for p in v.pairs] + [p for g in st.kinds.family_pairs() for p in g]
-    tested = sum(1 for p in pairs if p.get("p_value") is not None and np.isfinite(p["p_value"]))
+    tested = tests_run(pairs)
     if not tested:
         return "Holm: no pair tested"
     return f"Holm over all {tested} pairs tested"

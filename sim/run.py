@@ -334,8 +334,10 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
     hands = [Hand(index=i, name=h.name, device=d) for i, (h, d) in enumerate(zip(spec.hands, devices))]
     servo_loop = ServoLoop.for_devices(model, hands, rate)
     snapshot_period = 1.0 / spec.renderer.fps if snapshots else None
+    # every frame computes the surface a person's view would draw, so the deformation time
+    # measures a participant's frame (a lazy surface times only the model's advance)
     visual = VisualStep(model=model, hands=hands, events=servo_loop.events, snapshot_period=snapshot_period,
-                        targets=_tracker(scene), end_on_targets=end_on_targets, end_on_release=end_on_release, lazy_surface=not snapshots)
+                        targets=_tracker(scene), end_on_targets=end_on_targets, end_on_release=end_on_release, lazy_surface=False)
     n_ticks = int(round(duration * rate))
     try:
         starts, misses, wall = _run_lockstep(servo_loop, visual, n_ticks, rate, spec.visual_rate_hz)

@@ -17,7 +17,7 @@ from studyctl.errors import InputError, StoreError
 from studyctl.lock import session_lock
 from studyctl.outputs import write_file
 from studyctl.questions import shown
-from studyctl.store import Store, now, records, roster
+from studyctl.store import Store, now, records, roster, snapshot
 from studyctl.store.participant_fields import read_fields
 from studyctl.study import answer_key
 from studyctl.text import TEXT_MOST, spreadsheet_safe, text_problem
@@ -180,13 +180,14 @@ def status(db, today: dt.datetime | None = None) -> dict:
         protocol = store.protocol()
         people = records.people_counts(store)
         sessions = records.sessions_by_status(store)
-        # complete: every question answered for every condition, in a session or imported from paper
-        full = len(protocol.conditions) * len(protocol.items)
-        done = records.complete_by_kind(store, full)
+        # complete: the reports' own rule (studyctl.completeness), among those who have not withdrawn
+        done = snapshot.completeness(store, protocol, only=roster.participant_codes(store) - roster.withdrawn_codes(store))
         moment = (today or dt.datetime.now()).isoformat(timespec="minutes")
         upcoming = records.upcoming_slots(store, moment)
         return {"study": protocol.name, "target_participants": protocol.target_participants, "participants": people,
-                "sessions": sessions, "complete": {"persons": done.get("person", 0), "synthetic": done.get("synthetic", 0)},
+                "sessions": sessions, "complete": {"persons": done.count("person"), "synthetic": done.count("synthetic"),
+                                                       "mixed": done.count("mixed")},
+                "incomplete": list(done.incomplete),
                 "answers": records.answer_count(store), "next": upcoming}
 
 

@@ -21,8 +21,8 @@ from studyctl.sweep import completed, reachable
 from studyctl.synthetic import MAX_SYNTHETIC, SyntheticParticipant, skill_for
 
 
-def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, protocol_path=None, progress=None,
-                        scheduler: str | None = None, alongside_people: bool = False) -> dict:
+def run_synthetic_study(db, participants: int | None, seed: int = 0, jobs: int = 1, protocol_path=None, progress=None,
+                        scheduler: str | None = None, alongside_people: bool = False, complete: bool = False) -> dict:
     """Register N synthetic participants, give them counterbalanced orders, run their sessions:
     in this process (jobs 1), in `jobs` local processes, or on the Dask cluster at `scheduler`.
 
@@ -34,16 +34,23 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
 
     Nothing the caller did not ask for: a database that does not exist is created only for a
     `protocol_path` given; a study with people registered takes synthetic sessions only
-    `alongside_people` (its reports then say MIXED DATA); participants registered by a run that
-    was interrupted (Ctrl-C, a crash) are run first, with the seed they were registered with;
-    Ctrl-C raises Interrupted saying what was stored."""
-    if not 1 <= participants <= MAX_SYNTHETIC:
+    `alongside_people` (its reports then say MIXED DATA). Participants registered by a run that
+    was interrupted (Ctrl-C, a crash) are run by `complete` (True), with the seed they were
+    registered with, which brings that run to its N; `participants` new ones (None: none) are
+    then added. While such participants wait, new ones alone are refused (they would pool with
+    them unasked). Ctrl-C raises Interrupted saying what was stored and the command that completes it."""
+    if participants is None and not complete:
+        raise InputError("--participants: missing; give how many new synthetic participants (1..1000), "
+                         "or --complete to finish an interrupted run")
+    if participants is not None and not 1 <= participants <= MAX_SYNTHETIC:
         raise InputError(f"--participants: {participants} is out of range; allowed: 1..{MAX_SYNTHETIC}")
     if not 1 <= jobs <= 64:
         raise InputError(f"--jobs: {jobs} is out of range; allowed: 1..64")
     reachable(scheduler)  # an unreachable cluster is refused before anything is written
     created = None
     if not Path(db).exists():  # a new study only of the protocol the user names
+        if complete:
+            raise InputError(f"--complete: {db} does not exist; nothing to complete")
         if protocol_path is None:
             from brainsim_assets import path as asset
 
@@ -61,7 +68,8 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
                              "sessions would be pooled with theirs in every report; give --alongside-people to add them anyway "
                              "(reports then say MIXED DATA), or run them in a study of their own")
         pending = _unrun(store)
-        codes = _register(store, protocol, participants, seed)
+        _check_pending(db, pending, complete)
+        codes = _register(store, protocol, participants, seed) if participants else []
         runs = pending + [(code, seed) for code in codes]
         t0, stored = time.perf_counter(), 0
         try:  # from the registration's commit on, an interruption leaves participants to complete
@@ -74,12 +82,25 @@ def run_synthetic_study(db, participants: int, seed: int = 0, jobs: int = 1, pro
                     progress(stored, len(seeds))
         except KeyboardInterrupt:
             left = len(runs) - stored
-            raise Interrupted(f"synth: interrupted after {stored} of {len(runs)} sessions (each stored whole); the next "
-                              f"`studyctl synth --db {db}` first runs the {left} registered participant{'s' if left != 1 else ''} "
-                              "left without one") from None
-    return {"participants": len(codes), "codes": codes, "seed": seed, "jobs": jobs, "scheduler": scheduler,
+            raise Interrupted(f"synth: interrupted after {stored} of {len(runs)} sessions (each stored whole); "
+                              f"`studyctl synth --db {db} --complete` runs the {left} registered participant{'s' if left != 1 else ''} "
+                              f"left without one, completing this run's {len(runs)}") from None
+        total = roster.synthetic_with_session(store)
+    return {"participants": len(codes), "codes": codes, "seed": seed, "jobs": jobs, "scheduler": scheduler, "ran": len(runs),
+            "total_synthetic": total,
             "seconds": time.perf_counter() - t0, "protocol": protocol.name, "protocol_file": str(protocol.path), "created": created,
             "completed": [{"code": c, "seed": s} for c, s in pending]}
+
+
+def _check_pending(db, pending: list, complete: bool) -> None:
+    """Refuse new participants while an interrupted run's participants wait (they would run together,
+    more sessions than asked), and --complete with nothing to complete."""
+    if pending and not complete:
+        n = len(pending)
+        raise InputError(f"--db: {db} holds {n} synthetic participant{'s' if n != 1 else ''} an interrupted synth registered "
+                         "without a session; give --complete to run them (with --participants N to add N more after)")
+    if complete and not pending:
+        raise InputError(f"--complete: {db} holds no synthetic participant an interrupted synth left without a session; nothing to complete")
 
 
 def _unrun(store) -> list[tuple[str, int]]:

@@ -193,8 +193,8 @@ def test_ctrl_c_during_a_parallel_synth_prints_one_line_and_the_next_run_complet
     text, code = _ctrl_c(["synth", "--db", db, "--protocol", proto, "--participants", "12", "--jobs", "2", "--seed", "3"],
                          b"%", delay=0.1)  # Ctrl-C once the first sessions are stored (the bar shows a percentage)
     assert code == 130 and "Traceback" not in text and "KeyboardInterrupt" not in text, text
-    assert "synth: interrupted after" in text and "the next `studyctl synth" in text, text
-    res = studyctl("synth", "--db", db, "--participants", "1")
+    assert "synth: interrupted after" in text and "--complete` runs the" in text, text
+    res = studyctl("synth", "--db", db, "--complete", "--participants", "1")
     assert res.exit_code == 0, res.output
     con = sqlite3.connect(db)
     assert con.execute("select count(*) from participants p where not exists (select 1 from sessions s where s.code = p.code)").fetchone()[0] == 0

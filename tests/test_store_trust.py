@@ -130,11 +130,13 @@ def test_reports_count_synthetic_answers_from_rows_not_flags(tmp_path):
     """A database written before provenance checks (flags that drifted): the report finds the
     synthetic answers and names the participant whose answers are mixed."""
     db = _study(tmp_path)
-    studyctl("participants", "add", "P01", "--db", db)
-    studyctl("participants", "add", "P02", "--db", db)
-    con = sqlite3.connect(db)
+    for code in ("P01", "P02", "P03"):
+        studyctl("participants", "add", code, "--db", db)
+    items = ["natural", "behaviour", "texture", "comfortable", "guidance", "realtime", "feedback", "deformation", "stable"]
+    con = sqlite3.connect(db)  # every answer of each (complete: counted), P01's first synthetic and the rest a person's
     con.executemany("insert into answers (code, model, item, answer, session_id, source, answered_at) values (?, 'plate_spring', ?, 1, null, ?, '')",
-                    [("P01", "natural", "synthetic"), ("P01", "texture", "terminal"), ("P02", "natural", "synthetic")])
+                    [("P01", i, "synthetic" if k == 0 else "terminal") for k, i in enumerate(items)]
+                    + [("P02", i, "synthetic") for i in items] + [("P03", i, "terminal") for i in items])
     con.commit()
     con.close()
     facts = json.loads(studyctl("report", "table1", "--format", "json", "--db", db).output)["facts"]
@@ -245,7 +247,7 @@ def test_status_and_lists(tmp_path):
     studyctl("schedule", "--start", "2037-12-01", "--end", "2037-12-01", "--db", db)
     out = json.loads(studyctl("status", "--json", "--db", db).output)
     assert out["participants"] == {"persons": 1, "synthetic": 1, "withdrawn": 0, "consented": 1}
-    assert out["sessions"] == {"done": 1} and out["complete"] == {"persons": 0, "synthetic": 1} and out["target_participants"] == 35
+    assert out["sessions"] == {"done": 1} and out["complete"] == {"persons": 0, "synthetic": 1, "mixed": 0} and out["target_participants"] == 35
     assert [r["code"] for r in out["next"]] == ["P01"] and out["answers"] == 9
     text = studyctl("status", "--db", db).output
     assert "0 of 35 people complete (and 1 SYNTHETIC)" in text and "next: P01 2037-12-01 09:00" in text

@@ -71,13 +71,13 @@ def test_an_interrupted_synth_leaves_no_participant_without_a_session(tmp_path, 
     monkeypatch.setattr(runner, "completed", one_then_ctrl_c)
     res = studyctl("synth", "--db", db, "--participants", "3", "--protocol", proto, "--seed", "4")
     assert res.exit_code != 0 and "Traceback" not in res.output
-    assert "interrupted after 1 of 3 sessions" in res.output and "the next `studyctl synth" in res.output, res.output
+    assert "interrupted after 1 of 3 sessions" in res.output and f"`studyctl synth --db {db} --complete`" in res.output, res.output
     monkeypatch.setattr(runner, "completed", real)
     con = sqlite3.connect(db)
     assert con.execute("select count(*) from participants").fetchone()[0] == 3
-    res = studyctl("synth", "--db", db, "--participants", "1", "--seed", "9")
+    res = studyctl("synth", "--db", db, "--complete", "--participants", "1", "--seed", "9")
     assert res.exit_code == 0, res.output
-    assert "first ran the 2 participants an interrupted synth had registered (S002, S003; seed 4)" in res.output, res.output
+    assert "ran 3 SYNTHETIC sessions of 'brain_pull_2015': 1 new (seed 9), 2 resumed (S002, S003; seed 4);" in res.output, res.output
     orphans = con.execute("select count(*) from participants p where not exists (select 1 from sessions s where s.code = p.code)")
     assert orphans.fetchone()[0] == 0
     seeds = dict(con.execute("select code, seed from sessions").fetchall())

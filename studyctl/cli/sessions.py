@@ -118,7 +118,9 @@ def replay_cmd(db, session_id, trial, view, frames_dir, force, fullscreen, as_js
 
 @click.command("synth", cls=click.Command)
 @DB
-@click.option("--participants", type=click.IntRange(1, 1000), required=True, help="How many synthetic participants (1..1000).")
+@click.option("--participants", type=click.IntRange(1, 1000), default=None, help="How many new synthetic participants (1..1000).")
+@click.option("--complete", is_flag=True,
+              help="Run the participants an interrupted synth registered without a session, bringing that run to its N.")
 @click.option("--seed", type=SEED, default=0, show_default=True)
 @click.option("--jobs", type=click.IntRange(1, 64), default=1, show_default=True, help="Sessions run in parallel processes.")
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
@@ -127,22 +129,24 @@ def replay_cmd(db, session_id, trial, view, frames_dir, force, fullscreen, as_js
               help="Add synthetic sessions to a study with people registered (its reports then say MIXED DATA); refused otherwise.")
 @SCHEDULER
 @JSON
-def synth_cmd(db, participants, seed, jobs, protocol_file, alongside_people, scheduler, as_json):
+def synth_cmd(db, participants, complete, seed, jobs, protocol_file, alongside_people, scheduler, as_json):
     """Run whole sessions with SYNTHETIC participants on the simulator (labelled synthetic).
-    Participants an interrupted run registered are run first, with their own seed."""
+    After an interrupted run, --complete runs the participants it registered (with their own
+    seed), bringing it to its N; new participants are refused until then."""
     from studyctl.synthetic_study import run_synthetic_study
 
     out = _with_progress("synthetic sessions", lambda p: run_synthetic_study(db, participants, seed, jobs, protocol_file, progress=p,
-                                                                             scheduler=scheduler, alongside_people=alongside_people))
+                                                                             scheduler=scheduler, alongside_people=alongside_people,
+                                                                             complete=complete))
     if as_json:
         _print_json(out | {"synthetic": True})
         return
     if out["created"]:
         click.echo(f"created {db} for the protocol {out['created']}")
-    if out["completed"]:
-        done = out["completed"]
-        seeds = ", ".join(str(s) for s in sorted({c["seed"] for c in done}))
-        click.echo(f"first ran the {len(done)} participant{'s' if len(done) != 1 else ''} an interrupted synth had registered "
-                   f"({', '.join(c['code'] for c in done)}; seed {seeds})")
+    done = out["completed"]
+    seeds = ", ".join(str(s) for s in sorted({c["seed"] for c in done}))
+    resumed = f"{len(done)} resumed ({', '.join(c['code'] for c in done)}; seed {seeds})" if done else "0 resumed"
     where = f"on the Dask cluster at {scheduler}" if scheduler else f"{jobs} jobs"
-    click.echo(f"ran {out['participants']} SYNTHETIC sessions of {out['protocol']!r} (seed {seed}, {where}) in {out['seconds']:.1f} s")
+    new = f"{out['participants']} new (seed {seed})" if out["participants"] else "0 new"
+    click.echo(f"ran {out['ran']} SYNTHETIC sessions of {out['protocol']!r}: {new}, {resumed}; "
+               f"{out['total_synthetic']} synthetic participants with a session in total ({where}, {out['seconds']:.1f} s)")

@@ -94,7 +94,10 @@ def status_cmd(db, as_json):
         return
     p, c = out["participants"], out["complete"]
     click.echo(f"{out['study']}: {c['persons']} of {out['target_participants']} people complete"
-               + (f" (and {c['synthetic']} SYNTHETIC)" if c["synthetic"] else ""))
+               + (f" (and {c['synthetic']} SYNTHETIC)" if c["synthetic"] else "")
+               + (f" (and {c['mixed']} with both a person's and SYNTHETIC answers)" if c["mixed"] else ""))
+    if out["incomplete"]:
+        click.echo("incomplete: " + ", ".join(f"{r['code']} ({r['answers']}/{r['of']})" for r in out["incomplete"]))
     click.echo(f"participants: {p['persons']} people ({p['consented']} consented, {p['withdrawn']} withdrawn), {p['synthetic']} synthetic")
     click.echo("sessions: " + (", ".join(f"{n} {k}" for k, n in sorted(out["sessions"].items())) or "none yet"))
     click.echo(f"answers: {out['answers']}")

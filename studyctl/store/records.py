@@ -87,14 +87,6 @@ def sessions_by_status(store: Store) -> dict[str, int]:
     return {r["status"]: r["n"] for r in store.rows("select status, count(*) as n from sessions group by status")}
 
 
-def complete_by_kind(store: Store, full: int) -> dict[str, int]:
-    """'person' / 'synthetic' -> how many participants still in the study hold at least `full` answers."""
-    return {r["kind"]: r["n"] for r in store.rows(
-        "select kind, count(*) as n from (select case when p.synthetic = 1 then 'synthetic' else 'person' end as kind "
-        "from participants p join answers a on a.code = p.code where p.withdrawn_at is null group by p.code having count(*) >= ?) "
-        "group by kind", (full,))}
-
-
 def upcoming_slots(store: Store, moment: str) -> list[dict]:
     """The next five scheduled slots from `moment` on (code, slot_start, slot_end), earliest first."""
     return store.rows("select code, slot_start, slot_end from schedule where slot_start >= ? order by slot_start limit 5", (moment,))

@@ -46,6 +46,12 @@ def unrun_synthetic(store: Store) -> list[dict]:
                       "order by p.code")
 
 
+def synthetic_with_session(store: Store) -> int:
+    """How many synthetic participants have a session."""
+    return store.rows("select count(*) as n from participants p where p.synthetic = 1 "
+                      "and exists (select 1 from sessions s where s.code = p.code)")[0]["n"]
+
+
 # -- the schedule -------------------------------------------------------------------------
 def stored_order(store: Store, code: str) -> str | None:
     """The participant's stored condition order (JSON), or None when they have none."""

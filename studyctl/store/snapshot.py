@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import pandas as pd
 
+from studyctl.completeness import Completeness
+from studyctl.completeness import completeness as count_complete
 from studyctl.store.database import Store
 
 
@@ -42,6 +44,17 @@ def condition_orders(store: Store) -> pd.DataFrame:
 def answers(store: Store) -> pd.DataFrame:
     """Every stored answer: code, model, item, trial, answer."""
     return _frame(store, "select code, model, item, trial, answer from answers")
+
+
+def answer_sources(store: Store) -> pd.DataFrame:
+    """Each participant's answer sources: code, source (one row per distinct pair)."""
+    return _frame(store, "select distinct code, source from answers order by code")
+
+
+def completeness(store: Store, protocol, only: set[str] | None = None) -> Completeness:
+    """Who is complete, who is not and of which kind (studyctl.completeness: the one rule every
+    count uses); `only`: count these codes alone."""
+    return count_complete(protocol, answers(store), answer_sources(store), only)
 
 
 def latency(store: Store) -> pd.DataFrame:

@@ -175,3 +175,14 @@ class ResetRaises(Spring):
 
     def reset(self):
         raise RuntimeError("cannot rewind")
+
+
+@dataclass(frozen=True)
+class UnsetOptions:
+    stiffness: float = option(200.0, unit="N/m", lo=1.0, hi=700.0)
+    k0: float | None = option(None, unit="N/m", doc="an option left unset: the model works its own value out")
+
+
+class Unset(Spring):
+    description = "an option whose default is unset, None (test plugin)"
+    Options = UnsetOptions
