@@ -31,6 +31,8 @@ def check_input(path, max_bytes: int) -> Path:
     path = Path(path)
     try:
         st = os.stat(path)
+    except FileNotFoundError:
+        raise InputFileError(f"{path}: not found") from None
     except OSError as exc:
         raise InputFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
     if not stat.S_ISREG(st.st_mode):

@@ -19,6 +19,7 @@ import zipfile
 from pathlib import Path
 
 from studyctl.errors import InputError
+from studyctl.outputs import Staged
 
 NAME = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9._-]*[A-Za-z0-9])?$")
 VERSION = re.compile(r"^[0-9]+(\.[0-9]+)*([a-z0-9.+-]*)$")
@@ -84,9 +85,10 @@ def _record_line(name: str, data: bytes) -> str:
     return f"{name},sha256={digest},{len(data)}"
 
 
-def build_wheel(folder: str | Path, out_dir: str | Path, force: bool = False) -> Path:
+def build_wheel(folder: str | Path, out_dir: str | Path, force: bool = False) -> Staged:
     """The wheel of the model package in `folder`, written into `out_dir` (whole or not at all;
-    an existing wheel of that name replaced only with `force`); its path. Raises InputError."""
+    an existing wheel of that name replaced only with `force`): its written output (`.target`,
+    `.replaced`). Raises InputError, or OutputExists / OutputFailed."""
     folder, out_dir = Path(folder), Path(out_dir)
     project, root = _project(folder)
     packages = _packages(root)
@@ -108,12 +110,8 @@ def build_wheel(folder: str | Path, out_dir: str | Path, force: bool = False) ->
     record = "\n".join([*(_record_line(n, d) for n, d in files), f"{info}/RECORD,,"]) + "\n"
     files.append((f"{info}/RECORD", record.encode()))
     wheel = out_dir / f"{dist}-{project['version']}-py3-none-any.whl"
-    if wheel.exists() and not force:
-        raise InputError(f"{wheel}: exists; pass --force to replace it")
-    out_dir.mkdir(parents=True, exist_ok=True)
-    part = out_dir / f".{wheel.name}.part"
-    with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
+    out = Staged(wheel, force)
+    with out as part, zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
         for name, data in files:
             z.writestr(name, data)
-    part.replace(wheel)
-    return wheel
+    return out

@@ -200,7 +200,7 @@ def test_model_wheel_builds_an_installable_wheel_and_refuses_to_overwrite_one(tm
     before = _digest(wheel)
     again = studyctl("model", "wheel", ROOT / "examples" / "brainsim-halfspace", "--out", out)
     assert again.exit_code == 1
-    assert again.output.strip() == f"Error: {wheel}: exists; pass --force to replace it"
+    assert again.output.strip() == f"Error: {wheel}: exists; --force overwrites it"
     assert _digest(wheel) == before
 
 

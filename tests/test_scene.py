@@ -250,7 +250,7 @@ def test_file_problems_are_one_line_naming_the_file(tmp_path):
     assert problem.startswith(f"{syntax}:{_line_of(text, 'rate_hz = 1000 =')}: invalid TOML: ")
 
     missing = tmp_path / "none.toml"
-    assert _problems(missing) == [f"{missing}: cannot read: No such file or directory"]
+    assert _problems(missing) == [f"{missing}: not found"]
 
     # the parameter file a scene names: the same, with that file's name and line
     params = tmp_path / "p.toml"
@@ -278,7 +278,7 @@ def test_cli_prints_every_problem_without_a_traceback(tmp_path):
         res = CliRunner().invoke(cli, ["sim", "run", "--scene", str(scene), "--duration", "0.1", "--time-scale", "0"])
         assert res.exit_code == 1, res.output
         assert "Traceback" not in res.output and not isinstance(res.exception, SceneError)
-        expected = problems if scene == path else [f"{scene}: cannot read: No such file or directory"]
+        expected = problems if scene == path else [f"{scene}: not found"]
         assert res.output.removeprefix("Error: ").splitlines() == expected
     bad = tmp_path / "bytes.toml"
     bad.write_bytes(b"[scene]\nname = \"\xff\"\n")

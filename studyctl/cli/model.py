@@ -10,7 +10,7 @@ import click
 from sim.models.base import MAX_PULL_M, pull_problem
 from sim.run import VisualStep
 from sim.scene import DEFAULT_SCENE
-from studyctl.cli.common import FORCE, Finite, OutDir, OutFile, _console, _Group, _print_json, staged, write_output
+from studyctl.cli.common import FORCE, Finite, OutDir, OutFile, _console, _Group, _print_json, say_replaced, staged, write_output
 
 
 @click.group(cls=_Group)
@@ -120,8 +120,9 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
 @model.command("wheel")
 @click.argument("folder", type=click.Path(file_okay=False, exists=True, path_type=Path))
 @click.option("--out", "out_dir", type=OutDir(), default=Path("dist"), show_default=True, help="The folder the wheel is written into.")
-@click.option("--force", is_flag=True, help="Replace a wheel of the same name and version.")
-def model_wheel(folder: Path, out_dir: Path, force: bool):
+@FORCE
+@click.option("--json", "as_json", is_flag=True)
+def model_wheel(folder: Path, out_dir: Path, force: bool, as_json: bool):
     """Build the wheel of a model package (FOLDER holds its pyproject.toml) with the standard
     library alone: offline, where pip cannot fetch setuptools. Install it into any venv with
     `pip install --no-deps WHEEL` (docs/models.md)."""
@@ -129,9 +130,14 @@ def model_wheel(folder: Path, out_dir: Path, force: bool):
     from studyctl.model_wheel import build_wheel
 
     try:
-        wheel = build_wheel(folder, out_dir, force=force)
+        out = build_wheel(folder, out_dir, force=force)
     except InputError as exc:
         raise click.ClickException(str(exc)) from None
+    say_replaced(out)
+    wheel = out.target
+    if as_json:
+        _print_json({"wheel": str(wheel), "bytes": wheel.stat().st_size})
+        return
     click.echo(f"{wheel} ({wheel.stat().st_size / 1e3:.1f} kB)")
 
 
