@@ -10,7 +10,18 @@ import click
 from sim.models.base import MAX_PULL_M, pull_problem
 from sim.run import VisualStep
 from sim.scene import DEFAULT_SCENE
-from studyctl.cli.common import FORCE, Finite, OutDir, OutFile, _console, _Group, _print_json, say_replaced, staged, write_output
+from studyctl.cli.common import (
+    FORCE,
+    Finite,
+    OutDir,
+    OutFile,
+    _console,
+    _Group,
+    _print_json,
+    say_replaced,
+    staged,
+    write_output,
+)
 
 
 @click.group(cls=_Group)
