@@ -122,6 +122,49 @@ def test_an_interrupted_synth_suggests_complete(interrupted):
     assert f"`studyctl synth --db {db} --complete` runs the 3 registered participants left without one, completing this run's 4" in res.output, res.output
 
 
+@pytest.fixture
+def interrupted_in_a_session(tmp_path, monkeypatch):
+    """A `synth --participants 3` (one job) whose Ctrl-C lands inside S002's session, as it
+    nearly always does: the session raises its own Interrupted, naming its scratch study."""
+    import studyctl.session as session
+
+    real = session._run_condition
+
+    def ctrl_c_in_s002(run, *args):
+        if run.code == "S002":
+            raise KeyboardInterrupt
+        return real(run, *args)
+
+    monkeypatch.setattr(session, "_run_condition", ctrl_c_in_s002)
+    db = tmp_path / "s.db"
+    res = studyctl("synth", "--db", db, "--participants", "3", "--seed", "4",
+                   "--protocol", fast_protocol(tmp_path, conditions=("plate_spring",), trials=1))
+    monkeypatch.setattr(session, "_run_condition", real)
+    return db, res
+
+
+def test_ctrl_c_inside_a_synthetic_session_exits_130(interrupted_in_a_session):
+    _, res = interrupted_in_a_session
+    assert res.exit_code == 130, res.output
+
+
+def test_ctrl_c_inside_a_synthetic_session_suggests_complete(interrupted_in_a_session):
+    db, res = interrupted_in_a_session
+    assert res.output.strip() == (f"Error: synth: interrupted after 1 of 3 sessions (each stored whole); `studyctl synth --db {db} "
+                                  "--complete` runs the 2 registered participants left without one, completing this run's 3"), res.output
+
+
+def test_ctrl_c_inside_a_synthetic_session_names_no_scratch_study(interrupted_in_a_session):
+    _, res = interrupted_in_a_session
+    assert "studyctl-synth-" not in res.output, res.output
+
+
+def test_synth_complete_after_ctrl_c_inside_a_session_brings_the_run_to_its_n(interrupted_in_a_session):
+    db, _ = interrupted_in_a_session
+    assert studyctl("synth", "--db", db, "--complete").exit_code == 0
+    assert sqlite3.connect(db).execute("select count(*) from sessions where status = 'done'").fetchone()[0] == 3
+
+
 def test_synth_complete_brings_an_interrupted_run_to_its_n(interrupted):
     db, _ = interrupted
     assert studyctl("synth", "--db", db, "--complete").exit_code == 0
