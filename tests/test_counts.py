@@ -3,6 +3,7 @@
 counted apart; `synth --complete` brings an interrupted run to its N and says what it ran."""
 
 import hashlib
+import shutil
 import sqlite3
 
 import pytest
@@ -174,8 +175,21 @@ def test_synth_complete_brings_an_interrupted_run_to_its_n(interrupted):
 def test_synth_complete_says_what_it_ran_in_one_line(interrupted):
     db, _ = interrupted
     out = studyctl("synth", "--db", db, "--complete").output
-    assert "ran 3 SYNTHETIC sessions of 'brain_pull_2015': 0 new, 3 resumed (S002, S003, S004; seed 4); " \
-           "4 synthetic participants with a session in total" in out, out
+    assert "ran 3 SYNTHETIC sessions of 'brain_pull_2015': 0 new, 3 left by an interrupted run, run from the start " \
+           "(S002, S003, S004; seed 4); 4 synthetic participants with a session in total" in out, out
+
+
+def test_synth_complete_never_calls_a_session_run_from_the_start_resumed(interrupted):
+    db, _ = interrupted
+    out = studyctl("synth", "--db", db, "--complete").output
+    assert "resumed" not in out, out
+
+
+def test_a_synth_with_nothing_left_over_names_no_interrupted_run(one, tmp_path):
+    db = tmp_path / "s.db"
+    shutil.copy(one, db)
+    out = studyctl("synth", "--db", db, "--participants", 1, "--seed", 5).output
+    assert "ran 1 SYNTHETIC sessions of 'brain_pull_2015': 1 new (seed 5); 2 synthetic participants" in out, out
 
 
 def test_synth_complete_leaves_four_participants(interrupted):
