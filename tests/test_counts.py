@@ -327,6 +327,23 @@ def test_the_gee_working_correlation_at_n_2_says_why_it_is_missing(two):
     assert "exchangeable working correlation (not estimated: fewer than 5 participants)" in out, out
 
 
+@pytest.fixture(scope="module")
+def two_rho(tmp_path_factory):
+    """Two participants whose GEE fit returns a finite working correlation (seed 2), though the
+    fit is flagged not estimable (fewer than 5 participants)."""
+    return _synth(tmp_path_factory, "two_rho", 2, 2, lambda tmp: fast_protocol(tmp, trials=1))
+
+
+def test_a_gee_flagged_not_estimable_prints_no_working_correlation_in_table1(two_rho):
+    out = studyctl("report", "table1", "--db", two_rho).output
+    assert "exchangeable working correlation (not estimated: fewer than 5 participants)" in out, out
+
+
+def test_a_gee_flagged_not_estimable_prints_no_working_correlation_in_report_stats(two_rho):
+    out = studyctl("report", "stats", "--db", two_rho).output
+    assert "exchangeable working correlation (not estimated: fewer than 5 participants)" in out, out
+
+
 @pytest.mark.parametrize("command", [("table1",), ("text",), ("stats",)])
 def test_no_nan_in_a_ratings_report(variants_study, command):
     import re
