@@ -415,3 +415,24 @@ def test_report_jnd_prints_no_bare_dash_interval(small_jnd):
 def test_report_jnd_explains_a_dash_in_its_notes(small_jnd):
     out = studyctl("report", "jnd", "--db", small_jnd).output
     assert "A - marks a value there is none of" in out, out
+
+
+def _stored_version(db) -> str:
+    (version,), = sqlite3.connect(db).execute("select distinct software_version from sessions").fetchall()
+    return version.removeprefix("brainsim-study ")
+
+
+def test_report_stats_json_gives_a_built_in_model_the_sessions_version(one):
+    import json
+
+    js = json.loads(studyctl("report", "stats", "--json", "--db", one).output)
+    versions = {m["source"]["version"] for m in js["methods"]["apparatus"]["models"]}
+    assert versions == {_stored_version(one)}, js["methods"]["apparatus"]["models"]
+
+
+def test_table1_json_gives_a_built_in_model_the_sessions_version(one):
+    import json
+
+    js = json.loads(studyctl("report", "table1", "--format", "json", "--db", one).output)
+    versions = {c["source"]["version"] for c in js["facts"]["conditions"]}
+    assert versions == {_stored_version(one)}, js["facts"]["conditions"]
