@@ -81,6 +81,69 @@ def test_status_json_counts_match_table1(mixed_study):
     assert out["complete"] == {"persons": 3, "synthetic": 1, "mixed": 0}
 
 
+@pytest.fixture(scope="module")
+def withdrawn_study(tmp_path_factory):
+    """Two people who answered everything on paper; P01 then withdrew (`withdrawal = "keep"`,
+    the default: their answers stay, and the reports count them)."""
+    tmp = tmp_path_factory.mktemp("withdrawn")
+    db = tmp / "s.db"
+    assert studyctl("study", "init", "--protocol", fast_protocol(tmp, conditions=CONDITIONS, trials=1), "--db", db).exit_code == 0
+    rows = ["participant,model,item,answer"]
+    for code in ("P01", "P02"):
+        assert studyctl("participants", "add", code, "--age", 24, "--db", db).exit_code == 0
+        assert studyctl("participants", "consent", code, "--db", db).exit_code == 0
+        rows += [f"{code},{m},{i},{'yes' if (k + len(m)) % 3 else 'no'}" for m in CONDITIONS for k, i in enumerate(ITEMS)]
+    (tmp / "a.csv").write_text("\n".join(rows) + "\n")
+    assert studyctl("answers", "import", tmp / "a.csv", "--db", db).exit_code == 0
+    assert studyctl("participants", "withdraw", "P01", "--db", db).exit_code == 0
+    return db
+
+
+def test_status_counts_a_withdrawn_person_whose_data_the_reports_keep(withdrawn_study):
+    first = studyctl("status", "--db", withdrawn_study).output.splitlines()[0]
+    assert first.startswith("brain_pull_2015: 2 of "), first
+
+
+def test_status_says_a_complete_person_withdrew_with_data_kept(withdrawn_study):
+    first = studyctl("status", "--db", withdrawn_study).output.splitlines()[0]
+    assert first.endswith("people complete (1 of these withdrew, data kept: counted, as in the reports)"), first
+
+
+def test_table1_n_counts_the_withdrawn_person_as_status_does(withdrawn_study):
+    out = studyctl("report", "table1", "--db", withdrawn_study).output
+    assert "N = 2 participants with every answer" in out, out[:600]
+
+
+def test_status_json_counts_the_complete_who_withdrew(withdrawn_study):
+    import json
+
+    out = json.loads(studyctl("status", "--db", withdrawn_study, "--json").output)
+    assert out["complete_withdrawn"] == 1, out
+
+
+@pytest.fixture(scope="module")
+def mixed_source_study(mixed_study, tmp_path_factory):
+    """The mixed study with one synthetic answer among P01's (a database from before the checks
+    that keep sources apart): P01's answers mix sources."""
+    db = tmp_path_factory.mktemp("mixed_source") / "s.db"
+    shutil.copy(mixed_study, db)
+    con = sqlite3.connect(db)
+    with con:
+        con.execute("update answers set source = 'synthetic' where code = 'P01' and model = 'fem' and item = 'natural'")
+    con.close()
+    return db
+
+
+def test_status_counts_a_mixed_source_participant_as_synthetic(mixed_source_study):
+    first = studyctl("status", "--db", mixed_source_study).output.splitlines()[0]
+    assert first == "brain_pull_2015: 2 of 35 people complete (and 2 SYNTHETIC, 1 of them with a person's answers too)", first
+
+
+def test_table1_banner_counts_a_mixed_source_participant_as_status_does(mixed_source_study):
+    out = studyctl("report", "table1", "--db", mixed_source_study).output
+    assert "MIXED DATA: 2 people and 2 SYNTHETIC (simulated) participants pooled" in out, out[:600]
+
+
 def test_plots_of_a_mixed_study_are_titled_mixed(mixed_study, tmp_path, monkeypatch):
     import analysis.plots as plots
 
