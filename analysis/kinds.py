@@ -280,9 +280,12 @@ def kind_stats(study: Study, answers: pd.DataFrame) -> KindStats:
 def _rho_text(fit: dict) -> str:
     """A GEE's exchangeable working correlation, or why there is none (never a bare nan)."""
     rho = fit.get("working_correlation")
-    if rho is not None and np.isfinite(rho):
+    # a fit flagged not estimable or not converged gives a number that means nothing: its reason instead,
+    # the same one the sentence's NOT ESTIMABLE OR NOT CONVERGED names
+    if fit.get("estimable", True) and fit.get("converged", True) and rho is not None and np.isfinite(rho):
         return f"{rho:.2f}"
-    return "not estimated: " + "; ".join(fit.get("problems") or ["the fit gave none"])
+    why = fit.get("problems") or (["no convergence"] if not fit.get("converged", True) else ["the fit gave none"])
+    return "not estimated: " + "; ".join(why)
 
 
 def gee_line(gee: LogisticGee, primary: bool = True) -> str:

@@ -46,7 +46,7 @@ class Study:
       ``code, model, period`` (the session's order, else the assigned one);
     - `latency`: each participant's mean deformation time per condition: ``code, model, value, trials``;
     - `latency_trials`: every trial's deformation time: ``model, value``;
-    - `configurations`: what each condition ran: ``condition, config, config_sha256, sessions``;
+    - `configurations`: what each condition ran: ``condition, config, config_sha256, sessions, software_versions``;
     - `discrimination`: every discrimination trial: ``code, model, task, trial, delta, comparison_interval,
       answer, correct, state (the procedure's, JSON), source``, and `traits` every synthetic participant's generating traits: ``code, trait, value``;
     - `path`: the database file (trace paths are relative to its folder);

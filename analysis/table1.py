@@ -140,21 +140,31 @@ def conditions(study: Study) -> list[dict]:
         config = json.loads(r["config"]) if isinstance(r["config"], str) else None
         out.append({"condition": r["condition"], "model": config["model"] if config else None, "config": config,
                     "config_sha256": r["config_sha256"] if config else None, "sessions": int(r["sessions"]),
-                    "source": model_source(config)})
+                    "source": model_source(config, r.get("software_versions"))})
     return out
 
 
-def model_source(config: dict | None) -> dict | None:
+def model_source(config: dict | None, software_versions: str | None = None) -> dict | None:
     """Where a condition's model came from, as its stored configuration says: a plugin's
     distribution, version and source hash (`plugin`, studyctl/conditions.py), else built into
-    brainsim-study (whose version is the sessions' software version); None: no configuration."""
+    brainsim-study, whose version is that of the sessions that ran it (`software_versions`: their
+    stored software versions, "brainsim-study X", comma-separated; None: unknown); None: no configuration."""
     if not config:
         return None
     plugin = config.get("plugin")
     if not plugin:
-        return {"package": "brainsim-study", "version": None, "builtin": True, "source_sha256": None}
+        return {"package": "brainsim-study", "version": _builtin_version(software_versions), "builtin": True, "source_sha256": None}
     return {"package": plugin.get("distribution"), "version": plugin.get("version"), "builtin": False,
             "source_sha256": plugin.get("source_sha256"), "target": plugin.get("target")}
+
+
+def _builtin_version(software_versions: str | None) -> str | None:
+    """brainsim-study's version from the sessions' software versions: "0.9.0", or several sorted
+    and comma-separated when sessions ran under more than one; None when none was stored."""
+    if not isinstance(software_versions, str) or not software_versions:
+        return None
+    found = {v.strip().removeprefix("brainsim-study ").strip() for v in software_versions.split(",") if v.strip()}
+    return ", ".join(sorted(found)) or None
 
 
 def source_text(source: dict | None) -> str:

@@ -175,18 +175,25 @@ def list_sessions(db) -> list[dict]:
 
 def status(db, today: dt.datetime | None = None) -> dict:
     """Where the study stands: participants, sessions by state, progress to the target N, the
-    next scheduled sessions."""
+    next scheduled sessions. `complete` counts as Table 1's N and the banners do: `persons`,
+    `synthetic` (mixed-source participants included) and `mixed` (how many of those synthetic
+    have a person's answers too); `complete_withdrawn`: how many of the complete withdrew with
+    their data kept (counted, as in the reports)."""
     with Store(db, mode="read") as store:
         protocol = store.protocol()
         people = records.people_counts(store)
         sessions = records.sessions_by_status(store)
-        # complete: the reports' own rule (studyctl.completeness), among those who have not withdrawn
-        done = snapshot.completeness(store, protocol, only=roster.participant_codes(store) - roster.withdrawn_codes(store))
+        # complete: the reports' own rule and count (studyctl.completeness): everyone whose answers the
+        # study holds, withdrawn with their data kept included; a mixed-source participant counts as synthetic
+        done = snapshot.completeness(store, protocol)
+        withdrawn = roster.withdrawn_codes(store)
         moment = (today or dt.datetime.now()).isoformat(timespec="minutes")
         upcoming = records.upcoming_slots(store, moment)
         return {"study": protocol.name, "target_participants": protocol.target_participants, "participants": people,
-                "sessions": sessions, "complete": {"persons": done.count("person"), "synthetic": done.count("synthetic"),
-                                                       "mixed": done.count("mixed")},
+                "sessions": sessions, "complete": {"persons": done.count("person"),
+                                                   "synthetic": done.count("synthetic") + done.count("mixed"),
+                                                   "mixed": done.count("mixed")},
+                "complete_withdrawn": sum(1 for c in done.complete if c in withdrawn),
                 "incomplete": list(done.incomplete),
                 "answers": records.answer_count(store), "next": upcoming}
 

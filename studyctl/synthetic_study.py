@@ -80,7 +80,8 @@ def run_synthetic_study(db, participants: int | None, seed: int = 0, jobs: int =
                 stored += 1  # counted once its transaction committed (Ctrl-C inside it rolls it back)
                 if progress:
                     progress(stored, len(seeds))
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, Interrupted):  # Ctrl-C between sessions, or inside one (run_session's own Interrupted
+            # names its scratch study, which is gone): either way the registered participants left are completed by --complete
             left = len(runs) - stored
             raise Interrupted(f"synth: interrupted after {stored} of {len(runs)} sessions (each stored whole); "
                               f"`studyctl synth --db {db} --complete` runs the {left} registered participant{'s' if left != 1 else ''} "

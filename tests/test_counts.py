@@ -3,6 +3,7 @@
 counted apart; `synth --complete` brings an interrupted run to its N and says what it ran."""
 
 import hashlib
+import shutil
 import sqlite3
 
 import pytest
@@ -80,6 +81,69 @@ def test_status_json_counts_match_table1(mixed_study):
     assert out["complete"] == {"persons": 3, "synthetic": 1, "mixed": 0}
 
 
+@pytest.fixture(scope="module")
+def withdrawn_study(tmp_path_factory):
+    """Two people who answered everything on paper; P01 then withdrew (`withdrawal = "keep"`,
+    the default: their answers stay, and the reports count them)."""
+    tmp = tmp_path_factory.mktemp("withdrawn")
+    db = tmp / "s.db"
+    assert studyctl("study", "init", "--protocol", fast_protocol(tmp, conditions=CONDITIONS, trials=1), "--db", db).exit_code == 0
+    rows = ["participant,model,item,answer"]
+    for code in ("P01", "P02"):
+        assert studyctl("participants", "add", code, "--age", 24, "--db", db).exit_code == 0
+        assert studyctl("participants", "consent", code, "--db", db).exit_code == 0
+        rows += [f"{code},{m},{i},{'yes' if (k + len(m)) % 3 else 'no'}" for m in CONDITIONS for k, i in enumerate(ITEMS)]
+    (tmp / "a.csv").write_text("\n".join(rows) + "\n")
+    assert studyctl("answers", "import", tmp / "a.csv", "--db", db).exit_code == 0
+    assert studyctl("participants", "withdraw", "P01", "--db", db).exit_code == 0
+    return db
+
+
+def test_status_counts_a_withdrawn_person_whose_data_the_reports_keep(withdrawn_study):
+    first = studyctl("status", "--db", withdrawn_study).output.splitlines()[0]
+    assert first.startswith("brain_pull_2015: 2 of "), first
+
+
+def test_status_says_a_complete_person_withdrew_with_data_kept(withdrawn_study):
+    first = studyctl("status", "--db", withdrawn_study).output.splitlines()[0]
+    assert first.endswith("people complete (1 of these withdrew, data kept: counted, as in the reports)"), first
+
+
+def test_table1_n_counts_the_withdrawn_person_as_status_does(withdrawn_study):
+    out = studyctl("report", "table1", "--db", withdrawn_study).output
+    assert "N = 2 participants with every answer" in out, out[:600]
+
+
+def test_status_json_counts_the_complete_who_withdrew(withdrawn_study):
+    import json
+
+    out = json.loads(studyctl("status", "--db", withdrawn_study, "--json").output)
+    assert out["complete_withdrawn"] == 1, out
+
+
+@pytest.fixture(scope="module")
+def mixed_source_study(mixed_study, tmp_path_factory):
+    """The mixed study with one synthetic answer among P01's (a database from before the checks
+    that keep sources apart): P01's answers mix sources."""
+    db = tmp_path_factory.mktemp("mixed_source") / "s.db"
+    shutil.copy(mixed_study, db)
+    con = sqlite3.connect(db)
+    with con:
+        con.execute("update answers set source = 'synthetic' where code = 'P01' and model = 'fem' and item = 'natural'")
+    con.close()
+    return db
+
+
+def test_status_counts_a_mixed_source_participant_as_synthetic(mixed_source_study):
+    first = studyctl("status", "--db", mixed_source_study).output.splitlines()[0]
+    assert first == "brain_pull_2015: 2 of 35 people complete (and 2 SYNTHETIC, 1 of them with a person's answers too)", first
+
+
+def test_table1_banner_counts_a_mixed_source_participant_as_status_does(mixed_source_study):
+    out = studyctl("report", "table1", "--db", mixed_source_study).output
+    assert "MIXED DATA: 2 people and 2 SYNTHETIC (simulated) participants pooled" in out, out[:600]
+
+
 def test_plots_of_a_mixed_study_are_titled_mixed(mixed_study, tmp_path, monkeypatch):
     import analysis.plots as plots
 
@@ -122,6 +186,49 @@ def test_an_interrupted_synth_suggests_complete(interrupted):
     assert f"`studyctl synth --db {db} --complete` runs the 3 registered participants left without one, completing this run's 4" in res.output, res.output
 
 
+@pytest.fixture
+def interrupted_in_a_session(tmp_path, monkeypatch):
+    """A `synth --participants 3` (one job) whose Ctrl-C lands inside S002's session, as it
+    nearly always does: the session raises its own Interrupted, naming its scratch study."""
+    import studyctl.session as session
+
+    real = session._run_condition
+
+    def ctrl_c_in_s002(run, *args):
+        if run.code == "S002":
+            raise KeyboardInterrupt
+        return real(run, *args)
+
+    monkeypatch.setattr(session, "_run_condition", ctrl_c_in_s002)
+    db = tmp_path / "s.db"
+    res = studyctl("synth", "--db", db, "--participants", "3", "--seed", "4",
+                   "--protocol", fast_protocol(tmp_path, conditions=("plate_spring",), trials=1))
+    monkeypatch.setattr(session, "_run_condition", real)
+    return db, res
+
+
+def test_ctrl_c_inside_a_synthetic_session_exits_130(interrupted_in_a_session):
+    _, res = interrupted_in_a_session
+    assert res.exit_code == 130, res.output
+
+
+def test_ctrl_c_inside_a_synthetic_session_suggests_complete(interrupted_in_a_session):
+    db, res = interrupted_in_a_session
+    assert res.output.strip() == (f"Error: synth: interrupted after 1 of 3 sessions (each stored whole); `studyctl synth --db {db} "
+                                  "--complete` runs the 2 registered participants left without one, completing this run's 3"), res.output
+
+
+def test_ctrl_c_inside_a_synthetic_session_names_no_scratch_study(interrupted_in_a_session):
+    _, res = interrupted_in_a_session
+    assert "studyctl-synth-" not in res.output, res.output
+
+
+def test_synth_complete_after_ctrl_c_inside_a_session_brings_the_run_to_its_n(interrupted_in_a_session):
+    db, _ = interrupted_in_a_session
+    assert studyctl("synth", "--db", db, "--complete").exit_code == 0
+    assert sqlite3.connect(db).execute("select count(*) from sessions where status = 'done'").fetchone()[0] == 3
+
+
 def test_synth_complete_brings_an_interrupted_run_to_its_n(interrupted):
     db, _ = interrupted
     assert studyctl("synth", "--db", db, "--complete").exit_code == 0
@@ -131,8 +238,21 @@ def test_synth_complete_brings_an_interrupted_run_to_its_n(interrupted):
 def test_synth_complete_says_what_it_ran_in_one_line(interrupted):
     db, _ = interrupted
     out = studyctl("synth", "--db", db, "--complete").output
-    assert "ran 3 SYNTHETIC sessions of 'brain_pull_2015': 0 new, 3 resumed (S002, S003, S004; seed 4); " \
-           "4 synthetic participants with a session in total" in out, out
+    assert "ran 3 SYNTHETIC sessions of 'brain_pull_2015': 0 new, 3 left by an interrupted run, run from the start " \
+           "(S002, S003, S004; seed 4); 4 synthetic participants with a session in total" in out, out
+
+
+def test_synth_complete_never_calls_a_session_run_from_the_start_resumed(interrupted):
+    db, _ = interrupted
+    out = studyctl("synth", "--db", db, "--complete").output
+    assert "resumed" not in out, out
+
+
+def test_a_synth_with_nothing_left_over_names_no_interrupted_run(one, tmp_path):
+    db = tmp_path / "s.db"
+    shutil.copy(one, db)
+    out = studyctl("synth", "--db", db, "--participants", 1, "--seed", 5).output
+    assert "ran 1 SYNTHETIC sessions of 'brain_pull_2015': 1 new (seed 5); 2 synthetic participants" in out, out
 
 
 def test_synth_complete_leaves_four_participants(interrupted):
@@ -270,6 +390,23 @@ def test_the_gee_working_correlation_at_n_2_says_why_it_is_missing(two):
     assert "exchangeable working correlation (not estimated: fewer than 5 participants)" in out, out
 
 
+@pytest.fixture(scope="module")
+def two_rho(tmp_path_factory):
+    """Two participants whose GEE fit returns a finite working correlation (seed 2), though the
+    fit is flagged not estimable (fewer than 5 participants)."""
+    return _synth(tmp_path_factory, "two_rho", 2, 2, lambda tmp: fast_protocol(tmp, trials=1))
+
+
+def test_a_gee_flagged_not_estimable_prints_no_working_correlation_in_table1(two_rho):
+    out = studyctl("report", "table1", "--db", two_rho).output
+    assert "exchangeable working correlation (not estimated: fewer than 5 participants)" in out, out
+
+
+def test_a_gee_flagged_not_estimable_prints_no_working_correlation_in_report_stats(two_rho):
+    out = studyctl("report", "stats", "--db", two_rho).output
+    assert "exchangeable working correlation (not estimated: fewer than 5 participants)" in out, out
+
+
 @pytest.mark.parametrize("command", [("table1",), ("text",), ("stats",)])
 def test_no_nan_in_a_ratings_report(variants_study, command):
     import re
@@ -341,3 +478,24 @@ def test_report_jnd_prints_no_bare_dash_interval(small_jnd):
 def test_report_jnd_explains_a_dash_in_its_notes(small_jnd):
     out = studyctl("report", "jnd", "--db", small_jnd).output
     assert "A - marks a value there is none of" in out, out
+
+
+def _stored_version(db) -> str:
+    (version,), = sqlite3.connect(db).execute("select distinct software_version from sessions").fetchall()
+    return version.removeprefix("brainsim-study ")
+
+
+def test_report_stats_json_gives_a_built_in_model_the_sessions_version(one):
+    import json
+
+    js = json.loads(studyctl("report", "stats", "--json", "--db", one).output)
+    versions = {m["source"]["version"] for m in js["methods"]["apparatus"]["models"]}
+    assert versions == {_stored_version(one)}, js["methods"]["apparatus"]["models"]
+
+
+def test_table1_json_gives_a_built_in_model_the_sessions_version(one):
+    import json
+
+    js = json.loads(studyctl("report", "table1", "--format", "json", "--db", one).output)
+    versions = {c["source"]["version"] for c in js["facts"]["conditions"]}
+    assert versions == {_stored_version(one)}, js["facts"]["conditions"]

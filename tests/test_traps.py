@@ -77,7 +77,7 @@ def test_an_interrupted_synth_leaves_no_participant_without_a_session(tmp_path, 
     assert con.execute("select count(*) from participants").fetchone()[0] == 3
     res = studyctl("synth", "--db", db, "--complete", "--participants", "1", "--seed", "9")
     assert res.exit_code == 0, res.output
-    assert "ran 3 SYNTHETIC sessions of 'brain_pull_2015': 1 new (seed 9), 2 resumed (S002, S003; seed 4);" in res.output, res.output
+    assert "ran 3 SYNTHETIC sessions of 'brain_pull_2015': 1 new (seed 9), 2 left by an interrupted run, run from the start (S002, S003; seed 4);" in res.output, res.output
     orphans = con.execute("select count(*) from participants p where not exists (select 1 from sessions s where s.code = p.code)")
     assert orphans.fetchone()[0] == 0
     seeds = dict(con.execute("select code, seed from sessions").fetchall())

@@ -145,8 +145,9 @@ def synth_cmd(db, participants, complete, seed, jobs, protocol_file, alongside_p
         click.echo(f"created {db} for the protocol {out['created']}")
     done = out["completed"]
     seeds = ", ".join(str(s) for s in sorted({c["seed"] for c in done}))
-    resumed = f"{len(done)} resumed ({', '.join(c['code'] for c in done)}; seed {seeds})" if done else "0 resumed"
+    # participants an interrupted run registered get their whole session now: nothing of theirs is resumed
+    left = f", {len(done)} left by an interrupted run, run from the start ({', '.join(c['code'] for c in done)}; seed {seeds})" if done else ""
     where = f"on the Dask cluster at {scheduler}" if scheduler else f"{jobs} jobs"
     new = f"{out['participants']} new (seed {seed})" if out["participants"] else "0 new"
-    click.echo(f"ran {out['ran']} SYNTHETIC sessions of {out['protocol']!r}: {new}, {resumed}; "
+    click.echo(f"ran {out['ran']} SYNTHETIC sessions of {out['protocol']!r}: {new}{left}; "
                f"{out['total_synthetic']} synthetic participants with a session in total ({where}, {out['seconds']:.1f} s)")

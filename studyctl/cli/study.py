@@ -93,9 +93,11 @@ def status_cmd(db, as_json):
         _print_json(out)
         return
     p, c = out["participants"], out["complete"]
+    mixed = f", {c['mixed']} of them with a person's answers too" if c["mixed"] else ""
+    gone = out["complete_withdrawn"]
     click.echo(f"{out['study']}: {c['persons']} of {out['target_participants']} people complete"
-               + (f" (and {c['synthetic']} SYNTHETIC)" if c["synthetic"] else "")
-               + (f" (and {c['mixed']} with both a person's and SYNTHETIC answers)" if c["mixed"] else ""))
+               + (f" (and {c['synthetic']} SYNTHETIC{mixed})" if c["synthetic"] else "")
+               + (f" ({gone} of these withdrew, data kept: counted, as in the reports)" if gone else ""))
     if out["incomplete"]:
         click.echo("incomplete: " + ", ".join(f"{r['code']} ({r['answers']}/{r['of']})" for r in out["incomplete"]))
     click.echo(f"participants: {p['persons']} people ({p['consented']} consented, {p['withdrawn']} withdrawn), {p['synthetic']} synthetic")

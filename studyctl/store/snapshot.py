@@ -69,9 +69,12 @@ def latency_trials(store: Store) -> pd.DataFrame:
 
 
 def configurations(store: Store) -> pd.DataFrame:
-    """What each condition ran: condition, config, config_sha256, sessions; in order of first session."""
-    return _frame(store, "select model as condition, config, config_sha256, count(distinct session_id) as sessions "
-                         "from conditions group by model, config_sha256 order by min(session_id)")
+    """What each condition ran: condition, config, config_sha256, sessions, software_versions (the
+    distinct software versions of those sessions, comma-separated); in order of first session."""
+    return _frame(store, "select c.model as condition, c.config, c.config_sha256, count(distinct c.session_id) as sessions, "
+                         "group_concat(distinct s.software_version) as software_versions "
+                         "from conditions c left join sessions s on s.id = c.session_id "
+                         "group by c.model, c.config_sha256 order by min(c.session_id)")
 
 
 def discrimination(store: Store) -> pd.DataFrame:
