@@ -252,7 +252,7 @@ def test_a_synth_with_nothing_left_over_names_no_interrupted_run(one, tmp_path):
     db = tmp_path / "s.db"
     shutil.copy(one, db)
     out = studyctl("synth", "--db", db, "--participants", 1, "--seed", 5).output
-    assert "ran 1 SYNTHETIC sessions of 'brain_pull_2015': 1 new (seed 5); 2 synthetic participants" in out, out
+    assert "ran 1 SYNTHETIC session of 'brain_pull_2015': 1 new (seed 5); 2 synthetic participants" in out, out
 
 
 def test_synth_complete_leaves_four_participants(interrupted):

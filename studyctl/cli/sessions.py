@@ -149,5 +149,5 @@ def synth_cmd(db, participants, complete, seed, jobs, protocol_file, alongside_p
     left = f", {len(done)} left by an interrupted run, run from the start ({', '.join(c['code'] for c in done)}; seed {seeds})" if done else ""
     where = f"on the Dask cluster at {scheduler}" if scheduler else f"{jobs} jobs"
     new = f"{out['participants']} new (seed {seed})" if out["participants"] else "0 new"
-    click.echo(f"ran {out['ran']} SYNTHETIC sessions of {out['protocol']!r}: {new}{left}; "
+    click.echo(f"ran {out['ran']} SYNTHETIC session{'s' if out['ran'] != 1 else ''} of {out['protocol']!r}: {new}{left}; "
                f"{out['total_synthetic']} synthetic participants with a session in total ({where}, {out['seconds']:.1f} s)")
