@@ -196,3 +196,35 @@ def test_a_read_only_folder_is_one_line_and_leaves_nothing(small_study, tmp_path
     assert res.exit_code == 1
     assert res.output.strip() == f"Error: {tmp_path / 'table1.md'}: cannot write: Read-only file system; nothing was written"
     assert _listing(tmp_path) == []
+
+
+def test_an_output_name_near_the_file_system_s_limit_is_written(small_study, tmp_path):
+    """The temporary name beside it is short, whatever the target's name: 254 characters fit."""
+    out = tmp_path / ("a" * 251 + ".md")
+    res = studyctl("report", "table1", "--db", small_study, "--out", out)
+    assert res.exit_code == 0, res.output
+    assert res.output.strip().splitlines()[-1] == f"wrote {out}"
+    assert out.read_text().startswith("**Table 1: ")
+    assert _listing(tmp_path) == [out.name]  # no temporary left
+
+
+PROC = Path("/proc/self").is_dir()  # a file system that takes no new file: Linux's /proc
+
+
+@pytest.mark.parametrize(("argv", "target", "why"), [
+    (["report", "table1", "--db", "{db}", "--out", "{tmp}/" + "a" * 260 + ".md"], "{tmp}/" + "a" * 260 + ".md", "File name too long"),
+    (["export", "--db", "{db}", "--out", "{tmp}/" + "b" * 260], "{tmp}/" + "b" * 260, "File name too long"),
+    (["export", "--db", "{db}", "--out", "{tmp}/" + "b" * 260 + "/sub"], "{tmp}/" + "b" * 260 + "/sub", "File name too long"),
+    pytest.param(["report", "table1", "--db", "{db}", "--out", "/proc/t.md"], "/proc/t.md", "No such file or directory",
+                 marks=pytest.mark.skipif(not PROC, reason="no /proc")),
+    pytest.param(["export", "--db", "{db}", "--out", "/proc/sub"], "/proc/sub", "No such file or directory",
+                 marks=pytest.mark.skipif(not PROC, reason="no /proc")),
+], ids=["file name too long", "folder name too long", "parent name too long", "proc file", "proc folder"])
+def test_an_output_the_file_system_refuses_is_one_line_and_leaves_nothing(argv, target, why, small_study, tmp_path):
+    before = _listing(tmp_path)
+    db_sha = _sha(small_study)
+    res = studyctl(*[a.format(db=small_study, tmp=tmp_path) for a in argv])
+    assert res.exit_code == 1, res.output
+    assert res.output.strip().splitlines() == [f"Error: {target.format(tmp=tmp_path)}: cannot write: {why}; nothing was written"]
+    assert _listing(tmp_path) == before
+    assert _sha(small_study) == db_sha
