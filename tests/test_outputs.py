@@ -228,3 +228,49 @@ def test_an_output_the_file_system_refuses_is_one_line_and_leaves_nothing(argv, 
     assert res.output.strip().splitlines() == [f"Error: {target.format(tmp=tmp_path)}: cannot write: {why}; nothing was written"]
     assert _listing(tmp_path) == before
     assert _sha(small_study) == db_sha
+
+
+def _quick_field(monkeypatch):
+    """The field's solves (minutes) replaced by a small file written where the command asks."""
+    import numpy as np
+
+    from analysis import field_fit
+
+    def build_field(scene_path, out, progress=None):
+        np.savez(out, K_per_pa=np.zeros((1, 6), dtype=np.float32))
+        return {"path": str(out), "sites": 1, "vertices": 1, "size_mm": 8.0, "seconds": 0.0}
+
+    monkeypatch.setattr(field_fit, "build_field", build_field)
+
+
+def test_calibrate_field_writes_neither_file_when_the_shape_fit_fails(tmp_path, monkeypatch):
+    """The second step fails after the field is computed: the field is not moved into place
+    either, and the files that were there (replaced only on success, with --force) stay."""
+    from analysis import field_fit
+    from sim.errors import SimError
+
+    def failing_fit(*args, **kwargs):
+        raise SimError("the shape fit failed")
+
+    _quick_field(monkeypatch)
+    monkeypatch.setattr(field_fit, "fit_shape", failing_fit)
+    field, params = tmp_path / "f.npz", tmp_path / "p.toml"
+    field.write_bytes(OLD)
+    params.write_bytes(OLD)
+    before = _listing(tmp_path)
+    res = studyctl("calibrate", "field", "--out", field, "--params-out", params, "--force")
+    assert res.exit_code == 1
+    assert res.output.strip().splitlines() == ["Error: the shape fit failed"]
+    assert field.read_bytes() == OLD
+    assert params.read_bytes() == OLD
+    assert _listing(tmp_path) == before  # no temporary left
+
+
+def test_calibrate_field_moves_both_files_into_place_when_both_steps_ran(tmp_path, monkeypatch):
+    _quick_field(monkeypatch)
+    field, params = tmp_path / "f.npz", tmp_path / "p.toml"
+    res = studyctl("calibrate", "field", "--out", field, "--params-out", params, "--formulation", "small-strain")
+    assert res.exit_code == 0, res.output
+    assert res.output.strip().splitlines()[-2:] == [f"wrote {field}: 1 sites, 1 vertices (0 s)", f"wrote {params} (small-strain curve)"]
+    assert _listing(tmp_path) == ["f.npz", "p.toml"]
+    assert "layers = 1" in params.read_text()
