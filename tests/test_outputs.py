@@ -274,3 +274,25 @@ def test_calibrate_field_moves_both_files_into_place_when_both_steps_ran(tmp_pat
     assert res.output.strip().splitlines()[-2:] == [f"wrote {field}: 1 sites, 1 vertices (0 s)", f"wrote {params} (small-strain curve)"]
     assert _listing(tmp_path) == ["f.npz", "p.toml"]
     assert "layers = 1" in params.read_text()
+
+
+def test_a_table_a_tool_writes_itself_takes_a_long_name_and_leaves_no_temporary(tmp_path, monkeypatch):
+    """sim.files.save_npz (the field's, truth table's and caches' writer) under the same rule:
+    a short temporary name, removed when the write fails."""
+    import numpy as np
+
+    from sim.files import save_npz
+
+    out = tmp_path / ("t" * 250 + ".npz")
+    save_npz(out, x=np.arange(3))
+    assert _listing(tmp_path) == [out.name]
+    assert np.load(out)["x"].tolist() == [0, 1, 2]
+
+    def full_disk_halfway(file, **arrays):
+        Path(file).write_bytes(b"PK")  # the start of a zip, then the disk is full
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(np, "savez", full_disk_halfway)
+    with pytest.raises(OSError):
+        save_npz(tmp_path / "other.npz", x=np.arange(3))
+    assert _listing(tmp_path) == [out.name]
