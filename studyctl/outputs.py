@@ -46,8 +46,30 @@ def _umask() -> int:
     return mask
 
 
+def _name_max(path: Path) -> int:
+    """The longest name (bytes) the file system holding `path`'s nearest existing folder takes."""
+    for folder in path.parents:
+        if os.path.isdir(folder):
+            try:
+                return os.pathconf(folder, "PC_NAME_MAX")
+            except (OSError, ValueError):
+                break
+    return 255
+
+
+def _refuse_long_names(paths) -> None:
+    # before the work: a name the file system cannot hold would otherwise fail only at the end
+    for path in map(Path, paths):
+        limit = _name_max(path)
+        if any(len(os.fsencode(part)) > limit for part in path.parts):
+            raise _failed(path, OSError(errno.ENAMETOOLONG, os.strerror(errno.ENAMETOOLONG)))
+
+
 def refuse_existing(paths, force: bool) -> list[Path]:
-    """The `paths` that exist; without `force`, any one existing is an `OutputExists` naming it."""
+    """The `paths` that exist; without `force`, any one existing is an `OutputExists` naming it.
+    A path with a name longer than its file system takes is an `OutputFailed`."""
+    paths = list(paths)
+    _refuse_long_names(paths)
     found = [Path(p) for p in paths if os.path.lexists(p)]
     if found and not force:
         more = f" (and {len(found) - 1} more of the files this command writes)" if len(found) > 1 else ""
@@ -66,6 +88,7 @@ class Staged:
         self.target, self.force, self.folder, self.mode = Path(target), force, folder, mode
         self.replaced: list[Path] = []
         self.written: list[Path] = []
+        _refuse_long_names([self.target])
         refuse_existing([self.target / n for n in expect] if folder else [self.target], force)
 
     def __enter__(self) -> Path:

@@ -215,11 +215,15 @@ PROC = Path("/proc/self").is_dir()  # a file system that takes no new file: Linu
     (["report", "table1", "--db", "{db}", "--out", "{tmp}/" + "a" * 260 + ".md"], "{tmp}/" + "a" * 260 + ".md", "File name too long"),
     (["export", "--db", "{db}", "--out", "{tmp}/" + "b" * 260], "{tmp}/" + "b" * 260, "File name too long"),
     (["export", "--db", "{db}", "--out", "{tmp}/" + "b" * 260 + "/sub"], "{tmp}/" + "b" * 260 + "/sub", "File name too long"),
+    # refused before the solves (minutes), not after them
+    (["calibrate", "field", "--out", "{tmp}/" + "f" * 260 + ".npz"], "{tmp}/" + "f" * 260 + ".npz", "File name too long"),
+    (["calibrate", "truth", "--out", "{tmp}/" + "t" * 260 + ".npz"], "{tmp}/" + "t" * 260 + ".npz", "File name too long"),
     pytest.param(["report", "table1", "--db", "{db}", "--out", "/proc/t.md"], "/proc/t.md", "No such file or directory",
                  marks=pytest.mark.skipif(not PROC, reason="no /proc")),
     pytest.param(["export", "--db", "{db}", "--out", "/proc/sub"], "/proc/sub", "No such file or directory",
                  marks=pytest.mark.skipif(not PROC, reason="no /proc")),
-], ids=["file name too long", "folder name too long", "parent name too long", "proc file", "proc folder"])
+], ids=["file name too long", "folder name too long", "parent name too long", "field name too long", "truth name too long",
+        "proc file", "proc folder"])
 def test_an_output_the_file_system_refuses_is_one_line_and_leaves_nothing(argv, target, why, small_study, tmp_path):
     before = _listing(tmp_path)
     db_sha = _sha(small_study)
