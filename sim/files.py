@@ -3,6 +3,7 @@ bounded size."""
 
 from __future__ import annotations
 
+import hashlib
 import os
 import stat
 from pathlib import Path
@@ -62,7 +63,13 @@ def save_npz(path, /, compressed: bool = False, **arrays) -> Path:
     tables)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")
-    (np.savez_compressed if compressed else np.savez)(tmp, **arrays)
-    os.replace(tmp, path)
+    # a short name of the target's (a name near the file system's limit must not become one over
+    # it) and of this process
+    tmp = path.with_name(f".{hashlib.sha256(path.name.encode()).hexdigest()[:12]}.{os.getpid()}.tmp.npz")
+    try:
+        (np.savez_compressed if compressed else np.savez)(tmp, **arrays)
+        os.replace(tmp, path)
+    except BaseException:  # a full disk or Ctrl-C: no temporary left behind
+        tmp.unlink(missing_ok=True)
+        raise
     return path

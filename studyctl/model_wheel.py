@@ -23,6 +23,8 @@ from studyctl.outputs import Staged
 
 NAME = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9._-]*[A-Za-z0-9])?$")
 VERSION = re.compile(r"^[0-9]+(\.[0-9]+)*([a-z0-9.+-]*)$")
+ENTRY_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9._-]*$")
+TARGET = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*(:[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*)?$")
 READ = ("name", "version", "description", "requires-python", "dependencies", "entry-points", "license", "readme", "authors")
 
 
@@ -49,11 +51,46 @@ def _project(folder: Path) -> tuple[dict, Path]:
     if unknown:
         raise InputError(f"{path}: project.{unknown[0]}: not read by this builder; allowed: {', '.join(READ)} "
                          "(or build with `pip wheel` where setuptools can be fetched)")
+    _check_types(path, project)
     find = data.get("tool", {}).get("setuptools", {}).get("packages", {}).get("find", {})
     where = find.get("where", ["src"] if (folder / "src").is_dir() else ["."])
     if not (isinstance(where, list) and len(where) == 1 and isinstance(where[0], str)):
         raise InputError(f"{path}: tool.setuptools.packages.find.where: {where!r}; allowed: one folder, e.g. [\"src\"]")
     return project, folder / where[0]
+
+
+def _one_line(value, empty: bool = False) -> bool:
+    # a line break or other control character would end a METADATA or entry_points.txt line early
+    return (isinstance(value, str) and (empty or value.strip() != "")
+            and not any(c < " " or c == "\x7f" for c in value))
+
+
+def _check_types(path: Path, project: dict) -> None:
+    """What the wheel's metadata files are written from: each of the type it must have, or one line."""
+    for key in ("description", "requires-python"):
+        if key in project and not _one_line(project[key], empty=key == "description"):
+            raise InputError(f"{path}: project.{key}: {project[key]!r}; allowed: one line of text")
+    deps = project.get("dependencies", [])
+    if not isinstance(deps, list):
+        raise InputError(f"{path}: project.dependencies: {deps!r} is not a list; allowed: a list of strings, e.g. [\"numpy>=1.24\"]")
+    for i, dep in enumerate(deps):
+        if not _one_line(dep):
+            raise InputError(f"{path}: project.dependencies[{i}]: {dep!r}; allowed: a requirement, one line of text, e.g. \"numpy>=1.24\"")
+    groups = project.get("entry-points", {})
+    if not isinstance(groups, dict):
+        raise InputError(f"{path}: project.entry-points: {groups!r} is not a table; allowed: tables of name = \"package:Class\"")
+    for group, table in groups.items():
+        if not ENTRY_NAME.match(group):
+            raise InputError(f"{path}: project.entry-points: group {group!r}; allowed: letters, digits, . _ -, e.g. \"brainsim.models\"")
+        if not isinstance(table, dict):
+            raise InputError(f"{path}: project.entry-points.\"{group}\": {table!r} is not a table; "
+                             "allowed: a table of name = \"package:Class\", e.g. mymodel = \"mypackage:MyModel\"")
+        for name, target in table.items():
+            if not ENTRY_NAME.match(name):
+                raise InputError(f"{path}: project.entry-points.\"{group}\": name {name!r}; allowed: letters, digits, . _ -")
+            if not (isinstance(target, str) and TARGET.match(target)):
+                raise InputError(f"{path}: project.entry-points.\"{group}\".{name}: {target!r}; "
+                                 "allowed: a string \"package.module:Class\", e.g. \"mypackage:MyModel\"")
 
 
 def _packages(root: Path) -> list[Path]:

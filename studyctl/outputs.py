@@ -31,14 +31,45 @@ class OutputFailed(StudyError):
 _REFUSALS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG}
 
 
+# temporary names: hidden, short, and recognisably this tool's
+_PREFIX = ".studyctl-"
+_SUFFIX_MAX = 16
+
+
+def _failed(target: Path, exc: OSError) -> OutputFailed:
+    return OutputFailed(f"{target}: cannot write: {exc.strerror or exc}; nothing was written")
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
 
 
+def _name_max(path: Path) -> int:
+    """The longest name (bytes) the file system holding `path`'s nearest existing folder takes."""
+    for folder in path.parents:
+        if os.path.isdir(folder):
+            try:
+                return os.pathconf(folder, "PC_NAME_MAX")
+            except (OSError, ValueError):
+                break
+    return 255
+
+
+def _refuse_long_names(paths) -> None:
+    # before the work: a name the file system cannot hold would otherwise fail only at the end
+    for path in map(Path, paths):
+        limit = _name_max(path)
+        if any(len(os.fsencode(part)) > limit for part in path.parts):
+            raise _failed(path, OSError(errno.ENAMETOOLONG, os.strerror(errno.ENAMETOOLONG)))
+
+
 def refuse_existing(paths, force: bool) -> list[Path]:
-    """The `paths` that exist; without `force`, any one existing is an `OutputExists` naming it."""
+    """The `paths` that exist; without `force`, any one existing is an `OutputExists` naming it.
+    A path with a name longer than its file system takes is an `OutputFailed`."""
+    paths = list(paths)
+    _refuse_long_names(paths)
     found = [Path(p) for p in paths if os.path.lexists(p)]
     if found and not force:
         more = f" (and {len(found) - 1} more of the files this command writes)" if len(found) > 1 else ""
@@ -57,45 +88,53 @@ class Staged:
         self.target, self.force, self.folder, self.mode = Path(target), force, folder, mode
         self.replaced: list[Path] = []
         self.written: list[Path] = []
+        _refuse_long_names([self.target])
         refuse_existing([self.target / n for n in expect] if folder else [self.target], force)
 
     def __enter__(self) -> Path:
+        self.tmp = None
         try:
             return self._make()
-        except OSError as exc:
-            if exc.errno in _REFUSALS:
-                raise OutputFailed(f"{self.target}: cannot write: {exc.strerror}; nothing was written") from None
-            raise
+        except OSError as exc:  # any: a name too long, a folder that cannot be made, /proc
+            self._remove()
+            raise _failed(self.target, exc) from None
 
     def _make(self) -> Path:
         parent = self.target.parent
         parent.mkdir(parents=True, exist_ok=True)
-        hidden = f".{self.target.name}."
+        # a short fixed prefix, not the target's name: a name near the file system's limit must not
+        # become one over it once the temporary's parts are added
         if self.folder:
-            self.tmp = Path(tempfile.mkdtemp(prefix=hidden, suffix=".tmp", dir=parent))
+            self.tmp = Path(tempfile.mkdtemp(prefix=_PREFIX, suffix=".tmp", dir=parent))
             os.chmod(self.tmp, 0o777 & ~_umask())
         else:  # the target's suffix kept: writers that choose a format by it (savefig, savez) see the same
-            fd, name = tempfile.mkstemp(prefix=hidden, suffix=".tmp" + self.target.suffix, dir=parent)
+            suffix = self.target.suffix if len(self.target.suffix) <= _SUFFIX_MAX else ""
+            fd, name = tempfile.mkstemp(prefix=_PREFIX, suffix=".tmp" + suffix, dir=parent)
             os.close(fd)
             self.tmp = Path(name)
             os.chmod(self.tmp, self.mode if self.mode is not None else 0o666 & ~_umask())
         return self.tmp
 
     def __exit__(self, exc_type, exc, tb) -> None:
+        moving = exc_type is None
         try:
-            if exc_type is None:
+            if moving:
                 self._move()
-        except OSError as failed:  # the move itself (a full disk while making a folder)
+        except OSError as failed:  # the move itself: any refusal there is the target's
             exc = failed
-            if failed.errno not in _REFUSALS:
-                raise
         finally:
-            if self.tmp.is_dir():
-                shutil.rmtree(self.tmp, ignore_errors=True)
-            elif os.path.lexists(self.tmp):
-                self.tmp.unlink()
-        if isinstance(exc, OSError) and exc.errno in _REFUSALS:
-            raise OutputFailed(f"{self.target}: cannot write: {exc.strerror}; nothing was written") from None
+            self._remove()
+        # the work's own errors pass as they are, but for a file system that cannot take the output
+        if isinstance(exc, OSError) and (moving or exc.errno in _REFUSALS):
+            raise _failed(self.target, exc) from None
+
+    def _remove(self) -> None:
+        if self.tmp is None:
+            return
+        if self.tmp.is_dir():
+            shutil.rmtree(self.tmp, ignore_errors=True)
+        elif os.path.lexists(self.tmp):
+            self.tmp.unlink()
 
     def final(self, path) -> Path:
         """Where a file written under the temporary name ends up."""

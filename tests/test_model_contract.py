@@ -8,6 +8,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -209,6 +210,45 @@ def test_model_wheel_refuses_a_folder_without_a_pyproject_in_one_line(tmp_path):
     assert res.exit_code == 1
     assert res.output.strip() == f"Error: {tmp_path / 'pyproject.toml'}: no such file; a model package has a pyproject.toml (docs/models.md)"
     assert not (tmp_path / "dist").exists()
+
+
+
+HALFSPACE = (ROOT / "examples" / "brainsim-halfspace" / "pyproject.toml").read_text()
+ENTRY = 'halfspace = "brainsim_halfspace:HalfSpace"'
+
+
+@pytest.mark.parametrize(("old", "new", "line"), [
+    ('[project.entry-points."brainsim.models"]\n' + ENTRY, '[project.entry-points]\n"brainsim.models" = "x"',
+     'project.entry-points."brainsim.models": \'x\' is not a table; allowed: a table of name = "package:Class", '
+     'e.g. mymodel = "mypackage:MyModel"'),
+    ("dependencies = []", 'dependencies = "numpy"',
+     'project.dependencies: \'numpy\' is not a list; allowed: a list of strings, e.g. ["numpy>=1.24"]'),
+    ("dependencies = []", 'dependencies = ["numpy", 3]',
+     'project.dependencies[1]: 3; allowed: a requirement, one line of text, e.g. "numpy>=1.24"'),
+    (ENTRY, "halfspace = 3",
+     'project.entry-points."brainsim.models".halfspace: 3; allowed: a string "package.module:Class", e.g. "mypackage:MyModel"'),
+    (ENTRY, 'halfspace = "brainsim_halfspace:Half\\nSpace"',
+     'project.entry-points."brainsim.models".halfspace: \'brainsim_halfspace:Half\\nSpace\'; '
+     'allowed: a string "package.module:Class", e.g. "mypackage:MyModel"'),
+    (next(ln for ln in HALFSPACE.splitlines() if ln.startswith("description =")), 'description = "a\\nb"',
+     "project.description: 'a\\nb'; allowed: one line of text"),
+    ('requires-python = ">=3.11"', "requires-python = 3.11",
+     "project.requires-python: 3.11; allowed: one line of text"),
+], ids=["entry points not a table", "dependencies a string", "a dependency not a string", "entry point target a number",
+        "entry point target with a line break", "description with a line break", "requires-python a number"])
+def test_model_wheel_refuses_a_value_of_the_wrong_type_in_one_line(tmp_path, old, new, line):
+    folder = tmp_path / "pkg"
+    shutil.copytree(ROOT / "examples" / "brainsim-halfspace", folder, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+    assert old in HALFSPACE
+    (folder / "pyproject.toml").write_text(HALFSPACE.replace(old, new, 1))
+    before = _digest(*(p for p in folder.rglob("*") if p.is_file()))
+    res = studyctl("model", "wheel", folder, "--out", tmp_path / "dist")
+    assert res.exit_code == 1
+    lines = res.output.strip().splitlines()
+    assert len(lines) == 1, res.output
+    assert lines[0] == f"Error: {folder / 'pyproject.toml'}: {line}"
+    assert not (tmp_path / "dist").exists()
+    assert _digest(*(p for p in folder.rglob("*") if p.is_file())) == before
 
 
 def test_a_scene_configuring_a_model_that_does_not_load_still_runs_its_other_models(env, tmp_path):

@@ -196,3 +196,107 @@ def test_a_read_only_folder_is_one_line_and_leaves_nothing(small_study, tmp_path
     assert res.exit_code == 1
     assert res.output.strip() == f"Error: {tmp_path / 'table1.md'}: cannot write: Read-only file system; nothing was written"
     assert _listing(tmp_path) == []
+
+
+def test_an_output_name_near_the_file_system_s_limit_is_written(small_study, tmp_path):
+    """The temporary name beside it is short, whatever the target's name: 254 characters fit."""
+    out = tmp_path / ("a" * 251 + ".md")
+    res = studyctl("report", "table1", "--db", small_study, "--out", out)
+    assert res.exit_code == 0, res.output
+    assert res.output.strip().splitlines()[-1] == f"wrote {out}"
+    assert out.read_text().startswith("**Table 1: ")
+    assert _listing(tmp_path) == [out.name]  # no temporary left
+
+
+PROC = Path("/proc/self").is_dir()  # a file system that takes no new file: Linux's /proc
+
+
+@pytest.mark.parametrize(("argv", "target", "why"), [
+    (["report", "table1", "--db", "{db}", "--out", "{tmp}/" + "a" * 260 + ".md"], "{tmp}/" + "a" * 260 + ".md", "File name too long"),
+    (["export", "--db", "{db}", "--out", "{tmp}/" + "b" * 260], "{tmp}/" + "b" * 260, "File name too long"),
+    (["export", "--db", "{db}", "--out", "{tmp}/" + "b" * 260 + "/sub"], "{tmp}/" + "b" * 260 + "/sub", "File name too long"),
+    # refused before the solves (minutes), not after them
+    (["calibrate", "field", "--out", "{tmp}/" + "f" * 260 + ".npz"], "{tmp}/" + "f" * 260 + ".npz", "File name too long"),
+    (["calibrate", "truth", "--out", "{tmp}/" + "t" * 260 + ".npz"], "{tmp}/" + "t" * 260 + ".npz", "File name too long"),
+    pytest.param(["report", "table1", "--db", "{db}", "--out", "/proc/t.md"], "/proc/t.md", "No such file or directory",
+                 marks=pytest.mark.skipif(not PROC, reason="no /proc")),
+    pytest.param(["export", "--db", "{db}", "--out", "/proc/sub"], "/proc/sub", "No such file or directory",
+                 marks=pytest.mark.skipif(not PROC, reason="no /proc")),
+], ids=["file name too long", "folder name too long", "parent name too long", "field name too long", "truth name too long",
+        "proc file", "proc folder"])
+def test_an_output_the_file_system_refuses_is_one_line_and_leaves_nothing(argv, target, why, small_study, tmp_path):
+    before = _listing(tmp_path)
+    db_sha = _sha(small_study)
+    res = studyctl(*[a.format(db=small_study, tmp=tmp_path) for a in argv])
+    assert res.exit_code == 1, res.output
+    assert res.output.strip().splitlines() == [f"Error: {target.format(tmp=tmp_path)}: cannot write: {why}; nothing was written"]
+    assert _listing(tmp_path) == before
+    assert _sha(small_study) == db_sha
+
+
+def _quick_field(monkeypatch):
+    """The field's solves (minutes) replaced by a small file written where the command asks."""
+    import numpy as np
+
+    from analysis import field_fit
+
+    def build_field(scene_path, out, progress=None):
+        np.savez(out, K_per_pa=np.zeros((1, 6), dtype=np.float32))
+        return {"path": str(out), "sites": 1, "vertices": 1, "size_mm": 8.0, "seconds": 0.0}
+
+    monkeypatch.setattr(field_fit, "build_field", build_field)
+
+
+def test_calibrate_field_writes_neither_file_when_the_shape_fit_fails(tmp_path, monkeypatch):
+    """The second step fails after the field is computed: the field is not moved into place
+    either, and the files that were there (replaced only on success, with --force) stay."""
+    from analysis import field_fit
+    from sim.errors import SimError
+
+    def failing_fit(*args, **kwargs):
+        raise SimError("the shape fit failed")
+
+    _quick_field(monkeypatch)
+    monkeypatch.setattr(field_fit, "fit_shape", failing_fit)
+    field, params = tmp_path / "f.npz", tmp_path / "p.toml"
+    field.write_bytes(OLD)
+    params.write_bytes(OLD)
+    before = _listing(tmp_path)
+    res = studyctl("calibrate", "field", "--out", field, "--params-out", params, "--force")
+    assert res.exit_code == 1
+    assert res.output.strip().splitlines() == ["Error: the shape fit failed"]
+    assert field.read_bytes() == OLD
+    assert params.read_bytes() == OLD
+    assert _listing(tmp_path) == before  # no temporary left
+
+
+def test_calibrate_field_moves_both_files_into_place_when_both_steps_ran(tmp_path, monkeypatch):
+    _quick_field(monkeypatch)
+    field, params = tmp_path / "f.npz", tmp_path / "p.toml"
+    res = studyctl("calibrate", "field", "--out", field, "--params-out", params, "--formulation", "small-strain")
+    assert res.exit_code == 0, res.output
+    assert res.output.strip().splitlines()[-2:] == [f"wrote {field}: 1 sites, 1 vertices (0 s)", f"wrote {params} (small-strain curve)"]
+    assert _listing(tmp_path) == ["f.npz", "p.toml"]
+    assert "layers = 1" in params.read_text()
+
+
+def test_a_table_a_tool_writes_itself_takes_a_long_name_and_leaves_no_temporary(tmp_path, monkeypatch):
+    """sim.files.save_npz (the field's, truth table's and caches' writer) under the same rule:
+    a short temporary name, removed when the write fails."""
+    import numpy as np
+
+    from sim.files import save_npz
+
+    out = tmp_path / ("t" * 250 + ".npz")
+    save_npz(out, x=np.arange(3))
+    assert _listing(tmp_path) == [out.name]
+    assert np.load(out)["x"].tolist() == [0, 1, 2]
+
+    def full_disk_halfway(file, **arrays):
+        Path(file).write_bytes(b"PK")  # the start of a zip, then the disk is full
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(np, "savez", full_disk_halfway)
+    with pytest.raises(OSError):
+        save_npz(tmp_path / "other.npz", x=np.arange(3))
+    assert _listing(tmp_path) == [out.name]

@@ -152,6 +152,7 @@ def calibrate_field(scene_file, out_file, params_out, formulation, force, as_jso
     """The location-aware plate-spring's stiffness field: the reference's 3 x 3 grasp stiffness
     at the ico4 sites of both hemispheres (P2, 8 mm body-fitted mesh, area-mean grasp),
     interpolated to every vertex; with --params-out, the stack's curve too."""
+    import contextlib
     import dataclasses
 
     from analysis import field_fit as field
@@ -162,27 +163,30 @@ def calibrate_field(scene_file, out_file, params_out, formulation, force, as_jso
     # the shipped field too (the default): refused before the solves unless --force
     field_target = staged(out_file or field.FIELD_FILE, force)
     params_target = staged(params_out, force)
-    with field_target as tmp:
+    # all or none: both are written under temporary names and moved into place only once the
+    # shape fit, the second step, has run too
+    with params_target or contextlib.nullcontext() as params_tmp, field_target as tmp:
         rep = _with_progress("stiffness field sites", lambda p: field.build_field(scene_file, tmp, progress=p))
-    rep["path"] = str(field_target.target)
+        rep["path"] = str(field_target.target)
+        if params_out:
+            start = load_scene(scene_file).model_spec("plate_spring").options["params"]
+            xs = sample_displacements(AccuracyConfig())
+            params, fit_rep = field.fit_shape(scene_file, start, xs, formulation)
+            law = load_scene(scene_file).material.law
+            params = dataclasses.replace(params, E=law.shear_modulus)  # the field is per pascal of the law's shear modulus
+            how = ("a one-layer stack: a straight curve, so the force is E K(v) d, the law's small-strain limit" if formulation == "small-strain" else
+                   f"fitted to the mean finite-strain / small-strain force ratio ({', '.join(f'{r:.3f}' for r in fit_rep['finite_over_small_strain'])})\n"
+                   f"of the calibration pulls {', '.join(fit_rep['pulls'])} on the {fit_rep['mesh_mm']:g} mm P2 mesh"
+                   + (f" ({', '.join(fit_rep['no_reference'])}: no reference)" if fit_rep.get("no_reference") else "")
+                   + f"; {fit_rep['within_jnd']:.0%} "
+                   "within the JND.\nE is the law's shear modulus (the field is per pascal of it)")
+            params_tmp.write_text(to_toml(params, (
+                "Plate-spring stack for the location-aware model (variant \"located\"): only the curve's shape matters,\n"
+                "the stiffness field (data/plate_spring_field.npz) sets its size and direction at each vertex.\n"
+                f"Written by `studyctl calibrate field --params-out FILE --formulation {formulation}`:\n{how}.")), encoding="utf-8")
+            rep |= {"params_out": str(params_out), "shape_fit": fit_rep}
     say_replaced(field_target)
-    if params_out:
-        start = load_scene(scene_file).model_spec("plate_spring").options["params"]
-        xs = sample_displacements(AccuracyConfig())
-        params, fit_rep = field.fit_shape(scene_file, start, xs, formulation)
-        law = load_scene(scene_file).material.law
-        params = dataclasses.replace(params, E=law.shear_modulus)  # the field is per pascal of the law's shear modulus
-        how = ("a one-layer stack: a straight curve, so the force is E K(v) d, the law's small-strain limit" if formulation == "small-strain" else
-               f"fitted to the mean finite-strain / small-strain force ratio ({', '.join(f'{r:.3f}' for r in fit_rep['finite_over_small_strain'])})\n"
-               f"of the calibration pulls {', '.join(fit_rep['pulls'])} on the {fit_rep['mesh_mm']:g} mm P2 mesh"
-               + (f" ({', '.join(fit_rep['no_reference'])}: no reference)" if fit_rep.get("no_reference") else "")
-               + f"; {fit_rep['within_jnd']:.0%} "
-               "within the JND.\nE is the law's shear modulus (the field is per pascal of it)")
-        write_output(params_target, to_toml(params, (
-            "Plate-spring stack for the location-aware model (variant \"located\"): only the curve's shape matters,\n"
-            "the stiffness field (data/plate_spring_field.npz) sets its size and direction at each vertex.\n"
-            f"Written by `studyctl calibrate field --params-out FILE --formulation {formulation}`:\n{how}.")))
-        rep |= {"params_out": str(params_out), "shape_fit": fit_rep}
+    say_replaced(params_target)
     if as_json:
         _print_json(rep)
         return

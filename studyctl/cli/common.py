@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shlex
 import sqlite3
 from pathlib import Path
@@ -101,7 +102,7 @@ class OutFile(click.Path):
 
     def convert(self, value, param, ctx):
         path = super().convert(value, param, ctx)
-        if not path.parent.is_dir():
+        if not os.path.isdir(path.parent):  # False, not an error, for a name too long to look up
             self.fail(f"{path.parent} is not an existing folder", param, ctx)
         if self.suffixes and path.suffix.lower() not in self.suffixes:
             self.fail(f"{path.name}: allowed suffixes: {', '.join(self.suffixes)}", param, ctx)
@@ -117,8 +118,8 @@ class OutDir(click.Path):
     def convert(self, value, param, ctx):
         path = super().convert(value, param, ctx)
         for p in (path, *path.parents):
-            if p.exists():
-                if not p.is_dir():
+            if os.path.exists(p):  # False for a name too long to look up: the write then says why
+                if not os.path.isdir(p):
                     self.fail(f"{p} is a file, not a folder", param, ctx)
                 break
         return path
