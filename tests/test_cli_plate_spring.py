@@ -78,7 +78,7 @@ def test_usage_errors(tmp_path):
     res = run("--params", str(BRAIN_PARAMS), "--force", "1", "--displacement", "0.01")
     assert res.exit_code == 2 and "not both" in res.output
     res = run("--params", str(tmp_path / "none.toml"))
-    assert res.exit_code == 1 and "cannot read" in res.output
+    assert res.exit_code == 1 and "none.toml: not found" in res.output
     (tmp_path / "broken.toml").write_text("alpha = = 1\n")
     res = run("--params", str(tmp_path / "broken.toml"))
     assert res.exit_code == 1 and "invalid TOML" in res.output and "line 1" in res.output

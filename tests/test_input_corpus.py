@@ -105,7 +105,7 @@ CASES = [
     (["participants", "import", "--db", DB, "{d}/p_registered"], "already registered"),
     (["participants", "import", "--db", DB, "{d}/p_cells"], "3 cells, the header has 2"),
     (["participants", "import", "--db", DB, "{d}/p_empty"], "empty"),
-    (["participants", "import", "--db", DB, "{d}/missing.csv"], "cannot read"),
+    (["participants", "import", "--db", DB, "{d}/missing.csv"], "not found"),
     # answers: files
     (["answers", "import", "--db", DB, "{d}/a_utf8"], "not UTF-8"),
     (["answers", "import", "--db", DB, "{d}/a_who"], "unknown participant 'P77'"),
