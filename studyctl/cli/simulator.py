@@ -149,3 +149,9 @@ def _print_run(s: dict) -> None:
     _console().print(t)
     for line in s.get("over_budget", []):  # the model's calls slower than their budget (docs/models.md)
         click.echo(line)
+    seen = set()
+    for f in s.get("faults", []):  # why a model_fault or nan_force zeroed the force: the table only counts them
+        line = f["detail"] if f["hand"] is None else f"{f['detail']} ({f['hand']} hand)"
+        if line not in seen:
+            seen.add(line)
+            click.echo(line)
