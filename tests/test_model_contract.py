@@ -136,6 +136,22 @@ def test_names_are_spelt_with_dash_or_underscore_alike():
     assert json.loads(check.output[check.output.index("{"):])["violations"] == []
 
 
+@pytest.mark.parametrize("args", [("model", "describe", "plate--spring"), ("model", "check", "plate--spring", "--contract")])
+def test_an_unknown_model_is_named_as_typed(args):
+    res = studyctl(*args)
+    assert res.exit_code == 1, res.output
+    assert res.output.strip().splitlines() == [
+        "Error: unknown model 'plate--spring'; installed: fem, mass_spring, plate_spring (or name a class as \"package.module:Class\")"]
+
+
+def test_sim_run_names_a_model_the_scene_lacks_as_typed():
+    res = studyctl("sim", "run", "--model", "plate--spring", "--time-scale", "0", "--duration", "0.1")
+    assert res.exit_code == 1, res.output
+    lines = res.output.strip().splitlines()
+    assert len(lines) == 1, res.output
+    assert "models.plate--spring: not configured in this scene" in lines[0]
+
+
 def test_a_protocol_lists_plate_spring_with_a_dash(tmp_path):
     path = fast_protocol(tmp_path, conditions=("fem", "plate-spring"))
     res = studyctl("protocol", "validate", path)

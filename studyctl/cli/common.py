@@ -221,9 +221,10 @@ def _with_progress(label, fn):
 
 
 def _model_name(value):
-    """Models are spelt plate_spring in files; plate-spring (the subcommand's spelling) is accepted too."""
+    """A condition as named on the command line: a model spelt plate_spring or plate-spring
+    (as the registry keys it), or a condition's table (named with _ only, so a - is a _)."""
     if value is None:
         return None
-    from sim.models.registry import is_model_name
+    from sim.models.registry import canonical, is_model_name
 
-    return value if is_model_name(value) else value.replace("-", "_")
+    return canonical(value) if is_model_name(value) else value.replace("-", "_")
