@@ -206,15 +206,19 @@ def read_snapshot(db):
         return read_study(store)
 
 
-def _with_progress(label, fn):
+def _with_progress(label, fn, stage=None):
     """`fn(progress)` with a progress bar that `progress(done, total)` advances, on stderr (a
-    --json document on stdout stays clean)."""
+    --json document on stdout stays clean). Where stderr is no terminal, `stage(done, total)`
+    (if given) is a line said there as each stage starts (done < total): a log still shows
+    where a long run is."""
     from rich.console import Console
     from rich.progress import Progress
 
     console = Console(stderr=True)
     if not console.is_terminal:  # a pipe or a log: no bar (stopping one there leaves a blank line before an error's one line)
-        return fn(lambda k, n: None)
+        if stage is None:
+            return fn(lambda k, n: None)
+        return fn(lambda k, n: click.echo(stage(k, n), err=True) if k < n else None)
     with Progress(transient=True, console=console) as progress:
         task = progress.add_task(label, total=None)
         return fn(lambda k, n: progress.update(task, completed=k, total=n))
