@@ -234,10 +234,11 @@ def _design_conditions(design: TableReader, tables: dict, c: TableReader) -> lis
     # a model's name is spelt plate-spring or plate_spring alike; a condition's table is named with _ only
     typed = list(conditions)
     conditions = [registry.canonical(x) if isinstance(x, str) and x not in tables else x for x in conditions]
-    for i, cond in enumerate(conditions):  # both spellings of one model: named as written, not merged
-        first = conditions.index(cond)
-        if first < i and typed[first] != typed[i]:
-            c.error("design.conditions", f"{typed[first]!r} and {typed[i]!r} are the same model (- and _ spell names alike); list it once")
+    spelt: dict[str, object] = {}  # both spellings of one model: named as written, not merged
+    for cond, written in zip(conditions, typed):
+        first = spelt.setdefault(str(cond), written)
+        if str(first) != str(written):
+            c.error("design.conditions", f"{first!r} and {written!r} are the same model (- and _ spell names alike); list it once")
     if not conditions:
         c.error("design.conditions", "at least one condition")
     if len(conditions) > MAX_CONDITIONS:
