@@ -48,7 +48,7 @@ MODES = {"uniaxial": ("stretch", "nominal_stress_kpa"), "shear": ("shear_strain"
 SHEAR_BAND = (0.1, 0.2)  # |shear strain| where a law's worst relative shear error is reported
 FIT_LAWS = ("neo-hookean", "mooney-rivlin", "ogden", "ogden-2")
 ALPHA_STARTS = (-30.0, -20.0, -10.0, -4.0, 4.0, 10.0)
-MAX_POINTS = 5000  # of one file's region, after merging repeated rows: a mean curve needs a few hundred
+MAX_POINTS = 1000  # of one file's region, after merging repeated rows: a mean curve needs a few hundred
 
 
 class MaterialDataError(InputError):
@@ -292,11 +292,13 @@ def law_of(fit: dict) -> Hyperelastic:
 def fit_material(paths, region: str = "cortex", laws=FIT_LAWS, bulk_ratio: float = BULK_RATIO, progress=None) -> dict:
     """Fit every law in `laws` to `region` of the data files (one path or several, each of one
     loading mode, fitted together); choose by AICc among identified fits. `progress(done,
-    total)` is called after each law. Raises MaterialDataError when the chosen law explains
+    total)` is called once the data are read (done 0) and after each law. Raises MaterialDataError when the chosen law explains
     nothing (R^2 <= 0, or not finite)."""
     paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
     curves = [read_curve(p, region) for p in paths]
     fits = []
+    if progress is not None:  # the data read: the first law starts (its stage can be said before its wait)
+        progress(0, len(laws))
     for name in laws:
         fits.append(fit_law(curves, name, bulk_ratio))
         if progress is not None:

@@ -36,6 +36,7 @@ from sim.targets import TargetTracker
 # a run keeps every tick in memory (about 110 bytes per tick for two hands): one hour is
 # 0.4 GB, where 1e12 s would have asked for petabytes
 MAX_DURATION_S = 3600.0
+FAULT_KINDS = ("model_fault", "nan_force")  # the events whose line says why the model's force was zeroed
 
 
 @dataclass
@@ -253,6 +254,17 @@ class RunResult:
     frame_flops: np.ndarray = field(default_factory=lambda: np.zeros(0))  # per visual frame, the model's count
     over_budget: list[str] = field(default_factory=list)  # one line per call whose 99th percentile passed its budget
 
+    def faults(self) -> list[dict]:
+        """Every `model_fault` and `nan_force` event with its line: why the model's force was
+        zeroed (the counts in `events` alone do not say)."""
+        out = []
+        for e in self.events:
+            if e.kind in FAULT_KINDS:
+                hand = self.hand_names[e.hand] if 0 <= e.hand < len(self.hand_names) else None
+                detail = e.detail or f"{e.kind}: the model's force was not finite (NaN or infinite); zero force sent"
+                out.append({"t": e.t, "hand": hand, "kind": e.kind, "detail": detail})
+        return out
+
     def stats(self) -> dict:
         """The summary `studyctl sim run --json` prints."""
         fmag = np.linalg.norm(self.forces, axis=2) if len(self.forces) else np.zeros((0, len(self.hand_names)))
@@ -282,6 +294,7 @@ class RunResult:
             "pacer": self.pacer,
             "ended_early": self.ended_early,
             "over_budget": self.over_budget,
+            "faults": self.faults(),
             **({"view": self.view} if self.view is not None else {}),
         }
 

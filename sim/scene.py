@@ -142,10 +142,11 @@ class SceneSpec:
             raise SceneError(f"{exc} ({self.path})") from None
 
     def model_spec(self, name: str | None = None) -> ModelSpec:
-        name = canonical(name or self.model)
-        if name not in self.models:
+        typed = name or self.model
+        name = canonical(typed)
+        if name not in self.models:  # said as typed: plate--spring, not the plate__spring it was keyed as
             configured = ", ".join(sorted(self.models))
-            raise SceneError(f"{self.path}: models.{name}: not configured in this scene; configured: {configured}")
+            raise SceneError(f"{self.path}: models.{typed}: not configured in this scene; configured: {configured}")
         if self.models[name].problem is not None:
             raise SceneError(f"{self.path}: models.{name}: {self.models[name].problem}")
         return self.models[name]
@@ -227,9 +228,14 @@ def _models(root: TableReader, model: TableReader) -> tuple[dict[str, ModelSpec]
     """The [models.NAME] sections, and the default model [model] names."""
     models_table = root.table("models")
     models: dict[str, ModelSpec] = {}
+    spelt: dict[str, str] = {}  # canonical name -> the first spelling of it in the file
     for name in models_table.data:
+        first = spelt.setdefault(canonical(name), name)
+        if first != name:  # plate-spring and plate_spring are one model: two tables would merge, the last silently winning
+            models_table.error(name, f"the same model as [models.{first}] (- and _ spell names alike); configure it once")
+            continue
         spec = _model_spec(models_table, name)
-        if spec is not None:  # plate-spring and plate_spring are one model
+        if spec is not None:
             models[canonical(name)] = dataclasses.replace(spec, name=canonical(name))
     if not models_table.data and isinstance(root.data.get("models"), dict):
         models_table.error("", "no model configured")

@@ -1,7 +1,7 @@
 """Texts a file or a person gives, checked by one helper (`text_problem`): no control
-characters (an ESC sequence would drive the participant's terminal, a NUL cuts a text short;
-tabs and line breaks aside where a text may span lines) and a longest length per kind of text
-(docs/study.md, "Limits on input")."""
+characters (an ESC sequence would drive the participant's terminal, a NUL cuts a text short, a
+right-to-left override shows other words than the file holds; tabs and line breaks aside where
+a text may span lines) and a longest length per kind of text (docs/study.md, "Limits on input")."""
 
 from __future__ import annotations
 
@@ -14,11 +14,17 @@ TEXT_MOST = 2000  # a question's text, a free-text answer, a reason given for a 
 VALUE_MOST = 4096  # any other text of a TOML file (a path, a description): PATH_MAX on Linux
 
 
+# the bidirectional controls (format characters, category Cf): one reorders the text after it, so
+# a question or a name could show a participant or a report other words than the file holds
+# (the joiners and the soft hyphen, which scripts need, stay allowed)
+BIDI_CONTROLS = frozenset("\u061c\u200e\u200f\u202a\u202b\u202c\u202d\u202e\u2066\u2067\u2068\u2069")
+
+
 def control_character(text: str, one_line: bool = False) -> tuple[int, str] | None:
-    """(position, character) of the first control character (C0, DEL, C1), tabs and line
-    breaks aside unless `one_line`."""
+    """(position, character) of the first control character (C0, DEL, C1, or a bidirectional
+    control), tabs and line breaks aside unless `one_line`."""
     for i, c in enumerate(text):
-        if (one_line or c not in LINE_BREAKS) and unicodedata.category(c) == "Cc":
+        if (one_line or c not in LINE_BREAKS) and (unicodedata.category(c) == "Cc" or c in BIDI_CONTROLS):
             return i, c
     return None
 

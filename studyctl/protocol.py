@@ -232,7 +232,13 @@ def _design_conditions(design: TableReader, tables: dict, c: TableReader) -> lis
     if conditions is None:
         return None
     # a model's name is spelt plate-spring or plate_spring alike; a condition's table is named with _ only
+    typed = list(conditions)
     conditions = [registry.canonical(x) if isinstance(x, str) and x not in tables else x for x in conditions]
+    spelt: dict[str, object] = {}  # both spellings of one model: named as written, not merged
+    for cond, written in zip(conditions, typed):
+        first = spelt.setdefault(str(cond), written)
+        if str(first) != str(written):
+            c.error("design.conditions", f"{first!r} and {written!r} are the same model (- and _ spell names alike); list it once")
     if not conditions:
         c.error("design.conditions", "at least one condition")
     if len(conditions) > MAX_CONDITIONS:
@@ -243,7 +249,7 @@ def _design_conditions(design: TableReader, tables: dict, c: TableReader) -> lis
         elif cond not in registry.names() and cond not in tables:
             named = f"a [conditions.NAME] table ({', '.join(tables)})" if tables else "a [conditions.NAME] table"
             c.error("design.conditions", f"unknown condition {cond!r}; allowed: {named} or a model name ({', '.join(registry.names())})")
-    if len(set(map(str, conditions))) != len(conditions):
+    if len(set(map(str, typed))) != len(typed):
         c.error("design.conditions", "a condition appears twice")
     for declared in tables:
         if declared not in conditions:

@@ -260,6 +260,9 @@ def _toml_text(s: str) -> str:
     ('name = "brain_pull_2015"', f'name = "brain{_toml_text(ESC)}pull"', "study.name", "control character U+001B at character 6"),
     ('title = "Virtual', f'title = "{_toml_text(NUL)}Virtual', "study.title", "control character U+0000 at character 1"),
     ('text = "Is interaction real', f'text = "Is {_toml_text(CSI)}interaction real', "questions[0].text", "control character U+009B at character 4"),
+    # a right-to-left override, and an isolate: the text shown would not read as the file holds it
+    ('text = "Is interaction real', 'text = "Is \\u202Einteraction real', "questions[0].text", "control character U+202E at character 4"),
+    ('title = "Virtual', 'title = "\\u2067Virtual', "study.title", "control character U+2067 at character 1"),
     ('name = "brain_pull_2015"', 'name = "' + "b" * 101 + '"', "study.name", "101 characters; allowed: at most 100"),
     ('title = "Virtual brain pulling with three soft-tissue models"', 'title = "' + "t" * 201 + '"', "study.title",
      "201 characters; allowed: at most 200"),
@@ -275,6 +278,7 @@ def test_protocol_texts_with_control_characters_or_too_long_are_refused(tmp_path
     line = _one_error_line(res)
     assert f": {field}: {problem}" in line, res.output
     assert "\x1b" not in res.output and "\x00" not in res.output and "\x9b" not in res.output
+    assert "\u202e" not in res.output and "\u2067" not in res.output
     assert not (tmp_path / "s.db").exists()
     assert _hash(proto) == before
 
@@ -332,6 +336,8 @@ def test_a_free_text_answer_over_2000_characters_is_refused_on_import(tmp_path):
     (["participants", "add", "P02", "--contact", "c" * 201], "--contact: 201 characters; allowed: at most 200"),
     (["participants", "withdraw", "P01", "--reason", "r" * 2001], "--reason: 2001 characters; allowed: at most 2000"),
     (["participants", "withdraw", "P01", "--reason", "moved\x9b2J"], "--reason: control character U+009B"),
+    (["participants", "add", "P02", "--name", "Ann\u202eenna"], "--name: control character U+202E at character 4"),
+    (["participants", "withdraw", "P01", "--reason", "moved\u200f"], "--reason: control character U+200F at character 6"),
 ])
 def test_participant_texts_are_bounded(tmp_path, args, problem):
     db = _free_text_study(tmp_path)
@@ -364,3 +370,40 @@ def test_an_imported_name_over_100_characters_is_refused_like_an_added_one(tmp_p
     assert res.exit_code == 1
     assert _one_error_line(res) == f"Error: {people}: line 2: name: 101 characters; allowed: at most 100"
     assert _hash(db) == before
+
+
+# --- one model, two spellings -----------------------------------------------------------------
+
+def test_a_scene_configuring_one_model_under_both_spellings_is_refused_naming_both(tmp_path):
+    fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    scene = tmp_path / "scene.toml"
+    text = scene.read_text()
+    assert "[models.fem]" in text
+    scene.write_text(text.replace("[models.fem]", '[models.plate-spring]\nvariant = "paper"\n\n[models.fem]', 1))
+    before = _hash(scene)
+    res = studyctl("sim", "run", "--scene", scene, "--time-scale", "0", "--duration", "0.1")
+    assert res.exit_code == 1
+    line = _one_error_line(res)
+    assert len(res.output.strip().splitlines()) == 1, res.output
+    assert f"{scene}:" in line, line
+    assert "models.plate-spring: the same model as [models.plate_spring]" in line, line
+    assert _hash(scene) == before
+
+
+def test_a_protocol_listing_one_model_under_both_spellings_is_refused_naming_both(tmp_path):
+    proto = fast_protocol(tmp_path, conditions=("plate_spring", "plate-spring"), trials=1)
+    before = _hash(proto)
+    res = studyctl("study", "init", "--protocol", proto, "--db", tmp_path / "s.db")
+    assert res.exit_code == 1
+    line = _one_error_line(res)
+    assert len(res.output.strip().splitlines()) == 1, res.output
+    assert "design.conditions: 'plate_spring' and 'plate-spring' are the same model" in line, res.output
+    assert not (tmp_path / "s.db").exists()
+    assert _hash(proto) == before
+
+
+def test_joiners_and_the_soft_hyphen_which_scripts_need_are_allowed(tmp_path):
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    proto.write_text(proto.read_text().replace('text = "Is interaction real', 'text = "Is inter\\u00adaction \\u200d\\u200creal', 1))
+    res = studyctl("protocol", "validate", proto)
+    assert res.exit_code == 0, res.output

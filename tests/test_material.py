@@ -19,7 +19,7 @@ from tests.conftest import ROOT
 def fitted():
     res = CliRunner().invoke(cli, ["calibrate", "material", "--data", str(DATA_FILE), "--region", "cortex", "--json"])
     assert res.exit_code == 0, res.output
-    return json.loads(res.output)
+    return json.loads(res.stdout)  # stderr holds a stage line per law
 
 
 def test_cortex_chooses_one_term_ogden_within_ten_percent(fitted):
@@ -160,7 +160,7 @@ def both_modes():
     res = CliRunner().invoke(cli, ["calibrate", "material", "--data", str(DATA_FILE), "--data", str(SHEAR_FILE), "--region", "cortex",
                                    "--json"])
     assert res.exit_code == 0, res.output
-    return json.loads(res.output)
+    return json.loads(res.stdout)  # stderr holds a stage line per law
 
 
 def test_uniaxial_and_shear_fitted_together_meet_both_and_report_each_mode_left_out(both_modes):
@@ -179,7 +179,7 @@ def test_uniaxial_and_shear_fitted_together_meet_both_and_report_each_mode_left_
     for law in f["laws"]:
         for mode, held_out in law["left_out"].items():
             assert held_out >= law[f"rms_rel_{mode}"] - 1e-6, (law["law"], mode)
-    uniaxial_only = {x["law"]: x for x in json.loads(CliRunner().invoke(cli, ["calibrate", "material", "--json"]).output)["laws"]}
+    uniaxial_only = {x["law"]: x for x in json.loads(CliRunner().invoke(cli, ["calibrate", "material", "--json"]).stdout)["laws"]}
     assert uniaxial_only["ogden"]["shear_modulus_pa"] > f["shear_modulus_pa"]  # the shear data soften the small-strain modulus
 
 

@@ -7,7 +7,7 @@ import hashlib
 import json
 import shlex
 
-from analysis.material_fit import DATA_FILE, MAX_POINTS, fit_material
+from analysis.material_fit import DATA_FILE, MAX_POINTS, SHEAR_FILE, fit_material
 from sim.material import load_material
 from tests.helpers import studyctl
 
@@ -32,13 +32,13 @@ def test_rows_repeated_exactly_are_counted_once_with_a_warning(tmp_path):
     once, twice = _data(tmp_path, rows, "once.csv"), _data(tmp_path, rows + rows[:10], "twice.csv")
     res = _fit("--data", twice, "--json")
     assert res.exit_code == 0, res.output
-    warning, document = res.output.split("\n", 1)
+    warning = res.stderr.strip().splitlines()[-1]  # after the law's stage line
     assert warning == (f"warning: {twice}: 10 rows of region cortex repeated an earlier row exactly (same strain and stress) "
                        f"and counted once; {len(rows)} points fitted")
-    merged = json.loads(document)
+    merged = json.loads(res.stdout)
     assert merged["files"][0]["points"] == len(rows)
     assert merged["files"][0]["duplicates_merged"] == 10
-    alone = json.loads(_fit("--data", once, "--json").output)
+    alone = json.loads(_fit("--data", once, "--json").stdout)
     assert merged["laws"][0]["ci95"] == alone["laws"][0]["ci95"]  # the intervals of the data without the copies
 
 
@@ -47,7 +47,7 @@ def test_the_same_strain_with_another_stress_is_a_point_of_its_own(tmp_path):
     region, stretch, stress = rows[5].split(",")
     res = _fit("--data", _data(tmp_path, rows + [f"{region},{stretch},{float(stress) * 1.01:.4f}"]), "--json")
     assert res.exit_code == 0, res.output
-    assert json.loads(res.output)["files"][0]["points"] == len(rows) + 1
+    assert json.loads(res.stdout)["files"][0]["points"] == len(rows) + 1
 
 
 def test_a_region_of_zero_stresses_is_refused_and_nothing_is_written(tmp_path):
@@ -68,10 +68,10 @@ def test_a_fit_that_explains_nothing_is_refused(tmp_path):
     data = _data(tmp_path, rows)
     res = _fit("--data", data, "--out", tmp_path / "m.toml")
     assert res.exit_code == 1
-    line = res.output.strip()
+    *stages, line = res.output.strip().splitlines()
+    assert stages == ["calibrate material: fitting neo-hookean (law 1 of 1)"]
     assert line.startswith(f"Error: {data}: region 'cortex': no law explains these data (the chosen neo-hookean: R^2 "), line
     assert line.endswith(", no better than the data's mean); nothing fitted")
-    assert "\n" not in line
     assert "inf%" not in res.output
     assert not (tmp_path / "m.toml").exists()
 
@@ -86,10 +86,31 @@ def test_too_many_points_are_refused_before_any_fit(tmp_path):
                           "(bin or thin the curve, e.g. a mean stress per strain step)\n")
 
 
-def test_progress_is_reported_after_each_law():
+def test_progress_is_reported_once_the_data_are_read_and_after_each_law():
     seen = []
     fit_material(DATA_FILE, "cortex", ("neo-hookean", "mooney-rivlin"), progress=lambda k, n: seen.append((k, n)))
-    assert seen == [(1, 2), (2, 2)]
+    assert seen == [(0, 2), (1, 2), (2, 2)]
+
+
+def test_a_log_gets_a_stage_line_on_stderr_as_each_law_starts():
+    """stderr here is no terminal (a log, a pipe): no bar there, a line per law instead."""
+    res = studyctl("calibrate", "material", "--law", "neo-hookean", "--law", "ogden", "--json")
+    assert res.exit_code == 0, res.output
+    assert res.stderr.splitlines() == ["calibrate material: fitting neo-hookean (law 1 of 2)",
+                                       "calibrate material: fitting ogden (law 2 of 2)"]
+
+
+def test_the_stage_lines_leave_the_json_document_on_stdout_whole():
+    res = studyctl("calibrate", "material", "--law", "neo-hookean", "--json")
+    assert res.exit_code == 0, res.output
+    assert [f["law"] for f in json.loads(res.stdout)["laws"]] == ["neo-hookean"]
+
+
+def test_the_largest_region_allowed_is_well_above_the_shipped_data():
+    """The cap bounds a fit's time; the shipped curves (a few dozen points a region) fit under it."""
+    for path in (DATA_FILE, SHEAR_FILE):
+        regions = [line.split(",")[0] for line in path.read_text().splitlines()[1:] if line]
+        assert max(regions.count(r) for r in set(regions)) <= MAX_POINTS, path
 
 
 def test_the_written_provenance_is_the_command_as_run(tmp_path):

@@ -137,6 +137,22 @@ def test_names_are_spelt_with_dash_or_underscore_alike():
     assert json.loads(check.output[check.output.index("{"):])["violations"] == []
 
 
+@pytest.mark.parametrize("args", [("model", "describe", "plate--spring"), ("model", "check", "plate--spring", "--contract")])
+def test_an_unknown_model_is_named_as_typed(args):
+    res = studyctl(*args)
+    assert res.exit_code == 1, res.output
+    assert res.output.strip().splitlines() == [
+        "Error: unknown model 'plate--spring'; installed: fem, mass_spring, plate_spring (or name a class as \"package.module:Class\")"]
+
+
+def test_sim_run_names_a_model_the_scene_lacks_as_typed():
+    res = studyctl("sim", "run", "--model", "plate--spring", "--time-scale", "0", "--duration", "0.1")
+    assert res.exit_code == 1, res.output
+    lines = res.output.strip().splitlines()
+    assert len(lines) == 1, res.output
+    assert "models.plate--spring: not configured in this scene" in lines[0]
+
+
 def test_a_protocol_lists_plate_spring_with_a_dash(tmp_path):
     path = fast_protocol(tmp_path, conditions=("fem", "plate-spring"))
     res = studyctl("protocol", "validate", path)
@@ -156,6 +172,40 @@ def test_a_deformation_of_the_wrong_shape_is_a_model_fault_with_zero_force_not_a
     stats = json.loads(res.stdout)
     assert stats["events"].get("model_fault") == 1, stats["events"]
     assert stats["max_force_n"] == 0.0
+
+
+def test_sim_run_says_why_a_model_fault_happened_after_its_table(tmp_path):
+    target = f"{BAD}:WrongShape"
+    path = plugin_scene(tmp_path, target)
+    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{target}"]'))
+    res = studyctl("sim", "run", "--scene", path, "--model", target, "--time-scale", "0", "--duration", "1")
+    assert res.exit_code == 0, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.startswith("model_fault: ")]
+    assert len(lines) == 1, res.output
+    assert "shape" in lines[0], lines[0]
+
+
+def test_sim_run_json_lists_each_model_fault_s_detail(tmp_path):
+    target = f"{BAD}:WrongShape"
+    path = plugin_scene(tmp_path, target)
+    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{target}"]'))
+    res = studyctl("sim", "run", "--scene", path, "--model", target, "--time-scale", "0", "--duration", "1", "--json")
+    assert res.exit_code == 0, res.output
+    faults = json.loads(res.output)["faults"]
+    assert [f["kind"] for f in faults] == ["model_fault"]
+    assert "shape" in faults[0]["detail"], faults
+
+
+def test_sim_run_says_a_nan_force_was_zeroed_and_for_which_hand(tmp_path):
+    """The scene has two hands, both pulling: one line each."""
+    target = f"{BAD}:NanForce"
+    path = plugin_scene(tmp_path, target)
+    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{target}"]'))
+    res = studyctl("sim", "run", "--scene", path, "--model", target, "--time-scale", "0", "--duration", "1")
+    assert res.exit_code == 0, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.startswith("nan_force: ")]
+    assert [ln.rsplit("(", 1)[1] for ln in lines] == ["left hand)", "right hand)"], res.output
+    assert "not finite" in lines[0], lines[0]
 
 
 def test_a_force_of_two_numbers_is_a_model_fault_in_the_servo(tmp_path):

@@ -103,18 +103,26 @@ def is_model_name(name) -> bool:
 
 
 def info(name: str) -> ModelInfo:
-    name = canonical(name)
-    if name in entry_points():
-        return entry_points()[name]
-    if PATH_NAME.match(name):
-        return ModelInfo(name, name, None, None)
+    key = canonical(name)
+    if key in entry_points():
+        return entry_points()[key]
+    if PATH_NAME.match(key):
+        return ModelInfo(key, key, None, None)
+    raise _unknown(name)
+
+
+def _unknown(name) -> ModelLoadError:
+    """A name nothing registers, said as it was typed (not as the registry keys it)."""
     available = ", ".join(names()) or "none"
-    raise ModelLoadError(f"unknown model {name!r}; installed: {available} (or name a class as \"package.module:Class\")")
+    return ModelLoadError(f"unknown model {name!r}; installed: {available} (or name a class as \"package.module:Class\")")
 
 
 def model_class(name: str) -> type:
     """The class of model `name` (either spelling), checked against the API. Raises ModelLoadError."""
-    return _model_class(canonical(name))
+    key = canonical(name)
+    if isinstance(key, str) and key not in entry_points() and not PATH_NAME.match(key):
+        raise _unknown(name)
+    return _model_class(key)
 
 
 @functools.cache
@@ -186,8 +194,8 @@ def _source(i: ModelInfo) -> str:
 
 def describe(name: str) -> dict:
     """What `studyctl model describe` prints. Raises ModelLoadError."""
-    name = canonical(name)
     cls, i = model_class(name), info(name)
+    name = canonical(name)
     capabilities = {"stiffness scaling": bool(cls.scales_stiffness)}  # declared; the others are seen when it runs
     return {"name": name, "class": i.target, "distribution": i.distribution, "version": i.version, "source": _source(i),
             "builtin": i.builtin, "api_version": cls.api_version, "description": cls.description,

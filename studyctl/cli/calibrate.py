@@ -95,7 +95,8 @@ def calibrate_material(ctx, data_files, region, laws, bulk_ratio, out_file, forc
     data_files = list(data_files) or [DATA_FILE]
     laws = laws or FIT_LAWS
     rep = _with_progress(f"fitting {len(laws)} law{'s' if len(laws) != 1 else ''}",
-                         lambda p: fit_material(data_files, region, laws, BULK_RATIO if bulk_ratio is None else bulk_ratio, progress=p))
+                         lambda p: fit_material(data_files, region, laws, BULK_RATIO if bulk_ratio is None else bulk_ratio, progress=p),
+                         stage=lambda k, n: f"calibrate material: fitting {laws[k]} (law {k + 1} of {n})")
     for f in rep["files"]:  # on stderr: a --json document stays clean
         if f["duplicates_merged"]:
             click.echo(f"warning: {f['path']}: {f['duplicates_merged']} row{'s' if f['duplicates_merged'] != 1 else ''} of region "

@@ -207,24 +207,29 @@ def read_snapshot(db):
         return read_study(store)
 
 
-def _with_progress(label, fn):
+def _with_progress(label, fn, stage=None):
     """`fn(progress)` with a progress bar that `progress(done, total)` advances, on stderr (a
-    --json document on stdout stays clean)."""
+    --json document on stdout stays clean). Where stderr is no terminal, `stage(done, total)`
+    (if given) is a line said there as each stage starts (done < total): a log still shows
+    where a long run is."""
     from rich.console import Console
     from rich.progress import Progress
 
     console = Console(stderr=True)
     if not console.is_terminal:  # a pipe or a log: no bar (stopping one there leaves a blank line before an error's one line)
-        return fn(lambda k, n: None)
+        if stage is None:
+            return fn(lambda k, n: None)
+        return fn(lambda k, n: click.echo(stage(k, n), err=True) if k < n else None)
     with Progress(transient=True, console=console) as progress:
         task = progress.add_task(label, total=None)
         return fn(lambda k, n: progress.update(task, completed=k, total=n))
 
 
 def _model_name(value):
-    """Models are spelt plate_spring in files; plate-spring (the subcommand's spelling) is accepted too."""
+    """A condition as named on the command line: a model spelt plate_spring or plate-spring
+    (as the registry keys it), or a condition's table (named with _ only, so a - is a _)."""
     if value is None:
         return None
-    from sim.models.registry import is_model_name
+    from sim.models.registry import canonical, is_model_name
 
-    return value if is_model_name(value) else value.replace("-", "_")
+    return canonical(value) if is_model_name(value) else value.replace("-", "_")

@@ -100,11 +100,11 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
     from sim.jsonable import jsonable
     from sim.models.registry import ModelLoadError, canonical, model_class
 
-    name = canonical(name)  # plate-spring is plate_spring
-    try:  # a model that does not load is one line, before any progress
+    try:  # a model that does not load is one line (naming it as typed), before any progress
         model_class(name)
     except ModelLoadError as exc:
         raise click.ClickException(str(exc)) from None
+    name = canonical(name)  # plate-spring is plate_spring
     target = staged(out_file, force)  # an existing file refused before the check runs
 
     def emit(card):

@@ -20,7 +20,6 @@ from studyctl.cli.common import (
     OutFile,
     _console,
     _Group,
-    _model_name,
     _print_json,
     staged,
 )
@@ -34,7 +33,7 @@ def sim():
 
 @sim.command("run")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
-@click.option("--model", "model_name", default=None, callback=lambda c, p, v: _model_name(v),
+@click.option("--model", "model_name", default=None,
               help="A model configured in the scene, e.g. plate_spring or plate-spring  [default: the scene's]")
 @click.option("--duration", type=Finite(min=0.0, min_open=True, max=MAX_DURATION_S), default=None, help="Simulated seconds (default: the scene's).")
 @click.option("--frames", "frames_dir", type=OutDir(), default=None, help="Write pictures, the force plot and the trace here.")
@@ -91,7 +90,7 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
 
 @sim.command("live")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
-@click.option("--model", "model_name", default=None, callback=lambda c, p, v: _model_name(v),
+@click.option("--model", "model_name", default=None,
               help="A model configured in the scene, e.g. plate_spring or plate-spring  [default: the scene's]")
 @click.option("--device", type=click.Choice(["mouse", "simulated", "openhaptics"]), default="mouse", show_default=True)
 @click.option("--duration", type=Finite(min=0.0, min_open=True, max=MAX_DURATION_S), default=600.0, show_default=True, help="Seconds at most; Q, Escape or closing the window ends it sooner.")
@@ -149,3 +148,9 @@ def _print_run(s: dict) -> None:
     _console().print(t)
     for line in s.get("over_budget", []):  # the model's calls slower than their budget (docs/models.md)
         click.echo(line)
+    seen = set()
+    for f in s.get("faults", []):  # why a model_fault or nan_force zeroed the force: the table only counts them
+        line = f["detail"] if f["hand"] is None else f"{f['detail']} ({f['hand']} hand)"
+        if line not in seen:
+            seen.add(line)
+            click.echo(line)
