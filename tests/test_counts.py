@@ -37,9 +37,7 @@ def mixed_study(tmp_path_factory):
         rows.append(f"{code},,comments,fine")
     rows += ["P04,fem,natural,no", "P05,,comments,none"]
     (tmp / "a.csv").write_text("\n".join(rows) + "\n")
-    res = studyctl("answers", "import", tmp / "a.csv", "--db", db, "--alongside-people")
-    if res.exit_code != 0:
-        res = studyctl("answers", "import", tmp / "a.csv", "--db", db)
+    res = studyctl("answers", "import", tmp / "a.csv", "--db", db)
     assert res.exit_code == 0, res.output
     return db
 
