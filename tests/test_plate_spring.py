@@ -235,5 +235,6 @@ def test_paper_jumps_detected_exactly_where_the_curve_jumps(p):
             assert m not in found or abs(found[m].size) <= 1e-6 * s.capacity_x
     # the inverse is monotone in both variants
     xs = np.linspace(0, 1.2 * s.capacity_x, 300)
-    fs = [s.force(x) for x in xs]
-    assert np.all(np.diff(fs) >= -1e-12)
+    fs = np.array([s.force(x) for x in xs])
+    # monotone up to rounding: a stiff stack's forces reach 1e4 N, where one ulp is 2e-12 N
+    assert np.all(np.diff(fs) >= -1e-12 * max(1.0, float(fs.max())))
