@@ -20,12 +20,12 @@ Declared by the class (read when a scene or protocol names the model, before any
 Asked of a running model (three calls at three rates, budgets in `BUDGETS`). A model writes
 ``grasp`` and ``deformation``; it writes ``force`` unless every contact it gives carries a
 ``law``, which the inherited ``force`` evaluates. Every return value is checked where it is used
-(`sim.models.base.contact_checked`, `surface_checked`, the servo's three numbers): a wrong one is
+(`contact_checked`, `surface_checked` in `sim.models.base`, the servo's three numbers): a wrong one is
 zero force and a ``model_fault`` event.
 
 | call                                      | when                          | returns                          |
 |-------------------------------------------|-------------------------------|----------------------------------|
-| ``grasp(point, hand) -> Contact``         | a hand closes on the tissue   | the contact (`sim.models.base`)  |
+| ``grasp(point, hand) -> Contact``         | a hand closes on the tissue   | the contact (`Contact`, here)    |
 | ``force(contact, displacement)``          | every servo tick (1 kHz)      | force on the hand, N, 3 floats   |
 | ``deformation(contacts, displacements)``  | every visual frame            | (n_vertices, 3) surface motion   |
 
