@@ -7,8 +7,7 @@ import pytest
 
 from sim.devices.base import OmniSpec
 from sim.devices.simulated import HandImpedance, PullScript, SimulatedOmni, min_jerk
-from sim.models.api import TissueModel
-from sim.models.base import Contact
+from sim.models.api import Contact, TissueModel
 from sim.servo import Hand, ServoLoop, limit_force
 
 

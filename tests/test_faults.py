@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from sim.devices.base import DeviceState
-from sim.models.api import TissueModel
-from sim.models.base import Contact
+from sim.models.api import Contact, TissueModel
 from sim.servo import Hand, ServoLoop
 
 

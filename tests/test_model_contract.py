@@ -5,6 +5,7 @@ traceback, calls over their budget are said, and `model wheel` builds a model's 
 
 from __future__ import annotations
 
+import ast
 import hashlib
 import json
 import os
@@ -17,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from sim.models.api import BUDGETS
 from sim.run import run_scene
 from sim.scene import build_scene
 from tests.conftest import ROOT
@@ -237,6 +239,35 @@ def test_a_fast_model_is_not_said_to_be_over_budget():
     assert res.exit_code == 0, res.output
     stats = json.loads(res.output)
     assert not [line for line in stats["over_budget"] if line.startswith("over_budget: force")], stats["over_budget"]
+
+
+def _sim_imports(source: str) -> list[str]:
+    """The modules of `sim` that Python source imports from, sorted."""
+    names = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "sim":
+            names.add(node.module)
+        elif isinstance(node, ast.Import):
+            names |= {a.name for a in node.names if a.name.split(".")[0] == "sim"}
+    return sorted(names)
+
+
+def test_a_model_s_author_imports_only_sim_models_api():
+    """The docs' model, the shipped example and the test plugins take everything from one module."""
+    docs = (ROOT / "docs" / "models.md").read_text()
+    sources = {f"docs/models.md block {i}": block.split("```")[0] for i, block in enumerate(docs.split("```python\n")[1:])}
+    for path in [ROOT / "examples/brainsim-halfspace/src/brainsim_halfspace/__init__.py", *sorted((ROOT / "tests/plugins").glob("*.py"))]:
+        sources[str(path.relative_to(ROOT))] = path.read_text()
+    imports = {name: _sim_imports(text) for name, text in sources.items()}
+    assert {name: mods for name, mods in imports.items() if mods not in ([], ["sim.models.api"])} == {}
+
+
+@pytest.mark.parametrize(("call", "key", "unit"), [("grasp", "grasp_ms_p99", "ms"), ("force", "force_us_p99", "us"),
+                                                   ("deformation", "deformation_ms_p99", "ms")])
+def test_the_budgets_docs_models_gives_are_the_api_s(call, key, unit):
+    rows = [ln for ln in (ROOT / "docs" / "models.md").read_text().splitlines() if ln.startswith(f"| `{call}(")]
+    assert len(rows) == 1, rows
+    assert rows[0].rstrip(" |").rsplit("| ", 1)[1] == f"{BUDGETS[key]:g} {unit}"
 
 
 def test_model_wheel_builds_an_installable_wheel_and_refuses_to_overwrite_one(tmp_path):

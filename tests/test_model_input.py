@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from sim.models.base import MAX_PULL_M
+from sim.models.api import MAX_PULL_M
 from studyctl.cli import cli
 
 BRAIN_PARAMS = Path(__file__).resolve().parents[1] / "protocols" / "models" / "plate_spring_handset.toml"  # as tests/conftest.py

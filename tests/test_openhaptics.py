@@ -11,7 +11,7 @@ import pytest
 
 from sim.devices.openhaptics import HDError, OpenHapticsRig, load_library
 from sim.errors import DeviceError
-from sim.models.api import TissueModel
+from sim.models.api import Contact, TissueModel
 from sim.servo import Hand, ServoLoop
 
 SOURCE = Path(__file__).parent / "fake_libhd" / "fake_libhd.c"
@@ -128,7 +128,6 @@ def test_one_callback_serves_both_devices_with_frames_and_clamped_forces(libhd):
 
     hands = [Hand(index=i, name=d.name, device=d) for i, d in enumerate(devices)]
     servo = ServoLoop(model=Stiff(), hands=hands, peak_force=3.3, ramp_s=0.01)
-    from sim.models.base import Contact
 
     def tick(t):
         for h in hands:  # grasp wherever the stylus is on the first tick
@@ -161,7 +160,6 @@ def test_device_fault_in_a_frame_becomes_zero_force_and_an_event(libhd):
             return (1.0, 0.0, 0.0)
 
     servo = ServoLoop(model=Push(), hands=hands, peak_force=3.3, ramp_s=0.001)
-    from sim.models.base import Contact
 
     for h in hands:
         h.contact = Contact(hand=h.index, vertex=0, point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0))
@@ -259,7 +257,6 @@ def test_device_frame_follows_the_view_and_forces_go_back_along_the_pull(tmp_pat
 
 def test_a_continuous_force_above_the_budget_is_reduced_and_logged():
     from sim.devices.base import OmniSpec
-    from sim.models.base import Contact
 
     class Steady(TissueModel):
         def force(self, contact, d):

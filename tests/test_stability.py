@@ -11,8 +11,7 @@ from click.testing import CliRunner
 
 from analysis.stability import CHATTER_REVERSALS, Case, _scene_for, make_cases, markdown, peak_reversals, run_case
 from sim.devices.simulated import PullScript, SimulatedOmni
-from sim.models.api import TissueModel
-from sim.models.base import Contact
+from sim.models.api import Contact, TissueModel
 from sim.run import run_scene
 from sim.servo import Hand, ServoLoop
 from studyctl.cli import cli

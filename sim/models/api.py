@@ -4,7 +4,8 @@ A model is a class registered under the entry-point group ``brainsim.models`` (n
 `sim.models.registry`) or named in a scene as ``"package.module:Class"``. Subclass
 `TissueModel`; the platform calls nothing that this class does not declare. Everything a model
 needs is imported from here: `TissueModel`, `option`, `Contact`, the laws (`Linearised`,
-`RadialTable`, `TensorTable`, `Coupling`, `Constant`), `BUDGETS`, `MAX_PULL_M`.
+`RadialTable`, `TensorTable`, `Coupling`, `Constant`, and `PairTable` for ``pair_law``), `BUDGETS`,
+`MAX_PULL_M`.
 
 Declared by the class (read when a scene or protocol names the model, before anything builds):
 
@@ -20,12 +21,12 @@ Declared by the class (read when a scene or protocol names the model, before any
 Asked of a running model (three calls at three rates, budgets in `BUDGETS`). A model writes
 ``grasp`` and ``deformation``; it writes ``force`` unless every contact it gives carries a
 ``law``, which the inherited ``force`` evaluates. Every return value is checked where it is used
-(`sim.models.base.contact_checked`, `surface_checked`, the servo's three numbers): a wrong one is
+(`contact_checked`, `surface_checked` in `sim.models.base`, the servo's three numbers): a wrong one is
 zero force and a ``model_fault`` event.
 
 | call                                      | when                          | returns                          |
 |-------------------------------------------|-------------------------------|----------------------------------|
-| ``grasp(point, hand) -> Contact``         | a hand closes on the tissue   | the contact (`sim.models.base`)  |
+| ``grasp(point, hand) -> Contact``         | a hand closes on the tissue   | the contact (`Contact`, here)    |
 | ``force(contact, displacement)``          | every servo tick (1 kHz)      | force on the hand, N, 3 floats   |
 | ``deformation(contacts, displacements)``  | every visual frame            | (n_vertices, 3) surface motion   |
 
@@ -65,13 +66,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from sim.laws import Constant, Coupling, Linearised, RadialTable, TensorTable
+from sim.laws import Constant, Coupling, Linearised, PairTable, RadialTable, TensorTable
 from sim.models.base import BUDGETS, MAX_PULL_M, Contact, Vec3, surface_checked
 from sim.tomltable import REQUIRED
 
 # everything a model's author imports, from this one module (docs/models.md)
 __all__ = ["API_VERSION", "BUDGETS", "MAX_PULL_M", "CapabilityError", "Constant", "Contact", "Coupling", "Linearised", "NoOptions",
-           "RadialTable", "TensorTable", "TissueModel", "Vec3", "default_options", "option", "read_options"]
+           "PairTable", "RadialTable", "TensorTable", "TissueModel", "Vec3", "default_options", "option", "read_options"]
 
 API_VERSION = 1
 

@@ -1,31 +1,20 @@
-"""The tissue-model contract's low-level types (Contact, the pull limits); the public model API,
-with every optional capability and the declaration of options, is `sim.models.api`.
-
-Three calls at three rates:
-
-| call                                   | when                         | budget               |
-|----------------------------------------|------------------------------|----------------------|
-| ``grasp(point, hand) -> Contact``      | a hand closes on the tissue  | tens of ms           |
-| ``force(contact, displacement)``       | every servo tick (1 kHz)     | microseconds         |
-| ``deformation(contacts, displacements)``| every visual frame          | a few ms, whole brain|
+"""The tissue-model contract's low-level types: `Contact`, the checks of what a model returns,
+the pull limits and the budgets. A model's author imports them from `sim.models.api`, the
+contract's one module (its docstring is the reference). They live here so that the servo
+process reads them without loading the API, and `sim.tomltable`, which the API uses, without a
+cycle.
 
 ``displacement`` is the hand position minus the contact's anchor point, in metres; ``force``
 returns the force on the hand in newtons as a 3-tuple of floats (plain floats keep the
 per-tick path free of array allocations). ``deformation`` returns the displacement of every
 surface vertex, ``(n_vertices, 3)``. Two hands are two contacts passed together.
-
-Every contact carries a `law` (sim/laws.py): the small picklable state a servo tick
-evaluates, which `force` delegates to and which a servo in another process receives. Models
-whose contacts couple also give ``pair_law(contacts)``; models whose laws change between frames
-update them in ``deformation``.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
@@ -33,8 +22,9 @@ Vec3 = tuple[float, float, float]
 
 # The budgets a model keeps on this machine (`studyctl model check`), per call, 99th percentile:
 # a servo tick is 1 ms shared with the device's I/O and the safety rules (sim/servo.py), a
-# visual frame at 30 Hz is 33 ms, a grasp stalls the frames it falls in. Here, not in
-# sim.models.api, so that the servo process can judge its calls without importing the API.
+# visual frame at 30 Hz is 33 ms, a grasp stalls the frames it falls in. The one table of them:
+# authors read it as sim.models.api.BUDGETS; it is defined here so that the servo process judges
+# its calls without importing the API (and the scene reader it brings).
 BUDGETS = {"force_us_p99": 20.0, "deformation_ms_p99": 33.0, "grasp_ms_p99": 250.0}
 
 # Poisson's ratio, one bound for scene files and the FEM: POISSON_MIN <= nu < POISSON_MAX
@@ -72,18 +62,6 @@ class Contact:
     normal: Vec3
     data: Any = field(default=None, compare=False, repr=False)
     law: Any = field(default=None, compare=False, repr=False)  # sim.laws: what a servo tick evaluates
-
-
-class TissueModel(Protocol):
-    name: str
-
-    def grasp(self, point: Sequence[float], hand: int = 0) -> Contact: ...
-
-    def force(self, contact: Contact, displacement: Sequence[float]) -> Vec3: ...
-
-    def deformation(
-        self, contacts: Sequence[Contact], displacements: Sequence[Sequence[float]]
-    ) -> np.ndarray: ...
 
 
 def surface_checked(u, mesh) -> np.ndarray:

@@ -9,8 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.models.api import TissueModel, option
-from sim.models.base import Contact
+from sim.models.api import Contact, TissueModel, option
 
 
 @dataclass(frozen=True)
