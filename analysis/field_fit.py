@@ -1,4 +1,4 @@
-"""The stiffness field behind the location-aware plate-spring model (issue 16, beyond the paper).
+"""The stiffness field behind the location-aware plate-spring model (beyond the paper).
 
 The paper's plate-spring model has one force curve for the whole brain, while the brain's
 stiffness at a grasp depends on where it is grasped and which way it is pulled (the bench's

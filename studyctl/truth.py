@@ -46,7 +46,7 @@ TRUTH_FILE = _asset("data/observer_truth.npz")
 TRUTH_INFO = _asset("data/observer_truth.json")  # its SHA-256 and how it was made
 TRUTH_RADIUS = 0.010  # m around each hand's start: the motor model's grasps land within a few mm
 TRUTH_SIZES_MM = (8.0, 6.0, 4.0)  # the shipped body-fitted meshes (sim/tetmesh.py)
-TRUTH_VERSION = 3  # 1: the linear P2 stiffness per pascal of Young's modulus; 3: records to 12 mm with the band (issue 55)
+TRUTH_VERSION = 3  # 1: the linear P2 stiffness per pascal of Young's modulus; 3: records to 12 mm with the band
 
 
 @dataclass(frozen=True)
