@@ -26,8 +26,10 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import multiprocessing
 import os
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -419,9 +421,6 @@ def _run(tasks: list, jobs: int | None, progress) -> list:
             if progress is not None:
                 progress(done, len(tasks))
     elif order:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
         with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
             futures = {pool.submit(_pull_task, tasks[i]): i for i in order}
             for f in as_completed(futures):
@@ -541,8 +540,6 @@ def _premesh(mesh, labels, sizes, threads: int, jobs: int | None) -> set:
         for t in tasks:
             _mesh_task(t)
         return made
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=multiprocessing.get_context("spawn")) as pool:
         list(pool.map(_mesh_task, tasks))

@@ -28,6 +28,7 @@ that `load_truth` reads next to the shipped one.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from dataclasses import dataclass
@@ -133,17 +134,12 @@ def truth_key(scene) -> dict:
 
 def user_truth_path(scene) -> Path:
     """Where `studyctl calibrate truth` puts a table for a scene the shipped one does not cover."""
-    import hashlib
-
-
     key = json.dumps(truth_key(scene), sort_keys=True)
     return cache_dir() / f"truth-{hashlib.sha256(key.encode()).hexdigest()[:20]}.npz"
 
 
 def _check_shipped(path: Path) -> None:
     """The shipped table is the one its record describes (a damaged install is refused by name)."""
-    import hashlib
-
     if path.resolve() != TRUTH_FILE.resolve() or not TRUTH_INFO.exists():
         return
     want = json.loads(TRUTH_INFO.read_text())["sha256"]
