@@ -499,7 +499,7 @@ def coupling_bound(ref: list[list[dict]], n_calib: int, xs, stiffness: float) ->
     return float(np.mean(within)) if within else math.nan
 
 
-TARGET_WITHIN = 0.80  # a class follows the tissue when one configuration is within the JND on 80% of held-out samples (issue 44)
+TARGET_WITHIN = 0.80  # a class follows the tissue when one configuration is within the JND on 80% of held-out samples
 
 
 def class_best(rows: list[dict], frame_budget_ms: float | None = None) -> list[dict]:

@@ -1,4 +1,4 @@
-"""The stiffness field behind the location-aware plate-spring model (issue 16, beyond the paper).
+"""The stiffness field behind the location-aware plate-spring model (beyond the paper).
 
 The paper's plate-spring model has one force curve for the whole brain, while the brain's
 stiffness at a grasp depends on where it is grasped and which way it is pulled (the bench's
@@ -26,6 +26,7 @@ it). The tick adds one 3 x 3 product to the paper's model.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -155,9 +156,6 @@ def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", 
     force over its initial slope follows the mean finite-strain / small-strain force ratio of
     the calibration pulls (`sim.pulls.make_pulls`), both on the reference's finest mesh
     (the shipped solves), where that mesh followed the pull. Returns (params, report)."""
-    import dataclasses
-
-
     if formulation == "small-strain":
         return dataclasses.replace(start_params, layers=1), {"formulation": formulation, "within_jnd": 1.0, "pulls": []}
 

@@ -1,4 +1,4 @@
-"""Performance metrics from the stored per-tick traces (issue 32, item 3): per trial and hand,
+"""Performance metrics from the stored per-tick traces: per trial and hand,
 outcome, safety, efficiency, force and smoothness; per trial, bimanual. Each metric's name, unit,
 definition and source are in `METRICS` (and docs/metrics.md, which a test keeps in step).
 

@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import pickle
 import time
@@ -62,9 +63,6 @@ class CheckConfig:
 
 def _scene(name: str, scene_path: Path):
     """The scene running model `name`: the scene's configuration of it, else its declared defaults."""
-    import dataclasses
-
-
     spec = load_scene(scene_path)
     spec = dataclasses.replace(spec, models={**spec.models, name: ModelSpec(name=name, options=spec.options_of(name))})
     return Scene(dataclasses.replace(spec, model=name))

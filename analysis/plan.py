@@ -14,6 +14,7 @@ false-positive rate. All of it is SYNTHETIC: a planning aid, no data.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,9 +41,6 @@ def pilot_summaries(protocol, pilots: int = 4, seed: int = 0, mapping: dict[str,
     condition that ran (studyctl/rig.py: the shipped one) where it has one. `mapping` (label ->
     model) lets one model play another's condition (the null and swap tests); the pilots' hand
     motions are drawn per label, as a session draws them per condition."""
-    import dataclasses
-
-
     mapping = mapping or {}
     rig = frame_times(protocol)
     scenes: dict[str, object] = {}

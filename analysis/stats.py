@@ -5,6 +5,7 @@ and the check of a published table. Tidy DataFrames with stable columns (docs/an
 from __future__ import annotations
 
 import itertools
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -145,8 +146,6 @@ def gee_fit(df: pd.DataFrame, models: list[str], with_period: bool = True, with_
     clusters, exchangeable working correlation, robust (sandwich) covariance. Returns the
     odds ratio of every pair of models (b vs a: the odds of yes with b over those with a) with
     its 95% interval and Wald p-value, the working correlation, and whether it converged."""
-    import warnings
-
     import statsmodels.api as sm
     import statsmodels.formula.api as smf
 

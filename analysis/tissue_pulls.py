@@ -26,8 +26,10 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import multiprocessing
 import os
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,10 +51,10 @@ from sim.volume import cache_dir, locate
 
 DEFAULT_SIZES_MM = SHIPPED_MM  # target edge lengths, coarse to fine: the shipped meshes
 QUICK_SIZES_MM = (20.0, 16.0)
-SOLVER_VERSION = 2  # part of every solve's key: bump when the solver, element or law form changes (2: the convex volumetric energy, issue 55)
+SOLVER_VERSION = 2  # part of every solve's key: bump when the solver, element or law form changes (2: the convex volumetric energy)
 SHIPPED_PULLS = _asset("data/reference_pulls.npz")
 SHIPPED_PULLS_INFO = _asset("data/reference_pulls.json")
-RECORD_XS = 0.0005 * np.arange(1, 25)  # m: where the shipped solves record (0.5, 1.0, ..., 12 mm; issue 55)
+RECORD_XS = 0.0005 * np.arange(1, 25)  # m: where the shipped solves record (0.5, 1.0, ..., 12 mm)
 # the finer meshes and the ensemble's laws follow a pull only while the coarsest mesh's state has at
 # most this share of its energy outside the data's stretches: beyond, no sample can be decided (a decided
 # sample has at most the JND fraction at its force, 25% at most; analysis.truth_band.decide)
@@ -419,9 +421,6 @@ def _run(tasks: list, jobs: int | None, progress) -> list:
             if progress is not None:
                 progress(done, len(tasks))
     elif order:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
         with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
             futures = {pool.submit(_pull_task, tasks[i]): i for i in order}
             for f in as_completed(futures):
@@ -541,8 +540,6 @@ def _premesh(mesh, labels, sizes, threads: int, jobs: int | None) -> set:
         for t in tasks:
             _mesh_task(t)
         return made
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=multiprocessing.get_context("spawn")) as pool:
         list(pool.map(_mesh_task, tasks))

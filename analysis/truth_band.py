@@ -1,5 +1,5 @@
 """Where the tissue truth is decided: the law's ensemble, each sample's band and support, and
-the rule that says whether a sample can judge a model (issue 55; docs/reference.md).
+the rule that says whether a sample can judge a model (docs/reference.md).
 
 - **Ensemble.** The data do not fix one law beyond their stretches, so the truth is a family:
   the scene's law (chosen on every loading mode), the best fit of every other law family that
@@ -33,7 +33,7 @@ from sim.calibrate import jnd
 from sim.hyperelastic import Hyperelastic
 from sim.pulls import scene_with
 
-ACCEPT = {"rms_rel_uniaxial": 0.10, "shear_worst_rel": 0.20}  # a law fits the data "about as well" (issue 55's bar for the chosen law)
+ACCEPT = {"rms_rel_uniaxial": 0.10, "shear_worst_rel": 0.20}  # a law fits the data "about as well" (the bar the chosen law met)
 DEVICE_LIMIT_N = 3.3  # the PHANTOM Omni's largest force (docs/hardware.md): no sample above it is judged
 MAX_J_DEVIATION = 0.05  # a nearly incompressible law: |J - 1| beyond this is not the tissue the data measured
 

@@ -4,6 +4,8 @@ places around it (studyctl/truth.py says how the table is read)."""
 
 from __future__ import annotations
 
+import hashlib
+import json
 import time
 from pathlib import Path
 
@@ -157,9 +159,6 @@ def build_truth(scene_path, out: Path | str | None = None, vertices=None, sizes_
             "transfer_checks": checks, "force_at_n": {p.name: {f"{x * 1e3:g} mm": float(np.linalg.norm(F[h, m]) * law.shear_modulus)
                                                              for m, x in enumerate(s) if m and m % 2 == 0} for h, p in enumerate(pulls)}}
     # the record beside the table: its SHA-256 (the shipped one is checked against it) and how it was made
-    import hashlib
-    import json
-
     out.with_suffix(".json").write_text(json.dumps({"sha256": hashlib.sha256(out.read_bytes()).hexdigest(), "made_by": "studyctl calibrate truth",
                                                     "law": law.params()} | {k: v for k, v in rep.items() if k != "out"}, indent=1) + "\n")
     return rep
@@ -173,8 +172,6 @@ def _fill_unknown(a: np.ndarray) -> None:
 
 
 def json_line(obj) -> str:
-    import json
-
     return json.dumps(obj)
 
 

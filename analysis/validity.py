@@ -1,4 +1,4 @@
-"""Construct validity from the performance metrics (issue 32, item 4): do the groups differ, do
+"""Construct validity from the performance metrics: do the groups differ, do
 they learn, where do the novices stand against the experts, and can a participant's group be told
 from their metrics. Tidy inputs and outputs, stable column names (pingouin style).
 

@@ -1,4 +1,4 @@
-"""The construct-validity report (issue 32, item 4; `studyctl report validity`): a study's
+"""The construct-validity report (`studyctl report validity`): a study's
 performance metrics (analysis/metrics.py) compared between its participant groups with
 analysis/validity.py, beside its face-validity ratings per group.
 

@@ -1,4 +1,4 @@
-"""When a statistic may be printed: one rule for every report (issue 42).
+"""When a statistic may be printed: one rule for every report.
 
 A statistic is given only where its prerequisites hold for the data at hand: enough
 participants, at least two conditions, variation to rank or scale, a model that converged and

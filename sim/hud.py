@@ -64,7 +64,7 @@ def items(texts: dict[str, str], width: int, height: int) -> list[tuple]:
     return out
 
 
-# -- the hands' targets (issue 32): a progress bar per hand ----------------------------------
+# -- the hands' targets: a progress bar per hand ---------------------------------------------
 # pixels of a 720-pixel-high view: each bar under the status line, the left hand's at the
 # left edge, the right hand's at the right edge; a bar fills outwards, the way its hand pulls
 BAR = {"margin": 24, "width": 300, "top": 78, "height": 16, "label": 68, "warning": 116, "label_px": 16}

@@ -15,7 +15,7 @@ for mu_p > 0, whatever the sign of alpha_p. The three laws are one family:
 
 The volumetric energy U(J) = kappa/4 (J^2 - 1 - 2 ln J) (Simo and Taylor 1982; Abaqus's and
 FEBio's convex choice) is convex for every J > 0 (U'' = kappa/2 (1 + 1/J^2)), where the
-kappa/2 (ln J)^2 used before issue 55 is not past J = e; both have U''(1) = kappa, so the
+kappa/2 (ln J)^2 used before is not past J = e; both have U''(1) = kappa, so the
 small-strain limit is unchanged. kappa is `bulk_ratio` times mu (`BULK_RATIO`, why in
 docs/material.md). The closed-form homogeneous
 responses here (uniaxial loading with free lateral faces, simple shear) are what

@@ -50,7 +50,7 @@ def one_thread_pools() -> None:
     - The same bits wherever the simulator runs on one machine. CHOLMOD's supernodal factor
       splits its dense blocks across the threads, and the thread count changes the last bits of
       every FEM and mass-spring result (measured: forces differ from the 15th digit between 1 and
-      2 threads; a rigid contact's chatter then went either way, issue 25). With one thread a
+      2 threads; a rigid contact's chatter then went either way). With one thread a
       case gives the same bits in this process, a local pool, a Dask worker (whose nanny sets
       one thread anyway), a session and its replay.
     - Speed. Two pools spinning on 2 cores fight: a CHOLMOD solve right after a numpy BLAS call

@@ -12,6 +12,7 @@ E = 2 mu (1 + nu) with the law's shear modulus mu (docs/material.md).
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -134,8 +135,6 @@ def material_spec(material: TableReader) -> MaterialSpec:
 
 def _toml_value(v) -> str:
     if isinstance(v, str):
-        import json
-
         return json.dumps(v)  # a TOML basic string is a JSON string for this text (no control characters)
     if isinstance(v, bool):
         return "true" if v else "false"

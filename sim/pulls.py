@@ -48,7 +48,7 @@ def make_pulls(scene) -> list[Pull]:
     return out
 
 
-TEST_PLACES = 10  # held-out grasp places (half per hemisphere), two directions each: 20 pulls, enough decided samples (issue 55)
+TEST_PLACES = 10  # held-out grasp places (half per hemisphere), two directions each: 20 pulls, enough decided samples
 TEST_MIN_DISTANCE = 0.020  # m from every calibration grasp point
 TEST_MIN_HEIGHT = 0.015  # m above the clamp plane: the patch must be free to move
 ICO4_VERTICES = 2562  # the first 2562 vertices of each fsaverage5 hemisphere are its ico4 subset

@@ -7,6 +7,7 @@ rates, and a renderer (``none`` or ``offscreen``). See docs/scenes.md.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from dataclasses import dataclass, field
@@ -428,8 +429,6 @@ class Scene:
 
     def with_device(self, device: str | None) -> Scene:
         """Every hand on `device` (this scene, changed in place; None keeps the file's)."""
-        import dataclasses
-
         if device is not None and any(h.device != device for h in self.spec.hands):
             if device not in __import__("sim.devices", fromlist=["BACKENDS"]).BACKENDS:
                 raise SceneError(f"device: {device!r} is not one of simulated, mouse, openhaptics, replay")
@@ -441,8 +440,6 @@ class Scene:
         """This scene with its tissue model's stiffness times `scale` (the model's
         `with_stiffness`: Young's modulus for the FEM and the mass-spring, the plates' E for
         the plate-spring); the spec, mesh and devices' settings shared."""
-        import copy
-
         out = copy.copy(self)
         out.model = self.model.with_stiffness(scale)  # the cached_property's slot: this scene's own model
         return out

@@ -5,6 +5,10 @@ spawned interpreter loads, so it stays light."""
 
 from __future__ import annotations
 
+import gc
+import os
+import signal
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -125,8 +129,6 @@ def _open_devices(recipes, board=None):
 def _realtime_priority() -> str:
     """Ask the OS to run this process first: SCHED_FIFO where allowed (root or CAP_SYS_NICE),
     else a higher nice level, else nothing. Returns what was granted."""
-    import os
-
     cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
     if len(cpus) > 1:  # a core of its own: the last one (the parent keeps off it during the run)
         os.sched_setaffinity(0, {cpus[-1]})
@@ -341,10 +343,6 @@ class _Runner:
 
 def child_main(conn, shm_name: str, recipes, hand_names, rate: float, time_scale: float, miss_streak: int, suspend_s: float):
     """The servo process: opens the devices once, then serves runs until told to close."""
-    import gc
-    import signal
-    import sys
-
     # Ctrl-C in the terminal reaches the whole process group: the session's process handles it
     # and closes this one (zero force, devices closed), so no traceback from here
     signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import multiprocessing as mp
+import os
 import time
 from multiprocessing import shared_memory
 
@@ -208,8 +209,6 @@ class ServoProcess:
         times a second: the instruments move at the view's rate, not the deformation's. `frame`
         may return "start" (start a waiting run's clock) or "stop". Returns (the run's servo
         log, events)."""
-        import os
-
         self._done = None
         for h in self.hands:
             h.contact, h.grasp_request = None, None
@@ -290,8 +289,6 @@ class ServoProcess:
 
 def _set_all_threads_affinity(cpus: set) -> None:
     """sched_setaffinity(0) moves only the calling thread; BLAS and renderer pools exist already."""
-    import os
-
     try:
         tids = [int(t) for t in os.listdir("/proc/self/task")]
     except OSError:

@@ -367,7 +367,7 @@ def _cone(ring: np.ndarray, radius: float, height: float, apex_z: float) -> Shap
 
 
 # ---------------------------------------------------------------------------------------------
-# a hand's target (issue 32): a ring where the target is, a thin rod along the pull to it
+# a hand's target: a ring where the target is, a thin rod along the pull to it
 
 
 def torus(radius: float, tube: float, segments: int = 32, sides: int = 8) -> Shape:

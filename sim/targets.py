@@ -1,4 +1,4 @@
-"""A hand's target (issue 32): pull the grasped tissue by a distance along the hand's pull, hold
+"""A hand's target: pull the grasped tissue by a distance along the hand's pull, hold
 it there, and keep the force under a safe limit.
 
 - `TargetSpec`: a scene's ``[hands.target]`` (distance, tolerance, hold time, safe force);

@@ -18,6 +18,7 @@ import hashlib
 import json
 import sys
 import time
+import types
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,8 +46,6 @@ def _pytetwild():
     try:
         import pyvista  # noqa: F401
     except ImportError:
-        import types
-
         sys.modules.setdefault("pytetwild._accessor", types.ModuleType("pytetwild._accessor"))
     try:
         from pytetwild import tetrahedralize

@@ -312,7 +312,7 @@ class ParticipantView:
         self.set_text(corner="force:  " + "   ".join(corner))
         return np.concatenate(parts) if parts else None
 
-    # -- the hands' targets (issue 32) ---------------------------------------------------------
+    # -- the hands' targets --------------------------------------------------------------------
     def _side(self, k: int) -> float:
         """-1 for a hand whose pull goes left on the screen, +1 for right (the first hand left
         when its pull is along the view's depth)."""

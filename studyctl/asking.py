@@ -11,7 +11,9 @@ chosen condition's name (the person sees and types only blind labels). `context`
 
 from __future__ import annotations
 
+import select
 import sys
+import termios
 from collections.abc import Callable
 
 from studyctl.errors import StoreError
@@ -28,8 +30,6 @@ def _stdin_tty() -> bool:
 def flush_input() -> None:
     """Discard whatever was typed and not yet read (e.g. keys pressed during training)."""
     if _stdin_tty():
-        import termios
-
         termios.tcflush(sys.stdin.fileno(), termios.TCIFLUSH)
 
 
@@ -38,7 +38,6 @@ def terminal_keys() -> list[str]:
     one): the experimenter's keys during a run when no window has the focus."""
     if not _stdin_tty():
         return []
-    import select
 
     out = []
     while select.select([sys.stdin], [], [], 0)[0]:
@@ -53,7 +52,6 @@ def read_line(prompt: str, idle: Callable[[], None] | None) -> str:
     """input(), but a window stays alive while the terminal waits."""
     if idle is None or not _stdin_tty():
         return input(prompt)
-    import select
 
     sys.stdout.write(prompt)
     sys.stdout.flush()

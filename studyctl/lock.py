@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import hashlib
 import os
+import re
 import socket
 from pathlib import Path
 
@@ -17,9 +19,6 @@ from studyctl.store import now
 
 
 def _file_name(code: str) -> str:
-    import hashlib
-    import re
-
     return f"{re.sub(r'[^A-Za-z0-9_.-]', '_', code)[:40]}-{hashlib.sha256(code.encode()).hexdigest()[:8]}.lock"
 
 

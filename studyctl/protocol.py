@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 from sim.errors import SceneError, SimError
 from sim.models import registry
@@ -206,8 +207,6 @@ def _study_fields(study: TableReader, ethics: TableReader, path: Path) -> dict:
     out["title"] = study.string("title", default="", most=TITLE_MOST, one_line=True)
     timezone = out["timezone"] = study.string("timezone", default=None)
     if timezone is not None:
-        from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
-
         try:
             ZoneInfo(timezone)
         except (ZoneInfoNotFoundError, ValueError):

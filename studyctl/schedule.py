@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 from pathlib import Path
+from zoneinfo import ZoneInfo
 
 from studyctl.csvfiles import read_csv
 from studyctl.errors import InputError
@@ -109,8 +110,6 @@ def to_ics(slots: list[dict], study: str, timezone: str | None = None, title: st
 
     tz = None
     if timezone is not None:
-        from zoneinfo import ZoneInfo
-
         tz = ZoneInfo(timezone)
     cal = icalendar.Calendar()
     cal.add("prodid", "-//brainsim-study//studyctl//EN")

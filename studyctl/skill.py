@@ -1,4 +1,4 @@
-"""Skill profiles of synthetic participants by group (issue 32, item 5): `[synthetic.groups.NAME]`.
+"""Skill profiles of synthetic participants by group: `[synthetic.groups.NAME]`.
 
 A protocol with `design.groups` may give each group's synthetic operator a profile: tremor,
 speed, overshoot of the target, how the operator holds back near the safe force limit, learning

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import datetime as dt
+import importlib.util
 import json
+import re
 from pathlib import Path
 
 from studyctl.csvfiles import read_csv
@@ -215,9 +217,6 @@ def answer_key(protocol, item: str, model: str, trial, raw, where) -> tuple[str,
     checked against the question: its kind's values, a condition unless it is asked at the
     end (then none), a trial (0-based) only if it is asked after every trial. `where(field)`
     names the place of a field in messages (a file's line, or a command-line option)."""
-    import re
-
-
     if item not in protocol.items:
         raise InputError(f"{where('item')}: unknown item {item!r}; allowed: {', '.join(protocol.items)}")
     q = protocol.question(item)
@@ -258,8 +257,6 @@ def export(db: str | Path, out_dir: str | Path, fmt: str = "csv", force: bool = 
     out_dir = Path(out_dir)
     target = Staged(out_dir, force, folder=True, expect=[f"{t}.{fmt}" for t in (*EXPORT_TABLES, "traces")])
     if fmt == "parquet":
-        import importlib.util
-
         if importlib.util.find_spec("pyarrow") is None:  # an optional extra: checked before anything is read or written
             raise StoreError("--format parquet needs the parquet extra: pip install 'brainsim-study[parquet]'")
         import pyarrow.parquet as pq

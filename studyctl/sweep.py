@@ -8,8 +8,12 @@ unchanged in a process pool or on Dask workers (which must have this package ins
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
+import signal
+import socket
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
 
 
 class SweepError(Exception):
@@ -49,8 +53,6 @@ def completed(fn: Callable, tasks: Sequence, jobs: int | None = None, scheduler:
         for i, t in enumerate(tasks):
             yield i, fn(t)
         return
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
 
     # spawn: a fresh interpreter per worker, no forked locks or threads (progress bars, BLAS)
     pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=mp.get_context("spawn"), initializer=_quiet_on_ctrl_c)
@@ -72,8 +74,6 @@ def _quiet_on_ctrl_c() -> None:
     """A pool worker ignores Ctrl-C (the terminal sends it to every process of the command): the
     command's own process gets it, ends the workers and says what was kept. (Workers that died of
     it themselves would break the pool first, and the command would report that instead.)"""
-    import signal
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
@@ -86,8 +86,6 @@ def connect(scheduler: str):
         raise SweepError("--scheduler needs the dask extra: pip install 'brainsim-study[dask]'") from None
     try:
         if scheduler.startswith("tcp://"):  # a refused port is told at once (the client would retry for 10 s)
-            import socket
-
             host, _, port = scheduler[len("tcp://"):].rpartition(":")
             if not host or not port.isdigit():
                 raise ValueError("the address needs a host and a port, e.g. tcp://host:8786")

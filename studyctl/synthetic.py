@@ -11,7 +11,7 @@ synthetic. See docs/synthetic.md for the model and its parameters.
   is a logistic function of what this participant perceived of its trials against the
   converged reference (force within their JND of what they expect, deformation latency,
   vibration, safety events) and their bias. No outcome is set per model.
-- Skill (issue 32, item 5): a hand whose scene gives it a target is pulled to the target, beyond
+- Skill: a hand whose scene gives it a target is pulled to the target, beyond
   it by the participant's overshoot and back, and held there; a protocol's
   `[synthetic.groups.NAME]` gives a group's tremor, speed, overshoot, force restraint and
   learning (studyctl/skill.py). Without a profile and a target, the scene's pull as before.

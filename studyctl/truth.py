@@ -28,6 +28,7 @@ that `load_truth` reads next to the shipped one.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from dataclasses import dataclass
@@ -46,7 +47,7 @@ TRUTH_FILE = _asset("data/observer_truth.npz")
 TRUTH_INFO = _asset("data/observer_truth.json")  # its SHA-256 and how it was made
 TRUTH_RADIUS = 0.010  # m around each hand's start: the motor model's grasps land within a few mm
 TRUTH_SIZES_MM = (8.0, 6.0, 4.0)  # the shipped body-fitted meshes (sim/tetmesh.py)
-TRUTH_VERSION = 3  # 1: the linear P2 stiffness per pascal of Young's modulus; 3: records to 12 mm with the band (issue 55)
+TRUTH_VERSION = 3  # 1: the linear P2 stiffness per pascal of Young's modulus; 3: records to 12 mm with the band
 
 
 @dataclass(frozen=True)
@@ -133,17 +134,12 @@ def truth_key(scene) -> dict:
 
 def user_truth_path(scene) -> Path:
     """Where `studyctl calibrate truth` puts a table for a scene the shipped one does not cover."""
-    import hashlib
-
-
     key = json.dumps(truth_key(scene), sort_keys=True)
     return cache_dir() / f"truth-{hashlib.sha256(key.encode()).hexdigest()[:20]}.npz"
 
 
 def _check_shipped(path: Path) -> None:
     """The shipped table is the one its record describes (a damaged install is refused by name)."""
-    import hashlib
-
     if path.resolve() != TRUTH_FILE.resolve() or not TRUTH_INFO.exists():
         return
     want = json.loads(TRUTH_INFO.read_text())["sha256"]

@@ -19,8 +19,10 @@ tests/fake_libhd/fake_libhd.c.
 from __future__ import annotations
 
 import ctypes
+import locale
 import math
 import os
+import re
 import threading
 from dataclasses import dataclass
 
@@ -98,8 +100,6 @@ CALLBACK = ctypes.CFUNCTYPE(ctypes.c_uint, ctypes.c_void_p)
 
 
 def load_library(path: str | None = None) -> ctypes.CDLL:
-    import locale
-
     # the vendor's libraries read their configuration files with the C library's number
     # parsing: a decimal-comma locale (de_DE, fr_FR...) must not reach them
     locale.setlocale(locale.LC_NUMERIC, "C")
@@ -140,8 +140,6 @@ def load_library(path: str | None = None) -> ctypes.CDLL:
 def _load_error(path: str, message: str) -> str:
     """What the loader's message means: libHD itself missing, or one of its own dependencies
     (named), or not loadable (wrong architecture, damaged)."""
-    import re
-
     missing = re.match(r"\s*([^:]+\.so[.\d]*): cannot open shared object file", message)
     asked = os.path.basename(path)
     if missing and os.path.basename(missing.group(1)) != asked:

@@ -22,7 +22,7 @@ from sim.kernels import _inv3
 
 # The element pass runs its elements in parallel. Numba's OpenMP layer would set the system's
 # OpenMP runtime, which CHOLMOD shares, back to every core at its first launch, undoing
-# `sim.linalg.one_thread_pools` (the same bits in every process, issue 25: measured, libgomp went
+# `sim.linalg.one_thread_pools` (the same bits in every process: libgomp would go
 # from 1 thread to 2). Its own work queue touches no OpenMP setting.
 if numba.config.THREADING_LAYER == "default":
     numba.config.THREADING_LAYER = "workqueue"
