@@ -430,7 +430,7 @@ class Scene:
     def with_device(self, device: str | None) -> Scene:
         """Every hand on `device` (this scene, changed in place; None keeps the file's)."""
         if device is not None and any(h.device != device for h in self.spec.hands):
-            if device not in __import__("sim.devices", fromlist=["BACKENDS"]).BACKENDS:
+            if device not in BACKENDS:
                 raise SceneError(f"device: {device!r} is not one of simulated, mouse, openhaptics, replay")
             hands = tuple(dataclasses.replace(h, device=device) for h in self.spec.hands)
             self.spec = dataclasses.replace(self.spec, hands=hands)
