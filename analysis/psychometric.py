@@ -1,96 +1,9 @@
-"""Psychometric functions of the two-interval forced-choice stiffness discrimination task
-(studyctl/tasks.py): per participant and condition the Weber fraction with a parametric-bootstrap
-interval (the group test across conditions: analysis/weber_groups.py). Tidy outputs with stable keys, as in
-analysis/stats.py and analysis/scales.py.
-
-The model. A trial presents the reference (stiffness scale `reference`, 1 = the condition's own)
-and a comparison stiffer by the relative increment delta > 0; `correct` = the participant chose
-the comparison. On x = ln(delta):
-
-    P(correct) = guess + (1 - guess - lapse) * F((x - location) / scale)
-
-with F the cumulative Gaussian Phi ("gaussian") or the Gumbel 1 - exp(-exp(z)) ("weibull": the
-Weibull 1 - exp(-(delta / a) ** b) in delta, location = ln a, scale = 1 / b). guess = 0.5 (two
-alternatives), lapse fitted in [0, lapse_max].
-
-"thurstone" (the reports' function, DEFAULT_FUNCTION) is fitted on the dimension the task varies,
-the log stiffness ratio r = ln(1 + delta), as x = ln r, with F(z) = 2 Phi(e^z) - 1 and the scale
-held at 1: P(correct) = guess + (1 - guess - lapse) (2 Phi(r / sigma) - 1), sigma = e^location.
-Without lapses that is Phi(r / sigma): the two-interval observer of signal detection theory whose
-internal noise grows with the stiffness (Weber's law), the synthetic participants' own model
-(studyctl/observer.py), so its slope follows from its threshold and is not fitted (a free slope
-from 40 trials is the noisiest part of a fit: Wichmann and Hill 2001). Its threshold r75 =
-sigma z75 gives weber = e^r75 - 1; its lapse is half the observer's (a lapsed trial is a guess).
-Measured on the synthetic QUEST+ runs (20 participants x 40 trials, seeds 1-3, docs/study.md):
-median absolute error of the Weber fraction 23.0%, 22.5%, 22.6% and 90% coverage of the
-bootstrap intervals, against 21.8%, 26.7%, 30.8% and 88% for "gaussian" on ln delta. The threshold is the delta where F = 0.5: 75%
-correct for the lapse-free function, 0.75 - lapse / 2 with lapses. This is psignifit's 2AFC
-convention (its default thresh_PC = 0.5 of the sigmoid's range; Schuett et al. 2016), so the
-threshold does not move when the lapse rate does. delta is relative to the reference, so the
-threshold is the Weber fraction; `jnd` = weber * reference is the same in the reference's units.
-
-Fit: maximum likelihood (`fit_psychometric`). The log-likelihood on a grid over the bounded
-parameter space; the best grid points and the best in each part of it (lapse rate, quarter of
-the scale range) taken uphill together by Fisher scoring; then scipy's L-BFGS-B (analytic
-gradient) from the best of them. (Psychometric likelihoods with a lapse rate have more than one
-maximum; from 300 simulated data sets of 20-80 trials, 30 random starts each found none higher.)
-Bounds: location within the ln deltas tested widened by their span on each side (ln 2 with one
-level), scale in [scale_min, max(2 span, 10 scale_min)], lapse in [0, lapse_max]. Never NaN and
-never an exception on degenerate data: data that do not bound the threshold return the bounded
-maximum with a `flag` (FLAGS) and `converged` False:
-
-- ``all_correct``: every answer correct: the likelihood is flat wherever the function is near 1
-  at every level tested; the weber returned lies below the lowest delta (an upper limit at best);
-- ``at_chance``: no level above chance (e.g. every answer wrong): likewise flat where the
-  function is near 0.5 everywhere; the weber returned lies above the highest delta;
-- ``one_level``: one stimulus level: location and scale are not identified; the weber returned
-  is one of many equally likely;
-- ``location_at_bound``: the maximum's location is on a bound (the threshold is outside the
-  range tested, by more than the data can say);
-- ``shallow``: the scale is on its upper bound (no trend in the data);
-- ``optimizer``: L-BFGS-B stopped unconverged, with more than 1e-6 of log-likelihood left to
-  gain by a Fisher step.
-
-One flag leaves `converged` True: ``steep``, the scale on its lower bound `scale_min`. With 40
-trials 30-50% of simulated fits were that steep (maximum likelihood overestimates slopes with
-few trials: Wichmann and Hill 2001); their threshold is still an estimate, the slope is not.
-
-The first three (DEGENERATE) get no bootstrap interval (ci_low, ci_high NaN): simulating from a
-bound says nothing about where the threshold is. The others keep theirs.
-
-Interval: parametric bootstrap (`bootstrap_interval`): answers simulated from the fitted
-function at the same stimuli and trial counts, refitted with the same bounds, the percentile
-interval of the Weber fraction. The refits run vectorised over the replicates (`_fit_many`):
-starting points from a coarse grid and the fit itself, then projected Fisher scoring with step
-halving. Coverage of the generating Weber fraction, measured on 200 simulated participants per
-case (Gaussian and Weibull; 40 or 80 trials at 8 fixed levels or placed around the threshold as
-an adaptive procedure does; 60 at 10 levels): 87-95%, 91% typical, short of the nominal 95% as
-percentile intervals of maximum-likelihood thresholds from few trials are.
-
-`weber_table`: one row per participant and condition (columns WEBER_COLUMNS).
-
-`group_test(table)`: across conditions, on the participants with a finite Weber fraction in
-every condition ("complete"); needs >= 2 conditions and >= MIN_PARTICIPANTS complete
-participants, otherwise `estimable` is False, the tests None, `problems` says why. Pairs are
-(a, b) in `itertools.combinations(conditions, 2)` order, each effect b against a. JSON-able,
-NaN as None. Keys:
-
-- ``conditions`` (the order used), ``n_participants`` (complete), ``excluded`` (codes left out:
-  a condition missing or its Weber fraction not finite), ``n_not_converged`` (fits among those
-  used whose `converged` is False), ``estimable``, ``problems``;
-- ``mixed_model``: linear mixed model of ln(weber) on condition, participant as random intercept
-  (statsmodels MixedLM, ML). ``chi2``, ``df``, ``p``: likelihood-ratio test against the
-  intercept-only model, also by ML; ``loglik``, ``loglik_null``, ``variance_participant``,
-  ``variance_residual``, ``converged``, ``n_observations``, ``problem`` (None, or why a fit
-  failed: then the test is None);
-- ``friedman``: the rank check. ``test`` ("Friedman"; "Wilcoxon signed-rank" with 2 conditions),
-  ``statistic``, ``df`` (None for Wilcoxon), ``p`` (scipy's friedmanchisquare, tie-corrected;
-  wilcoxon with its defaults);
-- ``pairs``: per pair ``a``, ``b``, ``n``, ``ratio`` (geometric-mean ratio b / a: exp of the mean
-  ln difference), ``ratio_low``, ``ratio_high`` (95%, t on n - 1 df), ``t``, ``df``, ``p`` (paired t
-  on ln weber), ``p_holm`` (Holm over the pairs' t tests), ``wilcoxon`` (statistic), ``p_wilcoxon``,
-  ``p_wilcoxon_holm`` (Holm over the pairs' Wilcoxon tests).
-"""
+"""Psychometric functions of the two-interval stiffness discrimination task (studyctl/tasks.py):
+per participant and condition a maximum-likelihood fit (`fit_psychometric`) and its Weber fraction
+with a parametric-bootstrap interval (`bootstrap_interval`, `weber_table`). Degenerate data give a
+flagged fit (`FLAGS`), never NaN or an exception. The model, the fit, the flags and how well they
+recover known Weber fractions: docs/study.md, "The psychometric fit"; the group test across
+conditions: analysis/weber_groups.py."""
 
 from __future__ import annotations
 
@@ -106,23 +19,16 @@ from scipy import optimize, special, stats
 
 FUNCTIONS = ("gaussian", "weibull", "thurstone")
 # the reports' function: the two-interval observer of signal detection theory on the log stiffness
-# ratio (module docstring); measured on the synthetic QUEST+ runs (docs/study.md) it recovers the
-# generating Weber fraction with the smallest error and intervals that cover it 90% of the time
+# ratio, the one that recovers synthetic participants' Weber fractions best (docs/study.md)
 DEFAULT_FUNCTION = "thurstone"
 GUESS = 0.5  # two intervals
 LAPSE_MAX = 0.06
 # the steepest function fitted by "gaussian" and "weibull" (scale in ln delta; "thurstone" holds
-# its scale at 1): the Weibull slope 5, the steepest the QUEST+
-# procedure considers (studyctl/procedures.py). With a floor of 0.03 instead, 40-trial fits went
-# steeper still, and bootstraps simulated from near-steps covered the truth 82% (Gaussian) and
-# 85% (Weibull) of the time (200 simulated participants, 40 trials around the threshold, true
-# scale 0.5); with 0.2, 92.5% and 90.5%.
+# its scale at 1): the Weibull slope 5, the steepest the QUEST+ procedure considers
+# (studyctl/procedures.py); a lower floor let bootstraps from near-steps miss the truth (docs/study.md)
 SCALE_MIN = 0.2
-# replicates of the parametric bootstrap. Measured (CPU seconds on a loaded 2-core machine; 40
-# trials each, 35 participants x 3 conditions like the largest report): 1.2 s without a bootstrap,
-# 5.3 s with 250 replicates, 7.9 s with 500, 12.7 s with 1000: 55-135 microseconds a replicate,
-# 6-10 ms a fit. An endpoint's Monte Carlo standard deviation, as a share of the interval's
-# width: 6.6% with 250, 4.5% with 500, 3.7% with 1000.
+# replicates of the parametric bootstrap: its endpoints' Monte Carlo noise against the report's
+# time (both in docs/study.md)
 N_BOOT = 500
 BOOTSTRAP_SEED = 2015  # fixed: a report computed twice prints the same intervals
 LEVEL = 0.95
@@ -161,11 +67,11 @@ def _delta(function: str, x):
 
 @dataclasses.dataclass(frozen=True)
 class PsychometricFit:
-    """A maximum-likelihood psychometric function (module docstring). `location`, `scale` and
+    """A maximum-likelihood psychometric function (docs/study.md). `location`, `scale` and
     `width` are in ln(delta); `slope` is dP(correct)/d ln(delta) at the threshold (per e-fold of
     the increment; divide by `weber` for per unit delta). `width`: psignifit's, the ln-delta
     distance over which F rises from 5% to 95%. `converged` is False whenever `flag` is set but
-    to "steep" (module docstring). `ci_low`, `ci_high`: NaN unless fitted with n_boot > 0."""
+    to "steep" (docs/study.md: the flags). `ci_low`, `ci_high`: NaN unless fitted with n_boot > 0."""
 
     function: str
     guess: float
@@ -275,8 +181,7 @@ def _blas():
 
 def _one_blas_thread():
     """numpy's OpenBLAS to one thread while fitting: the products here are small, and its idle
-    workers spin for about 0.1 s after each threaded call (sim/linalg.py), which made a
-    bootstrap 5-10 times slower on 2 cores."""
+    workers spinning after each threaded call slowed a bootstrap several times (docs/study.md)."""
     return _blas().limit(limits=1, user_api="blas")
 
 
@@ -503,7 +408,7 @@ def _polish(function: str, guess: float, x, k, n, theta: np.ndarray, b: _Bounds,
     identity); each step is halved until the likelihood does not fall. A data set stops when
     its log-likelihood gains less than 1e-10, or after `max_iter` steps: the few still moving
     then creep along a ridge where the likelihood is flat to 1e-6 (a threshold anywhere in the
-    gap between two levels; measured: the intervals of 400 steps were those of 25)."""
+    gap between two levels: more steps did not change the intervals, docs/study.md)."""
     theta = theta.copy()
     n_b = np.broadcast_to(n, k.shape)
 

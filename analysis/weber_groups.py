@@ -2,7 +2,7 @@
 analysis/psychometric.py): a likelihood-ratio test of a linear mixed model of ln weber with a
 random intercept per participant, a rank check (Friedman, or Wilcoxon with two conditions),
 and every pair of conditions (geometric-mean ratio with its interval, paired t and Wilcoxon on
-ln weber, each family Holm-adjusted). Keys documented in analysis/jnd.py."""
+ln weber, each family Holm-adjusted). Keys: docs/study.md, "The psychometric fit"."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ NAN = float("nan")
 
 
 def group_test(table: pd.DataFrame, conditions: list[str] | None = None) -> dict:
-    """Across conditions (module docstring for the keys): the likelihood-ratio test of a linear
+    """Across conditions (keys: docs/study.md): the likelihood-ratio test of a linear
     mixed model of ln(weber) on condition with a random intercept per participant, Friedman (or
     Wilcoxon with two conditions) as the rank check, and every pair: the geometric-mean ratio
     with its interval, the paired t and the Wilcoxon signed-rank test on ln weber, each family

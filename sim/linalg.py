@@ -43,23 +43,9 @@ def _cholmod():
 
 
 def one_thread_pools() -> None:
-    """Run every OpenBLAS pool loaded by then (numpy's, scipy's, and the system's, which CHOLMOD
-    uses) on one thread, in every process that factorises; and the system's OpenMP runtime
-    (CHOLMOD links it) in the calling thread (an OpenMP setting is per thread).
-
-    - The same bits wherever the simulator runs on one machine. CHOLMOD's supernodal factor
-      splits its dense blocks across the threads, and the thread count changes the last bits of
-      every FEM and mass-spring result (measured: forces differ from the 15th digit between 1 and
-      2 threads; a rigid contact's chatter then went either way). With one thread a
-      case gives the same bits in this process, a local pool, a Dask worker (whose nanny sets
-      one thread anyway), a session and its replay.
-    - Speed. Two pools spinning on 2 cores fight: a CHOLMOD solve right after a numpy BLAS call
-      took 130 ms instead of 3 ms (numpy's OpenBLAS workers spin for about 0.1 s after each
-      call). One thread solves as fast or faster (32k unknowns, 3 right-hand sides: 24 ms
-      against 32 ms with two) and factorises 13-27% slower (0.74 s against 0.64 s at 32k, 2.3
-      against 1.7 s at 72k unknowns); the frames' work is solves and small products.
-    Across CPUs the bits may still differ (each CPU has its own OpenBLAS kernels).
-    """
+    """Every OpenBLAS pool loaded by then, and the system's OpenMP (CHOLMOD's) in the calling
+    thread, on one thread: a case gives the same bits in every process on one machine, and two
+    pools do not spin against each other. Why and what it costs: docs/accuracy.md."""
     from threadpoolctl import ThreadpoolController
 
     for lib in ThreadpoolController().lib_controllers:
