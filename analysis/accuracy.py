@@ -102,7 +102,7 @@ def default_settings(quick: bool) -> tuple[Setting, ...]:
     # with P2 is the reference itself. linear-p2-8mm is the scene's FEM (protocols/scenes/brain_pull.toml).
     fem_res = (8, 6) if quick else (8, 6, 4)
     corot_res = (8,) if quick else (8, 6)
-    ms_res = () if quick else (8,)  # the implicit step is 181 ms a frame on the 8 mm body-fitted mesh
+    ms_res = () if quick else (8,)  # the implicit step is slow on the body-fitted mesh (docs/accuracy.md)
     lg_res = (8, 6) if quick else (8, 6, 4)
     fem = [Setting("fem", f"linear-{r}mm", (("formulation", "linear"), ("resolution", r / 1000), ("order", 1))) for r in fem_res]
     fem += [Setting("fem", f"linear-p2-{r}mm", (("formulation", "linear"), ("resolution", r / 1000), ("order", 2))) for r in (8, 6)[: 1 if quick else 2]]

@@ -326,7 +326,7 @@ def across_p(x: np.ndarray) -> float:
     """The p-value across the conditions (columns) of paired values, for `plan`'s thousands of
     simulated studies: Friedman for three or more, the Wilcoxon signed-rank test for two (its
     normal approximation with the tie correction: with ties scipy's exact route is a
-    permutation test, 0.4 s a call); 1 when no participant differs."""
+    permutation test, too slow for thousands of calls); 1 when no participant differs."""
     from scipy.stats import wilcoxon
 
 

@@ -259,8 +259,7 @@ def accuracy(name: str, scene_path: Path, quick: bool, step=None) -> dict:
 
 UNKNOWN_SOLVE_S = 60.0  # a reference solve of a size with no shipped record: a guess, said as one
 # what a stability case costs beyond the model's own work (its scene, the servo loop), and the
-# compiled servo ticks' first compile in a fresh install: measured on 2 cores with the plate-spring
-# (20 cases, 1.7 s) and the example plugin from a fresh venv (7 cases, 2.9 s)
+# compiled servo ticks' first compile in a fresh install (how they were measured: docs/models.md)
 CASE_OVERHEAD_S, FIRST_RUN_S = 0.08, 2.0
 
 

@@ -190,7 +190,7 @@ class _Batch:
 
 def _rejections(batch: _Batch) -> dict[str, int]:
     """How many of the batch's simulated studies each test rejects at alpha."""
-    one_thread_pools()  # the model fits' small BLAS calls: 5.6x faster than two threads fighting on 2 cores
+    one_thread_pools()  # the model fits' small BLAS calls: two threads fighting on 2 cores are slower (docs/synthetic.md)
     rng = np.random.default_rng([batch.seed, batch.n, batch.index])
     hits = dict.fromkeys(batch.names, 0)
     for _ in range(batch.size):

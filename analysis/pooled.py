@@ -42,8 +42,7 @@ def pooled_webers(trials: pd.DataFrame, lapse_max: float = LAPSE_MAX, level: flo
     mean and spread integrated out (so their uncertainty widens the interval when there are few
     participants). Forty trials pin a Weber fraction down to about a quarter of itself; the
     group's spread says how far to trust that and pulls the noisiest fits toward the group
-    (measured on the synthetic QUEST+ runs: median error 16-18% against 22-23% unpooled, 92%
-    coverage; docs/study.md). Conditions with fewer than POOLED_MIN participants get no pooled
+    (its recovery of synthetic participants against unpooled fits: docs/study.md). Conditions with fewer than POOLED_MIN participants get no pooled
     value (NaN). Columns POOLED_COLUMNS."""
     _check_level(level)
     rows = []

@@ -527,7 +527,7 @@ def classify(scores: pd.DataFrame, groups: pd.Series, order: Sequence[str] | Non
     model = make_pipeline(SimpleImputer(strategy="median"), StandardScaler(),
                           LogisticRegression(C=C, class_weight="balanced", max_iter=2000))
     cv = LeaveOneOut()
-    with threadpool_limits(1):  # thousands of tiny fits: BLAS threads only contend (5x slower on 2 cores)
+    with threadpool_limits(1):  # thousands of tiny fits: BLAS threads only contend (docs/synthetic.md)
         pred = cross_val_predict(model, X, y, cv=cv)
         score, _, p = permutation_test_score(model, X, y, cv=cv, n_permutations=n_permutations,
                                              random_state=seed, scoring="accuracy")

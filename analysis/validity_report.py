@@ -31,7 +31,7 @@ from studyctl import instruments
 from studyctl.errors import StudyError
 
 DEFAULT_PERMUTATIONS = 100
-DEFAULT_GROUP_PERMUTATIONS = 1000  # the group tests' Westfall-Young adjustment: ~0.1 s for 30 participants x 20 metrics
+DEFAULT_GROUP_PERMUTATIONS = 1000  # the group tests' Westfall-Young adjustment (its cost: docs/analysis.md)
 DEFAULT_BOOTSTRAP = 200
 
 SESSION = ""  # the condition of an answer given once at the end of the session

@@ -272,8 +272,8 @@ def corotated_minus_linear(u, nodes, tets, Ke, R, out):
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) every kernel for the argument types the models pass,
-    on tiny inputs: about 1.5 s in a fresh process, spent when a model is built rather than in
-    the first deformation frame of a trial (where it stalled the participant's view)."""
+    on tiny inputs, spent when a model is built rather than in the first deformation frame of
+    a trial (where it stalled the participant's view; the cost: docs/scenes.md)."""
     x = np.zeros((2, 3))
     idx = np.array([0], dtype=np.int64)
     spring_rhs(x, idx, idx + 1, np.ones(1), np.ones(1), np.array([0, 1], dtype=np.int64), 2)
@@ -292,8 +292,8 @@ def warm_up() -> None:
 @numba.njit(cache=True, fastmath=False)
 def vertex_normals(x, triangles):
     """Unit vertex normals of a triangle surface, each the area-weighted mean of its faces'
-    normals: one pass over the triangles, then one over the vertices (0.2 ms for the brain's
-    41k triangles here, against 5.4 ms in NumPy with bincount: the view recomputes them every frame)."""
+    normals: one pass over the triangles, then one over the vertices (compiled because the view
+    recomputes them every frame; against NumPy: docs/participant.md)."""
     n = np.zeros((x.shape[0], 3))
     for t in range(triangles.shape[0]):
         a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]

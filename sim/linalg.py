@@ -103,8 +103,8 @@ class Factor:
 
     def __init__(self, A, *, simplicial: bool = False, _factor=None, _shift: float = 0.0):
         """`simplicial`: CHOLMOD's simplicial L D L^T, for small systems solved many times (the
-        mass-spring's local/global step: a solve 1.9 ms against 3.7 ms supernodal at 6785
-        unknowns with three right-hand sides); positive definiteness is then checked on D."""
+        mass-spring's local/global step, where it solves faster than a supernodal one:
+        docs/mass_spring.md); positive definiteness is then checked on D."""
         A = _csc(A)
         self.n = A.shape[0]
         self.shift = _shift  # the factor is of A + shift * I (see `shifted_factor`)

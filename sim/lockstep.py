@@ -2,7 +2,7 @@
 
 A synthetic study spends most of its servo time in Python: 3000 ticks a 3 s pull, each reading
 two simulated Omnis (the operator's hand dynamics), evaluating two force laws and the safety
-rules, about 90 us a tick. Most ticks are quiet: no button changes, no fault, no safety rule
+rules (the cost: docs/scenes.md). Most ticks are quiet: no button changes, no fault, no safety rule
 acts, nothing is logged. `CompiledTicks` runs those in one compiled loop with the arithmetic of
 `ServoLoop.tick`, `SimulatedOmni.read`/`write_force`, `PullScript.target` and the laws
 (`sim/laws.py`) written out in the same order, so the trace is the same to the bit (Python's `x ** 2` and `t ** 3` are the C library's pow, which

@@ -5,7 +5,7 @@ hemisphere). This is a bounded functional (its dual is a uniform traction on a d
 of the surface), so a model refined towards the continuum approaches a limit. The mean of the
 few surface vertices inside the radius is not: in 3D elasticity the compliance of a point load
 is unbounded, and a handful of vertices on the 3.1 mm fsaverage5 surface is close to that
-(docs/reference.md measured -12% per refinement with no sign of settling).
+(docs/reference.md: it falls with each refinement, with no sign of settling).
 
 `patch_area_points` gives the quadrature (points and weights) for a reference that
 interpolates its own field at the points; `patch_vertex_weights` folds the same quadrature

@@ -4,9 +4,8 @@ the force arrows, then a flat overlay of panels and text, into a window or an of
 Why moderngl (with glfw for the window, EGL without a display): a frame costs what its
 triangles cost. The brain's positions and normals are written into buffers that live on the
 GPU (or Mesa's CPU driver) and drawn in one call; instruments and arrows are small meshes placed
-by a matrix; text is textured quads from a font atlas (sim/font.py). Measured here at 1280x720
-under Xvfb with one llvmpipe rasteriser thread: 15-19 ms a frame p50, where open3d's classic
-visualiser took 75-82 ms (`python -m bench render`, docs/participant.md).
+by a matrix; text is textured quads from a font atlas (sim/font.py). Several times faster than
+open3d's classic visualiser (`python -m bench render`, docs/participant.md).
 
 Conventions: world coordinates in metres; overlay coordinates in framebuffer pixels from the top
 left corner (x right, y down), as the mouse reports them.

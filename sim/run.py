@@ -531,7 +531,7 @@ def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: floa
     """Every tick, and a visual step after the tick that reaches each frame's time. The quiet
     ticks between frames run compiled where the run allows it (sim/lockstep.py: the same bits),
     the others in Python."""
-    try:  # here, not at the top: numba (0.3 s) only where a lockstep run needs it; without numba every tick in Python
+    try:  # here, not at the top: numba's import cost only where a lockstep run needs it; without numba every tick in Python
         from sim.lockstep import CompiledTicks  # lazy: numba, only for a compiled lockstep run
     except ImportError:
         CompiledTicks = None

@@ -1,8 +1,7 @@
 """The servo loop in its own process, so rendering and deformation cannot delay it.
 
-Threads of one Python process share an interpreter lock: measured here, open3d drawing a
-frame in the visual thread holds it for about 40 ms, and a servo thread beside it ran 946 of
-5000 ticks in 5 s (p99 interval 39 ms). So in real-time runs the devices and the servo tick live
+Threads of one Python process share an interpreter lock: a frame drawn in the visual thread
+holds it long enough to starve a servo thread beside it (docs/scenes.md). So in real-time runs the devices and the servo tick live
 in a child process (started with "spawn": a clean interpreter that imports only the servo's
 modules), and the two sides talk through
 

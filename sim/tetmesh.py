@@ -9,7 +9,7 @@ simulator's resolutions (SHIPPED_MM), and the coarse ones the test suite's small
 solves use (TEST_MM), are made once and shipped in `data/` with their provenance and content
 hash (`data/brain_tets.json`, `scripts/make_tet_meshes.py`). Any other
 size, or another surface, is meshed on first use and cached on disk
-(``$BRAINSIM_CACHE/reference``); fTetWild takes 0.5-1.5 minutes per hemisphere and size.
+(``$BRAINSIM_CACHE/reference``): fTetWild is slow (docs/fem.md).
 """
 
 from __future__ import annotations

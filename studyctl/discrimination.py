@@ -25,9 +25,8 @@ from studyctl.traces import write_trace
 
 INTERVALS = ("1", "2")
 _STIMULI: dict = {}  # (the condition's scene, scale) -> its scaled scene: the few a procedure keeps trying
-# FEM scenes share their factors (`LinearFem.scaled`); a mass-spring's is rebuilt (0.2 s). Keeping
-# all 35 of QUEST+'s stimuli instead saved nothing measurable (4 participants in one process: 71.6 s
-# against 72.0 s) and held 770 MB more.
+# FEM scenes share their factors (`LinearFem.scaled`); a mass-spring's is rebuilt. Keeping all 35
+# of QUEST+'s stimuli instead saved no time and held much more memory (docs/synthetic.md).
 STIMULI_KEPT = 6
 
 

@@ -124,8 +124,8 @@ class QuestPlusProcedure:
     (`estimate`: the posterior mean of that, in log10). Prior: uniform over the grid.
 
     Grid: thresholds on the stimulus grid (35 for the task's 0.02..1), 5 slopes, 4 lapse rates:
-    700 parameter sets, about 5 ms a trial (1.4 ms the update, 3.6 ms the next delta's expected
-    entropies, the package's xarray arithmetic); the cost grows with the grid. Slopes 2..5 (as
+    700 parameter sets (a trial's cost, most of it the next delta's expected entropies:
+    docs/study.md); the cost grows with the grid. Slopes 2..5 (as
     Watson's) recovered the synthetic observers' Weber fractions worse (35% median error
     against 20%, biased up by 30%); the shallow grid costs steep observers a bias of about -10%.
     """

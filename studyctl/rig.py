@@ -2,8 +2,8 @@
 runs the study, which the synthetic observer perceives as latency (studyctl/observer.py).
 
 Without a profile the observer turns each frame's counted work into time with one flop rate
-fitted on one machine (`frame_ms`), which can be far from the rig: `python -m bench observer`
-found the mass-spring predicted at 4.8x its measured time here. With one, a synthetic study
+fitted on one machine (`frame_ms`), which can be far from the rig (`python -m bench observer`:
+docs/study.md). With one, a synthetic study
 predicts the rig it will run on, and stays deterministic (the profile is a fixed number per
 configuration, not a timing taken during the session).
 

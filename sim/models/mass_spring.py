@@ -465,8 +465,8 @@ class MassSpringModel(MassSpringBase):
         """This model with Young's modulus times `scale` (the discrimination task's stimulus):
         every spring's stiffness is linear in E (`from_tets`), the masses are not, so the
         springs are scaled and the system built again (its local/global factor depends on them).
-        The surface's embedding and the node tree depend on the geometry alone: shared (0.2 s of
-        the 0.28 s a stimulus cost to build on the 8 mm mesh)."""
+        The surface's embedding and the node tree depend on the geometry alone: shared (most of
+        a stimulus's build cost: docs/mass_spring.md)."""
         s = self.system
         out = copy.copy(self)
         out.system = MassSpring(s.rest_positions, s.springs, s.k * float(scale), s.m, fixed=s.fixed, damping=s.damping, acceleration=s.acceleration)

@@ -5,7 +5,7 @@ each solved by conjugate gradients preconditioned with the local/global matrix `
 (prefactored; the anchors by its Woodbury update). The Laplacian as a Hessian approximation
 is Liu, Bouaziz and Kavan 2017 ("Quasi-Newton methods for real-time simulation of
 hyperelastic materials"); here it preconditions the exact Hessian instead of seeding L-BFGS
-(measured at 4 mm: 18 solves to 1% of the step, L-BFGS 22, Anderson 17; docs/mass_spring.md).
+(the two compared: docs/mass_spring.md).
 
 `iterations` counts solves with the prefactored matrix (each comes with one pass over the
 springs, a Hessian product or a gradient): the unit of cost of a local/global iteration.

@@ -46,7 +46,7 @@ def element_rotations(fem: LinearFem, u: np.ndarray, elements: np.ndarray | None
     tets, grads, _ = _element_arrays(fem, elements)
     F = np.empty((len(tets), 3, 3))
     kernels.deformation_gradients(np.ascontiguousarray(u, dtype=np.float64), tets, grads, F)
-    polar_rotations = kernels.polar_rotations  # compiled scaled-Newton polar iteration: 16x the batched SVD, the same R to 1e-14
+    polar_rotations = kernels.polar_rotations  # compiled scaled-Newton polar iteration: faster than the batched SVD, the same R (docs/fem.md)
     R, det = np.empty_like(F), np.empty(len(F))
     left = polar_rotations(np.ascontiguousarray(F), R, det)
     if left.any():  # inverted (det F <= 0): the SVD's nearest rotation

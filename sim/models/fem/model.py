@@ -37,8 +37,8 @@ DEFAULT_ORDER = 2  # quadratic tetrahedra: P1 locks at the brain's Poisson ratio
 GRASPS_KEPT = 16  # condensed grasps kept per model (`FemModel.grasp`): a session's grasps land on a few vertices
 COROT_FORCE_LIMIT = 3.0  # a corotational force this many times the linear one for the same grasp is a runaway
 # Assembled, factorised parts by content: a process that builds the same scene again (a session's
-# conditions, each synthetic participant, a sweep's cases) reuses them: P2 on the 8 mm mesh costs
-# about 6 s to assemble and factorise, and some 300 MB per hemisphere, so only a few are kept.
+# conditions, each synthetic participant, a sweep's cases) reuses them; they are slow to build
+# and large (docs/fem.md), so only a few are kept.
 _PARTS: dict = {}
 PARTS_KEPT = 4
 
@@ -118,7 +118,7 @@ class FemModel(FemBase):
         self._pair_of: tuple | None = None  # (the two contacts' data, their pair stiffness)
         self._grasps: dict[int, tuple] = {}  # surface vertex -> its condensed grasp (`grasp`)
         # surface vertex -> (part, W, the factor's unscaled solve of W^T): the costly part of a
-        # grasp (location and three solves, 60 ms at P2 8 mm), shared with every stiffness-scaled
+        # grasp (location and three solves), shared with every stiffness-scaled
         # copy (`with_stiffness`: the same factor), whose grasps then cost a division and W U
         self._located: dict[int, tuple] = {}
         self._out = np.zeros_like(surface.vertices)
@@ -195,8 +195,7 @@ class FemModel(FemBase):
 
     def _condensed(self, v: int) -> tuple:
         """(part, W, U, C, K) of a grasp at surface vertex `v`: a function of the vertex alone,
-        computed once per model (about 0.1 s at P2 8 mm: three solves and the patch's location;
-        the motor model grasps the same few vertices in every trial of a session). U and C are
+        computed once per model (three solves and the patch's location; the motor model grasps the same few vertices in every trial of a session). U and C are
         read-only: every grasp at `v` shares them."""
         hit = self._grasps.pop(v, None)
         if hit is None:

@@ -127,8 +127,7 @@ def hold(system, W: sp.csr_matrix, target, fractions=(1.0,), *, first_step: floa
 class _Steps:
     """The constrained Newton step, [K -W^T; W 0] [du; dl] = [-r; -gap], for one solve.
 
-    Factorising the tangent is most of a Newton iteration's cost (CHOLMOD, about 1 s at 45k
-    unknowns, 5 s at 130k), so the step is found by GMRES on the KKT system, preconditioned by
+    Factorising the tangent is most of a Newton iteration's cost (CHOLMOD; docs/material.md), so the step is found by GMRES on the KKT system, preconditioned by
     the exact step of the last factorised tangent (its factor and K0^-1 W^T kept); the tangent is
     factorised afresh when GMRES needs more than `REFRESH` iterations. Where K is not positive
     definite (compression can make it so while the constrained problem is not), the factor is
