@@ -377,8 +377,8 @@ def _fit_many(function: str, guess: float, x, k, n, b: _Bounds, warm: np.ndarray
     per data set: `warm` (the fitted parameters), the best point of a coarse grid, and the best
     at each other lapse rate of the grid when within 2 log-likelihood units of it (the other
     basin: lapses or a shallower function explaining the same errors). Every start gets a few
-    steps of `_polish`, the best of each data set is polished to the end. (Better of `warm` and
-    the grid's best alone missed the maximum in 3.4% of replicates, these starts in 1.1%.)"""
+    steps of `_polish`, the best of each data set is polished to the end. (`warm` and the grid's
+    best alone missed the maximum more often: docs/study.md.)"""
     pts = _grid(b, 21, 11, 3)
     t = _terms(function, guess, x, pts[:, :1], pts[:, 1:2], pts[:, 2:])  # (G, J)
     ll_grid = k @ t.logP.T + (n - k) @ t.log1mP.T  # (B, G): one matrix product for every data set
