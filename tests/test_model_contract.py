@@ -166,7 +166,6 @@ def test_a_protocol_lists_plate_spring_with_a_dash(tmp_path):
 def test_a_deformation_of_the_wrong_shape_is_a_model_fault_with_zero_force_not_a_traceback(tmp_path, time_scale):
     target = f"{BAD}:WrongShape"
     path = plugin_scene(tmp_path, target)
-    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{target}"]'))
     env = {k: v for k, v in os.environ.items() if k != "STUDYCTL_DB"} | {"PYTHONPATH": str(ROOT)}
     res = _studyctl(env, "sim", "run", "--scene", path, "--model", target, "--time-scale", time_scale, "--duration", "1", "--json")
     assert res.returncode == 0, res.stderr
@@ -179,7 +178,6 @@ def test_a_deformation_of_the_wrong_shape_is_a_model_fault_with_zero_force_not_a
 def test_sim_run_says_why_a_model_fault_happened_after_its_table(tmp_path):
     target = f"{BAD}:WrongShape"
     path = plugin_scene(tmp_path, target)
-    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{target}"]'))
     res = studyctl("sim", "run", "--scene", path, "--model", target, "--time-scale", "0", "--duration", "1")
     assert res.exit_code == 0, res.output
     lines = [ln for ln in res.output.splitlines() if ln.startswith("model_fault: ")]
@@ -190,7 +188,6 @@ def test_sim_run_says_why_a_model_fault_happened_after_its_table(tmp_path):
 def test_sim_run_json_lists_each_model_fault_s_detail(tmp_path):
     target = f"{BAD}:WrongShape"
     path = plugin_scene(tmp_path, target)
-    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{target}"]'))
     res = studyctl("sim", "run", "--scene", path, "--model", target, "--time-scale", "0", "--duration", "1", "--json")
     assert res.exit_code == 0, res.output
     faults = json.loads(res.output)["faults"]
@@ -202,7 +199,6 @@ def test_sim_run_says_a_nan_force_was_zeroed_and_for_which_hand(tmp_path):
     """The scene has two hands, both pulling: one line each."""
     target = f"{BAD}:NanForce"
     path = plugin_scene(tmp_path, target)
-    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{target}"]'))
     res = studyctl("sim", "run", "--scene", path, "--model", target, "--time-scale", "0", "--duration", "1")
     assert res.exit_code == 0, res.output
     lines = [ln for ln in res.output.splitlines() if ln.startswith("nan_force: ")]
@@ -211,8 +207,7 @@ def test_sim_run_says_a_nan_force_was_zeroed_and_for_which_hand(tmp_path):
 
 
 def test_a_force_of_two_numbers_is_a_model_fault_in_the_servo(tmp_path):
-    path = plugin_scene(tmp_path, f"{BAD}:Spring")
-    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{BAD}:TwoFloatForce"]'))
+    path = plugin_scene(tmp_path, f"{BAD}:TwoFloatForce")
     result = run_scene(build_scene(path, f"{BAD}:TwoFloatForce"), duration=1.0, time_scale=0.0)
     faults = [e.detail for e in result.events if e.kind == "model_fault"]
     assert faults == ["model_fault: force: returned 2 numbers; allowed: (fx, fy, fz), three floats in N"]
@@ -223,7 +218,6 @@ def test_sim_run_says_when_force_calls_are_over_their_budget(env, tmp_path):
     """The slow plugin's force takes 50 us a call against a budget of 20."""
     target = f"{BAD}:SlowForce"
     path = plugin_scene(tmp_path, target)
-    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{target}"]'))
     res = _studyctl(env, "sim", "run", "--scene", path, "--model", target, "--time-scale", "0", "--duration", "1")
     assert res.returncode == 0, res.stderr
     lines = [ln for ln in res.stdout.splitlines() if ln.startswith("over_budget: ")]
@@ -333,8 +327,7 @@ def test_model_wheel_refuses_a_value_of_the_wrong_type_in_one_line(tmp_path, old
 
 
 def test_a_scene_configuring_a_model_that_does_not_load_still_runs_its_other_models(env, tmp_path):
-    path = plugin_scene(tmp_path, f"{BAD}:Spring")
-    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', "[models.bad_default]"))
+    path = plugin_scene(tmp_path, "bad_default")
     ok = _studyctl(env, "sim", "run", "--scene", path, "--model", "plate_spring", "--time-scale", "0", "--duration", "0.5", "--json")
     assert ok.returncode == 0, ok.stderr
     assert json.loads(ok.stdout)["model"] == "plate_spring"
@@ -349,7 +342,6 @@ def test_a_real_time_run_logs_force_calls_over_their_budget_as_an_event(tmp_path
     kept in the trace a session stores."""
     target = f"{BAD}:SlowForce"
     path = plugin_scene(tmp_path, target)
-    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{target}"]'))
     result = run_scene(build_scene(path, target), duration=1.0, time_scale=1.0)
     events = [e.detail for e in result.events if e.kind == "over_budget"]
     assert len(events) == 1 and events[0].startswith("over_budget: force: "), events
@@ -363,7 +355,6 @@ def test_a_real_time_run_logs_force_calls_over_their_budget_as_an_event(tmp_path
 def test_diagnostics_and_reset_that_raise_are_one_line_not_a_traceback(tmp_path, cls, rc, line):
     target = f"{BAD}:{cls}"
     path = plugin_scene(tmp_path, target)
-    path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{target}"]'))
     env = {k: v for k, v in os.environ.items() if k != "STUDYCTL_DB"} | {"PYTHONPATH": str(ROOT)}
     res = _studyctl(env, "sim", "run", "--scene", path, "--model", target, "--time-scale", "0", "--duration", "0.5", "--json")
     assert res.returncode == rc, res.stderr
