@@ -170,10 +170,11 @@ def calibrate_field(scene_file, out_file, params_out, formulation, force, as_jso
         rep = _with_progress("stiffness field sites", lambda p: field.build_field(scene_file, tmp, progress=p))
         rep["path"] = str(field_target.target)
         if params_out:
-            start = load_scene(scene_file).model_spec("plate_spring").options["params"]
+            scene = load_scene(scene_file)
+            start = scene.model_spec("plate_spring").options["params"]
             xs = sample_displacements(AccuracyConfig())
             params, fit_rep = field.fit_shape(scene_file, start, xs, formulation)
-            law = load_scene(scene_file).material.law
+            law = scene.material.law
             params = dataclasses.replace(params, E=law.shear_modulus)  # the field is per pascal of the law's shear modulus
             how = ("a one-layer stack: a straight curve, so the force is E K(v) d, the law's small-strain limit" if formulation == "small-strain" else
                    f"fitted to the mean finite-strain / small-strain force ratio ({', '.join(f'{r:.3f}' for r in fit_rep['finite_over_small_strain'])})\n"
