@@ -30,7 +30,7 @@ import numpy as np
 
 from sim.errors import ParameterError, SceneError
 from sim.models.base import BUDGETS, contact_checked, surface_checked
-from sim.servo import SLOW_CALLS_MIN, Event, Hand, ServoLoop
+from sim.servo import Event, Hand, ServoLoop, too_many_slow_calls
 from sim.targets import TargetTracker
 
 # a run keeps every tick in memory (about 110 bytes per tick for two hands): one hour is
@@ -366,12 +366,12 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
 
 def visual_budget_lines(visual: VisualStep) -> list[str]:
     """One line per visual-side call of this run that passed its budget (sim.models.api.BUDGETS,
-    99th percentiles): a frame's deformation when more than 1% of the frames, and at least
-    `SLOW_CALLS_MIN`, took longer; a grasp when any did (a run has a few)."""
+    99th percentiles): a frame's deformation when `sim.servo.too_many_slow_calls` says so of the frames
+    that took longer; a grasp when any did (a run has a few)."""
     out = []
     frames = np.asarray(visual.deformation_s) * 1e3
     budget = BUDGETS["deformation_ms_p99"]
-    if (over := int((frames > budget).sum())) > 0.01 * len(frames) and over >= SLOW_CALLS_MIN:
+    if too_many_slow_calls(over := int((frames > budget).sum()), len(frames)):
         out.append(f"over_budget: deformation: {over} of {len(frames)} frames took over {budget:g} ms (worst {frames.max():.1f} ms); "
                    f"budget: {budget:g} ms at the 99th percentile (docs/models.md)")
     grasps = np.asarray(visual.grasp_s) * 1e3

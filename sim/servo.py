@@ -24,6 +24,12 @@ FORCE_BUDGET_S = BUDGETS["force_us_p99"] * 1e-6
 SLOW_CALLS_MIN = 3  # one slow call (a cold cache, a collection) is not a model's cost
 
 
+def too_many_slow_calls(over: int, calls: int) -> bool:
+    """Whether `over` of a run's `calls` past their budget say the model is slow: more than 1% of
+    them (the budgets are 99th percentiles) and at least `SLOW_CALLS_MIN`."""
+    return over > 0.01 * calls and over >= SLOW_CALLS_MIN
+
+
 def wait_until(deadline: float, spin: float) -> None:
     """Sleep until `spin` seconds before `deadline` on perf_counter, then spin: sleep alone
     wakes up late by a fraction of a millisecond."""
@@ -168,7 +174,7 @@ class ServoLoop:
         longer than the force budget (its 99th percentile), else None; the count starts again."""
         calls, over, worst = self.force_calls, self.force_over, self.force_worst_s
         self.force_calls, self.force_over, self.force_worst_s = 0, 0, 0.0
-        if over <= 0.01 * calls or over < SLOW_CALLS_MIN:
+        if not too_many_slow_calls(over, calls):
             return None
         return (f"over_budget: force: {over} of {calls} calls took over {FORCE_BUDGET_S * 1e6:g} us (worst {worst * 1e6:.0f} us); "
                 f"budget: {FORCE_BUDGET_S * 1e6:g} us at the 99th percentile (docs/models.md)")
