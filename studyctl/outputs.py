@@ -136,6 +136,15 @@ class Staged:
         elif os.path.lexists(self.tmp):
             self.tmp.unlink()
 
+    def write(self, data: str | bytes) -> None:
+        """A single file's whole content (text as UTF-8, its line ends as given), then moved."""
+        with self as tmp:
+            if isinstance(data, bytes):
+                tmp.write_bytes(data)
+            else:
+                with open(tmp, "w", encoding="utf-8", newline="") as fh:
+                    fh.write(data)
+
     def final(self, path) -> Path:
         """Where a file written under the temporary name ends up."""
         return self.target / Path(path).relative_to(self.tmp) if self.folder else self.target
@@ -160,10 +169,5 @@ class Staged:
 def write_file(path, data: str | bytes, force: bool = False, mode: int | None = None) -> list[Path]:
     """`data` to `path`, whole or not at all; returns the replaced file ([] when it was new)."""
     staged = Staged(path, force, mode=mode)
-    with staged as tmp:
-        if isinstance(data, bytes):
-            tmp.write_bytes(data)
-        else:
-            with open(tmp, "w", encoding="utf-8", newline="") as fh:
-                fh.write(data)
+    staged.write(data)
     return staged.replaced

@@ -166,8 +166,7 @@ def say_replaced(out: Staged | None) -> None:
 
 def write_output(out: Staged, text: str) -> None:
     """A text output, whole or not at all, saying where --force overwrote it."""
-    with out as tmp:
-        tmp.write_text(text, encoding="utf-8")
+    out.write(text)
     say_replaced(out)
 
 
