@@ -14,10 +14,10 @@ from __future__ import annotations
 import base64
 import hashlib
 import re
-import tomllib
 import zipfile
 from pathlib import Path
 
+from sim.tomlfile import TomlFileError, read_toml
 from studyctl.errors import InputError
 from studyctl.outputs import Staged
 
@@ -33,10 +33,10 @@ def _project(folder: Path) -> tuple[dict, Path]:
     path = folder / "pyproject.toml"
     if not path.is_file():
         raise InputError(f"{path}: no such file; a model package has a pyproject.toml (docs/models.md)")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not TOML: {exc}") from None
+    try:  # the project's one TOML reader: a regular file, size and depth bounded, errors with a line
+        data, _ = read_toml(path)
+    except TomlFileError as exc:
+        raise InputError(str(exc)) from None
     project = data.get("project")
     if not isinstance(project, dict):
         raise InputError(f"{path}: project: missing; allowed: a [project] table with name and version")
