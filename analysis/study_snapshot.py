@@ -86,14 +86,15 @@ def read_study(store) -> Study:
     mixed = snapshot.mixed_source_codes(store)
     orders = snapshot.condition_orders(store)
     protocol = store.protocol()
+    stored = snapshot.answers(store)  # read once: the answers and who is complete among them
     fields = [{"code": code, "field": k, "value": v} for code, values in read_fields(store, protocol).items() for k, v in values.items()]
     return Study(
         protocol=protocol,
-        answers=snapshot.answers(store),
+        answers=stored,
         synthetic_participants=synthetic,
         person_participants=persons,
         mixed_source_participants=mixed,
-        completeness=snapshot.completeness(store, protocol),
+        completeness=snapshot.completeness(store, protocol, stored=stored),
         periods=_periods(orders),
         latency=snapshot.latency(store),
         latency_trials=snapshot.latency_trials(store),

@@ -51,10 +51,11 @@ def answer_sources(store: Store) -> pd.DataFrame:
     return _frame(store, "select distinct code, source from answers order by code")
 
 
-def completeness(store: Store, protocol, only: set[str] | None = None) -> Completeness:
+def completeness(store: Store, protocol, only: set[str] | None = None, stored: pd.DataFrame | None = None) -> Completeness:
     """Who is complete, who is not and of which kind (studyctl.completeness: the one rule every
-    count uses); `only`: count these codes alone."""
-    return count_complete(protocol, answers(store), answer_sources(store), only)
+    count uses); `only`: count these codes alone; `stored`: `answers(store)` where the caller
+    has read it already."""
+    return count_complete(protocol, answers(store) if stored is None else stored, answer_sources(store), only)
 
 
 def latency(store: Store) -> pd.DataFrame:
