@@ -125,7 +125,7 @@ def corotational_pull() -> dict:
     scene.model_spec = dataclasses.replace(scene.model_spec, options={**scene.model_spec.options, "formulation": "corotational", "order": 1})
     model = scene.model
     updates = []
-    advance = model.advance  # what a lockstep run without pictures calls each frame
+    advance = model.advance  # the FEM's deformation advances its state, then reads the surface
 
     def counted(contacts, displacements):  # which frames refactorised
         before = model.tangent_updates

@@ -100,28 +100,17 @@ class VisualStep:
     # needs, since its judgement reads each hand's first hold only (studyctl/observer.py)
     end_on_release: bool = False
     grasp_reach: float = 0.01  # a button press farther than this from the surface grasps nothing
-    # a run that draws nothing (lockstep, no pictures): each frame only `advance`s the model, and
-    # its surface is computed when a grasp needs it (the traces are the same: no force reads it)
-    lazy_surface: bool = False
     _next_snapshot: float = 0.0
     _tree: object = None
-    _stale: bool = False  # the model advanced since `last` was taken (lazy_surface)
     _grasped: set = field(default_factory=set)  # hands that have held the tissue in this run
     _last_fault: str | None = None
 
-    def _surface_tree(self, t: float):
+    def _surface_tree(self):
         """Closest-point structure of the surface as it is now (rebuilt at most once a frame,
         and only when a grasp needs it)."""
         if self._tree is None:
             from scipy.spatial import cKDTree
 
-            if self._stale:
-                self._stale = False
-                try:
-                    self.last = surface_checked(self.model.surface_displacement(), self.model_mesh())
-                except Exception as exc:  # a surface the model cannot give: the surface at rest, grasps dropped
-                    self._fault(t, f"surface_displacement: {exc}")
-                    self.last = None
             mesh = self.model_mesh()
             if self.last is None or not self.last.any():  # the surface at rest: its tree is the mesh's, built once
                 self._tree = _rest_tree(mesh)
@@ -166,7 +155,7 @@ class VisualStep:
                 start = time.perf_counter()
                 h.grasp_request = None
                 # collide with the deformed surface; the model grasps that vertex at rest
-                dist, vertex = self._surface_tree(t).query(request)
+                dist, vertex = self._surface_tree().query(request)
                 if dist > self.grasp_reach:
                     self.events.append(Event(t, h.index, "grasp_missed", f"surface {dist * 1e3:.1f} mm away"))
                     continue
@@ -193,20 +182,14 @@ class VisualStep:
         start = time.perf_counter()
         flops = math.nan
         try:
-            if self.lazy_surface:
-                self.model.advance(contacts, displacements)
-                u = None
-            else:
-                u = surface_checked(self.model.deformation(contacts, displacements), self.model_mesh())
+            u = surface_checked(self.model.deformation(contacts, displacements), self.model_mesh())
             flops = float(self.model.frame_flops)
         except Exception as exc:  # the model failed: drop the grasps (zero force), keep running
             self._fault(t, f"deformation: {exc}")
             u = np.zeros_like(self.model_mesh().vertices)
         self.deformation_s.append(time.perf_counter() - start)
         self.frame_flops.append(flops)  # a failed frame: no count (never the last frame's)
-        self._stale = u is None
-        if u is not None:
-            self.last = u  # the latest surface displacement, for live drawing
+        self.last = u  # the latest surface displacement, for live drawing and a grasp's collision
         if self.targets is not None:
             self.targets.update(t, self.hands)
         if self.snapshot_period is not None and t + 1e-9 >= self._next_snapshot:
@@ -347,10 +330,10 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
     hands = [Hand(index=i, name=h.name, device=d) for i, (h, d) in enumerate(zip(spec.hands, devices))]
     servo_loop = ServoLoop.for_devices(model, hands, rate)
     snapshot_period = 1.0 / spec.renderer.fps if snapshots else None
-    # every frame computes the surface a person's view would draw, so the deformation time
-    # measures a participant's frame (a lazy surface times only the model's advance)
+    # every frame computes the surface a person's view would draw, pictures or not: the
+    # deformation time measures a participant's frame
     visual = VisualStep(model=model, hands=hands, events=servo_loop.events, snapshot_period=snapshot_period,
-                        targets=_tracker(scene), end_on_targets=end_on_targets, end_on_release=end_on_release, lazy_surface=False)
+                        targets=_tracker(scene), end_on_targets=end_on_targets, end_on_release=end_on_release)
     n_ticks = int(round(duration * rate))
     try:
         starts, misses, wall = _run_lockstep(servo_loop, visual, n_ticks, rate, spec.visual_rate_hz)

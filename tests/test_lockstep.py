@@ -117,34 +117,10 @@ def test_squares_are_python_s_pow_not_a_product(monkeypatch):
         [(h.mean_square.hex(), h.max_force.hex(), h.over_budget, h.ticks) for h in b.hands]
 
 
-@pytest.mark.parametrize("model", ["fem", "mass_spring", "plate_spring"])
-def test_a_lazy_surface_is_the_frame_s_surface(model):
-    """A lockstep run without pictures only `advance`s the model each frame; the surface asked
-    for later (a grasp's collision) is the one `deformation` gives, to the bit."""
-    scene = Scene(load_scene(SCENE), model=model)
-    m = scene.model
-    contacts = [m.grasp(scene.script(i).start, i) for i in range(2)]
-    pulls = [np.asarray(scene.script(i).pull) for i in range(2)]
-    frames = [[tuple(p * k / 6) for p in pulls] for k in range(1, 7)] + [[]]
-    eager, lazy = [], []
-    for out, lazily in ((eager, False), (lazy, True)):
-        m.reset()
-        for ds in frames:
-            held = contacts[: len(ds)]
-            if lazily:
-                m.advance(held, ds)
-                out.append(m.surface_displacement().copy())
-            else:
-                out.append(np.array(m.deformation(held, ds)))
-    assert all(a.tobytes() == b.tobytes() for a, b in zip(eager, lazy))
-    assert np.abs(eager[-2]).max() > 1e-3  # the pulled surface moved
-
-
 def test_a_late_grasp_collides_with_the_deformed_surface_with_pictures_or_without(monkeypatch):
     """The second hand grasps after the first has pulled: with pictures and without, the same
     grasp, trace and events (a run computes every frame's surface either way, so its
-    deformation time measures a participant's frame; test_a_lazy_surface_is_the_frame_s_surface
-    keeps the lazy surface equal to it)."""
+    deformation time measures a participant's frame)."""
     scene = Scene(load_scene(SCENE), model="mass_spring")
     scene.operators = _operators(scene)
     scene.operators[1] = dataclasses.replace(scene.operators[1], grasp_at=1.2, pull_start=1.4, back_start=None)

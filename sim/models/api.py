@@ -31,9 +31,7 @@ zero force and a ``model_fault`` event.
 | ``deformation(contacts, displacements)``  | every visual frame            | (n_vertices, 3) surface motion   |
 
 Optional capabilities, each with its default here (override what the model has):
-``reset()`` back to rest before each run (no-op); ``advance(contacts, displacements)`` and
-``surface_displacement()`` a frame without its surface, and the surface when asked for (a
-lockstep run that draws nothing; the default: `deformation`, kept); ``diagnostics()`` a dict for the run's JSON
+``reset()`` back to rest before each run (no-op); ``diagnostics()`` a dict for the run's JSON
 (empty); ``frame_flops`` counted work of the last frame (NaN: not counted); ``unstable`` the
 model's state blew up, the servo renders zero force (False); ``forces(contacts, displacements)``
 several contacts at once, for coupled contacts (one `force` each); ``pair_law(contacts)`` the
@@ -67,7 +65,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from sim.laws import Constant, Coupling, Linearised, PairTable, RadialTable, TensorTable
-from sim.models.base import BUDGETS, MAX_PULL_M, Contact, Vec3, surface_checked
+from sim.models.base import BUDGETS, MAX_PULL_M, Contact, Vec3
 from sim.tomltable import REQUIRED
 
 # everything a model's author imports, from this one module (docs/models.md)
@@ -298,18 +296,6 @@ class TissueModel:
 
     def deformation(self, contacts: Sequence[Contact], displacements) -> np.ndarray:
         raise NotImplementedError(f"{type(self).__name__}.deformation")
-
-    def advance(self, contacts: Sequence[Contact], displacements) -> None:
-        """A frame whose surface nobody draws (a lockstep run without pictures): what the servo
-        needs of it (the laws' state, `unstable`); `surface_displacement()` gives the surface
-        when it is asked for (a grasp's collision). The default runs `deformation` and keeps it."""
-        self._kept_surface = surface_checked(self.deformation(contacts, displacements), self.surface_mesh())
-
-    def surface_displacement(self) -> np.ndarray:
-        """The surface displacement of the last `advance` (its state's, computed now where the
-        model says so; the default: what `deformation` gave)."""
-        kept = getattr(self, "_kept_surface", None)
-        return kept if kept is not None else np.zeros_like(self.surface_mesh().vertices)
 
     # -- optional capabilities -----------------------------------------------------------------
     def reset(self) -> None:
