@@ -20,15 +20,14 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from analysis import scales
-from analysis.formatting import p_value
+from analysis import instruments, scales
 from analysis.kind_results import ChoiceStats, KindStats, PrimaryAnalysis, RatingStats, ScoreStats
+from analysis.questions import VAS_RANGE
+from analysis.reports.formatting import p_value
 from analysis.stats import friedman, records, set_holm, wilson
 from analysis.study_results import LogisticGee, StudyStats
 from analysis.study_snapshot import Study
 from analysis.withhold import across_reason
-from studyctl import instruments
-from studyctl.questions import VAS_RANGE
 
 
 def _p(x) -> str:  # the shared p-value, with n/a where a test gave none

@@ -24,9 +24,9 @@ import pandas as pd
 
 from analysis import kinematics as kin
 from analysis.study_snapshot import Study
+from analysis.trace_files import read_trace
 from sim.scene import build_scene
 from sim.targets import SAFE_FORCE_N
-from studyctl.traces import read_trace
 
 # Brain damage began at a continuous retraction force of 30 g (0.29 N) in Yokoh, Sugita and
 # Kobayashi 1983 (J Neurosurg 58:918-923, dog brain, strain-gauge retractor); the forces
@@ -177,7 +177,7 @@ def bimanual_metrics(times, forces, buttons) -> dict[str, float]:
 
 
 def trial_metrics(trace, goals: Goal | Mapping[str, Goal] | None = None) -> list[dict]:
-    """A trace's (studyctl.traces.Trace, or anything with its arrays) metrics as rows
+    """A trace's (analysis.trace_files.Trace, or anything with its arrays) metrics as rows
     ``hand, metric, value``, in METRICS order. `goals`: one Goal for every hand, or per hand name."""
     order = [m.name for m in METRICS]
     rows = []

@@ -12,9 +12,9 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from analysis.csvfiles import read_csv
+from analysis.errors import InputError
 from analysis.withhold import pair_reason, pair_warning
-from studyctl.csvfiles import read_csv
-from studyctl.errors import InputError
 
 NAN = float("nan")
 

@@ -79,7 +79,7 @@ class StudyStats:
     - gee: the logistic GEE across the yes/no questions;
     - kinds: every other kind of answer, and the protocol's primary analysis;
     - deformation: the deformation-time benchmark;
-    - methods: the study's methods as data (analysis/methods.py), which `report text` writes out."""
+    - methods: the study's methods as data (analysis/reports/methods.py), which `report text` writes out."""
 
     facts: StudyFacts
     holm: str

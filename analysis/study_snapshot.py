@@ -1,7 +1,7 @@
 """A study database read once: everything the analyses use, as an immutable snapshot.
 
-`read_study(store)` reads it from an open `studyctl.store.Store` (the caller opens and closes
-it: `with Store(path, mode="read") as store: study = read_study(store)`); every report takes
+`studyctl.store.snapshot.read_study(store)` reads it from an open store (the caller opens and
+closes it: `with Store(path, mode="read") as store: study = read_study(store)`); every report takes
 the `Study` (Table 1, the statistics, the JND, construct validity, the performance metrics),
 so a report reads the database once and never opens it itself; only the trace files of the
 traced trials are read later, from beside `path`. The snapshot's tables are
@@ -10,14 +10,10 @@ never changed by the analyses (each works on copies).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
-
-from studyctl.store import snapshot
-from studyctl.store.participant_fields import read_fields
 
 SYNTHETIC_FLAG = "SYNTHETIC DATA (simulated participants): not evidence about people."
 
@@ -76,43 +72,3 @@ class Study:
     traced_trials: pd.DataFrame
     setups: pd.DataFrame
     latencies: pd.DataFrame
-
-
-def read_study(store) -> Study:
-    """The snapshot of the study in `store` (an open studyctl.store.Store), read in one go."""
-    # counted from the answers' own source, not from a participant flag that could drift
-    synthetic = snapshot.synthetic_count(store)
-    persons = snapshot.person_count(store)
-    mixed = snapshot.mixed_source_codes(store)
-    orders = snapshot.condition_orders(store)
-    protocol = store.protocol()
-    stored = snapshot.answers(store)  # read once: the answers and who is complete among them
-    fields = [{"code": code, "field": k, "value": v} for code, values in read_fields(store, protocol).items() for k, v in values.items()]
-    return Study(
-        protocol=protocol,
-        answers=stored,
-        synthetic_participants=synthetic,
-        person_participants=persons,
-        mixed_source_participants=mixed,
-        completeness=snapshot.completeness(store, protocol, stored=stored),
-        periods=_periods(orders),
-        latency=snapshot.latency(store),
-        latency_trials=snapshot.latency_trials(store),
-        configurations=snapshot.configurations(store),
-        discrimination=snapshot.discrimination(store),
-        traits=snapshot.traits(store),
-        path=store.path,
-        synthetic_codes=snapshot.synthetic_codes(store),
-        fields=pd.DataFrame(fields, columns=["code", "field", "value"], dtype=object),
-        traced_trials=snapshot.traced_trials(store),
-        setups=snapshot.session_setups(store),
-        latencies=snapshot.latency_summary(store),
-    )
-
-
-def _periods(orders: pd.DataFrame) -> pd.DataFrame:
-    """The period factor of the GEE from each participant's condition orders (sessions first,
-    then the schedule): the first session's order wins."""
-    orders = orders[orders["conditions"].notna()].drop_duplicates("code")
-    rows = [{"code": r.code, "model": m, "period": k} for r in orders.itertuples() for k, m in enumerate(json.loads(r.conditions))]
-    return pd.DataFrame(rows, columns=["code", "model", "period"])

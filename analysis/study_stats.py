@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from analysis.formatting import table_markdown
 from analysis.kind_results import KindStats
 from analysis.kinds import gee_line, kind_stats, kind_tables, primary_line
-from analysis.methods import study_methods
+from analysis.reports.formatting import table_markdown
+from analysis.reports.methods import study_methods
 from analysis.stats import HOLM_SCOPES, gee_fit, pairwise_mcnemar, records, set_holm
 from analysis.study_results import DeformationBenchmark, LogisticGee, StudyStats, YesNoItem
 from analysis.study_snapshot import Study

@@ -4,8 +4,8 @@ paper's. `python -m bench accuracy [--json]` (keys `accuracy.<model>.<setting>.<
 
 from __future__ import annotations
 
-from analysis.accuracy import quick_config, run_accuracy
-from analysis.plots import PAPER_MS
+from analysis.reports.plots import PAPER_MS
+from analysis.verification.accuracy import quick_config, run_accuracy
 from bench.common import main_with_json
 
 

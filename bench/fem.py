@@ -25,10 +25,10 @@ import time
 import numpy as np
 
 from bench.common import each_call, per_call, report, scene_budgets
+from sim.geometry.tetmesh import body_volume
 from sim.linalg import Factor
 from sim.models.fem import FemModel, LinearFem, fixed_nodes
 from sim.scene import AXES, DEFAULT_SCENE, build_scene
-from sim.tetmesh import body_volume
 
 
 def _hemisphere(volume, label=0):

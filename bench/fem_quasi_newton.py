@@ -101,7 +101,7 @@ def _frames(system, factor, W, U, Ci, direction, xs, per_sample: int, iterations
 
 
 def measure() -> dict:
-    from analysis.accuracy import AccuracyConfig, frames_per_sample, sample_displacements
+    from analysis.verification.accuracy import AccuracyConfig, frames_per_sample, sample_displacements
     from sim.linalg import Factor
     from sim.models.api import BUDGETS
     from sim.models.fem.newton import hold

@@ -27,7 +27,7 @@ SIZE_MM = 8.0
 
 def _score(ref_mag: np.ndarray, mag: np.ndarray, n_calib: int) -> dict:
     """Within the JND and mean error on the test pulls, raw and with the bench's one scale."""
-    from analysis.accuracy import calibration_scale
+    from analysis.verification.accuracy import calibration_scale
     from sim.calibrate import jnd
 
     scale = calibration_scale(mag[:n_calib].ravel(), ref_mag[:n_calib].ravel())
@@ -63,16 +63,16 @@ def _iteration_cost(space, system) -> dict:
 
 
 def measure() -> dict:
-    from analysis.accuracy import AccuracyConfig, reference_samples, sample_displacements
-    from analysis.truth_band import truth_samples
+    from analysis.verification.accuracy import AccuracyConfig, reference_samples, sample_displacements
+    from analysis.verification.truth_band import truth_samples
+    from sim.geometry.patch import patch_area_points
+    from sim.geometry.tetmesh import hemisphere_surface, mesh_hemisphere
+    from sim.geometry.volume import locate
     from sim.models.api import BUDGETS
     from sim.models.fem import FiniteStrain, TetSpace, constraint_matrix, hold
     from sim.models.fem.nodal_pressure import NodalPressure
-    from sim.patch import patch_area_points
     from sim.pulls import make_pulls, scene_with, test_pulls
     from sim.scene import clamp_limit, grasp_radius
-    from sim.tetmesh import hemisphere_surface, mesh_hemisphere
-    from sim.volume import locate
 
     cfg = AccuracyConfig()
     scene = scene_with(cfg.scene)
@@ -85,7 +85,7 @@ def measure() -> dict:
     truth = truth_samples(cfg.scene, pulls, xs, cfg.reference_sizes_mm)
     refs = truth["refs"]
     ref = reference_samples(truth, pulls)
-    # judged where the truth is decided (analysis.truth_band), as the accuracy bench does
+    # judged where the truth is decided (analysis.verification.truth_band), as the accuracy bench does
     ref_mag = np.array([[c["force_n"] if c["decided"] else math.nan for c in row] for row in ref])
     sizes = list(refs["sizes_mm"])
     radius = grasp_radius(scene)

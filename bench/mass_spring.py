@@ -19,10 +19,10 @@ import numpy as np
 
 import sim.models.mass_spring as msm
 from bench.common import scene_budgets
+from sim.geometry.tetmesh import body_volume
 from sim.models.fem import fixed_nodes
 from sim.models.mass_spring import ACCELERATIONS, from_tets
 from sim.scene import AXES, DEFAULT_SCENE, build_scene
-from sim.tetmesh import body_volume
 
 METHODS = tuple("plain" if a == "none" else a for a in ACCELERATIONS)  # the keys' names of each acceleration
 FRAME = 1 / 30  # the study's step: one per 30 Hz visual frame

@@ -1,7 +1,7 @@
 """The observer's deterministic latency against the measured one, per study model.
 
 A synthetic participant perceives deformation latency as the model's counted work per frame
-turned into time on the reference machine (`studyctl.observer.frame_ms`: overhead + flops /
+turned into time on the reference machine (`studyctl.synthetic.observer.frame_ms`: overhead + flops /
 rate), so answers do not depend on the machine's load. This bench runs each condition of the
 shipped protocol for one 3 s trial in lockstep and prints the measured deformation time per
 frame (median, p95) next to the predicted one and their ratio: how far the cost model is from
@@ -22,8 +22,8 @@ PROTOCOL = Path(__file__).resolve().parents[1] / "protocols" / "brain_pull_2015.
 def main() -> None:
     from sim.run import run_scene
     from studyctl.conditions import condition_scene
-    from studyctl.observer import DEFAULT, frame_ms
     from studyctl.protocol import load_protocol
+    from studyctl.synthetic.observer import DEFAULT, frame_ms
 
     protocol = load_protocol(PROTOCOL)
     out = {}

@@ -22,8 +22,8 @@ FRAMES = 120
 
 
 def _frames(visible: bool) -> dict:
-    from sim.mesh import load_mesh
-    from sim.view import HandState, ParticipantView
+    from sim.geometry.mesh import load_mesh
+    from sim.view.window import HandState, ParticipantView
 
     mesh = load_mesh()
     view = ParticipantView(mesh, width=SIZE[0], height=SIZE[1], visible=visible, show_force=True)

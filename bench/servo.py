@@ -47,7 +47,7 @@ def _fake_libhd() -> str | None:
 
 
 def run(seconds: float = 10.0) -> list[dict]:
-    from sim.view import ParticipantView
+    from sim.view.window import ParticipantView
 
     xvfb = xvfb_display()
     path = _scene_file(seconds)

@@ -23,11 +23,11 @@ model = scene.model
 t_ready = time.perf_counter() - t0
 r = run_scene(scene, duration=0.2, time_scale=0, snapshots=scene.spec.renderer.kind == "offscreen")
 if scene.spec.renderer.kind == "offscreen":
-    from sim.view import ParticipantView
+    from sim.view.window import ParticipantView
     ParticipantView(scene.mesh, width=320, height=240, visible=False).draw(None, [])
 total = time.perf_counter() - t0
 mods = sorted(sys.modules)
-watch = ["open3d", "moderngl", "glfw", "sim.run_pictures", "sim.models.fem", "sim.models.mass_spring", "sim.models.plate_spring",
+watch = ["open3d", "moderngl", "glfw", "sim.view.pictures", "sim.models.fem", "sim.models.mass_spring", "sim.models.plate_spring",
          "sksparse.cholmod", "cholespy", "scipy.sparse.linalg", "matplotlib", "sim.devices.simulated"]
 print(json.dumps({"ready_s": t_ready, "total_s": total, "modules": len(mods),
                   "loaded": {w: w in sys.modules for w in watch},

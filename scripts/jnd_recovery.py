@@ -40,12 +40,12 @@ def protocol(folder: Path, trials: int, shipped: bool = False) -> Path:
 
 
 def main() -> None:
-    from analysis import jnd
-    from analysis.pooled import pooled_webers
-    from analysis.psychometric import weber_table
-    from analysis.study_snapshot import read_study
+    from analysis.discrimination import jnd
+    from analysis.discrimination.pooled import pooled_webers
+    from analysis.discrimination.psychometric import weber_table
     from studyctl.store import Store
-    from studyctl.synthetic_study import run_synthetic_study
+    from studyctl.store.snapshot import read_study
+    from studyctl.synthetic.study import run_synthetic_study
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="1,2,3")

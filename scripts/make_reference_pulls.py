@@ -5,9 +5,9 @@ Solves the accuracy bench's 26 pulls (`sim.pulls.make_pulls` and `test_pulls`) o
 shipped scene on each shipped mesh (8, 6, 4 mm: the full bench's Richardson triple) and the
 first 18 (six test places) on the quick bench's pair (20, 16 mm: `--quick` benches and `model check --quick` then solve nothing on an
 empty cache) with the scene's law (protocols/materials/human_cortex.toml), recording every
-0.5 mm to 12 mm (`analysis.tissue_pulls.RECORD_XS`) the force and the state's support, the hand
+0.5 mm to 12 mm (`analysis.verification.tissue_pulls.RECORD_XS`) the force and the state's support, the hand
 pulls with their condensed tangent stiffness too (the observer's truth reads them); then the
-other laws of the truth's ensemble (`analysis.truth_band.ensemble`) on each group's coarsest
+other laws of the truth's ensemble (`analysis.verification.truth_band.ensemble`) on each group's coarsest
 mesh, as far as the finer meshes follow. A solve that stops is shipped with the records it
 reached and its reason. Solves already cached ($BRAINSIM_CACHE/reference) are reused.
 
@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-from analysis.tissue_pulls import (
+from analysis.verification.tissue_pulls import (
     QUICK_SIZES_MM,
     RECORD_XS,
     SHIPPED_PULLS,
@@ -32,11 +32,11 @@ from analysis.tissue_pulls import (
     pull_references,
     stored_solve,
 )
-from analysis.truth_band import ensemble, shape_index, shapes
+from analysis.verification.truth_band import ensemble, shape_index, shapes
 from brainsim_assets import version
+from sim.geometry.tetmesh import SHIPPED_MM
 from sim.pulls import hand_pulls, make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE
-from sim.tetmesh import SHIPPED_MM
 
 QUICK_TEST_PLACES = 6
 

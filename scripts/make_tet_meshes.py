@@ -1,7 +1,7 @@
 """Make the shipped body-fitted meshes: data/brain_tets_<size>mm.npz and data/brain_tets.json.
 
 fTetWild (pytetwild) meshes each hemisphere of data/brain_fsaverage5.npz at each of
-sim.tetmesh.SHIPPED_MM and TEST_MM; fTetWild is not deterministic, so the meshes are made once
+sim.geometry.tetmesh.SHIPPED_MM and TEST_MM; fTetWild is not deterministic, so the meshes are made once
 and shipped with their content hashes (the simulator refuses a file whose hash differs).
 
     .venv/bin/python scripts/make_tet_meshes.py [--fresh] [--jobs 2]
@@ -22,10 +22,8 @@ from importlib.metadata import version
 import numpy as np
 
 from sim.files import save_npz
-from sim.mesh import BRAIN_MESH as MESH_FILE
-from sim.pulls import scene_with
-from sim.scene import DEFAULT_SCENE
-from sim.tetmesh import (
+from sim.geometry.mesh import BRAIN_MESH as MESH_FILE
+from sim.geometry.tetmesh import (
     ENVELOPE_FRACTION,
     PROVENANCE,
     SHIPPED_MM,
@@ -39,7 +37,9 @@ from sim.tetmesh import (
     shipped_file,
     surface_digest,
 )
-from sim.volume import tet_volumes
+from sim.geometry.volume import tet_volumes
+from sim.pulls import scene_with
+from sim.scene import DEFAULT_SCENE
 
 
 def _mesh(args) -> tuple:

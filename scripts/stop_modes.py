@@ -28,13 +28,13 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.spatial import ConvexHull
 
-from analysis.tissue_pulls import SHIPPED_PULLS_INFO, build_problem, grasp_matrix
+from analysis.verification.tissue_pulls import SHIPPED_PULLS_INFO, build_problem, grasp_matrix
+from sim.geometry.patch import patch_area_points
+from sim.geometry.tetmesh import hemisphere_surface, mesh_hemisphere
+from sim.geometry.volume import locate
 from sim.models.fem import FiniteStrain, hold
-from sim.patch import patch_area_points
 from sim.pulls import make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE, grasp_radius
-from sim.tetmesh import hemisphere_surface, mesh_hemisphere
-from sim.volume import locate
 
 SIZES_MM = (8.0, 6.0)
 RECORD_MAX = 0.012  # m: the reference's longest pull

@@ -41,7 +41,7 @@ def shoot(out: Path, width: int = 1280, height: int = 720, frames: bool = False)
 
     from sim.run import Pacing, run_scene
     from sim.scene import build_scene
-    from sim.view import HandState, ParticipantView
+    from sim.view.window import HandState, ParticipantView
 
     with tempfile.TemporaryDirectory() as tmp:
         scene = build_scene(scene_file(Path(tmp)))

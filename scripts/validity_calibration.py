@@ -53,9 +53,9 @@ def identical_groups(text: str, like: str = "resident") -> str:
 def run_pool(protocol_text: str, participants: int, seed: int, jobs: int, where: Path) -> tuple[pd.DataFrame, pd.Series]:
     """Participant scores (analysis.validity.participant_scores) and groups of a synthetic study."""
     from analysis.metrics import metrics_table, study_goals
-    from analysis.study_snapshot import read_study
     from analysis.validity import participant_scores
     from studyctl.store import Store
+    from studyctl.store.snapshot import read_study
 
     path = where / "protocol.toml"
     path.write_text(protocol_text.replace('scene = "scenes/', f'scene = "{PROTOCOL.parent}/scenes/'))

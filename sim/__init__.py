@@ -1,7 +1,10 @@
-"""Simulation library: brain scene, tissue models, haptic devices, servo loop, rendering.
+"""The simulator, the bottom layer: scenes, tissue models, devices, the servo, the view. It imports
+neither the analyses nor the study library, so it runs, ships and is tested alone.
 
-Modules are imported lazily by what a scene asks for, so a headless plate-spring scene loads
-neither open3d nor any finite element code.
+Here: scenes and their files (`scene`, `tomlfile`, `tomltable`, `material`, `files`, `text`), the
+laws a tick evaluates (`laws`, `hyperelastic`, `kernels`), runs (`run`, `run_plots`), the pulls
+every model is measured on (`pulls`), parallel sweeps (`sweep`). Sub-packages: `geometry`,
+`models`, `devices`, `servo`, `view`.
 """
 
 from brainsim_assets import version as _version

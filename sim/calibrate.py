@@ -3,7 +3,7 @@
 "The model is parameterized and thus can be adapted to simulate different organs" (seed
 paper): fit h1, alpha, q and x_c1 within their bounds so that the plate-spring force at a set of
 displacements matches a reference: the converged FEM reference on the accuracy bench's
-calibration pulls (`analysis.accuracy.calibration_curve`, through `studyctl calibrate
+calibration pulls (`analysis.verification.accuracy.calibration_curve`, through `studyctl calibrate
 plate-spring`) or a measured curve from a CSV (displacement_m, force_n). Residuals are in
 units of the force JND, so the report says directly how many samples a person could tell apart.
 """

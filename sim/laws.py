@@ -2,7 +2,7 @@
 
 Each tissue model hands the servo a law per contact (and, for coupled grasps, a pair law):
 a few numbers fixed at grasp time, plus a state the visual step may refresh each frame. A law
-can be evaluated in the model's process or sent to a servo process (sim/servo_process.py),
+can be evaluated in the model's process or sent to a servo process (sim/servo/process.py),
 where the interpreter lock of the rendering and deformation work cannot delay it.
 """
 

@@ -149,7 +149,7 @@ class Factor:
     @property
     def nnz_L(self) -> int:
         """Entries of the factor L: a solve is about 4 nnz_L flops per right-hand side (the
-        observer's deterministic cost of a frame, studyctl/observer.py)."""
+        observer's deterministic cost of a frame, studyctl/synthetic/observer.py)."""
         if not hasattr(self, "_nnz_L"):
             L = self._solver.L()
             counts = np.diff(L.indptr).astype(np.float64)  # entries per column of L (CSC)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from sim.errors import ParameterError
 from sim.run import Pacing, RunResult, run_scene
-from sim.view import open_view
+from sim.view.window import open_view
 
 LIVE_HELP = "Left button: grasp with the left hand. Right button: the right hand. Drag to pull, wheel for depth. Q: quit."
 

@@ -1,7 +1,7 @@
 """The pulls every model and the reference are measured on: a pull grasps a surface vertex and
 moves it along a tangent direction. `make_pulls` gives the accuracy bench's calibration pulls
 (the scene's hands and a frontal point), `test_pulls` its held-out ones, `hand_pulls` the
-scene's scripted ones. The reference solutions themselves are analysis/reference.py's."""
+scene's scripted ones. The reference solutions themselves are analysis/verification/reference.py's."""
 
 from __future__ import annotations
 
@@ -62,7 +62,7 @@ def test_pulls(scene, places: int = TEST_PLACES) -> list[Pull]:
     (outward normal not facing the other hemisphere or downwards), at least
     TEST_MIN_HEIGHT above the clamp plane and TEST_MIN_DISTANCE from every calibration grasp
     point (`make_pulls`), starting from those points. Vertices of the ico4 subset, where the
-    location-aware plate-spring's field is sampled (`analysis.field_fit`), are excluded, so no
+    location-aware plate-spring's field is sampled (`analysis.verification.field_fit`), are excluded, so no
     test place is a field site."""
     mesh = scene.mesh
     v, n = mesh.vertices, mesh.vertex_normals

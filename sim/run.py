@@ -3,7 +3,7 @@
 Two clocks, one path each:
 
 - real time (``time_scale > 0``): the servo loop runs in its own process
-  (sim/servo_process.py) for every device: simulated, mouse and replay devices paced by
+  (sim/servo/process.py) for every device: simulated, mouse and replay devices paced by
   sleep-then-spin on the wall clock (scaled by `time_scale`), real OpenHaptics devices by the
   HD library's scheduler thread in that process. A session keeps one servo process (and its
   devices) for all its runs (`servo=`). The visual step (grasps, deformation, snapshots)
@@ -30,7 +30,7 @@ import numpy as np
 
 from sim.errors import ParameterError, SceneError
 from sim.models.base import BUDGETS, contact_checked, surface_checked
-from sim.servo import Event, Hand, ServoLoop, too_many_slow_calls
+from sim.servo.loop import Event, Hand, ServoLoop, too_many_slow_calls
 from sim.targets import TargetTracker
 
 # a run keeps every tick in memory (about 110 bytes per tick for two hands): one hour is
@@ -43,7 +43,7 @@ FAULT_KINDS = ("model_fault", "nan_force")  # the events whose line says why the
 class Pacing:
     """A real-time run with a person: what it shows, when its clock starts, what ends it."""
 
-    view: object | None = None  # a sim.view.ParticipantView, drawn every frame
+    view: object | None = None  # a sim.view.window.ParticipantView, drawn every frame
     wait_for_grasp: bool = False  # the clock starts at the first grasp, or a start key
     start_keys: tuple[str, ...] = ("space", "enter")
     stop_keys: tuple[str, ...] = ()
@@ -97,7 +97,7 @@ class VisualStep:
     targets: object = None  # a sim.targets.TargetTracker: the hands' targets, followed every frame
     end_on_targets: bool = False  # the run ends once every hand has held its target
     # the run ends once every hand has grasped and let go (lockstep): what a synthetic interval
-    # needs, since its judgement reads each hand's first hold only (studyctl/observer.py)
+    # needs, since its judgement reads each hand's first hold only (studyctl/synthetic/observer.py)
     end_on_release: bool = False
     grasp_reach: float = 0.01  # a button press farther than this from the surface grasps nothing
     _next_snapshot: float = 0.0
@@ -301,7 +301,7 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
     with `end_on_release` (lockstep only), until every hand has grasped and let go.
 
     In real time (`time_scale > 0`) the servo runs in its own process: `servo`, a
-    `sim.servo_process.ServoProcess` kept open across runs (a session's), or one opened for
+    `sim.servo.process.ServoProcess` kept open across runs (a session's), or one opened for
     this run; `pacing` adds the participant view, waiting for a grasp and stop keys.
     `time_scale == 0` is lockstep (not for real devices).
     """
@@ -349,7 +349,7 @@ def run_scene(scene, duration: float | None = None, time_scale: float = 1.0, sna
 
 def visual_budget_lines(visual: VisualStep) -> list[str]:
     """One line per visual-side call of this run that passed its budget (sim.models.api.BUDGETS,
-    99th percentiles): a frame's deformation when `sim.servo.too_many_slow_calls` says so of the frames
+    99th percentiles): a frame's deformation when `sim.servo.loop.too_many_slow_calls` says so of the frames
     that took longer; a grasp when any did (a run has a few)."""
     out = []
     frames = np.asarray(visual.deformation_s) * 1e3
@@ -382,7 +382,7 @@ def _ended(visual: VisualStep, result: RunResult) -> RunResult:
 
 def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, servo, end_on_targets=False) -> RunResult:
     # lazy: the real-time servo's process machinery and compiled kernels, only for a real-time run
-    from sim.servo_process import ServoProcess
+    from sim.servo.process import ServoProcess
 
     spec = scene.spec
     n_ticks = int(round(duration * rate))
@@ -420,7 +420,7 @@ def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, se
 def hand_states(hands, targets=None) -> list:
     """What the participant view draws of the visual step's hands (and their targets: a
     sim.targets.TargetTracker)."""
-    from sim.view import HandState  # lazy: the view (OpenGL) loads only when a run draws
+    from sim.view.window import HandState  # lazy: the view (OpenGL) loads only when a run draws
 
     return [HandState(h.position, h.force, h.contact.vertex if h.contact is not None else None,
                       target=targets.states[i] if targets is not None else None) for i, h in enumerate(hands)]
@@ -512,10 +512,10 @@ def _diagnostics(model, events: list) -> dict:
 
 def _run_lockstep(servo: ServoLoop, visual: VisualStep, n_ticks: int, rate: float, visual_rate: float):
     """Every tick, and a visual step after the tick that reaches each frame's time. The quiet
-    ticks between frames run compiled where the run allows it (sim/lockstep.py: the same bits),
+    ticks between frames run compiled where the run allows it (sim/servo/lockstep.py: the same bits),
     the others in Python."""
     try:  # here, not at the top: numba's import cost only where a lockstep run needs it; without numba every tick in Python
-        from sim.lockstep import CompiledTicks  # lazy: numba, only for a compiled lockstep run
+        from sim.servo.lockstep import CompiledTicks  # lazy: numba, only for a compiled lockstep run
     except ImportError:
         CompiledTicks = None
 
@@ -560,7 +560,7 @@ def write_outputs(result: RunResult, scene, out_dir: Path, progress: Callable[[i
     force_plot(result, out_dir / "force.png")
     written = 0
     if scene.spec.renderer.kind == "offscreen" and result.snapshots:
-        from sim.run_pictures import render_snapshots  # lazy: offscreen OpenGL and matplotlib, only for snapshots
+        from sim.view.pictures import render_snapshots  # lazy: offscreen OpenGL and matplotlib, only for snapshots
 
         written = render_snapshots(result, scene, out_dir, progress=progress)
     return written

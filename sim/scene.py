@@ -21,13 +21,13 @@ from sim.devices import BACKENDS, backend_module
 from sim.devices.base import DeviceFrame, OmniSpec, view_rotation
 from sim.devices.simulated import PullScript
 from sim.errors import SceneError, SimError
+from sim.geometry.mesh import load_mesh
+from sim.geometry.patch import GRASP_RADIUS
 from sim.material import MaterialSpec, material_spec
-from sim.mesh import load_mesh
 from sim.models.api import TissueModel, default_options, option_kind
 from sim.models.base import POISSON_MAX, POISSON_MIN, Vec3
 from sim.models.registry import ModelLoadError, canonical, model_class
 from sim.models.registry import names as registry_names
-from sim.patch import GRASP_RADIUS
 from sim.targets import SAFE_FORCE_N, HandTarget, TargetSpec
 from sim.tomlfile import Locator, TomlFileError, read_toml
 from sim.tomltable import REQUIRED, TableReader
@@ -103,7 +103,7 @@ class ViewSpec:
 
     front: Vec3 = (0.0, -0.42, 0.91)  # from above and behind, like the surgeon's view
     up: Vec3 = (0.0, 0.0, 1.0)
-    zoom: float = 1.0  # 1: the brain at rest fills the view's height (sim/camera.py); 2: twice as large
+    zoom: float = 1.0  # 1: the brain at rest fills the view's height (sim/view/camera.py); 2: twice as large
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """The shipped stiffness field of the location-aware plate-spring model: where it is and how it
 is read (K per pascal at every vertex of the surface it was made for). How it is made, from the
-reference's P2 solves, is analysis/field_fit.py (`studyctl calibrate field`)."""
+reference's P2 solves, is analysis/verification/field_fit.py (`studyctl calibrate field`)."""
 
 from __future__ import annotations
 

@@ -12,6 +12,7 @@ NAME_MOST = 100  # a study's name, a scale's anchor, a consent form's version, a
 TITLE_MOST = 200  # a study's title, a person's contact
 TEXT_MOST = 2000  # a question's text, a free-text answer, a reason given for a withdrawal or a correction
 VALUE_MOST = 4096  # any other text of a TOML file (a path, a description): PATH_MAX on Linux
+QUOTE_LIMIT = 40  # characters of a refused value an error line quotes
 
 
 # the bidirectional controls (format characters, category Cf): one reorders the text after it, so
@@ -45,3 +46,12 @@ def text_problem(text: str, most: int = VALUE_MOST, one_line: bool = False) -> s
     if len(text) > most:
         return f"{len(text)} characters; allowed: at most {most}"
     return control_problem(text, one_line)
+
+
+def quoted(value, limit: int = QUOTE_LIMIT) -> str:
+    """`value` quoted for an error line: whole when short, else its first `limit` characters
+    and its length."""
+    text = str(value)
+    if len(text) <= limit:
+        return repr(text)
+    return f"{text[:limit]!r}... ({len(text)} characters)"

@@ -50,7 +50,7 @@ def condition_configs(protocol, names) -> dict[str, dict]:
 
 def scene_itself(protocol):
     """The protocol's scene as its file configures it, no condition applied: what the synthetic
-    observer's truth (studyctl/truth.py) and the force reference are made for."""
+    observer's truth (analysis/verification/truth.py) and the force reference are made for."""
     return Scene(load_scene(protocol.scene))
 
 

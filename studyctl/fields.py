@@ -14,9 +14,10 @@ import math
 import random
 from dataclasses import dataclass
 
+from analysis.errors import InputError
+from sim.text import quoted, text_problem
 from sim.tomltable import TableReader
-from studyctl.errors import InputError
-from studyctl.text import ID_RE, quoted, text_problem
+from studyctl.text import ID_RE
 
 FIELD_KINDS = ("choice", "integer", "number", "text")
 FIELD_KEYS = ("kind", "values", "required", "min", "max", "description")

@@ -17,8 +17,8 @@ import re
 import zipfile
 from pathlib import Path
 
+from analysis.errors import InputError
 from sim.tomlfile import TomlFileError, read_toml
-from studyctl.errors import InputError
 from studyctl.outputs import Staged
 
 NAME = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9._-]*[A-Za-z0-9])?$")

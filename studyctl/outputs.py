@@ -16,7 +16,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from studyctl.errors import StudyError
+from analysis.errors import StudyError
 
 
 class OutputExists(StudyError):

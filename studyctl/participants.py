@@ -13,15 +13,16 @@ import getpass
 import io
 from pathlib import Path
 
-from studyctl.errors import InputError, StoreError
-from studyctl.lock import session_lock
+from analysis.errors import InputError, StoreError
+from analysis.questions import shown
+from analysis.trace_files import trace_dir
+from sim.text import TEXT_MOST, text_problem
 from studyctl.outputs import write_file
-from studyctl.questions import shown
+from studyctl.session.lock import session_lock
 from studyctl.store import Store, now, records, roster, snapshot
 from studyctl.store.participant_fields import read_fields
 from studyctl.study import answer_key
-from studyctl.text import TEXT_MOST, spreadsheet_safe, text_problem
-from studyctl.traces import trace_dir
+from studyctl.text import spreadsheet_safe
 
 
 def _person(store: Store, code: str) -> dict:

@@ -11,19 +11,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
+from analysis import instruments
+from analysis.errors import ProtocolError
+from analysis.questions import KINDS, LIKERT_POINTS, WHENS, Question
 from sim.errors import SceneError, SimError
 from sim.models import registry
 from sim.scene import configure, load_scene
 from sim.targets import TRIAL_ENDS
+from sim.text import NAME_MOST, TEXT_MOST, TITLE_MOST, quoted, text_problem
 from sim.tomlfile import Locator, TomlFileError, parse_toml, read_toml_text
 from sim.tomltable import TableReader
-from studyctl import instruments
-from studyctl.errors import ProtocolError
 from studyctl.fields import check_fields
-from studyctl.questions import KINDS, LIKERT_POINTS, WHENS, Question
-from studyctl.skill import check_skills
+from studyctl.synthetic.skill import check_skills
 from studyctl.tasks import check_tasks
-from studyctl.text import ID_RE, NAME_MOST, TEXT_MOST, TITLE_MOST, quoted, text_problem
+from studyctl.text import ID_RE
 
 MAX_CONDITIONS = 8
 DESIGNS = ("williams",)
@@ -66,7 +67,7 @@ class Protocol:
     fields: tuple = ()  # [fields.NAME]: what is recorded about each participant (studyctl/fields.py)
     groups: str | None = None  # design.groups: the choice field that is the between-participant factor
     trial_end: str = "time"  # design.trial_end: "time" (the trial's seconds) or "targets" (every hand held its target, or the time)
-    skills: dict = field(default_factory=dict, compare=False)  # [synthetic.groups.NAME]: group -> studyctl.skill.SkillProfile
+    skills: dict = field(default_factory=dict, compare=False)  # [synthetic.groups.NAME]: group -> studyctl.synthetic.skill.SkillProfile
 
     def field_named(self, name: str):
         return next((f for f in self.fields if f.name == name), None)

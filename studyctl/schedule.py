@@ -7,8 +7,8 @@ import json
 from pathlib import Path
 from zoneinfo import ZoneInfo
 
-from studyctl.csvfiles import read_csv
-from studyctl.errors import InputError
+from analysis.csvfiles import read_csv
+from analysis.errors import InputError
 
 
 def williams(n: int) -> list[list[int]]:

@@ -8,17 +8,18 @@ import json
 import re
 from pathlib import Path
 
-from studyctl.csvfiles import read_csv
-from studyctl.errors import InputError, StoreError
+from analysis.csvfiles import read_csv
+from analysis.errors import InputError, StoreError
+from analysis.questions import NOT_PER_TRIAL, SESSION, AnswerError, allowed, parse_answer
+from sim.text import NAME_MOST, TITLE_MOST, quoted, text_problem
 from studyctl.fields import field_rows, parse_fields
 from studyctl.outputs import Staged, refuse_existing, write_file
-from studyctl.questions import NOT_PER_TRIAL, SESSION, AnswerError, allowed, parse_answer
 from studyctl.schedule import allocate, next_order, read_availability, to_ics, williams
+from studyctl.session.traces import traces_frame
 from studyctl.store import EXPORT_TABLES, Store, now, roster
 from studyctl.store.participant_fields import group_of
 from studyctl.store.tables import table_rows
-from studyctl.text import NAME_MOST, TITLE_MOST, quoted, spreadsheet_frame, text_problem
-from studyctl.traces import traces_frame
+from studyctl.text import spreadsheet_frame
 
 CODE_CHARS = set("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_")
 

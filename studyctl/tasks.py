@@ -4,8 +4,8 @@ One kind so far, ``discrimination``: two-interval forced choice on a parameter o
 model (``stiffness``: Young's modulus for the FEM and the mass-spring, the plates' E for the
 plate-spring; `sim.scene.Scene.with_stiffness`). Each trial pulls the tissue twice, once at the
 reference and once stiffer by a relative increment ``delta`` chosen by an adaptive procedure
-(studyctl/procedures.py), in a random order; the participant says which was stiffer. The
-Weber fraction is the delta at 75% correct (analysis/psychometric.py). docs/study.md.
+(studyctl/session/procedures.py), in a random order; the participant says which was stiffer. The
+Weber fraction is the delta at 75% correct (analysis/discrimination/psychometric.py). docs/study.md.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from sim.tomltable import TableReader
-from studyctl.procedures import METHODS, RULES, ProcedureSpec
+from studyctl.session.procedures import METHODS, RULES, ProcedureSpec
 
 KINDS = ("discrimination",)
 PARAMETERS = ("stiffness",)

@@ -6,8 +6,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from analysis.errors import InputError
 from brainsim_assets import path as asset
-from studyctl.errors import InputError
 from studyctl.outputs import Staged
 from studyctl.protocol import check_protocol
 

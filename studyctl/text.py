@@ -1,24 +1,12 @@
-"""Text from people: identifiers checked, control characters refused, long values quoted by a short prefix, cells
-made safe to open in a spreadsheet (the OWASP CSV-injection rule)."""
+"""Text a study names or exports: identifiers checked, cells made safe to open in a spreadsheet (the OWASP
+CSV-injection rule). Control characters, lengths and quoting a refused value are `sim.text`'s."""
 
 from __future__ import annotations
 
 import re
 
-from sim.text import LINE_BREAKS, NAME_MOST, TEXT_MOST, TITLE_MOST, control_character, control_problem, text_problem
-
 ID_RE = re.compile(r"^[a-z][a-z0-9_]*$")  # a name a protocol gives (question, condition, field): also a column and a key
-QUOTE_LIMIT = 40  # characters of a refused value an error line quotes
 FORMULA_START = ("=", "+", "-", "@", "\t", "\r")  # a spreadsheet reads a cell starting so as a formula
-
-
-def quoted(value, limit: int = QUOTE_LIMIT) -> str:
-    """`value` quoted for an error line: whole when short, else its first `limit` characters
-    and its length."""
-    text = str(value)
-    if len(text) <= limit:
-        return repr(text)
-    return f"{text[:limit]!r}... ({len(text)} characters)"
 
 
 def spreadsheet_safe(value):
@@ -39,6 +27,3 @@ def spreadsheet_frame(df):
             out[col] = out[col].map(spreadsheet_safe)
     return out
 
-
-__all__ = ["ID_RE", "LINE_BREAKS", "NAME_MOST", "TEXT_MOST", "TITLE_MOST", "control_character", "control_problem", "quoted",
-           "spreadsheet_frame", "spreadsheet_safe", "text_problem"]

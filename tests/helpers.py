@@ -134,10 +134,10 @@ def localise(text: str) -> str:
 
 
 def box(nx, ny, nz, h, origin=(0.0, 0.0, 0.0)):
-    """A box of nx x ny x nz cubes of side h from `origin`, in tetrahedra (sim.volume.grid_tets)."""
+    """A box of nx x ny x nz cubes of side h from `origin`, in tetrahedra (sim.geometry.volume.grid_tets)."""
     import numpy as np
 
-    from sim.volume import grid_tets
+    from sim.geometry.volume import grid_tets
 
     return grid_tets(np.ones((nx, ny, nz), bool), np.asarray(origin, float), h)
 
@@ -293,7 +293,7 @@ def synthetic_summary(ratio, flops=1e4, ripple=0.0, events=0):
     """A trial's summary for the synthetic observer: forces rendered at `ratio` times the truth."""
     import numpy as np
 
-    from studyctl.observer import TrialSummary
+    from studyctl.synthetic.observer import TrialSummary
 
     truth = np.linspace(0.05, 1.0, 40)
     return TrialSummary(rendered=ratio * truth, truth=truth, ripple=ripple, events=events, frame_flops=flops)

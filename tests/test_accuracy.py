@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from analysis import accuracy
-from analysis.accuracy import Setting, class_best, compare, coupling_bound
-from analysis.plots import pareto
+from analysis.reports.plots import pareto
+from analysis.verification import accuracy
+from analysis.verification.accuracy import Setting, class_best, compare, coupling_bound
 from sim.pulls import Pull, make_pulls, scene_with
 from sim.scene import DEFAULT_SCENE
 from studyctl.cli import cli
@@ -150,7 +150,7 @@ def test_coupling_bound_of_a_linear_tissue_is_the_series_springs():
 def test_the_pareto_plots_legend_covers_no_point():
     """Issue 28: inside the axes (lower left) the legend covered the located plate-spring's
     point, the best one: fast and accurate lies in that corner."""
-    from analysis.plots import _plt, pareto_figure
+    from analysis.reports.plots import _plt, pareto_figure
 
     rows = [{"model": m, "setting": s, "frame_ms": ms, "force_error": e} for m, s, ms, e in (
         ("plate_spring", "located", 0.05, 0.03), ("plate_spring", "scene-fit", 0.04, 0.3), ("fem", "linear-4mm", 2.0, 0.05),
@@ -218,7 +218,7 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
 
 
 def test_the_accuracy_tables_compile_and_fit_an_a4_page(small_bench, tmp_path):
-    from analysis.latex import document
+    from analysis.reports.latex import document
     from tests.helpers import latex_problems
 
     _, d = small_bench

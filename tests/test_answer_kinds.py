@@ -9,12 +9,12 @@ import sqlite3
 import numpy as np
 import pytest
 
-from analysis.latex import document
-from studyctl import instruments
-from studyctl.observer import likert_answer, likert_thresholds
+from analysis import instruments
+from analysis.questions import Question
+from analysis.reports.latex import document
 from studyctl.protocol import check_protocol, load_protocol
-from studyctl.questions import Question
-from studyctl.synthetic_study import run_synthetic_study
+from studyctl.synthetic.observer import likert_answer, likert_thresholds
+from studyctl.synthetic.study import run_synthetic_study
 from tests.conftest import ROOT
 from tests.helpers import QUESTIONS, kinds_protocol, latex_problems, studyctl
 
@@ -196,7 +196,7 @@ def test_answers_import_and_correct_follow_the_kinds(tmp_path):
 
 
 def test_plan_powers_the_primary_analysis_and_its_null_is_at_alpha(tmp_path):
-    from analysis.plan import null_table, pilot_summaries, power_table
+    from studyctl.synthetic.plan import null_table, pilot_summaries, power_table
 
     protocol = load_protocol(kinds_protocol(tmp_path, trials=1))
     summaries = pilot_summaries(protocol, pilots=2, seed=0)
@@ -217,7 +217,7 @@ def test_plan_powers_the_primary_analysis_and_its_null_is_at_alpha(tmp_path):
 
 
 def test_a_rig_profile_sets_the_latency_synthetic_participants_perceive(tmp_path):
-    from studyctl.rig import condition_keys
+    from studyctl.synthetic.rig import condition_keys
 
     proto = kinds_protocol(tmp_path, trials=1)
     protocol = load_protocol(proto)
@@ -241,7 +241,7 @@ def test_a_rig_profile_sets_the_latency_synthetic_participants_perceive(tmp_path
 
 
 def test_the_shipped_rig_profile_covers_the_shipped_protocols():
-    from studyctl.rig import frame_times
+    from studyctl.synthetic.rig import frame_times
 
     for name in ("brain_pull_2015", "plate_spring_variants"):
         p = load_protocol(ROOT / f"protocols/{name}.toml")
@@ -329,7 +329,7 @@ when = "trial"
 
 
 def test_a_rig_profile_covers_every_condition_or_none_and_is_fixed_once_sessions_ran(tmp_path):
-    from studyctl.rig import condition_keys, frame_times
+    from studyctl.synthetic.rig import condition_keys, frame_times
 
     proto = kinds_protocol(tmp_path, trials=1)
     protocol = load_protocol(proto)

@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from studyctl.questions import Question
+from analysis.questions import Question
 from tests.helpers import MODEL_WORDS, fast_protocol, pty_session, studyctl
 from tests.window_helpers import run_xdotool, window
 
-SELECTED = np.array([0.12, 0.40, 0.85]) * 255  # sim/view.py: the chosen point, the slider's mark
+SELECTED = np.array([0.12, 0.40, 0.85]) * 255  # sim/view/window.py: the chosen point, the slider's mark
 LABELS = {"plate_spring": "A", "fem": "B", "mass_spring": "C"}
 
 
@@ -110,10 +110,10 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
     a VAS by a click, the arrows and a drag (its values checked against the line's geometry to
     the pixel), a 5-point one by clicking a point twice, a 3-point one on the keypad, and a
     choice by its letter. Types and values, and the screenshots' pixels."""
-    from sim.mesh import load_mesh
-    from sim.view import HandState, ParticipantView
-    from studyctl.instruments import questions as instrument
-    from studyctl.window_answers import WindowAnswers
+    from analysis.instruments import questions as instrument
+    from sim.geometry.mesh import load_mesh
+    from sim.view.window import HandState, ParticipantView
+    from studyctl.session.window_answers import WindowAnswers
 
     shots = Path(os.environ.get("BRAINSIM_SHOTS") or tmp_path)
     shots.mkdir(parents=True, exist_ok=True)

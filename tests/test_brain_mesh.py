@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from sim.errors import MeshError
-from sim.mesh import BRAIN_MESH, icosphere, load_mesh, vertex_normals
+from sim.geometry.mesh import BRAIN_MESH, icosphere, load_mesh, vertex_normals
 
 
 @pytest.fixture(scope="module")

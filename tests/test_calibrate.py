@@ -26,7 +26,7 @@ def test_fit_recovers_a_curve_the_model_can_make():
 def test_cli_calibrates_to_the_converged_reference_and_to_a_csv(tmp_path, monkeypatch):
     # the converged reference on the bench's six calibration pulls; here on the two coarser
     # shipped meshes (the shipped fit used all three: the 4 mm P2 solves take a minute)
-    monkeypatch.setattr("analysis.accuracy.DEFAULT_SIZES_MM", (8.0, 6.0))  # where the calibration curve reads them
+    monkeypatch.setattr("analysis.verification.accuracy.DEFAULT_SIZES_MM", (8.0, 6.0))  # where the calibration curve reads them
     res = CliRunner().invoke(cli, ["calibrate", "plate-spring", "--max-displacement", "0.004", "--samples", "8", "--json",
                                    "--out", str(tmp_path / "cal.toml")])
     assert res.exit_code == 0, res.output

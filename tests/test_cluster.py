@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from studyctl.cli import cli
-from studyctl.synthetic_study import run_synthetic_study
+from studyctl.synthetic.study import run_synthetic_study
 from tests.helpers import fast_protocol, synthetic_content, synthetic_summary
 
 distributed = pytest.importorskip("distributed")
@@ -53,15 +53,15 @@ def test_synth_on_a_cluster_equals_local_jobs_and_a_killed_worker_loses_no_parti
 
 
 def _summaries():
-    from studyctl.observer import ObserverParams
+    from studyctl.synthetic.observer import ObserverParams
 
     slow = synthetic_summary(1.0, flops=ObserverParams().flops_per_ms * 80)
     return {"plate_spring": [synthetic_summary(1.0), synthetic_summary(1.2)], "fem": [synthetic_summary(1.0)], "mass_spring": [slow]}
 
 
 def test_plan_tables_are_the_same_here_in_local_processes_and_on_a_cluster(tmp_path, cluster):
-    from analysis.plan import BATCH, null_table, power_table
     from studyctl.protocol import load_protocol
+    from studyctl.synthetic.plan import BATCH, null_table, power_table
 
     protocol = load_protocol(fast_protocol(tmp_path, trials=1))
     kw = {"simulations": BATCH + 5, "seed": 3, "summaries": _summaries(), "primary": False}  # two batches per N, one short

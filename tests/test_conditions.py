@@ -12,7 +12,7 @@ import pytest
 from sim.scene import load_scene
 from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
 from studyctl.protocol import check_protocol, load_protocol
-from studyctl.synthetic_study import run_synthetic_study
+from studyctl.synthetic.study import run_synthetic_study
 from tests.helpers import fast_protocol, studyctl
 
 VARIANTS = """
@@ -228,7 +228,7 @@ def test_a_changed_configuration_is_not_resumed_and_a_failing_one_writes_nothing
     con.close()
     # a session interrupted, then its scene edited: its conditions would mix two configurations
     scene.write_text(original)
-    from studyctl.session import run_session
+    from studyctl.session.run import run_session
 
     class Stop(Exception):
         pass
@@ -250,7 +250,7 @@ def test_a_configuration_is_the_same_wherever_the_project_lies(tmp_path):
     import shutil
     from pathlib import Path
 
-    from studyctl.rig import condition_keys
+    from studyctl.synthetic.rig import condition_keys
 
     root = Path(__file__).resolve().parents[1]
     moved = tmp_path / "elsewhere" / "protocols"

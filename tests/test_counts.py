@@ -143,18 +143,19 @@ def test_table1_banner_counts_a_mixed_source_participant_as_status_does(mixed_so
 
 
 def test_plots_of_a_mixed_study_are_titled_mixed(mixed_study, tmp_path, monkeypatch):
-    import analysis.plots as plots
+    import analysis.reports.plots as plots
+    import studyctl.synthetic.force_traces as force_traces
 
     titles = []
     real = plots._suptitle
     monkeypatch.setattr(plots, "_suptitle", lambda fig, text, size: (titles.append(text), real(fig, text, size)))
-    monkeypatch.setattr(plots, "force_traces", lambda protocol: None)  # the traces' figure has no kind of data in its title
+    monkeypatch.setattr(force_traces, "force_traces", lambda protocol: None)  # the traces' figure has no kind of data in its title
     assert studyctl("report", "plots", "--db", mixed_study, "--out", tmp_path / "plots").exit_code == 0
     assert titles and all(t.startswith("MIXED DATA: ") for t in titles), titles
 
 
 def _interrupt_after(monkeypatch, k: int):
-    import studyctl.synthetic_study as runner
+    import studyctl.synthetic.study as runner
 
     real = runner.completed
 
@@ -188,7 +189,7 @@ def test_an_interrupted_synth_suggests_complete(interrupted):
 def interrupted_in_a_session(tmp_path, monkeypatch):
     """A `synth --participants 3` (one job) whose Ctrl-C lands inside S002's session, as it
     nearly always does: the session raises its own Interrupted, naming its scratch study."""
-    import studyctl.session as session
+    import studyctl.session.run as session
 
     real = session._run_condition
 

@@ -8,7 +8,7 @@ import pytest
 from sim.devices.base import OmniSpec
 from sim.devices.simulated import HandImpedance, PullScript, SimulatedOmni, min_jerk
 from sim.models.api import Contact, TissueModel
-from sim.servo import Hand, ServoLoop, limit_force
+from sim.servo.loop import Hand, ServoLoop, limit_force
 
 
 def _still(start=(0.0, 0.0, 0.0), pull=(0.0, 0.0, 0.0)):

@@ -1,7 +1,7 @@
-"""The discrimination task (studyctl/tasks.py, studyctl/discrimination.py): the stimulus is the
+"""The discrimination task (studyctl/tasks.py, studyctl/session/discrimination.py): the stimulus is the
 model's stiffness scaled exactly as a rebuilt model would be, the protocol's task is checked,
 the synthetic observer answers from the two traces, sessions store and resume every trial, and
-synthetic participants' Weber fractions are recovered (analysis/psychometric.py)."""
+synthetic participants' Weber fractions are recovered (analysis/discrimination/psychometric.py)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.latex import document
+from analysis.reports.latex import document
 from sim.scene import Scene, load_scene
 from studyctl.protocol import check_protocol, load_protocol
 from tests.helpers import JND, jnd_protocol, latex_problems, unsupported_numbers
@@ -120,7 +120,7 @@ def test_a_lockstep_run_ended_at_the_release_is_the_full_runs_start_and_judged_a
     let go; every tick before it is the full run's, bit for bit, so the stiffness judgement, which
     reads each hand's first hold, is the same."""
     from sim.run import run_scene
-    from studyctl.observer import stiffness_log_ratio
+    from studyctl.synthetic.observer import stiffness_log_ratio
     from tests.helpers import fast_protocol
 
     fast_protocol(tmp_path)
@@ -150,8 +150,8 @@ def test_a_lockstep_run_ended_at_the_release_is_the_full_runs_start_and_judged_a
 def _trace(k: float, distance: float, hands: int = 2):
     """A pull's trace with force k * stretch^1.5 (a stiffening tissue), stretched to `distance`
     over 1 s at 1 kHz after a grasp at 0.1 s: the attributes the observer reads."""
-    from sim.servo import Event
-    from studyctl.traces import Trace
+    from analysis.trace_files import Trace
+    from sim.servo.loop import Event
 
     t = np.arange(0.0, 1.5, 0.001)
     stretch = distance * np.clip((t - 0.1) / 1.0, 0.0, 1.0)
@@ -167,7 +167,7 @@ def _trace(k: float, distance: float, hands: int = 2):
 def test_the_observer_compares_forces_at_the_same_stretch():
     """ln(k2 / k1), whatever either pull's length (a longer pull is not stiffer): to the linear
     interpolation between 1 ms samples (1.6e-7 here)."""
-    from studyctl.observer import stiffness_log_ratio
+    from studyctl.synthetic.observer import stiffness_log_ratio
 
     assert stiffness_log_ratio(_trace(10.0, 0.012), _trace(13.0, 0.008)) == pytest.approx(math.log(1.3), abs=1e-6)
     assert stiffness_log_ratio(_trace(13.0, 0.006), _trace(10.0, 0.012)) == pytest.approx(-math.log(1.3), abs=1e-6)
@@ -181,7 +181,7 @@ def test_an_increment_of_the_weber_fraction_is_picked_out_75_percent_of_the_time
     """The observer's psychometric function by construction: P(stiffer chosen) = 75% at an
     increment of its Weber fraction, 50% at none, and lapses pull it to 1/2: over 4000 seeded
     draws each (binomial sd 0.7 points; the tolerance is 3 points)."""
-    from studyctl.observer import DiscriminationTraits, stiffer_answer
+    from studyctl.synthetic.observer import DiscriminationTraits, stiffer_answer
 
     def rate(delta: float, lapse: float) -> float:
         a, b = _trace(10.0, 0.012), _trace(10.0 * (1 + delta), 0.011)
@@ -208,10 +208,10 @@ def test_a_synthetic_session_stores_every_trial_and_a_killed_one_resumes_as_if_u
     traces written, its row not: the trial in flight) and resumed: the same increments, orders,
     answers and procedure states as an uninterrupted run, each trial once, both traces stored
     and matching their hashes; the generating traits kept."""
-    import studyctl.discrimination as disc
-    from studyctl.session import run_session
-    from studyctl.synthetic_study import run_synthetic_study
-    from studyctl.traces import read_trace
+    import studyctl.session.discrimination as disc
+    from analysis.trace_files import read_trace
+    from studyctl.session.run import run_session
+    from studyctl.synthetic.study import run_synthetic_study
     from tests.helpers import studyctl
 
     protocol = jnd_protocol(tmp_path, trials=12)
@@ -231,7 +231,7 @@ def test_a_synthetic_session_stores_every_trial_and_a_killed_one_resumes_as_if_u
     # whole: a crash there loses the participant's run, not the study's rows)
     for args in (("study", "init", "--protocol", protocol), ("participants", "add", "S001", "--synthetic")):
         assert studyctl(*args, "--db", broken).exit_code == 0
-    from studyctl.errors import Interrupted
+    from analysis.errors import Interrupted
 
     with pytest.raises(Interrupted, match="session 1 of S001 interrupted"):  # marked at once, and the line says how to resume
         run_session(broken, "S001", synthetic=True, seed=3, time_scale=0.0)
@@ -258,7 +258,7 @@ def test_a_person_discriminates_in_the_window_with_the_mouse(xdotool, tmp_path, 
     import threading
     import time
 
-    from studyctl.session import run_session
+    from studyctl.session.run import run_session
     from tests.helpers import MODEL_WORDS, studyctl
     from tests.window_helpers import Recorder, run_xdotool, window
 
@@ -332,7 +332,7 @@ def test_synthetic_participants_weber_fractions_are_recovered(tmp_path):
     this seed (the reports' "thurstone" fit): median absolute relative error 23.0% (bound 25%),
     and the bootstrap 95% intervals cover 18 of 20 (90%; the bound: 18 or 19 of 20). Seeds 2
     and 3: 22.5% and 22.6%, covering 17 and 19 of 20 (docs/study.md)."""
-    from studyctl.synthetic_study import run_synthetic_study
+    from studyctl.synthetic.study import run_synthetic_study
     from tests.helpers import studyctl
 
     db = tmp_path / "s.db"
@@ -356,7 +356,7 @@ def test_report_jnd_gives_each_conditions_weber_fractions_and_the_group_test(tmp
     hand-set parameters), four synthetic participants, ten trials: `report jnd` as json, md and html (with a
     psychometric plot per condition), and the same section in `report table1`; every output
     flagged synthetic."""
-    from studyctl.synthetic_study import run_synthetic_study
+    from studyctl.synthetic.study import run_synthetic_study
     from tests.helpers import studyctl
 
     path = jnd_protocol(tmp_path, conditions=("plate_spring", "paper", "handset"), trials=10)

@@ -7,7 +7,7 @@ import pytest
 
 from sim.devices.base import DeviceState
 from sim.models.api import Contact, TissueModel
-from sim.servo import Hand, ServoLoop
+from sim.servo.loop import Hand, ServoLoop
 
 
 class Scripted:

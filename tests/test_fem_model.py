@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from sim.geometry.patch import patch_vertex_weights
+from sim.geometry.tetmesh import body_volume
+from sim.geometry.volume import embed
 from sim.models.fem import FemModel, fixed_nodes
-from sim.patch import patch_vertex_weights
 from sim.run import run_scene
 from sim.scene import build_scene
-from sim.tetmesh import body_volume
-from sim.volume import embed
 from studyctl.cli import cli
 from tests.conftest import SCENE
 
@@ -162,7 +162,7 @@ def test_corotational_fem_pulls_through_inverted_elements_and_still_catches_a_ru
     The line search on the corotational energy halves such steps: the pull completes with a
     force that grows smoothly. The runaway check stays as the servo's safety net."""
     import sim.models.fem.model as fem_model
-    from analysis.accuracy import HANDSET_PARAMS, Setting, _build_model
+    from analysis.verification.accuracy import HANDSET_PARAMS, Setting, _build_model
     from sim.pulls import scene_with, test_pulls
     from sim.scene import DEFAULT_SCENE
 

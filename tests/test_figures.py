@@ -14,9 +14,10 @@ import pandas as pd
 import pytest
 from matplotlib.text import Text
 
-from analysis import plots, report
-from analysis.figure_size import DOUBLE, OKABE_ITO, PAGE_MM, SINGLE, figure_size
+from analysis.reports import plots, report
+from analysis.reports.figure_size import DOUBLE, OKABE_ITO, PAGE_MM, SINGLE, figure_size
 from studyctl.cli.common import read_snapshot
+from studyctl.synthetic.force_traces import force_traces
 from tests.helpers import studyctl
 
 PRINT = {"single": 85.0, "double": 175.0}
@@ -119,7 +120,8 @@ def test_every_report_plot_fits_its_size(which, size, small_study, variants_stud
     db = small_study if which == "paper" else variants_study
     size = figure_size(size)
     traces = which == "paper" and size.name == "single"  # the force traces once: they run the scene with each condition
-    files = report.write_plots(read_snapshot(db), tmp_path, force_traces=traces, size=size)
+    study = read_snapshot(db)
+    files = report.write_plots(study, tmp_path, force_traces(study.protocol) if traces else None, size=size)
     names = {"paper": ["rates", "deformation"] + ["force"] * traces, "variants": ["ratings", "scores", "choice_most_like_tissue", "deformation"]}
     assert list(checked) == names[which]
     assert [f.name for f in files] == [f"{n}.{ext}" for n in names[which] for ext in size.formats]
@@ -133,7 +135,7 @@ def test_every_report_plot_fits_its_size(which, size, small_study, variants_stud
 
 def test_the_deformation_title_is_not_cut_on_screen(small_study, checked, tmp_path):
     """The HTML report's deformation figure had its title cut at the right edge: now wrapped."""
-    report.write_plots(read_snapshot(small_study), tmp_path, force_traces=False)
+    report.write_plots(read_snapshot(small_study), tmp_path)
     title = next(t for t in checked["deformation"] if t.startswith("SYNTHETIC DATA"))
     assert "benchmark of this machine" in title.replace("\n", " ")
 
@@ -145,7 +147,7 @@ def _pareto_rows():
 
 
 def _stability():
-    from analysis.stability import make_cases, outcome_grid
+    from analysis.verification.stability import make_cases, outcome_grid
 
     rng = np.random.default_rng(2)
     cases = [{"model": c.model, "case": c.case, "outcome": ("stable", "refused", "unstable")[int(rng.integers(3))]} for c in make_cases()]

@@ -1,4 +1,4 @@
-"""The font atlas (sim/font.py) against Pillow drawing the same strings itself."""
+"""The font atlas (sim/view/font.py) against Pillow drawing the same strings itself."""
 
 import random
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from PIL import Image, ImageDraw, ImageFont
 
-from sim import font
+from sim.view import font
 
 STRINGS = [
     "Grasp the brain to start",

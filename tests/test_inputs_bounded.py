@@ -210,7 +210,7 @@ def test_a_protocol_integer_beyond_its_range_is_one_line(tmp_path):
 # --- a second Ctrl-C during the cleanup -----------------------------------------------------
 
 def test_a_second_ctrl_c_while_a_resumed_session_cleans_up_still_says_how_to_resume(tmp_path, monkeypatch):
-    import studyctl.session as session  # where a session runs its trials and marks itself interrupted
+    import studyctl.session.run as session  # where a session runs its trials and marks itself interrupted
 
     old = signal.signal(signal.SIGINT, signal.default_int_handler)  # pytest-xdist's workers ignore SIGINT
     try:
@@ -349,8 +349,8 @@ def test_participant_texts_are_bounded(tmp_path, args, problem):
 
 
 def test_the_terminal_questionnaire_asks_again_for_a_free_text_with_an_escape_sequence():
-    from studyctl.asking import TerminalAnswers
-    from studyctl.questions import Question
+    from analysis.questions import Question
+    from studyctl.session.asking import TerminalAnswers
 
     replies, shown = iter(["fine\x1b[2J", "x" * 2001, "fine"]), []
     ask = TerminalAnswers(prompt=lambda text: next(replies), echo=shown.append)

@@ -1,11 +1,11 @@
-"""analysis/latex.py: every report's tables as LaTeX that compiles with pdflatex and fits an A4
+"""analysis/reports/latex.py: every report's tables as LaTeX that compiles with pdflatex and fits an A4
 text block (no overfull box over 1 pt), with escaped text and proper symbols."""
 
 from __future__ import annotations
 
 import pytest
 
-from analysis import latex
+from analysis.reports import latex
 from tests.helpers import latex_problems
 
 

@@ -1,12 +1,18 @@
-"""The layers run one way (issue 28): the simulator (sim) imports neither the study library
-(studyctl) nor the analyses (analysis), so it runs, ships and is tested without them; the study
-library imports no analysis outside its CLI."""
+"""The house's rules, as the design states them (docs/architecture.md): three packages in layers
+that run one way, folders small enough to read by concept, imports at the top, no cycles, SQL
+only in the store."""
 
 import ast
 import re
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
+# bottom to top: a package imports only those before it
+LAYERS = ("sim", "analysis", "studyctl")
+SUBPACKAGES = ("sim/devices", "sim/geometry", "sim/models", "sim/models/fem", "sim/servo", "sim/view", "analysis/discrimination",
+               "analysis/reports", "analysis/verification", "studyctl/cli", "studyctl/session", "studyctl/store", "studyctl/synthetic")
 
 
 def _imports(path: Path) -> set[str]:
@@ -20,17 +26,60 @@ def _imports(path: Path) -> set[str]:
     return out
 
 
-def test_sim_imports_neither_the_study_library_nor_the_analyses():
-    offenders = {str(p.relative_to(ROOT)): sorted(_imports(p) & {"analysis", "studyctl"}) for p in sorted((ROOT / "sim").rglob("*.py"))}
+@pytest.mark.parametrize("level", range(len(LAYERS)))
+def test_a_package_imports_only_the_layers_below_it(level):
+    """sim runs, ships and is tested alone; analysis (the statistics of studies, the verification of
+    models) reads sim only; studyctl (the study, the store, the synthetic participants, the CLI) is on top."""
+    pkg, above = LAYERS[level], set(LAYERS[level + 1:])
+    files = sorted((ROOT / pkg).rglob("*.py"))
+    offenders = {str(p.relative_to(ROOT)): sorted(_imports(p) & above) for p in files}
+    assert len(files) > 40
     assert {k: v for k, v in offenders.items() if v} == {}
 
 
-def test_the_study_library_imports_no_analysis_outside_its_cli():
-    """Sessions, storage and synthetic participants run without the statistics; the CLI, which
-    offers both, is the one place that joins them (analysis may read studies: studyctl)."""
-    files = [p for p in sorted((ROOT / "studyctl").rglob("*.py")) if "cli" not in p.relative_to(ROOT / "studyctl").parts[:-1]]
-    offenders = {str(p.relative_to(ROOT)): sorted(_imports(p) & {"analysis"}) for p in files}
-    assert len(files) > 15 and {k: v for k, v in offenders.items() if v} == {}
+def test_no_folder_holds_more_than_20_modules():
+    """A folder past 20 modules holds several concepts: each gets its sub-package."""
+    counts = {str(d.relative_to(ROOT)): sum(1 for p in d.glob("*.py") if p.name != "__init__.py")
+              for pkg in LAYERS for d in [ROOT / pkg, *(ROOT / pkg).rglob("*")] if d.is_dir() and d.name != "__pycache__"}
+    assert len(counts) >= len(LAYERS) + len(SUBPACKAGES)
+    assert {k: v for k, v in counts.items() if v > 20} == {}
+
+
+@pytest.mark.parametrize("sub", SUBPACKAGES)
+def test_each_sub_package_says_what_lives_in_it(sub):
+    """Its `__init__` names what the folder holds and what it may import (a few lines, no code)."""
+    init = ROOT / sub / "__init__.py"
+    doc = ast.get_docstring(ast.parse(init.read_text()))
+    assert doc is not None and len(doc.splitlines()) >= 2, sub
+    assert "Imports:" in doc, sub  # what it may import
+
+
+def _in_function_imports() -> list[str]:
+    found = []
+    for pkg in LAYERS:
+        for p in sorted((ROOT / pkg).rglob("*.py")):
+            if p.is_relative_to(ROOT / "studyctl" / "cli"):
+                continue
+            tree = ast.parse(p.read_text(), filename=str(p))
+            for fn in ast.walk(tree):
+                if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    found += [f"{p.relative_to(ROOT)}:{n.lineno}" for n in ast.walk(fn) if isinstance(n, (ast.Import, ast.ImportFrom))]
+    return sorted(set(found))
+
+
+def test_imports_sit_at_the_top_outside_the_cli():
+    """An import inside a function hides a dependency; the few left load an optional or slow
+    dependency only where it is used, each with its reason on its line."""
+    found = _in_function_imports()
+    assert len(found) <= 15, found
+
+
+def test_no_issue_number_in_the_code():
+    """Issue numbers go stale in code; the changelog and the docs keep them."""
+    pattern = re.compile(r"\b[Ii]ssues? #?\d+")
+    found = [f"{p.relative_to(ROOT)}:{k}" for pkg in LAYERS for p in sorted((ROOT / pkg).rglob("*.py"))
+             for k, line in enumerate(p.read_text().splitlines(), 1) if pattern.search(line)]
+    assert found == []
 
 
 def _module_graph() -> tuple[list[str], dict[str, set[str]]]:

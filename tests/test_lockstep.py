@@ -1,11 +1,11 @@
-"""The compiled lockstep ticks (sim/lockstep.py) give the Python tick's trace to the bit."""
+"""The compiled lockstep ticks (sim/servo/lockstep.py) give the Python tick's trace to the bit."""
 
 import dataclasses
 
 import numpy as np
 import pytest
 
-import sim.lockstep as lockstep
+import sim.servo.lockstep as lockstep
 from sim.run import run_scene
 from sim.scene import Scene, load_scene
 from tests.conftest import ROOT

@@ -66,7 +66,7 @@ def test_steady_pull_renders_no_force_steps():
     measured gain, the force changes by at most 0.01 N per millisecond."""
     import numpy as np
 
-    from analysis.accuracy import HANDSET_PARAMS, Setting, _build_model
+    from analysis.verification.accuracy import HANDSET_PARAMS, Setting, _build_model
     from sim.pulls import make_pulls, scene_with
     from sim.scene import DEFAULT_SCENE
 
@@ -95,7 +95,7 @@ def test_a_grasp_starts_from_zero_force():
     exceeds, before that frame, what the tissue renders after it."""
     import numpy as np
 
-    from analysis.accuracy import HANDSET_PARAMS, Setting, _build_model
+    from analysis.verification.accuracy import HANDSET_PARAMS, Setting, _build_model
     from sim.pulls import make_pulls, scene_with
     from sim.scene import DEFAULT_SCENE
 

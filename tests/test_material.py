@@ -1,4 +1,4 @@
-"""`studyctl calibrate material` and material files (analysis/material_fit.py, sim/material.py):
+"""`studyctl calibrate material` and material files (analysis/verification/material_fit.py, sim/material.py):
 the fit against an independent one, the chosen law and its errors as the issue states them,
 refusals with the file, line and allowed values, and a written file read back by a scene."""
 
@@ -8,7 +8,7 @@ import pytest
 from click.testing import CliRunner
 from scipy.optimize import curve_fit
 
-from analysis.material_fit import DATA_FILE, read_curve
+from analysis.verification.material_fit import DATA_FILE, read_curve
 from sim.material import load_material
 from sim.scene import load_scene
 from studyctl.cli import cli
@@ -46,7 +46,7 @@ def test_the_shipped_material_is_the_fit_on_every_mode_and_the_default():
     """The shipped cortex law is the one chosen on tension, compression and shear together
     (issue 55), within the issue's bars: uniaxial RMS at most 10%, shear at most 20% off over
     strains 0.1-0.2."""
-    from analysis.material_fit import SHEAR_FILE, fit_material
+    from analysis.verification.material_fit import SHEAR_FILE, fit_material
 
     joint = fit_material([DATA_FILE, SHEAR_FILE], "cortex")
     law, prov = load_material(ROOT / "protocols/materials/human_cortex.toml")
@@ -143,7 +143,7 @@ def test_the_shear_closed_form_is_the_stress_tensors_and_neo_hookean_is_linear()
     neo-Hookean solid in simple shear."""
     import numpy as np
 
-    from analysis.material_fit import shear_stress
+    from analysis.verification.material_fit import shear_stress
     from sim.hyperelastic import neo_hookean, ogden, simple_shear
 
     g = np.linspace(-0.4, 0.4, 9)
@@ -155,7 +155,7 @@ def test_the_shear_closed_form_is_the_stress_tensors_and_neo_hookean_is_linear()
 
 @pytest.fixture(scope="module")
 def both_modes():
-    from analysis.material_fit import SHEAR_FILE
+    from analysis.verification.material_fit import SHEAR_FILE
 
     res = CliRunner().invoke(cli, ["calibrate", "material", "--data", str(DATA_FILE), "--data", str(SHEAR_FILE), "--region", "cortex",
                                    "--json"])
@@ -190,7 +190,7 @@ def test_the_joint_fit_agrees_with_an_independent_incompressible_fit(both_modes)
     import numpy as np
     from scipy.optimize import curve_fit
 
-    from analysis.material_fit import SHEAR_FILE
+    from analysis.verification.material_fit import SHEAR_FILE
 
     u, s = read_curve(DATA_FILE, "cortex"), read_curve(SHEAR_FILE, "cortex")
     wu, ws = 1 / np.sqrt(np.mean(u.stress**2)), 1 / np.sqrt(np.mean(s.stress**2))

@@ -7,7 +7,7 @@ import hashlib
 import json
 import shlex
 
-from analysis.material_fit import DATA_FILE, MAX_POINTS, SHEAR_FILE, fit_material
+from analysis.verification.material_fit import DATA_FILE, MAX_POINTS, SHEAR_FILE, fit_material
 from sim.material import load_material
 from tests.helpers import studyctl
 

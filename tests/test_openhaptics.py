@@ -12,7 +12,7 @@ import pytest
 from sim.devices.openhaptics import HDError, OpenHapticsRig, load_library
 from sim.errors import DeviceError
 from sim.models.api import Contact, TissueModel
-from sim.servo import Hand, ServoLoop
+from sim.servo.loop import Hand, ServoLoop
 
 SOURCE = Path(__file__).parent / "fake_libhd" / "fake_libhd.c"
 
@@ -220,7 +220,7 @@ def test_device_frame_follows_the_view_and_forces_go_back_along_the_pull(tmp_pat
     import numpy as np
 
     from sim.scene import build_scene
-    from sim.view import HandState, ParticipantView
+    from sim.view.window import HandState, ParticipantView
 
     scene = build_scene(_openhaptics_scene(tmp_path), "plate_spring")
     frame = scene.device_frame(0)

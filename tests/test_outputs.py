@@ -238,7 +238,7 @@ def _quick_field(monkeypatch):
     """The field's solves (minutes) replaced by a small file written where the command asks."""
     import numpy as np
 
-    from analysis import field_fit
+    from analysis.verification import field_fit
 
     def build_field(scene_path, out, progress=None):
         np.savez(out, K_per_pa=np.zeros((1, 6), dtype=np.float32))
@@ -250,7 +250,7 @@ def _quick_field(monkeypatch):
 def test_calibrate_field_writes_neither_file_when_the_shape_fit_fails(tmp_path, monkeypatch):
     """The second step fails after the field is computed: the field is not moved into place
     either, and the files that were there (replaced only on success, with --force) stay."""
-    from analysis import field_fit
+    from analysis.verification import field_fit
     from sim.errors import SimError
 
     def failing_fit(*args, **kwargs):

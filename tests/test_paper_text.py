@@ -8,7 +8,7 @@ import re
 
 import pytest
 
-from analysis import paper_text
+from analysis.reports import paper_text
 from tests.helpers import unsupported_numbers
 
 
@@ -56,7 +56,7 @@ def test_every_number_of_the_text_is_in_the_stats_json(which, small_study, varia
 
 
 def test_the_latex_text_compiles(variants_study, tmp_path):
-    from analysis.latex import document
+    from analysis.reports.latex import document
     from tests.helpers import latex_problems
 
     text, _ = _text_and_json(variants_study, "--format", "latex")

@@ -1,10 +1,10 @@
-"""The grasp patch's area mean (sim/patch.py) against closed forms on a flat grid."""
+"""The grasp patch's area mean (sim/geometry/patch.py) against closed forms on a flat grid."""
 
 import numpy as np
 import pytest
 
-from sim.mesh import SurfaceMesh
-from sim.patch import patch_area_points, patch_vertex_weights
+from sim.geometry.mesh import SurfaceMesh
+from sim.geometry.patch import patch_area_points, patch_vertex_weights
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,7 @@ interpolation, and the shipped field's fit to this brain."""
 import numpy as np
 import pytest
 
-from analysis.field_fit import interpolate
+from analysis.verification.field_fit import interpolate
 from sim.errors import ParameterError
 from sim.laws import RadialTable, TensorTable
 from sim.models.plate_spring import PlateSpring, PlateSpringModel, load_params

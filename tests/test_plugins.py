@@ -93,7 +93,7 @@ def test_a_model_that_does_not_load_is_one_line_naming_it_and_the_cause(plugin_e
 
 
 def test_a_model_on_the_python_path_keeps_the_contract():
-    from analysis.model_check import _scene, contract
+    from analysis.verification.model_check import _scene, contract
     from sim.scene import DEFAULT_SCENE
 
     rows, _ = contract(_scene(f"{BAD}:Spring", DEFAULT_SCENE))
@@ -364,7 +364,7 @@ def test_options_are_checked_by_kind_and_a_declaration_the_reader_cannot_read_do
     assert any(p.endswith(f"models.{BAD}:Flagged.mirrored: 'yes' is not true or false") for p in exc.value.problems), exc.value.problems
     assert any(p.endswith(f"models.{BAD}:Flagged.layers: 3 is not one of 1, 2") for p in exc.value.problems), exc.value.problems
     # a model whose option has no default: the benches leave it out of their default rows, and say why
-    from analysis.accuracy import plugin_problem
+    from analysis.verification.accuracy import plugin_problem
 
     assert "stiffness has no default" in plugin_problem(f"{BAD}:NoDefault")
 
@@ -387,7 +387,7 @@ def test_a_discrimination_protocol_with_a_malformed_condition_is_refused_in_one_
 def test_the_built_in_models_keep_the_contract_and_their_budgets_here():
     """Contract and budgets (not the sweeps) of the three on the shipped scene: the budgets'
     margins are 10x or more on this machine (docs/models.md), not marginal."""
-    from analysis.model_check import CheckConfig, _scene, budgets, contract
+    from analysis.verification.model_check import CheckConfig, _scene, budgets, contract
     from sim.scene import DEFAULT_SCENE
 
     for name in ("plate_spring", "fem", "mass_spring"):

@@ -1,4 +1,4 @@
-"""studyctl/procedures.py: the staircase converges on Levitt's targets, QUEST+ asks what the
+"""studyctl/session/procedures.py: the staircase converges on Levitt's targets, QUEST+ asks what the
 questplus package asks in Watson's (2017) published examples and recovers simulated observers'
 Weber fractions, a replayed history gives the uninterrupted procedure, bad specs are refused."""
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.special import ndtr
 
-from studyctl.procedures import (
+from studyctl.session.procedures import (
     LOG10_LN2,
     METHODS,
     RULES,
@@ -23,7 +23,7 @@ from studyctl.procedures import (
     replay,
 )
 
-Z75 = 0.6744897501960817  # the standard normal's 75% point (studyctl/observer.py)
+Z75 = 0.6744897501960817  # the standard normal's 75% point (studyctl/synthetic/observer.py)
 LEVITT = {"1-up-2-down": 0.5 ** 0.5, "1-up-3-down": 0.5 ** (1 / 3)}  # P(correct) where going down is as likely as up
 
 

@@ -1,4 +1,4 @@
-"""analysis/psychometric.py against independent references: psignifit 4 (Schuett et al. 2016)
+"""analysis/discrimination/psychometric.py against independent references: psignifit 4 (Schuett et al. 2016)
 on the same data, with flat priors (its maximum a posteriori is then the maximum likelihood),
 with its own priors on large data, and on its demo data set; noise-free data that must give the
 generating parameters exactly; simulated participants whose Weber fractions must be recovered
@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 from scipy import special, stats
 
-from analysis.psychometric import (
+from analysis.discrimination.psychometric import (
     DEGENERATE,
     WEBER_COLUMNS,
     _bounds,
@@ -25,7 +25,7 @@ from analysis.psychometric import (
     fit_psychometric,
     weber_table,
 )
-from analysis.weber_groups import group_test
+from analysis.discrimination.weber_groups import group_test
 
 ps = pytest.importorskip("psignifit")
 pg = pytest.importorskip("pingouin")
@@ -442,7 +442,7 @@ def test_group_test_two_conditions_incomplete_and_too_few():
 
 def sdt_observer(delta, weber, lapse):
     """P(correct) of the two-interval observer of signal detection theory with Weber-law noise,
-    written out from its definition (docs/study.md, studyctl/observer.py): it picks the stiffer
+    written out from its definition (docs/study.md, studyctl/synthetic/observer.py): it picks the stiffer
     interval when ln(1 + delta) plus Gaussian noise of sd ln(1 + weber) / z75 is positive, and
     guesses with probability `lapse`."""
     z75 = stats.norm.ppf(0.75)
@@ -450,7 +450,7 @@ def sdt_observer(delta, weber, lapse):
 
 
 def test_thurstone_terms_are_the_closed_form():
-    from analysis.psychometric import _log_cdf
+    from analysis.discrimination.psychometric import _log_cdf
 
     z = np.linspace(-30.0, 3.4, 400)
     logF, logQ, logf = _log_cdf("thurstone", z)
@@ -500,7 +500,7 @@ def test_pooling_over_participants_recovers_them_better_than_their_own_fits():
     (hierarchical over the 60) against the generating value, beside their own fits. Measured:
     median error 19.7% pooled against 22.1% own; the credible intervals cover 95% (the band allows
     about 2 binomial standard deviations of 60 fits)."""
-    from analysis.pooled import POOLED_MIN, pooled_webers
+    from analysis.discrimination.pooled import POOLED_MIN, pooled_webers
 
     rng = np.random.default_rng(4)
     rows, truth = [], {}

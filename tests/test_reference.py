@@ -1,4 +1,4 @@
-"""The converged reference (analysis/reference.py): Richardson extrapolation and the GCI worked
+"""The converged reference (analysis/verification/reference.py): Richardson extrapolation and the GCI worked
 on analytic sequences, the body-fitted (fTetWild) hemisphere mesh, P2 forces on two sizes, and
 `studyctl bench reference --quick` end to end. The meshes are cached on disk: the first run of
 this file meshes one hemisphere twice (about 35 s on 2 cores), later runs read them back."""
@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from analysis import reference, tissue_pulls
-from analysis.convergence import converge, richardson, richardson2
-from analysis.tissue_pulls import build_problem, pull_stiffness
-from sim.mesh import icosphere
-from sim.patch import patch_area_points
+from analysis.verification import reference, tissue_pulls
+from analysis.verification.convergence import converge, richardson, richardson2
+from analysis.verification.tissue_pulls import build_problem, pull_stiffness
+from sim.geometry.mesh import icosphere
+from sim.geometry.patch import patch_area_points
+from sim.geometry.tetmesh import enclosed_volume, hemisphere_surface, mesh_hemisphere
+from sim.geometry.volume import tet_volumes
 from sim.pulls import make_pulls, scene_with
 from sim.scene import DEFAULT_SCENE, clamp_limit
-from sim.tetmesh import enclosed_volume, hemisphere_surface, mesh_hemisphere
-from sim.volume import tet_volumes
 from studyctl.cli import cli
 
 # -- Richardson and the GCI ------------------------------------------------------------------
@@ -209,8 +209,8 @@ def test_the_shipped_solves_are_the_solvers_and_hash_checked(scene, tmp_path, mo
 def test_the_quick_benches_and_model_check_solve_nothing_on_an_empty_cache(tmp_path, monkeypatch):
     """Every solve `--quick` asks for (the accuracy bench, hence `model check --quick`, and the
     reference bench) is shipped: an empty cache costs seconds, not minutes of finite-strain solves."""
-    from analysis.accuracy import quick_config as quick_accuracy
-    from analysis.accuracy import sample_displacements
+    from analysis.verification.accuracy import quick_config as quick_accuracy
+    from analysis.verification.accuracy import sample_displacements
     from sim.pulls import test_pulls
 
     monkeypatch.setenv("BRAINSIM_CACHE", str(tmp_path / "empty"))
@@ -219,7 +219,7 @@ def test_the_quick_benches_and_model_check_solve_nothing_on_an_empty_cache(tmp_p
     pulls = make_pulls(scene) + test_pulls(scene, acc.test_places)
     assert tissue_pulls.unsolved(DEFAULT_SCENE, pulls, sample_displacements(acc), acc.reference_sizes_mm) == {20.0: 0, 16.0: 0}
     # and the ensemble's other laws on the coarsest mesh (the truth's law band)
-    from analysis.truth_band import scene_ensemble, shapes
+    from analysis.verification.truth_band import scene_ensemble, shapes
 
     for shape in shapes(scene_ensemble(scene))[1:]:
         assert tissue_pulls.unsolved(DEFAULT_SCENE, pulls, sample_displacements(acc), (20.0,), law=shape) == {20.0: 0}
@@ -233,7 +233,7 @@ def test_the_quick_benches_and_model_check_solve_nothing_on_an_empty_cache(tmp_p
 def test_samples_past_a_stopped_solve_have_no_reference_and_are_not_judged():
     """A pull whose solve stopped on one mesh: its later samples carry no reference, the
     calibration scale and the rows leave them out, and the others are judged as before."""
-    from analysis.accuracy import calibration_scale, compare
+    from analysis.verification.accuracy import calibration_scale, compare
     from sim.pulls import Pull
 
     xs = np.array([0.004, 0.008])
@@ -311,7 +311,7 @@ def test_a_stored_solve_that_stopped_beyond_the_records_asked_serves_them_as_con
     12.5 mm holds converged states up to there: a shorter request is converged, a longer not."""
     import numpy as np
 
-    from analysis import tissue_pulls
+    from analysis.verification import tissue_pulls
 
     monkeypatch.setenv("BRAINSIM_CACHE", str(tmp_path))
     xs = np.array([0.004, 0.008, 0.016])

@@ -112,7 +112,7 @@ def test_headless_plate_spring_scene_never_imports_open3d_the_renderer_or_other_
         result = run_scene(scene, duration=0.5, time_scale=0)
         print(json.dumps({{
             "open3d": sorted(m for m in sys.modules if m.startswith("open3d"))[:3],
-            "render": sorted(m for m in ("sim.run_pictures", "sim.renderer", "sim.view", "moderngl", "glfw") if m in sys.modules),
+            "render": sorted(m for m in ("sim.view.pictures", "sim.view.renderer", "sim.view.window", "moderngl", "glfw") if m in sys.modules),
             "models": sorted(m for m in ("sim.models.plate_spring", "sim.models.fem", "sim.models.mass_spring") if m in sys.modules),
             "ticks": len(result.times),
         }}))
@@ -148,7 +148,7 @@ def test_headless_fem_scene_meshes_in_a_child_and_assembles_once_per_hemisphere(
         result = run_scene(scene, duration=0.3, time_scale=0)
         import sim.models.fem as fem
         print(json.dumps({{"open3d": any(m.startswith("open3d") for m in sys.modules), "assemblies": fem.ASSEMBLIES[0],
-                          "render": "sim.run_pictures" in sys.modules}}))
+                          "render": "sim.view.pictures" in sys.modules}}))
     """)
     assert got == {"open3d": False, "assemblies": 2, "render": False}
 

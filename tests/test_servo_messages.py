@@ -1,4 +1,4 @@
-"""The servo process's typed messages, device recipes and run log (sim/servo_messages.py)."""
+"""The servo process's typed messages, device recipes and run log (sim/servo/messages.py)."""
 
 import dataclasses
 import pickle
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from sim.laws import Constant, PairTable
-from sim.servo import Event
-from sim.servo_child import LawModel, RemoteContact
-from sim.servo_messages import (
+from sim.servo.child import LawModel, RemoteContact
+from sim.servo.loop import Event
+from sim.servo.messages import (
     BeginRun,
     Close,
     LawUpdate,
@@ -69,21 +69,21 @@ def test_the_run_log_pickles_inside_its_message_and_is_frozen():
 
 def test_the_messages_module_loads_only_the_standard_library():
     # the spawned servo process imports it: nothing heavy, no numpy, no other sim module
-    code = "import sys; import sim.servo_messages; print(' '.join(sorted(sys.modules)))"
+    code = "import sys; import sim.servo.messages; print(' '.join(sorted(sys.modules)))"
     loaded = set(subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split())
-    assert "numpy" not in loaded and {m for m in loaded if m.startswith("sim")} == {"sim", "sim.servo_messages"}
+    assert "numpy" not in loaded and {m for m in loaded if m.startswith("sim")} == {"sim", "sim.servo.messages"}
 
 
 def test_the_servo_process_imports_no_heavy_modules():
-    code = "import sys; import sim.servo_child; print(' '.join(sorted(sys.modules)))"
+    code = "import sys; import sim.servo.child; print(' '.join(sorted(sys.modules)))"
     loaded = set(subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split())
-    for heavy in ("scipy", "open3d", "matplotlib", "numba", "sim.models.api", "sim.run", "sim.scene", "sim.servo_process"):
+    for heavy in ("scipy", "open3d", "matplotlib", "numba", "sim.models.api", "sim.run", "sim.scene", "sim.servo.process"):
         assert heavy not in loaded, heavy
 
 
 def test_device_recipes_name_their_fields():
     from sim.scene import build_scene
-    from sim.servo_process import device_recipes
+    from sim.servo.process import device_recipes
 
     scene = build_scene(SCENE)
     names = [h.name for h in scene.spec.hands]
@@ -115,7 +115,7 @@ def test_the_servo_model_uses_a_pair_table_only_for_its_two_hands():
 def test_a_servo_process_serves_typed_runs_started_by_clock_key_or_stopped():
     from sim.run import VisualStep
     from sim.scene import build_scene
-    from sim.servo_process import ServoProcess
+    from sim.servo.process import ServoProcess
 
     scene = build_scene(SCENE)
     rate = scene.spec.servo_rate_hz

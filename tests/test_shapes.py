@@ -1,4 +1,4 @@
-"""The view's instrument and arrow meshes (sim/shapes.py): well-formed, closed, outward-facing,
+"""The view's instrument and arrow meshes (sim/view/shapes.py): well-formed, closed, outward-facing,
 the right size, and placed by a right-handed frame."""
 
 import math
@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from sim.shapes import Shape, arrow, forceps, forceps_parts, forceps_tips, frame, transform
+from sim.view.shapes import Shape, arrow, forceps, forceps_parts, forceps_tips, frame, transform
 
 OPENINGS = (0.0, 0.3, 0.5, 1.0)
 

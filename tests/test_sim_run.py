@@ -170,7 +170,7 @@ def test_servo_process_run_matches_the_lockstep_run():
 
 def test_grasp_collides_with_the_deformed_surface_and_misses_when_far():
     from sim.run import VisualStep
-    from sim.servo import Hand
+    from sim.servo.loop import Hand
 
     scene = build_scene(SCENE)
     model, mesh = scene.model, scene.mesh

@@ -13,8 +13,8 @@ import pytest
 from sim.devices.simulated import PullScript, SimulatedOmni, min_jerk
 from sim.targets import HandTarget, TargetSpec
 from studyctl.protocol import check_protocol
-from studyctl.skill import KEYS, SkillProfile
-from studyctl.synthetic import CORRECTION_DELAY, CORRECTION_TIME, SyntheticParticipant, pursue
+from studyctl.synthetic.participant import CORRECTION_DELAY, CORRECTION_TIME, SyntheticParticipant, pursue
+from studyctl.synthetic.skill import KEYS, SkillProfile
 
 ROOT = Path(__file__).resolve().parents[1]
 CV = ROOT / "protocols" / "construct_validity.toml"
@@ -192,7 +192,7 @@ def test_old_operator_unchanged_without_a_target_or_profile():
 
 def test_a_synthetic_study_stores_each_participants_profile(tmp_path):
     from studyctl.store import init_study
-    from studyctl.synthetic_study import run_synthetic_study
+    from studyctl.synthetic.study import run_synthetic_study
 
     text = CV.read_text().replace("trials_per_condition = 10 ", "trials_per_condition = 2 ")
     text = text.replace('scene = "scenes/retraction.toml"', f'scene = "{CV.parent / "scenes" / "retraction.toml"}"')

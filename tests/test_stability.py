@@ -9,11 +9,19 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from analysis.stability import CHATTER_REVERSALS, Case, _scene_for, make_cases, markdown, peak_reversals, run_case
+from analysis.verification.stability import (
+    CHATTER_REVERSALS,
+    Case,
+    _scene_for,
+    make_cases,
+    markdown,
+    peak_reversals,
+    run_case,
+)
 from sim.devices.simulated import PullScript, SimulatedOmni
 from sim.models.api import Contact, TissueModel
 from sim.run import run_scene
-from sim.servo import Hand, ServoLoop
+from sim.servo.loop import Hand, ServoLoop
 from studyctl.cli import cli
 
 
@@ -96,7 +104,7 @@ def test_a_model_that_throws_is_unstable_not_a_crash(monkeypatch):
 def test_dask_cluster_gives_the_local_answers():
     from distributed import LocalCluster
 
-    import analysis.stability as st
+    import analysis.verification.stability as st
 
     # the FEM's rigid rows too: CHOLMOD's bits depend on the BLAS thread count, which Dask's
     # nanny sets to one; every process that factorises runs one thread (sim.linalg.one_thread_pools)

@@ -326,7 +326,7 @@ def test_a_foreign_file_with_an_unmerged_wal_is_left_as_it_was(tmp_path):
 
 
 def test_withdrawal_waits_for_a_running_session(tmp_path):
-    from studyctl.lock import session_lock
+    from studyctl.session.lock import session_lock
 
     db = _study(tmp_path)
     studyctl("participants", "add", "S01", "--synthetic", "--db", db)

@@ -286,7 +286,7 @@ def test_cli_conventions_hold_for_every_command():
 def test_a_missing_extra_is_a_one_line_error_naming_it(tmp_path, monkeypatch):
     import importlib.util
 
-    from studyctl.sweep import SweepError, connect
+    from sim.sweep import SweepError, connect
 
     db = tmp_path / "s.db"
     studyctl("study", "init", "--db", db)  # the shipped protocol

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.stats import norm
 
-from studyctl.observer import (
+from studyctl.synthetic.observer import (
     P_WITHIN_PERFECT,
     ObserverParams,
     ObserverTraits,
@@ -21,8 +21,8 @@ from studyctl.observer import (
     weber_at,
     within_jnd,
 )
-from studyctl.synthetic import SyntheticParticipant
-from studyctl.synthetic_study import run_synthetic_study
+from studyctl.synthetic.participant import SyntheticParticipant
+from studyctl.synthetic.study import run_synthetic_study
 from tests.helpers import fast_protocol, synthetic_content, synthetic_summary
 
 MEDIAN = ObserverTraits(weber=0.10, prior=1.0, latency_ms=40.0, vibration=1.0, bias=0.0)
@@ -141,9 +141,9 @@ def test_plan_power_grows_with_n_and_is_labelled_synthetic(tmp_path):
 
     from click.testing import CliRunner
 
-    from analysis.plan import power_table
     from studyctl.cli import cli
     from studyctl.protocol import load_protocol
+    from studyctl.synthetic.plan import power_table
 
     protocol = load_protocol(fast_protocol(tmp_path, trials=1))
     # fixed pilot summaries: a clearly worse model (slow) and two alike
@@ -163,8 +163,8 @@ def test_plan_power_grows_with_n_and_is_labelled_synthetic(tmp_path):
 def test_null_study_rejects_at_about_alpha():
     """One model under three labels: Cochran's Q's false-positive rate is alpha within Monte
     Carlo error for every question (pilot summaries that differ per label, as trials do)."""
-    from analysis.plan import null_table
     from studyctl.protocol import load_protocol
+    from studyctl.synthetic.plan import null_table
     from tests.helpers import PROTOCOL
 
     protocol = load_protocol(PROTOCOL)
@@ -183,8 +183,8 @@ def test_null_study_rejects_at_about_alpha():
 def swap_pilots(tmp_path_factory):
     """Pilot trials on the simulator (8 mm brain, 3 s pulls), with the models in their own
     conditions and swapped round."""
-    from analysis.plan import pilot_summaries
     from studyctl.protocol import load_protocol
+    from studyctl.synthetic.plan import pilot_summaries
 
     tmp = tmp_path_factory.mktemp("swap")
     path = fast_protocol(tmp, trials=1)
@@ -195,7 +195,7 @@ def swap_pilots(tmp_path_factory):
 
 
 def test_swapping_which_model_plays_which_condition_leaves_the_rates(swap_pilots):
-    from analysis.plan import expected_rates
+    from studyctl.synthetic.plan import expected_rates
 
     protocol, swap, own, swapped = swap_pilots
     a = expected_rates(protocol, own, simulations=300, seed=4).set_index(["label", "item"])
@@ -216,18 +216,18 @@ def test_swapping_which_model_plays_which_condition_leaves_the_rates(swap_pilots
 
 
 def test_the_shipped_truth_covers_the_scenes_grasps_and_is_the_references_solution(tmp_path):
-    """The observer's truth (studyctl/truth.py): every grasp place near the scene's hands; along a
+    """The observer's truth (analysis/verification/truth.py): every grasp place near the scene's hands; along a
     hand's own pull it is the shipped reference's finite-strain force (Richardson over the three
     meshes); its slope at rest is the small-strain stiffness; the field's own code path (analysis/
     field.py, built separately) gives the same small-strain stiffness at the ico4 sites the two
     share; off the hand's vertex it transfers within the measured error."""
     import json
 
-    from analysis.tissue_pulls import RECORD_XS, combined_sample, pull_references
+    from analysis.errors import InputError
+    from analysis.verification.tissue_pulls import RECORD_XS, combined_sample, pull_references
+    from analysis.verification.truth import TRUTH_FILE, hand_vertices, load_truth
     from sim.pulls import hand_pulls, scene_with
     from sim.stiffness_field import FIELD_FILE
-    from studyctl.errors import InputError
-    from studyctl.truth import TRUTH_FILE, hand_vertices, load_truth
     from tests.conftest import SCENE
 
     scene = scene_with(SCENE)

@@ -8,10 +8,10 @@ import pytest
 from click.testing import CliRunner
 from scipy.stats import norm
 
-from analysis.latex import document
+from analysis.reports.latex import document
 from analysis.stats import wilson
 from studyctl.cli import cli
-from studyctl.synthetic_study import run_synthetic_study
+from studyctl.synthetic.study import run_synthetic_study
 from tests.helpers import fast_protocol, latex_problems
 
 
@@ -130,8 +130,8 @@ def test_margin_bounds_match_brute_force_over_every_pairing(yes, n):
 
 def _read(db):
     """The study in `db`, read once, as the report commands read it."""
-    from analysis.study_snapshot import read_study
     from studyctl.store import Store
+    from studyctl.store.snapshot import read_study
 
     with Store(db, mode="read") as store:
         return read_study(store)
@@ -319,11 +319,11 @@ def test_a_report_reads_the_study_once(small_study, tmp_path, monkeypatch):
         assert opened == [small_study] and others == [], args
     assert "data:image/png;base64," in (tmp_path / "r.html").read_text()
 
-    from analysis.report import html
+    from analysis.reports.report import html
 
     study = _read(small_study)
     opened.clear()
-    assert html(study, force_traces=False).startswith("<!doctype html>") and opened == [] and others == []  # the snapshot alone
+    assert html(study).startswith("<!doctype html>") and opened == [] and others == []  # the snapshot alone
     with pytest.raises(dataclasses.FrozenInstanceError):
         study.answers = None
 
@@ -353,7 +353,7 @@ def test_html_report_renders_in_headless_chromium(small_study, tmp_path):
 def test_latex_table_escapes_every_special_character_and_has_the_other_formats_columns(tmp_path):
     import re
 
-    from analysis.report import latex
+    from analysis.reports.report import latex
     from tests.conftest import ROOT
     from tests.helpers import PROTOCOL
 

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from sim import hud
+from sim.view import hud
 from tests.conftest import ROOT
 from tests.helpers import studyctl as _studyctl
 from tests.window_helpers import run_xdotool, window
@@ -56,7 +56,7 @@ class Person:
     draw (the main thread) for screenshots at moments of its choosing."""
 
     def __init__(self, monkeypatch, limit_s=150.0):
-        from sim.view import ParticipantView
+        from sim.view.window import ParticipantView
 
         self.view, self.want, self.shots, self.texts = None, None, {}, []
         self.got = threading.Event()
@@ -140,7 +140,7 @@ class Person:
 
 
 def test_a_person_pulls_each_hand_to_its_target_with_the_mouse_and_the_trial_ends_when_both_are_held(xdotool, tmp_path, monkeypatch):
-    from studyctl.session import run_session
+    from studyctl.session.run import run_session
 
     db = tmp_path / "s.db"
     res = _studyctl("study", "init", "--protocol", _protocol(tmp_path), "--db", db)

@@ -1,4 +1,4 @@
-"""The shipped body-fitted meshes (sim/tetmesh.py, data/brain_tets*.{npz,json}): one geometry,
+"""The shipped body-fitted meshes (sim/geometry/tetmesh.py, data/brain_tets*.{npz,json}): one geometry,
 checked against its provenance, used by the FEM, the mass-spring and the reference alike."""
 
 import json
@@ -8,11 +8,7 @@ import numpy as np
 import pytest
 
 from sim.errors import MeshError
-from sim.models.fem import build as build_fem
-from sim.models.mass_spring import build as build_ms
-from sim.pulls import scene_with
-from sim.scene import DEFAULT_SCENE
-from sim.tetmesh import (
+from sim.geometry.tetmesh import (
     PROVENANCE,
     SHIPPED_MM,
     TEST_MM,
@@ -22,7 +18,11 @@ from sim.tetmesh import (
     hemisphere_surface,
     mesh_hemisphere,
 )
-from sim.volume import tet_volumes
+from sim.geometry.volume import tet_volumes
+from sim.models.fem import build as build_fem
+from sim.models.mass_spring import build as build_ms
+from sim.pulls import scene_with
+from sim.scene import DEFAULT_SCENE
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +46,7 @@ def test_every_shipped_mesh_matches_its_provenance(scene):
 
 
 def test_a_damaged_shipped_mesh_is_refused_by_name(scene, tmp_path, monkeypatch):
-    import sim.tetmesh as tm
+    import sim.geometry.tetmesh as tm
 
     src = tm.shipped_file(8.0)
     with np.load(src) as z:
@@ -70,5 +70,5 @@ def test_fem_mass_spring_and_reference_share_one_geometry(scene):
     for model in (fem, ms):
         assert np.array_equal(model.volume.nodes, volume.nodes) and np.array_equal(model.volume.tets, volume.tets)
     v, t, _ = hemisphere_surface(scene.mesh, 1)
-    right = mesh_hemisphere(v, t, 0.008)  # what analysis/reference.py meshes the right hemisphere with
+    right = mesh_hemisphere(v, t, 0.008)  # what analysis/verification/reference.py meshes the right hemisphere with
     assert np.array_equal(volume.nodes[volume.component == 1], right.nodes)

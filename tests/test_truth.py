@@ -1,4 +1,4 @@
-"""`studyctl calibrate truth` (analysis/truth_table.py) end to end on two coarse meshes (20 and 16 mm,
+"""`studyctl calibrate truth` (analysis/verification/truth_table.py) end to end on two coarse meshes (20 and 16 mm,
 meshed and solved on first use, then cached): the table it writes is read by `load_truth` for
 the scene it was made for, follows the reference's paths, and its transfer to a grasp place off
 the hand's vertex is checked against a direct solve there."""
@@ -9,26 +9,26 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from analysis.tissue_pulls import RECORD_XS, combined_sample, pull_references
+from analysis.verification.tissue_pulls import RECORD_XS, combined_sample, pull_references
+from analysis.verification.truth import hand_sets, load_truth
 from sim.pulls import hand_pulls, scene_with
 from studyctl.cli import cli
-from studyctl.truth import hand_sets, load_truth
 from tests.conftest import SCENE
 
 
 @pytest.fixture(scope="module")
 def coarse_truth(tmp_path_factory, monkeypatch_module):
-    import analysis.truth_table
+    import analysis.verification.truth_table
 
     scene = scene_with(SCENE)
     left = hand_sets(scene)[0]
     out = tmp_path_factory.mktemp("truth") / "t.npz"
-    original = analysis.truth_table.build_truth
+    original = analysis.verification.truth_table.build_truth
 
     def coarse(*a, **kw):
         return original(*a, **(kw | {"sizes_mm": (20.0, 16.0)}))
 
-    monkeypatch_module.setattr(analysis.truth_table, "build_truth", coarse)
+    monkeypatch_module.setattr(analysis.verification.truth_table, "build_truth", coarse)
     vertices = ",".join(str(int(v)) for v in left[:: max(1, len(left) // 4)])
     res = CliRunner().invoke(cli, ["calibrate", "truth", "--vertices", vertices, "--out", str(out), "--jobs", "1", "--json"])
     assert res.exit_code == 0, res.output
@@ -65,7 +65,7 @@ def test_the_table_follows_the_reference_paths_and_transfers_within_its_check(co
 
 
 def test_a_table_for_another_law_is_refused(coarse_truth, tmp_path):
-    from studyctl.errors import InputError
+    from analysis.errors import InputError
 
     _, out, _ = coarse_truth
     other = tmp_path / "s.toml"

@@ -1,4 +1,4 @@
-"""Where the tissue truth is decided (analysis/truth_band.py): the law's ensemble, the band's
+"""Where the tissue truth is decided (analysis/verification/truth_band.py): the law's ensemble, the band's
 parts, the support rule, and the invariants every decided sample of the shipped solves keeps."""
 
 import math
@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from analysis import truth_band
-from analysis.material_fit import fit_material, material_data
+from analysis.verification import truth_band
+from analysis.verification.material_fit import fit_material, material_data
 from sim.hyperelastic import volumetric
 from sim.material import load_material
 
@@ -73,7 +73,7 @@ def test_every_decided_sample_of_the_quick_truth_keeps_the_rule():
     """The quick bench's truth (shipped solves): no decided sample above the device's limit, with
     more energy outside the data than the JND fraction, with |J - 1| above 0.05, or with a band as
     wide as the JND; and each sample's band is its parts' root-sum-square."""
-    from analysis.accuracy import quick_config, sample_displacements
+    from analysis.verification.accuracy import quick_config, sample_displacements
     from sim.calibrate import jnd
     from sim.pulls import make_pulls, scene_with, test_pulls
 
@@ -95,7 +95,7 @@ def test_every_decided_sample_of_the_quick_truth_keeps_the_rule():
 
 
 def test_the_observers_band_is_zero_where_decided_at_the_hand_and_carries_the_transfer_off_it():
-    from studyctl.truth import Truth
+    from analysis.verification.truth import Truth
 
     t = Truth(vertices=np.array([5, 7]), path=np.array([0, 0]), transfer=np.stack([np.eye(3)] * 2), s=np.array([0.0, 0.001, 0.002]),
               direction=np.array([[1.0, 0.0, 0.0]]), force_per_pa=np.zeros((1, 3, 3)), stiffness_per_pa=np.zeros((1, 3, 3, 3)), mu=1.0,

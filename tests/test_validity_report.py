@@ -12,12 +12,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis import validity_report as report_mod
-from analysis import validity_report as vr
-from analysis.latex import document
 from analysis.metrics import COLUMNS
-from analysis.study_snapshot import read_study
+from analysis.reports import validity_report as report_mod
+from analysis.reports import validity_report as vr
+from analysis.reports.latex import document
 from studyctl.store import Store
+from studyctl.store.snapshot import read_study
 from tests.helpers import fast_protocol, field_protocol, latex_problems, studyctl
 
 ORDER = ["student", "resident", "neurosurgeon"]

@@ -21,7 +21,7 @@ from tests.window_helpers import Recorder, brain_pixels, patch_pixels, run_xdoto
 def _window_session(db, actor, tmp_path, protocol_kw, **session_kw):
     """A study with one participant, its session run in the window while `actor(done)` (a
     person or an experimenter at the keyboard and mouse) acts in a thread."""
-    from studyctl.session import run_session
+    from studyctl.session.run import run_session
 
     studyctl("study", "init", "--protocol", participant_protocol(tmp_path, **protocol_kw), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
@@ -228,8 +228,8 @@ def test_clean_errors_for_a_window_without_a_display_and_a_mouse_without_a_windo
 _ON_SCREEN = r"""
 import json, sys, time
 import numpy as np
-from sim.mesh import load_mesh
-from sim.view import HandState, ParticipantView
+from sim.geometry.mesh import load_mesh
+from sim.view.window import HandState, ParticipantView
 mesh = load_mesh()
 view = ParticipantView(mesh, width=640, height=360, show_force=True, fullscreen=sys.argv[1] == "fullscreen")
 if sys.argv[1] == "resized":  # as a person drags the window's corner: the camera and the text follow
@@ -303,8 +303,8 @@ def test_the_screen_shows_the_frame_the_view_reports(mode, tmp_path):
 _MIXED = r"""
 import json
 import numpy as np
-from sim.mesh import load_mesh
-from sim.view import HandState, ParticipantView
+from sim.geometry.mesh import load_mesh
+from sim.view.window import HandState, ParticipantView
 mesh = load_mesh()
 pictures = ParticipantView(mesh, width=320, height=240, visible=False)
 pictures.draw(None, [HandState(tuple(mesh.vertices[3386]), grasped_vertex=3386)])

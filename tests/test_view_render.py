@@ -6,21 +6,21 @@ ray cast and the normals."""
 import numpy as np
 import pytest
 
-from sim.view import PATCH, TISSUE, HandState
+from sim.view.window import PATCH, TISSUE, HandState
 
 FAR = (5.0, 5.0, 5.0)  # a hand out of the picture: no instrument in the way
 
 
 @pytest.fixture(scope="module")
 def mesh():
-    from sim.mesh import load_mesh
+    from sim.geometry.mesh import load_mesh
 
     return load_mesh()
 
 
 @pytest.fixture(scope="module")
 def view(mesh):
-    from sim.view import ParticipantView
+    from sim.view.window import ParticipantView
 
     v = ParticipantView(mesh, width=640, height=360, visible=False)
     yield v
@@ -35,7 +35,7 @@ def _chroma(rgb) -> np.ndarray:
 def _visible(view, mesh, n: int, seed: int = 0) -> np.ndarray:
     """Vertices that face the camera and that nothing hides (the first surface a ray from the
     eye meets), away from the silhouette."""
-    from sim.camera import ray_hit
+    from sim.view.camera import ray_hit
 
     rng = np.random.default_rng(seed)
     out = []
@@ -124,7 +124,7 @@ def test_a_late_latch_draws_the_newest_hand_positions_and_forces(mesh):
     is now, not where the visual step saw it; motion-to-photon runs from the latch's read."""
     import time
 
-    from sim.view import ParticipantView
+    from sim.view.window import ParticipantView
 
     v = ParticipantView(mesh, width=640, height=360, visible=False, show_force=True)
     try:
@@ -163,7 +163,7 @@ def test_text_pixels_are_the_font_atlas_glyphs_where_the_layout_puts_them(view):
 
 
 def test_a_resized_view_refits_the_camera_and_lays_the_text_out_again(mesh):
-    from sim.view import ParticipantView
+    from sim.view.window import ParticipantView
 
     v = ParticipantView(mesh, width=400, height=300, visible=False)
     try:
@@ -216,7 +216,7 @@ def test_vertex_normals_agree_with_open3d(mesh):
 def test_pictures_equal_a_fresh_render(mesh):
     """The offscreen framebuffer read as drawn (a picture) equals a render of the same state by
     another view from scratch, pixel for pixel, over changing deformations, hands and colours."""
-    from sim.view import ParticipantView
+    from sim.view.window import ParticipantView
 
     a = ParticipantView(mesh, width=320, height=240, visible=False, show_force=True)
     b = ParticipantView(mesh, width=320, height=240, visible=False, show_force=True)

@@ -27,7 +27,7 @@ class Recorder:
     A watchdog closes the views after `limit_s`, so a lost X event fails the test, never hangs it."""
 
     def __init__(self, monkeypatch, limit_s: float = 150.0):
-        from sim.view import ParticipantView
+        from sim.view.window import ParticipantView
 
         self.texts, self.shots, self.views = [], [], []
         rec = self

@@ -1,6 +1,7 @@
 """Haptic devices behind one interface (`sim.devices.base.HapticDevice`).
 
-Backends are imported only when a scene opens a device of that kind.
+Backends are imported only when a scene opens a device of that kind (the real Omnis load
+OpenHaptics through ctypes, the mouse loads glfw). Imports: numpy and `sim` below it.
 """
 
 from __future__ import annotations

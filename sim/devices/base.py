@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol
 
-from sim.camera import orientation
 from sim.models.base import Vec3
+from sim.view.camera import orientation
 
 
 @dataclass(frozen=True)
@@ -42,7 +42,7 @@ class DeviceFrame:
 
 def view_rotation(front, up) -> tuple:
     """The rotation whose columns are the screen's right, up and out-of-the-screen directions
-    for the participant's camera looking along -front with `up` (sim/camera.py's)."""
+    for the participant's camera looking along -front with `up` (sim/view/camera.py's)."""
     right, down, forward = orientation(front, up)
     return tuple((float(right[i]), float(-down[i]), float(-forward[i])) for i in range(3))
 

@@ -28,8 +28,8 @@ from sim.devices.openhaptics import (
     nominal_limits,
 )
 from sim.run import Pacing, run_scene
-from sim.servo_messages import Pulse
-from sim.servo_process import ServoProcess
+from sim.servo.messages import Pulse
+from sim.servo.process import ServoProcess
 
 CONFIG_DIRS = ("$GTDD_HOME/config", "~/.3dsystems/config", "/usr/share/3DSystems/config", "/etc/3DSystems/config")
 PULSE_N = 0.5

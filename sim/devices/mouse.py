@@ -1,6 +1,6 @@
 """The mouse as a haptic device: the participant view's pointer drives a hand.
 
-The view (sim/view.py) turns pointer events into a target point and a button per hand (left
+The view (sim/view/window.py) turns pointer events into a target point and a button per hand (left
 mouse button: left hand, right button: right hand) and writes them to the servo's shared board;
 this device, in the servo process, moves the hand towards the target at most `speed_m_s` (so
 the 1 kHz trace is smooth although the pointer is sampled at the frame rate, and never trips

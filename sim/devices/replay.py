@@ -50,7 +50,7 @@ def read_trace(path: str | Path, hand: str) -> tuple[list[float], list[tuple], l
 
 
 def _read_npz(path: Path, hand: str):
-    """A trial trace stored by a study session (studyctl/traces.py)."""
+    """A trial trace stored by a study session (studyctl/session/traces.py)."""
     import numpy as np
 
     try:

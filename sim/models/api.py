@@ -37,7 +37,7 @@ model's state blew up, the servo renders zero force (False); ``forces(contacts, 
 several contacts at once, for coupled contacts (one `force` each); ``pair_law(contacts)`` the
 law of two coupled contacts for a servo in another process (None); ``tick_laws(contacts)``
 the laws whose ``force(d)`` are the model's forces now, which a lockstep servo may evaluate
-compiled (`sim/lockstep.py`; the contacts' laws when ``force`` and ``forces`` are the defaults
+compiled (`sim/servo/lockstep.py`; the contacts' laws when ``force`` and ``forces`` are the defaults
 here, else None); ``with_stiffness(scale)``
 the same model with every force times `scale`, for the discrimination task (declare
 ``scales_stiffness = True``); ``surface`` a surface of its own that `deformation` moves
@@ -264,7 +264,7 @@ class TissueModel:
     scales_stiffness: ClassVar[bool] = False
 
     name: str = ""
-    mesh: Any = None  # the scene's surface mesh (sim.mesh.Mesh)
+    mesh: Any = None  # the scene's surface mesh (sim.geometry.mesh.Mesh)
     surface: Any = None  # a surface of the model's own that `deformation` moves (None: `mesh`)
     frame_flops: float = math.nan
     unstable: bool = False
@@ -313,7 +313,7 @@ class TissueModel:
 
     def tick_laws(self, contacts: Sequence[Contact]) -> list | None:
         """The laws whose ``force(d)`` are ``forces(contacts, d)`` now (a servo may evaluate
-        them itself: the compiled lockstep ticks, sim/lockstep.py), or None where the model
+        them itself: the compiled lockstep ticks, sim/servo/lockstep.py), or None where the model
         computes its forces otherwise. A model overriding ``force`` or ``forces`` says so here."""
         if type(self).force is TissueModel.force and type(self).forces is TissueModel.forces and all(c.law is not None for c in contacts):
             return [c.law for c in contacts]

@@ -21,7 +21,7 @@ import numpy as np
 Vec3 = tuple[float, float, float]
 
 # The budgets a model keeps on this machine (`studyctl model check`), per call, 99th percentile:
-# a servo tick is 1 ms shared with the device's I/O and the safety rules (sim/servo.py), a
+# a servo tick is 1 ms shared with the device's I/O and the safety rules (sim/servo/loop.py), a
 # visual frame at 30 Hz is 33 ms, a grasp stalls the frames it falls in. The one table of them:
 # authors read it as sim.models.api.BUDGETS; it is defined here so that the servo process judges
 # its calls without importing the API (and the scene reader it brings).

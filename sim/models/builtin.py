@@ -11,8 +11,8 @@ from pathlib import Path
 from typing import Any
 
 from sim.devices.base import OmniSpec
+from sim.geometry.patch import GRASP_RADIUS
 from sim.models.api import TissueModel, option, read_options
-from sim.patch import GRASP_RADIUS
 from sim.stiffness_field import FIELD_FILE
 from sim.tomltable import REQUIRED
 

@@ -23,6 +23,9 @@ import scipy.sparse as sp
 from sim import kernels
 from sim.devices.base import OmniSpec
 from sim.errors import ParameterError, SimError
+from sim.geometry.patch import GRASP_RADIUS
+from sim.geometry.tetmesh import body_volume
+from sim.geometry.volume import embed, tet_volumes
 from sim.laws import Coupling
 from sim.linalg import Factor
 from sim.models.base import Contact
@@ -32,10 +35,7 @@ from sim.models.builtin import MassSpringBase
 from sim.models.fem import fixed_nodes
 from sim.models.local_global import ANDERSON_DEPTH, RHO_ITERATIONS, LocalGlobal  # noqa: F401 (re-exported)
 from sim.models.newton import NewtonKrylov
-from sim.patch import GRASP_RADIUS
 from sim.scene import AXES
-from sim.tetmesh import body_volume
-from sim.volume import embed, tet_volumes
 
 OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m  # 700 N/m: stable closed-loop stiffness at 1 kHz
 SUBSTEP_FRACTION = 0.5  # explicit sub-steps are this fraction of critical_dt()
@@ -279,7 +279,7 @@ class MassSpring(LocalGlobal, NewtonKrylov):
 
     def step_flops(self, dt: float, integrator: str, iterations: int = 10) -> float:
         """The floating-point work of `step(dt, integrator)` counted from the system's sizes:
-        a deterministic cost (studyctl/observer.py turns it into a latency). Counts the
+        a deterministic cost (studyctl/synthetic/observer.py turns it into a latency). Counts the
         dominant kernels: per-spring work, sparse products (2 flops per entry and column),
         triangular solves (4 per factor entry and column) and, for the implicit integrator, the
         factorisation (sum of squared column counts of L)."""

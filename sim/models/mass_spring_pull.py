@@ -8,11 +8,11 @@ import time
 import numpy as np
 
 from sim.errors import ParameterError
+from sim.geometry.tetmesh import body_volume
 from sim.models.base import pull_problem
 from sim.models.fem import fixed_nodes
 from sim.models.mass_spring import MassSpringModel, StabilityError, from_tets
 from sim.scene import AXES
-from sim.tetmesh import body_volume
 
 
 def hold_pull(scene, integrator: str, dt: float, steps: int, resolution: float | None = None, substep: bool = False,

@@ -383,7 +383,7 @@ class PlateSpringModel(PlateSpringBase):
     name = "plate_spring"
 
     def __init__(self, mesh, params: PlateSpringParams, variant: str = "continuous", field=None):
-        """`variant` "located" (beyond the paper, `analysis.field_fit`): the continuous stack's curve
+        """`variant` "located" (beyond the paper, `analysis.verification.field_fit`): the continuous stack's curve
         gives the shape, `field` ((n, 3, 3) stiffness per pascal at every vertex, scaled by the
         stack's E, the tissue's modulus) the size and direction of the force at the grasp."""
         if variant not in MODEL_VARIANTS:
@@ -429,7 +429,7 @@ class PlateSpringModel(PlateSpringBase):
 
     def deformation(self, contacts: Sequence[Contact], displacements) -> np.ndarray:
         out = self._out
-        # counted work (studyctl/observer.py): per patch vertex, interpolation and the
+        # counted work (studyctl/synthetic/observer.py): per patch vertex, interpolation and the
         # multiply-add along the pull, and the stack's split per layer (not the zeroing of the
         # last frame's patches: that depends on what ran before, and the count must not)
         self.frame_flops = 0.0

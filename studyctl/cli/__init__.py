@@ -1,12 +1,13 @@
 """The `studyctl` command line: parse options, call one library function, print.
 
-Library exceptions (`sim.errors.SimError`, `studyctl.errors.StudyError`) become one-line errors
+Library exceptions (`sim.errors.SimError`, `analysis.errors.StudyError`) become one-line errors
 (a file with several problems: one line each) with exit status 1; usage
 mistakes are click's (exit status 2). No traceback reaches the user for either.
 
 One module per command group, each imported here and added to the root group `cli`; what they
 share (the error handling, output, option types and common options) is in `common`. Commands
 import their library (and anything heavy) inside their functions: `studyctl --help` stays fast.
+Imports: click, rich, and every layer below (`studyctl`, `analysis`, `sim`).
 """
 
 from __future__ import annotations

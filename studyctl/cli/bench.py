@@ -20,7 +20,7 @@ from studyctl.cli.common import (
     staged,
 )
 
-# what each bench writes into --out (analysis/accuracy_tables.py, analysis/stability.py write_outputs)
+# what each bench writes into --out (analysis/verification/accuracy_tables.py, analysis/verification/stability.py write_outputs)
 ACCURACY_FILES = ("accuracy.json", "accuracy.csv", "samples.csv", "accuracy.md", "accuracy.tex", "pareto.png", "pareto.svg")
 STABILITY_FILES = ("stability.json", "stability.csv", "stability.md", "heatmap.png", "heatmap.svg")
 
@@ -36,7 +36,7 @@ def _models(ctx, param, value):
 
     models, _ = installed()
     if value is None:  # every model: say which of a lab's models the defaults cannot build
-        from analysis.accuracy import plugin_problem
+        from analysis.verification.accuracy import plugin_problem
 
         for name in plugins(models):
             if (problem := plugin_problem(name)) is not None:
@@ -72,7 +72,7 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, forc
     finite-strain law on P2 on body-fitted meshes, Richardson; shipped): calibrated with one stiffness scale on the
     calibration pulls, judged raw and calibrated on held-out pulls (within the JND with
     Wilson intervals, against the reference's band, direction error), time per tick and frame."""
-    from analysis import accuracy, accuracy_tables
+    from analysis.verification import accuracy, accuracy_tables
 
     target = staged(out_dir, force, folder=True, expect=ACCURACY_FILES)  # refused before the sweep
     kw = {"scene": scene_file, "young": young} | ({"test_places": test_places} if test_places else {})
@@ -124,7 +124,7 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, forc
 def bench_stability(scene_file, quick, as_json, out_dir, force, jobs, scheduler, models):
     """Sweep E, nu, time step, spring stiffness, plate-spring parameters, far pulls and 5 cm
     jumps for every model: stable, refused (with the reason) or unstable (with the time)."""
-    from analysis import stability
+    from analysis.verification import stability
 
     target = staged(out_dir, force, folder=True, expect=STABILITY_FILES)  # refused before the sweep
     cases = stability.make_cases(quick, models)
@@ -187,7 +187,7 @@ def bench_reference(scene_file, sizes, functional, formulation, pull_names, jobs
     """A converged reference: the tissue's law on P2 tetrahedra on body-fitted (fTetWild) meshes
     of each hemisphere at three sizes, Richardson extrapolation and the grid convergence index
     for every calibration pull of the accuracy bench."""
-    from analysis import reference
+    from analysis.verification import reference
 
     target = staged(out_dir, force, folder=True, expect=("reference.json", "reference.md"))  # refused before the solves
     kw = {"scene": scene_file, "functional": functional, "formulation": formulation, "jobs": jobs}

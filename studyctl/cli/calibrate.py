@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from analysis.errors import InputError
 from sim.scene import DEFAULT_SCENE
 from studyctl.cli.common import (
     FORCE,
@@ -22,7 +23,6 @@ from studyctl.cli.common import (
     staged,
     write_output,
 )
-from studyctl.errors import InputError
 
 
 @click.group(cls=_Group)
@@ -44,7 +44,7 @@ def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out
     """Fit h1, alpha, q and x_c1 (within their bounds) to the reference force-displacement curve."""
     import numpy as np
 
-    from analysis.accuracy import calibration_curve
+    from analysis.verification.accuracy import calibration_curve
     from sim.calibrate import fit, read_curve, to_toml
     from sim.scene import load_scene
 
@@ -86,7 +86,7 @@ def calibrate_material(ctx, data_files, region, laws, bulk_ratio, out_file, forc
     """Fit finite-strain laws to tissue data (uniaxial tension and compression, simple shear: each
     file's mode read from its columns, several fitted together), report each mode's error and
     each mode's error when left out of the fit, and choose one law by AICc (docs/material.md)."""
-    from analysis.material_fit import DATA_FILE, FIT_LAWS, SHEAR_FILE, fit_material, law_of
+    from analysis.verification.material_fit import DATA_FILE, FIT_LAWS, SHEAR_FILE, fit_material, law_of
     from sim.hyperelastic import BULK_RATIO
     from sim.material import material_toml
 
@@ -156,8 +156,8 @@ def calibrate_field(scene_file, out_file, params_out, formulation, force, as_jso
     import contextlib
     import dataclasses
 
-    from analysis import field_fit as field
-    from analysis.accuracy import AccuracyConfig, sample_displacements
+    from analysis.verification import field_fit as field
+    from analysis.verification.accuracy import AccuracyConfig, sample_displacements
     from sim.calibrate import to_toml
     from sim.scene import load_scene
 
@@ -222,10 +222,10 @@ def _vertex_ids(ctx, param, value):
 @click.option("--json", "as_json", is_flag=True)
 def calibrate_rig(db, protocol_file, trials, profile_file, out_file, force, as_json):
     """Each condition's deformation time per frame on this machine (the rig), kept with the
-    study: its synthetic participants perceive these as latency (studyctl/rig.py)."""
+    study: its synthetic participants perceive these as latency (studyctl/synthetic/rig.py)."""
     from studyctl.protocol import load_protocol
-    from studyctl.rig import measure, read_profile, store_profile
     from studyctl.store import Store
+    from studyctl.synthetic.rig import measure, read_profile, store_profile
 
     if (db is None) == (protocol_file is None):
         raise InputError("name the study (--db) or, to write a profile only, a protocol (--protocol with --out)")
@@ -268,7 +268,7 @@ def calibrate_truth(scene_file, vertices, out_file, force, no_check, jobs, as_js
     Richardson) and its small-strain transfer to the places around it. Needed for a scene, or
     grasp places, that the shipped table (data/observer_truth.npz) does not cover; the shipped
     scene's paths are shipped solves, another scene's take minutes per pull and mesh."""
-    from analysis.truth_table import build_truth
+    from analysis.verification.truth_table import build_truth
     from studyctl.outputs import refuse_existing
 
     # a named table and its .json refused before the solves (the cache's is the tool's own); the table is written atomically

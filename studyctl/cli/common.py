@@ -14,12 +14,12 @@ from pathlib import Path
 
 import click
 
+from analysis.errors import Interrupted, StudyError
 from brainsim_assets import path as _asset
 from sim.errors import SimError
 from sim.jsonable import jsonable
-from studyctl.errors import Interrupted, StudyError
+from sim.sweep import SweepError
 from studyctl.outputs import Staged
-from studyctl.sweep import SweepError
 
 DEFAULT_PROTOCOL = _asset("protocols/brain_pull_2015.toml")
 
@@ -199,8 +199,8 @@ def _table(rows: list[dict], title: str, columns: list[str]) -> None:
 
 def read_snapshot(db):
     """The study in `db`, read once (analysis.study_snapshot.Study): every report is made from it."""
-    from analysis.study_snapshot import read_study  # the reports' stack loads only for the commands that make one
     from studyctl.store import Store
+    from studyctl.store.snapshot import read_study  # the reports' stack loads only for the commands that make one
 
     with Store(db, mode="read") as store:
         return read_study(store)

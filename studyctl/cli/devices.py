@@ -54,7 +54,7 @@ def devices_check(scene_file, device_names, seconds, view, yes, fullscreen, as_j
     scene.device_names = device_names
     shown = None
     if view == "window":
-        from sim.view import open_view
+        from sim.view.window import open_view
 
         shown = open_view("window", scene, fullscreen=fullscreen)
     elif fullscreen:

@@ -96,7 +96,7 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
     Exits 1 on a violation, 130 when interrupted."""
     import json
 
-    from analysis.model_check import CheckConfig, CheckError, CheckInterrupted, check_model, scorecard_md
+    from analysis.verification.model_check import CheckConfig, CheckError, CheckInterrupted, check_model, scorecard_md
     from sim.jsonable import jsonable
     from sim.models.registry import ModelLoadError, canonical, model_class
 
@@ -137,7 +137,7 @@ def model_wheel(folder: Path, out_dir: Path, force: bool, as_json: bool):
     """Build the wheel of a model package (FOLDER holds its pyproject.toml) with the standard
     library alone: offline, where pip cannot fetch setuptools. Install it into any venv with
     `pip install --no-deps WHEEL` (docs/models.md)."""
-    from studyctl.errors import InputError
+    from analysis.errors import InputError
     from studyctl.model_wheel import build_wheel
 
     try:
@@ -332,7 +332,7 @@ def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacemen
     _check_grasp(grasp, scene.mesh)
     stretch_range, source = None, ""
     if formulation == "finite-strain":  # where the law was measured: from its material file's data
-        from analysis.material_fit import fitted_range
+        from analysis.verification.material_fit import fitted_range
 
         law_source = scene.spec.material.law_source
         stretch_range, source = fitted_range(law_source) if law_source not in ("", "inline") else (None, "an inline law names no data")

@@ -29,7 +29,7 @@ def participants():
 @JSON
 def participants_add(code, age, name, contact, fields, synthetic, db, dry_run, as_json):
     """Register a participant under a pseudonymous CODE."""
-    from studyctl.errors import InputError
+    from analysis.errors import InputError
     from studyctl.study import add_participant
 
     given: dict[str, str] = {}

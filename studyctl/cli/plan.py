@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from analysis.errors import InputError
 from studyctl.cli.common import (
     DEFAULT_PROTOCOL,
     FORCE,
@@ -19,7 +20,6 @@ from studyctl.cli.common import (
     say_replaced,
     staged,
 )
-from studyctl.errors import InputError
 
 
 def _range(ctx, param, value):
@@ -53,8 +53,8 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, fo
     analysis and of each question's test (Cochran's Q, Friedman, the multinomial); with --null,
     the false-positive rate of each when every condition is one model."""
     from analysis.kinds import primary
-    from analysis.plan import plot_power, power_table
     from studyctl.protocol import load_protocol
+    from studyctl.synthetic.plan import plot_power, power_table
 
     target = staged(plot_file, force)  # an existing file refused before the simulations
     protocol = load_protocol(protocol_file)
@@ -95,7 +95,7 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, fo
 
 def _plan_null(protocol, span, simulations, seed, pilots, model, as_json, where: dict) -> None:
     from analysis.kinds import primary
-    from analysis.plan import null_table
+    from studyctl.synthetic.plan import null_table
 
     if span is not None and span[0] != span[1]:
         raise InputError("--participants: with --null give one N (e.g. 35), not a range")

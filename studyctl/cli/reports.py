@@ -71,26 +71,27 @@ def report_table1(db, holm_scope, fmt, out_file, force, accuracy_file, stability
     if fmt == "md":
         text = table1_markdown(study, holm_scope)
         if accuracy:
-            from analysis.accuracy_tables import markdown
+            from analysis.verification.accuracy_tables import markdown
 
             text += "\n## Model error against run time\n\n" + markdown(accuracy)
         if stability:
-            from analysis.stability import markdown as stability_md
+            from analysis.verification.stability import markdown as stability_md
 
             text += "\n## Numerical stability\n\n" + stability_md(stability)
     elif fmt == "latex":
-        from analysis.latex import tables as latex_tables
-        from analysis.report import latex
+        from analysis.reports.latex import tables as latex_tables
+        from analysis.reports.report import latex
 
         text = latex(study, holm_scope)
         if accuracy:
-            from analysis.accuracy_tables import tables as accuracy_tables
+            from analysis.verification.accuracy_tables import tables as accuracy_tables
 
             text += latex_tables(accuracy_tables(accuracy), "tab:accuracy")
     elif fmt == "html":
-        from analysis.report import html
+        from analysis.reports.report import html
+        from studyctl.synthetic.force_traces import force_traces
 
-        text = html(study, accuracy=accuracy, stability=stability, holm_scope=holm_scope)
+        text = html(study, force_traces(study.protocol), accuracy=accuracy, stability=stability, holm_scope=holm_scope)
     elif fmt == "csv":  # the flag and N travel with the table
         facts = table1.study_facts(study)
         from studyctl.text import spreadsheet_frame
@@ -107,7 +108,7 @@ def report_table1(db, holm_scope, fmt, out_file, force, accuracy_file, stability
     if study.protocol.tasks and fmt in ("md", "latex"):
         text += ("\n## Stiffness discrimination\n\n" if fmt == "md" else "\n") + _jnd_text(study, fmt)
     elif study.protocol.tasks and fmt == "html":
-        from analysis.jnd import html_section
+        from analysis.discrimination.jnd import html_section
 
         text = text.replace("</body></html>", html_section(_jnd(study), study) + "\n</body></html>")
     _emit(text, target)
@@ -156,13 +157,13 @@ def _load_bench(path: Path, kind: str, key: str) -> dict:
 
 
 def _jnd(study) -> dict:
-    from analysis.jnd import jnd_results
+    from analysis.discrimination.jnd import jnd_results
 
     return jnd_results(study)
 
 
 def _jnd_text(study, fmt: str) -> str:
-    from analysis import jnd
+    from analysis.discrimination import jnd
 
     res = _jnd(study)
     if fmt == "json":
@@ -198,15 +199,16 @@ def report_jnd(db, fmt, as_json, out_file, force):
 @JSON
 def report_plots(db, out_dir, force, size, as_json):
     """Rates with intervals, ratings, scores, choices, deformation times, and force traces against the converged reference."""
-    from analysis.figure_size import file_info
-    from analysis.report import write_plots
+    from analysis.reports.figure_size import file_info
+    from analysis.reports.report import write_plots
+    from studyctl.synthetic.force_traces import force_traces
 
     target = staged(out_dir, force, folder=True)
     study = read_snapshot(db)
     if _no_answers(study, as_json):
         return
     with target as tmp:  # every figure or none: a failed plot leaves no half set
-        files = [target.final(f) for f in write_plots(study, tmp, size=size)]
+        files = [target.final(f) for f in write_plots(study, tmp, force_traces(study.protocol), size=size)]
     say_replaced(target)
     if as_json:
         _print_json({"out": str(out_dir), "size": size, "files": [file_info(f) for f in files]})
@@ -293,7 +295,7 @@ def report_text(db, holm_scope, style, fmt, as_json, out_file, force):
     analysis, results), every number taken from what `report stats --json` prints (`report jnd
     --json` for a discrimination study); synthetic data said first, withheld statistics withheld
     with their reason."""
-    from analysis.paper_text import study_text
+    from analysis.reports.paper_text import study_text
 
     target = staged(out_file, force)  # an existing file refused before the study is read
     study = read_snapshot(db)
@@ -365,7 +367,7 @@ def report_validity(db, fmt, as_json, out_file, force, permutations, group_permu
     conditions, learning curves, the expert benchmark and scorecards, leave-one-out
     classification of the group, and the face-validity ratings per group (html: box and strip
     plots per group and learning curves per metric)."""
-    from analysis import validity_report as vr
+    from analysis.reports import validity_report as vr
     from studyctl.cli.common import _with_progress
 
     permutations = vr.DEFAULT_PERMUTATIONS if permutations is None else permutations

@@ -50,7 +50,7 @@ def session():
 @JSON
 def session_run(db, participant, device, synthetic, resume, time_scale, view, answer_with, seed, fullscreen, device_names, as_json):
     """Training, then each condition in the assigned order: trials, then the questionnaire."""
-    from studyctl.session import run_session
+    from studyctl.session.run import run_session
 
     if view is None:
         view = "window" if not synthetic and (time_scale is None or time_scale > 0) else "none"
@@ -89,7 +89,7 @@ sessions_alias = _Group("sessions", commands={"list": session_list}, help="Alias
 @click.option("--json", "as_json", is_flag=True)
 def replay_cmd(db, session_id, trial, view, frames_dir, force, fullscreen, as_json):
     """Play a stored trial back: its recorded hand motion through the same model and scene."""
-    from studyctl.trial_replay import replay_trial
+    from studyctl.session.trial_replay import replay_trial
 
     if fullscreen and view != "window":
         raise click.UsageError("--fullscreen needs --view window")
@@ -133,7 +133,7 @@ def synth_cmd(db, participants, complete, seed, jobs, protocol_file, alongside_p
     """Run whole sessions with SYNTHETIC participants on the simulator (labelled synthetic).
     After an interrupted run, --complete runs the participants it registered (with their own
     seed), bringing it to its N; new participants are refused until then."""
-    from studyctl.synthetic_study import run_synthetic_study
+    from studyctl.synthetic.study import run_synthetic_study
 
     out = _with_progress("synthetic sessions", lambda p: run_synthetic_study(db, participants, seed, jobs, protocol_file, progress=p,
                                                                              scheduler=scheduler, alongside_people=alongside_people,

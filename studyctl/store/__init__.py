@@ -1,7 +1,8 @@
 """The store layer: the only code that writes SQL. `database` opens, migrates and guards the
 SQLite file (`Store`); the other modules hold the statements of one concept each, as functions
 of an open `Store` or of a transaction's connection, which the study library and the reports
-call."""
+call. Imports: sqlite-utils, pandas, `analysis` (the errors, the snapshot it reads into) and
+nothing else of studyctl but its own modules and the completeness count."""
 
 from studyctl.store.database import (
     EXPORT_TABLES,

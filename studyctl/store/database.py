@@ -16,7 +16,7 @@ from pathlib import Path
 
 import sqlite_utils
 
-from studyctl.errors import StoreError
+from analysis.errors import StoreError
 from studyctl.protocol import load_protocol, protocol_from_text
 
 SCHEMA_VERSION = 9
@@ -82,7 +82,7 @@ def _migration_3(db: sqlite_utils.Database) -> None:
 
 
 def _migration_4(db: sqlite_utils.Database) -> None:
-    """What the synthetic observer perceived of each participant's condition (studyctl/observer.py)."""
+    """What the synthetic observer perceived of each participant's condition (studyctl/synthetic/observer.py)."""
     db["sessions"].add_column("seed", int)  # a synthetic session's seed: a resume must draw the same participant
     db["observer_features"].create({"code": str, "model": str, "feature": str, "value": float, "session_id": int, "computed_at": str},
                                    pk=("code", "model", "feature"), foreign_keys=[("code", "participants", "code")])
@@ -96,7 +96,7 @@ def _migration_5(db: sqlite_utils.Database) -> None:
 
 
 def _migration_6(db: sqlite_utils.Database) -> None:
-    """Question kinds (studyctl/questions.py): an answer keeps its type (integer, real or text:
+    """Question kinds (analysis/questions.py): an answer keeps its type (integer, real or text:
     the column has no type affinity) and may follow a trial (`trial`, -1 when it does not); a
     session's answers (when = "end") have condition "". Corrections likewise."""
     db.execute("create table answers_6 (code text references participants(code), model text, item text, "
@@ -114,7 +114,7 @@ def _migration_6(db: sqlite_utils.Database) -> None:
 
 
 def _migration_7(db: sqlite_utils.Database) -> None:
-    """Rig profiles (studyctl/rig.py): each configuration's measured frame time, which the
+    """Rig profiles (studyctl/synthetic/rig.py): each configuration's measured frame time, which the
     study's synthetic participants perceive as latency."""
     db["rig_profile"].create({"key": str, "condition": str, "model": str, "frame_ms_p50": float, "frame_ms_p95": float, "frames": int,
                               "machine": str, "measured_at": str, "source": str}, pk="key")

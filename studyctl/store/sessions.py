@@ -1,6 +1,6 @@
 """A session's rows: the session itself, its conditions, trials, latency, answers and events,
 and what a session reads of its participant (a finished session, answers, observer features,
-synthetic traits). The statements of studyctl/session.py, as functions of an open
+synthetic traits). The statements of studyctl/session/run.py, as functions of an open
 `Store`; each write commits exactly where the session committed it before (a crash loses at
 most the trial in flight)."""
 

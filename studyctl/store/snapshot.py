@@ -1,4 +1,4 @@
-"""What the reports read of a study, for analysis/study_snapshot.py's `read_study`: the answers and the
+"""What the reports read of a study, and `read_study`, which reads it into analysis.study_snapshot.Study: the answers and the
 counts of whose they are, the condition orders, the deformation latencies, the configurations
 each condition ran, the discrimination trials, the synthetic traits, the synthetic codes and the
 traced trials behind the performance metrics. Each is a function of
@@ -7,11 +7,15 @@ column names, dtypes and row order), since the reports built from them must not 
 
 from __future__ import annotations
 
+import json
+
 import pandas as pd
 
+from analysis.study_snapshot import Study
 from studyctl.completeness import Completeness
 from studyctl.completeness import completeness as count_complete
 from studyctl.store.database import Store
+from studyctl.store.participant_fields import read_fields
 
 
 def _frame(store: Store, sql: str) -> pd.DataFrame:
@@ -113,3 +117,43 @@ def latency_summary(store: Store) -> pd.DataFrame:
     """Every latency measure per condition over the trials: measure, model, trials, mean, lowest, highest."""
     return _frame(store, "select measure, model, count(*) as trials, avg(value) as mean, min(value) as lowest, max(value) as highest "
                          "from latency group by measure, model order by measure, model")
+
+
+def read_study(store) -> Study:
+    """The snapshot of the study in `store` (an open studyctl.store.Store), read in one go."""
+    # counted from the answers' own source, not from a participant flag that could drift
+    synthetic = synthetic_count(store)
+    persons = person_count(store)
+    mixed = mixed_source_codes(store)
+    orders = condition_orders(store)
+    protocol = store.protocol()
+    stored = answers(store)  # read once: the answers and who is complete among them
+    fields = [{"code": code, "field": k, "value": v} for code, values in read_fields(store, protocol).items() for k, v in values.items()]
+    return Study(
+        protocol=protocol,
+        answers=stored,
+        synthetic_participants=synthetic,
+        person_participants=persons,
+        mixed_source_participants=mixed,
+        completeness=completeness(store, protocol, stored=stored),
+        periods=_periods(orders),
+        latency=latency(store),
+        latency_trials=latency_trials(store),
+        configurations=configurations(store),
+        discrimination=discrimination(store),
+        traits=traits(store),
+        path=store.path,
+        synthetic_codes=synthetic_codes(store),
+        fields=pd.DataFrame(fields, columns=["code", "field", "value"], dtype=object),
+        traced_trials=traced_trials(store),
+        setups=session_setups(store),
+        latencies=latency_summary(store),
+    )
+
+
+def _periods(orders: pd.DataFrame) -> pd.DataFrame:
+    """The period factor of the GEE from each participant's condition orders (sessions first,
+    then the schedule): the first session's order wins."""
+    orders = orders[orders["conditions"].notna()].drop_duplicates("code")
+    rows = [{"code": r.code, "model": m, "period": k} for r in orders.itertuples() for k, m in enumerate(json.loads(r.conditions))]
+    return pd.DataFrame(rows, columns=["code", "model", "period"])

@@ -1,5 +1,5 @@
 """Whole tables as rows: for export (studyctl/study.py) and for moving a participant's session
-between studies (the synthetic study's scratch databases, studyctl/bundles.py)."""
+between studies (the synthetic study's scratch databases, studyctl/synthetic/bundles.py)."""
 
 from __future__ import annotations
 

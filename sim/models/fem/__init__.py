@@ -10,7 +10,8 @@
 - `model`: `FemModel` under the tissue-model contract, and `build` from a scene;
 - `pull`: one static pull (`studyctl model fem`).
 
-SI units; dof ``3 i + c`` is component c of node i.
+SI units; dof ``3 i + c`` is component c of node i. Imports: numpy, scipy, the CHOLMOD factor
+(`sim.linalg`) and `sim` below it.
 """
 
 from sim.hyperelastic import Hyperelastic

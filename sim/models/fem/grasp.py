@@ -1,7 +1,7 @@
 """The one grasp constraint and its condensation, for the haptic model and the reference alike.
 
 A grasp holds a weighted mean of the displacement at points inside the body (the grasp
-patch's quadrature points, `sim.patch`): ``W u = d`` with W (3, n_free), each point
+patch's quadrature points, `sim.geometry.patch`): ``W u = d`` with W (3, n_free), each point
 interpolated with its element's own shape functions. Condensed on the grasp, the force
 that holds the patch at d is ``(W K^-1 W^T)^-1 d`` (a Lagrange multiplier): `condense`.
 """

@@ -20,16 +20,16 @@ import scipy.sparse as sp
 
 from sim import kernels
 from sim.errors import ParameterError
+from sim.geometry.patch import GRASP_RADIUS, patch_area_points
+from sim.geometry.tetmesh import body_volume
+from sim.geometry.volume import embed, locate
 from sim.laws import Linearised, PairTable
 from sim.models.base import Contact
 from sim.models.builtin import FemBase, FemOptions
 from sim.models.fem.corotational import Precond, corotational_step, evaluate, warped_active
 from sim.models.fem.grasp import condense, constraint_matrix, symmetric_inverse
 from sim.models.fem.linear import LinearFem
-from sim.patch import GRASP_RADIUS, patch_area_points
 from sim.scene import AXES
-from sim.tetmesh import body_volume
-from sim.volume import embed, locate
 
 DEFAULT_RESOLUTION = FemOptions.resolution  # m: the shipped body-fitted mesh the scene's FEM runs on (docs/fem.md)
 DEFAULT_ORDER = 2  # quadratic tetrahedra: P1 locks at the brain's Poisson ratio (FemOptions' default for the linear formulation)
@@ -295,7 +295,7 @@ class FemModel(FemBase):
             self.unstable = False  # released: the next grasp starts from the linear solution
             return
         displacements = [np.asarray(d, dtype=np.float64) for d in displacements]
-        # counted work of the frame as a session runs it (studyctl/observer.py), the surface
+        # counted work of the frame as a session runs it (studyctl/synthetic/observer.py), the surface
         # included: dense products with the grasps' responses (6 flops per free dof and grasp),
         # the embedding (2 per entry and component), zeroing
         self.frame_flops = float(2 * self.surface_matrix.nnz + 3 * self.n_model_nodes

@@ -7,16 +7,16 @@ import time
 import numpy as np
 
 from sim.errors import ParameterError
+from sim.geometry.patch import GRASP_RADIUS
+from sim.geometry.tetmesh import body_volume
+from sim.geometry.volume import describe
 from sim.models.base import pull_problem
 from sim.models.fem.corotational import corotational_solve
 from sim.models.fem.finite_strain import FiniteStrain, support
 from sim.models.fem.model import DEFAULT_ORDER, DEFAULT_RESOLUTION, FemModel, fixed_nodes
 from sim.models.fem.newton import NewtonReport, hold
 from sim.models.fem.nodal_pressure import NodalPressure
-from sim.patch import GRASP_RADIUS
 from sim.scene import AXES
-from sim.tetmesh import body_volume
-from sim.volume import describe
 
 FORMULATIONS = ("linear", "corotational", "finite-strain", "nodal-pressure")
 TICKS = 20000  # servo-tick force calls timed

@@ -1,0 +1,278 @@
+"""The discrimination task's report (`studyctl report jnd`; a section of `report table1`):
+per participant and condition the psychometric fit and Weber fraction with its parametric-
+bootstrap interval (analysis/discrimination/psychometric.py), per condition the geometric mean, across
+conditions the group test, the QUEST+ posterior where it ran, and for synthetic participants
+their generating Weber fraction beside the estimate (so recovery can be read off).
+
+`jnd_results(study)` returns one JSON-able dict; `markdown` and `html` print it. Keys:
+
+- ``facts``: study, participants, synthetic, task (method, trials, reference, question), function;
+- ``weber``: one row per participant and condition: code, condition, n_trials, weber, ci_low,
+  ci_high, lapse, slope, converged, p_correct, quest_estimate (QUEST+ only), generating_weber
+  (synthetic only);
+- ``conditions``: per condition: n, geometric mean Weber fraction with a 95% interval (t on logs),
+  median, and for synthetic studies the median absolute relative error against the generating
+  values and the intervals' coverage of them;
+- ``group``: analysis.discrimination.weber_groups.group_test across conditions (None with one condition).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import html as _html
+import json
+import math
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from analysis.discrimination.pooled import POOLED_MIN, pooled_webers
+from analysis.discrimination.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, weber_table
+from analysis.discrimination.weber_groups import group_test
+from analysis.reports.formatting import PAGE_END, drawn_png, figure_html, p_value, page_head, table_html, table_markdown
+from analysis.reports.latex import tables as latex_tables
+from analysis.reports.methods import study_methods
+from analysis.study_snapshot import data_flag
+from analysis.table1 import study_facts
+from analysis.withhold import interval_reason
+
+GM_WARN_BELOW = 5  # participants: below this a geometric mean's t interval is said to be wide
+
+
+def trials(study, task: int = 0) -> pd.DataFrame:
+    """One task's trials, tidy: code, condition, trial, stimulus (the increment), correct."""
+    d = study.discrimination
+    d = d[d["task"] == task]
+    return pd.DataFrame({"code": d["code"], "condition": d["model"], "trial": d["trial"], "stimulus": d["delta"].astype(float),
+                         "correct": d["correct"].astype(int)}).reset_index(drop=True)
+
+
+def _quest_estimates(study, task: int) -> dict:
+    """(code, condition) -> the procedure's own estimate after its last trial."""
+    d = study.discrimination
+    d = d[d["task"] == task].sort_values("trial")
+    out = {}
+    for (code, cond), g in d.groupby(["code", "model"]):
+        state = json.loads(g["state"].iloc[-1]) if isinstance(g["state"].iloc[-1], str) else {}
+        if "estimate" in state:
+            out[(code, cond)] = float(state["estimate"])
+    return out
+
+
+def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) -> dict:
+    protocol = study.protocol
+    spec = protocol.tasks[task]
+    t = trials(study, task)
+    d = study.discrimination
+    synthetic_codes = d.loc[d["source"] == "synthetic", "code"].nunique()
+    person_codes = d.loc[d["source"] != "synthetic", "code"].nunique()
+    synthetic = synthetic_codes > 0
+    kwargs = {} if n_boot is None else {"n_boot": n_boot}
+    table = weber_table(t, seed=seed, **kwargs) if len(t) else pd.DataFrame()
+    facts = {"study": protocol.name, "participants": int(t["code"].nunique()) if len(t) else 0, "synthetic": synthetic,
+             "flag": data_flag(person_codes, synthetic_codes),
+             "fit": {"function": DEFAULT_FUNCTION, "axis": "ln ln(1 + delta) (the log of the log stiffness ratio)",
+                     "slope": "held: the two-interval observer's, from its threshold", "lapse_max": LAPSE_MAX,
+                     "interval": f"parametric bootstrap, percentile, {kwargs.get('n_boot', N_BOOT)} refits"},
+             "task": {"kind": spec.kind, "parameter": spec.parameter, "method": spec.method, "rule": spec.rule if spec.method == "staircase" else None,
+                      "trials": spec.trials, "reference": spec.reference, "question": spec.question, "range": [spec.low, spec.high]}}
+    # the methods as `report text` writes them, N the participants with discrimination trials
+    methods = study_methods(study, dataclasses.replace(study_facts(study), participants=facts["participants"], synthetic=synthetic,
+                                                       synthetic_participants=synthetic_codes, person_participants=person_codes))
+    if not len(table):
+        return {"facts": facts, "weber": [], "conditions": [], "group": None, "methods": methods}
+    table = table.merge(pooled_webers(t), on=["code", "condition"], how="left")
+    facts["pooled"] = (f"each participant's Weber fraction pooled with the condition's others (hierarchical: ln weber normal over the "
+                       f"participants, flat priors on its mean and spread, the observer's likelihood; {POOLED_MIN} or more participants a condition)")
+    table["p_correct"] = [float(t[(t["code"] == r.code) & (t["condition"] == r.condition)]["correct"].mean()) for r in table.itertuples()]
+    if spec.method == "quest+":
+        quest = _quest_estimates(study, task)
+        table["quest_estimate"] = [quest.get((r.code, r.condition), math.nan) for r in table.itertuples()]
+    traits = study.traits
+    generating = traits[traits["trait"] == "stiffness_weber"].set_index("code")["value"] if len(traits) else pd.Series(dtype=float)
+    if synthetic and len(generating):
+        table["generating_weber"] = [float(generating.get(c, math.nan)) for c in table["code"]]
+    order = [c for c in protocol.conditions if c in set(table["condition"])]
+    conds = [_condition_summary(table[table["condition"] == c], c) for c in order]
+    group = group_test(table, conditions=order) if len(order) >= 2 else None
+    return {"facts": facts, "weber": table.to_dict(orient="records"), "conditions": conds, "group": group, "methods": methods}
+
+
+def _condition_summary(rows: pd.DataFrame, condition: str) -> dict:
+    w = rows["weber"].to_numpy(dtype=float)
+    w = w[np.isfinite(w) & (w > 0)]
+    out = {"condition": condition, "n": int(len(w)), "geometric_mean": math.nan, "gm_low": math.nan, "gm_high": math.nan,
+           "median": float(np.median(w)) if len(w) else math.nan}
+    if len(w):
+        out["geometric_mean"] = float(np.exp(np.log(w).mean()))
+    if len(w) >= 2 and np.ptp(w) > 0:
+        lw = np.log(w)
+        half = stats.t.ppf(0.975, len(w) - 1) * lw.std(ddof=1) / math.sqrt(len(w))
+        out |= {"gm_low": float(np.exp(lw.mean() - half)), "gm_high": float(np.exp(lw.mean() + half))}
+        if len(w) < GM_WARN_BELOW:
+            out["gm_warning"] = f"N = {len(w)}: a t interval on {len(w) - 1} df is wide; {GM_WARN_BELOW} or more narrow it"
+    else:
+        out["gm_reason"] = interval_reason(w) if len(w) else "no fit"
+    if "generating_weber" in rows:
+        g = rows["generating_weber"].to_numpy(dtype=float)
+        ok = np.isfinite(g) & np.isfinite(rows["weber"].to_numpy(dtype=float))
+        if ok.any():
+            est = rows["weber"].to_numpy(dtype=float)[ok]
+            out["recovery_median_abs_rel_error"] = float(np.median(np.abs(est - g[ok]) / g[ok]))
+            out["recovery_coverage"] = float(np.mean((rows["ci_low"].to_numpy(dtype=float)[ok] <= g[ok]) & (g[ok] <= rows["ci_high"].to_numpy(dtype=float)[ok])))
+        pooled = rows["weber_pooled"].to_numpy(dtype=float) if "weber_pooled" in rows else np.full(len(rows), np.nan)
+        okp = np.isfinite(g) & np.isfinite(pooled)
+        if okp.any():
+            out["recovery_pooled_median_abs_rel_error"] = float(np.median(np.abs(pooled[okp] - g[okp]) / g[okp]))
+            out["recovery_pooled_coverage"] = float(np.mean((rows["pooled_low"].to_numpy(dtype=float)[okp] <= g[okp])
+                                                            & (g[okp] <= rows["pooled_high"].to_numpy(dtype=float)[okp])))
+    return out
+
+
+def _pct(x) -> str:
+    if x is None or not math.isfinite(float(x)):
+        return "-"
+    v = 100 * float(x)
+    return f"{v:.1f}%" if abs(v) >= 0.1 or v == 0 else f"{v:.2g}%"
+
+
+def _interval(lo, hi, why: str = "no interval") -> str:
+    return f"[{_pct(lo)}, {_pct(hi)}]" if lo is not None and math.isfinite(float(lo)) and math.isfinite(float(hi)) else f"({why})"
+
+
+FLAG_TEXT = {"all_correct": "every answer right: below the range tested", "at_chance": "at chance: above the range tested",
+             "one_level": "one level: not identified", "location_at_bound": "threshold beyond the range tested",
+             "shallow": "no trend", "optimizer": "the optimiser stopped", "steep": "slope at its bound"}
+
+
+def tables(res: dict) -> list[dict]:
+    """The report's tables ({title, columns, rows: text, note}), one source for Markdown and HTML:
+    per condition (geometric mean [95% CI], median, recovery when synthetic) and per participant
+    (the fit, its flag, the pooled estimate, QUEST+'s own estimate where it ran, the generating
+    value when synthetic)."""
+    recovery = any("recovery_coverage" in c for c in res["conditions"])
+    rows = []
+    for c in res["conditions"]:
+        gm = f"{_pct(c['geometric_mean'])} {_interval(c['gm_low'], c['gm_high'], c.get('gm_reason') or 'no interval')}" if c["n"] else "n/a (no fit)"
+        if c.get("gm_warning"):
+            gm += f" ({c['gm_warning']})"
+        pooled_rec = (f"; pooled {_pct(c['recovery_pooled_median_abs_rel_error'])}, {_pct(c['recovery_pooled_coverage'])}"
+                      if "recovery_pooled_coverage" in c else "")
+        rows.append([c["condition"], str(c["n"]), gm, _pct(c["median"])]
+                    + ([f"{_pct(c.get('recovery_median_abs_rel_error'))}, {_pct(c.get('recovery_coverage'))}{pooled_rec}"] if recovery else []))
+    out = [{"title": "Weber fraction per condition", "columns": ["Condition", "N", "geometric mean [95% CI]", "median"]
+            + (["recovery: median abs. error, CI coverage (own fit; pooled)"] if recovery else []), "rows": rows,
+            "note": "Geometric mean over participants with a t interval on ln Weber fraction (n - 1 df)."
+                    + (" A - marks a recovery figure there is none of (no participant's fit to compare)." if recovery else "")}]
+    quest = any("quest_estimate" in r for r in res["weber"])
+    generating = any("generating_weber" in r for r in res["weber"])
+    rows = []
+    for r in res["weber"]:
+        flag = FLAG_TEXT.get(r.get("flag") or "", "")
+        rows.append([r["code"], r["condition"], str(r["n_trials"]), _pct(r["p_correct"]),
+                     f"{_pct(r['weber'])} {_interval(r['ci_low'], r['ci_high'], 'no interval: ' + flag if flag else 'no interval')}",
+                     _pct(r["lapse"]), flag or "none",
+                     f"{_pct(r.get('weber_pooled'))} {_interval(r.get('pooled_low'), r.get('pooled_high'), 'too few to pool')}"
+                     if r.get("weber_pooled") == r.get("weber_pooled") and r.get("weber_pooled") is not None else "(too few to pool)"]
+                    + ([_pct(r.get("quest_estimate"))] if quest else []) + ([_pct(r.get("generating_weber"))] if generating else []))
+    out.append({"title": "Per participant", "columns": ["Participant", "Condition", "trials", "% correct", "Weber [95% CI]", "lapse", "fit flag",
+                                                        "pooled [95% CrI]"]
+                + (["QUEST+ estimate"] if quest else []) + (["generating"] if generating else []), "rows": rows,
+                "note": "The Weber fraction with its parametric-bootstrap 95% interval: the increment picked out 75% of the time by the "
+                        "two-interval observer fitted on the log stiffness ratio (analysis/discrimination/psychometric.py); lapse: the fit's. Pooled: the "
+                        f"same observer, each participant pooled with the condition's others (hierarchical, {POOLED_MIN} or more participants), "
+                        "posterior median and 95% credible interval: the better estimate of one person from 40 trials (docs/study.md). "
+                        "A - marks a value there is none of: the fit gave none (it did not converge), or the run recorded none "
+                        "(no QUEST+ estimate, no generating value)."})
+    return out
+
+
+def _heading(res: dict) -> tuple[str, str]:
+    """(the report's title, what it holds): the study, the synthetic flag, N and the task."""
+    f = res["facts"]
+    task = f["task"]
+    flag = f"{f['flag']} " if f["flag"] else ""
+    method = task["method"] + (f" ({task['rule']})" if task["rule"] else "")
+    return (f"Stiffness discrimination: {f['study']}", f"{flag}N = {f['participants']} participants; two-interval forced choice "
+            f"\"{task['question']}\", {task['trials']} {method} trials per condition around {task['reference']:g} times each condition's stiffness.")
+
+
+def markdown(res: dict) -> str:
+    title, head = _heading(res)
+    lines = [f"**{title}.** {head}", ""]
+    if not res["weber"]:
+        return "\n".join(lines + ["No discrimination trials yet.", ""])
+
+    first, per = tables(res)
+    lines += table_markdown(first)
+    if res["group"]:
+        lines += [_group_text(res["group"]), ""]
+    lines += table_markdown(per)
+    return "\n".join(lines)
+
+
+def latex(res: dict) -> str:
+    """The report's tables as LaTeX (analysis/reports/latex.py), the study's heading and the group test in
+    the first table's caption."""
+    title, head = _heading(res)
+    if not res["weber"]:
+        return f"% {title}. {head} No discrimination trials yet.\n"
+    first, per = tables(res)
+    group = f" {_group_text(res['group'])}" if res["group"] else ""
+    first = first | {"title": f"{title}: {first['title']}", "note": f"{head} {first['note']}{group}"}
+    return latex_tables([first, per], "tab:jnd")
+
+
+def _group_text(g: dict) -> str:
+    """The group test in one paragraph (keys of analysis.discrimination.weber_groups.group_test)."""
+    parts = []
+    mm = g.get("mixed_model") or {}
+    if mm and mm.get("converged") is False:
+        parts.append("Mixed model of log Weber fraction on condition: not tested (the fit did not converge"
+                     + (f": {mm['problem']}" if mm.get("problem") else "") + ").")
+    elif mm:
+        parts.append(f"Mixed model of log Weber fraction on condition (participant as random intercept): likelihood-ratio chi2({mm.get('df')}) = "
+                     f"{p_value(mm.get('chi2'))}, p = {p_value(mm.get('p'))}.")
+    fr = g.get("friedman") or {}
+    if fr:
+        parts.append(f"{fr.get('test', 'Friedman')}: statistic {p_value(fr.get('statistic'))}, p = {p_value(fr.get('p'))}.")
+    pairs = g.get("pairs") or []
+    why = "; ".join(g.get("problems") or []) or "no ratio"
+    if pairs:
+        parts.append("Pairs (paired t on log Weber fractions, Holm): " + "; ".join(
+            f"{p['a']} vs {p['b']}: ratio {p_value(p.get('ratio'))} [{p_value(p.get('ratio_low'))}, {p_value(p.get('ratio_high'))}], p_holm {p_value(p.get('p_holm'))}"
+            if p_value(p.get("ratio")) != "-" else f"{p['a']} vs {p['b']}: not tested ({why})" for p in pairs) + ".")
+    return " ".join(parts)
+
+
+def html_section(res: dict, study) -> str:
+    """The report's section as HTML (escaped), with one psychometric plot per condition."""
+    esc = _html.escape
+    body = [f'<p class="synthetic">{esc(res["facts"]["flag"])}</p>' if res["facts"]["flag"] else ""]
+    task = res["facts"]["task"]
+    body.append(f"<p>N = {res['facts']['participants']}; two-interval forced choice &ldquo;{esc(task['question'])}&rdquo;, "
+                f"{task['trials']} {esc(task['method'])} trials per condition.</p>")
+    first, per = tables(res) if res["weber"] else ({}, {})
+    if first:
+        body.append(table_html(first, "h3"))
+    if res["group"]:
+        body.append(f"<p>{esc(_group_text(res['group']))}</p>")
+    if res["weber"]:
+        from analysis.reports.plots import psychometric_plot  # lazy: matplotlib, only for the HTML page's figures
+
+        t = trials(study)
+        for c in res["conditions"]:
+            img = drawn_png(lambda path, c=c: psychometric_plot(t[t["condition"] == c["condition"]], [r for r in res["weber"] if r["condition"] == c["condition"]],
+                                                                   c["condition"], path, res["facts"]["synthetic"]))
+            body.append(figure_html(f'psychometric {esc(c["condition"])}', img))
+        body.append(table_html(per, "h3"))
+    return "<h2>Stiffness discrimination</h2>" + "".join(body)
+
+
+def html(res: dict, study) -> str:
+    esc = _html.escape
+    return f"""{page_head(f"{res['facts']['study']}: stiffness discrimination")}
+<h1>{esc(res['facts']['study'])}</h1>
+{html_section(res, study)}
+{PAGE_END}"""

@@ -1,0 +1,112 @@
+"""Questions and their answers: the kinds a protocol may ask, and one parser of a typed value
+per kind (the terminal, `answers import` and `answers correct` all read answers through it).
+
+Kinds (docs/study.md):
+- ``yes_no``: stored 0/1;
+- ``likert``: an integer 1..points (points 3..11) between two anchors;
+- ``vas``: a visual analogue scale, a real number 0..100 (a slider in the window);
+- ``choice``: one of the conditions, shown by its blind label; stored as the condition's name;
+- ``text``: free text (terminal only), exported, never analysed.
+
+When: ``condition`` (after a condition's trials), ``trial`` (after every trial) or ``end``
+(once, after the last condition; stored with condition "" since it is about the session).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from sim.text import TEXT_MOST, quoted, text_problem
+
+KINDS = ("yes_no", "likert", "vas", "choice", "text")
+WHENS = ("condition", "trial", "end")
+LIKERT_POINTS = (3, 11)
+VAS_RANGE = (0.0, 100.0)
+SESSION = ""  # the condition of an answer asked once per session (when = "end")
+NOT_PER_TRIAL = -1  # the trial of an answer not asked per trial
+YES = frozenset({"yes", "y", "1", "true", "ja", "oui", "si", "sí"})  # as people type them on paper forms too
+NO = frozenset({"no", "n", "0", "false", "nein", "non"})
+
+
+@dataclass(frozen=True)
+class Question:
+    id: str
+    text: str
+    kind: str = "yes_no"
+    when: str = "condition"
+    points: int | None = None  # likert
+    anchors: tuple[str, str] | None = None  # likert (required), vas (optional): the scale's two ends
+    instrument: str | None = None  # "sus" or "nasa_tlx": an item of a standard questionnaire
+
+    @property
+    def analysed(self) -> bool:
+        return self.kind != "text"
+
+
+class AnswerError(ValueError):
+    """A value the question's kind does not allow (the message names the allowed values)."""
+
+
+def allowed(q: Question, labels: dict[str, str] | None = None) -> str:
+    """The allowed values, as an error message or a prompt says them."""
+    if q.kind == "yes_no":
+        return "yes or no (y/n, 1/0)"
+    if q.kind == "likert":
+        return f"an integer 1..{q.points} (1 = {q.anchors[0]}, {q.points} = {q.anchors[1]})"
+    if q.kind == "vas":
+        ends = f" (0 = {q.anchors[0]}, 100 = {q.anchors[1]})" if q.anchors else ""
+        return f"a number 0..100{ends}"
+    if q.kind == "choice":
+        return "one of " + (", ".join(sorted(labels.values())) if labels else "the conditions")
+    return f"a text of at most {TEXT_MOST} characters"
+
+
+def parse_answer(q: Question, raw, labels: dict[str, str] | None = None, by_name: tuple[str, ...] = ()):
+    """The typed value of `raw` (text or a number) for `q`, or AnswerError naming what is allowed.
+    A choice is given by a blind label (`labels`: condition -> label) or, in imports and
+    corrections, by the condition's name (`by_name`); it is returned as the condition's name."""
+    text = str(raw).strip()
+    if q.kind == "text":
+        if (problem := text_problem(text, TEXT_MOST)) is not None:
+            raise AnswerError(problem)
+        return text
+    if q.kind == "yes_no":
+        if text.lower() in YES:
+            return 1
+        if text.lower() in NO:
+            return 0
+    elif q.kind == "likert":
+        try:
+            v = int(text)
+        except ValueError:
+            v = None
+        if v is not None and 1 <= v <= q.points:
+            return v
+    elif q.kind == "vas":
+        try:
+            v = float(text)
+        except ValueError:
+            v = math.nan
+        if math.isfinite(v) and VAS_RANGE[0] <= v <= VAS_RANGE[1]:
+            return v
+    elif q.kind == "choice":
+        by_label = {label.lower(): c for c, label in (labels or {}).items()}
+        if text.lower() in by_label:
+            return by_label[text.lower()]
+        if text in by_name:
+            return text
+        if by_name:
+            raise AnswerError(f"{quoted(text)} is not a condition; allowed: {', '.join(by_name)}")
+    raise AnswerError(f"{quoted(text)} is not allowed; allowed: {allowed(q, labels)}")
+
+
+def shown(q: Question, value) -> str:
+    """A stored value as a person reads it (yes/no for yes_no)."""
+    if value is None:
+        return ""
+    if q.kind == "yes_no":
+        return "yes" if int(value) else "no"
+    if q.kind == "vas":
+        return f"{float(value):g}"
+    return str(value)

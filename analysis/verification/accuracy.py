@@ -1,0 +1,529 @@
+"""Model error against run time, fairly: every model on the same pulls at the scene's own
+modulus, against a converged reference, calibrated with the same budget and judged on pulls
+it was not calibrated on (docs/accuracy.md).
+
+- **Pulls.** Calibration: the three grasp points of `sim.pulls.make_pulls` (the scene's two
+  hands and a frontal point) x two tangent directions. Test (held out): `sim.pulls.test_pulls`,
+  six places away from those (three per hemisphere) x two directions. The hand moves at 10 mm/s;
+  each model runs its visual frames along the ramp (so the corotational FEM's per-frame
+  iteration and the mass-spring's dynamics are what a user would feel) and is sampled at
+  `samples` equal displacements.
+- **Reference** (`analysis.verification.reference.pull_references`): the tissue's finite-strain law (human
+  cortex, one-term Ogden, nearly incompressible; docs/material.md) on P2 tetrahedra on the
+  shipped fTetWild meshes of each hemisphere at three sizes, the area-mean grasp
+  (`sim.geometry.patch`), each pull followed by Newton from rest; Richardson extrapolation of the force
+  magnitude with the GCI band (`combined_sample`). Solved once and shipped
+  (data/reference_pulls.npz), hash-checked.
+- **Calibration budget.** Every model gets one stiffness scale s, fitted on the calibration
+  pulls (the geometric mean of reference over model force: least squares in log force), and
+  is reported raw (s = 1) and calibrated; s multiplies the force, as scaling the modulus would
+  (exactly for the FEM and the plate-spring stack; the mass-spring's hand coupling does not scale).
+- **Verdicts** per test sample: within the JND (10% at or above 0.5 N, 25% below, of the
+  reference) as a point estimate; and against the reference's band: `within` when the whole
+  band is within the JND of the model's force, `outside` when none of it is, else `undecided`.
+  Fractions carry Wilson 95% intervals. Samples of one pull are correlated (a linear model's
+  are one number times the displacement), so `pulls_within` counts whole pulls too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from analysis.stats import wilson
+from analysis.verification.tissue_pulls import (
+    DEFAULT_SIZES_MM,
+    ReferenceDataError,
+    pull_samples,
+    reached,
+)
+from analysis.verification.truth_band import DEVICE_LIMIT_N, MAX_J_DEVIATION, decide, truth_samples
+from brainsim_assets import path as _asset
+from sim.calibrate import jnd
+from sim.errors import SceneError, SimError
+from sim.models.api import BUDGETS
+from sim.models.mass_spring import OMNI_MAX_STIFFNESS
+from sim.models.plate_spring import load_params
+from sim.models.registry import installed, model_class, plugins
+from sim.pulls import TEST_PLACES, Pull, make_pulls, scene_with, test_pulls
+from sim.scene import DEFAULT_SCENE, load_scene
+from sim.sweep import run_tasks
+
+HANDSET_PARAMS = _asset("protocols/models/plate_spring_handset.toml")
+LOCATED_PARAMS = _asset("protocols/models/plate_spring_located.toml")
+PULL_SPEED = 0.010  # m/s, a careful surgical pull (the scene's: 12 mm in 1.2 s)
+
+
+def frames_per_sample(xs, frame_hz: float) -> int:
+    """Visual frames between samples: the nearest whole number to PULL_SPEED (at least one); the
+    speed the models are then pulled at is `pull_speed` (0.5 mm samples at 30 Hz: 2 frames, 7.5 mm/s)."""
+    return max(1, round(float(xs[0]) / PULL_SPEED * frame_hz))
+
+
+def pull_speed(xs, frame_hz: float) -> float:
+    return float(xs[0]) / frames_per_sample(xs, frame_hz) * frame_hz
+DECIDED_RULE = (f"decided: reference at most {DEVICE_LIMIT_N:g} N, at most the JND fraction at that force (25% below 0.5 N, 10% above) "
+                f"of the state's energy outside the data's principal stretches, |J - 1| at most {MAX_J_DEVIATION:g}, and the band "
+                "(mesh GCI and the ensemble's law spread, root-sum-square) narrower than the JND")
+
+
+@dataclass(frozen=True)
+class Setting:
+    model: str  # plate_spring | fem | mass_spring
+    setting: str  # the row label: continuous, calibrated, 4mm, corotational-6mm, ...
+    options: tuple = ()  # (key, value) pairs for the model spec
+
+
+@dataclass(frozen=True)
+class AccuracyConfig:
+    scene: Path = DEFAULT_SCENE
+    young: float | None = None  # Pa, the linear models' modulus; None: the scene's. Another value scales the whole brain:
+    # the law's mu by the same ratio (its forces scale exactly), so the reference and every model move together
+    max_pull: float = 0.012  # m: the scenes' scripted pulls; beyond, no truth is decided (docs/reference.md)
+    samples: int = 24  # every 0.5 mm: the shipped solves' records
+    reference_sizes_mm: tuple[float, ...] = (8.0, 6.0, 4.0)  # the reference's meshes: the shipped body-fitted ones (sim/geometry/tetmesh.py)
+    test_places: int = TEST_PLACES
+    settings: tuple[Setting, ...] = field(default_factory=lambda: default_settings(False))
+    handset: Path = HANDSET_PARAMS  # the uncalibrated plate-spring parameters
+    quick: bool = False
+
+
+def default_settings(quick: bool) -> tuple[Setting, ...]:
+    ps = [Setting("plate_spring", "paper", (("variant", "paper"), ("params", "handset"))),
+          Setting("plate_spring", "continuous", (("variant", "continuous"), ("params", "handset"))),
+          Setting("plate_spring", "scene-fit", (("variant", "continuous"), ("params", "scene"))),
+          Setting("plate_spring", "located", (("variant", "located"), ("params", "located")))]
+    # every FEM row names its element; the P2 rows stop at 6 mm: the reference's finest mesh (4 mm)
+    # with P2 is the reference itself. linear-p2-8mm is the scene's FEM (protocols/scenes/brain_pull.toml).
+    fem_res = (8, 6) if quick else (8, 6, 4)
+    corot_res = (8,) if quick else (8, 6)
+    ms_res = () if quick else (8,)  # the implicit step is slow on the body-fitted mesh (docs/accuracy.md)
+    lg_res = (8, 6) if quick else (8, 6, 4)
+    fem = [Setting("fem", f"linear-{r}mm", (("formulation", "linear"), ("resolution", r / 1000), ("order", 1))) for r in fem_res]
+    fem += [Setting("fem", f"linear-p2-{r}mm", (("formulation", "linear"), ("resolution", r / 1000), ("order", 2))) for r in (8, 6)[: 1 if quick else 2]]
+    fem += [Setting("fem", f"corotational-{r}mm", (("formulation", "corotational"), ("resolution", r / 1000), ("order", 1))) for r in corot_res]
+    # the explicit integrator: on the body-fitted mesh its critical step is 0.55 ms (the small
+    # elements by the folded surface), 120 compiled sub-steps a frame at 8 mm
+    ms = [Setting("mass_spring", f"explicit-{r}mm", (("integrator", "explicit"), ("resolution", r / 1000))) for r in ms_res]
+    ms += [Setting("mass_spring", f"implicit-{r}mm", (("integrator", "implicit"), ("resolution", r / 1000))) for r in ms_res]
+    ms += [Setting("mass_spring", f"local-global-{r}mm", (("integrator", "local-global"), ("resolution", r / 1000))) for r in lg_res]
+    if not quick:  # the discrimination protocol's mass-spring (protocols/stiffness_jnd.toml): 3 iterations a frame
+        ms.append(Setting("mass_spring", "local-global-8mm-3it", (("integrator", "local-global"), ("resolution", 0.008), ("iterations", 3))))
+    return tuple(ps + fem + ms + plugin_settings())
+
+
+def plugin_settings() -> list[Setting]:
+    """A row for every installed model outside brainsim (a lab's own): as the scene configures
+    it, else with its declared defaults."""
+    models, _ = installed()
+    return [Setting(name, "default") for name in plugins(models) if plugin_problem(name) is None]
+
+
+def plugin_problem(name: str, scene_path=DEFAULT_SCENE) -> str | None:
+    """Why the benches leave a lab's model out of their default rows, or None: it has an
+    option without a default and the scene does not configure it."""
+    try:
+        load_scene(scene_path).options_of(name)
+    except SceneError as exc:
+        return str(exc)
+    return None
+
+
+def quick_config(**kw) -> AccuracyConfig:
+    """A smaller bench for CI and `make demo`: 20 and 16 mm reference meshes, 6 samples (every
+    2 mm), two test places, coarse settings."""
+    return AccuracyConfig(**({"samples": 6, "reference_sizes_mm": (20.0, 16.0), "test_places": 2,
+                              "settings": default_settings(True), "quick": True} | kw))
+
+
+def sample_displacements(cfg: AccuracyConfig) -> np.ndarray:
+    return pull_samples(cfg.max_pull, cfg.samples)
+
+
+# -- a model on the same pulls -------------------------------------------------------------
+
+def _build_model(scene, setting: Setting, handset: Path, e_ratio: float):
+    cls = model_class(setting.model)
+    opts = dict(setting.options)
+    options = scene.spec.options_of(setting.model)
+    if setting.model == "plate_spring":
+        params = {"handset": lambda: load_params(handset), "located": lambda: load_params(LOCATED_PARAMS),
+                  "scene": lambda: options["params"]}[opts.pop("params", "scene")]()
+        # the stack's modulus is the tissue's: scale it with the bench's modulus
+        opts["params"] = dataclasses.replace(params, E=params.E * e_ratio)
+    try:
+        return cls.build(scene.mesh, options | opts, scene)
+    except SimError:
+        raise
+    except Exception as exc:  # a lab's model may fail in any way: one line naming it
+        raise SceneError(f"model {setting.model!r}: build raised {type(exc).__name__}: {exc}") from None
+
+
+def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], xs, handset: Path = HANDSET_PARAMS,
+                e_ratio: float = 1.0) -> dict:
+    """Run every pull as a ramp of visual frames; sample the force at each displacement.
+    `e_ratio` is `young` over the scene's own modulus (it scales the plate-spring stack's E)."""
+    scene = scene_with(scene_path, young)
+    xs = np.asarray(xs, dtype=np.float64)
+    start = time.perf_counter()
+    model = _build_model(scene, setting, handset, e_ratio)
+    build_s = time.perf_counter() - start
+    frame_hz = scene.spec.visual_rate_hz
+    per_sample = frames_per_sample(xs, frame_hz)
+    n_frames = per_sample * len(xs)
+    force = np.zeros((len(pulls), len(xs), 3))
+    frame_s: list[float] = []
+    tick_s: list[float] = []
+    unstable = 0
+    for p, pull in enumerate(pulls):
+        model.reset()  # back to rest: the mass-spring's state, the corotational FEM's frame
+        contact = model.grasp(pull.point, 0)
+        direction = np.asarray(pull.direction)
+        for f in range(1, n_frames + 1):
+            d = direction * xs[-1] * f / n_frames
+            t0 = time.perf_counter()
+            model.deformation([contact], [d])
+            frame_s.append(time.perf_counter() - t0)
+            if f % per_sample == 0:
+                force[p, f // per_sample - 1] = model.force(contact, tuple(float(c) for c in d))
+        tick_s.append(_tick_time(model.law(contact), tuple(float(c) for c in direction * xs[-1])))
+        unstable += int(bool(model.unstable))  # pulls the model gave up on (it renders zero force)
+    return {"model": setting.model, "setting": setting.setting, "force": force,
+            "frame_ms": float(np.median(frame_s) * 1e3), "frame_ms_p99": float(np.percentile(frame_s, 99) * 1e3),
+            "tick_us": float(np.median(tick_s) * 1e6), "build_s": build_s, "unstable": unstable}
+
+
+TICK_TIMING_CALLS = 20000  # per pull: the tick's median time
+
+
+def _tick_time(law, d, reps: int = TICK_TIMING_CALLS) -> float:
+    """Median of 5 batches: the per-tick force call the servo makes (the model's law for the
+    contact, `sim.models.api.TissueModel.law`: a model that writes only ``force`` has no
+    contact law of its own), plain floats."""
+    batches = []
+    for _ in range(5):
+        t0 = time.perf_counter()
+        for _ in range(reps // 5):
+            law.force(d)
+        batches.append((time.perf_counter() - t0) / (reps // 5))
+    return float(np.median(batches))
+
+
+# -- the reference -------------------------------------------------------------------------
+
+def reference_samples(truth: dict, pulls: list[Pull]) -> list[list[dict]]:
+    """Per pull and sample: the truth (`analysis.verification.truth_band.truth_samples`): the reference force
+    (N, vector on the tissue), its magnitude, band and support, and whether it is decided."""
+    return [truth["pulls"][p.name] for p in pulls]
+
+
+def calibration_curve(scene_path, xs, jobs: int | None = None, progress=None) -> tuple:
+    """The converged reference's force magnitude (N, the scene's law) on the bench's calibration
+    pulls (`make_pulls`), at displacements `xs`: (displacements, forces, how), the pulls'
+    curves concatenated. What `calibrate plate-spring` fits to."""
+    scene = scene_with(scene_path)
+    pulls = make_pulls(scene)
+    xs = np.asarray(xs, dtype=np.float64)
+    truth = truth_samples(scene_path, pulls, xs, DEFAULT_SIZES_MM, jobs=jobs, progress=progress)
+    law = scene.spec.material.law
+    rows = reference_samples(truth, pulls)
+    forces = np.array([[c["force_n"] for c in row] for row in rows]).ravel()
+    ok = np.array([[c["decided"] for c in row] for row in rows]).ravel()
+    if not ok.any():
+        raise ReferenceDataError("calibration curve: the truth is decided at no sample of the calibration pulls")
+    how = (f"the converged reference ({law.describe()}, finite strain on P2 on the body-fitted "
+           f"{', '.join(f'{s:g}' for s in DEFAULT_SIZES_MM)} mm meshes, Richardson-extrapolated; "
+           f"the accuracy bench's {len(pulls)} calibration pulls, at the {int(ok.sum())} of {ok.size} samples where the truth is "
+           f"decided: {_not_decided_words([c for row in rows for c in row])})")
+    return np.tile(xs, len(pulls))[ok], forces[ok], how
+
+
+def _not_decided_words(cells: list[dict]) -> str:
+    """"n extrapolated, m undecided, k without a reference" over samples."""
+    ext = sum(c["truth"] == "extrapolated" for c in cells)
+    und = sum(c["truth"] == "undecided" and math.isfinite(c["force_n"]) for c in cells)
+    none = sum(not math.isfinite(c["force_n"]) for c in cells)
+    return f"{ext} extrapolated, {und} undecided, {none} without a reference"
+
+
+# -- the bench -----------------------------------------------------------------------------
+
+def _task(task):
+    _, scene_path, young, setting, pulls, xs, handset, e_ratio = task
+    return model_pulls(scene_path, young, setting, pulls, xs, handset, e_ratio)
+
+
+def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | None = None, progress=None) -> dict:
+    """The reference, then every setting, on the calibration and test pulls; returns rows
+    (raw and calibrated per setting), per-sample verdicts and meta."""
+    scene = scene_with(cfg.scene)
+    young = float(cfg.young if cfg.young is not None else scene.spec.material.young)
+    e_ratio = young / scene.spec.material.young
+    law = scene.spec.material.law.scaled(e_ratio)
+    calib, test = make_pulls(scene), test_pulls(scene, cfg.test_places)
+    pulls = calib + test
+    xs = sample_displacements(cfg)
+    n_tasks = len(cfg.settings)
+
+    def ref_progress(k, n):
+        if progress is not None:
+            progress(k, n + n_tasks)
+
+    start = time.perf_counter()
+    truth = truth_samples(cfg.scene, pulls, xs, cfg.reference_sizes_mm, jobs=jobs, progress=ref_progress)
+    refs = truth["refs"]
+    ref_s = time.perf_counter() - start
+    if e_ratio != 1.0:  # a stiffer or softer brain of the same shape: every force scales with mu
+        truth = _scaled(truth, e_ratio)
+    ref = reference_samples(truth, pulls)
+    n_ref = len(pulls) * len(cfg.reference_sizes_mm)
+
+    def model_progress(k, n):
+        if progress is not None:
+            progress(n_ref + k, n_ref + n)
+
+    tasks = [("model", str(cfg.scene), young, s, pulls, xs, cfg.handset, e_ratio) for s in cfg.settings]
+    models = run_tasks(_task, tasks, jobs=jobs, scheduler=scheduler, progress=model_progress)
+    rows, samples = compare(ref, models, pulls, len(calib), xs)
+    flat = [c for row in ref for c in row]
+    solved = [c for c in flat if math.isfinite(c["force_n"]) and math.isfinite(c["band_rel"])]
+    if not solved:
+        raise ReferenceDataError("accuracy bench: no reference solve reached any sample")
+    solves = [s for r in refs["pulls"].values() for s in r["solves"]]
+
+    coupling = float(scene.spec.options_of("mass_spring")["coupling"])
+    meta = {
+        "synthetic": False,
+        # what a mass-spring's hand coupling alone allows: an exact tissue behind the scene's
+        # coupling and behind the stiffest an Omni renders stably at 1 kHz
+        "coupling_bound": {"scene_n_per_m": coupling, "scene": coupling_bound(ref, len(calib), xs, coupling),
+                           "omni_max_n_per_m": OMNI_MAX_STIFFNESS, "omni_max": coupling_bound(ref, len(calib), xs, OMNI_MAX_STIFFNESS)},
+        "young_pa": young, "scene_young_pa": scene.spec.material.young,
+        "max_pull_m": cfg.max_pull, "samples_per_pull": cfg.samples, "pull_speed_m_per_s": pull_speed(xs, scene.spec.visual_rate_hz),
+        "calibration_pulls": [dataclasses.asdict(p) for p in calib],
+        "test_pulls": [dataclasses.asdict(p) for p in test],
+        "reference": {
+            "setting": f"{law.law}-p2-bodyfitted-{'/'.join(f'{x:g}' for x in refs['sizes_mm'])}mm",
+            "element": "P2 (10-node tetrahedra)", "mesher": "fTetWild (pytetwild)", "grasp": "area mean (sim/geometry/patch.py)",
+            "formulation": f"finite strain, {law.describe()}, Richardson", "law": law.params(),
+            "law_source": scene.spec.material.law_source, "sizes_mm": refs["sizes_mm"],
+            "band_rel_max": float(max(c["band_rel"] for c in solved)), "band_rel_median": float(np.median([c["band_rel"] for c in solved])),
+            "band_half_n_max": float(max(c["band_half_n"] for c in solved)),
+            "ensemble": truth["ensemble"], "decided_rule": DECIDED_RULE,
+            "samples": {"decided": sum(c["decided"] for c in flat), "extrapolated": sum(c["truth"] == "extrapolated" for c in flat),
+                        "undecided": sum(c["truth"] == "undecided" and math.isfinite(c["force_n"]) for c in flat),
+                        "no_reference": sum(not math.isfinite(c["force_n"]) for c in flat)},
+            "test_decided": sum(c["decided"] for row in ref[len(calib):] for c in row),
+            "max_abs_j_minus_1_decided": max((c["max_abs_j_minus_1"] for c in flat if c["decided"]), default=math.nan),
+            "support_share_decided_max": max((c["support_share_outside"] for c in flat if c["decided"]), default=math.nan),
+            "statuses": {s: sum(c["status"] == s for c in flat) for s in sorted({c["status"] for c in flat})},
+            "converged": all(s["converged"] for s in solves),
+            # samples past where a mesh's solve stopped have no reference: left out of every row
+            "no_reference": _no_reference(ref, pulls, xs, refs["pulls"]),
+            "min_jacobian": min((s["min_jacobian"] for s in solves if "min_jacobian" in s), default=math.nan),
+            "solves_stored": sum(bool(s.get("cached")) for s in solves), "solves": len(solves), "seconds": ref_s,
+        },
+        "quick": cfg.quick,
+    }
+    return {"rows": rows, "best": class_best(rows), "samples": samples, "by_displacement": breakdown(samples, "displacement_mm"),
+            "by_force_band": breakdown(samples, "force_band"), "meta": meta}
+
+
+def _no_reference(ref: list[list[dict]], pulls: list[Pull], xs, refs: dict) -> list[dict]:
+    """The pulls with samples that have no reference force at all (the coarsest mesh's solve
+    stopped before them): how many, the last x reached (mm) and why (`tissue_pulls.reached`)."""
+    out = []
+    for p, row in zip(pulls, ref):
+        ok = np.array([math.isfinite(c["force_n"]) for c in row])
+        if not ok.all():
+            out.append({"pull": p.name, "samples": int((~ok).sum()), "reached_mm": float(np.asarray(xs)[ok].max() * 1e3) if ok.any() else 0.0,
+                        "why": reached(refs)[p.name][1] or "no reference solve reached it"})
+    return out
+
+
+def _scaled(truth: dict, ratio: float) -> dict:
+    """The truth of a brain `ratio` times as stiff (forces scale with mu; bands and support do not)."""
+    pulls = {}
+    for name, rows in truth["pulls"].items():
+        out = []
+        for c in rows:
+            f = c["force_n"] * ratio
+            ok, verdict_, why = decide(f, c["band_rel"], c["support_share_outside"], c["max_abs_j_minus_1"])
+            out.append(c | {"force": np.asarray(c["force"]) * ratio, "force_n": f, "band_half_n": c["band_half_n"] * ratio,
+                            "forces_n": [x * ratio for x in c["forces_n"]], "law_forces_n": [x * ratio for x in c["law_forces_n"]],
+                            "decided": ok, "truth": verdict_, "reason": why})
+        pulls[name] = out
+    return truth | {"pulls": pulls}
+
+
+FORCE_BANDS = ((0.0, 0.1, "below 0.1 N"), (0.1, 0.5, "0.1-0.5 N"), (0.5, math.inf, "above 0.5 N"))
+
+
+def force_band(force_n: float) -> str:
+    return next(label for lo, hi, label in FORCE_BANDS if lo <= force_n < hi)
+
+
+def breakdown(samples: list[dict], by: str) -> list[dict]:
+    """Held-out samples per model, calibration and group (`displacement_mm` or `force_band`):
+    decided, within the JND among them (with a Wilson interval), extrapolated and undecided."""
+    groups: dict = {}
+    for c in samples:
+        if c["set"] != "test":
+            continue
+        g = c[by] if by != "force_band" else force_band(c["reference_force_n"])
+        groups.setdefault((c["model"], c["setting"], c["calibration"], g), []).append(c)
+    out = []
+    for (model, setting, calibration, g), cs in groups.items():
+        dec = [c for c in cs if c["decided"]]
+        k = sum(c["within_jnd"] for c in dec)
+        lo, hi = wilson(k, len(dec)) if dec else (math.nan, math.nan)
+        out.append({"model": model, "setting": setting, "calibration": calibration, by: g, "decided": len(dec), "within": k,
+                    "within_jnd": k / len(dec) if dec else math.nan, "within_jnd_low": lo, "within_jnd_high": hi,
+                    "extrapolated": sum(c["verdict"] == "extrapolated" for c in cs), "undecided": sum(not c["decided"] and c["verdict"] == "undecided" for c in cs)})
+    return out
+
+
+def _angle(f, g) -> float:
+    nf, ng = float(np.linalg.norm(f)), float(np.linalg.norm(g))
+    if nf == 0 or ng == 0:
+        return 180.0
+    return math.degrees(math.acos(max(-1.0, min(1.0, float(np.dot(f, g)) / (nf * ng)))))
+
+
+def verdict(force: float, reference: float, half_band: float) -> str:
+    """Within the JND for every reference value in its band, for none, or undecided."""
+    e, tol = abs(force - reference), float(jnd(np.array(reference))) * reference
+    return "within" if e + half_band <= tol else "outside" if e - half_band > tol else "undecided"
+
+
+def calibration_scale(model_mags: np.ndarray, ref_mags: np.ndarray) -> float:
+    """One stiffness scale: exp(mean log(reference / model)) over the calibration samples."""
+    ok = (model_mags > 0) & np.isfinite(model_mags) & np.isfinite(ref_mags)
+    return float(np.exp(np.mean(np.log(ref_mags[ok] / model_mags[ok])))) if ok.any() else math.nan
+
+
+def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_calib: int, xs) -> tuple[list[dict], list[dict]]:
+    """Rows (per setting: raw and calibrated) judged on the test pulls (pulls[n_calib:]) at the
+    samples where the truth is decided, and every sample (the others carry the truth's verdict,
+    `extrapolated` or `undecided`, and its reason). The calibration scale is fitted on the
+    calibration pulls' decided samples."""
+    rows, samples = [], []
+    R = np.array([[c["force_n"] for c in row] for row in ref])  # (P, n)
+    H = np.array([[c["band_half_n"] for c in row] for row in ref])
+    D = np.array([[c["decided"] for c in row] for row in ref], dtype=bool)
+    for m in models:
+        F = np.asarray(m["force"])
+        mags = np.linalg.norm(F, axis=2)
+        calib = D[:n_calib]
+        scale = calibration_scale(mags[:n_calib][calib], R[:n_calib][calib])
+        for calibration, s in (("raw", 1.0), ("calibrated", scale)):
+            errs, within, verdicts, angles, calib_errs = [], [], [], [], []
+            counts = {"extrapolated": 0, "truth_undecided": 0}
+            pulls_within = pulls_judged = 0
+            for p, pull in enumerate(pulls):
+                test = p >= n_calib
+                all_in, judged = True, 0
+                for k, x in enumerate(xs):
+                    f = s * mags[p, k]
+                    r = R[p, k]
+                    cell = ref[p][k]
+                    if not math.isfinite(r):  # no reference here (its solve stopped): not judged
+                        continue
+                    rel = abs(f - r) / r
+                    ok = bool(abs(f - r) <= float(jnd(np.array(r))) * r)
+                    v = verdict(f, r, H[p, k]) if D[p, k] else cell["truth"]
+                    ang = _angle(-F[p, k], cell["force"])  # the reference is the force on the tissue
+                    samples.append({"model": m["model"], "setting": m["setting"], "calibration": calibration, "set": "test" if test else "calibration",
+                                    "pull": pull.name, "displacement_mm": round(float(x) * 1e3, 6), "force_n": f, "reference_force_n": r,
+                                    "reference_half_band_n": float(H[p, k]), "mesh_band_rel": cell["mesh_band_rel"], "law_band_rel": cell["law_band_rel"],
+                                    "support_share_outside": cell["support_share_outside"], "max_abs_j_minus_1": cell["max_abs_j_minus_1"],
+                                    "decided": bool(D[p, k]), "reason": cell["reason"],
+                                    "force_error": rel, "within_jnd": ok, "verdict": v, "angle_deg": ang})
+                    if not D[p, k]:
+                        if test:
+                            counts["extrapolated" if v == "extrapolated" else "truth_undecided"] += 1
+                        continue
+                    if test:
+                        errs.append(rel)
+                        within.append(ok)
+                        verdicts.append(v)
+                        angles.append(ang)
+                        all_in = all_in and ok
+                        judged += 1
+                    else:
+                        calib_errs.append(rel)
+                pulls_within += int(test and judged > 0 and all_in)  # a pull with no decided sample is not judged
+                pulls_judged += int(test and judged > 0)
+            n = len(within)
+            lo, hi = wilson(int(sum(within)), n) if n else (math.nan, math.nan)
+            rows.append({"model": m["model"], "setting": m["setting"], "calibration": calibration, "scale": s,
+                         "force_error": nan_mean(errs), "force_error_max": float(np.max(errs)) if errs else math.nan,
+                         "within_jnd": nan_mean(within), "within_jnd_low": lo, "within_jnd_high": hi, "n_test": n,
+                         "within": verdicts.count("within"), "outside": verdicts.count("outside"), "undecided": verdicts.count("undecided"),
+                         "extrapolated": counts["extrapolated"], "truth_undecided": counts["truth_undecided"],
+                         "pulls_within": pulls_within, "n_test_pulls": pulls_judged,
+                         "angle_deg": nan_mean(angles), "angle_deg_max": float(np.max(angles)) if angles else math.nan,
+                         "calibration_error": nan_mean(calib_errs),
+                         "tick_us": m["tick_us"], "frame_ms": m["frame_ms"], "frame_ms_p99": m["frame_ms_p99"],
+                         "build_s": m["build_s"], "unstable_pulls": int(m["unstable"])})
+    return rows, samples
+
+
+def nan_mean(values) -> float:
+    return float(np.mean(values)) if len(values) else math.nan
+
+
+def coupling_bound(ref: list[list[dict]], n_calib: int, xs, stiffness: float) -> float:
+    """The fraction of held-out samples within the JND that a tissue model exact in every other
+    respect reaches behind a virtual coupling of `stiffness` N/m (how the mass-spring renders:
+    the hand at d pulls the patch through a spring, so the patch lags by F / k): F solves
+    F = F_ref(d - F / k) along the pull, F_ref interpolated linearly from rest between the
+    reference's samples (above a convex curve, so the bound is if anything optimistic)."""
+    from scipy.optimize import brentq
+
+    within = []
+    for row in ref[n_calib:]:
+        mags = np.array([c["force_n"] for c in row])
+        known = np.isfinite(mags)
+        decided = known & np.array([bool(c.get("decided", True)) for c in row])  # rated where the truth is decided
+        x = np.concatenate([[0.0], np.asarray(xs, dtype=np.float64)[known]])
+        f = np.concatenate([[0.0], mags[known]])
+        for d, r in zip(np.asarray(xs)[decided], mags[decided]):
+            F = brentq(lambda F, d=d, x=x, f=f: F - float(np.interp(d - F / stiffness, x, f)), 0.0, stiffness * d)
+            within.append(abs(F - r) <= float(jnd(np.array(r))) * r)
+    return float(np.mean(within)) if within else math.nan
+
+
+TARGET_WITHIN = 0.80  # a class follows the tissue when one configuration is within the JND on 80% of held-out samples
+
+
+def class_best(rows: list[dict], frame_budget_ms: float | None = None) -> list[dict]:
+    """Each class (model) at its best, raw and calibrated: the configuration with the most
+    held-out samples within the JND among those whose frame keeps the contract's budget (p99,
+    `sim.models.api.BUDGETS`) and that gave up no pull; ties go to the lower force error, then
+    the faster frame. A class with no such configuration gets a row with `setting` None and
+    the reason. `meets_target`: within on at least `TARGET_WITHIN` of the samples."""
+    budget = float(BUDGETS["deformation_ms_p99"] if frame_budget_ms is None else frame_budget_ms)
+    out = []
+    for model in dict.fromkeys(r["model"] for r in rows):
+        for calibration in ("raw", "calibrated"):
+            cands = [r for r in rows if r["model"] == model and r["calibration"] == calibration]
+            if not cands:
+                continue
+            left = {r["setting"]: ("gave up on a pull" if r["unstable_pulls"] else f"frame p99 {r['frame_ms_p99']:.3g} ms over the {budget:g} ms budget")
+                    for r in cands if r["unstable_pulls"] or not r["frame_ms_p99"] <= budget}
+            ok = [r for r in cands if r["setting"] not in left]
+            base = {"model": model, "calibration": calibration, "frame_budget_ms": budget, "left_out": left}
+            if not ok:
+                out.append(base | {"setting": None, "meets_target": False, "why": "no configuration keeps the budget without giving up a pull"})
+                continue
+            best = max(ok, key=lambda r: (r["within_jnd"], -r["force_error"], -r["frame_ms"]))
+            out.append(base | {k: best[k] for k in ("setting", "scale", "within_jnd", "within_jnd_low", "within_jnd_high", "force_error",
+                                                    "pulls_within", "n_test_pulls", "frame_ms", "frame_ms_p99")}
+                       | {"meets_target": bool(best["within_jnd"] >= TARGET_WITHIN), "why": ""})
+    return out

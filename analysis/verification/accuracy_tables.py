@@ -1,0 +1,122 @@
+"""The accuracy bench's tables and files (`analysis.verification.accuracy.run_accuracy`'s result): the
+Markdown, LaTeX, CSV and JSON outputs, the Pareto plot, and the held-out samples per displacement
+and per force band."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from analysis.reports.formatting import markdown_grid
+from analysis.reports.latex import tables as latex_tables
+from analysis.reports.plots import pareto_plot
+from analysis.verification.accuracy import TARGET_WITHIN, class_best
+from analysis.verification.tissue_pulls import describe_no_reference
+from sim.jsonable import jsonable
+
+COLUMNS = ("model", "setting", "calibration", "scale", "force_error", "force_error_max", "within_jnd", "within_jnd_low",
+           "within_jnd_high", "within", "outside", "undecided", "pulls_within", "angle_deg", "tick_us", "frame_ms")
+
+
+def intro(result: dict) -> str:
+    m = result["meta"]
+    ref = m["reference"]
+
+    gone = ref.get("no_reference") or []
+    missing = (f" {sum(g['samples'] for g in gone)} samples have no reference and are not judged: "
+               f"{describe_no_reference(gone)}.") if gone else ""
+    n = ref.get("samples", {})
+    ens = "; ".join(f"{e['name']} (uniaxial {e['rms_rel_uniaxial']:.1%}, worst shear {e['shear_worst_rel']:.1%})" for e in ref.get("ensemble", []))
+    decided = (f" The truth's laws: {ens}. Within-JND rates are over the held-out samples where the truth is decided "
+               f"({ref.get('test_decided', 0)}; over every pull, {n.get('decided', 0)} decided, {n.get('extrapolated', 0)} extrapolated, "
+               f"{n.get('undecided', 0)} undecided): {ref.get('decided_rule', '')}.") if n else ""
+    return (f"Reference: {ref['setting']} ({ref['formulation']}; band (mesh and law) median {ref['band_rel_median']:.1%}, "
+            f"largest {ref['band_rel_max']:.1%}).{decided}{missing} {len(m['calibration_pulls'])} calibration pulls and {len(m['test_pulls'])} held-out test "
+            f"pulls to {m['max_pull_m'] * 1e3:g} mm at {m['pull_speed_m_per_s'] * 1e3:g} mm/s, {m['samples_per_pull']} samples each; "
+            f"the linear models' E = {m['young_pa'] / 1e3:.3g} kPa (scene: {m['scene_young_pa'] / 1e3:.3g} kPa)" + (" (quick bench)" if m["quick"] else "") + ".")
+
+
+def tables(result: dict) -> list[dict]:
+    """The accuracy table (every configuration, raw and calibrated) and each class at its best, as
+    {title, columns, rows, note}: what the Markdown and the LaTeX print."""
+    rows = [[r["model"], r["setting"], r["calibration"], f"{r['scale']:.3g}", f"{r['force_error']:.1%} / {r['force_error_max']:.1%}",
+             f"{r['within_jnd']:.0%} [{r['within_jnd_low']:.0%}, {r['within_jnd_high']:.0%}]",
+             f"{r['n_test']} / {r['extrapolated']} / {r['truth_undecided']}",
+             f"{r['within']} / {r['outside']} / {r['undecided']}", f"{r['pulls_within']}/{r['n_test_pulls']}", str(r["unstable_pulls"]),
+             f"{r['angle_deg']:.1f} / {r['angle_deg_max']:.1f} deg", f"{r['tick_us']:.2f} us", f"{r['frame_ms']:.3g} ms"]
+            for r in result["rows"]]
+    best = []
+    for b in class_best(result["rows"]):
+        left = "; ".join(f"{k}: {v}" for k, v in b["left_out"].items()) or "none"
+        if b["setting"] is None:
+            best.append([b["model"], b["calibration"], f"none ({b['why']})", "", "", "", "", "no", left])
+            continue
+        best.append([b["model"], b["calibration"], b["setting"],
+                     f"{b['within_jnd']:.0%} [{b['within_jnd_low']:.0%}, {b['within_jnd_high']:.0%}]", f"{b['force_error']:.1%}",
+                     f"{b['pulls_within']}/{b['n_test_pulls']}", f"{b['frame_ms']:.3g} / {b['frame_ms_p99']:.3g} ms",
+                     "yes" if b["meets_target"] else "no", left])
+    return [{"title": "Model error against run time", "columns": ["model", "setting", "calibration", "scale", "force error (mean / max)",
+                                                                   "within JND [95% CI]", "truth decided / extrapolated / undecided",
+                                                                   "within / outside / undecided", "whole pulls within",
+                                                                   "unstable pulls", "direction error (mean / max)", "tick", "frame"],
+             "rows": rows, "note": intro(result)},
+            {"title": "Each class at its best", "columns": ["model", "calibration", "best setting", "within JND [95% CI]", "force error",
+                                                            "whole pulls within", "frame (p50 / p99)", "meets target", "left out"],
+             "rows": best, "note": f"The most samples within the JND among the configurations whose frame p99 keeps the budget and that "
+                                   f"gave up no pull; the target is {TARGET_WITHIN:.0%}."}]
+
+
+def markdown(result: dict) -> str:
+    """The accuracy table as Markdown (test pulls only), with what it was measured against."""
+    every, best = tables(result)
+    lines = [intro(result), "", *markdown_grid(every["columns"], every["rows"])]
+    lines += ["", f"Each class at its best (`class_best`: the most samples within the JND among the configurations whose frame p99 keeps "
+              f"the budget and that gave up no pull; the target is {TARGET_WITHIN:.0%}):", "", *markdown_grid(best["columns"], best["rows"])]
+    cb = result["meta"].get("coupling_bound")
+    if cb:
+        lines += ["", f"The mass-spring renders through its hand coupling: the tissue's own forces behind it (an exact model) are within "
+                      f"the JND on {cb['scene']:.0%} of the samples at the scene's {cb['scene_n_per_m']:g} N/m and {cb['omni_max']:.0%} at "
+                      f"{cb['omni_max_n_per_m']:g} N/m, the stiffest an Omni renders stably at 1 kHz (`coupling_bound`)."]
+    for key, by, title in (("by_displacement", "displacement_mm", "displacement (mm)"), ("by_force_band", "force_band", "reference force")):
+        lines += ["", f"Held-out samples per {title}: within the JND / decided (extrapolated, undecided):", "",
+                  *markdown_grid(*breakdown_grid(result[key], by, title))]
+    lines += ["", "Seed paper, deformation time per frame on its 2014 PC: plate-spring 14.69 ms, FEM 21.35 ms, mass-spring 23.08 ms."]
+    return "\n".join(lines) + "\n"
+
+
+def breakdown_grid(rows: list[dict], by: str, title: str) -> tuple[list[str], list[list[str]]]:
+    """`analysis.verification.accuracy.breakdown`'s rows as a grid: one row per configuration and calibration,
+    one column per group ("k/n (e, u)")."""
+    groups = list(dict.fromkeys(r[by] for r in rows))
+    if by == "displacement_mm":
+        groups.sort()
+    table: dict = {}
+    for r in rows:
+        table.setdefault((r["model"], r["setting"], r["calibration"]), {})[r[by]] = r
+    cols = ["model", "setting", "calibration"] + [f"{g:g}" if isinstance(g, float) else str(g) for g in groups]
+    out = []
+    for (model, setting, calibration), cells in table.items():
+        out.append([model, setting, calibration] + [f"{c['within']}/{c['decided']} ({c['extrapolated']}, {c['undecided']})" if (c := cells.get(g)) else ""
+                                                    for g in groups])
+    return cols, out
+
+
+def write_outputs(result: dict, out_dir) -> list[Path]:
+    """accuracy.json, accuracy.csv, samples.csv, accuracy.md, accuracy.tex (its tables as LaTeX), pareto.png and .svg."""
+    import pandas as pd
+
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files = [out / "accuracy.json", out / "accuracy.csv", out / "samples.csv", out / "accuracy.md"]
+    files[0].write_text(json.dumps(jsonable(result), indent=2))
+    pd.DataFrame(result["rows"]).to_csv(files[1], index=False)
+    pd.DataFrame(result["samples"]).to_csv(files[2], index=False)
+    files[3].write_text(markdown(result))
+    files.append(out / "accuracy.tex")
+    files[4].write_text(latex_tables(tables(result), "tab:accuracy"))
+    raw = [r for r in result["rows"] if r["calibration"] == "raw"]
+    for ext in ("png", "svg"):
+        pareto_plot(raw, out / f"pareto.{ext}", reference=result["meta"]["reference"]["setting"])
+        files.append(out / f"pareto.{ext}")
+    return files
