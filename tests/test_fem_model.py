@@ -201,7 +201,7 @@ def test_corotational_fem_pulls_through_inverted_elements_and_still_catches_a_ru
 
 def test_compiled_polar_rotations_equal_the_svd_ones():
     pytest.importorskip("numba")
-    from sim.kernels import polar_rotations
+    from sim.models.fem.corotational_kernels import polar_rotations
     from sim.models.fem.corotational import _svd_rotations
 
     rng = np.random.default_rng(1)

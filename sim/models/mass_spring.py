@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from sim import kernels
 from sim.devices.base import OmniSpec
 from sim.errors import ParameterError, SimError
 from sim.geometry.patch import GRASP_RADIUS
@@ -34,6 +33,7 @@ from sim.models.builtin import MASS_SPRING_INTEGRATORS as INTEGRATORS
 from sim.models.builtin import MassSpringBase
 from sim.models.fem import fixed_nodes
 from sim.models.local_global import ANDERSON_DEPTH, RHO_ITERATIONS, LocalGlobal  # noqa: F401 (re-exported)
+from sim.models import spring_kernels
 from sim.models.newton import NewtonKrylov
 from sim.scene import AXES
 
@@ -43,13 +43,13 @@ MAX_SUBSTEPS = 2000  # more explicit sub-steps per step than this cannot serve a
 
 
 def _spring_rhs():
-    """The compiled local step (sim/kernels.py); the tests replace it with None for the NumPy path."""
-    return kernels.spring_rhs
+    """The compiled local step (`spring_kernels`); the tests replace it with None for the NumPy path."""
+    return spring_kernels.spring_rhs
 
 
 def _explicit_kernel():
-    """The compiled explicit sub-steps (sim/kernels.py); None in tests: the NumPy loop."""
-    return kernels.explicit_substeps
+    """The compiled explicit sub-steps (`spring_kernels`); None in tests: the NumPy loop."""
+    return spring_kernels.explicit_substeps
 
 
 class StabilityError(SimError):
@@ -163,7 +163,7 @@ class MassSpring(LocalGlobal, NewtonKrylov):
         """sum k/2 (|x_i - x_j| - rest)^2 over the springs that can stretch (between two clamped
         nodes they keep their rest length): one compiled pass (the
         monitor runs it every step, Anderson every iteration)."""
-        return kernels.spring_energy(x, *self._moving_springs())
+        return spring_kernels.spring_energy(x, *self._moving_springs())
 
     def _moving_springs(self) -> tuple:
         """(i, j, k, rest) of the springs that can stretch, contiguous, for the compiled passes
@@ -435,7 +435,7 @@ class MassSpringModel(MassSpringBase):
         self.step_s: list[float] = []
         self.frame_flops = math.nan  # the last frame's counted work (MassSpring.step_flops)
         if integrator in ("local-global", "explicit") and _spring_rhs() is not None:
-            kernels.warm_up()  # compiled now, not in the first frame of a trial
+            spring_kernels.warm_up()  # compiled now, not in the first frame of a trial
         self._check_explicit()
 
     def _check_explicit(self) -> None:

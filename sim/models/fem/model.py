@@ -18,7 +18,6 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from sim import kernels
 from sim.errors import ParameterError
 from sim.geometry.patch import GRASP_RADIUS, patch_area_points
 from sim.geometry.tetmesh import body_volume
@@ -26,6 +25,7 @@ from sim.geometry.volume import embed, locate
 from sim.laws import Linearised, PairTable
 from sim.models.base import Contact
 from sim.models.builtin import FemBase, FemOptions
+from sim.models.fem import corotational_kernels
 from sim.models.fem.corotational import Precond, corotational_step, evaluate, warped_active
 from sim.models.fem.grasp import condense, constraint_matrix, symmetric_inverse
 from sim.models.fem.linear import LinearFem
@@ -136,7 +136,7 @@ class FemModel(FemBase):
         self.unstable = False
         self.frame_flops = math.nan  # the last frame's counted work
         if formulation == "corotational":
-            kernels.warm_up()  # compiled now, not in the first frame of a trial
+            corotational_kernels.warm_up()  # compiled now, not in the first frame of a trial
 
     def _surface_matrix(self) -> sp.csr_matrix:
         """(surface vertices, model nodes): each vertex interpolated with its element's shape functions."""
