@@ -44,12 +44,12 @@ from analysis.verification.tissue_pulls import (
 )
 from analysis.verification.truth_band import DEVICE_LIMIT_N, MAX_J_DEVIATION, decide, truth_samples
 from brainsim_assets import path as _asset
-from sim.calibrate import jnd
 from sim.errors import SceneError, SimError
 from sim.models.api import BUDGETS
 from sim.models.mass_spring import OMNI_MAX_STIFFNESS
 from sim.models.plate_spring import load_params
 from sim.models.registry import installed, model_class, plugins
+from sim.perception import force_jnd
 from sim.pulls import TEST_PLACES, Pull, make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE, load_scene
 from sim.sweep import run_tasks
@@ -397,7 +397,7 @@ def _angle(f, g) -> float:
 
 def verdict(force: float, reference: float, half_band: float) -> str:
     """Within the JND for every reference value in its band, for none, or undecided."""
-    e, tol = abs(force - reference), float(jnd(np.array(reference))) * reference
+    e, tol = abs(force - reference), float(force_jnd(np.array(reference))) * reference
     return "within" if e + half_band <= tol else "outside" if e - half_band > tol else "undecided"
 
 
@@ -435,7 +435,7 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                     if not math.isfinite(r):  # no reference here (its solve stopped): not judged
                         continue
                     rel = abs(f - r) / r
-                    ok = bool(abs(f - r) <= float(jnd(np.array(r))) * r)
+                    ok = bool(abs(f - r) <= float(force_jnd(np.array(r))) * r)
                     v = verdict(f, r, H[p, k]) if D[p, k] else cell["truth"]
                     ang = _angle(-F[p, k], cell["force"])  # the reference is the force on the tissue
                     samples.append({"model": m["model"], "setting": m["setting"], "calibration": calibration, "set": "test" if test else "calibration",
@@ -495,7 +495,7 @@ def coupling_bound(ref: list[list[dict]], n_calib: int, xs, stiffness: float) ->
         f = np.concatenate([[0.0], mags[known]])
         for d, r in zip(np.asarray(xs)[decided], mags[decided]):
             F = brentq(lambda F, d=d, x=x, f=f: F - float(np.interp(d - F / stiffness, x, f)), 0.0, stiffness * d)
-            within.append(abs(F - r) <= float(jnd(np.array(r))) * r)
+            within.append(abs(F - r) <= float(force_jnd(np.array(r))) * r)
     return float(np.mean(within)) if within else math.nan
 
 

@@ -27,13 +27,13 @@ from sim.geometry.tetmesh import body_volume
 from sim.geometry.volume import embed, tet_volumes
 from sim.laws import Coupling
 from sim.linalg import Factor
+from sim.models import spring_kernels
 from sim.models.base import Contact
 from sim.models.builtin import MASS_SPRING_ACCELERATIONS as ACCELERATIONS
 from sim.models.builtin import MASS_SPRING_INTEGRATORS as INTEGRATORS
 from sim.models.builtin import MassSpringBase
 from sim.models.fem import fixed_nodes
 from sim.models.local_global import ANDERSON_DEPTH, RHO_ITERATIONS, LocalGlobal  # noqa: F401 (re-exported)
-from sim.models import spring_kernels
 from sim.models.newton import NewtonKrylov
 from sim.scene import AXES
 

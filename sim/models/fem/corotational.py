@@ -65,8 +65,8 @@ def _corotate_compiled(fem: LinearFem, u: np.ndarray, R: np.ndarray, elements: n
     """Add the `elements`' corotational force's change from the linear one to `out` (one
     compiled pass); returns the energy's change."""
     tets, _, Ke = _element_arrays(fem, elements)
-    return kernels.corotated_minus_linear(np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(fem.nodes, dtype=np.float64), tets, Ke,
-                                          np.ascontiguousarray(R), out)
+    return corotational_kernels.corotated_minus_linear(np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(fem.nodes, dtype=np.float64),
+                                                       tets, Ke, np.ascontiguousarray(R), out)
 
 
 def corotational_internal_force(fem: LinearFem, u: np.ndarray, R: np.ndarray, elements: np.ndarray | None = None) -> np.ndarray:
