@@ -54,7 +54,7 @@ class ReferenceConfig:
     pulls: tuple[str, ...] | None = None  # pull names to run; None: all of the bench's calibration pulls
     formulation: str = "finite-strain"  # or "small-strain" (the law's small-strain limit: one linear solve per pull)
     functional: str = "area"  # the grasp: mean displacement of the surface area ("area") or of its vertices ("vertices", small strain)
-    threads: int = 1  # fTetWild's threads per mesh (more are no faster on this surface: measured)
+    threads: int = 1  # fTetWild's threads per mesh (more gain nothing on this surface: docs/reference.md)
     jobs: int | None = None  # worker processes for meshing and solving (default: every core)
     quick: bool = False
     extra: dict = field(default_factory=dict)

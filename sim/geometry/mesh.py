@@ -76,7 +76,7 @@ class SurfaceMesh:
     def geodesic_within(self, vertex: int, radius: float) -> tuple[np.ndarray, np.ndarray]:
         """Vertices whose edge-path distance from `vertex` is at most `radius`, and the distances.
 
-        Edge paths overestimate true geodesics (median ~10%, at most ~17% on an icosphere); they never
+        Edge paths overestimate true geodesics (by how much: docs/plate_spring.md); they never
         cross a sulcus or the gap between hemispheres, which straight-line distance would.
         """
         from scipy.sparse.csgraph import dijkstra

@@ -487,8 +487,8 @@ class MassSpringModel(MassSpringBase):
         point = tuple(float(c) for c in p)
         patch = tuple(float(c) for c in p + (self.system.x[nodes].mean(axis=0) - g.anchor))
         # gain 1 until the first frame measures how the patch follows the hand: the force starts
-        # from zero and rises as the tissue resists (with gain 0 the coupling spring alone, 40x
-        # stiffer than the tissue, rendered every motion before that frame: a 0.0165 N bump)
+        # from zero and rises as the tissue resists (with gain 0 the coupling spring alone, far
+        # stiffer than the tissue, rendered every motion before that frame as a bump: docs/mass_spring.md)
         law = Coupling(k=self.coupling, anchor=point, patch=patch, gain=1.0)
         return Contact(hand=hand, vertex=int(v), point=point, normal=tuple(float(c) for c in self.surface.vertex_normals[v]), data=g, law=law)
 

@@ -129,10 +129,10 @@ class FemModel(FemBase):
         self.tangent_updates = 0  # warped-stiffness refactorisations
         self.restarts = 0  # corotational iterations that diverged and restarted from linear
         self.halvings = 0  # corotational steps halved by the line search (near inverted elements)
-        # a corotational iteration that runs away (measured on held-out bench pulls: elements
-        # invert near 20 mm and the force then grows to 1e4 N within a few frames) is caught when
-        # its force exceeds COROT_FORCE_LIMIT times the linear force for the same grasp; the servo
-        # then renders nothing until the grasp is released
+        # a corotational iteration that runs away (elements invert on a long pull and the force
+        # grows within a few frames: docs/fem.md) is caught when its force exceeds
+        # COROT_FORCE_LIMIT times the linear force for the same grasp; the servo then renders
+        # nothing until the grasp is released
         self.unstable = False
         self.frame_flops = math.nan  # the last frame's counted work
         if formulation == "corotational":
