@@ -107,8 +107,8 @@ def default_settings(quick: bool) -> tuple[Setting, ...]:
     fem = [Setting("fem", f"linear-{r}mm", (("formulation", "linear"), ("resolution", r / 1000), ("order", 1))) for r in fem_res]
     fem += [Setting("fem", f"linear-p2-{r}mm", (("formulation", "linear"), ("resolution", r / 1000), ("order", 2))) for r in (8, 6)[: 1 if quick else 2]]
     fem += [Setting("fem", f"corotational-{r}mm", (("formulation", "corotational"), ("resolution", r / 1000), ("order", 1))) for r in corot_res]
-    # the explicit integrator: on the body-fitted mesh its critical step is 0.55 ms (the small
-    # elements by the folded surface), 120 compiled sub-steps a frame at 8 mm
+    # the explicit integrator: its critical step on the body-fitted mesh is short (the small
+    # elements by the folded surface: the step and the sub-steps a frame in docs/fem.md)
     ms = [Setting("mass_spring", f"explicit-{r}mm", (("integrator", "explicit"), ("resolution", r / 1000))) for r in ms_res]
     ms += [Setting("mass_spring", f"implicit-{r}mm", (("integrator", "implicit"), ("resolution", r / 1000))) for r in ms_res]
     ms += [Setting("mass_spring", f"local-global-{r}mm", (("integrator", "local-global"), ("resolution", r / 1000))) for r in lg_res]
