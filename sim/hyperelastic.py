@@ -52,9 +52,8 @@ class Hyperelastic:
     bulk_ratio: float = BULK_RATIO
 
     def __post_init__(self):
-        problems = law_problems(self.law, self.mu, self.alpha, self.bulk_ratio)
-        if problems:
-            raise ParameterError("{}: {}".format(*problems[0]))
+        for key, message in law_problems(self.law, self.mu, self.alpha, self.bulk_ratio)[:1]:
+            raise ParameterError(f"{key}: {message}")
 
     @property
     def shear_modulus(self) -> float:
