@@ -28,7 +28,7 @@ SIZE_MM = 8.0
 def _score(ref_mag: np.ndarray, mag: np.ndarray, n_calib: int) -> dict:
     """Within the JND and mean error on the test pulls, raw and with the bench's one scale."""
     from analysis.verification.accuracy import calibration_scale
-    from sim.calibrate import jnd
+    from sim.perception import force_jnd
 
     scale = calibration_scale(mag[:n_calib].ravel(), ref_mag[:n_calib].ravel())
     out = {"scale": scale}
@@ -36,7 +36,7 @@ def _score(ref_mag: np.ndarray, mag: np.ndarray, n_calib: int) -> dict:
     judged = np.isfinite(r) & np.isfinite(mag[n_calib:])
     for name, s in (("raw", 1.0), ("calibrated", scale)):
         err = np.abs(s * mag[n_calib:] - r)[judged] / r[judged]
-        out[name] = {"within_jnd": float(np.mean(err <= jnd(r[judged]))), "force_error": float(np.mean(err)), "n": int(judged.sum())}
+        out[name] = {"within_jnd": float(np.mean(err <= force_jnd(r[judged]))), "force_error": float(np.mean(err)), "n": int(judged.sum())}
     return out
 
 

@@ -1,5 +1,5 @@
 """The peer: NVIDIA Warp on its CPU device, a kernel of the same local step as
-`sim/kernels.spring_rhs` (every moving spring projected to its rest length, k d scattered to
+`sim/models/spring_kernels.spring_rhs` (every moving spring projected to its rest length, k d scattered to
 its two free nodes with atomic adds), on the same springs and state. `warp.sim` is gone from
 Warp 1.x (its solvers moved to the `newton` package); the local/global step has no newton
 counterpart, so the comparison is kernel to kernel, and the global solve (CHOLMOD) is shared."""
@@ -13,7 +13,7 @@ import numpy as np
 
 def local_step_ms(x, ei, ej, k, rest, free_pos, n_free, calls: int = 200) -> dict | None:
     """ms per call of the Warp kernel on the CPU, its first compile in s, and its largest
-    difference from `sim.kernels.spring_rhs`; None where warp-lang is not installed."""
+    difference from `sim.models.spring_kernels.spring_rhs`; None where warp-lang is not installed."""
     import contextlib
     import sys
 
@@ -63,7 +63,7 @@ def _run(wp, x, ei, ej, k, rest, free_pos, n_free, calls):
         wp.launch(spring_rhs, dim=len(ei), inputs=[*arrays, out], device=dev)
     wp.synchronize()
     ms = (time.perf_counter() - start) / calls * 1e3
-    from sim.kernels import spring_rhs as ours
+    from sim.models.spring_kernels import spring_rhs as ours
 
     diff = float(np.abs(out.numpy() - ours(x, ei, ej, k, rest, free_pos, n_free)).max())
     return {"ms": ms, "compile_s": compile_s, "max_difference": diff, "version": wp.__version__}

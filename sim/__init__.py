@@ -2,7 +2,7 @@
 neither the analyses nor the study library, so it runs, ships and is tested alone.
 
 Here: scenes and their files (`scene`, `tomlfile`, `tomltable`, `material`, `files`, `text`), the
-laws a tick evaluates (`laws`, `hyperelastic`, `kernels`), runs (`run`, `run_plots`), the pulls
+laws a tick evaluates (`laws`, `hyperelastic`), runs (`run`, `run_plots`), the pulls
 every model is measured on (`pulls`), parallel sweeps (`sweep`). Sub-packages: `geometry`,
 `models`, `devices`, `servo`, `view`.
 """

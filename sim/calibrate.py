@@ -5,7 +5,7 @@ paper): fit h1, alpha, q and x_c1 within their bounds so that the plate-spring f
 displacements matches a reference: the converged FEM reference on the accuracy bench's
 calibration pulls (`analysis.verification.accuracy.calibration_curve`, through `studyctl calibrate
 plate-spring`) or a measured curve from a CSV (displacement_m, force_n). Residuals are in
-units of the force JND, so the report says directly how many samples a person could tell apart.
+units of the force JND (`sim.perception`), so the report says directly how many samples a person could tell apart.
 """
 
 from __future__ import annotations
@@ -20,11 +20,7 @@ import numpy as np
 from sim.errors import InputFileError, ParameterError
 from sim.files import DATA_MAX_BYTES, check_input
 from sim.models.plate_spring import B_SLACK_M, PlateSpring, PlateSpringParams
-
-
-def jnd(force: np.ndarray) -> np.ndarray:
-    """Force discrimination threshold used by the seed paper: 10% at or above 0.5 N, 25% below."""
-    return np.where(force >= 0.5, 0.10, 0.25)
+from sim.perception import force_jnd
 
 
 def read_curve(path) -> tuple[np.ndarray, np.ndarray]:
@@ -73,7 +69,7 @@ def fit(params: PlateSpringParams, xs: np.ndarray, forces: np.ndarray, variant: 
         except ParameterError:
             return np.full(len(xs), 1e3)
         f = np.array([stack.force(x) for x in xs])
-        return (f - forces) / (jnd(forces) * forces)
+        return (f - forces) / (force_jnd(forces) * forces)
 
     lo = [math.log(BOUNDS["h1"][0]), 1.0, 1.0, math.log(BOUNDS["x_c1"][0])]
     hi = [math.log(BOUNDS["h1"][1]), 2.0, 1.5, math.log(BOUNDS["x_c1"][1])]

@@ -24,7 +24,7 @@ responses here (uniaxial loading with free lateral faces, simple shear) are what
 
 from __future__ import annotations
 
-import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,6 +32,9 @@ import numpy as np
 from sim.errors import ParameterError
 
 LAWS = ("neo-hookean", "mooney-rivlin", "ogden")
+# each law's parameters under its own names (a material file's keys, `Hyperelastic.params`)
+PARAMETERS = {"neo-hookean": ("mu",), "mooney-rivlin": ("mu1", "mu2"), "ogden": ("mu", "alpha")}
+MU_RANGE = (0.0, 1.0e9)  # Pa per term (a negative term is unstable)
 # kappa / mu: small-strain Poisson ratio 0.49, the brain-shift models' value (Wittek et al. 2007,
 # Miller et al. 2010: nearly incompressible, with the element free of locking); docs/material.md
 BULK_RATIO = 50.0
@@ -49,9 +52,8 @@ class Hyperelastic:
     bulk_ratio: float = BULK_RATIO
 
     def __post_init__(self):
-        problem = law_problem(self)
-        if problem:
-            raise ParameterError(problem)
+        for key, message in law_problems(self.law, self.mu, self.alpha, self.bulk_ratio)[:1]:
+            raise ParameterError(f"{key}: {message}")
 
     @property
     def shear_modulus(self) -> float:
@@ -118,24 +120,36 @@ def ogden(mu, alpha, bulk_ratio: float = BULK_RATIO) -> Hyperelastic:
     return Hyperelastic("ogden", mu, alpha, float(bulk_ratio))
 
 
-def law_problem(law: Hyperelastic) -> str:
-    """What is wrong with a law's parameters, or ''."""
-    if law.law not in LAWS:
-        return f"law: {law.law!r} is not one of {', '.join(LAWS)}"
-    if len(law.mu) == 0 or len(law.mu) != len(law.alpha):
-        return "mu, alpha: one alpha per mu, at least one term"
-    for m in law.mu:
-        if not (math.isfinite(m) and m >= 0.0):
-            return f"mu: {m!r} is out of range; allowed: a finite number >= 0 Pa per term (a negative term is unstable)"
-    if not sum(law.mu) > 0.0:
-        return "mu: the terms' sum (the shear modulus) must be > 0 Pa"
-    for a in law.alpha:
-        if not (math.isfinite(a) and a != 0.0 and ALPHA_RANGE[0] <= a <= ALPHA_RANGE[1]):
-            return f"alpha: {a!r} is out of range; allowed: {ALPHA_RANGE[0]:g}..{ALPHA_RANGE[1]:g}, not 0"
+def law_problems(law: str, mu: Sequence[float], alpha: Sequence[float], bulk_ratio: float) -> list[tuple[str, str]]:
+    """What is wrong with a law's parameters: (parameter, message) pairs, at most one per
+    parameter, named as the law names them (`params()`: mu, or mu1 and mu2); [] when nothing.
+    The one check of a law: `Hyperelastic` raises the first, a material table
+    (`sim.material.read_law`) records each at its key's line."""
+    if law not in LAWS:
+        return [("law", f"{law!r} is not one of {', '.join(LAWS)}")]
+    problems, named = [], set()
+    names = PARAMETERS[law] if law == "mooney-rivlin" else ("mu",) * len(mu)
+    lo, hi = MU_RANGE
+    for name, m in zip(names, mu):
+        if not lo <= m <= hi and name not in named:  # the first bad term of each parameter
+            problems.append((name, f"{m!r} is out of range; allowed: [{lo:g}, {hi:g}] Pa per term"))
+            named.add(name)
+    if not mu:
+        problems.append(("mu", "no term; allowed: at least one"))
+    elif not named and not sum(mu) > 0.0:
+        problems.append((names[0], "the terms' sum (the shear modulus) must be > 0 Pa"))
+    lo, hi = ALPHA_RANGE
+    bad_alpha = [a for a in alpha if not (lo <= a <= hi and a != 0.0)]
+    if mu and len(alpha) != len(mu):
+        problems.append(("alpha", f"{len(alpha)} exponent(s) for {len(mu)} mu term(s); allowed: one alpha per mu"))
+    elif bad_alpha:
+        a = bad_alpha[0]
+        problems.append(("alpha", "0 is not an exponent; allowed: non-zero values" if a == 0.0
+                         else f"{a!r} is out of range; allowed: [{lo:g}, {hi:g}]"))
     lo, hi = BULK_RATIO_RANGE
-    if not (math.isfinite(law.bulk_ratio) and lo <= law.bulk_ratio <= hi):
-        return f"bulk_ratio: {law.bulk_ratio!r} is out of range; allowed: {lo:g}..{hi:g} (kappa / mu)"
-    return ""
+    if not lo <= bulk_ratio <= hi:
+        problems.append(("bulk_ratio", f"{bulk_ratio!r} is out of range; allowed: [{lo:g}, {hi:g}] (kappa / mu)"))
+    return problems
 
 
 # -- closed forms in principal stretches ---------------------------------------------------------

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from brainsim_assets import path as _asset
 from sim.errors import ParameterError
-from sim.hyperelastic import ALPHA_RANGE, BULK_RATIO, BULK_RATIO_RANGE, LAWS, Hyperelastic
+from sim.hyperelastic import BULK_RATIO, PARAMETERS, Hyperelastic, law_problems
 from sim.models.base import POISSON_MAX, POISSON_MIN
 from sim.tomlfile import TomlFileError, read_toml
 from sim.tomltable import TableReader
@@ -26,41 +26,36 @@ from sim.tomltable import TableReader
 DEFAULT_MATERIAL = _asset("protocols/materials/human_cortex.toml")
 DEFAULT_POISSON = 0.45  # the linear models' (docs/material.md)
 LAW_KEYS = ("law", "mu", "mu1", "mu2", "alpha", "bulk_ratio")
-MU_RANGE = (0.0, 1.0e9)  # Pa per term
 
 
 def read_law(r: TableReader) -> Hyperelastic | None:
     """The law in a table (a material file's [material], or a scene's inline): `law` and its
-    parameters under their own names; None (its problems recorded) when refused."""
-    name = r.string("law", choices=LAWS)
-    if name is None:
-        return None
-    ratio = r.number("bulk_ratio", default=BULK_RATIO, lo=BULK_RATIO_RANGE[0], hi=BULK_RATIO_RANGE[1])
-    wrong = {"neo-hookean": ("mu1", "mu2", "alpha"), "mooney-rivlin": ("mu", "alpha"), "ogden": ("mu1", "mu2")}[name]
-    for key in wrong:
-        if key in r.data:
-            r.error(key, f"not a parameter of the {name} law; its parameters: "
-                    + {"neo-hookean": "mu", "mooney-rivlin": "mu1, mu2", "ogden": "mu, alpha (lists, one per term)"}[name])
+    parameters under their own names (`sim.hyperelastic.PARAMETERS`); None (its problems recorded
+    at their keys' lines) when refused. Types are read here; the values are checked by
+    `sim.hyperelastic.law_problems`, the one check of a law."""
+    name = r.string("law")
+    ratio = r.number("bulk_ratio", default=BULK_RATIO)
+    own = PARAMETERS.get(name)
+    for key in ("mu", "mu1", "mu2", "alpha"):
+        if own is not None and key in r.data and key not in own:
+            r.error(key, f"not a parameter of the {name} law; its parameters: {', '.join(own)}"
+                    + (" (lists, one per term)" if name == "ogden" else ""))
     if name == "neo-hookean":
-        mu, alpha = r.number("mu", lo=MU_RANGE[0], hi=MU_RANGE[1], lo_open=True), 2.0
-        mu, alpha = (None, None) if mu is None else ((mu,), (alpha,))
+        m = r.number("mu")
+        mu, alpha = (None, None) if m is None else ((m,), (2.0,))
     elif name == "mooney-rivlin":
-        m1, m2 = r.number("mu1", lo=MU_RANGE[0], hi=MU_RANGE[1]), r.number("mu2", lo=MU_RANGE[0], hi=MU_RANGE[1])
+        m1, m2 = r.number("mu1"), r.number("mu2")
         mu, alpha = (None, None) if m1 is None or m2 is None else ((m1, m2), (2.0, -2.0))
+    elif name == "ogden":
+        mu, alpha = r.numbers("mu"), r.numbers("alpha")
     else:
-        mu, alpha = r.numbers("mu", lo=MU_RANGE[0], hi=MU_RANGE[1]), r.numbers("alpha", lo=ALPHA_RANGE[0], hi=ALPHA_RANGE[1])
-        if mu is not None and alpha is not None and len(mu) != len(alpha):
-            r.error("alpha", f"{len(alpha)} exponent(s) for {len(mu)} mu term(s); allowed: one alpha per mu")
-            mu = None
-    if mu is None or alpha is None or ratio is None:
+        mu, alpha = (), ()  # no law, or one `law_problems` refuses by name
+    if name is None or mu is None or alpha is None or ratio is None:
         return None
-    if any(a == 0.0 for a in alpha):
-        r.error("alpha", "0 is not an exponent; allowed: non-zero values")
-        return None
-    if not sum(mu) > 0.0:
-        r.error("mu" if name != "mooney-rivlin" else "mu1", "the terms' sum (the shear modulus) must be > 0 Pa")
-        return None
-    return Hyperelastic(name, tuple(mu), tuple(alpha), float(ratio))
+    problems = law_problems(name, mu, alpha, ratio)
+    for key, message in problems:
+        r.error(key, message)
+    return None if problems else Hyperelastic(name, tuple(mu), tuple(alpha), float(ratio))
 
 
 def material_file(path: Path, problems: list) -> tuple[Hyperelastic | None, dict]:

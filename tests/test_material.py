@@ -9,6 +9,8 @@ from click.testing import CliRunner
 from scipy.optimize import curve_fit
 
 from analysis.verification.material_fit import DATA_FILE, read_curve
+from sim.errors import ParameterError
+from sim.hyperelastic import PARAMETERS, Hyperelastic
 from sim.material import load_material
 from sim.scene import load_scene
 from studyctl.cli import cli
@@ -216,3 +218,24 @@ def test_a_file_of_half_a_mode_or_of_two_is_refused_by_name(tmp_path):
     two.write_text("region,stretch,nominal_stress_kpa,shear_strain,shear_stress_kpa\ncortex,0.9,-1,0.1,0.1\n")
     res = CliRunner().invoke(cli, ["calibrate", "material", "--data", str(two)])
     assert res.exit_code == 1 and "one loading mode a file" in res.output and len(res.output.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("law, mu, alpha, bulk_ratio, key, message", [
+    ("ogden", (1500.0,), (0.0,), 50.0, "alpha", "0 is not an exponent; allowed: non-zero values"),
+    ("ogden", (-5.0,), (-18.0,), 50.0, "mu", "-5.0 is out of range; allowed: [0, 1e+09] Pa per term"),
+    ("ogden", (1500.0, 10.0), (-18.0,), 50.0, "alpha", "1 exponent(s) for 2 mu term(s); allowed: one alpha per mu"),
+    ("mooney-rivlin", (0.0, 0.0), (2.0, -2.0), 50.0, "mu1", "the terms' sum (the shear modulus) must be > 0 Pa"),
+    ("neo-hookean", (1000.0,), (2.0,), 0.5, "bulk_ratio", "0.5 is out of range; allowed: [1, 10000] (kappa / mu)"),
+])
+def test_a_law_and_a_material_file_are_refused_in_the_same_words(tmp_path, law, mu, alpha, bulk_ratio, key, message):
+    """One check of a law (`sim.hyperelastic.law_problems`): the constructor raises its message,
+    a material file records the same one at the key's line."""
+    with pytest.raises(ParameterError) as exc:
+        Hyperelastic(law, mu, alpha, bulk_ratio)
+    assert str(exc.value) == f"{key}: {message}"
+    values = dict(zip(PARAMETERS[law], [list(mu), list(alpha)] if law == "ogden" else mu))
+    path = tmp_path / "m.toml"
+    path.write_text("\n".join(["[material]", f'law = "{law}"', *(f"{k} = {v}" for k, v in values.items()), f"bulk_ratio = {bulk_ratio}"]) + "\n")
+    with pytest.raises(ParameterError) as exc:
+        load_material(path)
+    assert f"material.{key}: {message}" in str(exc.value)

@@ -74,7 +74,7 @@ def test_every_decided_sample_of_the_quick_truth_keeps_the_rule():
     more energy outside the data than the JND fraction, with |J - 1| above 0.05, or with a band as
     wide as the JND; and each sample's band is its parts' root-sum-square."""
     from analysis.verification.accuracy import quick_config, sample_displacements
-    from sim.calibrate import jnd
+    from sim.perception import force_jnd
     from sim.pulls import make_pulls, scene_with, test_pulls
 
     cfg = quick_config()
@@ -85,7 +85,7 @@ def test_every_decided_sample_of_the_quick_truth_keeps_the_rule():
     decided = [c for c in cells if c["decided"]]
     assert decided and len(decided) < len(cells)  # some samples are decided, and some are not
     for c in decided:
-        tol = float(jnd(np.array(c["force_n"])))
+        tol = float(force_jnd(np.array(c["force_n"])))
         assert c["force_n"] <= 3.3 and c["support_share_outside"] <= tol and c["max_abs_j_minus_1"] <= 0.05 and c["band_rel"] < tol
         assert c["band_rel"] == pytest.approx(math.hypot(c["mesh_band_rel"], c["law_band_rel"]))
     for c in cells:

@@ -204,7 +204,7 @@ def test_picking_agrees_with_open3d_raycasting(view, mesh):
 def test_vertex_normals_agree_with_open3d(mesh):
     import open3d as o3d
 
-    from sim.kernels import vertex_normals
+    from sim.view.normals import vertex_normals
 
     u = np.random.default_rng(2).normal(0, 0.002, mesh.vertices.shape)
     X = mesh.vertices + u

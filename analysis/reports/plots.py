@@ -17,7 +17,7 @@ from analysis.discrimination.psychometric import fit_psychometric
 from analysis.kind_results import ChoiceStats, RatingStats, ScoreStats
 from analysis.reports.figure_size import SCREEN, FigureSize, figure_size, fit, wrap
 from analysis.reports.figure_size import save as save  # write_plots saves every format through plots.save
-from sim.calibrate import jnd
+from sim.perception import force_jnd
 
 
 def _plt():
@@ -169,8 +169,8 @@ def force_figure(traces: dict, size: FigureSize = SCREEN):
     ax.grid(alpha=0.3)
     tt = np.linspace(0, max(t.max() for t, _, _ in traces.values()), 2)
     for sign in (1, -1):
-        bx.plot(tt, sign * jnd(np.array([0.0, 0.0])), color="0.5", ls=":", lw=0.8 * thin)
-        bx.plot(tt, sign * jnd(np.array([1.0, 1.0])), color="0.3", ls=":", lw=0.8 * thin)
+        bx.plot(tt, sign * force_jnd(np.array([0.0, 0.0])), color="0.5", ls=":", lw=0.8 * thin)
+        bx.plot(tt, sign * force_jnd(np.array([1.0, 1.0])), color="0.3", ls=":", lw=0.8 * thin)
     bx.set_ylabel("relative difference to the reference")
     bx.set_xlabel("time (s)")
     bx.set_ylim(-1.0, 5.0)

@@ -44,12 +44,12 @@ from analysis.verification.tissue_pulls import (
 )
 from analysis.verification.truth_band import DEVICE_LIMIT_N, MAX_J_DEVIATION, decide, truth_samples
 from brainsim_assets import path as _asset
-from sim.calibrate import jnd
 from sim.errors import SceneError, SimError
 from sim.models.api import BUDGETS
 from sim.models.mass_spring import OMNI_MAX_STIFFNESS
 from sim.models.plate_spring import load_params
 from sim.models.registry import installed, model_class, plugins
+from sim.perception import force_jnd
 from sim.pulls import TEST_PLACES, Pull, make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE, load_scene
 from sim.sweep import run_tasks
@@ -107,8 +107,8 @@ def default_settings(quick: bool) -> tuple[Setting, ...]:
     fem = [Setting("fem", f"linear-{r}mm", (("formulation", "linear"), ("resolution", r / 1000), ("order", 1))) for r in fem_res]
     fem += [Setting("fem", f"linear-p2-{r}mm", (("formulation", "linear"), ("resolution", r / 1000), ("order", 2))) for r in (8, 6)[: 1 if quick else 2]]
     fem += [Setting("fem", f"corotational-{r}mm", (("formulation", "corotational"), ("resolution", r / 1000), ("order", 1))) for r in corot_res]
-    # the explicit integrator: on the body-fitted mesh its critical step is 0.55 ms (the small
-    # elements by the folded surface), 120 compiled sub-steps a frame at 8 mm
+    # the explicit integrator: its critical step on the body-fitted mesh is short (the small
+    # elements by the folded surface: the step and the sub-steps a frame in docs/fem.md)
     ms = [Setting("mass_spring", f"explicit-{r}mm", (("integrator", "explicit"), ("resolution", r / 1000))) for r in ms_res]
     ms += [Setting("mass_spring", f"implicit-{r}mm", (("integrator", "implicit"), ("resolution", r / 1000))) for r in ms_res]
     ms += [Setting("mass_spring", f"local-global-{r}mm", (("integrator", "local-global"), ("resolution", r / 1000))) for r in lg_res]
@@ -397,7 +397,7 @@ def _angle(f, g) -> float:
 
 def verdict(force: float, reference: float, half_band: float) -> str:
     """Within the JND for every reference value in its band, for none, or undecided."""
-    e, tol = abs(force - reference), float(jnd(np.array(reference))) * reference
+    e, tol = abs(force - reference), float(force_jnd(np.array(reference))) * reference
     return "within" if e + half_band <= tol else "outside" if e - half_band > tol else "undecided"
 
 
@@ -435,7 +435,7 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                     if not math.isfinite(r):  # no reference here (its solve stopped): not judged
                         continue
                     rel = abs(f - r) / r
-                    ok = bool(abs(f - r) <= float(jnd(np.array(r))) * r)
+                    ok = bool(abs(f - r) <= float(force_jnd(np.array(r))) * r)
                     v = verdict(f, r, H[p, k]) if D[p, k] else cell["truth"]
                     ang = _angle(-F[p, k], cell["force"])  # the reference is the force on the tissue
                     samples.append({"model": m["model"], "setting": m["setting"], "calibration": calibration, "set": "test" if test else "calibration",
@@ -495,7 +495,7 @@ def coupling_bound(ref: list[list[dict]], n_calib: int, xs, stiffness: float) ->
         f = np.concatenate([[0.0], mags[known]])
         for d, r in zip(np.asarray(xs)[decided], mags[decided]):
             F = brentq(lambda F, d=d, x=x, f=f: F - float(np.interp(d - F / stiffness, x, f)), 0.0, stiffness * d)
-            within.append(abs(F - r) <= float(jnd(np.array(r))) * r)
+            within.append(abs(F - r) <= float(force_jnd(np.array(r))) * r)
     return float(np.mean(within)) if within else math.nan
 
 

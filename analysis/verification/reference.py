@@ -31,12 +31,12 @@ from analysis.verification.tissue_pulls import (
     pull_samples,
     small_strain_factor,
 )
-from sim.calibrate import jnd
 from sim.errors import ParameterError
 from sim.geometry.mesh import patch_vertices
 from sim.geometry.patch import patch_area_points
 from sim.geometry.tetmesh import ENVELOPE_FRACTION, enclosed_volume, hemisphere_surface, mesh_hemisphere
 from sim.jsonable import jsonable
+from sim.perception import force_jnd
 from sim.pulls import make_pulls, scene_with
 from sim.scene import DEFAULT_SCENE, clamp_limit, grasp_radius
 
@@ -54,7 +54,7 @@ class ReferenceConfig:
     pulls: tuple[str, ...] | None = None  # pull names to run; None: all of the bench's calibration pulls
     formulation: str = "finite-strain"  # or "small-strain" (the law's small-strain limit: one linear solve per pull)
     functional: str = "area"  # the grasp: mean displacement of the surface area ("area") or of its vertices ("vertices", small strain)
-    threads: int = 1  # fTetWild's threads per mesh (more are no faster on this surface: measured)
+    threads: int = 1  # fTetWild's threads per mesh (more gain nothing on this surface: docs/reference.md)
     jobs: int | None = None  # worker processes for meshing and solving (default: every core)
     quick: bool = False
     extra: dict = field(default_factory=dict)
@@ -68,10 +68,10 @@ def quick_config(**kw) -> ReferenceConfig:
 
 def jnd_verdict(force: float, band_half: float) -> dict:
     """Is the band narrower than the force JND? Relative: half-band / force below the JND
-    fraction (10% at or above 0.5 N, 25% below, `sim.calibrate.jnd`); absolute: half-band below
+    fraction (10% at or above 0.5 N, 25% below, `sim.perception.force_jnd`); absolute: half-band below
     0.05 N (10% of 0.5 N)."""
     rel = band_half / force if force > 0 else math.inf
-    frac = float(jnd(np.array(force)))
+    frac = float(force_jnd(np.array(force)))
     return {"band_rel": rel, "jnd_fraction": frac, "within_jnd_rel": bool(rel < frac), "within_jnd_abs": bool(band_half < 0.05)}
 
 

@@ -36,8 +36,8 @@ from analysis.verification.material_fit import (
     read_curve,
 )
 from analysis.verification.tissue_pulls import SHIPPED_PULLS_INFO, combined_sample, law_shape_key, pull_references
-from sim.calibrate import jnd
 from sim.hyperelastic import Hyperelastic
+from sim.perception import force_jnd
 from sim.pulls import scene_with
 
 ACCEPT = {"rms_rel_uniaxial": 0.10, "shear_worst_rel": 0.20}  # a law fits the data "about as well" (the bar the chosen law met)
@@ -109,7 +109,7 @@ def decide(force_n: float, band_rel: float, share_outside: float, max_j_dev: flo
     """(decided, the truth's verdict when not decided: "extrapolated" or "undecided", reason)."""
     if not math.isfinite(force_n):
         return False, "undecided", "no reference force"
-    tol = float(jnd(np.array(force_n)))
+    tol = float(force_jnd(np.array(force_n)))
     if force_n > DEVICE_LIMIT_N:
         return False, "extrapolated", f"reference {force_n:.2f} N above the device's {DEVICE_LIMIT_N:g} N"
     if not math.isfinite(share_outside):

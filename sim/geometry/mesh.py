@@ -76,7 +76,7 @@ class SurfaceMesh:
     def geodesic_within(self, vertex: int, radius: float) -> tuple[np.ndarray, np.ndarray]:
         """Vertices whose edge-path distance from `vertex` is at most `radius`, and the distances.
 
-        Edge paths overestimate true geodesics (median ~10%, at most ~17% on an icosphere); they never
+        Edge paths overestimate true geodesics (by how much: docs/plate_spring.md); they never
         cross a sulcus or the gap between hemispheres, which straight-line distance would.
         """
         from scipy.sparse.csgraph import dijkstra
@@ -91,7 +91,7 @@ class SurfaceMesh:
 
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Area-weighted vertex normals (unit length). NumPy: once per mesh, so that a headless
-    scene never imports numba; the view's per-frame pass is compiled (sim/kernels.py)."""
+    scene never imports numba; the view's per-frame pass is compiled (`sim.view.normals`)."""
     v0, v1, v2 = (vertices[triangles[:, k]] for k in range(3))
     fn = np.cross(v1 - v0, v2 - v0)  # length = 2 * area
     n = np.zeros_like(vertices)

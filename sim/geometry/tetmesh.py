@@ -176,7 +176,7 @@ def mesh_hemisphere(vertices: np.ndarray, triangles: np.ndarray, edge_length: fl
 
     `edge_length`: target edge length (m); `envelope`: the largest distance of the mesh's
     boundary from the surface (m, default ENVELOPE_FRACTION x edge_length); `threads`: fTetWild's
-    (0 = every core; on this surface 2 are no faster than 1). fTetWild refines near the surface
+    (0 = every core; more than one gains nothing on this surface: docs/reference.md). fTetWild refines near the surface
     as far as the envelope needs (the pial surface is folded), so the node count is not
     V / edge^3.
     """

@@ -47,9 +47,9 @@ the same model with every force times `scale`, for the discrimination task (decl
 it evaluates ``contact.law.force(d)``, a small picklable object from `sim.laws` (or the model's
 own, with ``force(d)`` and ``update(**state)``), sent at the grasp and again after every frame.
 A model that only writes ``force`` and leaves ``contact.law`` as None gets `ModelForce`: a copy
-of the model, as it was at the grasp, pickled to the servo with everything it holds (with the
-scene's mesh about 3 MB and a few ms, at each grasp); a model whose force changes between frames,
-or that holds much, gives a law and updates it in ``deformation``.
+of the model, as it was at the grasp, pickled to the servo with everything it holds, the scene's
+mesh included, at each grasp (what that costs: docs/models.md); a model whose force changes
+between frames, or that holds much, gives a law and updates it in ``deformation``.
 """
 
 from __future__ import annotations

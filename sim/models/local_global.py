@@ -124,7 +124,7 @@ class LocalGlobal:
     def _lg_local(self, solver: dict, x: np.ndarray) -> np.ndarray:
         """The local step and its share of the right-hand side, A^T diag(k) d (free rows): each
         moving spring's vector projected to its rest length. One pass over the springs
-        (compiled, `sim/kernels.py`) where numba is installed, else sparse products."""
+        (compiled, `sim/models/spring_kernels.py`) where numba is installed, else sparse products."""
         kernel = self._local_kernel()
         if kernel is not None:
             return kernel(x, solver["act_i"], solver["act_j"], solver["act_k"], solver["rest_act"], solver["free_pos"], len(self.free))

@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from sim import kernels
 from sim.devices.base import OmniSpec
 from sim.errors import ParameterError, SimError
 from sim.geometry.patch import GRASP_RADIUS
@@ -28,6 +27,7 @@ from sim.geometry.tetmesh import body_volume
 from sim.geometry.volume import embed, tet_volumes
 from sim.laws import Coupling
 from sim.linalg import Factor
+from sim.models import spring_kernels
 from sim.models.base import Contact
 from sim.models.builtin import MASS_SPRING_ACCELERATIONS as ACCELERATIONS
 from sim.models.builtin import MASS_SPRING_INTEGRATORS as INTEGRATORS
@@ -43,13 +43,13 @@ MAX_SUBSTEPS = 2000  # more explicit sub-steps per step than this cannot serve a
 
 
 def _spring_rhs():
-    """The compiled local step (sim/kernels.py); the tests replace it with None for the NumPy path."""
-    return kernels.spring_rhs
+    """The compiled local step (`spring_kernels`); the tests replace it with None for the NumPy path."""
+    return spring_kernels.spring_rhs
 
 
 def _explicit_kernel():
-    """The compiled explicit sub-steps (sim/kernels.py); None in tests: the NumPy loop."""
-    return kernels.explicit_substeps
+    """The compiled explicit sub-steps (`spring_kernels`); None in tests: the NumPy loop."""
+    return spring_kernels.explicit_substeps
 
 
 class StabilityError(SimError):
@@ -163,7 +163,7 @@ class MassSpring(LocalGlobal, NewtonKrylov):
         """sum k/2 (|x_i - x_j| - rest)^2 over the springs that can stretch (between two clamped
         nodes they keep their rest length): one compiled pass (the
         monitor runs it every step, Anderson every iteration)."""
-        return kernels.spring_energy(x, *self._moving_springs())
+        return spring_kernels.spring_energy(x, *self._moving_springs())
 
     def _moving_springs(self) -> tuple:
         """(i, j, k, rest) of the springs that can stretch, contiguous, for the compiled passes
@@ -435,7 +435,7 @@ class MassSpringModel(MassSpringBase):
         self.step_s: list[float] = []
         self.frame_flops = math.nan  # the last frame's counted work (MassSpring.step_flops)
         if integrator in ("local-global", "explicit") and _spring_rhs() is not None:
-            kernels.warm_up()  # compiled now, not in the first frame of a trial
+            spring_kernels.warm_up()  # compiled now, not in the first frame of a trial
         self._check_explicit()
 
     def _check_explicit(self) -> None:
@@ -487,8 +487,8 @@ class MassSpringModel(MassSpringBase):
         point = tuple(float(c) for c in p)
         patch = tuple(float(c) for c in p + (self.system.x[nodes].mean(axis=0) - g.anchor))
         # gain 1 until the first frame measures how the patch follows the hand: the force starts
-        # from zero and rises as the tissue resists (with gain 0 the coupling spring alone, 40x
-        # stiffer than the tissue, rendered every motion before that frame: a 0.0165 N bump)
+        # from zero and rises as the tissue resists (with gain 0 the coupling spring alone, far
+        # stiffer than the tissue, rendered every motion before that frame as a bump: docs/mass_spring.md)
         law = Coupling(k=self.coupling, anchor=point, patch=patch, gain=1.0)
         return Contact(hand=hand, vertex=int(v), point=point, normal=tuple(float(c) for c in self.surface.vertex_normals[v]), data=g, law=law)
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.kernels import spring_gradient, spring_hessian_product
+from sim.models.spring_kernels import spring_gradient, spring_hessian_product
 
 NEWTON_ETA = 0.3  # CG stops at this fraction of the preconditioned residual (Eisenstat-Walker-like forcing)
 NEWTON_CG_CAP = 8  # at most this many CG iterations per Newton step: a new linearisation pays off after that
@@ -128,7 +128,7 @@ class NewtonKrylov:
         return out
 
     def _newton_kernels(self):
-        """The compiled gradient and Hessian product (sim/kernels.py), or None without numba
+        """The compiled gradient and Hessian product (`sim/models/spring_kernels.py`), or None without numba
         (or where the local step's kernel is swapped for the NumPy path)."""
         if self._local_kernel() is None:
             return None
@@ -137,7 +137,7 @@ class NewtonKrylov:
 
 
 def _hessian_product_numpy(x, ei, ej, k, rest, free_pos, p):
-    """`sim.kernels.spring_hessian_product` in NumPy (the path without numba)."""
+    """`sim.models.spring_kernels.spring_hessian_product` in NumPy (the path without numba)."""
     q = np.zeros((len(ei), 3))
     fi, fj = free_pos[ei], free_pos[ej]
     q[fi >= 0] += p[fi[fi >= 0]]

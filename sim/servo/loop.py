@@ -93,8 +93,8 @@ def limit_force(force, peak: float) -> tuple[tuple[float, float, float], str | N
 
 
 class TickLog:
-    """The per-tick rows of a run in preallocated float64 blocks: a tuple per tick would cost
-    about 600 bytes (a 5-minute live run: 180 MB); a row here costs 8 bytes a column."""
+    """The per-tick rows of a run in preallocated float64 blocks, 8 bytes a column: a tuple of
+    Python floats per tick would cost many times that over a long live run (docs/scenes.md)."""
 
     BLOCK = 8192
 
@@ -199,8 +199,9 @@ class ServoLoop:
     def tick(self, t: float, device_t: float | None = None) -> None:
         """One tick at run time `t`; devices read at `device_t` (default `t`).
 
-        Kept as one function on purpose: it is the 1 kHz hot loop, where each Python call costs
-        about 0.1 us of a 1 ms budget shared with the device I/O; its parts are marked below."""
+        Kept as one function on purpose: it is the 1 kHz hot loop, where every Python call spends
+        some of a 1 ms budget shared with the device I/O (the cost: docs/scenes.md); its parts
+        are marked below."""
         clock, isfinite = time.perf_counter, math.isfinite
         start = clock()
         row: list[float] = [t, 0.0, 0.0]

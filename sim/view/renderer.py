@@ -4,8 +4,8 @@ the force arrows, then a flat overlay of panels and text, into a window or an of
 Why moderngl (with glfw for the window, EGL without a display): a frame costs what its
 triangles cost. The brain's positions and normals are written into buffers that live on the
 GPU (or Mesa's CPU driver) and drawn in one call; instruments and arrows are small meshes placed
-by a matrix; text is textured quads from a font atlas (sim/view/font.py). Several times faster than
-open3d's classic visualiser (`python -m bench render`, docs/participant.md).
+by a matrix; text is textured quads from a font atlas (sim/view/font.py). It replaced open3d's
+classic visualiser (the two compared: `python -m bench render`, docs/participant.md).
 
 Conventions: world coordinates in metres; overlay coordinates in framebuffer pixels from the top
 left corner (x right, y down), as the mouse reports them.

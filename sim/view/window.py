@@ -36,11 +36,11 @@ import numpy as np
 
 from sim.errors import ViewError
 from sim.geometry.patch import GRASP_RADIUS
-from sim.kernels import vertex_normals
 from sim.scene import ViewSpec
 from sim.view import hud, shapes
 from sim.view.camera import fit, ray_hit
 from sim.view.hud import ARROW, DESIGN_HEIGHT, SLOTS
+from sim.view.normals import vertex_normals
 from sim.view.renderer import Overlay, Placed, Renderer, open_offscreen, open_window
 from sim.view.widgets import WidgetPanel
 

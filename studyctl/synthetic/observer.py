@@ -29,6 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr
 
+from sim.perception import FORCE_WEBER, FORCE_WEBER_LOW
+
 # question -> weights on (accuracy, latency, vibration, safety); the base logit 1.0 is about
 # 73% yes, near the paper's overall rate
 WEIGHTS = {
@@ -64,9 +66,9 @@ P_WITHIN_PERFECT = float(ndtr(1.0) - ndtr(-1.0))  # a rendered force equal to th
 class ObserverParams:
     """Population values (medians) and spreads (log-sd across people); sources in docs/synthetic.md."""
 
-    weber: float = 0.10  # force JND at or above 0.5 N: the seed paper; Allin et al. 2002 (about 10%)
+    weber: float = FORCE_WEBER  # force JND at or above 0.5 N (sim.perception)
     weber_sd: float = 0.25  # 7-15% for the hand-arm system (Pang, Tan and Durlach 1991: 7%) as +-1.5 sd
-    weber_low: float = 0.25  # below 0.5 N: the seed paper's 25%
+    weber_low: float = FORCE_WEBER_LOW  # below 0.5 N (sim.perception)
     low_force_n: tuple[float, float] = (0.3, 0.7)  # the paper's step at 0.5 N, made continuous over this band
     judged_force_n: float = 0.02  # truth below this: nothing to judge (below the Omni's force resolution)
     prior_sd: float = 0.20  # how stiff a brain should feel, across people (assumption: about one stiffness JND, 15-22%)

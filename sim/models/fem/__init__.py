@@ -4,13 +4,15 @@
 - `linear`: small-strain linear elasticity, assembly, the clamp, one factorisation (`LinearFem`);
 - `grasp`: the grasp constraint and its condensation;
 - `space`: the elements on a mesh with its clamp (`TetSpace`), shared by every solve;
-- `finite_strain`: a finite-strain law (`sim.hyperelastic`) on a space (P2, or P2/P0 with a mean dilatation);
+- `finite_strain`: a finite-strain law (`sim.hyperelastic`) on a space (P2, or P2/P0 with a mean dilatation),
+  its compiled element pass in `hyperelastic_kernels`;
 - `newton`: the one Newton solver for finite strain, following a held constraint's path;
-- `corotational`: the stiffness-warping update (P1);
+- `corotational`: the stiffness-warping update (P1), its compiled passes in `corotational_kernels`
+  (with the 3 x 3 inverse `hyperelastic_kernels` shares);
 - `model`: `FemModel` under the tissue-model contract, and `build` from a scene;
 - `pull`: one static pull (`studyctl model fem`).
 
-SI units; dof ``3 i + c`` is component c of node i. Imports: numpy, scipy, the CHOLMOD factor
+SI units; dof ``3 i + c`` is component c of node i. Imports: numpy, scipy, numba, the CHOLMOD factor
 (`sim.linalg`) and `sim` below it.
 """
 

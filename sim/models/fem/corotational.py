@@ -10,8 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from sim import kernels
 from sim.linalg import Factor
+from sim.models.fem import corotational_kernels
 from sim.models.fem.linear import LinearFem, assemble, element_dofs
 from sim.models.fem.newton import NewtonReport
 
@@ -30,8 +30,8 @@ def _element_arrays(fem: LinearFem, elements: np.ndarray | None) -> tuple:
 
 
 def _kernels():
-    """The compiled passes (sim/kernels.py); the tests replace it with None for the NumPy path."""
-    return kernels
+    """The compiled passes (`corotational_kernels`); the tests replace it with None for the NumPy path."""
+    return corotational_kernels
 
 
 def element_rotations(fem: LinearFem, u: np.ndarray, elements: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -65,8 +65,8 @@ def _corotate_compiled(fem: LinearFem, u: np.ndarray, R: np.ndarray, elements: n
     """Add the `elements`' corotational force's change from the linear one to `out` (one
     compiled pass); returns the energy's change."""
     tets, _, Ke = _element_arrays(fem, elements)
-    return kernels.corotated_minus_linear(np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(fem.nodes, dtype=np.float64), tets, Ke,
-                                          np.ascontiguousarray(R), out)
+    return corotational_kernels.corotated_minus_linear(np.ascontiguousarray(u, dtype=np.float64), np.ascontiguousarray(fem.nodes, dtype=np.float64),
+                                                       tets, Ke, np.ascontiguousarray(R), out)
 
 
 def corotational_internal_force(fem: LinearFem, u: np.ndarray, R: np.ndarray, elements: np.ndarray | None = None) -> np.ndarray:

@@ -18,7 +18,7 @@ import math
 import numba
 import numpy as np
 
-from sim.kernels import _inv3
+from sim.models.fem.corotational_kernels import inv3
 
 # The element pass runs its elements in parallel. Numba's OpenMP layer would set the system's
 # OpenMP runtime, which CHOLMOD shares, back to every core at its first launch, undoing
@@ -189,7 +189,7 @@ def element_pass(G, wq, ue, mu, alpha, kappa, mean, want_tangent, fe, Ke, energy
                     for b in range(3):
                         acc += s[b] * n[i, b] * qg[a, b]
                     f[3 * a + i] += w * acc
-            _inv3(F, Finv)  # F^-1, for the volumetric variations: X[a, i] = grad N_a . F^-1[:, i]
+            inv3(F, Finv)  # F^-1, for the volumetric variations: X[a, i] = grad N_a . F^-1[:, i]
             Jq[q] = Jd
             for a in range(k):
                 for i in range(3):

@@ -18,7 +18,6 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from sim import kernels
 from sim.errors import ParameterError
 from sim.geometry.patch import GRASP_RADIUS, patch_area_points
 from sim.geometry.tetmesh import body_volume
@@ -26,6 +25,7 @@ from sim.geometry.volume import embed, locate
 from sim.laws import Linearised, PairTable
 from sim.models.base import Contact
 from sim.models.builtin import FemBase, FemOptions
+from sim.models.fem import corotational_kernels
 from sim.models.fem.corotational import Precond, corotational_step, evaluate, warped_active
 from sim.models.fem.grasp import condense, constraint_matrix, symmetric_inverse
 from sim.models.fem.linear import LinearFem
@@ -129,14 +129,14 @@ class FemModel(FemBase):
         self.tangent_updates = 0  # warped-stiffness refactorisations
         self.restarts = 0  # corotational iterations that diverged and restarted from linear
         self.halvings = 0  # corotational steps halved by the line search (near inverted elements)
-        # a corotational iteration that runs away (measured on held-out bench pulls: elements
-        # invert near 20 mm and the force then grows to 1e4 N within a few frames) is caught when
-        # its force exceeds COROT_FORCE_LIMIT times the linear force for the same grasp; the servo
-        # then renders nothing until the grasp is released
+        # a corotational iteration that runs away (elements invert on a long pull and the force
+        # grows within a few frames: docs/fem.md) is caught when its force exceeds
+        # COROT_FORCE_LIMIT times the linear force for the same grasp; the servo then renders
+        # nothing until the grasp is released
         self.unstable = False
         self.frame_flops = math.nan  # the last frame's counted work
         if formulation == "corotational":
-            kernels.warm_up()  # compiled now, not in the first frame of a trial
+            corotational_kernels.warm_up()  # compiled now, not in the first frame of a trial
 
     def _surface_matrix(self) -> sp.csr_matrix:
         """(surface vertices, model nodes): each vertex interpolated with its element's shape functions."""

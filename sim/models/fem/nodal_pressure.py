@@ -3,8 +3,8 @@
 system for `newton.hold`.
 
 A P1 element has one J, so a nearly incompressible law (kappa = 50 mu, the tissue's) forces
-every element to keep its volume and the mesh locks (the bench's P1 pulls: 76% too stiff at
-8 mm). Here the volumetric energy is taken per node instead: with V_n the quarter-volumes of
+every element to keep its volume and the mesh locks (how stiff on the bench's pulls:
+docs/fem.md). Here the volumetric energy is taken per node instead: with V_n the quarter-volumes of
 the elements around node n (current) and V0_n at rest, J_n = V_n / V0_n and
 
     E = sum_e V0_e W_iso(F_e) + sum_n V0_n U(J_n),   U(J) = kappa/4 (J^2 - 1 - 2 ln J),
