@@ -46,7 +46,7 @@ class RatingStats(Record):
     - conditions: per condition {n, median, q1, q3, iqr, mean, counts (per point)};
     - friedman: Friedman across the conditions with Kendall's W [95% CI], or why not run
       (`reason`);
-    - pairs: the Wilcoxon signed-rank pairs with the rank-biserial r [95% CI], tidy records."""
+    - pairs: the Wilcoxon signed-rank pairs with the rank-biserial r [95% CI] (RankPair)."""
 
     question: str
     points: int
@@ -67,7 +67,7 @@ class ScoreStats(Record):
     - mixed_model: the linear mixed model (analysis.scales.mixed_model: `model_test`,
       `means`, `pairs`, `converged`, `problems`);
     - friedman: Friedman as the non-parametric check;
-    - pairs: copies of the mixed model's pairwise differences, the ones in Holm's family (a
+    - pairs: the mixed model's pairwise differences as Holm's family holds them (a
       mixed-model primary's also carry `p_holm_primary`)."""
 
     label: str
@@ -86,7 +86,7 @@ class ChoiceStats(Record):
     - question: its text; n: participants who chose; k: conditions; n_missing: no answer;
     - shares: per condition {count, share, wilson_low, wilson_high};
     - overall: the test of equal chances {test, statistic, df, p_value, n, ...};
-    - pairs: exact binomial tests between two conditions' counts, tidy records."""
+    - pairs: exact binomial tests between two conditions' counts (ChoicePair)."""
 
     question: str
     n: int
@@ -117,7 +117,7 @@ class KindStats(Record):
     ordinal_gee: OrdinalGeeFit | None
 
     def family_pairs(self) -> list[tuple]:
-        """Every pairwise test here, a list per question or score, for Holm over the study's
-        whole family: the ratings' Wilcoxon pairs, the scores' mixed-model pairs, the choices'
+        """Every pairwise test here, a tuple per question or score, as Holm over the study's
+        whole family counts them: the ratings' Wilcoxon pairs, the scores' mixed-model pairs, the choices'
         binomial pairs."""
         return [v.pairs for part in (self.ratings, self.scores, self.choices) for v in part.values()]

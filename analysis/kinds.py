@@ -284,8 +284,9 @@ def odds_ratio_pairs(pairs: list[dict], test: str, problems=()) -> tuple[OddsRat
 
 def kind_tests(study: Study, answers: pd.DataFrame) -> dict:
     """The tests of every kind beyond yes/no of `study` from its complete `answers`, before
-    Holm: {ratings, scores, choices} per item the fields of their results (`ratings`,
-    `scores`, `choices`), what `kind_stats` builds them from."""
+    Holm, what `kind_stats` builds its results from: {ratings, scores, choices}, per item the
+    fields of its result as plain records (`ratings`, `scores`, `choices`), and `measures`, the
+    values they test."""
     protocol = study.protocol
     meas = measures(protocol, answers, study.periods)
     return {"ratings": ratings(protocol, meas), "scores": scores(protocol, meas), "choices": choices(protocol, answers),
