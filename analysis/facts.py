@@ -3,13 +3,16 @@ data they are, the design, and what each condition ran."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from analysis.records import Record
 
 
 @dataclass(frozen=True)
-class StudyFacts:
-    """A study's facts; `as_dict()` is the `facts` object of `report stats --json` and
-    `report table1 --format json`.
+class StudyFacts(Record):
+    """A study's facts, never changed after (its lists and records read-only); `as_dict()` is the
+    `facts` object of `report stats --json` and `report table1 --format json`.
 
     - study: the protocol's name;
     - participants: N, the participants with every answer (analysis.table1.complete_answers);
@@ -24,16 +27,12 @@ class StudyFacts:
 
     study: str
     participants: int
-    incomplete_participants: list[dict]
+    incomplete_participants: tuple[Mapping, ...]
     synthetic_participants: int
     person_participants: int
-    mixed_source_participants: list[str]
+    mixed_source_participants: tuple[str, ...]
     synthetic: bool
     mixed: bool
     flag: str
     design: str
-    conditions: list[dict]
-
-    def as_dict(self) -> dict:
-        """The facts as the JSON reports print them (keys in field order)."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+    conditions: tuple[Mapping, ...]

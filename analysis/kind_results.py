@@ -2,22 +2,29 @@
 primary analysis, and per rating item, score and choice question what reports, plots and
 `report stats --json` read (docs/analysis.md).
 
-The tests' own results stay the plain records analysis/scales.py and analysis/stats.py return
-(`friedman`, `mixed_model`, `overall`, per-condition summaries), and pairwise tests are lists of
-tidy records (`a, b, p_value, p_holm, ...`): `analysis.study_stats.study_stats` sets their Holm
-p-values, and the test's name where one was not run, after `kind_stats`."""
+Each is complete when built (Holm over the study's family computed first) and never changed
+after; its tests are the frozen records of analysis/records.py, its other containers
+read-only. `as_dict()` is for the JSON writers only."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from collections.abc import Mapping
+from dataclasses import dataclass
 
-
-def _record(obj) -> dict:
-    return {f.name: getattr(obj, f.name) for f in fields(obj)}
+from analysis.records import (
+    ChoicePair,
+    ChoiceTest,
+    DifferencePair,
+    Friedman,
+    MixedModelFit,
+    OrdinalGeeFit,
+    RankPair,
+    Record,
+)
 
 
 @dataclass(frozen=True)
-class PrimaryAnalysis:
+class PrimaryAnalysis(Record):
     """The protocol's primary analysis (`analysis.kinds.primary`): what `plan` powers and
     reports lead with.
 
@@ -29,12 +36,9 @@ class PrimaryAnalysis:
     items: tuple[str, ...]
     text: str
 
-    def as_dict(self) -> dict:
-        return {"analysis": self.analysis, "items": list(self.items), "text": self.text}
-
 
 @dataclass(frozen=True)
-class RatingStats:
+class RatingStats(Record):
     """A rating (Likert) item asked after each condition.
 
     - question: its text; points: its scale's points; anchors: the scale's anchor labels;
@@ -42,22 +46,19 @@ class RatingStats:
     - conditions: per condition {n, median, q1, q3, iqr, mean, counts (per point)};
     - friedman: Friedman across the conditions with Kendall's W [95% CI], or why not run
       (`reason`);
-    - pairs: the Wilcoxon signed-rank pairs with the rank-biserial r [95% CI], tidy records."""
+    - pairs: the Wilcoxon signed-rank pairs with the rank-biserial r [95% CI] (RankPair)."""
 
     question: str
     points: int
-    anchors: list[str]
+    anchors: tuple[str, ...]
     n: int
-    conditions: dict[str, dict]
-    friedman: dict
-    pairs: list[dict]
-
-    def as_dict(self) -> dict:
-        return _record(self)
+    conditions: Mapping[str, Mapping]
+    friedman: Friedman
+    pairs: tuple[RankPair, ...]
 
 
 @dataclass(frozen=True)
-class ScoreStats:
+class ScoreStats(Record):
     """A score: a VAS item, an instrument's score, or a question's mean over trials.
 
     - label: what reports call it; n: participants with a value for every condition;
@@ -66,44 +67,38 @@ class ScoreStats:
     - mixed_model: the linear mixed model (analysis.scales.mixed_model: `model_test`,
       `means`, `pairs`, `converged`, `problems`);
     - friedman: Friedman as the non-parametric check;
-    - pairs: copies of the mixed model's pairwise differences, the ones in Holm's family (a
+    - pairs: the mixed model's pairwise differences as Holm's family holds them (a
       mixed-model primary's also carry `p_holm_primary`)."""
 
     label: str
     n: int
-    conditions: dict[str, dict]
-    mixed_model: dict
-    friedman: dict
-    pairs: list[dict]
-
-    def as_dict(self) -> dict:
-        return _record(self)
+    conditions: Mapping[str, Mapping]
+    mixed_model: MixedModelFit
+    friedman: Friedman
+    pairs: tuple[DifferencePair, ...]
 
 
 @dataclass(frozen=True)
-class ChoiceStats:
+class ChoiceStats(Record):
     """A choice question asked at the end (one condition picked), from
     analysis.scales.choice_analysis.
 
     - question: its text; n: participants who chose; k: conditions; n_missing: no answer;
     - shares: per condition {count, share, wilson_low, wilson_high};
     - overall: the test of equal chances {test, statistic, df, p_value, n, ...};
-    - pairs: exact binomial tests between two conditions' counts, tidy records."""
+    - pairs: exact binomial tests between two conditions' counts (ChoicePair)."""
 
     question: str
     n: int
     k: int
     n_missing: int
-    shares: dict[str, dict]
-    overall: dict
-    pairs: list[dict]
-
-    def as_dict(self) -> dict:
-        return _record(self)
+    shares: Mapping[str, Mapping]
+    overall: ChoiceTest
+    pairs: tuple[ChoicePair, ...]
 
 
 @dataclass(frozen=True)
-class KindStats:
+class KindStats(Record):
     """Every kind of answer beyond yes/no of a study; `as_dict()` is `report stats --json`'s
     `kinds`.
 
@@ -115,21 +110,14 @@ class KindStats:
       None without rating items or with one condition."""
 
     primary: PrimaryAnalysis
-    ratings: dict[str, RatingStats]
-    scores: dict[str, ScoreStats]
-    choices: dict[str, ChoiceStats]
-    session: dict[str, dict]
-    ordinal_gee: dict | None
+    ratings: Mapping[str, RatingStats]
+    scores: Mapping[str, ScoreStats]
+    choices: Mapping[str, ChoiceStats]
+    session: Mapping[str, Mapping]
+    ordinal_gee: OrdinalGeeFit | None
 
-    def as_dict(self) -> dict:
-        return {"primary": self.primary.as_dict(),
-                "ratings": {k: v.as_dict() for k, v in self.ratings.items()},
-                "scores": {k: v.as_dict() for k, v in self.scores.items()},
-                "choices": {k: v.as_dict() for k, v in self.choices.items()},
-                "session": self.session, "ordinal_gee": self.ordinal_gee}
-
-    def family_pairs(self) -> list[list[dict]]:
-        """Every pairwise test here, a list per question or score, for Holm over the study's
-        whole family: the ratings' Wilcoxon pairs, the scores' mixed-model pairs, the choices'
+    def family_pairs(self) -> list[tuple]:
+        """Every pairwise test here, a tuple per question or score, as Holm over the study's
+        whole family counts them: the ratings' Wilcoxon pairs, the scores' mixed-model pairs, the choices'
         binomial pairs."""
         return [v.pairs for part in (self.ratings, self.scores, self.choices) for v in part.values()]

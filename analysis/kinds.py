@@ -23,8 +23,20 @@ import pandas as pd
 from analysis import instruments, scales
 from analysis.kind_results import ChoiceStats, KindStats, PrimaryAnalysis, RatingStats, ScoreStats
 from analysis.questions import VAS_RANGE
+from analysis.records import (
+    ChoicePair,
+    ChoiceTest,
+    DifferencePair,
+    Friedman,
+    GeeFit,
+    MixedModelFit,
+    ModelTest,
+    OddsRatioPair,
+    OrdinalGeeFit,
+    RankPair,
+)
 from analysis.reports.formatting import p_value
-from analysis.stats import friedman, records, set_holm, wilson
+from analysis.stats import friedman, holm, holm_family, named, records, wilson
 from analysis.study_results import LogisticGee, StudyStats
 from analysis.study_snapshot import Study
 from analysis.withhold import across_reason
@@ -138,9 +150,10 @@ def _label(item: str, protocol) -> str:
     return text + (TRIAL_MEAN if item.endswith(TRIAL_MEAN) else "")
 
 
-def ratings(protocol, meas: pd.DataFrame) -> dict[str, RatingStats]:
-    """Per rating item: each condition's median [IQR], mean and distribution (count per point);
-    Friedman with Kendall's W [95% CI]; Wilcoxon pairs with rank-biserial [95% CI]."""
+def ratings(protocol, meas: pd.DataFrame) -> dict[str, dict]:
+    """Per rating item (RatingStats' fields, its pairs before Holm): each condition's median
+    [IQR], mean and distribution (count per point); Friedman with Kendall's W [95% CI]; Wilcoxon
+    pairs with rank-biserial [95% CI]."""
     models = list(protocol.conditions)
     out = {}
     for q in _rating_items(protocol):
@@ -151,8 +164,8 @@ def ratings(protocol, meas: pd.DataFrame) -> dict[str, RatingStats]:
             per_model[m] = scales.median_iqr(v) | {"mean": float(v.mean()) if len(v) else float("nan"),
                                                    "counts": [int(np.sum(v == k)) for k in range(1, q.points + 1)]}
         tests = _tests(wide, len(models))
-        out[q.id] = RatingStats(question=q.text, points=q.points, anchors=list(q.anchors), n=int(len(wide)), conditions=per_model,
-                                friedman=tests["friedman"], pairs=tests["pairs"])
+        out[q.id] = {"question": q.text, "points": q.points, "anchors": list(q.anchors), "n": int(len(wide)), "conditions": per_model,
+                     "friedman": tests["friedman"], "pairs": tests["pairs"]}
     return out
 
 
@@ -170,9 +183,10 @@ def _tests(wide: pd.DataFrame, k: int) -> dict:
     return {"friedman": fr, "pairs": pairs}
 
 
-def scores(protocol, meas: pd.DataFrame) -> dict[str, ScoreStats]:
-    """Per score (VAS items, instrument scores, per-trial means): mean [95% CI] per condition;
-    the linear mixed model (condition + period) with its pairs; Friedman as the check."""
+def scores(protocol, meas: pd.DataFrame) -> dict[str, dict]:
+    """Per score (VAS items, instrument scores, per-trial means; ScoreStats' fields, its pairs
+    before Holm): mean [95% CI] per condition; the linear mixed model (condition + period) with
+    its pairs; Friedman as the check."""
     models = list(protocol.conditions)
     out = {}
     cont = meas[meas["kind"] == "continuous"] if len(meas) else meas
@@ -184,10 +198,9 @@ def scores(protocol, meas: pd.DataFrame) -> dict[str, ScoreStats]:
                                 models, with_period)
         _clip_means(mm, score_scale(item, protocol))
         fr = _tests(wide, len(models))["friedman"]
-        out[item] = ScoreStats(label=_label(item, protocol), n=int(len(wide)),
-                               conditions={m: scales.mean_ci(wide[m], scale=score_scale(item, protocol)) | scales.median_iqr(wide[m])
-                                           for m in models},
-                               mixed_model=mm, friedman=fr, pairs=[dict(p) for p in mm["pairs"]])
+        out[item] = {"label": _label(item, protocol), "n": int(len(wide)),
+                     "conditions": {m: scales.mean_ci(wide[m], scale=score_scale(item, protocol)) | scales.median_iqr(wide[m]) for m in models},
+                     "mixed_model": mm, "friedman": fr, "pairs": mm["pairs"]}
     return out
 
 
@@ -208,14 +221,14 @@ def _clip_means(mm: dict, scale: tuple[float, float] | None) -> None:
                                           "and are clipped to it (the normal-theory interval is not bounded)")
 
 
-def choices(protocol, answers: pd.DataFrame) -> dict[str, ChoiceStats]:
+def choices(protocol, answers: pd.DataFrame) -> dict[str, dict]:
+    """Per choice question asked at the end: ChoiceStats' fields, its pairs before Holm."""
     out = {}
     for q in protocol.asked("end"):
         if q.kind == "choice":
             sel = answers[answers["item"] == q.id].set_index("code")["answer"]
             res = scales.choice_analysis(sel, list(protocol.conditions))
-            out[q.id] = ChoiceStats(question=q.text, n=res["n"], k=res["k"], n_missing=res["n_missing"], shares=res["shares"],
-                                    overall=res["overall"], pairs=res["pairs"])
+            out[q.id] = {"question": q.text} | res
     return out
 
 
@@ -244,7 +257,7 @@ def session_questions(protocol, answers: pd.DataFrame) -> dict:
     return out
 
 
-def ordinal_primary(protocol, meas: pd.DataFrame) -> dict | None:
+def ordinal_primary(protocol, meas: pd.DataFrame) -> OrdinalGeeFit | None:
     """The proportional-odds GEE across the rating items, Holm over its pairs."""
 
     items = [q.id for q in _rating_items(protocol)]
@@ -255,35 +268,81 @@ def ordinal_primary(protocol, meas: pd.DataFrame) -> dict | None:
     if with_period:
         data = data.assign(period=data["period"].astype(int))
     res = scales.ordinal_gee(data, list(protocol.conditions), with_period=with_period, with_item=len(items) > 1)
-    set_holm(res["pairs"])
-    return res
+    return OrdinalGeeFit.of(res, pairs=odds_ratio_pairs(res["pairs"], PAIR_TESTS["ordinal_gee"], res.get("problems") or []))
 
 
-def kind_stats(study: Study, answers: pd.DataFrame) -> KindStats:
-    """Everything beyond yes/no of `study` (analysis.study_snapshot.Study) from its complete `answers`:
-    ratings, scores, choices, end questions, and the ordinal primary."""
+PAIR_TESTS = {"scores": "t contrast of the linear mixed model (between-within df)",
+              "choices": "exact binomial test of the two conditions' counts",
+              "ordinal_gee": "Wald t of the proportional-odds GEE (participants - 1 df)",
+              "gee": "Wald z of the logistic GEE (robust covariance)"}
 
+
+def odds_ratio_pairs(pairs: list[dict], test: str, problems=()) -> tuple[OddsRatioPair, ...]:
+    """A GEE's pairs, Holm over them, each naming its test."""
+    return tuple(OddsRatioPair.of(p, p_holm=h, **named(p, test, problems)) for p, h in zip(pairs, holm([p["p_value"] for p in pairs])))
+
+
+def kind_tests(study: Study, answers: pd.DataFrame) -> dict:
+    """The tests of every kind beyond yes/no of `study` from its complete `answers`, before
+    Holm, what `kind_stats` builds its results from: {ratings, scores, choices}, per item the
+    fields of its result as plain records (`ratings`, `scores`, `choices`), and `measures`, the
+    values they test."""
     protocol = study.protocol
     meas = measures(protocol, answers, study.periods)
-    out = KindStats(primary=primary(protocol), ratings=ratings(protocol, meas), scores=scores(protocol, meas),
-                    choices=choices(protocol, answers), session=session_questions(protocol, answers),
-                    ordinal_gee=ordinal_primary(protocol, meas))
-    what = out.primary
-    if what.analysis == "mixed_model" and what.items[0] in out.scores:
+    return {"ratings": ratings(protocol, meas), "scores": scores(protocol, meas), "choices": choices(protocol, answers),
+            "measures": meas}
+
+
+def family_pairs(tests: dict) -> list[list[dict]]:
+    """The pairs of `kind_tests` in Holm's family, a list per question or score, in the order
+    of KindStats.family_pairs."""
+    return [v["pairs"] for part in ("ratings", "scores", "choices") for v in tests[part].values()]
+
+
+def kind_stats(study: Study, answers: pd.DataFrame, tests: dict | None = None, adjusted: list[list[dict]] | None = None) -> KindStats:
+    """Everything beyond yes/no of `study` (analysis.study_snapshot.Study) from its complete
+    `answers`: ratings, scores, choices, end questions, and the ordinal primary, complete when
+    built. `tests`: `kind_tests` already computed; `adjusted`: the Holm p-values of their
+    family pairs (analysis.stats.holm_family over the study's whole family, in `family_pairs`
+    order); by default Holm over these pairs alone."""
+    protocol = study.protocol
+    tests = kind_tests(study, answers) if tests is None else tests
+    if adjusted is None:
+        adjusted = holm_family([[p["p_value"] for p in pairs] for pairs in family_pairs(tests)])
+    holm_of = iter(adjusted)
+    what = primary(protocol)
+    rating_stats = {k: RatingStats(**v | {"friedman": Friedman.of(v["friedman"]),
+                                          "pairs": tuple(RankPair.of(p, **h) for p, h in zip(v["pairs"], next(holm_of)))})
+                    for k, v in tests["ratings"].items()}
+    score_stats = {}
+    for k, v in tests["scores"].items():
+        mm = v["mixed_model"]
+        problems = mm.get("problems") or []
         # the primary's pairs Holm-adjusted among themselves (p_holm_primary), as plan powers it;
         # p_holm stays the whole family's
-        set_holm(out.scores[what.items[0]].pairs, "p_holm_primary")
-    return out
+        own = ([{"p_holm_primary": p} for p in holm([p["p_value"] for p in v["pairs"]])]
+               if what.analysis == "mixed_model" and what.items[0] == k else [{}] * len(v["pairs"]))
+        pairs = tuple(DifferencePair.of(p, **o, **h, **named(p, PAIR_TESTS["scores"], problems))
+                      for p, o, h in zip(v["pairs"], own, next(holm_of)))
+        fit = MixedModelFit.of(mm, model_test=ModelTest.of(mm["model_test"]),
+                               pairs=tuple(DifferencePair.of(p, **named(p, PAIR_TESTS["scores"], problems)) for p in mm["pairs"]))
+        score_stats[k] = ScoreStats(**v | {"mixed_model": fit, "friedman": Friedman.of(v["friedman"]), "pairs": pairs})
+    choice_stats = {k: ChoiceStats(**v | {"overall": ChoiceTest.of(v["overall"]),
+                                          "pairs": tuple(ChoicePair.of(p, **h, **named(p, PAIR_TESTS["choices"]))
+                                                         for p, h in zip(v["pairs"], next(holm_of)))})
+                    for k, v in tests["choices"].items()}
+    return KindStats(primary=what, ratings=rating_stats, scores=score_stats, choices=choice_stats,
+                     session=session_questions(protocol, answers), ordinal_gee=ordinal_primary(protocol, tests["measures"]))
 
 
-def _rho_text(fit: dict) -> str:
+def _rho_text(fit: GeeFit) -> str:
     """A GEE's exchangeable working correlation, or why there is none (never a bare nan)."""
-    rho = fit.get("working_correlation")
+    rho = fit.working_correlation
     # a fit flagged not estimable or not converged gives a number that means nothing: its reason instead,
     # the same one the sentence's NOT ESTIMABLE OR NOT CONVERGED names
-    if fit.get("estimable", True) and fit.get("converged", True) and rho is not None and np.isfinite(rho):
+    if fit.estimable and fit.converged and rho is not None and np.isfinite(rho):
         return f"{rho:.2f}"
-    why = fit.get("problems") or (["no convergence"] if not fit.get("converged", True) else ["the fit gave none"])
+    why = fit.problems or (["no convergence"] if not fit.converged else ["the fit gave none"])
     return "not estimated: " + "; ".join(why)
 
 
@@ -291,13 +350,13 @@ def gee_line(gee: LogisticGee, primary: bool = True) -> str:
     """The logistic GEE across the yes/no questions as a sentence: the primary analysis unless
     the protocol has rating items (analysis.kinds.primary)."""
     c = gee.composite
-    if not c or not c.get("pairs"):
+    if not c or not c.pairs:
         return ""
-    pairs = "; ".join(f"{p['b']} vs {p['a']} OR {p['odds_ratio']:.2f} [{p['ci_low']:.2f}, {p['ci_high']:.2f}], p_Holm {p['p_holm']:.3g}"
-                      if p.get("estimable", True) else f"{p['b']} vs {p['a']} not estimable" for p in c["pairs"])
-    return (f"{'Primary analysis, all questions' if primary else 'Across the yes/no questions'}: logistic GEE `{c['formula']}`, participants as clusters, exchangeable "
+    pairs = "; ".join(f"{p.b} vs {p.a} OR {p.odds_ratio:.2f} [{p.ci_low:.2f}, {p.ci_high:.2f}], p_Holm {p.p_holm:.3g}"
+                      if p.estimable else f"{p.b} vs {p.a} not estimable" for p in c.pairs)
+    return (f"{'Primary analysis, all questions' if primary else 'Across the yes/no questions'}: logistic GEE `{c.formula}`, participants as clusters, exchangeable "
             f"working correlation ({_rho_text(c)}), robust standard errors"
-            f"{'' if c.get('converged') else ' (NOT ESTIMABLE OR NOT CONVERGED: ' + '; '.join(c.get('problems') or ['no convergence']) + ')'}: {pairs}.")
+            f"{'' if c.converged else ' (NOT ESTIMABLE OR NOT CONVERGED: ' + '; '.join(c.problems or ['no convergence']) + ')'}: {pairs}.")
 
 
 def primary_line(st: StudyStats) -> str:
@@ -311,13 +370,13 @@ def primary_line(st: StudyStats) -> str:
         return gee_line(st.gee).replace("`", "")
     if what.analysis == "mixed_model" and what.items[0] in k.scores:
         v = k.scores[what.items[0]]
-        pairs = "; ".join(f"{p['b']} - {p['a']} {p['difference']:+.2f}{_ci(p['ci_low'], p['ci_high'], '{:+.2f}')}, "
-                          f"p_Holm {_p(p.get('p_holm_primary'))}" if p.get("estimable") else f"{p['b']} - {p['a']} not estimable"
+        pairs = "; ".join(f"{p.b} - {p.a} {p.difference:+.2f}{_ci(p.ci_low, p.ci_high, '{:+.2f}')}, "
+                          f"p_Holm {_p(p.p_holm_primary)}" if p.estimable else f"{p.b} - {p.a} not estimable"
                           for p in v.pairs)
         return f"Primary analysis: {what.text}: {pairs} (Holm over its {len(v.pairs)} pairs)."
     if what.analysis == "choice" and what.items[0] in k.choices:
         ov = k.choices[what.items[0]].overall
-        return f"Primary analysis: {what.text}: p = {_p(ov['p_value'])} ({ov['test']})."
+        return f"Primary analysis: {what.text}: p = {_p(ov.p_value)} ({ov.test})."
     return f"Primary analysis: {what.text}: not computed."
 
 
@@ -340,11 +399,11 @@ def _ci(lo, hi, fmt="{:.2f}") -> str:
     return "" if lo is None or not (np.isfinite(lo) and np.isfinite(hi)) else f" [{fmt.format(lo)}, {fmt.format(hi)}]"
 
 
-def _friedman_cell(fr: dict, with_w: bool = False) -> str:
-    if not np.isfinite(fr["statistic"]):
-        return f"n/a ({fr.get('reason') or 'not run'})"
-    w = f", W {fr['kendall_w']:.2f}{_ci(fr['kendall_w_low'], fr['kendall_w_high'])}" if with_w and np.isfinite(fr["kendall_w"]) else ""
-    return f"{fr['statistic']:.2f} ({_p(fr['p_value'])}){w}"
+def _friedman_cell(fr: Friedman, with_w: bool = False) -> str:
+    if not np.isfinite(fr.statistic):
+        return f"n/a ({fr.reason or 'not run'})"
+    w = f", W {fr.kendall_w:.2f}{_ci(fr.kendall_w_low, fr.kendall_w_high)}" if with_w and np.isfinite(fr.kendall_w) else ""
+    return f"{fr.statistic:.2f} ({_p(fr.p_value)}){w}"
 
 
 def _mean_cell(c: dict, fmt: str) -> str:
@@ -355,24 +414,24 @@ def _mean_cell(c: dict, fmt: str) -> str:
     return fmt.format(c["mean"]) + (ci or (f" ({c['ci_reason']})" if c.get("ci_reason") else ""))
 
 
-def _rank_pair_cell(p: dict) -> str:
+def _rank_pair_cell(p: RankPair) -> str:
     """A Wilcoxon pair: its Holm p and rank-biserial r [CI], or why it was not tested."""
-    r = "" if not np.isfinite(p["rank_biserial"]) else f"r {p['rank_biserial']:.2f}{_ci(p['rb_ci_low'], p['rb_ci_high'])}"
-    if not np.isfinite(p["p_value"]):
-        return f"{p['a']}-{p['b']} not tested: {p.get('reason') or 'not run'}" + (f" ({r})" if r else "")
-    warn = f"; {p['warning']}" if p.get("warning") else ""
-    return f"{p['a']}-{p['b']} {_p(p['p_holm'])} ({r}{warn})"
+    r = "" if not np.isfinite(p.rank_biserial) else f"r {p.rank_biserial:.2f}{_ci(p.rb_ci_low, p.rb_ci_high)}"
+    if not np.isfinite(p.p_value):
+        return f"{p.a}-{p.b} not tested: {p.reason or 'not run'}" + (f" ({r})" if r else "")
+    warn = f"; {p.warning}" if p.warning else ""
+    return f"{p.a}-{p.b} {_p(p.p_holm)} ({r}{warn})"
 
 
-def ordinalgee_line(res: dict | None) -> str:
+def ordinalgee_line(res: OrdinalGeeFit | None) -> str:
     """The primary analysis of the ratings, as a sentence."""
-    if not res or not res.get("pairs"):
+    if not res or not res.pairs:
         return ""
-    pairs = "; ".join(f"{p['b']} vs {p['a']} OR {p['odds_ratio']:.2f}{_ci(p['ci_low'], p['ci_high'])}, p_Holm {_p(p.get('p_holm'))}"
-                      if p.get("estimable") else f"{p['b']} vs {p['a']} not estimable" for p in res["pairs"])
-    state = "" if res.get("converged") else " (NOT ESTIMABLE OR NOT CONVERGED: " + "; ".join(res.get("problems") or ["no convergence"]) + ")"
-    return (f"Primary analysis, all rating items: proportional-odds GEE {res['formula']}, participants as clusters, "
-            f"{res.get('working_dependence', '')} working dependence, {res.get('covariance', 'robust standard errors')}{state}: {pairs} "
+    pairs = "; ".join(f"{p.b} vs {p.a} OR {p.odds_ratio:.2f}{_ci(p.ci_low, p.ci_high)}, p_Holm {_p(p.p_holm)}"
+                      if p.estimable else f"{p.b} vs {p.a} not estimable" for p in res.pairs)
+    state = "" if res.converged else " (NOT ESTIMABLE OR NOT CONVERGED: " + "; ".join(res.problems or ["no convergence"]) + ")"
+    return (f"Primary analysis, all rating items: proportional-odds GEE {res.formula}, participants as clusters, "
+            f"{res.working_dependence} working dependence, {res.covariance}{state}: {pairs} "
             "(odds of a higher rating with the second condition).")
 
 
@@ -396,11 +455,11 @@ def kind_tables(kinds: KindStats, models: list[str], scope: str) -> list[dict]:
         rows = []
         for v in kinds.scores.values():
             cells = [_mean_cell(c, "{:.1f}") for c in (v.conditions[m] for m in models)]
-            test = v.mixed_model["model_test"]
-            pairs = "; ".join(f"{p['b']}-{p['a']} {p['difference']:+.1f}{_ci(p['ci_low'], p['ci_high'], '{:+.1f}')}, p {_p(p.get('p_holm'))}"
-                              if p.get("estimable") else f"{p['b']}-{p['a']} not estimable" for p in v.pairs)
-            rows.append([v.label, *cells, f"F({test['df']}, {test['df_denominator']}) = {test['f']:.2f} ({_p(test['p_value_f'])})"
-                         if np.isfinite(test["f"]) else f"n/a ({test.get('reason') or 'not estimable'})",
+            test = v.mixed_model.model_test
+            pairs = "; ".join(f"{p.b}-{p.a} {p.difference:+.1f}{_ci(p.ci_low, p.ci_high, '{:+.1f}')}, p {_p(p.p_holm)}"
+                              if p.estimable else f"{p.b}-{p.a} not estimable" for p in v.pairs)
+            rows.append([v.label, *cells, f"F({test.df}, {test.df_denominator}) = {test.f:.2f} ({_p(test.p_value_f)})"
+                         if np.isfinite(test.f) else f"n/a ({test.reason or 'not estimable'})",
                          pairs or "n/a (one condition)", _friedman_cell(v.friedman)])
         out.append({"title": "Scores", "columns": ["Score", *(f"{m}: mean [95% CI]" for m in models), "Mixed model: condition (p)",
                                                  f"Difference [95% CI], p {scope}", "Friedman chi2 (p)"], "rows": rows,
@@ -410,9 +469,9 @@ def kind_tables(kinds: KindStats, models: list[str], scope: str) -> list[dict]:
     for v in kinds.choices.values():
         ov = v.overall
         rows = [[m, f"{s['count']}", f"{s['share']:.0%}{_ci(s['wilson_low'], s['wilson_high'], '{:.0%}')}"] for m, s in v.shares.items()]
-        pairs = "; ".join(f"{p['a']}-{p['b']} {p['n_a']}:{p['n_b']}, p {_p(p.get('p_holm'))}" for p in v.pairs)
+        pairs = "; ".join(f"{p.a}-{p.b} {p.n_a}:{p.n_b}, p {_p(p.p_holm)}" for p in v.pairs)
         out.append({"title": f"Choice: {v.question}", "columns": ["Condition", "Chosen by", "Share [Wilson 95%]"], "rows": rows,
-                    "note": f"{ov['test']}: p = {_p(ov['p_value'])} (chi2 = {ov['statistic']:.2f}, {ov['df']} df; equal chances); "
+                    "note": f"{ov.test}: p = {_p(ov.p_value)} (chi2 = {ov.statistic:.2f}, {ov.df} df; equal chances); "
                             f"exact binomial pairs, {scope}: {pairs}."})
     if kinds.session:
         rows = []

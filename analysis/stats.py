@@ -38,11 +38,30 @@ def holm(p_values) -> list[float]:
     return [float(x) for x in adjusted]
 
 
-def set_holm(pairs: list[dict], key: str = "p_holm") -> None:
-    """Holm over these pairs' `p_value` into `key`; a test that was not made (NaN) stays NaN and
-    is not counted in the family."""
-    for pair, p in zip(pairs, holm([x["p_value"] for x in pairs])):
-        pair[key] = p
+def holm_family(per_question: list[list[float]], scope: str = "family") -> list[list[dict]]:
+    """Each pairwise test's Holm p-values, a list per question as `per_question` gives their
+    p-values: within its question (`p_holm_question`), over the whole family
+    (`p_holm_family`), and the one the reports print (`p_holm`: the family's, or the question's
+    when `scope` is "question")."""
+    within = [holm(ps) for ps in per_question]
+    family = iter(holm([p for ps in per_question for p in ps]))
+    out = []
+    for ps in within:
+        row = []
+        for q in ps:
+            f = next(family)
+            row.append({"p_holm_question": q, "p_holm_family": f, "p_holm": f if scope == "family" else q})
+        out.append(row)
+    return out
+
+
+def named(pair: dict, test: str, problems=()) -> dict:
+    """What a pair lacks to name its test (`test`) and, one that could not be made, why
+    (`reason`), as the rank and McNemar tests already do."""
+    out = {} if "test" in pair else {"test": test}
+    if "reason" not in pair and (pair.get("p_value") is None or not np.isfinite(pair["p_value"])):
+        out["reason"] = "; ".join(problems) or "not estimable"
+    return out
 
 
 def records(df: pd.DataFrame) -> list[dict]:
@@ -58,9 +77,9 @@ def records(df: pd.DataFrame) -> list[dict]:
 
 
 def tests_run(pairs) -> int:
-    """How many of these pairwise tests were run (a finite p-value): the size of the Holm family
-    that `set_holm` adjusts over, as every report counts it."""
-    return sum(1 for p in pairs if p.get("p_value") is not None and np.isfinite(p["p_value"]))
+    """How many of these pairwise tests (analysis/records.py) were run (a finite p-value): the
+    size of the Holm family that `holm_family` adjusts over, as every report counts it."""
+    return sum(1 for p in pairs if p.p_value is not None and np.isfinite(p.p_value))
 
 
 def wilson(yes: int, n: int, alpha: float = 0.05) -> tuple[float, float]:
@@ -310,4 +329,4 @@ def published(path: str | Path) -> dict:
     }
 
 
-__all__ = ["holm", "set_holm", "wilson", "pairwise_mcnemar", "friedman", "pairwise_wilcoxon", "gee_fit", "margin_bounds", "published"]
+__all__ = ["holm", "holm_family", "named", "wilson", "pairwise_mcnemar", "friedman", "pairwise_wilcoxon", "gee_fit", "margin_bounds", "published"]

@@ -1,19 +1,22 @@
 """What `analysis.study_stats.study_stats` returns: everything `studyctl report stats --json`
-prints (`StudyStats.as_dict()`), and what Table 1 and the reports read (docs/analysis.md).
+prints (`StudyStats.as_dict()`), and what Table 1, the text and the reports read (docs/analysis.md).
 
-Pairwise tests stay lists of tidy records (`a, b, p_value, p_holm, p_holm_family,
-p_holm_question, test, ...`), and model fits the plain records analysis/stats.py returns."""
+Complete when built and never changed after: pairwise tests and model fits are the frozen
+records of analysis/records.py, the other containers read-only. `as_dict()` is for the JSON
+writers only."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from collections.abc import Mapping
+from dataclasses import dataclass
 
 from analysis.facts import StudyFacts
 from analysis.kind_results import KindStats
+from analysis.records import GeeFit, McNemarPair, Record
 
 
 @dataclass(frozen=True)
-class YesNoItem:
+class YesNoItem(Record):
     """A yes/no question asked after each condition (a row of the paper's Table 1).
 
     - question: its text;
@@ -28,16 +31,13 @@ class YesNoItem:
     df: int
     p_value: float
     n_complete: int
-    rates: dict[str, dict]
-    pairs: list[dict]
+    rates: Mapping[str, Mapping]
+    pairs: tuple[McNemarPair, ...]
     reason: str | None = None
-
-    def as_dict(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 @dataclass(frozen=True)
-class LogisticGee:
+class LogisticGee(Record):
     """The logistic GEE across the yes/no questions (`analysis.study_stats.study_gee`), each fit
     a record of analysis.stats.gee_fit (`formula, n_participants, converged, pairs, ...`).
 
@@ -47,29 +47,26 @@ class LogisticGee:
     - period_factor: whether the period is a factor (every answer's period known); None when
       nothing was fitted (and left out of `as_dict()`)."""
 
-    composite: dict | None
-    items: dict[str, dict]
+    composite: GeeFit | None
+    items: Mapping[str, GeeFit]
     period_factor: bool | None = None
 
     def as_dict(self) -> dict:
-        out = {"composite": self.composite, "items": self.items}
-        return out if self.period_factor is None else out | {"period_factor": self.period_factor}
+        out = super().as_dict()
+        return out if self.period_factor is not None else {k: v for k, v in out.items() if k != "period_factor"}
 
 
 @dataclass(frozen=True)
-class DeformationBenchmark:
+class DeformationBenchmark(Record):
     """The deformation-time row: `label` says it is a benchmark of the machine, not a measure of
     the participants; `rows` are analysis.table1.deformation's records (one per condition)."""
 
     label: str
-    rows: list[dict]
-
-    def as_dict(self) -> dict:
-        return {"label": self.label, "rows": self.rows}
+    rows: tuple[Mapping, ...]
 
 
 @dataclass(frozen=True)
-class StudyStats:
+class StudyStats(Record):
     """Every statistic of a study (complete cases only).
 
     - facts: who counts, the design, the conditions;
@@ -83,15 +80,9 @@ class StudyStats:
 
     facts: StudyFacts
     holm: str
-    items: dict[str, YesNoItem]
+    items: Mapping[str, YesNoItem]
     gee: LogisticGee
     kinds: KindStats
     deformation: DeformationBenchmark
-    methods: dict
-
-    def as_dict(self) -> dict:
-        """The nested dict `report stats --json` prints (through sim.jsonable.jsonable)."""
-        return {"facts": self.facts.as_dict(), "holm": self.holm, "items": {k: v.as_dict() for k, v in self.items.items()},
-                "gee": self.gee.as_dict(), "kinds": self.kinds.as_dict(), "deformation": self.deformation.as_dict(),
-                "methods": self.methods}
+    methods: Mapping
 

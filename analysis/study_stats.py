@@ -5,14 +5,13 @@ pairwise tests (analysis/stats.py)."""
 
 from __future__ import annotations
 
-import numpy as np
 import pandas as pd
 
-from analysis.kind_results import KindStats
-from analysis.kinds import gee_line, kind_stats, kind_tables, primary_line
+from analysis.kinds import PAIR_TESTS, family_pairs, gee_line, kind_stats, kind_tables, kind_tests, odds_ratio_pairs, primary_line
+from analysis.records import GeeFit, McNemarPair, OddsRatioPair
 from analysis.reports.formatting import table_markdown
 from analysis.reports.methods import study_methods
-from analysis.stats import HOLM_SCOPES, gee_fit, pairwise_mcnemar, records, set_holm
+from analysis.stats import HOLM_SCOPES, gee_fit, holm, holm_family, named, pairwise_mcnemar, records
 from analysis.study_results import DeformationBenchmark, LogisticGee, StudyStats, YesNoItem
 from analysis.study_snapshot import Study
 from analysis.table1 import (
@@ -40,7 +39,8 @@ def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | N
     computed by the caller, so a report does not compute them twice) of `study`
     (analysis.study_snapshot.Study: the database read once). Complete cases only
     (`analysis.table1.complete_answers`). `holm_scope`: "family" (default: Holm over every
-    pairwise McNemar test of every question) or "question" (within each question's pairs)."""
+    pairwise test of every question and kind) or "question" (within each question's pairs).
+    Every test is run and Holm computed before a result is built: each is complete when built."""
     if holm_scope not in HOLM_SCOPES:
         raise ValueError(f"holm_scope: {holm_scope!r}; allowed: {', '.join(HOLM_SCOPES)}")
     r = rates(study) if r is None else r
@@ -49,66 +49,29 @@ def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | N
     every, _ = complete_answers(study)
     answers = binary_answers(study, every)
     protocol_models = list(protocol.conditions)
-    items = {}
-    for item, g in r.groupby("item", sort=False):
+    mcnemar = {}
+    for item, _g in r.groupby("item", sort=False):
         wide = answers_wide(answers, item, protocol_models)
-        pairs = pairwise_mcnemar(wide) if len(wide) else pd.DataFrame(columns=["a", "b", "n01", "n10", "p_value", "p_holm", "odds_ratio"])
+        mcnemar[item] = records(pairwise_mcnemar(wide)) if len(wide) else []
+    tests = kind_tests(study, every)
+    # Holm over the family: the yes/no questions' McNemar pairs and every other kind's pairs
+    adjusted = holm_family([[p["p_value"] for p in pairs] for pairs in [*mcnemar.values(), *family_pairs(tests)]], holm_scope)
+    items = {}
+    for (item, g), holm_of in zip(r.groupby("item", sort=False), adjusted):
         qrow = q[q["item"] == item].iloc[0]
         items[item] = YesNoItem(
             question=g["question"].iloc[0],
             cochran_q=qrow["cochran_q"], df=int(qrow["df"]), p_value=qrow["p_value"], n_complete=int(qrow["n_complete"]),
             rates={row["model"]: {k: row[k] for k in ("yes", "no", "rate", "wilson_low", "wilson_high")} for _, row in g.iterrows()},
-            pairs=records(pairs), reason=qrow.get("reason") if isinstance(qrow.get("reason"), str) else None,
+            pairs=tuple(McNemarPair.of(p, **h) for p, h in zip(mcnemar[item], holm_of)),
+            reason=qrow.get("reason") if isinstance(qrow.get("reason"), str) else None,
         )
-    kinds = kind_stats(study, every)
-    _holm_family(items, holm_scope, kinds.family_pairs())
+    kinds = kind_stats(study, every, tests, adjusted[len(mcnemar):])
     gee = study_gee(study, answers, protocol_models)
-    _name_tests(kinds, gee)
     facts = study_facts(study)
     return StudyStats(facts=facts, holm=holm_scope, items=items, gee=gee, kinds=kinds,
                       deformation=DeformationBenchmark(DEFORMATION_LABEL, deformation(study).to_dict(orient="records")),
                       methods=study_methods(study, facts, items, kinds, holm_scope))
-
-
-PAIR_TESTS = {"scores": "t contrast of the linear mixed model (between-within df)",
-              "choices": "exact binomial test of the two conditions' counts",
-              "ordinal_gee": "Wald t of the proportional-odds GEE (participants - 1 df)",
-              "gee": "Wald z of the logistic GEE (robust covariance)"}
-
-
-def _name_tests(kinds: KindStats, gee: LogisticGee) -> None:
-    """Every pairwise test in the JSON names itself (`test`), and one that could not be made says
-    why (`reason`), as the rank and McNemar tests already do."""
-    def name(pairs, test: str, problems=()) -> None:
-        for p in pairs or []:
-            p.setdefault("test", test)
-            if p.get("p_value") is None or not np.isfinite(p["p_value"]):
-                p.setdefault("reason", "; ".join(problems) or "not estimable")
-
-    for v in kinds.scores.values():
-        problems = v.mixed_model.get("problems") or []
-        name(v.pairs, PAIR_TESTS["scores"], problems)
-        name(v.mixed_model["pairs"], PAIR_TESTS["scores"], problems)
-    for v in kinds.choices.values():
-        name(v.pairs, PAIR_TESTS["choices"])
-    if kinds.ordinal_gee:
-        name(kinds.ordinal_gee["pairs"], PAIR_TESTS["ordinal_gee"], kinds.ordinal_gee.get("problems") or [])
-    for part in [gee.composite, *gee.items.values()]:
-        if part:
-            name(part.get("pairs"), PAIR_TESTS["gee"], part.get("problems") or [])
-
-
-def _holm_family(items: dict[str, YesNoItem], scope: str, others: list[list[dict]] = ()) -> None:
-    """Set each pair's `p_holm`: over the whole family of pairwise tests (the yes/no questions'
-    McNemar pairs and `others`: every other kind's pairs, a list per question or score), or per
-    question (`p_holm_question` is kept either way)."""
-    per_question = [v.pairs for v in items.values()] + list(others)
-    for pairs in per_question:
-        set_holm(pairs, "p_holm_question")
-    family = [pair for pairs in per_question for pair in pairs]
-    set_holm(family, "p_holm_family")
-    for pair in family:
-        pair["p_holm"] = pair["p_holm_family"] if scope == "family" else pair["p_holm_question"]
 
 
 def study_gee(study: Study, answers: pd.DataFrame, models: list[str]) -> LogisticGee:
@@ -123,10 +86,15 @@ def study_gee(study: Study, answers: pd.DataFrame, models: list[str]) -> Logisti
     if with_period:
         df["period"] = df["period"].astype(int)
     composite = gee_fit(df, models, with_period, with_item=True)
-    items = {item: gee_fit(g, models, with_period) for item, g in df.groupby("item", sort=False)}
-    set_holm([pair for v in items.values() for pair in v["pairs"]])
-    set_holm(composite["pairs"])
-    return LogisticGee(composite=composite, items=items, period_factor=with_period)
+    fits = {item: gee_fit(g, models, with_period) for item, g in df.groupby("item", sort=False)}
+    test = PAIR_TESTS["gee"]
+    # Holm over every question's pairs together; a pair not made says why in its own fit's words
+    together = iter(holm([pair["p_value"] for v in fits.values() for pair in v["pairs"]]))
+    items = {item: GeeFit.of(v, pairs=tuple(OddsRatioPair.of(p, p_holm=next(together), **named(p, test, v.get("problems") or []))
+                                            for p in v["pairs"]))
+             for item, v in fits.items()}
+    return LogisticGee(composite=GeeFit.of(composite, pairs=odds_ratio_pairs(composite["pairs"], test, composite.get("problems") or [])),
+                       items=items, period_factor=with_period)
 
 
 def table1_markdown(study: Study, holm_scope: str = "family") -> str:

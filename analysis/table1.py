@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.facts import StudyFacts
+from analysis.records import McNemarPair
 from analysis.stats import tests_run, wilson
 from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study, data_flag
@@ -227,11 +228,11 @@ def cochran_cell(qrow) -> str:
     return f"{qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})"
 
 
-def mcnemar_cell(p: dict) -> str:
+def mcnemar_cell(p: McNemarPair) -> str:
     """A McNemar pair's Holm p, or why it was not tested."""
-    if p["p_value"] != p["p_value"]:
-        return f"{p['a']}-{p['b']} not tested: {p.get('reason') or 'not run'}"
-    return f"{p['a']}-{p['b']} {p['p_holm']:.3g}"
+    if p.p_value != p.p_value:
+        return f"{p.a}-{p.b} not tested: {p.reason or 'not run'}"
+    return f"{p.a}-{p.b} {p.p_holm:.3g}"
 
 
 def holm_text(st: StudyStats) -> str:

@@ -1,14 +1,16 @@
 """JSON-ready copies of results: numpy scalars as Python numbers, NaN and infinities as null
-(JSON has neither), paths as strings, tuples as lists, keys as strings."""
+(JSON has neither), paths as strings, tuples as lists, keys as strings; read-only mappings
+(a result's, analysis/records.py) as dicts."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from pathlib import Path
 
 
 def jsonable(obj):
-    if isinstance(obj, dict):
+    if isinstance(obj, Mapping):
         return {str(k): jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [jsonable(v) for v in obj]

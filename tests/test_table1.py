@@ -176,11 +176,11 @@ def test_one_n_rule_complete_cases_everywhere_and_the_rest_listed(tmp_path):
     study = _read(db)
     facts = study_facts(study)
     assert facts.participants == 8
-    assert facts.incomplete_participants == [{"code": "P98", "answers": 9, "of": 27}, {"code": "P99", "answers": 22, "of": 27}]
+    assert list(facts.incomplete_participants) == [{"code": "P98", "answers": 9, "of": 27}, {"code": "P99", "answers": 22, "of": 27}]
     r = rates(study)
     assert (r["n"] == 8).all()  # the rates use the same 8 as the tests
     st = study_stats(study)
-    assert all(v.n_complete == 8 for v in st.items.values()) and st.gee.composite["n_participants"] == 8
+    assert all(v.n_complete == 8 for v in st.items.values()) and st.gee.composite.n_participants == 8
     assert "N = 8 participants" in markdown(study) and "P98 (9/27), P99 (22/27)" in markdown(study)
 
 
@@ -193,12 +193,12 @@ def test_holm_over_the_family_of_27_pairs_by_default(tmp_path):
                              "plate_spring": rng.binomial(1, 0.6, 9).tolist()} for i in range(20)}
     study = _read(_answers_db(tmp_path, answers))
     fam, per = study_stats(study), study_stats(study, holm_scope="question")
-    raw = [p["p_value"] for v in fam.items.values() for p in v.pairs]
+    raw = [p.p_value for v in fam.items.values() for p in v.pairs]
     assert len(raw) == 27 and fam.holm == "family"
-    assert [p["p_holm"] for v in fam.items.values() for p in v.pairs] == pytest.approx(holm(raw))
+    assert [p.p_holm for v in fam.items.values() for p in v.pairs] == pytest.approx(holm(raw))
     for v in per.items.values():
-        assert [p["p_holm"] for p in v.pairs] == pytest.approx(holm([p["p_value"] for p in v.pairs]))
-    assert all(a["p_holm"] >= b["p_holm"] for va, vb in zip(fam.items.values(), per.items.values())
+        assert [p.p_holm for p in v.pairs] == pytest.approx(holm([p.p_value for p in v.pairs]))
+    assert all(a.p_holm >= b.p_holm for va, vb in zip(fam.items.values(), per.items.values())
                for a, b in zip(va.pairs, vb.pairs))
 
 
@@ -243,9 +243,9 @@ def test_gee_has_the_period_factor_and_a_composite(tmp_path):
     answers = {c: {m: rng.binomial(1, 0.7, 9).tolist() for m in models} for c in orders}
     gee = study_stats(_read(_answers_db(tmp_path, answers, orders))).gee
     assert gee.period_factor is True
-    assert gee.composite["formula"] == "answer ~ C(model) + C(period) + C(item)" and gee.composite["n_answers"] == 18 * 27
+    assert gee.composite.formula == "answer ~ C(model) + C(period) + C(item)" and gee.composite.n_answers == 18 * 27
     assert set(gee.items) == {"natural", "behaviour", "texture", "comfortable", "guidance", "realtime", "feedback", "deformation", "stable"}
-    assert all(len(v["pairs"]) == 3 and {"odds_ratio", "ci_low", "ci_high", "p_value", "p_holm"} <= set(v["pairs"][0]) for v in gee.items.values())
+    assert all(len(v.pairs) == 3 and {"odds_ratio", "ci_low", "ci_high", "p_value", "p_holm"} <= set(v.pairs[0].keys) for v in gee.items.values())
 
 
 def test_report_stats_json_keys(tmp_path):
@@ -389,9 +389,9 @@ def test_gee_says_not_estimable_when_a_model_answers_alike_throughout(tmp_path):
                for i in range(8)}
     study = _read(_answers_db(tmp_path, answers))
     comp = study_stats(study).gee.composite
-    assert comp["estimable"] is False and not comp["converged"] and "mass_spring" in comp["problems"][0]
-    bad = [p for p in comp["pairs"] if "mass_spring" in (p["a"], p["b"])]
-    assert bad and all(not p["estimable"] and math.isnan(p["p_value"]) for p in bad)
+    assert comp.estimable is False and not comp.converged and "mass_spring" in comp.problems[0]
+    bad = [p for p in comp.pairs if "mass_spring" in (p.a, p.b)]
+    assert bad and all(not p.estimable and math.isnan(p.p_value) for p in bad)
     assert "not estimable" in markdown(study) and "NOT ESTIMABLE" in markdown(study)
 
 

@@ -1,6 +1,6 @@
-"""The methods and results paragraphs of a study, written from the JSON that `studyctl report stats
---json` prints (its `methods` object and its statistics), never from numbers retyped: each number
-in the text is a value of that JSON at the printed precision, in APA 7 style (p = .066, p < .001,
+"""The methods and results paragraphs of a study, written from the results that `studyctl report
+stats --json` prints (analysis.study_results.StudyStats: its `methods` and its statistics), never
+from numbers retyped: each number in the text is a value of that JSON at the printed precision, in APA 7 style (p = .066, p < .001,
 no leading zero for values that cannot exceed 1, two decimals for test statistics, 95% CI [a, b]).
 Synthetic data is said first; a statistic the reports withhold is withheld here with the same
 reason. Markdown, or LaTeX through analysis/reports/latex.py's escaping."""
@@ -9,9 +9,13 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
+from collections.abc import Mapping
 
 from analysis.discrimination.jnd import jnd_results
 from analysis.reports import latex
+from analysis.kind_results import KindStats
+from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study
 from analysis.study_stats import study_stats
 from sim.jsonable import jsonable
@@ -25,7 +29,7 @@ SIGNIFICANT = 0.05  # which pairwise tests the results name (after Holm); the re
 
 
 def _finite(x) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and x == x and abs(x) != float("inf")
+    return isinstance(x, numbers.Real) and not isinstance(x, bool) and x == x and abs(x) != float("inf")
 
 
 def p_text(p) -> str | None:
@@ -60,31 +64,32 @@ def _names(xs) -> str:
     return xs[0] if len(xs) == 1 else ", ".join(xs[:-1]) + (", and " if len(xs) > 2 else " and ") + xs[-1]
 
 
-def _pairs_text(pairs: list[dict], describe, what: str, family: str) -> str:
-    """The pairs significant after Holm, each described; the others counted; untested ones with why."""
-    tested = [p for p in pairs if _finite(p.get("p_value"))]
-    untested = [p for p in pairs if not _finite(p.get("p_value"))]
-    shown = [p for p in tested if _finite(p.get("p_holm")) and p["p_holm"] < SIGNIFICANT]
+def _pairs_text(pairs, describe, what: str, family: str) -> str:
+    """The pairs (analysis/records.py) significant after Holm, each described; the others
+    counted; untested ones with why."""
+    tested = [p for p in pairs if _finite(p.p_value)]
+    untested = [p for p in pairs if not _finite(p.p_value)]
+    shown = [p for p in tested if _finite(p.p_holm) and p.p_holm < SIGNIFICANT]
     out = []
     if shown:
         out.append(f"{what} differing after Holm's correction ({family}): "
-                   + "; ".join(f"{describe(p)}, {p_text(p['p_value'])}, Holm-corrected {p_text(p['p_holm'])}"
+                   + "; ".join(f"{describe(p)}, {p_text(p.p_value)}, Holm-corrected {p_text(p.p_holm)}"
                                for p in shown) + ".")
     elif tested:
         out.append(f"No {what.lower()} differed after Holm's correction ({family}).")
     for p in untested:
-        out.append(f"{p['a']} vs {p['b']} was not tested: {p.get('reason') or 'not estimable'}.")
+        out.append(f"{p.a} vs {p.b} was not tested: {p.reason or 'not estimable'}.")
     return " ".join(out)
 
 
-def _participants(m: dict, facts: dict) -> str:
+def _participants(m: Mapping, flag: str) -> str:
     p = m["participants"]
     who = ("synthetic participants simulated by the platform, not people" if p["synthetic_participants"] and not p["person_participants"]
            else "people" if not p["synthetic_participants"]
            else f"{p['person_participants']} people and {p['synthetic_participants']} synthetic participants, pooled")
     asked = m["procedure"]["questions"] or m["procedure"]["instruments"]
     did = "answered every question for every condition" if asked else "took part in the discrimination task"
-    text = (f"{facts['flag'] + ' ' if facts['flag'] else ''}N = {p['n']} participants {did} "
+    text = (f"{flag + ' ' if flag else ''}N = {p['n']} participants {did} "
             f"(target {p['target']}; ages {p['age_min']} to {p['age_max']} eligible); they were {who}.")
     if p["excluded"]:
         k = len(p["excluded"])
@@ -194,79 +199,80 @@ def _analysis(m: dict) -> str:
     return text.strip()
 
 
-def _yes_no(st: dict, family: str) -> list[str]:
+def _yes_no(st: StudyStats, family: str) -> list[str]:
     out = []
-    for v in st["items"].values():
+    for v in st.items.values():
         rates = "; ".join(f"{m} {pct(r['rate'])} ({r['yes']} yes, {r['no']} no, 95% CI [{pct(r['wilson_low'])}, {pct(r['wilson_high'])}])"
-                          for m, r in v["rates"].items())
-        p = p_text(v["p_value"])
-        cochran = (f"Cochran's Q({v['df']}) = {v['cochran_q']:.2f}, {p}" if p
-                   else f"Cochran's Q was not tested ({v.get('reason') or 'not estimable'})")
-        out.append(f"“{v['question']}”: yes with {rates}; {cochran}. "
-                   + _pairs_text(v["pairs"], lambda p: f"{p['a']} vs {p['b']}, {p['n01']} and {p['n10']} discordant answers", "Pairs", family))
+                          for m, r in v.rates.items())
+        p = p_text(v.p_value)
+        cochran = (f"Cochran's Q({v.df}) = {v.cochran_q:.2f}, {p}" if p
+                   else f"Cochran's Q was not tested ({v.reason or 'not estimable'})")
+        out.append(f"“{v.question}”: yes with {rates}; {cochran}. "
+                   + _pairs_text(v.pairs, lambda p: f"{p.a} vs {p.b}, {p.n01} and {p.n10} discordant answers", "Pairs", family))
     return out
 
 
-def _gee(fit: dict | None, what: str, family: str, n_conditions: int) -> str:
+def _gee(fit, what: str, family: str, n_conditions: int) -> str:
+    """A GEE's sentence (analysis.records.GeeFit or OrdinalGeeFit; None when not fitted)."""
     if not fit:
         return f"The {what} was not made: " + ("one condition: nothing to compare." if n_conditions < 2 else "no answers to fit.")
-    if not fit.get("estimable", True) or not fit.get("converged", True):
-        return f"The {what} was not reported: {'; '.join(fit.get('problems') or []) or 'it did not converge'}."
-    head = f"The {what} ({fit['formula']}) included {fit['n_participants']} participants and {fit['n_answers']} answers."
-    return head + " " + _pairs_text(fit["pairs"], lambda p: f"{p['b']} relative to {p['a']}, OR = {p['odds_ratio']:.2f}, 95% CI [{p['ci_low']:.2f}, {p['ci_high']:.2f}]",
+    if not fit.estimable or not fit.converged:
+        return f"The {what} was not reported: {'; '.join(fit.problems) or 'it did not converge'}."
+    head = f"The {what} ({fit.formula}) included {fit.n_participants} participants and {fit.n_answers} answers."
+    return head + " " + _pairs_text(fit.pairs, lambda p: f"{p.b} relative to {p.a}, OR = {p.odds_ratio:.2f}, 95% CI [{p.ci_low:.2f}, {p.ci_high:.2f}]",
                                     "Condition pairs", family)
 
 
-def _ratings(kinds: dict, family: str) -> list[str]:
+def _ratings(kinds: KindStats, family: str) -> list[str]:
     out = []
-    for v in kinds["ratings"].values():
-        medians = "; ".join(f"{m} Mdn = {c['median']:g} (IQR {c['q1']:g} to {c['q3']:g})" for m, c in v["conditions"].items())
-        fr = v["friedman"]
-        p = p_text(fr.get("p_value"))
-        w_ci = (f", 95% CI [{unit(fr['kendall_w_low'])}, {unit(fr['kendall_w_high'])}]" if _finite(fr.get("kendall_w_low"))
+    for v in kinds.ratings.values():
+        medians = "; ".join(f"{m} Mdn = {c['median']:g} (IQR {c['q1']:g} to {c['q3']:g})" for m, c in v.conditions.items())
+        fr = v.friedman
+        p = p_text(fr.p_value)
+        w_ci = (f", 95% CI [{unit(fr.kendall_w_low)}, {unit(fr.kendall_w_high)}]" if _finite(fr.kendall_w_low)
                 else " (no interval)")
-        friedman = (f"Friedman χ²({fr['df']}) = {fr['statistic']:.2f}, {p}, Kendall's W = {unit(fr['kendall_w'])}{w_ci}" if p
-                    else f"the Friedman test was not made: {fr.get('reason') or 'not estimable'}")
-        out.append(f"“{v['question']}” (n = {v['n']}): {medians}; {friedman}. "
-                   + _pairs_text(v["pairs"], lambda p: f"{p['a']} over {p['b']}, rank-biserial r = {unit(p['rank_biserial'])}", "Pairs", family))
+        friedman = (f"Friedman χ²({fr.df}) = {fr.statistic:.2f}, {p}, Kendall's W = {unit(fr.kendall_w)}{w_ci}" if p
+                    else f"the Friedman test was not made: {fr.reason or 'not estimable'}")
+        out.append(f"“{v.question}” (n = {v.n}): {medians}; {friedman}. "
+                   + _pairs_text(v.pairs, lambda p: f"{p.a} over {p.b}, rank-biserial r = {unit(p.rank_biserial)}", "Pairs", family))
     return out
 
 
-def _scores(kinds: dict, family: str) -> list[str]:
+def _scores(kinds: KindStats, family: str) -> list[str]:
     out = []
-    for v in kinds["scores"].values():
-        means = "; ".join(f"{m} M = {c['mean']:.2f}" for m, c in v["conditions"].items() if _finite(c.get("mean")))
-        mm = v["mixed_model"]
-        problems, test = mm.get("problems") or [], mm.get("model_test") or {}
-        p = p_text(test.get("p_value_f"))
+    for v in kinds.scores.values():
+        means = "; ".join(f"{m} M = {c['mean']:.2f}" for m, c in v.conditions.items() if _finite(c.get("mean")))
+        mm = v.mixed_model
+        problems, test = mm.problems, mm.model_test
+        p = p_text(test.p_value_f)
         if problems or not p:
             model = f"the mixed model was not reported: {'; '.join(problems) or 'not estimable'}."
         else:
-            model = (f"linear mixed model, F({test['df']:g}, {test['df_denominator']:g}) = {test['f']:.2f}, {p}. "
-                     + _pairs_text(v["pairs"], lambda p: f"{p['b']} minus {p['a']}, {p['difference']:.2f}, 95% CI [{p['ci_low']:.2f}, {p['ci_high']:.2f}]",
+            model = (f"linear mixed model, F({test.df:g}, {test.df_denominator:g}) = {test.f:.2f}, {p}. "
+                     + _pairs_text(v.pairs, lambda p: f"{p.b} minus {p.a}, {p.difference:.2f}, 95% CI [{p.ci_low:.2f}, {p.ci_high:.2f}]",
                                    "Pairs", family))
-        out.append(f"{v['label']} (n = {v['n']}): {means}; {model}".strip())
+        out.append(f"{v.label} (n = {v.n}): {means}; {model}".strip())
     return out
 
 
-def _choices(kinds: dict, family: str) -> list[str]:
+def _choices(kinds: KindStats, family: str) -> list[str]:
     out = []
-    for v in kinds["choices"].values():
-        shares = "; ".join(f"{m} {pct(s['share'])} ({s['count']} of {v['n']})" for m, s in v["shares"].items() if _finite(s.get("share")))
-        o = v["overall"]
-        p = p_text(o.get("p_value"))
+    for v in kinds.choices.values():
+        shares = "; ".join(f"{m} {pct(s['share'])} ({s['count']} of {v.n})" for m, s in v.shares.items() if _finite(s.get("share")))
+        o = v.overall
+        p = p_text(o.p_value)
         # the chi-square statistic with its own p; the exact test's p on its own
-        overall = (f"{o['test']}, χ²({o['df']}) = {o['statistic']:.2f}, {p}" if p and o["test"].startswith("chi-square")
-                   else f"{o['test']}, {p}" if p else "no test of the shares was made")
-        out.append(f"“{v['question']}”: chosen {shares}; {overall}. "
-                   + _pairs_text(v["pairs"], lambda p: f"{p['a']} vs {p['b']}, {p['n_a']} and {p['n_b']} choices", "Pairs", family))
+        overall = (f"{o.test}, χ²({o.df}) = {o.statistic:.2f}, {p}" if p and o.test.startswith("chi-square")
+                   else f"{o.test}, {p}" if p else "no test of the shares was made")
+        out.append(f"“{v.question}”: chosen {shares}; {overall}. "
+                   + _pairs_text(v.pairs, lambda p: f"{p.a} vs {p.b}, {p.n_a} and {p.n_b} choices", "Pairs", family))
     return out
 
 
-def _session(kinds: dict) -> list[str]:
+def _session(kinds: KindStats) -> list[str]:
     """The questions asked once per session (an instrument's score at the end)."""
     out = []
-    for s in (kinds.get("session") or {}).values():
+    for s in kinds.session.values():
         if not _finite(s.get("mean")):
             continue
         ci = (f", 95% CI [{s['ci_low']:.2f}, {s['ci_high']:.2f}]" if _finite(s.get("ci_low"))
@@ -276,22 +282,22 @@ def _session(kinds: dict) -> list[str]:
     return out
 
 
-def _deformation(st: dict) -> str:
-    d = st["deformation"]
+def _deformation(st: StudyStats) -> str:
+    d = st.deformation
     rows = "; ".join(f"{r['model']} {sig(r['mean_ms'])} ms (SD {sig(r['sd_ms'])} over {r['n_participants']} participants' means, "
                      f"{r['n_trials']} trials)" if _finite(r.get("sd_ms"))
-                     else f"{r['model']} {sig(r['mean_ms'])} ms ({r['n_trials']} trials)" for r in d["rows"] if _finite(r.get("mean_ms")))
-    return f"Deformation time per frame, a {d['label']}: {rows}." if rows else ""
+                     else f"{r['model']} {sig(r['mean_ms'])} ms ({r['n_trials']} trials)" for r in d.rows if _finite(r.get("mean_ms")))
+    return f"Deformation time per frame, a {d.label}: {rows}." if rows else ""
 
 
 def study_text(study: Study, holm_scope: str = "family", fmt: str = "md") -> str:
     """The methods and results of `study` as Markdown (`fmt` "md"), LaTeX ("latex") or JSON, written
-    from the object `report stats --json` prints for it (same `holm_scope`); for a study that
+    from the results `report stats --json` prints for it (same `holm_scope`); for a study that
     only discriminates (tasks, no questions), from the object `report jnd --json` prints."""
     if study.protocol.tasks and not study.protocol.questions:
         st = jsonable(jnd_results(study))
     else:
-        st = jsonable(study_stats(study, holm_scope=holm_scope).as_dict())
+        st = study_stats(study, holm_scope=holm_scope)
     if fmt == "json":  # for machines: the same paragraphs under their headings
         return json.dumps({"sections": [{"heading": h, "paragraphs": [p for p in ps if p]} for h, ps in sections(st)]}, indent=2,
                           ensure_ascii=False) + "\n"
@@ -332,38 +338,39 @@ def _discrimination(res: dict) -> list[str]:
     return out
 
 
-def sections(st: dict) -> list[tuple[str, list[str]]]:
-    """(heading, paragraphs) of the methods and results, from the `report stats --json` object `st`."""
-    m, facts = st["methods"], st["facts"]
-    if "weber" in st:  # a discrimination study (`report jnd --json`)
-        results = ([facts["flag"]] if facts["flag"] else []) + (_discrimination(st) if st["weber"] else ["No discrimination trials yet."])
-        return [("Participants", [_participants(m, facts)]), ("Design", [_design(m)]), ("Apparatus", [_apparatus(m)]),
+def sections(st: StudyStats | Mapping) -> list[tuple[str, list[str]]]:
+    """(heading, paragraphs) of the methods and results, from a study's results `st`, or from
+    the `report jnd --json` object of a study that only discriminates."""
+    if isinstance(st, Mapping):  # a discrimination study (`report jnd --json`)
+        m, flag = st["methods"], st["facts"]["flag"]
+        results = ([flag] if flag else []) + (_discrimination(st) if st["weber"] else ["No discrimination trials yet."])
+        return [("Participants", [_participants(m, flag)]), ("Design", [_design(m)]), ("Apparatus", [_apparatus(m)]),
                 ("Procedure", [_procedure(m)]), ("Analysis", [_analysis(m)]), ("Results", results)]
-    kinds = st["kinds"]
+    m, flag, kinds = st.methods, st.facts.flag, st.kinds
     an = m["analysis"]
-    family = (f"family of {an['holm_family']}" if st["holm"] == "family" else "within each question")
-    results = [facts["flag"]] if facts["flag"] else []
+    family = (f"family of {an['holm_family']}" if st.holm == "family" else "within each question")
+    results = [flag] if flag else []
     n = m["design"]["n_conditions"]
-    if kinds["primary"]["analysis"] == "logistic_gee":
-        results.append(_gee(st["gee"].get("composite"), "logistic GEE across the yes/no questions", "their own family", n))
-    elif kinds["primary"]["analysis"] == "ordinal_gee":
-        results.append(_gee(kinds.get("ordinal_gee"), "proportional-odds GEE across the rating items", "their own family", n))
+    if kinds.primary.analysis == "logistic_gee":
+        results.append(_gee(st.gee.composite, "logistic GEE across the yes/no questions", "their own family", n))
+    elif kinds.primary.analysis == "ordinal_gee":
+        results.append(_gee(kinds.ordinal_gee, "proportional-odds GEE across the rating items", "their own family", n))
     results += _yes_no(st, family) + _ratings(kinds, family) + _scores(kinds, family) + _choices(kinds, family) + _session(kinds)
     if m["procedure"]["tasks"]:
         results.append("The discrimination task's results (Weber fractions) are reported by `studyctl report jnd`, not here.")
     results.append(_deformation(st))
-    return [("Participants", [_participants(m, facts)]), ("Design", [_design(m)]), ("Apparatus", [_apparatus(m)]),
+    return [("Participants", [_participants(m, flag)]), ("Design", [_design(m)]), ("Apparatus", [_apparatus(m)]),
             ("Procedure", [_procedure(m)]), ("Analysis", [_analysis(m)]), ("Results", [r for r in results if r])]
 
 
-def markdown(st: dict) -> str:
+def markdown(st: StudyStats | Mapping) -> str:
     out = []
     for heading, paragraphs in sections(st):
         out += [f"## {heading}", "", *[p + "\n" for p in paragraphs if p]]
     return "\n".join(out)
 
 
-def latex_text(st: dict) -> str:
+def latex_text(st: StudyStats | Mapping) -> str:
     """The same paragraphs as LaTeX subsections (the text escaped; χ² and the quotes as LaTeX)."""
     out = []
     for heading, paragraphs in sections(st):

@@ -247,10 +247,10 @@ def report_stats(db, holm_scope, as_json):
     click.echo(primary_line(out))
     if len(study.protocol.conditions) < 2:
         click.echo("one condition: there is nothing to compare between conditions (no Cochran's Q, McNemar or Friedman test)")
-    def pair(p: dict) -> str:
-        if p["p_value"] != p["p_value"]:
-            return f"{p['a']}-{p['b']} not tested ({p.get('reason') or 'not estimable'})"
-        return f"{p['a']}-{p['b']} p_holm {p['p_holm']:.3g}" + (f" ({p['warning']})" if p.get("warning") else "")
+    def pair(p) -> str:
+        if p.p_value != p.p_value:
+            return f"{p.a}-{p.b} not tested ({p.reason or 'not estimable'})"
+        return f"{p.a}-{p.b} p_holm {p.p_holm:.3g}" + (f" ({p.warning})" if getattr(p, "warning", None) else "")
 
     for item, v in out.items.items() if len(study.protocol.conditions) > 1 else ():
         pairs = ", ".join(pair(p) for p in v.pairs)
@@ -260,18 +260,18 @@ def report_stats(db, holm_scope, as_json):
     for item, v in kinds.ratings.items():
         fr = v.friedman
         pairs = ", ".join(pair(p) for p in v.pairs)
-        friedman = (f"Friedman chi2 = {fr['statistic']:.2f}, p = {fr['p_value']:.3g}, W = {fr['kendall_w']:.2f}"
-                    if fr["statistic"] == fr["statistic"] else f"Friedman not tested ({fr.get('reason')})")
+        friedman = (f"Friedman chi2 = {fr.statistic:.2f}, p = {fr.p_value:.3g}, W = {fr.kendall_w:.2f}"
+                    if fr.statistic == fr.statistic else f"Friedman not tested ({fr.reason})")
         click.echo(f"{item}: {friedman}; {pairs}")
     for v in kinds.scores.values():
-        t = v.mixed_model["model_test"]
+        t = v.mixed_model.model_test
         means = ", ".join(f"{m} {c['mean']:.1f}" for m, c in v.conditions.items())
-        test = (f"mixed model F({t['df']}, {t['df_denominator']}) = {t['f']:.2f}, p = {t['p_value_f']:.3g}" if t["f"] == t["f"]
-                else f"mixed model: not tested ({t.get('reason') or 'no fit'})")
+        test = (f"mixed model F({t.df}, {t.df_denominator}) = {t.f:.2f}, p = {t.p_value_f:.3g}" if t.f == t.f
+                else f"mixed model: not tested ({t.reason or 'no fit'})")
         click.echo(f"{v.label}: {means}; {test}")
     for item, v in kinds.choices.items():
         shares = ", ".join(f"{m} {s['count']}" for m, s in v.shares.items())
-        click.echo(f"{item}: {shares}; {v.overall['test']} p = {v.overall['p_value']:.3g}")
+        click.echo(f"{item}: {shares}; {v.overall.test} p = {v.overall.p_value:.3g}")
     if facts.incomplete_participants:
         click.echo("left out (incomplete): " + incomplete_text(facts))
     gee = gee_line(out.gee, kinds.primary.analysis == "logistic_gee")

@@ -1,0 +1,140 @@
+"""A study's results are typed to the leaves: complete when built and never changed after (frozen
+records, read-only containers), and turned into JSON dicts (`as_dict`) only where JSON is written."""
+
+import ast
+import json
+from collections.abc import Mapping
+from dataclasses import FrozenInstanceError, fields
+from types import MappingProxyType
+
+import pytest
+
+from analysis.records import (
+    ChoicePair,
+    ChoiceTest,
+    DifferencePair,
+    Friedman,
+    GeeFit,
+    McNemarPair,
+    MixedModelFit,
+    ModelTest,
+    OddsRatioPair,
+    OrdinalGeeFit,
+    RankPair,
+    Record,
+)
+from analysis.study_stats import study_stats
+from sim.jsonable import jsonable
+from studyctl.cli.common import read_snapshot
+from tests.conftest import ROOT
+
+# the modules that write JSON, the only ones that call as_dict: the CLI's --json paths, and the
+# records' own conversion (a record's as_dict gives its inner records' as theirs)
+AS_DICT_CALLERS = {"studyctl/cli/reports.py", "studyctl/cli/plan.py", "analysis/records.py", "analysis/study_results.py"}
+
+
+def _walk(obj, path: str):
+    """(path, value) of a result and of everything inside it."""
+    yield path, obj
+    if isinstance(obj, Record):
+        for f in fields(obj):
+            yield from _walk(getattr(obj, f.name), f"{path}.{f.name}")
+    elif isinstance(obj, Mapping):
+        for k, v in obj.items():
+            yield from _walk(v, f"{path}[{k!r}]")
+    elif isinstance(obj, (list, tuple, set)):
+        for i, v in enumerate(obj):
+            yield from _walk(v, f"{path}[{i}]")
+
+
+@pytest.fixture(scope="module")
+def results(small_study, variants_study):
+    """The results of a study of yes/no questions and of one of ratings, a score and a choice."""
+    return [study_stats(read_snapshot(small_study)), study_stats(read_snapshot(variants_study))]
+
+
+def test_no_container_in_a_study_result_can_be_changed(results):
+    for st in results:
+        mutable = [path for path, v in _walk(st, "st") if isinstance(v, (dict, list, set))]
+        assert mutable == []
+
+
+def test_every_kind_of_leaf_is_a_typed_record(results):
+    kinds = {type(v) for st in results for _, v in _walk(st, "st")}
+    leaves = {McNemarPair, RankPair, DifferencePair, ChoicePair, OddsRatioPair, Friedman, ModelTest, ChoiceTest, MixedModelFit, GeeFit,
+              OrdinalGeeFit}
+    assert leaves - kinds == set()
+
+
+def test_every_record_refuses_a_new_value(results):
+    records = [(path, v) for st in results for path, v in _walk(st, "st") if isinstance(v, Record)]
+    for path, v in records:
+        with pytest.raises(FrozenInstanceError):
+            setattr(v, fields(v)[-1].name, None)
+
+
+def test_a_result_mapping_refuses_a_key(results):
+    st = results[1]
+    rating = next(iter(st.kinds.ratings.values()))
+    for mapping in (st.items, st.kinds.ratings, rating.conditions, next(iter(rating.conditions.values())), st.methods):
+        assert isinstance(mapping, MappingProxyType)
+        with pytest.raises(TypeError):
+            mapping["new"] = 1
+
+
+def test_a_results_pairs_are_a_tuple(results):
+    rating = next(iter(results[1].kinds.ratings.values()))
+    assert isinstance(rating.pairs, tuple)
+
+
+def test_holm_is_in_every_family_pair_when_built(results):
+    st = results[1]
+    pairs = [p for part in (st.kinds.ratings, st.kinds.scores, st.kinds.choices) for v in part.values() for p in v.pairs]
+    missing = [p for p in pairs if p.p_holm is None or p.p_holm_family is None or p.p_holm_question is None]
+    assert pairs and missing == []
+
+
+def test_a_record_gives_back_its_tests_dict_keys_in_order():
+    raw = {"a": "x", "b": "y", "difference": 1.0, "se": 0.1, "ci_low": 0.8, "ci_high": 1.2, "p_value": 0.2, "estimable": True,
+           "test": "t contrast"}
+    assert DifferencePair.of(raw).as_dict() == raw
+    assert list(DifferencePair.of(raw).as_dict()) == list(raw)
+
+
+def test_a_record_leaves_out_the_keys_its_test_did_not_give():
+    raw = {"a": "x", "b": "y", "difference": 1.0, "se": 0.1, "ci_low": 0.8, "ci_high": 1.2, "p_value": 0.2, "estimable": True}
+    assert "reason" not in DifferencePair.of(raw).as_dict()
+
+
+def test_a_key_a_record_does_not_have_is_refused():
+    with pytest.raises(TypeError):
+        McNemarPair.of({"a": "x", "b": "y", "test": "exact McNemar", "n01": 1, "n10": 2, "p_value": 0.5, "p_holm": 0.5,
+                        "odds_ratio": 1.0, "surprise": 1})
+
+
+def test_a_records_inner_list_is_a_tuple_and_comes_back_a_list():
+    fit = GeeFit.of({"formula": "f", "n_participants": 1, "n_answers": 2, "correlation": "c", "covariance": "v", "converged": False,
+                     "estimable": False, "problems": ["why"], "pairs": []})
+    assert fit.problems == ("why",)
+    assert fit.as_dict()["problems"] == ["why"]
+
+
+def test_the_json_of_a_result_is_plain_dicts_and_lists(results):
+    d = results[0].as_dict()
+    kinds = {type(v) for _, v in _walk(d, "d")}
+    assert kinds & {MappingProxyType, tuple} == set()
+    assert json.loads(json.dumps(jsonable(d)))["holm"] == "family"
+
+
+def _as_dict_callers() -> set[str]:
+    out = set()
+    for top in ("analysis", "sim", "studyctl"):
+        for path in sorted((ROOT / top).rglob("*.py")):
+            tree = ast.parse(path.read_text(encoding="utf-8"))
+            if any(isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr == "as_dict" for n in ast.walk(tree)):
+                out.add(path.relative_to(ROOT).as_posix())
+    return out
+
+
+def test_as_dict_is_called_only_where_json_is_written():
+    assert _as_dict_callers() - AS_DICT_CALLERS == set()
