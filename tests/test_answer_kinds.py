@@ -1,6 +1,7 @@
 """Question kinds, standard instruments, their statistics and reports, synthetic answers of
 every kind, power for the primary analysis and rig profiles (issue 26, items 2-7)."""
 
+import csv
 import json
 import math
 import re
@@ -174,8 +175,10 @@ def test_a_synthetic_study_answers_every_kind_in_its_type_and_reports_each(tmp_p
     assert js["rates"][0]["item"] == "stable"
     out = tmp_path / "export"
     assert studyctl("export", "--db", db, "--out", out).exit_code == 0
-    conds = (out / "conditions.csv").read_text()
-    assert '"variant"":""located""' in conds or 'located' in conds and "config_sha256" in conds.splitlines()[0]
+    with open(out / "conditions.csv", newline="") as f:
+        conds = list(csv.DictReader(f))
+    assert list(conds[0]) == ["session_id", "position", "model", "status", "label", "config", "config_sha256"]
+    assert {r["model"]: json.loads(r["config"])["variant"] for r in conds} == {"paper": "paper", "located": "located"}
 
 
 def test_answers_import_and_correct_follow_the_kinds(tmp_path):

@@ -192,12 +192,17 @@ def test_dry_run_writes_nothing_and_says_so(tmp_path):
     assert studyctl("answers", "import", tmp_path / "none.csv", "--db", db).exit_code == 1  # (a missing file: nothing)
     studyctl("participants", "add", "P04", "--db", db)  # waiting for a slot
     before = _files(tmp_path)
-    for args in (["participants", "add", "P09"], ["participants", "import", tmp_path / "p.csv"], ["participants", "consent", "P01"],
-                 ["participants", "withdraw", "P01"], ["schedule", "cancel", "P01"],
-                 ["schedule", "--start", "2037-12-07", "--end", "2037-12-08", "--ics", tmp_path / "s.ics"]):
+    said = "dry run, nothing written: would have "
+    for args, first in ((["participants", "add", "P09"], said + "added P09"),
+                        (["participants", "import", tmp_path / "p.csv"], said + "imported 2 participants"),
+                        (["participants", "consent", "P01"], said + "recorded consent of P01: form 1, signed "),
+                        (["participants", "withdraw", "P01"], said + "withdrawn P01: 0 sessions and 0 answers kept; contact details deleted"),
+                        (["schedule", "cancel", "P01"], said + "cancelled P01's slot at 2037-12-01T09:00:00; `studyctl schedule` gives a new one"),
+                        (["schedule", "--start", "2037-12-07", "--end", "2037-12-08", "--ics", tmp_path / "s.ics"],
+                         "DRY RUN, nothing stored: Schedule")):  # the schedule's table says it in its title
         res = studyctl(*args, "--dry-run", "--db", db)
         assert res.exit_code == 0, (args, res.output)
-        assert "dry run, nothing written" in res.output or "DRY RUN, nothing stored" in res.output, (args, res.output)
+        assert res.output.startswith(first), (args, res.output)
     assert _files(tmp_path) == before
 
 

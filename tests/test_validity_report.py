@@ -246,7 +246,7 @@ def test_the_study_s_own_metrics_end_to_end(db):
     assert "path_length" in out["metrics"]
     assert len(out["kruskal"]) == len(out["metrics"])
     assert len(out["pairs"]) == 3 * len(out["metrics"])
-    assert "accuracy" in out["classifier"] or out["classifier"]["reason"]
+    assert "accuracy" in out["classifier"], out["classifier"]  # 5 participants in each of the 3 groups: classified
 
 
 def test_rating_kruskal_wallis_and_sus_against_pingouin_and_statsmodels(db):
