@@ -23,10 +23,12 @@ def scene():
 
 def test_pulls_are_three_points_two_tangent_directions(scene):
     pulls = make_pulls(scene)
-    assert len(pulls) == 6 and len({p.vertex for p in pulls}) == 3
+    assert len(pulls) == 6
+    assert len({p.vertex for p in pulls}) == 3
     for p in pulls:
         n = scene.mesh.vertex_normals[p.vertex]
-        assert abs(np.linalg.norm(p.direction) - 1) < 1e-12 and abs(np.dot(p.direction, n)) < 1e-9
+        assert abs(np.linalg.norm(p.direction) - 1) < 1e-12
+        assert abs(np.dot(p.direction, n)) < 1e-9
 
 
 def _pull(name="p"):
@@ -51,9 +53,15 @@ def test_calibration_scale_errors_verdicts_and_wilson_by_hand():
              "tick_us": 1.0, "frame_ms": 2.0, "frame_ms_p99": 3.0, "build_s": 0.0, "unstable": False}
     rows, samples = compare(ref, [model], [_pull("c"), _pull("t")], 1, np.array([0.01, 0.02]))
     raw, cal = rows
-    assert raw["calibration"] == "raw" and raw["scale"] == 1.0 and cal["scale"] == pytest.approx(2.0)
-    assert raw["force_error"] == pytest.approx(0.4) and raw["within_jnd"] == 0.0 and raw["n_test"] == 2
-    assert cal["force_error"] == pytest.approx(0.2) and cal["within_jnd"] == 0.5 and cal["calibration_error"] == pytest.approx(0.0)
+    assert raw["calibration"] == "raw"
+    assert raw["scale"] == 1.0
+    assert cal["scale"] == pytest.approx(2.0)
+    assert raw["force_error"] == pytest.approx(0.4)
+    assert raw["within_jnd"] == 0.0
+    assert raw["n_test"] == 2
+    assert cal["force_error"] == pytest.approx(0.2)
+    assert cal["within_jnd"] == 0.5
+    assert cal["calibration_error"] == pytest.approx(0.0)
     # 0.48 vs 0.4 +- 0.05: the band reaches past the JND on one side, not the other: undecided;
     # 1.2 vs 1.0 +- 0.01: outside for every value in the band
     assert (cal["within"], cal["outside"], cal["undecided"]) == (0, 1, 1)
@@ -77,15 +85,23 @@ def test_samples_where_the_truth_is_not_decided_carry_its_verdict_and_are_not_ra
     rows, samples = compare(ref, [model], [_pull("c"), _pull("t")], 1, np.array([0.01, 0.02, 0.03]))
     raw, cal = rows
     assert cal["scale"] == pytest.approx(2.0)  # the two decided calibration samples (the extrapolated one would give 10)
-    assert raw["n_test"] == 1 and raw["within_jnd"] == 1.0 and raw["within"] == 1
-    assert raw["extrapolated"] == 1 and raw["truth_undecided"] == 1 and raw["force_error_max"] == pytest.approx(0.0)
+    assert raw["n_test"] == 1
+    assert raw["within_jnd"] == 1.0
+    assert raw["within"] == 1
+    assert raw["extrapolated"] == 1
+    assert raw["truth_undecided"] == 1
+    assert raw["force_error_max"] == pytest.approx(0.0)
     test = [s for s in samples if s["set"] == "test" and s["calibration"] == "raw"]
     assert [s["verdict"] for s in test] == ["within", "extrapolated", "undecided"]
-    assert [s["decided"] for s in test] == [True, False, False] and test[1]["reason"] == "a reason"
+    assert [s["decided"] for s in test] == [True, False, False]
+    assert test[1]["reason"] == "a reason"
     by = accuracy.breakdown(samples, "force_band")
     raw_rows = {r["force_band"]: r for r in by if r["calibration"] == "raw"}
-    assert raw_rows["0.1-0.5 N"]["decided"] == 1 and raw_rows["0.1-0.5 N"]["within"] == 1 and raw_rows["0.1-0.5 N"]["undecided"] == 1
-    assert raw_rows["above 0.5 N"]["decided"] == 0 and raw_rows["above 0.5 N"]["extrapolated"] == 1
+    assert raw_rows["0.1-0.5 N"]["decided"] == 1
+    assert raw_rows["0.1-0.5 N"]["within"] == 1
+    assert raw_rows["0.1-0.5 N"]["undecided"] == 1
+    assert raw_rows["above 0.5 N"]["decided"] == 0
+    assert raw_rows["above 0.5 N"]["extrapolated"] == 1
 
 
 def test_verdict_against_the_band():
@@ -98,15 +114,19 @@ def test_verdict_against_the_band():
 def test_test_pulls_are_held_out(scene):
     calib, test = make_pulls(scene), accuracy.test_pulls(scene)
     places = {p.vertex for p in test}
-    assert len(places) == 10 and len(test) == 20 and {p.hemisphere for p in test} == {0, 1}
+    assert len(places) == 10
+    assert len(test) == 20
+    assert {p.hemisphere for p in test} == {0, 1}
     for p in test:
         n = scene.mesh.vertex_normals[p.vertex]
-        assert abs(np.linalg.norm(p.direction) - 1) < 1e-12 and abs(np.dot(p.direction, n)) < 1e-9
+        assert abs(np.linalg.norm(p.direction) - 1) < 1e-12
+        assert abs(np.dot(p.direction, n)) < 1e-9
         assert min(np.linalg.norm(np.subtract(p.point, c.point)) for c in calib) >= 0.020
         # not a site of the located model's field (the ico4 subset: first 2562 of each hemisphere)
         assert p.vertex % 10242 >= 2562
     a, b = test[0], test[1]
-    assert a.vertex == b.vertex and abs(np.dot(a.direction, b.direction)) < 1e-9  # two orthogonal tangents
+    assert a.vertex == b.vertex  # two orthogonal tangents
+    assert abs(np.dot(a.direction, b.direction)) < 1e-9
 
 
 def test_pareto_front():
@@ -130,10 +150,13 @@ def test_each_class_at_its_best_keeps_the_budget_and_gives_up_no_pull():
     fem = best[("fem", "raw")]
     # the accurate row is over the 33 ms budget and the corotational one gave up: of the two
     # left at 20%, the faster wins the tie
-    assert fem["setting"] == "tie" and not fem["meets_target"]
+    assert fem["setting"] == "tie"
+    assert not fem["meets_target"]
     assert fem["left_out"] == {"slow": "frame p99 600 ms over the 33 ms budget", "corot": "gave up on a pull"}
-    assert best[("mass_spring", "raw")]["meets_target"] and not best[("mass_spring", "calibrated")]["meets_target"]
-    assert best[("plate_spring", "raw")]["setting"] is None and "no configuration" in best[("plate_spring", "raw")]["why"]
+    assert best[("mass_spring", "raw")]["meets_target"]
+    assert not best[("mass_spring", "calibrated")]["meets_target"]
+    assert best[("plate_spring", "raw")]["setting"] is None
+    assert "no configuration" in best[("plate_spring", "raw")]["why"]
     assert class_best(rows, frame_budget_ms=1000.0)[0]["setting"] == "slow"
 
 
@@ -192,12 +215,20 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
     rows = {(r["setting"], r["calibration"]): r for r in out["rows"]}
     assert set(rows) == {(s, c) for s in ("scene-fit", "linear-8mm", "local-global-8mm") for c in ("raw", "calibrated")}
     for r in rows.values():
-        assert r["n_test"] > 0 and 0.0 <= r["within_jnd_low"] <= r["within_jnd"] <= r["within_jnd_high"] <= 1.0
-        assert r["within"] + r["outside"] + r["undecided"] == r["n_test"] and r["n_test"] + r["extrapolated"] + r["truth_undecided"] == 4 * 2
-        assert r["tick_us"] > 0 and r["frame_ms"] > 0 and 0 <= r["angle_deg"] <= 180
+        assert r["n_test"] > 0
+        assert 0.0 <= r["within_jnd_low"] <= r["within_jnd"] <= r["within_jnd_high"] <= 1.0
+        assert r["within"] + r["outside"] + r["undecided"] == r["n_test"]
+        assert r["n_test"] + r["extrapolated"] + r["truth_undecided"] == 4 * 2
+        assert r["tick_us"] > 0
+        assert r["frame_ms"] > 0
+        assert 0 <= r["angle_deg"] <= 180
     ref = out["meta"]["reference"]
-    assert ref["converged"] and ref["sizes_mm"] == [20.0, 16.0] and ref["law"]["law"] == "ogden" and ref["solves"] == 10 * 2
-    assert len(out["meta"]["calibration_pulls"]) == 6 and len(out["meta"]["test_pulls"]) == 4
+    assert ref["converged"]
+    assert ref["sizes_mm"] == [20.0, 16.0]
+    assert ref["law"]["law"] == "ogden"
+    assert ref["solves"] == 10 * 2
+    assert len(out["meta"]["calibration_pulls"]) == 6
+    assert len(out["meta"]["test_pulls"]) == 4
     assert len(out["samples"]) == 3 * 2 * 10 * 2
     # the calibrated scale is the geometric mean of reference over model force on the decided calibration samples
     for (setting, cal), r in rows.items():
@@ -209,7 +240,9 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
     assert 0.0 <= out["meta"]["coupling_bound"]["scene"] <= out["meta"]["coupling_bound"]["omni_max"] <= 1.0
     assert {(b["model"], b["calibration"]) for b in out["best"]} == {(m, c) for m in ("plate_spring", "fem", "mass_spring") for c in ("raw", "calibrated")}
     md = (d / "accuracy.md").read_text()
-    assert "Each class at its best" in md and "Held-out samples per displacement (mm)" in md and "| below 0.1 N |" in md
+    assert "Each class at its best" in md
+    assert "Held-out samples per displacement (mm)" in md
+    assert "| below 0.1 N |" in md
     # every sample says where the truth stands, and only decided ones carry a within/outside verdict
     for s in out["samples"]:
         assert s["verdict"] in (("within", "outside", "undecided") if s["decided"] else ("extrapolated", "undecided"))
@@ -223,7 +256,9 @@ def test_the_accuracy_tables_compile_and_fit_an_a4_page(small_bench, tmp_path):
 
     _, d = small_bench
     tex = (d / "accuracy.tex").read_text()
-    assert tex.count("\\begin{landscape}") == 2 and "\\toprule" in tex and "+-" not in tex  # 12 and 9 columns turn the page
+    assert tex.count("\\begin{landscape}") == 2  # 12 and 9 columns turn the page
+    assert "\\toprule" in tex
+    assert "+-" not in tex
     assert latex_problems(document(tex), tmp_path) == []
 
 
@@ -234,11 +269,17 @@ def test_report_carries_the_accuracy_table_and_pareto_plot(small_bench, small_st
                                    "--out", str(tmp_path / "r.html")])
     assert res.exit_code == 0, res.output
     page = (tmp_path / "r.html").read_text()
-    assert "Model error against run time" in page and 'alt="pareto"' in page and "linear-8mm" in page
+    assert "Model error against run time" in page
+    assert 'alt="pareto"' in page
+    assert "linear-8mm" in page
     md = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--accuracy", str(d / "accuracy.json")]).output
-    assert "| fem | linear-8mm | raw |" in md and "| fem | linear-8mm | calibrated |" in md and "14.69" in md
+    assert "| fem | linear-8mm | raw |" in md
+    assert "| fem | linear-8mm | calibrated |" in md
+    assert "14.69" in md
     tex = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "latex", "--accuracy", str(d / "accuracy.json")]).output
-    assert "\\label{tab:accuracy:1}" in tex and "linear-8mm" in tex
+    assert "\\label{tab:accuracy:1}" in tex
+    assert "linear-8mm" in tex
     (tmp_path / "bad.json").write_text("{}")
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--accuracy", str(tmp_path / "bad.json")])
-    assert res.exit_code == 1 and "bad.json: not a `studyctl bench accuracy` result" in res.output
+    assert res.exit_code == 1
+    assert "bad.json: not a `studyctl bench accuracy` result" in res.output

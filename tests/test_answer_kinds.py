@@ -1,6 +1,7 @@
 """Question kinds, standard instruments, their statistics and reports, synthetic answers of
 every kind, power for the primary analysis and rig profiles (issue 26, items 2-7)."""
 
+import csv
 import json
 import math
 import re
@@ -25,7 +26,8 @@ def test_the_shipped_example_validates():
     likert = [q for q in p.questions if q.kind == "likert" and q.instrument is None]
     assert [q.id for q in likert] == list(load_protocol(ROOT / "protocols/brain_pull_2015.toml").items)
     assert all(q.points == 7 and q.when == "condition" for q in likert)
-    assert p.instruments == (("sus", "condition"),) and [q.id for q in p.questions if q.instrument] == [f"sus_{k}" for k in range(1, 11)]
+    assert p.instruments == (("sus", "condition"),)
+    assert [q.id for q in p.questions if q.instrument] == [f"sus_{k}" for k in range(1, 11)]
     assert [(q.id, q.kind, q.when) for q in p.asked("end")] == [("most_like_tissue", "choice", "end")]
     res = studyctl("protocol", "validate", ROOT / "protocols/plate_spring_variants.toml")
     assert res.exit_code == 0, res.output
@@ -58,13 +60,15 @@ def test_bad_questions_are_refused_at_their_line_with_the_allowed_values(tmp_pat
     line = int(hits[0].group(1))
     assert path.read_text().splitlines()[line - 1].strip(), "the line named is not blank"
     res = studyctl("protocol", "validate", path)
-    assert res.exit_code == 1 and re.search(pattern, res.output + (res.stderr if hasattr(res, "stderr") else ""))
+    assert res.exit_code == 1
+    assert re.search(pattern, res.output + (res.stderr if hasattr(res, "stderr") else ""))
 
 
 def test_sus_scoring_follows_brookes_worked_rule():
     # Brooke (1996): odd items score answer - 1, even items 5 - answer, the sum times 2.5
     assert instruments.sus_score([3] * 10) == 50.0  # every answer neutral
-    assert instruments.sus_score([5, 1] * 5) == 100.0 and instruments.sus_score([1, 5] * 5) == 0.0
+    assert instruments.sus_score([5, 1] * 5) == 100.0
+    assert instruments.sus_score([1, 5] * 5) == 0.0
     # worked by hand: odd (4-1)+(4-1)+(4-1)+(5-1)+(4-1) = 16, even (5-2)+(5-1)+(5-2)+(5-1)+(5-2) = 17; 33 x 2.5
     assert instruments.sus_score([4, 2, 4, 1, 4, 2, 5, 1, 4, 2]) == 82.5
     with pytest.raises(ValueError):
@@ -76,7 +80,8 @@ def test_raw_tlx_is_the_mean_of_its_six_subscales():
     assert instruments.raw_tlx([70, 20, 55, 30, 65, 40]) == pytest.approx(280 / 6, abs=1e-12)
     qs = instruments.questions("nasa_tlx")
     assert [q.id for q in qs] == ["tlx_mental", "tlx_physical", "tlx_temporal", "tlx_performance", "tlx_effort", "tlx_frustration"]
-    assert all(q.kind == "vas" for q in qs) and qs[3].anchors == ("Perfect", "Failure")
+    assert all(q.kind == "vas" for q in qs)
+    assert qs[3].anchors == ("Perfect", "Failure")
     assert instruments.score("nasa_tlx", {q.id: v for q, v in zip(qs, [70, 20, 55, 30, 65, 40])}) == pytest.approx(280 / 6)
 
 
@@ -88,10 +93,12 @@ def test_a_rating_is_an_ordered_logit_of_the_yes_no_judgement(points):
     t = likert_thresholds(points)
     for eta in (-2.0, -0.3, 0.0, 1.1, 2.5):
         r = np.array([likert_answer(eta, points, x) for x in u])
-        assert r.min() >= 1 and r.max() <= points
+        assert r.min() >= 1
+        assert r.max() <= points
         for k in range(1, points):
             assert np.mean(r > k) == pytest.approx(1 / (1 + math.exp(-(eta - t[k - 1]))), abs=1e-3)
-    assert np.allclose(t, -t[::-1]) and np.all(np.diff(t) > 0)
+    assert np.allclose(t, -t[::-1])
+    assert np.all(np.diff(t) > 0)
     if points % 2 == 0:  # an even scale's middle cut is the yes/no boundary: P(upper half) = P(yes)
         assert t[points // 2 - 1] == 0.0
 
@@ -101,8 +108,13 @@ def test_a_synthetic_study_answers_every_kind_in_its_type_and_reports_each(tmp_p
     run_synthetic_study(db, 6, seed=1, protocol_path=kinds_protocol(tmp_path))
     con = sqlite3.connect(db)
     kinds = dict(con.execute("select item, group_concat(distinct typeof(answer)) from answers group by item").fetchall())
-    assert kinds["natural"] == "integer" and kinds["stiffness"] == "real" and kinds["stable"] == "integer"
-    assert kinds["most_like_tissue"] == "text" and kinds["comment"] == "text" and kinds["sus_1"] == "integer" and kinds["tlx_mental"] == "real"
+    assert kinds["natural"] == "integer"
+    assert kinds["stiffness"] == "real"
+    assert kinds["stable"] == "integer"
+    assert kinds["most_like_tissue"] == "text"
+    assert kinds["comment"] == "text"
+    assert kinds["sus_1"] == "integer"
+    assert kinds["tlx_mental"] == "real"
     assert con.execute("select count(*) from answers where item = 'smooth'").fetchone()[0] == 6 * 2 * 2  # after every trial
     assert set(con.execute("select distinct trial from answers where item = 'smooth'").fetchall()) == {(0,), (1,)}
     end = con.execute("select model, trial, answer from answers where item = 'most_like_tissue'").fetchall()
@@ -116,14 +128,18 @@ def test_a_synthetic_study_answers_every_kind_in_its_type_and_reports_each(tmp_p
 
     st = json.loads(studyctl("report", "stats", "--json", "--db", db).output)
     k = st["kinds"]
-    assert k["primary"]["analysis"] == "ordinal_gee" and k["primary"]["items"] == ["natural", "realtime"]
-    assert set(k["ratings"]) == {"natural", "realtime"} and "friedman" in k["ratings"]["natural"]
+    assert k["primary"]["analysis"] == "ordinal_gee"
+    assert k["primary"]["items"] == ["natural", "realtime"]
+    assert set(k["ratings"]) == {"natural", "realtime"}
+    assert "friedman" in k["ratings"]["natural"]
     assert {"kendall_w", "kendall_w_low", "kendall_w_high"} <= set(k["ratings"]["natural"]["friedman"])
     assert {"rank_biserial", "rb_ci_low", "p_holm", "p_holm_family"} <= set(k["ratings"]["natural"]["pairs"][0])
     assert set(k["scores"]) == {"stiffness", "sus", "nasa_tlx", "smooth (mean over trials)"}
     assert k["scores"]["sus"]["mixed_model"]["formula"].startswith("answer ~ C(model) + C(period)")
-    assert k["ordinal_gee"]["pairs"][0]["a"] == "paper" and "odds_ratio" in k["ordinal_gee"]["pairs"][0]
-    assert k["choices"]["most_like_tissue"]["n"] == 6 and k["choices"]["most_like_tissue"]["overall"]["test"].startswith("exact multinomial")
+    assert k["ordinal_gee"]["pairs"][0]["a"] == "paper"
+    assert "odds_ratio" in k["ordinal_gee"]["pairs"][0]
+    assert k["choices"]["most_like_tissue"]["n"] == 6
+    assert k["choices"]["most_like_tissue"]["overall"]["test"].startswith("exact multinomial")
     assert "comment" not in json.dumps(k)  # free text is never analysed
     # Holm over the whole family: the yes/no McNemar pair, every rating's and score's pairs, the choice's
     family = [p for v in st["items"].values() for p in v["pairs"]] + [p for part in ("ratings", "scores", "choices") for v in k[part].values()
@@ -135,23 +151,34 @@ def test_a_synthetic_study_answers_every_kind_in_its_type_and_reports_each(tmp_p
     assert np.allclose([p["p_holm_family"] for p in family], multipletests(ps, method="holm")[1])
 
     md = studyctl("report", "table1", "--db", db).output
-    assert "SYNTHETIC DATA" in md and "**Ratings**" in md and "**Scores**" in md and "SUS score (0-100)" in md
-    assert "Choice: Which condition felt most like real brain tissue?" in md and "Holm over all 8 pairs" in md
+    assert "SYNTHETIC DATA" in md
+    assert "**Ratings**" in md
+    assert "**Scores**" in md
+    assert "SUS score (0-100)" in md
+    assert "Choice: Which condition felt most like real brain tissue?" in md
+    assert "Holm over all 8 pairs" in md
     assert "Primary analysis, all rating items: proportional-odds GEE" in md
     html = studyctl("report", "table1", "--format", "html", "--db", db).output
-    assert "<h2>Ratings</h2>" in html and 'alt="ratings"' in html and 'alt="scores"' in html and 'alt="choice_most_like_tissue"' in html
+    assert "<h2>Ratings</h2>" in html
+    assert 'alt="ratings"' in html
+    assert 'alt="scores"' in html
+    assert 'alt="choice_most_like_tissue"' in html
     for fmt in ("html", "latex"):  # --holm reaches every format
         assert "Holm within each question" in studyctl("report", "table1", "--format", fmt, "--holm", "question", "--db", db).output
     latex = studyctl("report", "table1", "--format", "latex", "--db", db).output
     # yes/no, ratings, scores, choice (free text is not analysed), each a float or, when taller than the page, a longtable
-    assert latex.count("\\begin{table}") + latex.count("\\begin{longtable}") == 4 and latex.count("\\toprule") >= 4
+    assert latex.count("\\begin{table}") + latex.count("\\begin{longtable}") == 4
+    assert latex.count("\\toprule") >= 4
     assert latex_problems(document(latex), tmp_path) == []  # compiles, nothing wider than the A4 text block
     js = json.loads(studyctl("report", "table1", "--format", "json", "--db", db).output)
-    assert set(js["kinds"]["scores"]) == set(k["scores"]) and js["rates"][0]["item"] == "stable"
+    assert set(js["kinds"]["scores"]) == set(k["scores"])
+    assert js["rates"][0]["item"] == "stable"
     out = tmp_path / "export"
     assert studyctl("export", "--db", db, "--out", out).exit_code == 0
-    conds = (out / "conditions.csv").read_text()
-    assert '"variant"":""located""' in conds or 'located' in conds and "config_sha256" in conds.splitlines()[0]
+    with open(out / "conditions.csv", newline="") as f:
+        conds = list(csv.DictReader(f))
+    assert list(conds[0]) == ["session_id", "position", "model", "status", "label", "config", "config_sha256"]
+    assert {r["model"]: json.loads(r["config"])["variant"] for r in conds} == {"paper": "paper", "located": "located"}
 
 
 def test_answers_import_and_correct_follow_the_kinds(tmp_path):
@@ -181,16 +208,20 @@ def test_answers_import_and_correct_follow_the_kinds(tmp_path):
         bad = tmp_path / "bad.csv"
         bad.write_text("participant,model,item,answer,trial\n" + row + "\n")
         res = studyctl("answers", "import", "--db", db, bad)
-        assert res.exit_code != 0 and message in res.output, (row, res.output)
+        assert res.exit_code != 0, (row, res.output)
+        assert message in res.output, (row, res.output)
     assert con.execute("select count(*) from answers").fetchone()[0] == 6  # nothing half-written
     res = studyctl("answers", "correct", "--db", db, "--participant", "P01", "--model", "paper", "--item", "stiffness",
                    "--answer", "40", "--reason", "typo on the form")
-    assert res.exit_code == 0 and "stiffness: 42.5 -> 40" in res.output
+    assert res.exit_code == 0
+    assert "stiffness: 42.5 -> 40" in res.output
     res = studyctl("answers", "correct", "--db", db, "--participant", "P01", "--item", "most_like_tissue", "--answer", "paper", "--reason", "r")
-    assert res.exit_code == 0 and "most_like_tissue: located -> paper" in res.output
+    assert res.exit_code == 0
+    assert "most_like_tissue: located -> paper" in res.output
     res = studyctl("answers", "correct", "--db", db, "--participant", "P01", "--model", "paper", "--item", "natural", "--answer", "0",
                    "--reason", "r")
-    assert res.exit_code != 0 and "allowed: an integer 1..7" in res.output
+    assert res.exit_code != 0
+    assert "allowed: an integer 1..7" in res.output
     assert con.execute("select old_answer, new_answer from corrections order by id").fetchall() == [(42.5, 40.0), ("located", "paper")]
     con.close()
 
@@ -213,7 +244,9 @@ def test_plan_powers_the_primary_analysis_and_its_null_is_at_alpha(tmp_path):
     assert null.loc["primary", "false_positive_rate"] <= 0.05 + 4 * null.loc["primary", "mc_error"], null
     res = studyctl("plan", "--protocol", protocol.path, "--participants", "6", "--simulations", "10", "--pilots", "1", "--json")
     out = json.loads(res.output)
-    assert out["synthetic"] and out["primary"]["analysis"] == "ordinal_gee" and "primary" in {r["item"] for r in out["rows"]}
+    assert out["synthetic"]
+    assert out["primary"]["analysis"] == "ordinal_gee"
+    assert "primary" in {r["item"] for r in out["rows"]}
 
 
 def test_a_rig_profile_sets_the_latency_synthetic_participants_perceive(tmp_path):
@@ -229,7 +262,8 @@ def test_a_rig_profile_sets_the_latency_synthetic_participants_perceive(tmp_path
     db = tmp_path / "s.db"
     assert studyctl("study", "init", "--db", db, "--protocol", proto).exit_code == 0
     res = studyctl("calibrate", "rig", "--db", db, "--profile", profile)
-    assert res.exit_code == 0 and "paper: 37.500 ms per frame" in res.output
+    assert res.exit_code == 0
+    assert "paper: 37.500 ms per frame" in res.output
     run_synthetic_study(db, 2, seed=1)
     con = sqlite3.connect(db)
     lat = dict(con.execute("select model, value from observer_features where feature = 'latency_ms' and code = 'S001'").fetchall())
@@ -237,7 +271,9 @@ def test_a_rig_profile_sets_the_latency_synthetic_participants_perceive(tmp_path
     con.close()
     profile.write_text(json.dumps({"conditions": [{"key": keys["paper"], "frame_ms_p50": float("nan"), "frame_ms_p95": 1.0}]}))
     res = studyctl("calibrate", "rig", "--db", db, "--profile", profile)
-    assert res.exit_code != 0 and "conditions[0].frame_ms_p50: nan is out of range" in res.output and "Traceback" not in res.output
+    assert res.exit_code != 0
+    assert "conditions[0].frame_ms_p50: nan is out of range" in res.output
+    assert "Traceback" not in res.output
 
 
 def test_the_shipped_rig_profile_covers_the_shipped_protocols():
@@ -290,12 +326,16 @@ def test_end_questions_and_instruments_per_trial_or_at_the_end_are_answered_and_
     con.close()
     k = json.loads(studyctl("report", "stats", "--json", "--db", db).output)["kinds"]
     # the TLX per trial is one score (the mean over trials of each trial's raw TLX), not six subscales
-    assert set(k["scores"]) == {"nasa_tlx (mean over trials)"} and k["primary"]["analysis"] == "logistic_gee"
+    assert set(k["scores"]) == {"nasa_tlx (mean over trials)"}
+    assert k["primary"]["analysis"] == "logistic_gee"
     # the SUS at the end is one score per participant, described with the end questions, not ten items
-    assert set(k["session"]) == {"sus", "again", "overall"} and k["session"]["sus"]["n"] == 5
+    assert set(k["session"]) == {"sus", "again", "overall"}
+    assert k["session"]["sus"]["n"] == 5
     assert 0 <= k["session"]["sus"]["mean"] <= 100
     md = studyctl("report", "table1", "--db", db).output
-    assert "raw NASA-TLX (0-100) (mean over trials)" in md and "Holm over all 2 pairs" in md and "nan" not in md.lower()
+    assert "raw NASA-TLX (0-100) (mean over trials)" in md
+    assert "Holm over all 2 pairs" in md
+    assert "nan" not in md.lower()
     assert "Primary analysis, all questions: logistic GEE" in md
 
 
@@ -318,14 +358,16 @@ when = "trial"
     run_synthetic_study(db, 6, seed=1, protocol_path=kinds_protocol(tmp_path, qs))
     out = studyctl("report", "stats", "--db", db).output
     st = json.loads(studyctl("report", "stats", "--json", "--db", db).output)
-    assert st["kinds"]["primary"]["analysis"] == "mixed_model" and st["kinds"]["primary"]["items"] == ["stiffness"]
+    assert st["kinds"]["primary"]["analysis"] == "mixed_model"
+    assert st["kinds"]["primary"]["items"] == ["stiffness"]
     assert out.splitlines()[1].startswith("Primary analysis: linear mixed model of How stiff did the tissue feel?")
     for fmt in ("md", "html", "latex"):
         text = re.sub(r"base64,[A-Za-z0-9+/=]+", "", studyctl("report", "table1", "--format", fmt, "--db", db).output)  # the pictures
         assert not re.search(r"\bnan\b", text.lower()), fmt
         assert "two conditions: the pair is the test" in text, fmt
     pairs = st["kinds"]["scores"]["stiffness"]["pairs"]
-    assert len(pairs) == 1 and pairs[0]["p_holm_primary"] == pytest.approx(pairs[0]["p_value"])  # one pair: Holm leaves it
+    assert len(pairs) == 1  # one pair: Holm leaves it
+    assert pairs[0]["p_holm_primary"] == pytest.approx(pairs[0]["p_value"])
 
 
 def test_a_rig_profile_covers_every_condition_or_none_and_is_fixed_once_sessions_ran(tmp_path):
@@ -339,7 +381,8 @@ def test_a_rig_profile_covers_every_condition_or_none_and_is_fixed_once_sessions
     profile = tmp_path / "rig.json"
     profile.write_text(json.dumps({"conditions": [{"key": "0" * 64, "frame_ms_p50": 1.0, "frame_ms_p95": 2.0}]}))
     res = studyctl("calibrate", "rig", "--db", db, "--profile", profile)
-    assert res.exit_code != 0 and "the profile has no entry for the configurations" in res.output
+    assert res.exit_code != 0
+    assert "the profile has no entry for the configurations" in res.output
     profile.write_text(json.dumps({"conditions": [{"key": keys["paper"], "frame_ms_p50": 5.0, "frame_ms_p95": 6.0}]}))
     assert studyctl("calibrate", "rig", "--db", db, "--profile", profile).exit_code == 0
     from studyctl.store import Store
@@ -351,4 +394,5 @@ def test_a_rig_profile_covers_every_condition_or_none_and_is_fixed_once_sessions
         store.close()
     run_synthetic_study(db, 1, seed=1)
     res = studyctl("calibrate", "rig", "--db", db, "--profile", profile)
-    assert res.exit_code != 0 and "calibrate before the first session" in res.output
+    assert res.exit_code != 0
+    assert "calibrate before the first session" in res.output

@@ -147,12 +147,15 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
             person.click(*brain_point)
             person.key("8")
             person.settle()
-            assert view.inputs == {} and w.selected is None and not person.answers
+            assert view.inputs == {}
+            assert w.selected is None
+            assert not person.answers
             person.click(*_centre(w.boxes[1]))
             person.wait(lambda: w.selected == 1, "a click chooses point 2")
             person.settle()
             img = person.shoot("view_likert")
-            assert _blue(img, w.boxes[1]) > 0.5 and _blue(img, w.boxes[4]) < 0.05
+            assert _blue(img, w.boxes[1]) > 0.5
+            assert _blue(img, w.boxes[4]) < 0.05
             assert not person.answers  # a click only chooses
             person.key("5")
             person.wait(lambda: len(person.answers) == 1, "the 7-point answer")
@@ -165,9 +168,11 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
             person.key("Left", "3")
             person.wait(lambda: w.selected == 6, "Left chooses 7")
             person.settle()
-            assert len(person.answers) == 1 and w.selected == 6
+            assert len(person.answers) == 1
+            assert w.selected == 6
             img = person.shoot("view_likert11")
-            assert _blue(img, w.boxes[6]) > 0.5 and max(_blue(img, b) for b in w.boxes[:6] + w.boxes[7:]) < 0.05
+            assert _blue(img, w.boxes[6]) > 0.5
+            assert max(_blue(img, b) for b in w.boxes[:6] + w.boxes[7:]) < 0.05
             person.key("Return")
             person.wait(lambda: len(person.answers) == 2, "the 11-point answer")
             # VAS: Enter without a mark does nothing; a click at 30% of the line; Right twice; a
@@ -177,7 +182,8 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
             u0, u1, v = w.line
             person.key("Return")
             person.settle(3)
-            assert w.value is None and len(person.answers) == 2
+            assert w.value is None
+            assert len(person.answers) == 2
             x = u0 + round(0.3 * (u1 - u0))
             person.click(x, v + 6)  # a little below the line still sets it
             person.wait(lambda: w.value is not None, "a mark")
@@ -217,7 +223,8 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
             person.wait(lambda: w.selected == 2, "a click chooses C")
             person.settle()
             img = person.shoot("view_choice")
-            assert _blue(img, w.boxes[2]) > 0.5 and _blue(img, w.boxes[0]) < 0.05
+            assert _blue(img, w.boxes[2]) > 0.5
+            assert _blue(img, w.boxes[0]) < 0.05
             person.key("b")
             person.wait(lambda: len(person.answers) == 6, "the choice")
         except BaseException as exc:  # noqa: BLE001 - reported by the main thread
@@ -246,7 +253,8 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
         for _ in range(3):
             view.draw(None, hands)
         run_xdotool("mouseup", 1)
-        assert view.inputs and next(iter(view.inputs.values()))[1]  # grasped, held
+        assert view.inputs  # grasped, held
+        assert next(iter(view.inputs.values()))[1]
     except Exception:
         t.join(timeout=5)
         if person.error is not None:
@@ -258,19 +266,28 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
         view.close()
     assert person.error is None, person.error
     got = person.answers
-    assert got[0] == 5 and type(got[0]) is int
-    assert got[1] == 7 and type(got[1]) is int
+    assert got[0] == 5
+    assert type(got[0]) is int
+    assert got[1] == 7
+    assert type(got[1]) is int
     (click, at_click), (drag, at_drag) = person.marks
     # to the pixel: one pixel is 0.14 of 100 here, the value is kept to 0.1
-    assert abs(click - at_click) <= 0.08 and abs(drag - at_drag) <= 0.08
-    assert type(got[2]) is float and got[2] == pytest.approx(drag - 1, abs=1e-9) and abs(got[2] - 69.0) < 0.3
-    assert got[3] == 2 and type(got[3]) is int
-    assert got[4] == 3 and type(got[4]) is int
+    assert abs(click - at_click) <= 0.08
+    assert abs(drag - at_drag) <= 0.08
+    assert type(got[2]) is float
+    assert got[2] == pytest.approx(drag - 1, abs=1e-9)
+    assert abs(got[2] - 69.0) < 0.3
+    assert got[3] == 2
+    assert type(got[3]) is int
+    assert got[4] == 3
+    assert type(got[4]) is int
     assert got[5] == "fem"  # B's condition, never shown
-    assert not view.questionnaire and view.answers.widget is None  # after a question the mouse may grasp again
+    assert not view.questionnaire  # after a question the mouse may grasp again
+    assert view.answers.widget is None
     # the window stayed blind: labels, numbers and anchors only
     assert not [x for x in person.texts if MODEL_WORDS.search(x)]
-    assert any("A  B  C" == x for x in person.texts) and any("Not at all real" in x for x in person.texts)
+    assert any("A  B  C" == x for x in person.texts)
+    assert any("Not at all real" in x for x in person.texts)
     for name in ("view_likert", "view_likert11", "view_vas", "view_choice"):
         assert (shots / f"{name}.png").stat().st_size > 10_000
 
@@ -332,7 +349,8 @@ def test_every_kind_answered_in_the_terminal_through_a_pty_keeps_its_type(tmp_pa
              "  a number from 0 to 100: 0 = Very low, 100 = Very high  [0-100]"),
             ("Please answer one of A, B.", "Which condition felt most like real brain tissue? [A/B]")):
         assert re.search(re.escape(refused) + r"\s*" + re.escape(asked_again).replace(r"\n", r"\s*"), text.replace("\r", "")), refused
-    assert text.count("Please answer") == 3 and not MODEL_WORDS.search(text)
+    assert text.count("Please answer") == 3
+    assert not MODEL_WORDS.search(text)
     con = sqlite3.connect(db)
     (first,), (second,) = con.execute("select model from conditions order by position").fetchall()
     b = con.execute("select model from conditions where label = 'B'").fetchone()[0]

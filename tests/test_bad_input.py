@@ -23,7 +23,9 @@ from tests.helpers import fast_protocol, studyctl
 ])
 def test_bad_numbers_are_one_clean_line(args, needle):
     res = CliRunner().invoke(cli, args)
-    assert res.exit_code == 2 and needle in res.output and "Traceback" not in res.output, res.output
+    assert res.exit_code == 2, res.output
+    assert needle in res.output, res.output
+    assert "Traceback" not in res.output, res.output
 
 
 def test_session_options_refused_before_anything_is_written(tmp_path):
@@ -31,14 +33,22 @@ def test_session_options_refused_before_anything_is_written(tmp_path):
     studyctl("study", "init", "--protocol", fast_protocol(tmp_path, trials=1), "--db", db)
     studyctl("participants", "add", "P01", "--db", db)
     before = db.read_bytes()
-    for args in (["--synthetic", "--time-scale", "nan"], ["--device", "mouse", "--view", "none"], ["--answers", "window", "--view", "none"],
-                 ["--device", "openhaptics", "--time-scale", "0"]):
+    # a value click refuses is a usage error (exit 2, the usage line first); a combination
+    # studyctl refuses is its one line (exit 1)
+    for args, code, error in (
+            (["--synthetic", "--time-scale", "nan"], 2, "Error: Invalid value for '--time-scale': 'nan' is not a finite number"),
+            (["--device", "mouse", "--view", "none"], 1, "Error: --device mouse: the mouse drives the hands in the participant view; add --view window"),
+            (["--answers", "window", "--view", "none"], 1, "Error: --answers window: answering with keys in the window needs --view window"),
+            (["--device", "openhaptics", "--time-scale", "0"], 1,
+             "Error: --device openhaptics: a person's device runs in real time only; leave out --time-scale 0")):
         res = CliRunner().invoke(cli, ["session", "run", "--db", str(db), "--participant", "P01", *args])
-        last = res.output.strip().splitlines()[-1]  # click's usage errors (exit 2) print the usage line first
-        assert res.exit_code in (1, 2) and last.startswith("Error: ") and "Traceback" not in res.output, res.output
-        assert res.exit_code == 2 or len(res.output.strip().splitlines()) == 1
+        assert res.exit_code == code, res.output
+        assert res.output.strip().splitlines()[-1] == error, res.output
+        if code == 1:
+            assert res.output == error + "\n"
     assert db.read_bytes() == before  # nothing written
-    assert not (tmp_path / "s.db.locks").exists() and sqlite3.connect(db).execute("select count(*) from sessions").fetchone()[0] == 0
+    assert not (tmp_path / "s.db.locks").exists()
+    assert sqlite3.connect(db).execute("select count(*) from sessions").fetchone()[0] == 0
 
 
 def test_outputs_into_missing_folders_or_with_wrong_suffixes_are_refused_before_any_work(tmp_path):
@@ -57,5 +67,7 @@ def test_outputs_into_missing_folders_or_with_wrong_suffixes_are_refused_before_
     ]
     for args, needle in cases:
         res = CliRunner().invoke(cli, [str(a) for a in args])
-        assert res.exit_code == 2 and needle in res.output and "Traceback" not in res.output, (args, res.output)
+        assert res.exit_code == 2, (args, res.output)
+        assert needle in res.output, (args, res.output)
+        assert "Traceback" not in res.output, (args, res.output)
     assert db.read_bytes() == before  # the schedule stored no slot

@@ -18,7 +18,8 @@ def test_json_mode_prints_only_the_flat_keys(monkeypatch, capsys):
     main_with_json(_measure, lambda row: percentile_keys("x.frame_ms", row, 2.5))
     keys = json.loads(capsys.readouterr().out)
     assert set(keys) == {"x.frame_ms_p50", "x.frame_ms_p95", "x.frame_ms_p99", "x.frame_ms_max", "x.frame_ms.target", "x.frame_ms_p99.ratio_to_target"}
-    assert keys["x.frame_ms_p50"] == 2.0 and keys["x.frame_ms_max"] == 3.0
+    assert keys["x.frame_ms_p50"] == 2.0
+    assert keys["x.frame_ms_max"] == 3.0
     assert abs(keys["x.frame_ms_p99.ratio_to_target"] - float(np.percentile([1, 2, 3], 99)) / 2.5) < 1e-12
 
 
@@ -26,7 +27,8 @@ def test_text_mode_prints_the_lines(monkeypatch, capsys):
     monkeypatch.setattr("sys.argv", ["bench"])
     main_with_json(_measure, lambda row: {"never": 1})
     out = capsys.readouterr().out
-    assert "human-readable" in out and "never" not in out
+    assert "human-readable" in out
+    assert "never" not in out
 
 
 
@@ -37,7 +39,8 @@ def test_scene_budgets_time_the_scene_configuration_against_the_contract(capsys)
     from sim.models.api import BUDGETS
 
     out = scene_budgets("plate_spring", frames=6, force_calls=200)
-    assert out["frame_ms.target"] == BUDGETS["deformation_ms_p99"] and out["force_us.target"] == BUDGETS["force_us_p99"]
+    assert out["frame_ms.target"] == BUDGETS["deformation_ms_p99"]
+    assert out["force_us.target"] == BUDGETS["force_us_p99"]
     assert 0 < out["frame_ms_p50"] <= out["frame_ms_p99"] <= out["frame_ms_max"]
     assert out["frame_ms_p99.ratio_to_target"] == out["frame_ms_p99"] / BUDGETS["deformation_ms_p99"]
     assert out["options"]["variant"] == "continuous"  # the scene's own configuration
@@ -74,4 +77,5 @@ def test_quasi_newton_frames_reach_the_converged_element_when_given_the_iteratio
     assert np.abs(np.asarray(one["forces"]) / static - 1).max() > 3 * np.abs(np.asarray(many["forces"]) / static - 1).max()
     out = {"budget_ms": 33.0, "pulls": {"p": {"settings": {"1it-m8": one | {"error": [0.1, -0.2]}}}}}
     keys = flat(out)
-    assert keys["fem_quasi_newton.p.1it-m8.max_abs_error"] == 0.2 and all(isinstance(v, float) for v in keys.values())
+    assert keys["fem_quasi_newton.p.1it-m8.max_abs_error"] == 0.2
+    assert all(isinstance(v, float) for v in keys.values())

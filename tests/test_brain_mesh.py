@@ -17,19 +17,22 @@ def _directed_edges(tri):
 
 
 def test_two_hemispheres_of_fsaverage5_size(brain):
-    assert brain.n_vertices == 2 * 10242 and len(brain.triangles) == 2 * 20480
+    assert brain.n_vertices == 2 * 10242
+    assert len(brain.triangles) == 2 * 20480
     for h in (0, 1):
         verts = np.flatnonzero(brain.labels == h)
         assert len(verts) == 10242
         tri = brain.triangles[np.isin(brain.triangles[:, 0], verts)]
-        assert len(tri) == 20480 and np.isin(tri, verts).all()  # no triangle spans hemispheres
+        assert len(tri) == 20480  # no triangle spans hemispheres
+        assert np.isin(tri, verts).all()
 
 
 def test_units_are_metres(brain):
     lo, hi = brain.bounds()
     extent = hi - lo
     # an adult brain is about 14 x 17 x 12 cm; in millimetres these would be ~1000x larger
-    assert np.all(extent > 0.09) and np.all(extent < 0.2)
+    assert np.all(extent > 0.09)
+    assert np.all(extent < 0.2)
 
 
 def test_watertight_and_manifold_numpy(brain):
@@ -50,7 +53,9 @@ def test_watertight_according_to_open3d(brain):
         verts = np.flatnonzero(brain.labels == h)
         tri = brain.triangles[np.isin(brain.triangles[:, 0], verts)] - verts[0]
         m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(brain.vertices[verts]), o3d.utility.Vector3iVector(tri))
-        assert m.is_watertight() and m.is_edge_manifold() and m.is_vertex_manifold()
+        assert m.is_watertight()
+        assert m.is_edge_manifold()
+        assert m.is_vertex_manifold()
         assert not m.is_self_intersecting()
 
 
@@ -70,8 +75,10 @@ def test_geodesic_rings_on_a_sphere():
     p = s.vertices[idx] / 0.05
     arc = 0.05 * np.arccos(np.clip(p @ (s.vertices[v] / 0.05), -1, 1))
     chord = np.linalg.norm(s.vertices[idx] - s.vertices[v], axis=1)
-    assert np.all(d >= chord - 1e-12) and np.all(d <= 1.2 * arc + 1e-9)
-    assert 0.0 in d and d.max() <= 0.02
+    assert np.all(d >= chord - 1e-12)
+    assert np.all(d <= 1.2 * arc + 1e-9)
+    assert 0.0 in d
+    assert d.max() <= 0.02
 
 
 def test_bad_mesh_files(tmp_path):

@@ -18,7 +18,8 @@ def test_fit_recovers_a_curve_the_model_can_make():
     forces = np.array([target.force(x) for x in xs])
     start = type(base)(**(base.as_dict() | {"h1": 0.003, "alpha": 1.6, "q": 1.2, "x_c1": 0.004}))
     fitted, rep = fit(start, xs, forces)
-    assert rep["within_jnd"] == 1.0 and rep["max_jnd_units"] < 0.2
+    assert rep["within_jnd"] == 1.0
+    assert rep["max_jnd_units"] < 0.2
     for k in ("alpha", "q"):
         assert 1.0 <= getattr(fitted, k) <= (2.0 if k == "alpha" else 1.5)  # within the paper's bounds
 
@@ -35,14 +36,20 @@ def test_cli_calibrates_to_the_converged_reference_and_to_a_csv(tmp_path, monkey
     import re
 
     found = re.search(r"at the (\d+) of 48 samples where the truth is decided", rep["reference"])
-    assert found and rep["points"] == int(found.group(1)) and 20 <= rep["points"] < 48
-    assert "converged reference" in rep["reference"] and "8, 6 mm" in rep["reference"] and "extrapolated" in rep["reference"]
+    assert found
+    assert rep["points"] == int(found.group(1))
+    assert 20 <= rep["points"] < 48
+    assert "converged reference" in rep["reference"]
+    assert "8, 6 mm" in rep["reference"]
+    assert "extrapolated" in rep["reference"]
     assert rep["within_jnd"] >= 0.2  # one force curve for six pulls of different stiffness: not all within
     fitted = load_params(tmp_path / "cal.toml")  # a valid parameter file
     assert fitted.alpha == rep["fitted"]["alpha"]
     (tmp_path / "curve.csv").write_text("displacement_m,force_n\n0.005,0.05\n0.01,0.11\n0.015,0.18\n0.02,0.26\n")
     rep = json.loads(CliRunner().invoke(cli, ["calibrate", "plate-spring", "--reference", str(tmp_path / "curve.csv"), "--json"]).output)
-    assert rep["points"] == 4 and rep["within_jnd"] == 1.0
+    assert rep["points"] == 4
+    assert rep["within_jnd"] == 1.0
     (tmp_path / "bad.csv").write_text("displacement_m,force_n\n0.005,-1\n")
     res = CliRunner().invoke(cli, ["calibrate", "plate-spring", "--reference", str(tmp_path / "bad.csv")])
-    assert res.exit_code == 1 and "line 2" in res.output
+    assert res.exit_code == 1
+    assert "line 2" in res.output

@@ -20,10 +20,12 @@ def test_force_json():
     assert res.exit_code == 0, res.output
     out = json.loads(res.output)
     assert {"dcl", "deformation", "layer_deformation", "overstretched", "saturated"} <= set(out)
-    assert out["dcl"] == 3 and len(out["layer_deformation"]) == 6
+    assert out["dcl"] == 3
+    assert len(out["layer_deformation"]) == 6
     assert out["layer_deformation"][:2] == pytest.approx([0.002, 0.006])  # n_i * x_c1
     assert sum(out["layer_deformation"]) == pytest.approx(out["deformation"])
-    assert out["overstretched"] is False and out["saturated"] is False
+    assert out["overstretched"] is False
+    assert out["saturated"] is False
 
 
 def test_displacement_json_inverts_force():
@@ -34,16 +36,20 @@ def test_displacement_json_inverts_force():
 
 def test_saturated_force():
     out = json.loads(run("--params", str(BRAIN_PARAMS), "--force", "50", "--json").output)
-    assert out["dcl"] == 6 and out["overstretched"] and out["saturated"]
+    assert out["dcl"] == 6
+    assert out["overstretched"]
+    assert out["saturated"]
 
 
 def test_layer_table_and_paper_jumps():
     res = run("--params", str(BRAIN_PARAMS))
     assert res.exit_code == 0
-    assert "Plate-spring layers (continuous)" in res.output and "no jumps" in res.output
+    assert "Plate-spring layers (continuous)" in res.output
+    assert "no jumps" in res.output
     res = run("--params", str(BRAIN_PARAMS), "--variant", "paper", "--json")
     table = json.loads(res.output)
-    assert len(table["layers"]) == 6 and table["delay_budget"]["layers_in_budget"] == 6
+    assert len(table["layers"]) == 6
+    assert table["delay_budget"]["layers_in_budget"] == 6
     assert [j["layer"] for j in table["jumps"]] == [2, 3, 4, 5]
     assert all(j["kind"] == "forward" for j in table["jumps"])
     assert "jumps forward" in run("--params", str(BRAIN_PARAMS), "--variant", "paper").output
@@ -69,19 +75,25 @@ def test_bad_input_is_one_line_naming_the_field(tmp_path, overrides, args, expec
     res = run("--params", str(path), *args)
     assert res.exit_code == 1
     lines = res.output.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("Error: ") and expected in lines[0], res.output
+    assert len(lines) == 1, res.output
+    assert lines[0].startswith("Error: "), res.output
+    assert expected in lines[0], res.output
     if "force" not in expected:
         assert str(path) in lines[0]  # the file is named
 
 
 def test_usage_errors(tmp_path):
     res = run("--params", str(BRAIN_PARAMS), "--force", "1", "--displacement", "0.01")
-    assert res.exit_code == 2 and "not both" in res.output
+    assert res.exit_code == 2
+    assert "not both" in res.output
     res = run("--params", str(tmp_path / "none.toml"))
-    assert res.exit_code == 1 and "none.toml: not found" in res.output
+    assert res.exit_code == 1
+    assert "none.toml: not found" in res.output
     (tmp_path / "broken.toml").write_text("alpha = = 1\n")
     res = run("--params", str(tmp_path / "broken.toml"))
-    assert res.exit_code == 1 and "invalid TOML" in res.output and "line 1" in res.output
+    assert res.exit_code == 1
+    assert "invalid TOML" in res.output
+    assert "line 1" in res.output
 
 
 def test_console_script_prints_no_traceback(tmp_path):
@@ -90,5 +102,6 @@ def test_console_script_prints_no_traceback(tmp_path):
         [sys.executable, "-m", "studyctl.cli", "model", "plate-spring", "--params", str(path)],
         capture_output=True, text=True,
     )
-    assert proc.returncode == 1 and proc.stdout == ""
+    assert proc.returncode == 1
+    assert proc.stdout == ""
     assert proc.stderr.strip() == f"Error: {path}: alpha: 2.5 is out of range; allowed: [1, 2]"

@@ -38,7 +38,8 @@ def test_synth_on_a_cluster_equals_local_jobs_and_a_killed_worker_loses_no_parti
 
         out = run_synthetic_study(tmp_path / "dask.db", 3, seed=5, protocol_path=protocol, scheduler=cluster.scheduler_address,
                                   progress=kill_a_busy_worker)
-    assert killed and out["participants"] == 3
+    assert killed
+    assert out["participants"] == 3
     con = sqlite3.connect(tmp_path / "dask.db")
     sessions = con.execute("select code, status, synthetic from sessions order by code").fetchall()
     trials = con.execute("select count(*), count(distinct session_id || model || trial) from trials").fetchone()
@@ -67,10 +68,12 @@ def test_plan_tables_are_the_same_here_in_local_processes_and_on_a_cluster(tmp_p
     kw = {"simulations": BATCH + 5, "seed": 3, "summaries": _summaries(), "primary": False}  # two batches per N, one short
     seen = []
     here = power_table(protocol, [6, 12], **kw, progress=lambda done, total: seen.append((done, total)))
-    assert seen[-1] == (2 * (BATCH + 5), 2 * (BATCH + 5)) and len(seen) == 4
+    assert seen[-1] == (2 * (BATCH + 5), 2 * (BATCH + 5))
+    assert len(seen) == 4
     pd.testing.assert_frame_equal(here, power_table(protocol, [6, 12], **kw, jobs=2))
     pd.testing.assert_frame_equal(here, power_table(protocol, [6, 12], **kw, scheduler=cluster.scheduler_address))
-    assert here["power"].between(0, 1).all() and (here["simulations"] == BATCH + 5).all()
+    assert here["power"].between(0, 1).all()
+    assert (here["simulations"] == BATCH + 5).all()
     null = null_table(protocol, participants=12, **kw)
     pd.testing.assert_frame_equal(null, null_table(protocol, participants=12, **kw, scheduler=cluster.scheduler_address))
 
@@ -80,8 +83,10 @@ def test_an_unreachable_scheduler_is_a_one_line_error_and_nothing_is_written(tmp
     db = tmp_path / "s.db"
     args = command + (["--db", str(db)] if command[0] == "synth" else []) + ["--scheduler", "tcp://127.0.0.1:1"]
     res = CliRunner().invoke(cli, args)
-    assert res.exit_code == 1 and "scheduler tcp://127.0.0.1:1: cannot connect" in res.output, res.output
-    assert len(res.output.strip().splitlines()) == 1 and "Traceback" not in res.output
+    assert res.exit_code == 1, res.output
+    assert "scheduler tcp://127.0.0.1:1: cannot connect" in res.output, res.output
+    assert len(res.output.strip().splitlines()) == 1
+    assert "Traceback" not in res.output
     assert not db.exists()
 
 

@@ -41,17 +41,21 @@ def test_named_conditions_resolve_over_the_scenes_configuration(tmp_path):
     p = load_protocol(_protocol(tmp_path))
     assert p.conditions == ("paper", "located", "stiff_fem")
     configs = {c: resolved_config(c, condition_scene_spec(p, c)) for c in p.conditions}
-    assert configs["paper"]["variant"] == "paper" and configs["located"]["variant"] == "located"
+    assert configs["paper"]["variant"] == "paper"
+    assert configs["located"]["variant"] == "located"
     # what a condition leaves out is the scene's: its plate parameters, the FEM's 8 mm mesh
     assert configs["paper"]["plate_spring"] == configs["located"]["plate_spring"]
-    assert configs["stiff_fem"]["options"]["resolution"] == 0.008 and configs["stiff_fem"]["options"]["formulation"] == "linear"
+    assert configs["stiff_fem"]["options"]["resolution"] == 0.008
+    assert configs["stiff_fem"]["options"]["formulation"] == "linear"
     assert configs["stiff_fem"]["material"]["young"] == 6000.0
     # the old form (a model name) is the scene's own configuration
     fem = resolved_config("fem", condition_scene_spec(p, "fem"))
     # the scene gives no young: the law's small-strain limit, 2 mu (1 + 0.45), mu = 1351.45 Pa (human cortex, fitted on every mode)
-    assert fem["material"]["young"] == pytest.approx(2 * 1351.453 * 1.45, rel=1e-5) and fem["options"] == configs["stiff_fem"]["options"]
+    assert fem["material"]["young"] == pytest.approx(2 * 1351.453 * 1.45, rel=1e-5)
+    assert fem["options"] == configs["stiff_fem"]["options"]
     hashes = {config_sha256(c) for c in configs.values()}
-    assert len(hashes) == 3 and all(re.fullmatch(r"[0-9a-f]{64}", h) for h in hashes)
+    assert len(hashes) == 3
+    assert all(re.fullmatch(r"[0-9a-f]{64}", h) for h in hashes)
     # the same configuration, found again, has the same hash; paths enter as file contents
     assert config_sha256(resolved_config("paper", condition_scene_spec(p, "paper"))) == config_sha256(configs["paper"])
 
@@ -96,7 +100,8 @@ def test_bad_conditions_are_refused_at_their_line(tmp_path, case):
     # the line of the key at fault, or of the table when the table itself is
     assert text == f"[{field}]" if field.count(".") == 1 and field.startswith("conditions.") else text.startswith(field.split(".")[-1] + " ="), (hit, text)
     res = studyctl("protocol", "validate", path)
-    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert res.exit_code == 1
+    assert "Traceback" not in res.output
 
 
 def test_a_condition_whose_model_the_scene_lacks_runs_the_models_declared_defaults(tmp_path):
@@ -124,22 +129,28 @@ def test_sessions_store_what_each_condition_ran_and_reports_show_it(tmp_path):
     rows = con.execute("select session_id, model, label, config, config_sha256 from conditions order by session_id, position").fetchall()
     forces = dict(con.execute("select model, max(max_force_n) from trials group by model").fetchall())
     con.close()
-    assert len(rows) == 6 and {r[1] for r in rows} == {"paper", "located", "stiff_fem"}
+    assert len(rows) == 6
+    assert {r[1] for r in rows} == {"paper", "located", "stiff_fem"}
     for _, name, label, config, sha in rows:
         cfg = json.loads(config)
-        assert cfg["condition"] == name and config_sha256(cfg) == sha and label in ("A", "B", "C")
+        assert cfg["condition"] == name
+        assert config_sha256(cfg) == sha
+        assert label in ("A", "B", "C")
     # two configurations of one model render different forces
     assert forces["paper"] != forces["located"]
     # the export carries the configuration; the reports name it, by condition
     assert studyctl("export", "--db", db, "--out", tmp_path / "ex").exit_code == 0
     cond = pd.read_csv(tmp_path / "ex" / "conditions.csv")
-    assert {"config", "config_sha256"} <= set(cond.columns) and cond["config"].map(lambda c: json.loads(c)["model"]).tolist().count("fem") == 2
+    assert {"config", "config_sha256"} <= set(cond.columns)
+    assert cond["config"].map(lambda c: json.loads(c)["model"]).tolist().count("fem") == 2
     md = studyctl("report", "table1", "--db", db).output
-    assert "| Question | paper: yes/no" in md and "3 conditions" in md
+    assert "| Question | paper: yes/no" in md
+    assert "3 conditions" in md
     assert re.search(r"paper: plate_spring \(variant paper\), built in, configuration [0-9a-f]{12}; located: plate_spring \(variant located\)", md)
     assert "stiff_fem: fem (formulation linear, grasp_radius 0.005, order 1, resolution 0.008; E 6000 Pa, nu 0.45)" in md
     res = studyctl("report", "table1", "--db", db, "--format", "html", "--out", tmp_path / "r.html")
-    assert res.exit_code == 0 and "<h2>Conditions</h2>" in (tmp_path / "r.html").read_text()
+    assert res.exit_code == 0
+    assert "<h2>Conditions</h2>" in (tmp_path / "r.html").read_text()
     facts = json.loads(studyctl("report", "table1", "--db", db, "--format", "json").output)["facts"]
     assert [c["condition"] for c in facts["conditions"]] == ["paper", "located", "stiff_fem"]
     assert all(c["sessions"] == 2 and len(c["config_sha256"]) == 64 for c in facts["conditions"])
@@ -149,7 +160,8 @@ def test_the_shipped_variants_protocol_validates():
     from tests.conftest import ROOT
 
     res = studyctl("protocol", "validate", ROOT / "protocols/plate_spring_variants.toml")
-    assert res.exit_code == 0 and "3 conditions" in res.output, res.output
+    assert res.exit_code == 0, res.output
+    assert "3 conditions" in res.output, res.output
     p = load_protocol(ROOT / "protocols/plate_spring_variants.toml")
     variants = [resolved_config(c, condition_scene_spec(p, c)).get("variant") for c in p.conditions]
     assert variants == ["paper", "located", None]
@@ -160,7 +172,8 @@ def test_a_replay_runs_what_the_session_ran_or_refuses(tmp_path):
     run_synthetic_study(db, 1, seed=5, jobs=1, protocol_path=_protocol(tmp_path))
     for k in (1, 2, 3):  # one trial per condition: the recorded forces, bit for bit
         out = json.loads(studyctl("replay", "--db", db, "--session", 1, "--trial", k, "--json").output)
-        assert out["max_force_difference_n"] == 0.0 and out["ticks"] == out["recorded_ticks"], out
+        assert out["max_force_difference_n"] == 0.0, out
+        assert out["ticks"] == out["recorded_ticks"], out
     # the scene changed since: the FEM condition now resolves to another configuration
     scene = tmp_path / "scene.toml"
     scene.write_text(scene.read_text().replace("resolution = 0.008", "resolution = 0.006", 1))
@@ -168,7 +181,9 @@ def test_a_replay_runs_what_the_session_ran_or_refuses(tmp_path):
     k = 1 + [r[0] for r in con.execute("select model from conditions where session_id = 1 order by position")].index("stiff_fem")
     con.close()
     res = studyctl("replay", "--db", db, "--session", 1, "--trial", k)
-    assert res.exit_code == 1 and "condition 'stiff_fem' of session 1 ran configuration" in res.output and "cannot replay it" in res.output
+    assert res.exit_code == 1
+    assert "condition 'stiff_fem' of session 1 ran configuration" in res.output
+    assert "cannot replay it" in res.output
     assert "Traceback" not in res.output
 
 
@@ -222,7 +237,9 @@ def test_a_changed_configuration_is_not_resumed_and_a_failing_one_writes_nothing
     # the scene changed after the study was made, so that the FEM condition no longer builds
     scene.write_text(original.replace('formulation = "linear"', 'formulation = "corotational"', 1).replace("\norder = 1 ", "\norder = 2 ", 1))
     res = studyctl("session", "run", "--participant", "S01", "--synthetic", "--db", db)
-    assert res.exit_code == 1 and "order" in res.output and "Traceback" not in res.output, res.output
+    assert res.exit_code == 1, res.output
+    assert "order" in res.output, res.output
+    assert "Traceback" not in res.output, res.output
     con = sqlite3.connect(db)
     assert con.execute("select count(*) from sessions").fetchone()[0] == 0  # nothing half-made
     con.close()
@@ -241,7 +258,9 @@ def test_a_changed_configuration_is_not_resumed_and_a_failing_one_writes_nothing
         run_session(db, "S01", synthetic=True, seed=1, time_scale=0.0, progress=stop_after_first_trial)
     scene.write_text(original.replace("rate_hz = 30", "rate_hz = 60", 1))  # the visual rate: a mass-spring's frame step
     res = studyctl("session", "run", "--participant", "S01", "--synthetic", "--resume", "--db", db)
-    assert res.exit_code == 1 and "ran configuration" in res.output and "resuming would mix the two" in res.output, res.output
+    assert res.exit_code == 1, res.output
+    assert "ran configuration" in res.output, res.output
+    assert "resuming would mix the two" in res.output, res.output
 
 
 def test_a_configuration_is_the_same_wherever_the_project_lies(tmp_path):
@@ -260,4 +279,5 @@ def test_a_configuration_is_the_same_wherever_the_project_lies(tmp_path):
     here, there = (load_protocol(d / "brain_pull_2015.toml") for d in (root / "protocols", moved))
     assert condition_keys(here) == condition_keys(there)
     cfg = resolved_config("fem", condition_scene_spec(there, "fem"))
-    assert "elsewhere" not in json.dumps(cfg) and cfg["material"]["law_source"]["file"] == "human_cortex.toml"
+    assert "elsewhere" not in json.dumps(cfg)
+    assert cfg["material"]["law_source"]["file"] == "human_cortex.toml"

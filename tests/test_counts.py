@@ -151,7 +151,8 @@ def test_plots_of_a_mixed_study_are_titled_mixed(mixed_study, tmp_path, monkeypa
     monkeypatch.setattr(plots, "_suptitle", lambda fig, text, size: (titles.append(text), real(fig, text, size)))
     monkeypatch.setattr(force_traces, "force_traces", lambda protocol: None)  # the traces' figure has no kind of data in its title
     assert studyctl("report", "plots", "--db", mixed_study, "--out", tmp_path / "plots").exit_code == 0
-    assert titles and all(t.startswith("MIXED DATA: ") for t in titles), titles
+    assert titles, titles
+    assert all(t.startswith("MIXED DATA: ") for t in titles), titles
 
 
 def _interrupt_after(monkeypatch, k: int):
@@ -366,7 +367,8 @@ def test_at_n_2_the_holm_family_counts_only_the_tests_run(two):
 def test_at_n_1_no_mcnemar_pair_is_tested(one):
     out = studyctl("report", "table1", "--db", one).output
     rows = [line for line in out.splitlines() if "not testable at N = 1" in line]
-    assert rows and all("not tested: not testable at N = 1" in r for r in rows), rows
+    assert rows, rows
+    assert all("not tested: not testable at N = 1" in r for r in rows), rows
 
 
 def test_at_n_1_no_row_prints_a_mcnemar_p_value(one):

@@ -16,9 +16,12 @@ def _still(start=(0.0, 0.0, 0.0), pull=(0.0, 0.0, 0.0)):
 
 
 def test_min_jerk_profile():
-    assert min_jerk(0) == 0 and min_jerk(1) == 1 and min_jerk(0.5) == pytest.approx(0.5)
+    assert min_jerk(0) == 0
+    assert min_jerk(1) == 1
+    assert min_jerk(0.5) == pytest.approx(0.5)
     # zero velocity at both ends: the profile is flat there
-    assert min_jerk(1e-3) < 1e-8 and 1 - min_jerk(1 - 1e-3) < 1e-8
+    assert min_jerk(1e-3) < 1e-8
+    assert 1 - min_jerk(1 - 1e-3) < 1e-8
 
 
 def test_positions_are_quantised_to_the_encoder_resolution():
@@ -58,7 +61,9 @@ def test_limit_force_rules():
     assert limit_force((math.nan, 0, 0), 3.3) == ((0.0, 0.0, 0.0), "nan_force")
     assert limit_force((math.inf, 0, 0), 3.3) == ((0.0, 0.0, 0.0), "nan_force")
     f, kind = limit_force((6.0, 8.0, 0.0), 3.3)
-    assert kind == "force_clamped" and math.hypot(*f) == pytest.approx(3.3) and f[0] / f[1] == pytest.approx(0.75)
+    assert kind == "force_clamped"
+    assert math.hypot(*f) == pytest.approx(3.3)
+    assert f[0] / f[1] == pytest.approx(0.75)
     assert limit_force((0.1, 0.2, 0.3), 3.3) == ((0.1, 0.2, 0.3), None)
 
 
@@ -93,7 +98,8 @@ def test_servo_ramps_clamps_and_logs():
     assert forces.max() <= 3.3 + 1e-12
     assert forces[:49].max() <= 400 * 0.05 * 0.05  # ramped during the first 50 ms
     kinds = [e.kind for e in servo.events]
-    assert kinds.count("force_clamped") >= 1 and "grasp_request" in kinds
+    assert kinds.count("force_clamped") >= 1
+    assert "grasp_request" in kinds
 
 
 def test_servo_zeroes_nan_from_a_model():

@@ -25,12 +25,16 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def test_shipped_protocol_is_forty_quest_trials_on_each_model():
     p = load_protocol(JND)
-    assert p.conditions == ("fem", "mass_spring_3it", "plate_spring") and p.trials_per_condition == 0 and not p.questions
+    assert p.conditions == ("fem", "mass_spring_3it", "plate_spring")
+    assert p.trials_per_condition == 0
+    assert not p.questions
     # the mass-spring at 3 local/global iterations a frame: as accurate as 10 (docs/mass_spring.md)
     assert p.condition_tables["mass_spring_3it"] == {"model": "mass_spring", "iterations": 3}
     (task,) = p.tasks
     assert (task.kind, task.parameter, task.reference, task.method, task.trials, task.feedback) == ("discrimination", "stiffness", 1.0, "quest+", 40, False)
-    assert task.question == "Which one was stiffer?" and (task.low, task.high) == (0.02, 1.0) and task.interval_seconds == 3.0
+    assert task.question == "Which one was stiffer?"
+    assert (task.low, task.high) == (0.02, 1.0)
+    assert task.interval_seconds == 3.0
 
 
 BAD_TASKS = {
@@ -59,7 +63,8 @@ def test_a_bad_task_is_refused_with_its_line_and_the_allowed_values(tmp_path, ca
     path = tmp_path / "jnd.toml"
     path.write_text(bad)
     protocol, problems = check_protocol(path)
-    assert protocol is None and len(problems) == 1, problems
+    assert protocol is None, problems
+    assert len(problems) == 1, problems
     line = next(k for k, ln in enumerate(bad.splitlines(), 1) if new.splitlines()[-1] in ln)
     assert re.match(rf"{re.escape(str(path))}:{line}: {pattern}", problems[0]), problems[0]
 
@@ -72,8 +77,10 @@ def test_the_cli_refuses_a_bad_task_in_one_line(tmp_path):
     path = tmp_path / "jnd.toml"
     path.write_text(JND.read_text().replace("trials = 40", "trials = 5").replace('scene = "scenes/', f'scene = "{ROOT}/protocols/scenes/'))
     r = CliRunner().invoke(cli, ["protocol", "validate", str(path)])
-    assert r.exit_code != 0 and "Traceback" not in r.output
-    assert f"{path}:" in r.output and "tasks[0].trials: 5 is out of range; allowed: 10..500" in r.output
+    assert r.exit_code != 0
+    assert "Traceback" not in r.output
+    assert f"{path}:" in r.output
+    assert "tasks[0].trials: 5 is out of range; allowed: 10..500" in r.output
 
 
 # -- the stimulus: the model's stiffness scaled --------------------------------------------------------
@@ -131,9 +138,11 @@ def test_a_lockstep_run_ended_at_the_release_is_the_full_runs_start_and_judged_a
     short = [run_scene(s, duration=3.0, time_scale=0.0, end_on_release=True) for s in (base, stiffer)]
     for f, r in zip(full, short):
         released = max(e.t for e in f.events if e.kind == "release")
-        assert sum(e.kind == "release" for e in f.events) == 2 and released < 2.9  # both hands let go before the end
+        assert sum(e.kind == "release" for e in f.events) == 2  # both hands let go before the end
+        assert released < 2.9
         n = len(r.times)
-        assert r.ended_early == "released" and f.ended_early is None
+        assert r.ended_early == "released"
+        assert f.ended_early is None
         assert released <= r.times[-1] < released + 1.0 / spec.visual_rate_hz + 1e-9
         for name in ("times", "positions", "forces", "buttons"):
             np.testing.assert_array_equal(getattr(r, name), getattr(f, name)[:n])
@@ -238,16 +247,24 @@ def test_a_synthetic_session_stores_every_trial_and_a_killed_one_resumes_as_if_u
     assert len(_rows(broken)) == 6
     monkeypatch.setattr(disc, "_store_trial", store_trial)
     run_session(broken, "S001", synthetic=True, resume=True, time_scale=0.0)
-    assert _rows(broken) == _rows(whole) and len(_rows(whole)) == 12
+    assert _rows(broken) == _rows(whole)
+    assert len(_rows(whole)) == 12
     rows = _rows(whole)
-    assert {r[9] for r in rows} == {"synthetic"} and {r[5] for r in rows} <= {1, 2} and all(r[7] == int(r[6] == r[5]) for r in rows)
-    assert all(r[4] == pytest.approx(1.0 + r[3]) for r in rows) and all("estimate" in json.loads(r[8]) for r in rows)
+    assert {r[9] for r in rows} == {"synthetic"}
+    assert {r[5] for r in rows} <= {1, 2}
+    assert all(r[7] == int(r[6] == r[5]) for r in rows)
+    assert all(r[4] == pytest.approx(1.0 + r[3]) for r in rows)
+    assert all("estimate" in json.loads(r[8]) for r in rows)
     with sqlite3.connect(whole) as conn:
         paths = conn.execute("select trace_path_1, trace_sha256_1, trace_path_2, trace_sha256_2 from discrimination").fetchall()
         traits = dict(conn.execute("select trait, value from synthetic_traits where code = 'S001'").fetchall())
     for p1, h1, p2, h2 in paths:
-        assert p1 != p2 and len(read_trace(whole, p1, h1).times) > 500 and len(read_trace(whole, p2, h2).times) > 500
-    assert 0.0 < traits["stiffness_weber"] < 1.0 and 0.0 <= traits["stiffness_lapse"] <= 0.04 and "observer_weber" in traits
+        assert p1 != p2
+        assert len(read_trace(whole, p1, h1).times) > 500
+        assert len(read_trace(whole, p2, h2).times) > 500
+    assert 0.0 < traits["stiffness_weber"] < 1.0
+    assert 0.0 <= traits["stiffness_lapse"] <= 0.04
+    assert "observer_weber" in traits
 
 
 def test_a_person_discriminates_in_the_window_with_the_mouse(xdotool, tmp_path, monkeypatch):
@@ -298,7 +315,10 @@ def test_a_person_discriminates_in_the_window_with_the_mouse(xdotool, tmp_path, 
         t.join()
     with sqlite3.connect(db) as conn:
         rows = conn.execute("select answer, source, comparison_interval from discrimination order by trial").fetchall()
-    assert len(rows) == 10 and {r[0] for r in rows} == {2} and {r[1] for r in rows} == {"window"} and {r[2] for r in rows} <= {1, 2}
+    assert len(rows) == 10
+    assert {r[0] for r in rows} == {2}
+    assert {r[1] for r in rows} == {"window"}
+    assert {r[2] for r in rows} <= {1, 2}
     assert not [x for x in rec.texts if MODEL_WORDS.search(x)]
     joined = "\n".join(rec.texts)
     for expected in ("comparison 1 of 10", "comparison 10 of 10", "Tissue 1 of 2: grasp the brain to start", "Tissue 2 of 2: 1 s",
@@ -312,7 +332,8 @@ def test_a_person_discriminates_in_the_window_with_the_mouse(xdotool, tmp_path, 
     assert set(shots) == {"interval_1", "interval_2", "answer"}
     from tests.window_helpers import brain_pixels, patch_pixels
 
-    assert brain_pixels(shots["interval_1"]) > 50_000 and patch_pixels(shots["interval_2"]) > 30  # the brain; a grasped patch
+    assert brain_pixels(shots["interval_1"]) > 50_000  # the brain; a grasped patch
+    assert patch_pixels(shots["interval_2"]) > 30
     import os
 
     if os.environ.get("BRAINSIM_SHOTS"):  # docs/img comes from here
@@ -341,14 +362,19 @@ def test_synthetic_participants_weber_fractions_are_recovered(tmp_path):
     assert res.exit_code == 0, res.output
     out = json.loads(res.output)
     rows = out["weber"]
-    assert out["facts"]["synthetic"] and len(rows) == 20 and {r["n_trials"] for r in rows} == {40}
+    assert out["facts"]["synthetic"]
+    assert len(rows) == 20
+    assert {r["n_trials"] for r in rows} == {40}
     est, gen = np.array([r["weber"] for r in rows]), np.array([r["generating_weber"] for r in rows])
     error = float(np.median(np.abs(est - gen) / gen))
     covered = sum(r["ci_low"] <= r["generating_weber"] <= r["ci_high"] for r in rows)
-    assert error <= 0.25 and covered in (18, 19), (error, covered)
+    assert error <= 0.25, (error, covered)
+    assert covered in (18, 19), (error, covered)
     (cond,) = out["conditions"]
-    assert cond["recovery_median_abs_rel_error"] == pytest.approx(error) and cond["recovery_coverage"] == covered / 20
-    assert 0.05 < cond["geometric_mean"] < 0.4 and all(r["quest_estimate"] > 0 for r in rows)
+    assert cond["recovery_median_abs_rel_error"] == pytest.approx(error)
+    assert cond["recovery_coverage"] == covered / 20
+    assert 0.05 < cond["geometric_mean"] < 0.4
+    assert all(r["quest_estimate"] > 0 for r in rows)
 
 
 def test_report_jnd_gives_each_conditions_weber_fractions_and_the_group_test(tmp_path):
@@ -366,18 +392,30 @@ def test_report_jnd_gives_each_conditions_weber_fractions_and_the_group_test(tmp
     db = tmp_path / "s.db"
     run_synthetic_study(db, 4, seed=2, jobs=2, protocol_path=path)
     out = json.loads(studyctl("report", "jnd", "--db", db, "--format", "json").output)
-    assert [c["condition"] for c in out["conditions"]] == ["plate_spring", "paper", "handset"] and len(out["weber"]) == 12
+    assert [c["condition"] for c in out["conditions"]] == ["plate_spring", "paper", "handset"]
+    assert len(out["weber"]) == 12
     assert all(r["ci_low"] <= r["weber"] <= r["ci_high"] or r["flag"] for r in out["weber"])
     g = out["group"]
-    assert g["n_participants"] == 4 and g["mixed_model"]["df"] == 2 and 0 <= g["mixed_model"]["p"] <= 1
-    assert g["friedman"]["test"] == "Friedman" and len(g["pairs"]) == 3 and all(p["p_holm"] >= p["p"] for p in g["pairs"])
+    assert g["n_participants"] == 4
+    assert g["mixed_model"]["df"] == 2
+    assert 0 <= g["mixed_model"]["p"] <= 1
+    assert g["friedman"]["test"] == "Friedman"
+    assert len(g["pairs"]) == 3
+    assert all(p["p_holm"] >= p["p"] for p in g["pairs"])
     md = studyctl("report", "jnd", "--db", db).output
-    assert "SYNTHETIC DATA" in md and "| plate_spring | 4 |" in md and "likelihood-ratio chi2(2)" in md
+    assert "SYNTHETIC DATA" in md
+    assert "| plate_spring | 4 |" in md
+    assert "likelihood-ratio chi2(2)" in md
     html = studyctl("report", "jnd", "--db", db, "--format", "html").output
-    assert html.count('<img alt="psychometric') == 3 and "SYNTHETIC DATA" in html
+    assert html.count('<img alt="psychometric') == 3
+    assert "SYNTHETIC DATA" in html
     table1 = studyctl("report", "table1", "--db", db).output
     assert table1 == md
     text = studyctl("report", "text", "--db", db).output  # the methods and results, every number from `report jnd --json`
-    assert "SYNTHETIC DATA" in text and "geometric mean Weber fraction" in text and unsupported_numbers(text, out) == []
+    assert "SYNTHETIC DATA" in text
+    assert "geometric mean Weber fraction" in text
+    assert unsupported_numbers(text, out) == []
     tex = studyctl("report", "jnd", "--db", db, "--format", "latex").output  # its tables compile and fit the A4 text block
-    assert "SYNTHETIC DATA" in tex and tex.count("\\toprule") >= 2 and latex_problems(document(tex), tmp_path) == []
+    assert "SYNTHETIC DATA" in tex
+    assert tex.count("\\toprule") >= 2
+    assert latex_problems(document(tex), tmp_path) == []

@@ -62,7 +62,8 @@ def _run(fault, k=500.0, ticks=120):
 def test_device_faults_give_zero_force_and_an_event(fault, event):
     dev, servo, hand = _run(fault)
     sent = np.array(dev.sent)
-    assert np.all(np.isfinite(sent)) and np.linalg.norm(sent, axis=1).max() <= 3.3
+    assert np.all(np.isfinite(sent))
+    assert np.linalg.norm(sent, axis=1).max() <= 3.3
     assert np.linalg.norm(sent[:45], axis=1).max() > 0.1  # the spring was felt before the fault
     after = sent[50:] if fault != "disconnect" else sent[49:]
     assert np.all(after == 0.0)
@@ -76,7 +77,8 @@ def test_device_faults_give_zero_force_and_an_event(fault, event):
 def test_force_above_the_peak_is_clamped_not_sent():
     dev, servo, _ = _run("none", k=1e5, ticks=60)
     sent = np.linalg.norm(np.array(dev.sent), axis=1)
-    assert sent.max() == pytest.approx(3.3) and np.all(sent <= 3.3 + 1e-12)
+    assert sent.max() == pytest.approx(3.3)
+    assert np.all(sent <= 3.3 + 1e-12)
     assert [e.kind for e in servo.events].count("force_clamped") == 1
 
 
@@ -86,5 +88,6 @@ def test_deadline_streak_suspends_force_output():
     for i in range(40, 200):
         servo.tick(i / 1000)
     sent = np.linalg.norm(np.array(dev.sent), axis=1)
-    assert np.all(sent[40:140] == 0.0) and sent[150:].max() > 0.1  # back after 100 ms
+    assert np.all(sent[40:140] == 0.0)  # back after 100 ms
+    assert sent[150:].max() > 0.1
     assert [e.kind for e in servo.events].count("deadline_streak") == 1

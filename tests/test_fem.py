@@ -13,7 +13,8 @@ from tests.helpers import box
 def test_kuhn_tets_are_positive_and_fill_the_box():
     nodes, tets = box(3, 2, 4, 0.01)
     vol = tet_volumes(nodes, tets)
-    assert np.all(vol > 0) and vol.sum() == pytest.approx(3 * 2 * 4 * 1e-6)
+    assert np.all(vol > 0)
+    assert vol.sum() == pytest.approx(3 * 2 * 4 * 1e-6)
 
 
 def test_patch_test_uniform_strain_is_exact():
@@ -52,9 +53,11 @@ def test_cantilever_converges_to_beam_theory():
     errors = np.abs(d - timoshenko) / timoshenko
     rates = np.log2(errors[:-1] / errors[1:])
     print(f"tip deflection {d} vs Timoshenko {timoshenko:.6g}: errors {errors.round(4)}, observed rates {rates.round(2)}")
-    assert np.all(np.diff(errors) < 0) and np.all(d < timoshenko)  # P1 tetrahedra are too stiff, less so when refined
+    assert np.all(np.diff(errors) < 0)  # P1 tetrahedra are too stiff, less so when refined
+    assert np.all(d < timoshenko)
     # shear locking makes the coarse levels pre-asymptotic; the rate climbs towards 2 (h^2 for P1)
-    assert np.all(np.diff(rates) > 0) and 1.4 < rates[-1] < 2.2
+    assert np.all(np.diff(rates) > 0)
+    assert 1.4 < rates[-1] < 2.2
     assert errors[-1] < 0.1
 
 
@@ -106,7 +109,8 @@ def test_nearly_incompressible_locks_and_is_reported():
     d_ok, fem_ok = _cantilever(2, nu=0.3)
     d_lock, fem_lock = _cantilever(2, nu=0.499)
     beam = 1e-3 * 0.1**3 / (3 * 1e6 * 0.01**4 / 12)
-    assert not fem_ok.locking and fem_lock.locking
+    assert not fem_ok.locking
+    assert fem_lock.locking
     assert d_lock < 0.5 * beam < d_ok  # volumetric locking: far too stiff in bending
 
 
@@ -171,7 +175,8 @@ def test_neo_hookean_large_pull_differs_from_linear():
     fem, W, d = _block_pull((0.008, 0.0, 0.006))
     Kc = np.linalg.inv(W @ fem.solve_free(W.T.toarray()))
     u, force, rep = neo_hookean_solve(fem, W, d, steps=8)
-    assert rep.converged and rep.min_jacobian > 0
+    assert rep.converged
+    assert rep.min_jacobian > 0
     assert np.allclose(W @ u.ravel()[fem.free], d, atol=1e-10)  # the grasp point is where the hand is
     rel = np.linalg.norm(force - Kc @ d) / np.linalg.norm(Kc @ d)
     assert 0.01 < rel < 0.8  # geometric and material nonlinearity at 25-35% strain
@@ -184,13 +189,15 @@ def test_corotational_small_pull_matches_linear_and_large_rotation_is_invariant(
     U = fem.solve_free(W.T.toarray())
     Kc = np.linalg.inv(W @ U)
     u, force, rep = corotational_solve(fem, W, U, d, steps=1)
-    assert rep.converged and force == pytest.approx(Kc @ d, rel=1e-3, abs=1e-3 * np.linalg.norm(Kc @ d))
+    assert rep.converged
+    assert force == pytest.approx(Kc @ d, rel=1e-3, abs=1e-3 * np.linalg.norm(Kc @ d))
     # a rigid rotation of the whole block produces no corotational force (linear FEM would)
     th = 0.6
     Rz = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]])
     u_rot = (fem.nodes @ Rz.T - fem.nodes).ravel()
     R, J = element_rotations(fem, u_rot)
-    assert np.allclose(R, Rz, atol=1e-12) and np.allclose(J, 1.0)
+    assert np.allclose(R, Rz, atol=1e-12)
+    assert np.allclose(J, 1.0)
     assert np.abs(corotational_internal_force(fem, u_rot, R)).max() < 1e-12 * np.abs(fem.stiffness @ u_rot).max()
 
 
@@ -204,7 +211,8 @@ def test_corotational_force_is_the_gradient_of_its_energy_also_for_inverted_elem
     rng = np.random.default_rng(5)
     u = rng.normal(0, 2.5e-3, 3 * len(fem.nodes))  # element edges are 1 cm: some invert
     state = fm.evaluate(fem, u)
-    assert (state.J <= 0).any() and (state.J > 0).any()
+    assert (state.J <= 0).any()
+    assert (state.J > 0).any()
     probe = rng.normal(size=u.size)
     h = 1e-8
     fd = (fm.evaluate(fem, u + h * probe).energy - fm.evaluate(fem, u - h * probe).energy) / (2 * h)
@@ -216,7 +224,8 @@ def test_corotational_force_is_the_gradient_of_its_energy_also_for_inverted_elem
     assert fd == pytest.approx(float(part.f @ probe), rel=1e-5)
     monkeypatch.setattr(fm, "_kernels", lambda: None)
     numpy_part = fm.evaluate(fem, u, elements)
-    assert numpy_part.energy == pytest.approx(part.energy, rel=1e-12) and np.allclose(numpy_part.f, part.f, rtol=1e-10, atol=1e-12 * np.abs(part.f).max())
+    assert numpy_part.energy == pytest.approx(part.energy, rel=1e-12)
+    assert np.allclose(numpy_part.f, part.f, rtol=1e-10, atol=1e-12 * np.abs(part.f).max())
 
 
 def test_compiled_corotational_passes_equal_the_numpy_ones(monkeypatch):
@@ -236,7 +245,8 @@ def test_compiled_corotational_passes_equal_the_numpy_ones(monkeypatch):
     monkeypatch.setattr(fm, "_kernels", lambda: None)
     R0, J0 = fm.element_rotations(fem, u, elements)
     f0 = fm.corotational_internal_force(fem, u, R0, elements)
-    assert np.allclose(R, R0, atol=1e-12) and np.allclose(J, J0, rtol=1e-12)
+    assert np.allclose(R, R0, atol=1e-12)
+    assert np.allclose(J, J0, rtol=1e-12)
     assert np.allclose(f, f0, rtol=1e-10, atol=1e-11 * np.abs(f0).max())
     assert np.abs(f - fem.stiffness @ u).max() > 1e-3 * np.abs(f0).max()  # the rotation matters here
 
@@ -273,11 +283,14 @@ def test_corotational_large_pull_converges_and_flags_inversion():
     fem, W, d = _block_pull((0.008, 0.0, 0.006))
     U = fem.solve_free(W.T.toarray())
     u, force, rep = corotational_solve(fem, W, U, d, steps=4)
-    assert rep.converged and rep.min_jacobian > 0
+    assert rep.converged
+    assert rep.min_jacobian > 0
     assert np.allclose(W @ u.ravel()[fem.free], d, atol=1e-10)
     # pushing the grasp point 4 cm down into a 3 cm block inverts elements: flagged, not NaN
     u, force, rep = corotational_solve(fem, W, U, np.array([0.0, 0.0, -0.04]), steps=2, max_iter=30)
-    assert rep.min_jacobian <= 0 and np.all(np.isfinite(u)) and np.all(np.isfinite(force))
+    assert rep.min_jacobian <= 0
+    assert np.all(np.isfinite(u))
+    assert np.all(np.isfinite(force))
 
 
 def _block_force_ratios(mode: str, frac: float):
@@ -300,7 +313,8 @@ def _block_force_ratios(mode: str, frac: float):
     lin = np.linalg.norm(np.linalg.inv(W @ U) @ d)
     _, fc, rc = corotational_solve(fem, W, U, d, steps=4)
     _, fn, rn = neo_hookean_solve(fem, W, d, steps=4)
-    assert rc.converged and rn.converged
+    assert rc.converged
+    assert rn.converged
     return np.linalg.norm(fc) / lin, np.linalg.norm(fn) / lin
 
 
@@ -309,9 +323,12 @@ def test_corotational_is_linear_in_stretch_and_follows_neo_hookean_in_bending():
     a 10% stretch gives the linear force (a Biot material), where the neo-Hookean softens; a
     10% sideways pull of the block bends it, and both nonlinear models stiffen alike."""
     corot, nh = _block_force_ratios("stretch", 0.10)
-    assert abs(corot - 1) < 0.01 and 0.88 < nh < 0.95
+    assert abs(corot - 1) < 0.01
+    assert 0.88 < nh < 0.95
     corot, nh = _block_force_ratios("shear", 0.10)
-    assert corot > 1.3 and nh > 1.3 and abs(corot / nh - 1) < 0.08
+    assert corot > 1.3
+    assert nh > 1.3
+    assert abs(corot / nh - 1) < 0.08
 
 
 # -- the nodal-pressure element (sim/models/fem/nodal_pressure.py) ---------------------------

@@ -50,13 +50,14 @@ def test_two_grasps_on_one_hemisphere_are_coupled_and_on_two_are_not(model):
     u = part.solve_free(a.data.W.T @ fa + b.data.W.T @ fb)
     da, db = a.data.W @ u, b.data.W @ u
     got = model.forces([a, b], [tuple(da), tuple(db)])
-    assert np.allclose(got[0], -fa, atol=1e-9) and np.allclose(got[1], -fb, atol=1e-9)
+    assert np.allclose(got[0], -fa, atol=1e-9)
+    assert np.allclose(got[1], -fb, atol=1e-9)
     # pulling b alone moves a's grasp point: the 6x6 coupling is not block diagonal
     alone = model.forces([a, b], [(0.0, 0.0, 0.0), (0.01, 0.0, 0.0)])
     assert np.linalg.norm(alone[0]) > 1e-4
     # different hemispheres share no node: no coupling
     sep = model.forces([a, r], [(0.0, 0.0, 0.0), (0.01, 0.0, 0.0)])
-    assert sep[0] == (0.0, 0.0, 0.0) or np.allclose(sep[0], 0.0)
+    assert sep[0] == (0.0, 0.0, 0.0)
 
 
 def test_a_second_grasp_at_a_vertex_reuses_its_condensation_as_a_new_contact(model):
@@ -64,11 +65,15 @@ def test_a_second_grasp_at_a_vertex_reuses_its_condensation_as_a_new_contact(mod
     contacts (caches keyed by a contact's identity see a new grasp); a model with another
     stiffness condenses afresh."""
     a, b = model.grasp(LEFT, 0), model.grasp(LEFT, 1)
-    assert a.data is not b.data and b.data.U is a.data.U and b.data.K == a.data.K and a.vertex == b.vertex
+    assert a.data is not b.data
+    assert b.data.U is a.data.U
+    assert b.data.K == a.data.K
+    assert a.vertex == b.vertex
     assert not a.data.U.flags.writeable
     stiff = model.with_stiffness(2.0)
     c = stiff.grasp(LEFT, 0)
-    assert c.data.U is not a.data.U and np.allclose(c.data.K, 2.0 * np.asarray(a.data.K), rtol=1e-9)
+    assert c.data.U is not a.data.U
+    assert np.allclose(c.data.K, 2.0 * np.asarray(a.data.K), rtol=1e-9)
 
 
 def test_embedding_reproduces_linear_fields(model):
@@ -85,7 +90,8 @@ def test_sim_run_with_fem_lockstep():
     scene = build_scene(SCENE, "fem")
     r = run_scene(scene, duration=2.0, time_scale=0)
     fmag = np.linalg.norm(r.forces, axis=2)
-    assert 0.03 < fmag.max() < 1.0 and fmag.max() <= 3.3
+    assert 0.03 < fmag.max() < 1.0
+    assert fmag.max() <= 3.3
     assert [e.kind for e in r.events].count("grasp") == 2
     k = 1900  # end of the pull: force against the displacement, for each hand
     for i in range(2):
@@ -100,12 +106,16 @@ def test_cli_model_fem_json_and_errors():
     res = CliRunner().invoke(cli, ["model", "fem", "--resolution", "8", "--order", "1", "--grasp", ",".join(map(str, LEFT)), "--displacement", "-0.005,0,0", "--json"])
     assert res.exit_code == 0, res.output
     out = json.loads(res.output)
-    assert out["force_n"][0] > 0 and out["converged"] and out["locking"]  # linear tetrahedra at Poisson 0.45
+    assert out["force_n"][0] > 0  # linear tetrahedra at Poisson 0.45
+    assert out["converged"]
+    assert out["locking"]
     assert {"mesh", "assembly", "factorisation", "grasp", "tick", "frame"} <= set(out["times_ms"])
     res = CliRunner().invoke(cli, ["model", "fem", "--resolution", "9", "--grasp", "0,0,0", "--displacement", "0,0,0"])
-    assert res.exit_code == 1 and "resolution: 9 mm is out of range; allowed: 3..8 mm" in res.output
+    assert res.exit_code == 1
+    assert "resolution: 9 mm is out of range; allowed: 3..8 mm" in res.output
     res = CliRunner().invoke(cli, ["model", "fem", "--grasp", "0,0", "--displacement", "0,0,0"])
-    assert res.exit_code == 2 and "three comma-separated numbers" in res.output
+    assert res.exit_code == 2
+    assert "three comma-separated numbers" in res.output
 
 
 @pytest.mark.parametrize("formulation", ["corotational", "finite-strain"])
@@ -121,13 +131,16 @@ def test_cli_nonlinear_formulations_converge_and_agree_for_small_pulls(formulati
     lin = json.loads(CliRunner().invoke(cli, [*args, "--displacement", "-0.0002,0,0"]).output)
     res = CliRunner().invoke(cli, [*args, "--displacement", "-0.0002,0,0", "--formulation", formulation, "--steps", "1"])
     out = json.loads(res.output)
-    assert out["converged"] and out["final_residuals"][-1] < 1e-7
+    assert out["converged"]
+    assert out["final_residuals"][-1] < 1e-7
     assert np.allclose(out["force_n"], lin["force_n"], rtol=0.02, atol=0.02 * lin["force_magnitude_n"])
     if formulation == "finite-strain":  # a small pull rests on measured tissue: every point within the data's stretches
         sup = out["support"]
         assert out["support_data"] == "brain_tissue_uniaxial_budday2017.csv, brain_tissue_shear_budday2017.csv, region cortex"
         assert sup["stretch_range"] == pytest.approx([0.9, 1.104987562])  # shear's l1 at gamma 0.2 widens the uniaxial 0.9-1.1
-        assert sup["energy_share_outside"] == 0.0 and 0.9 < sup["principal_stretch_min"] and sup["principal_stretch_max"] < 1.1
+        assert sup["energy_share_outside"] == 0.0
+        assert 0.9 < sup["principal_stretch_min"]
+        assert sup["principal_stretch_max"] < 1.1
         assert 0.0 < sup["max_abs_j_minus_1"] < 0.01
 
 
@@ -148,7 +161,8 @@ def test_corotational_haptic_frames_converge_to_the_static_corotational_solution
     assert rep.converged
     # the haptic update corotates only the elements that move (5% of the largest displacement)
     assert np.linalg.norm(haptic - static) < 0.005 * np.linalg.norm(static)
-    assert model.restarts == 0 and model.inverted_frames == 0
+    assert model.restarts == 0
+    assert model.inverted_frames == 0
     # between frames the servo uses the frame's state plus the linear tangent: continuous in d
     f1 = np.asarray(model.force(c, tuple(d)))
     f2 = np.asarray(model.force(c, tuple(d + 1e-4)))
@@ -176,10 +190,14 @@ def test_corotational_fem_pulls_through_inverted_elements_and_still_catches_a_ru
         model.deformation([c], [d])
         forces.append(np.linalg.norm(model.force(c, d)))
     diag = model.diagnostics()
-    assert not diag["unstable"] and diag["restarts"] == 0
-    assert diag["inverted_frames"] > 0 and diag["halvings"] > 0  # the case the line search is for
+    assert not diag["unstable"]
+    assert diag["restarts"] == 0
+    assert diag["inverted_frames"] > 0  # the case the line search is for
+    assert diag["halvings"] > 0
     steps = np.diff(forces)
-    assert 0.5 < forces[-1] < 2.0 and steps.min() > -0.02 * forces[-1] and steps.max() < 0.1 * forces[-1]  # no jump
+    assert 0.5 < forces[-1] < 2.0  # no jump
+    assert steps.min() > -0.02 * forces[-1]
+    assert steps.max() < 0.1 * forces[-1]
 
     # a runaway (here: a step that returns ten times the force) is still caught: no force, then
     # a fresh start at the next grasp
@@ -190,7 +208,9 @@ def test_corotational_fem_pulls_through_inverted_elements_and_still_catches_a_ru
     for f in range(1, 10):
         d = tuple(float(x) for x in np.asarray(pull.direction) * 0.024 * f / 72)
         model.deformation([c], [d])
-    assert model.unstable and model.diagnostics()["unstable"] and np.linalg.norm(model.force(c, d)) == 0.0
+    assert model.unstable
+    assert model.diagnostics()["unstable"]
+    assert np.linalg.norm(model.force(c, d)) == 0.0
     monkeypatch.setattr(fem_model, "corotational_step", step)
     model.deformation([], [])
     assert not model.unstable
@@ -208,7 +228,8 @@ def test_compiled_polar_rotations_equal_the_svd_ones():
     F = np.eye(3) + 0.4 * rng.normal(size=(5000, 3, 3))
     R, det = np.empty_like(F), np.empty(len(F))
     left = polar_rotations(F, R, det)
-    assert np.array_equal(left, np.linalg.det(F) <= 0) and left.any()
+    assert np.array_equal(left, np.linalg.det(F) <= 0)
+    assert left.any()
     assert np.allclose(det, np.linalg.det(F), rtol=1e-12, atol=1e-14)
     assert np.allclose(R[~left], _svd_rotations(F[~left]), atol=1e-12)
     assert np.allclose(np.einsum("mji,mjk->mik", R[~left], R[~left]), np.eye(3), atol=1e-12)  # orthonormal
@@ -218,10 +239,14 @@ def test_cli_nodal_pressure_pull_converges_softer_than_the_locking_p1_and_refuse
     args = ["model", "fem", "--resolution", "8", "--grasp", ",".join(map(str, LEFT)), "--displacement", "-0.004,0,0", "--json", "--steps", "2"]
     plain = json.loads(CliRunner().invoke(cli, [*args, "--order", "1", "--formulation", "finite-strain"]).output)
     nodal = json.loads(CliRunner().invoke(cli, [*args, "--formulation", "nodal-pressure"]).output)
-    assert plain["converged"] and nodal["converged"] and nodal["order"] == 1
+    assert plain["converged"]
+    assert nodal["converged"]
+    assert nodal["order"] == 1
     assert nodal["force_magnitude_n"] < 0.8 * plain["force_magnitude_n"]
     res = CliRunner().invoke(cli, [*args, "--formulation", "nodal-pressure", "--order", "2"])
-    assert res.exit_code != 0 and "runs on linear tetrahedra (order 1) only" in res.output and "Traceback" not in res.output
+    assert res.exit_code != 0
+    assert "runs on linear tetrahedra (order 1) only" in res.output
+    assert "Traceback" not in res.output
 
 
 def test_reset_brings_a_model_that_gave_up_back_to_rest():
@@ -236,7 +261,8 @@ def test_reset_brings_a_model_that_gave_up_back_to_rest():
     model.unstable = True  # as its runaway check sets it
     assert model.tick_laws([c]) is None
     model.reset()
-    assert not model.unstable and model.tick_laws([c]) is not None
+    assert not model.unstable
+    assert model.tick_laws([c]) is not None
     c = model.grasp(LEFT, 0)
     model.deformation([c], [np.array(d)])
     assert np.linalg.norm(model.force(c, d)) > 0.0

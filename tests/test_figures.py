@@ -85,15 +85,18 @@ def check_files(files: list, size) -> None:
         if f.suffix == ".pdf":
             w, h = pdf_mm(f)
             assert abs(w - width) <= 0.5, (f.name, w)
-            assert h <= PAGE_MM + 0.5 and (f.stem in TALL or size.name != "single" or h <= 0.8 * width + 0.5), (f.name, h)
+            assert h <= PAGE_MM + 0.5, (f.name, h)
+            assert f.stem in TALL or size.name != "single" or h <= 0.8 * width + 0.5, (f.name, h)
             data = f.read_bytes()
-            assert b"/FontFile2" in data and b"/Type3" not in data, f.name  # TrueType (type 42) embedded, no type 3
+            assert b"/FontFile2" in data, f.name  # TrueType (type 42) embedded, no type 3
+            assert b"/Type3" not in data, f.name
         elif f.suffix == ".png":
             assert png_px(f)[0] == round(width / 25.4 * 600), f.name
         else:
             svg = f.read_text()
             m = re.search(r'<svg[^>]*\swidth="([\d.]+)pt"', svg)
-            assert m and abs(float(m.group(1)) / 72 * 25.4 - width) <= 0.5, f.name
+            assert m, f.name
+            assert abs(float(m.group(1)) / 72 * 25.4 - width) <= 0.5, f.name
             assert "<text" not in svg, f.name  # svg.fonttype "path": glyphs drawn as paths
 
 
@@ -130,7 +133,8 @@ def test_every_report_plot_fits_its_size(which, size, small_study, variants_stud
     if size.is_print:
         check_files(files, size)
     else:
-        assert [f.suffix for f in files[:2]] == [".png", ".svg"] and png_px(files[0])[0] < 2000
+        assert [f.suffix for f in files[:2]] == [".png", ".svg"]
+        assert png_px(files[0])[0] < 2000
 
 
 def test_the_deformation_title_is_not_cut_on_screen(small_study, checked, tmp_path):
@@ -180,7 +184,9 @@ def test_one_colour_per_condition_in_every_plot(variants_study):
     from matplotlib.colors import to_hex
 
     pal = plots.palette(["paper", "located", "fem_linear", "fem"])
-    assert pal["fem"] == plots.COLORS["fem"] and len(set(pal.values())) == 4 and set(pal.values()) <= set(OKABE_ITO)
+    assert pal["fem"] == plots.COLORS["fem"]
+    assert len(set(pal.values())) == 4
+    assert set(pal.values()) <= set(OKABE_ITO)
     assert plots.palette(["plate_spring", "fem", "mass_spring"]) == plots.COLORS  # the models' own, whatever the study
     study = read_snapshot(variants_study)
     models = list(study.protocol.conditions)
@@ -201,10 +207,13 @@ def test_cli_writes_journal_sizes_and_lists_them(small_study, tmp_path):
     res = studyctl("report", "plots", "--db", small_study, "--out", tmp_path / "fig", "--size", "double", "--json")
     assert res.exit_code == 0, res.output
     doc = json.loads(res.output)
-    assert doc["size"] == "double" and [f["path"].rsplit("/", 1)[1] for f in doc["files"]] == [
+    assert doc["size"] == "double"
+    assert [f["path"].rsplit("/", 1)[1] for f in doc["files"]] == [
         f"{n}.{ext}" for n in ("rates", "deformation", "force") for ext in ("pdf", "svg", "png")]
     for f in doc["files"]:
-        assert abs(f["width_mm"] - 175) <= 0.5 and 0 < f["height_mm"] <= PAGE_MM and f["bytes"] == (tmp_path / "fig" / f["path"].rsplit("/", 1)[1]).stat().st_size
+        assert abs(f["width_mm"] - 175) <= 0.5
+        assert 0 < f["height_mm"] <= PAGE_MM
+        assert f["bytes"] == (tmp_path / "fig" / f["path"].rsplit("/", 1)[1]).stat().st_size
         assert f["format"] != "png" or (f["width_px"] == 4134 and f["dpi"] == 600)
     assert studyctl("report", "plots", "--db", small_study, "--out", tmp_path / "x", "--size", "a4").exit_code == 2
 

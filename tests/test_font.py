@@ -45,7 +45,8 @@ def _from_quads(text: str, a: font.Atlas, shape: tuple[int, int], origin: tuple[
     for x0, y0, x1, y1, s0, t0, s1, t1 in quads.astype(np.float64):
         cols, rows = np.array([s0, s1]) * width, np.array([t0, t1]) * height
         # integer texels and integer pixels, one texel per pixel: drawn 1:1 it is crisp
-        assert np.allclose(cols, np.round(cols), atol=1e-3) and np.allclose(rows, np.round(rows), atol=1e-3)
+        assert np.allclose(cols, np.round(cols), atol=1e-3)
+        assert np.allclose(rows, np.round(rows), atol=1e-3)
         assert (x0, y0, x1, y1) == tuple(map(round, (x0, y0, x1, y1)))
         c0, c1, r0, r1 = (int(round(v)) for v in (*cols, *rows))
         assert (c1 - c0, r1 - r0) == (x1 - x0, y1 - y0)
@@ -113,9 +114,12 @@ def test_unknown_characters_are_question_marks():
 def test_empty_and_blank():
     a = font.atlas(24)
     quads, width = a.layout("")
-    assert quads.shape == (0, 8) and quads.dtype == np.float32 and width == 0
+    assert quads.shape == (0, 8)
+    assert quads.dtype == np.float32
+    assert width == 0
     quads, width = a.layout("   \u00a0")
-    assert len(quads) == 0 and width > 0
+    assert len(quads) == 0
+    assert width > 0
     assert a.ink("") == a.ink("   ") == (0, 0, 0, 0)
 
 
@@ -125,18 +129,23 @@ def test_ink_is_the_union_of_the_quads():
     assert y0 < -a.px / 2 < 0 < y1 <= a.descent  # caps above the baseline (y down), g below it
     quads, width = a.layout("Ty g")
     assert (x0, y0, x1, y1) == (quads[:, 0].min(), quads[:, 1].min(), quads[:, 2].max(), quads[:, 3].max())
-    assert x0 <= 0 and x1 == pytest.approx(width, abs=2)
+    assert x0 <= 0
+    assert x1 == pytest.approx(width, abs=2)
 
 
 @pytest.mark.parametrize("px", [4, 18, 24, 64, 400])
 def test_atlas_packing(px):
     a = font.atlas(px)
     height, width = a.image.shape
-    assert a.image.dtype == np.uint8 and width & (width - 1) == 0
+    assert a.image.dtype == np.uint8
+    assert width & (width - 1) == 0
     boxes = np.array([g.box for g in a.glyphs.values() if g.box[2]])
     assert len(boxes) > 180  # every printable character but the blanks has ink
     x, y, w, h = boxes.T
-    assert (x >= 2).all() and (y >= 2).all() and (x + w <= width - 2).all() and (y + h <= height - 2).all()
+    assert (x >= 2).all()
+    assert (y >= 2).all()
+    assert (x + w <= width - 2).all()
+    assert (y + h <= height - 2).all()
     # the gap between two boxes: the larger of the horizontal and the vertical one
     gap_x = np.maximum(x[:, None] - (x + w)[None, :], x[None, :] - (x + w)[:, None])
     gap_y = np.maximum(y[:, None] - (y + h)[None, :], y[None, :] - (y + h)[:, None])
@@ -148,7 +157,9 @@ def test_atlas_packing(px):
     for bx, by, bw, bh in boxes:
         inside[by : by + bh, bx : bx + bw] = True
     assert not a.image[~inside].any()
-    assert a.ascent > 0 and a.descent > 0 and a.line_height == round(1.2 * px)
+    assert a.ascent > 0
+    assert a.descent > 0
+    assert a.line_height == round(1.2 * px)
 
 
 def test_cached():
@@ -156,7 +167,8 @@ def test_cached():
     a = font.atlas(24)
     first = a.layout("Grasp the brain to start")
     assert a.layout("Grasp the brain to start") is first
-    assert not first[0].flags.writeable and not a.image.flags.writeable
+    assert not first[0].flags.writeable
+    assert not a.image.flags.writeable
 
 
 @pytest.mark.parametrize("px", [3, 401, 0, -24])

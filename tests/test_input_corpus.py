@@ -208,7 +208,9 @@ def test_bad_input_is_one_line_and_writes_nothing(study, args, needle):
     errors = [ln for ln in out.splitlines() if ln.startswith("Error:") or re.match(r"^\S+:\d+: ", ln)]
     assert res.exit_code in (1, 2), out
     assert res.exception is None or isinstance(res.exception, SystemExit), repr(res.exception)  # no traceback
-    assert "Traceback" not in out and len(errors) == 1 and needle in errors[0], out
+    assert "Traceback" not in out, out
+    assert len(errors) == 1, out
+    assert needle in errors[0], out
     if res.exit_code == 1:  # a library error: that one line and nothing else
         assert out.strip() == errors[0], out
     assert _snapshot(study) == before  # nothing written, nothing changed

@@ -52,7 +52,8 @@ def test_not_positive_definite_raises_the_projects_error(name, A, simplicial):
         Factor(A, simplicial=simplicial)
     assert isinstance(info.value, SimError)  # the CLI prints it as one line
     # no scikit-sparse exception chained to it (it would hold the failed factor's memory)
-    assert info.value.__cause__ is None and info.value.__context__ is None
+    assert info.value.__cause__ is None
+    assert info.value.__context__ is None
 
 
 def test_shifted_factor():
@@ -79,7 +80,8 @@ def test_with_values_reuses_the_analysis_and_refuses_what_is_not_positive_defini
     assert np.allclose(f.with_values(K2).solve(b), spsolve(K2.tocsc(), b), rtol=1e-9)
     with pytest.raises(SingularSystemError, match="not positive definite") as info:
         f.with_values(-K)
-    assert info.value.__cause__ is None and info.value.__context__ is None
+    assert info.value.__cause__ is None
+    assert info.value.__context__ is None
 
 
 def test_every_blas_pool_runs_one_thread_once_cholmod_is_loaded():
@@ -91,7 +93,8 @@ def test_every_blas_pool_runs_one_thread_once_cholmod_is_loaded():
     _cholmod()
     pools = [p for p in threadpool_info() if p["internal_api"] == "openblas"]
     # CHOLMOD's, numpy's and scipy's own (scipy.libs), this image's wheels and system packages
-    assert {p["prefix"] for p in pools} >= {"libopenblas", "libscipy_openblas"} and len(pools) >= 3, pools
+    assert {p["prefix"] for p in pools} >= {"libopenblas", "libscipy_openblas"}, pools
+    assert len(pools) >= 3, pools
     assert all(p["num_threads"] == 1 for p in pools), pools
     omp = [p for p in threadpool_info() if p["user_api"] == "openmp" and "site-packages" not in p["filepath"]]
     assert all(p["num_threads"] == 1 for p in omp), omp

@@ -43,13 +43,15 @@ def test_explicit_bounded_below_the_limit_refused_above():
         amp.append(abs(s.x[1, 0] - 0.01))
     # symplectic Euler keeps a fixed ellipse: position amplitude 2 mm / sqrt(1 - (w dt / 2)^2)
     bound = 0.002 / math.sqrt(1 - 0.9**2)
-    assert not s.unstable and max(amp) <= bound * 1.001
+    assert not s.unstable
+    assert max(amp) <= bound * 1.001
     assert max(amp[-1000:]) == pytest.approx(max(amp[:1000]), rel=1e-3)  # no growth
     with pytest.raises(StabilityError, match=r"critical step 0.0316\d* s"):
         one_spring().step(1.1 * crit, "explicit")
     s = one_spring()
     rep = s.step(1.1 * crit, "explicit", substep=True)
-    assert rep.substeps == 3 and not s.unstable  # sub-steps of at most half the critical step
+    assert rep.substeps == 3  # sub-steps of at most half the critical step
+    assert not s.unstable
 
 
 def test_critical_dt_of_a_large_lattice_is_the_dense_one_and_the_same_bits_every_time():
@@ -59,7 +61,8 @@ def test_critical_dt_of_a_large_lattice_is_the_dense_one_and_the_same_bits_every
     values = {from_tets(nodes, tets, 3000.0, 1040.0, fixed=nodes[:, 2] < 1e-9).critical_dt() for _ in range(4)}
     s = from_tets(nodes, tets, 3000.0, 1040.0, fixed=nodes[:, 2] < 1e-9)
     free3 = (3 * s.free[:, None] + np.arange(3)).ravel()
-    assert len(free3) > 200 and len(values) == 1
+    assert len(free3) > 200
+    assert len(values) == 1
     K = s.stiffness_at_rest().toarray()[np.ix_(free3, free3)]
     w = 1 / np.sqrt(np.repeat(s.m[s.free], 3))
     lam = np.linalg.eigvalsh(K * w[:, None] * w[None, :]).max()
@@ -80,13 +83,15 @@ def test_critical_dt_against_a_dense_eigenvalue_computation():
 def test_implicit_integrators_stay_bounded_at_50_ms_with_stiff_springs(integrator):
     nodes, tets = grid_tets(np.ones((3, 3, 3), bool), np.zeros(3), 0.01)
     s = from_tets(nodes, tets, 1e9, 1040.0, fixed=nodes[:, 2] < 1e-9)  # springs up to ~1e6 N/m
-    assert s.k.max() > 1e5 and s.critical_dt() < 1e-4  # explicit would need 500+ substeps per 50 ms
+    assert s.k.max() > 1e5  # explicit would need 500+ substeps per 50 ms
+    assert s.critical_dt() < 1e-4
     top = nodes[:, 2] > 0.03 - 1e-9
     s.x[top, 0] += 0.003  # a 3 mm shear of the top layer, released
     e0 = s.energy()
     for _ in range(100):
         s.step(0.05, integrator)
-    assert not s.unstable and s.energy() <= e0 * 1.0001
+    assert not s.unstable
+    assert s.energy() <= e0 * 1.0001
     assert np.abs(s.x - s.rest_positions).max() < 0.0031
 
 
@@ -98,7 +103,8 @@ def test_energy_monitor_flags_blow_up():
         s._monitor()
         if s.unstable:
             break
-    assert s.unstable and s.unstable_at is not None
+    assert s.unstable
+    assert s.unstable_at is not None
 
 
 def test_static_pull_against_linear_fem_on_the_same_mesh(capsys):
@@ -145,7 +151,8 @@ def test_large_pulls_need_explicit_substeps_below_the_rest_critical_step():
         for _ in range(n):
             s.step(dt, "explicit" if integrator == "too-close" else integrator, substep=True)
         out[integrator] = s.x[top].mean(axis=0) - s.rest_positions[top].mean(axis=0)
-    assert np.allclose(out["explicit"], out["local-global"], atol=1e-6) and np.allclose(out["implicit"], out["local-global"], atol=5e-5)
+    assert np.allclose(out["explicit"], out["local-global"], atol=1e-6)
+    assert np.allclose(out["implicit"], out["local-global"], atol=5e-5)
     assert np.linalg.norm(out["too-close"] - out["implicit"]) > 1e-3
 
 
@@ -192,8 +199,10 @@ def test_compiled_explicit_steps_equal_the_numpy_steps():
             msm._explicit_kernel = saved
         runs[name] = (ms.x.copy(), ms.v.copy(), ms.t, report.substeps)
     (xc, vc, tc, nc), (xn, vn, tn, nn) = runs["compiled"], runs["numpy"]
-    assert nc == nn > 10 and tc == tn
-    assert np.abs(xc - xn).max() < 1e-12 * np.abs(xn).max() and np.abs(vc - vn).max() < 1e-9 * np.abs(vn).max()
+    assert nc == nn > 10
+    assert tc == tn
+    assert np.abs(xc - xn).max() < 1e-12 * np.abs(xn).max()
+    assert np.abs(vc - vn).max() < 1e-9 * np.abs(vn).max()
     assert np.abs(vn).max() > 1e-4  # it moved
 
 
@@ -217,7 +226,8 @@ def test_accelerations_reach_the_backward_euler_step_in_fewer_iterations():
     rho = _pulled_block("chebyshev").lg_rho(1 / 30)
     assert 0.5 < rho < 1.0
     # the plain iteration's error shrinks by about rho per iteration
-    assert needed["none"] > 15 and needed["chebyshev"] < needed["none"] / 2.5, needed
+    assert needed["none"] > 15, needed
+    assert needed["chebyshev"] < needed["none"] / 2.5, needed
     assert needed["anderson"] < needed["none"] / 2.5, needed
     for acc in ("chebyshev", "anderson"):
         ms = _pulled_block(acc)
@@ -274,7 +284,8 @@ def test_newton_converges_to_the_local_global_step_with_anchors_and_clamped_node
     ms = _pulled_block("newton")
     ms.step(1 / 30, "local-global", iterations=200)
     assert np.linalg.norm(ms.x - ref) / moved < 1e-6
-    assert np.array_equal(ms.x[ms.fixed], ms.rest_positions[ms.fixed]) and not ms.v[ms.fixed].any()
+    assert np.array_equal(ms.x[ms.fixed], ms.rest_positions[ms.fixed])
+    assert not ms.v[ms.fixed].any()
     assert np.allclose(ms.v, plain.v, atol=1e-6 * moved * 30)
     # fewer solves than the plain iteration to 1% (both count solves with the same factor)
     for it in range(1, 200):
@@ -300,7 +311,8 @@ def test_newton_never_raises_the_steps_objective():
 
     ms._nk_gradient = recording
     ms.step(h, "local-global", iterations=60)
-    assert len(seen) >= 4 and np.all(np.diff(seen) < 0), seen
+    assert len(seen) >= 4, seen
+    assert np.all(np.diff(seen) < 0), seen
     del ms._nk_gradient
     for it in range(1, 40):
         ms.set_state(s0)

@@ -18,22 +18,27 @@ def test_cli_mass_spring_reports_stability_and_cost():
     out = json.loads(CliRunner().invoke(cli, [*base, "--integrator", "local-global", "--dt", "0.02", "--json"]).output)
     for key in ("critical_dt", "stable", "max_displacement", "ms_per_step"):
         assert key in out
-    assert out["stable"] and 0.0 < out["max_displacement"] < 0.05
+    assert out["stable"]
+    assert 0.0 < out["max_displacement"] < 0.05
     # the coupling spring can only stiffen the patch; on the body-fitted mesh the smallest elements,
     # by the folded surface, set the critical step, so it may not lower it
     assert out["critical_dt"] <= out["critical_dt_without_coupling"] * (1 + 1e-9)  # equal to the last bits here
     res = CliRunner().invoke(cli, [*base, "--integrator", "explicit", "--dt", "0.02"])
-    assert res.exit_code == 1 and "above the critical step" in res.output and len(res.output.strip().splitlines()) == 1
+    assert res.exit_code == 1
+    assert "above the critical step" in res.output
+    assert len(res.output.strip().splitlines()) == 1
     res = CliRunner().invoke(cli, [*base, "--integrator", "explicit", "--dt", "0.02", "--substep", "--json"])
     sub = json.loads(res.output)
-    assert sub["stable"] and 0.0 < sub["max_displacement"] < 3 * out["max_displacement"]
+    assert sub["stable"]
+    assert 0.0 < sub["max_displacement"] < 3 * out["max_displacement"]
 
 
 def test_sim_run_with_mass_spring(tmp_path):
     scene = build_scene(SCENE, "mass_spring")
     r = run_scene(scene, duration=2.0, time_scale=0)
     fmag = np.linalg.norm(r.forces, axis=2)
-    assert np.all(np.isfinite(r.forces)) and 0.02 < fmag.max() <= 3.3
+    assert np.all(np.isfinite(r.forces))
+    assert 0.02 < fmag.max() <= 3.3
     assert r.model_diagnostics["unstable"] is False
     k = 1900
     for i in range(2):
@@ -108,4 +113,5 @@ def test_a_grasp_starts_from_zero_force():
     coupling_alone = model.coupling * 0.0002
     model.deformation([c], [d])
     after = np.linalg.norm(model.force(c, d))
-    assert before < 1e-9 and 0.0 < after < 0.2 * coupling_alone  # the tissue, softer than the coupling, sets the force
+    assert before < 1e-9  # the tissue, softer than the coupling, sets the force
+    assert 0.0 < after < 0.2 * coupling_alone

@@ -106,11 +106,15 @@ def test_outcome_of_a_reach_to_its_target():
     m = hand_metrics(t, x, np.zeros_like(x), held, goal)
     # the reach enters 1 mm of its end where 10s^3-15s^4+6s^5 = 1 - 0.001/D
     s_in = brentq(lambda s: 10 * s**3 - 15 * s**4 + 6 * s**5 - (1 - 0.001 / D), 0.5, 1)
-    assert m["target_reached"] == 1.0 and m["final_error"] == pytest.approx(0, abs=1e-6) and m["overshoot"] == pytest.approx(0, abs=1e-6)
+    assert m["target_reached"] == 1.0
+    assert m["final_error"] == pytest.approx(0, abs=1e-6)
+    assert m["overshoot"] == pytest.approx(0, abs=1e-6)
     assert m["time_to_target"] == pytest.approx(s_in * T, abs=2e-3)
     far = hand_metrics(t, x, np.zeros_like(x), held, Goal(target_m=0.8 * D, tolerance_m=0.001, hold_s=hold))
-    assert far["target_reached"] == 0.0 and math.isnan(far["time_to_target"])
-    assert far["overshoot"] == pytest.approx(0.2 * D, rel=1e-4) and far["final_error"] == pytest.approx(0.2 * D, rel=1e-4)
+    assert far["target_reached"] == 0.0
+    assert math.isnan(far["time_to_target"])
+    assert far["overshoot"] == pytest.approx(0.2 * D, rel=1e-4)
+    assert far["final_error"] == pytest.approx(0.2 * D, rel=1e-4)
 
 
 # Tolerances with 0.2 mm of 10 Hz tremor and 0.055 mm quantisation, each several times what
@@ -165,8 +169,10 @@ def test_cli_metrics_on_a_synthetic_study(tmp_path):
     csv = res.stdout if hasattr(res, "stdout") else res.output
     table = pd.read_csv(StringIO(csv))
     assert list(table.columns) == COLUMNS
-    assert table["synthetic"].all() and table["code"].nunique() == 2
-    assert set(table["condition"]) == {"plate_spring", "mass_spring"} and set(table["trial"]) == {0, 1}
+    assert table["synthetic"].all()
+    assert table["code"].nunique() == 2
+    assert set(table["condition"]) == {"plate_spring", "mass_spring"}
+    assert set(table["trial"]) == {0, 1}
     assert set(table["hand"]) == {"left", "right", "both"}
     per_trial = table.groupby(["code", "condition", "trial", "hand"]).size()
     assert len(per_trial) == 2 * 2 * 2 * 3
@@ -174,7 +180,11 @@ def test_cli_metrics_on_a_synthetic_study(tmp_path):
     assert "SYNTHETIC" in res.output
     res = studyctl("metrics", "--db", db, "--format", "json")
     out = json.loads(res.output)
-    assert out["synthetic"] is True and "SYNTHETIC" in out["note"] and len(out["rows"]) == len(table)
+    assert out["synthetic"] is True
+    assert "SYNTHETIC" in out["note"]
+    assert len(out["rows"]) == len(table)
     assert {m["name"] for m in out["metrics"]} == {m.name for m in METRICS}
     missing = studyctl("metrics", "--db", tmp_path / "nope.db")
-    assert missing.exit_code == 1 and len(missing.output.strip().splitlines()) == 1 and "no such study database" in missing.output
+    assert missing.exit_code == 1
+    assert len(missing.output.strip().splitlines()) == 1
+    assert "no such study database" in missing.output

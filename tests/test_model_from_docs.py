@@ -78,7 +78,9 @@ def test_a_model_written_from_the_docs_installs_into_its_own_venv_and_reports_it
 
     models = json.loads(run("~/lab/bin/studyctl model list --json"))
     own = next(m for m in models["models"] if m["name"] == "stiffening")
-    assert own["source"] == "brainsim-stiffening 0.1.0" and not own["builtin"] and models["problems"] == []
+    assert own["source"] == "brainsim-stiffening 0.1.0"
+    assert not own["builtin"]
+    assert models["problems"] == []
     check = _commands("~/lab/bin/studyctl model list")
     assert "~/lab/bin/studyctl model check stiffening --contract" in check
     card = json.loads(run("~/lab/bin/studyctl model check stiffening --contract --json"))
@@ -100,7 +102,8 @@ def test_a_model_written_from_the_docs_installs_into_its_own_venv_and_reports_it
     assert "Condition stiff ran the stiffening model of the package brainsim-stiffening 0.1.0" in text, text
     assert "Condition fem ran the fem model built into brainsim-study" in text, text
     table1 = run("~/lab/bin/studyctl report table1 --db mystudy/study.db")
-    assert "stiff: stiffening (" in table1 and "from brainsim-stiffening 0.1.0 (source SHA-256 " in table1, table1
+    assert "stiff: stiffening (" in table1, table1
+    assert "from brainsim-stiffening 0.1.0 (source SHA-256 " in table1, table1
     latex = run("~/lab/bin/studyctl report table1 --db mystudy/study.db --format latex")
     assert "Models from outside brainsim-study: stiff ran stiffening from brainsim-stiffening 0.1.0" in latex, latex
     facts = json.loads(run("~/lab/bin/studyctl report table1 --db mystudy/study.db --format json"))["facts"]

@@ -52,14 +52,19 @@ def test_calibration_is_done_inside_frames_after_the_scheduler_starts_with_one_s
     rig = OpenHapticsRig(["Left Device", "Right Device"], library=libhd)  # opening does not touch calibration
     assert rig.slots[0].style == 1 << 1  # auto, of auto | inkwell
     _run_rig(rig, 0.1)
-    assert rig.errors == [] and fake.fakehd_pending_errors() == 0  # the strict fake saw nothing out of order
-    assert rig.slots[0].calibrated and not rig.slots[1].calibrated
+    assert rig.errors == []  # the strict fake saw nothing out of order
+    assert fake.fakehd_pending_errors() == 0
+    assert rig.slots[0].calibrated
+    assert not rig.slots[1].calibrated
     assert rig.slots[1].fault == "needs calibration"
     notices = rig.take_notices()
-    assert "Left Device: calibrated" in notices and "Right Device needs calibration: put the stylus in its inkwell" in notices
+    assert "Left Device: calibrated" in notices
+    assert "Right Device needs calibration: put the stylus in its inkwell" in notices
     fake.fakehd_set_calibration(1, 0x5000)  # the experimenter puts the stylus in the inkwell
     _run_rig(rig, 0.05)
-    assert rig.slots[1].calibrated and rig.slots[1].fault is None and rig.take_notices() == ["Right Device: calibrated"]
+    assert rig.slots[1].calibrated
+    assert rig.slots[1].fault is None
+    assert rig.take_notices() == ["Right Device: calibrated"]
     rig.close()
 
 
@@ -67,10 +72,12 @@ def test_the_strict_fake_refuses_what_the_vendor_forbids(libhd):
     lib = load_library(libhd)
     handle = lib.hdInitDevice(b"Default Device")  # the first configured device
     assert handle == 0
-    assert lib.hdCheckCalibration() == 0 and lib.hdGetError().errorCode == 0x0102  # not before the scheduler, not outside a frame
+    assert lib.hdCheckCalibration() == 0  # not before the scheduler, not outside a frame
+    assert lib.hdGetError().errorCode == 0x0102
     lib.hdUpdateCalibration(0b110)
     assert lib.hdGetError().errorCode == 0x0102  # not before the scheduler
-    assert lib.hdInitDevice(b"Left Device") == 0xFFFFFFFF and lib.hdGetError().errorCode == 0x0301  # already open
+    assert lib.hdInitDevice(b"Left Device") == 0xFFFFFFFF  # already open
+    assert lib.hdGetError().errorCode == 0x0301
     lib.hdDisableDevice(handle)
 
 
@@ -80,7 +87,9 @@ def test_a_rig_flushes_old_errors_before_opening(libhd):
     rig = OpenHapticsRig(["Left Device"], library=libhd)  # not mistaken for an error of this rig
     assert rig.slots[0].name == "Left Device"
     fake = ctypes.CDLL(libhd)
-    assert fake.fakehd_soft_limit(0) and fake.fakehd_ramping(0) and fake.fakehd_force_enabled(0)
+    assert fake.fakehd_soft_limit(0)
+    assert fake.fakehd_ramping(0)
+    assert fake.fakehd_force_enabled(0)
     rig.close()
 
 
@@ -109,9 +118,12 @@ def test_warm_motors_bring_the_force_down_to_the_continuous_force():
     f = (2.0, 0.0, 0.0)
     assert guard(f, 0.5) == f  # cool: untouched
     out = [guard(f, 0.8)[0] for _ in range(3000)]  # warm: the clamp shrinks 0.1% a tick
-    assert out[0] <= 2.0 and out[500] < 1.3 and abs(out[-1] - 0.88) < 1e-9
+    assert out[0] <= 2.0
+    assert out[500] < 1.3
+    assert abs(out[-1] - 0.88) < 1e-9
     back = [guard((0.5, 0.0, 0.0), 0.4)[0] for _ in range(10)]  # cooled and under the clamp: lifted
-    assert back[-1] == 0.5 and guard.clamp == math.inf
+    assert back[-1] == 0.5
+    assert guard.clamp == math.inf
 
 
 def test_one_callback_serves_both_devices_with_frames_and_clamped_forces(libhd):
@@ -140,7 +152,8 @@ def test_one_callback_serves_both_devices_with_frames_and_clamped_forces(libhd):
     time.sleep(0.4)
     rig.stop()
     frames = [fake.fakehd_frames(i) for i in range(2)]
-    assert min(frames) > 100 and abs(frames[0] - frames[1]) <= 1  # both devices every tick
+    assert min(frames) > 100  # both devices every tick
+    assert abs(frames[0] - frames[1]) <= 1
     assert not any(fake.fakehd_in_frame(i) for i in range(2))  # every begin had its end
     assert all(0.5 < fake.fakehd_max_force(i) <= 3.3 + 1e-12 for i in range(2))  # clamped, never above the peak
     assert rig.errors == []
@@ -170,7 +183,8 @@ def test_device_fault_in_a_frame_becomes_zero_force_and_an_event(libhd):
     rig.stop()
     assert any(isinstance(e, HDError) and e.name == "HD_DEVICE_FAULT" for e in rig.errors)
     assert "device_fault" in [e.kind for e in servo.events if e.hand == 0]
-    assert rig.slots[0].fault == "HD_DEVICE_FAULT" and hands[0].force == (0.0, 0.0, 0.0)
+    assert rig.slots[0].fault == "HD_DEVICE_FAULT"
+    assert hands[0].force == (0.0, 0.0, 0.0)
     assert hands[1].force == (1.0, 0.0, 0.0)  # the other hand carries on
     rig.close()
 
@@ -194,12 +208,17 @@ def test_sim_run_on_the_rig_is_paced_by_the_hd_scheduler(libhd, tmp_path, monkey
     monkeypatch.setenv("BRAINSIM_LIBHD", libhd)
     r = run_scene(build_scene(_openhaptics_scene(tmp_path)), duration=1.2)
     s = r.stats()
-    assert s["mode"] == "realtime-process" and s["pacer"] == "hd-scheduler" and s["ticks"] == 1200  # the rig lives in the servo process
+    assert s["mode"] == "realtime-process"  # the rig lives in the servo process
+    assert s["pacer"] == "hd-scheduler"
+    assert s["ticks"] == 1200
     assert s["rate_hz"] > 0  # paced by the fake scheduler (about 1 kHz; no timing assertion here)
     kinds = [e.kind for e in r.events]
-    assert "grasp" in kinds and "release" in kinds  # the fake's button toggles every 0.5 s
+    assert "grasp" in kinds  # the fake's button toggles every 0.5 s
+    assert "release" in kinds
     f = np.linalg.norm(r.forces, axis=2)
-    assert np.all(np.isfinite(f)) and f.max() <= 3.3 and f.max() > 0.0
+    assert np.all(np.isfinite(f))
+    assert f.max() <= 3.3
+    assert f.max() > 0.0
 
 
 def test_cli_without_the_library_is_one_clean_line(tmp_path, monkeypatch):
@@ -209,7 +228,8 @@ def test_cli_without_the_library_is_one_clean_line(tmp_path, monkeypatch):
 
     monkeypatch.setenv("BRAINSIM_LIBHD", str(tmp_path / "missing" / "libHD.so"))
     res = CliRunner().invoke(cli, ["sim", "run", "--scene", str(_openhaptics_scene(tmp_path)), "--duration", "0.1"])
-    assert res.exit_code == 1 and len(res.output.strip().splitlines()) == 1
+    assert res.exit_code == 1
+    assert len(res.output.strip().splitlines()) == 1
     assert "OpenHaptics HD library (libHD.so) was not found" in res.output
 
 
@@ -239,9 +259,11 @@ def test_device_frame_follows_the_view_and_forces_go_back_along_the_pull(tmp_pat
     try:
         u0, v0, n0 = tips((0.0, 0.0, 0.0))
         u, v, _ = tips((0.01, 0.0, 0.0))
-        assert u > u0 + 5 and abs(v - v0) < 0.3 * (u - u0)  # right on the screen
+        assert u > u0 + 5  # right on the screen
+        assert abs(v - v0) < 0.3 * (u - u0)
         u, v, _ = tips((0.0, 0.01, 0.0))
-        assert v < v0 - 5 and abs(u - u0) < 0.3 * (v0 - v)  # up on the screen
+        assert v < v0 - 5  # up on the screen
+        assert abs(u - u0) < 0.3 * (v0 - v)
         u, v, _ = tips((0.0, 0.0, 0.02))  # toward the viewer: farther from the view's centre (perspective)
         assert np.hypot(u - 320, v - 240) > 1.05 * np.hypot(u0 - 320, v0 - 240)
     finally:
@@ -252,7 +274,8 @@ def test_device_frame_follows_the_view_and_forces_go_back_along_the_pull(tmp_pat
     contact = model.grasp(p0, 0)
     d_scene = np.asarray(frame.to_scene((0.008, 0.0, 0.0))) - np.asarray(p0)
     f_device = np.asarray(frame.force_to_device(model.force(contact, tuple(d_scene))))
-    assert f_device[0] < -0.01 and abs(f_device[0]) > 2 * np.hypot(f_device[1], f_device[2])
+    assert f_device[0] < -0.01
+    assert abs(f_device[0]) > 2 * np.hypot(f_device[1], f_device[2])
 
 
 def test_a_continuous_force_above_the_budget_is_reduced_and_logged():
@@ -297,14 +320,18 @@ def test_devices_check_on_the_fake_rig(libhd, tmp_path, monkeypatch):
     res = CliRunner().invoke(cli, ["devices", "check", "--yes", "--seconds", "3", "--json"])
     assert res.exit_code == 0, res.output
     report = json.loads(res.output[res.output.index("{"):])
-    assert report["problems"] == [] and report["pacer"] == "hd-scheduler"
+    assert report["problems"] == []
+    assert report["pacer"] == "hd-scheduler"
     assert all(d["calibrated"] and d["moved_mm"] > 5 and d["button_seen"] and 0.45 < d["pulse_n"] <= 0.5 + 1e-9 for d in report["devices"])
     # the right device needs the inkwell: exit 1, and the fix is said
     monkeypatch.setenv("FAKEHD_CALIBRATION", "0x5000,0x5002")
     res = CliRunner().invoke(cli, ["devices", "check", "--seconds", "1"])
-    assert res.exit_code == 1 and "Right Device: not calibrated: put the stylus in its inkwell" in res.output
+    assert res.exit_code == 1
+    assert "Right Device: not calibrated: put the stylus in its inkwell" in res.output
     res = CliRunner().invoke(cli, ["devices", "check", "--devices", "PHANToM 1,PHANToM 2", "--seconds", "1"])
-    assert res.exit_code == 1 and "PHANToM 1: not found (HD_COMM_CONFIG_ERROR)" in res.output and "--devices" in res.output
+    assert res.exit_code == 1
+    assert "PHANToM 1: not found (HD_COMM_CONFIG_ERROR)" in res.output
+    assert "--devices" in res.output
     monkeypatch.setenv("FAKEHD_NAMES", "PHANToM 1,PHANToM 2")  # the names the configuration tool saved
     monkeypatch.delenv("FAKEHD_CALIBRATION")
     fresh = tmp_path / "fresh" / "libHD.so"  # a new copy: the loaded one has read its names already
@@ -335,7 +362,8 @@ def test_a_persons_session_on_two_fake_omnis_in_the_window(libhd, display, tmp_p
     con = sqlite3.connect(db)
     assert con.execute("select count(*) from answers").fetchone()[0] == 27
     trials = con.execute("select started_by, grasped, tick_interval_p99_us from trials").fetchall()
-    assert len(trials) == 3 and all(t[0] == "grasp" and t[1] == 1 and t[2] is not None for t in trials)  # the fake's button grasps
+    assert len(trials) == 3  # the fake's button grasps
+    assert all(t[0] == "grasp" and t[1] == 1 and t[2] is not None for t in trials)
     lines = log.read_text().splitlines()
     assert sorted(ln for ln in lines if ln.startswith("init")) == ["init Left Device", "init Right Device"]  # once per session
     assert not [ln for ln in lines if ln.startswith("error")]  # the strict fake saw nothing out of order

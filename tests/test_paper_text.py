@@ -24,8 +24,11 @@ def test_apa_numbers():
     assert paper_text.p_text(0.0657) == "p = .066"
     assert paper_text.p_text(0.0004) == "p < .001"
     assert paper_text.p_text(float("nan")) is None
-    assert paper_text.unit(0.0708) == ".07" and paper_text.unit(-0.3137) == "-.31"
-    assert paper_text.sig(0.004182567) == "0.00418" and paper_text.sig(6.7449) == "6.74" and paper_text.sig(4502.887) == "4503"
+    assert paper_text.unit(0.0708) == ".07"
+    assert paper_text.unit(-0.3137) == "-.31"
+    assert paper_text.sig(0.004182567) == "0.00418"
+    assert paper_text.sig(6.7449) == "6.74"
+    assert paper_text.sig(4502.887) == "4503"
 
 
 def _text_and_json(db, *args) -> tuple[str, dict]:
@@ -33,7 +36,8 @@ def _text_and_json(db, *args) -> tuple[str, dict]:
 
     text = studyctl("report", "text", "--db", db, *args)
     stats = studyctl("report", "stats", "--db", db, "--json")
-    assert text.exit_code == 0 and stats.exit_code == 0, text.output + stats.output
+    assert text.exit_code == 0, text.output + stats.output
+    assert stats.exit_code == 0, text.output + stats.output
     return text.output, json.loads(stats.output)
 
 
@@ -45,13 +49,16 @@ def test_every_number_of_the_text_is_in_the_stats_json(which, small_study, varia
     assert [h for h in re.findall(r"^## (\w+)", text, re.M)] == ["Participants", "Design", "Apparatus", "Procedure", "Analysis", "Results"]
     assert unsupported_numbers(text, doc) == []
     m = doc["methods"]
-    assert f"N = {m['participants']['n']} participants" in text and f"{m['design']['trials_per_condition']} trials" in text
+    assert f"N = {m['participants']['n']} participants" in text
+    assert f"{m['design']['trials_per_condition']} trials" in text
     if which == "paper":  # the primary analysis and a yes/no item, as the JSON has them
         item = next(iter(doc["items"].values()))
         assert f"Cochran's Q({item['df']}) = {item['cochran_q']:.2f}" in text
         assert "logistic GEE across the yes/no questions" in text
     else:
-        assert "proportional-odds GEE" in text and "Friedman χ²(2)" in text and "System Usability Scale (SUS) (Brooke, 1996" in text
+        assert "proportional-odds GEE" in text
+        assert "Friedman χ²(2)" in text
+        assert "System Usability Scale (SUS) (Brooke, 1996" in text
         assert "Which condition felt most like real brain tissue?" in text
 
 
@@ -60,7 +67,8 @@ def test_the_latex_text_compiles(variants_study, tmp_path):
     from tests.helpers import latex_problems
 
     text, _ = _text_and_json(variants_study, "--format", "latex")
-    assert "\\subsection*{Results}" in text and "$\\chi$$^{2}$(2)" in text
+    assert "\\subsection*{Results}" in text
+    assert "$\\chi$$^{2}$(2)" in text
     assert latex_problems(document(text), tmp_path) == []
 
 
@@ -83,7 +91,8 @@ def test_effects_name_their_direction_and_only_what_a_model_reads(variants_study
     assert "Condition paper ran the plate_spring model built into brainsim-study (variant paper)" in apparatus
     assert "Condition located ran the plate_spring model built into brainsim-study (variant located)" in apparatus
     plate = [s for s in apparatus.split(". ") if "plate_spring model" in s]
-    assert plate and not any("Young" in s or "law" in s for s in plate)
+    assert plate
+    assert not any("Young" in s or "law" in s for s in plate)
     for p in doc["kinds"]["ordinal_gee"]["pairs"]:
         if p["p_holm"] < 0.05:
             assert f"{p['b']} relative to {p['a']}, OR = {p['odds_ratio']:.2f}" in text

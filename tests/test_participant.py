@@ -33,7 +33,8 @@ def test_export_has_every_tick_of_every_trial_and_replay_reproduces_the_forces(t
     tr = pd.read_csv(tmp_path / "ex" / "traces.csv")
     assert list(tr.columns) == ["session_id", "model", "trial", "t", "hand", "x", "y", "z", "fx", "fy", "fz", "button"]
     counts = tr.groupby(["model", "trial", "hand"]).size()
-    assert len(counts) == 9 * 2 and (counts == 3000).all()  # 9 trials, 3 s at 1 kHz, per hand
+    assert len(counts) == 9 * 2  # 9 trials, 3 s at 1 kHz, per hand
+    assert (counts == 3000).all()
     cond = pd.read_csv(tmp_path / "ex" / "conditions.csv")
     assert sorted(cond["label"]) == ["A", "B", "C"]  # blind labels, shown in exports
     store = Store(db)
@@ -49,17 +50,21 @@ def test_export_has_every_tick_of_every_trial_and_replay_reproduces_the_forces(t
         res = studyctl("replay", "--db", db, "--session", 1, "--trial", k, "--json")
         assert res.exit_code == 0, res.output
         out = __import__("json").loads(res.output)
-        assert out["ticks"] == out["recorded_ticks"] == 3000 and out["max_force_difference_n"] == 0.0
+        assert out["ticks"] == out["recorded_ticks"] == 3000
+        assert out["max_force_difference_n"] == 0.0
     # a changed trace file is refused, by name
     path = db.parent / rows[0]["trace_path"]
     data = bytearray(path.read_bytes())
     data[len(data) // 2] ^= 0x01
     path.write_bytes(bytes(data))
     res = studyctl("export", "--db", db, "--out", tmp_path / "ex2")
-    assert res.exit_code == 1 and "does not match the SHA-256" in res.output and str(path) in res.output
+    assert res.exit_code == 1
+    assert "does not match the SHA-256" in res.output
+    assert str(path) in res.output
     assert not (tmp_path / "ex2").exists()  # nothing half-written
     res = studyctl("replay", "--db", db, "--session", 1, "--trial", 10)
-    assert res.exit_code == 1 and "allowed: 1..9" in res.output
+    assert res.exit_code == 1
+    assert "allowed: 1..9" in res.output
 
 
 def test_sigkill_mid_trial_loses_only_that_trial_and_resumed_answers_use_every_trace(tmp_path):
@@ -78,7 +83,8 @@ def test_sigkill_mid_trial_loses_only_that_trial_and_resumed_answers_use_every_t
     assert res.exit_code == 0, res.output
     con = sqlite3.connect(db)
     rows = con.execute("select model, trial, trace_path, trace_sha256 from trials").fetchall()
-    assert len(rows) == 9 and len({(m, t) for m, t, _, _ in rows}) == 9
+    assert len(rows) == 9
+    assert len({(m, t) for m, t, _, _ in rows}) == 9
     for _, _, path, sha in rows:
         read_trace(db, path, sha)  # every trace there, matching its hash
     assert not list((tmp_path / "killed.db.traces").rglob("*.tmp"))
@@ -91,7 +97,8 @@ def test_sigkill_mid_trial_loses_only_that_trial_and_resumed_answers_use_every_t
     # and the same perceived features, recomputed from the stored traces after the resume
     q = "select model, feature, value from observer_features order by model, feature"
     feats = con.execute(q).fetchall()
-    assert len(feats) >= 3 * 8 and feats == sqlite3.connect(fresh).execute(q).fetchall()
+    assert len(feats) >= 3 * 8
+    assert feats == sqlite3.connect(fresh).execute(q).fetchall()
 
 
 def test_real_time_session_through_a_pty_discards_keys_typed_during_training_and_names_no_model(tmp_path):
@@ -110,14 +117,17 @@ def test_real_time_session_through_a_pty_discards_keys_typed_during_training_and
     text = pty_session(["session", "run", "--db", db, "--participant", "P01", "--view", "none"], lambda: "y", timeout=120,
                        on_output=during_training)
     typed_early = bool(typed)
-    assert typed_early and "complete" in text, text
+    assert typed_early, text
+    assert "complete" in text, text
     assert "Please answer" not in text  # the early "n" never reached a question (no refusal was printed)
     assert not MODEL_WORDS.search(text), MODEL_WORDS.search(text)
     con = sqlite3.connect(db)
     answers = con.execute("select answer, source from answers").fetchall()
-    assert len(answers) == 27 and all(a == (1, "terminal") for a in answers)
+    assert len(answers) == 27
+    assert all(a == (1, "terminal") for a in answers)
     trials = con.execute("select started_by, grasped, waited_s from trials").fetchall()
-    assert len(trials) == 3 and all(t[0] == "grasp" and t[1] == 1 and t[2] > 0.2 for t in trials)
+    assert len(trials) == 3
+    assert all(t[0] == "grasp" and t[1] == 1 and t[2] > 0.2 for t in trials)
     training = con.execute("select detail from events where kind = 'training_done'").fetchone()[0]
     assert '"ended_early":false' in training
 
@@ -135,7 +145,8 @@ def test_a_second_process_cannot_drive_a_live_session_and_is_told_so(tmp_path):
         before = sqlite3.connect(db).execute("select count(*) from events").fetchone()[0]
         for extra in ([], ["--resume"]):  # neither a new start nor a resume may touch the live session
             res = studyctl("session", "run", "--db", db, "--participant", "P05", "--synthetic", *extra)
-            assert res.exit_code == 1 and "the session is running now (pid" in res.output, res.output
+            assert res.exit_code == 1, res.output
+            assert "the session is running now (pid" in res.output, res.output
             assert len(res.output.strip().splitlines()) == 1
         assert sqlite3.connect(db).execute("select count(*) from events").fetchone()[0] == before  # no false "resumed"
         out, err = first.communicate(timeout=120)
@@ -172,16 +183,22 @@ def test_ctrl_c_in_the_chair_marks_the_session_interrupted_and_says_how_to_resum
     studyctl("participants", "add", "P01", "--db", db)
     studyctl("participants", "consent", "P01", "--db", db)
     text, code = _ctrl_c(["session", "run", "--db", db, "--participant", "P01", "--view", "none"], b"trial 2 of 2")
-    assert code == 130 and "Traceback" not in text and "KeyboardInterrupt" not in text, text
+    assert code == 130, text
+    assert "Traceback" not in text, text
+    assert "KeyboardInterrupt" not in text, text
     last = text.strip().splitlines()[-1]
-    assert "session 1 of P01 interrupted (1 trial kept" in last and f"studyctl session run --db {db} --participant P01 --resume" in last
+    assert "session 1 of P01 interrupted (1 trial kept" in last
+    assert f"studyctl session run --db {db} --participant P01 --resume" in last
     assert sqlite3.connect(db).execute("select status from sessions").fetchall() == [("interrupted",)]
     listed = json.loads(studyctl("session", "list", "--db", db, "--json").output)
     assert [s["status"] for s in listed] == ["interrupted"]
     res = studyctl("session", "run", "--db", db, "--participant", "P01", "--view", "window", "--device", "mouse", "--resume")
-    assert res.exit_code != 0 and "was started with --device simulated" in res.output  # another device: said, not resumed
+    assert res.exit_code != 0  # another device: said, not resumed
+    assert "was started with --device simulated" in res.output
     text = pty_session(["session", "run", "--db", db, "--participant", "P01", "--view", "none", "--resume"], lambda: "y", timeout=120)
-    assert "resuming session 1 of P01" in text and "condition A (1 of 1): loading" in text and "complete" in text, text
+    assert "resuming session 1 of P01" in text, text
+    assert "condition A (1 of 1): loading" in text, text
+    assert "complete" in text, text
     con = sqlite3.connect(db)
     assert con.execute("select status from sessions").fetchall() == [("done",)]
     assert con.execute("select trial from trials order by trial").fetchall() == [(0,), (1,)]
@@ -192,8 +209,11 @@ def test_ctrl_c_during_a_parallel_synth_prints_one_line_and_the_next_run_complet
     proto = participant_protocol(tmp_path, conditions=("plate_spring",), trials=1, trial_seconds=1.0)
     text, code = _ctrl_c(["synth", "--db", db, "--protocol", proto, "--participants", "12", "--jobs", "2", "--seed", "3"],
                          b"%", delay=0.1)  # Ctrl-C once the first sessions are stored (the bar shows a percentage)
-    assert code == 130 and "Traceback" not in text and "KeyboardInterrupt" not in text, text
-    assert "synth: interrupted after" in text and "--complete` runs the" in text, text
+    assert code == 130, text
+    assert "Traceback" not in text, text
+    assert "KeyboardInterrupt" not in text, text
+    assert "synth: interrupted after" in text, text
+    assert "--complete` runs the" in text, text
     res = studyctl("synth", "--db", db, "--complete", "--participants", "1")
     assert res.exit_code == 0, res.output
     con = sqlite3.connect(db)

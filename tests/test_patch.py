@@ -32,7 +32,8 @@ def test_area_points_cover_a_disc(plane):
 def test_vertex_weights_give_the_area_mean_of_the_drawn_surface(plane):
     centre = int(np.argmin(np.linalg.norm(plane.vertices, axis=1)))
     ids, w = patch_vertex_weights(plane, centre, 0.005)
-    assert w.sum() == pytest.approx(1.0) and np.all(w > 0)
+    assert w.sum() == pytest.approx(1.0)
+    assert np.all(w > 0)
     # a linear field is reproduced exactly: the mean of x over a centred disc is 0, of 1 + 3x + 2y is 1
     f = 1 + 3 * plane.vertices[:, 0] + 2 * plane.vertices[:, 1]
     assert w @ f[ids] == pytest.approx(1.0, abs=1e-3 * 0.005 * 5)

@@ -47,7 +47,8 @@ def test_set_a_deformation_by_hand_both_variants():
         assert sol.deformation == pytest.approx(0.001 + x2)  # Eq. (19): n_1 x_c1 + X_2
         assert sol.layer_deformation == pytest.approx((0.001, x2, 0.0))
         assert sol.plate_deformation == pytest.approx(x2 / 3)  # Eq. (13)
-        assert not sol.overstretched and not sol.saturated
+        assert not sol.overstretched
+        assert not sol.saturated
     # F = 3 N: continuous layer 2 consumes n_2 x_c1 Pc_2 = 1.3994 N -> DCL 3
     f2_cont = 3 * 0.001 * pc2
     sol = cont.deformation(3.0)
@@ -74,7 +75,8 @@ def test_set_a_paper_jump_is_backward_and_reported():
     assert j.layer == 2
     assert j.x_before == pytest.approx(0.001 + 2.56 / pc2)  # 0.006488 m
     assert j.x_after == pytest.approx(0.004)  # C_3 = x_c1 (1 + 3)
-    assert j.kind == "backward" and j.size == pytest.approx(0.004 - 0.001 - 2.56 / pc2)
+    assert j.kind == "backward"
+    assert j.size == pytest.approx(0.004 - 0.001 - 2.56 / pc2)
     assert PlateSpring(A, "continuous").jumps == ()
 
 
@@ -94,12 +96,15 @@ def test_set_b_by_hand():
     for variant in ("paper", "continuous"):
         s = PlateSpring(B, variant)
         sol = s.deformation(0.005)  # below F_1 = 0.008: layer 1 only, X = F / Pc_1
-        assert sol.dcl == 1 and sol.deformation == pytest.approx(0.005 / 16.0)
+        assert sol.dcl == 1
+        assert sol.deformation == pytest.approx(0.005 / 16.0)
         sol = s.deformation(0.0085)
-        assert sol.dcl == 2 and sol.deformation == pytest.approx(0.0005 + 0.0005 / pc2)
+        assert sol.dcl == 2
+        assert sol.deformation == pytest.approx(0.0005 + 0.0005 / pc2)
         assert not sol.overstretched
         sol = s.deformation(0.01)  # X_2 = 0.002 / Pc_2 = 4.1 mm > n_2 x_c1 = 1.5 mm
-        assert sol.overstretched and sol.saturated
+        assert sol.overstretched
+        assert sol.saturated
         assert s.layers_in_budget() == 2  # T = 0.3, 0.6 ms
 
 
@@ -120,7 +125,8 @@ def test_inverse_by_hand_set_a():
 def test_zero_force_and_negative():
     s = PlateSpring(A)
     sol = s.deformation(0.0)
-    assert sol.deformation == 0.0 and sol.dcl == 1
+    assert sol.deformation == 0.0
+    assert sol.dcl == 1
     assert s.force(0.0) == 0.0
     with pytest.raises(ParameterError, match="force: -1 is out of range; allowed: >= 0 N"):
         s.deformation(-1.0)
@@ -165,7 +171,8 @@ def test_extreme_modulus_stays_finite():
     for E in (1.0, 1e12):
         s = PlateSpring(PlateSpringParams(**(A.as_dict() | {"E": E})))
         sol = s.deformation(1.0)
-        assert math.isfinite(sol.deformation) and math.isfinite(s.force(0.01))
+        assert math.isfinite(sol.deformation)
+        assert math.isfinite(s.force(0.01))
 
 
 # -- properties -----------------------------------------------------------------------------
@@ -212,7 +219,8 @@ def test_continuous_curve_is_continuous_and_increasing(p):
     s = PlateSpring(p, "continuous")
     forces = np.sort(np.concatenate((np.linspace(0, 1.5 * s.capacity_f, 200), s.S, s.S * (1 - 1e-12))))
     xs = np.array([s.deformation(f).deformation for f in forces])
-    assert np.all(np.diff(xs) >= 0) and np.all(np.diff(xs)[np.diff(forces) > 0] > 0)
+    assert np.all(np.diff(xs) >= 0)
+    assert np.all(np.diff(xs)[np.diff(forces) > 0] > 0)
     for m in range(1, p.layers):  # no jump at any layer transition
         assert s.deformation(float(s.S[m])).deformation == pytest.approx(_left_limit(s, m), rel=1e-9, abs=_tol(s, m))
     assert s.jumps == ()
@@ -230,7 +238,8 @@ def test_paper_jumps_detected_exactly_where_the_curve_jumps(p):
         below = _left_limit(s, m)
         size = at - below
         if abs(size) > 1e-6 * max(s.capacity_x, 1e-12) + _tol(s, m):
-            assert m in found and found[m].size == pytest.approx(size, rel=1e-5, abs=_tol(s, m))
+            assert m in found
+            assert found[m].size == pytest.approx(size, rel=1e-5, abs=_tol(s, m))
         else:
             assert m not in found or abs(found[m].size) <= 1e-6 * s.capacity_x
     # the inverse is monotone in both variants

@@ -90,9 +90,12 @@ def test_shipped_field_belongs_to_this_brain_and_is_stiffness(scene, tmp_path):
 
     axis, limit = clamp_limit(scene)
     free = scene.mesh.vertices[:, axis] > limit + 0.015  # where the bench grasps
-    assert 1.5e-3 < np.median(ev[free, 0]) < 3e-2 and np.median(ev[free, -1]) < 0.036 and np.all(ev[:, -1] < 10.0)
+    assert 1.5e-3 < np.median(ev[free, 0]) < 3e-2
+    assert np.median(ev[free, -1]) < 0.036
+    assert np.all(ev[:, -1] < 10.0)
     with np.load(FIELD_FILE) as z:
-        assert str(z["mesh_digest"]) == mesh_digest(scene.mesh) and float(z["size_mm"]) == 8.0
+        assert str(z["mesh_digest"]) == mesh_digest(scene.mesh)
+        assert float(z["size_mm"]) == 8.0
     # a field made for another surface is refused, naming the file
     other = tmp_path / "other.npz"
     with np.load(FIELD_FILE) as z:

@@ -54,15 +54,20 @@ def test_model_list_shows_every_model_that_loads_and_one_line_for_each_that_does
     out = json.loads(res.stdout)
     names = {m["name"]: m for m in out["models"]}
     assert {"plate_spring", "fem", "mass_spring", "spring", "nan_force", "slow_force", "grasp_raises"} <= set(names)
-    assert names["fem"]["builtin"] and names["spring"]["source"] == "fakeplugins 0.1" and not names["spring"]["builtin"]
+    assert names["fem"]["builtin"]
+    assert names["spring"]["source"] == "fakeplugins 0.1"
+    assert not names["spring"]["builtin"]
     problems = sorted(out["problems"])
-    assert len(problems) == 3 and all("\n" not in p for p in problems)
+    assert len(problems) == 3
+    assert all("\n" not in p for p in problems)
     assert problems[0].startswith("model 'broken_import' (from fakeplugins 0.1): cannot import tests.plugins.broken_import: "
                                   "ModuleNotFoundError: No module named 'brainsim_no_such_dependency'")
     assert problems[1] == f"model 'missing_class' (from fakeplugins 0.1): {BAD} has no class 'NoSuchModel'"
     assert problems[2] == "model 'other_version' (from fakeplugins 0.1): declares model API version 2; this brainsim runs version 1"
     text = _studyctl(plugin_env, "model", "list")
-    assert text.returncode == 0 and "not loaded: model 'missing_class'" in text.stdout and "Traceback" not in text.stdout + text.stderr
+    assert text.returncode == 0
+    assert "not loaded: model 'missing_class'" in text.stdout
+    assert "Traceback" not in text.stdout + text.stderr
 
 
 @pytest.mark.parametrize(("name", "violation"), [
@@ -74,11 +79,13 @@ def test_model_check_names_each_violation_and_exits_non_zero(plugin_env, name, v
     res = _studyctl(plugin_env, "model", "check", name)
     assert res.returncode == 1, res.stdout + res.stderr
     assert violation in res.stdout, res.stdout
-    assert "violation" in res.stderr and "Traceback" not in res.stdout + res.stderr
+    assert "violation" in res.stderr
+    assert "Traceback" not in res.stdout + res.stderr
     if name == "slow_force":  # 50 us a call against a budget of 20: decisive on any machine
         card = json.loads(_studyctl(plugin_env, "model", "check", name, "--json").stdout)
         force = next(b for b in card["budgets"] if b["budget"] == "force_us_p99")
-        assert force["median"] >= 50.0 and not force["ok"]
+        assert force["median"] >= 50.0
+        assert not force["ok"]
 
 
 @pytest.mark.parametrize(("name", "cause"), [
@@ -88,8 +95,10 @@ def test_model_check_names_each_violation_and_exits_non_zero(plugin_env, name, v
 ])
 def test_a_model_that_does_not_load_is_one_line_naming_it_and_the_cause(plugin_env, name, cause):
     res = _studyctl(plugin_env, "model", "check", name)
-    assert res.returncode == 1 and res.stderr.startswith(f"Error: {cause}"), res.stderr
-    assert len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
+    assert res.returncode == 1, res.stderr
+    assert res.stderr.startswith(f"Error: {cause}"), res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
+    assert "Traceback" not in res.stderr
 
 
 def test_a_model_on_the_python_path_keeps_the_contract():
@@ -112,7 +121,8 @@ def test_in_a_session_a_plugin_that_sends_nan_renders_zero_force_and_logs_it(tmp
     scene = build_scene(path, f"{BAD}:NanForce")
     result = run_scene(scene, duration=1.0, time_scale=time_scale)
     kinds = [e.kind for e in result.events]
-    assert "grasp" in kinds and "nan_force" in kinds, kinds
+    assert "grasp" in kinds, kinds
+    assert "nan_force" in kinds, kinds
     assert np.all(result.forces == 0.0)
 
 
@@ -123,11 +133,13 @@ def test_in_a_session_a_plugin_whose_grasp_raises_logs_a_fault_and_renders_nothi
     path = plugin_scene(tmp_path, f"{BAD}:GraspRaises")
     result = run_scene(build_scene(path, f"{BAD}:GraspRaises"), duration=1.0, time_scale=0.0)
     faults = [e for e in result.events if e.kind == "model_fault"]
-    assert faults and "grasp: no grip on this tissue" in faults[0].detail
+    assert faults
+    assert "grasp: no grip on this tissue" in faults[0].detail
     assert np.all(result.forces == 0.0)
     # the other models are unaffected: the same scene's plate-spring pulls as ever
     other = run_scene(build_scene(path, "plate_spring"), duration=1.0, time_scale=0.0)
-    assert np.abs(other.forces).max() > 0.01 and not [e for e in other.events if e.kind == "model_fault"]
+    assert np.abs(other.forces).max() > 0.01
+    assert not [e for e in other.events if e.kind == "model_fault"]
 
 
 def test_a_plugins_bad_option_is_refused_with_file_line_and_range_like_a_builtin_one(tmp_path):
@@ -158,9 +170,12 @@ print(json.dumps({{c: resolved_config(c, condition_scene_spec(p, c)) for c in p.
     assert res.returncode == 0, res.stderr
     configs = json.loads(res.stdout)
     own = configs["own"]
-    assert own["model"] == "spring" and own["options"] == {"stiffness": 250.0}
-    assert own["plugin"]["distribution"] == "fakeplugins" and own["plugin"]["version"] == "0.1"
-    assert own["plugin"]["target"] == f"{BAD}:Spring" and len(own["plugin"]["source_sha256"]) == 64
+    assert own["model"] == "spring"
+    assert own["options"] == {"stiffness": 250.0}
+    assert own["plugin"]["distribution"] == "fakeplugins"
+    assert own["plugin"]["version"] == "0.1"
+    assert own["plugin"]["target"] == f"{BAD}:Spring"
+    assert len(own["plugin"]["source_sha256"]) == 64
     assert "plugin" not in configs["plate_spring"]  # built in: the study's own version says it
 
 
@@ -214,12 +229,17 @@ def test_the_shipped_example_plugin_in_a_fresh_environment(tmp_path):
 
     models = json.loads(run("studyctl model list", "--json"))
     half = next(m for m in models["models"] if m["name"] == "halfspace")
-    assert half["source"] == "brainsim-halfspace 0.1.0" and not half["builtin"]
+    assert half["source"] == "brainsim-halfspace 0.1.0"
+    assert not half["builtin"]
     assert "grasp_radius" in run("studyctl model describe halfspace")
     contract = json.loads(run("studyctl model check halfspace --contract", "--json"))
-    assert contract["violations"] == [] and contract["stability"] is None and len(contract["budgets"]) == 3
+    assert contract["violations"] == []
+    assert contract["stability"] is None
+    assert len(contract["budgets"]) == 3
     card = json.loads(run("studyctl model check halfspace --quick", "--json"))
-    assert card["violations"] == [] and all(r["ok"] for r in card["contract"]) and card["stability"]["safety_held"]
+    assert card["violations"] == []
+    assert all(r["ok"] for r in card["contract"])
+    assert card["stability"]["safety_held"]
     assert {r["calibration"] for r in card["accuracy"]["rows"]} == {"raw", "calibrated"}
     run("studyctl protocol new --kind yes_no --out mystudy")
     protocol = work / "mystudy" / "protocol.toml"
@@ -231,10 +251,12 @@ def test_the_shipped_example_plugin_in_a_fresh_environment(tmp_path):
     run("studyctl protocol validate mystudy/protocol.toml")
     run("studyctl synth --db mystudy/study.db --protocol mystudy/protocol.toml --participants 6")
     table1 = run("studyctl report table1 --db mystudy/study.db")
-    assert "half_space" in table1 and "SYNTHETIC" in table1.upper()
+    assert "half_space" in table1
+    assert "SYNTHETIC" in table1.upper()
     sweep = json.loads(run("studyctl bench stability --quick --models halfspace,plate_spring", "--json"))
     assert {c["model"].split("/")[0] for c in sweep["cases"]} == {"halfspace", "plate_spring"}
-    assert sweep["meta"]["nan_sent"] == 0 and sweep["meta"]["over_limit_sent"] == 0
+    assert sweep["meta"]["nan_sent"] == 0
+    assert sweep["meta"]["over_limit_sent"] == 0
     bench = json.loads(run("studyctl bench accuracy --quick --models halfspace,plate_spring", "--json"))
     assert {r["model"] for r in bench["rows"]} == {"halfspace", "plate_spring"}
 
@@ -265,7 +287,8 @@ def test_model_describe_prints_the_declared_options(plugin_env):
     assert (out["distribution"], out["version"], out["builtin"]) == ("fakeplugins", "0.1", False)
     fem = json.loads(_studyctl(plugin_env, "model", "describe", "fem", "--json").stdout)
     assert [o["name"] for o in fem["options"]] == ["resolution", "formulation", "grasp_radius", "order"]
-    assert fem["options"][0]["allowed"] == "[0.003, 0.008]" and fem["material_keys"] == ["young", "poisson"]
+    assert fem["options"][0]["allowed"] == "[0.003, 0.008]"
+    assert fem["material_keys"] == ["young", "poisson"]
 
 
 def test_model_check_of_a_built_in_model_gives_its_whole_scorecard(tmp_path):
@@ -276,11 +299,15 @@ def test_model_check_of_a_built_in_model_gives_its_whole_scorecard(tmp_path):
     res = studyctl("model", "check", "plate_spring", "--quick", "--json", "--out", tmp_path / "card.md")
     assert res.exit_code == 0, res.output
     card = json.loads(res.stdout)  # the stages went to stderr
-    assert card["violations"] == [] and len(card["contract"]) == 8 and all(r["ok"] for r in card["contract"])
+    assert card["violations"] == []
+    assert len(card["contract"]) == 8
+    assert all(r["ok"] for r in card["contract"])
     assert {c["model"] for c in card["stability"]["cases"]} == {"plate_spring/continuous", "plate_spring/paper"}
-    assert card["stability"]["safety_held"] and {r["calibration"] for r in card["accuracy"]["rows"]} == {"raw", "calibrated"}
+    assert card["stability"]["safety_held"]
+    assert {r["calibration"] for r in card["accuracy"]["rows"]} == {"raw", "calibrated"}
     md = (tmp_path / "card.md").read_text()
-    assert md.startswith("# Model check: plate_spring") and "The model keeps the contract and its budgets on this machine." in md
+    assert md.startswith("# Model check: plate_spring")
+    assert "The model keeps the contract and its budgets on this machine." in md
 
 
 def test_model_check_prints_its_stages_and_contract_runs_only_the_contract_and_budgets(plugin_env):
@@ -298,8 +325,11 @@ def test_model_check_prints_its_stages_and_contract_runs_only_the_contract_and_b
     only = _studyctl(plugin_env, "model", "check", "spring", "--contract", "--json")
     assert only.returncode == 0, only.stderr
     card = json.loads(only.stdout)
-    assert card["contract_only"] and card["stability"] is None and card["accuracy"] is None
-    assert card["skipped"].startswith("--contract") and set(card["stage_seconds"]) == {"contract", "budgets"}
+    assert card["contract_only"]
+    assert card["stability"] is None
+    assert card["accuracy"] is None
+    assert card["skipped"].startswith("--contract")
+    assert set(card["stage_seconds"]) == {"contract", "budgets"}
     assert [ln for ln in only.stderr.splitlines() if ln.endswith(" ...")] == ["[1/2] contract ...", "[2/2] budgets (this machine) ..."]
 
 
@@ -321,8 +351,11 @@ def test_model_check_interrupted_keeps_the_stages_that_finished(plugin_env, tmp_
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, seen + stderr
     card = json.loads(out.read_text())
-    assert card["interrupted"] == "stability" and len(card["contract"]) == 7 and len(card["budgets"]) == 3
-    assert "stability" not in card and "accuracy" not in card
+    assert card["interrupted"] == "stability"
+    assert len(card["contract"]) == 7
+    assert len(card["budgets"]) == 3
+    assert "stability" not in card
+    assert "accuracy" not in card
     assert "## Budgets" in stdout  # stdout: the same card as Markdown
     assert "INTERRUPTED during stability (quick sweep)" in stdout
     assert "Traceback" not in stderr
@@ -334,7 +367,8 @@ def test_a_plugin_whose_build_raises_is_one_line(tmp_path):
     path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{BAD}:BuildRaises"]'))
     env = {k: v for k, v in os.environ.items() if k != "STUDYCTL_DB"} | {"PYTHONPATH": str(ROOT)}
     res = _studyctl(env, "sim", "run", "--scene", path, "--model", f"{BAD}:BuildRaises", "--time-scale", "0", "--duration", "0.5")
-    assert res.returncode == 1 and res.stderr.strip() == (f"Error: model '{BAD}:BuildRaises': build raised RuntimeError: "
+    assert res.returncode == 1, res.stderr
+    assert res.stderr.strip() == (f"Error: model '{BAD}:BuildRaises': build raised RuntimeError: "
                                                           "no tissue parameters for this brain"), res.stderr
 
 
@@ -346,7 +380,9 @@ def test_a_plugin_whose_copy_cannot_reach_the_servo_process_is_a_fault_not_a_cra
     path.write_text(path.read_text().replace(f'[models."{BAD}:Spring"]', f'[models."{BAD}:Unpicklable"]'))
     result = run_scene(build_scene(path, f"{BAD}:Unpicklable"), duration=1.0, time_scale=1.0)
     faults = [e for e in result.events if e.kind == "model_fault"]
-    assert faults and faults[0].detail.startswith("model_fault: law: TypeError") and np.all(result.forces == 0.0)
+    assert faults
+    assert faults[0].detail.startswith("model_fault: law: TypeError")
+    assert np.all(result.forces == 0.0)
 
 
 def test_options_are_checked_by_kind_and_a_declaration_the_reader_cannot_read_does_not_load(tmp_path, plugin_env):
@@ -394,4 +430,5 @@ def test_the_built_in_models_keep_the_contract_and_their_budgets_here():
         rows, parts = contract(_scene(name, DEFAULT_SCENE))
         assert all(r["ok"] for r in rows), (name, rows)
         timed = budgets(parts, CheckConfig(scene=DEFAULT_SCENE, force_calls=2000, frames=10))
-        assert [b["budget"] for b in timed] == ["force_us_p99", "deformation_ms_p99", "grasp_ms_p99"] and all("raised" not in b for b in timed)
+        assert [b["budget"] for b in timed] == ["force_us_p99", "deformation_ms_p99", "grasp_ms_p99"]
+        assert all("raised" not in b for b in timed)

@@ -56,12 +56,15 @@ def test_the_staircase_steps_as_documented():
     seen, fine = [], 0.2 / 2 ** 0.25
     for k, correct in enumerate("CCCCWCCWCC"):
         if k == 8:
-            assert s.reversals == [0.1, 0.2, pytest.approx(fine)] and math.isnan(s.estimate()) and "estimate" not in s.state()
+            assert s.reversals == [0.1, 0.2, pytest.approx(fine)]
+            assert math.isnan(s.estimate())
+            assert "estimate" not in s.state()
         seen.append(s.next_stimulus())
         s.update(s.next_stimulus(), correct == "C")
     # two correct halve delta, a wrong answer doubles it; from the second reversal on the factor is 2**(1/4)
     assert seen == [0.4, 0.4, 0.2, 0.2, 0.1, 0.2, 0.2, pytest.approx(fine), 0.2, 0.2]
-    assert s.reversals == [0.1, 0.2, pytest.approx(fine), 0.2] and s.next_stimulus() == pytest.approx(fine)
+    assert s.reversals == [0.1, 0.2, pytest.approx(fine), 0.2]
+    assert s.next_stimulus() == pytest.approx(fine)
     assert s.estimate() == pytest.approx(0.2 / 2 ** 0.125)  # the fine reversals' geometric mean
     assert s.state() == {"method": "staircase", "rule": "1-up-2-down", "trials": 10, "next": s.next_stimulus(), "step": 2 ** 0.25,
                          "run": 0, "direction": -1, "reversals": s.reversals, "estimate": s.estimate()}
@@ -71,7 +74,8 @@ def test_the_staircase_steps_as_documented():
     three = Staircase(ProcedureSpec("staircase", rule="1-up-3-down", start=0.4))
     for _ in range(2):
         three.update(three.next_stimulus(), True)
-    assert three.next_stimulus() == 0.4 and three.state()["run"] == 2
+    assert three.next_stimulus() == 0.4
+    assert three.state()["run"] == 2
     three.update(0.4, True)
     assert three.next_stimulus() == 0.2
     with pytest.raises(SpecError, match=r"stimulus: 0\.3 is not the staircase's delta 0\.2"):
@@ -86,7 +90,8 @@ def test_a_revisited_staircase_level_is_the_same_float():
     run(s, lognormal_observer(0.15), 300, np.random.default_rng(0))
     levels = s.reversals[2:]  # the fine phase's
     lattice = {round(math.log(x / levels[0]) / math.log(2 ** 0.25)) for x in levels}
-    assert len(set(levels)) == len(lattice) and len(levels) > 50
+    assert len(set(levels)) == len(lattice)
+    assert len(levels) > 50
 
 
 def _staircase_levels(rule: str, seed: int, runs: int = 200, trials: int = 80) -> np.ndarray:
@@ -167,7 +172,8 @@ def _ours_example(slopes, lapses, responses) -> tuple[QuestPlusProcedure, list[f
 
 def test_questplus_reproduces_watsons_example_1():
     q, asked = _raw_example([3.5], [0.02], EX1_RESPONSES)
-    assert asked == EX1_CONTRASTS and q.param_estimate["threshold"] == -20
+    assert asked == EX1_CONTRASTS
+    assert q.param_estimate["threshold"] == -20
     ours, asked = _ours_example([3.5], [0.02], EX1_RESPONSES)
     assert asked == EX1_CONTRASTS
     # the same posterior; the mode at -20 dB; the estimate is the posterior mean threshold moved
@@ -183,7 +189,8 @@ def test_questplus_reproduces_watsons_example_2():
     slopes, lapses = [2, 3, 4, 5], [0.0, 0.01, 0.02, 0.03, 0.04]
     q, asked = _raw_example(slopes, lapses, EX2_RESPONSES)
     assert asked == EX2_CONTRASTS
-    assert (q.param_estimate["threshold"], q.param_estimate["slope"]) == (-20, 5) and q.param_estimate["lapse_rate"] == pytest.approx(0.04)
+    assert (q.param_estimate["threshold"], q.param_estimate["slope"]) == (-20, 5)
+    assert q.param_estimate["lapse_rate"] == pytest.approx(0.04)
     ours, asked = _ours_example(slopes, lapses, EX2_RESPONSES)
     assert asked == EX2_CONTRASTS
     raw_mean, _ = _raw_example(slopes, lapses, EX2_RESPONSES, method="mean")

@@ -77,7 +77,8 @@ def test_noise_free_proportions_give_the_generating_function(function, lapse):
     x = math.log(weber) + np.linspace(-2.0, 2.0, 7) * scale
     k = n * p_correct(function, x, math.log(weber), scale, lapse)
     fit = fit_psychometric(np.exp(x), k, function=function, trials=np.full(7, n), reference=2.0)
-    assert fit.converged and fit.flag == ""
+    assert fit.converged
+    assert fit.flag == ""
     assert fit.weber == pytest.approx(weber, rel=1e-6)
     assert fit.jnd == pytest.approx(2.0 * weber, rel=1e-6)
     assert fit.scale == pytest.approx(scale, rel=1e-5)
@@ -95,7 +96,8 @@ def test_noise_free_proportions_give_the_generating_function(function, lapse):
     assert fit.slope == pytest.approx(slope, rel=1e-6)
     # width: psignifit's, the ln-delta distance from F = 5% to F = 95%
     assert fit.width == pytest.approx(scale * (2 * Z95 if function == "gaussian" else GUMBEL_WIDTH), rel=1e-5)
-    assert fit.n_trials == 7_000_000 and fit.n_levels == 7
+    assert fit.n_trials == 7_000_000
+    assert fit.n_levels == 7
 
 
 # --- psignifit ----------------------------------------------------------------------------------
@@ -206,7 +208,8 @@ def test_recovers_a_known_function(function):
         lapses.append(fit.lapse)
     errors = np.array(errors)
     assert abs(errors.mean()) < 0.04  # 3 standard errors of the mean
-    assert errors.std() < 0.1 and np.abs(errors).max() < 0.25
+    assert errors.std() < 0.1
+    assert np.abs(errors).max() < 0.25
     assert np.median(scales) == pytest.approx(scale, rel=0.15)
     assert np.median(lapses) == pytest.approx(lapse, abs=0.01)
 
@@ -223,7 +226,8 @@ def test_bootstrap_interval_covers_the_truth(function):
     hits = 0
     for r in range(200):
         fit = fit_psychometric(stimulus, simulate(function, weber, scale, lapse, stimulus, rng), function=function, n_boot=200, seed=r)
-        assert fit.ci_low <= fit.weber <= fit.ci_high and fit.n_boot == 200
+        assert fit.ci_low <= fit.weber <= fit.ci_high
+        assert fit.n_boot == 200
         hits += fit.ci_low <= weber <= fit.ci_high
     assert 0.87 <= hits / 200 <= 0.98
 
@@ -268,7 +272,8 @@ def test_bootstrap_is_reproducible_and_per_row():
     both = weber_table(trials, n_boot=200)
     one = weber_table(trials[trials["code"] == "P02"], n_boot=200)
     assert list(both.columns) == WEBER_COLUMNS
-    assert one.iloc[0]["ci_low"] == both.iloc[1]["ci_low"] and one.iloc[0]["ci_high"] == both.iloc[1]["ci_high"]
+    assert one.iloc[0]["ci_low"] == both.iloc[1]["ci_low"]
+    assert one.iloc[0]["ci_high"] == both.iloc[1]["ci_high"]
 
 
 # --- degenerate data ----------------------------------------------------------------------------
@@ -286,10 +291,12 @@ def test_degenerate_data_give_a_flagged_finite_fit(function, case, flag):
         warnings.simplefilter("error")  # no RuntimeWarning (log of 0, 0 * inf) on the way either
         fit = fit_psychometric(stimulus, correct, function=function, n_boot=100)
         assert all(math.isnan(v) for v in bootstrap_interval(fit, stimulus, n_boot=100))
-    assert fit.flag == flag and not fit.converged
+    assert fit.flag == flag
+    assert not fit.converged
     for v in (fit.weber, fit.jnd, fit.location, fit.scale, fit.width, fit.slope, fit.lapse, fit.loglik):
         assert math.isfinite(v)
-    assert math.isnan(fit.ci_low) and math.isnan(fit.ci_high)  # documented: no interval from a bound
+    assert math.isnan(fit.ci_low)  # documented: no interval from a bound
+    assert math.isnan(fit.ci_high)
     if flag == "all_correct":
         assert fit.weber < stimulus.min()  # the threshold below anything tested
     if flag == "at_chance":
@@ -300,7 +307,8 @@ def test_no_trend_is_flagged_shallow():
     """75% correct at every level: any function through 75% everywhere fits, the flattest best."""
     stimulus = np.repeat([0.05, 0.1, 0.2, 0.4], 20)
     fit = fit_psychometric(stimulus, np.tile([1, 1, 1, 0], 20), n_boot=50, function="gaussian")
-    assert fit.flag == "shallow" and not fit.converged
+    assert fit.flag == "shallow"
+    assert not fit.converged
     assert fit.scale == pytest.approx(2 * math.log(8.0))  # the upper bound: twice the span of ln delta
     assert all(math.isfinite(v) for v in (fit.weber, fit.ci_low, fit.ci_high))
 
@@ -334,9 +342,13 @@ def test_weber_table_rows_and_degenerate_rows():
                                                              ("P02", "mass_spring")]
     assert (table["n_trials"] == 40).all()
     bad = table.iloc[2]
-    assert bad["flag"] == "all_correct" and not bad["converged"] and math.isfinite(bad["weber"]) and math.isnan(bad["ci_low"])
+    assert bad["flag"] == "all_correct"
+    assert not bad["converged"]
+    assert math.isfinite(bad["weber"])
+    assert math.isnan(bad["ci_low"])
     good = table.drop(index=2)
-    assert (good["ci_low"] <= good["weber"]).all() and (good["weber"] <= good["ci_high"]).all()
+    assert (good["ci_low"] <= good["weber"]).all()
+    assert (good["weber"] <= good["ci_high"]).all()
     with pytest.raises(ValueError, match="missing columns"):
         weber_table(pd.DataFrame({"code": ["P01"], "stimulus": [0.1], "correct": [1]}))
 
@@ -367,11 +379,15 @@ def test_group_test_matches_pingouin(monkeypatch):
     table = _table()
     g = group_test(table, CONDITIONS)
     json.dumps(g, allow_nan=False)  # JSON as it stands
-    assert g["estimable"] and g["n_participants"] == 12 and g["excluded"] == [] and g["conditions"] == CONDITIONS
+    assert g["estimable"]
+    assert g["n_participants"] == 12
+    assert g["excluded"] == []
+    assert g["conditions"] == CONDITIONS
     wide = np.log(table.pivot(index="code", columns="condition", values="weber")[CONDITIONS])
     long = table.assign(lw=np.log(table["weber"]))
     fr = pg.friedman(long, dv="lw", within="condition", subject="code").iloc[0]
-    assert g["friedman"]["test"] == "Friedman" and g["friedman"]["df"] == 2
+    assert g["friedman"]["test"] == "Friedman"
+    assert g["friedman"]["df"] == 2
     assert g["friedman"]["statistic"] == pytest.approx(float(fr["Q"]), rel=1e-9)
     assert g["friedman"]["p"] == pytest.approx(float(fr["p_unc"]), rel=1e-9)
     assert [(p["a"], p["b"]) for p in g["pairs"]] == list(itertools.combinations(CONDITIONS, 2))
@@ -379,7 +395,8 @@ def test_group_test_matches_pingouin(monkeypatch):
         b, a = wide[pair["b"]].to_numpy(), wide[pair["a"]].to_numpy()
         t = pg.ttest(b, a, paired=True).iloc[0]
         assert pair["p"] == pytest.approx(float(t["p_val"]), rel=1e-9)
-        assert pair["t"] == pytest.approx(float(t["T"]), rel=1e-9) and pair["df"] == 11
+        assert pair["t"] == pytest.approx(float(t["T"]), rel=1e-9)
+        assert pair["df"] == 11
         lo, hi = t["CI95"]
         assert pair["ratio"] == pytest.approx(math.exp(np.mean(b - a)), rel=1e-12)
         assert pair["ratio_low"] == pytest.approx(math.exp(lo), rel=1e-9)
@@ -404,7 +421,10 @@ def test_mixed_model_likelihood_ratio_against_the_anova(seed):
     table = _table(seed=seed, effects=(0.0, 0.1, 0.25))
     g = group_test(table)
     mm = g["mixed_model"]
-    assert mm["converged"] and mm["variance_participant"] > 0 and mm["df"] == 2 and mm["n_observations"] == 36
+    assert mm["converged"]
+    assert mm["variance_participant"] > 0
+    assert mm["df"] == 2
+    assert mm["n_observations"] == 36
     aov = pg.rm_anova(table.assign(lw=np.log(table["weber"])), dv="lw", within="condition", subject="code", correction=False).iloc[0]
     n, k = 12, 3
     assert mm["chi2"] == pytest.approx(n * (k - 1) * math.log(1 + float(aov["F"]) / (n - 1)), rel=1e-5)
@@ -417,7 +437,8 @@ def test_group_test_two_conditions_incomplete_and_too_few():
     g = group_test(table)
     wide = np.log(table.pivot(index="code", columns="condition", values="weber"))
     w = pg.wilcoxon(wide["plate_spring"].to_numpy(), wide["fem"].to_numpy()).iloc[0]
-    assert g["friedman"]["test"] == "Wilcoxon signed-rank" and g["friedman"]["df"] is None
+    assert g["friedman"]["test"] == "Wilcoxon signed-rank"
+    assert g["friedman"]["df"] is None
     assert g["friedman"]["p"] == pytest.approx(float(w["p_val"]), rel=1e-9)
     assert g["pairs"][0]["p_holm"] == pytest.approx(g["pairs"][0]["p"], rel=1e-12)  # one pair: Holm changes nothing
     # a participant without one condition, one whose fit gave no Weber fraction: left out, said so
@@ -426,13 +447,17 @@ def test_group_test_two_conditions_incomplete_and_too_few():
     t3.loc[(t3["code"] == "P05") & (t3["condition"] == "fem"), "weber"] = math.nan
     t3.loc[(t3["code"] == "P06") & (t3["condition"] == "fem"), "converged"] = False
     g3 = group_test(t3)
-    assert g3["n_participants"] == 10 and g3["excluded"] == ["P03", "P05"] and g3["n_not_converged"] == 1
+    assert g3["n_participants"] == 10
+    assert g3["excluded"] == ["P03", "P05"]
+    assert g3["n_not_converged"] == 1
     # one condition, or too few complete participants: no tests, no exception, JSON all the same
     for bad, problem in ((_table()[lambda d: d["condition"] == "fem"], "fewer than 2 conditions"),
                          (_table(n=2), "fewer than 3 participants")):
         g = group_test(bad)
         json.dumps(g, allow_nan=False)
-        assert not g["estimable"] and g["mixed_model"] is None and g["friedman"] is None
+        assert not g["estimable"]
+        assert g["mixed_model"] is None
+        assert g["friedman"] is None
         assert any(problem in p for p in g["problems"])
     with pytest.raises(ValueError, match="two rows"):
         group_test(pd.concat([_table(), _table().iloc[:1]]))
@@ -468,8 +493,11 @@ def test_thurstone_noise_free_gives_the_observer(lapse):
     weber, n = 0.18, 1e6
     delta = weber * np.exp(np.linspace(-2.0, 1.5, 8))
     fit = fit_psychometric(delta, n * sdt_observer(delta, weber, lapse), trials=np.full(8, n), function="thurstone")
-    assert fit.converged and fit.flag == "" and fit.scale == 1.0
-    assert fit.weber == pytest.approx(weber, rel=1e-6) and fit.lapse == pytest.approx(lapse / 2, abs=1e-6)
+    assert fit.converged
+    assert fit.flag == ""
+    assert fit.scale == 1.0
+    assert fit.weber == pytest.approx(weber, rel=1e-6)
+    assert fit.lapse == pytest.approx(lapse / 2, abs=1e-6)
     assert float(fit.p_correct([weber])[0]) == pytest.approx(0.75 - lapse / 4, abs=1e-7)
     h = 1e-5  # the slope per unit of the fit's axis, ln ln(1 + delta)
     up, down = math.expm1(math.log1p(weber) * math.exp(h)), math.expm1(math.log1p(weber) * math.exp(-h))
@@ -488,10 +516,12 @@ def test_thurstone_recovers_and_covers_the_observer():
         delta = np.exp(rng.uniform(math.log(0.02), 0.0, 40))
         correct = (rng.random(40) < sdt_observer(delta, weber, lapse)).astype(int)
         fit = fit_psychometric(delta, correct, n_boot=200, seed=r)
-        assert fit.function == "thurstone" and math.isfinite(fit.weber)
+        assert fit.function == "thurstone"
+        assert math.isfinite(fit.weber)
         errors.append(abs(fit.weber - weber) / weber)
         hits += fit.ci_low <= weber <= fit.ci_high
-    assert np.median(errors) < 0.33 and 0.80 <= hits / 150 <= 0.96
+    assert np.median(errors) < 0.33
+    assert 0.80 <= hits / 150 <= 0.96
 
 
 def test_pooling_over_participants_recovers_them_better_than_their_own_fits():
@@ -517,6 +547,7 @@ def test_pooling_over_participants_recovers_them_better_than_their_own_fits():
     pooled_error = np.median(np.abs(pooled["weber_pooled"] - g) / g)
     own_error = np.median(np.abs(own["weber"].to_numpy() - np.array([truth[c] for c in own["code"]])) / g)
     covered = np.mean((pooled["pooled_low"] <= g) & (g <= pooled["pooled_high"]))
-    assert pooled_error < 0.9 * own_error and 0.80 <= covered <= 0.99, (pooled_error, own_error, covered)
+    assert pooled_error < 0.9 * own_error, (pooled_error, own_error, covered)
+    assert 0.80 <= covered <= 0.99, (pooled_error, own_error, covered)
     few = pooled_webers(trials[trials["code"].isin(list(truth)[:POOLED_MIN - 1])])
     assert few["weber_pooled"].isna().all()  # too few participants to pool over

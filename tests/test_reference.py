@@ -31,7 +31,8 @@ def test_richardson_recovers_an_exact_second_order_sequence(hs, C):
     C = C / hs[0] ** 2  # differences of order 1 whatever the unit of h (else round-off limits p to ~1e-9)
     f = [f0 + C * h**2 for h in hs]
     r = richardson(*f, *hs)
-    assert r["status"] == "monotone" and r["extrapolated"]
+    assert r["status"] == "monotone"
+    assert r["extrapolated"]
     assert abs(r["p"] - 2.0) < 1e-10
     assert abs(r["f_ext"] - f0) < 1e-10
     # Roache: GCI = 1.25 |e21| / (r21^p - 1), relative to the finest value
@@ -44,9 +45,12 @@ def test_richardson_other_orders_and_two_meshes():
     hs = (1.0, 1.4, 2.0)
     f = [1.0 + 0.3 * h**1.5 for h in hs]
     r = richardson(*f, *hs)
-    assert abs(r["p"] - 1.5) < 1e-10 and abs(r["f_ext"] - 1.0) < 1e-10
+    assert abs(r["p"] - 1.5) < 1e-10
+    assert abs(r["f_ext"] - 1.0) < 1e-10
     r2 = richardson2(1.0 + 0.3 * 1.0**2, 1.0 + 0.3 * 1.6**2, 1.0, 1.6)  # two meshes: assumed order 2, Fs = 3
-    assert r2["f_ext"] == pytest.approx(1.0, abs=1e-12) and r2["fs"] == 3.0 and r2["status"] == "two meshes"
+    assert r2["f_ext"] == pytest.approx(1.0, abs=1e-12)
+    assert r2["fs"] == 3.0
+    assert r2["status"] == "two meshes"
     assert converge([3.0, 2.0, 1.5], [3e-3, 2e-3, 1.5e-3])["f1"] == 1.5  # any order in, finest first
     with pytest.raises(ValueError):
         richardson(1, 2, 3, 2.0, 1.0, 3.0)
@@ -57,7 +61,9 @@ def test_richardson_other_orders_and_two_meshes():
 def test_richardson_falls_back_to_a_conservative_band(f, status):
     hs = (1.0, 1.25, 1.5)
     r = richardson(*f, *hs)
-    assert r["status"] == status and not r["extrapolated"] and r["f_ext"] == f[0]
+    assert r["status"] == status
+    assert not r["extrapolated"]
+    assert r["f_ext"] == f[0]
     spread = max(abs(f[1] - f[0]), abs(f[2] - f[0])) / f[0]
     assert r["gci"] >= spread - 1e-15
     assert r["gci"] >= 3.0 * abs(f[1] - f[0]) / f[0] / (1.25**2 - 1) - 1e-15
@@ -65,7 +71,8 @@ def test_richardson_falls_back_to_a_conservative_band(f, status):
 
 def test_richardson_on_identical_values():
     r = richardson(2.0, 2.0, 2.0, 1.0, 2.0, 3.0)
-    assert r["status"] == "converged" and r["gci"] == 0.0
+    assert r["status"] == "converged"
+    assert r["gci"] == 0.0
 
 
 # -- meshes and P2 forces --------------------------------------------------------------------
@@ -103,14 +110,16 @@ def test_body_fitted_hemisphere_mesh_is_closed_and_right_sized(left):
         faces = np.sort(m.tets[:, [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]]].reshape(-1, 3), axis=1)
         _, counts = np.unique(faces, axis=0, return_counts=True)
         assert counts.max() == 2
-    assert len(meshes[1].tets) > len(meshes[0].tets) and meshes[1].h < meshes[0].h
+    assert len(meshes[1].tets) > len(meshes[0].tets)
+    assert meshes[1].h < meshes[0].h
 
 
 def test_p2_pull_forces_agree_between_two_mesh_sizes(scene, left):
     _, _, meshes = left
     pull = next(p for p in make_pulls(scene) if p.name == "left-lateral")
     pts, w = patch_area_points(scene.mesh, pull.vertex, 0.005)
-    assert w.sum() == pytest.approx(1.0) and np.all(np.linalg.norm(pts - scene.mesh.vertices[pull.vertex], axis=1) <= 0.005)
+    assert w.sum() == pytest.approx(1.0)
+    assert np.all(np.linalg.norm(pts - scene.mesh.vertices[pull.vertex], axis=1) <= 0.005)
     forces = []
     for m in meshes:
         prob = build_problem(scene, 0, m)
@@ -119,7 +128,8 @@ def test_p2_pull_forces_agree_between_two_mesh_sizes(scene, left):
         assert prob.fixed_nodes == int(np.sum(m.nodes[:, axis] <= limit)) > 0
         law = scene.spec.material.law
         K = pull_stiffness(prob, law, pts, w)  # the law's small-strain limit, per pascal of mu
-        assert np.allclose(K, K.T) and np.all(np.linalg.eigvalsh(K) > 0)
+        assert np.allclose(K, K.T)
+        assert np.all(np.linalg.eigvalsh(K) > 0)
         if m is meshes[0]:  # it is linear elasticity at the law's moduli, assembled independently (LinearFem)
             from sim.models.fem import LinearFem, condense
 
@@ -137,16 +147,24 @@ def test_cli_bench_reference_quick(tmp_path):
     assert res.exit_code == 0, res.output
     data = json.loads(res.output)
     assert {s["pull"] for s in data["samples"]} == {"left-lateral", "left-anterior"}
-    assert len(data["samples"]) == 4 and len(data["meshes"]) == 2
+    assert len(data["samples"]) == 4
+    assert len(data["meshes"]) == 2
     for s in data["samples"]:
-        assert s["status"] == "two meshes" and len(s["forces_n"]) == 2 and all(f > 0 for f in s["forces_n"])
+        assert s["status"] == "two meshes"
+        assert len(s["forces_n"]) == 2
+        assert all(f > 0 for f in s["forces_n"])
         assert s["band_n"][0] < s["forces_n"][-1] < s["band_n"][1]
     meta = json.loads((out / "reference.json").read_text())["meta"]
-    assert meta["element"].startswith("P2") and meta["law"]["law"] == "ogden" and meta["formulation"].startswith("finite strain")
+    assert meta["element"].startswith("P2")
+    assert meta["law"]["law"] == "ogden"
+    assert meta["formulation"].startswith("finite strain")
     assert all(s["converged"] for p in data["pulls"] for s in p["solves"])
-    assert "| pull |" in (out / "reference.md").read_text() and "Newton iterations" in (out / "reference.md").read_text()
+    assert "| pull |" in (out / "reference.md").read_text()
+    assert "Newton iterations" in (out / "reference.md").read_text()
     table = CliRunner().invoke(cli, ["bench", "reference", "--quick"])
-    assert table.exit_code == 0 and "left-lateral" in table.output and "GCI band" in table.output
+    assert table.exit_code == 0
+    assert "left-lateral" in table.output
+    assert "GCI band" in table.output
     bad = CliRunner().invoke(cli, ["bench", "reference", "--sizes", "8"])
     assert bad.exit_code == 2
 
@@ -156,8 +174,10 @@ def test_three_mesh_reference_band_is_within_the_jnd():
     cfg = reference.ReferenceConfig(pulls=("left-lateral",), samples=1)
     data = reference.run_reference(cfg)
     (s,) = data["samples"]
-    assert len(s["forces_n"]) == 3 and s["status"] in ("monotone", "oscillatory", "diverging", "order out of range")
-    assert s["gci"] < 0.10 and s["within_jnd_rel"]
+    assert len(s["forces_n"]) == 3
+    assert s["status"] in ("monotone", "oscillatory", "diverging", "order out of range")
+    assert s["gci"] < 0.10
+    assert s["within_jnd_rel"]
 
 
 def test_combined_sample_by_hand():
@@ -167,8 +187,10 @@ def test_combined_sample_by_hand():
     forces = [np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.95, 0.0]), np.array([0.0, 0.94 * 0.8, 0.94 * 0.6])]
     hs = [0.004, 0.002, 0.001]
     c = tissue_pulls.combined_sample(forces, hs)
-    assert c["status"] == "monotone" and c["order"] == pytest.approx(np.log(5) / np.log(2))
-    assert c["force_n"] == pytest.approx(0.9375) and np.allclose(c["force"], [0.0, 0.9375 * 0.8, 0.9375 * 0.6])
+    assert c["status"] == "monotone"
+    assert c["order"] == pytest.approx(np.log(5) / np.log(2))
+    assert c["force_n"] == pytest.approx(0.9375)
+    assert np.allclose(c["force"], [0.0, 0.9375 * 0.8, 0.9375 * 0.6])
     assert c["band_rel"] == pytest.approx(1.25 * (0.01 / 0.94) / 4)
 
 
@@ -185,7 +207,8 @@ def test_the_shipped_solves_are_the_solvers_and_hash_checked(scene, tmp_path, mo
     assert len([e for e in info["entries"] if e["shape"] > 0]) == (26 + 18) * (len(shapes) - 1)
     for e in entries.values():  # a solve that stopped says why and how far it got
         assert e["converged"] or (e["reason"] and 0 <= e.get("reached_mm", 0.0) < 12.0)
-    assert entries[("left-lateral", 4.0)]["converged"] and entries[("right-lateral", 4.0)]["converged"]  # the hands
+    assert entries[("left-lateral", 4.0)]["converged"]  # the hands
+    assert entries[("right-lateral", 4.0)]["converged"]
     pull = next(p for p in make_pulls(scene) if p.name == "left-anterior")
     verts, tris, _ = hemisphere_surface(scene.mesh, 0)
     body = mesh_hemisphere(verts, tris, 0.008)
@@ -196,7 +219,8 @@ def test_the_shipped_solves_are_the_solvers_and_hash_checked(scene, tmp_path, mo
     shipped = tissue_pulls.stored_solve(key, xs)
     again = tissue_pulls.solve_pull(build_problem(scene, 0, body), scene.spec.material.law, *patch_area_points(scene.mesh, pull.vertex, 0.005),
                                  np.asarray(pull.direction), xs, stretch_range=rng)
-    assert again["converged"] and np.allclose(again["force_per_pa"], shipped["force_per_pa"], rtol=1e-6)
+    assert again["converged"]
+    assert np.allclose(again["force_per_pa"], shipped["force_per_pa"], rtol=1e-6)
     assert np.allclose(again["support"], shipped["support"], rtol=1e-6, atol=1e-9)
     bad = tmp_path / "reference_pulls.npz"
     bad.write_bytes(tissue_pulls.SHIPPED_PULLS.read_bytes()[:-10] + b"0123456789")
@@ -256,9 +280,13 @@ def test_samples_past_a_stopped_solve_have_no_reference_and_are_not_judged():
 
     pulls = [Pull("a", 1, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0), Pull("b", 2, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0)]
     ref = [cells("a"), cells("b")]
-    assert np.isfinite(ref[1][0]["force_n"]) and np.isnan(ref[1][1]["force_n"]) and ref[1][1]["status"] == "not solved"
+    assert np.isfinite(ref[1][0]["force_n"])
+    assert np.isnan(ref[1][1]["force_n"])
+    assert ref[1][1]["status"] == "not solved"
     ok, why = tissue_pulls.reached(refs)["b"]
-    assert ok.tolist() == [True, False] and "4 mm" in why and "tangent singular" in why
+    assert ok.tolist() == [True, False]
+    assert "4 mm" in why
+    assert "tangent singular" in why
     R = np.array([[c["force_n"] for c in row] for row in ref])
     assert calibration_scale(np.full(4, 2.0), R.ravel() * 0 + np.array([4.0, 4.0, 4.0, np.nan])) == pytest.approx(2.0)
     model = {"model": "m", "setting": "s", "force": -np.stack([[[0.0, 0.0, R[0, k]] for k in range(2)]] * 2),
@@ -266,13 +294,18 @@ def test_samples_past_a_stopped_solve_have_no_reference_and_are_not_judged():
     model["force"][1, 1] = [0.0, 0.0, -99.0]  # far off where there is no reference: must not count
     rows, samples = compare(ref, [model], pulls, 1, xs)
     raw = rows[0]
-    assert raw["n_test"] == 1 and raw["within"] == 1 and raw["force_error_max"] == pytest.approx(0.0, abs=1e-12)
-    assert raw["pulls_within"] == 1 and raw["n_test_pulls"] == 1
+    assert raw["n_test"] == 1
+    assert raw["within"] == 1
+    assert raw["force_error_max"] == pytest.approx(0.0, abs=1e-12)
+    assert raw["pulls_within"] == 1
+    assert raw["n_test_pulls"] == 1
     # a test pull with no reference at all is not counted as a pull within, nor as a pull judged
     refs["c"] = {**refs["b"], "force_per_pa": np.full_like(stopped, np.nan)}
     model["force"] = np.concatenate([model["force"], model["force"][:1]])
     rows, _ = compare(ref + [cells("c")], [model], pulls + [Pull("c", 3, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0)], 1, xs)
-    assert rows[0]["n_test"] == 1 and rows[0]["pulls_within"] == 1 and rows[0]["n_test_pulls"] == 1
+    assert rows[0]["n_test"] == 1
+    assert rows[0]["pulls_within"] == 1
+    assert rows[0]["n_test_pulls"] == 1
     assert not any(s["pull"] == "b" and s["displacement_mm"] == 8.0 for s in samples)
 
 
@@ -318,5 +351,6 @@ def test_a_stored_solve_that_stopped_beyond_the_records_asked_serves_them_as_con
     force = np.array([[1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [np.nan, np.nan, np.nan]])
     tissue_pulls._cache("k", xs, force, None, np.zeros((3, 4)), {"converged": False, "reason": "diverging", "reached_mm": 12.5})
     short = tissue_pulls.stored_solve("k", xs[:2])
-    assert short["converged"] and "stopped at 12.5 mm (diverging)" in short["reason"]
+    assert short["converged"]
+    assert "stopped at 12.5 mm (diverging)" in short["reason"]
     assert not tissue_pulls.stored_solve("k", xs)["converged"]

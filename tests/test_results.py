@@ -91,7 +91,8 @@ def test_holm_is_in_every_family_pair_when_built(results):
     st = results[1]
     pairs = [p for part in (st.kinds.ratings, st.kinds.scores, st.kinds.choices) for v in part.values() for p in v.pairs]
     missing = [p for p in pairs if p.p_holm is None or p.p_holm_family is None or p.p_holm_question is None]
-    assert pairs and missing == []
+    assert pairs
+    assert missing == []
 
 
 def test_a_record_gives_back_its_tests_dict_keys_in_order():

@@ -64,7 +64,9 @@ ROUNDING_TIMES = [
 
 def test_friedman_matches_r_rounding_times_example():
     f = friedman(np.array(ROUNDING_TIMES))
-    assert round(f["statistic"], 3) == 11.143 and f["df"] == 2 and round(f["p_value"], 6) == 0.003805
+    assert round(f["statistic"], 3) == 11.143
+    assert f["df"] == 2
+    assert round(f["p_value"], 6) == 0.003805
     # Kendall's W = chi2 / (n (k - 1)) (Kendall and Babington Smith) from R's printed statistic
     assert f["kendall_w"] == pytest.approx(11.143 / (22 * 2), abs=2e-5)
 
@@ -75,7 +77,8 @@ def test_friedman_and_kendall_w_match_pingouin(data):
         _likert(25, seed=1).pivot(index="code", columns="model", values="answer").to_numpy()
     ref = _pg(pg.friedman(pd.DataFrame(m, columns=["a", "b", "c"])))  # its own tie-corrected W, then Q = n (k - 1) W
     f = friedman(m)
-    assert f["statistic"] == pytest.approx(ref["Q"], rel=1e-10) and f["p_value"] == pytest.approx(ref["p_unc"], rel=1e-9)
+    assert f["statistic"] == pytest.approx(ref["Q"], rel=1e-10)
+    assert f["p_value"] == pytest.approx(ref["p_unc"], rel=1e-9)
     assert f["kendall_w"] == pytest.approx(ref["W"], rel=1e-10)
 
 
@@ -91,7 +94,8 @@ def test_pairwise_wilcoxon_matches_pingouin():
         assert row.p_value == pytest.approx(ref["p_val"], rel=1e-9)
         assert row.rank_biserial == pytest.approx(ref["RBC"], abs=1e-12)
     by = {(r.a, r.b): r.rank_biserial for r in ours.itertuples()}
-    assert by[("fem", "mass_spring")] < -0.3 and by[("mass_spring", "plate_spring")] > 0.3  # a - b: mass_spring rated higher
+    assert by[("fem", "mass_spring")] < -0.3  # a - b: mass_spring rated higher
+    assert by[("mass_spring", "plate_spring")] > 0.3
 
 
 # --- bootstrap intervals against a BCa written out by hand (Efron and Tibshirani 1993, ch. 14) ---
@@ -127,10 +131,13 @@ def test_rank_biserial_interval_matches_a_hand_bca_bootstrap():
     x, y = wide["plate_spring"].to_numpy(float), wide["fem"].to_numpy(float)
     out = rank_biserial_ci(x, y)
     ref = _pg(pg.wilcoxon(x, y))
-    assert out["rank_biserial"] == pytest.approx(ref["RBC"], abs=1e-12) and out["n"] == 30
+    assert out["rank_biserial"] == pytest.approx(ref["RBC"], abs=1e-12)
+    assert out["n"] == 30
     lo, hi = _hand_bca(x - y, _rb_reference)  # Monte Carlo error about 0.01; the percentile interval is 0.05 off here
-    assert out["ci_low"] == pytest.approx(lo, abs=0.03) and out["ci_high"] == pytest.approx(hi, abs=0.03)
-    assert -1 <= out["ci_low"] < out["rank_biserial"] < out["ci_high"] <= 1 and out["ci_high"] - out["ci_low"] > 0.2
+    assert out["ci_low"] == pytest.approx(lo, abs=0.03)
+    assert out["ci_high"] == pytest.approx(hi, abs=0.03)
+    assert -1 <= out["ci_low"] < out["rank_biserial"] < out["ci_high"] <= 1
+    assert out["ci_high"] - out["ci_low"] > 0.2
     assert rank_biserial_ci(x, y) == out  # a fixed seed: the same interval every time
 
 
@@ -145,7 +152,8 @@ def test_kendall_w_interval_matches_a_hand_percentile_bootstrap():
     rng = np.random.default_rng(11)
     boot = [w(m[rng.integers(0, len(m), len(m))]) for _ in range(3000)]
     lo, hi = np.quantile(boot, [0.025, 0.975])  # Monte Carlo error about 0.01
-    assert out["ci_low"] == pytest.approx(lo, abs=0.03) and out["ci_high"] == pytest.approx(hi, abs=0.03)
+    assert out["ci_low"] == pytest.approx(lo, abs=0.03)
+    assert out["ci_high"] == pytest.approx(hi, abs=0.03)
     assert 0 <= out["ci_low"] < out["kendall_w"] < out["ci_high"] <= 1
 
 
@@ -156,7 +164,9 @@ def test_kendall_w_interval_does_not_collapse_near_zero():
     rng = np.random.default_rng(0)
     m = rng.integers(1, 8, size=(48, 3)).astype(float)
     out = kendall_w_ci(m)
-    assert out["kendall_w"] < 0.005 and out["ci_high"] > 0.05 and out["ci_low"] <= out["kendall_w"]
+    assert out["kendall_w"] < 0.005
+    assert out["ci_high"] > 0.05
+    assert out["ci_low"] <= out["kendall_w"]
 
 
 def test_wrappers_add_the_intervals_to_the_existing_tests():
@@ -167,15 +177,19 @@ def test_wrappers_add_the_intervals_to_the_existing_tests():
         single = rank_biserial_ci(wide[row.a], wide[row.b])
         assert (row.rb_ci_low, row.rb_ci_high) == (single["ci_low"], single["ci_high"])
     f = friedman_with_ci(wide.to_numpy())
-    assert f["kendall_w_low"] < f["kendall_w"] < f["kendall_w_high"] and f["statistic"] == friedman(wide.to_numpy())["statistic"]
+    assert f["kendall_w_low"] < f["kendall_w"] < f["kendall_w_high"]
+    assert f["statistic"] == friedman(wide.to_numpy())["statistic"]
 
 
 def test_degenerate_rank_intervals_are_nan_not_errors():
     same = rank_biserial_ci([3, 4, 5, 2], [1, 2, 3, 1])  # every difference positive: r = 1 in every resample
-    assert same["rank_biserial"] == 1.0 and math.isnan(same["ci_low"]) and math.isnan(same["ci_high"])
+    assert same["rank_biserial"] == 1.0
+    assert math.isnan(same["ci_low"])
+    assert math.isnan(same["ci_high"])
     assert math.isnan(rank_biserial_ci([1, 2], [2, 1])["ci_low"])  # two pairs
     tied = kendall_w_ci(np.ones((6, 3)))
-    assert math.isnan(tied["kendall_w"]) and math.isnan(tied["ci_low"])
+    assert math.isnan(tied["kendall_w"])
+    assert math.isnan(tied["ci_low"])
 
 
 # --- the linear mixed model against the repeated-measures ANOVA ----------------------------------
@@ -194,12 +208,15 @@ def test_mixed_model_wald_test_is_the_rm_anova_f_on_balanced_data():
     df = _continuous(18, seed=6)
     out = mixed_model(df, MODELS, with_period=False)
     ref = _pg(pg.rm_anova(df, dv="answer", within="model", subject="code", correction=False))
-    assert out["converged"] and out["variance_participant"] > 1.0
+    assert out["converged"]
+    assert out["variance_participant"] > 1.0
     t = out["model_test"]
-    assert t["df"] == 2 and t["df_denominator"] == (18 - 1) * (3 - 1)
+    assert t["df"] == 2
+    assert t["df_denominator"] == (18 - 1) * (3 - 1)
     # REML is optimised numerically (statsmodels' default tolerances: about 1e-5 relative on the
     # variances); ML instead of REML, or another denominator, would be off by percents
-    assert t["chi2"] / t["df"] == pytest.approx(ref["F"], rel=2e-4) and t["f"] == pytest.approx(ref["F"], rel=2e-4)
+    assert t["chi2"] / t["df"] == pytest.approx(ref["F"], rel=2e-4)
+    assert t["f"] == pytest.approx(ref["F"], rel=2e-4)
     assert t["p_value_f"] == pytest.approx(ref["p_unc"], rel=1e-3)
     # balanced: differences of cell means, with the classical pooled-error standard error sqrt(2 MSE / n)
     y = df.pivot(index="code", columns="model", values="answer")[MODELS].to_numpy()
@@ -208,7 +225,8 @@ def test_mixed_model_wald_test_is_the_rm_anova_f_on_balanced_data():
     for pair in out["pairs"]:
         i, j = MODELS.index(pair["a"]), MODELS.index(pair["b"])
         diff = y[:, j].mean() - y[:, i].mean()
-        assert pair["difference"] == pytest.approx(diff, abs=1e-8) and pair["estimable"]
+        assert pair["difference"] == pytest.approx(diff, abs=1e-8)
+        assert pair["estimable"]
         assert pair["se"] == pytest.approx(math.sqrt(2 * mse / 18), rel=2e-4)
         assert pair["p_value"] == pytest.approx(2 * stats.t.sf(abs(diff) / math.sqrt(2 * mse / 18), 34), rel=1e-3)
     for m in MODELS:
@@ -221,7 +239,8 @@ def test_mixed_model_with_period_in_a_latin_square_keeps_the_cell_means():
     df = _continuous(18, seed=7)
     df["answer"] += 0.8 * df["period"]  # a learning effect
     out = mixed_model(df, MODELS)
-    assert out["formula"] == "answer ~ C(model) + C(period) + (1 | code)" and out["model_test"]["df_denominator"] == 32
+    assert out["formula"] == "answer ~ C(model) + C(period) + (1 | code)"
+    assert out["model_test"]["df_denominator"] == 32
     cell = df.groupby("model")["answer"].mean()
     for m in MODELS:
         assert out["means"][m]["mean"] == pytest.approx(cell[m], abs=1e-8)
@@ -231,8 +250,10 @@ def test_mixed_model_with_period_in_a_latin_square_keeps_the_cell_means():
 def test_mixed_model_degenerate_data_gives_nan_not_errors():
     flat = _continuous(6, seed=8).assign(answer=3.0)
     out = mixed_model(flat, MODELS)
-    assert not out["estimable"] and "every answer alike" in out["problems"]
-    assert all(not p["estimable"] and math.isnan(p["p_value"]) for p in out["pairs"]) and math.isnan(out["model_test"]["chi2"])
+    assert not out["estimable"]
+    assert "every answer alike" in out["problems"]
+    assert all(not p["estimable"] and math.isnan(p["p_value"]) for p in out["pairs"])
+    assert math.isnan(out["model_test"]["chi2"])
     one_order = _continuous(8, seed=8).assign(period=lambda d: d["model"].map({m: k for k, m in enumerate(MODELS)}))
     assert not mixed_model(one_order, MODELS)["estimable"]  # period confounded with model
 
@@ -264,8 +285,13 @@ def test_ordinal_gee_with_independence_is_the_proportional_odds_mle():
     names = list(X.columns)  # model_mass_spring, model_plate_spring, period_1, period_2, item_q1
     b = dict(zip(names, _proportional_odds_mle(df["answer"].to_numpy(), X.to_numpy())))
     beta = {"fem": 0.0, "mass_spring": b["model_mass_spring"], "plate_spring": b["model_plate_spring"]}
-    assert out["working_dependence"] == "independence" and out["fallback"] is None and out["estimable"] and out["converged"]
-    assert out["formula"] == "answer ~ C(model) + C(period) + C(item)" and out["n_answers"] == 240 and out["n_participants"] == 40
+    assert out["working_dependence"] == "independence"
+    assert out["fallback"] is None
+    assert out["estimable"]
+    assert out["converged"]
+    assert out["formula"] == "answer ~ C(model) + C(period) + C(item)"
+    assert out["n_answers"] == 240
+    assert out["n_participants"] == 40
     for pair in out["pairs"]:
         ref = beta[pair["b"]] - beta[pair["a"]]
         assert pair["log_odds_ratio"] == pytest.approx(ref, abs=1e-4)
@@ -276,11 +302,16 @@ def test_ordinal_gee_with_independence_is_the_proportional_odds_mle():
 def test_ordinal_gee_odds_ratio_above_one_means_higher_ratings_with_b():
     df = _likert(24, shift=(0.0, 2.0, 0.0), items=3, seed=10)  # mass_spring rated about 2 latent units higher
     out = ordinal_gee(df, MODELS)
-    assert out["estimable"] and out["working_dependence"] in ("global odds ratio (ordinal)", "independence")
+    assert out["estimable"]
+    assert out["working_dependence"] == "global odds ratio (ordinal)"
     by = {(p["a"], p["b"]): p for p in out["pairs"]}
     up, down = by[("fem", "mass_spring")], by[("mass_spring", "plate_spring")]
-    assert up["odds_ratio"] > 3 and up["ci_low"] > 1 and up["p_value"] < 1e-3
-    assert down["odds_ratio"] < 1 / 3 and down["ci_high"] < 1 and down["p_value"] < 1e-3
+    assert up["odds_ratio"] > 3
+    assert up["ci_low"] > 1
+    assert up["p_value"] < 1e-3
+    assert down["odds_ratio"] < 1 / 3
+    assert down["ci_high"] < 1
+    assert down["p_value"] < 1e-3
     assert 1 / 3 < by[("fem", "plate_spring")]["odds_ratio"] < 3
     # the same direction as the raw data: mass_spring's answers are higher
     means = df.groupby("model")["answer"].mean()
@@ -290,16 +321,20 @@ def test_ordinal_gee_odds_ratio_above_one_means_higher_ratings_with_b():
 def test_ordinal_gee_degenerate_data_is_not_estimable_and_does_not_raise():
     flat = _likert(10, seed=11).assign(answer=4)
     out = ordinal_gee(flat, MODELS)
-    assert out["estimable"] is False and out["problems"] == ["every answer alike"] and len(out["pairs"]) == 3
+    assert out["estimable"] is False
+    assert out["problems"] == ["every answer alike"]
+    assert len(out["pairs"]) == 3
     assert all(not p["estimable"] and math.isnan(p["p_value"]) for p in out["pairs"])
     few = _likert(3, items=3, seed=12)
     out = ordinal_gee(few, MODELS)
-    assert out["estimable"] is False and "fewer than 5 participants" in out["problems"]
+    assert out["estimable"] is False
+    assert "fewer than 5 participants" in out["problems"]
     assert all(not p["estimable"] and math.isnan(p["ci_low"]) for p in out["pairs"])
     top = _likert(12, seed=13)
     top.loc[top["model"] == "plate_spring", "answer"] = 5
     out = ordinal_gee(top, MODELS)
-    assert not out["estimable"] and any("plate_spring" in p for p in out["problems"])
+    assert not out["estimable"]
+    assert any("plate_spring" in p for p in out["problems"])
 
 
 # --- one choice among the conditions -------------------------------------------------------------
@@ -329,7 +364,8 @@ def test_exact_multinomial_matches_enumeration_by_hand():
     # (3,1,0) 4/81 (6), (2,2,0) 6/81 (3), (2,1,1) 12/81 (3): p = (3 + 24) / 81 = 1/3
     assert _exact_multinomial_by_sequences([3, 1, 0]) == Fraction(1, 3)
     out = choice_analysis(_choices([3, 1, 0]), MODELS)
-    assert out["overall"]["test"].startswith("exact multinomial") and out["overall"]["p_value"] == pytest.approx(1 / 3, abs=1e-12)
+    assert out["overall"]["test"].startswith("exact multinomial")
+    assert out["overall"]["p_value"] == pytest.approx(1 / 3, abs=1e-12)
     for counts in ([5, 1, 1], [3, 3, 1], [4, 2, 2]):
         ref = float(_exact_multinomial_by_sequences(counts))
         assert choice_analysis(_choices(counts), MODELS)["overall"]["p_value"] == pytest.approx(ref, abs=1e-12)
@@ -338,8 +374,10 @@ def test_exact_multinomial_matches_enumeration_by_hand():
 def test_large_choice_counts_use_chi_square():
     out = choice_analysis(_choices([260, 230, 210]), MODELS)["overall"]
     ref = stats.chisquare([260, 230, 210])
-    assert out["test"] == "chi-square goodness of fit" and out["df"] == 2
-    assert out["statistic"] == pytest.approx(ref.statistic, rel=1e-12) and out["p_value"] == pytest.approx(ref.pvalue, rel=1e-12)
+    assert out["test"] == "chi-square goodness of fit"
+    assert out["df"] == 2
+    assert out["statistic"] == pytest.approx(ref.statistic, rel=1e-12)
+    assert out["p_value"] == pytest.approx(ref.pvalue, rel=1e-12)
 
 
 def test_choice_pairs_are_exact_sign_tests_and_shares_have_wilson_intervals():
@@ -359,7 +397,8 @@ def test_choice_pairs_are_exact_sign_tests_and_shares_have_wilson_intervals():
     p = x / n
     centre, half = p + z * z / (2 * n), z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
     s = out["shares"]["fem"]
-    assert s["count"] == 11 and s["share"] == pytest.approx(11 / 16)
+    assert s["count"] == 11
+    assert s["share"] == pytest.approx(11 / 16)
     assert s["wilson_low"] == pytest.approx((centre - half) / (1 + z * z / n), rel=1e-12)
     assert s["wilson_high"] == pytest.approx((centre + half) / (1 + z * z / n), rel=1e-12)
 
@@ -369,7 +408,8 @@ def test_wilson_interval_matches_newcombe_1998():
     out = choice_analysis(_choices([81, 182, 0]), MODELS)
     s = out["shares"]["fem"]
     assert (round(s["wilson_low"], 4), round(s["wilson_high"], 4)) == (0.2553, 0.3662)
-    assert out["shares"]["plate_spring"]["count"] == 0 and out["shares"]["plate_spring"]["wilson_low"] == pytest.approx(0.0, abs=1e-12)
+    assert out["shares"]["plate_spring"]["count"] == 0
+    assert out["shares"]["plate_spring"]["wilson_low"] == pytest.approx(0.0, abs=1e-12)
 
 
 def test_plackett_luce_strengths_of_top_choices_are_the_shares():
@@ -391,7 +431,9 @@ def test_plackett_luce_strengths_of_top_choices_are_the_shares():
 
 def test_choice_analysis_edge_cases():
     out = choice_analysis(pd.Series([None, None], dtype=object), MODELS)
-    assert out["n"] == 0 and out["n_missing"] == 2 and math.isnan(out["overall"]["p_value"])
+    assert out["n"] == 0
+    assert out["n_missing"] == 2
+    assert math.isnan(out["overall"]["p_value"])
     assert all(math.isnan(p["p_value"]) for p in out["pairs"])
     with pytest.raises(ValueError, match="unknown"):
         choice_analysis(pd.Series(["fem", "voxels"]), MODELS)
@@ -403,8 +445,12 @@ def test_mean_ci_and_median_iqr():
     # 1..10: mean 5.5, SD 3.0277; t(0.975, 9) = 2.262 (any t table) -> 5.5 +- 2.262 * 3.0277 / sqrt(10)
     out = mean_ci(list(range(1, 11)) + [float("nan")])
     half = 2.262 * math.sqrt(sum((v - 5.5) ** 2 for v in range(1, 11)) / 9) / math.sqrt(10)
-    assert out["n"] == 10 and out["mean"] == 5.5 and out["sd"] == pytest.approx(3.0277, abs=1e-4)
-    assert out["ci_low"] == pytest.approx(5.5 - half, abs=1e-3) and out["ci_high"] == pytest.approx(5.5 + half, abs=1e-3)
+    assert out["n"] == 10
+    assert out["mean"] == 5.5
+    assert out["sd"] == pytest.approx(3.0277, abs=1e-4)
+    assert out["ci_low"] == pytest.approx(5.5 - half, abs=1e-3)
+    assert out["ci_high"] == pytest.approx(5.5 + half, abs=1e-3)
     # R: quantile(1:10) -> 1.00 3.25 5.50 7.75 10.00 (type 7)
     assert median_iqr(range(1, 11)) == {"n": 10, "median": 5.5, "q1": 3.25, "q3": 7.75, "iqr": 4.5}
-    assert math.isnan(mean_ci([4.0])["ci_low"]) and median_iqr([])["n"] == 0
+    assert math.isnan(mean_ci([4.0])["ci_low"])
+    assert median_iqr([])["n"] == 0

@@ -15,14 +15,20 @@ from tests.helpers import localise
 
 def test_shipped_scene(root):
     s = load_scene(SCENE)
-    assert s.model == "plate_spring" and len(s.hands) == 2
+    assert s.model == "plate_spring"
+    assert len(s.hands) == 2
     assert s.mesh_path == root / "data" / "brain_fsaverage5.npz"
     law = s.material.law  # human cortex, fitted to Budday et al. 2017 (protocols/materials/human_cortex.toml)
-    assert law.law == "ogden" and 1250 < law.shear_modulus < 1450 and -22 < law.alpha[0] < -19 and law.bulk_ratio == 50  # the joint fit (issue 55)
+    assert law.law == "ogden"  # the joint fit (issue 55)
+    assert 1250 < law.shear_modulus < 1450
+    assert -22 < law.alpha[0] < -19
+    assert law.bulk_ratio == 50
     # the linear models' modulus is the law's small-strain limit at their Poisson ratio: E = 2 mu (1 + nu)
-    assert not s.material.young_given and s.material.poisson == 0.45
+    assert not s.material.young_given
+    assert s.material.poisson == 0.45
     assert s.material.young == pytest.approx(2 * law.shear_modulus * 1.45, rel=1e-12)
-    assert s.renderer.kind == "offscreen" and s.servo_rate_hz == 1000.0
+    assert s.renderer.kind == "offscreen"
+    assert s.servo_rate_hz == 1000.0
 
 
 def _scene_text(**replace) -> str:
@@ -82,7 +88,8 @@ def test_broken_scenes(tmp_path, old, new, message):
 
     assert re.search(message, str(exc.value)), str(exc.value)
     lines = str(exc.value).splitlines()  # every problem on its own line, FILE:LINE: field: message
-    assert isinstance(exc.value, SceneError) and exc.value.problems == lines
+    assert isinstance(exc.value, SceneError)
+    assert exc.value.problems == lines
     assert all(re.match(r"\S+\.toml:\d+: \S", line) for line in lines), lines
 
 
@@ -277,13 +284,15 @@ def test_cli_prints_every_problem_without_a_traceback(tmp_path):
     for scene in (path, tmp_path / "none.toml"):
         res = CliRunner().invoke(cli, ["sim", "run", "--scene", str(scene), "--duration", "0.1", "--time-scale", "0"])
         assert res.exit_code == 1, res.output
-        assert "Traceback" not in res.output and not isinstance(res.exception, SceneError)
+        assert "Traceback" not in res.output
+        assert not isinstance(res.exception, SceneError)
         expected = problems if scene == path else [f"{scene}: not found"]
         assert res.output.removeprefix("Error: ").splitlines() == expected
     bad = tmp_path / "bytes.toml"
     bad.write_bytes(b"[scene]\nname = \"\xff\"\n")
     res = CliRunner().invoke(cli, ["sim", "run", "--scene", str(bad), "--duration", "0.1", "--time-scale", "0"])
-    assert res.exit_code == 1 and "Traceback" not in res.output
+    assert res.exit_code == 1
+    assert "Traceback" not in res.output
     assert res.output == f"Error: {bad}:2: not UTF-8: byte 0xff at column 9; TOML files must be UTF-8\n"
 
 

@@ -39,14 +39,19 @@ def scene_file(tmp_path: Path, target: str | None = None, right_target: str | No
 def test_the_shipped_targets_lie_along_the_pull_on_the_surface():
     scene = build_scene(RETRACTION)
     for i, target in enumerate(scene.targets()):
-        assert target.spec.distance == 0.008 and target.spec.tolerance == 0.0015 and target.spec.safe_force == 0.29
+        assert target.spec.distance == 0.008
+        assert target.spec.tolerance == 0.0015
+        assert target.spec.safe_force == 0.29
         d = np.asarray(target.direction)
         start = np.asarray(scene.script(i).start)
         normal = scene.mesh.vertex_normals[scene.mesh.nearest_vertex(start)]
-        assert abs(np.linalg.norm(d) - 1) < 1e-12 and abs(d @ normal) < 1e-9  # unit, on the tangent plane
+        assert abs(np.linalg.norm(d) - 1) < 1e-12  # unit, on the tangent plane
+        assert abs(d @ normal) < 1e-9
         assert np.sign(d[0]) == (-1 if i == 0 else 1)  # left hand pulls left, right hand right
         goal = scene_goals(scene)[scene.spec.hands[i].name]
-        assert np.allclose(goal.target_m, 0.008 * d) and goal.tolerance_m == 0.0015 and goal.hold_s == 0.5
+        assert np.allclose(goal.target_m, 0.008 * d)
+        assert goal.tolerance_m == 0.0015
+        assert goal.hold_s == 0.5
 
 
 @pytest.mark.parametrize("target, field, message", [
@@ -63,7 +68,9 @@ def test_a_bad_target_is_refused_with_its_line(tmp_path, target, field, message)
         load_scene(path)
     text = str(exc.value)
     line = next(k for k, s in enumerate(path.read_text().splitlines(), 1) if s == "[hands.target]")
-    assert f"{path}:" in text and f": {field}: " in text and message in text
+    assert f"{path}:" in text
+    assert f": {field}: " in text
+    assert message in text
     assert any(f"{path}:{n}: " in text for n in range(line, line + 4))
 
 
@@ -84,8 +91,11 @@ def test_a_run_ends_once_every_hand_held_its_target_and_the_metrics_agree(tmp_pa
     scene = _scripted(tmp_path, 0.008)  # the scripted pull ends on the target
     full = run_scene(scene, duration=6.0, time_scale=0)
     ended = run_scene(scene, duration=6.0, time_scale=0, end_on_targets=True)
-    assert full.ended_early is None and full.targets_held == [True, True] and full.times[-1] > 5.9
-    assert ended.ended_early == "targets held" and ended.targets_held == [True, True]
+    assert full.ended_early is None
+    assert full.targets_held == [True, True]
+    assert full.times[-1] > 5.9
+    assert ended.ended_early == "targets held"
+    assert ended.targets_held == [True, True]
     rows = {(r["hand"], r["metric"]): r["value"] for r in trial_metrics(ended, scene_goals(scene))}
     # held from the first tick within tolerance (the metrics, at 1 kHz) for 0.5 s; the run's check
     # is at the 30 Hz visual frame: it ends within a frame of the later hand's hold
@@ -95,15 +105,19 @@ def test_a_run_ends_once_every_hand_held_its_target_and_the_metrics_agree(tmp_pa
     assert rows[("left", "target_reached")] == rows[("right", "target_reached")] == 1.0
     # the same trial up to that instant: the run was cut, not changed
     n = len(ended.times)
-    assert np.array_equal(ended.positions, full.positions[:n]) and np.array_equal(ended.forces, full.forces[:n])
+    assert np.array_equal(ended.positions, full.positions[:n])
+    assert np.array_equal(ended.forces, full.forces[:n])
 
 
 def test_a_pull_short_of_the_target_runs_to_the_time_limit(tmp_path):
     scene = _scripted(tmp_path, 0.025)  # 15 mm short: never within 3 mm
     r = run_scene(scene, duration=4.0, time_scale=0, end_on_targets=True)
-    assert r.ended_early is None and r.targets_held == [False, False] and r.times[-1] > 3.9
+    assert r.ended_early is None
+    assert r.targets_held == [False, False]
+    assert r.times[-1] > 3.9
     rows = {(m["hand"], m["metric"]): m["value"] for m in trial_metrics(r, scene_goals(scene))}
-    assert rows[("left", "target_reached")] == 0.0 and math.isnan(rows[("left", "time_to_target")])
+    assert rows[("left", "target_reached")] == 0.0
+    assert math.isnan(rows[("left", "time_to_target")])
     assert abs(rows[("left", "final_error")] - 0.015) < 0.002
 
 
@@ -137,7 +151,8 @@ def test_a_synthetic_session_ends_its_trials_on_the_targets(tmp_path):
     con.close()
     assert len(rows) == 4
     ended = [json.loads(e).get("ended_early") for (e,) in rows]
-    assert set(ended) <= {"targets held", None} and "targets held" in ended
+    assert set(ended) <= {"targets held", None}
+    assert "targets held" in ended
     res = studyctl("metrics", "--db", db, "--format", "json")
     assert res.exit_code == 0, res.output
     data = json.loads(res.output)
@@ -145,6 +160,7 @@ def test_a_synthetic_session_ends_its_trials_on_the_targets(tmp_path):
     for r in data["rows"]:
         if r["metric"] == "target_reached":
             reached.setdefault((r["code"], r["trial"]), []).append(r["value"])
-    assert len(reached) == 4 and all(len(v) == 2 for v in reached.values())
+    assert len(reached) == 4
+    assert all(len(v) == 2 for v in reached.values())
     # a trial ended by its targets has both hands' target reached in the metrics (1 kHz, same rule)
     assert sum(all(v == 1.0 for v in vals) for vals in reached.values()) >= ended.count("targets held")

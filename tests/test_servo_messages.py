@@ -60,8 +60,10 @@ def test_a_message_pickles_whole_and_is_frozen_with_slots(msg):
 
 def test_the_run_log_pickles_inside_its_message_and_is_frozen():
     back = pickle.loads(pickle.dumps(RunDone(_log()))).result
-    assert np.array_equal(back.rows, np.zeros((2, 17))) and np.array_equal(back.starts, [0.0, 1.0])
-    assert back.events == (Event(0.5, 1, "grasp", "grasp 12"),) and (back.misses, back.wall, back.started_by) == (1, 0.25, "grasp")
+    assert np.array_equal(back.rows, np.zeros((2, 17)))
+    assert np.array_equal(back.starts, [0.0, 1.0])
+    assert back.events == (Event(0.5, 1, "grasp", "grasp 12"),)
+    assert (back.misses, back.wall, back.started_by) == (1, 0.25, "grasp")
     assert (back.waited_s, back.pacer) == (0.1, "process")
     with pytest.raises(dataclasses.FrozenInstanceError):
         back.misses = 2
@@ -71,7 +73,8 @@ def test_the_messages_module_loads_only_the_standard_library():
     # the spawned servo process imports it: nothing heavy, no numpy, no other sim module
     code = "import sys; import sim.servo.messages; print(' '.join(sorted(sys.modules)))"
     loaded = set(subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True).stdout.split())
-    assert "numpy" not in loaded and {m for m in loaded if m.startswith("sim")} == {"sim", "sim.servo", "sim.servo.messages"}  # the package: a docstring
+    assert "numpy" not in loaded  # the package: a docstring
+    assert {m for m in loaded if m.startswith("sim")} == {"sim", "sim.servo", "sim.servo.messages"}
 
 
 def test_the_servo_process_imports_no_heavy_modules():
@@ -89,7 +92,8 @@ def test_device_recipes_name_their_fields():
     names = [h.name for h in scene.spec.hands]
     recipes = device_recipes(scene)
     assert all(isinstance(r, SimulatedRecipe) for r in recipes)
-    assert [r.name for r in recipes] == [f"{n} (simulated)" for n in names] and recipes[1].script == scene.script(1)
+    assert [r.name for r in recipes] == [f"{n} (simulated)" for n in names]
+    assert recipes[1].script == scene.script(1)
     mouse = device_recipes(scene.with_device("mouse"))
     assert mouse == tuple(MouseRecipe(hand=i, name=f"{n} (mouse)", start=scene.script(i).start) for i, n in enumerate(names))
     real = device_recipes(scene.with_device("openhaptics"), library="libHD.so")
@@ -127,9 +131,17 @@ def test_a_servo_process_serves_typed_runs_started_by_clock_key_or_stopped():
     with ServoProcess(scene) as sp:
         assert sp.priority in ("SCHED_FIFO", "nice -5", "default")
         out, _ = sp.run(scene, visual(), 200, scene.spec.visual_rate_hz)
-        assert isinstance(out, RunLog) and (out.started_by, out.pacer, out.waited_s) == ("clock", "process", 0.0)
-        assert len(out.rows) == 200 and len(out.starts) == 200 and isinstance(out.events, tuple)
+        assert isinstance(out, RunLog)
+        assert (out.started_by, out.pacer, out.waited_s) == ("clock", "process", 0.0)
+        assert len(out.rows) == 200
+        assert len(out.starts) == 200
+        assert isinstance(out.events, tuple)
         out, _ = sp.run(scene, visual(), 100, scene.spec.visual_rate_hz, frame=lambda sp_, v: "start", wait=True)
-        assert out.started_by == "key" and len(out.rows) == 100 and out.waited_s >= 0.0
+        assert out.started_by == "key"
+        assert len(out.rows) == 100
+        assert out.waited_s >= 0.0
         stopped, _ = sp.run(scene, visual(), int(100 * rate), scene.spec.visual_rate_hz, frame=lambda sp_, v: "stop", wait=True)
-        assert stopped.started_by is None and len(stopped.rows) == 0 and len(stopped.starts) == 0 and stopped.events == ()
+        assert stopped.started_by is None
+        assert len(stopped.rows) == 0
+        assert len(stopped.starts) == 0
+        assert stopped.events == ()

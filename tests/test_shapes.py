@@ -49,11 +49,18 @@ def _ngon_area(r: float, n: int) -> float:
 @pytest.mark.parametrize("name,shape", list(_all_shapes()), ids=lambda x: x if isinstance(x, str) else "")
 def test_well_formed(name, shape):
     v, n, t = shape.vertices, shape.normals, shape.triangles
-    assert v.dtype == np.float32 and n.dtype == np.float32 and t.dtype == np.int32
-    assert v.shape == n.shape and v.shape[1] == 3 and t.shape[1] == 3 and len(t) > 0
-    assert np.all(np.isfinite(v)) and np.all(np.isfinite(n))
+    assert v.dtype == np.float32
+    assert n.dtype == np.float32
+    assert t.dtype == np.int32
+    assert v.shape == n.shape
+    assert v.shape[1] == 3
+    assert t.shape[1] == 3
+    assert len(t) > 0
+    assert np.all(np.isfinite(v))
+    assert np.all(np.isfinite(n))
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
-    assert t.min() >= 0 and t.max() < len(v)
+    assert t.min() >= 0
+    assert t.max() < len(v)
     p = v.astype(np.float64)[t]
     geo = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     area = 0.5 * np.linalg.norm(geo, axis=1)
@@ -93,8 +100,11 @@ def test_arrow_lengths():
     # proportions kept: the head is 0.4 of it, and it is no wider than the arrow is long
     assert np.ptp(short.vertices[:, 0]) < 0.004
     for empty in (arrow(0.0), arrow(-0.01)):
-        assert empty.vertices.shape == (0, 3) and empty.normals.shape == (0, 3) and empty.triangles.shape == (0, 3)
-        assert empty.vertices.dtype == np.float32 and empty.triangles.dtype == np.int32
+        assert empty.vertices.shape == (0, 3)
+        assert empty.normals.shape == (0, 3)
+        assert empty.triangles.shape == (0, 3)
+        assert empty.vertices.dtype == np.float32
+        assert empty.triangles.dtype == np.int32
 
 
 def test_arrow_bad_input():
@@ -119,7 +129,9 @@ def _tip_points(blade: Shape) -> tuple[np.ndarray, np.ndarray]:
 def test_forceps_closed_tips_meet_at_origin():
     plus, minus, _ = forceps_parts(0.0)
     (_, a), (_, b) = _tip_points(plus), _tip_points(minus)
-    assert np.linalg.norm(a) < 3e-4 and np.linalg.norm(b) < 3e-4 and np.linalg.norm(a - b) < 3e-4
+    assert np.linalg.norm(a) < 3e-4
+    assert np.linalg.norm(b) < 3e-4
+    assert np.linalg.norm(a - b) < 3e-4
     np.testing.assert_allclose(forceps_tips(0.0), [a, b], atol=1e-6)
 
 
@@ -190,7 +202,8 @@ def test_transform_places_forceps():
     R = frame(axis, side)
     s = forceps(1.0)
     v, n = transform(s, R, t)
-    assert v.dtype == np.float32 and n.dtype == np.float32
+    assert v.dtype == np.float32
+    assert n.dtype == np.float32
     np.testing.assert_allclose(v, s.vertices.astype(np.float64) @ R.T + t, atol=1e-7)
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
     tips = forceps_tips(1.0) @ R.T + t

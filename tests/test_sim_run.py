@@ -20,7 +20,8 @@ def lockstep():
 
 def test_both_hands_grasp_pull_and_feel_the_plate_spring_force(lockstep):
     scene, r = lockstep
-    assert len(r.times) == 2000 and r.mode == "lockstep"
+    assert len(r.times) == 2000
+    assert r.mode == "lockstep"
     kinds = [e.kind for e in r.events]
     assert kinds.count("grasp") == 2
     fmag = np.linalg.norm(r.forces, axis=2)
@@ -43,7 +44,8 @@ def test_both_hands_grasp_pull_and_feel_the_plate_spring_force(lockstep):
 def test_lockstep_is_deterministic(lockstep):
     scene, r = lockstep
     again = run_scene(build_scene(SCENE), duration=2.0, time_scale=0)
-    assert np.array_equal(r.forces, again.forces) and np.array_equal(r.positions, again.positions)
+    assert np.array_equal(r.forces, again.forces)
+    assert np.array_equal(r.positions, again.positions)
 
 
 def test_deformation_field_follows_the_hand(lockstep):
@@ -73,16 +75,20 @@ def test_realtime_run_goes_through_the_servo_process():
     scene = build_scene(SCENE)
     r = run_scene(scene, duration=0.3, time_scale=1.0)
     s = r.stats()
-    assert s["mode"] == "realtime-process" and s["ticks"] == 300
-    assert s["tick_interval_us"]["p50"] is not None and s["tick_compute_us"]["p50"] > 0
-    assert len(r.intervals_s) == 299 and s["started_by"] == "clock"
+    assert s["mode"] == "realtime-process"
+    assert s["ticks"] == 300
+    assert s["tick_interval_us"]["p50"] is not None
+    assert s["tick_compute_us"]["p50"] > 0
+    assert len(r.intervals_s) == 299
+    assert s["started_by"] == "clock"
 
 
 def test_pictures_and_force_plot(tmp_path):
     scene = build_scene(SCENE)
     r = run_scene(scene, duration=1.2, time_scale=0, snapshots=True)
     n = write_outputs(r, scene, tmp_path)
-    assert n == 12 and len(list(tmp_path.glob("frame_*.png"))) == 12
+    assert n == 12
+    assert len(list(tmp_path.glob("frame_*.png"))) == 12
     import matplotlib.image as mpimg
 
     img = mpimg.imread(tmp_path / "frame_0011.png")[..., :3]
@@ -92,7 +98,8 @@ def test_pictures_and_force_plot(tmp_path):
     assert hot.sum() > 50
     assert (tmp_path / "force.png").stat().st_size > 10_000
     lines = (tmp_path / "trace.csv").read_text().splitlines()
-    assert lines[0] == "t_s,hand,x_m,y_m,z_m,fx_n,fy_n,fz_n,button" and len(lines) == 1 + 2 * 1200
+    assert lines[0] == "t_s,hand,x_m,y_m,z_m,fx_n,fy_n,fz_n,button"
+    assert len(lines) == 1 + 2 * 1200
 
 
 def test_cli_sim_run_json():
@@ -101,14 +108,17 @@ def test_cli_sim_run_json():
     s = json.loads(res.output)
     for key in ("ticks", "rate_hz", "tick_interval_us", "tick_compute_us", "max_force_n", "deformation_ms", "frames"):
         assert key in s
-    assert {"p50", "p99", "max"} <= set(s["tick_interval_us"]) and {"p50", "p99"} <= set(s["tick_compute_us"])
-    assert s["ticks"] == 500 and s["frames"] == 0
+    assert {"p50", "p99", "max"} <= set(s["tick_interval_us"])
+    assert {"p50", "p99"} <= set(s["tick_compute_us"])
+    assert s["ticks"] == 500
+    assert s["frames"] == 0
 
 
 def test_cli_unknown_model_is_a_clean_error():
     res = CliRunner().invoke(cli, ["sim", "run", "--model", "rubber", "--duration", "0.1", "--time-scale", "0"])
     assert res.exit_code == 1
-    assert res.output.strip().startswith("Error: ") and "models.rubber: not configured" in res.output
+    assert res.output.strip().startswith("Error: ")
+    assert "models.rubber: not configured" in res.output
     assert len(res.output.strip().splitlines()) == 1
 
 
@@ -135,7 +145,8 @@ def test_replay_of_a_missing_trace_is_a_clean_error(tmp_path):
     text = localise(SCENE.read_text()).replace('device = "simulated"', f'device = "replay"\ntrace = "{tmp_path / "none.csv"}"')
     (tmp_path / "replay.toml").write_text(text)
     res = CliRunner().invoke(cli, ["sim", "run", "--scene", str(tmp_path / "replay.toml"), "--duration", "0.1", "--time-scale", "0"])
-    assert res.exit_code == 1 and "none.csv: cannot read" in res.output
+    assert res.exit_code == 1
+    assert "none.csv: cannot read" in res.output
 
 
 def test_servo_process_run_matches_the_lockstep_run():
@@ -143,7 +154,8 @@ def test_servo_process_run_matches_the_lockstep_run():
     proc = run_scene(scene, duration=2.0, time_scale=1.0)
     lock = run_scene(build_scene(SCENE), duration=2.0, time_scale=0)
     s = proc.stats()
-    assert s["mode"] == "realtime-process" and s["ticks"] == 2000
+    assert s["mode"] == "realtime-process"
+    assert s["ticks"] == 2000
     assert [e.kind for e in proc.events].count("grasp") == 2
     # same simulated hands, same model: the same vertices are grasped and every force the
     # process rendered lies on the lockstep run's force-displacement curve. (Peak forces are no
@@ -182,12 +194,14 @@ def test_grasp_collides_with_the_deformed_surface_and_misses_when_far():
     visual.last = moved
     hand.grasp_request = tuple(mesh.vertices[v] + moved[v])  # the hand is where the tissue is now
     visual(0.5)
-    assert hand.contact is not None and hand.contact.vertex == v
+    assert hand.contact is not None
+    assert hand.contact.vertex == v
     # a press 5 cm above the surface grasps nothing
     hand2 = Hand(index=1, name="g", device=None, button=True, grasp_request=tuple(mesh.vertices[v] + (0.0, 0.0, 0.08)))
     visual.hands = [hand2]
     visual(0.6)
-    assert hand2.contact is None and visual.events[-1].kind == "grasp_missed"
+    assert hand2.contact is None
+    assert visual.events[-1].kind == "grasp_missed"
 
 
 def test_read_to_force_latency_is_reported(lockstep):

@@ -63,7 +63,8 @@ def test_a_group_that_is_not_a_value_of_the_group_field_is_refused_with_file_lin
 def test_profiles_without_design_groups_are_refused():
     text = CV.read_text().replace('groups = "experience"', "")
     problems = _problems(text)
-    assert len(problems) == 1 and "synthetic.groups: needs design.groups" in problems[0]
+    assert len(problems) == 1
+    assert "synthetic.groups: needs design.groups" in problems[0]
     assert problems[0].startswith(f"{CV}:{_line(text, '[synthetic.groups.student]')}:")
 
 
@@ -95,14 +96,19 @@ def test_individual_spread_and_learning():
     p = SkillProfile(tremor_mm=0.3, speed=0.8, overshoot=0.4, force_restraint=0.5, learning=2.0,
                      plateau_tremor_mm=0.2, plateau_speed=1.2, plateau_overshoot=0.1, spread=0.3)
     a, b = p.individual("S001", 1), p.individual("S002", 1)
-    assert a != b and p.individual("S001", 1) == a and 0 < a.force_restraint < 1
+    assert a != b
+    assert p.individual("S001", 1) == a
+    assert 0 < a.force_restraint < 1
     one = dataclasses.replace(p, spread=0.0).individual("S001", 1)
     assert one.at(0) == (0.3, 0.8, 0.4)
     t, s, o = one.at(2)  # one half-life: half way to the plateau
-    assert t == pytest.approx(0.25) and s == pytest.approx(1.0) and o == pytest.approx(0.25)
+    assert t == pytest.approx(0.25)
+    assert s == pytest.approx(1.0)
+    assert o == pytest.approx(0.25)
     assert one.at(1000) == pytest.approx((0.2, 1.2, 0.1))
     # the spread scales the participant's whole curve by one factor per key
-    assert a.plateau_speed / a.speed == pytest.approx(1.2 / 0.8) and a.plateau_overshoot / a.overshoot == pytest.approx(0.25)
+    assert a.plateau_speed / a.speed == pytest.approx(1.2 / 0.8)
+    assert a.plateau_overshoot / a.overshoot == pytest.approx(0.25)
 
 
 def _script(**kw):
@@ -120,12 +126,15 @@ def test_an_overshooting_operator_goes_beyond_the_target_and_back():
     for t in np.linspace(0.0, 8.0, 161):
         expected = 0.04 * ((1 + o) * min_jerk((t - sc.pull_start) / sc.pull_time) - o * min_jerk((t - b0) / (b1 - b0)))
         assert np.allclose(np.array(sc.target(t)) - start, expected * np.array(u), atol=1e-15)
-    assert np.allclose(sc.target(t1), start + 0.052 * np.array(u)) and np.allclose(sc.target(b1), start + 0.04 * np.array(u))
+    assert np.allclose(sc.target(t1), start + 0.052 * np.array(u))
+    assert np.allclose(sc.target(b1), start + 0.04 * np.array(u))
     assert sc.release_at == pytest.approx(max(5.5, b1 + 0.5 + 1.0))
-    assert sc.restraint == 0.0 and sc.safe_force == math.inf
+    assert sc.restraint == 0.0
+    assert sc.safe_force == math.inf
     # no overshoot: one movement to the target, no second segment
     plain = pursue(_script(), target, 0.0)
-    assert plain.back_start is None and np.allclose(plain.target(10.0), start + 0.04 * np.array(u))
+    assert plain.back_start is None
+    assert np.allclose(plain.target(10.0), start + 0.04 * np.array(u))
 
 
 def test_a_script_without_a_second_segment_is_the_old_one():
@@ -167,7 +176,8 @@ def test_old_operator_unchanged_without_a_target_or_profile():
     scene = build_scene(SCENE)
     assert all(h.target is None for h in scene.spec.hands)
     p = SyntheticParticipant.draw("S001", 3)
-    assert p.skill is None and not any(k.startswith("skill_") for k in p.trait_values())
+    assert p.skill is None
+    assert not any(k.startswith("skill_") for k in p.trait_values())
     import random
 
     rng = random.Random("trial:3:S001:fem:2")  # the operators as they were before skill profiles
@@ -185,8 +195,10 @@ def test_old_operator_unchanged_without_a_target_or_profile():
     q = SyntheticParticipant.draw("S001", 3, SkillProfile(tremor_mm=0.2, speed=2.0))
     assert dataclasses.replace(q, skill=None) == p
     ops = q.operators(scene, 2, "fem")
-    assert ops[0].tremor_m == pytest.approx(2e-4) and ops[0].pull_time == pytest.approx(expected[0].pull_time / 2.0)
-    assert ops[0].pull == expected[0].pull and ops[0].back_start is None  # no target: the scene's pull
+    assert ops[0].tremor_m == pytest.approx(2e-4)
+    assert ops[0].pull_time == pytest.approx(expected[0].pull_time / 2.0)
+    assert ops[0].pull == expected[0].pull  # no target: the scene's pull
+    assert ops[0].back_start is None
     assert SyntheticParticipant.draw("S001", 3).skill is None
 
 
@@ -211,5 +223,6 @@ def test_a_synthetic_study_stores_each_participants_profile(tmp_path):
     protocol = check_protocol(proto)[0]
     for code, group in groups.items():
         want = protocol.skills[group].individual(code, 1).values()
-        assert want and all(traits[(code, k)] == pytest.approx(v) for k, v in want.items())
+        assert want
+        assert all(traits[(code, k)] == pytest.approx(v) for k, v in want.items())
     assert all(n < 10_000 for (n,) in ticks)  # the targets were held before the 10 s limit

@@ -50,7 +50,8 @@ def test_a_foreign_sqlite_file_is_byte_identical_after_every_command(tmp_path):
     ]
     for args in commands:
         res = studyctl(*args, "--db", db)
-        assert res.exit_code == 1 and "not a study database (it holds other tables: foo)" in res.output, (args, res.output)
+        assert res.exit_code == 1, (args, res.output)
+        assert "not a study database (it holds other tables: foo)" in res.output, (args, res.output)
     assert _files(tmp_path) == before
     assert _q(db, "select x from foo") == [(42,)]
 
@@ -59,7 +60,9 @@ def test_study_init_only_on_a_new_or_empty_file(tmp_path):
     (tmp_path / "empty.db").write_bytes(b"")
     assert studyctl("study", "init", "--protocol", PROTOCOL, "--db", tmp_path / "empty.db").exit_code == 0
     res = studyctl("study", "init", "--protocol", PROTOCOL, "--db", tmp_path / "no" / "dir.db")
-    assert res.exit_code == 1 and "is not an existing folder" in res.output and not (tmp_path / "no").exists()
+    assert res.exit_code == 1
+    assert "is not an existing folder" in res.output
+    assert not (tmp_path / "no").exists()
 
 
 @pytest.fixture
@@ -102,7 +105,9 @@ def test_a_read_only_study_reports_and_exports_but_refuses_writes(read_only_copy
     assert "S01" in studyctl("participants", "list", "--db", db).output
     assert len(list(csv.reader(open(tmp_path / "ex" / "answers.csv")))) == 10  # header + 9 answers
     res = studyctl("participants", "add", "P01", "--db", db)
-    assert res.exit_code == 1 and "cannot write here" in res.output and len(res.output.strip().splitlines()) == 1
+    assert res.exit_code == 1
+    assert "cannot write here" in res.output
+    assert len(res.output.strip().splitlines()) == 1
 
 
 def _study(tmp_path, **kw):
@@ -123,7 +128,9 @@ def test_provenance_a_participant_is_a_person_or_synthetic_never_both(tmp_path):
     # answers carry their source; a synthetic participant's come only from the synthetic answerer
     assert _q(db, "select distinct code, source from answers") == [("S01", "synthetic")]
     facts = json.loads(studyctl("report", "table1", "--format", "json", "--db", db).output)["facts"]
-    assert facts["synthetic"] and facts["synthetic_participants"] == 1 and facts["mixed_source_participants"] == []
+    assert facts["synthetic"]
+    assert facts["synthetic_participants"] == 1
+    assert facts["mixed_source_participants"] == []
 
 
 def test_reports_count_synthetic_answers_from_rows_not_flags(tmp_path):
@@ -140,9 +147,12 @@ def test_reports_count_synthetic_answers_from_rows_not_flags(tmp_path):
     con.commit()
     con.close()
     facts = json.loads(studyctl("report", "table1", "--format", "json", "--db", db).output)["facts"]
-    assert facts["synthetic_participants"] == 2 and facts["synthetic"] and facts["mixed_source_participants"] == ["P01"]
+    assert facts["synthetic_participants"] == 2
+    assert facts["synthetic"]
+    assert facts["mixed_source_participants"] == ["P01"]
     text = studyctl("report", "table1", "--db", db).output
-    assert "MIXED DATA: 1 person and 2 SYNTHETIC" in text and "WARNING: P01 answered both as a person and synthetically" in text
+    assert "MIXED DATA: 1 person and 2 SYNTHETIC" in text
+    assert "WARNING: P01 answered both as a person and synthetically" in text
 
 
 def test_resume_with_other_options_than_the_start_is_refused(tmp_path):
@@ -154,7 +164,8 @@ def test_resume_with_other_options_than_the_start_is_refused(tmp_path):
     con.commit()
     con.close()
     res = studyctl("session", "run", "--participant", "S01", "--synthetic", "--resume", "--db", db)
-    assert res.exit_code == 1 and "was started with --device openhaptics, not simulated; resume it with --device openhaptics" in res.output
+    assert res.exit_code == 1
+    assert "was started with --device openhaptics, not simulated; resume it with --device openhaptics" in res.output
     assert _q(db, "select count(*) from answers") == [(0,)]
 
 
@@ -162,13 +173,15 @@ def test_a_person_needs_consent_and_imported_answers_are_not_mixed_with_a_sessio
     db = _study(tmp_path)
     studyctl("participants", "add", "P01", "--db", db)
     res = studyctl("session", "run", "--participant", "P01", "--time-scale", "0", "--view", "none", "--db", db)
-    assert res.exit_code == 1 and "no consent recorded" in res.output
+    assert res.exit_code == 1
+    assert "no consent recorded" in res.output
     assert studyctl("participants", "consent", "P01", "--date", "2026-01-05", "--db", db).exit_code == 0
     assert _q(db, "select code, version, given_on from consent") == [("P01", "1", "2026-01-05")]
     (tmp_path / "a.csv").write_text("participant,model,item,answer\nP01,plate_spring,natural,Y\n")
     assert studyctl("answers", "import", tmp_path / "a.csv", "--db", db).exit_code == 0
     res = studyctl("session", "run", "--participant", "P01", "--time-scale", "0", "--view", "none", "--db", db)
-    assert res.exit_code == 1 and "would mix sources" in res.output
+    assert res.exit_code == 1
+    assert "would mix sources" in res.output
 
 
 def test_dry_run_writes_nothing_and_says_so(tmp_path):
@@ -179,11 +192,17 @@ def test_dry_run_writes_nothing_and_says_so(tmp_path):
     assert studyctl("answers", "import", tmp_path / "none.csv", "--db", db).exit_code == 1  # (a missing file: nothing)
     studyctl("participants", "add", "P04", "--db", db)  # waiting for a slot
     before = _files(tmp_path)
-    for args in (["participants", "add", "P09"], ["participants", "import", tmp_path / "p.csv"], ["participants", "consent", "P01"],
-                 ["participants", "withdraw", "P01"], ["schedule", "cancel", "P01"],
-                 ["schedule", "--start", "2037-12-07", "--end", "2037-12-08", "--ics", tmp_path / "s.ics"]):
+    said = "dry run, nothing written: would have "
+    for args, first in ((["participants", "add", "P09"], said + "added P09"),
+                        (["participants", "import", tmp_path / "p.csv"], said + "imported 2 participants"),
+                        (["participants", "consent", "P01"], said + "recorded consent of P01: form 1, signed "),
+                        (["participants", "withdraw", "P01"], said + "withdrawn P01: 0 sessions and 0 answers kept; contact details deleted"),
+                        (["schedule", "cancel", "P01"], said + "cancelled P01's slot at 2037-12-01T09:00:00; `studyctl schedule` gives a new one"),
+                        (["schedule", "--start", "2037-12-07", "--end", "2037-12-08", "--ics", tmp_path / "s.ics"],
+                         "DRY RUN, nothing stored: Schedule")):  # the schedule's table says it in its title
         res = studyctl(*args, "--dry-run", "--db", db)
-        assert res.exit_code == 0 and ("dry run, nothing written" in res.output or "DRY RUN, nothing stored" in res.output), (args, res.output)
+        assert res.exit_code == 0, (args, res.output)
+        assert res.output.startswith(first), (args, res.output)
     assert _files(tmp_path) == before
 
 
@@ -198,7 +217,8 @@ def test_withdrawal_keeps_or_deletes_data_as_the_protocol_says(tmp_path):
         traces = list((d / "s.db.traces").rglob("*.npz"))
         assert len(traces) == 1
         res = studyctl("participants", "withdraw", "S01", "--reason", "asked to", "--db", db)
-        assert res.exit_code == 0 and f"answers {'kept' if policy == 'keep' else 'deleted'}" in res.output
+        assert res.exit_code == 0
+        assert f"answers {'kept' if policy == 'keep' else 'deleted'}" in res.output
         answers = _q(db, "select count(*) from answers where code = 'S01'")[0][0]
         assert answers == (9 if policy == "keep" else 0)
         assert traces[0].exists() == (policy == "keep")
@@ -219,7 +239,8 @@ def test_cancel_and_reschedule_keep_the_order(tmp_path):
     assert _q(db, "select slot_start from schedule where code = 'P01'") == [(None,)]
     res = studyctl("schedule", "--start", "2037-12-02", "--end", "2037-12-02", "--json", "--db", db)
     rows = {r["code"]: r for r in json.loads(res.output)}
-    assert rows["P01"]["slot_start"].startswith("2037-12-02") and rows["P01"]["conditions"] == first["P01"][1]
+    assert rows["P01"]["slot_start"].startswith("2037-12-02")
+    assert rows["P01"]["conditions"] == first["P01"][1]
     assert rows["P02"]["slot_start"] == first["P02"][0]  # the others keep theirs
     assert _q(db, "select kind from events") == [("slot_cancelled",)]
 
@@ -232,7 +253,8 @@ def test_answers_correct_keeps_an_audit_trail(tmp_path):
     studyctl("answers", "import", tmp_path / "a.csv", "--db", db)
     res = studyctl("answers", "correct", "--participant", "P01", "--model", "plate_spring", "--item", "natural", "--answer", "no",
                    "--reason", "paper sheet misread", "--db", db)
-    assert res.exit_code == 0 and "yes -> no" in res.output
+    assert res.exit_code == 0
+    assert "yes -> no" in res.output
     assert _q(db, "select answer from answers") == [(0,)]
     assert _q(db, "select code, item, old_answer, new_answer, reason from corrections") == [("P01", "natural", 1, 0, "paper sheet misread")]
     assert "corrections.csv" in {p.name for p in (tmp_path / "ex").glob("*")} if studyctl("export", "--out", tmp_path / "ex", "--db", db).exit_code == 0 else False
@@ -247,13 +269,20 @@ def test_status_and_lists(tmp_path):
     studyctl("schedule", "--start", "2037-12-01", "--end", "2037-12-01", "--db", db)
     out = json.loads(studyctl("status", "--json", "--db", db).output)
     assert out["participants"] == {"persons": 1, "synthetic": 1, "withdrawn": 0, "consented": 1}
-    assert out["sessions"] == {"done": 1} and out["complete"] == {"persons": 0, "synthetic": 1, "mixed": 0} and out["target_participants"] == 35
-    assert [r["code"] for r in out["next"]] == ["P01"] and out["answers"] == 9
+    assert out["sessions"] == {"done": 1}
+    assert out["complete"] == {"persons": 0, "synthetic": 1, "mixed": 0}
+    assert out["target_participants"] == 35
+    assert [r["code"] for r in out["next"]] == ["P01"]
+    assert out["answers"] == 9
     text = studyctl("status", "--db", db).output
-    assert "0 of 35 people complete (and 1 SYNTHETIC)" in text and "next: P01 2037-12-01 09:00" in text
+    assert "0 of 35 people complete (and 1 SYNTHETIC)" in text
+    assert "next: P01 2037-12-01 09:00" in text
     listed = {r["code"]: r for r in json.loads(studyctl("participants", "list", "--json", "--db", db).output)}
-    assert listed["S01"]["kind"] == "synthetic" and listed["S01"]["session"] == "done" and listed["S01"]["answers"] == 9
-    assert listed["P01"]["consent"] == "1" and listed["P01"]["slot"] == "2037-12-01T09:00:00"
+    assert listed["S01"]["kind"] == "synthetic"
+    assert listed["S01"]["session"] == "done"
+    assert listed["S01"]["answers"] == 9
+    assert listed["P01"]["consent"] == "1"
+    assert listed["P01"]["slot"] == "2037-12-01T09:00:00"
     assert "Secretname" not in studyctl("participants", "list", "--db", db).output
     sessions = json.loads(studyctl("sessions", "list", "--json", "--db", db).output)
     assert [(s["code"], s["status"], s["kind"], s["answers"]) for s in sessions] == [("S01", "done", "synthetic", 9)]
@@ -264,9 +293,12 @@ def test_contacts_export_is_marked_and_private(tmp_path):
     studyctl("participants", "add", "P01", "--name", "Ann Example", "--contact", "ann@example.org", "--db", db)
     studyctl("participants", "add", "P02", "--db", db)
     res = studyctl("participants", "contacts", "--out", tmp_path / "c.csv", "--db", db)
-    assert res.exit_code == 0 and "IDENTIFYING" in res.output
+    assert res.exit_code == 0
+    assert "IDENTIFYING" in res.output
     text = (tmp_path / "c.csv").read_text()
-    assert text.startswith("# IDENTIFYING DATA") and "P01,Ann Example,ann@example.org" in text and "P02" not in text
+    assert text.startswith("# IDENTIFYING DATA")
+    assert "P01,Ann Example,ann@example.org" in text
+    assert "P02" not in text
     assert stat.S_IMODE((tmp_path / "c.csv").stat().st_mode) == 0o600
     studyctl("export", "--out", tmp_path / "ex", "--db", db)
     assert not any("ann@example.org" in p.read_text() for p in (tmp_path / "ex").glob("*.csv"))
@@ -293,12 +325,15 @@ def test_reports_on_an_empty_study_say_so(tmp_path):
     db = _study(tmp_path)
     for fmt in ("md", "csv", "latex", "html"):
         res = studyctl("report", "table1", "--format", fmt, "--out", tmp_path / f"t.{fmt}", "--db", db)
-        assert res.exit_code == 0 and res.output == "brain_pull_2015: no answers yet; nothing to report\n"
+        assert res.exit_code == 0
+        assert res.output == "brain_pull_2015: no answers yet; nothing to report\n"
         assert not (tmp_path / f"t.{fmt}").exists()
     assert json.loads(studyctl("report", "table1", "--format", "json", "--db", db).output)["message"] == "no answers yet"
     assert studyctl("report", "stats", "--db", db).output == "brain_pull_2015: no answers yet; nothing to report\n"
     res = studyctl("report", "plots", "--out", tmp_path / "plots", "--db", db)
-    assert res.exit_code == 0 and "no answers yet" in res.output and not (tmp_path / "plots").exists()
+    assert res.exit_code == 0
+    assert "no answers yet" in res.output
+    assert not (tmp_path / "plots").exists()
     assert "nan" not in studyctl("status", "--db", db).output
     studyctl("export", "--out", tmp_path / "ex", "--db", db)
     header = (tmp_path / "ex" / "answers.csv").read_text()
@@ -321,7 +356,8 @@ def test_a_foreign_file_with_an_unmerged_wal_is_left_as_it_was(tmp_path):
     before = {k: v for k, v in _files(tmp_path).items() if not k.endswith("-shm")}
     for args in (["status"], ["participants", "add", "P01"], ["report", "table1"], ["study", "init", "--protocol", PROTOCOL]):
         res = studyctl(*args, "--db", db)
-        assert res.exit_code == 1 and "not a study database (it holds other tables: foo)" in res.output, (args, res.output)
+        assert res.exit_code == 1, (args, res.output)
+        assert "not a study database (it holds other tables: foo)" in res.output, (args, res.output)
     assert {k: v for k, v in _files(tmp_path).items() if not k.endswith("-shm")} == before
 
 
@@ -332,7 +368,8 @@ def test_withdrawal_waits_for_a_running_session(tmp_path):
     studyctl("participants", "add", "S01", "--synthetic", "--db", db)
     with session_lock(db, "S01"):  # as a running `session run` holds it
         res = studyctl("participants", "withdraw", "S01", "--db", db)
-    assert res.exit_code == 1 and "their session is running now; stop it first" in res.output
+    assert res.exit_code == 1
+    assert "their session is running now; stop it first" in res.output
     assert _q(db, "select withdrawn_at from participants") == [(None,)]
     assert studyctl("participants", "withdraw", "S01", "--db", db).exit_code == 0
 
@@ -346,8 +383,10 @@ def test_a_session_stopped_before_its_first_trial_is_discarded(tmp_path):
     con.commit()
     con.close()
     res = studyctl("session", "run", "--participant", "S01", "--synthetic", "--db", db)
-    assert res.exit_code == 0 and "discarded session 7 of S01: it stopped before its first trial" in res.output
-    assert _q(db, "select status from sessions") == [("done",)] and _q(db, "select count(*) from conditions where session_id = 7") == [(0,)]
+    assert res.exit_code == 0
+    assert "discarded session 7 of S01: it stopped before its first trial" in res.output
+    assert _q(db, "select status from sessions") == [("done",)]
+    assert _q(db, "select count(*) from conditions where session_id = 7") == [(0,)]
     assert _q(db, "select kind from events where kind = 'session_discarded'") == [("session_discarded",)]
 
 
@@ -358,7 +397,8 @@ def test_synth_skips_codes_in_use_and_refuses_another_protocol(tmp_path):
     assert res.exit_code == 0, res.output
     assert [c for (c,) in _q(db, "select code from participants order by code")] == ["S001", "S002"]
     res = studyctl("synth", "--participants", "1", "--protocol", PROTOCOL, "--db", db)
-    assert res.exit_code == 1 and "is not the protocol" in res.output
+    assert res.exit_code == 1
+    assert "is not the protocol" in res.output
 
 
 def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
@@ -381,7 +421,8 @@ def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
     con.commit()
     con.close()
     res = studyctl("participants", "list", "--json", "--db", db)
-    assert res.exit_code == 0 and json.loads(res.output)[0]["code"] == "P01"
+    assert res.exit_code == 0
+    assert json.loads(res.output)[0]["code"] == "P01"
     assert _q(db, "select value from meta where key = 'schema_version'") == [("9",)]
     assert _q(db, "select count(*) from observer_features") == [(0,)]
     assert {"config", "config_sha256"} <= {r[1] for r in _q(db, "pragma table_info(conditions)")}
@@ -397,4 +438,5 @@ def test_a_synthetic_session_resumes_with_its_own_seed(tmp_path):
     con.commit()
     con.close()
     res = studyctl("session", "run", "--participant", "S01", "--synthetic", "--resume", "--seed", "4", "--db", db)
-    assert res.exit_code == 1 and "started with --seed 3" in res.output
+    assert res.exit_code == 1
+    assert "started with --seed 3" in res.output

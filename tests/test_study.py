@@ -20,7 +20,8 @@ from tests.helpers import PROTOCOL, count_rows, fast_protocol, pty_session, stud
 
 def test_shipped_protocol_is_the_papers_study():
     p = load_protocol(PROTOCOL)
-    assert p.conditions == ("fem", "mass_spring", "plate_spring") and p.counterbalancing == "williams"
+    assert p.conditions == ("fem", "mass_spring", "plate_spring")
+    assert p.counterbalancing == "williams"
     assert p.items == ("natural", "behaviour", "texture", "comfortable", "guidance", "realtime", "feedback", "deformation", "stable")
     assert (p.target_participants, p.age_min, p.age_max, p.training_minutes) == (35, 22, 28, 5.0)
 
@@ -34,7 +35,8 @@ def test_williams_design_balances_first_order_carry_over():
             assert sorted(r) == list(range(n))
             for a, b in zip(r, r[1:]):
                 follows[(a, b)] = follows.get((a, b), 0) + 1
-        assert len(set(follows.values())) == 1 and len(follows) == n * (n - 1)
+        assert len(set(follows.values())) == 1
+        assert len(follows) == n * (n - 1)
     assert len({tuple(r) for r in williams(3)}) == 6  # all six orders of three models
 
 
@@ -63,7 +65,8 @@ def test_broken_protocols_give_precise_errors_without_traceback(tmp_path, case):
         assert old in text
         path.write_text(text.replace(old, new).replace('scene = "scenes/', f'scene = "{ROOT}/protocols/scenes/'))
     proc = subprocess.run([sys.executable, "-m", "studyctl.cli", "protocol", "validate", str(path)], capture_output=True, text=True)
-    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert proc.returncode == 1
+    assert "Traceback" not in proc.stderr
     import re
 
     assert re.search(pattern, proc.stderr), proc.stderr
@@ -87,12 +90,14 @@ def test_participants_schedule_and_ics(tmp_path):
     env = {"STUDYCTL_DB": str(db)}
     assert studyctl("participants", "add", "P01", "--age", "24", env=env).exit_code == 0
     res = studyctl("participants", "add", "P02", "--age", "30", env=env)
-    assert res.exit_code == 1 and "outside the inclusion range 22..28" in res.output
+    assert res.exit_code == 1
+    assert "outside the inclusion range 22..28" in res.output
     (tmp_path / "p.csv").write_text("code,age,name\nP02,23,Bob Real\nP03,25,\nP04,22,\n")
     assert studyctl("participants", "import", tmp_path / "p.csv", env=env).exit_code == 0
     (tmp_path / "bad.csv").write_text("code,age\nP05,23\nP06,99\n")
     res = studyctl("participants", "import", tmp_path / "bad.csv", env=env)
-    assert res.exit_code == 1 and "line 3" in res.output
+    assert res.exit_code == 1
+    assert "line 3" in res.output
     assert [r[0] for r in sqlite3.connect(db).execute("select code from participants order by code")] == ["P01", "P02", "P03", "P04"]  # all or none
     (tmp_path / "avail.csv").write_text("code,date,start,end\nP01,2037-12-01,13:00,17:00\nP02,2037-12-01,09:00,12:00\n"
                                         "P03,2037-12-01,09:00,12:00\nP04,2037-12-02,09:00,10:00\n")
@@ -102,14 +107,17 @@ def test_participants_schedule_and_ics(tmp_path):
     rows = json.loads(res.output)
     slots = {r["code"]: (r["slot_start"], r["slot_end"]) for r in rows}
     # on the 45-minute grid from 09:00, within each participant's availability
-    assert slots["P01"] == ("2037-12-01T13:30:00", "2037-12-01T14:15:00") and slots["P04"] == ("2037-12-02T09:00:00", "2037-12-02T09:45:00")
-    assert slots["P02"][1] <= "2037-12-01T12:00:00" and slots["P03"][1] <= "2037-12-01T12:00:00"
+    assert slots["P01"] == ("2037-12-01T13:30:00", "2037-12-01T14:15:00")
+    assert slots["P04"] == ("2037-12-02T09:00:00", "2037-12-02T09:45:00")
+    assert slots["P02"][1] <= "2037-12-01T12:00:00"
+    assert slots["P03"][1] <= "2037-12-01T12:00:00"
     spans = sorted(slots.values())
     assert all(a[1] <= b[0] for a, b in zip(spans, spans[1:]))  # one rig: no overlap
     orders = [tuple(json.loads(r["conditions"])) for r in rows]
     assert len(set(orders)) == 4  # four participants, four different Williams rows
     ics = (tmp_path / "s.ics").read_text()
-    assert ics.count("BEGIN:VEVENT") == 4 and "DTSTART:20371201T133000" in ics
+    assert ics.count("BEGIN:VEVENT") == 4
+    assert "DTSTART:20371201T133000" in ics
 
 
 def test_session_killed_with_sigkill_resumes_with_every_answer_exactly_once(tmp_path):
@@ -126,16 +134,22 @@ def test_session_killed_with_sigkill_resumes_with_every_answer_exactly_once(tmp_
     before = count_rows(db)
     assert 5 <= before < 27
     res = studyctl("session", "run", "--db", db, "--participant", "P01", "--synthetic")
-    assert res.exit_code == 1 and "--resume" in res.output
+    assert res.exit_code == 1
+    assert "--resume" in res.output
     res = studyctl("session", "run", "--db", db, "--participant", "P01", "--synthetic", "--resume")
     assert res.exit_code == 0, res.output
     con = sqlite3.connect(db)
     rows = con.execute("select code, model, item, count(*) from answers group by code, model, item").fetchall()
-    assert len(rows) == 27 and all(r[3] == 1 for r in rows)  # 3 models x 9 items, each once
+    assert len(rows) == 27  # 3 models x 9 items, each once
+    assert all(r[3] == 1 for r in rows)
     assert con.execute("select count(*) from trials").fetchone()[0] == 6  # no trial run twice
     assert con.execute("pragma integrity_check").fetchone()[0] == "ok"
     session = con.execute("select status, protocol_sha256, scene_sha256, software_version, synthetic from sessions").fetchone()
-    assert session[0] == "done" and len(session[1]) == 64 and len(session[2]) == 64 and session[3] and session[4] == 1
+    assert session[0] == "done"
+    assert len(session[1]) == 64
+    assert len(session[2]) == 64
+    assert session[3]
+    assert session[4] == 1
 
 
 def test_a_session_and_an_import_write_at_once(tmp_path):
@@ -152,7 +166,9 @@ def test_a_session_and_an_import_write_at_once(tmp_path):
                               capture_output=True, text=True) for _ in range(2)]
     out, err = session.communicate(timeout=120)
     assert session.returncode == 0, err
-    assert imports[0].returncode == 0 and imports[1].returncode == 1 and "already answered" in imports[1].stderr
+    assert imports[0].returncode == 0
+    assert imports[1].returncode == 1
+    assert "already answered" in imports[1].stderr
     con = sqlite3.connect(db)
     assert con.execute("pragma integrity_check").fetchone()[0] == "ok"
     assert con.execute("select count(*) from answers").fetchone()[0] == 18
@@ -165,7 +181,8 @@ def test_answers_import_rejects_the_whole_file(tmp_path):
     studyctl("participants", "consent", "P01", "--db", db)
     (tmp_path / "a.csv").write_text("participant,model,item,answer\nP01,fem,natural,yes\nP01,fem,colour,no\n")
     res = studyctl("answers", "import", "--db", db, tmp_path / "a.csv")
-    assert res.exit_code == 1 and "line 3: unknown item 'colour'" in res.output
+    assert res.exit_code == 1
+    assert "line 3: unknown item 'colour'" in res.output
     (tmp_path / "b.csv").write_text("participant,model,item,answer\nP01,fem,natural,yes\nP09,fem,texture,no\n")
     assert "unknown participant 'P09'" in studyctl("answers", "import", "--db", db, tmp_path / "b.csv").output
     assert sqlite3.connect(db).execute("select count(*) from answers").fetchone()[0] == 0
@@ -182,7 +199,9 @@ def test_exports_never_contain_identifying_fields(tmp_path):
         res = studyctl("export", "--db", db, "--format", fmt, "--out", tmp_path / fmt)
         assert res.exit_code == 0, res.output
         blob = b"".join(p.read_bytes() for p in (tmp_path / fmt).iterdir())
-        assert b"Secretname" not in blob and b"example.org" not in blob and b"contact" not in blob
+        assert b"Secretname" not in blob
+        assert b"example.org" not in blob
+        assert b"contact" not in blob
         assert not (tmp_path / fmt / f"identities.{fmt}").exists()
     assert "P01" in (tmp_path / "csv" / "answers.csv").read_text()
 
@@ -194,9 +213,13 @@ def test_terminal_questionnaire_through_a_real_pty(tmp_path):
     studyctl("participants", "consent", "P01", "--db", db)
     answers = iter(["y", "maybe", "n"] + ["y"] * 8)
     text = pty_session(["session", "run", "--db", db, "--participant", "P01", "--time-scale", "0"], lambda: next(answers))
-    assert "Is interaction real and natural? [y/n]" in text and "Please answer yes or no (y/n, 1/0)." in text
+    assert "Is interaction real and natural? [y/n]" in text
+    assert "Please answer yes or no (y/n, 1/0)." in text
     got = dict(sqlite3.connect(db).execute("select item, answer from answers").fetchall())
-    assert len(got) == 9 and got["natural"] == 1 and got["behaviour"] == 0 and got["stable"] == 1
+    assert len(got) == 9
+    assert got["natural"] == 1
+    assert got["behaviour"] == 0
+    assert got["stable"] == 1
     assert "complete" in text
 
 
@@ -207,10 +230,12 @@ def test_session_on_openhaptics_without_the_library_is_a_clean_error(tmp_path, m
     studyctl("participants", "consent", "P01", "--db", db)
     monkeypatch.setenv("BRAINSIM_LIBHD", str(tmp_path / "none" / "libHD.so"))
     res = studyctl("session", "run", "--db", db, "--participant", "P01", "--device", "openhaptics", "--view", "none")
-    assert res.exit_code == 1 and "libHD.so) was not found" in res.output
+    assert res.exit_code == 1
+    assert "libHD.so) was not found" in res.output
     assert sqlite3.connect(db).execute("select count(*) from sessions").fetchone()[0] == 0  # nothing half-written
     res = studyctl("session", "run", "--db", db, "--participant", "P01", "--device", "openhaptics", "--time-scale", "0")
-    assert res.exit_code == 1 and "real time only" in res.output
+    assert res.exit_code == 1
+    assert "real time only" in res.output
 
 
 def test_ics_round_trips_through_icalendar_with_escapes_folding_and_the_time_zone():
@@ -230,7 +255,8 @@ def test_ics_round_trips_through_icalendar_with_escapes_folding_and_the_time_zon
     assert str(ev["summary"]) == f"{name}: session P01"
     assert str(ev["description"]) == f"{title}\norder fem > mass_spring > plate_spring"
     start = ev.decoded("dtstart")
-    assert start.isoformat() == "2037-12-01T13:30:00+08:00" and str(start.tzinfo) == "Asia/Shanghai"
+    assert start.isoformat() == "2037-12-01T13:30:00+08:00"
+    assert str(start.tzinfo) == "Asia/Shanghai"
     assert [str(tz["tzid"]) for tz in cal.walk("VTIMEZONE")] == ["Asia/Shanghai"]
     # no time zone in the protocol: floating local times, as before
     floating = icalendar.Calendar.from_ical(to_ics(slots, name))
@@ -270,7 +296,8 @@ def test_cli_conventions_hold_for_every_command():
     missing = []
     for path, cmd in _commands(cli):
         res = CliRunner().invoke(cli, [*path, "-h"])
-        assert res.exit_code == 0 and "Usage:" in res.output, path
+        assert res.exit_code == 0, path
+        assert "Usage:" in res.output, path
         names = {o for p in cmd.params for o in getattr(p, "opts", [])}
         fmt = next((p for p in cmd.params if "--format" in getattr(p, "opts", [])), None)
         if "--json" not in names and not (fmt is not None and "json" in getattr(fmt.type, "choices", ())):
@@ -280,7 +307,8 @@ def test_cli_conventions_hold_for_every_command():
     assert missing == []
     assert "The paper's plate-spring model" in CliRunner().invoke(cli, ["model", "plate_spring", "-h"]).output
     out = subprocess.run([sys.executable, "-m", "studyctl", "--version"], capture_output=True, text=True, cwd=ROOT)
-    assert out.returncode == 0 and out.stdout.startswith("studyctl, version ")
+    assert out.returncode == 0
+    assert out.stdout.startswith("studyctl, version ")
 
 
 def test_a_missing_extra_is_a_one_line_error_naming_it(tmp_path, monkeypatch):
@@ -293,7 +321,9 @@ def test_a_missing_extra_is_a_one_line_error_naming_it(tmp_path, monkeypatch):
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "pyarrow" else real(name, *a))
     res = studyctl("export", "--db", db, "--format", "parquet", "--out", tmp_path / "out")
-    assert res.exit_code == 1 and "brainsim-study[parquet]" in res.output and len(res.output.strip().splitlines()) == 1
+    assert res.exit_code == 1
+    assert "brainsim-study[parquet]" in res.output
+    assert len(res.output.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()  # nothing written
     monkeypatch.setitem(sys.modules, "distributed", None)  # as if not installed
     with pytest.raises(SweepError, match=r"brainsim-study\[dask\]"):

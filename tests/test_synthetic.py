@@ -55,7 +55,8 @@ def test_same_seed_same_answers_with_any_jobs_and_load(tmp_path):
     assert runs["a"] == runs["b"] == runs["c"]
     assert runs["a"][0] != runs["d"][0]  # another seed: other participants, other answers
     answers, _, orders, feats = runs["a"]
-    assert len(answers) == 3 * 3 * 9 and all(r[5] == "synthetic" for r in answers)
+    assert len(answers) == 3 * 3 * 9
+    assert all(r[5] == "synthetic" for r in answers)
     assert len({r[1] for r in orders}) == 3  # three participants, three Williams orders
     names = {r[2] for r in feats}
     assert {"within_jnd", "latency_ms", "p_latency", "ripple", "p_vibration", "events", "force_log_ratio", "samples"} <= names
@@ -85,7 +86,10 @@ def test_within_jnd_worked_by_hand():
 
 def test_weber_fraction_is_the_papers_10_and_25_percent_made_continuous():
     w = weber_at(np.array([0.1, 0.3, 0.5, 0.7, 2.0]), MEDIAN)
-    assert w[0] == pytest.approx(0.25) and w[1] == pytest.approx(0.25) and w[3] == pytest.approx(0.10) and w[4] == pytest.approx(0.10)
+    assert w[0] == pytest.approx(0.25)
+    assert w[1] == pytest.approx(0.25)
+    assert w[3] == pytest.approx(0.10)
+    assert w[4] == pytest.approx(0.10)
     assert w[2] == pytest.approx(0.175)  # halfway
     assert np.all(np.diff(w) <= 0)
 
@@ -106,8 +110,10 @@ def test_answers_follow_what_was_perceived_not_the_model_name():
     stiff = features([synthetic_summary(2.0)], MEDIAN)
     slow = features([synthetic_summary(1.0, flops=ObserverParams().flops_per_ms * 80)], MEDIAN)
     shaky = features([synthetic_summary(1.0, ripple=4.0, events=2)], MEDIAN)
-    assert good["within_jnd"] == pytest.approx(P_WITHIN_PERFECT, abs=0.02) and stiff["within_jnd"] < 0.05
-    assert slow["latency_ms"] == pytest.approx(frame_ms(ObserverParams().flops_per_ms * 80)) and slow["p_latency"] > 0.99
+    assert good["within_jnd"] == pytest.approx(P_WITHIN_PERFECT, abs=0.02)
+    assert stiff["within_jnd"] < 0.05
+    assert slow["latency_ms"] == pytest.approx(frame_ms(ObserverParams().flops_per_ms * 80))
+    assert slow["p_latency"] > 0.99
     assert p_yes("feedback", stiff, MEDIAN) < p_yes("feedback", good, MEDIAN) - 0.3
     assert p_yes("realtime", slow, MEDIAN) < p_yes("realtime", good, MEDIAN) - 0.3
     assert p_yes("texture", slow, MEDIAN) == pytest.approx(p_yes("texture", good, MEDIAN))  # texture ignores latency
@@ -116,7 +122,8 @@ def test_answers_follow_what_was_perceived_not_the_model_name():
     assert p_yes("natural", good, keen) > p_yes("natural", good, MEDIAN)
     # nothing judged (the truth never reached a judged force): the accuracy term is neutral
     empty = features([TrialSummary(np.zeros(0), np.zeros(0), 0.0, 0, 1e4)], MEDIAN)
-    assert math.isnan(empty["within_jnd"]) and p_yes("texture", empty, MEDIAN) == pytest.approx(1 / (1 + math.exp(-1.0)))
+    assert math.isnan(empty["within_jnd"])
+    assert p_yes("texture", empty, MEDIAN) == pytest.approx(1 / (1 + math.exp(-1.0)))
 
 
 def test_motor_model_varies_per_participant_and_trial():
@@ -125,10 +132,13 @@ def test_motor_model_varies_per_participant_and_trial():
 
     scene = build_scene(SCENE)
     a, b = SyntheticParticipant.draw("S001", 0), SyntheticParticipant.draw("S002", 0)
-    assert a != b and SyntheticParticipant.draw("S001", 0) == a
-    assert a.traits != b.traits and 0.03 < a.traits.weber < 0.3
+    assert a != b
+    assert SyntheticParticipant.draw("S001", 0) == a
+    assert a.traits != b.traits
+    assert 0.03 < a.traits.weber < 0.3
     pa = a.operators(scene, 0, "fem")
-    assert pa[0].tremor_m > 0 and 8 <= pa[0].tremor_hz <= 12
+    assert pa[0].tremor_m > 0
+    assert 8 <= pa[0].tremor_hz <= 12
     assert pa[0].pull != a.operators(scene, 1, "fem")[0].pull  # each trial differs a little
     # tremor is in the target: at the end of the pull the hand oscillates about the goal
     t = np.linspace(pa[0].pull_start + pa[0].pull_time + 0.1, pa[0].pull_start + pa[0].pull_time + 0.3, 200)
@@ -152,12 +162,15 @@ def test_plan_power_grows_with_n_and_is_labelled_synthetic(tmp_path):
     t = power_table(protocol, [6, 24, 48], simulations=100, seed=3, summaries=summaries, primary=False)
     assert list(t.columns) == ["n", "item", "power", "simulations", "alpha"]
     rt = t[t["item"] == "realtime"].set_index("n")["power"]
-    assert rt[6] < rt[24] <= rt[48] and rt[48] > 0.9  # a large effect: power rises to ~1
+    assert rt[6] < rt[24] <= rt[48]  # a large effect: power rises to ~1
+    assert rt[48] > 0.9
     res = CliRunner().invoke(cli, ["plan", "--protocol", str(fast_protocol(tmp_path, trials=1)), "--participants", "12..18",
                                    "--step", "6", "--simulations", "20", "--pilots", "1", "--json", "--plot", str(tmp_path / "p.png")])
     assert res.exit_code == 0, res.output
     out = json.loads(res.output)
-    assert out["synthetic"] is True and len(out["rows"]) == 2 * 10 and (tmp_path / "p.png").stat().st_size > 5000
+    assert out["synthetic"] is True
+    assert len(out["rows"]) == 2 * 10
+    assert (tmp_path / "p.png").stat().st_size > 5000
 
 
 def test_null_study_rejects_at_about_alpha():
@@ -207,7 +220,8 @@ def test_swapping_which_model_plays_which_condition_leaves_the_rates(swap_pilots
             gaps.append(abs(x["rate"] - y["rate"]) / math.hypot(x["mc_error"], y["mc_error"]))
     # pilots differ per label (as a session's trials do): allow their spread beyond the draws
     # (measured with the tissue truth: median 1.7, two of 27 near 6; hence 9, not a marginal 6)
-    assert max(gaps) < 9 and float(np.median(gaps)) < 2.5
+    assert max(gaps) < 9
+    assert float(np.median(gaps)) < 2.5
     # and the models differ by more than the gap allowed above, so the test could fail (with the
     # body-fitted FEM and the refitted plate-spring they differ less than before: 0.06 at most,
     # against an allowance of 0.03)
@@ -244,7 +258,8 @@ def test_the_shipped_truth_covers_the_scenes_grasps_and_is_the_references_soluti
         # between records the Hermite interpolant stays between its neighbours, and it grows with the pull
         mid = np.linalg.norm(truth.force(p.vertex, np.outer(0.5 * (RECORD_XS[:-1] + RECORD_XS[1:]), e)), axis=1)
         rec = np.linalg.norm(got, axis=1)
-        assert np.all(np.diff(rec) > 0) and np.all((mid > rec[:-1]) & (mid < rec[1:]))
+        assert np.all(np.diff(rec) > 0)
+        assert np.all((mid > rec[:-1]) & (mid < rec[1:]))
         # the slope at rest (the small-strain stiffness, solved separately) continues the recorded path:
         # the force at the first record is within a third of the small-strain one (the law stiffens with the pull)
         K = truth.K(p.vertex)
@@ -261,7 +276,9 @@ def test_the_shipped_truth_covers_the_scenes_grasps_and_is_the_references_soluti
         # near rest the transfer is the small-strain ratio (exact in the limit): within 15% at 2 mm;
         # the tissue's stiffening differs from place to place, so 10 mm from the hand it misses the
         # direct solve by up to 67-80% at 16 mm (docs/synthetic.md): the table's known approximation
-        assert c["converged"] and c["distance_mm"] > 5 and c["error_at_mm"]["2"] < 0.15
+        assert c["converged"]
+        assert c["distance_mm"] > 5
+        assert c["error_at_mm"]["2"] < 0.15
         assert c["error_at_mm"]["2"] < c["error_at_mm"]["8"] < c["error_max"] < 1.0
     # a table made for another law is refused by name
     other = tmp_path / "scene.toml"

@@ -31,7 +31,8 @@ def test_cochrans_q_matches_published_examples(rows, q, p):
 
     x = np.array([[int(c) for c in r] for r in rows.split()])
     r = cochrans_q(x)
-    assert r.statistic == pytest.approx(q, abs=5e-5) and r.pvalue == pytest.approx(p, abs=5e-5)
+    assert r.statistic == pytest.approx(q, abs=5e-5)
+    assert r.pvalue == pytest.approx(p, abs=5e-5)
 
 
 def test_small_synthetic_study_through_to_table1(tmp_path):
@@ -40,14 +41,19 @@ def test_small_synthetic_study_through_to_table1(tmp_path):
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db)])
     assert res.exit_code == 0, res.output
     text = res.output
-    assert "SYNTHETIC DATA" in text and "N = 6 participants" in text and "williams counterbalancing" in text
-    assert text.count("| ") >= 11 and "Time for real-time deformation" in text
+    assert "SYNTHETIC DATA" in text
+    assert "N = 6 participants" in text
+    assert "williams counterbalancing" in text
+    assert text.count("| ") >= 11
+    assert "Time for real-time deformation" in text
     import json
 
     out = json.loads(CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "json"]).output)
-    assert out["facts"]["synthetic"] is True and len(out["rates"]) == 27
+    assert out["facts"]["synthetic"] is True
+    assert len(out["rates"]) == 27
     for r in out["rates"]:
-        assert r["yes"] + r["no"] == 6 and r["wilson_low"] <= r["rate"] <= r["wilson_high"]
+        assert r["yes"] + r["no"] == 6
+        assert r["wilson_low"] <= r["rate"] <= r["wilson_high"]
     assert {c["item"] for c in out["cochran"]} == {r["item"] for r in out["rates"]}
 
 
@@ -55,7 +61,8 @@ def test_mcnemar_with_continuity_correction_matches_the_published_example():
     from statsmodels.stats.contingency_tables import mcnemar
 
     r = mcnemar([[48, 86], [150, 510]], exact=False, correction=True)
-    assert round(r.statistic, 3) == 16.818 and r.pvalue == pytest.approx(4.115e-05, rel=1e-3)
+    assert round(r.statistic, 3) == 16.818
+    assert r.pvalue == pytest.approx(4.115e-05, rel=1e-3)
 
 
 def test_friedman_with_and_without_tie_correction_matches_nag_g08aef():
@@ -67,8 +74,10 @@ def test_friedman_with_and_without_tie_correction_matches_nag_g08aef():
     t2 = [3, 3, 3, 2, 1, 3, 2, 3, 1, 1, 3, 3, 2, 3, 2.5, 2, 2, 3]
     t3 = [2, 1, 2, 3, 2, 1, 1, 2, 2, 2, 1, 1, 1, 1, 1, 1, 1, 1]
     f = friedman(np.array([t1, t2, t3]).T)
-    assert round(f["statistic_uncorrected"], 3) == 8.583 and round(f["p_value_uncorrected"], 4) == 0.0137
-    assert round(f["statistic"], 3) == 8.704 and round(f["p_value"], 4) == 0.0129
+    assert round(f["statistic_uncorrected"], 3) == 8.583
+    assert round(f["p_value_uncorrected"], 4) == 0.0137
+    assert round(f["statistic"], 3) == 8.704
+    assert round(f["p_value"], 4) == 0.0129
 
 
 def test_wilcoxon_signed_rank_matches_hollander_and_wolfe():
@@ -77,7 +86,8 @@ def test_wilcoxon_signed_rank_matches_hollander_and_wolfe():
     x = [1.83, 0.50, 1.62, 2.48, 1.68, 1.88, 1.55, 3.06, 1.30]
     y = [0.878, 0.647, 0.598, 2.05, 1.06, 1.29, 1.06, 3.14, 1.29]
     r = stats.wilcoxon(x, y, alternative="greater")
-    assert r.statistic == 40 and round(r.pvalue, 5) == 0.01953
+    assert r.statistic == 40
+    assert round(r.pvalue, 5) == 0.01953
 
 
 def test_published_table_is_flagged_exactly_where_counts_and_rates_disagree():
@@ -88,12 +98,15 @@ def test_published_table_is_flagged_exactly_where_counts_and_rates_disagree():
     res = CliRunner().invoke(cli, ["report", "published", "--table", str(ROOT / "data" / "paper_table1.csv"), "--json"])
     out = json.loads(res.output)
     assert [(f["item"], f["model"], f["printed"], f["computed"]) for f in out["flags"]] == [("realtime", "mass_spring", "8.6%", "68.6%")]
-    assert len(out["homogeneity"]) == 9 and all("ignores" in h["note"] for h in out["homogeneity"])
+    assert len(out["homogeneity"]) == 9
+    assert all("ignores" in h["note"] for h in out["homogeneity"])
     assert "paired" in out["not_computable"]
     # what the margins allow under any pairing (worked out in test_margin_bounds_*)
     p_min = {r["item"]: r["p_min"] for r in out["bounds"]["cochran"]}
-    assert min(p_min.values()) == pytest.approx(0.0015, abs=5e-5) and max(p_min.values()) == pytest.approx(0.0498, abs=5e-5)
-    assert len(out["bounds"]["mcnemar"]) == 27 and min(p["p_min_holm"] for p in out["bounds"]["mcnemar"]) == pytest.approx(0.2109375)
+    assert min(p_min.values()) == pytest.approx(0.0015, abs=5e-5)
+    assert max(p_min.values()) == pytest.approx(0.0498, abs=5e-5)
+    assert len(out["bounds"]["mcnemar"]) == 27
+    assert min(p["p_min_holm"] for p in out["bounds"]["mcnemar"]) == pytest.approx(0.2109375)
 
 
 def _all_pairings(yes, n):
@@ -180,8 +193,10 @@ def test_one_n_rule_complete_cases_everywhere_and_the_rest_listed(tmp_path):
     r = rates(study)
     assert (r["n"] == 8).all()  # the rates use the same 8 as the tests
     st = study_stats(study)
-    assert all(v.n_complete == 8 for v in st.items.values()) and st.gee.composite.n_participants == 8
-    assert "N = 8 participants" in markdown(study) and "P98 (9/27), P99 (22/27)" in markdown(study)
+    assert all(v.n_complete == 8 for v in st.items.values())
+    assert st.gee.composite.n_participants == 8
+    assert "N = 8 participants" in markdown(study)
+    assert "P98 (9/27), P99 (22/27)" in markdown(study)
 
 
 def test_holm_over_the_family_of_27_pairs_by_default(tmp_path):
@@ -194,7 +209,8 @@ def test_holm_over_the_family_of_27_pairs_by_default(tmp_path):
     study = _read(_answers_db(tmp_path, answers))
     fam, per = study_stats(study), study_stats(study, holm_scope="question")
     raw = [p.p_value for v in fam.items.values() for p in v.pairs]
-    assert len(raw) == 27 and fam.holm == "family"
+    assert len(raw) == 27
+    assert fam.holm == "family"
     assert [p.p_holm for v in fam.items.values() for p in v.pairs] == pytest.approx(holm(raw))
     for v in per.items.values():
         assert [p.p_holm for p in v.pairs] == pytest.approx(holm([p.p_value for p in v.pairs]))
@@ -231,7 +247,9 @@ def test_gee_matches_the_hand_built_saturated_case():
         assert pair["se"] == pytest.approx(se, rel=1e-4)
         assert pair["ci_low"] == pytest.approx(math.exp(est - 1.959963984540054 * se), rel=1e-4)
         assert pair["p_value"] == pytest.approx(2 * norm.sf(abs(est / se)), rel=1e-3)
-    assert out["converged"] and out["n_participants"] == n and out["n_answers"] == 3 * n
+    assert out["converged"]
+    assert out["n_participants"] == n
+    assert out["n_answers"] == 3 * n
 
 
 def test_gee_has_the_period_factor_and_a_composite(tmp_path):
@@ -243,7 +261,8 @@ def test_gee_has_the_period_factor_and_a_composite(tmp_path):
     answers = {c: {m: rng.binomial(1, 0.7, 9).tolist() for m in models} for c in orders}
     gee = study_stats(_read(_answers_db(tmp_path, answers, orders))).gee
     assert gee.period_factor is True
-    assert gee.composite.formula == "answer ~ C(model) + C(period) + C(item)" and gee.composite.n_answers == 18 * 27
+    assert gee.composite.formula == "answer ~ C(model) + C(period) + C(item)"
+    assert gee.composite.n_answers == 18 * 27
     assert set(gee.items) == {"natural", "behaviour", "texture", "comfortable", "guidance", "realtime", "feedback", "deformation", "stable"}
     assert all(len(v.pairs) == 3 and {"odds_ratio", "ci_low", "ci_high", "p_value", "p_holm"} <= set(v.pairs[0].keys) for v in gee.items.values())
 
@@ -257,27 +276,39 @@ def test_report_stats_json_keys(tmp_path):
     item = out["items"]["natural"]
     assert {"cochran_q", "p_value", "rates", "pairs"} <= set(item)
     assert {"yes", "no", "rate", "wilson_low", "wilson_high"} <= set(item["rates"]["fem"])
-    assert len(item["pairs"]) == 3 and {"a", "b", "p_value", "p_holm"} <= set(item["pairs"][0])
+    assert len(item["pairs"]) == 3
+    assert {"a", "b", "p_value", "p_holm"} <= set(item["pairs"][0])
     # a pair no participant answered differently is not tested: null, with the reason
     assert all(p["p_holm"] >= p["p_value"] if p["p_value"] is not None else p["p_holm"] is None and p["reason"] for p in item["pairs"])
-    assert out["holm"] == "family" and {"p_holm_family", "p_holm_question"} <= set(item["pairs"][0])
+    assert out["holm"] == "family"
+    assert {"p_holm_family", "p_holm_question"} <= set(item["pairs"][0])
     comp = out["gee"]["composite"]
-    assert {"odds_ratio", "ci_low", "ci_high", "p_value", "p_holm"} <= set(comp["pairs"][0]) and len(comp["pairs"]) == 3
-    assert "benchmark of this machine" in out["deformation"]["label"] and len(out["deformation"]["rows"]) == 3
+    assert {"odds_ratio", "ci_low", "ci_high", "p_value", "p_holm"} <= set(comp["pairs"][0])
+    assert len(comp["pairs"]) == 3
+    assert "benchmark of this machine" in out["deformation"]["label"]
+    assert len(out["deformation"]["rows"]) == 3
     assert out["deformation"]["rows"][0]["n_participants"] == 6
 
 
 def test_latex_html_and_plots(small_study, tmp_path):
     db = small_study
     tex = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "latex"]).output
-    assert tex.startswith("% needs in the preamble") and "SYNTHETIC DATA" in tex and "\\toprule" in tex and "+-" not in tex
+    assert tex.startswith("% needs in the preamble")
+    assert "SYNTHETIC DATA" in tex
+    assert "\\toprule" in tex
+    assert "+-" not in tex
     assert sum(ln.startswith("Is ") or ln.startswith("Does ") or ln.startswith("Can ") or ln.startswith("Are ") for ln in tex.splitlines()) == 9
-    assert re.search(r"McNemar p \(Holm over all \d+ pairs tested\)", tex) and "benchmark of this machine" in tex and "$\\pm$" in tex
+    assert re.search(r"McNemar p \(Holm over all \d+ pairs tested\)", tex)
+    assert "benchmark of this machine" in tex
+    assert "$\\pm$" in tex
     assert latex_problems(document(tex), tmp_path) == []  # compiles with booktabs, nothing wider than the A4 text block
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "html", "--out", str(tmp_path / "r.html")])
     assert res.exit_code == 0, res.output
     page = (tmp_path / "r.html").read_text()
-    assert "SYNTHETIC DATA" in page and page.count("data:image/png;base64,") == 3 and "benchmark of this machine" in page and "logistic GEE" in page
+    assert "SYNTHETIC DATA" in page
+    assert page.count("data:image/png;base64,") == 3
+    assert "benchmark of this machine" in page
+    assert "logistic GEE" in page
     assert "http" not in page.split("<body>")[1]  # self-contained: nothing fetched
     res = CliRunner().invoke(cli, ["report", "plots", "--db", str(db), "--out", str(tmp_path / "plots")])
     assert res.exit_code == 0
@@ -316,14 +347,17 @@ def test_a_report_reads_the_study_once(small_study, tmp_path, monkeypatch):
         opened.clear()
         res = CliRunner().invoke(cli, ["report", *args, "--db", str(small_study)])
         assert res.exit_code == 0, res.output
-        assert opened == [small_study] and others == [], args
+        assert opened == [small_study], args
+        assert others == [], args
     assert "data:image/png;base64," in (tmp_path / "r.html").read_text()
 
     from analysis.reports.report import html
 
     study = _read(small_study)
     opened.clear()
-    assert html(study).startswith("<!doctype html>") and opened == [] and others == []  # the snapshot alone
+    assert html(study).startswith("<!doctype html>")  # the snapshot alone
+    assert opened == []
+    assert others == []
     with pytest.raises(dataclasses.FrozenInstanceError):
         study.answers = None
 
@@ -377,7 +411,9 @@ def test_latex_table_escapes_every_special_character_and_has_the_other_formats_c
         assert len(cells) == 6, line  # question, three models, Cochran's Q, McNemar
         rest = re.sub(r"\\(textasciicircum|textasciitilde|textbackslash|space|allowbreak\{\})|\\[{}$&%_#]", "", body.replace(" & ", " "))
         assert not re.search(r"[{}$^~%_#\\]", rest), line
-    assert len(rows) == 10 and "\\toprule" in tex and "\\bottomrule" in tex  # 9 questions and the deformation row
+    assert len(rows) == 10  # 9 questions and the deformation row
+    assert "\\toprule" in tex
+    assert "\\bottomrule" in tex
 
 
 def test_gee_says_not_estimable_when_a_model_answers_alike_throughout(tmp_path):
@@ -389,10 +425,14 @@ def test_gee_says_not_estimable_when_a_model_answers_alike_throughout(tmp_path):
                for i in range(8)}
     study = _read(_answers_db(tmp_path, answers))
     comp = study_stats(study).gee.composite
-    assert comp.estimable is False and not comp.converged and "mass_spring" in comp.problems[0]
+    assert comp.estimable is False
+    assert not comp.converged
+    assert "mass_spring" in comp.problems[0]
     bad = [p for p in comp.pairs if "mass_spring" in (p.a, p.b)]
-    assert bad and all(not p.estimable and math.isnan(p.p_value) for p in bad)
-    assert "not estimable" in markdown(study) and "NOT ESTIMABLE" in markdown(study)
+    assert bad
+    assert all(not p.estimable and math.isnan(p.p_value) for p in bad)
+    assert "not estimable" in markdown(study)
+    assert "NOT ESTIMABLE" in markdown(study)
 
 
 def test_holm_equals_statsmodels_with_ties_and_nan():
@@ -412,4 +452,5 @@ def test_holm_equals_statsmodels_with_ties_and_nan():
         expected = np.full(p.size, np.nan)
         expected[ok] = multipletests(p[ok], method="holm")[1]
         assert np.array_equal(holm(p), expected, equal_nan=True)
-    assert holm([]) == [] and holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])  # by hand
+    assert holm([]) == []  # by hand
+    assert holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])

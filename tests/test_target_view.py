@@ -188,7 +188,8 @@ def test_a_person_pulls_each_hand_to_its_target_with_the_mouse_and_the_trial_end
     rows = con.execute("select events, trace_ticks, grasped from trials").fetchall()
     assert len(rows) == 1
     events, ticks, grasped = rows[0]
-    assert json.loads(events)["ended_early"] == "targets held" and grasped == 1
+    assert json.loads(events)["ended_early"] == "targets held"
+    assert grasped == 1
     assert ticks < 30_000  # ended before its 30 s limit (1 kHz)
     assert time.time() - started < 150
 
@@ -208,13 +209,16 @@ def test_a_person_pulls_each_hand_to_its_target_with_the_mouse_and_the_trial_end
 
     # mid-pull: the left bar part filled in magenta, from its inner end; the right bar empty
     img, states = person.shots["pull"]
-    assert 0.2 < states[0].progress < 0.95 and not states[0].on_target
+    assert 0.2 < states[0].progress < 0.95
+    assert not states[0].on_target
     filled = in_bar(img, left, hud.TARGET_AWAY)
     area = (left[2] - left[0]) * (left[3] - left[1])
-    assert 0.1 * area < filled < 0.8 * area and in_bar(img, right, hud.TARGET_AWAY) == 0
+    assert 0.1 * area < filled < 0.8 * area
+    assert in_bar(img, right, hud.TARGET_AWAY) == 0
     x0, y0, x1, y1 = (int(round(c)) for c in left)
     row = _colour(img[(y0 + y1) // 2:(y0 + y1) // 2 + 1, x0:x1], hud.TARGET_AWAY)[0]
-    assert row[-5:].all() and not row[:5].any()  # the left hand's bar fills outwards (to the left)
+    assert row[-5:].all()  # the left hand's bar fills outwards (to the left)
+    assert not row[:5].any()
     # on target: the left ring and the bar's fill green
     img, states = person.shots["on"]
     assert states[0].on_target

@@ -36,13 +36,15 @@ def test_every_shipped_mesh_matches_its_provenance(scene):
     for entry in prov["meshes"]:
         v, t, _ = hemisphere_surface(scene.mesh, entry["hemisphere"])
         m = mesh_hemisphere(v, t, entry["target_edge_mm"] * 1e-3)
-        assert m.source == "shipped" and content_hash(m.nodes, m.tets) == entry["sha256"]
+        assert m.source == "shipped"
+        assert content_hash(m.nodes, m.tets) == entry["sha256"]
         vol = tet_volumes(m.nodes, m.tets)
         assert np.all(vol > 0)  # positively oriented, none degenerate
         # the boundary follows the pial surface within the envelope (0.1 x the edge): the volume
         # error shrinks with the size (1% at 8 mm)
         assert abs(vol.sum() / enclosed_volume(v, t) - 1) < 0.01 * entry["target_edge_mm"] / 8.0
-        assert len(m.tets) == entry["tets"] and len(m.nodes) == entry["nodes"]
+        assert len(m.tets) == entry["tets"]
+        assert len(m.nodes) == entry["nodes"]
 
 
 def test_a_damaged_shipped_mesh_is_refused_by_name(scene, tmp_path, monkeypatch):
@@ -68,7 +70,8 @@ def test_fem_mass_spring_and_reference_share_one_geometry(scene):
     fem = build_fem(scene.mesh, {"resolution": 0.008, "order": 1}, scene)
     ms = build_ms(scene.mesh, dict(scene.spec.model_spec("mass_spring").options) | {"resolution": 0.008}, scene)
     for model in (fem, ms):
-        assert np.array_equal(model.volume.nodes, volume.nodes) and np.array_equal(model.volume.tets, volume.tets)
+        assert np.array_equal(model.volume.nodes, volume.nodes)
+        assert np.array_equal(model.volume.tets, volume.tets)
     v, t, _ = hemisphere_surface(scene.mesh, 1)
     right = mesh_hemisphere(v, t, 0.008)  # what analysis/verification/reference.py meshes the right hemisphere with
     assert np.array_equal(volume.nodes[volume.component == 1], right.nodes)

@@ -25,8 +25,11 @@ def _person_with_answers(tmp_path, db, proto):
 def test_synth_never_creates_a_study_it_was_not_told_to(tmp_path):
     typo = tmp_path / "typo.db"
     res = studyctl("synth", "--db", typo, "--participants", "1")
-    assert res.exit_code != 0 and "typo.db does not exist" in res.output and "--protocol" in res.output
-    assert not typo.exists() and "Traceback" not in res.output
+    assert res.exit_code != 0
+    assert "typo.db does not exist" in res.output
+    assert "--protocol" in res.output
+    assert not typo.exists()
+    assert "Traceback" not in res.output
     proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
     res = studyctl("synth", "--db", typo, "--participants", "1", "--protocol", proto)
     assert res.exit_code == 0, res.output
@@ -36,7 +39,9 @@ def test_synth_never_creates_a_study_it_was_not_told_to(tmp_path):
 def test_an_empty_scheduler_address_is_an_error(tmp_path):
     db = tmp_path / "s.db"
     res = studyctl("synth", "--db", db, "--participants", "1", "--protocol", fast_protocol(tmp_path), "--scheduler", "")
-    assert res.exit_code != 0 and "--scheduler" in res.output and "empty" in res.output
+    assert res.exit_code != 0
+    assert "--scheduler" in res.output
+    assert "empty" in res.output
     assert not db.exists()
 
 
@@ -47,12 +52,16 @@ def test_synthetic_sessions_into_a_study_of_people_are_refused_unless_asked_for(
     res = studyctl("answers", "import", "--db", db, answers)
     assert res.exit_code == 0, res.output
     res = studyctl("synth", "--db", db, "--participants", "1")
-    assert res.exit_code != 0 and "is a study of people (1 person registered)" in res.output and "--alongside-people" in res.output
+    assert res.exit_code != 0
+    assert "is a study of people (1 person registered)" in res.output
+    assert "--alongside-people" in res.output
     assert sqlite3.connect(db).execute("select count(*) from participants where synthetic = 1").fetchone()[0] == 0
     res = studyctl("synth", "--db", db, "--participants", "1", "--alongside-people")
     assert res.exit_code == 0, res.output
     first = studyctl("report", "table1", "--db", db).output.strip().splitlines()[0]
-    assert "MIXED DATA" in first and "1 person" in first and "1 SYNTHETIC" in first, first
+    assert "MIXED DATA" in first, first
+    assert "1 person" in first, first
+    assert "1 SYNTHETIC" in first, first
 
 
 def test_an_interrupted_synth_leaves_no_participant_without_a_session(tmp_path, monkeypatch):
@@ -70,8 +79,10 @@ def test_an_interrupted_synth_leaves_no_participant_without_a_session(tmp_path, 
 
     monkeypatch.setattr(runner, "completed", one_then_ctrl_c)
     res = studyctl("synth", "--db", db, "--participants", "3", "--protocol", proto, "--seed", "4")
-    assert res.exit_code != 0 and "Traceback" not in res.output
-    assert "interrupted after 1 of 3 sessions" in res.output and f"`studyctl synth --db {db} --complete`" in res.output, res.output
+    assert res.exit_code != 0
+    assert "Traceback" not in res.output
+    assert "interrupted after 1 of 3 sessions" in res.output, res.output
+    assert f"`studyctl synth --db {db} --complete`" in res.output, res.output
     monkeypatch.setattr(runner, "completed", real)
     con = sqlite3.connect(db)
     assert con.execute("select count(*) from participants").fetchone()[0] == 3
@@ -109,7 +120,8 @@ def test_text_answers_with_control_characters_are_refused(tmp_path, char):
     bad = tmp_path / "a.csv"
     bad.write_text(f"participant,model,item,answer\nP01,,comment,fine{char}rest\n")
     res = studyctl("answers", "import", "--db", db, bad)
-    assert res.exit_code != 0 and f"a.csv: line 2: answer: control character U+{ord(char):04X}" in res.output, res.output
+    assert res.exit_code != 0, res.output
+    assert f"a.csv: line 2: answer: control character U+{ord(char):04X}" in res.output, res.output
     assert sqlite3.connect(db).execute("select count(*) from answers").fetchone()[0] == 0
 
 
@@ -132,16 +144,19 @@ def test_a_long_refused_value_is_quoted_by_a_short_prefix(tmp_path):
     bad = tmp_path / "a.csv"
     bad.write_text("participant,model,item,answer\nP01,plate_spring,natural," + "y" * 10_000 + "\n")
     res = studyctl("answers", "import", "--db", db, bad)
-    assert res.exit_code != 0 and "(10000 characters)" in res.output
+    assert res.exit_code != 0
+    assert "(10000 characters)" in res.output
     assert len(res.output) < 400, res.output
 
 
 def test_names_contacts_and_reasons_with_control_characters_are_refused(tmp_path):
     db = _text_study(tmp_path)
     res = studyctl("participants", "add", "P02", "--db", db, "--age", "24", "--name", "Ann\x00e")
-    assert res.exit_code != 0 and "--name: control character U+0000 at character 4" in res.output
+    assert res.exit_code != 0
+    assert "--name: control character U+0000 at character 4" in res.output
     res = studyctl("participants", "withdraw", "P01", "--db", db, "--reason", "moved\x1b[2J")
-    assert res.exit_code != 0 and "--reason: control character U+001B" in res.output
+    assert res.exit_code != 0
+    assert "--reason: control character U+001B" in res.output
     con = sqlite3.connect(db)
     assert con.execute("select count(*) from participants").fetchone()[0] == 1
     assert con.execute("select count(*) from participants where withdrawn_at is not null").fetchone()[0] == 0
@@ -156,7 +171,9 @@ def test_protocol_new_writes_a_protocol_that_validates_and_runs_from_its_own_fol
     res = studyctl("protocol", "new", "--kind", kind, "--out", out, "--name", "my_study", "--json")
     assert res.exit_code == 0, res.output
     made = _json.loads(res.output)
-    assert made["name"] == "my_study" and (out / "protocol.toml").exists() and (out / "scene.toml").exists()
+    assert made["name"] == "my_study"
+    assert (out / "protocol.toml").exists()
+    assert (out / "scene.toml").exists()
     assert "../" not in (out / "scene.toml").read_text()  # every path resolves from anywhere
     elsewhere = tmp_path / "other"
     elsewhere.mkdir()
@@ -166,9 +183,11 @@ def test_protocol_new_writes_a_protocol_that_validates_and_runs_from_its_own_fol
         res = studyctl("protocol", "validate", out / "protocol.toml")
     finally:
         os.chdir(cwd)
-    assert res.exit_code == 0 and "my_study" in res.output, res.output
+    assert res.exit_code == 0, res.output
+    assert "my_study" in res.output, res.output
     res = studyctl("protocol", "new", "--kind", kind, "--out", out)
-    assert res.exit_code != 0 and "protocol.toml: exists (and 1 more of the files this command writes); --force overwrites them" in res.output
+    assert res.exit_code != 0
+    assert "protocol.toml: exists (and 1 more of the files this command writes); --force overwrites them" in res.output
 
 
 def test_inclusion_and_latency_have_documented_defaults_and_a_missing_section_says_what_to_write(tmp_path):
@@ -182,14 +201,17 @@ def test_inclusion_and_latency_have_documented_defaults_and_a_missing_section_sa
         text = text[:start] + text[end + 1:]
     proto.write_text(text)
     p = load_protocol(proto)
-    assert (p.age_min, p.age_max) == DEFAULT_AGES and p.latency_measures == DEFAULT_LATENCY
+    assert (p.age_min, p.age_max) == DEFAULT_AGES
+    assert p.latency_measures == DEFAULT_LATENCY
     start = text.index("[study]")
     end = text.index("\n[", start + 1)
     proto.write_text(text[:start] + text[end + 1:])
     res = studyctl("protocol", "validate", proto)
-    assert res.exit_code != 0 and "study: missing section; write [study] with name = " in res.output
+    assert res.exit_code != 0
+    assert "study: missing section; write [study] with name = " in res.output
     docs = (Path(__file__).resolve().parents[1] / "docs/study.md").read_text()
-    assert "`[inclusion]` left out: adults, 18-120" in docs and "`[latency]` left out:" in docs
+    assert "`[inclusion]` left out: adults, 18-120" in docs
+    assert "`[latency]` left out:" in docs
 
 
 def test_docs_list_every_section_and_key_the_validator_knows():

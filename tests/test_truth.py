@@ -51,11 +51,14 @@ def test_the_table_follows_the_reference_paths_and_transfers_within_its_check(co
     p = pulls[0]
     want = np.array([combined_sample(refs[p.name]["force_per_pa"][:, k] * mu, refs[p.name]["h_m"])["force"] for k in range(len(RECORD_XS))])
     assert np.allclose(truth.force(p.vertex, np.outer(RECORD_XS, p.direction)), want, rtol=1e-9)
-    assert rep["vertices"] == len(truth.vertices) and rep["paths"] == [q.name for q in pulls]
+    assert rep["vertices"] == len(truth.vertices)
+    assert rep["paths"] == [q.name for q in pulls]
     (check,) = [c for c in rep["transfer_checks"] if c["hand"] == p.name]
     # a grasp a few mm off the hand's vertex: near rest the transfer is the small-strain ratio (exact in
     # the limit); the stiffening differs by place, so the error grows along the pull (docs/synthetic.md)
-    assert check["converged"] and check["error_at_mm"]["2"] < 0.15 and check["error_at_mm"]["2"] < check["error_at_mm"]["8"] < 1.0
+    assert check["converged"]
+    assert check["error_at_mm"]["2"] < 0.15
+    assert check["error_at_mm"]["2"] < check["error_at_mm"]["8"] < 1.0
     # the transfer maps the hand's own small-strain stiffness to each place's
     z = np.load(out)
     for k, v in enumerate(truth.vertices):

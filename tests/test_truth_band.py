@@ -17,27 +17,41 @@ CORTEX = "protocols/materials/human_cortex.toml"
 def test_the_volumetric_energy_is_convex_where_the_old_one_was_not():
     J = np.array([0.2, 0.5, 1.0, 2.0, np.e, 4.9, 10.0])
     U, dU, ddU = volumetric(2.0, J)
-    assert np.all(ddU > 0) and U[2] == 0.0 and dU[2] == 0.0 and ddU[2] == pytest.approx(2.0)  # U''(1) = kappa
+    assert np.all(ddU > 0)  # U''(1) = kappa
+    assert U[2] == 0.0
+    assert dU[2] == 0.0
+    assert ddU[2] == pytest.approx(2.0)
     h = 1e-6
     assert np.allclose((volumetric(2.0, J + h)[0] - volumetric(2.0, J - h)[0]) / (2 * h), dU, rtol=1e-6)
     assert np.allclose((volumetric(2.0, J + h)[1] - volumetric(2.0, J - h)[1]) / (2 * h), ddU, rtol=1e-6)
-    assert ddU[-2] > 0 and ddU[-1] > 0  # where kappa/2 (ln J)^2's, kappa (1 - ln J) / J^2, is negative (J > e)
+    assert ddU[-2] > 0  # where kappa/2 (ln J)^2's, kappa (1 - ln J) / J^2, is negative (J > e)
+    assert ddU[-1] > 0
 
 
 def test_decide_by_hand():
     assert truth_band.decide(0.2, 0.10, 0.20, 0.03) == (True, "", "")
     ok, v, why = truth_band.decide(0.2, 0.10, 0.30, 0.03)  # 30% of the energy outside; the JND below 0.5 N is 25%
-    assert not ok and v == "extrapolated" and "30%" in why
+    assert not ok
+    assert v == "extrapolated"
+    assert "30%" in why
     ok, v, why = truth_band.decide(0.8, 0.05, 0.15, 0.03)  # above 0.5 N the JND is 10%: 15% outside is too much
-    assert not ok and v == "extrapolated"
+    assert not ok
+    assert v == "extrapolated"
     ok, v, why = truth_band.decide(0.2, 0.10, 0.10, 0.06)
-    assert not ok and v == "extrapolated" and "|J - 1|" in why
+    assert not ok
+    assert v == "extrapolated"
+    assert "|J - 1|" in why
     ok, v, why = truth_band.decide(0.2, 0.30, 0.10, 0.03)
-    assert not ok and v == "undecided" and "band" in why
+    assert not ok
+    assert v == "undecided"
+    assert "band" in why
     ok, v, _ = truth_band.decide(0.2, math.nan, 0.10, 0.03)
-    assert not ok and v == "undecided"
+    assert not ok
+    assert v == "undecided"
     ok, v, why = truth_band.decide(3.5, 0.01, 0.0, 0.0)
-    assert not ok and v == "extrapolated" and "3.3 N" in why
+    assert not ok
+    assert v == "extrapolated"
+    assert "3.3 N" in why
 
 
 def test_the_band_combines_mesh_and_law_root_sum_square():
@@ -49,7 +63,9 @@ def test_the_band_combines_mesh_and_law_root_sum_square():
 def test_the_ensemble_is_the_chosen_law_the_other_families_that_fit_and_the_parameter_box():
     law, _ = load_material(CORTEX)
     members = truth_band.ensemble(CORTEX, law)
-    assert members[0]["name"] == "chosen" and members[0]["law"] == law and members[0]["passes"]
+    assert members[0]["name"] == "chosen"
+    assert members[0]["law"] == law
+    assert members[0]["passes"]
     # the fit, run here on the material's own data: every other family's best fit is in exactly when it passes
     paths, region = material_data(CORTEX)
     fits = {f["law"]: f for f in fit_material(paths, region)["laws"]}
@@ -66,7 +82,8 @@ def test_the_ensemble_is_the_chosen_law_the_other_families_that_fit_and_the_para
     assert np.allclose(got, sorted([(lo_mu, lo_a), (lo_mu, hi_a), (hi_mu, lo_a), (hi_mu, hi_a)]), rtol=1e-9)
     # forces scale with mu: the corners need two shapes, not four
     shapes = truth_band.shapes(members)
-    assert len(shapes) == len(members) - 2 and all(s.shear_modulus == pytest.approx(1.0) for s in shapes)
+    assert len(shapes) == len(members) - 2
+    assert all(s.shear_modulus == pytest.approx(1.0) for s in shapes)
 
 
 def test_every_decided_sample_of_the_quick_truth_keeps_the_rule():
@@ -83,14 +100,19 @@ def test_every_decided_sample_of_the_quick_truth_keeps_the_rule():
     truth = truth_band.truth_samples(cfg.scene, pulls, sample_displacements(cfg), cfg.reference_sizes_mm, jobs=1)
     cells = [c for rows in truth["pulls"].values() for c in rows]
     decided = [c for c in cells if c["decided"]]
-    assert decided and len(decided) < len(cells)  # some samples are decided, and some are not
+    assert decided  # some samples are decided, and some are not
+    assert len(decided) < len(cells)
     for c in decided:
         tol = float(force_jnd(np.array(c["force_n"])))
-        assert c["force_n"] <= 3.3 and c["support_share_outside"] <= tol and c["max_abs_j_minus_1"] <= 0.05 and c["band_rel"] < tol
+        assert c["force_n"] <= 3.3
+        assert c["support_share_outside"] <= tol
+        assert c["max_abs_j_minus_1"] <= 0.05
+        assert c["band_rel"] < tol
         assert c["band_rel"] == pytest.approx(math.hypot(c["mesh_band_rel"], c["law_band_rel"]))
     for c in cells:
         if not c["decided"]:
-            assert c["truth"] in ("extrapolated", "undecided") and c["reason"]
+            assert c["truth"] in ("extrapolated", "undecided")
+            assert c["reason"]
     assert [m["name"] for m in truth["ensemble"]][0] == "chosen"
 
 

@@ -47,7 +47,8 @@ def test_participant_scores_average_trials_and_hands_and_keep_both_rows():
     assert list(s.columns) == v.SCORE_COLUMNS
     one = m[(m["code"] == "STU00") & (m["hand"] != "both") & (m["metric"] == "path_length")]
     row = s[(s["code"] == "STU00") & (s["metric"] == "path_length")]
-    assert row["value"].item() == pytest.approx(one["value"].mean()) and row["n_values"].item() == 6
+    assert row["value"].item() == pytest.approx(one["value"].mean())
+    assert row["n_values"].item() == 6
     assert set(s["metric"]) == {"path_length", "path_length:both", "force_ratio"}
     assert s.loc[(s["code"] == "STU00") & (s["metric"] == "force_ratio"), "n_values"].item() == 3
     med = v.participant_scores(m, how="median")
@@ -65,19 +66,24 @@ def test_group_tests_match_pingouin_and_direct_counts():
     pg = pytest.importorskip("pingouin")
     scores, groups = _scores()
     res = v.group_tests(scores, groups, ORDER, n_boot=500)
-    assert list(res.kruskal.columns) == v.KRUSKAL_COLUMNS and list(res.pairs.columns) == v.PAIR_COLUMNS
-    assert len(res.kruskal) == 4 and len(res.pairs) == 12 and len(res.descriptives) == 12
+    assert list(res.kruskal.columns) == v.KRUSKAL_COLUMNS
+    assert list(res.pairs.columns) == v.PAIR_COLUMNS
+    assert len(res.kruskal) == 4
+    assert len(res.pairs) == 12
+    assert len(res.descriptives) == 12
     d = scores.assign(group=scores["code"].map(groups))
     for _, k in res.kruskal.iterrows():
         sub = d[(d["metric"] == k["metric"]) & (d["condition"] == k["condition"])]
         ref = pg.kruskal(data=sub, dv="value", between="group")
-        assert k["H"] == pytest.approx(ref["H"].item(), rel=1e-10) and k["p"] == pytest.approx(ref["p_unc"].item(), rel=1e-10)
+        assert k["H"] == pytest.approx(ref["H"].item(), rel=1e-10)
+        assert k["p"] == pytest.approx(ref["p_unc"].item(), rel=1e-10)
         assert k["df"] == ref["ddof1"].item() == 2
     for _, r in res.pairs.iterrows():
         sub = d[(d["metric"] == r["metric"]) & (d["condition"] == r["condition"])]
         a, b = sub.loc[sub["group"] == r["a"], "value"].to_numpy(), sub.loc[sub["group"] == r["b"], "value"].to_numpy()
         ref = pg.mwu(a, b, alternative="two-sided")
-        assert r["U"] == pytest.approx(ref["U_val"].item()) and r["p"] == pytest.approx(ref["p_val"].item(), rel=1e-10)
+        assert r["U"] == pytest.approx(ref["U_val"].item())
+        assert r["p"] == pytest.approx(ref["p_val"].item(), rel=1e-10)
         assert r["cliffs_delta"] == pytest.approx(ref["RBC"].item(), abs=1e-12)
         count = sum(int(x > y) - int(x < y) for x in a.tolist() for y in b.tolist()) / (len(a) * len(b))  # Cliff's delta, by hand
         assert r["cliffs_delta"] == pytest.approx(count, abs=1e-12)
@@ -88,7 +94,8 @@ def test_group_tests_match_pingouin_and_direct_counts():
     assert res.kruskal["p_holm"].tolist() == pytest.approx(holm(res.kruskal["p"]))
     # the planted ordering: students' paths longer than the neurosurgeons'
     sn = res.pairs[(res.pairs["a"] == "student") & (res.pairs["b"] == "neurosurgeon") & (res.pairs["metric"] == "path_length")]
-    assert (sn["cliffs_delta"] > 0.5).all() and (sn["p_holm"] < 0.05).all()
+    assert (sn["cliffs_delta"] > 0.5).all()
+    assert (sn["p_holm"] < 0.05).all()
 
 
 def _wy_reference(scores, groups, order, n_perm, seed):
@@ -173,18 +180,22 @@ def test_westfall_young_matches_a_brute_force_reference():
     np.testing.assert_allclose(res.pairs["p_wy"], pair_wy, rtol=0, atol=1e-12)
     # the neurosurgeons' missing metric: its pairs with them are not tested, nor in the family
     force = res.pairs[res.pairs["metric"] == "force"]
-    assert force.loc[force["b"] == "neurosurgeon", "p_wy"].isna().all() and force.loc[force["b"] != "neurosurgeon", "p_wy"].notna().all()
+    assert force.loc[force["b"] == "neurosurgeon", "p_wy"].isna().all()
+    assert force.loc[force["b"] != "neurosurgeon", "p_wy"].notna().all()
     assert (res.kruskal.loc[res.kruskal["metric"] == "force", "k"] == 2).all()
     # min-p with the observed labelling counted: never below a test's own permutation p, nor 1 / (B + 1)
     for got, single in ((res.kruskal["p_wy"], kw_single), (res.pairs["p_wy"], pair_single)):
         ok = got.notna().to_numpy()
-        assert (got[ok] >= single[ok] - 1e-12).all() and (got[ok] >= 1 / 151).all() and (got[ok] <= 1).all()
+        assert (got[ok] >= single[ok] - 1e-12).all()
+        assert (got[ok] >= 1 / 151).all()
+        assert (got[ok] <= 1).all()
     # step-down monotone: a smaller raw p never gets a larger adjusted p
     k = res.kruskal.sort_values("p")
     assert k["p_wy"].is_monotonic_increasing
     # n_perm = 0: today's tables, no p_wy
     plain = v.group_tests(scores, groups, ORDER, n_boot=20, seed=7)
-    assert list(plain.kruskal.columns) == v.KRUSKAL_COLUMNS and list(plain.pairs.columns) == v.PAIR_COLUMNS
+    assert list(plain.kruskal.columns) == v.KRUSKAL_COLUMNS
+    assert list(plain.pairs.columns) == v.PAIR_COLUMNS
     pd.testing.assert_frame_equal(plain.pairs, res.pairs.drop(columns="p_wy"))
     pd.testing.assert_frame_equal(plain.kruskal, res.kruskal.drop(columns="p_wy"))
 
@@ -214,7 +225,8 @@ def test_westfall_young_is_not_fooled_by_duplicated_metrics():
     r1 = v.group_tests(one, groups, ORDER, n_boot=20, n_perm=400)
     r5 = v.group_tests(five, groups, ORDER, n_boot=20, n_perm=400)
     p_single = r1.kruskal["p_wy"].item()
-    assert 0.01 < r1.kruskal["p"].item() < 0.05 and p_single < 0.05
+    assert 0.01 < r1.kruskal["p"].item() < 0.05
+    assert p_single < 0.05
     assert r5.kruskal["p_wy"].tolist() == pytest.approx([p_single] * 5, abs=1e-15)
     assert r5.kruskal["p_holm"].tolist() == pytest.approx([5 * r1.kruskal["p"].item()] * 5)
     assert (r5.kruskal["p_holm"] > 0.05).all()  # Holm loses it, Westfall-Young does not
@@ -228,7 +240,8 @@ def test_westfall_young_floor_under_a_clear_group_effect():
     m, groups = make_metrics({"student": {"path_length": 20.0, "sparc": 0.0}, "resident": {"path_length": 10.0, "sparc": 0.0},
                               "neurosurgeon": {"path_length": 0.0, "sparc": 0.0}}, n_per_group=8, seed=2)
     res = v.group_tests(v.participant_scores(m), groups, ORDER, n_boot=20, n_perm=200, seed=3)
-    assert res.kruskal["p_wy"].min() == pytest.approx(1 / 201) and res.pairs["p_wy"].min() == pytest.approx(1 / 201)
+    assert res.kruskal["p_wy"].min() == pytest.approx(1 / 201)
+    assert res.pairs["p_wy"].min() == pytest.approx(1 / 201)
     assert res.kruskal.set_index("metric").loc["path_length", "p_wy"] == pytest.approx(1 / 201)
     assert np.isnan(v.westfall_young([np.nan, 0.2], np.full((5, 2), 0.5))[0])  # untested: not in the family
     assert v.westfall_young([np.nan, 0.2], np.full((5, 2), 0.5))[1] == pytest.approx(1 / 6)
@@ -253,7 +266,8 @@ def test_holm_matches_statsmodels():
 def test_group_tests_constant_metric_gives_nan_not_error():
     m, groups = make_metrics({"student": {"x": 1.0}, "neurosurgeon": {"x": 1.0}}, n_per_group=4, sd=0.0)
     res = v.group_tests(v.participant_scores(m), groups, ["student", "neurosurgeon"], n_boot=50)
-    assert np.isnan(res.kruskal["H"].item()) and np.isnan(res.pairs["cliffs_delta"].item())  # not tested: no variation
+    assert np.isnan(res.kruskal["H"].item())  # not tested: no variation
+    assert np.isnan(res.pairs["cliffs_delta"].item())
     assert res.pairs["reason"].item() == "every value is 1: no variation to rank"
 
 
@@ -269,10 +283,13 @@ def _curve_metrics(noise, seed):
 
 def test_learning_curve_recovers_rate_and_plateau_without_noise():
     res = v.learning_curves(*_curve_metrics(0.0, 0), ["student", "neurosurgeon"], n_boot=50, seed=1)
-    assert list(res.columns) == v.CURVE_COLUMNS and len(res) == 2
+    assert list(res.columns) == v.CURVE_COLUMNS
+    assert len(res) == 2
     for _, r in res.iterrows():
         assert (r["y0"], r["plateau"], r["rate"]) == pytest.approx(TRUTH[r["group"]], rel=1e-6)
-        assert r["n_boot_ok"] == r["n_boot"] == 50 and r["n_participants"] == 12 and r["n_trials"] == 10
+        assert r["n_boot_ok"] == r["n_boot"] == 50
+        assert r["n_participants"] == 12
+        assert r["n_trials"] == 10
 
 
 def test_learning_curve_intervals_cover_the_truth_with_noise():
@@ -284,7 +301,8 @@ def test_learning_curve_intervals_cover_the_truth_with_noise():
     assert ((res["plateau_low"] <= truth["plateau"]) & (truth["plateau"] <= res["plateau_high"])).sum() >= 7
     assert ((res["rate_low"] <= truth["rate"]) & (truth["rate"] <= res["rate_high"])).sum() >= 7
     assert (res["n_boot_ok"] >= 190).all()
-    assert np.allclose(res["rate"], truth["rate"], rtol=0.1) and np.allclose(res["plateau"], truth["plateau"], atol=0.2)
+    assert np.allclose(res["rate"], truth["rate"], rtol=0.1)
+    assert np.allclose(res["plateau"], truth["plateau"], atol=0.2)
 
 
 def test_learning_curve_fit_fails_cleanly():
@@ -296,15 +314,18 @@ def test_mixed_model_recovers_the_group_effect():
     m, groups = make_metrics({"student": {"time": 10.0}, "neurosurgeon": {"time": 6.0}}, n_per_group=10,
                              conditions=("fem", "linear"), trials=4, sd=0.5, seed=2)
     res = v.mixed_model(m, groups, ["student", "neurosurgeon"])
-    assert list(res.fixed.columns) == v.FIXED_COLUMNS and res.skipped.empty
+    assert list(res.fixed.columns) == v.FIXED_COLUMNS
+    assert res.skipped.empty
     t = res.fixed.set_index("term")
     g = t.loc["group[neurosurgeon]"]
-    assert g["coef"] == pytest.approx(-4.0, abs=2.5 * g["se"]) and g["p"] < 1e-6
+    assert g["coef"] == pytest.approx(-4.0, abs=2.5 * g["se"])
+    assert g["p"] < 1e-6
     c = t.loc["condition[linear]"]  # planted: +0.5 in the second condition
     assert c["coef"] == pytest.approx(0.5, abs=3 * c["se"])
     assert {"Intercept", "trial"} <= set(t.index)
     one = v.mixed_model(m[m["condition"] == "fem"], groups)
-    assert one.fixed.empty and "one condition" in one.skipped["reason"].item()
+    assert one.fixed.empty
+    assert "one condition" in one.skipped["reason"].item()
 
 
 def test_proficiency_benchmark_and_scorecard():
@@ -323,7 +344,8 @@ def test_proficiency_benchmark_and_scorecard():
                     ("S2", "path_length"): "worse", ("S2", "sparc"): "better"}
     assert res.summary.set_index("code")["fraction_proficient"].to_dict() == {"S1": 0.5, "S2": 0.5}
     undirected = v.proficiency(scores, groups, "neurosurgeon")
-    assert set(undirected.scorecard["position"]) == {"above", "below"} and not undirected.scorecard["proficient"].any()
+    assert set(undirected.scorecard["position"]) == {"above", "below"}
+    assert not undirected.scorecard["proficient"].any()
 
 
 def test_classifier_separates_distinct_groups():
@@ -331,17 +353,23 @@ def test_classifier_separates_distinct_groups():
                               "neurosurgeon": {"a": 10.0, "b": 0.0, "c": 5.0}}, n_per_group=6, trials=1, seed=4)
     res = v.classify(v.participant_scores(m), groups, ORDER, n_permutations=30, seed=0)
     # every permutation scores below the true labels: p at its floor 1 / (n_permutations + 1)
-    assert res.accuracy >= 0.94 and res.balanced_accuracy >= 0.94 and res.p_value == pytest.approx(1 / 31)
-    assert res.n == 18 and res.n_permutations == 30 and res.chance == pytest.approx(1 / 3)
+    assert res.accuracy >= 0.94
+    assert res.balanced_accuracy >= 0.94
+    assert res.p_value == pytest.approx(1 / 31)
+    assert res.n == 18
+    assert res.n_permutations == 30
+    assert res.chance == pytest.approx(1 / 3)
     assert res.confusion.to_numpy().trace() == round(res.accuracy * 18)
-    assert list(res.confusion.index) == ORDER and list(res.table().columns)[:3] == ["n", "n_features", "accuracy"]
+    assert list(res.confusion.index) == ORDER
+    assert list(res.table().columns)[:3] == ["n", "n_features", "accuracy"]
 
 
 def test_classifier_at_chance_when_groups_are_identical():
     same = {"a": 0.0, "b": 0.0, "c": 0.0}
     m, groups = make_metrics({"student": same, "neurosurgeon": same}, n_per_group=8, trials=1, seed=7)
     res = v.classify(v.participant_scores(m), groups, ["student", "neurosurgeon"], n_permutations=60, seed=0)
-    assert res.accuracy <= 0.65 and res.p_value > 0.05
+    assert res.accuracy <= 0.65
+    assert res.p_value > 0.05
 
 
 def test_an_invariant_metric_is_not_tested_and_says_why():
@@ -353,10 +381,15 @@ def test_an_invariant_metric_is_not_tested_and_says_why():
     res = v.group_tests(pd.concat([scores, flat], ignore_index=True), groups, ORDER, n_boot=50)
     kw = res.kruskal.set_index(["metric", "condition"])
     row = kw.loc[("grasp_losses", "fem")]
-    assert math.isnan(row["p"]) and math.isnan(row["p_holm"]) and row["reason"] == "every value is 0: no variation to rank"
-    assert set(res.kruskal["test"]) == {v.KRUSKAL} and set(res.pairs["test"]) == {v.MANN_WHITNEY}
+    assert math.isnan(row["p"])
+    assert math.isnan(row["p_holm"])
+    assert row["reason"] == "every value is 0: no variation to rank"
+    assert set(res.kruskal["test"]) == {v.KRUSKAL}
+    assert set(res.pairs["test"]) == {v.MANN_WHITNEY}
     pairs = res.pairs[res.pairs["metric"] == "grasp_losses"]
-    assert pairs["p"].isna().all() and pairs["cliffs_delta"].isna().all() and pairs["reason"].notna().all()
+    assert pairs["p"].isna().all()
+    assert pairs["cliffs_delta"].isna().all()
+    assert pairs["reason"].notna().all()
     tested = res.kruskal[res.kruskal["reason"].isna()]
     from analysis.stats import holm
 

@@ -107,35 +107,53 @@ def report(db, *args):
 def test_json_has_every_section_and_finds_the_built_in_difference(db, built):
     built()
     out = json.loads(report(db, "--format", "json"))
-    assert out["synthetic"] is True and out["note"].startswith("SYNTHETIC DATA")
-    assert out["groups"] == ORDER and out["expert"] == "neurosurgeon" and out["participants_with_metrics"] == 15
-    assert out["metrics"] == ["path_length", "sparc"] and out["settings"] == {"permutations": 20, "group_permutations": 1000, "bootstrap": 50, "seed": 0,
+    assert out["synthetic"] is True
+    assert out["note"].startswith("SYNTHETIC DATA")
+    assert out["groups"] == ORDER
+    assert out["expert"] == "neurosurgeon"
+    assert out["participants_with_metrics"] == 15
+    assert out["metrics"] == ["path_length", "sparc"]
+    assert out["settings"] == {"permutations": 20, "group_permutations": 1000, "bootstrap": 50, "seed": 0,
                                                                            "band": [5.0, 95.0]}
     kw = {r["metric"]: r for r in out["kruskal"]}
-    assert kw["path_length"]["p_holm"] < 0.01 and kw["sparc"]["p_holm"] > 0.05
-    assert kw["path_length"]["p_wy"] == pytest.approx(1 / 1001) and kw["sparc"]["p_wy"] > 0.05  # the groups separated: p_wy's floor
-    assert len(out["pairs"]) == 6 and all({"p", "p_holm", "p_wy", "cliffs_delta", "delta_low", "delta_high"} <= set(r) for r in out["pairs"])
+    assert kw["path_length"]["p_holm"] < 0.01
+    assert kw["sparc"]["p_holm"] > 0.05
+    assert kw["path_length"]["p_wy"] == pytest.approx(1 / 1001)  # the groups separated: p_wy's floor
+    assert kw["sparc"]["p_wy"] > 0.05
+    assert len(out["pairs"]) == 6
+    assert all({"p", "p_holm", "p_wy", "cliffs_delta", "delta_low", "delta_high"} <= set(r) for r in out["pairs"])
     sep = [r for r in out["pairs"] if r["metric"] == "path_length"]
     assert all(r["p_wy"] < 0.05 for r in sep)
     assert all(r["cliffs_delta"] == 1.0 and r["delta_low"] == 1.0 for r in sep)  # every student's path longer than every resident's ...
-    assert out["mixed_model"]["reason"].startswith("one condition (plate_spring)") and out["mixed_model"]["fixed"] == []
+    assert out["mixed_model"]["reason"].startswith("one condition (plate_spring)")
+    assert out["mixed_model"]["fixed"] == []
     curves = [r for r in out["learning_curves"] if r["metric"] == "path_length"]
     assert len(curves) == 3
     for r in curves:  # the built-in rate 0.7 and plateau, within the bootstrap intervals
-        assert r["rate_low"] <= 0.7 <= r["rate_high"] and r["plateau_low"] < r["plateau"] < r["plateau_high"]
+        assert r["rate_low"] <= 0.7 <= r["rate_high"]
+        assert r["plateau_low"] < r["plateau"] < r["plateau_high"]
     assert {r["group"] for r in out["learning_curves"]} == set(ORDER)
     bench = {r["metric"]: r for r in out["proficiency"]["benchmark"]}
-    assert bench["path_length"]["better"] == "lower" and bench["path_length"]["n_expert"] == 5
+    assert bench["path_length"]["better"] == "lower"
+    assert bench["path_length"]["n_expert"] == 5
     card = out["proficiency"]["scorecard"]
-    assert len(card) == 10 * 2 and {r["group"] for r in card} == {"student", "resident"}
+    assert len(card) == 10 * 2
+    assert {r["group"] for r in card} == {"student", "resident"}
     assert all(r["position"] == "worse" for r in card if r["metric"] == "path_length")  # longer paths than every expert
     c = out["classifier"]
-    assert c["n"] == 15 and c["accuracy"] >= 0.8 and c["p_value"] <= 0.1 and c["n_permutations"] == 20
-    assert c["groups"] == ORDER and np.sum(c["confusion"]) == 15
+    assert c["n"] == 15
+    assert c["accuracy"] >= 0.8
+    assert c["p_value"] <= 0.1
+    assert c["n_permutations"] == 20
+    assert c["groups"] == ORDER
+    assert np.sum(c["confusion"]) == 15
     items = {r["item"] for r in out["rating_tests"]}
-    assert items == {"tissue_realism", "sus"} and all(r["p_holm"] >= r["p"] for r in out["rating_tests"])
+    assert items == {"tissue_realism", "sus"}
+    assert all(r["p_holm"] >= r["p"] for r in out["rating_tests"])
     ratings = [r for r in out["ratings"] if r["item"] == "sus"]
-    assert [r["group"] for r in ratings] == ORDER and sum(r["n"] for r in ratings) == 15 and ratings[0]["condition"] == ""
+    assert [r["group"] for r in ratings] == ORDER
+    assert sum(r["n"] for r in ratings) == 15
+    assert ratings[0]["condition"] == ""
     assert {r["field"] for r in out["fields"]} == {"years"}  # the integer field, described; the text field never
 
 
@@ -144,11 +162,14 @@ def test_the_mixed_model_is_fitted_with_two_conditions(db, built):
     with Store(db, mode="read") as store:
         rep = vr.validity_report(read_study(store), permutations=5, bootstrap=20)
     fixed = rep["mixed_model"]["fixed"]
-    assert rep["mixed_model"]["reason"] is None and set(fixed["metric"]) == {"path_length", "sparc"}
+    assert rep["mixed_model"]["reason"] is None
+    assert set(fixed["metric"]) == {"path_length", "sparc"}
     pl = fixed[fixed["metric"] == "path_length"].set_index("term")
-    assert pl.loc["group[neurosurgeon]", "coef"] == pytest.approx(-0.04, abs=0.006) and pl.loc["group[neurosurgeon]", "p"] < 1e-6
+    assert pl.loc["group[neurosurgeon]", "coef"] == pytest.approx(-0.04, abs=0.006)
+    assert pl.loc["group[neurosurgeon]", "p"] < 1e-6
     assert pl.loc["condition[plate_spring]", "coef"] == pytest.approx(0.005, abs=0.002)
-    assert len(rep["kruskal"]) == 4 and len(rep["pairs"]) == 12  # Holm over metrics x conditions (x pairs)
+    assert len(rep["kruskal"]) == 4  # Holm over metrics x conditions (x pairs)
+    assert len(rep["pairs"]) == 12
 
 
 def test_markdown_structure(db, built):
@@ -166,14 +187,18 @@ def test_markdown_structure(db, built):
     i = lines.index("## Group comparisons")
     assert lines[i + 4] == ("| metric | unit | condition | student: median [IQR] | resident: median [IQR] | neurosurgeon: median [IQR] "
                             "| H | p | p_holm | p_wy |")
-    assert lines[i + 6].startswith("| path_length | m | plate_spring | ") and lines[i + 7].startswith("| sparc | 1 | plate_spring | ")
+    assert lines[i + 6].startswith("| path_length | m | plate_spring | ")
+    assert lines[i + 7].startswith("| sparc | 1 | plate_spring | ")
     assert "Holm over the family of the 2 Kruskal-Wallis tests run" in lines[i + 2]
     assert "Holm over the family of the 6 pairwise tests run (metrics x conditions x pairs)" in md
     assert "p_wy: Westfall-Young step-down min-p over the same family, 1000 permutations" in lines[i + 2]
     assert "| pair | U | p | p_holm | p_wy | Cliff's delta [95% CI] |" in md
     assert "Not fitted: one condition (plate_spring): no condition effect to model" in md
-    assert "| participant | group | condition | metrics at proficiency | fraction |" in md and "| nan |" not in md
-    assert "| path_length | plate_spring | 5 | " in md and md.count(" | lower |") == 1 and md.count(" | higher |") == 1
+    assert "| participant | group | condition | metrics at proficiency | fraction |" in md
+    assert "| nan |" not in md
+    assert "| path_length | plate_spring | 5 | " in md
+    assert md.count(" | lower |") == 1
+    assert md.count(" | higher |") == 1
     assert re.search(r"leave-one-participant-out over 15 participants: accuracy \d+\.\d% .*permutation p = [0-9.]+ \(20 permutations", md)
     face = lines[lines.index("## Face validity ratings"):]
     assert face[4] == "| question | condition | student: median [IQR] (n) | resident: median [IQR] (n) | neurosurgeon: median [IQR] (n) | H | p | p_holm |"
@@ -184,7 +209,9 @@ def test_markdown_structure(db, built):
 def test_the_latex_tables_compile_and_fit_an_a4_page(db, built, tmp_path):
     built()
     tex = report(db, "--format", "latex")
-    assert "SYNTHETIC DATA" in tex and tex.count("\\toprule") >= 8 and "Face validity ratings" in tex
+    assert "SYNTHETIC DATA" in tex
+    assert tex.count("\\toprule") >= 8
+    assert "Face validity ratings" in tex
     assert latex_problems(document(tex), tmp_path) == []
 
 
@@ -193,9 +220,12 @@ def test_html_has_a_figure_per_metric_and_says_synthetic(db, built, tmp_path):
     out = tmp_path / "validity.html"
     assert report(db, "--format", "html", "--out", out).strip() == f"wrote {out}"
     page = out.read_text()
-    assert page.count("<img ") == 2 and page.count('src="data:image/png;base64,') == 2
-    assert '<img alt="path_length"' in page and '<img alt="sparc"' in page
-    assert "<title>Construct validity: brain_pull_2015 (SYNTHETIC DATA)</title>" in page and '<p class="synthetic">SYNTHETIC DATA' in page
+    assert page.count("<img ") == 2
+    assert page.count('src="data:image/png;base64,') == 2
+    assert '<img alt="path_length"' in page
+    assert '<img alt="sparc"' in page
+    assert "<title>Construct validity: brain_pull_2015 (SYNTHETIC DATA)</title>" in page
+    assert '<p class="synthetic">SYNTHETIC DATA' in page
 
 
 def test_a_text_field_and_free_text_never_appear_in_any_output(db, built, tmp_path):
@@ -204,15 +234,19 @@ def test_a_text_field_and_free_text_never_appear_in_any_output(db, built, tmp_pa
     report(db, "--format", "html", "--out", tmp_path / "v.html")
     texts.append((tmp_path / "v.html").read_text())
     for text in texts:
-        assert SECRET not in text and "no comment" not in text
+        assert SECRET not in text
+        assert "no comment" not in text
 
 
 def test_the_study_s_own_metrics_end_to_end(db):
     """No monkeypatching: the synthetic sessions' traces through metrics_table to the report."""
     out = json.loads(report(db, "--json"))
-    assert out["participants_with_metrics"] == 15 and len(out["metrics"]) >= 10 and "path_length" in out["metrics"]
-    assert len(out["kruskal"]) == len(out["metrics"]) and len(out["pairs"]) == 3 * len(out["metrics"])
-    assert "accuracy" in out["classifier"] or out["classifier"]["reason"]
+    assert out["participants_with_metrics"] == 15
+    assert len(out["metrics"]) >= 10
+    assert "path_length" in out["metrics"]
+    assert len(out["kruskal"]) == len(out["metrics"])
+    assert len(out["pairs"]) == 3 * len(out["metrics"])
+    assert "accuracy" in out["classifier"], out["classifier"]  # 5 participants in each of the 3 groups: classified
 
 
 def test_rating_kruskal_wallis_and_sus_against_pingouin_and_statsmodels(db):
@@ -237,11 +271,14 @@ def test_rating_kruskal_wallis_and_sus_against_pingouin_and_statsmodels(db):
     for item, ref_data in (("tissue_realism", tr), ("sus", sus_df)):
         row = tests[tests["item"] == item].iloc[0]
         ref = pg.kruskal(data=ref_data, dv="answer", between="grp")
-        assert row["H"] == pytest.approx(ref["H"].item(), rel=1e-10) and row["p"] == pytest.approx(ref["p_unc"].item(), rel=1e-10)
+        assert row["H"] == pytest.approx(ref["H"].item(), rel=1e-10)
+        assert row["p"] == pytest.approx(ref["p_unc"].item(), rel=1e-10)
         for g in ORDER:
             d = desc[(desc["item"] == item) & (desc["group"] == g)].iloc[0]
             x = ref_data.loc[ref_data["grp"] == g, "answer"]
-            assert d["n"] == len(x) and d["median"] == pytest.approx(x.median()) and d["iqr"] == pytest.approx(x.quantile(0.75) - x.quantile(0.25))
+            assert d["n"] == len(x)
+            assert d["median"] == pytest.approx(x.median())
+            assert d["iqr"] == pytest.approx(x.quantile(0.75) - x.quantile(0.25))
     assert tests["p_holm"].tolist() == pytest.approx(multipletests(tests["p"], method="holm")[1].tolist())
 
 
@@ -249,6 +286,8 @@ def test_a_study_without_groups_is_a_one_line_error(tmp_path):
     db = tmp_path / "study.db"
     assert studyctl("study", "init", "--protocol", fast_protocol(tmp_path), "--db", db).exit_code == 0
     res = studyctl("report", "validity", "--db", db)
-    assert res.exit_code != 0 and len(res.output.strip().splitlines()) == 1
-    assert "no participant groups" in res.output and "design.groups" in res.output
+    assert res.exit_code != 0
+    assert len(res.output.strip().splitlines()) == 1
+    assert "no participant groups" in res.output
+    assert "design.groups" in res.output
     assert "Traceback" not in res.output

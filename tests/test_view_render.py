@@ -86,7 +86,8 @@ def test_the_grasped_patch_is_coloured_around_the_grasped_vertex(view, mesh):
     assert np.abs(_chroma(img[int(w), int(u)]) - _chroma(PATCH)).max() < 0.03
     blue = np.abs(_chroma(img) - _chroma(PATCH)).max(axis=2) < 0.05
     ys, xs = np.nonzero(blue)
-    assert 10 < blue.sum() < 2000 and np.hypot(xs.mean() - u, ys.mean() - w) < 6  # a patch, centred on it
+    assert 10 < blue.sum() < 2000  # a patch, centred on it
+    assert np.hypot(xs.mean() - u, ys.mean() - w) < 6
     view.draw(None, [HandState(FAR)])  # let go: no patch
     assert (np.abs(_chroma(view.image()) - _chroma(PATCH)).max(axis=2) < 0.05).sum() == 0
 
@@ -107,7 +108,8 @@ def test_the_instruments_follow_the_hands_and_close_on_a_grasp(view, mesh):
         assert len(xs) > 300
         centres.append((xs.mean(), ys.mean()))
     moved = view.camera.project(p + 0.02 * right)[0, 0] - view.camera.project(p)[0, 0]
-    assert moved > 30 and abs(centres[1][0] - centres[0][0] - moved) < 0.15 * moved
+    assert moved > 30
+    assert abs(centres[1][0] - centres[0][0] - moved) < 0.15 * moved
     assert abs(centres[1][1] - centres[0][1]) < 0.2 * moved  # sideways only (the brain hides a little more or less)
     # the open tips sit either side of the hand (3.3 mm, about 7 px here): steel within 10 px of its projection
     u, w, _ = view.camera.project(p + 0.02 * right)[0]
@@ -134,7 +136,8 @@ def test_a_late_latch_draws_the_newest_hand_positions_and_forces(mesh):
         want = v.image()
         read = time.perf_counter()
         v.draw(None, [HandState(tuple(lifted))], read_t=0.0, latch=lambda: ([tuple(now)], [(0.5, 0.0, 0.0)], read))
-        assert np.array_equal(v.image(), want) and v.text()["corner"] == "force:  hand 0.50 N"
+        assert np.array_equal(v.image(), want)
+        assert v.text()["corner"] == "force:  hand 0.50 N"
         assert 0 < v.motion_to_photon_s[-1] < time.perf_counter() - read + 1e-9
     finally:
         v.close()
@@ -177,7 +180,9 @@ def test_a_resized_view_refits_the_camera_and_lays_the_text_out_again(mesh):
         rows = np.flatnonzero(np.any(np.all(img < 245, axis=2), axis=1))
         assert max(cols[-1] - cols[0], rows[-1] - rows[0]) > 0.85 * 800
         after = v.layout()[0]
-        assert after[1] == 400 and after[2] > before[2] + 400 and after[3] > before[3]  # centred, at the bottom, larger
+        assert after[1] == 400  # centred, at the bottom, larger
+        assert after[2] > before[2] + 400
+        assert after[3] > before[3]
     finally:
         v.close()
 

@@ -36,13 +36,18 @@ def run_as_a_user(venv: Path, cwd: Path) -> dict:
 
 
 def _check(out: dict, venv: Path) -> None:
-    assert "Usage: studyctl" in out["help"] and "--help" in out["help"]
+    assert "Usage: studyctl" in out["help"]
+    assert "--help" in out["help"]
     assert out["version"].strip().startswith("studyctl, version ")
-    assert out["sim"]["ticks"] == 500 and out["sim"]["scene"] == "brain_pull"
-    assert out["synth"]["participants"] == 2 and out["synth"]["synthetic"] is True
-    assert len(out["published"]["flags"]) == 1 and "bounds" in out["published"]
+    assert out["sim"]["ticks"] == 500
+    assert out["sim"]["scene"] == "brain_pull"
+    assert out["synth"]["participants"] == 2
+    assert out["synth"]["synthetic"] is True
+    assert len(out["published"]["flags"]) == 1
+    assert "bounds" in out["published"]
     # everything came from the venv, nothing from the checkout
-    assert str(ROOT) not in out["where"] and all(str(venv) in line for line in out["where"].split())
+    assert str(ROOT) not in out["where"]
+    assert all(str(venv) in line for line in out["where"].split())
 
 
 def test_the_wheel_carries_its_data_and_runs_from_outside_the_repository(tmp_path):

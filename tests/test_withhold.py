@@ -18,9 +18,11 @@ def test_a_bounded_mean_interval_stays_inside_its_scale_and_covers():
     # the case: a t interval 86.8 [69.7, 103.8] on a 0-100 scale
     v = [100.0, 100.0, 62.0, 85.0, 87.0]
     t = mean_ci(v)
-    assert t["ci_high"] > 100.0 and t["ci_method"] == "t"
+    assert t["ci_high"] > 100.0
+    assert t["ci_method"] == "t"
     b = mean_ci(v, scale=(0.0, 100.0))
-    assert 0.0 < b["ci_low"] < b["mean"] < b["ci_high"] < 100.0 and b["ci_method"].startswith("logit t")
+    assert 0.0 < b["ci_low"] < b["mean"] < b["ci_high"] < 100.0
+    assert b["ci_method"].startswith("logit t")
     # coverage of the logit t interval of a mean on a bounded scale (beta-distributed answers, mean 85)
     rng = np.random.default_rng(5)
     for n in (5, 12, 30):
@@ -64,7 +66,8 @@ def _check_json(st: dict, n: int) -> None:
         test = v["mixed_model"]["model_test"]
         assert test["f"] is not None or test["reason"], (n, item)
         if test["f"] is not None:
-            assert test["df_denominator"] > 0 and v["mixed_model"]["converged"], (n, item)
+            assert test["df_denominator"] > 0, (n, item)
+            assert v["mixed_model"]["converged"], (n, item)
 
 
 def _check_text(text: str, n: int, fmt: str, bounded: bool = True) -> None:
@@ -73,7 +76,8 @@ def _check_text(text: str, n: int, fmt: str, bounded: bool = True) -> None:
     text = re.sub(r"base64,[A-Za-z0-9+/=]+", "", text)
     bad = re.search(r"\bnan\b|\binf\b", text, re.I)
     assert not bad, (n, fmt, text[max(0, bad.start() - 300):bad.end() + 50])
-    assert "over all 0 pairs" not in text and "Traceback" not in text, (n, fmt)
+    assert "over all 0 pairs" not in text, (n, fmt)
+    assert "Traceback" not in text, (n, fmt)
     for lo, hi in re.findall(r"\[(-?\d+(?:\.\d+)?)%?, (-?\d+(?:\.\d+)?)%?\]", text):  # every interval printed
         assert float(lo) <= float(hi), (n, fmt, lo, hi)
         assert float(lo) >= 0.0 or "-" in text.split(f"[{lo}")[0][-12:], (n, fmt, lo)  # only differences go below 0
@@ -125,15 +129,19 @@ def test_every_report_at_small_n_prints_only_valid_statistics(studies, n):
     _check_json(st, n)
     if n == 1:  # one participant: no test, no interval, each cell saying why
         md = studyctl("report", "table1", "--db", db).output
-        assert "not testable at N = 1" in md and "no interval at N = 1" in md and "no SD at N = 1" in md
+        assert "not testable at N = 1" in md
+        assert "no interval at N = 1" in md
+        assert "no SD at N = 1" in md
         assert all(p["p_value"] is None for v in st["kinds"]["ratings"].values() for p in v["pairs"])
     if n == "one condition":
         md = studyctl("report", "table1", "--db", db).output
-        assert "one condition: nothing to compare" in md and "Holm: no pair tested" in md
+        assert "one condition: nothing to compare" in md
+        assert "Holm: no pair tested" in md
         assert not re.search(r"Friedman[^|]*\| \d", md)
     if n == 2:  # a Wilcoxon pair is run, with the warning that it cannot reach 0.05
         pairs = [p for v in st["kinds"]["ratings"].values() for p in v["pairs"] if p["p_value"] is not None]
-        assert pairs and all("cannot reach p < 0.05" in p["warning"] for p in pairs)
+        assert pairs
+        assert all("cannot reach p < 0.05" in p["warning"] for p in pairs)
 
 
 def test_report_jnd_says_what_a_small_group_cannot_give(tmp_path):
@@ -144,12 +152,16 @@ def test_report_jnd_says_what_a_small_group_cannot_give(tmp_path):
     db = tmp_path / "s.db"
     assert studyctl("synth", "--db", db, "--protocol", jnd_protocol(tmp_path, trials=12), "--participants", 2, "--seed", 4).exit_code == 0
     md = studyctl("report", "jnd", "--db", db).output
-    assert "N = 2: a t interval on 1 df is wide" in md and "| fit flag | pooled [95% CrI] | QUEST+ estimate | generating |" in md
+    assert "N = 2: a t interval on 1 df is wide" in md
+    assert "| fit flag | pooled [95% CrI] | QUEST+ estimate | generating |" in md
     assert "(too few to pool)" in md
     html = studyctl("report", "jnd", "--db", db, "--format", "html").output
-    assert "QUEST+ estimate" in html and "recovery: median abs. error, CI coverage (own fit; pooled)" in html and "N = 2: a t interval" in html
+    assert "QUEST+ estimate" in html
+    assert "recovery: median abs. error, CI coverage (own fit; pooled)" in html
+    assert "N = 2: a t interval" in html
     js = json.loads(studyctl("report", "jnd", "--db", db, "--format", "json").output)
-    assert js["facts"]["fit"]["function"] == "thurstone" and js["conditions"][0]["gm_warning"]
+    assert js["facts"]["fit"]["function"] == "thurstone"
+    assert js["conditions"][0]["gm_warning"]
     _check_text(md, 2, "jnd", bounded=False)  # a Weber fraction has no upper end
 
 
@@ -178,5 +190,7 @@ def test_a_group_model_that_did_not_converge_prints_no_test():
     from analysis.discrimination.jnd import _group_text
 
     text = _group_text({"mixed_model": {"converged": False, "chi2": 2.72, "df": 2, "p": 0.257, "problem": "singular covariance"}})
-    assert "not tested (the fit did not converge: singular covariance)" in text and "2.72" not in text and "0.257" not in text
+    assert "not tested (the fit did not converge: singular covariance)" in text
+    assert "2.72" not in text
+    assert "0.257" not in text
     assert "chi2(2) = 2.72, p = 0.257" in _group_text({"mixed_model": {"converged": True, "chi2": 2.72, "df": 2, "p": 0.257}})

@@ -71,7 +71,7 @@ def _scan() -> tuple[dict[str, ModelInfo], list[str]]:
         elif len(others) == 1:
             out[name] = others[0]
         else:
-            froms = " and ".join(_source(i) for i in others)
+            froms = " and ".join(sorted(_source(i) for i in others))  # the same line whatever order the entry points come in
             refused.append(f"model {name!r}: refused: registered by {froms}; neither loads until one is uninstalled or renamed")
     return out, refused
 

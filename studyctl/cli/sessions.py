@@ -147,7 +147,8 @@ def synth_cmd(db, participants, complete, seed, jobs, protocol_file, alongside_p
     seeds = ", ".join(str(s) for s in sorted({c["seed"] for c in done}))
     # participants an interrupted run registered get their whole session now: nothing of theirs is resumed
     left = f", {len(done)} left by an interrupted run, run from the start ({', '.join(c['code'] for c in done)}; seed {seeds})" if done else ""
-    where = f"on the Dask cluster at {scheduler}" if scheduler else f"{jobs} jobs"
+    where = f"on the Dask cluster at {scheduler}" if scheduler else f"{jobs} job{'s' if jobs != 1 else ''}"
     new = f"{out['participants']} new (seed {seed})" if out["participants"] else "0 new"
     click.echo(f"ran {out['ran']} SYNTHETIC session{'s' if out['ran'] != 1 else ''} of {out['protocol']!r}: {new}{left}; "
-               f"{out['total_synthetic']} synthetic participants with a session in total ({where}, {out['seconds']:.1f} s)")
+               f"{out['total_synthetic']} synthetic participant{'s' if out['total_synthetic'] != 1 else ''} with a session in total "
+               f"({where}, {out['seconds']:.1f} s)")

@@ -56,8 +56,15 @@ def protocol_validate(file: Path, as_json: bool):
         for line in problems:
             click.echo(line, err=True)
         raise SystemExit(1)
-    click.echo(f"{file}: ok ({p.name}: {len(p.conditions)} conditions, {len(p.questions)} questions, "
-               f"{p.trials_per_condition} trials per condition, target {p.target_participants} participants)")
+    what = [_count(len(p.conditions), "condition"), _count(len(p.questions), "question")]
+    if p.trials_per_condition:  # a discrimination protocol has only its tasks' trials
+        what.append(f"{_count(p.trials_per_condition, 'trial')} per condition")
+    what += [f"{t.kind} of {t.parameter} in {_count(t.trials, 'trial')} per condition" for t in p.tasks]
+    click.echo(f"{file}: ok ({p.name}: {', '.join(what)}, target {p.target_participants} participants)")
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
 @click.group(cls=_Group)
