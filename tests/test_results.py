@@ -68,7 +68,7 @@ def test_every_kind_of_leaf_is_a_typed_record(results):
 
 def test_every_record_refuses_a_new_value(results):
     records = [(path, v) for st in results for path, v in _walk(st, "st") if isinstance(v, Record)]
-    for path, v in records:
+    for _path, v in records:
         with pytest.raises(FrozenInstanceError):
             setattr(v, fields(v)[-1].name, None)
 
