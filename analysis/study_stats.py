@@ -7,7 +7,16 @@ from __future__ import annotations
 
 import pandas as pd
 
-from analysis.kinds import PAIR_TESTS, family_pairs, gee_line, kind_stats, kind_tables, kind_tests, odds_ratio_pairs, primary_line
+from analysis.kinds import (
+    PAIR_TESTS,
+    family_pairs,
+    gee_line,
+    kind_stats,
+    kind_tables,
+    kind_tests,
+    odds_ratio_pairs,
+    primary_line,
+)
 from analysis.records import GeeFit, McNemarPair, OddsRatioPair
 from analysis.reports.formatting import table_markdown
 from analysis.reports.methods import study_methods

@@ -13,8 +13,8 @@ import numbers
 from collections.abc import Mapping
 
 from analysis.discrimination.jnd import jnd_results
-from analysis.reports import latex
 from analysis.kind_results import KindStats
+from analysis.reports import latex
 from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study
 from analysis.study_stats import study_stats
