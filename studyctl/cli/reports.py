@@ -79,7 +79,7 @@ def report_table1(db, holm_scope, fmt, out_file, force, accuracy_file, stability
 
             text += "\n## Numerical stability\n\n" + stability_md(stability)
     elif fmt == "latex":
-        from analysis.reports.latex import tables as latex_tables
+        from analysis.reports.table import latex_tables
         from analysis.reports.report import latex
 
         text = latex(study, holm_scope)
