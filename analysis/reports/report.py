@@ -130,8 +130,7 @@ def html(study: Study, traces: dict | None = None, accuracy: dict | None = None,
 <p>N = {facts.participants} participants with every answer; {esc(facts.design)}.{esc(incomplete)} {esc(scope)}.</p>
 {binary}
 {kind_html}
-{primary}
-{deformation}
+{primary}{deformation}
 <h2>Conditions</h2><p>What each condition ran (participants saw only their labels; the full configuration is in the export's conditions.csv):</p>
 <ul>{"".join(f"<li>{esc(table1.condition_text(c))}</li>" for c in facts.conditions)}</ul>
 {figs}
