@@ -294,7 +294,7 @@ def gee_line(gee: LogisticGee, primary: bool = True) -> str:
     c = gee.composite
     if not c or not c.get("pairs"):
         return ""
-    pairs = "; ".join(f"{p['b']} vs {p['a']} OR {p['odds_ratio']:.2f} [{p['ci_low']:.2f}, {p['ci_high']:.2f}], p_Holm {p['p_holm']:.3g}"
+    pairs = "; ".join(f"{p['b']} vs {p['a']} OR {p['odds_ratio']:.2f} [{p['ci_low']:.2f}, {p['ci_high']:.2f}], p_Holm {p_value(p['p_holm'])}"
                       if p.get("estimable", True) else f"{p['b']} vs {p['a']} not estimable" for p in c["pairs"])
     return (f"{'Primary analysis, all questions' if primary else 'Across the yes/no questions'}: logistic GEE `{c['formula']}`, participants as clusters, exchangeable "
             f"working correlation ({_rho_text(c)}), robust standard errors"

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.facts import StudyFacts
-from analysis.reports.formatting import rate_interval
+from analysis.reports.formatting import p_value, rate_interval
 from analysis.reports.table import Table
 from analysis.stats import tests_run, wilson
 from analysis.study_results import StudyStats
@@ -226,14 +226,14 @@ def cochran_cell(qrow) -> str:
     """Cochran's Q (p), or why it was not run."""
     if qrow["p_value"] != qrow["p_value"]:
         return f"n/a ({qrow.get('reason') or 'not run'})"
-    return f"{qrow['cochran_q']:.2f} ({qrow['p_value']:.3g})"
+    return f"{qrow['cochran_q']:.2f} ({p_value(qrow['p_value'])})"
 
 
 def mcnemar_cell(p: dict) -> str:
     """A McNemar pair's Holm p, or why it was not tested."""
     if p["p_value"] != p["p_value"]:
         return f"{p['a']}-{p['b']} not tested: {p.get('reason') or 'not run'}"
-    return f"{p['a']}-{p['b']} {p['p_holm']:.3g}"
+    return f"{p['a']}-{p['b']} {p_value(p['p_holm'])}"
 
 
 def holm_text(st: StudyStats) -> str:

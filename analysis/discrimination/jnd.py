@@ -215,7 +215,7 @@ def markdown(res: dict) -> str:
 
 
 def latex(res: dict) -> str:
-    """The report's tables as LaTeX (analysis/reports/latex.py), the study's heading and the group test in
+    """The report's tables as LaTeX (analysis/reports/table.py), the study's heading and the group test in
     the first table's caption."""
     title, head = _heading(res)
     if not res["weber"]:

@@ -442,7 +442,7 @@ def markdown(rep: dict) -> str:
 
 
 def latex(rep: dict) -> str:
-    """The report's tables as LaTeX (analysis/reports/latex.py), each section's text its caption; the
+    """The report's tables as LaTeX (analysis/reports/table.py), each section's text its caption; the
     title, the synthetic note and the header lines as a comment and the first caption's start."""
     lead = " ".join([rep["note"] + f" {rep['synthetic_participants']} synthetic participants." if rep["note"] else "",
                      *header_lines(rep)]).strip()
