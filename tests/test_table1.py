@@ -272,7 +272,8 @@ def test_latex_html_and_plots(small_study, tmp_path):
     tex = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "latex"]).output
     assert tex.startswith("% needs in the preamble") and "SYNTHETIC DATA" in tex and "\\toprule" in tex and "+-" not in tex
     assert sum(ln.startswith("Is ") or ln.startswith("Does ") or ln.startswith("Can ") or ln.startswith("Are ") for ln in tex.splitlines()) == 9
-    assert re.search(r"McNemar p \(Holm over all \d+ pairs tested\)", tex) and "benchmark of this machine" in tex and "$\\pm$" in tex
+    assert re.search(r"McNemar p, Holm over all \d+ pairs tested", tex) and "benchmark of this machine" in tex and "$\\pm$" in tex
+    assert re.search(r"\d+/\d+, \d+\.\d\\% \[\d+\.\d\\%, \d+\.\d\\%\]", tex)  # a rate and its interval as the Markdown and HTML print them
     assert latex_problems(document(tex), tmp_path) == []  # compiles with booktabs, nothing wider than the A4 text block
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "html", "--out", str(tmp_path / "r.html")])
     assert res.exit_code == 0, res.output
