@@ -8,8 +8,12 @@ import pytest
 from click.testing import CliRunner
 from scipy.stats import norm
 
+from analysis import table1
+from analysis.reports import report, table
 from analysis.reports.latex import document
+from analysis.reports.latex import text as latex_text
 from analysis.stats import wilson
+from analysis.study_stats import study_stats, table1_markdown
 from studyctl.cli import cli
 from studyctl.synthetic.study import run_synthetic_study
 from tests.helpers import fast_protocol, latex_problems
@@ -379,6 +383,18 @@ def test_latex_table_escapes_every_special_character_and_has_the_other_formats_c
         rest = re.sub(r"\\(textasciicircum|textasciitilde|textbackslash|space|allowbreak\{\})|\\[{}$&%_#]", "", body.replace(" & ", " "))
         assert not re.search(r"[{}$^~%_#\\]", rest), line
     assert len(rows) == 10 and "\\toprule" in tex and "\\bottomrule" in tex  # 9 questions and the deformation row
+
+
+def test_table1_is_one_table_whatever_the_format(tmp_path):
+    """Markdown, LaTeX and HTML render the same Table 1: its rows, each cell escaped for its format."""
+    rng = np.random.default_rng(5)
+    answers = {f"P{i:02d}": {m: rng.integers(0, 2, 9).tolist() for m in ("fem", "mass_spring", "plate_spring")} for i in range(6)}
+    study = _read(_answers_db(tmp_path, answers))
+    r, q, d = table1.rates(study), table1.cochran(study), table1.deformation(study)
+    t = table1.table(study_stats(study, r, q), r, q, d)
+    assert "\n".join(table.markdown_grid(t)) in table1_markdown(study)
+    assert "\n".join(" & ".join(latex_text(c) for c in row) + " \\\\" for row in t.rows) in report.latex(study)
+    assert table.html_grid(t) in report.html(study)
 
 
 def test_gee_says_not_estimable_when_a_model_answers_alike_throughout(tmp_path):

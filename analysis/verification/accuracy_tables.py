@@ -8,8 +8,8 @@ import json
 from pathlib import Path
 
 from analysis.reports.formatting import rate_interval
-from analysis.reports.table import Table, latex_tables, markdown_grid
 from analysis.reports.plots import pareto_plot
+from analysis.reports.table import Table, latex_tables, markdown_grid
 from analysis.verification.accuracy import TARGET_WITHIN, class_best
 from analysis.verification.tissue_pulls import describe_no_reference
 from sim.jsonable import jsonable
