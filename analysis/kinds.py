@@ -35,7 +35,8 @@ from analysis.records import (
     OrdinalGeeFit,
     RankPair,
 )
-from analysis.reports.formatting import p_value
+from analysis.reports.formatting import p_value, rate_interval
+from analysis.reports.table import Table
 from analysis.stats import friedman, holm, holm_family, named, records, wilson
 from analysis.study_results import LogisticGee, StudyStats
 from analysis.study_snapshot import Study
@@ -352,7 +353,7 @@ def gee_line(gee: LogisticGee, primary: bool = True) -> str:
     c = gee.composite
     if not c or not c.pairs:
         return ""
-    pairs = "; ".join(f"{p.b} vs {p.a} OR {p.odds_ratio:.2f} [{p.ci_low:.2f}, {p.ci_high:.2f}], p_Holm {p.p_holm:.3g}"
+    pairs = "; ".join(f"{p.b} vs {p.a} OR {p.odds_ratio:.2f} [{p.ci_low:.2f}, {p.ci_high:.2f}], p_Holm {p_value(p.p_holm)}"
                       if p.estimable else f"{p.b} vs {p.a} not estimable" for p in c.pairs)
     return (f"{'Primary analysis, all questions' if primary else 'Across the yes/no questions'}: logistic GEE `{c.formula}`, participants as clusters, exchangeable "
             f"working correlation ({_rho_text(c)}), robust standard errors"
@@ -435,9 +436,8 @@ def ordinalgee_line(res: OrdinalGeeFit | None) -> str:
             "(odds of a higher rating with the second condition).")
 
 
-def kind_tables(kinds: KindStats, models: list[str], scope: str) -> list[dict]:
-    """The tables of every kind beyond yes/no, each {title, columns, rows (lists of text),
-    note}: what the Markdown, LaTeX and HTML reports render alike."""
+def kind_tables(kinds: KindStats, models: list[str], scope: str) -> list[Table]:
+    """The tables of every kind beyond yes/no: what the Markdown, LaTeX and HTML reports render alike."""
     out = []
     if kinds.ratings:
         rows = []
@@ -446,11 +446,11 @@ def kind_tables(kinds: KindStats, models: list[str], scope: str) -> list[dict]:
             pairs = "; ".join(_rank_pair_cell(p) for p in v.pairs) or "n/a (one condition)"
             rows.append([v.question, *cells, _friedman_cell(v.friedman, with_w=True), pairs])
         points = sorted({v.points for v in kinds.ratings.values()})
-        out.append({"title": "Ratings", "columns": ["Question", *(f"{m}: median [IQR]" for m in models), "Friedman chi2 (p), Kendall's W [95% CI]",
-                                                  f"Wilcoxon p, {scope} (rank-biserial r [95% CI])"], "rows": rows,
-                    "note": f"{'/'.join(map(str, points))}-point ratings (1 = the low anchor). Friedman across the conditions (tie-corrected); "
+        out.append(Table(title="Ratings", columns=["Question", *(f"{m}: median [IQR]" for m in models), "Friedman chi2 (p), Kendall's W [95% CI]",
+                                                  f"Wilcoxon p, {scope} (rank-biserial r [95% CI])"], rows=rows,
+                    notes=f"{'/'.join(map(str, points))}-point ratings (1 = the low anchor). Friedman across the conditions (tie-corrected); "
                             "Wilcoxon signed-rank pairs; interval of r: BCa bootstrap over participants, of W: percentile bootstrap (W is bounded at 0, where BCa fails). "
-                            + ordinalgee_line(kinds.ordinal_gee)})
+                            + ordinalgee_line(kinds.ordinal_gee)))
     if kinds.scores:
         rows = []
         for v in kinds.scores.values():
@@ -461,26 +461,26 @@ def kind_tables(kinds: KindStats, models: list[str], scope: str) -> list[dict]:
             rows.append([v.label, *cells, f"F({test.df}, {test.df_denominator}) = {test.f:.2f} ({_p(test.p_value_f)})"
                          if np.isfinite(test.f) else f"n/a ({test.reason or 'not estimable'})",
                          pairs or "n/a (one condition)", _friedman_cell(v.friedman)])
-        out.append({"title": "Scores", "columns": ["Score", *(f"{m}: mean [95% CI]" for m in models), "Mixed model: condition (p)",
-                                                 f"Difference [95% CI], p {scope}", "Friedman chi2 (p)"], "rows": rows,
-                    "note": "Linear mixed model (REML) answer ~ condition + period + (1 | participant): the condition's Wald F test and "
+        out.append(Table(title="Scores", columns=["Score", *(f"{m}: mean [95% CI]" for m in models), "Mixed model: condition (p)",
+                                                 f"Difference [95% CI], p {scope}", "Friedman chi2 (p)"], rows=rows,
+                    notes="Linear mixed model (REML) answer ~ condition + period + (1 | participant): the condition's Wald F test and "
                             "pairwise differences (t intervals, between-within df); Friedman as the non-parametric check. SUS: Brooke (1996), 0-100; "
-                            "raw NASA-TLX: the mean of its six subscales, 0-100 (Hart 2006)."})
+                            "raw NASA-TLX: the mean of its six subscales, 0-100 (Hart 2006)."))
     for v in kinds.choices.values():
         ov = v.overall
-        rows = [[m, f"{s['count']}", f"{s['share']:.0%}{_ci(s['wilson_low'], s['wilson_high'], '{:.0%}')}"] for m, s in v.shares.items()]
+        rows = [[m, f"{s['count']}", rate_interval(s['share'], s['wilson_low'], s['wilson_high'], 0)] for m, s in v.shares.items()]
         pairs = "; ".join(f"{p.a}-{p.b} {p.n_a}:{p.n_b}, p {_p(p.p_holm)}" for p in v.pairs)
-        out.append({"title": f"Choice: {v.question}", "columns": ["Condition", "Chosen by", "Share [Wilson 95%]"], "rows": rows,
-                    "note": f"{ov.test}: p = {_p(ov.p_value)} (chi2 = {ov.statistic:.2f}, {ov.df} df; equal chances); "
-                            f"exact binomial pairs, {scope}: {pairs}."})
+        out.append(Table(title=f"Choice: {v.question}", columns=["Condition", "Chosen by", "Share [Wilson 95%]"], rows=rows,
+                    notes=f"{ov.test}: p = {_p(ov.p_value)} (chi2 = {ov.statistic:.2f}, {ov.df} df; equal chances); "
+                            f"exact binomial pairs, {scope}: {pairs}."))
     if kinds.session:
         rows = []
         for v in kinds.session.values():
             if v["kind"] == "yes_no":
-                rows.append([v["question"], f"{v['yes']}/{v['n']} yes, {v['rate']:.0%}{_ci(v['wilson_low'], v['wilson_high'], '{:.0%}')}"])
+                rows.append([v["question"], f"{v['yes']}/{v['n']} yes, {rate_interval(v['rate'], v['wilson_low'], v['wilson_high'], 0)}"])
             else:
                 rows.append([v["question"], f"mean {_mean_cell(v, '{:.2f}')}, median {v['median']:g} [{v['q1']:g}, {v['q3']:g}]"
                              if v["n"] else "no answers"])
-        out.append({"title": "Asked once at the end", "columns": ["Question", "Answers"], "rows": rows,
-                    "note": "About the whole session, not one condition: described, not tested."})
+        out.append(Table(title="Asked once at the end", columns=["Question", "Answers"], rows=rows,
+                    notes="About the whole session, not one condition: described, not tested."))
     return out

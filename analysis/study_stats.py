@@ -18,29 +18,26 @@ from analysis.kinds import (
     primary_line,
 )
 from analysis.records import GeeFit, McNemarPair, OddsRatioPair
-from analysis.reports.formatting import table_markdown
 from analysis.reports.methods import study_methods
+from analysis.reports.table import markdown, markdown_grid
 from analysis.stats import HOLM_SCOPES, gee_fit, holm, holm_family, named, pairwise_mcnemar, records
 from analysis.study_results import DeformationBenchmark, LogisticGee, StudyStats, YesNoItem
 from analysis.study_snapshot import Study
 from analysis.table1 import (
     DEFORMATION_LABEL,
-    DEFORMATION_WORK,
     answers_wide,
     binary_answers,
     cochran,
-    cochran_cell,
     complete_answers,
     condition_text,
     deformation,
+    deformation_table,
     holm_text,
     incomplete_text,
-    item_rows,
-    mcnemar_cell,
     rates,
     study_facts,
+    table,
 )
-from analysis.withhold import mean_sd
 
 
 def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None, holm_scope: str = "family") -> StudyStats:
@@ -113,7 +110,6 @@ def table1_markdown(study: Study, holm_scope: str = "family") -> str:
     GEE across questions below."""
     facts, r, q, d = study_facts(study), rates(study), cochran(study), deformation(study)
     st = study_stats(study, r, q, holm_scope=holm_scope)
-    pairs = {item: v.pairs for item, v in st.items.items()}
     models = list(d["model"])
     flag = f"{facts.flag} " if facts.flag else ""
     if facts.mixed_source_participants:
@@ -122,25 +118,13 @@ def table1_markdown(study: Study, holm_scope: str = "family") -> str:
     left_out = f" Left out (incomplete): {listed}." if listed else ""
     scope = holm_text(st)
     lines = [f"**Table 1: {facts.study}.** {flag}N = {facts.participants} participants with every answer; {facts.design}.{left_out}", ""]
-    deform = [f"{mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])} (median {row['median_ms']:.2f}, p95 {row['p95_ms']:.2f})"
-              if row["n_participants"] else "n/a (no trials)" for _, row in d.iterrows()]
     if len(r):  # the yes/no questions: the paper's table
-        lines += ["| Question | " + " | ".join(f"{m}: yes/no, rate [95% CI]" for m in models) + f" | Cochran's Q (p) | McNemar p, {scope} |",
-                  "|---|" + "---|" * len(models) + "---|---|"]
-        for item, question, rows, qrow in item_rows(r, q, models):
-            cells = [f"{row['yes']}/{row['no']}, {row['rate']:.1%} [{row['wilson_low']:.1%}, {row['wilson_high']:.1%}]" for row in rows]
-            mc = "; ".join(mcnemar_cell(p) for p in pairs.get(item, [])) or "n/a (one condition)"
-            test = cochran_cell(qrow)
-            lines.append(f"| {question} | " + " | ".join(cells) + f" | {test} | {mc} |")
-        lines.append("| Time for real-time deformation of the model, ms: benchmark of this machine | " + " | ".join(deform) + " | | |")
-        lines += ["", "Rates with Wilson 95% intervals; Cochran's Q across the models; pairwise exact McNemar tests, "
-                  f"{scope}. Deformation time: each participant's mean over their trials, mean +- sd over participants: "
-                  f"wall-clock time of this machine {DEFORMATION_WORK}, not a measure of the participants (no test).", ""]
+        t = table(st, r, q, d)
+        lines += [*markdown_grid(t), "", t.notes, ""]
     for t in kind_tables(st.kinds, models, scope):
-        lines += table_markdown(t)
+        lines += markdown(t)
     if not len(r):
-        lines += ["| Time for real-time deformation, ms: benchmark of this machine | " + " | ".join(models) + " |",
-                  "|---|" + "---|" * len(models), "| mean +- sd (median, p95) | " + " | ".join(deform) + " |", ""]
+        lines += [*markdown_grid(deformation_table(d)), ""]
     gee = gee_line(st.gee, st.kinds.primary.analysis == "logistic_gee")
     if gee:
         lines += [gee, ""]

@@ -1,11 +1,13 @@
-"""analysis/reports/latex.py: every report's tables as LaTeX that compiles with pdflatex and fits an A4
-text block (no overfull box over 1 pt), with escaped text and proper symbols."""
+"""analysis/reports/latex.py and the LaTeX of analysis/reports/table.py: every report's tables as
+LaTeX that compiles with pdflatex and fits an A4 text block (no overfull box over 1 pt), with
+escaped text and proper symbols."""
 
 from __future__ import annotations
 
 import pytest
 
-from analysis.reports import latex
+from analysis.reports import latex, table
+from analysis.reports.table import Table
 from tests.helpers import latex_problems
 
 
@@ -22,19 +24,19 @@ def test_text_is_escaped_with_proper_symbols(raw, want):
     assert latex.text(raw) == want
 
 
-def _table(n_conditions: int, n_rows: int) -> dict:
+def _table(n_conditions: int, n_rows: int) -> Table:
     names = [f"plate_spring_located_variant_{k}" for k in range(n_conditions)]
-    return {"title": "Ratings", "columns": ["Question", *[f"{m}: median [IQR]" for m in names], "Friedman chi2 (p)", "Wilcoxon p, Holm"],
-            "rows": [[f"Question {i}: did the interaction feel like retracting real brain tissue, with the force you expected?",
-                      *["4.5 [3, 6.75]"] * n_conditions, "2.55 (0.28), W 0.07 [0.00, 0.36]",
-                      "; ".join(f"{a}-{b} 1 (r 0.39 [-0.27, 0.83])" for a in names[:2] for b in names[2:4])] for i in range(n_rows)],
-            "note": "SYNTHETIC DATA (simulated participants): not evidence about people. 7-point ratings, 0-100 scores, 12.3 +- 4.5 ms."}
+    return Table(title="Ratings", columns=["Question", *[f"{m}: median [IQR]" for m in names], "Friedman chi2 (p)", "Wilcoxon p, Holm"],
+                 rows=[[f"Question {i}: did the interaction feel like retracting real brain tissue, with the force you expected?",
+                       *["4.5 [3, 6.75]"] * n_conditions, "2.55 (0.28), W 0.07 [0.00, 0.36]",
+                       "; ".join(f"{a}-{b} 1 (r 0.39 [-0.27, 0.83])" for a in names[:2] for b in names[2:4])] for i in range(n_rows)],
+                 notes="SYNTHETIC DATA (simulated participants): not evidence about people. 7-point ratings, 0-100 scores, 12.3 +- 4.5 ms.")
 
 
 @pytest.mark.parametrize("n_conditions, n_rows", [(2, 3), (3, 9), (6, 3), (3, 60), (6, 40)])
 def test_a_table_fits_the_page_whatever_its_shape(n_conditions, n_rows, tmp_path):
-    tex = latex.tables([_table(n_conditions, n_rows)], "tab:t")
-    assert ("\\begin{landscape}" in tex) == (n_conditions + 3 > latex.LANDSCAPE_COLUMNS)
+    tex = table.latex_tables([_table(n_conditions, n_rows)], "tab:t")
+    assert ("\\begin{landscape}" in tex) == (n_conditions + 3 > table.LANDSCAPE_COLUMNS)
     if n_rows <= 3 and n_conditions <= 3:  # a short table is a float; a long one breaks across pages, its head repeated
         assert "\\begin{table}" in tex
         assert tex.count("\\toprule") == 1

@@ -8,8 +8,12 @@ import pytest
 from click.testing import CliRunner
 from scipy.stats import norm
 
+from analysis import table1
+from analysis.reports import report, table
 from analysis.reports.latex import document
+from analysis.reports.latex import text as latex_text
 from analysis.stats import wilson
+from analysis.study_stats import study_stats, table1_markdown
 from studyctl.cli import cli
 from studyctl.synthetic.study import run_synthetic_study
 from tests.helpers import fast_protocol, latex_problems
@@ -298,9 +302,10 @@ def test_latex_html_and_plots(small_study, tmp_path):
     assert "\\toprule" in tex
     assert "+-" not in tex
     assert sum(ln.startswith("Is ") or ln.startswith("Does ") or ln.startswith("Can ") or ln.startswith("Are ") for ln in tex.splitlines()) == 9
-    assert re.search(r"McNemar p \(Holm over all \d+ pairs tested\)", tex)
+    assert re.search(r"McNemar p, Holm over all \d+ pairs tested", tex)
     assert "benchmark of this machine" in tex
     assert "$\\pm$" in tex
+    assert re.search(r"\d+/\d+, \d+\.\d\\% \[\d+\.\d\\%, \d+\.\d\\%\]", tex)  # a rate and its interval as the Markdown and HTML print them
     assert latex_problems(document(tex), tmp_path) == []  # compiles with booktabs, nothing wider than the A4 text block
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "html", "--out", str(tmp_path / "r.html")])
     assert res.exit_code == 0, res.output
@@ -414,6 +419,18 @@ def test_latex_table_escapes_every_special_character_and_has_the_other_formats_c
     assert len(rows) == 10  # 9 questions and the deformation row
     assert "\\toprule" in tex
     assert "\\bottomrule" in tex
+
+
+def test_table1_is_one_table_whatever_the_format(tmp_path):
+    """Markdown, LaTeX and HTML render the same Table 1: its rows, each cell escaped for its format."""
+    rng = np.random.default_rng(5)
+    answers = {f"P{i:02d}": {m: rng.integers(0, 2, 9).tolist() for m in ("fem", "mass_spring", "plate_spring")} for i in range(6)}
+    study = _read(_answers_db(tmp_path, answers))
+    r, q, d = table1.rates(study), table1.cochran(study), table1.deformation(study)
+    t = table1.table(study_stats(study, r, q), r, q, d)
+    assert "\n".join(table.markdown_grid(t)) in table1_markdown(study)
+    assert "\n".join(" & ".join(latex_text(c) for c in row) + " \\\\" for row in t.rows) in report.latex(study)
+    assert table.html_grid(t) in report.html(study)
 
 
 def test_gee_says_not_estimable_when_a_model_answers_alike_throughout(tmp_path):

@@ -30,9 +30,11 @@ from scipy import stats
 from analysis.discrimination.pooled import POOLED_MIN, pooled_webers
 from analysis.discrimination.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, weber_table
 from analysis.discrimination.weber_groups import group_test
-from analysis.reports.formatting import PAGE_END, drawn_png, figure_html, p_value, page_head, table_html, table_markdown
-from analysis.reports.latex import tables as latex_tables
+from analysis.reports.formatting import PAGE_END, drawn_png, figure_html, p_value, page_head
 from analysis.reports.methods import study_methods
+from analysis.reports.table import Table, latex_tables
+from analysis.reports.table import html as table_html
+from analysis.reports.table import markdown as table_markdown
 from analysis.study_snapshot import data_flag
 from analysis.table1 import study_facts
 from analysis.withhold import interval_reason
@@ -146,8 +148,8 @@ FLAG_TEXT = {"all_correct": "every answer right: below the range tested", "at_ch
              "shallow": "no trend", "optimizer": "the optimiser stopped", "steep": "slope at its bound"}
 
 
-def tables(res: dict) -> list[dict]:
-    """The report's tables ({title, columns, rows: text, note}), one source for Markdown and HTML:
+def tables(res: dict) -> list[Table]:
+    """The report's tables, one source for Markdown, LaTeX and HTML:
     per condition (geometric mean [95% CI], median, recovery when synthetic) and per participant
     (the fit, its flag, the pooled estimate, QUEST+'s own estimate where it ran, the generating
     value when synthetic)."""
@@ -161,10 +163,10 @@ def tables(res: dict) -> list[dict]:
                       if "recovery_pooled_coverage" in c else "")
         rows.append([c["condition"], str(c["n"]), gm, _pct(c["median"])]
                     + ([f"{_pct(c.get('recovery_median_abs_rel_error'))}, {_pct(c.get('recovery_coverage'))}{pooled_rec}"] if recovery else []))
-    out = [{"title": "Weber fraction per condition", "columns": ["Condition", "N", "geometric mean [95% CI]", "median"]
-            + (["recovery: median abs. error, CI coverage (own fit; pooled)"] if recovery else []), "rows": rows,
-            "note": "Geometric mean over participants with a t interval on ln Weber fraction (n - 1 df)."
-                    + (" A - marks a recovery figure there is none of (no participant's fit to compare)." if recovery else "")}]
+    out = [Table(title="Weber fraction per condition", columns=["Condition", "N", "geometric mean [95% CI]", "median"]
+                 + (["recovery: median abs. error, CI coverage (own fit; pooled)"] if recovery else []), rows=rows,
+                 notes="Geometric mean over participants with a t interval on ln Weber fraction (n - 1 df)."
+                    + (" A - marks a recovery figure there is none of (no participant's fit to compare)." if recovery else ""))]
     quest = any("quest_estimate" in r for r in res["weber"])
     generating = any("generating_weber" in r for r in res["weber"])
     rows = []
@@ -176,15 +178,15 @@ def tables(res: dict) -> list[dict]:
                      f"{_pct(r.get('weber_pooled'))} {_interval(r.get('pooled_low'), r.get('pooled_high'), 'too few to pool')}"
                      if r.get("weber_pooled") == r.get("weber_pooled") and r.get("weber_pooled") is not None else "(too few to pool)"]
                     + ([_pct(r.get("quest_estimate"))] if quest else []) + ([_pct(r.get("generating_weber"))] if generating else []))
-    out.append({"title": "Per participant", "columns": ["Participant", "Condition", "trials", "% correct", "Weber [95% CI]", "lapse", "fit flag",
+    out.append(Table(title="Per participant", columns=["Participant", "Condition", "trials", "% correct", "Weber [95% CI]", "lapse", "fit flag",
                                                         "pooled [95% CrI]"]
-                + (["QUEST+ estimate"] if quest else []) + (["generating"] if generating else []), "rows": rows,
-                "note": "The Weber fraction with its parametric-bootstrap 95% interval: the increment picked out 75% of the time by the "
+                + (["QUEST+ estimate"] if quest else []) + (["generating"] if generating else []), rows=rows,
+                notes="The Weber fraction with its parametric-bootstrap 95% interval: the increment picked out 75% of the time by the "
                         "two-interval observer fitted on the log stiffness ratio (analysis/discrimination/psychometric.py); lapse: the fit's. Pooled: the "
                         f"same observer, each participant pooled with the condition's others (hierarchical, {POOLED_MIN} or more participants), "
                         "posterior median and 95% credible interval: the better estimate of one person from 40 trials (docs/study.md). "
                         "A - marks a value there is none of: the fit gave none (it did not converge), or the run recorded none "
-                        "(no QUEST+ estimate, no generating value)."})
+                        "(no QUEST+ estimate, no generating value)."))
     return out
 
 
@@ -213,14 +215,14 @@ def markdown(res: dict) -> str:
 
 
 def latex(res: dict) -> str:
-    """The report's tables as LaTeX (analysis/reports/latex.py), the study's heading and the group test in
+    """The report's tables as LaTeX (analysis/reports/table.py), the study's heading and the group test in
     the first table's caption."""
     title, head = _heading(res)
     if not res["weber"]:
         return f"% {title}. {head} No discrimination trials yet.\n"
     first, per = tables(res)
     group = f" {_group_text(res['group'])}" if res["group"] else ""
-    first = first | {"title": f"{title}: {first['title']}", "note": f"{head} {first['note']}{group}"}
+    first = dataclasses.replace(first, title=f"{title}: {first.title}", notes=f"{head} {first.notes}{group}")
     return latex_tables([first, per], "tab:jnd")
 
 
@@ -253,7 +255,7 @@ def html_section(res: dict, study) -> str:
     task = res["facts"]["task"]
     body.append(f"<p>N = {res['facts']['participants']}; two-interval forced choice &ldquo;{esc(task['question'])}&rdquo;, "
                 f"{task['trials']} {esc(task['method'])} trials per condition.</p>")
-    first, per = tables(res) if res["weber"] else ({}, {})
+    first, per = tables(res) if res["weber"] else (None, None)
     if first:
         body.append(table_html(first, "h3"))
     if res["group"]:

@@ -1,7 +1,8 @@
-"""How every report writes its numbers and its pages: p-values, a table as Markdown or HTML,
-and the self-contained HTML page with its pictures inlined as base64 PNG. Table 1, the
-statistics, the discrimination report and the construct-validity report all use these, so a
-p-value or a page looks the same wherever it appears."""
+"""How every report writes its numbers and its pages: one format per quantity (a p-value, a rate
+with its interval), and the self-contained HTML page with its pictures inlined as base64 PNG.
+Table 1, the statistics, the discrimination report and the construct-validity report all use
+these, so a p-value or a page looks the same wherever it appears (their tables:
+analysis/reports/table.py)."""
 
 from __future__ import annotations
 
@@ -39,25 +40,12 @@ def p_value(x, missing: str = "-", decimals: bool = False) -> str:
     return f"{x:.3g}"
 
 
-def markdown_grid(columns: list, rows: list[list]) -> list[str]:
-    """A header and rows as Markdown table lines (pipes and newlines in cells escaped)."""
-    def cell(x) -> str:
-        return str(x).replace("|", "\\|").replace("\n", " ")
-
-    return ["| " + " | ".join(map(cell, columns)) + " |", "|" + "---|" * len(columns), *("| " + " | ".join(map(cell, r)) + " |" for r in rows)]
-
-
-def table_markdown(t: dict) -> list[str]:
-    """A table {title, columns, rows, note} as Markdown lines, headed by its title, its note below."""
-    return [f"**{t['title']}**", "", *markdown_grid(t["columns"], t["rows"]), "", t["note"], ""]
-
-
-def table_html(t: dict, heading: str = "h2") -> str:
-    """A table {title, columns, rows, note} as an HTML section under a `heading` (every cell escaped)."""
-    esc = html.escape
-    head = "".join(f"<th>{esc(c)}</th>" for c in t["columns"])
-    rows = "".join("<tr>" + "".join(f"<td>{esc(str(c))}</td>" for c in r) + "</tr>" for r in t["rows"])
-    return f"<{heading}>{esc(t['title'])}</{heading}><table><tr>{head}</tr>{rows}</table><p>{esc(t['note'])}</p>"
+def rate_interval(rate: float, low: float | None, high: float | None, decimals: int = 1) -> str:
+    """A rate with its interval, each a percentage with `decimals`: "68.6% [52.0%, 81.4%]"; the
+    rate alone where the interval is missing (None, NaN)."""
+    if low is None or high is None or not (math.isfinite(low) and math.isfinite(high)):
+        return f"{rate:.{decimals}%}"
+    return f"{rate:.{decimals}%} [{low:.{decimals}%}, {high:.{decimals}%}]"
 
 
 def page_head(title: str) -> str:

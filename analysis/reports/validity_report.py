@@ -14,6 +14,7 @@ from __future__ import annotations
 import html as _html
 import json
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -23,9 +24,9 @@ from analysis import instruments
 from analysis import validity as v
 from analysis.errors import StudyError
 from analysis.metrics import UNITS, metrics_table, study_goals
-from analysis.reports.formatting import PAGE_END, figure_png, markdown_grid, p_value, page_head
-from analysis.reports.latex import tables as latex_tables
+from analysis.reports.formatting import PAGE_END, figure_png, p_value, page_head
 from analysis.reports.plots import OTHER_COLORS, _plt
+from analysis.reports.table import Table, html_grid, latex_tables, markdown_grid
 from analysis.stats import holm
 from analysis.study_snapshot import Study, data_flag
 from sim.jsonable import jsonable
@@ -308,8 +309,13 @@ def header_lines(rep: dict) -> list[str]:
     return lines
 
 
-def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
-    """The report's sections as (title, text, columns, rows): what md and html both render."""
+def _section(title: str, text: str, columns: list, rows: list) -> Table:
+    return Table(columns=columns, rows=rows, title=title, notes=text)
+
+
+def sections(rep: dict) -> list[Table]:
+    """The report's sections, each a table (a section of text alone has no columns), its text the
+    notes: what md, LaTeX and html all render."""
     order, out = rep["groups"], []
     fields = rep["fields"]
     cols = ["group", "registered", "with metrics"] + [f"{f}: median [IQR] (n)" for f in dict.fromkeys(fields["field"])]
@@ -320,7 +326,7 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
             d = fields[(fields["field"] == f) & (fields["group"] == r["group"])].iloc[0]
             cells.append(f"{_g(d['median'])} {_ci(d['q1'], d['q3'])} ({d['n']})")
         rows.append(cells)
-    out.append(("Participants", f"Groups: the {rep['group_field']} field (design.groups), in the protocol's order; integer and number "
+    out.append(_section("Participants", f"Groups: the {rep['group_field']} field (design.groups), in the protocol's order; integer and number "
                 "fields described per group; text fields are never analysed.", cols, rows))
 
     kw, pairs, desc = rep["kruskal"], rep["pairs"], rep["descriptives"]
@@ -333,7 +339,7 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
         rows.append([k["metric"], _unit(k["metric"]), k["condition"], *meds, _g(k["H"]) if tested else "-",
                      p_value(k["p"], decimals=True) if tested else f"not tested: {k['reason']}", p_value(k["p_holm"], decimals=True), p_value(k["p_wy"], decimals=True)])
     n_kw = int(kw["p"].notna().sum())
-    out.append(("Group comparisons", f"Kruskal-Wallis across the groups per metric and condition (each participant's mean over trials "
+    out.append(_section("Group comparisons", f"Kruskal-Wallis across the groups per metric and condition (each participant's mean over trials "
                 f"and hands); p_holm: Holm over the family of the {n_kw} Kruskal-Wallis tests run (a metric with no variation, or "
                 "values in fewer than two groups, is not tested and not in the family); p_wy: Westfall-Young step-down min-p over the same family, "
                 f"{rep['settings']['group_permutations']} permutations of the participants' group labels (keeps the correlation "
@@ -343,7 +349,7 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
             if not isinstance(r.get("reason"), str) else [r["metric"], r["condition"], f"{r['a']} vs {r['b']}", "-", f"not tested: {r['reason']}", "-", "-", "-"]
             for r in pairs.to_dict(orient="records")]
     n_pairs = int(pairs["p"].notna().sum())
-    out.append(("Pairwise comparisons", f"Two-sided Mann-Whitney U for every pair of groups; p_holm: Holm over the family of the "
+    out.append(_section("Pairwise comparisons", f"Two-sided Mann-Whitney U for every pair of groups; p_holm: Holm over the family of the "
                 f"{n_pairs} pairwise tests run (metrics x conditions x pairs); p_wy: Westfall-Young step-down min-p over the same "
                 "family (the same permutations; raw p from the normal approximation); Cliff's delta of the first group over the second "
                 f"(positive: higher values in the first) with its bootstrap percentile 95% interval ({rep['settings']['bootstrap']} "
@@ -352,13 +358,13 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
 
     mm = rep["mixed_model"]
     if mm["reason"]:
-        out.append(("Mixed model", f"Not fitted: {mm['reason']}.", [], []))
+        out.append(_section("Mixed model", f"Not fitted: {mm['reason']}.", [], []))
     else:
         rows = [[r["metric"], r["term"], _g(r["coef"]), _g(r["se"]), _g(r["z"]), p_value(r["p"], decimals=True), "yes"] if r["converged"] else
                 [r["metric"], r["term"], "-", "-", "-", "not tested: the fit did not converge", "NO"]
                 for r in mm["fixed"].to_dict(orient="records")]
         rows += [[r["metric"], "not fitted: " + r["reason"], "", "", "", "", ""] for r in mm["skipped"].to_dict(orient="records")]
-        out.append(("Mixed model", "Per metric, value ~ group + condition + trial with a random intercept per participant "
+        out.append(_section("Mixed model", "Per metric, value ~ group + condition + trial with a random intercept per participant "
                     f"(statsmodels MixedLM, REML; references: {order[0]} and the first condition alphabetically); Wald p, not adjusted.",
                     ["metric", "term", "coef", "se", "z", "p", "converged"], rows))
 
@@ -370,7 +376,7 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
             if r["plateau"] == r["plateau"] else [r["metric"], r["condition"], r["group"], r["n_participants"], "-", "no fit", "no fit",
                                                   f"{r['n_boot_ok']}/{r['n_boot']}"]
             for r in rep["learning_curves"].to_dict(orient="records")]
-    out.append(("Learning curves", "Per metric, condition and group: the group's mean per trial fitted with y = plateau + (y0 - plateau) "
+    out.append(_section("Learning curves", "Per metric, condition and group: the group's mean per trial fitted with y = plateau + (y0 - plateau) "
                 "exp(-rate (trial - 1)); 95% percentile intervals of plateau and rate from bootstrap replicates resampling the group's "
                 "participants (fits that failed are dropped: ok/replicates). No fit (-): fewer than 3 trials, no convergence, a step "
                 f"(rate above {v.MAX_RATE:.2f}: half the approach within a quarter of a trial) or a rate too slow for half the approach to "
@@ -379,24 +385,24 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
 
     prof = rep["proficiency"]
     if prof["reason"]:
-        out.append(("Proficiency", f"No benchmark: {prof['reason']}.", [], []))
+        out.append(_section("Proficiency", f"No benchmark: {prof['reason']}.", [], []))
     else:
         lo, hi = rep["settings"]["band"]
         rows = [[r["metric"], r["condition"], r["n_expert"], _g(r["median"]), _ci(r["low"], r["high"]),
                  r["better"] if isinstance(r["better"], str) else "-"]
                 for r in prof["benchmark"].to_dict(orient="records")]
-        out.append(("Proficiency benchmark", f"The expert group ({rep['expert']}): its median per metric and the band from its "
+        out.append(_section("Proficiency benchmark", f"The expert group ({rep['expert']}): its median per metric and the band from its "
                     f"{lo:g}th to {hi:g}th percentile; better: where better performance lies (-: no direction).",
                     ["metric", "condition", "experts", "median", f"band [{lo:g}th, {hi:g}th]", "better"], rows))
         rows = [[r["code"], r["group"], r["condition"], f"{r['n_proficient']}/{r['n_metrics']}", f"{r['fraction_proficient']:.0%}"]
                 for r in prof["summary"].to_dict(orient="records")]
-        out.append(("Scorecards", "Every other participant against the benchmark: a metric is at proficiency when inside the band or "
+        out.append(_section("Scorecards", "Every other participant against the benchmark: a metric is at proficiency when inside the band or "
                     "beyond it on the better side (the per-metric scorecard is in the JSON).",
                     ["participant", "group", "condition", "metrics at proficiency", "fraction"], rows))
 
     c = rep["classifier"]
     if c.get("reason"):
-        out.append(("Expertise classification", f"Not run: {c['reason']}.", [], []))
+        out.append(_section("Expertise classification", f"Not run: {c['reason']}.", [], []))
     else:
         text = (f"Group from a participant's {c['n_features']} metric scores (median imputation, standardisation, L2 logistic "
                 f"regression, balanced class weights), leave-one-participant-out over {c['n']} participants: accuracy "
@@ -405,18 +411,18 @@ def sections(rep: dict) -> list[tuple[str, str, list[str], list[list]]]:
                 "share is what leave-one-out gives groups that do not differ (each left-out participant shifts the training groups "
                 "against its own); read the permutation p, not the distance from chance. Confusion (rows: true group):")
         rows = [[g] + list(r) for g, r in zip(c["groups"], c["confusion"])]
-        out.append(("Expertise classification", text, ["true \\ predicted", *c["groups"]], rows))
+        out.append(_section("Expertise classification", text, ["true \\ predicted", *c["groups"]], rows))
 
     rt, rd = rep["rating_tests"], rep["ratings"]
     if not len(rt):
-        out.append(("Face validity ratings", "The protocol asks no rating question and has no instrument.", [], []))
+        out.append(_section("Face validity ratings", "The protocol asks no rating question and has no instrument.", [], []))
     else:
         rows = []
         for t in rt.to_dict(orient="records"):
             d = rd[(rd["item"] == t["item"]) & (rd["condition"] == t["condition"])].set_index("group")
             cells = [f"{_g(d.loc[g, 'median'])} {_ci(d.loc[g, 'q1'], d.loc[g, 'q3'])} ({d.loc[g, 'n']})" for g in order]
             rows.append([t["question"], _cond(t["condition"]), *cells, _g(t["H"]), p_value(t["p"], decimals=True), p_value(t["p_holm"], decimals=True)])
-        out.append(("Face validity ratings", "Per rating question (its mean over trials when asked after each trial) and instrument "
+        out.append(_section("Face validity ratings", "Per rating question (its mean over trials when asked after each trial) and instrument "
                     "score (SUS, 0-100), per group: median [IQR] (n), every participant who answered; Kruskal-Wallis across the groups, "
                     f"p_holm: Holm over the family of all {len(rt)} ratings and scores.",
                     ["question", "condition", *[f"{g}: median [IQR] (n)" for g in order], "H", "p", "p_holm"], rows))
@@ -428,21 +434,21 @@ def markdown(rep: dict) -> str:
     if rep["note"]:
         lines += [f"**{rep['note']}** {rep['synthetic_participants']} synthetic participants.", ""]
     lines += header_lines(rep) + [""]
-    for name, text, cols, rows in sections(rep):
-        lines += [f"## {name}", "", text, ""]
-        if cols:
-            lines += markdown_grid(cols, rows) + [""]
+    for t in sections(rep):
+        lines += [f"## {t.title}", "", t.notes, ""]
+        if t.columns:
+            lines += markdown_grid(t) + [""]
     return "\n".join(lines)
 
 
 def latex(rep: dict) -> str:
-    """The report's tables as LaTeX (analysis/reports/latex.py), each section's text its caption; the
+    """The report's tables as LaTeX (analysis/reports/table.py), each section's text its caption; the
     title, the synthetic note and the header lines as a comment and the first caption's start."""
     lead = " ".join([rep["note"] + f" {rep['synthetic_participants']} synthetic participants." if rep["note"] else "",
                      *header_lines(rep)]).strip()
-    ts = [{"title": name, "columns": cols, "rows": rows, "note": text} for name, text, cols, rows in sections(rep) if cols]
+    ts = [t for t in sections(rep) if t.columns]
     if ts:
-        ts[0] = ts[0] | {"note": f"{title(rep)}. {lead} {ts[0]['note']}"}
+        ts[0] = replace(ts[0], notes=f"{title(rep)}. {lead} {ts[0].notes}")
     return latex_tables(ts, "tab:validity")
 
 
@@ -493,12 +499,10 @@ def html(rep: dict) -> str:
     if rep["note"]:
         parts.append(f'<p class="synthetic">{esc(rep["note"])} {rep["synthetic_participants"]} synthetic participants.</p>')
     parts += [f"<p>{esc(line)}</p>" for line in header_lines(rep)]
-    for name, text, cols, rows in sections(rep):
-        parts.append(f"<h2>{esc(name)}</h2><p>{esc(text)}</p>")
-        if cols:
-            head = "".join(f"<th>{esc(str(c))}</th>" for c in cols)
-            body = "".join("<tr>" + "".join(f"<td>{esc(str(c))}</td>" for c in r) + "</tr>" for r in rows)
-            parts.append(f"<table><tr>{head}</tr>{body}</table>")
+    for t in sections(rep):
+        parts.append(f"<h2>{esc(t.title)}</h2><p>{esc(t.notes)}</p>")
+        if t.columns:
+            parts.append(html_grid(t))
     if rep["metrics"]:
         parts.append("<h2>Metrics per group and learning curves</h2>")
         for m in rep["metrics"]:

@@ -7,9 +7,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from analysis.reports.formatting import markdown_grid
-from analysis.reports.latex import tables as latex_tables
+from analysis.reports.formatting import rate_interval
 from analysis.reports.plots import pareto_plot
+from analysis.reports.table import Table, latex_tables, markdown_grid
 from analysis.verification.accuracy import TARGET_WITHIN, class_best
 from analysis.verification.tissue_pulls import describe_no_reference
 from sim.jsonable import jsonable
@@ -36,11 +36,11 @@ def intro(result: dict) -> str:
             f"the linear models' E = {m['young_pa'] / 1e3:.3g} kPa (scene: {m['scene_young_pa'] / 1e3:.3g} kPa)" + (" (quick bench)" if m["quick"] else "") + ".")
 
 
-def tables(result: dict) -> list[dict]:
-    """The accuracy table (every configuration, raw and calibrated) and each class at its best, as
-    {title, columns, rows, note}: what the Markdown and the LaTeX print."""
+def tables(result: dict) -> list[Table]:
+    """The accuracy table (every configuration, raw and calibrated) and each class at its best:
+    what the Markdown, the LaTeX and the HTML print."""
     rows = [[r["model"], r["setting"], r["calibration"], f"{r['scale']:.3g}", f"{r['force_error']:.1%} / {r['force_error_max']:.1%}",
-             f"{r['within_jnd']:.0%} [{r['within_jnd_low']:.0%}, {r['within_jnd_high']:.0%}]",
+             rate_interval(r['within_jnd'], r['within_jnd_low'], r['within_jnd_high'], 0),
              f"{r['n_test']} / {r['extrapolated']} / {r['truth_undecided']}",
              f"{r['within']} / {r['outside']} / {r['undecided']}", f"{r['pulls_within']}/{r['n_test_pulls']}", str(r["unstable_pulls"]),
              f"{r['angle_deg']:.1f} / {r['angle_deg_max']:.1f} deg", f"{r['tick_us']:.2f} us", f"{r['frame_ms']:.3g} ms"]
@@ -52,26 +52,26 @@ def tables(result: dict) -> list[dict]:
             best.append([b["model"], b["calibration"], f"none ({b['why']})", "", "", "", "", "no", left])
             continue
         best.append([b["model"], b["calibration"], b["setting"],
-                     f"{b['within_jnd']:.0%} [{b['within_jnd_low']:.0%}, {b['within_jnd_high']:.0%}]", f"{b['force_error']:.1%}",
+                     rate_interval(b['within_jnd'], b['within_jnd_low'], b['within_jnd_high'], 0), f"{b['force_error']:.1%}",
                      f"{b['pulls_within']}/{b['n_test_pulls']}", f"{b['frame_ms']:.3g} / {b['frame_ms_p99']:.3g} ms",
                      "yes" if b["meets_target"] else "no", left])
-    return [{"title": "Model error against run time", "columns": ["model", "setting", "calibration", "scale", "force error (mean / max)",
+    return [Table(title="Model error against run time", columns=["model", "setting", "calibration", "scale", "force error (mean / max)",
                                                                    "within JND [95% CI]", "truth decided / extrapolated / undecided",
                                                                    "within / outside / undecided", "whole pulls within",
                                                                    "unstable pulls", "direction error (mean / max)", "tick", "frame"],
-             "rows": rows, "note": intro(result)},
-            {"title": "Each class at its best", "columns": ["model", "calibration", "best setting", "within JND [95% CI]", "force error",
+                  rows=rows, notes=intro(result)),
+            Table(title="Each class at its best", columns=["model", "calibration", "best setting", "within JND [95% CI]", "force error",
                                                             "whole pulls within", "frame (p50 / p99)", "meets target", "left out"],
-             "rows": best, "note": f"The most samples within the JND among the configurations whose frame p99 keeps the budget and that "
-                                   f"gave up no pull; the target is {TARGET_WITHIN:.0%}."}]
+                  rows=best, notes=f"The most samples within the JND among the configurations whose frame p99 keeps the budget and that "
+                                   f"gave up no pull; the target is {TARGET_WITHIN:.0%}.")]
 
 
 def markdown(result: dict) -> str:
     """The accuracy table as Markdown (test pulls only), with what it was measured against."""
     every, best = tables(result)
-    lines = [intro(result), "", *markdown_grid(every["columns"], every["rows"])]
+    lines = [intro(result), "", *markdown_grid(every)]
     lines += ["", f"Each class at its best (`class_best`: the most samples within the JND among the configurations whose frame p99 keeps "
-              f"the budget and that gave up no pull; the target is {TARGET_WITHIN:.0%}):", "", *markdown_grid(best["columns"], best["rows"])]
+              f"the budget and that gave up no pull; the target is {TARGET_WITHIN:.0%}):", "", *markdown_grid(best)]
     cb = result["meta"].get("coupling_bound")
     if cb:
         lines += ["", f"The mass-spring renders through its hand coupling: the tissue's own forces behind it (an exact model) are within "
@@ -79,13 +79,13 @@ def markdown(result: dict) -> str:
                       f"{cb['omni_max_n_per_m']:g} N/m, the stiffest an Omni renders stably at 1 kHz (`coupling_bound`)."]
     for key, by, title in (("by_displacement", "displacement_mm", "displacement (mm)"), ("by_force_band", "force_band", "reference force")):
         lines += ["", f"Held-out samples per {title}: within the JND / decided (extrapolated, undecided):", "",
-                  *markdown_grid(*breakdown_grid(result[key], by, title))]
+                  *markdown_grid(breakdown_table(result[key], by))]
     lines += ["", "Seed paper, deformation time per frame on its 2014 PC: plate-spring 14.69 ms, FEM 21.35 ms, mass-spring 23.08 ms."]
     return "\n".join(lines) + "\n"
 
 
-def breakdown_grid(rows: list[dict], by: str, title: str) -> tuple[list[str], list[list[str]]]:
-    """`analysis.verification.accuracy.breakdown`'s rows as a grid: one row per configuration and calibration,
+def breakdown_table(rows: list[dict], by: str) -> Table:
+    """`analysis.verification.accuracy.breakdown`'s rows as a table: one row per configuration and calibration,
     one column per group ("k/n (e, u)")."""
     groups = list(dict.fromkeys(r[by] for r in rows))
     if by == "displacement_mm":
@@ -98,7 +98,7 @@ def breakdown_grid(rows: list[dict], by: str, title: str) -> tuple[list[str], li
     for (model, setting, calibration), cells in table.items():
         out.append([model, setting, calibration] + [f"{c['within']}/{c['decided']} ({c['extrapolated']}, {c['undecided']})" if (c := cells.get(g)) else ""
                                                     for g in groups])
-    return cols, out
+    return Table(columns=cols, rows=out)
 
 
 def write_outputs(result: dict, out_dir) -> list[Path]:

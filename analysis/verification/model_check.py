@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.reports.formatting import rate_interval
+from analysis.reports.table import Table, markdown_grid
 from analysis.verification.accuracy import (
     TICK_TIMING_CALLS,
     AccuracyConfig,
@@ -370,27 +372,30 @@ def scorecard_md(card: dict) -> str:
     """The scorecard as Markdown."""
     src = f"{card['distribution']} {card['version']}" if card["distribution"] else "the Python path"
     lines = [f"# Model check: {card['model']}", "", f"{card['description']} (`{card['class']}`, from {src}; model API {card['api_version']}).",
-             f"Scene: {card['scene']}.", "", "## Contract", "", "| check | ok | detail |", "|---|---|---|"]
-    lines += [f"| {r['check']} | {'yes' if r['ok'] else '**no**'} | {r['detail']} |" for r in card["contract"]]
+             f"Scene: {card['scene']}.", "", "## Contract", ""]
+    lines += markdown_grid(Table(columns=["check", "ok", "detail"],
+                                 rows=[[r["check"], "yes" if r["ok"] else "**no**", r["detail"]] for r in card["contract"]]))
     if card["budgets"]:
-        lines += ["", "## Budgets (this machine, 99th percentile per call)", "", "| budget | p99 | median | limit | ok |", "|---|---|---|---|---|"]
-        lines += [f"| {b['budget']} | {b['value']:.3g} | {b['median']:.3g} | {b['limit']:g} | {'yes' if b['ok'] else '**no**'} |" for b in card["budgets"]]
+        lines += ["", "## Budgets (this machine, 99th percentile per call)", ""]
+        lines += markdown_grid(Table(columns=["budget", "p99", "median", "limit", "ok"],
+                                     rows=[[b["budget"], f"{b['value']:.3g}", f"{b['median']:.3g}", f"{b['limit']:g}", "yes" if b["ok"] else "**no**"]
+                                           for b in card["budgets"]]))
     if card.get("stability"):
         s = card["stability"]
         lines += ["", "## Stability (quick sweep)", "", ", ".join(f"{v} {k}" for k, v in s["counts"].items())
                   + ("; the safety layer held (no NaN, nothing above the peak force sent)" if s["safety_held"] else "; **the safety layer let a NaN or an over-limit force through**"),
-                  "", "| case | outcome | reason |", "|---|---|---|"]
-        lines += [f"| {r['model']} {r['case']} | {r['outcome']} | {r['reason'][:100]} |" for r in s["cases"]]
+                  ""]
+        lines += markdown_grid(Table(columns=["case", "outcome", "reason"],
+                                     rows=[[f"{r['model']} {r['case']}", r["outcome"], r["reason"][:100]] for r in s["cases"]]))
     if card.get("accuracy"):
         a = card["accuracy"]
-        lines += ["", f"## Accuracy against the tissue truth ({a['reference']}{', quick' if a['quick'] else ''})", "",
-                  "| setting | calibration | scale | within the JND (95% CI), decided test samples | truth extrapolated / undecided | frame ms |",
-                  "|---|---|---|---|---|---|"]
-        for r in a["rows"]:
-            rate = (f"{r['within_jnd']:.0%} ({r['within_jnd_low']:.0%}-{r['within_jnd_high']:.0%}), n = {r['n_test']}" if r["n_test"]
-                    else "none: the truth is decided at no held-out sample")
-            lines.append(f"| {r['setting']} | {r['calibration']} | {r['scale']:.3g} | {rate} | {r.get('extrapolated', 0)} / "
-                         f"{r.get('truth_undecided', 0)} | {r['frame_ms']:.3g} |")
+        lines += ["", f"## Accuracy against the tissue truth ({a['reference']}{', quick' if a['quick'] else ''})", ""]
+        lines += markdown_grid(Table(
+            columns=["setting", "calibration", "scale", "within the JND (95% CI), decided test samples", "truth extrapolated / undecided", "frame ms"],
+            rows=[[r["setting"], r["calibration"], f"{r['scale']:.3g}",
+                   f"{rate_interval(r['within_jnd'], r['within_jnd_low'], r['within_jnd_high'], 0)}, n = {r['n_test']}" if r["n_test"]
+                   else "none: the truth is decided at no held-out sample",
+                   f"{r.get('extrapolated', 0)} / {r.get('truth_undecided', 0)}", f"{r['frame_ms']:.3g}"] for r in a["rows"]]))
     lines += ["", "## Verdict", ""]
     if card.get("interrupted"):
         lines += [f"INTERRUPTED during {STAGES[card['interrupted']]}: the stages above finished, the rest were not run.", ""]

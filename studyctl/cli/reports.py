@@ -79,8 +79,8 @@ def report_table1(db, holm_scope, fmt, out_file, force, accuracy_file, stability
 
             text += "\n## Numerical stability\n\n" + stability_md(stability)
     elif fmt == "latex":
-        from analysis.reports.latex import tables as latex_tables
         from analysis.reports.report import latex
+        from analysis.reports.table import latex_tables
 
         text = latex(study, holm_scope)
         if accuracy:
