@@ -7,6 +7,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pandas as pd
+
 from analysis.reports.formatting import markdown_grid
 from analysis.reports.latex import tables as latex_tables
 from analysis.reports.plots import pareto_plot
@@ -103,8 +105,6 @@ def breakdown_grid(rows: list[dict], by: str, title: str) -> tuple[list[str], li
 
 def write_outputs(result: dict, out_dir) -> list[Path]:
     """accuracy.json, accuracy.csv, samples.csv, accuracy.md, accuracy.tex (its tables as LaTeX), pareto.png and .svg."""
-    import pandas as pd
-
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
