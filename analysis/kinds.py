@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+from scipy.stats import wilcoxon
 
 from analysis import instruments, scales
 from analysis.kind_results import ChoiceStats, KindStats, PrimaryAnalysis, RatingStats, ScoreStats
@@ -386,8 +387,6 @@ def across_p(x: np.ndarray) -> float:
     simulated studies: Friedman for three or more, the Wilcoxon signed-rank test for two (its
     normal approximation with the tie correction: with ties scipy's exact route is a
     permutation test, too slow for thousands of calls); 1 when no participant differs."""
-    from scipy.stats import wilcoxon
-
 
     if np.all(x == x[:, :1]):
         return 1.0

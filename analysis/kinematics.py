@@ -5,6 +5,7 @@ each piece is tested on its own against closed forms (tests/test_metrics.py)."""
 from __future__ import annotations
 
 import numpy as np
+from scipy.signal import butter, sosfiltfilt
 
 # Low-pass cut-off for positions before differentiation. The Omni's encoders quantise the tip to
 # about 0.055 mm; at 1 kHz each step is a velocity spike of 55 mm/s, and a diagonal staircase is
@@ -42,8 +43,6 @@ def movement_window(buttons: np.ndarray) -> slice:
 def smooth_positions(times: np.ndarray, positions: np.ndarray, cutoff_hz: float = CUTOFF_HZ) -> np.ndarray:
     """Positions (ticks, 3) through a zero-phase 4th-order Butterworth low-pass (no lag, so the
     movement's timing is kept); unchanged when the trace is too short or sampled too slowly."""
-    from scipy.signal import butter, sosfiltfilt
-
     positions = np.asarray(positions, dtype=float)
     if len(times) < 2:
         return positions

@@ -76,7 +76,7 @@ METRICS: tuple[Metric, ...] = (
            AZARNOUSH + ", tier 2", True),
     Metric("final_error", "m", "outcome", "distance from the target at the release", AZARNOUSH + ", tier 1", True),
     Metric("overshoot", "m", "outcome", "how far the progress along the pull went beyond the target (0 if never)",
-           "target-directed movement; this platform (issue 32)", True),
+           "target-directed movement; this platform (docs/metrics.md)", True),
     Metric("peak_force", "N", "safety", "largest force magnitude over the whole trial", AZARNOUSH + ", tier 2"),
     Metric("time_above_limit", "s", "safety", "time, over the whole trial, the force magnitude exceeded the safe limit",
            "Yokoh et al. 1983, J Neurosurg 58:918-923 (the limit)", True),

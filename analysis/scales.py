@@ -18,7 +18,13 @@ import warnings
 
 import numpy as np
 import pandas as pd
+import statsmodels.api as sm
 from scipy import stats
+from scipy.special import gammaln
+from statsmodels.genmod import cov_struct
+from statsmodels.genmod.generalized_estimating_equations import OrdinalGEE
+from statsmodels.stats.proportion import proportion_confint
+from statsmodels.tools.sm_exceptions import ConvergenceWarning, IterationLimitWarning
 
 from analysis.stats import MIN_GEE_PARTICIPANTS, friedman, pairwise_wilcoxon
 from analysis.withhold import mean_ci, model_reason
@@ -94,8 +100,6 @@ def _nan_pairs(models: list[str], keys: tuple[str, ...]) -> list[dict]:
 
 
 def _is_convergence_warning(w: warnings.WarningMessage) -> bool:
-    from statsmodels.tools.sm_exceptions import ConvergenceWarning, IterationLimitWarning
-
     return issubclass(w.category, (ConvergenceWarning, IterationLimitWarning)) and "boundary" not in str(w.message).lower()
 
 
@@ -221,9 +225,6 @@ def _mark_estimable(pairs: list[dict], problems: list[str], constant: set[str]) 
 
 def _fit_ordinal(data: pd.DataFrame, X: pd.DataFrame, dependence: str):
     """(results or None, convergence warnings caught, error text or None)."""
-    from statsmodels.genmod import cov_struct
-    from statsmodels.genmod.generalized_estimating_equations import OrdinalGEE
-
     dep = cov_struct.GlobalOddsRatio("ordinal") if dependence == "global_odds_ratio" else cov_struct.OrdinalIndependence()
     with warnings.catch_warnings(record=True) as caught, np.errstate(all="ignore"):
         warnings.simplefilter("always")
@@ -331,8 +332,6 @@ def mixed_model(df: pd.DataFrame, models: list[str], with_period: bool = True) -
 
 
 def _fit_mixed(data: pd.DataFrame, X: pd.DataFrame):
-    import statsmodels.api as sm
-
     with warnings.catch_warnings(record=True) as caught, np.errstate(all="ignore"):
         warnings.simplefilter("always")
         try:
@@ -483,8 +482,6 @@ def choice_analysis(choices: pd.Series, models: list[str]) -> dict:
     would add nothing to the shares and the multinomial test (tests/test_scales.py checks it).
 
     Missing answers (NaN) are left out; a name not in `models` is an error (ValueError)."""
-    from statsmodels.stats.proportion import proportion_confint
-
     given = choices.dropna()
     unknown = sorted(set(given) - set(models))
     if unknown:
@@ -532,8 +529,6 @@ def multinomial_test(counts) -> dict:
     bars = np.array(list(itertools.combinations(range(n + k - 1), k - 1)), dtype=int).reshape(-1, k - 1)
     edges = np.hstack([np.full((len(bars), 1), -1), bars, np.full((len(bars), 1), n + k - 1)])
     tables = np.diff(edges, axis=1) - 1  # cells between consecutive bars
-    from scipy.special import gammaln
-
     logp = gammaln(n + 1) - gammaln(tables + 1).sum(axis=1) - n * math.log(k)
     observed = gammaln(n + 1) - gammaln(counts + 1).sum() - n * math.log(k)
     p = float(np.exp(logp[logp <= observed + 1e-7]).sum())  # tables as probable as the observed one count too

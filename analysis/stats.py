@@ -10,7 +10,12 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import statsmodels.api as sm
+import statsmodels.formula.api as smf
 from scipy import stats
+from scipy.stats import binomtest
+from statsmodels.stats.contingency_tables import mcnemar
+from statsmodels.stats.proportion import proportion_confint
 
 from analysis.csvfiles import read_csv
 from analysis.errors import InputError
@@ -84,8 +89,6 @@ def tests_run(pairs) -> int:
 
 def wilson(yes: int, n: int, alpha: float = 0.05) -> tuple[float, float]:
     """Wilson interval of a proportion (NaN for no observations)."""
-    from statsmodels.stats.proportion import proportion_confint
-
     if n == 0:
         return (float("nan"), float("nan"))
     lo, hi = proportion_confint(yes, n, alpha=alpha, method="wilson")  # the default is the normal interval
@@ -95,8 +98,6 @@ def wilson(yes: int, n: int, alpha: float = 0.05) -> tuple[float, float]:
 def pairwise_mcnemar(wide: pd.DataFrame) -> pd.DataFrame:
     """Exact McNemar tests between every pair of columns of 0/1 answers (rows: participants).
     Columns: a, b, n01 (a no, b yes), n10, p_value, p_holm, odds_ratio (n10 / n01, Haldane-corrected)."""
-    from statsmodels.stats.contingency_tables import mcnemar
-
     rows = []
     for a, b in itertools.combinations(wide.columns, 2):
         x, y = wide[a].to_numpy(int), wide[b].to_numpy(int)
@@ -165,9 +166,6 @@ def gee_fit(df: pd.DataFrame, models: list[str], with_period: bool = True, with_
     clusters, exchangeable working correlation, robust (sandwich) covariance. Returns the
     odds ratio of every pair of models (b vs a: the odds of yes with b over those with a) with
     its 95% interval and Wald p-value, the working correlation, and whether it converged."""
-    import statsmodels.api as sm
-    import statsmodels.formula.api as smf
-
     data = df.copy()
     data["model"] = pd.Categorical(data["model"], categories=models)
     terms = ["C(model)"] + (["C(period)"] if with_period else []) + (["C(item)"] if with_item else [])
@@ -242,8 +240,6 @@ def max_cochran_q(yes: list[int], n: int) -> float:
 def min_mcnemar_p(a: int, b: int, n: int) -> float:
     """The smallest exact McNemar p-value any pairing can give two models with `a` and `b`
     yes of `n` (searched over every feasible number of discordant pairs)."""
-    from scipy.stats import binomtest
-
     best = 1.0
     for n01 in range(0, min(n - a, b) + 1):  # a no, b yes
         n10 = a - b + n01

@@ -16,6 +16,7 @@ import json
 
 import numpy as np
 import pandas as pd
+from statsmodels.stats.contingency_tables import cochrans_q
 
 from analysis.facts import StudyFacts
 from analysis.records import McNemarPair
@@ -74,8 +75,6 @@ def rates(study: Study) -> pd.DataFrame:
 
 
 def cochran(study: Study) -> pd.DataFrame:
-    from statsmodels.stats.contingency_tables import cochrans_q
-
     protocol = study.protocol
     answers = binary_answers(study)
     rows = []

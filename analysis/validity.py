@@ -27,7 +27,16 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+import statsmodels.formula.api as smf
 from scipy import optimize, stats
+from sklearn.impute import SimpleImputer
+from sklearn.linear_model import LogisticRegression
+from sklearn.metrics import balanced_accuracy_score, confusion_matrix
+from sklearn.model_selection import LeaveOneOut, cross_val_predict, permutation_test_score
+from sklearn.pipeline import make_pipeline
+from sklearn.preprocessing import StandardScaler
+from statsmodels.tools.sm_exceptions import ConvergenceWarning
+from threadpoolctl import threadpool_limits
 
 from analysis.stats import holm
 
@@ -300,9 +309,6 @@ def mixed_model(metrics: pd.DataFrame, groups: pd.Series, order: Sequence[str] |
     first group of `order` and the first condition alphabetically as references; `trial` the
     stored index) with a random intercept per participant, on the per-trial values (mean over
     hands). Skipped, with the reason, where the study has one condition or one group."""
-    import statsmodels.formula.api as smf
-    from statsmodels.tools.sm_exceptions import ConvergenceWarning
-
     t, order = _with_groups(_trial_means(metrics), groups, order)
     fixed, skipped = [], []
     for metric, d in t.groupby("metric", sort=True):
@@ -504,14 +510,6 @@ def classify(scores: pd.DataFrame, groups: pd.Series, order: Sequence[str] | Non
     than a random forest: with ~30 participants and a dozen features a regularised linear model
     is stable across folds, fits in milliseconds (the permutation test refits n x
     n_permutations times) and its standardised coefficients read as which metrics separate."""
-    from sklearn.impute import SimpleImputer
-    from sklearn.linear_model import LogisticRegression
-    from sklearn.metrics import balanced_accuracy_score, confusion_matrix
-    from sklearn.model_selection import LeaveOneOut, cross_val_predict, permutation_test_score
-    from sklearn.pipeline import make_pipeline
-    from sklearn.preprocessing import StandardScaler
-    from threadpoolctl import threadpool_limits
-
     s, order = _with_groups(scores.dropna(subset=["value"]), groups, order)
     s = s.assign(feature=s["condition"].astype(str) + "/" + s["metric"].astype(str))
     wide = s.pivot_table(index="code", columns="feature", values="value", aggfunc="mean").sort_index()

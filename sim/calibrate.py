@@ -16,6 +16,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from sim.errors import InputFileError, ParameterError
 from sim.files import DATA_MAX_BYTES, check_input
@@ -56,8 +57,6 @@ BOUNDS = {"h1": (1e-4, 0.05), "alpha": (1.0, 2.0), "q": (1.0, 1.5), "x_c1": (1e-
 
 
 def fit(params: PlateSpringParams, xs: np.ndarray, forces: np.ndarray, variant: str = "continuous") -> tuple[PlateSpringParams, dict]:
-    from scipy.optimize import least_squares
-
     def build(v):
         values = dataclasses.asdict(params) | {"h1": math.exp(v[0]), "alpha": float(v[1]), "q": float(v[2]), "x_c1": math.exp(v[3])}
         values["B"] = min(max(values["B"], values["b"]), values["b"] + B_SLACK_M)

@@ -16,7 +16,11 @@ from __future__ import annotations
 import copy
 
 import numpy as np
+import scipy.linalg  # noqa: F401 - scipy's own OpenBLAS, loaded before the pin so that the pin reaches it
 import scipy.sparse as sp
+import scipy.sparse.linalg  # noqa: F401
+import sksparse.cholmod
+from threadpoolctl import ThreadpoolController
 
 from sim.errors import SimError
 
@@ -29,14 +33,10 @@ _CHOLMOD = None
 
 
 def _cholmod():
-    """scikit-sparse's CHOLMOD module, loaded on first use (a scene without FEM or mass-spring
-    never loads it); the thread pools are pinned as it loads (`one_thread_pools`)."""
+    """scikit-sparse's CHOLMOD module, its thread pools pinned on first use (`one_thread_pools`;
+    only the FEM and the mass-spring import this module)."""
     global _CHOLMOD
     if _CHOLMOD is None:
-        import scipy.linalg  # noqa: F401 - scipy's own OpenBLAS, loaded now so that the pin reaches it
-        import scipy.sparse.linalg  # noqa: F401
-        import sksparse.cholmod
-
         one_thread_pools()
         _CHOLMOD = sksparse.cholmod
     return _CHOLMOD
@@ -46,8 +46,6 @@ def one_thread_pools() -> None:
     """Every OpenBLAS pool loaded by then, and the system's OpenMP (CHOLMOD's) in the calling
     thread, on one thread: a case gives the same bits in every process on one machine, and two
     pools do not spin against each other. Why and what it costs: docs/accuracy.md."""
-    from threadpoolctl import ThreadpoolController
-
     for lib in ThreadpoolController().lib_controllers:
         # open3d and others ship OpenMP runtimes of their own: only the system's is CHOLMOD's
         if lib.internal_api == "openblas" or (lib.user_api == "openmp" and "site-packages" not in lib.filepath):

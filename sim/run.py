@@ -29,13 +29,15 @@ from pathlib import Path
 import numpy as np
 
 from sim.errors import ParameterError, SceneError
+from sim.geometry.mesh import point_tree
+from sim.geometry.patch import GRASP_REACH_M
 from sim.models.base import BUDGETS, contact_checked, surface_checked
+from sim.scene import MAX_DURATION_S
 from sim.servo.loop import Event, Hand, ServoLoop, too_many_slow_calls
+from sim.servo.process import ServoProcess
 from sim.targets import TargetTracker
+from sim.view.hands import hand_states
 
-# a run keeps every tick in memory (about 110 bytes per tick for two hands): one hour is
-# 0.4 GB, where 1e12 s would have asked for petabytes
-MAX_DURATION_S = 3600.0
 FAULT_KINDS = ("model_fault", "nan_force")  # the events whose line says why the model's force was zeroed
 
 
@@ -71,11 +73,9 @@ def _rest_tree(mesh):
     id cannot be reused while the entry lives)."""
     hit = _REST_TREES.get(id(mesh))
     if hit is None or hit[0] is not mesh:
-        from scipy.spatial import cKDTree
-
         while len(_REST_TREES) >= REST_TREES_KEPT:
             _REST_TREES.pop(next(iter(_REST_TREES)))
-        hit = _REST_TREES[id(mesh)] = (mesh, cKDTree(mesh.vertices))
+        hit = _REST_TREES[id(mesh)] = (mesh, point_tree(mesh.vertices))
     return hit[1]
 
 
@@ -99,7 +99,7 @@ class VisualStep:
     # the run ends once every hand has grasped and let go (lockstep): what a synthetic interval
     # needs, since its judgement reads each hand's first hold only (studyctl/synthetic/observer.py)
     end_on_release: bool = False
-    grasp_reach: float = 0.01  # a button press farther than this from the surface grasps nothing
+    grasp_reach: float = GRASP_REACH_M
     _next_snapshot: float = 0.0
     _tree: object = None
     _grasped: set = field(default_factory=set)  # hands that have held the tissue in this run
@@ -109,13 +109,11 @@ class VisualStep:
         """Closest-point structure of the surface as it is now (rebuilt at most once a frame,
         and only when a grasp needs it)."""
         if self._tree is None:
-            from scipy.spatial import cKDTree
-
             mesh = self.model_mesh()
             if self.last is None or not self.last.any():  # the surface at rest: its tree is the mesh's, built once
                 self._tree = _rest_tree(mesh)
             else:
-                self._tree = cKDTree(mesh.vertices + self.last)
+                self._tree = point_tree(mesh.vertices + self.last)
         return self._tree
 
     @property
@@ -381,9 +379,6 @@ def _ended(visual: VisualStep, result: RunResult) -> RunResult:
 
 
 def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, servo, end_on_targets=False) -> RunResult:
-    # lazy: the real-time servo's process machinery and compiled kernels, only for a real-time run
-    from sim.servo.process import ServoProcess
-
     spec = scene.spec
     n_ticks = int(round(duration * rate))
     snapshot_period = 1.0 / spec.renderer.fps if snapshots else None
@@ -415,15 +410,6 @@ def _run_process(scene, model, duration, rate, time_scale, snapshots, pacing, se
     if pacing is not None and pacing.view is not None:
         result.view = pacing.view.stats()
     return result
-
-
-def hand_states(hands, targets=None) -> list:
-    """What the participant view draws of the visual step's hands (and their targets: a
-    sim.targets.TargetTracker)."""
-    from sim.view.window import HandState  # lazy: the view (OpenGL) loads only when a run draws
-
-    return [HandState(h.position, h.force, h.contact.vertex if h.contact is not None else None,
-                      target=targets.states[i] if targets is not None else None) for i, h in enumerate(hands)]
 
 
 def _paced_frame(pacing: Pacing, duration: float, rate: float, state: dict):

@@ -34,6 +34,9 @@ from sim.tomltable import REQUIRED, TableReader
 
 RENDERERS = ("none", "offscreen")
 DEFAULT_SCENE = _asset("protocols/scenes/brain_pull.toml")
+# a run keeps every tick in memory (about 110 bytes per tick for two hands): one hour is
+# 0.4 GB, where 1e12 s would have asked for petabytes
+MAX_DURATION_S = 3600.0
 AXES = {"x": 0, "y": 1, "z": 2}
 
 

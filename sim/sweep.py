@@ -80,17 +80,14 @@ def _quiet_on_ctrl_c() -> None:
 def connect(scheduler: str):
     """A Dask client of the cluster at `scheduler`, or a SweepError saying why not (callers
     that write check it before they write anything)."""
-    try:
-        from distributed import Client
-    except ImportError:
-        raise SweepError("--scheduler needs the dask extra: pip install 'brainsim-study[dask]'") from None
+    distributed = _distributed()  # before the address is tried: a missing extra is said as such
     try:
         if scheduler.startswith("tcp://"):  # a refused port is told at once (the client would retry for 10 s)
             host, _, port = scheduler[len("tcp://"):].rpartition(":")
             if not host or not port.isdigit():
                 raise ValueError("the address needs a host and a port, e.g. tcp://host:8786")
             socket.create_connection((host.strip("[]"), int(port)), timeout=10).close()
-        return Client(scheduler, timeout="10s")
+        return distributed.Client(scheduler, timeout="10s")
     except (OSError, TimeoutError, ValueError) as exc:
         raise SweepError(f"scheduler {scheduler}: cannot connect ({exc})") from None
 
@@ -104,11 +101,18 @@ def reachable(scheduler: str | None) -> None:
         connect(scheduler).close()
 
 
-def _dask(fn, tasks, scheduler):
-    from distributed import as_completed
+def _distributed():
+    """The `distributed` package (the dask extra), or a SweepError saying how to install it."""
+    try:
+        import distributed  # optional: the dask extra, only for --scheduler
+    except ImportError:
+        raise SweepError("--scheduler needs the dask extra: pip install 'brainsim-study[dask]'") from None
+    return distributed
 
+
+def _dask(fn, tasks, scheduler):
     with connect(scheduler) as client:
         futures = client.map(fn, tasks, pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
-        for fut in as_completed(futures):
+        for fut in _distributed().as_completed(futures):
             yield index[fut.key], fut.result()

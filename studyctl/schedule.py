@@ -106,7 +106,7 @@ def to_ics(slots: list[dict], study: str, timezone: str | None = None, title: st
     newlines, line folding at 75 octets) with one event per session slot: in the study's time
     zone (with its VTIMEZONE) when the protocol names one, else in floating local times (the
     lab's clock)."""
-    import icalendar
+    import icalendar  # lazy: only for --ics (`status` and every session import this module)
 
     tz = None
     if timezone is not None:

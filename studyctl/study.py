@@ -8,6 +8,9 @@ import json
 import re
 from pathlib import Path
 
+import pandas as pd
+from pandas.api.types import is_object_dtype, is_string_dtype
+
 from analysis.csvfiles import read_csv
 from analysis.errors import InputError, StoreError
 from analysis.questions import NOT_PER_TRIAL, SESSION, AnswerError, allowed, parse_answer
@@ -19,7 +22,7 @@ from studyctl.session.traces import traces_frame
 from studyctl.store import EXPORT_TABLES, Store, now, roster
 from studyctl.store.participant_fields import group_of
 from studyctl.store.tables import table_rows
-from studyctl.text import spreadsheet_frame
+from studyctl.text import spreadsheet_safe
 
 CODE_CHARS = set("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_")
 
@@ -251,8 +254,6 @@ def export(db: str | Path, out_dir: str | Path, fmt: str = "csv", force: bool = 
     to a temporary folder beside `out_dir` and moved in together (all or none); a file of the same
     name in `out_dir` is refused unless `force`. Returns the `Staged` folder (`.written`,
     `.replaced`)."""
-    import pandas as pd
-
     if fmt not in ("csv", "parquet"):
         raise InputError(f"--format: {fmt!r} is not csv or parquet")
     out_dir = Path(out_dir)
@@ -260,7 +261,6 @@ def export(db: str | Path, out_dir: str | Path, fmt: str = "csv", force: bool = 
     if fmt == "parquet":
         if importlib.util.find_spec("pyarrow") is None:  # an optional extra: checked before anything is read or written
             raise StoreError("--format parquet needs the parquet extra: pip install 'brainsim-study[parquet]'")
-        import pyarrow.parquet as pq
     with Store(db, mode="read") as store:
         # the columns from the schema, so an empty table still exports its header
         frames = {table: pd.DataFrame(table_rows(store, table), columns=list(store.db[table].columns_dict))
@@ -276,7 +276,7 @@ def export(db: str | Path, out_dir: str | Path, fmt: str = "csv", force: bool = 
             if fmt == "csv":
                 path.write_text(data, encoding="utf-8")
             else:
-                pq.write_table(data, path)
+                _pyarrow().parquet.write_table(data, path)
     return target
 
 
@@ -284,11 +284,25 @@ def parquet_table(df):
     """`df` as an Arrow table. A column holding text in some rows and numbers in others (the
     answers of a study that asks a text question) is written as text, a number as its digits
     (1 as "1"); the question's kind says how to read it (docs/study.md)."""
-    import pyarrow as pa
-
     df = df.copy()
     for col in [c for c in df.columns if df[c].dtype.kind == "O"]:
         kinds = {type(v) for v in df[col] if v is not None and v == v}
         if len(kinds) > 1 and not kinds <= {int, float}:
             df[col] = [None if v is None or v != v else str(v) for v in df[col]]
-    return pa.Table.from_pandas(df, preserve_index=False)
+    return _pyarrow().Table.from_pandas(df, preserve_index=False)
+
+
+def _pyarrow():
+    """pyarrow with its parquet module (the parquet extra: `export` checks it is installed)."""
+    import pyarrow.parquet  # optional: the parquet extra, only for --format parquet
+
+    return pyarrow
+
+
+def spreadsheet_frame(df: pd.DataFrame) -> pd.DataFrame:
+    """A pandas DataFrame whose text cells are `spreadsheet_safe` (numbers stay numbers)."""
+    out = df.copy()
+    for col in out.columns:
+        if is_object_dtype(out[col]) or is_string_dtype(out[col]):
+            out[col] = out[col].map(spreadsheet_safe)
+    return out

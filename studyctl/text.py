@@ -15,15 +15,3 @@ def spreadsheet_safe(value):
     if isinstance(value, str) and value.startswith(FORMULA_START):
         return "'" + value
     return value
-
-
-def spreadsheet_frame(df):
-    """A pandas DataFrame whose text cells are `spreadsheet_safe` (numbers stay numbers)."""
-    from pandas.api.types import is_object_dtype, is_string_dtype
-
-    out = df.copy()
-    for col in out.columns:
-        if is_object_dtype(out[col]) or is_string_dtype(out[col]):
-            out[col] = out[col].map(spreadsheet_safe)
-    return out
-

@@ -16,6 +16,7 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 from scipy import optimize, special, stats
+from threadpoolctl import ThreadpoolController
 
 FUNCTIONS = ("gaussian", "weibull", "thurstone")
 # the reports' function: the two-interval observer of signal detection theory on the log stiffness
@@ -174,8 +175,6 @@ def _threshold(function: str, location, scale):
 
 @functools.cache
 def _blas():
-    from threadpoolctl import ThreadpoolController
-
     return ThreadpoolController()
 
 

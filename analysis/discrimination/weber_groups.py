@@ -12,6 +12,7 @@ import warnings
 
 import numpy as np
 import pandas as pd
+import statsmodels.api as sm
 from scipy import stats
 
 from analysis.stats import holm
@@ -57,8 +58,6 @@ def _mixed_lr(logw: np.ndarray) -> dict:
     """ML fits of ln weber ~ condition + (1 | participant) and ~ 1 + (1 | participant); the
     likelihood-ratio chi-square on k - 1 df. ML, not REML: REML likelihoods of models with
     different fixed effects are not comparable."""
-    import statsmodels.api as sm
-
     n, k = logw.shape
     y = logw.ravel()
     groups = np.repeat(np.arange(n), k)

@@ -11,6 +11,12 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
+from cycler import cycler
+from matplotlib.backends.backend_agg import RendererAgg
+from matplotlib.font_manager import FontProperties
+
 MM = 1 / 25.4  # inches per mm
 PAGE_MM = 230.0  # the tallest figure a journal page holds beside its caption
 # Okabe and Ito (2008), "Color universal design": told apart with every common colour-vision deficiency
@@ -49,8 +55,6 @@ class FigureSize:
         """matplotlib rcParams for this size: fonts (TrueType embedded in PDF and PS: type 42;
         SVG text as paths, so a viewer lacking the font draws it as measured here), sizes,
         the colour-blind-safe colour cycle."""
-        from cycler import cycler
-
         thin = self.is_print
         return {"pdf.fonttype": 42, "ps.fonttype": 42, "svg.fonttype": "path", "svg.hashsalt": "brainsim", "font.family": "DejaVu Sans",
                 "font.size": self.font_pt, "axes.titlesize": self.font_pt, "axes.labelsize": self.font_pt,
@@ -65,8 +69,6 @@ class FigureSize:
 
     @contextmanager
     def style(self):
-        import matplotlib
-
         matplotlib.use("Agg")
         with matplotlib.rc_context(self.rc()):
             yield
@@ -102,9 +104,6 @@ def text_width(text: str, pt: float) -> float:
     """Width in points of one line of `text` in the default font at `pt` points: the widest of
     the screen's and the print PNG's rendering (hinting makes them differ by a few percent),
     with 2% to spare."""
-    from matplotlib.backends.backend_agg import RendererAgg
-    from matplotlib.font_manager import FontProperties
-
     if not _RENDERERS:
         _RENDERERS.extend(RendererAgg(10, 10, dpi) for dpi in (100, 600))
     prop = FontProperties(family="DejaVu Sans", size=pt)
@@ -129,8 +128,6 @@ def figure_size(size: str | FigureSize) -> FigureSize:
 def save(fig, stem: Path, size: FigureSize, close: bool = True) -> list[Path]:
     """`fig` as `stem`.EXT for each of the size's formats (the figure's own size: no tight
     bounding box, the layout is constrained); closed unless `close` is False."""
-    import matplotlib.pyplot as plt
-
     out = []
     with size.style():
         for ext in size.formats:

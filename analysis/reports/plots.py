@@ -11,7 +11,11 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.colors import ListedColormap
+from matplotlib.transforms import blended_transform_factory
 
 from analysis.discrimination.psychometric import fit_psychometric
 from analysis.kind_results import ChoiceStats, RatingStats, ScoreStats
@@ -21,11 +25,7 @@ from sim.perception import force_jnd
 
 
 def _plt():
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     return plt
 
 
@@ -248,8 +248,6 @@ def stability_figure(outcomes: tuple, title: str = "", size: FigureSize = SCREEN
     `outcomes` is (rows, columns, codes) as `analysis.verification.stability.outcome_grid` makes it. At a
     print size whose width has no room for a column per case (one line of text each), the
     cases are the rows instead, and the figure as tall as they need."""
-    from matplotlib.colors import ListedColormap
-
     rows, cols, grid = outcomes
     turned = size.is_print and len(cols) * size.small_pt * 1.6 / 72 * 25.4 > size.width_mm * 0.8
     if turned:
@@ -283,8 +281,6 @@ def likert_figure(ratings: dict[str, RatingStats], models: list[str], synthetic:
     2014): per item and condition, the share of each point, disagreeing points left of zero,
     agreeing ones right, the middle point split across zero. Each question is a header line
     above its conditions' bars (written once, as long as the figure's width lets it be)."""
-    from matplotlib.transforms import blended_transform_factory
-
     plt = _plt()
     groups = [(v.question, [(m, np.asarray(v.conditions[m]["counts"], dtype=float)) for m in models]) for v in ratings.values()]
     lines = sum(1 + len(g) for _, g in groups)

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import brentq
 
 from analysis.stats import wilson
 from analysis.verification.tissue_pulls import (
@@ -484,8 +485,6 @@ def coupling_bound(ref: list[list[dict]], n_calib: int, xs, stiffness: float) ->
     the hand at d pulls the patch through a spring, so the patch lags by F / k): F solves
     F = F_ref(d - F / k) along the pull, F_ref interpolated linearly from rest between the
     reference's samples (above a convex curve, so the bound is if anything optimistic)."""
-    from scipy.optimize import brentq
-
     within = []
     for row in ref[n_calib:]:
         mags = np.array([c["force_n"] for c in row])

@@ -7,6 +7,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pandas as pd
+
 from analysis.reports.formatting import rate_interval
 from analysis.reports.plots import pareto_plot
 from analysis.reports.table import Table, latex_tables, markdown_grid
@@ -103,8 +105,6 @@ def breakdown_table(rows: list[dict], by: str) -> Table:
 
 def write_outputs(result: dict, out_dir) -> list[Path]:
     """accuracy.json, accuracy.csv, samples.csv, accuracy.md, accuracy.tex (its tables as LaTeX), pareto.png and .svg."""
-    import pandas as pd
-
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

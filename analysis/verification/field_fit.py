@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from analysis.verification.tissue_pulls import (
     DEFAULT_SIZES_MM,
@@ -101,8 +102,6 @@ def interpolate(mesh, sites: np.ndarray, K_sites: np.ndarray, sigma: float = FIE
     hemisphere; the nearest site where none is in reach. (Rotating each site's tensor so its
     normal lies along the vertex's was tried and is worse: the folded surface's normals vary
     more than the tensors do.)"""
-    from scipy.spatial import cKDTree
-
     v = mesh.vertices
     labels = mesh.labels if mesh.labels is not None else np.zeros(len(v), dtype=np.int64)
     out = np.zeros((len(v), 3, 3))

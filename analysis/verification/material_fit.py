@@ -34,6 +34,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.stats import t as student_t
 
 from analysis.csvfiles import read_csv
 from analysis.errors import InputError
@@ -206,8 +208,6 @@ def _mu_start(curves: list[Curve]) -> float:
 def _solve(curves: list[Curve], name: str, bulk_ratio: float, weights: list[float], keep: list[np.ndarray]):
     """The best least-squares optimum over the law's starts, on the kept points of each curve
     (residuals times each curve's weight); None when no start gives a finite one."""
-    from scipy.optimize import least_squares
-
     def residual(x):
         law = _law(name, x, bulk_ratio)
         return np.concatenate([(_predict(law, c) - c.stress)[k] * w for c, w, k in zip(curves, weights, keep)])
@@ -230,8 +230,6 @@ def _rms_rel(res: np.ndarray, y: np.ndarray) -> float:
 def fit_law(curves, name: str, bulk_ratio: float = BULK_RATIO) -> dict:
     """One law's least-squares fit to the curves (one `Curve` or several, each of one mode):
     parameters, intervals, each mode's error, each mode's error when fitted without it, criteria."""
-    from scipy.stats import t as student_t
-
     curves = [curves] if isinstance(curves, Curve) else list(curves)
     # one file: the stress in Pa as it is; several: each file's residuals over its data's RMS
     weights = [1.0] if len(curves) == 1 else [1.0 / float(np.sqrt(np.mean(c.stress**2))) for c in curves]

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from analysis.reports.plots import stability_heatmap
 from analysis.reports.table import Table, markdown_grid
@@ -288,8 +289,6 @@ def markdown(result: dict) -> str:
 
 def write_outputs(result: dict, out_dir) -> list[Path]:
     """stability.json, stability.csv, stability.md, heatmap.png and .svg."""
-    import pandas as pd
-
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

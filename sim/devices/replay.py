@@ -13,6 +13,8 @@ import csv
 import math
 from pathlib import Path
 
+import numpy as np
+
 from sim.devices.base import DeviceState, OmniSpec
 from sim.errors import DeviceError
 
@@ -51,8 +53,6 @@ def read_trace(path: str | Path, hand: str) -> tuple[list[float], list[tuple], l
 
 def _read_npz(path: Path, hand: str):
     """A trial trace stored by a study session (studyctl/session/traces.py)."""
-    import numpy as np
-
     try:
         z = np.load(path, allow_pickle=False)
         names = [str(n) for n in z["hand_names"]]

@@ -45,19 +45,15 @@ class SurfaceMesh:
 
     @cached_property
     def _graph(self):
-        from scipy.sparse import coo_matrix
-
         e = self.edges
         w = np.linalg.norm(self.vertices[e[:, 0]] - self.vertices[e[:, 1]], axis=1)
         n = self.n_vertices
-        g = coo_matrix((np.concatenate((w, w)), (np.concatenate((e[:, 0], e[:, 1])), np.concatenate((e[:, 1], e[:, 0])))), shape=(n, n))
+        g = _scipy().sparse.coo_matrix((np.concatenate((w, w)), (np.concatenate((e[:, 0], e[:, 1])), np.concatenate((e[:, 1], e[:, 0])))), shape=(n, n))
         return g.tocsr()
 
     @cached_property
     def _kdtree(self):
-        from scipy.spatial import cKDTree
-
-        return cKDTree(self.vertices)
+        return point_tree(self.vertices)
 
     def prepare_queries(self) -> None:
         """Build the nearest-vertex tree, edge graph and normals ahead of the first grasp.
@@ -65,8 +61,7 @@ class SurfaceMesh:
         Also imports SciPy's graph module now: an import inside a run holds the interpreter
         lock for tens of milliseconds, which the servo thread would feel.
         """
-        import scipy.sparse.csgraph  # noqa: F401
-
+        _scipy()
         _ = self._kdtree, self._graph, self.vertex_normals
 
     def nearest_vertex(self, point) -> int:
@@ -79,14 +74,25 @@ class SurfaceMesh:
         Edge paths overestimate true geodesics (by how much: docs/plate_spring.md); they never
         cross a sulcus or the gap between hemispheres, which straight-line distance would.
         """
-        from scipy.sparse.csgraph import dijkstra
-
-        d = dijkstra(self._graph, directed=False, indices=vertex, limit=radius)
+        d = _scipy().sparse.csgraph.dijkstra(self._graph, directed=False, indices=vertex, limit=radius)
         idx = np.flatnonzero(np.isfinite(d))
         return idx, d[idx]
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return self.vertices.min(axis=0), self.vertices.max(axis=0)
+
+
+def point_tree(points: np.ndarray):
+    """A k-d tree of `points` (SciPy's cKDTree) for nearest-point queries."""
+    return _scipy().spatial.cKDTree(points)
+
+
+def _scipy():
+    """SciPy with its sparse graphs and k-d trees, loaded at a surface's first query: every scene
+    reader (`protocol validate`, `status`, `--help`) imports this module and never queries."""
+    import scipy.sparse.csgraph  # lazy: scipy, only for a surface's queries (every scene reader imports this module)
+
+    return scipy  # its subpackages load on first use (scipy.spatial: `point_tree`)
 
 
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:

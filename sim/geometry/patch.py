@@ -19,6 +19,7 @@ import numpy as np
 
 SUBDIVISIONS = 16  # each triangle near the grasp is split into 16 x 16 for the quadrature
 GRASP_RADIUS = 0.005  # m: the default patch, about the bite of a pair of tissue forceps
+GRASP_REACH_M = 0.01  # a button press farther than this from the surface grasps nothing
 
 
 def _sub_triangle_centroids(n: int) -> np.ndarray:

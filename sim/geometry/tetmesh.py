@@ -15,6 +15,7 @@ size, or another surface, is meshed on first use and cached on disk
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import json
 import sys
 import time
@@ -41,14 +42,12 @@ def shipped_file(size_mm: float):
 
 def _pytetwild():
     """pytetwild's `tetrahedralize`. Its package imports PyVista on import only to register a
-    `.tetwild` accessor on PyVista meshes (0.4.2); without PyVista, that module is stubbed
+    `.tetwild` accessor on PyVista meshes (0.4.2); where PyVista is not installed, that module is stubbed
     (the accessor is not used here, and PyVista's VTK is a 100 MB dependency)."""
-    try:
-        import pyvista  # noqa: F401
-    except ImportError:
+    if importlib.util.find_spec("pyvista") is None:
         sys.modules.setdefault("pytetwild._accessor", types.ModuleType("pytetwild._accessor"))
     try:
-        from pytetwild import tetrahedralize
+        from pytetwild import tetrahedralize  # lazy: only to mesh a size not shipped; it loads PyVista where installed
     except ImportError as exc:  # pragma: no cover - a dependency in pyproject.toml
         raise MeshError(f"body-fitted meshing needs pytetwild (pip install 'pytetwild>=0.4'): {exc}") from None
     return tetrahedralize

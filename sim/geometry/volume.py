@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.spatial import cKDTree
 
 # Kuhn split of the unit cube (corner k has bits x=k&1, y=k>>1&1, z=k>>2&1): six tetrahedra
 # sharing the diagonal 0-7, each positively oriented.
@@ -87,8 +89,6 @@ def locate(nodes: np.ndarray, tets: np.ndarray, points: np.ndarray, k: int = 32)
     """Containing (or nearest) tetrahedron of each point and its barycentric coordinates: among
     the k tetrahedra with the nearest centroids, the one whose smallest barycentric coordinate
     is largest (>= 0: inside; the least negative is the nearest outside)."""
-    from scipy.spatial import cKDTree
-
     points = np.atleast_2d(np.asarray(points, dtype=np.float64))
     kk = min(k, len(tets))
     _, cand = cKDTree(nodes[tets].mean(axis=1)).query(points, k=kk)
@@ -101,8 +101,6 @@ def locate(nodes: np.ndarray, tets: np.ndarray, points: np.ndarray, k: int = 32)
 
 def embed(volume: VolumeMesh, points: np.ndarray, labels: np.ndarray | None = None, k: int = 12) -> Embedding:
     """Barycentric embedding of `points` in the volume (each restricted to its component)."""
-    from scipy.sparse import csr_matrix
-
     tet_comp = volume.component[volume.tets[:, 0]]
     labels = np.zeros(len(points), dtype=np.int64) if labels is None else labels
     best_tet = np.empty(len(points), dtype=np.int64)

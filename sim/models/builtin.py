@@ -5,14 +5,15 @@ class (`PlateSpringModel`, `FemModel`, `MassSpringModel`) subclasses its declara
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 from sim.devices.base import OmniSpec
 from sim.geometry.patch import GRASP_RADIUS
 from sim.models.api import TissueModel, option, read_options
+from sim.models.registry import GROUP
 from sim.stiffness_field import FIELD_FILE
 from sim.tomltable import REQUIRED
 
@@ -24,11 +25,11 @@ OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m  # 700 N/m: stable closed-
 
 
 def implementation(target: str):
-    """The function `target` ("module:name") of a model's running code, imported on first use:
-    by name, as the registry loads a model, so that this module (read by every scene reader)
-    imports none of the three implementations and none of them imports back."""
-    module, _, name = target.partition(":")
-    return getattr(importlib.import_module(module), name)
+    """The function `target` ("module:name") of a model's running code, loaded on first use as an
+    entry point is (as the registry loads a model): this module, read by every scene reader,
+    imports none of the three implementations, and each of them subclasses its declaration here
+    (an import of it here, even inside a function, would close a cycle)."""
+    return metadata.EntryPoint(target, target, GROUP).load()
 
 
 # -- plate-spring --------------------------------------------------------------------------------

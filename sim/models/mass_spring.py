@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.linalg import eigsh
+from scipy.spatial import cKDTree
 
 from sim.devices.base import OmniSpec
 from sim.errors import ParameterError, SimError
@@ -217,8 +219,6 @@ class MassSpring(LocalGlobal, NewtonKrylov):
             self._critical = None
         self._critical_key = key
         if self._critical is None:
-            from scipy.sparse.linalg import eigsh
-
             free3 = (3 * self.free[:, None] + np.arange(3)).ravel()
             K = (self.stiffness_at_rest() + self._anchor_matrix())[free3][:, free3]
             s = sp.diags(1.0 / np.sqrt(np.repeat(self.m[self.free], 3)))
@@ -428,8 +428,6 @@ class MassSpringModel(MassSpringBase):
         self.steps_per_frame = max(1, round((frame_dt or dt) / dt))
         self.embedding = embed(volume, surface.vertices, surface.labels)
         surface.prepare_queries()
-        from scipy.spatial import cKDTree
-
         self._tree = cKDTree(volume.nodes)
         self._out = np.zeros_like(surface.vertices)
         self.step_s: list[float] = []

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import importlib
 import inspect
 import re
 from dataclasses import dataclass
@@ -131,7 +130,7 @@ def _model_class(name: str) -> type:
     where = f"model {name!r}" + (f" (from {i.distribution} {i.version})" if i.distribution and not i.builtin else "")
     module_name, _, attr = i.target.partition(":")
     try:
-        module = importlib.import_module(module_name)
+        module = metadata.EntryPoint(name, module_name, GROUP).load()  # a module loads as an entry point's does
     except Exception as exc:  # a plugin's import may fail in any way: one line, the others load
         raise ModelLoadError(f"{where}: cannot import {module_name}: {type(exc).__name__}: {exc}") from None
     cls = getattr(module, attr, None) if attr else None

@@ -8,6 +8,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
 from sim.view.window import HandState, ParticipantView
@@ -15,11 +17,7 @@ from sim.view.window import HandState, ParticipantView
 
 def render_snapshots(result, scene, out_dir: Path, progress: Callable[[int, int], None] | None = None) -> int:
     """Write frame_NNNN.png for every snapshot: the rendering, a colour bar and the forces."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
 
     mesh = scene.mesh
     r = scene.spec.renderer

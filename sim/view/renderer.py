@@ -17,6 +17,8 @@ import os
 import tempfile
 from dataclasses import dataclass, field
 
+import glfw
+import moderngl
 import numpy as np
 
 from sim.errors import ViewError
@@ -120,8 +122,6 @@ def _x_runtime_dir() -> None:
 def open_window(width: int, height: int, title: str, fullscreen: bool = False):
     """A resizable window with an OpenGL 3.3 core context (glfw), made current. Returns the
     glfw window; raises ViewError with what failed."""
-    import glfw
-
     _x_runtime_dir()
     if not glfw.init():
         raise ViewError(f"--view window: could not open a window on display {os.environ.get('DISPLAY')!r} (glfw.init failed)")
@@ -150,8 +150,6 @@ def open_window(width: int, height: int, title: str, fullscreen: bool = False):
 def open_offscreen():
     """A standalone OpenGL 3.3 context on EGL: no display needed (Mesa's llvmpipe here, the GPU's
     driver where there is one)."""
-    import moderngl
-
     _x_runtime_dir()
     try:
         ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
@@ -273,8 +271,6 @@ class Renderer:
         `markers` (triangles like the arrows) are the hands' targets, drawn over the scene (no
         depth test: the tissue pulled up never hides them); `bars` (flat_vertices' result) are
         drawn over the overlay: what changes every frame, kept out of the overlay's cache."""
-        import moderngl
-
         ctx = self.ctx
         target.use()
         ctx.viewport = (0, 0, camera.width, camera.height)
@@ -313,8 +309,6 @@ class Renderer:
             self._flat(bars, camera)
 
     def _flat(self, flat, camera) -> None:
-        import moderngl
-
         ctx = self.ctx
         data, runs = flat
         if runs:

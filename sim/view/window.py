@@ -30,15 +30,20 @@ from __future__ import annotations
 import contextlib
 import os
 import time
-from dataclasses import dataclass
 
+import glfw
+import matplotlib
+import moderngl
 import numpy as np
+from PIL import Image
 
 from sim.errors import ViewError
+from sim.geometry.mesh import point_tree
 from sim.geometry.patch import GRASP_RADIUS
 from sim.scene import ViewSpec
 from sim.view import hud, shapes
 from sim.view.camera import fit, ray_hit
+from sim.view.hands import HandState
 from sim.view.hud import ARROW, DESIGN_HEIGHT, SLOTS
 from sim.view.normals import vertex_normals
 from sim.view.renderer import Overlay, Placed, Renderer, open_offscreen, open_window
@@ -54,21 +59,6 @@ KEYS = {32: "space", 257: "enter", 335: "enter", 256: "escape", 259: "backspace"
         **{48 + k: str(k) for k in range(10)}, **{320 + k: str(k) for k in range(10)}}
 FORCE_ARROW_M_PER_N = 0.08
 WHEEL_M = 0.002  # depth per wheel step
-
-
-@dataclass
-class HandState:
-    """What the view draws of one hand."""
-
-    position: tuple
-    force: tuple = (0.0, 0.0, 0.0)
-    grasped_vertex: int | None = None  # its patch is coloured
-    holding: bool = False  # the jaws are closed on tissue (also when no patch is coloured: the analyst's pictures)
-    target: object = None  # a sim.targets.TargetState: where the hand's target is, the progress towards it
-
-    @property
-    def closed(self) -> bool:
-        return self.holding or self.grasped_vertex is not None
 
 
 def _unit(v) -> np.ndarray:
@@ -103,9 +93,6 @@ class ParticipantView:
         self.ctx = None
         try:
             if visible:
-                import glfw
-                import moderngl
-
                 self.window = open_window(width, height, title, fullscreen)
                 self.ctx = moderngl.create_context()
                 width, height = glfw.get_framebuffer_size(self.window)
@@ -125,8 +112,6 @@ class ParticipantView:
             self.closed = False
             self.close()
             raise
-        import matplotlib
-
         self.cmap = matplotlib.colormaps["inferno"]
         self._rest_tree = None
         self._texts: dict[str, str] = {}
@@ -162,8 +147,6 @@ class ParticipantView:
         thread may not switch between a GLX and an EGL context while one is current (libglvnd:
         BadAccess, which ends the process)."""
         if self.window is not None:
-            import glfw
-
             glfw.make_context_current(self.window)
             try:
                 yield
@@ -177,8 +160,6 @@ class ParticipantView:
                 self.ctx.__exit__(None, None, None)
 
     def _callbacks(self) -> None:
-        import glfw
-
         w = self.window
 
         def key(win, code, scancode, action, mods):
@@ -203,8 +184,6 @@ class ParticipantView:
 
     def _to_pixels(self, x: float, y: float) -> tuple[float, float]:
         """Window coordinates (the mouse) to framebuffer pixels (differ on a high-density display)."""
-        import glfw
-
         ww, wh = glfw.get_window_size(self.window)
         return x * self.width / max(ww, 1), y * self.height / max(wh, 1)
 
@@ -276,9 +255,7 @@ class ParticipantView:
             colours = np.tile(TISSUE, (n, 1))
         if grasped:
             if self._rest_tree is None:
-                from scipy.spatial import cKDTree
-
-                self._rest_tree = cKDTree(self.mesh.vertices)
+                self._rest_tree = point_tree(self.mesh.vertices)
             for v in grasped:
                 colours[self._rest_tree.query_ball_point(self.mesh.vertices[v], max(self.grasp_radius, 0.004))] = PATCH
         self.gl.set_colours(colours)
@@ -400,8 +377,6 @@ class ParticipantView:
 
     def _events(self) -> None:
         if self.window is not None:
-            import glfw
-
             glfw.poll_events()
             if glfw.window_should_close(self.window):
                 self.closed = True
@@ -414,8 +389,6 @@ class ParticipantView:
         """Draw the scene as it is into the window (swap, and wait until it is shown) or into the
         offscreen framebuffer."""
         if self.window is not None:
-            import glfw
-
             self._render(self.ctx.screen)
             glfw.swap_buffers(self.window)
         else:
@@ -443,8 +416,6 @@ class ParticipantView:
             else:
                 time.sleep(1.0 / self.max_fps)
             return
-        import glfw
-
         self._events()
         if not self._fresh:
             with self._current():
@@ -457,8 +428,6 @@ class ParticipantView:
         return keys
 
     def screenshot(self, path) -> None:
-        from PIL import Image
-
         Image.fromarray(self.image()).save(str(path))
 
     def image(self) -> np.ndarray:
@@ -502,8 +471,6 @@ class ParticipantView:
             return
         self.closed = True
         if self.window is not None:  # the window's context, and every GL object, go with it
-            import glfw
-
             glfw.destroy_window(self.window)
             self.window = None
         elif self.ctx is not None:

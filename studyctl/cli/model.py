@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
+from sim.geometry.patch import GRASP_REACH_M
 from sim.models.base import MAX_PULL_M, pull_problem
-from sim.run import VisualStep
 from sim.scene import DEFAULT_SCENE
 from studyctl.cli.common import (
     FORCE,
@@ -303,7 +303,7 @@ def _check_grasp(grasp, mesh) -> None:
 
     p = np.asarray(grasp, dtype=np.float64)
     dist = float(np.linalg.norm(mesh.vertices[mesh.nearest_vertex(p)] - p))
-    reach = VisualStep.grasp_reach
+    reach = GRASP_REACH_M
     if dist > reach:
         ctx = click.get_current_context()
         param = next(q for q in ctx.command.params if q.name == "grasp")
@@ -317,7 +317,7 @@ def _check_grasp(grasp, mesh) -> None:
 @click.option("--formulation", type=click.Choice(["linear", "corotational", "finite-strain", "nodal-pressure"]), default="linear", show_default=True,
               help="finite-strain: the scene's material law (docs/material.md), Newton along the pull; nodal-pressure: the same law "
                    "on linear tetrahedra with averaged nodal volumes, which do not lock (docs/fem.md).")
-@click.option("--grasp", required=True, callback=_vector, help=f"Grasp point X,Y,Z in metres, within the grasp reach ({VisualStep.grasp_reach * 1e3:g} mm) of the brain surface (snapped to it).")
+@click.option("--grasp", required=True, callback=_vector, help=f"Grasp point X,Y,Z in metres, within the grasp reach ({GRASP_REACH_M * 1e3:g} mm) of the brain surface (snapped to it).")
 @click.option("--displacement", required=True, callback=_pull, help=f"Displacement DX,DY,DZ of the grasp point in metres, at most {MAX_PULL_M:g} m long.")
 @click.option("--steps", type=click.IntRange(1, 200), default=5, show_default=True,
               help="Load steps of the nonlinear solves (finite-strain: the first step is 1/steps of the pull, then adaptive).")
@@ -416,7 +416,7 @@ def _stopped(out: dict) -> str:
 @click.option("--steps", type=click.IntRange(1, 1_000_000), default=100, show_default=True)
 @click.option("--substep", is_flag=True, help="Split explicit steps above the critical step instead of refusing them.")
 @click.option("--grasp", callback=_vector, default=None,
-              help=f"Grasp point X,Y,Z in metres, within the grasp reach ({VisualStep.grasp_reach * 1e3:g} mm) of the brain surface (default: the scene's first hand).")
+              help=f"Grasp point X,Y,Z in metres, within the grasp reach ({GRASP_REACH_M * 1e3:g} mm) of the brain surface (default: the scene's first hand).")
 @click.option("--displacement", callback=_pull, default=None,
               help=f"Hand displacement DX,DY,DZ in metres, at most {MAX_PULL_M:g} m long (default: that hand's pull).")
 @click.option("--json", "as_json", is_flag=True)

@@ -94,7 +94,7 @@ def report_table1(db, holm_scope, fmt, out_file, force, accuracy_file, stability
         text = html(study, force_traces(study.protocol), accuracy=accuracy, stability=stability, holm_scope=holm_scope)
     elif fmt == "csv":  # the flag and N travel with the table
         facts = table1.study_facts(study)
-        from studyctl.text import spreadsheet_frame
+        from studyctl.study import spreadsheet_frame
 
         text = spreadsheet_frame(table1.rates(study).assign(participants=facts.participants, synthetic=facts.synthetic)).to_csv(index=False)
     else:

@@ -9,8 +9,7 @@ from pathlib import Path
 
 import click
 
-from sim.run import MAX_DURATION_S
-from sim.scene import DEFAULT_SCENE
+from sim.scene import DEFAULT_SCENE, MAX_DURATION_S
 from studyctl.cli.common import (
     DEVICES,
     FORCE,

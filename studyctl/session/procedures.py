@@ -131,7 +131,7 @@ class QuestPlusProcedure:
     """
 
     def __init__(self, spec: ProcedureSpec):
-        import questplus
+        import questplus  # lazy: slow to import, only for a QUEST+ procedure (every protocol's check imports this module)
 
         self.spec = spec
         lo, hi = math.log10(spec.low), math.log10(spec.high)

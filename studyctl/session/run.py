@@ -36,6 +36,7 @@ from analysis.questions import NOT_PER_TRIAL, SESSION
 from analysis.trace_files import trace_dir, write_trace
 from analysis.verification.truth import load_truth
 from sim.run import Pacing, run_scene
+from sim.servo.process import ServoProcess
 from studyctl.conditions import (
     SOFTWARE_VERSION,
     condition_configs,
@@ -249,12 +250,10 @@ def _run_session(db, code: str, device: str = "simulated", synthetic: bool = Fal
                 first.device_names = device_names
             # before anything is written: no display or no device is a clean error, not a half-made session
             if view == "window":
-                from sim.view.window import open_view  # lazy: OpenGL and glfw, only for a window
+                from sim.view.window import open_view  # lazy: OpenGL, matplotlib, numba: not in a synthetic worker
 
                 run.shown = open_view("window", first, show_force=device == "mouse", fullscreen=fullscreen)
             if time_scale > 0:  # one servo process for the session: devices opened once, kept across trials
-                from sim.servo.process import ServoProcess  # lazy: the real-time servo process, not for lockstep
-
                 run.servo = ServoProcess(first, time_scale)
             _check_participant(store, protocol, code, synthetic)  # again, now that this process holds the lock
             order, seed = _open_session(run, synthetic, resume, seed, session_id)

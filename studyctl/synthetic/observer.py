@@ -27,6 +27,7 @@ import random
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.signal import detrend
 from scipy.special import ndtr
 
 from sim.perception import FORCE_WEBER, FORCE_WEBER_LOW
@@ -165,8 +166,6 @@ def ripple_level(force: np.ndarray, rate_hz: float, params: ObserverParams = DEF
     """Force ripple in units of the vibration threshold: the amplitude spectrum (Hann window)
     of the force magnitude in the ripple band, each component over its threshold, summed in
     energy (Parseval: independent of the record's length)."""
-    from scipy.signal import detrend
-
     x = np.asarray(force, dtype=np.float64)
     if len(x) < 64:
         return 0.0

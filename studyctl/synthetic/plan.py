@@ -17,8 +17,11 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+from statsmodels.stats.contingency_tables import cochrans_q
 
 from analysis import kinds, scales
 from analysis.kinds import score_names
@@ -161,8 +164,6 @@ def simulate_answers(protocol, summaries: dict[str, list], n: int, rng: np.rando
 
 def cochran_p(x: np.ndarray) -> float:
     """Cochran's Q p-value; 1 when no participant differs between conditions (no evidence)."""
-    from statsmodels.stats.contingency_tables import cochrans_q
-
     if np.all(x == x[:, :1]):
         return 1.0
     return float(cochrans_q(x).pvalue)
@@ -272,10 +273,7 @@ def expected_rates(protocol, summaries: dict[str, list], participants: int = 35,
 
 
 def plot_power(table: pd.DataFrame, path) -> None:
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 4.2), dpi=100)
     for item, g in table.groupby("item", sort=False):

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 from analysis.errors import InputError, Interrupted
+from brainsim_assets import path as asset
 from sim.sweep import completed, reachable
 from studyctl.fields import field_rows, synthetic_fields
 from studyctl.protocol import load_protocol
@@ -52,8 +53,6 @@ def run_synthetic_study(db, participants: int | None, seed: int = 0, jobs: int =
         if complete:
             raise InputError(f"--complete: {db} does not exist; nothing to complete")
         if protocol_path is None:
-            from brainsim_assets import path as asset
-
             raise InputError(f"--db: {db} does not exist; give --protocol FILE to create a study of that protocol there "
                              f"(the paper's: {asset('protocols/brain_pull_2015.toml')}), or `studyctl study init` it first")
         init_study(db, protocol_path)
