@@ -118,10 +118,8 @@ def _unknown(name) -> ModelLoadError:
 
 def model_class(name: str) -> type:
     """The class of model `name` (either spelling), checked against the API. Raises ModelLoadError."""
-    key = canonical(name)
-    if isinstance(key, str) and key not in entry_points() and not PATH_NAME.match(key):
-        raise _unknown(name)
-    return _model_class(key)
+    info(name)  # a name nothing registers is refused as it was typed
+    return _model_class(canonical(name))
 
 
 @functools.cache
