@@ -9,6 +9,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from analysis import table1
+from analysis.kind_results import KindStats
 from analysis.kinds import gee_line, kind_stats, kind_tables, measures, primary_line
 from analysis.reports import plots
 from analysis.reports.figure_size import FigureSize, figure_size
@@ -23,11 +24,13 @@ from analysis.verification.accuracy_tables import tables as accuracy_tables
 from analysis.verification.stability import counts_text, near_chatter_text, outcome_grid, unstable_table
 
 
-def write_plots(study: Study, out_dir, traces: dict | None = None, size: str | FigureSize = "screen") -> list[Path]:
+def write_plots(study: Study, out_dir, traces: dict | None = None, size: str | FigureSize = "screen",
+                kinds: KindStats | None = None) -> list[Path]:
     """rates, ratings, scores, choices, deformation and force plots in `out_dir`, at `size`
     (analysis/reports/figure_size.py): "screen" (PNG and SVG, each figure's own size, as the HTML report
-    inlines them) or "single"/"double" (PDF, SVG and 600-dpi PNG, 85/175 mm wide). Returns the
-    files written, figure by figure."""
+    inlines them) or "single"/"double" (PDF, SVG and 600-dpi PNG, 85/175 mm wide). `kinds`: the
+    study's `kind_stats` when the caller has them (the figures show no p-value, so any Holm scope
+    does). Returns the files written, figure by figure."""
     size = figure_size(size)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -38,7 +41,7 @@ def write_plots(study: Study, out_dir, traces: dict | None = None, size: str | F
     protocol = study.protocol
     models = list(protocol.conditions)
     answers, _ = table1.complete_answers(study)
-    kinds = kind_stats(study, answers)
+    kinds = kind_stats(study, answers) if kinds is None else kinds
     meas = measures(protocol, answers, study.periods)
     figures = []
     if len(r):
@@ -110,7 +113,7 @@ def html(study: Study, traces: dict | None = None, accuracy: dict | None = None,
     facts, r, q, d = table1.study_facts(study), table1.rates(study), table1.cochran(study), table1.deformation(study)
     st = study_stats(study, r, q, holm_scope=holm_scope)
     with tempfile.TemporaryDirectory() as tmp:
-        write_plots(study, tmp, traces)
+        write_plots(study, tmp, traces, kinds=st.kinds)
         images = {f.stem: png_base64(f) for f in sorted(Path(tmp).glob("*.png"), key=_figure_order)}
     esc = _html.escape
     listed = table1.incomplete_text(facts)
