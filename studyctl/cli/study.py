@@ -88,6 +88,24 @@ def study_init(protocol_file: Path, db: Path, as_json: bool):
     click.echo(f"created {out['db']}: study {out['study']} (schema {out['schema_version']})")
 
 
+@study.command("migrate")
+@DB
+@JSON
+def study_migrate(db: Path, as_json: bool):
+    """Upgrade a database of older software to this schema: a backup copy first, then every step
+    in one transaction, whole or not at all."""
+    from studyctl.store import migrate_study
+
+    out = migrate_study(db)
+    if as_json:
+        _print_json(out)
+        return
+    if out["backup"] is None:
+        click.echo(f"{db}: already schema {out['to']}; nothing to do")
+        return
+    click.echo(f"migrated {db} from schema {out['from']} to {out['to']}; the schema-{out['from']} file was copied to {out['backup']} first")
+
+
 @click.command("status", cls=click.Command)
 @DB
 @click.option("--json", "as_json", is_flag=True)
