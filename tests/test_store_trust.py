@@ -268,7 +268,7 @@ def test_status_and_lists(tmp_path):
     studyctl("session", "run", "--participant", "S01", "--synthetic", "--db", db)
     studyctl("schedule", "--start", "2037-12-01", "--end", "2037-12-01", "--db", db)
     out = json.loads(studyctl("status", "--json", "--db", db).output)
-    assert out["participants"] == {"persons": 1, "synthetic": 1, "withdrawn": 0, "consented": 1}
+    assert out["participants"] == {"persons": 1, "synthetic": 1, "withdrawn": 0, "withdrawn_synthetic": 0, "consented": 1}
     assert out["sessions"] == {"done": 1}
     assert out["complete"] == {"persons": 0, "synthetic": 1, "mixed": 0}
     assert out["target_participants"] == 35

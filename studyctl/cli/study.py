@@ -125,7 +125,9 @@ def status_cmd(db, as_json):
                + (f" ({gone} of these withdrew, data kept: counted, as in the reports)" if gone else ""))
     if out["incomplete"]:
         click.echo("incomplete: " + ", ".join(f"{r['code']} ({r['answers']}/{r['of']})" for r in out["incomplete"]))
-    click.echo(f"participants: {p['persons']} people ({p['consented']} consented, {p['withdrawn']} withdrawn), {p['synthetic']} synthetic")
+    gone_synthetic = p["withdrawn_synthetic"]
+    click.echo(f"participants: {p['persons']} people ({p['consented']} consented, {p['withdrawn'] - gone_synthetic} withdrawn), "
+               f"{p['synthetic']} synthetic" + (f" ({gone_synthetic} withdrawn)" if gone_synthetic else ""))
     click.echo("sessions: " + (", ".join(f"{n} {k}" for k, n in sorted(out["sessions"].items())) or "none yet"))
     click.echo(f"answers: {out['answers']}")
     click.echo("next: " + ("; ".join(f"{r['code']} {r['slot_start'].replace('T', ' ')}" for r in out["next"]) or "nobody scheduled"))
