@@ -307,7 +307,7 @@ class Store:
         value = row[0] if row else None
         if isinstance(value, (int, str)) and re.fullmatch(r"[0-9]{1,9}", str(value)) and 1 <= int(value) <= SCHEMA_VERSION:
             return int(value)
-        newer = isinstance(value, (int, str)) and re.fullmatch(r"[0-9]{1,9}", str(value)) is not None
+        newer = isinstance(value, (int, str)) and re.fullmatch(r"[0-9]{1,9}", str(value)) is not None and int(value) > SCHEMA_VERSION
         raise StoreError(f"{self.path}: schema_version {_shown(value)} is not a version this studyctl reads (1..{SCHEMA_VERSION})"
                          + ("; a newer studyctl wrote it: update studyctl" if newer else ""))
 
