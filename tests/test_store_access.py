@@ -226,12 +226,60 @@ def test_a_writing_command_on_an_immutable_file_says_read_only(immutable, args):
     assert _files(immutable.parent) == before
 
 
-def test_a_reading_command_on_a_mode_444_file_leaves_no_side_file(study):
-    """Root writes a 444 file anyway (so the read-write open, whose close removes its side files)."""
-    study.chmod(0o444)
-    before = _files(study.parent)
-    assert studyctl("status", "--db", study).exit_code == 0
-    assert _files(study.parent) == before
+# root without the capabilities that pass over file modes: chmod applies to it as to any user
+PLAIN = ["setpriv", "--bounding-set=-dac_override,-dac_read_search,-fowner"]
+
+
+def _plain(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([*PLAIN, sys.executable, "-m", "studyctl", *map(str, args)], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+
+
+@pytest.fixture
+def modes(study):
+    """`chmod` of the study's file or folder that applies to the commands run by `_plain`; skipped
+    where setpriv cannot drop those capabilities."""
+    probe = study.parent / "probe"
+    probe.write_text("x")
+    probe.chmod(0o444)
+    try:
+        held = subprocess.run([*PLAIN, sys.executable, "-c", f"open({str(probe)!r}, 'a')"], capture_output=True).returncode == 0
+    except OSError:
+        held = True
+    probe.unlink()
+    if held:
+        pytest.skip("file modes do not apply here (no setpriv, or it cannot drop CAP_DAC_OVERRIDE)")
+    yield study
+    study.chmod(0o644)
+    study.parent.chmod(0o755)
+
+
+def _chmod(db, what: str) -> None:
+    if what == "file":
+        db.chmod(0o444)
+    else:
+        db.parent.chmod(0o555)
+
+
+@pytest.mark.parametrize("what", ["file", "folder"])
+@pytest.mark.parametrize("args", [["status"], ["participants", "list"]])
+def test_a_reading_command_on_a_read_only_file_or_folder_leaves_no_side_file(modes, what, args):
+    _chmod(modes, what)
+    before = _files(modes.parent)
+    res = _plain(*args, "--db", modes)
+    assert res.returncode == 0, res.stderr
+    assert _files(modes.parent) == before
+
+
+@pytest.mark.parametrize("what, why", [("file", "permission denied"), ("folder", "its folder {folder} takes no new file")])
+def test_a_writing_command_on_a_read_only_file_or_folder_says_read_only(modes, what, why):
+    _chmod(modes, what)
+    before = _files(modes.parent)
+    res = _plain("participants", "add", "P02", "--db", modes)
+    assert res.returncode == 1
+    assert res.stderr == (f"Error: {modes}: read-only ({why.format(folder=modes.parent)}); nothing was written; "
+                          "reports and exports still work on it\n")
+    assert _files(modes.parent) == before
 
 
 @pytest.fixture

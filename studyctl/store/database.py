@@ -272,7 +272,8 @@ class Store:
             shown = ", ".join(tables[:5]) + (", ..." if len(tables) > 5 else "")
             raise StoreError(f"{self.path}: not a study database (it holds other tables: {shown}); nothing was changed")
         if kind != "missing" and not self.read_only and (why := cannot_write(self.file)) is not None:
-            raise StoreError(f"{self.path}: read-only ({why}); nothing was written; reports and exports still work on it")
+            raise StoreError(f"{self.path}: read-only ({why}); nothing was written"
+                             + ("; reports and exports still work on it" if kind == "study" else ""))
         try:
             if self.read_only:
                 conn = _open_read(self.file)
