@@ -23,9 +23,15 @@ from analysis.errors import StoreError
 from sim.servo.loop import Event
 
 
+def home(db: str | Path) -> Path:
+    """The folder the database file really lives in (a link to it resolved): its traces are
+    there, wherever the link is, and the rows' paths are relative to it."""
+    return Path(os.path.realpath(db)).parent
+
+
 def trace_dir(db: str | Path) -> Path:
-    db = Path(db)
-    return db.parent / f"{db.name}.traces"
+    real = Path(os.path.realpath(db))
+    return real.parent / f"{real.name}.traces"
 
 
 @dataclass
@@ -83,13 +89,13 @@ def write_trace(db: str | Path, session_id: int, position: int, trial: int, resu
         write_durably(path, data)
     except OSError as exc:
         raise StoreError(f"{folder}: cannot write the trial's trace: {exc.strerror}") from None
-    return {"trace_path": str(path.relative_to(Path(db).parent)), "trace_sha256": hashlib.sha256(data).hexdigest(),
+    return {"trace_path": str(path.relative_to(home(db))), "trace_sha256": hashlib.sha256(data).hexdigest(),
             "trace_ticks": int(len(result.times))}
 
 
 def read_trace(db: str | Path, rel: str, sha256: str) -> Trace:
     """The stored trace, checked against the SHA-256 its trial row holds."""
-    path = Path(db).parent / rel
+    path = home(db) / rel
     try:
         data = path.read_bytes()
     except OSError as exc:

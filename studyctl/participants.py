@@ -18,7 +18,7 @@ from analysis.questions import shown
 from analysis.trace_files import trace_dir
 from sim.text import TEXT_MOST, text_problem
 from studyctl.outputs import write_file
-from studyctl.session.lock import session_lock
+from studyctl.session.lock import SessionRunning, session_lock
 from studyctl.store import Store, now, records, roster, snapshot
 from studyctl.store.participant_fields import read_fields
 from studyctl.study import answer_key
@@ -71,22 +71,21 @@ def withdraw(db, code: str, reason: str = "", dry_run: bool = False) -> dict:
     """A participant withdraws: no further sessions or slots; their pseudonymous data is kept or
     deleted as the protocol's `ethics.withdrawal` says; their contact details are deleted.
     Refused while their session runs (it holds the session lock)."""
-    with Store(db, mode="read") as store:  # a missing or foreign database, an unknown code: no lock file made
+    if (problem := text_problem(reason, TEXT_MOST)) is not None:
+        raise InputError(f"--reason: {problem}")
+    # a missing, foreign, read-only or older database, an unknown code: refused before the lock is taken
+    with Store(db) as store:
         _person(store, code)
     if dry_run:  # writes nothing, so needs no lock
         return _withdraw(db, code, reason, dry_run)
     try:
         with session_lock(db, code):
             return _withdraw(db, code, reason, dry_run)
-    except StoreError as exc:
-        if "the session is running now" in str(exc):
-            raise StoreError(f"participant {code}: their session is running now; stop it first, then withdraw") from None
-        raise
+    except SessionRunning:
+        raise StoreError(f"participant {code}: their session is running now; stop it first, then withdraw") from None
 
 
 def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
-    if (problem := text_problem(reason, TEXT_MOST)) is not None:
-        raise InputError(f"--reason: {problem}")
     with Store(db) as store:
         protocol = store.protocol()
         p = _person(store, code)
@@ -103,9 +102,9 @@ def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
                                   + (f"; reason: {reason}" if reason else ""))
         if delete and not dry_run:  # the files after the rows: a crash between leaves files no row names
             for rel in traces:
-                (store.path.parent / rel).unlink(missing_ok=True)
+                (store.file.parent / rel).unlink(missing_ok=True)
             for sid in sessions:
-                folder = trace_dir(store.path) / f"session-{sid:04d}"
+                folder = trace_dir(store.file) / f"session-{sid:04d}"
                 if folder.is_dir() and not any(folder.iterdir()):
                     folder.rmdir()
         return {"code": code, "data": ("deleted" if delete else "kept"), "sessions": counts["sessions"], "answers": counts["answers"],

@@ -146,6 +146,17 @@ next: nobody scheduled
 """
 
 
+def test_status_counts_a_withdrawn_synthetic_participant_in_both_counts(study):
+    run("participants", "withdraw", "S001", "--db", study)
+    assert run("status", "--db", study).output == """\
+brain_pull_2015: 0 of 35 people complete (and 2 SYNTHETIC) (1 of these withdrew, data kept: counted, as in the reports)
+participants: 0 people (0 consented, 0 withdrawn), 2 synthetic (1 withdrawn)
+sessions: 2 done
+answers: 54
+next: nobody scheduled
+"""
+
+
 def test_participants_list(synth):
     assert table(run("participants", "list", "--db", synth[1]).output) == """\
                               2 participants

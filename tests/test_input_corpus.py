@@ -190,8 +190,8 @@ CASES = [
     (["participants", "list", "--db", "{d}/text_db"], "not a study database"),
     (["participants", "add", "P01", "--db", "{d}/empty_db"], "an empty file"),
     (["status", "--db", "{d}/nothing.db"], "no such study database"),
-    (["report", "stats", "--db", "{d}/newer.db"], "schema version 99"),
-    (["participants", "add", "P09", "--db", "{d}/newer.db"], "schema version 99"),
+    (["report", "stats", "--db", "{d}/newer.db"], "schema_version '99' is not a version this studyctl reads"),
+    (["participants", "add", "P09", "--db", "{d}/newer.db"], "schema_version '99' is not a version this studyctl reads"),
 ]
 
 

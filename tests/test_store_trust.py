@@ -106,7 +106,7 @@ def test_a_read_only_study_reports_and_exports_but_refuses_writes(read_only_copy
     assert len(list(csv.reader(open(tmp_path / "ex" / "answers.csv")))) == 10  # header + 9 answers
     res = studyctl("participants", "add", "P01", "--db", db)
     assert res.exit_code == 1
-    assert "cannot write here" in res.output
+    assert "read-only (read-only file system); nothing was written" in res.output
     assert len(res.output.strip().splitlines()) == 1
 
 
@@ -268,7 +268,7 @@ def test_status_and_lists(tmp_path):
     studyctl("session", "run", "--participant", "S01", "--synthetic", "--db", db)
     studyctl("schedule", "--start", "2037-12-01", "--end", "2037-12-01", "--db", db)
     out = json.loads(studyctl("status", "--json", "--db", db).output)
-    assert out["participants"] == {"persons": 1, "synthetic": 1, "withdrawn": 0, "consented": 1}
+    assert out["participants"] == {"persons": 1, "synthetic": 1, "withdrawn": 0, "withdrawn_synthetic": 0, "consented": 1}
     assert out["sessions"] == {"done": 1}
     assert out["complete"] == {"persons": 0, "synthetic": 1, "mixed": 0}
     assert out["target_participants"] == 35
@@ -401,7 +401,7 @@ def test_synth_skips_codes_in_use_and_refuses_another_protocol(tmp_path):
     assert "is not the protocol" in res.output
 
 
-def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
+def test_an_older_schema_is_refused_until_study_migrate_upgrades_it(tmp_path):
     db = _study(tmp_path)
     studyctl("participants", "add", "P01", "--db", db)
     con = sqlite3.connect(db)  # back to schema 2: no withdrawal, consent, corrections or observer features
@@ -421,7 +421,11 @@ def test_an_older_schema_is_upgraded_once_and_then_read(tmp_path):
     con.commit()
     con.close()
     res = studyctl("participants", "list", "--json", "--db", db)
-    assert res.exit_code == 0
+    assert res.exit_code == 1
+    assert "schema version 2, this studyctl needs 9; run `studyctl study migrate" in res.output
+    assert _q(db, "select value from meta where key = 'schema_version'") == [("2",)]
+    assert studyctl("study", "migrate", "--db", db).exit_code == 0
+    res = studyctl("participants", "list", "--json", "--db", db)
     assert json.loads(res.output)[0]["code"] == "P01"
     assert _q(db, "select value from meta where key = 'schema_version'") == [("9",)]
     assert _q(db, "select count(*) from observer_features") == [(0,)]

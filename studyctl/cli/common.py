@@ -46,6 +46,8 @@ class _Group(click.Group):
         except (SimError, StudyError, SweepError) as exc:
             raise click.ClickException(str(exc)) from None
         except sqlite3.OperationalError as exc:  # e.g. another process held the database for over 30 s
+            if "readonly" in str(exc):  # made read-only while open (the library refuses one before it writes)
+                raise click.ClickException(f"the study database is read-only ({exc}); nothing was written") from None
             raise click.ClickException(f"the study database: {exc} (another process may be writing to it; try again)") from None
 
 

@@ -88,6 +88,24 @@ def study_init(protocol_file: Path, db: Path, as_json: bool):
     click.echo(f"created {out['db']}: study {out['study']} (schema {out['schema_version']})")
 
 
+@study.command("migrate")
+@DB
+@JSON
+def study_migrate(db: Path, as_json: bool):
+    """Upgrade a database of older software to this schema: a backup copy first, then every step
+    in one transaction, whole or not at all."""
+    from studyctl.store import migrate_study
+
+    out = migrate_study(db)
+    if as_json:
+        _print_json(out)
+        return
+    if out["backup"] is None:
+        click.echo(f"{db}: already schema {out['to']}; nothing to do")
+        return
+    click.echo(f"migrated {db} from schema {out['from']} to {out['to']}; the schema-{out['from']} file was copied to {out['backup']} first")
+
+
 @click.command("status", cls=click.Command)
 @DB
 @click.option("--json", "as_json", is_flag=True)
@@ -107,7 +125,9 @@ def status_cmd(db, as_json):
                + (f" ({gone} of these withdrew, data kept: counted, as in the reports)" if gone else ""))
     if out["incomplete"]:
         click.echo("incomplete: " + ", ".join(f"{r['code']} ({r['answers']}/{r['of']})" for r in out["incomplete"]))
-    click.echo(f"participants: {p['persons']} people ({p['consented']} consented, {p['withdrawn']} withdrawn), {p['synthetic']} synthetic")
+    gone_synthetic = p["withdrawn_synthetic"]
+    click.echo(f"participants: {p['persons']} people ({p['consented']} consented, {p['withdrawn'] - gone_synthetic} withdrawn), "
+               f"{p['synthetic']} synthetic" + (f" ({gone_synthetic} withdrawn)" if gone_synthetic else ""))
     click.echo("sessions: " + (", ".join(f"{n} {k}" for k, n in sorted(out["sessions"].items())) or "none yet"))
     click.echo(f"answers: {out['answers']}")
     click.echo("next: " + ("; ".join(f"{r['code']} {r['slot_start'].replace('T', ' ')}" for r in out["next"]) or "nobody scheduled"))

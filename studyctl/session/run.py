@@ -182,7 +182,7 @@ def run_session(db, code: str, device: str = "simulated", synthetic: bool = Fals
     """Run (or with `resume`, continue) participant `code`'s session; see `_run_session`. One
     process at a time drives a participant's session (studyctl/session/lock.py)."""
     time_scale = _check_options(device, synthetic, time_scale, view, answer_with)
-    with Store(db, mode="read") as store:  # a missing or foreign database, or the wrong participant: no lock file made
+    with Store(db) as store:  # a missing, foreign, read-only or older database, or the wrong participant: no lock file made
         _check_participant(store, store.protocol(), code, synthetic)
         open_ = session_rows.open_sessions(store, code, OPEN)
         if resume and not open_:

@@ -12,8 +12,9 @@ from studyctl.store.database import (
     dumps,
     init_study,
     inspect,
+    migrate_study,
     now,
     sha256_file,
 )
 
-__all__ = ["EXPORT_TABLES", "IDENTIFYING_TABLES", "SCHEMA_VERSION", "Store", "dumps", "init_study", "inspect", "now", "sha256_file"]
+__all__ = ["EXPORT_TABLES", "IDENTIFYING_TABLES", "SCHEMA_VERSION", "Store", "dumps", "init_study", "inspect", "migrate_study", "now", "sha256_file"]

@@ -11,6 +11,9 @@ import contextlib
 import datetime as dt
 import hashlib
 import json
+import os
+import re
+import shlex
 import sqlite3
 from pathlib import Path
 
@@ -148,25 +151,36 @@ MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3, 4: _migration_4
 STUDY_TABLES = ("meta", "study")  # what makes a file a study database (with meta.schema_version)
 
 
-class _Outdated(Exception):
-    def __init__(self, version: int):
-        self.version = version
-
-
 def _tables(conn: sqlite3.Connection) -> list[str]:
     return [r[0] for r in conn.execute("select name from sqlite_master where type = 'table' order by name")]
 
 
+def cannot_write(path: Path) -> str | None:
+    """Why this process cannot write the database file `path` (its permissions, the immutable
+    flag, a read-only disk, a folder that takes no side file), or None where it can. The file is
+    opened for writing and closed: that changes nothing (root passes a mode check, not the rest)."""
+    try:
+        os.close(os.open(path, os.O_RDWR))
+    except OSError as exc:
+        return (exc.strerror or str(exc)).lower()
+    if not os.access(path.parent, os.W_OK | os.X_OK):
+        return f"its folder {path.parent} takes no new file"
+    return None
+
+
 def _open_read(path: Path) -> sqlite3.Connection:
-    """A connection that only reads. Read-write with `query_only` where the file allows it, so
-    closing it removes the WAL side files as a writer would (a read-only connection leaves them
-    behind); read-only where the file or folder is read-only; immutable where even the WAL index
-    cannot be made (a read-only mount: nobody can write there while we read)."""
-    uri = path.resolve().as_uri()
-    for mode in ("rw", "ro", "immutable"):
-        if mode == "immutable" and _has_wal(path):  # immutable would read it without its last writes
-            raise StoreError(f"{path}: its last writes are still in {path.name}-wal, which cannot be read here (a read-only "
-                             "disk); copy the database with its -wal file to a writable folder")
+    """A connection that only reads (query_only) and leaves no side file behind. Where a -wal or
+    -shm is there already (someone has it open, or was killed): read-only, reading the last
+    writes through them and merging nothing. Else, where this process can write the file:
+    read-write, so closing it removes the -wal and -shm it made as a writer's close does (a
+    read-only connection would leave them); where it cannot (permissions, the immutable flag, a
+    read-only disk): immutable, which makes no side file and misses nothing, as nobody writes it."""
+    side = any(path.with_name(path.name + s).exists() for s in ("-wal", "-shm"))
+    writable = cannot_write(path) is None
+    modes = ("ro", "rw") if side else ("rw", "immutable")
+    modes = tuple(m for m in modes if m != "rw" or writable)
+    uri = path.as_uri()
+    for mode in modes:
         conn = None
         try:
             conn = sqlite3.connect(uri + ("?immutable=1" if mode == "immutable" else f"?mode={mode}"), uri=True, isolation_level=None)
@@ -176,8 +190,12 @@ def _open_read(path: Path) -> sqlite3.Connection:
         except BaseException as exc:
             if conn is not None:
                 conn.close()  # opened but unusable: closed now, not left to the garbage collector
-            if mode == "immutable" or not isinstance(exc, sqlite3.OperationalError):
-                raise
+            if mode != modes[-1] and isinstance(exc, sqlite3.OperationalError):
+                continue
+            if mode == "ro" and isinstance(exc, sqlite3.OperationalError) and _has_wal(path):
+                raise StoreError(f"{path}: its last writes are still in {path.name}-wal, which cannot be read here (a read-only "
+                                 "disk); copy the database with its -wal file to a writable folder") from None
+            raise
     raise AssertionError("unreachable")
 
 
@@ -219,29 +237,28 @@ def inspect(path: str | Path) -> tuple[str, list[str]]:
         raise StoreError(f"{path}: not a study database ({exc})") from None
 
 
+def _shown(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
 class Store:
     """An open study database.
 
-    mode "write" (the default) opens an existing study database for writing (WAL, migrations);
-    "read" opens it read-only and changes nothing, so reports work on a read-only copy;
-    "create" may also start a new one in a new or empty file. A file that is not a study
-    database is never changed: it is inspected read-only first.
+    mode "write" (the default) opens a study database of this software's schema for writing
+    (WAL); "read" opens it to read only: it changes nothing and leaves no side file, so reports
+    work on a read-only copy; "create" may also start a new one in a new or empty file;
+    "migrate" opens one of an older schema for `migrate_study`, the only code that upgrades one.
+    Refused before anything is written: a file that is not a study database (inspected
+    read-only first), a schema_version this software does not read, an older schema (but for
+    "migrate"), and a file this process cannot write (but for "read"). `path` is the database as
+    named (for messages); `file` the file itself, a link resolved once here: its traces and
+    locks live beside it.
     """
 
     def __init__(self, path: str | Path, create: bool = False, mode: str = "write"):
-        try:
-            self._open(path, create, mode)
-        except _Outdated as old:
-            # a database of older software: upgrade it once (its data unchanged), then read
-            try:
-                Store(path).close()
-            except StoreError:
-                raise StoreError(f"{path}: schema version {old.version} needs an upgrade to {SCHEMA_VERSION}, which cannot be "
-                                 "written here; copy it to a writable folder and run `studyctl status` there") from None
-            self._open(path, create, mode)
-
-    def _open(self, path: str | Path, create: bool, mode: str) -> None:
         self.path = Path(path)
+        self.file = Path(os.path.realpath(self.path))
         mode = "create" if create else mode
         self.read_only = mode == "read"
         kind, tables = inspect(self.path)
@@ -254,55 +271,67 @@ class Store:
         if kind == "foreign":
             shown = ", ".join(tables[:5]) + (", ..." if len(tables) > 5 else "")
             raise StoreError(f"{self.path}: not a study database (it holds other tables: {shown}); nothing was changed")
+        if kind != "missing" and not self.read_only and (why := cannot_write(self.file)) is not None:
+            raise StoreError(f"{self.path}: read-only ({why}); nothing was written"
+                             + ("; reports and exports still work on it" if kind == "study" else ""))
         try:
             if self.read_only:
-                conn = _open_read(self.path)
+                conn = _open_read(self.file)
             else:
-                conn = sqlite3.connect(str(self.path), timeout=30.0, isolation_level=None)
+                conn = sqlite3.connect(str(self.file), timeout=30.0, isolation_level=None)
             try:
                 conn.execute("PRAGMA busy_timeout = 30000")  # wait for another writer rather than fail
                 self.db = sqlite_utils.Database(conn)
-                if self.read_only:
-                    self._check_version()
-                else:
-                    if kind == "study" and self._version() > SCHEMA_VERSION:  # refused before WAL is switched on
-                        self._check_version()
+                self.version = self._version() if kind == "study" else 0
+                if kind == "study" and self.version < SCHEMA_VERSION and mode != "migrate":
+                    raise StoreError(f"{self.path}: schema version {self.version}, this studyctl needs {SCHEMA_VERSION}; run "
+                                     f"`studyctl study migrate --db {shlex.quote(str(self.path))}` (it backs up the file first, "
+                                     "then upgrades it whole or not at all)")
+                if not self.read_only:
                     conn.execute("PRAGMA foreign_keys = ON")
+                if mode in ("write", "create"):
                     self.db.enable_wal()
-                    self._migrate()
+                    self._upgrade()  # a new file: its whole schema at once; a study of this schema: nothing
             except BaseException:
                 conn.close()  # now, so the WAL side files go with it
                 raise
         except sqlite3.OperationalError as exc:
             if "readonly" in str(exc) or "unable to open" in str(exc):
-                raise StoreError(f"{self.path}: cannot write here ({exc}); reports and exports still work on it") from None
+                raise StoreError(f"{self.path}: cannot write here ({exc}); nothing was written") from None
             raise StoreError(f"{self.path}: not a study database ({exc})") from None
         except sqlite3.DatabaseError as exc:
             raise StoreError(f"{self.path}: not a study database ({exc})") from None
 
     def _version(self) -> int:
+        """meta.schema_version, refused unless a version this software reads (1..SCHEMA_VERSION)."""
         row = self.db.execute("select value from meta where key = 'schema_version'").fetchone()
-        return int(row[0]) if row else 0
+        value = row[0] if row else None
+        if isinstance(value, (int, str)) and re.fullmatch(r"[0-9]{1,9}", str(value)) and 1 <= int(value) <= SCHEMA_VERSION:
+            return int(value)
+        newer = isinstance(value, (int, str)) and re.fullmatch(r"[0-9]{1,9}", str(value)) is not None and int(value) > SCHEMA_VERSION
+        raise StoreError(f"{self.path}: schema_version {_shown(value)} is not a version this studyctl reads (1..{SCHEMA_VERSION})"
+                         + ("; a newer studyctl wrote it: update studyctl" if newer else ""))
 
-    def _check_version(self) -> None:
-        version = self._version()
-        if version > SCHEMA_VERSION:
-            raise StoreError(f"{self.path}: schema version {version} is newer than this software's ({SCHEMA_VERSION}); update studyctl")
-        if version < SCHEMA_VERSION:
-            raise _Outdated(version)
+    def _upgrade(self) -> None:
+        """Every step from this file's schema to this software's in one transaction (DDL
+        included): all of them, or (on an error or Ctrl-C) none."""
+        if self.version == SCHEMA_VERSION:
+            return
+        with self.transaction() as conn:
+            if "meta" not in self.db.table_names():
+                self.db["meta"].create({"key": str, "value": str}, pk="key")
+            for v in range(self.version + 1, SCHEMA_VERSION + 1):
+                MIGRATIONS[v](self.db)
+            conn.execute("insert or replace into meta (key, value) values ('schema_version', ?)", (str(SCHEMA_VERSION),))
+        self.version = SCHEMA_VERSION
 
-    def _migrate(self) -> None:
-        db = self.db
-        if "meta" not in db.table_names():
-            db["meta"].create({"key": str, "value": str}, pk="key")
-        row = db.execute("select value from meta where key = 'schema_version'").fetchone()
-        version = int(row[0]) if row else 0
-        if version > SCHEMA_VERSION:
-            raise StoreError(f"{self.path}: schema version {version} is newer than this software's ({SCHEMA_VERSION})")
-        for v in range(version + 1, SCHEMA_VERSION + 1):
-            with self.transaction() as conn:  # one transaction per migration (DDL included)
-                MIGRATIONS[v](db)
-                conn.execute("insert or replace into meta (key, value) values ('schema_version', ?)", (str(v),))
+    def backup(self, to: Path) -> None:
+        """A consistent copy of the whole database in a new file `to` (SQLite's online backup)."""
+        copy = sqlite3.connect(to)
+        try:
+            self.db.conn.backup(copy)
+        finally:
+            copy.close()
 
     def close(self) -> None:
         self.db.conn.close()  # a second close does nothing
@@ -370,6 +399,31 @@ def init_study(db_path: str | Path, protocol_path: str | Path) -> dict:
         store.write("study", {"name": protocol.name, "protocol_path": str(Path(protocol_path).resolve()), "protocol_text": protocol.text,
                               "protocol_sha256": protocol.sha256, "created_at": now()}, pk="id")
         return {"db": str(db_path), "study": protocol.name, "protocol_sha256": protocol.sha256, "schema_version": SCHEMA_VERSION}
+
+
+def migrate_study(db_path: str | Path) -> dict:
+    """Bring a study database of older software to this schema, the one command that does: a
+    backup copy first (beside the file, `NAME.schema-K.bak`, never overwritten), then every step
+    in one transaction. Whole or not at all: on any failure (Ctrl-C included) the database is as
+    it was and the backup is removed. A database of this schema is left alone."""
+    with Store(db_path, mode="migrate") as store:
+        before = store.version
+        out = {"db": str(db_path), "from": before, "to": SCHEMA_VERSION, "backup": None}
+        if before == SCHEMA_VERSION:
+            return out
+        backup = store.file.with_name(f"{store.file.name}.schema-{before}.bak")
+        if backup.exists() or backup.is_symlink():
+            raise StoreError(f"{backup}: a backup is there already (never overwritten); move it away, then migrate again")
+        try:
+            store.backup(backup)
+            store._upgrade()
+            store.db.enable_wal()
+        except BaseException as exc:
+            backup.unlink(missing_ok=True)  # the database is as it was: nothing to keep a copy of
+            if isinstance(exc, sqlite3.Error):
+                raise StoreError(f"{db_path}: migrating schema {before} to {SCHEMA_VERSION} failed ({exc}); nothing was changed") from None
+            raise
+        return {**out, "backup": str(backup)}
 
 
 def dumps(obj) -> str:

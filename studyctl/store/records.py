@@ -73,11 +73,14 @@ def _count(store: Store, sql: str) -> int:
 
 
 def people_counts(store: Store) -> dict[str, int]:
-    """How many persons, synthetic participants, withdrawn persons and consent records the study holds."""
+    """How many persons and synthetic participants the study holds (withdrawn ones included), how
+    many of them withdrew (`withdrawn`: everyone, as `complete_withdrawn` counts; of these,
+    `withdrawn_synthetic`), and its consent records."""
     return {
         "persons": participant_count(store, synthetic=False),
         "synthetic": participant_count(store, synthetic=True),
-        "withdrawn": _count(store, "select count(*) as n from participants where synthetic = 0 and withdrawn_at is not null"),
+        "withdrawn": _count(store, "select count(*) as n from participants where withdrawn_at is not null"),
+        "withdrawn_synthetic": _count(store, "select count(*) as n from participants where synthetic = 1 and withdrawn_at is not null"),
         "consented": _count(store, "select count(*) as n from consent"),
     }
 

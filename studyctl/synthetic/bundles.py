@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from analysis.errors import StoreError
-from analysis.trace_files import trace_dir, write_durably
+from analysis.trace_files import home, trace_dir, write_durably
 from studyctl.session.run import run_session
 from studyctl.store import Store
 from studyctl.store.tables import table_rows
@@ -54,7 +54,7 @@ class Bundle:
 def seed_for(store, code: str, seed: int, session_id: int) -> Seed:
     rows = {t: table_rows(store, t) for t in SEEDED}
     rows |= {t: table_rows(store, t, code) for t in OWN}
-    return Seed(store.path.name, code, seed, session_id, rows)
+    return Seed(store.file.name, code, seed, session_id, rows)
 
 
 def run_away(task: Seed) -> Bundle:
@@ -68,7 +68,7 @@ def run_away(task: Seed) -> Bundle:
         with Store(db, mode="read") as scratch:
             tables = {t: table_rows(scratch, t) for t in scratch.db.table_names()
                       if t not in ("meta", *SEEDED, *OWN)}
-        traces = {str(p.relative_to(db.parent)): p.read_bytes() for p in sorted(trace_dir(db).rglob("*.npz"))}
+        traces = {str(p.relative_to(home(db))): p.read_bytes() for p in sorted(trace_dir(db).rglob("*.npz"))}
     return Bundle(task.code, task.session_id, {t: rows for t, rows in tables.items() if rows}, traces)
 
 
@@ -92,9 +92,9 @@ def store_bundle(store, bundle: Bundle) -> None:
         raise StoreError(f"{missing[0]}: the trace of {bundle.code} did not come back; nothing stored")
     try:
         for rel, data in bundle.traces.items():  # before the rows: a crash leaves at worst unreferenced files
-            write_durably(store.path.parent / rel, data)
+            write_durably(store.file.parent / rel, data)
     except OSError as exc:
-        raise StoreError(f"{store.path.parent}: cannot write the traces of {bundle.code}: {exc.strerror}") from None
+        raise StoreError(f"{store.file.parent}: cannot write the traces of {bundle.code}: {exc.strerror}") from None
     order = [t for t in FIRST if t in bundle.tables] + sorted(t for t in bundle.tables if t not in FIRST)
     with store.transaction():
         for table in order:

@@ -14,6 +14,7 @@ from brainsim_assets import path as asset
 from sim.sweep import completed, reachable
 from studyctl.fields import field_rows, synthetic_fields
 from studyctl.protocol import load_protocol
+from studyctl.session.lock import synth_lock
 from studyctl.store import Store, init_study, now, roster
 from studyctl.store.sessions import insert_traits, next_session_id
 from studyctl.study import assign_order
@@ -39,7 +40,8 @@ def run_synthetic_study(db, participants: int | None, seed: int = 0, jobs: int =
     was interrupted (Ctrl-C, a crash) are run by `complete` (True), with the seed they were
     registered with, which brings that run to its N; `participants` new ones (None: none) are
     then added. While such participants wait, new ones alone are refused (they would pool with
-    them unasked). Ctrl-C raises Interrupted saying what was stored and the command that completes it."""
+    them unasked). One synth at a time per study (studyctl/session/lock.py): a second one, with
+    --complete or not, is refused while the first runs. Ctrl-C raises Interrupted saying what was stored and the command that completes it."""
     if participants is None and not complete:
         raise InputError("--participants: missing; give how many new synthetic participants (1..1000), "
                          "or --complete to finish an interrupted run")
@@ -57,7 +59,8 @@ def run_synthetic_study(db, participants: int | None, seed: int = 0, jobs: int =
                              f"(the paper's: {asset('protocols/brain_pull_2015.toml')}), or `studyctl study init` it first")
         init_study(db, protocol_path)
         created = str(protocol_path)
-    with Store(db) as store:
+    # the lock held for the whole run: a second synth is told this one runs, not that it was interrupted
+    with Store(db) as store, synth_lock(db):
         protocol = store.protocol()
         if protocol_path is not None and load_protocol(protocol_path).sha256 != protocol.sha256:
             raise InputError(f"--protocol: {protocol_path} is not the protocol {db} was created with; leave --protocol out")
