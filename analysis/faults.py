@@ -32,7 +32,7 @@ from analysis.records import Record
 from analysis.reports.table import Table
 
 FAULT_KINDS = ("nan_force", "model_fault", "model_unstable")
-SAFETY_KINDS = ("force_clamped", "force_budget", "force_chatter", "suspended", "deadline_streak", "device_fault", "position_jump",
+SAFETY_KINDS = ("force_clamped", "force_budget", "force_chatter", "suspended", "deadline_streak", "device_fault", "nan_position", "position_jump",
                 "over_budget")
 # more than half the trials faulty: most of what the participants felt was not the model
 FAULT_SHARE_MAX = 0.5
