@@ -37,6 +37,9 @@ SAFETY_KINDS = ("force_clamped", "force_budget", "force_chatter", "suspended", "
 # more than half the trials faulty: most of what the participants felt was not the model
 FAULT_SHARE_MAX = 0.5
 NAN = float("nan")
+# what a withheld pair does not report (its counts stay: they describe, they test nothing)
+PAIR_NUMBERS = ("p_value", "p_holm", "statistic", "odds_ratio", "rank_biserial", "rb_ci_low", "rb_ci_high", "difference", "se",
+                "ci_low", "ci_high", "log_odds_ratio", "share_b", "share_b_low", "share_b_high")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -91,6 +94,11 @@ def withheld(events) -> dict[str, str]:
     return {e.condition: e.reason for e in events if e.withheld}
 
 
+def is_withheld(reason: str | None) -> bool:
+    """Whether a test's `reason` is a withheld condition's (this module's wording)."""
+    return bool(reason) and reason.startswith("withheld: condition ")
+
+
 def involving(conditions, held: Mapping[str, str]) -> str | None:
     """Why a test of `conditions` is withheld (the first withheld one's reason), or None."""
     return next((held[c] for c in conditions if c in held), None)
@@ -98,11 +106,13 @@ def involving(conditions, held: Mapping[str, str]) -> str | None:
 
 def withhold_pairs(pairs: list[dict], held: Mapping[str, str]) -> list[dict]:
     """Pair dicts (a, b, p_value, ...) with those involving a withheld condition not tested:
-    p-values NaN (so Holm leaves them out) and the reason."""
+    p-values, statistics and effect sizes NaN (so Holm leaves them out, and no effect of a fault
+    is printed as the model's), no small-sample warning, and the reason."""
     out = []
     for p in pairs:
         why = involving((p["a"], p["b"]), held)
-        out.append(p if why is None else p | {k: NAN for k in ("p_value", "p_holm") if k in p} | {"reason": why})
+        out.append(p if why is None else p | {k: NAN for k in PAIR_NUMBERS if k in p} | {k: None for k in ("warning",) if k in p}
+                   | {"reason": why})
     return out
 
 

@@ -22,7 +22,7 @@ import pandas as pd
 from scipy.stats import wilcoxon
 
 from analysis import instruments, scales
-from analysis.faults import condition_events, involving, withheld, withhold_fit, withhold_pairs
+from analysis.faults import condition_events, involving, is_withheld, withheld, withhold_fit, withhold_pairs
 from analysis.kind_results import ChoiceStats, KindStats, PrimaryAnalysis, RatingStats, ScoreStats
 from analysis.questions import VAS_RANGE
 from analysis.records import (
@@ -322,7 +322,9 @@ def _withhold(tests: dict, held: dict[str, str], models: list[str]) -> dict:
         mm["model_test"] = mm["model_test"] | {k: nan for k in ("chi2", "p_value", "f", "p_value_f")} | {"reason": why}
         v |= {"mixed_model": mm, "friedman": across(v["friedman"]), "pairs": mm["pairs"]}
     for v in tests["choices"].values():
-        v["pairs"] = withhold_pairs(v["pairs"], held)
+        ov = v["overall"]
+        v |= {"overall": ov | {k: nan for k in ("statistic", "p_value", "p_value_chi2") if k in ov} | {"reason": why},
+              "pairs": withhold_pairs(v["pairs"], held)}
     return tests
 
 
@@ -409,7 +411,8 @@ def primary_line(st: StudyStats) -> str:
         return f"Primary analysis: {what.text}: {pairs} (Holm over its {len(v.pairs)} pairs)."
     if what.analysis == "choice" and what.items[0] in k.choices:
         ov = k.choices[what.items[0]].overall
-        return f"Primary analysis: {what.text}: p = {_p(ov.p_value)} ({ov.test})."
+        return (f"Primary analysis: {what.text}: not tested ({ov.reason})." if ov.reason else
+                f"Primary analysis: {what.text}: p = {_p(ov.p_value)} ({ov.test}).")
     return f"Primary analysis: {what.text}: not computed."
 
 
@@ -499,10 +502,12 @@ def kind_tables(kinds: KindStats, models: list[str], scope: str) -> list[Table]:
     for v in kinds.choices.values():
         ov = v.overall
         rows = [[m, f"{s['count']}", rate_interval(s['share'], s['wilson_low'], s['wilson_high'], 0)] for m, s in v.shares.items()]
-        pairs = "; ".join(f"{p.a}-{p.b} {p.n_a}:{p.n_b}, p {_p(p.p_holm)}" for p in v.pairs)
+        pairs = "; ".join(f"{p.a}-{p.b} {p.n_a}:{p.n_b}, " + (f"not tested ({p.reason})" if is_withheld(p.reason) else f"p {_p(p.p_holm)}")
+                          for p in v.pairs)
         out.append(Table(title=f"Choice: {v.question}", columns=["Condition", "Chosen by", "Share [Wilson 95%]"], rows=rows,
-                    notes=f"{ov.test}: p = {_p(ov.p_value)} (chi2 = {ov.statistic:.2f}, {ov.df} df; equal chances); "
-                            f"exact binomial pairs, {scope}: {pairs}."))
+                    notes=(f"{ov.test}: not tested ({ov.reason}); " if ov.reason else
+                           f"{ov.test}: p = {_p(ov.p_value)} (chi2 = {ov.statistic:.2f}, {ov.df} df; equal chances); ")
+                          + f"exact binomial pairs, {scope}: {pairs}."))
     if kinds.session:
         rows = []
         for v in kinds.session.values():

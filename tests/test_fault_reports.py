@@ -168,3 +168,47 @@ def test_a_study_without_faults_says_nothing_of_them_in_its_text(clean_study):
 def test_a_study_without_faults_lists_none_per_condition_in_its_stats(clean_study):
     st = json.loads(studyctl("report", "stats", "--db", clean_study, "--json").output)
     assert [f["affected_trials"] for f in st["faults"]] == [0, 0]
+
+
+@pytest.fixture(scope="module")
+def nan_ratings(tmp_path_factory):
+    """The ratings example (Likert items, the SUS, a choice) with its FEM replaced by the NaN model."""
+    from tests.helpers import variants_protocol
+
+    tmp = tmp_path_factory.mktemp("nan_ratings")
+    proto = variants_protocol(tmp)
+    text = proto.read_text().replace('conditions = ["paper", "located", "fem_linear"]', 'conditions = ["paper", "located", "nan"]')
+    proto.write_text(text.replace('[conditions.fem_linear]\nmodel = "fem"\nformulation = "linear"', f'[conditions.nan]\nmodel = "{BAD}:NanForce"'))
+    db = tmp / "s.db"
+    res = studyctl("synth", "--protocol", proto, "--db", db, "--participants", 3, "--seed", 2)
+    assert res.exit_code == 0, res.output
+    return json.loads(studyctl("report", "stats", "--db", db, "--json").output)
+
+
+def test_a_rating_s_friedman_test_is_withheld_with_the_reason(nan_ratings):
+    assert {v["friedman"]["reason"] for v in nan_ratings["kinds"]["ratings"].values()} == {
+        "withheld: condition nan had a model fault in 3 of its 3 trials (nan_force), more than 50%"}
+
+
+def test_a_rating_pair_without_the_withheld_condition_is_not_withheld(nan_ratings):
+    pairs = [p for v in nan_ratings["kinds"]["ratings"].values() for p in v["pairs"] if "nan" not in (p["a"], p["b"])]
+    assert not [p for p in pairs if (p.get("reason") or "").startswith("withheld")]
+
+
+def test_a_rating_pair_with_the_withheld_condition_is_withheld(nan_ratings):
+    pairs = [p for v in nan_ratings["kinds"]["ratings"].values() for p in v["pairs"] if "nan" in (p["a"], p["b"])]
+    assert {p["reason"].split(":")[0] for p in pairs} == {"withheld"}
+
+
+def test_the_score_s_mixed_model_is_withheld(nan_ratings):
+    assert all(v["mixed_model"]["model_test"]["reason"].startswith("withheld: condition nan") for v in nan_ratings["kinds"]["scores"].values())
+
+
+def test_a_choice_s_test_of_equal_chances_is_withheld(nan_ratings):
+    assert {v["overall"]["reason"] for v in nan_ratings["kinds"]["choices"].values()} == {
+        "withheld: condition nan had a model fault in 3 of its 3 trials (nan_force), more than 50%"}
+
+
+def test_a_withheld_rating_pair_reports_no_effect_size(nan_ratings):
+    pairs = [p for v in nan_ratings["kinds"]["ratings"].values() for p in v["pairs"] if "nan" in (p["a"], p["b"])]
+    assert {p["rank_biserial"] for p in pairs} == {None}

@@ -264,7 +264,7 @@ def _choices(kinds: KindStats, family: str) -> list[str]:
         p = p_text(o.p_value)
         # the chi-square statistic with its own p; the exact test's p on its own
         overall = (f"{o.test}, χ²({o.df}) = {o.statistic:.2f}, {p}" if p and o.test.startswith("chi-square")
-                   else f"{o.test}, {p}" if p else "no test of the shares was made")
+                   else f"{o.test}, {p}" if p else "no test of the shares was made" + (f" ({o.reason})" if o.reason else ""))
         out.append(f"“{v.question}”: chosen {shares}; {overall}. "
                    + _pairs_text(v.pairs, lambda p: f"{p.a} vs {p.b}, {p.n_a} and {p.n_b} choices", "Pairs", family))
     return out

@@ -275,7 +275,8 @@ def report_stats(db, holm_scope, as_json):
         click.echo(f"{v.label}: {means}; {test}")
     for item, v in kinds.choices.items():
         shares = ", ".join(f"{m} {s['count']}" for m, s in v.shares.items())
-        click.echo(f"{item}: {shares}; {v.overall.test} p = {v.overall.p_value:.3g}")
+        overall = f"{v.overall.test} not tested ({v.overall.reason})" if v.overall.reason else f"{v.overall.test} p = {v.overall.p_value:.3g}"
+        click.echo(f"{item}: {shares}; {overall}")
     if facts.incomplete_participants:
         click.echo("left out (incomplete): " + incomplete_text(facts))
     from analysis.faults import events_text
