@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import pandas as pd
 
+from analysis.faults import events_table, withheld, withhold_fit, withhold_pairs
 from analysis.kinds import (
     PAIR_TESTS,
     family_pairs,
@@ -17,7 +18,6 @@ from analysis.kinds import (
     odds_ratio_pairs,
     primary_line,
 )
-from analysis.faults import events_table, withhold_fit, withhold_pairs, withheld
 from analysis.records import GeeFit, McNemarPair, OddsRatioPair
 from analysis.reports.methods import study_methods
 from analysis.reports.table import markdown, markdown_grid

@@ -94,9 +94,8 @@ def report_table1(db, holm_scope, fmt, out_file, force, accuracy_file, stability
         text = html(study, force_traces(study.protocol), accuracy=accuracy, stability=stability, holm_scope=holm_scope)
     elif fmt == "csv":  # the flag and N travel with the table
         facts = table1.study_facts(study)
-        from studyctl.study import spreadsheet_frame
-
         from analysis.faults import rates_with_events
+        from studyctl.study import spreadsheet_frame
 
         rows = rates_with_events(table1.rates(study), table1.events(study))
         text = spreadsheet_frame(rows.assign(participants=facts.participants, synthetic=facts.synthetic)).to_csv(index=False)
