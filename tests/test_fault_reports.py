@@ -212,3 +212,11 @@ def test_a_choice_s_test_of_equal_chances_is_withheld(nan_ratings):
 def test_a_withheld_rating_pair_reports_no_effect_size(nan_ratings):
     pairs = [p for v in nan_ratings["kinds"]["ratings"].values() for p in v["pairs"] if "nan" in (p["a"], p["b"])]
     assert {p["rank_biserial"] for p in pairs} == {None}
+
+
+def test_synth_json_carries_the_warning(tmp_path):
+    proto = fast_protocol(tmp_path, conditions=("nan",), trials=1)
+    proto.write_text(proto.read_text().replace("[inclusion]", f'[conditions.nan]\nmodel = "{BAD}:NanForce"\n\n[inclusion]', 1))
+    res = studyctl("synth", "--protocol", proto, "--db", tmp_path / "s.db", "--participants", 1, "--seed", 1, "--json")
+    out = json.loads(res.stdout)
+    assert out["warnings"] == ["condition nan: 1 of 1 trials had a model fault (nan_force 1); the reports withhold every test involving it"]
