@@ -319,7 +319,7 @@ def test_model_check_prints_its_stages_and_contract_runs_only_the_contract_and_b
     starts = [ln for ln in lines if ln.endswith(" ...")]
     assert starts == ["[1/4] contract ...", "[2/4] budgets (this machine) ...", "[3/4] stability (quick sweep) ...",
                       "[4/4] accuracy against the tissue truth ..."], res.stderr
-    assert any(ln.startswith("[1/4] contract: 7 of 7 checks held (") for ln in lines), res.stderr  # no stiffness scaling: 7
+    assert any(ln.startswith("[1/4] contract: 8 of 8 checks held (") for ln in lines), res.stderr  # no stiffness scaling: 8
     assert any("estimated from this model's measured costs" in ln and "the reference solves shipped or cached" in ln for ln in lines), res.stderr
     assert "## Accuracy against the tissue truth" in res.stdout
     only = _studyctl(plugin_env, "model", "check", "spring", "--contract", "--json")
