@@ -22,6 +22,7 @@ import pandas as pd
 from scipy.stats import wilcoxon
 
 from analysis import instruments, scales
+from analysis.faults import condition_events, involving, is_withheld, withheld, withhold_fit, withhold_pairs
 from analysis.kind_results import ChoiceStats, KindStats, PrimaryAnalysis, RatingStats, ScoreStats
 from analysis.questions import VAS_RANGE
 from analysis.records import (
@@ -259,8 +260,9 @@ def session_questions(protocol, answers: pd.DataFrame) -> dict:
     return out
 
 
-def ordinal_primary(protocol, meas: pd.DataFrame) -> OrdinalGeeFit | None:
-    """The proportional-odds GEE across the rating items, Holm over its pairs."""
+def ordinal_primary(protocol, meas: pd.DataFrame, held: dict[str, str] | None = None) -> OrdinalGeeFit | None:
+    """The proportional-odds GEE across the rating items, Holm over its pairs; withheld when it
+    involves a condition in `held` (analysis/faults.py)."""
 
     items = [q.id for q in _rating_items(protocol)]
     if not items or len(protocol.conditions) < 2:
@@ -269,7 +271,8 @@ def ordinal_primary(protocol, meas: pd.DataFrame) -> OrdinalGeeFit | None:
     with_period = "period" in data and bool(data["period"].notna().all())
     if with_period:
         data = data.assign(period=data["period"].astype(int))
-    res = scales.ordinal_gee(data, list(protocol.conditions), with_period=with_period, with_item=len(items) > 1)
+    res = withhold_fit(scales.ordinal_gee(data, list(protocol.conditions), with_period=with_period, with_item=len(items) > 1),
+                       held or {}, list(protocol.conditions))
     return OrdinalGeeFit.of(res, pairs=odds_ratio_pairs(res["pairs"], PAIR_TESTS["ordinal_gee"], res.get("problems") or []))
 
 
@@ -291,8 +294,38 @@ def kind_tests(study: Study, answers: pd.DataFrame) -> dict:
     values they test."""
     protocol = study.protocol
     meas = measures(protocol, answers, study.periods)
-    return {"ratings": ratings(protocol, meas), "scores": scores(protocol, meas), "choices": choices(protocol, answers),
-            "measures": meas}
+    tests = {"ratings": ratings(protocol, meas), "scores": scores(protocol, meas), "choices": choices(protocol, answers),
+             "measures": meas}
+    return _withhold(tests, _held(study), list(protocol.conditions))
+
+
+def _held(study: Study) -> dict[str, str]:
+    return withheld(condition_events(list(study.protocol.conditions), study.trial_events))
+
+
+def _withhold(tests: dict, held: dict[str, str], models: list[str]) -> dict:
+    """`tests` with every test involving a withheld condition (analysis/faults.py) withheld: its
+    p-values NaN, its reason said where the test would be."""
+    why = involving(models, held)
+    if why is None:
+        return tests
+    nan = float("nan")
+
+    def across(fr: dict) -> dict:
+        return {"test": fr["test"], "statistic": nan, "p_value": nan, "df": fr["df"], "n": fr["n"], "kendall_w": nan,
+                "kendall_w_low": nan, "kendall_w_high": nan, "reason": why}
+
+    for v in tests["ratings"].values():
+        v |= {"friedman": across(v["friedman"]), "pairs": withhold_pairs(v["pairs"], held)}
+    for v in tests["scores"].values():
+        mm = withhold_fit(v["mixed_model"], held, models)
+        mm["model_test"] = mm["model_test"] | {k: nan for k in ("chi2", "p_value", "f", "p_value_f")} | {"reason": why}
+        v |= {"mixed_model": mm, "friedman": across(v["friedman"]), "pairs": mm["pairs"]}
+    for v in tests["choices"].values():
+        ov = v["overall"]
+        v |= {"overall": ov | {k: nan for k in ("statistic", "p_value", "p_value_chi2") if k in ov} | {"reason": why},
+              "pairs": withhold_pairs(v["pairs"], held)}
+    return tests
 
 
 def family_pairs(tests: dict) -> list[list[dict]]:
@@ -334,7 +367,7 @@ def kind_stats(study: Study, answers: pd.DataFrame, tests: dict | None = None, a
                                                          for p, h in zip(v["pairs"], next(holm_of)))})
                     for k, v in tests["choices"].items()}
     return KindStats(primary=what, ratings=rating_stats, scores=score_stats, choices=choice_stats,
-                     session=session_questions(protocol, answers), ordinal_gee=ordinal_primary(protocol, tests["measures"]))
+                     session=session_questions(protocol, answers), ordinal_gee=ordinal_primary(protocol, tests["measures"], _held(study)))
 
 
 def _rho_text(fit: GeeFit) -> str:
@@ -378,7 +411,8 @@ def primary_line(st: StudyStats) -> str:
         return f"Primary analysis: {what.text}: {pairs} (Holm over its {len(v.pairs)} pairs)."
     if what.analysis == "choice" and what.items[0] in k.choices:
         ov = k.choices[what.items[0]].overall
-        return f"Primary analysis: {what.text}: p = {_p(ov.p_value)} ({ov.test})."
+        return (f"Primary analysis: {what.text}: not tested ({ov.reason})." if ov.reason else
+                f"Primary analysis: {what.text}: p = {_p(ov.p_value)} ({ov.test}).")
     return f"Primary analysis: {what.text}: not computed."
 
 
@@ -468,10 +502,12 @@ def kind_tables(kinds: KindStats, models: list[str], scope: str) -> list[Table]:
     for v in kinds.choices.values():
         ov = v.overall
         rows = [[m, f"{s['count']}", rate_interval(s['share'], s['wilson_low'], s['wilson_high'], 0)] for m, s in v.shares.items()]
-        pairs = "; ".join(f"{p.a}-{p.b} {p.n_a}:{p.n_b}, p {_p(p.p_holm)}" for p in v.pairs)
+        pairs = "; ".join(f"{p.a}-{p.b} {p.n_a}:{p.n_b}, " + (f"not tested ({p.reason})" if is_withheld(p.reason) else f"p {_p(p.p_holm)}")
+                          for p in v.pairs)
         out.append(Table(title=f"Choice: {v.question}", columns=["Condition", "Chosen by", "Share [Wilson 95%]"], rows=rows,
-                    notes=f"{ov.test}: p = {_p(ov.p_value)} (chi2 = {ov.statistic:.2f}, {ov.df} df; equal chances); "
-                            f"exact binomial pairs, {scope}: {pairs}."))
+                    notes=(f"{ov.test}: not tested ({ov.reason}); " if ov.reason else
+                           f"{ov.test}: p = {_p(ov.p_value)} (chi2 = {ov.statistic:.2f}, {ov.df} df; equal chances); ")
+                          + f"exact binomial pairs, {scope}: {pairs}."))
     if kinds.session:
         rows = []
         for v in kinds.session.values():

@@ -206,6 +206,7 @@ class ChoiceTest(Record):
     p_value: float
     n: int
     p_value_chi2: float | None = None
+    reason: str | None = None
 
 
 @dataclass(frozen=True, kw_only=True)

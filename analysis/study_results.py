@@ -11,6 +11,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from analysis.facts import StudyFacts
+from analysis.faults import ConditionEvents
 from analysis.kind_results import KindStats
 from analysis.records import GeeFit, McNemarPair, Record
 
@@ -76,7 +77,9 @@ class StudyStats(Record):
     - gee: the logistic GEE across the yes/no questions;
     - kinds: every other kind of answer, and the protocol's primary analysis;
     - deformation: the deformation-time benchmark;
-    - methods: the study's methods as data (analysis/reports/methods.py), which `report text` writes out."""
+    - methods: the study's methods as data (analysis/reports/methods.py), which `report text` writes out;
+    - faults: per condition its model faults and safety events, and whether its tests are withheld
+      (analysis/faults.py)."""
 
     facts: StudyFacts
     holm: str
@@ -85,4 +88,5 @@ class StudyStats(Record):
     kinds: KindStats
     deformation: DeformationBenchmark
     methods: Mapping
+    faults: tuple[ConditionEvents, ...] = ()
 

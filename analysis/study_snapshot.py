@@ -51,7 +51,9 @@ class Study:
     - `traced_trials`: every trial with a stored trace: ``code, synthetic, model, trial, session_id,
       trace_path, trace_sha256``;
     - `setups`: how the finished sessions ran: ``device, software_version, synthetic, sessions``;
-    - `latencies`: every latency measure per condition: ``measure, model, trials, mean, lowest, highest``.
+    - `latencies`: every latency measure per condition: ``measure, model, trials, mean, lowest, highest``;
+    - `trial_events`: every stored trial's servo events: ``code, model, trial, events`` (JSON: kind to count),
+      what a condition's faults are counted from (analysis/faults.py).
     """
 
     protocol: object
@@ -72,3 +74,4 @@ class Study:
     traced_trials: pd.DataFrame
     setups: pd.DataFrame
     latencies: pd.DataFrame
+    trial_events: pd.DataFrame

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import pandas as pd
 
+from analysis.faults import events_table, withheld, withhold_fit, withhold_pairs
 from analysis.kinds import (
     PAIR_TESTS,
     family_pairs,
@@ -32,6 +33,7 @@ from analysis.table1 import (
     condition_text,
     deformation,
     deformation_table,
+    events,
     holm_text,
     incomplete_text,
     rates,
@@ -55,10 +57,12 @@ def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | N
     every, _ = complete_answers(study)
     answers = binary_answers(study, every)
     protocol_models = list(protocol.conditions)
+    faults = events(study)
+    held = withheld(faults)
     mcnemar = {}
     for item, _g in r.groupby("item", sort=False):
         wide = answers_wide(answers, item, protocol_models)
-        mcnemar[item] = records(pairwise_mcnemar(wide)) if len(wide) else []
+        mcnemar[item] = withhold_pairs(records(pairwise_mcnemar(wide)), held) if len(wide) else []
     tests = kind_tests(study, every)
     # Holm over the family: the yes/no questions' McNemar pairs and every other kind's pairs
     adjusted = holm_family([[p["p_value"] for p in pairs] for pairs in [*mcnemar.values(), *family_pairs(tests)]], holm_scope)
@@ -73,26 +77,28 @@ def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | N
             reason=qrow.get("reason") if isinstance(qrow.get("reason"), str) else None,
         )
     kinds = kind_stats(study, every, tests, adjusted[len(mcnemar):])
-    gee = study_gee(study, answers, protocol_models)
+    gee = study_gee(study, answers, protocol_models, held)
     facts = study_facts(study)
-    return StudyStats(facts=facts, holm=holm_scope, items=items, gee=gee, kinds=kinds,
+    return StudyStats(facts=facts, holm=holm_scope, items=items, gee=gee, kinds=kinds, faults=faults,
                       deformation=DeformationBenchmark(DEFORMATION_LABEL, deformation(study).to_dict(orient="records")),
                       methods=study_methods(study, facts, items, kinds, holm_scope))
 
 
-def study_gee(study: Study, answers: pd.DataFrame, models: list[str]) -> LogisticGee:
+def study_gee(study: Study, answers: pd.DataFrame, models: list[str], held=None) -> LogisticGee:
     """The primary analysis across questions: a logistic GEE with model and period (the
     condition's position in the participant's session, `study.periods`) and, for the composite
     over all questions, item as factors; then one per question, with Holm over the family of
-    their pairwise contrasts."""
+    their pairwise contrasts. `held`: the withheld conditions and why (analysis/faults.py): a
+    fit over one of them is withheld."""
+    held = held or {}
     if answers.empty or len(models) < 2:
         return LogisticGee(composite=None, items={})
     df = answers.merge(study.periods, on=["code", "model"], how="left")
     with_period = bool(df["period"].notna().all())
     if with_period:
         df["period"] = df["period"].astype(int)
-    composite = gee_fit(df, models, with_period, with_item=True)
-    fits = {item: gee_fit(g, models, with_period) for item, g in df.groupby("item", sort=False)}
+    composite = withhold_fit(gee_fit(df, models, with_period, with_item=True), held, models)
+    fits = {item: withhold_fit(gee_fit(g, models, with_period), held, models) for item, g in df.groupby("item", sort=False)}
     test = PAIR_TESTS["gee"]
     # Holm over every question's pairs together; a pair not made says why in its own fit's words
     together = iter(holm([pair["p_value"] for v in fits.values() for pair in v["pairs"]]))
@@ -121,6 +127,9 @@ def table1_markdown(study: Study, holm_scope: str = "family") -> str:
     if len(r):  # the yes/no questions: the paper's table
         t = table(st, r, q, d)
         lines += [*markdown_grid(t), "", t.notes, ""]
+    faults = events_table(st.faults)  # only where a trial had one: a study without keeps its table as it was
+    if faults is not None:
+        lines += [f"**{faults.title}.**", "", *markdown_grid(faults), "", faults.notes, ""]
     for t in kind_tables(st.kinds, models, scope):
         lines += markdown(t)
     if not len(r):

@@ -19,6 +19,7 @@ import pandas as pd
 from statsmodels.stats.contingency_tables import cochrans_q
 
 from analysis.facts import StudyFacts
+from analysis.faults import ConditionEvents, condition_events, involving, withheld
 from analysis.records import McNemarPair
 from analysis.reports.formatting import p_value, rate_interval
 from analysis.reports.table import Table
@@ -74,13 +75,21 @@ def rates(study: Study) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["item", "question", "model", "yes", "no", "n", "rate", "wilson_low", "wilson_high"])
 
 
+def events(study: Study) -> tuple[ConditionEvents, ...]:
+    """Each condition's faults and safety events over its stored trials (analysis/faults.py)."""
+    return condition_events(list(study.protocol.conditions), study.trial_events)
+
+
 def cochran(study: Study) -> pd.DataFrame:
     protocol = study.protocol
     answers = binary_answers(study)
+    held = withheld(events(study))
     rows = []
     for q in binary_items(protocol):
         wide = answers_wide(answers, q, list(protocol.conditions))
-        reason = binary_across_reason(len(wide), len(protocol.conditions), wide.to_numpy(dtype=int) if len(wide) else None)
+        # a withheld condition's reason first: the test would compare its fault, whatever the answers
+        reason = (involving(protocol.conditions, held)
+                  or binary_across_reason(len(wide), len(protocol.conditions), wide.to_numpy(dtype=int) if len(wide) else None))
         q_stat = p = float("nan")
         if reason is None:
             r = cochrans_q(wide.to_numpy(dtype=int))

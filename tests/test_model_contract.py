@@ -383,3 +383,48 @@ def test_a_real_time_session_says_a_condition_s_force_calls_are_over_their_budge
     said = [ln for ln in res.stderr.splitlines() if "over_budget" in ln]
     assert len(said) == 1, res.stderr
     assert said[0].startswith("condition A: trial 1: over_budget: force: "), res.stderr
+
+
+def _contract_rows(cls: str) -> dict[str, dict]:
+    from analysis.verification.model_check import _scene, contract
+    from sim.scene import DEFAULT_SCENE
+
+    rows, _ = contract(_scene(f"{BAD}:{cls}", DEFAULT_SCENE))
+    return {r["check"]: r for r in rows}
+
+
+def test_a_force_of_two_numbers_is_one_violation_named_as_its_shape():
+    rows = _contract_rows("TwoFloatForce")
+    failed = [(k, r["detail"]) for k, r in rows.items() if r["ok"] is False]
+    assert failed == [("force: three floats", "force has shape (2,), must be (3,)")]
+
+
+@pytest.mark.parametrize("check", ["zero force at zero displacement", "finite, continuous force along the pull", "two hands at once"])
+def test_the_checks_that_need_a_sound_force_are_not_run_when_its_shape_is_wrong(check):
+    row = _contract_rows("TwoFloatForce")[check]
+    assert (row["ok"], row["detail"]) == (None, "skipped: the force's shape is wrong")
+
+
+def test_a_model_with_no_law_is_checked_for_its_copy_not_for_a_per_tick_law():
+    rows = _contract_rows("TwoFloatForce")
+    assert "per-tick law pickles and agrees with force" not in rows
+    assert rows["no per-tick law: the model's copy pickles"]["ok"] is True
+
+
+def test_two_hands_at_once_says_no_force_for_a_model_whose_deformation_is_wrong():
+    row = _contract_rows("WrongShape")["two hands at once"]
+    assert (row["ok"], row["detail"]) == (None, "skipped: the deformation's shape is wrong")
+
+
+def test_a_nan_force_is_one_violation_and_two_hands_at_once_is_not_run():
+    rows = _contract_rows("NanForce")
+    assert [k for k, r in rows.items() if r["ok"] is False] == ["finite, continuous force along the pull"]
+    assert rows["two hands at once"]["detail"] == "skipped: the force is not finite along the pull"
+
+
+def test_model_check_contract_prints_one_violation_for_a_force_of_two_numbers(tmp_path):
+    res = studyctl("model", "check", f"{BAD}:TwoFloatForce", "--contract")
+    assert res.exit_code == 1, res.output
+    assert [ln for ln in res.output.splitlines() if ln.startswith("- VIOLATION")] == [
+        "- VIOLATION force: three floats: force has shape (2,), must be (3,)"]
+    assert "| two hands at once | not run | skipped: the force's shape is wrong |" in res.output

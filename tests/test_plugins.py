@@ -107,7 +107,7 @@ def test_a_model_on_the_python_path_keeps_the_contract():
 
     rows, _ = contract(_scene(f"{BAD}:Spring", DEFAULT_SCENE))
     assert all(r["ok"] for r in rows), rows
-    assert [r["check"] for r in rows][:3] == ["build", "grasp", "zero force at zero displacement"]
+    assert [r["check"] for r in rows][:4] == ["build", "grasp", "force: three floats", "zero force at zero displacement"]
 
 
 @pytest.mark.parametrize("time_scale", [0.0, 1.0])
@@ -300,7 +300,7 @@ def test_model_check_of_a_built_in_model_gives_its_whole_scorecard(tmp_path):
     assert res.exit_code == 0, res.output
     card = json.loads(res.stdout)  # the stages went to stderr
     assert card["violations"] == []
-    assert len(card["contract"]) == 8
+    assert len(card["contract"]) == 9
     assert all(r["ok"] for r in card["contract"])
     assert {c["model"] for c in card["stability"]["cases"]} == {"plate_spring/continuous", "plate_spring/paper"}
     assert card["stability"]["safety_held"]
@@ -319,7 +319,7 @@ def test_model_check_prints_its_stages_and_contract_runs_only_the_contract_and_b
     starts = [ln for ln in lines if ln.endswith(" ...")]
     assert starts == ["[1/4] contract ...", "[2/4] budgets (this machine) ...", "[3/4] stability (quick sweep) ...",
                       "[4/4] accuracy against the tissue truth ..."], res.stderr
-    assert any(ln.startswith("[1/4] contract: 7 of 7 checks held (") for ln in lines), res.stderr  # no stiffness scaling: 7
+    assert any(ln.startswith("[1/4] contract: 8 of 8 checks held (") for ln in lines), res.stderr  # no stiffness scaling: 8
     assert any("estimated from this model's measured costs" in ln and "the reference solves shipped or cached" in ln for ln in lines), res.stderr
     assert "## Accuracy against the tissue truth" in res.stdout
     only = _studyctl(plugin_env, "model", "check", "spring", "--contract", "--json")
@@ -352,7 +352,7 @@ def test_model_check_interrupted_keeps_the_stages_that_finished(plugin_env, tmp_
     assert proc.returncode == 130, seen + stderr
     card = json.loads(out.read_text())
     assert card["interrupted"] == "stability"
-    assert len(card["contract"]) == 7
+    assert len(card["contract"]) == 8
     assert len(card["budgets"]) == 3
     assert "stability" not in card
     assert "accuracy" not in card

@@ -13,6 +13,7 @@ import numbers
 from collections.abc import Mapping
 
 from analysis.discrimination.jnd import jnd_results
+from analysis.faults import events_text
 from analysis.kind_results import KindStats
 from analysis.reports import latex
 from analysis.study_results import StudyStats
@@ -263,7 +264,7 @@ def _choices(kinds: KindStats, family: str) -> list[str]:
         p = p_text(o.p_value)
         # the chi-square statistic with its own p; the exact test's p on its own
         overall = (f"{o.test}, χ²({o.df}) = {o.statistic:.2f}, {p}" if p and o.test.startswith("chi-square")
-                   else f"{o.test}, {p}" if p else "no test of the shares was made")
+                   else f"{o.test}, {p}" if p else "no test of the shares was made" + (f" ({o.reason})" if o.reason else ""))
         out.append(f"“{v.question}”: chosen {shares}; {overall}. "
                    + _pairs_text(v.pairs, lambda p: f"{p.a} vs {p.b}, {p.n_a} and {p.n_b} choices", "Pairs", family))
     return out
@@ -350,6 +351,7 @@ def sections(st: StudyStats | Mapping) -> list[tuple[str, list[str]]]:
     an = m["analysis"]
     family = (f"family of {an['holm_family']}" if st.holm == "family" else "within each question")
     results = [flag] if flag else []
+    results.append(events_text(st.faults))  # before any test: a withheld condition's tests say why below
     n = m["design"]["n_conditions"]
     if kinds.primary.analysis == "logistic_gee":
         results.append(_gee(st.gee.composite, "logistic GEE across the yes/no questions", "their own family", n))

@@ -9,6 +9,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from analysis import table1
+from analysis.faults import events_table
 from analysis.kind_results import KindStats
 from analysis.kinds import gee_line, kind_stats, kind_tables, measures, primary_line
 from analysis.reports import plots
@@ -79,6 +80,8 @@ def latex(study: Study, holm_scope: str = "family") -> str:
     tables += [replace(t, notes=f"{caption} {t.notes}") for t in kind_tables(st.kinds, models, scope)]
     if not len(r):  # the deformation row had no yes/no table to sit in
         tables.append(replace(table1.deformation_table(d), notes=caption))
+    faults = events_table(st.faults)
+    tables += [faults] if faults is not None else []
     return latex_tables(tables, "tab:" + facts.study)
 
 
@@ -124,6 +127,8 @@ def html(study: Study, traces: dict | None = None, accuracy: dict | None = None,
     primary = (f"<p>{esc(primary_line(st))}</p>" if st.kinds.primary.analysis in ("mixed_model", "choice") else "")
     scope = table1.holm_text(st)
     binary = f"{table_html(table1.table(st, r, q, d))}<p>{gee}</p>" if len(r) else ""
+    faults = events_table(st.faults)
+    binary += table_html(faults) if faults is not None else ""
     kind_html = "".join(table_html(t) for t in kind_tables(st.kinds, models, scope))
     deformation = "" if len(r) else table_html(table1.deformation_table(d))  # else a row of Table 1
     figs = "".join(figure_html(k, v) for k, v in images.items())

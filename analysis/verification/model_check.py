@@ -83,8 +83,9 @@ class _Contract:
     def __init__(self) -> None:
         self.rows: list[dict] = []
 
-    def record(self, check: str, ok: bool, detail: str = "") -> bool:
-        self.rows.append({"check": check, "ok": bool(ok), "detail": detail})
+    def record(self, check: str, ok: bool | None, detail: str = "") -> bool | None:
+        """ok None: the check was not run (a fault it depends on is reported on its own row)."""
+        self.rows.append({"check": check, "ok": None if ok is None else bool(ok), "detail": detail})
         return ok
 
     def attempt(self, check: str, fn):
@@ -96,6 +97,13 @@ class _Contract:
             return None
         self.record(check, ok, detail)
         return value if ok else None
+
+    def attempt_if(self, skipped: str | None, check: str, fn):
+        """`attempt`, or a row saying the check was not run and why."""
+        if skipped is not None:
+            self.record(check, None, f"skipped: {skipped}")
+            return None
+        return self.attempt(check, fn)
 
 
 def contract(scene) -> tuple[list[dict], dict]:
@@ -122,13 +130,21 @@ def contract(scene) -> tuple[list[dict], dict]:
     contact = c.attempt("grasp", lambda: grasp(0))
     if contact is None:
         return c.rows, {"model": model}
+    d_max = pulls[0]
+
+    def shape():
+        f = np.asarray(tuple(model.force(contact, tuple(float(x) for x in d_max))), dtype=np.float64)
+        return f.shape == (3,), "three floats" if f.shape == (3,) else f"force has shape {f.shape}, must be (3,)", f
+
+    # one fault, reported once: a check that needs a sound force (or deformation) is not run
+    # when it is not, rather than failing again under its own name or passing on a wrong number
+    force_wrong = None if c.attempt("force: three floats", shape) is not None else "the force's shape is wrong"
 
     def zero():
         f = _vec(model.force(contact, (0.0, 0.0, 0.0)))
         return bool(np.all(np.isfinite(f)) and np.linalg.norm(f) <= ZERO_N), f"|f| = {np.linalg.norm(f):.3g} N at d = 0", f
 
-    c.attempt("zero force at zero displacement", zero)
-    d_max = pulls[0]
+    c.attempt_if(force_wrong, "zero force at zero displacement", zero)
     steps = max(2, int(round(np.linalg.norm(d_max) / STEP_M)))
 
     def along():
@@ -141,35 +157,49 @@ def contract(scene) -> tuple[list[dict], dict]:
         return (jump[k] <= MAX_STEP_N, f"largest step {jump[k]:.3g} N over 0.1 mm (at {np.linalg.norm(d_max) * (k + 1) / steps * 1e3:.1f} mm); "
                 f"allowed: {MAX_STEP_N:g} N", f)
 
-    c.attempt("finite, continuous force along the pull", along)
+    c.attempt_if(force_wrong, "finite, continuous force along the pull", along)
+    if c.rows[-1]["ok"] is False and not c.rows[-1]["detail"].startswith("largest step"):  # a step is its own fault; a NaN spoils what follows
+        force_wrong = "the force is not finite along the pull"
+    has_law = contact.law is not None
 
     def law():
         sent = pickle.loads(pickle.dumps(model.law(contact)))
+        if not has_law:  # the servo process evaluates a copy of the model itself: only the copy is checked
+            return True, f"the model's {type(sent).__name__} copy pickles", sent
+        if force_wrong is not None:
+            return None, f"pickles; agreement with force not run: {force_wrong}", sent
         d = tuple(float(x) for x in d_max)
         a, b = _vec(model.force(contact, d)), _vec(sent.force(d))
         gap = float(np.linalg.norm(a - b))
         return gap <= 1e-9 * max(1.0, float(np.linalg.norm(a))), f"law of {type(sent).__name__}: {gap:.2g} N from force", sent
 
-    c.attempt("per-tick law pickles and agrees with force", law)
+    c.attempt("per-tick law pickles and agrees with force" if has_law else "no per-tick law: the model's copy pickles", law)
 
     def deform():
         u = np.array(model.deformation([contact], [tuple(float(x) for x in d_max)]))  # a copy: models reuse their buffer
         rest = np.array(model.deformation([], []))
         ok = u.shape == (n, 3) and rest.shape == (n, 3) and bool(np.all(np.isfinite(u)))
+        if u.shape != (n, 3):
+            return False, f"deformation has shape {u.shape}, must be ({n}, 3)", u
         return ok, f"shape {u.shape}, max {np.abs(u).max() * 1e3 if u.size else 0:.3g} mm", u
 
-    c.attempt("deformation: a finite row per surface vertex", deform)
+    deform_wrong = None
+    if c.attempt("deformation: a finite row per surface vertex", deform) is None:
+        deform_wrong = "the deformation's shape is wrong" if "has shape" in c.rows[-1]["detail"] else "the deformation is not finite"
 
     def two():
         other = model.grasp(tuple(float(x) for x in starts[1]), 1)
         ds = [tuple(float(x) for x in pulls[0] / 2), tuple(float(x) for x in pulls[1] / 2)]
         fs = [_vec(f) for f in model.forces([contact, other], ds)]
         u = np.asarray(model.deformation([contact, other], ds))
-        ok = len(fs) == 2 and all(np.all(np.isfinite(f)) for f in fs) and u.shape == (n, 3) and bool(np.all(np.isfinite(u)))
         model.deformation([], [])
-        return ok, f"forces {np.linalg.norm(fs[0]):.3g} N and {np.linalg.norm(fs[1]):.3g} N", None
+        if len(fs) != 2 or not all(np.all(np.isfinite(f)) for f in fs):
+            return False, f"forces returned {len(fs)} forces, {sum(bool(np.all(np.isfinite(f))) for f in fs)} finite; must be 2 finite", None
+        if u.shape != (n, 3) or not np.all(np.isfinite(u)):
+            return False, f"deformation of shape {u.shape} for two contacts, must be ({n}, 3) and finite", None
+        return True, f"forces {np.linalg.norm(fs[0]):.3g} N and {np.linalg.norm(fs[1]):.3g} N", None
 
-    c.attempt("two hands at once", two)
+    c.attempt_if(force_wrong or deform_wrong, "two hands at once", two)
     if type(model).scales_stiffness:
         c.attempt("stiffness scaling (the discrimination task)",
                   lambda: (True, type(model.with_stiffness(1.37)).__name__, None))
@@ -333,11 +363,11 @@ def check_model(name: str, cfg: CheckConfig, progress=None) -> dict:
         return out
 
     try:
-        rows, parts = run("contract", lambda: contract(scene), lambda r: f"{sum(x['ok'] for x in r[0])} of {len(r[0])} checks held")
+        rows, parts = run("contract", lambda: contract(scene), _held)
         card["contract"] = rows
         timed = run("budgets", lambda: budgets(parts, cfg), lambda r: f"{sum(b['ok'] for b in r)} of {len(r)} within")
         card["budgets"] = timed
-        violations = [f"{r['check']}: {r['detail']}" for r in rows if not r["ok"]]
+        violations = [f"{r['check']}: {r['detail']}" for r in rows if r["ok"] is False]
         violations += [f"{b['budget']}: raised {b['raised']} while timed" if "raised" in b else
                        f"{b['budget']}: {b['value']:.3g} over the budget of {b['limit']:g}" for b in timed if not b["ok"]]
         card["violations"] = violations
@@ -368,13 +398,22 @@ def check_model(name: str, cfg: CheckConfig, progress=None) -> dict:
     return card
 
 
+_OK = {True: "yes", False: "**no**", None: "not run"}
+
+
+def _held(result) -> str:
+    rows = result[0]
+    skipped = sum(r["ok"] is None for r in rows)
+    return f"{sum(r['ok'] is True for r in rows)} of {len(rows)} checks held" + (f", {skipped} not run" if skipped else "")
+
+
 def scorecard_md(card: dict) -> str:
     """The scorecard as Markdown."""
     src = f"{card['distribution']} {card['version']}" if card["distribution"] else "the Python path"
     lines = [f"# Model check: {card['model']}", "", f"{card['description']} (`{card['class']}`, from {src}; model API {card['api_version']}).",
              f"Scene: {card['scene']}.", "", "## Contract", ""]
     lines += markdown_grid(Table(columns=["check", "ok", "detail"],
-                                 rows=[[r["check"], "yes" if r["ok"] else "**no**", r["detail"]] for r in card["contract"]]))
+                                 rows=[[r["check"], _OK[r["ok"]], r["detail"]] for r in card["contract"]]))
     if card["budgets"]:
         lines += ["", "## Budgets (this machine, 99th percentile per call)", ""]
         lines += markdown_grid(Table(columns=["budget", "p99", "median", "limit", "ok"],

@@ -94,16 +94,19 @@ def report_table1(db, holm_scope, fmt, out_file, force, accuracy_file, stability
         text = html(study, force_traces(study.protocol), accuracy=accuracy, stability=stability, holm_scope=holm_scope)
     elif fmt == "csv":  # the flag and N travel with the table
         facts = table1.study_facts(study)
+        from analysis.faults import rates_with_events
         from studyctl.study import spreadsheet_frame
 
-        text = spreadsheet_frame(table1.rates(study).assign(participants=facts.participants, synthetic=facts.synthetic)).to_csv(index=False)
+        rows = rates_with_events(table1.rates(study), table1.events(study))
+        text = spreadsheet_frame(rows.assign(participants=facts.participants, synthetic=facts.synthetic)).to_csv(index=False)
     else:
         from analysis.study_stats import study_stats
 
         r, q = table1.rates(study), table1.cochran(study)
         text = json.dumps(jsonable({"facts": table1.study_facts(study).as_dict(), "rates": r.to_dict(orient="records"),
                                      "cochran": q.to_dict(orient="records"), "kinds": study_stats(study, r, q, holm_scope).kinds.as_dict(),
-                                     "deformation": table1.deformation(study).to_dict(orient="records")}
+                                     "deformation": table1.deformation(study).to_dict(orient="records"),
+                                     "faults": [e.as_dict() for e in table1.events(study)]}
                                     | ({"jnd": _jnd(study)} if study.protocol.tasks else {})), indent=2)
     if study.protocol.tasks and fmt in ("md", "latex"):
         text += ("\n## Stiffness discrimination\n\n" if fmt == "md" else "\n") + _jnd_text(study, fmt)
@@ -271,9 +274,14 @@ def report_stats(db, holm_scope, as_json):
         click.echo(f"{v.label}: {means}; {test}")
     for item, v in kinds.choices.items():
         shares = ", ".join(f"{m} {s['count']}" for m, s in v.shares.items())
-        click.echo(f"{item}: {shares}; {v.overall.test} p = {v.overall.p_value:.3g}")
+        overall = f"{v.overall.test} not tested ({v.overall.reason})" if v.overall.reason else f"{v.overall.test} p = {v.overall.p_value:.3g}"
+        click.echo(f"{item}: {shares}; {overall}")
     if facts.incomplete_participants:
         click.echo("left out (incomplete): " + incomplete_text(facts))
+    from analysis.faults import events_text
+
+    if events_text(out.faults):
+        click.echo(events_text(out.faults))
     gee = gee_line(out.gee, kinds.primary.analysis == "logistic_gee")
     if gee and kinds.primary.analysis != "logistic_gee":  # the primary's own line is printed first
         click.echo(gee.replace("`", ""))

@@ -119,6 +119,12 @@ def latency_summary(store: Store) -> pd.DataFrame:
                          "from latency group by measure, model order by measure, model")
 
 
+def trial_events(store: Store) -> pd.DataFrame:
+    """Every stored trial's servo events: code, model, trial, events (JSON), by code, condition, trial."""
+    return _frame(store, "select s.code, t.model, t.trial, t.events from trials t join sessions s on s.id = t.session_id "
+                         "order by s.code, t.model, t.trial, t.session_id")
+
+
 def read_study(store) -> Study:
     """The snapshot of the study in `store` (an open studyctl.store.Store), read in one go."""
     # counted from the answers' own source, not from a participant flag that could drift
@@ -148,6 +154,7 @@ def read_study(store) -> Study:
         traced_trials=traced_trials(store),
         setups=session_setups(store),
         latencies=latency_summary(store),
+        trial_events=trial_events(store),
     )
 
 

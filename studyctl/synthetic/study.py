@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 from analysis.errors import InputError, Interrupted
+from analysis.faults import condition_events, kinds_text
 from brainsim_assets import path as asset
 from sim.sweep import completed, reachable
 from studyctl.fields import field_rows, synthetic_fields
@@ -17,6 +18,7 @@ from studyctl.protocol import load_protocol
 from studyctl.session.lock import synth_lock
 from studyctl.store import Store, init_study, now, roster
 from studyctl.store.sessions import insert_traits, next_session_id
+from studyctl.store.snapshot import trial_events
 from studyctl.study import assign_order
 from studyctl.synthetic.bundles import run_away, seed_for, store_bundle
 from studyctl.synthetic.participant import MAX_SYNTHETIC, SyntheticParticipant, skill_for
@@ -89,10 +91,19 @@ def run_synthetic_study(db, participants: int | None, seed: int = 0, jobs: int =
                               f"`studyctl synth --db {db} --complete` runs the {left} registered participant{'s' if left != 1 else ''} "
                               f"left without one, completing this run's {len(runs)}") from None
         total = roster.synthetic_with_session(store)
+        warnings = fault_warnings(list(protocol.conditions), trial_events(store))
     return {"participants": len(codes), "codes": codes, "seed": seed, "jobs": jobs, "scheduler": scheduler, "ran": len(runs),
-            "total_synthetic": total,
+            "total_synthetic": total, "warnings": warnings,
             "seconds": time.perf_counter() - t0, "protocol": protocol.name, "protocol_file": str(protocol.path), "created": created,
             "completed": [{"code": c, "seed": s} for c, s in pending]}
+
+
+def fault_warnings(conditions: list[str], events) -> list[str]:
+    """One line per condition whose stored trials are mostly model faults (analysis/faults.py): the
+    data are kept (synth succeeds), and the reports withhold its tests; said here so that a
+    broken model is not found only in a report."""
+    return [f"condition {e.condition}: {e.fault_trials} of {e.trials} trials had a model fault ({kinds_text(e)}); "
+            "the reports withhold every test involving it" for e in condition_events(conditions, events) if e.withheld]
 
 
 def _check_pending(db, pending: list, complete: bool) -> None:
