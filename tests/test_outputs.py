@@ -300,3 +300,97 @@ def test_a_table_a_tool_writes_itself_takes_a_long_name_and_leaves_no_temporary(
     with pytest.raises(OSError):
         save_npz(tmp_path / "other.npz", x=np.arange(3))
     assert _listing(tmp_path) == [out.name]
+
+
+# ---- no output destroys an input, a special file, or another output of the same command ----
+
+def _state(folder: Path) -> dict:
+    """Every file under `folder` (hidden ones too), links as their text: what a refused command must leave as it was."""
+    out = {}
+    for p in sorted(folder.rglob("*")):
+        rel = str(p.relative_to(folder))
+        if p.is_symlink():
+            out[rel] = "-> " + str(p.readlink())
+        elif p.is_file():
+            out[rel] = _sha(p)
+        elif not p.is_dir():
+            out[rel] = "special"
+    return out
+
+
+@pytest.fixture
+def study_copy(small_study, tmp_path):
+    """The small study, database and traces, in this test's own folder (a refusal that fails
+    must not take the shared one with it)."""
+    import shutil
+
+    db = tmp_path / "s.db"
+    shutil.copy2(small_study, db)
+    shutil.copytree(small_study.parent / f"{small_study.name}.traces", tmp_path / "s.db.traces")
+    fast_protocol(tmp_path)  # tmp_path / "scene.toml", tmp_path / "protocol.toml"
+    return db
+
+
+# (argv, the output as the command names it, how it is an input: "itself", "hard", "symlink", or a companion's
+#  name "s.db.traces"; the message's tail after "is (part of) an input of this command (")
+AS_INPUT = {
+    "table1 --out the db": (["report", "table1", "--db", "{db}", "--out", "{db}"], "{db}", None, "--db {db})"),
+    "table1 --out a hard link to the db": (["report", "table1", "--db", "{db}", "--format", "md", "--out", "{tmp}/t.md"],
+                                           "{tmp}/t.md", "hard", "--db {db})"),
+    "table1 --out a symlink to the db": (["report", "table1", "--db", "{db}", "--format", "md", "--out", "{tmp}/t.md"],
+                                         "{tmp}/t.md", "symlink", "--db {db})"),
+    "table1 --out the db's traces": (["report", "table1", "--db", "{db}", "--out", "{db}.traces/t.md"], "{db}.traces/t.md", None,
+                                     "--db {db}: s.db.traces)"),
+    "table1 --out the db's WAL": (["report", "table1", "--db", "{db}", "--format", "md", "--out", "{db}-wal"], "{db}-wal", None,
+                                  "--db {db}: s.db-wal)"),
+    "table1 --out --accuracy": (["report", "table1", "--db", "{db}", "--format", "json", "--accuracy", "{tmp}/a.json",
+                                 "--out", "{tmp}/a.json"], "{tmp}/a.json", None, "--accuracy {tmp}/a.json)"),
+    "text --out the db": (["report", "text", "--db", "{db}", "--format", "md", "--out", "{db}"], "{db}", None, "--db {db})"),
+    "jnd --out the db": (["report", "jnd", "--db", "{db}", "--format", "md", "--out", "{db}"], "{db}", None, "--db {db})"),
+    "validity --out the db": (["report", "validity", "--db", "{db}", "--format", "md", "--out", "{db}"], "{db}", None, "--db {db})"),
+    "metrics --out a hard link to the db": (["metrics", "--db", "{db}", "--out", "{tmp}/m.csv"], "{tmp}/m.csv", "hard", "--db {db})"),
+    "contacts --out a hard link to the db": (["participants", "contacts", "--db", "{db}", "--out", "{tmp}/c.csv"], "{tmp}/c.csv", "hard",
+                                             "--db {db})"),
+    "schedule --ics a hard link to the db": (["schedule", "--db", "{db}", "--start", "2099-01-05", "--end", "2099-01-09", "--ics",
+                                              "{tmp}/s.ics"], "{tmp}/s.ics", "hard", "--db {db})"),
+    "export --out the db's traces": (["export", "--db", "{db}", "--out", "{db}.traces"], "{db}.traces", None, "--db {db}: s.db.traces)"),
+    "plots --out the db's locks": (["report", "plots", "--db", "{db}", "--out", "{db}.locks"], "{db}.locks", None, "--db {db}: s.db.locks)"),
+    "replay --frames the db's traces": (["replay", "--db", "{db}", "--session", "1", "--trial", "1", "--frames", "{db}.traces"],
+                                        "{db}.traces", None, "--db {db}: s.db.traces)"),
+    "sim run --frames over its scene": (["sim", "run", "--scene", "{tmp}/fr/trace.csv", "--frames", "{tmp}/fr"], "{tmp}/fr/trace.csv",
+                                        None, "--scene {tmp}/fr/trace.csv)"),
+    "plan --plot a hard link to the protocol": (["plan", "--protocol", "{tmp}/protocol.toml", "--plot", "{tmp}/p.png"], "{tmp}/p.png",
+                                                "hard", "--protocol {tmp}/protocol.toml)"),
+    "calibrate plate-spring --out its scene": (["calibrate", "plate-spring", "--scene", "{tmp}/scene.toml", "--out", "{tmp}/scene.toml"],
+                                               "{tmp}/scene.toml", None, "--scene {tmp}/scene.toml)"),
+    "model check --out a hard link to its scene": (["model", "check", "plate_spring", "--contract", "--scene", "{tmp}/scene.toml",
+                                                    "--out", "{tmp}/card.md"], "{tmp}/card.md", "hard", "--scene {tmp}/scene.toml)"),
+}
+SOURCE = {"--db": "{db}", "--accuracy": "{tmp}/a.json", "--protocol": "{tmp}/protocol.toml", "--scene": "{tmp}/scene.toml"}
+
+
+@pytest.mark.parametrize("force", [False, True], ids=["", "--force"])
+@pytest.mark.parametrize("case", list(AS_INPUT))
+def test_an_output_that_is_an_input_is_refused_and_nothing_changes(case, force, study_copy, tmp_path):
+    import os
+
+    argv, out, link, tail = AS_INPUT[case]
+    fill = {"db": study_copy, "tmp": tmp_path}
+    (tmp_path / "a.json").write_text('{"rows": [], "meta": {}}')
+    (tmp_path / "fr").mkdir()
+    (tmp_path / "fr" / "trace.csv").write_bytes((tmp_path / "scene.toml").read_bytes())  # a scene under the name of a frame file
+    (tmp_path / "s.db-wal").write_bytes(b"")
+    (tmp_path / "s.db.locks").mkdir()
+    out = out.format(**fill)
+    source = next(SOURCE[o].format(**fill) for o in SOURCE if tail.startswith(o + " "))
+    if link == "hard":
+        os.link(source, out)
+    elif link == "symlink":
+        os.symlink(source, out)
+    before = _state(tmp_path)
+    res = studyctl(*[a.format(**fill) for a in argv], *(["--force"] if force else []))
+    assert res.exit_code == 1, res.output
+    what = "is part of an input" if ": s.db" in tail else "is an input"
+    option = next(o for o in ("--frames", "--ics", "--plot", "--out") if o in argv)
+    assert res.output.strip().splitlines() == [f"Error: {out}: {what} of this command ({tail.format(**fill)}; choose another {option}"]
+    assert _state(tmp_path) == before
