@@ -394,3 +394,162 @@ def test_an_output_that_is_an_input_is_refused_and_nothing_changes(case, force, 
     option = next(o for o in ("--frames", "--ics", "--plot", "--out") if o in argv)
     assert res.output.strip().splitlines() == [f"Error: {out}: {what} of this command ({tail.format(**fill)}; choose another {option}"]
     assert _state(tmp_path) == before
+
+
+# (how the special file is made, what --out names): each refused with or without --force, and nothing changes
+SPECIAL = {
+    "fifo": lambda p: __import__("os").mkfifo(p),
+    "symlink to a device": lambda p: p.symlink_to("/dev/null"),
+    "symlink to /dev/stdout": lambda p: p.symlink_to("/dev/stdout"),  # as root, --force once replaced /dev/stdout itself
+    "symlink to a socket": lambda p: _socket(p),
+}
+
+
+def _socket(p):
+    import socket
+
+    s = socket.socket(socket.AF_UNIX)
+    s.bind(str(p.with_suffix(".sock")))
+    p.symlink_to(p.with_suffix(".sock"))
+
+
+@pytest.mark.parametrize("force", [False, True], ids=["", "--force"])
+@pytest.mark.parametrize("kind", list(SPECIAL))
+def test_an_output_that_is_a_special_file_is_refused_and_nothing_changes(kind, force, small_study, tmp_path):
+    out = tmp_path / "t.md"
+    SPECIAL[kind](out)
+    before = _state(tmp_path)
+    res = studyctl("report", "table1", "--db", small_study, "--out", out, *(["--force"] if force else []))
+    assert res.exit_code == 1, res.output
+    assert res.output.strip().splitlines() == [f"Error: {out}: not a regular file; outputs go to regular files or new names"]
+    assert _state(tmp_path) == before
+
+
+def test_a_folder_output_that_is_a_special_file_is_refused(tmp_path):
+    import os
+
+    from studyctl.outputs import OutputNotRegular, Staged
+
+    out = tmp_path / "frames"
+    os.mkfifo(out)
+    with pytest.raises(OutputNotRegular, match=r"frames: not a folder; folder outputs go to folders or new names$"):
+        Staged(out, force=True, folder=True)
+    assert _state(tmp_path) == {"frames": "special"}
+
+
+def test_force_replaces_a_symlink_to_a_regular_file_and_leaves_the_file_it_named(small_study, tmp_path):
+    """The documented choice (docs/study.md, Output files): the name is replaced, as `mv` would."""
+    real = tmp_path / "kept.md"
+    real.write_bytes(OLD)
+    out = tmp_path / "t.md"
+    out.symlink_to(real)
+    res = studyctl("report", "table1", "--db", small_study, "--out", out, "--force")
+    assert res.exit_code == 0, res.output
+    assert not out.is_symlink()
+    assert out.read_text().startswith("**Table 1: ")
+    assert real.read_bytes() == OLD
+
+
+@pytest.mark.parametrize("force", [False, True], ids=["", "--force"])
+@pytest.mark.parametrize(("argv", "message"), [
+    (["sim", "run", "--scene", "{tmp}/scene.toml", "--view", "window", "--frames", "{tmp}/fr", "--screenshot", "{tmp}/fr/force.png"],
+     "{tmp}/fr/force.png: --screenshot lies in the folder --frames writes ({tmp}/fr); choose another --screenshot"),
+    (["sim", "run", "--scene", "{tmp}/scene.toml", "--view", "window", "--frames", "{tmp}/fr", "--screenshot", "{tmp}/fr/new.png"],
+     "{tmp}/fr/new.png: --screenshot lies in the folder --frames writes ({tmp}/fr); choose another --screenshot"),
+    (["calibrate", "field", "--out", "{tmp}/f.npz", "--params-out", "{tmp}/p.toml"],
+     "{tmp}/p.toml: both --out and --params-out name it; choose one place for each"),
+], ids=["screenshot on a frame file", "screenshot in the frames folder", "params on the field"])
+def test_two_outputs_of_one_command_on_one_path_are_refused_before_any_work(argv, message, force, tmp_path):
+    fast_protocol(tmp_path)
+    (tmp_path / "fr").mkdir()
+    (tmp_path / "fr" / "force.png").write_bytes(OLD)
+    (tmp_path / "f.npz").write_bytes(OLD)
+    (tmp_path / "p.toml").symlink_to(tmp_path / "f.npz")
+    before = _state(tmp_path)
+    res = studyctl(*[a.format(tmp=tmp_path) for a in argv], *(["--force"] if force else []))
+    assert res.exit_code == 1, res.output
+    assert res.output.strip().splitlines() == [f"Error: {message.format(tmp=tmp_path)}"]
+    assert _state(tmp_path) == before
+
+
+def test_a_study_database_s_companions_are_named_as_the_store_names_them(tmp_path):
+    from analysis.trace_files import trace_dir
+    from studyctl.outputs import database_companions
+    from studyctl.session.lock import session_lock
+
+    db = tmp_path / "s.db"
+    with session_lock(db, "P01"):
+        pass
+    made = [p for p in tmp_path.iterdir()]
+    assert made[0] in database_companions(db)
+    assert trace_dir(db) in database_companions(db)
+
+
+def test_force_replaces_a_frames_folder_whole_and_says_what_it_removed_and_kept(tmp_path):
+    """An earlier run of 5 frames, then one of 2: no frame of the earlier run is left beside the new ones."""
+    scene = fast_protocol(tmp_path).parent / "scene.toml"
+    offscreen = tmp_path / "offscreen.toml"
+    offscreen.write_text(re.sub(r'^kind = "none"', 'kind = "offscreen"', scene.read_text(), count=1, flags=re.M))
+    fr = tmp_path / "fr"
+    fr.mkdir()
+    for name in ("trace.csv", "force.png", "notes.txt", *(f"frame_{k:04d}.png" for k in range(5))):
+        (fr / name).write_bytes(OLD)
+    res = studyctl("sim", "run", "--scene", offscreen, "--duration", "0.2", "--time-scale", "0", "--frames", fr, "--force", "--json")
+    assert res.exit_code == 0, res.output
+    assert _listing(fr) == ["force.png", "frame_0000.png", "frame_0001.png", "notes.txt", "trace.csv"]
+    assert (fr / "notes.txt").read_bytes() == OLD
+    assert (f"--force: overwrote 4 files in {fr}; removed 3 earlier files of this command from {fr} (frame_0002.png, "
+            f"frame_0003.png, frame_0004.png); kept 1 file in {fr} it does not write (notes.txt)") in res.output.splitlines()
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # nothing left aside
+
+
+def test_a_folder_that_cannot_be_renamed_into_place_leaves_the_old_one(tmp_path, monkeypatch):
+    import os
+
+    from studyctl import outputs
+
+    out = tmp_path / "plots"
+    out.mkdir()
+    for name in ("rates.png", "old.png", "notes.txt"):
+        (out / name).write_bytes(OLD)
+    before = _state(tmp_path)
+    real = os.rename
+
+    def refuse_the_new_folder(src, dst):
+        if Path(src).name.endswith(".tmp"):
+            raise OSError(errno.EIO, "Input/output error")
+        return real(src, dst)
+
+    monkeypatch.setattr(outputs.os, "rename", refuse_the_new_folder)
+    target = outputs.Staged(out, force=True, folder=True, own=("*.png",))
+    with pytest.raises(outputs.OutputFailed, match="cannot write: Input/output error; nothing was written"):
+        with target as tmp:
+            (tmp / "rates.png").write_bytes(b"new")
+    assert _state(tmp_path) == before
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["report", "table1", "--out", "{tmp}/t.pdf"], "{tmp}/t.pdf: report table1 writes md, csv, latex (.tex), html, json; .pdf is not one"),
+    (["report", "table1", "--format", "md", "--out", "{tmp}/t.html"],
+     "{tmp}/t.html: --format md writes .md, not .html; name it t.md or give --format html"),
+    (["report", "table1", "--out", "{tmp}/t.txt"],
+     "{tmp}/t.txt: .txt names no format; report table1 writes md, csv, latex (.tex), html, json: end the name so or give --format"),
+    (["report", "jnd", "--format", "html", "--out", "{tmp}/j.md"], "{tmp}/j.md: --format html writes .html, not .md; name it j.html or give --format md"),
+    (["report", "jnd", "--out", "{tmp}/j.csv"], "{tmp}/j.csv: report jnd writes md, html, json, latex (.tex); .csv is not one"),
+    (["report", "validity", "--json", "--out", "{tmp}/v.html"], "{tmp}/v.html: --format json writes .json, not .html; name it v.json or give --format html"),
+    (["report", "text", "--out", "{tmp}/x.html"], "{tmp}/x.html: report text writes md, latex (.tex), json; .html is not one"),
+    (["metrics", "--format", "csv", "--out", "{tmp}/m.json"], "{tmp}/m.json: --format csv writes .csv, not .json; name it m.csv or give --format json"),
+], ids=["pdf", "md as html", "no format", "jnd html as md", "jnd csv", "validity json as html", "text html", "metrics csv as json"])
+def test_a_report_s_format_and_its_suffix_agree(argv, message, small_study, tmp_path):
+    res = studyctl(*[a.format(tmp=tmp_path) for a in argv], "--db", small_study)
+    assert res.exit_code == 1, res.output
+    assert res.output.strip().splitlines() == [f"Error: {message.format(tmp=tmp_path)}"]
+    assert _listing(tmp_path) == []
+
+
+@pytest.mark.parametrize(("name", "start"), [("t.html", "<!doctype html>"), ("t.tex", "% needs in the preamble: "), ("t.json", "{"),
+                                             ("t.csv", "item,"), ("t.md", "**Table 1: ")])
+def test_report_table1_takes_its_format_from_the_suffix(name, start, small_study, tmp_path):
+    res = studyctl("report", "table1", "--db", small_study, "--out", tmp_path / name)
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / name).read_text().startswith(start)
