@@ -341,7 +341,7 @@ class Staged:
         new = set(files)
         old, empty = _entries(self.target)
         gone = [f for f in old if f not in new]
-        self.removed = [self.target / f for f in gone if any(fnmatch.fnmatchcase(f.as_posix(), p) for p in self.own)]
+        self.removed = [self.target / f for f in gone if any(_matches(f, p) for p in self.own)]
         keep = [f for f in gone if self.target / f not in self.removed]
         self.kept = [self.target / f for f in keep]
         # nothing to remove: the files replaced where they are (a folder holding a study in use stays
@@ -381,6 +381,12 @@ class Staged:
         self._join(files)
         for f in self.removed:
             f.unlink()
+
+
+def _matches(path: Path, pattern: str) -> bool:
+    """`path` (relative) is `pattern`'s, part by part: "*.png" is no file in a subfolder."""
+    parts = Path(pattern).parts
+    return len(path.parts) == len(parts) and all(fnmatch.fnmatchcase(a, b) for a, b in zip(path.parts, parts))
 
 
 def _entries(folder: Path) -> tuple[list[Path], list[Path]]:

@@ -553,3 +553,18 @@ def test_report_table1_takes_its_format_from_the_suffix(name, start, small_study
     res = studyctl("report", "table1", "--db", small_study, "--out", tmp_path / name)
     assert res.exit_code == 0, res.output
     assert (tmp_path / name).read_text().startswith(start)
+
+
+def test_force_removes_only_the_command_s_own_kind_of_file_at_the_folder_s_top(tmp_path):
+    """`report plots` writes figures at the folder's top: a figure in a subfolder is someone else's."""
+    from studyctl.outputs import Staged
+
+    out = tmp_path / "plots"
+    (out / "mine").mkdir(parents=True)
+    for name in ("old.png", "rates.png", "mine/keep.png", "notes.txt"):
+        (out / name).write_bytes(OLD)
+    target = Staged(out, force=True, folder=True, own=("*.png", "*.svg", "*.pdf"))
+    with target as tmp:
+        (tmp / "rates.png").write_bytes(b"new")
+    assert _listing(out) == ["mine", "mine/keep.png", "notes.txt", "rates.png"]
+    assert [p.name for p in tmp_path.iterdir()] == ["plots"]  # nothing left aside
