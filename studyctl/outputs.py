@@ -114,9 +114,9 @@ def _same(a, b) -> bool:
 
 def refuse_inputs(outputs: Mapping, inputs: Mapping) -> None:
     """Each output (option -> path; None: not given) against each input (option -> a path or a
-    list of them): one of
-    them, or inside a study database's companions (`--db`), is an `OutputConflict`, `force` or not.
-    An input inside a folder output is no conflict: the folder's other files are kept."""
+    list of them): an output that is an input, through any link, or lies in a study database's
+    companions (`--db`), is an `OutputConflict`, `force` or not. An input inside a folder output
+    is no conflict: the folder's other files are kept."""
     given = [(o, p) for o, v in inputs.items() for p in (v if isinstance(v, (list, tuple)) else [v]) if p is not None]
     for out_opt, out in outputs.items():
         for in_opt, inp in given:
