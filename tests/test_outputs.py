@@ -402,7 +402,18 @@ SPECIAL = {
     "symlink to a device": lambda p: p.symlink_to("/dev/null"),
     "symlink to /dev/stdout": lambda p: p.symlink_to("/dev/stdout"),  # as root, --force once replaced /dev/stdout itself
     "symlink to a socket": lambda p: _socket(p),
+    "a copy of /dev/full": lambda p: _device(p),
 }
+
+
+def _device(p):
+    import os
+    import stat
+
+    try:
+        os.mknod(p, stat.S_IFCHR | 0o666, os.makedev(1, 7))  # /dev/full's numbers
+    except PermissionError:
+        pytest.skip("making a device takes CAP_MKNOD")
 
 
 def _socket(p):
@@ -568,3 +579,16 @@ def test_force_removes_only_the_command_s_own_kind_of_file_at_the_folder_s_top(t
         (tmp / "rates.png").write_bytes(b"new")
     assert _listing(out) == ["mine", "mine/keep.png", "notes.txt", "rates.png"]
     assert [p.name for p in tmp_path.iterdir()] == ["plots"]  # nothing left aside
+
+
+def test_export_with_force_replaces_an_earlier_export_whole(small_study, tmp_path):
+    out = tmp_path / "export"
+    out.mkdir()
+    for name in ("answers.parquet", "answers.csv", "notes.txt"):
+        (out / name).write_bytes(OLD)
+    res = studyctl("export", "--db", small_study, "--out", out, "--force")
+    assert res.exit_code == 0, res.output
+    assert not (out / "answers.parquet").exists()
+    assert (out / "notes.txt").read_bytes() == OLD
+    assert (f"--force: overwrote {out / 'answers.csv'}; removed 1 earlier file of this command from {out} (answers.parquet); "
+            f"kept 1 file in {out} it does not write (notes.txt)") in res.output.splitlines()
