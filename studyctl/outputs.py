@@ -4,19 +4,29 @@ Every output is written under a temporary name beside its target (a hidden file 
 same folder, so the move is a rename on one file system) and moved into place only when the
 whole of it is written; a failed or interrupted write removes what it wrote, so nothing is left
 that blocks the retry. Whether a target exists is checked before the work where the names are
-known, and again, for every file written, before anything is moved. With `force`, the files the
-command writes replace those of the same names; other files in a folder are left as they are.
+known, and again, for every file written, before anything is moved. With `force`, a file output
+replaces the file of its name; a folder output that exists is replaced whole (built beside it, the
+old one moved aside and removed only once the new one is in place): the earlier files of the
+command's own kinds go, files it does not write are kept in the new folder and named.
+
+Never, with or without `force`: an output that is one of the command's inputs or inside one (a
+study database's companions: its WAL, traces and locks), an existing target that is not a regular
+file (a folder output's: not a folder) such as a device, fifo or /dev/stdout, or two outputs of one
+command on one path.
 """
 
 from __future__ import annotations
 
 import errno
+import fnmatch
 import os
 import shutil
+import stat
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 
-from analysis.errors import StudyError
+from analysis.errors import InputError, StudyError
 
 
 class OutputExists(StudyError):
@@ -25,6 +35,14 @@ class OutputExists(StudyError):
 
 class OutputFailed(StudyError):
     """The file system refused an output (full, read-only, not allowed); nothing was left of it."""
+
+
+class OutputConflict(StudyError):
+    """An output is an input of its command (or inside one), or two outputs share a path."""
+
+
+class OutputNotRegular(StudyError):
+    """An output's existing target is a device, fifo, socket or other special file."""
 
 
 # what a file system says when it cannot take an output: one line, not a traceback
@@ -65,11 +83,136 @@ def _refuse_long_names(paths) -> None:
             raise _failed(path, OSError(errno.ENAMETOOLONG, os.strerror(errno.ENAMETOOLONG)))
 
 
-def refuse_existing(paths, force: bool) -> list[Path]:
+# the files and folders beside a study database that belong to it, named as SQLite (its WAL and
+# journal), the trace files (analysis/trace_files.py) and the session locks (session/lock.py) name them
+DATABASE_COMPANIONS = ("-wal", "-shm", "-journal", ".traces", ".locks")
+DATABASE_OPTIONS = ("--db",)  # the input options that name a study database
+
+
+def database_companions(db) -> list[Path]:
+    db = Path(db)
+    return [db.with_name(db.name + s) for s in DATABASE_COMPANIONS]
+
+
+def _real(path) -> str:
+    return os.path.realpath(os.path.abspath(path))
+
+
+def _within(path: str, folder: str) -> bool:
+    return path == folder or path.startswith(folder.rstrip(os.sep) + os.sep)
+
+
+def _same(a, b) -> bool:
+    """One file, through symbolic links (the resolved names) or hard links (the inode)."""
+    if _real(a) == _real(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
+
+
+def refuse_inputs(outputs: Mapping, inputs: Mapping) -> None:
+    """Each output (option -> path; None: not given) against each input (option -> a path or a
+    list of them): an output that is an input, through any link, or lies in a study database's
+    companions (`--db`), is an `OutputConflict`, `force` or not. An input inside a folder output
+    is no conflict: the folder's other files are kept."""
+    given = [(o, p) for o, v in inputs.items() for p in (v if isinstance(v, (list, tuple)) else [v]) if p is not None]
+    for out_opt, out in outputs.items():
+        for in_opt, inp in given:
+            if out is None:
+                continue
+            if _same(out, inp):
+                raise OutputConflict(f"{out}: is an input of this command ({in_opt} {inp}); choose another {out_opt}")
+            for part in database_companions(inp) if in_opt in DATABASE_OPTIONS else ():
+                if _same(out, part) or _within(_real(out), _real(part)):
+                    raise OutputConflict(f"{out}: is part of an input of this command ({in_opt} {inp}: {part.name}); "
+                                         f"choose another {out_opt}")
+
+
+def _through_proc(path) -> bool:
+    """A name that leads into /proc (/dev/stdout, /dev/fd/1): a process's open file, not a file."""
+    p = os.path.abspath(path)
+    for _ in range(40):  # the kernel's own limit on links followed
+        p = os.path.join(os.path.realpath(os.path.dirname(p)), os.path.basename(p))
+        if _within(p, "/proc"):
+            return True
+        if not os.path.islink(p):
+            return False
+        p = os.path.join(os.path.dirname(p), os.readlink(p))
+    return True
+
+
+def refuse_special(path, folder: bool = False) -> None:
+    """An existing `path` that is not a regular file (`folder`: not a folder), through symbolic
+    links, is an `OutputNotRegular`, `force` or not: a device, fifo or socket, /dev/stdout. A link
+    to a regular file is replaced by the output (the file it named is left as it was)."""
+    if not os.path.lexists(path):
+        return
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:  # a link to nothing: replaced like any link
+        return
+    if _through_proc(path) or not (stat.S_ISDIR if folder else stat.S_ISREG)(mode):
+        what = "not a folder; folder outputs go to folders or new names" if folder else "not a regular file; outputs go to regular files or new names"
+        raise OutputNotRegular(f"{path}: {what}")
+
+
+def refuse_overlap(outputs: Mapping) -> None:
+    """`outputs`: option -> (path or None, whether it is a folder). Two on one path, or one inside
+    a folder another writes, is an `OutputConflict`: refused before any work."""
+    given = [(o, p, f) for o, (p, f) in outputs.items() if p is not None]
+    for i, first in enumerate(given):
+        for second in given[i + 1:]:
+            if _same(first[1], second[1]):
+                raise OutputConflict(f"{second[1]}: both {first[0]} and {second[0]} name it; choose one place for each")
+            for (oa, pa, fa), (ob, pb, _) in ((first, second), (second, first)):
+                if fa and _within(_real(pb), _real(pa)):
+                    raise OutputConflict(f"{pb}: {ob} lies in the folder {oa} writes ({pa}); choose another {ob}")
+
+
+# the format a file's suffix names; a report takes its format from it when --format is not given
+SUFFIX_FORMATS = {".md": "md", ".markdown": "md", ".csv": "csv", ".tex": "latex", ".latex": "latex", ".html": "html",
+                  ".htm": "html", ".json": "json", ".pdf": "pdf", ".png": "png", ".svg": "svg", ".docx": "docx",
+                  ".xlsx": "xlsx", ".parquet": "parquet"}
+_FORMAT_SUFFIX = {"latex": ".tex"}
+
+
+def _suffix(fmt: str) -> str:
+    return _FORMAT_SUFFIX.get(fmt, "." + fmt)
+
+
+def output_format(out, fmt: str | None, formats, default: str, command: str) -> str:
+    """The format `command` writes to `out`: `fmt` (--format; None: not given), else the one `out`'s
+    suffix names, else `default` (no --out). A suffix naming another format than `fmt`, or one
+    the command does not write, or none, is an `InputError` naming both."""
+    if out is None:
+        return fmt or default
+    suffix = Path(out).suffix.lower()
+    named = SUFFIX_FORMATS.get(suffix)
+    offered = ", ".join(f if _suffix(f) == "." + f else f"{f} ({_suffix(f)})" for f in formats)
+    if fmt is None:
+        if named in formats:
+            return named
+        if named is None:
+            raise InputError(f"{out}: {suffix or 'no suffix'} names no format; {command} writes {offered}: "
+                             "end the name so or give --format")
+        raise InputError(f"{out}: {command} writes {offered}; {suffix} is not one")
+    if named is not None and named != fmt:
+        raise InputError(f"{out}: --format {fmt} writes {_suffix(fmt)}, not {suffix}; "
+                         f"name it {Path(out).stem}{_suffix(fmt)}" + (f" or give --format {named}" if named in formats else ""))
+    return fmt
+
+
+def refuse_existing(paths, force: bool, inputs: Mapping | None = None, option: str = "--out") -> list[Path]:
     """The `paths` that exist; without `force`, any one existing is an `OutputExists` naming it.
-    A path with a name longer than its file system takes is an `OutputFailed`."""
+    A path with a name longer than its file system takes is an `OutputFailed`; one that is not a
+    regular file, or is one of the command's `inputs` (option -> path), is refused whatever `force`."""
     paths = list(paths)
     _refuse_long_names(paths)
+    for p in paths:
+        refuse_special(p)
+        refuse_inputs({option: p}, inputs or {})
     found = [Path(p) for p in paths if os.path.lexists(p)]
     if found and not force:
         more = f" (and {len(found) - 1} more of the files this command writes)" if len(found) > 1 else ""
@@ -79,17 +222,36 @@ def refuse_existing(paths, force: bool) -> list[Path]:
 
 class Staged:
     """`with Staged(target, force) as tmp:` write the output to `tmp`, a temporary file (or, with
-    `folder=True`, a temporary folder) beside `target`; on a clean exit it is moved to `target`
-    (a folder: each file into `target`, made if missing), else removed. `expect`: the names a
-    folder will hold, refused before the work when they exist. After the block, `replaced`
-    lists the files that were overwritten and `written` every file moved into place."""
+    `folder=True`, a temporary folder) beside `target`; on a clean exit it is moved to `target`,
+    else removed. `expect`: the names a folder will hold, refused before the work when they
+    exist. `inputs`: the command's inputs (option -> path), which no output may be; `option`: the
+    output's own, for the messages. A folder that exists takes the new files beside its own
+    without `force`; with it, it is replaced whole: its earlier files whose names match `own`
+    (glob patterns; `expect` when not given) go (`removed`), the others are kept (`kept`). After
+    the block, `replaced` lists the files overwritten and `written` every file moved into place."""
 
-    def __init__(self, target, force: bool = False, folder: bool = False, expect=(), mode: int | None = None):
+    def __init__(self, target, force: bool = False, folder: bool = False, expect=(), mode: int | None = None,
+                 inputs: Mapping | None = None, option: str = "--out", own=None):
         self.target, self.force, self.folder, self.mode = Path(target), force, folder, mode
+        self.inputs, self.option = dict(inputs or {}), option
+        self.own = tuple(expect if own is None else own)
         self.replaced: list[Path] = []
         self.written: list[Path] = []
+        self.removed: list[Path] = []
+        self.kept: list[Path] = []
         _refuse_long_names([self.target])
-        refuse_existing([self.target / n for n in expect] if folder else [self.target], force)
+        files = [self.target / n for n in expect] if folder else [self.target]
+        self._refuse(files)
+        refuse_existing(files, force)
+
+    def _refuse(self, files) -> None:
+        """What no `force` allows: an input overwritten, a special file replaced."""
+        if self.folder:
+            refuse_special(self.target, folder=True)
+            refuse_inputs({self.option: self.target}, self.inputs)
+        for f in files:
+            refuse_special(f)
+            refuse_inputs({self.option: f}, self.inputs)
 
     def __enter__(self) -> Path:
         self.tmp = None
@@ -151,23 +313,116 @@ class Staged:
 
     def _move(self) -> None:
         if not self.folder:
+            self._refuse([self.target])
             self.replaced = refuse_existing([self.target], self.force)
             os.replace(self.tmp, self.target)
             self.written = [self.target]
             return
         files = sorted(p.relative_to(self.tmp) for p in self.tmp.rglob("*") if not p.is_dir())
+        self._refuse([self.target / f for f in files])
         self.replaced = refuse_existing([self.target / f for f in files], self.force)
         self.written = [self.target / f for f in files]
         if not os.path.lexists(self.target):  # a new folder: one rename moves all of it
             os.rename(self.tmp, self.target)
-            return
+        elif not self.force:  # none of its names there: the new files join the folder's own
+            self._join(files)
+        else:
+            self._replace_whole(files)
+
+    def _join(self, files) -> None:
         for f in files:
             (self.target / f).parent.mkdir(parents=True, exist_ok=True)
             os.replace(self.tmp / f, self.target / f)
 
+    def _replace_whole(self, files) -> None:
+        """Where earlier files of the command's go: the new folder, with the old one's files the
+        command does not write linked into it, renamed into place; the old one moved aside first
+        and removed last, so a failure leaves it."""
+        new = set(files)
+        old, empty = _entries(self.target)
+        gone = [f for f in old if f not in new]
+        self.removed = [self.target / f for f in gone if any(_matches(f, p) for p in self.own)]
+        keep = [f for f in gone if self.target / f not in self.removed]
+        self.kept = [self.target / f for f in keep]
+        # nothing to remove: the files replaced where they are (a folder holding a study in use stays
+        # as it is); a linked folder stays where the link points
+        if not self.removed or os.path.islink(self.target) or not self._link(keep, empty):
+            self._in_place(files)
+            return
+        os.chmod(self.tmp, stat.S_IMODE(os.stat(self.target).st_mode))
+        aside = tempfile.mkdtemp(prefix=_PREFIX, suffix=".old", dir=self.target.parent)
+        try:
+            os.rename(self.target, aside)  # over the empty folder just made
+        except OSError:  # a mount point, a folder in use: the files replaced one by one
+            os.rmdir(aside)
+            self._in_place(files)
+            return
+        try:
+            os.rename(self.tmp, self.target)
+        except OSError:
+            os.rename(aside, self.target)
+            raise
+        shutil.rmtree(aside, ignore_errors=True)
 
-def write_file(path, data: str | bytes, force: bool = False, mode: int | None = None) -> list[Path]:
+    def _link(self, keep, empty) -> bool:
+        """The kept files hard-linked into the new folder (the same files, not copies); False where
+        the file system takes no hard links."""
+        try:
+            for d in empty:
+                (self.tmp / d).mkdir(parents=True, exist_ok=True)
+            for f in keep:
+                (self.tmp / f).parent.mkdir(parents=True, exist_ok=True)
+                os.link(self.target / f, self.tmp / f, follow_symlinks=False)
+        except OSError:
+            return False
+        return True
+
+    def _in_place(self, files) -> None:
+        self._join(files)
+        for f in self.removed:
+            f.unlink()
+
+
+def _matches(path: Path, pattern: str) -> bool:
+    """`path` (relative) is `pattern`'s, part by part: "*.png" is no file in a subfolder."""
+    parts = Path(pattern).parts
+    return len(path.parts) == len(parts) and all(fnmatch.fnmatchcase(a, b) for a, b in zip(path.parts, parts))
+
+
+def _entries(folder: Path) -> tuple[list[Path], list[Path]]:
+    """The files and links under `folder` (relative, links to folders not followed), and its empty folders."""
+    files, empty = [], []
+    for root, dirs, names in os.walk(folder):
+        rel = Path(root).relative_to(folder)
+        links = [d for d in dirs if os.path.islink(os.path.join(root, d))]
+        files += [rel / n for n in (*names, *links)]
+        if not names and not dirs and rel != Path("."):
+            empty.append(rel)
+    return sorted(files), empty
+
+
+def write_file(path, data: str | bytes, force: bool = False, mode: int | None = None, inputs: Mapping | None = None,
+               option: str = "--out") -> list[Path]:
     """`data` to `path`, whole or not at all; returns the replaced file ([] when it was new)."""
-    staged = Staged(path, force, mode=mode)
+    staged = Staged(path, force, mode=mode, inputs=inputs, option=option)
     staged.write(data)
     return staged.replaced
+
+
+def _names(paths, folder: Path, most: int = 3) -> str:
+    rel = [str(Path(p).relative_to(folder)) for p in paths]
+    return ", ".join(rel[:most]) + (f" and {len(rel) - most} more" if len(rel) > most else "")
+
+
+def replaced_line(out: Staged) -> str:
+    """What `force` did to an output, in one line ("" where it changed nothing that was there)."""
+    parts = []
+    if out.replaced:
+        parts.append(f"overwrote {out.replaced[0] if len(out.replaced) == 1 else f'{len(out.replaced)} files in {out.target}'}")
+    if out.removed:
+        parts.append(f"removed {len(out.removed)} earlier file{'s' if len(out.removed) > 1 else ''} of this command "
+                     f"from {out.target} ({_names(out.removed, out.target)})")
+    if out.kept:
+        parts.append(f"kept {len(out.kept)} file{'s' if len(out.kept) > 1 else ''} in {out.target} it does not write "
+                     f"({_names(out.kept, out.target)})")
+    return "--force: " + "; ".join(parts) if parts else ""

@@ -17,7 +17,7 @@ from analysis.errors import InputError, StoreError
 from analysis.questions import shown
 from analysis.trace_files import trace_dir
 from sim.text import TEXT_MOST, text_problem
-from studyctl.outputs import write_file
+from studyctl.outputs import refuse_inputs, write_file
 from studyctl.session.lock import SessionRunning, session_lock
 from studyctl.store import Store, now, records, roster, snapshot
 from studyctl.store.participant_fields import read_fields
@@ -206,6 +206,7 @@ def export_contacts(db, out: str | Path, force: bool = False) -> dict:
     """The identifying table (code, name, contact) to a CSV whose first lines say what it is.
     Withdrawn participants' details were deleted when they withdrew. An existing file is refused
     unless `force` (studyctl/outputs.py); readable by the owner only (0600) from the start."""
+    refuse_inputs({"--out": out}, {"--db": db})  # before the identifying table is read
     with Store(db, mode="read") as store:
         rows = records.contacts(store)
     buf = io.StringIO()
@@ -214,5 +215,5 @@ def export_contacts(db, out: str | Path, force: bool = False) -> dict:
     w.writerow(["code", "name", "contact"])
     w.writerows([spreadsheet_safe(v) for v in (r["code"], r["name"] or "", r["contact"] or "")] for r in rows)
     path = Path(out)
-    replaced = write_file(path, buf.getvalue(), force, mode=0o600)
+    replaced = write_file(path, buf.getvalue(), force, mode=0o600, inputs={"--db": db})
     return {"file": str(path), "participants": len(rows), "replaced": [str(p) for p in replaced]}

@@ -130,7 +130,7 @@ def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:
     (`dry_run`: none, the proposal is returned); `ics`, a calendar of the slots, is refused
     before anything is stored where it exists (unless `force`), and written whole or not at all."""
     if ics and not dry_run:
-        refuse_existing([ics], force)
+        refuse_existing([ics], force, inputs={"--db": db, "--availability": availability}, option="--ics")
     try:
         d0, d1 = dt.date.fromisoformat(start), dt.date.fromisoformat(end)
     except ValueError:
@@ -167,7 +167,8 @@ def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:
                     roster.set_slot(conn, code, a.isoformat(), b.isoformat())
             out = roster.schedule_rows(store)
             if ics and not dry_run:
-                write_file(ics, to_ics([r for r in out if r["slot_start"]], protocol.name, protocol.timezone, protocol.title), force)
+                write_file(ics, to_ics([r for r in out if r["slot_start"]], protocol.name, protocol.timezone, protocol.title), force,
+                           inputs={"--db": db, "--availability": availability}, option="--ics")
         return out
 
 
@@ -257,7 +258,10 @@ def export(db: str | Path, out_dir: str | Path, fmt: str = "csv", force: bool = 
     if fmt not in ("csv", "parquet"):
         raise InputError(f"--format: {fmt!r} is not csv or parquet")
     out_dir = Path(out_dir)
-    target = Staged(out_dir, force, folder=True, expect=[f"{t}.{fmt}" for t in (*EXPORT_TABLES, "traces")])
+    tables = (*EXPORT_TABLES, "traces")
+    # with force, an earlier export in either format goes whole; other files in the folder stay
+    target = Staged(out_dir, force, folder=True, expect=[f"{t}.{fmt}" for t in tables], inputs={"--db": db},
+                    own=[f"{t}.{f}" for t in tables for f in ("csv", "parquet")])
     if fmt == "parquet":
         if importlib.util.find_spec("pyarrow") is None:  # an optional extra: checked before anything is read or written
             raise StoreError("--format parquet needs the parquet extra: pip install 'brainsim-study[parquet]'")

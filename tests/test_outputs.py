@@ -300,3 +300,295 @@ def test_a_table_a_tool_writes_itself_takes_a_long_name_and_leaves_no_temporary(
     with pytest.raises(OSError):
         save_npz(tmp_path / "other.npz", x=np.arange(3))
     assert _listing(tmp_path) == [out.name]
+
+
+# ---- no output destroys an input, a special file, or another output of the same command ----
+
+def _state(folder: Path) -> dict:
+    """Every file under `folder` (hidden ones too), links as their text: what a refused command must leave as it was."""
+    out = {}
+    for p in sorted(folder.rglob("*")):
+        rel = str(p.relative_to(folder))
+        if p.is_symlink():
+            out[rel] = "-> " + str(p.readlink())
+        elif p.is_file():
+            out[rel] = _sha(p)
+        elif not p.is_dir():
+            out[rel] = "special"
+    return out
+
+
+@pytest.fixture
+def study_copy(small_study, tmp_path):
+    """The small study, database and traces, in this test's own folder (a refusal that fails
+    must not take the shared one with it)."""
+    import shutil
+
+    db = tmp_path / "s.db"
+    shutil.copy2(small_study, db)
+    shutil.copytree(small_study.parent / f"{small_study.name}.traces", tmp_path / "s.db.traces")
+    fast_protocol(tmp_path)  # tmp_path / "scene.toml", tmp_path / "protocol.toml"
+    return db
+
+
+# (argv, the output as the command names it, how it is an input: "itself", "hard", "symlink", or a companion's
+#  name "s.db.traces"; the message's tail after "is (part of) an input of this command (")
+AS_INPUT = {
+    "table1 --out the db": (["report", "table1", "--db", "{db}", "--out", "{db}"], "{db}", None, "--db {db})"),
+    "table1 --out a hard link to the db": (["report", "table1", "--db", "{db}", "--format", "md", "--out", "{tmp}/t.md"],
+                                           "{tmp}/t.md", "hard", "--db {db})"),
+    "table1 --out a symlink to the db": (["report", "table1", "--db", "{db}", "--format", "md", "--out", "{tmp}/t.md"],
+                                         "{tmp}/t.md", "symlink", "--db {db})"),
+    "table1 --out the db's traces": (["report", "table1", "--db", "{db}", "--out", "{db}.traces/t.md"], "{db}.traces/t.md", None,
+                                     "--db {db}: s.db.traces)"),
+    "table1 --out the db's WAL": (["report", "table1", "--db", "{db}", "--format", "md", "--out", "{db}-wal"], "{db}-wal", None,
+                                  "--db {db}: s.db-wal)"),
+    "table1 --out --accuracy": (["report", "table1", "--db", "{db}", "--format", "json", "--accuracy", "{tmp}/a.json",
+                                 "--out", "{tmp}/a.json"], "{tmp}/a.json", None, "--accuracy {tmp}/a.json)"),
+    "text --out the db": (["report", "text", "--db", "{db}", "--format", "md", "--out", "{db}"], "{db}", None, "--db {db})"),
+    "jnd --out the db": (["report", "jnd", "--db", "{db}", "--format", "md", "--out", "{db}"], "{db}", None, "--db {db})"),
+    "validity --out the db": (["report", "validity", "--db", "{db}", "--format", "md", "--out", "{db}"], "{db}", None, "--db {db})"),
+    "metrics --out a hard link to the db": (["metrics", "--db", "{db}", "--out", "{tmp}/m.csv"], "{tmp}/m.csv", "hard", "--db {db})"),
+    "contacts --out a hard link to the db": (["participants", "contacts", "--db", "{db}", "--out", "{tmp}/c.csv"], "{tmp}/c.csv", "hard",
+                                             "--db {db})"),
+    "schedule --ics a hard link to the db": (["schedule", "--db", "{db}", "--start", "2099-01-05", "--end", "2099-01-09", "--ics",
+                                              "{tmp}/s.ics"], "{tmp}/s.ics", "hard", "--db {db})"),
+    "export --out the db's traces": (["export", "--db", "{db}", "--out", "{db}.traces"], "{db}.traces", None, "--db {db}: s.db.traces)"),
+    "plots --out the db's locks": (["report", "plots", "--db", "{db}", "--out", "{db}.locks"], "{db}.locks", None, "--db {db}: s.db.locks)"),
+    "replay --frames the db's traces": (["replay", "--db", "{db}", "--session", "1", "--trial", "1", "--frames", "{db}.traces"],
+                                        "{db}.traces", None, "--db {db}: s.db.traces)"),
+    "sim run --frames over its scene": (["sim", "run", "--scene", "{tmp}/fr/trace.csv", "--frames", "{tmp}/fr"], "{tmp}/fr/trace.csv",
+                                        None, "--scene {tmp}/fr/trace.csv)"),
+    "plan --plot a hard link to the protocol": (["plan", "--protocol", "{tmp}/protocol.toml", "--plot", "{tmp}/p.png"], "{tmp}/p.png",
+                                                "hard", "--protocol {tmp}/protocol.toml)"),
+    "calibrate plate-spring --out its scene": (["calibrate", "plate-spring", "--scene", "{tmp}/scene.toml", "--out", "{tmp}/scene.toml"],
+                                               "{tmp}/scene.toml", None, "--scene {tmp}/scene.toml)"),
+    "model check --out a hard link to its scene": (["model", "check", "plate_spring", "--contract", "--scene", "{tmp}/scene.toml",
+                                                    "--out", "{tmp}/card.md"], "{tmp}/card.md", "hard", "--scene {tmp}/scene.toml)"),
+}
+SOURCE = {"--db": "{db}", "--accuracy": "{tmp}/a.json", "--protocol": "{tmp}/protocol.toml", "--scene": "{tmp}/scene.toml"}
+
+
+@pytest.mark.parametrize("force", [False, True], ids=["", "--force"])
+@pytest.mark.parametrize("case", list(AS_INPUT))
+def test_an_output_that_is_an_input_is_refused_and_nothing_changes(case, force, study_copy, tmp_path):
+    import os
+
+    argv, out, link, tail = AS_INPUT[case]
+    fill = {"db": study_copy, "tmp": tmp_path}
+    (tmp_path / "a.json").write_text('{"rows": [], "meta": {}}')
+    (tmp_path / "fr").mkdir()
+    (tmp_path / "fr" / "trace.csv").write_bytes((tmp_path / "scene.toml").read_bytes())  # a scene under the name of a frame file
+    (tmp_path / "s.db-wal").write_bytes(b"")
+    (tmp_path / "s.db.locks").mkdir()
+    out = out.format(**fill)
+    source = next(SOURCE[o].format(**fill) for o in SOURCE if tail.startswith(o + " "))
+    if link == "hard":
+        os.link(source, out)
+    elif link == "symlink":
+        os.symlink(source, out)
+    before = _state(tmp_path)
+    res = studyctl(*[a.format(**fill) for a in argv], *(["--force"] if force else []))
+    assert res.exit_code == 1, res.output
+    what = "is part of an input" if ": s.db" in tail else "is an input"
+    option = next(o for o in ("--frames", "--ics", "--plot", "--out") if o in argv)
+    assert res.output.strip().splitlines() == [f"Error: {out}: {what} of this command ({tail.format(**fill)}; choose another {option}"]
+    assert _state(tmp_path) == before
+
+
+# (how the special file is made, what --out names): each refused with or without --force, and nothing changes
+SPECIAL = {
+    "fifo": lambda p: __import__("os").mkfifo(p),
+    "symlink to a device": lambda p: p.symlink_to("/dev/null"),
+    "symlink to /dev/stdout": lambda p: p.symlink_to("/dev/stdout"),  # as root, --force once replaced /dev/stdout itself
+    "symlink to a socket": lambda p: _socket(p),
+    "a copy of /dev/full": lambda p: _device(p),
+}
+
+
+def _device(p):
+    import os
+    import stat
+
+    try:
+        os.mknod(p, stat.S_IFCHR | 0o666, os.makedev(1, 7))  # /dev/full's numbers
+    except PermissionError:
+        pytest.skip("making a device takes CAP_MKNOD")
+
+
+def _socket(p):
+    import socket
+
+    s = socket.socket(socket.AF_UNIX)
+    s.bind(str(p.with_suffix(".sock")))
+    p.symlink_to(p.with_suffix(".sock"))
+
+
+@pytest.mark.parametrize("force", [False, True], ids=["", "--force"])
+@pytest.mark.parametrize("kind", list(SPECIAL))
+def test_an_output_that_is_a_special_file_is_refused_and_nothing_changes(kind, force, small_study, tmp_path):
+    out = tmp_path / "t.md"
+    SPECIAL[kind](out)
+    before = _state(tmp_path)
+    res = studyctl("report", "table1", "--db", small_study, "--out", out, *(["--force"] if force else []))
+    assert res.exit_code == 1, res.output
+    assert res.output.strip().splitlines() == [f"Error: {out}: not a regular file; outputs go to regular files or new names"]
+    assert _state(tmp_path) == before
+
+
+def test_a_folder_output_that_is_a_special_file_is_refused(tmp_path):
+    import os
+
+    from studyctl.outputs import OutputNotRegular, Staged
+
+    out = tmp_path / "frames"
+    os.mkfifo(out)
+    with pytest.raises(OutputNotRegular, match=r"frames: not a folder; folder outputs go to folders or new names$"):
+        Staged(out, force=True, folder=True)
+    assert _state(tmp_path) == {"frames": "special"}
+
+
+def test_force_replaces_a_symlink_to_a_regular_file_and_leaves_the_file_it_named(small_study, tmp_path):
+    """The documented choice (docs/study.md, Output files): the name is replaced, as `mv` would."""
+    real = tmp_path / "kept.md"
+    real.write_bytes(OLD)
+    out = tmp_path / "t.md"
+    out.symlink_to(real)
+    res = studyctl("report", "table1", "--db", small_study, "--out", out, "--force")
+    assert res.exit_code == 0, res.output
+    assert not out.is_symlink()
+    assert out.read_text().startswith("**Table 1: ")
+    assert real.read_bytes() == OLD
+
+
+@pytest.mark.parametrize("force", [False, True], ids=["", "--force"])
+@pytest.mark.parametrize(("argv", "message"), [
+    (["sim", "run", "--scene", "{tmp}/scene.toml", "--view", "window", "--frames", "{tmp}/fr", "--screenshot", "{tmp}/fr/force.png"],
+     "{tmp}/fr/force.png: --screenshot lies in the folder --frames writes ({tmp}/fr); choose another --screenshot"),
+    (["sim", "run", "--scene", "{tmp}/scene.toml", "--view", "window", "--frames", "{tmp}/fr", "--screenshot", "{tmp}/fr/new.png"],
+     "{tmp}/fr/new.png: --screenshot lies in the folder --frames writes ({tmp}/fr); choose another --screenshot"),
+    (["calibrate", "field", "--out", "{tmp}/f.npz", "--params-out", "{tmp}/p.toml"],
+     "{tmp}/p.toml: both --out and --params-out name it; choose one place for each"),
+], ids=["screenshot on a frame file", "screenshot in the frames folder", "params on the field"])
+def test_two_outputs_of_one_command_on_one_path_are_refused_before_any_work(argv, message, force, tmp_path):
+    fast_protocol(tmp_path)
+    (tmp_path / "fr").mkdir()
+    (tmp_path / "fr" / "force.png").write_bytes(OLD)
+    (tmp_path / "f.npz").write_bytes(OLD)
+    (tmp_path / "p.toml").symlink_to(tmp_path / "f.npz")
+    before = _state(tmp_path)
+    res = studyctl(*[a.format(tmp=tmp_path) for a in argv], *(["--force"] if force else []))
+    assert res.exit_code == 1, res.output
+    assert res.output.strip().splitlines() == [f"Error: {message.format(tmp=tmp_path)}"]
+    assert _state(tmp_path) == before
+
+
+def test_a_study_database_s_companions_are_named_as_the_store_names_them(tmp_path):
+    from analysis.trace_files import trace_dir
+    from studyctl.outputs import database_companions
+    from studyctl.session.lock import session_lock
+
+    db = tmp_path / "s.db"
+    with session_lock(db, "P01"):
+        pass
+    made = [p for p in tmp_path.iterdir()]
+    assert made[0] in database_companions(db)
+    assert trace_dir(db) in database_companions(db)
+
+
+def test_force_replaces_a_frames_folder_whole_and_says_what_it_removed_and_kept(tmp_path):
+    """An earlier run of 5 frames, then one of 2: no frame of the earlier run is left beside the new ones."""
+    scene = fast_protocol(tmp_path).parent / "scene.toml"
+    offscreen = tmp_path / "offscreen.toml"
+    offscreen.write_text(re.sub(r'^kind = "none"', 'kind = "offscreen"', scene.read_text(), count=1, flags=re.M))
+    fr = tmp_path / "fr"
+    fr.mkdir()
+    for name in ("trace.csv", "force.png", "notes.txt", *(f"frame_{k:04d}.png" for k in range(5))):
+        (fr / name).write_bytes(OLD)
+    res = studyctl("sim", "run", "--scene", offscreen, "--duration", "0.2", "--time-scale", "0", "--frames", fr, "--force", "--json")
+    assert res.exit_code == 0, res.output
+    assert _listing(fr) == ["force.png", "frame_0000.png", "frame_0001.png", "notes.txt", "trace.csv"]
+    assert (fr / "notes.txt").read_bytes() == OLD
+    assert (f"--force: overwrote 4 files in {fr}; removed 3 earlier files of this command from {fr} (frame_0002.png, "
+            f"frame_0003.png, frame_0004.png); kept 1 file in {fr} it does not write (notes.txt)") in res.output.splitlines()
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # nothing left aside
+
+
+def test_a_folder_that_cannot_be_renamed_into_place_leaves_the_old_one(tmp_path, monkeypatch):
+    import os
+
+    from studyctl import outputs
+
+    out = tmp_path / "plots"
+    out.mkdir()
+    for name in ("rates.png", "old.png", "notes.txt"):
+        (out / name).write_bytes(OLD)
+    before = _state(tmp_path)
+    real = os.rename
+
+    def refuse_the_new_folder(src, dst):
+        if Path(src).name.endswith(".tmp"):
+            raise OSError(errno.EIO, "Input/output error")
+        return real(src, dst)
+
+    monkeypatch.setattr(outputs.os, "rename", refuse_the_new_folder)
+    target = outputs.Staged(out, force=True, folder=True, own=("*.png",))
+    with pytest.raises(outputs.OutputFailed, match="cannot write: Input/output error; nothing was written"):
+        with target as tmp:
+            (tmp / "rates.png").write_bytes(b"new")
+    assert _state(tmp_path) == before
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["report", "table1", "--out", "{tmp}/t.pdf"], "{tmp}/t.pdf: report table1 writes md, csv, latex (.tex), html, json; .pdf is not one"),
+    (["report", "table1", "--format", "md", "--out", "{tmp}/t.html"],
+     "{tmp}/t.html: --format md writes .md, not .html; name it t.md or give --format html"),
+    (["report", "table1", "--out", "{tmp}/t.txt"],
+     "{tmp}/t.txt: .txt names no format; report table1 writes md, csv, latex (.tex), html, json: end the name so or give --format"),
+    (["report", "jnd", "--format", "html", "--out", "{tmp}/j.md"], "{tmp}/j.md: --format html writes .html, not .md; name it j.html or give --format md"),
+    (["report", "jnd", "--out", "{tmp}/j.csv"], "{tmp}/j.csv: report jnd writes md, html, json, latex (.tex); .csv is not one"),
+    (["report", "validity", "--json", "--out", "{tmp}/v.html"], "{tmp}/v.html: --format json writes .json, not .html; name it v.json or give --format html"),
+    (["report", "text", "--out", "{tmp}/x.html"], "{tmp}/x.html: report text writes md, latex (.tex), json; .html is not one"),
+    (["metrics", "--format", "csv", "--out", "{tmp}/m.json"], "{tmp}/m.json: --format csv writes .csv, not .json; name it m.csv or give --format json"),
+], ids=["pdf", "md as html", "no format", "jnd html as md", "jnd csv", "validity json as html", "text html", "metrics csv as json"])
+def test_a_report_s_format_and_its_suffix_agree(argv, message, small_study, tmp_path):
+    res = studyctl(*[a.format(tmp=tmp_path) for a in argv], "--db", small_study)
+    assert res.exit_code == 1, res.output
+    assert res.output.strip().splitlines() == [f"Error: {message.format(tmp=tmp_path)}"]
+    assert _listing(tmp_path) == []
+
+
+@pytest.mark.parametrize(("name", "start"), [("t.html", "<!doctype html>"), ("t.tex", "% needs in the preamble: "), ("t.json", "{"),
+                                             ("t.csv", "item,"), ("t.md", "**Table 1: ")])
+def test_report_table1_takes_its_format_from_the_suffix(name, start, small_study, tmp_path):
+    res = studyctl("report", "table1", "--db", small_study, "--out", tmp_path / name)
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / name).read_text().startswith(start)
+
+
+def test_force_removes_only_the_command_s_own_kind_of_file_at_the_folder_s_top(tmp_path):
+    """`report plots` writes figures at the folder's top: a figure in a subfolder is someone else's."""
+    from studyctl.outputs import Staged
+
+    out = tmp_path / "plots"
+    (out / "mine").mkdir(parents=True)
+    for name in ("old.png", "rates.png", "mine/keep.png", "notes.txt"):
+        (out / name).write_bytes(OLD)
+    target = Staged(out, force=True, folder=True, own=("*.png", "*.svg", "*.pdf"))
+    with target as tmp:
+        (tmp / "rates.png").write_bytes(b"new")
+    assert _listing(out) == ["mine", "mine/keep.png", "notes.txt", "rates.png"]
+    assert [p.name for p in tmp_path.iterdir()] == ["plots"]  # nothing left aside
+
+
+def test_export_with_force_replaces_an_earlier_export_whole(small_study, tmp_path):
+    out = tmp_path / "export"
+    out.mkdir()
+    for name in ("answers.parquet", "answers.csv", "notes.txt"):
+        (out / name).write_bytes(OLD)
+    res = studyctl("export", "--db", small_study, "--out", out, "--force")
+    assert res.exit_code == 0, res.output
+    assert not (out / "answers.parquet").exists()
+    assert (out / "notes.txt").read_bytes() == OLD
+    assert (f"--force: overwrote {out / 'answers.csv'}; removed 1 earlier file of this command from {out} (answers.parquet); "
+            f"kept 1 file in {out} it does not write (notes.txt)") in res.output.splitlines()

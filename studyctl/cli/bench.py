@@ -74,7 +74,7 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, forc
     Wilson intervals, against the reference's band, direction error), time per tick and frame."""
     from analysis.verification import accuracy, accuracy_tables
 
-    target = staged(out_dir, force, folder=True, expect=ACCURACY_FILES)  # refused before the sweep
+    target = staged(out_dir, force, folder=True, expect=ACCURACY_FILES, inputs={"--scene": scene_file})  # refused before the sweep
     kw = {"scene": scene_file, "young": young} | ({"test_places": test_places} if test_places else {})
     settings = accuracy.default_settings(quick)
     kw["settings"] = settings if models is None else tuple(s for s in settings if s.model in models)
@@ -126,7 +126,7 @@ def bench_stability(scene_file, quick, as_json, out_dir, force, jobs, scheduler,
     jumps for every model: stable, refused (with the reason) or unstable (with the time)."""
     from analysis.verification import stability
 
-    target = staged(out_dir, force, folder=True, expect=STABILITY_FILES)  # refused before the sweep
+    target = staged(out_dir, force, folder=True, expect=STABILITY_FILES, inputs={"--scene": scene_file})  # refused before the sweep
     cases = stability.make_cases(quick, models)
     result = _with_progress("stability cases", lambda p: stability.run_stability(quick, scene_file, jobs=jobs, scheduler=scheduler, progress=p, cases=cases))
     if target:
@@ -189,7 +189,8 @@ def bench_reference(scene_file, sizes, functional, formulation, pull_names, jobs
     for every calibration pull of the accuracy bench."""
     from analysis.verification import reference
 
-    target = staged(out_dir, force, folder=True, expect=("reference.json", "reference.md"))  # refused before the solves
+    # refused before the solves
+    target = staged(out_dir, force, folder=True, expect=("reference.json", "reference.md"), inputs={"--scene": scene_file})
     kw = {"scene": scene_file, "functional": functional, "formulation": formulation, "jobs": jobs}
     if sizes is not None:
         kw["sizes_mm"] = sizes

@@ -23,6 +23,7 @@ from studyctl.cli.common import (
     staged,
     write_output,
 )
+from studyctl.outputs import refuse_overlap
 
 
 @click.group(cls=_Group)
@@ -48,7 +49,8 @@ def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out
     from sim.calibrate import fit, read_curve, to_toml
     from sim.scene import load_scene
 
-    target = staged(out_file, force)  # an existing file refused before the fit
+    inputs = {"--scene": scene_file, "--reference": None if reference == "converged" else Path(reference)}
+    target = staged(out_file, force, inputs=inputs)  # refused before the fit
     spec = load_scene(scene_file)
     ps = spec.model_spec("plate_spring")
     if reference == "converged":
@@ -90,7 +92,7 @@ def calibrate_material(ctx, data_files, region, laws, bulk_ratio, out_file, forc
     from sim.hyperelastic import BULK_RATIO
     from sim.material import material_toml
 
-    target = staged(out_file, force)  # an existing file refused before the fit
+    target = staged(out_file, force, inputs={"--data": list(data_files)})  # refused before the fit
     command = _command_line(ctx)  # the provenance: this command as run
     data_files = list(data_files) or [DATA_FILE]
     laws = laws or FIT_LAWS
@@ -162,8 +164,9 @@ def calibrate_field(scene_file, out_file, params_out, formulation, force, as_jso
     from sim.scene import load_scene
 
     # the shipped field too (the default): refused before the solves unless --force
-    field_target = staged(out_file or field.FIELD_FILE, force)
-    params_target = staged(params_out, force)
+    refuse_overlap({"--out": (out_file or field.FIELD_FILE, False), "--params-out": (params_out, False)})
+    field_target = staged(out_file or field.FIELD_FILE, force, inputs={"--scene": scene_file})
+    params_target = staged(params_out, force, inputs={"--scene": scene_file}, option="--params-out")
     # all or none: both are written under temporary names and moved into place only once the
     # shape fit, the second step, has run too
     with params_target or contextlib.nullcontext() as params_tmp, field_target as tmp:
@@ -231,7 +234,8 @@ def calibrate_rig(db, protocol_file, trials, profile_file, out_file, force, as_j
         raise InputError("name the study (--db) or, to write a profile only, a protocol (--protocol with --out)")
     if protocol_file is not None and (out_file is None or profile_file is not None):
         raise InputError("--protocol: measures without a study, so it needs --out (and no --profile)")
-    target = staged(out_file, force)  # an existing file refused before the trials
+    # refused before the trials
+    target = staged(out_file, force, inputs={"--db": db, "--protocol": protocol_file, "--profile": profile_file})
     if db is not None:
         with Store(db, mode="read") as store:
             protocol = store.protocol()
@@ -272,7 +276,7 @@ def calibrate_truth(scene_file, vertices, out_file, force, no_check, jobs, as_js
     from studyctl.outputs import refuse_existing
 
     # a named table and its .json refused before the solves (the cache's is the tool's own); the table is written atomically
-    replaced = refuse_existing([out_file, out_file.with_suffix(".json")], force) if out_file else []
+    replaced = refuse_existing([out_file, out_file.with_suffix(".json")], force, inputs={"--scene": scene_file}) if out_file else []
     rep = build_truth(scene_file, out_file, vertices, check=not no_check, jobs=jobs, progress=None if as_json else click.echo)
     if replaced:
         click.echo(f"--force: overwrote {', '.join(map(str, replaced))}", err=True)

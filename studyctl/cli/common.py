@@ -19,7 +19,7 @@ from brainsim_assets import path as _asset
 from sim.errors import SimError
 from sim.jsonable import jsonable
 from sim.sweep import SweepError
-from studyctl.outputs import Staged
+from studyctl.outputs import Staged, replaced_line
 
 DEFAULT_PROTOCOL = _asset("protocols/brain_pull_2015.toml")
 
@@ -152,18 +152,25 @@ FORCE = click.option("--force", is_flag=True,
 DRY_RUN = click.option("--dry-run", is_flag=True, help="Check and show what would be done; write nothing.")
 
 
-def staged(path, force: bool, folder: bool = False, expect=()) -> Staged | None:
+# what a run's --frames folder holds (sim/run.py write_outputs): the trace and force plot named before
+# the run, and every picture; with --force an earlier run's go, other files stay
+FRAMES_EXPECTED = ("trace.csv", "force.png")
+FRAMES_OWN = (*FRAMES_EXPECTED, "frame_*.png")
+
+
+def staged(path, force: bool, folder: bool = False, expect=(), inputs=None, option: str = "--out", own=None) -> Staged | None:
     """An output option's target (studyctl/outputs.py), or None where the option was not given;
-    made at the command's start, so an existing target is refused before any work."""
-    return None if path is None else Staged(path, force, folder=folder, expect=expect)
+    made at the command's start, so an existing target, or one of the command's `inputs`
+    (option -> path), is refused before any work."""
+    return None if path is None else Staged(path, force, folder=folder, expect=expect, inputs=inputs, option=option, own=own)
 
 
 def say_replaced(out: Staged | None) -> None:
-    """One line on stderr (a --json document on stdout stays clean) where --force overwrote files."""
-    if out is None or not out.replaced:
-        return
-    what = str(out.replaced[0]) if len(out.replaced) == 1 else f"{len(out.replaced)} files in {out.target}"
-    click.echo(f"--force: overwrote {what}", err=True)
+    """One line on stderr (a --json document on stdout stays clean) where --force overwrote,
+    removed or kept files."""
+    line = "" if out is None else replaced_line(out)
+    if line:
+        click.echo(line, err=True)
 
 
 def write_output(out: Staged, text: str) -> None:

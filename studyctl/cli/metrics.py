@@ -8,6 +8,7 @@ import click
 
 from sim.jsonable import jsonable
 from studyctl.cli.common import DB, FORCE, OutFile, read_snapshot, staged, write_output
+from studyctl.outputs import output_format
 
 
 def _note(table) -> str:
@@ -17,7 +18,7 @@ def _note(table) -> str:
 
 @click.command("metrics", cls=click.Command)
 @DB
-@click.option("--format", "fmt", type=click.Choice(["csv", "json"]), default="csv", show_default=True)
+@click.option("--format", "fmt", type=click.Choice(["csv", "json"]), default=None, show_default="csv, or the one --out's suffix names")
 @click.option("--out", "out_file", type=OutFile((".csv", ".json")), default=None, help="Write to this file instead of stdout.")
 @FORCE
 def metrics_cmd(db, fmt, out_file, force):
@@ -25,7 +26,8 @@ def metrics_cmd(db, fmt, out_file, force):
     hand and metric (docs/metrics.md); synthetic participants' rows say so."""
     from analysis.metrics import METRICS, metrics_table, study_goals
 
-    target = staged(out_file, force)  # an existing file refused before the work
+    target = staged(out_file, force, inputs={"--db": db})  # refused before the work
+    fmt = output_format(out_file, fmt, ("csv", "json"), "csv", "metrics")
     study = read_snapshot(db)
     table = metrics_table(study, study_goals(study))
     note = _note(table) if len(table) else f"{db}: no trial with a stored trace yet"

@@ -22,6 +22,7 @@ from studyctl.cli.common import (
     staged,
     write_output,
 )
+from studyctl.outputs import output_format
 
 
 @click.group(cls=_Group)
@@ -105,12 +106,14 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
     except ModelLoadError as exc:
         raise click.ClickException(str(exc)) from None
     name = canonical(name)  # plate-spring is plate_spring
-    target = staged(out_file, force)  # an existing file refused before the check runs
+    # refused before the check runs; the scorecard's format is its name's (.md or .json)
+    target = staged(out_file, force, inputs={"--scene": scene_file})
+    card_format = output_format(out_file, None, ("md", "json"), "md", "model check")
 
     def emit(card):
         text = json.dumps(jsonable(card), indent=2) if as_json else scorecard_md(card)
         if target:  # whole or not at all: a second Ctrl-C while writing leaves no half card
-            write_output(target, json.dumps(jsonable(card), indent=2) if target.target.suffix == ".json" else scorecard_md(card))
+            write_output(target, json.dumps(jsonable(card), indent=2) if card_format == "json" else scorecard_md(card))
         click.echo(text.rstrip("\n"))
 
     try:

@@ -56,7 +56,7 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, fo
     from studyctl.protocol import load_protocol
     from studyctl.synthetic.plan import plot_power, power_table
 
-    target = staged(plot_file, force)  # an existing file refused before the simulations
+    target = staged(plot_file, force, inputs={"--protocol": protocol_file}, option="--plot")  # refused before the simulations
     protocol = load_protocol(protocol_file)
     if null:
         ctx = click.get_current_context()

@@ -27,8 +27,13 @@ from studyctl.cli.common import (
     staged,
     write_output,
 )
+from studyctl.outputs import output_format
 
 PAPER_TABLE = _asset("data/paper_table1.csv")
+TABLE1_FORMATS = ("md", "csv", "latex", "html", "json")
+FORMATS = ("md", "html", "json", "latex")  # report jnd and report validity
+TEXT_FORMATS = ("md", "latex", "json")
+FORMAT_DEFAULT = "md, or the one --out's suffix names"
 
 
 @click.group(cls=_Group)
@@ -43,7 +48,7 @@ HOLM = click.option("--holm", "holm_scope", type=click.Choice(["family", "questi
 @report.command("table1")
 @DB
 @HOLM
-@click.option("--format", "fmt", type=click.Choice(["md", "csv", "latex", "html", "json"]), default="md", show_default=True)
+@click.option("--format", "fmt", type=click.Choice(TABLE1_FORMATS), default=None, show_default=FORMAT_DEFAULT)
 @click.option("--out", "out_file", type=OutFile(), default=None)
 @FORCE
 @click.option("--accuracy", "accuracy_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
@@ -56,7 +61,8 @@ def report_table1(db, holm_scope, fmt, out_file, force, accuracy_file, stability
     from analysis import table1
     from analysis.study_stats import table1_markdown
 
-    target = staged(out_file, force)  # an existing file refused before the study is read
+    target = staged(out_file, force, inputs={"--db": db, "--accuracy": accuracy_file, "--stability": stability_file})
+    fmt = output_format(out_file, fmt, TABLE1_FORMATS, "md", "report table1")
     study = read_snapshot(db)
     if study.protocol.tasks and not study.protocol.questions:  # a discrimination study without questions: its section is the report
         if fmt == "csv":
@@ -115,6 +121,9 @@ def report_table1(db, holm_scope, fmt, out_file, force, accuracy_file, stability
 
         text = text.replace("</body></html>", html_section(_jnd(study), study) + "\n</body></html>")
     _emit(text, target)
+
+
+FIGURE_FILES = ("*.png", "*.svg", "*.pdf")  # what `report plots` writes: an earlier set's figures go with --force
 
 
 def _emit(text: str, out) -> None:
@@ -176,7 +185,7 @@ def _jnd_text(study, fmt: str) -> str:
 
 @report.command("jnd")
 @DB
-@click.option("--format", "fmt", type=click.Choice(["md", "html", "json", "latex"]), default="md", show_default=True)
+@click.option("--format", "fmt", type=click.Choice(FORMATS), default=None, show_default=FORMAT_DEFAULT)
 @click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
 @click.option("--out", "out_file", type=OutFile(), default=None)
 @FORCE
@@ -184,11 +193,12 @@ def report_jnd(db, fmt, as_json, out_file, force):
     """Stiffness discrimination: each participant's psychometric fit and Weber fraction with its
     bootstrap 95% interval per condition, the conditions' geometric means, the group test (mixed
     model on log Weber fraction, Friedman, Holm pairs); html with psychometric plots."""
-    target = staged(out_file, force)  # an existing file refused before the study is read
+    target = staged(out_file, force, inputs={"--db": db})  # refused before the study is read
+    fmt = output_format(out_file, "json" if as_json else fmt, FORMATS, "md", "report jnd")
     study = read_snapshot(db)
     if not study.protocol.tasks:
         raise click.ClickException(f"{db}: the study's protocol has no discrimination task ([[tasks]]); nothing to report")
-    text = _jnd_text(study, "json" if as_json else fmt)
+    text = _jnd_text(study, fmt)
     _emit(text, target)
 
 
@@ -206,7 +216,7 @@ def report_plots(db, out_dir, force, size, as_json):
     from analysis.reports.report import write_plots
     from studyctl.synthetic.force_traces import force_traces
 
-    target = staged(out_dir, force, folder=True)
+    target = staged(out_dir, force, folder=True, inputs={"--db": db}, own=FIGURE_FILES)
     study = read_snapshot(db)
     if _no_answers(study, as_json):
         return
@@ -294,7 +304,7 @@ def report_stats(db, holm_scope, as_json):
 @DB
 @HOLM
 @click.option("--style", type=click.Choice(["apa"]), default="apa", show_default=True, help="Number style: APA 7 (p = .066, p < .001).")
-@click.option("--format", "fmt", type=click.Choice(["md", "latex", "json"]), default="md", show_default=True)
+@click.option("--format", "fmt", type=click.Choice(TEXT_FORMATS), default=None, show_default=FORMAT_DEFAULT)
 @click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
 @click.option("--out", "out_file", type=OutFile(), default=None)
 @FORCE
@@ -305,11 +315,12 @@ def report_text(db, holm_scope, style, fmt, as_json, out_file, force):
     with their reason."""
     from analysis.reports.paper_text import study_text
 
-    target = staged(out_file, force)  # an existing file refused before the study is read
+    target = staged(out_file, force, inputs={"--db": db})  # refused before the study is read
+    fmt = output_format(out_file, "json" if as_json else fmt, TEXT_FORMATS, "md", "report text")
     study = read_snapshot(db)
     if not (study.protocol.tasks and not study.protocol.questions) and _no_answers(study, False):
         return
-    _emit(study_text(study, holm_scope, "json" if as_json else fmt), target)
+    _emit(study_text(study, holm_scope, fmt), target)
 
 
 @report.command("published")
@@ -358,7 +369,7 @@ def export_cmd(db, fmt, out_dir, force, as_json):
 
 @report.command("validity")
 @DB
-@click.option("--format", "fmt", type=click.Choice(["md", "html", "json", "latex"]), default="md", show_default=True)
+@click.option("--format", "fmt", type=click.Choice(FORMATS), default=None, show_default=FORMAT_DEFAULT)
 @click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
 @click.option("--out", "out_file", type=OutFile(), default=None)
 @FORCE
@@ -381,11 +392,11 @@ def report_validity(db, fmt, as_json, out_file, force, permutations, group_permu
     permutations = vr.DEFAULT_PERMUTATIONS if permutations is None else permutations
     bootstrap = vr.DEFAULT_BOOTSTRAP if bootstrap is None else bootstrap
     group_permutations = vr.DEFAULT_GROUP_PERMUTATIONS if group_permutations is None else group_permutations
-    target = staged(out_file, force)  # an existing file refused before the study is read
+    target = staged(out_file, force, inputs={"--db": db})  # refused before the study is read
+    fmt = output_format(out_file, "json" if as_json else fmt, FORMATS, "md", "report validity")
     study = read_snapshot(db)
     rep = _with_progress("construct validity", lambda progress: vr.validity_report(
         study, permutations=permutations, group_permutations=group_permutations, bootstrap=bootstrap, seed=seed,
         progress=progress))
-    fmt = "json" if as_json else fmt
     text = {"json": vr.to_json, "html": vr.html, "latex": vr.latex}.get(fmt, vr.markdown)(rep)
     _emit(text, target)

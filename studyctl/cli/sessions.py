@@ -11,6 +11,8 @@ from studyctl.cli.common import (
     DB,
     DEVICES,
     FORCE,
+    FRAMES_EXPECTED,
+    FRAMES_OWN,
     FULLSCREEN,
     JSON,
     SCHEDULER,
@@ -93,7 +95,8 @@ def replay_cmd(db, session_id, trial, view, frames_dir, force, fullscreen, as_js
 
     if fullscreen and view != "window":
         raise click.UsageError("--fullscreen needs --view window")
-    target = staged(frames_dir, force, folder=True, expect=("trace.csv", "force.png"))  # refused before the replay
+    # refused before the replay
+    target = staged(frames_dir, force, folder=True, expect=FRAMES_EXPECTED, inputs={"--db": db}, option="--frames", own=FRAMES_OWN)
     if target:
         with target as tmp:  # the pictures, plot and trace all or none
             out = replay_trial(db, session_id, trial, view=view, frames_dir=tmp, fullscreen=fullscreen)

@@ -13,6 +13,8 @@ from sim.scene import DEFAULT_SCENE, MAX_DURATION_S
 from studyctl.cli.common import (
     DEVICES,
     FORCE,
+    FRAMES_EXPECTED,
+    FRAMES_OWN,
     FULLSCREEN,
     Finite,
     OutDir,
@@ -20,9 +22,10 @@ from studyctl.cli.common import (
     _console,
     _Group,
     _print_json,
+    say_replaced,
     staged,
 )
-from studyctl.outputs import refuse_existing
+from studyctl.outputs import refuse_existing, refuse_overlap
 
 
 @click.group(cls=_Group)
@@ -48,9 +51,12 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
     from sim.run import run_scene, write_outputs
     from sim.scene import build_scene
 
-    # refused before the run: the folder's trace and force plot (its pictures are checked once drawn), the screenshot
-    target = staged(frames_dir, force, folder=True, expect=("trace.csv", "force.png"))
-    replaced = refuse_existing([screenshot], force) if screenshot is not None else []
+    # refused before the run: the two outputs on one path, the folder's trace and force plot (its pictures are
+    # checked once drawn), the screenshot; the scene is never an output
+    refuse_overlap({"--frames": (frames_dir, True), "--screenshot": (screenshot, False)})
+    inputs = {"--scene": scene_file}
+    target = staged(frames_dir, force, folder=True, expect=FRAMES_EXPECTED, inputs=inputs, option="--frames", own=FRAMES_OWN)
+    replaced = refuse_existing([screenshot], force, inputs=inputs, option="--screenshot") if screenshot is not None else []
     scene = build_scene(scene_file, model_name)
     view = view or scene.spec.renderer.kind
     if screenshot is not None and view != "window":
@@ -76,9 +82,9 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
                     task = progress.add_task("rendering frames", total=max(len(result.snapshots), 1))
                     stats["frames"] = write_outputs(result, scene, tmp, progress=lambda k, n: progress.update(task, completed=k))
         stats["frames_dir"] = str(frames_dir)
-        replaced += target.replaced
     if replaced:
-        click.echo(f"--force: overwrote {replaced[0] if len(replaced) == 1 else f'{len(replaced)} files'}", err=True)
+        click.echo(f"--force: overwrote {replaced[0]}", err=True)
+    say_replaced(target)
     if screenshot is not None:
         stats["screenshot"] = str(screenshot)
     if as_json:
@@ -103,7 +109,7 @@ def sim_live(scene_file: Path, model_name, device, duration, screenshot, force, 
     from sim.live import run_view
     from sim.scene import build_scene
 
-    if screenshot is not None and refuse_existing([screenshot], force):
+    if screenshot is not None and refuse_existing([screenshot], force, inputs={"--scene": scene_file}, option="--screenshot"):
         click.echo(f"--force: overwrites {screenshot}", err=True)
     scene = build_scene(scene_file, model_name).with_device(device)
     scene.device_names = device_names
