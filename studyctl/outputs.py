@@ -90,8 +90,10 @@ DATABASE_OPTIONS = ("--db",)  # the input options that name a study database
 
 
 def database_companions(db) -> list[Path]:
-    db = Path(db)
-    return [db.with_name(db.name + s) for s in DATABASE_COMPANIONS]
+    """Beside the name given and, for a link, beside the real file too: SQLite keeps -wal and
+    -shm beside the name it opened, the store keeps traces and locks beside the real file."""
+    names = dict.fromkeys([Path(db), Path(os.path.realpath(db))])
+    return [d.with_name(d.name + s) for d in names for s in DATABASE_COMPANIONS]
 
 
 def _real(path) -> str:

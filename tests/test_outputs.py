@@ -489,11 +489,25 @@ def test_a_study_database_s_companions_are_named_as_the_store_names_them(tmp_pat
     from studyctl.session.lock import session_lock
 
     db = tmp_path / "s.db"
-    with session_lock(db, "P01"):
-        pass
-    made = [p for p in tmp_path.iterdir()]
+    with session_lock(db, "P01"):  # the lock's folder exists while it is held
+        made = list(tmp_path.iterdir())
+    assert len(made) == 1
     assert made[0] in database_companions(db)
     assert trace_dir(db) in database_companions(db)
+
+
+def test_a_linked_database_s_companions_beside_the_real_file_are_inputs_too(tmp_path):
+    """The store keeps traces and locks beside the real file: an output there is refused through the link."""
+    real = tmp_path / "real"
+    real.mkdir()
+    (real / "s.db").write_bytes(b"")
+    link = tmp_path / "s.db"
+    link.symlink_to(real / "s.db")
+    from studyctl.outputs import database_companions
+
+    names = database_companions(link)
+    assert real / "s.db.traces" in names
+    assert tmp_path / "s.db-wal" in names
 
 
 def test_force_replaces_a_frames_folder_whole_and_says_what_it_removed_and_kept(tmp_path):
