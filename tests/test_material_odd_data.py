@@ -11,7 +11,14 @@ import shlex
 import numpy as np
 
 from analysis.verification.material_fit import (
-    DATA_FILE, MAX_POINTS, SCATTER_MAX, SHEAR_FILE, UNIT_JUMP, curve_scatter, fit_material, read_curve,
+    DATA_FILE,
+    MAX_POINTS,
+    SCATTER_MAX,
+    SHEAR_FILE,
+    UNIT_JUMP,
+    curve_scatter,
+    fit_material,
+    read_curve,
 )
 from sim.material import load_material
 from tests.helpers import studyctl
