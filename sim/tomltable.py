@@ -72,7 +72,7 @@ class TableReader:
         return value  # None: absent, and its default depends on a value already refused
 
     def number(self, key: str, default=REQUIRED, lo: float = -math.inf, hi: float = math.inf, lo_open=False,
-               hi_open=False) -> float | None:
+               hi_open=False, unit: str = "") -> float | None:
         value = self._value(key, default)
         if value is None:
             return None
@@ -82,7 +82,7 @@ class TableReader:
         above = value >= hi if hi_open else value > hi
         if below or above:
             left, right = "(" if lo_open else "[", ")" if hi_open else "]"
-            return self.error(key, f"{value!r} is out of range; allowed: {left}{lo:g}, {hi:g}{right}")
+            return self.error(key, f"{value!r} is out of range; allowed: {left}{lo:g}, {hi:g}{right}" + (f" {unit}" if unit else ""))
         return float(value)
 
     def integer(self, key: str, default=REQUIRED, lo: int = 1, hi: int | None = None) -> int | None:
@@ -142,14 +142,19 @@ class TableReader:
             return self.error(key, f"{bad[0]!r} is out of range; allowed: [{lo:g}, {hi:g}]")
         return tuple(float(c) for c in items)
 
-    def vector(self, key: str, default=REQUIRED) -> Vec3 | None:
+    def vector(self, key: str, default=REQUIRED, bound: float = math.inf, unit: str = "m", nonzero: bool = False) -> Vec3 | None:
+        """Three numbers, each in [-bound, bound] (`unit`); `nonzero`: a direction, not all 0."""
         value = self._value(key, default)
         if value is None:
             return None
         ok = isinstance(value, list) and len(value) == 3
         ok = ok and all(not isinstance(c, bool) and isinstance(c, (int, float)) and math.isfinite(c) for c in value)
         if not ok:
-            return self.error(key, f"{value!r} is not a list of three numbers (metres)")
+            return self.error(key, f"{value!r} is not a list of three numbers" + (" (metres)" if unit == "m" else ""))
+        if any(abs(c) > bound for c in value):
+            return self.error(key, f"{value!r} is out of range; allowed: each in [{-bound:g}, {bound:g}]" + (f" {unit}" if unit else ""))
+        if nonzero and not any(value):
+            return self.error(key, f"{value!r} is not a direction; allowed: three numbers, not all 0")
         return (float(value[0]), float(value[1]), float(value[2]))
 
     def path_value(self, key: str) -> Path | None:
