@@ -30,7 +30,7 @@ from sim.models.registry import ModelLoadError, canonical, model_class
 from sim.models.registry import names as registry_names
 from sim.targets import SAFE_FORCE_N, HandTarget, TargetSpec
 from sim.tomlfile import Locator, TomlFileError, read_toml
-from sim.tomltable import REQUIRED, TableReader
+from sim.tomltable import REQUIRED, SHIPPED, TableReader
 
 RENDERERS = ("none", "offscreen")
 DEFAULT_SCENE = _asset("protocols/scenes/brain_pull.toml")
@@ -355,7 +355,7 @@ def configure(spec: SceneSpec, table: dict, path: Path, loc: Locator, prefix: st
     base = dict(scene_tables[model]) if model in spec.models else {}  # not in the scene: the model's declared defaults
     for f in dataclasses.fields(cls.Options):  # the scene's relative paths stay relative to the scene
         key = f.name
-        if isinstance(base.get(key), str) and _file_option(f) and not Path(base[key]).is_absolute():
+        if isinstance(base.get(key), str) and _file_option(f) and not Path(base[key]).is_absolute() and not base[key].startswith(SHIPPED):
             base[key] = str((spec.path.parent / base[key]).resolve())
     merged_problems: list = []
     merged = TableReader(path, base | {k: v for k, v in overrides.items() if k in option_keys}, prefix, loc, merged_problems)

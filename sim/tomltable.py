@@ -8,12 +8,16 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from brainsim_assets import path as _asset
 from sim.models.base import Vec3
 from sim.text import VALUE_MOST, text_problem
 from sim.tomlfile import Locator
 
 INT64_MAX = 2**63 - 1
 REQUIRED = object()  # the default of a key that must be given
+# a path of a file that comes with the package ("shipped:data/brain_fsaverage5.npz"): found
+# wherever it is installed, so a lab's scene that names it holds when the venv moves or is shared
+SHIPPED = "shipped:"
 # what a value of the wrong type should have been, in a TOML writer's words
 WHAT = {"integer": "an integer", "number": "a finite number", "string": "a text in quotes", "boolean": "true or false",
         "list": "a list in [ ]"}
@@ -158,10 +162,11 @@ class TableReader:
         return (float(value[0]), float(value[1]), float(value[2]))
 
     def path_value(self, key: str) -> Path | None:
+        """A file: absolute, relative to this file's folder, or shipped (`SHIPPED`)."""
         s = self.string(key)
         if s is None:
             return None
-        p = Path(s)
+        p = _asset(s.removeprefix(SHIPPED)) if s.startswith(SHIPPED) else Path(s)
         p = p if p.is_absolute() else (self.path.parent / p).resolve()
         if p.exists() and not p.is_file():  # a folder, a device (/dev/zero never ends), a named pipe (blocks)
             return self.error(key, f"{p} is not a regular file")
