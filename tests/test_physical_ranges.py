@@ -148,3 +148,29 @@ def test_a_hand_starting_at_1e300_is_refused_by_sim_run_without_an_index_error(t
     assert "IndexError" not in res.output
     assert re.fullmatch(rf"Error: {re.escape(str(path))}:\d+: hands\[0\]\.start: \[1e\+300, 0\.0, 0\.0\] is out of range; "
                         r"allowed: each in \[-1, 1\] m\n", res.output), res.output
+
+
+def test_a_law_of_a_vanishing_modulus_is_refused_before_the_fem_factorises_it(tmp_path):
+    """mu = 1e-300 is within the law's own bounds (a term >= 0 Pa, their sum > 0): the linear
+    models' young, 2 mu (1 + poisson), would be 2.9e-300 Pa and hang the factorisation."""
+    path = _scene(tmp_path, f'file = "{ROOT}/protocols/materials/human_cortex.toml"', 'law = "neo-hookean"\nmu = 1e-300')
+    res = studyctl("sim", "run", "--scene", path, "--model", "fem", "--time-scale", "0", "--duration", "0.2")
+    assert res.exit_code == 1
+    assert re.fullmatch(rf"Error: {re.escape(str(path))}:\d+: material\.mu: the law's small-strain Young's modulus 2 mu \(1 \+ poisson\) "
+                        r"= 2\.9e-300 Pa is out of range; allowed: \[1, 1e\+09\] Pa \(a shear modulus mu in \[0\.345, 3\.45e\+08\] Pa\)\n",
+                        res.output), res.output
+
+
+def test_a_material_file_of_a_vanishing_modulus_is_refused_naming_the_scene_key(tmp_path):
+    material = tmp_path / "soft.toml"
+    material.write_text('[material]\nlaw = "ogden"\nmu = [1e-300]\nalpha = [-20.0]\n')
+    path = _scene(tmp_path, f'file = "{ROOT}/protocols/materials/human_cortex.toml"', f'file = "{material}"')
+    problems = _problems(path)
+    assert len(problems) == 1, problems
+    assert re.fullmatch(rf"{re.escape(str(path))}:\d+: material\.file: the law's small-strain Young's modulus .* = 2\.9e-300 Pa is out of range; "
+                        r"allowed: \[1, 1e\+09\] Pa .*", problems[0]), problems[0]
+
+
+def test_a_law_within_range_with_its_young_given_still_loads(tmp_path):
+    path = _scene(tmp_path, "density = 1040.0", "density = 1040.0\nyoung = 6000.0")
+    assert load_scene(path).material.young == 6000.0
