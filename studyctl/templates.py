@@ -5,6 +5,7 @@ absolute path into one install, which breaks when the venv moves or the folder i
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -41,10 +42,12 @@ def new_protocol(kind: str, out_dir: str | Path, name: str | None = None, force:
     source = asset(f"protocols/{KINDS[kind][0]}")
     text = source.read_text()
     scene_rel = re.search(r'^scene\s*=\s*"([^"]+)"', text, re.M).group(1)
-    shipped_scene = (source.parent / scene_rel).resolve()
-    shipped = root().resolve()
-    scene_text = _RELATIVE.sub(lambda m: f'"{SHIPPED}{(shipped_scene.parent / m.group(1)).resolve().relative_to(shipped).as_posix()}"',
-                               shipped_scene.read_text())
+    # normalised, not resolved: a folder of the install that is a link stays inside it
+    shipped_scene = Path(os.path.normpath(source.parent / scene_rel))
+    shipped = Path(os.path.normpath(root()))
+    scene_text = _RELATIVE.sub(
+        lambda m: f'"{SHIPPED}{Path(os.path.normpath(shipped_scene.parent / m.group(1))).relative_to(shipped).as_posix()}"',
+        shipped_scene.read_text())
     text = re.sub(r'^scene\s*=\s*"[^"]+"(.*)$', r'scene = "scene.toml"\1', text, count=1, flags=re.M)
     if name is not None:
         text = re.sub(r'^name\s*=\s*"[^"]+"', f'name = "{name}"', text, count=1, flags=re.M)

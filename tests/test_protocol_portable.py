@@ -3,7 +3,10 @@ own"): the protocol names its scene beside it, and the scene names the shipped f
 `shipped:PATH`, never an absolute path into one install (which broke when the venv moved or the
 folder was shared). Moved elsewhere, the folder validates and its scene runs."""
 
+import os
 import shutil
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
@@ -11,6 +14,7 @@ import pytest
 
 from brainsim_assets import path as asset
 from sim.scene import load_scene
+from tests.conftest import ROOT
 from tests.helpers import studyctl
 
 KINDS = ["yes_no", "rating", "discrimination", "validity"]
@@ -73,3 +77,31 @@ def test_a_shipped_path_that_is_not_shipped_is_named(tmp_path):
     res = studyctl("protocol", "validate", tmp_path / "lab" / "protocol.toml")
     assert res.exit_code == 1
     assert f"mesh.path: {asset('data/nowhere.npz')} does not exist" in res.output, res.output
+
+
+def _install(where: Path) -> Path:
+    """An installed layout of the assets (the package with copies of protocols/ and data/ as its
+    package data, 6 MB), first on the path of the processes given it."""
+    package = where / "brainsim_assets"
+    package.mkdir(parents=True)
+    shutil.copy(ROOT / "brainsim_assets" / "__init__.py", package)
+    for folder in ("protocols", "data"):
+        shutil.copytree(ROOT / folder, package / folder)
+    return where
+
+
+def _studyctl_in(install: Path, *args):
+    env = os.environ | {"PYTHONPATH": os.pathsep.join([str(install), str(ROOT)])}
+    return subprocess.run([sys.executable, "-m", "studyctl", *map(str, args)], capture_output=True, text=True, env=env, timeout=300,
+                          cwd=install)  # -m puts the working folder first on the path: not the checkout
+
+
+def test_a_folder_written_by_one_install_validates_after_the_install_moved(tmp_path):
+    """The venv moved (or the folder went to a colleague's): its first install is gone."""
+    first = _install(tmp_path / "venv-a" / "site-packages")
+    res = _studyctl_in(first, "protocol", "new", "--kind", "yes_no", "--out", tmp_path / "lab")
+    assert res.returncode == 0, res.stderr
+    shutil.rmtree(tmp_path / "venv-a")
+    second = _install(tmp_path / "venv-b" / "site-packages")
+    res = _studyctl_in(second, "protocol", "validate", tmp_path / "lab" / "protocol.toml")
+    assert res.returncode == 0, res.stdout + res.stderr
