@@ -26,6 +26,12 @@ from sim.tomltable import TableReader
 DEFAULT_MATERIAL = _asset("protocols/materials/human_cortex.toml")
 DEFAULT_POISSON = 0.45  # the linear models' (docs/material.md)
 LAW_KEYS = ("law", "mu", "mu1", "mu2", "alpha", "bulk_ratio")
+# Wide but physical (a value outside is a unit slip or a typo, refused before a solver sees it):
+# Young's modulus from softer than any tissue (brain ~1 kPa) to stiffer than cartilage, the span
+# the stability sweep runs (analysis/verification/stability.py); a density from a foam's to a
+# metal's (brain 1040 kg/m3)
+YOUNG_RANGE = (1.0, 1.0e9)  # Pa
+DENSITY_RANGE = (100.0, 2.0e4)  # kg/m3
 
 
 def read_law(r: TableReader) -> Hyperelastic | None:
@@ -121,10 +127,17 @@ def material_spec(material: TableReader) -> MaterialSpec:
     law, source = scene_law(material)
     poisson = material.number("poisson", default=DEFAULT_POISSON, lo=POISSON_MIN, hi=POISSON_MAX, hi_open=True)
     given = "young" in material.data
-    young = material.number("young", lo=0.0, lo_open=True) if given else None
-    if not given and law is not None and poisson is not None:
-        young = law.young(poisson)
-    return MaterialSpec(young=young, poisson=poisson, density=material.number("density", default=1040.0, lo=0.0, lo_open=True),
+    young = material.number("young", lo=YOUNG_RANGE[0], hi=YOUNG_RANGE[1], unit="Pa") if given else None
+    if law is not None and poisson is not None:
+        lo, hi = YOUNG_RANGE
+        small = law.young(poisson)  # the law's, given young or not: the volume models' reference runs the law itself
+        if not lo <= small <= hi:  # a law within its own bounds (a term of 1e-300 Pa) would hang a factorisation as well
+            key = "file" if "file" in material.data else next((k for k in ("mu", "mu1") if k in material.data), "")
+            material.error(key, f"the law's small-strain Young's modulus 2 mu (1 + poisson) = {small:.3g} Pa is out of range; allowed: "
+                                f"[{lo:g}, {hi:g}] Pa (a shear modulus mu in [{lo / (2 + 2 * poisson):.3g}, {hi / (2 + 2 * poisson):.3g}] Pa)")
+        elif not given:
+            young = small
+    return MaterialSpec(young=young, poisson=poisson, density=material.number("density", default=1040.0, lo=DENSITY_RANGE[0], hi=DENSITY_RANGE[1], unit="kg/m3"),
                         law=law, law_source=source, young_given=given)
 
 

@@ -23,20 +23,25 @@ from sim.devices.simulated import PullScript
 from sim.errors import SceneError, SimError
 from sim.geometry.mesh import load_mesh
 from sim.geometry.patch import GRASP_RADIUS
-from sim.material import MaterialSpec, material_spec
+from sim.material import YOUNG_RANGE, MaterialSpec, material_spec
 from sim.models.api import TissueModel, default_options, option_kind
 from sim.models.base import POISSON_MAX, POISSON_MIN, Vec3
 from sim.models.registry import ModelLoadError, canonical, model_class
 from sim.models.registry import names as registry_names
 from sim.targets import SAFE_FORCE_N, HandTarget, TargetSpec
 from sim.tomlfile import Locator, TomlFileError, read_toml
-from sim.tomltable import REQUIRED, TableReader
+from sim.tomltable import REQUIRED, SHIPPED, TableReader
 
 RENDERERS = ("none", "offscreen")
 DEFAULT_SCENE = _asset("protocols/scenes/brain_pull.toml")
 # a run keeps every tick in memory (about 110 bytes per tick for two hands): one hour is
 # 0.4 GB, where 1e12 s would have asked for petabytes
 MAX_DURATION_S = 3600.0
+# Where a scene's points may lie: the brain (0.17 m long) lies within 0.1 m of the scene's origin,
+# so a hand's start or a device's origin beyond a metre is a slip of units (mm for m), refused
+# before a mesh is searched with it
+REACH_M = 1.0
+DIRECTION_MAX = 1e3  # a pull, a view's front and up: only their sense counts; larger overflows their norms
 AXES = {"x": 0, "y": 1, "z": 2}
 
 
@@ -285,13 +290,13 @@ def _scene_spec(path: Path, t: dict[str, TableReader], models: dict[str, ModelSp
         description=scene.string("description", default=""),
         mesh_path=mesh_path,
         material=material_spec(material),
-        fixed=FixedSpec(axis=fixed.string("axis", choices=tuple(AXES)), from_bottom=fixed.number("from_bottom", lo=0.0)),
+        fixed=FixedSpec(axis=fixed.string("axis", choices=tuple(AXES)), from_bottom=fixed.number("from_bottom", lo=0.0, hi=REACH_M, unit="m")),
         model=default_model,
         models=models,
         hands=tuple(hands),
         servo_rate_hz=t["servo"].number("rate_hz", default=1000.0, lo=100.0, hi=10000.0),
         visual_rate_hz=t["visual"].number("rate_hz", default=30.0, lo=1.0, hi=240.0),
-        duration=scene.number("duration", default=3.0, lo=0.0, lo_open=True),
+        duration=scene.number("duration", default=3.0, lo=0.0, lo_open=True, hi=MAX_DURATION_S, unit="s"),
         view=_view_spec(t["view"]),
         renderer=RendererSpec(
             kind=renderer.string("kind", default="none", choices=RENDERERS),
@@ -312,7 +317,8 @@ def _raise_problems(problems: list, path: Path) -> None:
 
 def _view_spec(view: TableReader) -> ViewSpec:
     d = ViewSpec()
-    front, up = view.vector("front", default=list(d.front)), view.vector("up", default=list(d.up))
+    front = view.vector("front", default=list(d.front), bound=DIRECTION_MAX, unit="", nonzero=True)
+    up = view.vector("up", default=list(d.up), bound=DIRECTION_MAX, unit="", nonzero=True)
     if front is not None and up is not None and (
         np.linalg.norm(front) < 1e-9 or np.linalg.norm(np.cross(front, up)) < 1e-6 * np.linalg.norm(front) * max(np.linalg.norm(up), 1e-9)
     ):
@@ -349,7 +355,7 @@ def configure(spec: SceneSpec, table: dict, path: Path, loc: Locator, prefix: st
     base = dict(scene_tables[model]) if model in spec.models else {}  # not in the scene: the model's declared defaults
     for f in dataclasses.fields(cls.Options):  # the scene's relative paths stay relative to the scene
         key = f.name
-        if isinstance(base.get(key), str) and _file_option(f) and not Path(base[key]).is_absolute():
+        if isinstance(base.get(key), str) and _file_option(f) and not Path(base[key]).is_absolute() and not base[key].startswith(SHIPPED):
             base[key] = str((spec.path.parent / base[key]).resolve())
     merged_problems: list = []
     merged = TableReader(path, base | {k: v for k, v in overrides.items() if k in option_keys}, prefix, loc, merged_problems)
@@ -360,7 +366,7 @@ def configure(spec: SceneSpec, table: dict, path: Path, loc: Locator, prefix: st
             text += f" (the scene's {key} = {base[key]!r}, with this condition's options)"
         problems.append((file, line, text))
     material = spec.material
-    young = reader.number("young", default=material.young, lo=0.0, lo_open=True)
+    young = reader.number("young", default=material.young, lo=YOUNG_RANGE[0], hi=YOUNG_RANGE[1], unit="Pa")
     poisson = reader.number("poisson", default=material.poisson, lo=POISSON_MIN, hi=POISSON_MAX, hi_open=True)
     _raise_problems(problems, path)
     material = dataclasses.replace(material, young=young, poisson=poisson)
@@ -381,17 +387,18 @@ def _model_options(table: TableReader, name: str, cls) -> ModelSpec | None:
 def _hand_spec(h: TableReader) -> HandSpec:
     h.keys(HAND_KEYS)
     name = h.string("name")
-    grasp_at = h.number("grasp_at", default=0.2, lo=0.0)
+    most = MAX_DURATION_S  # a hand's times lie within the longest run
+    grasp_at = h.number("grasp_at", default=0.2, lo=0.0, hi=most, unit="s")
     after_grasp = 0.0 if grasp_at is None else grasp_at  # bound of the later times (grasp_at refused: 0)
-    pull_start = h.number("pull_start", default=None if grasp_at is None else grasp_at + 0.2, lo=after_grasp)
-    pull_time = h.number("pull_time", default=1.0, lo=0.0, lo_open=True)
+    pull_start = h.number("pull_start", default=None if grasp_at is None else grasp_at + 0.2, lo=after_grasp, hi=most, unit="s")
+    pull_time = h.number("pull_time", default=1.0, lo=0.0, lo_open=True, hi=most, unit="s")
     release_default = None if pull_start is None or pull_time is None else pull_start + pull_time + 0.5
-    release_at = h.number("release_at", default=release_default, lo=after_grasp, lo_open=True)
+    release_at = h.number("release_at", default=release_default, lo=after_grasp, lo_open=True, hi=most, unit="s")
     return HandSpec(
         name=name,
         device=h.string("device", default="simulated", choices=tuple(BACKENDS)),
-        start=h.vector("start"),
-        pull=h.vector("pull"),
+        start=h.vector("start", bound=REACH_M),
+        pull=h.vector("pull", bound=DIRECTION_MAX, unit="", nonzero=True),
         distance=h.number("distance", lo=0.0, hi=0.2),
         grasp_at=grasp_at,
         pull_start=pull_start,
@@ -399,7 +406,7 @@ def _hand_spec(h: TableReader) -> HandSpec:
         release_at=release_at,
         device_name=h.string("device_name", default=None) if "device_name" in h.data else None,
         device_scale=h.number("device_scale", default=1.0, lo=0.1, hi=10.0),
-        device_origin=h.vector("device_origin") if "device_origin" in h.data else None,
+        device_origin=h.vector("device_origin", bound=REACH_M) if "device_origin" in h.data else None,
         trace=h.path_value("trace") if "trace" in h.data else None,
         trace_hand=h.string("trace_hand") if "trace_hand" in h.data else None,
         target=_target_spec(h.table("target", allowed=TARGET_KEYS)) if "target" in h.data else None,

@@ -105,8 +105,12 @@ def _distributed():
     """The `distributed` package (the dask extra), or a SweepError saying how to install it."""
     try:
         import distributed  # optional: the dask extra, only for --scheduler
-    except ImportError:
-        raise SweepError("--scheduler needs the dask extra: pip install 'brainsim-study[dask]'") from None
+    except (ImportError, OSError) as exc:  # absent, or installed and broken (a dependency, a shared library)
+        if isinstance(exc, ModuleNotFoundError) and exc.name == "distributed":
+            raise SweepError("--scheduler needs the dask extra: pip install 'brainsim-study[dask]'") from None
+        reason = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise SweepError(f"--scheduler needs distributed, which failed to import: {reason}; "
+                         "pip install 'brainsim-study[dask]'") from None
     return distributed
 
 

@@ -8,12 +8,16 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from brainsim_assets import path as _asset
 from sim.models.base import Vec3
 from sim.text import VALUE_MOST, text_problem
 from sim.tomlfile import Locator
 
 INT64_MAX = 2**63 - 1
 REQUIRED = object()  # the default of a key that must be given
+# a path of a file that comes with the package ("shipped:data/brain_fsaverage5.npz"): found
+# wherever it is installed, so a lab's scene that names it holds when the venv moves or is shared
+SHIPPED = "shipped:"
 # what a value of the wrong type should have been, in a TOML writer's words
 WHAT = {"integer": "an integer", "number": "a finite number", "string": "a text in quotes", "boolean": "true or false",
         "list": "a list in [ ]"}
@@ -72,7 +76,7 @@ class TableReader:
         return value  # None: absent, and its default depends on a value already refused
 
     def number(self, key: str, default=REQUIRED, lo: float = -math.inf, hi: float = math.inf, lo_open=False,
-               hi_open=False) -> float | None:
+               hi_open=False, unit: str = "") -> float | None:
         value = self._value(key, default)
         if value is None:
             return None
@@ -82,7 +86,7 @@ class TableReader:
         above = value >= hi if hi_open else value > hi
         if below or above:
             left, right = "(" if lo_open else "[", ")" if hi_open else "]"
-            return self.error(key, f"{value!r} is out of range; allowed: {left}{lo:g}, {hi:g}{right}")
+            return self.error(key, f"{value!r} is out of range; allowed: {left}{lo:g}, {hi:g}{right}" + (f" {unit}" if unit else ""))
         return float(value)
 
     def integer(self, key: str, default=REQUIRED, lo: int = 1, hi: int | None = None) -> int | None:
@@ -142,21 +146,27 @@ class TableReader:
             return self.error(key, f"{bad[0]!r} is out of range; allowed: [{lo:g}, {hi:g}]")
         return tuple(float(c) for c in items)
 
-    def vector(self, key: str, default=REQUIRED) -> Vec3 | None:
+    def vector(self, key: str, default=REQUIRED, bound: float = math.inf, unit: str = "m", nonzero: bool = False) -> Vec3 | None:
+        """Three numbers, each in [-bound, bound] (`unit`); `nonzero`: a direction, not all 0."""
         value = self._value(key, default)
         if value is None:
             return None
         ok = isinstance(value, list) and len(value) == 3
         ok = ok and all(not isinstance(c, bool) and isinstance(c, (int, float)) and math.isfinite(c) for c in value)
         if not ok:
-            return self.error(key, f"{value!r} is not a list of three numbers (metres)")
+            return self.error(key, f"{value!r} is not a list of three numbers" + (" (metres)" if unit == "m" else ""))
+        if any(abs(c) > bound for c in value):
+            return self.error(key, f"{value!r} is out of range; allowed: each in [{-bound:g}, {bound:g}]" + (f" {unit}" if unit else ""))
+        if nonzero and not any(value):
+            return self.error(key, f"{value!r} is not a direction; allowed: three numbers, not all 0")
         return (float(value[0]), float(value[1]), float(value[2]))
 
     def path_value(self, key: str) -> Path | None:
+        """A file: absolute, relative to this file's folder, or shipped (`SHIPPED`)."""
         s = self.string(key)
         if s is None:
             return None
-        p = Path(s)
+        p = _asset(s.removeprefix(SHIPPED)) if s.startswith(SHIPPED) else Path(s)
         p = p if p.is_absolute() else (self.path.parent / p).resolve()
         if p.exists() and not p.is_file():  # a folder, a device (/dev/zero never ends), a named pipe (blocks)
             return self.error(key, f"{p} is not a regular file")

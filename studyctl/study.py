@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import datetime as dt
-import importlib.util
 import json
 import re
 from pathlib import Path
@@ -263,8 +262,7 @@ def export(db: str | Path, out_dir: str | Path, fmt: str = "csv", force: bool = 
     target = Staged(out_dir, force, folder=True, expect=[f"{t}.{fmt}" for t in tables], inputs={"--db": db},
                     own=[f"{t}.{f}" for t in tables for f in ("csv", "parquet")])
     if fmt == "parquet":
-        if importlib.util.find_spec("pyarrow") is None:  # an optional extra: checked before anything is read or written
-            raise StoreError("--format parquet needs the parquet extra: pip install 'brainsim-study[parquet]'")
+        _pyarrow()  # an optional extra: checked before anything is read or written
     with Store(db, mode="read") as store:
         # the columns from the schema, so an empty table still exports its header
         frames = {table: pd.DataFrame(table_rows(store, table), columns=list(store.db[table].columns_dict))
@@ -297,10 +295,23 @@ def parquet_table(df):
 
 
 def _pyarrow():
-    """pyarrow with its parquet module (the parquet extra: `export` checks it is installed)."""
-    import pyarrow.parquet  # optional: the parquet extra, only for --format parquet
-
+    """pyarrow with its parquet module (the parquet extra), or a StoreError saying how to install
+    it: absent, or installed and failing to import (a missing shared library, a build for another
+    NumPy), which raises ImportError or OSError from inside it."""
+    try:
+        import pyarrow.parquet  # optional: the parquet extra, only for --format parquet
+    except ModuleNotFoundError as exc:
+        if exc.name != "pyarrow":
+            raise StoreError(_failed_import("pyarrow", exc)) from None
+        raise StoreError("export --format parquet needs the parquet extra: pip install 'brainsim-study[parquet]'") from None
+    except (ImportError, OSError) as exc:
+        raise StoreError(_failed_import("pyarrow", exc)) from None
     return pyarrow
+
+
+def _failed_import(name: str, exc: BaseException) -> str:
+    reason = " ".join(str(exc).split())[:200] or type(exc).__name__  # one line, however long the loader's message
+    return f"export --format parquet needs {name}, which failed to import: {reason}; pip install 'brainsim-study[parquet]'"
 
 
 def spreadsheet_frame(df: pd.DataFrame) -> pd.DataFrame:

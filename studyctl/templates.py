@@ -1,13 +1,18 @@
 """`studyctl protocol new`: a lab's own protocol and scene, written from a shipped example of its
-kind into a folder of its own, with every path in them resolving from there."""
+kind into a folder of its own, with every path in them resolving from there: the protocol names
+its scene beside it, the scene names the shipped files it uses as `shipped:PATH` (never an
+absolute path into one install, which breaks when the venv moves or the folder is shared)."""
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
 from analysis.errors import InputError
 from brainsim_assets import path as asset
+from brainsim_assets import root
+from sim.tomltable import SHIPPED
 from studyctl.outputs import Staged
 from studyctl.protocol import check_protocol
 
@@ -24,7 +29,7 @@ _NAME = re.compile(r"^[a-z][a-z0-9_]{0,63}$")
 def new_protocol(kind: str, out_dir: str | Path, name: str | None = None, force: bool = False) -> dict:
     """Write OUT/protocol.toml (the `kind`'s shipped example, renamed `name`) and OUT/scene.toml
     (its scene, the relative paths to the shipped surface, material and model files made
-    absolute); check the protocol. Both or neither (studyctl/outputs.py): an existing file is
+    `shipped:PATH`); check the protocol. Both or neither (studyctl/outputs.py): an existing file is
     refused unless `force`, and a failed write (a full disk) leaves nothing behind. Returns what
     was written (`replaced`: the files `force` overwrote)."""
     if kind not in KINDS:
@@ -37,8 +42,12 @@ def new_protocol(kind: str, out_dir: str | Path, name: str | None = None, force:
     source = asset(f"protocols/{KINDS[kind][0]}")
     text = source.read_text()
     scene_rel = re.search(r'^scene\s*=\s*"([^"]+)"', text, re.M).group(1)
-    shipped_scene = (source.parent / scene_rel).resolve()
-    scene_text = _RELATIVE.sub(lambda m: f'"{(shipped_scene.parent / m.group(1)).resolve()}"', shipped_scene.read_text())
+    # normalised, not resolved: a folder of the install that is a link stays inside it
+    shipped_scene = Path(os.path.normpath(source.parent / scene_rel))
+    shipped = Path(os.path.normpath(root()))
+    scene_text = _RELATIVE.sub(
+        lambda m: f'"{SHIPPED}{Path(os.path.normpath(shipped_scene.parent / m.group(1))).relative_to(shipped).as_posix()}"',
+        shipped_scene.read_text())
     text = re.sub(r'^scene\s*=\s*"[^"]+"(.*)$', r'scene = "scene.toml"\1', text, count=1, flags=re.M)
     if name is not None:
         text = re.sub(r'^name\s*=\s*"[^"]+"', f'name = "{name}"', text, count=1, flags=re.M)
@@ -47,7 +56,8 @@ def new_protocol(kind: str, out_dir: str | Path, name: str | None = None, force:
     try:
         with target as tmp:  # checked where it is written: the scene's path is relative to the protocol
             (tmp / scene_path.name).write_text(
-                f"# Written by `studyctl protocol new` from the shipped {shipped_scene.name}; paths made absolute.\n" + scene_text)
+                f"# Written by `studyctl protocol new` from the shipped {shipped_scene.name}; shipped files named {SHIPPED}PATH.\n"
+                + scene_text)
             (tmp / protocol_path.name).write_text(header + text)
             _, problems = check_protocol(tmp / protocol_path.name)
             if problems:  # a bug of the template, never the user's: nothing left behind

@@ -60,7 +60,7 @@ def test_layer_table_and_paper_jumps():
     [
         ({"alpha": 2.5}, [], "alpha: 2.5 is out of range; allowed: [1, 2]"),
         ({"q": 0.9}, [], "q: 0.9 is out of range; allowed: [1, 1.5]"),
-        ({"layers": 0}, [], "layers: 0 is out of range; allowed: an integer >= 1"),
+        ({"layers": 0}, [], "layers: 0 is out of range; allowed: an integer in 1..1000"),
         ({"l1": 0.003}, [], "B: 0.01 m is out of range; Eq. (1) needs 2*L_i > 0.6*B"),
         ({"q": 1.5, "layers": 60}, [], "layers: 60 is out of range for these parameters; allowed: 1.."),
         ({}, ["--force", "-1"], "force: -1 is out of range; allowed: >= 0 N"),

@@ -1,5 +1,6 @@
 """`studyctl calibrate material` on odd data (docs/material.md, "Odd data"): exact repeats
-counted once with a warning, a region of zero stresses and a fit that explains nothing refused,
+counted once with a warning, a data set given twice refused, rows that are not one curve (kPa
+and Pa mixed, scatter) refused, a region of zero stresses and a fit that explains nothing refused,
 too many points refused before any fit, progress per law, and the provenance of a written file
 that is the command as run."""
 
@@ -7,7 +8,18 @@ import hashlib
 import json
 import shlex
 
-from analysis.verification.material_fit import DATA_FILE, MAX_POINTS, SHEAR_FILE, fit_material
+import numpy as np
+
+from analysis.verification.material_fit import (
+    DATA_FILE,
+    MAX_POINTS,
+    SCATTER_MAX,
+    SHEAR_FILE,
+    UNIT_JUMP,
+    curve_scatter,
+    fit_material,
+    read_curve,
+)
 from sim.material import load_material
 from tests.helpers import studyctl
 
@@ -122,3 +134,102 @@ def test_the_written_provenance_is_the_command_as_run(tmp_path):
     command = "studyctl " + " ".join(shlex.quote(a) for a in args).replace("--bulk-ratio 40", "--bulk-ratio 40.0")
     assert f"# Written by `{command}`." in out.read_text().splitlines()
     assert load_material(out)[1]["command"] == command
+
+
+# --- a data set given twice, rows that are not one curve -------------------------------------
+
+def _alternating(rows, factor=1000.0):
+    """Every other row's stress in Pa under the kPa column."""
+    return [f"{r.split(',')[0]},{r.split(',')[1]},{float(r.split(',')[2]) * (factor if k % 2 else 1.0):.4f}" for k, r in enumerate(rows)]
+
+
+def _refused(tmp_path, *files):
+    """`calibrate material --data F ... --out m.toml` refused: exit 1, no traceback, nothing
+    written, the data files unchanged; its last line."""
+    out = tmp_path / "m.toml"
+    before = [hashlib.sha256(f.read_bytes()).hexdigest() for f in files]
+    res = _fit(*[a for f in files for a in ("--data", f)], "--out", out)
+    assert res.exit_code == 1, res.output
+    assert "Traceback" not in res.output
+    assert not out.exists()
+    assert [hashlib.sha256(f.read_bytes()).hexdigest() for f in files] == before
+    return res.output.strip().splitlines()[-1]
+
+
+def test_the_same_file_twice_is_refused(tmp_path):
+    data = _data(tmp_path, _cortex_rows())
+    line = _refused(tmp_path, data, data)
+    assert line == f"Error: {data}: the same rows as {data} (33 of 33); give each data set once"
+
+
+def test_the_same_file_through_a_link_is_refused(tmp_path):
+    data = _data(tmp_path, _cortex_rows())
+    link = tmp_path / "link.csv"
+    link.symlink_to(data)
+    line = _refused(tmp_path, data, link)
+    assert line == f"Error: {link}: the same rows as {data} (33 of 33); give each data set once"
+
+
+def test_two_files_of_the_same_rows_are_refused(tmp_path):
+    a, b = _data(tmp_path, _cortex_rows(), "A.csv"), _data(tmp_path, list(reversed(_cortex_rows())), "B.csv")
+    line = _refused(tmp_path, a, b)
+    assert line == f"Error: {b}: the same rows as {a} (33 of 33); give each data set once"
+
+
+def test_two_loading_modes_together_are_still_fitted():
+    assert fit_material([DATA_FILE, SHEAR_FILE], "cortex", ("neo-hookean",))["fit"] == "neo-hookean"
+
+
+def test_rows_alternating_kpa_and_pa_are_refused_naming_the_rows(tmp_path):
+    data = _data(tmp_path, _alternating(_cortex_rows()))
+    line = _refused(tmp_path, data)
+    assert line.startswith(f"Error: {data}: region 'cortex': nominal_stress_kpa jumps "), line
+    assert "x between neighbouring rows and back (line 2: -1.1484 at stretch 0.9; line 3: -1000.5 at 0.9062)" in line
+    assert line.endswith(": kPa and Pa mixed? give every row in kPa; nothing fitted")
+
+
+def test_one_row_in_pa_among_rows_in_kpa_is_refused(tmp_path):
+    rows = _cortex_rows()
+    rows[20] = _alternating(rows[19:21])[1]
+    line = _refused(tmp_path, _data(tmp_path, rows))
+    assert "kPa and Pa mixed?" in line
+
+
+def test_rows_scattered_far_beyond_a_mean_curve_are_refused(tmp_path):
+    """Every other row 1.6x, the rest 0.4x: no 100x jump, but no curve either."""
+    rows = [f"{r.split(',')[0]},{r.split(',')[1]},{float(r.split(',')[2]) * (1.6 if k % 2 else 0.4):.4f}"
+            for k, r in enumerate(_cortex_rows())]
+    data = _data(tmp_path, rows)
+    line = _refused(tmp_path, data)
+    assert line.startswith(f"Error: {data}: region 'cortex': the rows scatter about their neighbours by "), line
+    assert line.endswith(f"of the stresses' RMS; allowed: at most {SCATTER_MAX:.0%} (a measured mean curve is smooth: the shipped "
+                         "curves scatter by under 3%); mixed units, or two data sets in one? nothing fitted")
+
+
+def test_the_shipped_curves_scatter_far_below_the_limit():
+    for path in (DATA_FILE, SHEAR_FILE):
+        for region in ("cortex", "basal_ganglia", "corona_radiata", "corpus_callosum"):
+            c = read_curve(path, region)
+            assert curve_scatter(c.x, c.stress) < SCATTER_MAX / 5, (path.name, region)
+
+
+def test_the_shipped_curves_thinned_to_eleven_points_still_pass():
+    """Sparser points: their neighbours' line bends with the curve, and the measure grows."""
+    for path in (DATA_FILE, SHEAR_FILE):
+        c = read_curve(path, "corpus_callosum")
+        assert curve_scatter(c.x[::3], c.stress[::3]) < SCATTER_MAX / 2, path.name
+
+
+def test_rows_alternating_kpa_and_pa_scatter_far_above_the_limit(tmp_path):
+    c = read_curve(DATA_FILE, "cortex")
+    mixed = c.stress * np.where(np.arange(len(c.x)) % 2 == 1, 1000.0, 1.0)
+    assert curve_scatter(c.x, mixed) > 2 * SCATTER_MAX
+
+
+def test_no_shipped_row_jumps_near_the_unit_limit():
+    for path in (DATA_FILE, SHEAR_FILE):
+        for region in ("cortex", "basal_ganglia", "corona_radiata", "corpus_callosum"):
+            y = read_curve(path, region).stress
+            same = (y[:-1] * y[1:]) > 0
+            a, b = np.abs(y[:-1][same]), np.abs(y[1:][same])
+            assert (np.maximum(a, b) / np.minimum(a, b)).max() < UNIT_JUMP / 10, (path.name, region)

@@ -143,7 +143,7 @@ def test_zero_force_and_negative():
     [
         ({"alpha": 2.5}, r"alpha: 2.5 is out of range; allowed: \[1, 2\]"),
         ({"q": 0.9}, r"q: 0.9 is out of range; allowed: \[1, 1.5\]"),
-        ({"layers": 0}, r"layers: 0 is out of range; allowed: an integer >= 1"),
+        ({"layers": 0}, r"layers: 0 is out of range; allowed: an integer in 1..1000"),
         ({"B": 0.02}, r"B: 0.02 is out of range; allowed: \[0.01, 0.0101\] m"),
         ({"l1": 0.003}, r"B: .* 2\*L_i > 0.6\*B .* B < 0.01 m"),
         ({"E": -1.0}, r"E: -1.0 is out of range; allowed: a finite number > 0 Pa"),

@@ -20,7 +20,9 @@ and narrower than the value itself); the others are reported beside it.
 
 Odd data are said, not fitted silently: rows repeated exactly (same region, strain and stress)
 are counted once, and the count merged is reported (a copy pasted twice is not a second
-measurement, and would narrow the intervals); a region whose stresses are all zero, and a fit
+measurement, and would narrow the intervals); a data set given twice (the same file, or a copy
+of its rows) is refused; rows that are not one smooth curve (kPa and Pa mixed, a scatter about
+their neighbours far beyond a measured mean curve's) are refused before any fit; a region whose stresses are all zero, and a fit
 no law explains (R^2 <= 0 for the chosen law: no better than the data's mean), are refused; a
 region of more than `MAX_POINTS` points is refused before any fit (bin or thin the curve: the
 fit's time grows with the points, and a mean curve needs a few hundred at most).
@@ -51,6 +53,13 @@ SHEAR_BAND = (0.1, 0.2)  # |shear strain| where a law's worst relative shear err
 FIT_LAWS = ("neo-hookean", "mooney-rivlin", "ogden", "ogden-2")
 ALPHA_STARTS = (-30.0, -20.0, -10.0, -4.0, 4.0, 10.0)
 MAX_POINTS = 1000  # of one file's region, after merging repeated rows: a mean curve needs a few hundred
+# Rows that are not one curve. The shipped curves' neighbours differ by at most 2.2x (next to the
+# zero crossing), kPa among Pa by 1000x: a row 100x off both its neighbours is a unit mixed in.
+UNIT_JUMP = 100.0
+# The scatter about the neighbours' line, over the stresses' RMS: the shipped curves 0.8..2.6%,
+# thinned to 11 points (their bend then counts) 7%, rows alternating kPa and Pa 97..112%.
+SCATTER_MAX = 0.3
+SCATTER_MIN_POINTS = 10
 
 
 class MaterialDataError(InputError):
@@ -112,7 +121,10 @@ def read_curve(path, region: str) -> Curve:
             if not (math.isfinite(v) and lo <= v <= hi):
                 raise MaterialDataError(f"{p}:{line}: {col}: {r[col][:20]!r} is out of range; allowed: a number in {lo:g}..{hi:g}")
             values[col].append(v)
-    pairs = list(dict.fromkeys(zip(values[xcol], values[ycol])))  # exact repeats counted once, the first kept, in order
+    first = {}  # exact repeats counted once, the first kept, in order, with its line
+    for (line, _), pair in zip(mine, zip(values[xcol], values[ycol])):
+        first.setdefault(pair, line)
+    pairs = list(first)
     duplicates = len(mine) - len(pairs)
     if len(pairs) > MAX_POINTS:
         raise MaterialDataError(f"{p}: region {region!r} has {len(pairs)} points; allowed: at most {MAX_POINTS} a file "
@@ -120,11 +132,54 @@ def read_curve(path, region: str) -> Curve:
     x, stress = np.array([a for a, _ in pairs]), np.array([b for _, b in pairs]) * 1e3
     if not np.any(stress != 0.0):
         raise MaterialDataError(f"{p}: region {region!r}: every {ycol} is 0; there is nothing to fit")
+    _check_one_curve(p, region, xcol, ycol, x, stress, list(first.values()))
     if mode == "uniaxial" and ((x < 1).sum() < 2 or (x > 1).sum() < 2):
         raise MaterialDataError(f"{p}: region {region!r} needs at least two points in tension and two in compression")
     if mode == "shear" and (np.abs(x) > 0).sum() < 2:
         raise MaterialDataError(f"{p}: region {region!r} needs at least two points at a non-zero shear strain")
     return Curve(str(p), hashlib.sha256(p.read_bytes()).hexdigest(), region, x, stress, mode, duplicates)
+
+
+def _check_one_curve(p: Path, region: str, xcol: str, ycol: str, x: np.ndarray, y: np.ndarray, lines: list[int]) -> None:
+    """Refuse rows that are not one smooth curve (before any fit: a law fitted to them reads a
+    mix as a modulus): a row `UNIT_JUMP` times above or below both its neighbours of the same
+    sign (by strain), which is kPa and Pa mixed; else a scatter about the neighbours' line over
+    `SCATTER_MAX` of the stresses' RMS."""
+    order = np.argsort(x, kind="stable")
+    ys = y[order]
+    for i in range(1, len(ys) - 1):
+        a, b, c = ys[i - 1], ys[i], ys[i + 1]
+        if a * b > 0 and b * c > 0:
+            up, down = min(abs(b / a), abs(b / c)), min(abs(a / b), abs(c / b))
+            if max(up, down) >= UNIT_JUMP:
+                j, k = order[i - 1], order[i]
+                raise MaterialDataError(
+                    f"{p}: region {region!r}: {ycol} jumps {max(up, down):.3g}x between neighbouring rows and back (line {lines[j]}: "
+                    f"{y[j] / 1e3:g} at {xcol} {x[j]:g}; line {lines[k]}: {y[k] / 1e3:g} at {x[k]:g}): kPa and Pa mixed? "
+                    "give every row in kPa; nothing fitted")
+    scatter = curve_scatter(x, y)
+    if scatter > SCATTER_MAX:
+        raise MaterialDataError(
+            f"{p}: region {region!r}: the rows scatter about their neighbours by {scatter:.0%} of the stresses' RMS; allowed: at most "
+            f"{SCATTER_MAX:.0%} (a measured mean curve is smooth: the shipped curves scatter by under 3%); mixed units, or two "
+            "data sets in one? nothing fitted")
+
+
+def curve_scatter(x: np.ndarray, y: np.ndarray) -> float:
+    """The rows' scatter over the stresses' RMS: the larger of the replicates' spread at one
+    strain and the mean curve's noise about the line through each point's neighbours (as a noise
+    sigma, whatever the spacing); 0 for fewer than `SCATTER_MIN_POINTS` strains, whose
+    neighbours' line measures the curve's bend, not its scatter."""
+    xs, ys = np.asarray(x, float), np.asarray(y, float)
+    ux = np.unique(xs)
+    if len(ux) < SCATTER_MIN_POINTS:
+        return 0.0
+    mean = np.array([ys[xs == v].mean() for v in ux])
+    within = float(np.sqrt(np.mean((ys - mean[np.searchsorted(ux, xs)]) ** 2)))
+    w = (ux[1:-1] - ux[:-2]) / (ux[2:] - ux[:-2])
+    off = mean[1:-1] - (mean[:-2] + w * (mean[2:] - mean[:-2]))
+    between = float(np.sqrt(np.mean(off**2) / np.mean(1.0 + w**2 + (1.0 - w) ** 2)))
+    return max(within, between) / float(np.sqrt(np.mean(ys**2)))
 
 
 def shear_stretch(gamma) -> np.ndarray:
@@ -287,6 +342,20 @@ def law_of(fit: dict) -> Hyperelastic:
     return _law(fit["law"], np.array(list(fit["parameters"].values())), fit["material"]["bulk_ratio"])
 
 
+def _check_given_once(curves: list[Curve]) -> None:
+    """Refuse a data set given twice (the same file, by another path or a link, or a copy of its
+    rows): fitted as twice the points, it would narrow every interval. Files of one mode that
+    share half the smaller one's rows are one data set."""
+    for k, later in enumerate(curves):
+        for earlier in curves[:k]:
+            if later.mode != earlier.mode:
+                continue
+            shared = len(set(zip(later.x, later.stress)) & set(zip(earlier.x, earlier.stress)))
+            if 2 * shared >= min(len(later.x), len(earlier.x)):
+                raise MaterialDataError(f"{later.path}: the same rows as {earlier.path} ({shared} of {len(later.x)}); "
+                                        "give each data set once")
+
+
 def fit_material(paths, region: str = "cortex", laws=FIT_LAWS, bulk_ratio: float = BULK_RATIO, progress=None) -> dict:
     """Fit every law in `laws` to `region` of the data files (one path or several, each of one
     loading mode, fitted together); choose by AICc among identified fits. `progress(done,
@@ -294,6 +363,7 @@ def fit_material(paths, region: str = "cortex", laws=FIT_LAWS, bulk_ratio: float
     nothing (R^2 <= 0, or not finite)."""
     paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
     curves = [read_curve(p, region) for p in paths]
+    _check_given_once(curves)
     fits = []
     if progress is not None:  # the data read: the first law starts (its stage can be said before its wait)
         progress(0, len(laws))

@@ -41,6 +41,14 @@ HAPTIC_PERIOD_S = 1e-3  # 1 kHz servo rate: the T of Eq. (18)
 # The paper bounds B by "b <= B <= b + 0.1" with no unit; we read the 0.1 as millimetres
 # (plates are millimetre-scale on a brain; 0.1 m would be wider than the organ).
 B_SLACK_M = 1e-4
+# Upper bounds of the stack's values, wide but physical (a value beyond is a slip of units):
+# plates and their deflection of millimetres, at most 0.1 m (wider than the organ); the plates'
+# modulus (the stack's own, not the tissue's) at most 1e12 Pa, stiffer than steel; Eq. (9)'s
+# coefficient (1 in the paper's reading) up to 1e3; a layer's delay (Eq. 17) at most 1 s and its
+# ratio at most 10 (the servo's period is 1 ms); the paper's 6 layers, the stability sweep's 60,
+# at most 1000.
+PARAM_MOST = {"b": 0.1, "h1": 0.1, "l1": 0.1, "x_c1": 0.1, "E": 1e12, "delta": 1e3, "t1": 1.0, "omega": 10.0}
+MAX_LAYERS = 1000
 
 _FLOAT_KEYS = ("b", "h1", "l1", "alpha", "q", "B", "E", "x_c1", "delta", "t1", "omega")
 _KEYS = ("b", "h1", "l1", "alpha", "q", "layers", "B", "E", "x_c1", "delta", "t1", "omega")
@@ -64,19 +72,13 @@ class PlateSpringParams:
     omega: float = 1.0  # delay ratio between layers
 
     def __post_init__(self) -> None:
-        _check_positive("b", self.b, "m")
-        _check_positive("h1", self.h1, "m")
-        _check_positive("l1", self.l1, "m")
+        for name, unit in (("b", "m"), ("h1", "m"), ("l1", "m"), ("E", "Pa"), ("x_c1", "m"), ("delta", ""), ("t1", "s"), ("omega", "")):
+            _check_positive(name, getattr(self, name), unit, PARAM_MOST[name])
         _check_range("alpha", self.alpha, 1.0, 2.0)
         _check_range("q", self.q, 1.0, 1.5)
-        if isinstance(self.layers, bool) or not isinstance(self.layers, int) or self.layers < 1:
-            raise ParameterError(f"layers: {self.layers!r} is out of range; allowed: an integer >= 1")
+        if isinstance(self.layers, bool) or not isinstance(self.layers, int) or not 1 <= self.layers <= MAX_LAYERS:
+            raise ParameterError(f"layers: {self.layers!r} is out of range; allowed: an integer in 1..{MAX_LAYERS}")
         _check_range("B", self.B, self.b, self.b + B_SLACK_M, unit="m", note=" (b <= B <= b + 0.1 mm)")
-        _check_positive("E", self.E, "Pa")
-        _check_positive("x_c1", self.x_c1, "m")
-        _check_positive("delta", self.delta, "")
-        _check_positive("t1", self.t1, "s")
-        _check_positive("omega", self.omega, "")
         # Eq. (1) needs 2 L_i > 0.6 B; L_1 = l1 is the shortest equivalent length (q >= 1).
         if not 2.0 * self.l1 > 0.6 * self.B:
             raise ParameterError(
@@ -115,9 +117,11 @@ class PlateSpringParams:
         return asdict(self)
 
 
-def _check_positive(name: str, value: float, unit: str) -> None:
+def _check_positive(name: str, value: float, unit: str, most: float) -> None:
     if not (math.isfinite(value) and value > 0.0):
         raise ParameterError(f"{name}: {value!r} is out of range; allowed: a finite number > 0 {unit}".rstrip())
+    if value > most:
+        raise ParameterError(f"{name}: {value!r} is out of range; allowed: (0, {most:g}] {unit}".rstrip())
 
 
 def _check_range(name: str, value: float, lo: float, hi: float, unit: str = "", note: str = "") -> None:

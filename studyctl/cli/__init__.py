@@ -30,7 +30,7 @@ from studyctl.cli import (
     simulator,
     study,
 )
-from studyctl.cli.common import _Group
+from studyctl.cli.common import LoadErrorsAsImportErrors, _Group
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -40,6 +40,7 @@ def cli():
 
 
 def main() -> None:
+    sys.meta_path.insert(0, LoadErrorsAsImportErrors())  # a broken optional extra: one line, not a traceback
     try:
         cli(prog_name="studyctl")
     except KeyboardInterrupt:  # a further Ctrl-C while the command printed its last line or exited: still one line

@@ -10,6 +10,7 @@ import math
 import os
 import shlex
 import sqlite3
+import sys
 from pathlib import Path
 
 import click
@@ -241,3 +242,30 @@ def _model_name(value):
     from sim.models.registry import canonical, is_model_name
 
     return canonical(value) if is_model_name(value) else value.replace("-", "_")
+
+
+OPTIONAL_EXTRAS = ("pyarrow", "distributed")  # the parquet and dask extras' packages
+
+
+class LoadErrorsAsImportErrors:
+    """A meta path finder: an optional extra that is installed but cannot load (a shared library
+    missing raises OSError from inside it) fails as the ImportError its importers catch. pandas
+    imports pyarrow as it loads and catches only ImportError, so a broken pyarrow would end every
+    command in a traceback; the command that needs the extra says the reason (`studyctl.study`)."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name not in OPTIONAL_EXTRAS:
+            return None
+        finders = [f for f in sys.meta_path if f is not self and hasattr(f, "find_spec")]
+        spec = next((s for f in finders if (s := f.find_spec(name, path, target)) is not None), None)
+        if spec is not None and spec.loader is not None and hasattr(spec.loader, "exec_module"):
+            run = spec.loader.exec_module
+
+            def exec_module(module):
+                try:
+                    run(module)
+                except OSError as exc:
+                    raise ImportError(str(exc), name=name) from exc
+
+            spec.loader.exec_module = exec_module  # this module's loader only: its other methods kept
+        return spec
