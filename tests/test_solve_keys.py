@@ -10,7 +10,8 @@ import pytest
 from analysis.verification import tissue_pulls
 from analysis.verification.truth_band import ensemble, shapes
 from sim.geometry.tetmesh import hemisphere_surface, mesh_hemisphere
-from sim.pulls import make_pulls, scene_with, test_pulls
+from sim import pulls as pull_sets
+from sim.pulls import scene_with
 from sim.scene import DEFAULT_SCENE, grasp_radius
 
 
@@ -19,7 +20,7 @@ def test_a_zero_and_what_rounds_to_it_give_one_key_number(x):
     assert json.dumps(tissue_pulls.key_number(x)) == "0.0"
 
 
-@pytest.mark.parametrize("x", [6.938893903907228e-18, -6.938893903907228e-18, 0.0, -0.0])
+@pytest.mark.parametrize("x", [0.0, -0.0])
 def test_a_law_parameter_at_zero_is_written_one_way(x):
     assert json.dumps(tissue_pulls.key_digits(x)) == "0.0"
 
@@ -27,7 +28,7 @@ def test_a_law_parameter_at_zero_is_written_one_way(x):
 def test_a_direction_with_a_signed_zero_gives_the_same_key():
     """test9-across's y component: +6.9e-18 on one machine, -0.0 on another."""
     scene = scene_with(DEFAULT_SCENE)
-    pull = next(p for p in test_pulls(scene) if p.name == "test9-across")
+    pull = next(p for p in pull_sets.test_pulls(scene) if p.name == "test9-across")
     keys = set()
     for y in (6.938893903907228e-18, -6.938893903907228e-18, 0.0, -0.0):
         moved = dataclasses.replace(pull, direction=(pull.direction[0], y, pull.direction[2]))
@@ -40,7 +41,7 @@ def test_every_shipped_key_is_rebuilt_from_its_inputs_on_this_machine():
     `test_pulls`), its shipped mesh and its law (the truth's ensemble, fitted here), as the
     benches and the truth compute them: every one is found among the shipped solves."""
     scene = scene_with(DEFAULT_SCENE)
-    pulls = {p.name: p for p in make_pulls(scene) + test_pulls(scene)}
+    pulls = {p.name: p for p in pull_sets.make_pulls(scene) + pull_sets.test_pulls(scene)}
     laws = shapes(ensemble(scene.spec.material.law_source, scene.spec.material.law))
     radius, rng = grasp_radius(scene), tissue_pulls.truth_range(scene)
     info = json.loads(tissue_pulls.SHIPPED_PULLS_INFO.read_text())
