@@ -9,8 +9,8 @@ import pytest
 
 from analysis.verification import tissue_pulls
 from analysis.verification.truth_band import ensemble, shapes
-from sim.geometry.tetmesh import hemisphere_surface, mesh_hemisphere
 from sim import pulls as pull_sets
+from sim.geometry.tetmesh import hemisphere_surface, mesh_hemisphere
 from sim.pulls import scene_with
 from sim.scene import DEFAULT_SCENE, grasp_radius
 

@@ -7,7 +7,6 @@ import ast
 import importlib.metadata
 import json
 import os
-import re
 import shutil
 import subprocess
 import sys
