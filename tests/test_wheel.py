@@ -136,7 +136,8 @@ def _check(out: dict, venv: Path) -> None:
     assert out["synth"]["participants"] == 2
     assert out["synth"]["synthetic"] is True
     assert sorted(out["table1"]) == sorted(TABLE1_FORMATS)
-    assert all("SYNTHETIC DATA" in text for text in out["table1"].values())
+    assert all("SYNTHETIC DATA" in text for fmt, text in out["table1"].items() if fmt != "csv")
+    assert out["table1"]["csv"].splitlines()[0].endswith(",synthetic")  # a column, each row True
     assert json.loads(out["table1"]["json"])
     assert "\\begin{" in out["table1"]["latex"]
     assert out["text"].startswith("## Participants")
