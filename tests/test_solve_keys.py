@@ -8,7 +8,7 @@ import json
 import pytest
 
 from analysis.verification import tissue_pulls
-from analysis.verification.truth_band import ensemble, shapes
+from analysis.verification.truth_band import scene_ensemble, shapes
 from sim import pulls as pull_sets
 from sim.geometry.tetmesh import hemisphere_surface, mesh_hemisphere
 from sim.pulls import scene_with
@@ -38,11 +38,11 @@ def test_a_direction_with_a_signed_zero_gives_the_same_key():
 
 def test_every_shipped_key_is_rebuilt_from_its_inputs_on_this_machine():
     """Each shipped entry's key from its pull (the scene's geometry, `make_pulls` and
-    `test_pulls`), its shipped mesh and its law (the truth's ensemble, fitted here), as the
+    `test_pulls`), its shipped mesh and its law (the truth's ensemble, `scene_ensemble`), as the
     benches and the truth compute them: every one is found among the shipped solves."""
     scene = scene_with(DEFAULT_SCENE)
     pulls = {p.name: p for p in pull_sets.make_pulls(scene) + pull_sets.test_pulls(scene)}
-    laws = shapes(ensemble(scene.spec.material.law_source, scene.spec.material.law))
+    laws = shapes(scene_ensemble(scene))
     radius, rng = grasp_radius(scene), tissue_pulls.truth_range(scene)
     info = json.loads(tissue_pulls.SHIPPED_PULLS_INFO.read_text())
     shipped = set(tissue_pulls.shipped_solves())
