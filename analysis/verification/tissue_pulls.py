@@ -116,16 +116,42 @@ def pull_stiffness(problem: Problem, law, points: np.ndarray, weights: np.ndarra
 
 # -- finite-strain pulls, shipped or solved and cached ---------------------------------------
 
+# A solve's key is a hash of its inputs, so a number must be written the same on every machine:
+# rounded to a stated precision, then any zero (-0.0, or a value that rounds to zero) written 0.0.
+# The geometry's arithmetic differs between machines at 1e-16 (test9-across's y component is
+# +6.9e-18 on one, -0.0 on another) and a law fitted at run time at 1e-7 relative (the ogden-2 fit,
+# its alpha at the bound): the precisions sit far above both and far below what moves a force.
+KEY_DECIMALS = 9  # lengths (m) and direction components: 1 nm, 1e-9 rad
+LAW_DIGITS = 5  # significant digits of a law's shape: 1e-5 of alpha moves a force by under 1e-4; its 95% box spans 6%
+
+
+def key_number(x: float, decimals: int = KEY_DECIMALS) -> float:
+    """`x` rounded to `decimals`, a zero always +0.0: one float, one key, on every machine."""
+    v = round(float(x), decimals)
+    return 0.0 if v == 0.0 else v
+
+
+def key_digits(x: float, digits: int = LAW_DIGITS) -> float:
+    """`x` to `digits` significant digits (decimal, so the same on every machine), a zero always +0.0."""
+    v = float(f"{float(x):.{digits}g}")
+    return 0.0 if v == 0.0 else v
+
+
 def law_shape_key(law) -> list:
     """The law up to its scale: forces are stored per pascal of shear modulus."""
     mu = law.shear_modulus
-    return [law.law, [round(m / mu, 12) for m in law.mu], [round(a, 9) for a in law.alpha], round(law.bulk_ratio, 9)]
+    return [law.law, [key_digits(m / mu) for m in law.mu], [key_digits(a) for a in law.alpha], key_digits(law.bulk_ratio)]
+
+
+def pull_key_inputs(mesh_key: str, scene, law, radius: float, pull, stretch_range=None) -> list:
+    """What a solve's key is the hash of, each number canonical (`key_number`, `key_digits`)."""
+    axis, limit = clamp_limit(scene)
+    return ([SOLVER_VERSION, mesh_key, law_shape_key(law), int(axis), key_number(limit), key_number(radius), int(pull.vertex),
+             [key_number(c) for c in pull.direction]] + ([[key_number(r) for r in stretch_range]] if stretch_range else []))
 
 
 def pull_key(mesh: BodyMesh, scene, law, radius: float, pull, stretch_range=None) -> str:
-    axis, limit = clamp_limit(scene)
-    key = json.dumps([SOLVER_VERSION, mesh.key, law_shape_key(law), axis, round(limit, 9), round(radius, 9), int(pull.vertex),
-                      [round(c, 12) for c in pull.direction]] + ([[round(float(r), 9) for r in stretch_range]] if stretch_range else []))
+    key = json.dumps(pull_key_inputs(mesh.key, scene, law, radius, pull, stretch_range))
     return hashlib.sha256(key.encode()).hexdigest()[:24]
 
 
