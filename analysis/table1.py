@@ -245,7 +245,7 @@ def holm_text(st: StudyStats) -> str:
     tested = tests_run(pairs)
     if not tested:
         return "Holm: no pair tested"
-    return f"Holm over all {tested} pairs tested"
+    return "one pair tested: no Holm correction" if tested == 1 else f"Holm over all {tested} pairs tested"
 
 
 def rate_cell(x) -> str:

@@ -237,7 +237,7 @@ def small_bench(tmp_path_factory, monkeypatch_module):
     out = tmp_path_factory.mktemp("acc")
     res = CliRunner().invoke(cli, ["bench", "accuracy", "--quick", "--json", "--jobs", "1", "--out", str(out)])
     assert res.exit_code == 0, res.output
-    return json.loads(res.output), out
+    return json.loads(res.stdout), out
 
 
 @pytest.fixture(scope="module")

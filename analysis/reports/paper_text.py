@@ -19,6 +19,7 @@ from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study
 from analysis.study_stats import study_stats
 from sim.jsonable import jsonable
+from sim.text import counted
 
 KIND_WORDS = {"yes_no": "yes/no question", "likert": "rating", "vas": "visual analogue scale", "choice": "choice among the conditions"}
 WHEN_WORDS = {"condition": "after each condition", "trial": "after each trial", "end": "once, after the last condition"}
@@ -86,10 +87,10 @@ def _participants(m: Mapping, flag: str) -> str:
     p = m["participants"]
     who = ("synthetic participants simulated by the platform, not people" if p["synthetic_participants"] and not p["person_participants"]
            else "people" if not p["synthetic_participants"]
-           else f"{p['person_participants']} people and {p['synthetic_participants']} synthetic participants, pooled")
+           else f"{counted(p['person_participants'], 'person')} and {counted(p['synthetic_participants'], 'synthetic participant')}, pooled")
     asked = m["procedure"]["questions"] or m["procedure"]["instruments"]
     did = "answered every question for every condition" if asked else "took part in the discrimination task"
-    text = (f"{flag + ' ' if flag else ''}N = {p['n']} participants {did} "
+    text = (f"{flag + ' ' if flag else ''}N = {counted(p['n'], 'participant')} {did} "
             f"(target {p['target']}; ages {p['age_min']} to {p['age_max']} eligible); they were {who}.")
     if p["excluded"]:
         k = len(p["excluded"])
@@ -121,7 +122,7 @@ def _design(m: dict) -> str:
 
 def _apparatus(m: dict) -> str:
     a = m["apparatus"]
-    text = ("Sessions ran with " + _names([f"{x['device']} devices ({x['sessions']} sessions{', synthetic' if x['synthetic'] else ''})"
+    text = ("Sessions ran with " + _names([f"{x['device']} devices ({counted(x['sessions'], 'session')}{', synthetic' if x['synthetic'] else ''})"
                                            for x in a["devices"]])) if a["devices"] else "No session has finished"
     if a["software_versions"]:
         text += f", on {_names(a['software_versions'])}"
@@ -160,7 +161,7 @@ def _procedure(m: dict) -> str:
         if q["kind"] == "likert":
             scale = f" on a {q['points']}-point scale from “{q['anchors'][0]}” to “{q['anchors'][1]}”"
         elif q["kind"] == "vas" and q["anchors"]:
-            scale = f" on a visual analogue scale from “{q['anchors'][0]}” to “{q['anchors'][1]}”"
+            scale = f" from “{q['anchors'][0]}” to “{q['anchors'][1]}”"  # KIND_WORDS names the scale
         parts.append(f"“{q['text']}” ({KIND_WORDS.get(q['kind'], q['kind'])}{scale}, asked {WHEN_WORDS.get(q['when'], q['when'])})")
     text = ("Participants answered " + "; ".join(parts) + ".") if parts else ""
     for ins in pr["instruments"]:
@@ -218,7 +219,7 @@ def _gee(fit, what: str, family: str, n_conditions: int) -> str:
         return f"The {what} was not made: " + ("one condition: nothing to compare." if n_conditions < 2 else "no answers to fit.")
     if not fit.estimable or not fit.converged:
         return f"The {what} was not reported: {'; '.join(fit.problems) or 'it did not converge'}."
-    head = f"The {what} ({fit.formula}) included {fit.n_participants} participants and {fit.n_answers} answers."
+    head = f"The {what} ({fit.formula}) included {counted(fit.n_participants, 'participant')} and {counted(fit.n_answers, 'answer')}."
     return head + " " + _pairs_text(fit.pairs, lambda p: f"{p.b} relative to {p.a}, OR = {p.odds_ratio:.2f}, 95% CI [{p.ci_low:.2f}, {p.ci_high:.2f}]",
                                     "Condition pairs", family)
 

@@ -8,11 +8,12 @@ import click
 
 from sim.jsonable import jsonable
 from studyctl.cli.common import DB, FORCE, OutFile, read_snapshot, staged, write_output
+from sim.text import counted
 
 
 def _note(table) -> str:
     codes = table.loc[table["synthetic"], "code"].unique()
-    return f"SYNTHETIC DATA: {len(codes)} of {table['code'].nunique()} participants are synthetic" if len(codes) else ""
+    return f"SYNTHETIC DATA: {len(codes)} of {counted(table['code'].nunique(), 'participant')} {'is' if len(codes) == 1 else 'are'} synthetic" if len(codes) else ""
 
 
 @click.command("metrics", cls=click.Command)

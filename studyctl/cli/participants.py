@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from studyctl.cli.common import DB, DRY_RUN, FORCE, JSON, OutFile, _console, _done, _Group, _listing, _print_json
+from sim.text import counted
 
 
 @click.group(cls=_Group)
@@ -56,7 +57,7 @@ def participants_import(csv_file, db, dry_run, as_json):
     from studyctl.study import import_participants
 
     out = import_participants(db, csv_file, dry_run=dry_run)
-    _done(out, f"imported {out['imported']} participants", as_json)
+    _done(out, f"imported {counted(out['imported'], 'participant')}", as_json)
 
 
 @participants.command("list")
@@ -100,7 +101,7 @@ def participants_withdraw(code, reason, db, dry_run, as_json):
     from studyctl.participants import withdraw
 
     out = withdraw(db, code, reason, dry_run=dry_run)
-    _done(out, f"withdrawn {code}: {out['sessions']} sessions and {out['answers']} answers {out['data']}"
+    _done(out, f"withdrawn {code}: {counted(out['sessions'], 'session')} and {counted(out['answers'], 'answer')} {out['data']}"
           + (f", {out['traces']} trace files deleted" if out["traces"] else "") + "; contact details deleted", as_json)
 
 
@@ -119,7 +120,7 @@ def participants_contacts(db, out_file, force, as_json):
     if as_json:
         _print_json(out)
         return
-    click.echo(f"wrote {out['file']}: IDENTIFYING names and contacts of {out['participants']} participants (readable by you only)")
+    click.echo(f"wrote {out['file']}: IDENTIFYING names and contacts of {counted(out['participants'], 'participant')} (readable by you only)")
 
 
 @click.group("schedule", cls=_Group, invoke_without_command=True)
@@ -155,7 +156,7 @@ def schedule_cmd(ctx, db, start, end, hours, session_minutes, availability, ics,
     from rich.table import Table
 
     with_slot = len([r for r in rows if r["slot_start"]])
-    t = Table(title=("DRY RUN, nothing stored: " if dry_run else "") + f"Schedule ({with_slot} of {len(rows)} participants have a slot)")
+    t = Table(title=("DRY RUN, nothing stored: " if dry_run else "") + f"Schedule ({with_slot} of {counted(len(rows), 'participant')} {'has' if with_slot == 1 else 'have'} a slot)")
     for col in ("participant", "start", "end", "order"):
         t.add_column(col)
     for r in rows:

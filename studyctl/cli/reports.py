@@ -27,6 +27,7 @@ from studyctl.cli.common import (
     staged,
     write_output,
 )
+from sim.text import counted
 
 PAPER_TABLE = _asset("data/paper_table1.csv")
 
@@ -278,7 +279,7 @@ def report_stats(db, holm_scope, as_json):
     if gee and kinds.primary.analysis != "logistic_gee":  # the primary's own line is printed first
         click.echo(gee.replace("`", ""))
     for row in out.deformation.rows:
-        click.echo(f"deformation time, {row['model']}: {mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])} ms over {row['n_participants']} participants "
+        click.echo(f"deformation time, {row['model']}: {mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])} ms over {counted(row['n_participants'], 'participant')} "
                    f"({out.deformation.label})")
 
 

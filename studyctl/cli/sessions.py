@@ -61,7 +61,7 @@ def session_run(db, participant, device, synthetic, resume, time_scale, view, an
     if as_json:
         _print_json(out)
         return
-    click.echo(f"session {out['session']} of {out['participant']} complete: conditions {' > '.join(out['order'])}, {out['answers']} answers"
+    click.echo(f"{out['participant']}'s session complete (session {out['session']} of the study): conditions {' > '.join(out['order'])}, {out['answers']} answers"
                + (" (SYNTHETIC)" if out["synthetic"] else ""))
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from studyctl.cli.common import DB, DEFAULT_PROTOCOL, FORCE, JSON, _Group, _print_json
+from sim.text import counted
 
 
 @click.group(cls=_Group)
@@ -60,7 +61,7 @@ def protocol_validate(file: Path, as_json: bool):
     if p.trials_per_condition:  # a discrimination protocol has only its tasks' trials
         what.append(f"{_count(p.trials_per_condition, 'trial')} per condition")
     what += [f"{t.kind} of {t.parameter} in {_count(t.trials, 'trial')} per condition" for t in p.tasks]
-    click.echo(f"{file}: ok ({p.name}: {', '.join(what)}, target {p.target_participants} participants)")
+    click.echo(f"{file}: ok ({p.name}: {', '.join(what)}, target {counted(p.target_participants, 'participant')})")
 
 
 def _count(n: int, noun: str) -> str:
@@ -102,12 +103,12 @@ def status_cmd(db, as_json):
     p, c = out["participants"], out["complete"]
     mixed = f", {c['mixed']} of them with a person's answers too" if c["mixed"] else ""
     gone = out["complete_withdrawn"]
-    click.echo(f"{out['study']}: {c['persons']} of {out['target_participants']} people complete"
+    click.echo(f"{out['study']}: {c['persons']} of {counted(out['target_participants'], 'person')} complete"
                + (f" (and {c['synthetic']} SYNTHETIC{mixed})" if c["synthetic"] else "")
                + (f" ({gone} of these withdrew, data kept: counted, as in the reports)" if gone else ""))
     if out["incomplete"]:
         click.echo("incomplete: " + ", ".join(f"{r['code']} ({r['answers']}/{r['of']})" for r in out["incomplete"]))
-    click.echo(f"participants: {p['persons']} people ({p['consented']} consented, {p['withdrawn']} withdrawn), {p['synthetic']} synthetic")
+    click.echo(f"participants: {counted(p['persons'], 'person')} ({p['consented']} consented, {p['withdrawn']} withdrawn), {p['synthetic']} synthetic")
     click.echo("sessions: " + (", ".join(f"{n} {k}" for k, n in sorted(out["sessions"].items())) or "none yet"))
     click.echo(f"answers: {out['answers']}")
     click.echo("next: " + ("; ".join(f"{r['code']} {r['slot_start'].replace('T', ' ')}" for r in out["next"]) or "nobody scheduled"))

@@ -57,6 +57,7 @@ from studyctl.store.trials import discrimination_done
 from studyctl.study import assign_order
 from studyctl.synthetic.participant import SyntheticAnswers, SyntheticParticipant, skill_for
 from studyctl.synthetic.rig import frame_times
+from sim.text import counted
 
 OPEN = ("running", "interrupted")  # a session to resume: killed while running, or stopped with Ctrl-C
 TRAINING_MODEL = "plate_spring"  # free exploration before the first condition (never named on screen)
@@ -377,7 +378,7 @@ def _training(run: _Run) -> None:
     seconds = protocol.training_minutes * 60.0
     ran, early = 0.0, None
     if run.time_scale > 0 and seconds > 0:
-        run.say(f"training: {protocol.training_minutes:g} minutes of free pulling; the experimenter ends it early with "
+        run.say(f"training: {counted(float(protocol.training_minutes), 'minute')} of free pulling; the experimenter ends it early with "
                 + ("E in the window or " if shown is not None else "") + "Enter in the terminal")
 
         def training_caption(phase, left):

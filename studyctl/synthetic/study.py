@@ -20,6 +20,7 @@ from studyctl.study import assign_order
 from studyctl.synthetic.bundles import run_away, seed_for, store_bundle
 from studyctl.synthetic.participant import MAX_SYNTHETIC, SyntheticParticipant, skill_for
 from studyctl.synthetic.rig import keep_shipped
+from sim.text import counted
 
 
 def run_synthetic_study(db, participants: int | None, seed: int = 0, jobs: int = 1, protocol_path=None, progress=None,
@@ -82,8 +83,8 @@ def run_synthetic_study(db, participants: int | None, seed: int = 0, jobs: int =
         except (KeyboardInterrupt, Interrupted):  # Ctrl-C between sessions, or inside one (run_session's own Interrupted
             # names its scratch study, which is gone): either way the registered participants left are completed by --complete
             left = len(runs) - stored
-            raise Interrupted(f"synth: interrupted after {stored} of {len(runs)} sessions (each stored whole); "
-                              f"`studyctl synth --db {db} --complete` runs the {left} registered participant{'s' if left != 1 else ''} "
+            raise Interrupted(f"synth: interrupted after {stored} of {counted(len(runs), 'session')} (each stored whole); "
+                              f"`studyctl synth --db {db} --complete` runs the {counted(left, 'registered participant')} "
                               f"left without one, completing this run's {len(runs)}") from None
         total = roster.synthetic_with_session(store)
     return {"participants": len(codes), "codes": codes, "seed": seed, "jobs": jobs, "scheduler": scheduler, "ran": len(runs),
