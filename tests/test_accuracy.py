@@ -3,14 +3,15 @@ JND, band and Wilson arithmetic worked by hand; the held-out pulls; a small benc
 through the CLI and into the report."""
 
 import json
+import re
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from analysis.reports.plots import pareto
-from analysis.verification import accuracy
 from analysis.stats import wilson
+from analysis.verification import accuracy
 from analysis.verification.accuracy import Setting, class_best, compare, coupling_bound
 from analysis.verification.accuracy_tables import meets_text, within_text
 from sim.pulls import Pull, make_pulls, scene_with
@@ -237,7 +238,16 @@ def small_bench(tmp_path_factory, monkeypatch_module):
     out = tmp_path_factory.mktemp("acc")
     res = CliRunner().invoke(cli, ["bench", "accuracy", "--quick", "--json", "--jobs", "1", "--out", str(out)])
     assert res.exit_code == 0, res.output
-    return json.loads(res.stdout), out
+    small_bench_stderr.append(res.stderr)
+    return json.loads(res.stdout), out  # stdout: the JSON alone
+
+
+small_bench_stderr: list[str] = []
+
+
+def test_bench_accuracy_says_where_it_is_on_stderr_off_a_terminal(small_bench):
+    """`bench accuracy` in a log was silent for minutes."""
+    assert re.search(r"^accuracy: reference, then models: \d+ of \d+$", small_bench_stderr[0], flags=re.M)
 
 
 @pytest.fixture(scope="module")

@@ -14,9 +14,11 @@ import shutil
 from importlib import metadata
 from types import SimpleNamespace
 
+import click
 import pytest
 
 from sim.models import registry
+from studyctl.cli import cli
 from studyctl.store import SCHEMA_VERSION, Store
 from studyctl.store import sessions as session_rows
 from tests.conftest import ROOT
@@ -298,3 +300,16 @@ def test_export(synth, tmp_path):
         "answers.csv", "conditions.csv", "consent.csv", "corrections.csv", "discrimination.csv", "events.csv", "latency.csv",
         "observer_features.csv", "participant_fields.csv", "participants.csv", "rig_profile.csv", "schedule.csv", "sessions.csv",
         "synthetic_traits.csv", "traces.csv", "trials.csv"]
+
+
+def _options(command, path=()):
+    for param in command.params:
+        if isinstance(param, click.Option) and not param.hidden:
+            yield " ".join(path), param
+    for name, sub in getattr(command, "commands", {}).items():
+        yield from _options(sub, (*path, name))
+
+
+def test_every_option_of_every_command_has_help():
+    """`synth --seed`, `report table1 --out` and `--format`, `schedule --json` had none."""
+    assert [f"{path} {param.opts[-1]}" for path, param in _options(cli) if not (param.help or "").strip()] == []

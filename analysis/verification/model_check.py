@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.verification.accuracy_tables import within_text
 from analysis.reports.table import Table, markdown_grid
 from analysis.verification.accuracy import (
     TICK_TIMING_CALLS,
@@ -36,6 +35,7 @@ from analysis.verification.accuracy import (
     run_accuracy,
     sample_displacements,
 )
+from analysis.verification.accuracy_tables import within_text
 from analysis.verification.stability import DURATION as STABILITY_DURATION
 from analysis.verification.stability import make_cases, run_case
 from analysis.verification.tissue_pulls import shipped_solve_seconds, unsolved

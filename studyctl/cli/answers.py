@@ -30,7 +30,7 @@ def answers_import(db, csv_file, dry_run, as_json):
 
 @answers.command("correct")
 @DB
-@click.option("--participant", required=True)
+@click.option("--participant", required=True, help="The participant's code, e.g. P01.")
 @click.option("--model", default="", callback=lambda c, p, v: _model_name(v),
               help="The condition the answer is about, e.g. fem; left out for a question asked once at the end.")
 @click.option("--item", required=True, help="The question's id, e.g. natural.")

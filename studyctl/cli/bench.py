@@ -56,13 +56,13 @@ def _sweep_options(f):
     f = click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Local worker processes (default: every core).")(f)
     f = FORCE(f)
     f = click.option("--out", "out_dir", type=OutDir(), default=None, help="Write tables, JSON and plots here.")(f)
-    f = click.option("--json", "as_json", is_flag=True)(f)
+    f = click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")(f)
     f = click.option("--quick", is_flag=True, help="The small sweep (CI, make demo).")(f)
     return f
 
 
 @bench.command("accuracy")
-@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml", help="The scene file (TOML).")
 @click.option("--young", type=click.FloatRange(1.0, 1e9), default=None,
               help="The linear models' Young's modulus, Pa, with the tissue's law scaled alike [default: the scene's].")
 @click.option("--test-places", type=click.IntRange(2, 20), default=None, help="Held-out grasp places, two directions each [default: 6, --quick: 2].")
@@ -120,7 +120,7 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, forc
 
 
 @bench.command("stability")
-@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml", help="The scene file (TOML).")
 @_sweep_options
 def bench_stability(scene_file, quick, as_json, out_dir, force, jobs, scheduler, models):
     """Sweep E, nu, time step, spring stiffness, plate-spring parameters, far pulls and 5 cm
@@ -171,7 +171,7 @@ def _sizes_mm(ctx, param, value):
 
 
 @bench.command("reference")
-@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml", help="The scene file (TOML).")
 @click.option("--sizes", callback=_sizes_mm, default=None, help="fTetWild target edge lengths, mm, comma-separated [default: 8,6,4, the shipped meshes; --quick: 20,16].")
 @click.option("--functional", type=click.Choice(["area", "vertices"]), default="area", show_default=True,
               help="The grasp: mean displacement of the surface area within the grasp radius, or of its vertices (does not converge).")
@@ -181,7 +181,7 @@ def _sizes_mm(ctx, param, value):
 @click.option("--pulls", "pull_names", default=None, help="Only these bench pulls, comma-separated (e.g. left-lateral,extra1-anterior).")
 @click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Meshes made and pulls solved at once (default: every core).")
 @click.option("--quick", is_flag=True, help="Two coarse meshes, the left hand's pulls, two samples (CI).")
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 @click.option("--out", "out_dir", type=OutDir(), default=None, help="Write reference.json and reference.md here.")
 @FORCE
 def bench_reference(scene_file, sizes, functional, formulation, pull_names, jobs, quick, as_json, out_dir, force):

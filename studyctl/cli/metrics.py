@@ -7,8 +7,8 @@ import json
 import click
 
 from sim.jsonable import jsonable
-from studyctl.cli.common import DB, FORCE, OutFile, read_snapshot, staged, write_output
 from sim.text import counted
+from studyctl.cli.common import DB, FORCE, OutFile, read_snapshot, staged, write_output
 
 
 def _note(table) -> str:
@@ -18,7 +18,7 @@ def _note(table) -> str:
 
 @click.command("metrics", cls=click.Command)
 @DB
-@click.option("--format", "fmt", type=click.Choice(["csv", "json"]), default="csv", show_default=True)
+@click.option("--format", "fmt", type=click.Choice(["csv", "json"]), default="csv", show_default=True, help="The output's format.")
 @click.option("--out", "out_file", type=OutFile((".csv", ".json")), default=None, help="Write to this file instead of stdout.")
 @FORCE
 def metrics_cmd(db, fmt, out_file, force):

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import click
 
-from studyctl.cli.common import DB, DRY_RUN, FORCE, JSON, OutFile, _console, _done, _Group, _listing, _print_json
 from sim.text import counted
+from studyctl.cli.common import DB, DRY_RUN, FORCE, JSON, OutFile, _console, _done, _Group, _listing, _print_json
 
 
 @click.group(cls=_Group)
@@ -19,7 +19,7 @@ def participants():
 
 @participants.command("add")
 @click.argument("code")
-@click.option("--age", type=click.IntRange(0, 120), default=None)
+@click.option("--age", type=click.IntRange(0, 120), default=None, help="Age in years (0..120).")
 @click.option("--name", default=None, help="Kept in a separate table that no export or report includes.")
 @click.option("--contact", default=None, help="Kept in a separate table that no export or report includes.")
 @click.option("--field", "fields", multiple=True, metavar="NAME=VALUE",
@@ -62,7 +62,7 @@ def participants_import(csv_file, db, dry_run, as_json):
 
 @participants.command("list")
 @DB
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def participants_list(db, as_json):
     """Every participant (codes only, never names): kind, consent, slot, session, answers."""
     from studyctl.participants import list_participants
@@ -128,12 +128,12 @@ def participants_contacts(db, out_file, force, as_json):
               help="Study database; required unless the STUDYCTL_DB environment variable names one.")
 @click.option("--start", help="First day, YYYY-MM-DD (today or later).")
 @click.option("--end", help="Last day, YYYY-MM-DD.")
-@click.option("--hours", default="09:00-17:00", show_default=True)
-@click.option("--session-minutes", type=click.IntRange(5, 480), default=45, show_default=True)
+@click.option("--hours", default="09:00-17:00", show_default=True, help="The lab's hours on weekdays, HH:MM-HH:MM.")
+@click.option("--session-minutes", type=click.IntRange(5, 480), default=45, show_default=True, help="Each slot's length, minutes (5..480).")
 @click.option("--availability", type=click.Path(dir_okay=False, path_type=Path), default=None, help="CSV: code,date,start,end.")
 @click.option("--ics", type=OutFile((".ics",)), default=None, help="Write an iCalendar file (.ics).")
 @FORCE
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 @DRY_RUN
 @click.pass_context
 def schedule_cmd(ctx, db, start, end, hours, session_minutes, availability, ics, force, as_json, dry_run):

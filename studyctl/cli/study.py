@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
-from studyctl.cli.common import DB, DEFAULT_PROTOCOL, FORCE, JSON, _Group, _print_json
 from sim.text import counted
+from studyctl.cli.common import DB, DEFAULT_PROTOCOL, FORCE, JSON, _Group, _print_json
 
 
 @click.group(cls=_Group)
@@ -75,7 +75,7 @@ def study():
 
 @study.command("init")
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              show_default="the shipped protocols/brain_pull_2015.toml")
+              show_default="the shipped protocols/brain_pull_2015.toml", help="The study's protocol file (TOML).")
 @DB
 @JSON
 def study_init(protocol_file: Path, db: Path, as_json: bool):
@@ -91,7 +91,7 @@ def study_init(protocol_file: Path, db: Path, as_json: bool):
 
 @click.command("status", cls=click.Command)
 @DB
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def status_cmd(db, as_json):
     """Where the study stands: participants, sessions by state, progress to the target N, who is next."""
     from studyctl.participants import status

@@ -37,6 +37,7 @@ from analysis.trace_files import trace_dir, write_trace
 from analysis.verification.truth import load_truth
 from sim.run import Pacing, run_scene
 from sim.servo.process import ServoProcess
+from sim.text import counted
 from studyctl.conditions import (
     SOFTWARE_VERSION,
     condition_configs,
@@ -57,7 +58,6 @@ from studyctl.store.trials import discrimination_done
 from studyctl.study import assign_order
 from studyctl.synthetic.participant import SyntheticAnswers, SyntheticParticipant, skill_for
 from studyctl.synthetic.rig import frame_times
-from sim.text import counted
 
 OPEN = ("running", "interrupted")  # a session to resume: killed while running, or stopped with Ctrl-C
 TRAINING_MODEL = "plate_spring"  # free exploration before the first condition (never named on screen)

@@ -12,6 +12,7 @@ from pathlib import Path
 from analysis.errors import InputError, Interrupted
 from brainsim_assets import path as asset
 from sim.sweep import completed, reachable
+from sim.text import counted
 from studyctl.fields import field_rows, synthetic_fields
 from studyctl.protocol import load_protocol
 from studyctl.store import Store, init_study, now, roster
@@ -20,7 +21,6 @@ from studyctl.study import assign_order
 from studyctl.synthetic.bundles import run_away, seed_for, store_bundle
 from studyctl.synthetic.participant import MAX_SYNTHETIC, SyntheticParticipant, skill_for
 from studyctl.synthetic.rig import keep_shipped
-from sim.text import counted
 
 
 def run_synthetic_study(db, participants: int | None, seed: int = 0, jobs: int = 1, protocol_path=None, progress=None,
