@@ -266,3 +266,8 @@ def test_reset_brings_a_model_that_gave_up_back_to_rest():
     c = model.grasp(LEFT, 0)
     model.deformation([c], [np.array(d)])
     assert np.linalg.norm(model.force(c, d)) > 0.0
+
+
+def test_the_built_model_keeps_each_parts_centroid_tree(model):
+    """A grasp's search tree, built with the model: each grasp built it again (part of 300 ms)."""
+    assert len(model.centroid_trees) == len(model.parts)
