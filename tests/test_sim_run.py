@@ -8,6 +8,7 @@ import pytest
 from click.testing import CliRunner
 
 from sim.run import run_scene, visual_budget_lines, write_outputs
+from sim.run_plots import HAND_STYLES
 from sim.scene import build_scene
 from studyctl.cli import cli
 from tests.conftest import SCENE
@@ -227,3 +228,10 @@ def test_one_slow_grasp_is_not_over_budget():
 def test_three_slow_grasps_are_over_budget():
     visual = SimpleNamespace(deformation_s=[0.001] * 100, grasp_s=[0.6, 0.3, 0.3])
     assert visual_budget_lines(visual)[0].startswith("over_budget: grasp: 3 of 3 grasps took over 250 ms (worst 600 ms)")
+
+
+def test_the_second_hands_line_is_drawn_over_the_first_and_both_show_where_they_meet():
+    """The left hand's line lay under the right's when they pulled alike."""
+    assert HAND_STYLES[1]["zorder"] > HAND_STYLES[0]["zorder"]
+    assert HAND_STYLES[0]["lw"] > HAND_STYLES[1]["lw"]  # the one below is the wider: it shows either side
+    assert HAND_STYLES[1].get("ls") == "--"
