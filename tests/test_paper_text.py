@@ -100,3 +100,10 @@ def test_effects_name_their_direction_and_only_what_a_model_reads(variants_study
         for p in v["pairs"]:
             if p["p_holm"] is not None and p["p_holm"] < 0.05:
                 assert f"{p['a']} over {p['b']}, rank-biserial r = {paper_text.unit(p['rank_biserial'])}" in text
+
+
+def test_a_vas_question_names_its_scale_once():
+    """"(visual analogue scale on a visual analogue scale from ...)"."""
+    m = {"procedure": {"questions": [{"text": "How stiff?", "kind": "vas", "anchors": ["soft", "hard"], "when": "after_condition"}],
+                       "instruments": [], "tasks": []}}
+    assert paper_text._procedure(m).count("visual analogue scale") == 1
