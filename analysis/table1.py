@@ -27,6 +27,7 @@ from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study, data_flag
 from analysis.withhold import binary_across_reason, mean_sd
 from sim.models.registry import ModelLoadError, model_class
+from sim.text import counted
 
 
 def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.DataFrame:
@@ -127,7 +128,7 @@ def study_facts(study: Study) -> StudyFacts:
     return StudyFacts(study=protocol.name, participants=n, incomplete_participants=list(done.incomplete),
                       synthetic_participants=synthetic, person_participants=persons, mixed_source_participants=mixed,
                       synthetic=synthetic > 0, mixed=synthetic > 0 and persons > 0, flag=data_flag(persons, synthetic),
-                      design=f"within-subject, {len(protocol.conditions)} conditions, {protocol.counterbalancing} counterbalancing",
+                      design=f"within-subject, {counted(len(protocol.conditions), 'condition')}, {protocol.counterbalancing} counterbalancing",
                       conditions=conditions(study))
 
 

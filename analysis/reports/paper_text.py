@@ -109,10 +109,10 @@ def _design(m: dict) -> str:
     if d["n_conditions"] == 1:
         text = f"Every participant ran one condition ({d['conditions'][0]})."
     else:
-        text = (f"A within-subject design compared {d['n_conditions']} conditions ({_names(d['conditions'])}), their order "
+        text = (f"A within-subject design compared {counted(d['n_conditions'], 'condition')} ({_names(d['conditions'])}), their order "
                 f"counterbalanced ({d['counterbalancing']}).")
     if d["trials_per_condition"]:
-        text += (f" Each condition was run for {d['trials_per_condition']} trials of {d['trial_seconds']:g} s, with {d['rest_seconds']:g} s "
+        text += (f" Each condition was run for {counted(d['trials_per_condition'], 'trial')} of {d['trial_seconds']:g} s, with {d['rest_seconds']:g} s "
                  f"of rest between trials")
         text += "; a trial ended when its targets were reached." if d["trial_end"] == "targets" else "."
     if d["training_minutes"]:
@@ -148,7 +148,7 @@ def _apparatus(m: dict) -> str:
         text += (f" Condition {c['condition']} ran the {c['model']} model{origin}" + (f" ({options})" if options else "")
                  + (f" on the mesh {c['mesh']}" if c.get("mesh") else "") + (f", with {_names(material)}" if material else "") + ".")
     for r in a["latency"]:
-        text += (f" Measured {MEASURES.get(r['measure'], r['measure'])} with {r['model']}: mean {sig(r['mean'])} over {r['trials']} trials "
+        text += (f" Measured {MEASURES.get(r['measure'], r['measure'])} with {r['model']}: mean {sig(r['mean'])} over {counted(r['trials'], 'trial')} "
                  f"(range {sig(r['lowest'])} to {sig(r['highest'])}).")
     return text
 
@@ -286,8 +286,8 @@ def _session(kinds: KindStats) -> list[str]:
 def _deformation(st: StudyStats) -> str:
     d = st.deformation
     rows = "; ".join(f"{r['model']} {sig(r['mean_ms'])} ms (SD {sig(r['sd_ms'])} over {r['n_participants']} participants' means, "
-                     f"{r['n_trials']} trials)" if _finite(r.get("sd_ms"))
-                     else f"{r['model']} {sig(r['mean_ms'])} ms ({r['n_trials']} trials)" for r in d.rows if _finite(r.get("mean_ms")))
+                     f"{counted(r['n_trials'], 'trial')})" if _finite(r.get("sd_ms"))
+                     else f"{r['model']} {sig(r['mean_ms'])} ms ({counted(r['n_trials'], 'trial')})" for r in d.rows if _finite(r.get("mean_ms")))
     return f"Deformation time per frame, a {d.label}: {rows}." if rows else ""
 
 
@@ -328,7 +328,7 @@ def _discrimination(res: dict) -> list[str]:
         if p_text(fr.get("p")):
             parts.append(f"the Friedman test, χ²({fr['df']}) = {fr['statistic']:.2f}, {p_text(fr['p'])}")
         problems = "; ".join(g.get("problems") or [])
-        text = (f"Across the conditions ({g['n_participants']} participants): " + " and ".join(parts) + "." if parts
+        text = (f"Across the conditions ({counted(g['n_participants'], 'participant')}): " + " and ".join(parts) + "." if parts
                 else f"The conditions were not compared: {problems or 'not estimable'}.")
         shown = [p for p in g.get("pairs") or [] if _finite(p.get("p_holm")) and p["p_holm"] < SIGNIFICANT]
         text += (" Pairs differing after Holm's correction: " + "; ".join(

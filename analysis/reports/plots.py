@@ -22,6 +22,7 @@ from analysis.kind_results import ChoiceStats, RatingStats, ScoreStats
 from analysis.reports.figure_size import SCREEN, FigureSize, figure_size, fit, wrap
 from analysis.reports.figure_size import save as save  # write_plots saves every format through plots.save
 from sim.perception import force_jnd
+from sim.text import counted
 
 
 def _plt():
@@ -451,7 +452,7 @@ def psychometric_figure(trials, rows: list[dict], condition: str, synthetic: boo
     ax.set_xlabel("increment in stiffness (comparison / reference - 1)")
     ax.set_ylabel("proportion correct")
     gm = np.exp(np.mean(np.log([r["weber"] for r in rows if r["weber"] == r["weber"] and r["weber"] > 0]))) if rows else float("nan")
-    _suptitle(fig, _flag(synthetic) + f"{condition}: {len(rows)} participants, geometric-mean Weber fraction {gm:.1%}", size)
+    _suptitle(fig, _flag(synthetic) + f"{condition}: {counted(len(rows), 'participant')}, geometric-mean Weber fraction {gm:.1%}", size)
     ax.grid(alpha=0.3)
     return fig
 

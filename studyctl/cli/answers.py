@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from sim.text import counted
 from studyctl.cli.common import DB, DRY_RUN, JSON, _done, _Group, _model_name
 
 
@@ -25,7 +26,7 @@ def answers_import(db, csv_file, dry_run, as_json):
     from studyctl.study import import_answers
 
     out = import_answers(db, csv_file, dry_run=dry_run)
-    _done(out, f"imported {out['imported']} answers", as_json)
+    _done(out, f"imported {counted(out['imported'], 'answer')}", as_json)
 
 
 @answers.command("correct")

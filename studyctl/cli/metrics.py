@@ -39,7 +39,7 @@ def metrics_cmd(db, fmt, out_file, force):
         text = spreadsheet_frame(table).to_csv(index=False)
     if target:
         write_output(target, text)
-        click.echo(f"wrote {out_file} ({len(table)} rows)" + (f"; {note}" if note else ""))
+        click.echo(f"wrote {out_file} ({counted(len(table), 'row')})" + (f"; {note}" if note else ""))
         return
     click.echo(text, nl=False)
     if note and fmt == "csv":  # on stderr: the CSV on stdout stays parseable

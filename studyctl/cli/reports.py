@@ -214,7 +214,7 @@ def report_plots(db, out_dir, force, size, as_json):
     if as_json:
         _print_json({"out": str(out_dir), "size": size, "files": [file_info(f) for f in files]})
         return
-    click.echo(f"wrote {len(files)} files ({size} size) to {out_dir}")
+    click.echo(f"wrote {counted(len(files), 'file')} ({size} size) to {out_dir}")
 
 
 @report.command("stats")
@@ -346,7 +346,7 @@ def export_cmd(db, fmt, out_dir, force, as_json):
     if as_json:
         _print_json({"out": str(out_dir), "format": fmt, "files": [str(f) for f in files]})
         return
-    click.echo(f"wrote {len(files)} files to {out_dir}")
+    click.echo(f"wrote {counted(len(files), 'file')} to {out_dir}")
 
 
 @report.command("validity")

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from sim.text import counted
 from studyctl.cli.common import (
     DB,
     DEVICES,
@@ -61,7 +62,7 @@ def session_run(db, participant, device, synthetic, resume, time_scale, view, an
     if as_json:
         _print_json(out)
         return
-    click.echo(f"{out['participant']}'s session complete (session {out['session']} of the study): conditions {' > '.join(out['order'])}, {out['answers']} answers"
+    click.echo(f"{out['participant']}'s session complete (session {out['session']} of the study): conditions {' > '.join(out['order'])}, {counted(out['answers'], 'answer')}"
                + (" (SYNTHETIC)" if out["synthetic"] else ""))
 
 
