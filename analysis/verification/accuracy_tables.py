@@ -20,11 +20,14 @@ COLUMNS = ("model", "setting", "calibration", "scale", "force_error", "force_err
            "within_jnd_high", "within", "outside", "undecided", "pulls_within", "angle_deg", "tick_us", "frame_ms")
 
 
-def within_text(r: dict) -> str:
+def within_text(r: dict, short: bool = False) -> str:
     """A row's within-JND rate with its interval over the decided samples it is a rate of
-    ("84% [75%, 91%] of 77"), or, below `MIN_DECIDED`, the counts and why no rate is given."""
+    ("84% [75%, 91%] of 77"), or, below `MIN_DECIDED`, the counts and why no rate is given
+    (`short`: "1/1, too few (1 < 39)", for a terminal's narrow column)."""
     n, k = r["n_test"], r.get("n_within_jnd", round(r["within_jnd"] * r["n_test"]) if r["n_test"] else 0)
     if n < MIN_DECIDED:
+        if short:
+            return f"{k}/{n}, too few ({n} < {MIN_DECIDED})"
         return f"{k} of {n} within; no rate: too few decided samples ({n} < {MIN_DECIDED})"
     return f"{rate_interval(r['within_jnd'], r['within_jnd_low'], r['within_jnd_high'], 0)} of {n}"
 

@@ -96,7 +96,7 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, forc
         t.add_column(col, justify="left" if col in ("model", "setting", "calibration") else "right")
     for r in result["rows"]:
         t.add_row(r["model"], r["setting"], r["calibration"], f"{r['scale']:.3g}", f"{r['force_error']:.1%}", f"{r['force_error_max']:.1%}",
-                  accuracy_tables.within_text(r), f"{r['n_test']}/{r['extrapolated']}/{r['truth_undecided']}",
+                  accuracy_tables.within_text(r, short=True), f"{r['n_test']}/{r['extrapolated']}/{r['truth_undecided']}",
                   f"{r['within']}/{r['outside']}/{r['undecided']}", f"{r['pulls_within']}/{r['n_test_pulls']}",
                   f"{r['angle_deg']:.1f}", f"{r['tick_us']:.2f}", f"{r['frame_ms']:.3g}")
     best = Table(title=f"Each class at its best (frame p99 within the budget, no pull given up; target {accuracy.TARGET_WITHIN:.0%} within the JND)")
@@ -107,7 +107,7 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, forc
         if b["setting"] is None:
             best.add_row(b["model"], b["calibration"], f"none ({b['why']})", "", "", "", accuracy_tables.meets_text(b), left)
             continue
-        best.add_row(b["model"], b["calibration"], b["setting"], accuracy_tables.within_text(b),
+        best.add_row(b["model"], b["calibration"], b["setting"], accuracy_tables.within_text(b, short=True),
                      f"{b['force_error']:.1%}", f"{b['frame_ms']:.3g}/{b['frame_ms_p99']:.3g}", accuracy_tables.meets_text(b), left)
     console = _console()
     console.print(t)
