@@ -15,7 +15,7 @@ import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.colors import ListedColormap
-from matplotlib.transforms import blended_transform_factory
+from matplotlib.transforms import Bbox, blended_transform_factory
 
 from analysis.discrimination.psychometric import fit_psychometric
 from analysis.kind_results import ChoiceStats, RatingStats, ScoreStats
@@ -274,19 +274,31 @@ def _label_offsets(height_pt: float, rings: int = 8):
 
 def place_labels(fig, labels: list, font_pt: float) -> None:
     """Each label at the nearest of `_label_offsets` where it overlaps no label placed before it
-    (the settings of one class lie close together: their labels were drawn over each other). The
-    layout is drawn first, so the boxes are the ones the file shows."""
+    (the settings of one class lie close together: their labels were drawn over each other), and,
+    where one is free, no other text and no point either. The layout is drawn first, so the boxes
+    are the ones the file shows."""
     fig.canvas.draw()
     renderer = fig.canvas.get_renderer()
+    ax = labels[0].axes if labels else None
+    others = [t.get_window_extent(renderer) for t in (ax.texts if ax else []) if t not in labels]
+    dot = font_pt * fig.dpi / 72 / 3  # a point's marker, about
+    others += [Bbox.from_extents(x - dot, y - dot, x + dot, y + dot) for x, y in (ax.transData.transform(t.xy) for t in labels)]
     placed = []
     for label in labels:
+        fits = []
         for dx, dy, ha in _label_offsets(font_pt * 1.25):
             label.xyann = (dx, dy)
             label.set_horizontalalignment(ha)
             box = label.get_window_extent(renderer)
             if not any(box.overlaps(b) for b in placed):
-                break
-        placed.append(box)
+                fits.append((dx, dy, ha))
+                if not any(box.overlaps(b) for b in others):
+                    break
+        else:  # no spot free of other texts: the nearest free of labels
+            if fits:
+                label.xyann = fits[0][:2]
+                label.set_horizontalalignment(fits[0][2])
+        placed.append(label.get_window_extent(renderer))
 
 
 STABILITY_COLORS = (("stable", "#009E73"), ("refused", "#9e9e9e"), ("unstable", "#D55E00"))
