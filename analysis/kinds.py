@@ -43,6 +43,7 @@ from analysis.stats import friedman, holm, holm_family, named, records, wilson
 from analysis.study_results import LogisticGee, StudyStats
 from analysis.study_snapshot import Study
 from analysis.withhold import across_reason
+from sim.text import counted
 
 
 def _p(x) -> str:  # the shared p-value, with n/a where a test gave none
@@ -408,7 +409,8 @@ def primary_line(st: StudyStats) -> str:
         pairs = "; ".join(f"{p.b} - {p.a} {p.difference:+.2f}{_ci(p.ci_low, p.ci_high, '{:+.2f}')}, "
                           f"p_Holm {_p(p.p_holm_primary)}" if p.estimable else f"{p.b} - {p.a} not estimable"
                           for p in v.pairs)
-        return f"Primary analysis: {what.text}: {pairs} (Holm over its {len(v.pairs)} pairs)."
+        holm = "one pair: no Holm correction" if len(v.pairs) == 1 else "Holm over its " + counted(len(v.pairs), "pair")
+        return f"Primary analysis: {what.text}: {pairs} ({holm})."
     if what.analysis == "choice" and what.items[0] in k.choices:
         ov = k.choices[what.items[0]].overall
         return (f"Primary analysis: {what.text}: not tested ({ov.reason})." if ov.reason else

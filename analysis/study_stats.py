@@ -40,6 +40,7 @@ from analysis.table1 import (
     study_facts,
     table,
 )
+from sim.text import counted
 
 
 def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None, holm_scope: str = "family") -> StudyStats:
@@ -123,7 +124,7 @@ def table1_markdown(study: Study, holm_scope: str = "family") -> str:
     listed = incomplete_text(facts)
     left_out = f" Left out (incomplete): {listed}." if listed else ""
     scope = holm_text(st)
-    lines = [f"**Table 1: {facts.study}.** {flag}N = {facts.participants} participants with every answer; {facts.design}.{left_out}", ""]
+    lines = [f"**Table 1: {facts.study}.** {flag}N = {counted(facts.participants, 'participant')} with every answer; {facts.design}.{left_out}", ""]
     if len(r):  # the yes/no questions: the paper's table
         t = table(st, r, q, d)
         lines += [*markdown_grid(t), "", t.notes, ""]

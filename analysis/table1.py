@@ -28,6 +28,7 @@ from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study, data_flag
 from analysis.withhold import binary_across_reason, mean_sd
 from sim.models.registry import ModelLoadError, model_class
+from sim.text import counted
 
 
 def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.DataFrame:
@@ -136,7 +137,7 @@ def study_facts(study: Study) -> StudyFacts:
     return StudyFacts(study=protocol.name, participants=n, incomplete_participants=list(done.incomplete),
                       synthetic_participants=synthetic, person_participants=persons, mixed_source_participants=mixed,
                       synthetic=synthetic > 0, mixed=synthetic > 0 and persons > 0, flag=data_flag(persons, synthetic),
-                      design=f"within-subject, {len(protocol.conditions)} conditions, {protocol.counterbalancing} counterbalancing",
+                      design=f"within-subject, {counted(len(protocol.conditions), 'condition')}, {protocol.counterbalancing} counterbalancing",
                       conditions=conditions(study))
 
 
@@ -254,7 +255,7 @@ def holm_text(st: StudyStats) -> str:
     tested = tests_run(pairs)
     if not tested:
         return "Holm: no pair tested"
-    return f"Holm over all {tested} pairs tested"
+    return "one pair tested: no Holm correction" if tested == 1 else f"Holm over all {tested} pairs tested"
 
 
 def rate_cell(x) -> str:

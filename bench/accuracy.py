@@ -6,17 +6,19 @@ from __future__ import annotations
 
 from analysis.reports.plots import PAPER_MS
 from analysis.verification.accuracy import quick_config, run_accuracy
+from analysis.verification.accuracy_tables import within_text
 from bench.common import main_with_json
 
 
 def measure() -> dict:
     out = run_accuracy(quick_config(), jobs=1)  # one process: timings without a neighbour on the other core
     ref = out["meta"]["reference"]
-    print(f"reference {ref['setting']} (converged: {ref['converged']}); the linear models' E = {out['meta']['young_pa'] / 1e3:.3g} kPa; quick bench")
+    print(f"reference {ref['setting']} (converged: {ref['converged']}); the linear models' E = {out['meta']['young_pa'] / 1e3:.3g} kPa; "
+          "quick bench: timings, and a smoke run of the rest (it decides nothing)")
     for r in out["rows"]:
         paper = PAPER_MS[r["model"]]
         print(f"  {r['model'] + '/' + r['setting'] + '/' + r['calibration']:42s} force error {r['force_error']:6.1%} "
-              f"(max {r['force_error_max']:6.1%}), within JND {r['within_jnd']:4.0%} [{r['within_jnd_low']:.0%}, {r['within_jnd_high']:.0%}]; "
+              f"(max {r['force_error_max']:6.1%}), within JND {within_text(r)}; "
               f"tick {r['tick_us']:.2f} us; frame p50 {r['frame_ms']:.3g} ms, "
               f"p99 {r['frame_ms_p99']:.3g} ms = {r['frame_ms'] / paper:.3g} x paper's {paper} ms")
     return out

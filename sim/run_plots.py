@@ -17,13 +17,20 @@ def _pyplot():
     return plt
 
 
+# the two hands often pull alike, so their lines coincide: the first hand wide and pale below,
+# the second narrow and dashed on top, so that each stays in sight where they meet
+HAND_STYLES = ({"lw": 3.2, "alpha": 0.45, "color": "tab:blue", "zorder": 2},
+               {"lw": 1.3, "ls": "--", "color": "tab:orange", "zorder": 3},
+               {"lw": 1.3, "ls": ":", "color": "tab:green", "zorder": 4})
+
+
 def force_plot(result, path: Path) -> None:
     plt = _pyplot()
     spec = OmniSpec()
     fig, ax = plt.subplots(figsize=(7.0, 3.6), dpi=100)
     mags = np.linalg.norm(result.forces, axis=2)
     for i, name in enumerate(result.hand_names):
-        ax.plot(result.times, mags[:, i], lw=1.4, label=f"{name} hand")
+        ax.plot(result.times, mags[:, i], label=f"{name} hand", **HAND_STYLES[i % len(HAND_STYLES)])
     ax.axhline(spec.continuous_force_n, color="0.5", ls="--", lw=0.8, label="Omni continuous force")
     top = max(float(mags.max()) if mags.size else 0.0, spec.continuous_force_n) * 1.15
     if top > spec.peak_force_n * 0.8:

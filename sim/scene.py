@@ -514,6 +514,9 @@ class Scene:
             raise SceneError(f"model {self.model_spec.name!r}: build raised {type(exc).__name__}: {exc}") from None
         if not isinstance(model, TissueModel):
             raise SceneError(f"model {self.model_spec.name!r}: build gave a {type(model).__name__}, not a sim.models.api.TissueModel")
+        # the surface's search structures now, whatever the model did: a model that queries the
+        # surface only in `grasp` would pay SciPy's graph import and the edge graph in a run's first grasp
+        self.mesh.prepare_queries()
         return model
 
     def open_devices(self) -> list:

@@ -55,3 +55,13 @@ def quoted(value, limit: int = QUOTE_LIMIT) -> str:
     if len(text) <= limit:
         return repr(text)
     return f"{text[:limit]!r}... ({len(text)} characters)"
+
+
+IRREGULAR_PLURALS = {"person": "people", "analysis": "analyses"}
+
+
+def counted(n: float, noun: str, plural: str | None = None) -> str:
+    """`n` and the noun, singular for exactly one: "1 person", "2 people", "1 pair", "0 pairs"
+    (a count written as a figure reads as singular only at one; `n` may be a float: 1.5 minutes)."""
+    word = noun if n == 1 else plural or IRREGULAR_PLURALS.get(noun) or noun + "s"
+    return f"{n:g} {word}" if isinstance(n, float) else f"{n} {word}"

@@ -20,6 +20,7 @@ from sim.text import TEXT_MOST, text_problem
 from studyctl.outputs import refuse_inputs, write_file
 from studyctl.session.lock import SessionRunning, session_lock
 from studyctl.store import Store, now, records, roster, snapshot
+from studyctl.store import sessions as session_rows
 from studyctl.store.participant_fields import read_fields
 from studyctl.study import answer_key
 from studyctl.text import spreadsheet_safe
@@ -188,7 +189,8 @@ def status(db, today: dt.datetime | None = None) -> dict:
         done = snapshot.completeness(store, protocol)
         withdrawn = roster.withdrawn_codes(store)
         moment = (today or dt.datetime.now()).isoformat(timespec="minutes")
-        upcoming = records.upcoming_slots(store, moment)
+        # a slot whose session is done is history, not what comes next
+        upcoming = [r for r in records.upcoming_slots(store, moment) if not session_rows.has_done_session(store, r["code"])]
         return {"study": protocol.name, "target_participants": protocol.target_participants, "participants": people,
                 "sessions": sessions, "complete": {"persons": done.count("person"),
                                                    "synthetic": done.count("synthetic") + done.count("mixed"),

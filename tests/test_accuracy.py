@@ -3,14 +3,17 @@ JND, band and Wilson arithmetic worked by hand; the held-out pulls; a small benc
 through the CLI and into the report."""
 
 import json
+import re
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from analysis.reports.plots import pareto
+from analysis.stats import wilson
 from analysis.verification import accuracy
 from analysis.verification.accuracy import Setting, class_best, compare, coupling_bound
+from analysis.verification.accuracy_tables import meets_text, within_text
 from sim.pulls import Pull, make_pulls, scene_with
 from sim.scene import DEFAULT_SCENE
 from studyctl.cli import cli
@@ -135,10 +138,45 @@ def test_pareto_front():
     assert pareto(rows) == [True, True, False, False]
 
 
-def _row(model, setting, calibration, within, error, ms, p99, unstable=0):
+def _row(model, setting, calibration, within, error, ms, p99, unstable=0, n=77):
     return {"model": model, "setting": setting, "calibration": calibration, "scale": 1.0, "within_jnd": within, "within_jnd_low": within - 0.1,
             "within_jnd_high": within + 0.1, "force_error": error, "pulls_within": 0, "n_test_pulls": 9, "frame_ms": ms, "frame_ms_p99": p99,
-            "unstable_pulls": unstable}
+            "unstable_pulls": unstable, "n_test": n, "n_within_jnd": round(within * n)}
+
+
+def test_the_fewest_decided_samples_is_the_smallest_n_whose_every_wilson_interval_is_narrow_enough():
+    def widest(n):
+        return max((wilson(k, n)[1] - wilson(k, n)[0]) / 2 for k in range(n + 1))
+
+    assert widest(accuracy.MIN_DECIDED) <= accuracy.RATE_HALF_WIDTH
+    assert widest(accuracy.MIN_DECIDED - 1) > accuracy.RATE_HALF_WIDTH
+
+
+def test_a_class_with_too_few_decided_samples_gets_no_verdict():
+    """A quick bench judged each model on one decided sample and printed "meets target: yes"."""
+    b = class_best([_row("fem", "linear-8mm", "raw", 1.0, 0.02, 1.0, 2.0, n=1)])[0]
+    assert b["meets_target"] is None
+    assert b["setting"] is None
+    assert b["why"] == f"too few decided samples in every configuration (1 < {accuracy.MIN_DECIDED})"
+    assert b["left_out"] == {"linear-8mm": f"too few decided samples (1 < {accuracy.MIN_DECIDED})"}
+
+
+def test_a_configuration_with_too_few_decided_samples_is_not_the_best():
+    rows = [_row("fem", "few", "raw", 1.0, 0.01, 1.0, 2.0, n=3), _row("fem", "many", "raw", 0.5, 0.2, 1.0, 2.0)]
+    assert class_best(rows)[0]["setting"] == "many"
+
+
+def test_a_row_below_the_minimum_shows_its_counts_and_no_rate():
+    text = within_text(_row("fem", "linear-8mm", "raw", 1.0, 0.02, 1.0, 2.0, n=1))
+    assert text == f"1 of 1 within; no rate: too few decided samples (1 < {accuracy.MIN_DECIDED})"
+
+
+def test_a_rate_names_its_denominator():
+    assert within_text(_row("fem", "linear-8mm", "raw", 0.5, 0.02, 1.0, 2.0, n=40)).endswith("] of 40")
+
+
+def test_no_verdict_is_neither_yes_nor_no():
+    assert meets_text({"meets_target": None}) == "no verdict"
 
 
 def test_each_class_at_its_best_keeps_the_budget_and_gives_up_no_pull():
@@ -200,7 +238,16 @@ def small_bench(tmp_path_factory, monkeypatch_module):
     out = tmp_path_factory.mktemp("acc")
     res = CliRunner().invoke(cli, ["bench", "accuracy", "--quick", "--json", "--jobs", "1", "--out", str(out)])
     assert res.exit_code == 0, res.output
-    return json.loads(res.output), out
+    small_bench_stderr.append(res.stderr)
+    return json.loads(res.stdout), out  # stdout: the JSON alone
+
+
+small_bench_stderr: list[str] = []
+
+
+def test_bench_accuracy_says_where_it_is_on_stderr_off_a_terminal(small_bench):
+    """`bench accuracy` in a log was silent for minutes."""
+    assert re.search(r"^accuracy: reference, then models: \d+ of \d+$", small_bench_stderr[0], flags=re.M)
 
 
 @pytest.fixture(scope="module")
@@ -216,6 +263,7 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
     assert set(rows) == {(s, c) for s in ("scene-fit", "linear-8mm", "local-global-8mm") for c in ("raw", "calibrated")}
     for r in rows.values():
         assert r["n_test"] > 0
+        assert r["withheld"] == f"too few decided samples ({r['n_test']} < {accuracy.MIN_DECIDED})"
         assert 0.0 <= r["within_jnd_low"] <= r["within_jnd"] <= r["within_jnd_high"] <= 1.0
         assert r["within"] + r["outside"] + r["undecided"] == r["n_test"]
         assert r["n_test"] + r["extrapolated"] + r["truth_undecided"] == 4 * 2
@@ -239,6 +287,7 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
                                                    "samples.csv"]
     assert 0.0 <= out["meta"]["coupling_bound"]["scene"] <= out["meta"]["coupling_bound"]["omni_max"] <= 1.0
     assert {(b["model"], b["calibration"]) for b in out["best"]} == {(m, c) for m in ("plate_spring", "fem", "mass_spring") for c in ("raw", "calibrated")}
+    assert {b["meets_target"] for b in out["best"]} == {None}  # a quick bench decides nothing
     md = (d / "accuracy.md").read_text()
     assert "Each class at its best" in md
     assert "Held-out samples per displacement (mm)" in md
@@ -248,6 +297,16 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
         assert s["verdict"] in (("within", "outside", "undecided") if s["decided"] else ("extrapolated", "undecided"))
         assert s["decided"] or s["reason"]
     assert [e["name"] for e in out["meta"]["reference"]["ensemble"]][0] == "chosen"
+
+
+def test_the_quick_bench_says_it_decides_nothing(small_bench, monkeypatch):
+    out, _ = small_bench
+    monkeypatch.setattr(accuracy, "run_accuracy", lambda *a, **k: out)
+    res = CliRunner().invoke(cli, ["bench", "accuracy", "--quick"])
+    assert res.exit_code == 0, res.output
+    assert f"quick bench: a smoke run that decides nothing (no row reaches {accuracy.MIN_DECIDED} decided samples)" in res.output
+    assert "meets target" in res.output
+    assert " yes " not in res.output
 
 
 def test_the_accuracy_tables_compile_and_fit_an_a4_page(small_bench, tmp_path):
@@ -276,6 +335,8 @@ def test_report_carries_the_accuracy_table_and_pareto_plot(small_bench, small_st
     assert "| fem | linear-8mm | raw |" in md
     assert "| fem | linear-8mm | calibrated |" in md
     assert "14.69" in md
+    assert "no rate: too few decided samples" in md
+    assert "The quick bench is a smoke run: it decides nothing." in md
     tex = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "latex", "--accuracy", str(d / "accuracy.json")]).output
     assert "\\label{tab:accuracy:1}" in tex
     assert "linear-8mm" in tex

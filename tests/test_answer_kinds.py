@@ -243,7 +243,7 @@ def test_plan_powers_the_primary_analysis_and_its_null_is_at_alpha(tmp_path):
     null = null_table(protocol, participants=10, simulations=40, seed=3, summaries=own).set_index("item")
     assert null.loc["primary", "false_positive_rate"] <= 0.05 + 4 * null.loc["primary", "mc_error"], null
     res = studyctl("plan", "--protocol", protocol.path, "--participants", "6", "--simulations", "10", "--pilots", "1", "--json")
-    out = json.loads(res.output)
+    out = json.loads(res.stdout)
     assert out["synthetic"]
     assert out["primary"]["analysis"] == "ordinal_gee"
     assert "primary" in {r["item"] for r in out["rows"]}

@@ -31,7 +31,7 @@ def test_cli_calibrates_to_the_converged_reference_and_to_a_csv(tmp_path, monkey
     res = CliRunner().invoke(cli, ["calibrate", "plate-spring", "--max-displacement", "0.004", "--samples", "8", "--json",
                                    "--out", str(tmp_path / "cal.toml")])
     assert res.exit_code == 0, res.output
-    rep = json.loads(res.output)
+    rep = json.loads(res.stdout)
     # only the samples where the truth is decided are fitted (0.5-4 mm: most of the 48), and the text says how many
     import re
 
@@ -46,7 +46,7 @@ def test_cli_calibrates_to_the_converged_reference_and_to_a_csv(tmp_path, monkey
     fitted = load_params(tmp_path / "cal.toml")  # a valid parameter file
     assert fitted.alpha == rep["fitted"]["alpha"]
     (tmp_path / "curve.csv").write_text("displacement_m,force_n\n0.005,0.05\n0.01,0.11\n0.015,0.18\n0.02,0.26\n")
-    rep = json.loads(CliRunner().invoke(cli, ["calibrate", "plate-spring", "--reference", str(tmp_path / "curve.csv"), "--json"]).output)
+    rep = json.loads(CliRunner().invoke(cli, ["calibrate", "plate-spring", "--reference", str(tmp_path / "curve.csv"), "--json"]).stdout)
     assert rep["points"] == 4
     assert rep["within_jnd"] == 1.0
     (tmp_path / "bad.csv").write_text("displacement_m,force_n\n0.005,-1\n")

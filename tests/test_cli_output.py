@@ -14,10 +14,13 @@ import shutil
 from importlib import metadata
 from types import SimpleNamespace
 
+import click
 import pytest
 
 from sim.models import registry
-from studyctl.store import SCHEMA_VERSION
+from studyctl.cli import cli
+from studyctl.store import SCHEMA_VERSION, Store
+from studyctl.store import sessions as session_rows
 from tests.conftest import ROOT
 from tests.helpers import fast_protocol, studyctl
 
@@ -42,7 +45,7 @@ def synth(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("cli")
     db = tmp / "s.db"
     res = run("synth", "--db", db, "--protocol", fast_protocol(tmp, trials=1), "--participants", "2", "--seed", "1")
-    return tmp, db, res.output
+    return tmp, db, res.stdout, res.stderr
 
 
 @pytest.fixture
@@ -128,12 +131,48 @@ def test_study_init(tmp_path):
 
 
 def test_synth(synth):
-    tmp, db, out = synth
+    tmp, db, out, _ = synth
     out, timed = re.subn(r", \d+\.\d s\)$", ", T s)", out, flags=re.M)  # the run's wall-clock seconds
     assert timed == 1
     assert out == (f"created {db} for the protocol {tmp / 'protocol.toml'}\n"
                    "ran 2 SYNTHETIC sessions of 'brain_pull_2015': 2 new (seed 1); "
                    "2 synthetic participants with a session in total (1 job, T s)\n")
+
+
+def test_synth_on_a_pipe_says_where_it_is_on_stderr(synth):
+    """The demo's 35 sessions were silent in a log: a line per tenth of the sessions (each here)."""
+    assert synth[3] == "synthetic sessions: 1 of 2\nsynthetic sessions: 2 of 2\n"
+
+
+def test_one_participant_one_session(tmp_path):
+    out = run("synth", "--db", tmp_path / "one.db", "--protocol", fast_protocol(tmp_path, trials=1), "--participants", "1", "--seed", "1").stdout
+    out = re.sub(r", \d+\.\d s\)$", ", T s)", out, flags=re.M)
+    assert out.endswith("ran 1 SYNTHETIC session of 'brain_pull_2015': 1 new (seed 1); 1 synthetic participant with a session in total (1 job, T s)\n")
+    assert run("participants", "add", "P01", "--db", tmp_path / "one.db").output == "added P01\n"
+    assert run("status", "--db", tmp_path / "one.db").output == """\
+brain_pull_2015: 0 of 35 people complete (and 1 SYNTHETIC)
+participants: 1 person (0 consented, 0 withdrawn), 1 synthetic
+sessions: 1 done
+answers: 27
+next: nobody scheduled
+"""
+
+
+def test_a_participant_whose_session_is_done_is_not_next(study):
+    run("participants", "add", "P01", "--db", study)
+    run("participants", "consent", "P01", "--date", "2026-01-15", "--db", study)
+    run("schedule", "--start", "2037-12-01", "--end", "2037-12-02", "--db", study)
+    assert run("status", "--db", study).output.endswith("\nnext: P01 2037-12-01 09:00:00\n")
+    with Store(study) as store:  # P01's session, done (a person's session needs a person at the terminal)
+        session_rows.session_done(store, session_rows.open_session(store, "P01", False, "simulated", "", "", "", "", None))
+    assert run("status", "--db", study).output.endswith("\nnext: nobody scheduled\n")
+
+
+def test_a_finished_session_names_its_participant_and_its_number_in_the_study(study):
+    """"session 3 of S003 complete" read as S003's third session: each participant has one."""
+    run("participants", "add", "S003", "--synthetic", "--db", study)
+    done = run("session", "run", "--participant", "S003", "--synthetic", "--db", study).stdout
+    assert done.startswith("S003's session complete (session 3 of the study): conditions ")
 
 
 def test_status(synth):
@@ -272,3 +311,16 @@ def test_export(synth, tmp_path):
         "answers.csv", "conditions.csv", "consent.csv", "corrections.csv", "discrimination.csv", "events.csv", "latency.csv",
         "observer_features.csv", "participant_fields.csv", "participants.csv", "rig_profile.csv", "schedule.csv", "sessions.csv",
         "synthetic_traits.csv", "traces.csv", "trials.csv"]
+
+
+def _options(command, path=()):
+    for param in command.params:
+        if isinstance(param, click.Option) and not param.hidden:
+            yield " ".join(path), param
+    for name, sub in getattr(command, "commands", {}).items():
+        yield from _options(sub, (*path, name))
+
+
+def test_every_option_of_every_command_has_help():
+    """`synth --seed`, `report table1 --out` and `--format`, `schedule --json` had none."""
+    assert [f"{path} {param.opts[-1]}" for path, param in _options(cli) if not (param.help or "").strip()] == []

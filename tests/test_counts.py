@@ -214,7 +214,7 @@ def test_ctrl_c_inside_a_synthetic_session_exits_130(interrupted_in_a_session):
 
 def test_ctrl_c_inside_a_synthetic_session_suggests_complete(interrupted_in_a_session):
     db, res = interrupted_in_a_session
-    assert res.output.strip() == (f"Error: synth: interrupted after 1 of 3 sessions (each stored whole); `studyctl synth --db {db} "
+    assert res.output.strip() == (f"synthetic sessions: 1 of 3\nError: synth: interrupted after 1 of 3 sessions (each stored whole); `studyctl synth --db {db} "
                                   "--complete` runs the 2 registered participants left without one, completing this run's 3"), res.output
 
 

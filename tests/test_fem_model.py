@@ -10,6 +10,7 @@ from sim.geometry.patch import patch_vertex_weights
 from sim.geometry.tetmesh import body_volume
 from sim.geometry.volume import embed
 from sim.models.fem import FemModel, fixed_nodes
+from sim.models.fem.model import build as fem_build
 from sim.run import run_scene
 from sim.scene import build_scene
 from studyctl.cli import cli
@@ -266,3 +267,15 @@ def test_reset_brings_a_model_that_gave_up_back_to_rest():
     c = model.grasp(LEFT, 0)
     model.deformation([c], [np.array(d)])
     assert np.linalg.norm(model.force(c, d)) > 0.0
+
+
+def test_the_built_model_keeps_each_parts_centroid_tree(model):
+    """A grasp's search tree, built with the model: each grasp built it again (part of 300 ms)."""
+    assert len(model.centroid_trees) == len(model.parts)
+
+
+def test_the_build_condenses_the_grasps_where_the_scenes_hands_start():
+    """A run's first grasps (2 of 2 over the 250 ms budget) did the work of a new grasp site."""
+    scene = build_scene(SCENE)
+    model = fem_build(scene.mesh, {"resolution": 0.008}, scene)
+    assert model.condensed_vertices == {scene.mesh.nearest_vertex(h.start) for h in scene.spec.hands}

@@ -230,3 +230,51 @@ def test_the_check_sees_a_cut_title_and_small_text(tmp_path):
             with pytest.raises(AssertionError, match="cut by the figure's edge" if pt == 7 else "is 5.0 pt"):
                 check_figure(fig, size, "bad")
             plt.close(fig)
+
+
+# the full bench's raw rows (docs/accuracy.md): the settings of one class lie close together
+SHIPPED_ROWS = [{"model": m, "setting": s, "frame_ms": ms, "force_error": e} for m, s, ms, e in (
+    ("plate_spring", "paper", 0.0404, 1.498), ("plate_spring", "continuous", 0.0405, 1.498), ("plate_spring", "scene-fit", 0.0275, 0.550),
+    ("plate_spring", "located", 0.0282, 0.126), ("fem", "linear-8mm", 0.156, 0.261), ("fem", "linear-6mm", 0.169, 0.203),
+    ("fem", "linear-4mm", 0.202, 0.146), ("fem", "linear-p2-8mm", 0.504, 0.157), ("fem", "linear-p2-6mm", 0.588, 0.159),
+    ("fem", "corotational-8mm", 6.45, 0.283), ("fem", "corotational-6mm", 8.04, 0.235), ("mass_spring", "explicit-8mm", 26.7, 0.663),
+    ("mass_spring", "implicit-8mm", 131.0, 0.284), ("mass_spring", "local-global-8mm", 6.01, 0.302),
+    ("mass_spring", "local-global-6mm", 14.1, 0.197), ("mass_spring", "local-global-4mm", 48.0, 0.232),
+    ("mass_spring", "local-global-8mm-3it", 2.26, 0.409))]
+
+
+@pytest.mark.parametrize("size", ["screen", "single", "double"])
+def test_the_pareto_plots_labels_do_not_overlap(size):
+    """paper and continuous, linear-p2-8mm and -6mm were drawn over each other."""
+    fig = plots.pareto_figure(SHIPPED_ROWS, size=size)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    names = {r["setting"] for r in SHIPPED_ROWS}
+    boxes = [(t.get_text(), t.get_window_extent(renderer)) for t in fig.axes[0].texts if t.get_text() in names]
+    plots._plt().close(fig)
+    assert [(a, b) for i, (a, p) in enumerate(boxes) for b, q in boxes[i + 1:] if p.overlaps(q)] == []
+
+
+def _traces():
+    t = np.linspace(0.0, 1.0, 101)
+    ref = 0.5 * t
+    return {"fem": (t, 0.5 * ref, ref), "plate_spring": (t, 1.2 * ref, ref)}
+
+
+def test_the_force_plots_difference_panel_draws_what_its_legend_says():
+    """The pull plot showed the FEM 50% below the reference beside a table's 10.6%: the panel's
+    numbers are its own (this pull, uncalibrated), given in the legend and said how they differ."""
+    fig = plots.force_figure(_traces())
+    lines = fig.axes[1].get_lines()[:2]
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    title = fig.axes[1].get_title().replace("\n", " ")
+    plots._plt().close(fig)
+    assert np.allclose(lines[0].get_ydata(), -0.5)
+    assert legend[0] == "fem: mean |difference| 50%"
+    assert "not the accuracy table's force error" in title
+
+
+def test_the_force_differences_leave_out_a_reference_below_the_floor():
+    t, rel, mean = plots.force_differences(_traces())["plate_spring"]
+    assert t.min() > 0.0  # 0.5 t > 0.01 N from t = 0.03 s on
+    assert mean == pytest.approx(0.2)

@@ -9,6 +9,7 @@ import re
 import pytest
 
 from analysis.reports import paper_text
+from sim.text import counted
 from tests.helpers import unsupported_numbers
 
 
@@ -50,7 +51,7 @@ def test_every_number_of_the_text_is_in_the_stats_json(which, small_study, varia
     assert unsupported_numbers(text, doc) == []
     m = doc["methods"]
     assert f"N = {m['participants']['n']} participants" in text
-    assert f"{m['design']['trials_per_condition']} trials" in text
+    assert counted(m['design']['trials_per_condition'], 'trial') in text  # "1 trial" with the fast protocol
     if which == "paper":  # the primary analysis and a yes/no item, as the JSON has them
         item = next(iter(doc["items"].values()))
         assert f"Cochran's Q({item['df']}) = {item['cochran_q']:.2f}" in text
@@ -100,3 +101,10 @@ def test_effects_name_their_direction_and_only_what_a_model_reads(variants_study
         for p in v["pairs"]:
             if p["p_holm"] is not None and p["p_holm"] < 0.05:
                 assert f"{p['a']} over {p['b']}, rank-biserial r = {paper_text.unit(p['rank_biserial'])}" in text
+
+
+def test_a_vas_question_names_its_scale_once():
+    """"(visual analogue scale on a visual analogue scale from ...)"."""
+    m = {"procedure": {"questions": [{"text": "How stiff?", "kind": "vas", "anchors": ["soft", "hard"], "when": "after_condition"}],
+                       "instruments": [], "tasks": []}}
+    assert paper_text._procedure(m).count("visual analogue scale") == 1

@@ -145,7 +145,7 @@ def test_cli_bench_reference_quick(tmp_path):
     out = tmp_path / "ref"
     res = CliRunner().invoke(cli, ["bench", "reference", "--quick", "--json", "--out", str(out)])
     assert res.exit_code == 0, res.output
-    data = json.loads(res.output)
+    data = json.loads(res.stdout)
     assert {s["pull"] for s in data["samples"]} == {"left-lateral", "left-anterior"}
     assert len(data["samples"]) == 4
     assert len(data["meshes"]) == 2

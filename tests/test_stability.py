@@ -30,7 +30,7 @@ def quick_sweep(tmp_path_factory):
     out = tmp_path_factory.mktemp("stab")
     res = CliRunner().invoke(cli, ["bench", "stability", "--quick", "--json", "--out", str(out)])
     assert res.exit_code == 0, res.output
-    return json.loads(res.output), out
+    return json.loads(res.stdout), out
 
 
 def test_quick_sweep_sends_no_nan_and_no_over_limit_force(quick_sweep):

@@ -167,7 +167,7 @@ def test_plan_power_grows_with_n_and_is_labelled_synthetic(tmp_path):
     res = CliRunner().invoke(cli, ["plan", "--protocol", str(fast_protocol(tmp_path, trials=1)), "--participants", "12..18",
                                    "--step", "6", "--simulations", "20", "--pilots", "1", "--json", "--plot", str(tmp_path / "p.png")])
     assert res.exit_code == 0, res.output
-    out = json.loads(res.output)
+    out = json.loads(res.stdout)
     assert out["synthetic"] is True
     assert len(out["rows"]) == 2 * 10
     assert (tmp_path / "p.png").stat().st_size > 5000

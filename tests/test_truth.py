@@ -32,7 +32,7 @@ def coarse_truth(tmp_path_factory, monkeypatch_module):
     vertices = ",".join(str(int(v)) for v in left[:: max(1, len(left) // 4)])
     res = CliRunner().invoke(cli, ["calibrate", "truth", "--vertices", vertices, "--out", str(out), "--jobs", "1", "--json"])
     assert res.exit_code == 0, res.output
-    return scene, out, json.loads(res.output)
+    return scene, out, json.loads(res.stdout)
 
 
 @pytest.fixture(scope="module")

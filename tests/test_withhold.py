@@ -176,7 +176,7 @@ def test_report_validity_with_one_participant_per_group_tests_nothing_and_says_w
         _check_text(text, 3, f"validity {fmt}", bounded=False)  # (counts of permutations and replicates)
         assert "not tested: a group has fewer than 2 participants with values" in text
         assert "classification needs 2 or more participants in every group" in text
-    js = json.loads(studyctl("report", "validity", "--db", db, "--format", "json").output)
+    js = json.loads(studyctl("report", "validity", "--db", db, "--format", "json").stdout)
     _check_json_tests(js)
 
 

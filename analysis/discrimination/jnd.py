@@ -38,6 +38,7 @@ from analysis.reports.table import markdown as table_markdown
 from analysis.study_snapshot import data_flag
 from analysis.table1 import study_facts
 from analysis.withhold import interval_reason
+from sim.text import counted
 
 GM_WARN_BELOW = 5  # participants: below this a geometric mean's t interval is said to be wide
 
@@ -196,7 +197,7 @@ def _heading(res: dict) -> tuple[str, str]:
     task = f["task"]
     flag = f"{f['flag']} " if f["flag"] else ""
     method = task["method"] + (f" ({task['rule']})" if task["rule"] else "")
-    return (f"Stiffness discrimination: {f['study']}", f"{flag}N = {f['participants']} participants; two-interval forced choice "
+    return (f"Stiffness discrimination: {f['study']}", f"{flag}N = {counted(f['participants'], 'participant')}; two-interval forced choice "
             f"\"{task['question']}\", {task['trials']} {method} trials per condition around {task['reference']:g} times each condition's stiffness.")
 
 

@@ -20,6 +20,7 @@ from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study
 from analysis.study_stats import study_stats
 from sim.jsonable import jsonable
+from sim.text import counted
 
 KIND_WORDS = {"yes_no": "yes/no question", "likert": "rating", "vas": "visual analogue scale", "choice": "choice among the conditions"}
 WHEN_WORDS = {"condition": "after each condition", "trial": "after each trial", "end": "once, after the last condition"}
@@ -87,10 +88,10 @@ def _participants(m: Mapping, flag: str) -> str:
     p = m["participants"]
     who = ("synthetic participants simulated by the platform, not people" if p["synthetic_participants"] and not p["person_participants"]
            else "people" if not p["synthetic_participants"]
-           else f"{p['person_participants']} people and {p['synthetic_participants']} synthetic participants, pooled")
+           else f"{counted(p['person_participants'], 'person')} and {counted(p['synthetic_participants'], 'synthetic participant')}, pooled")
     asked = m["procedure"]["questions"] or m["procedure"]["instruments"]
     did = "answered every question for every condition" if asked else "took part in the discrimination task"
-    text = (f"{flag + ' ' if flag else ''}N = {p['n']} participants {did} "
+    text = (f"{flag + ' ' if flag else ''}N = {counted(p['n'], 'participant')} {did} "
             f"(target {p['target']}; ages {p['age_min']} to {p['age_max']} eligible); they were {who}.")
     if p["excluded"]:
         k = len(p["excluded"])
@@ -109,10 +110,10 @@ def _design(m: dict) -> str:
     if d["n_conditions"] == 1:
         text = f"Every participant ran one condition ({d['conditions'][0]})."
     else:
-        text = (f"A within-subject design compared {d['n_conditions']} conditions ({_names(d['conditions'])}), their order "
+        text = (f"A within-subject design compared {counted(d['n_conditions'], 'condition')} ({_names(d['conditions'])}), their order "
                 f"counterbalanced ({d['counterbalancing']}).")
     if d["trials_per_condition"]:
-        text += (f" Each condition was run for {d['trials_per_condition']} trials of {d['trial_seconds']:g} s, with {d['rest_seconds']:g} s "
+        text += (f" Each condition was run for {counted(d['trials_per_condition'], 'trial')} of {d['trial_seconds']:g} s, with {d['rest_seconds']:g} s "
                  f"of rest between trials")
         text += "; a trial ended when its targets were reached." if d["trial_end"] == "targets" else "."
     if d["training_minutes"]:
@@ -122,7 +123,7 @@ def _design(m: dict) -> str:
 
 def _apparatus(m: dict) -> str:
     a = m["apparatus"]
-    text = ("Sessions ran with " + _names([f"{x['device']} devices ({x['sessions']} sessions{', synthetic' if x['synthetic'] else ''})"
+    text = ("Sessions ran with " + _names([f"{x['device']} devices ({counted(x['sessions'], 'session')}{', synthetic' if x['synthetic'] else ''})"
                                            for x in a["devices"]])) if a["devices"] else "No session has finished"
     if a["software_versions"]:
         text += f", on {_names(a['software_versions'])}"
@@ -148,7 +149,7 @@ def _apparatus(m: dict) -> str:
         text += (f" Condition {c['condition']} ran the {c['model']} model{origin}" + (f" ({options})" if options else "")
                  + (f" on the mesh {c['mesh']}" if c.get("mesh") else "") + (f", with {_names(material)}" if material else "") + ".")
     for r in a["latency"]:
-        text += (f" Measured {MEASURES.get(r['measure'], r['measure'])} with {r['model']}: mean {sig(r['mean'])} over {r['trials']} trials "
+        text += (f" Measured {MEASURES.get(r['measure'], r['measure'])} with {r['model']}: mean {sig(r['mean'])} over {counted(r['trials'], 'trial')} "
                  f"(range {sig(r['lowest'])} to {sig(r['highest'])}).")
     return text
 
@@ -161,7 +162,7 @@ def _procedure(m: dict) -> str:
         if q["kind"] == "likert":
             scale = f" on a {q['points']}-point scale from “{q['anchors'][0]}” to “{q['anchors'][1]}”"
         elif q["kind"] == "vas" and q["anchors"]:
-            scale = f" on a visual analogue scale from “{q['anchors'][0]}” to “{q['anchors'][1]}”"
+            scale = f" from “{q['anchors'][0]}” to “{q['anchors'][1]}”"  # KIND_WORDS names the scale
         parts.append(f"“{q['text']}” ({KIND_WORDS.get(q['kind'], q['kind'])}{scale}, asked {WHEN_WORDS.get(q['when'], q['when'])})")
     text = ("Participants answered " + "; ".join(parts) + ".") if parts else ""
     for ins in pr["instruments"]:
@@ -219,7 +220,7 @@ def _gee(fit, what: str, family: str, n_conditions: int) -> str:
         return f"The {what} was not made: " + ("one condition: nothing to compare." if n_conditions < 2 else "no answers to fit.")
     if not fit.estimable or not fit.converged:
         return f"The {what} was not reported: {'; '.join(fit.problems) or 'it did not converge'}."
-    head = f"The {what} ({fit.formula}) included {fit.n_participants} participants and {fit.n_answers} answers."
+    head = f"The {what} ({fit.formula}) included {counted(fit.n_participants, 'participant')} and {counted(fit.n_answers, 'answer')}."
     return head + " " + _pairs_text(fit.pairs, lambda p: f"{p.b} relative to {p.a}, OR = {p.odds_ratio:.2f}, 95% CI [{p.ci_low:.2f}, {p.ci_high:.2f}]",
                                     "Condition pairs", family)
 
@@ -286,8 +287,8 @@ def _session(kinds: KindStats) -> list[str]:
 def _deformation(st: StudyStats) -> str:
     d = st.deformation
     rows = "; ".join(f"{r['model']} {sig(r['mean_ms'])} ms (SD {sig(r['sd_ms'])} over {r['n_participants']} participants' means, "
-                     f"{r['n_trials']} trials)" if _finite(r.get("sd_ms"))
-                     else f"{r['model']} {sig(r['mean_ms'])} ms ({r['n_trials']} trials)" for r in d.rows if _finite(r.get("mean_ms")))
+                     f"{counted(r['n_trials'], 'trial')})" if _finite(r.get("sd_ms"))
+                     else f"{r['model']} {sig(r['mean_ms'])} ms ({counted(r['n_trials'], 'trial')})" for r in d.rows if _finite(r.get("mean_ms")))
     return f"Deformation time per frame, a {d.label}: {rows}." if rows else ""
 
 
@@ -328,7 +329,7 @@ def _discrimination(res: dict) -> list[str]:
         if p_text(fr.get("p")):
             parts.append(f"the Friedman test, χ²({fr['df']}) = {fr['statistic']:.2f}, {p_text(fr['p'])}")
         problems = "; ".join(g.get("problems") or [])
-        text = (f"Across the conditions ({g['n_participants']} participants): " + " and ".join(parts) + "." if parts
+        text = (f"Across the conditions ({counted(g['n_participants'], 'participant')}): " + " and ".join(parts) + "." if parts
                 else f"The conditions were not compared: {problems or 'not estimable'}.")
         shown = [p for p in g.get("pairs") or [] if _finite(p.get("p_holm")) and p["p_holm"] < SIGNIFICANT]
         text += (" Pairs differing after Holm's correction: " + "; ".join(

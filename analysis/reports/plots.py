@@ -15,13 +15,14 @@ import matplotlib
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.colors import ListedColormap
-from matplotlib.transforms import blended_transform_factory
+from matplotlib.transforms import Bbox, blended_transform_factory
 
 from analysis.discrimination.psychometric import fit_psychometric
 from analysis.kind_results import ChoiceStats, RatingStats, ScoreStats
 from analysis.reports.figure_size import SCREEN, FigureSize, figure_size, fit, wrap
 from analysis.reports.figure_size import save as save  # write_plots saves every format through plots.save
 from sim.perception import force_jnd
+from sim.text import counted
 
 
 def _plt():
@@ -150,18 +151,38 @@ def deformation_plot(lat, path: Path, synthetic: bool, size: str | FigureSize = 
     _save_one(deformation_figure(lat, synthetic, size=size, models=models), path, figure_size(size))
 
 
+FORCE_FLOOR_N = 0.01  # the relative difference is drawn where the reference is above this
+# what the lower panel is, beside the accuracy table's force error (another quantity: said on the figure)
+DIFFERENCE_WORDS = ("relative difference to the reference on the scene's own pull, each condition as the study ran it "
+                    "(uncalibrated), every servo sample with the reference above 0.01 N, to the pull's end; not the accuracy "
+                    "table's force error (a mean of |difference| over held-out pulls' decided samples, raw and calibrated). "
+                    "Dotted: force JND, 25% below 0.5 N and 10% above")
+
+
+def force_differences(traces: dict) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
+    """What the force figure's lower panel draws per condition: the times and (F - F_ref) / F_ref
+    where the reference is above `FORCE_FLOOR_N`, and the mean |relative difference| its legend gives."""
+    out = {}
+    for m, (t, f, ref) in traces.items():
+        mask = ref > FORCE_FLOOR_N
+        rel = (f[mask] - ref[mask]) / ref[mask]
+        out[m] = (t[mask], rel, float(np.mean(np.abs(rel))) if rel.size else float("nan"))
+    return out
+
+
 @styled
 def force_figure(traces: dict, size: FigureSize = SCREEN):
     """Fig. 5-style: force of each model and the converged reference for the same pull, and
-    the relative difference against the force JND."""
+    the relative difference against the force JND (`force_differences`)."""
     pal = palette(traces)
     fig, (ax, bx) = _figure(size, (7, 5.4), 100, 110, 2, 1, sharex=True)
     thin = 0.7 if size.is_print else 1.0
+    diffs = force_differences(traces)
     for m, (t, f, ref) in traces.items():
-        ax.plot(t, f, color=pal[m], lw=1.3 * thin, label=m)
+        td, rel, mean = diffs[m]
+        ax.plot(t, f, color=pal[m], lw=1.3 * thin, label=f"{m}: mean |difference| {mean:.0%}")
         ax.plot(t, ref, color=pal[m], lw=0.8 * thin, ls="--")
-        mask = ref > 0.01
-        bx.plot(t[mask], (f[mask] - ref[mask]) / ref[mask], color=pal[m], lw=1.0 * thin)
+        bx.plot(td, rel, color=pal[m], lw=1.0 * thin)
     panel = fig.get_figwidth() - 0.6  # the axes' width, about: the y labels take the rest
     ax.set_ylabel("force on the hand (N)")
     ax.set_title(wrap("the scene's pull with each model; dashed: converged P2 reference for the same hand motion", size.small_pt, panel),
@@ -174,9 +195,9 @@ def force_figure(traces: dict, size: FigureSize = SCREEN):
     bx.set_ylabel("relative difference to the reference")
     bx.set_xlabel("time (s)")
     bx.set_ylim(-1.0, 5.0)
-    bx.set_title(wrap("dotted: force JND, 25% below 0.5 N and 10% above", size.small_pt, panel), fontsize=size.small_pt)
+    bx.set_title(wrap(DIFFERENCE_WORDS, size.small_pt, panel), fontsize=size.small_pt)
     bx.grid(alpha=0.3)
-    _legend(fig, size, min(len(traces), 3 if size.name == "single" else 6))
+    _legend(fig, size, min(len(traces), 1 if size.name == "single" else 2))
     return fig
 
 
@@ -208,10 +229,12 @@ def pareto_figure(rows: list[dict], reference: str = "", size: FigureSize = SCRE
     pal = palette(list(COLORS) + [r["model"] for r in rows])
     front = pareto(rows)
     big, small = (25, 10) if size.is_print else (50, 25)
+    labels = []
     for r, on in zip(rows, front):
         ax.scatter(r["frame_ms"], max(r["force_error"], 1e-4), color=pal[r["model"]], s=big if on else small,
                    edgecolor="black" if on else "none", linewidth=0.5 if size.is_print else 1.0, zorder=3)
-        ax.annotate(f"{r['setting']}", (r["frame_ms"], max(r["force_error"], 1e-4)), fontsize=size.tiny_pt, xytext=(3, 2), textcoords="offset points")
+        labels.append(ax.annotate(f"{r['setting']}", (r["frame_ms"], max(r["force_error"], 1e-4)), fontsize=size.tiny_pt, xytext=(3, 2),
+                                  textcoords="offset points"))
     pts = sorted((r["frame_ms"], max(r["force_error"], 1e-4)) for r, on in zip(rows, front) if on)
     if pts:
         ax.step([p[0] for p in pts], [p[1] for p in pts], where="post", color="black", lw=0.8, zorder=2, label="Pareto front")
@@ -236,7 +259,46 @@ def pareto_figure(rows: list[dict], reference: str = "", size: FigureSize = SCRE
     _suptitle(fig, "Force error vs deformation time" + (f" (reference {reference})" if reference else ""), size)
     # outside the axes: inside, "lower left" covered the best point (fast and accurate lies there)
     _legend(fig, size, 3 if size.name == "single" else 6)
+    place_labels(fig, labels, size.tiny_pt)
     return fig
+
+
+def _label_offsets(height_pt: float, rings: int = 8):
+    """Offsets (points) and alignment to try for a point's label, nearest first: right or left
+    of the point, above or below, then further up and down a line at a time."""
+    for k in range(rings):
+        for dy in (2 + k * height_pt, -height_pt - k * height_pt):
+            for dx, ha in ((3, "left"), (-3, "right")):
+                yield dx, dy, ha
+
+
+def place_labels(fig, labels: list, font_pt: float) -> None:
+    """Each label at the nearest of `_label_offsets` where it overlaps no label placed before it
+    (the settings of one class lie close together: their labels were drawn over each other), and,
+    where one is free, no other text and no point either. The layout is drawn first, so the boxes
+    are the ones the file shows."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    ax = labels[0].axes if labels else None
+    others = [t.get_window_extent(renderer) for t in (ax.texts if ax else []) if t not in labels]
+    dot = font_pt * fig.dpi / 72 / 3  # a point's marker, about
+    others += [Bbox.from_extents(x - dot, y - dot, x + dot, y + dot) for x, y in (ax.transData.transform(t.xy) for t in labels)]
+    placed = []
+    for label in labels:
+        fits = []
+        for dx, dy, ha in _label_offsets(font_pt * 1.25):
+            label.xyann = (dx, dy)
+            label.set_horizontalalignment(ha)
+            box = label.get_window_extent(renderer)
+            if not any(box.overlaps(b) for b in placed):
+                fits.append((dx, dy, ha))
+                if not any(box.overlaps(b) for b in others):
+                    break
+        else:  # no spot free of other texts: the nearest free of labels
+            if fits:
+                label.xyann = fits[0][:2]
+                label.set_horizontalalignment(fits[0][2])
+        placed.append(label.get_window_extent(renderer))
 
 
 STABILITY_COLORS = (("stable", "#009E73"), ("refused", "#9e9e9e"), ("unstable", "#D55E00"))
@@ -402,7 +464,7 @@ def psychometric_figure(trials, rows: list[dict], condition: str, synthetic: boo
     ax.set_xlabel("increment in stiffness (comparison / reference - 1)")
     ax.set_ylabel("proportion correct")
     gm = np.exp(np.mean(np.log([r["weber"] for r in rows if r["weber"] == r["weber"] and r["weber"] > 0]))) if rows else float("nan")
-    _suptitle(fig, _flag(synthetic) + f"{condition}: {len(rows)} participants, geometric-mean Weber fraction {gm:.1%}", size)
+    _suptitle(fig, _flag(synthetic) + f"{condition}: {counted(len(rows), 'participant')}, geometric-mean Weber fraction {gm:.1%}", size)
     ax.grid(alpha=0.3)
     return fig
 

@@ -23,6 +23,7 @@ from analysis.study_stats import study_stats
 from analysis.verification.accuracy_tables import intro
 from analysis.verification.accuracy_tables import tables as accuracy_tables
 from analysis.verification.stability import counts_text, near_chatter_text, outcome_grid, unstable_table
+from sim.text import counted
 
 
 def write_plots(study: Study, out_dir, traces: dict | None = None, size: str | FigureSize = "screen",
@@ -72,7 +73,7 @@ def latex(study: Study, holm_scope: str = "family") -> str:
     scope = table1.holm_text(st)
     listed = table1.incomplete_text(facts)
     caption = ((f"{facts.flag} " if facts.flag else "")
-               + f"{facts.study}: N = {facts.participants} participants with every answer; {facts.design}."
+               + f"{facts.study}: N = {counted(facts.participants, 'participant')} with every answer; {facts.design}."
                + (f" Left out (incomplete): {listed}." if listed else "")
                + f" Deformation time: {table1.DEFORMATION_WORK}.")
     origins = table1.plugin_note(facts.conditions)
@@ -135,7 +136,7 @@ def html(study: Study, traces: dict | None = None, accuracy: dict | None = None,
     return f"""{page_head(f"{facts.study}: Table 1")}
 <h1>{esc(facts.study)}: Table 1</h1>
 {banner}
-<p>N = {facts.participants} participants with every answer; {esc(facts.design)}.{esc(incomplete)} {esc(scope)}.</p>
+<p>N = {counted(facts.participants, 'participant')} with every answer; {esc(facts.design)}.{esc(incomplete)} {esc(scope)}.</p>
 {binary}
 {kind_html}
 {primary}{deformation}

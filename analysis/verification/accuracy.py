@@ -465,6 +465,7 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
             rows.append({"model": m["model"], "setting": m["setting"], "calibration": calibration, "scale": s,
                          "force_error": nan_mean(errs), "force_error_max": float(np.max(errs)) if errs else math.nan,
                          "within_jnd": nan_mean(within), "within_jnd_low": lo, "within_jnd_high": hi, "n_test": n,
+                         "n_within_jnd": int(sum(within)), "withheld": too_few(n),
                          "within": verdicts.count("within"), "outside": verdicts.count("outside"), "undecided": verdicts.count("undecided"),
                          "extrapolated": counts["extrapolated"], "truth_undecided": counts["truth_undecided"],
                          "pulls_within": pulls_within, "n_test_pulls": pulls_judged,
@@ -499,14 +500,27 @@ def coupling_bound(ref: list[list[dict]], n_calib: int, xs, stiffness: float) ->
 
 
 TARGET_WITHIN = 0.80  # a class follows the tissue when one configuration is within the JND on 80% of held-out samples
+# The fewest decided held-out samples a rate, a verdict or "meets target" is given from: 39 is the
+# smallest n at which every Wilson 95% interval, whatever the count, is at most RATE_HALF_WIDTH
+# either side, narrow enough that a rate at the 80% target and one at chance (50%) cannot share
+# an interval. Below it a row shows its counts only (the quick bench's rows always are).
+MIN_DECIDED = 39
+RATE_HALF_WIDTH = 0.15
+
+
+def too_few(n: int) -> str | None:
+    """Why a rate over `n` decided samples is withheld, or None."""
+    return f"too few decided samples ({n} < {MIN_DECIDED})" if n < MIN_DECIDED else None
 
 
 def class_best(rows: list[dict], frame_budget_ms: float | None = None) -> list[dict]:
     """Each class (model) at its best, raw and calibrated: the configuration with the most
     held-out samples within the JND among those whose frame keeps the contract's budget (p99,
-    `sim.models.api.BUDGETS`) and that gave up no pull; ties go to the lower force error, then
-    the faster frame. A class with no such configuration gets a row with `setting` None and
-    the reason. `meets_target`: within on at least `TARGET_WITHIN` of the samples."""
+    `sim.models.api.BUDGETS`), that gave up no pull and that have at least `MIN_DECIDED` decided
+    samples; ties go to the lower force error, then the faster frame. A class with no such
+    configuration gets a row with `setting` None and the reason, and `meets_target` None where
+    every configuration had too few decided samples (no verdict either way). `meets_target`:
+    within on at least `TARGET_WITHIN` of the samples."""
     budget = float(BUDGETS["deformation_ms_p99"] if frame_budget_ms is None else frame_budget_ms)
     out = []
     for model in dict.fromkeys(r["model"] for r in rows):
@@ -516,13 +530,19 @@ def class_best(rows: list[dict], frame_budget_ms: float | None = None) -> list[d
                 continue
             left = {r["setting"]: ("gave up on a pull" if r["unstable_pulls"] else f"frame p99 {r['frame_ms_p99']:.3g} ms over the {budget:g} ms budget")
                     for r in cands if r["unstable_pulls"] or not r["frame_ms_p99"] <= budget}
-            ok = [r for r in cands if r["setting"] not in left]
-            base = {"model": model, "calibration": calibration, "frame_budget_ms": budget, "left_out": left}
+            few = {r["setting"]: why for r in cands if r["setting"] not in left and (why := too_few(r["n_test"]))}
+            ok = [r for r in cands if r["setting"] not in left and r["setting"] not in few]
+            base = {"model": model, "calibration": calibration, "frame_budget_ms": budget, "left_out": left | few}
+            if all(too_few(r["n_test"]) for r in cands):  # no rate can be given: no verdict, not a "no"
+                most = max(r["n_test"] for r in cands)
+                out.append(base | {"setting": None, "meets_target": None, "why": f"too few decided samples in every configuration ({most} < {MIN_DECIDED})"})
+                continue
             if not ok:
-                out.append(base | {"setting": None, "meets_target": False, "why": "no configuration keeps the budget without giving up a pull"})
+                out.append(base | {"setting": None, "meets_target": False, "why": "no configuration keeps the budget without giving up a pull"
+                                   + (f" and has at least {MIN_DECIDED} decided samples" if few else "")})
                 continue
             best = max(ok, key=lambda r: (r["within_jnd"], -r["force_error"], -r["frame_ms"]))
             out.append(base | {k: best[k] for k in ("setting", "scale", "within_jnd", "within_jnd_low", "within_jnd_high", "force_error",
-                                                    "pulls_within", "n_test_pulls", "frame_ms", "frame_ms_p99")}
+                                                    "n_test", "n_within_jnd", "pulls_within", "n_test_pulls", "frame_ms", "frame_ms_p99")}
                        | {"meets_target": bool(best["within_jnd"] >= TARGET_WITHIN), "why": ""})
     return out

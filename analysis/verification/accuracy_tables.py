@@ -12,12 +12,34 @@ import pandas as pd
 from analysis.reports.formatting import rate_interval
 from analysis.reports.plots import pareto_plot
 from analysis.reports.table import Table, latex_tables, markdown_grid
-from analysis.verification.accuracy import TARGET_WITHIN, class_best
+from analysis.verification.accuracy import MIN_DECIDED, RATE_HALF_WIDTH, TARGET_WITHIN, class_best
 from analysis.verification.tissue_pulls import describe_no_reference
 from sim.jsonable import jsonable
 
 COLUMNS = ("model", "setting", "calibration", "scale", "force_error", "force_error_max", "within_jnd", "within_jnd_low",
            "within_jnd_high", "within", "outside", "undecided", "pulls_within", "angle_deg", "tick_us", "frame_ms")
+
+
+def within_text(r: dict, short: bool = False) -> str:
+    """A row's within-JND rate with its interval over the decided samples it is a rate of
+    ("84% [75%, 91%] of 77"), or, below `MIN_DECIDED`, the counts and why no rate is given
+    (`short`: "1/1, too few (1 < 39)", for a terminal's narrow column)."""
+    n, k = r["n_test"], r.get("n_within_jnd", round(r["within_jnd"] * r["n_test"]) if r["n_test"] else 0)
+    if n < MIN_DECIDED:
+        if short:
+            return f"{k}/{n}, too few ({n} < {MIN_DECIDED})"
+        return f"{k} of {n} within; no rate: too few decided samples ({n} < {MIN_DECIDED})"
+    return f"{rate_interval(r['within_jnd'], r['within_jnd_low'], r['within_jnd_high'], 0)} of {n}"
+
+
+def meets_text(b: dict) -> str:
+    """A class's "meets target": yes, no, or no verdict (too few decided samples)."""
+    return "no verdict" if b["meets_target"] is None else "yes" if b["meets_target"] else "no"
+
+
+def verdict_rule() -> str:
+    return (f"A rate, a verdict or \"meets target\" needs at least {MIN_DECIDED} decided held-out samples (then every Wilson 95% "
+            f"interval is at most +-{RATE_HALF_WIDTH:.0%}); below, a row shows its counts only.")
 
 
 def intro(result: dict) -> str:
@@ -35,15 +57,15 @@ def intro(result: dict) -> str:
     return (f"Reference: {ref['setting']} ({ref['formulation']}; band (mesh and law) median {ref['band_rel_median']:.1%}, "
             f"largest {ref['band_rel_max']:.1%}).{decided}{missing} {len(m['calibration_pulls'])} calibration pulls and {len(m['test_pulls'])} held-out test "
             f"pulls to {m['max_pull_m'] * 1e3:g} mm at {m['pull_speed_m_per_s'] * 1e3:g} mm/s, {m['samples_per_pull']} samples each; "
-            f"the linear models' E = {m['young_pa'] / 1e3:.3g} kPa (scene: {m['scene_young_pa'] / 1e3:.3g} kPa)" + (" (quick bench)" if m["quick"] else "") + ".")
+            f"the linear models' E = {m['young_pa'] / 1e3:.3g} kPa (scene: {m['scene_young_pa'] / 1e3:.3g} kPa)" + (" (quick bench)" if m["quick"] else "") + ". "
+            + verdict_rule() + (" The quick bench is a smoke run: it decides nothing." if m["quick"] else ""))
 
 
 def tables(result: dict) -> list[Table]:
     """The accuracy table (every configuration, raw and calibrated) and each class at its best:
     what the Markdown, the LaTeX and the HTML print."""
     rows = [[r["model"], r["setting"], r["calibration"], f"{r['scale']:.3g}", f"{r['force_error']:.1%} / {r['force_error_max']:.1%}",
-             rate_interval(r['within_jnd'], r['within_jnd_low'], r['within_jnd_high'], 0),
-             f"{r['n_test']} / {r['extrapolated']} / {r['truth_undecided']}",
+             within_text(r), f"{r['n_test']} / {r['extrapolated']} / {r['truth_undecided']}",
              f"{r['within']} / {r['outside']} / {r['undecided']}", f"{r['pulls_within']}/{r['n_test_pulls']}", str(r["unstable_pulls"]),
              f"{r['angle_deg']:.1f} / {r['angle_deg_max']:.1f} deg", f"{r['tick_us']:.2f} us", f"{r['frame_ms']:.3g} ms"]
             for r in result["rows"]]
@@ -51,21 +73,21 @@ def tables(result: dict) -> list[Table]:
     for b in class_best(result["rows"]):
         left = "; ".join(f"{k}: {v}" for k, v in b["left_out"].items()) or "none"
         if b["setting"] is None:
-            best.append([b["model"], b["calibration"], f"none ({b['why']})", "", "", "", "", "no", left])
+            best.append([b["model"], b["calibration"], f"none ({b['why']})", "", "", "", "", meets_text(b), left])
             continue
         best.append([b["model"], b["calibration"], b["setting"],
-                     rate_interval(b['within_jnd'], b['within_jnd_low'], b['within_jnd_high'], 0), f"{b['force_error']:.1%}",
+                     within_text(b), f"{b['force_error']:.1%}",
                      f"{b['pulls_within']}/{b['n_test_pulls']}", f"{b['frame_ms']:.3g} / {b['frame_ms_p99']:.3g} ms",
-                     "yes" if b["meets_target"] else "no", left])
+                     meets_text(b), left])
     return [Table(title="Model error against run time", columns=["model", "setting", "calibration", "scale", "force error (mean / max)",
-                                                                   "within JND [95% CI]", "truth decided / extrapolated / undecided",
+                                                                   "within JND [95% CI] of decided", "truth decided / extrapolated / undecided",
                                                                    "within / outside / undecided", "whole pulls within",
                                                                    "unstable pulls", "direction error (mean / max)", "tick", "frame"],
                   rows=rows, notes=intro(result)),
-            Table(title="Each class at its best", columns=["model", "calibration", "best setting", "within JND [95% CI]", "force error",
+            Table(title="Each class at its best", columns=["model", "calibration", "best setting", "within JND [95% CI] of decided", "force error",
                                                             "whole pulls within", "frame (p50 / p99)", "meets target", "left out"],
-                  rows=best, notes=f"The most samples within the JND among the configurations whose frame p99 keeps the budget and that "
-                                   f"gave up no pull; the target is {TARGET_WITHIN:.0%}.")]
+                  rows=best, notes=f"The most samples within the JND among the configurations whose frame p99 keeps the budget, "
+                                   f"that gave up no pull and that have at least {MIN_DECIDED} decided samples; the target is {TARGET_WITHIN:.0%}.")]
 
 
 def markdown(result: dict) -> str:
@@ -73,7 +95,7 @@ def markdown(result: dict) -> str:
     every, best = tables(result)
     lines = [intro(result), "", *markdown_grid(every)]
     lines += ["", f"Each class at its best (`class_best`: the most samples within the JND among the configurations whose frame p99 keeps "
-              f"the budget and that gave up no pull; the target is {TARGET_WITHIN:.0%}):", "", *markdown_grid(best)]
+              f"the budget, that gave up no pull and that have at least {MIN_DECIDED} decided samples; the target is {TARGET_WITHIN:.0%}):", "", *markdown_grid(best)]
     cb = result["meta"].get("coupling_bound")
     if cb:
         lines += ["", f"The mass-spring renders through its hand coupling: the tissue's own forces behind it (an exact model) are within "

@@ -25,7 +25,6 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.reports.formatting import rate_interval
 from analysis.reports.table import Table, markdown_grid
 from analysis.verification.accuracy import (
     TICK_TIMING_CALLS,
@@ -36,6 +35,7 @@ from analysis.verification.accuracy import (
     run_accuracy,
     sample_displacements,
 )
+from analysis.verification.accuracy_tables import within_text
 from analysis.verification.stability import DURATION as STABILITY_DURATION
 from analysis.verification.stability import make_cases, run_case
 from analysis.verification.tissue_pulls import shipped_solve_seconds, unsolved
@@ -284,7 +284,7 @@ def accuracy(name: str, scene_path: Path, quick: bool, step=None) -> dict:
     `step(k, n)` after each reference solve and the model's pulls."""
     out = run_accuracy(_accuracy_config(name, scene_path, quick), jobs=1, progress=step)
     keep = ("setting", "calibration", "scale", "force_error", "within_jnd", "within_jnd_low", "within_jnd_high", "n_test",
-            "extrapolated", "truth_undecided", "pulls_within", "frame_ms", "tick_us")
+            "extrapolated", "truth_undecided", "pulls_within", "frame_ms", "tick_us", "n_within_jnd", "withheld")
     return {"rows": [{k: r.get(k) for k in keep if k in r} for r in out["rows"]], "reference": out["meta"]["reference"]["setting"],
             "quick": quick}
 
@@ -390,7 +390,7 @@ def check_model(name: str, cfg: CheckConfig, progress=None) -> dict:
         card["stability"] = run("stability", lambda: stability(name, cfg.scene, ui.step),
                                 lambda r: ", ".join(f"{v} {k}" for k, v in r["counts"].items()))
         card["accuracy"] = run("accuracy", lambda: accuracy(name, cfg.scene, cfg.quick, ui.step),
-                               lambda r: ", ".join(f"{x['calibration']} {x['within_jnd']:.0%} within the JND (of {x['n_test']} decided)"
+                               lambda r: ", ".join(f"{x['calibration']} {within_text(x)} within the JND"
                                                    if x["n_test"] else f"{x['calibration']}: no decided sample" for x in r["rows"]))
     except KeyboardInterrupt:
         card["interrupted"] = stage
@@ -432,7 +432,7 @@ def scorecard_md(card: dict) -> str:
         lines += markdown_grid(Table(
             columns=["setting", "calibration", "scale", "within the JND (95% CI), decided test samples", "truth extrapolated / undecided", "frame ms"],
             rows=[[r["setting"], r["calibration"], f"{r['scale']:.3g}",
-                   f"{rate_interval(r['within_jnd'], r['within_jnd_low'], r['within_jnd_high'], 0)}, n = {r['n_test']}" if r["n_test"]
+                   within_text(r) if r["n_test"]
                    else "none: the truth is decided at no held-out sample",
                    f"{r.get('extrapolated', 0)} / {r.get('truth_undecided', 0)}", f"{r['frame_ms']:.3g}"] for r in a["rows"]]))
     lines += ["", "## Verdict", ""]

@@ -64,6 +64,11 @@ class SurfaceMesh:
         _scipy()
         _ = self._kdtree, self._graph, self.vertex_normals
 
+    @property
+    def queries_prepared(self) -> bool:
+        """Whether `prepare_queries` has run: a grasp then builds nothing."""
+        return "_kdtree" in self.__dict__ and "_graph" in self.__dict__
+
     def nearest_vertex(self, point) -> int:
         _, i = self._kdtree.query(np.asarray(point, dtype=np.float64))
         return int(i)

@@ -85,13 +85,20 @@ def barycentric(nodes: np.ndarray, tets: np.ndarray, points: np.ndarray) -> np.n
     return np.column_stack((1.0 - lam.sum(axis=1), lam))
 
 
-def locate(nodes: np.ndarray, tets: np.ndarray, points: np.ndarray, k: int = 32) -> tuple[np.ndarray, np.ndarray]:
+def centroid_tree(nodes: np.ndarray, tets: np.ndarray) -> cKDTree:
+    """The k-d tree of the tetrahedra's centroids that `locate` searches: built once per mesh by
+    a model that locates points again and again (a grasp), else built by each call."""
+    return cKDTree(nodes[tets].mean(axis=1))
+
+
+def locate(nodes: np.ndarray, tets: np.ndarray, points: np.ndarray, k: int = 32, tree: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Containing (or nearest) tetrahedron of each point and its barycentric coordinates: among
     the k tetrahedra with the nearest centroids, the one whose smallest barycentric coordinate
-    is largest (>= 0: inside; the least negative is the nearest outside)."""
+    is largest (>= 0: inside; the least negative is the nearest outside). `tree`: the mesh's
+    `centroid_tree`, when the caller keeps one."""
     points = np.atleast_2d(np.asarray(points, dtype=np.float64))
     kk = min(k, len(tets))
-    _, cand = cKDTree(nodes[tets].mean(axis=1)).query(points, k=kk)
+    _, cand = (tree if tree is not None else centroid_tree(nodes, tets)).query(points, k=kk)
     cand = np.asarray(cand).reshape(len(points), kk)
     w = barycentric(nodes, tets[cand.ravel()], np.repeat(points, kk, axis=0)).reshape(len(points), kk, 4)
     pick = w.min(axis=2).argmax(axis=1)

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from sim.text import counted
 from studyctl.cli.common import DB, DRY_RUN, JSON, _done, _Group, _model_name
 
 
@@ -25,12 +26,12 @@ def answers_import(db, csv_file, dry_run, as_json):
     from studyctl.study import import_answers
 
     out = import_answers(db, csv_file, dry_run=dry_run)
-    _done(out, f"imported {out['imported']} answers", as_json)
+    _done(out, f"imported {counted(out['imported'], 'answer')}", as_json)
 
 
 @answers.command("correct")
 @DB
-@click.option("--participant", required=True)
+@click.option("--participant", required=True, help="The participant's code, e.g. P01.")
 @click.option("--model", default="", callback=lambda c, p, v: _model_name(v),
               help="The condition the answer is about, e.g. fem; left out for a question asked once at the end.")
 @click.option("--item", required=True, help="The question's id, e.g. natural.")

@@ -32,7 +32,7 @@ def calibrate():
 
 
 @calibrate.command("plate-spring")
-@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml", help="The scene file (TOML).")
 @click.option("--reference", default="converged", show_default=True,
               help="converged (the accuracy bench's reference on its calibration pulls) or a CSV with displacement_m, force_n.")
 @click.option("--max-displacement", type=click.FloatRange(min=0.001, max=0.1), default=0.012, show_default=True, help="m, the longest pull.")
@@ -40,7 +40,7 @@ def calibrate():
               help="Points per pull (the converged reference: only where the truth is decided).")
 @click.option("--out", "out_file", type=OutFile((".toml",)), default=None, help="Write the fitted parameter file (.toml).")
 @FORCE
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out_file, force, as_json):
     """Fit h1, alpha, q and x_c1 (within their bounds) to the reference force-displacement curve."""
     import numpy as np
@@ -82,7 +82,7 @@ def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out
 @click.option("--bulk-ratio", type=Finite(min=1.0, max=1e4), default=None, show_default="50", help="kappa / mu of the laws.")
 @click.option("--out", "out_file", type=OutFile((".toml",)), default=None, help="Write the chosen law as a material file (.toml).")
 @FORCE
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 @click.pass_context
 def calibrate_material(ctx, data_files, region, laws, bulk_ratio, out_file, force, as_json):
     """Fit finite-strain laws to tissue data (uniaxial tension and compression, simple shear: each
@@ -144,13 +144,13 @@ def calibrate_material(ctx, data_files, region, laws, bulk_ratio, out_file, forc
 
 
 @calibrate.command("field")
-@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml", help="The scene file (TOML).")
 @click.option("--out", "out_file", type=OutFile((".npz",)), default=None, show_default="data/plate_spring_field.npz", help="The stiffness field.")
 @click.option("--params-out", type=OutFile((".toml",)), default=None, help="Also write the located stack's curve here.")
 @FORCE
 @click.option("--formulation", type=click.Choice(["finite-strain", "small-strain"]), default="finite-strain", show_default=True,
               help="The curve: fitted to the finite-strain / small-strain force ratio of the calibration pulls, or straight.")
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def calibrate_field(scene_file, out_file, params_out, formulation, force, as_json):
     """The location-aware plate-spring's stiffness field: the reference's 3 x 3 grasp stiffness
     at the ico4 sites of both hemispheres (P2, 8 mm body-fitted mesh, area-mean grasp),
@@ -222,7 +222,7 @@ def _vertex_ids(ctx, param, value):
               help="Keep this profile (from `calibrate rig --out` on the rig) with the study instead of measuring here.")
 @click.option("--out", "out_file", type=OutFile((".json",)), default=None, help="Also write the profile as JSON.")
 @FORCE
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def calibrate_rig(db, protocol_file, trials, profile_file, out_file, force, as_json):
     """Each condition's deformation time per frame on this machine (the rig), kept with the
     study: its synthetic participants perceive these as latency (studyctl/synthetic/rig.py)."""
@@ -259,13 +259,13 @@ def calibrate_rig(db, protocol_file, trials, profile_file, out_file, force, as_j
 
 
 @calibrate.command("truth")
-@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml", help="The scene file (TOML).")
 @click.option("--vertices", default=None, callback=_vertex_ids, help="Surface vertex ids, e.g. 3386,13629  [default: within 10 mm of the scene's hands]")
 @click.option("--out", "out_file", type=OutFile((".npz",)), default=None, help="[default: the cache folder, where sessions find it; rebuilt there freely]")
 @FORCE
 @click.option("--no-check", is_flag=True, help="Skip the transfer check (a direct solve at the farthest place per hand).")
 @click.option("--jobs", type=click.IntRange(1, 256), default=None, help="Reference solves at once (default: every core).")
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def calibrate_truth(scene_file, vertices, out_file, force, no_check, jobs, as_json):
     """The synthetic observer's truth at grasp places: the converged reference's finite-strain
     path along each hand's pull (the scene's law on the shipped body-fitted 8 / 6 / 4 mm meshes,

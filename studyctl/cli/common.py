@@ -216,18 +216,34 @@ def read_snapshot(db):
         return read_study(store)
 
 
+PROGRESS_LINES = 10  # a pipe or a log gets a line at each tenth of the work, not one per step
+
+
+def progress_lines(label):
+    """`progress(done, total)` that says "LABEL: done of total" on stderr at the start and as
+    each tenth of the work is done (`PROGRESS_LINES`): what a log or a pipe shows of a long run."""
+    said = [-1]
+
+    def progress(k, n):
+        tenth = PROGRESS_LINES * k // n if n else PROGRESS_LINES
+        if tenth > said[0]:
+            said[0] = tenth
+            click.echo(f"{label}: {k} of {n}", err=True)
+    return progress
+
+
 def _with_progress(label, fn, stage=None):
     """`fn(progress)` with a progress bar that `progress(done, total)` advances, on stderr (a
     --json document on stdout stays clean). Where stderr is no terminal, `stage(done, total)`
-    (if given) is a line said there as each stage starts (done < total): a log still shows
-    where a long run is."""
+    (if given) is a line said there as each stage starts (done < total), else `progress_lines`':
+    a log still shows where a long run is."""
     from rich.console import Console
     from rich.progress import Progress
 
     console = Console(stderr=True)
     if not console.is_terminal:  # a pipe or a log: no bar (stopping one there leaves a blank line before an error's one line)
         if stage is None:
-            return fn(lambda k, n: None)
+            return fn(progress_lines(label))
         return fn(lambda k, n: click.echo(stage(k, n), err=True) if k < n else None)
     with Progress(transient=True, console=console) as progress:
         task = progress.add_task(label, total=None)

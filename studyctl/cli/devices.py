@@ -17,7 +17,7 @@ def devices():
 
 @devices.command("list")
 @DEVICES
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def devices_list(device_names, as_json):
     """Try the configured device names (and "Default Device"); say what the library reports."""
     from sim.devices.check import candidate_names, list_devices
@@ -38,13 +38,13 @@ def devices_list(device_names, as_json):
 
 
 @devices.command("check")
-@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml", help="The scene file (TOML).")
 @DEVICES
 @click.option("--seconds", type=click.FloatRange(1.0, 600.0), default=5.0, show_default=True, help="How long to watch the styluses.")
 @click.option("--view", type=click.Choice(["none", "window"]), default="none", show_default=True, help="window: show both styluses live.")
 @click.option("--yes", is_flag=True, help="Apply the force pulse without asking.")
 @FULLSCREEN
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def devices_check(scene_file, device_names, seconds, view, yes, fullscreen, as_json):
     """Calibration, both styluses live, buttons, a gentle force pulse: exit 1 with the fix if anything is wrong."""
     from sim.devices.check import check_rig

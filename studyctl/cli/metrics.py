@@ -7,18 +7,19 @@ import json
 import click
 
 from sim.jsonable import jsonable
+from sim.text import counted
 from studyctl.cli.common import DB, FORCE, OutFile, read_snapshot, staged, write_output
 from studyctl.outputs import output_format
 
 
 def _note(table) -> str:
     codes = table.loc[table["synthetic"], "code"].unique()
-    return f"SYNTHETIC DATA: {len(codes)} of {table['code'].nunique()} participants are synthetic" if len(codes) else ""
+    return f"SYNTHETIC DATA: {len(codes)} of {counted(table['code'].nunique(), 'participant')} {'is' if len(codes) == 1 else 'are'} synthetic" if len(codes) else ""
 
 
 @click.command("metrics", cls=click.Command)
 @DB
-@click.option("--format", "fmt", type=click.Choice(["csv", "json"]), default=None, show_default="csv, or the one --out's suffix names")
+@click.option("--format", "fmt", type=click.Choice(["csv", "json"]), default=None, show_default="csv, or the one --out's suffix names", help="The output's format.")
 @click.option("--out", "out_file", type=OutFile((".csv", ".json")), default=None, help="Write to this file instead of stdout.")
 @FORCE
 def metrics_cmd(db, fmt, out_file, force):
@@ -40,7 +41,7 @@ def metrics_cmd(db, fmt, out_file, force):
         text = spreadsheet_frame(table).to_csv(index=False)
     if target:
         write_output(target, text)
-        click.echo(f"wrote {out_file} ({len(table)} rows)" + (f"; {note}" if note else ""))
+        click.echo(f"wrote {out_file} ({counted(len(table), 'row')})" + (f"; {note}" if note else ""))
         return
     click.echo(text, nl=False)
     if note and fmt == "csv":  # on stderr: the CSV on stdout stays parseable

@@ -135,7 +135,7 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
 @click.argument("folder", type=click.Path(file_okay=False, exists=True, path_type=Path))
 @click.option("--out", "out_dir", type=OutDir(), default=Path("dist"), show_default=True, help="The folder the wheel is written into.")
 @FORCE
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def model_wheel(folder: Path, out_dir: Path, force: bool, as_json: bool):
     """Build the wheel of a model package (FOLDER holds its pyproject.toml) with the standard
     library alone: offline, where pip cannot fetch setuptools. Install it into any venv with
@@ -213,7 +213,7 @@ class _StageReport:
 
 @model.command("plate-spring")
 @click.option("--params", "params_file", required=True, type=click.Path(dir_okay=False, path_type=Path), help="Parameter file (TOML, SI units).")
-@click.option("--variant", type=click.Choice(["paper", "continuous"]), default="continuous", show_default=True)
+@click.option("--variant", type=click.Choice(["paper", "continuous"]), default="continuous", show_default=True, help="The plate-spring's variant: as printed (paper) or continuous.")
 @click.option("--force", "force", type=Finite(), default=None, help="Tension F in newtons, >= 0: print the deformation.")
 @click.option("--displacement", "displacement", type=Finite(min=0.0, max=MAX_PULL_M), default=None,
               help=f"Displacement X in metres, 0..{MAX_PULL_M:g} (the longest pull the tissue models are meant for): print the force.")
@@ -315,7 +315,7 @@ def _check_grasp(grasp, mesh) -> None:
 
 
 @model.command("fem")
-@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml", help="The scene file (TOML).")
 @click.option("--resolution", type=float, default=None, help="Target edge of the body-fitted mesh in millimetres, 3..8 (default: the scene's, else 8; 8, 6 and 4 are shipped).")
 @click.option("--formulation", type=click.Choice(["linear", "corotational", "finite-strain", "nodal-pressure"]), default="linear", show_default=True,
               help="finite-strain: the scene's material law (docs/material.md), Newton along the pull; nodal-pressure: the same law "
@@ -325,7 +325,7 @@ def _check_grasp(grasp, mesh) -> None:
 @click.option("--steps", type=click.IntRange(1, 200), default=5, show_default=True,
               help="Load steps of the nonlinear solves (finite-strain: the first step is 1/steps of the pull, then adaptive).")
 @click.option("--order", type=click.IntRange(1, 2), default=None, help="Element order: 1 linear, 2 quadratic tetrahedra (default: the scene's, else 2; 1 for --formulation corotational and nodal-pressure).")
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacement, steps: int, order, as_json: bool):
     """Pull the brain once with the finite element model: force, displacement, phase times."""
     from sim.models.fem import static_pull
@@ -412,17 +412,17 @@ def _stopped(out: dict) -> str:
 
 
 @model.command("mass-spring")
-@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml", help="The scene file (TOML).")
 @click.option("--resolution", type=float, default=None, help="Target edge of the body-fitted mesh in millimetres, 3..8 (default: the scene's).")
-@click.option("--integrator", type=click.Choice(["explicit", "implicit", "local-global"]), required=True)
+@click.option("--integrator", type=click.Choice(["explicit", "implicit", "local-global"]), required=True, help="The mass-spring's time integrator.")
 @click.option("--dt", type=Finite(min=0.0, min_open=True, max=0.1), required=True, help="Step in seconds, (0, 0.1].")
-@click.option("--steps", type=click.IntRange(1, 1_000_000), default=100, show_default=True)
+@click.option("--steps", type=click.IntRange(1, 1_000_000), default=100, show_default=True, help="Visual frames to run.")
 @click.option("--substep", is_flag=True, help="Split explicit steps above the critical step instead of refusing them.")
 @click.option("--grasp", callback=_vector, default=None,
               help=f"Grasp point X,Y,Z in metres, within the grasp reach ({GRASP_REACH_M * 1e3:g} mm) of the brain surface (default: the scene's first hand).")
 @click.option("--displacement", callback=_pull, default=None,
               help=f"Hand displacement DX,DY,DZ in metres, at most {MAX_PULL_M:g} m long (default: that hand's pull).")
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def model_mass_spring(scene_file, resolution, integrator, dt, steps, substep, grasp, displacement, as_json):
     """Hold a pull on the mass-spring brain and step it: stability, displacement, cost."""
     from sim.models.mass_spring_pull import hold_pull

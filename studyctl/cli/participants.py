@@ -8,6 +8,7 @@ from pathlib import Path
 
 import click
 
+from sim.text import counted
 from studyctl.cli.common import DB, DRY_RUN, FORCE, JSON, OutFile, _console, _done, _Group, _listing, _print_json
 
 
@@ -18,7 +19,7 @@ def participants():
 
 @participants.command("add")
 @click.argument("code")
-@click.option("--age", type=click.IntRange(0, 120), default=None)
+@click.option("--age", type=click.IntRange(0, 120), default=None, help="Age in years (0..120).")
 @click.option("--name", default=None, help="Kept in a separate table that no export or report includes.")
 @click.option("--contact", default=None, help="Kept in a separate table that no export or report includes.")
 @click.option("--field", "fields", multiple=True, metavar="NAME=VALUE",
@@ -56,12 +57,12 @@ def participants_import(csv_file, db, dry_run, as_json):
     from studyctl.study import import_participants
 
     out = import_participants(db, csv_file, dry_run=dry_run)
-    _done(out, f"imported {out['imported']} participants", as_json)
+    _done(out, f"imported {counted(out['imported'], 'participant')}", as_json)
 
 
 @participants.command("list")
 @DB
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def participants_list(db, as_json):
     """Every participant (codes only, never names): kind, consent, slot, session, answers."""
     from studyctl.participants import list_participants
@@ -100,7 +101,7 @@ def participants_withdraw(code, reason, db, dry_run, as_json):
     from studyctl.participants import withdraw
 
     out = withdraw(db, code, reason, dry_run=dry_run)
-    _done(out, f"withdrawn {code}: {out['sessions']} sessions and {out['answers']} answers {out['data']}"
+    _done(out, f"withdrawn {code}: {counted(out['sessions'], 'session')} and {counted(out['answers'], 'answer')} {out['data']}"
           + (f", {out['traces']} trace files deleted" if out["traces"] else "") + "; contact details deleted", as_json)
 
 
@@ -119,7 +120,7 @@ def participants_contacts(db, out_file, force, as_json):
     if as_json:
         _print_json(out)
         return
-    click.echo(f"wrote {out['file']}: IDENTIFYING names and contacts of {out['participants']} participants (readable by you only)")
+    click.echo(f"wrote {out['file']}: IDENTIFYING names and contacts of {counted(out['participants'], 'participant')} (readable by you only)")
 
 
 @click.group("schedule", cls=_Group, invoke_without_command=True)
@@ -127,12 +128,12 @@ def participants_contacts(db, out_file, force, as_json):
               help="Study database; required unless the STUDYCTL_DB environment variable names one.")
 @click.option("--start", help="First day, YYYY-MM-DD (today or later).")
 @click.option("--end", help="Last day, YYYY-MM-DD.")
-@click.option("--hours", default="09:00-17:00", show_default=True)
-@click.option("--session-minutes", type=click.IntRange(5, 480), default=45, show_default=True)
+@click.option("--hours", default="09:00-17:00", show_default=True, help="The lab's hours on weekdays, HH:MM-HH:MM.")
+@click.option("--session-minutes", type=click.IntRange(5, 480), default=45, show_default=True, help="Each slot's length, minutes (5..480).")
 @click.option("--availability", type=click.Path(dir_okay=False, path_type=Path), default=None, help="CSV: code,date,start,end.")
 @click.option("--ics", type=OutFile((".ics",)), default=None, help="Write an iCalendar file (.ics).")
 @FORCE
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 @DRY_RUN
 @click.pass_context
 def schedule_cmd(ctx, db, start, end, hours, session_minutes, availability, ics, force, as_json, dry_run):
@@ -155,7 +156,7 @@ def schedule_cmd(ctx, db, start, end, hours, session_minutes, availability, ics,
     from rich.table import Table
 
     with_slot = len([r for r in rows if r["slot_start"]])
-    t = Table(title=("DRY RUN, nothing stored: " if dry_run else "") + f"Schedule ({with_slot} of {len(rows)} participants have a slot)")
+    t = Table(title=("DRY RUN, nothing stored: " if dry_run else "") + f"Schedule ({with_slot} of {counted(len(rows), 'participant')} {'has' if with_slot == 1 else 'have'} a slot)")
     for col in ("participant", "start", "end", "order"):
         t.add_column(col)
     for r in rows:

@@ -35,11 +35,11 @@ def _range(ctx, param, value):
 @click.command("plan", cls=click.Command)
 @click.option("--participants", "span", default=None, callback=lambda c, p, v: None if v is None else _range(c, p, v),
               help="N, or a range of N such as 12..60  [default: 12..60; with --null 35]")
-@click.option("--step", type=click.IntRange(1, 100), default=6, show_default=True)
-@click.option("--simulations", type=click.IntRange(10, 100000), default=200, show_default=True)
+@click.option("--step", type=click.IntRange(1, 100), default=6, show_default=True, help="Participants between the N tried.")
+@click.option("--simulations", type=click.IntRange(10, 100000), default=200, show_default=True, help="Simulated studies per N.")
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path),
-              default=DEFAULT_PROTOCOL, show_default="the shipped protocols/brain_pull_2015.toml")
-@click.option("--seed", type=SEED, default=0, show_default=True)
+              default=DEFAULT_PROTOCOL, show_default="the shipped protocols/brain_pull_2015.toml", help="The protocol whose study is simulated.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the simulated studies (the same seed, the same table).")
 @click.option("--pilots", type=click.IntRange(1, 50), default=4, show_default=True, help="Synthetic pilot runs per model.")
 @click.option("--plot", "plot_file", type=OutFile((".png", ".svg", ".pdf")), default=None, help="Write the power curves (PNG, SVG or PDF).")
 @FORCE
@@ -47,7 +47,7 @@ def _range(ctx, param, value):
 @click.option("--model", "null_model", default=None, help="With --null: the model to repeat  [default: the protocol's first condition]")
 @click.option("--jobs", type=click.IntRange(1, 256), default=1, show_default=True, help="Simulated studies run in parallel processes.")
 @SCHEDULER
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, force, null, null_model, jobs, scheduler, as_json):
     """Monte Carlo power under the SYNTHETIC model, to choose N: of the protocol's primary
     analysis and of each question's test (Cochran's Q, Friedman, the multinomial); with --null,

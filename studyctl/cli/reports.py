@@ -13,6 +13,7 @@ from brainsim_assets import path as _asset
 from sim.errors import InputFileError
 from sim.files import DATA_MAX_BYTES, read_input
 from sim.jsonable import jsonable
+from sim.text import counted
 from studyctl.cli.common import (
     DB,
     FORCE,
@@ -48,8 +49,8 @@ HOLM = click.option("--holm", "holm_scope", type=click.Choice(["family", "questi
 @report.command("table1")
 @DB
 @HOLM
-@click.option("--format", "fmt", type=click.Choice(TABLE1_FORMATS), default=None, show_default=FORMAT_DEFAULT)
-@click.option("--out", "out_file", type=OutFile(), default=None)
+@click.option("--format", "fmt", type=click.Choice(TABLE1_FORMATS), default=None, show_default=FORMAT_DEFAULT, help="The output's format.")
+@click.option("--out", "out_file", type=OutFile(), default=None, help="Write the report to this file (default: print it).")
 @FORCE
 @click.option("--accuracy", "accuracy_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="accuracy.json from `studyctl bench accuracy --out`: add its tables (md, latex, html) and Pareto plot (html).")
@@ -185,9 +186,9 @@ def _jnd_text(study, fmt: str) -> str:
 
 @report.command("jnd")
 @DB
-@click.option("--format", "fmt", type=click.Choice(FORMATS), default=None, show_default=FORMAT_DEFAULT)
+@click.option("--format", "fmt", type=click.Choice(FORMATS), default=None, show_default=FORMAT_DEFAULT, help="The output's format.")
 @click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
-@click.option("--out", "out_file", type=OutFile(), default=None)
+@click.option("--out", "out_file", type=OutFile(), default=None, help="Write the report to this file (default: print it).")
 @FORCE
 def report_jnd(db, fmt, as_json, out_file, force):
     """Stiffness discrimination: each participant's psychometric fit and Weber fraction with its
@@ -226,7 +227,7 @@ def report_plots(db, out_dir, force, size, as_json):
     if as_json:
         _print_json({"out": str(out_dir), "size": size, "files": [file_info(f) for f in files]})
         return
-    click.echo(f"wrote {len(files)} files ({size} size) to {out_dir}")
+    click.echo(f"wrote {counted(len(files), 'file')} ({size} size) to {out_dir}")
 
 
 @report.command("stats")
@@ -296,7 +297,7 @@ def report_stats(db, holm_scope, as_json):
     if gee and kinds.primary.analysis != "logistic_gee":  # the primary's own line is printed first
         click.echo(gee.replace("`", ""))
     for row in out.deformation.rows:
-        click.echo(f"deformation time, {row['model']}: {mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])} ms over {row['n_participants']} participants "
+        click.echo(f"deformation time, {row['model']}: {mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])} ms over {counted(row['n_participants'], 'participant')} "
                    f"({out.deformation.label})")
 
 
@@ -304,9 +305,9 @@ def report_stats(db, holm_scope, as_json):
 @DB
 @HOLM
 @click.option("--style", type=click.Choice(["apa"]), default="apa", show_default=True, help="Number style: APA 7 (p = .066, p < .001).")
-@click.option("--format", "fmt", type=click.Choice(TEXT_FORMATS), default=None, show_default=FORMAT_DEFAULT)
+@click.option("--format", "fmt", type=click.Choice(TEXT_FORMATS), default=None, show_default=FORMAT_DEFAULT, help="The output's format.")
 @click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
-@click.option("--out", "out_file", type=OutFile(), default=None)
+@click.option("--out", "out_file", type=OutFile(), default=None, help="Write the report to this file (default: print it).")
 @FORCE
 def report_text(db, holm_scope, style, fmt, as_json, out_file, force):
     """The methods and results paragraphs for a paper (participants, design, apparatus, procedure,
@@ -325,8 +326,8 @@ def report_text(db, holm_scope, style, fmt, as_json, out_file, force):
 
 @report.command("published")
 @click.option("--table", "table_file", type=click.Path(dir_okay=False, path_type=Path), default=PAPER_TABLE,
-              show_default="the seed paper's Table 1, data/paper_table1.csv")
-@click.option("--json", "as_json", is_flag=True)
+              show_default="the seed paper's Table 1, data/paper_table1.csv", help="The published table to check (CSV).")
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def report_published(table_file, as_json):
     """Check a published Table 1: printed rates against their counts, and what counts allow."""
     from analysis.stats import published
@@ -350,7 +351,7 @@ def report_published(table_file, as_json):
 
 @click.command("export", cls=click.Command)
 @DB
-@click.option("--format", "fmt", type=click.Choice(["csv", "parquet"]), default="csv", show_default=True)
+@click.option("--format", "fmt", type=click.Choice(["csv", "parquet"]), default="csv", show_default=True, help="The files' format (parquet: the parquet extra).")
 @click.option("--out", "out_dir", required=True, type=OutDir(), help="A folder (made if missing) for one file per table.")
 @FORCE
 @JSON
@@ -364,14 +365,14 @@ def export_cmd(db, fmt, out_dir, force, as_json):
     if as_json:
         _print_json({"out": str(out_dir), "format": fmt, "files": [str(f) for f in files]})
         return
-    click.echo(f"wrote {len(files)} files to {out_dir}")
+    click.echo(f"wrote {counted(len(files), 'file')} to {out_dir}")
 
 
 @report.command("validity")
 @DB
-@click.option("--format", "fmt", type=click.Choice(FORMATS), default=None, show_default=FORMAT_DEFAULT)
+@click.option("--format", "fmt", type=click.Choice(FORMATS), default=None, show_default=FORMAT_DEFAULT, help="The output's format.")
 @click.option("--json", "as_json", is_flag=True, help="The same as --format json.")
-@click.option("--out", "out_file", type=OutFile(), default=None)
+@click.option("--out", "out_file", type=OutFile(), default=None, help="Write the report to this file (default: print it).")
 @FORCE
 @click.option("--permutations", type=click.IntRange(1, 1_000_000), default=None, show_default="100",
               help="Permutations of the classifier's permutation test.")

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from sim.text import counted
 from studyctl.cli.common import (
     DB,
     DEVICES,
@@ -36,7 +37,7 @@ def session():
 
 @session.command("run")
 @DB
-@click.option("--participant", required=True)
+@click.option("--participant", required=True, help="The participant's code, e.g. P01.")
 @click.option("--device", type=click.Choice(["simulated", "mouse", "openhaptics"]), default="simulated", show_default=True,
               help="mouse: pilot a session without hardware (needs --view window).")
 @click.option("--synthetic", is_flag=True, help="A synthetic participant answers (data labelled synthetic).")
@@ -63,13 +64,13 @@ def session_run(db, participant, device, synthetic, resume, time_scale, view, an
     if as_json:
         _print_json(out)
         return
-    click.echo(f"session {out['session']} of {out['participant']} complete: conditions {' > '.join(out['order'])}, {out['answers']} answers"
+    click.echo(f"{out['participant']}'s session complete (session {out['session']} of the study): conditions {' > '.join(out['order'])}, {counted(out['answers'], 'answer')}"
                + (" (SYNTHETIC)" if out["synthetic"] else ""))
 
 
 @session.command("list")
 @DB
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def session_list(db, as_json):
     """Every session: participant, state, device, person or synthetic, trials and answers."""
     from studyctl.participants import list_sessions
@@ -82,13 +83,13 @@ sessions_alias = _Group("sessions", commands={"list": session_list}, help="Alias
 
 @click.command("replay", cls=click.Command)
 @DB
-@click.option("--session", "session_id", type=click.IntRange(1, 2**63 - 1), required=True)
+@click.option("--session", "session_id", type=click.IntRange(1, 2**63 - 1), required=True, help="The session's number in the study (`session list`).")
 @click.option("--trial", type=click.IntRange(1, 10_000), required=True, help="The session's K-th trial, in the order run (1 = the first).")
 @click.option("--view", type=click.Choice(["none", "window"]), default="none", show_default=True, help="window: play it back in real time.")
 @click.option("--frames", "frames_dir", type=OutDir(), default=None, help="Write pictures, the force plot and the trace.")
 @FORCE
 @FULLSCREEN
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def replay_cmd(db, session_id, trial, view, frames_dir, force, fullscreen, as_json):
     """Play a stored trial back: its recorded hand motion through the same model and scene."""
     from studyctl.session.trial_replay import replay_trial
@@ -124,7 +125,7 @@ def replay_cmd(db, session_id, trial, view, frames_dir, force, fullscreen, as_js
 @click.option("--participants", type=click.IntRange(1, 1000), default=None, help="How many new synthetic participants (1..1000).")
 @click.option("--complete", is_flag=True,
               help="Run the participants an interrupted synth registered without a session, bringing that run to its N.")
-@click.option("--seed", type=SEED, default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the new participants' traits and answers (the same seed, the same study).")
 @click.option("--jobs", type=click.IntRange(1, 64), default=1, show_default=True, help="Sessions run in parallel processes.")
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Create --db for this protocol when it does not exist (e.g. protocols/brain_pull_2015.toml); without it, --db must exist.")

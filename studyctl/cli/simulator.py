@@ -34,7 +34,7 @@ def sim():
 
 
 @sim.command("run")
-@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml", help="The scene file (TOML).")
 @click.option("--model", "model_name", default=None,
               help="A model configured in the scene, e.g. plate_spring or plate-spring  [default: the scene's]")
 @click.option("--duration", type=Finite(min=0.0, min_open=True, max=MAX_DURATION_S), default=None, help="Simulated seconds (default: the scene's).")
@@ -94,10 +94,10 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
 
 
 @sim.command("live")
-@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml")
+@click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml", help="The scene file (TOML).")
 @click.option("--model", "model_name", default=None,
               help="A model configured in the scene, e.g. plate_spring or plate-spring  [default: the scene's]")
-@click.option("--device", type=click.Choice(["mouse", "simulated", "openhaptics"]), default="mouse", show_default=True)
+@click.option("--device", type=click.Choice(["mouse", "simulated", "openhaptics"]), default="mouse", show_default=True, help="What moves the hand.")
 @click.option("--duration", type=Finite(min=0.0, min_open=True, max=MAX_DURATION_S), default=600.0, show_default=True, help="Seconds at most; Q, Escape or closing the window ends it sooner.")
 @click.option("--screenshot", type=OutFile((".png",)), default=None, help="Save the last frame shown (PNG).")
 @FORCE

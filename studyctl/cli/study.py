@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from sim.text import counted
 from studyctl.cli.common import DB, DEFAULT_PROTOCOL, FORCE, JSON, _Group, _print_json
 
 
@@ -60,7 +61,7 @@ def protocol_validate(file: Path, as_json: bool):
     if p.trials_per_condition:  # a discrimination protocol has only its tasks' trials
         what.append(f"{_count(p.trials_per_condition, 'trial')} per condition")
     what += [f"{t.kind} of {t.parameter} in {_count(t.trials, 'trial')} per condition" for t in p.tasks]
-    click.echo(f"{file}: ok ({p.name}: {', '.join(what)}, target {p.target_participants} participants)")
+    click.echo(f"{file}: ok ({p.name}: {', '.join(what)}, target {counted(p.target_participants, 'participant')})")
 
 
 def _count(n: int, noun: str) -> str:
@@ -74,7 +75,7 @@ def study():
 
 @study.command("init")
 @click.option("--protocol", "protocol_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              show_default="the shipped protocols/brain_pull_2015.toml")
+              show_default="the shipped protocols/brain_pull_2015.toml", help="The study's protocol file (TOML).")
 @DB
 @JSON
 def study_init(protocol_file: Path, db: Path, as_json: bool):
@@ -108,7 +109,7 @@ def study_migrate(db: Path, as_json: bool):
 
 @click.command("status", cls=click.Command)
 @DB
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def status_cmd(db, as_json):
     """Where the study stands: participants, sessions by state, progress to the target N, who is next."""
     from studyctl.participants import status
@@ -120,13 +121,13 @@ def status_cmd(db, as_json):
     p, c = out["participants"], out["complete"]
     mixed = f", {c['mixed']} of them with a person's answers too" if c["mixed"] else ""
     gone = out["complete_withdrawn"]
-    click.echo(f"{out['study']}: {c['persons']} of {out['target_participants']} people complete"
+    click.echo(f"{out['study']}: {c['persons']} of {counted(out['target_participants'], 'person')} complete"
                + (f" (and {c['synthetic']} SYNTHETIC{mixed})" if c["synthetic"] else "")
                + (f" ({gone} of these withdrew, data kept: counted, as in the reports)" if gone else ""))
     if out["incomplete"]:
         click.echo("incomplete: " + ", ".join(f"{r['code']} ({r['answers']}/{r['of']})" for r in out["incomplete"]))
     gone_synthetic = p["withdrawn_synthetic"]
-    click.echo(f"participants: {p['persons']} people ({p['consented']} consented, {p['withdrawn'] - gone_synthetic} withdrawn), "
+    click.echo(f"participants: {counted(p['persons'], 'person')} ({p['consented']} consented, {p['withdrawn'] - gone_synthetic} withdrawn), "
                f"{p['synthetic']} synthetic" + (f" ({gone_synthetic} withdrawn)" if gone_synthetic else ""))
     click.echo("sessions: " + (", ".join(f"{n} {k}" for k, n in sorted(out["sessions"].items())) or "none yet"))
     click.echo(f"answers: {out['answers']}")

@@ -37,6 +37,7 @@ from analysis.trace_files import trace_dir, write_trace
 from analysis.verification.truth import load_truth
 from sim.run import Pacing, run_scene
 from sim.servo.process import ServoProcess
+from sim.text import counted
 from studyctl.conditions import (
     SOFTWARE_VERSION,
     condition_configs,
@@ -377,7 +378,7 @@ def _training(run: _Run) -> None:
     seconds = protocol.training_minutes * 60.0
     ran, early = 0.0, None
     if run.time_scale > 0 and seconds > 0:
-        run.say(f"training: {protocol.training_minutes:g} minutes of free pulling; the experimenter ends it early with "
+        run.say(f"training: {counted(float(protocol.training_minutes), 'minute')} of free pulling; the experimenter ends it early with "
                 + ("E in the window or " if shown is not None else "") + "Enter in the terminal")
 
         def training_caption(phase, left):

@@ -13,6 +13,7 @@ from analysis.errors import InputError, Interrupted
 from analysis.faults import condition_events, kinds_text
 from brainsim_assets import path as asset
 from sim.sweep import completed, reachable
+from sim.text import counted
 from studyctl.fields import field_rows, synthetic_fields
 from studyctl.protocol import load_protocol
 from studyctl.session.lock import synth_lock
@@ -87,8 +88,8 @@ def run_synthetic_study(db, participants: int | None, seed: int = 0, jobs: int =
         except (KeyboardInterrupt, Interrupted):  # Ctrl-C between sessions, or inside one (run_session's own Interrupted
             # names its scratch study, which is gone): either way the registered participants left are completed by --complete
             left = len(runs) - stored
-            raise Interrupted(f"synth: interrupted after {stored} of {len(runs)} sessions (each stored whole); "
-                              f"`studyctl synth --db {db} --complete` runs the {left} registered participant{'s' if left != 1 else ''} "
+            raise Interrupted(f"synth: interrupted after {stored} of {counted(len(runs), 'session')} (each stored whole); "
+                              f"`studyctl synth --db {db} --complete` runs the {counted(left, 'registered participant')} "
                               f"left without one, completing this run's {len(runs)}") from None
         total = roster.synthetic_with_session(store)
         warnings = fault_warnings(list(protocol.conditions), trial_events(store))

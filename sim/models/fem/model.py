@@ -21,7 +21,7 @@ import scipy.sparse as sp
 from sim.errors import ParameterError
 from sim.geometry.patch import GRASP_RADIUS, patch_area_points
 from sim.geometry.tetmesh import body_volume
-from sim.geometry.volume import embed, locate
+from sim.geometry.volume import centroid_tree, embed, locate
 from sim.laws import Linearised, PairTable
 from sim.models.base import Contact
 from sim.models.builtin import FemBase, FemOptions
@@ -115,6 +115,9 @@ class FemModel(FemBase):
         self.surface_matrix = self._surface_matrix()
         self.embed_s = time.perf_counter() - start
         surface.prepare_queries()
+        # one-time work of a grasp, done now: a run's first grasps took over the grasp budget
+        # building each part's centroid tree (about 100 ms on the 8 mm P2 mesh)
+        self.centroid_trees = [centroid_tree(part.nodes, part.tets) for part in self.parts]
         self._pair_of: tuple | None = None  # (the two contacts' data, their pair stiffness)
         self._grasps: dict[int, tuple] = {}  # surface vertex -> its condensed grasp (`grasp`)
         # surface vertex -> (part, W, the factor's unscaled solve of W^T): the costly part of a
@@ -193,6 +196,18 @@ class FemModel(FemBase):
         normal = tuple(float(c) for c in self.surface.vertex_normals[v])
         return Contact(hand=hand, vertex=int(v), point=anchor, normal=normal, data=data, law=Linearised(K=data.K))
 
+    @property
+    def condensed_vertices(self) -> frozenset[int]:
+        """The surface vertices whose grasp is condensed and kept (a grasp there costs a look-up)."""
+        return frozenset(self._grasps)
+
+    def prepare_grasps(self, points) -> None:
+        """Condense the grasps at `points` now (the scene's hands start there): a grasp's work at a
+        new vertex (its patch located, three solves: 200-300 ms on the 8 mm P2 mesh) is then the
+        build's, and the run's first grasps there cost a cache look-up."""
+        for point in points:
+            self._condensed(int(self.surface.nearest_vertex(point)))
+
     def _condensed(self, v: int) -> tuple:
         """(part, W, U, C, K) of a grasp at surface vertex `v`: a function of the vertex alone,
         computed once per model (three solves and the patch's location; the motor model grasps the same few vertices in every trial of a session). U and C are
@@ -207,7 +222,7 @@ class FemModel(FemBase):
                 # reference's functional (its vertex mean, a handful of point constraints, would soften
                 # without limit as the mesh is refined: 13% from 8 to 4 mm on P2)
                 points, weights = patch_area_points(self.surface, v, self.grasp_radius)
-                tet, bary = locate(fem.nodes, fem.tets, points)
+                tet, bary = locate(fem.nodes, fem.tets, points, tree=self.centroid_trees[part])
                 W = constraint_matrix(fem, tet, bary, weights)  # `condense` refuses a patch that cannot move
                 located = (part, W, fem.factor.unscaled_solve(np.ascontiguousarray(W.T.toarray())))
                 while len(self._located) >= GRASPS_KEPT:
@@ -414,5 +429,7 @@ def build(mesh, opts: dict, scene):
     volume = body_volume(mesh, float(opts.get("resolution", DEFAULT_RESOLUTION)))
     material = scene.spec.material
     fixed = fixed_nodes(volume, mesh, scene.fixed_mask, AXES[scene.spec.fixed.axis])
-    return FemModel(mesh, volume, material.young, material.poisson, fixed, opts.get("formulation", "linear"), opts.get("grasp_radius", GRASP_RADIUS),
-                    order=int(opts.get("order", DEFAULT_ORDER)))
+    model = FemModel(mesh, volume, material.young, material.poisson, fixed, opts.get("formulation", "linear"), opts.get("grasp_radius", GRASP_RADIUS),
+                     order=int(opts.get("order", DEFAULT_ORDER)))
+    model.prepare_grasps([h.start for h in scene.spec.hands])
+    return model
