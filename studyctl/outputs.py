@@ -5,9 +5,10 @@ same folder, so the move is a rename on one file system) and moved into place on
 whole of it is written; a failed or interrupted write removes what it wrote, so nothing is left
 that blocks the retry. Whether a target exists is checked before the work where the names are
 known, and again, for every file written, before anything is moved. With `force`, a file output
-replaces the file of its name; a folder output that exists is replaced whole (built beside it, the
-old one moved aside and removed only once the new one is in place): the earlier files of the
-command's own kinds go, files it does not write are kept in the new folder and named.
+replaces the file of its name; a folder output that exists is replaced whole in place: the new
+files moved in, then the earlier files of the command's own kinds that this run did not write
+removed; files it does not write are kept and named. The folder itself stays (it may hold a study
+in use, with its locks and traces).
 
 Never, with or without `force`: an output that is one of the command's inputs or inside one (a
 study database's companions: its WAL, traces and locks), an existing target that is not a regular
@@ -161,16 +162,21 @@ def refuse_special(path, folder: bool = False) -> None:
 
 
 def refuse_overlap(outputs: Mapping) -> None:
-    """`outputs`: option -> (path or None, whether it is a folder). Two on one path, or one inside
-    a folder another writes, is an `OutputConflict`: refused before any work."""
+    """`outputs`: option -> (path or None, what it is: False for a file; for a folder, the glob
+    patterns of the names it writes at its top, `Staged`'s `own`). Two on one path, or a file
+    the folder writes itself, is an `OutputConflict`: refused before any work. Another file
+    inside the folder is no conflict: it is kept there like any file the folder does not write."""
     given = [(o, p, f) for o, (p, f) in outputs.items() if p is not None]
     for i, first in enumerate(given):
         for second in given[i + 1:]:
             if _same(first[1], second[1]):
                 raise OutputConflict(f"{second[1]}: both {first[0]} and {second[0]} name it; choose one place for each")
-            for (oa, pa, fa), (ob, pb, _) in ((first, second), (second, first)):
-                if fa and _within(_real(pb), _real(pa)):
-                    raise OutputConflict(f"{pb}: {ob} lies in the folder {oa} writes ({pa}); choose another {ob}")
+            for (oa, pa, own), (ob, pb, _) in ((first, second), (second, first)):
+                if own is False or not _within(_real(pb), _real(pa)):
+                    continue
+                inside = Path(os.path.relpath(_real(pb), _real(pa)))
+                if any(_matches(inside, p) for p in own):
+                    raise OutputConflict(f"{pb}: {ob} names a file {oa} writes ({pa}); choose another {ob}")
 
 
 # the format a file's suffix names; a report takes its format from it when --format is not given
@@ -264,7 +270,8 @@ class Staged:
             raise _failed(self.target, exc) from None
 
     def _make(self) -> Path:
-        parent = self.target.parent
+        # the folder that holds the target, whatever its name: "." or "fr/.." hold nothing beside them
+        parent = Path(os.path.abspath(self.target)).parent
         parent.mkdir(parents=True, exist_ok=True)
         # a short fixed prefix, not the target's name: a name near the file system's limit must not
         # become one over it once the temporary's parts are added
@@ -337,49 +344,14 @@ class Staged:
             os.replace(self.tmp / f, self.target / f)
 
     def _replace_whole(self, files) -> None:
-        """Where earlier files of the command's go: the new folder, with the old one's files the
-        command does not write linked into it, renamed into place; the old one moved aside first
-        and removed last, so a failure leaves it."""
+        """Where earlier files of the command's go: the new files moved in, then the command's own
+        earlier files that this run did not write removed; everything else in the folder is left
+        where it is (the folder itself is never swapped: it may hold a study in use, its locks and
+        traces, or be a shell's working folder)."""
         new = set(files)
-        old, empty = _entries(self.target)
-        gone = [f for f in old if f not in new]
+        gone = [f for f in _entries(self.target) if f not in new]
         self.removed = [self.target / f for f in gone if any(_matches(f, p) for p in self.own)]
-        keep = [f for f in gone if self.target / f not in self.removed]
-        self.kept = [self.target / f for f in keep]
-        # nothing to remove: the files replaced where they are (a folder holding a study in use stays
-        # as it is); a linked folder stays where the link points
-        if not self.removed or os.path.islink(self.target) or not self._link(keep, empty):
-            self._in_place(files)
-            return
-        os.chmod(self.tmp, stat.S_IMODE(os.stat(self.target).st_mode))
-        aside = tempfile.mkdtemp(prefix=_PREFIX, suffix=".old", dir=self.target.parent)
-        try:
-            os.rename(self.target, aside)  # over the empty folder just made
-        except OSError:  # a mount point, a folder in use: the files replaced one by one
-            os.rmdir(aside)
-            self._in_place(files)
-            return
-        try:
-            os.rename(self.tmp, self.target)
-        except OSError:
-            os.rename(aside, self.target)
-            raise
-        shutil.rmtree(aside, ignore_errors=True)
-
-    def _link(self, keep, empty) -> bool:
-        """The kept files hard-linked into the new folder (the same files, not copies); False where
-        the file system takes no hard links."""
-        try:
-            for d in empty:
-                (self.tmp / d).mkdir(parents=True, exist_ok=True)
-            for f in keep:
-                (self.tmp / f).parent.mkdir(parents=True, exist_ok=True)
-                os.link(self.target / f, self.tmp / f, follow_symlinks=False)
-        except OSError:
-            return False
-        return True
-
-    def _in_place(self, files) -> None:
+        self.kept = [self.target / f for f in gone if self.target / f not in self.removed]
         self._join(files)
         for f in self.removed:
             f.unlink()
@@ -391,16 +363,16 @@ def _matches(path: Path, pattern: str) -> bool:
     return len(path.parts) == len(parts) and all(fnmatch.fnmatchcase(a, b) for a, b in zip(path.parts, parts))
 
 
-def _entries(folder: Path) -> tuple[list[Path], list[Path]]:
-    """The files and links under `folder` (relative, links to folders not followed), and its empty folders."""
-    files, empty = [], []
+def _entries(folder: Path) -> list[Path]:
+    """The files and links under `folder` (relative, links to folders not followed), but for this
+    tool's own temporaries (another command's output being staged there)."""
+    files = []
     for root, dirs, names in os.walk(folder):
         rel = Path(root).relative_to(folder)
+        dirs[:] = [d for d in dirs if not d.startswith(_PREFIX)]
         links = [d for d in dirs if os.path.islink(os.path.join(root, d))]
-        files += [rel / n for n in (*names, *links)]
-        if not names and not dirs and rel != Path("."):
-            empty.append(rel)
-    return sorted(files), empty
+        files += [rel / n for n in (*names, *links) if not n.startswith(_PREFIX)]
+    return sorted(files)
 
 
 def write_file(path, data: str | bytes, force: bool = False, mode: int | None = None, inputs: Mapping | None = None,

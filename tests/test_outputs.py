@@ -2,6 +2,7 @@
 all or none (studyctl/outputs.py): every output option of every command, through the CLI."""
 
 import errno
+import fnmatch
 import hashlib
 import re
 from pathlib import Path
@@ -464,12 +465,12 @@ def test_force_replaces_a_symlink_to_a_regular_file_and_leaves_the_file_it_named
 @pytest.mark.parametrize("force", [False, True], ids=["", "--force"])
 @pytest.mark.parametrize(("argv", "message"), [
     (["sim", "run", "--scene", "{tmp}/scene.toml", "--view", "window", "--frames", "{tmp}/fr", "--screenshot", "{tmp}/fr/force.png"],
-     "{tmp}/fr/force.png: --screenshot lies in the folder --frames writes ({tmp}/fr); choose another --screenshot"),
-    (["sim", "run", "--scene", "{tmp}/scene.toml", "--view", "window", "--frames", "{tmp}/fr", "--screenshot", "{tmp}/fr/new.png"],
-     "{tmp}/fr/new.png: --screenshot lies in the folder --frames writes ({tmp}/fr); choose another --screenshot"),
+     "{tmp}/fr/force.png: --screenshot names a file --frames writes ({tmp}/fr); choose another --screenshot"),
+    (["sim", "run", "--scene", "{tmp}/scene.toml", "--view", "window", "--frames", "{tmp}/fr", "--screenshot", "{tmp}/fr/frame_0001.png"],
+     "{tmp}/fr/frame_0001.png: --screenshot names a file --frames writes ({tmp}/fr); choose another --screenshot"),
     (["calibrate", "field", "--out", "{tmp}/f.npz", "--params-out", "{tmp}/p.toml"],
      "{tmp}/p.toml: both --out and --params-out name it; choose one place for each"),
-], ids=["screenshot on a frame file", "screenshot in the frames folder", "params on the field"])
+], ids=["screenshot on a frame file", "a screenshot named as a frame", "params on the field"])
 def test_two_outputs_of_one_command_on_one_path_are_refused_before_any_work(argv, message, force, tmp_path):
     fast_protocol(tmp_path)
     (tmp_path / "fr").mkdir()
@@ -481,6 +482,19 @@ def test_two_outputs_of_one_command_on_one_path_are_refused_before_any_work(argv
     assert res.exit_code == 1, res.output
     assert res.output.strip().splitlines() == [f"Error: {message.format(tmp=tmp_path)}"]
     assert _state(tmp_path) == before
+
+
+def test_a_file_of_another_name_inside_a_folder_output_is_no_conflict(tmp_path):
+    """`sim run --frames fr --screenshot fr/shot.png`: the screenshot is kept in the folder like
+    any file the frames do not write; only the folder's own names are refused."""
+    from studyctl.cli.common import FRAMES_OWN
+    from studyctl.outputs import OutputConflict, refuse_overlap
+
+    refuse_overlap({"--frames": (tmp_path / "fr", FRAMES_OWN), "--screenshot": (tmp_path / "fr" / "shot.png", False)})
+    with pytest.raises(OutputConflict, match="names a file --frames writes"):
+        refuse_overlap({"--frames": (tmp_path / "fr", FRAMES_OWN), "--screenshot": (tmp_path / "fr" / "trace.csv", False)})
+    with pytest.raises(OutputConflict, match="names a file --frames writes"):
+        refuse_overlap({"--frames": (tmp_path / "fr", FRAMES_OWN), "--screenshot": (tmp_path / "fr" / "frame_0003.png", False)})
 
 
 def test_a_study_database_s_companions_are_named_as_the_store_names_them(tmp_path):
@@ -528,29 +542,57 @@ def test_force_replaces_a_frames_folder_whole_and_says_what_it_removed_and_kept(
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # nothing left aside
 
 
-def test_a_folder_that_cannot_be_renamed_into_place_leaves_the_old_one(tmp_path, monkeypatch):
-    import os
+def test_force_never_swaps_the_folder_itself(small_study, tmp_path):
+    """A folder output may hold the study it reads (its WAL, locks and traces) or be a shell's
+    working folder: --force replaces files in it, the folder stays the same folder."""
+    import shutil
 
-    from studyctl import outputs
+    out = tmp_path / "st"
+    shutil.copytree(Path(small_study).parent, out)  # the study, its traces beside it
+    db = out / Path(small_study).name
+    (out / "answers.parquet").write_bytes(OLD)  # an earlier export of the other format: removed
+    inode = out.stat().st_ino
+    res = studyctl("export", "--db", db, "--out", out, "--force")
+    assert res.exit_code == 0, res.output
+    assert out.stat().st_ino == inode
+    assert not (out / "answers.parquet").exists()
+    assert studyctl("status", "--db", db).exit_code == 0
 
-    out = tmp_path / "plots"
+
+def test_a_folder_output_named_dot_stages_beside_it_not_inside(small_study, tmp_path, monkeypatch):
+    out = tmp_path / "here"
     out.mkdir()
-    for name in ("rates.png", "old.png", "notes.txt"):
+    (out / "notes.txt").write_bytes(OLD)
+    monkeypatch.chdir(out)
+    res = studyctl("export", "--db", small_study, "--out", ".", "--force")
+    assert res.exit_code == 0, res.output
+    assert ".studyctl-" not in res.output
+    assert "kept 1 file in . it does not write (notes.txt)" in res.output
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".studyctl-")]
+    assert not [p for p in out.iterdir() if p.name.startswith(".studyctl-")]
+
+
+def test_report_plots_force_keeps_a_users_own_figures(small_study, tmp_path):
+    """Only the figures `report plots` writes are its own: a manuscript or a logo in the folder stays."""
+    out = tmp_path / "fig"
+    out.mkdir()
+    for name in ("manuscript.pdf", "logo.png", "choice_old.png"):
         (out / name).write_bytes(OLD)
-    before = _state(tmp_path)
-    real = os.rename
+    res = studyctl("report", "plots", "--db", small_study, "--out", out, "--force")
+    assert res.exit_code == 0, res.output
+    assert (out / "manuscript.pdf").read_bytes() == OLD
+    assert (out / "logo.png").read_bytes() == OLD
+    assert not (out / "choice_old.png").exists()
 
-    def refuse_the_new_folder(src, dst):
-        if Path(src).name.endswith(".tmp"):
-            raise OSError(errno.EIO, "Input/output error")
-        return real(src, dst)
 
-    monkeypatch.setattr(outputs.os, "rename", refuse_the_new_folder)
-    target = outputs.Staged(out, force=True, folder=True, own=("*.png",))
-    with pytest.raises(outputs.OutputFailed, match="cannot write: Input/output error; nothing was written"):
-        with target as tmp:
-            (tmp / "rates.png").write_bytes(b"new")
-    assert _state(tmp_path) == before
+def test_every_figure_report_plots_writes_is_one_of_its_own(small_study, tmp_path):
+    from studyctl.cli.reports import FIGURE_FILES
+
+    res = studyctl("report", "plots", "--db", small_study, "--out", tmp_path / "fig")
+    assert res.exit_code == 0, res.output
+    written = sorted(p.name for p in (tmp_path / "fig").iterdir())
+    assert written
+    assert [n for n in written if not any(fnmatch.fnmatchcase(n, pat) for pat in FIGURE_FILES)] == []
 
 
 @pytest.mark.parametrize(("argv", "message"), [

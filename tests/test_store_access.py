@@ -469,3 +469,24 @@ def test_status_counts_withdrawn_synthetic_participants_as_it_counts_the_complet
     assert lines[0] == "brain_pull_2015: 0 of 35 people complete (and 3 SYNTHETIC) (3 of these withdrew, data kept: counted, as in the reports)"
     assert lines[1] == "participants: 0 people (0 consented, 0 withdrawn), 3 synthetic (3 withdrawn)"
 
+
+
+def test_asking_whether_a_database_can_be_written_keeps_this_process_s_locks_on_it(tmp_path):
+    """Closing any descriptor of a file drops every POSIX lock the process holds on it (SQLite's
+    own connections included): the check must not open the file."""
+    import fcntl
+    import subprocess
+    import sys
+
+    from studyctl.store.database import cannot_write
+
+    db = tmp_path / "s.db"
+    db.write_bytes(b"x" * 100)
+    with open(db, "r+b") as held:
+        fcntl.lockf(held, fcntl.LOCK_EX | fcntl.LOCK_NB, 1, 0)
+        assert cannot_write(db) is None
+        probe = ("import fcntl, sys\nf = open(sys.argv[1], 'r+b')\n"
+                 "try:\n    fcntl.lockf(f, fcntl.LOCK_EX | fcntl.LOCK_NB, 1, 0)\n    print('free')\n"
+                 "except OSError:\n    print('held')\n")
+        out = subprocess.run([sys.executable, "-c", probe, str(db)], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "held"

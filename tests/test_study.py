@@ -312,14 +312,12 @@ def test_cli_conventions_hold_for_every_command():
 
 
 def test_a_missing_extra_is_a_one_line_error_naming_it(tmp_path, monkeypatch):
-    import importlib.util
-
     from sim.sweep import SweepError, connect
 
     db = tmp_path / "s.db"
     studyctl("study", "init", "--db", db)  # the shipped protocol
-    real = importlib.util.find_spec
-    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "pyarrow" else real(name, *a))
+    monkeypatch.setitem(sys.modules, "pyarrow", None)  # as if not installed: its import raises ModuleNotFoundError
+    monkeypatch.setitem(sys.modules, "pyarrow.parquet", None)
     res = studyctl("export", "--db", db, "--format", "parquet", "--out", tmp_path / "out")
     assert res.exit_code == 1
     assert "brainsim-study[parquet]" in res.output

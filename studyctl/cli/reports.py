@@ -124,7 +124,10 @@ def report_table1(db, holm_scope, fmt, out_file, force, accuracy_file, stability
     _emit(text, target)
 
 
-FIGURE_FILES = ("*.png", "*.svg", "*.pdf")  # what `report plots` writes: an earlier set's figures go with --force
+# what `report plots` writes (analysis/reports/report.py write_plots' figure names, in any size's
+# formats): an earlier set's figures go with --force, a user's own PDF or PNG in the folder stays
+FIGURE_STEMS = ("rates", "ratings", "scores", "choice_*", "deformation", "force")
+FIGURE_FILES = tuple(f"{stem}.{ext}" for stem in FIGURE_STEMS for ext in ("png", "svg", "pdf"))
 
 
 def _emit(text: str, out) -> None:

@@ -53,7 +53,7 @@ def sim_run(scene_file: Path, model_name, duration, frames_dir, time_scale: floa
 
     # refused before the run: the two outputs on one path, the folder's trace and force plot (its pictures are
     # checked once drawn), the screenshot; the scene is never an output
-    refuse_overlap({"--frames": (frames_dir, True), "--screenshot": (screenshot, False)})
+    refuse_overlap({"--frames": (frames_dir, FRAMES_OWN), "--screenshot": (screenshot, False)})
     inputs = {"--scene": scene_file}
     target = staged(frames_dir, force, folder=True, expect=FRAMES_EXPECTED, inputs=inputs, option="--frames", own=FRAMES_OWN)
     replaced = refuse_existing([screenshot], force, inputs=inputs, option="--screenshot") if screenshot is not None else []

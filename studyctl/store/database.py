@@ -157,12 +157,14 @@ def _tables(conn: sqlite3.Connection) -> list[str]:
 
 def cannot_write(path: Path) -> str | None:
     """Why this process cannot write the database file `path` (its permissions, the immutable
-    flag, a read-only disk, a folder that takes no side file), or None where it can. The file is
-    opened for writing and closed: that changes nothing (root passes a mode check, not the rest)."""
-    try:
-        os.close(os.open(path, os.O_RDWR))
-    except OSError as exc:
-        return (exc.strerror or str(exc)).lower()
+    flag, a read-only disk, a folder that takes no side file), or None where it can. Asked of the
+    kernel (statvfs, access), never by opening the file: closing any descriptor of a file drops
+    every POSIX lock this process holds on it, an open SQLite connection's included."""
+    if os.statvfs(path).f_flag & os.ST_RDONLY:
+        return "read-only file system"
+    if not os.access(path, os.W_OK, effective_ids=os.access in os.supports_effective_ids):
+        # the kernel refuses an immutable file's write to root too; its mode then allows it
+        return "operation not permitted" if os.geteuid() == 0 and os.stat(path).st_mode & 0o200 else "permission denied"
     if not os.access(path.parent, os.W_OK | os.X_OK):
         return f"its folder {path.parent} takes no new file"
     return None
