@@ -118,11 +118,13 @@ def withhold_pairs(pairs: list[dict], held: Mapping[str, str]) -> list[dict]:
 
 def withhold_fit(fit: dict, held: Mapping[str, str], conditions) -> dict:
     """A model fit over `conditions` (a GEE, a mixed model: `problems`, `pairs`) withheld when one
-    of them is: not estimable, every pair withheld, the reason its problem."""
+    of them is: not estimable, every pair withheld (even one of two sound conditions: its
+    contrast comes from the same withheld fit), the reason its problem."""
     why = involving(conditions, held)
     if why is None:
         return fit
-    pairs = [p | {"estimable": False, "ci_low": NAN, "ci_high": NAN} if "estimable" in p else p for p in withhold_pairs(fit.get("pairs") or [], held)]
+    pairs = [p | {k: NAN for k in PAIR_NUMBERS if k in p} | {k: None for k in ("warning",) if k in p} | {"reason": why}
+             | ({"estimable": False, "ci_low": NAN, "ci_high": NAN} if "estimable" in p else {}) for p in fit.get("pairs") or []]
     return fit | {"converged": False, "estimable": False, "problems": [*(fit.get("problems") or []), why], "pairs": pairs}
 
 

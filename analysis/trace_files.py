@@ -29,6 +29,17 @@ def home(db: str | Path) -> Path:
     return Path(os.path.realpath(db)).parent
 
 
+def trace_file(db: str | Path, rel: str) -> Path:
+    """Where a trial row's trace (`rel`) is: beside the real file, else beside the link as
+    given, where software that did not resolve links wrote it (its rows relative to the link's
+    folder); the real file's place when neither holds it (what an error names)."""
+    real = home(db) / rel
+    if real.exists():
+        return real
+    given = Path(db).parent / rel
+    return given if given.exists() else real
+
+
 def trace_dir(db: str | Path) -> Path:
     real = Path(os.path.realpath(db))
     return real.parent / f"{real.name}.traces"
@@ -95,7 +106,7 @@ def write_trace(db: str | Path, session_id: int, position: int, trial: int, resu
 
 def read_trace(db: str | Path, rel: str, sha256: str) -> Trace:
     """The stored trace, checked against the SHA-256 its trial row holds."""
-    path = home(db) / rel
+    path = trace_file(db, rel)
     try:
         data = path.read_bytes()
     except OSError as exc:

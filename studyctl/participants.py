@@ -15,7 +15,7 @@ from pathlib import Path
 
 from analysis.errors import InputError, StoreError
 from analysis.questions import shown
-from analysis.trace_files import trace_dir
+from analysis.trace_files import trace_dir, trace_file
 from sim.text import TEXT_MOST, text_problem
 from studyctl.outputs import refuse_inputs, write_file
 from studyctl.session.lock import SessionRunning, session_lock
@@ -103,7 +103,10 @@ def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
                                   + (f"; reason: {reason}" if reason else ""))
         if delete and not dry_run:  # the files after the rows: a crash between leaves files no row names
             for rel in traces:
-                (store.file.parent / rel).unlink(missing_ok=True)
+                path = trace_file(store.path, rel)  # beside the link where older software wrote it
+                path.unlink(missing_ok=True)
+                if path.parent.is_dir() and not any(path.parent.iterdir()):
+                    path.parent.rmdir()
             for sid in sessions:
                 folder = trace_dir(store.file) / f"session-{sid:04d}"
                 if folder.is_dir() and not any(folder.iterdir()):

@@ -13,7 +13,7 @@ from analysis.reports.plots import pareto
 from analysis.stats import wilson
 from analysis.verification import accuracy
 from analysis.verification.accuracy import Setting, class_best, compare, coupling_bound
-from analysis.verification.accuracy_tables import meets_text, within_text
+from analysis.verification.accuracy_tables import meets_text, tables, within_text
 from sim.pulls import Pull, make_pulls, scene_with
 from sim.scene import DEFAULT_SCENE
 from studyctl.cli import cli
@@ -179,6 +179,42 @@ def test_no_verdict_is_neither_yes_nor_no():
     assert meets_text({"meets_target": None}) == "no verdict"
 
 
+def _quick_rows():
+    """A quick bench run with `--test-places 20`: 240 decided samples a row, 95% within."""
+    return [_row("fem", "linear-8mm", "raw", 0.95, 0.02, 1.0, 2.0, n=240)]
+
+
+def test_rows_past_the_minimum_meet_the_target_in_the_full_bench():
+    assert class_best(_quick_rows())[0]["meets_target"] is True
+
+
+def test_the_quick_bench_gives_no_verdict_even_past_the_minimum():
+    assert class_best(_quick_rows(), quick=True)[0]["meets_target"] is None
+
+
+def test_the_quick_bench_says_why_it_gives_no_verdict():
+    assert class_best(_quick_rows(), quick=True)[0]["why"] == f"quick bench: {accuracy.QUICK_REASON}"
+
+
+def _quick_result():
+    ref = {"setting": "fem p2 20/16 mm", "formulation": "finite strain", "band_rel_median": 0.01, "band_rel_max": 0.02}
+    meta = {"reference": ref, "calibration_pulls": [1], "test_pulls": [1] * 40, "max_pull_m": 0.012, "pull_speed_m_per_s": 0.005,
+            "samples_per_pull": 6, "young_pa": 1000.0, "scene_young_pa": 1000.0, "quick": True}
+    row = _quick_rows()[0] | {"force_error_max": 0.05, "extrapolated": 0, "truth_undecided": 0, "within": 228, "outside": 12, "undecided": 0,
+                              "angle_deg": 1.0, "angle_deg_max": 2.0, "tick_us": 1.0}
+    return {"rows": [row], "meta": meta}
+
+
+def test_the_quick_bench_s_table_says_no_verdict_past_the_minimum():
+    _, best = tables(_quick_result())
+    assert best.rows[0][best.columns.index("meets target")] == "no verdict"
+
+
+def test_the_quick_bench_s_intro_says_why_it_decides_nothing():
+    every, _ = tables(_quick_result())
+    assert f"The quick bench is a smoke run: it decides nothing ({accuracy.QUICK_REASON})." in every.notes
+
+
 def test_each_class_at_its_best_keeps_the_budget_and_gives_up_no_pull():
     rows = [_row("fem", "fast", "raw", 0.20, 0.5, 1.0, 2.0), _row("fem", "slow", "raw", 0.96, 0.04, 30.0, 600.0),
             _row("fem", "corot", "raw", 0.30, 0.4, 5.0, 8.0, unstable=4), _row("fem", "tie", "raw", 0.20, 0.5, 0.5, 0.9),
@@ -304,7 +340,7 @@ def test_the_quick_bench_says_it_decides_nothing(small_bench, monkeypatch):
     monkeypatch.setattr(accuracy, "run_accuracy", lambda *a, **k: out)
     res = CliRunner().invoke(cli, ["bench", "accuracy", "--quick"])
     assert res.exit_code == 0, res.output
-    assert f"quick bench: a smoke run that decides nothing (no row reaches {accuracy.MIN_DECIDED} decided samples)" in res.output
+    assert accuracy.QUICK_NOTE in " ".join(res.output.split())  # rich wraps it to the terminal
     assert "meets target" in res.output
     assert " yes " not in res.output
 
@@ -336,7 +372,7 @@ def test_report_carries_the_accuracy_table_and_pareto_plot(small_bench, small_st
     assert "| fem | linear-8mm | calibrated |" in md
     assert "14.69" in md
     assert "no rate: too few decided samples" in md
-    assert "The quick bench is a smoke run: it decides nothing." in md
+    assert f"The quick bench is a smoke run: it decides nothing ({accuracy.QUICK_REASON})." in md
     tex = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--format", "latex", "--accuracy", str(d / "accuracy.json")]).output
     assert "\\label{tab:accuracy:1}" in tex
     assert "linear-8mm" in tex

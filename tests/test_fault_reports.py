@@ -11,7 +11,7 @@ import math
 import pandas as pd
 import pytest
 
-from analysis.faults import FAULT_SHARE_MAX, condition_events, withhold_pairs
+from analysis.faults import FAULT_SHARE_MAX, condition_events, withhold_fit, withhold_pairs
 from studyctl.synthetic.study import fault_warnings
 from tests.helpers import BAD, fast_protocol, studyctl
 
@@ -54,6 +54,38 @@ def test_workflow_events_and_an_early_end_are_neither_faults_nor_safety_events()
 def test_a_pair_involving_a_withheld_condition_is_not_tested_and_says_why():
     (p,) = withhold_pairs([{"a": "x", "b": "m", "p_value": 0.01, "reason": None}], {"m": "withheld: m is broken"})
     assert math.isnan(p["p_value"]) and p["reason"] == "withheld: m is broken"
+
+
+def _fit_of_three() -> dict:
+    """A model fit over x, y and m whose pair of the two sound conditions looks significant."""
+    pair = {"difference": 1.0, "se": 0.2, "ci_low": 0.6, "ci_high": 1.4, "p_value": 0.01, "estimable": True}
+    return {"converged": True, "estimable": True, "problems": [],
+            "pairs": [{"a": a, "b": b} | pair for a, b in (("x", "y"), ("x", "m"), ("y", "m"))]}
+
+
+def test_a_withheld_fit_reports_no_p_value_even_between_two_sound_conditions():
+    fit = withhold_fit(_fit_of_three(), {"m": "withheld: m is broken"}, ["x", "y", "m"])
+    assert math.isnan(fit["pairs"][0]["p_value"])
+
+
+def test_a_withheld_fit_reports_no_difference_even_between_two_sound_conditions():
+    fit = withhold_fit(_fit_of_three(), {"m": "withheld: m is broken"}, ["x", "y", "m"])
+    assert math.isnan(fit["pairs"][0]["difference"])
+
+
+def test_a_withheld_fit_gives_its_reason_on_every_pair():
+    fit = withhold_fit(_fit_of_three(), {"m": "withheld: m is broken"}, ["x", "y", "m"])
+    assert [p["reason"] for p in fit["pairs"]] == ["withheld: m is broken"] * 3
+
+
+def test_a_withheld_fit_marks_every_pair_not_estimable():
+    fit = withhold_fit(_fit_of_three(), {"m": "withheld: m is broken"}, ["x", "y", "m"])
+    assert [p["estimable"] for p in fit["pairs"]] == [False] * 3
+
+
+def test_a_fit_over_sound_conditions_keeps_its_p_values():
+    fit = withhold_fit(_fit_of_three(), {"z": "withheld: z is broken"}, ["x", "y", "m"])
+    assert [p["p_value"] for p in fit["pairs"]] == [0.01] * 3
 
 
 def test_synth_warns_only_of_a_condition_whose_trials_are_mostly_faults():
@@ -220,3 +252,14 @@ def test_synth_json_carries_the_warning(tmp_path):
     res = studyctl("synth", "--protocol", proto, "--db", tmp_path / "s.db", "--participants", 1, "--seed", 1, "--json")
     out = json.loads(res.stdout)
     assert out["warnings"] == ["condition nan: 1 of 1 trials had a model fault (nan_force 1); the reports withhold every test involving it"]
+
+
+def test_a_withheld_mixed_model_s_pair_of_two_sound_conditions_has_no_p_value(nan_ratings):
+    pairs = [p for v in nan_ratings["kinds"]["scores"].values() for p in v["pairs"] if "nan" not in (p["a"], p["b"])]
+    assert [(p["p_value"], p["p_holm"]) for p in pairs] == [(None, None)]
+
+
+def test_holm_s_family_holds_no_pair_of_a_withheld_mixed_model(nan_ratings):
+    """The family is the tested rating and choice pairs: the withheld SUS model adds none."""
+    tested = [p for part in ("ratings", "choices") for v in nan_ratings["kinds"][part].values() for p in v["pairs"] if p["p_value"] is not None]
+    assert nan_ratings["methods"]["analysis"]["holm_family"] == len(tested)

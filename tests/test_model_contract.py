@@ -428,3 +428,18 @@ def test_model_check_contract_prints_one_violation_for_a_force_of_two_numbers(tm
     assert [ln for ln in res.output.splitlines() if ln.startswith("- VIOLATION")] == [
         "- VIOLATION force: three floats: force has shape (2,), must be (3,)"]
     assert "| two hands at once | not run | skipped: the force's shape is wrong |" in res.output
+
+
+def test_a_force_raising_along_the_pull_is_one_violation_naming_the_exception():
+    row = _contract_rows("ForceRaisesNear")["finite, continuous force along the pull"]
+    assert (row["ok"], row["detail"]) == (False, "raised ValueError: no force under 1 mm")
+
+
+def test_the_checks_after_a_force_raising_along_the_pull_name_the_exception_not_a_nan():
+    row = _contract_rows("ForceRaisesNear")["two hands at once"]
+    assert (row["ok"], row["detail"]) == (None, "skipped: the force along the pull raised ValueError: no force under 1 mm")
+
+
+def test_the_checks_after_a_force_raising_at_its_first_call_name_the_exception_not_a_shape():
+    row = _contract_rows("ForceRaises")["zero force at zero displacement"]
+    assert (row["ok"], row["detail"]) == (None, "skipped: the force raised RuntimeError: no force today")

@@ -490,3 +490,39 @@ def test_asking_whether_a_database_can_be_written_keeps_this_process_s_locks_on_
                  "except OSError:\n    print('held')\n")
         out = subprocess.run([sys.executable, "-c", probe, str(db)], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "held"
+
+
+@pytest.fixture
+def older_linked_study(tmp_path):
+    """A study that software resolving no link wrote through `here/s.db`, a link to `real/r.db`:
+    its traces beside the link (`here/s.db.traces`), its rows' paths relative to `here`."""
+    real, here = tmp_path / "real", tmp_path / "here"
+    real.mkdir()
+    here.mkdir()
+    proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)
+    proto.write_text(proto.read_text().replace('withdrawal = "keep"', 'withdrawal = "delete"'))
+    assert 'withdrawal = "delete"' in proto.read_text()
+    assert studyctl("synth", "--protocol", proto, "--participants", 1, "--seed", 1, "--db", here / "s.db").exit_code == 0
+    (here / "s.db").rename(real / "r.db")
+    (here / "s.db").symlink_to(real / "r.db")
+    return here / "s.db"
+
+
+def test_an_older_linked_study_s_traces_beside_the_link_are_replayed(older_linked_study):
+    res = studyctl("replay", "--session", "1", "--trial", "1", "--json", "--db", older_linked_study)
+    assert res.exit_code == 0, res.output
+
+
+def test_an_older_linked_study_s_traces_beside_the_link_give_metrics(older_linked_study):
+    res = studyctl("metrics", "--db", older_linked_study, "--format", "json")
+    assert res.exit_code == 0, res.output
+
+
+def test_an_older_linked_study_s_replay_reproduces_its_trace(older_linked_study):
+    res = studyctl("replay", "--session", "1", "--trial", "1", "--json", "--db", older_linked_study)
+    assert json.loads(res.output)["max_force_difference_n"] == 0.0
+
+
+def test_withdrawing_with_deletion_deletes_an_older_linked_study_s_traces_beside_the_link(older_linked_study):
+    assert studyctl("participants", "withdraw", "S001", "--db", older_linked_study).exit_code == 0
+    assert not list((older_linked_study.parent / "s.db.traces").rglob("*.npz"))

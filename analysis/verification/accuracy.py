@@ -331,7 +331,7 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
         },
         "quick": cfg.quick,
     }
-    return {"rows": rows, "best": class_best(rows), "samples": samples, "by_displacement": breakdown(samples, "displacement_mm"),
+    return {"rows": rows, "best": class_best(rows, quick=cfg.quick), "samples": samples, "by_displacement": breakdown(samples, "displacement_mm"),
             "by_force_band": breakdown(samples, "force_band"), "meta": meta}
 
 
@@ -503,9 +503,15 @@ TARGET_WITHIN = 0.80  # a class follows the tissue when one configuration is wit
 # The fewest decided held-out samples a rate, a verdict or "meets target" is given from: 39 is the
 # smallest n at which every Wilson 95% interval, whatever the count, is at most RATE_HALF_WIDTH
 # either side, narrow enough that a rate at the 80% target and one at chance (50%) cannot share
-# an interval. Below it a row shows its counts only (the quick bench's rows always are).
+# an interval. Below it a row shows its counts only (the quick bench's rows are, at its two
+# default test places).
 MIN_DECIDED = 39
 RATE_HALF_WIDTH = 0.15
+# The quick bench gives no verdict whatever its samples (`--test-places 20` gives rows past
+# MIN_DECIDED): its truth is two coarse meshes, whose agreement need not mean convergence, and it
+# runs only the cheaper settings, so a "no" would not be the class's either.
+QUICK_REASON = "a coarse reference and the cheaper settings give no verdict, whatever the decided samples"
+QUICK_NOTE = f"quick bench: a smoke run that decides nothing ({QUICK_REASON})"
 
 
 def too_few(n: int) -> str | None:
@@ -513,14 +519,15 @@ def too_few(n: int) -> str | None:
     return f"too few decided samples ({n} < {MIN_DECIDED})" if n < MIN_DECIDED else None
 
 
-def class_best(rows: list[dict], frame_budget_ms: float | None = None) -> list[dict]:
+def class_best(rows: list[dict], frame_budget_ms: float | None = None, quick: bool = False) -> list[dict]:
     """Each class (model) at its best, raw and calibrated: the configuration with the most
     held-out samples within the JND among those whose frame keeps the contract's budget (p99,
     `sim.models.api.BUDGETS`), that gave up no pull and that have at least `MIN_DECIDED` decided
     samples; ties go to the lower force error, then the faster frame. A class with no such
     configuration gets a row with `setting` None and the reason, and `meets_target` None where
     every configuration had too few decided samples (no verdict either way). `meets_target`:
-    within on at least `TARGET_WITHIN` of the samples."""
+    within on at least `TARGET_WITHIN` of the samples; None for every class of a `quick` bench
+    (`QUICK_REASON` in `why`)."""
     budget = float(BUDGETS["deformation_ms_p99"] if frame_budget_ms is None else frame_budget_ms)
     out = []
     for model in dict.fromkeys(r["model"] for r in rows):
@@ -545,4 +552,6 @@ def class_best(rows: list[dict], frame_budget_ms: float | None = None) -> list[d
             out.append(base | {k: best[k] for k in ("setting", "scale", "within_jnd", "within_jnd_low", "within_jnd_high", "force_error",
                                                     "n_test", "n_within_jnd", "pulls_within", "n_test_pulls", "frame_ms", "frame_ms_p99")}
                        | {"meets_target": bool(best["within_jnd"] >= TARGET_WITHIN), "why": ""})
+    if quick:
+        return [b | {"meets_target": None, "why": "; ".join(filter(None, (b["why"], f"quick bench: {QUICK_REASON}")))} for b in out]
     return out

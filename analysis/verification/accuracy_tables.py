@@ -12,7 +12,7 @@ import pandas as pd
 from analysis.reports.formatting import rate_interval
 from analysis.reports.plots import pareto_plot
 from analysis.reports.table import Table, latex_tables, markdown_grid
-from analysis.verification.accuracy import MIN_DECIDED, RATE_HALF_WIDTH, TARGET_WITHIN, class_best
+from analysis.verification.accuracy import MIN_DECIDED, QUICK_REASON, RATE_HALF_WIDTH, TARGET_WITHIN, class_best
 from analysis.verification.tissue_pulls import describe_no_reference
 from sim.jsonable import jsonable
 
@@ -58,7 +58,7 @@ def intro(result: dict) -> str:
             f"largest {ref['band_rel_max']:.1%}).{decided}{missing} {len(m['calibration_pulls'])} calibration pulls and {len(m['test_pulls'])} held-out test "
             f"pulls to {m['max_pull_m'] * 1e3:g} mm at {m['pull_speed_m_per_s'] * 1e3:g} mm/s, {m['samples_per_pull']} samples each; "
             f"the linear models' E = {m['young_pa'] / 1e3:.3g} kPa (scene: {m['scene_young_pa'] / 1e3:.3g} kPa)" + (" (quick bench)" if m["quick"] else "") + ". "
-            + verdict_rule() + (" The quick bench is a smoke run: it decides nothing." if m["quick"] else ""))
+            + verdict_rule() + (f" The quick bench is a smoke run: it decides nothing ({QUICK_REASON})." if m["quick"] else ""))
 
 
 def tables(result: dict) -> list[Table]:
@@ -70,7 +70,7 @@ def tables(result: dict) -> list[Table]:
              f"{r['angle_deg']:.1f} / {r['angle_deg_max']:.1f} deg", f"{r['tick_us']:.2f} us", f"{r['frame_ms']:.3g} ms"]
             for r in result["rows"]]
     best = []
-    for b in class_best(result["rows"]):
+    for b in class_best(result["rows"], quick=bool(result["meta"].get("quick"))):
         left = "; ".join(f"{k}: {v}" for k, v in b["left_out"].items()) or "none"
         if b["setting"] is None:
             best.append([b["model"], b["calibration"], f"none ({b['why']})", "", "", "", "", meets_text(b), left])

@@ -106,6 +106,12 @@ class _Contract:
         return self.attempt(check, fn)
 
 
+def _fault(row: dict, what: str, otherwise: str) -> str:
+    """Why the checks after a failed `row` are not run: the exception it recorded, in its own
+    words, or `otherwise` (what the check itself found wrong)."""
+    return f"{what} {row['detail']}" if row["detail"].startswith("raised ") else otherwise
+
+
 def contract(scene) -> tuple[list[dict], dict]:
     """The contract's checks on `scene`'s model; (rows, what the budgets reuse)."""
     c = _Contract()
@@ -138,7 +144,7 @@ def contract(scene) -> tuple[list[dict], dict]:
 
     # one fault, reported once: a check that needs a sound force (or deformation) is not run
     # when it is not, rather than failing again under its own name or passing on a wrong number
-    force_wrong = None if c.attempt("force: three floats", shape) is not None else "the force's shape is wrong"
+    force_wrong = None if c.attempt("force: three floats", shape) is not None else _fault(c.rows[-1], "the force", "the force's shape is wrong")
 
     def zero():
         f = _vec(model.force(contact, (0.0, 0.0, 0.0)))
@@ -159,7 +165,7 @@ def contract(scene) -> tuple[list[dict], dict]:
 
     c.attempt_if(force_wrong, "finite, continuous force along the pull", along)
     if c.rows[-1]["ok"] is False and not c.rows[-1]["detail"].startswith("largest step"):  # a step is its own fault; a NaN spoils what follows
-        force_wrong = "the force is not finite along the pull"
+        force_wrong = _fault(c.rows[-1], "the force along the pull", "the force is not finite along the pull")
     has_law = contact.law is not None
 
     def law():

@@ -114,7 +114,7 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, forc
     console.print(best)
     console.print("seed paper, ms per deformation frame (2014 PC): plate-spring 14.69, FEM 21.35, mass-spring 23.08")
     if quick:
-        console.print(f"quick bench: a smoke run that decides nothing (no row reaches {accuracy.MIN_DECIDED} decided samples)")
+        console.print(accuracy.QUICK_NOTE)
     if out_dir:
         console.print(f"wrote {out_dir}/accuracy.md, accuracy.json, accuracy.csv, samples.csv, pareto.png")
 

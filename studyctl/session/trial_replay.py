@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.errors import InputError
-from analysis.trace_files import home, read_trace
+from analysis.trace_files import read_trace, trace_file
 from sim.run import run_scene, write_outputs
 from sim.scene import Scene
 from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
@@ -30,7 +30,7 @@ def replay_trial(db, session_id: int, k: int, view: str = "none", frames_dir: Pa
             raise InputError(f"--trial: trial {k} of session {session_id} was stored without a trace (before schema 2)")
         trace = read_trace(db, row["trace_path"], row["trace_sha256"])  # checks the SHA-256
         protocol = store.protocol()
-    path = home(db) / row["trace_path"]
+    path = trace_file(db, row["trace_path"])
     spec = condition_scene_spec(protocol, row["model"])
     if row["config_sha256"] and config_sha256(resolved_config(row["model"], spec)) != row["config_sha256"]:
         raise InputError(f"--trial: condition {row['model']!r} of session {session_id} ran configuration {row['config_sha256'][:12]}; "

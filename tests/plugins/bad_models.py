@@ -185,3 +185,19 @@ class UnsetOptions:
 class Unset(Spring):
     description = "an option whose default is unset, None (test plugin)"
     Options = UnsetOptions
+
+
+class ForceRaises(Spring):
+    description = "force raises an exception (test plugin)"
+
+    def force(self, contact, d):
+        raise RuntimeError("no force today")
+
+
+class ForceRaisesNear(Spring):
+    description = "force raises an exception under 1 mm of pull, not at zero (test plugin)"
+
+    def force(self, contact, d):
+        if 0.0 < math.sqrt(sum(x * x for x in d)) < 1e-3:
+            raise ValueError("no force under 1 mm")
+        return super().force(contact, d)
