@@ -105,7 +105,7 @@ def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) 
     if synthetic and len(generating):
         table["generating_weber"] = [float(generating.get(c, math.nan)) for c in table["code"]]
     order = [c for c in protocol.conditions if c in set(table["condition"])]
-    events = condition_events(order, _trial_events(study, task))
+    events = condition_events(order, task_events(study, task))
     held = withheld(events)
     conds = [_withhold_summary(_condition_summary(table[table["condition"] == c], c), held.get(c)) for c in order]
     group = _group(table, order, held) if len(order) >= 2 else None
@@ -113,7 +113,7 @@ def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) 
             | ({"faults": [e.as_dict() for e in events]} if any_events(events) else {}))
 
 
-def _trial_events(study, task: int) -> pd.DataFrame:
+def task_events(study, task: int) -> pd.DataFrame:
     """The task's trials' servo events as analysis.faults reads them: code, model, trial, events."""
     d = study.discrimination
     d = d[d["task"] == task]
