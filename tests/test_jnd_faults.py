@@ -1,7 +1,8 @@
 """A discrimination condition's model faults reach `report jnd`: each trial stores its two
 intervals' servo events; a condition whose model always renders NaN (zeroed by the servo) shows
 in the faults table of every format, its summary and the group test are withheld with the reason;
-synth warns; a study without faults reports as before; a schema-9 database migrates."""
+synth warns; a study without faults reports as before; a schema-9 database migrates. And
+`report validity` shows the same table and tests nothing of a withheld condition."""
 
 from __future__ import annotations
 
@@ -12,9 +13,10 @@ import pytest
 
 from analysis.discrimination.jnd import task_events
 from analysis.faults import condition_events
+from analysis.reports import validity_report as vr
 from studyctl.store import Store
 from studyctl.store.snapshot import read_study
-from tests.helpers import BAD, jnd_protocol, studyctl
+from tests.helpers import BAD, ROOT, jnd_protocol, studyctl
 
 WITHHELD = "withheld: condition nan had a model fault in 20 of its 20 trials (nan_force), more than 50%"
 
@@ -152,3 +154,64 @@ def test_a_migrated_study_s_trial_without_events_counts_as_a_trial_without_fault
     with Store(db, mode="read") as store:
         (e,) = condition_events(["plate_spring"], task_events(read_study(store), 0))
     assert (e.trials, e.affected_trials) == (1, 0)
+
+
+# -- construct validity --------------------------------------------------------------------------
+
+CV_WITHHELD = "withheld: condition nan had a model fault in 6 of its 6 trials (nan_force), more than 50%"
+
+
+@pytest.fixture(scope="module")
+def nan_validity(tmp_path_factory):
+    """protocols/construct_validity.toml with a second condition whose force is NaN: three
+    synthetic participants (one a group), two trials a condition; the report with one
+    permutation and one bootstrap replicate (what is tested here is what is withheld)."""
+    tmp = tmp_path_factory.mktemp("nan_validity")
+    cv = ROOT / "protocols" / "construct_validity.toml"
+    text = cv.read_text().replace("trials_per_condition = 10 ", "trials_per_condition = 2 ").replace("training_minutes = 2.0", "training_minutes = 0.0")
+    text = text.replace('scene = "scenes/retraction.toml"', f'scene = "{cv.parent / "scenes" / "retraction.toml"}"')
+    text = text.replace('conditions = ["plate_spring"]', 'conditions = ["plate_spring", "nan"]')
+    proto = tmp / "cv.toml"
+    proto.write_text(text.replace("[inclusion]", f'[conditions.nan]\nmodel = "{BAD}:NanForce"\n\n[inclusion]', 1))
+    db = tmp / "s.db"
+    assert studyctl("synth", "--protocol", proto, "--db", db, "--participants", 3, "--seed", 1).exit_code == 0
+    with Store(db, mode="read") as store:
+        return vr.validity_report(read_study(store), permutations=1, group_permutations=1, bootstrap=1)
+
+
+def test_report_validity_json_carries_each_condition_s_faults(nan_validity):
+    faults = json.loads(vr.to_json(nan_validity))["faults"]
+    assert [(f["condition"], f["fault_trials"], f["withheld"]) for f in faults] == [("plate_spring", 0, False), ("nan", 6, True)]
+
+
+@pytest.mark.parametrize("render,expected", [
+    (vr.markdown, f"| nan | 6 of 6 trials (nan_force 6) | 6 of 6 (100%) | WITHHELD: {CV_WITHHELD.removeprefix('withheld: ')} |"),
+    (vr.latex, "WITHHELD: condition nan had a model fault in 6 of its 6 trials (nan\\_\\allowbreak{}force)"),
+    (lambda rep: vr.html(rep | {"metrics": []}), f"WITHHELD: {CV_WITHHELD.removeprefix('withheld: ')}"),  # its tables, not its figures
+], ids=["md", "latex", "html"])
+def test_report_validity_shows_the_faults_table_in_every_format(nan_validity, render, expected):
+    assert expected in render(nan_validity)
+
+
+def test_report_validity_tests_no_group_difference_in_a_withheld_condition(nan_validity):
+    kw = nan_validity["kruskal"]
+    assert set(kw.loc[kw["condition"] == "nan", "reason"]) == {CV_WITHHELD}
+
+
+def test_report_validity_gives_no_p_in_a_withheld_condition(nan_validity):
+    kw = nan_validity["kruskal"]
+    assert kw.loc[kw["condition"] == "nan", "p"].isna().all()
+
+
+def test_report_validity_tests_no_pair_of_groups_in_a_withheld_condition(nan_validity):
+    pairs = nan_validity["pairs"]
+    assert set(pairs.loc[pairs["condition"] == "nan", "reason"]) == {CV_WITHHELD}
+
+
+def test_report_validity_still_describes_a_withheld_condition_s_groups(nan_validity):
+    desc = nan_validity["descriptives"]
+    assert desc.loc[desc["condition"] == "nan", "median"].notna().any()
+
+
+def test_report_validity_fits_no_mixed_model_across_a_withheld_condition(nan_validity):
+    assert nan_validity["mixed_model"]["reason"] == CV_WITHHELD
