@@ -9,9 +9,10 @@ from __future__ import annotations
 import json
 import sqlite3
 
+import pandas as pd
 import pytest
 
-from analysis.discrimination.jnd import task_events
+from analysis.discrimination.jnd import _group, task_events
 from analysis.faults import condition_events
 from analysis.reports import validity_report as vr
 from studyctl.store import Store
@@ -123,6 +124,30 @@ def test_a_discrimination_study_without_faults_has_no_faults_key(tmp_path):
     db = tmp_path / "s.db"
     assert studyctl("synth", "--protocol", proto, "--db", db, "--participants", 1, "--seed", 1).exit_code == 0
     assert "faults" not in json.loads(studyctl("report", "jnd", "--db", db, "--json").output)
+
+
+def _webers(n: int) -> pd.DataFrame:
+    """n participants' Weber fractions in conditions a, b and c (b 1.5 times a, c varied)."""
+    return pd.DataFrame([{"code": f"S{k}", "condition": c, "weber": w, "converged": True}
+                         for k in range(n) for c, w in (("a", 0.1 + 0.01 * k), ("b", 0.15 + 0.02 * k), ("c", 0.3 - 0.03 * k))])
+
+
+HELD = {"c": "withheld: condition c is broken"}
+
+
+def test_the_pair_of_the_conditions_kept_is_still_tested():
+    (ab, *_) = _group(_webers(4), ["a", "b", "c"], HELD)["pairs"]
+    assert (ab["a"], ab["b"], ab["ratio"] > 1) == ("a", "b", True)
+
+
+def test_a_pair_with_the_withheld_condition_carries_its_reason():
+    pairs = _group(_webers(4), ["a", "b", "c"], HELD)["pairs"]
+    assert [p.get("reason") for p in pairs] == [None, HELD["c"], HELD["c"]]
+
+
+def test_a_kept_pair_too_small_to_test_says_its_own_reason_not_the_withheld_one():
+    (ab, *_) = _group(_webers(2), ["a", "b", "c"], HELD)["pairs"]
+    assert ab["reason"] == "fewer than 3 participants with a Weber fraction in every condition"
 
 
 def _schema_9(tmp_path):

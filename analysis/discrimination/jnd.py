@@ -141,12 +141,14 @@ def _group(table: pd.DataFrame, order: list[str], held: dict) -> dict:
         return group_test(table, conditions=order)
     kept = [c for c in order if c not in held]
     base = group_test(table[table["condition"].isin(kept)], conditions=kept) if len(kept) >= 2 else None
-    tested = {(p["a"], p["b"]): p for p in (base or {}).get("pairs") or []}
+    base = base or {}
+    untested = "; ".join(base.get("problems") or [])  # why the kept conditions' pairs were not tested, if they were not
+    tested = {(p["a"], p["b"]): p | ({"reason": untested} if untested else {}) for p in base.get("pairs") or []}
     pairs = [tested.get((a, b)) or {"a": a, "b": b, "n": 0, "reason": held.get(a) or held[b]} for a, b in itertools.combinations(order, 2)]
-    return {"conditions": order, "n_participants": (base or {}).get("n_participants", 0), "excluded": (base or {}).get("excluded", []),
-            "n_not_converged": (base or {}).get("n_not_converged", 0), "estimable": False,
-            "problems": [held[c] for c in order if c in held], "mixed_model": None, "friedman": None, "pairs": pairs,
-            "withheld": {c: held[c] for c in order if c in held}}
+    return {"conditions": order, "n_participants": base.get("n_participants", 0), "excluded": base.get("excluded", []),
+            "n_not_converged": base.get("n_not_converged", 0), "estimable": False,
+            "problems": [held[c] for c in order if c in held] + (base.get("problems") or []), "mixed_model": None, "friedman": None,
+            "pairs": pairs, "withheld": {c: held[c] for c in order if c in held}}
 
 
 def _condition_summary(rows: pd.DataFrame, condition: str) -> dict:
