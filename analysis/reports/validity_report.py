@@ -6,7 +6,9 @@ analysis/validity.py, beside its face-validity ratings per group.
 DataFrames and numbers; `markdown`, `html` and `to_json` render it. The groups are each
 participant's value of the protocol's `design.groups` field, in the field's order; the most
 expert group is its last value. Participant fields of kind `text` are never read; integer and
-number fields are described per group, nothing else of a participant is.
+number fields are described per group, nothing else of a participant is. A condition whose
+trials are mostly model faults (analysis/faults.py) is shown in the faults table and described,
+but no test reads its metrics (`faults` in the dict only where a trial had a fault or safety event).
 """
 
 from __future__ import annotations
