@@ -44,7 +44,8 @@ class Study:
     - `latency_trials`: every trial's deformation time: ``model, value``;
     - `configurations`: what each condition ran: ``condition, config, config_sha256, sessions, software_versions``;
     - `discrimination`: every discrimination trial: ``code, model, task, trial, delta, comparison_interval,
-      answer, correct, state (the procedure's, JSON), source``, and `traits` every synthetic participant's generating traits: ``code, trait, value``;
+      answer, correct, state (the procedure's, JSON), source, events`` (both intervals' servo events, JSON, as
+      `trial_events`' are: a task's faults are counted from them), and `traits` every synthetic participant's generating traits: ``code, trait, value``;
     - `path`: the database file (trace paths are relative to its folder);
     - `synthetic_codes`: the codes registered as synthetic or with a synthetic answer;
     - `fields`: every participant's protocol fields, typed by their kind: ``code, field, value``;

@@ -422,12 +422,12 @@ def test_an_older_schema_is_refused_until_study_migrate_upgrades_it(tmp_path):
     con.close()
     res = studyctl("participants", "list", "--json", "--db", db)
     assert res.exit_code == 1
-    assert "schema version 2, this studyctl needs 9; run `studyctl study migrate" in res.output
+    assert "schema version 2, this studyctl needs 10; run `studyctl study migrate" in res.output
     assert _q(db, "select value from meta where key = 'schema_version'") == [("2",)]
     assert studyctl("study", "migrate", "--db", db).exit_code == 0
     res = studyctl("participants", "list", "--json", "--db", db)
     assert json.loads(res.output)[0]["code"] == "P01"
-    assert _q(db, "select value from meta where key = 'schema_version'") == [("9",)]
+    assert _q(db, "select value from meta where key = 'schema_version'") == [("10",)]
     assert _q(db, "select count(*) from observer_features") == [(0,)]
     assert {"config", "config_sha256"} <= {r[1] for r in _q(db, "pragma table_info(conditions)")}
 

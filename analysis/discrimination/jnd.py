@@ -13,13 +13,20 @@ their generating Weber fraction beside the estimate (so recovery can be read off
 - ``conditions``: per condition: n, geometric mean Weber fraction with a 95% interval (t on logs),
   median, and for synthetic studies the median absolute relative error against the generating
   values and the intervals' coverage of them;
-- ``group``: analysis.discrimination.weber_groups.group_test across conditions (None with one condition).
+- ``group``: analysis.discrimination.weber_groups.group_test across conditions (None with one condition);
+- ``faults`` (only where a trial had a fault or safety event): per condition its
+  analysis.faults.ConditionEvents over the task's trials (a trial counts when either interval had
+  one). A condition whose trials are mostly faults is withheld: its summary's numbers are NaN with
+  the ``reason``, the group's omnibus tests are not run (``withheld``: condition -> reason, first
+  in ``problems``), and its pairs are not tested; the other conditions' pairs are tested among
+  themselves.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import html as _html
+import itertools
 import json
 import math
 
@@ -30,6 +37,7 @@ from scipy import stats
 from analysis.discrimination.pooled import POOLED_MIN, pooled_webers
 from analysis.discrimination.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, weber_table
 from analysis.discrimination.weber_groups import group_test
+from analysis.faults import ConditionEvents, any_events, condition_events, events_table, withheld
 from analysis.reports.formatting import PAGE_END, drawn_png, figure_html, p_value, page_head
 from analysis.reports.methods import study_methods
 from analysis.reports.table import Table, latex_tables
@@ -97,9 +105,50 @@ def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) 
     if synthetic and len(generating):
         table["generating_weber"] = [float(generating.get(c, math.nan)) for c in table["code"]]
     order = [c for c in protocol.conditions if c in set(table["condition"])]
-    conds = [_condition_summary(table[table["condition"] == c], c) for c in order]
-    group = group_test(table, conditions=order) if len(order) >= 2 else None
-    return {"facts": facts, "weber": table.to_dict(orient="records"), "conditions": conds, "group": group, "methods": methods}
+    events = condition_events(order, task_events(study, task))
+    held = withheld(events)
+    conds = [_withhold_summary(_condition_summary(table[table["condition"] == c], c), held.get(c)) for c in order]
+    group = _group(table, order, held) if len(order) >= 2 else None
+    return ({"facts": facts, "weber": table.to_dict(orient="records"), "conditions": conds, "group": group, "methods": methods}
+            | ({"faults": [e.as_dict() for e in events]} if any_events(events) else {}))
+
+
+def task_events(study, task: int) -> pd.DataFrame:
+    """The task's trials' servo events as analysis.faults reads them: code, model, trial, events."""
+    d = study.discrimination
+    d = d[d["task"] == task]
+    return pd.DataFrame({"code": d["code"], "model": d["model"], "trial": d["trial"],
+                         "events": d["events"] if "events" in d else None}).reset_index(drop=True)
+
+
+SUMMARY_CLAIMS = ("geometric_mean", "gm_low", "gm_high", "median", "recovery_median_abs_rel_error", "recovery_coverage",
+                  "recovery_pooled_median_abs_rel_error", "recovery_pooled_coverage")
+
+
+def _withhold_summary(summary: dict, reason: str | None) -> dict:
+    """A withheld condition's summary: its Weber fractions describe the fault, not the model, so
+    no mean, interval or recovery figure is claimed of it; the reason instead."""
+    if reason is None:
+        return summary
+    return ({k: v for k, v in summary.items() if k not in ("gm_warning", "gm_reason")}
+            | {k: math.nan for k in SUMMARY_CLAIMS if k in summary} | {"reason": reason})
+
+
+def _group(table: pd.DataFrame, order: list[str], held: dict) -> dict:
+    """The group test, or where a condition is withheld: no omnibus test (it would compare the
+    fault), the pairs of the conditions kept tested among themselves, the others with the reason."""
+    if not any(c in held for c in order):
+        return group_test(table, conditions=order)
+    kept = [c for c in order if c not in held]
+    base = group_test(table[table["condition"].isin(kept)], conditions=kept) if len(kept) >= 2 else None
+    base = base or {}
+    untested = "; ".join(base.get("problems") or [])  # why the kept conditions' pairs were not tested, if they were not
+    tested = {(p["a"], p["b"]): p | ({"reason": untested} if untested else {}) for p in base.get("pairs") or []}
+    pairs = [tested.get((a, b)) or {"a": a, "b": b, "n": 0, "reason": held.get(a) or held[b]} for a, b in itertools.combinations(order, 2)]
+    return {"conditions": order, "n_participants": base.get("n_participants", 0), "excluded": base.get("excluded", []),
+            "n_not_converged": base.get("n_not_converged", 0), "estimable": False,
+            "problems": [held[c] for c in order if c in held] + (base.get("problems") or []), "mixed_model": None, "friedman": None,
+            "pairs": pairs, "withheld": {c: held[c] for c in order if c in held}}
 
 
 def _condition_summary(rows: pd.DataFrame, condition: str) -> dict:
@@ -157,7 +206,9 @@ def tables(res: dict) -> list[Table]:
     recovery = any("recovery_coverage" in c for c in res["conditions"])
     rows = []
     for c in res["conditions"]:
-        gm = f"{_pct(c['geometric_mean'])} {_interval(c['gm_low'], c['gm_high'], c.get('gm_reason') or 'no interval')}" if c["n"] else "n/a (no fit)"
+        gm = (c["reason"].replace("withheld:", "WITHHELD:", 1) if c.get("reason")
+              else f"{_pct(c['geometric_mean'])} {_interval(c['gm_low'], c['gm_high'], c.get('gm_reason') or 'no interval')}" if c["n"]
+              else "n/a (no fit)")
         if c.get("gm_warning"):
             gm += f" ({c['gm_warning']})"
         pooled_rec = (f"; pooled {_pct(c['recovery_pooled_median_abs_rel_error'])}, {_pct(c['recovery_pooled_coverage'])}"
@@ -191,6 +242,12 @@ def tables(res: dict) -> list[Table]:
     return out
 
 
+def faults_table(res: dict) -> Table | None:
+    """The faults and safety events per condition (analysis.faults.events_table), None where no
+    trial had one (the report then is as it was)."""
+    return events_table([ConditionEvents(**e) for e in res["faults"]]) if res.get("faults") else None
+
+
 def _heading(res: dict) -> tuple[str, str]:
     """(the report's title, what it holds): the study, the synthetic flag, N and the task."""
     f = res["facts"]
@@ -209,6 +266,8 @@ def markdown(res: dict) -> str:
 
     first, per = tables(res)
     lines += table_markdown(first)
+    faults = faults_table(res)
+    lines += table_markdown(faults) if faults is not None else []
     if res["group"]:
         lines += [_group_text(res["group"]), ""]
     lines += table_markdown(per)
@@ -224,12 +283,14 @@ def latex(res: dict) -> str:
     first, per = tables(res)
     group = f" {_group_text(res['group'])}" if res["group"] else ""
     first = dataclasses.replace(first, title=f"{title}: {first.title}", notes=f"{head} {first.notes}{group}")
-    return latex_tables([first, per], "tab:jnd")
+    faults = faults_table(res)
+    return latex_tables([first, per] + ([faults] if faults is not None else []), "tab:jnd")
 
 
 def _group_text(g: dict) -> str:
     """The group test in one paragraph (keys of analysis.discrimination.weber_groups.group_test)."""
-    parts = []
+    parts = [f"Mixed model and {'Friedman' if len(g['conditions']) > 2 else 'Wilcoxon'} across the conditions: not tested ({why})."
+             for why in (g.get("withheld") or {}).values()]
     mm = g.get("mixed_model") or {}
     if mm and mm.get("converged") is False:
         parts.append("Mixed model of log Weber fraction on condition: not tested (the fit did not converge"
@@ -245,7 +306,7 @@ def _group_text(g: dict) -> str:
     if pairs:
         parts.append("Pairs (paired t on log Weber fractions, Holm): " + "; ".join(
             f"{p['a']} vs {p['b']}: ratio {p_value(p.get('ratio'))} [{p_value(p.get('ratio_low'))}, {p_value(p.get('ratio_high'))}], p_holm {p_value(p.get('p_holm'))}"
-            if p_value(p.get("ratio")) != "-" else f"{p['a']} vs {p['b']}: not tested ({why})" for p in pairs) + ".")
+            if p_value(p.get("ratio")) != "-" else f"{p['a']} vs {p['b']}: not tested ({p.get('reason') or why})" for p in pairs) + ".")
     return " ".join(parts)
 
 
@@ -259,6 +320,9 @@ def html_section(res: dict, study) -> str:
     first, per = tables(res) if res["weber"] else (None, None)
     if first:
         body.append(table_html(first, "h3"))
+    faults = faults_table(res)
+    if faults is not None:
+        body.append(table_html(faults, "h3"))
     if res["group"]:
         body.append(f"<p>{esc(_group_text(res['group']))}</p>")
     if res["weber"]:

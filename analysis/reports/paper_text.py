@@ -13,7 +13,7 @@ import numbers
 from collections.abc import Mapping
 
 from analysis.discrimination.jnd import jnd_results
-from analysis.faults import events_text
+from analysis.faults import ConditionEvents, events_text
 from analysis.kind_results import KindStats
 from analysis.reports import latex
 from analysis.study_results import StudyStats
@@ -311,7 +311,12 @@ def _discrimination(res: dict) -> list[str]:
     f = res["facts"]
     out = [f"Each participant's Weber fraction was fitted by a {f['fit']['function']} psychometric function on {f['fit']['axis']} "
            f"(slope {f['fit']['slope']}; lapse at most {f['fit']['lapse_max']:g}; interval: {f['fit']['interval']})."]
+    if res.get("faults"):  # before the Weber fractions: a withheld condition's reason is said there
+        out.append(events_text([ConditionEvents(**e) for e in res["faults"]]))
     for c in res["conditions"]:
+        if c.get("reason"):
+            out.append(f"{c['condition']}: no Weber fraction is reported ({c['reason']}).")
+            continue
         if not _finite(c.get("geometric_mean")):
             out.append(f"{c['condition']}: no Weber fraction (no fit).")
             continue

@@ -6,7 +6,9 @@ analysis/validity.py, beside its face-validity ratings per group.
 DataFrames and numbers; `markdown`, `html` and `to_json` render it. The groups are each
 participant's value of the protocol's `design.groups` field, in the field's order; the most
 expert group is its last value. Participant fields of kind `text` are never read; integer and
-number fields are described per group, nothing else of a participant is.
+number fields are described per group, nothing else of a participant is. A condition whose
+trials are mostly model faults (analysis/faults.py) is shown in the faults table and described,
+but no test reads its metrics (`faults` in the dict only where a trial had a fault or safety event).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from scipy import stats
 from analysis import instruments
 from analysis import validity as v
 from analysis.errors import StudyError
+from analysis.faults import ConditionEvents, any_events, condition_events, events_table, involving, withheld
 from analysis.metrics import UNITS, metrics_table, study_goals
 from analysis.reports.formatting import PAGE_END, figure_png, p_value, page_head
 from analysis.reports.plots import OTHER_COLORS, _plt
@@ -201,15 +204,22 @@ def validity_report(study: Study, permutations: int = DEFAULT_PERMUTATIONS, boot
             d = _describe(f.loc[(f["field"] == name) & (f["group"] == g), "value"].to_numpy(float))
             fdesc.append({"field": name, "group": g, "n": d["n"], "median": d["median"], "q1": d["q1"], "q3": d["q3"]})
     n_boot = max(int(bootstrap), 1)
+    events = condition_events(list(protocol.conditions), study.trial_events)
+    held = withheld(events)
+    # a withheld condition's metrics were measured while the participant felt the fault: no test reads them
+    tested, tested_metrics = scores[~scores["condition"].isin(held)], metrics[~metrics["condition"].isin(held)]
+    tested_conditions = sorted(tested_metrics["condition"].unique().tolist())
 
     n_wy = max(int(group_permutations), 1)
-    tests = v.group_tests(scores, groups, order, n_boot=n_boot, seed=seed, n_perm=n_wy) if len(scores) else None
+    tests = v.group_tests(tested, groups, order, n_boot=n_boot, seed=seed, n_perm=n_wy) if len(tested) else None
+    tests = _with_withheld(tests, scores[scores["condition"].isin(held)], groups, order, held)
     step(2, STEPS)
-    if len(conditions) >= 2:
-        mm = v.mixed_model(metrics, groups, order)
+    if len(tested_conditions) >= 2:
+        mm = v.mixed_model(tested_metrics, groups, order)
         mixed = {"reason": None, "fixed": mm.fixed, "skipped": mm.skipped}
     else:
-        why = (f"one condition ({conditions[0]}): no condition effect to model; the groups are compared by the tests above"
+        why = (involving(conditions, held) if len(conditions) >= 2 else
+               f"one condition ({conditions[0]}): no condition effect to model; the groups are compared by the tests above"
                if conditions else "no metrics yet")
         mixed = {"reason": why,
                  "fixed": pd.DataFrame(columns=v.FIXED_COLUMNS), "skipped": pd.DataFrame(columns=["metric", "reason"])}
@@ -225,7 +235,7 @@ def validity_report(study: Study, permutations: int = DEFAULT_PERMUTATIONS, boot
                        "scorecard": pd.DataFrame(columns=v.SCORECARD_COLUMNS), "summary": pd.DataFrame(columns=v.SUMMARY_COLUMNS)}
     step(5, STEPS)
     try:
-        c = v.classify(scores, groups, order, n_permutations=int(permutations), seed=seed)
+        c = v.classify(tested, groups, order, n_permutations=int(permutations), seed=seed)
         classifier = {"reason": None, "n": c.n, "n_features": len(c.features), "features": list(c.features), "accuracy": c.accuracy,
                       "balanced_accuracy": c.balanced_accuracy, "chance": c.chance, "p_value": c.p_value,
                       "n_permutations": c.n_permutations, "groups": list(c.confusion.index),
@@ -257,7 +267,28 @@ def validity_report(study: Study, permutations: int = DEFAULT_PERMUTATIONS, boot
         "mixed_model": mixed, "learning_curves": curves, "trial_means": _trial_points(metrics, groups, order) if len(metrics) else
         pd.DataFrame(columns=["metric", "condition", "group", "trial", "mean", "n"]),
         "proficiency": proficiency, "classifier": classifier, "ratings": ratings, "rating_tests": rating_tests,
-    }
+    } | ({"faults": [e.as_dict() for e in events]} if any_events(events) else {})
+
+
+WITHHELD_NUMBERS = ("H", "U", "p", "p_holm", "p_wy", "cliffs_delta", "delta_low", "delta_high")
+
+
+def _with_withheld(tests, scores: pd.DataFrame, groups: pd.Series, order: list[str], held: dict):
+    """The group tests with the withheld conditions' rows added, described (their groups'
+    medians) but not tested: no statistic, no p, the reason; in (metric, condition) order."""
+    if not len(scores):
+        return tests
+    out = v.group_tests(scores, groups, order, n_boot=1, seed=0)
+    mark = {"kruskal": out.kruskal, "pairs": out.pairs}
+    for (name, frame), columns in zip(mark.items(), (v.KRUSKAL_COLUMNS, v.PAIR_COLUMNS)):
+        frame = frame.assign(**{k: np.nan for k in WITHHELD_NUMBERS if k in frame.columns or k == "p_wy"})
+        mark[name] = frame.assign(reason=frame["condition"].map(held))[_with_wy(columns)]
+    if tests is None:
+        return replace(out, **mark)
+    return replace(tests, **{name: pd.concat([getattr(tests, name), f[getattr(tests, name).columns]], ignore_index=True)
+                             .sort_values(["metric", "condition"], kind="stable").reset_index(drop=True) for name, f in mark.items()},
+                   descriptives=pd.concat([tests.descriptives, out.descriptives], ignore_index=True)
+                   .sort_values(["metric", "condition"], kind="stable").reset_index(drop=True))
 
 
 # ---------------------------------------------------------------- rendering
@@ -328,6 +359,10 @@ def sections(rep: dict) -> list[Table]:
         rows.append(cells)
     out.append(_section("Participants", f"Groups: the {rep['group_field']} field (design.groups), in the protocol's order; integer and number "
                 "fields described per group; text fields are never analysed.", cols, rows))
+    faults = events_table([ConditionEvents(**e) for e in rep.get("faults") or []])
+    if faults is not None:  # only where a trial had one: a study without keeps its report as it was
+        out.append(replace(faults, notes=faults.notes + " A withheld condition's metrics are described, never tested: no group "
+                           "comparison, mixed model or classifier reads them."))
 
     kw, pairs, desc = rep["kruskal"], rep["pairs"], rep["descriptives"]
     cols = ["metric", "unit", "condition"] + [f"{g}: median [IQR]" for g in order] + ["H", "p", "p_holm", "p_wy"]

@@ -5,8 +5,8 @@ Each trial pulls the tissue twice, the reference and the comparison (the conditi
 with its stiffness scaled, `sim.scene.Scene.with_stiffness`) in a random order, then asks which
 was stiffer (keys 1 / 2 in the window or the terminal; what was typed before the question
 appears answers nothing). The trial's row holds the increment, the order, the answer, whether
-it was right, the procedure's state after it and both intervals' traces (written durably
-first). A resumed session replays the stored trials through a new procedure, which then asks
+it was right, the procedure's state after it, both intervals' servo events (counts summed: the
+trial had a fault if either interval did) and both intervals' traces (written durably first). A resumed session replays the stored trials through a new procedure, which then asks
 for what the uninterrupted one would have: at most the trial in flight is lost.
 """
 
@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import random
 import time
+from collections import Counter
 
 from analysis.questions import Question
 from analysis.trace_files import write_trace
@@ -122,7 +123,8 @@ def _store_trial(run, pos: int, model: str, task, trial: int, delta: float, comp
     row = {"session_id": run.session_id, "code": run.code, "model": model, "task": task.index, "trial": trial,
            "reference": task.reference, "delta": delta, "comparison": task.reference * (1.0 + delta),
            "comparison_interval": comparison_interval, "answer": answer, "correct": int(answer == comparison_interval),
-           "state": dumps(state), "source": run.answerer.source, "started_at": started, "answered_at": now()}
+           "state": dumps(state), "source": run.answerer.source, "started_at": started, "answered_at": now(),
+           "events": dumps(dict(Counter(e.kind for r in results for e in r.events)))}
     for interval, result in zip((1, 2), results):
         name = f"condition-{pos + 1}-task-{task.index + 1}-trial-{trial + 1}-interval-{interval}.npz"
         t = write_trace(run.db, run.session_id, pos, trial, result, name=name)

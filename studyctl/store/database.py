@@ -22,7 +22,7 @@ import sqlite_utils
 from analysis.errors import StoreError
 from studyctl.protocol import load_protocol, protocol_from_text
 
-SCHEMA_VERSION = 9
+SCHEMA_VERSION = 10
 EXPORT_TABLES = ("participants", "schedule", "sessions", "conditions", "trials", "answers", "latency", "events", "consent", "corrections",
                  "observer_features", "rig_profile",
                  "discrimination", "synthetic_traits", "participant_fields")
@@ -144,8 +144,15 @@ def _migration_9(db: sqlite_utils.Database) -> None:
                "primary key (code, field))")
 
 
+def _migration_10(db: sqlite_utils.Database) -> None:
+    """Each discrimination trial's servo events (JSON: kind to count, its two intervals summed), as
+    an ordinary trial's: what a condition's faults are counted from (analysis/faults.py). Older
+    trials recorded none (NULL: counted as a trial without events)."""
+    db["discrimination"].add_column("events", str)
+
+
 MIGRATIONS = {1: _migration_1, 2: _migration_2, 3: _migration_3, 4: _migration_4, 5: _migration_5, 6: _migration_6, 7: _migration_7,
-              8: _migration_8, 9: _migration_9}
+              8: _migration_8, 9: _migration_9, 10: _migration_10}
 
 
 STUDY_TABLES = ("meta", "study")  # what makes a file a study database (with meta.schema_version)

@@ -83,8 +83,9 @@ def configurations(store: Store) -> pd.DataFrame:
 
 
 def discrimination(store: Store) -> pd.DataFrame:
-    """Every discrimination trial: code, model, task, trial, delta, comparison_interval, answer, correct, state, source."""
-    return _frame(store, "select code, model, task, trial, delta, comparison_interval, answer, correct, state, source from discrimination "
+    """Every discrimination trial: code, model, task, trial, delta, comparison_interval, answer, correct, state, source, events
+    (its two intervals' servo events, JSON; NULL before schema 10)."""
+    return _frame(store, "select code, model, task, trial, delta, comparison_interval, answer, correct, state, source, events from discrimination "
                          "order by code, model, task, trial")
 
 

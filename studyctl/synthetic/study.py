@@ -19,7 +19,7 @@ from studyctl.protocol import load_protocol
 from studyctl.session.lock import synth_lock
 from studyctl.store import Store, init_study, now, roster
 from studyctl.store.sessions import insert_traits, next_session_id
-from studyctl.store.snapshot import trial_events
+from studyctl.store.snapshot import discrimination, trial_events
 from studyctl.study import assign_order
 from studyctl.synthetic.bundles import run_away, seed_for, store_bundle
 from studyctl.synthetic.participant import MAX_SYNTHETIC, SyntheticParticipant, skill_for
@@ -93,17 +93,19 @@ def run_synthetic_study(db, participants: int | None, seed: int = 0, jobs: int =
                               f"left without one, completing this run's {len(runs)}") from None
         total = roster.synthetic_with_session(store)
         warnings = fault_warnings(list(protocol.conditions), trial_events(store))
+        if protocol.tasks:  # the discrimination trials' intervals, counted apart (`report jnd` withholds from them)
+            warnings += fault_warnings(list(protocol.conditions), discrimination(store), "discrimination trials")
     return {"participants": len(codes), "codes": codes, "seed": seed, "jobs": jobs, "scheduler": scheduler, "ran": len(runs),
             "total_synthetic": total, "warnings": warnings,
             "seconds": time.perf_counter() - t0, "protocol": protocol.name, "protocol_file": str(protocol.path), "created": created,
             "completed": [{"code": c, "seed": s} for c, s in pending]}
 
 
-def fault_warnings(conditions: list[str], events) -> list[str]:
+def fault_warnings(conditions: list[str], events, what: str = "trials") -> list[str]:
     """One line per condition whose stored trials are mostly model faults (analysis/faults.py): the
     data are kept (synth succeeds), and the reports withhold its tests; said here so that a
     broken model is not found only in a report."""
-    return [f"condition {e.condition}: {e.fault_trials} of {e.trials} trials had a model fault ({kinds_text(e)}); "
+    return [f"condition {e.condition}: {e.fault_trials} of {e.trials} {what} had a model fault ({kinds_text(e)}); "
             "the reports withhold every test involving it" for e in condition_events(conditions, events) if e.withheld]
 
 

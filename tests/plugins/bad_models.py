@@ -3,6 +3,7 @@ simple model that writes `force` only (no law: the servo process gets `ModelForc
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from dataclasses import dataclass
@@ -201,3 +202,16 @@ class ForceRaisesNear(Spring):
         if 0.0 < math.sqrt(sum(x * x for x in d)) < 1e-3:
             raise ValueError("no force under 1 mm")
         return super().force(contact, d)
+
+
+class NanForceScaled(NanForce):
+    """NanForce for the discrimination task: it scales its stiffness (and still renders NaN)."""
+
+    description = "force returns NaN once pulled, stiffness scaled (test plugin)"
+    scales_stiffness = True
+
+    def with_stiffness(self, scale):
+        out = copy.copy(self)
+        out.k = self.k * scale
+        out._out = np.zeros_like(self.mesh.vertices)
+        return out
