@@ -18,31 +18,20 @@ import json
 
 import numpy as np
 
-from analysis.verification.tissue_pulls import SHIPPED_PULLS, SHIPPED_PULLS_INFO, pull_key, truth_range
+from analysis.verification.tissue_pulls import SHIPPED_PULLS, SHIPPED_PULLS_INFO, entry_keys
 from sim.files import save_npz
-from sim.geometry.tetmesh import hemisphere_surface, mesh_hemisphere
 from sim.hyperelastic import Hyperelastic
 from sim.pulls import make_pulls, scene_with, test_pulls
-from sim.scene import DEFAULT_SCENE, grasp_radius
+from sim.scene import DEFAULT_SCENE
 
 
 def new_keys(info: dict) -> list[str]:
-    """Each entry's key from its stored inputs, in the record's order."""
+    """Each entry's key from its stored inputs, in the record's order: the laws as the record holds them."""
     scene = scene_with(DEFAULT_SCENE)
     pulls = {p.name: p for p in make_pulls(scene) + test_pulls(scene)}
     laws = {m["shape"]: Hyperelastic(m["law"]["law"], tuple(m["law"]["mu"]), tuple(m["law"]["alpha"]), m["law"]["bulk_ratio"])
             for m in info["ensemble"]}
-    radius, rng = grasp_radius(scene), truth_range(scene)
-    bodies: dict = {}
-    out = []
-    for e in info["entries"]:
-        pull = pulls[e["pull"]]
-        where = (pull.hemisphere, float(e["size_mm"]))
-        if where not in bodies:
-            verts, tris, _ = hemisphere_surface(scene.mesh, pull.hemisphere)
-            bodies[where] = mesh_hemisphere(verts, tris, where[1] * 1e-3)
-        out.append(pull_key(bodies[where], scene, laws[e["shape"]], radius, pull, rng))
-    return out
+    return entry_keys(info["entries"], scene, laws, pulls)
 
 
 def main() -> None:

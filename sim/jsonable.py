@@ -10,6 +10,8 @@ from pathlib import Path
 
 
 def jsonable(obj):
+    if hasattr(obj, "as_dict") and callable(obj.as_dict):  # a typed record says how it is written (analysis/records.py)
+        obj = obj.as_dict()
     if isinstance(obj, Mapping):
         return {str(k): jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):

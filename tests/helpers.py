@@ -1,5 +1,6 @@
 """What the tests share: protocols, scenes and data built for them, the CLI in this process, and a person at a pseudo-terminal."""
 
+import hashlib
 import json
 import os
 import re
@@ -58,6 +59,21 @@ def variants_protocol(tmp_path: Path) -> Path:
 
 def studyctl(*args, env=None):
     return CliRunner().invoke(cli, [str(a) for a in args], env=env, catch_exceptions=False)
+
+
+def tree_state(d: Path) -> dict:
+    """Every file and folder under `d` (side files and lock folders included), files with their
+    SHA-256: what a refused or reading command must leave as it was."""
+    return {str(p.relative_to(d)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "folder" for p in sorted(d.rglob("*"))}
+
+
+def query(db, sql, params=()):
+    """Rows of `sql` on `db`, read with plain sqlite3 (not the store under test)."""
+    con = sqlite3.connect(db)
+    try:
+        return con.execute(sql, params).fetchall()
+    finally:
+        con.close()
 
 
 def count_rows(db, table: str = "answers") -> int:

@@ -30,7 +30,8 @@ from tests.conftest import ROOT
 
 # the modules that write JSON, the only ones that call as_dict: the CLI's --json paths, and the
 # records' own conversion (a record's as_dict gives its inner records' as theirs)
-AS_DICT_CALLERS = {"studyctl/cli/reports.py", "studyctl/cli/plan.py", "analysis/records.py", "analysis/study_results.py"}
+# where JSON is written: the commands, the records themselves, and sim/jsonable.py (what every JSON writer calls)
+AS_DICT_CALLERS = {"studyctl/cli/reports.py", "studyctl/cli/plan.py", "analysis/records.py", "analysis/study_results.py", "sim/jsonable.py"}
 
 
 def _walk(obj, path: str):

@@ -20,22 +20,9 @@ import pytest
 from studyctl.session.lock import session_lock
 from studyctl.store import SCHEMA_VERSION
 from studyctl.store import database as store_database
-from tests.helpers import fast_protocol, studyctl
+from tests.helpers import fast_protocol, query, studyctl, tree_state
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _files(d: Path) -> dict:
-    """Every file and folder under `d` (side files and lock folders included), files with their SHA-256."""
-    return {str(p.relative_to(d)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "folder" for p in sorted(d.rglob("*"))}
-
-
-def _q(db, sql, params=()):
-    con = sqlite3.connect(db)
-    try:
-        return con.execute(sql, params).fetchall()
-    finally:
-        con.close()
 
 
 def _set(db, sql, params=()):
@@ -103,12 +90,12 @@ WRITING = (["participants", "add", "P02"], ["participants", "withdraw", "P01"], 
 @pytest.mark.parametrize("args", [["status"], ["participants", "add", "P02"], ["study", "migrate"]])
 def test_a_schema_version_this_software_does_not_read_is_refused_in_one_line(study, value, args):
     _set(study, "update meta set value = ? where key = 'schema_version'", (value,))
-    before = _files(study.parent)
+    before = tree_state(study.parent)
     res = studyctl(*args, "--db", study)
     assert res.exit_code == 1
     newer = "; a newer studyctl wrote it: update studyctl" if value == "99" else ""
     assert res.output == f"Error: {study}: schema_version '{value}' is not a version this studyctl reads (1..{SCHEMA_VERSION}){newer}\n"
-    assert _files(study.parent) == before
+    assert tree_state(study.parent) == before
 
 
 def _outdated(db) -> str:
@@ -119,11 +106,11 @@ def _outdated(db) -> str:
 @pytest.mark.parametrize("args", READING + WRITING + (["export", "--out", "EX"],))
 def test_an_older_schema_is_neither_read_nor_written_but_named_for_migrate(study, tmp_path, args):
     _to_schema_2(study)
-    before = _files(study.parent)
+    before = tree_state(study.parent)
     res = studyctl(*[tmp_path / "ex" if a == "EX" else a for a in args], "--db", study)
     assert res.exit_code == 1
     assert res.output == _outdated(study)
-    assert _files(study.parent) == before
+    assert tree_state(study.parent) == before
     assert not (tmp_path / "ex").exists()
 
 
@@ -134,28 +121,28 @@ def test_study_migrate_upgrades_every_step_and_keeps_a_backup(study):
     assert res.exit_code == 0, res.output
     backup = study.parent / "s.db.schema-2.bak"
     assert res.output == f"migrated {study} from schema 2 to {SCHEMA_VERSION}; the schema-2 file was copied to {backup} first\n"
-    assert _q(study, "select value from meta where key = 'schema_version'") == [(str(SCHEMA_VERSION),)]
-    assert _q(backup, "select value from meta where key = 'schema_version'") == [("2",)]
-    assert {"config", "config_sha256"} <= {r[1] for r in _q(study, "pragma table_info(conditions)")}
+    assert query(study, "select value from meta where key = 'schema_version'") == [(str(SCHEMA_VERSION),)]
+    assert query(backup, "select value from meta where key = 'schema_version'") == [("2",)]
+    assert {"config", "config_sha256"} <= {r[1] for r in query(study, "pragma table_info(conditions)")}
     assert json.loads(studyctl("participants", "list", "--json", "--db", study).output)[0]["code"] == "P01"
     assert old != hashlib.sha256(study.read_bytes()).hexdigest()
 
 
 def test_study_migrate_on_a_current_database_changes_nothing(study):
-    before = _files(study.parent)
+    before = tree_state(study.parent)
     res = studyctl("study", "migrate", "--db", study)
     assert res.output == f"{study}: already schema {SCHEMA_VERSION}; nothing to do\n"
-    assert _files(study.parent) == before
+    assert tree_state(study.parent) == before
 
 
 def test_study_migrate_never_overwrites_a_backup(study):
     _to_schema_2(study)
     (study.parent / "s.db.schema-2.bak").write_text("mine")
-    before = _files(study.parent)
+    before = tree_state(study.parent)
     res = studyctl("study", "migrate", "--db", study)
     assert res.exit_code == 1
     assert "a backup is there already (never overwritten)" in res.output
-    assert _files(study.parent) == before
+    assert tree_state(study.parent) == before
 
 
 @pytest.mark.parametrize("stop, code", [(sqlite3.OperationalError("disk I/O error"), 1), (KeyboardInterrupt(), 130)])
@@ -163,7 +150,7 @@ def test_a_migration_stopped_midway_leaves_the_file_as_it_was(study, monkeypatch
     """Step 6 rebuilds the answers table, then fails (or Ctrl-C): steps 3-5 done before it, and
     its own half, are all rolled back; the backup goes too."""
     _to_schema_2(study)
-    before = _files(study.parent)
+    before = tree_state(study.parent)
     step = store_database.MIGRATIONS[6]
 
     def failing(db):
@@ -173,7 +160,7 @@ def test_a_migration_stopped_midway_leaves_the_file_as_it_was(study, monkeypatch
     monkeypatch.setitem(store_database.MIGRATIONS, 6, failing)
     res = studyctl("study", "migrate", "--db", study)
     assert res.exit_code == code
-    assert _files(study.parent) == before
+    assert tree_state(study.parent) == before
 
 
 def test_a_failed_migration_says_nothing_was_changed(study, monkeypatch):
@@ -192,10 +179,10 @@ def test_a_failed_migration_says_nothing_was_changed(study, monkeypatch):
 
 @pytest.mark.parametrize("args", READING)
 def test_a_reading_command_leaves_the_folder_as_it_was(ran, args):
-    before = _files(ran.parent)
+    before = tree_state(ran.parent)
     res = studyctl(*args, "--db", ran)
     assert res.exit_code == 0, res.output
-    assert _files(ran.parent) == before
+    assert tree_state(ran.parent) == before
 
 
 @pytest.fixture
@@ -211,19 +198,19 @@ def immutable(ran):
 
 @pytest.mark.parametrize("args", READING)
 def test_a_reading_command_on_an_immutable_file_leaves_no_side_file(immutable, args):
-    before = _files(immutable.parent)
+    before = tree_state(immutable.parent)
     res = studyctl(*args, "--db", immutable)
     assert res.exit_code == 0, res.output
-    assert _files(immutable.parent) == before
+    assert tree_state(immutable.parent) == before
 
 
 @pytest.mark.parametrize("args", WRITING + (["study", "migrate"],))
 def test_a_writing_command_on_an_immutable_file_says_read_only(immutable, args):
-    before = _files(immutable.parent)
+    before = tree_state(immutable.parent)
     res = studyctl(*args, "--db", immutable)
     assert res.exit_code == 1
     assert res.output == f"Error: {immutable}: read-only (operation not permitted); nothing was written; reports and exports still work on it\n"
-    assert _files(immutable.parent) == before
+    assert tree_state(immutable.parent) == before
 
 
 # root without the capabilities that pass over file modes: chmod applies to it as to any user
@@ -265,21 +252,21 @@ def _chmod(db, what: str) -> None:
 @pytest.mark.parametrize("args", [["status"], ["participants", "list"]])
 def test_a_reading_command_on_a_read_only_file_or_folder_leaves_no_side_file(modes, what, args):
     _chmod(modes, what)
-    before = _files(modes.parent)
+    before = tree_state(modes.parent)
     res = _plain(*args, "--db", modes)
     assert res.returncode == 0, res.stderr
-    assert _files(modes.parent) == before
+    assert tree_state(modes.parent) == before
 
 
 @pytest.mark.parametrize("what, why", [("file", "permission denied"), ("folder", "its folder {folder} takes no new file")])
 def test_a_writing_command_on_a_read_only_file_or_folder_says_read_only(modes, what, why):
     _chmod(modes, what)
-    before = _files(modes.parent)
+    before = tree_state(modes.parent)
     res = _plain("participants", "add", "P02", "--db", modes)
     assert res.returncode == 1
     assert res.stderr == (f"Error: {modes}: read-only ({why.format(folder=modes.parent)}); nothing was written; "
                           "reports and exports still work on it\n")
-    assert _files(modes.parent) == before
+    assert tree_state(modes.parent) == before
 
 
 @pytest.fixture
@@ -325,11 +312,11 @@ def test_a_database_made_read_only_while_open_is_named_read_only_not_busy(study,
 
 
 def test_withdraw_refused_for_a_control_character_leaves_no_lock(study):
-    before = _files(study.parent)
+    before = tree_state(study.parent)
     res = studyctl("participants", "withdraw", "P01", "--reason", "left\x07early", "--db", study)
     assert res.exit_code == 1
     assert res.output.startswith("Error: --reason: control character U+0007")
-    assert _files(study.parent) == before
+    assert tree_state(study.parent) == before
 
 
 def test_a_lock_released_takes_its_file_and_folder(study):
@@ -375,11 +362,11 @@ def pending(tmp_path):
 def test_a_second_synth_is_told_the_first_is_running(pending, args):
     holder = _holder(pending, "hold")
     try:
-        before = _files(pending.parent)
+        before = tree_state(pending.parent)
         res = studyctl("synth", *args, "--db", pending)
         assert res.exit_code == 1
         assert res.output == f"Error: {pending}: another synth (pid {holder.pid}) is running on this study; wait for it or stop it\n"
-        assert _files(pending.parent) == before
+        assert tree_state(pending.parent) == before
     finally:
         holder.kill()
         holder.wait()
@@ -393,7 +380,7 @@ def test_a_synth_killed_is_told_apart_from_a_running_one(pending):
     assert "an interrupted synth registered without a session; give --complete" in res.output
     res = studyctl("synth", "--complete", "--db", pending)
     assert res.exit_code == 0, res.output
-    assert _q(pending, "select code from sessions order by code") == [("S001",), ("S002",)]
+    assert query(pending, "select code from sessions order by code") == [("S001",), ("S002",)]
 
 
 def test_complete_while_a_real_synth_runs_reruns_no_session(tmp_path):
@@ -414,7 +401,7 @@ def test_complete_while_a_real_synth_runs_reruns_no_session(tmp_path):
     finally:
         out, err = first.communicate(timeout=300)
     assert first.returncode == 0, err
-    assert _q(db, "select code, count(*) from sessions group by code") == [("S001", 1), ("S002", 1), ("S003", 1)]
+    assert query(db, "select code, count(*) from sessions group by code") == [("S001", 1), ("S002", 1), ("S003", 1)]
 
 
 # -- a database reached through a link --------------------------------------------------------
@@ -468,7 +455,6 @@ def test_status_counts_withdrawn_synthetic_participants_as_it_counts_the_complet
     lines = studyctl("status", "--db", db).output.splitlines()
     assert lines[0] == "brain_pull_2015: 0 of 35 people complete (and 3 SYNTHETIC) (3 of these withdrew, data kept: counted, as in the reports)"
     assert lines[1] == "participants: 0 people (0 consented, 0 withdrawn), 3 synthetic (3 withdrawn)"
-
 
 
 def test_asking_whether_a_database_can_be_written_keeps_this_process_s_locks_on_it(tmp_path):

@@ -3,7 +3,6 @@ the everyday commands (status, lists, consent, withdrawal, cancelled slots, corr
 contacts, --dry-run), CSVs as spreadsheets save them, and reports on an empty study."""
 
 import csv
-import hashlib
 import json
 import sqlite3
 import stat
@@ -12,19 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.helpers import PROTOCOL, fast_protocol, studyctl
-
-
-def _files(d: Path) -> dict:
-    return {str(p.relative_to(d)): hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "folder" for p in sorted(d.rglob("*"))}
-
-
-def _q(db, sql, params=()):
-    con = sqlite3.connect(db)
-    try:
-        return con.execute(sql, params).fetchall()
-    finally:
-        con.close()
+from tests.helpers import PROTOCOL, fast_protocol, query, studyctl, tree_state
 
 
 def test_a_foreign_sqlite_file_is_byte_identical_after_every_command(tmp_path):
@@ -36,7 +23,7 @@ def test_a_foreign_sqlite_file_is_byte_identical_after_every_command(tmp_path):
     con.close()
     (tmp_path / "p.csv").write_text("code\nP01\n")
     (tmp_path / "a.csv").write_text("participant,model,item,answer\nP01,fem,natural,yes\n")
-    before = _files(tmp_path)
+    before = tree_state(tmp_path)
     commands = [
         ["participants", "add", "P01"], ["participants", "import", tmp_path / "p.csv"], ["participants", "list"],
         ["participants", "consent", "P01"], ["participants", "withdraw", "P01"], ["participants", "contacts", "--out", tmp_path / "c.csv"],
@@ -52,8 +39,8 @@ def test_a_foreign_sqlite_file_is_byte_identical_after_every_command(tmp_path):
         res = studyctl(*args, "--db", db)
         assert res.exit_code == 1, (args, res.output)
         assert "not a study database (it holds other tables: foo)" in res.output, (args, res.output)
-    assert _files(tmp_path) == before
-    assert _q(db, "select x from foo") == [(42,)]
+    assert tree_state(tmp_path) == before
+    assert query(db, "select x from foo") == [(42,)]
 
 
 def test_study_init_only_on_a_new_or_empty_file(tmp_path):
@@ -126,7 +113,7 @@ def test_provenance_a_participant_is_a_person_or_synthetic_never_both(tmp_path):
     assert studyctl("session", "run", "--participant", "S01", "--synthetic", "--db", db).exit_code == 0
     assert "registered as a person" in studyctl("session", "run", "--participant", "P01", "--synthetic", "--db", db).output
     # answers carry their source; a synthetic participant's come only from the synthetic answerer
-    assert _q(db, "select distinct code, source from answers") == [("S01", "synthetic")]
+    assert query(db, "select distinct code, source from answers") == [("S01", "synthetic")]
     facts = json.loads(studyctl("report", "table1", "--format", "json", "--db", db).output)["facts"]
     assert facts["synthetic"]
     assert facts["synthetic_participants"] == 1
@@ -166,7 +153,7 @@ def test_resume_with_other_options_than_the_start_is_refused(tmp_path):
     res = studyctl("session", "run", "--participant", "S01", "--synthetic", "--resume", "--db", db)
     assert res.exit_code == 1
     assert "was started with --device openhaptics, not simulated; resume it with --device openhaptics" in res.output
-    assert _q(db, "select count(*) from answers") == [(0,)]
+    assert query(db, "select count(*) from answers") == [(0,)]
 
 
 def test_a_person_needs_consent_and_imported_answers_are_not_mixed_with_a_session(tmp_path):
@@ -176,7 +163,7 @@ def test_a_person_needs_consent_and_imported_answers_are_not_mixed_with_a_sessio
     assert res.exit_code == 1
     assert "no consent recorded" in res.output
     assert studyctl("participants", "consent", "P01", "--date", "2026-01-05", "--db", db).exit_code == 0
-    assert _q(db, "select code, version, given_on from consent") == [("P01", "1", "2026-01-05")]
+    assert query(db, "select code, version, given_on from consent") == [("P01", "1", "2026-01-05")]
     (tmp_path / "a.csv").write_text("participant,model,item,answer\nP01,plate_spring,natural,Y\n")
     assert studyctl("answers", "import", tmp_path / "a.csv", "--db", db).exit_code == 0
     res = studyctl("session", "run", "--participant", "P01", "--time-scale", "0", "--view", "none", "--db", db)
@@ -191,7 +178,7 @@ def test_dry_run_writes_nothing_and_says_so(tmp_path):
     studyctl("schedule", "--start", "2037-12-01", "--end", "2037-12-04", "--db", db)
     assert studyctl("answers", "import", tmp_path / "none.csv", "--db", db).exit_code == 1  # (a missing file: nothing)
     studyctl("participants", "add", "P04", "--db", db)  # waiting for a slot
-    before = _files(tmp_path)
+    before = tree_state(tmp_path)
     said = "dry run, nothing written: would have "
     for args, first in ((["participants", "add", "P09"], said + "added P09"),
                         (["participants", "import", tmp_path / "p.csv"], said + "imported 2 participants"),
@@ -203,7 +190,7 @@ def test_dry_run_writes_nothing_and_says_so(tmp_path):
         res = studyctl(*args, "--dry-run", "--db", db)
         assert res.exit_code == 0, (args, res.output)
         assert res.output.startswith(first), (args, res.output)
-    assert _files(tmp_path) == before
+    assert tree_state(tmp_path) == before
 
 
 def test_withdrawal_keeps_or_deletes_data_as_the_protocol_says(tmp_path):
@@ -219,14 +206,14 @@ def test_withdrawal_keeps_or_deletes_data_as_the_protocol_says(tmp_path):
         res = studyctl("participants", "withdraw", "S01", "--reason", "asked to", "--db", db)
         assert res.exit_code == 0
         assert f"answers {'kept' if policy == 'keep' else 'deleted'}" in res.output
-        answers = _q(db, "select count(*) from answers where code = 'S01'")[0][0]
+        answers = query(db, "select count(*) from answers where code = 'S01'")[0][0]
         assert answers == (9 if policy == "keep" else 0)
         assert traces[0].exists() == (policy == "keep")
-        assert _q(db, "select withdrawal from participants where code = 'S01'") == [("kept" if policy == "keep" else "deleted",)]
-        assert _q(db, "select kind from events where kind = 'withdrawn'") == [("withdrawn",)]
+        assert query(db, "select withdrawal from participants where code = 'S01'") == [("kept" if policy == "keep" else "deleted",)]
+        assert query(db, "select kind from events where kind = 'withdrawn'") == [("withdrawn",)]
         assert "withdrew on" in studyctl("session", "run", "--participant", "S01", "--synthetic", "--db", db).output
         studyctl("participants", "withdraw", "P02", "--db", db)
-        assert _q(db, "select count(*) from identities") == [(0,)]  # contact details go with the withdrawal
+        assert query(db, "select count(*) from identities") == [(0,)]  # contact details go with the withdrawal
 
 
 def test_cancel_and_reschedule_keep_the_order(tmp_path):
@@ -234,15 +221,15 @@ def test_cancel_and_reschedule_keep_the_order(tmp_path):
     for c in ("P01", "P02"):
         studyctl("participants", "add", c, "--db", db)
     studyctl("schedule", "--start", "2037-12-01", "--end", "2037-12-01", "--db", db)
-    first = dict((c, (s, o)) for c, s, o in _q(db, "select code, slot_start, conditions from schedule"))
+    first = dict((c, (s, o)) for c, s, o in query(db, "select code, slot_start, conditions from schedule"))
     assert studyctl("schedule", "cancel", "P01", "--db", db).exit_code == 0
-    assert _q(db, "select slot_start from schedule where code = 'P01'") == [(None,)]
+    assert query(db, "select slot_start from schedule where code = 'P01'") == [(None,)]
     res = studyctl("schedule", "--start", "2037-12-02", "--end", "2037-12-02", "--json", "--db", db)
     rows = {r["code"]: r for r in json.loads(res.output)}
     assert rows["P01"]["slot_start"].startswith("2037-12-02")
     assert rows["P01"]["conditions"] == first["P01"][1]
     assert rows["P02"]["slot_start"] == first["P02"][0]  # the others keep theirs
-    assert _q(db, "select kind from events") == [("slot_cancelled",)]
+    assert query(db, "select kind from events") == [("slot_cancelled",)]
 
 
 def test_answers_correct_keeps_an_audit_trail(tmp_path):
@@ -255,8 +242,8 @@ def test_answers_correct_keeps_an_audit_trail(tmp_path):
                    "--reason", "paper sheet misread", "--db", db)
     assert res.exit_code == 0
     assert "yes -> no" in res.output
-    assert _q(db, "select answer from answers") == [(0,)]
-    assert _q(db, "select code, item, old_answer, new_answer, reason from corrections") == [("P01", "natural", 1, 0, "paper sheet misread")]
+    assert query(db, "select answer from answers") == [(0,)]
+    assert query(db, "select code, item, old_answer, new_answer, reason from corrections") == [("P01", "natural", 1, 0, "paper sheet misread")]
     assert "corrections.csv" in {p.name for p in (tmp_path / "ex").glob("*")} if studyctl("export", "--out", tmp_path / "ex", "--db", db).exit_code == 0 else False
 
 
@@ -310,14 +297,14 @@ def test_csvs_as_spreadsheets_save_them(tmp_path):
     (tmp_path / "p.csv").write_bytes("\ufeffCode;Age;Name\r\nP01;24;Zoë Müller\r\nP02;25;\r\n\r\n".encode("utf-8"))
     res = studyctl("participants", "import", tmp_path / "p.csv", "--db", db)
     assert res.exit_code == 0, res.output
-    assert _q(db, "select code, age from participants order by code") == [("P01", 24), ("P02", 25)]
-    assert _q(db, "select name from identities") == [("Zoë Müller",)]
+    assert query(db, "select code, age from participants order by code") == [("P01", 24), ("P02", 25)]
+    assert query(db, "select name from identities") == [("Zoë Müller",)]
     for c in ("P01", "P02"):
         studyctl("participants", "consent", c, "--db", db)
     (tmp_path / "a.csv").write_text("Participant,Model,Item,Answer\r\nP01,plate_spring,natural,Y\r\nP01,plate_spring,texture,0\r\n"
                                     "P02,plate_spring,natural,yes\r\nP02,plate_spring,texture,N\r\nP02,plate_spring,stable, TRUE \r\n")
     assert studyctl("answers", "import", tmp_path / "a.csv", "--db", db).exit_code == 0
-    assert _q(db, "select code, item, answer from answers order by code, item") == [
+    assert query(db, "select code, item, answer from answers order by code, item") == [
         ("P01", "natural", 1), ("P01", "texture", 0), ("P02", "natural", 1), ("P02", "stable", 1), ("P02", "texture", 0)]
 
 
@@ -353,12 +340,12 @@ def test_a_foreign_file_with_an_unmerged_wal_is_left_as_it_was(tmp_path):
     assert (tmp_path / "w.db-wal").stat().st_size > 0
     # the database and its WAL stay byte-identical; the -shm file is SQLite's shared-memory
     # index of the WAL, rebuilt by any reader (it holds no data)
-    before = {k: v for k, v in _files(tmp_path).items() if not k.endswith("-shm")}
+    before = {k: v for k, v in tree_state(tmp_path).items() if not k.endswith("-shm")}
     for args in (["status"], ["participants", "add", "P01"], ["report", "table1"], ["study", "init", "--protocol", PROTOCOL]):
         res = studyctl(*args, "--db", db)
         assert res.exit_code == 1, (args, res.output)
         assert "not a study database (it holds other tables: foo)" in res.output, (args, res.output)
-    assert {k: v for k, v in _files(tmp_path).items() if not k.endswith("-shm")} == before
+    assert {k: v for k, v in tree_state(tmp_path).items() if not k.endswith("-shm")} == before
 
 
 def test_withdrawal_waits_for_a_running_session(tmp_path):
@@ -370,7 +357,7 @@ def test_withdrawal_waits_for_a_running_session(tmp_path):
         res = studyctl("participants", "withdraw", "S01", "--db", db)
     assert res.exit_code == 1
     assert "their session is running now; stop it first" in res.output
-    assert _q(db, "select withdrawn_at from participants") == [(None,)]
+    assert query(db, "select withdrawn_at from participants") == [(None,)]
     assert studyctl("participants", "withdraw", "S01", "--db", db).exit_code == 0
 
 
@@ -385,9 +372,9 @@ def test_a_session_stopped_before_its_first_trial_is_discarded(tmp_path):
     res = studyctl("session", "run", "--participant", "S01", "--synthetic", "--db", db)
     assert res.exit_code == 0
     assert "discarded session 7 of S01: it stopped before its first trial" in res.output
-    assert _q(db, "select status from sessions") == [("done",)]
-    assert _q(db, "select count(*) from conditions where session_id = 7") == [(0,)]
-    assert _q(db, "select kind from events where kind = 'session_discarded'") == [("session_discarded",)]
+    assert query(db, "select status from sessions") == [("done",)]
+    assert query(db, "select count(*) from conditions where session_id = 7") == [(0,)]
+    assert query(db, "select kind from events where kind = 'session_discarded'") == [("session_discarded",)]
 
 
 def test_synth_skips_codes_in_use_and_refuses_another_protocol(tmp_path):
@@ -395,7 +382,7 @@ def test_synth_skips_codes_in_use_and_refuses_another_protocol(tmp_path):
     studyctl("participants", "add", "S001", "--synthetic", "--db", db)
     res = studyctl("synth", "--participants", "1", "--db", db)
     assert res.exit_code == 0, res.output
-    assert [c for (c,) in _q(db, "select code from participants order by code")] == ["S001", "S002"]
+    assert [c for (c,) in query(db, "select code from participants order by code")] == ["S001", "S002"]
     res = studyctl("synth", "--participants", "1", "--protocol", PROTOCOL, "--db", db)
     assert res.exit_code == 1
     assert "is not the protocol" in res.output
@@ -423,13 +410,13 @@ def test_an_older_schema_is_refused_until_study_migrate_upgrades_it(tmp_path):
     res = studyctl("participants", "list", "--json", "--db", db)
     assert res.exit_code == 1
     assert "schema version 2, this studyctl needs 10; run `studyctl study migrate" in res.output
-    assert _q(db, "select value from meta where key = 'schema_version'") == [("2",)]
+    assert query(db, "select value from meta where key = 'schema_version'") == [("2",)]
     assert studyctl("study", "migrate", "--db", db).exit_code == 0
     res = studyctl("participants", "list", "--json", "--db", db)
     assert json.loads(res.output)[0]["code"] == "P01"
-    assert _q(db, "select value from meta where key = 'schema_version'") == [("10",)]
-    assert _q(db, "select count(*) from observer_features") == [(0,)]
-    assert {"config", "config_sha256"} <= {r[1] for r in _q(db, "pragma table_info(conditions)")}
+    assert query(db, "select value from meta where key = 'schema_version'") == [("10",)]
+    assert query(db, "select count(*) from observer_features") == [(0,)]
+    assert {"config", "config_sha256"} <= {r[1] for r in query(db, "pragma table_info(conditions)")}
 
 
 def test_a_synthetic_session_resumes_with_its_own_seed(tmp_path):

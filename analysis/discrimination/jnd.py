@@ -37,7 +37,7 @@ from scipy import stats
 from analysis.discrimination.pooled import POOLED_MIN, pooled_webers
 from analysis.discrimination.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, weber_table
 from analysis.discrimination.weber_groups import group_test
-from analysis.faults import ConditionEvents, any_events, condition_events, events_table, withheld
+from analysis.faults import any_events, condition_events, events_table, withheld
 from analysis.reports.formatting import PAGE_END, drawn_png, figure_html, p_value, page_head
 from analysis.reports.methods import study_methods
 from analysis.reports.table import Table, latex_tables
@@ -110,7 +110,7 @@ def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) 
     conds = [_withhold_summary(_condition_summary(table[table["condition"] == c], c), held.get(c)) for c in order]
     group = _group(table, order, held) if len(order) >= 2 else None
     return ({"facts": facts, "weber": table.to_dict(orient="records"), "conditions": conds, "group": group, "methods": methods}
-            | ({"faults": [e.as_dict() for e in events]} if any_events(events) else {}))
+            | ({"faults": list(events)} if any_events(events) else {}))
 
 
 def task_events(study, task: int) -> pd.DataFrame:
@@ -245,7 +245,7 @@ def tables(res: dict) -> list[Table]:
 def faults_table(res: dict) -> Table | None:
     """The faults and safety events per condition (analysis.faults.events_table), None where no
     trial had one (the report then is as it was)."""
-    return events_table([ConditionEvents(**e) for e in res["faults"]]) if res.get("faults") else None
+    return events_table(res["faults"]) if res.get("faults") else None
 
 
 def _heading(res: dict) -> tuple[str, str]:

@@ -25,7 +25,7 @@ from scipy import stats
 from analysis import instruments
 from analysis import validity as v
 from analysis.errors import StudyError
-from analysis.faults import ConditionEvents, any_events, condition_events, events_table, involving, withheld
+from analysis.faults import any_events, condition_events, events_table, involving, withheld
 from analysis.metrics import UNITS, metrics_table, study_goals
 from analysis.reports.formatting import PAGE_END, figure_png, p_value, page_head
 from analysis.reports.plots import OTHER_COLORS, _plt
@@ -267,7 +267,7 @@ def validity_report(study: Study, permutations: int = DEFAULT_PERMUTATIONS, boot
         "mixed_model": mixed, "learning_curves": curves, "trial_means": _trial_points(metrics, groups, order) if len(metrics) else
         pd.DataFrame(columns=["metric", "condition", "group", "trial", "mean", "n"]),
         "proficiency": proficiency, "classifier": classifier, "ratings": ratings, "rating_tests": rating_tests,
-    } | ({"faults": [e.as_dict() for e in events]} if any_events(events) else {})
+    } | ({"faults": list(events)} if any_events(events) else {})
 
 
 WITHHELD_NUMBERS = ("H", "U", "p", "p_holm", "p_wy", "cliffs_delta", "delta_low", "delta_high")
@@ -359,7 +359,7 @@ def sections(rep: dict) -> list[Table]:
         rows.append(cells)
     out.append(_section("Participants", f"Groups: the {rep['group_field']} field (design.groups), in the protocol's order; integer and number "
                 "fields described per group; text fields are never analysed.", cols, rows))
-    faults = events_table([ConditionEvents(**e) for e in rep.get("faults") or []])
+    faults = events_table(list(rep.get("faults") or []))
     if faults is not None:  # only where a trial had one: a study without keeps its report as it was
         out.append(replace(faults, notes=faults.notes + " A withheld condition's metrics are described, never tested: no group "
                            "comparison, mixed model or classifier reads them."))

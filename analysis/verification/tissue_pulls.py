@@ -155,6 +155,24 @@ def pull_key(mesh: BodyMesh, scene, law, radius: float, pull, stretch_range=None
     return hashlib.sha256(key.encode()).hexdigest()[:24]
 
 
+def entry_keys(entries, scene, laws: dict, pulls: dict) -> list[str]:
+    """Each shipped entry's key (data/reference_pulls.json `entries`) from its inputs: its pull
+    (`pulls`, by name), the body-fitted mesh of the pull's hemisphere at the entry's size, its law
+    (`laws`, by shape). Who calls it chooses where the laws and pulls come from: the rekeying
+    script from the record, the test from this machine's own computation."""
+    radius, rng = grasp_radius(scene), truth_range(scene)
+    bodies: dict = {}
+    out = []
+    for e in entries:
+        pull = pulls[e["pull"]]
+        where = (pull.hemisphere, float(e["size_mm"]))
+        if where not in bodies:
+            verts, tris, _ = hemisphere_surface(scene.mesh, pull.hemisphere)
+            bodies[where] = mesh_hemisphere(verts, tris, where[1] * 1e-3)
+        out.append(pull_key(bodies[where], scene, laws[e["shape"]], radius, pull, rng))
+    return out
+
+
 _SHIPPED: dict | None = None
 
 
