@@ -15,6 +15,7 @@ from analysis.reports.table import Table, latex_tables, markdown_grid
 from analysis.verification.accuracy import MIN_DECIDED, QUICK_REASON, RATE_HALF_WIDTH, TARGET_WITHIN, class_best
 from analysis.verification.tissue_pulls import describe_no_reference
 from sim.jsonable import jsonable
+from sim.text import counted
 
 COLUMNS = ("model", "setting", "calibration", "scale", "force_error", "force_error_max", "within_jnd", "within_jnd_low",
            "within_jnd_high", "within", "outside", "undecided", "pulls_within", "angle_deg", "tick_us", "frame_ms")
@@ -47,7 +48,8 @@ def intro(result: dict) -> str:
     ref = m["reference"]
 
     gone = ref.get("no_reference") or []
-    missing = (f" {sum(g['samples'] for g in gone)} samples have no reference and are not judged: "
+    lost = sum(g['samples'] for g in gone)
+    missing = (f" {counted(lost, 'sample')} {'has' if lost == 1 else 'have'} no reference and {'is' if lost == 1 else 'are'} not judged: "
                f"{describe_no_reference(gone)}.") if gone else ""
     n = ref.get("samples", {})
     ens = "; ".join(f"{e['name']} (uniaxial {e['rms_rel_uniaxial']:.1%}, worst shear {e['shear_worst_rel']:.1%})" for e in ref.get("ensemble", []))
