@@ -40,9 +40,14 @@ def trace_file(db: str | Path, rel: str) -> Path:
     return given if given.exists() else real
 
 
-def trace_dir(db: str | Path) -> Path:
+def beside(db: str | Path, suffix: str) -> Path:
+    """What the store keeps beside the database's real file (a link resolved): `S.db` + `suffix`."""
     real = Path(os.path.realpath(db))
-    return real.parent / f"{real.name}.traces"
+    return real.with_name(real.name + suffix)
+
+
+def trace_dir(db: str | Path) -> Path:
+    return beside(db, ".traces")
 
 
 @dataclass

@@ -248,18 +248,15 @@ class Staged:
         self.removed: list[Path] = []
         self.kept: list[Path] = []
         _refuse_long_names([self.target])
-        files = [self.target / n for n in expect] if folder else [self.target]
-        self._refuse(files)
-        refuse_existing(files, force)
-
-    def _refuse(self, files) -> None:
-        """What no `force` allows: an input overwritten, a special file replaced."""
-        if self.folder:
+        if folder:  # the folder itself; its files, as a file output, below
             refuse_special(self.target, folder=True)
             refuse_inputs({self.option: self.target}, self.inputs)
-        for f in files:
-            refuse_special(f)
-            refuse_inputs({self.option: f}, self.inputs)
+        self._refuse_files([self.target / n for n in expect] if folder else [self.target])
+
+    def _refuse_files(self, files) -> list[Path]:
+        """`refuse_existing` with this output's inputs: what no `force` allows (an input
+        overwritten, a special file replaced), then what exists without it."""
+        return refuse_existing(files, self.force, inputs=self.inputs, option=self.option)
 
     def __enter__(self) -> Path:
         self.tmp = None
@@ -322,14 +319,12 @@ class Staged:
 
     def _move(self) -> None:
         if not self.folder:
-            self._refuse([self.target])
-            self.replaced = refuse_existing([self.target], self.force)
+            self.replaced = self._refuse_files([self.target])
             os.replace(self.tmp, self.target)
             self.written = [self.target]
             return
         files = sorted(p.relative_to(self.tmp) for p in self.tmp.rglob("*") if not p.is_dir())
-        self._refuse([self.target / f for f in files])
-        self.replaced = refuse_existing([self.target / f for f in files], self.force)
+        self.replaced = self._refuse_files([self.target / f for f in files])
         self.written = [self.target / f for f in files]
         if not os.path.lexists(self.target):  # a new folder: one rename moves all of it
             os.rename(self.tmp, self.target)

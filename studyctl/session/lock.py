@@ -17,6 +17,7 @@ import socket
 from pathlib import Path
 
 from analysis.errors import StoreError
+from analysis.trace_files import beside
 from studyctl.store import now
 
 
@@ -33,8 +34,7 @@ def _file_name(code: str) -> str:
 
 
 def lock_folder(db) -> Path:
-    real = Path(os.path.realpath(db))
-    return real.parent / f"{real.name}.locks"
+    return beside(db, ".locks")
 
 
 def _take(path: Path) -> int | str:

@@ -315,9 +315,10 @@ class Store:
         """meta.schema_version, refused unless a version this software reads (1..SCHEMA_VERSION)."""
         row = self.db.execute("select value from meta where key = 'schema_version'").fetchone()
         value = row[0] if row else None
-        if isinstance(value, (int, str)) and re.fullmatch(r"[0-9]{1,9}", str(value)) and 1 <= int(value) <= SCHEMA_VERSION:
-            return int(value)
-        newer = isinstance(value, (int, str)) and re.fullmatch(r"[0-9]{1,9}", str(value)) is not None and int(value) > SCHEMA_VERSION
+        number = int(value) if isinstance(value, (int, str)) and re.fullmatch(r"[0-9]{1,9}", str(value)) else None
+        if number is not None and 1 <= number <= SCHEMA_VERSION:
+            return number
+        newer = number is not None and number > SCHEMA_VERSION
         raise StoreError(f"{self.path}: schema_version {_shown(value)} is not a version this studyctl reads (1..{SCHEMA_VERSION})"
                          + ("; a newer studyctl wrote it: update studyctl" if newer else ""))
 
