@@ -10,6 +10,7 @@ study in docs/reference.md (Regions) gives its error against the truth's band.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -25,6 +26,7 @@ WHITE_MATTER = DEFAULT_MATERIAL.parent / "human_white_matter.toml"  # Budday 201
 # here: the factor is an assumption (docs/reference.md, Regions), a white matter this much
 # stiffer than cortex of the cortex's shape.
 JIN_WHITE_OVER_GREY = 1.3
+_fitted_range = lru_cache(maxsize=32)(fitted_range)  # a key per solve reads the data files once per process
 
 
 @dataclass(frozen=True)
@@ -54,10 +56,10 @@ def scene_regions(scene, law=None) -> RegionalLaw:
         return law
     material = scene.spec.material
     grey = law or material.law
-    grey_range = fitted_range(material.law_source)[0] if material.law_source else None
+    grey_range = _fitted_range(material.law_source)[0] if material.law_source else None
     if material.white_matter is None:
         return RegionalLaw(grey, None, grey_range, None)
-    white_range = fitted_range(material.white_matter_source)[0]
+    white_range = _fitted_range(material.white_matter_source)[0]
     return RegionalLaw(grey, material.white_matter, grey_range, white_range)
 
 

@@ -172,7 +172,7 @@ def entry_keys(entries, scene, laws: dict, pulls: dict) -> list[str]:
         if where not in bodies:
             verts, tris, _ = hemisphere_surface(scene.mesh, pull.hemisphere)
             bodies[where] = mesh_hemisphere(verts, tris, where[1] * 1e-3)
-        out.append(pull_key(bodies[where], scene, laws[e["shape"]], radius, pull, rng))
+        out.append(pull_key(bodies[where], scene, laws[e["shape"]], radius, pull, rng, scene_regions(scene, laws[e["shape"]])))
     return out
 
 
