@@ -120,11 +120,31 @@ class MaterialSpec:
     law: Hyperelastic | None = None
     law_source: str = ""  # the material file's path, or "inline"
     young_given: bool = True  # False: young = 2 mu (1 + poisson) of the law
+    # the truth's white matter, inside the white surface (sim/geometry/regions.py); None: homogeneous
+    white_matter: Hyperelastic | None = None
+    white_matter_source: str = ""  # its material file's path
+
+
+def white_matter_law(material: TableReader) -> tuple[Hyperelastic | None, str]:
+    """The law of the material file a scene's `white_matter` names (optional: absent, the brain
+    is one material) and its path."""
+    if "white_matter" not in material.data:
+        return None, ""
+    path = material.path_value("white_matter")
+    if path is None:
+        return None, ""
+    if not path.is_file():
+        material.error("white_matter", f"{path} does not exist; allowed: a material file (.toml) like protocols/materials/human_white_matter.toml"
+                       if not path.exists() else f"{path} is not a file; allowed: a material file (.toml)")
+        return None, ""
+    law, _ = material_file(path, material.problems)
+    return law, str(path)
 
 
 def material_spec(material: TableReader) -> MaterialSpec:
     """A scene's [material] (its problems recorded on the reader)."""
     law, source = scene_law(material)
+    white, white_source = white_matter_law(material)
     poisson = material.number("poisson", default=DEFAULT_POISSON, lo=POISSON_MIN, hi=POISSON_MAX, hi_open=True)
     given = "young" in material.data
     young = material.number("young", lo=YOUNG_RANGE[0], hi=YOUNG_RANGE[1], unit="Pa") if given else None
@@ -138,7 +158,7 @@ def material_spec(material: TableReader) -> MaterialSpec:
         elif not given:
             young = small
     return MaterialSpec(young=young, poisson=poisson, density=material.number("density", default=1040.0, lo=DENSITY_RANGE[0], hi=DENSITY_RANGE[1], unit="kg/m3"),
-                        law=law, law_source=source, young_given=given)
+                        law=law, law_source=source, young_given=given, white_matter=white, white_matter_source=white_source)
 
 
 def _toml_value(v) -> str:

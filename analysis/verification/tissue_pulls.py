@@ -37,6 +37,7 @@ import numpy as np
 
 from analysis.verification.convergence import converge
 from analysis.verification.material_fit import fitted_range
+from analysis.verification.regions import region_key, regional_system, scene_regions
 from brainsim_assets import path as _asset
 from sim.errors import ParameterError, SimError
 from sim.files import save_npz
@@ -143,15 +144,17 @@ def law_shape_key(law) -> list:
     return [law.law, [key_digits(m / mu) for m in law.mu], [key_digits(a) for a in law.alpha], key_digits(law.bulk_ratio)]
 
 
-def pull_key_inputs(mesh_key: str, scene, law, radius: float, pull, stretch_range=None) -> list:
-    """What a solve's key is the hash of, each number canonical (`key_number`, `key_digits`)."""
+def pull_key_inputs(mesh_key: str, scene, law, radius: float, pull, stretch_range=None, regional=None) -> list:
+    """What a solve's key is the hash of, each number canonical (`key_number`, `key_digits`);
+    a regional solve's white matter (`regions.region_key`) added."""
     axis, limit = clamp_limit(scene)
     return ([SOLVER_VERSION, mesh_key, law_shape_key(law), int(axis), key_number(limit), key_number(radius), int(pull.vertex),
-             [key_number(c) for c in pull.direction]] + ([[key_number(r) for r in stretch_range]] if stretch_range else []))
+             [key_number(c) for c in pull.direction]] + ([[key_number(r) for r in stretch_range]] if stretch_range else [])
+            + (region_key(regional, law_shape_key, key_digits) if regional is not None else []))
 
 
-def pull_key(mesh: BodyMesh, scene, law, radius: float, pull, stretch_range=None) -> str:
-    key = json.dumps(pull_key_inputs(mesh.key, scene, law, radius, pull, stretch_range))
+def pull_key(mesh: BodyMesh, scene, law, radius: float, pull, stretch_range=None, regional=None) -> str:
+    key = json.dumps(pull_key_inputs(mesh.key, scene, law, radius, pull, stretch_range, regional))
     return hashlib.sha256(key.encode()).hexdigest()[:24]
 
 
@@ -169,7 +172,7 @@ def entry_keys(entries, scene, laws: dict, pulls: dict) -> list[str]:
         if where not in bodies:
             verts, tris, _ = hemisphere_surface(scene.mesh, pull.hemisphere)
             bodies[where] = mesh_hemisphere(verts, tris, where[1] * 1e-3)
-        out.append(pull_key(bodies[where], scene, laws[e["shape"]], radius, pull, rng))
+        out.append(pull_key(bodies[where], scene, laws[e["shape"]], radius, pull, rng, scene_regions(scene, laws[e["shape"]])))
     return out
 
 
@@ -244,19 +247,21 @@ def stored_solve(key: str, xs, stiffness: bool = False) -> dict | None:
     return None
 
 
-def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness: bool = False, stretch_range=None) -> dict:
+def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness: bool = False, stretch_range=None, regional=None) -> dict:
     """Follow the pull (the patch's mean displacement along `direction`) to max(xs), recording
     the force holding it (per pascal of shear modulus, (len(xs), 3), the force on the tissue),
     its support (`support`, (len(xs), 4): `SUPPORT_FIELDS` of `sim.models.fem.finite_strain.support`
     for the principal stretches `stretch_range`, NaN without one) and, with `stiffness`, the
-    condensed tangent (len(xs), 3, 3) at each x."""
+    condensed tangent (len(xs), 3, 3) at each x. `regional` (`regions.RegionalLaw`): the white
+    matter's law inside the white surface, `stretch_range` then one range per law."""
     xs = np.asarray(xs, dtype=np.float64)
     if xs.ndim != 1 or len(xs) == 0 or not np.all(np.isfinite(xs)) or np.any(xs <= 0) or np.any(np.diff(xs) <= 0):
         raise ParameterError("displacements: an increasing list of positive lengths (m)")
     unit = law.scaled(1.0 / law.shear_modulus)
     W = grasp_matrix(problem, points, weights)
     t0 = time.perf_counter()
-    system = FiniteStrain(problem.space, unit, mean_dilatation=False)
+    laws, law_of = regional_system(problem.space, problem.mesh, problem.label, regional, unit) if regional else (unit, None)
+    system = FiniteStrain(problem.space, laws, mean_dilatation=False, law_of=law_of)
     res = hold(system, W, np.asarray(direction) * xs[-1], fractions=xs / xs[-1],
                first_step=min(0.25, 2.0 * xs[0] / xs[-1]), stiffness=stiffness, keep_states=stretch_range is not None)
     rep = res.report
@@ -320,10 +325,11 @@ def _pull_task(args) -> dict:
     scene_path, label, size_mm, pull, xs, stiffness, upto, finer, law = args
 
     scene = scene_with(scene_path)
-    law, radius, rng = law or scene.spec.material.law, grasp_radius(scene), truth_range(scene)
+    regional = scene_regions(scene, law)
+    law, radius, rng = regional.grey, grasp_radius(scene), truth_range(scene)
     verts, tris, _ = hemisphere_surface(scene.mesh, label)
     body = mesh_hemisphere(verts, tris, size_mm * 1e-3)
-    key = pull_key(body, scene, law, radius, pull, rng)
+    key = pull_key(body, scene, law, radius, pull, rng, regional)
     found = _stored(key, xs, stiffness, finer, upto)
     if found is not None:
         return found | {"cached": True, "key": key, "h_m": body.h}
@@ -336,7 +342,8 @@ def _pull_task(args) -> dict:
     if not asked.any():
         return nothing | {"reason": "not solved: the coarsest mesh's solve stopped, or its state left the data, before the first sample"}
     problem = build_problem(scene, label, body)
-    r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs[asked], stiffness, rng)
+    r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs[asked], stiffness,
+                   regional.ranges() if regional.white is not None and rng else rng, regional)
     if not asked.all():  # followed only as far as asked: no records beyond
         for name in ("force_per_pa", "stiffness_per_pa", "support"):
             if name in r:
@@ -491,7 +498,8 @@ def _stored_task(task, seen: dict) -> dict | None:
         return None
     if ("range", scene_path) not in seen:
         seen[("range", scene_path)] = truth_range(scene)
-    key = pull_key(body, scene, law or scene.spec.material.law, grasp_radius(scene), pull, seen[("range", scene_path)])
+    regional = scene_regions(scene, law)
+    key = pull_key(body, scene, regional.grey, grasp_radius(scene), pull, seen[("range", scene_path)], regional)
     found = _stored(key, xs, stiffness, finer, upto)
     return None if found is None else found | {"cached": True, "key": key, "h_m": body.h}
 
