@@ -65,6 +65,7 @@ def judge(db: Path) -> dict:
         questions = [q for q in protocol.asked("condition") if q.kind == "yes_no"]
         kept = {(r.code, r.model, r.item): bool(int(r.answer)) for r in stored.itertuples() if int(r.trial) == NOT_PER_TRIAL}
         yes = {rule: defaultdict(lambda: defaultdict(int)) for rule in RULES}
+        within = {rule: defaultdict(list) for rule in RULES}  # each participant's within_jnd of each model (NaN: nothing judged)
         counts = defaultdict(lambda: np.zeros(2, dtype=np.int64))  # (hand, model) -> judged, decided samples
         differ, n = [], defaultdict(int)
         for code in sorted(set(stored["code"])):
@@ -81,6 +82,7 @@ def judge(db: Path) -> dict:
                     n[model] += 1
                     for rule, params in RULES.items():
                         answerer = SyntheticAnswers(who, truth, base.mesh, params, rig)
+                        within[rule][model].append(answerer.features_of(model, results)["within_jnd"])
                         for q in questions:
                             a = bool(answerer(q, model, {"labels": labels, "trial": None, "results": results}))
                             yes[rule][model][q.id] += a
@@ -96,7 +98,9 @@ def judge(db: Path) -> dict:
             "decided_to_mm": decided_extent(truth), "participants": {m: n[m] for m in models},
             "questions": [q.id for q in questions], "decided_share": share,
             "yes": {rule: {m: {"total": sum(yes[rule][m].values()), "of": n[m] * len(questions)} | dict(yes[rule][m]) for m in models}
-                    for rule in RULES}}
+                    for rule in RULES},
+            "within_jnd": {rule: {m: {"mean": float(np.nanmean(within[rule][m])) if np.isfinite(within[rule][m]).any() else float("nan"),
+                                      "nothing_judged": int(np.isnan(within[rule][m]).sum())} for m in models} for rule in RULES}}
 
 
 def _share(c) -> dict:
@@ -127,7 +131,9 @@ def main() -> None:
         print(f"{h}: {by['all']['decided']} of {by['all']['judged']} judged samples on decided truth ({by['all']['share']:.1%}); "
               + ", ".join(f"{m} {v['share']:.1%}" for m, v in by.items() if m != "all"))
     for rule, by in out["yes"].items():
-        print(f"{rule}: yes " + ", ".join(f"{m} {v['total']} of {v['of']}" for m, v in by.items()))
+        print(f"{rule}: yes " + ", ".join(f"{m} {v['total']} of {v['of']}" for m, v in by.items()) + "; mean within_jnd "
+              + ", ".join(f"{m} {v['mean']:.3f}" + (f" ({v['nothing_judged']} judged nothing)" if v["nothing_judged"] else "")
+                          for m, v in out["within_jnd"][rule].items()))
 
 
 if __name__ == "__main__":
