@@ -139,11 +139,16 @@ def edge_fits(curves, law: Hyperelastic) -> list[tuple[str, str, Hyperelastic]]:
 
 
 def beyond_data(member: Hyperelastic, chosen: Hyperelastic) -> dict:
-    """The member's uniaxial nominal stress (Pa) at `BEYOND_STRETCHES`, beyond the data, and its
-    ratio to the chosen law's there."""
-    lam = np.asarray(BEYOND_STRETCHES)
+    """The member's uniaxial nominal stress (Pa) at `BEYOND_STRETCHES`, beyond the data, its
+    ratio to the chosen law's there, and the ratio of their tangents dP/dl (central differences)."""
+    lam, h = np.asarray(BEYOND_STRETCHES), 1e-6
     mine, theirs = uniaxial(member, lam)[0], uniaxial(chosen, lam)[0]
-    return {f"{x:g}": {"stress_pa": float(p), "ratio": float(p / q)} for x, p, q in zip(lam, mine, theirs)}
+
+    def tangent(law):
+        return (uniaxial(law, lam + h)[0] - uniaxial(law, lam - h)[0]) / (2.0 * h)
+
+    slope = tangent(member) / tangent(chosen)
+    return {f"{x:g}": {"stress_pa": float(p), "ratio": float(p / q), "tangent_ratio": float(t)} for x, p, q, t in zip(lam, mine, theirs, slope)}
 
 
 def shapes(members: list[dict]) -> list[Hyperelastic]:
