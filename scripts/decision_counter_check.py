@@ -42,6 +42,19 @@ def _force(system, W, direction, x) -> float:
     return float(res.forces[-1] @ direction) if res.report.converged else float("nan")
 
 
+def _moving_set(xs, force, share) -> np.ndarray:
+    """d(E_out)/dE with E_out counted at each state's own outside points (the set moving with the
+    state), by central differences over the neighbouring records, E the path integral of the
+    force (trapezoids from rest): what the marginal share is when points crossing the data's edge
+    bring their whole energy with them (a law whose energy jumps there). NaN at the ends."""
+    x = np.concatenate([[0.0], xs])
+    f = np.concatenate([[0.0], force])
+    E = np.cumsum(np.concatenate([[0.0], 0.5 * (f[1:] + f[:-1]) * np.diff(x)]))[1:]
+    out = np.full(len(xs), np.nan)
+    out[1:-1] = (share[2:] * E[2:] - share[:-2] * E[:-2]) / (E[2:] - E[:-2])
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pulls", default="left-lateral,test4-across,right-lateral,test9-across")
@@ -71,8 +84,10 @@ def main() -> None:
         path = hold(system, W, d * xs[-1], fractions=xs / xs[-1], first_step=0.05, keep_states=True, sensitivity=True)
         sup = [support(system, u, rng, du) for u, du in zip(path.states, path.sensitivities)]
         m = np.array([s["marginal_share_outside"] for s in sup])
-        print(f"{p.name}: " + ", ".join(f"{x * 1e3:g} mm m {v:.3f} share {s['energy_share_outside']:.3f} |J-1| {s['max_abs_j_minus_1']:.3f} "
-                                       f"fine {s['max_abs_j_minus_1_fine']:.3f}" for x, v, s in zip(xs, m, sup)), flush=True)
+        moving = _moving_set(xs, path.forces @ d, np.array([s["energy_share_outside"] for s in sup]))
+        print(f"{p.name}: " + ", ".join(f"{x * 1e3:g} mm m {v:.3f} (moving set {q:.3f}) share {s['energy_share_outside']:.3f} "
+                                       f"|J-1| {s['max_abs_j_minus_1']:.3f} fine {s['max_abs_j_minus_1_fine']:.3f}"
+                                       for x, v, q, s in zip(xs, m, moving, sup)), flush=True)
         picks = sorted({int(np.nanargmin(np.abs(m - v))) for v in near})
         for i in picks:
             x, f0 = xs[i], float(path.forces[i] @ d)
@@ -86,6 +101,7 @@ def main() -> None:
             for mem in members:
                 changes.append(_force(FiniteStrain(problem.space, mem["law"]), W, d, x) / f0 - 1.0)
             row = {"pull": p.name, "x_mm": x * 1e3, "force_n": f0, "energy_share": sup[i]["energy_share_outside"], "marginal_share": float(m[i]),
+                   "moving_set_share": float(moving[i]),
                    "energy_rate_over_force": sup[i]["energy_rate"] / f0, "max_abs_j_minus_1": sup[i]["max_abs_j_minus_1"],
                    "max_abs_j_minus_1_fine": sup[i]["max_abs_j_minus_1_fine"], "factor_2": changes[0], "factor_half": changes[1],
                    "members": {mem["name"]: c for mem, c in zip(members, changes[2:])}}

@@ -33,7 +33,7 @@ from analysis.verification.tissue_pulls import (
     pull_references,
     stored_solve,
 )
-from analysis.verification.truth_band import ensemble, shape_index, shapes
+from analysis.verification.truth_band import ensemble, members_json, shape_index, shapes
 from brainsim_assets import version
 from sim.geometry.tetmesh import SHIPPED_MM
 from sim.pulls import hand_pulls, make_pulls, scene_with, test_pulls
@@ -100,8 +100,7 @@ def main() -> None:
     SHIPPED_PULLS_INFO.write_text(json.dumps({
         "sha256": hashlib.sha256(SHIPPED_PULLS.read_bytes()).hexdigest(),
         "made": datetime.date.today().isoformat(), "version": version(), "law": law.params(),
-        "ensemble": [{"name": m["name"], "role": m["role"], "law": m["law"].params(), "shape": i, "rms_rel_uniaxial": m["rms_rel_uniaxial"],
-                      "shear_worst_rel": m["shear_worst_rel"], "passes": m["passes"]} for m, i in zip(members, shape_index(members))],
+        "ensemble": [j | {"shape": i} for j, i in zip(members_json(members), shape_index(members))],
         "law_source": "protocols/materials/human_cortex.toml", "scene": "protocols/scenes/brain_pull.toml",
         "record_mm": [round(x * 1e3, 6) for x in RECORD_XS], "sizes_mm": list(SHIPPED_MM) + list(QUICK_SIZES_MM),
         "made_by": "scripts/make_reference_pulls.py", "wall_s": time.perf_counter() - start, "entries": entries}, indent=1) + "\n")
