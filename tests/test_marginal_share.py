@@ -10,7 +10,7 @@ import pytest
 import scipy.sparse as sp
 
 from analysis.verification import truth_band
-from analysis.verification.tissue_pulls import SUPPORT_FIELDS
+from analysis.verification.tissue_pulls import FOLLOW_SHARE, SUPPORT_FIELDS, follow_to
 from sim.geometry.volume import grid_tets
 from sim.hyperelastic import ogden, uniaxial
 from sim.material import load_material
@@ -151,3 +151,13 @@ def test_the_stiffer_member_passes_the_bar_and_is_stiffer_beyond_the_data(member
     for x in (1.3, 0.8):
         assert abs(uniaxial(stiff["law"], np.array([x]))[0][0]) > 1.05 * abs(uniaxial(law, np.array([x]))[0][0])
     assert stiff["beyond_data"]["0.8"]["ratio"] > 1.05
+
+
+def test_the_finer_meshes_follow_while_the_share_decided_on_allows():
+    xs = np.array([0.001, 0.002, 0.003])
+    sup = np.zeros((3, len(SUPPORT_FIELDS)))
+    sup[:, 0] = [0.1, FOLLOW_SHARE + 0.05, FOLLOW_SHARE + 0.1]  # the energy share leaves at 2 mm
+    sup[:, SUPPORT_FIELDS.index("marginal_share_outside")] = [0.1, FOLLOW_SHARE - 0.05, FOLLOW_SHARE + 0.05]  # the marginal share at 3 mm
+    coarse = {"force_per_pa": np.ones((3, 3)), "support": sup}
+    assert follow_to(xs, coarse, whole=False) == 0.002
+    assert follow_to(xs, coarse | {"support": sup[:, :4]}, whole=False) == 0.001  # a solve made before: the energy share

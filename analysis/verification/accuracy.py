@@ -446,8 +446,8 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                                     "pull": pull.name, "displacement_mm": round(float(x) * 1e3, 6), "force_n": f, "reference_force_n": r,
                                     "reference_half_band_n": float(H[p, k]), "mesh_band_rel": cell["mesh_band_rel"], "law_band_rel": cell["law_band_rel"],
                                     "support_share_outside": cell["support_share_outside"], "max_abs_j_minus_1": cell["max_abs_j_minus_1"],
-                                    "marginal_share_outside": cell["marginal_share_outside"], "max_abs_j_minus_1_fine": cell["max_abs_j_minus_1_fine"],
-                                    "decided_on": cell["decided_on"], "decided_share": cell["decided_share"],
+                                    **{k: cell.get(k, math.nan) for k in ("marginal_share_outside", "max_abs_j_minus_1_fine", "decided_share")},
+                                    "decided_on": cell.get("decided_on", ""),
                                     "decided": bool(D[p, k]), "reason": cell["reason"],
                                     "force_error": rel, "within_jnd": ok, "verdict": v, "angle_deg": ang})
                     if not D[p, k]:

@@ -437,11 +437,13 @@ def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int 
 
 def follow_to(xs, coarse: dict, whole: bool) -> float:
     """How far the finer meshes follow a pull (m): as far as the coarsest mesh's solve reached
-    and, unless `whole`, while its state has at most `FOLLOW_SHARE` of its energy outside the
-    data's stretches (a state beyond the solve's reach, NaN, counts as outside; a law whose data
-    are unknown has no support at all and is followed as far as it goes)."""
+    and, unless `whole`, while its state's share outside the data's stretches, the one the truth
+    decides on (the marginal share where recorded, else the energy share), is at most `FOLLOW_SHARE`
+    (a state beyond the solve's reach, NaN, counts as outside; a law whose data are unknown has
+    no support at all and is followed as far as it goes)."""
     ok = np.isfinite(np.asarray(coarse["force_per_pa"])).all(axis=1)
-    share = np.asarray(coarse["support"])[:, 0]
+    sup = np.asarray(coarse["support"])
+    share = sup[:, 4] if sup.shape[1] > 4 and np.isfinite(sup[ok, 4]).all() else sup[:, 0]
     if not whole and np.isfinite(share[ok]).any():  # a law without data (no stretch range, NaN) is followed as far as it goes
         inside = np.cumprod(share <= FOLLOW_SHARE).astype(bool)  # stop at the first state outside
         ok = ok & inside
