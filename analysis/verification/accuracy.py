@@ -324,7 +324,7 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
             "max_abs_j_minus_1_decided": max((c["max_abs_j_minus_1"] for c in flat if c["decided"]), default=math.nan),
             "max_abs_j_minus_1_fine_decided": max((c["decided_j"] for c in flat if c["decided"]), default=math.nan),
             "support_share_decided_max": max((c["support_share_outside"] for c in flat if c["decided"]), default=math.nan),
-            "marginal_share_decided_max": max((c["decided_share"] for c in flat if c["decided"]), default=math.nan),
+            "decided_share_max": max((c["decided_share"] for c in flat if c["decided"]), default=math.nan),
             "statuses": {s: sum(c["status"] == s for c in flat) for s in sorted({c["status"] for c in flat})},
             "converged": all(s["converged"] for s in solves),
             # samples past where a mesh's solve stopped have no reference: left out of every row
