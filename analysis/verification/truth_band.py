@@ -6,8 +6,8 @@ the rule that says whether a sample can judge a model (docs/reference.md).
   passes `ACCEPT` on the same data (uniaxial RMS error, worst shear error over strains 0.1-0.2),
   the corners of the chosen law's 95% parameter box, and two laws that bound the chosen one
   beyond the data (`edge_fits`): the one-term fits with the exponent held at the least and the
-  most stiffening value that still passes `ACCEPT`, one softer and one stiffer than the chosen
-  law at every stretch beyond the data's. Forces scale with mu at fixed exponents, so only the
+  most stiffening value that still passes `ACCEPT`: one stiffens less than the chosen law beyond
+  the data's stretches, one more (their stresses there: docs/reference.md). Forces scale with mu at fixed exponents, so only the
   distinct shapes are solved (`shapes`), on the coarsest mesh. A member is a record with its
   `kind` ("law" here); a regional or membrane variant is a member of another kind.
 - **Band.** Per sample: the mesh half-band (GCI, `tissue_pulls.combined_sample`) and the law
@@ -15,12 +15,17 @@ the rule that says whether a sample can judge a model (docs/reference.md).
   combined root-sum-square as independent parts (ASME V&V 20-2009's combination of numerical and
   input uncertainty).
 - **Support.** Per sample: the share of the state's stored energy at quadrature points whose
-  principal stretches leave the data's range, and the largest |J - 1| (the larger over the meshes).
-- **Decided** (`decide`): a reference below the device's force limit, support share at most the
-  JND fraction at that force (a law wrong by a factor of two where no one measured moves the force
-  by about that share, the state changing to second order only: so by less than a JND), |J - 1| at
-  most `MAX_J_DEVIATION`, and a band narrower than the JND. Otherwise `extrapolated` (support) or
-  `undecided` (band, or an ensemble member not solved there), with the reason.
+  principal stretches leave the data's range, the marginal share dE_out/dE (the share of the
+  force, dE/dd, those points give, the set fixed at the state), and the largest |J - 1| at the
+  Gauss points and at the nodes and a 64-point rule (the larger over the meshes).
+- **Decided** (`decide`): a reference below the device's force limit; a marginal share at most
+  `MARGINAL_LIMIT` x the JND fraction at that force (a law wrong by a factor of two where no one
+  measured moves the force by about +m or -m/2 to first order; solved, by 0.63-0.76 m at the
+  shares near the limit, the softening's second order included: docs/reference.md), so by less
+  than a JND; |J - 1| at most `MAX_J_DEVIATION` at the finer rule; and a band narrower than the
+  JND. Otherwise `extrapolated` (support) or `undecided` (band, or an ensemble member not solved
+  there), with the reason. A solve stored before the marginal share was recorded is decided on
+  the energy share and the Gauss points' |J - 1|, the rule before.
 """
 
 from __future__ import annotations
