@@ -60,7 +60,9 @@ RECORD_XS = 0.0005 * np.arange(1, 25)  # m: where the shipped solves record (0.5
 # most this share of its energy outside the data's stretches: beyond, no sample can be decided (a decided
 # sample has at most the JND fraction at its force, 25% at most; analysis.verification.truth_band.decide)
 FOLLOW_SHARE = 0.25
-SUPPORT_FIELDS = ("energy_share_outside", "max_abs_j_minus_1", "principal_stretch_min", "principal_stretch_max")
+# a solve made before the last two were recorded has the first four; the rest read NaN (`stored_solve`)
+SUPPORT_FIELDS = ("energy_share_outside", "max_abs_j_minus_1", "principal_stretch_min", "principal_stretch_max",
+                  "marginal_share_outside", "max_abs_j_minus_1_fine")
 
 
 class ReferenceDataError(SimError):
@@ -235,7 +237,9 @@ def stored_solve(key: str, xs, stiffness: bool = False) -> dict | None:
             continue
         idx = _covers(entry, xs, stiffness)
         if idx is not None:
-            out = {"force_per_pa": np.asarray(entry["force_per_pa"])[idx], "support": np.asarray(entry["support"])[idx], **entry["meta"]}
+            sup = np.asarray(entry["support"])[idx]
+            sup = np.hstack([sup, np.full((len(idx), len(SUPPORT_FIELDS) - sup.shape[1]), np.nan)])
+            out = {"force_per_pa": np.asarray(entry["force_per_pa"])[idx], "support": sup, **entry["meta"]}
             if "stiffness_per_pa" in entry:
                 out["stiffness_per_pa"] = np.asarray(entry["stiffness_per_pa"])[idx]
             if not out.get("converged") and np.isfinite(out["force_per_pa"]).all():
@@ -250,7 +254,7 @@ def stored_solve(key: str, xs, stiffness: bool = False) -> dict | None:
 def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness: bool = False, stretch_range=None, regional=None) -> dict:
     """Follow the pull (the patch's mean displacement along `direction`) to max(xs), recording
     the force holding it (per pascal of shear modulus, (len(xs), 3), the force on the tissue),
-    its support (`support`, (len(xs), 4): `SUPPORT_FIELDS` of `sim.models.fem.finite_strain.support`
+    its support (`support`, (len(xs), 6): `SUPPORT_FIELDS` of `sim.models.fem.finite_strain.support`
     for the principal stretches `stretch_range`, NaN without one) and, with `stiffness`, the
     condensed tangent (len(xs), 3, 3) at each x. `regional` (`regions.RegionalLaw`): the white
     matter's law inside the white surface, `stretch_range` then one range per law."""
@@ -263,11 +267,12 @@ def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness:
     laws, law_of = regional_system(problem.space, problem.mesh, problem.label, regional, unit) if regional else (unit, None)
     system = FiniteStrain(problem.space, laws, mean_dilatation=False, law_of=law_of)
     res = hold(system, W, np.asarray(direction) * xs[-1], fractions=xs / xs[-1],
-               first_step=min(0.25, 2.0 * xs[0] / xs[-1]), stiffness=stiffness, keep_states=stretch_range is not None)
+               first_step=min(0.25, 2.0 * xs[0] / xs[-1]), stiffness=stiffness, keep_states=stretch_range is not None,
+               sensitivity=stretch_range is not None)
     rep = res.report
     sup = np.full((len(xs), len(SUPPORT_FIELDS)), np.nan)
     for i, u in enumerate(res.states):  # the states of the records reached, in order
-        s = support(system, u, stretch_range)
+        s = support(system, u, stretch_range, res.sensitivities[i])
         sup[i] = [s[k] for k in SUPPORT_FIELDS]
     out = {"force_per_pa": res.forces, "support": sup, "converged": bool(rep.converged), "reason": rep.reason,
            "iterations": int(sum(rep.iterations)), "load_steps": int(rep.load_steps), "cut_steps": int(rep.cut_steps),
@@ -375,7 +380,8 @@ def _cache(key: str, xs, force, stiffness, sup, meta: dict) -> None:
         with np.load(path, allow_pickle=False) as z:
             old_xs, old_f = z["xs"], z["force_per_pa"]
             old_k = z["stiffness_per_pa"] if "stiffness_per_pa" in z.files else np.full((len(old_xs), 3, 3), np.nan)
-            old_s = z["support"] if "support" in z.files else np.full((len(old_xs), len(SUPPORT_FIELDS)), np.nan)
+            old_s = z["support"] if "support" in z.files else np.full((len(old_xs), 0), np.nan)
+        old_s = np.hstack([old_s, np.full((len(old_xs), len(SUPPORT_FIELDS) - old_s.shape[1]), np.nan)])  # fields it predates
         keep = np.array([np.min(np.abs(xs - x)) > 1e-9 for x in old_xs], dtype=bool)
         xs, force, stiff, sup = (np.concatenate([xs, old_xs[keep]]), np.concatenate([force, old_f[keep]]),
                                  np.concatenate([stiff, old_k[keep]]), np.concatenate([sup, old_s[keep]]))
@@ -438,11 +444,13 @@ def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int 
 
 def follow_to(xs, coarse: dict, whole: bool) -> float:
     """How far the finer meshes follow a pull (m): as far as the coarsest mesh's solve reached
-    and, unless `whole`, while its state has at most `FOLLOW_SHARE` of its energy outside the
-    data's stretches (a state beyond the solve's reach, NaN, counts as outside; a law whose data
-    are unknown has no support at all and is followed as far as it goes)."""
+    and, unless `whole`, while its state's share outside the data's stretches, the one the truth
+    decides on (the marginal share where recorded, else the energy share), is at most `FOLLOW_SHARE`
+    (a state beyond the solve's reach, NaN, counts as outside; a law whose data are unknown has
+    no support at all and is followed as far as it goes)."""
     ok = np.isfinite(np.asarray(coarse["force_per_pa"])).all(axis=1)
-    share = np.asarray(coarse["support"])[:, 0]
+    sup = np.asarray(coarse["support"])
+    share = sup[:, 4] if sup.shape[1] > 4 and np.isfinite(sup[ok, 4]).all() else sup[:, 0]
     if not whole and np.isfinite(share[ok]).any():  # a law without data (no stretch range, NaN) is followed as far as it goes
         inside = np.cumprod(share <= FOLLOW_SHARE).astype(bool)  # stop at the first state outside
         ok = ok & inside
