@@ -15,12 +15,11 @@ there too.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import scipy.sparse as sp
 
 from sim.errors import ParameterError
+from sim.material import MembraneLaw
 from sim.models.fem import p2
 
 # the faces of a tetrahedron (local corners) and, on P2, their mid-edge nodes (indices into p2.EDGES)
@@ -32,32 +31,6 @@ _A1, _B1, _W1 = 0.445948490915965, 0.108103018168070, 0.223381589678011
 _A2, _B2, _W2 = 0.091576213509771, 0.816847572980459, 0.109951743655322
 TRI_POINTS = np.array([[_A1, _A1, _B1], [_A1, _B1, _A1], [_B1, _A1, _A1], [_A2, _A2, _B2], [_A2, _B2, _A2], [_B2, _A2, _A2]])
 TRI_WEIGHTS = np.array([_W1] * 3 + [_W2] * 3)
-
-
-@dataclass(frozen=True)
-class MembraneLaw:
-    """The membrane's one-term Ogden law: shear modulus `mu` (Pa), exponent `alpha`, thickness (m)."""
-
-    mu: float
-    alpha: float
-    thickness: float
-
-    def __post_init__(self):
-        if not (np.isfinite(self.mu) and self.mu > 0):
-            raise ParameterError(f"membrane mu: {self.mu!r} must be a positive modulus (Pa)")
-        if not (np.isfinite(self.alpha) and self.alpha != 0):
-            raise ParameterError(f"membrane alpha: {self.alpha!r} must be a non-zero number")
-        if not (np.isfinite(self.thickness) and self.thickness > 0):
-            raise ParameterError(f"membrane thickness: {self.thickness!r} must be a positive length (m)")
-
-    def scaled(self, factor: float) -> MembraneLaw:
-        return MembraneLaw(self.mu * factor, self.alpha, self.thickness)
-
-    def uniaxial_tension(self, stretch) -> np.ndarray:
-        """The nominal tension (N/m) of a flat membrane stretched `stretch` in one direction, free
-        in the other (there the stretch is stretch^-1/2): t (2 mu / alpha)(l^(alpha-1) - l^(-alpha/2-1))."""
-        s = np.asarray(stretch, dtype=np.float64)
-        return self.thickness * 2.0 * self.mu / self.alpha * (s ** (self.alpha - 1.0) - s ** (-0.5 * self.alpha - 1.0))
 
 
 def boundary_faces(space) -> np.ndarray:
