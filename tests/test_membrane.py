@@ -1,15 +1,25 @@
 """The surface membrane (the pia-arachnoid): its forces and tangent against finite differences, a
 flat membrane's uniaxial tension against the closed form, the composite with the body."""
 
+import json
+import re
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from sim.errors import ParameterError
+from analysis.verification import tissue_pulls
+from sim.errors import ParameterError, SceneError
 from sim.hyperelastic import ogden
 from sim.models.fem import FiniteStrain, TetSpace, hold
 from sim.models.fem.membrane import Membrane, MembraneLaw, WithMembrane, boundary_faces, ogden_stress
-from tests.helpers import box
+from sim.pulls import make_pulls
+from sim.scene import Scene, load_scene
+from tests.conftest import ROOT
+from tests.helpers import box, localise
+
+SCENE = ROOT / "protocols/scenes/brain_pull.toml"
+PAC = ROOT / "protocols/materials/pia_arachnoid_human.toml"
 
 
 def _space(order=2, h=1e-3):
@@ -134,3 +144,40 @@ def test_composite_with_a_vanishing_membrane_is_the_body():
     a, b = body.evaluate(u), WithMembrane(body, MembraneLaw(1e-300, 2.0, 1e-300)).evaluate(u)
     assert np.array_equal(a["K"].indptr, b["K"].indptr)
     assert np.array_equal(a["K"].data, b["K"].data)
+
+
+def _scene_with_pac(tmp_path, pac_file) -> object:
+    text = localise(SCENE.read_text()).replace("density = 1040.0", f'density = 1040.0\npia_arachnoid = "{pac_file}"', 1)
+    path = tmp_path / "scene.toml"
+    path.write_text(text)
+    return path
+
+
+def test_a_scene_puts_the_shipped_pia_arachnoid_on_its_material(tmp_path):
+    spec = load_scene(_scene_with_pac(tmp_path, PAC))
+    assert spec.material.pia_arachnoid == MembraneLaw(300000.0, 36.97, 0.0004)
+
+
+def test_a_scene_without_one_has_no_membrane():
+    assert load_scene(SCENE).material.pia_arachnoid is None
+
+
+def test_a_membrane_thickness_out_of_range_is_refused_naming_the_file_the_field_and_the_range(tmp_path):
+    bad = tmp_path / "pac.toml"
+    bad.write_text('[membrane]\nlaw = "ogden"\nmu = 3e5\nalpha = 36.97\nthickness = 0.4\n')
+    with pytest.raises(SceneError) as exc:
+        load_scene(_scene_with_pac(tmp_path, bad))
+    assert len(exc.value.problems) == 1, exc.value.problems
+    assert re.fullmatch(rf"{re.escape(str(bad))}:\d+: membrane\.thickness: 0\.4 is out of range; allowed: \[1e-06, 0\.005\] m",
+                        exc.value.problems[0]), exc.value.problems[0]
+
+
+def test_the_membrane_is_in_the_solve_key_and_its_absence_leaves_the_key_as_it_was(tmp_path):
+    plain = Scene(load_scene(SCENE))
+    pac = Scene(load_scene(_scene_with_pac(tmp_path, PAC)))
+    pull = make_pulls(plain)[0]
+    law = plain.spec.material.law
+    a = tissue_pulls.pull_key_inputs("mesh", plain, law, 0.005, pull)
+    b = tissue_pulls.pull_key_inputs("mesh", pac, law, 0.005, pull)
+    assert b[:-1] == a
+    assert json.dumps(b[-1]) == json.dumps(["pia-arachnoid", tissue_pulls.key_digits(300000.0 * 0.0004 / law.shear_modulus), 36.97])
