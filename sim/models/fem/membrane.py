@@ -86,7 +86,8 @@ def ogden_stress(C: np.ndarray, mu: float, alpha: float, tangent: bool = True):
     dd[..., 0, 0] = c * h * (h - 1.0) * a ** (h - 2.0)
     dd[..., 1, 1] = c * h * (h - 1.0) * b ** (h - 2.0)
     dd[..., 0, 1] = dd[..., 1, 0] = c * h * _divided(h - 1.0, b, a)
-    D1 = 2.0 * np.einsum("...ij,...Ii,...Jj,...Ki,...Lj->...IJKL", dd, n, n, n, n)
+    nn = np.einsum("...Ii,...Jj->...IJij", n, n)  # (n_i)_I (n_j)_J
+    D1 = 2.0 * np.einsum("...ij,...IJij,...KLij->...IJKL", dd, nn, nn)
     inv_inv = np.einsum("...IJ,...KL->...IJKL", Cinv, Cinv)
     dinv = -0.5 * (np.einsum("...IK,...JL->...IJKL", Cinv, Cinv) + np.einsum("...IL,...JK->...IJKL", Cinv, Cinv))
     pw = det[..., None, None, None, None] ** -h
@@ -164,12 +165,14 @@ class Membrane:
         np.add.at(f, self.dofs.ravel(), fe.ravel())
         out = {"f": f, "K": None, "data": None, "energy": energy}
         if tangent:
-            k = self.G.shape[2]
-            geo = np.einsum("fq,fqaI,fqIJ,fqbJ->fab", tw, self.G, S, self.G)
-            FG = np.einsum("fqiI,fqaJ->fqaiIJ", F, self.G)  # F_iI dN_a,J
-            FGb = np.einsum("fqjK,fqbL->fqbjKL", F, self.G)  # F_jK dN_b,L
-            mat = 2.0 * np.einsum("fq,fqaiIJ,fqIJKL,fqbjKL->faibj", tw, FG, D, FGb)
-            Ke = mat + np.einsum("fab,ij->faibj", geo, np.eye(3))
+            nf_, nq, k = self.G.shape[:3]
+            # B[(a i), (I J)] = F_iI dN_a,J: the material part is 2 sum_q tw B D B^T (batched products)
+            B = np.einsum("fqiI,fqaJ->fqaiIJ", F, self.G).reshape(nf_, nq, 3 * k, 4)
+            BD = np.matmul(B, D.reshape(nf_, nq, 4, 4))
+            mat = 2.0 * np.einsum("fq,fqmn->fmn", tw, np.matmul(BD, np.swapaxes(B, -1, -2)))
+            GS = np.matmul(self.G, S)  # (f, q, k, 2)
+            geo = np.einsum("fq,fqab->fab", tw, np.matmul(GS, np.swapaxes(self.G, -1, -2)))
+            Ke = mat.reshape(nf_, k, 3, k, 3) + geo[:, :, None, :, None] * np.eye(3)[None, None, :, None, :]
             Ke = Ke.reshape(len(self.faces), 3 * k, 3 * k)
             data = np.zeros(len(self.indices))
             ok = self.pos >= 0
