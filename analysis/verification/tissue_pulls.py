@@ -147,8 +147,7 @@ def law_shape_key(law) -> list:
 def pull_key_inputs(mesh_key: str, scene, law, radius: float, pull, stretch_range=None) -> list:
     """What a solve's key is the hash of, each number canonical (`key_number`, `key_digits`)."""
     axis, limit = clamp_limit(scene)
-    # a surface membrane, where the scene has one: its mu t per pascal of the body's mu (m) and its shape
-    pac = scene.spec.material.pia_arachnoid
+    pac = scene.spec.material.pia_arachnoid  # a surface membrane: its mu t per pascal of the body's mu (m), its alpha
     return ([SOLVER_VERSION, mesh_key, law_shape_key(law), int(axis), key_number(limit), key_number(radius), int(pull.vertex),
              [key_number(c) for c in pull.direction]] + ([[key_number(r) for r in stretch_range]] if stretch_range else [])
             + ([["pia-arachnoid", key_digits(pac.mu * pac.thickness / law.shear_modulus), key_digits(pac.alpha)]] if pac else []))
@@ -254,8 +253,7 @@ def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness:
     the force holding it (per pascal of shear modulus, (len(xs), 3), the force on the tissue),
     its support (`support`, (len(xs), 4): `SUPPORT_FIELDS` of `sim.models.fem.finite_strain.support`
     for the principal stretches `stretch_range`, NaN without one) and, with `stiffness`, the
-    condensed tangent (len(xs), 3, 3) at each x. `membrane`: a `sim.material.MembraneLaw` on the
-    body's surface (the pia-arachnoid), scaled with the body; the support stays the body's."""
+    condensed tangent (len(xs), 3, 3) at each x; `membrane`: a `MembraneLaw` on the surface (the support stays the body's)."""
     xs = np.asarray(xs, dtype=np.float64)
     if xs.ndim != 1 or len(xs) == 0 or not np.all(np.isfinite(xs)) or np.any(xs <= 0) or np.any(np.diff(xs) <= 0):
         raise ParameterError("displacements: an increasing list of positive lengths (m)")
