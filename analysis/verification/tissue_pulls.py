@@ -47,6 +47,7 @@ from sim.geometry.volume import cache_dir, locate
 from sim.linalg import Factor
 from sim.models.fem import FiniteStrain, TetSpace, constraint_matrix, hold
 from sim.models.fem.finite_strain import support
+from sim.models.fem.membrane import WithMembrane
 from sim.pulls import scene_with
 from sim.scene import clamp_limit, grasp_radius
 
@@ -150,9 +151,11 @@ def pull_key_inputs(mesh_key: str, scene, law, radius: float, pull, stretch_rang
     """What a solve's key is the hash of, each number canonical (`key_number`, `key_digits`);
     a regional solve's white matter (`regions.region_key`) added."""
     axis, limit = clamp_limit(scene)
+    pac = scene.spec.material.pia_arachnoid  # a surface membrane: its mu t per pascal of the body's mu (m), its alpha
     return ([SOLVER_VERSION, mesh_key, law_shape_key(law), int(axis), key_number(limit), key_number(radius), int(pull.vertex),
              [key_number(c) for c in pull.direction]] + ([[key_number(r) for r in stretch_range]] if stretch_range else [])
-            + (region_key(regional, law_shape_key, key_digits) if regional is not None else []))
+            + (region_key(regional, law_shape_key, key_digits) if regional is not None else [])
+            + ([["pia-arachnoid", key_digits(pac.mu * pac.thickness / law.shear_modulus), key_digits(pac.alpha)]] if pac else []))
 
 
 def pull_key(mesh: BodyMesh, scene, law, radius: float, pull, stretch_range=None, regional=None) -> str:
@@ -251,13 +254,15 @@ def stored_solve(key: str, xs, stiffness: bool = False) -> dict | None:
     return None
 
 
-def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness: bool = False, stretch_range=None, regional=None) -> dict:
+def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness: bool = False, stretch_range=None, regional=None,
+               membrane=None) -> dict:
     """Follow the pull (the patch's mean displacement along `direction`) to max(xs), recording
     the force holding it (per pascal of shear modulus, (len(xs), 3), the force on the tissue),
     its support (`support`, (len(xs), 6): `SUPPORT_FIELDS` of `sim.models.fem.finite_strain.support`
     for the principal stretches `stretch_range`, NaN without one) and, with `stiffness`, the
     condensed tangent (len(xs), 3, 3) at each x. `regional` (`regions.RegionalLaw`): the white
-    matter's law inside the white surface, `stretch_range` then one range per law."""
+    matter's law inside the white surface, `stretch_range` then one range per law; `membrane`: a
+    `MembraneLaw` on the surface (the support stays the body's)."""
     xs = np.asarray(xs, dtype=np.float64)
     if xs.ndim != 1 or len(xs) == 0 or not np.all(np.isfinite(xs)) or np.any(xs <= 0) or np.any(np.diff(xs) <= 0):
         raise ParameterError("displacements: an increasing list of positive lengths (m)")
@@ -266,7 +271,8 @@ def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness:
     t0 = time.perf_counter()
     laws, law_of = regional_system(problem.space, problem.mesh, problem.label, regional, unit) if regional else (unit, None)
     system = FiniteStrain(problem.space, laws, mean_dilatation=False, law_of=law_of)
-    res = hold(system, W, np.asarray(direction) * xs[-1], fractions=xs / xs[-1],
+    whole = system if membrane is None else WithMembrane(system, membrane.scaled(1.0 / law.shear_modulus))
+    res = hold(whole, W, np.asarray(direction) * xs[-1], fractions=xs / xs[-1],
                first_step=min(0.25, 2.0 * xs[0] / xs[-1]), stiffness=stiffness, keep_states=stretch_range is not None,
                sensitivity=stretch_range is not None)
     rep = res.report
@@ -348,7 +354,7 @@ def _pull_task(args) -> dict:
         return nothing | {"reason": "not solved: the coarsest mesh's solve stopped, or its state left the data, before the first sample"}
     problem = build_problem(scene, label, body)
     r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs[asked], stiffness,
-                   regional.ranges() if regional.white is not None and rng else rng, regional)
+                   regional.ranges() if regional.white is not None and rng else rng, regional, scene.spec.material.pia_arachnoid)
     if not asked.all():  # followed only as far as asked: no records beyond
         for name in ("force_per_pa", "stiffness_per_pa", "support"):
             if name in r:
