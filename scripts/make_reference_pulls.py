@@ -33,7 +33,7 @@ from analysis.verification.tissue_pulls import (
     pull_references,
     stored_solve,
 )
-from analysis.verification.truth_band import ensemble, members_json, shape_index, shapes
+from analysis.verification.truth_band import contrast_json, ensemble, members_json, scene_contrast, shape_index, shapes
 from brainsim_assets import version
 from sim.geometry.tetmesh import SHIPPED_MM
 from sim.pulls import hand_pulls, make_pulls, scene_with, test_pulls
@@ -59,6 +59,7 @@ def main() -> None:
     law = scene.spec.material.law
     members = ensemble(scene.spec.material.law_source, law)
     others = shapes(members)[1:]
+    contrast = scene_contrast(scene)  # the literature's other regional contrasts: solved like the ensemble, reported beside it
     # each group as its benches read it: the finer meshes follow a pull as far as the group's coarsest got
     groups, solved = [], []
     # the quick benches judge two test places: their pairs hold the first six (QUICK_TEST_PLACES)
@@ -72,6 +73,9 @@ def main() -> None:
         for k, shape in enumerate(others, start=1):
             refs = pull_references(DEFAULT_SCENE, group, RECORD_XS, (max(sizes),), jobs=args.jobs, progress=progress, law=shape, upto=upto)
             solved += [(p, s, k) for p in group for s in refs["pulls"][p.name]["solves"]]
+        for j, c in enumerate(contrast, start=len(others) + 1):
+            refs = pull_references(DEFAULT_SCENE, group, RECORD_XS, (max(sizes),), jobs=args.jobs, progress=progress, law=c["law"], upto=upto)
+            solved += [(p, s, j) for p in group for s in refs["pulls"][p.name]["solves"]]
     arrays, entries = {}, []
     for p, s, k in solved:
         key = s["key"]
@@ -101,6 +105,8 @@ def main() -> None:
         "sha256": hashlib.sha256(SHIPPED_PULLS.read_bytes()).hexdigest(),
         "made": datetime.date.today().isoformat(), "version": version(), "law": law.params(),
         "ensemble": [j | {"shape": i} for j, i in zip(members_json(members), shape_index(members))],
+        "contrast": [c | {"shape": j} for j, c in enumerate(contrast_json(contrast), start=len(others) + 1)],
+        "white_matter": "protocols/materials/human_white_matter.toml" if scene.spec.material.white_matter is not None else None,
         "law_source": "protocols/materials/human_cortex.toml", "scene": "protocols/scenes/brain_pull.toml",
         "record_mm": [round(x * 1e3, 6) for x in RECORD_XS], "sizes_mm": list(SHIPPED_MM) + list(QUICK_SIZES_MM),
         "made_by": "scripts/make_reference_pulls.py", "wall_s": time.perf_counter() - start, "entries": entries}, indent=1) + "\n")

@@ -37,7 +37,17 @@ import numpy as np
 
 from analysis.verification.convergence import converge
 from analysis.verification.material_fit import fitted_range
-from analysis.verification.regions import region_key, regional_system, scene_regions
+from analysis.verification.regions import regional_system, scene_regions
+from analysis.verification.solve_keys import (  # noqa: F401 - the keys' home; read here by their old names too
+    KEY_DECIMALS,
+    LAW_DIGITS,
+    SOLVER_VERSION,
+    key_digits,
+    key_number,
+    law_shape_key,
+    pull_key,
+    pull_key_inputs,
+)
 from brainsim_assets import path as _asset
 from sim.errors import ParameterError, SimError
 from sim.files import save_npz
@@ -53,7 +63,6 @@ from sim.scene import clamp_limit, grasp_radius
 
 DEFAULT_SIZES_MM = SHIPPED_MM  # target edge lengths, coarse to fine: the shipped meshes
 QUICK_SIZES_MM = (20.0, 16.0)
-SOLVER_VERSION = 2  # part of every solve's key: bump when the solver, element or law form changes (2: the convex volumetric energy)
 SHIPPED_PULLS = _asset("data/reference_pulls.npz")
 SHIPPED_PULLS_INFO = _asset("data/reference_pulls.json")
 RECORD_XS = 0.0005 * np.arange(1, 25)  # m: where the shipped solves record (0.5, 1.0, ..., 12 mm)
@@ -122,51 +131,10 @@ def pull_stiffness(problem: Problem, law, points: np.ndarray, weights: np.ndarra
 
 # A solve's key is a hash of its inputs, so a number must be written the same on every machine:
 # rounded to a stated precision, then any zero (-0.0, or a value that rounds to zero) written 0.0.
-# The geometry's arithmetic differs between machines at 1e-16 (test9-across's y component is
-# +6.9e-18 on one, -0.0 on another) and a law fitted at run time at 1e-7 relative (the ogden-2 fit,
-# its alpha at the bound): the precisions sit far above both and far below what moves a force.
-KEY_DECIMALS = 9  # lengths (m) and direction components: 1 nm, 1e-9 rad
-LAW_DIGITS = 5  # significant digits of a law's shape: 1e-5 of alpha moves a force by under 1e-4; its 95% box spans 6%
-
-
-def key_number(x: float, decimals: int = KEY_DECIMALS) -> float:
-    """`x` rounded to `decimals`, a zero always +0.0: one float, one key, on every machine."""
-    v = round(float(x), decimals)
-    return 0.0 if v == 0.0 else v
-
-
-def key_digits(x: float, digits: int = LAW_DIGITS) -> float:
-    """`x` to `digits` significant digits (decimal, so the same on every machine), a zero always +0.0."""
-    v = float(f"{float(x):.{digits}g}")
-    return 0.0 if v == 0.0 else v
-
-
-def law_shape_key(law) -> list:
-    """The law up to its scale: forces are stored per pascal of shear modulus."""
-    mu = law.shear_modulus
-    return [law.law, [key_digits(m / mu) for m in law.mu], [key_digits(a) for a in law.alpha], key_digits(law.bulk_ratio)]
-
-
-def pull_key_inputs(mesh_key: str, scene, law, radius: float, pull, stretch_range=None, regional=None) -> list:
-    """What a solve's key is the hash of, each number canonical (`key_number`, `key_digits`);
-    a regional solve's white matter (`regions.region_key`) added."""
-    axis, limit = clamp_limit(scene)
-    pac = scene.spec.material.pia_arachnoid  # a surface membrane: its mu t per pascal of the body's mu (m), its alpha
-    return ([SOLVER_VERSION, mesh_key, law_shape_key(law), int(axis), key_number(limit), key_number(radius), int(pull.vertex),
-             [key_number(c) for c in pull.direction]] + ([[key_number(r) for r in stretch_range]] if stretch_range else [])
-            + (region_key(regional, law_shape_key, key_digits) if regional is not None else [])
-            + ([["pia-arachnoid", key_digits(pac.mu * pac.thickness / law.shear_modulus), key_digits(pac.alpha)]] if pac else []))
-
-
-def pull_key(mesh: BodyMesh, scene, law, radius: float, pull, stretch_range=None, regional=None) -> str:
-    key = json.dumps(pull_key_inputs(mesh.key, scene, law, radius, pull, stretch_range, regional))
-    return hashlib.sha256(key.encode()).hexdigest()[:24]
-
-
 def entry_keys(entries, scene, laws: dict, pulls: dict) -> list[str]:
     """Each shipped entry's key (data/reference_pulls.json `entries`) from its inputs: its pull
     (`pulls`, by name), the body-fitted mesh of the pull's hemisphere at the entry's size, its law
-    (`laws`, by shape). Who calls it chooses where the laws and pulls come from: the rekeying
+    (`laws`, by shape: a law, or a regional contrast's `RegionalLaw`). Who calls it chooses where the laws and pulls come from: the rekeying
     script from the record, the test from this machine's own computation."""
     radius, rng = grasp_radius(scene), truth_range(scene)
     bodies: dict = {}
@@ -177,7 +145,8 @@ def entry_keys(entries, scene, laws: dict, pulls: dict) -> list[str]:
         if where not in bodies:
             verts, tris, _ = hemisphere_surface(scene.mesh, pull.hemisphere)
             bodies[where] = mesh_hemisphere(verts, tris, where[1] * 1e-3)
-        out.append(pull_key(bodies[where], scene, laws[e["shape"]], radius, pull, rng, scene_regions(scene, laws[e["shape"]])))
+        regional = scene_regions(scene, laws[e["shape"]])  # a law (the scene's white matter kept) or a whole regional variant
+        out.append(pull_key(bodies[where], scene, regional.grey, radius, pull, rng, regional))
     return out
 
 

@@ -39,12 +39,14 @@ import numpy as np
 from analysis.verification.material_fit import (
     MaterialDataError,
     fit_material,
+    fitted_range,
     law_errors,
     law_of,
     material_data,
     read_curve,
     shear_stress,
 )
+from analysis.verification.regions import contrast_members
 from analysis.verification.tissue_pulls import (
     SHIPPED_PULLS_INFO,
     SUPPORT_FIELDS,
@@ -281,6 +283,8 @@ def truth_samples(scene_path, pulls, xs, sizes_mm, jobs: int | None = None, prog
     upto = {p.name: refs["pulls"][p.name]["follow_m"] for p in pulls}
     # each other shape on the coarsest mesh, as far as the finer meshes follow
     per_shape = [refs["pulls"]] + [pull_references(scene_path, pulls, xs, (sizes[0],), jobs=jobs, law=s, upto=upto)["pulls"] for s in shp[1:]]
+    contrast = scene_contrast(scene)
+    per_contrast = [pull_references(scene_path, pulls, xs, (sizes[0],), jobs=jobs, law=c["law"], upto=upto)["pulls"] for c in contrast]
     mu = law.shear_modulus
     out = {}
     for p in pulls:
@@ -302,13 +306,34 @@ def truth_samples(scene_path, pulls, xs, sizes_mm, jobs: int | None = None, prog
             reached = np.isfinite(sup[:, 0])
             rule = rule_inputs(sup)
             ok, truth, why = decide(c["force_n"], band, rule["decided_share"], rule["decided_j"], rule["decided_on"])
+            # the literature's regional contrast: reported, and what it would leave decided (docs/reference.md, Regions)
+            others = [float(np.linalg.norm(pc[p.name]["force_per_pa"][0, k])) * mu for pc in per_contrast]
+            contrast_rel = law_spread([coarse[0]] + others) if others else 0.0
+            with_contrast = decide(c["force_n"], combine(band, contrast_rel), rule["decided_share"], rule["decided_j"], rule["decided_on"])[0]
             rows.append(c | rule | {"mesh_band_rel": mesh_rel, "law_band_rel": law_rel, "band_rel": band, "band_half_n": band * c["force_n"],
-                             "law_forces_n": coarse,
+                             "law_forces_n": coarse, "contrast_band_rel": contrast_rel, "contrast_forces_n": others,
+                             "decided_with_contrast": bool(with_contrast),
                              "stretch_min": float(np.min(sup[reached, 2])) if reached.any() else math.nan,
                              "stretch_max": float(np.max(sup[reached, 3])) if reached.any() else math.nan,
                              "decided": ok, "truth": truth, "reason": why})
         out[p.name] = rows
-    return {"pulls": out, "ensemble": members_json(members), "refs": refs}
+    return {"pulls": out, "ensemble": members_json(members), "contrast": contrast_json(contrast), "refs": refs}
+
+
+def scene_contrast(scene) -> list[dict]:
+    """The regional contrasts the literature spans, other than the scene's own (`regions.
+    contrast_members`): solved on the coarsest mesh and reported with every sample, outside the
+    band that decides (docs/reference.md, Regions, says why); [] for a brain of one material."""
+    material = scene.spec.material
+    if material.white_matter is None:
+        return []
+    grey_range = fitted_range(material.law_source)[0] if material.law_source else None
+    return [m | {"kind": "contrast"} for m in contrast_members(material.law, grey_range) if not m["chosen"]]
+
+
+def contrast_json(contrast: list[dict]) -> list[dict]:
+    return [{"name": m["name"], "kind": "contrast", "source": m["source"], "grey": m["law"].grey.params(),
+             "white": m["law"].white.params() if m["law"].white is not None else None} for m in contrast]
 
 
 def members_json(members: list[dict]) -> list[dict]:
