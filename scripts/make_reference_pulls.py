@@ -88,8 +88,8 @@ def main() -> None:
             entries.append({"pull": p.name, "size_mm": s["size_mm"], "key": key, "shape": k or 0, "converged": False, "reason": s.get("reason", "")})
             continue
         reached = np.isfinite(np.asarray(found["force_per_pa"])).all(axis=1)
-        if np.isnan(np.asarray(found["support"])[reached, SUPPORT_FIELDS.index("marginal_share_outside")]).any():
-            # a solve stored before the marginal share was recorded: the truth's rule needs it
+        if k is None and np.isnan(np.asarray(found["support"])[reached, SUPPORT_FIELDS.index("marginal_share_outside")]).any():
+            # a solve of the scene's law stored before the marginal share was recorded: the truth's rule needs it
             raise SystemExit(f"{p.name} on the {s['size_mm']:g} mm mesh: a stored solve without the marginal share; move "
                              f"{SHIPPED_PULLS.name} and its record aside and use an empty $BRAINSIM_CACHE, so that it is solved again")
         meta = {m: v for m, v in found.items() if m not in ("force_per_pa", "stiffness_per_pa", "support")}

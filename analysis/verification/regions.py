@@ -98,7 +98,7 @@ def contrast_members(grey: Hyperelastic, grey_range=None) -> list[dict]:
                    "one-term Ogden fitted jointly to uniaxial and shear (protocols/materials/human_white_matter.toml)"},
         {"name": "homogeneous", "chosen": False, "law": RegionalLaw(grey, None, grey_range, None),
          "source": "white matter as stiff as cortex: no contrast (the truth before regions; between the two studies' directions)"},
-        {"name": "jin-white-stiffer", "chosen": False, "law": RegionalLaw(grey, grey.scaled(JIN_WHITE_OVER_GREY), grey_range, grey_range),
+        {"name": "jin-white-stiffer", "chosen": False, "assumed": True, "law": RegionalLaw(grey, grey.scaled(JIN_WHITE_OVER_GREY), grey_range, grey_range),
          "source": f"Jin et al. 2013, J Biomech 46:2795-2801: white matter stiffer than grey in compression and shear; "
                    f"ratio {JIN_WHITE_OVER_GREY:g} assumed (the paper's ratio not found here), the cortex law's shape"},
     ]

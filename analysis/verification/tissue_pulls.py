@@ -224,14 +224,16 @@ def stored_solve(key: str, xs, stiffness: bool = False) -> dict | None:
 
 
 def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness: bool = False, stretch_range=None, regional=None,
-               membrane=None) -> dict:
+               membrane=None, marginal: bool = True) -> dict:
     """Follow the pull (the patch's mean displacement along `direction`) to max(xs), recording
     the force holding it (per pascal of shear modulus, (len(xs), 3), the force on the tissue),
     its support (`support`, (len(xs), 6): `SUPPORT_FIELDS` of `sim.models.fem.finite_strain.support`
     for the principal stretches `stretch_range`, NaN without one) and, with `stiffness`, the
     condensed tangent (len(xs), 3, 3) at each x. `regional` (`regions.RegionalLaw`): the white
     matter's law inside the white surface, `stretch_range` then one range per law; `membrane`: a
-    `MembraneLaw` on the surface (the support stays the body's)."""
+    `MembraneLaw` on the surface (the support stays the body's). `marginal`: record the marginal
+    share (one more factorisation per record; only the scene's own law's solves decide, so the
+    ensemble's other laws go without: NaN there)."""
     xs = np.asarray(xs, dtype=np.float64)
     if xs.ndim != 1 or len(xs) == 0 or not np.all(np.isfinite(xs)) or np.any(xs <= 0) or np.any(np.diff(xs) <= 0):
         raise ParameterError("displacements: an increasing list of positive lengths (m)")
@@ -243,7 +245,7 @@ def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness:
     whole = system if membrane is None else WithMembrane(system, membrane.scaled(1.0 / law.shear_modulus))
     res = hold(whole, W, np.asarray(direction) * xs[-1], fractions=xs / xs[-1],
                first_step=min(0.25, 2.0 * xs[0] / xs[-1]), stiffness=stiffness, keep_states=stretch_range is not None,
-               sensitivity=stretch_range is not None)
+               sensitivity=marginal and stretch_range is not None)
     rep = res.report
     sup = np.full((len(xs), len(SUPPORT_FIELDS)), np.nan)
     for i, u in enumerate(res.states):  # the states of the records reached, in order
@@ -305,7 +307,7 @@ def _pull_task(args) -> dict:
     scene_path, label, size_mm, pull, xs, stiffness, upto, finer, law = args
 
     scene = scene_with(scene_path)
-    regional = scene_regions(scene, law)
+    given, regional = law, scene_regions(scene, law)
     law, radius, rng = regional.grey, grasp_radius(scene), truth_range(scene)
     verts, tris, _ = hemisphere_surface(scene.mesh, label)
     body = mesh_hemisphere(verts, tris, size_mm * 1e-3)
@@ -323,7 +325,8 @@ def _pull_task(args) -> dict:
         return nothing | {"reason": "not solved: the coarsest mesh's solve stopped, or its state left the data, before the first sample"}
     problem = build_problem(scene, label, body)
     r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs[asked], stiffness,
-                   regional.ranges() if regional.white is not None and rng else rng, regional, scene.spec.material.pia_arachnoid)
+                   regional.ranges() if regional.white is not None and rng else rng, regional, scene.spec.material.pia_arachnoid,
+                   marginal=given is None)
     if not asked.all():  # followed only as far as asked: no records beyond
         for name in ("force_per_pa", "stiffness_per_pa", "support"):
             if name in r:

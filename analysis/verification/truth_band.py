@@ -321,14 +321,15 @@ def truth_samples(scene_path, pulls, xs, sizes_mm, jobs: int | None = None, prog
 
 
 def scene_contrast(scene) -> list[dict]:
-    """The regional contrasts the literature spans, other than the scene's own (`regions.
-    contrast_members`): solved on the coarsest mesh and reported with every sample, outside the
+    """The regional contrasts the literature spans, other than the scene's own and those resting
+    on an assumed ratio (`regions.contrast_members`): solved on the coarsest mesh and reported with every sample, outside the
     band that decides (docs/reference.md, Regions, says why); [] for a brain of one material."""
     material = scene.spec.material
     if material.white_matter is None:
         return []
     grey_range = fitted_range(material.law_source)[0] if material.law_source else None
-    return [m | {"kind": "contrast"} for m in contrast_members(material.law, grey_range) if not m["chosen"]]
+    # measured ratios and bounds only: the Jin-direction member's ratio is an assumption (not solved)
+    return [m | {"kind": "contrast"} for m in contrast_members(material.law, grey_range) if not m["chosen"] and not m.get("assumed")]
 
 
 def contrast_json(contrast: list[dict]) -> list[dict]:
