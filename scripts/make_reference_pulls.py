@@ -29,10 +29,11 @@ from analysis.verification.tissue_pulls import (
     RECORD_XS,
     SHIPPED_PULLS,
     SHIPPED_PULLS_INFO,
+    SUPPORT_FIELDS,
     pull_references,
     stored_solve,
 )
-from analysis.verification.truth_band import ensemble, shape_index, shapes
+from analysis.verification.truth_band import contrast_json, ensemble, members_json, scene_contrast, shape_index, shapes
 from brainsim_assets import version
 from sim.geometry.tetmesh import SHIPPED_MM
 from sim.pulls import hand_pulls, make_pulls, scene_with, test_pulls
@@ -58,6 +59,7 @@ def main() -> None:
     law = scene.spec.material.law
     members = ensemble(scene.spec.material.law_source, law)
     others = shapes(members)[1:]
+    contrast = scene_contrast(scene)  # the literature's other regional contrasts: solved like the ensemble, reported beside it
     # each group as its benches read it: the finer meshes follow a pull as far as the group's coarsest got
     groups, solved = [], []
     # the quick benches judge two test places: their pairs hold the first six (QUICK_TEST_PLACES)
@@ -71,17 +73,25 @@ def main() -> None:
         for k, shape in enumerate(others, start=1):
             refs = pull_references(DEFAULT_SCENE, group, RECORD_XS, (max(sizes),), jobs=args.jobs, progress=progress, law=shape, upto=upto)
             solved += [(p, s, k) for p in group for s in refs["pulls"][p.name]["solves"]]
+        for j, c in enumerate(contrast, start=len(others) + 1):
+            refs = pull_references(DEFAULT_SCENE, group, RECORD_XS, (max(sizes),), jobs=args.jobs, progress=progress, law=c["law"], upto=upto)
+            solved += [(p, s, j) for p in group for s in refs["pulls"][p.name]["solves"]]
     arrays, entries = {}, []
     for p, s, k in solved:
         key = s["key"]
         stiff = p.name in hands and k is None
         found = stored_solve(key, RECORD_XS, stiffness=stiff)  # cached, or shipped before
         if found is None and s.get("skipped"):  # shipped as a skip (no records), so that readers do not solve it
-            found = {"force_per_pa": np.full((len(RECORD_XS), 3), np.nan), "support": np.full((len(RECORD_XS), 4), np.nan),
+            found = {"force_per_pa": np.full((len(RECORD_XS), 3), np.nan), "support": np.full((len(RECORD_XS), len(SUPPORT_FIELDS)), np.nan),
                      "converged": False, "skipped": True, "reason": s["reason"], "reached_mm": 0.0}
         if found is None:  # stopped before its first record
             entries.append({"pull": p.name, "size_mm": s["size_mm"], "key": key, "shape": k or 0, "converged": False, "reason": s.get("reason", "")})
             continue
+        reached = np.isfinite(np.asarray(found["force_per_pa"])).all(axis=1)
+        if k is None and np.isnan(np.asarray(found["support"])[reached, SUPPORT_FIELDS.index("marginal_share_outside")]).any():
+            # a solve of the scene's law stored before the marginal share was recorded: the truth's rule needs it
+            raise SystemExit(f"{p.name} on the {s['size_mm']:g} mm mesh: a stored solve without the marginal share; move "
+                             f"{SHIPPED_PULLS.name} and its record aside and use an empty $BRAINSIM_CACHE, so that it is solved again")
         meta = {m: v for m, v in found.items() if m not in ("force_per_pa", "stiffness_per_pa", "support")}
         arrays[f"{key}__xs"] = RECORD_XS
         arrays[f"{key}__force_per_pa"] = found["force_per_pa"]
@@ -94,8 +104,9 @@ def main() -> None:
     SHIPPED_PULLS_INFO.write_text(json.dumps({
         "sha256": hashlib.sha256(SHIPPED_PULLS.read_bytes()).hexdigest(),
         "made": datetime.date.today().isoformat(), "version": version(), "law": law.params(),
-        "ensemble": [{"name": m["name"], "role": m["role"], "law": m["law"].params(), "shape": i, "rms_rel_uniaxial": m["rms_rel_uniaxial"],
-                      "shear_worst_rel": m["shear_worst_rel"], "passes": m["passes"]} for m, i in zip(members, shape_index(members))],
+        "ensemble": [j | {"shape": i} for j, i in zip(members_json(members), shape_index(members))],
+        "contrast": [c | {"shape": j} for j, c in enumerate(contrast_json(contrast), start=len(others) + 1)],
+        "white_matter": "protocols/materials/human_white_matter.toml" if scene.spec.material.white_matter is not None else None,
         "law_source": "protocols/materials/human_cortex.toml", "scene": "protocols/scenes/brain_pull.toml",
         "record_mm": [round(x * 1e3, 6) for x in RECORD_XS], "sizes_mm": list(SHIPPED_MM) + list(QUICK_SIZES_MM),
         "made_by": "scripts/make_reference_pulls.py", "wall_s": time.perf_counter() - start, "entries": entries}, indent=1) + "\n")

@@ -16,6 +16,8 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from brainsim_assets import path as _asset
 from sim.errors import ParameterError
 from sim.hyperelastic import BULK_RATIO, PARAMETERS, Hyperelastic, law_problems
@@ -31,6 +33,8 @@ LAW_KEYS = ("law", "mu", "mu1", "mu2", "alpha", "bulk_ratio")
 # the stability sweep runs (analysis/verification/stability.py); a density from a foam's to a
 # metal's (brain 1040 kg/m3)
 YOUNG_RANGE = (1.0, 1.0e9)  # Pa
+MEMBRANE_KEYS = ("law", "mu", "alpha", "thickness")
+MEMBRANE_THICKNESS = (1e-6, 5e-3)  # m: from a basement membrane's to a thick dura's
 DENSITY_RANGE = (100.0, 2.0e4)  # kg/m3
 
 
@@ -110,6 +114,77 @@ def scene_law(material: TableReader) -> tuple[Hyperelastic | None, str]:
 
 
 @dataclass(frozen=True)
+class MembraneLaw:
+    """A membrane on the brain's surface (the pia-arachnoid, `sim.models.fem.membrane`): the
+    one-term Ogden law of shear modulus `mu` (Pa) and exponent `alpha`, thickness (m)."""
+
+    mu: float
+    alpha: float
+    thickness: float
+
+    def __post_init__(self):
+        if not (np.isfinite(self.mu) and self.mu > 0):
+            raise ParameterError(f"membrane mu: {self.mu!r} must be a positive modulus (Pa)")
+        if not (np.isfinite(self.alpha) and self.alpha != 0):
+            raise ParameterError(f"membrane alpha: {self.alpha!r} must be a non-zero number")
+        if not (np.isfinite(self.thickness) and self.thickness > 0):
+            raise ParameterError(f"membrane thickness: {self.thickness!r} must be a positive length (m)")
+
+    def scaled(self, factor: float) -> MembraneLaw:
+        return MembraneLaw(self.mu * factor, self.alpha, self.thickness)
+
+    def uniaxial_tension(self, stretch) -> np.ndarray:
+        """The nominal tension (N/m) of a flat membrane stretched `stretch` in one direction, free
+        in the other (there the stretch is stretch^-1/2): t (2 mu / alpha)(l^(alpha-1) - l^(-alpha/2-1))."""
+        s = np.asarray(stretch, dtype=np.float64)
+        return self.thickness * 2.0 * self.mu / self.alpha * (s ** (self.alpha - 1.0) - s ** (-0.5 * self.alpha - 1.0))
+
+
+def membrane_file(path: Path, problems: list) -> MembraneLaw | None:
+    """A membrane file's law (its `[membrane]`: law = "ogden", mu (Pa), alpha, thickness (m));
+    problems recorded as FILE:LINE."""
+    try:
+        data, loc = read_toml(path)
+    except TomlFileError as exc:
+        problems.append((path, 0, str(exc)))
+        return None
+    root = TableReader(path, data, "", loc, problems)
+    root.keys(("membrane", "provenance"))
+    r = root.table("membrane", allowed=MEMBRANE_KEYS)
+    if r.string("law") not in (None, "ogden"):
+        r.error("law", "the membrane's law is \"ogden\" (one term)")
+    mu = r.number("mu", lo=YOUNG_RANGE[0], hi=YOUNG_RANGE[1], unit="Pa")
+    alpha = r.number("alpha", lo=-100.0, hi=100.0)
+    t = r.number("thickness", lo=MEMBRANE_THICKNESS[0], hi=MEMBRANE_THICKNESS[1], unit="m")
+    if alpha == 0:
+        r.error("alpha", "must not be 0")
+        return None
+    return None if mu is None or alpha is None or t is None else MembraneLaw(mu, alpha, t)
+
+
+def load_membrane(path) -> MembraneLaw:
+    """A membrane file's law; ParameterError with every problem otherwise."""
+    problems: list = []
+    law = membrane_file(Path(path), problems)
+    if problems or law is None:
+        raise ParameterError("; ".join(text for _, _, text in problems) or f"{path}: no membrane")
+    return law
+
+
+def scene_membrane(material: TableReader) -> MembraneLaw | None:
+    """The membrane a scene's [material] puts on the brain's surface (`pia_arachnoid`, a membrane file), or None."""
+    if "pia_arachnoid" not in material.data:
+        return None
+    path = material.path_value("pia_arachnoid")
+    if path is None:
+        return None
+    if not path.is_file():
+        material.error("pia_arachnoid", f"{path} does not exist" if not path.exists() else f"{path} is not a file")
+        return None
+    return membrane_file(path, material.problems)
+
+
+@dataclass(frozen=True)
 class MaterialSpec:
     """The tissue: its finite-strain law (the reference's and the observer's truth's, sim/material.py)
     and the linear models' modulus and Poisson ratio (`young` given, or the law's small-strain limit)."""
@@ -120,11 +195,32 @@ class MaterialSpec:
     law: Hyperelastic | None = None
     law_source: str = ""  # the material file's path, or "inline"
     young_given: bool = True  # False: young = 2 mu (1 + poisson) of the law
+    # the truth's white matter, inside the white surface (sim/geometry/regions.py); None: homogeneous
+    white_matter: Hyperelastic | None = None
+    white_matter_source: str = ""  # its material file's path
+    pia_arachnoid: MembraneLaw | None = None  # a membrane on the surface (the reference's only)
+
+
+def white_matter_law(material: TableReader) -> tuple[Hyperelastic | None, str]:
+    """The law of the material file a scene's `white_matter` names (optional: absent, the brain
+    is one material) and its path."""
+    if "white_matter" not in material.data:
+        return None, ""
+    path = material.path_value("white_matter")
+    if path is None:
+        return None, ""
+    if not path.is_file():
+        material.error("white_matter", f"{path} does not exist; allowed: a material file (.toml) like protocols/materials/human_white_matter.toml"
+                       if not path.exists() else f"{path} is not a file; allowed: a material file (.toml)")
+        return None, ""
+    law, _ = material_file(path, material.problems)
+    return law, str(path)
 
 
 def material_spec(material: TableReader) -> MaterialSpec:
     """A scene's [material] (its problems recorded on the reader)."""
     law, source = scene_law(material)
+    white, white_source = white_matter_law(material)
     poisson = material.number("poisson", default=DEFAULT_POISSON, lo=POISSON_MIN, hi=POISSON_MAX, hi_open=True)
     given = "young" in material.data
     young = material.number("young", lo=YOUNG_RANGE[0], hi=YOUNG_RANGE[1], unit="Pa") if given else None
@@ -138,7 +234,8 @@ def material_spec(material: TableReader) -> MaterialSpec:
         elif not given:
             young = small
     return MaterialSpec(young=young, poisson=poisson, density=material.number("density", default=1040.0, lo=DENSITY_RANGE[0], hi=DENSITY_RANGE[1], unit="kg/m3"),
-                        law=law, law_source=source, young_given=given)
+                        law=law, law_source=source, young_given=given, white_matter=white, white_matter_source=white_source,
+                        pia_arachnoid=scene_membrane(material))
 
 
 def _toml_value(v) -> str:

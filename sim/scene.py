@@ -167,7 +167,7 @@ SECTIONS = ("scene", "mesh", "material", "fixed", "model", "models", "servo", "v
 SECTION_KEYS = {  # the sections read as one table, in reading order: (required, allowed keys)
     "scene": (False, ("name", "description", "duration")),
     "mesh": (True, ("path",)),
-    "material": (True, ("file", "law", "mu", "mu1", "mu2", "alpha", "bulk_ratio", "young", "poisson", "density")),
+    "material": (True, ("file", "law", "mu", "mu1", "mu2", "alpha", "bulk_ratio", "young", "poisson", "density", "white_matter", "pia_arachnoid")),
     "fixed": (True, ("axis", "from_bottom")),
     "model": (True, ("name",)),
     "servo": (False, ("rate_hz",)),

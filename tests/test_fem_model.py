@@ -143,6 +143,9 @@ def test_cli_nonlinear_formulations_converge_and_agree_for_small_pulls(formulati
         assert 0.9 < sup["principal_stretch_min"]
         assert sup["principal_stretch_max"] < 1.1
         assert 0.0 < sup["max_abs_j_minus_1"] < 0.01
+        assert sup["marginal_share_outside"] == 0.0  # and none of the force's energy rate comes from outside
+        assert sup["max_abs_j_minus_1_fine"] >= sup["max_abs_j_minus_1"]  # the nodes and 64 points include more of the P2 field
+        assert sup["energy_rate"] == pytest.approx(out["force_n"][0], rel=1e-4)  # dE/dd: the force holding the pull, along it
 
 
 def test_corotational_haptic_frames_converge_to_the_static_corotational_solution():

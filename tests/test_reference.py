@@ -221,7 +221,10 @@ def test_the_shipped_solves_are_the_solvers_and_hash_checked(scene, tmp_path, mo
                                  np.asarray(pull.direction), xs, stretch_range=rng)
     assert again["converged"]
     assert np.allclose(again["force_per_pa"], shipped["force_per_pa"], rtol=1e-6)
-    assert np.allclose(again["support"], shipped["support"], rtol=1e-6, atol=1e-9)
+    recorded = np.isfinite(shipped["support"]).all(axis=0)  # a solve made before the marginal share has NaN there
+    assert recorded[:4].all()
+    assert np.allclose(again["support"][:, recorded], shipped["support"][:, recorded], rtol=1e-6, atol=1e-9)
+    assert np.isfinite(again["support"]).all()  # a new solve records every field
     bad = tmp_path / "reference_pulls.npz"
     bad.write_bytes(tissue_pulls.SHIPPED_PULLS.read_bytes()[:-10] + b"0123456789")
     monkeypatch.setattr(tissue_pulls, "SHIPPED_PULLS", bad)

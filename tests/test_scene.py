@@ -199,7 +199,7 @@ def test_three_independent_problems_all_reported_with_their_lines(tmp_path):
     "old, new, needle, field, allowed",
     [
         ("density = 1040.0", "youngs = 3000.0\ndensity = 1040.0", "youngs", "material.youngs",
-         "file, law, mu, mu1, mu2, alpha, bulk_ratio, young, poisson, density"),
+         "file, law, mu, mu1, mu2, alpha, bulk_ratio, young, poisson, density, white_matter, pia_arachnoid"),
         ("rate_hz = 1000\n", "rate_hz = 1000\nrate = 2\n", "rate = 2", "servo.rate", "rate_hz"),
         ("grasp_radius = 0.005                # a grasp", "grasp_radius = 0.005\nradius = 0.01  # a grasp", "radius = 0.01",
          "models.fem.radius", "resolution, formulation, grasp_radius, order"),

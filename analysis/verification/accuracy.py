@@ -43,7 +43,7 @@ from analysis.verification.tissue_pulls import (
     pull_samples,
     reached,
 )
-from analysis.verification.truth_band import DEVICE_LIMIT_N, MAX_J_DEVIATION, decide, truth_samples
+from analysis.verification.truth_band import DEVICE_LIMIT_N, MARGINAL_LIMIT, MAX_J_DEVIATION, decide, truth_samples
 from brainsim_assets import path as _asset
 from sim.errors import SceneError, SimError
 from sim.models.api import BUDGETS
@@ -68,8 +68,9 @@ def frames_per_sample(xs, frame_hz: float) -> int:
 
 def pull_speed(xs, frame_hz: float) -> float:
     return float(xs[0]) / frames_per_sample(xs, frame_hz) * frame_hz
-DECIDED_RULE = (f"decided: reference at most {DEVICE_LIMIT_N:g} N, at most the JND fraction at that force (25% below 0.5 N, 10% above) "
-                f"of the state's energy outside the data's principal stretches, |J - 1| at most {MAX_J_DEVIATION:g}, and the band "
+DECIDED_RULE = (f"decided: reference at most {DEVICE_LIMIT_N:g} N, a marginal share dE_out/dE (the force's share from quadrature points "
+                f"outside the data's principal stretches) at most {MARGINAL_LIMIT:g} x the JND fraction at that force (25% below 0.5 N, 10% above), "
+                f"|J - 1| at most {MAX_J_DEVIATION:g} at the nodes and a 64-point rule, and the band "
                 "(mesh GCI and the ensemble's law spread, root-sum-square) narrower than the JND")
 
 
@@ -321,7 +322,9 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
                         "no_reference": sum(not math.isfinite(c["force_n"]) for c in flat)},
             "test_decided": sum(c["decided"] for row in ref[len(calib):] for c in row),
             "max_abs_j_minus_1_decided": max((c["max_abs_j_minus_1"] for c in flat if c["decided"]), default=math.nan),
+            "max_abs_j_minus_1_fine_decided": max((c["decided_j"] for c in flat if c["decided"]), default=math.nan),
             "support_share_decided_max": max((c["support_share_outside"] for c in flat if c["decided"]), default=math.nan),
+            "decided_share_max": max((c["decided_share"] for c in flat if c["decided"]), default=math.nan),
             "statuses": {s: sum(c["status"] == s for c in flat) for s in sorted({c["status"] for c in flat})},
             "converged": all(s["converged"] for s in solves),
             # samples past where a mesh's solve stopped have no reference: left out of every row
@@ -354,7 +357,7 @@ def _scaled(truth: dict, ratio: float) -> dict:
         out = []
         for c in rows:
             f = c["force_n"] * ratio
-            ok, verdict_, why = decide(f, c["band_rel"], c["support_share_outside"], c["max_abs_j_minus_1"])
+            ok, verdict_, why = decide(f, c["band_rel"], c["decided_share"], c["decided_j"], c["decided_on"])
             out.append(c | {"force": np.asarray(c["force"]) * ratio, "force_n": f, "band_half_n": c["band_half_n"] * ratio,
                             "forces_n": [x * ratio for x in c["forces_n"]], "law_forces_n": [x * ratio for x in c["law_forces_n"]],
                             "decided": ok, "truth": verdict_, "reason": why})
@@ -443,6 +446,8 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                                     "pull": pull.name, "displacement_mm": round(float(x) * 1e3, 6), "force_n": f, "reference_force_n": r,
                                     "reference_half_band_n": float(H[p, k]), "mesh_band_rel": cell["mesh_band_rel"], "law_band_rel": cell["law_band_rel"],
                                     "support_share_outside": cell["support_share_outside"], "max_abs_j_minus_1": cell["max_abs_j_minus_1"],
+                                    **{k: cell.get(k, math.nan) for k in ("marginal_share_outside", "max_abs_j_minus_1_fine", "decided_share")},
+                                    "decided_on": cell.get("decided_on", ""),
                                     "decided": bool(D[p, k]), "reason": cell["reason"],
                                     "force_error": rel, "within_jnd": ok, "verdict": v, "angle_deg": ang})
                     if not D[p, k]:

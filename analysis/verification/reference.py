@@ -32,6 +32,7 @@ from analysis.verification.tissue_pulls import (
     pull_samples,
     small_strain_factor,
 )
+from analysis.verification.truth_band import rule_inputs
 from sim.errors import ParameterError
 from sim.geometry.mesh import patch_vertices
 from sim.geometry.patch import patch_area_points
@@ -158,12 +159,11 @@ def _sample(pull, x: float, f: list, hs: list, sizes: list) -> dict:
 def _support(sup, k: int) -> dict:
     """A sample's support over the meshes that reached it (the larger share and |J - 1|;
     analysis.verification.truth_band): NaN for the small-strain formulation, which has none."""
+    keys = ("support_share_outside", "max_abs_j_minus_1", "marginal_share_outside", "max_abs_j_minus_1_fine")
     if sup is None:
-        return {"support_share_outside": math.nan, "max_abs_j_minus_1": math.nan}
-    col = np.asarray(sup)[:, k]
-    ok = np.isfinite(col[:, 0])
-    return {"support_share_outside": float(col[ok, 0].max()) if ok.any() else math.nan,
-            "max_abs_j_minus_1": float(col[ok, 1].max()) if ok.any() else math.nan}
+        return dict.fromkeys(keys, math.nan)
+    rule = rule_inputs(np.asarray(sup)[:, k])
+    return {key: rule[key] for key in keys}
 
 
 def run_reference(cfg: ReferenceConfig, progress=None) -> dict:

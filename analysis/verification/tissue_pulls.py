@@ -37,6 +37,17 @@ import numpy as np
 
 from analysis.verification.convergence import converge
 from analysis.verification.material_fit import fitted_range
+from analysis.verification.regions import regional_system, scene_regions
+from analysis.verification.solve_keys import (  # noqa: F401 - the keys' home; read here by their old names too
+    KEY_DECIMALS,
+    LAW_DIGITS,
+    SOLVER_VERSION,
+    key_digits,
+    key_number,
+    law_shape_key,
+    pull_key,
+    pull_key_inputs,
+)
 from brainsim_assets import path as _asset
 from sim.errors import ParameterError, SimError
 from sim.files import save_npz
@@ -46,12 +57,12 @@ from sim.geometry.volume import cache_dir, locate
 from sim.linalg import Factor
 from sim.models.fem import FiniteStrain, TetSpace, constraint_matrix, hold
 from sim.models.fem.finite_strain import support
+from sim.models.fem.membrane import WithMembrane
 from sim.pulls import scene_with
 from sim.scene import clamp_limit, grasp_radius
 
 DEFAULT_SIZES_MM = SHIPPED_MM  # target edge lengths, coarse to fine: the shipped meshes
 QUICK_SIZES_MM = (20.0, 16.0)
-SOLVER_VERSION = 2  # part of every solve's key: bump when the solver, element or law form changes (2: the convex volumetric energy)
 SHIPPED_PULLS = _asset("data/reference_pulls.npz")
 SHIPPED_PULLS_INFO = _asset("data/reference_pulls.json")
 RECORD_XS = 0.0005 * np.arange(1, 25)  # m: where the shipped solves record (0.5, 1.0, ..., 12 mm)
@@ -59,7 +70,9 @@ RECORD_XS = 0.0005 * np.arange(1, 25)  # m: where the shipped solves record (0.5
 # most this share of its energy outside the data's stretches: beyond, no sample can be decided (a decided
 # sample has at most the JND fraction at its force, 25% at most; analysis.verification.truth_band.decide)
 FOLLOW_SHARE = 0.25
-SUPPORT_FIELDS = ("energy_share_outside", "max_abs_j_minus_1", "principal_stretch_min", "principal_stretch_max")
+# a solve made before the last two were recorded has the first four; the rest read NaN (`stored_solve`)
+SUPPORT_FIELDS = ("energy_share_outside", "max_abs_j_minus_1", "principal_stretch_min", "principal_stretch_max",
+                  "marginal_share_outside", "max_abs_j_minus_1_fine")
 
 
 class ReferenceDataError(SimError):
@@ -118,47 +131,10 @@ def pull_stiffness(problem: Problem, law, points: np.ndarray, weights: np.ndarra
 
 # A solve's key is a hash of its inputs, so a number must be written the same on every machine:
 # rounded to a stated precision, then any zero (-0.0, or a value that rounds to zero) written 0.0.
-# The geometry's arithmetic differs between machines at 1e-16 (test9-across's y component is
-# +6.9e-18 on one, -0.0 on another) and a law fitted at run time at 1e-7 relative (the ogden-2 fit,
-# its alpha at the bound): the precisions sit far above both and far below what moves a force.
-KEY_DECIMALS = 9  # lengths (m) and direction components: 1 nm, 1e-9 rad
-LAW_DIGITS = 5  # significant digits of a law's shape: 1e-5 of alpha moves a force by under 1e-4; its 95% box spans 6%
-
-
-def key_number(x: float, decimals: int = KEY_DECIMALS) -> float:
-    """`x` rounded to `decimals`, a zero always +0.0: one float, one key, on every machine."""
-    v = round(float(x), decimals)
-    return 0.0 if v == 0.0 else v
-
-
-def key_digits(x: float, digits: int = LAW_DIGITS) -> float:
-    """`x` to `digits` significant digits (decimal, so the same on every machine), a zero always +0.0."""
-    v = float(f"{float(x):.{digits}g}")
-    return 0.0 if v == 0.0 else v
-
-
-def law_shape_key(law) -> list:
-    """The law up to its scale: forces are stored per pascal of shear modulus."""
-    mu = law.shear_modulus
-    return [law.law, [key_digits(m / mu) for m in law.mu], [key_digits(a) for a in law.alpha], key_digits(law.bulk_ratio)]
-
-
-def pull_key_inputs(mesh_key: str, scene, law, radius: float, pull, stretch_range=None) -> list:
-    """What a solve's key is the hash of, each number canonical (`key_number`, `key_digits`)."""
-    axis, limit = clamp_limit(scene)
-    return ([SOLVER_VERSION, mesh_key, law_shape_key(law), int(axis), key_number(limit), key_number(radius), int(pull.vertex),
-             [key_number(c) for c in pull.direction]] + ([[key_number(r) for r in stretch_range]] if stretch_range else []))
-
-
-def pull_key(mesh: BodyMesh, scene, law, radius: float, pull, stretch_range=None) -> str:
-    key = json.dumps(pull_key_inputs(mesh.key, scene, law, radius, pull, stretch_range))
-    return hashlib.sha256(key.encode()).hexdigest()[:24]
-
-
 def entry_keys(entries, scene, laws: dict, pulls: dict) -> list[str]:
     """Each shipped entry's key (data/reference_pulls.json `entries`) from its inputs: its pull
     (`pulls`, by name), the body-fitted mesh of the pull's hemisphere at the entry's size, its law
-    (`laws`, by shape). Who calls it chooses where the laws and pulls come from: the rekeying
+    (`laws`, by shape: a law, or a regional contrast's `RegionalLaw`). Who calls it chooses where the laws and pulls come from: the rekeying
     script from the record, the test from this machine's own computation."""
     radius, rng = grasp_radius(scene), truth_range(scene)
     bodies: dict = {}
@@ -169,7 +145,8 @@ def entry_keys(entries, scene, laws: dict, pulls: dict) -> list[str]:
         if where not in bodies:
             verts, tris, _ = hemisphere_surface(scene.mesh, pull.hemisphere)
             bodies[where] = mesh_hemisphere(verts, tris, where[1] * 1e-3)
-        out.append(pull_key(bodies[where], scene, laws[e["shape"]], radius, pull, rng))
+        regional = scene_regions(scene, laws[e["shape"]])  # a law (the scene's white matter kept) or a whole regional variant
+        out.append(pull_key(bodies[where], scene, regional.grey, radius, pull, rng, regional))
     return out
 
 
@@ -232,7 +209,9 @@ def stored_solve(key: str, xs, stiffness: bool = False) -> dict | None:
             continue
         idx = _covers(entry, xs, stiffness)
         if idx is not None:
-            out = {"force_per_pa": np.asarray(entry["force_per_pa"])[idx], "support": np.asarray(entry["support"])[idx], **entry["meta"]}
+            sup = np.asarray(entry["support"])[idx]
+            sup = np.hstack([sup, np.full((len(idx), len(SUPPORT_FIELDS) - sup.shape[1]), np.nan)])
+            out = {"force_per_pa": np.asarray(entry["force_per_pa"])[idx], "support": sup, **entry["meta"]}
             if "stiffness_per_pa" in entry:
                 out["stiffness_per_pa"] = np.asarray(entry["stiffness_per_pa"])[idx]
             if not out.get("converged") and np.isfinite(out["force_per_pa"]).all():
@@ -244,25 +223,33 @@ def stored_solve(key: str, xs, stiffness: bool = False) -> dict | None:
     return None
 
 
-def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness: bool = False, stretch_range=None) -> dict:
+def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness: bool = False, stretch_range=None, regional=None,
+               membrane=None, marginal: bool = True) -> dict:
     """Follow the pull (the patch's mean displacement along `direction`) to max(xs), recording
     the force holding it (per pascal of shear modulus, (len(xs), 3), the force on the tissue),
-    its support (`support`, (len(xs), 4): `SUPPORT_FIELDS` of `sim.models.fem.finite_strain.support`
+    its support (`support`, (len(xs), 6): `SUPPORT_FIELDS` of `sim.models.fem.finite_strain.support`
     for the principal stretches `stretch_range`, NaN without one) and, with `stiffness`, the
-    condensed tangent (len(xs), 3, 3) at each x."""
+    condensed tangent (len(xs), 3, 3) at each x. `regional` (`regions.RegionalLaw`): the white
+    matter's law inside the white surface, `stretch_range` then one range per law; `membrane`: a
+    `MembraneLaw` on the surface (the support stays the body's). `marginal`: record the marginal
+    share (one more factorisation per record; only the scene's own law's solves decide, so the
+    ensemble's other laws go without: NaN there)."""
     xs = np.asarray(xs, dtype=np.float64)
     if xs.ndim != 1 or len(xs) == 0 or not np.all(np.isfinite(xs)) or np.any(xs <= 0) or np.any(np.diff(xs) <= 0):
         raise ParameterError("displacements: an increasing list of positive lengths (m)")
     unit = law.scaled(1.0 / law.shear_modulus)
     W = grasp_matrix(problem, points, weights)
     t0 = time.perf_counter()
-    system = FiniteStrain(problem.space, unit, mean_dilatation=False)
-    res = hold(system, W, np.asarray(direction) * xs[-1], fractions=xs / xs[-1],
-               first_step=min(0.25, 2.0 * xs[0] / xs[-1]), stiffness=stiffness, keep_states=stretch_range is not None)
+    laws, law_of = regional_system(problem.space, problem.mesh, problem.label, regional, unit) if regional else (unit, None)
+    system = FiniteStrain(problem.space, laws, mean_dilatation=False, law_of=law_of)
+    whole = system if membrane is None else WithMembrane(system, membrane.scaled(1.0 / law.shear_modulus))
+    res = hold(whole, W, np.asarray(direction) * xs[-1], fractions=xs / xs[-1],
+               first_step=min(0.25, 2.0 * xs[0] / xs[-1]), stiffness=stiffness, keep_states=stretch_range is not None,
+               sensitivity=marginal and stretch_range is not None)
     rep = res.report
     sup = np.full((len(xs), len(SUPPORT_FIELDS)), np.nan)
     for i, u in enumerate(res.states):  # the states of the records reached, in order
-        s = support(system, u, stretch_range)
+        s = support(system, u, stretch_range, res.sensitivities[i])
         sup[i] = [s[k] for k in SUPPORT_FIELDS]
     out = {"force_per_pa": res.forces, "support": sup, "converged": bool(rep.converged), "reason": rep.reason,
            "iterations": int(sum(rep.iterations)), "load_steps": int(rep.load_steps), "cut_steps": int(rep.cut_steps),
@@ -320,10 +307,11 @@ def _pull_task(args) -> dict:
     scene_path, label, size_mm, pull, xs, stiffness, upto, finer, law = args
 
     scene = scene_with(scene_path)
-    law, radius, rng = law or scene.spec.material.law, grasp_radius(scene), truth_range(scene)
+    given, regional = law, scene_regions(scene, law)
+    law, radius, rng = regional.grey, grasp_radius(scene), truth_range(scene)
     verts, tris, _ = hemisphere_surface(scene.mesh, label)
     body = mesh_hemisphere(verts, tris, size_mm * 1e-3)
-    key = pull_key(body, scene, law, radius, pull, rng)
+    key = pull_key(body, scene, law, radius, pull, rng, regional)
     found = _stored(key, xs, stiffness, finer, upto)
     if found is not None:
         return found | {"cached": True, "key": key, "h_m": body.h}
@@ -336,7 +324,9 @@ def _pull_task(args) -> dict:
     if not asked.any():
         return nothing | {"reason": "not solved: the coarsest mesh's solve stopped, or its state left the data, before the first sample"}
     problem = build_problem(scene, label, body)
-    r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs[asked], stiffness, rng)
+    r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs[asked], stiffness,
+                   regional.ranges() if regional.white is not None and rng else rng, regional, scene.spec.material.pia_arachnoid,
+                   marginal=given is None)
     if not asked.all():  # followed only as far as asked: no records beyond
         for name in ("force_per_pa", "stiffness_per_pa", "support"):
             if name in r:
@@ -368,7 +358,8 @@ def _cache(key: str, xs, force, stiffness, sup, meta: dict) -> None:
         with np.load(path, allow_pickle=False) as z:
             old_xs, old_f = z["xs"], z["force_per_pa"]
             old_k = z["stiffness_per_pa"] if "stiffness_per_pa" in z.files else np.full((len(old_xs), 3, 3), np.nan)
-            old_s = z["support"] if "support" in z.files else np.full((len(old_xs), len(SUPPORT_FIELDS)), np.nan)
+            old_s = z["support"] if "support" in z.files else np.full((len(old_xs), 0), np.nan)
+        old_s = np.hstack([old_s, np.full((len(old_xs), len(SUPPORT_FIELDS) - old_s.shape[1]), np.nan)])  # fields it predates
         keep = np.array([np.min(np.abs(xs - x)) > 1e-9 for x in old_xs], dtype=bool)
         xs, force, stiff, sup = (np.concatenate([xs, old_xs[keep]]), np.concatenate([force, old_f[keep]]),
                                  np.concatenate([stiff, old_k[keep]]), np.concatenate([sup, old_s[keep]]))
@@ -431,11 +422,13 @@ def pull_references(scene_path, pulls, xs, sizes_mm=DEFAULT_SIZES_MM, jobs: int 
 
 def follow_to(xs, coarse: dict, whole: bool) -> float:
     """How far the finer meshes follow a pull (m): as far as the coarsest mesh's solve reached
-    and, unless `whole`, while its state has at most `FOLLOW_SHARE` of its energy outside the
-    data's stretches (a state beyond the solve's reach, NaN, counts as outside; a law whose data
-    are unknown has no support at all and is followed as far as it goes)."""
+    and, unless `whole`, while its state's share outside the data's stretches, the one the truth
+    decides on (the marginal share where recorded, else the energy share), is at most `FOLLOW_SHARE`
+    (a state beyond the solve's reach, NaN, counts as outside; a law whose data are unknown has
+    no support at all and is followed as far as it goes)."""
     ok = np.isfinite(np.asarray(coarse["force_per_pa"])).all(axis=1)
-    share = np.asarray(coarse["support"])[:, 0]
+    sup = np.asarray(coarse["support"])
+    share = sup[:, 4] if sup.shape[1] > 4 and np.isfinite(sup[ok, 4]).all() else sup[:, 0]
     if not whole and np.isfinite(share[ok]).any():  # a law without data (no stretch range, NaN) is followed as far as it goes
         inside = np.cumprod(share <= FOLLOW_SHARE).astype(bool)  # stop at the first state outside
         ok = ok & inside
@@ -491,7 +484,8 @@ def _stored_task(task, seen: dict) -> dict | None:
         return None
     if ("range", scene_path) not in seen:
         seen[("range", scene_path)] = truth_range(scene)
-    key = pull_key(body, scene, law or scene.spec.material.law, grasp_radius(scene), pull, seen[("range", scene_path)])
+    regional = scene_regions(scene, law)
+    key = pull_key(body, scene, regional.grey, grasp_radius(scene), pull, seen[("range", scene_path)], regional)
     found = _stored(key, xs, stiffness, finer, upto)
     return None if found is None else found | {"cached": True, "key": key, "h_m": body.h}
 

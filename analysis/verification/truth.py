@@ -40,6 +40,7 @@ from analysis.errors import InputError
 from brainsim_assets import path as _asset
 from sim.geometry.mesh import patch_vertices
 from sim.geometry.volume import cache_dir
+from sim.perception import force_jnd
 from sim.scene import clamp_limit, grasp_radius
 from sim.stiffness_field import mesh_digest
 
@@ -68,6 +69,7 @@ class Truth:
     path_band: np.ndarray | None = None  # (h, m) the band everywhere (mesh and law)
     transfer_error: np.ndarray | None = None  # (h, m) the transfer's error at the path's farthest place
     path_vertex: np.ndarray | None = None  # (h,) each path's own grasp vertex
+    path_decided: np.ndarray | None = None  # (h, m) whether the truth is decided at each record; None: where band_rel is 0
 
     def band(self, vertex: int, d) -> np.ndarray:
         """The truth's relative half-band for hand displacements d (k, 3), linear along the path
@@ -82,6 +84,26 @@ class Truth:
         if self.path_vertex is None or int(vertex) == int(self.path_vertex[h]):
             return np.interp(s, self.s, self.band_rel[h])
         return np.hypot(np.interp(s, self.s, self.path_band[h]), np.interp(s, self.s, self.transfer_error[h]))
+
+    def decided(self, vertex: int, d) -> np.ndarray:
+        """Whether the truth is decided (analysis.verification.truth_band.decide) for hand
+        displacements d (k, 3): along the path only between two decided records, never below its
+        start (compression, which the reference did not solve) nor past its last record (the
+        tangent's extrapolation); at a place off the path's own vertex also only where its band
+        (`band`: the path's and the transfer's error) is narrower than the force JND there, the
+        rule's own bar."""
+        d = np.atleast_2d(np.asarray(d, dtype=np.float64))
+        h = int(self.path[self._row(vertex)])
+        if self.path_decided is not None:
+            rec = np.asarray(self.path_decided[h], dtype=bool)
+        else:
+            rec = self.band_rel[h] == 0 if self.band_rel is not None else np.ones(len(self.s), dtype=bool)
+        s = d @ self.direction[h]
+        k = np.clip(np.searchsorted(self.s, s, side="right") - 1, 0, len(self.s) - 2)
+        ok = (s >= self.s[0]) & (s <= self.s[-1]) & rec[k] & rec[k + 1]
+        if self.path_vertex is not None and int(vertex) != int(self.path_vertex[h]):
+            ok &= self.band(vertex, d) < force_jnd(np.linalg.norm(self.force(vertex, d), axis=1))
+        return ok
 
     def _row(self, vertex: int) -> int:
         hit = np.flatnonzero(self.vertices == int(vertex))
@@ -179,7 +201,9 @@ def load_truth(scene, path: Path | str | None = None) -> Truth:
             why.append(f"{p}: made for another scene ({reason})")
             continue
         parts.append({k: z[k] for k in ("vertices", "path", "transfer", "s", "direction", "force_per_pa", "stiffness_per_pa", "path_band_rel",
-                                        "path_band", "transfer_error", "path_vertex")})
+                                        "path_band", "transfer_error", "path_vertex")}
+                     # an older table records no decision: decided where it gives no band
+                     | {"path_decided": z["path_decided"] if "path_decided" in z.files else z["path_band_rel"] == 0})
     if not parts:
         raise InputError(("; ".join(why) or "no observer truth table") + "; make one with `studyctl calibrate truth --scene FILE`")
     s = parts[0]["s"]
@@ -196,7 +220,8 @@ def load_truth(scene, path: Path | str | None = None) -> Truth:
                  mu=float(scene.spec.material.law.shear_modulus), digest=key["digest"], grasp_radius=key["grasp_radius"],
                  band_rel=np.concatenate([q["path_band_rel"] for q in parts]), path_band=np.concatenate([q["path_band"] for q in parts]),
                  transfer_error=np.concatenate([q["transfer_error"] for q in parts]),
-                 path_vertex=np.concatenate([q["path_vertex"] for q in parts]))
+                 path_vertex=np.concatenate([q["path_vertex"] for q in parts]),
+                 path_decided=np.concatenate([q["path_decided"] for q in parts]))
 
 
 def hand_vertices(scene, radius: float = TRUTH_RADIUS) -> np.ndarray:

@@ -1,5 +1,6 @@
 """Geometry of the brain: the surface mesh (`mesh`), body-fitted tetrahedral meshes (`tetmesh`),
-points embedded in them (`volume`), and the grasp patch (`patch`).
+points embedded in them (`volume`), the grasp patch (`patch`), and the brain's regions (`regions`:
+grey and white matter by FreeSurfer's white surface).
 
-Imports: numpy, scipy, pytetwild, and `sim` below it (files, errors); no tissue model.
+Imports: numpy, scipy, pytetwild, numba (`regions`), and `sim` below it (files, errors); no tissue model.
 """

@@ -90,6 +90,9 @@ class ObserverParams:
     lapse_max: float = 0.04  # a trial answered at random (attention lapses, mistyped keys): 0-4% of trials
     base_logit: float = 1.0
     sample_every: int = 10  # judge the force at 100 Hz (ticks are 1 kHz)
+    # True: the former rule, a sample where the truth is not decided judged against its band
+    # (kept so that scripts/decided_share.py can show what judging only decided evidence changes)
+    judge_undecided: bool = False
 
 
 DEFAULT = ObserverParams()
@@ -150,6 +153,7 @@ class TrialSummary:
     frame_flops: float  # mean counted work per deformation frame (NaN: not recorded)
     frame_ms: float = math.nan  # the rig's measured time per frame for this configuration (studyctl/synthetic/rig.py); NaN: none
     band: np.ndarray | None = None  # (k,) the truth's relative half-band where it is not decided (0 where it is); None: 0
+    decided: np.ndarray | None = None  # (k,) whether the truth is decided at each sample (only those are judged); None: all
 
 
 def frame_ms(flops: float, params: ObserverParams = DEFAULT) -> float:
@@ -181,8 +185,16 @@ def ripple_level(force: np.ndarray, rate_hz: float, params: ObserverParams = DEF
 def truth_forces(trace, truth, mesh, with_band: bool = False):
     """The truth's force magnitude for the trace's hand motion and grasps, per tick and hand
     (and, `with_band`, its relative half-band where it is not decided)."""
+    out, band, _ = truth_along(trace, truth, mesh)
+    return (out, band) if with_band else out
+
+
+def truth_along(trace, truth, mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per tick and hand: the truth's force magnitude (0 where the hand holds nothing), its
+    relative half-band where it is not decided, and whether it is decided there."""
     out = np.zeros(trace.positions.shape[:2])
     band = np.zeros(trace.positions.shape[:2])
+    decided = np.zeros(trace.positions.shape[:2], dtype=bool)
     grasps: dict[int, list] = {}
     for e in trace.events:
         if e.kind == "grasp":
@@ -195,24 +207,38 @@ def truth_forces(trace, truth, mesh, with_band: bool = False):
                 continue
             d = trace.positions[sel, hand] - mesh.vertices[vertex]
             out[sel, hand] = np.linalg.norm(truth.force(vertex, d), axis=1)
-            if with_band:
-                band[sel, hand] = truth.band(vertex, d)
-    return (out, band) if with_band else out
+            band[sel, hand] = truth.band(vertex, d)
+            decided[sel, hand] = truth.decided(vertex, d)
+    return out, band, decided
+
+
+def _judged(ref: np.ndarray, params: ObserverParams) -> np.ndarray:
+    """The samples (100 Hz) where the truth reaches a force to judge."""
+    judged = ref >= params.judged_force_n
+    judged[np.arange(len(judged)) % params.sample_every != 0] = False
+    return judged
+
+
+def judged_time(trace, truth, mesh, params: ObserverParams = DEFAULT) -> np.ndarray:
+    """(hands, 2) per hand: the samples where the truth reaches a force to judge, and how many
+    of them are on decided truth (the only ones whose accuracy is judged)."""
+    ref, _, decided = truth_along(trace, truth, mesh)
+    judged = _judged(ref, params)
+    return np.stack([judged.sum(axis=0), (judged & decided).sum(axis=0)], axis=1)
 
 
 def summarise(trace, truth, mesh, params: ObserverParams = DEFAULT) -> TrialSummary:
     f = np.linalg.norm(trace.forces, axis=2)
-    ref, band = truth_forces(trace, truth, mesh, with_band=True)
+    ref, band, decided = truth_along(trace, truth, mesh)
     rate = 1.0 / float(np.median(np.diff(trace.times))) if len(trace.times) > 1 else 1000.0
-    judged = ref >= params.judged_force_n
-    judged[np.arange(len(judged)) % params.sample_every != 0] = False
+    judged = _judged(ref, params)
     ripple = 0.0
     for i in range(f.shape[1]):
         held = np.flatnonzero(ref[:, i] > 0)
         if len(held):
             ripple = max(ripple, ripple_level(f[held[0]:held[-1] + 1, i], rate, params))
     flops = np.asarray(getattr(trace, "frame_flops", np.zeros(0)), dtype=np.float64)
-    return TrialSummary(rendered=f[judged], truth=ref[judged], band=band[judged], ripple=ripple,
+    return TrialSummary(rendered=f[judged], truth=ref[judged], band=band[judged], decided=decided[judged], ripple=ripple,
                         events=sum(1 for e in trace.events if e.kind in SAFETY_EVENTS),
                         frame_flops=float(np.nanmean(flops)) if len(flops) and np.isfinite(flops).any() else math.nan)
 
@@ -229,10 +255,11 @@ def within_jnd(rendered: np.ndarray, truth: np.ndarray, traits: ObserverTraits, 
                band: np.ndarray | None = None) -> float:
     """Mean probability that a force sample feels as expected: the log ratio of the rendered
     force to the expected one (truth x the participant's prior), perceived with Gaussian noise
-    of one JND, falls within one JND. A perfect model scores 0.683, not 1. Where the truth is
-    not decided (`band`: its relative half-band b there), a force inside the band is as good as
-    the centre: the log ratio is measured from the band's nearer edge, taken symmetric in log
-    force (truth (1 + b) above, truth / (1 + b) below: below, a little narrower than truth (1 - b))."""
+    of one JND, falls within one JND. A perfect model scores 0.683, not 1. Where the truth
+    carries a band (`band`: its relative half-band b; off a path's own vertex, the transfer's
+    error), a force inside the band is as good as the centre: the log ratio is measured from the
+    band's nearer edge, taken symmetric in log force (truth (1 + b) above, truth / (1 + b) below:
+    below, a little narrower than truth (1 - b))."""
     if len(truth) == 0:
         return math.nan
     w = weber_at(traits.prior * truth, traits, params)
@@ -319,6 +346,13 @@ def _features(summaries: list[TrialSummary], traits: ObserverTraits, params: Obs
     rendered = np.concatenate([s.rendered for s in summaries]) if summaries else np.zeros(0)
     truth = np.concatenate([s.truth for s in summaries]) if summaries else np.zeros(0)
     band = np.concatenate([s.band if s.band is not None else np.zeros(len(s.truth)) for s in summaries]) if summaries else np.zeros(0)
+    decided = np.concatenate([s.decided if s.decided is not None else np.ones(len(s.truth), dtype=bool) for s in summaries]) \
+        if summaries else np.zeros(0, dtype=bool)
+    # where the truth is not decided it is the law's extrapolation, not evidence: no accuracy
+    # judgement there (judged on the decided samples alone; none: the neutral term)
+    undecided = int(np.sum(~decided))
+    if not params.judge_undecided:
+        rendered, truth, band = rendered[decided], truth[decided], band[decided]
     flops = [s.frame_flops for s in summaries if math.isfinite(s.frame_flops)]
     rig = [s.frame_ms for s in summaries if math.isfinite(s.frame_ms)]
     # the rig's measured frame time when the study has a profile, else the counted work on the reference machine
@@ -334,6 +368,7 @@ def _features(summaries: list[TrialSummary], traits: ObserverTraits, params: Obs
         "p_vibration": float(np.mean(p_vib)) if p_vib else 0.0,
         "events": sum(s.events for s in summaries) / max(len(summaries), 1),
         "samples": int(len(truth)),
+        "undecided_samples": undecided,  # above the judged force on truth that is not decided (not judged)
     }
 
 

@@ -6,6 +6,7 @@
 - `space`: the elements on a mesh with its clamp (`TetSpace`), shared by every solve;
 - `finite_strain`: a finite-strain law (`sim.hyperelastic`) on a space (P2, or P2/P0 with a mean dilatation),
   its compiled element pass in `hyperelastic_kernels`;
+- `membrane`: a hyperelastic membrane on the body's boundary faces (the pia-arachnoid) and the body with it;
 - `newton`: the one Newton solver for finite strain, following a held constraint's path;
 - `corotational`: the stiffness-warping update (P1), its compiled passes in `corotational_kernels`
   (with the 3 x 3 inverse `hyperelastic_kernels` shares);

@@ -129,9 +129,13 @@ def _add_pressure(Ke, e, X, q, k, c1, c2):
 
 
 @numba.njit(cache=True, parallel=True)
-def element_pass(G, wq, ue, mu, alpha, kappa, mean, want_tangent, fe, Ke, energy, theta, minJ):
+def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke, energy, theta, minJ):
     """For every element e: the internal force fe[e] (3k,), the tangent Ke[e] (3k, 3k) when
     `want_tangent`, the energy, the mean dilatation theta and the smallest J of its points.
+
+    The laws: mu, alpha (n_laws, terms) (a law with fewer terms padded with mu = 0), kappa
+    (n_laws,); law_of (m, q) the law of each quadrature point (the brain's regions). With the
+    mean dilatation an element's kappa is its points' volume-weighted mean.
 
     G (m, q, k, 3) shape-function gradients at the quadrature points, wq (m, q) their weights,
     ue (m, k, 3) the element's nodal displacements. `mean`: the volumetric energy of the
@@ -174,7 +178,8 @@ def element_pass(G, wq, ue, mu, alpha, kappa, mean, want_tangent, fe, Ke, energy
             jmin = min(jmin, Jd)
             if Jd <= 0.0:
                 continue
-            en += w * _iso_point(F, Jd, mu, alpha, c, N, s, Mab, Dab)
+            law = law_of[e, q]
+            en += w * _iso_point(F, Jd, mu[law], alpha[law], c, N, s, Mab, Dab)
             jint += w * Jd
             # n_a = F N_a; qg[a', b] = grad N_a' . N_b
             for i in range(3):
@@ -238,10 +243,11 @@ def element_pass(G, wq, ue, mu, alpha, kappa, mean, want_tangent, fe, Ke, energy
             env = 0.0
             for q in range(nq):
                 w, Jd = wq[e, q], Jq[q]
+                kappa_q = kappa[law_of[e, q]]
                 # U(J) = kappa/4 (J^2 - 1 - 2 ln J), convex for every J > 0 (sim.hyperelastic.volumetric)
-                env += w * 0.25 * kappa * (Jd * Jd - 1.0 - 2.0 * math.log(Jd))
-                p = 0.5 * kappa * (Jd - 1.0 / Jd)
-                dp = 0.5 * kappa * (1.0 + 1.0 / (Jd * Jd))
+                env += w * 0.25 * kappa_q * (Jd * Jd - 1.0 - 2.0 * math.log(Jd))
+                p = 0.5 * kappa_q * (Jd - 1.0 / Jd)
+                dp = 0.5 * kappa_q * (1.0 + 1.0 / (Jd * Jd))
                 for a in range(k):
                     for i in range(3):
                         f[3 * a + i] += w * p * Jd * X[q, a, i]
@@ -256,9 +262,17 @@ def element_pass(G, wq, ue, mu, alpha, kappa, mean, want_tangent, fe, Ke, energy
                         Ke[e, i, j] = Ke[e, j, i]
             continue
         th = theta[e]
-        p = 0.5 * kappa * (th - 1.0 / th)
-        dp = 0.5 * kappa * (1.0 + 1.0 / (th * th))
-        energy[e] = en + vol * 0.25 * kappa * (th * th - 1.0 - 2.0 * math.log(th))
+        kappa_e = kappa[law_of[e, 0]]
+        for q in range(1, nq):
+            if law_of[e, q] != law_of[e, 0]:  # an element across the interface: its points' mean
+                kappa_e = 0.0
+                for r in range(nq):
+                    kappa_e += wq[e, r] * kappa[law_of[e, r]]
+                kappa_e /= vol
+                break
+        p = 0.5 * kappa_e * (th - 1.0 / th)
+        dp = 0.5 * kappa_e * (1.0 + 1.0 / (th * th))
+        energy[e] = en + vol * 0.25 * kappa_e * (th * th - 1.0 - 2.0 * math.log(th))
         for i in range(nd):
             fe[e, i] = f[i] + p * g[i]
         if want_tangent:

@@ -49,6 +49,9 @@ class HeldPath:
     stiffness: np.ndarray | None  # (len(fractions), k, k) condensed tangents, when asked for
     report: NewtonReport
     states: list = field(default_factory=list)  # the u of each recorded fraction, when asked for
+    # du/dd of each recorded state along the target's direction (3 n_all,), when asked for: the
+    # converged tangent's [K -W^T; W 0] [du; dl] = [0; e]
+    sensitivities: list = field(default_factory=list)
     fraction_done: float = 1.0  # the t of the last converged state
 
 
@@ -59,9 +62,12 @@ def _residual(f_free, Wt, lam, gap, scale) -> tuple[np.ndarray, float]:
 
 
 def hold(system, W: sp.csr_matrix, target, fractions=(1.0,), *, first_step: float = 0.25, min_step: float = 1e-3,
-         tol: float = 1e-8, max_iter: int = 12, stiffness: bool = False, keep_states: bool = False) -> HeldPath:
+         tol: float = 1e-8, max_iter: int = 12, stiffness: bool = False, keep_states: bool = False,
+         sensitivity: bool = False) -> HeldPath:
     """Follow ``W u = t target`` from t = 0 to the largest of `fractions` on `system` (a
-    `FiniteStrain`). W (k, n_free) any linear constraints on the free dofs."""
+    `FiniteStrain`). W (k, n_free) any linear constraints on the free dofs. With `sensitivity`,
+    each record also keeps the state's derivative along the target's direction (`sensitivities`),
+    from the same factorisation as the condensed stiffness."""
     space = system.space
     free, n = space.free, 3 * space.n_all
     target = np.asarray(target, dtype=np.float64).reshape(-1)
@@ -74,6 +80,7 @@ def hold(system, W: sp.csr_matrix, target, fractions=(1.0,), *, first_step: floa
     forces = np.full((len(fractions), len(target)), np.nan)
     Ks = np.full((len(fractions), len(target), len(target)), np.nan) if stiffness else None
     states: list = []
+    sens: list = []
     steps = _Steps(W, Wt)
     t_done, u_done, lam_done = 0.0, np.zeros(n), np.zeros(len(target))
     prev = None  # (t, u, lam) of the step before, for the predictor
@@ -115,13 +122,17 @@ def hold(system, W: sp.csr_matrix, target, fractions=(1.0,), *, first_step: floa
             h = min(2.0 * h, 0.5)
         while record < len(fractions) and t_done >= fractions[record] - 1e-12:
             forces[record] = lam_done
-            if stiffness:
-                Ks[record] = _condensed(system, W, Wt, u_done, steps, report)
+            if stiffness or sensitivity:
+                Kc = _condensed(system, W, Wt, u_done, steps, report)
+                if stiffness:
+                    Ks[record] = Kc
+            if sensitivity:
+                sens.append(_sensitivity(steps, target / scale, n, free))
             if keep_states:
                 states.append(u_done.copy())
             record += 1
     return HeldPath(u=u_done, multipliers=lam_done, fractions=fractions, forces=forces, stiffness=Ks, report=report, states=states,
-                    fraction_done=t_done)
+                    sensitivities=sens, fraction_done=t_done)
 
 
 class _Steps:
@@ -141,6 +152,7 @@ class _Steps:
         self.WtW = None
         self.analyses: dict = {}
         self.factor = None
+        self.K = None  # the tangent `_condensed` last factorised
 
     def refactor(self, K, report) -> None:
         self.factor = None  # free the old factor before the new one is made
@@ -270,11 +282,27 @@ def _iterate(system, W, Wt, u, lam, d, scale, tol, max_iter, steps: _Steps, repo
     return False, hist, "no convergence"
 
 
+def _sensitivity(steps: _Steps, e: np.ndarray, n: int, free: np.ndarray) -> np.ndarray:
+    """du/dd (3 n_all,) along the unit direction `e` at the state `_condensed` just factorised:
+    [K -W^T; W 0] [du; dl] = [0; e] (GMRES on the unshifted system where the factor is shifted)."""
+    K = steps.K
+    if steps.factor.shift > 0.0:
+        x, _, _ = right_gmres(lambda a, b: (K @ a - steps.Wt @ b, steps.W @ a), steps.exact, np.zeros(K.shape[0]), e, 1e-10, 200)
+        if x is None:
+            return np.full(n, np.nan)
+    else:
+        x, _ = steps.exact(np.zeros(K.shape[0]), e)
+    out = np.zeros(n)
+    out[free] = x
+    return out
+
+
 def _condensed(system, W, Wt, u, steps: _Steps, report) -> np.ndarray:
     """(W K_t^-1 W^T)^-1 at the converged state u, from a fresh factorisation there: the force's
     tangent against the target (with the augmented factor, (W Ka^-1 W^T)^-1 - rho I: the same)."""
     K = system.evaluate(u, tangent=True)["K"]
     steps.refactor(K, report)
+    steps.K = K  # for `_sensitivity` at the same state
     if steps.factor.shift > 0.0:
         # the factor is of a shifted matrix: the condensed columns by GMRES on the unshifted
         # constrained system, the shifted factor's exact step preconditioning it

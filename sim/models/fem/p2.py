@@ -5,6 +5,7 @@ stiffness exactly."""
 from __future__ import annotations
 
 import numpy as np
+from scipy.special import roots_jacobi
 
 NODES = 10
 EDGES = np.array([(0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3)])  # local corners of the mid-edge nodes
@@ -42,6 +43,42 @@ def quadrature_gradients(grads: np.ndarray) -> np.ndarray:
         for e, (i, j) in enumerate(EDGES):
             out[:, q, 4 + e] = 4.0 * (L[j] * grads[:, i] + L[i] * grads[:, j])
     return out
+
+
+def shape_derivatives(bary: np.ndarray) -> np.ndarray:
+    """dN_k/dL_i (p, 10, 4) at barycentric points (p, 4); a shape function's gradient is
+    sum_i dN_k/dL_i grad L_i (`quadrature_gradients` at the Gauss points)."""
+    bary = np.atleast_2d(np.asarray(bary, dtype=np.float64))
+    out = np.zeros((len(bary), 10, 4))
+    for i in range(4):
+        out[:, i, i] = 4.0 * bary[:, i] - 1.0
+    for e, (i, j) in enumerate(EDGES):
+        out[:, 4 + e, i] = 4.0 * bary[:, j]
+        out[:, 4 + e, j] = 4.0 * bary[:, i]
+    return out
+
+
+def node_points() -> np.ndarray:
+    """The ten nodes' barycentric coordinates (10, 4), in the element's node order."""
+    eye = np.eye(4)
+    return np.vstack([eye, 0.5 * (eye[EDGES[:, 0]] + eye[EDGES[:, 1]])])
+
+
+def conical_rule(n: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Stroud's conical product rule of n^3 points on the tetrahedron (barycentric (n^3, 4),
+    weights summing to 1): Gauss-Jacobi in the two collapsed directions, Gauss-Legendre in the
+    third, exact for polynomials of degree 2n - 1 (Stroud 1971, Approximate Calculation of
+    Multiple Integrals, 8.4)."""
+    xs, ws = [], []
+    for a in (2, 1, 0):  # the weights (1 - s)^2, (1 - t), 1 of the collapsed cube's Jacobian
+        x, w = roots_jacobi(n, a, 0)
+        xs.append(0.5 * (x + 1.0))
+        ws.append(w / 2.0 ** (a + 1))
+    s, t, v = (g.ravel() for g in np.meshgrid(*xs, indexing="ij"))
+    w = np.einsum("i,j,k->ijk", *ws).ravel() * 6.0  # the unit tetrahedron's volume is 1/6
+    l1, l2 = s, (1.0 - s) * t
+    l3 = (1.0 - s) * (1.0 - t) * v
+    return np.column_stack([1.0 - l1 - l2 - l3, l1, l2, l3]), w
 
 
 CHUNK = 512  # elements per pass: the temporaries stay in cache (faster than one pass over all: docs/fem.md)

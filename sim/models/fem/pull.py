@@ -56,11 +56,12 @@ def _solve(model, contact, d: np.ndarray, formulation: str, steps: int, law=None
     if formulation in ("finite-strain", "nodal-pressure"):  # the scene's law on the model's mesh and element
 
         system = FiniteStrain(part, law, mean_dilatation=False) if formulation == "finite-strain" else NodalPressure(part, law)
-        held = hold(system, contact.data.W, d, first_step=1.0 / steps)
+        want = stretch_range is not None and formulation == "finite-strain"
+        held = hold(system, contact.data.W, d, first_step=1.0 / steps, sensitivity=want)
         u_part, force, rep = held.u.reshape(-1, 3), held.multipliers, held.report
         rep.completed_fraction = float(held.fraction_done)
         if stretch_range is not None and formulation == "finite-strain":
-            rep.support = support(system, held.u, stretch_range)
+            rep.support = support(system, held.u, stretch_range, held.sensitivities[-1] if held.sensitivities else None)
     else:
         u_part, force, rep = corotational_solve(part, contact.data.W, contact.data.U, d, steps=steps)
     u = np.zeros((model.n_model_nodes, 3))

@@ -1,0 +1,55 @@
+"""The key of a reference solve (`analysis.verification.tissue_pulls`): a hash of everything
+that decides its forces (the mesh's content, the law's shape, the clamp, the grasp, the pull,
+the data's stretch range, the white matter's law and surfaces, the pia-arachnoid), each number
+written one way on every machine."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+
+from analysis.verification.regions import region_key
+from sim.geometry.tetmesh import BodyMesh
+from sim.scene import clamp_limit
+
+SOLVER_VERSION = 2  # part of every solve's key: bump when the solver, element or law form changes (2: the convex volumetric energy)
+
+# The geometry's arithmetic differs between machines at 1e-16 (test9-across's y component is
+# +6.9e-18 on one, -0.0 on another) and a law fitted at run time at 1e-7 relative (the ogden-2 fit,
+# its alpha at the bound): the precisions sit far above both and far below what moves a force.
+KEY_DECIMALS = 9  # lengths (m) and direction components: 1 nm, 1e-9 rad
+LAW_DIGITS = 5  # significant digits of a law's shape: 1e-5 of alpha moves a force by under 1e-4; its 95% box spans 6%
+
+
+def key_number(x: float, decimals: int = KEY_DECIMALS) -> float:
+    """`x` rounded to `decimals`, a zero always +0.0: one float, one key, on every machine."""
+    v = round(float(x), decimals)
+    return 0.0 if v == 0.0 else v
+
+
+def key_digits(x: float, digits: int = LAW_DIGITS) -> float:
+    """`x` to `digits` significant digits (decimal, so the same on every machine), a zero always +0.0."""
+    v = float(f"{float(x):.{digits}g}")
+    return 0.0 if v == 0.0 else v
+
+
+def law_shape_key(law) -> list:
+    """The law up to its scale: forces are stored per pascal of shear modulus."""
+    mu = law.shear_modulus
+    return [law.law, [key_digits(m / mu) for m in law.mu], [key_digits(a) for a in law.alpha], key_digits(law.bulk_ratio)]
+
+
+def pull_key_inputs(mesh_key: str, scene, law, radius: float, pull, stretch_range=None, regional=None) -> list:
+    """What a solve's key is the hash of, each number canonical (`key_number`, `key_digits`);
+    a regional solve's white matter (`regions.region_key`) added."""
+    axis, limit = clamp_limit(scene)
+    pac = scene.spec.material.pia_arachnoid  # a surface membrane: its mu t per pascal of the body's mu (m), its alpha
+    return ([SOLVER_VERSION, mesh_key, law_shape_key(law), int(axis), key_number(limit), key_number(radius), int(pull.vertex),
+             [key_number(c) for c in pull.direction]] + ([[key_number(r) for r in stretch_range]] if stretch_range else [])
+            + (region_key(regional, law_shape_key, key_digits) if regional is not None else [])
+            + ([["pia-arachnoid", key_digits(pac.mu * pac.thickness / law.shear_modulus), key_digits(pac.alpha)]] if pac else []))
+
+
+def pull_key(mesh: BodyMesh, scene, law, radius: float, pull, stretch_range=None, regional=None) -> str:
+    key = json.dumps(pull_key_inputs(mesh.key, scene, law, radius, pull, stretch_range, regional))
+    return hashlib.sha256(key.encode()).hexdigest()[:24]
