@@ -12,6 +12,16 @@ mesh, as far as the finer meshes follow. A solve that stops is shipped with the 
 reached and its reason. Solves already cached ($BRAINSIM_CACHE/reference) are reused.
 
     .venv/bin/python scripts/make_reference_pulls.py [--jobs 2] [--finer stored|solve|skip]
+
+First every solve is made into the cache in two balanced rounds (`prefill`: every group's
+coarsest mesh; then every finer mesh, every other law and the regional contrast at once, the
+slowest first), so that many cores stay busy; the groups are then assembled from the cache.
+On a machine of many cores without this project's venv (Python 3.12, say), scikit-sparse 0.4.16
+can be built here as a wheel for that Python (`python3.12 -m pip wheel scikit-sparse==0.4.16`)
+and carried with Debian 12's SuiteSparse 5 libraries (libcholmod3 and what it links: `ldd`),
+found through LD_LIBRARY_PATH; the package itself runs from its source folder with its
+`brainsim_study.egg-info` beside it (the models' entry points). An interrupted run keeps what it
+solved in $BRAINSIM_CACHE: run it again to go on.
 """
 
 from __future__ import annotations
@@ -24,12 +34,15 @@ import time
 
 import numpy as np
 
-from analysis.verification.tissue_pulls import (
+from analysis.verification.tissue_pulls import (  # the private runners: this script is their only other caller
     QUICK_SIZES_MM,
     RECORD_XS,
     SHIPPED_PULLS,
     SHIPPED_PULLS_INFO,
     SUPPORT_FIELDS,
+    _premesh,
+    _run,
+    follow_to,
     pull_references,
     stored_solve,
 )
@@ -40,6 +53,25 @@ from sim.pulls import hand_pulls, make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE
 
 QUICK_TEST_PLACES = 6
+
+
+def prefill(scene, hands, others, jobs: int, start: float) -> None:
+    """Every solve the groups below need, into the cache, in two rounds that keep `jobs` busy."""
+    groups = [(sorted(SHIPPED_MM, reverse=True), make_pulls(scene) + test_pulls(scene)),
+              (sorted(QUICK_SIZES_MM, reverse=True), make_pulls(scene) + test_pulls(scene, QUICK_TEST_PLACES))]
+    for sizes, group in groups:
+        _premesh(scene.mesh, sorted({p.hemisphere for p in group}), sizes, 1, jobs)
+    where = str(DEFAULT_SCENE)
+    first = [(where, p.hemisphere, sizes[0], p, RECORD_XS, p.name in hands, RECORD_XS[-1], "stored", None) for sizes, group in groups for p in group]
+    coarse = _run(first, jobs, lambda k, n: print(f"coarsest meshes: {k}/{n}, {time.perf_counter() - start:.0f} s", flush=True))
+    follow = {(t[2], t[3].name): follow_to(RECORD_XS, r, t[3].name in hands) for t, r in zip(first, coarse)}
+    rest = []
+    for sizes, group in groups:
+        for p in group:
+            upto = follow[(sizes[0], p.name)]
+            rest += [(where, p.hemisphere, s, p, RECORD_XS, p.name in hands, upto, "stored", None) for s in sizes[1:]]
+            rest += [(where, p.hemisphere, sizes[0], p, RECORD_XS, False, upto, "stored", law) for law in others]
+    _run(rest, jobs, lambda k, n: print(f"finer meshes and other laws: {k}/{n}, {time.perf_counter() - start:.0f} s", flush=True))
 
 
 def main() -> None:
@@ -60,6 +92,7 @@ def main() -> None:
     members = ensemble(scene.spec.material.law_source, law)
     others = shapes(members)[1:]
     contrast = scene_contrast(scene)  # the literature's other regional contrasts: solved like the ensemble, reported beside it
+    prefill(scene, hands, others + [c["law"] for c in contrast], args.jobs, start)
     # each group as its benches read it: the finer meshes follow a pull as far as the group's coarsest got
     groups, solved = [], []
     # the quick benches judge two test places: their pairs hold the first six (QUICK_TEST_PLACES)
