@@ -27,10 +27,12 @@ solved in $BRAINSIM_CACHE: run it again to go on.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import hashlib
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -48,6 +50,7 @@ from analysis.verification.tissue_pulls import (  # the private runners: this sc
 )
 from analysis.verification.truth_band import contrast_json, ensemble, members_json, scene_contrast, shape_index, shapes
 from brainsim_assets import version
+from sim.geometry.regions import white_sha256
 from sim.geometry.tetmesh import SHIPPED_MM
 from sim.pulls import hand_pulls, make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE
@@ -139,7 +142,8 @@ def main() -> None:
         "made": datetime.date.today().isoformat(), "version": version(), "law": law.params(),
         "ensemble": [j | {"shape": i} for j, i in zip(members_json(members), shape_index(members))],
         "contrast": [c | {"shape": j} for j, c in enumerate(contrast_json(contrast), start=len(others) + 1)],
-        "white_matter": "protocols/materials/human_white_matter.toml" if scene.spec.material.white_matter is not None else None,
+        "white_matter": f"protocols/materials/{Path(scene.spec.material.white_matter_source).name}" if scene.spec.material.white_matter else None, "white_surfaces_sha256": white_sha256() if scene.spec.material.white_matter else None,
+        "pia_arachnoid": dataclasses.asdict(scene.spec.material.pia_arachnoid) if scene.spec.material.pia_arachnoid else None,
         "law_source": "protocols/materials/human_cortex.toml", "scene": "protocols/scenes/brain_pull.toml",
         "record_mm": [round(x * 1e3, 6) for x in RECORD_XS], "sizes_mm": list(SHIPPED_MM) + list(QUICK_SIZES_MM),
         "made_by": "scripts/make_reference_pulls.py", "wall_s": time.perf_counter() - start, "entries": entries}, indent=1) + "\n")

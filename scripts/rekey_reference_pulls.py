@@ -18,6 +18,7 @@ import json
 
 import numpy as np
 
+from analysis.verification.regions import RegionalLaw, scene_regions
 from analysis.verification.tissue_pulls import SHIPPED_PULLS, SHIPPED_PULLS_INFO, entry_keys
 from sim.files import save_npz
 from sim.hyperelastic import Hyperelastic
@@ -31,6 +32,11 @@ def new_keys(info: dict) -> list[str]:
     pulls = {p.name: p for p in make_pulls(scene) + test_pulls(scene)}
     laws = {m["shape"]: Hyperelastic(m["law"]["law"], tuple(m["law"]["mu"]), tuple(m["law"]["alpha"]), m["law"]["bulk_ratio"])
             for m in info["ensemble"]}
+    # the regional contrasts: the grey law with the white matter the record names (None: one material)
+    for c in info.get("contrast", []):
+        grey = Hyperelastic.from_params(c["grey"])
+        white = Hyperelastic.from_params(c["white"]) if c["white"] else None
+        laws[c["shape"]] = RegionalLaw(grey, white, *scene_regions(scene).ranges_pair())
     return entry_keys(info["entries"], scene, laws, pulls)
 
 

@@ -162,15 +162,6 @@ def membrane_file(path: Path, problems: list) -> MembraneLaw | None:
     return None if mu is None or alpha is None or t is None else MembraneLaw(mu, alpha, t)
 
 
-def load_membrane(path) -> MembraneLaw:
-    """A membrane file's law; ParameterError with every problem otherwise."""
-    problems: list = []
-    law = membrane_file(Path(path), problems)
-    if problems or law is None:
-        raise ParameterError("; ".join(text for _, _, text in problems) or f"{path}: no membrane")
-    return law
-
-
 def scene_membrane(material: TableReader) -> MembraneLaw | None:
     """The membrane a scene's [material] puts on the brain's surface (`pia_arachnoid`, a membrane file), or None."""
     if "pia_arachnoid" not in material.data:
@@ -179,7 +170,8 @@ def scene_membrane(material: TableReader) -> MembraneLaw | None:
     if path is None:
         return None
     if not path.is_file():
-        material.error("pia_arachnoid", f"{path} does not exist" if not path.exists() else f"{path} is not a file")
+        material.error("pia_arachnoid", f"{path} does not exist; allowed: a membrane file (.toml) like protocols/materials/pia_arachnoid_human.toml"
+                       if not path.exists() else f"{path} is not a file; allowed: a membrane file (.toml)")
         return None
     return membrane_file(path, material.problems)
 

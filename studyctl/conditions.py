@@ -70,6 +70,12 @@ def resolved_config(name: str, spec) -> dict:
     material = _plain(spec.material)
     if material.get("law_source") not in (None, "", "inline"):  # the law file's content, as for every other file
         material["law_source"] = _plain(Path(material["law_source"]))
+    for truth_only in ("white_matter", "white_matter_source", "pia_arachnoid"):
+        # the reference's body, not the models': absent, a configuration is what it was before it existed
+        if material.get(truth_only) in (None, ""):
+            material.pop(truth_only, None)
+    if material.get("white_matter_source"):
+        material["white_matter_source"] = _plain(Path(material["white_matter_source"]))
     out = {"condition": name, "model": m.name, "material": material,
            # what else the forces depend on: the scene file itself (any edit is a new configuration),
            # the surface, the clamp, the loop rates

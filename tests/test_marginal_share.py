@@ -4,13 +4,14 @@ differences of E_out over two solved states, and dE/dd against the solver's forc
 nodes and a 64-point rule; decide() on the marginal share; the ensemble's members beyond the data."""
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
 from analysis.verification import truth_band
-from analysis.verification.tissue_pulls import FOLLOW_SHARE, SUPPORT_FIELDS, follow_to
+from analysis.verification.tissue_pulls import FOLLOW_SHARE, SUPPORT_FIELDS, Problem, follow_to, solve_pull
 from sim.geometry.volume import grid_tets
 from sim.hyperelastic import ogden, uniaxial
 from sim.material import load_material
@@ -161,3 +162,16 @@ def test_the_finer_meshes_follow_while_the_share_decided_on_allows():
     coarse = {"force_per_pa": np.ones((3, 3)), "support": sup}
     assert follow_to(xs, coarse, whole=False) == 0.002
     assert follow_to(xs, coarse | {"support": sup[:, :4]}, whole=False) == 0.001  # a solve made before: the energy share
+
+
+def test_a_solve_without_the_marginal_share_records_its_support_all_the_same():
+    """The ensemble's other laws are solved without the sensitivity (only the scene's law
+    decides): `solve_pull` records the support, the marginal share NaN, and nothing fails."""
+    nodes, tets = grid_tets(np.ones((10, 2, 2), bool), np.zeros(3), 0.01)
+    space = TetSpace(nodes, tets, nodes[:, 0] < 1e-12, 2)
+    problem = Problem(label=0, mesh=SimpleNamespace(nodes=nodes, tets=tets), space=space, fixed_nodes=0, build_s=0.0)
+    end = np.flatnonzero(np.isclose(space.all_nodes[:, 0], 0.1))
+    r = solve_pull(problem, LAW, space.all_nodes[end], None, np.array([0.0, 1.0, 0.0]), np.array([0.002, 0.004]), stretch_range=RANGE,
+                   marginal=False)
+    column = SUPPORT_FIELDS.index("marginal_share_outside")
+    assert r["converged"] and np.isnan(r["support"][:, column]).all() and np.isfinite(r["support"][:, 0]).all()

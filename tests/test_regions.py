@@ -11,6 +11,7 @@ import scipy.sparse as sp
 
 from analysis.verification.regions import RegionalLaw, contrast_members, region_key, scene_regions
 from analysis.verification.tissue_pulls import key_digits, law_shape_key, pull_key_inputs
+from analysis.verification.truth import truth_key
 from sim.errors import MeshError, SceneError
 from sim.geometry import regions
 from sim.geometry.mesh import load_mesh, vertex_normals
@@ -224,3 +225,21 @@ def test_a_regional_solve_is_softer_than_the_homogeneous_one():
         assert res.report.converged
         forces[name] = abs(float(res.forces[-1][0]))
     assert forces["white"] < forces["half"] < forces["grey"]
+
+
+def test_an_ensemble_shape_at_unit_mu_keeps_the_white_matters_ratio(tmp_path):
+    """The ensemble's laws are solved at unit mu (forces scale with mu): the white matter is
+    scaled along, so its ratio to the grey, and so the solve's key, is the scene's."""
+    regional_scene = build_scene(_scene_with(tmp_path, f'white_matter = "{WHITE_TOML}"'))
+    scene_law = scene_regions(regional_scene)
+    unit = scene_regions(regional_scene, GREY_LAW.scaled(1.0 / GREY_LAW.shear_modulus))
+    assert unit.white.shear_modulus / unit.grey.shear_modulus == pytest.approx(scene_law.white.shear_modulus / scene_law.grey.shear_modulus, rel=1e-12)
+    assert region_key(unit, law_shape_key, key_digits) == region_key(scene_law, law_shape_key, key_digits)
+
+
+def test_the_observer_truth_of_a_brain_with_white_matter_is_its_own(tmp_path):
+    """The observer's truth table is keyed by the body: a scene with white matter does not read
+    the one-material table, and the shipped scene's key is as before (no `body`)."""
+    regional_scene = build_scene(_scene_with(tmp_path, f'white_matter = "{WHITE_TOML}"'))
+    assert "body" not in truth_key(build_scene(SCENE))
+    assert "white" in truth_key(regional_scene)["body"]

@@ -39,6 +39,10 @@ class RegionalLaw:
     grey_range: tuple[float, float] | None = None
     white_range: tuple[float, float] | None = None
 
+    def ranges_pair(self) -> tuple:
+        """(grey range, white range): what another variant of the same regions is judged by."""
+        return self.grey_range, self.white_range
+
     def ranges(self):
         """The support's stretch ranges: the grey's alone, or one per law (white falls back on
         the grey's where its material names no data); None without any."""
@@ -51,7 +55,9 @@ class RegionalLaw:
 
 def scene_regions(scene, law=None) -> RegionalLaw:
     """The scene's laws: its grey law (or `law`, a `Hyperelastic` replacing it, or a whole
-    `RegionalLaw`) and its white matter. A replaced grey law keeps the scene's white law."""
+    `RegionalLaw`) and its white matter. A replaced grey law (an ensemble member, solved at unit
+    mu: forces scale with mu) takes the white matter scaled along, its ratio to the grey kept, so
+    that a member's forces still scale with its mu."""
     if isinstance(law, RegionalLaw):
         return law
     material = scene.spec.material
@@ -60,7 +66,7 @@ def scene_regions(scene, law=None) -> RegionalLaw:
     if material.white_matter is None:
         return RegionalLaw(grey, None, grey_range, None)
     white_range = _fitted_range(material.white_matter_source)[0]
-    return RegionalLaw(grey, material.white_matter, grey_range, white_range)
+    return RegionalLaw(grey, material.white_matter.scaled(grey.shear_modulus / material.law.shear_modulus), grey_range, white_range)
 
 
 def region_key(regional: RegionalLaw, shape_key, digits) -> list:

@@ -249,7 +249,7 @@ def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness:
     rep = res.report
     sup = np.full((len(xs), len(SUPPORT_FIELDS)), np.nan)
     for i, u in enumerate(res.states):  # the states of the records reached, in order
-        s = support(system, u, stretch_range, res.sensitivities[i])
+        s = support(system, u, stretch_range, res.sensitivities[i] if res.sensitivities else None)
         sup[i] = [s[k] for k in SUPPORT_FIELDS]
     out = {"force_per_pa": res.forces, "support": sup, "converged": bool(rep.converged), "reason": rep.reason,
            "iterations": int(sum(rep.iterations)), "load_steps": int(rep.load_steps), "cut_steps": int(rep.cut_steps),
@@ -325,7 +325,7 @@ def _pull_task(args) -> dict:
         return nothing | {"reason": "not solved: the coarsest mesh's solve stopped, or its state left the data, before the first sample"}
     problem = build_problem(scene, label, body)
     r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs[asked], stiffness,
-                   regional.ranges() if regional.white is not None and rng else rng, regional, scene.spec.material.pia_arachnoid,
+                   regional.ranges() if regional.white is not None and rng else rng, regional, _membrane(scene, law),
                    marginal=given is None)
     if not asked.all():  # followed only as far as asked: no records beyond
         for name in ("force_per_pa", "stiffness_per_pa", "support"):
@@ -339,6 +339,13 @@ def _pull_task(args) -> dict:
         # states, and solving it again would stop at the same place
         _cache(key, np.asarray(xs, dtype=np.float64), r["force_per_pa"], r.get("stiffness_per_pa"), r["support"], meta)
     return r | {"cached": False, "key": key, "h_m": body.h}
+
+
+def _membrane(scene, law):
+    """The scene's pia-arachnoid for a solve of `law` as the grey matter: scaled along with it (a
+    member's forces scale with its mu); None without one."""
+    pac = scene.spec.material.pia_arachnoid
+    return pac.scaled(law.shear_modulus / scene.spec.material.law.shear_modulus) if pac is not None else None
 
 
 def truth_range(scene) -> tuple[float, float] | None:

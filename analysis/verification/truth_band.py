@@ -308,11 +308,11 @@ def truth_samples(scene_path, pulls, xs, sizes_mm, jobs: int | None = None, prog
             ok, truth, why = decide(c["force_n"], band, rule["decided_share"], rule["decided_j"], rule["decided_on"])
             # the literature's regional contrast: reported, and what it would leave decided (docs/reference.md, Regions)
             others = [float(np.linalg.norm(pc[p.name]["force_per_pa"][0, k])) * mu for pc in per_contrast]
-            contrast_rel = law_spread([coarse[0]] + others) if others else 0.0
-            with_contrast = decide(c["force_n"], combine(band, contrast_rel), rule["decided_share"], rule["decided_j"], rule["decided_on"])[0]
+            contrast_rel = law_spread([coarse[0]] + others) if others else math.nan  # NaN: no contrast solved (one material)
+            with_contrast = decide(c["force_n"], combine(band, contrast_rel), rule["decided_share"], rule["decided_j"], rule["decided_on"])[0] if others else None
             rows.append(c | rule | {"mesh_band_rel": mesh_rel, "law_band_rel": law_rel, "band_rel": band, "band_half_n": band * c["force_n"],
                              "law_forces_n": coarse, "contrast_band_rel": contrast_rel, "contrast_forces_n": others,
-                             "decided_with_contrast": bool(with_contrast),
+                             "decided_with_contrast": with_contrast,
                              "stretch_min": float(np.min(sup[reached, 2])) if reached.any() else math.nan,
                              "stretch_max": float(np.max(sup[reached, 3])) if reached.any() else math.nan,
                              "decided": ok, "truth": truth, "reason": why})

@@ -1,6 +1,6 @@
 """The brain's regions: grey matter between the pial and the white surface, white matter inside
 the white surface (FreeSurfer's fsaverage5 white surfaces, `data/brain_white_fsaverage5.npz`,
-hash-checked against `data/brain_white_fsaverage5.json`; made by scripts/make_brain_asset.py).
+hash-checked against `data/brain_white_fsaverage5.json`; made by scripts/make_white_asset.py).
 
 A point is inside a closed surface when a ray from it crosses the surface an odd number of
 times. The ray runs along +z; the triangles are binned by their xy bounding boxes, so each
@@ -47,7 +47,7 @@ def white_surfaces() -> dict:
     have = hashlib.sha256(data).hexdigest()
     if have != want:
         raise MeshError(f"{WHITE_SURFACE}: SHA-256 {have[:12]}... differs from {WHITE_INFO.name}'s {want[:12]}...; "
-                        "the file is damaged (reinstall, or rebuild it with scripts/make_brain_asset.py)")
+                        "the file is damaged (reinstall, or rebuild it with scripts/make_white_asset.py)")
     with np.load(WHITE_SURFACE) as z:
         v, f, lab = z["vertices"].astype(np.float64), z["triangles"].astype(np.int64), z["hemisphere"]
     out = {}

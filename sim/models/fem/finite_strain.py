@@ -171,7 +171,8 @@ def support(system: FiniteStrain, u: np.ndarray, stretch_range, du: np.ndarray |
     `fine_jacobian_deviation`). With the state's derivative `du` along the pull (`newton.hold`'s
     sensitivity), the **marginal** share dE_out/dE: the force is dE/dd, so a law wrong where no
     one measured moves it by the share of dE/dd those points give (the set of points fixed at
-    the state), not by E_out/E; and dE/dd itself (`energy_rate`, the force along the pull).
+    the state), not by E_out/E; and dE/dd itself (`energy_rate`, the force along the pull: the body's
+    part of it when a membrane lies on the body, so the share is then of the body's force).
     The record's `stretch_range` is the first law's."""
     s = point_states(system, u)
     ranges = np.asarray(stretch_range, dtype=np.float64).reshape(-1, 2)
@@ -184,7 +185,7 @@ def support(system: FiniteStrain, u: np.ndarray, stretch_range, du: np.ndarray |
     if du is not None and np.all(np.isfinite(du)):
         power = stress_power(system, s, du) * s["weights"]
         rate = float(np.sum(power))
-        marginal = float(np.sum(power[outside]) / rate) if rate > 0 else 0.0
+        marginal = float(np.sum(power[outside]) / rate) if rate > 0 else math.nan  # no energy flowing in: nothing to decide on
     return {"energy_share_outside": float(np.sum(energy[outside]) / total) if total > 0 else 0.0,
             "marginal_share_outside": marginal, "energy_rate": rate,
             "points_outside": int(outside.sum()), "points": int(outside.size), "stretch_range": [float(ranges[0, 0]), float(ranges[0, 1])],
