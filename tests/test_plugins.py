@@ -340,8 +340,11 @@ def test_model_check_interrupted_keeps_the_stages_that_finished(plugin_env, tmp_
     import signal
 
     out = tmp_path / "card.json"
+    # pytest-xdist's workers ignore SIGINT, and an ignored signal stays so across exec: the command
+    # starts as from a terminal, with Ctrl-C at its default
     proc = subprocess.Popen([sys.executable, "-m", "studyctl", "model", "check", "slow_build", "--out", str(out)], env=plugin_env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     seen = ""
     while "[3/4] stability (quick sweep) ..." not in seen:  # stderr, line by line
         line = proc.stderr.readline()
