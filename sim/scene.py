@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import filecmp
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -21,7 +22,7 @@ from sim.devices import BACKENDS, backend_module
 from sim.devices.base import DeviceFrame, OmniSpec, view_rotation
 from sim.devices.simulated import PullScript
 from sim.errors import SceneError, SimError
-from sim.geometry.mesh import load_mesh
+from sim.geometry.mesh import BRAIN_MESH, load_mesh
 from sim.geometry.patch import GRASP_RADIUS
 from sim.material import YOUNG_RANGE, MaterialSpec, material_spec
 from sim.models.api import TissueModel, default_options, option_kind
@@ -284,12 +285,17 @@ def _scene_spec(path: Path, t: dict[str, TableReader], models: dict[str, ModelSp
     mesh_path = mesh.path_value("path")
     if mesh_path is not None and not mesh_path.exists():
         mesh.error("path", f"{mesh_path} does not exist")
+    tissue = material_spec(material)
+    if tissue.white_matter is not None and mesh_path is not None and mesh_path.is_file() and not filecmp.cmp(mesh_path, BRAIN_MESH, shallow=False):
+        # the white surfaces are fsaverage5's: inside another brain they would mark the wrong points
+        material.error("white_matter", f"needs the shipped brain surface, whose white surfaces it uses; [mesh] path is {mesh_path.name}; "
+                                       "allowed: no white_matter on another surface, or the mesh data/brain_fsaverage5.npz")
     return SceneSpec(
         path=path,
         name=scene.string("name", default=path.stem),
         description=scene.string("description", default=""),
         mesh_path=mesh_path,
-        material=material_spec(material),
+        material=tissue,
         fixed=FixedSpec(axis=fixed.string("axis", choices=tuple(AXES)), from_bottom=fixed.number("from_bottom", lo=0.0, hi=REACH_M, unit="m")),
         model=default_model,
         models=models,

@@ -243,3 +243,16 @@ def test_the_observer_truth_of_a_brain_with_white_matter_is_its_own(tmp_path):
     regional_scene = build_scene(_scene_with(tmp_path, f'white_matter = "{WHITE_TOML}"'))
     assert "body" not in truth_key(build_scene(SCENE))
     assert "white" in truth_key(regional_scene)["body"]
+
+
+def test_white_matter_on_another_surface_is_refused_naming_the_field(tmp_path):
+    """The white surfaces are fsaverage5's: a scene on another surface cannot name them."""
+    path = _scene_with(tmp_path, f'white_matter = "{WHITE_TOML}"')
+    other = tmp_path / "other_brain.npz"
+    other.write_bytes((ROOT / "data" / "brain_tets_8mm.npz").read_bytes())  # a file that is not the pial surface
+    text = path.read_text()
+    start = text.index("[mesh]")
+    line_end = text.index("\n", text.index("path", start))
+    path.write_text(text[:start] + f'[mesh]\npath = "{other}"' + text[line_end:])
+    with pytest.raises(SceneError, match=r"material.white_matter: needs the shipped brain surface.*other_brain.npz; allowed: "):
+        load_scene(path)
