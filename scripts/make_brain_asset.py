@@ -62,25 +62,37 @@ def remove_self_intersections(v: np.ndarray, f: np.ndarray, max_rounds: int = 50
     return v, {"rounds": rounds, "vertices_moved": len(moved), "max_shift_m": float(shift.max())}
 
 
+def read_hemisphere(path: Path) -> tuple[np.ndarray, np.ndarray, dict, dict]:
+    """A FreeSurfer surface file's vertices (mm -> m, RAS) and triangles, its self-intersections
+    relaxed (what was moved) and open3d's checks of the result."""
+    gii = nib.load(path)
+    v = gii.darrays[0].data.astype(np.float64) / 1000.0  # mm -> m
+    f = gii.darrays[1].data.astype(np.int64)
+    v, fix = remove_self_intersections(v, f)
+    mesh = _o3d_mesh(v, f)
+    checks = {
+        "watertight": mesh.is_watertight(),
+        "edge_manifold": mesh.is_edge_manifold(),
+        "vertex_manifold": mesh.is_vertex_manifold(),
+        "self_intersecting": mesh.is_self_intersecting(),
+    }
+    return v, f, fix, checks
+
+
+def closed(checks: dict) -> bool:
+    """A surface that bounds a volume: watertight and manifold."""
+    return bool(checks["watertight"] and checks["edge_manifold"] and checks["vertex_manifold"])
+
+
 def main() -> int:
     vertices, triangles, labels = [], [], []
     offset = 0
     for label, hemi in enumerate(("left", "right")):
         path = SOURCE / f"pial_{hemi}.gii.gz"
-        gii = nib.load(path)
-        v = gii.darrays[0].data.astype(np.float64) / 1000.0  # mm -> m
-        f = gii.darrays[1].data.astype(np.int64)
-        v, fix = remove_self_intersections(v, f)
-        mesh = _o3d_mesh(v, f)
-        checks = {
-            "watertight": mesh.is_watertight(),
-            "edge_manifold": mesh.is_edge_manifold(),
-            "vertex_manifold": mesh.is_vertex_manifold(),
-            "self_intersecting": mesh.is_self_intersecting(),
-        }
+        v, f, fix, checks = read_hemisphere(path)
         digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
         print(f"{hemi}: {len(v)} vertices, {len(f)} triangles, sha256 {digest}, fix {fix}, {checks}")
-        if not (checks["watertight"] and checks["edge_manifold"] and checks["vertex_manifold"]):
+        if not closed(checks):
             print(f"error: {hemi} hemisphere is not watertight and manifold", file=sys.stderr)
             return 1
         vertices.append(v)

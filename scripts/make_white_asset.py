@@ -17,11 +17,12 @@ import json
 import sys
 from pathlib import Path
 
-import nibabel as nib
 import numpy as np
 import open3d as o3d
-from make_brain_asset import remove_self_intersections
+from make_brain_asset import closed, read_hemisphere
 from nilearn.datasets import data as nilearn_data
+
+from sim.geometry.tetmesh import enclosed_volume, labelled_part
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "data" / "brain_white_fsaverage5.npz"
@@ -30,23 +31,11 @@ PIAL = ROOT / "data" / "brain_fsaverage5.npz"
 SOURCE = Path(nilearn_data.__file__).parent / "fsaverage5"
 
 
-def _volume(v: np.ndarray, f: np.ndarray) -> float:
-    """Enclosed volume by the divergence theorem (m^3)."""
-    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
-
-
-def _occupancy(v: np.ndarray, f: np.ndarray, points: np.ndarray) -> np.ndarray:
+def _raycaster(v: np.ndarray, f: np.ndarray):
+    """open3d's ray-casting scene of a closed surface: occupancy and distance of points."""
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(f.astype(np.uint32)))
-    return scene.compute_occupancy(o3d.core.Tensor(points.astype(np.float32)), nsamples=3).numpy().astype(bool)
-
-
-def _depth(v: np.ndarray, f: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Each point's distance to the surface (m)."""
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(f.astype(np.uint32)))
-    return scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy()
+    return scene
 
 
 def main() -> int:
@@ -56,27 +45,19 @@ def main() -> int:
     offset = 0
     for label, hemi in enumerate(("left", "right")):
         path = SOURCE / f"white_{hemi}.gii.gz"
-        gii = nib.load(path)
-        v = gii.darrays[0].data.astype(np.float64) / 1000.0  # mm -> m, as the pial asset
-        f = gii.darrays[1].data.astype(np.int64)
-        v, fix = remove_self_intersections(v, f)  # the pial asset's relaxation, for the same reason
-        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f.astype(np.int32)))
-        checks = {"watertight": mesh.is_watertight(), "edge_manifold": mesh.is_edge_manifold(),
-                  "vertex_manifold": mesh.is_vertex_manifold(), "self_intersecting": mesh.is_self_intersecting()}
-        keep = np.flatnonzero(pial_lab == label)
-        index = np.full(len(pial_v), -1)
-        index[keep] = np.arange(len(keep))
-        pv, pf = pial_v[keep], index[pial_f[np.all(pial_lab[pial_f] == label, axis=1)]]
-        outside = ~_occupancy(pv, pf, v)
-        depth = _depth(pv, pf, v[outside])
-        vol_w, vol_p = _volume(v, f), _volume(pv, pf)
+        v, f, fix, checks = read_hemisphere(path)  # as the pial asset: mm -> m, the same relaxation
+        pv, pf, _ = labelled_part(pial_v, pial_f, pial_lab, label)
+        pial = _raycaster(pv, pf)
+        outside = ~pial.compute_occupancy(o3d.core.Tensor(v.astype(np.float32)), nsamples=3).numpy().astype(bool)
+        depth = pial.compute_distance(o3d.core.Tensor(v[outside].astype(np.float32))).numpy()
+        vol_w, vol_p = enclosed_volume(v, f), enclosed_volume(pv, pf)
         digest = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
         record[hemi] = {"vertices": len(v), "triangles": len(f), "source_sha256_prefix": digest, "fix": fix, **checks,
                         "white_vertices_outside_pial": int(outside.sum()), "share_outside_pial": float(outside.mean()),
                         "outside_max_mm": float(depth.max() * 1e3) if len(depth) else 0.0,
                         "white_volume_cm3": vol_w * 1e6, "pial_volume_cm3": vol_p * 1e6, "white_over_pial": vol_w / vol_p}
         print(f"{hemi}: {record[hemi]}")
-        if not (checks["watertight"] and checks["edge_manifold"] and checks["vertex_manifold"]):
+        if not closed(checks):
             print(f"error: {hemi} white surface is not watertight and manifold", file=sys.stderr)
             return 1
         vertices.append(v)

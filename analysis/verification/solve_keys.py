@@ -43,11 +43,17 @@ def pull_key_inputs(mesh_key: str, scene, law, radius: float, pull, stretch_rang
     """What a solve's key is the hash of, each number canonical (`key_number`, `key_digits`);
     a regional solve's white matter (`regions.region_key`) added."""
     axis, limit = clamp_limit(scene)
-    # a surface membrane: its mu t per pascal of the scene's grey mu (m; a member's membrane scales with it), its alpha
-    pac, grey_mu = scene.spec.material.pia_arachnoid, scene.spec.material.law.shear_modulus
     return ([SOLVER_VERSION, mesh_key, law_shape_key(law), int(axis), key_number(limit), key_number(radius), int(pull.vertex),
              [key_number(c) for c in pull.direction]] + ([[key_number(r) for r in stretch_range]] if stretch_range else [])
-            + (region_key(regional, law_shape_key, key_digits) if regional is not None else [])
+            + body_key(scene, regional))
+
+
+def body_key(scene, regional=None) -> list:
+    """What the brain adds to a key beyond one material ([] for one material without a membrane):
+    the white matter (`regions.region_key`) and the pia-arachnoid, its mu t per pascal of the
+    scene's grey mu (m; a member's membrane scales with it) and its alpha."""
+    pac, grey_mu = scene.spec.material.pia_arachnoid, scene.spec.material.law.shear_modulus
+    return ((region_key(regional, law_shape_key, key_digits) if regional is not None else [])
             + ([["pia-arachnoid", key_digits(pac.mu * pac.thickness / grey_mu), key_digits(pac.alpha)]] if pac else []))
 
 

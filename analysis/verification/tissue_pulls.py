@@ -325,7 +325,7 @@ def _pull_task(args) -> dict:
         return nothing | {"reason": "not solved: the coarsest mesh's solve stopped, or its state left the data, before the first sample"}
     problem = build_problem(scene, label, body)
     r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs[asked], stiffness,
-                   regional.ranges() if regional.white is not None and rng else rng, regional, _membrane(scene, law),
+                   regional.ranges(), regional, _membrane(scene, law),
                    marginal=given is None)
     if not asked.all():  # followed only as far as asked: no records beyond
         for name in ("force_per_pa", "stiffness_per_pa", "support"):

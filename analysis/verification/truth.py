@@ -33,21 +33,18 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 
 from analysis.errors import InputError
 from analysis.verification.regions import scene_regions
-from analysis.verification.solve_keys import pull_key_inputs
+from analysis.verification.solve_keys import body_key
 from brainsim_assets import path as _asset
 from sim.geometry.mesh import patch_vertices
 from sim.geometry.volume import cache_dir
 from sim.perception import force_jnd
 from sim.scene import clamp_limit, grasp_radius
 from sim.stiffness_field import mesh_digest
-
-_NO_PULL = SimpleNamespace(vertex=0, direction=(0.0, 0.0, 1.0))  # the body's part of a solve key has no pull in it
 
 TRUTH_FILE = _asset("data/observer_truth.npz")
 TRUTH_INFO = _asset("data/observer_truth.json")  # its SHA-256 and how it was made
@@ -158,7 +155,7 @@ def truth_key(scene) -> dict:
     key = {"version": TRUTH_VERSION, "digest": mesh_digest(scene.mesh), "clamp_axis": int(axis), "clamp_height": float(limit),
            "law": law_key(scene.spec.material.law), "grasp_radius": grasp_radius(scene)}
     # a brain with white matter or a pia-arachnoid is another body: its own table (one material adds nothing, as before)
-    body = pull_key_inputs("", scene, scene.spec.material.law, 0.0, _NO_PULL, None, scene_regions(scene))[8:]
+    body = body_key(scene, scene_regions(scene))
     return key | ({"body": json.dumps(body)} if body else {})
 
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from brainsim_assets import path as _asset
 from sim.errors import MeshError
+from sim.geometry.tetmesh import labelled_part
 
 WHITE_SURFACE = _asset("data/brain_white_fsaverage5.npz")
 WHITE_INFO = _asset("data/brain_white_fsaverage5.json")
@@ -50,14 +51,7 @@ def white_surfaces() -> dict:
                         "the file is damaged (reinstall, or rebuild it with scripts/make_white_asset.py)")
     with np.load(WHITE_SURFACE) as z:
         v, f, lab = z["vertices"].astype(np.float64), z["triangles"].astype(np.int64), z["hemisphere"]
-    out = {}
-    for label in np.unique(lab):
-        keep = np.flatnonzero(lab == label)
-        index = np.full(len(v), -1, dtype=np.int64)
-        index[keep] = np.arange(len(keep))
-        tris = f[np.all(lab[f] == label, axis=1)]
-        out[int(label)] = (v[keep], index[tris])
-    return out
+    return {int(label): labelled_part(v, f, lab, label)[:2] for label in np.unique(lab)}
 
 
 @numba.njit(cache=True)

@@ -58,11 +58,17 @@ def hemisphere_surface(mesh, label: int) -> tuple[np.ndarray, np.ndarray, np.nda
     if mesh.labels is None:
         ids = np.arange(mesh.n_vertices)
         return mesh.vertices, np.asarray(mesh.triangles, dtype=np.int64), ids
-    ids = np.flatnonzero(mesh.labels == label)
-    local = -np.ones(mesh.n_vertices, dtype=np.int64)
+    return labelled_part(mesh.vertices, mesh.triangles, mesh.labels, label)
+
+
+def labelled_part(vertices: np.ndarray, triangles: np.ndarray, labels: np.ndarray, label: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The vertices labelled `label` and the triangles among them, renumbered: (vertices (k, 3),
+    triangles (t, 3) local, global vertex ids)."""
+    ids = np.flatnonzero(labels == label)
+    local = -np.ones(len(vertices), dtype=np.int64)
     local[ids] = np.arange(len(ids))
-    tri = mesh.triangles[np.all(mesh.labels[mesh.triangles] == label, axis=1)]
-    return mesh.vertices[ids], local[tri], ids
+    tri = triangles[np.all(labels[triangles] == label, axis=1)]
+    return vertices[ids], local[tri], ids
 
 
 def enclosed_volume(vertices: np.ndarray, triangles: np.ndarray) -> float:
