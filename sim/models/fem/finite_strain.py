@@ -156,9 +156,9 @@ def fine_jacobian_deviation(system: FiniteStrain, u: np.ndarray, chunk: int = 40
     dN = p2.shape_derivatives(bary)  # (p, 10, 4)
     ue = system.element_displacements(u)
     worst = 0.0
-    for a in range(0, len(ue), chunk):
-        A = np.einsum("mka,pki->mpai", ue[a : a + chunk], dN)
-        F = np.eye(3) + np.einsum("mpai,mib->mpab", A, space.grads[a : a + chunk])
+    for a in range(0, len(ue), chunk):  # batched matmuls: several times faster than the plain einsums
+        A = np.swapaxes(ue[a : a + chunk], 1, 2)[:, None] @ dN[None]  # (m, p, 3, 4)
+        F = np.eye(3) + A @ space.grads[a : a + chunk, None]
         worst = max(worst, float(np.max(np.abs(np.linalg.det(F) - 1.0))))
     return worst
 
