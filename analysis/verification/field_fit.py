@@ -10,7 +10,8 @@ stiffness is sampled over the surface and shipped with the project:
 - **At each site**: the 3 x 3 stiffness that holds the area mean of the grasp patch
   (`sim.geometry.patch`) at a small displacement d, K = (W A^-1 W^T)^-1, on the reference's body-fitted
   P2 mesh (`analysis.verification.reference`, 8 mm target edge), A the tissue law's tangent at rest (its
-  small-strain limit), per pascal of the law's shear modulus. The columns A^-1 W^T of all
+  small-strain limit; the white matter's inside the white surface where the scene names one,
+  as the truth has it), per pascal of the law's shear modulus. The columns A^-1 W^T of all
   sites are solved in blocks with one CHOLMOD factor.
 - **Everywhere else**: a Gaussian-weighted mean of the sites within FIELD_REACH on the same
   hemisphere (a positive combination of SPD matrices is SPD); a vertex with no site in reach
@@ -35,6 +36,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from analysis.verification.regions import scene_regions
 from analysis.verification.tissue_pulls import (
     DEFAULT_SIZES_MM,
     _premesh,
@@ -79,7 +81,7 @@ def site_stiffness(scene_path, size_mm: float = FIELD_SIZE_MM, sites_per_hemisph
         ids = ids[mesh.vertices[ids, axis] > limit]  # a site below the clamp plane cannot move
         verts, tris, _ = hemisphere_surface(mesh, h)
         problem = build_problem(scene, h, mesh_hemisphere(verts, tris, size_mm * 1e-3))
-        factor = small_strain_factor(problem, scene.spec.material.law)
+        factor = small_strain_factor(problem, scene.spec.material.law, scene_regions(scene))  # the scene's tissue, white matter too
         for b0 in range(0, len(ids), BLOCK // 3):
             block = ids[b0:b0 + BLOCK // 3]
             Ws = [grasp_matrix(problem, *patch_area_points(mesh, int(v), radius)) for v in block]
@@ -133,8 +135,10 @@ def build_field(scene_path, out: Path = FIELD_FILE, size_mm: float = FIELD_SIZE_
                         K_sites_per_pa=res["K_per_pa"][:, iu[0], iu[1]].astype(np.float32),
                         mesh_digest=mesh_digest(scene.mesh), size_mm=size_mm, grasp_radius_m=res["grasp_radius_m"],
                         law=json.dumps(scene.spec.material.law.params()), sigma_m=FIELD_SIGMA, reach_m=FIELD_REACH,
+                        white_matter=json.dumps(white.params() if (white := scene.spec.material.white_matter) is not None else None),
                         source="analysis/verification/field_fit.py build_field: the tissue law's small-strain limit on P2 on fTetWild meshes of the "
-                               "scene's hemispheres, area-mean grasp, per pascal of the law's shear modulus")
+                               "scene's hemispheres (the white matter's law inside the white surface where the scene names one), "
+                               "area-mean grasp, per pascal of the grey law's shear modulus")
     return {"path": str(out), "sites": int(len(res["sites"])), "vertices": int(len(K)), "size_mm": size_mm,
             "seconds": res["seconds"]}
 
@@ -170,7 +174,7 @@ def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", 
         verts, tris, _ = hemisphere_surface(scene.mesh, label)
         problem = build_problem(scene, label, mesh_hemisphere(verts, tris, fine * 1e-3))
         for p in (p for p in pulls if p.hemisphere == label):
-            K = pull_stiffness(problem, law, *patch_area_points(scene.mesh, p.vertex, grasp_radius(scene)))
+            K = pull_stiffness(problem, law, *patch_area_points(scene.mesh, p.vertex, grasp_radius(scene)), regional=scene_regions(scene))
             small = np.linalg.norm(np.outer(xs, K @ np.asarray(p.direction)), axis=1)
             ratios[p.name] = np.linalg.norm(refs[p.name]["force_per_pa"][-1], axis=1) / small
     # the mean over the pulls whose solve reached each x (a solve that stopped has none beyond)

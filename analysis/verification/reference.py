@@ -22,6 +22,7 @@ import numpy as np
 
 from analysis.reports.table import Table, markdown_grid
 from analysis.verification.convergence import GCI_FS3, GCI_FS_FALLBACK, converge
+from analysis.verification.regions import scene_regions
 from analysis.verification.tissue_pulls import (
     DEFAULT_SIZES_MM,
     QUICK_SIZES_MM,
@@ -129,7 +130,7 @@ def _small_strain(cfg, scene, pulls, patches, xs, sizes, progress) -> dict:
         verts, tris, _ = hemisphere_surface(scene.mesh, label)
         for size in sizes:
             prob = build_problem(scene, label, mesh_hemisphere(verts, tris, size * 1e-3))
-            factor = small_strain_factor(prob, law)
+            factor = small_strain_factor(prob, law, scene_regions(scene))
             for p in (p for p in pulls if p.hemisphere == label):
                 W = grasp_matrix(prob, *patches[p.name])
                 C = W @ factor.solve(np.ascontiguousarray(W.T.toarray()))

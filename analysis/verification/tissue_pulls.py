@@ -111,19 +111,23 @@ def grasp_matrix(problem: Problem, points: np.ndarray, weights: np.ndarray | Non
     return constraint_matrix(problem.space, tet, bary, weights)
 
 
-def small_strain_factor(problem: Problem, law):
+def small_strain_factor(problem: Problem, law, regional=None):
     """The factorised tangent of `law` at rest on the problem (its small-strain limit: linear
-    elasticity with mu and lambda = kappa - 2 mu / 3), per pascal of the law's shear modulus."""
+    elasticity with mu and lambda = kappa - 2 mu / 3), per pascal of the law's shear modulus;
+    with `regional` (`regions.RegionalLaw`, `law` its grey), the white matter's inside the white
+    surface, as the finite-strain solves have it."""
     unit = law.scaled(1.0 / law.shear_modulus)
-    K = FiniteStrain(problem.space, unit, mean_dilatation=False).evaluate(np.zeros(3 * problem.space.n_all))["K"]
+    laws, law_of = regional_system(problem.space, problem.mesh, problem.label, regional, unit) if regional else (unit, None)
+    K = FiniteStrain(problem.space, laws, mean_dilatation=False, law_of=law_of).evaluate(np.zeros(3 * problem.space.n_all))["K"]
     return Factor(K)
 
 
-def pull_stiffness(problem: Problem, law, points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+def pull_stiffness(problem: Problem, law, points: np.ndarray, weights: np.ndarray | None = None, regional=None) -> np.ndarray:
     """The small-strain condensed stiffness (3, 3) per pascal of shear modulus: the force
-    holding the patch's mean displacement at a small d is mu K d."""
+    holding the patch's mean displacement at a small d is mu K d (`regional`: as
+    `small_strain_factor`)."""
     W = grasp_matrix(problem, points, weights)
-    C = W @ small_strain_factor(problem, law).solve(np.ascontiguousarray(W.T.toarray()))
+    C = W @ small_strain_factor(problem, law, regional).solve(np.ascontiguousarray(W.T.toarray()))
     return np.linalg.inv(0.5 * (C + C.T))
 
 

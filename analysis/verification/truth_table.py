@@ -13,6 +13,7 @@ import numpy as np
 
 from analysis.errors import InputError
 from analysis.verification.convergence import converge
+from analysis.verification.regions import scene_regions
 from analysis.verification.tissue_pulls import (
     RECORD_XS,
     build_problem,
@@ -48,7 +49,7 @@ def _small_strain(scene, hemis, vertices, labels, sizes_mm, radius, progress) ->
             Ws = [grasp_matrix(problem, *patch_area_points(mesh, int(vertices[k]), radius)) for k in sel]
             if any(W.nnz == 0 for W in Ws):
                 raise InputError("--vertices: a grasp patch lies in clamped elements (below the clamp plane)")
-            C[i, sel] = compliances(small_strain_factor(problem, law), Ws)
+            C[i, sel] = compliances(small_strain_factor(problem, law, scene_regions(scene)), Ws)
             if progress is not None:
                 progress(f"hemisphere {h}, {size:g} mm: small-strain stiffness at {len(sel)} grasp places")
             del problem
