@@ -48,7 +48,16 @@ from analysis.verification.tissue_pulls import (  # the private runners: this sc
     pull_references,
     stored_solve,
 )
-from analysis.verification.truth_band import contrast_json, ensemble, members_json, scene_contrast, shape_index, shapes
+from analysis.verification.truth_band import (
+    contrast_json,
+    ensemble,
+    members_json,
+    pac_json,
+    scene_contrast,
+    scene_pac_spread,
+    shape_index,
+    shapes,
+)
 from brainsim_assets import version
 from sim.geometry.regions import white_sha256
 from sim.geometry.tetmesh import SHIPPED_MM
@@ -95,7 +104,8 @@ def main() -> None:
     members = ensemble(scene.spec.material.law_source, law)
     others = shapes(members)[1:]
     contrast = scene_contrast(scene)  # the literature's other regional contrasts: solved like the ensemble, reported beside it
-    prefill(scene, hands, others + [c["law"] for c in contrast], args.jobs, start)
+    pac = scene_pac_spread(scene)  # the pia-arachnoid's measured spread (a scene with one): in the band
+    prefill(scene, hands, others + [c["law"] for c in contrast] + [m["law"] for m in pac], args.jobs, start)
     # each group as its benches read it: the finer meshes follow a pull as far as the group's coarsest got
     groups, solved = [], []
     # the quick benches judge two test places: their pairs hold the first six (QUICK_TEST_PLACES)
@@ -109,7 +119,7 @@ def main() -> None:
         for k, shape in enumerate(others, start=1):
             refs = pull_references(DEFAULT_SCENE, group, RECORD_XS, (max(sizes),), jobs=args.jobs, progress=progress, law=shape, upto=upto)
             solved += [(p, s, k) for p in group for s in refs["pulls"][p.name]["solves"]]
-        for j, c in enumerate(contrast, start=len(others) + 1):
+        for j, c in enumerate(contrast + pac, start=len(others) + 1):
             refs = pull_references(DEFAULT_SCENE, group, RECORD_XS, (max(sizes),), jobs=args.jobs, progress=progress, law=c["law"], upto=upto)
             solved += [(p, s, j) for p in group for s in refs["pulls"][p.name]["solves"]]
     arrays, entries = {}, []
@@ -142,6 +152,7 @@ def main() -> None:
         "made": datetime.date.today().isoformat(), "version": version(), "law": law.params(),
         "ensemble": [j | {"shape": i} for j, i in zip(members_json(members), shape_index(members))],
         "contrast": [c | {"shape": j} for j, c in enumerate(contrast_json(contrast), start=len(others) + 1)],
+        "pia_arachnoid_members": [m | {"shape": j} for j, m in enumerate(pac_json(pac), start=len(others) + len(contrast) + 1)],
         "white_matter": f"protocols/materials/{Path(scene.spec.material.white_matter_source).name}" if scene.spec.material.white_matter else None, "white_surfaces_sha256": white_sha256() if scene.spec.material.white_matter else None,
         "pia_arachnoid": dataclasses.asdict(scene.spec.material.pia_arachnoid) if scene.spec.material.pia_arachnoid else None,
         "law_source": "protocols/materials/human_cortex.toml", "scene": "protocols/scenes/brain_pull.toml",

@@ -13,6 +13,7 @@ SOLVER_VERSION, and a re-solve with scripts/make_reference_pulls.py):
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 
@@ -37,6 +38,9 @@ def new_keys(info: dict) -> list[str]:
         grey = Hyperelastic.from_params(c["grey"])
         white = Hyperelastic.from_params(c["white"]) if c["white"] else None
         laws[c["shape"]] = RegionalLaw(grey, white, *scene_regions(scene).ranges_pair())
+    # the pia-arachnoid's spread: the scene's body with the membrane scaled as the record says
+    for m in info.get("pia_arachnoid_members", []):
+        laws[m["shape"]] = dataclasses.replace(scene_regions(scene), pac_scale=m["pac_scale"])
     return entry_keys(info["entries"], scene, laws, pulls)
 
 

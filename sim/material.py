@@ -33,7 +33,8 @@ LAW_KEYS = ("law", "mu", "mu1", "mu2", "alpha", "bulk_ratio")
 # the stability sweep runs (analysis/verification/stability.py); a density from a foam's to a
 # metal's (brain 1040 kg/m3)
 YOUNG_RANGE = (1.0, 1.0e9)  # Pa
-MEMBRANE_KEYS = ("law", "mu", "alpha", "thickness")
+MEMBRANE_KEYS = ("law", "mu", "alpha", "thickness", "mu_spread")
+MEMBRANE_SPREAD = (0.0, 0.9)  # relative: the measurements' spread of mu, the truth's members at (1 -+ s) mu
 MEMBRANE_THICKNESS = (1e-6, 5e-3)  # m: from a basement membrane's to a thick dura's
 DENSITY_RANGE = (100.0, 2.0e4)  # kg/m3
 
@@ -116,11 +117,14 @@ def scene_law(material: TableReader) -> tuple[Hyperelastic | None, str]:
 @dataclass(frozen=True)
 class MembraneLaw:
     """A membrane on the brain's surface (the pia-arachnoid, `sim.models.fem.membrane`): the
-    one-term Ogden law of shear modulus `mu` (Pa) and exponent `alpha`, thickness (m)."""
+    one-term Ogden law of shear modulus `mu` (Pa) and exponent `alpha`, thickness (m), and the
+    measurements' relative spread of mu (`mu_spread`: the truth's band solves (1 - s) and
+    (1 + s) times mu; 0, none known)."""
 
     mu: float
     alpha: float
     thickness: float
+    mu_spread: float = 0.0
 
     def __post_init__(self):
         if not (np.isfinite(self.mu) and self.mu > 0):
@@ -129,9 +133,11 @@ class MembraneLaw:
             raise ParameterError(f"membrane alpha: {self.alpha!r} must be a non-zero number")
         if not (np.isfinite(self.thickness) and self.thickness > 0):
             raise ParameterError(f"membrane thickness: {self.thickness!r} must be a positive length (m)")
+        if not (MEMBRANE_SPREAD[0] <= self.mu_spread <= MEMBRANE_SPREAD[1]):
+            raise ParameterError(f"membrane mu_spread: {self.mu_spread!r} must lie in {MEMBRANE_SPREAD[0]:g}..{MEMBRANE_SPREAD[1]:g}")
 
     def scaled(self, factor: float) -> MembraneLaw:
-        return MembraneLaw(self.mu * factor, self.alpha, self.thickness)
+        return MembraneLaw(self.mu * factor, self.alpha, self.thickness, self.mu_spread)
 
     def uniaxial_tension(self, stretch) -> np.ndarray:
         """The nominal tension (N/m) of a flat membrane stretched `stretch` in one direction, free
@@ -156,10 +162,11 @@ def membrane_file(path: Path, problems: list) -> MembraneLaw | None:
     mu = r.number("mu", lo=YOUNG_RANGE[0], hi=YOUNG_RANGE[1], unit="Pa")
     alpha = r.number("alpha", lo=-100.0, hi=100.0)
     t = r.number("thickness", lo=MEMBRANE_THICKNESS[0], hi=MEMBRANE_THICKNESS[1], unit="m")
+    spread = r.number("mu_spread", default=0.0, lo=MEMBRANE_SPREAD[0], hi=MEMBRANE_SPREAD[1])
     if alpha == 0:
         r.error("alpha", "must not be 0")
         return None
-    return None if mu is None or alpha is None or t is None else MembraneLaw(mu, alpha, t)
+    return None if mu is None or alpha is None or t is None or spread is None else MembraneLaw(mu, alpha, t, spread)
 
 
 def scene_membrane(material: TableReader) -> MembraneLaw | None:

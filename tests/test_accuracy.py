@@ -333,6 +333,9 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
         assert s["verdict"] in (("within", "outside", "undecided") if s["decided"] else ("extrapolated", "undecided"))
         assert s["decided"] or s["reason"]
     assert [e["name"] for e in out["meta"]["reference"]["ensemble"]][0] == "chosen"
+    # the shipped scene's truth names its pia-arachnoid's treatment: the parenchyma's force, the PAC left out, and why
+    pac = out["meta"]["reference"]["pia_arachnoid"]
+    assert pac["treatment"].startswith("not in this truth, which is the parenchyma's force") and "no sample would be decided" in pac["treatment"]
 
 
 def test_the_quick_bench_says_it_decides_nothing(small_bench, monkeypatch):

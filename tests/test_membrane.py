@@ -155,7 +155,7 @@ def _scene_with_pac(tmp_path, pac_file) -> object:
 
 def test_a_scene_puts_the_shipped_pia_arachnoid_on_its_material(tmp_path):
     spec = load_scene(_scene_with_pac(tmp_path, PAC))
-    assert spec.material.pia_arachnoid == MembraneLaw(300000.0, 36.97, 0.0004)
+    assert spec.material.pia_arachnoid == MembraneLaw(300000.0, 36.97, 0.0004, 0.39)
 
 
 def test_a_scene_without_one_has_no_membrane():
@@ -181,3 +181,35 @@ def test_the_membrane_is_in_the_solve_key_and_its_absence_leaves_the_key_as_it_w
     b = tissue_pulls.pull_key_inputs("mesh", pac, law, 0.005, pull)
     assert b[:-1] == a
     assert json.dumps(b[-1]) == json.dumps(["pia-arachnoid", tissue_pulls.key_digits(300000.0 * 0.0004 / law.shear_modulus), 36.97])
+
+
+def test_a_membrane_spread_out_of_range_is_refused_naming_the_file_the_field_and_the_range(tmp_path):
+    bad = tmp_path / "pac.toml"
+    bad.write_text('[membrane]\nlaw = "ogden"\nmu = 3e5\nalpha = 36.97\nthickness = 4e-4\nmu_spread = 1.5\n')
+    with pytest.raises(SceneError) as exc:
+        load_scene(_scene_with_pac(tmp_path, bad))
+    assert len(exc.value.problems) == 1, exc.value.problems
+    assert re.fullmatch(rf"{re.escape(str(bad))}:\d+: membrane\.mu_spread: 1\.5 is out of range; allowed: \[0, 0\.9\]",
+                        exc.value.problems[0]), exc.value.problems[0]
+
+
+def test_the_membranes_measured_spread_is_two_members_of_the_band_each_its_own_solve(tmp_path):
+    """The shipped PAC's spread (0.39 of mu) gives the band two bodies, the membrane at 0.61 and
+    1.39 times mu under the scene's law; their solves' keys differ from the scene's only in the
+    membrane's mu t, and the scene's own (scale 1) is the key as before. No PAC, no members."""
+    from analysis.verification.regions import scene_regions
+    from analysis.verification.truth_band import scene_pac_spread
+
+    assert scene_pac_spread(Scene(load_scene(SCENE))) == []
+    pac = Scene(load_scene(_scene_with_pac(tmp_path, PAC)))
+    members = scene_pac_spread(pac)
+    assert [m["pac_scale"] for m in members] == pytest.approx([0.61, 1.39])
+    pull = make_pulls(pac)[0]
+    law = pac.spec.material.law
+    own = tissue_pulls.pull_key_inputs("mesh", pac, law, 0.005, pull, regional=scene_regions(pac))
+    assert own == tissue_pulls.pull_key_inputs("mesh", pac, law, 0.005, pull)
+    for m in members:
+        key = tissue_pulls.pull_key_inputs("mesh", pac, law, 0.005, pull, regional=m["law"])
+        assert key[:-1] == own[:-1]
+        assert key[-1] == ["pia-arachnoid", tissue_pulls.key_digits(300000.0 * 0.0004 * m["pac_scale"] / law.shear_modulus), 36.97]
+        assert tissue_pulls._membrane(pac, law, m["pac_scale"]).mu == pytest.approx(300000.0 * m["pac_scale"])

@@ -8,7 +8,7 @@ import json
 import pytest
 
 from analysis.verification import tissue_pulls
-from analysis.verification.truth_band import scene_contrast, scene_ensemble, shapes
+from analysis.verification.truth_band import scene_contrast, scene_ensemble, scene_pac_spread, shapes
 from sim import pulls as pull_sets
 from sim.pulls import scene_with
 from sim.scene import DEFAULT_SCENE
@@ -41,7 +41,8 @@ def test_every_shipped_key_is_rebuilt_from_its_inputs_on_this_machine():
     benches and the truth compute them: every one is found among the shipped solves."""
     scene = scene_with(DEFAULT_SCENE)
     pulls = {p.name: p for p in pull_sets.make_pulls(scene) + pull_sets.test_pulls(scene)}
-    laws = shapes(scene_ensemble(scene)) + [c["law"] for c in scene_contrast(scene)]  # fitted here, not read from the record
+    laws = (shapes(scene_ensemble(scene)) + [c["law"] for c in scene_contrast(scene)]  # fitted here, not read from the record
+            + [m["law"] for m in scene_pac_spread(scene)])
     info = json.loads(tissue_pulls.SHIPPED_PULLS_INFO.read_text())
     shipped = set(tissue_pulls.shipped_solves())
     keys = tissue_pulls.entry_keys(info["entries"], scene, laws, pulls)

@@ -32,12 +32,15 @@ _fitted_range = lru_cache(maxsize=32)(fitted_range)  # a key per solve reads the
 @dataclass(frozen=True)
 class RegionalLaw:
     """The grey matter's law and the white matter's (None: one material), with the principal
-    stretches each was fitted to (None where its material names no data)."""
+    stretches each was fitted to (None where its material names no data), and the scale of the
+    scene's pia-arachnoid's mu in this variant of the body (1: the scene's; a member of its
+    measured spread otherwise; nothing without a pia-arachnoid)."""
 
     grey: Hyperelastic
     white: Hyperelastic | None = None
     grey_range: tuple[float, float] | None = None
     white_range: tuple[float, float] | None = None
+    pac_scale: float = 1.0
 
     def ranges_pair(self) -> tuple:
         """(grey range, white range): what another variant of the same regions is judged by."""

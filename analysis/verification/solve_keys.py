@@ -51,10 +51,11 @@ def pull_key_inputs(mesh_key: str, scene, law, radius: float, pull, stretch_rang
 def body_key(scene, regional=None) -> list:
     """What the brain adds to a key beyond one material ([] for one material without a membrane):
     the white matter (`regions.region_key`) and the pia-arachnoid, its mu t per pascal of the
-    scene's grey mu (m; a member's membrane scales with it) and its alpha."""
+    scene's grey mu (m; a member's membrane scales with it, and with its `pac_scale`) and its alpha."""
     pac, grey_mu = scene.spec.material.pia_arachnoid, scene.spec.material.law.shear_modulus
+    scale = regional.pac_scale if regional is not None else 1.0
     return ((region_key(regional, law_shape_key, key_digits) if regional is not None else [])
-            + ([["pia-arachnoid", key_digits(pac.mu * pac.thickness / grey_mu), key_digits(pac.alpha)]] if pac else []))
+            + ([["pia-arachnoid", key_digits(pac.mu * pac.thickness * scale / grey_mu), key_digits(pac.alpha)]] if pac else []))
 
 
 def pull_key(mesh: BodyMesh, scene, law, radius: float, pull, stretch_range=None, regional=None) -> str:

@@ -329,7 +329,7 @@ def _pull_task(args) -> dict:
         return nothing | {"reason": "not solved: the coarsest mesh's solve stopped, or its state left the data, before the first sample"}
     problem = build_problem(scene, label, body)
     r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs[asked], stiffness,
-                   regional.ranges(), regional, _membrane(scene, law),
+                   regional.ranges(), regional, _membrane(scene, law, regional.pac_scale),
                    marginal=given is None)
     if not asked.all():  # followed only as far as asked: no records beyond
         for name in ("force_per_pa", "stiffness_per_pa", "support"):
@@ -345,11 +345,12 @@ def _pull_task(args) -> dict:
     return r | {"cached": False, "key": key, "h_m": body.h}
 
 
-def _membrane(scene, law):
+def _membrane(scene, law, pac_scale: float = 1.0):
     """The scene's pia-arachnoid for a solve of `law` as the grey matter: scaled along with it (a
-    member's forces scale with its mu); None without one."""
+    member's forces scale with its mu), and by `pac_scale` (a member of its measured spread);
+    None without one."""
     pac = scene.spec.material.pia_arachnoid
-    return pac.scaled(law.shear_modulus / scene.spec.material.law.shear_modulus) if pac is not None else None
+    return pac.scaled(law.shear_modulus / scene.spec.material.law.shear_modulus * pac_scale) if pac is not None else None
 
 
 def truth_range(scene) -> tuple[float, float] | None:

@@ -30,6 +30,7 @@ the rule that says whether a sample can judge a model (docs/reference.md).
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
 import math
@@ -46,7 +47,7 @@ from analysis.verification.material_fit import (
     read_curve,
     shear_stress,
 )
-from analysis.verification.regions import contrast_members
+from analysis.verification.regions import contrast_members, scene_regions
 from analysis.verification.tissue_pulls import (
     SHIPPED_PULLS_INFO,
     SUPPORT_FIELDS,
@@ -285,6 +286,8 @@ def truth_samples(scene_path, pulls, xs, sizes_mm, jobs: int | None = None, prog
     per_shape = [refs["pulls"]] + [pull_references(scene_path, pulls, xs, (sizes[0],), jobs=jobs, law=s, upto=upto)["pulls"] for s in shp[1:]]
     contrast = scene_contrast(scene)
     per_contrast = [pull_references(scene_path, pulls, xs, (sizes[0],), jobs=jobs, law=c["law"], upto=upto)["pulls"] for c in contrast]
+    pac = scene_pac_spread(scene)
+    per_pac = [pull_references(scene_path, pulls, xs, (sizes[0],), jobs=jobs, law=m["law"], upto=upto)["pulls"] for m in pac]
     mu = law.shear_modulus
     out = {}
     for p in pulls:
@@ -300,7 +303,9 @@ def truth_samples(scene_path, pulls, xs, sizes_mm, jobs: int | None = None, prog
                 mesh_rel = math.nan
             coarse = [float(np.linalg.norm(per_shape[i][p.name]["force_per_pa"][0, k])) * m["law"].shear_modulus
                       for m, i in zip(members, idx)]
-            law_rel = law_spread(coarse) if len(members) > 1 else 0.0
+            # the pia-arachnoid's measured spread, in the band (the chosen law's grey under it)
+            membrane = [float(np.linalg.norm(pm[p.name]["force_per_pa"][0, k])) * mu for pm in per_pac]
+            law_rel = law_spread(coarse + membrane) if len(members) + len(membrane) > 1 else 0.0
             band = combine(mesh_rel, law_rel)
             sup = np.asarray(r["support"])[:, k]  # (meshes, SUPPORT_FIELDS)
             reached = np.isfinite(sup[:, 0])
@@ -311,13 +316,13 @@ def truth_samples(scene_path, pulls, xs, sizes_mm, jobs: int | None = None, prog
             contrast_rel = law_spread([coarse[0]] + others) if others else math.nan  # NaN: no contrast solved (one material)
             with_contrast = decide(c["force_n"], combine(band, contrast_rel), rule["decided_share"], rule["decided_j"], rule["decided_on"])[0] if others else None
             rows.append(c | rule | {"mesh_band_rel": mesh_rel, "law_band_rel": law_rel, "band_rel": band, "band_half_n": band * c["force_n"],
-                             "law_forces_n": coarse, "contrast_band_rel": contrast_rel, "contrast_forces_n": others,
+                             "law_forces_n": coarse, "membrane_forces_n": membrane, "contrast_band_rel": contrast_rel, "contrast_forces_n": others,
                              "decided_with_contrast": with_contrast,
                              "stretch_min": float(np.min(sup[reached, 2])) if reached.any() else math.nan,
                              "stretch_max": float(np.max(sup[reached, 3])) if reached.any() else math.nan,
                              "decided": ok, "truth": truth, "reason": why})
         out[p.name] = rows
-    return {"pulls": out, "ensemble": members_json(members), "contrast": contrast_json(contrast), "refs": refs}
+    return {"pulls": out, "ensemble": members_json(members), "membrane_members": pac_json(pac), "contrast": contrast_json(contrast), "refs": refs}
 
 
 def scene_contrast(scene) -> list[dict]:
@@ -330,6 +335,23 @@ def scene_contrast(scene) -> list[dict]:
     grey_range = fitted_range(material.law_source)[0] if material.law_source else None
     # measured ratios and bounds only: the Jin-direction member's ratio is an assumption (not solved)
     return [m | {"kind": "contrast"} for m in contrast_members(material.law, grey_range) if not m["chosen"] and not m.get("assumed")]
+
+
+def scene_pac_spread(scene) -> list[dict]:
+    """The pia-arachnoid's measured spread as members of the band: the scene's body with the
+    membrane's mu at (1 - s) and (1 + s) times its own (`MembraneLaw.mu_spread`), the chosen law
+    under it; [] without a pia-arachnoid or a spread."""
+    pac = scene.spec.material.pia_arachnoid
+    if pac is None or pac.mu_spread == 0.0:
+        return []
+    body = scene_regions(scene)
+    return [{"name": f"pia-arachnoid {name}", "role": "the pia-arachnoid's measured spread", "kind": "membrane",
+             "law": dataclasses.replace(body, pac_scale=scale), "pac_scale": scale}
+            for name, scale in (("low", 1.0 - pac.mu_spread), ("high", 1.0 + pac.mu_spread))]
+
+
+def pac_json(pac: list[dict]) -> list[dict]:
+    return [{"name": m["name"], "role": m["role"], "kind": "membrane", "pac_scale": m["pac_scale"]} for m in pac]
 
 
 def contrast_json(contrast: list[dict]) -> list[dict]:
