@@ -74,6 +74,8 @@ def resolved_config(name: str, spec) -> dict:
         # the reference's body, not the models': absent, a configuration is what it was before it existed
         if material.get(truth_only) in (None, ""):
             material.pop(truth_only, None)
+    if isinstance(material.get("pia_arachnoid"), dict):  # its measured spread is the truth's band, not a model's input
+        material["pia_arachnoid"].pop("mu_spread", None)
     if material.get("white_matter_source"):
         material["white_matter_source"] = _plain(Path(material["white_matter_source"]))
     out = {"condition": name, "model": m.name, "material": material,

@@ -383,3 +383,20 @@ def test_report_carries_the_accuracy_table_and_pareto_plot(small_bench, small_st
     res = CliRunner().invoke(cli, ["report", "table1", "--db", str(db), "--accuracy", str(tmp_path / "bad.json")])
     assert res.exit_code == 1
     assert "bad.json: not a `studyctl bench accuracy` result" in res.output
+
+
+def test_a_scaled_truth_scales_every_members_force_and_decides_the_contrast_again():
+    """`--young` scales the truth (forces with mu; bands and support not): the law's, the
+    membrane's and the contrast's member forces too, and the verdict with the contrast is taken
+    again at the new force (a 0.04 N sample with a 20% contrast spread: decided with it at 25% JND
+    there, not at 0.6 N where the JND is 10%)."""
+    c = {"force": np.array([0.04, 0.0, 0.0]), "force_n": 0.04, "band_half_n": 0.002, "band_rel": 0.05, "forces_n": [0.04],
+         "law_forces_n": [0.04, 0.041], "membrane_forces_n": [0.03], "contrast_forces_n": [0.048], "contrast_band_rel": 0.2,
+         "decided_share": 0.01, "decided_j": 0.01, "decided_on": "marginal share", "decided": True, "decided_with_contrast": True}
+    out = accuracy._scaled({"pulls": {"p": [c]}}, 15.0)["pulls"]["p"][0]
+    assert out["force_n"] == pytest.approx(0.6)
+    assert out["law_forces_n"] == pytest.approx([0.6, 0.615])
+    assert out["membrane_forces_n"] == pytest.approx([0.45])
+    assert out["contrast_forces_n"] == pytest.approx([0.72])
+    assert out["decided"] and out["decided_with_contrast"] is False
+    assert accuracy._scaled({"pulls": {"p": [c | {"decided_with_contrast": None}]}}, 15.0)["pulls"]["p"][0]["decided_with_contrast"] is None

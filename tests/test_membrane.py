@@ -212,4 +212,29 @@ def test_the_membranes_measured_spread_is_two_members_of_the_band_each_its_own_s
         key = tissue_pulls.pull_key_inputs("mesh", pac, law, 0.005, pull, regional=m["law"])
         assert key[:-1] == own[:-1]
         assert key[-1] == ["pia-arachnoid", tissue_pulls.key_digits(300000.0 * 0.0004 * m["pac_scale"] / law.shear_modulus), 36.97]
-        assert tissue_pulls._membrane(pac, law, m["pac_scale"]).mu == pytest.approx(300000.0 * m["pac_scale"])
+        assert tissue_pulls.body_membrane(pac, law, m["pac_scale"]).mu == pytest.approx(300000.0 * m["pac_scale"])
+
+
+def test_the_small_strain_stiffness_carries_the_membrane_as_the_pull_does():
+    """`small_strain_factor` with a membrane (the observer truth's transfer, the located field): the
+    condensed stiffness at rest equals the slope of the composite's own finite-strain pull at a tiny
+    displacement (`hold`, Newton), per pascal of the body's mu, and is stiffer than the body's."""
+    from types import SimpleNamespace
+
+    space = _space()
+    law, pac = ogden((1351.0,), (-20.8,)), MembraneLaw(3e5, 36.97, 4e-4)
+    top = np.flatnonzero(np.abs(space.all_nodes[:, 2] - space.all_nodes[:, 2].max()) < 1e-12)
+    free_pos = np.full(3 * space.n_all, -1)
+    free_pos[space.free] = np.arange(len(space.free))
+    cols = free_pos[3 * top + 2]
+    W = sp.csr_matrix((np.full(len(cols), 1.0 / len(cols)), (np.zeros(len(cols), int), cols)), shape=(1, len(space.free)))
+    problem = SimpleNamespace(space=space)
+
+    def stiffness(membrane):
+        C = W @ tissue_pulls.small_strain_factor(problem, law, membrane=membrane).solve(np.ascontiguousarray(W.T.toarray()))
+        return 1.0 / float(C[0, 0])
+
+    d = 1e-8
+    slope = hold(WithMembrane(FiniteStrain(space, law), pac), W, [d]).forces[-1, 0] / d / law.shear_modulus
+    assert abs(stiffness(pac)) == pytest.approx(abs(slope), rel=1e-4)
+    assert abs(stiffness(pac)) > 2.0 * abs(stiffness(None))

@@ -43,7 +43,14 @@ from analysis.verification.tissue_pulls import (
     pull_samples,
     reached,
 )
-from analysis.verification.truth_band import DEVICE_LIMIT_N, MARGINAL_LIMIT, MAX_J_DEVIATION, decide, truth_samples
+from analysis.verification.truth_band import (
+    DEVICE_LIMIT_N,
+    MARGINAL_LIMIT,
+    MAX_J_DEVIATION,
+    combine,
+    decide,
+    truth_samples,
+)
 from brainsim_assets import path as _asset
 from sim.errors import SceneError, SimError
 from sim.models.api import BUDGETS
@@ -364,9 +371,13 @@ def _scaled(truth: dict, ratio: float) -> dict:
         for c in rows:
             f = c["force_n"] * ratio
             ok, verdict_, why = decide(f, c["band_rel"], c["decided_share"], c["decided_j"], c["decided_on"])
+            contrast = c.get("decided_with_contrast")
+            if contrast is not None:
+                contrast = decide(f, combine(c["band_rel"], c["contrast_band_rel"]), c["decided_share"], c["decided_j"], c["decided_on"])[0]
             out.append(c | {"force": np.asarray(c["force"]) * ratio, "force_n": f, "band_half_n": c["band_half_n"] * ratio,
-                            "forces_n": [x * ratio for x in c["forces_n"]], "law_forces_n": [x * ratio for x in c["law_forces_n"]],
-                            "decided": ok, "truth": verdict_, "reason": why})
+                            "forces_n": [x * ratio for x in c["forces_n"]]}
+                       | {k: [x * ratio for x in c.get(k, [])] for k in ("law_forces_n", "membrane_forces_n", "contrast_forces_n")}
+                       | {"decided": ok, "truth": verdict_, "reason": why, "decided_with_contrast": contrast})
         pulls[name] = out
     return truth | {"pulls": pulls}
 

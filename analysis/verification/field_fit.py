@@ -40,6 +40,7 @@ from analysis.verification.regions import scene_regions
 from analysis.verification.tissue_pulls import (
     DEFAULT_SIZES_MM,
     _premesh,
+    body_membrane,
     build_problem,
     grasp_matrix,
     pull_references,
@@ -81,7 +82,8 @@ def site_stiffness(scene_path, size_mm: float = FIELD_SIZE_MM, sites_per_hemisph
         ids = ids[mesh.vertices[ids, axis] > limit]  # a site below the clamp plane cannot move
         verts, tris, _ = hemisphere_surface(mesh, h)
         problem = build_problem(scene, h, mesh_hemisphere(verts, tris, size_mm * 1e-3))
-        factor = small_strain_factor(problem, scene.spec.material.law, scene_regions(scene))  # the scene's tissue, white matter too
+        law = scene.spec.material.law
+        factor = small_strain_factor(problem, law, scene_regions(scene), body_membrane(scene, law))  # the scene's whole body
         for b0 in range(0, len(ids), BLOCK // 3):
             block = ids[b0:b0 + BLOCK // 3]
             Ws = [grasp_matrix(problem, *patch_area_points(mesh, int(v), radius)) for v in block]
@@ -174,7 +176,8 @@ def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", 
         verts, tris, _ = hemisphere_surface(scene.mesh, label)
         problem = build_problem(scene, label, mesh_hemisphere(verts, tris, fine * 1e-3))
         for p in (p for p in pulls if p.hemisphere == label):
-            K = pull_stiffness(problem, law, *patch_area_points(scene.mesh, p.vertex, grasp_radius(scene)), regional=scene_regions(scene))
+            K = pull_stiffness(problem, law, *patch_area_points(scene.mesh, p.vertex, grasp_radius(scene)), regional=scene_regions(scene),
+                               membrane=body_membrane(scene, law))
             small = np.linalg.norm(np.outer(xs, K @ np.asarray(p.direction)), axis=1)
             ratios[p.name] = np.linalg.norm(refs[p.name]["force_per_pa"][-1], axis=1) / small
     # the mean over the pulls whose solve reached each x (a solve that stopped has none beyond)

@@ -27,6 +27,7 @@ from analysis.verification.tissue_pulls import (
     DEFAULT_SIZES_MM,
     QUICK_SIZES_MM,
     _premesh,
+    body_membrane,
     build_problem,
     grasp_matrix,
     pull_references,
@@ -130,7 +131,7 @@ def _small_strain(cfg, scene, pulls, patches, xs, sizes, progress) -> dict:
         verts, tris, _ = hemisphere_surface(scene.mesh, label)
         for size in sizes:
             prob = build_problem(scene, label, mesh_hemisphere(verts, tris, size * 1e-3))
-            factor = small_strain_factor(prob, law, scene_regions(scene))
+            factor = small_strain_factor(prob, law, scene_regions(scene), body_membrane(scene, law))
             for p in (p for p in pulls if p.hemisphere == label):
                 W = grasp_matrix(prob, *patches[p.name])
                 C = W @ factor.solve(np.ascontiguousarray(W.T.toarray()))

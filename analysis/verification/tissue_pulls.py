@@ -111,23 +111,27 @@ def grasp_matrix(problem: Problem, points: np.ndarray, weights: np.ndarray | Non
     return constraint_matrix(problem.space, tet, bary, weights)
 
 
-def small_strain_factor(problem: Problem, law, regional=None):
+def small_strain_factor(problem: Problem, law, regional=None, membrane=None):
     """The factorised tangent of `law` at rest on the problem (its small-strain limit: linear
     elasticity with mu and lambda = kappa - 2 mu / 3), per pascal of the law's shear modulus;
     with `regional` (`regions.RegionalLaw`, `law` its grey), the white matter's inside the white
-    surface, as the finite-strain solves have it."""
+    surface, and with `membrane` (`body_membrane`) the pia-arachnoid's at rest on the surface, as
+    the finite-strain solves have them."""
     unit = law.scaled(1.0 / law.shear_modulus)
     laws, law_of = regional_system(problem.space, problem.mesh, problem.label, regional, unit) if regional else (unit, None)
-    K = FiniteStrain(problem.space, laws, mean_dilatation=False, law_of=law_of).evaluate(np.zeros(3 * problem.space.n_all))["K"]
-    return Factor(K)
+    system = FiniteStrain(problem.space, laws, mean_dilatation=False, law_of=law_of)
+    if membrane is not None:
+        system = WithMembrane(system, membrane.scaled(1.0 / law.shear_modulus))
+    return Factor(system.evaluate(np.zeros(3 * problem.space.n_all))["K"])
 
 
-def pull_stiffness(problem: Problem, law, points: np.ndarray, weights: np.ndarray | None = None, regional=None) -> np.ndarray:
+def pull_stiffness(problem: Problem, law, points: np.ndarray, weights: np.ndarray | None = None, regional=None,
+                   membrane=None) -> np.ndarray:
     """The small-strain condensed stiffness (3, 3) per pascal of shear modulus: the force
-    holding the patch's mean displacement at a small d is mu K d (`regional`: as
+    holding the patch's mean displacement at a small d is mu K d (`regional`, `membrane`: as
     `small_strain_factor`)."""
     W = grasp_matrix(problem, points, weights)
-    C = W @ small_strain_factor(problem, law, regional).solve(np.ascontiguousarray(W.T.toarray()))
+    C = W @ small_strain_factor(problem, law, regional, membrane).solve(np.ascontiguousarray(W.T.toarray()))
     return np.linalg.inv(0.5 * (C + C.T))
 
 
@@ -329,7 +333,7 @@ def _pull_task(args) -> dict:
         return nothing | {"reason": "not solved: the coarsest mesh's solve stopped, or its state left the data, before the first sample"}
     problem = build_problem(scene, label, body)
     r = solve_pull(problem, law, *patch_area_points(scene.mesh, pull.vertex, radius), np.asarray(pull.direction), xs[asked], stiffness,
-                   regional.ranges(), regional, _membrane(scene, law, regional.pac_scale),
+                   regional.ranges(), regional, body_membrane(scene, law, regional.pac_scale),
                    marginal=given is None)
     if not asked.all():  # followed only as far as asked: no records beyond
         for name in ("force_per_pa", "stiffness_per_pa", "support"):
@@ -345,7 +349,7 @@ def _pull_task(args) -> dict:
     return r | {"cached": False, "key": key, "h_m": body.h}
 
 
-def _membrane(scene, law, pac_scale: float = 1.0):
+def body_membrane(scene, law, pac_scale: float = 1.0):
     """The scene's pia-arachnoid for a solve of `law` as the grey matter: scaled along with it (a
     member's forces scale with its mu), and by `pac_scale` (a member of its measured spread);
     None without one."""

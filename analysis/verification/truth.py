@@ -154,9 +154,12 @@ def truth_key(scene) -> dict:
     axis, limit = clamp_limit(scene)
     key = {"version": TRUTH_VERSION, "digest": mesh_digest(scene.mesh), "clamp_axis": int(axis), "clamp_height": float(limit),
            "law": law_key(scene.spec.material.law), "grasp_radius": grasp_radius(scene)}
-    # a brain with white matter or a pia-arachnoid is another body: its own table (one material adds nothing, as before)
+    # a brain with white matter or a pia-arachnoid is another body: its own table (one material adds nothing, as
+    # before); the membrane's spread moves the table's band; body_version 2: the small-strain transfer sees the body too
     body = body_key(scene, scene_regions(scene))
-    return key | ({"body": json.dumps(body)} if body else {})
+    if (pac := scene.spec.material.pia_arachnoid) is not None:
+        body = body + [["pia-arachnoid spread", pac.mu_spread]]
+    return key | ({"body": json.dumps(body), "body_version": 2} if body else {})
 
 
 def user_truth_path(scene) -> Path:

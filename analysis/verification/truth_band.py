@@ -303,10 +303,11 @@ def truth_samples(scene_path, pulls, xs, sizes_mm, jobs: int | None = None, prog
                 mesh_rel = math.nan
             coarse = [float(np.linalg.norm(per_shape[i][p.name]["force_per_pa"][0, k])) * m["law"].shear_modulus
                       for m, i in zip(members, idx)]
-            # the pia-arachnoid's measured spread, in the band (the chosen law's grey under it)
+            law_rel = law_spread(coarse) if len(members) > 1 else 0.0
+            # the pia-arachnoid's measured spread (the chosen law under it): another independent input, in the band
             membrane = [float(np.linalg.norm(pm[p.name]["force_per_pa"][0, k])) * mu for pm in per_pac]
-            law_rel = law_spread(coarse + membrane) if len(members) + len(membrane) > 1 else 0.0
-            band = combine(mesh_rel, law_rel)
+            membrane_rel = law_spread([coarse[0]] + membrane) if membrane else 0.0
+            band = combine(combine(mesh_rel, law_rel), membrane_rel)
             sup = np.asarray(r["support"])[:, k]  # (meshes, SUPPORT_FIELDS)
             reached = np.isfinite(sup[:, 0])
             rule = rule_inputs(sup)
@@ -316,7 +317,7 @@ def truth_samples(scene_path, pulls, xs, sizes_mm, jobs: int | None = None, prog
             contrast_rel = law_spread([coarse[0]] + others) if others else math.nan  # NaN: no contrast solved (one material)
             with_contrast = decide(c["force_n"], combine(band, contrast_rel), rule["decided_share"], rule["decided_j"], rule["decided_on"])[0] if others else None
             rows.append(c | rule | {"mesh_band_rel": mesh_rel, "law_band_rel": law_rel, "band_rel": band, "band_half_n": band * c["force_n"],
-                             "law_forces_n": coarse, "membrane_forces_n": membrane, "contrast_band_rel": contrast_rel, "contrast_forces_n": others,
+                             "law_forces_n": coarse, "membrane_band_rel": membrane_rel, "membrane_forces_n": membrane, "contrast_band_rel": contrast_rel, "contrast_forces_n": others,
                              "decided_with_contrast": with_contrast,
                              "stretch_min": float(np.min(sup[reached, 2])) if reached.any() else math.nan,
                              "stretch_max": float(np.max(sup[reached, 3])) if reached.any() else math.nan,

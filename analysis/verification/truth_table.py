@@ -16,6 +16,7 @@ from analysis.verification.convergence import converge
 from analysis.verification.regions import scene_regions
 from analysis.verification.tissue_pulls import (
     RECORD_XS,
+    body_membrane,
     build_problem,
     combined_sample,
     grasp_matrix,
@@ -49,7 +50,7 @@ def _small_strain(scene, hemis, vertices, labels, sizes_mm, radius, progress) ->
             Ws = [grasp_matrix(problem, *patch_area_points(mesh, int(vertices[k]), radius)) for k in sel]
             if any(W.nnz == 0 for W in Ws):
                 raise InputError("--vertices: a grasp patch lies in clamped elements (below the clamp plane)")
-            C[i, sel] = compliances(small_strain_factor(problem, law, scene_regions(scene)), Ws)
+            C[i, sel] = compliances(small_strain_factor(problem, law, scene_regions(scene), body_membrane(scene, law)), Ws)
             if progress is not None:
                 progress(f"hemisphere {h}, {size:g} mm: small-strain stiffness at {len(sel)} grasp places")
             del problem
@@ -191,7 +192,9 @@ def _check_transfer(scene, pulls, sets, path, vertices, C, refs, sizes_mm, radiu
         v = int(vertices[far])
         verts, tris, _ = hemisphere_surface(mesh, p.hemisphere)
         problem = build_problem(scene, p.hemisphere, mesh_hemisphere(verts, tris, sizes_mm[coarse] * 1e-3))
-        direct = solve_pull(problem, scene.spec.material.law, *patch_area_points(mesh, v, radius), np.asarray(p.direction), RECORD_XS)
+        law = scene.spec.material.law  # the scene's whole body, as the hand's path was solved
+        direct = solve_pull(problem, law, *patch_area_points(mesh, v, radius), np.asarray(p.direction), RECORD_XS,
+                            regional=scene_regions(scene), membrane=body_membrane(scene, law), marginal=False)
         # the transfer on the same mesh: K0(v) K0(c)^-1 applied to the hand's own path there
         T = np.linalg.inv(C[coarse, far]) @ C[coarse, n + h]
         pred = refs[p.name]["force_per_pa"][coarse] @ T.T
