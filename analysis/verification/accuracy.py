@@ -37,6 +37,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from analysis.stats import wilson
+from analysis.verification.regions import membrane_meta, regions_meta
 from analysis.verification.tissue_pulls import (
     DEFAULT_SIZES_MM,
     ReferenceDataError,
@@ -333,7 +334,7 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
             "max_abs_j_minus_1_fine_decided": max((c["max_abs_j_minus_1_fine"] for c in flat
                                                    if c["decided"] and math.isfinite(c.get("max_abs_j_minus_1_fine", math.nan))), default=math.nan),
             "decided_on": {m: sum(c["decided"] and c.get("decided_on") == m for c in flat) for m in sorted({c.get("decided_on") for c in flat if c.get("decided_on")})},
-            "regions": _regions_meta(scene), "pia_arachnoid": _membrane_meta(scene, truth.get("membrane_members", [])), "contrast": truth.get("contrast", []),
+            "regions": regions_meta(scene), "pia_arachnoid": membrane_meta(scene, truth.get("membrane_members", [])), "contrast": truth.get("contrast", []),
             # how many decided samples stay decided with the literature's regional contrast in the band (None: one material)
             "decided_with_contrast": sum(bool(c.get("decided_with_contrast")) for c in flat if c["decided"]) if truth.get("contrast") else None,
             "support_share_decided_max": max((c["support_share_outside"] for c in flat if c["decided"]), default=math.nan),
@@ -426,31 +427,6 @@ def calibration_scale(model_mags: np.ndarray, ref_mags: np.ndarray) -> float:
     """One stiffness scale: exp(mean log(reference / model)) over the calibration samples."""
     ok = (model_mags > 0) & np.isfinite(model_mags) & np.isfinite(ref_mags)
     return float(np.exp(np.mean(np.log(ref_mags[ok] / model_mags[ok])))) if ok.any() else math.nan
-
-
-def _regions_meta(scene) -> dict:
-    """The truth's regions: each one's law and where its data come from."""
-    material = scene.spec.material
-    grey = {"region": "grey matter (the whole brain when there is no white matter)", "law": material.law.params(), "source": material.law_source}
-    if material.white_matter is None:
-        return {"regions": [grey], "white_matter": None}
-    return {"regions": [grey, {"region": "white matter, inside FreeSurfer's fsaverage5 white surface (data/brain_white_fsaverage5.npz)",
-                               "law": material.white_matter.params(), "source": material.white_matter_source}],
-            "white_matter": material.white_matter_source}
-
-
-def _membrane_meta(scene, members: list) -> dict:
-    """The pia-arachnoid's treatment in this truth (docs/reference.md, The pia-arachnoid), and
-    the members of its measured spread in the band."""
-    pac = scene.spec.material.pia_arachnoid
-    if pac is not None:
-        return {"treatment": "a membrane on the surface, in every solve; its measured spread of mu in the band", "mu_pa": pac.mu,
-                "alpha": pac.alpha, "thickness_m": pac.thickness, "mu_spread": pac.mu_spread, "members": members}
-    return {"treatment": "not in this truth, which is the parenchyma's force (a grasp inside an opened pia); measured (Vandemaele et al. 2025, "
-                         "human: one-term Ogden mu 0.30 MPa, alpha 37, 0.4 mm), modelled and solved, it multiplies the force of a 5 mm grasp "
-                         "on the intact surface by 6-13, with a mesh band of +-30% (left-lateral, 8/6/4 mm) and a measured spread of -23%/+19%, "
-                         "together wider than the JND: there no sample would be decided (docs/reference.md, The pia-arachnoid)",
-            "source": "protocols/materials/pia_arachnoid_human.toml"}
 
 
 def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_calib: int, xs) -> tuple[list[dict], list[dict]]:

@@ -111,3 +111,28 @@ def contrast_members(grey: Hyperelastic, grey_range=None) -> list[dict]:
          "source": f"Jin et al. 2013, J Biomech 46:2795-2801: white matter stiffer than grey in compression and shear; "
                    f"ratio {JIN_WHITE_OVER_GREY:g} assumed (the paper's ratio not found here), the cortex law's shape"},
     ]
+
+
+def regions_meta(scene) -> dict:
+    """The truth's regions: each one's law and where its data come from."""
+    material = scene.spec.material
+    grey = {"region": "grey matter (the whole brain when there is no white matter)", "law": material.law.params(), "source": material.law_source}
+    if material.white_matter is None:
+        return {"regions": [grey], "white_matter": None}
+    return {"regions": [grey, {"region": "white matter, inside FreeSurfer's fsaverage5 white surface (data/brain_white_fsaverage5.npz)",
+                               "law": material.white_matter.params(), "source": material.white_matter_source}],
+            "white_matter": material.white_matter_source}
+
+
+def membrane_meta(scene, members: list) -> dict:
+    """The pia-arachnoid's treatment in this truth (docs/reference.md, The pia-arachnoid), and
+    the members of its measured spread in the band."""
+    pac = scene.spec.material.pia_arachnoid
+    if pac is not None:
+        return {"treatment": "a membrane on the surface, in every solve; its measured spread of mu in the band", "mu_pa": pac.mu,
+                "alpha": pac.alpha, "thickness_m": pac.thickness, "mu_spread": pac.mu_spread, "members": members}
+    return {"treatment": "not in this truth, which is the parenchyma's force (a grasp inside an opened pia); measured (Vandemaele et al. 2025, "
+                         "human: one-term Ogden mu 0.30 MPa, alpha 37, 0.4 mm), modelled and solved, it multiplies the force of a 5 mm grasp "
+                         "on the intact surface by 6-13, with a mesh band of +-30% (left-lateral, 8/6/4 mm) and a measured spread of -23%/+19%, "
+                         "together wider than the JND: there no sample would be decided (docs/reference.md, The pia-arachnoid)",
+            "source": "protocols/materials/pia_arachnoid_human.toml"}
