@@ -196,12 +196,6 @@ def uniaxial(law: Hyperelastic, stretch) -> tuple[np.ndarray, np.ndarray]:
     return principal_nominal(law, lam, lt, lt)[0], lt
 
 
-def incompressible_uniaxial(law: Hyperelastic, stretch) -> np.ndarray:
-    """The incompressible limit: P = sum_p (2 mu_p / alpha_p) (l^(alpha_p - 1) - l^(-alpha_p/2 - 1))."""
-    lam = np.asarray(stretch, dtype=np.float64)
-    return sum(2.0 * m / a * (lam ** (a - 1.0) - lam ** (-a / 2.0 - 1.0)) for m, a in zip(law.mu, law.alpha))
-
-
 def simple_shear(law: Hyperelastic, gamma: float) -> np.ndarray:
     """The first Piola-Kirchhoff stress (3, 3) in simple shear F = I + gamma e1 (x) e2 (J = 1,
     so no volumetric part): the Cauchy stress sum_i s_i n_i (x) n_i in the principal frame of

@@ -114,8 +114,3 @@ def scene_with(path, young: float | None = None):
     if young is not None:
         spec = dataclasses.replace(spec, material=dataclasses.replace(spec.material, young=float(young)))
     return Scene(spec)
-
-
-def surface_part(mesh, label: int) -> np.ndarray:
-    """Surface vertices of one hemisphere (where a pull's displacement is compared)."""
-    return np.flatnonzero(mesh.labels == label) if mesh.labels is not None else np.arange(len(mesh.vertices))

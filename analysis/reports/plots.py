@@ -121,10 +121,6 @@ def rates_figure(rates, synthetic: bool, size: FigureSize = SCREEN, models=None)
     return fig
 
 
-def rates_plot(rates, path: Path, synthetic: bool, size: str | FigureSize = SCREEN, models=None) -> None:
-    _save_one(rates_figure(rates, synthetic, size=size, models=models), path, figure_size(size))
-
-
 @styled
 def deformation_figure(lat, synthetic: bool, size: FigureSize = SCREEN, models=None):
     """Distribution of the deformation time per frame (trial means) per model, log scale
@@ -145,10 +141,6 @@ def deformation_figure(lat, synthetic: bool, size: FigureSize = SCREEN, models=N
     ax.grid(axis="y", alpha=0.3)
     _suptitle(fig, _flag(synthetic) + "time for real-time deformation (trial means): benchmark of this machine", size)
     return fig
-
-
-def deformation_plot(lat, path: Path, synthetic: bool, size: str | FigureSize = SCREEN, models=None) -> None:
-    _save_one(deformation_figure(lat, synthetic, size=size, models=models), path, figure_size(size))
 
 
 FORCE_FLOOR_N = 0.01  # the relative difference is drawn where the reference is above this
@@ -381,10 +373,6 @@ def likert_figure(ratings: dict[str, RatingStats], models: list[str], synthetic:
     return fig
 
 
-def likert_plot(ratings: dict[str, RatingStats], models: list[str], path: Path, synthetic: bool, size: str | FigureSize = SCREEN) -> None:
-    _save_one(likert_figure(ratings, models, synthetic, size=size), path, figure_size(size))
-
-
 @styled
 def scores_figure(scores: dict[str, ScoreStats], meas, models: list[str], synthetic: bool, size: FigureSize = SCREEN):
     """Each score per condition: a box plot with every participant's value as a point."""
@@ -409,10 +397,6 @@ def scores_figure(scores: dict[str, ScoreStats], meas, models: list[str], synthe
     return fig
 
 
-def scores_plot(scores: dict[str, ScoreStats], meas, models: list[str], path: Path, synthetic: bool, size: str | FigureSize = SCREEN) -> None:
-    _save_one(scores_figure(scores, meas, models, synthetic, size=size), path, figure_size(size))
-
-
 @styled
 def choice_figure(choice: ChoiceStats, models: list[str], synthetic: bool, size: FigureSize = SCREEN):
     """Share of participants choosing each condition, with Wilson 95% intervals."""
@@ -430,10 +414,6 @@ def choice_figure(choice: ChoiceStats, models: list[str], synthetic: bool, size:
     ax.set_ylabel("share chosen (Wilson 95% CI)")
     _suptitle(fig, choice.question + (f" ({_kind(synthetic)})" if synthetic else ""), size)
     return fig
-
-
-def choice_plot(choice: ChoiceStats, models: list[str], path: Path, synthetic: bool, size: str | FigureSize = SCREEN) -> None:
-    _save_one(choice_figure(choice, models, synthetic, size=size), path, figure_size(size))
 
 
 @styled

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import time
 from pathlib import Path
 
@@ -143,14 +142,6 @@ def build_field(scene_path, out: Path = FIELD_FILE, size_mm: float = FIELD_SIZE_
                                "area-mean grasp, per pascal of the grey law's shear modulus")
     return {"path": str(out), "sites": int(len(res["sites"])), "vertices": int(len(K)), "size_mm": size_mm,
             "seconds": res["seconds"]}
-
-
-def stiffness_ratio_spread(K: np.ndarray, direction_count: int = 2) -> dict:
-    """How much the field varies: the 5th-95th percentile of the largest eigenvalue, a summary
-    for the note and the docs."""
-    ev = np.linalg.eigvalsh(K)
-    return {"k_max_p5": float(np.percentile(ev[:, -1], 5)), "k_max_p95": float(np.percentile(ev[:, -1], 95)),
-            "anisotropy_median": float(np.median(ev[:, -1] / ev[:, 0])) if np.all(ev[:, 0] > 0) else math.nan}
 
 
 def fit_shape(scene_path, start_params, xs, formulation: str = "finite-strain", jobs: int | None = None) -> tuple:

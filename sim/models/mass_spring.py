@@ -365,13 +365,6 @@ class MassSpring(LocalGlobal, NewtonKrylov):
 # -- construction from a volume mesh --------------------------------------------------------
 
 
-def edges_of(tets: np.ndarray) -> np.ndarray:
-    pairs = tets[:, [0, 0, 0, 1, 1, 2]], tets[:, [1, 2, 3, 2, 3, 3]]
-    e = np.stack([pairs[0].ravel(), pairs[1].ravel()], axis=1)
-    e.sort(axis=1)
-    return np.unique(e, axis=0)
-
-
 def from_tets(nodes: np.ndarray, tets: np.ndarray, young: float, density: float, fixed=None, damping: float = 0.0) -> MassSpring:
     """Springs on the tetrahedra's edges with ``k = 6 E V_e / L_e^2``, where ``V_e`` is the
     volume assigned to the edge (each tetrahedron gives a sixth of its volume to each of its six

@@ -82,11 +82,6 @@ def _ask(store: Store, answerer, questions, code: str, model: str, trial: int, s
                                    answerer.source)
 
 
-def reference_model(protocol):
-    """The linear FEM on the protocol's scene: the force reference of the answer model."""
-    return condition_scene(protocol, "fem", "simulated").model
-
-
 def condition_labels(models, rng) -> dict[str, str]:
     """A blind label per condition: A, B, C... in a random order."""
     letters = list(string.ascii_uppercase[: len(models)])

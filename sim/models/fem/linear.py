@@ -150,8 +150,3 @@ class LinearFem(TetSpace):
         u = np.zeros(3 * self.n_all)
         u[self.free] = self.solve_free(full[self.free])
         return u[: 3 * len(self.nodes)].reshape(-1, 3)
-
-    def to_free(self, u_nodes: np.ndarray) -> np.ndarray:
-        if self.order != 1:
-            raise ParameterError("order: the corotational solver needs linear (order 1) tetrahedra")
-        return np.asarray(u_nodes).reshape(-1)[self.free]
