@@ -4,9 +4,9 @@ paper's. `python -m bench accuracy [--json]` (keys `accuracy.<model>.<setting>.<
 
 from __future__ import annotations
 
-from analysis.reports.plots import PAPER_MS
 from analysis.verification.accuracy import quick_config, run_accuracy
 from analysis.verification.accuracy_tables import within_text
+from analysis.verification.paper import deformation_ms
 from bench.common import main_with_json
 
 
@@ -16,7 +16,7 @@ def measure() -> dict:
     print(f"reference {ref['setting']} (converged: {ref['converged']}); the linear models' E = {out['meta']['young_pa'] / 1e3:.3g} kPa; "
           "quick bench: timings, and a smoke run of the rest (it decides nothing)")
     for r in out["rows"]:
-        paper = PAPER_MS[r["model"]]
+        paper = deformation_ms()[r["model"]]
         print(f"  {r['model'] + '/' + r['setting'] + '/' + r['calibration']:42s} force error {r['force_error']:6.1%} "
               f"(max {r['force_error_max']:6.1%}), within JND {within_text(r)}; "
               f"tick {r['tick_us']:.2f} us; frame p50 {r['frame_ms']:.3g} ms, "
@@ -30,7 +30,7 @@ def flat(out: dict) -> dict:
         name = f"accuracy.{r['model']}.{r['setting']}.{r['calibration']}"
         for k in ("force_error", "force_error_max", "within_jnd", "tick_us", "frame_ms", "frame_ms_p99"):
             keys[f"{name}.{k}"] = r[k]
-        keys[f"{name}.frame_ms.ratio_to_paper"] = r["frame_ms"] / PAPER_MS[r["model"]]
+        keys[f"{name}.frame_ms.ratio_to_paper"] = r["frame_ms"] / deformation_ms()[r["model"]]
     return keys
 
 

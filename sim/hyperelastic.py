@@ -194,19 +194,3 @@ def uniaxial(law: Hyperelastic, stretch) -> tuple[np.ndarray, np.ndarray]:
             break
     lt = np.exp(t)
     return principal_nominal(law, lam, lt, lt)[0], lt
-
-
-def simple_shear(law: Hyperelastic, gamma: float) -> np.ndarray:
-    """The first Piola-Kirchhoff stress (3, 3) in simple shear F = I + gamma e1 (x) e2 (J = 1,
-    so no volumetric part): the Cauchy stress sum_i s_i n_i (x) n_i in the principal frame of
-    b = F F^T, s_i = sum_p (2 mu_p/alpha_p)(l_i^alpha_p - mean_j l_j^alpha_p), times F^-T."""
-    F = np.eye(3)
-    F[0, 1] = gamma
-    c, n = np.linalg.eigh(F @ F.T)
-    lam = np.sqrt(c)
-    s = np.zeros(3)
-    for m, a in zip(law.mu, law.alpha):
-        pw = lam**a
-        s += 2.0 * m / a * (pw - pw.mean())
-    sigma = (n * s) @ n.T
-    return sigma @ np.linalg.inv(F).T

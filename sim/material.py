@@ -139,13 +139,6 @@ class MembraneLaw:
     def scaled(self, factor: float) -> MembraneLaw:
         return MembraneLaw(self.mu * factor, self.alpha, self.thickness, self.mu_spread)
 
-    def uniaxial_tension(self, stretch) -> np.ndarray:
-        """The nominal tension (N/m) of a flat membrane stretched `stretch` in one direction, free
-        in the other (there the stretch is stretch^-1/2): t (2 mu / alpha)(l^(alpha-1) - l^(-alpha/2-1))."""
-        s = np.asarray(stretch, dtype=np.float64)
-        return self.thickness * 2.0 * self.mu / self.alpha * (s ** (self.alpha - 1.0) - s ** (-0.5 * self.alpha - 1.0))
-
-
 def membrane_file(path: Path, problems: list) -> MembraneLaw | None:
     """A membrane file's law (its `[membrane]`: law = "ogden", mu (Pa), alpha, thickness (m));
     problems recorded as FILE:LINE."""

@@ -12,8 +12,12 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 from click.testing import CliRunner
 
+from sim.geometry.mesh import SurfaceMesh
+from sim.geometry.patch import SUBDIVISIONS, _patch_quadrature
+from sim.hyperelastic import Hyperelastic
 from studyctl.cli import cli
 from tests.conftest import ROOT
 
@@ -153,7 +157,6 @@ def box(nx, ny, nz, h, origin=(0.0, 0.0, 0.0)):
     """A box of nx x ny x nz cubes of side h from `origin`, in tetrahedra (sim.geometry.volume.grid_tets)."""
     import numpy as np
 
-    from sim.geometry.volume import grid_tets
 
     return grid_tets(np.ones((nx, ny, nz), bool), np.asarray(origin, float), h)
 
@@ -393,3 +396,89 @@ def unsupported_numbers(text: str, doc: dict) -> list[str]:
         if not any(round(x * scale, decimals) == round(value, decimals) for x in numbers):
             missing.append(m.group(0))
     return missing
+
+
+# -- closed forms and small geometry the tests build on (no library code calls them) ----------------
+
+def simple_shear(law: Hyperelastic, gamma: float) -> np.ndarray:
+    """The first Piola-Kirchhoff stress (3, 3) in simple shear F = I + gamma e1 (x) e2 (J = 1,
+    so no volumetric part): the Cauchy stress sum_i s_i n_i (x) n_i in the principal frame of
+    b = F F^T, s_i = sum_p (2 mu_p/alpha_p)(l_i^alpha_p - mean_j l_j^alpha_p), times F^-T."""
+    F = np.eye(3)
+    F[0, 1] = gamma
+    c, n = np.linalg.eigh(F @ F.T)
+    lam = np.sqrt(c)
+    s = np.zeros(3)
+    for m, a in zip(law.mu, law.alpha):
+        pw = lam**a
+        s += 2.0 * m / a * (pw - pw.mean())
+    sigma = (n * s) @ n.T
+    return sigma @ np.linalg.inv(F).T
+
+
+def icosphere(radius: float = 0.05, subdivisions: int = 2, center=(0.0, 0.0, 0.0)) -> SurfaceMesh:
+    """A procedural sphere for unit tests (12 * 4**s ... vertices)."""
+    t = (1.0 + 5**0.5) / 2.0
+    v = np.array(
+        [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
+         [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]],
+        dtype=np.float64,
+    )
+    f = np.array(
+        [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
+         [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
+         [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]],
+    )
+    verts = list(v / np.linalg.norm(v, axis=1, keepdims=True))
+
+    def mid(a: int, b: int, cache: dict) -> int:
+        key = (min(a, b), max(a, b))
+        if key not in cache:
+            m = verts[a] + verts[b]
+            verts.append(m / np.linalg.norm(m))
+            cache[key] = len(verts) - 1
+        return cache[key]
+
+    for _ in range(subdivisions):
+        cache: dict[tuple[int, int], int] = {}
+        nf = []
+        for a, b, c in f:
+            ab, bc, ca = mid(a, b, cache), mid(b, c, cache), mid(c, a, cache)
+            nf += [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
+        f = np.array(nf)
+    return SurfaceMesh(np.array(verts) * radius + np.asarray(center), f.astype(np.int32))
+
+
+_CORNERS = np.array([[(k >> 0) & 1, (k >> 1) & 1, (k >> 2) & 1] for k in range(8)])
+_KUHN = np.array([[0, 1, 3, 7], [0, 3, 2, 7], [0, 2, 6, 7], [0, 6, 4, 7], [0, 4, 5, 7], [0, 5, 1, 7]])
+
+
+def grid_tets(inside: np.ndarray, origin: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes and Kuhn tetrahedra of the kept cells of a grid. `inside`: (nx, ny, nz) bool."""
+    cells = np.argwhere(inside)  # (c, 3) cell indices
+    if len(cells) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 4), dtype=np.int64)
+    corners = cells[:, None, :] + _CORNERS[None, :, :]  # (c, 8, 3) grid-node indices
+    dims = np.array(inside.shape) + 1
+    flat = np.ravel_multi_index(corners.reshape(-1, 3).T, dims).reshape(-1, 8)
+    used, inverse = np.unique(flat, return_inverse=True)
+    local = inverse.reshape(-1, 8)
+    ijk = np.stack(np.unravel_index(used, dims), axis=1)
+    nodes = origin + ijk * h
+    tets = local[:, _KUHN].reshape(-1, 4)
+    return nodes, tets
+
+
+def patch_vertex_weights(mesh, vertex: int, radius: float, subdivisions: int = SUBDIVISIONS) -> tuple[np.ndarray, np.ndarray]:
+    """The same mean on the surface vertices: (vertex ids (k,), weights (k,) summing to 1), so
+    that sum_i w_i u_i is the mean of the piecewise-linear surface displacement over the patch.
+    Vertices just outside the radius whose triangles reach into it get a share."""
+    sel, lam, parent, _, w = _patch_quadrature(mesh, vertex, radius, subdivisions)
+    if len(w) == 0:
+        return np.array([vertex], dtype=np.int64), np.ones(1)
+    ids = sel[parent].ravel()
+    vals = (lam * w[:, None]).ravel()
+    uniq, inv = np.unique(ids, return_inverse=True)
+    acc = np.zeros(len(uniq))
+    np.add.at(acc, inv, vals)
+    return uniq, acc / acc.sum()

@@ -53,11 +53,12 @@ def test_quasi_newton_frames_reach_the_converged_element_when_given_the_iteratio
     reaches the force of the same element solved by Newton (an independent solver), and with
     one a frame it trails it; its JSON keys are flat."""
     from bench.fem_quasi_newton import _frames, flat
-    from sim.geometry.volume import grid_tets, locate
+    from sim.geometry.volume import locate
     from sim.hyperelastic import neo_hookean
     from sim.linalg import Factor
     from sim.models.fem import TetSpace, constraint_matrix, hold
     from sim.models.fem.nodal_pressure import NodalPressure
+    from tests.helpers import grid_tets
 
     nodes, tets = grid_tets(np.ones((3, 3, 3), bool), np.zeros(3), 0.01)
     space = TetSpace(nodes, tets, nodes[:, 2] < 1e-12, order=1)

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from sim.errors import MeshError
-from sim.geometry.mesh import BRAIN_MESH, icosphere, load_mesh, vertex_normals
+from sim.geometry.mesh import BRAIN_MESH, load_mesh, vertex_normals
+from tests.helpers import icosphere
 
 
 @pytest.fixture(scope="module")

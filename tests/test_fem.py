@@ -297,8 +297,8 @@ def _block_force_ratios(mode: str, frac: float):
     """A 4 x 4 x 12 cm block clamped at its base, its top face's mean displacement held."""
     import scipy.sparse as sp
 
-    from sim.geometry.volume import grid_tets
     from sim.models.fem import LinearFem, corotational_solve
+    from tests.helpers import grid_tets
 
     nodes, tets = grid_tets(np.ones((4, 4, 12), bool), np.zeros(3), 0.01)
     z = nodes[:, 2]

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from sim.geometry.patch import patch_vertex_weights
 from sim.geometry.tetmesh import body_volume
 from sim.geometry.volume import embed
 from sim.models.fem import FemModel, fixed_nodes
@@ -15,6 +14,7 @@ from sim.run import run_scene
 from sim.scene import build_scene
 from studyctl.cli import cli
 from tests.conftest import SCENE
+from tests.helpers import patch_vertex_weights
 
 LEFT, LEFT2, RIGHT = (-0.0313, -0.0186, 0.0723), (-0.045, 0.0, 0.06), (0.0315, -0.0172, 0.0716)
 

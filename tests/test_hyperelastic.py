@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from sim.geometry.volume import grid_tets
-from sim.hyperelastic import mooney_rivlin, neo_hookean, ogden, simple_shear, uniaxial
+from sim.hyperelastic import mooney_rivlin, neo_hookean, ogden, uniaxial
 from sim.models.fem import FiniteStrain, LinearFem, TetSpace, hold
+from tests.helpers import grid_tets, simple_shear
 
 CORTEX = ogden([1552.7], [-17.93])  # the shipped human cortex (protocols/materials/human_cortex.toml)
 LAWS = [CORTEX, mooney_rivlin(600.0, 400.0), neo_hookean(1000.0), ogden([500.0, 700.0], [-15.0, 5.0])]
@@ -252,7 +252,6 @@ def test_point_states_store_the_energy_the_compiled_pass_does_and_support_reads_
     0.9..1.1, one of 1.05 none, and a dilatation of 1.1 gives |J - 1| = 0.331."""
     import numpy as np
 
-    from sim.geometry.volume import grid_tets
     from sim.hyperelastic import ogden
     from sim.models.fem import TetSpace
     from sim.models.fem.finite_strain import FiniteStrain, point_states, support

@@ -7,9 +7,9 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
 from sim.errors import SimError
-from sim.geometry.volume import grid_tets
 from sim.linalg import Factor, SingularSystemError, shifted_factor
 from sim.models.fem import LinearFem
+from tests.helpers import grid_tets
 
 
 def laplacian(n: int) -> sp.csr_matrix:

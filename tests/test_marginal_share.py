@@ -12,11 +12,11 @@ import scipy.sparse as sp
 
 from analysis.verification import truth_band
 from analysis.verification.tissue_pulls import FOLLOW_SHARE, SUPPORT_FIELDS, Problem, follow_to, solve_pull
-from sim.geometry.volume import grid_tets
 from sim.hyperelastic import ogden, uniaxial
 from sim.material import load_material
 from sim.models.fem import FiniteStrain, TetSpace, hold, p2
 from sim.models.fem.finite_strain import fine_jacobian_deviation, point_states, support
+from tests.helpers import grid_tets
 
 CORTEX = "protocols/materials/human_cortex.toml"
 LAW = ogden([1351.45], [-20.801])

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from sim.errors import ParameterError
-from sim.geometry.volume import grid_tets, locate
+from sim.geometry.volume import locate
 from sim.models.fem import LinearFem, constraint_matrix
 from sim.models.mass_spring import MassSpring, StabilityError, from_tets
+from tests.helpers import grid_tets
 
 
 def one_spring(k=40.0, m=0.01, stretch=0.002, damping=0.0):

@@ -162,7 +162,8 @@ def test_the_shear_closed_form_is_the_stress_tensors_and_neo_hookean_is_linear()
     import numpy as np
 
     from analysis.verification.material_fit import shear_stress
-    from sim.hyperelastic import neo_hookean, ogden, simple_shear
+    from sim.hyperelastic import neo_hookean, ogden
+    from tests.helpers import simple_shear
 
     g = np.linspace(-0.4, 0.4, 9)
     for law in (ogden([1200.0, 300.0], [-18.0, 4.0]), ogden([1500.0], [-20.0])):

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from sim.geometry.mesh import SurfaceMesh
-from sim.geometry.patch import patch_area_points, patch_vertex_weights
+from sim.geometry.patch import patch_area_points
+from tests.helpers import patch_vertex_weights
 
 
 @pytest.fixture(scope="module")

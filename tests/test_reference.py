@@ -13,13 +13,13 @@ from click.testing import CliRunner
 from analysis.verification import reference, tissue_pulls
 from analysis.verification.convergence import converge, richardson, richardson2
 from analysis.verification.tissue_pulls import build_problem, pull_stiffness
-from sim.geometry.mesh import icosphere
 from sim.geometry.patch import patch_area_points
 from sim.geometry.tetmesh import enclosed_volume, hemisphere_surface, mesh_hemisphere
 from sim.geometry.volume import tet_volumes
 from sim.pulls import make_pulls, scene_with
 from sim.scene import DEFAULT_SCENE, clamp_limit
 from studyctl.cli import cli
+from tests.helpers import icosphere
 
 # -- Richardson and the GCI ------------------------------------------------------------------
 

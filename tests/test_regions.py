@@ -15,7 +15,6 @@ from analysis.verification.truth import truth_key
 from sim.errors import MeshError, SceneError
 from sim.geometry import regions
 from sim.geometry.mesh import load_mesh, vertex_normals
-from sim.geometry.volume import grid_tets
 from sim.hyperelastic import ogden
 from sim.material import load_material
 from sim.models.fem import TetSpace, hold, p2
@@ -23,7 +22,7 @@ from sim.models.fem.finite_strain import FiniteStrain, support
 from sim.pulls import make_pulls
 from sim.scene import build_scene, load_scene
 from tests.conftest import ROOT, SCENE
-from tests.helpers import localise
+from tests.helpers import grid_tets, localise
 
 GREY_LAW, _ = load_material(ROOT / "protocols/materials/human_cortex.toml")
 WHITE_LAW, _ = load_material(ROOT / "protocols/materials/human_white_matter.toml")

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from sim.view.shapes import Shape, arrow, forceps, forceps_parts, forceps_tips, frame, transform
+from sim.view.shapes import Shape, _blade_pose, _check_opening, arrow, forceps, forceps_parts, frame, transform
 
 OPENINGS = (0.0, 0.3, 0.5, 1.0)
 
@@ -213,3 +213,11 @@ def test_transform_places_forceps():
     assert (handle - t) @ axis > 0  # the handle runs along `axis`
     with pytest.raises(ValueError):
         transform(s, np.eye(2), t)
+
+
+def forceps_tips(opening: float) -> np.ndarray:
+    """The two jaw points (centre of each blade's gripping face at its tip), (2, 3) float64:
+    (+y blade, -y blade). Both at the origin when closed."""
+    R, t = _blade_pose(_check_opening(opening))
+    tip = t.copy()  # the +y jaw point is the origin before turning
+    return np.array([tip, tip * [1.0, -1.0, 1.0]])

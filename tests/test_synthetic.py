@@ -5,23 +5,27 @@ import math
 import multiprocessing as mp
 
 import numpy as np
+import pandas as pd
 import pytest
 from scipy.stats import norm
 
+from analysis.verification.truth import TRUTH_RADIUS, hand_sets
 from studyctl.synthetic.observer import (
+    DEFAULT,
     P_WITHIN_PERFECT,
     ObserverParams,
     ObserverTraits,
     TrialSummary,
     features,
     frame_ms,
-    p_yes,
+    logit,
     ripple_level,
     vibration_threshold_n,
     weber_at,
     within_jnd,
 )
 from studyctl.synthetic.participant import SyntheticParticipant
+from studyctl.synthetic.plan import simulate_study
 from studyctl.synthetic.study import run_synthetic_study
 from tests.helpers import fast_protocol, synthetic_content, synthetic_summary
 
@@ -208,7 +212,6 @@ def swap_pilots(tmp_path_factory):
 
 
 def test_swapping_which_model_plays_which_condition_leaves_the_rates(swap_pilots):
-    from studyctl.synthetic.plan import expected_rates
 
     protocol, swap, own, swapped = swap_pilots
     a = expected_rates(protocol, own, simulations=300, seed=4).set_index(["label", "item"])
@@ -239,7 +242,7 @@ def test_the_shipped_truth_covers_the_scenes_grasps_and_is_the_references_soluti
 
     from analysis.errors import InputError
     from analysis.verification.tissue_pulls import RECORD_XS, combined_sample, pull_references
-    from analysis.verification.truth import TRUTH_FILE, hand_vertices, load_truth
+    from analysis.verification.truth import TRUTH_FILE, load_truth
     from sim.pulls import hand_pulls, scene_with
     from sim.stiffness_field import FIELD_FILE
     from tests.conftest import SCENE
@@ -288,3 +291,37 @@ def test_the_shipped_truth_covers_the_scenes_grasps_and_is_the_references_soluti
         load_truth(scene_with(other))
     with pytest.raises(InputError, match="calibrate truth"):
         truth.force(len(scene.mesh.vertices) - 1 if len(scene.mesh.vertices) - 1 not in truth.vertices else -5, [[0.0, 0.0, 0.001]])
+
+
+def p_yes(item: str, feats: dict, traits: ObserverTraits, params: ObserverParams = DEFAULT) -> float:
+    return 1.0 / (1.0 + math.exp(-logit(item, feats, traits, params)))
+
+
+def expected_rates(protocol, summaries: dict[str, list], participants: int = 35, simulations: int = 200, seed: int = 0) -> pd.DataFrame:
+    """Mean yes rate per condition label and question over simulated studies, with its Monte
+    Carlo standard error. Columns: label, item, rate, mc_error."""
+    rng = np.random.default_rng(seed)
+    labels = list(protocol.conditions)
+    acc = {q.id: [] for q in protocol.asked("condition") if q.kind == "yes_no"}
+    for _ in range(simulations):
+        for q, x in simulate_answers(protocol, summaries, participants, rng).items():
+            acc[q].append(x.mean(axis=0))
+    rows = []
+    for q, per in acc.items():
+        per = np.array(per)
+        for j, label in enumerate(labels):
+            rows.append({"label": label, "item": q, "rate": float(per[:, j].mean()), "mc_error": float(per[:, j].std(ddof=1) / np.sqrt(len(per)))})
+    return pd.DataFrame(rows, columns=["label", "item", "rate", "mc_error"])
+
+
+def hand_vertices(scene, radius: float = TRUTH_RADIUS) -> np.ndarray:
+    """Surface vertices within `radius` of where each hand grasps (same hemisphere)."""
+    return np.unique(np.concatenate(list(hand_sets(scene, radius).values()))) if scene.spec.hands else np.zeros(0, dtype=np.int64)
+
+
+def simulate_answers(protocol, summaries: dict[str, list], n: int, rng: np.random.Generator, params=None) -> dict[str, np.ndarray]:
+    """Yes/no answers (n, conditions) per yes/no question of one simulated study (simulate_study)."""
+    df = simulate_study(protocol, summaries, n, rng, params)
+    labels = list(protocol.conditions)
+    return {q.id: df[df["item"] == q.id].pivot(index="code", columns="model", values="answer")[labels].to_numpy(int)
+            for q in protocol.asked("condition") if q.kind == "yes_no"}

@@ -21,6 +21,7 @@ from analysis.discrimination.psychometric import fit_psychometric
 from analysis.kind_results import ChoiceStats, RatingStats, ScoreStats
 from analysis.reports.figure_size import SCREEN, FigureSize, figure_size, fit, wrap
 from analysis.reports.figure_size import save as save  # write_plots saves every format through plots.save
+from analysis.verification.paper import deformation_ms
 from sim.perception import force_jnd
 from sim.text import counted
 
@@ -197,9 +198,6 @@ def force_plot(traces: dict, path: Path, size: str | FigureSize = SCREEN) -> Non
     _save_one(force_figure(traces, size=size), path, figure_size(size))
 
 
-PAPER_MS = {"plate_spring": 14.69, "fem": 21.35, "mass_spring": 23.08}  # seed paper, Table 1 (its 2014 PC)
-
-
 def pareto(rows: list[dict]) -> list[bool]:
     """Rows no other row beats on both force error and frame time."""
     out = []
@@ -235,7 +233,7 @@ def pareto_figure(rows: list[dict], reference: str = "", size: FigureSize = SCRE
         own = sorted((r["frame_ms"], max(r["force_error"], 1e-4)) for r, on in zip(mine, pareto(mine)) if on)
         if len(own) > 1:
             ax.step([p[0] for p in own], [p[1] for p in own], where="post", color=pal[model], lw=0.8, ls="--", zorder=1)
-    for k, (model, ms) in enumerate(PAPER_MS.items()):  # the three lie close together: stagger the labels
+    for k, (model, ms) in enumerate(deformation_ms().items()):  # the three lie close together: stagger the labels
         ax.axvline(ms, color=COLORS[model], ls=":", lw=1)
         ax.text(ms, 0.98 - 0.07 * k, f" paper {model.replace('_', '-')} {ms} ms", color=COLORS[model], fontsize=size.tiny_pt, va="top",
                 ha="right", transform=ax.get_xaxis_transform())

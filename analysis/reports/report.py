@@ -22,6 +22,7 @@ from analysis.study_snapshot import Study
 from analysis.study_stats import study_stats
 from analysis.verification.accuracy_tables import intro
 from analysis.verification.accuracy_tables import tables as accuracy_tables
+from analysis.verification.paper import deformation_words
 from analysis.verification.stability import counts_text, near_chatter_text, outcome_grid, unstable_table
 from sim.text import counted
 
@@ -99,7 +100,7 @@ def accuracy_html(result: dict) -> str:
     img = drawn_png(lambda path: pareto_plot(raw, path, reference=result["meta"]["reference"]["setting"]))
     every = accuracy_tables(result)[0]
     return (f"<h2>{html_text(every.title)}</h2><p>{html_text(intro(result))} Simulated pulls, not participants. "
-            "Seed paper (its 2014 PC): plate-spring 14.69 ms, FEM 21.35 ms, mass-spring 23.08 ms per deformation.</p>"
+            f"Seed paper (its 2014 PC): {deformation_words()} per deformation.</p>"
             f"{html_grid(every)}" + figure_html("pareto", img))
 
 

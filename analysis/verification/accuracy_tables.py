@@ -13,6 +13,7 @@ from analysis.reports.formatting import rate_interval
 from analysis.reports.plots import pareto_plot
 from analysis.reports.table import Table, latex_tables, markdown_grid
 from analysis.verification.accuracy import MIN_DECIDED, QUICK_REASON, RATE_HALF_WIDTH, TARGET_WITHIN, class_best
+from analysis.verification.paper import deformation_words
 from analysis.verification.tissue_pulls import describe_no_reference
 from sim.jsonable import jsonable
 from sim.text import counted
@@ -106,7 +107,7 @@ def markdown(result: dict) -> str:
     for key, by, title in (("by_displacement", "displacement_mm", "displacement (mm)"), ("by_force_band", "force_band", "reference force")):
         lines += ["", f"Held-out samples per {title}: within the JND / decided (extrapolated, undecided):", "",
                   *markdown_grid(breakdown_table(result[key], by))]
-    lines += ["", "Seed paper, deformation time per frame on its 2014 PC: plate-spring 14.69 ms, FEM 21.35 ms, mass-spring 23.08 ms."]
+    lines += ["", f"Seed paper, deformation time per frame on its 2014 PC: {deformation_words()}."]
     return "\n".join(lines) + "\n"
 
 

@@ -232,11 +232,6 @@ def load_truth(scene, path: Path | str | None = None) -> Truth:
                  path_decided=np.concatenate([q["path_decided"] for q in parts]))
 
 
-def hand_vertices(scene, radius: float = TRUTH_RADIUS) -> np.ndarray:
-    """Surface vertices within `radius` of where each hand grasps (same hemisphere)."""
-    return np.unique(np.concatenate(list(hand_sets(scene, radius).values()))) if scene.spec.hands else np.zeros(0, dtype=np.int64)
-
-
 def hand_sets(scene, radius: float = TRUTH_RADIUS) -> dict:
     """{hand index: the surface vertices within `radius` of its grasp (same hemisphere)}."""
     mesh = scene.mesh

@@ -147,36 +147,3 @@ def load_mesh(path: str | Path = BRAIN_MESH) -> SurfaceMesh:
     if not np.all(np.isfinite(vertices)):
         raise MeshError(f"{path}: vertices contain NaN or infinity")
     return SurfaceMesh(vertices, triangles, labels)
-
-
-def icosphere(radius: float = 0.05, subdivisions: int = 2, center=(0.0, 0.0, 0.0)) -> SurfaceMesh:
-    """A procedural sphere for unit tests (12 * 4**s ... vertices)."""
-    t = (1.0 + 5**0.5) / 2.0
-    v = np.array(
-        [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
-         [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]],
-        dtype=np.float64,
-    )
-    f = np.array(
-        [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
-         [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
-         [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]],
-    )
-    verts = list(v / np.linalg.norm(v, axis=1, keepdims=True))
-
-    def mid(a: int, b: int, cache: dict) -> int:
-        key = (min(a, b), max(a, b))
-        if key not in cache:
-            m = verts[a] + verts[b]
-            verts.append(m / np.linalg.norm(m))
-            cache[key] = len(verts) - 1
-        return cache[key]
-
-    for _ in range(subdivisions):
-        cache: dict[tuple[int, int], int] = {}
-        nf = []
-        for a, b, c in f:
-            ab, bc, ca = mid(a, b, cache), mid(b, c, cache), mid(c, a, cache)
-            nf += [[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]
-        f = np.array(nf)
-    return SurfaceMesh(np.array(verts) * radius + np.asarray(center), f.astype(np.int32))

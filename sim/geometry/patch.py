@@ -67,18 +67,3 @@ def patch_area_points(mesh, vertex: int, radius: float, subdivisions: int = SUBD
     if len(pts) == 0:
         return mesh.vertices[vertex][None, :], np.ones(1)
     return pts, w / w.sum()
-
-
-def patch_vertex_weights(mesh, vertex: int, radius: float, subdivisions: int = SUBDIVISIONS) -> tuple[np.ndarray, np.ndarray]:
-    """The same mean on the surface vertices: (vertex ids (k,), weights (k,) summing to 1), so
-    that sum_i w_i u_i is the mean of the piecewise-linear surface displacement over the patch.
-    Vertices just outside the radius whose triangles reach into it get a share."""
-    sel, lam, parent, _, w = _patch_quadrature(mesh, vertex, radius, subdivisions)
-    if len(w) == 0:
-        return np.array([vertex], dtype=np.int64), np.ones(1)
-    ids = sel[parent].ravel()
-    vals = (lam * w[:, None]).ravel()
-    uniq, inv = np.unique(ids, return_inverse=True)
-    acc = np.zeros(len(uniq))
-    np.add.at(acc, inv, vals)
-    return uniq, acc / acc.sum()

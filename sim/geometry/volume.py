@@ -19,8 +19,6 @@ from scipy.spatial import cKDTree
 
 # Kuhn split of the unit cube (corner k has bits x=k&1, y=k>>1&1, z=k>>2&1): six tetrahedra
 # sharing the diagonal 0-7, each positively oriented.
-_CORNERS = np.array([[(k >> 0) & 1, (k >> 1) & 1, (k >> 2) & 1] for k in range(8)])
-_KUHN = np.array([[0, 1, 3, 7], [0, 3, 2, 7], [0, 2, 6, 7], [0, 6, 4, 7], [0, 4, 5, 7], [0, 5, 1, 7]])
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,22 +36,6 @@ class VolumeMesh:
 def cache_dir() -> Path:
     root = os.environ.get("BRAINSIM_CACHE") or Path.home() / ".cache" / "brainsim"
     return Path(root)
-
-
-def grid_tets(inside: np.ndarray, origin: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """Nodes and Kuhn tetrahedra of the kept cells of a grid. `inside`: (nx, ny, nz) bool."""
-    cells = np.argwhere(inside)  # (c, 3) cell indices
-    if len(cells) == 0:
-        return np.zeros((0, 3)), np.zeros((0, 4), dtype=np.int64)
-    corners = cells[:, None, :] + _CORNERS[None, :, :]  # (c, 8, 3) grid-node indices
-    dims = np.array(inside.shape) + 1
-    flat = np.ravel_multi_index(corners.reshape(-1, 3).T, dims).reshape(-1, 8)
-    used, inverse = np.unique(flat, return_inverse=True)
-    local = inverse.reshape(-1, 8)
-    ijk = np.stack(np.unravel_index(used, dims), axis=1)
-    nodes = origin + ijk * h
-    tets = local[:, _KUHN].reshape(-1, 4)
-    return nodes, tets
 
 
 def tet_volumes(nodes: np.ndarray, tets: np.ndarray) -> np.ndarray:

@@ -293,14 +293,6 @@ def forceps(opening: float) -> Shape:
     return concat(*forceps_parts(opening))
 
 
-def forceps_tips(opening: float) -> np.ndarray:
-    """The two jaw points (centre of each blade's gripping face at its tip), (2, 3) float64:
-    (+y blade, -y blade). Both at the origin when closed."""
-    R, t = _blade_pose(_check_opening(opening))
-    tip = t.copy()  # the +y jaw point is the origin before turning
-    return np.array([tip, tip * [1.0, -1.0, 1.0]])
-
-
 # ---------------------------------------------------------------------------------------------
 # the force arrow
 

@@ -72,7 +72,7 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, forc
     finite-strain law on P2 on body-fitted meshes, Richardson; shipped): calibrated with one stiffness scale on the
     calibration pulls, judged raw and calibrated on held-out pulls (within the JND with
     Wilson intervals, against the reference's band, direction error), time per tick and frame."""
-    from analysis.verification import accuracy, accuracy_tables
+    from analysis.verification import accuracy, accuracy_tables, paper
 
     target = staged(out_dir, force, folder=True, expect=ACCURACY_FILES, inputs={"--scene": scene_file})  # refused before the sweep
     kw = {"scene": scene_file, "young": young} | ({"test_places": test_places} if test_places else {})
@@ -112,7 +112,7 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, forc
     console = _console()
     console.print(t)
     console.print(best)
-    console.print("seed paper, ms per deformation frame (2014 PC): plate-spring 14.69, FEM 21.35, mass-spring 23.08")
+    console.print(f"seed paper, ms per deformation frame (2014 PC): {paper.deformation_words('')}")
     if quick:
         console.print(accuracy.QUICK_NOTE)
     if out_dir:

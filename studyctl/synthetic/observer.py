@@ -372,6 +372,12 @@ def _features(summaries: list[TrialSummary], traits: ObserverTraits, params: Obs
     }
 
 
+# the logit's reach per unit weight (assumptions, docs/synthetic.md "P(yes)"): accuracy from a useless to a
+# perfect model moves it by ACCURACY_SPAN, latency and vibration from never to always noticed by LATENCY_SPAN and
+# VIBRATION_SPAN; each safety event costs one, counted up to EVENTS_CAP
+ACCURACY_SPAN, LATENCY_SPAN, VIBRATION_SPAN, EVENTS_CAP = 2.0, 2.0, 3.0, 3.0
+
+
 def logit(item: str, feats: dict, traits: ObserverTraits, params: ObserverParams = DEFAULT) -> float:
     """The participant's latent judgement of a condition on `item` (logit of agreeing, or of a
     rating above the scale's middle): a yes/no question's P(yes) is its logistic function."""
@@ -383,12 +389,8 @@ def logit(item: str, feats: dict, traits: ObserverTraits, params: ObserverParams
     w_acc, w_lat, w_vib, w_safe = weights
     within = feats["within_jnd"]
     accuracy = min(within / P_WITHIN_PERFECT, 1.0) if math.isfinite(within) else 0.5  # nothing judged: neutral
-    return sign * (params.base_logit + traits.bias + w_acc * 2.0 * (accuracy - 0.5) - w_lat * 2.0 * feats["p_latency"]
-                   - w_vib * 3.0 * feats["p_vibration"] - w_safe * min(feats["events"], 3.0))
-
-
-def p_yes(item: str, feats: dict, traits: ObserverTraits, params: ObserverParams = DEFAULT) -> float:
-    return 1.0 / (1.0 + math.exp(-logit(item, feats, traits, params)))
+    return sign * (params.base_logit + traits.bias + w_acc * ACCURACY_SPAN * (accuracy - 0.5) - w_lat * LATENCY_SPAN * feats["p_latency"]
+                   - w_vib * VIBRATION_SPAN * feats["p_vibration"] - w_safe * min(feats["events"], EVENTS_CAP))
 
 
 LIKERT_SPREAD = 3.0  # the outer thresholds of a rating scale on the logit scale (assumption, docs/synthetic.md)

@@ -154,14 +154,6 @@ def primary_p(protocol, answers: pd.DataFrame, meas: pd.DataFrame) -> float:
     return min(holm(p)) if p else 1.0
 
 
-def simulate_answers(protocol, summaries: dict[str, list], n: int, rng: np.random.Generator, params=None) -> dict[str, np.ndarray]:
-    """Yes/no answers (n, conditions) per yes/no question of one simulated study (simulate_study)."""
-    df = simulate_study(protocol, summaries, n, rng, params)
-    labels = list(protocol.conditions)
-    return {q.id: df[df["item"] == q.id].pivot(index="code", columns="model", values="answer")[labels].to_numpy(int)
-            for q in protocol.asked("condition") if q.kind == "yes_no"}
-
-
 def cochran_p(x: np.ndarray) -> float:
     """Cochran's Q p-value; 1 when no participant differs between conditions (no evidence)."""
     if np.all(x == x[:, :1]):
@@ -253,23 +245,6 @@ def null_table(protocol, model: str | None = None, participants: int = 35, simul
     rows = [{"item": t, "false_positive_rate": hits[t] / simulations, "mc_error": se, "simulations": simulations, "alpha": alpha,
              "model": model, "participants": participants} for t in names]
     return pd.DataFrame(rows, columns=["item", "false_positive_rate", "mc_error", "simulations", "alpha", "model", "participants"])
-
-
-def expected_rates(protocol, summaries: dict[str, list], participants: int = 35, simulations: int = 200, seed: int = 0) -> pd.DataFrame:
-    """Mean yes rate per condition label and question over simulated studies, with its Monte
-    Carlo standard error. Columns: label, item, rate, mc_error."""
-    rng = np.random.default_rng(seed)
-    labels = list(protocol.conditions)
-    acc = {q.id: [] for q in protocol.asked("condition") if q.kind == "yes_no"}
-    for _ in range(simulations):
-        for q, x in simulate_answers(protocol, summaries, participants, rng).items():
-            acc[q].append(x.mean(axis=0))
-    rows = []
-    for q, per in acc.items():
-        per = np.array(per)
-        for j, label in enumerate(labels):
-            rows.append({"label": label, "item": q, "rate": float(per[:, j].mean()), "mc_error": float(per[:, j].std(ddof=1) / np.sqrt(len(per)))})
-    return pd.DataFrame(rows, columns=["label", "item", "rate", "mc_error"])
 
 
 def plot_power(table: pd.DataFrame, path) -> None:
