@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from analysis.errors import StudyError
 from sim.text import TEXT_MOST, quoted, text_problem
 
 KINDS = ("yes_no", "likert", "vas", "choice", "text")
@@ -44,7 +45,7 @@ class Question:
         return self.kind != "text"
 
 
-class AnswerError(ValueError):
+class AnswerError(StudyError, ValueError):
     """A value the question's kind does not allow (the message names the allowed values)."""
 
 

@@ -15,8 +15,10 @@ import socket
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 
+from sim.errors import SimError
 
-class SweepError(Exception):
+
+class SweepError(SimError):
     """A sweep could not run (e.g. the Dask scheduler is unreachable)."""
 
 

@@ -13,7 +13,7 @@ import re
 import tomllib
 from pathlib import Path
 
-from sim.errors import InputFileError
+from sim.errors import InputFileError, SimError
 from sim.files import TOML_MAX_BYTES, read_input
 
 _PART = r'(?:[A-Za-z0-9_-]+|"[^"\\]*"|\'[^\']*\')'  # bare, or quoted (a model named "package.module:Class")
@@ -27,7 +27,7 @@ _BASIC_END = re.compile(r'\\.|["\n]', re.S)  # in a one-line basic string: an es
 _MULTI_END = re.compile(r'\\.|"""', re.S)
 
 
-class TomlFileError(Exception):
+class TomlFileError(SimError):
     """A file that cannot be read as TOML; the message is one line naming the file (and line)."""
 
 

@@ -208,3 +208,28 @@ def test_the_papers_figures_are_typed_once_in_data():
     typed = re.compile("|".join(re.escape(f"{ms:.2f}") for ms in times.values()))
     files = [p for r in ("sim", "studyctl", "analysis", "bench", "scripts") for p in (ROOT / r).rglob("*.py")]
     assert [str(p.relative_to(ROOT)) for p in files if typed.search(p.read_text())] == []
+
+
+def test_every_library_error_is_under_the_two_bases():
+    """One vocabulary of errors (issue 66): every exception class the libraries define derives
+    from sim.errors.SimError or analysis.errors.StudyError, so the CLI turns each into one line in
+    one place (studyctl/cli/common.py); only the CLI's own click exceptions stand apart."""
+    bases: dict[str, list[str]] = {}
+    where: dict[str, str] = {}
+    for p in sorted(q for r in ("sim", "analysis", "studyctl") for q in (ROOT / r).rglob("*.py")):
+        for node in ast.walk(ast.parse(p.read_text(), filename=str(p))):
+            if isinstance(node, ast.ClassDef):
+                names = [b.attr if isinstance(b, ast.Attribute) else getattr(b, "id", "") for b in node.bases]
+                bases[node.name], where[node.name] = names, str(p.relative_to(ROOT))
+
+    def roots(name: str, seen=()) -> set[str]:
+        if name in ("SimError", "StudyError") or name not in bases or name in seen:
+            return {name}
+        return set().union(*(roots(b, (*seen, name)) for b in bases[name])) if bases[name] else {name}
+
+    builtin = {n for n in dir(__builtins__ if isinstance(__builtins__, dict) else __builtins__) if n.endswith(("Error", "Exception"))} | {
+        "Exception", "BaseException", "ClickException"}
+    errors = {n for n in bases if roots(n) & (builtin | {"SimError", "StudyError"})}
+    assert len(errors) > 25
+    stray = sorted(f"{where[n]} {n}" for n in errors if not roots(n) & {"SimError", "StudyError"} and not where[n].startswith("studyctl/cli/"))
+    assert stray == []

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.errors import Interrupted
 from analysis.reports.table import Table, markdown_grid
 from analysis.verification.accuracy import (
     TICK_TIMING_CALLS,
@@ -41,7 +42,7 @@ from analysis.verification.stability import make_cases, run_case
 from analysis.verification.tissue_pulls import shipped_solve_seconds, unsolved
 from sim.errors import SimError
 from sim.models.api import API_VERSION, BUDGETS
-from sim.models.registry import ModelLoadError, info, model_class
+from sim.models.registry import info, model_class
 from sim.pulls import make_pulls, scene_with, test_pulls
 from sim.scene import ModelSpec, Scene, clamp_limit, load_scene
 
@@ -50,7 +51,7 @@ MAX_STEP_N = 0.1  # N per STEP_M: 1000 N/m, above the Omni's 700 N/m stable stif
 ZERO_N = 1e-6  # force at zero displacement
 
 
-class CheckError(Exception):
+class CheckError(SimError):
     """A model check that cannot run (the model does not load, its scene does not)."""
 
 
@@ -323,7 +324,7 @@ def estimate(name: str, cfg: CheckConfig, build_s: float, timed: list[dict]) -> 
             "reference_solves": int(sum(todo.values())), "reference_solves_s": ref_s, "pulls": len(pulls)}
 
 
-class CheckInterrupted(Exception):
+class CheckInterrupted(Interrupted):
     """Stopped (Ctrl-C) during a check: `card` holds the stages that finished."""
 
     def __init__(self, card: dict, stage: str):
@@ -349,7 +350,7 @@ def check_model(name: str, cfg: CheckConfig, progress=None) -> dict:
     try:
         cls = model_class(name)
         scene = _scene(name, cfg.scene)
-    except (ModelLoadError, SimError) as exc:
+    except SimError as exc:  # a model that does not load, or a scene it refuses
         raise CheckError(str(exc)) from None
     i = info(name)
     ui = progress or _Quiet()

@@ -64,6 +64,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from sim.errors import SimError
 from sim.laws import Constant, Coupling, Linearised, PairTable, RadialTable, TensorTable
 from sim.models.base import BUDGETS, MAX_PULL_M, Contact, Vec3
 from sim.tomltable import REQUIRED
@@ -76,7 +77,7 @@ API_VERSION = 1
 
 
 
-class CapabilityError(Exception):
+class CapabilityError(SimError):
     """A model asked for a capability it does not declare."""
 
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
+from sim.errors import SimError
 from sim.models.api import API_VERSION, TissueModel, declaration_problem, default_problem, options_of
 
 GROUP = "brainsim.models"
@@ -23,7 +24,7 @@ HOME = "brainsim-study"  # the distribution of the built-in models
 PATH_NAME = re.compile(r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")  # package.module:Class
 
 
-class ModelLoadError(Exception):
+class ModelLoadError(SimError):
     """A model that cannot be used: the message names it and the cause, in one line."""
 
 

@@ -19,7 +19,6 @@ from analysis.errors import Interrupted, StudyError
 from brainsim_assets import path as _asset
 from sim.errors import SimError
 from sim.jsonable import jsonable
-from sim.sweep import SweepError
 from studyctl.outputs import Staged, replaced_line
 
 DEFAULT_PROTOCOL = _asset("protocols/brain_pull_2015.toml")
@@ -44,7 +43,7 @@ class _Group(click.Group):
         except KeyboardInterrupt:  # Ctrl-C anywhere else: one line (writes are transactions: none is half-done)
             raise _Stopped(f"{ctx.command_path} {ctx.invoked_subcommand or ''}".rstrip()
                            + ": interrupted (Ctrl-C); nothing half-written") from None
-        except (SimError, StudyError, SweepError) as exc:
+        except (SimError, StudyError) as exc:
             raise click.ClickException(str(exc)) from None
         except sqlite3.OperationalError as exc:  # e.g. another process held the database for over 30 s
             if "readonly" in str(exc):  # made read-only while open (the library refuses one before it writes)

@@ -58,12 +58,9 @@ def model_list(as_json: bool):
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 def model_describe(name: str, as_json: bool):
     """A model's options (units, defaults, bounds), capabilities and where it comes from."""
-    from sim.models.registry import ModelLoadError, describe
+    from sim.models.registry import describe
 
-    try:
-        out = describe(name)
-    except ModelLoadError as exc:
-        raise click.ClickException(str(exc)) from None
+    out = describe(name)  # a model that does not load is one line (SimError)
     if as_json:
         _print_json(out)
         return
@@ -97,14 +94,11 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
     Exits 1 on a violation, 130 when interrupted."""
     import json
 
-    from analysis.verification.model_check import CheckConfig, CheckError, CheckInterrupted, check_model, scorecard_md
+    from analysis.verification.model_check import CheckConfig, CheckInterrupted, check_model, scorecard_md
     from sim.jsonable import jsonable
-    from sim.models.registry import ModelLoadError, canonical, model_class
+    from sim.models.registry import canonical, model_class
 
-    try:  # a model that does not load is one line (naming it as typed), before any progress
-        model_class(name)
-    except ModelLoadError as exc:
-        raise click.ClickException(str(exc)) from None
+    model_class(name)  # a model that does not load is one line (naming it as typed), before any progress
     name = canonical(name)  # plate-spring is plate_spring
     # refused before the check runs; the scorecard's format is its name's (.md or .json)
     target = staged(out_file, force, inputs={"--scene": scene_file})
@@ -119,8 +113,6 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
     try:
         with _StageReport(4 if not contract_only else 2) as report:
             card = check_model(name, CheckConfig(scene=scene_file, quick=quick, contract_only=contract_only), progress=report)
-    except CheckError as exc:
-        raise click.ClickException(str(exc)) from None
     except CheckInterrupted as stop:
         emit(stop.card)
         click.echo(f"Error: model check {name}: {stop}; the scorecard above holds the stages that finished", err=True)
