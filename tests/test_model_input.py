@@ -96,3 +96,15 @@ def test_reasonable_input_still_works():
     res = CliRunner().invoke(cli, [*PLATE_SPRING, "--displacement", "0.012", "--json"])
     assert res.exit_code == 0, res.output
     assert json.loads(res.output)["force"] > 0
+
+
+def test_the_library_pull_refuses_a_grasp_out_of_reach_as_the_command_does():
+    """The grasp reach is the library's rule (`sim.geometry.patch.grasp_problem`): `static_pull`
+    called directly refuses a grasp 8.6 m off the brain with the command's words, before meshing."""
+    from sim.errors import ParameterError
+    from sim.models.fem import static_pull
+    from sim.scene import DEFAULT_SCENE, build_scene
+
+    with pytest.raises(ParameterError, match=r"^grasp: 5,5,5 is 8595 mm from the brain surface; allowed: within 10 mm of it "
+                                             r"\(the simulator's grasp reach\)$"):
+        static_pull(build_scene(DEFAULT_SCENE), (5.0, 5.0, 5.0), (-0.005, 0.0, 0.0), 0.008)

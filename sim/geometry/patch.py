@@ -22,6 +22,17 @@ GRASP_RADIUS = 0.005  # m: the default patch, about the bite of a pair of tissue
 GRASP_REACH_M = 0.01  # a button press farther than this from the surface grasps nothing
 
 
+def grasp_problem(mesh, point) -> str | None:
+    """Why a grasp at `point` (m) grasps nothing: farther than `GRASP_REACH_M` from the surface
+    (the message names the distance and the reach); None when it is within reach."""
+    p = np.asarray(point, dtype=np.float64)
+    dist = float(np.linalg.norm(mesh.vertices[mesh.nearest_vertex(p)] - p))
+    if dist <= GRASP_REACH_M:
+        return None
+    return (f"{','.join(f'{x:g}' for x in point)} is {dist * 1e3:.4g} mm from the brain surface; "
+            f"allowed: within {GRASP_REACH_M * 1e3:g} mm of it (the simulator's grasp reach)")
+
+
 def _sub_triangle_centroids(n: int) -> np.ndarray:
     """Barycentric coordinates (s, 3) of the centroids of the n^2 similar sub-triangles."""
     bc = []

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from sim.geometry.patch import GRASP_REACH_M
+from sim.geometry.patch import GRASP_REACH_M, grasp_problem
 from sim.models.base import MAX_PULL_M, pull_problem
 from sim.scene import DEFAULT_SCENE
 from studyctl.cli.common import (
@@ -216,7 +216,7 @@ def model_plate_spring(params_file: Path, variant: str, force, displacement, as_
     Without --force or --displacement it prints the layer table, the jumps of X(F) and the
     delay budget.
     """
-    from sim.models.plate_spring import PlateSpring, load_params
+    from sim.models.plate_spring import HAPTIC_PERIOD_S, PlateSpring, load_params
 
     if force is not None and displacement is not None:
         raise click.UsageError("give --force or --displacement, not both")
@@ -256,7 +256,7 @@ def model_plate_spring(params_file: Path, variant: str, force, displacement, as_
             for j in stack.jumps
         ],
         "capacity": {"deformation": stack.capacity_x, "force": stack.capacity_f},
-        "delay_budget": {"period_s": 1e-3, "layers_in_budget": stack.layers_in_budget()},
+        "delay_budget": {"period_s": HAPTIC_PERIOD_S, "layers_in_budget": stack.layers_in_budget()},
     }
     if as_json:
         _print_json(table)
@@ -294,16 +294,9 @@ def _check_grasp(grasp, mesh) -> None:
     (a button press that far away grasps nothing in a run)."""
     if grasp is None:
         return
-    import numpy as np
-
-    p = np.asarray(grasp, dtype=np.float64)
-    dist = float(np.linalg.norm(mesh.vertices[mesh.nearest_vertex(p)] - p))
-    reach = GRASP_REACH_M
-    if dist > reach:
+    if (problem := grasp_problem(mesh, grasp)) is not None:
         ctx = click.get_current_context()
-        param = next(q for q in ctx.command.params if q.name == "grasp")
-        raise click.BadParameter(f"{','.join(f'{x:g}' for x in grasp)} is {dist * 1e3:.4g} mm from the brain surface; "
-                                 f"allowed: within {reach * 1e3:g} mm of it (the simulator's grasp reach)", ctx, param)
+        raise click.BadParameter(problem, ctx, next(q for q in ctx.command.params if q.name == "grasp"))
 
 
 @model.command("fem")
@@ -321,6 +314,7 @@ def _check_grasp(grasp, mesh) -> None:
 def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacement, steps: int, order, as_json: bool):
     """Pull the brain once with the finite element model: force, displacement, phase times."""
     from sim.models.fem import static_pull
+    from sim.models.fem.linear import LOCKING_POISSON
     from sim.scene import build_scene
 
     scene = build_scene(scene_file)
@@ -351,7 +345,7 @@ def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacemen
     console.print(f"force on the hand: ({f[0]:.4g}, {f[1]:.4g}, {f[2]:.4g}) N, |F| = {out['force_magnitude_n']:.4g} N")
     console.print(f"largest displacement: {out['max_displacement_m'] * 1e3:.3f} mm")
     if out["locking"]:
-        console.print("warning: the elements lock at this Poisson ratio (linear tetrahedra from 0.4, quadratic from 0.49): "
+        console.print(f"warning: the elements lock at this Poisson ratio (linear tetrahedra from {LOCKING_POISSON[1]:g}, quadratic from {LOCKING_POISSON[2]:g}): "
                       "forces are overestimated; try --order 2")
     if formulation != "linear":
         console.print(

@@ -7,7 +7,7 @@ import time
 import numpy as np
 
 from sim.errors import ParameterError
-from sim.geometry.patch import GRASP_RADIUS
+from sim.geometry.patch import GRASP_RADIUS, grasp_problem
 from sim.geometry.tetmesh import body_volume
 from sim.geometry.volume import describe
 from sim.models.base import pull_problem
@@ -79,6 +79,8 @@ def static_pull(scene, grasp, displacement, resolution: float | None = None, for
     `stretch_range` (the principal stretches the law's data cover), the state's support.
     """
     d, resolution, order, radius = _options(scene, formulation, displacement, resolution, order)
+    if (problem := grasp_problem(scene.mesh, grasp)) is not None:
+        raise ParameterError(f"grasp: {problem}")
     times: dict[str, float] = {}
     t0 = time.perf_counter()
     mesh = scene.mesh
