@@ -19,13 +19,13 @@ from sim.models.fem.newton import NewtonReport
 def _element_arrays(fem: LinearFem, elements: np.ndarray | None) -> tuple:
     """Contiguous tets, gradients and element matrices of `elements` (all when None) for the
     compiled kernels; kept for the last set asked for (a grasp's active elements, every frame)."""
-    cached = getattr(fem, "_element_arrays", None)
+    cached = fem.solver_cache.get("element_arrays")
     if cached is not None and cached[0] is elements:
         return cached[1]
     sel = slice(None) if elements is None else elements
     arrays = (np.ascontiguousarray(fem.tets[sel], dtype=np.int64), np.ascontiguousarray(fem.grads[sel]),
               np.ascontiguousarray(fem.element_matrices[sel]))
-    fem._element_arrays = (elements, arrays)
+    fem.solver_cache["element_arrays"] = (elements, arrays)
     return arrays
 
 
@@ -245,7 +245,7 @@ def warped_active(fem: LinearFem, R: np.ndarray, active: np.ndarray) -> sp.csc_m
     reduced stiffness plus the change of those elements, added straight into a copy of its
     values (where each element entry lands is found once per active set; the matrix is
     symmetric, so its CSR arrays serve as CSC)."""
-    cached = getattr(fem, "_warp_map", None)
+    cached = fem.solver_cache.get("warp_map")
     if cached is None or cached[0] is not active:
         Kr = fem.reduced
         Kr.sum_duplicates()  # canonical: sorted indices, so keys below increase
@@ -261,7 +261,7 @@ def warped_active(fem: LinearFem, R: np.ndarray, active: np.ndarray) -> sp.csc_m
         pos = np.minimum(np.searchsorted(keys, query), len(keys) - 1)
         if not np.array_equal(keys[pos], query):  # an entry outside the pattern (a dropped zero): assemble
             pos = None
-        fem._warp_map = cached = (active, valid, pos)
+        fem.solver_cache["warp_map"] = cached = (active, valid, pos)
     _, valid, pos = cached
     K5 = fem.element_matrices[active].reshape(-1, 4, 3, 4, 3)
     Kw = np.einsum("mij,majbk,mlk->maibl", R, K5, R, optimize=True)  # R K_ab R^T for every 3x3 block

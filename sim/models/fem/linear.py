@@ -100,6 +100,9 @@ class LinearFem(TetSpace):
         self.timings.assembly_s = time.perf_counter() - start
         self._stiffness: sp.csr_matrix | None = None
         self._factor: Factor | None = None
+        # what a solver on this mesh keeps between frames, by name (the corotational solver: the
+        # active elements' arrays and their warp map, sim.models.fem.corotational)
+        self.solver_cache: dict = {}
 
     @property
     def stiffness(self) -> sp.csr_matrix:

@@ -59,15 +59,15 @@ def _solve(model, contact, d: np.ndarray, formulation: str, steps: int, law=None
         want = stretch_range is not None and formulation == "finite-strain"
         held = hold(system, contact.data.W, d, first_step=1.0 / steps, sensitivity=want)
         u_part, force, rep = held.u.reshape(-1, 3), held.multipliers, held.report
-        rep.completed_fraction = float(held.fraction_done)
-        if stretch_range is not None and formulation == "finite-strain":
-            rep.support = support(system, held.u, stretch_range, held.sensitivities[-1] if held.sensitivities else None)
+        sup = support(system, held.u, stretch_range, held.sensitivities[-1] if held.sensitivities else None) if want else None
+        report = _report(rep, float(held.fraction_done), sup)
     else:
         u_part, force, rep = corotational_solve(part, contact.data.W, contact.data.U, d, steps=steps)
+        report = _report(rep)
     u = np.zeros((model.n_model_nodes, 3))
     start = model.offsets[contact.data.part]
     u[start : start + len(u_part)] = u_part
-    return np.asarray(force), u, _report(rep)
+    return np.asarray(force), u, report
 
 
 def static_pull(scene, grasp, displacement, resolution: float | None = None, formulation: str = "linear", steps: int = 5,
@@ -114,7 +114,9 @@ def static_pull(scene, grasp, displacement, resolution: float | None = None, for
     return out
 
 
-def _report(rep: NewtonReport) -> dict:
+def _report(rep: NewtonReport, completed_fraction: float | None = None, support_: dict | None = None) -> dict:
+    """The solver's report as the command prints it; `completed_fraction` (default: all of it when
+    converged, unknown otherwise) and the state's support where the solve computed them."""
     return {
         "converged": rep.converged,
         "load_steps": rep.load_steps,
@@ -125,7 +127,7 @@ def _report(rep: NewtonReport) -> dict:
         "tangent_updates": rep.tangent_updates,
         # a solve that stopped early returns the state of its last solved load step
         "completed_steps": rep.completed_steps,
-        "completed_fraction": getattr(rep, "completed_fraction", 1.0 if rep.converged else None),
+        "completed_fraction": completed_fraction if completed_fraction is not None else (1.0 if rep.converged else None),
         "reason": rep.reason,
-        **({"support": rep.support} if getattr(rep, "support", None) is not None else {}),
+        **({"support": support_} if support_ is not None else {}),
     }
