@@ -439,3 +439,20 @@ def fitted_range(material_path) -> tuple[tuple[float, float] | None, str]:
     except InputError as exc:
         return None, str(exc)
     return principal_stretch_range(curves), f"{', '.join(p.name for p in paths)}, region {region}"
+
+
+def chosen_material(rep: dict, region: str, command: str) -> tuple[Hyperelastic, dict]:
+    """The law `fit_material` chose and its provenance for a material file: the data files and
+    their SHA-256, the published source when they are the shipped ones, the fit's method, errors
+    (left-out ones too) and 95% intervals, and the `command` that made it."""
+    chosen = next(f for f in rep["laws"] if f["law"] == rep["fit"])
+    shipped = {Path(DATA_FILE).name, Path(SHEAR_FILE).name}
+    prov = {"data": Path(rep["data"]["path"]).name, "sha256": rep["data"]["sha256"], "region": region,
+            **{f"data_{f['mode']}": Path(f["path"]).name for f in rep["files"][1:]},
+            **{f"sha256_{f['mode']}": f["sha256"] for f in rep["files"][1:]},
+            "source": "Budday et al. 2017, Acta Biomaterialia 48:319-340 (as tabulated by Linka et al. 2023)"
+            if all(Path(f["path"]).name in shipped for f in rep["files"]) else "",
+            "fit": rep["method"], **{k: v for k, v in rep.items() if k.startswith("rms_rel") or k == "shear_worst_rel"},
+            **{f"left_out_rms_rel_{m}": v for m, v in (rep.get("left_out") or {}).items()},
+            **{f"ci95_{k}": v for k, v in chosen["ci95"].items()}, "command": command}
+    return law_of(chosen), prov

@@ -88,7 +88,7 @@ def calibrate_material(ctx, data_files, region, laws, bulk_ratio, out_file, forc
     """Fit finite-strain laws to tissue data (uniaxial tension and compression, simple shear: each
     file's mode read from its columns, several fitted together), report each mode's error and
     each mode's error when left out of the fit, and choose one law by AICc (docs/material.md)."""
-    from analysis.verification.material_fit import DATA_FILE, FIT_LAWS, SHEAR_FILE, fit_material, law_of
+    from analysis.verification.material_fit import DATA_FILE, FIT_LAWS, chosen_material, fit_material
     from sim.hyperelastic import BULK_RATIO
     from sim.material import material_toml
 
@@ -105,17 +105,7 @@ def calibrate_material(ctx, data_files, region, laws, bulk_ratio, out_file, forc
                        f"{region} repeated an earlier row exactly (same strain and stress) and counted once; "
                        f"{f['points']} points fitted", err=True)
     if out_file:
-        chosen = next(f for f in rep["laws"] if f["law"] == rep["fit"])
-        law = law_of(chosen)
-        shipped = {Path(DATA_FILE).name, Path(SHEAR_FILE).name}
-        prov = {"data": Path(rep["data"]["path"]).name, "sha256": rep["data"]["sha256"], "region": region,
-                **{f"data_{f['mode']}": Path(f["path"]).name for f in rep["files"][1:]},
-                **{f"sha256_{f['mode']}": f["sha256"] for f in rep["files"][1:]},
-                "source": "Budday et al. 2017, Acta Biomaterialia 48:319-340 (as tabulated by Linka et al. 2023)"
-                if all(Path(f["path"]).name in shipped for f in rep["files"]) else "",
-                "fit": rep["method"], **{k: v for k, v in rep.items() if k.startswith("rms_rel") or k == "shear_worst_rel"},
-                **{f"left_out_rms_rel_{m}": v for m, v in (rep.get("left_out") or {}).items()},
-                **{f"ci95_{k}": v for k, v in chosen["ci95"].items()}, "command": command}
+        law, prov = chosen_material(rep, region, command)
         write_output(target, material_toml(law, prov, f"{region}: {law.describe()}\nWritten by `{command}`."))
     if as_json:
         _print_json({k: v for k, v in rep.items()} | {"out": str(out_file) if out_file else None})
