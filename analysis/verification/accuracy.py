@@ -246,7 +246,9 @@ def calibration_curve(scene_path, xs, jobs: int | None = None, progress=None) ->
     ok = np.array([[c["decided"] for c in row] for row in rows]).ravel()
     if not ok.any():
         raise ReferenceDataError("calibration curve: the truth is decided at no sample of the calibration pulls")
-    how = (f"the converged reference ({law.describe()}, finite strain on P2 on the body-fitted "
+    white = scene.spec.material.white_matter
+    body = law.describe() + (f" as grey matter, {white.describe()} as white matter inside FreeSurfer's white surface" if white else "")
+    how = (f"the converged reference ({body}, finite strain on P2 on the body-fitted "
            f"{', '.join(f'{s:g}' for s in DEFAULT_SIZES_MM)} mm meshes, Richardson-extrapolated; "
            f"the accuracy bench's {len(pulls)} calibration pulls, at the {int(ok.sum())} of {ok.size} samples where the truth is "
            f"decided: {_not_decided_words([c for row in rows for c in row])})")
