@@ -15,6 +15,7 @@ from pathlib import Path
 
 from analysis.errors import InputError, StoreError
 from analysis.questions import shown
+from analysis.reports.formatting import spreadsheet_safe
 from analysis.trace_files import trace_dir, trace_file
 from sim.text import TEXT_MOST, text_problem
 from studyctl.outputs import refuse_inputs, write_file
@@ -23,7 +24,6 @@ from studyctl.store import Store, now, records, roster, snapshot
 from studyctl.store import sessions as session_rows
 from studyctl.store.participant_fields import read_fields
 from studyctl.study import answer_key
-from studyctl.text import spreadsheet_safe
 
 
 def _person(store: Store, code: str) -> dict:

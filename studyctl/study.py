@@ -8,11 +8,11 @@ import re
 from pathlib import Path
 
 import pandas as pd
-from pandas.api.types import is_object_dtype, is_string_dtype
 
 from analysis.csvfiles import read_csv
 from analysis.errors import InputError, StoreError
 from analysis.questions import NOT_PER_TRIAL, SESSION, AnswerError, allowed, parse_answer
+from analysis.reports.formatting import spreadsheet_frame
 from sim.text import NAME_MOST, TITLE_MOST, quoted, text_problem
 from studyctl.fields import field_rows, parse_fields
 from studyctl.outputs import Staged, refuse_existing, write_file
@@ -21,7 +21,6 @@ from studyctl.session.traces import traces_frame
 from studyctl.store import EXPORT_TABLES, Store, now, roster
 from studyctl.store.participant_fields import group_of
 from studyctl.store.tables import table_rows
-from studyctl.text import spreadsheet_safe
 
 CODE_CHARS = set("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_")
 
@@ -312,12 +311,3 @@ def _pyarrow():
 def _failed_import(name: str, exc: BaseException) -> str:
     reason = " ".join(str(exc).split())[:200] or type(exc).__name__  # one line, however long the loader's message
     return f"export --format parquet needs {name}, which failed to import: {reason}; pip install 'brainsim-study[parquet]'"
-
-
-def spreadsheet_frame(df: pd.DataFrame) -> pd.DataFrame:
-    """A pandas DataFrame whose text cells are `spreadsheet_safe` (numbers stay numbers)."""
-    out = df.copy()
-    for col in out.columns:
-        if is_object_dtype(out[col]) or is_string_dtype(out[col]):
-            out[col] = out[col].map(spreadsheet_safe)
-    return out

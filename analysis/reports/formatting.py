@@ -14,6 +14,7 @@ import tempfile
 from pathlib import Path
 
 import pandas as pd
+from pandas.api.types import is_object_dtype, is_string_dtype
 
 # every HTML report's look
 STYLE = """<style>
@@ -76,3 +77,23 @@ def figure_png(fig, close) -> str:
 def figure_html(alt: str, png: str) -> str:
     """An inlined picture (`png`: base64) with its alternative text (escaped by the caller)."""
     return f'<figure><img alt="{alt}" src="data:image/png;base64,{png}"></figure>'
+
+
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r")  # a spreadsheet reads a cell starting so as a formula
+
+
+def spreadsheet_safe(value):
+    """A text cell a spreadsheet would run as a formula, prefixed with ' (shown, not run; the OWASP
+    CSV-injection rule); any other value as it is."""
+    if isinstance(value, str) and value.startswith(FORMULA_START):
+        return "'" + value
+    return value
+
+
+def spreadsheet_frame(df: pd.DataFrame) -> pd.DataFrame:
+    """A pandas DataFrame whose text cells are `spreadsheet_safe` (numbers stay numbers)."""
+    out = df.copy()
+    for col in out.columns:
+        if is_object_dtype(out[col]) or is_string_dtype(out[col]):
+            out[col] = out[col].map(spreadsheet_safe)
+    return out

@@ -36,7 +36,7 @@ def metrics_cmd(db, fmt, out_file, force):
         text = json.dumps(jsonable({"note": note, "synthetic": bool(table["synthetic"].any()),
                                     "metrics": [vars(m) for m in METRICS], "rows": table.to_dict(orient="records")}), indent=2) + "\n"
     else:
-        from studyctl.study import spreadsheet_frame
+        from analysis.reports.formatting import spreadsheet_frame
 
         text = spreadsheet_frame(table).to_csv(index=False)
     if target:

@@ -12,7 +12,6 @@ import click
 from brainsim_assets import path as _asset
 from sim.errors import InputFileError
 from sim.files import DATA_MAX_BYTES, read_input
-from sim.jsonable import jsonable
 from sim.text import counted
 from studyctl.cli.common import (
     DB,
@@ -59,8 +58,7 @@ HOLM = click.option("--holm", "holm_scope", type=click.Choice(["family", "questi
 def report_table1(db, holm_scope, fmt, out_file, force, accuracy_file, stability_file):
     """The seed paper's Table 1 with Wilson intervals, Cochran's Q and deformation times
     (html: one self-contained file with the statistics and plots)."""
-    from analysis import table1
-    from analysis.study_stats import table1_markdown
+    from analysis.reports.study_report import jnd_text, table1_text
 
     target = staged(out_file, force, inputs={"--db": db, "--accuracy": accuracy_file, "--stability": stability_file})
     fmt = output_format(out_file, fmt, TABLE1_FORMATS, "md", "report table1")
@@ -69,58 +67,18 @@ def report_table1(db, holm_scope, fmt, out_file, force, accuracy_file, stability
         if fmt == "csv":
             raise click.ClickException(f"--format {fmt}: the study asks no questions (no Table 1); its discrimination task "
                                        "reports as md, html, latex or json (`studyctl report jnd`)")
-        _emit(_jnd_text(study, fmt), target)
+        _emit(jnd_text(study, fmt), target)
         return
     if _no_answers(study, fmt == "json"):
         return
     accuracy = _load_bench(accuracy_file, "accuracy", "rows") if accuracy_file else None
     stability = _load_bench(stability_file, "stability", "cases") if stability_file else None
-    if fmt == "md":
-        text = table1_markdown(study, holm_scope)
-        if accuracy:
-            from analysis.verification.accuracy_tables import markdown
-
-            text += "\n## Model error against run time\n\n" + markdown(accuracy)
-        if stability:
-            from analysis.verification.stability import markdown as stability_md
-
-            text += "\n## Numerical stability\n\n" + stability_md(stability)
-    elif fmt == "latex":
-        from analysis.reports.report import latex
-        from analysis.reports.table import latex_tables
-
-        text = latex(study, holm_scope)
-        if accuracy:
-            from analysis.verification.accuracy_tables import tables as accuracy_tables
-
-            text += latex_tables(accuracy_tables(accuracy), "tab:accuracy")
-    elif fmt == "html":
-        from analysis.reports.report import html
+    traces = None
+    if fmt == "html":
         from studyctl.synthetic.force_traces import force_traces
 
-        text = html(study, force_traces(study.protocol), accuracy=accuracy, stability=stability, holm_scope=holm_scope)
-    elif fmt == "csv":  # the flag and N travel with the table
-        facts = table1.study_facts(study)
-        from analysis.faults import rates_with_events
-        from studyctl.study import spreadsheet_frame
-
-        rows = rates_with_events(table1.rates(study), table1.events(study))
-        text = spreadsheet_frame(rows.assign(participants=facts.participants, synthetic=facts.synthetic)).to_csv(index=False)
-    else:
-        from analysis.study_stats import study_stats
-
-        r, q = table1.rates(study), table1.cochran(study)
-        text = json.dumps(jsonable({"facts": table1.study_facts(study).as_dict(), "rates": r.to_dict(orient="records"),
-                                     "cochran": q.to_dict(orient="records"), "kinds": study_stats(study, r, q, holm_scope).kinds.as_dict(),
-                                     "deformation": table1.deformation(study).to_dict(orient="records"),
-                                     "faults": [e.as_dict() for e in table1.events(study)]}
-                                    | ({"jnd": _jnd(study)} if study.protocol.tasks else {})), indent=2)
-    if study.protocol.tasks and fmt in ("md", "latex"):
-        text += ("\n## Stiffness discrimination\n\n" if fmt == "md" else "\n") + _jnd_text(study, fmt)
-    elif study.protocol.tasks and fmt == "html":
-        from analysis.discrimination.jnd import html_section
-
-        text = text.replace("</body></html>", html_section(_jnd(study), study) + "\n</body></html>")
+        traces = force_traces(study.protocol)
+    text = table1_text(study, fmt, holm_scope, accuracy, stability, traces)
     _emit(text, target)
 
 
@@ -172,21 +130,6 @@ def _load_bench(path: Path, kind: str, key: str) -> dict:
     return data
 
 
-def _jnd(study) -> dict:
-    from analysis.discrimination.jnd import jnd_results
-
-    return jnd_results(study)
-
-
-def _jnd_text(study, fmt: str) -> str:
-    from analysis.discrimination import jnd
-
-    res = _jnd(study)
-    if fmt == "json":
-        return json.dumps(jsonable(res), indent=2) + "\n"
-    return jnd.html(res, study) if fmt == "html" else jnd.latex(res) if fmt == "latex" else jnd.markdown(res)
-
-
 @report.command("jnd")
 @DB
 @click.option("--format", "fmt", type=click.Choice(FORMATS), default=None, show_default=FORMAT_DEFAULT, help="The output's format.")
@@ -202,8 +145,9 @@ def report_jnd(db, fmt, as_json, out_file, force):
     study = read_snapshot(db)
     if not study.protocol.tasks:
         raise click.ClickException(f"{db}: the study's protocol has no discrimination task ([[tasks]]); nothing to report")
-    text = _jnd_text(study, fmt)
-    _emit(text, target)
+    from analysis.reports.study_report import jnd_text
+
+    _emit(jnd_text(study, fmt), target)
 
 
 @report.command("plots")
