@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from analysis.records import Record
+from analysis.result_records import Record
 
 
 @dataclass(frozen=True)

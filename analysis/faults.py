@@ -28,8 +28,8 @@ from dataclasses import dataclass
 
 import pandas as pd
 
-from analysis.records import Record
 from analysis.reports.table import Table
+from analysis.result_records import Record
 
 FAULT_KINDS = ("nan_force", "model_fault", "model_unstable")
 SAFETY_KINDS = ("force_clamped", "force_budget", "force_chatter", "suspended", "deadline_streak", "device_fault", "nan_position", "position_jump",

@@ -3,7 +3,7 @@ primary analysis, and per rating item, score and choice question what reports, p
 `report stats --json` read (docs/analysis.md).
 
 Each is complete when built (Holm over the study's family computed first) and never changed
-after; its tests are the frozen records of analysis/records.py, its other containers
+after; its tests are the frozen records of analysis/result_records.py, its other containers
 read-only. `as_dict()` is for the JSON writers only."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from analysis.records import (
+from analysis.result_records import (
     ChoicePair,
     ChoiceTest,
     DifferencePair,

@@ -25,7 +25,9 @@ from analysis import instruments, scales
 from analysis.faults import condition_events, involving, is_withheld, withheld, withhold_fit, withhold_pairs
 from analysis.kind_results import ChoiceStats, KindStats, PrimaryAnalysis, RatingStats, ScoreStats
 from analysis.questions import VAS_RANGE
-from analysis.records import (
+from analysis.reports.formatting import p_value, rate_interval
+from analysis.reports.table import Table
+from analysis.result_records import (
     ChoicePair,
     ChoiceTest,
     DifferencePair,
@@ -37,8 +39,6 @@ from analysis.records import (
     OrdinalGeeFit,
     RankPair,
 )
-from analysis.reports.formatting import p_value, rate_interval
-from analysis.reports.table import Table
 from analysis.stats import friedman, holm, holm_family, named, records, wilson
 from analysis.study_results import LogisticGee, StudyStats
 from analysis.study_snapshot import Study

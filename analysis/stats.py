@@ -82,7 +82,7 @@ def records(df: pd.DataFrame) -> list[dict]:
 
 
 def tests_run(pairs) -> int:
-    """How many of these pairwise tests (analysis/records.py) were run (a finite p-value): the
+    """How many of these pairwise tests (analysis/result_records.py) were run (a finite p-value): the
     size of the Holm family that `holm_family` adjusts over, as every report counts it."""
     return sum(1 for p in pairs if p.p_value is not None and np.isfinite(p.p_value))
 

@@ -2,7 +2,7 @@
 prints (`StudyStats.as_dict()`), and what Table 1, the text and the reports read (docs/analysis.md).
 
 Complete when built and never changed after: pairwise tests and model fits are the frozen
-records of analysis/records.py, the other containers read-only. `as_dict()` is for the JSON
+records of analysis/result_records.py, the other containers read-only. `as_dict()` is for the JSON
 writers only."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from analysis.facts import StudyFacts
 from analysis.faults import ConditionEvents
 from analysis.kind_results import KindStats
-from analysis.records import GeeFit, McNemarPair, Record
+from analysis.result_records import GeeFit, McNemarPair, Record
 
 
 @dataclass(frozen=True)

@@ -18,9 +18,9 @@ from analysis.kinds import (
     odds_ratio_pairs,
     primary_line,
 )
-from analysis.records import GeeFit, McNemarPair, OddsRatioPair
 from analysis.reports.methods import study_methods
 from analysis.reports.table import markdown, markdown_grid
+from analysis.result_records import GeeFit, McNemarPair, OddsRatioPair
 from analysis.stats import HOLM_SCOPES, gee_fit, holm, holm_family, named, pairwise_mcnemar, records
 from analysis.study_results import DeformationBenchmark, LogisticGee, StudyStats, YesNoItem
 from analysis.study_snapshot import Study

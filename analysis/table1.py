@@ -20,9 +20,9 @@ from statsmodels.stats.contingency_tables import cochrans_q
 
 from analysis.facts import StudyFacts
 from analysis.faults import ConditionEvents, condition_events, involving, withheld
-from analysis.records import McNemarPair
 from analysis.reports.formatting import p_value, rate_interval
 from analysis.reports.table import Table
+from analysis.result_records import McNemarPair
 from analysis.stats import tests_run, wilson
 from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study, data_flag

@@ -1,6 +1,6 @@
 """Mass-spring on the brain at 4 mm: ms per step for each integrator; local/global iterations
 and milliseconds to reach 1% of the backward-Euler step, plain, Chebyshev (Wang 2015) and
-Anderson accelerated, and by Newton-Krylov (sim/models/newton.py: there iterations count solves
+Anderson accelerated, and by Newton-Krylov (sim/models/newton_krylov.py: there iterations count solves
 with the same factor); the compiled local step against the NumPy one; and the shipped scene's
 configuration (as a study runs it) against the model contract's budgets (`mass_spring.scene.*`).
 

@@ -14,7 +14,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from studyctl.synthetic.study import run_synthetic_study
+from studyctl.synthetic.synth_run import run_synthetic_study
 
 PROTOCOL = Path(__file__).resolve().parents[1] / "protocols" / "brain_pull_2015.toml"
 TARGET_S = 60.0  # issue 19

@@ -37,7 +37,7 @@ from studyctl.store.snapshot import answers
 from studyctl.synthetic.observer import DEFAULT, judged_time
 from studyctl.synthetic.participant import SyntheticAnswers, SyntheticParticipant, skill_for
 from studyctl.synthetic.rig import frame_times
-from studyctl.synthetic.study import run_synthetic_study
+from studyctl.synthetic.synth_run import run_synthetic_study
 
 ROOT = Path(__file__).resolve().parents[1]
 PROTOCOL = ROOT / "protocols/brain_pull_2015.toml"

@@ -45,7 +45,7 @@ def main() -> None:
     from analysis.discrimination.psychometric import weber_table
     from studyctl.store import Store
     from studyctl.store.snapshot import read_study
-    from studyctl.synthetic.study import run_synthetic_study
+    from studyctl.synthetic.synth_run import run_synthetic_study
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="1,2,3")

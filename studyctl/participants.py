@@ -19,11 +19,11 @@ from analysis.reports.formatting import spreadsheet_safe
 from analysis.trace_files import trace_dir, trace_file
 from sim.text import TEXT_MOST, text_problem
 from studyctl.outputs import refuse_inputs, write_file
+from studyctl.paper_answers import answer_key
 from studyctl.session.lock import SessionRunning, session_lock
-from studyctl.store import Store, now, records, roster, snapshot
+from studyctl.store import Store, lab_records, now, roster, snapshot
 from studyctl.store import sessions as session_rows
 from studyctl.store.participant_fields import read_fields
-from studyctl.study import answer_key
 
 
 def _person(store: Store, code: str) -> dict:
@@ -54,18 +54,18 @@ def record_consent(db, code: str, given_on: str | None = None, version: str | No
         created = dt.date.fromisoformat(store.study()["created_at"][:10])
         if day < created - dt.timedelta(days=366):
             raise InputError(f"--date: {day} is more than a year before the study was created ({created})")
-        earlier = records.consent_rows(store, code)
+        earlier = lab_records.consent_rows(store, code)
         if earlier:
             raise InputError(f"participant {code}: consent form {earlier[0]['version']} already recorded, signed {earlier[0]['given_on']}")
         row = {"code": code, "version": version, "given_on": day.isoformat(), "recorded_at": now(), "recorded_by": getpass.getuser()}
 
         with store.transaction(dry_run) as conn:
-            records.record_consent(conn, row, f"{code}: consent form {version} signed {day}")
+            lab_records.record_consent(conn, row, f"{code}: consent form {version} signed {day}")
         return {**row, "dry_run": dry_run}
 
 
 def has_consent(store: Store, code: str, version: str) -> bool:
-    return records.has_consent(store, code, version)
+    return lab_records.has_consent(store, code, version)
 
 
 def withdraw(db, code: str, reason: str = "", dry_run: bool = False) -> dict:
@@ -92,13 +92,13 @@ def _withdraw(db, code: str, reason: str, dry_run: bool) -> dict:
         p = _person(store, code)
         if p["withdrawn_at"]:
             raise InputError(f"participant {code}: already withdrew on {p['withdrawn_at'][:10]}")
-        sessions = records.session_ids(store, code)
-        traces = records.trace_paths(store, code)
-        counts = records.data_counts(store, code)
+        sessions = lab_records.session_ids(store, code)
+        traces = lab_records.trace_paths(store, code)
+        counts = lab_records.data_counts(store, code)
         delete = protocol.withdrawal == "delete"
 
         with store.transaction(dry_run) as conn:
-            records.withdraw_rows(conn, code, sessions, delete,
+            lab_records.withdraw_rows(conn, code, sessions, delete,
                                   f"{code}: data {'deleted' if delete else 'kept'} ({protocol.withdrawal} in the protocol)"
                                   + (f"; reason: {reason}" if reason else ""))
         if delete and not dry_run:  # the files after the rows: a crash between leaves files no row names
@@ -119,12 +119,12 @@ def cancel_slot(db, code: str, dry_run: bool = False) -> dict:
     """Free a participant's slot (keeping their condition order); `schedule` gives a new one."""
     with Store(db) as store:
         _person(store, code)
-        slot = records.slot_start(store, code)
+        slot = lab_records.slot_start(store, code)
         if slot is None:
             raise InputError(f"participant {code}: has no slot to cancel")
 
         with store.transaction(dry_run) as conn:
-            records.cancel_slot(conn, code, f"{code}: {slot}")
+            lab_records.cancel_slot(conn, code, f"{code}: {slot}")
         return {"code": code, "cancelled": slot, "dry_run": dry_run}
 
 
@@ -146,7 +146,7 @@ def correct_answer(db, code: str, model: str, item: str, answer: str, reason: st
         if p["synthetic"]:
             raise InputError(f"participant {code}: synthetic answers come from the simulator and are not corrected by hand")
         key = (code, model, item, trial)
-        stored = records.stored_answer(store, key)
+        stored = lab_records.stored_answer(store, key)
         if stored is None:
             raise InputError(f"participant {code}: no stored answer for model {model!r}, item {item!r}"
                              + (f", trial {trial}" if q.when == "trial" else ""))
@@ -155,7 +155,7 @@ def correct_answer(db, code: str, model: str, item: str, answer: str, reason: st
             raise InputError(f"--answer: {'/'.join(x for x in (code, model, item) if x)} is already {shown(q, new)}")
 
         with store.transaction(dry_run) as conn:
-            records.correct_answer(conn, key, old, new, reason.strip(), getpass.getuser())
+            lab_records.correct_answer(conn, key, old, new, reason.strip(), getpass.getuser())
         return {"code": code, "model": model, "item": item, "trial": trial, "old": old, "new": new,
                 "old_shown": shown(q, old), "new_shown": shown(q, new), "dry_run": dry_run}
 
@@ -165,7 +165,7 @@ def list_participants(db) -> list[dict]:
     design.groups), consent, slot, session state."""
     with Store(db, mode="read") as store:
         protocol = store.protocol()
-        rows = records.participant_list(store)
+        rows = lab_records.participant_list(store)
         if protocol.groups:
             fields = read_fields(store, protocol)
             rows = [{**r, "group": fields.get(r["code"], {}).get(protocol.groups)} for r in rows]
@@ -174,7 +174,7 @@ def list_participants(db) -> list[dict]:
 
 def list_sessions(db) -> list[dict]:
     with Store(db, mode="read") as store:
-        return records.session_list(store)
+        return lab_records.session_list(store)
 
 
 def status(db, today: dt.datetime | None = None) -> dict:
@@ -185,22 +185,22 @@ def status(db, today: dt.datetime | None = None) -> dict:
     their data kept (counted, as in the reports)."""
     with Store(db, mode="read") as store:
         protocol = store.protocol()
-        people = records.people_counts(store)
-        sessions = records.sessions_by_status(store)
+        people = lab_records.people_counts(store)
+        sessions = lab_records.sessions_by_status(store)
         # complete: the reports' own rule and count (studyctl.completeness): everyone whose answers the
         # study holds, withdrawn with their data kept included; a mixed-source participant counts as synthetic
         done = snapshot.completeness(store, protocol)
         withdrawn = roster.withdrawn_codes(store)
         moment = (today or dt.datetime.now()).isoformat(timespec="minutes")
         # a slot whose session is done is history, not what comes next
-        upcoming = [r for r in records.upcoming_slots(store, moment) if not session_rows.has_done_session(store, r["code"])]
+        upcoming = [r for r in lab_records.upcoming_slots(store, moment) if not session_rows.has_done_session(store, r["code"])]
         return {"study": protocol.name, "target_participants": protocol.target_participants, "participants": people,
                 "sessions": sessions, "complete": {"persons": done.count("person"),
                                                    "synthetic": done.count("synthetic") + done.count("mixed"),
                                                    "mixed": done.count("mixed")},
                 "complete_withdrawn": sum(1 for c in done.complete if c in withdrawn),
                 "incomplete": list(done.incomplete),
-                "answers": records.answer_count(store), "next": upcoming}
+                "answers": lab_records.answer_count(store), "next": upcoming}
 
 
 CONTACTS_NOTE = ("# IDENTIFYING DATA: names and contact details of study participants, for the experimenter only.\n"
@@ -213,7 +213,7 @@ def export_contacts(db, out: str | Path, force: bool = False) -> dict:
     unless `force` (studyctl/outputs.py); readable by the owner only (0600) from the start."""
     refuse_inputs({"--out": out}, {"--db": db})  # before the identifying table is read
     with Store(db, mode="read") as store:
-        rows = records.contacts(store)
+        rows = lab_records.contacts(store)
     buf = io.StringIO()
     buf.write(CONTACTS_NOTE)
     w = csv.writer(buf, lineterminator="\n")

@@ -1,4 +1,5 @@
-"""Counterbalancing (Williams design), slot allocation on one rig, iCalendar export."""
+"""Counterbalancing (Williams design), slot allocation on one rig, iCalendar export; a
+participant's counterbalanced order and a study's schedule, stored (`assign_order`, `schedule_study`)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,9 @@ from zoneinfo import ZoneInfo
 
 from analysis.csvfiles import read_csv
 from analysis.errors import InputError
+from studyctl.outputs import refuse_existing, write_file
+from studyctl.store import Store, roster
+from studyctl.store.participant_fields import group_of
 
 
 def williams(n: int) -> list[list[int]]:
@@ -129,3 +133,70 @@ def to_ics(slots: list[dict], study: str, timezone: str | None = None, title: st
     if tz is not None:
         cal.add_missing_timezones()
     return cal.to_ical().decode()
+
+
+def assign_order(store: Store, protocol, code: str) -> list[str]:
+    """The participant's condition order: the stored one, else the next Williams row. With
+    groups (design.groups), the rows are counted within the participant's group, so that each
+    group is balanced on its own."""
+    stored = roster.stored_order(store, code)
+    if stored:
+        return json.loads(stored)
+    group = group_of(store, protocol, code)
+    # with groups, the same group: its members' rows only
+    completed = roster.completed_orders(store, protocol.groups, group)
+    assigned = roster.assigned_orders(store, protocol.groups, group)
+    k = next_order(protocol.conditions, completed, assigned)
+    order = [protocol.conditions[i] for i in williams(len(protocol.conditions))[k]]
+    # plain SQL, so the caller's transaction (if any) holds it
+    roster.save_order(store.db.conn, code, k, json.dumps(order))
+    return order
+
+
+def schedule_study(db: str | Path, start: str, end: str, hours: str = "09:00-17:00", minutes: int = 45,
+                   availability: str | Path | None = None, ics: str | Path | None = None, dry_run: bool = False,
+                   today: dt.date | None = None, force: bool = False) -> list[dict]:
+    """Slots and counterbalanced orders for every waiting participant, all stored or none
+    (`dry_run`: none, the proposal is returned); `ics`, a calendar of the slots, is refused
+    before anything is stored where it exists (unless `force`), and written whole or not at all."""
+    if ics and not dry_run:
+        refuse_existing([ics], force, inputs={"--db": db, "--availability": availability}, option="--ics")
+    try:
+        d0, d1 = dt.date.fromisoformat(start), dt.date.fromisoformat(end)
+    except ValueError:
+        raise InputError("--start/--end: dates must be YYYY-MM-DD") from None
+    today = today or dt.date.today()
+    if d0 < today:
+        raise InputError(f"--start: {d0} is in the past; allowed: today ({today}) or later")
+    if (d1 - d0).days > 366:
+        raise InputError(f"--end: {d1} is more than a year after --start; allowed: at most 366 days")
+    avail = read_availability(availability) if availability else None
+    with Store(db) as store:
+        protocol = store.protocol()
+        codes = roster.participant_codes(store)
+        if avail is not None and set(avail) - codes:
+            raise InputError(f"{availability}: unknown participant {sorted(set(avail) - codes)[0]!r}")
+        # people who still need the rig: no slot, not withdrawn, no finished session, no answers from paper
+        waiting = roster.waiting_codes(store)
+        if not waiting:
+            raise InputError("nobody is waiting for a slot (every person has one, has finished, or withdrew)")
+        taken = [(dt.datetime.fromisoformat(r["slot_start"]), dt.datetime.fromisoformat(r["slot_end"]))
+                 for r in roster.taken_slots(store)]
+        if d0 == today:  # the part of today that has passed is taken too
+            taken.append((dt.datetime.combine(today, dt.time(0)), dt.datetime.now().replace(second=0, microsecond=0)))
+        slots = allocate(waiting, d0, d1, hours, minutes, avail, taken)
+        if not slots:
+            why = "their availability" if avail is not None else "free rig time"
+            raise InputError(f"no slot for any of the {len(waiting)} waiting participants: {start}..{end}, weekdays {hours}, "
+                             f"{minutes} min each, has no {why} left; widen --start/--end or --hours")
+        with store.transaction(dry_run) as conn:
+            for code in waiting:
+                assign_order(store, protocol, code)  # counterbalanced order, kept with the slot
+                if code in slots:
+                    a, b = slots[code]
+                    roster.set_slot(conn, code, a.isoformat(), b.isoformat())
+            out = roster.schedule_rows(store)
+            if ics and not dry_run:
+                write_file(ics, to_ics([r for r in out if r["slot_start"]], protocol.name, protocol.timezone, protocol.title), force,
+                           inputs={"--db": db, "--availability": availability}, option="--ics")
+        return out

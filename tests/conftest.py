@@ -16,7 +16,7 @@ def root() -> Path:
 @pytest.fixture(scope="session")
 def small_study(tmp_path_factory):
     """A small SYNTHETIC study database, shared by the report tests."""
-    from studyctl.synthetic.study import run_synthetic_study
+    from studyctl.synthetic.synth_run import run_synthetic_study
     from tests.helpers import fast_protocol
 
     tmp = tmp_path_factory.mktemp("study")
@@ -29,7 +29,7 @@ def small_study(tmp_path_factory):
 def variants_study(tmp_path_factory):
     """A small SYNTHETIC study of the shipped ratings example (Likert items, the SUS after each
     condition, a choice at the end), shared by the report tests."""
-    from studyctl.synthetic.study import run_synthetic_study
+    from studyctl.synthetic.synth_run import run_synthetic_study
     from tests.helpers import variants_protocol
 
     tmp = tmp_path_factory.mktemp("variants")

@@ -15,7 +15,7 @@ from analysis.questions import Question
 from analysis.reports.latex import document
 from studyctl.protocol import check_protocol, load_protocol
 from studyctl.synthetic.observer import likert_answer, likert_thresholds
-from studyctl.synthetic.study import run_synthetic_study
+from studyctl.synthetic.synth_run import run_synthetic_study
 from tests.conftest import ROOT
 from tests.helpers import QUESTIONS, kinds_protocol, latex_problems, studyctl
 

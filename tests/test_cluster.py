@@ -12,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from studyctl.cli import cli
-from studyctl.synthetic.study import run_synthetic_study
+from studyctl.synthetic.synth_run import run_synthetic_study
 from tests.helpers import fast_protocol, synthetic_content, synthetic_summary
 
 distributed = pytest.importorskip("distributed")

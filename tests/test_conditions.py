@@ -12,7 +12,7 @@ import pytest
 from sim.scene import load_scene
 from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config
 from studyctl.protocol import check_protocol, load_protocol
-from studyctl.synthetic.study import run_synthetic_study
+from studyctl.synthetic.synth_run import run_synthetic_study
 from tests.helpers import fast_protocol, studyctl
 
 VARIANTS = """

@@ -156,7 +156,7 @@ def test_plots_of_a_mixed_study_are_titled_mixed(mixed_study, tmp_path, monkeypa
 
 
 def _interrupt_after(monkeypatch, k: int):
-    import studyctl.synthetic.study as runner
+    import studyctl.synthetic.synth_run as runner
 
     real = runner.completed
 

@@ -220,7 +220,7 @@ def test_a_synthetic_session_stores_every_trial_and_a_killed_one_resumes_as_if_u
     import studyctl.session.discrimination as disc
     from analysis.trace_files import read_trace
     from studyctl.session.run import run_session
-    from studyctl.synthetic.study import run_synthetic_study
+    from studyctl.synthetic.synth_run import run_synthetic_study
     from tests.helpers import studyctl
 
     protocol = jnd_protocol(tmp_path, trials=12)
@@ -353,7 +353,7 @@ def test_synthetic_participants_weber_fractions_are_recovered(tmp_path):
     this seed (the reports' "thurstone" fit): median absolute relative error 23.0% (bound 25%),
     and the bootstrap 95% intervals cover 18 of 20 (90%; the bound: 18 or 19 of 20). Seeds 2
     and 3: 22.5% and 22.6%, covering 17 and 19 of 20 (docs/study.md)."""
-    from studyctl.synthetic.study import run_synthetic_study
+    from studyctl.synthetic.synth_run import run_synthetic_study
     from tests.helpers import studyctl
 
     db = tmp_path / "s.db"
@@ -382,7 +382,7 @@ def test_report_jnd_gives_each_conditions_weber_fractions_and_the_group_test(tmp
     hand-set parameters), four synthetic participants, ten trials: `report jnd` as json, md and html (with a
     psychometric plot per condition), and the same section in `report table1`; every output
     flagged synthetic."""
-    from studyctl.synthetic.study import run_synthetic_study
+    from studyctl.synthetic.synth_run import run_synthetic_study
     from tests.helpers import studyctl
 
     path = jnd_protocol(tmp_path, conditions=("plate_spring", "paper", "handset"), trials=10)

@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 from analysis.faults import FAULT_SHARE_MAX, condition_events, withhold_fit, withhold_pairs
-from studyctl.synthetic.study import fault_warnings
+from studyctl.synthetic.synth_run import fault_warnings
 from tests.helpers import BAD, fast_protocol, studyctl
 
 

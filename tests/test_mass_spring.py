@@ -273,7 +273,7 @@ def test_anderson_at_rest_converged_to_the_last_bit_does_not_fail():
 
 
 def test_newton_converges_to_the_local_global_step_with_anchors_and_clamped_nodes():
-    """Newton-Krylov (acceleration "newton", sim/models/newton.py) minimises the same
+    """Newton-Krylov (acceleration "newton", sim/models/newton_krylov.py) minimises the same
     backward-Euler objective as local/global: on the clamped, pulled block it reaches the step
     that 5000 plain iterations converge to. 1e-6 of the frame's motion: both are converged far
     below that (Newton quadratically; the plain iteration shrinks its error by rho < 0.9 per

@@ -9,7 +9,7 @@ from types import MappingProxyType
 
 import pytest
 
-from analysis.records import (
+from analysis.result_records import (
     ChoicePair,
     ChoiceTest,
     DifferencePair,
@@ -30,8 +30,10 @@ from tests.conftest import ROOT
 
 # the modules that write JSON, the only ones that call as_dict: the CLI's --json paths, and the
 # records' own conversion (a record's as_dict gives its inner records' as theirs)
-# where JSON is written: the commands, the records themselves, and sim/jsonable.py (what every JSON writer calls)
-AS_DICT_CALLERS = {"studyctl/cli/reports.py", "studyctl/cli/plan.py", "analysis/records.py", "analysis/study_results.py", "sim/jsonable.py"}
+# where JSON is written: the commands, report table1's JSON (analysis/reports/study_report.py), the records
+# themselves, and sim/jsonable.py (what every JSON writer calls)
+AS_DICT_CALLERS = {"studyctl/cli/reports.py", "studyctl/cli/plan.py", "analysis/reports/study_report.py", "analysis/result_records.py",
+                   "analysis/study_results.py", "sim/jsonable.py"}
 
 
 def _walk(obj, path: str):

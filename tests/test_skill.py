@@ -204,7 +204,7 @@ def test_old_operator_unchanged_without_a_target_or_profile():
 
 def test_a_synthetic_study_stores_each_participants_profile(tmp_path):
     from studyctl.store import init_study
-    from studyctl.synthetic.study import run_synthetic_study
+    from studyctl.synthetic.synth_run import run_synthetic_study
 
     text = CV.read_text().replace("trials_per_condition = 10 ", "trials_per_condition = 2 ")
     text = text.replace('scene = "scenes/retraction.toml"', f'scene = "{CV.parent / "scenes" / "retraction.toml"}"')

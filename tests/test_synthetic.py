@@ -26,7 +26,7 @@ from studyctl.synthetic.observer import (
 )
 from studyctl.synthetic.participant import SyntheticParticipant
 from studyctl.synthetic.plan import simulate_study
-from studyctl.synthetic.study import run_synthetic_study
+from studyctl.synthetic.synth_run import run_synthetic_study
 from tests.helpers import fast_protocol, synthetic_content, synthetic_summary
 
 MEDIAN = ObserverTraits(weber=0.10, prior=1.0, latency_ms=40.0, vibration=1.0, bias=0.0)

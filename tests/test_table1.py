@@ -15,7 +15,7 @@ from analysis.reports.latex import text as latex_text
 from analysis.stats import wilson
 from analysis.study_stats import study_stats, table1_markdown
 from studyctl.cli import cli
-from studyctl.synthetic.study import run_synthetic_study
+from studyctl.synthetic.synth_run import run_synthetic_study
 from tests.helpers import fast_protocol, latex_problems
 
 

@@ -65,7 +65,7 @@ def test_synthetic_sessions_into_a_study_of_people_are_refused_unless_asked_for(
 
 
 def test_an_interrupted_synth_leaves_no_participant_without_a_session(tmp_path, monkeypatch):
-    import studyctl.synthetic.study as runner  # where the synthetic study takes its completed sessions from
+    import studyctl.synthetic.synth_run as runner  # where the synthetic study takes its completed sessions from
 
     db = tmp_path / "s.db"
     proto = fast_protocol(tmp_path, conditions=("plate_spring",), trials=1)

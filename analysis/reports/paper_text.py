@@ -67,7 +67,7 @@ def _names(xs) -> str:
 
 
 def _pairs_text(pairs, describe, what: str, family: str) -> str:
-    """The pairs (analysis/records.py) significant after Holm, each described; the others
+    """The pairs (analysis/result_records.py) significant after Holm, each described; the others
     counted; untested ones with why."""
     tested = [p for p in pairs if _finite(p.p_value)]
     untested = [p for p in pairs if not _finite(p.p_value)]
@@ -215,7 +215,7 @@ def _yes_no(st: StudyStats, family: str) -> list[str]:
 
 
 def _gee(fit, what: str, family: str, n_conditions: int) -> str:
-    """A GEE's sentence (analysis.records.GeeFit or OrdinalGeeFit; None when not fitted)."""
+    """A GEE's sentence (analysis.result_records.GeeFit or OrdinalGeeFit; None when not fitted)."""
     if not fit:
         return f"The {what} was not made: " + ("one condition: nothing to compare." if n_conditions < 2 else "no answers to fit.")
     if not fit.estimable or not fit.converged:

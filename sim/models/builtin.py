@@ -20,7 +20,7 @@ from sim.tomltable import REQUIRED
 PLATE_SPRING_VARIANTS = ("paper", "continuous", "located")  # "located": the continuous stack with a stiffness field
 FEM_FORMULATIONS = ("linear", "corotational")
 MASS_SPRING_INTEGRATORS = ("explicit", "implicit", "local-global")
-MASS_SPRING_ACCELERATIONS = ("none", "chebyshev", "anderson", "newton")  # of local-global; newton: sim/models/newton.py
+MASS_SPRING_ACCELERATIONS = ("none", "chebyshev", "anderson", "newton")  # of local-global; newton: sim/models/newton_krylov.py
 OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m  # 700 N/m: stable closed-loop stiffness at 1 kHz
 
 

@@ -36,7 +36,7 @@ from sim.models.builtin import MASS_SPRING_INTEGRATORS as INTEGRATORS
 from sim.models.builtin import MassSpringBase
 from sim.models.fem import fixed_nodes
 from sim.models.local_global import ANDERSON_DEPTH, RHO_ITERATIONS, LocalGlobal  # noqa: F401 (re-exported)
-from sim.models.newton import NewtonKrylov
+from sim.models.newton_krylov import NewtonKrylov
 from sim.scene import AXES
 
 OMNI_MAX_STIFFNESS = OmniSpec().max_stiffness_n_per_m  # 700 N/m: stable closed-loop stiffness at 1 kHz

@@ -52,7 +52,7 @@ def spring_rhs(x, ei, ej, k, rest, free_pos, n_free):
 @numba.njit(cache=True, fastmath=False)
 def spring_gradient(x, ei, ej, k, rest, free_pos, n_free):
     """The springs' energy gradient on the free rows: k (1 - rest / |d|) d, d = x_i - x_j,
-    +at i and -at j (the Newton solver's right-hand side, `sim/models/newton.py`)."""
+    +at i and -at j (the Newton solver's right-hand side, `sim/models/newton_krylov.py`)."""
     return _spring_sum(x, ei, ej, k, rest, free_pos, n_free, True)
 
 

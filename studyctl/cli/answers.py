@@ -23,7 +23,7 @@ def answers():
 def answers_import(db, csv_file, dry_run, as_json):
     """Import participant,model,item,answer[,trial] rows, each answer as its question's kind allows
     (yes/no; a rating; 0-100; a condition's name; text); any unknown value rejects the file."""
-    from studyctl.study import import_answers
+    from studyctl.paper_answers import import_answers
 
     out = import_answers(db, csv_file, dry_run=dry_run)
     _done(out, f"imported {counted(out['imported'], 'answer')}", as_json)

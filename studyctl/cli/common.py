@@ -266,7 +266,7 @@ class LoadErrorsAsImportErrors:
     """A meta path finder: an optional extra that is installed but cannot load (a shared library
     missing raises OSError from inside it) fails as the ImportError its importers catch. pandas
     imports pyarrow as it loads and catches only ImportError, so a broken pyarrow would end every
-    command in a traceback; the command that needs the extra says the reason (`studyctl.study`)."""
+    command in a traceback; the command that needs the extra says the reason (`studyctl.export`)."""
 
     def find_spec(self, name, path=None, target=None):
         if name not in OPTIONAL_EXTRAS:

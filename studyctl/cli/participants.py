@@ -31,7 +31,7 @@ def participants():
 def participants_add(code, age, name, contact, fields, synthetic, db, dry_run, as_json):
     """Register a participant under a pseudonymous CODE."""
     from analysis.errors import InputError
-    from studyctl.study import add_participant
+    from studyctl.registration import add_participant
 
     given: dict[str, str] = {}
     for f in fields:
@@ -54,7 +54,7 @@ def participants_import(csv_file, db, dry_run, as_json):
     """Register participants from a CSV (code, then optional age, name, contact, and a column per
     protocol field, e.g. experience): all or none. UTF-8 with or without BOM, ',' or ';'
     separated, headers in any case."""
-    from studyctl.study import import_participants
+    from studyctl.registration import import_participants
 
     out = import_participants(db, csv_file, dry_run=dry_run)
     _done(out, f"imported {counted(out['imported'], 'participant')}", as_json)
@@ -144,7 +144,7 @@ def schedule_cmd(ctx, db, start, end, hours, session_minutes, availability, ics,
     for name, value in (("--db", db), ("--start", start), ("--end", end)):
         if value is None:
             raise click.UsageError(f"Missing option '{name}'.")
-    from studyctl.study import schedule_study
+    from studyctl.schedule import schedule_study
 
     existed = ics is not None and ics.exists()
     rows = schedule_study(db, start, end, hours, session_minutes, availability, ics, dry_run=dry_run, force=force)

@@ -304,7 +304,7 @@ def report_published(table_file, as_json):
 @JSON
 def export_cmd(db, fmt, out_dir, force, as_json):
     """Export the pseudonymous tables (never the identifying one)."""
-    from studyctl.study import export
+    from studyctl.export import export
 
     target = export(db, out_dir, fmt, force=force)
     say_replaced(target)

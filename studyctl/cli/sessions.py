@@ -137,7 +137,7 @@ def synth_cmd(db, participants, complete, seed, jobs, protocol_file, alongside_p
     """Run whole sessions with SYNTHETIC participants on the simulator (labelled synthetic).
     After an interrupted run, --complete runs the participants it registered (with their own
     seed), bringing it to its N; new participants are refused until then."""
-    from studyctl.synthetic.study import run_synthetic_study
+    from studyctl.synthetic.synth_run import run_synthetic_study
 
     out = _with_progress("synthetic sessions", lambda p: run_synthetic_study(db, participants, seed, jobs, protocol_file, progress=p,
                                                                              scheduler=scheduler, alongside_people=alongside_people,

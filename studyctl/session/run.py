@@ -47,6 +47,7 @@ from studyctl.conditions import (
     scene_itself,
 )
 from studyctl.participants import has_consent
+from studyctl.schedule import assign_order
 from studyctl.session.asking import TerminalAnswers, flush_input, terminal_keys
 from studyctl.session.discrimination import run_task
 from studyctl.session.lock import session_lock
@@ -55,7 +56,6 @@ from studyctl.session.window_answers import WindowAnswers
 from studyctl.store import Store, dumps, now, roster, sha256_file
 from studyctl.store import sessions as session_rows
 from studyctl.store.trials import discrimination_done
-from studyctl.study import assign_order
 from studyctl.synthetic.participant import SyntheticAnswers, SyntheticParticipant, skill_for
 from studyctl.synthetic.rig import frame_times
 

@@ -1,4 +1,4 @@
-"""Whole tables as rows: for export (studyctl/study.py) and for moving a participant's session
+"""Whole tables as rows: for export (studyctl/export.py) and for moving a participant's session
 between studies (the synthetic study's scratch databases, studyctl/synthetic/bundles.py)."""
 
 from __future__ import annotations

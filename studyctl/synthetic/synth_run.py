@@ -16,11 +16,11 @@ from sim.sweep import completed, reachable
 from sim.text import counted
 from studyctl.fields import field_rows, synthetic_fields
 from studyctl.protocol import load_protocol
+from studyctl.schedule import assign_order
 from studyctl.session.lock import synth_lock
 from studyctl.store import Store, init_study, now, roster
 from studyctl.store.sessions import insert_traits, next_session_id
 from studyctl.store.snapshot import discrimination, trial_events
-from studyctl.study import assign_order
 from studyctl.synthetic.bundles import run_away, seed_for, store_bundle
 from studyctl.synthetic.participant import MAX_SYNTHETIC, SyntheticParticipant, skill_for
 from studyctl.synthetic.rig import keep_shipped
