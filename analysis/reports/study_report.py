@@ -1,6 +1,6 @@
 """A study's Table 1 report in each format (md, csv, latex, html, json), with the accuracy
 bench's and the stability sweep's sections where given, and the discrimination task's section
-(alone for a study that asks no questions). The command (`studyctl report table1`) reads the
+(`jnd_report`). The command (`studyctl report table1`) reads the
 study and the benches' files and writes what this returns."""
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from analysis import table1
 from analysis.discrimination import jnd
 from analysis.faults import rates_with_events
 from analysis.reports.formatting import spreadsheet_frame
+from analysis.reports.jnd_report import jnd_text
 from analysis.reports.report import html, latex
 from analysis.reports.table import latex_tables
 from analysis.study_stats import study_stats, table1_markdown
@@ -18,14 +19,6 @@ from analysis.verification.accuracy_tables import markdown as accuracy_markdown
 from analysis.verification.accuracy_tables import tables as accuracy_tables
 from analysis.verification.stability import markdown as stability_markdown
 from sim.jsonable import jsonable
-
-
-def jnd_text(study, fmt: str) -> str:
-    """The discrimination task's section in `fmt` (md, latex, html, json)."""
-    res = jnd.jnd_results(study)
-    if fmt == "json":
-        return json.dumps(jsonable(res), indent=2) + "\n"
-    return jnd.html(res, study) if fmt == "html" else jnd.latex(res) if fmt == "latex" else jnd.markdown(res)
 
 
 def table1_text(study, fmt: str, holm_scope: str = "family", accuracy: dict | None = None, stability: dict | None = None,

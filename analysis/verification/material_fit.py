@@ -194,7 +194,7 @@ def shear_stress(law: Hyperelastic, gamma) -> np.ndarray:
     stretches l1 = sqrt(1 + gamma^2 / 4) + gamma / 2, l2 = 1 / l1, l3 = 1 (J = 1: no volumetric
     part), tau = (s1 - s2) / (l1 + l2) with s1 - s2 = sum_p (2 mu_p / alpha_p)(l1^a_p - l2^a_p)
     (the Cauchy stress rotated to the shear plane; the first Piola-Kirchhoff's 12 entry is the
-    same). `sim.hyperelastic.simple_shear` gives the whole tensor by an eigendecomposition."""
+    same). The tests' `simple_shear` (tests/helpers.py) gives the whole tensor by an eigendecomposition."""
     l1 = shear_stretch(gamma)
     l2 = 1.0 / l1
     return sum(2.0 * m / a * (l1**a - l2**a) for m, a in zip(law.mu, law.alpha)) / (l1 + l2)

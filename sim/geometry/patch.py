@@ -8,9 +8,9 @@ is unbounded, and a handful of vertices on the 3.1 mm fsaverage5 surface is clos
 (docs/reference.md: it falls with each refinement, with no sign of settling).
 
 `patch_area_points` gives the quadrature (points and weights) for a reference that
-interpolates its own field at the points; `patch_vertex_weights` folds the same quadrature
-onto the surface vertices (the surface is drawn linear on each triangle), which is what a
-model that moves the surface vertices holds (`sim.models.fem.FemModel.grasp`).
+interpolates its own field at the points, and for a model that moves the surface vertices
+(`sim.models.fem.FemModel.grasp`); the tests fold the same quadrature onto the vertices
+(`tests/helpers.patch_vertex_weights`) to check it.
 """
 
 from __future__ import annotations

@@ -3,8 +3,8 @@
 `VolumeMesh` holds a mesh of one or more components (the brain's two hemispheres, meshed on
 their own so the volumes never merge across the midline; the body-fitted meshes of
 `sim.geometry.tetmesh`). `embed` finds each surface vertex's containing (or nearest) tetrahedron and
-its barycentric coordinates; `locate` does it for any points. `grid_tets` makes structured
-box meshes (six Kuhn tetrahedra per cell), for tests and examples.
+its barycentric coordinates; `locate` does it for any points. (Structured box meshes for the
+tests: `tests/helpers.grid_tets`.)
 """
 
 from __future__ import annotations

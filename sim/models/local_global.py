@@ -46,7 +46,7 @@ class LocalGlobal:
         if self.acceleration == "anderson":
             x = self._anderson(solver, wood, base, x, y, h, iterations)
             iterations = 0
-        elif self.acceleration == "newton":  # the same minimum by Newton-Krylov (newton.py)
+        elif self.acceleration == "newton":  # the same minimum by Newton-Krylov (newton_krylov.py)
             x = self._newton(solver, wood, x, y, h, iterations)
             iterations = 0
         rho = self.lg_rho(h) if self.acceleration == "chebyshev" else None

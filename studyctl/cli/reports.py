@@ -58,7 +58,8 @@ HOLM = click.option("--holm", "holm_scope", type=click.Choice(["family", "questi
 def report_table1(db, holm_scope, fmt, out_file, force, accuracy_file, stability_file):
     """The seed paper's Table 1 with Wilson intervals, Cochran's Q and deformation times
     (html: one self-contained file with the statistics and plots)."""
-    from analysis.reports.study_report import jnd_text, table1_text
+    from analysis.reports.jnd_report import jnd_text
+    from analysis.reports.study_report import table1_text
 
     target = staged(out_file, force, inputs={"--db": db, "--accuracy": accuracy_file, "--stability": stability_file})
     fmt = output_format(out_file, fmt, TABLE1_FORMATS, "md", "report table1")
@@ -145,7 +146,7 @@ def report_jnd(db, fmt, as_json, out_file, force):
     study = read_snapshot(db)
     if not study.protocol.tasks:
         raise click.ClickException(f"{db}: the study's protocol has no discrimination task ([[tasks]]); nothing to report")
-    from analysis.reports.study_report import jnd_text
+    from analysis.reports.jnd_report import jnd_text
 
     _emit(jnd_text(study, fmt), target)
 

@@ -12,7 +12,8 @@ Two stages, so that planning can reuse simulator runs:
   the rendered and the true force at the judged samples, the force ripple on the vibration
   threshold scale, safety events, and the frame's counted work;
 - `features(summaries, traits, params)`: what this participant perceives of a condition
-  (their Weber fraction, expectation, latency and vibration thresholds), and `p_yes`.
+  (their Weber fraction, expectation, latency and vibration thresholds), and `logit`, whose
+  logistic function is a yes/no question's P(yes).
 
 Determinism: every input is a function of the lockstep traces. Latency enters as the
 deformation time the model's counted work takes on the reference machine (`frame_ms`), not the

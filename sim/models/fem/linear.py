@@ -138,6 +138,7 @@ class LinearFem(TetSpace):
             out.element_matrices = self.element_matrices * r
         out._stiffness = None if self._stiffness is None else self._stiffness * r
         out._factor = self.factor.scaled(r)
+        out.solver_cache = {}  # its own: a solver's arrays of this system are not the copy's
         out.timings = Timings()
         return out
 
