@@ -2,6 +2,7 @@
 
 import hashlib
 import json
+import math
 import os
 import re
 import shutil
@@ -19,6 +20,7 @@ from sim.geometry.mesh import SurfaceMesh
 from sim.geometry.patch import SUBDIVISIONS, _patch_quadrature
 from sim.hyperelastic import Hyperelastic
 from studyctl.cli import cli
+from studyctl.synthetic.observer import DEFAULT, logit
 from tests.conftest import ROOT
 
 PROTOCOL = ROOT / "protocols" / "brain_pull_2015.toml"
@@ -482,3 +484,8 @@ def patch_vertex_weights(mesh, vertex: int, radius: float, subdivisions: int = S
     acc = np.zeros(len(uniq))
     np.add.at(acc, inv, vals)
     return uniq, acc / acc.sum()
+
+
+def p_yes(item: str, feats: dict, traits, params=None) -> float:
+    """A yes/no question's P(yes): the logistic function of the observer's `logit`."""
+    return 1.0 / (1.0 + math.exp(-logit(item, feats, traits, DEFAULT if params is None else params)))

@@ -11,14 +11,12 @@ from scipy.stats import norm
 
 from analysis.verification.truth import TRUTH_RADIUS, hand_sets
 from studyctl.synthetic.observer import (
-    DEFAULT,
     P_WITHIN_PERFECT,
     ObserverParams,
     ObserverTraits,
     TrialSummary,
     features,
     frame_ms,
-    logit,
     ripple_level,
     vibration_threshold_n,
     weber_at,
@@ -27,7 +25,7 @@ from studyctl.synthetic.observer import (
 from studyctl.synthetic.participant import SyntheticParticipant
 from studyctl.synthetic.plan import simulate_study
 from studyctl.synthetic.synth_run import run_synthetic_study
-from tests.helpers import fast_protocol, synthetic_content, synthetic_summary
+from tests.helpers import fast_protocol, p_yes, synthetic_content, synthetic_summary
 
 MEDIAN = ObserverTraits(weber=0.10, prior=1.0, latency_ms=40.0, vibration=1.0, bias=0.0)
 
@@ -293,8 +291,6 @@ def test_the_shipped_truth_covers_the_scenes_grasps_and_is_the_references_soluti
         truth.force(len(scene.mesh.vertices) - 1 if len(scene.mesh.vertices) - 1 not in truth.vertices else -5, [[0.0, 0.0, 0.001]])
 
 
-def p_yes(item: str, feats: dict, traits: ObserverTraits, params: ObserverParams = DEFAULT) -> float:
-    return 1.0 / (1.0 + math.exp(-logit(item, feats, traits, params)))
 
 
 def expected_rates(protocol, summaries: dict[str, list], participants: int = 35, simulations: int = 200, seed: int = 0) -> pd.DataFrame:

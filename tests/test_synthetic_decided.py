@@ -18,9 +18,9 @@ from studyctl.synthetic.observer import (
     ObserverTraits,
     features,
     judged_time,
-    p_yes,
     summarise,
 )
+from tests.helpers import p_yes
 
 MEDIAN = ObserverTraits(weber=0.10, prior=1.0, latency_ms=40.0, vibration=1.0, bias=0.0)
 EVERY_TICK = ObserverParams(sample_every=1)  # every tick a sample: counts by hand
