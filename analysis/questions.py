@@ -26,6 +26,9 @@ LIKERT_POINTS = (3, 11)
 VAS_RANGE = (0.0, 100.0)
 SESSION = ""  # the condition of an answer asked once per session (when = "end")
 NOT_PER_TRIAL = -1  # the trial of an answer not asked per trial
+# the rig's latency measures a protocol may record (its [latency] measures), in words with their units
+LATENCY_MEASURES = {"deformation_ms": "deformation time per frame (ms)", "tick_interval_p99_us": "servo tick interval, 99th percentile (µs)",
+                    "read_to_force_us": "time from device read to force (µs)", "tick_compute_us": "servo tick computation (µs)"}
 YES = frozenset({"yes", "y", "1", "true", "ja", "oui", "si", "sí"})  # as people type them on paper forms too
 NO = frozenset({"no", "n", "0", "false", "nein", "non"})
 

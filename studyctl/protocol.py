@@ -13,7 +13,7 @@ from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 from analysis import instruments
 from analysis.errors import ProtocolError
-from analysis.questions import KINDS, LIKERT_POINTS, WHENS, Question
+from analysis.questions import KINDS, LATENCY_MEASURES, LIKERT_POINTS, WHENS, Question
 from sim.errors import SceneError, SimError
 from sim.models import registry
 from sim.scene import configure, load_scene
@@ -28,7 +28,6 @@ from studyctl.text import ID_RE
 
 MAX_CONDITIONS = 8
 DESIGNS = ("williams",)
-LATENCY_MEASURES = ("deformation_ms", "tick_interval_p99_us", "read_to_force_us", "tick_compute_us")
 DEFAULT_LATENCY = ("deformation_ms", "tick_interval_p99_us", "read_to_force_us")  # [latency] left out, with free trials
 DEFAULT_AGES = (18, 120)  # [inclusion] left out: adults
 # what to write for a missing section (the error says it)

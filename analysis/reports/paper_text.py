@@ -15,6 +15,7 @@ from collections.abc import Mapping
 from analysis.discrimination.jnd import jnd_results
 from analysis.faults import ConditionEvents, events_text
 from analysis.kind_results import KindStats
+from analysis.questions import LATENCY_MEASURES
 from analysis.reports import latex
 from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study
@@ -24,9 +25,6 @@ from sim.text import counted
 
 KIND_WORDS = {"yes_no": "yes/no question", "likert": "rating", "vas": "visual analogue scale", "choice": "choice among the conditions"}
 WHEN_WORDS = {"condition": "after each condition", "trial": "after each trial", "end": "once, after the last condition"}
-# the rig's latency measures (studyctl.protocol.LATENCY_MEASURES) in words, with their units
-MEASURES = {"deformation_ms": "deformation time per frame (ms)", "tick_interval_p99_us": "servo tick interval, 99th percentile (µs)",
-            "read_to_force_us": "time from device read to force (µs)", "tick_compute_us": "servo tick computation (µs)"}
 SIGNIFICANT = 0.05  # which pairwise tests the results name (after Holm); the rest are counted
 
 
@@ -149,7 +147,7 @@ def _apparatus(m: dict) -> str:
         text += (f" Condition {c['condition']} ran the {c['model']} model{origin}" + (f" ({options})" if options else "")
                  + (f" on the mesh {c['mesh']}" if c.get("mesh") else "") + (f", with {_names(material)}" if material else "") + ".")
     for r in a["latency"]:
-        text += (f" Measured {MEASURES.get(r['measure'], r['measure'])} with {r['model']}: mean {sig(r['mean'])} over {counted(r['trials'], 'trial')} "
+        text += (f" Measured {LATENCY_MEASURES.get(r['measure'], r['measure'])} with {r['model']}: mean {sig(r['mean'])} over {counted(r['trials'], 'trial')} "
                  f"(range {sig(r['lowest'])} to {sig(r['highest'])}).")
     return text
 
