@@ -117,12 +117,15 @@ def small_strain_factor(problem: Problem, law, regional=None, membrane=None):
     with `regional` (`regions.RegionalLaw`, `law` its grey), the white matter's inside the white
     surface, and with `membrane` (`body_membrane`) the pia-arachnoid's at rest on the surface, as
     the finite-strain solves have them."""
+    return Factor(body_system(problem, law, regional, membrane)[1].evaluate(np.zeros(3 * problem.space.n_all))["K"])
+
+
+def body_system(problem: Problem, law, regional=None, membrane=None):
+    """(the body, the body with its membrane) per pascal of `law`'s mu: regional laws, `WithMembrane` where there is one."""
     unit = law.scaled(1.0 / law.shear_modulus)
     laws, law_of = regional_system(problem.space, problem.mesh, problem.label, regional, unit) if regional else (unit, None)
-    system = FiniteStrain(problem.space, laws, mean_dilatation=False, law_of=law_of)
-    if membrane is not None:
-        system = WithMembrane(system, membrane.scaled(1.0 / law.shear_modulus))
-    return Factor(system.evaluate(np.zeros(3 * problem.space.n_all))["K"])
+    body = FiniteStrain(problem.space, laws, mean_dilatation=False, law_of=law_of)
+    return body, body if membrane is None else WithMembrane(body, membrane.scaled(1.0 / law.shear_modulus))
 
 
 def pull_stiffness(problem: Problem, law, points: np.ndarray, weights: np.ndarray | None = None, regional=None,
@@ -245,12 +248,9 @@ def solve_pull(problem: Problem, law, points, weights, direction, xs, stiffness:
     xs = np.asarray(xs, dtype=np.float64)
     if xs.ndim != 1 or len(xs) == 0 or not np.all(np.isfinite(xs)) or np.any(xs <= 0) or np.any(np.diff(xs) <= 0):
         raise ParameterError("displacements: an increasing list of positive lengths (m)")
-    unit = law.scaled(1.0 / law.shear_modulus)
     W = grasp_matrix(problem, points, weights)
     t0 = time.perf_counter()
-    laws, law_of = regional_system(problem.space, problem.mesh, problem.label, regional, unit) if regional else (unit, None)
-    system = FiniteStrain(problem.space, laws, mean_dilatation=False, law_of=law_of)
-    whole = system if membrane is None else WithMembrane(system, membrane.scaled(1.0 / law.shear_modulus))
+    system, whole = body_system(problem, law, regional, membrane)
     res = hold(whole, W, np.asarray(direction) * xs[-1], fractions=xs / xs[-1],
                first_step=min(0.25, 2.0 * xs[0] / xs[-1]), stiffness=stiffness, keep_states=stretch_range is not None,
                sensitivity=marginal and stretch_range is not None)
