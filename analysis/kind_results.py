@@ -13,13 +13,18 @@ from dataclasses import dataclass
 
 from analysis.result_records import (
     ChoicePair,
+    ChoiceShare,
     ChoiceTest,
     DifferencePair,
+    EndRate,
+    EndSummary,
     Friedman,
     MixedModelFit,
     OrdinalGeeFit,
     RankPair,
+    RatingSummary,
     Record,
+    Summary,
 )
 
 
@@ -43,7 +48,7 @@ class RatingStats(Record):
 
     - question: its text; points: its scale's points; anchors: the scale's anchor labels;
     - n: participants with an answer for every condition;
-    - conditions: per condition {n, median, q1, q3, iqr, mean, counts (per point)};
+    - conditions: per condition its median [IQR], mean and counts per point (RatingSummary);
     - friedman: Friedman across the conditions with Kendall's W [95% CI], or why not run
       (`reason`);
     - pairs: the Wilcoxon signed-rank pairs with the rank-biserial r [95% CI] (RankPair)."""
@@ -52,7 +57,7 @@ class RatingStats(Record):
     points: int
     anchors: tuple[str, ...]
     n: int
-    conditions: Mapping[str, Mapping]
+    conditions: Mapping[str, RatingSummary]
     friedman: Friedman
     pairs: tuple[RankPair, ...]
 
@@ -63,7 +68,7 @@ class ScoreStats(Record):
 
     - label: what reports call it; n: participants with a value for every condition;
     - conditions: per condition its mean [95% CI] (with `ci_reason` when there is none) and
-      median [IQR];
+      median [IQR] (Summary);
     - mixed_model: the linear mixed model (analysis.scales.mixed_model: `model_test`,
       `means`, `pairs`, `converged`, `problems`);
     - friedman: Friedman as the non-parametric check;
@@ -72,7 +77,7 @@ class ScoreStats(Record):
 
     label: str
     n: int
-    conditions: Mapping[str, Mapping]
+    conditions: Mapping[str, Summary]
     mixed_model: MixedModelFit
     friedman: Friedman
     pairs: tuple[DifferencePair, ...]
@@ -84,7 +89,7 @@ class ChoiceStats(Record):
     analysis.scales.choice_analysis.
 
     - question: its text; n: participants who chose; k: conditions; n_missing: no answer;
-    - shares: per condition {count, share, wilson_low, wilson_high};
+    - shares: per condition its count and share [Wilson 95%] (ChoiceShare);
     - overall: the test of equal chances {test, statistic, df, p_value, n, ...};
     - pairs: exact binomial tests between two conditions' counts (ChoicePair)."""
 
@@ -92,7 +97,7 @@ class ChoiceStats(Record):
     n: int
     k: int
     n_missing: int
-    shares: Mapping[str, Mapping]
+    shares: Mapping[str, ChoiceShare]
     overall: ChoiceTest
     pairs: tuple[ChoicePair, ...]
 
@@ -104,8 +109,8 @@ class KindStats(Record):
 
     - primary: the protocol's primary analysis;
     - ratings, scores, choices: per item id (score name) its statistics;
-    - session: the other questions asked once at the end, described only: per id a record
-      {question, kind, ...} (a rate with its Wilson interval, or a mean [95% CI] and median [IQR]);
+    - session: the other questions asked once at the end, described only: per id a yes/no
+      question's rate with its Wilson interval (EndRate), or a mean [95% CI] and median [IQR] (EndSummary);
     - ordinal_gee: the proportional-odds GEE across the rating items (analysis.scales.ordinal_gee),
       None without rating items or with one condition."""
 
@@ -113,7 +118,7 @@ class KindStats(Record):
     ratings: Mapping[str, RatingStats]
     scores: Mapping[str, ScoreStats]
     choices: Mapping[str, ChoiceStats]
-    session: Mapping[str, Mapping]
+    session: Mapping[str, EndRate | EndSummary]
     ordinal_gee: OrdinalGeeFit | None
 
     def family_pairs(self) -> list[tuple]:

@@ -29,15 +29,21 @@ from analysis.reports.formatting import p_value, rate_interval
 from analysis.reports.table import Table
 from analysis.result_records import (
     ChoicePair,
+    ChoiceShare,
     ChoiceTest,
     DifferencePair,
+    EndRate,
+    EndSummary,
     Friedman,
     GeeFit,
     MixedModelFit,
+    ModelMean,
     ModelTest,
     OddsRatioPair,
     OrdinalGeeFit,
     RankPair,
+    RatingSummary,
+    Summary,
 )
 from analysis.stats import friedman, holm, holm_family, named, records, wilson
 from analysis.study_results import LogisticGee, StudyStats
@@ -236,7 +242,7 @@ def choices(protocol, answers: pd.DataFrame) -> dict[str, dict]:
     return out
 
 
-def session_questions(protocol, answers: pd.DataFrame) -> dict:
+def session_questions(protocol, answers: pd.DataFrame) -> dict[str, EndRate | EndSummary]:
     """Questions asked once at the end, other than choices: described only."""
     out = {}
     for name, when in protocol.instruments:
@@ -245,8 +251,8 @@ def session_questions(protocol, answers: pd.DataFrame) -> dict:
             sel = answers[answers["item"].isin(items)]
             v = [instruments.score(name, dict(zip(g["item"], g["answer"].astype(float)))) for _, g in sel.groupby("code")
                  if g["item"].nunique() == len(items)]
-            out[name] = ({"question": instruments.SCORES[name], "kind": "score"} | scales.mean_ci(v, scale=instruments.SCORE_RANGE[name])
-                         | scales.median_iqr(v))
+            out[name] = EndSummary.of({"question": instruments.SCORES[name], "kind": "score"} | scales.mean_ci(v, scale=instruments.SCORE_RANGE[name])
+                                      | scales.median_iqr(v))
     for q in protocol.asked("end"):
         if not q.analysed or q.kind == "choice" or q.instrument is not None:
             continue
@@ -254,10 +260,10 @@ def session_questions(protocol, answers: pd.DataFrame) -> dict:
         if q.kind == "yes_no":
 
             lo, hi = wilson(int(v.sum()), len(v))
-            out[q.id] = {"question": q.text, "kind": q.kind, "n": len(v), "yes": int(v.sum()), "rate": float(v.mean()) if len(v) else float("nan"),
-                         "wilson_low": lo, "wilson_high": hi}
+            out[q.id] = EndRate(question=q.text, kind=q.kind, n=len(v), yes=int(v.sum()), rate=float(v.mean()) if len(v) else float("nan"),
+                                wilson_low=lo, wilson_high=hi)
         else:
-            out[q.id] = {"question": q.text, "kind": q.kind} | scales.mean_ci(v, scale=score_scale(q.id, protocol)) | scales.median_iqr(v)
+            out[q.id] = EndSummary.of({"question": q.text, "kind": q.kind} | scales.mean_ci(v, scale=score_scale(q.id, protocol)) | scales.median_iqr(v))
     return out
 
 
@@ -347,7 +353,8 @@ def kind_stats(study: Study, answers: pd.DataFrame, tests: dict | None = None, a
         adjusted = holm_family([[p["p_value"] for p in pairs] for pairs in family_pairs(tests)])
     holm_of = iter(adjusted)
     what = primary(protocol)
-    rating_stats = {k: RatingStats(**v | {"friedman": Friedman.of(v["friedman"]),
+    rating_stats = {k: RatingStats(**v | {"conditions": {m: RatingSummary.of(c) for m, c in v["conditions"].items()},
+                                          "friedman": Friedman.of(v["friedman"]),
                                           "pairs": tuple(RankPair.of(p, **h) for p, h in zip(v["pairs"], next(holm_of)))})
                     for k, v in tests["ratings"].items()}
     score_stats = {}
@@ -360,10 +367,12 @@ def kind_stats(study: Study, answers: pd.DataFrame, tests: dict | None = None, a
                if what.analysis == "mixed_model" and what.items[0] == k else [{}] * len(v["pairs"]))
         pairs = tuple(DifferencePair.of(p, **o, **h, **named(p, PAIR_TESTS["scores"], problems))
                       for p, o, h in zip(v["pairs"], own, next(holm_of)))
-        fit = MixedModelFit.of(mm, model_test=ModelTest.of(mm["model_test"]),
+        fit = MixedModelFit.of(mm, model_test=ModelTest.of(mm["model_test"]), means={m: ModelMean.of(c) for m, c in mm["means"].items()},
                                pairs=tuple(DifferencePair.of(p, **named(p, PAIR_TESTS["scores"], problems)) for p in mm["pairs"]))
-        score_stats[k] = ScoreStats(**v | {"mixed_model": fit, "friedman": Friedman.of(v["friedman"]), "pairs": pairs})
-    choice_stats = {k: ChoiceStats(**v | {"overall": ChoiceTest.of(v["overall"]),
+        score_stats[k] = ScoreStats(**v | {"conditions": {m: Summary.of(c) for m, c in v["conditions"].items()}, "mixed_model": fit,
+                                           "friedman": Friedman.of(v["friedman"]), "pairs": pairs})
+    choice_stats = {k: ChoiceStats(**v | {"shares": {m: ChoiceShare.of(c) for m, c in v["shares"].items()},
+                                          "overall": ChoiceTest.of(v["overall"]),
                                           "pairs": tuple(ChoicePair.of(p, **h, **named(p, PAIR_TESTS["choices"]))
                                                          for p, h in zip(v["pairs"], next(holm_of)))})
                     for k, v in tests["choices"].items()}
@@ -442,12 +451,12 @@ def _friedman_cell(fr: Friedman, with_w: bool = False) -> str:
     return f"{fr.statistic:.2f} ({_p(fr.p_value)}){w}"
 
 
-def _mean_cell(c: dict, fmt: str) -> str:
+def _mean_cell(c: Summary, fmt: str) -> str:
     """A mean with its interval, or with why it has none."""
-    if not c["n"]:
+    if not c.n:
         return "n/a (no values)"
-    ci = _ci(c["ci_low"], c["ci_high"], fmt)
-    return fmt.format(c["mean"]) + (ci or (f" ({c['ci_reason']})" if c.get("ci_reason") else ""))
+    ci = _ci(c.ci_low, c.ci_high, fmt)
+    return fmt.format(c.mean) + (ci or (f" ({c.ci_reason})" if c.ci_reason else ""))
 
 
 def _rank_pair_cell(p: RankPair) -> str:
@@ -477,7 +486,7 @@ def kind_tables(kinds: KindStats, models: list[str], scope: str) -> list[Table]:
     if kinds.ratings:
         rows = []
         for v in kinds.ratings.values():
-            cells = [f"{c['median']:g} [{c['q1']:g}, {c['q3']:g}]" for c in (v.conditions[m] for m in models)]
+            cells = [f"{c.median:g} [{c.q1:g}, {c.q3:g}]" for c in (v.conditions[m] for m in models)]
             pairs = "; ".join(_rank_pair_cell(p) for p in v.pairs) or "n/a (one condition)"
             rows.append([v.question, *cells, _friedman_cell(v.friedman, with_w=True), pairs])
         points = sorted({v.points for v in kinds.ratings.values()})
@@ -503,7 +512,7 @@ def kind_tables(kinds: KindStats, models: list[str], scope: str) -> list[Table]:
                             "raw NASA-TLX: the mean of its six subscales, 0-100 (Hart 2006)."))
     for v in kinds.choices.values():
         ov = v.overall
-        rows = [[m, f"{s['count']}", rate_interval(s['share'], s['wilson_low'], s['wilson_high'], 0)] for m, s in v.shares.items()]
+        rows = [[m, f"{s.count}", rate_interval(s.share, s.wilson_low, s.wilson_high, 0)] for m, s in v.shares.items()]
         pairs = "; ".join(f"{p.a}-{p.b} {p.n_a}:{p.n_b}, " + (f"not tested ({p.reason})" if is_withheld(p.reason) else f"p {_p(p.p_holm)}")
                           for p in v.pairs)
         out.append(Table(title=f"Choice: {v.question}", columns=["Condition", "Chosen by", "Share [Wilson 95%]"], rows=rows,
@@ -513,11 +522,11 @@ def kind_tables(kinds: KindStats, models: list[str], scope: str) -> list[Table]:
     if kinds.session:
         rows = []
         for v in kinds.session.values():
-            if v["kind"] == "yes_no":
-                rows.append([v["question"], f"{v['yes']}/{v['n']} yes, {rate_interval(v['rate'], v['wilson_low'], v['wilson_high'], 0)}"])
+            if isinstance(v, EndRate):
+                rows.append([v.question, f"{v.yes}/{v.n} yes, {rate_interval(v.rate, v.wilson_low, v.wilson_high, 0)}"])
             else:
-                rows.append([v["question"], f"mean {_mean_cell(v, '{:.2f}')}, median {v['median']:g} [{v['q1']:g}, {v['q3']:g}]"
-                             if v["n"] else "no answers"])
+                rows.append([v.question, f"mean {_mean_cell(v, '{:.2f}')}, median {v.median:g} [{v.q1:g}, {v.q3:g}]"
+                             if v.n else "no answers"])
         out.append(Table(title="Asked once at the end", columns=["Question", "Answers"], rows=rows,
                     notes="About the whole session, not one condition: described, not tested."))
     return out

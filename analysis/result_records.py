@@ -58,6 +58,93 @@ class Record:
         return {k: plain(getattr(self, k)) for k in names}
 
 
+# --- one condition's answers described (a leaf keyed by its condition in its result)
+
+@dataclass(frozen=True, kw_only=True)
+class ConditionRate(Record):
+    """A yes/no question's answers in one condition: counts, the yes rate and its Wilson 95% interval."""
+
+    yes: int
+    no: int
+    rate: float
+    wilson_low: float
+    wilson_high: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class Summary(Record):
+    """Values described: n, mean and SD with the mean's 95% interval or why it has none
+    (analysis.withhold.mean_ci: `ci_method`, `ci_reason`), median [IQR] (analysis.scales.median_iqr)."""
+
+    n: int
+    mean: float
+    sd: float
+    ci_low: float
+    ci_high: float
+    ci_method: str | None = None
+    ci_reason: str | None = None
+    median: float
+    q1: float
+    q3: float
+    iqr: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class RatingSummary(Record):
+    """A rating item's answers in one condition: median [IQR], mean, and how many chose each point
+    (`counts[0]` is point 1)."""
+
+    n: int
+    median: float
+    q1: float
+    q3: float
+    iqr: float
+    mean: float
+    counts: tuple[int, ...]
+
+
+@dataclass(frozen=True, kw_only=True)
+class ChoiceShare(Record):
+    """How many chose one condition, their share of those who chose, its Wilson 95% interval."""
+
+    count: int
+    share: float
+    wilson_low: float
+    wilson_high: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModelMean(Record):
+    """A mixed model's mean of one condition with its standard error and 95% interval."""
+
+    mean: float
+    se: float
+    ci_low: float
+    ci_high: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class EndRate(Record):
+    """A yes/no question asked once at the end: its yes rate over the n who answered [Wilson 95%]."""
+
+    question: str
+    kind: str
+    n: int
+    yes: int
+    rate: float
+    wilson_low: float
+    wilson_high: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class EndSummary(Summary):
+    """A question (or an instrument's score) asked once at the end, described (`kind`: the
+    question's kind, "score" for an instrument)."""
+
+    question: str
+    kind: str
+
+
 # --- pairwise tests: a pair of conditions (a, b); p_holm is Holm over the study's family or the
 # question's pairs (`holm` of analysis.study_results.StudyStats), p_holm_question within the
 # question, p_holm_family over every pairwise test of the study; `test` names the test and
@@ -226,7 +313,7 @@ class MixedModelFit(Record):
     model_test: ModelTest
     estimable: bool
     problems: tuple[str, ...]
-    means: Mapping[str, Mapping]
+    means: Mapping[str, ModelMean]
     pairs: tuple[DifferencePair, ...]
 
 

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 from analysis.facts import StudyFacts
 from analysis.faults import ConditionEvents
 from analysis.kind_results import KindStats
-from analysis.result_records import GeeFit, McNemarPair, Record
+from analysis.methods import StudyMethods
+from analysis.result_records import ConditionRate, GeeFit, McNemarPair, Record
 
 
 @dataclass(frozen=True)
@@ -23,7 +24,7 @@ class YesNoItem(Record):
     - question: its text;
     - cochran_q, df, p_value, n_complete: Cochran's Q across the conditions (NaN when not run)
       and the participants who answered for every condition;
-    - rates: per condition {yes, no, rate, wilson_low, wilson_high};
+    - rates: per condition its counts and yes rate [Wilson 95%] (ConditionRate);
     - pairs: the exact McNemar pairs (`a, b, n01, n10, p_value, p_holm, odds_ratio`, ...);
     - reason: why Cochran's Q was not tested (None when it was)."""
 
@@ -32,7 +33,7 @@ class YesNoItem(Record):
     df: int
     p_value: float
     n_complete: int
-    rates: Mapping[str, Mapping]
+    rates: Mapping[str, ConditionRate]
     pairs: tuple[McNemarPair, ...]
     reason: str | None = None
 
@@ -57,13 +58,27 @@ class LogisticGee(Record):
         return out if self.period_factor is not None else {k: v for k, v in out.items() if k != "period_factor"}
 
 
+@dataclass(frozen=True, kw_only=True)
+class DeformationRow(Record):
+    """One condition's deformation time per frame (ms) over the complete participants' trial
+    means (analysis.table1.deformation): mean, SD (NaN below two participants), median, 95th percentile."""
+
+    model: str
+    n_participants: int
+    n_trials: int
+    mean_ms: float
+    sd_ms: float
+    median_ms: float
+    p95_ms: float
+
+
 @dataclass(frozen=True)
 class DeformationBenchmark(Record):
     """The deformation-time row: `label` says it is a benchmark of the machine, not a measure of
-    the participants; `rows` are analysis.table1.deformation's records (one per condition)."""
+    the participants; `rows`, one per condition."""
 
     label: str
-    rows: tuple[Mapping, ...]
+    rows: tuple[DeformationRow, ...]
 
 
 @dataclass(frozen=True)
@@ -77,7 +92,7 @@ class StudyStats(Record):
     - gee: the logistic GEE across the yes/no questions;
     - kinds: every other kind of answer, and the protocol's primary analysis;
     - deformation: the deformation-time benchmark;
-    - methods: the study's methods as data (analysis/reports/methods.py), which `report text` writes out;
+    - methods: the study's methods as data (analysis/methods.py), which `report text` writes out;
     - faults: per condition its model faults and safety events, and whether its tests are withheld
       (analysis/faults.py)."""
 
@@ -87,6 +102,6 @@ class StudyStats(Record):
     gee: LogisticGee
     kinds: KindStats
     deformation: DeformationBenchmark
-    methods: Mapping
+    methods: StudyMethods
     faults: tuple[ConditionEvents, ...] = ()
 

@@ -18,11 +18,11 @@ from analysis.kinds import (
     odds_ratio_pairs,
     primary_line,
 )
-from analysis.reports.methods import study_methods
+from analysis.methods import study_methods
 from analysis.reports.table import markdown, markdown_grid
-from analysis.result_records import GeeFit, McNemarPair, OddsRatioPair
+from analysis.result_records import ConditionRate, GeeFit, McNemarPair, OddsRatioPair
 from analysis.stats import HOLM_SCOPES, gee_fit, holm, holm_family, named, pairwise_mcnemar, records
-from analysis.study_results import DeformationBenchmark, LogisticGee, StudyStats, YesNoItem
+from analysis.study_results import DeformationBenchmark, DeformationRow, LogisticGee, StudyStats, YesNoItem
 from analysis.study_snapshot import Study
 from analysis.table1 import (
     DEFORMATION_LABEL,
@@ -73,7 +73,7 @@ def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | N
         items[item] = YesNoItem(
             question=g["question"].iloc[0],
             cochran_q=qrow["cochran_q"], df=int(qrow["df"]), p_value=qrow["p_value"], n_complete=int(qrow["n_complete"]),
-            rates={row["model"]: {k: row[k] for k in ("yes", "no", "rate", "wilson_low", "wilson_high")} for _, row in g.iterrows()},
+            rates={row["model"]: ConditionRate(**{k: row[k] for k in ("yes", "no", "rate", "wilson_low", "wilson_high")}) for _, row in g.iterrows()},
             pairs=tuple(McNemarPair.of(p, **h) for p, h in zip(mcnemar[item], holm_of)),
             reason=qrow.get("reason") if isinstance(qrow.get("reason"), str) else None,
         )
@@ -81,7 +81,7 @@ def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | N
     gee = study_gee(study, answers, protocol_models, held)
     facts = study_facts(study)
     return StudyStats(facts=facts, holm=holm_scope, items=items, gee=gee, kinds=kinds, faults=faults,
-                      deformation=DeformationBenchmark(DEFORMATION_LABEL, deformation(study).to_dict(orient="records")),
+                      deformation=DeformationBenchmark(DEFORMATION_LABEL, tuple(DeformationRow(**r) for r in deformation(study).to_dict(orient="records"))),
                       methods=study_methods(study, facts, items, kinds, holm_scope))
 
 

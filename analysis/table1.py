@@ -18,8 +18,9 @@ import numpy as np
 import pandas as pd
 from statsmodels.stats.contingency_tables import cochrans_q
 
-from analysis.facts import StudyFacts
+from analysis.facts import ConditionRun, IncompleteParticipant, ModelSource, StudyFacts
 from analysis.faults import ConditionEvents, condition_events, involving, withheld
+from analysis.methods import material_keys
 from analysis.reports.formatting import p_value, rate_interval
 from analysis.reports.table import Table
 from analysis.result_records import McNemarPair
@@ -27,7 +28,6 @@ from analysis.stats import tests_run, wilson
 from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study, data_flag
 from analysis.withhold import binary_across_reason, mean_sd
-from sim.models.registry import ModelLoadError, model_class
 from sim.text import counted
 
 
@@ -134,14 +134,14 @@ def study_facts(study: Study) -> StudyFacts:
     persons = done.count("person")
     synthetic = done.count("synthetic") + done.count("mixed")
     mixed = list(study.mixed_source_participants)  # the warning names every one, complete or not
-    return StudyFacts(study=protocol.name, participants=n, incomplete_participants=list(done.incomplete),
+    return StudyFacts(study=protocol.name, participants=n, incomplete_participants=tuple(IncompleteParticipant(**x) for x in done.incomplete),
                       synthetic_participants=synthetic, person_participants=persons, mixed_source_participants=mixed,
                       synthetic=synthetic > 0, mixed=synthetic > 0 and persons > 0, flag=data_flag(persons, synthetic),
                       design=f"within-subject, {counted(len(protocol.conditions), 'condition')}, {protocol.counterbalancing} counterbalancing",
                       conditions=conditions(study))
 
 
-def conditions(study: Study) -> list[dict]:
+def conditions(study: Study) -> list[ConditionRun]:
     """What each condition ran: its resolved configuration (studyctl/conditions.py) and hash,
     with the sessions that ran it. A condition that ran under two configurations (its scene or
     protocol changed mid-study) has two rows; sessions before schema 5 recorded none."""
@@ -149,14 +149,15 @@ def conditions(study: Study) -> list[dict]:
     order = study.protocol.conditions
     out = []  # the protocol's order; a stable sort keeps each condition's configurations by first session
     for r in sorted(rows.to_dict(orient="records"), key=lambda r: order.index(r["condition"]) if r["condition"] in order else len(order)):
-        config = json.loads(r["config"]) if isinstance(r["config"], str) else None
-        out.append({"condition": r["condition"], "model": config["model"] if config else None, "config": config,
-                    "config_sha256": r["config_sha256"] if config else None, "sessions": int(r["sessions"]),
-                    "source": model_source(config, r.get("software_versions"))})
+        text = r["config"] if isinstance(r["config"], str) else None
+        config = json.loads(text) if text else None
+        out.append(ConditionRun(condition=r["condition"], model=config["model"] if config else None, config_json=text if config else None,
+                                config_sha256=r["config_sha256"] if config else None, sessions=int(r["sessions"]),
+                                source=model_source(config, r.get("software_versions"))))
     return out
 
 
-def model_source(config: dict | None, software_versions: str | None = None) -> dict | None:
+def model_source(config: dict | None, software_versions: str | None = None) -> ModelSource | None:
     """Where a condition's model came from, as its stored configuration says: a plugin's
     distribution, version and source hash (`plugin`, studyctl/conditions.py), else built into
     brainsim-study, whose version is that of the sessions that ran it (`software_versions`: their
@@ -165,9 +166,9 @@ def model_source(config: dict | None, software_versions: str | None = None) -> d
         return None
     plugin = config.get("plugin")
     if not plugin:
-        return {"package": "brainsim-study", "version": _builtin_version(software_versions), "builtin": True, "source_sha256": None}
-    return {"package": plugin.get("distribution"), "version": plugin.get("version"), "builtin": False,
-            "source_sha256": plugin.get("source_sha256"), "target": plugin.get("target")}
+        return ModelSource.of({"package": "brainsim-study", "version": _builtin_version(software_versions), "builtin": True, "source_sha256": None})
+    return ModelSource(package=plugin.get("distribution"), version=plugin.get("version"), builtin=False,
+                       source_sha256=plugin.get("source_sha256"), target=plugin.get("target"))
 
 
 def _builtin_version(software_versions: str | None) -> str | None:
@@ -179,49 +180,41 @@ def _builtin_version(software_versions: str | None) -> str | None:
     return ", ".join(sorted(found)) or None
 
 
-def source_text(source: dict | None) -> str:
+def source_text(source: ModelSource | None) -> str:
     """A model's origin in words: "built in", or "from PACKAGE VERSION (source SHA-256 ...)"."""
-    if source is None or source["builtin"]:
+    if source is None or source.builtin:
         return "built in"
-    where = f"{source['package']} {source['version']}" if source["package"] else f"{source['target']} on the Python path"
-    sha = f" (source SHA-256 {source['source_sha256'][:12]})" if source.get("source_sha256") else ""
+    where = f"{source.package} {source.version}" if source.package else f"{source.target} on the Python path"
+    sha = f" (source SHA-256 {source.source_sha256[:12]})" if source.source_sha256 else ""
     return f"from {where}{sha}"
 
 
-def material_keys(model: str) -> tuple:
-    """The material keys model `model` reads (its declaration); none when it no longer loads."""
-    try:
-        return model_class(model).material_keys
-    except ModelLoadError:
-        return ()
-
-
-def condition_text(c: dict) -> str:
+def condition_text(c: ConditionRun) -> str:
     """One line of what a condition ran: model, variant and options, the tissue's modulus."""
-    cfg = c["config"]
+    cfg = c.config
     if cfg is None:
-        return f"{c['condition']}: the scene's own configuration (not recorded before schema 5)"
+        return f"{c.condition}: the scene's own configuration (not recorded before schema 5)"
     opts = {k: v for k, v in cfg["options"].items() if v is not None} | ({"variant": cfg["variant"]} if "variant" in cfg else {})
     shown = ", ".join(f"{k} {v['file'] if isinstance(v, dict) and 'file' in v else v}" for k, v in sorted(opts.items()))
     mat = cfg["material"]
     keys = material_keys(cfg["model"])
     parts = [f"{label} {mat[key]:g}{unit}" for key, label, unit in (("young", "E", " Pa"), ("poisson", "nu", "")) if key in keys]
     young = f"; {', '.join(parts)}" if parts else ""
-    return (f"{c['condition']}: {cfg['model']} ({shown}{young}), {source_text(c.get('source', model_source(cfg)))}, "
-            f"configuration {c['config_sha256'][:12]}")
+    return (f"{c.condition}: {cfg['model']} ({shown}{young}), {source_text(c.source)}, "
+            f"configuration {c.config_sha256[:12]}")
 
 
-def plugin_note(conditions: list[dict]) -> str:
+def plugin_note(conditions: list[ConditionRun]) -> str:
     """The conditions whose model came from outside brainsim-study, with its package and version,
     as a sentence for a table's note ("" when every model is built in)."""
-    outside = [f"{c['condition']} ran {c['model']} {source_text(c['source'])}" for c in conditions
-               if c.get("source") is not None and not c["source"]["builtin"]]
+    outside = [f"{c.condition} ran {c.model} {source_text(c.source)}" for c in conditions
+               if c.source is not None and not c.source.builtin]
     return f"Models from outside brainsim-study: {'; '.join(outside)}." if outside else ""
 
 
 def incomplete_text(facts: StudyFacts) -> str:
     """The participants left out of every statistic, as reports print them: "P98 (9/27), ..."."""
-    return ", ".join("{} ({}/{})".format(x["code"], x["answers"], x["of"]) for x in facts.incomplete_participants)
+    return ", ".join(f"{x.code} ({x.answers}/{x.of})" for x in facts.incomplete_participants)
 
 
 def item_rows(r, q, models):

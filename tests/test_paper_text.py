@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import json
 import re
+from types import SimpleNamespace
 
 import pytest
 
+from analysis.methods import Procedure, QuestionAsked
 from analysis.reports import paper_text
 from sim.text import counted
 from tests.helpers import unsupported_numbers
@@ -105,6 +107,7 @@ def test_effects_name_their_direction_and_only_what_a_model_reads(variants_study
 
 def test_a_vas_question_names_its_scale_once():
     """"(visual analogue scale on a visual analogue scale from ...)"."""
-    m = {"procedure": {"questions": [{"text": "How stiff?", "kind": "vas", "anchors": ["soft", "hard"], "when": "after_condition"}],
-                       "instruments": [], "tasks": []}}
+    asked = QuestionAsked(id="stiff", text="How stiff?", kind="vas", when="after_condition", points=None, anchors=("soft", "hard"),
+                          instrument=None)
+    m = SimpleNamespace(procedure=Procedure(questions=(asked,), instruments=(), tasks=()))
     assert paper_text._procedure(m).count("visual analogue scale") == 1

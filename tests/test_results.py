@@ -32,7 +32,7 @@ from tests.conftest import ROOT
 # records' own conversion (a record's as_dict gives its inner records' as theirs)
 # where JSON is written: the commands, report table1's JSON (analysis/reports/study_report.py), the records
 # themselves, and sim/jsonable.py (what every JSON writer calls)
-AS_DICT_CALLERS = {"studyctl/cli/reports.py", "studyctl/cli/plan.py", "analysis/reports/study_report.py", "analysis/result_records.py",
+AS_DICT_CALLERS = {"studyctl/cli/reports.py", "studyctl/cli/plan.py", "analysis/reports/study_report.py", "analysis/result_records.py", "analysis/facts.py",
                    "analysis/study_results.py", "sim/jsonable.py"}
 
 
@@ -79,10 +79,45 @@ def test_every_record_refuses_a_new_value(results):
 def test_a_result_mapping_refuses_a_key(results):
     st = results[1]
     rating = next(iter(st.kinds.ratings.values()))
-    for mapping in (st.items, st.kinds.ratings, rating.conditions, next(iter(rating.conditions.values())), st.methods):
+    for mapping in (st.items, st.kinds.ratings, rating.conditions, st.kinds.scores, st.kinds.choices):
         assert isinstance(mapping, MappingProxyType)
         with pytest.raises(TypeError):
             mapping["new"] = 1
+
+
+def _records() -> list[type]:
+    """Every result record class (the subclasses of Record, all the way down)."""
+    import analysis.study_results  # noqa: F401  (every result module imported: their classes registered)
+
+    out, todo = [], [Record]
+    while todo:
+        cls = todo.pop()
+        out.append(cls)
+        todo += cls.__subclasses__()
+    return out
+
+
+def test_no_result_record_has_an_untyped_field():
+    # a keyed container holds records or plain values; nothing holds a bare mapping or a list of them
+    names = {c.__name__ for c in _records()} | {"str", "int", "float", "bool"}
+    bad = []
+    for cls in _records():
+        for f in fields(cls):
+            text = str(f.type).removesuffix(" | None")
+            if "Mapping" not in text and "dict" not in text:
+                continue
+            inner = text.removeprefix("Mapping[str, ").removesuffix("]") if text.startswith("Mapping[str, ") else None
+            if inner is None or not {t.strip() for t in inner.split("|")} <= names:
+                bad.append(f"{cls.__name__}.{f.name}: {text}")
+    assert bad == []
+
+
+def test_every_leaf_of_a_result_is_a_record_or_a_plain_value(results):
+    plain = (str, int, float, bool, type(None))
+    for st in results:
+        odd = [path for path, v in _walk(st, "st") if not isinstance(v, (Record, MappingProxyType, tuple, *plain))
+               and type(v).__module__ != "numpy"]
+        assert odd == []
 
 
 def test_a_results_pairs_are_a_tuple(results):

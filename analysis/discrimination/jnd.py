@@ -38,8 +38,8 @@ from analysis.discrimination.pooled import POOLED_MIN, pooled_webers
 from analysis.discrimination.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, weber_table
 from analysis.discrimination.weber_groups import group_test
 from analysis.faults import any_events, condition_events, events_table, withheld
+from analysis.methods import study_methods
 from analysis.reports.formatting import PAGE_END, drawn_png, figure_html, p_value, page_head
-from analysis.reports.methods import study_methods
 from analysis.reports.table import Table, latex_tables
 from analysis.reports.table import html as table_html
 from analysis.reports.table import markdown as table_markdown

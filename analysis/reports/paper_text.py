@@ -15,8 +15,10 @@ from collections.abc import Mapping
 from analysis.discrimination.jnd import jnd_results
 from analysis.faults import ConditionEvents, events_text
 from analysis.kind_results import KindStats
+from analysis.methods import StudyMethods
 from analysis.questions import LATENCY_MEASURES
 from analysis.reports import latex
+from analysis.result_records import EndSummary
 from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study
 from analysis.study_stats import study_stats
@@ -82,127 +84,127 @@ def _pairs_text(pairs, describe, what: str, family: str) -> str:
     return " ".join(out)
 
 
-def _participants(m: Mapping, flag: str) -> str:
-    p = m["participants"]
-    who = ("synthetic participants simulated by the platform, not people" if p["synthetic_participants"] and not p["person_participants"]
-           else "people" if not p["synthetic_participants"]
-           else f"{counted(p['person_participants'], 'person')} and {counted(p['synthetic_participants'], 'synthetic participant')}, pooled")
-    asked = m["procedure"]["questions"] or m["procedure"]["instruments"]
+def _participants(m: StudyMethods, flag: str) -> str:
+    p = m.participants
+    who = ("synthetic participants simulated by the platform, not people" if p.synthetic_participants and not p.person_participants
+           else "people" if not p.synthetic_participants
+           else f"{counted(p.person_participants, 'person')} and {counted(p.synthetic_participants, 'synthetic participant')}, pooled")
+    asked = m.procedure.questions or m.procedure.instruments
     did = "answered every question for every condition" if asked else "took part in the discrimination task"
-    text = (f"{flag + ' ' if flag else ''}N = {counted(p['n'], 'participant')} {did} "
-            f"(target {p['target']}; ages {p['age_min']} to {p['age_max']} eligible); they were {who}.")
-    if p["excluded"]:
-        k = len(p["excluded"])
+    text = (f"{flag + ' ' if flag else ''}N = {counted(p.n, 'participant')} {did} "
+            f"(target {p.target}; ages {p.age_min} to {p.age_max} eligible); they were {who}.")
+    if p.excluded:
+        k = len(p.excluded)
         text += (f" Excluded from every analysis for incomplete answers: {k} participant{'' if k == 1 else 's'} ("
-                 + "; ".join(f"{x['code']}: {x['answers']} of {x['of']} answers" for x in p["excluded"]) + ").")
+                 + "; ".join(f"{x.code}: {x.answers} of {x.of} answers" for x in p.excluded) + ").")
     else:
         text += " No participant was excluded."
-    if p["groups"]:
-        text += (f" Participants were grouped by {p['groups']['field']}: "
-                 + ", ".join(f"{v} (n = {n})" for v, n in p["groups"]["counts"].items()) + ".")
+    if p.groups:
+        text += (f" Participants were grouped by {p.groups.field}: "
+                 + ", ".join(f"{v} (n = {n})" for v, n in p.groups.counts.items()) + ".")
     return text
 
 
-def _design(m: dict) -> str:
-    d = m["design"]
-    if d["n_conditions"] == 1:
-        text = f"Every participant ran one condition ({d['conditions'][0]})."
+def _design(m: StudyMethods) -> str:
+    d = m.design
+    if d.n_conditions == 1:
+        text = f"Every participant ran one condition ({d.conditions[0]})."
     else:
-        text = (f"A within-subject design compared {counted(d['n_conditions'], 'condition')} ({_names(d['conditions'])}), their order "
-                f"counterbalanced ({d['counterbalancing']}).")
-    if d["trials_per_condition"]:
-        text += (f" Each condition was run for {counted(d['trials_per_condition'], 'trial')} of {d['trial_seconds']:g} s, with {d['rest_seconds']:g} s "
+        text = (f"A within-subject design compared {counted(d.n_conditions, 'condition')} ({_names(d.conditions)}), their order "
+                f"counterbalanced ({d.counterbalancing}).")
+    if d.trials_per_condition:
+        text += (f" Each condition was run for {counted(d.trials_per_condition, 'trial')} of {d.trial_seconds:g} s, with {d.rest_seconds:g} s "
                  f"of rest between trials")
-        text += "; a trial ended when its targets were reached." if d["trial_end"] == "targets" else "."
-    if d["training_minutes"]:
-        text += f" Training lasted {d['training_minutes']:g} min."
+        text += "; a trial ended when its targets were reached." if d.trial_end == "targets" else "."
+    if d.training_minutes:
+        text += f" Training lasted {d.training_minutes:g} min."
     return text
 
 
-def _apparatus(m: dict) -> str:
-    a = m["apparatus"]
-    text = ("Sessions ran with " + _names([f"{x['device']} devices ({counted(x['sessions'], 'session')}{', synthetic' if x['synthetic'] else ''})"
-                                           for x in a["devices"]])) if a["devices"] else "No session has finished"
-    if a["software_versions"]:
-        text += f", on {_names(a['software_versions'])}"
+def _apparatus(m: StudyMethods) -> str:
+    a = m.apparatus
+    text = ("Sessions ran with " + _names([f"{x.device} devices ({counted(x.sessions, 'session')}{', synthetic' if x.synthetic else ''})"
+                                           for x in a.devices])) if a.devices else "No session has finished"
+    if a.software_versions:
+        text += f", on {_names(a.software_versions)}"
     text += "."
-    if a["servo_rate_hz"] and a["visual_rate_hz"]:
-        text += (f" The haptic servo loop ran at {_names([f'{x:g}' for x in a['servo_rate_hz']])} Hz and the visual loop at "
-                 f"{_names([f'{x:g}' for x in a['visual_rate_hz']])} Hz.")
-    for c in a["models"]:
-        if not c.get("model"):
-            text += f" Condition {c['condition']} recorded no configuration."
+    if a.servo_rate_hz and a.visual_rate_hz:
+        text += (f" The haptic servo loop ran at {_names([f'{x:g}' for x in a.servo_rate_hz])} Hz and the visual loop at "
+                 f"{_names([f'{x:g}' for x in a.visual_rate_hz])} Hz.")
+    for c in a.models:
+        if not c.model:
+            text += f" Condition {c.condition} recorded no configuration."
             continue
-        options = ", ".join(f"{k} {v:g}" if _finite(v) else f"{k} {v}" for k, v in c["options"].items())
+        options = ", ".join(f"{k} {v:g}" if _finite(v) else f"{k} {v}" for k, v in c.options.items())
         material = []
-        if c.get("law"):
-            material.append(f"the {c['law']} law")
-        if _finite(c.get("young_pa")):
-            material.append(f"Young's modulus {sig(c['young_pa'])} Pa")
-        if _finite(c.get("poisson")):
-            material.append(f"Poisson's ratio {c['poisson']:g}")
-        src = c.get("source")
-        origin = (f" of the package {src['package']} {src['version']}" if src and not src["builtin"] and src["package"]
-                  else f" ({src['target']}, from the Python path)" if src and not src["builtin"] else " built into brainsim-study")
-        text += (f" Condition {c['condition']} ran the {c['model']} model{origin}" + (f" ({options})" if options else "")
-                 + (f" on the mesh {c['mesh']}" if c.get("mesh") else "") + (f", with {_names(material)}" if material else "") + ".")
-    for r in a["latency"]:
-        text += (f" Measured {LATENCY_MEASURES.get(r['measure'], r['measure'])} with {r['model']}: mean {sig(r['mean'])} over {counted(r['trials'], 'trial')} "
-                 f"(range {sig(r['lowest'])} to {sig(r['highest'])}).")
+        if c.law:
+            material.append(f"the {c.law} law")
+        if _finite(c.young_pa):
+            material.append(f"Young's modulus {sig(c.young_pa)} Pa")
+        if _finite(c.poisson):
+            material.append(f"Poisson's ratio {c.poisson:g}")
+        src = c.source
+        origin = (f" of the package {src.package} {src.version}" if src and not src.builtin and src.package
+                  else f" ({src.target}, from the Python path)" if src and not src.builtin else " built into brainsim-study")
+        text += (f" Condition {c.condition} ran the {c.model} model{origin}" + (f" ({options})" if options else "")
+                 + (f" on the mesh {c.mesh}" if c.mesh else "") + (f", with {_names(material)}" if material else "") + ".")
+    for r in a.latency:
+        text += (f" Measured {LATENCY_MEASURES.get(r.measure, r.measure)} with {r.model}: mean {sig(r.mean)} over {counted(r.trials, 'trial')} "
+                 f"(range {sig(r.lowest)} to {sig(r.highest)}).")
     return text
 
 
-def _procedure(m: dict) -> str:
-    pr = m["procedure"]
+def _procedure(m: StudyMethods) -> str:
+    pr = m.procedure
     parts = []
-    for q in pr["questions"]:
+    for q in pr.questions:
         scale = ""
-        if q["kind"] == "likert":
-            scale = f" on a {q['points']}-point scale from “{q['anchors'][0]}” to “{q['anchors'][1]}”"
-        elif q["kind"] == "vas" and q["anchors"]:
-            scale = f" from “{q['anchors'][0]}” to “{q['anchors'][1]}”"  # KIND_WORDS names the scale
-        parts.append(f"“{q['text']}” ({KIND_WORDS.get(q['kind'], q['kind'])}{scale}, asked {WHEN_WORDS.get(q['when'], q['when'])})")
+        if q.kind == "likert":
+            scale = f" on a {q.points}-point scale from “{q.anchors[0]}” to “{q.anchors[1]}”"
+        elif q.kind == "vas" and q.anchors:
+            scale = f" from “{q.anchors[0]}” to “{q.anchors[1]}”"  # KIND_WORDS names the scale
+        parts.append(f"“{q.text}” ({KIND_WORDS.get(q.kind, q.kind)}{scale}, asked {WHEN_WORDS.get(q.when, q.when)})")
     text = ("Participants answered " + "; ".join(parts) + ".") if parts else ""
-    for ins in pr["instruments"]:
-        text += f" They completed the {ins['title']} ({ins['source']}; {ins['items']} items) {WHEN_WORDS.get(ins['when'], ins['when'])}."
-    for t in pr["tasks"]:
-        text += (f" A {t['kind']} task on {t['parameter']} ran {t['trials']} trials per condition by {t['method']}, asking “{t['question']}” "
-                 f"after two {t['interval_seconds']:g} s intervals, the comparison's increment over the reference from {t['low']:g} to "
-                 f"{t['high']:g} (relative).")
+    for ins in pr.instruments:
+        text += f" They completed the {ins.title} ({ins.source}; {ins.items} items) {WHEN_WORDS.get(ins.when, ins.when)}."
+    for t in pr.tasks:
+        text += (f" A {t.kind} task on {t.parameter} ran {t.trials} trials per condition by {t.method}, asking “{t.question}” "
+                 f"after two {t.interval_seconds:g} s intervals, the comparison's increment over the reference from {t.low:g} to "
+                 f"{t.high:g} (relative).")
     return text.strip()
 
 
-def _analysis(m: dict) -> str:
-    an = m["analysis"]
-    level = f"{100 * an['ci_level']:g}%"
-    several = m["design"]["n_conditions"] > 1
-    text = f"The primary analysis was planned as a {an['primary_text']}." if an["primary_text"] else ""
-    if m["procedure"]["tasks"]:
+def _analysis(m: StudyMethods) -> str:
+    an = m.analysis
+    level = f"{100 * an.ci_level:g}%"
+    several = m.design.n_conditions > 1
+    text = f"The primary analysis was planned as a {an.primary_text}." if an.primary_text else ""
+    if m.procedure.tasks:
         text += (" Discrimination: each participant's Weber fraction per condition from a psychometric fit, and the conditions' "
                  "geometric means with t intervals on ln Weber fraction" + (", compared by a linear mixed model, the Friedman test and "
                                                                              "Holm-corrected pairs." if several else "."))
-    for k in an["kinds"]:
-        word = KIND_WORDS[k["kind"]].capitalize()
-        text += (f" {word} answers were compared across the conditions by {k['omnibus']} and between pairs of conditions by "
-                 f"{k['pairs']}, and described by {k['describe']}." if several
-                 else f" {word} answers were described by {k['describe']}; with one condition, nothing was compared.")
-    scope = (f"over the family of all {an['holm_family']} pairwise tests run" if an["holm"] == "family"
+    for k in an.kinds:
+        word = KIND_WORDS[k.kind].capitalize()
+        text += (f" {word} answers were compared across the conditions by {k.omnibus} and between pairs of conditions by "
+                 f"{k.pairs}, and described by {k.describe}." if several
+                 else f" {word} answers were described by {k.describe}; with one condition, nothing was compared.")
+    scope = (f"over the family of all {an.holm_family} pairwise tests run" if an.holm == "family"
              else "within each question's pairwise tests")
-    if an["holm_family"]:
+    if an.holm_family:
         text += f" Pairwise p-values were corrected by Holm's method {scope}."
-    groups = m["participants"]["groups"]
+    groups = m.participants.groups
     if groups:
-        text += (f" The comparison between the {groups['field']} groups (construct validity) is reported separately "
+        text += (f" The comparison between the {groups.field} groups (construct validity) is reported separately "
                  "(`studyctl report validity`), not here.")
     text += (" Only complete cases were analysed; intervals are "
-             f"{level}. Software: " + ", ".join(f"{k} {v}" for k, v in an["software"].items()) + ".")
+             f"{level}. Software: " + ", ".join(f"{k} {v}" for k, v in an.software.items()) + ".")
     return text.strip()
 
 
 def _yes_no(st: StudyStats, family: str) -> list[str]:
     out = []
     for v in st.items.values():
-        rates = "; ".join(f"{m} {pct(r['rate'])} ({r['yes']} yes, {r['no']} no, 95% CI [{pct(r['wilson_low'])}, {pct(r['wilson_high'])}])"
+        rates = "; ".join(f"{m} {pct(r.rate)} ({r.yes} yes, {r.no} no, 95% CI [{pct(r.wilson_low)}, {pct(r.wilson_high)}])"
                           for m, r in v.rates.items())
         p = p_text(v.p_value)
         cochran = (f"Cochran's Q({v.df}) = {v.cochran_q:.2f}, {p}" if p
@@ -226,7 +228,7 @@ def _gee(fit, what: str, family: str, n_conditions: int) -> str:
 def _ratings(kinds: KindStats, family: str) -> list[str]:
     out = []
     for v in kinds.ratings.values():
-        medians = "; ".join(f"{m} Mdn = {c['median']:g} (IQR {c['q1']:g} to {c['q3']:g})" for m, c in v.conditions.items())
+        medians = "; ".join(f"{m} Mdn = {c.median:g} (IQR {c.q1:g} to {c.q3:g})" for m, c in v.conditions.items())
         fr = v.friedman
         p = p_text(fr.p_value)
         w_ci = (f", 95% CI [{unit(fr.kendall_w_low)}, {unit(fr.kendall_w_high)}]" if _finite(fr.kendall_w_low)
@@ -241,7 +243,7 @@ def _ratings(kinds: KindStats, family: str) -> list[str]:
 def _scores(kinds: KindStats, family: str) -> list[str]:
     out = []
     for v in kinds.scores.values():
-        means = "; ".join(f"{m} M = {c['mean']:.2f}" for m, c in v.conditions.items() if _finite(c.get("mean")))
+        means = "; ".join(f"{m} M = {c.mean:.2f}" for m, c in v.conditions.items() if _finite(c.mean))
         mm = v.mixed_model
         problems, test = mm.problems, mm.model_test
         p = p_text(test.p_value_f)
@@ -258,7 +260,7 @@ def _scores(kinds: KindStats, family: str) -> list[str]:
 def _choices(kinds: KindStats, family: str) -> list[str]:
     out = []
     for v in kinds.choices.values():
-        shares = "; ".join(f"{m} {pct(s['share'])} ({s['count']} of {v.n})" for m, s in v.shares.items() if _finite(s.get("share")))
+        shares = "; ".join(f"{m} {pct(s.share)} ({s.count} of {v.n})" for m, s in v.shares.items() if _finite(s.share))
         o = v.overall
         p = p_text(o.p_value)
         # the chi-square statistic with its own p; the exact test's p on its own
@@ -273,20 +275,20 @@ def _session(kinds: KindStats) -> list[str]:
     """The questions asked once per session (an instrument's score at the end)."""
     out = []
     for s in kinds.session.values():
-        if not _finite(s.get("mean")):
+        if not isinstance(s, EndSummary) or not _finite(s.mean):  # a yes/no question's rate is not a mean
             continue
-        ci = (f", 95% CI [{s['ci_low']:.2f}, {s['ci_high']:.2f}]" if _finite(s.get("ci_low"))
-              else f" (no interval: {s['ci_reason']})" if s.get("ci_reason") else "")
-        sd = f", SD = {s['sd']:.2f}" if _finite(s.get("sd")) else ""
-        out.append(f"{s['question']} (n = {s['n']}): M = {s['mean']:.2f}{sd}{ci}; Mdn = {s['median']:g}.")
+        ci = (f", 95% CI [{s.ci_low:.2f}, {s.ci_high:.2f}]" if _finite(s.ci_low)
+              else f" (no interval: {s.ci_reason})" if s.ci_reason else "")
+        sd = f", SD = {s.sd:.2f}" if _finite(s.sd) else ""
+        out.append(f"{s.question} (n = {s.n}): M = {s.mean:.2f}{sd}{ci}; Mdn = {s.median:g}.")
     return out
 
 
 def _deformation(st: StudyStats) -> str:
     d = st.deformation
-    rows = "; ".join(f"{r['model']} {sig(r['mean_ms'])} ms (SD {sig(r['sd_ms'])} over {r['n_participants']} participants' means, "
-                     f"{counted(r['n_trials'], 'trial')})" if _finite(r.get("sd_ms"))
-                     else f"{r['model']} {sig(r['mean_ms'])} ms ({counted(r['n_trials'], 'trial')})" for r in d.rows if _finite(r.get("mean_ms")))
+    rows = "; ".join(f"{r.model} {sig(r.mean_ms)} ms (SD {sig(r.sd_ms)} over {r.n_participants} participants' means, "
+                     f"{counted(r.n_trials, 'trial')})" if _finite(r.sd_ms)
+                     else f"{r.model} {sig(r.mean_ms)} ms ({counted(r.n_trials, 'trial')})" for r in d.rows if _finite(r.mean_ms))
     return f"Deformation time per frame, a {d.label}: {rows}." if rows else ""
 
 
@@ -295,7 +297,8 @@ def study_text(study: Study, holm_scope: str = "family", fmt: str = "md") -> str
     from the results `report stats --json` prints for it (same `holm_scope`); for a study that
     only discriminates (tasks, no questions), from the object `report jnd --json` prints."""
     if study.protocol.tasks and not study.protocol.questions:
-        st = jsonable(jnd_results(study))
+        res = jnd_results(study)
+        st = jsonable(res) | {"methods": res["methods"]}  # the methods stay their record
     else:
         st = study_stats(study, holm_scope=holm_scope)
     if fmt == "json":  # for machines: the same paragraphs under their headings
@@ -352,17 +355,16 @@ def sections(st: StudyStats | Mapping) -> list[tuple[str, list[str]]]:
         return [("Participants", [_participants(m, flag)]), ("Design", [_design(m)]), ("Apparatus", [_apparatus(m)]),
                 ("Procedure", [_procedure(m)]), ("Analysis", [_analysis(m)]), ("Results", results)]
     m, flag, kinds = st.methods, st.facts.flag, st.kinds
-    an = m["analysis"]
-    family = (f"family of {an['holm_family']}" if st.holm == "family" else "within each question")
+    family = (f"family of {m.analysis.holm_family}" if st.holm == "family" else "within each question")
     results = [flag] if flag else []
     results.append(events_text(st.faults))  # before any test: a withheld condition's tests say why below
-    n = m["design"]["n_conditions"]
+    n = m.design.n_conditions
     if kinds.primary.analysis == "logistic_gee":
         results.append(_gee(st.gee.composite, "logistic GEE across the yes/no questions", "their own family", n))
     elif kinds.primary.analysis == "ordinal_gee":
         results.append(_gee(kinds.ordinal_gee, "proportional-odds GEE across the rating items", "their own family", n))
     results += _yes_no(st, family) + _ratings(kinds, family) + _scores(kinds, family) + _choices(kinds, family) + _session(kinds)
-    if m["procedure"]["tasks"]:
+    if m.procedure.tasks:
         results.append("The discrimination task's results (Weber fractions) are reported by `studyctl report jnd`, not here.")
     results.append(_deformation(st))
     return [("Participants", [_participants(m, flag)]), ("Design", [_design(m)]), ("Apparatus", [_apparatus(m)]),

@@ -334,7 +334,7 @@ def likert_figure(ratings: dict[str, RatingStats], models: list[str], synthetic:
     agreeing ones right, the middle point split across zero. Each question is a header line
     above its conditions' bars (written once, as long as the figure's width lets it be)."""
     plt = _plt()
-    groups = [(v.question, [(m, np.asarray(v.conditions[m]["counts"], dtype=float)) for m in models]) for v in ratings.values()]
+    groups = [(v.question, [(m, np.asarray(v.conditions[m].counts, dtype=float)) for m in models]) for v in ratings.values()]
     lines = sum(1 + len(g) for _, g in groups)
     points = max(len(c) for _, g in groups for _, c in g)
     cmap = plt.get_cmap("RdBu", points)  # diverging, told apart with red-green deficiencies
@@ -401,9 +401,9 @@ def choice_figure(choice: ChoiceStats, models: list[str], synthetic: bool, size:
     pal = palette(models)
     fig, ax = _figure(size, (5, 3.4), 62, 70)
     s = [choice.shares[m] for m in models]
-    share = np.array([x["share"] for x in s])
+    share = np.array([x.share for x in s])
     ax.bar(range(len(models)), share, color=[pal[m] for m in models], width=0.6 if size.name == "double" else 0.8)
-    ax.errorbar(range(len(models)), share, yerr=[share - [x["wilson_low"] for x in s], np.array([x["wilson_high"] for x in s]) - share],
+    ax.errorbar(range(len(models)), share, yerr=[share - [x.wilson_low for x in s], np.array([x.wilson_high for x in s]) - share],
                 fmt="none", color="#333", capsize=3 if size.is_print else 4, lw=0.8 if size.is_print else 1.5)
     ax.axhline(1 / len(models), color="#999", ls="--", lw=0.8)
     turn = size.name == "single" and len(models) > 3

@@ -227,12 +227,12 @@ def report_stats(db, holm_scope, as_json):
         click.echo(f"{item}: {friedman}; {pairs}")
     for v in kinds.scores.values():
         t = v.mixed_model.model_test
-        means = ", ".join(f"{m} {c['mean']:.1f}" for m, c in v.conditions.items())
+        means = ", ".join(f"{m} {c.mean:.1f}" for m, c in v.conditions.items())
         test = (f"mixed model F({t.df}, {t.df_denominator}) = {t.f:.2f}, p = {t.p_value_f:.3g}" if t.f == t.f
                 else f"mixed model: not tested ({t.reason or 'no fit'})")
         click.echo(f"{v.label}: {means}; {test}")
     for item, v in kinds.choices.items():
-        shares = ", ".join(f"{m} {s['count']}" for m, s in v.shares.items())
+        shares = ", ".join(f"{m} {s.count}" for m, s in v.shares.items())
         overall = f"{v.overall.test} not tested ({v.overall.reason})" if v.overall.reason else f"{v.overall.test} p = {v.overall.p_value:.3g}"
         click.echo(f"{item}: {shares}; {overall}")
     if facts.incomplete_participants:
