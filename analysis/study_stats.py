@@ -7,19 +7,15 @@ from __future__ import annotations
 
 import pandas as pd
 
-from analysis.faults import events_table, withheld, withhold_fit, withhold_pairs
+from analysis.faults import withheld, withhold_fit, withhold_pairs
 from analysis.kinds import (
     PAIR_TESTS,
     family_pairs,
-    gee_line,
     kind_stats,
-    kind_tables,
     kind_tests,
     odds_ratio_pairs,
-    primary_line,
 )
 from analysis.methods import study_methods
-from analysis.reports.table import markdown, markdown_grid
 from analysis.result_records import ConditionRate, GeeFit, McNemarPair, OddsRatioPair
 from analysis.stats import HOLM_SCOPES, gee_fit, holm, holm_family, named, pairwise_mcnemar, records
 from analysis.study_results import DeformationBenchmark, DeformationRow, LogisticGee, StudyStats, YesNoItem
@@ -30,17 +26,11 @@ from analysis.table1 import (
     binary_answers,
     cochran,
     complete_answers,
-    condition_text,
     deformation,
-    deformation_table,
     events,
-    holm_text,
-    incomplete_text,
     rates,
     study_facts,
-    table,
 )
-from sim.text import counted
 
 
 def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None, holm_scope: str = "family") -> StudyStats:
@@ -110,39 +100,3 @@ def study_gee(study: Study, answers: pd.DataFrame, models: list[str], held=None)
                        items=items, period_factor=with_period)
 
 
-def table1_markdown(study: Study, holm_scope: str = "family") -> str:
-    """Table 1 as Markdown: counts, rate [Wilson 95%] per model, Cochran's Q per item, McNemar
-    pairs with Holm (over the family by default), the deformation-time row (a benchmark of
-    this machine), headed by N (complete cases), the design and a synthetic-data flag; the
-    GEE across questions below."""
-    facts, r, q, d = study_facts(study), rates(study), cochran(study), deformation(study)
-    st = study_stats(study, r, q, holm_scope=holm_scope)
-    models = list(d["model"])
-    flag = f"{facts.flag} " if facts.flag else ""
-    if facts.mixed_source_participants:
-        flag += f"WARNING: {', '.join(facts.mixed_source_participants)} answered both as a person and synthetically. "
-    listed = incomplete_text(facts)
-    left_out = f" Left out (incomplete): {listed}." if listed else ""
-    scope = holm_text(st)
-    lines = [f"**Table 1: {facts.study}.** {flag}N = {counted(facts.participants, 'participant')} with every answer; {facts.design}.{left_out}", ""]
-    if len(r):  # the yes/no questions: the paper's table
-        t = table(st, r, q, d)
-        lines += [*markdown_grid(t), "", t.notes, ""]
-    faults = events_table(st.faults)  # only where a trial had one: a study without keeps its table as it was
-    if faults is not None:
-        lines += [f"**{faults.title}.**", "", *markdown_grid(faults), "", faults.notes, ""]
-    for t in kind_tables(st.kinds, models, scope):
-        lines += markdown(t)
-    if not len(r):
-        lines += [*markdown_grid(deformation_table(d)), ""]
-    gee = gee_line(st.gee, st.kinds.primary.analysis == "logistic_gee")
-    if gee:
-        lines += [gee, ""]
-    if st.kinds.primary.analysis in ("mixed_model", "choice"):
-        lines += [primary_line(st), ""]
-    if len(models) < 2:
-        lines += ["One condition: there is nothing to compare between conditions (no Cochran's Q, McNemar or Friedman test); "
-                  "a study with groups compares its groups instead.", ""]
-    lines += ["Conditions (what each ran; participants saw only their labels): "
-              + "; ".join(condition_text(c) for c in facts.conditions) + ".", ""]
-    return "\n".join(lines)

@@ -20,14 +20,9 @@ from statsmodels.stats.contingency_tables import cochrans_q
 
 from analysis.facts import ConditionRun, IncompleteParticipant, ModelSource, StudyFacts
 from analysis.faults import ConditionEvents, condition_events, involving, withheld
-from analysis.methods import material_keys
-from analysis.reports.formatting import p_value, rate_interval
-from analysis.reports.table import Table
-from analysis.result_records import McNemarPair
-from analysis.stats import tests_run, wilson
-from analysis.study_results import StudyStats
+from analysis.stats import wilson
 from analysis.study_snapshot import Study, data_flag
-from analysis.withhold import binary_across_reason, mean_sd
+from analysis.withhold import binary_across_reason
 from sim.text import counted
 
 
@@ -180,111 +175,4 @@ def _builtin_version(software_versions: str | None) -> str | None:
     return ", ".join(sorted(found)) or None
 
 
-def source_text(source: ModelSource | None) -> str:
-    """A model's origin in words: "built in", or "from PACKAGE VERSION (source SHA-256 ...)"."""
-    if source is None or source.builtin:
-        return "built in"
-    where = f"{source.package} {source.version}" if source.package else f"{source.target} on the Python path"
-    sha = f" (source SHA-256 {source.source_sha256[:12]})" if source.source_sha256 else ""
-    return f"from {where}{sha}"
 
-
-def condition_text(c: ConditionRun) -> str:
-    """One line of what a condition ran: model, variant and options, the tissue's modulus."""
-    cfg = c.config
-    if cfg is None:
-        return f"{c.condition}: the scene's own configuration (not recorded before schema 5)"
-    opts = {k: v for k, v in cfg["options"].items() if v is not None} | ({"variant": cfg["variant"]} if "variant" in cfg else {})
-    shown = ", ".join(f"{k} {v['file'] if isinstance(v, dict) and 'file' in v else v}" for k, v in sorted(opts.items()))
-    mat = cfg["material"]
-    keys = material_keys(cfg["model"])
-    parts = [f"{label} {mat[key]:g}{unit}" for key, label, unit in (("young", "E", " Pa"), ("poisson", "nu", "")) if key in keys]
-    young = f"; {', '.join(parts)}" if parts else ""
-    return (f"{c.condition}: {cfg['model']} ({shown}{young}), {source_text(c.source)}, "
-            f"configuration {c.config_sha256[:12]}")
-
-
-def plugin_note(conditions: list[ConditionRun]) -> str:
-    """The conditions whose model came from outside brainsim-study, with its package and version,
-    as a sentence for a table's note ("" when every model is built in)."""
-    outside = [f"{c.condition} ran {c.model} {source_text(c.source)}" for c in conditions
-               if c.source is not None and not c.source.builtin]
-    return f"Models from outside brainsim-study: {'; '.join(outside)}." if outside else ""
-
-
-def incomplete_text(facts: StudyFacts) -> str:
-    """The participants left out of every statistic, as reports print them: "P98 (9/27), ..."."""
-    return ", ".join(f"{x.code} ({x.answers}/{x.of})" for x in facts.incomplete_participants)
-
-
-def item_rows(r, q, models):
-    """Per question, in table order: (item, question text, its rate row for each of `models`,
-    its Cochran's Q row): the rows of `table`."""
-    for item, g in r.groupby("item", sort=False):
-        g = g.set_index("model")
-        yield item, g["question"].iloc[0], [g.loc[m] for m in models], q[q["item"] == item].iloc[0]
-
-
-def cochran_cell(qrow) -> str:
-    """Cochran's Q (p), or why it was not run."""
-    if qrow["p_value"] != qrow["p_value"]:
-        return f"n/a ({qrow.get('reason') or 'not run'})"
-    return f"{qrow['cochran_q']:.2f} ({p_value(qrow['p_value'])})"
-
-
-def mcnemar_cell(p: McNemarPair) -> str:
-    """A McNemar pair's Holm p, or why it was not tested."""
-    if p.p_value != p.p_value:
-        return f"{p.a}-{p.b} not tested: {p.reason or 'not run'}"
-    return f"{p.a}-{p.b} {p_value(p.p_holm)}"
-
-
-def holm_text(st: StudyStats) -> str:
-    """What the reports' p_holm is (`study_stats`' scope): Holm over all N pairwise tests of
-    every kind, or within each question."""
-    if st.holm != "family":
-        return "Holm within each question"
-    pairs = [p for v in st.items.values() for p in v.pairs] + [p for g in st.kinds.family_pairs() for p in g]
-    tested = tests_run(pairs)
-    if not tested:
-        return "Holm: no pair tested"
-    return "one pair tested: no Holm correction" if tested == 1 else f"Holm over all {tested} pairs tested"
-
-
-def rate_cell(x) -> str:
-    """One question's answers under one condition: yes/no counts, the rate [Wilson 95%]."""
-    return f"{x['yes']}/{x['no']}, {rate_interval(x['rate'], x['wilson_low'], x['wilson_high'])}"
-
-
-def deformation_cell(x) -> str:
-    """One condition's deformation time per frame (ms): mean +- sd over participants (median, p95)."""
-    if not x["n_participants"]:
-        return "n/a (no trials)"
-    return f"{mean_sd(x['mean_ms'], x['sd_ms'], x['n_participants'])} (median {x['median_ms']:.2f}, p95 {x['p95_ms']:.2f})"
-
-
-def table(st: StudyStats, r: pd.DataFrame, q: pd.DataFrame, d: pd.DataFrame) -> Table:
-    """Table 1, what the Markdown, LaTeX and HTML reports all render: per yes/no question the
-    counts and rate [Wilson 95%] under each condition, Cochran's Q, the McNemar pairs with Holm
-    (`st`'s scope); then the deformation-time row (a benchmark of this machine, no test). `r`,
-    `q`, `d`: `rates`, `cochran`, `deformation` of the study `st` was computed on."""
-    models = list(d["model"])
-    scope = holm_text(st)
-    rows = [[question, *map(rate_cell, rates_), cochran_cell(qrow), "; ".join(map(mcnemar_cell, st.items[item].pairs)) or "n/a (one condition)"]
-            for item, question, rates_, qrow in item_rows(r, q, models)]
-    rows.append(["Time for real-time deformation of the model, ms: benchmark of this machine",
-                 *(deformation_cell(x) for _, x in d.iterrows()), "", ""])
-    return Table(columns=["Question", *(f"{m}: yes/no, rate [95% CI]" for m in models), "Cochran's Q (p)", f"McNemar p, {scope}"],
-                 rows=rows, title="Table 1",
-                 notes="Rates with Wilson 95% intervals; Cochran's Q across the models; pairwise exact McNemar tests, "
-                       f"{scope}. Deformation time: each participant's mean over their trials, mean +- sd over participants: "
-                       f"wall-clock time of this machine {DEFORMATION_WORK}, not a measure of the participants (no test).")
-
-
-def deformation_table(d: pd.DataFrame) -> Table:
-    """The deformation-time row on its own, for a study with no yes/no question (no Table 1 to sit in)."""
-    return Table(columns=["Time for real-time deformation, ms: benchmark of this machine", *d["model"]],
-                 rows=[["mean +- sd (median, p95)", *(deformation_cell(x) for _, x in d.iterrows())]],
-                 title="Deformation time (benchmark of this machine)",
-                 notes=f"Each participant's mean over their trials, mean +- sd over participants: wall-clock time of this machine "
-                       f"{DEFORMATION_WORK}, not a measure of the participants (no test).")

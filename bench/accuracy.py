@@ -4,8 +4,8 @@ paper's. `python -m bench accuracy [--json]` (keys `accuracy.<model>.<setting>.<
 
 from __future__ import annotations
 
+from analysis.reports.accuracy_tables import within_text
 from analysis.verification.accuracy import quick_config, run_accuracy
-from analysis.verification.accuracy_tables import within_text
 from analysis.verification.paper import deformation_ms
 from bench.common import main_with_json
 

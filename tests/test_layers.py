@@ -27,6 +27,30 @@ def _imports(path: Path) -> set[str]:
     return out
 
 
+def _modules_imported(path: Path) -> set[str]:
+    """The full names of the modules a module imports, anywhere in it."""
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out |= {node.module} | {f"{node.module}.{a.name}" for a in node.names}
+    return out
+
+
+def test_statistics_and_verification_return_data_and_never_format():
+    """Every table, sentence, page and figure lives in analysis/reports: the statistics and the
+    models' verification return data and import nothing from it."""
+    offenders = {}
+    for p in sorted((ROOT / "analysis").rglob("*.py")):
+        if p.is_relative_to(ROOT / "analysis" / "reports"):
+            continue
+        hits = sorted(m for m in _modules_imported(p) if m == "analysis.reports" or m.startswith("analysis.reports."))
+        if hits:
+            offenders[str(p.relative_to(ROOT))] = hits
+    assert offenders == {}
+
+
 @pytest.mark.parametrize("level", range(len(LAYERS)))
 def test_a_package_imports_only_the_layers_below_it(level):
     """sim runs, ships and is tested alone; analysis (the statistics of studies, the verification of

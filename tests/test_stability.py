@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from analysis.reports.stability_report import markdown
 from analysis.verification.stability import (
     CHATTER_REVERSALS,
     Case,
     _scene_for,
     make_cases,
-    markdown,
     peak_reversals,
     run_case,
 )

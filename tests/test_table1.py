@@ -8,12 +8,13 @@ import pytest
 from click.testing import CliRunner
 from scipy.stats import norm
 
-from analysis import table1
 from analysis.reports import report, table
 from analysis.reports.latex import document
 from analysis.reports.latex import text as latex_text
+from analysis.reports.study_tables import table as table1_table
+from analysis.reports.study_tables import table1_markdown
 from analysis.stats import wilson
-from analysis.study_stats import study_stats, table1_markdown
+from analysis.study_stats import study_stats
 from studyctl.cli import cli
 from studyctl.synthetic.synth_run import run_synthetic_study
 from tests.helpers import fast_protocol, latex_problems
@@ -180,8 +181,8 @@ def _answers_db(tmp_path, answers: dict, orders: dict | None = None, protocol=No
 
 
 def test_one_n_rule_complete_cases_everywhere_and_the_rest_listed(tmp_path):
+    from analysis.reports.study_tables import table1_markdown as markdown
     from analysis.study_stats import study_stats
-    from analysis.study_stats import table1_markdown as markdown
     from analysis.table1 import rates, study_facts
 
     rng = np.random.default_rng(1)
@@ -426,16 +427,15 @@ def test_table1_is_one_table_whatever_the_format(tmp_path):
     rng = np.random.default_rng(5)
     answers = {f"P{i:02d}": {m: rng.integers(0, 2, 9).tolist() for m in ("fem", "mass_spring", "plate_spring")} for i in range(6)}
     study = _read(_answers_db(tmp_path, answers))
-    r, q, d = table1.rates(study), table1.cochran(study), table1.deformation(study)
-    t = table1.table(study_stats(study, r, q), r, q, d)
+    t = table1_table(study_stats(study))
     assert "\n".join(table.markdown_grid(t)) in table1_markdown(study)
     assert "\n".join(" & ".join(latex_text(c) for c in row) + " \\\\" for row in t.rows) in report.latex(study)
     assert table.html_grid(t) in report.html(study)
 
 
 def test_gee_says_not_estimable_when_a_model_answers_alike_throughout(tmp_path):
+    from analysis.reports.study_tables import table1_markdown as markdown
     from analysis.study_stats import study_stats
-    from analysis.study_stats import table1_markdown as markdown
 
     rng = np.random.default_rng(6)
     answers = {f"P{i:02d}": {"fem": rng.integers(0, 2, 9).tolist(), "mass_spring": [0] * 9, "plate_spring": rng.integers(0, 2, 9).tolist()}

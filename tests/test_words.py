@@ -5,7 +5,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from analysis.table1 import holm_text
+from analysis.reports.study_tables import holm_text
 from sim.text import counted
 
 

@@ -13,11 +13,12 @@ import numbers
 from collections.abc import Mapping
 
 from analysis.discrimination.jnd import jnd_results
-from analysis.faults import ConditionEvents, events_text
+from analysis.faults import ConditionEvents
 from analysis.kind_results import KindStats
 from analysis.methods import StudyMethods
 from analysis.questions import LATENCY_MEASURES
 from analysis.reports import latex
+from analysis.reports.fault_tables import events_text
 from analysis.result_records import EndSummary
 from analysis.study_results import StudyStats
 from analysis.study_snapshot import Study

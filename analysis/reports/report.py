@@ -9,21 +9,31 @@ from dataclasses import replace
 from pathlib import Path
 
 from analysis import table1
-from analysis.faults import events_table
 from analysis.kind_results import KindStats
-from analysis.kinds import gee_line, kind_stats, kind_tables, measures, primary_line
+from analysis.kinds import kind_stats, measures
 from analysis.reports import plots
+from analysis.reports.accuracy_tables import intro
+from analysis.reports.accuracy_tables import tables as accuracy_tables
+from analysis.reports.fault_tables import events_table
 from analysis.reports.figure_size import FigureSize, figure_size
 from analysis.reports.formatting import PAGE_END, drawn_png, figure_html, page_head, png_base64
+from analysis.reports.kind_tables import gee_line, kind_tables, primary_line
 from analysis.reports.plots import pareto_plot, stability_heatmap
+from analysis.reports.stability_report import counts_text, near_chatter_text, unstable_table
+from analysis.reports.study_tables import (
+    condition_text,
+    deformation_table,
+    holm_text,
+    incomplete_text,
+    plugin_note,
+    table,
+)
 from analysis.reports.table import html as table_html
 from analysis.reports.table import html_grid, html_text, latex_tables
 from analysis.study_snapshot import Study
 from analysis.study_stats import study_stats
-from analysis.verification.accuracy_tables import intro
-from analysis.verification.accuracy_tables import tables as accuracy_tables
 from analysis.verification.paper import deformation_words
-from analysis.verification.stability import counts_text, near_chatter_text, outcome_grid, unstable_table
+from analysis.verification.stability import outcome_grid
 from sim.text import counted
 
 
@@ -68,20 +78,20 @@ def latex(study: Study, holm_scope: str = "family") -> str:
     """Table 1 and each answer kind's table as LaTeX (analysis/reports/table.py: booktabs, wrapping
     columns that fit the text block, escaped text, proper symbols): the tables the Markdown and
     HTML render, the study's facts in each caption."""
-    facts, r, q, d = table1.study_facts(study), table1.rates(study), table1.cochran(study), table1.deformation(study)
-    st = study_stats(study, r, q, holm_scope=holm_scope)
-    models = list(d["model"])
-    scope = table1.holm_text(st)
-    listed = table1.incomplete_text(facts)
+    st = study_stats(study, holm_scope=holm_scope)
+    facts = st.facts
+    models = [x.model for x in st.deformation.rows]
+    scope = holm_text(st)
+    listed = incomplete_text(facts)
     caption = ((f"{facts.flag} " if facts.flag else "")
                + f"{facts.study}: N = {counted(facts.participants, 'participant')} with every answer; {facts.design}."
                + (f" Left out (incomplete): {listed}." if listed else "")
                + f" Deformation time: {table1.DEFORMATION_WORK}.")
-    origins = table1.plugin_note(facts.conditions)
-    tables = [replace(table1.table(st, r, q, d), notes=f"{caption} {origins}".strip())] if len(r) else []
+    origins = plugin_note(facts.conditions)
+    tables = [replace(table(st), notes=f"{caption} {origins}".strip())] if st.items else []
     tables += [replace(t, notes=f"{caption} {t.notes}") for t in kind_tables(st.kinds, models, scope)]
-    if not len(r):  # the deformation row had no yes/no table to sit in
-        tables.append(replace(table1.deformation_table(d), notes=caption))
+    if not st.items:  # the deformation row had no yes/no table to sit in
+        tables.append(replace(deformation_table(st), notes=caption))
     faults = events_table(st.faults)
     tables += [faults] if faults is not None else []
     return latex_tables(tables, "tab:" + facts.study)
@@ -115,24 +125,24 @@ def stability_html(result: dict) -> str:
 def html(study: Study, traces: dict | None = None, accuracy: dict | None = None, stability: dict | None = None, holm_scope: str = "family") -> str:
     """One self-contained HTML file: facts, Table 1, statistics, plots (PNG inlined), and the
     accuracy bench's table and Pareto plot and the stability sweep's heat map when given."""
-    facts, r, q, d = table1.study_facts(study), table1.rates(study), table1.cochran(study), table1.deformation(study)
-    st = study_stats(study, r, q, holm_scope=holm_scope)
+    st = study_stats(study, holm_scope=holm_scope)
+    facts = st.facts
     with tempfile.TemporaryDirectory() as tmp:
         write_plots(study, tmp, traces, kinds=st.kinds)
         images = {f.stem: png_base64(f) for f in sorted(Path(tmp).glob("*.png"), key=_figure_order)}
     esc = _html.escape
-    listed = table1.incomplete_text(facts)
+    listed = incomplete_text(facts)
     incomplete = f" Left out (incomplete): {listed}." if listed else ""
     banner = f'<p class="synthetic">{esc(facts.flag)}</p>' if facts.flag else ""
-    models = list(d["model"])
+    models = [x.model for x in st.deformation.rows]
     gee = esc(gee_line(st.gee, st.kinds.primary.analysis == "logistic_gee").replace("`", ""))
     primary = (f"<p>{esc(primary_line(st))}</p>" if st.kinds.primary.analysis in ("mixed_model", "choice") else "")
-    scope = table1.holm_text(st)
-    binary = f"{table_html(table1.table(st, r, q, d))}<p>{gee}</p>" if len(r) else ""
+    scope = holm_text(st)
+    binary = f"{table_html(table(st))}<p>{gee}</p>" if st.items else ""
     faults = events_table(st.faults)
     binary += table_html(faults) if faults is not None else ""
     kind_html = "".join(table_html(t) for t in kind_tables(st.kinds, models, scope))
-    deformation = "" if len(r) else table_html(table1.deformation_table(d))  # else a row of Table 1
+    deformation = "" if st.items else table_html(deformation_table(st))  # else a row of Table 1
     figs = "".join(figure_html(k, v) for k, v in images.items())
     return f"""{page_head(f"{facts.study}: Table 1")}
 <h1>{esc(facts.study)}: Table 1</h1>
@@ -142,7 +152,7 @@ def html(study: Study, traces: dict | None = None, accuracy: dict | None = None,
 {kind_html}
 {primary}{deformation}
 <h2>Conditions</h2><p>What each condition ran (participants saw only their labels; the full configuration is in the export's conditions.csv):</p>
-<ul>{"".join(f"<li>{esc(table1.condition_text(c))}</li>" for c in facts.conditions)}</ul>
+<ul>{"".join(f"<li>{esc(condition_text(c))}</li>" for c in facts.conditions)}</ul>
 {figs}
 {accuracy_html(accuracy) if accuracy else ""}
 {stability_html(stability) if stability else ""}

@@ -10,14 +10,15 @@ import json
 from analysis import table1
 from analysis.discrimination import jnd
 from analysis.faults import rates_with_events
+from analysis.reports.accuracy_tables import markdown as accuracy_markdown
+from analysis.reports.accuracy_tables import tables as accuracy_tables
 from analysis.reports.formatting import spreadsheet_frame
-from analysis.reports.jnd_report import jnd_text
+from analysis.reports.jnd_report import html_section, jnd_text
 from analysis.reports.report import html, latex
+from analysis.reports.stability_report import markdown as stability_markdown
+from analysis.reports.study_tables import table1_markdown
 from analysis.reports.table import latex_tables
-from analysis.study_stats import study_stats, table1_markdown
-from analysis.verification.accuracy_tables import markdown as accuracy_markdown
-from analysis.verification.accuracy_tables import tables as accuracy_tables
-from analysis.verification.stability import markdown as stability_markdown
+from analysis.study_stats import study_stats
 from sim.jsonable import jsonable
 
 
@@ -52,5 +53,5 @@ def table1_text(study, fmt: str, holm_scope: str = "family", accuracy: dict | No
     if study.protocol.tasks and fmt in ("md", "latex"):
         text += ("\n## Stiffness discrimination\n\n" if fmt == "md" else "\n") + jnd_text(study, fmt)
     elif study.protocol.tasks and fmt == "html":
-        text = text.replace("</body></html>", jnd.html_section(jnd.jnd_results(study), study) + "\n</body></html>")
+        text = text.replace("</body></html>", html_section(jnd.jnd_results(study), study) + "\n</body></html>")
     return text

@@ -25,8 +25,9 @@ from scipy import stats
 from analysis import instruments
 from analysis import validity as v
 from analysis.errors import StudyError
-from analysis.faults import any_events, condition_events, events_table, involving, withheld
+from analysis.faults import any_events, condition_events, involving, withheld
 from analysis.metrics import UNITS, metrics_table, study_goals
+from analysis.reports.fault_tables import events_table
 from analysis.reports.formatting import PAGE_END, figure_png, p_value, page_head
 from analysis.reports.plots import OTHER_COLORS, _plt
 from analysis.reports.table import Table, html_grid, latex_tables, markdown_grid

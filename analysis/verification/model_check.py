@@ -26,7 +26,6 @@ from pathlib import Path
 import numpy as np
 
 from analysis.errors import Interrupted
-from analysis.reports.table import Table, markdown_grid
 from analysis.verification.accuracy import (
     TICK_TIMING_CALLS,
     AccuracyConfig,
@@ -36,7 +35,6 @@ from analysis.verification.accuracy import (
     run_accuracy,
     sample_displacements,
 )
-from analysis.verification.accuracy_tables import within_text
 from analysis.verification.stability import DURATION as STABILITY_DURATION
 from analysis.verification.stability import make_cases, run_case
 from analysis.verification.tissue_pulls import shipped_solve_seconds, unsolved
@@ -335,7 +333,7 @@ class CheckInterrupted(Interrupted):
 class _Quiet:
     def start(self, key: str, title: str) -> None: ...
     def step(self, k: int, n: int) -> None: ...
-    def end(self, key: str, seconds: float, summary: str) -> None: ...
+    def end(self, key: str, seconds: float, result) -> None: ...
     def estimate(self, est: dict) -> None: ...
 
 
@@ -346,7 +344,7 @@ STAGES = {"contract": "contract", "budgets": "budgets (this machine)", "stabilit
 def check_model(name: str, cfg: CheckConfig, progress=None) -> dict:
     """The scorecard of model `name` on `cfg.scene`. Raises CheckError when it cannot run, and
     CheckInterrupted (holding what finished) on Ctrl-C. `progress`: an object with `start(key,
-    title)`, `step(k, n)`, `end(key, seconds, summary)` and `estimate(dict)`, told as the stages go."""
+    title)`, `step(k, n)`, `end(key, seconds, result)` (the stage's result) and `estimate(dict)`, told as the stages go."""
     try:
         cls = model_class(name)
         scene = _scene(name, cfg.scene)
@@ -359,20 +357,20 @@ def check_model(name: str, cfg: CheckConfig, progress=None) -> dict:
             "contract": [], "budgets": [], "violations": [], "stage_seconds": {}}
     stage = "contract"
 
-    def run(key, fn, summary):
+    def run(key, fn):
         nonlocal stage
         stage = key
         ui.start(key, STAGES[key])
         t0 = time.perf_counter()
         out = fn()
         card["stage_seconds"][key] = time.perf_counter() - t0
-        ui.end(key, card["stage_seconds"][key], summary(out))
+        ui.end(key, card["stage_seconds"][key], out)
         return out
 
     try:
-        rows, parts = run("contract", lambda: contract(scene), _held)
+        rows, parts = run("contract", lambda: contract(scene))
         card["contract"] = rows
-        timed = run("budgets", lambda: budgets(parts, cfg), lambda r: f"{sum(b['ok'] for b in r)} of {len(r)} within")
+        timed = run("budgets", lambda: budgets(parts, cfg))
         card["budgets"] = timed
         violations = [f"{r['check']}: {r['detail']}" for r in rows if r["ok"] is False]
         violations += [f"{b['budget']}: raised {b['raised']} while timed" if "raised" in b else
@@ -394,61 +392,12 @@ def check_model(name: str, cfg: CheckConfig, progress=None) -> dict:
         card["estimate"] = est
         if est is not None:
             ui.estimate(est)
-        card["stability"] = run("stability", lambda: stability(name, cfg.scene, ui.step),
-                                lambda r: ", ".join(f"{v} {k}" for k, v in r["counts"].items()))
-        card["accuracy"] = run("accuracy", lambda: accuracy(name, cfg.scene, cfg.quick, ui.step),
-                               lambda r: ", ".join(f"{x['calibration']} {within_text(x)} within the JND"
-                                                   if x["n_test"] else f"{x['calibration']}: no decided sample" for x in r["rows"]))
+        card["stability"] = run("stability", lambda: stability(name, cfg.scene, ui.step))
+        card["accuracy"] = run("accuracy", lambda: accuracy(name, cfg.scene, cfg.quick, ui.step))
     except KeyboardInterrupt:
         card["interrupted"] = stage
         raise CheckInterrupted(card, STAGES[stage]) from None
     return card
 
 
-_OK = {True: "yes", False: "**no**", None: "not run"}
 
-
-def _held(result) -> str:
-    rows = result[0]
-    skipped = sum(r["ok"] is None for r in rows)
-    return f"{sum(r['ok'] is True for r in rows)} of {len(rows)} checks held" + (f", {skipped} not run" if skipped else "")
-
-
-def scorecard_md(card: dict) -> str:
-    """The scorecard as Markdown."""
-    src = f"{card['distribution']} {card['version']}" if card["distribution"] else "the Python path"
-    lines = [f"# Model check: {card['model']}", "", f"{card['description']} (`{card['class']}`, from {src}; model API {card['api_version']}).",
-             f"Scene: {card['scene']}.", "", "## Contract", ""]
-    lines += markdown_grid(Table(columns=["check", "ok", "detail"],
-                                 rows=[[r["check"], _OK[r["ok"]], r["detail"]] for r in card["contract"]]))
-    if card["budgets"]:
-        lines += ["", "## Budgets (this machine, 99th percentile per call)", ""]
-        lines += markdown_grid(Table(columns=["budget", "p99", "median", "limit", "ok"],
-                                     rows=[[b["budget"], f"{b['value']:.3g}", f"{b['median']:.3g}", f"{b['limit']:g}", "yes" if b["ok"] else "**no**"]
-                                           for b in card["budgets"]]))
-    if card.get("stability"):
-        s = card["stability"]
-        lines += ["", "## Stability (quick sweep)", "", ", ".join(f"{v} {k}" for k, v in s["counts"].items())
-                  + ("; the safety layer held (no NaN, nothing above the peak force sent)" if s["safety_held"] else "; **the safety layer let a NaN or an over-limit force through**"),
-                  ""]
-        lines += markdown_grid(Table(columns=["case", "outcome", "reason"],
-                                     rows=[[f"{r['model']} {r['case']}", r["outcome"], r["reason"][:100]] for r in s["cases"]]))
-    if card.get("accuracy"):
-        a = card["accuracy"]
-        lines += ["", f"## Accuracy against the tissue truth ({a['reference']}{', quick' if a['quick'] else ''})", ""]
-        lines += markdown_grid(Table(
-            columns=["setting", "calibration", "scale", "within the JND (95% CI), decided test samples", "truth extrapolated / undecided", "frame ms"],
-            rows=[[r["setting"], r["calibration"], f"{r['scale']:.3g}",
-                   within_text(r) if r["n_test"]
-                   else "none: the truth is decided at no held-out sample",
-                   f"{r.get('extrapolated', 0)} / {r.get('truth_undecided', 0)}", f"{r['frame_ms']:.3g}"] for r in a["rows"]]))
-    lines += ["", "## Verdict", ""]
-    if card.get("interrupted"):
-        lines += [f"INTERRUPTED during {STAGES[card['interrupted']]}: the stages above finished, the rest were not run.", ""]
-    if card.get("interrupted") in ("contract", "budgets"):
-        lines += ["No verdict: the contract and the budgets did not finish."]
-    else:
-        lines += [f"- VIOLATION {v}" for v in card["violations"]] or ["The model keeps the contract and its budgets on this machine."]
-    if card.get("skipped"):
-        lines.append(f"\n{card['skipped']}.")
-    return "\n".join(lines) + "\n"

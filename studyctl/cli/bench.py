@@ -20,7 +20,7 @@ from studyctl.cli.common import (
     staged,
 )
 
-# what each bench writes into --out (analysis/verification/accuracy_tables.py, analysis/verification/stability.py write_outputs)
+# what each bench writes into --out (write_outputs of analysis/reports/accuracy_tables.py, stability_report.py, reference_report.py)
 ACCURACY_FILES = ("accuracy.json", "accuracy.csv", "samples.csv", "accuracy.md", "accuracy.tex", "pareto.png", "pareto.svg")
 STABILITY_FILES = ("stability.json", "stability.csv", "stability.md", "heatmap.png", "heatmap.svg")
 
@@ -72,7 +72,8 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, forc
     finite-strain law on P2 on body-fitted meshes, Richardson; shipped): calibrated with one stiffness scale on the
     calibration pulls, judged raw and calibrated on held-out pulls (within the JND with
     Wilson intervals, against the reference's band, direction error), time per tick and frame."""
-    from analysis.verification import accuracy, accuracy_tables, paper
+    from analysis.reports import accuracy_tables
+    from analysis.verification import accuracy, paper
 
     target = staged(out_dir, force, folder=True, expect=ACCURACY_FILES, inputs={"--scene": scene_file})  # refused before the sweep
     kw = {"scene": scene_file, "young": young} | ({"test_places": test_places} if test_places else {})
@@ -125,6 +126,7 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, forc
 def bench_stability(scene_file, quick, as_json, out_dir, force, jobs, scheduler, models):
     """Sweep E, nu, time step, spring stiffness, plate-spring parameters, far pulls and 5 cm
     jumps for every model: stable, refused (with the reason) or unstable (with the time)."""
+    from analysis.reports import stability_report
     from analysis.verification import stability
 
     target = staged(out_dir, force, folder=True, expect=STABILITY_FILES, inputs={"--scene": scene_file})  # refused before the sweep
@@ -132,7 +134,7 @@ def bench_stability(scene_file, quick, as_json, out_dir, force, jobs, scheduler,
     result = _with_progress("stability cases", lambda p: stability.run_stability(quick, scene_file, jobs=jobs, scheduler=scheduler, progress=p, cases=cases))
     if target:
         with target as tmp:
-            stability.write_outputs(result, tmp)
+            stability_report.write_outputs(result, tmp)
         say_replaced(target)
     if as_json:
         _print_json(result)
@@ -150,7 +152,7 @@ def bench_stability(scene_file, quick, as_json, out_dir, force, jobs, scheduler,
             t.add_row(model, " ".join(row.get(c, ".") for c in cols))
         console = _console()
         console.print(t)
-        console.print(stability.markdown(result).split("\n")[0])
+        console.print(stability_report.markdown(result).split("\n")[0])
         if out_dir:
             console.print(f"wrote {out_dir}/stability.md, stability.json, stability.csv, heatmap.png")
     m = result["meta"]
@@ -188,6 +190,7 @@ def bench_reference(scene_file, sizes, functional, formulation, pull_names, jobs
     """A converged reference: the tissue's law on P2 tetrahedra on body-fitted (fTetWild) meshes
     of each hemisphere at three sizes, Richardson extrapolation and the grid convergence index
     for every calibration pull of the accuracy bench."""
+    from analysis.reports import reference_report
     from analysis.verification import reference
 
     # refused before the solves
@@ -201,7 +204,7 @@ def bench_reference(scene_file, sizes, functional, formulation, pull_names, jobs
     result = _with_progress("reference meshes", lambda p: reference.run_reference(cfg, progress=p))
     if target:
         with target as tmp:
-            reference.write_outputs(result, tmp)
+            reference_report.write_outputs(result, tmp)
         say_replaced(target)
     if as_json:
         _print_json(result)

@@ -94,7 +94,8 @@ def model_check(name: str, scene_file: Path, quick: bool, contract_only: bool, a
     Exits 1 on a violation, 130 when interrupted."""
     import json
 
-    from analysis.verification.model_check import CheckConfig, CheckInterrupted, check_model, scorecard_md
+    from analysis.reports.model_check_report import scorecard_md
+    from analysis.verification.model_check import CheckConfig, CheckInterrupted, check_model
     from sim.jsonable import jsonable
     from sim.models.registry import canonical, model_class
 
@@ -191,9 +192,11 @@ class _StageReport:
             self.task = self.bar.add_task("", total=n)
         self.bar.update(self.task, completed=k, total=n)
 
-    def end(self, key: str, seconds: float, summary: str) -> None:
+    def end(self, key: str, seconds: float, result) -> None:
+        from analysis.reports.model_check_report import stage_summary
+
         self._stop_bar()
-        self.console.print(f"[{self.k}/{self.stages}] {self.title}: {summary} ({seconds:.1f} s)", soft_wrap=True)
+        self.console.print(f"[{self.k}/{self.stages}] {self.title}: {stage_summary(key, result)} ({seconds:.1f} s)", soft_wrap=True)
 
     def estimate(self, est: dict) -> None:
         refs = (f", {est['reference_solves']} reference solves neither shipped nor cached (about {est['reference_solves_s']:.0f} s)"

@@ -100,7 +100,8 @@ def _emit(text: str, out) -> None:
 
 def _no_answers(study, as_json: bool) -> bool:
     """An empty study: say so (exit 0) instead of tables of 0/0 and NaN; nothing is written."""
-    from analysis.table1 import incomplete_text, study_facts
+    from analysis.reports.study_tables import incomplete_text
+    from analysis.table1 import study_facts
 
     facts = study_facts(study)
     if facts.participants:
@@ -188,10 +189,8 @@ def report_stats(db, holm_scope, as_json):
     every question's tests: Cochran's Q and McNemar pairs (yes/no), Friedman and Wilcoxon pairs
     (ratings), mixed models (scores), the multinomial test (choices), Holm over the whole
     family; the deformation-time benchmark. Complete cases only."""
-    from analysis.kinds import gee_line
+    from analysis.reports.study_tables import stats_summary
     from analysis.study_stats import study_stats
-    from analysis.table1 import incomplete_text
-    from analysis.withhold import mean_sd
 
     study = read_snapshot(db)
     if _no_answers(study, as_json):
@@ -200,53 +199,7 @@ def report_stats(db, holm_scope, as_json):
     if as_json:
         _print_json(out.as_dict())
         return
-    facts = out.facts
-    flag = f" {facts.flag}" if facts.flag else ""
-    click.echo(f"{facts.study}: N = {facts.participants}.{flag}")
-    from analysis.kinds import primary_line
-
-    kinds = out.kinds
-    click.echo(primary_line(out))
-    if len(study.protocol.conditions) < 2:
-        click.echo("one condition: there is nothing to compare between conditions (no Cochran's Q, McNemar or Friedman test)")
-    def pair(p) -> str:
-        if p.p_value != p.p_value:
-            return f"{p.a}-{p.b} not tested ({p.reason or 'not estimable'})"
-        return f"{p.a}-{p.b} p_holm {p.p_holm:.3g}" + (f" ({p.warning})" if getattr(p, "warning", None) else "")
-
-    for item, v in out.items.items() if len(study.protocol.conditions) > 1 else ():
-        pairs = ", ".join(pair(p) for p in v.pairs)
-        cochran = (f"Q = {v.cochran_q:.2f}, p = {v.p_value:.3g}" if v.p_value == v.p_value
-                   else f"Cochran's Q not tested ({v.reason or 'not estimable'})")
-        click.echo(f"{item}: {cochran}; {pairs}")
-    for item, v in kinds.ratings.items():
-        fr = v.friedman
-        pairs = ", ".join(pair(p) for p in v.pairs)
-        friedman = (f"Friedman chi2 = {fr.statistic:.2f}, p = {fr.p_value:.3g}, W = {fr.kendall_w:.2f}"
-                    if fr.statistic == fr.statistic else f"Friedman not tested ({fr.reason})")
-        click.echo(f"{item}: {friedman}; {pairs}")
-    for v in kinds.scores.values():
-        t = v.mixed_model.model_test
-        means = ", ".join(f"{m} {c.mean:.1f}" for m, c in v.conditions.items())
-        test = (f"mixed model F({t.df}, {t.df_denominator}) = {t.f:.2f}, p = {t.p_value_f:.3g}" if t.f == t.f
-                else f"mixed model: not tested ({t.reason or 'no fit'})")
-        click.echo(f"{v.label}: {means}; {test}")
-    for item, v in kinds.choices.items():
-        shares = ", ".join(f"{m} {s.count}" for m, s in v.shares.items())
-        overall = f"{v.overall.test} not tested ({v.overall.reason})" if v.overall.reason else f"{v.overall.test} p = {v.overall.p_value:.3g}"
-        click.echo(f"{item}: {shares}; {overall}")
-    if facts.incomplete_participants:
-        click.echo("left out (incomplete): " + incomplete_text(facts))
-    from analysis.faults import events_text
-
-    if events_text(out.faults):
-        click.echo(events_text(out.faults))
-    gee = gee_line(out.gee, kinds.primary.analysis == "logistic_gee")
-    if gee and kinds.primary.analysis != "logistic_gee":  # the primary's own line is printed first
-        click.echo(gee.replace("`", ""))
-    for row in out.deformation.rows:
-        click.echo(f"deformation time, {row['model']}: {mean_sd(row['mean_ms'], row['sd_ms'], row['n_participants'])} ms over {counted(row['n_participants'], 'participant')} "
-                   f"({out.deformation.label})")
+    click.echo("\n".join(stats_summary(out)))
 
 
 @report.command("text")
