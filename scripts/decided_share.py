@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.questions import NOT_PER_TRIAL
+from analysis.study.questions import NOT_PER_TRIAL
 from analysis.verification.truth import TRUTH_FILE, load_truth
 from studyctl.conditions import scene_itself
 from studyctl.session.traces import trial_traces

@@ -8,7 +8,7 @@ Two pools of synthetic participants are run with `studyctl synth` on the shipped
 protocols/construct_validity.toml: one with its profiles (student, resident, neurosurgeon), one
 with every group given the resident's profile (identical groups). Each replicate study draws
 `--per-group` participants per group without replacement from the pool and runs the report's
-group tests (`analysis.validity.group_tests`: Kruskal-Wallis per metric, Holm over the family;
+group tests (`analysis.validity.groups.group_tests`: Kruskal-Wallis per metric, Holm over the family;
 Mann-Whitney pairs, Holm over theirs). Under identical groups the group labels carry no
 information, so a replicate draws 3 x per-group participants of the null pool and deals the
 labels at random: a sample of the null exactly. Power per metric: the fraction of replicates
@@ -51,9 +51,9 @@ def identical_groups(text: str, like: str = "resident") -> str:
 
 
 def run_pool(protocol_text: str, participants: int, seed: int, jobs: int, where: Path) -> tuple[pd.DataFrame, pd.Series]:
-    """Participant scores (analysis.validity.participant_scores) and groups of a synthetic study."""
-    from analysis.metrics import metrics_table, study_goals
-    from analysis.validity import participant_scores
+    """Participant scores (analysis.validity.groups.participant_scores) and groups of a synthetic study."""
+    from analysis.validity.groups import participant_scores
+    from analysis.validity.metrics import metrics_table, study_goals
     from studyctl.store import Store
     from studyctl.store.snapshot import read_study
 
@@ -71,7 +71,7 @@ def run_pool(protocol_text: str, participants: int, seed: int, jobs: int, where:
 
 
 def replicate(scores: pd.DataFrame, groups: pd.Series, order: list[str], alpha: float, n_perm: int, seed: int) -> dict:
-    from analysis.validity import group_tests
+    from analysis.validity.groups import group_tests
 
     t = group_tests(scores[scores["code"].isin(groups.index)], groups, order=order, n_boot=1, n_perm=n_perm, seed=seed)
     kw = t.kruskal.dropna(subset=["p"])

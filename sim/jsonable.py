@@ -1,6 +1,6 @@
 """JSON-ready copies of results: numpy scalars as Python numbers, NaN and infinities as null
 (JSON has neither), paths as strings, tuples as lists, keys as strings; read-only mappings
-(a result's, analysis/result_records.py) as dicts."""
+(a result's, analysis/statistics/result_records.py) as dicts."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 
 def jsonable(obj):
-    if hasattr(obj, "as_dict") and callable(obj.as_dict):  # a typed record says how it is written (analysis/result_records.py)
+    if hasattr(obj, "as_dict") and callable(obj.as_dict):  # a typed record says how it is written (analysis/statistics/result_records.py)
         obj = obj.as_dict()
     if isinstance(obj, Mapping):
         return {str(k): jsonable(v) for k, v in obj.items()}

@@ -9,7 +9,7 @@ it there, and keep the force under a safe limit.
 The tip's displacement counts from where the hand was when its button was pressed for the grasp
 that took hold (as the metrics count from the first tick of the button held); the target is
 that displacement equal to `distance` times the pull's direction, within `tolerance` (the
-metrics' `analysis.metrics.Goal` uses the same rule on the stored trace, at every tick).
+metrics' `analysis.validity.metrics.Goal` uses the same rule on the stored trace, at every tick).
 """
 
 from __future__ import annotations

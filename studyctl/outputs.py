@@ -85,7 +85,7 @@ def _refuse_long_names(paths) -> None:
 
 
 # the files and folders beside a study database that belong to it, named as SQLite (its WAL and
-# journal), the trace files (analysis/trace_files.py) and the session locks (session/lock.py) name them
+# journal), the trace files (analysis/study/trace_files.py) and the session locks (session/lock.py) name them
 DATABASE_COMPANIONS = ("-wal", "-shm", "-journal", ".traces", ".locks")
 DATABASE_OPTIONS = ("--db",)  # the input options that name a study database
 

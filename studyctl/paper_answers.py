@@ -5,9 +5,9 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from analysis.csvfiles import read_csv
 from analysis.errors import InputError
-from analysis.questions import NOT_PER_TRIAL, SESSION, AnswerError, allowed, parse_answer
+from analysis.study.csvfiles import read_csv
+from analysis.study.questions import NOT_PER_TRIAL, SESSION, AnswerError, allowed, parse_answer
 from sim.text import quoted
 from studyctl.store import Store, now, roster
 

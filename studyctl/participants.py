@@ -14,9 +14,9 @@ import io
 from pathlib import Path
 
 from analysis.errors import InputError, StoreError
-from analysis.questions import shown
 from analysis.reports.formatting import spreadsheet_safe
-from analysis.trace_files import trace_dir, trace_file
+from analysis.study.questions import shown
+from analysis.study.trace_files import trace_dir, trace_file
 from sim.text import TEXT_MOST, text_problem
 from studyctl.outputs import refuse_inputs, write_file
 from studyctl.paper_answers import answer_key

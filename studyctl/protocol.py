@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
-from analysis import instruments
 from analysis.errors import ProtocolError
-from analysis.questions import KINDS, LATENCY_MEASURES, LIKERT_POINTS, WHENS, Question
+from analysis.study import instruments
+from analysis.study.questions import KINDS, LATENCY_MEASURES, LIKERT_POINTS, WHENS, Question
 from sim.errors import SceneError, SimError
 from sim.models import registry
 from sim.scene import configure, load_scene

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from analysis.csvfiles import read_csv
 from analysis.errors import InputError
+from analysis.study.csvfiles import read_csv
 from sim.text import NAME_MOST, TITLE_MOST, text_problem
 from studyctl.fields import field_rows, parse_fields
 from studyctl.store import Store, now, roster

@@ -8,8 +8,8 @@ import json
 from pathlib import Path
 from zoneinfo import ZoneInfo
 
-from analysis.csvfiles import read_csv
 from analysis.errors import InputError
+from analysis.study.csvfiles import read_csv
 from studyctl.outputs import refuse_existing, write_file
 from studyctl.store import Store, roster
 from studyctl.store.participant_fields import group_of

@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from analysis.reports.accuracy_tables import meets_text, tables, within_text
 from analysis.reports.plots import pareto
-from analysis.stats import wilson
+from analysis.statistics.stats import wilson
 from analysis.verification import accuracy
 from analysis.verification.accuracy import Setting, class_best, compare, coupling_bound
 from sim.pulls import Pull, make_pulls, scene_with

@@ -10,9 +10,9 @@ import sqlite3
 import numpy as np
 import pytest
 
-from analysis import instruments
-from analysis.questions import Question
 from analysis.reports.latex import document
+from analysis.study import instruments
+from analysis.study.questions import Question
 from studyctl.protocol import check_protocol, load_protocol
 from studyctl.synthetic.observer import likert_answer, likert_thresholds
 from studyctl.synthetic.synth_run import run_synthetic_study

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.questions import Question
+from analysis.study.questions import Question
 from tests.helpers import MODEL_WORDS, fast_protocol, pty_session, studyctl
 from tests.window_helpers import run_xdotool, window
 
@@ -110,7 +110,7 @@ def test_every_kind_answered_in_the_window_with_keys_and_the_mouse(xdotool, tmp_
     a VAS by a click, the arrows and a drag (its values checked against the line's geometry to
     the pixel), a 5-point one by clicking a point twice, a 3-point one on the keypad, and a
     choice by its letter. Types and values, and the screenshots' pixels."""
-    from analysis.instruments import questions as instrument
+    from analysis.study.instruments import questions as instrument
     from sim.geometry.mesh import load_mesh
     from sim.view.window import HandState, ParticipantView
     from studyctl.session.window_answers import WindowAnswers

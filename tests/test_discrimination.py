@@ -159,7 +159,7 @@ def test_a_lockstep_run_ended_at_the_release_is_the_full_runs_start_and_judged_a
 def _trace(k: float, distance: float, hands: int = 2):
     """A pull's trace with force k * stretch^1.5 (a stiffening tissue), stretched to `distance`
     over 1 s at 1 kHz after a grasp at 0.1 s: the attributes the observer reads."""
-    from analysis.trace_files import Trace
+    from analysis.study.trace_files import Trace
     from sim.servo.loop import Event
 
     t = np.arange(0.0, 1.5, 0.001)
@@ -218,7 +218,7 @@ def test_a_synthetic_session_stores_every_trial_and_a_killed_one_resumes_as_if_u
     answers and procedure states as an uninterrupted run, each trial once, both traces stored
     and matching their hashes; the generating traits kept."""
     import studyctl.session.discrimination as disc
-    from analysis.trace_files import read_trace
+    from analysis.study.trace_files import read_trace
     from studyctl.session.run import run_session
     from studyctl.synthetic.synth_run import run_synthetic_study
     from tests.helpers import studyctl

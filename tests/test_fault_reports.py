@@ -11,7 +11,7 @@ import math
 import pandas as pd
 import pytest
 
-from analysis.faults import FAULT_SHARE_MAX, condition_events, withhold_fit, withhold_pairs
+from analysis.statistics.faults import FAULT_SHARE_MAX, condition_events, withhold_fit, withhold_pairs
 from studyctl.synthetic.synth_run import fault_warnings
 from tests.helpers import BAD, fast_protocol, studyctl
 

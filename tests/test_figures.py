@@ -191,8 +191,8 @@ def test_one_colour_per_condition_in_every_plot(variants_study):
     study = read_snapshot(variants_study)
     models = list(study.protocol.conditions)
     pal = plots.palette(models)
-    from analysis import table1
-    from analysis.kinds import kind_stats
+    from analysis.statistics import table1
+    from analysis.statistics.kinds import kind_stats
 
     answers, _ = table1.complete_answers(study)
     choice = next(iter(kind_stats(study, answers).choices.values()))

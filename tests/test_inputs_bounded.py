@@ -352,7 +352,7 @@ def test_participant_texts_are_bounded(tmp_path, args, problem):
 
 
 def test_the_terminal_questionnaire_asks_again_for_a_free_text_with_an_escape_sequence():
-    from analysis.questions import Question
+    from analysis.study.questions import Question
     from studyctl.session.asking import TerminalAnswers
 
     replies, shown = iter(["fine\x1b[2J", "x" * 2001, "fine"]), []

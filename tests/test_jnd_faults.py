@@ -13,8 +13,8 @@ import pandas as pd
 import pytest
 
 from analysis.discrimination.jnd import _group, task_events
-from analysis.faults import condition_events
 from analysis.reports import validity_report as vr
+from analysis.statistics.faults import condition_events
 from studyctl.store import Store
 from studyctl.store.snapshot import read_study
 from tests.helpers import BAD, ROOT, jnd_protocol, studyctl

@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # bottom to top: a package imports only those before it
 LAYERS = ("sim", "analysis", "studyctl")
 SUBPACKAGES = ("sim/devices", "sim/geometry", "sim/models", "sim/models/fem", "sim/servo", "sim/view", "analysis/discrimination",
-               "analysis/reports", "analysis/verification", "studyctl/cli", "studyctl/session", "studyctl/store", "studyctl/synthetic")
+               "analysis/reports", "analysis/statistics", "analysis/study", "analysis/validity", "analysis/verification", "studyctl/cli", "studyctl/session", "studyctl/store", "studyctl/synthetic")
 
 
 def _imports(path: Path) -> set[str]:

@@ -1,4 +1,4 @@
-"""Performance metrics (analysis/metrics.py) against closed forms on constructed traces, then with
+"""Performance metrics (analysis/validity/metrics.py) against closed forms on constructed traces, then with
 tremor and the Omni's encoder quantisation added; `studyctl metrics` on a synthetic study."""
 
 import json
@@ -13,8 +13,8 @@ import pytest
 from scipy.integrate import quad
 from scipy.optimize import brentq
 
-from analysis import kinematics as kin
-from analysis.metrics import COLUMNS, METRICS, SAFE_FORCE_N, Goal, hand_metrics, trial_metrics
+from analysis.validity import kinematics as kin
+from analysis.validity.metrics import COLUMNS, METRICS, SAFE_FORCE_N, Goal, hand_metrics, trial_metrics
 from tests.conftest import ROOT
 from tests.helpers import fast_protocol, studyctl
 

@@ -498,7 +498,7 @@ def test_a_file_of_another_name_inside_a_folder_output_is_no_conflict(tmp_path):
 
 
 def test_a_study_database_s_companions_are_named_as_the_store_names_them(tmp_path):
-    from analysis.trace_files import trace_dir
+    from analysis.study.trace_files import trace_dir
     from studyctl.outputs import database_companions
     from studyctl.session.lock import session_lock
 

@@ -9,8 +9,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from analysis.methods import Procedure, QuestionAsked
 from analysis.reports import paper_text
+from analysis.statistics.methods import Procedure, QuestionAsked
 from sim.text import counted
 from tests.helpers import unsupported_numbers
 

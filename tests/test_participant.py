@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pandas as pd
 
-from analysis.trace_files import read_trace
+from analysis.study.trace_files import read_trace
 from studyctl.store import Store
 from tests.helpers import MODEL_WORDS, count_rows, participant_protocol, pty_run, pty_session, studyctl
 

@@ -9,7 +9,7 @@ from types import MappingProxyType
 
 import pytest
 
-from analysis.result_records import (
+from analysis.statistics.result_records import (
     ChoicePair,
     ChoiceTest,
     DifferencePair,
@@ -23,7 +23,7 @@ from analysis.result_records import (
     RankPair,
     Record,
 )
-from analysis.study_stats import study_stats
+from analysis.statistics.study_stats import study_stats
 from sim.jsonable import jsonable
 from studyctl.cli.common import read_snapshot
 from tests.conftest import ROOT
@@ -32,8 +32,8 @@ from tests.conftest import ROOT
 # records' own conversion (a record's as_dict gives its inner records' as theirs)
 # where JSON is written: the commands, report table1's JSON (analysis/reports/study_report.py), the records
 # themselves, and sim/jsonable.py (what every JSON writer calls)
-AS_DICT_CALLERS = {"studyctl/cli/reports.py", "studyctl/cli/plan.py", "analysis/reports/study_report.py", "analysis/result_records.py", "analysis/facts.py",
-                   "analysis/study_results.py", "sim/jsonable.py"}
+AS_DICT_CALLERS = {"studyctl/cli/reports.py", "studyctl/cli/plan.py", "analysis/reports/study_report.py", "analysis/statistics/result_records.py", "analysis/statistics/facts.py",
+                   "analysis/statistics/study_results.py", "sim/jsonable.py"}
 
 
 def _walk(obj, path: str):
@@ -87,7 +87,7 @@ def test_a_result_mapping_refuses_a_key(results):
 
 def _records() -> list[type]:
     """Every result record class (the subclasses of Record, all the way down)."""
-    import analysis.study_results  # noqa: F401  (every result module imported: their classes registered)
+    import analysis.statistics.study_results  # noqa: F401  (every result module imported: their classes registered)
 
     out, todo = [], [Record]
     while todo:

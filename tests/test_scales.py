@@ -1,4 +1,4 @@
-"""analysis/scales.py (and the rank tests of analysis/stats.py) against independent references:
+"""analysis/statistics/scales.py (and the rank tests of analysis/statistics/stats.py) against independent references:
 published examples, pingouin, likelihoods and bootstrap intervals written out by hand here, and
 exact enumerations. pingouin is a test-only dependency (pyproject's dev group)."""
 
@@ -12,7 +12,7 @@ import pytest
 from scipy import optimize, stats
 from scipy.special import expit
 
-from analysis.scales import (
+from analysis.statistics.scales import (
     choice_analysis,
     friedman_with_ci,
     kendall_w_ci,
@@ -23,7 +23,7 @@ from analysis.scales import (
     rank_biserial_ci,
     wilcoxon_with_ci,
 )
-from analysis.stats import friedman, pairwise_wilcoxon
+from analysis.statistics.stats import friedman, pairwise_wilcoxon
 
 pg = pytest.importorskip("pingouin")
 MODELS = ["fem", "mass_spring", "plate_spring"]
@@ -48,7 +48,7 @@ def _likert(n: int, shift=(0.0, 1.0, -0.5), items: int = 1, seed: int = 0) -> pd
     return pd.DataFrame(rows)
 
 
-# --- Friedman and Kendall's W (analysis.stats.friedman) -----------------------------------------
+# --- Friedman and Kendall's W (analysis.statistics.stats.friedman) -----------------------------------------
 
 # R's ?friedman.test example: Hollander and Wolfe (1973), Nonparametric Statistical Methods,
 # p. 140 ff.: times of 22 baseball players rounding first base three ways. R prints
@@ -82,7 +82,7 @@ def test_friedman_and_kendall_w_match_pingouin(data):
     assert f["kendall_w"] == pytest.approx(ref["W"], rel=1e-10)
 
 
-# --- Wilcoxon pairs (analysis.stats.pairwise_wilcoxon) -------------------------------------------
+# --- Wilcoxon pairs (analysis.statistics.stats.pairwise_wilcoxon) -------------------------------------------
 
 def test_pairwise_wilcoxon_matches_pingouin():
     wide = _likert(30, seed=2).pivot(index="code", columns="model", values="answer")[MODELS]

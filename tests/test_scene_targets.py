@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.metrics import scene_goals, trial_metrics
+from analysis.validity.metrics import scene_goals, trial_metrics
 from sim.errors import SceneError
 from sim.run import run_scene
 from sim.scene import Scene, build_scene, load_scene

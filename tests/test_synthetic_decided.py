@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from analysis.trace_files import Trace
+from analysis.study.trace_files import Trace
 from analysis.verification.truth import Truth
 from sim.servo.loop import Event
 from studyctl.synthetic.observer import (

@@ -13,8 +13,8 @@ from analysis.reports.latex import document
 from analysis.reports.latex import text as latex_text
 from analysis.reports.study_tables import table as table1_table
 from analysis.reports.study_tables import table1_markdown
-from analysis.stats import wilson
-from analysis.study_stats import study_stats
+from analysis.statistics.stats import wilson
+from analysis.statistics.study_stats import study_stats
 from studyctl.cli import cli
 from studyctl.synthetic.synth_run import run_synthetic_study
 from tests.helpers import fast_protocol, latex_problems
@@ -73,7 +73,7 @@ def test_mcnemar_with_continuity_correction_matches_the_published_example():
 def test_friedman_with_and_without_tie_correction_matches_nag_g08aef():
     import numpy as np
 
-    from analysis.stats import friedman
+    from analysis.statistics.stats import friedman
 
     t1 = [1, 2, 1, 1, 3, 2, 3, 1, 3, 3, 2, 2, 3, 2, 2.5, 3, 3, 2]
     t2 = [3, 3, 3, 2, 1, 3, 2, 3, 1, 1, 3, 3, 2, 3, 2.5, 2, 2, 3]
@@ -131,7 +131,7 @@ def test_margin_bounds_match_brute_force_over_every_pairing(yes, n):
     from scipy.stats import binomtest
     from statsmodels.stats.contingency_tables import cochrans_q
 
-    from analysis.stats import max_cochran_q, min_mcnemar_p
+    from analysis.statistics.stats import max_cochran_q, min_mcnemar_p
 
     qs, mc = [], {}
     for x in _all_pairings(yes, n):
@@ -182,8 +182,8 @@ def _answers_db(tmp_path, answers: dict, orders: dict | None = None, protocol=No
 
 def test_one_n_rule_complete_cases_everywhere_and_the_rest_listed(tmp_path):
     from analysis.reports.study_tables import table1_markdown as markdown
-    from analysis.study_stats import study_stats
-    from analysis.table1 import rates, study_facts
+    from analysis.statistics.study_stats import study_stats
+    from analysis.statistics.table1 import rates, study_facts
 
     rng = np.random.default_rng(1)
     models = ["fem", "mass_spring", "plate_spring"]
@@ -205,8 +205,8 @@ def test_one_n_rule_complete_cases_everywhere_and_the_rest_listed(tmp_path):
 
 
 def test_holm_over_the_family_of_27_pairs_by_default(tmp_path):
-    from analysis.stats import holm
-    from analysis.study_stats import study_stats
+    from analysis.statistics.stats import holm
+    from analysis.statistics.study_stats import study_stats
 
     rng = np.random.default_rng(2)
     answers = {f"P{i:02d}": {"fem": rng.binomial(1, 0.9, 9).tolist(), "mass_spring": rng.binomial(1, 0.3, 9).tolist(),
@@ -230,7 +230,7 @@ def test_gee_matches_the_hand_built_saturated_case():
     sandwich with A = N D V^-1 D, B = D V^-1 (sum r r^T) V^-1 D)."""
     import pandas as pd
 
-    from analysis.stats import gee_fit
+    from analysis.statistics.stats import gee_fit
 
     rng = np.random.default_rng(3)
     n, models = 40, ["a", "b", "c"]
@@ -258,7 +258,7 @@ def test_gee_matches_the_hand_built_saturated_case():
 
 
 def test_gee_has_the_period_factor_and_a_composite(tmp_path):
-    from analysis.study_stats import study_stats
+    from analysis.statistics.study_stats import study_stats
 
     rng = np.random.default_rng(4)
     models = ["fem", "mass_spring", "plate_spring"]
@@ -324,7 +324,7 @@ def test_latex_html_and_plots(small_study, tmp_path):
 
 def test_a_report_reads_the_study_once(small_study, tmp_path, monkeypatch):
     """Each report command opens the database once (one Store, no other connection) and makes
-    every table, statistic and plot from one snapshot (analysis.study_snapshot.Study)."""
+    every table, statistic and plot from one snapshot (analysis.study.study_snapshot.Study)."""
     import dataclasses
     import sqlite3
 
@@ -435,7 +435,7 @@ def test_table1_is_one_table_whatever_the_format(tmp_path):
 
 def test_gee_says_not_estimable_when_a_model_answers_alike_throughout(tmp_path):
     from analysis.reports.study_tables import table1_markdown as markdown
-    from analysis.study_stats import study_stats
+    from analysis.statistics.study_stats import study_stats
 
     rng = np.random.default_rng(6)
     answers = {f"P{i:02d}": {"fem": rng.integers(0, 2, 9).tolist(), "mass_spring": [0] * 9, "plate_spring": rng.integers(0, 2, 9).tolist()}
@@ -455,7 +455,7 @@ def test_gee_says_not_estimable_when_a_model_answers_alike_throughout(tmp_path):
 def test_holm_equals_statsmodels_with_ties_and_nan():
     from statsmodels.stats.multitest import multipletests
 
-    from analysis.stats import holm
+    from analysis.statistics.stats import holm
 
     rng = np.random.default_rng(1)
     for k in range(12):  # statsmodels' holm runs a full garbage collection per call: 0.25 s in the suite's heap

@@ -1,7 +1,7 @@
 """Construct-validity statistics (issue 32, item 4) against independent computations: pingouin's
 Kruskal-Wallis (its own H) and Mann-Whitney (its rank-biserial correlation), a direct pairwise
 count for Cliff's delta, statsmodels for Holm, known parameters for the learning curves, the mixed
-model and the classifier. Inputs: tidy tables in analysis.metrics' format, built here."""
+model and the classifier. Inputs: tidy tables in analysis.validity.metrics' format, built here."""
 
 import itertools
 import math
@@ -10,9 +10,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis import validity as v
-from analysis.metrics import COLUMNS
-from analysis.stats import holm
+from analysis.statistics.stats import holm
+from analysis.validity import groups as v
+from analysis.validity.metrics import COLUMNS
 
 ORDER = ["student", "resident", "neurosurgeon"]
 
@@ -391,6 +391,6 @@ def test_an_invariant_metric_is_not_tested_and_says_why():
     assert pairs["cliffs_delta"].isna().all()
     assert pairs["reason"].notna().all()
     tested = res.kruskal[res.kruskal["reason"].isna()]
-    from analysis.stats import holm
+    from analysis.statistics.stats import holm
 
     assert np.allclose(tested["p_holm"], holm(tested["p"]))  # the family: the tests run

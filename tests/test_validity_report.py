@@ -12,10 +12,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis.metrics import COLUMNS
 from analysis.reports import validity_report as report_mod
 from analysis.reports import validity_report as vr
 from analysis.reports.latex import document
+from analysis.validity.metrics import COLUMNS
 from studyctl.store import Store
 from studyctl.store.snapshot import read_study
 from tests.helpers import fast_protocol, field_protocol, latex_problems, studyctl

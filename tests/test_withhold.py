@@ -1,4 +1,4 @@
-"""One rule for every statistic (analysis/withhold.py, issue 42 item 1): printed only where its
+"""One rule for every statistic (analysis/statistics/withhold.py, issue 42 item 1): printed only where its
 prerequisites hold for the data, otherwise withheld with the reason; intervals inside their
 scale. The sweep runs N = 0, 1, 2, 3 and a one-condition study through every report and format."""
 
@@ -8,7 +8,7 @@ import re
 import numpy as np
 import pytest
 
-from analysis.withhold import mean_ci
+from analysis.statistics.withhold import mean_ci
 from tests.helpers import QUESTIONS, kinds_protocol, studyctl
 
 PER_TRIAL = QUESTIONS.replace('id = "stable"\ntext = "Is the system stable?"', 'id = "stable"\ntext = "Is the system stable?"\nwhen = "trial"')

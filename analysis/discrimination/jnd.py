@@ -15,7 +15,7 @@ their generating Weber fraction beside the estimate (so recovery can be read off
   values and the intervals' coverage of them;
 - ``group``: analysis.discrimination.weber_groups.group_test across conditions (None with one condition);
 - ``faults`` (only where a trial had a fault or safety event): per condition its
-  analysis.faults.ConditionEvents over the task's trials (a trial counts when either interval had
+  analysis.statistics.faults.ConditionEvents over the task's trials (a trial counts when either interval had
   one). A condition whose trials are mostly faults is withheld: its summary's numbers are NaN with
   the ``reason``, the group's omnibus tests are not run (``withheld``: condition -> reason, first
   in ``problems``), and its pairs are not tested; the other conditions' pairs are tested among
@@ -36,11 +36,11 @@ from scipy import stats
 from analysis.discrimination.pooled import POOLED_MIN, pooled_webers
 from analysis.discrimination.psychometric import DEFAULT_FUNCTION, LAPSE_MAX, N_BOOT, weber_table
 from analysis.discrimination.weber_groups import group_test
-from analysis.faults import any_events, condition_events, withheld
-from analysis.methods import study_methods
-from analysis.study_snapshot import data_flag
-from analysis.table1 import study_facts
-from analysis.withhold import interval_reason
+from analysis.statistics.faults import any_events, condition_events, withheld
+from analysis.statistics.methods import study_methods
+from analysis.statistics.table1 import study_facts
+from analysis.statistics.withhold import interval_reason
+from analysis.study.study_snapshot import data_flag
 
 GM_WARN_BELOW = 5  # participants: below this a geometric mean's t interval is said to be wide
 
@@ -108,7 +108,7 @@ def jnd_results(study, task: int = 0, n_boot: int | None = None, seed: int = 0) 
 
 
 def task_events(study, task: int) -> pd.DataFrame:
-    """The task's trials' servo events as analysis.faults reads them: code, model, trial, events."""
+    """The task's trials' servo events as analysis.statistics.faults reads them: code, model, trial, events."""
     d = study.discrimination
     d = d[d["task"] == task]
     return pd.DataFrame({"code": d["code"], "model": d["model"], "trial": d["trial"],

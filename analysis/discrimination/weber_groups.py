@@ -15,7 +15,7 @@ import pandas as pd
 import statsmodels.api as sm
 from scipy import stats
 
-from analysis.stats import holm
+from analysis.statistics.stats import holm
 from sim.jsonable import jsonable
 
 MIN_PARTICIPANTS = 3

@@ -1,10 +1,17 @@
-"""Each condition's model faults and safety events (analysis.faults) as the reports show them:
+"""Each condition's model faults and safety events (analysis.statistics.faults) as the reports show them:
 a table and a sentence."""
 
 from __future__ import annotations
 
-from analysis.faults import FAULT_KINDS, FAULT_SHARE_MAX, SAFETY_KINDS, ConditionEvents, any_events, kinds_text
 from analysis.reports.table import Table
+from analysis.statistics.faults import (
+    FAULT_KINDS,
+    FAULT_SHARE_MAX,
+    SAFETY_KINDS,
+    ConditionEvents,
+    any_events,
+    kinds_text,
+)
 
 
 def events_cell(e: ConditionEvents) -> str:

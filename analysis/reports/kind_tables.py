@@ -1,4 +1,4 @@
-"""The statistics of every kind of answer beyond yes/no (analysis.kinds.kind_stats) as report
+"""The statistics of every kind of answer beyond yes/no (analysis.statistics.kinds.kind_stats) as report
 tables and sentences: per rating item, score and choice its table, the questions asked once at
 the end, the logistic GEE and the primary analysis in words."""
 
@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.faults import is_withheld
-from analysis.kind_results import KindStats
 from analysis.reports.formatting import p_value, rate_interval
 from analysis.reports.table import Table
-from analysis.result_records import EndRate, Friedman, GeeFit, OrdinalGeeFit, RankPair, Summary
-from analysis.study_results import LogisticGee, StudyStats
+from analysis.statistics.faults import is_withheld
+from analysis.statistics.kind_results import KindStats
+from analysis.statistics.result_records import EndRate, Friedman, GeeFit, OrdinalGeeFit, RankPair, Summary
+from analysis.statistics.study_results import LogisticGee, StudyStats
 from sim.text import counted
 
 
@@ -32,7 +32,7 @@ def _rho_text(fit: GeeFit) -> str:
 
 def gee_line(gee: LogisticGee, primary: bool = True) -> str:
     """The logistic GEE across the yes/no questions as a sentence: the primary analysis unless
-    the protocol has rating items (analysis.kinds.primary)."""
+    the protocol has rating items (analysis.statistics.kinds.primary)."""
     c = gee.composite
     if not c or not c.pairs:
         return ""

@@ -1,5 +1,5 @@
 """The methods and results paragraphs of a study, written from the results that `studyctl report
-stats --json` prints (analysis.study_results.StudyStats: its `methods` and its statistics), never
+stats --json` prints (analysis.statistics.study_results.StudyStats: its `methods` and its statistics), never
 from numbers retyped: each number in the text is a value of that JSON at the printed precision, in APA 7 style (p = .066, p < .001,
 no leading zero for values that cannot exceed 1, two decimals for test statistics, 95% CI [a, b]).
 Synthetic data is said first; a statistic the reports withhold is withheld here with the same
@@ -13,16 +13,16 @@ import numbers
 from collections.abc import Mapping
 
 from analysis.discrimination.jnd import jnd_results
-from analysis.faults import ConditionEvents
-from analysis.kind_results import KindStats
-from analysis.methods import StudyMethods
-from analysis.questions import LATENCY_MEASURES
 from analysis.reports import latex
 from analysis.reports.fault_tables import events_text
-from analysis.result_records import EndSummary
-from analysis.study_results import StudyStats
-from analysis.study_snapshot import Study
-from analysis.study_stats import study_stats
+from analysis.statistics.faults import ConditionEvents
+from analysis.statistics.kind_results import KindStats
+from analysis.statistics.methods import StudyMethods
+from analysis.statistics.result_records import EndSummary
+from analysis.statistics.study_results import StudyStats
+from analysis.statistics.study_stats import study_stats
+from analysis.study.questions import LATENCY_MEASURES
+from analysis.study.study_snapshot import Study
 from sim.jsonable import jsonable
 from sim.text import counted
 
@@ -68,7 +68,7 @@ def _names(xs) -> str:
 
 
 def _pairs_text(pairs, describe, what: str, family: str) -> str:
-    """The pairs (analysis/result_records.py) significant after Holm, each described; the others
+    """The pairs (analysis/statistics/result_records.py) significant after Holm, each described; the others
     counted; untested ones with why."""
     tested = [p for p in pairs if _finite(p.p_value)]
     untested = [p for p in pairs if not _finite(p.p_value)]
@@ -216,7 +216,7 @@ def _yes_no(st: StudyStats, family: str) -> list[str]:
 
 
 def _gee(fit, what: str, family: str, n_conditions: int) -> str:
-    """A GEE's sentence (analysis.result_records.GeeFit or OrdinalGeeFit; None when not fitted)."""
+    """A GEE's sentence (analysis.statistics.result_records.GeeFit or OrdinalGeeFit; None when not fitted)."""
     if not fit:
         return f"The {what} was not made: " + ("one condition: nothing to compare." if n_conditions < 2 else "no answers to fit.")
     if not fit.estimable or not fit.converged:

@@ -18,9 +18,9 @@ from matplotlib.colors import ListedColormap
 from matplotlib.transforms import Bbox, blended_transform_factory
 
 from analysis.discrimination.psychometric import fit_psychometric
-from analysis.kind_results import ChoiceStats, RatingStats, ScoreStats
 from analysis.reports.figure_size import SCREEN, FigureSize, figure_size, fit, wrap
 from analysis.reports.figure_size import save as save  # write_plots saves every format through plots.save
+from analysis.statistics.kind_results import ChoiceStats, RatingStats, ScoreStats
 from analysis.verification.paper import deformation_ms
 from sim.perception import force_jnd
 from sim.text import counted
@@ -125,7 +125,7 @@ def rates_figure(rates, synthetic: bool, size: FigureSize = SCREEN, models=None)
 @styled
 def deformation_figure(lat, synthetic: bool, size: FigureSize = SCREEN, models=None):
     """Distribution of the deformation time per frame (trial means) per model, log scale
-    (`lat`: ``model, value`` per trial, analysis.study_snapshot.Study.latency_trials)."""
+    (`lat`: ``model, value`` per trial, analysis.study.study_snapshot.Study.latency_trials)."""
     present = list(dict.fromkeys(lat["model"]))
     pal = palette(list(models or []) + present)
     models = [m for m in (models or present) if m in present] + [m for m in present if m not in (models or present)]

@@ -1,5 +1,5 @@
 """Report documents: LaTeX Table 1, and one self-contained HTML file with tables and plots, of
-a study read once (analysis.study_snapshot.Study)."""
+a study read once (analysis.study.study_snapshot.Study)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,6 @@ import tempfile
 from dataclasses import replace
 from pathlib import Path
 
-from analysis import table1
-from analysis.kind_results import KindStats
-from analysis.kinds import kind_stats, measures
 from analysis.reports import plots
 from analysis.reports.accuracy_tables import intro
 from analysis.reports.accuracy_tables import tables as accuracy_tables
@@ -30,8 +27,11 @@ from analysis.reports.study_tables import (
 )
 from analysis.reports.table import html as table_html
 from analysis.reports.table import html_grid, html_text, latex_tables
-from analysis.study_snapshot import Study
-from analysis.study_stats import study_stats
+from analysis.statistics import table1
+from analysis.statistics.kind_results import KindStats
+from analysis.statistics.kinds import kind_stats, measures
+from analysis.statistics.study_stats import study_stats
+from analysis.study.study_snapshot import Study
 from analysis.verification.paper import deformation_words
 from analysis.verification.stability import outcome_grid
 from sim.text import counted

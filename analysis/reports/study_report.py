@@ -7,9 +7,7 @@ from __future__ import annotations
 
 import json
 
-from analysis import table1
 from analysis.discrimination import jnd
-from analysis.faults import rates_with_events
 from analysis.reports.accuracy_tables import markdown as accuracy_markdown
 from analysis.reports.accuracy_tables import tables as accuracy_tables
 from analysis.reports.formatting import spreadsheet_frame
@@ -18,7 +16,9 @@ from analysis.reports.report import html, latex
 from analysis.reports.stability_report import markdown as stability_markdown
 from analysis.reports.study_tables import table1_markdown
 from analysis.reports.table import latex_tables
-from analysis.study_stats import study_stats
+from analysis.statistics import table1
+from analysis.statistics.faults import rates_with_events
+from analysis.statistics.study_stats import study_stats
 from sim.jsonable import jsonable
 
 

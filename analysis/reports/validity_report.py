@@ -1,13 +1,13 @@
 """The construct-validity report (`studyctl report validity`): a study's
-performance metrics (analysis/metrics.py) compared between its participant groups with
-analysis/validity.py, beside its face-validity ratings per group.
+performance metrics (analysis/validity/metrics.py) compared between its participant groups with
+analysis/validity/groups.py, beside its face-validity ratings per group.
 
-`validity_report(study, ...)` reads one study snapshot (analysis/study_snapshot.py) and returns a dict of tidy
+`validity_report(study, ...)` reads one study snapshot (analysis/study/study_snapshot.py) and returns a dict of tidy
 DataFrames and numbers; `markdown`, `html` and `to_json` render it. The groups are each
 participant's value of the protocol's `design.groups` field, in the field's order; the most
 expert group is its last value. Participant fields of kind `text` are never read; integer and
 number fields are described per group, nothing else of a participant is. A condition whose
-trials are mostly model faults (analysis/faults.py) is shown in the faults table and described,
+trials are mostly model faults (analysis/statistics/faults.py) is shown in the faults table and described,
 but no test reads its metrics (`faults` in the dict only where a trial had a fault or safety event).
 """
 
@@ -22,17 +22,17 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from analysis import instruments
-from analysis import validity as v
 from analysis.errors import StudyError
-from analysis.faults import any_events, condition_events, involving, withheld
-from analysis.metrics import UNITS, metrics_table, study_goals
 from analysis.reports.fault_tables import events_table
 from analysis.reports.formatting import PAGE_END, figure_png, p_value, page_head
 from analysis.reports.plots import OTHER_COLORS, _plt
 from analysis.reports.table import Table, html_grid, latex_tables, markdown_grid
-from analysis.stats import holm
-from analysis.study_snapshot import Study, data_flag
+from analysis.statistics.faults import any_events, condition_events, involving, withheld
+from analysis.statistics.stats import holm
+from analysis.study import instruments
+from analysis.study.study_snapshot import Study, data_flag
+from analysis.validity import groups as v
+from analysis.validity.metrics import UNITS, metrics_table, study_goals
 from sim.jsonable import jsonable
 
 DEFAULT_PERMUTATIONS = 100
@@ -177,9 +177,9 @@ def _with_wy(columns: list[str]) -> list[str]:
 def validity_report(study: Study, permutations: int = DEFAULT_PERMUTATIONS, bootstrap: int = DEFAULT_BOOTSTRAP, seed: int = 0,
                     progress: Callable[[int, int], None] | None = None,
                     group_permutations: int = DEFAULT_GROUP_PERMUTATIONS) -> dict:
-    """The construct-validity report of `study` (analysis/study_snapshot.py's snapshot). `permutations`:
+    """The construct-validity report of `study` (analysis/study/study_snapshot.py's snapshot). `permutations`:
     of the classifier's permutation test; `group_permutations`: of the group tests' Westfall-Young
-    adjustment (`p_wy`, analysis.validity.group_tests' n_perm); `bootstrap`: replicates of Cliff's delta's intervals and
+    adjustment (`p_wy`, analysis.validity.groups.group_tests' n_perm); `bootstrap`: replicates of Cliff's delta's intervals and
     of the learning curves'; `seed`: of every resampling. `progress(done, STEPS)` after each step.
     Raises NoGroupsError for a study without design.groups."""
     step = progress or (lambda k, n: None)

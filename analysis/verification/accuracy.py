@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import brentq
 
-from analysis.stats import wilson
+from analysis.statistics.stats import wilson
 from analysis.verification.regions import membrane_meta, regions_meta
 from analysis.verification.tissue_pulls import (
     DEFAULT_SIZES_MM,

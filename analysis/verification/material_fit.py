@@ -39,8 +39,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import t as student_t
 
-from analysis.csvfiles import read_csv
 from analysis.errors import InputError
+from analysis.study.csvfiles import read_csv
 from brainsim_assets import path as _asset
 from sim.hyperelastic import BULK_RATIO, Hyperelastic, mooney_rivlin, neo_hookean, ogden, uniaxial
 from sim.material import load_material
@@ -90,7 +90,7 @@ class Curve:
 def read_curve(path, region: str) -> Curve:
     """The rows of `region` in a CSV of one loading mode, read from its columns: region, stretch,
     nominal_stress_kpa (uniaxial) or region, shear_strain, shear_stress_kpa (simple shear); read
-    strictly (`analysis.csvfiles.read_csv`): a bad cell is named by its line and column."""
+    strictly (`analysis.study.csvfiles.read_csv`): a bad cell is named by its line and column."""
     p = Path(path)
     allowed = ("region",) + tuple(c for cols in MODES.values() for c in cols)
     rows = read_csv(p, allowed, ("region",))

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-from analysis.csvfiles import read_csv
+from analysis.study.csvfiles import read_csv
 from brainsim_assets import path as _asset
 
 DEFORMATION_TIME = _asset("data/paper_deformation_time_ms.csv")

@@ -207,7 +207,7 @@ def _table(rows: list[dict], title: str, columns: list[str]) -> None:
 
 
 def read_snapshot(db):
-    """The study in `db`, read once (analysis.study_snapshot.Study): every report is made from it."""
+    """The study in `db`, read once (analysis.study.study_snapshot.Study): every report is made from it."""
     from studyctl.store import Store
     from studyctl.store.snapshot import read_study  # the reports' stack loads only for the commands that make one
 

@@ -1,4 +1,4 @@
-"""`studyctl metrics`: every stored trial's performance metrics (analysis/metrics.py), tidy."""
+"""`studyctl metrics`: every stored trial's performance metrics (analysis/validity/metrics.py), tidy."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ def _note(table) -> str:
 def metrics_cmd(db, fmt, out_file, force):
     """Performance metrics from every stored trace, one row per participant, condition, trial,
     hand and metric (docs/metrics.md); synthetic participants' rows say so."""
-    from analysis.metrics import METRICS, metrics_table, study_goals
+    from analysis.validity.metrics import METRICS, metrics_table, study_goals
 
     target = staged(out_file, force, inputs={"--db": db})  # refused before the work
     fmt = output_format(out_file, fmt, ("csv", "json"), "csv", "metrics")

@@ -52,7 +52,7 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, fo
     """Monte Carlo power under the SYNTHETIC model, to choose N: of the protocol's primary
     analysis and of each question's test (Cochran's Q, Friedman, the multinomial); with --null,
     the false-positive rate of each when every condition is one model."""
-    from analysis.kinds import primary
+    from analysis.statistics.kinds import primary
     from studyctl.protocol import load_protocol
     from studyctl.synthetic.plan import plot_power, power_table
 
@@ -94,7 +94,7 @@ def plan_cmd(span, step, simulations, protocol_file, seed, pilots, plot_file, fo
 
 
 def _plan_null(protocol, span, simulations, seed, pilots, model, as_json, where: dict) -> None:
-    from analysis.kinds import primary
+    from analysis.statistics.kinds import primary
     from studyctl.synthetic.plan import null_table
 
     if span is not None and span[0] != span[1]:

@@ -101,7 +101,7 @@ def _emit(text: str, out) -> None:
 def _no_answers(study, as_json: bool) -> bool:
     """An empty study: say so (exit 0) instead of tables of 0/0 and NaN; nothing is written."""
     from analysis.reports.study_tables import incomplete_text
-    from analysis.table1 import study_facts
+    from analysis.statistics.table1 import study_facts
 
     facts = study_facts(study)
     if facts.participants:
@@ -190,7 +190,7 @@ def report_stats(db, holm_scope, as_json):
     (ratings), mixed models (scores), the multinomial test (choices), Holm over the whole
     family; the deformation-time benchmark. Complete cases only."""
     from analysis.reports.study_tables import stats_summary
-    from analysis.study_stats import study_stats
+    from analysis.statistics.study_stats import study_stats
 
     study = read_snapshot(db)
     if _no_answers(study, as_json):
@@ -231,7 +231,7 @@ def report_text(db, holm_scope, style, fmt, as_json, out_file, force):
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
 def report_published(table_file, as_json):
     """Check a published Table 1: printed rates against their counts, and what counts allow."""
-    from analysis.stats import published
+    from analysis.statistics.stats import published
 
     out = published(table_file)
     if as_json:

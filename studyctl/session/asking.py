@@ -2,7 +2,7 @@
 question kind shows. The window side is studyctl/session/window_answers.py.
 
 An answerer is called as ``answerer(question, condition, context)`` and returns the answer's
-typed value (analysis/questions.py): 0/1, an integer, a real or text; a choice returns the
+typed value (analysis/study/questions.py): 0/1, an integer, a real or text; a choice returns the
 chosen condition's name (the person sees and types only blind labels). `context` carries
 ``labels`` (condition -> blind label), ``trial`` (None unless asked after a trial),
 ``results`` (the condition's stored trials, for the synthetic observer) and ``features``
@@ -17,7 +17,7 @@ import termios
 from collections.abc import Callable
 
 from analysis.errors import StoreError
-from analysis.questions import AnswerError, allowed, parse_answer
+from analysis.study.questions import AnswerError, allowed, parse_answer
 
 
 def _stdin_tty() -> bool:

@@ -17,8 +17,8 @@ import random
 import time
 from collections import Counter
 
-from analysis.questions import Question
-from analysis.trace_files import write_trace
+from analysis.study.questions import Question
+from analysis.study.trace_files import write_trace
 from sim.run import Pacing, run_scene
 from studyctl.session.procedures import replay
 from studyctl.store import dumps, now

@@ -17,7 +17,7 @@ import socket
 from pathlib import Path
 
 from analysis.errors import StoreError
-from analysis.trace_files import beside
+from analysis.study.trace_files import beside
 from studyctl.store import now
 
 

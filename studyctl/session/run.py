@@ -32,8 +32,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from analysis.errors import InputError, Interrupted, StoreError
-from analysis.questions import NOT_PER_TRIAL, SESSION
-from analysis.trace_files import trace_dir, write_trace
+from analysis.study.questions import NOT_PER_TRIAL, SESSION
+from analysis.study.trace_files import trace_dir, write_trace
 from analysis.verification.truth import load_truth
 from sim.run import Pacing, run_scene
 from sim.servo.process import ServoProcess

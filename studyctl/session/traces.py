@@ -1,12 +1,12 @@
 """Every movement of every trial, read back through the store: a session's traces and the
-table of all of them. The trace files themselves are analysis.trace_files's."""
+table of all of them. The trace files themselves are analysis.study.trace_files's."""
 
 from __future__ import annotations
 
 import numpy as np
 import pandas as pd
 
-from analysis.trace_files import Trace, read_trace
+from analysis.study.trace_files import Trace, read_trace
 from studyctl.store.trials import all_trace_rows, trace_rows
 
 

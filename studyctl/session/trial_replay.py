@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.errors import InputError
-from analysis.trace_files import read_trace, trace_file
+from analysis.study.trace_files import read_trace, trace_file
 from sim.run import run_scene, write_outputs
 from sim.scene import Scene
 from studyctl.conditions import condition_scene_spec, config_sha256, resolved_config

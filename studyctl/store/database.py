@@ -99,7 +99,7 @@ def _migration_5(db: sqlite_utils.Database) -> None:
 
 
 def _migration_6(db: sqlite_utils.Database) -> None:
-    """Question kinds (analysis/questions.py): an answer keeps its type (integer, real or text:
+    """Question kinds (analysis/study/questions.py): an answer keeps its type (integer, real or text:
     the column has no type affinity) and may follow a trial (`trial`, -1 when it does not); a
     session's answers (when = "end") have condition "". Corrections likewise."""
     db.execute("create table answers_6 (code text references participants(code), model text, item text, "
@@ -146,7 +146,7 @@ def _migration_9(db: sqlite_utils.Database) -> None:
 
 def _migration_10(db: sqlite_utils.Database) -> None:
     """Each discrimination trial's servo events (JSON: kind to count, its two intervals summed), as
-    an ordinary trial's: what a condition's faults are counted from (analysis/faults.py). Older
+    an ordinary trial's: what a condition's faults are counted from (analysis/statistics/faults.py). Older
     trials recorded none (NULL: counted as a trial without events)."""
     db["discrimination"].add_column("events", str)
 

@@ -1,4 +1,4 @@
-"""What the reports read of a study, and `read_study`, which reads it into analysis.study_snapshot.Study: the answers and the
+"""What the reports read of a study, and `read_study`, which reads it into analysis.study.study_snapshot.Study: the answers and the
 counts of whose they are, the condition orders, the deformation latencies, the configurations
 each condition ran, the discrimination trials, the synthetic traits, the synthetic codes and the
 traced trials behind the performance metrics. Each is a function of
@@ -11,7 +11,7 @@ import json
 
 import pandas as pd
 
-from analysis.study_snapshot import Study
+from analysis.study.study_snapshot import Study
 from studyctl.completeness import Completeness
 from studyctl.completeness import completeness as count_complete
 from studyctl.store.database import Store

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from analysis.errors import StoreError
-from analysis.trace_files import home, trace_dir, write_durably
+from analysis.study.trace_files import home, trace_dir, write_durably
 from studyctl.session.run import run_session
 from studyctl.store import Store
 from studyctl.store.tables import table_rows

@@ -47,7 +47,7 @@ WEIGHTS = {
     "stable": (0.0, 0.3, 1.0, 1.5),
 }
 DEFAULT_WEIGHTS = (0.8, 0.5, 0.5, 0.5)
-# the standard questionnaires (analysis/instruments.py): SUS's items from one latent ease
+# the standard questionnaires (analysis/study/instruments.py): SUS's items from one latent ease
 # (agreeing with its odd items, disagreeing with its even ones); each NASA-TLX subscale a
 # workload that rises as the condition falls short (assumed weights, docs/synthetic.md)
 EASE_WEIGHTS = (0.8, 0.8, 0.8, 1.0)

@@ -25,7 +25,7 @@ import random
 from dataclasses import dataclass
 
 from analysis.errors import StoreError
-from analysis.questions import SESSION
+from analysis.study.questions import SESSION
 from sim.devices.simulated import HandImpedance
 from studyctl.store.participant_fields import group_of
 from studyctl.synthetic.observer import (

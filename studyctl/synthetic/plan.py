@@ -23,10 +23,10 @@ import numpy as np
 import pandas as pd
 from statsmodels.stats.contingency_tables import cochrans_q
 
-from analysis import kinds, scales
-from analysis.kinds import score_names
-from analysis.questions import NOT_PER_TRIAL, SESSION
-from analysis.stats import gee_fit, holm
+from analysis.statistics import kinds, scales
+from analysis.statistics.kinds import score_names
+from analysis.statistics.stats import gee_fit, holm
+from analysis.study.questions import NOT_PER_TRIAL, SESSION
 from analysis.verification.truth import load_truth
 from sim.linalg import one_thread_pools
 from sim.run import run_scene

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from analysis.errors import InputError, Interrupted
-from analysis.faults import condition_events, kinds_text
+from analysis.statistics.faults import condition_events, kinds_text
 from brainsim_assets import path as asset
 from sim.sweep import completed, reachable
 from sim.text import counted
@@ -102,7 +102,7 @@ def run_synthetic_study(db, participants: int | None, seed: int = 0, jobs: int =
 
 
 def fault_warnings(conditions: list[str], events, what: str = "trials") -> list[str]:
-    """One line per condition whose stored trials are mostly model faults (analysis/faults.py): the
+    """One line per condition whose stored trials are mostly model faults (analysis/statistics/faults.py): the
     data are kept (synth succeeds), and the reports withhold its tests; said here so that a
     broken model is not found only in a report."""
     return [f"condition {e.condition}: {e.fault_trials} of {e.trials} {what} had a model fault ({kinds_text(e)}); "

@@ -1,4 +1,4 @@
-"""The facts that head every report of a study (`analysis.table1.study_facts`): who counts, whose
+"""The facts that head every report of a study (`analysis.statistics.table1.study_facts`): who counts, whose
 data they are, the design, and what each condition ran."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 
-from analysis.result_records import Record
+from analysis.statistics.result_records import Record
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -20,7 +20,7 @@ class IncompleteParticipant(Record):
 
 @dataclass(frozen=True, kw_only=True)
 class ModelSource(Record):
-    """Where a condition's model came from (analysis.table1.model_source): built into
+    """Where a condition's model came from (analysis.statistics.table1.model_source): built into
     brainsim-study (`builtin`, its `version` the sessions' own) or a plugin's distribution and
     version with its source's SHA-256 (`target`: its entry point, for a plugin only)."""
 
@@ -33,7 +33,7 @@ class ModelSource(Record):
 
 @dataclass(frozen=True, kw_only=True)
 class ConditionRun(Record):
-    """What one condition ran under one configuration (analysis.table1.conditions): its model,
+    """What one condition ran under one configuration (analysis.statistics.table1.conditions): its model,
     its resolved configuration as the store keeps it (`config_json`, canonical JSON, whose
     SHA-256 is `config_sha256`; None before schema 5) and the sessions that ran it.
 
@@ -62,14 +62,14 @@ class StudyFacts(Record):
     `facts` object of `report stats --json` and `report table1 --format json`.
 
     - study: the protocol's name;
-    - participants: N, the participants with every answer (analysis.table1.complete_answers);
+    - participants: N, the participants with every answer (analysis.statistics.table1.complete_answers);
     - incomplete_participants: the others, left out of every statistic;
     - synthetic_participants, person_participants: how many answered synthetically, as a person;
     - mixed_source_participants: the codes that answered both ways;
     - synthetic: any synthetic answer; mixed: people and synthetic participants pooled;
     - flag: what a report says first about whose data it holds ("" for people only);
     - design: "within-subject, K conditions, ... counterbalancing";
-    - conditions: what each condition ran (analysis.table1.conditions)."""
+    - conditions: what each condition ran (analysis.statistics.table1.conditions)."""
 
     study: str
     participants: int

@@ -1,9 +1,9 @@
-"""The leaves of a study's results (analysis/study_results.py, analysis/kind_results.py): frozen
+"""The leaves of a study's results (analysis/statistics/study_results.py, analysis/statistics/kind_results.py): frozen
 records whose fields are the keys `report stats --json` prints, and the read-only containers
 that hold them. A result is complete when built: nothing sets a field or a key after.
 
-`Record.of(d)` builds one from the plain dict a test returns (analysis/stats.py,
-analysis/scales.py), keeping the order of its keys, which differs between a test that ran and
+`Record.of(d)` builds one from the plain dict a test returns (analysis/statistics/stats.py,
+analysis/statistics/scales.py), keeping the order of its keys, which differs between a test that ran and
 one that was withheld; `as_dict()` gives that dict back, for the JSON writers only."""
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ class ConditionRate(Record):
 @dataclass(frozen=True, kw_only=True)
 class Summary(Record):
     """Values described: n, mean and SD with the mean's 95% interval or why it has none
-    (analysis.withhold.mean_ci: `ci_method`, `ci_reason`), median [IQR] (analysis.scales.median_iqr)."""
+    (analysis.statistics.withhold.mean_ci: `ci_method`, `ci_reason`), median [IQR] (analysis.statistics.scales.median_iqr)."""
 
     n: int
     mean: float
@@ -146,13 +146,13 @@ class EndSummary(Summary):
 
 
 # --- pairwise tests: a pair of conditions (a, b); p_holm is Holm over the study's family or the
-# question's pairs (`holm` of analysis.study_results.StudyStats), p_holm_question within the
+# question's pairs (`holm` of analysis.statistics.study_results.StudyStats), p_holm_question within the
 # question, p_holm_family over every pairwise test of the study; `test` names the test and
 # `reason` says why one was not made (None when it was)
 
 @dataclass(frozen=True, kw_only=True)
 class McNemarPair(Record):
-    """An exact McNemar test of two conditions' yes/no answers (analysis.stats.pairwise_mcnemar):
+    """An exact McNemar test of two conditions' yes/no answers (analysis.statistics.stats.pairwise_mcnemar):
     n01 (a no, b yes), n10, the Haldane-corrected odds ratio n10 / n01."""
 
     a: str
@@ -171,7 +171,7 @@ class McNemarPair(Record):
 @dataclass(frozen=True, kw_only=True)
 class RankPair(Record):
     """A Wilcoxon signed-rank test of a rating's pair with the rank-biserial r [95% CI]
-    (analysis.scales.wilcoxon_with_ci); `warning` when the test is weak (few pairs)."""
+    (analysis.statistics.scales.wilcoxon_with_ci); `warning` when the test is weak (few pairs)."""
 
     a: str
     b: str
@@ -190,7 +190,7 @@ class RankPair(Record):
 
 @dataclass(frozen=True, kw_only=True)
 class DifferencePair(Record):
-    """A linear mixed model's difference b - a [95% CI] (analysis.scales.mixed_model);
+    """A linear mixed model's difference b - a [95% CI] (analysis.statistics.scales.mixed_model);
     p_holm_primary: Holm among the primary score's own pairs (a mixed-model primary only)."""
 
     a: str
@@ -211,7 +211,7 @@ class DifferencePair(Record):
 
 @dataclass(frozen=True, kw_only=True)
 class ChoicePair(Record):
-    """An exact binomial test of two conditions' counts of a choice (analysis.scales.choice_analysis):
+    """An exact binomial test of two conditions' counts of a choice (analysis.statistics.scales.choice_analysis):
     b's share of the two [Wilson 95%]."""
 
     a: str
@@ -231,8 +231,8 @@ class ChoicePair(Record):
 
 @dataclass(frozen=True, kw_only=True)
 class OddsRatioPair(Record):
-    """A GEE's odds ratio of b against a [95% CI] with its Wald p-value (analysis.stats.gee_fit,
-    analysis.scales.ordinal_gee); Holm over the fit's own pairs."""
+    """A GEE's odds ratio of b against a [95% CI] with its Wald p-value (analysis.statistics.stats.gee_fit,
+    analysis.statistics.scales.ordinal_gee); Holm over the fit's own pairs."""
 
     a: str
     b: str
@@ -252,7 +252,7 @@ class OddsRatioPair(Record):
 
 @dataclass(frozen=True, kw_only=True)
 class Friedman(Record):
-    """Friedman across the conditions with Kendall's W [95% CI] (analysis.scales.friedman_with_ci),
+    """Friedman across the conditions with Kendall's W [95% CI] (analysis.statistics.scales.friedman_with_ci),
     or why it was not run (`reason`; then without the uncorrected statistic and the interval's method)."""
 
     statistic: float
@@ -285,7 +285,7 @@ class ModelTest(Record):
 
 @dataclass(frozen=True, kw_only=True)
 class ChoiceTest(Record):
-    """The test of equal chances of a choice (analysis.scales.multinomial_test)."""
+    """The test of equal chances of a choice (analysis.statistics.scales.multinomial_test)."""
 
     test: str
     statistic: float
@@ -298,7 +298,7 @@ class ChoiceTest(Record):
 
 @dataclass(frozen=True, kw_only=True)
 class MixedModelFit(Record):
-    """A linear mixed model answer ~ condition + period + (1 | participant) (analysis.scales.mixed_model):
+    """A linear mixed model answer ~ condition + period + (1 | participant) (analysis.statistics.scales.mixed_model):
     per condition its model-based mean {mean, se, ci_low, ci_high}, the pairwise differences, and
     `notes` (e.g. intervals clipped to the scale) and `problems` (why not estimable)."""
 
@@ -320,7 +320,7 @@ class MixedModelFit(Record):
 @dataclass(frozen=True, kw_only=True)
 class GeeFit(Record):
     """A logistic GEE answer ~ condition [+ period] [+ item], participants as clusters
-    (analysis.stats.gee_fit); `working_correlation` None when the fit failed."""
+    (analysis.statistics.stats.gee_fit); `working_correlation` None when the fit failed."""
 
     formula: str
     n_participants: int
@@ -336,7 +336,7 @@ class GeeFit(Record):
 
 @dataclass(frozen=True, kw_only=True)
 class OrdinalGeeFit(Record):
-    """A proportional-odds GEE across the rating items (analysis.scales.ordinal_gee);
+    """A proportional-odds GEE across the rating items (analysis.statistics.scales.ordinal_gee);
     `fallback` says why the working dependence fell back to independence (None when it did not)."""
 
     formula: str

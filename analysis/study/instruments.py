@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.questions import Question
+from analysis.study.questions import Question
 
 NAMES = ("sus", "nasa_tlx")
 # each instrument's source, as a methods section cites it

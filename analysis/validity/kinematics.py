@@ -1,4 +1,4 @@
-"""The signal processing under analysis/metrics.py: the movement's window, the position low-pass,
+"""The signal processing under analysis/validity/metrics.py: the movement's window, the position low-pass,
 speed, spectral arc length (SPARC), and time above a force limit. Pure NumPy/SciPy on arrays, so
 each piece is tested on its own against closed forms (tests/test_metrics.py)."""
 

@@ -12,7 +12,7 @@
 - other questions asked once at the end: described, not tested (there is no condition to compare).
 
 Instrument items are not tested one by one: they enter through their instrument's score. Free
-text is exported, never analysed. Complete cases only (analysis.table1.complete_answers).
+text is exported, never analysed. Complete cases only (analysis.statistics.table1.complete_answers).
 """
 
 from __future__ import annotations
@@ -21,11 +21,10 @@ import numpy as np
 import pandas as pd
 from scipy.stats import wilcoxon
 
-from analysis import instruments, scales
-from analysis.faults import condition_events, involving, withheld, withhold_fit, withhold_pairs
-from analysis.kind_results import ChoiceStats, KindStats, PrimaryAnalysis, RatingStats, ScoreStats
-from analysis.questions import VAS_RANGE
-from analysis.result_records import (
+from analysis.statistics import scales
+from analysis.statistics.faults import condition_events, involving, withheld, withhold_fit, withhold_pairs
+from analysis.statistics.kind_results import ChoiceStats, KindStats, PrimaryAnalysis, RatingStats, ScoreStats
+from analysis.statistics.result_records import (
     ChoicePair,
     ChoiceShare,
     ChoiceTest,
@@ -42,9 +41,11 @@ from analysis.result_records import (
     RatingSummary,
     Summary,
 )
-from analysis.stats import friedman, holm, holm_family, named, records, wilson
-from analysis.study_snapshot import Study
-from analysis.withhold import across_reason
+from analysis.statistics.stats import friedman, holm, holm_family, named, records, wilson
+from analysis.statistics.withhold import across_reason
+from analysis.study import instruments
+from analysis.study.questions import VAS_RANGE
+from analysis.study.study_snapshot import Study
 
 TRIAL_MEAN = " (mean over trials)"
 
@@ -171,7 +172,7 @@ def ratings(protocol, meas: pd.DataFrame) -> dict[str, dict]:
 
 def _tests(wide: pd.DataFrame, k: int) -> dict:
     """Friedman [W with CI] and Wilcoxon pairs [rank-biserial with CI] on a complete wide table;
-    each withheld with its `reason` where its prerequisites fail (analysis/withhold.py)."""
+    each withheld with its `reason` where its prerequisites fail (analysis/statistics/withhold.py)."""
     nan = float("nan")
     reason = across_reason(len(wide), k, wide.to_numpy() if len(wide) else None)
     if reason is None:
@@ -259,7 +260,7 @@ def session_questions(protocol, answers: pd.DataFrame) -> dict[str, EndRate | En
 
 def ordinal_primary(protocol, meas: pd.DataFrame, held: dict[str, str] | None = None) -> OrdinalGeeFit | None:
     """The proportional-odds GEE across the rating items, Holm over its pairs; withheld when it
-    involves a condition in `held` (analysis/faults.py)."""
+    involves a condition in `held` (analysis/statistics/faults.py)."""
 
     items = [q.id for q in _rating_items(protocol)]
     if not items or len(protocol.conditions) < 2:
@@ -301,7 +302,7 @@ def _held(study: Study) -> dict[str, str]:
 
 
 def _withhold(tests: dict, held: dict[str, str], models: list[str]) -> dict:
-    """`tests` with every test involving a withheld condition (analysis/faults.py) withheld: its
+    """`tests` with every test involving a withheld condition (analysis/statistics/faults.py) withheld: its
     p-values NaN, its reason said where the test would be."""
     why = involving(models, held)
     if why is None:
@@ -332,10 +333,10 @@ def family_pairs(tests: dict) -> list[list[dict]]:
 
 
 def kind_stats(study: Study, answers: pd.DataFrame, tests: dict | None = None, adjusted: list[list[dict]] | None = None) -> KindStats:
-    """Everything beyond yes/no of `study` (analysis.study_snapshot.Study) from its complete
+    """Everything beyond yes/no of `study` (analysis.study.study_snapshot.Study) from its complete
     `answers`: ratings, scores, choices, end questions, and the ordinal primary, complete when
     built. `tests`: `kind_tests` already computed; `adjusted`: the Holm p-values of their
-    family pairs (analysis.stats.holm_family over the study's whole family, in `family_pairs`
+    family pairs (analysis.statistics.stats.holm_family over the study's whole family, in `family_pairs`
     order); by default Holm over these pairs alone."""
     protocol = study.protocol
     tests = kind_tests(study, answers) if tests is None else tests

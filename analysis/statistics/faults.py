@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import pandas as pd
 
-from analysis.result_records import Record
+from analysis.statistics.result_records import Record
 
 FAULT_KINDS = ("nan_force", "model_fault", "model_unstable")
 SAFETY_KINDS = ("force_clamped", "force_budget", "force_chatter", "suspended", "deadline_streak", "device_fault", "nan_position", "position_jump",
@@ -71,7 +71,7 @@ def _counts(text) -> dict:
 
 def condition_events(conditions, trial_events: pd.DataFrame) -> tuple[ConditionEvents, ...]:
     """Per condition (in `conditions`' order), its faults and safety events from `trial_events`
-    (analysis.study_snapshot.Study.trial_events: code, model, trial, events as JSON)."""
+    (analysis.study.study_snapshot.Study.trial_events: code, model, trial, events as JSON)."""
     out = []
     for c in conditions:
         rows = [_counts(e) for e in trial_events.loc[trial_events["model"] == c, "events"]]

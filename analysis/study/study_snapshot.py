@@ -54,7 +54,7 @@ class Study:
     - `setups`: how the finished sessions ran: ``device, software_version, synthetic, sessions``;
     - `latencies`: every latency measure per condition: ``measure, model, trials, mean, lowest, highest``;
     - `trial_events`: every stored trial's servo events: ``code, model, trial, events`` (JSON: kind to count),
-      what a condition's faults are counted from (analysis/faults.py).
+      what a condition's faults are counted from (analysis/statistics/faults.py).
     """
 
     protocol: object

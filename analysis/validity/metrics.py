@@ -10,7 +10,7 @@ definition and source are in `METRICS` (and docs/metrics.md, which a test keeps 
 
 The movement of a hand is its grasp: from the first tick its button is held to the last (the
 whole trial if it never grasps). Kinematic metrics use low-passed positions
-(analysis/kinematics.py: 20 Hz keeps tremor, removes the encoders' quantisation).
+(analysis/validity/kinematics.py: 20 Hz keeps tremor, removes the encoders' quantisation).
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from analysis import kinematics as kin
-from analysis.study_snapshot import Study
-from analysis.trace_files import read_trace
+from analysis.study.study_snapshot import Study
+from analysis.study.trace_files import read_trace
+from analysis.validity import kinematics as kin
 from sim.scene import build_scene
 from sim.targets import SAFE_FORCE_N
 
@@ -177,7 +177,7 @@ def bimanual_metrics(times, forces, buttons) -> dict[str, float]:
 
 
 def trial_metrics(trace, goals: Goal | Mapping[str, Goal] | None = None) -> list[dict]:
-    """A trace's (analysis.trace_files.Trace, or anything with its arrays) metrics as rows
+    """A trace's (analysis.study.trace_files.Trace, or anything with its arrays) metrics as rows
     ``hand, metric, value``, in METRICS order. `goals`: one Goal for every hand, or per hand name."""
     order = [m.name for m in METRICS]
     rows = []

@@ -1,9 +1,9 @@
-"""The results of the statistics beyond yes/no (`analysis.kinds.kind_stats`): the protocol's
+"""The results of the statistics beyond yes/no (`analysis.statistics.kinds.kind_stats`): the protocol's
 primary analysis, and per rating item, score and choice question what reports, plots and
 `report stats --json` read (docs/analysis.md).
 
 Each is complete when built (Holm over the study's family computed first) and never changed
-after; its tests are the frozen records of analysis/result_records.py, its other containers
+after; its tests are the frozen records of analysis/statistics/result_records.py, its other containers
 read-only. `as_dict()` is for the JSON writers only."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from analysis.result_records import (
+from analysis.statistics.result_records import (
     ChoicePair,
     ChoiceShare,
     ChoiceTest,
@@ -30,7 +30,7 @@ from analysis.result_records import (
 
 @dataclass(frozen=True)
 class PrimaryAnalysis(Record):
-    """The protocol's primary analysis (`analysis.kinds.primary`): what `plan` powers and
+    """The protocol's primary analysis (`analysis.statistics.kinds.primary`): what `plan` powers and
     reports lead with.
 
     - analysis: "ordinal_gee", "logistic_gee", "mixed_model", "choice" or "none";
@@ -69,7 +69,7 @@ class ScoreStats(Record):
     - label: what reports call it; n: participants with a value for every condition;
     - conditions: per condition its mean [95% CI] (with `ci_reason` when there is none) and
       median [IQR] (Summary);
-    - mixed_model: the linear mixed model (analysis.scales.mixed_model: `model_test`,
+    - mixed_model: the linear mixed model (analysis.statistics.scales.mixed_model: `model_test`,
       `means`, `pairs`, `converged`, `problems`);
     - friedman: Friedman as the non-parametric check;
     - pairs: the mixed model's pairwise differences as Holm's family holds them (a
@@ -86,7 +86,7 @@ class ScoreStats(Record):
 @dataclass(frozen=True)
 class ChoiceStats(Record):
     """A choice question asked at the end (one condition picked), from
-    analysis.scales.choice_analysis.
+    analysis.statistics.scales.choice_analysis.
 
     - question: its text; n: participants who chose; k: conditions; n_missing: no answer;
     - shares: per condition its count and share [Wilson 95%] (ChoiceShare);
@@ -111,7 +111,7 @@ class KindStats(Record):
     - ratings, scores, choices: per item id (score name) its statistics;
     - session: the other questions asked once at the end, described only: per id a yes/no
       question's rate with its Wilson interval (EndRate), or a mean [95% CI] and median [IQR] (EndSummary);
-    - ordinal_gee: the proportional-odds GEE across the rating items (analysis.scales.ordinal_gee),
+    - ordinal_gee: the proportional-odds GEE across the rating items (analysis.statistics.scales.ordinal_gee),
       None without rating items or with one condition."""
 
     primary: PrimaryAnalysis

@@ -1,4 +1,4 @@
-"""Table 1 of the seed paper from a study (analysis.study_snapshot.Study: the database read once),
+"""Table 1 of the seed paper from a study (analysis.study.study_snapshot.Study: the database read once),
 with the statistics it left out.
 
 Tidy DataFrames with stable column names (documented in docs/analysis.md):
@@ -18,11 +18,11 @@ import numpy as np
 import pandas as pd
 from statsmodels.stats.contingency_tables import cochrans_q
 
-from analysis.facts import ConditionRun, IncompleteParticipant, ModelSource, StudyFacts
-from analysis.faults import ConditionEvents, condition_events, involving, withheld
-from analysis.stats import wilson
-from analysis.study_snapshot import Study, data_flag
-from analysis.withhold import binary_across_reason
+from analysis.statistics.facts import ConditionRun, IncompleteParticipant, ModelSource, StudyFacts
+from analysis.statistics.faults import ConditionEvents, condition_events, involving, withheld
+from analysis.statistics.stats import wilson
+from analysis.statistics.withhold import binary_across_reason
+from analysis.study.study_snapshot import Study, data_flag
 from sim.text import counted
 
 
@@ -72,7 +72,7 @@ def rates(study: Study) -> pd.DataFrame:
 
 
 def events(study: Study) -> tuple[ConditionEvents, ...]:
-    """Each condition's faults and safety events over its stored trials (analysis/faults.py)."""
+    """Each condition's faults and safety events over its stored trials (analysis/statistics/faults.py)."""
     return condition_events(list(study.protocol.conditions), study.trial_events)
 
 

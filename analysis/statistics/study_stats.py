@@ -1,26 +1,25 @@
 """Everything `studyctl report stats --json` prints for a study, and Table 1 as Markdown: the
-yes/no questions' rates, Cochran's Q and McNemar pairs (analysis/table1.py), each answer kind's
-statistics (analysis/kinds.py), the logistic GEE across questions, and Holm over the family of
-pairwise tests (analysis/stats.py)."""
+yes/no questions' rates, Cochran's Q and McNemar pairs (analysis/statistics/table1.py), each answer kind's
+statistics (analysis/statistics/kinds.py), the logistic GEE across questions, and Holm over the family of
+pairwise tests (analysis/statistics/stats.py)."""
 
 from __future__ import annotations
 
 import pandas as pd
 
-from analysis.faults import withheld, withhold_fit, withhold_pairs
-from analysis.kinds import (
+from analysis.statistics.faults import withheld, withhold_fit, withhold_pairs
+from analysis.statistics.kinds import (
     PAIR_TESTS,
     family_pairs,
     kind_stats,
     kind_tests,
     odds_ratio_pairs,
 )
-from analysis.methods import study_methods
-from analysis.result_records import ConditionRate, GeeFit, McNemarPair, OddsRatioPair
-from analysis.stats import HOLM_SCOPES, gee_fit, holm, holm_family, named, pairwise_mcnemar, records
-from analysis.study_results import DeformationBenchmark, DeformationRow, LogisticGee, StudyStats, YesNoItem
-from analysis.study_snapshot import Study
-from analysis.table1 import (
+from analysis.statistics.methods import study_methods
+from analysis.statistics.result_records import ConditionRate, GeeFit, McNemarPair, OddsRatioPair
+from analysis.statistics.stats import HOLM_SCOPES, gee_fit, holm, holm_family, named, pairwise_mcnemar, records
+from analysis.statistics.study_results import DeformationBenchmark, DeformationRow, LogisticGee, StudyStats, YesNoItem
+from analysis.statistics.table1 import (
     DEFORMATION_LABEL,
     answers_wide,
     binary_answers,
@@ -31,13 +30,14 @@ from analysis.table1 import (
     rates,
     study_facts,
 )
+from analysis.study.study_snapshot import Study
 
 
 def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None, holm_scope: str = "family") -> StudyStats:
     """Everything `studyctl report stats --json` prints (`StudyStats.as_dict()`; `r`, `q`: rates and cochran already
     computed by the caller, so a report does not compute them twice) of `study`
-    (analysis.study_snapshot.Study: the database read once). Complete cases only
-    (`analysis.table1.complete_answers`). `holm_scope`: "family" (default: Holm over every
+    (analysis.study.study_snapshot.Study: the database read once). Complete cases only
+    (`analysis.statistics.table1.complete_answers`). `holm_scope`: "family" (default: Holm over every
     pairwise test of every question and kind) or "question" (within each question's pairs).
     Every test is run and Holm computed before a result is built: each is complete when built."""
     if holm_scope not in HOLM_SCOPES:
@@ -79,7 +79,7 @@ def study_gee(study: Study, answers: pd.DataFrame, models: list[str], held=None)
     """The primary analysis across questions: a logistic GEE with model and period (the
     condition's position in the participant's session, `study.periods`) and, for the composite
     over all questions, item as factors; then one per question, with Holm over the family of
-    their pairwise contrasts. `held`: the withheld conditions and why (analysis/faults.py): a
+    their pairwise contrasts. `held`: the withheld conditions and why (analysis/statistics/faults.py): a
     fit over one of them is withheld."""
     held = held or {}
     if answers.empty or len(models) < 2:

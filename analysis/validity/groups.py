@@ -2,7 +2,7 @@
 they learn, where do the novices stand against the experts, and can a participant's group be told
 from their metrics. Tidy inputs and outputs, stable column names (pingouin style).
 
-Inputs: `metrics`, the tidy table of analysis.metrics.metrics_table (code, synthetic, condition,
+Inputs: `metrics`, the tidy table of analysis.validity.metrics.metrics_table (code, synthetic, condition,
 trial, hand, metric, value, unit: `trial` the stored 0-based index); `groups`, a Series code ->
 group label; `order`, the group labels in order, the expert group last.
 
@@ -38,9 +38,9 @@ from sklearn.preprocessing import StandardScaler
 from statsmodels.tools.sm_exceptions import ConvergenceWarning
 from threadpoolctl import threadpool_limits
 
-from analysis.stats import holm
+from analysis.statistics.stats import holm
 
-BOTH = "both"  # analysis.metrics' hand of the bimanual metrics
+BOTH = "both"  # analysis.validity.metrics' hand of the bimanual metrics
 SCORE_COLUMNS = ["code", "condition", "metric", "value", "n_values"]
 KRUSKAL_COLUMNS = ["metric", "condition", "test", "k", "n", "H", "df", "p", "p_holm", "reason"]
 PAIR_COLUMNS = ["metric", "condition", "test", "a", "b", "n_a", "n_b", "median_a", "median_b", "U", "p", "p_holm",

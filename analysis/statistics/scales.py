@@ -1,7 +1,7 @@
 """Statistics for rating-scale (Likert), continuous and choice answers of a within-subject study:
 a proportional-odds GEE (the primary analysis of Likert items), a linear mixed model, bootstrap
 intervals for the rank effect sizes, the analysis of a "which condition felt most X" question,
-and small helpers for report tables. Tidy outputs with stable keys, as in analysis/stats.py.
+and small helpers for report tables. Tidy outputs with stable keys, as in analysis/statistics/stats.py.
 
 Input answers: a DataFrame with columns code (participant), model (condition), item (question
 id), answer (numeric) and, optionally, period (0-based position of that condition in the
@@ -26,8 +26,8 @@ from statsmodels.genmod.generalized_estimating_equations import OrdinalGEE
 from statsmodels.stats.proportion import proportion_confint
 from statsmodels.tools.sm_exceptions import ConvergenceWarning, IterationLimitWarning
 
-from analysis.stats import MIN_GEE_PARTICIPANTS, friedman, pairwise_wilcoxon
-from analysis.withhold import mean_ci, model_reason
+from analysis.statistics.stats import MIN_GEE_PARTICIPANTS, friedman, pairwise_wilcoxon
+from analysis.statistics.withhold import mean_ci, model_reason
 
 Z95 = 1.959963984540054
 MAX_LOG_OR = 10.0  # beyond this a log odds ratio is separation, not an estimate (as in gee_fit)
@@ -50,7 +50,7 @@ def _answers(df: pd.DataFrame, models: list[str], with_period: bool) -> tuple[pd
         notes.append(f"{missing} missing answers left out")
     data = data[data["answer"].notna()]
     if with_period and "period" not in data.columns:
-        raise ValueError("with_period needs a `period` column (analysis.stats.periods)")
+        raise ValueError("with_period needs a `period` column (analysis.statistics.stats.periods)")
     if with_period and data["period"].isna().any():
         notes.append(f"{int(data['period'].isna().sum())} answers without a period left out")
         data = data[data["period"].notna()]
@@ -369,7 +369,7 @@ BOOTSTRAP_METHOD = f"BCa bootstrap over participants ({BOOTSTRAP_RESAMPLES} resa
 
 def _rank_biserial(d: np.ndarray, axis: int = -1) -> np.ndarray:
     """Matched-pairs rank-biserial correlation of differences d along `axis`, vectorised, the
-    same definition as analysis.stats.pairwise_wilcoxon: zero differences dropped, then
+    same definition as analysis.statistics.stats.pairwise_wilcoxon: zero differences dropped, then
     (sum of ranks of |d| with d > 0 - those with d < 0) / all ranks; 0 when every d is 0."""
     d = np.moveaxis(np.asarray(d, dtype=float), axis, -1)
     rk = stats.rankdata(np.where(d == 0, np.nan, np.abs(d)), axis=-1, nan_policy="omit")
@@ -399,7 +399,7 @@ def _bootstrap(data: tuple, statistic, n_resamples: int, seed: int, method: str 
 
 def rank_biserial_ci(x, y, n_resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOOTSTRAP_SEED) -> dict:
     """Matched-pairs rank-biserial correlation of x - y (positive: x higher, as in
-    analysis.stats.pairwise_wilcoxon) with a 95% BCa bootstrap interval over participants.
+    analysis.statistics.stats.pairwise_wilcoxon) with a 95% BCa bootstrap interval over participants.
     Why the bootstrap: r is a U-statistic-like rank measure whose standard error has no simple
     closed form away from r = 0 (the Wilcoxon statistic's variance is known under no effect
     only, so a Fisher-z interval built on it is centred on the wrong spread); resampling
@@ -417,7 +417,7 @@ def rank_biserial_ci(x, y, n_resamples: int = BOOTSTRAP_RESAMPLES, seed: int = B
 
 
 def kendall_w_ci(matrix, n_resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOOTSTRAP_SEED) -> dict:
-    """Kendall's W (tie-corrected, W = Friedman chi2 / (n (k - 1)), as analysis.stats.friedman)
+    """Kendall's W (tie-corrected, W = Friedman chi2 / (n (k - 1)), as analysis.statistics.stats.friedman)
     for rows (participants) by columns (models), with a 95% percentile bootstrap interval over
     rows. Not BCa: W is bounded below by 0 and biased upwards (its expectation with no effect
     at all is about 1/n), so near 0 nearly every resample exceeds the estimate, BCa's bias
@@ -448,13 +448,13 @@ def kendall_w_ci(matrix, n_resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOO
 
 
 def friedman_with_ci(matrix) -> dict:
-    """analysis.stats.friedman plus kendall_w_ci's interval (kendall_w_low, kendall_w_high)."""
+    """analysis.statistics.stats.friedman plus kendall_w_ci's interval (kendall_w_low, kendall_w_high)."""
     ci = kendall_w_ci(matrix)
     return friedman(matrix) | {"kendall_w_low": ci["ci_low"], "kendall_w_high": ci["ci_high"], "interval": ci["method"]}
 
 
 def wilcoxon_with_ci(wide: pd.DataFrame) -> pd.DataFrame:
-    """analysis.stats.pairwise_wilcoxon (rank_biserial: a - b) plus each pair's bootstrap
+    """analysis.statistics.stats.pairwise_wilcoxon (rank_biserial: a - b) plus each pair's bootstrap
     interval (rb_ci_low, rb_ci_high; rank_biserial_ci)."""
     df = pairwise_wilcoxon(wide)
     cis = [rank_biserial_ci(wide[a], wide[b]) for a, b in zip(df["a"], df["b"])]

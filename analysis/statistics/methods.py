@@ -11,12 +11,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 
-from analysis.facts import IncompleteParticipant, ModelSource, StudyFacts
-from analysis.instruments import SOURCES, TITLES
-from analysis.kind_results import KindStats
-from analysis.result_records import Record
-from analysis.stats import tests_run
-from analysis.study_snapshot import Study
+from analysis.statistics.facts import IncompleteParticipant, ModelSource, StudyFacts
+from analysis.statistics.kind_results import KindStats
+from analysis.statistics.result_records import Record
+from analysis.statistics.stats import tests_run
+from analysis.study.instruments import SOURCES, TITLES
+from analysis.study.study_snapshot import Study
 from sim.models.registry import ModelLoadError, model_class
 
 
@@ -193,7 +193,7 @@ class StudyMethods(Record):
 
 CI_LEVEL = 0.95  # every interval the reports print
 ANALYSIS_PACKAGES = ("numpy", "scipy", "pandas", "statsmodels", "scikit-learn")
-# what each kind of answer is tested with (analysis/kinds.py, analysis/table1.py)
+# what each kind of answer is tested with (analysis/statistics/kinds.py, analysis/statistics/table1.py)
 KIND_TESTS = {
     "yes_no": ("Cochran's Q across the conditions", "exact McNemar tests", "Wilson score intervals of each rate"),
     "likert": ("the Friedman test (tie-corrected) with Kendall's W", "Wilcoxon signed-rank tests with the rank-biserial correlation",
@@ -255,7 +255,7 @@ def _model(config: dict | None) -> dict:
 
 def study_methods(study: Study, facts: StudyFacts, items: dict | None = None, kinds: KindStats | None = None,
                   holm: str = "family") -> StudyMethods:
-    """The methods of `study` (`facts`: analysis.table1.study_facts, or the discrimination
+    """The methods of `study` (`facts`: analysis.statistics.table1.study_facts, or the discrimination
     report's N in its place; `items` and `kinds`: the yes/no and other kinds' statistics the
     results come from, for the primary analysis and the size of the Holm family, None for a
     study without questions; `holm`: its scope)."""

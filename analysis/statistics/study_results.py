@@ -1,8 +1,8 @@
-"""What `analysis.study_stats.study_stats` returns: everything `studyctl report stats --json`
+"""What `analysis.statistics.study_stats.study_stats` returns: everything `studyctl report stats --json`
 prints (`StudyStats.as_dict()`), and what Table 1, the text and the reports read (docs/analysis.md).
 
 Complete when built and never changed after: pairwise tests and model fits are the frozen
-records of analysis/result_records.py, the other containers read-only. `as_dict()` is for the JSON
+records of analysis/statistics/result_records.py, the other containers read-only. `as_dict()` is for the JSON
 writers only."""
 
 from __future__ import annotations
@@ -10,11 +10,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from analysis.facts import StudyFacts
-from analysis.faults import ConditionEvents
-from analysis.kind_results import KindStats
-from analysis.methods import StudyMethods
-from analysis.result_records import ConditionRate, GeeFit, McNemarPair, Record
+from analysis.statistics.facts import StudyFacts
+from analysis.statistics.faults import ConditionEvents
+from analysis.statistics.kind_results import KindStats
+from analysis.statistics.methods import StudyMethods
+from analysis.statistics.result_records import ConditionRate, GeeFit, McNemarPair, Record
 
 
 @dataclass(frozen=True)
@@ -40,8 +40,8 @@ class YesNoItem(Record):
 
 @dataclass(frozen=True)
 class LogisticGee(Record):
-    """The logistic GEE across the yes/no questions (`analysis.study_stats.study_gee`), each fit
-    a record of analysis.stats.gee_fit (`formula, n_participants, converged, pairs, ...`).
+    """The logistic GEE across the yes/no questions (`analysis.statistics.study_stats.study_gee`), each fit
+    a record of analysis.statistics.stats.gee_fit (`formula, n_participants, converged, pairs, ...`).
 
     - composite: over all questions (item a factor); None without yes/no answers or with one
       condition;
@@ -61,7 +61,7 @@ class LogisticGee(Record):
 @dataclass(frozen=True, kw_only=True)
 class DeformationRow(Record):
     """One condition's deformation time per frame (ms) over the complete participants' trial
-    means (analysis.table1.deformation): mean, SD (NaN below two participants), median, 95th percentile."""
+    means (analysis.statistics.table1.deformation): mean, SD (NaN below two participants), median, 95th percentile."""
 
     model: str
     n_participants: int
@@ -92,9 +92,9 @@ class StudyStats(Record):
     - gee: the logistic GEE across the yes/no questions;
     - kinds: every other kind of answer, and the protocol's primary analysis;
     - deformation: the deformation-time benchmark;
-    - methods: the study's methods as data (analysis/methods.py), which `report text` writes out;
+    - methods: the study's methods as data (analysis/statistics/methods.py), which `report text` writes out;
     - faults: per condition its model faults and safety events, and whether its tests are withheld
-      (analysis/faults.py)."""
+      (analysis/statistics/faults.py)."""
 
     facts: StudyFacts
     holm: str

@@ -17,9 +17,9 @@ from scipy.stats import binomtest
 from statsmodels.stats.contingency_tables import mcnemar
 from statsmodels.stats.proportion import proportion_confint
 
-from analysis.csvfiles import read_csv
 from analysis.errors import InputError
-from analysis.withhold import pair_reason, pair_warning
+from analysis.statistics.withhold import pair_reason, pair_warning
+from analysis.study.csvfiles import read_csv
 
 NAN = float("nan")
 
@@ -31,7 +31,7 @@ def holm(p_values) -> list[float]:
     p = np.asarray(list(p_values), dtype=float)
     if not p.size:
         return []
-    # a test withheld (NaN: its prerequisites did not hold, analysis/withhold.py) is not in the
+    # a test withheld (NaN: its prerequisites did not hold, analysis/statistics/withhold.py) is not in the
     # family: the others are adjusted over the tests actually run
     tested = np.flatnonzero(np.isfinite(p))
     adjusted = np.full_like(p, np.nan)
@@ -82,7 +82,7 @@ def records(df: pd.DataFrame) -> list[dict]:
 
 
 def tests_run(pairs) -> int:
-    """How many of these pairwise tests (analysis/result_records.py) were run (a finite p-value): the
+    """How many of these pairwise tests (analysis/statistics/result_records.py) were run (a finite p-value): the
     size of the Holm family that `holm_family` adjusts over, as every report counts it."""
     return sum(1 for p in pairs if p.p_value is not None and np.isfinite(p.p_value))
 
