@@ -15,11 +15,12 @@ import random
 from dataclasses import dataclass
 
 from analysis.errors import InputError
+from analysis.study.fields import FieldKind
 from sim.text import quoted, text_problem
 from sim.tomltable import TableReader
 from studyctl.text import ID_RE
 
-FIELD_KINDS = ("choice", "integer", "number", "text")
+FIELD_KINDS = tuple(FieldKind)
 FIELD_KEYS = ("kind", "values", "required", "min", "max", "description")
 UNBOUNDED = 1 << 62  # an integer field's min and max may be any integer
 MAX_TEXT = 200  # a text field's longest value: a remark, not a record about someone
@@ -28,23 +29,26 @@ MAX_TEXT = 200  # a text field's longest value: a remark, not a record about som
 @dataclass(frozen=True)
 class Field:
     name: str
-    kind: str
+    kind: FieldKind
     values: tuple[str, ...] = ()  # a choice's values, in the protocol's order
     required: bool = False
     min: float | None = None
     max: float | None = None
     description: str = ""
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", FieldKind(self.kind))  # a kind given by its name becomes its member
+
     @property
     def analysed(self) -> bool:
-        return self.kind != "text"
+        return self.kind != FieldKind.TEXT
 
     def allowed(self) -> str:
         """The values this field takes, as an error message names them."""
-        if self.kind == "choice":
+        if self.kind == FieldKind.CHOICE:
             return ", ".join(self.values)
-        if self.kind in ("integer", "number"):
-            what = "an integer" if self.kind == "integer" else "a number"
+        if self.kind in (FieldKind.INTEGER, FieldKind.NUMBER):
+            what = "an integer" if self.kind == FieldKind.INTEGER else "a number"
             lo = "" if self.min is None else _num(self.min)
             hi = "" if self.max is None else _num(self.max)
             return what + (f" in {lo or '-inf'}..{hi or 'inf'}" if self.min is not None or self.max is not None else "")
@@ -54,16 +58,16 @@ class Field:
         """The typed value of `raw` (text as given on a command line or in a CSV cell); a
         ValueError when the field does not take it."""
         text = str(raw).strip()
-        if self.kind == "choice":
+        if self.kind == FieldKind.CHOICE:
             if text not in self.values:
                 raise ValueError(text)
             return text
-        if self.kind == "integer":
+        if self.kind == FieldKind.INTEGER:
             try:
                 v = int(text)
             except ValueError:
                 raise ValueError(text) from None
-        elif self.kind == "number":
+        elif self.kind == FieldKind.NUMBER:
             try:
                 v = float(text)
             except ValueError:
@@ -116,7 +120,7 @@ def check_fields(data: dict, design: TableReader, c: TableReader) -> tuple[list[
         required = r.boolean("required", default=False)
         description = r.string("description", default="")
         values, lo, hi, ok = (), None, None, True
-        if kind == "choice":
+        if kind == FieldKind.CHOICE:
             v = r.items("values")
             if v is not None:
                 if len(v) < 2 or not all(isinstance(x, str) and x.strip() for x in v):
@@ -131,8 +135,8 @@ def check_fields(data: dict, design: TableReader, c: TableReader) -> tuple[list[
                 ok = False
         elif "values" in t:
             c.error(f"{sec}.values", f"only a choice field has values; this one is {kind}")
-        if kind in ("integer", "number"):
-            if kind == "integer":
+        if kind in (FieldKind.INTEGER, FieldKind.NUMBER):
+            if kind == FieldKind.INTEGER:
                 lo, hi = r.integer("min", default=None, lo=-UNBOUNDED), r.integer("max", default=None, lo=-UNBOUNDED)
             else:
                 lo, hi = r.number("min", default=None), r.number("max", default=None)
@@ -151,8 +155,8 @@ def check_fields(data: dict, design: TableReader, c: TableReader) -> tuple[list[
         if groups not in raw:
             named = f"a [fields.NAME] choice ({', '.join(raw)})" if raw else "a [fields.NAME] table with kind = \"choice\""
             c.error("design.groups", f"{groups!r} names no field; allowed: {named}")
-        elif groups in by_name and by_name[groups].kind != "choice":
-            choices = [f.name for f in out if f.kind == "choice"]
+        elif groups in by_name and by_name[groups].kind != FieldKind.CHOICE:
+            choices = [f.name for f in out if f.kind == FieldKind.CHOICE]
             c.error("design.groups", f"{groups!r} is a {by_name[groups].kind} field; the groups are a choice field's values; allowed: "
                   + (", ".join(choices) if choices else "a field with kind = \"choice\""))
         elif groups in by_name:  # every participant is in a group
@@ -208,10 +212,10 @@ def synthetic_fields(protocol, codes: list[str], seed: int, start: int = 0) -> d
 
 
 def _draw(f: Field, rng: random.Random) -> object:
-    if f.kind == "choice":
+    if f.kind == FieldKind.CHOICE:
         return rng.choice(f.values)
-    if f.kind == "text":
+    if f.kind == FieldKind.TEXT:
         return "(synthetic participant)"
     lo = f.min if f.min is not None else (f.max - 10 if f.max is not None else 0)
     hi = f.max if f.max is not None else lo + 10
-    return rng.randint(int(math.ceil(lo)), int(math.floor(hi))) if f.kind == "integer" else round(rng.uniform(lo, hi), 3)
+    return rng.randint(int(math.ceil(lo)), int(math.floor(hi))) if f.kind == FieldKind.INTEGER else round(rng.uniform(lo, hi), 3)

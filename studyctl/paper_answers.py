@@ -7,7 +7,7 @@ from pathlib import Path
 
 from analysis.errors import InputError
 from analysis.study.csvfiles import read_csv
-from analysis.study.questions import NOT_PER_TRIAL, SESSION, AnswerError, allowed, parse_answer
+from analysis.study.questions import NOT_PER_TRIAL, SESSION, AnswerError, Kind, allowed, parse_answer
 from sim.text import quoted
 from studyctl.store import Store, now, roster
 
@@ -84,5 +84,5 @@ def answer_key(protocol, item: str, model: str, trial, raw, where) -> tuple[str,
         value = parse_answer(q, raw, by_name=protocol.conditions)
     except AnswerError:
         raise InputError(f"{where('answer')}: answer {quoted(str(raw).strip())} to {item} ({q.kind}) is not allowed; allowed: "
-                         + (", ".join(protocol.conditions) if q.kind == "choice" else allowed(q))) from None
+                         + (", ".join(protocol.conditions) if q.kind == Kind.CHOICE else allowed(q))) from None
     return (SESSION if q.when == "end" else model), trial, value

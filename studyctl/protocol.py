@@ -13,7 +13,7 @@ from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 from analysis.errors import ProtocolError
 from analysis.study import instruments
-from analysis.study.questions import KINDS, LATENCY_MEASURES, LIKERT_POINTS, WHENS, Question
+from analysis.study.questions import KINDS, LATENCY_MEASURES, LIKERT_POINTS, WHENS, Kind, Question
 from sim.errors import SceneError, SimError
 from sim.models import registry
 from sim.scene import configure, load_scene
@@ -321,18 +321,18 @@ def _question(r: TableReader, n_conditions: int) -> Question | None:
         bad("kind", f"{kind!r} is not a kind; allowed: {', '.join(KINDS)}")
     if when is not None and when not in WHENS:
         bad("when", f"{when!r} is not allowed; allowed: {', '.join(WHENS)}")
-    elif kind == "choice" and when is not None and when != "end":
+    elif kind == Kind.CHOICE and when is not None and when != "end":
         bad("when", f"{when!r}: a choice among the conditions is asked once, after the last; allowed: end")
-    if kind == "choice" and n_conditions < 2:
+    if kind == Kind.CHOICE and n_conditions < 2:
         bad("kind", "a choice needs at least 2 conditions in design.conditions")
     points = anchors = None
     if kind not in KINDS:  # refused above: what the kind needs is unknown
         return None
-    if kind == "likert":
+    if kind == Kind.LIKERT:
         points = r.integer("points", lo=LIKERT_POINTS[0], hi=LIKERT_POINTS[1])
     elif "points" in q:
         bad("points", f"only a likert question has points; this one is {kind}")
-    if "anchors" in q and kind not in ("likert", "vas"):
+    if "anchors" in q and kind not in (Kind.LIKERT, Kind.VAS):
         bad("anchors", f"only a likert or vas question has anchors; this one is {kind}")
     elif "anchors" in q:
         a = q["anchors"]
@@ -343,7 +343,7 @@ def _question(r: TableReader, n_conditions: int) -> Question | None:
             bad("anchors", problem)
         else:
             anchors = (a[0].strip(), a[1].strip())
-    elif kind == "likert":
+    elif kind == Kind.LIKERT:
         bad("anchors", "missing: a likert question names its two ends, anchors = [low, high]")
     if qtext is not None and not qtext.strip():
         bad("text", "empty: the question as the participant reads it")

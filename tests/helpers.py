@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from click.testing import CliRunner
 
+from analysis.study.questions import Question
 from sim.geometry.mesh import SurfaceMesh
 from sim.geometry.patch import SUBDIVISIONS, _patch_quadrature
 from sim.hyperelastic import Hyperelastic
@@ -487,5 +488,5 @@ def patch_vertex_weights(mesh, vertex: int, radius: float, subdivisions: int = S
 
 
 def p_yes(item: str, feats: dict, traits, params=None) -> float:
-    """A yes/no question's P(yes): the logistic function of the observer's `logit`."""
-    return 1.0 / (1.0 + math.exp(-logit(item, feats, traits, DEFAULT if params is None else params)))
+    """A yes/no question's P(yes) (`item`: its id): the logistic function of the observer's `logit`."""
+    return 1.0 / (1.0 + math.exp(-logit(Question(item, item), feats, traits, DEFAULT if params is None else params)))

@@ -265,3 +265,32 @@ def test_every_library_error_is_under_the_two_bases():
     assert len(errors) > 25
     stray = sorted(f"{where[n]} {n}" for n in errors if not roots(n) & {"SimError", "StudyError"} and "ClickException" not in roots(n))
     assert stray == []
+
+
+def test_no_question_or_field_kind_is_compared_as_a_string():
+    """Question kinds and participant-field kinds are enums (analysis.study.questions.Kind,
+    analysis.study.fields.FieldKind): a kind is compared with a member, never with its name typed
+    again. (A model's option kinds are the plugin API's own words, in sim/models/api.py.)"""
+    from analysis.study.fields import FieldKind
+    from analysis.study.questions import Kind
+
+    names = {k.value for k in Kind} | {k.value for k in FieldKind}
+
+    def is_kind(node) -> bool:
+        return (isinstance(node, ast.Attribute) and node.attr == "kind") or (isinstance(node, ast.Name) and node.id == "kind")
+
+    def typed(node) -> bool:
+        if isinstance(node, ast.Constant):
+            return node.value in names
+        return isinstance(node, (ast.Tuple, ast.List, ast.Set)) and any(typed(e) for e in node.elts)
+
+    found = []
+    for pkg in ("analysis", "studyctl"):
+        for p in sorted((ROOT / pkg).rglob("*.py")):
+            for node in ast.walk(ast.parse(p.read_text(), filename=str(p))):
+                if isinstance(node, ast.Compare):
+                    sides = [node.left, *node.comparators]
+                    if any(is_kind(x) for x in sides) and any(typed(x) for x in sides):
+                        found.append(f"{p.relative_to(ROOT)}:{node.lineno}")
+    assert found == []
+

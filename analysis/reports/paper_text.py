@@ -21,12 +21,12 @@ from analysis.statistics.methods import StudyMethods
 from analysis.statistics.result_records import EndSummary
 from analysis.statistics.study_results import StudyStats
 from analysis.statistics.study_stats import study_stats
-from analysis.study.questions import LATENCY_MEASURES
+from analysis.study.questions import LATENCY_MEASURES, Kind
 from analysis.study.study_snapshot import Study
 from sim.jsonable import jsonable
 from sim.text import counted
 
-KIND_WORDS = {"yes_no": "yes/no question", "likert": "rating", "vas": "visual analogue scale", "choice": "choice among the conditions"}
+KIND_WORDS = {Kind.YES_NO: "yes/no question", Kind.LIKERT: "rating", Kind.VAS: "visual analogue scale", Kind.CHOICE: "choice among the conditions"}
 WHEN_WORDS = {"condition": "after each condition", "trial": "after each trial", "end": "once, after the last condition"}
 SIGNIFICANT = 0.05  # which pairwise tests the results name (after Holm); the rest are counted
 
@@ -160,9 +160,9 @@ def _procedure(m: StudyMethods) -> str:
     parts = []
     for q in pr.questions:
         scale = ""
-        if q.kind == "likert":
+        if q.kind == Kind.LIKERT:
             scale = f" on a {q.points}-point scale from “{q.anchors[0]}” to “{q.anchors[1]}”"
-        elif q.kind == "vas" and q.anchors:
+        elif q.kind == Kind.VAS and q.anchors:
             scale = f" from “{q.anchors[0]}” to “{q.anchors[1]}”"  # KIND_WORDS names the scale
         parts.append(f"“{q.text}” ({KIND_WORDS.get(q.kind, q.kind)}{scale}, asked {WHEN_WORDS.get(q.when, q.when)})")
     text = ("Participants answered " + "; ".join(parts) + ".") if parts else ""

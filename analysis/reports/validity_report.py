@@ -30,6 +30,8 @@ from analysis.reports.table import Table, html_grid, latex_tables, markdown_grid
 from analysis.statistics.faults import any_events, condition_events, involving, withheld
 from analysis.statistics.stats import holm
 from analysis.study import instruments
+from analysis.study.fields import FieldKind
+from analysis.study.questions import Kind
 from analysis.study.study_snapshot import Study, data_flag
 from analysis.validity import groups as v
 from analysis.validity.metrics import UNITS, metrics_table, study_goals
@@ -96,7 +98,7 @@ def study_groups(study: Study) -> tuple[pd.Series, list[str], pd.DataFrame]:
         raise NoGroupsError(f"{study.path}: the study has no participant groups (its protocol sets no design.groups naming a "
                             "[fields.NAME] choice); a construct-validity report compares groups")
     field = protocol.group_field
-    numeric = {f.name for f in protocol.fields if f.kind in ("integer", "number") and f.name != field.name}
+    numeric = {f.name for f in protocol.fields if f.kind in (FieldKind.INTEGER, FieldKind.NUMBER) and f.name != field.name}
     groups, rows = {}, []
     for code, stored in study.fields.groupby("code", sort=False):
         values = dict(zip(stored["field"], stored["value"]))
@@ -116,7 +118,7 @@ def rating_scores(protocol, answers: pd.DataFrame) -> tuple[pd.DataFrame, dict[s
     item's text."""
     rows, text = [], {}
     for q in protocol.questions:
-        if q.instrument is not None or q.kind not in ("likert", "vas"):
+        if q.instrument is not None or q.kind not in (Kind.LIKERT, Kind.VAS):
             continue
         text[q.id] = q.text
         sel = answers[answers["item"] == q.id].assign(value=lambda d: pd.to_numeric(d["answer"], errors="coerce")).dropna(subset=["value"])

@@ -44,24 +44,24 @@ from analysis.statistics.result_records import (
 from analysis.statistics.stats import friedman, holm, holm_family, named, records, wilson
 from analysis.statistics.withhold import across_reason
 from analysis.study import instruments
-from analysis.study.questions import VAS_RANGE
+from analysis.study.questions import VAS_RANGE, Kind
 from analysis.study.study_snapshot import Study
 
 TRIAL_MEAN = " (mean over trials)"
 
 
 def _rating_items(protocol) -> list:
-    return [q for q in protocol.asked("condition") if q.kind == "likert" and q.instrument is None]
+    return [q for q in protocol.asked("condition") if q.kind == Kind.LIKERT and q.instrument is None]
 
 
 def _score_questions(protocol) -> list:
-    return [q for q in protocol.asked("condition") if q.kind == "vas" and q.instrument is None]
+    return [q for q in protocol.asked("condition") if q.kind == Kind.VAS and q.instrument is None]
 
 
 def _per_trial_items(protocol) -> list:
     """The questions asked after every trial that are analysed as a mean over trials (an
     instrument's items enter through its score)."""
-    return [q for q in protocol.asked("trial") if q.analysed and q.kind != "choice" and q.instrument is None]
+    return [q for q in protocol.asked("trial") if q.analysed and q.kind != Kind.CHOICE and q.instrument is None]
 
 
 def score_scale(item: str, protocol) -> tuple[float, float] | None:
@@ -73,7 +73,7 @@ def score_scale(item: str, protocol) -> tuple[float, float] | None:
     q = next((q for q in protocol.questions if q.id == base), None)
     if q is None:
         return None
-    return {"vas": tuple(VAS_RANGE), "yes_no": (0.0, 1.0), "likert": (1.0, float(q.points or 0))}.get(q.kind)
+    return {Kind.VAS: tuple(VAS_RANGE), Kind.YES_NO: (0.0, 1.0), Kind.LIKERT: (1.0, float(q.points or 0))}.get(q.kind)
 
 
 def score_names(protocol) -> list[str]:
@@ -93,14 +93,14 @@ def primary(protocol) -> PrimaryAnalysis:
         return PrimaryAnalysis("ordinal_gee", tuple(q.id for q in ratings),
                                "proportional-odds GEE " + ("across the rating items (answer ~ condition + period + item)" if len(ratings) > 1
                                                            else f"of {ratings[0].text!r} (answer ~ condition + period)"))
-    binary = [q.id for q in protocol.asked("condition") if q.kind == "yes_no"]
+    binary = [q.id for q in protocol.asked("condition") if q.kind == Kind.YES_NO]
     if binary:
         return PrimaryAnalysis("logistic_gee", tuple(binary), "logistic GEE across the yes/no questions (answer ~ condition + period + item)")
     scores = [q.id for q in _score_questions(protocol)] + score_names(protocol)
     if scores:
         return PrimaryAnalysis("mixed_model", tuple(scores[:1]),
                                f"linear mixed model of {_label(scores[0], protocol)} (answer ~ condition + period + (1 | participant))")
-    choice = [q.id for q in protocol.asked("end") if q.kind == "choice"]
+    choice = [q.id for q in protocol.asked("end") if q.kind == Kind.CHOICE]
     if choice:
         return PrimaryAnalysis("choice", tuple(choice[:1]), "exact multinomial test of the final choice")
     return PrimaryAnalysis("none", (), "no question compares the conditions")
@@ -226,7 +226,7 @@ def choices(protocol, answers: pd.DataFrame) -> dict[str, dict]:
     """Per choice question asked at the end: ChoiceStats' fields, its pairs before Holm."""
     out = {}
     for q in protocol.asked("end"):
-        if q.kind == "choice":
+        if q.kind == Kind.CHOICE:
             sel = answers[answers["item"] == q.id].set_index("code")["answer"]
             res = scales.choice_analysis(sel, list(protocol.conditions))
             out[q.id] = {"question": q.text} | res
@@ -245,10 +245,10 @@ def session_questions(protocol, answers: pd.DataFrame) -> dict[str, EndRate | En
             out[name] = EndSummary.of({"question": instruments.SCORES[name], "kind": "score"} | scales.mean_ci(v, scale=instruments.SCORE_RANGE[name])
                                       | scales.median_iqr(v))
     for q in protocol.asked("end"):
-        if not q.analysed or q.kind == "choice" or q.instrument is not None:
+        if not q.analysed or q.kind == Kind.CHOICE or q.instrument is not None:
             continue
         v = answers.loc[answers["item"] == q.id, "answer"].astype(float).to_numpy()
-        if q.kind == "yes_no":
+        if q.kind == Kind.YES_NO:
 
             lo, hi = wilson(int(v.sum()), len(v))
             out[q.id] = EndRate(question=q.text, kind=q.kind, n=len(v), yes=int(v.sum()), rate=float(v.mean()) if len(v) else float("nan"),

@@ -16,6 +16,7 @@ from analysis.statistics.kind_results import KindStats
 from analysis.statistics.result_records import Record
 from analysis.statistics.stats import tests_run
 from analysis.study.instruments import SOURCES, TITLES
+from analysis.study.questions import Kind
 from analysis.study.study_snapshot import Study
 from sim.models.registry import ModelLoadError, model_class
 
@@ -195,12 +196,12 @@ CI_LEVEL = 0.95  # every interval the reports print
 ANALYSIS_PACKAGES = ("numpy", "scipy", "pandas", "statsmodels", "scikit-learn")
 # what each kind of answer is tested with (analysis/statistics/kinds.py, analysis/statistics/table1.py)
 KIND_TESTS = {
-    "yes_no": ("Cochran's Q across the conditions", "exact McNemar tests", "Wilson score intervals of each rate"),
-    "likert": ("the Friedman test (tie-corrected) with Kendall's W", "Wilcoxon signed-rank tests with the rank-biserial correlation",
+    Kind.YES_NO: ("Cochran's Q across the conditions", "exact McNemar tests", "Wilson score intervals of each rate"),
+    Kind.LIKERT: ("the Friedman test (tie-corrected) with Kendall's W", "Wilcoxon signed-rank tests with the rank-biserial correlation",
                "medians and interquartile ranges"),
-    "vas": ("a linear mixed model (condition and period fixed, participant random)", "t contrasts of the mixed model",
+    Kind.VAS: ("a linear mixed model (condition and period fixed, participant random)", "t contrasts of the mixed model",
             "means with t intervals"),
-    "choice": ("an exact multinomial test against equal shares", "exact binomial tests between two conditions' counts",
+    Kind.CHOICE: ("an exact multinomial test against equal shares", "exact binomial tests between two conditions' counts",
                "shares with Wilson intervals"),
 }
 

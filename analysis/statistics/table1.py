@@ -22,6 +22,7 @@ from analysis.statistics.facts import ConditionRun, IncompleteParticipant, Model
 from analysis.statistics.faults import ConditionEvents, condition_events, involving, withheld
 from analysis.statistics.stats import wilson
 from analysis.statistics.withhold import binary_across_reason
+from analysis.study.questions import Kind
 from analysis.study.study_snapshot import Study, data_flag
 from sim.text import counted
 
@@ -43,7 +44,7 @@ def complete_answers(study: Study) -> tuple[pd.DataFrame, list[dict]]:
 
 def binary_items(protocol) -> list[str]:
     """The yes/no questions asked after each condition: the rows of the paper-style Table 1."""
-    return [q.id for q in protocol.asked("condition") if q.kind == "yes_no"]
+    return [q.id for q in protocol.asked("condition") if q.kind == Kind.YES_NO]
 
 
 def binary_answers(study: Study, answers: pd.DataFrame | None = None) -> pd.DataFrame:

@@ -1,6 +1,7 @@
 """The study as the analyses read it: the snapshot of a study database (`study_snapshot`), the
-question and answer vocabulary (`questions`), the standard instruments and their scoring
-(`instruments`), CSV files as people make them (`csvfiles`) and a trial's trace file (`trace_files`).
+question and answer vocabulary (`questions`, with the question kinds), the kinds of participant
+field (`fields`), the standard instruments and their scoring (`instruments`), CSV files as people
+make them (`csvfiles`) and a trial's trace file (`trace_files`).
 
-Imports: numpy, pandas and `sim`; nothing else of `analysis`.
+Imports: numpy, pandas, `sim` and `analysis.errors`; nothing else of `analysis`.
 """

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.study.questions import Question
+from analysis.study.questions import Kind, Question
 
 NAMES = ("sus", "nasa_tlx")
 # each instrument's source, as a methods section cites it
@@ -53,12 +53,21 @@ SCORE_RANGE = {"sus": (0.0, 100.0), "nasa_tlx": (0.0, 100.0)}  # where each scor
 def questions(name: str, when: str = "condition") -> tuple[Question, ...]:
     """The instrument's items as questions (ids sus_1..sus_10, tlx_mental..tlx_frustration)."""
     if name == "sus":
-        return tuple(Question(f"sus_{k}", text, kind="likert", when=when, points=5, anchors=SUS_ANCHORS, instrument="sus")
+        return tuple(Question(f"sus_{k}", text, kind=Kind.LIKERT, when=when, points=5, anchors=SUS_ANCHORS, instrument="sus")
                      for k, text in enumerate(SUS_ITEMS, start=1))
     if name == "nasa_tlx":
-        return tuple(Question(f"tlx_{sid}", text, kind="vas", when=when, anchors=(lo, hi), instrument="nasa_tlx")
+        return tuple(Question(f"tlx_{sid}", text, kind=Kind.VAS, when=when, anchors=(lo, hi), instrument="nasa_tlx")
                      for sid, text, lo, hi in TLX_SUBSCALES)
     raise ValueError(f"unknown instrument {name!r}; allowed: {', '.join(NAMES)}")
+
+
+def item_sign(q: Question) -> float:
+    """Which way an instrument's item runs: +1 where agreeing is the favourable answer (SUS's
+    odd, positively worded items), -1 where it is not (SUS's even items; every NASA-TLX
+    subscale, where higher is more load); +1 for a question of no instrument."""
+    if q.instrument == "sus":
+        return 1.0 if SUS_ITEMS.index(q.text) % 2 == 0 else -1.0
+    return -1.0 if q.instrument == "nasa_tlx" else 1.0
 
 
 def sus_score(answers) -> float:

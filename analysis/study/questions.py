@@ -16,11 +16,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import StrEnum
 
 from analysis.errors import StudyError
 from sim.text import TEXT_MOST, quoted, text_problem
 
-KINDS = ("yes_no", "likert", "vas", "choice", "text")
+
+class Kind(StrEnum):
+    """A question's kind; a member equals its name as a protocol file writes it ("likert")."""
+
+    YES_NO = "yes_no"
+    LIKERT = "likert"
+    VAS = "vas"
+    CHOICE = "choice"
+    TEXT = "text"
+
+
+KINDS = tuple(Kind)
 WHENS = ("condition", "trial", "end")
 LIKERT_POINTS = (3, 11)
 VAS_RANGE = (0.0, 100.0)
@@ -37,15 +49,18 @@ NO = frozenset({"no", "n", "0", "false", "nein", "non"})
 class Question:
     id: str
     text: str
-    kind: str = "yes_no"
+    kind: Kind = Kind.YES_NO
     when: str = "condition"
     points: int | None = None  # likert
     anchors: tuple[str, str] | None = None  # likert (required), vas (optional): the scale's two ends
     instrument: str | None = None  # "sus" or "nasa_tlx": an item of a standard questionnaire
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", Kind(self.kind))  # a kind given by its name ("likert") becomes its member
+
     @property
     def analysed(self) -> bool:
-        return self.kind != "text"
+        return self.kind != Kind.TEXT
 
 
 class AnswerError(StudyError, ValueError):
@@ -54,14 +69,14 @@ class AnswerError(StudyError, ValueError):
 
 def allowed(q: Question, labels: dict[str, str] | None = None) -> str:
     """The allowed values, as an error message or a prompt says them."""
-    if q.kind == "yes_no":
+    if q.kind == Kind.YES_NO:
         return "yes or no (y/n, 1/0)"
-    if q.kind == "likert":
+    if q.kind == Kind.LIKERT:
         return f"an integer 1..{q.points} (1 = {q.anchors[0]}, {q.points} = {q.anchors[1]})"
-    if q.kind == "vas":
+    if q.kind == Kind.VAS:
         ends = f" (0 = {q.anchors[0]}, 100 = {q.anchors[1]})" if q.anchors else ""
         return f"a number 0..100{ends}"
-    if q.kind == "choice":
+    if q.kind == Kind.CHOICE:
         return "one of " + (", ".join(sorted(labels.values())) if labels else "the conditions")
     return f"a text of at most {TEXT_MOST} characters"
 
@@ -71,30 +86,30 @@ def parse_answer(q: Question, raw, labels: dict[str, str] | None = None, by_name
     A choice is given by a blind label (`labels`: condition -> label) or, in imports and
     corrections, by the condition's name (`by_name`); it is returned as the condition's name."""
     text = str(raw).strip()
-    if q.kind == "text":
+    if q.kind == Kind.TEXT:
         if (problem := text_problem(text, TEXT_MOST)) is not None:
             raise AnswerError(problem)
         return text
-    if q.kind == "yes_no":
+    if q.kind == Kind.YES_NO:
         if text.lower() in YES:
             return 1
         if text.lower() in NO:
             return 0
-    elif q.kind == "likert":
+    elif q.kind == Kind.LIKERT:
         try:
             v = int(text)
         except ValueError:
             v = None
         if v is not None and 1 <= v <= q.points:
             return v
-    elif q.kind == "vas":
+    elif q.kind == Kind.VAS:
         try:
             v = float(text)
         except ValueError:
             v = math.nan
         if math.isfinite(v) and VAS_RANGE[0] <= v <= VAS_RANGE[1]:
             return v
-    elif q.kind == "choice":
+    elif q.kind == Kind.CHOICE:
         by_label = {label.lower(): c for c, label in (labels or {}).items()}
         if text.lower() in by_label:
             return by_label[text.lower()]
@@ -109,8 +124,8 @@ def shown(q: Question, value) -> str:
     """A stored value as a person reads it (yes/no for yes_no)."""
     if value is None:
         return ""
-    if q.kind == "yes_no":
+    if q.kind == Kind.YES_NO:
         return "yes" if int(value) else "no"
-    if q.kind == "vas":
+    if q.kind == Kind.VAS:
         return f"{float(value):g}"
     return str(value)

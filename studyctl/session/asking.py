@@ -17,7 +17,7 @@ import termios
 from collections.abc import Callable
 
 from analysis.errors import StoreError
-from analysis.study.questions import AnswerError, allowed, parse_answer
+from analysis.study.questions import AnswerError, Kind, allowed, parse_answer
 
 
 def _stdin_tty() -> bool:
@@ -65,14 +65,14 @@ def read_line(prompt: str, idle: Callable[[], None] | None) -> str:
 
 def prompt_text(q, labels: dict[str, str] | None) -> str:
     """The terminal's prompt for one question: its text and what may be typed."""
-    if q.kind == "yes_no":
+    if q.kind == Kind.YES_NO:
         return f"{q.text} [y/n] "
-    if q.kind == "likert":
+    if q.kind == Kind.LIKERT:
         return f"{q.text}\n  1 = {q.anchors[0]} ... {q.points} = {q.anchors[1]}  [1-{q.points}] "
-    if q.kind == "vas":
+    if q.kind == Kind.VAS:
         ends = f": 0 = {q.anchors[0]}, 100 = {q.anchors[1]}" if q.anchors else ""
         return f"{q.text}\n  a number from 0 to 100{ends}  [0-100] "
-    if q.kind == "choice":
+    if q.kind == Kind.CHOICE:
         return f"{q.text} [{'/'.join(sorted(labels.values()))}] "
     return f"{q.text}\n  (free text; Enter when done) "
 
@@ -109,4 +109,4 @@ class TerminalAnswers:
             try:
                 return parse_answer(question, reply, labels)
             except AnswerError as exc:
-                self.echo(f"Please type it again: {exc}." if question.kind == "text" else f"Please answer {allowed(question, labels)}.")
+                self.echo(f"Please type it again: {exc}." if question.kind == Kind.TEXT else f"Please answer {allowed(question, labels)}.")

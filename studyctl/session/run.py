@@ -32,7 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from analysis.errors import InputError, Interrupted, StoreError
-from analysis.study.questions import NOT_PER_TRIAL, SESSION
+from analysis.study.questions import NOT_PER_TRIAL, SESSION, Kind
 from analysis.study.trace_files import trace_dir, write_trace
 from analysis.verification.truth import load_truth
 from sim.run import Pacing, run_scene
@@ -78,7 +78,7 @@ def _ask(store: Store, answerer, questions, code: str, model: str, trial: int, s
     answerer.begin(about)
     for q in todo:
         value = answerer(q, model, context)
-        session_rows.record_answer(store, code, model, q.id, trial, int(bool(value)) if q.kind == "yes_no" else value, session_id,
+        session_rows.record_answer(store, code, model, q.id, trial, int(bool(value)) if q.kind == Kind.YES_NO else value, session_id,
                                    answerer.source)
 
 

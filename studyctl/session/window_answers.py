@@ -19,6 +19,7 @@ keys pressed and clicks made before a question appears answer nothing.
 from __future__ import annotations
 
 from analysis.errors import StoreError
+from analysis.study.questions import Kind
 from studyctl.session.asking import TerminalAnswers
 
 
@@ -47,7 +48,7 @@ class WindowAnswers:
         view = self.view
         view.set_questionnaire(True)
         try:
-            if question.kind == "text":  # no text entry in the window
+            if question.kind == Kind.TEXT:  # no text entry in the window
                 view.set_text(question=question.text, center="", bottom="Please type your answer in the terminal")
                 return self.terminal(question, model, context)
             return self._ask(question, context.get("labels") or {})
@@ -60,10 +61,10 @@ class WindowAnswers:
         view = self.view
         values: list = []  # what each box of a scale answers
         letters: dict = {}  # key -> answer at once
-        if q.kind == "yes_no":
+        if q.kind == Kind.YES_NO:
             letters = {"y": 1, "n": 0}
             hint = "Y = yes     N = no"
-        elif q.kind == "likert":
+        elif q.kind == Kind.LIKERT:
             values = list(range(1, q.points + 1))
             view.answers.show_scale([str(v) for v in values], q.anchors)
             if q.points <= 9:
@@ -71,10 +72,10 @@ class WindowAnswers:
                 hint = f"Press 1-{q.points}  (or choose with the Left/Right arrows or a click, then press Enter)"
             else:
                 hint = "Choose with the Left/Right arrows or a click, then press Enter"
-        elif q.kind == "vas":
+        elif q.kind == Kind.VAS:
             view.answers.show_slider(q.anchors)
             hint = "Click or drag on the line to set your mark (Left/Right arrows move it), then press Enter"
-        elif q.kind == "choice":
+        elif q.kind == Kind.CHOICE:
             if not labels:
                 raise StoreError(f"question {q.id}: a choice needs the conditions' labels")
             shown = sorted(labels.items(), key=lambda cl: cl[1])  # (condition, label), as the person knows them

@@ -3,6 +3,7 @@ field), read back typed by the protocol's field kinds (studyctl/fields.py checks
 
 from __future__ import annotations
 
+from analysis.study.fields import FieldKind
 from studyctl.store.database import Store
 
 
@@ -14,7 +15,7 @@ def read_fields(store: Store, protocol) -> dict[str, dict[str, object]]:
         f = protocol.field_named(r["field"])
         v = r["value"]
         if f is not None and v is not None:
-            v = int(v) if f.kind == "integer" else float(v) if f.kind == "number" else str(v)
+            v = int(v) if f.kind == FieldKind.INTEGER else float(v) if f.kind == FieldKind.NUMBER else str(v)
         out.setdefault(r["code"], {})[r["field"]] = v
     return out
 

@@ -31,6 +31,8 @@ import numpy as np
 from scipy.signal import detrend
 from scipy.special import ndtr
 
+from analysis.study import instruments
+from analysis.study.questions import Kind, Question
 from sim.perception import FORCE_WEBER, FORCE_WEBER_LOW
 
 # question -> weights on (accuracy, latency, vibration, safety); the base logit 1.0 is about
@@ -379,14 +381,16 @@ def _features(summaries: list[TrialSummary], traits: ObserverTraits, params: Obs
 ACCURACY_SPAN, LATENCY_SPAN, VIBRATION_SPAN, EVENTS_CAP = 2.0, 2.0, 3.0, 3.0
 
 
-def logit(item: str, feats: dict, traits: ObserverTraits, params: ObserverParams = DEFAULT) -> float:
-    """The participant's latent judgement of a condition on `item` (logit of agreeing, or of a
-    rating above the scale's middle): a yes/no question's P(yes) is its logistic function."""
-    sign, weights = 1.0, WEIGHTS.get(item, DEFAULT_WEIGHTS)
-    if item.startswith("sus_") and item[4:].isdigit():
-        sign, weights = (1.0 if int(item[4:]) % 2 else -1.0), EASE_WEIGHTS
-    elif item in TLX_WEIGHTS:
-        sign, weights = -1.0, TLX_WEIGHTS[item]
+def logit(question: Question, feats: dict, traits: ObserverTraits, params: ObserverParams = DEFAULT) -> float:
+    """The participant's latent judgement of a condition on `question` (logit of agreeing, or of a
+    rating above the scale's middle): a yes/no question's P(yes) is its logistic function. An
+    instrument's item is judged by its instrument (ease for the SUS, load for the NASA-TLX) in the
+    direction its item runs (analysis.study.instruments.item_sign)."""
+    sign, weights = instruments.item_sign(question), WEIGHTS.get(question.id, DEFAULT_WEIGHTS)
+    if question.instrument == "sus":
+        weights = EASE_WEIGHTS
+    elif question.instrument == "nasa_tlx":
+        weights = TLX_WEIGHTS[question.id]
     w_acc, w_lat, w_vib, w_safe = weights
     within = feats["within_jnd"]
     accuracy = min(within / P_WITHIN_PERFECT, 1.0) if math.isfinite(within) else 0.5  # nothing judged: neutral
@@ -424,8 +428,8 @@ def judged_answer(question, eta: float, uniform, normal):
     """An answer of a yes/no, rating or VAS question from the latent judgement `eta`, drawing one
     number: `uniform()` for yes/no (yes with probability logistic(eta)) and ratings, `normal()`
     for a VAS. Synthetic sessions and `plan` draw through it with their own generators."""
-    if question.kind == "yes_no":
+    if question.kind == Kind.YES_NO:
         return uniform() < 1.0 / (1.0 + math.exp(-eta))
-    if question.kind == "likert":
+    if question.kind == Kind.LIKERT:
         return likert_answer(eta, question.points, uniform())
     return vas_answer(eta, normal())

@@ -25,7 +25,7 @@ import random
 from dataclasses import dataclass
 
 from analysis.errors import StoreError
-from analysis.study.questions import SESSION
+from analysis.study.questions import SESSION, Kind
 from sim.devices.simulated import HandImpedance
 from studyctl.store.participant_fields import group_of
 from studyctl.synthetic.observer import (
@@ -180,20 +180,20 @@ class SyntheticAnswers:
         trial = context.get("trial")
         key = f"answer:{who.seed}:{who.code}:{model}:{question.id}" + (f":{trial}" if trial is not None else "")
         rng = random.Random(key)
-        if question.kind == "text":
+        if question.kind == Kind.TEXT:
             return "(synthetic participant: no comment)"
-        if question.kind == "choice":
+        if question.kind == Kind.CHOICE:
             feats = context["features"]
-            utility = {c: logit(question.id, feats[c], who.traits, self.params) - math.log(-math.log(max(rng.random(), 1e-300)))
+            utility = {c: logit(question, feats[c], who.traits, self.params) - math.log(-math.log(max(rng.random(), 1e-300)))
                        for c in sorted(context["labels"]) if c in feats}
             return max(utility, key=utility.get)
         if model == SESSION:  # about the whole session: the mean of its conditions' judgements
             feats = context["features"]
-            eta = sum(logit(question.id, feats[c], who.traits, self.params) for c in sorted(feats)) / len(feats)
+            eta = sum(logit(question, feats[c], who.traits, self.params) for c in sorted(feats)) / len(feats)
         else:
             if trial is not None:  # judged on that trial alone
                 feats = features(self._summaries(model, context.get("results", [])), who.traits, self.params)
             else:
                 feats = self.features_of(model, context.get("results", []))
-            eta = logit(question.id, feats, who.traits, self.params)
+            eta = logit(question, feats, who.traits, self.params)
         return judged_answer(question, eta, rng.random, lambda: rng.gauss(0.0, 1.0))

@@ -26,7 +26,7 @@ from statsmodels.stats.contingency_tables import cochrans_q
 from analysis.statistics import kinds, scales
 from analysis.statistics.kinds import score_names
 from analysis.statistics.stats import gee_fit, holm
-from analysis.study.questions import NOT_PER_TRIAL, SESSION
+from analysis.study.questions import NOT_PER_TRIAL, SESSION, Kind
 from analysis.verification.truth import load_truth
 from sim.linalg import one_thread_pools
 from sim.run import run_scene
@@ -69,7 +69,7 @@ def _tested(protocol) -> list:
     """The questions `plan` tests one by one: each asked after every condition (instrument items
     through their score), and the choices at the end."""
     return [q for q in protocol.asked("condition") if q.analysed and q.instrument is None] + \
-        [q for q in protocol.asked("end") if q.kind == "choice"]
+        [q for q in protocol.asked("end") if q.kind == Kind.CHOICE]
 
 
 def test_names(protocol) -> list[str]:
@@ -86,12 +86,12 @@ def simulate_study(protocol, summaries: dict[str, list], n: int, rng: np.random.
     labels = list(protocol.conditions)
     orders = williams(len(labels))
     asked = [q for q in protocol.asked("condition") if q.analysed]
-    per_trial = [q for q in protocol.asked("trial") if q.analysed and q.kind != "choice"]
-    choices = [q for q in protocol.asked("end") if q.kind == "choice"]
+    per_trial = [q for q in protocol.asked("trial") if q.analysed and q.kind != Kind.CHOICE]
+    choices = [q for q in protocol.asked("end") if q.kind == Kind.CHOICE]
 
     def draw(q, eta):
         v = judged_answer(q, eta, rng.random, rng.normal)
-        return int(v) if q.kind == "yes_no" else v
+        return int(v) if q.kind == Kind.YES_NO else v
 
     rows = []
     for i, z in enumerate(rng.normal(size=(n, 5))):
@@ -101,12 +101,12 @@ def simulate_study(protocol, summaries: dict[str, list], n: int, rng: np.random.
         period = {labels[c]: k for k, c in enumerate(orders[i % len(orders)])}
         for c in labels:
             for q in asked:
-                rows.append((code, c, q.id, NOT_PER_TRIAL, draw(q, logit(q.id, feats[c], traits, params)), period[c]))
+                rows.append((code, c, q.id, NOT_PER_TRIAL, draw(q, logit(q, feats[c], traits, params)), period[c]))
             for t in range(protocol.trials_per_condition) if per_trial else ():  # each trial judged on itself
                 ft = features([summaries[c][rng.integers(len(summaries[c]))]], traits, params)
-                rows += [(code, c, q.id, t, draw(q, logit(q.id, ft, traits, params)), period[c]) for q in per_trial]
+                rows += [(code, c, q.id, t, draw(q, logit(q, ft, traits, params)), period[c]) for q in per_trial]
         for q in choices:
-            utility = {c: logit(q.id, feats[c], traits, params) + rng.gumbel() for c in labels}
+            utility = {c: logit(q, feats[c], traits, params) + rng.gumbel() for c in labels}
             rows.append((code, SESSION, q.id, NOT_PER_TRIAL, max(utility, key=utility.get), -1))
     return pd.DataFrame(rows, columns=["code", "model", "item", "trial", "answer", "period"])
 
@@ -118,11 +118,11 @@ def test_study(protocol, answers: pd.DataFrame, primary: bool = True) -> dict[st
     out = {}
     for q in _tested(protocol):
         sel = answers[answers["item"] == q.id]
-        if q.kind == "choice":
+        if q.kind == Kind.CHOICE:
             out[q.id] = scales.choice_analysis(sel.set_index("code")["answer"], labels)["overall"]["p_value"]
             continue
         x = sel.pivot(index="code", columns="model", values="answer")[labels].to_numpy(float)
-        if q.kind == "yes_no":
+        if q.kind == Kind.YES_NO:
             out[q.id] = cochran_p(x.astype(int))
         else:
             out[q.id] = kinds.across_p(x)

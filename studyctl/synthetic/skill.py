@@ -15,6 +15,7 @@ import math
 import random
 from dataclasses import dataclass, fields
 
+from analysis.study.fields import FieldKind
 from sim.tomltable import TableReader
 
 # key -> (lowest, highest, default, unit); a default None means "as without a profile"
@@ -118,7 +119,7 @@ def check_skills(data: dict, groups: str | None, fields_: list, c: TableReader) 
         line = c.loc.line(where)
         c.problems.append((c.path, line, f"{c.path}:{line}: synthetic.groups: needs design.groups: the choice field whose values are the groups"))
         return {}
-    values = field.values if field is not None and field.kind == "choice" else None  # a bad design.groups is reported there
+    values = field.values if field is not None and field.kind == FieldKind.CHOICE else None  # a bad design.groups is reported there
     out: dict[str, SkillProfile] = {}
     for name, t in tables.items():
         sec = f"synthetic.groups.{name}"
