@@ -9,7 +9,7 @@ from analysis.errors import InputError
 from analysis.study.csvfiles import read_csv
 from analysis.study.questions import NOT_PER_TRIAL, SESSION, AnswerError, Kind, allowed, parse_answer
 from sim.text import quoted
-from studyctl.store import Store, now, roster
+from studyctl.store import Store, lab_records, now, roster
 
 
 def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) -> dict:
@@ -24,7 +24,7 @@ def import_answers(db: str | Path, csv_path: str | Path, dry_run: bool = False) 
         synthetic = roster.synthetic_codes(store)
         in_sessions = roster.session_codes(store)
         withdrawn = roster.withdrawn_codes(store)
-        consented = roster.consented_codes(store, protocol.consent_version)
+        consented = lab_records.consented_codes(store, protocol.consent_version)
         rows = read_csv(csv_path, ("participant", "model", "item", "answer", "trial"), ("participant", "model", "item", "answer"))
         records, seen = [], set()
         for line, r in rows:

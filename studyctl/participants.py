@@ -187,7 +187,7 @@ def status(db, today: dt.datetime | None = None) -> dict:
         protocol = store.protocol()
         people = lab_records.people_counts(store)
         sessions = lab_records.sessions_by_status(store)
-        # complete: the reports' own rule and count (studyctl.completeness): everyone whose answers the
+        # complete: the reports' own rule and count (analysis.study.completeness): everyone whose answers the
         # study holds, withdrawn with their data kept included; a mixed-source participant counts as synthetic
         done = snapshot.completeness(store, protocol)
         withdrawn = roster.withdrawn_codes(store)

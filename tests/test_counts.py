@@ -1,4 +1,4 @@
-"""Counts that add up: one definition of a complete participant (studyctl.completeness) behind
+"""Counts that add up: one definition of a complete participant (analysis.study.completeness) behind
 `status`, Table 1's N, the banners and the lists of the incomplete, kinds of participants
 counted apart; `synth --complete` brings an interrupted run to its N and says what it ran."""
 

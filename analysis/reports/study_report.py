@@ -44,9 +44,10 @@ def table1_text(study, fmt: str, holm_scope: str = "family", accuracy: dict | No
         rows = rates_with_events(table1.rates(study), table1.events(study))
         text = spreadsheet_frame(rows.assign(participants=facts.participants, synthetic=facts.synthetic)).to_csv(index=False)
     else:
-        r, q = table1.rates(study), table1.cochran(study)
-        text = json.dumps(jsonable({"facts": table1.study_facts(study).as_dict(), "rates": r.to_dict(orient="records"),
-                                    "cochran": q.to_dict(orient="records"), "kinds": study_stats(study, r, q, holm_scope).kinds.as_dict(),
+        rates, cochran = table1.rates(study), table1.cochran(study)
+        text = json.dumps(jsonable({"facts": table1.study_facts(study).as_dict(), "rates": rates.to_dict(orient="records"),
+                                    "cochran": cochran.to_dict(orient="records"),
+                                    "kinds": study_stats(study, rates, cochran, holm_scope).kinds.as_dict(),
                                     "deformation": table1.deformation(study).to_dict(orient="records"),
                                     "faults": [e.as_dict() for e in table1.events(study)]}
                                    | ({"jnd": jnd.jnd_results(study)} if study.protocol.tasks else {})), indent=2)

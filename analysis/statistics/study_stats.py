@@ -33,17 +33,18 @@ from analysis.statistics.table1 import (
 from analysis.study.study_snapshot import Study
 
 
-def study_stats(study: Study, r: pd.DataFrame | None = None, q: pd.DataFrame | None = None, holm_scope: str = "family") -> StudyStats:
-    """Everything `studyctl report stats --json` prints (`StudyStats.as_dict()`; `r`, `q`: rates and cochran already
-    computed by the caller, so a report does not compute them twice) of `study`
+def study_stats(study: Study, rates_frame: pd.DataFrame | None = None, cochran_frame: pd.DataFrame | None = None,
+                holm_scope: str = "family") -> StudyStats:
+    """Everything `studyctl report stats --json` prints (`StudyStats.as_dict()`; `rates_frame`, `cochran_frame`:
+    `rates` and `cochran` of the study already computed by the caller, so a report does not compute them twice) of `study`
     (analysis.study.study_snapshot.Study: the database read once). Complete cases only
     (`analysis.statistics.table1.complete_answers`). `holm_scope`: "family" (default: Holm over every
     pairwise test of every question and kind) or "question" (within each question's pairs).
     Every test is run and Holm computed before a result is built: each is complete when built."""
     if holm_scope not in HOLM_SCOPES:
         raise ValueError(f"holm_scope: {holm_scope!r}; allowed: {', '.join(HOLM_SCOPES)}")
-    r = rates(study) if r is None else r
-    q = cochran(study) if q is None else q
+    r = rates(study) if rates_frame is None else rates_frame  # a row per question and condition
+    q = cochran(study) if cochran_frame is None else cochran_frame  # a row per question
     protocol = study.protocol
     every, _ = complete_answers(study)
     answers = binary_answers(study, every)

@@ -34,7 +34,7 @@ def answers_wide(answers: pd.DataFrame, item: str, models: list[str]) -> pd.Data
 
 
 def complete_answers(study: Study) -> tuple[pd.DataFrame, list[dict]]:
-    """The one N rule (studyctl.completeness): a participant counts when they answered every
+    """The one N rule (analysis.study.completeness): a participant counts when they answered every
     analysed question for every condition (complete cases). Returns their answers (code,
     model, item, trial, answer: each in its kind's type) and the others, each as {code,
     answers, of}: everything in a report is computed on the complete ones."""
@@ -121,7 +121,7 @@ def deformation(study: Study) -> pd.DataFrame:
 
 
 def study_facts(study: Study) -> StudyFacts:
-    """N, the incomplete, and the complete participants counted by kind (studyctl.completeness):
+    """N, the incomplete, and the complete participants counted by kind (analysis.study.completeness):
     a complete mixed-source participant counts as synthetic (their data are partly simulated);
     the reports' warning names every mixed-source participant."""
     protocol = study.protocol

@@ -15,6 +15,9 @@ from pathlib import Path
 
 import pandas as pd
 
+from analysis.study.completeness import Completeness
+from analysis.study.protocol_view import StudyProtocol
+
 SYNTHETIC_FLAG = "SYNTHETIC DATA (simulated participants): not evidence about people."
 
 
@@ -36,7 +39,7 @@ class Study:
     - `synthetic_participants`, `person_participants`: how many participants answered
       synthetically, and as people (from the answers' own source, not a participant flag);
       `mixed_source_participants`: the codes that answered both ways;
-    - `completeness`: who is complete, who is not, and each one's kind (studyctl.completeness:
+    - `completeness`: who is complete, who is not, and each one's kind (analysis.study.completeness:
       the one rule behind N, the banners, the lists of the incomplete and `studyctl status`);
     - `periods`: each participant's position (0-based) of each condition in their session:
       ``code, model, period`` (the session's order, else the assigned one);
@@ -57,12 +60,12 @@ class Study:
       what a condition's faults are counted from (analysis/statistics/faults.py).
     """
 
-    protocol: object
+    protocol: StudyProtocol
     answers: pd.DataFrame
     synthetic_participants: int
     person_participants: int
     mixed_source_participants: tuple[str, ...]
-    completeness: object
+    completeness: Completeness
     periods: pd.DataFrame
     latency: pd.DataFrame
     latency_trials: pd.DataFrame

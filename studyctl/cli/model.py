@@ -328,75 +328,77 @@ def model_fem(scene_file: Path, resolution, formulation: str, grasp, displacemen
 
         law_source = scene.spec.material.law_source
         stretch_range, source = fitted_range(law_source) if law_source not in ("", "inline") else (None, "an inline law names no data")
-    out = static_pull(scene, grasp, displacement, None if resolution is None else resolution / 1e3, formulation, steps, order,
-                      stretch_range=stretch_range)
-    if formulation == "finite-strain":
-        out["support_data"] = source if stretch_range is not None else None
-        if stretch_range is None:
-            out["support_unavailable"] = source
+    pull = static_pull(scene, grasp, displacement, None if resolution is None else resolution / 1e3, formulation, steps, order,
+                       stretch_range=stretch_range)
     if as_json:
-        _print_json(out)
-        _check_converged(out)
+        extra = {}
+        if formulation == "finite-strain":
+            extra["support_data"] = source if stretch_range is not None else None
+            if stretch_range is None:
+                extra["support_unavailable"] = source
+        _print_json(pull.as_dict() | extra)
+        _check_converged(pull)
         return
     console = _console()
-    f = out["force_n"]
+    f = pull.force_n
     console.print(
-        f"FEM ({out['formulation']}, {'quadratic' if out['order'] == 2 else 'linear'} tetrahedra, {out['resolution_mm']:g} mm: "
-        f"{out['volume']['nodes']} corner nodes, {out['volume']['tets']} tetrahedra; "
-        f"grasped hemisphere {out['part']['free_dofs']} unknowns)"
+        f"FEM ({pull.formulation}, {'quadratic' if pull.order == 2 else 'linear'} tetrahedra, {pull.resolution_mm:g} mm: "
+        f"{pull.volume['nodes']} corner nodes, {pull.volume['tets']} tetrahedra; "
+        f"grasped hemisphere {pull.part['free_dofs']} unknowns)"
     )
-    console.print(f"force on the hand: ({f[0]:.4g}, {f[1]:.4g}, {f[2]:.4g}) N, |F| = {out['force_magnitude_n']:.4g} N")
-    console.print(f"largest displacement: {out['max_displacement_m'] * 1e3:.3f} mm")
-    if out["locking"]:
+    console.print(f"force on the hand: ({f[0]:.4g}, {f[1]:.4g}, {f[2]:.4g}) N, |F| = {pull.force_magnitude_n:.4g} N")
+    console.print(f"largest displacement: {pull.max_displacement_m * 1e3:.3f} mm")
+    if pull.locking:
         console.print(f"warning: the elements lock at this Poisson ratio (linear tetrahedra from {LOCKING_POISSON[1]:g}, quadratic from {LOCKING_POISSON[2]:g}): "
                       "forces are overestimated; try --order 2")
-    if formulation != "linear":
+    if pull.solve is not None:
+        s = pull.solve
         console.print(
-            f"converged: {'yes' if out['converged'] else 'NO'}; iterations per load step {out['iterations']}; "
-            f"final residuals {', '.join(f'{r:.1e}' for r in out['final_residuals'] if r is not None)}"
-            + ("; inverted elements" if out["inverted_elements"] else "")
+            f"converged: {'yes' if s.converged else 'NO'}; iterations per load step {list(s.iterations)}; "
+            f"final residuals {', '.join(f'{r:.1e}' for r in s.final_residuals if r is not None)}"
+            + ("; inverted elements" if s.inverted_elements else "")
         )
-        if not out["converged"]:
-            console.print("warning: the solve stopped " + _stopped(out) + "; the force and displacements above are those it reached, "
+        if not s.converged:
+            console.print("warning: the solve stopped " + _stopped(s) + "; the force and displacements above are those it reached, "
                           "not the requested pull's")
-        if "support" in out:
-            sup = out["support"]
+        if s.support is not None:
+            sup = s.support
             lo, hi = sup["stretch_range"]
             console.print(f"support: {sup['energy_share_outside']:.0%} of the stored energy at points with a principal stretch outside "
-                          f"{lo:.3g}-{hi:.3g}, the range the law's data cover ({out['support_data']}): that share rests on the "
+                          f"{lo:.3g}-{hi:.3g}, the range the law's data cover ({source}): that share rests on the "
                           f"law's extrapolation; principal stretches {sup['principal_stretch_min']:.3g}-{sup['principal_stretch_max']:.3g}, "
                           f"largest |J - 1| {sup['max_abs_j_minus_1']:.3g}")
-        elif out.get("support_unavailable"):
-            console.print(f"support: not computed ({out['support_unavailable']})")
+        elif formulation == "finite-strain" and stretch_range is None and source:
+            console.print(f"support: not computed ({source})")
     from rich.table import Table
 
     t = Table(title="phase times")
     t.add_column("phase")
     t.add_column("ms", justify="right")
-    for k, v in out["times_ms"].items():
+    for k, v in pull.times_ms.items():
         t.add_row(k, f"{v:.4g}")
     console.print(t)
-    _check_converged(out)
+    _check_converged(pull)
 
 
-def _check_converged(out: dict) -> None:
+def _check_converged(pull) -> None:
     """A nonlinear solve that did not converge is a failure (exit status 1), not a result."""
-    if out["converged"]:
+    if pull.converged:
         return
-    raise click.ClickException(f"the {out['formulation']} solve stopped {_stopped(out)}: the force is not the requested pull's; "
+    raise click.ClickException(f"the {pull.formulation} solve stopped {_stopped(pull.solve)}: the force is not the requested pull's; "
                                "try more --steps or a shorter --displacement")
 
 
-def _stopped(out: dict) -> str:
-    """Where a nonlinear solve stopped, and why."""
-    frac, n, done = out.get("completed_fraction"), out["load_steps"], out.get("completed_steps")
+def _stopped(s) -> str:
+    """Where a nonlinear solve (sim.models.fem.pull.SolveReport) stopped, and why."""
+    frac, n, done = s.completed_fraction, s.load_steps, s.completed_steps
     if frac is not None:
         where = f"at {frac:.0%} of the pull after {done} load step{'s' * (done != 1)}"
     elif done is not None and done < n:
         where = f"after {done} of {n} load steps"
     else:
         where = f"without converging in {n} load step{'s' * (n != 1)}"
-    why = out.get("reason") or ("elements inverted" if out.get("inverted_elements") else "")
+    why = s.reason or ("elements inverted" if s.inverted_elements else "")
     return where + (f" ({why})" if why else "")
 
 

@@ -17,6 +17,11 @@ def consent_rows(store: Store, code: str) -> list[dict]:
     return store.rows("select given_on, version from consent where code = ?", (code,))
 
 
+def consented_codes(store: Store, version: str) -> set[str]:
+    """The codes of participants whose consent to this version is recorded."""
+    return {r["code"] for r in store.rows("select code from consent where version = ?", (version,))}
+
+
 def has_consent(store: Store, code: str, version: str) -> bool:
     """Whether a participant's consent to this version of the form is recorded."""
     return bool(store.rows("select code from consent where code = ? and version = ?", (code, version)))

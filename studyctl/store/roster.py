@@ -122,11 +122,6 @@ def withdrawn_codes(store: Store) -> set[str]:
     return {r["code"] for r in store.rows("select code from participants where withdrawn_at is not null")}
 
 
-def consented_codes(store: Store, version: str) -> set[str]:
-    """The codes of participants whose consent to this version is recorded."""
-    return {r["code"] for r in store.rows("select code from consent where version = ?", (version,))}
-
-
 def answer_keys(store: Store) -> set[tuple]:
     """(code, model, item, trial) of every stored answer."""
     return {(r["code"], r["model"], r["item"], r["trial"]) for r in store.rows("select code, model, item, trial from answers")}

@@ -11,9 +11,9 @@ import json
 
 import pandas as pd
 
+from analysis.study.completeness import Completeness
+from analysis.study.completeness import completeness as count_complete
 from analysis.study.study_snapshot import Study
-from studyctl.completeness import Completeness
-from studyctl.completeness import completeness as count_complete
 from studyctl.store.database import Store
 from studyctl.store.participant_fields import read_fields
 
@@ -56,7 +56,7 @@ def answer_sources(store: Store) -> pd.DataFrame:
 
 
 def completeness(store: Store, protocol, only: set[str] | None = None, stored: pd.DataFrame | None = None) -> Completeness:
-    """Who is complete, who is not and of which kind (studyctl.completeness: the one rule every
+    """Who is complete, who is not and of which kind (analysis.study.completeness: the one rule every
     count uses); `only`: count these codes alone; `stored`: `answers(store)` where the caller
     has read it already."""
     return count_complete(protocol, answers(store) if stored is None else stored, answer_sources(store), only)

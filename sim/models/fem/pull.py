@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -20,6 +22,68 @@ from sim.scene import AXES
 
 FORMULATIONS = ("linear", "corotational", "finite-strain", "nodal-pressure")
 TICKS = 20000  # servo-tick force calls timed
+
+
+@dataclass(frozen=True)
+class SolveReport:
+    """A nonlinear pull's solve (the Newton or corotational solver's report): whether it converged,
+    its load steps and iterations, each step's final residual, the smallest det F, and how far it
+    got when it stopped (`completed_steps`, `completed_fraction`, `reason`); `support`: the
+    finite-strain state's support (`finite_strain.support`) where it was asked for."""
+
+    converged: bool
+    load_steps: int
+    iterations: tuple[int, ...]
+    final_residuals: tuple[float | None, ...]
+    min_jacobian: float
+    inverted_elements: bool
+    tangent_updates: int
+    completed_steps: int
+    completed_fraction: float | None
+    reason: str
+    support: dict | None = None
+
+
+@dataclass(frozen=True)
+class StaticPull:
+    """One static pull (`static_pull`): the meshes (`volume`: nodes, tets, resolution_mm; `part`:
+    the grasped hemisphere's nodes, tets, free_dofs), the grasp, the force on the hand, the largest
+    displacement, each phase's time (ms) and, for a nonlinear formulation, its solve (None: linear,
+    which converges by construction). `as_dict()` is `model fem --json`'s object."""
+
+    formulation: str
+    order: int
+    resolution_mm: float
+    volume: dict
+    part: dict
+    grasp_vertex: int
+    grasp_point: tuple[float, float, float]
+    displacement: tuple[float, float, float]
+    locking: bool
+    solve: SolveReport | None
+    force_n: tuple[float, float, float]
+    force_magnitude_n: float
+    max_displacement_m: float
+    times_ms: dict
+
+    @property
+    def converged(self) -> bool:
+        return self.solve is None or self.solve.converged
+
+    def as_dict(self) -> dict:
+        """The JSON object, the solve's fields in place of `solve` (as `model fem --json` has always printed them)."""
+        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "solve"}
+        head = {k: out[k] for k in ("formulation", "order", "resolution_mm", "volume", "part", "grasp_vertex", "grasp_point",
+                                    "displacement", "locking")}
+        if self.solve is None:
+            solve = {"converged": True}
+        else:
+            solve = {f.name: getattr(self.solve, f.name) for f in dataclasses.fields(self.solve) if f.name != "support"}
+            solve = {k: list(v) if isinstance(v, tuple) else v for k, v in solve.items()}
+            solve |= {"support": self.solve.support} if self.solve.support is not None else {}
+        tail = {k: (list(out[k]) if isinstance(out[k], tuple) else out[k])
+                for k in ("force_n", "force_magnitude_n", "max_displacement_m", "times_ms")}
+        return {**{k: (list(v) if isinstance(v, tuple) else v) for k, v in head.items()}, **solve, **tail}
 
 
 def _options(scene, formulation: str, displacement, resolution: float | None, order: int | None) -> tuple:
@@ -47,11 +111,11 @@ def _time_ticks(model, contact, d: tuple) -> float:
     return (time.perf_counter() - t0) / TICKS
 
 
-def _solve(model, contact, d: np.ndarray, formulation: str, steps: int, law=None, stretch_range=None) -> tuple[np.ndarray, np.ndarray, dict]:
-    """(force holding the grasp (3,), every node's displacement, the solver's report; with
-    `stretch_range`, a finite-strain state's support: `finite_strain.support`)."""
+def _solve(model, contact, d: np.ndarray, formulation: str, steps: int, law=None, stretch_range=None) -> tuple:
+    """(force holding the grasp (3,), every node's displacement, the solver's report (None for the
+    linear formulation); with `stretch_range`, a finite-strain state's support: `finite_strain.support`)."""
     if formulation == "linear":
-        return np.asarray(model.grasp_forces([contact], [d])), model.nodal_displacement([contact], [d]), {"converged": True}
+        return np.asarray(model.grasp_forces([contact], [d])), model.nodal_displacement([contact], [d]), None
     part = model.parts[contact.data.part]
     if formulation in ("finite-strain", "nodal-pressure"):  # the scene's law on the model's mesh and element
 
@@ -71,7 +135,7 @@ def _solve(model, contact, d: np.ndarray, formulation: str, steps: int, law=None
 
 
 def static_pull(scene, grasp, displacement, resolution: float | None = None, formulation: str = "linear", steps: int = 5,
-                order: int | None = None, stretch_range: tuple[float, float] | None = None) -> dict:
+                order: int | None = None, stretch_range: tuple[float, float] | None = None) -> StaticPull:
     """Grasp the scene's brain at `grasp` and hold the grasp point at `displacement` (m).
 
     Returns the force on the hand, the largest displacement, the phase times, and for the
@@ -102,32 +166,23 @@ def static_pull(scene, grasp, displacement, resolution: float | None = None, for
     if formulation != "linear":
         times["solve_s"] = time.perf_counter() - t0
     part = model.parts[contact.data.part]
-    out = {"formulation": formulation, "order": order, "resolution_mm": resolution * 1e3, "volume": describe(volume),
-           "part": {"nodes": int(part.n_all), "tets": int(len(part.tets)), "free_dofs": int(len(part.free))},
-           "grasp_vertex": contact.vertex, "grasp_point": list(contact.point), "displacement": d.tolist(), "locking": model.locking}
-    out.update(report)
-    # the hand feels minus the force that holds the tissue at d
-    out["force_n"] = (-force).tolist()
-    out["force_magnitude_n"] = float(np.linalg.norm(force))
-    out["max_displacement_m"] = float(np.linalg.norm(u, axis=1).max())
-    out["times_ms"] = {k.removesuffix("_s"): v * 1e3 for k, v in times.items()}
-    return out
+    return StaticPull(formulation=formulation, order=order, resolution_mm=resolution * 1e3, volume=describe(volume),
+                      part={"nodes": int(part.n_all), "tets": int(len(part.tets)), "free_dofs": int(len(part.free))},
+                      grasp_vertex=contact.vertex, grasp_point=tuple(contact.point), displacement=tuple(d.tolist()), locking=model.locking,
+                      solve=report,
+                      force_n=tuple((-force).tolist()),  # the hand feels minus the force that holds the tissue at d
+                      force_magnitude_n=float(np.linalg.norm(force)), max_displacement_m=float(np.linalg.norm(u, axis=1).max()),
+                      times_ms={k.removesuffix("_s"): v * 1e3 for k, v in times.items()})
 
 
-def _report(rep: NewtonReport, completed_fraction: float | None = None, support_: dict | None = None) -> dict:
-    """The solver's report as the command prints it; `completed_fraction` (default: all of it when
-    converged, unknown otherwise) and the state's support where the solve computed them."""
-    return {
-        "converged": rep.converged,
-        "load_steps": rep.load_steps,
-        "iterations": rep.iterations,
-        "final_residuals": [r[-1] if r else None for r in rep.residuals],
-        "min_jacobian": rep.min_jacobian,
-        "inverted_elements": rep.min_jacobian <= 0,
-        "tangent_updates": rep.tangent_updates,
+def _report(rep: NewtonReport, completed_fraction: float | None = None, support_: dict | None = None) -> SolveReport:
+    """The solver's report; `completed_fraction` (default: all of it when converged, unknown
+    otherwise) and the state's support where the solve computed them."""
+    return SolveReport(
+        converged=rep.converged, load_steps=rep.load_steps, iterations=tuple(rep.iterations),
+        final_residuals=tuple(r[-1] if r else None for r in rep.residuals), min_jacobian=rep.min_jacobian,
+        inverted_elements=rep.min_jacobian <= 0, tangent_updates=rep.tangent_updates,
         # a solve that stopped early returns the state of its last solved load step
-        "completed_steps": rep.completed_steps,
-        "completed_fraction": completed_fraction if completed_fraction is not None else (1.0 if rep.converged else None),
-        "reason": rep.reason,
-        **({"support": support_} if support_ is not None else {}),
-    }
+        completed_steps=rep.completed_steps,
+        completed_fraction=completed_fraction if completed_fraction is not None else (1.0 if rep.converged else None),
+        reason=rep.reason, support=support_)

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import pandas as pd
 
+from analysis.study.protocol_view import StudyProtocol
+
 KINDS = ("person", "synthetic", "mixed")
 
 
@@ -41,8 +43,8 @@ class Completeness:
 
     complete: tuple[str, ...]
     incomplete: tuple[dict, ...]
-    kinds: dict
-    protocol: object
+    kinds: dict[str, str]
+    protocol: StudyProtocol
 
     def count(self, kind: str) -> int:
         """How many complete participants are of `kind`."""
