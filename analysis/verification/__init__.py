@@ -4,9 +4,14 @@ each model is from it.
 - `tissue_pulls`: the tissue's finite-strain pulls; `reference`: the converged reference over
   three meshes; `convergence`: Richardson extrapolation and GCI; `truth`, `truth_table`,
   `truth_band`: the tables the synthetic observer reads and their validity band;
-- `accuracy`, `accuracy_tables`: the fair bench of every model class; `stability`: the stability
-  sweep; `material_fit`: a law fitted to measured tissue; `field_fit`: the located plate-spring's
-  field; `model_check`: a model against the contract and the truth.
+- `accuracy`: the fair bench of every model class; `stability`: the stability sweep;
+  `material_fit`: a law fitted to measured tissue; `field_fit`: the located plate-spring's field;
+  `model_check`: a model against the contract and the truth; `paper`: the seed paper's figures;
+  `regions`: the truth's grey and white laws.
 
-Imports: numpy, scipy, and `sim` (scenes, models, pulls); never the study statistics or studyctl.
+They return data; their tables, pages and files are in `analysis/reports/`.
+
+Imports: numpy, scipy, `sim` (scenes, models, pulls), the Wilson interval of
+`analysis.statistics.stats` and the CSV reader of `analysis.study.csvfiles`; never a study's
+statistics or results, `analysis.reports` or studyctl.
 """

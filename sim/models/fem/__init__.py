@@ -8,6 +8,8 @@
   its compiled element pass in `hyperelastic_kernels`;
 - `membrane`: a hyperelastic membrane on the body's boundary faces (the pia-arachnoid) and the body with it;
 - `newton`: the one Newton solver for finite strain, following a held constraint's path;
+- `nodal_pressure`: linear tetrahedra that do not lock (the average nodal pressure element) for a
+  finite-strain law;
 - `corotational`: the stiffness-warping update (P1), its compiled passes in `corotational_kernels`
   (with the 3 x 3 inverse `hyperelastic_kernels` shares);
 - `model`: `FemModel` under the tissue-model contract, and `build` from a scene;
