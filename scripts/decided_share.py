@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.study.questions import NOT_PER_TRIAL
+from analysis.study.questions import NOT_PER_TRIAL, Kind
 from analysis.verification.truth import TRUTH_FILE, load_truth
 from studyctl.conditions import scene_itself
 from studyctl.session.traces import trial_traces
@@ -62,7 +62,7 @@ def judge(db: Path) -> dict:
         truth = load_truth(base)
         rig = {c: v["frame_ms"] for c, v in frame_times(protocol, store).items()}
         stored = answers(store)
-        questions = [q for q in protocol.asked("condition") if q.kind == "yes_no"]
+        questions = [q for q in protocol.asked("condition") if q.kind == Kind.YES_NO]
         kept = {(r.code, r.model, r.item): bool(int(r.answer)) for r in stored.itertuples() if int(r.trial) == NOT_PER_TRIAL}
         yes = {rule: defaultdict(lambda: defaultdict(int)) for rule in RULES}
         within = {rule: defaultdict(list) for rule in RULES}  # each participant's within_jnd of each model (NaN: nothing judged)

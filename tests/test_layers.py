@@ -285,7 +285,7 @@ def test_no_question_or_field_kind_is_compared_as_a_string():
         return isinstance(node, (ast.Tuple, ast.List, ast.Set)) and any(typed(e) for e in node.elts)
 
     found = []
-    for pkg in ("analysis", "studyctl"):
+    for pkg in ("analysis", "studyctl", "bench", "scripts"):
         for p in sorted((ROOT / pkg).rglob("*.py")):
             for node in ast.walk(ast.parse(p.read_text(), filename=str(p))):
                 if isinstance(node, ast.Compare):

@@ -187,7 +187,7 @@ def _check_json_tests(js: dict) -> None:
 
 
 def test_a_group_model_that_did_not_converge_prints_no_test():
-    from analysis.discrimination.jnd import _group_text
+    from analysis.reports.jnd_report import _group_text
 
     text = _group_text({"mixed_model": {"converged": False, "chi2": 2.72, "df": 2, "p": 0.257, "problem": "singular covariance"}})
     assert "not tested (the fit did not converge: singular covariance)" in text

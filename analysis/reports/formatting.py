@@ -13,8 +13,11 @@ import math
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 from pandas.api.types import is_object_dtype, is_string_dtype
+
+from analysis.statistics.withhold import n_text
 
 # every HTML report's look
 STYLE = """<style>
@@ -97,3 +100,12 @@ def spreadsheet_frame(df: pd.DataFrame) -> pd.DataFrame:
         if is_object_dtype(out[col]) or is_string_dtype(out[col]):
             out[col] = out[col].map(spreadsheet_safe)
     return out
+
+
+def mean_sd(mean: float, sd: float, n: int, fmt: str = "{:.2f}") -> str:
+    """'mean +- sd', or the mean alone with why there is no SD (fewer than 2 values)."""
+    if not n:
+        return "n/a (no values)"
+    if not np.isfinite(sd):
+        return f"{fmt.format(mean)} (no SD at {n_text(n)})"
+    return f"{fmt.format(mean)} +- {fmt.format(sd)}"

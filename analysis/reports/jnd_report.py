@@ -91,7 +91,7 @@ def tables(res: dict) -> list[Table]:
 
 
 def faults_table(res: dict) -> Table | None:
-    """The faults and safety events per condition (analysis.statistics.faults.events_table), None where no
+    """The faults and safety events per condition (analysis.reports.fault_tables.events_table), None where no
     trial had one (the report then is as it was)."""
     return events_table(res["faults"]) if res.get("faults") else None
 

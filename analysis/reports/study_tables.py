@@ -6,7 +6,7 @@ out, and the Markdown report that puts them together with the other kinds' table
 from __future__ import annotations
 
 from analysis.reports.fault_tables import events_table, events_text
-from analysis.reports.formatting import p_value, rate_interval
+from analysis.reports.formatting import mean_sd, p_value, rate_interval
 from analysis.reports.kind_tables import gee_line, kind_tables, primary_line
 from analysis.reports.table import Table, markdown, markdown_grid
 from analysis.statistics.facts import ConditionRun, ModelSource, StudyFacts
@@ -16,7 +16,6 @@ from analysis.statistics.stats import tests_run
 from analysis.statistics.study_results import DeformationRow, StudyStats, YesNoItem
 from analysis.statistics.study_stats import study_stats
 from analysis.statistics.table1 import DEFORMATION_WORK
-from analysis.statistics.withhold import mean_sd
 from analysis.study.study_snapshot import Study
 from sim.text import counted
 

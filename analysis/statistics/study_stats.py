@@ -1,5 +1,5 @@
-"""Everything `studyctl report stats --json` prints for a study, and Table 1 as Markdown: the
-yes/no questions' rates, Cochran's Q and McNemar pairs (analysis/statistics/table1.py), each answer kind's
+"""Everything `studyctl report stats --json` prints for a study (its tables and text are
+analysis/reports/study_tables.py's): the yes/no questions' rates, Cochran's Q and McNemar pairs (analysis/statistics/table1.py), each answer kind's
 statistics (analysis/statistics/kinds.py), the logistic GEE across questions, and Holm over the family of
 pairwise tests (analysis/statistics/stats.py)."""
 

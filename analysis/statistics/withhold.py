@@ -21,14 +21,6 @@ def n_text(n: int) -> str:
     return f"N = {n}"
 
 
-def mean_sd(mean: float, sd: float, n: int, fmt: str = "{:.2f}") -> str:
-    """'mean +- sd', or the mean alone with why there is no SD (fewer than 2 values)."""
-    if not n:
-        return "n/a (no values)"
-    if not np.isfinite(sd):
-        return f"{fmt.format(mean)} (no SD at {n_text(n)})"
-    return f"{fmt.format(mean)} +- {fmt.format(sd)}"
-
 
 def interval_reason(values: np.ndarray) -> str | None:
     """Why the values have no interval of their mean (too few, no variation), or None."""

@@ -65,8 +65,8 @@ def item_sign(q: Question) -> float:
     """Which way an instrument's item runs: +1 where agreeing is the favourable answer (SUS's
     odd, positively worded items), -1 where it is not (SUS's even items; every NASA-TLX
     subscale, where higher is more load); +1 for a question of no instrument."""
-    if q.instrument == "sus":
-        return 1.0 if SUS_ITEMS.index(q.text) % 2 == 0 else -1.0
+    if q.instrument == "sus":  # items sus_1..sus_10 (`questions`)
+        return 1.0 if int(q.id.removeprefix("sus_")) % 2 else -1.0
     return -1.0 if q.instrument == "nasa_tlx" else 1.0
 
 

@@ -5,7 +5,7 @@ offers an observer (studyctl/synthetic/observer.py); simulated studies of N part
 their own perception, then draw answers of every kind from the observer (as synthetic
 sessions do, studyctl/synthetic/participant.py) and test them: each question across the conditions with
 the test of its kind (Cochran's Q for yes/no, Friedman for ratings and scores (Wilcoxon for two conditions), the exact
-multinomial test for a choice), and the protocol's primary analysis (analysis/kinds.primary:
+multinomial test for a choice), and the protocol's primary analysis (analysis.statistics.kinds.primary:
 "primary" rows; it rejects when a pair of conditions differs at Holm-adjusted p < alpha, or
 for a choice when the multinomial test does). Power is the fraction of simulated studies
 that reject. The null test runs one model under every label: its rejection rate is the
