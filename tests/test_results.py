@@ -177,3 +177,19 @@ def _as_dict_callers() -> set[str]:
 
 def test_as_dict_is_called_only_where_json_is_written():
     assert _as_dict_callers() - AS_DICT_CALLERS == set()
+
+
+def test_a_file_valued_option_is_named_by_its_file():
+    """A condition's option that names a file ({file, sha256} in its stored configuration) is
+    written as the file's name in the conditions line and the methods (their JSON keeps the whole
+    configuration under facts.conditions)."""
+    from analysis.reports.study_tables import condition_text
+    from analysis.statistics.facts import ConditionRun
+    from analysis.statistics.methods import _model
+
+    cfg = {"model": "plate_spring", "variant": "located", "options": {"field": {"file": "field.npz", "sha256": "ab" * 32}, "params": None},
+           "material": {"young": 3000.0, "poisson": 0.45}}
+    run = ConditionRun(condition="loc", model="plate_spring", config_json=json.dumps(cfg), config_sha256="0" * 64, sessions=1, source=None)
+    assert "(field field.npz, variant located" in condition_text(run)
+    assert _model(run.config)["options"] == {"field": "field.npz", "variant": "located"}
+    assert run.as_dict()["config"] == cfg
