@@ -65,3 +65,8 @@ def counted(n: float, noun: str, plural: str | None = None) -> str:
     (a count written as a figure reads as singular only at one; `n` may be a float: 1.5 minutes)."""
     word = noun if n == 1 else plural or IRREGULAR_PLURALS.get(noun) or noun + "s"
     return f"{n:g} {word}" if isinstance(n, float) else f"{n} {word}"
+
+
+def n_text(n: int) -> str:
+    """A sample's size as the reports write it: "N = 12"."""
+    return f"N = {n}"

@@ -32,7 +32,7 @@ from tests.conftest import ROOT
 # records' own conversion (a record's as_dict gives its inner records' as theirs)
 # where JSON is written: the commands, report table1's JSON (analysis/reports/study_report.py), the records
 # themselves, and sim/jsonable.py (what every JSON writer calls)
-AS_DICT_CALLERS = {"studyctl/cli/reports.py", "studyctl/cli/plan.py", "analysis/reports/study_report.py", "analysis/statistics/result_records.py", "analysis/statistics/facts.py",
+AS_DICT_CALLERS = {"studyctl/cli/reports.py", "studyctl/cli/plan.py", "studyctl/cli/model.py", "analysis/reports/study_report.py", "analysis/statistics/result_records.py", "analysis/statistics/facts.py",
                    "analysis/statistics/study_results.py", "sim/jsonable.py"}
 
 

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 from pandas.api.types import is_object_dtype, is_string_dtype
 
-from analysis.statistics.withhold import n_text
+from sim.text import n_text
 
 # every HTML report's look
 STYLE = """<style>

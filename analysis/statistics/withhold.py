@@ -13,12 +13,10 @@ import math
 import numpy as np
 from scipy import stats
 
+from sim.text import n_text
+
 NAN = float("nan")
 WILCOXON_MIN_N = 6  # the exact two-sided signed-rank test reaches p < 0.05 from 6 untied pairs (2 / 2**6 = 0.031)
-
-
-def n_text(n: int) -> str:
-    return f"N = {n}"
 
 
 
