@@ -71,19 +71,19 @@ class StaticPull:
         return self.solve is None or self.solve.converged
 
     def as_dict(self) -> dict:
-        """The JSON object, the solve's fields in place of `solve` (as `model fem --json` has always printed them)."""
-        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "solve"}
-        head = {k: out[k] for k in ("formulation", "order", "resolution_mm", "volume", "part", "grasp_vertex", "grasp_point",
-                                    "displacement", "locking")}
-        if self.solve is None:
-            solve = {"converged": True}
-        else:
-            solve = {f.name: getattr(self.solve, f.name) for f in dataclasses.fields(self.solve) if f.name != "support"}
-            solve = {k: list(v) if isinstance(v, tuple) else v for k, v in solve.items()}
-            solve |= {"support": self.solve.support} if self.solve.support is not None else {}
-        tail = {k: (list(out[k]) if isinstance(out[k], tuple) else out[k])
-                for k in ("force_n", "force_magnitude_n", "max_displacement_m", "times_ms")}
-        return {**{k: (list(v) if isinstance(v, tuple) else v) for k, v in head.items()}, **solve, **tail}
+        """The JSON object, the solve's fields in place of `solve` (as `model fem --json` has always
+        printed them: lists for tuples, `support` only where computed)."""
+        out = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if f.name != "solve":
+                out[f.name] = list(v) if isinstance(v, tuple) else v
+            elif v is None:
+                out["converged"] = True
+            else:
+                out |= {g.name: list(x) if isinstance(x, tuple) else x for g in dataclasses.fields(v)
+                        if (x := getattr(v, g.name)) is not None or g.name != "support"}
+        return out
 
 
 def _options(scene, formulation: str, displacement, resolution: float | None, order: int | None) -> tuple:
