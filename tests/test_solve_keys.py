@@ -48,5 +48,5 @@ def test_every_shipped_key_is_rebuilt_from_its_inputs_on_this_machine():
     keys = tissue_pulls.entry_keys(info["entries"], scene, laws, pulls)
     missing = [(e["pull"], e["size_mm"], e["shape"]) for e, key in zip(info["entries"], keys)
                if key != e["key"] or (key not in shipped and e.get("reached_mm", 0.0) > 0)]
-    assert len(info["entries"]) == 246
+    assert len(info["entries"]) == 378
     assert missing == []
