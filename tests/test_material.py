@@ -79,7 +79,8 @@ def test_written_material_file_is_read_back_by_a_scene(tmp_path):
     assert 0 < prov["rms_rel"] < 0.1
     scene = tmp_path / "s.toml"
     text = (ROOT / "protocols/scenes/brain_pull.toml").read_text().replace('"../../data/', f'"{ROOT}/data/').replace(
-        '"../models/', f'"{ROOT}/protocols/models/').replace('"../materials/human_cortex.toml"', f'"{out}"')
+        '"../models/', f'"{ROOT}/protocols/models/').replace('"../materials/human_cortex.toml"', f'"{out}"').replace(
+        '"../materials/', f'"{ROOT}/protocols/materials/')  # the white matter's file
     scene.write_text(text)
     spec = load_scene(scene)
     assert spec.material.law == law

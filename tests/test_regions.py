@@ -152,9 +152,16 @@ def test_law_of_with_an_index_beyond_the_laws_is_refused():
 
 # -- the scene's white matter and the solve's key ------------------------------------------------
 
-def _scene_with(tmp_path, line: str):
-    text = localise(SCENE.read_text()).replace("poisson = 0.45", f"{line}\npoisson = 0.45", 1)
-    path = tmp_path / "scene.toml"
+def _one_material(text: str) -> str:
+    """The shipped scene's text with its white matter taken out: the brain of cortex alone."""
+    return "\n".join(line for line in text.splitlines() if not line.startswith("white_matter =")) + "\n"
+
+
+def _scene_with(tmp_path, line: str, name: str = "scene.toml"):
+    """A copy of the shipped scene whose material names `line` instead of its own white matter
+    (an empty `line`: the brain of cortex alone)."""
+    text = localise(_one_material(SCENE.read_text())).replace("poisson = 0.45", f"{line}\npoisson = 0.45", 1)
+    path = tmp_path / name
     path.write_text(text)
     return path
 
@@ -181,9 +188,9 @@ def test_a_white_matter_file_with_a_bad_law_is_refused_at_its_line(tmp_path):
 
 
 def test_the_regional_key_differs_and_the_homogeneous_key_is_unchanged(tmp_path):
-    """The shipped scene (no white matter) keys its solves as before regions; naming the white
-    matter changes the key, and so does a white law of another scale."""
-    shipped = build_scene(SCENE)
+    """A scene of cortex alone keys its solves as before regions; naming the white matter (as the
+    shipped scene does) changes the key, and so does a white law of another scale."""
+    shipped = build_scene(_scene_with(tmp_path, "", "one_material.toml"))
     regional_scene = build_scene(_scene_with(tmp_path, f'white_matter = "{WHITE_TOML}"'))
     pull = make_pulls(shipped)[0]
     rng = (0.9, 1.105)
@@ -238,9 +245,9 @@ def test_an_ensemble_shape_at_unit_mu_keeps_the_white_matters_ratio(tmp_path):
 
 def test_the_observer_truth_of_a_brain_with_white_matter_is_its_own(tmp_path):
     """The observer's truth table is keyed by the body: a scene with white matter does not read
-    the one-material table, and the shipped scene's key is as before (no `body`)."""
+    the one-material table, and a scene of cortex alone keys it as before (no `body`)."""
     regional_scene = build_scene(_scene_with(tmp_path, f'white_matter = "{WHITE_TOML}"'))
-    assert "body" not in truth_key(build_scene(SCENE))
+    assert "body" not in truth_key(build_scene(_scene_with(tmp_path, "", "one_material.toml")))
     assert "white" in truth_key(regional_scene)["body"]
 
 

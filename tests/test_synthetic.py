@@ -284,7 +284,8 @@ def test_the_shipped_truth_covers_the_scenes_grasps_and_is_the_references_soluti
     # a table made for another law is refused by name
     other = tmp_path / "scene.toml"
     other.write_text(SCENE.read_text().replace('file = "../materials/human_cortex.toml"', 'law = "neo-hookean"\nmu = 1500.0')
-                     .replace('"../../data/', f'"{SCENE.parents[2]}/data/').replace('"../models/', f'"{SCENE.parents[1]}/models/'))
+                     .replace('"../../data/', f'"{SCENE.parents[2]}/data/').replace('"../models/', f'"{SCENE.parents[1]}/models/')
+                     .replace('"../materials/', f'"{SCENE.parents[1]}/materials/'))
     with pytest.raises(InputError, match="law"):
         load_truth(scene_with(other))
     with pytest.raises(InputError, match="calibrate truth"):

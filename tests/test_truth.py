@@ -73,7 +73,8 @@ def test_a_table_for_another_law_is_refused(coarse_truth, tmp_path):
     _, out, _ = coarse_truth
     other = tmp_path / "s.toml"
     other.write_text(SCENE.read_text().replace('file = "../materials/human_cortex.toml"', 'law = "ogden"\nmu = [1500.0]\nalpha = [-10.0]')
-                     .replace('"../../data/', f'"{SCENE.parents[2]}/data/').replace('"../models/', f'"{SCENE.parents[1]}/models/'))
+                     .replace('"../../data/', f'"{SCENE.parents[2]}/data/').replace('"../models/', f'"{SCENE.parents[1]}/models/')
+                     .replace('"../materials/', f'"{SCENE.parents[1]}/materials/'))
     with pytest.raises(InputError, match="made for another scene \\(law"):
         load_truth(scene_with(other), out)
 
