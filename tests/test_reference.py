@@ -202,9 +202,9 @@ def test_the_shipped_solves_are_the_solvers_and_hash_checked(scene, tmp_path, mo
     entries = {(e["pull"], e["size_mm"]): e for e in info["entries"] if e["shape"] == 0}
     # 26 pulls x the full bench's 8, 6, 4 mm, and the quick benches' 18 (six test places) x 20, 16 mm
     assert len(entries) == 26 * 3 + 18 * 2
-    # and every other law of the ensemble on each group's coarsest mesh
+    # and every other law of the ensemble, and each of the literature's regional contrasts, on each group's coarsest mesh
     shapes = sorted({e["shape"] for e in info["ensemble"]})
-    assert len([e for e in info["entries"] if e["shape"] > 0]) == (26 + 18) * (len(shapes) - 1)
+    assert len([e for e in info["entries"] if e["shape"] > 0]) == (26 + 18) * (len(shapes) - 1 + len(info["contrast"]))
     for e in entries.values():  # a solve that stopped says why and how far it got
         assert e["converged"] or (e["reason"] and 0 <= e.get("reached_mm", 0.0) < 12.0)
     assert entries[("left-lateral", 4.0)]["converged"]  # the hands
