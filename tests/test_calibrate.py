@@ -45,6 +45,8 @@ def test_cli_calibrates_to_the_converged_reference_and_to_a_csv(tmp_path, monkey
     assert rep["within_jnd"] >= 0.2  # one force curve for six pulls of different stiffness: not all within
     fitted = load_params(tmp_path / "cal.toml")  # a valid parameter file
     assert fitted.alpha == rep["fitted"]["alpha"]
+    # which says where its points end: the stack's force past them is the fit's extrapolation
+    assert "# Past 4 mm no point is fitted" in (tmp_path / "cal.toml").read_text()
     (tmp_path / "curve.csv").write_text("displacement_m,force_n\n0.005,0.05\n0.01,0.11\n0.015,0.18\n0.02,0.26\n")
     rep = json.loads(CliRunner().invoke(cli, ["calibrate", "plate-spring", "--reference", str(tmp_path / "curve.csv"), "--json"]).stdout)
     assert rep["points"] == 4

@@ -58,19 +58,22 @@ def test_compiled_ticks_give_the_python_ticks_trace_to_the_bit(model, monkeypatc
     assert none == 0
     assert ran > 0.9 * len(compiled.times)  # most ticks are quiet: they ran compiled
     _same(python, compiled)
-    assert np.abs(compiled.forces).max() > 0.05  # the hands felt the tissue (about 0.1 N at the FEM's E 3.9 kPa)
+    # the hands felt the tissue: about 0.1 N for the FEM (E 3.9 kPa) and the mass-spring, 0.03 N for the
+    # scene-fit plate-spring (fitted where the truth is decided, to 5 mm; softer past it: docs/accuracy.md)
+    assert np.abs(compiled.forces).max() > 0.02
 
 
 def test_ticks_where_safety_rules_act_run_in_python_and_match(monkeypatch):
-    """A tissue 40 times stiffer: the force is clamped at the device's peak and the continuous
-    budget holds it (events), and a hand slips (a glitch): those ticks are the Python tick's."""
+    """A tissue 200 times stiffer (about 7 N asked of the device's 3.3 N peak): the force is clamped
+    at the peak and the continuous budget holds it (events), and a hand slips (a glitch): those
+    ticks are the Python tick's."""
     base = Scene(load_scene(SCENE), model="plate_spring")
-    scene = base.with_stiffness(40.0)
+    scene = base.with_stiffness(200.0)
     scene.operators = _operators(base)
     python, _ = _trace(scene, False, monkeypatch)
     compiled, ran = _trace(scene, True, monkeypatch)
     kinds = {e.kind for e in compiled.events}
-    assert "force_clamped" in kinds
+    assert {"force_clamped", "force_budget"} <= kinds
     assert 0 < ran < len(compiled.times)
     _same(python, compiled)
     scene.operators = _operators(base, jump_at=1.0, jump=(0.03, 0.0, 0.0), glitch=True)

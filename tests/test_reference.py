@@ -195,8 +195,8 @@ def test_combined_sample_by_hand():
 
 
 def test_the_shipped_solves_are_the_solvers_and_hash_checked(scene, tmp_path, monkeypatch):
-    """A shipped entry is what the solver gives for its pull (solved again here, on the 8 mm mesh,
-    at two of its records), and a damaged file is refused by name."""
+    """A shipped entry is what the solver gives for its pull (solved again here, regional, on the
+    16 mm mesh, at two of its records), and a damaged file is refused by name."""
     info = json.loads(tissue_pulls.SHIPPED_PULLS_INFO.read_text())
     assert info["law"] == scene.spec.material.law.params()
     entries = {(e["pull"], e["size_mm"]): e for e in info["entries"] if e["shape"] == 0}
@@ -209,22 +209,29 @@ def test_the_shipped_solves_are_the_solvers_and_hash_checked(scene, tmp_path, mo
         assert e["converged"] or (e["reason"] and 0 <= e.get("reached_mm", 0.0) < 12.0)
     assert entries[("left-lateral", 4.0)]["converged"]  # the hands
     assert entries[("right-lateral", 4.0)]["converged"]
-    pull = next(p for p in make_pulls(scene) if p.name == "left-anterior")
-    verts, tris, _ = hemisphere_surface(scene.mesh, 0)
-    body = mesh_hemisphere(verts, tris, 0.008)
-    rng = tissue_pulls.truth_range(scene)
-    key = tissue_pulls.pull_key(body, scene, scene.spec.material.law, 0.005, pull, rng)
-    assert entries[("left-anterior", 8.0)]["key"] == key
-    xs = np.array([0.002, 0.004])
+    # re-solved on the quick pair's 16 mm mesh (seconds; the regional 8 mm solves take minutes to
+    # half an hour), with the scene's white matter: the key names the regions, the solve has them
+    from analysis.verification.accuracy import quick_config as quick_accuracy
+    from analysis.verification.regions import scene_regions
+    from sim.pulls import test_pulls
+
+    pull = next(p for p in test_pulls(scene, quick_accuracy().test_places) if p.name == "test2-across")
+    verts, tris, _ = hemisphere_surface(scene.mesh, pull.hemisphere)
+    body = mesh_hemisphere(verts, tris, 0.016)
+    rng, regional = tissue_pulls.truth_range(scene), scene_regions(scene)
+    assert regional.white is not None  # the shipped brain has white matter
+    key = tissue_pulls.pull_key(body, scene, scene.spec.material.law, 0.005, pull, rng, regional)
+    assert key != tissue_pulls.pull_key(body, scene, scene.spec.material.law, 0.005, pull, rng)  # cortex alone is another solve
+    assert entries[("test2-across", 16.0)]["key"] == key
+    xs = np.array([0.0005, 0.001])  # its records: the finer meshes follow a pull only while the coarsest is decided
     shipped = tissue_pulls.stored_solve(key, xs)
-    again = tissue_pulls.solve_pull(build_problem(scene, 0, body), scene.spec.material.law, *patch_area_points(scene.mesh, pull.vertex, 0.005),
-                                 np.asarray(pull.direction), xs, stretch_range=rng)
+    again = tissue_pulls.solve_pull(build_problem(scene, pull.hemisphere, body), scene.spec.material.law,
+                                    *patch_area_points(scene.mesh, pull.vertex, 0.005), np.asarray(pull.direction), xs,
+                                    stretch_range=regional.ranges(), regional=regional)
     assert again["converged"]
     assert np.allclose(again["force_per_pa"], shipped["force_per_pa"], rtol=1e-6)
-    recorded = np.isfinite(shipped["support"]).all(axis=0)  # a solve made before the marginal share has NaN there
-    assert recorded[:4].all()
-    assert np.allclose(again["support"][:, recorded], shipped["support"][:, recorded], rtol=1e-6, atol=1e-9)
-    assert np.isfinite(again["support"]).all()  # a new solve records every field
+    assert np.isfinite(shipped["support"]).all()  # a regional solve records every field
+    assert np.allclose(again["support"], shipped["support"], rtol=1e-6, atol=1e-9)
     bad = tmp_path / "reference_pulls.npz"
     bad.write_bytes(tissue_pulls.SHIPPED_PULLS.read_bytes()[:-10] + b"0123456789")
     monkeypatch.setattr(tissue_pulls, "SHIPPED_PULLS", bad)
