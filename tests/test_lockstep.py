@@ -49,8 +49,8 @@ def _same(a, b):
     assert [(e.t, e.hand, e.kind, e.detail) for e in a.events] == [(e.t, e.hand, e.kind, e.detail) for e in b.events]
 
 
-@pytest.mark.parametrize("model", ["plate_spring", "mass_spring", "fem"])
-def test_compiled_ticks_give_the_python_ticks_trace_to_the_bit(model, monkeypatch):
+@pytest.mark.parametrize(("model", "felt"), [("plate_spring", 0.02), ("mass_spring", 0.05), ("fem", 0.05)])
+def test_compiled_ticks_give_the_python_ticks_trace_to_the_bit(model, felt, monkeypatch):
     scene = Scene(load_scene(SCENE), model=model)
     scene.operators = _operators(scene)
     python, none = _trace(scene, False, monkeypatch)
@@ -60,7 +60,7 @@ def test_compiled_ticks_give_the_python_ticks_trace_to_the_bit(model, monkeypatc
     _same(python, compiled)
     # the hands felt the tissue: about 0.1 N for the FEM (E 3.9 kPa) and the mass-spring, 0.03 N for the
     # scene-fit plate-spring (fitted where the truth is decided, to 5 mm; softer past it: docs/accuracy.md)
-    assert np.abs(compiled.forces).max() > 0.02
+    assert np.abs(compiled.forces).max() > felt
 
 
 def test_ticks_where_safety_rules_act_run_in_python_and_match(monkeypatch):

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from analysis.errors import InputError
 from analysis.verification.regions import RegionalLaw, contrast_members, region_key, scene_regions
 from analysis.verification.tissue_pulls import key_digits, law_shape_key, pull_key_inputs
 from analysis.verification.truth import truth_key
@@ -243,12 +244,20 @@ def test_an_ensemble_shape_at_unit_mu_keeps_the_white_matters_ratio(tmp_path):
     assert region_key(unit, law_shape_key, key_digits) == region_key(scene_law, law_shape_key, key_digits)
 
 
-def test_the_observer_truth_of_a_brain_with_white_matter_is_its_own(tmp_path):
-    """The observer's truth table is keyed by the body: a scene with white matter does not read
-    the one-material table, and a scene of cortex alone keys it as before (no `body`)."""
+def test_the_observer_truth_of_a_brain_with_white_matter_is_its_own(tmp_path, monkeypatch):
+    """The observer's truth table is keyed by the body: a scene of cortex alone keys it as before
+    (no `body`), and the two never read each other's table: the shipped one is the regional
+    brain's, which a scene of cortex alone is refused by name."""
+    from analysis.verification.truth import load_truth
+
+    monkeypatch.setenv("BRAINSIM_CACHE", str(tmp_path / "cache"))  # no table of this machine's own beside the shipped one
     regional_scene = build_scene(_scene_with(tmp_path, f'white_matter = "{WHITE_TOML}"'))
-    assert "body" not in truth_key(build_scene(_scene_with(tmp_path, "", "one_material.toml")))
+    cortex_alone = build_scene(_scene_with(tmp_path, "", "one_material.toml"))
+    assert "body" not in truth_key(cortex_alone)
     assert "white" in truth_key(regional_scene)["body"]
+    assert len(load_truth(regional_scene).vertices) > 0  # the shipped table is the regional brain's
+    with pytest.raises(InputError, match=r"observer_truth\.npz: made for another scene \(body: .*white.* there, one material here\)"):
+        load_truth(cortex_alone)
 
 
 def test_white_matter_on_another_surface_is_refused_naming_the_field(tmp_path):

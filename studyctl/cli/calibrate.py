@@ -60,8 +60,9 @@ def calibrate_plate_spring(scene_file, reference, max_displacement, samples, out
     params, rep = fit(ps.options["params"], xs, forces, ps.options["variant"])
     if target:
         write_output(target, to_toml(params, f"Plate-spring parameters fitted by `studyctl calibrate plate-spring` to {reference}\n"
-                                             f"({rep['points']} points up to {xs.max() * 1e3:.0f} mm; {rep['within_jnd']:.0%} within the force JND)\n"
-                                             f"Past {xs.max() * 1e3:.0f} mm no point is fitted: the stack's force there is the fit's extrapolation, not the reference's"))
+                                             f"({rep['points']} points up to {xs.max() * 1e3:g} mm; {rep['within_jnd']:.0%} within the force JND)\n"
+                                             f"Past {xs.max() * 1e3:g} mm no point is fitted: the stack's force there is the fit's extrapolation, not the reference's\n"
+                                             "h1, alpha, q and x_c1 are fitted within their bounds; the rest as in the scene's file (E is the stack's own parameter, not the tissue's)"))
     if as_json:
         _print_json(rep | {"reference": reference, "out": str(out_file) if out_file else None})
         return
