@@ -180,7 +180,12 @@ class VisualStep:
         start = time.perf_counter()
         flops = math.nan
         try:
-            u = surface_checked(self.model.deformation(contacts, displacements), self.model_mesh())
+            if getattr(self.model, "uses_time", False):
+                velocities = [h.velocity for h in self.hands if h.contact is not None]
+                u = self.model.deformation(contacts, displacements, velocities=velocities, t=t)
+            else:
+                u = self.model.deformation(contacts, displacements)
+            u = surface_checked(u, self.model_mesh())
             flops = float(self.model.frame_flops)
         except Exception as exc:  # the model failed: drop the grasps (zero force), keep running
             self._fault(t, f"deformation: {exc}")

@@ -177,7 +177,10 @@ def _build_model(scene, setting: Setting, handset: Path, e_ratio: float):
 def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], xs, handset: Path = HANDSET_PARAMS,
                 e_ratio: float = 1.0) -> dict:
     """Run every pull as a ramp of visual frames; sample the force at each displacement.
-    `e_ratio` is `young` over the scene's own modulus (it scales the plate-spring stack's E)."""
+    `e_ratio` is `young` over the scene's own modulus (it scales the plate-spring stack's E).
+    A model that uses time is pulled in time: from rest at t = 0, at the ramp's speed
+    (`pull_speed`), its force asked at every servo tick (1 kHz) and each frame told the time and
+    the hand's velocity; a sample is the force at the tick it is reached."""
     scene = scene_with(scene_path, young)
     xs = np.asarray(xs, dtype=np.float64)
     start = time.perf_counter()
@@ -186,6 +189,9 @@ def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], x
     frame_hz = scene.spec.visual_rate_hz
     per_sample = frames_per_sample(xs, frame_hz)
     n_frames = per_sample * len(xs)
+    timed = bool(getattr(model, "uses_time", False))
+    ticks_per_frame = max(1, round(scene.spec.servo_rate_hz / frame_hz)) if timed else 0
+    tick_dt = 1.0 / (frame_hz * ticks_per_frame) if timed else 0.0
     force = np.zeros((len(pulls), len(xs), 3))
     frame_s: list[float] = []
     tick_s: list[float] = []
@@ -194,14 +200,23 @@ def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], x
         model.reset()  # back to rest: the mass-spring's state, the corotational FEM's frame
         contact = model.grasp(pull.point, 0)
         direction = np.asarray(pull.direction)
+        velocity = tuple(float(c) for c in direction * xs[-1] * frame_hz / n_frames)  # the ramp's, m/s
         for f in range(1, n_frames + 1):
             d = direction * xs[-1] * f / n_frames
-            t0 = time.perf_counter()
-            model.deformation([contact], [d])
-            frame_s.append(time.perf_counter() - t0)
+            if timed:  # the servo's ticks up to this frame, each told its time and the velocity
+                for j in range(1, ticks_per_frame + 1):
+                    s = (f - 1 + j / ticks_per_frame) / n_frames
+                    fk = model.force(contact, tuple(float(c) for c in direction * xs[-1] * s), velocity=velocity, t=((f - 1) * ticks_per_frame + j) * tick_dt)
+                t0 = time.perf_counter()
+                model.deformation([contact], [d], velocities=[velocity], t=f / frame_hz)
+                frame_s.append(time.perf_counter() - t0)
+            else:
+                t0 = time.perf_counter()
+                model.deformation([contact], [d])
+                frame_s.append(time.perf_counter() - t0)
             if f % per_sample == 0:
-                force[p, f // per_sample - 1] = model.force(contact, tuple(float(c) for c in d))
-        tick_s.append(_tick_time(model.law(contact), tuple(float(c) for c in direction * xs[-1])))
+                force[p, f // per_sample - 1] = fk if timed else model.force(contact, tuple(float(c) for c in d))
+        tick_s.append(_tick_time(model.law(contact), tuple(float(c) for c in direction * xs[-1]), velocity if timed else None))
         unstable += int(bool(model.unstable))  # pulls the model gave up on (it renders zero force)
     return {"model": setting.model, "setting": setting.setting, "force": force,
             "frame_ms": float(np.median(frame_s) * 1e3), "frame_ms_p99": float(np.percentile(frame_s, 99) * 1e3),
@@ -211,15 +226,20 @@ def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], x
 TICK_TIMING_CALLS = 20000  # per pull: the tick's median time
 
 
-def _tick_time(law, d, reps: int = TICK_TIMING_CALLS) -> float:
+def _tick_time(law, d, velocity=None, reps: int = TICK_TIMING_CALLS) -> float:
     """Median of 5 batches: the per-tick force call the servo makes (the model's law for the
     contact, `sim.models.api.TissueModel.law`: a model that writes only ``force`` has no
-    contact law of its own), plain floats."""
+    contact law of its own), plain floats; with `velocity`, a law of a model that uses time,
+    told the velocity and a time."""
     batches = []
     for _ in range(5):
         t0 = time.perf_counter()
-        for _ in range(reps // 5):
-            law.force(d)
+        if velocity is None:
+            for _ in range(reps // 5):
+                law.force(d)
+        else:
+            for _ in range(reps // 5):
+                law.force(d, velocity, 1.0)
         batches.append((time.perf_counter() - t0) / (reps // 5))
     return float(np.median(batches))
 

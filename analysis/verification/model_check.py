@@ -39,7 +39,7 @@ from analysis.verification.stability import DURATION as STABILITY_DURATION
 from analysis.verification.stability import make_cases, run_case
 from analysis.verification.tissue_pulls import shipped_solve_seconds, unsolved
 from sim.errors import SimError
-from sim.models.api import API_VERSION, BUDGETS
+from sim.models.api import API_VERSION, BUDGETS, REST, deformation_at, force_at, law_force_at
 from sim.models.registry import info, model_class
 from sim.pulls import make_pulls, scene_with, test_pulls
 from sim.scene import ModelSpec, Scene, clamp_limit, load_scene
@@ -47,6 +47,10 @@ from sim.scene import ModelSpec, Scene, clamp_limit, load_scene
 STEP_M = 1e-4  # the continuity check's step along a pull
 MAX_STEP_N = 0.1  # N per STEP_M: 1000 N/m, above the Omni's 700 N/m stable stiffness
 ZERO_N = 1e-6  # force at zero displacement
+# a model that uses time is driven along the pull as a ramp at this speed (the order of the
+# synthetic scripts' and a person's pulls), told the time and the velocity at every 1 ms tick
+CONTRACT_SPEED_M_S = 0.01
+TICK_S = 1e-3
 
 
 class CheckError(SimError):
@@ -136,9 +140,12 @@ def contract(scene) -> tuple[list[dict], dict]:
     if contact is None:
         return c.rows, {"model": model}
     d_max = pulls[0]
+    # a model that uses time: the pull is a ramp at CONTRACT_SPEED_M_S, its end reached at t_end
+    v_pull = tuple(float(x) for x in d_max / np.linalg.norm(d_max) * CONTRACT_SPEED_M_S)
+    t_end = float(np.linalg.norm(d_max)) / CONTRACT_SPEED_M_S
 
     def shape():
-        f = np.asarray(tuple(model.force(contact, tuple(float(x) for x in d_max))), dtype=np.float64)
+        f = np.asarray(tuple(force_at(model, contact, tuple(float(x) for x in d_max), v_pull, t_end)), dtype=np.float64)
         return f.shape == (3,), "three floats" if f.shape == (3,) else f"force has shape {f.shape}, must be (3,)", f
 
     # one fault, reported once: a check that needs a sound force (or deformation) is not run
@@ -146,14 +153,19 @@ def contract(scene) -> tuple[list[dict], dict]:
     force_wrong = None if c.attempt("force: three floats", shape) is not None else _fault(c.rows[-1], "the force", "the force's shape is wrong")
 
     def zero():
-        f = _vec(model.force(contact, (0.0, 0.0, 0.0)))
+        f = _vec(force_at(model, contact, (0.0, 0.0, 0.0), REST, 0.0))
         return bool(np.all(np.isfinite(f)) and np.linalg.norm(f) <= ZERO_N), f"|f| = {np.linalg.norm(f):.3g} N at d = 0", f
 
     c.attempt_if(force_wrong, "zero force at zero displacement", zero)
     steps = max(2, int(round(np.linalg.norm(d_max) / STEP_M)))
 
     def along():
-        f = np.array([_vec(model.force(contact, tuple(float(x) for x in d_max * k / steps))) for k in range(steps + 1)])
+        if model.uses_time:  # every tick of the ramp, told its time and the velocity; judged every STEP_M
+            per = max(1, round(STEP_M / (CONTRACT_SPEED_M_S * TICK_S)))
+            f = np.array([_vec(force_at(model, contact, tuple(float(x) for x in d_max * j / (steps * per)), v_pull, t_end * j / (steps * per)))
+                          for j in range(steps * per + 1)])[::per]
+        else:
+            f = np.array([_vec(model.force(contact, tuple(float(x) for x in d_max * k / steps))) for k in range(steps + 1)])
         if not np.all(np.isfinite(f)):
             k = int(np.argmax(~np.all(np.isfinite(f), axis=1)))
             return False, f"non-finite force at {np.linalg.norm(d_max) * k / steps * 1e3:.2f} mm", None
@@ -174,15 +186,15 @@ def contract(scene) -> tuple[list[dict], dict]:
         if force_wrong is not None:
             return None, f"pickles; agreement with force not run: {force_wrong}", sent
         d = tuple(float(x) for x in d_max)
-        a, b = _vec(model.force(contact, d)), _vec(sent.force(d))
+        a, b = _vec(force_at(model, contact, d, v_pull, t_end)), _vec(law_force_at(sent, d, v_pull, t_end))
         gap = float(np.linalg.norm(a - b))
         return gap <= 1e-9 * max(1.0, float(np.linalg.norm(a))), f"law of {type(sent).__name__}: {gap:.2g} N from force", sent
 
     c.attempt("per-tick law pickles and agrees with force" if has_law else "no per-tick law: the model's copy pickles", law)
 
     def deform():
-        u = np.array(model.deformation([contact], [tuple(float(x) for x in d_max)]))  # a copy: models reuse their buffer
-        rest = np.array(model.deformation([], []))
+        u = np.array(deformation_at(model, [contact], [tuple(float(x) for x in d_max)], [v_pull], t_end))  # a copy: models reuse their buffer
+        rest = np.array(deformation_at(model, [], [], [], t_end))
         ok = u.shape == (n, 3) and rest.shape == (n, 3) and bool(np.all(np.isfinite(u)))
         if u.shape != (n, 3):
             return False, f"deformation has shape {u.shape}, must be ({n}, 3)", u
@@ -195,9 +207,14 @@ def contract(scene) -> tuple[list[dict], dict]:
     def two():
         other = model.grasp(tuple(float(x) for x in starts[1]), 1)
         ds = [tuple(float(x) for x in pulls[0] / 2), tuple(float(x) for x in pulls[1] / 2)]
-        fs = [_vec(f) for f in model.forces([contact, other], ds)]
-        u = np.asarray(model.deformation([contact, other], ds))
-        model.deformation([], [])
+        if model.uses_time:  # both hands half way along their ramps, at the contract's speed
+            vs = [v_pull, tuple(float(x) for x in pulls[1] / np.linalg.norm(pulls[1]) * CONTRACT_SPEED_M_S)]
+            fs = [_vec(f) for f in model.forces([contact, other], ds, velocities=vs, t=t_end / 2)]
+        else:
+            vs = None
+            fs = [_vec(f) for f in model.forces([contact, other], ds)]
+        u = np.asarray(deformation_at(model, [contact, other], ds, vs, t_end / 2))
+        deformation_at(model, [], [], [], t_end / 2)
         if len(fs) != 2 or not all(np.all(np.isfinite(f)) for f in fs):
             return False, f"forces returned {len(fs)} forces, {sum(bool(np.all(np.isfinite(f))) for f in fs)} finite; must be 2 finite", None
         if u.shape != (n, 3) or not np.all(np.isfinite(u)):
@@ -242,16 +259,23 @@ def _timed(parts: dict, cfg: CheckConfig) -> list[dict]:
     clock = time.perf_counter_ns
     law = model.law(contact)
     d = tuple(float(x) for x in pull)
+    v = tuple(float(x) for x in pull / np.linalg.norm(pull) * CONTRACT_SPEED_M_S)
+    t_end = float(np.linalg.norm(pull)) / CONTRACT_SPEED_M_S
     ticks = np.empty(cfg.force_calls)
+    timed = bool(getattr(law, "uses_time", False))  # decided once: the timed call is the servo's own
     for k in range(cfg.force_calls):
-        t0 = clock()
-        law.force(d)
+        if timed:
+            t0 = clock()
+            law.force(d, v, t_end)
+        else:
+            t0 = clock()
+            law.force(d)
         ticks[k] = clock() - t0
     frames, grasps = [], []
     model.reset()
     for k in range(1, cfg.frames + 1):
         t0 = clock()
-        model.deformation([contact], [tuple(float(x) for x in pull * k / cfg.frames)])
+        deformation_at(model, [contact], [tuple(float(x) for x in pull * k / cfg.frames)], [v], t_end * k / cfg.frames)
         frames.append(clock() - t0)
     model.reset()
     for point in _grasp_places(model.surface_mesh(), start, parts["clamp"]):  # places not grasped before: no model's cache helps

@@ -16,6 +16,7 @@ Declared by the class (read when a scene or protocol names the model, before any
 | ``Options``        | a frozen dataclass: one field per scene option, declared with `option()`   |
 | ``material_keys``  | the scene's material keys a study condition may change (``young``, ...)    |
 | ``scales_stiffness`` | True when ``with_stiffness`` is given (the discrimination task needs it) |
+| ``uses_time``      | True when the force depends on time or the hand's velocity (below)         |
 | ``build(mesh, options, scene)`` | the running model (default: ``cls(mesh, options, scene)``)    |
 
 Asked of a running model (three calls at three rates, budgets in `BUDGETS`). A model writes
@@ -42,6 +43,17 @@ here, else None); ``with_stiffness(scale)``
 the same model with every force times `scale`, for the discrimination task (declare
 ``scales_stiffness = True``); ``surface`` a surface of its own that `deformation` moves
 (None: the scene's mesh).
+
+**Time.** A model that declares ``uses_time = True`` is also told the time and each hand's
+velocity: ``force(contact, displacement, velocity=v, t=t)``, ``forces(contacts, displacements,
+velocities=vs, t=t)`` and ``deformation(contacts, displacements, velocities=vs, t=t)``, with `t`
+the run's time in seconds (the servo tick's, or the visual frame's) and `v` the hand's velocity
+in m/s as the servo estimates it from the positions it reads (`sim.servo.velocity`: CHAI3D's
+15 ms window; an Omni's 55 um position steps make it move in steps of 3.7 mm/s, and it lags a
+change of speed by 7.5 ms). Its contact laws, if it gives them, declare ``uses_time = True``
+and take ``force(d, v, t)`` (a servo in another process calls them so). Every
+tick of such a model runs in Python (the compiled lockstep ticks know only laws of `d`). A model
+that does not declare it is called as above, without them.
 
 **The per-tick law.** A servo in another process (a person's session) cannot call the model:
 it evaluates ``contact.law.force(d)``, a small picklable object from `sim.laws` (or the model's
@@ -263,6 +275,7 @@ class TissueModel:
     Options: ClassVar[type] = NoOptions
     material_keys: ClassVar[tuple[str, ...]] = ()
     scales_stiffness: ClassVar[bool] = False
+    uses_time: ClassVar[bool] = False
 
     name: str = ""
     mesh: Any = None  # the scene's surface mesh (sim.geometry.mesh.Mesh)
@@ -292,8 +305,11 @@ class TissueModel:
     def grasp(self, point: Sequence[float], hand: int = 0) -> Contact:
         raise NotImplementedError(f"{type(self).__name__}.grasp")
 
-    def force(self, contact: Contact, displacement: Sequence[float]) -> Vec3:
-        return contact.law.force(displacement)
+    def force(self, contact: Contact, displacement: Sequence[float], velocity: Sequence[float] | None = None,
+              t: float | None = None) -> Vec3:
+        if velocity is None:
+            return contact.law.force(displacement)
+        return contact.law.force(displacement, velocity, t)
 
     def deformation(self, contacts: Sequence[Contact], displacements) -> np.ndarray:
         raise NotImplementedError(f"{type(self).__name__}.deformation")
@@ -305,9 +321,11 @@ class TissueModel:
     def diagnostics(self) -> dict:
         return {}
 
-    def forces(self, contacts: Sequence[Contact], displacements) -> list[Vec3]:
+    def forces(self, contacts: Sequence[Contact], displacements, velocities=None, t: float | None = None) -> list[Vec3]:
         force = self.force
-        return [force(c, d) for c, d in zip(contacts, displacements)]
+        if velocities is None:
+            return [force(c, d) for c, d in zip(contacts, displacements)]
+        return [force(c, d, velocity=v, t=t) for c, d, v in zip(contacts, displacements, velocities)]
 
     def pair_law(self, contacts: Sequence[Contact]):
         return None
@@ -316,6 +334,8 @@ class TissueModel:
         """The laws whose ``force(d)`` are ``forces(contacts, d)`` now (a servo may evaluate
         them itself: the compiled lockstep ticks, sim/servo/lockstep.py), or None where the model
         computes its forces otherwise. A model overriding ``force`` or ``forces`` says so here."""
+        if self.uses_time:  # a law of d alone cannot be one of time
+            return None
         if type(self).force is TissueModel.force and type(self).forces is TissueModel.forces and all(c.law is not None for c in contacts):
             return [c.law for c in contacts]
         return None
@@ -340,11 +360,42 @@ class ModelForce:
     model: Any
     contact: Contact
 
-    def force(self, d) -> Vec3:
-        return self.model.force(self.contact, d)
+    @property
+    def uses_time(self) -> bool:
+        """The model's own declaration: a servo tells this law the velocity and the time."""
+        return bool(getattr(self.model, "uses_time", False))
+
+    def force(self, d, v=None, t=None) -> Vec3:
+        if v is None:
+            return self.model.force(self.contact, d)
+        return self.model.force(self.contact, d, velocity=v, t=t)
 
     def update(self, **_) -> None:  # the copy is the model at the grasp
         pass
+
+
+REST = (0.0, 0.0, 0.0)
+
+
+def force_at(model: TissueModel, contact: Contact, displacement, velocity=REST, t: float = 0.0) -> Vec3:
+    """`model`'s force as a servo asks for it: told the hand's velocity (m/s) and the time (s)
+    when the model uses time, without them when not (the checks and benches call this)."""
+    if model.uses_time:
+        return model.force(contact, displacement, velocity=velocity, t=t)
+    return model.force(contact, displacement)
+
+
+def law_force_at(law, displacement, velocity=REST, t: float = 0.0) -> Vec3:
+    """A per-tick law's force as a servo in another process asks for it (`force_at`'s rule)."""
+    return law.force(displacement, velocity, t) if getattr(law, "uses_time", False) else law.force(displacement)
+
+
+def deformation_at(model: TissueModel, contacts, displacements, velocities=None, t: float = 0.0):
+    """`model`'s deformation as a visual frame asks for it (`force_at`'s rule; hands at rest
+    where `velocities` is None)."""
+    if model.uses_time:
+        return model.deformation(contacts, displacements, velocities=velocities or [REST] * len(contacts), t=t)
+    return model.deformation(contacts, displacements)
 
 
 def servo_law(model: TissueModel, contact: Contact) -> tuple[Any, str | None]:

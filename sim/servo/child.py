@@ -45,9 +45,9 @@ from sim.servo.messages import (
 )
 
 # per-hand slots in shared memory (float64); IN_P/IN_BUTTON are written by the parent (the
-# view's pointer, for mouse devices), the rest by the servo
-P, BUTTON, F, GRASP_SEQ, GRASP_AT, FAULT, HELD, IN_P, IN_BUTTON = 0, 3, 4, 7, 8, 11, 12, 13, 16
-SLOT = 17
+# view's pointer, for mouse devices), the rest by the servo (V: the hand's velocity estimate)
+P, BUTTON, F, GRASP_SEQ, GRASP_AT, FAULT, HELD, IN_P, IN_BUTTON, V = 0, 3, 4, 7, 8, 11, 12, 13, 16, 17
+SLOT = 20
 # global slots: ticks since the run's clock started, when the latest tick read its devices
 # (perf_counter, one clock for both processes on Linux), whether the clock has started, and the
 # run whose state the board shows
@@ -74,11 +74,16 @@ class LawModel:
     def force(self, contact, d):
         return contact.law.force(d)
 
-    def forces(self, contacts, disps):
+    def forces(self, contacts, disps, velocities=None, t=None):
         pair = self.pair
         if pair is not None and len(contacts) == 2 and (contacts[0].hand, contacts[1].hand) == (pair.a, pair.b):
             return pair.table.forces(disps[0], disps[1])
-        return [c.law.force(d) for c, d in zip(contacts, disps)]
+        if velocities is None:
+            return [c.law.force(d) for c, d in zip(contacts, disps)]
+        # a run of a model that uses time: its laws take the velocity and the time (a device
+        # check's constant pulse does not)
+        return [c.law.force(d, v, t) if getattr(c.law, "uses_time", False) else c.law.force(d)
+                for c, d, v in zip(contacts, disps, velocities)]
 
 
 @dataclass(slots=True)
@@ -189,7 +194,7 @@ class _Runner:
                     self.pulse_end[i] = self.k + int(msg.seconds * self.rate)
                 case BeginRun():
                     self.run_seq = msg.seq
-                    self._begin(msg.n_ticks, msg.wait, msg.recipes)
+                    self._begin(msg.n_ticks, msg.wait, msg.recipes, msg.timed)
                 case StartClock() if run is not None and not run.started:  # the experimenter's key
                     self._start("key", keep_last=False)
                 case StopRun() if run is not None:
@@ -199,9 +204,14 @@ class _Runner:
                         self._finish()
                     self.closing = True
 
-    def _begin(self, n_ticks: int, wait: bool, recipes) -> None:
+    def _begin(self, n_ticks: int, wait: bool, recipes, timed: bool = False) -> None:
         """A new run. Scripted and replayed devices are re-made from the run's recipes; mouse and
-        real devices are kept (a rig is opened once per servo process)."""
+        real devices are kept (a rig is opened once per servo process). `timed`: the run's model
+        uses time (its laws are told the hands' velocities and the tick's time)."""
+        self.servo.timed = timed
+        for h in self.hands:
+            h.estimate.reset()
+            h.velocity = (0.0, 0.0, 0.0)
         for i, r in enumerate(recipes):
             if isinstance(r, (SimulatedRecipe, ReplayRecipe)):  # a script or recording plays from its start each run
                 self.devices[i] = self.hands[i].device = _open_device(r, self.board, self.rig)
@@ -279,6 +289,7 @@ class _Runner:
             for i, h in enumerate(hands):
                 base = GLOBAL + SLOT * i
                 board[base + P : base + P + 3] = h.position
+                board[base + V : base + V + 3] = h.velocity
                 board[base + BUTTON] = 1.0 if h.button else 0.0
                 board[base + F : base + F + 3] = h.force
                 board[base + FAULT] = 1.0 if h.fault else 0.0

@@ -277,6 +277,8 @@ class CompiledTicks:
         """The compiled ticks for `servo`, or None where the run is not one they mirror."""
         if not ENABLED or type(servo) is not ServoLoop or not servo.hands or vars(servo).keys() & {"tick", "_forces"}:
             return None
+        if servo.timed:  # the ticks know laws of d alone, and would leave the velocity estimates cold
+            return None
         if sim.servo.loop.limit_force is not _LIMIT_FORCE or any(getattr(c, name) is not f for (c, name), f in MIRRORED.items()):
             return None
         for h in servo.hands:

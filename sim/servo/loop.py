@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sim.models.base import BUDGETS, Contact
+from sim.servo.velocity import VelocityEstimate
 
 NO_FORCE = (0.0, 0.0, 0.0)
 FORCE_BUDGET_S = BUDGETS["force_us_p99"] * 1e-6
@@ -74,6 +75,10 @@ class Hand:
     reversals: list = field(default_factory=list)  # times the rendered force flipped direction (chatter monitor)
     mean_square: float = 0.0  # moving mean of |force|^2 over `budget_tau_s` (the continuous-force budget)
     over_budget: bool = False
+    # the hand's velocity (m/s), estimated from the positions read, for a model that uses time
+    # (`sim.servo.velocity`); the servo writes both, and only for such a model
+    velocity: tuple = NO_FORCE
+    estimate: VelocityEstimate = field(default_factory=VelocityEstimate)
 
 
 def _not_a_force(f):
@@ -154,6 +159,10 @@ class ServoLoop:
     force_calls: int = 0
     force_over: int = 0
     force_worst_s: float = 0.0
+    timed: bool = False  # the model uses time: it is told the tick's time and the hands' velocities
+
+    def __post_init__(self) -> None:
+        self.timed = bool(getattr(self.model, "uses_time", False))
 
     @classmethod
     def for_devices(cls, model, hands: list[Hand], rate: float) -> ServoLoop:
@@ -234,12 +243,17 @@ class ServoLoop:
                 h.fault = kind
                 # drop the grasp: after a fault the participant must grasp again
                 h.contact, h.grasp_request = None, None
+                if self.timed:  # a position after a fault is a new hand's: no velocity across it
+                    h.estimate.reset()
+                    h.velocity = NO_FORCE
                 if state is not None and all(math.isfinite(c) for c in state.position):
                     h.position = state.position
                     h.button = state.button
                 continue
             h.fault = None
             h.position = state.position
+            if self.timed:
+                h.velocity = h.estimate.update(t, state.position)
             if state.button and not h.button:
                 h.grasp_request = state.position
                 self.events.append(Event(t, h.index, "grasp_request"))
@@ -259,7 +273,8 @@ class ServoLoop:
                 disps.append((p[0] - a[0], p[1] - a[1], p[2] - a[2]))
             try:
                 f0 = clock()
-                raw = self._forces(contacts, disps)
+                raw = self.model.forces(contacts, disps, velocities=[h.velocity for h in held], t=t) if self.timed \
+                    else self._forces(contacts, disps)
                 took = clock() - f0
                 self.force_calls += 1
                 if took > FORCE_BUDGET_S:

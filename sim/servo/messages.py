@@ -100,6 +100,7 @@ class BeginRun:
     n_ticks: int
     wait: bool
     recipes: tuple[DeviceRecipe, ...]
+    timed: bool = False  # the run's model uses time (sim.models.api, `uses_time`)
 
 
 @dataclass(frozen=True, slots=True)

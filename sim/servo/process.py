@@ -49,6 +49,7 @@ from sim.servo.child import (
     TICKS,
     F,
     P,
+    V,
     child_main,
 )
 from sim.servo.loop import Event, Hand
@@ -152,6 +153,7 @@ class ServoProcess:
             h.position = tuple(float(x) for x in b[base + P : base + P + 3])
             h.button = bool(b[base + BUTTON])
             h.force = tuple(float(x) for x in b[base + F : base + F + 3])
+            h.velocity = tuple(float(x) for x in b[base + V : base + V + 3])
             seq = int(b[base + GRASP_SEQ])
             if seq != self._grasp_seen[i]:
                 self._grasp_seen[i] = seq
@@ -212,7 +214,8 @@ class ServoProcess:
         for h in self.hands:
             h.contact, h.grasp_request = None, None
         self.run_seq += 1
-        self.send(BeginRun(seq=self.run_seq, n_ticks=n_ticks, wait=wait, recipes=device_recipes(scene)))
+        self.send(BeginRun(seq=self.run_seq, n_ticks=n_ticks, wait=wait, recipes=device_recipes(scene),
+                           timed=bool(getattr(scene.model, "uses_time", False))))
         deadline = time.perf_counter() + 10.0
         while self.board[RUN_SEQ] != self.run_seq and self.proc.is_alive() and time.perf_counter() < deadline:
             time.sleep(0.0005)  # the first frame shows this run's devices, not the last run's
