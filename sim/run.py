@@ -180,7 +180,7 @@ class VisualStep:
         start = time.perf_counter()
         flops = math.nan
         try:
-            if getattr(self.model, "uses_time", False):
+            if self.model.uses_time:
                 velocities = [h.velocity for h in self.hands if h.contact is not None]
                 u = self.model.deformation(contacts, displacements, velocities=velocities, t=t)
             else:

@@ -208,3 +208,40 @@ def test_the_contract_check_drives_a_time_model_along_a_ramp():
     timed = budgets(parts, CheckConfig(scene=SCENE, force_calls=200, frames=6))
     assert [r["budget"] for r in timed] == ["force_us_p99", "deformation_ms_p99", "grasp_ms_p99"]
     assert not any("raised" in r for r in timed)
+
+
+def test_a_paced_start_gives_the_velocity_of_the_new_clock():
+    """A paced run waits (the tick time counts from the run's begin), then its clock starts again
+    at the first grasp (`ServoLoop.restart`): the velocity is the hand's from there, never the
+    difference of positions read on the two clocks."""
+    speed = 0.01
+    dev = Ramp(speed)
+    hand = Hand(index=0, name="h", device=dev)
+    model = KelvinVoigt()
+    servo = ServoLoop(model=model, hands=[hand], peak_force=3.3, ramp_s=0.05)
+    for k in range(1300):  # 1.3 s waiting
+        servo.tick(k * 1e-3)
+    servo.restart(keep_last=True)
+    hand.contact_t, hand.contact = 0.0, model.grasp(hand.position)
+    seen = []
+    for k in range(1, 200):  # the devices keep their own clock
+        servo.tick(k * 1e-3, device_t=1.299 + k * 1e-3)
+        seen.append(hand.velocity[0])
+    assert max(seen) <= speed * (1 + 1e-9)  # never the 50 m/s of two clocks' positions
+    assert seen[-1] == pytest.approx(speed, rel=1e-9)
+    sent = np.array(dev.sent)[-1]
+    assert np.linalg.norm(sent) < 0.5  # the dashpot renders 0.02 N, not the device's peak
+
+
+def test_a_time_model_with_laws_of_d_alone_is_asked_as_one_and_has_no_pair_table():
+    """A model that uses time may still give plain `sim.laws` laws (no velocity): they are asked
+    `force(d)`; and a pair table (a law of the two displacements) is not sent for it."""
+    from sim.laws import Linearised
+    from sim.models.api import servo_state
+
+    model = KelvinVoigt()
+    law = Linearised(tuple(float(x) for x in np.eye(3).ravel() * 10.0))
+    c = Contact(hand=0, vertex=0, point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0), law=law)
+    assert TissueModel.force(model, c, (0.001, 0.0, 0.0), velocity=(0.5, 0.0, 0.0), t=1.0) == law.force((0.001, 0.0, 0.0))
+    model.pair_law = lambda contacts: "a table"
+    assert servo_state(model, [c, c])[0] is None

@@ -54,3 +54,17 @@ def test_a_start_from_rest_is_followed_within_the_window_and_a_reset_forgets():
 def test_a_window_that_is_not_positive_is_refused():
     with pytest.raises(ValueError, match="window: 0 is out of range; allowed: > 0 s"):
         VelocityEstimate(0)
+
+
+def test_a_clock_that_starts_again_starts_the_window_again():
+    """A paced run's clock goes back to 0 at its first grasp, and between runs it stands still:
+    the window starts again from the new clock's first position, never mixing the two."""
+    est = VelocityEstimate()
+    for k in range(500):  # waiting: the hand moves at 10 mm/s on the old clock
+        est.update(k * DT, (0.01 * k * DT, 0.0, 0.0))
+    assert est.update(0.0, (0.005, 0.0, 0.0)) == (0.0, 0.0, 0.0)  # the new clock's t = 0
+    v = est.update(DT, (0.005 + 0.01 * DT, 0.0, 0.0))
+    assert v[0] == pytest.approx(0.01, rel=1e-9)
+    for _ in range(1000):  # a clock standing still keeps one position, not a growing list
+        est.update(5.0, (0.0, 0.0, 0.0))
+    assert len(est._times) == 1

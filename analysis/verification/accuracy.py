@@ -54,7 +54,7 @@ from analysis.verification.truth_band import (
 )
 from brainsim_assets import path as _asset
 from sim.errors import SceneError, SimError
-from sim.models.api import BUDGETS
+from sim.models.api import BUDGETS, deformation_at
 from sim.models.mass_spring import OMNI_MAX_STIFFNESS
 from sim.models.plate_spring import load_params
 from sim.models.registry import installed, model_class, plugins
@@ -179,7 +179,8 @@ def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], x
     """Run every pull as a ramp of visual frames; sample the force at each displacement.
     `e_ratio` is `young` over the scene's own modulus (it scales the plate-spring stack's E).
     A model that uses time is pulled in time: from rest at t = 0, at the ramp's speed
-    (`pull_speed`), its force asked at every servo tick (1 kHz) and each frame told the time and
+    (`pull_speed`), its force asked at every servo tick (the scene's servo rate in whole ticks per
+    frame: 33 per 30 Hz frame, 990 Hz) and each frame told the time and
     the hand's velocity; a sample is the force at the tick it is reached."""
     scene = scene_with(scene_path, young)
     xs = np.asarray(xs, dtype=np.float64)
@@ -189,7 +190,7 @@ def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], x
     frame_hz = scene.spec.visual_rate_hz
     per_sample = frames_per_sample(xs, frame_hz)
     n_frames = per_sample * len(xs)
-    timed = bool(getattr(model, "uses_time", False))
+    timed = bool(model.uses_time)
     ticks_per_frame = max(1, round(scene.spec.servo_rate_hz / frame_hz)) if timed else 0
     tick_dt = 1.0 / (frame_hz * ticks_per_frame) if timed else 0.0
     force = np.zeros((len(pulls), len(xs), 3))
@@ -203,20 +204,16 @@ def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], x
         velocity = tuple(float(c) for c in direction * xs[-1] * frame_hz / n_frames)  # the ramp's, m/s
         for f in range(1, n_frames + 1):
             d = direction * xs[-1] * f / n_frames
-            if timed:  # the servo's ticks up to this frame, each told its time and the velocity
-                for j in range(1, ticks_per_frame + 1):
-                    s = (f - 1 + j / ticks_per_frame) / n_frames
-                    fk = model.force(contact, tuple(float(c) for c in direction * xs[-1] * s), velocity=velocity, t=((f - 1) * ticks_per_frame + j) * tick_dt)
-                t0 = time.perf_counter()
-                model.deformation([contact], [d], velocities=[velocity], t=f / frame_hz)
-                frame_s.append(time.perf_counter() - t0)
-            else:
-                t0 = time.perf_counter()
-                model.deformation([contact], [d])
-                frame_s.append(time.perf_counter() - t0)
+            for j in range(1, ticks_per_frame + 1):  # a model that uses time: the servo's ticks up to this frame
+                fk = model.force(contact, tuple(float(c) for c in direction * xs[-1] * (f - 1 + j / ticks_per_frame) / n_frames),
+                                 velocity=velocity, t=((f - 1) * ticks_per_frame + j) * tick_dt)
+            t0 = time.perf_counter()
+            deformation_at(model, [contact], [d], [velocity], f / frame_hz)
+            frame_s.append(time.perf_counter() - t0)
             if f % per_sample == 0:
                 force[p, f // per_sample - 1] = fk if timed else model.force(contact, tuple(float(c) for c in d))
-        tick_s.append(_tick_time(model.law(contact), tuple(float(c) for c in direction * xs[-1]), velocity if timed else None))
+        law = model.law(contact)
+        tick_s.append(_tick_time(law, tuple(float(c) for c in direction * xs[-1]), velocity if getattr(law, "uses_time", False) else None))
         unstable += int(bool(model.unstable))  # pulls the model gave up on (it renders zero force)
     return {"model": setting.model, "setting": setting.setting, "force": force,
             "frame_ms": float(np.median(frame_s) * 1e3), "frame_ms_p99": float(np.percentile(frame_s, 99) * 1e3),

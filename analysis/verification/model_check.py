@@ -144,7 +144,14 @@ def contract(scene) -> tuple[list[dict], dict]:
     v_pull = tuple(float(x) for x in d_max / np.linalg.norm(d_max) * CONTRACT_SPEED_M_S)
     t_end = float(np.linalg.norm(d_max)) / CONTRACT_SPEED_M_S
 
+    def fresh():
+        """Back to rest before each check of a model that uses time: its time runs forward from 0
+        within a check (a model with a history must not see the clock go back)."""
+        if model.uses_time:
+            model.reset()
+
     def shape():
+        fresh()
         f = np.asarray(tuple(force_at(model, contact, tuple(float(x) for x in d_max), v_pull, t_end)), dtype=np.float64)
         return f.shape == (3,), "three floats" if f.shape == (3,) else f"force has shape {f.shape}, must be (3,)", f
 
@@ -153,6 +160,7 @@ def contract(scene) -> tuple[list[dict], dict]:
     force_wrong = None if c.attempt("force: three floats", shape) is not None else _fault(c.rows[-1], "the force", "the force's shape is wrong")
 
     def zero():
+        fresh()
         f = _vec(force_at(model, contact, (0.0, 0.0, 0.0), REST, 0.0))
         return bool(np.all(np.isfinite(f)) and np.linalg.norm(f) <= ZERO_N), f"|f| = {np.linalg.norm(f):.3g} N at d = 0", f
 
@@ -160,6 +168,7 @@ def contract(scene) -> tuple[list[dict], dict]:
     steps = max(2, int(round(np.linalg.norm(d_max) / STEP_M)))
 
     def along():
+        fresh()
         if model.uses_time:  # every tick of the ramp, told its time and the velocity; judged every STEP_M
             per = max(1, round(STEP_M / (CONTRACT_SPEED_M_S * TICK_S)))
             f = np.array([_vec(force_at(model, contact, tuple(float(x) for x in d_max * j / (steps * per)), v_pull, t_end * j / (steps * per)))
@@ -180,6 +189,7 @@ def contract(scene) -> tuple[list[dict], dict]:
     has_law = contact.law is not None
 
     def law():
+        fresh()
         sent = pickle.loads(pickle.dumps(model.law(contact)))
         if not has_law:  # the servo process evaluates a copy of the model itself: only the copy is checked
             return True, f"the model's {type(sent).__name__} copy pickles", sent
@@ -193,6 +203,7 @@ def contract(scene) -> tuple[list[dict], dict]:
     c.attempt("per-tick law pickles and agrees with force" if has_law else "no per-tick law: the model's copy pickles", law)
 
     def deform():
+        fresh()
         u = np.array(deformation_at(model, [contact], [tuple(float(x) for x in d_max)], [v_pull], t_end))  # a copy: models reuse their buffer
         rest = np.array(deformation_at(model, [], [], [], t_end))
         ok = u.shape == (n, 3) and rest.shape == (n, 3) and bool(np.all(np.isfinite(u)))
@@ -205,6 +216,7 @@ def contract(scene) -> tuple[list[dict], dict]:
         deform_wrong = "the deformation's shape is wrong" if "has shape" in c.rows[-1]["detail"] else "the deformation is not finite"
 
     def two():
+        fresh()
         other = model.grasp(tuple(float(x) for x in starts[1]), 1)
         ds = [tuple(float(x) for x in pulls[0] / 2), tuple(float(x) for x in pulls[1] / 2)]
         if model.uses_time:  # both hands half way along their ramps, at the contract's speed

@@ -307,9 +307,10 @@ class TissueModel:
 
     def force(self, contact: Contact, displacement: Sequence[float], velocity: Sequence[float] | None = None,
               t: float | None = None) -> Vec3:
-        if velocity is None:
-            return contact.law.force(displacement)
-        return contact.law.force(displacement, velocity, t)
+        law = contact.law
+        if velocity is None or not getattr(law, "uses_time", False):  # a law of d alone is asked as one
+            return law.force(displacement)
+        return law.force(displacement, velocity, t)
 
     def deformation(self, contacts: Sequence[Contact], displacements) -> np.ndarray:
         raise NotImplementedError(f"{type(self).__name__}.deformation")
@@ -423,6 +424,8 @@ def servo_state(model: TissueModel, contacts: Sequence[Contact]) -> tuple[Any, b
     or None): what a servo in another process needs after a frame; a model that raises here is
     taken as unstable (zero force)."""
     try:
-        return (model.pair_law(contacts) if len(contacts) == 2 else None), bool(model.unstable), None
+        # a pair table is a law of the two displacements alone: a model that uses time has none
+        pair = model.pair_law(contacts) if len(contacts) == 2 and not model.uses_time else None
+        return pair, bool(model.unstable), None
     except Exception as exc:
         return None, True, f"{type(exc).__name__}: {exc}"

@@ -67,6 +67,8 @@ class RemoteContact:
 class LawModel:
     """The servo-side model: evaluates the laws the parent sent."""
 
+    uses_time = False  # told per run: the servo's `timed`, from BeginRun
+
     def __init__(self) -> None:
         self.unstable = False
         self.pair: PairLaw | None = None

@@ -162,7 +162,7 @@ class ServoLoop:
     timed: bool = False  # the model uses time: it is told the tick's time and the hands' velocities
 
     def __post_init__(self) -> None:
-        self.timed = bool(getattr(self.model, "uses_time", False))
+        self.timed = bool(self.model is not None and self.model.uses_time)
 
     @classmethod
     def for_devices(cls, model, hands: list[Hand], rate: float) -> ServoLoop:
@@ -204,6 +204,11 @@ class ServoLoop:
         for h in self.hands:
             h.reversals.clear()
             h.contact_t = 0.0
+            # the velocity's window on the new clock: from the tick kept (t = 0), or empty
+            h.estimate.reset()
+            h.velocity = NO_FORCE
+            if last is not None:
+                h.estimate.update(0.0, h.position)
 
     def tick(self, t: float, device_t: float | None = None) -> None:
         """One tick at run time `t`; devices read at `device_t` (default `t`).

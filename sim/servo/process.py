@@ -215,7 +215,7 @@ class ServoProcess:
             h.contact, h.grasp_request = None, None
         self.run_seq += 1
         self.send(BeginRun(seq=self.run_seq, n_ticks=n_ticks, wait=wait, recipes=device_recipes(scene),
-                           timed=bool(getattr(scene.model, "uses_time", False))))
+                           timed=bool(scene.model.uses_time)))
         deadline = time.perf_counter() + 10.0
         while self.board[RUN_SEQ] != self.run_seq and self.proc.is_alive() and time.perf_counter() < deadline:
             time.sleep(0.0005)  # the first frame shows this run's devices, not the last run's
