@@ -490,3 +490,22 @@ def patch_vertex_weights(mesh, vertex: int, radius: float, subdivisions: int = S
 def p_yes(item: str, feats: dict, traits, params=None) -> float:
     """A yes/no question's P(yes) (`item`: its id): the logistic function of the observer's `logit`."""
     return 1.0 / (1.0 + math.exp(-logit(Question(item, item), feats, traits, DEFAULT if params is None else params)))
+
+
+def lockstep_trace(scene, enabled: bool, monkeypatch, duration: float = 3.0):
+    """(`scene` run in lockstep for `duration` s, the ticks the compiled kernel ran), with the
+    compiled ticks on or off (sim/servo/lockstep.py)."""
+    import sim.servo.lockstep as lockstep
+    from sim.run import run_scene
+
+    counted = {"compiled": 0}
+    kernel = lockstep._ticks
+
+    def counting(*args):
+        done = kernel(*args)
+        counted["compiled"] += done
+        return done
+
+    monkeypatch.setattr(lockstep, "ENABLED", enabled)
+    monkeypatch.setattr(lockstep, "_ticks", counting)
+    return run_scene(scene, duration=duration, time_scale=0), counted["compiled"]

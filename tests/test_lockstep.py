@@ -12,6 +12,7 @@ from sim.models.plate_spring import PlateSpringParams
 from sim.run import run_scene
 from sim.scene import Scene, load_scene
 from tests.conftest import ROOT
+from tests.helpers import lockstep_trace
 
 SCENE = ROOT / "protocols" / "scenes" / "brain_pull.toml"
 
@@ -30,18 +31,7 @@ def _operators(scene, **changes):
 
 
 def _trace(scene, enabled: bool, monkeypatch):
-    counted = {"compiled": 0}
-    kernel = lockstep._ticks
-
-    def counting(*args):
-        done = kernel(*args)
-        counted["compiled"] += done
-        return done
-
-    monkeypatch.setattr(lockstep, "ENABLED", enabled)
-    monkeypatch.setattr(lockstep, "_ticks", counting)
-    r = run_scene(scene, duration=3.0, time_scale=0)
-    return r, counted["compiled"]
+    return lockstep_trace(scene, enabled, monkeypatch)
 
 
 def _same(a, b):

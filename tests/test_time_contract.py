@@ -7,7 +7,6 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-import sim.servo.lockstep as lockstep
 from sim.devices.base import DeviceState
 from sim.models.api import Contact, TissueModel, option
 from sim.run import run_scene
@@ -15,6 +14,7 @@ from sim.scene import Scene, load_scene
 from sim.servo.loop import Hand, ServoLoop
 from sim.servo.velocity import WINDOW_S
 from tests.conftest import SCENE
+from tests.helpers import lockstep_trace
 
 OMNI_STEP_M = 55e-6
 
@@ -142,17 +142,8 @@ def test_a_time_model_runs_every_tick_in_python_and_its_frames_get_the_time(monk
     scene = Scene(load_scene(SCENE))
     model = KelvinVoigt(scene.mesh)
     scene.model = model
-    ran = {"compiled": 0}
-    kernel = lockstep._ticks
-
-    def counting(*args):
-        done = kernel(*args)
-        ran["compiled"] += done
-        return done
-
-    monkeypatch.setattr(lockstep, "_ticks", counting)
-    r = run_scene(scene, duration=1.5, time_scale=0)
-    assert ran["compiled"] == 0
+    r, compiled = lockstep_trace(scene, True, monkeypatch, duration=1.5)
+    assert compiled == 0
     assert np.abs(r.forces).max() > 0.01  # the hands pulled and felt the contact
     assert len(model.times) > 1000
     assert _check_kelvin_voigt_trace(r, scene) > 1000
