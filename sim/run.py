@@ -31,6 +31,7 @@ import numpy as np
 from sim.errors import ParameterError, SceneError
 from sim.geometry.mesh import point_tree
 from sim.geometry.patch import GRASP_REACH_M
+from sim.models.api import deformation_at
 from sim.models.base import BUDGETS, contact_checked, surface_checked
 from sim.scene import MAX_DURATION_S
 from sim.servo.loop import Event, Hand, ServoLoop, too_many_slow_calls
@@ -180,12 +181,8 @@ class VisualStep:
         start = time.perf_counter()
         flops = math.nan
         try:
-            if self.model.uses_time:
-                velocities = [h.velocity for h in self.hands if h.contact is not None]
-                u = self.model.deformation(contacts, displacements, velocities=velocities, t=t)
-            else:
-                u = self.model.deformation(contacts, displacements)
-            u = surface_checked(u, self.model_mesh())
+            velocities = [h.velocity for h in self.hands if h.contact is not None]
+            u = surface_checked(deformation_at(self.model, contacts, displacements, velocities, t), self.model_mesh())
             flops = float(self.model.frame_flops)
         except Exception as exc:  # the model failed: drop the grasps (zero force), keep running
             self._fault(t, f"deformation: {exc}")

@@ -307,10 +307,9 @@ class TissueModel:
 
     def force(self, contact: Contact, displacement: Sequence[float], velocity: Sequence[float] | None = None,
               t: float | None = None) -> Vec3:
-        law = contact.law
-        if velocity is None or not getattr(law, "uses_time", False):  # a law of d alone is asked as one
-            return law.force(displacement)
-        return law.force(displacement, velocity, t)
+        if velocity is None:
+            return contact.law.force(displacement)
+        return law_force_at(contact.law, displacement, velocity, t)  # a law of d alone is asked as one
 
     def deformation(self, contacts: Sequence[Contact], displacements) -> np.ndarray:
         raise NotImplementedError(f"{type(self).__name__}.deformation")
@@ -364,7 +363,7 @@ class ModelForce:
     @property
     def uses_time(self) -> bool:
         """The model's own declaration: a servo tells this law the velocity and the time."""
-        return bool(getattr(self.model, "uses_time", False))
+        return bool(self.model.uses_time)
 
     def force(self, d, v=None, t=None) -> Vec3:
         if v is None:

@@ -67,7 +67,7 @@ class RemoteContact:
 class LawModel:
     """The servo-side model: evaluates the laws the parent sent."""
 
-    uses_time = False  # told per run: the servo's `timed`, from BeginRun
+    uses_time = False  # per run, the servo's `timed` says (BeginRun); each law declares its own
 
     def __init__(self) -> None:
         self.unstable = False
