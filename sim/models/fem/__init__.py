@@ -7,7 +7,9 @@
 - `finite_strain`: a finite-strain law (`sim.hyperelastic`) on a space (P2, or P2/P0 with a mean dilatation),
   its compiled element pass in `hyperelastic_kernels`;
 - `membrane`: a hyperelastic membrane on the body's boundary faces (the pia-arachnoid) and the body with it;
-- `newton`: the one Newton solver for finite strain, following a held constraint's path;
+- `newton`: the one Newton solver for finite strain, following a held constraint's path (`hold`), or a
+  path in time (`follow`);
+- `viscous`: a finite viscoelastic law (`sim.viscoelastic`) on a space, stepped in time;
 - `nodal_pressure`: linear tetrahedra that do not lock (the average nodal pressure element) for a
   finite-strain law;
 - `corotational`: the stiffness-warping update (P1), its compiled passes in `corotational_kernels`
@@ -34,11 +36,12 @@ from sim.models.fem.model import (
            build,
            fixed_nodes,
 )
-from sim.models.fem.newton import HeldPath, NewtonReport, hold
+from sim.models.fem.newton import FollowedPath, HeldPath, NewtonReport, follow, hold
 from sim.models.fem.pull import FORMULATIONS, static_pull
 from sim.models.fem.space import TetSpace
+from sim.models.fem.viscous import ViscoelasticStrain
 
 __all__ = ["ASSEMBLIES", "COROT_FORCE_LIMIT", "DEFAULT_ORDER", "DEFAULT_RESOLUTION", "FORMULATIONS", "LOCKING_POISSON", "Factor",
-           "FemContact", "FemModel", "FiniteStrain", "HeldPath", "Hyperelastic", "LinearFem", "NewtonReport", "TetSpace", "SingularSystemError", "assemble", "build", "check_material",
+           "FemContact", "FemModel", "FiniteStrain", "FollowedPath", "HeldPath", "Hyperelastic", "LinearFem", "NewtonReport", "TetSpace", "SingularSystemError", "ViscoelasticStrain", "assemble", "build", "check_material",
            "condense", "constraint_matrix", "corotational_internal_force", "corotational_solve", "element_dofs", "element_rotations",
-           "fixed_nodes", "hold", "lame", "pull_stiffness", "static_pull"]
+           "fixed_nodes", "follow", "hold", "lame", "pull_stiffness", "static_pull"]

@@ -26,6 +26,7 @@ from sim.models.fem.hyperelastic_kernels import element_pass, pattern_positions,
 from sim.models.fem.linear import element_dofs
 
 CHUNK = 16384  # elements per compiled pass: their (30 x 30) tangents stay at 118 MB on P2
+_NO_HISTORY = np.zeros((1, 1, 3, 3))
 
 
 class FiniteStrain:
@@ -63,6 +64,7 @@ class FiniteStrain:
         for i, x in enumerate(self.laws):
             self.mu[i, : len(x.mu)], self.alpha[i, : len(x.alpha)] = x.terms()
         self.kappa = np.array([x.bulk_modulus for x in self.laws])
+        self.history = None  # (m, q, 3, 3): a stress added at every point in the step (`viscous.Viscoelastic`'s branches)
 
     def element_displacements(self, u: np.ndarray) -> np.ndarray:
         """(m, k, 3) element nodal displacements of a full (3 n_all,) vector."""
@@ -82,12 +84,14 @@ class FiniteStrain:
         theta = np.zeros(m)
         min_j = np.zeros(m)
         kappa = np.ascontiguousarray(np.broadcast_to(np.asarray(self.kappa, dtype=np.float64), (len(self.laws),)))  # NodalPressure sets 0
+        history = self.history is not None
         for a in range(0, m, CHUNK):
             b = min(m, a + CHUNK)
             fe = np.zeros((b - a, nd))
             Ke = np.zeros((b - a, nd, nd)) if tangent else np.zeros((1, 1, 1))
+            H = self.history[a:b] if history else _NO_HISTORY
             element_pass(self.G[a:b], self.wq[a:b], np.ascontiguousarray(ue[a:b]), self.mu, self.alpha, kappa, self.law_of[a:b], self.mean_dilatation, tangent,
-                         fe, Ke, energy[a:b], theta[a:b], min_j[a:b])
+                         fe, Ke, energy[a:b], theta[a:b], min_j[a:b], H, history)
             scatter_vector(fe, self.dofs[a:b], f)
             if tangent:
                 scatter_matrix(Ke, self.pos[a:b], data)

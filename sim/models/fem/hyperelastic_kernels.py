@@ -129,7 +129,7 @@ def _add_pressure(Ke, e, X, q, k, c1, c2):
 
 
 @numba.njit(cache=True, parallel=True)
-def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke, energy, theta, minJ):
+def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke, energy, theta, minJ, H, history):
     """For every element e: the internal force fe[e] (3k,), the tangent Ke[e] (3k, 3k) when
     `want_tangent`, the energy, the mean dilatation theta and the smallest J of its points.
 
@@ -140,7 +140,11 @@ def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke
     G (m, q, k, 3) shape-function gradients at the quadrature points, wq (m, q) their weights,
     ue (m, k, 3) the element's nodal displacements. `mean`: the volumetric energy of the
     element's mean J (P2/P0); else of each point's J (the plain displacement element). An element with a point at J <= 0 gets
-    minJ <= 0 and no force (the caller rejects the state)."""
+    minJ <= 0 and no force (the caller rejects the state).
+
+    With `history`, H (m, q, 3, 3) a second Piola-Kirchhoff stress at every point, constant in the
+    step (a viscoelastic law's branches, `sim.viscoelastic`): it adds to the stress, its energy
+    H : (C - I)/2 and its geometric tangent; else H is a (1, 1, 3, 3) placeholder."""
     m, nq, k = G.shape[0], G.shape[1], G.shape[2]
     nd = 3 * k
     for e in numba.prange(m):
@@ -152,6 +156,7 @@ def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke
         Mab = np.empty((3, 3))
         Dab = np.empty((3, 3))
         n = np.empty((3, 3))
+        FH = np.empty((3, 3))
         qg = np.empty((k, 3))
         Y = np.empty((9, nd))
         Z = np.empty((9, nd))
@@ -194,6 +199,31 @@ def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke
                     for b in range(3):
                         acc += s[b] * n[i, b] * qg[a, b]
                     f[3 * a + i] += w * acc
+            if history:  # S += H: f_ai += (F H grad N_a)_i, energy += H : (C - I)/2
+                for i in range(3):
+                    for b in range(3):
+                        acc = 0.0
+                        for r in range(3):
+                            acc += F[i, r] * H[e, q, r, b]
+                        FH[i, b] = acc
+                for a in range(k):
+                    for i in range(3):
+                        f[3 * a + i] += w * (FH[i, 0] * G[e, q, a, 0] + FH[i, 1] * G[e, q, a, 1] + FH[i, 2] * G[e, q, a, 2])
+                acc = 0.0
+                for r in range(3):
+                    for b in range(3):
+                        cr = F[0, r] * F[0, b] + F[1, r] * F[1, b] + F[2, r] * F[2, b] - (1.0 if r == b else 0.0)
+                        acc += H[e, q, r, b] * cr
+                en += 0.5 * w * acc
+                if want_tangent:
+                    for ap in range(k):
+                        for bp in range(ap, k):
+                            geo = 0.0
+                            for r in range(3):
+                                for b in range(3):
+                                    geo += G[e, q, ap, r] * H[e, q, r, b] * G[e, q, bp, b]
+                            for i in range(3):
+                                Ke[e, 3 * ap + i, 3 * bp + i] += w * geo
             inv3(F, Finv)  # F^-1, for the volumetric variations: X[a, i] = grad N_a . F^-1[:, i]
             Jq[q] = Jd
             for a in range(k):

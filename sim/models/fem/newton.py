@@ -135,6 +135,61 @@ def hold(system, W: sp.csr_matrix, target, fractions=(1.0,), *, first_step: floa
                     sensitivities=sens, fraction_done=t_done)
 
 
+@dataclass
+class FollowedPath:
+    """What `follow` returns: the force holding the constraints at each requested time, the last state."""
+
+    times: np.ndarray
+    forces: np.ndarray  # (len(times), k); NaN from the first time not reached
+    u: np.ndarray
+    report: NewtonReport
+    time_done: float = 0.0
+
+
+def follow(system, W: sp.csr_matrix, times, targets, *, tol: float = 1e-8, max_iter: int = 12, min_step: float = 1e-6) -> FollowedPath:
+    """Hold ``W u = targets[i]`` at ``times[i]`` (s, increasing, after 0) on a body stepped in time
+    (`viscous.ViscoelasticStrain`), from rest at t = 0 with the target moving linearly between the
+    given times: one step per interval, halved (the target interpolated) where Newton fails, each
+    step committed once it converged. A hold is a repeated target."""
+    free, n = system.space.free, 3 * system.space.n_all
+    times = np.asarray(times, dtype=np.float64)
+    targets = np.asarray(targets, dtype=np.float64).reshape(len(times), -1)
+    if W.shape != (targets.shape[1], len(free)) or not (times[0] > 0 and np.all(np.diff(times) > 0)):
+        raise ValueError("follow: W must be (k, n_free) for k targets a row, times increasing after 0")
+    Wt = np.ascontiguousarray(W.T.toarray())
+    scale = max(float(np.abs(targets).max()), 1e-300)
+    report = NewtonReport(load_steps=0, completed_steps=0)
+    forces = np.full(targets.shape, np.nan)
+    steps = _Steps(W, Wt)
+    t_done, u, lam, d_done = 0.0, np.zeros(n), np.zeros(targets.shape[1]), np.zeros(targets.shape[1])
+    for i, (t_i, d_i) in enumerate(zip(times, targets)):
+        h = t_i - t_done
+        while t_done < t_i:
+            t_new = min(t_done + h, t_i)
+            if t_i - t_new < 0.25 * h:
+                t_new = t_i
+            d = d_done + (d_i - d_done) * (t_new - t_done) / (t_i - t_done)
+            system.step(t_new - t_done)
+            ok, hist, last = _iterate(system, W, Wt, u.copy(), lam.copy(), d, scale, tol, max_iter, steps, report)
+            report.residuals.append(hist)
+            report.iterations.append(len(hist))
+            if not ok:
+                report.cut_steps += 1
+                h = 0.5 * (t_new - t_done)
+                if h < min_step * times[-1]:
+                    report.converged, report.reason = False, last if isinstance(last, str) else "no convergence"
+                    return FollowedPath(times, forces, u, report, t_done)
+                continue
+            u, lam, min_j = last
+            system.commit(u)
+            t_done, d_done = t_new, d
+            report.completed_steps += 1
+            report.load_steps += 1
+            report.min_jacobian = min(report.min_jacobian, min_j)
+        forces[i] = lam
+    return FollowedPath(times, forces, u, report, t_done)
+
+
 class _Steps:
     """The constrained Newton step, [K -W^T; W 0] [du; dl] = [-r; -gap], for one solve.
 
