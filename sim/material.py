@@ -8,11 +8,15 @@ the law by `file`, or inline (`law`, `mu`, `alpha` ...), or neither: the shipped
 keep `young` and `poisson`: `poisson` is theirs (default 0.45: their elements lock above it,
 docs/fem.md), and `young`, unless the scene gives it, is the law's small-strain limit
 E = 2 mu (1 + nu) with the law's shear modulus mu (docs/material.md).
+
+A rheology file adds Maxwell branches to its `[material]` law (`Viscoelastic`, `read_rheology`):
+the finite viscoelastic truth's tissue (docs/viscoelastic.md).
 """
 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,7 +24,7 @@ import numpy as np
 
 from brainsim_assets import path as _asset
 from sim.errors import ParameterError
-from sim.hyperelastic import BULK_RATIO, PARAMETERS, Hyperelastic, law_problems
+from sim.hyperelastic import ALPHA_RANGE, BULK_RATIO, MU_RANGE, PARAMETERS, Hyperelastic, law_problems
 from sim.models.base import POISSON_MAX, POISSON_MIN
 from sim.tomlfile import TomlFileError, read_toml
 from sim.tomltable import TableReader
@@ -246,3 +250,122 @@ def material_toml(law: Hyperelastic, provenance: dict, header: str = "") -> str:
     lines += ["[material]"] + [f"{k} = {_toml_value(v)}" for k, v in law.params().items()]
     lines += ["", "[provenance]"] + [f"{k} = {_toml_value(v)}" for k, v in provenance.items() if v is not None]
     return "\n".join(lines) + "\n"
+
+
+# -- finite viscoelastic laws --------------------------------------------------------------------
+#
+# Finite viscoelastic laws for brain tissue (docs/viscoelastic.md): an equilibrium (long-time)
+# hyperelastic law (`sim.hyperelastic`) and Maxwell branches in the multiplicative form (Reese and
+# Govindjee 1998) of the finite viscoelastic Ogden family Budday et al. 2017 (Acta Biomaterialia
+# 60) fitted to human brain (their abstract and parameters were at hand here, not their text):
+#
+#     psi = psi_inf(F) + sum_k psi_k(F_e,k),   F = F_e,k F_v,k,
+#     -1/2 (L_v b_e,k) b_e,k^-1 = 1/(2 eta_k) dev tau_k,   eta_k = mu_k tau_k,
+#
+# psi_k the isochoric one-term Ogden energy 2 mu_k/alpha_k^2 (sum lb_e^alpha_k - 3) of the branch's
+# elastic part, b_e = F_e F_e^T, tau_k its Kirchhoff stress; the flow is isochoric. At small strain
+# the law is the standard linear solid with shear moduli mu_inf and mu_k and relaxation times
+# tau_k; held still, every branch's stress decays and the long-time limit is the equilibrium law.
+#
+# A step of dt is implicit, in principal logarithmic stretches (the exponential map of Reese and
+# Govindjee 1998): eps_e + dt/(2 eta) tau(eps_e) = eps_trial, unconditionally stable, first
+# order in dt (the compiled element pass, `sim.models.fem.hyperelastic_kernels._branch_point`).
+#
+# A rheology file (`read_rheology`) is a material file whose `[material]` is the equilibrium law,
+# with a `[viscous]` table of branches: `mu` (Pa), `alpha`, `tau` (s), one entry per branch.
+
+TAU_RANGE = (1e-4, 1e5)  # s: from a fast polymer's to hours; brain's are seconds (Budday et al. 2017)
+VISCOUS_KEYS = ("mu", "alpha", "tau")
+
+
+@dataclass(frozen=True)
+class Branch:
+    """One Maxwell branch: a one-term isochoric Ogden energy (mu Pa, alpha) relaxing in tau s."""
+
+    mu: float
+    alpha: float
+    tau: float
+
+    def __post_init__(self):
+        lo, hi = MU_RANGE
+        if not lo < self.mu <= hi:
+            raise ParameterError(f"viscous mu: {self.mu!r} is out of range; allowed: ({lo:g}, {hi:g}] Pa")
+        lo, hi = ALPHA_RANGE
+        if not (lo <= self.alpha <= hi and self.alpha != 0.0):
+            raise ParameterError(f"viscous alpha: {self.alpha!r} is out of range; allowed: [{lo:g}, {hi:g}], not 0")
+        lo, hi = TAU_RANGE
+        if not lo <= self.tau <= hi:
+            raise ParameterError(f"viscous tau: {self.tau!r} is out of range; allowed: [{lo:g}, {hi:g}] s")
+
+    @property
+    def viscosity(self) -> float:
+        """Pa s: eta = mu tau, the deviatoric viscosity whose small-strain relaxation time is tau."""
+        return self.mu * self.tau
+
+
+@dataclass(frozen=True)
+class Viscoelastic:
+    """A finite viscoelastic law: the equilibrium law and its Maxwell branches."""
+
+    equilibrium: Hyperelastic
+    branches: tuple[Branch, ...]
+
+    @property
+    def instantaneous_shear_modulus(self) -> float:
+        """Pa: the small-strain shear modulus of a step (no time to relax), mu_inf + sum mu_k."""
+        return self.equilibrium.shear_modulus + sum(b.mu for b in self.branches)
+
+    def ramp_shear_modulus(self, duration: float) -> float:
+        """Pa: the small-strain secant shear modulus at the end of a constant-rate ramp of
+        `duration` s: mu_inf + sum mu_k (tau_k / T)(1 - e^(-T/tau_k)) (the standard linear solid)."""
+        out = self.equilibrium.shear_modulus
+        for b in self.branches:
+            h = duration / b.tau
+            out += b.mu * (-math.expm1(-h) / h if h > 0 else 1.0)
+        return out
+
+    def describe(self) -> str:
+        parts = ", ".join(f"mu {b.mu:.4g} Pa, alpha {b.alpha:.4g}, tau {b.tau:.4g} s" for b in self.branches)
+        return f"{self.equilibrium.describe()} + branches ({parts})"
+
+
+def read_rheology(path) -> tuple[Viscoelastic, dict]:
+    """A rheology file's (law, provenance): `[material]` the equilibrium law (`sim.material.read_law`),
+    `[viscous]` the branches (`mu`, `alpha`, `tau` lists, one entry each per branch). ParameterError
+    naming the file, line and key when refused."""
+    path = Path(path)
+    problems: list = []
+    try:
+        data, loc = read_toml(path)
+    except TomlFileError as exc:
+        raise ParameterError(str(exc)) from None
+    root = TableReader(path, data, "", loc, problems)
+    root.keys(("material", "viscous", "provenance"))
+    law = read_law(root.table("material", allowed=LAW_KEYS))
+    v = root.table("viscous", allowed=VISCOUS_KEYS)
+    mu = v.numbers("mu", lo=0.0, hi=MU_RANGE[1])
+    alpha = v.numbers("alpha", lo=ALPHA_RANGE[0], hi=ALPHA_RANGE[1])
+    tau = v.numbers("tau", lo=TAU_RANGE[0], hi=TAU_RANGE[1])
+    branches: tuple = ()
+    if mu is not None and alpha is not None and tau is not None:
+        if not len(mu) == len(alpha) == len(tau) >= 1:
+            v.error("tau", f"{len(mu)} mu, {len(alpha)} alpha and {len(tau)} tau; allowed: one of each per branch, at least one branch")
+        else:
+            try:
+                branches = tuple(Branch(float(m), float(a), float(t)) for m, a, t in zip(mu, alpha, tau))
+            except ParameterError as exc:
+                v.error("mu", str(exc))
+    if problems or law is None or not branches:
+        raise ParameterError("; ".join(text for _, _, text in problems) or f"{path}: no law")
+    prov = data.get("provenance", {})
+    return Viscoelastic(law, branches), prov if isinstance(prov, dict) else {}
+
+
+def rheology_toml(law: Viscoelastic, provenance: dict, header: str = "") -> str:
+    """A rheology file's text: `sim.material.material_toml`'s of the equilibrium law with the
+    `[viscous]` table of the branches before its `[provenance]`."""
+    text = material_toml(law.equilibrium, provenance, header)
+    viscous = "[viscous]\n" + "".join(f"{key} = [{', '.join(repr(float(getattr(b, key))) for b in law.branches)}]\n"
+                                      for key in VISCOUS_KEYS) + "\n"
+    head, sep, tail = text.partition("[provenance]")
+    return head + viscous + sep + tail

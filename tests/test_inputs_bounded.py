@@ -144,6 +144,7 @@ def test_a_scene_naming_a_pipe_as_its_mesh_or_material_is_refused(tmp_path, key)
 
 @pytest.mark.parametrize("command", [
     ["calibrate", "material", "--data"],
+    ["calibrate", "rheology", "--mu-inf", "700", "--mu-1", "2000", "--tau-1", "9.7", "--bulk-modulus", "6e4", "--data"],
     ["calibrate", "plate-spring", "--reference"],
 ])
 def test_data_files_that_are_devices_or_pipes_are_refused(tmp_path, command):

@@ -1,26 +1,27 @@
-"""The finite viscoelastic law (sim/viscoelastic.py) in the project's FEM (sim/models/fem/viscous.py,
-newton.follow), against closed forms worked here:
+"""The finite viscoelastic law (sim/material.py (Viscoelastic)) in the project's FEM (the compiled branch update,
+sim/models/fem/viscous.py, newton.follow), against references worked here:
 
-- the branch stress is its energy's gradient (central differences of the energy, here);
+- the compiled pass's force is its energy-free update's and its tangent is the force's Jacobian
+  (central differences) in a step with viscous flow;
 - small strain: a shear ramp and its hold equal the standard linear solid's closed form;
 - finite strain: uniaxial (isochoric) and simple-shear ramps to the measured range and their
-  relaxation equal the convolution integral S_inf(C(t)) + sum_k [S_k(C(t)) - (1/tau_k) int_0^t
-  e^-(t-s)/tau_k S_k(C(s)) ds] (integrated by parts; scipy's adaptive quadrature), and the step's
-  error falls as dt^2;
+  relaxation equal the evolution equation -1/2 L_v b_e b_e^-1 = dev tau / (2 eta) written here
+  for C_v^-1 (dC_v^-1/dt = -(1/eta) F^-1 dev(tau) b_e F^-T) and integrated by scipy's DOP853 to
+  1e-11; the implicit step's error falls as dt (first order);
 - in a solve (`follow`), a cube whose boundary is held to a homogeneous shear history reacts as
-  the closed form; and held long, a non-homogeneous body's force is the equilibrium law's
+  the reference; and held long, a non-homogeneous body's force is the equilibrium law's
   (`hold` of the hyperelastic solver) to 1e-6.
 """
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
-from scipy.integrate import quad
+from scipy.integrate import solve_ivp
 
 from sim.errors import ParameterError
 from sim.hyperelastic import ogden
+from sim.material import Branch, Viscoelastic, read_rheology
 from sim.models.fem import FiniteStrain, TetSpace, ViscoelasticStrain, follow, hold
-from sim.viscoelastic import Branch, Viscoelastic, isochoric_stress, read_rheology
 from tests.helpers import grid_tets
 
 # Budday et al. 2017 (Acta Biomater 60) cortex's moduli and time; alpha as the shipped fit's
@@ -53,26 +54,34 @@ def _history(kind, amount, ramp=RAMP):
     return F
 
 
-def _energy(F, mu, alpha):
-    lb = np.sqrt(np.linalg.eigvalsh(F.T @ F)) / np.linalg.det(F) ** (1 / 3)
-    return 2 * mu / alpha**2 * (np.sum(lb**alpha) - 3)
+def _kirchhoff(b, mu, alpha):
+    """sum_a 2 mu/alpha (lb_a^alpha - mean lb^alpha) n_a n_a at the left stretch b = F F^T (lb = l J^-1/3)."""
+    lam2, n = np.linalg.eigh(b)
+    lb = np.sqrt(lam2) / np.sqrt(np.linalg.det(b)) ** (1 / 3)
+    t = 2 * mu / alpha * (lb**alpha - np.mean(lb**alpha))
+    return (n * t) @ n.T
 
 
-def _closed_form(F_of, t, law=LAW):
-    """P(t) = F [S_inf + sum_k (S_k - (1/tau) int_0^t e^-(t-s)/tau S_k ds)], by quadrature."""
-    F = F_of(t)
-    eq = law.equilibrium
-    S = isochoric_stress(F, eq.mu[0], eq.alpha[0])  # J = 1: no volumetric stress
-    for b in law.branches:
-        Sk = isochoric_stress(F, b.mu, b.alpha)
-        conv = np.zeros((3, 3))
-        for i in range(3):
-            for j in range(i, 3):
-                g = lambda s: isochoric_stress(F_of(s), b.mu, b.alpha)[i, j] * np.exp(-(t - s) / b.tau)  # noqa: E731, B023
-                pts = [RAMP] if t > RAMP else None
-                conv[i, j] = conv[j, i] = quad(g, 0.0, t, points=pts, epsabs=1e-13, epsrel=1e-12, limit=400)[0]
-        S = S + Sk - conv / b.tau
-    return F @ S
+def _reference(F_of, times, law=LAW):
+    """P(t) at `times`: the equilibrium law's Kirchhoff stress at b = F F^T plus the branch's at
+    b_e = F C_v^-1 F^T, C_v^-1 integrated from I by dC_v^-1/dt = -(1/eta) F^-1 tau b_e F^-T (J = 1 here)."""
+    (br,) = law.branches
+    eta = br.mu * br.tau
+
+    def rhs(t, y):
+        F = F_of(t)
+        Fi = np.linalg.inv(F)
+        be = F @ y.reshape(3, 3) @ F.T
+        return (-(1 / eta) * Fi @ _kirchhoff(be, br.mu, br.alpha) @ be @ Fi.T).ravel()
+
+    sol = solve_ivp(rhs, (0.0, times[-1]), np.eye(3).ravel(), method="DOP853", t_eval=times, rtol=1e-11, atol=1e-13,
+                    max_step=RAMP / 20)
+    out = []
+    for t, y in zip(sol.t, sol.y.T):
+        F = F_of(t)
+        tau = _kirchhoff(F @ F.T, law.equilibrium.mu[0], law.equilibrium.alpha[0]) + _kirchhoff(F @ y.reshape(3, 3) @ F.T, br.mu, br.alpha)
+        out.append(tau @ np.linalg.inv(F).T)
+    return np.array(out)
 
 
 def _stepped(F_of, times, order=2):
@@ -90,25 +99,25 @@ def _stepped(F_of, times, order=2):
     return np.array(out)
 
 
-def test_branch_stress_is_the_energy_gradient():
-    rng = np.random.default_rng(3)
-    F = np.eye(3) + 0.15 * rng.standard_normal((3, 3))
-    F *= 1.0 / np.linalg.det(F) ** (1 / 3) * 1.02  # J = 1.02^3: the isochoric split matters
-    C = F.T @ F
-    S = isochoric_stress(F, 2000.0, -20.8)
-    h = 1e-6
-    num = np.zeros((3, 3))
-    for i in range(3):
-        for j in range(3):
-            E = np.zeros((3, 3))
-            E[i, j] += 0.5 * h
-            E[j, i] += 0.5 * h
-            # C moves by 2E (+ O(h^2), cancelling): dW = S : E
-            dF = np.linalg.inv(F).T @ E
-            num[i, j] = (_energy(F + dF, 2000.0, -20.8) - _energy(F - dF, 2000.0, -20.8)) / (2 * h)
-    assert np.abs(num - S).max() <= 1e-6 * np.abs(S).max()
-    assert np.allclose(S, S.T)
-    assert np.abs(C @ S).max() > 0  # not trivially zero
+def test_the_tangent_is_the_forces_jacobian_in_a_step_with_flow():
+    space = _cube(order=2)
+    system = ViscoelasticStrain(space, LAW)
+    rng = np.random.default_rng(5)
+    u0 = 0.08 * rng.standard_normal(3 * space.n_all)
+    system.step(0.5)
+    system.commit(u0)  # a state with flow in it: C_v^-1 away from I
+    u = u0 + 0.05 * rng.standard_normal(3 * space.n_all)
+    system.step(0.3)
+    K = system.evaluate(u)["K"].toarray()
+    h = 1e-7
+    num = np.zeros_like(K)
+    for j, dof in enumerate(space.free):
+        up, um = u.copy(), u.copy()
+        up[dof] += h
+        um[dof] -= h
+        num[:, j] = (system.evaluate(up, tangent=False)["f"][space.free] - system.evaluate(um, tangent=False)["f"][space.free]) / (2 * h)
+    assert np.abs(K - num).max() <= 1e-5 * np.abs(K).max()
+    assert np.abs(K - K.T).max() <= 1e-9 * np.abs(K).max()
 
 
 def test_small_strain_ramp_and_hold_are_the_standard_linear_solid():
@@ -120,23 +129,25 @@ def test_small_strain_ramp_and_hold_are_the_standard_linear_solid():
     ramp = mu_inf * rate * times + b.mu * rate * b.tau * -np.expm1(-times / b.tau)
     held = mu_inf * g + b.mu * rate * b.tau * -np.expm1(-T / b.tau) * np.exp(-(times - T) / b.tau)
     sls = np.where(times <= T, ramp, held)
-    assert np.abs(P - sls).max() <= 1e-5 * np.abs(sls).max()
+    assert np.abs(P - sls).max() <= 1e-3 * np.abs(sls).max()  # the implicit step's first-order error: 3.5e-4 at dt 10 ms
     at_end = int(round(T / 0.01)) - 1
     assert P[at_end] / (mu_inf * g) > 3.0  # the branch barely relaxed in 1.2 s: about 3.7 x the equilibrium
 
 
 @pytest.mark.parametrize("kind, amount", [("uniaxial", 0.9), ("uniaxial", 1.1), ("shear", 0.2)])
-def test_finite_ramps_and_relaxation_equal_the_convolution_integral(kind, amount):
+def test_finite_ramps_and_relaxation_equal_the_evolution_equation(kind, amount):
     F_of = _history(kind, amount)
-    checks = [0.6, RAMP, 2.0, 6.0]
-    errs = []
-    for dt in (0.04, 0.02):
+    checks = np.array([0.6, RAMP, 2.0, 6.0])
+    ref = _reference(F_of, checks)
+    P = {}
+    for dt in (0.02, 0.01):
         times = np.arange(1, int(round(6.0 / dt)) + 1) * dt
-        P = _stepped(F_of, times)
-        idx = [int(round(c / dt)) - 1 for c in checks]
-        errs.append(max(np.abs(P[i] - _closed_form(F_of, c)).max() / np.abs(_closed_form(F_of, c)).max() for i, c in zip(idx, checks)))
-    assert errs[1] <= 2e-5  # measured 2e-6..5e-6
-    assert errs[0] / errs[1] > 3.0  # second order in the step
+        P[dt] = _stepped(F_of, times)[np.rint(checks / dt).astype(int) - 1]
+    err = {dt: np.abs(p - ref).max() / np.abs(ref).max() for dt, p in P.items()}
+    assert err[0.01] <= 2e-3  # measured 3.4e-4 .. 1.5e-3
+    assert 1.9 < err[0.02] / err[0.01] < 2.1  # first order in the step
+    richardson = np.abs(2 * P[0.01] - P[0.02] - ref).max() / np.abs(ref).max()
+    assert richardson <= 2e-5  # the first-order term gone, what is left is the reference's and the step's next order
 
 
 def _rows(space, dofs):
@@ -153,7 +164,7 @@ def test_a_solve_held_to_a_shear_history_reacts_as_the_closed_form():
     boundary = np.flatnonzero(np.any(np.isclose(X, 0.0) | np.isclose(X, 1.0), axis=1) & ~np.isclose(X[:, 1], 0.0))
     dofs = (3 * boundary[:, None] + np.arange(3)).ravel()
     F_of = _history("shear", 0.2)
-    times = np.arange(1, 151) * 0.02  # ramp 1.2 s, hold to 3 s
+    times = np.arange(1, 301) * 0.01  # ramp 1.2 s, hold to 3 s
     targets = [((F_of(t) - np.eye(3)) @ X[boundary].T).T.ravel() for t in times]
     system = ViscoelasticStrain(space, LAW)
     res = follow(system, _rows(space, dofs), times, targets, tol=1e-10)
@@ -161,10 +172,11 @@ def test_a_solve_held_to_a_shear_history_reacts_as_the_closed_form():
     exact = ((F_of(times[-1]) - np.eye(3)) @ X.T).T
     assert np.abs(res.u.reshape(-1, 3) - exact).max() <= 1e-8
     # the reactions on the prescribed nodes give P: P_ij = sum_a f_ai X_aj (the clamped face's part from the body's internal force)
+    system.step(0.0)  # an instant from the committed state: its stress as it converged
     f = system.evaluate(res.u, tangent=False)["f"].reshape(-1, 3)
     P = f.T @ X
-    ref = _closed_form(F_of, times[-1])
-    assert np.abs(P - ref).max() <= 2e-4 * np.abs(ref).max()
+    ref = _reference(F_of, times[-1:])[0]
+    assert np.abs(P - ref).max() <= 3e-3 * np.abs(ref).max()  # the step's first-order error: 1.5e-3 at 10 ms
     reactions = res.forces[-1].reshape(-1, 3)
     assert np.abs(reactions - f[boundary]).max() <= 1e-7 * np.abs(f).max()
 
@@ -205,3 +217,35 @@ def test_shipped_rheology_files_and_their_errors(tmp_path):
     bad.write_text('[material]\nlaw = "ogden"\nmu = [700.0]\nalpha = [-20.0]\n\n[viscous]\nmu = [2000.0, 1.0]\nalpha = [-20.0]\ntau = [9.7]\n')
     with pytest.raises(ParameterError, match=r"one of each per branch"):
         read_rheology(bad)
+
+
+def test_shipped_rheology_files_reproduce_their_stated_fit():
+    """Each file's law at its stated rate gives its stated per-mode errors (the file is what the
+    code computes), and the fit is close to the hyperelastic one's where both were measured."""
+    from analysis.verification.material_fit import DATA_FILE, SHEAR_FILE, read_curve
+    from analysis.verification.rheology import ramp_prediction
+    from brainsim_assets import path as asset
+
+    rates = []
+    for name, region in (("human_cortex_rheology.toml", "cortex"), ("human_white_matter_rheology.toml", "corona_radiata")):
+        law, prov = read_rheology(asset(f"protocols/materials/{name}"))
+        for c in (read_curve(DATA_FILE, region), read_curve(SHEAR_FILE, region)):
+            pred = ramp_prediction(law, c, prov["rate_per_s"], 400)
+            for mode in np.unique(c.modes()):
+                m = c.modes() == mode
+                err = np.sqrt(np.mean((pred[m] - c.stress[m]) ** 2)) / np.sqrt(np.mean(c.stress[m] ** 2))
+                assert err == pytest.approx(prov[f"rms_rel_{mode}"], rel=1e-6)
+                assert err < (0.25 if mode == "tension" else 0.11)
+        rates.append(prov["ci95_rate_per_s"])
+    # one laboratory's protocol: the two regions' fitted rates agree within their intervals
+    assert rates[0][0] < rates[1][1] and rates[1][0] < rates[0][1]
+
+
+def test_calibrate_rheology_refuses_bad_input_in_one_line(tmp_path):
+    from tests.helpers import studyctl
+
+    res = studyctl("calibrate", "rheology", "--mu-inf", "700", "--mu-1", "2000", "--tau-1", "nan", "--bulk-modulus", "6e4")
+    assert res.exit_code == 2 and "--tau-1" in res.output
+    res = studyctl("calibrate", "rheology", "--mu-inf", "700", "--mu-1", "2000", "--tau-1", "9.7", "--bulk-modulus", "6e4",
+                   "--data", tmp_path / "missing.csv")
+    assert res.exit_code != 0 and "missing.csv" in res.output and "Traceback" not in res.output

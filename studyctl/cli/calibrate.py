@@ -135,6 +135,58 @@ def calibrate_material(ctx, data_files, region, laws, bulk_ratio, out_file, forc
         click.echo(f"wrote {out_file}")
 
 
+@calibrate.command("rheology")
+@click.option("--data", "data_files", type=click.Path(dir_okay=False, path_type=Path), multiple=True,
+              show_default="data/brain_tissue_uniaxial_budday2017.csv and data/brain_tissue_shear_budday2017.csv",
+              help="CSV of one loading mode (as `calibrate material` reads them). Repeat to fit the modes together.")
+@click.option("--region", default="cortex", show_default=True, help="The data's region to fit.")
+@click.option("--mu-inf", type=Finite(min=1.0, max=1e9), required=True, help="Equilibrium shear modulus (Pa), published.")
+@click.option("--mu-1", type=Finite(min=1.0, max=1e9), required=True, help="The Maxwell branch's shear modulus (Pa), published.")
+@click.option("--tau-1", type=Finite(min=1e-4, max=1e5), required=True, help="The branch's relaxation time (s), published.")
+@click.option("--bulk-modulus", type=Finite(min=1.0, max=1e12), required=True, help="kappa (Pa): the hyperelastic truth's, kept.")
+@click.option("--alpha-start", type=Finite(min=-60.0, max=-0.5), default=-20.0, show_default=True, help="Where the exponent's fit starts.")
+@click.option("--source", default="", help="The published parameters' source, for the file's provenance.")
+@click.option("--out", "out_file", type=OutFile((".toml",)), default=None, help="Write the law as a rheology file (.toml).")
+@FORCE
+@click.option("--json", "as_json", is_flag=True, help="Machine-readable output (JSON).")
+@click.pass_context
+def calibrate_rheology(ctx, data_files, region, mu_inf, mu_1, tau_1, bulk_modulus, alpha_start, source, out_file, force, as_json):
+    """Complete a finite viscoelastic law of published moduli and relaxation time (one Maxwell
+    branch, sim/material.py (Viscoelastic)) with the exponent and the tests' loading rate that fit it to
+    tissue curves measured at a finite rate; report each mode's error (docs/viscoelastic.md)."""
+    from analysis.verification.material_fit import DATA_FILE, SHEAR_FILE
+    from analysis.verification.rheology import fit_rheology, rheology_provenance
+    from sim.material import rheology_toml
+
+    target = staged(out_file, force, inputs={"--data": list(data_files)})
+    command = _command_line(ctx)
+    data_files = list(data_files) or [DATA_FILE, SHEAR_FILE]
+    rep = _with_progress("fitting the exponent and the rate",
+                         lambda p: fit_rheology(data_files, region, mu_inf, mu_1, tau_1, bulk_modulus, alpha_start, progress=p),
+                         stage=lambda k, n: "calibrate rheology: fitting the exponent and the tests' rate")
+    law = rep.pop("law")
+    if out_file:
+        write_output(target, rheology_toml(law, rheology_provenance(rep, data_files, region, source, command),
+                                           f"{region}: {law.describe()}\nWritten by `{command}`."))
+    if as_json:
+        _print_json(rep | {"law": law.describe(), "out": str(out_file) if out_file else None})
+        return
+    from rich.table import Table
+
+    table = Table(title=f"{region}: {law.describe()}")
+    for col in ("fitted", "value [95% CI]"):
+        table.add_column(col)
+    table.add_row("alpha (both branches)", f"{rep['alpha']:.4g} [{rep['ci95']['alpha'][0]:.4g}, {rep['ci95']['alpha'][1]:.4g}]")
+    table.add_row("the tests' strain rate", f"{rep['rate_per_s']:.3g}/s [{rep['ci95']['rate_per_s'][0]:.3g}, {rep['ci95']['rate_per_s'][1]:.3g}]")
+    for mode, t in rep["ramp_s"].items():
+        table.add_row(f"{mode} ramp", f"{t:.1f} s")
+    for mode, e in rep["rms_rel"].items():
+        table.add_row(f"{mode} RMS (rel.)", f"{e:.1%}")
+    _console().print(table)
+    if out_file:
+        click.echo(f"wrote {out_file}")
+
+
 @calibrate.command("field")
 @click.option("--scene", "scene_file", type=click.Path(dir_okay=False, path_type=Path), default=DEFAULT_SCENE, show_default="protocols/scenes/brain_pull.toml", help="The scene file (TOML).")
 @click.option("--out", "out_file", type=OutFile((".npz",)), default=None, show_default="data/plate_spring_field.npz", help="The stiffness field.")

@@ -9,7 +9,7 @@
 - `membrane`: a hyperelastic membrane on the body's boundary faces (the pia-arachnoid) and the body with it;
 - `newton`: the one Newton solver for finite strain, following a held constraint's path (`hold`), or a
   path in time (`follow`);
-- `viscous`: a finite viscoelastic law (`sim.viscoelastic`) on a space, stepped in time;
+- `viscous`: a finite viscoelastic law (`sim.material.Viscoelastic`) on a space, stepped in time;
 - `nodal_pressure`: linear tetrahedra that do not lock (the average nodal pressure element) for a
   finite-strain law;
 - `corotational`: the stiffness-warping update (P1), its compiled passes in `corotational_kernels`

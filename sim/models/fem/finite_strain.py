@@ -26,7 +26,8 @@ from sim.models.fem.hyperelastic_kernels import element_pass, pattern_positions,
 from sim.models.fem.linear import element_dofs
 
 CHUNK = 16384  # elements per compiled pass: their (30 x 30) tangents stay at 118 MB on P2
-_NO_HISTORY = np.zeros((1, 1, 3, 3))
+_NO_BRANCHES = np.zeros((1, 1, 1, 3, 3))  # the compiled pass's placeholders where there are no Maxwell branches
+_NO_LAWS = np.zeros((1, 1))
 
 
 class FiniteStrain:
@@ -64,7 +65,11 @@ class FiniteStrain:
         for i, x in enumerate(self.laws):
             self.mu[i, : len(x.mu)], self.alpha[i, : len(x.alpha)] = x.terms()
         self.kappa = np.array([x.bulk_modulus for x in self.laws])
-        self.history = None  # (m, q, 3, 3): a stress added at every point in the step (`viscous.Viscoelastic`'s branches)
+        # Maxwell branches (`viscous.ViscoelasticStrain` sets them): C_v^-1 per point and branch at
+        # the step's start, its update written to Cv_out; the branches' mu, alpha, viscosity per law
+        self.Cv = self.Cv_out = None
+        self.branch_mu = self.branch_alpha = self.branch_eta = _NO_LAWS
+        self.dt = 0.0
 
     def element_displacements(self, u: np.ndarray) -> np.ndarray:
         """(m, k, 3) element nodal displacements of a full (3 n_all,) vector."""
@@ -84,14 +89,15 @@ class FiniteStrain:
         theta = np.zeros(m)
         min_j = np.zeros(m)
         kappa = np.ascontiguousarray(np.broadcast_to(np.asarray(self.kappa, dtype=np.float64), (len(self.laws),)))  # NodalPressure sets 0
-        history = self.history is not None
+        viscous = self.Cv is not None
         for a in range(0, m, CHUNK):
             b = min(m, a + CHUNK)
             fe = np.zeros((b - a, nd))
             Ke = np.zeros((b - a, nd, nd)) if tangent else np.zeros((1, 1, 1))
-            H = self.history[a:b] if history else _NO_HISTORY
+            Cv, Cv_out = (self.Cv[a:b], self.Cv_out[a:b]) if viscous else (_NO_BRANCHES, np.zeros_like(_NO_BRANCHES))
             element_pass(self.G[a:b], self.wq[a:b], np.ascontiguousarray(ue[a:b]), self.mu, self.alpha, kappa, self.law_of[a:b], self.mean_dilatation, tangent,
-                         fe, Ke, energy[a:b], theta[a:b], min_j[a:b], H, history)
+                         fe, Ke, energy[a:b], theta[a:b], min_j[a:b],
+                         viscous, Cv, self.branch_mu, self.branch_alpha, self.branch_eta, self.dt, Cv_out)
             scatter_vector(fe, self.dofs[a:b], f)
             if tangent:
                 scatter_matrix(Ke, self.pos[a:b], data)

@@ -128,8 +128,158 @@ def _add_pressure(Ke, e, X, q, k, c1, c2):
                         Ke[e, row, col] += (c1 + c2) * X[q, ap, i] * X[q, bp, kk] - c1 * X[q, ap, kk] * X[q, bp, i]
 
 
+@numba.njit(cache=True, inline="always")
+def _branch_stresses(eps, mu, al, tau, D):
+    """The isochoric Ogden energy 2 mu/al^2 (sum lb^al - 3) at logarithmic principal stretches
+    eps (lb_a = exp(eps_a - mean eps)): its principal Kirchhoff stresses tau_a = 2 mu/al (lb_a^al -
+    mean lb^al) and D_ab = dtau_a/deps_b = 2 mu (lb_a^al (delta_ab - 1/3) - (lb_b^al - mean)/3);
+    returns the energy."""
+    me = (eps[0] + eps[1] + eps[2]) / 3.0
+    p0, p1, p2 = math.exp(al * (eps[0] - me)), math.exp(al * (eps[1] - me)), math.exp(al * (eps[2] - me))
+    m = (p0 + p1 + p2) / 3.0
+    p = (p0, p1, p2)
+    for a in range(3):
+        tau[a] = 2.0 * mu / al * (p[a] - m)
+        for b in range(3):
+            D[a, b] = 2.0 * mu * (p[a] * ((1.0 if a == b else 0.0) - 1.0 / 3.0) - (p[b] - m) / 3.0)
+    return 2.0 * mu / (al * al) * (p0 + p1 + p2 - 3.0)
+
+
+@numba.njit(cache=True, inline="always")
+def _branch_point(F, Finv, Cv, mu, al, eta, dt, Cv_new, tauM, Cp, Tab, nv, work, v3):
+    """One Maxwell branch at one point over a step of dt (Reese and Govindjee 1998): the trial elastic
+    left stretch b_tr = F C_v^-1 F^T (C_v^-1 of the step's start), its principal logarithmic
+    stretches eps_tr and directions nv; the implicit exponential update eps + dt/(2 eta) tau(eps)
+    = eps_tr (Newton, convex: D is positive semi-definite), b_e = sum exp(2 eps_a) n_a n_a, the new
+    C_v^-1 = F^-1 b_e F^-T. Fills the Kirchhoff stress tauM = sum tau_a n_a n_a, and for the
+    tangent Cp_ab = dtau_a/deps_tr_b - 2 tau_a delta_ab and the off-diagonal shear terms
+    Tab = (tau_a l_b^2 - tau_b l_a^2)/(l_a^2 - l_b^2) (l^2 the trial's eigenvalues; as they meet,
+    the limit (C_aa - C_ab)/2 - tau_a). Returns the branch's elastic energy."""
+    btr, D, Kl, Ki = work[0], work[1], work[2], work[3]
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for r in range(3):
+                for t in range(3):
+                    acc += F[i, r] * Cv[r, t] * F[j, t]
+            btr[i, j] = acc
+    lam2 = v3[0]
+    _eig3(btr, lam2, nv)
+    etr, eps, tau = v3[1], v3[2], v3[3]
+    for a in range(3):
+        etr[a] = 0.5 * math.log(lam2[a])
+        eps[a] = etr[a]
+    s = dt / (2.0 * eta)
+    for _ in range(60):
+        _branch_stresses(eps, mu, al, tau, D)
+        if s == 0.0:
+            break
+        for a in range(3):
+            for b in range(3):
+                Kl[a, b] = (1.0 if a == b else 0.0) + s * D[a, b]
+        inv3(Kl, Ki)
+        worst = 0.0
+        for a in range(3):
+            step = 0.0
+            for b in range(3):
+                step -= Ki[a, b] * (eps[b] - etr[b] + s * tau[b])
+            btr[0, a] = step
+            worst = max(worst, abs(step))
+        for a in range(3):
+            eps[a] += btr[0, a]
+        if worst <= 1e-15:
+            break
+    energy = _branch_stresses(eps, mu, al, tau, D)
+    # C_alg = D (I + s D)^-1: dtau/deps_tr
+    for a in range(3):
+        for b in range(3):
+            Kl[a, b] = (1.0 if a == b else 0.0) + s * D[a, b]
+    inv3(Kl, Ki)
+    for a in range(3):
+        for b in range(3):
+            acc = 0.0
+            for c in range(3):
+                acc += D[a, c] * Ki[c, b]
+            Cp[a, b] = acc
+    for a in range(3):
+        for b in range(3):
+            if a == b:
+                Tab[a, b] = 0.0
+                continue
+            den = lam2[a] - lam2[b]
+            if abs(den) <= 1e-7 * max(lam2[a], lam2[b]):
+                Tab[a, b] = 0.5 * (Cp[a, a] - Cp[a, b]) - tau[a]
+            else:
+                Tab[a, b] = (tau[a] * lam2[b] - tau[b] * lam2[a]) / den
+    for a in range(3):
+        Cp[a, a] -= 2.0 * tau[a]
+    for i in range(3):
+        for j in range(3):
+            acc, be = 0.0, 0.0
+            for a in range(3):
+                acc += tau[a] * nv[i, a] * nv[j, a]
+                be += math.exp(2.0 * eps[a]) * nv[i, a] * nv[j, a]
+            tauM[i, j] = acc
+            btr[i, j] = be  # b_e
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for r in range(3):
+                for t in range(3):
+                    acc += Finv[i, r] * btr[r, t] * Finv[j, t]
+            Cv_new[i, j] = acc
+    return energy
+
+
+@numba.njit(cache=True, inline="always")
+def _add_branch_tangent(Ke, e, X, q, k, w, tauM, Cp, Tab, nv, Xn, M9, Y, Z):
+    """Ke[e]'s upper triangle += w (X c X + delta_ik X tau X) at point q for a branch's spatial
+    tangent c = sum_ab Cp_ab m_a m_b + sum_(a!=b) Tab (n_a n_b n_a n_b + n_a n_b n_b n_a)
+    (m_a = n_a n_a; Bonet and Wood 2008, eq. 6.91, with the algorithmic dtau/deps_tr of the trial
+    state, Simo 1992): Y^T M Y with Y[(p, r), (a', i)] = n_ip (X_a' . n_r)."""
+    nd = 3 * k
+    for a in range(k):
+        for p in range(3):
+            Xn[a, p] = X[q, a, 0] * nv[0, p] + X[q, a, 1] * nv[1, p] + X[q, a, 2] * nv[2, p]
+    for p in range(3):
+        for r in range(3):
+            for a in range(k):
+                for i in range(3):
+                    Y[3 * p + r, 3 * a + i] = nv[i, p] * Xn[a, r]
+    for i in range(9):
+        for j in range(9):
+            M9[i, j] = 0.0
+    for p in range(3):
+        for r in range(3):
+            M9[4 * p, 4 * r] = Cp[p, r]
+            if p != r:
+                M9[3 * p + r, 3 * p + r] += Tab[p, r]
+                M9[3 * p + r, 3 * r + p] += Tab[p, r]
+    for i in range(9):
+        for col in range(nd):
+            acc = 0.0
+            for j in range(9):
+                acc += M9[i, j] * Y[j, col]
+            Z[i, col] = acc
+    for row in range(nd):
+        for col in range(row, nd):
+            acc = 0.0
+            for i in range(9):
+                acc += Y[i, row] * Z[i, col]
+            Ke[e, row, col] += w * acc
+    for a in range(k):
+        for b in range(a, k):
+            geo = 0.0
+            for r in range(3):
+                for t in range(3):
+                    geo += X[q, a, r] * tauM[r, t] * X[q, b, t]
+            for i in range(3):
+                Ke[e, 3 * a + i, 3 * b + i] += w * geo
+
+
 @numba.njit(cache=True, parallel=True)
-def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke, energy, theta, minJ, H, history):
+def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke, energy, theta, minJ,
+                 viscous, Cv, bmu, balpha, beta, dt, Cv_out):
     """For every element e: the internal force fe[e] (3k,), the tangent Ke[e] (3k, 3k) when
     `want_tangent`, the energy, the mean dilatation theta and the smallest J of its points.
 
@@ -142,9 +292,11 @@ def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke
     element's mean J (P2/P0); else of each point's J (the plain displacement element). An element with a point at J <= 0 gets
     minJ <= 0 and no force (the caller rejects the state).
 
-    With `history`, H (m, q, 3, 3) a second Piola-Kirchhoff stress at every point, constant in the
-    step (a viscoelastic law's branches, `sim.viscoelastic`): it adds to the stress, its energy
-    H : (C - I)/2 and its geometric tangent; else H is a (1, 1, 3, 3) placeholder."""
+    With `viscous`, each point also carries Maxwell branches (`sim.material.Viscoelastic`): branch b of law l
+    has the isochoric Ogden energy bmu[l, b], balpha[l, b] of its elastic part and viscosity
+    beta[l, b]; Cv (m, q, branches, 3, 3) is its C_v^-1 at the step's start, and the step of `dt`
+    seconds is taken implicitly (`_branch_point`), its updated C_v^-1 written to Cv_out; else Cv,
+    Cv_out are (1, 1, 1, 3, 3) placeholders."""
     m, nq, k = G.shape[0], G.shape[1], G.shape[2]
     nd = 3 * k
     for e in numba.prange(m):
@@ -156,7 +308,14 @@ def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke
         Mab = np.empty((3, 3))
         Dab = np.empty((3, 3))
         n = np.empty((3, 3))
-        FH = np.empty((3, 3))
+        tauM = np.empty((3, 3))
+        Cp = np.empty((3, 3))
+        Tab = np.empty((3, 3))
+        nv = np.empty((3, 3))
+        Xn = np.empty((k, 3))
+        M9 = np.empty((9, 9))
+        vwork = np.empty((6, 3, 3))
+        v3 = np.empty((4, 3))
         qg = np.empty((k, 3))
         Y = np.empty((9, nd))
         Z = np.empty((9, nd))
@@ -199,37 +358,26 @@ def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke
                     for b in range(3):
                         acc += s[b] * n[i, b] * qg[a, b]
                     f[3 * a + i] += w * acc
-            if history:  # S += H: f_ai += (F H grad N_a)_i, energy += H : (C - I)/2
-                for i in range(3):
-                    for b in range(3):
-                        acc = 0.0
-                        for r in range(3):
-                            acc += F[i, r] * H[e, q, r, b]
-                        FH[i, b] = acc
-                for a in range(k):
-                    for i in range(3):
-                        f[3 * a + i] += w * (FH[i, 0] * G[e, q, a, 0] + FH[i, 1] * G[e, q, a, 1] + FH[i, 2] * G[e, q, a, 2])
-                acc = 0.0
-                for r in range(3):
-                    for b in range(3):
-                        cr = F[0, r] * F[0, b] + F[1, r] * F[1, b] + F[2, r] * F[2, b] - (1.0 if r == b else 0.0)
-                        acc += H[e, q, r, b] * cr
-                en += 0.5 * w * acc
-                if want_tangent:
-                    for ap in range(k):
-                        for bp in range(ap, k):
-                            geo = 0.0
-                            for r in range(3):
-                                for b in range(3):
-                                    geo += G[e, q, ap, r] * H[e, q, r, b] * G[e, q, bp, b]
-                            for i in range(3):
-                                Ke[e, 3 * ap + i, 3 * bp + i] += w * geo
             inv3(F, Finv)  # F^-1, for the volumetric variations: X[a, i] = grad N_a . F^-1[:, i]
             Jq[q] = Jd
             for a in range(k):
                 for i in range(3):
                     X[q, a, i] = G[e, q, a, 0] * Finv[0, i] + G[e, q, a, 1] * Finv[1, i] + G[e, q, a, 2] * Finv[2, i]
                     g[3 * a + i] += w * Jd * X[q, a, i]
+            if viscous:
+                for br in range(bmu.shape[1]):
+                    if bmu[law, br] == 0.0:  # a padded branch: nothing, its state kept
+                        for i in range(3):
+                            for j in range(3):
+                                Cv_out[e, q, br, i, j] = Cv[e, q, br, i, j]
+                        continue
+                    en += w * _branch_point(F, Finv, Cv[e, q, br], bmu[law, br], balpha[law, br], beta[law, br], dt,
+                                            Cv_out[e, q, br], tauM, Cp, Tab, nv, vwork, v3)
+                    for a in range(k):  # f_ai += tau_ij grad_x N_a,j
+                        for i in range(3):
+                            f[3 * a + i] += w * (tauM[i, 0] * X[q, a, 0] + tauM[i, 1] * X[q, a, 1] + tauM[i, 2] * X[q, a, 2])
+                    if want_tangent:
+                        _add_branch_tangent(Ke, e, X, q, k, w, tauM, Cp, Tab, nv, Xn, M9, Y, Z)
             if not want_tangent:
                 continue
             # isochoric material part: Y^T Q Y with Y[(a,b), (a', i)] = qg[a', b] n[i, a]
