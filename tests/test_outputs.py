@@ -30,6 +30,8 @@ CASES = {
     "plan --plot": (["plan", "--protocol", PROTOCOL, "--plot", "{out}"], "power.png", "", False),
     "calibrate plate-spring": (["calibrate", "plate-spring", "--out", "{out}"], "ps.toml", "", False),
     "calibrate material": (["calibrate", "material", "--out", "{out}"], "m.toml", "", True),
+    "calibrate rheology": (["calibrate", "rheology", "--mu-inf", "700", "--mu-1", "2000", "--tau-1", "9.7", "--bulk-modulus", "6e4",
+                            "--out", "{out}"], "r.toml", "", False),
     "calibrate field --out": (["calibrate", "field", "--out", "{out}"], "f.npz", "", False),
     "calibrate field --params-out": (["calibrate", "field", "--out", "{tmp}/new.npz", "--params-out", "{out}"], "p.toml", "", False),
     "calibrate rig": (["calibrate", "rig", "--protocol", PROTOCOL, "--out", "{out}"], "rig.json", "", False),
