@@ -324,6 +324,10 @@ class Viscoelastic:
             out += b.mu * (-math.expm1(-h) / h if h > 0 else 1.0)
         return out
 
+    def scaled(self, ratio: float) -> Viscoelastic:
+        """Every modulus times `ratio`, the times kept: the force scales by `ratio` along any history."""
+        return Viscoelastic(self.equilibrium.scaled(ratio), tuple(Branch(b.mu * ratio, b.alpha, b.tau) for b in self.branches))
+
     def describe(self) -> str:
         parts = ", ".join(f"mu {b.mu:.4g} Pa, alpha {b.alpha:.4g}, tau {b.tau:.4g} s" for b in self.branches)
         return f"{self.equilibrium.describe()} + branches ({parts})"

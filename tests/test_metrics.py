@@ -69,6 +69,25 @@ def test_minimum_jerk_reach_equals_its_closed_forms():
     assert kin.sparc(kin.speed(t[held], x[held]), FS, pad=8) == pytest.approx(sparc_continuous(), abs=0.002)
 
 
+def test_a_pulls_ramp_and_hold_equal_the_minimum_jerk_closed_form():
+    """Pulled D in T (minimum jerk) then held H before the release: the 10-90% rise of
+    s(u) = 10u^3 - 15u^4 + 6u^5 found by root-finding here, the speed 0.8 D over it, the hold H plus
+    the ramp's last tenth."""
+    H = 0.9
+    t = np.arange(0, 0.3 + T + H + 1e-9, 1 / FS)
+    u = np.clip((t - 0.3) / T, 0, 1)
+    x = (D * (10 * u**3 - 15 * u**4 + 6 * u**5))[:, None] * U
+    held = t >= 0.3 - 1e-9
+    m = hand_metrics(t, x, np.zeros_like(x), held)
+    s = lambda v, level: 10 * v**3 - 15 * v**4 + 6 * v**5 - level  # noqa: E731
+    u10, u90 = brentq(s, 0, 1, args=(0.1,)), brentq(s, 0, 1, args=(0.9,))
+    assert m["pull_distance"] == pytest.approx(D, rel=1e-4)  # the 20 Hz low-pass rings by 5e-6
+    assert m["ramp_time"] == pytest.approx((u90 - u10) * T, abs=2e-3)  # the ticks are 1 ms
+    assert m["ramp_speed"] == pytest.approx(0.8 * D / ((u90 - u10) * T), rel=4e-3)
+    assert m["ramp_speed"] == pytest.approx(1.579 * D / T, rel=4e-3)
+    assert m["hold_time"] == pytest.approx((1 - u90) * T + H, abs=2e-3)
+
+
 def test_sparc_does_not_depend_on_distance_or_duration_and_falls_with_a_second_submovement():
     t = np.arange(0, 1.0 + 1e-9, 1 / FS)
     s = t / t[-1]
@@ -184,6 +203,19 @@ def test_cli_metrics_on_a_synthetic_study(tmp_path):
     assert "SYNTHETIC" in out["note"]
     assert len(out["rows"]) == len(table)
     assert {m["name"] for m in out["metrics"]} == {m.name for m in METRICS}
+    # --speeds: the pulls' percentiles, against the rows' own numbers (numpy's percentiles of them here)
+    res = studyctl("metrics", "--db", db, "--speeds")
+    assert res.exit_code == 0, res.output
+    speeds = json.loads(res.output)
+    pulls = table[(table["hand"] != "both") & table["metric"].isin(["ramp_speed", "pull_distance"])].pivot_table(
+        index=["code", "condition", "trial", "hand"], columns="metric", values="value")
+    pulls = pulls[pulls["pull_distance"] >= 1e-3]
+    assert speeds["pulls"] == len(pulls) > 0 and speeds["participants"] == 2 and speeds["synthetic"] is True
+    assert speeds["speeds"]["typical"]["speed_m_s"] == pytest.approx(np.median(pulls["ramp_speed"]), rel=1e-12)
+    assert speeds["percentiles"]["ramp_speed"]["p90"] == pytest.approx(np.percentile(pulls["ramp_speed"], 90), rel=1e-12)
+    assert "SYNTHETIC" in speeds["note"]
+    wrong = studyctl("metrics", "--db", db, "--speeds", "--format", "csv")
+    assert wrong.exit_code == 2 and "--speeds writes JSON" in wrong.output
     missing = studyctl("metrics", "--db", tmp_path / "nope.db")
     assert missing.exit_code == 1
     assert len(missing.output.strip().splitlines()) == 1

@@ -249,3 +249,26 @@ def test_calibrate_rheology_refuses_bad_input_in_one_line(tmp_path):
     res = studyctl("calibrate", "rheology", "--mu-inf", "700", "--mu-1", "2000", "--tau-1", "9.7", "--bulk-modulus", "6e4",
                    "--data", tmp_path / "missing.csv")
     assert res.exit_code != 0 and "missing.csv" in res.output and "Traceback" not in res.output
+
+
+def test_a_pull_in_time_records_the_ramp_then_the_hold():
+    from analysis.verification.pulls_in_time import record_times
+
+    times, xs = record_times([0.002, 0.004, 0.012], 0.01, holds=(0.5, 5.0))
+    assert np.allclose(times, [0.2, 0.4, 1.2, 1.7, 6.2]) and np.allclose(xs, [0.002, 0.004, 0.012, 0.012, 0.012])
+    for bad in ((0.0, [0.002]), (0.01, [0.004, 0.002]), (float("nan"), [0.002])):
+        with pytest.raises(ParameterError, match="positive speed"):
+            record_times(bad[1], bad[0])
+
+
+def test_follow_splits_an_interval_into_steps_of_at_most_max_dt():
+    nodes, tets = grid_tets(np.ones((1, 1, 1), bool), np.zeros(3), 1.0)
+    space = TetSpace(nodes, tets, np.isclose(nodes[:, 1], 0.0), 1)
+    X = space.all_nodes
+    boundary = np.flatnonzero(np.isclose(X[:, 1], 1.0))
+    dofs = (3 * boundary[:, None] + np.arange(3)).ravel()
+    F_of = _history("shear", 0.05)
+    times = np.array([1.2, 3.0])
+    targets = [((F_of(t) - np.eye(3)) @ X[boundary].T).T.ravel() for t in times]
+    res = follow(ViscoelasticStrain(space, LAW), _rows(space, dofs), times, targets, max_dt=0.25)
+    assert res.report.converged and res.report.load_steps == 5 + 8  # ceil(1.2 / 0.25), ceil(1.8 / 0.25)

@@ -89,3 +89,20 @@ def above_limit(force_n: np.ndarray, dt: np.ndarray, limit_n: float) -> tuple[fl
     exceeds `limit_n`, and the integral of max(|F| - limit, 0) over time."""
     excess = np.maximum(np.asarray(force_n, dtype=float) - limit_n, 0.0)
     return float(np.sum(dt[excess > 0])), float(np.sum(excess * dt))
+
+
+def ramp(times: np.ndarray, distance: np.ndarray, low: float = 0.1, high: float = 0.9) -> tuple[float, float, float]:
+    """A pull's ramp and hold from the tip's distance from where it grasped (ticks,): (its largest
+    distance D, the rise time from first passing `low` D to first reaching `high` D, the hold: from
+    there, the time the distance stays at or above `high` D, to the last tick). A rise time's
+    10-90% is the step-response convention; a minimum-jerk pull over T rises in 0.507 T."""
+    d = np.asarray(distance, dtype=float)
+    t = np.asarray(times, dtype=float)
+    if len(d) < 2 or not d.max() > 0:
+        return float(d.max()) if len(d) else float("nan"), float("nan"), float("nan")
+    top = float(d.max())
+    a = int(np.argmax(d >= low * top))
+    b = int(np.argmax(d >= high * top))
+    below = np.flatnonzero(d[b:] < high * top)
+    end = b + int(below[0]) if len(below) else len(d) - 1
+    return top, float(t[b] - t[a]), float(t[end] - t[b])

@@ -88,6 +88,14 @@ METRICS: tuple[Metric, ...] = (
            ALOTAIBI + " (efficiency index)"),
     Metric("mean_speed", "m/s", "efficiency", "path length over duration", AZARNOUSH + ", tier 2"),
     Metric("peak_speed", "m/s", "efficiency", "largest tip speed during the movement", "Flash and Hogan 1985, J Neurosci 5:1688-1703"),
+    Metric("pull_distance", "m", "efficiency", "largest distance of the tip from where it grasped during the movement",
+           "this platform (docs/metrics.md; the bench's pulls, docs/viscoelastic.md)"),
+    Metric("ramp_time", "s", "efficiency", "rise time of that distance, from 10% to 90% of the pull distance",
+           "the step response's 10-90% rise time; this platform (docs/metrics.md)"),
+    Metric("ramp_speed", "m/s", "efficiency", "0.8 pull distance over the ramp time: the speed of a constant-rate pull of the same rise",
+           "this platform (docs/metrics.md; the bench's pull speeds, docs/viscoelastic.md)"),
+    Metric("hold_time", "s", "efficiency", "from the ramp's end, how long the distance stays at 90% of the pull distance or more",
+           "this platform (docs/metrics.md)"),
     Metric("mean_force", "N", "force", "mean force magnitude during the movement", AZARNOUSH + ", tier 2"),
     Metric("force_integral", "N s", "force", "integral of the force magnitude over the movement (summed force)", AZARNOUSH + ", tier 2"),
     Metric("force_p50", "N", "force", "median of the force magnitudes during the movement (the force histogram)", AZARNOUSH + ", tier 3"),
@@ -155,6 +163,8 @@ def hand_metrics(times, positions, forces, buttons, goal: Goal | None = None) ->
         out |= _outcome(t, p - p[0], d, goal)
     out |= {"duration": duration, "path_length": path, "path_ratio": path / straight if straight > 0 else math.nan,
             "mean_speed": path / duration if duration > 0 else math.nan, "peak_speed": float(v.max())}
+    top, rise, hold = kin.ramp(t, np.linalg.norm(p - p[0], axis=1))
+    out |= {"pull_distance": top, "ramp_time": rise, "ramp_speed": 0.8 * top / rise if rise > 0 else math.nan, "hold_time": hold}
     # the last tick's hold is outside the movement: integrate over the intervals between its ticks
     out |= {"mean_force": float(f.mean()), "force_integral": float(np.sum(f[:-1] * np.diff(t)))}
     out |= {f"force_p{q}": float(np.percentile(f, q)) for q in (50, 90, 99)}
@@ -218,3 +228,28 @@ def metrics_table(study: Study, goals: Goal | Mapping[str, Goal] | None = None) 
         key = {"code": r["code"], "synthetic": bool(r["synthetic"]), "condition": r["model"], "trial": int(r["trial"])}
         out += [key | m | {"unit": UNITS[m["metric"]]} for m in trial_metrics(trace, goals)]
     return pd.DataFrame(out, columns=COLUMNS)
+
+
+SPEED_METRICS = ("ramp_speed", "ramp_time", "pull_distance", "hold_time")
+MIN_PULL_M = 1e-3  # a grasp that moved less than this is not a pull (a tremor's reach is 0.1-0.4 mm)
+
+
+def pull_speeds(table: pd.DataFrame) -> dict:
+    """How the study's hands pulled, from `metrics_table`'s rows: over every pull (a hand's grasp
+    that moved at least `MIN_PULL_M`), the 10th, 50th and 90th percentiles of the ramp speed, the
+    ramp time, the pull distance and the hold time, with the counts of pulls and participants and
+    whether they are synthetic; the bench's speeds read off them: typical (the median ramp speed)
+    and fast (the 90th percentile), each with the median hold."""
+    rows = table[table["metric"].isin(SPEED_METRICS) & (table["hand"] != BOTH)]
+    wide = rows.pivot_table(index=["code", "condition", "trial", "hand"], columns="metric", values="value", aggfunc="first")
+    wide = wide[wide.get("pull_distance", pd.Series(dtype=float)) >= MIN_PULL_M].dropna(subset=["ramp_speed"]) if len(wide) else wide
+    codes = sorted({k[0] for k in wide.index})
+    synthetic = sorted(set(table.loc[table["code"].isin(codes), "synthetic"].astype(bool))) if codes else []
+    out = {"pulls": int(len(wide)), "participants": len(codes), "synthetic": synthetic == [True], "mixed": len(synthetic) > 1,
+           "percentiles": {m: {f"p{q}": float(np.percentile(wide[m].dropna(), q)) if wide[m].notna().any() else math.nan for q in (10, 50, 90)}
+                           for m in SPEED_METRICS if m in wide}}
+    if out["pulls"]:
+        p = out["percentiles"]
+        out["speeds"] = {"typical": {"speed_m_s": p["ramp_speed"]["p50"], "hold_s": p["hold_time"]["p50"]},
+                         "fast": {"speed_m_s": p["ramp_speed"]["p90"], "hold_s": p["hold_time"]["p50"]}}
+    return out

@@ -13,6 +13,7 @@ is done once; an indefinite tangent is factorised shifted (`sim.linalg.shifted_f
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -146,11 +147,12 @@ class FollowedPath:
     time_done: float = 0.0
 
 
-def follow(system, W: sp.csr_matrix, times, targets, *, tol: float = 1e-8, max_iter: int = 12, min_step: float = 1e-6) -> FollowedPath:
+def follow(system, W: sp.csr_matrix, times, targets, *, tol: float = 1e-8, max_iter: int = 12, min_step: float = 1e-6,
+           max_dt: float = math.inf) -> FollowedPath:
     """Hold ``W u = targets[i]`` at ``times[i]`` (s, increasing, after 0) on a body stepped in time
     (`viscous.ViscoelasticStrain`), from rest at t = 0 with the target moving linearly between the
-    given times: one step per interval, halved (the target interpolated) where Newton fails, each
-    step committed once it converged. A hold is a repeated target."""
+    given times: steps of at most `max_dt` s per interval, halved (the target interpolated) where
+    Newton fails, each committed once it converged. A hold is a repeated target."""
     free, n = system.space.free, 3 * system.space.n_all
     times = np.asarray(times, dtype=np.float64)
     targets = np.asarray(targets, dtype=np.float64).reshape(len(times), -1)
@@ -163,7 +165,7 @@ def follow(system, W: sp.csr_matrix, times, targets, *, tol: float = 1e-8, max_i
     steps = _Steps(W, Wt)
     t_done, u, lam, d_done = 0.0, np.zeros(n), np.zeros(targets.shape[1]), np.zeros(targets.shape[1])
     for i, (t_i, d_i) in enumerate(zip(times, targets)):
-        h = t_i - t_done
+        h = (t_i - t_done) / math.ceil((t_i - t_done) / max_dt - 1e-9) if math.isfinite(max_dt) else t_i - t_done
         while t_done < t_i:
             t_new = min(t_done + h, t_i)
             if t_i - t_new < 0.25 * h:
