@@ -272,3 +272,32 @@ def test_follow_splits_an_interval_into_steps_of_at_most_max_dt():
     targets = [((F_of(t) - np.eye(3)) @ X[boundary].T).T.ravel() for t in times]
     res = follow(ViscoelasticStrain(space, LAW), _rows(space, dofs), times, targets, max_dt=0.25)
     assert res.report.converged and res.report.load_steps == 5 + 8  # ceil(1.2 / 0.25), ceil(1.8 / 0.25)
+
+
+def test_a_pull_in_time_key_holds_what_decides_its_forces():
+    from types import SimpleNamespace
+
+    from analysis.verification.pulls_in_time import shipped_rheology
+    from analysis.verification.solve_keys import pull_in_time_key
+    from sim.pulls import make_pulls, scene_with
+    from sim.scene import DEFAULT_SCENE
+
+    scene = scene_with(DEFAULT_SCENE)
+    pull = make_pulls(scene)[0]
+    grey, white = shipped_rheology()
+    mesh = SimpleNamespace(key="a-mesh")
+    args = dict(radius=0.005, pull=pull, speed=0.0142, xs=[0.0005, 0.001], holds=(0.25, 1.0), max_dt=0.1)
+
+    def key(**kw):
+        a = args | kw
+        return pull_in_time_key(kw.pop("mesh", mesh), scene, kw.get("grey", grey), kw.get("white", white), a["radius"], a["pull"],
+                                a["speed"], a["xs"], a["holds"], a["max_dt"])
+
+    base = key()
+    assert key() == base and len(base) == 24
+    # the forces are per pascal of the grey equilibrium modulus: a brain twice as stiff keeps the key
+    assert pull_in_time_key(mesh, scene, grey.scaled(2.0), white.scaled(2.0), 0.005, pull, 0.0142, [0.0005, 0.001], (0.25, 1.0), 0.1) == base
+    changed = [key(speed=0.0183), key(holds=(0.25, 2.0)), key(max_dt=0.05), key(xs=[0.0005, 0.0012]), key(pull=make_pulls(scene)[1]),
+               key(white=None), key(grey=Viscoelastic(grey.equilibrium, (Branch(2000.0, -29.84, 5.0),))),
+               pull_in_time_key(SimpleNamespace(key="another"), scene, grey, white, 0.005, pull, 0.0142, [0.0005, 0.001], (0.25, 1.0), 0.1)]
+    assert len(set(changed)) == len(changed) and base not in changed

@@ -8,21 +8,33 @@ scales with its moduli along any history, the times kept).
 
 from __future__ import annotations
 
+import hashlib
+import json
 import time
+from pathlib import Path
 
 import numpy as np
 
-from analysis.verification.tissue_pulls import Problem, grasp_matrix
+from analysis.verification.solve_keys import pull_in_time_key
+from analysis.verification.tissue_pulls import Problem, ReferenceDataError, build_problem, grasp_matrix
 from brainsim_assets import path as _asset
 from sim.errors import ParameterError
+from sim.files import save_npz
+from sim.geometry.patch import patch_area_points
 from sim.geometry.regions import WHITE, quadrature_regions, white_surfaces
+from sim.geometry.tetmesh import hemisphere_surface, mesh_hemisphere
+from sim.geometry.volume import cache_dir
 from sim.material import Viscoelastic, read_rheology
 from sim.models.fem import ViscoelasticStrain, follow
+from sim.pulls import scene_with
+from sim.scene import grasp_radius
 
 GREY_RHEOLOGY = _asset("protocols/materials/human_cortex_rheology.toml")
 WHITE_RHEOLOGY = _asset("protocols/materials/human_white_matter_rheology.toml")
 HOLDS_S = (0.25, 0.5, 1.0, 2.0, 5.0)  # s after the ramp's end: a person's hold (about 1 s) and the relaxation beyond
 MAX_DT_S = 0.1  # the longest time step (the implicit step is first order: docs/viscoelastic.md)
+SHIPPED = _asset("data/reference_pulls_in_time.npz")
+SHIPPED_INFO = _asset("data/reference_pulls_in_time.json")
 
 
 def shipped_rheology() -> tuple[Viscoelastic, Viscoelastic]:
@@ -63,3 +75,64 @@ def solve_pull_in_time(problem: Problem, grey: Viscoelastic, white: Viscoelastic
             "steps": int(rep.load_steps), "cut_steps": int(rep.cut_steps), "iterations": int(sum(rep.iterations)),
             "min_jacobian": float(rep.min_jacobian), "seconds": time.perf_counter() - t0, "free_dofs": int(len(problem.space.free)),
             "speed_m_s": float(speed), "max_dt_s": float(max_dt)}
+
+
+# -- stored, or solved and cached -----------------------------------------------------------------
+
+def _cache_file(key: str) -> Path:
+    return cache_dir() / "reference" / f"pull-time-{key}.npz"
+
+
+def stored_pull_in_time(key: str) -> dict | None:
+    """A pull in time of `key`: shipped (hash-checked), else cached; None if neither."""
+    found = shipped_pulls_in_time().get(key)
+    if found is None and _cache_file(key).exists():
+        with np.load(_cache_file(key), allow_pickle=False) as z:
+            found = {k: (json.loads(str(z[k])) if k == "meta" else z[k]) for k in z.files}
+    return found
+
+
+def pull_in_time_task(args) -> dict:
+    """One pull in time on one mesh (a worker process): stored, or solved and cached. `args`:
+    (scene path, pull, mesh size mm, speed m/s, samples m, holds s, largest step s)."""
+    scene_path, pull, size_mm, speed, xs, holds, max_dt = args
+    scene = scene_with(scene_path)
+    grey, white = shipped_rheology()
+    if scene.spec.material.white_matter is None:
+        white = None
+    radius = grasp_radius(scene)
+    verts, tris, _ = hemisphere_surface(scene.mesh, pull.hemisphere)
+    body = mesh_hemisphere(verts, tris, size_mm * 1e-3)
+    key = pull_in_time_key(body, scene, grey, white, radius, pull, speed, xs, holds, max_dt)
+    found = stored_pull_in_time(key)
+    if found is not None:
+        return {"key": key, "cached": True, "pull": pull.name, "size_mm": size_mm, "speed_m_s": speed} | found
+    r = solve_pull_in_time(build_problem(scene, pull.hemisphere, body), grey, white, *patch_area_points(scene.mesh, pull.vertex, radius),
+                           np.asarray(pull.direction), xs, speed, holds, max_dt)
+    meta = {k: v for k, v in r.items() if k not in ("times_s", "x_m", "force_per_pa")} | {"pull": pull.name, "size_mm": size_mm}
+    save_npz(_cache_file(key), times_s=r["times_s"], x_m=r["x_m"], force_per_pa=r["force_per_pa"], meta=np.asarray(json.dumps(meta)))
+    return {"key": key, "cached": False, "pull": pull.name, "size_mm": size_mm, "speed_m_s": speed, "times_s": r["times_s"],
+            "x_m": r["x_m"], "force_per_pa": r["force_per_pa"], "meta": meta}
+
+
+_SHIPPED: dict | None = None
+
+
+def shipped_pulls_in_time() -> dict:
+    """The shipped pulls in time by key (`data/reference_pulls_in_time.npz`), checked against the
+    SHA-256 its record holds; {} while none are shipped."""
+    global _SHIPPED
+    if _SHIPPED is None:
+        found: dict = {}
+        if SHIPPED.exists() and SHIPPED_INFO.exists():
+            want = json.loads(SHIPPED_INFO.read_text()).get("sha256")
+            have = hashlib.sha256(SHIPPED.read_bytes()).hexdigest()
+            if have != want:
+                raise ReferenceDataError(f"{SHIPPED}: SHA-256 {have[:12]}... differs from {SHIPPED_INFO.name}'s {str(want)[:12]}...; "
+                                         "the file is damaged (reinstall, or rebuild it with scripts/make_pulls_in_time.py)")
+            with np.load(SHIPPED, allow_pickle=False) as z:
+                for name in z.files:
+                    key, _, part = name.partition("__")
+                    found.setdefault(key, {})[part] = json.loads(str(z[name])) if part == "meta" else z[name]
+        _SHIPPED = found
+    return _SHIPPED

@@ -9,6 +9,7 @@ import hashlib
 import json
 
 from analysis.verification.regions import region_key
+from sim.geometry.regions import white_sha256
 from sim.geometry.tetmesh import BodyMesh
 from sim.scene import clamp_limit
 
@@ -61,3 +62,29 @@ def body_key(scene, regional=None) -> list:
 def pull_key(mesh: BodyMesh, scene, law, radius: float, pull, stretch_range=None, regional=None) -> str:
     key = json.dumps(pull_key_inputs(mesh.key, scene, law, radius, pull, stretch_range, regional))
     return hashlib.sha256(key.encode()).hexdigest()[:24]
+
+
+TIME_SOLVER_VERSION = 1  # part of every pull-in-time key: bump when the viscoelastic step or its driver changes
+
+
+def rheology_key(grey, white=None) -> list:
+    """The regional viscoelastic laws (`sim.material.Viscoelastic`) up to the grey matter's
+    equilibrium modulus (forces are stored per pascal of it): every law's shape, every modulus
+    over it, every time, and the white surfaces' hash where there is white matter."""
+    g = grey.equilibrium.shear_modulus
+
+    def one(law):
+        return [law_shape_key(law.equilibrium), key_digits(law.equilibrium.shear_modulus / g),
+                [[key_digits(b.mu / g), key_digits(b.alpha), key_digits(b.tau)] for b in law.branches]]
+
+    return [one(grey)] + ([["white", one(white), white_sha256()]] if white is not None else [])
+
+
+def pull_in_time_key(mesh: BodyMesh, scene, grey, white, radius: float, pull, speed: float, xs, holds, max_dt: float) -> str:
+    """The key of a pull in time (`analysis.verification.pulls_in_time`): the mesh, the clamp, the
+    grasp, the pull, the regional rheology, the speed, the records and the largest step."""
+    axis, limit = clamp_limit(scene)
+    inputs = ["time", TIME_SOLVER_VERSION, mesh.key, rheology_key(grey, white), int(axis), key_number(limit), key_number(radius),
+              int(pull.vertex), [key_number(c) for c in pull.direction], key_digits(speed), [key_number(x) for x in xs],
+              [key_digits(h) for h in holds], key_digits(max_dt)]
+    return hashlib.sha256(json.dumps(inputs).encode()).hexdigest()[:24]
