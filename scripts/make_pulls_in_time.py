@@ -79,6 +79,10 @@ def main() -> None:
             results.append(r)
             took = "stored" if r["cached"] else f"{r['meta'].get('seconds', 0.0):.0f} s"
             print(f"{k}/{len(tasks)} {t[1].name} {t[2]:g} mm {name}: {took}, {time.perf_counter() - start:.0f} s in all", flush=True)
+    stopped = [f"{r['pull']} {r['size_mm']:g} mm {r['speed_name']} ({r['meta'].get('reason') or 'no convergence'})"
+               for r in results if not r["meta"].get("converged")]
+    if stopped:
+        raise SystemExit(f"{len(stopped)} solves stopped, nothing shipped: {'; '.join(stopped)}")
     arrays, entries = {}, []
     for r in sorted(results, key=lambda r: (r["size_mm"], r["speed_name"], r["pull"])):
         for part in ("times_s", "x_m", "force_per_pa"):

@@ -16,7 +16,6 @@ the finite viscoelastic truth's tissue (docs/viscoelastic.md).
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -315,15 +314,6 @@ class Viscoelastic:
         """Pa: the small-strain shear modulus of a step (no time to relax), mu_inf + sum mu_k."""
         return self.equilibrium.shear_modulus + sum(b.mu for b in self.branches)
 
-    def ramp_shear_modulus(self, duration: float) -> float:
-        """Pa: the small-strain secant shear modulus at the end of a constant-rate ramp of
-        `duration` s: mu_inf + sum mu_k (tau_k / T)(1 - e^(-T/tau_k)) (the standard linear solid)."""
-        out = self.equilibrium.shear_modulus
-        for b in self.branches:
-            h = duration / b.tau
-            out += b.mu * (-math.expm1(-h) / h if h > 0 else 1.0)
-        return out
-
     def scaled(self, ratio: float) -> Viscoelastic:
         """Every modulus times `ratio`, the times kept: the force scales by `ratio` along any history."""
         return Viscoelastic(self.equilibrium.scaled(ratio), tuple(Branch(b.mu * ratio, b.alpha, b.tau) for b in self.branches))
@@ -354,11 +344,12 @@ def read_rheology(path) -> tuple[Viscoelastic, dict]:
     if mu is not None and alpha is not None and tau is not None:
         if not len(mu) == len(alpha) == len(tau) >= 1:
             v.error("tau", f"{len(mu)} mu, {len(alpha)} alpha and {len(tau)} tau; allowed: one of each per branch, at least one branch")
+        elif 0.0 in mu:
+            v.error("mu", f"0 Pa is not a branch; allowed: ({MU_RANGE[0]:g}, {MU_RANGE[1]:g}] Pa")
+        elif 0.0 in alpha:
+            v.error("alpha", f"0 is not an exponent; allowed: non-zero values in [{ALPHA_RANGE[0]:g}, {ALPHA_RANGE[1]:g}]")
         else:
-            try:
-                branches = tuple(Branch(float(m), float(a), float(t)) for m, a, t in zip(mu, alpha, tau))
-            except ParameterError as exc:
-                v.error("mu", str(exc))
+            branches = tuple(Branch(float(m), float(a), float(t)) for m, a, t in zip(mu, alpha, tau))
     if problems or law is None or not branches:
         raise ParameterError("; ".join(text for _, _, text in problems) or f"{path}: no law")
     prov = data.get("provenance", {})

@@ -1,6 +1,7 @@
 """The truth's pulls in time: the scene's brain grasped and pulled at a constant speed to the
 bench's largest displacement, then held, its tissue the finite viscoelastic law of each region
-(`sim.material.Viscoelastic`: the rheology files beside the hyperelastic ones), solved by
+(`sim.material.Viscoelastic`: the shipped rheology files, whatever hyperelastic law the scene
+names; white matter where the scene has it; no pia-arachnoid yet), solved by
 `newton.follow` (docs/viscoelastic.md). The force is recorded at every sample of the ramp and at
 the hold's times; per pascal of the grey matter's equilibrium shear modulus (the law's force
 scales with its moduli along any history, the times kept).
@@ -97,6 +98,9 @@ def pull_in_time_task(args) -> dict:
     (scene path, pull, mesh size mm, speed m/s, samples m, holds s, largest step s)."""
     scene_path, pull, size_mm, speed, xs, holds, max_dt = args
     scene = scene_with(scene_path)
+    if scene.spec.material.pia_arachnoid is not None:
+        raise ParameterError(f"{scene_path}: material.pia_arachnoid: the pulls in time have no membrane yet; "
+                             "allowed: a scene without one (the shipped brain_pull.toml)")
     grey, white = shipped_rheology()
     if scene.spec.material.white_matter is None:
         white = None

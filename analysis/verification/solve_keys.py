@@ -84,7 +84,7 @@ def pull_in_time_key(mesh: BodyMesh, scene, grey, white, radius: float, pull, sp
     """The key of a pull in time (`analysis.verification.pulls_in_time`): the mesh, the clamp, the
     grasp, the pull, the regional rheology, the speed, the records and the largest step."""
     axis, limit = clamp_limit(scene)
-    inputs = ["time", TIME_SOLVER_VERSION, mesh.key, rheology_key(grey, white), int(axis), key_number(limit), key_number(radius),
+    inputs = ["time", SOLVER_VERSION, TIME_SOLVER_VERSION, mesh.key, rheology_key(grey, white), int(axis), key_number(limit), key_number(radius),
               int(pull.vertex), [key_number(c) for c in pull.direction], key_digits(speed), [key_number(x) for x in xs],
               [key_digits(h) for h in holds], key_digits(max_dt)]
     return hashlib.sha256(json.dumps(inputs).encode()).hexdigest()[:24]

@@ -31,12 +31,12 @@ def metrics_cmd(db, fmt, out_file, speeds, force):
 
     target = staged(out_file, force, inputs={"--db": db})  # refused before the work
     fmt = output_format(out_file, fmt, ("csv", "json"), "json" if speeds else "csv", "metrics")
+    if speeds and fmt != "json":
+        raise click.UsageError("--speeds writes JSON (--format json, or an --out of .json)")
     study = read_snapshot(db)
     table = metrics_table(study, study_goals(study))
     note = _note(table) if len(table) else f"{db}: no trial with a stored trace yet"
     if speeds:
-        if fmt != "json":
-            raise click.UsageError("--speeds writes JSON (--format json, or an --out of .json)")
         text = json.dumps(jsonable(pull_speeds(table) | {"note": note}), indent=2) + "\n"
         if target:
             write_output(target, text)

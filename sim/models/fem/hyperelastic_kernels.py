@@ -145,16 +145,50 @@ def _branch_stresses(eps, mu, al, tau, D):
     return 2.0 * mu / (al * al) * (p0 + p1 + p2 - 3.0)
 
 
+# an orthonormal basis of the deviatoric plane of principal log stretches: the flow is isochoric,
+# so the update moves eps only there (D's null vector (1, 1, 1) never enters a solve)
+_R2, _R6 = 1.0 / math.sqrt(2.0), 1.0 / math.sqrt(6.0)
+LOCAL_ITERATIONS = 100
+
+
+@numba.njit(cache=True, inline="always")
+def _dev_solve(s, D, r, out):
+    """out (3,) = -(I + s D)^-1 r for r in the deviatoric plane, solved in its basis (2 x 2, positive
+    definite: D is positive semi-definite); False where the 2 x 2 system is not solvable in floating point."""
+    b0 = (_R2, -_R2, 0.0)
+    b1 = (_R6, _R6, -2.0 * _R6)
+    h00 = 1.0 + s * (b0[0] * (D[0, 0] * b0[0] + D[0, 1] * b0[1] + D[0, 2] * b0[2]) + b0[1] * (D[1, 0] * b0[0] + D[1, 1] * b0[1] + D[1, 2] * b0[2])
+                     + b0[2] * (D[2, 0] * b0[0] + D[2, 1] * b0[1] + D[2, 2] * b0[2]))
+    h11 = 1.0 + s * (b1[0] * (D[0, 0] * b1[0] + D[0, 1] * b1[1] + D[0, 2] * b1[2]) + b1[1] * (D[1, 0] * b1[0] + D[1, 1] * b1[1] + D[1, 2] * b1[2])
+                     + b1[2] * (D[2, 0] * b1[0] + D[2, 1] * b1[1] + D[2, 2] * b1[2]))
+    h01 = s * (b0[0] * (D[0, 0] * b1[0] + D[0, 1] * b1[1] + D[0, 2] * b1[2]) + b0[1] * (D[1, 0] * b1[0] + D[1, 1] * b1[1] + D[1, 2] * b1[2])
+               + b0[2] * (D[2, 0] * b1[0] + D[2, 1] * b1[1] + D[2, 2] * b1[2]))
+    det = h00 * h11 - h01 * h01
+    if not (det > 0.0 and math.isfinite(det)):
+        return False
+    g0 = b0[0] * r[0] + b0[1] * r[1] + b0[2] * r[2]
+    g1 = b1[0] * r[0] + b1[1] * r[1] + b1[2] * r[2]
+    x0 = -(h11 * g0 - h01 * g1) / det
+    x1 = -(h00 * g1 - h01 * g0) / det
+    for a in range(3):
+        out[a] = b0[a] * x0 + b1[a] * x1
+    return True
+
+
 @numba.njit(cache=True, inline="always")
 def _branch_point(F, Finv, Cv, mu, al, eta, dt, Cv_new, tauM, Cp, Tab, nv, work, v3):
     """One Maxwell branch at one point over a step of dt (Reese and Govindjee 1998): the trial elastic
     left stretch b_tr = F C_v^-1 F^T (C_v^-1 of the step's start), its principal logarithmic
     stretches eps_tr and directions nv; the implicit exponential update eps + dt/(2 eta) tau(eps)
-    = eps_tr (Newton, convex: D is positive semi-definite), b_e = sum exp(2 eps_a) n_a n_a, the new
-    C_v^-1 = F^-1 b_e F^-T. Fills the Kirchhoff stress tauM = sum tau_a n_a n_a, and for the
-    tangent Cp_ab = dtau_a/deps_tr_b - 2 tau_a delta_ab and the off-diagonal shear terms
+    = eps_tr, the stationary point of the strictly convex Phi(eps) = |eps - eps_tr|^2 / 2 +
+    dt/(2 eta) psi(eps): Newton in the deviatoric plane with a backtracking line search on Phi
+    (converges from any start; a step so long that the branch fully relaxes included). Then b_e =
+    sum exp(2 eps_a) n_a n_a and the new C_v^-1 = F^-1 b_e F^-T. Fills the Kirchhoff stress tauM =
+    sum tau_a n_a n_a, and for the tangent Cp_ab = dtau_a/deps_tr_b - 2 tau_a delta_ab (dtau/deps_tr
+    = D (I + s D)^-1, through the deviatoric plane) and the off-diagonal shear terms
     Tab = (tau_a l_b^2 - tau_b l_a^2)/(l_a^2 - l_b^2) (l^2 the trial's eigenvalues; as they meet,
-    the limit (C_aa - C_ab)/2 - tau_a). Returns the branch's elastic energy."""
+    the limit (C_aa - C_ab)/2 - tau_a). Returns the branch's elastic energy, or NaN where the
+    update did not converge (the caller rejects the state)."""
     btr, D, Kl, Ki = work[0], work[1], work[2], work[3]
     for i in range(3):
         for j in range(3):
@@ -170,31 +204,66 @@ def _branch_point(F, Finv, Cv, mu, al, eta, dt, Cv_new, tauM, Cp, Tab, nv, work,
         etr[a] = 0.5 * math.log(lam2[a])
         eps[a] = etr[a]
     s = dt / (2.0 * eta)
-    for _ in range(60):
-        _branch_stresses(eps, mu, al, tau, D)
-        if s == 0.0:
+    res, step, trial = Kl[0], Kl[1], Kl[2]  # rows of Kl as (3,) work vectors
+    converged = s == 0.0
+    psi = _branch_stresses(eps, mu, al, tau, D)
+    floor = 0.0
+    for _ in range(LOCAL_ITERATIONS):
+        if converged:
             break
+        phi = s * psi
+        size = 0.0
+        stiff = 0.0
         for a in range(3):
-            for b in range(3):
-                Kl[a, b] = (1.0 if a == b else 0.0) + s * D[a, b]
-        inv3(Kl, Ki)
+            res[a] = eps[a] - etr[a] + s * tau[a]
+            phi += 0.5 * (eps[a] - etr[a]) ** 2
+            size = max(size, abs(res[a]))
+            stiff = max(stiff, abs(D[a, 0]) + abs(D[a, 1]) + abs(D[a, 2]))
+        # round-off in s tau(eps) is about s |D| times eps's: no Newton step gets below that
+        floor = 1e-14 * (1.0 + s * stiff)
+        if size <= floor:
+            converged = True
+            break
+        if not _dev_solve(s, D, res, step):
+            break
+        slope = res[0] * step[0] + res[1] * step[1] + res[2] * step[2]
+        lam = 1.0
+        for _ in range(60):  # backtracking: Phi falls enough (Armijo), or near the solution, where Phi's
+            # round-off hides its fall, the residual falls
+            for a in range(3):
+                trial[a] = eps[a] + lam * step[a]
+            psi_t = _branch_stresses(trial, mu, al, tau, D)
+            phi_t = s * psi_t
+            size_t = 0.0
+            for a in range(3):
+                phi_t += 0.5 * (trial[a] - etr[a]) ** 2
+                size_t = max(size_t, abs(trial[a] - etr[a] + s * tau[a]))
+            if math.isfinite(phi_t) and (phi_t <= phi + 1e-4 * lam * slope or size_t <= 0.5 * size):
+                break
+            lam *= 0.5
+        for a in range(3):
+            eps[a] = trial[a]
+        psi = _branch_stresses(eps, mu, al, tau, D)
+        if lam * max(abs(step[0]), abs(step[1]), abs(step[2])) <= 1e-15:
+            break  # no more progress: accepted below only at round-off
+    if not converged:
         worst = 0.0
         for a in range(3):
-            step = 0.0
-            for b in range(3):
-                step -= Ki[a, b] * (eps[b] - etr[b] + s * tau[b])
-            btr[0, a] = step
-            worst = max(worst, abs(step))
+            worst = max(worst, abs(eps[a] - etr[a] + s * tau[a]))
+        converged = worst <= 1e4 * max(floor, 1e-14)  # stalled at round-off, within four digits of its floor
+    if not converged or not math.isfinite(psi):
+        return math.nan
+    # dtau/deps_tr = D (I + s D)^-1: (I + s D)^-1 is identity on (1, 1, 1) and the 2 x 2 inverse on the plane
+    for b in range(3):
         for a in range(3):
-            eps[a] += btr[0, a]
-        if worst <= 1e-15:
-            break
-    energy = _branch_stresses(eps, mu, al, tau, D)
-    # C_alg = D (I + s D)^-1: dtau/deps_tr
-    for a in range(3):
-        for b in range(3):
-            Kl[a, b] = (1.0 if a == b else 0.0) + s * D[a, b]
-    inv3(Kl, Ki)
+            res[a] = 1.0 if a == b else 0.0
+        mean = (res[0] + res[1] + res[2]) / 3.0
+        for a in range(3):
+            res[a] -= mean  # the unit vector's deviatoric part; its mean passes through unchanged and D kills it
+        if not _dev_solve(s, D, res, step):
+            return math.nan
+        for a in range(3):
+            Ki[a, b] = -step[a] + mean
     for a in range(3):
         for b in range(3):
             acc = 0.0
@@ -228,7 +297,7 @@ def _branch_point(F, Finv, Cv, mu, al, eta, dt, Cv_new, tauM, Cp, Tab, nv, work,
                 for t in range(3):
                     acc += Finv[i, r] * btr[r, t] * Finv[j, t]
             Cv_new[i, j] = acc
-    return energy
+    return psi
 
 
 @numba.njit(cache=True, inline="always")
@@ -296,7 +365,9 @@ def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke
     has the isochoric Ogden energy bmu[l, b], balpha[l, b] of its elastic part and viscosity
     beta[l, b]; Cv (m, q, branches, 3, 3) is its C_v^-1 at the step's start, and the step of `dt`
     seconds is taken implicitly (`_branch_point`), its updated C_v^-1 written to Cv_out; else Cv,
-    Cv_out are (1, 1, 1, 3, 3) placeholders."""
+    Cv_out are (1, 1, 1, 3, 3) placeholders. A point whose branch update does not converge gives its
+    element minJ = -1: the Newton solver rejects the state, as it does an inverted one, and a step in
+    time is then halved."""
     m, nq, k = G.shape[0], G.shape[1], G.shape[2]
     nd = 3 * k
     for e in numba.prange(m):
@@ -371,8 +442,12 @@ def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke
                             for j in range(3):
                                 Cv_out[e, q, br, i, j] = Cv[e, q, br, i, j]
                         continue
-                    en += w * _branch_point(F, Finv, Cv[e, q, br], bmu[law, br], balpha[law, br], beta[law, br], dt,
-                                            Cv_out[e, q, br], tauM, Cp, Tab, nv, vwork, v3)
+                    psi_b = _branch_point(F, Finv, Cv[e, q, br], bmu[law, br], balpha[law, br], beta[law, br], dt,
+                                          Cv_out[e, q, br], tauM, Cp, Tab, nv, vwork, v3)
+                    if not math.isfinite(psi_b):  # the branch's update failed here: the state is rejected as an inverted one is
+                        jmin = -1.0
+                        break
+                    en += w * psi_b
                     for a in range(k):  # f_ai += tau_ij grad_x N_a,j
                         for i in range(3):
                             f[3 * a + i] += w * (tauM[i, 0] * X[q, a, 0] + tauM[i, 1] * X[q, a, 1] + tauM[i, 2] * X[q, a, 2])

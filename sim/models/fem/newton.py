@@ -158,6 +158,8 @@ def follow(system, W: sp.csr_matrix, times, targets, *, tol: float = 1e-8, max_i
     targets = np.asarray(targets, dtype=np.float64).reshape(len(times), -1)
     if W.shape != (targets.shape[1], len(free)) or not (times[0] > 0 and np.all(np.diff(times) > 0)):
         raise ValueError("follow: W must be (k, n_free) for k targets a row, times increasing after 0")
+    if system.time != 0.0:
+        raise ValueError(f"follow: the body was stepped to t = {system.time:g} s; a path starts from rest (a new body)")
     Wt = np.ascontiguousarray(W.T.toarray())
     scale = max(float(np.abs(targets).max()), 1e-300)
     report = NewtonReport(load_steps=0, completed_steps=0)
@@ -165,7 +167,8 @@ def follow(system, W: sp.csr_matrix, times, targets, *, tol: float = 1e-8, max_i
     steps = _Steps(W, Wt)
     t_done, u, lam, d_done = 0.0, np.zeros(n), np.zeros(targets.shape[1]), np.zeros(targets.shape[1])
     for i, (t_i, d_i) in enumerate(zip(times, targets)):
-        h = (t_i - t_done) / math.ceil((t_i - t_done) / max_dt - 1e-9) if math.isfinite(max_dt) else t_i - t_done
+        span = t_i - t_done
+        h = span / max(1, math.ceil(span / max_dt - 1e-9)) if math.isfinite(max_dt) else span
         while t_done < t_i:
             t_new = min(t_done + h, t_i)
             if t_i - t_new < 0.25 * h:
@@ -178,7 +181,7 @@ def follow(system, W: sp.csr_matrix, times, targets, *, tol: float = 1e-8, max_i
             if not ok:
                 report.cut_steps += 1
                 h = 0.5 * (t_new - t_done)
-                if h < min_step * times[-1]:
+                if h < min_step * span:  # of this interval: a long hold after it does not excuse a stalled ramp
                     report.converged, report.reason = False, last if isinstance(last, str) else "no convergence"
                     return FollowedPath(times, forces, u, report, t_done)
                 continue

@@ -37,7 +37,9 @@ class ViscoelasticStrain(FiniteStrain):
         self.dt = float(dt)
 
     def commit(self, u: np.ndarray) -> None:
-        """The step converged at `u`: its branches' state becomes the committed one, the clock on by dt."""
+        """The step converged at `u`: its branches' state becomes the committed one, the clock on by
+        dt, and the next evaluation an instant from there (dt = 0) until `step` says otherwise."""
         self.evaluate(u, tangent=False)
         self.Cv, self.Cv_out = self.Cv_out, self.Cv
         self.time += self.dt
+        self.dt = 0.0
