@@ -145,6 +145,18 @@ def _branch_stresses(eps, mu, al, tau, D):
     return 2.0 * mu / (al * al) * (p0 + p1 + p2 - 3.0)
 
 
+@numba.njit(cache=True, inline="always")
+def _congruent(A, M, out):
+    """out = A M A^T (3 x 3)."""
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for r in range(3):
+                for t in range(3):
+                    acc += A[i, r] * M[r, t] * A[j, t]
+            out[i, j] = acc
+
+
 # an orthonormal basis of the deviatoric plane of principal log stretches: the flow is isochoric,
 # so the update moves eps only there (D's null vector (1, 1, 1) never enters a solve)
 _R2, _R6 = 1.0 / math.sqrt(2.0), 1.0 / math.sqrt(6.0)
@@ -190,13 +202,7 @@ def _branch_point(F, Finv, Cv, mu, al, eta, dt, Cv_new, tauM, Cp, Tab, nv, work,
     the limit (C_aa - C_ab)/2 - tau_a). Returns the branch's elastic energy, or NaN where the
     update did not converge (the caller rejects the state)."""
     btr, D, Kl, Ki = work[0], work[1], work[2], work[3]
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for r in range(3):
-                for t in range(3):
-                    acc += F[i, r] * Cv[r, t] * F[j, t]
-            btr[i, j] = acc
+    _congruent(F, Cv, btr)
     lam2 = v3[0]
     _eig3(btr, lam2, nv)
     etr, eps, tau = v3[1], v3[2], v3[3]
@@ -290,14 +296,19 @@ def _branch_point(F, Finv, Cv, mu, al, eta, dt, Cv_new, tauM, Cp, Tab, nv, work,
                 be += math.exp(2.0 * eps[a]) * nv[i, a] * nv[j, a]
             tauM[i, j] = acc
             btr[i, j] = be  # b_e
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for r in range(3):
-                for t in range(3):
-                    acc += Finv[i, r] * btr[r, t] * Finv[j, t]
-            Cv_new[i, j] = acc
+    _congruent(Finv, btr, Cv_new)
     return psi
+
+
+@numba.njit(cache=True, inline="always")
+def _add_yz(Ke, e, Y, Z, nd, w):
+    """Ke[e]'s upper triangle += w Y^T Z (Y, Z: (9, nd), a material tangent's two factors)."""
+    for i in range(nd):
+        for j in range(i, nd):
+            acc = 0.0
+            for r in range(9):
+                acc += Y[r, i] * Z[r, j]
+            Ke[e, i, j] += w * acc
 
 
 @numba.njit(cache=True, inline="always")
@@ -330,12 +341,7 @@ def _add_branch_tangent(Ke, e, X, q, k, w, tauM, Cp, Tab, nv, Xn, M9, Y, Z):
             for j in range(9):
                 acc += M9[i, j] * Y[j, col]
             Z[i, col] = acc
-    for row in range(nd):
-        for col in range(row, nd):
-            acc = 0.0
-            for i in range(9):
-                acc += Y[i, row] * Z[i, col]
-            Ke[e, row, col] += w * acc
+    _add_yz(Ke, e, Y, Z, nd, w)
     for a in range(k):
         for b in range(a, k):
             geo = 0.0
@@ -472,12 +478,7 @@ def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke
                         rt = 3 * b + a
                         for col in range(nd):
                             Z[r, col] = Dab[a, b] * (Y[rt, col] + Y[r, col])
-            for i in range(nd):
-                for j in range(i, nd):
-                    acc = 0.0
-                    for r in range(9):
-                        acc += Y[r, i] * Z[r, j]
-                    Ke[e, i, j] += w * acc
+            _add_yz(Ke, e, Y, Z, nd, w)
             # geometric part: delta_ik sum_b s_b qg[a', b] qg[b', b]
             for ap in range(k):
                 for bp in range(ap, k):

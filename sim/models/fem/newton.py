@@ -97,14 +97,10 @@ def hold(system, W: sp.csr_matrix, target, fractions=(1.0,), *, first_step: floa
             u, lam = u_done + w * (u_done - prev[1]), lam_done + w * (lam_done - prev[2])
         else:
             u, lam = u_done.copy(), lam_done.copy()
-        ok, hist, last = _iterate(system, W, Wt, u, lam, d, scale, tol, max_iter, steps, report)
-        report.residuals.append(hist)
-        report.iterations.append(len(hist))
+        ok, last = _attempt(system, W, Wt, u, lam, d, scale, tol, max_iter, steps, report)
         if not ok and last is not None and prev is not None and not np.array_equal(u, u_done):
             # the predictor may have overshot into inverted elements: try from the last state
-            ok, hist, last = _iterate(system, W, Wt, u_done.copy(), lam_done.copy(), d, scale, tol, max_iter, steps, report)
-            report.residuals.append(hist)
-            report.iterations.append(len(hist))
+            ok, last = _attempt(system, W, Wt, u_done.copy(), lam_done.copy(), d, scale, tol, max_iter, steps, report)
         if not ok:
             report.cut_steps += 1
             h = 0.5 * (t_new - t_done)
@@ -119,7 +115,7 @@ def hold(system, W: sp.csr_matrix, target, fractions=(1.0,), *, first_step: floa
         report.completed_steps += 1
         report.load_steps += 1
         report.min_jacobian = min(report.min_jacobian, min_j)
-        if len(hist) <= 4:  # the planned step grows after a quick one (a step shortened to land on a record leaves it)
+        if report.iterations[-1] <= 4:  # the planned step grows after a quick one (a step shortened to land on a record leaves it)
             h = min(2.0 * h, 0.5)
         while record < len(fractions) and t_done >= fractions[record] - 1e-12:
             forces[record] = lam_done
@@ -175,9 +171,7 @@ def follow(system, W: sp.csr_matrix, times, targets, *, tol: float = 1e-8, max_i
                 t_new = t_i
             d = d_done + (d_i - d_done) * (t_new - t_done) / (t_i - t_done)
             system.step(t_new - t_done)
-            ok, hist, last = _iterate(system, W, Wt, u.copy(), lam.copy(), d, scale, tol, max_iter, steps, report)
-            report.residuals.append(hist)
-            report.iterations.append(len(hist))
+            ok, last = _attempt(system, W, Wt, u.copy(), lam.copy(), d, scale, tol, max_iter, steps, report)
             if not ok:
                 report.cut_steps += 1
                 h = 0.5 * (t_new - t_done)
@@ -295,6 +289,14 @@ def right_gmres(A, M, a: np.ndarray, b: np.ndarray, rtol: float, maxiter: int):
             return sol[:n], sol[n:], j + 1
         V.append(w / H[j + 1, j])
     return None, None, maxiter
+
+
+def _attempt(system, W, Wt, u, lam, d, scale, tol, max_iter, steps: _Steps, report) -> tuple[bool, object]:
+    """`_iterate`, its residuals and iterations recorded in the report: (converged, its last)."""
+    ok, hist, last = _iterate(system, W, Wt, u, lam, d, scale, tol, max_iter, steps, report)
+    report.residuals.append(hist)
+    report.iterations.append(len(hist))
+    return ok, last
 
 
 def _iterate(system, W, Wt, u, lam, d, scale, tol, max_iter, steps: _Steps, report):
