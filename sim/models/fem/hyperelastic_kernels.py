@@ -315,7 +315,7 @@ def _add_yz(Ke, e, Y, Z, nd, w):
 def _add_branch_tangent(Ke, e, X, q, k, w, tauM, Cp, Tab, nv, Xn, M9, Y, Z):
     """Ke[e]'s upper triangle += w (X c X + delta_ik X tau X) at point q for a branch's spatial
     tangent c = sum_ab Cp_ab m_a m_b + sum_(a!=b) Tab (n_a n_b n_a n_b + n_a n_b n_b n_a)
-    (m_a = n_a n_a; Bonet and Wood 2008, eq. 6.91, with the algorithmic dtau/deps_tr of the trial
+    (m_a = n_a n_a; Bonet and Wood 2008's principal-direction form, with the algorithmic dtau/deps_tr of the trial
     state, Simo 1992): Y^T M Y with Y[(p, r), (a', i)] = n_ip (X_a' . n_r)."""
     nd = 3 * k
     for a in range(k):
