@@ -9,15 +9,14 @@ scales with its moduli along any history, the times kept).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from analysis.verification.solve_keys import pull_in_time_key
-from analysis.verification.tissue_pulls import Problem, ReferenceDataError, build_problem, grasp_matrix
+from analysis.verification.solve_keys import keyed_solves, pull_in_time_key
+from analysis.verification.tissue_pulls import Problem, build_problem, grasp_matrix
 from brainsim_assets import path as _asset
 from sim.errors import ParameterError
 from sim.files import save_npz
@@ -127,16 +126,5 @@ def shipped_pulls_in_time() -> dict:
     SHA-256 its record holds; {} while none are shipped."""
     global _SHIPPED
     if _SHIPPED is None:
-        found: dict = {}
-        if SHIPPED.exists() and SHIPPED_INFO.exists():
-            want = json.loads(SHIPPED_INFO.read_text()).get("sha256")
-            have = hashlib.sha256(SHIPPED.read_bytes()).hexdigest()
-            if have != want:
-                raise ReferenceDataError(f"{SHIPPED}: SHA-256 {have[:12]}... differs from {SHIPPED_INFO.name}'s {str(want)[:12]}...; "
-                                         "the file is damaged (reinstall, or rebuild it with scripts/make_pulls_in_time.py)")
-            with np.load(SHIPPED, allow_pickle=False) as z:
-                for name in z.files:
-                    key, _, part = name.partition("__")
-                    found.setdefault(key, {})[part] = json.loads(str(z[name])) if part == "meta" else z[name]
-        _SHIPPED = found
+        _SHIPPED = keyed_solves(SHIPPED, SHIPPED_INFO, "scripts/make_pulls_in_time.py")
     return _SHIPPED

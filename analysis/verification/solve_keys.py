@@ -1,17 +1,26 @@
 """The key of a reference solve (`analysis.verification.tissue_pulls`): a hash of everything
 that decides its forces (the mesh's content, the law's shape, the clamp, the grasp, the pull,
 the data's stretch range, the white matter's law and surfaces, the pia-arachnoid), each number
-written one way on every machine."""
+written one way on every machine; and the shipped solves read back by key (`keyed_solves`)."""
 
 from __future__ import annotations
 
 import hashlib
 import json
+from pathlib import Path
+
+import numpy as np
 
 from analysis.verification.regions import region_key
+from sim.errors import SimError
 from sim.geometry.regions import white_sha256
 from sim.geometry.tetmesh import BodyMesh
 from sim.scene import clamp_limit
+
+
+class ReferenceDataError(SimError):
+    """The shipped reference solves are damaged (their hash differs) or a solve did not converge."""
+
 
 SOLVER_VERSION = 2  # part of every solve's key: bump when the solver, element or law form changes (2: the convex volumetric energy)
 
@@ -88,3 +97,22 @@ def pull_in_time_key(mesh: BodyMesh, scene, grey, white, radius: float, pull, sp
               int(pull.vertex), [key_number(c) for c in pull.direction], key_digits(speed), [key_number(x) for x in xs],
               [key_digits(h) for h in holds], key_digits(max_dt)]
     return hashlib.sha256(json.dumps(inputs).encode()).hexdigest()[:24]
+
+
+def keyed_solves(npz: Path, info: Path, script: str) -> dict:
+    """Shipped solves stored as `KEY__PART` arrays, by key ({key: {part: array, "meta": dict}}), the
+    file's SHA-256 checked against its record `info` (ReferenceDataError naming `script` if not); {} when not shipped."""
+    found: dict = {}
+    if npz.exists() and info.exists():
+        try:
+            want = json.loads(info.read_text())["sha256"]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise ReferenceDataError(f"{info}: not the shipped solves' record ({exc}); reinstall") from None
+        if (have := hashlib.sha256(npz.read_bytes()).hexdigest()) != want:
+            raise ReferenceDataError(f"{npz}: SHA-256 {have[:12]}... differs from {info.name}'s {str(want)[:12]}...; the file is damaged "
+                                     f"(reinstall, or rebuild it with {script})")
+        with np.load(npz, allow_pickle=False) as z:
+            for name in z.files:
+                key, _, part = name.partition("__")
+                found.setdefault(key, {})[part] = json.loads(str(z[name])) if part == "meta" else z[name]
+    return found

@@ -23,7 +23,6 @@ pull solved by Newton, read from the shipped solves or from the cache.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import multiprocessing
@@ -42,14 +41,16 @@ from analysis.verification.solve_keys import (  # noqa: F401 - the keys' home; r
     KEY_DECIMALS,
     LAW_DIGITS,
     SOLVER_VERSION,
+    ReferenceDataError,
     key_digits,
     key_number,
+    keyed_solves,
     law_shape_key,
     pull_key,
     pull_key_inputs,
 )
 from brainsim_assets import path as _asset
-from sim.errors import ParameterError, SimError
+from sim.errors import ParameterError
 from sim.files import save_npz
 from sim.geometry.patch import patch_area_points
 from sim.geometry.tetmesh import SHIPPED_MM, BodyMesh, hemisphere_surface, mesh_hemisphere, needs_meshing
@@ -73,10 +74,6 @@ FOLLOW_SHARE = 0.25
 # a solve made before the last two were recorded has the first four; the rest read NaN (`stored_solve`)
 SUPPORT_FIELDS = ("energy_share_outside", "max_abs_j_minus_1", "principal_stretch_min", "principal_stretch_max",
                   "marginal_share_outside", "max_abs_j_minus_1_fine")
-
-
-class ReferenceDataError(SimError):
-    """The shipped reference solves are damaged (their hash differs) or a solve did not converge."""
 
 
 # -- the P2 problem ---------------------------------------------------------------------------
@@ -165,26 +162,10 @@ _SHIPPED: dict | None = None
 
 
 def shipped_solves() -> dict:
-    """The shipped solves by key ({key: {"xs", "force_per_pa", "stiffness_per_pa"?, "meta"}}),
-    checked against the SHA-256 in data/reference_pulls.json; {} when none are shipped."""
+    """The shipped solves by key ({key: {"xs", "force_per_pa", "stiffness_per_pa"?, "meta"}}): `keyed_solves`."""
     global _SHIPPED
     if _SHIPPED is None:
-        found: dict = {}
-        if SHIPPED_PULLS.exists() and SHIPPED_PULLS_INFO.exists():
-            try:
-                want = json.loads(SHIPPED_PULLS_INFO.read_text())["sha256"]
-            except (OSError, ValueError, KeyError, TypeError) as exc:
-                raise ReferenceDataError(f"{SHIPPED_PULLS_INFO}: not the shipped solves' record ({exc}); reinstall") from None
-            have = hashlib.sha256(SHIPPED_PULLS.read_bytes()).hexdigest()
-            if have != want:
-                raise ReferenceDataError(f"{SHIPPED_PULLS}: SHA-256 {have[:12]}... differs from {SHIPPED_PULLS_INFO.name}'s "
-                                         f"{want[:12]}...; the file is damaged (reinstall, or rebuild it with scripts/make_reference_pulls.py)")
-            with np.load(SHIPPED_PULLS, allow_pickle=False) as z:
-                for name in z.files:
-                    key, _, part = name.partition("__")
-                    entry = found.setdefault(key, {})
-                    entry[part] = json.loads(str(z[name])) if part == "meta" else z[name]
-        _SHIPPED = found
+        _SHIPPED = keyed_solves(SHIPPED_PULLS, SHIPPED_PULLS_INFO, "scripts/make_reference_pulls.py")
     return _SHIPPED
 
 

@@ -83,7 +83,8 @@ class LawModel:
         if velocities is None:
             return [c.law.force(d) for c, d in zip(contacts, disps)]
         # a run of a model that uses time: its laws take the velocity and the time (a device
-        # check's constant pulse does not)
+        # check's constant pulse does not); `sim.models.api.law_force_at`'s rule, written here
+        # because the servo process keeps sim.models.api out (tests/test_servo_messages.py)
         return [c.law.force(d, v, t) if getattr(c.law, "uses_time", False) else c.law.force(d)
                 for c, d, v in zip(contacts, disps, velocities)]
 

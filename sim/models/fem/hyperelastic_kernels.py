@@ -164,17 +164,23 @@ LOCAL_ITERATIONS = 100
 
 
 @numba.njit(cache=True, inline="always")
+def _form(D, x, y):
+    """x . D y for a 3 x 3 D."""
+    acc = 0.0
+    for a in range(3):
+        acc += x[a] * (D[a, 0] * y[0] + D[a, 1] * y[1] + D[a, 2] * y[2])
+    return acc
+
+
+@numba.njit(cache=True, inline="always")
 def _dev_solve(s, D, r, out):
     """out (3,) = -(I + s D)^-1 r for r in the deviatoric plane, solved in its basis (2 x 2, positive
     definite: D is positive semi-definite); False where the 2 x 2 system is not solvable in floating point."""
     b0 = (_R2, -_R2, 0.0)
     b1 = (_R6, _R6, -2.0 * _R6)
-    h00 = 1.0 + s * (b0[0] * (D[0, 0] * b0[0] + D[0, 1] * b0[1] + D[0, 2] * b0[2]) + b0[1] * (D[1, 0] * b0[0] + D[1, 1] * b0[1] + D[1, 2] * b0[2])
-                     + b0[2] * (D[2, 0] * b0[0] + D[2, 1] * b0[1] + D[2, 2] * b0[2]))
-    h11 = 1.0 + s * (b1[0] * (D[0, 0] * b1[0] + D[0, 1] * b1[1] + D[0, 2] * b1[2]) + b1[1] * (D[1, 0] * b1[0] + D[1, 1] * b1[1] + D[1, 2] * b1[2])
-                     + b1[2] * (D[2, 0] * b1[0] + D[2, 1] * b1[1] + D[2, 2] * b1[2]))
-    h01 = s * (b0[0] * (D[0, 0] * b1[0] + D[0, 1] * b1[1] + D[0, 2] * b1[2]) + b0[1] * (D[1, 0] * b1[0] + D[1, 1] * b1[1] + D[1, 2] * b1[2])
-               + b0[2] * (D[2, 0] * b1[0] + D[2, 1] * b1[1] + D[2, 2] * b1[2]))
+    h00 = 1.0 + s * _form(D, b0, b0)
+    h11 = 1.0 + s * _form(D, b1, b1)
+    h01 = s * _form(D, b0, b1)
     det = h00 * h11 - h01 * h01
     if not (det > 0.0 and math.isfinite(det)):
         return False
@@ -188,7 +194,7 @@ def _dev_solve(s, D, r, out):
 
 
 @numba.njit(cache=True, inline="always")
-def _branch_point(F, Finv, Cv, mu, al, eta, dt, Cv_new, tauM, Cp, Tab, nv, work, v3):
+def _branch_point(F, Finv, Cv, mu, al, eta, dt, Cv_new, tauM, Cp, Tab, nv, work, v3, want_tangent):
     """One Maxwell branch at one point over a step of dt (Reese and Govindjee 1998): the trial elastic
     left stretch b_tr = F C_v^-1 F^T (C_v^-1 of the step's start), its principal logarithmic
     stretches eps_tr and directions nv; the implicit exponential update eps + dt/(2 eta) tau(eps)
@@ -199,8 +205,8 @@ def _branch_point(F, Finv, Cv, mu, al, eta, dt, Cv_new, tauM, Cp, Tab, nv, work,
     sum tau_a n_a n_a, and for the tangent Cp_ab = dtau_a/deps_tr_b - 2 tau_a delta_ab (dtau/deps_tr
     = D (I + s D)^-1, through the deviatoric plane) and the off-diagonal shear terms
     Tab = (tau_a l_b^2 - tau_b l_a^2)/(l_a^2 - l_b^2) (l^2 the trial's eigenvalues; as they meet,
-    the limit (C_aa - C_ab)/2 - tau_a). Returns the branch's elastic energy, or NaN where the
-    update did not converge (the caller rejects the state)."""
+    the limit (C_aa - C_ab)/2 - tau_a), these only with `want_tangent`. Returns the branch's
+    elastic energy, or NaN where the update did not converge (the caller rejects the state)."""
     btr, D, Kl, Ki = work[0], work[1], work[2], work[3]
     _congruent(F, Cv, btr)
     lam2 = v3[0]
@@ -259,6 +265,17 @@ def _branch_point(F, Finv, Cv, mu, al, eta, dt, Cv_new, tauM, Cp, Tab, nv, work,
         converged = worst <= 1e4 * max(floor, 1e-14)  # stalled at round-off, within four digits of its floor
     if not converged or not math.isfinite(psi):
         return math.nan
+    for i in range(3):
+        for j in range(3):
+            acc, be = 0.0, 0.0
+            for a in range(3):
+                acc += tau[a] * nv[i, a] * nv[j, a]
+                be += math.exp(2.0 * eps[a]) * nv[i, a] * nv[j, a]
+            tauM[i, j] = acc
+            btr[i, j] = be  # b_e
+    _congruent(Finv, btr, Cv_new)
+    if not want_tangent:
+        return psi
     # dtau/deps_tr = D (I + s D)^-1: (I + s D)^-1 is identity on (1, 1, 1) and the 2 x 2 inverse on the plane
     for b in range(3):
         for a in range(3):
@@ -288,15 +305,6 @@ def _branch_point(F, Finv, Cv, mu, al, eta, dt, Cv_new, tauM, Cp, Tab, nv, work,
                 Tab[a, b] = (tau[a] * lam2[b] - tau[b] * lam2[a]) / den
     for a in range(3):
         Cp[a, a] -= 2.0 * tau[a]
-    for i in range(3):
-        for j in range(3):
-            acc, be = 0.0, 0.0
-            for a in range(3):
-                acc += tau[a] * nv[i, a] * nv[j, a]
-                be += math.exp(2.0 * eps[a]) * nv[i, a] * nv[j, a]
-            tauM[i, j] = acc
-            btr[i, j] = be  # b_e
-    _congruent(Finv, btr, Cv_new)
     return psi
 
 
@@ -391,7 +399,7 @@ def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke
         nv = np.empty((3, 3))
         Xn = np.empty((k, 3))
         M9 = np.empty((9, 9))
-        vwork = np.empty((6, 3, 3))
+        vwork = np.empty((4, 3, 3))
         v3 = np.empty((4, 3))
         qg = np.empty((k, 3))
         Y = np.empty((9, nd))
@@ -449,7 +457,7 @@ def element_pass(G, wq, ue, mu, alpha, kappa, law_of, mean, want_tangent, fe, Ke
                                 Cv_out[e, q, br, i, j] = Cv[e, q, br, i, j]
                         continue
                     psi_b = _branch_point(F, Finv, Cv[e, q, br], bmu[law, br], balpha[law, br], beta[law, br], dt,
-                                          Cv_out[e, q, br], tauM, Cp, Tab, nv, vwork, v3)
+                                          Cv_out[e, q, br], tauM, Cp, Tab, nv, vwork, v3, want_tangent)
                     if not math.isfinite(psi_b):  # the branch's update failed here: the state is rejected as an inverted one is
                         jmin = -1.0
                         break
