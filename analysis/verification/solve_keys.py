@@ -73,7 +73,7 @@ def pull_key(mesh: BodyMesh, scene, law, radius: float, pull, stretch_range=None
     return hashlib.sha256(key.encode()).hexdigest()[:24]
 
 
-TIME_SOLVER_VERSION = 1  # part of every pull-in-time key: bump when the viscoelastic step or its driver changes
+TIME_SOLVER_VERSION = 3  # part of every pull-in-time key: bump when the viscoelastic step or its driver changes
 
 
 def rheology_key(grey, white=None) -> list:

@@ -141,14 +141,16 @@ class FollowedPath:
     u: np.ndarray
     report: NewtonReport
     time_done: float = 0.0
+    states: list = field(default_factory=list)  # the u at each time reached, when asked for
 
 
 def follow(system, W: sp.csr_matrix, times, targets, *, tol: float = 1e-8, max_iter: int = 12, min_step: float = 1e-6,
-           max_dt: float = math.inf) -> FollowedPath:
+           max_dt: float = math.inf, keep_states: bool = False) -> FollowedPath:
     """Hold ``W u = targets[i]`` at ``times[i]`` (s, increasing, after 0) on a body stepped in time
     (`viscous.ViscoelasticStrain`), from rest at t = 0 with the target moving linearly between the
     given times: steps of at most `max_dt` s per interval, halved (the target interpolated) where
-    Newton fails, each committed once it converged. A hold is a repeated target."""
+    Newton fails, each committed once it converged. A hold is a repeated target. With
+    `keep_states`, the state at each time reached (`states`)."""
     free, n = system.space.free, 3 * system.space.n_all
     times = np.asarray(times, dtype=np.float64)
     targets = np.asarray(targets, dtype=np.float64).reshape(len(times), -1)
@@ -162,6 +164,8 @@ def follow(system, W: sp.csr_matrix, times, targets, *, tol: float = 1e-8, max_i
     forces = np.full(targets.shape, np.nan)
     steps = _Steps(W, Wt)
     t_done, u, lam, d_done = 0.0, np.zeros(n), np.zeros(targets.shape[1]), np.zeros(targets.shape[1])
+    prev = None  # (t, u, lam, d) of the step before, for the predictor
+    states: list = []
     for i, (t_i, d_i) in enumerate(zip(times, targets)):
         span = t_i - t_done
         h = span / max(1, math.ceil(span / max_dt - 1e-9)) if math.isfinite(max_dt) else span
@@ -171,14 +175,25 @@ def follow(system, W: sp.csr_matrix, times, targets, *, tol: float = 1e-8, max_i
                 t_new = t_i
             d = d_done + (d_i - d_done) * (t_new - t_done) / (t_i - t_done)
             system.step(t_new - t_done)
-            ok, last = _attempt(system, W, Wt, u.copy(), lam.copy(), d, scale, tol, max_iter, steps, report)
+            u0, lam0 = u.copy(), lam.copy()
+            # secant predictor from the last two states where the target keeps its velocity (a ramp
+            # at one speed, a hold); where it changes (a ramp's end) the last state is the better guess
+            if prev is not None and np.allclose((d - d_done) / (t_new - t_done), (d_done - prev[3]) / (t_done - prev[0]),
+                                                rtol=1e-9, atol=1e-12 * scale / (t_done - prev[0])):
+                w = (t_new - t_done) / (t_done - prev[0])
+                u0, lam0 = u + w * (u - prev[1]), lam + w * (lam - prev[2])
+            ok, last = _attempt(system, W, Wt, u0, lam0, d, scale, tol, max_iter, steps, report)
+            if not ok and last is not None and not np.array_equal(u0, u):
+                # the predictor may have overshot into inverted elements: try from the last state
+                ok, last = _attempt(system, W, Wt, u.copy(), lam.copy(), d, scale, tol, max_iter, steps, report)
             if not ok:
                 report.cut_steps += 1
                 h = 0.5 * (t_new - t_done)
                 if h < min_step * span:  # of this interval: a long hold after it does not excuse a stalled ramp
                     report.converged, report.reason = False, last if isinstance(last, str) else "no convergence"
-                    return FollowedPath(times, forces, u, report, t_done)
+                    return FollowedPath(times, forces, u, report, t_done, states)
                 continue
+            prev = (t_done, u, lam, d_done)
             u, lam, min_j = last
             system.commit(u)
             t_done, d_done = t_new, d
@@ -186,7 +201,9 @@ def follow(system, W: sp.csr_matrix, times, targets, *, tol: float = 1e-8, max_i
             report.load_steps += 1
             report.min_jacobian = min(report.min_jacobian, min_j)
         forces[i] = lam
-    return FollowedPath(times, forces, u, report, t_done)
+        if keep_states:
+            states.append(u.copy())
+    return FollowedPath(times, forces, u, report, t_done, states)
 
 
 class _Steps:
