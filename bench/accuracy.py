@@ -1,10 +1,12 @@
 """The quick accuracy bench (studyctl bench accuracy --quick) in one process: per model row,
 force error on the held-out pulls against the reference and frame time as a ratio to the seed
-paper's. `python -m bench accuracy [--json]` (keys `accuracy.<model>.<setting>.<calibration>.*`)."""
+paper's, at each of the bench's speeds. `python -m bench accuracy [--json]` (keys
+`accuracy.<model>.<setting>.<speed>.<calibration>.*`)."""
 
 from __future__ import annotations
 
 from analysis.reports.accuracy_tables import within_text
+from analysis.reports.formatting import shown
 from analysis.verification.accuracy import quick_config, run_accuracy
 from analysis.verification.paper import deformation_ms
 from bench.common import main_with_json
@@ -17,8 +19,8 @@ def measure() -> dict:
           "quick bench: timings, and a smoke run of the rest (it decides nothing)")
     for r in out["rows"]:
         paper = deformation_ms()[r["model"]]
-        print(f"  {r['model'] + '/' + r['setting'] + '/' + r['calibration']:42s} force error {r['force_error']:6.1%} "
-              f"(max {r['force_error_max']:6.1%}), within JND {within_text(r)}; "
+        print(f"  {r['model'] + '/' + r['setting'] + '/' + r['speed'] + '/' + r['calibration']:54s} force error {shown(r['force_error'], '6.1%')} "
+              f"(max {shown(r['force_error_max'], '6.1%')}), within JND {within_text(r)}; "
               f"tick {r['tick_us']:.2f} us; frame p50 {r['frame_ms']:.3g} ms, "
               f"p99 {r['frame_ms_p99']:.3g} ms = {r['frame_ms'] / paper:.3g} x paper's {paper} ms")
     return out
@@ -27,7 +29,7 @@ def measure() -> dict:
 def flat(out: dict) -> dict:
     keys = {}
     for r in out["rows"]:
-        name = f"accuracy.{r['model']}.{r['setting']}.{r['calibration']}"
+        name = f"accuracy.{r['model']}.{r['setting']}.{r['speed']}.{r['calibration']}"
         for k in ("force_error", "force_error_max", "within_jnd", "tick_us", "frame_ms", "frame_ms_p99"):
             keys[f"{name}.{k}"] = r[k]
         keys[f"{name}.frame_ms.ratio_to_paper"] = r["frame_ms"] / deformation_ms()[r["model"]]

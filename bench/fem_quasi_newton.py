@@ -101,7 +101,8 @@ def _frames(system, factor, W, U, Ci, direction, xs, per_sample: int, iterations
 
 
 def measure() -> dict:
-    from analysis.verification.accuracy import AccuracyConfig, frames_per_sample, sample_displacements
+    from analysis.verification.accuracy import AccuracyConfig, sample_displacements
+    from analysis.verification.bench_pulls import frames_per_sample
     from sim.linalg import Factor
     from sim.models.api import BUDGETS
     from sim.models.fem.newton import hold

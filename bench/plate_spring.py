@@ -62,7 +62,7 @@ def main() -> None:
 
 def located_tick(scene, disp) -> float:
     """The location-aware model (issue 16's goal: a tick within 2x of the paper's model's)."""
-    from analysis.verification.accuracy import LOCATED_PARAMS
+    from analysis.verification.bench_pulls import LOCATED_PARAMS
     from sim.models.plate_spring import PlateSpringModel, load_params
     from sim.stiffness_field import FIELD_FILE, load_field
 

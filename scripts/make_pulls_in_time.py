@@ -2,19 +2,19 @@
 data/reference_pulls_in_time.json (the file's SHA-256, what each entry is, how long it took).
 
 Solves the accuracy bench's 26 pulls (`sim.pulls.make_pulls` and `test_pulls`) of the shipped
-scene, each a ramp at the bench's typical and fast speeds (data/pull_speeds.json) through the
-samples every 0.5 mm to 12 mm, then held 0.25 to 2 s (`analysis.verification.pulls_in_time`),
-on each mesh size asked (default 8 mm, the full bench's coarsest), the regional viscoelastic
-tissue of protocols/materials/*_rheology.toml. Every solve goes into the cache
-($BRAINSIM_CACHE/reference) as it ends, so an interrupted run goes on where it stopped; the
-shipped file is written only when every solve asked for is there (`--status` counts them), and
-says which speeds it holds (the bench judges a speed only where all its pulls are shipped).
+scene, each a ramp at one of the bench's speeds (data/pull_speeds.json) through the samples every
+0.5 mm to 12 mm, then held 0.25 to 2 s (`analysis.verification.pulls_in_time`), for each set
+asked: a mesh size (the full bench's coarsest reference mesh, 8 mm; the quick bench's, 20 mm)
+and a speed. The tissue is the regional viscoelastic law of protocols/materials/*_rheology.toml.
+Every solve goes into the cache ($BRAINSIM_CACHE/reference) as it ends, so an interrupted run
+goes on where it stopped. The shipped file holds every set asked whose 26 solves are all stored
+and converged; its record names the sets left out (the bench judges a set only where shipped).
 
-    .venv/bin/python scripts/make_pulls_in_time.py [--jobs 1] [--sizes 8] [--speeds typical,fast] [--status]
+    .venv/bin/python scripts/make_pulls_in_time.py [--jobs 1] [--sets 20:typical,20:fast,8:typical,8:fast] [--status]
 
-On 2 cores a pull at one speed on the 8 mm mesh takes about 4 minutes (the element pass uses
-both: one job at a time): the whole set is a job for the device machine
-(scripts/make_reference_pulls.py says how to carry the solver there).
+On 2 cores a pull on the 8 mm mesh takes about 4 minutes and on the 20 mm mesh about 30 s (the
+element pass uses both cores: one job at a time). The 8 mm sets are a job for the device
+machine (scripts/make_reference_pulls.py says how to carry the solver there).
 """
 
 from __future__ import annotations
@@ -34,8 +34,10 @@ from analysis.verification.pulls_in_time import (
     PARTS,
     SHIPPED,
     SHIPPED_INFO,
+    pull_in_time_key_of,
     pull_in_time_task,
     shipped_rheology,
+    stored_pull_in_time,
 )
 from analysis.verification.tissue_pulls import RECORD_XS
 from brainsim_assets import path as asset
@@ -44,54 +46,60 @@ from sim.files import save_npz
 from sim.pulls import make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE
 
+DEFAULT_SETS = "20:typical,20:fast,8:typical,8:fast"
+
+
+def _sets(text: str, speeds: dict) -> list[tuple[float, str]]:
+    out = []
+    for item in text.split(","):
+        size, _, name = item.strip().partition(":")
+        try:
+            mm = float(size)
+        except ValueError:
+            mm = -1.0
+        if not mm > 0 or name not in speeds:
+            raise SystemExit(f"--sets: {item!r}; allowed: SIZE_MM:SPEED, SPEED one of {', '.join(speeds)}")
+        out.append((mm, name))
+    return out
+
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--jobs", type=int, default=1)
-    ap.add_argument("--sizes", default="8", help="mesh sizes (mm), comma-separated")
-    ap.add_argument("--speeds", default="typical,fast", help="the speeds of data/pull_speeds.json, comma-separated")
-    ap.add_argument("--status", action="store_true", help="count the solves already stored; solve nothing")
+    ap.add_argument("--sets", default=DEFAULT_SETS, help="SIZE_MM:SPEED pairs, comma-separated, solved in this order")
+    ap.add_argument("--status", action="store_true", help="count the solves already stored per set; solve nothing")
     args = ap.parse_args()
     speeds = json.loads(asset("data/pull_speeds.json").read_text())["speeds"]
-    names = [n.strip() for n in args.speeds.split(",")]
-    if not names or any(n not in speeds for n in names):
-        raise SystemExit(f"--speeds: {args.speeds!r}; allowed: {', '.join(speeds)}")
+    sets = _sets(args.sets, speeds)
     scene = scene_with(DEFAULT_SCENE)
     pulls = make_pulls(scene) + test_pulls(scene)
-    sizes = [float(s) for s in args.sizes.split(",")]
-    named = [(name, (str(DEFAULT_SCENE), p, size, float(speeds[name]["speed_m_s"]), RECORD_XS, HOLDS_S, MAX_DT_S))
-             for size in sizes for name in names for p in pulls]
-    tasks = [t for _, t in named]
+    named = [((size, name), (str(DEFAULT_SCENE), p, size, float(speeds[name]["speed_m_s"]), RECORD_XS, HOLDS_S, MAX_DT_S))
+             for size, name in sets for p in pulls]
+    if args.status:
+        for s in sets:
+            have = sum(stored_pull_in_time(pull_in_time_key_of(t)) is not None for k, t in named if k == s)
+            print(f"{s[0]:g} mm {s[1]}: {have} of {len(pulls)} pulls in time stored")
+        return
     start = time.perf_counter()
     results = []
-    if args.status:
-        from analysis.verification.pulls_in_time import stored_pull_in_time
-        from analysis.verification.solve_keys import pull_in_time_key
-        from sim.geometry.tetmesh import hemisphere_surface, mesh_hemisphere
-        from sim.scene import grasp_radius
-
-        grey, white = shipped_rheology()
-        have = 0
-        for t in tasks:
-            verts, tris, _ = hemisphere_surface(scene.mesh, t[1].hemisphere)
-            key = pull_in_time_key(mesh_hemisphere(verts, tris, t[2] * 1e-3), scene, grey, white, grasp_radius(scene), t[1], t[3], t[4], t[5], t[6])
-            have += stored_pull_in_time(key) is not None
-        print(f"{have} of {len(tasks)} pulls in time stored")
-        return
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futures = {pool.submit(pull_in_time_task, t): (name, t) for name, t in named}
-        for k, f in enumerate(as_completed(futures), 1):
-            name, t = futures[f]
+        futures = {pool.submit(pull_in_time_task, t): (k, t) for k, t in named}
+        for n, f in enumerate(as_completed(futures), 1):
+            (size, name), t = futures[f]
             r = f.result() | {"speed_name": name}
             results.append(r)
             took = "stored" if r["cached"] else f"{r['meta'].get('seconds', 0.0):.0f} s"
-            print(f"{k}/{len(tasks)} {t[1].name} {t[2]:g} mm {name}: {took}, {time.perf_counter() - start:.0f} s in all", flush=True)
-    stopped = [f"{r['pull']} {r['size_mm']:g} mm {r['speed_name']} ({r['meta'].get('reason') or 'no convergence'})"
-               for r in results if not r["meta"].get("converged")]
-    if stopped:
-        raise SystemExit(f"{len(stopped)} solves stopped, nothing shipped: {'; '.join(stopped)}")
+            print(f"{n}/{len(named)} {t[1].name} {size:g} mm {name}: {took}, {time.perf_counter() - start:.0f} s in all", flush=True)
+    shipped, left = [], []
+    for size, name in sets:
+        mine = [r for r in results if r["size_mm"] == size and r["speed_name"] == name]
+        stopped = [r["pull"] for r in mine if not r["meta"].get("converged")]
+        if stopped:
+            left.append({"size_mm": size, "speed": name, "why": f"{len(stopped)} solves stopped: {', '.join(stopped)}"})
+        else:
+            shipped += mine
     arrays, entries = {}, []
-    for r in sorted(results, key=lambda r: (r["size_mm"], r["speed_name"], r["pull"])):
+    for r in sorted(shipped, key=lambda r: (r["size_mm"], r["speed_name"], r["pull"])):
         for part in PARTS:
             arrays[f"{r['key']}__{part}"] = np.asarray(r[part])
         arrays[f"{r['key']}__meta"] = np.asarray(json.dumps(r["meta"]))
@@ -102,9 +110,11 @@ def main() -> None:
               "sha256": hashlib.sha256(SHIPPED.read_bytes()).hexdigest(), "software_version": version(),
               "made": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
               "rheology": [law.describe() for law in shipped_rheology()], "holds_s": list(HOLDS_S), "max_dt_s": MAX_DT_S,
-              "speeds": {n: speeds[n] for n in names}, "entries": entries}
+              "speeds": {n: speeds[n] for n in dict.fromkeys(name for _, name in sets)},
+              "sets": [{"size_mm": s, "speed": n} for s, n in sets if not any(x["size_mm"] == s and x["speed"] == n for x in left)],
+              "left_out": left, "entries": entries}
     SHIPPED_INFO.write_text(json.dumps(record, indent=2) + "\n")
-    print(f"wrote {SHIPPED} ({len(entries)} solves)")
+    print(f"wrote {SHIPPED} ({len(entries)} solves; {len(left)} sets left out)")
 
 
 if __name__ == "__main__":

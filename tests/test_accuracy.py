@@ -295,8 +295,16 @@ def monkeypatch_module():
 
 def test_bench_accuracy_cli_rows_and_files(small_bench):
     out, d = small_bench
-    rows = {(r["setting"], r["calibration"]): r for r in out["rows"]}
-    assert set(rows) == {(s, c) for s in ("scene-fit", "linear-8mm", "local-global-8mm") for c in ("raw", "calibrated")}
+    every = {(r["setting"], r["speed"], r["calibration"]): r for r in out["rows"]}
+    assert set(every) == {(s, v, c) for s in ("scene-fit", "linear-8mm", "local-global-8mm") for v in ("quasi-static", "typical", "fast")
+                          for c in ("raw", "calibrated")}
+    # at the hands' speeds the viscoelastic truth rests on rates far beyond the data's: nothing decided, no error given
+    for (setting, speed, cal), r in every.items():
+        if speed != "quasi-static":
+            assert r["n_test"] == 0 and r["force_error"] is None  # NaN, as JSON carries it
+            assert r["extrapolated"] + r["truth_undecided"] == 4 * (2 + 4)  # 2 samples and 4 holds on each test pull
+            assert r["scale"] == every[(setting, "quasi-static", cal)]["scale"]  # one stiffness scale for every speed
+    rows = {(s, c): r for (s, v, c), r in every.items() if v == "quasi-static"}
     for r in rows.values():
         assert r["n_test"] > 0
         assert r["withheld"] == f"too few decided samples ({r['n_test']} < {accuracy.MIN_DECIDED})"
@@ -313,7 +321,7 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
     assert ref["solves"] == 10 * 2
     assert len(out["meta"]["calibration_pulls"]) == 6
     assert len(out["meta"]["test_pulls"]) == 4
-    assert len(out["samples"]) == 3 * 2 * 10 * 2
+    assert len(out["samples"]) == 3 * 2 * 10 * 2 + 2 * 3 * 2 * 10 * (2 + 4)  # quasi-static, then typical and fast with their holds
     # the calibrated scale is the geometric mean of reference over model force on the decided calibration samples
     for (setting, cal), r in rows.items():
         if cal == "calibrated":
@@ -322,7 +330,8 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
     assert sorted(p.name for p in d.iterdir()) == ["accuracy.csv", "accuracy.json", "accuracy.md", "accuracy.tex", "pareto.png", "pareto.svg",
                                                    "samples.csv"]
     assert 0.0 <= out["meta"]["coupling_bound"]["scene"] <= out["meta"]["coupling_bound"]["omni_max"] <= 1.0
-    assert {(b["model"], b["calibration"]) for b in out["best"]} == {(m, c) for m in ("plate_spring", "fem", "mass_spring") for c in ("raw", "calibrated")}
+    assert {(b["model"], b["speed"], b["calibration"]) for b in out["best"]} == {(m, v, c) for m in ("plate_spring", "fem", "mass_spring")
+                                                                                   for v in ("quasi-static", "typical", "fast") for c in ("raw", "calibrated")}
     assert {b["meets_target"] for b in out["best"]} == {None}  # a quick bench decides nothing
     md = (d / "accuracy.md").read_text()
     assert "Each class at its best" in md
@@ -400,3 +409,10 @@ def test_a_scaled_truth_scales_every_members_force_and_decides_the_contrast_agai
     assert out["contrast_forces_n"] == pytest.approx([0.72])
     assert out["decided"] and out["decided_with_contrast"] is False
     assert accuracy._scaled({"pulls": {"p": [c | {"decided_with_contrast": None}]}}, 15.0)["pulls"]["p"][0]["decided_with_contrast"] is None
+
+
+def test_a_speed_the_bench_does_not_know_is_refused_before_anything_runs(tmp_path):
+    res = CliRunner().invoke(cli, ["bench", "accuracy", "--quick", "--speeds", "quasi-static,slow", "--out", str(tmp_path / "acc")])
+    assert res.exit_code != 0 and "Traceback" not in res.output
+    assert "speed 'slow'; allowed: quasi-static, typical, fast" in res.output
+    assert not (tmp_path / "acc").exists()

@@ -180,13 +180,14 @@ def test_corotational_fem_pulls_through_inverted_elements_and_still_catches_a_ru
     The line search on the corotational energy halves such steps: the pull completes with a
     force that grows smoothly. The runaway check stays as the servo's safety net."""
     import sim.models.fem.model as fem_model
-    from analysis.verification.accuracy import HANDSET_PARAMS, Setting, _build_model
+    from analysis.verification.accuracy import Setting
+    from analysis.verification.bench_pulls import HANDSET_PARAMS, build_model
     from sim.pulls import scene_with, test_pulls
     from sim.scene import DEFAULT_SCENE
 
     scene = scene_with(DEFAULT_SCENE)
     pull = next(p for p in test_pulls(scene) if p.name == "test1-anterior")
-    model = _build_model(scene, Setting("fem", "c", (("formulation", "corotational"), ("resolution", 0.006), ("order", 1))), HANDSET_PARAMS, 1.0)
+    model = build_model(scene, Setting("fem", "c", (("formulation", "corotational"), ("resolution", 0.006), ("order", 1))), HANDSET_PARAMS, 1.0)
     c = model.grasp(pull.point, 0)
     forces = []
     for f in range(1, 73):

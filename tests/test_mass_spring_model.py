@@ -71,12 +71,13 @@ def test_steady_pull_renders_no_force_steps():
     measured gain, the force changes by at most 0.01 N per millisecond."""
     import numpy as np
 
-    from analysis.verification.accuracy import HANDSET_PARAMS, Setting, _build_model
+    from analysis.verification.accuracy import Setting
+    from analysis.verification.bench_pulls import HANDSET_PARAMS, build_model
     from sim.pulls import make_pulls, scene_with
     from sim.scene import DEFAULT_SCENE
 
     scene = scene_with(DEFAULT_SCENE)
-    model = _build_model(scene, Setting("mass_spring", "lg", (("integrator", "local-global"), ("resolution", 0.008))), HANDSET_PARAMS, 1.0)
+    model = build_model(scene, Setting("mass_spring", "lg", (("integrator", "local-global"), ("resolution", 0.008))), HANDSET_PARAMS, 1.0)
     pull = make_pulls(scene)[0]
     c = model.grasp(pull.point, 0)
     u = np.asarray(pull.direction)
@@ -100,12 +101,13 @@ def test_a_grasp_starts_from_zero_force():
     exceeds, before that frame, what the tissue renders after it."""
     import numpy as np
 
-    from analysis.verification.accuracy import HANDSET_PARAMS, Setting, _build_model
+    from analysis.verification.accuracy import Setting
+    from analysis.verification.bench_pulls import HANDSET_PARAMS, build_model
     from sim.pulls import make_pulls, scene_with
     from sim.scene import DEFAULT_SCENE
 
     scene = scene_with(DEFAULT_SCENE)
-    model = _build_model(scene, Setting("mass_spring", "lg", (("integrator", "local-global"), ("resolution", 0.008))), HANDSET_PARAMS, 1.0)
+    model = build_model(scene, Setting("mass_spring", "lg", (("integrator", "local-global"), ("resolution", 0.008))), HANDSET_PARAMS, 1.0)
     pull = make_pulls(scene)[0]
     c = model.grasp(pull.point, 0)
     d = tuple(float(x) for x in np.asarray(pull.direction) * 0.0002)  # the hand moved 0.2 mm before the first frame

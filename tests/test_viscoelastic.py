@@ -343,3 +343,23 @@ def test_a_pull_in_time_key_holds_what_decides_its_forces():
                key(white=None), key(grey=Viscoelastic(grey.equilibrium, (Branch(2000.0, -29.84, 5.0),))),
                pull_in_time_key(SimpleNamespace(key="another"), scene, grey, white, 0.005, pull, 0.0142, [0.0005, 0.001], (0.25, 1.0), 0.1)]
     assert len(set(changed)) == len(changed) and base not in changed
+
+
+def test_rate_support_measures_a_uniaxial_ramp_s_strain_rate_exactly():
+    """`pulls_in_time.rate_support` on an affine incompressible uniaxial ramp: the equivalent
+    Hencky rate between records is d(ln stretch)/dt (worked by hand: E = ln l diag(1, -1/2, -1/2),
+    sqrt(2/3) |dE| = |d ln l|), so every point strains at it; the share of the stress power beyond
+    a limit is 1 above the rate and 0 below, carried as the largest so far."""
+    from analysis.verification.pulls_in_time import rate_support
+
+    space = _cube(2, 2)
+    system = FiniteStrain(space, LAW.equilibrium)
+    X = space.all_nodes
+    times = np.array([0.5, 1.0, 1.5, 2.0])
+    stretch = 1.0 + 0.02 * times ** 2  # speeding up: each interval's rate differs
+    states = [((_uniaxial(s) - np.eye(3)) @ X.T).T.ravel() for s in stretch]
+    want = np.diff(np.log(np.concatenate([[1.0], stretch]))) / np.diff(np.concatenate([[0.0], times]))
+    share, median = rate_support(system, states, times, 1.0)
+    assert np.allclose(median, want, rtol=1e-9) and np.all(share == 0.0)
+    share, _ = rate_support(system, states, times, 0.5 * (want[1] + want[2]))  # the third interval strains faster: carried on
+    assert list(share) == [0.0, 0.0, 1.0, 1.0]

@@ -9,16 +9,17 @@ from pathlib import Path
 
 import pandas as pd
 
-from analysis.reports.formatting import rate_interval
+from analysis.reports.formatting import rate_interval, shown
 from analysis.reports.plots import pareto_plot
 from analysis.reports.table import Table, latex_tables, markdown_grid
 from analysis.verification.accuracy import MIN_DECIDED, QUICK_REASON, RATE_HALF_WIDTH, TARGET_WITHIN, class_best
 from analysis.verification.paper import deformation_words
 from analysis.verification.tissue_pulls import describe_no_reference
+from analysis.verification.truth_in_time import QUASI_STATIC
 from sim.jsonable import jsonable
 from sim.text import counted
 
-COLUMNS = ("model", "setting", "calibration", "scale", "force_error", "force_error_max", "within_jnd", "within_jnd_low",
+COLUMNS = ("model", "setting", "calibration", "speed", "scale", "force_error", "force_error_max", "within_jnd", "within_jnd_low",
            "within_jnd_high", "within", "outside", "undecided", "pulls_within", "angle_deg", "tick_us", "frame_ms")
 
 
@@ -44,6 +45,22 @@ def verdict_rule() -> str:
             f"interval is at most +-{RATE_HALF_WIDTH:.0%}); below, a row shows its counts only.")
 
 
+def in_time_words(meta: dict) -> str:
+    """What the truth at each speed in time rests on and what it decided (`truth_in_time`'s meta)."""
+    out = []
+    for name, t in meta["reference"].get("in_time", {}).items():
+        left = ", ".join(f"{n} {why}" for why, n in t["left_by"].items() if n)
+        rate = t["strain_rate_median_per_s"]
+        over = t["over_timeless"]
+        out.append(f"At the {name} speed ({t['speed_m_s'] * 1e3:.3g} mm/s, held {', '.join(f'{h:g}' for h in t['holds_s'])} s) the truth is the "
+                   f"viscoelastic brain ({'; '.join(t['law'])}) on the {t['mesh_mm']:g} mm mesh, {t['pulls_solved']} of {t['pulls']} pulls solved: "
+                   f"{t['decided']} of {t['samples']} samples decided" + (f" ({left})" if left else "")
+                   + (f"; the tissue's power-weighted median strain rate {rate[0]:.2g} to {rate[1]:.2g}/s against the data's "
+                      f"{max(t['data_rate_per_s']):.2g}/s" if rate else "")
+                   + (f"; forces {over[0]:.2g} to {over[1]:.2g} x the timeless truth's" if over else "") + ".")
+    return " ".join(out)
+
+
 def intro(result: dict) -> str:
     m = result["meta"]
     ref = m["reference"]
@@ -61,33 +78,35 @@ def intro(result: dict) -> str:
             f"largest {ref['band_rel_max']:.1%}).{decided}{missing} {len(m['calibration_pulls'])} calibration pulls and {len(m['test_pulls'])} held-out test "
             f"pulls to {m['max_pull_m'] * 1e3:g} mm at {m['pull_speed_m_per_s'] * 1e3:g} mm/s, {m['samples_per_pull']} samples each; "
             f"the linear models' E = {m['young_pa'] / 1e3:.3g} kPa (scene: {m['scene_young_pa'] / 1e3:.3g} kPa)" + (" (quick bench)" if m["quick"] else "") + ". "
-            + verdict_rule() + (f" The quick bench is a smoke run: it decides nothing ({QUICK_REASON})." if m["quick"] else ""))
+            + verdict_rule() + (f" The quick bench is a smoke run: it decides nothing ({QUICK_REASON})." if m["quick"] else "")
+            + (" " + in_time_words(m) if ref.get("in_time") else ""))
 
 
 def tables(result: dict) -> list[Table]:
     """The accuracy table (every configuration, raw and calibrated) and each class at its best:
     what the Markdown, the LaTeX and the HTML print."""
-    rows = [[r["model"], r["setting"], r["calibration"], f"{r['scale']:.3g}", f"{r['force_error']:.1%} / {r['force_error_max']:.1%}",
+    rows = [[r["model"], r["setting"], r["calibration"], r.get("speed", ""), shown(r["scale"], ".3g"),
+             f"{shown(r['force_error'], '.1%')} / {shown(r['force_error_max'], '.1%')}",
              within_text(r), f"{r['n_test']} / {r['extrapolated']} / {r['truth_undecided']}",
              f"{r['within']} / {r['outside']} / {r['undecided']}", f"{r['pulls_within']}/{r['n_test_pulls']}", str(r["unstable_pulls"]),
-             f"{r['angle_deg']:.1f} / {r['angle_deg_max']:.1f} deg", f"{r['tick_us']:.2f} us", f"{r['frame_ms']:.3g} ms"]
+             f"{shown(r['angle_deg'], '.1f')} / {shown(r['angle_deg_max'], '.1f')} deg", f"{r['tick_us']:.2f} us / {r['frame_ms']:.3g} ms"]
             for r in result["rows"]]
     best = []
     for b in class_best(result["rows"], quick=bool(result["meta"].get("quick"))):
         left = "; ".join(f"{k}: {v}" for k, v in b["left_out"].items()) or "none"
         if b["setting"] is None:
-            best.append([b["model"], b["calibration"], f"none ({b['why']})", "", "", "", "", meets_text(b), left])
+            best.append([b["model"], b.get("speed", ""), b["calibration"], f"none ({b['why']})", "", "", "", "", meets_text(b), left])
             continue
-        best.append([b["model"], b["calibration"], b["setting"],
+        best.append([b["model"], b.get("speed", ""), b["calibration"], b["setting"],
                      within_text(b), f"{b['force_error']:.1%}",
                      f"{b['pulls_within']}/{b['n_test_pulls']}", f"{b['frame_ms']:.3g} / {b['frame_ms_p99']:.3g} ms",
                      meets_text(b), left])
-    return [Table(title="Model error against run time", columns=["model", "setting", "calibration", "scale", "force error (mean / max)",
+    return [Table(title="Model error against run time", columns=["model", "setting", "calibration", "speed", "scale", "force error (mean / max)",
                                                                    "within JND [95% CI] of decided", "truth decided / extrapolated / undecided",
                                                                    "within / outside / undecided", "whole pulls within",
-                                                                   "unstable pulls", "direction error (mean / max)", "tick", "frame"],
+                                                                   "unstable pulls", "direction error (mean / max)", "tick / frame"],
                   rows=rows, notes=intro(result)),
-            Table(title="Each class at its best", columns=["model", "calibration", "best setting", "within JND [95% CI] of decided", "force error",
+            Table(title="Each class at its best", columns=["model", "speed", "calibration", "best setting", "within JND [95% CI] of decided", "force error",
                                                             "whole pulls within", "frame (p50 / p99)", "meets target", "left out"],
                   rows=best, notes=f"The most samples within the JND among the configurations whose frame p99 keeps the budget, "
                                    f"that gave up no pull and that have at least {MIN_DECIDED} decided samples; the target is {TARGET_WITHIN:.0%}.")]
@@ -112,20 +131,26 @@ def markdown(result: dict) -> str:
 
 
 def breakdown_table(rows: list[dict], by: str) -> Table:
-    """`analysis.verification.accuracy.breakdown`'s rows as a table: one row per configuration and calibration,
+    """`analysis.verification.accuracy.breakdown`'s rows as a table: one row per configuration, speed and calibration,
     one column per group ("k/n (e, u)")."""
     groups = list(dict.fromkeys(r[by] for r in rows))
     if by == "displacement_mm":
         groups.sort()
     table: dict = {}
     for r in rows:
-        table.setdefault((r["model"], r["setting"], r["calibration"]), {})[r[by]] = r
-    cols = ["model", "setting", "calibration"] + [f"{g:g}" if isinstance(g, float) else str(g) for g in groups]
+        table.setdefault((r["model"], r["setting"], r.get("speed", ""), r["calibration"]), {})[r[by]] = r
+    cols = ["model", "setting", "speed", "calibration"] + [f"{g:g}" if isinstance(g, float) else str(g) for g in groups]
     out = []
-    for (model, setting, calibration), cells in table.items():
-        out.append([model, setting, calibration] + [f"{c['within']}/{c['decided']} ({c['extrapolated']}, {c['undecided']})" if (c := cells.get(g)) else ""
+    for (model, setting, speed, calibration), cells in table.items():
+        out.append([model, setting, speed, calibration] + [f"{c['within']}/{c['decided']} ({c['extrapolated']}, {c['undecided']})" if (c := cells.get(g)) else ""
                                                     for g in groups])
     return Table(columns=cols, rows=out)
+
+
+def pareto_rows(result: dict) -> list[dict]:
+    """What the Pareto plot shows: the raw rows against the timeless truth (every speed's frame
+    costs the same; at the hands' speeds the truth is not decided)."""
+    return [r for r in result["rows"] if r["calibration"] == "raw" and r.get("speed", QUASI_STATIC) == QUASI_STATIC]
 
 
 def write_outputs(result: dict, out_dir) -> list[Path]:
@@ -140,8 +165,7 @@ def write_outputs(result: dict, out_dir) -> list[Path]:
     files[3].write_text(markdown(result))
     files.append(out / "accuracy.tex")
     files[4].write_text(latex_tables(tables(result), "tab:accuracy"))
-    raw = [r for r in result["rows"] if r["calibration"] == "raw"]
     for ext in ("png", "svg"):
-        pareto_plot(raw, out / f"pareto.{ext}", reference=result["meta"]["reference"]["setting"])
+        pareto_plot(pareto_rows(result), out / f"pareto.{ext}", reference=result["meta"]["reference"]["setting"])
         files.append(out / f"pareto.{ext}")
     return files

@@ -44,6 +44,14 @@ def p_value(x, missing: str = "-", decimals: bool = False) -> str:
     return f"{x:.3g}"
 
 
+def shown(x, spec: str, missing: str = "-") -> str:
+    """`x` in the format `spec` (".1%", ".3g"), or `missing` where there is none (None, NaN: a
+    row with no decided sample has no error, and JSON carries NaN as null)."""
+    if x is None or not math.isfinite(float(x)):
+        return missing
+    return format(float(x), spec)
+
+
 def rate_interval(rate: float, low: float | None, high: float | None, decimals: int = 1) -> str:
     """A rate with its interval, each a percentage with `decimals`: "68.6% [52.0%, 81.4%]"; the
     rate alone where the interval is missing (None, NaN)."""

@@ -4,10 +4,17 @@ scorecard as Markdown (analysis.verification.model_check.check_model makes the c
 from __future__ import annotations
 
 from analysis.reports.accuracy_tables import within_text
+from analysis.reports.formatting import shown
 from analysis.reports.table import Table, markdown_grid
 from analysis.verification.model_check import STAGES
 
 _OK = {True: "yes", False: "**no**", None: "not run"}
+
+
+def _speed_text(row: dict) -> str:
+    """"typical (14.2 mm/s)": the truth's speed and the hand's (a card made before speeds: quasi-static)."""
+    v = row.get("speed_m_s")
+    return f"{row.get('speed', 'quasi-static')}" + (f" ({v * 1e3:.3g} mm/s)" if v else "")
 
 
 def _held(result) -> str:
@@ -51,11 +58,13 @@ def scorecard_md(card: dict) -> str:
         a = card["accuracy"]
         lines += ["", f"## Accuracy against the tissue truth ({a['reference']}{', quick' if a['quick'] else ''})", ""]
         lines += markdown_grid(Table(
-            columns=["setting", "calibration", "scale", "within the JND (95% CI), decided test samples", "truth extrapolated / undecided", "frame ms"],
-            rows=[[r["setting"], r["calibration"], f"{r['scale']:.3g}",
+            columns=["setting", "speed", "calibration", "scale", "within the JND (95% CI), decided test samples", "truth extrapolated / undecided",
+                     "error where extrapolated (not a verdict)", "frame ms"],
+            rows=[[r["setting"], _speed_text(r), r["calibration"], shown(r["scale"], ".3g"),
                    within_text(r) if r["n_test"]
                    else "none: the truth is decided at no held-out sample",
-                   f"{r.get('extrapolated', 0)} / {r.get('truth_undecided', 0)}", f"{r['frame_ms']:.3g}"] for r in a["rows"]]))
+                   f"{r.get('extrapolated', 0)} / {r.get('truth_undecided', 0)}", shown(r.get("force_error_extrapolated"), ".1%"),
+                   f"{r['frame_ms']:.3g}"] for r in a["rows"]]))
     lines += ["", "## Verdict", ""]
     if card.get("interrupted"):
         lines += [f"INTERRUPTED during {STAGES[card['interrupted']]}: the stages above finished, the rest were not run.", ""]

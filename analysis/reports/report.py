@@ -9,7 +9,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from analysis.reports import plots
-from analysis.reports.accuracy_tables import intro
+from analysis.reports.accuracy_tables import intro, pareto_rows
 from analysis.reports.accuracy_tables import tables as accuracy_tables
 from analysis.reports.fault_tables import events_table
 from analysis.reports.figure_size import FigureSize, figure_size
@@ -106,8 +106,7 @@ def _figure_order(path: Path) -> int:
 
 def accuracy_html(result: dict) -> str:
     """The accuracy bench's table and Pareto plot (analysis/verification/accuracy.py) as an HTML section."""
-    raw = [r for r in result["rows"] if r["calibration"] == "raw"]
-    img = drawn_png(lambda path: pareto_plot(raw, path, reference=result["meta"]["reference"]["setting"]))
+    img = drawn_png(lambda path: pareto_plot(pareto_rows(result), path, reference=result["meta"]["reference"]["setting"]))
     every = accuracy_tables(result)[0]
     return (f"<h2>{html_text(every.title)}</h2><p>{html_text(intro(result))} Simulated pulls, not participants. "
             f"Seed paper (its 2014 PC): {deformation_words()} per deformation.</p>"

@@ -37,6 +37,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from analysis.statistics.stats import wilson
+from analysis.verification.bench_pulls import HANDSET_PARAMS, model_pulls, pull_speed
 from analysis.verification.regions import membrane_meta, regions_meta
 from analysis.verification.tissue_pulls import (
     DEFAULT_SIZES_MM,
@@ -52,30 +53,16 @@ from analysis.verification.truth_band import (
     decide,
     truth_samples,
 )
-from brainsim_assets import path as _asset
-from sim.errors import SceneError, SimError
-from sim.models.api import BUDGETS, deformation_at
+from analysis.verification.truth_in_time import QUASI_STATIC, SPEED_NAMES, bench_speeds, truth_in_time
+from sim.errors import SceneError
+from sim.models.api import BUDGETS
 from sim.models.mass_spring import OMNI_MAX_STIFFNESS
-from sim.models.plate_spring import load_params
-from sim.models.registry import installed, model_class, plugins
+from sim.models.registry import installed, plugins
 from sim.perception import force_jnd
 from sim.pulls import TEST_PLACES, Pull, make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE, load_scene
 from sim.sweep import run_tasks
 
-HANDSET_PARAMS = _asset("protocols/models/plate_spring_handset.toml")
-LOCATED_PARAMS = _asset("protocols/models/plate_spring_located.toml")
-PULL_SPEED = 0.010  # m/s, a careful surgical pull (the scene's: 12 mm in 1.2 s)
-
-
-def frames_per_sample(xs, frame_hz: float) -> int:
-    """Visual frames between samples: the nearest whole number to PULL_SPEED (at least one); the
-    speed the models are then pulled at is `pull_speed` (0.5 mm samples at 30 Hz: 2 frames, 7.5 mm/s)."""
-    return max(1, round(float(xs[0]) / PULL_SPEED * frame_hz))
-
-
-def pull_speed(xs, frame_hz: float) -> float:
-    return float(xs[0]) / frames_per_sample(xs, frame_hz) * frame_hz
 DECIDED_RULE = (f"decided: reference at most {DEVICE_LIMIT_N:g} N, a marginal share dE_out/dE (the force's share from quadrature points "
                 f"outside the data's principal stretches) at most {MARGINAL_LIMIT:g} x the JND fraction at that force (25% below 0.5 N, 10% above), "
                 f"|J - 1| at most {MAX_J_DEVIATION:g} at the nodes and a 64-point rule, and the band "
@@ -101,6 +88,7 @@ class AccuracyConfig:
     settings: tuple[Setting, ...] = field(default_factory=lambda: default_settings(False))
     handset: Path = HANDSET_PARAMS  # the uncalibrated plate-spring parameters
     quick: bool = False
+    speeds: tuple[str, ...] = SPEED_NAMES  # `truth_in_time.bench_speeds`: the truth and the pulls at each
 
 
 def default_settings(quick: bool) -> tuple[Setting, ...]:
@@ -155,92 +143,6 @@ def sample_displacements(cfg: AccuracyConfig) -> np.ndarray:
     return pull_samples(cfg.max_pull, cfg.samples)
 
 
-# -- a model on the same pulls -------------------------------------------------------------
-
-def _build_model(scene, setting: Setting, handset: Path, e_ratio: float):
-    cls = model_class(setting.model)
-    opts = dict(setting.options)
-    options = scene.spec.options_of(setting.model)
-    if setting.model == "plate_spring":
-        params = {"handset": lambda: load_params(handset), "located": lambda: load_params(LOCATED_PARAMS),
-                  "scene": lambda: options["params"]}[opts.pop("params", "scene")]()
-        # the stack's modulus is the tissue's: scale it with the bench's modulus
-        opts["params"] = dataclasses.replace(params, E=params.E * e_ratio)
-    try:
-        return cls.build(scene.mesh, options | opts, scene)
-    except SimError:
-        raise
-    except Exception as exc:  # a lab's model may fail in any way: one line naming it
-        raise SceneError(f"model {setting.model!r}: build raised {type(exc).__name__}: {exc}") from None
-
-
-def model_pulls(scene_path, young: float, setting: Setting, pulls: list[Pull], xs, handset: Path = HANDSET_PARAMS,
-                e_ratio: float = 1.0) -> dict:
-    """Run every pull as a ramp of visual frames; sample the force at each displacement.
-    `e_ratio` is `young` over the scene's own modulus (it scales the plate-spring stack's E).
-    A model that uses time is pulled in time: from rest at t = 0, at the ramp's speed
-    (`pull_speed`), its force asked at every servo tick (the scene's servo rate in whole ticks per
-    frame: 33 per 30 Hz frame, 990 Hz) and each frame told the time and
-    the hand's velocity; a sample is the force at the tick it is reached."""
-    scene = scene_with(scene_path, young)
-    xs = np.asarray(xs, dtype=np.float64)
-    start = time.perf_counter()
-    model = _build_model(scene, setting, handset, e_ratio)
-    build_s = time.perf_counter() - start
-    frame_hz = scene.spec.visual_rate_hz
-    per_sample = frames_per_sample(xs, frame_hz)
-    n_frames = per_sample * len(xs)
-    timed = bool(model.uses_time)
-    ticks_per_frame = max(1, round(scene.spec.servo_rate_hz / frame_hz)) if timed else 0
-    tick_dt = 1.0 / (frame_hz * ticks_per_frame) if timed else 0.0
-    force = np.zeros((len(pulls), len(xs), 3))
-    frame_s: list[float] = []
-    tick_s: list[float] = []
-    unstable = 0
-    for p, pull in enumerate(pulls):
-        model.reset()  # back to rest: the mass-spring's state, the corotational FEM's frame
-        contact = model.grasp(pull.point, 0)
-        direction = np.asarray(pull.direction)
-        velocity = tuple(float(c) for c in direction * xs[-1] * frame_hz / n_frames)  # the ramp's, m/s
-        for f in range(1, n_frames + 1):
-            d = direction * xs[-1] * f / n_frames
-            for j in range(1, ticks_per_frame + 1):  # a model that uses time: the servo's ticks up to this frame
-                fk = model.force(contact, tuple(float(c) for c in direction * xs[-1] * (f - 1 + j / ticks_per_frame) / n_frames),
-                                 velocity=velocity, t=((f - 1) * ticks_per_frame + j) * tick_dt)
-            t0 = time.perf_counter()
-            deformation_at(model, [contact], [d], [velocity], f / frame_hz)
-            frame_s.append(time.perf_counter() - t0)
-            if f % per_sample == 0:
-                force[p, f // per_sample - 1] = fk if timed else model.force(contact, tuple(float(c) for c in d))
-        law = model.law(contact)
-        tick_s.append(_tick_time(law, tuple(float(c) for c in direction * xs[-1]), velocity if getattr(law, "uses_time", False) else None))
-        unstable += int(bool(model.unstable))  # pulls the model gave up on (it renders zero force)
-    return {"model": setting.model, "setting": setting.setting, "force": force,
-            "frame_ms": float(np.median(frame_s) * 1e3), "frame_ms_p99": float(np.percentile(frame_s, 99) * 1e3),
-            "tick_us": float(np.median(tick_s) * 1e6), "build_s": build_s, "unstable": unstable}
-
-
-TICK_TIMING_CALLS = 20000  # per pull: the tick's median time
-
-
-def _tick_time(law, d, velocity=None, reps: int = TICK_TIMING_CALLS) -> float:
-    """Median of 5 batches: the per-tick force call the servo makes (the model's law for the
-    contact, `sim.models.api.TissueModel.law`: a model that writes only ``force`` has no
-    contact law of its own), plain floats; with `velocity`, a law of a model that uses time,
-    told the velocity and a time."""
-    batches = []
-    for _ in range(5):
-        t0 = time.perf_counter()
-        if velocity is None:
-            for _ in range(reps // 5):
-                law.force(d)
-        else:
-            for _ in range(reps // 5):
-                law.force(d, velocity, 1.0)
-        batches.append((time.perf_counter() - t0) / (reps // 5))
-    return float(np.median(batches))
-
-
 # -- the reference -------------------------------------------------------------------------
 
 def reference_samples(truth: dict, pulls: list[Pull]) -> list[list[dict]]:
@@ -283,8 +185,8 @@ def _not_decided_words(cells: list[dict]) -> str:
 # -- the bench -----------------------------------------------------------------------------
 
 def _task(task):
-    _, scene_path, young, setting, pulls, xs, handset, e_ratio = task
-    return model_pulls(scene_path, young, setting, pulls, xs, handset, e_ratio)
+    _, scene_path, young, setting, pulls, xs, handset, e_ratio, speed = task
+    return model_pulls(scene_path, young, setting, pulls, xs, handset, e_ratio, speed.speed_m_s, speed.holds_s) | {"speed": speed.name}
 
 
 def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | None = None, progress=None) -> dict:
@@ -297,7 +199,8 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
     calib, test = make_pulls(scene), test_pulls(scene, cfg.test_places)
     pulls = calib + test
     xs = sample_displacements(cfg)
-    n_tasks = len(cfg.settings)
+    speeds = bench_speeds(cfg.speeds)
+    n_tasks = len(cfg.settings) * len(speeds)
 
     def ref_progress(k, n):
         if progress is not None:
@@ -316,9 +219,20 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
         if progress is not None:
             progress(n_ref + k, n_ref + n)
 
-    tasks = [("model", str(cfg.scene), young, s, pulls, xs, cfg.handset, e_ratio) for s in cfg.settings]
+    tasks = [("model", str(cfg.scene), young, s, pulls, xs, cfg.handset, e_ratio, sp) for sp in speeds for s in cfg.settings]
     models = run_tasks(_task, tasks, jobs=jobs, scheduler=scheduler, progress=model_progress)
-    rows, samples = compare(ref, models, pulls, len(calib), xs)
+    rows, samples, in_time, scales = [], [], {}, None
+    for sp in sorted(speeds, key=lambda sp: sp.speed_m_s is not None):  # quasi-static first: its scale serves every speed
+        cells, columns = ref, xs
+        if sp.speed_m_s is not None:  # the viscoelastic truth on the timeless truth's coarsest mesh
+            timed, in_time[sp.name] = truth_in_time(cfg.scene, scene, truth, pulls, xs, sp, max(cfg.reference_sizes_mm), e_ratio)
+            cells = [timed[p.name] for p in pulls]
+            columns = np.concatenate([xs, np.full(len(sp.holds_s), xs[-1])])
+        r, smp = compare(cells, [m for m in models if m["speed"] == sp.name], pulls, len(calib), columns, sp.name, scales)
+        if sp.name == QUASI_STATIC:
+            scales = {(x["model"], x["setting"]): x["scale"] for x in r if x["calibration"] == "calibrated"}
+        rows += r
+        samples += smp
     flat = [c for row in ref for c in row]
     solved = [c for c in flat if math.isfinite(c["force_n"]) and math.isfinite(c["band_rel"])]
     if not solved:
@@ -334,6 +248,7 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
                            "omni_max_n_per_m": OMNI_MAX_STIFFNESS, "omni_max": coupling_bound(ref, len(calib), xs, OMNI_MAX_STIFFNESS)},
         "young_pa": young, "scene_young_pa": scene.spec.material.young,
         "max_pull_m": cfg.max_pull, "samples_per_pull": cfg.samples, "pull_speed_m_per_s": pull_speed(xs, scene.spec.visual_rate_hz),
+        "speeds": [{"speed": sp.name, "speed_m_s": sp.speed_m_s, "holds_s": list(sp.holds_s)} for sp in speeds],
         "calibration_pulls": [dataclasses.asdict(p) for p in calib],
         "test_pulls": [dataclasses.asdict(p) for p in test],
         "reference": {
@@ -364,6 +279,7 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
             "no_reference": _no_reference(ref, pulls, xs, refs["pulls"]),
             "min_jacobian": min((s["min_jacobian"] for s in solves if "min_jacobian" in s), default=math.nan),
             "solves_stored": sum(bool(s.get("cached")) for s in solves), "solves": len(solves), "seconds": ref_s,
+            "in_time": in_time,
         },
         "quick": cfg.quick,
     }
@@ -410,20 +326,20 @@ def force_band(force_n: float) -> str:
 
 
 def breakdown(samples: list[dict], by: str) -> list[dict]:
-    """Held-out samples per model, calibration and group (`displacement_mm` or `force_band`):
+    """Held-out samples per model, speed, calibration and group (`displacement_mm` or `force_band`):
     decided, within the JND among them (with a Wilson interval), extrapolated and undecided."""
     groups: dict = {}
     for c in samples:
         if c["set"] != "test":
             continue
         g = c[by] if by != "force_band" else force_band(c["reference_force_n"])
-        groups.setdefault((c["model"], c["setting"], c["calibration"], g), []).append(c)
+        groups.setdefault((c["model"], c["setting"], c.get("speed", QUASI_STATIC), c["calibration"], g), []).append(c)
     out = []
-    for (model, setting, calibration, g), cs in groups.items():
+    for (model, setting, speed, calibration, g), cs in groups.items():
         dec = [c for c in cs if c["decided"]]
         k = sum(c["within_jnd"] for c in dec)
         lo, hi = wilson(k, len(dec)) if dec else (math.nan, math.nan)
-        out.append({"model": model, "setting": setting, "calibration": calibration, by: g, "decided": len(dec), "within": k,
+        out.append({"model": model, "setting": setting, "speed": speed, "calibration": calibration, by: g, "decided": len(dec), "within": k,
                     "within_jnd": k / len(dec) if dec else math.nan, "within_jnd_low": lo, "within_jnd_high": hi,
                     "extrapolated": sum(c["verdict"] == "extrapolated" for c in cs), "undecided": sum(not c["decided"] and c["verdict"] == "undecided" for c in cs)})
     return out
@@ -448,22 +364,28 @@ def calibration_scale(model_mags: np.ndarray, ref_mags: np.ndarray) -> float:
     return float(np.exp(np.mean(np.log(ref_mags[ok] / model_mags[ok])))) if ok.any() else math.nan
 
 
-def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_calib: int, xs) -> tuple[list[dict], list[dict]]:
+def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_calib: int, xs, speed: str = QUASI_STATIC,
+            scales: dict | None = None) -> tuple[list[dict], list[dict]]:
     """Rows (per setting: raw and calibrated) judged on the test pulls (pulls[n_calib:]) at the
     samples where the truth is decided, and every sample (the others carry the truth's verdict,
     `extrapolated` or `undecided`, and its reason). The calibration scale is fitted on the
-    calibration pulls' decided samples."""
+    calibration pulls' decided samples, or given per (model, setting) in `scales` (the quasi-static
+    one, used at every speed). `xs`: each sample's displacement (m); `speed` the truth's
+    speed (`truth_in_time.SPEED_NAMES`); each sample carries it, the model's pull speed and the
+    time it was reached (from rest, with the cell's `hold_s` after the ramp's end)."""
     rows, samples = [], []
     R = np.array([[c["force_n"] for c in row] for row in ref])  # (P, n)
     H = np.array([[c["band_half_n"] for c in row] for row in ref])
     D = np.array([[c["decided"] for c in row] for row in ref], dtype=bool)
+    x_end = float(np.max(xs))
     for m in models:
+        v = m.get("speed_m_s")
         F = np.asarray(m["force"])
         mags = np.linalg.norm(F, axis=2)
         calib = D[:n_calib]
-        scale = calibration_scale(mags[:n_calib][calib], R[:n_calib][calib])
+        scale = (scales or {}).get((m["model"], m["setting"]), calibration_scale(mags[:n_calib][calib], R[:n_calib][calib]))
         for calibration, s in (("raw", 1.0), ("calibrated", scale)):
-            errs, within, verdicts, angles, calib_errs = [], [], [], [], []
+            errs, within, verdicts, angles, calib_errs, beyond = [], [], [], [], [], []
             counts = {"extrapolated": 0, "truth_undecided": 0}
             pulls_within = pulls_judged = 0
             for p, pull in enumerate(pulls):
@@ -477,9 +399,12 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                         continue
                     rel = abs(f - r) / r
                     ok = bool(abs(f - r) <= float(force_jnd(np.array(r))) * r)
-                    v = verdict(f, r, H[p, k]) if D[p, k] else cell["truth"]
+                    verdict_ = verdict(f, r, H[p, k]) if D[p, k] else cell["truth"]
                     ang = _angle(-F[p, k], cell["force"])  # the reference is the force on the tissue
+                    hold = float(cell.get("hold_s", 0.0))
                     samples.append({"model": m["model"], "setting": m["setting"], "calibration": calibration, "set": "test" if test else "calibration",
+                                    "speed": speed, "speed_m_s": v, "hold_s": hold,
+                                    "time_s": (x_end / v + hold if hold > 0 else float(x) / v) if v else math.nan,
                                     "pull": pull.name, "displacement_mm": round(float(x) * 1e3, 6), "force_n": f, "reference_force_n": r,
                                     "reference_half_band_n": float(H[p, k]), "mesh_band_rel": cell["mesh_band_rel"], "law_band_rel": cell["law_band_rel"],
                                     "support_share_outside": cell["support_share_outside"], "max_abs_j_minus_1": cell["max_abs_j_minus_1"],
@@ -487,15 +412,18 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                                     "decided_with_contrast": cell.get("decided_with_contrast"),
                                     "decided_on": cell.get("decided_on", ""),
                                     "decided": bool(D[p, k]), "reason": cell["reason"],
-                                    "force_error": rel, "within_jnd": ok, "verdict": v, "angle_deg": ang})
+                                    **{name: cell.get(name, math.nan) for name in ("rate_share_outside", "strain_rate_per_s", "static_force_n")},
+                                    "force_error": rel, "within_jnd": ok, "verdict": verdict_, "angle_deg": ang})
                     if not D[p, k]:
                         if test:
-                            counts["extrapolated" if v == "extrapolated" else "truth_undecided"] += 1
+                            counts["extrapolated" if verdict_ == "extrapolated" else "truth_undecided"] += 1
+                            if verdict_ == "extrapolated":
+                                beyond.append(rel)
                         continue
                     if test:
                         errs.append(rel)
                         within.append(ok)
-                        verdicts.append(v)
+                        verdicts.append(verdict_)
                         angles.append(ang)
                         all_in = all_in and ok
                         judged += 1
@@ -505,7 +433,7 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                 pulls_judged += int(test and judged > 0)
             n = len(within)
             lo, hi = wilson(int(sum(within)), n) if n else (math.nan, math.nan)
-            rows.append({"model": m["model"], "setting": m["setting"], "calibration": calibration, "scale": s,
+            rows.append({"model": m["model"], "setting": m["setting"], "speed": speed, "speed_m_s": v, "calibration": calibration, "scale": s,
                          "force_error": nan_mean(errs), "force_error_max": float(np.max(errs)) if errs else math.nan,
                          "within_jnd": nan_mean(within), "within_jnd_low": lo, "within_jnd_high": hi, "n_test": n,
                          "n_within_jnd": int(sum(within)), "withheld": too_few(n),
@@ -514,6 +442,8 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                          "pulls_within": pulls_within, "n_test_pulls": pulls_judged,
                          "angle_deg": nan_mean(angles), "angle_deg_max": float(np.max(angles)) if angles else math.nan,
                          "calibration_error": nan_mean(calib_errs),
+                         # against the truth where it rests beyond its data (a prediction, not a verdict)
+                         "force_error_extrapolated": nan_mean(beyond),
                          "tick_us": m["tick_us"], "frame_ms": m["frame_ms"], "frame_ms_p99": m["frame_ms_p99"],
                          "build_s": m["build_s"], "unstable_pulls": int(m["unstable"])})
     return rows, samples
@@ -563,7 +493,7 @@ def too_few(n: int) -> str | None:
 
 
 def class_best(rows: list[dict], frame_budget_ms: float | None = None, quick: bool = False) -> list[dict]:
-    """Each class (model) at its best, raw and calibrated: the configuration with the most
+    """Each class (model) at its best at each speed, raw and calibrated: the configuration with the most
     held-out samples within the JND among those whose frame keeps the contract's budget (p99,
     `sim.models.api.BUDGETS`), that gave up no pull and that have at least `MIN_DECIDED` decided
     samples; ties go to the lower force error, then the faster frame. A class with no such
@@ -573,28 +503,27 @@ def class_best(rows: list[dict], frame_budget_ms: float | None = None, quick: bo
     (`QUICK_REASON` in `why`)."""
     budget = float(BUDGETS["deformation_ms_p99"] if frame_budget_ms is None else frame_budget_ms)
     out = []
-    for model in dict.fromkeys(r["model"] for r in rows):
-        for calibration in ("raw", "calibrated"):
-            cands = [r for r in rows if r["model"] == model and r["calibration"] == calibration]
-            if not cands:
-                continue
-            left = {r["setting"]: ("gave up on a pull" if r["unstable_pulls"] else f"frame p99 {r['frame_ms_p99']:.3g} ms over the {budget:g} ms budget")
-                    for r in cands if r["unstable_pulls"] or not r["frame_ms_p99"] <= budget}
-            few = {r["setting"]: why for r in cands if r["setting"] not in left and (why := too_few(r["n_test"]))}
-            ok = [r for r in cands if r["setting"] not in left and r["setting"] not in few]
-            base = {"model": model, "calibration": calibration, "frame_budget_ms": budget, "left_out": left | few}
-            if all(too_few(r["n_test"]) for r in cands):  # no rate can be given: no verdict, not a "no"
-                most = max(r["n_test"] for r in cands)
-                out.append(base | {"setting": None, "meets_target": None, "why": f"too few decided samples in every configuration ({most} < {MIN_DECIDED})"})
-                continue
-            if not ok:
-                out.append(base | {"setting": None, "meets_target": False, "why": "no configuration keeps the budget without giving up a pull"
-                                   + (f" and has at least {MIN_DECIDED} decided samples" if few else "")})
-                continue
-            best = max(ok, key=lambda r: (r["within_jnd"], -r["force_error"], -r["frame_ms"]))
-            out.append(base | {k: best[k] for k in ("setting", "scale", "within_jnd", "within_jnd_low", "within_jnd_high", "force_error",
-                                                    "n_test", "n_within_jnd", "pulls_within", "n_test_pulls", "frame_ms", "frame_ms_p99")}
-                       | {"meets_target": bool(best["within_jnd"] >= TARGET_WITHIN), "why": ""})
+    for model, speed, calibration in dict.fromkeys((r["model"], r.get("speed", QUASI_STATIC), c) for r in rows for c in ("raw", "calibrated")):
+        cands = [r for r in rows if r["model"] == model and r.get("speed", QUASI_STATIC) == speed and r["calibration"] == calibration]
+        if not cands:
+            continue
+        left = {r["setting"]: ("gave up on a pull" if r["unstable_pulls"] else f"frame p99 {r['frame_ms_p99']:.3g} ms over the {budget:g} ms budget")
+                for r in cands if r["unstable_pulls"] or not r["frame_ms_p99"] <= budget}
+        few = {r["setting"]: why for r in cands if r["setting"] not in left and (why := too_few(r["n_test"]))}
+        ok = [r for r in cands if r["setting"] not in left and r["setting"] not in few]
+        base = {"model": model, "speed": speed, "calibration": calibration, "frame_budget_ms": budget, "left_out": left | few}
+        if all(too_few(r["n_test"]) for r in cands):  # no rate can be given: no verdict, not a "no"
+            most = max(r["n_test"] for r in cands)
+            out.append(base | {"setting": None, "meets_target": None, "why": f"too few decided samples in every configuration ({most} < {MIN_DECIDED})"})
+            continue
+        if not ok:
+            out.append(base | {"setting": None, "meets_target": False, "why": "no configuration keeps the budget without giving up a pull"
+                               + (f" and has at least {MIN_DECIDED} decided samples" if few else "")})
+            continue
+        best = max(ok, key=lambda r: (r["within_jnd"], -r["force_error"], -r["frame_ms"]))
+        out.append(base | {k: best[k] for k in ("setting", "scale", "within_jnd", "within_jnd_low", "within_jnd_high", "force_error",
+                                                "n_test", "n_within_jnd", "pulls_within", "n_test_pulls", "frame_ms", "frame_ms_p99")}
+                   | {"meets_target": bool(best["within_jnd"] >= TARGET_WITHIN), "why": ""})
     if quick:
         return [b | {"meets_target": None, "why": "; ".join(filter(None, (b["why"], f"quick bench: {QUICK_REASON}")))} for b in out]
     return out

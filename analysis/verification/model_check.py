@@ -27,17 +27,17 @@ import numpy as np
 
 from analysis.errors import Interrupted
 from analysis.verification.accuracy import (
-    TICK_TIMING_CALLS,
     AccuracyConfig,
     Setting,
-    frames_per_sample,
     quick_config,
     run_accuracy,
     sample_displacements,
 )
+from analysis.verification.bench_pulls import QUASI_STATIC_M_S, TICK_TIMING_CALLS, frames_per_sample
 from analysis.verification.stability import DURATION as STABILITY_DURATION
 from analysis.verification.stability import make_cases, run_case
 from analysis.verification.tissue_pulls import shipped_solve_seconds, unsolved
+from analysis.verification.truth_in_time import bench_speeds
 from sim.errors import SimError
 from sim.models.api import API_VERSION, BUDGETS, REST, deformation_at, force_at, law_force_at
 from sim.models.registry import info, model_class
@@ -324,8 +324,8 @@ def accuracy(name: str, scene_path: Path, quick: bool, step=None) -> dict:
     """The accuracy bench's row for the model (raw and calibrated) against the tissue truth;
     `step(k, n)` after each reference solve and the model's pulls."""
     out = run_accuracy(_accuracy_config(name, scene_path, quick), jobs=1, progress=step)
-    keep = ("setting", "calibration", "scale", "force_error", "within_jnd", "within_jnd_low", "within_jnd_high", "n_test",
-            "extrapolated", "truth_undecided", "pulls_within", "frame_ms", "tick_us", "n_within_jnd", "withheld")
+    keep = ("setting", "speed", "speed_m_s", "calibration", "scale", "force_error", "within_jnd", "within_jnd_low", "within_jnd_high", "n_test",
+            "extrapolated", "truth_undecided", "pulls_within", "frame_ms", "tick_us", "n_within_jnd", "withheld", "force_error_extrapolated")
     return {"rows": [{k: r.get(k) for k in keep if k in r} for r in out["rows"]], "reference": out["meta"]["reference"]["setting"],
             "quick": quick}
 
@@ -349,8 +349,13 @@ def estimate(name: str, cfg: CheckConfig, build_s: float, timed: list[dict]) -> 
     acfg = _accuracy_config(name, cfg.scene, cfg.quick)
     pulls = make_pulls(scene) + test_pulls(scene, acfg.test_places)
     xs = sample_displacements(acfg)
-    frames = frames_per_sample(xs, hz) * len(xs)
-    pulls_s = build_s + len(pulls) * (frames * frame_s + TICK_TIMING_CALLS * tick_s)
+    timed = bool(model_class(name).uses_time)
+    ticks_per_frame = round(scene.spec.servo_rate_hz / hz) if timed else 0
+    pulls_s = build_s
+    for sp in bench_speeds(acfg.speeds):  # in frames, or in time from rest to the last hold (`bench_pulls`)
+        v = sp.speed_m_s if sp.speed_m_s is not None else QUASI_STATIC_M_S if timed else None
+        frames = frames_per_sample(xs, hz) * len(xs) if v is None else math.ceil((xs[-1] / v + max(sp.holds_s, default=0.0)) * hz)
+        pulls_s += len(pulls) * (frames * (frame_s + ticks_per_frame * tick_s) + TICK_TIMING_CALLS * tick_s)
     todo = unsolved(cfg.scene, pulls, xs, acfg.reference_sizes_mm)
     per = shipped_solve_seconds()
     ref_s = sum(n * per.get(size, UNKNOWN_SOLVE_S) for size, n in todo.items())

@@ -139,9 +139,7 @@ def stored_pull_in_time(key: str) -> dict | None:
     return found
 
 
-def pull_in_time_task(args) -> dict:
-    """One pull in time on one mesh (a worker process): stored, or solved and cached. `args`:
-    (scene path, pull, mesh size mm, speed m/s, samples m, holds s, largest step s)."""
+def _task_parts(args):
     scene_path, pull, size_mm, speed, xs, holds, max_dt = args
     scene = scene_with(scene_path)
     if scene.spec.material.pia_arachnoid is not None:
@@ -150,10 +148,22 @@ def pull_in_time_task(args) -> dict:
     grey, white = shipped_rheology()
     if scene.spec.material.white_matter is None:
         white = None
-    radius = grasp_radius(scene)
     verts, tris, _ = hemisphere_surface(scene.mesh, pull.hemisphere)
     body = mesh_hemisphere(verts, tris, size_mm * 1e-3)
-    key = pull_in_time_key(body, scene, grey, white, radius, pull, speed, xs, holds, max_dt)
+    radius = grasp_radius(scene)
+    return scene, grey, white, body, radius, pull_in_time_key(body, scene, grey, white, radius, pull, speed, xs, holds, max_dt)
+
+
+def pull_in_time_key_of(args) -> str:
+    """The key of `pull_in_time_task`'s `args`."""
+    return _task_parts(args)[-1]
+
+
+def pull_in_time_task(args) -> dict:
+    """One pull in time on one mesh (a worker process): stored, or solved and cached. `args`:
+    (scene path, pull, mesh size mm, speed m/s, samples m, holds s, largest step s)."""
+    _, pull, size_mm, speed, xs, holds, max_dt = args
+    scene, grey, white, body, radius, key = _task_parts(args)
     found = stored_pull_in_time(key)
     if found is not None:
         return {"key": key, "cached": True, "pull": pull.name, "size_mm": size_mm, "speed_m_s": speed} | found

@@ -66,17 +66,22 @@ def _sweep_options(f):
 @click.option("--young", type=click.FloatRange(1.0, 1e9), default=None,
               help="The linear models' Young's modulus, Pa, with the tissue's law scaled alike [default: the scene's].")
 @click.option("--test-places", type=click.IntRange(2, 20), default=None, help="Held-out grasp places, two directions each [default: 6, --quick: 2].")
+@click.option("--speeds", default="quasi-static,typical,fast", show_default=True,
+              help="The hand's speeds, comma-separated: quasi-static (the timeless truth) and those of data/pull_speeds.json (the viscoelastic truth, pulled and held).")
 @_sweep_options
-def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, force, jobs, scheduler, models):
+def bench_accuracy(scene_file, young, test_places, speeds, quick, as_json, out_dir, force, jobs, scheduler, models):
     """Every model and setting on the same pulls against the converged reference (the tissue's
     finite-strain law on P2 on body-fitted meshes, Richardson; shipped): calibrated with one stiffness scale on the
     calibration pulls, judged raw and calibrated on held-out pulls (within the JND with
     Wilson intervals, against the reference's band, direction error), time per tick and frame."""
     from analysis.reports import accuracy_tables
+    from analysis.reports.formatting import shown
     from analysis.verification import accuracy, paper
 
     target = staged(out_dir, force, folder=True, expect=ACCURACY_FILES, inputs={"--scene": scene_file})  # refused before the sweep
-    kw = {"scene": scene_file, "young": young} | ({"test_places": test_places} if test_places else {})
+    names = tuple(n.strip() for n in speeds.split(","))
+    accuracy.bench_speeds(names)  # a speed not known: refused before the sweep
+    kw = {"scene": scene_file, "young": young, "speeds": names} | ({"test_places": test_places} if test_places else {})
     settings = accuracy.default_settings(quick)
     kw["settings"] = settings if models is None else tuple(s for s in settings if s.model in models)
     cfg = accuracy.quick_config(**kw) if quick else accuracy.AccuracyConfig(**kw)
@@ -91,24 +96,24 @@ def bench_accuracy(scene_file, young, test_places, quick, as_json, out_dir, forc
     from rich.table import Table
 
     t = Table(title=f"Force error on held-out pulls against run time (the linear models' E = {result['meta']['young_pa'] / 1e3:.3g} kPa)", caption=accuracy_tables.intro(result))
-    for col in ("model", "setting", "calibration", "scale", "force error", "max", "within JND [95% CI] of decided", "decided/extrap./undec.",
+    for col in ("model", "setting", "speed", "calibration", "scale", "force error", "max", "within JND [95% CI] of decided", "decided/extrap./undec.",
                 "in/out/undecided", "pulls",
                 "direction deg", "tick us", "frame ms"):
-        t.add_column(col, justify="left" if col in ("model", "setting", "calibration") else "right")
+        t.add_column(col, justify="left" if col in ("model", "setting", "speed", "calibration") else "right")
     for r in result["rows"]:
-        t.add_row(r["model"], r["setting"], r["calibration"], f"{r['scale']:.3g}", f"{r['force_error']:.1%}", f"{r['force_error_max']:.1%}",
+        t.add_row(r["model"], r["setting"], r["speed"], r["calibration"], shown(r["scale"], ".3g"), shown(r["force_error"], ".1%"), shown(r["force_error_max"], ".1%"),
                   accuracy_tables.within_text(r, short=True), f"{r['n_test']}/{r['extrapolated']}/{r['truth_undecided']}",
                   f"{r['within']}/{r['outside']}/{r['undecided']}", f"{r['pulls_within']}/{r['n_test_pulls']}",
-                  f"{r['angle_deg']:.1f}", f"{r['tick_us']:.2f}", f"{r['frame_ms']:.3g}")
+                  shown(r["angle_deg"], ".1f"), f"{r['tick_us']:.2f}", f"{r['frame_ms']:.3g}")
     best = Table(title=f"Each class at its best (frame p99 within the budget, no pull given up; target {accuracy.TARGET_WITHIN:.0%} within the JND)")
-    for col in ("model", "calibration", "best setting", "within JND [95% CI] of decided", "force error", "frame p50/p99 ms", "meets target", "left out"):
-        best.add_column(col, justify="left" if col in ("model", "calibration", "best setting", "left out") else "right")
+    for col in ("model", "speed", "calibration", "best setting", "within JND [95% CI] of decided", "force error", "frame p50/p99 ms", "meets target", "left out"):
+        best.add_column(col, justify="left" if col in ("model", "speed", "calibration", "best setting", "left out") else "right")
     for b in result["best"]:
         left = "; ".join(f"{k}: {v}" for k, v in b["left_out"].items()) or "none"
         if b["setting"] is None:
-            best.add_row(b["model"], b["calibration"], f"none ({b['why']})", "", "", "", accuracy_tables.meets_text(b), left)
+            best.add_row(b["model"], b["speed"], b["calibration"], f"none ({b['why']})", "", "", "", accuracy_tables.meets_text(b), left)
             continue
-        best.add_row(b["model"], b["calibration"], b["setting"], accuracy_tables.within_text(b, short=True),
+        best.add_row(b["model"], b["speed"], b["calibration"], b["setting"], accuracy_tables.within_text(b, short=True),
                      f"{b['force_error']:.1%}", f"{b['frame_ms']:.3g}/{b['frame_ms_p99']:.3g}", accuracy_tables.meets_text(b), left)
     console = _console()
     console.print(t)
