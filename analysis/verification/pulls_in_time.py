@@ -64,7 +64,7 @@ def rate_support(system, states, times, rate_limit) -> tuple[np.ndarray, np.ndar
     stress's power P : dF between the record and the one before at quadrature points straining
     faster than `rate_limit` (1/s, one per law: the data's fastest; the equivalent Hencky rate
     sqrt(2/3) |dE| / dt), carried as the largest so far (a force remembers its history for about
-    tau), and the power-weighted median rate (1/s). Issue 55's marginal share, in rate."""
+    tau), and the power-weighted median rate (1/s). The marginal share of the stretch rule (`finite_strain.support`), in rate."""
     limit = np.asarray(rate_limit, dtype=np.float64).reshape(-1)[np.minimum(system.law_of, np.size(rate_limit) - 1)]
     share, median = np.full(len(times), np.nan), np.full(len(times), np.nan)
     u_prev, E_prev, t_prev, worst = np.zeros_like(states[0]) if states else None, 0.0, 0.0, 0.0

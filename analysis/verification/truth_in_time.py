@@ -9,7 +9,7 @@
   extrapolated force over its coarsest mesh's, and its band is the timeless sample's with the
   time step's share added. A hold sample takes the last ramp sample's.
 - **Support in time**: a sample is decided only where the timeless sample at its displacement
-  is and, as issue 55's rule for stretches, the share of the force's power from quadrature
+  is and, as the rule for stretches (`truth_band.decide`), the share of the force's power from quadrature
   points straining faster than the data's fastest rate (`pulls_in_time.rate_support`, the
   largest so far along the pull) is at most the JND fraction at its force.
 """
