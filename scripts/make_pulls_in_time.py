@@ -8,7 +8,8 @@ asked: a mesh size (the full bench's coarsest reference mesh, 8 mm; the quick be
 and a speed. The tissue is the regional viscoelastic law of protocols/materials/*_rheology.toml.
 Every solve goes into the cache ($BRAINSIM_CACHE/reference) as it ends, so an interrupted run
 goes on where it stopped. The shipped file holds every set asked whose 26 solves are all stored
-and converged; its record names the sets left out (the bench judges a set only where shipped).
+and converged, and keeps the sets it shipped before that were not asked; its record names the
+sets left out (the bench judges a set only where shipped).
 
     .venv/bin/python scripts/make_pulls_in_time.py [--jobs 1] [--sets 20:typical,20:fast,8:typical,8:fast] [--status]
 
@@ -36,6 +37,7 @@ from analysis.verification.pulls_in_time import (
     SHIPPED_INFO,
     pull_in_time_key_of,
     pull_in_time_task,
+    shipped_pulls_in_time,
     shipped_rheology,
     stored_pull_in_time,
 )
@@ -98,7 +100,16 @@ def main() -> None:
             left.append({"size_mm": size, "speed": name, "why": f"{len(stopped)} solves stopped: {', '.join(stopped)}"})
         else:
             shipped += mine
-    arrays, entries = {}, []
+    arrays, entries, kept = {}, [], []
+    # the shipped sets not asked for stay shipped (their solves may be in no cache)
+    old = json.loads(SHIPPED_INFO.read_text()) if SHIPPED_INFO.exists() else {"entries": [], "sets": []}
+    have = shipped_pulls_in_time()
+    for e in old["entries"]:
+        if (e["size_mm"], e["speed"]) not in sets and e["key"] in have:
+            arrays.update({f"{e['key']}__{part}": np.asarray(have[e["key"]][part]) for part in PARTS})
+            arrays[f"{e['key']}__meta"] = np.asarray(json.dumps(have[e["key"]]["meta"]))
+            entries.append(e)
+            kept.append((e["size_mm"], e["speed"]))
     for r in sorted(shipped, key=lambda r: (r["size_mm"], r["speed_name"], r["pull"])):
         for part in PARTS:
             arrays[f"{r['key']}__{part}"] = np.asarray(r[part])
@@ -110,8 +121,9 @@ def main() -> None:
               "sha256": hashlib.sha256(SHIPPED.read_bytes()).hexdigest(), "software_version": version(),
               "made": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
               "rheology": [law.describe() for law in shipped_rheology()], "holds_s": list(HOLDS_S), "max_dt_s": MAX_DT_S,
-              "speeds": {n: speeds[n] for n in dict.fromkeys(name for _, name in sets)},
-              "sets": [{"size_mm": s, "speed": n} for s, n in sets if not any(x["size_mm"] == s and x["speed"] == n for x in left)],
+              "speeds": {n: speeds[n] for n in dict.fromkeys([name for _, name in sets] + [n for _, n in kept])},
+              "sets": [{"size_mm": s, "speed": n} for s, n in dict.fromkeys(kept)]
+              + [{"size_mm": s, "speed": n} for s, n in sets if not any(x["size_mm"] == s and x["speed"] == n for x in left)],
               "left_out": left, "entries": entries}
     SHIPPED_INFO.write_text(json.dumps(record, indent=2) + "\n")
     print(f"wrote {SHIPPED} ({len(entries)} solves; {len(left)} sets left out)")

@@ -302,7 +302,8 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
     for (setting, speed, cal), r in every.items():
         if speed != "quasi-static":
             assert r["n_test"] == 0 and r["force_error"] is None  # NaN, as JSON carries it
-            assert r["extrapolated"] + r["truth_undecided"] == 4 * (2 + 4)  # 2 samples and 4 holds on each test pull
+            assert r["extrapolated"] + r["truth_undecided"] == 4 * 2  # the 2 samples of each test pull
+            assert r["no_reference"] == 4 * 4  # the 4 holds: the solves hold at 12 mm, this bench stops at 2 mm
             assert r["scale"] == every[(setting, "quasi-static", cal)]["scale"]  # one stiffness scale for every speed
     rows = {(s, c): r for (s, v, c), r in every.items() if v == "quasi-static"}
     for r in rows.values():
@@ -321,7 +322,8 @@ def test_bench_accuracy_cli_rows_and_files(small_bench):
     assert ref["solves"] == 10 * 2
     assert len(out["meta"]["calibration_pulls"]) == 6
     assert len(out["meta"]["test_pulls"]) == 4
-    assert len(out["samples"]) == 3 * 2 * 10 * 2 + 2 * 3 * 2 * 10 * (2 + 4)  # quasi-static, then typical and fast with their holds
+    # quasi-static, then typical and fast (their holds have no truth here, so no sample: as past a stopped solve)
+    assert len(out["samples"]) == 3 * 2 * 10 * 2 + 2 * 3 * 2 * 10 * 2
     # the calibrated scale is the geometric mean of reference over model force on the decided calibration samples
     for (setting, cal), r in rows.items():
         if cal == "calibrated":

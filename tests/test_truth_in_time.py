@@ -90,3 +90,19 @@ def test_nothing_is_decided_at_the_hands_speeds_for_the_rate_and_the_record_says
         for rows in cells.values():
             held = [c["force_n"] for c in rows if c["hold_s"] > 0]
             assert np.all(np.diff(held) < 0) and held[0] < rows[len(rows) - 5]["force_n"]
+
+
+def test_a_bench_that_stops_short_of_12_mm_has_no_truth_for_its_holds(quick_in_time):
+    """The solves hold at 12 mm: a bench whose last sample is 2 mm gets its ramp samples and no
+    hold truth (not the 12 mm hold's forces), said so."""
+    static, pulls, _, _ = quick_in_time
+    cfg = quick_config()
+    scene = scene_with(cfg.scene)
+    short = np.array([0.002])
+    small = truth_band.truth_samples(cfg.scene, pulls[:1], short, cfg.reference_sizes_mm, jobs=1)
+    sp = bench_speeds(["typical"])[0]
+    cells, meta = truth_in_time(cfg.scene, scene, small, pulls[:1], short, sp, 20.0)
+    ramp, holds = cells[pulls[0].name][0], cells[pulls[0].name][1:]
+    assert math.isfinite(ramp["force_n"]) and ramp["time_s"] == pytest.approx(0.002 / sp.speed_m_s)
+    assert len(holds) == 4 and all(not math.isfinite(c["force_n"]) and "hold at 12 mm" in c["reason"] for c in holds)
+    assert meta["left_by"]["no solve"] == 4

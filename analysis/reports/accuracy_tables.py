@@ -5,6 +5,7 @@ and per force band."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pandas as pd
@@ -19,9 +20,6 @@ from analysis.verification.truth_in_time import QUASI_STATIC
 from sim.jsonable import jsonable
 from sim.text import counted
 
-COLUMNS = ("model", "setting", "calibration", "speed", "scale", "force_error", "force_error_max", "within_jnd", "within_jnd_low",
-           "within_jnd_high", "within", "outside", "undecided", "pulls_within", "angle_deg", "tick_us", "frame_ms")
-
 
 def within_text(r: dict, short: bool = False) -> str:
     """A row's within-JND rate with its interval over the decided samples it is a rate of
@@ -33,6 +31,21 @@ def within_text(r: dict, short: bool = False) -> str:
             return f"{k}/{n}, too few ({n} < {MIN_DECIDED})"
         return f"{k} of {n} within; no rate: too few decided samples ({n} < {MIN_DECIDED})"
     return f"{rate_interval(r['within_jnd'], r['within_jnd_low'], r['within_jnd_high'], 0)} of {n}"
+
+
+def error_text(r: dict) -> str:
+    """A row's force error over decided samples ("12.0% / 31.0%", mean / max), or, with none
+    decided, its error against the truth beyond the data, said so."""
+    if r["force_error"] is not None and math.isfinite(r["force_error"]):
+        return f"{shown(r['force_error'], '.1%')} / {shown(r['force_error_max'], '.1%')}"
+    beyond = r.get("force_error_extrapolated")
+    return f"- (beyond the data: {shown(beyond, '.1%')}, not a verdict)" if beyond is not None and math.isfinite(beyond) else "-"
+
+
+def truth_counts(r: dict) -> str:
+    """"decided / extrapolated / undecided" over a row's held-out samples, and those with no reference."""
+    none = r.get("no_reference", 0)
+    return f"{r['n_test']} / {r['extrapolated']} / {r['truth_undecided']}" + (f" (+{none} without a reference)" if none else "")
 
 
 def meets_text(b: dict) -> str:
@@ -86,8 +99,7 @@ def tables(result: dict) -> list[Table]:
     """The accuracy table (every configuration, raw and calibrated) and each class at its best:
     what the Markdown, the LaTeX and the HTML print."""
     rows = [[r["model"], r["setting"], r["calibration"], r.get("speed", ""), shown(r["scale"], ".3g"),
-             f"{shown(r['force_error'], '.1%')} / {shown(r['force_error_max'], '.1%')}",
-             within_text(r), f"{r['n_test']} / {r['extrapolated']} / {r['truth_undecided']}",
+             error_text(r), within_text(r), truth_counts(r),
              f"{r['within']} / {r['outside']} / {r['undecided']}", f"{r['pulls_within']}/{r['n_test_pulls']}", str(r["unstable_pulls"]),
              f"{shown(r['angle_deg'], '.1f')} / {shown(r['angle_deg_max'], '.1f')} deg", f"{r['tick_us']:.2f} us / {r['frame_ms']:.3g} ms"]
             for r in result["rows"]]

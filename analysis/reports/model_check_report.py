@@ -14,7 +14,7 @@ _OK = {True: "yes", False: "**no**", None: "not run"}
 def _speed_text(row: dict) -> str:
     """"typical (14.2 mm/s)": the truth's speed and the hand's (a card made before speeds: quasi-static)."""
     v = row.get("speed_m_s")
-    return f"{row.get('speed', 'quasi-static')}" + (f" ({v * 1e3:.3g} mm/s)" if v else "")
+    return f"{row.get('speed', 'quasi-static')}" + (f" (hand {v * 1e3:.3g} mm/s)" if v else "")
 
 
 def _held(result) -> str:

@@ -386,7 +386,7 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
         scale = (scales or {}).get((m["model"], m["setting"]), calibration_scale(mags[:n_calib][calib], R[:n_calib][calib]))
         for calibration, s in (("raw", 1.0), ("calibrated", scale)):
             errs, within, verdicts, angles, calib_errs, beyond = [], [], [], [], [], []
-            counts = {"extrapolated": 0, "truth_undecided": 0}
+            counts = {"extrapolated": 0, "truth_undecided": 0, "no_reference": 0}
             pulls_within = pulls_judged = 0
             for p, pull in enumerate(pulls):
                 test = p >= n_calib
@@ -395,7 +395,8 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                     f = s * mags[p, k]
                     r = R[p, k]
                     cell = ref[p][k]
-                    if not math.isfinite(r):  # no reference here (its solve stopped): not judged
+                    if not math.isfinite(r):  # no reference here (its solve stopped, or none shipped): not judged
+                        counts["no_reference"] += int(test)
                         continue
                     rel = abs(f - r) / r
                     ok = bool(abs(f - r) <= float(force_jnd(np.array(r))) * r)
@@ -412,7 +413,8 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                                     "decided_with_contrast": cell.get("decided_with_contrast"),
                                     "decided_on": cell.get("decided_on", ""),
                                     "decided": bool(D[p, k]), "reason": cell["reason"],
-                                    **{name: cell.get(name, math.nan) for name in ("rate_share_outside", "strain_rate_per_s", "static_force_n")},
+                                    **{name: cell.get(name, math.nan) for name in ("rate_share_outside", "strain_rate_per_s", "static_force_n", "mesh_correction")},
+                                    "left_by": cell.get("left_by", ""),
                                     "force_error": rel, "within_jnd": ok, "verdict": verdict_, "angle_deg": ang})
                     if not D[p, k]:
                         if test:
@@ -438,7 +440,7 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                          "within_jnd": nan_mean(within), "within_jnd_low": lo, "within_jnd_high": hi, "n_test": n,
                          "n_within_jnd": int(sum(within)), "withheld": too_few(n),
                          "within": verdicts.count("within"), "outside": verdicts.count("outside"), "undecided": verdicts.count("undecided"),
-                         "extrapolated": counts["extrapolated"], "truth_undecided": counts["truth_undecided"],
+                         "extrapolated": counts["extrapolated"], "truth_undecided": counts["truth_undecided"], "no_reference": counts["no_reference"],
                          "pulls_within": pulls_within, "n_test_pulls": pulls_judged,
                          "angle_deg": nan_mean(angles), "angle_deg_max": float(np.max(angles)) if angles else math.nan,
                          "calibration_error": nan_mean(calib_errs),

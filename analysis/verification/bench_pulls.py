@@ -30,8 +30,9 @@ from sim.pulls import Pull, scene_with
 HANDSET_PARAMS = _asset("protocols/models/plate_spring_handset.toml")
 LOCATED_PARAMS = _asset("protocols/models/plate_spring_located.toml")
 PULL_SPEED = 0.010  # m/s, a careful surgical pull (the scene's: 12 mm in 1.2 s)
-# the speed at which the truth's tissue strains at the data's fastest rate (0.0028/s): its
-# power-weighted median strain rate is 0.18/s at 14.2 mm/s (docs/viscoelastic.md), so 0.2 mm/s
+# a hand near the data's rate: at 0.2 mm/s the left-lateral pull strains at the data's fastest
+# rate (0.0028/s; docs/viscoelastic.md, Counter-checks), the median pull at about twice it: some
+# 70 times slower than the hands' 14.2 mm/s, and 60 s a pull
 QUASI_STATIC_M_S = 0.0002
 TICK_TIMING_CALLS = 20000  # per pull: the tick's median time
 

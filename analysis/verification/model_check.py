@@ -349,11 +349,11 @@ def estimate(name: str, cfg: CheckConfig, build_s: float, timed: list[dict]) -> 
     acfg = _accuracy_config(name, cfg.scene, cfg.quick)
     pulls = make_pulls(scene) + test_pulls(scene, acfg.test_places)
     xs = sample_displacements(acfg)
-    timed = bool(model_class(name).uses_time)
-    ticks_per_frame = round(scene.spec.servo_rate_hz / hz) if timed else 0
+    uses_time = bool(model_class(name).uses_time)
+    ticks_per_frame = round(scene.spec.servo_rate_hz / hz) if uses_time else 0
     pulls_s = build_s
     for sp in bench_speeds(acfg.speeds):  # in frames, or in time from rest to the last hold (`bench_pulls`)
-        v = sp.speed_m_s if sp.speed_m_s is not None else QUASI_STATIC_M_S if timed else None
+        v = sp.speed_m_s if sp.speed_m_s is not None else QUASI_STATIC_M_S if uses_time else None
         frames = frames_per_sample(xs, hz) * len(xs) if v is None else math.ceil((xs[-1] / v + max(sp.holds_s, default=0.0)) * hz)
         pulls_s += len(pulls) * (frames * (frame_s + ticks_per_frame * tick_s) + TICK_TIMING_CALLS * tick_s)
     todo = unsolved(cfg.scene, pulls, xs, acfg.reference_sizes_mm)

@@ -88,6 +88,9 @@ def truth_in_time(scene_path, scene, static: dict, pulls, xs, speed: BenchSpeed,
     why_none = ("the bench's samples are not the pulls in time's records (every 0.5 mm to 12 mm)" if not on_records else
                 "the pulls in time have no pia-arachnoid" if scene.spec.material.pia_arachnoid is not None else "")
     law_mu = scene.spec.material.law.shear_modulus * e_ratio
+    # the solves hold at 12 mm: a bench that stops short of it has no truth for its holds
+    holds_at_end = on_records and records[-1] == len(RECORD_XS) - 1
+    rates = "/".join(f"{r:.2g}" for r in (data_rates() if white is not None else data_rates()[:1]))
     out, found = {}, 0
     for p in pulls:
         cells = static["pulls"][p.name]
@@ -100,9 +103,10 @@ def truth_in_time(scene_path, scene, static: dict, pulls, xs, speed: BenchSpeed,
         for k in range(len(xs) + len(speed.holds_s)):
             ramp = min(k, len(xs) - 1)
             c = cells[ramp] | {"hold_s": speed.holds_s[k - len(xs)] if k >= len(xs) else 0.0}
-            if solve is None:
-                rows.append(_missing(c, why_none or f"no pull in time shipped at {speed.name} speed on the {size_mm:g} mm mesh "
-                                                   "(scripts/make_pulls_in_time.py)"))
+            if solve is None or (k >= len(xs) and not holds_at_end):
+                rows.append(_missing(c, why_none or (f"no pull in time shipped at {speed.name} speed on the {size_mm:g} mm mesh "
+                                                     "(scripts/make_pulls_in_time.py)" if solve is None else
+                                                     f"the pulls in time hold at {RECORD_XS[-1] * 1e3:g} mm, not at this bench's last sample")))
                 continue
             rec = records[ramp] if k < len(xs) else len(RECORD_XS) + (k - len(xs))
             coarse_n = float(np.linalg.norm(coarse[ramp])) * law_mu
@@ -116,7 +120,7 @@ def truth_in_time(scene_path, scene, static: dict, pulls, xs, speed: BenchSpeed,
             limit = MARGINAL_LIMIT * float(force_jnd(np.array(f))) if math.isfinite(f) else math.nan
             if math.isfinite(f) and not share <= limit:
                 ok, verdict, left_by = False, "extrapolated", "rates beyond the data's"
-                why = (f"{share:.0%} of the force's power from points straining faster than the data's {max(data_rates()):.2g}/s "
+                why = (f"{share:.0%} of the force's power from points straining faster than the data's {rates}/s "
                        f"(median {rate:.2g}/s; at most {limit:.0%} here)")
             rows.append(c | {"force": vec, "force_n": f, "band_rel": band, "band_half_n": band * f, "decided": ok, "truth": verdict,
                              "reason": why, "time_s": float(solve["times_s"][rec]), "rate_share_outside": share, "strain_rate_per_s": rate,

@@ -79,7 +79,7 @@ def bench_accuracy(scene_file, young, test_places, speeds, quick, as_json, out_d
     from analysis.verification import accuracy, paper
 
     target = staged(out_dir, force, folder=True, expect=ACCURACY_FILES, inputs={"--scene": scene_file})  # refused before the sweep
-    names = tuple(n.strip() for n in speeds.split(","))
+    names = tuple(dict.fromkeys(n.strip() for n in speeds.split(",")))  # each speed once
     accuracy.bench_speeds(names)  # a speed not known: refused before the sweep
     kw = {"scene": scene_file, "young": young, "speeds": names} | ({"test_places": test_places} if test_places else {})
     settings = accuracy.default_settings(quick)
@@ -101,8 +101,8 @@ def bench_accuracy(scene_file, young, test_places, speeds, quick, as_json, out_d
                 "direction deg", "tick us", "frame ms"):
         t.add_column(col, justify="left" if col in ("model", "setting", "speed", "calibration") else "right")
     for r in result["rows"]:
-        t.add_row(r["model"], r["setting"], r["speed"], r["calibration"], shown(r["scale"], ".3g"), shown(r["force_error"], ".1%"), shown(r["force_error_max"], ".1%"),
-                  accuracy_tables.within_text(r, short=True), f"{r['n_test']}/{r['extrapolated']}/{r['truth_undecided']}",
+        t.add_row(r["model"], r["setting"], r["speed"], r["calibration"], shown(r["scale"], ".3g"), accuracy_tables.error_text(r).split(" / ")[0], shown(r["force_error_max"], ".1%"),
+                  accuracy_tables.within_text(r, short=True), accuracy_tables.truth_counts(r).replace(" / ", "/"),
                   f"{r['within']}/{r['outside']}/{r['undecided']}", f"{r['pulls_within']}/{r['n_test_pulls']}",
                   shown(r["angle_deg"], ".1f"), f"{r['tick_us']:.2f}", f"{r['frame_ms']:.3g}")
     best = Table(title=f"Each class at its best (frame p99 within the budget, no pull given up; target {accuracy.TARGET_WITHIN:.0%} within the JND)")

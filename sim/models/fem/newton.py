@@ -183,7 +183,7 @@ def follow(system, W: sp.csr_matrix, times, targets, *, tol: float = 1e-8, max_i
                 w = (t_new - t_done) / (t_done - prev[0])
                 u0, lam0 = u + w * (u - prev[1]), lam + w * (lam - prev[2])
             ok, last = _attempt(system, W, Wt, u0, lam0, d, scale, tol, max_iter, steps, report)
-            if not ok and last is not None and not np.array_equal(u0, u):
+            if not ok and not np.array_equal(u0, u):
                 # the predictor may have overshot into inverted elements: try from the last state
                 ok, last = _attempt(system, W, Wt, u.copy(), lam.copy(), d, scale, tol, max_iter, steps, report)
             if not ok:
