@@ -327,10 +327,11 @@ def force_band(force_n: float) -> str:
 
 def breakdown(samples: list[dict], by: str) -> list[dict]:
     """Held-out samples per model, speed, calibration and group (`displacement_mm` or `force_band`):
-    decided, within the JND among them (with a Wilson interval), extrapolated and undecided."""
+    decided, within the JND among them (with a Wilson interval), extrapolated and undecided. Per
+    displacement, the ramp's samples only (a hold's are at the last displacement, later)."""
     groups: dict = {}
     for c in samples:
-        if c["set"] != "test":
+        if c["set"] != "test" or (by == "displacement_mm" and c.get("hold_s", 0.0) > 0):
             continue
         g = c[by] if by != "force_band" else force_band(c["reference_force_n"])
         groups.setdefault((c["model"], c["setting"], c.get("speed", QUASI_STATIC), c["calibration"], g), []).append(c)
