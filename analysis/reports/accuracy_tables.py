@@ -69,7 +69,7 @@ def in_time_words(meta: dict) -> str:
                    f"viscoelastic brain ({'; '.join(t['law'])}) on the {t['mesh_mm']:g} mm mesh, {t['pulls_solved']} of {t['pulls']} pulls solved: "
                    f"{t['decided']} of {t['samples']} samples decided" + (f" ({left})" if left else "")
                    + (f"; the tissue's power-weighted median strain rate {rate[0]:.2g} to {rate[1]:.2g}/s against the data's "
-                      f"{max(t['data_rate_per_s']):.2g}/s" if rate else "")
+                      f"{' and '.join(f'{r:.2g}' for r in t['data_rate_per_s'])}/s (grey, white)" if rate else "")
                    + (f"; forces {over[0]:.2g} to {over[1]:.2g} x the timeless truth's" if over else "") + ".")
     return " ".join(out)
 
