@@ -38,6 +38,7 @@ from scipy.optimize import brentq
 
 from analysis.statistics.stats import wilson
 from analysis.verification.bench_pulls import HANDSET_PARAMS, model_pulls, pull_speed
+from analysis.verification.pulls_in_time import record_times
 from analysis.verification.regions import membrane_meta, regions_meta
 from analysis.verification.tissue_pulls import (
     DEFAULT_SIZES_MM,
@@ -227,7 +228,7 @@ def run_accuracy(cfg: AccuracyConfig, jobs: int | None = None, scheduler: str | 
         if sp.speed_m_s is not None:  # the viscoelastic truth on the timeless truth's coarsest mesh
             timed, in_time[sp.name] = truth_in_time(cfg.scene, scene, truth, pulls, xs, sp, max(cfg.reference_sizes_mm), e_ratio)
             cells = [timed[p.name] for p in pulls]
-            columns = np.concatenate([xs, np.full(len(sp.holds_s), xs[-1])])
+            columns = record_times(xs, sp.speed_m_s, sp.holds_s)[1]
         r, smp = compare(cells, [m for m in models if m["speed"] == sp.name], pulls, len(calib), columns, sp.name, scales)
         if sp.name == QUASI_STATIC:
             scales = {(x["model"], x["setting"]): x["scale"] for x in r if x["calibration"] == "calibrated"}
@@ -373,12 +374,11 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
     calibration pulls' decided samples, or given per (model, setting) in `scales` (the quasi-static
     one, used at every speed). `xs`: each sample's displacement (m); `speed` the truth's
     speed (`truth_in_time.SPEED_NAMES`); each sample carries it, the model's pull speed and the
-    time it was reached (from rest, with the cell's `hold_s` after the ramp's end)."""
+    time it was reached (`bench_pulls.model_pulls`' `times_s`), and the cell's `hold_s`."""
     rows, samples = [], []
     R = np.array([[c["force_n"] for c in row] for row in ref])  # (P, n)
     H = np.array([[c["band_half_n"] for c in row] for row in ref])
     D = np.array([[c["decided"] for c in row] for row in ref], dtype=bool)
-    x_end = float(np.max(xs))
     for m in models:
         v = m.get("speed_m_s")
         F = np.asarray(m["force"])
@@ -403,10 +403,9 @@ def compare(ref: list[list[dict]], models: list[dict], pulls: list[Pull], n_cali
                     ok = bool(abs(f - r) <= float(force_jnd(np.array(r))) * r)
                     verdict_ = verdict(f, r, H[p, k]) if D[p, k] else cell["truth"]
                     ang = _angle(-F[p, k], cell["force"])  # the reference is the force on the tissue
-                    hold = float(cell.get("hold_s", 0.0))
                     samples.append({"model": m["model"], "setting": m["setting"], "calibration": calibration, "set": "test" if test else "calibration",
-                                    "speed": speed, "speed_m_s": v, "hold_s": hold,
-                                    "time_s": (x_end / v + hold if hold > 0 else float(x) / v) if v else math.nan,
+                                    "speed": speed, "speed_m_s": v, "hold_s": float(cell.get("hold_s", 0.0)),
+                                    "time_s": float(m["times_s"][k]) if "times_s" in m else math.nan,
                                     "pull": pull.name, "displacement_mm": round(float(x) * 1e3, 6), "force_n": f, "reference_force_n": r,
                                     "reference_half_band_n": float(H[p, k]), "mesh_band_rel": cell["mesh_band_rel"], "law_band_rel": cell["law_band_rel"],
                                     "support_share_outside": cell["support_share_outside"], "max_abs_j_minus_1": cell["max_abs_j_minus_1"],

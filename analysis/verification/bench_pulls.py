@@ -20,6 +20,7 @@ import time
 
 import numpy as np
 
+from analysis.verification.pulls_in_time import record_times
 from brainsim_assets import path as _asset
 from sim.errors import SceneError, SimError
 from sim.models.api import REST, deformation_at, force_at
@@ -47,11 +48,21 @@ def pull_speed(xs, frame_hz: float) -> float:
     return float(xs[0]) / frames_per_sample(xs, frame_hz) * frame_hz
 
 
-def sample_times(xs, speed: float, holds=()) -> np.ndarray:
-    """The times (s) a pull at `speed` (m/s) from rest reaches the samples `xs` (m), then each of
-    `holds` (s after the ramp's end)."""
-    xs = np.asarray(xs, dtype=np.float64)
-    return np.concatenate([xs / speed, xs[-1] / speed + np.asarray(holds, dtype=np.float64)])
+def hand_speed(speed: float | None, uses_time: bool) -> float | None:
+    """The speed (m/s) a model is pulled at for a bench speed (`speed`; None: the timeless
+    truth's): that speed; for the timeless truth `QUASI_STATIC_M_S` if the model uses time, else
+    None (in frames)."""
+    return QUASI_STATIC_M_S if speed is None and uses_time else speed
+
+
+def pull_plan(xs, frame_hz: float, servo_hz: float, speed: float | None, holds, uses_time: bool) -> tuple[np.ndarray, int, int]:
+    """A pull at `hand_speed`'s `speed` (None: in frames): the times (s) it reaches the samples
+    `xs` (m) and then, in time, each of `holds` (s after the ramp's end); its visual frames; and
+    the servo ticks a frame a model that uses time is asked at (0: none)."""
+    if speed is None:
+        return np.asarray(xs, dtype=np.float64) / pull_speed(xs, frame_hz), frames_per_sample(xs, frame_hz) * len(xs), 0
+    times = record_times(xs, speed, holds)[0]
+    return times, math.ceil(times[-1] * frame_hz - 1e-9), max(1, round(servo_hz / frame_hz)) if uses_time else 0
 
 
 def build_model(scene, setting, handset, e_ratio: float):
@@ -76,7 +87,8 @@ def build_model(scene, setting, handset, e_ratio: float):
 def model_pulls(scene_path, young: float, setting, pulls: list[Pull], xs, handset=HANDSET_PARAMS, e_ratio: float = 1.0,
                 speed: float | None = None, holds=()) -> dict:
     """Every pull from rest, in frames or in time (the module's doc), the force sampled at `xs`
-    and then, in time, at each hold: `force` (pulls, samples, 3) on the hand, the frame's and the
+    and then, in time, at each hold: `force` (pulls, samples, 3) on the hand, the samples'
+    times from rest (`times_s`, s), the hand's speed (`speed_m_s`), the frame's and the
     tick's times, the build's, and the pulls the model gave up on. `e_ratio` is `young` over the
     scene's own modulus (it scales the plate-spring stack's E)."""
     scene = scene_with(scene_path, young)
@@ -85,11 +97,9 @@ def model_pulls(scene_path, young: float, setting, pulls: list[Pull], xs, handse
     model = build_model(scene, setting, handset, e_ratio)
     build_s = time.perf_counter() - start
     frame_hz, servo_hz = scene.spec.visual_rate_hz, scene.spec.servo_rate_hz
-    timed = bool(model.uses_time)
-    if speed is None and timed:
-        speed = QUASI_STATIC_M_S
-    n = len(xs) + (len(holds) if speed is not None else 0)
-    force = np.zeros((len(pulls), n, 3))
+    speed = hand_speed(speed, bool(model.uses_time))
+    times, n_frames, ticks_per_frame = pull_plan(xs, frame_hz, servo_hz, speed, holds, bool(model.uses_time))
+    force = np.zeros((len(pulls), len(times), 3))
     frame_s: list[float] = []
     tick_s: list[float] = []
     unstable = 0
@@ -98,23 +108,22 @@ def model_pulls(scene_path, young: float, setting, pulls: list[Pull], xs, handse
         contact = model.grasp(pull.point, 0)
         direction = np.asarray(pull.direction)
         if speed is None:
-            force[p] = _in_frames(model, contact, direction, xs, frame_hz, frame_s)
+            force[p] = _in_frames(model, contact, direction, xs, n_frames, frame_hz, frame_s)
         else:
-            force[p] = _in_time(model, contact, direction, xs, speed, holds, frame_hz, servo_hz, frame_s)
+            force[p] = _in_time(model, contact, direction, xs[-1] / speed, speed, times, n_frames, ticks_per_frame, frame_hz, frame_s)
         law = model.law(contact)
         v = tuple(float(c) for c in direction * (speed if speed is not None else pull_speed(xs, frame_hz)))
         tick_s.append(_tick_time(law, tuple(float(c) for c in direction * xs[-1]), v if getattr(law, "uses_time", False) else None))
         unstable += int(bool(model.unstable))  # pulls the model gave up on (it renders zero force)
-    return {"model": setting.model, "setting": setting.setting, "force": force, "in_time": speed is not None,
+    return {"model": setting.model, "setting": setting.setting, "force": force, "times_s": times, "in_time": speed is not None,
             "speed_m_s": float(speed if speed is not None else pull_speed(xs, frame_hz)),
             "frame_ms": float(np.median(frame_s) * 1e3), "frame_ms_p99": float(np.percentile(frame_s, 99) * 1e3),
             "tick_us": float(np.median(tick_s) * 1e6), "build_s": build_s, "unstable": unstable}
 
 
-def _in_frames(model, contact, direction, xs, frame_hz: float, frame_s: list) -> np.ndarray:
-    """A model that does not use time through the samples, `frames_per_sample` frames apart."""
-    per_sample = frames_per_sample(xs, frame_hz)
-    n_frames = per_sample * len(xs)
+def _in_frames(model, contact, direction, xs, n_frames: int, frame_hz: float, frame_s: list) -> np.ndarray:
+    """A model that does not use time through the samples in `n_frames` frames, `frames_per_sample` a sample."""
+    per_sample = n_frames // len(xs)
     out = np.zeros((len(xs), 3))
     for f in range(1, n_frames + 1):
         d = tuple(float(c) for c in direction * xs[-1] * f / n_frames)
@@ -126,14 +135,11 @@ def _in_frames(model, contact, direction, xs, frame_hz: float, frame_s: list) ->
     return out
 
 
-def _in_time(model, contact, direction, xs, speed: float, holds, frame_hz: float, servo_hz: float, frame_s: list) -> np.ndarray:
-    """The hand at `speed` from rest through `xs`, then held: frames at the scene's rate; a model
-    that uses time asked at every servo tick (the scene's rate in whole ticks a frame) and at each
-    sample's own time."""
-    t_ramp = float(xs[-1]) / speed
-    samples = sample_times(xs, speed, holds)
-    ticks_per_frame = max(1, round(servo_hz / frame_hz)) if model.uses_time else 0
-    n_frames = math.ceil(samples[-1] * frame_hz - 1e-9)
+def _in_time(model, contact, direction, t_ramp: float, speed: float, samples, n_frames: int, ticks_per_frame: int, frame_hz: float,
+             frame_s: list) -> np.ndarray:
+    """The hand at `speed` from rest for `t_ramp` s, then held, asked at the samples' times
+    (`pull_plan`): `n_frames` frames at the scene's rate; a model that uses time asked at every
+    servo tick (`ticks_per_frame`) and at each sample's own time."""
     ticks = [(f + j / ticks_per_frame) / frame_hz for f in range(n_frames) for j in range(1, ticks_per_frame + 1)]
     # (time, kind, sample index): a frame before a tick before a sample at the same time
     events = sorted([(f / frame_hz, 0, -1) for f in range(1, n_frames + 1)] + [(t, 1, -1) for t in ticks]

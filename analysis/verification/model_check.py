@@ -33,7 +33,7 @@ from analysis.verification.accuracy import (
     run_accuracy,
     sample_displacements,
 )
-from analysis.verification.bench_pulls import QUASI_STATIC_M_S, TICK_TIMING_CALLS, frames_per_sample
+from analysis.verification.bench_pulls import TICK_TIMING_CALLS, hand_speed, pull_plan
 from analysis.verification.stability import DURATION as STABILITY_DURATION
 from analysis.verification.stability import make_cases, run_case
 from analysis.verification.tissue_pulls import shipped_solve_seconds, unsolved
@@ -350,11 +350,9 @@ def estimate(name: str, cfg: CheckConfig, build_s: float, timed: list[dict]) -> 
     pulls = make_pulls(scene) + test_pulls(scene, acfg.test_places)
     xs = sample_displacements(acfg)
     uses_time = bool(model_class(name).uses_time)
-    ticks_per_frame = round(scene.spec.servo_rate_hz / hz) if uses_time else 0
     pulls_s = build_s
     for sp in bench_speeds(acfg.speeds):  # in frames, or in time from rest to the last hold (`bench_pulls`)
-        v = sp.speed_m_s if sp.speed_m_s is not None else QUASI_STATIC_M_S if uses_time else None
-        frames = frames_per_sample(xs, hz) * len(xs) if v is None else math.ceil((xs[-1] / v + max(sp.holds_s, default=0.0)) * hz)
+        _, frames, ticks_per_frame = pull_plan(xs, hz, scene.spec.servo_rate_hz, hand_speed(sp.speed_m_s, uses_time), sp.holds_s, uses_time)
         pulls_s += len(pulls) * (frames * (frame_s + ticks_per_frame * tick_s) + TICK_TIMING_CALLS * tick_s)
     todo = unsolved(cfg.scene, pulls, xs, acfg.reference_sizes_mm)
     per = shipped_solve_seconds()

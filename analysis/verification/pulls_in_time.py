@@ -47,11 +47,11 @@ def shipped_rheology() -> tuple[Viscoelastic, Viscoelastic]:
     return read_rheology(GREY_RHEOLOGY)[0], read_rheology(WHITE_RHEOLOGY)[0]
 
 
-def data_rates() -> tuple[float, float]:
-    """(grey, white): the fastest strain rate (1/s) the shipped rheology's data were measured at,
+def data_rates(white: bool = True) -> tuple[float, ...]:
+    """(grey, white), or (grey,) without `white`: the fastest strain rate (1/s) the shipped rheology's data were measured at,
     the upper end of the 95% interval of the tests' rate `calibrate rheology` fitted (a uniaxial
     ramp's axial rate: its equivalent Hencky rate; a shear ramp's is 1/sqrt(3) of it)."""
-    return tuple(float(read_rheology(f)[1]["ci95_rate_per_s"][1]) for f in (GREY_RHEOLOGY, WHITE_RHEOLOGY))
+    return tuple(float(read_rheology(f)[1]["ci95_rate_per_s"][1]) for f in ((GREY_RHEOLOGY, WHITE_RHEOLOGY) if white else (GREY_RHEOLOGY,)))
 
 
 def _hencky(s: dict) -> np.ndarray:
@@ -116,7 +116,7 @@ def solve_pull_in_time(problem: Problem, grey: Viscoelastic, white: Viscoelastic
     rep = res.report
     share, rate = np.full(len(times), np.nan), np.full(len(times), np.nan)
     share[: len(res.states)], rate[: len(res.states)] = rate_support(system, res.states, times[: len(res.states)],
-                                                                     data_rates() if white is not None else data_rates()[0])
+                                                                     data_rates(white is not None))
     return {"times_s": times, "x_m": xs_all, "force_per_pa": res.forces, "rate_share_outside": share, "strain_rate_per_s": rate,
             "converged": bool(rep.converged), "reason": rep.reason,
             "steps": int(rep.load_steps), "cut_steps": int(rep.cut_steps), "iterations": int(sum(rep.iterations)),

@@ -90,7 +90,7 @@ def truth_in_time(scene_path, scene, static: dict, pulls, xs, speed: BenchSpeed,
     law_mu = scene.spec.material.law.shear_modulus * e_ratio
     # the solves hold at 12 mm: a bench that stops short of it has no truth for its holds
     holds_at_end = on_records and records[-1] == len(RECORD_XS) - 1
-    rates = "/".join(f"{r:.2g}" for r in (data_rates() if white is not None else data_rates()[:1]))
+    rates = "/".join(f"{r:.2g}" for r in data_rates(white is not None))
     out, found = {}, 0
     for p in pulls:
         cells = static["pulls"][p.name]

@@ -92,15 +92,11 @@ def hold(system, W: sp.csr_matrix, target, fractions=(1.0,), *, first_step: floa
         if fractions[record] - t_new < 0.25 * h:  # no sliver of a step before a record
             t_new = fractions[record]
         d = target * t_new
+        guess = None
         if prev is not None and t_done > prev[0]:  # secant predictor from the last two states
             w = (t_new - t_done) / (t_done - prev[0])
-            u, lam = u_done + w * (u_done - prev[1]), lam_done + w * (lam_done - prev[2])
-        else:
-            u, lam = u_done.copy(), lam_done.copy()
-        ok, last = _attempt(system, W, Wt, u, lam, d, scale, tol, max_iter, steps, report)
-        if not ok and last is not None and prev is not None and not np.array_equal(u, u_done):
-            # the predictor may have overshot into inverted elements: try from the last state
-            ok, last = _attempt(system, W, Wt, u_done.copy(), lam_done.copy(), d, scale, tol, max_iter, steps, report)
+            guess = (u_done + w * (u_done - prev[1]), lam_done + w * (lam_done - prev[2]))
+        ok, last = _attempt_from(system, W, Wt, (u_done, lam_done), guess, d, scale, tol, max_iter, steps, report)
         if not ok:
             report.cut_steps += 1
             h = 0.5 * (t_new - t_done)
@@ -175,17 +171,14 @@ def follow(system, W: sp.csr_matrix, times, targets, *, tol: float = 1e-8, max_i
                 t_new = t_i
             d = d_done + (d_i - d_done) * (t_new - t_done) / (t_i - t_done)
             system.step(t_new - t_done)
-            u0, lam0 = u.copy(), lam.copy()
+            guess = None
             # secant predictor from the last two states where the target keeps its velocity (a ramp
             # at one speed, a hold); where it changes (a ramp's end) the last state is the better guess
             if prev is not None and np.allclose((d - d_done) / (t_new - t_done), (d_done - prev[3]) / (t_done - prev[0]),
                                                 rtol=1e-9, atol=1e-12 * scale / (t_done - prev[0])):
                 w = (t_new - t_done) / (t_done - prev[0])
-                u0, lam0 = u + w * (u - prev[1]), lam + w * (lam - prev[2])
-            ok, last = _attempt(system, W, Wt, u0, lam0, d, scale, tol, max_iter, steps, report)
-            if not ok and not np.array_equal(u0, u):
-                # the predictor may have overshot into inverted elements: try from the last state
-                ok, last = _attempt(system, W, Wt, u.copy(), lam.copy(), d, scale, tol, max_iter, steps, report)
+                guess = (u + w * (u - prev[1]), lam + w * (lam - prev[2]))
+            ok, last = _attempt_from(system, W, Wt, (u, lam), guess, d, scale, tol, max_iter, steps, report)
             if not ok:
                 report.cut_steps += 1
                 h = 0.5 * (t_new - t_done)
@@ -314,6 +307,17 @@ def _attempt(system, W, Wt, u, lam, d, scale, tol, max_iter, steps: _Steps, repo
     report.residuals.append(hist)
     report.iterations.append(len(hist))
     return ok, last
+
+
+def _attempt_from(system, W, Wt, last_state, guess, d, scale, tol, max_iter, steps: _Steps, report) -> tuple[bool, object]:
+    """`_attempt` from the predictor's `guess` (u, lam; None: none), and from `last_state` (the
+    last converged u, lam) where there is no guess or it fails: a predictor may overshoot into
+    inverted elements."""
+    if guess is not None and not np.array_equal(guess[0], last_state[0]):
+        ok, last = _attempt(system, W, Wt, guess[0], guess[1], d, scale, tol, max_iter, steps, report)
+        if ok:
+            return ok, last
+    return _attempt(system, W, Wt, last_state[0].copy(), last_state[1].copy(), d, scale, tol, max_iter, steps, report)
 
 
 def _iterate(system, W, Wt, u, lam, d, scale, tol, max_iter, steps: _Steps, report):
