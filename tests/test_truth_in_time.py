@@ -106,3 +106,36 @@ def test_a_bench_that_stops_short_of_12_mm_has_no_truth_for_its_holds(quick_in_t
     assert math.isfinite(ramp["force_n"]) and ramp["time_s"] == pytest.approx(0.002 / sp.speed_m_s)
     assert len(holds) == 4 and all(not math.isfinite(c["force_n"]) and "hold at 12 mm" in c["reason"] for c in holds)
     assert meta["left_by"]["no solve"] == 4
+
+
+def test_a_pull_in_time_that_stopped_has_no_truth_beyond_where_it_got(quick_in_time, monkeypatch):
+    """A solve that stopped (as some anterior pulls do on the 8 mm mesh) is shipped with the
+    records it reached: the samples up to there are as before, those beyond and the holds have
+    no truth, each saying where and why, and the record names the pull and how far it got."""
+    import analysis.verification.truth_in_time as tit
+    from analysis.verification.tissue_pulls import RECORD_XS
+
+    static, pulls, xs, out = quick_in_time
+    cfg = quick_config()
+    stop = 10  # the first record not reached: 5.5 mm
+    real = tit.stored_pull_in_time
+
+    def stopped(key):
+        s = dict(real(key))
+        for part in ("force_per_pa", "rate_share_outside", "strain_rate_per_s"):
+            s[part] = np.array(s[part], dtype=np.float64)
+            s[part][stop:] = np.nan
+        s["meta"] = s["meta"] | {"converged": False, "reason": "diverging"}
+        return s
+
+    monkeypatch.setattr(tit, "stored_pull_in_time", stopped)
+    p = pulls[0]
+    cells, meta = truth_in_time(cfg.scene, scene_with(cfg.scene), static, [p], xs, bench_speeds(["typical"])[0], 20.0)
+    assert meta["pulls_stopped_mm"] == {p.name: pytest.approx(RECORD_XS[stop - 1] * 1e3)}
+    for k, (c, before) in enumerate(zip(cells[p.name], out["typical"][0][p.name], strict=True)):
+        if k < len(xs) and xs[k] < RECORD_XS[stop] - 1e-12:
+            assert c["force_n"] == before["force_n"] or not math.isfinite(before["force_n"])
+        else:
+            assert not math.isfinite(c["force_n"]) and c["left_by"] == "no solve"
+            assert "stopped at 5 mm (diverging)" in c["reason"]
+    assert meta["left_by"]["no solve"] == sum(1 for k in range(len(cells[p.name])) if k >= len(xs) or xs[k] >= RECORD_XS[stop] - 1e-12)

@@ -124,6 +124,12 @@ def solve_pull_in_time(problem: Problem, grey: Viscoelastic, white: Viscoelastic
             "speed_m_s": float(speed), "max_dt_s": float(max_dt)}
 
 
+def reached_mm(solve: dict) -> float:
+    """How far a pull in time got (mm): the displacement of its last record with a force, 0 if none."""
+    done = np.isfinite(np.asarray(solve["force_per_pa"])).all(axis=1)
+    return float(np.asarray(solve["x_m"])[np.flatnonzero(done)[-1]] * 1e3) if done.any() else 0.0
+
+
 # -- stored, or solved and cached -----------------------------------------------------------------
 
 def _cache_file(key: str) -> Path:

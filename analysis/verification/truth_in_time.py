@@ -12,6 +12,8 @@
   is and, as the rule for stretches (`truth_band.decide`), the share of the force's power from quadrature
   points straining faster than the data's fastest rate (`pulls_in_time.rate_support`, the
   largest so far along the pull) is at most the JND fraction at its force.
+- A pull in time that stopped (as some anterior pulls do on the 8 mm mesh, in time as in the
+  timeless solves) has no truth beyond its last record, and says where it stopped.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from analysis.verification.pulls_in_time import (
     WHITE_RHEOLOGY,
     data_rates,
     pull_in_time_key_of,
+    reached_mm,
     shipped_rheology,
     stored_pull_in_time,
 )
@@ -91,13 +94,15 @@ def truth_in_time(scene_path, scene, static: dict, pulls, xs, speed: BenchSpeed,
     # the solves hold at 12 mm: a bench that stops short of it has no truth for its holds
     holds_at_end = on_records and records[-1] == len(RECORD_XS) - 1
     rates = "/".join(f"{r:.2g}" for r in data_rates(white is not None))
-    out, found = {}, 0
+    out, found, stopped = {}, 0, {}
     for p in pulls:
         cells = static["pulls"][p.name]
         solve = None
         if not why_none:
             solve = stored_pull_in_time(pull_in_time_key_of((str(scene_path), p, size_mm, speed.speed_m_s, RECORD_XS, speed.holds_s, MAX_DT_S)))
         found += solve is not None
+        if solve is not None and not solve["meta"].get("converged", True):
+            stopped[p.name] = reached_mm(solve)
         coarse = np.asarray(static["refs"]["pulls"][p.name]["force_per_pa"])[0]  # (records of xs, 3): the coarsest mesh, per pascal
         rows = []
         for k in range(len(xs) + len(speed.holds_s)):
@@ -109,6 +114,10 @@ def truth_in_time(scene_path, scene, static: dict, pulls, xs, speed: BenchSpeed,
                                                      f"the pulls in time hold at {RECORD_XS[-1] * 1e3:g} mm, not at this bench's last sample")))
                 continue
             rec = records[ramp] if k < len(xs) else len(RECORD_XS) + (k - len(xs))
+            if not np.isfinite(solve["force_per_pa"][rec]).all():
+                rows.append(_missing(c, f"the pull in time stopped at {reached_mm(solve):g} mm ({solve['meta'].get('reason', '')}) "
+                                        f"on the {size_mm:g} mm mesh, as the timeless solves of some pulls do"))
+                continue
             coarse_n = float(np.linalg.norm(coarse[ramp])) * law_mu
             correction = c["force_n"] / coarse_n if coarse_n > 0 and math.isfinite(c["force_n"]) else math.nan
             vec = np.asarray(solve["force_per_pa"][rec]) * mu * correction
@@ -133,6 +142,7 @@ def truth_in_time(scene_path, scene, static: dict, pulls, xs, speed: BenchSpeed,
             "law": [law.describe() for law in ((grey, white) if white is not None else (grey,))],
             "rheology": {str(f.name): read_rheology(f)[1].get("source", "") for f in (GREY_RHEOLOGY, WHITE_RHEOLOGY)},
             "data_rate_per_s": list(data_rates()), "time_step_rel": TIME_STEP_REL, "pulls_solved": found, "pulls": len(pulls),
+            "pulls_stopped_mm": stopped,
             "decided": sum(c["decided"] for c in flat), "samples": len(flat),
             "strain_rate_median_per_s": [float(np.min(rates)), float(np.max(rates))] if rates else None,
             "over_timeless": [float(np.min(ratio)), float(np.max(ratio))] if ratio else None,
