@@ -9,7 +9,8 @@ import pytest
 
 from analysis.verification import truth_band
 from analysis.verification.accuracy import quick_config, sample_displacements
-from analysis.verification.pulls_in_time import data_rates, shipped_rheology
+from analysis.verification.pulls_in_time import data_rates, reached, record_times, shipped_rheology
+from analysis.verification.tissue_pulls import RECORD_XS
 from analysis.verification.truth_in_time import (
     MESH_TRANSFER_REL,
     QUASI_STATIC,
@@ -49,7 +50,6 @@ def test_the_truth_in_time_is_the_solve_with_the_timeless_mesh_correction(quick_
     timeless truth's extrapolated force over its coarsest mesh's; a hold carries its ramp's end;
     the band adds the time step's share and the borrowed correction's."""
     from analysis.verification.pulls_in_time import HOLDS_S, MAX_DT_S, pull_in_time_key_of, stored_pull_in_time
-    from analysis.verification.tissue_pulls import RECORD_XS
 
     static, pulls, xs, out = quick_in_time
     mu = shipped_rheology()[0].equilibrium.shear_modulus
@@ -114,16 +114,17 @@ def test_a_bench_that_stops_short_of_12_mm_has_no_truth_for_its_holds(quick_in_t
     assert meta["left_by"]["no solve"] == 4
 
 
-def test_a_pull_in_time_that_stopped_has_no_truth_beyond_where_it_got(quick_in_time, monkeypatch):
-    """A solve that stopped (as some anterior pulls do on the 8 mm mesh) is shipped with the
-    records it reached: the samples up to there are as before, those beyond and the holds have
-    no truth, each saying where and why, and the record names the pull and how far it got."""
+@pytest.mark.parametrize("stop, where", [(10, "stopped at 5 mm, 0.353 s from rest (diverging)"),
+                                         (len(RECORD_XS) + 2, "stopped at 12 mm, 1.35 s from rest (diverging)")])
+def test_a_pull_in_time_that_stopped_has_no_truth_beyond_where_it_got(quick_in_time, monkeypatch, stop, where):
+    """A solve that stopped (as some anterior pulls do on the 8 mm mesh), on the ramp or in a hold,
+    is shipped with the records it reached: the samples up to there are as before, those beyond
+    have no truth, each saying where and when it stopped, and the record names the pull. Whether
+    it stopped is read from its records, not its account."""
     import analysis.verification.truth_in_time as tit
-    from analysis.verification.tissue_pulls import RECORD_XS
 
     static, pulls, xs, out = quick_in_time
     cfg = quick_config()
-    stop = 10  # the first record not reached: 5.5 mm
     real = tit.stored_pull_in_time
 
     def stopped(key):
@@ -131,17 +132,36 @@ def test_a_pull_in_time_that_stopped_has_no_truth_beyond_where_it_got(quick_in_t
         for part in ("force_per_pa", "rate_share_outside", "strain_rate_per_s"):
             s[part] = np.array(s[part], dtype=np.float64)
             s[part][stop:] = np.nan
-        s["meta"] = s["meta"] | {"converged": False, "reason": "diverging"}
+        s["meta"] = {k: v for k, v in s["meta"].items() if k != "converged"} | {"reason": "diverging"}
         return s
 
     monkeypatch.setattr(tit, "stored_pull_in_time", stopped)
     p = pulls[0]
-    cells, meta = truth_in_time(cfg.scene, scene_with(cfg.scene), static, [p], xs, bench_speeds(["typical"])[0], 20.0)
-    assert meta["pulls_stopped_mm"] == {p.name: pytest.approx(RECORD_XS[stop - 1] * 1e3)}
+    sp = bench_speeds(["typical"])[0]
+    cells, meta = truth_in_time(cfg.scene, scene_with(cfg.scene), static, [p], xs, sp, 20.0)
+    last = stop - 1
+    assert meta["pulls_stopped"] == {p.name: {"mm": pytest.approx(RECORD_XS[min(last, len(RECORD_XS) - 1)] * 1e3),
+                                              "s": pytest.approx(record_times(RECORD_XS, sp.speed_m_s)[0][last]),
+                                              "reason": "diverging"}}
+    gone = 0
     for k, (c, before) in enumerate(zip(cells[p.name], out["typical"][0][p.name], strict=True)):
-        if k < len(xs) and xs[k] < RECORD_XS[stop] - 1e-12:
+        rec = int(np.argmin(np.abs(RECORD_XS - xs[k]))) if k < len(xs) else len(RECORD_XS) + k - len(xs)
+        if rec < stop:
+            assert c["left_by"] != "no solve"
             assert c["force_n"] == before["force_n"] or not math.isfinite(before["force_n"])
         else:
-            assert not math.isfinite(c["force_n"]) and c["left_by"] == "no solve"
-            assert "stopped at 5 mm (diverging)" in c["reason"]
-    assert meta["left_by"]["no solve"] == sum(1 for k in range(len(cells[p.name])) if k >= len(xs) or xs[k] >= RECORD_XS[stop] - 1e-12)
+            gone += 1
+            assert not math.isfinite(c["force_n"]) and c["left_by"] == "no solve" and where in c["reason"]
+    assert gone and meta["left_by"]["no solve"] == gone
+
+
+def test_reached_reads_the_last_record_with_a_force():
+    times, x = record_times(RECORD_XS, 0.01)
+    f = np.ones((len(times), 3))
+    assert reached({"force_per_pa": f, "x_m": x, "times_s": times}) == (12.0, pytest.approx(times[-1]))
+    f[len(RECORD_XS) + 1:] = np.nan  # stopped in the second hold: 12 mm, but 0.25 s into the hold
+    assert reached({"force_per_pa": f, "x_m": x, "times_s": times}) == (12.0, pytest.approx(1.2 + 0.25))
+    f[3:] = np.nan
+    assert reached({"force_per_pa": f, "x_m": x, "times_s": times}) == (pytest.approx(1.5), pytest.approx(0.15))
+    f[:] = np.nan
+    assert reached({"force_per_pa": f, "x_m": x, "times_s": times}) == (0.0, 0.0)

@@ -65,9 +65,11 @@ def in_time_words(meta: dict) -> str:
         left = ", ".join(f"{n} {why}" for why, n in t["left_by"].items() if n)
         rate = t["strain_rate_median_per_s"]
         over = t["over_timeless"]
+        halted = ", ".join(f"{pull} at {h['mm']:g} mm, {h['s']:.3g} s ({h['reason']})" for pull, h in t.get("pulls_stopped", {}).items())
         out.append(f"At the {name} speed ({t['speed_m_s'] * 1e3:.3g} mm/s, held {', '.join(f'{h:g}' for h in t['holds_s'])} s) the truth is the "
                    f"viscoelastic brain ({'; '.join(t['law'])}) on the {t['mesh_mm']:g} mm mesh, {t['pulls_solved']} of {t['pulls']} pulls solved: "
                    f"{t['decided']} of {t['samples']} samples decided" + (f" ({left})" if left else "")
+                   + (f"; stopped, with no truth beyond: {halted}" if halted else "")
                    + (f"; the tissue's power-weighted median strain rate {rate[0]:.2g} to {rate[1]:.2g}/s against the data's "
                       f"{' and '.join(f'{r:.2g}' for r in t['data_rate_per_s'])}/s (grey, white)" if rate else "")
                    + (f"; forces {over[0]:.2g} to {over[1]:.2g} x the timeless truth's" if over else "") + ".")

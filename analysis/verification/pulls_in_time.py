@@ -124,10 +124,17 @@ def solve_pull_in_time(problem: Problem, grey: Viscoelastic, white: Viscoelastic
             "speed_m_s": float(speed), "max_dt_s": float(max_dt)}
 
 
-def reached_mm(solve: dict) -> float:
-    """How far a pull in time got (mm): the displacement of its last record with a force, 0 if none."""
-    done = np.isfinite(np.asarray(solve["force_per_pa"])).all(axis=1)
-    return float(np.asarray(solve["x_m"])[np.flatnonzero(done)[-1]] * 1e3) if done.any() else 0.0
+def reached(solve: dict) -> tuple[float, float]:
+    """How far a pull in time got: the displacement (mm) and time from rest (s) of its last record
+    with a force (a hold's records share the ramp's end, so the time says how far into it); (0, 0)
+    if none."""
+    done = np.flatnonzero(np.isfinite(np.asarray(solve["force_per_pa"])).all(axis=1))
+    return (float(np.asarray(solve["x_m"])[done[-1]] * 1e3), float(np.asarray(solve["times_s"])[done[-1]])) if len(done) else (0.0, 0.0)
+
+
+def stopped(solve: dict) -> bool:
+    """Whether a pull in time stopped before its last record (its records say so, whatever its account)."""
+    return not np.isfinite(np.asarray(solve["force_per_pa"])).all()
 
 
 # -- stored, or solved and cached -----------------------------------------------------------------
