@@ -54,6 +54,12 @@ from sim.scene import DEFAULT_SCENE
 DEFAULT_SETS = "20:typical,20:fast,8:typical,8:fast"
 
 
+def _where(solve: dict) -> dict:
+    """A shipped entry's account of how far its solve got (`reached`) and why it stopped there."""
+    mm, at_s = reached(solve)
+    return {"reason": solve["meta"].get("reason", ""), "reached_mm": mm, "reached_s": at_s}
+
+
 def _sets(text: str, speeds: dict) -> list[tuple[float, str]]:
     out = []
     for item in text.split(","):
@@ -114,16 +120,14 @@ def main() -> None:
             solve = have[e["key"]]
             arrays.update({f"{e['key']}__{part}": np.asarray(solve[part]) for part in PARTS})
             arrays[f"{e['key']}__meta"] = np.asarray(json.dumps(solve["meta"]))
-            mm, at_s = reached(solve)
-            entries.append(e | {"reason": solve["meta"].get("reason", ""), "reached_mm": mm, "reached_s": at_s})
+            entries.append(e | _where(solve))
             kept.append((e["size_mm"], e["speed"]))
     for r in sorted(shipped, key=lambda r: (r["size_mm"], r["speed_name"], r["pull"])):
         for part in PARTS:
             arrays[f"{r['key']}__{part}"] = np.asarray(r[part])
         arrays[f"{r['key']}__meta"] = np.asarray(json.dumps(r["meta"]))
         entries.append({"key": r["key"], "pull": r["pull"], "size_mm": r["size_mm"], "speed": r["speed_name"], "speed_m_s": r["speed_m_s"],
-                        "converged": bool(r["meta"].get("converged")), "reason": r["meta"].get("reason", ""),
-                        "reached_mm": reached(r)[0], "reached_s": reached(r)[1], "seconds": r["meta"].get("seconds")})
+                        "converged": bool(r["meta"].get("converged")), "seconds": r["meta"].get("seconds")} | _where(r))
     save_npz(SHIPPED, **arrays)
     record = {"what": "the bench's pulls in time on the shipped scene's regional viscoelastic brain (docs/viscoelastic.md)",
               "sha256": hashlib.sha256(SHIPPED.read_bytes()).hexdigest(), "software_version": version(),
