@@ -1,12 +1,13 @@
 """Check the truth in time's borrowed mesh correction (docs/viscoelastic.md, Counter-checks): over
-every pull shipped in time and timeless on both the 20 and the 8 mm mesh, at the typical speed,
+every pull shipped in time and timeless on both the 20 and the 8 mm mesh, at a bench speed,
 the 20-over-8 mm force ratio of the time solves against the timeless solves' at 2, 4, ... 12 mm
 and in each hold (against the timeless ratio at 12 mm). Reads the shipped solves (the timeless
 ones through `truth_samples`, which solves nothing that is shipped).
 
-    .venv/bin/python scripts/check_mesh_correction_in_time.py
+    .venv/bin/python scripts/check_mesh_correction_in_time.py [--speed typical|fast]
 """
 
+import argparse
 import json
 
 import numpy as np
@@ -28,20 +29,23 @@ def timeless_forces(pulls, sizes_mm) -> dict:
     return {p.name: np.linalg.norm(np.asarray(st["refs"]["pulls"][p.name]["force_per_pa"])[0], axis=1) for p in pulls}
 
 
-def time_forces(pull, size_mm: float, speed_m_s: float) -> np.ndarray:
+def time_forces(pull, size_mm: float, speed) -> np.ndarray:
     """The pull in time's force magnitude per pascal at every record, ramp then holds."""
-    solve = stored_pull_in_time(pull_in_time_key_of((str(DEFAULT_SCENE), pull, size_mm, speed_m_s, RECORD_XS, HOLDS_S, MAX_DT_S)))
+    solve = stored_pull_in_time(pull_in_time_key_of((str(DEFAULT_SCENE), pull, size_mm, speed.speed_m_s, RECORD_XS, HOLDS_S, MAX_DT_S)))
     if solve is None:
-        raise SystemExit(f"no pull in time of {pull.name} on {size_mm:g} mm; make it: scripts/make_pulls_in_time.py --sets {size_mm:g}:typical")
+        raise SystemExit(f"no pull in time of {pull.name} on {size_mm:g} mm; make it: scripts/make_pulls_in_time.py --sets {size_mm:g}:{speed.name}")
     return np.linalg.norm(np.asarray(solve["force_per_pa"]), axis=1)
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--speed", default="typical", choices=("typical", "fast"))
+    args = parser.parse_args()
     ref = json.loads(asset("data/reference_pulls.json").read_text())
     have20 = {e["pull"] for e in ref["entries"] if e["size_mm"] == 20.0 and e["shape"] == 0}
     scene = scene_with(DEFAULT_SCENE)
     pulls = [p for p in make_pulls(scene) + test_pulls(scene) if p.name in have20]
-    speed = bench_speeds(["typical"])[0].speed_m_s
+    speed = bench_speeds([args.speed])[0]
     coarse20, coarse8 = timeless_forces(pulls, (20.0, 16.0)), timeless_forces(pulls, (8.0, 6.0, 4.0))
     ramp, held = [], []
     for p in pulls:
@@ -54,7 +58,7 @@ def main() -> None:
         print(p.name, "ramp", np.round(d_ramp, 3), "held", np.round(d_held, 3))
     for name, d in (("ramp", ramp), ("held", held), ("both", ramp + held)):
         a = np.abs(np.array(d))
-        print(f"{name}: {len(pulls)} pulls, {len(a)} samples, |time ratio / timeless ratio - 1| median {np.median(a):.4f}, "
+        print(f"{args.speed} {name}: {len(pulls)} pulls, {len(a)} samples, |time ratio / timeless ratio - 1| median {np.median(a):.4f}, "
               f"95th percentile {np.percentile(a, 95):.4f}, largest {a.max():.4f}")
 
 
