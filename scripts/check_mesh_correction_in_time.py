@@ -38,7 +38,7 @@ def time_forces(pull, size_mm: float, speed) -> np.ndarray:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description="Check the truth in time's borrowed mesh correction at one bench speed")
     parser.add_argument("--speed", default="typical", choices=("typical", "fast"))
     args = parser.parse_args()
     ref = json.loads(asset("data/reference_pulls.json").read_text())
