@@ -71,9 +71,12 @@ def test_quasi_newton_frames_reach_the_converged_element_when_given_the_iteratio
     Ci = np.linalg.inv(W @ U)
     direction, xs = np.array([1.0, 0.0, 0.0]), np.array([0.003, 0.006, 0.009])
     static = np.linalg.norm(hold(system, W, direction * xs[-1], fractions=xs / xs[-1]).forces, axis=1)
-    many = _frames(system, factor, W, U, Ci, direction, xs, 4, 12, 8)
+    # 50 iterations a frame: within 1e-8 of Newton on every arithmetic tried. Between 6 and 20 the
+    # error wanders between 1e-5 and 2e-3 with the last bits (12 was within 1e-3 on one machine, 2e-3
+    # on another), so a tolerance there is decided by the machine, not the method
+    many = _frames(system, factor, W, U, Ci, direction, xs, 4, 50, 8)
     assert many["constraint_drift_m"] < 1e-9  # the grasp stays where the frame put it (it drifted by mm on some machines)
-    assert np.allclose(many["forces"], static, rtol=1e-3)
+    assert np.allclose(many["forces"], static, rtol=1e-5)
     one = _frames(system, factor, W, U, Ci, direction, xs, 4, 1, 8)
     assert np.abs(np.asarray(one["forces"]) / static - 1).max() > 3 * np.abs(np.asarray(many["forces"]) / static - 1).max()
     out = {"budget_ms": 33.0, "pulls": {"p": {"settings": {"1it-m8": one | {"error": [0.1, -0.2]}}}}}
