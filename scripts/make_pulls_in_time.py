@@ -16,7 +16,7 @@ sets left out (the bench judges a set only where shipped).
 
 On 2 cores a pull on the 20 mm mesh takes about 30 s and on the 8 mm mesh 2 to 3 minutes on an
 idle machine; a pull that stops takes 10 to 40 minutes, its last step halved until Newton gives
-up. Two jobs on 2 cores give about twice the throughput: `--jobs 2 --sets 8:fast` made the 26 in
+up. Two jobs on 2 cores gave more throughput: `--jobs 2 --sets 8:fast` made the 26 in
 39 minutes (1.4 to 3 minutes a solve, two at once; 5 for extra1-anterior, 13 for the longest
 stop), where one job made the typical set at about 2.5 minutes a solve. The device machine, where
 lent, is faster (scripts/make_reference_pulls.py says how to carry the solver there).
