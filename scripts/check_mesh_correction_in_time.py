@@ -12,10 +12,9 @@ import json
 
 import numpy as np
 
-from analysis.verification.pulls_in_time import HOLDS_S, MAX_DT_S, pull_in_time_key_of, stored_pull_in_time
 from analysis.verification.tissue_pulls import RECORD_XS
 from analysis.verification.truth_band import truth_samples
-from analysis.verification.truth_in_time import bench_speeds
+from analysis.verification.truth_in_time import QUASI_STATIC, SPEED_NAMES, bench_speeds, stored_bench_pull
 from brainsim_assets import path as asset
 from sim.pulls import make_pulls, scene_with, test_pulls
 from sim.scene import DEFAULT_SCENE
@@ -31,7 +30,7 @@ def timeless_forces(pulls, sizes_mm) -> dict:
 
 def time_forces(pull, size_mm: float, speed) -> np.ndarray:
     """The pull in time's force magnitude per pascal at every record, ramp then holds."""
-    solve = stored_pull_in_time(pull_in_time_key_of((str(DEFAULT_SCENE), pull, size_mm, speed.speed_m_s, RECORD_XS, HOLDS_S, MAX_DT_S)))
+    solve = stored_bench_pull(DEFAULT_SCENE, pull, size_mm, speed)
     if solve is None:
         raise SystemExit(f"no pull in time of {pull.name} on {size_mm:g} mm; make it: scripts/make_pulls_in_time.py --sets {size_mm:g}:{speed.name}")
     return np.linalg.norm(np.asarray(solve["force_per_pa"]), axis=1)
@@ -39,7 +38,7 @@ def time_forces(pull, size_mm: float, speed) -> np.ndarray:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description="Check the truth in time's borrowed mesh correction at one bench speed")
-    parser.add_argument("--speed", default="typical", choices=("typical", "fast"))
+    parser.add_argument("--speed", default="typical", choices=[n for n in SPEED_NAMES if n != QUASI_STATIC])
     args = parser.parse_args()
     ref = json.loads(asset("data/reference_pulls.json").read_text())
     have20 = {e["pull"] for e in ref["entries"] if e["size_mm"] == 20.0 and e["shape"] == 0}

@@ -80,6 +80,12 @@ def bench_speeds(names) -> list[BenchSpeed]:
     return out
 
 
+def stored_bench_pull(scene_path, pull, size_mm: float, speed: BenchSpeed) -> dict | None:
+    """The pull in time the bench reads for `pull` on the `size_mm` mesh at `speed` (shipped or
+    cached, `pulls_in_time.stored_pull_in_time`); None if neither."""
+    return stored_pull_in_time(pull_in_time_key_of((str(scene_path), pull, size_mm, speed.speed_m_s, RECORD_XS, speed.holds_s, MAX_DT_S)))
+
+
 def _missing(cell: dict, why: str) -> dict:
     return cell | {"force": np.full(3, np.nan), "force_n": math.nan, "band_rel": math.nan, "band_half_n": math.nan,
                    "decided": False, "truth": "undecided", "reason": why, "static_force_n": cell["force_n"], "left_by": "no solve"}
@@ -108,7 +114,7 @@ def truth_in_time(scene_path, scene, static: dict, pulls, xs, speed: BenchSpeed,
         cells = static["pulls"][p.name]
         solve = None
         if not why_none:
-            solve = stored_pull_in_time(pull_in_time_key_of((str(scene_path), p, size_mm, speed.speed_m_s, RECORD_XS, speed.holds_s, MAX_DT_S)))
+            solve = stored_bench_pull(scene_path, p, size_mm, speed)
         found += solve is not None
         stop = ""
         if solve is not None and stopped(solve):
